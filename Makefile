@@ -1,0 +1,25 @@
+# The two commands (see README): `make demo` and `make test`. Both set up .venv on first use.
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.warpface-installed
+export PYOPENGL_PLATFORM ?= osmesa
+
+.PHONY: demo test bench setup clean
+
+$(STAMP): pyproject.toml scripts/setup.sh
+	VENV=$(VENV) bash scripts/setup.sh
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/warpface demo
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+bench: $(STAMP)
+	$(PY) -m benchmarks.expression
+
+clean:
+	rm -rf $(VENV) demo build dist *.egg-info

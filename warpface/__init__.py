@@ -1,0 +1,1 @@
+"""warpface: muscle-driven facial expressions with wrinkles, on Warp."""
