@@ -1,0 +1,23 @@
+"""The expression model (SPEC §1): muscles, skin stretch and bulge, wrinkles, thickness."""
+
+from .model import ExpressionModel, ExpressionStages
+from .muscles import LinearMuscle, Muscle, SphincterMuscle, muscle_weights
+from .thickness import ThicknessMap, validate_thickness
+from .wrinkles import CylindricalProjection, PlanarProjection, Projection, Wrinkle, bezier_distances, project_points
+
+__all__ = [
+    "ExpressionModel",
+    "ExpressionStages",
+    "LinearMuscle",
+    "SphincterMuscle",
+    "Muscle",
+    "muscle_weights",
+    "Wrinkle",
+    "PlanarProjection",
+    "CylindricalProjection",
+    "Projection",
+    "bezier_distances",
+    "project_points",
+    "ThicknessMap",
+    "validate_thickness",
+]

@@ -1,0 +1,286 @@
+"""``ExpressionModel``: the per-vertex expression pipeline of SPEC §1 on a Warp device."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+import warp as wp
+
+from ..kernels_surface import triangle_area_vectors
+from ..mesh import FaceMesh
+from .kernels import apply_muscles, apply_wrinkles, stretch_and_bulge
+from .muscles import LinearMuscle, Muscle, SphincterMuscle, muscle_weights
+from .thickness import validate_thickness
+from .wrinkles import Wrinkle, wrinkle_shapes
+
+__all__ = ["ExpressionModel", "ExpressionStages"]
+
+_MAX_BATCH_VERTICES = 1 << 22
+"""A batched call processes frames in chunks of at most this many frame·vertices (bounded memory)."""
+
+
+@dataclass(frozen=True)
+class ExpressionStages:
+    """Intermediate results of one frame (all numpy, float32). Also indexable: ``stages["bulge"]``."""
+
+    muscle: np.ndarray
+    """After muscles, x1, shape (V, 3)."""
+    stretch: np.ndarray
+    """Stretch ratio r of x1 against rest, shape (V,)."""
+    bulge: np.ndarray
+    """After the volume-preserving bulge, x2, shape (V, 3)."""
+    final: np.ndarray
+    """After wrinkles, x3, shape (V, 3)."""
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name not in ("muscle", "stretch", "bulge", "final"):
+            raise KeyError(name)
+        return getattr(self, name)
+
+
+class _FrameBuffers:
+    """Device work arrays for ``frames`` frames at once (allocated once, reused)."""
+
+    def __init__(self, frames: int, vertex_count: int, triangle_count: int, muscle_count: int, wrinkle_count: int, device):
+        self.frames = frames
+        self.contraction = wp.zeros((frames, max(muscle_count, 1)), dtype=wp.float32, device=device)
+        self.depth = wp.zeros((frames, max(wrinkle_count, 1)), dtype=wp.float32, device=device)
+        self.muscle_points = wp.empty((frames, vertex_count), dtype=wp.vec3, device=device)
+        self.area_vectors = wp.empty((frames, triangle_count), dtype=wp.vec3, device=device)
+        self.stretch = wp.empty((frames, vertex_count), dtype=wp.float32, device=device)
+        self.bulge_points = wp.empty((frames, vertex_count), dtype=wp.vec3, device=device)
+        self.final_points = wp.empty((frames, vertex_count), dtype=wp.vec3, device=device)
+        self.graph = None
+
+
+class ExpressionModel:
+    """Muscles → stretch → bulge → wrinkles, per vertex, from the rest mesh every frame (never cumulative).
+
+    Everything that depends only on the rig (muscle weight fields, wrinkle distances) is evaluated
+    once here in float64; a frame is then five kernel launches over vertices and triangles. On CUDA
+    the single-frame sequence is captured once as a graph and replayed.
+
+    Args:
+        mesh: the rest surface.
+        muscles: linear and sphincter muscles; their order is the contraction order.
+        wrinkles: wrinkle furrows; their order is the depth order.
+        thickness: subcutaneous thickness ``h`` [mesh units]: a scalar or shape (V,), ≥ 0.
+        device: Warp device (default: Warp's preferred device).
+
+    Raises:
+        ValueError: duplicate muscle or wrinkle names, wrong thickness, wrong item types.
+    """
+
+    def __init__(
+        self,
+        mesh: FaceMesh,
+        muscles: Sequence[Muscle] = (),
+        wrinkles: Sequence[Wrinkle] = (),
+        thickness: float | np.ndarray = 0.0,
+        device=None,
+    ):
+        if not isinstance(mesh, FaceMesh):
+            raise ValueError(f"mesh: expected a FaceMesh, got {type(mesh).__name__}")
+        self.mesh = mesh
+        self.muscles = list(muscles)
+        self.wrinkles = list(wrinkles)
+        for index, muscle in enumerate(self.muscles):
+            if not isinstance(muscle, (LinearMuscle, SphincterMuscle)):
+                raise ValueError(f"muscles[{index}]: expected LinearMuscle or SphincterMuscle, got {type(muscle).__name__}")
+        for index, wrinkle in enumerate(self.wrinkles):
+            if not isinstance(wrinkle, Wrinkle):
+                raise ValueError(f"wrinkles[{index}]: expected Wrinkle, got {type(wrinkle).__name__}")
+        self.muscle_names = _unique_names([m.name for m in self.muscles], "muscle")
+        self.wrinkle_names = _unique_names([w.name for w in self.wrinkles], "wrinkle")
+        self.thickness = validate_thickness(thickness, mesh.vertex_count)
+        self.device = wp.get_device(device)
+
+        self._mesh_buffers = mesh.device_buffers(self.device)
+        weights = muscle_weights(mesh.points, self.muscles, self.device)
+        shapes = wrinkle_shapes(mesh.points, self.wrinkles, self.device)
+        self.muscle_entry_count = int(len(weights.muscle))
+        self.wrinkle_entry_count = int(len(shapes.wrinkle))
+        device_ = self.device
+        self._muscle_offsets = wp.array(weights.offsets, dtype=wp.int32, device=device_)
+        self._muscle_index = wp.array(_non_empty(weights.muscle, np.int32), dtype=wp.int32, device=device_)
+        self._muscle_weight = wp.array(_non_empty(weights.weight.reshape(-1, 3), np.float32, (1, 3)), dtype=wp.vec3, device=device_)
+        self._wrinkle_offsets = wp.array(shapes.offsets, dtype=wp.int32, device=device_)
+        self._wrinkle_index = wp.array(_non_empty(shapes.wrinkle, np.int32), dtype=wp.int32, device=device_)
+        self._wrinkle_shape = wp.array(_non_empty(shapes.shape, np.float32), dtype=wp.float32, device=device_)
+        self._wrinkle_kr = wp.array(_non_empty(np.array([w.kr for w in self.wrinkles]), np.float32), dtype=wp.float32, device=device_)
+        self._thickness = wp.array(self.thickness.astype(np.float32), dtype=wp.float32, device=device_)
+        self.default_depths = np.array([w.depth for w in self.wrinkles], dtype=np.float64)
+        self._buffers: dict[int, _FrameBuffers] = {}
+        self._single = self._frame_buffers(1)
+
+    @classmethod
+    def from_rig(cls, rig, device=None) -> "ExpressionModel":
+        """Build from a :class:`warpface.FaceRig` (mesh, muscles, wrinkles, thickness)."""
+        return cls(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=device)
+
+    # ------------------------------------------------------------------ controls
+    def contraction_vector(self, contractions) -> np.ndarray:
+        """Contractions as an array in muscle order, shape (M,), float64.
+
+        ``contractions`` is a mapping ``{muscle name: K}`` (absent muscles are 0), a sequence of
+        length M, or ``None`` (all zero). Unknown names and non-finite values raise ValueError.
+        """
+        return _control_vector(contractions, self.muscle_names, np.zeros(len(self.muscles)), "contraction", "muscle")
+
+    def depth_vector(self, depths) -> np.ndarray:
+        """Wrinkle depths ``k_d`` in wrinkle order, shape (W,); ``None`` or absent names keep each wrinkle's own depth."""
+        return _control_vector(depths, self.wrinkle_names, self.default_depths, "wrinkle depth", "wrinkle")
+
+    # ------------------------------------------------------------------ evaluation
+    def evaluate(self, contractions=None, *, wrinkle_depths=None, stages: bool = False):
+        """Deformed positions for one frame.
+
+        Args:
+            contractions: ``{name: K}`` or an array in muscle order (see :meth:`contraction_vector`).
+            wrinkle_depths: optional per-frame ``k_d`` overrides, ``{name: k_d}`` or an array.
+            stages: return :class:`ExpressionStages` (muscle, stretch, bulge, final) instead.
+
+        Returns:
+            Final positions, shape (V, 3), float32 — or the stages.
+        """
+        buffers = self._single
+        self._upload(buffers, self.contraction_vector(contractions)[None], self.depth_vector(wrinkle_depths)[None])
+        if self.device.is_cuda:
+            if buffers.graph is None:
+                with wp.ScopedCapture(device=self.device) as capture:
+                    self._launch(buffers)
+                buffers.graph = capture.graph
+            wp.capture_launch(buffers.graph)
+        else:
+            self._launch(buffers)
+        if stages:
+            return ExpressionStages(
+                muscle=buffers.muscle_points.numpy()[0],
+                stretch=buffers.stretch.numpy()[0],
+                bulge=buffers.bulge_points.numpy()[0],
+                final=buffers.final_points.numpy()[0],
+            )
+        return buffers.final_points.numpy()[0]
+
+    def evaluate_batch(self, contractions, *, wrinkle_depths=None, progress: bool = False) -> np.ndarray:
+        """Deformed positions for many frames at once.
+
+        Args:
+            contractions: shape (F, M) in muscle order, or a sequence of F mappings.
+            wrinkle_depths: ``None``, shape (F, W), or a sequence of F mappings.
+            progress: show a progress bar over chunks of frames.
+
+        Returns:
+            Positions, shape (F, V, 3), float32.
+        """
+        controls = self._frame_controls(contractions, self.contraction_vector, len(self.muscles), "contractions")
+        frame_count = len(controls)
+        if wrinkle_depths is None:
+            depths = np.tile(self.default_depths, (frame_count, 1))
+        else:
+            depths = self._frame_controls(wrinkle_depths, self.depth_vector, len(self.wrinkles), "wrinkle_depths")
+            if len(depths) != frame_count:
+                raise ValueError(f"wrinkle_depths: {len(depths)} frames, contractions have {frame_count}")
+        chunk = max(1, min(frame_count, _MAX_BATCH_VERTICES // max(self.mesh.vertex_count, 1)))
+        buffers = self._frame_buffers(chunk)
+        result = np.empty((frame_count, self.mesh.vertex_count, 3), dtype=np.float32)
+        starts = range(0, frame_count, chunk)
+        if progress:
+            from tqdm import tqdm
+
+            starts = tqdm(starts, desc="expression frames", unit="chunk")
+        for start in starts:
+            stop = min(start + chunk, frame_count)
+            count = stop - start
+            self._upload(buffers, controls[start:stop], depths[start:stop])
+            self._launch(buffers)
+            result[start:stop] = buffers.final_points.numpy()[:count]
+        return result
+
+    # ------------------------------------------------------------------ internals
+    def _frame_buffers(self, frames: int) -> _FrameBuffers:
+        if frames not in self._buffers:
+            self._buffers[frames] = _FrameBuffers(
+                frames, self.mesh.vertex_count, self.mesh.triangle_count, len(self.muscles), len(self.wrinkles), self.device
+            )
+        return self._buffers[frames]
+
+    def _upload(self, buffers: _FrameBuffers, contraction: np.ndarray, depth: np.ndarray) -> None:
+        """Copy (count, M) contractions and (count, W) depths into the first rows of ``buffers``."""
+        for target, values in ((buffers.contraction, contraction), (buffers.depth, depth)):
+            host = np.zeros(target.shape, dtype=np.float32)
+            host[: values.shape[0], : values.shape[1]] = values
+            target.assign(host)
+
+    def _launch(self, buffers: _FrameBuffers) -> None:
+        mesh = self._mesh_buffers
+        vertices = (buffers.frames, self.mesh.vertex_count)
+        triangles = (buffers.frames, self.mesh.triangle_count)
+        device = self.device
+        wp.launch(apply_muscles, dim=vertices, device=device,
+                  inputs=[mesh.rest_points, self._muscle_offsets, self._muscle_index, self._muscle_weight, buffers.contraction],
+                  outputs=[buffers.muscle_points])
+        wp.launch(triangle_area_vectors, dim=triangles, device=device,
+                  inputs=[buffers.muscle_points, mesh.triangles, mesh.triangle_weight], outputs=[buffers.area_vectors])
+        wp.launch(stretch_and_bulge, dim=vertices, device=device,
+                  inputs=[buffers.muscle_points, buffers.area_vectors, mesh.rest_area_vectors, mesh.triangle_weight,
+                          mesh.adjacency_offsets, mesh.adjacency_triangles, self._thickness],
+                  outputs=[buffers.stretch, buffers.bulge_points])
+        wp.launch(triangle_area_vectors, dim=triangles, device=device,
+                  inputs=[buffers.bulge_points, mesh.triangles, mesh.triangle_weight], outputs=[buffers.area_vectors])
+        wp.launch(apply_wrinkles, dim=vertices, device=device,
+                  inputs=[buffers.bulge_points, buffers.area_vectors, mesh.adjacency_offsets, mesh.adjacency_triangles,
+                          buffers.stretch, self._wrinkle_offsets, self._wrinkle_index, self._wrinkle_shape, self._wrinkle_kr,
+                          buffers.depth],
+                  outputs=[buffers.final_points])
+
+    @staticmethod
+    def _frame_controls(values, to_vector, width: int, label: str) -> np.ndarray:
+        if isinstance(values, np.ndarray) or (isinstance(values, Sequence) and values and not isinstance(values[0], Mapping)):
+            array = np.asarray(values, dtype=np.float64)
+            if array.ndim != 2 or array.shape[1] != width:
+                raise ValueError(f"{label}: expected shape (frames, {width}), got {array.shape}")
+            return np.stack([to_vector(row) for row in array]) if len(array) else array
+        if isinstance(values, Sequence):
+            return np.stack([to_vector(row) for row in values]) if values else np.zeros((0, width))
+        raise ValueError(f"{label}: expected an array (frames, {width}) or a sequence of mappings")
+
+
+def _unique_names(names: list[str], kind: str) -> list[str]:
+    seen = set()
+    for name in names:
+        if name in seen:
+            raise ValueError(f"duplicate {kind} name {name!r}")
+        seen.add(name)
+    return names
+
+
+def _control_vector(values, names: list[str], default: np.ndarray, label: str, kind: str) -> np.ndarray:
+    vector = np.array(default, dtype=np.float64)
+    if values is None:
+        return vector
+    if isinstance(values, Mapping):
+        index = {name: i for i, name in enumerate(names)}
+        for name, value in values.items():
+            if name not in index:
+                raise ValueError(f"{label}: unknown {kind} name {name!r} (known: {', '.join(names) or 'none'})")
+            number = float(value)
+            if not np.isfinite(number):
+                raise ValueError(f"{label} for {kind} {name!r}: non-finite value {number}")
+            vector[index[name]] = number
+        return vector
+    array = np.asarray(values, dtype=np.float64)
+    if array.shape != (len(names),):
+        raise ValueError(f"{label}s: expected {len(names)} values in {kind} order, got shape {array.shape}")
+    bad = np.flatnonzero(~np.isfinite(array))
+    if len(bad):
+        raise ValueError(f"{label} for {kind} {names[bad[0]]!r}: non-finite value {array[bad[0]]}")
+    return array
+
+
+def _non_empty(values: np.ndarray, dtype, shape=(1,)) -> np.ndarray:
+    """Warp arrays cannot be empty on every path; pad an empty table with one unused zero entry."""
+    values = np.asarray(values, dtype=dtype)
+    return values if len(values) else np.zeros(shape, dtype=dtype)

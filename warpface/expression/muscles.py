@@ -1,0 +1,231 @@
+"""Waters muscles (SPEC §1.1): linear and sphincter, as validated parameter records.
+
+A muscle's displacement field is linear in its contraction ``K``: ``d_m(P) = K · w_m(P)`` with a
+weight vector ``w_m`` that depends only on the rest position ``P``. :func:`muscle_weights`
+evaluates ``w_m`` once per rig (float64 Warp kernels) and keeps only the vertices it moves, so a
+frame costs one sparse gather instead of re-evaluating the trigonometry (see ``model.py``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Union
+
+import numpy as np
+import warp as wp
+
+from .._validate import as_finite_array, as_vec3, unit_vector
+from ._sparse import vertex_csr
+
+__all__ = ["LinearMuscle", "SphincterMuscle", "Muscle", "muscle_weights", "MuscleWeights"]
+
+
+@dataclass(frozen=True, eq=False)
+class LinearMuscle:
+    """A Waters linear muscle.
+
+    For a rest vertex ``P``: ``D = |P − V1|``, ``μ`` the angle at ``V1`` between ``V2 − V1`` and
+    ``P − V1``; unaffected when ``μ > Ω``, ``D > Rf`` or ``D = 0``; otherwise
+    ``d = K · cos(μ/Ω · π/2) · R(D) · (V1 − P)/D`` with ``R = cos((1 − D/Rs)·π/2)`` for ``D < Rs``
+    and ``R = cos((D − Rs)/(Rf − Rs)·π/2)`` for ``Rs ≤ D ≤ Rf``. Both factors vanish continuously
+    at the zone edge, at ``V1`` and at ``Rf``.
+
+    Args:
+        name: unique muscle name (contractions are addressed by it).
+        attachment: bone attachment point ``V1`` [mesh units], shape (3,).
+        insertion: skin insertion point ``V2`` [mesh units], shape (3,); sets the axis ``V2 − V1``.
+        zone_angle_deg: half-angle ``Ω`` of the zone of influence [degrees], in (0, 180).
+        falloff_start: ``Rs`` [mesh units], ≥ 0 and < ``falloff_finish``.
+        falloff_finish: ``Rf`` [mesh units].
+
+    Contraction ``K`` is a length [mesh units]: the largest displacement, reached at ``μ = 0``,
+    ``D = Rs``.
+    """
+
+    name: str
+    attachment: np.ndarray
+    insertion: np.ndarray
+    zone_angle_deg: float
+    falloff_start: float
+    falloff_finish: float
+
+    def __post_init__(self) -> None:
+        label = f"linear muscle {self.name!r}"
+        _check_name(self.name, label)
+        set_ = object.__setattr__
+        set_(self, "attachment", as_vec3(self.attachment, f"{label}: attachment"))
+        set_(self, "insertion", as_vec3(self.insertion, f"{label}: insertion"))
+        zone = float(as_finite_array(self.zone_angle_deg, f"{label}: zone_angle_deg", shape=()))
+        if not 0.0 < zone < 180.0:
+            raise ValueError(f"{label}: zone_angle_deg must be in (0, 180), got {zone}")
+        set_(self, "zone_angle_deg", zone)
+        start = float(as_finite_array(self.falloff_start, f"{label}: falloff_start", shape=()))
+        finish = float(as_finite_array(self.falloff_finish, f"{label}: falloff_finish", shape=()))
+        if start < 0.0:
+            raise ValueError(f"{label}: falloff_start must be ≥ 0, got {start}")
+        if start >= finish:
+            raise ValueError(f"{label}: falloff_start ({start}) must be < falloff_finish ({finish})")
+        set_(self, "falloff_start", start)
+        set_(self, "falloff_finish", finish)
+        unit_vector(self.insertion - self.attachment, f"{label}: axis (insertion − attachment)")
+
+    @property
+    def axis(self) -> np.ndarray:
+        """Unit vector from attachment to insertion, shape (3,)."""
+        axis = self.insertion - self.attachment
+        return axis / np.linalg.norm(axis)
+
+
+@dataclass(frozen=True, eq=False)
+class SphincterMuscle:
+    """A sphincter muscle (orbicularis oris / oculi): an elliptic ring contracting toward its centre.
+
+    In the local frame ``x = (P − C)·e_x``, ``y = (P − C)·e_y``: ``f = 1 − sqrt(x²/lx² + y²/ly²)``
+    and, where ``f > 0``, ``d = −K · f · (x·e_x + y·e_y)``; zero outside the ellipse. The ellipse
+    is a cylinder along ``e_x × e_y``: the out-of-plane offset does not enter.
+
+    Args:
+        name: unique muscle name.
+        center: ellipse centre ``C`` [mesh units], shape (3,).
+        axis_x, axis_y: in-plane axes, shape (3,) each. Both are normalised; ``axis_y`` is made
+            orthogonal to ``axis_x`` (Gram–Schmidt) so ``(x, y)`` are true frame coordinates.
+        semi_axes: ``(lx, ly)`` [mesh units], both > 0.
+
+    Contraction ``K`` is dimensionless: the displacement is ``K·f`` times the in-plane offset.
+    """
+
+    name: str
+    center: np.ndarray
+    axis_x: np.ndarray
+    axis_y: np.ndarray
+    semi_axes: tuple[float, float]
+
+    def __post_init__(self) -> None:
+        label = f"sphincter muscle {self.name!r}"
+        _check_name(self.name, label)
+        set_ = object.__setattr__
+        set_(self, "center", as_vec3(self.center, f"{label}: center"))
+        ex = unit_vector(self.axis_x, f"{label}: axis_x")
+        ey = unit_vector(self.axis_y, f"{label}: axis_y")
+        ey = ey - np.dot(ey, ex) * ex
+        if np.linalg.norm(ey) < 1e-6:
+            raise ValueError(f"{label}: axis_x and axis_y are parallel")
+        set_(self, "axis_x", ex)
+        set_(self, "axis_y", ey / np.linalg.norm(ey))
+        semi = as_finite_array(self.semi_axes, f"{label}: semi_axes", shape=(2,))
+        if np.any(semi <= 0.0):
+            raise ValueError(f"{label}: semi_axes must be > 0, got {semi.tolist()}")
+        set_(self, "semi_axes", (float(semi[0]), float(semi[1])))
+
+
+Muscle = Union[LinearMuscle, SphincterMuscle]
+
+
+def _check_name(name, label: str) -> None:
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"{label}: name must be a non-empty string")
+
+
+# ---------------------------------------------------------------------------------------------- kernels
+
+_HALF_PI = wp.constant(wp.float64(math.pi / 2.0))
+
+
+@wp.kernel
+def _linear_muscle_weight_kernel(
+    rest: wp.array(dtype=wp.vec3d),
+    attachment: wp.vec3d,
+    axis: wp.vec3d,
+    zone: wp.float64,
+    falloff_start: wp.float64,
+    falloff_finish: wp.float64,
+    weight: wp.array(dtype=wp.vec3d),
+):
+    i = wp.tid()
+    offset = rest[i] - attachment
+    distance = wp.length(offset)
+    zero = wp.float64(0.0)
+    weight[i] = wp.vec3d(zero, zero, zero)
+    if distance == zero or distance > falloff_finish:
+        return
+    # atan2 keeps μ accurate near 0 and π, where acos of a dot product loses digits.
+    mu = wp.atan2(wp.length(wp.cross(axis, offset)), wp.dot(axis, offset))
+    if mu > zone:
+        return
+    angular = wp.cos(mu / zone * _HALF_PI)
+    radial = zero
+    if distance < falloff_start:
+        radial = wp.cos((wp.float64(1.0) - distance / falloff_start) * _HALF_PI)
+    else:
+        radial = wp.cos((distance - falloff_start) / (falloff_finish - falloff_start) * _HALF_PI)
+    weight[i] = -(angular * radial / distance) * offset
+
+
+@wp.kernel
+def _sphincter_weight_kernel(
+    rest: wp.array(dtype=wp.vec3d),
+    center: wp.vec3d,
+    axis_x: wp.vec3d,
+    axis_y: wp.vec3d,
+    semi_x: wp.float64,
+    semi_y: wp.float64,
+    weight: wp.array(dtype=wp.vec3d),
+):
+    i = wp.tid()
+    offset = rest[i] - center
+    x = wp.dot(offset, axis_x)
+    y = wp.dot(offset, axis_y)
+    falloff = wp.float64(1.0) - wp.sqrt(x * x / (semi_x * semi_x) + y * y / (semi_y * semi_y))
+    zero = wp.float64(0.0)
+    weight[i] = wp.vec3d(zero, zero, zero)
+    if falloff > zero:
+        weight[i] = -falloff * (x * axis_x + y * axis_y)
+
+
+@dataclass(frozen=True)
+class MuscleWeights:
+    """Sparse per-vertex muscle weights, vertex-major CSR: ``x1[v] = x[v] + Σ_k K[muscle[k]]·weight[k]``.
+
+    Entries of vertex ``v`` are ``offsets[v]:offsets[v + 1]``.
+    """
+
+    offsets: np.ndarray
+    """Row offsets, shape (V + 1,), int32."""
+    muscle: np.ndarray
+    """Muscle index (position in the rig's muscle list) per entry, shape (E,), int32."""
+    weight: np.ndarray
+    """Displacement per unit contraction [mesh units per unit K], shape (E, 3), float64."""
+
+
+def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], device=None) -> MuscleWeights:
+    """Evaluate every muscle's weight field at the rest points and keep the non-zero entries.
+
+    Args:
+        rest_points: shape (V, 3), float64.
+        muscles: linear and sphincter muscles, in contraction order.
+        device: Warp device for the float64 kernels.
+    """
+    device = wp.get_device(device)
+    vertex_count = len(rest_points)
+    rest = wp.array(np.asarray(rest_points, dtype=np.float64), dtype=wp.vec3d, device=device)
+    out = wp.empty(vertex_count, dtype=wp.vec3d, device=device)
+    rows, columns, values = [], [], []
+    for index, muscle in enumerate(muscles):
+        if isinstance(muscle, LinearMuscle):
+            inputs = [rest, wp.vec3d(*muscle.attachment), wp.vec3d(*muscle.axis), math.radians(muscle.zone_angle_deg),
+                      muscle.falloff_start, muscle.falloff_finish]
+            wp.launch(_linear_muscle_weight_kernel, dim=vertex_count, inputs=inputs, outputs=[out], device=device)
+        elif isinstance(muscle, SphincterMuscle):
+            inputs = [rest, wp.vec3d(*muscle.center), wp.vec3d(*muscle.axis_x), wp.vec3d(*muscle.axis_y),
+                      muscle.semi_axes[0], muscle.semi_axes[1]]
+            wp.launch(_sphincter_weight_kernel, dim=vertex_count, inputs=inputs, outputs=[out], device=device)
+        else:
+            raise ValueError(f"muscle {index}: expected LinearMuscle or SphincterMuscle, got {type(muscle).__name__}")
+        weight = out.numpy()
+        moved = np.flatnonzero(np.any(weight != 0.0, axis=1))
+        rows.append(moved)
+        columns.append(np.full(len(moved), index, dtype=np.int32))
+        values.append(weight[moved])
+    offsets, column, value = vertex_csr(vertex_count, rows, columns, values)
+    return MuscleWeights(offsets=offsets, muscle=column, weight=value)

@@ -1,0 +1,116 @@
+"""Subcutaneous thickness (SPEC §1.5): per-vertex ``h`` from a grayscale map, or given directly."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .._validate import as_finite_array
+from .wrinkles import Projection, project_points
+
+__all__ = ["ThicknessMap", "validate_thickness"]
+
+
+def validate_thickness(thickness, vertex_count: int) -> np.ndarray:
+    """Per-vertex thickness [mesh units] as float64 (V,): a scalar is broadcast; negatives rejected."""
+    values = as_finite_array(thickness, "thickness")
+    if values.ndim == 0:
+        values = np.full(vertex_count, float(values))
+    if values.shape != (vertex_count,):
+        raise ValueError(f"thickness: expected one value per vertex ({vertex_count},), got shape {values.shape}")
+    negative = np.flatnonzero(values < 0.0)
+    if len(negative):
+        raise ValueError(f"thickness: negative value {values[negative[0]]} at vertex {int(negative[0])}")
+    return values
+
+
+@dataclass(frozen=True, eq=False)
+class ThicknessMap:
+    """A grayscale thickness image laid over a projection of the face.
+
+    The image covers the (u, v) rectangle ``u_range × v_range`` [mesh units] of ``projection``:
+    column 0 is ``u_range[0]``, row 0 is ``v_range[1]`` (images are stored top row first, and v
+    points up). Pixel centres sit at half-integer positions. Luminance maps linearly from
+    ``black`` (0) to ``white`` (255, or 1.0 for float images) in mesh units.
+
+    Args:
+        image: (H, W) grayscale array (uint8, uint16 or float in [0, 1]) or a path to an image file.
+        projection: the projection whose (u, v) the image is drawn in.
+        u_range, v_range: (min, max) extent of the image in (u, v) [mesh units].
+        black, white: thickness at luminance 0 and full scale [mesh units], both ≥ 0.
+        blur_sigma: Gaussian blur standard deviation [pixels] applied before sampling (0 = none).
+    """
+
+    image: np.ndarray
+    projection: Projection
+    u_range: tuple[float, float]
+    v_range: tuple[float, float]
+    black: float = 0.0
+    white: float = 20.0
+    blur_sigma: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "image", _load_gray(self.image))
+        for name in ("u_range", "v_range"):
+            lo, hi = as_finite_array(getattr(self, name), f"thickness map: {name}", shape=(2,))
+            if not hi > lo:
+                raise ValueError(f"thickness map: {name} must be increasing, got ({lo}, {hi})")
+            object.__setattr__(self, name, (float(lo), float(hi)))
+        for name in ("black", "white", "blur_sigma"):
+            value = float(as_finite_array(getattr(self, name), f"thickness map: {name}", shape=()))
+            if value < 0.0:
+                raise ValueError(f"thickness map: {name} must be ≥ 0, got {value}")
+            object.__setattr__(self, name, value)
+
+    def luminance(self) -> np.ndarray:
+        """The (optionally blurred) image as float32 luminance in [0, 1], shape (H, W)."""
+        image = self.image
+        if self.blur_sigma > 0.0:
+            import cv2
+
+            image = cv2.GaussianBlur(image, ksize=(0, 0), sigmaX=self.blur_sigma, borderType=cv2.BORDER_REPLICATE)
+        return image
+
+    def sample(self, points: np.ndarray, device=None) -> np.ndarray:
+        """Thickness at each point [mesh units]: (V, 3) → (V,) float64, bilinear, edges clamped."""
+        import cv2
+
+        uv = project_points(self.projection, points, device)
+        height, width = self.image.shape
+        (u0, u1), (v0, v1) = self.u_range, self.v_range
+        column = (uv[:, 0] - u0) / (u1 - u0) * width - 0.5
+        row = (v1 - uv[:, 1]) / (v1 - v0) * height - 0.5
+        sampled = cv2.remap(
+            self.luminance(),
+            column.astype(np.float32)[None],
+            row.astype(np.float32)[None],
+            interpolation=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REPLICATE,
+        )[0]
+        return self.black + (self.white - self.black) * sampled.astype(np.float64)
+
+
+def _load_gray(image) -> np.ndarray:
+    """Any supported image input as float32 luminance in [0, 1], shape (H, W)."""
+    if isinstance(image, (str, Path)):
+        import cv2
+
+        loaded = cv2.imread(str(image), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
+        if loaded is None:
+            raise ValueError(f"thickness map: cannot read image {image}")
+        image = loaded
+    array = np.asarray(image)
+    if array.ndim == 3 and array.shape[2] in (3, 4):
+        array = array[..., :3].mean(axis=2).astype(array.dtype)
+    if array.ndim != 2 or array.shape[0] < 1 or array.shape[1] < 1:
+        raise ValueError(f"thickness map: image must be (H, W) grayscale, got shape {array.shape}")
+    if array.dtype == np.uint8:
+        return array.astype(np.float32) / 255.0
+    if array.dtype == np.uint16:
+        return array.astype(np.float32) / 65535.0
+    array = as_finite_array(array, "thickness map: image").astype(np.float32)
+    if array.min() < 0.0 or array.max() > 1.0:
+        raise ValueError("thickness map: float images must lie in [0, 1]")
+    return array

@@ -1,0 +1,253 @@
+"""``FaceMesh``: the rest surface of a face — points, triangles, adjacency, areas, normals.
+
+Everything here depends only on rest geometry and is computed once; per-frame quantities live in
+:mod:`warpface.expression`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from ._validate import as_finite_array
+from .kernels_surface import triangle_area_vectors, vertex_normals_kernel
+
+__all__ = ["FaceMesh", "VertexTriangleAdjacency", "load_obj", "DEGENERATE_AREA_RTOL"]
+
+DEGENERATE_AREA_RTOL = 1e-12
+"""A rest triangle is degenerate when its area ≤ this × (bounding-box diagonal)²."""
+
+
+@dataclass(frozen=True)
+class VertexTriangleAdjacency:
+    """Vertex → incident triangles in CSR form.
+
+    Triangles of vertex ``v`` are ``triangles[offsets[v]:offsets[v + 1]]``.
+    """
+
+    offsets: np.ndarray
+    """Row offsets, shape (V + 1,), int32."""
+    triangles: np.ndarray
+    """Incident triangle indices, shape (3·T,), int32, sorted by vertex then triangle."""
+
+    @property
+    def counts(self) -> np.ndarray:
+        """Number of incident triangles per vertex, shape (V,), int32."""
+        return np.diff(self.offsets).astype(np.int32)
+
+
+@dataclass(eq=False)
+class FaceMesh:
+    """A validated triangle surface at rest.
+
+    Args:
+        points: rest positions, shape (V, 3), any float dtype; stored as float64.
+        triangles: vertex indices, shape (T, 3), any integer dtype; stored as int32.
+        name: label used in error messages and on stages.
+        degenerate: policy for zero-area rest triangles: ``"error"`` (default) raises ValueError
+            naming them; ``"ignore"`` keeps them for topology but gives them no weight in the
+            stretch ratio and normals (their stretch is undefined).
+
+    Raises:
+        ValueError: non-finite points, indices out of range, repeated indices in a triangle, or
+            degenerate triangles under the ``"error"`` policy.
+    """
+
+    points: np.ndarray
+    triangles: np.ndarray
+    name: str = "face"
+    degenerate: str = "error"
+    _cache: dict = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        self.points = as_finite_array(self.points, f"{self.name}: points", shape=(None, 3))
+        if len(self.points) == 0:
+            raise ValueError(f"{self.name}: mesh has no points")
+        triangles = np.asarray(self.triangles)
+        if triangles.ndim != 2 or triangles.shape[1] != 3:
+            raise ValueError(f"{self.name}: triangles must have shape (T, 3), got {triangles.shape}")
+        if len(triangles) == 0:
+            raise ValueError(f"{self.name}: mesh has no triangles")
+        if not np.issubdtype(triangles.dtype, np.integer):
+            if not np.all(np.isfinite(triangles)) or np.any(triangles != np.round(triangles)):
+                raise ValueError(f"{self.name}: triangle indices must be integers")
+        triangles = triangles.astype(np.int64)
+        out_of_range = np.flatnonzero(np.any((triangles < 0) | (triangles >= len(self.points)), axis=1))
+        if len(out_of_range):
+            t = int(out_of_range[0])
+            raise ValueError(
+                f"{self.name}: triangle {t} has vertex index out of range [0, {len(self.points)}): "
+                f"{triangles[t].tolist()} ({len(out_of_range)} such triangles)"
+            )
+        repeated = np.flatnonzero(
+            (triangles[:, 0] == triangles[:, 1]) | (triangles[:, 1] == triangles[:, 2]) | (triangles[:, 0] == triangles[:, 2])
+        )
+        if len(repeated):
+            t = int(repeated[0])
+            raise ValueError(f"{self.name}: triangle {t} repeats a vertex: {triangles[t].tolist()}")
+        self.triangles = triangles.astype(np.int32)
+        if self.degenerate not in ("error", "ignore"):
+            raise ValueError(f"{self.name}: degenerate policy must be 'error' or 'ignore', got {self.degenerate!r}")
+        bad = np.flatnonzero(self.degenerate_triangles)
+        if len(bad) and self.degenerate == "error":
+            raise ValueError(
+                f"{self.name}: {len(bad)} zero-area rest triangle(s), first {int(bad[0])} "
+                f"{self.triangles[bad[0]].tolist()}; pass degenerate='ignore' to keep them without weight"
+            )
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_obj(cls, path: str | Path, **kwargs) -> "FaceMesh":
+        """Load an OBJ file (``v`` and ``f`` records; polygons fan-triangulated)."""
+        points, triangles = load_obj(path)
+        kwargs.setdefault("name", Path(path).stem)
+        return cls(points, triangles, **kwargs)
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def vertex_count(self) -> int:
+        return int(len(self.points))
+
+    @property
+    def triangle_count(self) -> int:
+        return int(len(self.triangles))
+
+    @cached_property
+    def bounding_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """(min, max) corners of the rest points, each shape (3,)."""
+        return self.points.min(axis=0), self.points.max(axis=0)
+
+    @cached_property
+    def size(self) -> float:
+        """Bounding-box diagonal of the rest points [mesh units]."""
+        lo, hi = self.bounding_box
+        return float(np.linalg.norm(hi - lo))
+
+    # ------------------------------------------------------------------ rest geometry
+    @cached_property
+    def rest_areas(self) -> np.ndarray:
+        """Rest triangle areas [units²], shape (T,), float64."""
+        p = self.points[self.triangles]
+        return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+
+    @cached_property
+    def degenerate_triangles(self) -> np.ndarray:
+        """Mask of zero-area rest triangles, shape (T,), bool."""
+        return self.rest_areas <= DEGENERATE_AREA_RTOL * max(self.size, 1e-30) ** 2
+
+    @cached_property
+    def adjacency(self) -> VertexTriangleAdjacency:
+        """Vertex → incident-triangle CSR adjacency."""
+        vertex = self.triangles.reshape(-1).astype(np.int64)
+        triangle = np.repeat(np.arange(self.triangle_count, dtype=np.int32), 3)
+        order = np.argsort(vertex, kind="stable")
+        offsets = np.zeros(self.vertex_count + 1, dtype=np.int32)
+        np.cumsum(np.bincount(vertex, minlength=self.vertex_count), out=offsets[1:])
+        return VertexTriangleAdjacency(offsets=offsets, triangles=triangle[order])
+
+    @cached_property
+    def boundary_vertices(self) -> np.ndarray:
+        """Indices of vertices on an open boundary (an edge used by one triangle), shape (B,), int64."""
+        edges = np.sort(self.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+        unique, counts = np.unique(edges, axis=0, return_counts=True)
+        return np.unique(unique[counts == 1])
+
+    def vertex_normals(self, points: np.ndarray | None = None, device=None) -> np.ndarray:
+        """Area-weighted unit vertex normals, shape (V, 3), float32, computed by a Warp kernel.
+
+        Args:
+            points: positions to take normals of, shape (V, 3); the rest points when omitted.
+            device: Warp device (default: Warp's preferred device).
+        """
+        device = wp.get_device(device)
+        positions = self.points if points is None else np.asarray(points)
+        if positions.shape != self.points.shape:
+            raise ValueError(f"{self.name}: points must have shape {self.points.shape}, got {positions.shape}")
+        buffers = self.device_buffers(device)
+        x = wp.array(positions.astype(np.float32)[None], dtype=wp.vec3, device=device)
+        area_vectors = wp.empty((1, self.triangle_count), dtype=wp.vec3, device=device)
+        normals = wp.empty((1, self.vertex_count), dtype=wp.vec3, device=device)
+        wp.launch(triangle_area_vectors, dim=(1, self.triangle_count), inputs=[x, buffers.triangles, buffers.triangle_weight],
+                  outputs=[area_vectors], device=device)
+        wp.launch(vertex_normals_kernel, dim=(1, self.vertex_count),
+                  inputs=[area_vectors, buffers.adjacency_offsets, buffers.adjacency_triangles], outputs=[normals], device=device)
+        return normals.numpy()[0]
+
+    def device_buffers(self, device=None) -> "MeshBuffers":
+        """Rest geometry uploaded to ``device`` (cached per device)."""
+        device = wp.get_device(device)
+        key = ("buffers", str(device))
+        if key not in self._cache:
+            self._cache[key] = MeshBuffers.upload(self, device)
+        return self._cache[key]
+
+
+@dataclass(frozen=True)
+class MeshBuffers:
+    """Rest geometry of a :class:`FaceMesh` as Warp arrays on one device."""
+
+    rest_points: wp.array
+    """Rest positions, shape (V,), vec3 (float32)."""
+    triangles: wp.array
+    """Triangle vertex indices, shape (T, 3), int32."""
+    rest_area_vectors: wp.array
+    """Rest ``(p1 − p0) × (p2 − p0)`` per triangle, shape (T,), vec3, computed by the same kernel as
+    every frame so that an undeformed frame has a stretch ratio of exactly 1."""
+    triangle_weight: wp.array
+    """1 for triangles that count in stretch and normals, 0 for ignored degenerate ones, shape (T,), float32."""
+    adjacency_offsets: wp.array
+    """Vertex → triangle CSR offsets, shape (V + 1,), int32."""
+    adjacency_triangles: wp.array
+    """Vertex → triangle CSR entries, shape (3·T,), int32."""
+
+    @classmethod
+    def upload(cls, mesh: FaceMesh, device) -> "MeshBuffers":
+        weight = wp.array((~mesh.degenerate_triangles).astype(np.float32), dtype=wp.float32, device=device)
+        rest_points = wp.array(mesh.points.astype(np.float32), dtype=wp.vec3, device=device)
+        triangles = wp.array(mesh.triangles, dtype=wp.int32, device=device)
+        area_vectors = wp.empty((1, mesh.triangle_count), dtype=wp.vec3, device=device)
+        wp.launch(triangle_area_vectors, dim=(1, mesh.triangle_count), inputs=[rest_points.reshape((1, -1)), triangles, weight],
+                  outputs=[area_vectors], device=device)
+        return cls(
+            rest_points=rest_points,
+            triangles=triangles,
+            rest_area_vectors=area_vectors.reshape((-1,)),
+            triangle_weight=weight,
+            adjacency_offsets=wp.array(mesh.adjacency.offsets, dtype=wp.int32, device=device),
+            adjacency_triangles=wp.array(mesh.adjacency.triangles, dtype=wp.int32, device=device),
+        )
+
+
+def load_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read vertex positions and faces from a Wavefront OBJ file.
+
+    Polygons are fan-triangulated; texture/normal indices (``f 1/2/3``) and negative (relative)
+    indices are handled. Returns ``(points (V, 3) float64, triangles (T, 3) int64)``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"OBJ file not found: {path}")
+    points: list[list[float]] = []
+    triangles: list[list[int]] = []
+    with path.open("r", encoding="utf-8", errors="replace") as handle:
+        for line_number, line in enumerate(handle, start=1):
+            if line.startswith("v "):
+                fields = line.split()
+                if len(fields) < 4:
+                    raise ValueError(f"{path}:{line_number}: vertex needs 3 coordinates")
+                points.append([float(v) for v in fields[1:4]])
+            elif line.startswith("f "):
+                corners = []
+                for token in line.split()[1:]:
+                    index = int(token.split("/")[0])
+                    corners.append(index - 1 if index > 0 else len(points) + index)
+                if len(corners) < 3:
+                    raise ValueError(f"{path}:{line_number}: face needs at least 3 vertices")
+                triangles.extend([corners[0], corners[i], corners[i + 1]] for i in range(1, len(corners) - 1))
+    if not points or not triangles:
+        raise ValueError(f"{path}: no vertices or faces found")
+    return np.asarray(points, dtype=np.float64), np.asarray(triangles, dtype=np.int64)

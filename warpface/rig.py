@@ -1,0 +1,79 @@
+"""``FaceRig``: everything that defines a face's expressions, validated, as plain arrays and records."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import RigError
+from .expression.muscles import LinearMuscle, Muscle, SphincterMuscle
+from .expression.thickness import validate_thickness
+from .expression.wrinkles import Wrinkle
+from .mesh import FaceMesh
+
+__all__ = ["FaceRig"]
+
+
+@dataclass(eq=False)
+class FaceRig:
+    """A face rig: rest mesh, muscles, wrinkles, per-vertex thickness and optional landmarks.
+
+    Args:
+        mesh: rest surface.
+        muscles: linear and sphincter muscles (contraction order).
+        wrinkles: wrinkle furrows (depth order).
+        thickness: subcutaneous thickness [mesh units], scalar or shape (V,); stored as (V,) float64.
+        landmarks: optional vertex indices of named landmarks, shape (L,) int (e.g. the 68 iBUG points).
+        name: rig name (used for prim names and messages).
+
+    Raises:
+        RigError: duplicate names, wrong thickness, landmark indices out of range.
+    """
+
+    mesh: FaceMesh
+    muscles: list[Muscle] = field(default_factory=list)
+    wrinkles: list[Wrinkle] = field(default_factory=list)
+    thickness: np.ndarray | float = 0.0
+    landmarks: np.ndarray | None = None
+    name: str = "Face"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.mesh, FaceMesh):
+            raise RigError(f"rig {self.name!r}: mesh must be a FaceMesh, got {type(self.mesh).__name__}")
+        self.muscles = list(self.muscles)
+        self.wrinkles = list(self.wrinkles)
+        for kind, items, types in (("muscle", self.muscles, (LinearMuscle, SphincterMuscle)), ("wrinkle", self.wrinkles, (Wrinkle,))):
+            names = set()
+            for index, item in enumerate(items):
+                if not isinstance(item, types):
+                    raise RigError(f"rig {self.name!r}: {kind} {index} has wrong type {type(item).__name__}")
+                if item.name in names:
+                    raise RigError(f"rig {self.name!r}: duplicate {kind} name {item.name!r}")
+                names.add(item.name)
+        try:
+            self.thickness = validate_thickness(self.thickness, self.mesh.vertex_count)
+        except ValueError as exc:
+            raise RigError(f"rig {self.name!r}: {exc}") from None
+        if self.landmarks is not None:
+            landmarks = np.asarray(self.landmarks)
+            if landmarks.ndim != 1 or not np.issubdtype(landmarks.dtype, np.integer):
+                raise RigError(f"rig {self.name!r}: landmarks must be a 1-D integer array of vertex indices")
+            bad = np.flatnonzero((landmarks < 0) | (landmarks >= self.mesh.vertex_count))
+            if len(bad):
+                raise RigError(f"rig {self.name!r}: landmark {int(bad[0])} index {int(landmarks[bad[0]])} out of range")
+            self.landmarks = landmarks.astype(np.int64)
+
+    @property
+    def muscle_names(self) -> list[str]:
+        return [m.name for m in self.muscles]
+
+    @property
+    def wrinkle_names(self) -> list[str]:
+        return [w.name for w in self.wrinkles]
+
+    def model(self, device=None):
+        """An :class:`~warpface.ExpressionModel` for this rig on ``device``."""
+        from .expression.model import ExpressionModel
+
+        return ExpressionModel.from_rig(self, device=device)
