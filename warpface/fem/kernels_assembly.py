@@ -123,7 +123,7 @@ def volumetric_operator_triplets(
     slot = 16 * e + 4 * i + j
     rows[slot] = a
     cols[slot] = tets[e, j]
-    values[slot] = mat13d(w * gj[0], w * gj[1], w * gj[2])
+    values[slot] = wp.matrix_from_rows(w * gj)
 
 
 @wp.kernel

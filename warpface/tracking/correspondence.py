@@ -1,0 +1,335 @@
+"""Sparse ↔ dense correspondence (SPEC §3 steps 1–2): face normalisation and closest points.
+
+* :class:`FaceNormalization` — Kato eq. 5.1–5.4: both models are scaled by their face width; the
+  dense model's height is scaled separately above and below the eye line so that its proportions
+  match the sparse model's.
+* :func:`closest_points` — for every query point, the closest point on a triangle mesh: triangle,
+  barycentric coordinates and distance. Candidates come from the BVH of a ``wp.Mesh``; the exact
+  answer from :func:`warpface.geometry.closest_point_on_triangle` (Voronoi-region classification).
+* :func:`compute_correspondence` — the per-dense-vertex correspondence used by the transfer.
+
+Models are given in a *model frame*: x across the face (to the subject's left or right, either
+way), +y up, +z toward the viewer; units metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from ..geometry import closest_point_on_triangle
+
+__all__ = [
+    "FaceNormalization",
+    "Correspondence",
+    "closest_points",
+    "compute_correspondence",
+]
+
+
+# --------------------------------------------------------------------------------------------
+# Normalisation (eq. 5.1–5.4)
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FaceNormalization:
+    """Measurements of one face model that define its normalised coordinates.
+
+    Normalised coordinates put the origin on the eye line, at the horizontal centre of the face and
+    at its front-most depth, and divide by the face width ``w``:
+    ``x̂ = (x − o_x) / w``, ``ẑ = (z − o_z) / w``, ``ŷ = (y − o_y) / w`` (eq. 5.1–5.2). For the model
+    that must be *matched* to another (the dense model in Kato), ``ŷ`` is instead scaled per half so
+    that the heights above and below the eye line become the other model's (eq. 5.3–5.4):
+    ``ŷ = (y − o_y) · (h_u' / w') / h_u`` above the eye line, ``(y − o_y) · (h_d' / w') / h_d`` below.
+    """
+
+    origin: np.ndarray
+    """Normalisation origin [m], shape (3,): (face-width centre, eye-line height, front-most z)."""
+    width: float
+    """Face width ``w`` [m]: the x extent of the model."""
+    upper: float
+    """Height above the eye line ``h_u`` [m]."""
+    lower: float
+    """Height below the eye line ``h_d`` [m]."""
+
+    @classmethod
+    def measure(cls, points, eye_y: float, *, front_z: float | None = None) -> "FaceNormalization":
+        """Measure a model: width from its x extent, heights from ``eye_y`` to its top and bottom.
+
+        Args:
+            points: model points [m], shape (P, 3), model frame (+y up, +z toward the viewer).
+            eye_y: height of the eye line [m] (e.g. the mean y of the eye-corner landmarks).
+            front_z: depth of the origin [m]; the model's maximum z (its front, the nose tip)
+                when omitted.
+
+        Raises:
+            ValueError: points not (P, 3) finite, or the eye line not strictly inside the y range.
+        """
+        pts = _as_points(points, "points")
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        eye_y = float(eye_y)
+        if not (lo[1] < eye_y < hi[1]):
+            raise ValueError(f"eye_y={eye_y} must lie strictly inside the model's y range [{lo[1]}, {hi[1]}]")
+        width = float(hi[0] - lo[0])
+        if width <= 0.0:
+            raise ValueError("points: the model has zero width along x")
+        z0 = float(hi[2]) if front_z is None else float(front_z)
+        origin = np.array([0.5 * (lo[0] + hi[0]), eye_y, z0])
+        return cls(origin=origin, width=width, upper=float(hi[1] - eye_y), lower=float(eye_y - lo[1]))
+
+    def normalize(self, points, *, match: "FaceNormalization | None" = None) -> np.ndarray:
+        """Normalised coordinates of ``points`` (shape (P, 3), float64).
+
+        With ``match``, heights above/below the eye line are rescaled to ``match``'s proportions.
+        """
+        pts = _as_points(points, "points")
+        out = (pts - self.origin) / self.width
+        if match is not None:
+            dy = pts[:, 1] - self.origin[1]
+            out[:, 1] = np.where(
+                dy >= 0.0, dy * (match.upper / match.width) / self.upper, dy * (match.lower / match.width) / self.lower
+            )
+        return out
+
+    def denormalize(self, normalized, *, match: "FaceNormalization | None" = None) -> np.ndarray:
+        """Inverse of :meth:`normalize` (same ``match``), shape (P, 3), float64."""
+        nrm = _as_points(normalized, "normalized")
+        out = nrm * self.width + self.origin
+        if match is not None:
+            y = nrm[:, 1]
+            out[:, 1] = self.origin[1] + np.where(
+                y >= 0.0, y * self.upper / (match.upper / match.width), y * self.lower / (match.lower / match.width)
+            )
+        return out
+
+
+def _as_points(points, name: str) -> np.ndarray:
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"{name}: expected shape (N, 3), got {pts.shape}")
+    if not np.all(np.isfinite(pts)):
+        bad = int(np.argwhere(~np.isfinite(pts))[0][0])
+        raise ValueError(f"{name}: non-finite coordinate at point {bad}")
+    return pts
+
+
+def _as_triangles(triangles, vertex_count: int, name: str = "triangles") -> np.ndarray:
+    tri = np.asarray(triangles)
+    if tri.ndim != 2 or tri.shape[1] != 3 or tri.shape[0] == 0:
+        raise ValueError(f"{name}: expected shape (T, 3) with T ≥ 1, got {tri.shape}")
+    if not np.issubdtype(tri.dtype, np.integer):
+        raise ValueError(f"{name}: expected integer vertex indices, got dtype {tri.dtype}")
+    bad = np.argwhere((tri < 0) | (tri >= vertex_count))
+    if bad.size:
+        t = int(bad[0][0])
+        raise ValueError(f"{name}: triangle {t} {tri[t].tolist()} indexes outside [0, {vertex_count})")
+    return tri.astype(np.int32)
+
+
+# --------------------------------------------------------------------------------------------
+# Closest points on a triangle mesh
+# --------------------------------------------------------------------------------------------
+
+
+@wp.kernel
+def _closest_points_kernel(
+    mesh: wp.uint64,
+    vertices: wp.array(dtype=wp.vec3),
+    triangles: wp.array2d(dtype=wp.int32),
+    queries: wp.array(dtype=wp.vec3),
+    box_center: wp.vec3,
+    box_radius: float,
+    out_triangle: wp.array(dtype=wp.int32),
+    out_barycentric: wp.array(dtype=wp.vec3),
+    out_distance: wp.array(dtype=float),
+):
+    """Closest triangle per query: BVH bound → AABB candidates → exact Voronoi-region test."""
+    i = wp.tid()
+    p = queries[i]
+    # Every triangle lies within this distance of p, so it bounds the answer from above.
+    bound = wp.length(p - box_center) + box_radius
+    hit = wp.mesh_query_point_no_sign(mesh, p, bound * 1.001 + 1.0e-6)
+    if hit.result:
+        bound = wp.min(bound, wp.length(p - wp.mesh_eval_position(mesh, hit.face, hit.u, hit.v)))
+    # Any triangle at least as close as the bound overlaps this box; pad for rounding.
+    r = bound * 1.0001 + 1.0e-6 * box_radius + 1.0e-12
+    reach = wp.vec3(r, r, r)
+
+    best_t = int(-1)
+    best_d = float(1.0e30)
+    best_w = wp.vec3(1.0, 0.0, 0.0)
+    query = wp.mesh_query_aabb(mesh, p - reach, p + reach)
+    t = int(0)
+    while wp.mesh_query_next(query, t):
+        a = vertices[triangles[t, 0]]
+        b = vertices[triangles[t, 1]]
+        c = vertices[triangles[t, 2]]
+        w = closest_point_on_triangle(p, a, b, c)
+        d = wp.length_sq(p - (w[0] * a + w[1] * b + w[2] * c))
+        if d < best_d or (d == best_d and t < best_t):
+            best_d = d
+            best_t = t
+            best_w = w
+    if best_t < 0:
+        # Unreachable for valid input (the bound guarantees a candidate); exhaustive as a safety net.
+        for s in range(triangles.shape[0]):
+            a = vertices[triangles[s, 0]]
+            b = vertices[triangles[s, 1]]
+            c = vertices[triangles[s, 2]]
+            w = closest_point_on_triangle(p, a, b, c)
+            d = wp.length_sq(p - (w[0] * a + w[1] * b + w[2] * c))
+            if d < best_d:
+                best_d = d
+                best_t = s
+                best_w = w
+    out_triangle[i] = best_t
+    out_barycentric[i] = best_w
+    out_distance[i] = wp.sqrt(best_d)
+
+
+class TriangleMeshIndex:
+    """A triangle mesh uploaded once with its BVH, for repeated closest-point queries.
+
+    Coordinates are shifted to the mesh's bounding-box centre before conversion to float32, so
+    precision does not depend on where the mesh sits (e.g. 0.6 m in front of a camera).
+
+    Args:
+        vertices: mesh points [m], shape (V, 3).
+        triangles: vertex indices, shape (T, 3), integer.
+        device: Warp device; Warp's preferred device when ``None``.
+    """
+
+    def __init__(self, vertices, triangles, *, device=None):
+        verts = _as_points(vertices, "vertices")
+        tri = _as_triangles(triangles, verts.shape[0])
+        self.device = wp.get_device(device)
+        lo, hi = verts.min(axis=0), verts.max(axis=0)
+        self.center = 0.5 * (lo + hi)
+        """Coordinate shift [m], shape (3,): the bounding-box centre."""
+        self.radius = float(0.5 * np.linalg.norm(hi - lo))
+        """Bounding-sphere radius about :attr:`center` [m]."""
+        self._vertices = wp.array((verts - self.center).astype(np.float32), dtype=wp.vec3, device=self.device)
+        self._triangles = wp.array(tri, dtype=wp.int32, device=self.device)
+        self._indices = wp.array(tri.reshape(-1), dtype=wp.int32, device=self.device)
+        self._mesh = wp.Mesh(points=self._vertices, indices=self._indices)
+        self.triangle_count = int(tri.shape[0])
+
+    def query(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest point on the mesh for each of ``points`` (shape (Q, 3)); see :func:`closest_points`."""
+        q = _as_points(points, "query")
+        count = q.shape[0]
+        triangle = wp.empty(count, dtype=wp.int32, device=self.device)
+        bary = wp.empty(count, dtype=wp.vec3, device=self.device)
+        dist = wp.empty(count, dtype=float, device=self.device)
+        if count:
+            queries = wp.array((q - self.center).astype(np.float32), dtype=wp.vec3, device=self.device)
+            wp.launch(
+                _closest_points_kernel,
+                dim=count,
+                inputs=[
+                    self._mesh.id,
+                    self._vertices,
+                    self._triangles,
+                    queries,
+                    wp.vec3(0.0, 0.0, 0.0),
+                    max(self.radius, 1e-12),
+                ],
+                outputs=[triangle, bary, dist],
+                device=self.device,
+            )
+        return triangle.numpy(), bary.numpy().reshape(count, 3), dist.numpy()
+
+
+def closest_points(query, vertices, triangles, device=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest point on a triangle mesh for every query point.
+
+    Args:
+        query: query points [m], shape (Q, 3).
+        vertices: mesh points [m], shape (V, 3).
+        triangles: vertex indices, shape (T, 3), integer, T ≥ 1.
+        device: Warp device; Warp's preferred device when ``None``.
+
+    Returns:
+        ``(triangle, barycentric, distance)``: closest triangle per query, shape (Q,), int32;
+        barycentric coordinates of the closest point in that triangle (≥ 0, summing to 1), shape
+        (Q, 3), float32, so the point is ``Σ_j barycentric[:, j] · vertices[triangles[triangle, j]]``;
+        distance from the query to it [m], shape (Q,), float32. Ties between triangles at exactly
+        equal distance go to the lower triangle index.
+
+    Raises:
+        ValueError: wrong shapes, non-finite coordinates, or indices out of range.
+    """
+    return TriangleMeshIndex(vertices, triangles, device=device).query(query)
+
+
+# --------------------------------------------------------------------------------------------
+# Correspondence (eq. 4.1–4.14)
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Correspondence:
+    """Where each dense vertex attaches to the sparse mesh (computed once, at rest)."""
+
+    triangle: np.ndarray
+    """Sparse triangle per dense vertex, shape (V,), int32."""
+    barycentric: np.ndarray
+    """Barycentric coordinates ``a_j`` in that triangle, shape (V, 3), float32, rows sum to 1."""
+    distance: np.ndarray
+    """Distance from the dense vertex to its closest sparse point [dense m], shape (V,), float64."""
+    overhang: np.ndarray
+    """In-plane part of that offset [dense m], shape (V,), float64: 0 where the vertex projects inside
+    a sparse triangle, growing with the distance beyond the sparse mesh's contour."""
+
+
+def compute_correspondence(
+    dense_points,
+    sparse_points,
+    sparse_triangles,
+    *,
+    sparse_normalization: FaceNormalization | None = None,
+    dense_normalization: FaceNormalization | None = None,
+    device=None,
+) -> Correspondence:
+    """For every dense vertex, the closest sparse triangle and barycentric coordinates (eq. 4.1–4.14).
+
+    With both normalisations given, the search runs in normalised coordinates (the dense model
+    matched to the sparse model's proportions, eq. 5.1–5.4); distances are reported back in dense
+    metres (normalised distance × dense face width). Without them, both models must already share
+    a frame and scale.
+
+    Args:
+        dense_points: dense rest points [m], shape (V, 3).
+        sparse_points: sparse rest points [m], shape (N, 3).
+        sparse_triangles: sparse triangles, shape (T, 3), integer.
+        sparse_normalization, dense_normalization: both or neither.
+        device: Warp device for the query.
+    """
+    if (sparse_normalization is None) != (dense_normalization is None):
+        raise ValueError("give both sparse_normalization and dense_normalization, or neither")
+    dense = _as_points(dense_points, "dense_points")
+    sparse = _as_points(sparse_points, "sparse_points")
+    tri = _as_triangles(sparse_triangles, sparse.shape[0], "sparse_triangles")
+    to_dense = 1.0
+    if sparse_normalization is not None:
+        sparse = sparse_normalization.normalize(sparse)
+        dense = dense_normalization.normalize(dense, match=sparse_normalization)
+        to_dense = dense_normalization.width
+    triangle, bary, dist = TriangleMeshIndex(sparse, tri, device=device).query(dense)
+
+    corners = sparse[tri[triangle]]  # (V, 3, 3)
+    closest = np.einsum("vj,vjk->vk", bary.astype(np.float64), corners)
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0.0)
+    offset = dense - closest
+    tangential = offset - np.sum(offset * normal, axis=1, keepdims=True) * normal
+    return Correspondence(
+        triangle=triangle.astype(np.int32),
+        barycentric=bary.astype(np.float32),
+        distance=dist.astype(np.float64) * to_dense,
+        overhang=np.linalg.norm(tangential, axis=1) * to_dense,
+    )
