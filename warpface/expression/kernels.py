@@ -3,7 +3,7 @@
 The sequence for one frame is::
 
     apply_muscles      x1 = x_rest + Σ K·w                      (vertices)
-    triangle_area_vectors(x1)                                   (triangles)
+    triangle_stretch   area vectors of x1, S'/S                 (triangles)
     stretch_and_bulge  r, N(x1), x2 = x1 + (1/r − 1)·h·N(x1)    (vertices)
     triangle_area_vectors(x2)                                   (triangles)
     apply_wrinkles     x3 = x2 + Σ k_d·s·C(r)·N(x2)             (vertices)
@@ -16,7 +16,7 @@ import warp as wp
 
 from ..kernels_surface import safe_normalize
 
-__all__ = ["apply_muscles", "stretch_and_bulge", "apply_wrinkles", "contraction_factor", "STRETCH_FLOOR"]
+__all__ = ["apply_muscles", "triangle_stretch", "stretch_and_bulge", "apply_wrinkles", "contraction_factor", "STRETCH_FLOOR"]
 
 STRETCH_FLOOR = wp.constant(1.0e-4)
 """Lower bound on ``r`` before ``1/r`` in the bulge: fully collapsed skin stays finite."""
@@ -50,32 +50,52 @@ def apply_muscles(
 
 
 @wp.kernel
+def triangle_stretch(
+    points: wp.array2d(dtype=wp.vec3),
+    triangles: wp.array2d(dtype=wp.int32),
+    triangle_weight: wp.array(dtype=wp.float32),
+    rest_area_vectors: wp.array(dtype=wp.vec3),
+    area_vectors: wp.array2d(dtype=wp.vec3),
+    area_ratio: wp.array2d(dtype=wp.float32),
+):
+    """Per triangle: ``(p1 − p0) × (p2 − p0)`` and the area ratio S'/S (0 for ignored triangles)."""
+    f, t = wp.tid()
+    p0 = points[f, triangles[t, 0]]
+    weight = triangle_weight[t]
+    av = weight * wp.cross(points[f, triangles[t, 1]] - p0, points[f, triangles[t, 2]] - p0)
+    area_vectors[f, t] = av
+    ratio = float(0.0)
+    if weight > 0.0:
+        ratio = wp.length(av) / wp.length(rest_area_vectors[t])
+    area_ratio[f, t] = ratio
+
+
+@wp.kernel
 def stretch_and_bulge(
     muscle_points: wp.array2d(dtype=wp.vec3),
     area_vectors: wp.array2d(dtype=wp.vec3),
-    rest_area_vectors: wp.array(dtype=wp.vec3),
-    triangle_weight: wp.array(dtype=wp.float32),
+    area_ratio: wp.array2d(dtype=wp.float32),
+    counts: wp.array(dtype=wp.float32),
     adjacency_offsets: wp.array(dtype=wp.int32),
     adjacency_triangles: wp.array(dtype=wp.int32),
     thickness: wp.array(dtype=wp.float32),
     stretch: wp.array2d(dtype=wp.float32),
     bulge_points: wp.array2d(dtype=wp.vec3),
 ):
-    """Stretch ratio r (eq. 1: mean of S'/S over incident triangles) and the bulge x1 + (1/r − 1)·h·N(x1)."""
+    """Stretch ratio r (eq. 1: mean of S'/S over incident triangles) and the bulge x1 + (1/r − 1)·h·N(x1).
+
+    ``counts`` is the number of counted (non-degenerate) incident triangles; a vertex with none has r = 1.
+    """
     f, v = wp.tid()
     ratio_sum = float(0.0)
-    counted = float(0.0)
     normal_sum = wp.vec3(0.0, 0.0, 0.0)
     for k in range(adjacency_offsets[v], adjacency_offsets[v + 1]):
         t = adjacency_triangles[k]
-        av = area_vectors[f, t]
-        normal_sum += av
-        if triangle_weight[t] > 0.0:
-            ratio_sum += wp.length(av) / wp.length(rest_area_vectors[t])
-            counted += 1.0
+        normal_sum += area_vectors[f, t]
+        ratio_sum += area_ratio[f, t]
     r = float(1.0)
-    if counted > 0.0:
-        r = ratio_sum / counted
+    if counts[v] > 0.0:
+        r = ratio_sum / counts[v]
     stretch[f, v] = r
     growth = 1.0 / wp.max(r, STRETCH_FLOOR) - 1.0
     bulge_points[f, v] = muscle_points[f, v] + (growth * thickness[v]) * safe_normalize(normal_sum)

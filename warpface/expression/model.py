@@ -10,7 +10,7 @@ import warp as wp
 
 from ..kernels_surface import triangle_area_vectors
 from ..mesh import FaceMesh
-from .kernels import apply_muscles, apply_wrinkles, stretch_and_bulge
+from .kernels import apply_muscles, apply_wrinkles, stretch_and_bulge, triangle_stretch
 from .muscles import LinearMuscle, Muscle, SphincterMuscle, muscle_weights
 from .thickness import validate_thickness
 from .wrinkles import Wrinkle, wrinkle_shapes
@@ -49,6 +49,7 @@ class _FrameBuffers:
         self.depth = wp.zeros((frames, max(wrinkle_count, 1)), dtype=wp.float32, device=device)
         self.muscle_points = wp.empty((frames, vertex_count), dtype=wp.vec3, device=device)
         self.area_vectors = wp.empty((frames, triangle_count), dtype=wp.vec3, device=device)
+        self.area_ratio = wp.empty((frames, triangle_count), dtype=wp.float32, device=device)
         self.stretch = wp.empty((frames, vertex_count), dtype=wp.float32, device=device)
         self.bulge_points = wp.empty((frames, vertex_count), dtype=wp.vec3, device=device)
         self.final_points = wp.empty((frames, vertex_count), dtype=wp.vec3, device=device)
@@ -110,6 +111,8 @@ class ExpressionModel:
         self._wrinkle_index = wp.array(_non_empty(shapes.wrinkle, np.int32), dtype=wp.int32, device=device_)
         self._wrinkle_shape = wp.array(_non_empty(shapes.shape, np.float32), dtype=wp.float32, device=device_)
         self._wrinkle_kr = wp.array(_non_empty(np.array([w.kr for w in self.wrinkles]), np.float32), dtype=wp.float32, device=device_)
+        counted = np.bincount(mesh.triangles[~mesh.degenerate_triangles].ravel(), minlength=mesh.vertex_count)
+        self._counts = wp.array(counted.astype(np.float32), dtype=wp.float32, device=device_)
         self._thickness = wp.array(self.thickness.astype(np.float32), dtype=wp.float32, device=device_)
         self.default_depths = np.array([w.depth for w in self.wrinkles], dtype=np.float64)
         self._buffers: dict[int, _FrameBuffers] = {}
@@ -222,10 +225,11 @@ class ExpressionModel:
         wp.launch(apply_muscles, dim=vertices, device=device,
                   inputs=[mesh.rest_points, self._muscle_offsets, self._muscle_index, self._muscle_weight, buffers.contraction],
                   outputs=[buffers.muscle_points])
-        wp.launch(triangle_area_vectors, dim=triangles, device=device,
-                  inputs=[buffers.muscle_points, mesh.triangles, mesh.triangle_weight], outputs=[buffers.area_vectors])
+        wp.launch(triangle_stretch, dim=triangles, device=device,
+                  inputs=[buffers.muscle_points, mesh.triangles, mesh.triangle_weight, mesh.rest_area_vectors],
+                  outputs=[buffers.area_vectors, buffers.area_ratio])
         wp.launch(stretch_and_bulge, dim=vertices, device=device,
-                  inputs=[buffers.muscle_points, buffers.area_vectors, mesh.rest_area_vectors, mesh.triangle_weight,
+                  inputs=[buffers.muscle_points, buffers.area_vectors, buffers.area_ratio, self._counts,
                           mesh.adjacency_offsets, mesh.adjacency_triangles, self._thickness],
                   outputs=[buffers.stretch, buffers.bulge_points])
         wp.launch(triangle_area_vectors, dim=triangles, device=device,

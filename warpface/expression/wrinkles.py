@@ -35,6 +35,17 @@ WRINKLE_SHAPE_CUTOFF = 1e-7
 contribution is below 1e-7·k_d, under float32 resolution of the positions, and skipping them makes a
 frame's cost proportional to the skin a wrinkle actually touches."""
 
+def _cutoff_distance(cutoff: float) -> float:
+    """The scaled distance x = d/k_w beyond which |(x − 1)·e^(−x)| < ``cutoff`` (bisection on x > 2)."""
+    lo, hi = 2.0, 200.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if (mid - 1.0) * math.exp(-mid) >= cutoff else (lo, mid)
+    return hi
+
+
+_CUTOFF_SCALED_DISTANCE = _cutoff_distance(WRINKLE_SHAPE_CUTOFF)
+
 _PLANAR = wp.constant(0)
 _CYLINDRICAL = wp.constant(1)
 
@@ -274,6 +285,8 @@ def bezier_distances(uv: np.ndarray, control_points: np.ndarray, device=None) ->
     """Nearest-point distance from each 2-D point to a cubic Bézier curve: (V, 2), (4, 2) → (V,) float64."""
     device = wp.get_device(device)
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    if len(uv) == 0:
+        return np.zeros(0, dtype=np.float64)
     c = [wp.vec2d(*row) for row in np.asarray(control_points, dtype=np.float64)]
     out = wp.empty(len(uv), dtype=wp.float64, device=device)
     wp.launch(_bezier_distance_kernel, dim=len(uv), inputs=[wp.array(uv, dtype=wp.vec2d, device=device), *c],
@@ -301,11 +314,17 @@ def wrinkle_shapes(rest_points: np.ndarray, wrinkles: list[Wrinkle], device=None
     rows, columns, values = [], [], []
     for index, wrinkle in enumerate(wrinkles):
         uv = project_points(wrinkle.projection, rest_points, device)
-        scaled = bezier_distances(uv, wrinkle.control_points, device) / wrinkle.width
+        # The curve lies in its control points' bounding box (convex hull property), so vertices
+        # farther than the cutoff from that box have no kept entry: skip their distance queries.
+        reach = _CUTOFF_SCALED_DISTANCE * wrinkle.width
+        lo = wrinkle.control_points.min(axis=0) - reach
+        hi = wrinkle.control_points.max(axis=0) + reach
+        near = np.flatnonzero(np.all((uv >= lo) & (uv <= hi), axis=1))
+        scaled = bezier_distances(uv[near], wrinkle.control_points, device) / wrinkle.width
         shape = (scaled - 1.0) * np.exp(-scaled)
-        kept = np.flatnonzero(np.abs(shape) >= WRINKLE_SHAPE_CUTOFF)
-        rows.append(kept)
-        columns.append(np.full(len(kept), index, dtype=np.int32))
+        kept = np.abs(shape) >= WRINKLE_SHAPE_CUTOFF
+        rows.append(near[kept])
+        columns.append(np.full(int(kept.sum()), index, dtype=np.int32))
         values.append(shape[kept])
     offsets, column, value = vertex_csr(len(rest_points), rows, columns, values)
     return WrinkleShapes(offsets=offsets, wrinkle=column, shape=value)

@@ -1,0 +1,264 @@
+"""Offscreen previews with pyrender: shaded images, side-by-side comparisons, heat maps and videos.
+
+Rendering is offscreen: ``PYOPENGL_PLATFORM`` defaults to ``osmesa`` (CPU; Debian ``libosmesa6``)
+unless it is already set (``egl`` where a GPU driver is present). pyrender, OpenGL, OpenCV and
+matplotlib are imported only when a preview is made.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+
+__all__ = ["Camera", "PreviewRenderer", "render", "render_comparison", "render_heat_map", "heat_colors", "write_video", "save_image"]
+
+SKIN_COLOR = (0.86, 0.68, 0.58)
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A perspective camera looking at ``target`` from ``eye`` with +Y up.
+
+    Attributes:
+        eye, target: positions [mesh units], shape (3,).
+        yfov_deg: vertical field of view [degrees].
+    """
+
+    eye: np.ndarray
+    target: np.ndarray
+    yfov_deg: float = 30.0
+
+    @classmethod
+    def framing(cls, points: np.ndarray, *, yaw_deg: float = 0.0, pitch_deg: float = 0.0, margin: float = 1.15,
+                yfov_deg: float = 30.0, aspect: float = 4 / 3) -> "Camera":
+        """A camera that fits the bounding box of ``points`` (V, 3), looking along −Z (rotated by yaw/pitch)."""
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        centre = 0.5 * (lo + hi)
+        half = 0.5 * (hi - lo)
+        fov = np.radians(yfov_deg)
+        distance = margin * max(half[1] / np.tan(fov / 2), half[0] / (np.tan(fov / 2) * aspect)) + half[2]
+        yaw, pitch = np.radians(yaw_deg), np.radians(pitch_deg)
+        direction = np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
+        return cls(eye=centre + distance * direction, target=centre, yfov_deg=yfov_deg)
+
+    def pose(self) -> np.ndarray:
+        """Camera-to-world 4×4 matrix (OpenGL convention: the camera looks down its −Z)."""
+        forward = self.target - self.eye
+        forward = forward / np.linalg.norm(forward)
+        right = np.cross(forward, [0.0, 1.0, 0.0])
+        if np.linalg.norm(right) < 1e-9:
+            right = np.array([1.0, 0.0, 0.0])
+        right = right / np.linalg.norm(right)
+        up = np.cross(right, forward)
+        pose = np.eye(4)
+        pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, up, -forward, self.eye
+        return pose
+
+
+def _ensure_platform() -> None:
+    os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+
+
+def _normals(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    p = points[triangles]
+    face = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    normals = np.zeros_like(points)
+    for corner in range(3):
+        np.add.at(normals, triangles[:, corner], face)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
+
+
+class PreviewRenderer:
+    """A reusable offscreen renderer for one triangle topology (for videos and many frames).
+
+    Args:
+        triangles: (T, 3) vertex indices.
+        size: (width, height) in pixels.
+        camera: fixed camera; when omitted, framed on the first rendered points.
+        background: RGB in [0, 1].
+    """
+
+    def __init__(self, triangles: np.ndarray, size: tuple[int, int] = (640, 480), camera: Camera | None = None,
+                 background=(1.0, 1.0, 1.0)):
+        _ensure_platform()
+        import pyrender
+
+        self._pyrender = pyrender
+        self.triangles = np.asarray(triangles, dtype=np.uint32)
+        self.size = size
+        self.camera = camera
+        self.background = background
+        self._renderer = pyrender.OffscreenRenderer(viewport_width=size[0], viewport_height=size[1])
+
+    def render(self, points: np.ndarray, colors: np.ndarray | None = None) -> np.ndarray:
+        """Shade ``points`` (V, 3) with per-vertex ``colors`` (V, 3) in [0, 1] or skin; returns (H, W, 3) uint8."""
+        pyrender = self._pyrender
+        points = np.asarray(points, dtype=np.float64)
+        if not np.all(np.isfinite(points)):
+            raise ValueError("preview: points contain non-finite values")
+        if self.camera is None:
+            self.camera = Camera.framing(points, aspect=self.size[0] / self.size[1])
+        normals = _normals(points, self.triangles.astype(np.int64))
+        if colors is None:
+            colors = np.broadcast_to(np.asarray(SKIN_COLOR), points.shape)
+        rgba = np.c_[np.asarray(colors, dtype=np.float32), np.ones(len(points), dtype=np.float32)]
+        material = pyrender.MetallicRoughnessMaterial(baseColorFactor=(1.0, 1.0, 1.0, 1.0), metallicFactor=0.0,
+                                                      roughnessFactor=0.65, doubleSided=True)
+        primitive = pyrender.Primitive(positions=points.astype(np.float32), normals=normals.astype(np.float32),
+                                       indices=self.triangles, color_0=rgba, material=material)
+        scene = pyrender.Scene(bg_color=(*self.background, 1.0), ambient_light=(0.25, 0.25, 0.25))
+        scene.add(pyrender.Mesh([primitive]))
+        pose = self.camera.pose()
+        scene.add(pyrender.PerspectiveCamera(yfov=np.radians(self.camera.yfov_deg), aspectRatio=self.size[0] / self.size[1]), pose=pose)
+        scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=3.0), pose=_rotated(pose, yaw_deg=-25, pitch_deg=20))
+        scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=1.2), pose=_rotated(pose, yaw_deg=40, pitch_deg=-10))
+        color, _ = self._renderer.render(scene)
+        return np.ascontiguousarray(color[..., :3])
+
+    def close(self) -> None:
+        self._renderer.delete()
+
+    def __enter__(self) -> "PreviewRenderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _rotated(pose: np.ndarray, *, yaw_deg: float, pitch_deg: float) -> np.ndarray:
+    """``pose`` rotated about its own up (yaw) and right (pitch) axes: a light placed off the view axis."""
+    yaw, pitch = np.radians(yaw_deg), np.radians(pitch_deg)
+    ry = np.array([[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]])
+    rx = np.array([[1, 0, 0], [0, np.cos(pitch), -np.sin(pitch)], [0, np.sin(pitch), np.cos(pitch)]])
+    out = pose.copy()
+    out[:3, :3] = pose[:3, :3] @ ry @ rx
+    return out
+
+
+def render(points: np.ndarray, triangles: np.ndarray, path: str | Path | None = None, *, colors=None,
+           camera: Camera | None = None, size=(640, 480), label: str | None = None) -> np.ndarray:
+    """Render one shaded image of a mesh; writes a PNG when ``path`` is given. Returns (H, W, 3) uint8 RGB."""
+    with PreviewRenderer(triangles, size=size, camera=camera) as renderer:
+        image = renderer.render(points, colors)
+    if label:
+        image = _label(image, label)
+    if path is not None:
+        save_image(path, image)
+    return image
+
+
+def render_comparison(views: Sequence[tuple[str, np.ndarray]], triangles: np.ndarray, path: str | Path | None = None, *,
+                      camera: Camera | None = None, size=(480, 480), colors: Sequence | None = None) -> np.ndarray:
+    """Labelled views side by side, all with one camera (framed on the first). Returns the joined image."""
+    if camera is None:
+        camera = Camera.framing(np.asarray(views[0][1]), aspect=size[0] / size[1])
+    images = []
+    with PreviewRenderer(triangles, size=size, camera=camera) as renderer:
+        for index, (title, points) in enumerate(views):
+            images.append(_label(renderer.render(points, None if colors is None else colors[index]), title))
+    joined = np.concatenate(images, axis=1)
+    if path is not None:
+        save_image(path, joined)
+    return joined
+
+
+def heat_colors(values: np.ndarray, *, vmin: float | None = None, vmax: float | None = None, cmap: str = "inferno") -> np.ndarray:
+    """Map scalar values (V,) to RGB colours (V, 3) in [0, 1] with a matplotlib colormap."""
+    from matplotlib import colormaps
+
+    values = np.asarray(values, dtype=np.float64)
+    lo = float(np.nanmin(values)) if vmin is None else vmin
+    hi = float(np.nanmax(values)) if vmax is None else vmax
+    scaled = np.clip((values - lo) / (hi - lo if hi > lo else 1.0), 0.0, 1.0)
+    return colormaps[cmap](scaled)[:, :3]
+
+
+def render_heat_map(points: np.ndarray, triangles: np.ndarray, values: np.ndarray, path: str | Path | None = None, *,
+                    title: str = "", units: str = "", camera: Camera | None = None, size=(640, 480), cmap: str = "inferno",
+                    scale: float = 1.0) -> np.ndarray:
+    """Render ``points`` coloured by ``values`` (V,), with a colour bar and its range; returns the image.
+
+    ``scale`` multiplies the values shown on the colour bar (e.g. 1000 to show metres as millimetres).
+    """
+    values = np.asarray(values, dtype=np.float64)
+    vmin, vmax = float(values.min()), float(values.max())
+    image = render(points, triangles, camera=camera, size=size, colors=heat_colors(values, vmin=vmin, vmax=vmax, cmap=cmap))
+    image = _color_bar(image, vmin * scale, vmax * scale, units, cmap)
+    if title:
+        image = _label(image, title)
+    if path is not None:
+        save_image(path, image)
+    return image
+
+
+def write_video(frames: Iterable[np.ndarray], triangles: np.ndarray, path: str | Path, *, fps: float = 30.0,
+                size=(640, 480), camera: Camera | None = None, label: str | None = None, progress: bool = True) -> Path:
+    """Render each (V, 3) frame and write an MP4 (OpenCV, ``mp4v``) through a temporary file and a rename."""
+    import cv2
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.stem}.partial{path.suffix}")
+    writer = cv2.VideoWriter(str(temporary), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), tuple(size))
+    if not writer.isOpened():
+        raise ValueError(f"cannot open a video writer for {path}")
+    if progress:
+        from tqdm import tqdm
+
+        frames = tqdm(frames, desc=f"video {path.name}", unit="frame")
+    try:
+        with PreviewRenderer(triangles, size=size, camera=camera) as renderer:
+            for index, points in enumerate(frames):
+                image = renderer.render(points)
+                if label:
+                    image = _label(image, f"{label}  frame {index}")
+                writer.write(cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    except BaseException:
+        writer.release()
+        temporary.unlink(missing_ok=True)
+        raise
+    writer.release()
+    os.replace(temporary, path)
+    return path
+
+
+def save_image(path: str | Path, image: np.ndarray) -> Path:
+    """Write an RGB uint8 image as PNG via a temporary file and a rename."""
+    import cv2
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.stem}.partial{path.suffix}")
+    if not cv2.imwrite(str(temporary), cv2.cvtColor(np.asarray(image, dtype=np.uint8), cv2.COLOR_RGB2BGR)):
+        raise ValueError(f"cannot write image {path}")
+    os.replace(temporary, path)
+    return path
+
+
+def _label(image: np.ndarray, text: str) -> np.ndarray:
+    import cv2
+
+    out = image.copy()
+    scale = max(0.45, image.shape[0] / 900)
+    cv2.putText(out, text, (10, int(28 * scale / 0.6)), cv2.FONT_HERSHEY_SIMPLEX, scale, (30, 30, 30), 2, cv2.LINE_AA)
+    return out
+
+
+def _color_bar(image: np.ndarray, vmin: float, vmax: float, units: str, cmap: str) -> np.ndarray:
+    """Append a vertical colour bar with its end values to the right of ``image``."""
+    import cv2
+
+    height = image.shape[0]
+    bar = np.full((height, 110, 3), 255, dtype=np.uint8)
+    ramp = heat_colors(np.linspace(1.0, 0.0, height - 80), vmin=0.0, vmax=1.0, cmap=cmap)
+    bar[40:height - 40, 15:40] = (ramp[:, None, :] * 255).astype(np.uint8)
+    for y, value in ((50, vmax), (height - 35, vmin)):
+        cv2.putText(bar, f"{value:.3g}", (45, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (20, 20, 20), 1, cv2.LINE_AA)
+    if units:
+        cv2.putText(bar, units, (15, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (20, 20, 20), 1, cv2.LINE_AA)
+    return np.concatenate([image, bar], axis=1)

@@ -1,0 +1,322 @@
+"""Fiducial detection in colour images: ArUco markers and painted dots with frame-to-frame tracking.
+
+Both detectors share one interface — ``landmark_names`` and ``detect(color) -> (pixels (N, 2),
+confidence (N,))`` with NaN pixels for landmarks not found — so
+:class:`~warpface.tracking.sources.RGBDLandmarks` can lift either to 3-D. Pixel coordinates follow
+OpenCV's convention (pixel centres at integer coordinates; see :mod:`warpface.tracking.depth`).
+
+* :class:`ArucoMarkers` — ``cv2.aruco.ArucoDetector`` with sub-pixel corner refinement; the
+  landmark is the marker centre, the intersection of its diagonals (the projective centre of the
+  square, unlike the corner mean).
+* :func:`detect_blobs` — dark or coloured dots: a contrast map (dark: local background from a
+  morphological closing minus the image; coloured: closeness to a target colour), connected
+  components, shape gates (area, axis ratio, fill), and a contrast-weighted sub-pixel centroid.
+* :class:`DotTracker` — dots are anonymous, so identities come from the previous frame: the
+  prediction (last position plus damped velocity) is associated to detections by minimum-cost
+  assignment within a gate; a match whose motion disagrees with its neighbours' by more than
+  ``outlier_px`` is rejected as an outlier (a highlight, a stray blob), and the landmark is
+  reported missing for that frame.
+
+OpenCV is imported lazily.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+__all__ = ["Blobs", "detect_blobs", "DotTracker", "ArucoMarkers"]
+
+
+@dataclass(frozen=True)
+class Blobs:
+    """Blob candidates in one image."""
+
+    centers: np.ndarray
+    """Contrast-weighted centroids [px], shape (K, 2), float64, OpenCV convention."""
+    areas: np.ndarray
+    """Pixel counts, shape (K,), int64."""
+    axis_ratio: np.ndarray
+    """Minor/major axis ratio from second moments, shape (K,), in (0, 1]; 1 = round."""
+    contrast: np.ndarray
+    """Mean contrast of the blob's pixels, shape (K,), float64, 0–255 scale."""
+
+
+def _contrast_map(image: np.ndarray, color, max_diameter: int) -> np.ndarray:
+    """Per-pixel evidence of a dot, float32, 0–255: darkness below the local background, or
+    closeness to the target colour."""
+    import cv2
+
+    rgb = np.asarray(image)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise ValueError(f"image must be (H, W, 3) uint8 RGB, got {rgb.shape} {rgb.dtype}")
+    if isinstance(color, str):
+        if color != "dark":
+            raise ValueError(f"color must be 'dark' or an RGB triple, got {color!r}")
+        gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+        size = 2 * int(max_diameter) + 1
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+        background = cv2.morphologyEx(gray, cv2.MORPH_CLOSE, kernel)
+        return background.astype(np.float32) - gray.astype(np.float32)
+    target = np.asarray(color, dtype=np.float32).reshape(-1)
+    if target.shape != (3,):
+        raise ValueError(f"color must be 'dark' or an RGB triple, got {color!r}")
+    # Chromaticity distance ignores shading; brightness gates out near-black pixels.
+    pix = rgb.astype(np.float32)
+    total = pix.sum(axis=2, keepdims=True)
+    chroma = pix / np.maximum(total, 1.0)
+    t_chroma = target / max(float(target.sum()), 1.0)
+    dist = np.linalg.norm(chroma - t_chroma, axis=2)
+    score = np.clip(1.0 - dist / 0.25, 0.0, 1.0) * 255.0
+    return np.where(total[..., 0] > 60.0, score, 0.0).astype(np.float32)
+
+
+def detect_blobs(
+    image: np.ndarray,
+    *,
+    color="dark",
+    threshold: float = 40.0,
+    min_area: int = 6,
+    max_area: int = 2000,
+    min_axis_ratio: float = 0.35,
+    max_diameter: int = 25,
+) -> Blobs:
+    """Find dot-like blobs.
+
+    Args:
+        image: RGB image, shape (H, W, 3), uint8.
+        color: ``"dark"`` for dark dots on lighter skin, or an RGB triple for coloured dots.
+        threshold: contrast (0–255) a pixel needs to belong to a dot.
+        min_area, max_area: accepted blob sizes [px].
+        min_axis_ratio: rejects elongated blobs (edges, hair, eyelids); 1 = only perfect circles.
+        max_diameter: largest dot diameter [px] (sets the background filter for dark dots).
+
+    Returns:
+        :class:`Blobs` passing the gates, in no particular order.
+    """
+    import cv2
+
+    contrast = _contrast_map(image, color, max_diameter)
+    mask = (contrast >= threshold).astype(np.uint8)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    if count <= 1:
+        empty = np.zeros(0)
+        return Blobs(np.zeros((0, 2)), empty.astype(np.int64), empty, empty)
+    rows, cols = np.nonzero(labels)
+    lab = labels[rows, cols]
+    w = contrast[rows, cols].astype(np.float64)
+    x = cols.astype(np.float64)
+    y = rows.astype(np.float64)
+    sw = np.bincount(lab, w, count)
+    sx = np.bincount(lab, w * x, count)
+    sy = np.bincount(lab, w * y, count)
+    sxx = np.bincount(lab, w * x * x, count)
+    syy = np.bincount(lab, w * y * y, count)
+    sxy = np.bincount(lab, w * x * y, count)
+    ids = np.arange(1, count)
+    sw_, area = sw[ids], stats[ids, cv2.CC_STAT_AREA].astype(np.int64)
+    cx, cy = sx[ids] / sw_, sy[ids] / sw_
+    vxx = sxx[ids] / sw_ - cx * cx
+    vyy = syy[ids] / sw_ - cy * cy
+    vxy = sxy[ids] / sw_ - cx * cy
+    half_tr = 0.5 * (vxx + vyy)
+    disc = np.sqrt(np.maximum(0.25 * (vxx - vyy) ** 2 + vxy * vxy, 0.0))
+    ratio = np.sqrt(np.maximum(half_tr - disc, 0.0) / np.maximum(half_tr + disc, 1e-12))
+    bw = stats[ids, cv2.CC_STAT_WIDTH]
+    bh = stats[ids, cv2.CC_STAT_HEIGHT]
+    fill = area / np.maximum(bw * bh, 1)  # a disc fills π/4 ≈ 0.79 of its box
+    keep = (area >= min_area) & (area <= max_area) & (ratio >= min_axis_ratio) & (fill >= 0.5)
+    return Blobs(
+        centers=np.stack([cx, cy], axis=1)[keep],
+        areas=area[keep],
+        axis_ratio=ratio[keep],
+        contrast=(sw_ / area)[keep],
+    )
+
+
+class DotTracker:
+    """Track N painted dots from frame to frame.
+
+    Args:
+        initial_pixels: where each dot is in the first frame [px], shape (N, 2) (e.g. from a
+            calibration click, a stored layout, or a synthetic camera's projection).
+        names: landmark names, length N; ``dot_000``… when omitted.
+        color, threshold, min_area, max_area, min_axis_ratio, max_diameter: see :func:`detect_blobs`.
+        gate_px: largest distance [px] between a prediction and its detection.
+        outlier_px: largest disagreement [px] between a dot's motion and the median motion of its
+            ``neighbours`` nearest dots before the match is rejected.
+        neighbours: how many neighbours vote in the outlier test.
+        velocity_damping: fraction of the last velocity used in the prediction (0 = none).
+
+    Raises:
+        ValueError: bad shapes or non-finite initial pixels.
+    """
+
+    def __init__(
+        self,
+        initial_pixels,
+        *,
+        names: Sequence[str] | None = None,
+        color="dark",
+        threshold: float = 40.0,
+        min_area: int = 6,
+        max_area: int = 2000,
+        min_axis_ratio: float = 0.35,
+        max_diameter: int = 25,
+        gate_px: float = 15.0,
+        outlier_px: float = 8.0,
+        neighbours: int = 4,
+        velocity_damping: float = 0.5,
+    ):
+        start = np.asarray(initial_pixels, dtype=np.float64)
+        if start.ndim != 2 or start.shape[1] != 2 or start.shape[0] == 0:
+            raise ValueError(f"initial_pixels: expected shape (N, 2) with N ≥ 1, got {start.shape}")
+        if not np.all(np.isfinite(start)):
+            raise ValueError(f"initial_pixels: dot {int(np.argwhere(~np.isfinite(start))[0][0])} is not finite")
+        n = start.shape[0]
+        self.landmark_names = tuple(names) if names is not None else tuple(f"dot_{i:03d}" for i in range(n))
+        if len(self.landmark_names) != n:
+            raise ValueError(f"names: {len(self.landmark_names)} names for {n} dots")
+        self.blob_options = dict(color=color, threshold=threshold, min_area=min_area, max_area=max_area,
+                                 min_axis_ratio=min_axis_ratio, max_diameter=max_diameter)
+        self.gate_px = float(gate_px)
+        self.outlier_px = float(outlier_px)
+        self.neighbours = int(neighbours)
+        self.velocity_damping = float(velocity_damping)
+        self.reset(start)
+
+    def reset(self, pixels) -> None:
+        """Restart tracking from known dot positions [px], shape (N, 2)."""
+        self.position = np.asarray(pixels, dtype=np.float64).copy()
+        """Last known position of each dot [px], shape (N, 2)."""
+        self.velocity = np.zeros_like(self.position)
+        """Last per-frame motion of each dot [px/frame], shape (N, 2)."""
+        self.rejected_outliers = 0
+        """Matches rejected by the outlier test so far."""
+
+    def detect(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Find the dots in ``image``: pixels (N, 2) with NaN for dots not found, confidence (N,)."""
+        blobs = detect_blobs(image, **self.blob_options)
+        return self.update(blobs.centers)
+
+    def update(self, detections: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Associate detected centres (K, 2) with the tracked dots; see :meth:`detect`."""
+        from scipy.optimize import linear_sum_assignment
+
+        n = self.position.shape[0]
+        pixels = np.full((n, 2), np.nan)
+        confidence = np.zeros(n, dtype=np.float32)
+        det = np.asarray(detections, dtype=np.float64).reshape(-1, 2)
+        if det.shape[0] == 0:
+            self.velocity[:] = 0.0
+            return pixels, confidence
+        predicted = self.position + self.velocity_damping * self.velocity
+        cost = np.linalg.norm(predicted[:, None, :] - det[None, :, :], axis=2)
+        big = 1e6
+        rows, cols = linear_sum_assignment(np.where(cost <= self.gate_px, cost, big))
+        ok = cost[rows, cols] <= self.gate_px
+        rows, cols = rows[ok], cols[ok]
+        matched = np.zeros(n, dtype=bool)
+        matched[rows] = True
+        motion = np.zeros((n, 2))
+        motion[rows] = det[cols] - self.position[rows]
+
+        if rows.size > self.neighbours:
+            # Neighbours among the matched dots, by last position; compare motion with their median.
+            base = self.position[rows]
+            dist = np.linalg.norm(base[:, None, :] - base[None, :, :], axis=2)
+            np.fill_diagonal(dist, np.inf)
+            k = min(self.neighbours, rows.size - 1)
+            nearest = np.argpartition(dist, k - 1, axis=1)[:, :k]
+            expected = np.median(motion[rows][nearest], axis=1)
+            outlier = np.linalg.norm(motion[rows] - expected, axis=1) > self.outlier_px
+            self.rejected_outliers += int(outlier.sum())
+            matched[rows[outlier]] = False
+            rows, cols = rows[~outlier], cols[~outlier]
+
+        pixels[rows] = det[cols]
+        confidence[rows] = 1.0
+        self.velocity[rows] = det[cols] - self.position[rows]
+        self.velocity[~matched] = 0.0
+        self.position[rows] = det[cols]
+        return pixels, confidence
+
+
+class ArucoMarkers:
+    """ArUco markers as landmarks: one landmark per expected marker id, at the marker centre.
+
+    Args:
+        marker_ids: the ids to report, in landmark order.
+        dictionary: name of a predefined ``cv2.aruco`` dictionary (``"DICT_4X4_50"``…).
+        names: landmark names; ``aruco_<id>`` when omitted.
+        refine: use sub-pixel corner refinement.
+
+    Raises:
+        ValueError: unknown dictionary, repeated ids, or ids outside the dictionary.
+    """
+
+    def __init__(self, marker_ids: Sequence[int], *, dictionary: str = "DICT_4X4_50",
+                 names: Sequence[str] | None = None, refine: bool = True):
+        import cv2
+
+        ids = [int(i) for i in marker_ids]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"marker_ids: repeated id in {ids}")
+        if not hasattr(cv2.aruco, dictionary):
+            raise ValueError(f"dictionary: cv2.aruco has no {dictionary!r}")
+        self.dictionary_name = dictionary
+        self.dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
+        size = self.dictionary.bytesList.shape[0]
+        bad = [i for i in ids if not 0 <= i < size]
+        if bad:
+            raise ValueError(f"marker_ids: {bad} outside {dictionary} (0…{size - 1})")
+        self.marker_ids = tuple(ids)
+        self.landmark_names = tuple(names) if names is not None else tuple(f"aruco_{i}" for i in ids)
+        if len(self.landmark_names) != len(ids):
+            raise ValueError(f"names: {len(self.landmark_names)} names for {len(ids)} markers")
+        params = cv2.aruco.DetectorParameters()
+        if refine:
+            params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+        self._detector = cv2.aruco.ArucoDetector(self.dictionary, params)
+        self._row = {marker: k for k, marker in enumerate(ids)}
+
+    def detect_corners(self, image: np.ndarray) -> dict[int, np.ndarray]:
+        """Corners [px] of each expected marker found, ``{id: (4, 2)}`` in ArUco's corner order."""
+        import cv2
+
+        rgb = np.asarray(image)
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise ValueError(f"image must be (H, W, 3) uint8 RGB, got {rgb.shape} {rgb.dtype}")
+        corners, ids, _ = self._detector.detectMarkers(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))
+        found: dict[int, np.ndarray] = {}
+        if ids is None:
+            return found
+        for quad, marker in zip(corners, ids.reshape(-1)):
+            marker = int(marker)
+            if marker in self._row and marker not in found:  # first detection wins on duplicates
+                found[marker] = np.asarray(quad, dtype=np.float64).reshape(4, 2)
+        return found
+
+    def detect(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Marker centres [px], shape (N, 2), NaN where not found; confidence (N,) 1 or 0."""
+        pixels = np.full((len(self.marker_ids), 2), np.nan)
+        confidence = np.zeros(len(self.marker_ids), dtype=np.float32)
+        for marker, quad in self.detect_corners(image).items():
+            center = _diagonal_intersection(quad)
+            if center is not None:
+                pixels[self._row[marker]] = center
+                confidence[self._row[marker]] = 1.0
+        return pixels, confidence
+
+
+def _diagonal_intersection(quad: np.ndarray) -> np.ndarray | None:
+    """Intersection of the diagonals 0–2 and 1–3 of a quadrilateral (None if parallel)."""
+    p, r = quad[0], quad[2] - quad[0]
+    q, s = quad[1], quad[3] - quad[1]
+    denom = r[0] * s[1] - r[1] * s[0]
+    if abs(denom) < 1e-12:
+        return None
+    t = ((q - p)[0] * s[1] - (q - p)[1] * s[0]) / denom
+    return p + t * r
