@@ -63,16 +63,6 @@ def _ensure_platform() -> None:
     os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 
 
-def _normals(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    p = points[triangles]
-    face = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    normals = np.zeros_like(points)
-    for corner in range(3):
-        np.add.at(normals, triangles[:, corner], face)
-    length = np.linalg.norm(normals, axis=1, keepdims=True)
-    return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
-
-
 class PreviewRenderer:
     """A reusable offscreen renderer for one triangle topology (for videos and many frames).
 
@@ -94,6 +84,7 @@ class PreviewRenderer:
         self.camera = camera
         self.background = background
         self._renderer = pyrender.OffscreenRenderer(viewport_width=size[0], viewport_height=size[1])
+        self._topology = None  # a FaceMesh built on the first frame: its Warp kernel gives the normals
 
     def render(self, points: np.ndarray, colors: np.ndarray | None = None) -> np.ndarray:
         """Shade ``points`` (V, 3) with per-vertex ``colors`` (V, 3) in [0, 1] or skin; returns (H, W, 3) uint8."""
@@ -103,7 +94,11 @@ class PreviewRenderer:
             raise ValueError("preview: points contain non-finite values")
         if self.camera is None:
             self.camera = Camera.framing(points, aspect=self.size[0] / self.size[1])
-        normals = _normals(points, self.triangles.astype(np.int64))
+        if self._topology is None:
+            from .mesh import FaceMesh
+
+            self._topology = FaceMesh(points, self.triangles.astype(np.int64), name="preview", degenerate="ignore")
+        normals = self._topology.vertex_normals(points, device="cpu")
         if colors is None:
             colors = np.broadcast_to(np.asarray(SKIN_COLOR), points.shape)
         rgba = np.c_[np.asarray(colors, dtype=np.float32), np.ones(len(points), dtype=np.float32)]
