@@ -40,3 +40,43 @@ def rng():
 @pytest.fixture
 def cpu():
     return wp.get_device("cpu")
+
+
+def small_face_rig(n: int = 16, *, name: str = "Face"):
+    """A small procedural :class:`warpface.FaceRig` on a :func:`grid_surface` patch (for USD I/O tests).
+
+    Points are rounded to float32 (USD stores mesh points as point3f) so round trips can be exact.
+    Two linear muscles, one sphincter, a planar and a cylindrical wrinkle, a varying thickness,
+    four landmarks; one name is not a valid USD identifier.
+    """
+    from warpface import (CylindricalProjection, FaceMesh, FaceRig, LinearMuscle, PlanarProjection,
+                          SphincterMuscle, Wrinkle)
+
+    points, triangles = grid_surface(n, size=0.2, height=0.02, seed=3)
+    points = points.astype(np.float32).astype(np.float64)
+    muscles = [
+        LinearMuscle("zygomaticus major L", attachment=[0.09, 0.08, -0.03], insertion=[0.02, -0.02, 0.01],
+                     zone_angle_deg=35.0, falloff_start=0.05, falloff_finish=0.14),
+        LinearMuscle("frontalis_R", attachment=[-0.05, 0.12, -0.02], insertion=[-0.04, 0.03, 0.01],
+                     zone_angle_deg=28.5, falloff_start=0.04, falloff_finish=0.11),
+        SphincterMuscle("orbicularis_oris", center=[0.0, -0.03, 0.0], axis_x=[1.0, 0.0, 0.1], axis_y=[0.0, 1.0, 0.0],
+                        semi_axes=(0.05, 0.03)),
+    ]
+    wrinkles = [
+        Wrinkle("forehead_1", control_points=[[-0.06, 0.05], [-0.02, 0.06], [0.02, 0.06], [0.06, 0.05]],
+                projection=PlanarProjection([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
+                depth=0.002, width=0.004, kr=0.0),
+        Wrinkle("crow_L", control_points=[[0.01, -0.02], [0.015, -0.01], [0.02, 0.0], [0.022, 0.015]],
+                projection=CylindricalProjection([0.0, 0.0, -0.1], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], 0.1),
+                depth=0.0015, width=0.003, kr=0.25),
+    ]
+    thickness = 0.004 + 0.003 * (points[:, 0] - points[:, 0].min()) / np.ptp(points[:, 0])
+    mesh = FaceMesh(points, triangles, name="skin mesh")
+    return FaceRig(mesh=mesh, muscles=muscles, wrinkles=wrinkles, thickness=thickness,
+                   landmarks=np.array([0, 5, n * n - 1, n + 3]), name=name)
+
+
+@pytest.fixture
+def small_rig():
+    """A fresh :func:`small_face_rig`."""
+    return small_face_rig()

@@ -4,7 +4,13 @@ The expression model (Bando et al.) is importable from here; the tissue FEM live
 :mod:`warpface.fem`, USD I/O in :mod:`warpface.usd`, tracking in :mod:`warpface.tracking`.
 """
 
-from .errors import RigError
+# First, before anything can touch Usd.SchemaRegistry: register the codeless USD schema plugin
+# (skipped when usd-core is not installed; see warpface.usd.schema).
+from .usd.schema import _register_at_import
+
+_register_at_import()
+
+from .errors import RigError  # noqa: E402
 from .expression import (
     CylindricalProjection,
     ExpressionModel,

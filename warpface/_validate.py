@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["as_finite_array", "as_vec3", "as_positive", "unit_vector"]
+__all__ = ["as_finite_array", "as_vec3", "as_positive", "unit_vector", "orthogonal_unit_vector"]
 
 
 def as_finite_array(value, name: str, *, shape: tuple | None = None, dtype=np.float64) -> np.ndarray:
@@ -40,9 +40,29 @@ def as_positive(value, name: str, *, allow_zero: bool = False) -> float:
 
 
 def unit_vector(value, name: str) -> np.ndarray:
-    """``value`` normalised to unit length; raises ValueError if it has zero length."""
+    """``value`` normalised to unit length; raises ValueError if it has zero length.
+
+    A vector whose length already rounds to 1 is returned unchanged: dividing it by that length can
+    flip its last bit, and validated records (muscles, projections) must survive re-validation exactly
+    (e.g. a USD round trip).
+    """
     vector = as_vec3(value, name)
     length = float(np.linalg.norm(vector))
     if length <= 1e-12 * max(1.0, float(np.abs(vector).max())):
         raise ValueError(f"{name}: zero-length vector")
+    if abs(length - 1.0) <= 2.0 * np.finfo(np.float64).eps:
+        return vector
     return vector / length
+
+
+def orthogonal_unit_vector(value, axis: np.ndarray, name: str) -> np.ndarray:
+    """``value`` with its component along the unit vector ``axis`` removed, normalised (Gram–Schmidt).
+
+    A vector already orthogonal to ``axis`` to within 1e-12 (relative) is only normalised, so that
+    re-validating a validated frame is exact. Raises ValueError if ``value`` is parallel to ``axis``.
+    """
+    vector = as_vec3(value, name)
+    along = float(np.dot(vector, axis))
+    if abs(along) > 1e-12 * float(np.linalg.norm(vector)):
+        vector = vector - along * axis
+    return unit_vector(vector, name)

@@ -15,7 +15,7 @@ from typing import Union
 import numpy as np
 import warp as wp
 
-from .._validate import as_finite_array, as_vec3, unit_vector
+from .._validate import as_finite_array, as_vec3, orthogonal_unit_vector, unit_vector
 from ._sparse import vertex_csr
 
 __all__ = ["LinearMuscle", "SphincterMuscle", "Muscle", "muscle_weights", "MuscleWeights"]
@@ -108,11 +108,10 @@ class SphincterMuscle:
         set_(self, "center", as_vec3(self.center, f"{label}: center"))
         ex = unit_vector(self.axis_x, f"{label}: axis_x")
         ey = unit_vector(self.axis_y, f"{label}: axis_y")
-        ey = ey - np.dot(ey, ex) * ex
-        if np.linalg.norm(ey) < 1e-6:
+        if np.linalg.norm(ey - np.dot(ey, ex) * ex) < 1e-6:
             raise ValueError(f"{label}: axis_x and axis_y are parallel")
         set_(self, "axis_x", ex)
-        set_(self, "axis_y", ey / np.linalg.norm(ey))
+        set_(self, "axis_y", orthogonal_unit_vector(ey, ex, f"{label}: axis_y"))
         semi = as_finite_array(self.semi_axes, f"{label}: semi_axes", shape=(2,))
         if np.any(semi <= 0.0):
             raise ValueError(f"{label}: semi_axes must be > 0, got {semi.tolist()}")

@@ -15,7 +15,7 @@ from typing import Union
 import numpy as np
 import warp as wp
 
-from .._validate import as_finite_array, as_positive, as_vec3, unit_vector
+from .._validate import as_finite_array, as_positive, as_vec3, orthogonal_unit_vector, unit_vector
 from ._sparse import vertex_csr
 
 __all__ = [
@@ -97,8 +97,7 @@ class CylindricalProjection:
     def __post_init__(self) -> None:
         object.__setattr__(self, "origin", as_vec3(self.origin, "cylindrical projection: origin"))
         axis = unit_vector(self.axis, "cylindrical projection: axis")
-        reference = as_vec3(self.reference, "cylindrical projection: reference")
-        reference = unit_vector(reference - np.dot(reference, axis) * axis, "cylindrical projection: reference ⟂ axis")
+        reference = orthogonal_unit_vector(self.reference, axis, "cylindrical projection: reference ⟂ axis")
         object.__setattr__(self, "axis", axis)
         object.__setattr__(self, "reference", reference)
         object.__setattr__(self, "radius", as_positive(self.radius, "cylindrical projection: radius"))

@@ -5,19 +5,20 @@ imported lazily where they are used.
 """
 
 from .assembly import FORMULATIONS, SystemMatrices, assemble
-# from .integrator import TissueSimulation
+from .integrator import ConvergenceError, TissueSimulation
 from .material import DAMPING_MODELS, TissueMaterial
 from .primitives import box_tet_mesh, shell_tet_mesh
 from .tetmesh import TetMesh, TetQuality
 
 __all__ = [
+    "ConvergenceError",
     "DAMPING_MODELS",
     "FORMULATIONS",
     "SystemMatrices",
     "TetMesh",
     "TetQuality",
     "TissueMaterial",
-#
+    "TissueSimulation",
     "assemble",
     "box_tet_mesh",
     "shell_tet_mesh",

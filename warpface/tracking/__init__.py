@@ -1,1 +1,101 @@
-"""placeholder during development"""
+"""Tracking adapter: landmark streams (recorded, RGB-D, synthetic, live) → dense face motion.
+
+Modules, each with one job:
+
+* :mod:`~warpface.tracking.sources` — :class:`LandmarkFrame`, :class:`LandmarkSource`,
+  :class:`RGBDFrame`, :class:`RGBDSource`, the timestamp policy, :func:`fill_missing`,
+  :class:`RecordedLandmarks` (.npz), :class:`RGBDFolder`, :class:`RGBDLandmarks`.
+* :mod:`~warpface.tracking.cameras` — :class:`RealSenseCamera`, :class:`OrbbecCamera`.
+* :mod:`~warpface.tracking.mediapipe` — :class:`MediaPipeLandmarks`.
+* :mod:`~warpface.tracking.synthetic` — :class:`SyntheticRGBDCamera` (pyrender, ground truth).
+* :mod:`~warpface.tracking.detect` — ArUco markers, dot blobs, :class:`DotTracker`.
+* :mod:`~warpface.tracking.depth` — :class:`CameraIntrinsics`, robust :func:`backproject`.
+* :mod:`~warpface.tracking.correspondence` — :class:`FaceNormalization`, :func:`closest_points`,
+  :func:`compute_correspondence`.
+* :mod:`~warpface.tracking.transfer` — :func:`blend_weights`, :class:`TrackingAdapter`.
+
+Importing this package needs only Warp and NumPy; OpenCV, pyrender and the camera SDKs are
+imported when first used.
+"""
+
+from .alignment import rigid_fit, similarity_fit
+from .cameras import CameraDisconnected, CameraError, CameraUnavailable, OrbbecCamera, RealSenseCamera
+from .correspondence import (
+    Correspondence,
+    FaceNormalization,
+    TriangleMeshIndex,
+    closest_points,
+    compute_correspondence,
+    triangulate_landmarks,
+)
+from .depth import KINECT_V1_INTRINSICS, CameraIntrinsics, backproject
+from .detect import ArucoMarkers, Blobs, DotTracker, detect_blobs
+from .mediapipe import MediaPipeLandmarks, parse_landmark_list
+from .sources import (
+    TIMESTAMP_POLICIES,
+    LandmarkFrame,
+    LandmarkSource,
+    RecordedLandmarks,
+    RGBDFolder,
+    RGBDFrame,
+    RGBDLandmarks,
+    RGBDSource,
+    checked_frames,
+    fill_missing,
+)
+from .synthetic import (
+    KinectNoise,
+    SyntheticRGBDCamera,
+    default_model_to_camera,
+    place_fiducials,
+    procedural_face,
+    procedural_jaw_open,
+)
+from .transfer import TrackingAdapter, blend_weights, transfer_displacements
+
+__all__ = [
+    # sources
+    "LandmarkFrame",
+    "LandmarkSource",
+    "RGBDFrame",
+    "RGBDSource",
+    "TIMESTAMP_POLICIES",
+    "checked_frames",
+    "fill_missing",
+    "RecordedLandmarks",
+    "RGBDFolder",
+    "RGBDLandmarks",
+    "MediaPipeLandmarks",
+    "parse_landmark_list",
+    "RealSenseCamera",
+    "OrbbecCamera",
+    "CameraError",
+    "CameraUnavailable",
+    "CameraDisconnected",
+    "SyntheticRGBDCamera",
+    "KinectNoise",
+    "default_model_to_camera",
+    "place_fiducials",
+    "procedural_face",
+    "procedural_jaw_open",
+    # detection and depth
+    "ArucoMarkers",
+    "Blobs",
+    "DotTracker",
+    "detect_blobs",
+    "CameraIntrinsics",
+    "KINECT_V1_INTRINSICS",
+    "backproject",
+    # sparse → dense
+    "FaceNormalization",
+    "Correspondence",
+    "TriangleMeshIndex",
+    "closest_points",
+    "compute_correspondence",
+    "triangulate_landmarks",
+    "blend_weights",
+    "transfer_displacements",
+    "TrackingAdapter",
+    "similarity_fit",
+    "rigid_fit",
+]

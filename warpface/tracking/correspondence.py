@@ -26,6 +26,8 @@ __all__ = [
     "Correspondence",
     "closest_points",
     "compute_correspondence",
+    "triangulate_landmarks",
+    "TriangleMeshIndex",
 ]
 
 
@@ -333,3 +335,36 @@ def compute_correspondence(
         distance=dist.astype(np.float64) * to_dense,
         overhang=np.linalg.norm(tangential, axis=1) * to_dense,
     )
+
+
+def triangulate_landmarks(points, *, max_edge: float | None = None) -> np.ndarray:
+    """A sparse tracking mesh over landmarks: Delaunay triangulation of their front (x, y) projection.
+
+    Args:
+        points: landmark positions [m], shape (N, 3), model frame (+z toward the viewer).
+        max_edge: drop triangles with an edge longer than this [m] (the long slivers Delaunay
+            puts along a concave hull); default 2.5 × the median edge length.
+
+    Returns:
+        Triangles, shape (T, 3), int32, oriented toward +z.
+
+    Raises:
+        ValueError: fewer than 3 points, or no triangle left.
+    """
+    from scipy.spatial import Delaunay
+
+    pts = _as_points(points, "points")
+    if pts.shape[0] < 3:
+        raise ValueError(f"points: need ≥ 3 landmarks to triangulate, got {pts.shape[0]}")
+    tri = Delaunay(pts[:, :2]).simplices.astype(np.int64)
+    # Orient toward +z: counter-clockwise in (x, y).
+    e1 = pts[tri[:, 1], :2] - pts[tri[:, 0], :2]
+    e2 = pts[tri[:, 2], :2] - pts[tri[:, 0], :2]
+    flip = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
+    tri[flip] = tri[flip][:, [0, 2, 1]]
+    edges = np.stack([np.linalg.norm(pts[tri[:, a]] - pts[tri[:, b]], axis=1) for a, b in ((0, 1), (1, 2), (2, 0))], 1)
+    limit = 2.5 * float(np.median(edges)) if max_edge is None else float(max_edge)
+    tri = tri[edges.max(axis=1) <= limit]
+    if tri.shape[0] == 0:
+        raise ValueError("triangulate_landmarks: no triangle shorter than max_edge")
+    return tri.astype(np.int32)

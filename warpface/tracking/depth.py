@@ -100,29 +100,81 @@ KINECT_V1_INTRINSICS = CameraIntrinsics(fx=525.0, fy=525.0, cx=319.5, cy=239.5, 
 """A Kinect-v1-like 640×480 camera (the thesis's sensor): 525 px focal length, centred."""
 
 
+_vec6d = wp.types.vector(length=6, dtype=wp.float64)
+_mat66d = wp.types.matrix(shape=(6, 6), dtype=wp.float64)
+
+
 @wp.func
-def _plane_depth(a: float, b: float, c: float, du: float, dv: float) -> float:
-    """Depth of the inverse-depth plane ``1/Z = a + b du + c dv`` (0 where it is not in front)."""
-    w = a + b * du + c * dv
+def _basis(du: float, dv: float, scale: float) -> _vec6d:
+    """Monomials of the local surface model in window-normalised offsets (so the fit is well scaled)."""
+    x = wp.float64(du * scale)
+    y = wp.float64(dv * scale)
+    return _vec6d(wp.float64(1.0), x, y, x * x, x * y, y * y)
+
+
+@wp.func
+def _model_depth(coef: _vec6d, du: float, dv: float, scale: float) -> float:
+    """Depth of the inverse-depth model ``1/Z = Σ coef_k m_k(du, dv)`` (0 where not in front)."""
+    w = float(wp.dot(coef, _basis(du, dv, scale)))
     if w <= 0.0:
         return 0.0
     return 1.0 / w
 
 
 @wp.func
+def _solve_spd(A: _mat66d, b: _vec6d, n: int) -> _vec6d:
+    """Solve the leading n×n block of a symmetric positive-definite system by Cholesky.
+
+    Returns the zero vector if the block is not (numerically) positive definite.
+    """
+    L = _mat66d()
+    x = _vec6d()
+    ok = int(1)
+    for j in range(n):
+        d = A[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if d <= wp.float64(1.0e-12) * A[j, j] or d <= wp.float64(0.0):
+            ok = 0
+        else:
+            L[j, j] = wp.sqrt(d)
+            for i in range(j + 1, n):
+                e = A[i, j]
+                for k in range(j):
+                    e -= L[i, k] * L[j, k]
+                L[i, j] = e / L[j, j]
+    if ok == 0:
+        return _vec6d()
+    y = _vec6d()
+    for i in range(n):
+        e = b[i]
+        for k in range(i):
+            e -= L[i, k] * y[k]
+        y[i] = e / L[i, i]
+    for ii in range(n):
+        i = n - 1 - ii
+        e = y[i]
+        for k in range(i + 1, n):
+            e -= L[k, i] * x[k]
+        x[i] = e / L[i, i]
+    return x
+
+
+@wp.func
 def _count_residual_le(
     depth: wp.array2d(dtype=float),
     r0: int, r1: int, c0: int, c1: int,
-    u: float, v: float, a: float, b: float, c: float,
+    u: float, v: float, coef: _vec6d, scale: float,
     signed: int, threshold: float,
 ) -> int:
-    """Count valid window pixels with residual ≤ threshold (signed: Z − plane; else |Z − plane|)."""
+    """Count valid pixels in rows [r0, r1) × cols [c0, c1) whose residual Z − model (signed) or
+    |Z − model| is ≤ threshold. A zero model makes the signed residual the depth itself."""
     count = int(0)
     for row in range(r0, r1):
         for col in range(c0, c1):
             z = depth[row, col]
             if z > 0.0:
-                r = z - _plane_depth(a, b, c, float(col) - u, float(row) - v)
+                r = z - _model_depth(coef, float(col) - u, float(row) - v, scale)
                 if signed == 0:
                     r = wp.abs(r)
                 if r <= threshold:
@@ -134,18 +186,35 @@ def _count_residual_le(
 def _median_residual(
     depth: wp.array2d(dtype=float),
     r0: int, r1: int, c0: int, c1: int,
-    u: float, v: float, a: float, b: float, c: float,
+    u: float, v: float, coef: _vec6d, scale: float,
     signed: int, lo: float, hi: float, n: int,
 ) -> float:
-    """Median of the (signed or absolute) residuals of the n valid pixels, by bisection on [lo, hi]."""
+    """Median of the n valid pixels' residuals (see :func:`_count_residual_le`), bisection on [lo, hi]."""
     half = (n + 1) // 2
-    for _ in range(40):
+    # 24 halvings: 6e-8 of the bracket (sub-micrometre for any window of a face).
+    for _ in range(24):
         mid = 0.5 * (lo + hi)
-        if _count_residual_le(depth, r0, r1, c0, c1, u, v, a, b, c, signed, mid) >= half:
+        if _count_residual_le(depth, r0, r1, c0, c1, u, v, coef, scale, signed, mid) >= half:
             hi = mid
         else:
             lo = mid
     return hi
+
+
+@wp.func
+def _valid_range(depth: wp.array2d(dtype=float), r0: int, r1: int, c0: int, c1: int) -> wp.vec3:
+    """(count, min, max) of the valid depths in a window."""
+    n = float(0.0)
+    zmin = float(1.0e30)
+    zmax = float(0.0)
+    for row in range(r0, r1):
+        for col in range(c0, c1):
+            z = depth[row, col]
+            if z > 0.0:
+                n += 1.0
+                zmin = wp.min(zmin, z)
+                zmax = wp.max(zmax, z)
+    return wp.vec3(n, zmin, zmax)
 
 
 @wp.kernel
@@ -153,18 +222,21 @@ def _backproject_kernel(
     depth: wp.array2d(dtype=float),
     pixels: wp.array(dtype=wp.vec2),
     half: int,
+    quadric: int,
     min_valid: int,
     fx: float,
     fy: float,
     cx: float,
     cy: float,
     outlier_floor: float,
+    max_slope: float,
     noise_floor: float,
     iterations: int,
+    min_inlier_fraction: float,
     out_points: wp.array(dtype=wp.vec3),
     out_inliers: wp.array(dtype=wp.int32),
 ):
-    """Robust inverse-depth plane fit over a (2·half+1)² window per landmark; see :func:`backproject`."""
+    """Robust local inverse-depth surface fit per landmark; see :func:`backproject`."""
     i = wp.tid()
     u = pixels[i][0]
     v = pixels[i][1]
@@ -182,65 +254,90 @@ def _backproject_kernel(
     r1 = wp.min(vc + half + 1, height)
     if c0 >= c1 or r0 >= r1:
         return
-
-    n = int(0)
-    zmin = float(1.0e30)
-    zmax = float(0.0)
-    for row in range(r0, r1):
-        for col in range(c0, c1):
-            z = depth[row, col]
-            if z > 0.0:
-                n += 1
-                zmin = wp.min(zmin, z)
-                zmax = wp.max(zmax, z)
+    stats = _valid_range(depth, r0, r1, c0, c1)
+    n = int(stats[0])
     if n < min_valid:
         return
+    scale = 1.0 / float(half)
+    zero = _vec6d()
 
-    # Robust start: a fronto-parallel plane at the median depth, gate = 3 σ̂ (σ̂ = 1.4826 MAD).
-    a = float(0.0)
-    b = float(0.0)
-    c = float(0.0)
-    z_med = _median_residual(depth, r0, r1, c0, c1, u, v, a, b, c, 1, zmin, zmax, n)
-    a = 1.0 / z_med
-    mad = _median_residual(depth, r0, r1, c0, c1, u, v, a, b, c, 0, 0.0, zmax - zmin, n)
-    gate = wp.max(3.0 * 1.4826 * mad, outlier_floor)
+    # Seed on the landmark's own surface: the median depth of the innermost ring that has data.
+    z_seed = float(0.0)
+    found = int(0)
+    for ring in range(1, half + 1):
+        if found == 0:
+            a0 = wp.max(uc - ring, 0)
+            a1 = wp.min(uc + ring + 1, width)
+            b0 = wp.max(vc - ring, 0)
+            b1 = wp.min(vc + ring + 1, height)
+            inner = _valid_range(depth, b0, b1, a0, a1)
+            if int(inner[0]) >= 3:
+                z_seed = _median_residual(depth, b0, b1, a0, a1, u, v, zero, scale, 1, inner[1], inner[2],
+                                          int(inner[0]))
+                found = 1
+    if found == 0:
+        return
 
+    # First pass: a cone around the seed depth — a surface up to max_slope steep stays inside,
+    # an occluding or occluded surface a few millimetres away does not.
+    focal = 0.5 * (fx + fy)
+    reach_px = float(half) * 1.4143 + 1.0
+    coef = zero
     inliers = int(0)
-    for _it in range(iterations):
-        A = wp.mat33(0.0)
-        rhs = wp.vec3(0.0)
+    gate = float(0.0)
+    for it in range(iterations + 1):
+        A = _mat66d()
+        rhs = _vec6d()
         count = int(0)
+        if it > 0:
+            # Re-gate on this fit's residuals: 2.5 σ̂ (σ̂ = 1.4826 MAD), never below the sensor's noise.
+            lim = float(0.0)
+            for row in range(r0, r1):
+                for col in range(c0, c1):
+                    z = depth[row, col]
+                    if z > 0.0:
+                        lim = wp.max(lim, wp.abs(z - _model_depth(coef, float(col) - u, float(row) - v, scale)))
+            mad = _median_residual(depth, r0, r1, c0, c1, u, v, coef, scale, 0, 0.0, lim, n)
+            gate = wp.max(2.5 * 1.4826 * mad, 2.5 * noise_floor)
         for row in range(r0, r1):
             for col in range(c0, c1):
                 z = depth[row, col]
                 if z > 0.0:
                     du = float(col) - u
                     dv = float(row) - v
-                    if wp.abs(z - _plane_depth(a, b, c, du, dv)) <= gate:
-                        x = wp.vec3(1.0, du, dv)
-                        A += wp.outer(x, x)
-                        rhs += x * (1.0 / z)
+                    keep = int(0)
+                    if it == 0:
+                        reach = outlier_floor + max_slope * wp.sqrt(du * du + dv * dv) * z_seed / focal
+                        if wp.abs(z - z_seed) <= reach:
+                            keep = 1
+                    elif wp.abs(z - _model_depth(coef, du, dv, scale)) <= gate:
+                        keep = 1
+                    if keep == 1:
+                        # Tricube weights (as in LOESS): the centre, where the landmark is, counts most.
+                        q = wp.min(wp.sqrt(du * du + dv * dv) / reach_px, 1.0)
+                        t = 1.0 - q * q * q
+                        m = _basis(du, dv, scale)
+                        wm = m * wp.float64(t * t * t)
+                        A += wp.outer(wm, m)
+                        rhs += wm * wp.float64(1.0 / z)
                         count += 1
-        if count < min_valid or wp.determinant(A) <= 1.0e-6 * float(count) * float(count) * float(count):
+        # The first fit is a plane (robust on little data); later ones the requested model.
+        terms = int(3)
+        if it > 0 and quadric == 1 and count >= 12:
+            terms = int(6)
+        if count < min_valid:
             return
-        sol = wp.inverse(A) * rhs
-        if sol[0] <= 0.0:
+        sol = _solve_spd(A, rhs, terms)
+        if sol[0] <= wp.float64(0.0):
             return
-        a = sol[0]
-        b = sol[1]
-        c = sol[2]
+        coef = sol
         inliers = count
-        # Re-gate on the residuals of this fit: 2.5 σ̂, never tighter than the sensor's noise floor.
-        lim = float(0.0)
-        for row in range(r0, r1):
-            for col in range(c0, c1):
-                z = depth[row, col]
-                if z > 0.0:
-                    lim = wp.max(lim, wp.abs(z - _plane_depth(a, b, c, float(col) - u, float(row) - v)))
-        mad_r = _median_residual(depth, r0, r1, c0, c1, u, v, a, b, c, 0, 0.0, lim, n)
-        gate = wp.max(2.5 * 1.4826 * mad_r, 2.5 * noise_floor)
 
-    z0 = 1.0 / a
+    # Two surfaces in the window (an occluding edge) leave many pixels out: the landmark may sit on
+    # either, so give up rather than guess.
+    if float(inliers) < min_inlier_fraction * float(n):
+        return
+    z0 = 1.0 / float(coef[0])
     out_points[i] = wp.vec3((u - cx) * z0 / fx, (v - cy) * z0 / fy, z0)
     out_inliers[i] = inliers
 
@@ -251,19 +348,34 @@ def backproject(
     intrinsics: CameraIntrinsics,
     *,
     window: int = 9,
+    model: str = "quadric",
     min_valid: int = 12,
-    outlier_floor: float = 0.004,
+    outlier_floor: float = 0.003,
+    max_slope: float = 3.0,
     noise_floor: float = 0.0005,
     iterations: int = 3,
+    min_inlier_fraction: float = 0.7,
     device=None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Camera-frame 3-D positions of sub-pixel landmarks from a depth image.
 
-    Per landmark, a ``window × window`` neighbourhood is examined: holes (depth 0) are skipped,
-    pixels further than ``max(3 σ̂, outlier_floor)`` from the median depth are rejected (σ̂ from the
-    median absolute deviation), and a plane ``1/Z = a + b du + c dv`` is fitted by least squares and
-    re-fitted ``iterations`` times on pixels within ``max(2.5 σ̂_r, 2.5 noise_floor)`` of it. The
-    depth is the plane evaluated at the landmark; X and Y follow from the pinhole model.
+    Per landmark, over a ``window × window`` neighbourhood (holes, depth 0, skipped):
+
+    1. **Seed** on the landmark's own surface: the median depth of the smallest ring around the
+       landmark that holds ≥ 3 valid pixels.
+    2. **Cone gate**: keep pixels within ``outlier_floor + max_slope · ρ · Z / f`` of the seed depth
+       (ρ = pixel distance from the landmark), i.e. any surface up to ``max_slope`` steep — not an
+       occluding or occluded surface, flying pixels or background.
+    3. **Fit** the inverse depth ``1/Z`` as a plane in (du, dv) by least squares (exact for a planar
+       patch), then ``iterations`` refits — a full quadric with ``model="quadric"``, which removes
+       the curvature bias a plane has on a curved face — each on the pixels within
+       ``max(2.5 σ̂, 2.5 noise_floor)`` of the previous fit (σ̂ = 1.4826 × median absolute residual).
+    4. **Reject** the landmark if the final fit keeps fewer than ``min_inlier_fraction`` of the valid
+       pixels (the window straddles an occluding edge; the landmark may lie on either surface).
+
+    The depth is the model evaluated at the landmark's sub-pixel position; X and Y follow from the
+    pinhole model. This replaces the nearest depth pixel, whose noise (σ ≈ 1.3 mm at 0.6 m for a
+    Kinect) and holes go straight into the landmark.
 
     Args:
         pixels: landmark positions [px], shape (N, 2), OpenCV convention; NaN rows are skipped.
@@ -271,19 +383,23 @@ def backproject(
         intrinsics: the depth image's intrinsics (depth registered to the colour camera when the
             landmarks were found in colour).
         window: odd window size [px], ≥ 3.
+        model: ``"quadric"`` (default) or ``"plane"``.
         min_valid: fewest inlier pixels for a valid fit.
-        outlier_floor: smallest first-pass gate [m] (flying pixels and background beyond it go).
+        outlier_floor: half-width of the first gate at the landmark itself [m].
+        max_slope: steepest surface slope (dZ per lateral distance) the first gate admits.
         noise_floor: smallest residual scale [m] assumed for the sensor.
-        iterations: number of reweighted fits.
+        iterations: number of refits after the first plane.
+        min_inlier_fraction: see step 4.
         device: Warp device.
 
     Returns:
-        ``(points, inliers)``: positions [m], shape (N, 3), float64, NaN where no valid fit
-        (landmark missing, off-image, or too few valid depth pixels); inlier counts, shape (N,), int32.
+        ``(points, inliers)``: positions [m], shape (N, 3), float64, NaN where there is no valid fit
+        (landmark missing, off the image, too few valid depth pixels, or an occluding edge);
+        inlier counts, shape (N,), int32, 0 where invalid.
 
     Raises:
-        ValueError: bad shapes, even/too small window, or a depth image whose size does not match
-            ``intrinsics``.
+        ValueError: bad shapes, an even or too small window, an unknown model, or a depth image
+            whose size does not match ``intrinsics``.
     """
     uv = np.asarray(pixels, dtype=np.float64)
     if uv.ndim != 2 or uv.shape[1] != 2:
@@ -297,8 +413,10 @@ def backproject(
         )
     if window < 3 or window % 2 == 0:
         raise ValueError(f"window: must be an odd integer ≥ 3, got {window}")
-    if min_valid < 3:
-        raise ValueError(f"min_valid: must be ≥ 3 for a plane fit, got {min_valid}")
+    if model not in ("plane", "quadric"):
+        raise ValueError(f"model: 'plane' or 'quadric', got {model!r}")
+    if min_valid < 6:
+        raise ValueError(f"min_valid: must be ≥ 6 for a surface fit, got {min_valid}")
     count = uv.shape[0]
     if count == 0:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
@@ -313,14 +431,17 @@ def backproject(
             wp.array(z32, dtype=float, device=device),
             wp.array(uv.astype(np.float32), dtype=wp.vec2, device=device),
             window // 2,
+            1 if model == "quadric" else 0,
             int(min_valid),
             float(intrinsics.fx),
             float(intrinsics.fy),
             float(intrinsics.cx),
             float(intrinsics.cy),
             float(outlier_floor),
+            float(max_slope),
             float(noise_floor),
             int(max(iterations, 1)),
+            float(min_inlier_fraction),
         ],
         outputs=[points, inliers],
         device=device,

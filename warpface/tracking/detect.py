@@ -35,7 +35,8 @@ class Blobs:
     """Blob candidates in one image."""
 
     centers: np.ndarray
-    """Contrast-weighted centroids [px], shape (K, 2), float64, OpenCV convention."""
+    """Contrast-weighted centroids [px], shape (K, 2), float64, OpenCV convention (over the blob and a
+    one-pixel rim, so partially covered edge pixels count with their partial contrast)."""
     areas: np.ndarray
     """Pixel counts, shape (K,), int64."""
     axis_ratio: np.ndarray
@@ -56,8 +57,10 @@ def _contrast_map(image: np.ndarray, color, max_diameter: int) -> np.ndarray:
         if color != "dark":
             raise ValueError(f"color must be 'dark' or an RGB triple, got {color!r}")
         gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-        size = 2 * int(max_diameter) + 1
-        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+        # A closing wider than any dot fills the dots with the surrounding skin; a rectangular
+        # element is separable, so this costs O(pixels) whatever the dot size.
+        size = int(max_diameter) + 2
+        kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (size, size))
         background = cv2.morphologyEx(gray, cv2.MORPH_CLOSE, kernel)
         return background.astype(np.float32) - gray.astype(np.float32)
     target = np.asarray(color, dtype=np.float32).reshape(-1)
@@ -77,7 +80,7 @@ def detect_blobs(
     image: np.ndarray,
     *,
     color="dark",
-    threshold: float = 40.0,
+    threshold: float = 70.0,
     min_area: int = 6,
     max_area: int = 2000,
     min_axis_ratio: float = 0.35,
@@ -104,9 +107,13 @@ def detect_blobs(
     if count <= 1:
         empty = np.zeros(0)
         return Blobs(np.zeros((0, 2)), empty.astype(np.int64), empty, empty)
-    rows, cols = np.nonzero(labels)
-    lab = labels[rows, cols]
-    w = contrast[rows, cols].astype(np.float64)
+    # Centroids over each blob grown by one pixel: its partially covered rim pixels (below the
+    # threshold) still carry their share of contrast, which removes the threshold's edge bias.
+    grown = cv2.dilate(labels.astype(np.float32), np.ones((3, 3), np.uint8)).astype(np.int32)
+    grown = np.where(labels > 0, labels, grown)
+    rows, cols = np.nonzero(grown)
+    lab = grown[rows, cols]
+    w = np.maximum(contrast[rows, cols].astype(np.float64), 0.0)
     x = cols.astype(np.float64)
     y = rows.astype(np.float64)
     sw = np.bincount(lab, w, count)
@@ -132,7 +139,7 @@ def detect_blobs(
         centers=np.stack([cx, cy], axis=1)[keep],
         areas=area[keep],
         axis_ratio=ratio[keep],
-        contrast=(sw_ / area)[keep],
+        contrast=(sw_ / area)[keep],  # mean over the blob's own pixels, rim included in the sum
     )
 
 
@@ -149,6 +156,8 @@ class DotTracker:
             ``neighbours`` nearest dots before the match is rejected.
         neighbours: how many neighbours vote in the outlier test.
         velocity_damping: fraction of the last velocity used in the prediction (0 = none).
+        area_change: largest factor by which a dot's blob area may change between its running
+            average and one frame before the match is dropped (partial occlusion).
 
     Raises:
         ValueError: bad shapes or non-finite initial pixels.
@@ -160,7 +169,7 @@ class DotTracker:
         *,
         names: Sequence[str] | None = None,
         color="dark",
-        threshold: float = 40.0,
+        threshold: float = 70.0,
         min_area: int = 6,
         max_area: int = 2000,
         min_axis_ratio: float = 0.35,
@@ -169,6 +178,7 @@ class DotTracker:
         outlier_px: float = 8.0,
         neighbours: int = 4,
         velocity_damping: float = 0.5,
+        area_change: float = 1.6,
     ):
         start = np.asarray(initial_pixels, dtype=np.float64)
         if start.ndim != 2 or start.shape[1] != 2 or start.shape[0] == 0:
@@ -185,6 +195,7 @@ class DotTracker:
         self.outlier_px = float(outlier_px)
         self.neighbours = int(neighbours)
         self.velocity_damping = float(velocity_damping)
+        self.area_change = float(area_change)
         self.reset(start)
 
     def reset(self, pixels) -> None:
@@ -195,53 +206,103 @@ class DotTracker:
         """Last per-frame motion of each dot [px/frame], shape (N, 2)."""
         self.rejected_outliers = 0
         """Matches rejected by the outlier test so far."""
+        self.area = np.full(self.position.shape[0], np.nan)
+        """Running blob area of each dot [px²] (NaN until first seen)."""
 
     def detect(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Find the dots in ``image``: pixels (N, 2) with NaN for dots not found, confidence (N,)."""
-        blobs = detect_blobs(image, **self.blob_options)
-        return self.update(blobs.centers)
-
-    def update(self, detections: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Associate detected centres (K, 2) with the tracked dots; see :meth:`detect`."""
-        from scipy.optimize import linear_sum_assignment
-
-        n = self.position.shape[0]
-        pixels = np.full((n, 2), np.nan)
-        confidence = np.zeros(n, dtype=np.float32)
-        det = np.asarray(detections, dtype=np.float64).reshape(-1, 2)
-        if det.shape[0] == 0:
-            self.velocity[:] = 0.0
-            return pixels, confidence
+        image = np.asarray(image)
+        if image.ndim != 3 or image.shape[2] != 3:
+            raise ValueError(f"image must be (H, W, 3) uint8 RGB, got {image.shape}")
+        # Only the neighbourhood of the tracked dots can hold them: crop to it.
+        margin = self.gate_px + self.blob_options["max_diameter"] + 2
         predicted = self.position + self.velocity_damping * self.velocity
-        cost = np.linalg.norm(predicted[:, None, :] - det[None, :, :], axis=2)
-        big = 1e6
-        rows, cols = linear_sum_assignment(np.where(cost <= self.gate_px, cost, big))
-        ok = cost[rows, cols] <= self.gate_px
-        rows, cols = rows[ok], cols[ok]
-        matched = np.zeros(n, dtype=bool)
-        matched[rows] = True
-        motion = np.zeros((n, 2))
-        motion[rows] = det[cols] - self.position[rows]
+        h, w = image.shape[:2]
+        x0 = int(np.clip(np.floor(predicted[:, 0].min() - margin), 0, w))
+        x1 = int(np.clip(np.ceil(predicted[:, 0].max() + margin) + 1, 0, w))
+        y0 = int(np.clip(np.floor(predicted[:, 1].min() - margin), 0, h))
+        y1 = int(np.clip(np.ceil(predicted[:, 1].max() + margin) + 1, 0, h))
+        if x1 - x0 < 3 or y1 - y0 < 3:
+            return self.update(np.zeros((0, 2)))
+        blobs = detect_blobs(image[y0:y1, x0:x1], **self.blob_options)
+        return self.update(blobs.centers + [x0, y0], blobs.areas)
 
-        if rows.size > self.neighbours:
-            # Neighbours among the matched dots, by last position; compare motion with their median.
-            base = self.position[rows]
-            dist = np.linalg.norm(base[:, None, :] - base[None, :, :], axis=2)
-            np.fill_diagonal(dist, np.inf)
-            k = min(self.neighbours, rows.size - 1)
-            nearest = np.argpartition(dist, k - 1, axis=1)[:, :k]
-            expected = np.median(motion[rows][nearest], axis=1)
-            outlier = np.linalg.norm(motion[rows] - expected, axis=1) > self.outlier_px
-            self.rejected_outliers += int(outlier.sum())
-            matched[rows[outlier]] = False
-            rows, cols = rows[~outlier], cols[~outlier]
+    def update(self, detections: np.ndarray, areas: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Associate detected centres (K, 2) with the tracked dots; see :meth:`detect`.
 
-        pixels[rows] = det[cols]
-        confidence[rows] = 1.0
-        self.velocity[rows] = det[cols] - self.position[rows]
-        self.velocity[~matched] = 0.0
-        self.position[rows] = det[cols]
+        1. Each dot's own prediction is matched to the detections (minimum total distance, within
+           ``gate_px``).
+        2. Matches whose motion differs from the median motion of their nearest matched
+           neighbours by more than ``outlier_px`` are rejected.
+        3. Dots still unmatched are predicted from their neighbours' median motion and matched
+           within ``outlier_px`` of that — this re-acquires dots lost in earlier frames or moving
+           faster than their own prediction.
+        4. With ``areas`` (K,), a match whose blob area changed by more than a factor ``area_change``
+           from the dot's running area is dropped: a dot sliding behind an occluding contour is
+           truncated, and its centroid no longer marks its centre.
+        """
+        n = self.position.shape[0]
+        det = np.asarray(detections, dtype=np.float64).reshape(-1, 2)
+        match = np.full(n, -1, dtype=np.int64)  # detection index per dot
+        if det.shape[0]:
+            predicted = self.position + self.velocity_damping * self.velocity
+            rows, cols = _assign(predicted, det, self.gate_px)
+            match[rows] = cols
+            rows = np.flatnonzero(match >= 0)
+            if rows.size > self.neighbours:
+                motion = det[match[rows]] - self.position[rows]
+                expected = self._neighbour_motion(rows, motion, rows)
+                outlier = np.linalg.norm(motion - expected, axis=1) > self.outlier_px
+                self.rejected_outliers += int(outlier.sum())
+                match[rows[outlier]] = -1
+            rows = np.flatnonzero(match >= 0)
+            lost = np.flatnonzero(match < 0)
+            if lost.size and rows.size >= min(self.neighbours, 3):
+                motion = det[match[rows]] - self.position[rows]
+                guess = self.position[lost] + self._neighbour_motion(rows, motion, lost)
+                free = np.setdiff1d(np.arange(det.shape[0]), match[rows])
+                if free.size:
+                    r2, c2 = _assign(guess, det[free], self.outlier_px)
+                    match[lost[r2]] = free[c2]
+
+        if areas is not None and det.shape[0]:
+            area = np.asarray(areas, dtype=np.float64).reshape(-1)
+            rows = np.flatnonzero(match >= 0)
+            seen = np.isfinite(self.area[rows])
+            ratio = area[match[rows]] / np.where(seen, self.area[rows], 1.0)
+            shrunk = seen & ((ratio < 1.0 / self.area_change) | (ratio > self.area_change))
+            match[rows[shrunk]] = -1
+            keep = rows[~shrunk]
+            prev = self.area[keep]
+            self.area[keep] = np.where(np.isfinite(prev), 0.7 * prev + 0.3 * area[match[keep]], area[match[keep]])
+
+        found = match >= 0
+        pixels = np.full((n, 2), np.nan)
+        pixels[found] = det[match[found]]
+        confidence = found.astype(np.float32)
+        self.velocity[found] = pixels[found] - self.position[found]
+        self.velocity[~found] = 0.0
+        self.position[found] = pixels[found]
         return pixels, confidence
+
+    def _neighbour_motion(self, known: np.ndarray, motion: np.ndarray, query: np.ndarray) -> np.ndarray:
+        """Median motion of the ``neighbours`` nearest dots in ``known`` (excluding itself) for each
+        dot in ``query``, shape (len(query), 2)."""
+        dist = np.linalg.norm(self.position[query][:, None, :] - self.position[known][None, :, :], axis=2)
+        dist[query[:, None] == known[None, :]] = np.inf
+        k = max(1, min(self.neighbours, known.size - 1 if np.isin(query, known).any() else known.size))
+        nearest = np.argpartition(dist, k - 1, axis=1)[:, :k]
+        return np.median(motion[nearest], axis=1)
+
+
+def _assign(predicted: np.ndarray, detections: np.ndarray, gate: float) -> tuple[np.ndarray, np.ndarray]:
+    """Minimum-cost one-to-one matching of predictions to detections, pairs within ``gate`` only."""
+    from scipy.optimize import linear_sum_assignment
+
+    cost = np.linalg.norm(predicted[:, None, :] - detections[None, :, :], axis=2)
+    rows, cols = linear_sum_assignment(np.where(cost <= gate, cost, 1e6))
+    ok = cost[rows, cols] <= gate
+    return rows[ok], cols[ok]
 
 
 class ArucoMarkers:

@@ -25,10 +25,11 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
+from .alignment import similarity_fit
 from .depth import CameraIntrinsics
 from .sources import LandmarkFrame, SourceBase, checked_frames
 
-__all__ = ["MediaPipeLandmarks", "parse_landmark_list", "similarity_fit", "MEDIAPIPE_VERTICAL_FOV_DEG"]
+__all__ = ["MediaPipeLandmarks", "parse_landmark_list", "MEDIAPIPE_VERTICAL_FOV_DEG"]
 
 MEDIAPIPE_VERTICAL_FOV_DEG = 63.0
 """MediaPipe's default perspective camera (face geometry pipeline): vertical field of view [deg]."""
@@ -56,33 +57,6 @@ def parse_landmark_list(text: str, *, where: str = "landmarks") -> np.ndarray:
         if "z" in fields:
             out[i, 2] = float(fields["z"])
     return out
-
-
-def similarity_fit(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None):
-    """Least-squares similarity ``target ≈ s R source + t`` (Umeyama), float64.
-
-    Returns ``(s, R (3, 3), t (3,), rms)``; ``rms`` is the residual root mean square.
-    """
-    src = np.asarray(source, dtype=np.float64)
-    dst = np.asarray(target, dtype=np.float64)
-    w = np.ones(src.shape[0]) if weights is None else np.asarray(weights, dtype=np.float64)
-    w = w / w.sum()
-    mu_s = w @ src
-    mu_d = w @ dst
-    a = src - mu_s
-    b = dst - mu_d
-    cov = (b * w[:, None]).T @ a
-    u, sig, vt = np.linalg.svd(cov)
-    d = np.ones(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:
-        d[2] = -1.0
-    rot = u @ np.diag(d) @ vt
-    var_s = float(w @ np.sum(a * a, axis=1))
-    scale = float((sig * d).sum() / var_s) if var_s > 0 else 1.0
-    t = mu_d - scale * rot @ mu_s
-    resid = dst - (scale * src @ rot.T + t)
-    rms = float(np.sqrt(w @ np.sum(resid * resid, axis=1)))
-    return scale, rot, t, rms
 
 
 def _default_model_path(count: int) -> Path | None:

@@ -180,7 +180,3 @@ def regenerate_schema(out_dir: str | Path | None = None, *, source: str | Path |
             written.append(target)
     return written
 
-
-if __name__ == "__main__":  # python -m warpface.usd.schema  → regenerate the shipped plugin files
-    for path in regenerate_schema():
-        print(f"wrote {path}")

@@ -1,0 +1,187 @@
+"""Time per Newmark step of the tissue FEM: warpface's solvers vs a plain SciPy ``splu``-once baseline.
+
+Mesh: a procedural face-like tissue shell (:func:`warpface.fem.shell_tet_mesh`, an ellipsoidal cap
+12 mm thick) at ~6.4k nodes (the size of Kato's face, SPEC §2.1) and ~4x that. Material: Kato's
+uniform tissue (E = 192.4 kPa, nu = 0.495, eta = 476.8 Pa s, rho = 1100 kg/m^3), dt = 1e-3 s.
+Constraints as in the thesis's experiment: the upper part of the face fixed, lips and jaw points
+driven by a mouth-opening trajectory.
+
+Rows per mesh:
+
+* ``scipy splu baseline`` — a plain implementation of SPEC §2: ``A = K + 4/dt² M + 2/dt C``,
+  ``splu(A_oo)`` once with SciPy's defaults, then per step ``q`` from the full matrices, the
+  Dirichlet right-hand side, one solve and the Newmark update, all float64 NumPy.
+* ``warpface cpu direct`` — :class:`warpface.fem.TissueSimulation` on the CPU (its default solver).
+* ``warpface cuda cg`` — the graph-captured CG path, when a CUDA device is present.
+* ``... anp`` — the same with the locking-free average-nodal-pressure stiffness.
+
+"ratio" is the baseline's time per step over the row's; "x real time" is dt over the time per step.
+The max difference to the baseline's displacements checks that every row computes the same motion.
+
+    python -m benchmarks.fem [--steps 200] [--sizes 40 80] [--no-anp] [--device cuda:0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import scipy.sparse.linalg as spla
+import warp as wp
+
+from warpface.fem import TissueMaterial, TissueSimulation, assemble, shell_tet_mesh
+from warpface.fem.solver_direct import node_dofs
+
+from ._timing import machine_info, print_table, write_results
+
+DT = 1.0e-3
+KATO = dict(E=192.4e3, nu=0.495, eta=476.8, rho=1100.0)
+
+
+def face_problem(cells: int):
+    """Shell mesh with ``cells`` x ``cells`` x 3 cells, fixed upper face, 7 driven lip/jaw patches."""
+    mesh = shell_tet_mesh(cells, cells, 3)
+    p = mesh.points
+    height = p[:, 1].max() - p[:, 1].min()
+    fixed = np.flatnonzero(p[:, 1] > p[:, 1].min() + 0.62 * height)
+    outer = mesh.surface_nodes[p[mesh.surface_nodes, 2] > 0.0]
+    mouth_y = p[:, 1].min() + 0.25 * height
+    targets = np.array(
+        [[0.0, mouth_y + 0.006], [-0.02, mouth_y], [0.02, mouth_y], [0.0, mouth_y - 0.006],  # lips
+         [-0.035, p[:, 1].min() + 0.02], [0.0, p[:, 1].min() + 0.01], [0.035, p[:, 1].min() + 0.02]]  # jaw
+    )
+    driven, lower = [], []
+    for k, (x, y) in enumerate(targets):
+        near = outer[np.hypot(p[outer, 0] - x, p[outer, 1] - y) < 0.006]
+        near = np.setdiff1d(near, np.concatenate([fixed, *driven]) if driven else fixed)
+        driven.append(near)
+        lower.append(np.full(near.size, k != 0))
+    driven_nodes = np.concatenate(driven)
+    return mesh, fixed, driven_nodes, np.concatenate(lower)
+
+
+def mouth_opening(steps: int, opens_down: np.ndarray) -> np.ndarray:
+    """Trajectory (steps, D, 3) [m]: lower lip and jaw 12 mm down over 0.4 s, upper lip 2 mm up."""
+    t = DT * np.arange(1, steps + 1)
+    s = 0.5 * (1.0 - np.cos(np.pi * np.clip(t / 0.4, 0.0, 1.0)))
+    traj = np.zeros((steps, opens_down.size, 3))
+    traj[:, :, 1] = np.where(opens_down, -0.012, 0.002)[None, :] * s[:, None]
+    traj[:, :, 2] = np.where(opens_down, -0.003, 0.0)[None, :] * s[:, None]
+    return traj
+
+
+class SplitBaseline:
+    """Plain SPEC §2 Newmark with SciPy ``splu`` (default options) factorised once."""
+
+    def __init__(self, mesh, material, fixed, driven):
+        t0 = time.perf_counter()
+        K, M, C = assemble(mesh, material, device="cpu").to_scipy()
+        self.assembly_seconds = time.perf_counter() - t0
+        n = mesh.node_count
+        free = np.setdiff1d(np.arange(n), np.union1d(fixed, driven))
+        self.o, self.c = node_dofs(free), node_dofs(driven)
+        self.A = (K + 4 / DT**2 * M + 2 / DT * C).tocsr()
+        self.Qd = (4 / DT**2 * M + 2 / DT * C).tocsr()
+        self.Qv = (4 / DT * M + C).tocsr()
+        self.M = M.tocsr()
+        self.A_oc = self.A[self.o][:, self.c]
+        t0 = time.perf_counter()
+        self.lu = spla.splu(self.A[self.o][:, self.o].tocsc())
+        self.factor_seconds = time.perf_counter() - t0
+        self.d = np.zeros(3 * n)
+        self.v = np.zeros(3 * n)
+        self.a = np.zeros(3 * n)
+
+    def step(self, driven: np.ndarray) -> None:
+        dc = driven.ravel()
+        q = self.Qd @ self.d + self.Qv @ self.v + self.M @ self.a
+        d_new = np.zeros_like(self.d)
+        d_new[self.o] = self.lu.solve(q[self.o] - self.A_oc @ dc)
+        d_new[self.c] = dc
+        delta = d_new - self.d
+        self.a = 4 / DT**2 * delta - 4 / DT * self.v - self.a
+        self.v = 2 / DT * delta - self.v
+        self.d = d_new
+
+
+def time_steps(step, trajectory) -> float:
+    """Seconds per step over the trajectory (after one warm-up step outside the timing)."""
+    start = time.perf_counter()
+    for row in trajectory:
+        step(row)
+    return (time.perf_counter() - start) / len(trajectory)
+
+
+def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device) -> list[dict]:
+    mesh, fixed, driven, lower = face_problem(cells)
+    material = TissueMaterial(**KATO)
+    trajectory = mouth_opening(steps + 1, lower)
+    label = f"{mesh.node_count} nodes"
+    rows = []
+
+    base = SplitBaseline(mesh, material, fixed, driven)
+    base.step(trajectory[0])
+    base_step = time_steps(base.step, trajectory[1:])
+    reference = base.d.reshape(-1, 3)
+    rows.append(dict(mesh=label, path="scipy splu baseline", assembly_s=base.assembly_seconds,
+                     factor_s=base.factor_seconds, step_ms=1e3 * base_step, ratio=1.0,
+                     realtime=DT / base_step, max_diff=0.0))
+
+    configs = [("warpface cpu direct", "linear", "cpu")]
+    if with_anp:
+        configs.append(("warpface cpu direct anp", "anp", "cpu"))
+    if cuda_device is not None:
+        configs.append(("warpface cuda cg", "linear", cuda_device))
+        if with_anp:
+            configs.append(("warpface cuda cg anp", "anp", cuda_device))
+    for name, formulation, device in configs:
+        sim = TissueSimulation(mesh, material, DT, fixed=fixed, driven=driven, formulation=formulation, device=device)
+        if sim.solver == "direct":
+            sim.step(trajectory[0])
+            per_step = time_steps(sim.step, trajectory[1:])
+            final = sim.d
+            iterations = None
+        else:
+            sim.run(trajectory[:1])  # warm-up: graph already captured, loads nothing new
+            start = time.perf_counter()
+            out = sim.run(trajectory[1:], progress=False)
+            per_step = (time.perf_counter() - start) / steps
+            final = out[-1].astype(np.float64)
+            iterations = sim.cg_iterations[0]
+        diff = float(np.abs(final - reference).max()) if formulation == "linear" else None
+        rows.append(dict(mesh=label, path=name, assembly_s=sim.timings["assembly"],
+                         factor_s=sim.timings.get("factorization", sim.timings["solver_setup"]),
+                         step_ms=1e3 * per_step, ratio=base_step / per_step, realtime=DT / per_step,
+                         max_diff=diff, cg_iterations=iterations))
+    print(f"  {label}: {mesh.tet_count} tets, {fixed.size} fixed, {driven.size} driven nodes; "
+          f"max displacement {np.abs(reference).max() * 1e3:.2f} mm after {steps + 1} steps")
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=200, help="timed steps per row (default 200)")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[40, 80],
+                        help="shell cells per side: 40 -> 6.7k nodes, 80 -> 26k nodes")
+    parser.add_argument("--no-anp", action="store_true", help="skip the locking-free rows")
+    parser.add_argument("--device", default=None, help="CUDA device for the CG rows (default: first CUDA device)")
+    args = parser.parse_args()
+
+    wp.config.quiet = True
+    wp.init()
+    cuda = args.device or ("cuda:0" if wp.is_cuda_available() else None)
+    rows = []
+    for cells in args.sizes:
+        rows.extend(bench_mesh(cells, args.steps, not args.no_anp, cuda))
+    print_table(rows, [("mesh", "mesh", "s"), ("path", "path", "s"), ("assembly_s", "assembly s", ".2f"),
+                       ("factor_s", "factor/setup s", ".2f"), ("step_ms", "ms/step", ".2f"),
+                       ("ratio", "ratio vs splu", ".2f"), ("realtime", "x real time", ".3f"),
+                       ("max_diff", "max diff m", ".1e"), ("cg_iterations", "CG iters", "d")])
+    path = write_results("fem", {"dt": DT, "material": KATO, "steps": args.steps,
+                                 "machine": machine_info(cuda or "cpu"), "rows": rows})
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

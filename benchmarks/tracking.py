@@ -1,0 +1,247 @@
+"""Per-frame cost of the tracking adapter on a ~33k-vertex dense face (the thesis's size).
+
+Dense mesh: the ICT face region subdivided once (≈ 37k vertices) when ``../shared/data`` is present,
+else a 182 × 182 procedural face (33,124 vertices). Sparse mesh: 121 landmarks on it (the size of
+the thesis's CANDIDE-like tracked mesh), Delaunay-triangulated. Each row names its baseline,
+measured in the same run:
+
+* ``detect dots``: :class:`DotTracker` on a 640×480 image with the 121 dots (rendered by the
+  synthetic camera when pyrender is available, else painted) — baseline ``cv2.SimpleBlobDetector``.
+* ``back-project``: robust quadric fit over 9×9 windows for 121 landmarks (Warp kernel) —
+  baseline: the nearest depth pixel (NumPy), which carries the sensor noise and every hole.
+* ``correspondence (once)``: :func:`closest_points` with the ``wp.Mesh`` BVH — baseline the same
+  Voronoi-region function over all triangles per vertex (O(V·T) Warp kernel).
+* ``transfer``: :meth:`TrackingAdapter.step` (sparse update, kernel, copy to host) — baseline the
+  same math vectorised in NumPy.
+* ``frame total``: detect + back-project + transfer, and the frame rate it allows.
+
+    python -m benchmarks.tracking [--device cpu] [--repeats 20]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+import numpy as np
+import warp as wp
+
+from warpface.geometry import closest_point_on_triangle
+
+from ._timing import machine_info, print_table, time_call, write_results
+
+
+def subdivide(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One midpoint subdivision: every triangle becomes four."""
+    tri = np.asarray(triangles, dtype=np.int64)
+    edges = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
+    unique, inverse = np.unique(edges, axis=0, return_inverse=True)
+    mid = 0.5 * (points[unique[:, 0]] + points[unique[:, 1]])
+    m = inverse.reshape(3, -1).T + len(points)  # midpoints of edges 01, 12, 20
+    a, b, c = tri.T
+    new = np.concatenate([np.stack([a, m[:, 0], m[:, 2]], 1), np.stack([m[:, 0], b, m[:, 1]], 1),
+                          np.stack([m[:, 2], m[:, 1], c], 1), m])
+    return np.vstack([points, mid]), new.astype(np.int32)
+
+
+def dense_face() -> tuple[np.ndarray, np.ndarray, str]:
+    from warpface.data import ict_face_region
+
+    path = ict_face_region("neutral")
+    if path is not None:
+        from warpface.mesh import load_obj
+
+        points, triangles = load_obj(path)
+        points, triangles = subdivide(points * 0.01, triangles)
+        return points, triangles, "ICT face region, subdivided"
+    from warpface.tracking import procedural_face
+
+    points, triangles = procedural_face(182)
+    return points, triangles, "procedural face 182×182"
+
+
+@wp.kernel
+def _brute_force_kernel(
+    vertices: wp.array(dtype=wp.vec3),
+    triangles: wp.array2d(dtype=wp.int32),
+    queries: wp.array(dtype=wp.vec3),
+    out_distance: wp.array(dtype=float),
+):
+    i = wp.tid()
+    p = queries[i]
+    best = float(1.0e30)
+    for t in range(triangles.shape[0]):
+        a = vertices[triangles[t, 0]]
+        b = vertices[triangles[t, 1]]
+        c = vertices[triangles[t, 2]]
+        w = closest_point_on_triangle(p, a, b, c)
+        best = wp.min(best, wp.length_sq(p - (w[0] * a + w[1] * b + w[2] * c)))
+    out_distance[i] = wp.sqrt(best)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", default=None, help="Warp device (default: Warp's preferred)")
+    parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--landmarks", type=int, default=121)
+    args = parser.parse_args()
+
+    from warpface.tracking import (
+        KINECT_V1_INTRINSICS,
+        KinectNoise,
+        TrackingAdapter,
+        backproject,
+        closest_points,
+        default_model_to_camera,
+        place_fiducials,
+        triangulate_landmarks,
+    )
+    from warpface.tracking.correspondence import TriangleMeshIndex
+
+    device = wp.get_device(args.device)
+    wp.config.quiet = True
+    dense, dense_tri, dense_name = dense_face()
+    camera_to_model = np.linalg.inv(default_model_to_camera(dense))
+    eye = camera_to_model[:3, 3]
+    fid = place_fiducials(dense, dense_tri, args.landmarks, spacing=0.008, camera_position=eye)
+    sparse = dense[fid]
+    sparse_tri = triangulate_landmarks(sparse)
+    print(f"dense: {dense_name}, {len(dense)} vertices, {len(dense_tri)} triangles; "
+          f"sparse: {len(sparse)} landmarks, {len(sparse_tri)} triangles; device {device}")
+    rows: list[dict] = []
+    sync = lambda: wp.synchronize_device(device)  # noqa: E731
+
+    # -- colour image and depth ------------------------------------------------------------------
+    intr = KINECT_V1_INTRINSICS
+    color = depth = None
+    image_source = None
+    try:
+        os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+        import pyrender  # noqa: F401
+
+        from warpface.tracking import SyntheticRGBDCamera
+
+        cam = SyntheticRGBDCamera(dense, dense_tri, fid, dot_radius=0.002)
+        frame = cam.frame(0)
+        color, depth = frame.color, frame.depth_m
+        depth = KinectNoise().apply(depth, np.random.default_rng(0)).astype(np.float32)
+        pixels0 = cam.landmark_pixels(0)
+        image_source = "synthetic camera (pyrender)"
+        cam.close()
+    except ImportError:
+        cam_pts = dense @ np.linalg.inv(camera_to_model)[:3, :3].T + np.linalg.inv(camera_to_model)[:3, 3]
+        pixels0 = intr.project(cam_pts[fid])
+        # Depth of the nearest vertex per pixel is not a rendering; use a plane at the face's depth.
+        depth = np.full((intr.height, intr.width), float(np.median(cam_pts[:, 2])), np.float32)
+        depth = KinectNoise().apply(depth, np.random.default_rng(0)).astype(np.float32)
+        image_source = "painted dots on a plane (no pyrender)"
+    try:
+        import cv2
+
+        from warpface.tracking import DotTracker
+
+        if color is None:
+            color = np.full((intr.height, intr.width, 3), (200, 150, 120), np.uint8)
+            for u, v in pixels0:
+                cv2.circle(color, (int(u * 16), int(v * 16)), 3 * 16, (25, 25, 25), -1, cv2.LINE_AA, shift=4)
+        tracker = DotTracker(pixels0)
+
+        def detect():
+            tracker.reset(pixels0)
+            tracker.detect(color)
+
+        pixels, conf = tracker.detect(color)
+        t_detect = time_call(detect, repeats=args.repeats)
+        params = cv2.SimpleBlobDetector_Params()
+        params.filterByColor, params.blobColor = True, 0
+        params.minArea, params.maxArea = 6, 2000
+        blob = cv2.SimpleBlobDetector_create(params)
+        gray = cv2.cvtColor(color, cv2.COLOR_RGB2GRAY)
+        t_blob = time_call(lambda: blob.detect(gray), repeats=args.repeats)
+        rows.append({"stage": "detect dots", "n": len(pixels0), "ms": t_detect * 1e3, "baseline": "cv2.SimpleBlobDetector",
+                     "baseline_ms": t_blob * 1e3, "found": int(conf.sum())})
+    except ImportError:
+        pixels = pixels0
+        t_detect = 0.0
+        print("OpenCV not installed: detection row skipped")
+
+    # -- back-projection -------------------------------------------------------------------------
+    pix = np.where(np.isfinite(pixels), pixels, pixels0)
+    backproject(pix, depth, intr, device=device)
+    t_back = time_call(lambda: backproject(pix, depth, intr, device=device), repeats=args.repeats, sync=sync)
+
+    def nearest():
+        near = np.clip(np.round(pix).astype(int), 0, [intr.width - 1, intr.height - 1])
+        return intr.unproject(pix, depth[near[:, 1], near[:, 0]])
+
+    t_near = time_call(nearest, repeats=args.repeats)
+    rows.append({"stage": "back-project (quadric 9×9)", "n": len(pix), "ms": t_back * 1e3,
+                 "baseline": "nearest depth pixel (NumPy)", "baseline_ms": t_near * 1e3})
+
+    # -- correspondence (once) -------------------------------------------------------------------
+    index = TriangleMeshIndex(sparse, sparse_tri, device=device)
+    index.query(dense)
+    t_corr = time_call(lambda: closest_points(dense, sparse, sparse_tri, device=device), repeats=max(3, args.repeats // 4),
+                       sync=sync)
+    verts = wp.array((sparse - index.center).astype(np.float32), dtype=wp.vec3, device=device)
+    tris = wp.array(sparse_tri, dtype=wp.int32, device=device)
+    queries = wp.array((dense - index.center).astype(np.float32), dtype=wp.vec3, device=device)
+    brute = wp.empty(len(dense), dtype=float, device=device)
+
+    def brute_force():
+        wp.launch(_brute_force_kernel, dim=len(dense), inputs=[verts, tris, queries], outputs=[brute], device=device)
+
+    brute_force()
+    t_brute = time_call(brute_force, repeats=max(3, args.repeats // 4), sync=sync)
+    _, _, dist = index.query(dense)
+    assert np.allclose(dist, brute.numpy(), atol=1e-6), "BVH and brute force disagree"
+    rows.append({"stage": "correspondence (once)", "n": len(dense), "ms": t_corr * 1e3,
+                 "baseline": "all triangles per vertex (Warp)", "baseline_ms": t_brute * 1e3})
+
+    # -- transfer --------------------------------------------------------------------------------
+    adapter = TrackingAdapter(sparse, sparse_tri, dense, camera_to_model=camera_to_model, device=device)
+    from warpface.tracking import LandmarkFrame
+
+    model_to_camera = np.linalg.inv(camera_to_model)
+    rest_cam = sparse @ model_to_camera[:3, :3].T + model_to_camera[:3, 3]
+    rng = np.random.default_rng(0)
+    frames = [LandmarkFrame(i / 30, rest_cam + (rng.normal(scale=0.001, size=rest_cam.shape) if i else 0.0),
+                            np.ones(len(sparse)), i) for i in range(64)]
+    adapter.step(frames[0])
+    counter = iter(range(10**9))
+    t_transfer = time_call(lambda: adapter.step(frames[1 + next(counter) % 63]), repeats=max(args.repeats, 50), sync=sync)
+    corr = adapter.correspondence
+    bary = corr.barycentric
+    corners = sparse_tri[corr.triangle]
+    weights = adapter.weights[:, None]
+    rest32 = dense.astype(np.float32)
+
+    def numpy_transfer():
+        disp = adapter.update_sparse(frames[5]).astype(np.float32)
+        return rest32 + weights * np.einsum("vj,vjk->vk", bary, disp[corners])
+
+    t_numpy = time_call(numpy_transfer, repeats=max(args.repeats, 50))
+    rows.append({"stage": "transfer per frame", "n": len(dense), "ms": t_transfer * 1e3,
+                 "baseline": "NumPy einsum", "baseline_ms": t_numpy * 1e3})
+
+    total = t_detect + t_back + t_transfer
+    rows.append({"stage": "frame total (detect+lift+transfer)", "n": len(dense), "ms": total * 1e3})
+    for row in rows:
+        if row.get("baseline_ms"):
+            row["speedup"] = row["baseline_ms"] / row["ms"]
+        row["fps"] = 1e3 / row["ms"]
+    print(f"image: {image_source}")
+    print_table(rows, [("stage", "stage", "s"), ("n", "n", "d"), ("ms", "ms", ".3f"), ("fps", "frames/s", ".0f"),
+                       ("baseline", "baseline", "s"), ("baseline_ms", "baseline ms", ".3f"),
+                       ("speedup", "speed-up", ".1f")])
+    name = "tracking" if device.is_cpu else f"tracking_{str(device).replace(':', '')}"
+    path = write_results(name, {
+        "benchmark": "tracking", "dense": dense_name, "dense_vertices": len(dense), "dense_triangles": len(dense_tri),
+        "sparse_landmarks": len(sparse), "sparse_triangles": len(sparse_tri), "image": image_source,
+        "machine": machine_info(device), "rows": rows,
+    })
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,214 @@
+"""Newmark-β integrator: energy, damping balance, wave speed, CG path, constraints and bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import warp as wp
+
+from warpface.fem import ConvergenceError, TetMesh, TissueMaterial, TissueSimulation, box_tet_mesh
+
+SOFT = TissueMaterial(1e5, 0.45, 0.0, 1000.0)
+
+
+@pytest.fixture(scope="module")
+def beam():
+    mesh = box_tet_mesh((0.06, 0.02, 0.02), (6, 2, 2))
+    return mesh, np.flatnonzero(mesh.points[:, 0] < 1e-12), np.flatnonzero(mesh.points[:, 0] > 0.06 - 1e-12)
+
+
+def _initial_state(mesh):
+    x = mesh.points[:, 0] / 0.06
+    v = np.zeros((mesh.node_count, 3))
+    v[:, 1] = 0.1 * x**2
+    d = np.zeros_like(v)
+    d[:, 2] = 1e-3 * x**2
+    return d, v
+
+
+def test_undamped_newmark_conserves_energy_over_1000_steps(beam):
+    mesh, fixed, _ = beam
+    sim = TissueSimulation(mesh, SOFT, 1e-3, fixed=fixed, device="cpu")
+    sim.reset(*_initial_state(mesh))
+    e0 = sum(sim.energy())
+    assert e0 > 0
+    energies = []
+    for i in range(1000):
+        sim.step()
+        if i % 50 == 49:
+            kinetic, strain = sim.energy()
+            energies.append(kinetic + strain)
+    assert np.max(np.abs(np.array(energies) / e0 - 1.0)) < 1e-6
+    assert sim.steps_taken == 1000 and sim.time == pytest.approx(1.0)
+    np.testing.assert_array_equal(sim.d[fixed], 0.0)
+
+
+def test_damped_energy_drops_by_dt_vbar_C_vbar(beam):
+    mesh, fixed, _ = beam
+    sim = TissueSimulation(mesh, TissueMaterial(1e5, 0.45, 50.0, 1000.0), 1e-3, fixed=fixed, device="cpu")
+    sim.reset(*_initial_state(mesh))
+    C = sim.matrices.to_scipy()[2]
+    for _ in range(5):
+        e0, v0 = sum(sim.energy()), sim.v.ravel()
+        sim.step()
+        vbar = 0.5 * (v0 + sim.v.ravel())
+        dissipated = 1e-3 * vbar @ (C @ vbar)
+        assert dissipated > 0
+        assert sum(sim.energy()) - e0 == pytest.approx(-dissipated, rel=1e-8)
+
+
+def test_thin_bar_wave_speed():
+    E, rho = 1e5, 1000.0
+    mesh = box_tet_mesh((1.0, 0.01, 0.01), (100, 1, 1))
+    x = mesh.points[:, 0]
+    driven = np.flatnonzero(x < 1e-12)
+    dt, steps, rise, amp = 2e-4, 450, 0.02, 1e-3
+    sim = TissueSimulation(mesh, TissueMaterial(E, 0.0, 0.0, rho), dt, driven=driven, device="cpu")
+    t = dt * np.arange(1, steps + 1)
+    pulse = amp * np.where(t < rise, 0.5 * (1.0 - np.cos(np.pi * t / rise)), 1.0)
+    trajectory = np.zeros((steps, driven.size, 3))
+    trajectory[:, :, 0] = pulse[:, None]
+    out = sim.run(trajectory)
+    np.testing.assert_allclose(out[:, driven], trajectory.astype(np.float32))
+
+    def arrival(position):
+        u = out[:, np.abs(x - position) < 1e-9, 0].mean(axis=1)
+        k = np.flatnonzero(u >= amp / 2)[0]
+        return t[k - 1] + (amp / 2 - u[k - 1]) / (u[k] - u[k - 1]) * dt
+
+    speed = 0.4 / (arrival(0.7) - arrival(0.3))
+    assert speed == pytest.approx(np.sqrt(E / rho), rel=0.02)
+
+
+def test_run_matches_step_and_records_selected_nodes(beam):
+    mesh, fixed, driven = beam
+    steps = 20
+    trajectory = np.zeros((steps, driven.size, 3))
+    trajectory[:, :, 1] = 2e-3 * np.sin(np.linspace(0.1, 2.0, steps))[:, None]
+    a = TissueSimulation(mesh, SOFT, 1e-3, fixed=fixed, driven=driven, device="cpu")
+    b = TissueSimulation(mesh, SOFT, 1e-3, fixed=fixed, driven=driven, device="cpu")
+    nodes = np.array([5, 17, 40])
+    out = a.run(trajectory, nodes=nodes, progress=False)
+    assert out.shape == (steps, 3, 3) and out.dtype == np.float32
+    for t in range(steps):
+        b.step(trajectory[t])
+        np.testing.assert_allclose(out[t], b.d[nodes], rtol=1e-6, atol=1e-12)
+    np.testing.assert_array_equal(b.d[fixed], 0.0)
+    np.testing.assert_array_equal(b.d[driven], trajectory[-1])
+    assert np.abs(b.d).max() > 0.0
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        dict(use_graph=False, cg_tol=1e-10, cg_maxiter=60),
+        dict(use_graph=True, cg_tol=1e-10, cg_maxiter=60, cg_preconditioner="block_jacobi", cg_chunk=4),
+        dict(use_graph=True, cg_tol=1e-5, cg_maxiter=60, cg_dtype=wp.float32, cg_chunk=3),
+    ],
+)
+def test_cg_path_matches_direct_solver(beam, options):
+    mesh, fixed, driven = beam
+    steps = 8
+    trajectory = np.zeros((steps, driven.size, 3))
+    trajectory[:, :, 1] = np.linspace(1e-4, 2e-3, steps)[:, None]
+    material = TissueMaterial(1e5, 0.45, 20.0, 1000.0)
+    ref = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu")
+    sim = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg", **options)
+    assert sim.solver == "cg" and ref.solver == "direct"
+    expected = ref.run(trajectory[:5])
+    got = sim.run(trajectory[:5])
+    for t in range(5, steps):  # queued single steps, through the trajectory ring
+        ref.step(trajectory[t])
+        sim.step(trajectory[t])
+    rtol = 1e-7 if options.get("cg_dtype", wp.float64) == wp.float64 else 1e-4
+    scale = np.abs(expected).max()
+    np.testing.assert_allclose(got, expected, rtol=0, atol=rtol * scale)
+    np.testing.assert_allclose(sim.d, ref.d, rtol=0, atol=rtol * scale)
+    np.testing.assert_allclose(sim.v, ref.v, rtol=0, atol=rtol * 1e3 * scale)
+    assert sim.cg_iterations[0] >= 1
+
+
+def test_cg_non_convergence_raises_with_residual(beam):
+    mesh, fixed, driven = beam
+    sim = TissueSimulation(mesh, SOFT, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg",
+                           cg_tol=1e-14, cg_maxiter=1, cg_preconditioner="diag")
+    trajectory = np.full((2, driven.size, 3), 1e-3)
+    with pytest.raises(ConvergenceError, match=r"step 0 .*residual [0-9.e+-]+ > tolerance"):
+        sim.run(trajectory)
+    with pytest.raises(RuntimeError, match="reset"):
+        sim.step(trajectory[0])
+    sim.reset()
+    assert sim.steps_taken == 0
+
+
+def test_reset_gives_consistent_acceleration(beam):
+    mesh, fixed, _ = beam
+    sim = TissueSimulation(mesh, TissueMaterial(1e5, 0.45, 30.0, 1000.0), 1e-3, fixed=fixed, device="cpu")
+    d, v = _initial_state(mesh)
+    sim.reset(d, v)
+    K, M, C = sim.matrices.to_scipy()
+    residual = (M @ sim.a.ravel() + C @ v.ravel() + K @ d.ravel()).reshape(-1, 3)
+    free = sim.free_nodes
+    assert np.abs(residual[free]).max() < 1e-9 * np.abs(K @ d.ravel()).max()
+    with pytest.raises(ValueError, match="fixed node"):
+        sim.reset(np.ones((mesh.node_count, 3)))
+    with pytest.raises(ValueError, match="shape"):
+        sim.reset(np.zeros((3, 3)))
+
+
+def test_bad_input_is_rejected(beam):
+    mesh, fixed, driven = beam
+    n = mesh.node_count
+    ok = dict(fixed=fixed, driven=driven, device="cpu")
+    for kwargs, message in [
+        (dict(dt=0.0), "dt must be"),
+        (dict(dt=-1e-3), "dt must be"),
+        (dict(dt=float("nan")), "dt must be"),
+        (dict(beta=0.0), "beta"),
+        (dict(fixed=fixed, driven=np.r_[driven, fixed[:1]]), f"node {fixed[0]} is both fixed and driven"),
+        (dict(driven=np.r_[driven, driven[:1]]), "listed more than once"),
+        (dict(fixed=np.r_[fixed, n]), f"fixed node index {n}"),
+        (dict(driven=[-1]), "out of range"),
+        (dict(fixed=None, driven=None), "no fixed or driven node"),
+        (dict(fixed=np.ones(3, dtype=bool)), "mask has shape"),
+        (dict(fixed=[0.5]), "integer node indices"),
+        (dict(solver="lu"), "solver must be"),
+        (dict(formulation="q2"), "formulation"),
+        (dict(cg_preconditioner="ilu"), "cg_preconditioner"),
+        (dict(fixed=np.arange(n), driven=None), "nothing to simulate"),
+    ]:
+        args = dict(ok, dt=1e-3) | kwargs
+        dt = args.pop("dt")
+        with pytest.raises(ValueError, match=message):
+            TissueSimulation(mesh, SOFT, dt, **args)
+    with pytest.raises(ValueError, match="TetMesh"):
+        TissueSimulation("mesh", SOFT, 1e-3, **ok)
+    with pytest.raises(ValueError, match="per-tet values"):
+        TissueSimulation(mesh, TissueMaterial(np.full(2, 1e5), 0.3, 0.0, 1e3), 1e-3, **ok)
+
+    sim = TissueSimulation(mesh, SOFT, 1e-3, **ok)
+    bad = np.zeros((4, driven.size, 3))
+    bad[2, 3, 1] = np.nan
+    with pytest.raises(ValueError, match=f"step 2, driven node {driven[3]}"):
+        sim.run(bad)
+    with pytest.raises(ValueError, match="shape"):
+        sim.run(np.zeros((4, driven.size + 1, 3)))
+    with pytest.raises(ValueError, match="shape"):
+        sim.step(np.zeros((driven.size, 2)))
+    with pytest.raises(ValueError, match="need displacements"):
+        sim.step()
+    step = np.zeros((driven.size, 3))
+    step[0, 0] = np.inf
+    with pytest.raises(ValueError, match=f"node {driven[0]} is not finite"):
+        sim.step(step)
+    with pytest.raises(ValueError, match="nodes node index"):
+        sim.run(np.zeros((1, driven.size, 3)), nodes=[n + 5])
+
+
+def test_every_connected_part_needs_a_constraint():
+    a = box_tet_mesh((1.0, 1.0, 1.0), (1, 1, 1))
+    points = np.r_[a.points, a.points + [3.0, 0.0, 0.0]]
+    mesh = TetMesh(points, np.r_[a.tets, a.tets + a.node_count])
+    with pytest.raises(ValueError, match=r"part containing node 8 has no fixed or driven node"):
+        TissueSimulation(mesh, SOFT, 1e-3, fixed=[0, 1, 2], device="cpu")
+    TissueSimulation(mesh, SOFT, 1e-3, fixed=[0, 1, 2], driven=[8], device="cpu")

@@ -1,0 +1,331 @@
+"""The default, landmark-anchored face rig: 20 linear muscles, 3 sphincters, 21 wrinkles, thickness.
+
+Every muscle end and wrinkle curve is written in the :class:`~warpface.assets.frame.FaceFrame` of
+the face (origin between the eyes, x toward the subject's left, y up, z out, unit = inter-ocular
+distance) relative to the 68 iBUG landmarks, and put on the skin by casting rays at the mesh. Bone
+attachments sit beneath the skin, along −normal. Nothing is an absolute length, so the same
+function rigs the built-in face (metres) and the ICT-FaceKit face (centimetres).
+
+Names end in ``_L``/``_R`` for the subject's left (+x) and right (−x) side, as in ICT-FaceKit and
+FACS. Muscles follow thesis table 2.1 (SPEC §5); the wrinkles are the furrows those muscles make.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import RigError
+from ..expression.muscles import LinearMuscle, SphincterMuscle
+from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrinkle, project_points
+from ..mesh import FaceMesh
+from ..rig import FaceRig
+from .face import default_face, default_landmarks
+from .frame import FaceFrame, SurfaceSampler, check_landmarks, head_cylinder
+from .thickness import default_thickness
+
+__all__ = [
+    "default_rig",
+    "rig_scale",
+    "face_frame",
+    "LINEAR_MUSCLE_NAMES",
+    "SPHINCTER_MUSCLE_NAMES",
+    "WRINKLE_NAMES",
+]
+
+_SIDES = ("L", "R")
+
+LINEAR_MUSCLE_NAMES: tuple[str, ...] = (
+    *(f"frontalis_inner_{s}" for s in _SIDES),
+    *(f"frontalis_outer_{s}" for s in _SIDES),
+    *(f"corrugator_{s}" for s in _SIDES),
+    "procerus",
+    *(f"levator_labii_alaeque_nasi_{s}" for s in _SIDES),
+    *(f"levator_labii_superioris_{s}" for s in _SIDES),
+    *(f"zygomaticus_major_{s}" for s in _SIDES),
+    *(f"risorius_{s}" for s in _SIDES),
+    *(f"depressor_anguli_oris_{s}" for s in _SIDES),
+    *(f"depressor_labii_inferioris_{s}" for s in _SIDES),
+    "mentalis",
+)
+"""Linear (Waters) muscles of the default rig, in rig order. Their contraction ``K`` is a length."""
+
+SPHINCTER_MUSCLE_NAMES: tuple[str, ...] = ("orbicularis_oris", "orbicularis_oculi_L", "orbicularis_oculi_R")
+"""Sphincter muscles of the default rig; their contraction ``K`` is dimensionless."""
+
+WRINKLE_NAMES: tuple[str, ...] = (
+    "forehead_1", "forehead_2", "forehead_3", "forehead_4",
+    "glabella_L", "glabella_R",
+    "nasal_root_1", "nasal_root_2",
+    "bunny_L", "bunny_R",
+    *(f"crows_feet_{s}_{i}" for s in _SIDES for i in (1, 2, 3)),
+    "nasolabial_L", "nasolabial_R",
+    "under_eye_L", "under_eye_R",
+    "chin",
+)
+"""Wrinkles of the default rig, in rig order."""
+
+
+@dataclass(frozen=True)
+class _Side:
+    """iBUG indices of one side of the face, and the sign of x on that side."""
+
+    sign: float
+    brow: tuple[int, ...]  # outer → inner
+    eye_outer: int
+    eye_inner: int
+    eye: tuple[int, ...]
+    nose_wing: int
+    mouth_corner: int
+    upper_lip: int  # on the upper-lip border, between Cupid's peak and the corner
+    lower_lip: int  # on the lower-lip border, near the midline
+    jaw: tuple[int, ...]  # ear level → chin
+
+
+_LEFT = _Side(+1.0, (26, 25, 24, 23, 22), 45, 42, tuple(range(42, 48)), 35, 54, 53, 56, tuple(range(16, 7, -1)))
+_RIGHT = _Side(-1.0, (17, 18, 19, 20, 21), 36, 39, tuple(range(36, 42)), 31, 48, 49, 58, tuple(range(0, 9)))
+
+
+def face_frame(mesh: FaceMesh, landmarks) -> FaceFrame:
+    """The landmark frame of a face (see :class:`~warpface.assets.frame.FaceFrame`)."""
+    landmarks = check_landmarks(mesh, landmarks)
+    return FaceFrame.from_landmarks(mesh.points[landmarks])
+
+
+def rig_scale(rig: FaceRig) -> float:
+    """The face's size unit [mesh units]: its inter-ocular (eye-centre) distance, from the rig's landmarks.
+
+    Raises:
+        RigError: the rig has no 68 iBUG landmarks.
+    """
+    if rig.landmarks is None:
+        raise RigError(f"rig {rig.name!r}: has no landmarks; the 68 iBUG points are needed to measure the face")
+    return face_frame(rig.mesh, rig.landmarks).scale
+
+
+def default_rig(mesh: FaceMesh | None = None, landmarks=None, *, name: str = "Face", device=None) -> FaceRig:
+    """The default rig on a face: muscles, wrinkles and thickness placed from its 68 iBUG landmarks.
+
+    Args:
+        mesh: the face's rest surface (any units; +z need not be the view axis — the landmark frame
+            decides). Omit it for the built-in :func:`~warpface.assets.default_face`.
+        landmarks: 68 iBUG-order vertex indices into ``mesh``; required with a custom mesh.
+        name: rig name.
+        device: Warp device for the vertex normals.
+
+    Returns:
+        A :class:`~warpface.FaceRig` with the muscles of :data:`LINEAR_MUSCLE_NAMES` and
+        :data:`SPHINCTER_MUSCLE_NAMES`, the wrinkles of :data:`WRINKLE_NAMES`, the painted and
+        blurred thickness of :func:`~warpface.assets.default_thickness`, and the landmarks.
+
+    Raises:
+        RigError: landmarks missing, malformed, or not face-like (eyes coinciding, mouth not below).
+    """
+    if mesh is None:
+        mesh = default_face()
+        landmarks = default_landmarks() if landmarks is None else landmarks
+    elif landmarks is None:
+        raise RigError(f"default_rig: mesh {mesh.name!r} needs its 68 iBUG landmark vertex indices")
+    if not isinstance(mesh, FaceMesh):
+        raise RigError(f"default_rig: mesh must be a FaceMesh, got {type(mesh).__name__}")
+    landmarks = check_landmarks(mesh, landmarks)
+    frame = FaceFrame.from_landmarks(mesh.points[landmarks])
+    surface = SurfaceSampler(mesh, frame, mesh.vertex_normals(device=device))
+    local = frame.to_local(mesh.points[landmarks])
+    muscles = _linear_muscles(local, surface) + _sphincters(local, frame)
+    wrinkles = _wrinkles(local, surface, frame, head_cylinder(frame, local), _typical_edge(mesh) / frame.scale)
+    thickness = default_thickness(mesh, landmarks, device=device)
+    return FaceRig(mesh=mesh, muscles=muscles, wrinkles=wrinkles, thickness=thickness, landmarks=landmarks, name=name)
+
+
+# ------------------------------------------------------------------------------------------------
+# Muscles. Positions are local (x, y) in inter-ocular units; depths are along −normal, same units.
+
+
+def _linear(name, surface: SurfaceSampler, origin_xy, origin_depth, insertion_xy, zone_deg, start, finish):
+    """A Waters muscle from a bone point beneath ``origin_xy`` to the skin at ``insertion_xy``.
+
+    ``start`` and ``finish`` are the fall-off radii as fractions of the muscle's length.
+    """
+    attachment = surface.below(origin_xy, origin_depth)
+    insertion = surface.point(insertion_xy)
+    length = float(np.linalg.norm(insertion - attachment))
+    return LinearMuscle(name, attachment, insertion, zone_deg, start * length, finish * length)
+
+
+def _galea_muscle(name, surface: SurfaceSampler, x: float, brow_top: float, insertion_xy) -> LinearMuscle:
+    """A frontalis belly: attachment 1.9 units above the brows and 0.45 behind the upper forehead."""
+    upper = surface.frame.to_local(surface.point((x, brow_top + 0.9)))
+    attachment = surface.frame.to_world([x, brow_top + 1.9, upper[2] - 0.45])
+    insertion = surface.point(insertion_xy)
+    length = float(np.linalg.norm(insertion - attachment))
+    return LinearMuscle(name, attachment, insertion, 22.0, 0.95 * length, 1.15 * length)
+
+
+def _linear_muscles(L: np.ndarray, surface: SurfaceSampler) -> list[LinearMuscle]:
+    xy = L[:, :2]
+    brow_top = float(xy[17:27, 1].max())
+    muscles: dict[str, LinearMuscle] = {}
+    for side, tag in ((_LEFT, "L"), (_RIGHT, "R")):
+        s = side.sign
+        outer, second, middle, fourth, inner = (xy[i] for i in side.brow)
+        eye_outer, eye_inner = xy[side.eye_outer], xy[side.eye_inner]
+        eye = xy[list(side.eye)].mean(axis=0)
+        corner = xy[side.mouth_corner]
+        wing = xy[side.nose_wing]
+        # Frontalis: from the galea aponeurotica over the crown down into the brow skin (AU1, AU2).
+        # The attachment lies beyond the top of a typical face mesh, so the pull is nearly uniform
+        # over the forehead instead of concentrated at a point on it.
+        muscles[f"frontalis_inner_{tag}"] = _galea_muscle(
+            f"frontalis_inner_{tag}", surface, inner[0] + 0.08 * s, brow_top, (inner[0] + 0.03 * s, inner[1] + 0.05))
+        muscles[f"frontalis_outer_{tag}"] = _galea_muscle(
+            f"frontalis_outer_{tag}", surface, second[0] - 0.05 * s, brow_top, (second[0] + 0.02 * s, second[1] + 0.05))
+        # Corrugator: from the medial end of the brow ridge into the skin above mid-brow; pulls the
+        # brows together and down (AU4), squeezing the skin between them into vertical furrows.
+        muscles[f"corrugator_{tag}"] = _linear(
+            f"corrugator_{tag}", surface, (0.03 * s, inner[1] - 0.06), 0.06,
+            (0.5 * (middle[0] + fourth[0]), fourth[1] + 0.07), 40.0, 0.75, 1.50)
+        # Levator labii superioris alaeque nasi: frontal process of the maxilla → nose wing (AU9).
+        muscles[f"levator_labii_alaeque_nasi_{tag}"] = _linear(
+            f"levator_labii_alaeque_nasi_{tag}", surface, (0.45 * eye_inner[0], eye_inner[1] + 0.05), 0.22,
+            (wing[0] + 0.02 * s, wing[1] + 0.04), 24.0, 0.85, 1.40)
+        # Levator labii superioris: infraorbital margin → upper lip (AU10).
+        muscles[f"levator_labii_superioris_{tag}"] = _linear(
+            f"levator_labii_superioris_{tag}", surface, (eye[0] - 0.02 * s, eye[1] - 0.36), 0.18,
+            (xy[side.upper_lip, 0] + 0.02 * s, xy[side.upper_lip, 1] + 0.06), 20.0, 0.88, 1.30)
+        # Zygomaticus major: zygomatic bone → mouth corner, up and back (AU12, smile).
+        muscles[f"zygomaticus_major_{tag}"] = _linear(
+            f"zygomaticus_major_{tag}", surface, (eye_outer[0] + 0.40 * s, eye[1] - 0.30), 0.25,
+            (corner[0] + 0.07 * s, corner[1] + 0.01), 30.0, 0.90, 1.45)
+        # Risorius: masseteric fascia → mouth corner, sideways (AU20).
+        cheek_side = xy[side.jaw[3]]
+        muscles[f"risorius_{tag}"] = _linear(
+            f"risorius_{tag}", surface, (0.85 * cheek_side[0], corner[1] + 0.02), 0.30,
+            (corner[0] + 0.07 * s, corner[1]), 24.0, 0.90, 1.40)
+        # Depressor anguli oris: mandible below the corner → mouth corner, down (AU15).
+        chin_side = xy[side.jaw[6]]
+        muscles[f"depressor_anguli_oris_{tag}"] = _linear(
+            f"depressor_anguli_oris_{tag}", surface, (corner[0] + 0.10 * s, 0.5 * (corner[1] + chin_side[1]) - 0.10), 0.18,
+            (corner[0] + 0.02 * s, corner[1] - 0.02), 24.0, 0.88, 1.35)
+        # Depressor labii inferioris: mandible → lower lip, down (AU16).
+        lower = xy[side.lower_lip]
+        muscles[f"depressor_labii_inferioris_{tag}"] = _linear(
+            f"depressor_labii_inferioris_{tag}", surface, (lower[0] + 0.12 * s, lower[1] - 0.42), 0.20,
+            (lower[0] + 0.03 * s, lower[1] - 0.02), 22.0, 0.85, 1.30)
+    # Procerus: nasal bone → skin between the brows, pulling it down (nasal-root lines).
+    glabella_y = 0.5 * (xy[21, 1] + xy[22, 1]) + 0.12
+    muscles["procerus"] = _linear("procerus", surface, (0.0, xy[28, 1]), 0.10, (0.0, glabella_y), 34.0, 0.80, 1.30)
+    # Mentalis: incisive fossa below the lower lip → chin skin, raising it (AU17).
+    muscles["mentalis"] = _linear(
+        "mentalis", surface, (0.0, xy[57, 1] - 0.14), 0.20, (0.0, 0.55 * xy[8, 1] + 0.45 * xy[57, 1]), 50.0, 0.90, 1.60)
+    return [muscles[name] for name in LINEAR_MUSCLE_NAMES]
+
+
+def _sphincters(L: np.ndarray, frame: FaceFrame) -> list[SphincterMuscle]:
+    world = frame.to_world
+    up = frame.axes[1]
+    mouth_centre = L[60:68].mean(axis=0)
+    mouth_half_width = 0.5 * np.linalg.norm(L[54] - L[48])
+    to_nose = mouth_centre[1] - L[33, 1]
+    muscles = [
+        SphincterMuscle(
+            "orbicularis_oris", world(mouth_centre), world(L[54]) - world(L[48]), up,
+            (1.45 * mouth_half_width * frame.scale, 1.15 * abs(to_nose) * frame.scale),
+        )
+    ]
+    for side, tag in ((_LEFT, "L"), (_RIGHT, "R")):
+        eye = L[list(side.eye)].mean(axis=0)
+        across = world(L[side.eye_outer]) - world(L[side.eye_inner])
+        # The orbital part is centred a little lateral to and below the eye: it reaches the brow
+        # above, the cheek below and the temple laterally, so that its squeeze (AU6) gathers the
+        # crow's-feet skin and lifts the cheek while it narrows the eye.
+        centre = eye + np.array([0.17 * side.sign, -0.05, 0.0])
+        muscles.append(SphincterMuscle(f"orbicularis_oculi_{tag}", world(centre), across, up, (0.78 * frame.scale, 0.56 * frame.scale)))
+    return muscles
+
+
+# ------------------------------------------------------------------------------------------------
+# Wrinkles: cubic Bézier curves through surface points, in a frontal plane or the head cylinder.
+
+
+def _typical_edge(mesh: FaceMesh) -> float:
+    """Median edge length [mesh units]."""
+    corners = mesh.points[mesh.triangles]
+    return float(np.median(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)))
+
+
+def _wrinkles(L: np.ndarray, surface: SurfaceSampler, frame: FaceFrame, cylinder: CylindricalProjection, edge: float) -> list[Wrinkle]:
+    xy = L[:, :2]
+    plane = PlanarProjection(frame.origin, frame.axes[0], frame.axes[1])
+    scale = frame.scale
+    # A furrow narrower than ~2 edges cannot be drawn by the mesh: widen it where the mesh is coarse.
+    min_width = 2.0 * edge
+
+    def wrinkle(name, projection, path_xy, depth, width, kr=0.0):
+        points = np.array([surface.point(p) for p in np.asarray(path_xy, dtype=np.float64)])
+        control = project_points(projection, points)
+        return Wrinkle(name, control, projection, depth * scale, max(width, min_width) * scale, kr)
+
+    brow_top = float(xy[17:27, 1].max())
+    brow_inner = 0.5 * (xy[21, 1] + xy[22, 1])
+    wrinkles: dict[str, Wrinkle] = {}
+    # Forehead: four horizontal furrows, gently following the brows' arch (frontalis, AU1+2).
+    for index, (height, half_span) in enumerate(((0.20, 0.55), (0.38, 0.72), (0.56, 0.78), (0.74, 0.62)), start=1):
+        y = brow_top + height
+        wrinkles[f"forehead_{index}"] = wrinkle(
+            f"forehead_{index}", plane,
+            [(-half_span, y + 0.05), (-0.33 * half_span, y - 0.035), (0.33 * half_span, y - 0.035), (half_span, y + 0.05)],
+            0.15, 0.060)
+    for side, tag in ((_LEFT, "L"), (_RIGHT, "R")):
+        s = side.sign
+        # Glabella: the vertical "11" lines between the brows (corrugator, AU4).
+        x0 = 0.17 * s
+        wrinkles[f"glabella_{tag}"] = wrinkle(
+            f"glabella_{tag}", plane,
+            [(x0, brow_inner - 0.10), (x0 + 0.005 * s, brow_inner + 0.0), (x0 + 0.015 * s, brow_inner + 0.10), (x0 + 0.04 * s, brow_inner + 0.20)],
+            0.10, 0.050)
+    for index, offset in enumerate((0.02, -0.10), start=1):
+        # Nasal root: horizontal lines across the top of the nose (procerus).
+        y = xy[27, 1] + offset
+        wrinkles[f"nasal_root_{index}"] = wrinkle(
+            f"nasal_root_{index}", plane, [(-0.17, y + 0.015), (-0.06, y - 0.01), (0.06, y - 0.01), (0.17, y + 0.015)], 0.12, 0.045)
+    for side, tag in ((_LEFT, "L"), (_RIGHT, "R")):
+        s = side.sign
+        # Bunny lines: oblique furrows on the sides of the nose bridge (nose wrinkler, AU9).
+        top = (0.08 * s, xy[28, 1] + 0.02)
+        wrinkles[f"bunny_{tag}"] = wrinkle(
+            f"bunny_{tag}", plane,
+            [top, (0.12 * s, xy[28, 1] - 0.06), (0.16 * s, xy[29, 1] - 0.02), (0.20 * s, xy[29, 1] - 0.10)], 0.10, 0.045)
+    for side, tag in ((_LEFT, "L"), (_RIGHT, "R")):
+        s = side.sign
+        outer = xy[side.eye_outer]
+        # Crow's feet: three furrows fanning out from the outer eye corner (orbicularis oculi, AU6).
+        for index, (rise, angle) in enumerate(((0.09, 24.0), (0.0, 0.0), (-0.09, -24.0)), start=1):
+            direction = np.array([np.cos(np.radians(angle)) * s, np.sin(np.radians(angle))])
+            start = outer + np.array([0.09 * s, rise])
+            path = [start + t * 0.24 * direction + (0.0, -0.012 * t * t) for t in (0.0, 1 / 3, 2 / 3, 1.0)]
+            wrinkles[f"crows_feet_{tag}_{index}"] = wrinkle(f"crows_feet_{tag}_{index}", cylinder, path, 0.30, 0.040)
+    for side, tag in ((_LEFT, "L"), (_RIGHT, "R")):
+        s = side.sign
+        wing, corner = xy[side.nose_wing], xy[side.mouth_corner]
+        # Nasolabial fold: from above the nose wing, round the cheek, past the mouth corner (AU12, AU10).
+        wrinkles[f"nasolabial_{tag}"] = wrinkle(
+            f"nasolabial_{tag}", cylinder,
+            [(wing[0] + 0.07 * s, wing[1] + 0.10), (wing[0] + 0.20 * s, wing[1] - 0.14),
+             (corner[0] + 0.14 * s, corner[1] + 0.06), (corner[0] + 0.12 * s, corner[1] - 0.16)],
+            0.12, 0.070)
+    for side, tag in ((_LEFT, "L"), (_RIGHT, "R")):
+        s = side.sign
+        inner, outer = xy[side.eye_inner], xy[side.eye_outer]
+        lower = xy[list(side.eye)][:, 1].min()
+        # Under-eye fold: below the lower lid, where the rising cheek bunches the skin (AU6).
+        wrinkles[f"under_eye_{tag}"] = wrinkle(
+            f"under_eye_{tag}", cylinder,
+            [(inner[0] + 0.06 * s, lower - 0.13), (inner[0] + 0.20 * s, lower - 0.20),
+             (outer[0] - 0.10 * s, lower - 0.20), (outer[0] + 0.04 * s, lower - 0.12)],
+            0.10, 0.045)
+    # Chin: the mentolabial furrow, deepened when the mentalis raises the chin (AU17).
+    y = xy[57, 1] - 0.13
+    wrinkles["chin"] = wrinkle("chin", plane, [(-0.26, y + 0.04), (-0.09, y - 0.02), (0.09, y - 0.02), (0.26, y + 0.04)], 0.12, 0.055)
+    return [wrinkles[name] for name in WRINKLE_NAMES]

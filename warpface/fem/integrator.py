@@ -1,0 +1,433 @@
+"""Newmark-β simulation of viscoelastic tissue driven by prescribed displacements (SPEC §2).
+
+:class:`TissueSimulation` assembles K, M, C once, splits the nodes into free (``o``), fixed
+and driven (together ``c``), and advances ``M ä + C ḋ + K d = 0`` on the free nodes with
+``A_oo d_o = q_o − A_oc d_c`` (no external force on free nodes). Fixed nodes stay at zero
+displacement; driven nodes follow the displacement given for each step.
+
+Solvers (``solver=``):
+
+* ``"direct"`` (default on CPU): ``A_oo`` factorised once (SuperLU, symmetric mode, no pivoting,
+  see :mod:`warpface.fem.solver_direct`), float64 NumPy state.
+* ``"cg"`` (default on CUDA): preconditioned CG from ``warp.optim.linear`` with the whole step
+  captured in one graph (see :mod:`warpface.fem.solver_cg`). It also runs on the CPU device,
+  which is how its code path is tested.
+
+Changing ``dt``, the material or the constrained sets means building a new simulation; that
+is when the factorisation / preconditioner is rebuilt, and only then.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import warp as wp
+
+from .assembly import FORMULATIONS, SystemMatrices, assemble
+from .material import TissueMaterial
+from .newmark import newmark_coefficients, validate_newmark
+from .solver_cg import PRECONDITIONERS, CGStepper, ConvergenceError
+from .solver_direct import DirectStepper, node_dofs
+from .tetmesh import TetMesh
+
+__all__ = ["TissueSimulation", "ConvergenceError", "SOLVERS"]
+
+SOLVERS = ("auto", "direct", "cg")
+
+# run() shows a progress bar (tqdm, when installed) from this many steps on.
+_PROGRESS_MIN_STEPS = 500
+
+
+def _node_set(name: str, nodes, node_count: int) -> np.ndarray:
+    arr = np.asarray(nodes if nodes is not None else [])
+    if arr.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    if arr.dtype == bool:
+        if arr.shape != (node_count,):
+            raise ValueError(f"{name} mask has shape {arr.shape}, expected ({node_count},)")
+        return np.flatnonzero(arr).astype(np.int64)
+    if not np.issubdtype(arr.dtype, np.integer):
+        if not (np.issubdtype(arr.dtype, np.floating) and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr))):
+            raise ValueError(f"{name} must hold integer node indices, got dtype {arr.dtype}")
+    arr = arr.astype(np.int64).ravel()
+    bad = np.flatnonzero((arr < 0) | (arr >= node_count))
+    if bad.size:
+        raise ValueError(f"{name} node index {arr[bad[0]]} (entry {bad[0]}) is out of range [0, {node_count})")
+    return arr
+
+
+class TissueSimulation:
+    """Viscoelastic tet FEM advanced by Newmark-β with fixed and driven nodes.
+
+    Args:
+        tetmesh: The tissue mesh.
+        material: Uniform or per-tet :class:`TissueMaterial`.
+        dt: Time step [s], > 0.
+        fixed: Nodes held at zero displacement: indices or a boolean mask of shape (N,).
+        driven: Nodes whose displacement is given every step, in the column order of the
+            trajectories passed to :meth:`step` / :meth:`run` (indices; no duplicates).
+        beta, gamma: Newmark parameters (default 1/4, 1/2: average acceleration,
+            unconditionally stable, energy conserving without damping).
+        formulation: ``"linear"`` or ``"anp"`` (locking-free average nodal pressure), see
+            :mod:`warpface.fem.assembly`.
+        solver: ``"auto"`` (direct on CPU, CG elsewhere), ``"direct"`` or ``"cg"``.
+        device: Warp device; ``None`` uses Warp's preferred device.
+        cg_tol: CG tolerance, relative to the residual of the step's warm start.
+        cg_maxiter: CG iteration limit per step.
+        cg_preconditioner: ``"fsai"``, ``"block_jacobi"`` or ``"diag"``.
+        cg_dtype: ``wp.float64`` (default) or ``wp.float32`` state and solver precision.
+        cg_chunk: Steps per device ring buffer (the host checks convergence once per chunk).
+        use_graph: Capture the CG step in a graph (default: on CUDA only).
+
+    Raises:
+        ValueError: bad mesh/material type, ``dt <= 0``, bad Newmark parameters, node indices out
+            of range, duplicated driven nodes, a node both fixed and driven, no constrained node
+            (or a connected part of the mesh without one: its rigid motion would be singular), no
+            free node, unknown solver/formulation, or ``solver="direct"`` on a non-CPU device.
+    """
+
+    def __init__(
+        self,
+        tetmesh: TetMesh,
+        material: TissueMaterial,
+        dt: float,
+        *,
+        fixed=None,
+        driven=None,
+        beta: float = 0.25,
+        gamma: float = 0.5,
+        formulation: str = "linear",
+        solver: str = "auto",
+        device=None,
+        cg_tol: float = 1.0e-6,
+        cg_maxiter: int = 200,
+        cg_preconditioner: str = "fsai",
+        cg_dtype=wp.float64,
+        cg_chunk: int = 64,
+        use_graph: bool | None = None,
+    ):
+        if not isinstance(tetmesh, TetMesh):
+            raise ValueError(f"TissueSimulation needs a TetMesh, got {type(tetmesh).__name__}")
+        if not isinstance(material, TissueMaterial):
+            raise ValueError(f"TissueSimulation needs a TissueMaterial, got {type(material).__name__}")
+        self.dt, self.beta, self.gamma = validate_newmark(dt, beta, gamma)
+        if formulation not in FORMULATIONS:
+            raise ValueError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
+        if solver not in SOLVERS:
+            raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
+        if cg_preconditioner not in PRECONDITIONERS:
+            raise ValueError(f"cg_preconditioner must be one of {PRECONDITIONERS}, got {cg_preconditioner!r}")
+        material.per_tet(tetmesh.tet_count)  # size check with a clear message
+        device = wp.get_device(device)
+        if solver == "auto":
+            solver = "direct" if device.is_cpu else "cg"
+        if solver == "direct" and not device.is_cpu:
+            raise ValueError(f"solver='direct' runs on the CPU; got device {device}. Use solver='cg' or device='cpu'")
+
+        n = tetmesh.node_count
+        fixed_nodes = np.unique(_node_set("fixed", fixed, n))
+        driven_nodes = _node_set("driven", driven, n)
+        uniq, counts = np.unique(driven_nodes, return_counts=True)
+        if np.any(counts > 1):
+            raise ValueError(f"driven node {uniq[counts > 1][0]} is listed more than once")
+        both = np.intersect1d(fixed_nodes, driven_nodes)
+        if both.size:
+            raise ValueError(f"node {both[0]} is both fixed and driven ({both.size} such nodes)")
+        constrained = np.union1d(fixed_nodes, driven_nodes)
+        if constrained.size == 0:
+            raise ValueError(
+                "no fixed or driven node: the stiffness matrix is singular (6 rigid-body modes) and the "
+                "tissue would drift freely; fix or drive at least three non-collinear nodes"
+            )
+        _check_every_part_constrained(tetmesh, constrained)
+        free_mask = np.ones(n, dtype=bool)
+        free_mask[constrained] = False
+        free_nodes = np.flatnonzero(free_mask)
+        if free_nodes.size == 0:
+            raise ValueError("every node is fixed or driven: there is nothing to simulate")
+
+        self.tetmesh = tetmesh
+        """The mesh."""
+        self.material = material
+        """The material."""
+        self.formulation = formulation
+        """Stiffness formulation, "linear" or "anp"."""
+        self.solver = solver
+        """Solver in use, "direct" or "cg"."""
+        self.device = device
+        """Warp device of the CG solver (the direct solver always runs on the CPU)."""
+        self.fixed_nodes = fixed_nodes
+        """Fixed nodes, shape (Fx,), int64, sorted."""
+        self.driven_nodes = driven_nodes
+        """Driven nodes in trajectory column order, shape (D,), int64."""
+        self.free_nodes = free_nodes
+        """Free (solved) nodes, shape (F,), int64, sorted."""
+        self.coefficients = newmark_coefficients(self.dt, self.beta, self.gamma)
+        """Newmark constants, see :func:`~warpface.fem.newmark.newmark_coefficients`."""
+        self.timings: dict[str, float] = {}
+        """Set-up wall times [s]: "assembly", "factorization" (direct) or "solver_setup" (CG)."""
+        self.steps_taken = 0
+        """Steps since construction or the last :meth:`reset`."""
+
+        t0 = time.perf_counter()
+        self.matrices: SystemMatrices = assemble(tetmesh, material, formulation=formulation, device=device)
+        """K, M, C (Warp BSR) on ``device``."""
+        self.timings["assembly"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        if solver == "direct":
+            K, M, C = self.matrices.to_scipy()
+            self._stepper = DirectStepper(K, M, C, self.coefficients, free_nodes, driven_nodes)
+            self.timings["factorization"] = self._stepper.factor_seconds
+        else:
+            self._stepper = CGStepper(
+                self.matrices,
+                self.coefficients,
+                free_nodes,
+                driven_nodes,
+                dtype=cg_dtype,
+                tol=cg_tol,
+                maxiter=cg_maxiter,
+                preconditioner=cg_preconditioner,
+                chunk=cg_chunk,
+                use_graph=device.is_cuda if use_graph is None else bool(use_graph),
+            )
+        self.timings["solver_setup"] = time.perf_counter() - t0
+        self._failed = False
+
+    # ------------------------------------------------------------------ state
+    @property
+    def node_count(self) -> int:
+        """Number of nodes N."""
+        return self.tetmesh.node_count
+
+    @property
+    def time(self) -> float:
+        """Simulated time since the last reset [s]."""
+        return self.steps_taken * self.dt
+
+    def _state(self):
+        if self.solver == "direct":
+            return self._stepper.d, self._stepper.v, self._stepper.a
+        try:
+            return self._stepper.state()
+        except ConvergenceError:
+            self._failed = True
+            raise
+
+    @property
+    def d(self) -> np.ndarray:
+        """Displacement [m], shape (N, 3), float64 (a copy on non-CPU devices)."""
+        return self._state()[0]
+
+    @property
+    def v(self) -> np.ndarray:
+        """Velocity [m/s], shape (N, 3), float64."""
+        return self._state()[1]
+
+    @property
+    def a(self) -> np.ndarray:
+        """Acceleration [m/s^2], shape (N, 3), float64."""
+        return self._state()[2]
+
+    @property
+    def cg_iterations(self) -> tuple[int, int] | None:
+        """``(most, last)`` CG iterations per step since the last reset; None for the direct solver."""
+        return None if self.solver == "direct" else self._stepper.iterations
+
+    def energy(self) -> tuple[float, float]:
+        """``(kinetic, strain)`` energy [J]: ``½ vᵀMv`` and ``½ dᵀKd`` (float64, on the host)."""
+        if not hasattr(self, "_host_matrices"):
+            self._host_matrices = self.matrices.to_scipy()
+        K, M, _ = self._host_matrices
+        d, v, _ = self._state()
+        d, v = d.ravel(), v.ravel()
+        return 0.5 * float(v @ (M @ v)), 0.5 * float(d @ (K @ d))
+
+    def reset(self, displacement=None, velocity=None) -> None:
+        """Restart from a given state (default: rest) with a consistent acceleration.
+
+        The acceleration of free nodes solves ``M_oo a_o = −(K d + C v)_o`` (constrained nodes get
+        zero), so the first step starts in equilibrium, as Newmark's energy balance assumes.
+
+        Args:
+            displacement: [m], shape (N, 3); zero at fixed nodes. Default zero.
+            velocity: [m/s], shape (N, 3); zero at fixed nodes. Default zero.
+
+        Raises:
+            ValueError: wrong shape, non-finite values, or non-zero values at fixed nodes.
+        """
+        n = self.node_count
+        state = []
+        for name, value in (("displacement", displacement), ("velocity", velocity)):
+            arr = np.zeros((n, 3)) if value is None else np.array(value, dtype=np.float64)
+            if arr.shape != (n, 3):
+                raise ValueError(f"reset {name} must have shape ({n}, 3), got {arr.shape}")
+            bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))
+            if bad.size:
+                raise ValueError(f"reset {name} of node {bad[0]} is not finite")
+            moving = self.fixed_nodes[np.any(arr[self.fixed_nodes] != 0.0, axis=1)]
+            if moving.size:
+                raise ValueError(f"reset {name} of fixed node {moving[0]} must be zero")
+            state.append(arr)
+        d, v = state
+        a = np.zeros((n, 3))
+        if np.any(d) or np.any(v):
+            from .solver_direct import factorize_spd
+
+            if not hasattr(self, "_host_matrices"):
+                self._host_matrices = self.matrices.to_scipy()
+            K, M, C = self._host_matrices
+            o = node_dofs(self.free_nodes)
+            force = -(K @ d.ravel() + C @ v.ravel())[o]
+            a[self.free_nodes] = factorize_spd(M.tocsr()[o][:, o]).solve(force).reshape(-1, 3)
+        self._stepper.set_state(d, v, a)
+        self.steps_taken = 0
+        self._failed = False
+
+    # ------------------------------------------------------------------ stepping
+    def _check_driven(self, driven, steps: int | None) -> np.ndarray:
+        k = self.driven_nodes.size
+        shape = (k, 3) if steps is None else (steps, k, 3)
+        if driven is None:
+            if k:
+                raise ValueError(f"{k} driven nodes need displacements of shape {shape}")
+            return np.zeros(shape)
+        arr = np.asarray(driven, dtype=np.float64)
+        if steps is None and arr.shape != shape:
+            raise ValueError(f"driven displacements must have shape {shape}, got {arr.shape}")
+        if steps is not None and (arr.ndim != 3 or arr.shape[1:] != (k, 3)):
+            raise ValueError(f"trajectory must have shape (steps, {k}, 3), got {arr.shape}")
+        finite = np.isfinite(arr).all(axis=-1)
+        if not finite.all():
+            where = np.argwhere(~finite)[0]
+            if steps is None:
+                raise ValueError(f"driven displacement of node {self.driven_nodes[where[0]]} is not finite")
+            raise ValueError(
+                f"trajectory has a non-finite value at step {where[0]}, driven node {self.driven_nodes[where[1]]}"
+            )
+        return arr
+
+    def _check_usable(self) -> None:
+        if self._failed:
+            raise RuntimeError("the simulation failed to converge earlier; call reset() before stepping again")
+
+    def step(self, driven_displacements=None) -> None:
+        """Advance one time step.
+
+        Args:
+            driven_displacements: Displacement of every driven node at the *end* of the step [m],
+                shape (D, 3), in the order of ``driven``; may be omitted when there are none.
+
+        On CUDA this only queues work; a convergence failure is raised by the next call that
+        reads results (``d``, ``v``, ``a``, :meth:`run`) or at the latest ``cg_chunk`` steps later.
+
+        Raises:
+            ValueError: wrong shape or a non-finite value.
+            ConvergenceError: CG did not converge (CG solver).
+        """
+        self._check_usable()
+        driven = self._check_driven(driven_displacements, None)
+        try:
+            self._stepper.step(driven)
+        except (ConvergenceError, FloatingPointError):
+            self._failed = True
+            raise
+        self.steps_taken += 1
+
+    def run(self, trajectory, *, nodes=None, progress: bool | None = None) -> np.ndarray:
+        """Advance ``len(trajectory)`` steps and return the displacement after each.
+
+        Args:
+            trajectory: Driven-node displacements [m], shape (T, D, 3); row ``t`` is imposed at
+                the end of step ``t``.
+            nodes: Nodes to record (indices), default all.
+            progress: Show a tqdm progress bar; default when T >= 500 and tqdm is installed.
+
+        Returns:
+            Displacements [m], shape (T, len(nodes), 3), float32.
+
+        Raises:
+            ValueError: bad trajectory (shape, NaN/inf, naming step and node) or node indices.
+            ConvergenceError: CG did not converge at some step (the residual is in the message).
+        """
+        self._check_usable()
+        arr = np.asarray(trajectory, dtype=np.float64)
+        if arr.ndim != 3:
+            raise ValueError(f"trajectory must have shape (steps, {self.driven_nodes.size}, 3), got {arr.shape}")
+        steps = arr.shape[0]
+        traj = self._check_driven(arr, steps)
+        record = np.arange(self.node_count) if nodes is None else _node_set("nodes", nodes, self.node_count)
+        out = np.empty((steps, record.size, 3), dtype=np.float32)
+        bar = _progress_bar(steps, progress)
+        try:
+            if self.solver == "direct":
+                for t in range(steps):
+                    self._stepper.step(traj[t])
+                    out[t] = self._stepper.d[record]
+                    self.steps_taken += 1
+                    if bar is not None:
+                        bar.update(1)
+            else:
+                chunk = self._stepper.chunk
+                for start in range(0, steps, chunk):
+                    block = self._stepper.run_chunk(traj[start : start + chunk])
+                    out[start : start + block.shape[0]] = block[:, record]
+                    self.steps_taken += block.shape[0]
+                    if bar is not None:
+                        bar.update(block.shape[0])
+        except (ConvergenceError, FloatingPointError):
+            self._failed = True
+            raise
+        finally:
+            if bar is not None:
+                bar.close()
+        return out
+
+    def synchronize(self) -> None:
+        """Wait for queued device steps; raise :class:`ConvergenceError` if one failed."""
+        if self.solver == "cg":
+            try:
+                self._stepper.synchronize()
+            except ConvergenceError:
+                self._failed = True
+                raise
+
+    def __repr__(self) -> str:
+        return (
+            f"TissueSimulation({self.tetmesh!r}, dt={self.dt:g} s, {self.formulation}, solver={self.solver}, "
+            f"free={self.free_nodes.size}, fixed={self.fixed_nodes.size}, driven={self.driven_nodes.size})"
+        )
+
+
+def _check_every_part_constrained(tetmesh: TetMesh, constrained: np.ndarray) -> None:
+    """Raise if a connected part of the mesh has no constrained node (its K block is singular)."""
+    import scipy.sparse as sps
+    from scipy.sparse.csgraph import connected_components
+
+    edges = tetmesh.edges
+    n = tetmesh.node_count
+    graph = sps.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    parts, labels = connected_components(graph, directed=False)
+    if parts == 1:
+        return
+    held = np.zeros(parts, dtype=bool)
+    held[labels[constrained]] = True
+    if not held.all():
+        part = int(np.flatnonzero(~held)[0])
+        node = int(np.flatnonzero(labels == part)[0])
+        raise ValueError(
+            f"the mesh has {parts} disconnected parts and the part containing node {node} has no fixed or "
+            "driven node: its stiffness is singular (rigid-body modes)"
+        )
+
+
+def _progress_bar(steps: int, progress: bool | None):
+    if progress is False or (progress is None and steps < _PROGRESS_MIN_STEPS):
+        return None
+    try:
+        from tqdm.auto import tqdm
+    except ImportError:
+        return None
+    return tqdm(total=steps, unit="step", desc="tissue")
