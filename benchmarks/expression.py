@@ -169,6 +169,7 @@ def main(argv=None) -> None:
     parser.add_argument("--quick", action="store_true", help="fewer repeats (smoke run)")
     args = parser.parse_args(argv)
     wp.config.quiet = True
+    wp.config.log_level = wp.LOG_WARNING
     wp.init()
     device = wp.get_device(args.device)
     face, face_label = face_mesh()

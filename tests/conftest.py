@@ -11,6 +11,7 @@ import pytest
 import warp as wp
 
 wp.config.quiet = True
+wp.config.log_level = wp.LOG_WARNING
 wp.init()
 
 
