@@ -97,6 +97,16 @@ def test_zero_contraction_is_identity(rng):
     np.testing.assert_array_equal(model.evaluate_batch(np.zeros((2, len(muscles))))[1], mesh.points.astype(np.float32))
 
 
+def test_results_are_not_overwritten_by_later_frames(rng):
+    mesh, muscles, wrinkles, thickness, contractions, *_ = random_rig(rng, n=10)
+    model = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device="cpu")
+    first, first_stages = model.evaluate(contractions), model.evaluate(contractions, stages=True)
+    kept, kept_stretch = first.copy(), first_stages.stretch.copy()
+    model.evaluate(contractions * 2, stages=True)
+    np.testing.assert_array_equal(first, kept)
+    np.testing.assert_array_equal(first_stages.stretch, kept_stretch)
+
+
 def test_displacements_are_not_cumulative(rng):
     mesh, muscles, wrinkles, thickness, contractions, *_ = random_rig(rng, n=12)
     model = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device="cpu")

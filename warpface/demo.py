@@ -20,6 +20,9 @@ import numpy as np
 
 __all__ = ["DemoResult", "run_demo", "expression_sequence"]
 
+BACKGROUND = (0.12, 0.12, 0.14)
+"""Dark, so the eye and mouth openings of the open face surface read as eyes and mouth."""
+
 
 @dataclass
 class DemoResult:
@@ -87,7 +90,8 @@ def run_demo(out_dir: str | Path = "demo", *, device=None, fps: float = 30.0, se
     clock = time.perf_counter()
     smooth = ExpressionModel(rig.mesh, rig.muscles, [], rig.thickness, device=device)
     rest = rig.mesh.points
-    camera = preview.Camera.framing(rest, yaw_deg=18.0, pitch_deg=4.0, margin=1.05, aspect=size[0] / size[1])
+    camera = preview.Camera.for_face(rest[rig.landmarks], yaw_deg=30.0, pitch_deg=5.0)
+    style = {"camera": camera, "size": size, "background": BACKGROUND}
     triangles = rig.mesh.triangles
     images, without_row, with_row = [], [], []
     for name in names:
@@ -95,15 +99,15 @@ def run_demo(out_dir: str | Path = "demo", *, device=None, fps: float = 30.0, se
         plain, wrinkled = smooth.evaluate(peak), model.evaluate(peak)
         views = [("neutral", rest), (f"{name}: no wrinkles", plain), (f"{name}: with wrinkles", wrinkled)]
         images.append(out / f"{name}.png")
-        preview.render_comparison(views, triangles, images[-1], camera=camera, size=size)
+        preview.render_comparison(views, triangles, images[-1], **style)
         without_row.append((f"{name}: no wrinkles", plain))
         with_row.append((f"{name}: with wrinkles", wrinkled))
         displacement_mm = np.linalg.norm(wrinkled - rest, axis=1) * 1e3
         images.append(out / f"heatmap_{name}.png")
-        preview.render_heat_map(wrinkled, triangles, displacement_mm, images[-1], camera=camera, size=size,
-                                title=f"{name}: |displacement|", units="mm")
-    top = preview.render_comparison(without_row, triangles, camera=camera, size=size)
-    bottom = preview.render_comparison(with_row, triangles, camera=camera, size=size)
+        preview.render_heat_map(wrinkled, triangles, displacement_mm, images[-1], title=f"{name}: |displacement|",
+                                units="mm", **style)
+    top = preview.render_comparison(without_row, triangles, **style)
+    bottom = preview.render_comparison(with_row, triangles, **style)
     images.append(preview.save_image(out / "expressions.png", np.concatenate([top, bottom], axis=0)))
     timings["previews"] = time.perf_counter() - clock
 
@@ -111,7 +115,7 @@ def run_demo(out_dir: str | Path = "demo", *, device=None, fps: float = 30.0, se
     if video:
         clock = time.perf_counter()
         result.video = preview.write_video(_baked_frames(stage_path), triangles, out / "face_anim.mp4", fps=fps,
-                                           size=(size[0], size[1]), camera=camera, label="warpface", progress=progress)
+                                           label="warpface", progress=progress, **style)
         timings["video"] = time.perf_counter() - clock
     return result
 

@@ -45,6 +45,17 @@ class Camera:
         direction = np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
         return cls(eye=centre + distance * direction, target=centre, yfov_deg=yfov_deg)
 
+    @classmethod
+    def for_face(cls, landmark_points: np.ndarray, *, yaw_deg: float = 0.0, pitch_deg: float = 0.0) -> "Camera":
+        """A portrait camera from 68 landmark positions (L, 3): aimed a little above their centre (the
+        landmarks stop at the brows) and far enough to frame forehead to chin, 22° field of view."""
+        lo, hi = landmark_points.min(axis=0), landmark_points.max(axis=0)
+        height = float(hi[1] - lo[1])
+        target = 0.5 * (lo + hi) + np.array([0.0, 0.25 * height, 0.0])
+        yaw, pitch = np.radians(yaw_deg), np.radians(pitch_deg)
+        direction = np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
+        return cls(eye=target + 4.6 * height * direction, target=target, yfov_deg=22.0)
+
     def pose(self) -> np.ndarray:
         """Camera-to-world 4×4 matrix (OpenGL convention: the camera looks down its −Z)."""
         forward = self.target - self.eye
@@ -106,12 +117,12 @@ class PreviewRenderer:
                                                       roughnessFactor=0.65, doubleSided=True)
         primitive = pyrender.Primitive(positions=points.astype(np.float32), normals=normals.astype(np.float32),
                                        indices=self.triangles, color_0=rgba, material=material)
-        scene = pyrender.Scene(bg_color=(*self.background, 1.0), ambient_light=(0.25, 0.25, 0.25))
+        scene = pyrender.Scene(bg_color=(*self.background, 1.0), ambient_light=(0.1, 0.1, 0.1))
         scene.add(pyrender.Mesh([primitive]))
         pose = self.camera.pose()
         scene.add(pyrender.PerspectiveCamera(yfov=np.radians(self.camera.yfov_deg), aspectRatio=self.size[0] / self.size[1]), pose=pose)
-        scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=3.0), pose=_rotated(pose, yaw_deg=-25, pitch_deg=20))
-        scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=1.2), pose=_rotated(pose, yaw_deg=40, pitch_deg=-10))
+        scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=2.6), pose=_rotated(pose, yaw_deg=-35, pitch_deg=30))
+        scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=0.7), pose=_rotated(pose, yaw_deg=40, pitch_deg=-5))
         color, _ = self._renderer.render(scene)
         return np.ascontiguousarray(color[..., :3])
 
@@ -136,9 +147,9 @@ def _rotated(pose: np.ndarray, *, yaw_deg: float, pitch_deg: float) -> np.ndarra
 
 
 def render(points: np.ndarray, triangles: np.ndarray, path: str | Path | None = None, *, colors=None,
-           camera: Camera | None = None, size=(640, 480), label: str | None = None) -> np.ndarray:
+           camera: Camera | None = None, size=(640, 480), label: str | None = None, background=(1.0, 1.0, 1.0)) -> np.ndarray:
     """Render one shaded image of a mesh; writes a PNG when ``path`` is given. Returns (H, W, 3) uint8 RGB."""
-    with PreviewRenderer(triangles, size=size, camera=camera) as renderer:
+    with PreviewRenderer(triangles, size=size, camera=camera, background=background) as renderer:
         image = renderer.render(points, colors)
     if label:
         image = _label(image, label)
@@ -148,12 +159,13 @@ def render(points: np.ndarray, triangles: np.ndarray, path: str | Path | None = 
 
 
 def render_comparison(views: Sequence[tuple[str, np.ndarray]], triangles: np.ndarray, path: str | Path | None = None, *,
-                      camera: Camera | None = None, size=(480, 480), colors: Sequence | None = None) -> np.ndarray:
+                      camera: Camera | None = None, size=(480, 480), colors: Sequence | None = None,
+                      background=(1.0, 1.0, 1.0)) -> np.ndarray:
     """Labelled views side by side, all with one camera (framed on the first). Returns the joined image."""
     if camera is None:
         camera = Camera.framing(np.asarray(views[0][1]), aspect=size[0] / size[1])
     images = []
-    with PreviewRenderer(triangles, size=size, camera=camera) as renderer:
+    with PreviewRenderer(triangles, size=size, camera=camera, background=background) as renderer:
         for index, (title, points) in enumerate(views):
             images.append(_label(renderer.render(points, None if colors is None else colors[index]), title))
     joined = np.concatenate(images, axis=1)
@@ -175,14 +187,15 @@ def heat_colors(values: np.ndarray, *, vmin: float | None = None, vmax: float | 
 
 def render_heat_map(points: np.ndarray, triangles: np.ndarray, values: np.ndarray, path: str | Path | None = None, *,
                     title: str = "", units: str = "", camera: Camera | None = None, size=(640, 480), cmap: str = "inferno",
-                    scale: float = 1.0) -> np.ndarray:
+                    scale: float = 1.0, background=(1.0, 1.0, 1.0)) -> np.ndarray:
     """Render ``points`` coloured by ``values`` (V,), with a colour bar and its range; returns the image.
 
     ``scale`` multiplies the values shown on the colour bar (e.g. 1000 to show metres as millimetres).
     """
     values = np.asarray(values, dtype=np.float64)
     vmin, vmax = float(values.min()), float(values.max())
-    image = render(points, triangles, camera=camera, size=size, colors=heat_colors(values, vmin=vmin, vmax=vmax, cmap=cmap))
+    image = render(points, triangles, camera=camera, size=size, colors=heat_colors(values, vmin=vmin, vmax=vmax, cmap=cmap),
+                   background=background)
     image = _color_bar(image, vmin * scale, vmax * scale, units, cmap)
     if title:
         image = _label(image, title)
@@ -192,7 +205,8 @@ def render_heat_map(points: np.ndarray, triangles: np.ndarray, values: np.ndarra
 
 
 def write_video(frames: Iterable[np.ndarray], triangles: np.ndarray, path: str | Path, *, fps: float = 30.0,
-                size=(640, 480), camera: Camera | None = None, label: str | None = None, progress: bool = True) -> Path:
+                size=(640, 480), camera: Camera | None = None, label: str | None = None, progress: bool = True,
+                background=(1.0, 1.0, 1.0)) -> Path:
     """Render each (V, 3) frame and write an MP4 (OpenCV, ``mp4v``) through a temporary file and a rename."""
     import cv2
 
@@ -207,7 +221,7 @@ def write_video(frames: Iterable[np.ndarray], triangles: np.ndarray, path: str |
 
         frames = tqdm(frames, desc=f"video {path.name}", unit="frame")
     try:
-        with PreviewRenderer(triangles, size=size, camera=camera) as renderer:
+        with PreviewRenderer(triangles, size=size, camera=camera, background=background) as renderer:
             for index, points in enumerate(frames):
                 image = renderer.render(points)
                 if label:
@@ -240,7 +254,8 @@ def _label(image: np.ndarray, text: str) -> np.ndarray:
 
     out = image.copy()
     scale = max(0.45, image.shape[0] / 900)
-    cv2.putText(out, text, (10, int(28 * scale / 0.6)), cv2.FONT_HERSHEY_SIMPLEX, scale, (30, 30, 30), 2, cv2.LINE_AA)
+    color = (30, 30, 30) if image[:40].mean() > 128 else (235, 235, 235)  # dark text on light backgrounds
+    cv2.putText(out, text, (10, int(28 * scale / 0.6)), cv2.FONT_HERSHEY_SIMPLEX, scale, color, 2, cv2.LINE_AA)
     return out
 
 

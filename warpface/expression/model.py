@@ -159,13 +159,14 @@ class ExpressionModel:
         else:
             self._launch(buffers)
         if stages:
+            # .numpy() of a CPU array is a view of the reused buffer: hand out copies.
             return ExpressionStages(
-                muscle=buffers.muscle_points.numpy()[0],
-                stretch=buffers.stretch.numpy()[0],
-                bulge=buffers.bulge_points.numpy()[0],
-                final=buffers.final_points.numpy()[0],
+                muscle=buffers.muscle_points.numpy()[0].copy(),
+                stretch=buffers.stretch.numpy()[0].copy(),
+                bulge=buffers.bulge_points.numpy()[0].copy(),
+                final=buffers.final_points.numpy()[0].copy(),
             )
-        return buffers.final_points.numpy()[0]
+        return buffers.final_points.numpy()[0].copy()
 
     def evaluate_batch(self, contractions, *, wrinkle_depths=None, progress: bool = False) -> np.ndarray:
         """Deformed positions for many frames at once.
