@@ -8,9 +8,11 @@ measured in the same run:
 * ``detect dots``: :class:`DotTracker` on a 640×480 image with the 121 dots (rendered by the
   synthetic camera when pyrender is available, else painted) — baseline ``cv2.SimpleBlobDetector``.
 * ``back-project``: robust quadric fit over 9×9 windows for 121 landmarks (Warp kernel) —
-  baseline: the nearest depth pixel (NumPy), which carries the sensor noise and every hole.
+  baseline: the nearest depth pixel (NumPy), which carries the sensor noise and every hole; with
+  the synthetic camera both are also scored against ground truth (mean 3-D error).
 * ``correspondence (once)``: :func:`closest_points` with the ``wp.Mesh`` BVH — baseline the same
-  Voronoi-region function over all triangles per vertex (O(V·T) Warp kernel).
+  Voronoi-region function over all triangles per vertex (O(V·T) Warp kernel); again with MediaPipe's
+  468-point face mesh (898 triangles) as the sparse mesh, in SPEC §3 normalised coordinates.
 * ``transfer``: :meth:`TrackingAdapter.step` (sparse update, kernel, copy to host) — baseline the
   same math vectorised in NumPy.
 * ``frame total``: detect + back-project + transfer, and the frame rate it allows.
@@ -113,7 +115,7 @@ def main() -> None:
 
     # -- colour image and depth ------------------------------------------------------------------
     intr = KINECT_V1_INTRINSICS
-    color = depth = None
+    color = depth = truth = None
     image_source = None
     try:
         os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
@@ -126,7 +128,8 @@ def main() -> None:
         color, depth = frame.color, frame.depth_m
         depth = KinectNoise().apply(depth, np.random.default_rng(0)).astype(np.float32)
         pixels0 = cam.landmark_pixels(0)
-        image_source = "synthetic camera (pyrender)"
+        truth = cam.landmark_positions(0)
+        image_source = "synthetic camera (pyrender), Kinect depth noise"
         cam.close()
     except ImportError:
         cam_pts = dense @ np.linalg.inv(camera_to_model)[:3, :3].T + np.linalg.inv(camera_to_model)[:3, 3]
@@ -175,8 +178,16 @@ def main() -> None:
         return intr.unproject(pix, depth[near[:, 1], near[:, 0]])
 
     t_near = time_call(nearest, repeats=args.repeats)
-    rows.append({"stage": "back-project (quadric 9×9)", "n": len(pix), "ms": t_back * 1e3,
-                 "baseline": "nearest depth pixel (NumPy)", "baseline_ms": t_near * 1e3})
+    row = {"stage": "back-project (quadric 9×9)", "n": len(pix), "ms": t_back * 1e3,
+           "baseline": "nearest depth pixel (NumPy)", "baseline_ms": t_near * 1e3}
+    if truth is not None:  # accuracy against the synthetic camera's ground truth
+        lifted, _ = backproject(pix, depth, intr, device=device)
+        ok = np.isfinite(lifted).all(axis=1)
+        row["error_mm"] = float(np.linalg.norm(lifted[ok] - truth[ok], axis=1).mean() * 1e3)
+        near = nearest()
+        ok = near[:, 2] > 0
+        row["baseline_error_mm"] = float(np.linalg.norm(near[ok] - truth[ok], axis=1).mean() * 1e3)
+    rows.append(row)
 
     # -- correspondence (once) -------------------------------------------------------------------
     index = TriangleMeshIndex(sparse, sparse_tri, device=device)
@@ -197,6 +208,35 @@ def main() -> None:
     assert np.allclose(dist, brute.numpy(), atol=1e-6), "BVH and brute force disagree"
     rows.append({"stage": "correspondence (once)", "n": len(dense), "ms": t_corr * 1e3,
                  "baseline": "all triangles per vertex (Warp)", "baseline_ms": t_brute * 1e3})
+
+    # The MediaPipe face mesh as the sparse mesh (898 triangles), in normalised coordinates.
+    from warpface.data import shared_data_path
+
+    mp_path = shared_data_path("mediapipe", "canonical_face_model.obj")
+    if mp_path is not None and dense_name.startswith("ICT"):
+        from warpface.data import ict_landmark_indices
+        from warpface.mesh import load_obj
+        from warpface.tracking import FaceNormalization
+
+        mp, mp_tri = load_obj(mp_path)
+        s_norm = FaceNormalization.measure(mp, eye_y=mp[[33, 263], 1].mean())
+        d_norm = FaceNormalization.measure(dense, eye_y=dense[ict_landmark_indices()[[36, 45]], 1].mean())
+        mp_n, dense_n = s_norm.normalize(mp), d_norm.normalize(dense, match=s_norm)
+        closest_points(dense_n, mp_n, mp_tri, device=device)
+        t_mp = time_call(lambda: closest_points(dense_n, mp_n, mp_tri, device=device),
+                         repeats=max(3, args.repeats // 4), sync=sync)
+        mp_index = TriangleMeshIndex(mp_n, mp_tri, device=device)
+        mp_verts = wp.array((mp_n - mp_index.center).astype(np.float32), dtype=wp.vec3, device=device)
+        mp_tris = wp.array(mp_tri.astype(np.int32), dtype=wp.int32, device=device)
+        mp_queries = wp.array((dense_n - mp_index.center).astype(np.float32), dtype=wp.vec3, device=device)
+
+        def mp_brute():
+            wp.launch(_brute_force_kernel, dim=len(dense), inputs=[mp_verts, mp_tris, mp_queries], outputs=[brute],
+                      device=device)
+
+        t_mp_brute = time_call(mp_brute, repeats=3, sync=sync)
+        rows.append({"stage": "correspondence, MediaPipe mesh", "n": len(dense), "ms": t_mp * 1e3,
+                     "baseline": "all triangles per vertex (Warp)", "baseline_ms": t_mp_brute * 1e3})
 
     # -- transfer --------------------------------------------------------------------------------
     adapter = TrackingAdapter(sparse, sparse_tri, dense, camera_to_model=camera_to_model, device=device)
@@ -233,7 +273,8 @@ def main() -> None:
     print(f"image: {image_source}")
     print_table(rows, [("stage", "stage", "s"), ("n", "n", "d"), ("ms", "ms", ".3f"), ("fps", "frames/s", ".0f"),
                        ("baseline", "baseline", "s"), ("baseline_ms", "baseline ms", ".3f"),
-                       ("speedup", "speed-up", ".1f")])
+                       ("speedup", "speed-up", ".1f"), ("error_mm", "error mm", ".2f"),
+                       ("baseline_error_mm", "baseline error mm", ".2f")])
     name = "tracking" if device.is_cpu else f"tracking_{str(device).replace(':', '')}"
     path = write_results(name, {
         "benchmark": "tracking", "dense": dense_name, "dense_vertices": len(dense), "dense_triangles": len(dense_tri),

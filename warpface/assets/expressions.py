@@ -26,11 +26,10 @@ EXPRESSIONS = MappingProxyType({
         "frontalis_outer_L": 0.13, "frontalis_outer_R": 0.13,
     }),
     # Knit the brows (AU4): corrugators pull them together and down, the procerus lowers the
-    # glabella, a little inner frontalis tilts the brows, the eyes narrow slightly.
+    # glabella, the eyes narrow slightly.
     "puzzled": MappingProxyType({
         "corrugator_L": 0.09, "corrugator_R": 0.09,
-        "procerus": 0.06,
-        "frontalis_inner_L": 0.04, "frontalis_inner_R": 0.04,
+        "procerus": 0.07,
         "orbicularis_oculi_L": 0.10, "orbicularis_oculi_R": 0.10,
     }),
     # Raise the nose and upper lip (AU9 + AU10), lower the brows (AU4), narrow the eyes.
@@ -48,7 +47,7 @@ EXPRESSIONS = MappingProxyType({
         "zygomaticus_major_L": 0.22, "zygomaticus_major_R": 0.22,
         "risorius_L": 0.04, "risorius_R": 0.04,
         "levator_labii_superioris_L": 0.03, "levator_labii_superioris_R": 0.03,
-        "orbicularis_oculi_L": 0.22, "orbicularis_oculi_R": 0.22,
+        "orbicularis_oculi_L": 0.26, "orbicularis_oculi_R": 0.26,
     }),
 })
 """Expression name → {muscle name: relative contraction} (linear muscles in inter-ocular units,

@@ -355,11 +355,11 @@ def _heights(x: np.ndarray, y: np.ndarray, theta: np.ndarray) -> np.ndarray:
     upper_border, lower_border = _MOUTH.vermilion(x)
     corner_fade = _smoothstep(_MOUTH.corner[0] * 1.05, _MOUTH.corner[0] * 0.55, X)
     v = (y - line) / np.maximum(upper_border - line, 0.002)  # 0 at the lip line, 1 at the upper border
-    h += 0.0034 * corner_fade * _skewed_bump(v, 0.85, 0.40, 1.10) * (v > 0.0)
+    h += 0.0038 * corner_fade * _skewed_bump(v, 0.70, 0.45, 0.95) * (v > 0.0)
     v = (line - y) / np.maximum(line - lower_border, 0.002)  # 0 at the lip line, 1 at the lower border
-    h += 0.0056 * corner_fade * _skewed_bump(v, 0.42, 0.35, 0.50) * (v > 0.0)
+    h += 0.0062 * corner_fade * _skewed_bump(v, 0.45, 0.42, 0.62) * (v > 0.0)
     mouth_distance = np.where(_inside_mouth(x, y), 0.0, _curve_distance(mouth_curve, x, y))
-    h -= 0.0026 * np.exp(-((mouth_distance / 0.0022) ** 2))
+    h -= 0.0022 * np.exp(-((mouth_distance / 0.0026) ** 2))
     h += 0.0010 * _gauss(X, y, _MOUTH.corner[0] + 0.003, _MOUTH.corner[1] - 0.001, 0.004, 0.005)  # modiolus
 
     # Nasolabial fold: the cheek stands proud lateral to the line from the nose wing past the mouth.

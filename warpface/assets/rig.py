@@ -134,7 +134,7 @@ def default_rig(mesh: FaceMesh | None = None, landmarks=None, *, name: str = "Fa
     surface = SurfaceSampler(mesh, frame, mesh.vertex_normals(device=device))
     local = frame.to_local(mesh.points[landmarks])
     muscles = _linear_muscles(local, surface) + _sphincters(local, frame)
-    wrinkles = _wrinkles(local, surface, frame, head_cylinder(frame, local), _typical_edge(mesh) / frame.scale)
+    wrinkles = _wrinkles(local, surface, frame, head_cylinder(frame, local), _typical_edge(mesh) / frame.scale, device)
     thickness = default_thickness(mesh, landmarks, device=device)
     return FaceRig(mesh=mesh, muscles=muscles, wrinkles=wrinkles, thickness=thickness, landmarks=landmarks, name=name)
 
@@ -169,7 +169,7 @@ def _linear_muscles(L: np.ndarray, surface: SurfaceSampler) -> list[LinearMuscle
     muscles: dict[str, LinearMuscle] = {}
     for side, tag in ((_LEFT, "L"), (_RIGHT, "R")):
         s = side.sign
-        outer, second, middle, fourth, inner = (xy[i] for i in side.brow)
+        _, second, middle, fourth, inner = (xy[i] for i in side.brow)
         eye_outer, eye_inner = xy[side.eye_outer], xy[side.eye_inner]
         eye = xy[list(side.eye)].mean(axis=0)
         corner = xy[side.mouth_corner]
@@ -237,10 +237,11 @@ def _sphincters(L: np.ndarray, frame: FaceFrame) -> list[SphincterMuscle]:
     for side, tag in ((_LEFT, "L"), (_RIGHT, "R")):
         eye = L[list(side.eye)].mean(axis=0)
         across = world(L[side.eye_outer]) - world(L[side.eye_inner])
-        # The orbital part is centred a little lateral to and below the eye: it reaches the brow
-        # above, the cheek below and the temple laterally, so that its squeeze (AU6) gathers the
-        # crow's-feet skin and lifts the cheek while it narrows the eye.
-        centre = eye + np.array([0.17 * side.sign, -0.05, 0.0])
+        # The orbital part is centred a little lateral to the eye: it reaches the brow above, the
+        # cheek below and the temple laterally, so that its squeeze (AU6) gathers the crow's-feet
+        # skin (compressed only within ~2/3 of the semi-axes) and lifts the cheek while it narrows
+        # the eye.
+        centre = eye + np.array([0.17 * side.sign, 0.0, 0.0])
         muscles.append(SphincterMuscle(f"orbicularis_oculi_{tag}", world(centre), across, up, (0.78 * frame.scale, 0.56 * frame.scale)))
     return muscles
 
@@ -255,7 +256,10 @@ def _typical_edge(mesh: FaceMesh) -> float:
     return float(np.median(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)))
 
 
-def _wrinkles(L: np.ndarray, surface: SurfaceSampler, frame: FaceFrame, cylinder: CylindricalProjection, edge: float) -> list[Wrinkle]:
+def _wrinkles(L: np.ndarray, surface: SurfaceSampler, frame: FaceFrame, cylinder: CylindricalProjection, edge: float,
+              device=None) -> list[Wrinkle]:
+    """The 21 furrows. Paths are local (x, y) through skin points; depth ``k_d`` and width ``k_w`` are in
+    inter-ocular units (``k_d`` is large because a furrow shows ``k_d·(1 − r)``: a few percent of compression)."""
     xy = L[:, :2]
     plane = PlanarProjection(frame.origin, frame.axes[0], frame.axes[1])
     scale = frame.scale
@@ -264,7 +268,7 @@ def _wrinkles(L: np.ndarray, surface: SurfaceSampler, frame: FaceFrame, cylinder
 
     def wrinkle(name, projection, path_xy, depth, width, kr=0.0):
         points = np.array([surface.point(p) for p in np.asarray(path_xy, dtype=np.float64)])
-        control = project_points(projection, points)
+        control = project_points(projection, points, device)
         return Wrinkle(name, control, projection, depth * scale, max(width, min_width) * scale, kr)
 
     brow_top = float(xy[17:27, 1].max())
@@ -289,7 +293,7 @@ def _wrinkles(L: np.ndarray, surface: SurfaceSampler, frame: FaceFrame, cylinder
         # Nasal root: horizontal lines across the top of the nose (procerus).
         y = xy[27, 1] + offset
         wrinkles[f"nasal_root_{index}"] = wrinkle(
-            f"nasal_root_{index}", plane, [(-0.17, y + 0.015), (-0.06, y - 0.01), (0.06, y - 0.01), (0.17, y + 0.015)], 0.12, 0.045)
+            f"nasal_root_{index}", plane, [(-0.17, y + 0.015), (-0.06, y - 0.01), (0.06, y - 0.01), (0.17, y + 0.015)], 0.16, 0.045)
     for side, tag in ((_LEFT, "L"), (_RIGHT, "R")):
         s = side.sign
         # Bunny lines: oblique furrows on the sides of the nose bridge (nose wrinkler, AU9).

@@ -365,7 +365,7 @@ class TissueSimulation:
             if self.solver == "direct":
                 for t in range(steps):
                     self._stepper.step(traj[t])
-                    out[t] = self._stepper.d[record]
+                    out[t] = self._stepper.d if nodes is None else self._stepper.d[record]
                     self.steps_taken += 1
                     if bar is not None:
                         bar.update(1)
@@ -373,7 +373,7 @@ class TissueSimulation:
                 chunk = self._stepper.chunk
                 for start in range(0, steps, chunk):
                     block = self._stepper.run_chunk(traj[start : start + chunk])
-                    out[start : start + block.shape[0]] = block[:, record]
+                    out[start : start + block.shape[0]] = block if nodes is None else block[:, record]
                     self.steps_taken += block.shape[0]
                     if bar is not None:
                         bar.update(block.shape[0])

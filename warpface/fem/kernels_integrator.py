@@ -116,7 +116,7 @@ def cg_status(
 
 
 @wp.kernel
-def advance_counter(counter: wp.array(dtype=wp.int32), step_count: wp.array(dtype=wp.int32)):
-    """Advance the slot in the trajectory/record buffers and the global step count."""
-    counter[0] = counter[0] + 1
+def advance_counter(counter: wp.array(dtype=wp.int32), step_count: wp.array(dtype=wp.int32), ring: int):
+    """Advance the slot in the ``ring``-step trajectory/record buffers and the global step count."""
+    counter[0] = (counter[0] + 1) % ring
     step_count[0] = step_count[0] + 1

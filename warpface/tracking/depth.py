@@ -100,22 +100,23 @@ KINECT_V1_INTRINSICS = CameraIntrinsics(fx=525.0, fy=525.0, cx=319.5, cy=239.5, 
 """A Kinect-v1-like 640×480 camera (the thesis's sensor): 525 px focal length, centred."""
 
 
+_vec6f = wp.types.vector(length=6, dtype=wp.float32)
 _vec6d = wp.types.vector(length=6, dtype=wp.float64)
 _mat66d = wp.types.matrix(shape=(6, 6), dtype=wp.float64)
 
 
 @wp.func
-def _basis(du: float, dv: float, scale: float) -> _vec6d:
+def _basis(du: float, dv: float, scale: float) -> _vec6f:
     """Monomials of the local surface model in window-normalised offsets (so the fit is well scaled)."""
-    x = wp.float64(du * scale)
-    y = wp.float64(dv * scale)
-    return _vec6d(wp.float64(1.0), x, y, x * x, x * y, y * y)
+    x = du * scale
+    y = dv * scale
+    return _vec6f(1.0, x, y, x * x, x * y, y * y)
 
 
 @wp.func
-def _model_depth(coef: _vec6d, du: float, dv: float, scale: float) -> float:
+def _model_depth(coef: _vec6f, du: float, dv: float, scale: float) -> float:
     """Depth of the inverse-depth model ``1/Z = Σ coef_k m_k(du, dv)`` (0 where not in front)."""
-    w = float(wp.dot(coef, _basis(du, dv, scale)))
+    w = wp.dot(coef, _basis(du, dv, scale))
     if w <= 0.0:
         return 0.0
     return 1.0 / w
@@ -164,7 +165,7 @@ def _solve_spd(A: _mat66d, b: _vec6d, n: int) -> _vec6d:
 def _count_residual_le(
     depth: wp.array2d(dtype=float),
     r0: int, r1: int, c0: int, c1: int,
-    u: float, v: float, coef: _vec6d, scale: float,
+    u: float, v: float, coef: _vec6f, scale: float,
     signed: int, threshold: float,
 ) -> int:
     """Count valid pixels in rows [r0, r1) × cols [c0, c1) whose residual Z − model (signed) or
@@ -186,7 +187,7 @@ def _count_residual_le(
 def _median_residual(
     depth: wp.array2d(dtype=float),
     r0: int, r1: int, c0: int, c1: int,
-    u: float, v: float, coef: _vec6d, scale: float,
+    u: float, v: float, coef: _vec6f, scale: float,
     signed: int, lo: float, hi: float, n: int,
 ) -> float:
     """Median of the n valid pixels' residuals (see :func:`_count_residual_le`), bisection on [lo, hi]."""
@@ -259,7 +260,7 @@ def _backproject_kernel(
     if n < min_valid:
         return
     scale = 1.0 / float(half)
-    zero = _vec6d()
+    zero = _vec6f()
 
     # Seed on the landmark's own surface: the median depth of the innermost ring that has data.
     z_seed = float(0.0)
@@ -316,7 +317,8 @@ def _backproject_kernel(
                         # Tricube weights (as in LOESS): the centre, where the landmark is, counts most.
                         q = wp.min(wp.sqrt(du * du + dv * dv) / reach_px, 1.0)
                         t = 1.0 - q * q * q
-                        m = _basis(du, dv, scale)
+                        # Normal equations accumulate in float64 (the quadric terms span decades).
+                        m = _vec6d(_basis(du, dv, scale))
                         wm = m * wp.float64(t * t * t)
                         A += wp.outer(wm, m)
                         rhs += wm * wp.float64(1.0 / z)
@@ -330,7 +332,7 @@ def _backproject_kernel(
         sol = _solve_spd(A, rhs, terms)
         if sol[0] <= wp.float64(0.0):
             return
-        coef = sol
+        coef = _vec6f(sol)
         inliers = count
 
     # Two surfaces in the window (an occluding edge) leave many pixels out: the landmark may sit on
@@ -353,7 +355,7 @@ def backproject(
     outlier_floor: float = 0.003,
     max_slope: float = 3.0,
     noise_floor: float = 0.0005,
-    iterations: int = 3,
+    iterations: int = 2,
     min_inlier_fraction: float = 0.7,
     device=None,
 ) -> tuple[np.ndarray, np.ndarray]:
