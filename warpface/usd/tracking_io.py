@@ -1,0 +1,229 @@
+"""Tracked captures as USD: landmarks as time-sampled ``UsdGeom.Points``, the dense face as a
+time-sampled ``Mesh``, at the camera's native rate (``timeCodesPerSecond`` = camera fps).
+
+Layout of a capture written to ``capture.usda``::
+
+    capture.usda                      root: stage metadata, prims, topology, landmark ids and names,
+                                      the dense rest points (``warpFace:restPoints``) and value-clip
+                                      metadata on /Capture
+    capture_track/chunk_0000.usdc     time samples of frames 0..29   (value clip 0)
+    capture_track/chunk_0001.usdc     time samples of frames 30..59  (value clip 1) ...
+
+Value clips are USD's mechanism for caches split over files: each chunk is consulted for the time
+codes it covers (sublayers would not do — the strongest layer with samples wins for *all* times).
+Frames are flushed in chunks: every ``chunk_frames`` frames the chunk is written through a
+temporary file and a rename, then the root layer (small) is rewritten the same way to list it.
+A capture that is interrupted — Ctrl-C, a camera that disappears, an exception — flushes the frames
+it holds in :meth:`TrackingStageWriter.close` (called by the context manager), so every frame
+received is kept; a hard kill loses at most the current chunk. Time code of a frame:
+``(timestamp − first timestamp) · fps``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from pxr import Sdf, Usd, UsdGeom, Vt
+
+from ._files import export_layer_atomically, writable_path
+
+__all__ = ["TrackingStageWriter", "read_tracking"]
+
+ROOT = Sdf.Path("/Capture")
+LANDMARKS = ROOT.AppendChild("Landmarks")
+FACE = ROOT.AppendChild("Face")
+
+
+class TrackingStageWriter:
+    """Write a landmark stream and the dense face it drives as USD time samples, incrementally.
+
+    Args:
+        path: the root stage (``.usda``); chunk and rest layers go to ``<stem>_track/`` beside it.
+        landmark_names: names of the landmarks (N).
+        fps: the source's native frame rate [1/s]; becomes ``timeCodesPerSecond``/``framesPerSecond``.
+        dense_rest: rest points of the dense face [m], shape (V, 3), or ``None`` for landmarks only.
+        triangles: dense face triangles, shape (T, 3) (required with ``dense_rest``).
+        chunk_frames: frames per flushed chunk layer.
+
+    Raises:
+        ValueError: bad path, shapes or fps; non-finite data passed to :meth:`add`.
+    """
+
+    def __init__(self, path, landmark_names, fps: float, *, dense_rest=None, triangles=None, chunk_frames: int = 30):
+        self.path = writable_path(path, (".usda", ".usdc"))
+        self.fps = float(fps)
+        if not np.isfinite(self.fps) or self.fps <= 0:
+            raise ValueError(f"fps must be > 0, got {fps}")
+        self.names = [str(name) for name in landmark_names]
+        if not self.names:
+            raise ValueError("landmark_names: need at least one landmark")
+        self.chunk_frames = int(chunk_frames)
+        if self.chunk_frames < 1:
+            raise ValueError("chunk_frames must be ≥ 1")
+        self.folder = self.path.with_name(self.path.stem + "_track")
+        self.folder.mkdir(exist_ok=True)
+        self.vertex_count = None
+        if dense_rest is not None:
+            dense_rest = np.asarray(dense_rest, dtype=np.float32)
+            triangles = np.asarray(triangles)
+            if dense_rest.ndim != 2 or dense_rest.shape[1] != 3 or not np.all(np.isfinite(dense_rest)):
+                raise ValueError("dense_rest: expected finite points of shape (V, 3)")
+            if triangles.ndim != 2 or triangles.shape[1] != 3 or triangles.min() < 0 or triangles.max() >= len(dense_rest):
+                raise ValueError("triangles: expected (T, 3) indices into dense_rest")
+            self.vertex_count = len(dense_rest)
+        self._chunks: list[tuple[str, float]] = []  # (file name, first time code)
+        self._pending: list[tuple[float, np.ndarray, np.ndarray, np.ndarray | None]] = []
+        self._first_timestamp: float | None = None
+        self._last_time = -np.inf
+        self.frames_written = 0
+        self._root = self._author_root(dense_rest, triangles)
+        self._write_root()
+
+    # ------------------------------------------------------------------ public
+    def add(self, timestamp: float, landmarks: np.ndarray, confidence: np.ndarray, dense_points: np.ndarray | None = None) -> float:
+        """Queue one frame; returns its time code. Missing landmarks (NaN rows) are written at their
+        last known position with confidence 0 (USD points cannot be NaN), or at the origin until seen.
+
+        Raises:
+            ValueError: shapes differ from the first frame, time does not increase, or dense points
+                are not finite.
+        """
+        landmarks = np.asarray(landmarks, dtype=np.float64)
+        confidence = np.asarray(confidence, dtype=np.float64)
+        if landmarks.shape != (len(self.names), 3) or confidence.shape != (len(self.names),):
+            raise ValueError(f"frame at t={timestamp}: expected {len(self.names)} landmarks, got {landmarks.shape}")
+        if self._first_timestamp is None:
+            self._first_timestamp = float(timestamp)
+            self._held = np.zeros((len(self.names), 3))
+        time_code = (float(timestamp) - self._first_timestamp) * self.fps
+        if not time_code > self._last_time:
+            raise ValueError(f"frame at t={timestamp}: time must increase (time code {time_code} after {self._last_time})")
+        seen = np.all(np.isfinite(landmarks), axis=1)
+        self._held[seen] = landmarks[seen]
+        confidence = np.where(seen & np.isfinite(confidence), confidence, 0.0)
+        if dense_points is not None:
+            dense_points = np.asarray(dense_points, dtype=np.float32)
+            if dense_points.shape != (self.vertex_count, 3):
+                raise ValueError(f"frame at t={timestamp}: dense points must have shape ({self.vertex_count}, 3)")
+            if not np.all(np.isfinite(dense_points)):
+                raise ValueError(f"frame at t={timestamp}: dense points are not finite; nothing written for it")
+        self._pending.append((time_code, self._held.astype(np.float32), confidence.astype(np.float32), dense_points))
+        self._last_time = time_code
+        if len(self._pending) >= self.chunk_frames:
+            self.flush()
+        return time_code
+
+    def flush(self) -> None:
+        """Write the queued frames as a new chunk layer and list it in the root layer."""
+        if not self._pending:
+            return
+        layer = Sdf.Layer.CreateAnonymous(".usdc")
+        positions = LANDMARKS.AppendProperty(UsdGeom.Tokens.points)
+        confidence_path = LANDMARKS.AppendProperty("primvars:confidence")
+        face_points = FACE.AppendProperty(UsdGeom.Tokens.points)
+        face_extent = FACE.AppendProperty(UsdGeom.Tokens.extent)
+        for prim_path in (LANDMARKS, FACE) if self.vertex_count else (LANDMARKS,):
+            Sdf.CreatePrimInLayer(layer, prim_path).specifier = Sdf.SpecifierOver
+        Sdf.AttributeSpec(layer.GetPrimAtPath(LANDMARKS), UsdGeom.Tokens.points, Sdf.ValueTypeNames.Point3fArray)
+        Sdf.AttributeSpec(layer.GetPrimAtPath(LANDMARKS), "primvars:confidence", Sdf.ValueTypeNames.FloatArray)
+        if self.vertex_count:
+            Sdf.AttributeSpec(layer.GetPrimAtPath(FACE), UsdGeom.Tokens.points, Sdf.ValueTypeNames.Point3fArray)
+            Sdf.AttributeSpec(layer.GetPrimAtPath(FACE), UsdGeom.Tokens.extent, Sdf.ValueTypeNames.Float3Array)
+        with Sdf.ChangeBlock():
+            for time_code, landmarks, confidence, dense in self._pending:
+                layer.SetTimeSample(positions, time_code, Vt.Vec3fArray.FromNumpy(landmarks))
+                layer.SetTimeSample(confidence_path, time_code, Vt.FloatArray.FromNumpy(confidence))
+                if dense is not None:
+                    layer.SetTimeSample(face_points, time_code, Vt.Vec3fArray.FromNumpy(dense))
+                    bounds = np.stack([dense.min(axis=0), dense.max(axis=0)])
+                    layer.SetTimeSample(face_extent, time_code, Vt.Vec3fArray.FromNumpy(bounds))
+        name = f"chunk_{len(self._chunks):04d}.usdc"
+        export_layer_atomically(layer, self.folder / name)
+        self._chunks.append((name, self._pending[0][0]))
+        self.frames_written += len(self._pending)
+        self._root.endTimeCode = max(self._pending[-1][0], self._root.startTimeCode)
+        self._pending.clear()
+        self._write_root()
+
+    def close(self) -> None:
+        """Flush what is queued. Safe to call twice."""
+        self.flush()
+
+    def __enter__(self) -> "TrackingStageWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ internals
+    def _author_root(self, dense_rest, triangles) -> Sdf.Layer:
+        stage = Usd.Stage.CreateInMemory("capture.usda")
+        UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+        stage.SetTimeCodesPerSecond(self.fps)
+        stage.SetFramesPerSecond(self.fps)
+        stage.SetStartTimeCode(0.0)
+        stage.SetEndTimeCode(0.0)
+        stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, ROOT).GetPrim())
+        points = UsdGeom.Points.Define(stage, LANDMARKS)
+        points.CreateIdsAttr(Vt.Int64Array(list(range(len(self.names)))))
+        points.CreateWidthsAttr(Vt.FloatArray([0.004]))
+        points.SetWidthsInterpolation(UsdGeom.Tokens.constant)
+        primvars = UsdGeom.PrimvarsAPI(points)
+        primvars.CreatePrimvar("names", Sdf.ValueTypeNames.StringArray, UsdGeom.Tokens.constant).Set(Vt.StringArray(self.names))
+        primvars.CreatePrimvar("confidence", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex)
+        UsdGeom.Imageable(points).CreatePurposeAttr(UsdGeom.Tokens.default_)
+        if dense_rest is not None:
+            mesh = UsdGeom.Mesh.Define(stage, FACE)
+            mesh.CreateFaceVertexCountsAttr(Vt.IntArray([3] * len(triangles)))
+            mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(triangles, dtype=np.int32).ravel()))
+            mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+            mesh.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
+            rest = mesh.GetPrim().CreateAttribute("warpFace:restPoints", Sdf.ValueTypeNames.Point3fArray, custom=True)
+            rest.Set(Vt.Vec3fArray.FromNumpy(dense_rest))
+        # A stage-free copy: later clip edits must not trigger composition (the relative clip paths
+        # cannot resolve against an in-memory layer).
+        root = Sdf.Layer.CreateAnonymous(".usda")
+        root.TransferContent(stage.GetRootLayer())
+        return root
+
+    def _write_root(self) -> None:
+        if self._chunks:
+            # Authored at the Sdf level: composing clips on the in-memory stage would try (and fail)
+            # to resolve the relative clip paths against an anonymous layer.
+            end = max(self._root.endTimeCode, 1.0)
+            self._root.GetPrimAtPath(ROOT).SetInfo("clips", {"default": {
+                "assetPaths": Sdf.AssetPathArray([f"./{self.folder.name}/{name}" for name, _ in self._chunks]),
+                "primPath": str(ROOT),
+                "active": Vt.Vec2dArray([(start, float(index)) for index, (_, start) in enumerate(self._chunks)]),
+                "times": Vt.Vec2dArray([(0.0, 0.0), (end, end)]),
+            }})
+        export_layer_atomically(self._root, self.path)
+
+
+def read_tracking(path) -> dict:
+    """Read a capture back: ``times`` (F,), ``landmarks`` (F, N, 3), ``confidence`` (F, N), ``names``,
+    ``fps`` and, when present, ``dense`` (F, V, 3) — all from the composed stage."""
+    from ._files import open_stage
+
+    stage = open_stage(path)
+    points = UsdGeom.Points(stage.GetPrimAtPath(LANDMARKS))
+    if not points:
+        raise ValueError(f"{path}: no {LANDMARKS} points prim; not a warpface capture")
+    attribute = points.GetPointsAttr()
+    times = np.array(attribute.GetTimeSamples(), dtype=np.float64)
+    confidence = UsdGeom.PrimvarsAPI(points).GetPrimvar("confidence")
+    result = {
+        "times": times,
+        "fps": stage.GetTimeCodesPerSecond(),
+        "names": list(UsdGeom.PrimvarsAPI(points).GetPrimvar("names").Get()),
+        "landmarks": np.stack([np.asarray(attribute.Get(t)) for t in times]) if len(times) else np.zeros((0, 0, 3)),
+        "confidence": np.stack([np.asarray(confidence.Get(t)) for t in times]) if len(times) else np.zeros((0, 0)),
+    }
+    face = UsdGeom.Mesh(stage.GetPrimAtPath(FACE))
+    if face:
+        face_points = face.GetPointsAttr()
+        result["rest"] = np.asarray(face.GetPrim().GetAttribute("warpFace:restPoints").Get())
+        result["dense"] = np.stack([np.asarray(face_points.Get(t)) for t in times]) if len(times) else None
+    return result
