@@ -159,7 +159,7 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--stage", required=True, help="output stage (.usda); the dense points go to <stage>_track.usdc")
     track.add_argument("--frames", type=int, default=None, help="stop after this many frames")
     track.add_argument("--expression", default="smile", help="synthetic source: expression to perform (default smile)")
-    track.add_argument("--fem", action="store_true", help="also drive the tissue FEM with the transferred displacements")
+    track.add_argument("--layout", default=None, help="live cameras: JSON with the painted dots' names and initial pixels")
     track.set_defaults(handler=_track)
     return parser
 
@@ -177,9 +177,16 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("interrupted; files written so far are intact", file=sys.stderr)
         return 130
-    except (ValueError, FileNotFoundError, PermissionError) as error:
+    except (ValueError, OSError) as error:
         print(f"warpface {args.command}: error: {error}", file=sys.stderr)
         return 2
+    except RuntimeError as error:
+        from .tracking.cameras import CameraError
+
+        if not isinstance(error, CameraError):
+            raise
+        print(f"warpface {args.command}: camera error: {error} (frames received so far are kept)", file=sys.stderr)
+        return 3
 
 
 if __name__ == "__main__":
