@@ -105,7 +105,7 @@ def main() -> None:
     dense, dense_tri, dense_name = dense_face()
     camera_to_model = np.linalg.inv(default_model_to_camera(dense))
     eye = camera_to_model[:3, 3]
-    fid = place_fiducials(dense, dense_tri, args.landmarks, spacing=0.008, camera_position=eye)
+    fid = place_fiducials(dense, dense_tri, args.landmarks, spacing=0.008, camera_position=eye, device=device)
     sparse = dense[fid]
     sparse_tri = triangulate_landmarks(sparse)
     print(f"dense: {dense_name}, {len(dense)} vertices, {len(dense_tri)} triangles; "
@@ -161,7 +161,8 @@ def main() -> None:
         blob = cv2.SimpleBlobDetector_create(params)
         gray = cv2.cvtColor(color, cv2.COLOR_RGB2GRAY)
         t_blob = time_call(lambda: blob.detect(gray), repeats=args.repeats)
-        rows.append({"stage": "detect dots", "n": len(pixels0), "ms": t_detect * 1e3, "baseline": "cv2.SimpleBlobDetector",
+        rows.append({"stage": "detect dots", "n": len(pixels0), "ms": t_detect * 1e3,
+                     "baseline": "cv2.SimpleBlobDetector",
                      "baseline_ms": t_blob * 1e3, "found": int(conf.sum())})
     except ImportError:
         pixels = pixels0
@@ -192,7 +193,8 @@ def main() -> None:
     # -- correspondence (once) -------------------------------------------------------------------
     index = TriangleMeshIndex(sparse, sparse_tri, device=device)
     index.query(dense)
-    t_corr = time_call(lambda: closest_points(dense, sparse, sparse_tri, device=device), repeats=max(3, args.repeats // 4),
+    t_corr = time_call(lambda: closest_points(dense, sparse, sparse_tri, device=device),
+                       repeats=max(3, args.repeats // 4),
                        sync=sync)
     verts = wp.array((sparse - index.center).astype(np.float32), dtype=wp.vec3, device=device)
     tris = wp.array(sparse_tri, dtype=wp.int32, device=device)
@@ -249,7 +251,8 @@ def main() -> None:
                             np.ones(len(sparse)), i) for i in range(64)]
     adapter.step(frames[0])
     counter = iter(range(10**9))
-    t_transfer = time_call(lambda: adapter.step(frames[1 + next(counter) % 63]), repeats=max(args.repeats, 50), sync=sync)
+    t_transfer = time_call(lambda: adapter.step(frames[1 + next(counter) % 63]), repeats=max(args.repeats, 50),
+                           sync=sync)
     corr = adapter.correspondence
     bary = corr.barycentric
     corners = sparse_tri[corr.triangle]
@@ -263,6 +266,10 @@ def main() -> None:
     t_numpy = time_call(numpy_transfer, repeats=max(args.repeats, 50))
     rows.append({"stage": "transfer per frame", "n": len(dense), "ms": t_transfer * 1e3,
                  "baseline": "NumPy einsum", "baseline_ms": t_numpy * 1e3})
+
+    usd_row = _usd_write_row(adapter, frames, dense_tri)
+    if usd_row is not None:
+        rows.append(usd_row)
 
     total = t_detect + t_back + t_transfer
     rows.append({"stage": "frame total (detect+lift+transfer)", "n": len(dense), "ms": total * 1e3})
@@ -282,6 +289,42 @@ def main() -> None:
         "machine": machine_info(device), "rows": rows,
     })
     print(f"wrote {path}")
+
+
+def _usd_write_row(adapter, frames, triangles, count: int = 120) -> dict | None:
+    """Transfer + incremental USD write (value-clip chunks of 30 frames, each flushed through a
+    temporary file) per frame, against writing the same samples on a stage saved once at the end."""
+    try:
+        from pxr import Usd, UsdGeom, Vt
+    except ImportError:
+        return None
+    import tempfile
+    import time
+    from pathlib import Path
+
+    from warpface.usd.tracking_io import TrackingStageWriter
+
+    names = [f"l{i}" for i in range(len(frames[0].points))]
+    with tempfile.TemporaryDirectory() as folder:
+        started = time.perf_counter()
+        with TrackingStageWriter(Path(folder) / "capture.usda", names, 30.0, dense_rest=adapter.dense_rest,
+                                 triangles=triangles) as writer:
+            for i in range(count):
+                frame = frames[1 + i % 63]
+                writer.add(i / 30.0, frame.points, frame.confidence, adapter.step(frame))
+        ours = (time.perf_counter() - started) / count
+
+        started = time.perf_counter()
+        stage = Usd.Stage.CreateNew(str(Path(folder) / "naive.usdc"))
+        mesh = UsdGeom.Mesh.Define(stage, "/Face")
+        points = mesh.GetPointsAttr()
+        for i in range(count):
+            frame = frames[1 + i % 63]
+            points.Set(Vt.Vec3fArray.FromNumpy(adapter.step(frame)), float(i))
+        stage.Save()
+        naive = (time.perf_counter() - started) / count
+    return {"stage": "transfer + USD write per frame", "n": len(adapter.dense_rest), "ms": ours * 1e3,
+            "baseline": "Attribute.Set, one save at the end", "baseline_ms": naive * 1e3}
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@ def test_round_trip_is_exact_across_chunks(tmp_path, rng):
     with TrackingStageWriter(tmp_path / "cap.usda", ["a", "b", "c"], 24.0, dense_rest=rest, triangles=triangles, chunk_frames=4) as writer:
         for i in range(10):
             writer.add(0.5 + i / 24.0, landmarks[i], np.full(3, 0.9), dense[i])
-    assert sorted(p.name for p in (tmp_path / "cap_track").iterdir()) == ["chunk_0000.usdc", "chunk_0001.usdc", "chunk_0002.usdc"]
+    assert sorted(p.name for p in (tmp_path / "cap_track").iterdir()) == ["chunk_0000.usdc", "chunk_0001.usdc", "chunk_0002.usdc", "static.usdc"]
     back = read_tracking(tmp_path / "cap.usda")
     np.testing.assert_allclose(back["times"], np.arange(10), atol=1e-9)
     assert back["fps"] == 24.0 and back["names"] == ["a", "b", "c"]

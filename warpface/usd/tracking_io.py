@@ -3,9 +3,9 @@ time-sampled ``Mesh``, at the camera's native rate (``timeCodesPerSecond`` = cam
 
 Layout of a capture written to ``capture.usda``::
 
-    capture.usda                      root: stage metadata, prims, topology, landmark ids and names,
-                                      the dense rest points (``warpFace:restPoints``) and value-clip
-                                      metadata on /Capture
+    capture.usda                      root: stage metadata and the value-clip list on /Capture
+    capture_track/static.usdc         sublayer: prims, topology, landmark ids and names, the dense
+                                      rest points (``warpFace:restPoints``)
     capture_track/chunk_0000.usdc     time samples of frames 0..29   (value clip 0)
     capture_track/chunk_0001.usdc     time samples of frames 30..59  (value clip 1) ...
 
@@ -136,7 +136,8 @@ class TrackingStageWriter:
                 layer.SetTimeSample(confidence_path, time_code, Vt.FloatArray.FromNumpy(confidence))
                 if dense is not None:
                     layer.SetTimeSample(face_points, time_code, Vt.Vec3fArray.FromNumpy(dense))
-                    bounds = np.stack([dense.min(axis=0), dense.max(axis=0)])
+                    columns = np.ascontiguousarray(dense.T)  # reducing contiguous rows is ~10× faster than axis 0
+                    bounds = np.stack([columns.min(axis=1), columns.max(axis=1)])
                     layer.SetTimeSample(face_extent, time_code, Vt.Vec3fArray.FromNumpy(bounds))
         name = f"chunk_{len(self._chunks):04d}.usdc"
         export_layer_atomically(layer, self.folder / name)
@@ -182,10 +183,16 @@ class TrackingStageWriter:
             mesh.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
             rest = mesh.GetPrim().CreateAttribute("warpFace:restPoints", Sdf.ValueTypeNames.Point3fArray, custom=True)
             rest.Set(Vt.Vec3fArray.FromNumpy(dense_rest))
-        # A stage-free copy: later clip edits must not trigger composition (the relative clip paths
-        # cannot resolve against an in-memory layer).
+        # The heavy, static data (topology, rest points, names) goes once to a binary layer; the root
+        # keeps only metadata and the clip list, so rewriting it after every chunk stays cheap. The
+        # root is a stage-free layer: clip edits must not trigger composition (the relative clip
+        # paths cannot resolve against an in-memory layer).
+        export_layer_atomically(stage.GetRootLayer(), self.folder / "static.usdc")
         root = Sdf.Layer.CreateAnonymous(".usda")
-        root.TransferContent(stage.GetRootLayer())
+        for key in ("metersPerUnit", "upAxis", "timeCodesPerSecond", "framesPerSecond", "startTimeCode", "endTimeCode", "defaultPrim"):
+            root.pseudoRoot.SetInfo(key, stage.GetRootLayer().pseudoRoot.GetInfo(key))
+        root.subLayerPaths = [f"./{self.folder.name}/static.usdc"]
+        Sdf.CreatePrimInLayer(root, ROOT).specifier = Sdf.SpecifierOver
         return root
 
     def _write_root(self) -> None:
