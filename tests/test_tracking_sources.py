@@ -410,8 +410,8 @@ class FakeOrbbec:
             def get_width(self):
                 return self.w
 
-            def get_timestamp(self):
-                return self.stamp
+            def get_timestamp_us(self):
+                return int(self.stamp * 1000)
 
             def get_depth_scale(self):
                 return self.scale
@@ -472,7 +472,8 @@ def test_orbbec_camera_with_fake_device(monkeypatch):
     monkeypatch.setitem(sys.modules, "pyorbbecsdk", fake.module)
     cam = OrbbecCamera(max_empty_waits=2)
     assert cam.intrinsics == CameraIntrinsics(500.0, 500.0, 319.0, 241.0, 640, 480)
-    assert ("depth", 640, 480, "Y16", 30) in fake.config.streams and ("color", 640, 480, "RGB", 30) in fake.config.streams
+    assert ("depth", 640, 480, "Y16", 30) in fake.config.streams
+    assert ("color", 640, 480, "RGB", 30) in fake.config.streams
     received = []
     with pytest.raises(CameraDisconnected, match="after 3 frames"):
         for frame in cam.frames():

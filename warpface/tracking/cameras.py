@@ -9,8 +9,8 @@ that depth directly. The SDK wheels bundle their drivers:
   first depth sensor, intrinsics ``ppx/ppy/fx/fy`` of the colour stream profile.
 * Orbbec — ``pip install warpface[orbbec]`` (``pyorbbecsdk2``, imported as ``pyorbbecsdk``):
   ``Pipeline`` + ``Config`` with Y16 depth and RGB colour profiles, software ``AlignFilter`` to the
-  colour stream, depth scale per frame (``get_depth_scale()``, millimetres per unit), intrinsics
-  from ``Pipeline.get_camera_param().rgb_intrinsic``.
+  colour stream, depth scale per frame (``DepthFrame.get_depth_scale()``, millimetres per unit),
+  timestamps ``get_timestamp_us()``, intrinsics from ``Pipeline.get_camera_param().rgb_intrinsic``.
 
 Errors: :class:`CameraUnavailable` when the extra is not installed or no device is attached;
 :class:`CameraDisconnected` when frames stop arriving mid-capture (frames already yielded are the
@@ -225,7 +225,7 @@ class OrbbecCamera(SourceBase):
             ch, cw = color.get_height(), color.get_width()
             color_image = np.frombuffer(color.get_data(), dtype=np.uint8).reshape(ch, cw, 3).copy()
             depth_scale = float(depth.get_depth_scale()) * 1e-3  # SDK reports millimetres per unit
-            timestamp = float(depth.get_timestamp()) * 1e-3  # device clock, milliseconds
+            timestamp = float(depth.get_timestamp_us()) * 1e-6  # device clock, microseconds
             if not guard.accept(timestamp, index, depth_image.shape, "image size"):
                 self.dropped_frames = guard.dropped
                 continue

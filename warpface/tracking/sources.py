@@ -32,7 +32,7 @@ from __future__ import annotations
 import json
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Iterator, Protocol, Sequence, runtime_checkable
 
@@ -63,7 +63,7 @@ TIMESTAMP_POLICIES = ("reject", "drop")
 # --------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class LandmarkFrame:
     """One frame of landmarks.
 
@@ -110,7 +110,7 @@ class LandmarkFrame:
         return ~np.all(np.isfinite(self.points), axis=1)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class RGBDFrame:
     """One colour + registered depth frame."""
 
@@ -432,7 +432,7 @@ class RecordedLandmarks(SourceBase):
         and the exception is re-raised.
         """
         path = Path(path)
-        names = list(landmark_names)
+        names = list(_validate_names(landmark_names, len(landmark_names), str(path)))
         times, points, confidence = [], [], []
         failure: BaseException | None = None
         try:
@@ -447,7 +447,7 @@ class RecordedLandmarks(SourceBase):
             "timestamps": np.asarray(times, dtype=np.float64).reshape(-1),
             "points": np.asarray(points, dtype=np.float64).reshape(-1, n, 3),
             "confidence": np.asarray(confidence, dtype=np.float32).reshape(-1, n),
-            "names": np.asarray(_validate_names(names, n, str(path)), dtype=np.str_),
+            "names": np.asarray(names, dtype=np.str_),
             "fps": np.float64(fps if fps is not None else np.nan),
         }
         with atomic_path(path, ".npz") as tmp:

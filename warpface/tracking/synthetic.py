@@ -21,7 +21,6 @@ needs no data), and :func:`place_fiducials` (well-spaced, camera-facing surface 
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass
 from typing import Iterator, Sequence
@@ -116,7 +115,9 @@ def boundary_vertices(triangles: np.ndarray, vertex_count: int) -> np.ndarray:
     return mask
 
 
-def procedural_face(resolution: int = 64, *, width: float = 0.16, height: float = 0.21) -> tuple[np.ndarray, np.ndarray]:
+def procedural_face(
+    resolution: int = 64, *, width: float = 0.16, height: float = 0.21
+) -> tuple[np.ndarray, np.ndarray]:
     """A face-like open surface needing no data: a rounded dome with a nose and brow ridge.
 
     Returns ``(points (R², 3) [m], triangles (2 (R−1)², 3) int32)`` in the model frame (+y up,
@@ -168,10 +169,12 @@ def _occluded_kernel(
     occluded[i] = wp.where(hit.result, 1, 0)
 
 
-def _occluded(points: np.ndarray, triangles: np.ndarray, normals: np.ndarray, eye: np.ndarray) -> np.ndarray:
+def _occluded(
+    points: np.ndarray, triangles: np.ndarray, normals: np.ndarray, eye: np.ndarray, device=None
+) -> np.ndarray:
     """Vertices whose line of sight to ``eye`` is blocked by the mesh itself, shape (V,), bool."""
     center = points.mean(axis=0)
-    device = "cpu"
+    device = wp.get_device(device)
     pts = wp.array((points - center).astype(np.float32), dtype=wp.vec3, device=device)
     mesh = wp.Mesh(points=pts, indices=wp.array(np.asarray(triangles, dtype=np.int32).reshape(-1), device=device))
     out = wp.zeros(points.shape[0], dtype=wp.int32, device=device)
@@ -208,6 +211,7 @@ def place_fiducials(
     min_facing: float = 0.6,
     boundary_margin: float = 0.01,
     camera_position=None,
+    device=None,
 ) -> np.ndarray:
     """Well-spaced fiducial vertices that the camera sees (farthest-point sampling).
 
@@ -220,6 +224,7 @@ def place_fiducials(
         points, triangles: the mesh [m], model frame.
         camera_position: the camera centre in the model frame [m]; default: far along +z
             (an orthographic view from the front, no occlusion test).
+        device: Warp device for the occlusion ray casts.
 
     Raises:
         ValueError: no vertex qualifies.
@@ -240,7 +245,7 @@ def place_fiducials(
             d = np.sqrt(((chunk[:, None, :] - bpts[None, :, :]) ** 2).sum(-1)).min(axis=1)
             ok[start:start + 2048] &= d >= boundary_margin
     if camera_position is not None:
-        ok &= ~_occluded(p, triangles, normals, np.asarray(camera_position, dtype=np.float64))
+        ok &= ~_occluded(p, triangles, normals, np.asarray(camera_position, dtype=np.float64), device)
     candidates = np.flatnonzero(ok)
     if candidates.size == 0:
         raise ValueError("place_fiducials: no vertex faces the camera away from the boundary")

@@ -176,7 +176,7 @@ def blend_weights(
         set_points = wp.array((points[mask] - center).astype(np.float32), dtype=wp.vec3, device=device)
         queries = wp.array((points - center).astype(np.float32), dtype=wp.vec3, device=device)
         radius = max(float(region_falloff), 1e-6)
-        grid = wp.HashGrid(128, 128, 128, device=device)
+        grid = wp.HashGrid(64, 64, 64, device=device)
         grid.build(set_points, radius)
         wp.launch(_distance_to_set_kernel, dim=count, inputs=[grid.id, set_points, queries, radius],
                   outputs=[distance], device=device)
@@ -496,7 +496,9 @@ class TrackingAdapter:
         out = self.points.numpy()
         return out.copy() if copy else out
 
-    def track(self, source, *, frames: Iterable[LandmarkFrame] | None = None) -> Iterator[tuple[LandmarkFrame, np.ndarray]]:
+    def track(
+        self, source, *, frames: Iterable[LandmarkFrame] | None = None
+    ) -> Iterator[tuple[LandmarkFrame, np.ndarray]]:
         """Yield ``(frame, dense_points (V, 3) float32)`` for every frame of ``source``.
 
         Binds the source's ``landmark_names`` first (ValueError if they do not cover the sparse
