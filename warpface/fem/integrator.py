@@ -73,7 +73,11 @@ class TissueSimulation:
             :mod:`warpface.fem.assembly`.
         solver: ``"auto"`` (direct on CPU, CG elsewhere), ``"direct"`` or ``"cg"``.
         device: Warp device; ``None`` uses Warp's preferred device.
-        cg_tol: CG tolerance, relative to the residual of the step's warm start.
+        cg_tol: CG tolerance, relative to the residual of the step's warm start (``d + dt v + dt²/2 a``).
+            That residual is small, so the error left in the displacement is ``cg_tol`` times the
+            (tiny) correction to the warm start: on the 6.7k-node face shell FSAI-CG needed 19 / 26 / 33
+            iterations for 1e-4 / 1e-5 / 1e-6, and at 1e-4 the displacements of a 1.8k-node shell matched
+            the direct solver to float32 round-off over 300 steps of mouth opening.
         cg_maxiter: CG iteration limit per step.
         cg_preconditioner: ``"fsai"``, ``"block_jacobi"`` or ``"diag"``.
         cg_dtype: ``wp.float64`` (default) or ``wp.float32`` state and solver precision.
@@ -100,7 +104,7 @@ class TissueSimulation:
         formulation: str = "linear",
         solver: str = "auto",
         device=None,
-        cg_tol: float = 1.0e-6,
+        cg_tol: float = 1.0e-5,
         cg_maxiter: int = 200,
         cg_preconditioner: str = "fsai",
         cg_dtype=wp.float64,

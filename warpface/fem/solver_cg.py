@@ -71,7 +71,7 @@ class CGStepper:
         driven_nodes: np.ndarray,
         *,
         dtype=wp.float64,
-        tol: float = 1.0e-6,
+        tol: float = 1.0e-5,
         maxiter: int = 200,
         preconditioner: str = "fsai",
         chunk: int = 64,
