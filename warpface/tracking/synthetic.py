@@ -28,6 +28,7 @@ from typing import Iterator, Sequence
 import numpy as np
 import warp as wp
 
+from ..mesh import FaceMesh
 from .depth import KINECT_V1_INTRINSICS, CameraIntrinsics
 from .sources import RGBDFrame, SourceBase
 
@@ -38,8 +39,6 @@ __all__ = [
     "procedural_face",
     "procedural_jaw_open",
     "place_fiducials",
-    "vertex_normals",
-    "boundary_vertices",
 ]
 
 
@@ -91,28 +90,6 @@ class KinectNoise:
 # --------------------------------------------------------------------------------------------
 # Mesh helpers
 # --------------------------------------------------------------------------------------------
-
-
-def vertex_normals(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals, shape (V, 3), float64."""
-    p = np.asarray(points, dtype=np.float64)
-    tri = np.asarray(triangles)
-    face = np.cross(p[tri[:, 1]] - p[tri[:, 0]], p[tri[:, 2]] - p[tri[:, 0]])
-    normals = np.zeros_like(p)
-    for k in range(3):
-        np.add.at(normals, tri[:, k], face)
-    length = np.linalg.norm(normals, axis=1, keepdims=True)
-    return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
-
-
-def boundary_vertices(triangles: np.ndarray, vertex_count: int) -> np.ndarray:
-    """Vertices on an edge used by exactly one triangle, shape (V,), bool."""
-    tri = np.asarray(triangles, dtype=np.int64)
-    edges = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
-    unique, counts = np.unique(edges, axis=0, return_counts=True)
-    mask = np.zeros(vertex_count, dtype=bool)
-    mask[unique[counts == 1].reshape(-1)] = True
-    return mask
 
 
 def procedural_face(
@@ -230,14 +207,16 @@ def place_fiducials(
         ValueError: no vertex qualifies.
     """
     p = np.asarray(points, dtype=np.float64)
-    normals = vertex_normals(p, triangles)
+    surface = FaceMesh(p, triangles, name="fiducial surface", degenerate="ignore")
+    normals = surface.vertex_normals(device=device).astype(np.float64)
     if camera_position is None:
         view = np.broadcast_to(np.array([0.0, 0.0, 1.0]), p.shape)
     else:
         view = np.asarray(camera_position, dtype=np.float64) - p
         view = view / np.linalg.norm(view, axis=1, keepdims=True)
     ok = np.sum(normals * view, axis=1) >= min_facing
-    border = boundary_vertices(triangles, p.shape[0])
+    border = np.zeros(len(p), dtype=bool)
+    border[surface.boundary_vertices] = True
     if border.any():
         bpts = p[border]
         for start in range(0, p.shape[0], 2048):
@@ -390,6 +369,7 @@ class SyntheticRGBDCamera(SourceBase):
         self.texture = self._paint_texture(size)
         """The painted albedo texture, shape (S, S, 3), uint8 (row 0 = top = high v)."""
         self._renderer = None
+        self._topology = None  # a FaceMesh of the topology: its Warp kernel gives the render normals
         self._scene = None
         self._mesh_node = None
         self._material = None
@@ -531,7 +511,9 @@ class SyntheticRGBDCamera(SourceBase):
         cam = self.camera_points(index)
         to_gl = np.array([1.0, -1.0, -1.0])  # OpenCV camera axes → OpenGL camera axes
         positions = (cam * to_gl).astype(np.float32)
-        normals = (vertex_normals(cam, self.triangles) * to_gl).astype(np.float32)
+        if self._topology is None:
+            self._topology = FaceMesh(cam, self.triangles, name="synthetic camera mesh", degenerate="ignore")
+        normals = self._topology.vertex_normals(cam, device="cpu") * to_gl.astype(np.float32)
         primitive = pyrender.Primitive(
             positions=positions, normals=normals, texcoord_0=self.texcoords, indices=self.triangles,
             material=self._material,
