@@ -13,7 +13,7 @@ interpolation is a Warp kernel over vertices (and frames), so both run unchanged
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import warp as wp
@@ -225,6 +225,7 @@ class Embedding:
     distances: np.ndarray
     """Distance from each point to its tet [m], shape (V,), float64: 0 inside, > 0 for points bound
     to the nearest tet from outside."""
+    _device_arrays: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def point_count(self) -> int:
@@ -283,13 +284,12 @@ class Embedding:
 
     def _launch(self, frames: wp.array, device) -> wp.array:
         key = str(device)
-        cache = self.__dict__.setdefault("_device_cache", {})
-        if key not in cache:
-            cache[key] = (
+        if key not in self._device_arrays:
+            self._device_arrays[key] = (
                 wp.array(self.nodes, dtype=wp.vec4i, device=device),
                 wp.array(self.weights, dtype=wp.vec4d, device=device),
             )
-        nodes, weights = cache[key]
+        nodes, weights = self._device_arrays[key]
         out = wp.empty((frames.shape[0], self.point_count), dtype=wp.vec3d, device=device)
         wp.launch(_interpolate, dim=out.shape, inputs=[frames, nodes, weights], outputs=[out], device=device)
         return out
@@ -318,6 +318,33 @@ class Embedding:
         index = self._check_indices(vertex_indices)
         return _frozen_embedding(self.node_count, self.tets[index], self.nodes[index], self.weights[index],
                                  self.distances[index])
+
+    def on_nodes(self, nodes) -> Embedding:
+        """The same embedding for node values given only on ``nodes`` (e.g. nodes recorded by a simulation).
+
+        Args:
+            nodes: Node indices, shape (K,), containing every node this embedding uses (see
+                ``np.unique(embedding.nodes)``).
+
+        Returns:
+            An embedding whose :meth:`apply` takes values of shape (K, 3) or (F, K, 3), ordered like ``nodes``.
+
+        Raises:
+            ValueError: ``nodes`` has duplicates or indices out of range, or misses a node in use.
+        """
+        nodes = np.asarray(nodes)
+        if nodes.ndim != 1 or not np.issubdtype(nodes.dtype, np.integer):
+            raise ValueError(f"on_nodes: nodes must be a 1-D integer array, got {nodes.dtype} shape {nodes.shape}")
+        if nodes.size and (nodes.min() < 0 or nodes.max() >= self.node_count):
+            raise ValueError(f"on_nodes: node index out of range [0, {self.node_count})")
+        if len(np.unique(nodes)) != len(nodes):
+            raise ValueError("on_nodes: nodes has duplicates")
+        position = np.full(self.node_count, -1, dtype=np.int64)
+        position[nodes] = np.arange(len(nodes))
+        local = position[self.nodes]
+        if np.any(local < 0):
+            raise ValueError(f"on_nodes: node {self.nodes[local < 0][0]} is used by the embedding but not given")
+        return _frozen_embedding(len(nodes), self.tets, local, self.weights, self.distances)
 
     def _check_indices(self, vertex_indices) -> np.ndarray:
         index = np.asarray(vertex_indices)

@@ -13,8 +13,10 @@ soft tissue under it is modelled as a shell of per-vertex thickness ``h`` [m]:
 2. **Offset.** Each vertex moves inward by ``h`` along its offset direction: the area-weighted
    vertex normal, Laplacian-smoothed only as often as needed for no inner triangle to flip. An
    inward offset folds over itself where ``h`` exceeds the local radius of a convex feature (nose
-   tip, lip margins); smoothing the directions is the usual remedy, and when even heavy smoothing
-   cannot avoid the fold the thickness is wrong for that geometry and a ``ValueError`` says where.
+   tip, lip margins); smoothing the directions is the usual remedy, and when it cannot avoid the
+   fold — or tilts the directions so far that the shell crosses itself — the thickness is wrong for
+   that geometry and a ``ValueError`` says where. Surfaces with cavities (nostrils) or margins that
+   curl into the head need preprocessing first.
 3. **Close.** The inner surface (winding reversed, normals out of the tissue) is stitched to the
    outer one along every boundary loop by side quads split into two triangles. The shell is
    checked watertight (every edge used by exactly two triangles, once in each direction) and free
@@ -475,6 +477,8 @@ def offset_shell(
                 f"{np.round(centre, 5).tolist()} m, thickness {h[tri].max():.4g} m vs local radius of curvature "
                 f"~{radius:.3g} m. Use a smaller thickness there (per-vertex thickness) or raise max_smoothing."
             )
+        # smoothing everywhere, not just around the folds: a smoothed patch next to raw normals
+        # leaves a kink in the inner surface that can cross itself (it did on the built-in face's lips)
         directions = _smooth_directions(directions, edges)
         iterations += 1
 
@@ -490,18 +494,15 @@ def offset_shell(
         if count:
             i, j = (int(x) for x in pairs[0])
             raise ValueError(
-                f"tissue shell intersects itself at {count} triangle pairs; first: {_describe(i, n, len(triangles))} "
-                f"and {_describe(j, n, len(triangles))} near "
+                f"tissue shell intersects itself at {count} triangle pairs; first: {_describe(i, len(triangles))} "
+                f"and {_describe(j, len(triangles))} near "
                 f"{np.round(shell_points[shell_triangles[i]].mean(axis=0), 5).tolist()} m. "
                 "The input surface intersects itself, or the thickness exceeds the gap between two parts of the "
-                "face (e.g. the lips or lids): reduce the thickness there."
+                "face (e.g. the lips or lids, or the walls of a cavity such as a nostril): reduce the thickness there"
+                + (f" (unfolding the offset took {iterations} smoothing passes, which tilt the offset directions)"
+                   if iterations else "")
+                + "."
             )
-    volume = _enclosed_volume(shell_points, shell_triangles)
-    if volume <= 0.0:
-        raise ValueError(
-            f"tissue shell encloses a non-positive volume ({volume:.3e} m^3): the surface's triangles are wound "
-            "with normals pointing into the tissue; reverse their winding"
-        )
     return ShellSurface(
         points=shell_points,
         triangles=shell_triangles,
@@ -511,11 +512,11 @@ def offset_shell(
         directions=directions,
         smoothing_iterations=iterations,
         loops=loops,
-        volume=volume,
+        volume=_enclosed_volume(shell_points, shell_triangles),
     )
 
 
-def _describe(t: int, n_vertices: int, n_triangles: int) -> str:
+def _describe(t: int, n_triangles: int) -> str:
     if t < n_triangles:
         return f"outer triangle {t}"
     if t < 2 * n_triangles:
@@ -546,6 +547,8 @@ class MeshingReport:
     """Vertices of the (decimated) outer surface given thickness."""
     boundary_loops: int
     """Boundary loops of the input surface (rim, eyes, mouth ...)."""
+    input_intersections: int
+    """Pairs of crossing triangles in the input surface (0 unless ``input_intersections="ignore"``)."""
     shell_triangles: int
     """Triangles of the closed shell handed to fTetWild."""
     smoothing_iterations: int
@@ -582,7 +585,9 @@ class MeshingReport:
         t = ", ".join(f"{k} {v:.2f} s" for k, v in self.timings.items())
         return (
             f"{self.node_count} nodes, {self.tet_count} tets from a {self.surface_vertices}-vertex surface "
-            f"({self.input_vertices} input, {self.boundary_loops} boundary loops), edge {self.edge_length * 1e3:.2f} mm, "
+            f"({self.input_vertices} input, {self.boundary_loops} boundary loops"
+            + (f", {self.input_intersections} crossing triangle pairs" if self.input_intersections else "")
+            + f"), edge {self.edge_length * 1e3:.2f} mm, "
             f"thickness {self.thickness_range[0] * 1e3:.2f}..{self.thickness_range[1] * 1e3:.2f} mm; "
             f"dihedral {q.min_dihedral_deg:.2f}..{q.max_dihedral_deg:.2f} deg, {100 * self.sliver_fraction:.2f} % "
             f"below 10 deg, {q.inverted_count} inverted; volume {self.tet_volume:.4e} m^3 "
@@ -716,7 +721,8 @@ def mesh_tissue(
     optimize_passes: int = 2,
     threads: int = 0,
     max_smoothing: int = 200,
-    check_intersections: bool = True,
+    input_intersections: str = "error",
+    timeout: float | None = 600.0,
     device=None,
 ) -> TissueMeshing:
     """Tetrahedralise the tissue under a face surface; see the module docstring for the steps.
@@ -733,11 +739,17 @@ def mesh_tissue(
             render surface: fTetWild keeps every input vertex and its run time grows with them).
         envelope: fTetWild's envelope (how far its boundary may stray from the shell), relative to
             the shell's bounding-box diagonal.
-        optimize_passes: fTetWild optimisation passes (each removes slivers; about 2–4 s apiece on
-            a face). Optimisation stops earlier once no element is badly shaped.
-        threads: fTetWild threads (0: all cores).
+        optimize_passes: Most fTetWild optimisation passes (split, collapse, swap, smooth over its
+            whole bounding-box mesh: ~12 s each for the built-in face on 2 cores). It stops as soon
+            as no element's AMIPS energy exceeds 100, which on faces takes one pass.
+        threads: fTetWild threads (0: all cores). fTetWild is not deterministic: node counts and
+            the worst dihedral angle vary a little from run to run.
         max_smoothing: See :func:`offset_shell`.
-        check_intersections: Test input surface and shell for self-intersections.
+        input_intersections: What a self-intersecting input surface does: ``"error"`` (raise) or
+            ``"ignore"`` (count it in the report and go on: scanned and artist faces often fold a
+            little, e.g. ICT-FaceKit's alar creases cross the cheek). The shell that is
+            tetrahedralised is always checked.
+        timeout: Seconds fTetWild may take before it is stopped (``None``: no limit).
         device: Warp device for the geometric kernels; ``None`` uses Warp's preferred device.
 
     Returns:
@@ -747,6 +759,7 @@ def mesh_tissue(
         ValueError: bad surface or thickness (see :func:`check_surface`, :func:`offset_shell`), a
             self-intersecting input surface, or a fTetWild result with inverted or degenerate tets
             or a volume far from the shell's (naming what failed).
+        RuntimeError: fTetWild crashed or ran past ``timeout``.
     """
     start = time.perf_counter()
     points, triangles = _as_surface(surface)
@@ -755,14 +768,16 @@ def mesh_tissue(
         raise ValueError("face surface has no boundary loop: it is already closed, not a skin surface to thicken")
     loop_count = len(boundary_loops(boundary))
     h_fine = _thickness_per_vertex(thickness, points, device)
-    if check_intersections:
-        count, pairs = find_self_intersections(points, triangles, device=device)
-        if count:
-            i, j = (int(x) for x in pairs[0])
-            raise ValueError(
-                f"face surface intersects itself: {count} pairs of triangles cross, first {i} and {j} near "
-                f"{np.round(points[triangles[i]].mean(axis=0), 5).tolist()} m"
-            )
+    if input_intersections not in ("error", "ignore"):
+        raise ValueError(f"input_intersections must be 'error' or 'ignore', got {input_intersections!r}")
+    crossings, pairs = find_self_intersections(points, triangles, device=device)
+    if crossings and input_intersections == "error":
+        i, j = (int(x) for x in pairs[0])
+        raise ValueError(
+            f"face surface intersects itself: {crossings} pairs of triangles cross, first {i} and {j} near "
+            f"{np.round(points[triangles[i]].mean(axis=0), 5).tolist()} m (input_intersections='ignore' "
+            "meshes it anyway when the coarsened shell is clean)"
+        )
 
     area = _surface_area(points, triangles)
     if edge_length is None:
@@ -794,15 +809,12 @@ def mesh_tissue(
     else:
         coarse_points, coarse_triangles, h = points, triangles, h_fine
     t1 = time.perf_counter()
-    shell = offset_shell(coarse_points, coarse_triangles, h, max_smoothing=max_smoothing,
-                         check_intersections=check_intersections, device=device)
+    shell = offset_shell(coarse_points, coarse_triangles, h, max_smoothing=max_smoothing, device=device)
     t2 = time.perf_counter()
 
-    import pytetwild
-
-    nodes, tets = pytetwild.tetrahedralize(
+    nodes, tets = _tetrahedralize(
         shell.points,
-        np.ascontiguousarray(shell.triangles, dtype=np.int32),
+        shell.triangles,
         edge_length_abs=edge_length,
         epsilon=float(envelope),
         optimize=int(optimize_passes) > 0,
@@ -811,6 +823,7 @@ def mesh_tissue(
         simplify=False,  # the shell is already at the target resolution; fTetWild's own pass is slow
         num_threads=int(threads),
         quiet=True,
+        timeout=timeout,
     )
     t3 = time.perf_counter()
     tetmesh = _validated_tets(np.asarray(nodes, dtype=np.float64), np.asarray(tets, dtype=np.int64), shell.volume)
@@ -820,6 +833,7 @@ def mesh_tissue(
         input_vertices=len(points),
         surface_vertices=len(coarse_points),
         boundary_loops=loop_count,
+        input_intersections=int(crossings),
         shell_triangles=len(shell.triangles),
         smoothing_iterations=shell.smoothing_iterations,
         thickness_range=(float(h.min()), float(h.max())),
@@ -833,6 +847,48 @@ def mesh_tissue(
                  "total": t4 - start},
     )
     return TissueMeshing(tetmesh=tetmesh, shell=shell, report=report)
+
+
+_TETWILD_SCRIPT = """
+import json, sys
+import numpy as np
+import pytetwild
+data = np.load("shell.npz")
+nodes, tets = pytetwild.tetrahedralize(data["points"], data["triangles"], **json.loads(sys.argv[1]))
+np.savez("tets.npz", nodes=nodes, tets=tets)
+"""
+
+
+def _tetrahedralize(points: np.ndarray, triangles: np.ndarray, *, timeout: float | None, **options):
+    """fTetWild (pytetwild) in a child process, in a scratch folder.
+
+    fTetWild writes debug files (``__tracked_surface.stl`` ...) into the working directory and
+    aborts the whole process on some inputs; a child process in a temporary folder keeps both away
+    from the caller, and turns a crash or a hang into an exception. Returns ``(nodes, tets)``.
+    """
+    import importlib.util
+    import json
+    import subprocess
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    if importlib.util.find_spec("pytetwild") is None:
+        raise RuntimeError("tetrahedralising needs pytetwild (pip install pytetwild)")
+    with tempfile.TemporaryDirectory(prefix="warpface-tetwild-") as scratch:
+        folder = Path(scratch)
+        np.savez(folder / "shell.npz", points=np.ascontiguousarray(points, dtype=np.float64),
+                 triangles=np.ascontiguousarray(triangles, dtype=np.int32))
+        try:
+            done = subprocess.run([sys.executable, "-c", _TETWILD_SCRIPT, json.dumps(options)], cwd=folder,
+                                  capture_output=True, text=True, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            raise RuntimeError(f"fTetWild did not finish within {timeout} s") from None
+        if done.returncode != 0 or not (folder / "tets.npz").is_file():
+            tail = (done.stderr or done.stdout).strip().splitlines()[-5:]
+            raise RuntimeError(f"fTetWild failed (exit status {done.returncode}): " + " | ".join(tail))
+        result = np.load(folder / "tets.npz")
+        return result["nodes"], result["tets"]
 
 
 def _validated_tets(nodes: np.ndarray, tets: np.ndarray, shell_volume: float, *, volume_tolerance: float = 0.05) -> TetMesh:

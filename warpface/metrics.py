@@ -1,0 +1,220 @@
+"""Evaluation metrics: Kato's left/right symmetry ξ (SPEC §4) and surface distances.
+
+Landmarks follow the thesis's table 2.2 (anthropometric names, Farkas). Faces in warpface carry
+the 68 iBUG / Multi-PIE landmarks, so each Kato landmark is defined as a fixed affine combination
+of iBUG points (:data:`KATO_LANDMARKS`); the combination is applied to positions at every time,
+so a tracked or simulated face gives tracked Kato landmarks. "L" / "R" are the subject's left
+(+x in warpface) and right. iBUG numbering is 0-based; iBUG's "right" points (e.g. 36–41, 48) are
+the subject's right.
+
+================  ====  =========================================================  ==================
+Kato landmark     key   iBUG definition                                            where
+================  ====  =========================================================  ==================
+glabella          g     mean of 21, 22 (inner brow ends)                            between the brows
+exocanthion       ex    36 (R), 45 (L)                                              outer eye corner
+palp. inferius    pi    mean of 40, 41 (R); mean of 46, 47 (L)                      lowest lid point
+pronasale         prn   30                                                          nose tip
+alare             al    31 (R), 35 (L)                                              nose wing
+crista phil. sup. cphs  33 + 0.6 (50 − 51) (R); 33 + 0.6 (52 − 51) (L)               philtrum top
+crista phil. inf. cphi  50 (R), 52 (L)                                              cupid's-bow peaks
+cheilion          ch    48 (R), 54 (L)                                              mouth corner
+================  ====  =========================================================  ==================
+
+cphs has no iBUG point: the tops of the philtral columns sit at the nose base (subnasale, 33),
+spread sideways by a little less than the cupid's-bow peaks below them (the columns converge
+upward), hence ``33 + 0.6 (cphi − 51)`` with 51 the bow's midline.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from types import MappingProxyType
+
+import numpy as np
+
+__all__ = [
+    "KATO_LANDMARKS",
+    "SYMMETRY_PAIRS",
+    "SymmetryResult",
+    "kato_landmarks",
+    "symmetry",
+    "symmetry_side",
+    "point_distances",
+    "SurfaceError",
+    "surface_error",
+]
+
+KATO_LANDMARKS = MappingProxyType({
+    "glabella": ((21, 0.5), (22, 0.5)),
+    "pronasale": ((30, 1.0),),
+    "ex_R": ((36, 1.0),),
+    "ex_L": ((45, 1.0),),
+    "pi_R": ((40, 0.5), (41, 0.5)),
+    "pi_L": ((46, 0.5), (47, 0.5)),
+    "al_R": ((31, 1.0),),
+    "al_L": ((35, 1.0),),
+    "cphs_R": ((33, 1.0), (50, 0.6), (51, -0.6)),
+    "cphs_L": ((33, 1.0), (52, 0.6), (51, -0.6)),
+    "cphi_R": ((50, 1.0),),
+    "cphi_L": ((52, 1.0),),
+    "ch_R": ((48, 1.0),),
+    "ch_L": ((54, 1.0),),
+})
+"""Kato landmark name -> ((iBUG index, weight), ...); weights sum to 1 (affine combinations)."""
+
+SYMMETRY_PAIRS = ("ex", "pi", "al", "cphi")
+"""The landmarks whose distance from the cheilion (ch) of the same side enters ξ (SPEC §4, k = 1..4)."""
+
+
+def kato_landmarks(ibug_points) -> dict[str, np.ndarray]:
+    """Kato landmark positions from iBUG-68 positions.
+
+    Args:
+        ibug_points: Positions of the 68 iBUG landmarks, shape (..., 68, 3) (e.g. (68, 3) for one
+            face, (T, 68, 3) for a track).
+
+    Returns:
+        Name (see :data:`KATO_LANDMARKS`) -> positions of shape (..., 3), float64.
+
+    Raises:
+        ValueError: wrong shape or non-finite positions.
+    """
+    p = np.asarray(ibug_points, dtype=np.float64)
+    if p.ndim < 2 or p.shape[-2:] != (68, 3):
+        raise ValueError(f"kato_landmarks: expected iBUG positions of shape (..., 68, 3), got {p.shape}")
+    if not np.isfinite(p).all():
+        bad = np.argwhere(~np.isfinite(p))[0]
+        raise ValueError(f"kato_landmarks: iBUG position at index {tuple(int(i) for i in bad)} is not finite")
+    return {
+        name: sum(weight * p[..., index, :] for index, weight in terms) for name, terms in KATO_LANDMARKS.items()
+    }
+
+
+def _track(landmarks, name: str) -> np.ndarray:
+    if name not in landmarks:
+        raise ValueError(f"symmetry: landmark {name!r} missing; have {sorted(landmarks)}")
+    track = np.asarray(landmarks[name], dtype=np.float64)
+    if track.ndim != 2 or track.shape[1] != 3 or len(track) < 1:
+        raise ValueError(f"symmetry: landmark {name!r} must be a track of shape (T, 3), got {track.shape}")
+    if not np.isfinite(track).all():
+        raise ValueError(f"symmetry: landmark {name!r} has non-finite positions (frame {np.argwhere(~np.isfinite(track))[0, 0]})")
+    return track
+
+
+def symmetry_side(landmarks, side: str, *, reference: int = 0) -> np.ndarray:
+    """Kato's ξ for one side (eq. 4.38): ``ξ(t) = Σ_k (r_k(t) / r_k(t0) − 1)``.
+
+    ``r_k(t)`` is the distance from the side's cheilion to its ex, pi, al and cphi at frame t.
+
+    Args:
+        landmarks: Name -> track of shape (T, 3) (as from :func:`kato_landmarks` on a (T, 68, 3) track).
+        side: ``"L"`` or ``"R"``.
+        reference: Index of the reference frame t0.
+
+    Returns:
+        ξ per frame, shape (T,), float64 (0 at the reference frame).
+
+    Raises:
+        ValueError: unknown side, missing landmark, tracks of different lengths, non-finite
+            positions, a reference index out of range, or a zero reference distance.
+    """
+    if side not in ("L", "R"):
+        raise ValueError(f"symmetry: side must be 'L' or 'R', got {side!r}")
+    ch = _track(landmarks, f"ch_{side}")
+    if not -len(ch) <= int(reference) < len(ch):
+        raise ValueError(f"symmetry: reference frame {reference} out of range for {len(ch)} frames")
+    xi = np.zeros(len(ch))
+    for key in SYMMETRY_PAIRS:
+        other = _track(landmarks, f"{key}_{side}")
+        if len(other) != len(ch):
+            raise ValueError(f"symmetry: track {key}_{side} has {len(other)} frames, ch_{side} has {len(ch)}")
+        r = np.linalg.norm(other - ch, axis=1)
+        r0 = r[int(reference)]
+        if not r0 > 0.0:
+            raise ValueError(f"symmetry: ch_{side} and {key}_{side} coincide at the reference frame")
+        xi += r / r0 - 1.0
+    return xi
+
+
+@dataclass(frozen=True)
+class SymmetryResult:
+    """Kato's symmetry measures over a track (SPEC §4)."""
+
+    xi_left: np.ndarray
+    """ξ_L(t), shape (T,), float64."""
+    xi_right: np.ndarray
+    """ξ_R(t), shape (T,), float64."""
+    cost: np.ndarray
+    """ξ_cost(t) = log|ξ_L(t) − ξ_R(t)|, shape (T,), float64; differences below ``floor`` (always the
+    reference frame, where both are 0) are clamped to it, so the value there is ``log(floor)``."""
+    floor: float
+    """The clamp of |ξ_L − ξ_R| applied before the logarithm."""
+
+
+def symmetry(landmarks, *, reference: int = 0, floor: float = 1e-12) -> SymmetryResult:
+    """Kato's left/right symmetry (eq. 4.38–4.39): ξ_L, ξ_R and ``ξ_cost = log|ξ_L − ξ_R|``.
+
+    Smaller ξ_cost means more symmetric motion. The thesis defines it for t ≠ t0 (at t0 both ξ are
+    0); here every frame gets a value, with |ξ_L − ξ_R| clamped below at ``floor`` (> 0) so the
+    result is finite.
+
+    Args:
+        landmarks: Name -> track (T, 3) for ch, ex, pi, al, cphi on both sides (``*_L``, ``*_R``).
+        reference: Index of the reference frame t0.
+        floor: Lower clamp of |ξ_L − ξ_R| (> 0).
+    """
+    if not (np.isfinite(floor) and floor > 0.0):
+        raise ValueError(f"symmetry: floor must be finite and > 0, got {floor}")
+    left = symmetry_side(landmarks, "L", reference=reference)
+    right = symmetry_side(landmarks, "R", reference=reference)
+    if len(left) != len(right):
+        raise ValueError(f"symmetry: left tracks have {len(left)} frames, right tracks {len(right)}")
+    cost = np.log(np.maximum(np.abs(left - right), floor))
+    return SymmetryResult(xi_left=left, xi_right=right, cost=cost, floor=float(floor))
+
+
+# ---------------------------------------------------------------------------------------------- surfaces
+
+
+def point_distances(points, reference) -> np.ndarray:
+    """Distance between corresponding points [m]: (..., V, 3) × (..., V, 3) → (..., V), float64."""
+    a = np.asarray(points, dtype=np.float64)
+    b = np.asarray(reference, dtype=np.float64)
+    if a.shape != b.shape or a.ndim < 2 or a.shape[-1] != 3:
+        raise ValueError(f"point_distances: need two arrays of the same shape (..., V, 3), got {a.shape} and {b.shape}")
+    if not (np.isfinite(a).all() and np.isfinite(b).all()):
+        raise ValueError("point_distances: positions must be finite")
+    return np.linalg.norm(a - b, axis=-1)
+
+
+@dataclass(frozen=True)
+class SurfaceError:
+    """Point-to-point error of a surface against a reference with the same vertices [m]."""
+
+    mean: float
+    """Mean distance."""
+    max: float
+    """Largest distance."""
+    rms: float
+    """Root-mean-square distance."""
+    argmax: int
+    """Vertex with the largest distance."""
+
+    def __str__(self) -> str:
+        return f"mean {self.mean * 1e3:.3f} mm, rms {self.rms * 1e3:.3f} mm, max {self.max * 1e3:.3f} mm (vertex {self.argmax})"
+
+
+def surface_error(points, reference, *, vertices=None) -> SurfaceError:
+    """Mean / rms / max point-to-point distance between two (V, 3) surfaces, optionally over a vertex subset."""
+    d = point_distances(points, reference)
+    if d.ndim != 1:
+        raise ValueError(f"surface_error: expected (V, 3) surfaces, got {np.shape(points)}")
+    index = np.arange(len(d)) if vertices is None else np.asarray(vertices, dtype=np.int64)
+    if index.size == 0:
+        raise ValueError("surface_error: no vertices selected")
+    if index.min() < 0 or index.max() >= len(d):
+        raise ValueError(f"surface_error: vertex index out of range [0, {len(d)})")
+    sel = d[index]
+    worst = int(np.argmax(sel))
+    return SurfaceError(mean=float(sel.mean()), max=float(sel[worst]), rms=float(np.sqrt(np.mean(sel**2))),
+                        argmax=int(index[worst]))
