@@ -66,7 +66,10 @@ def _min4(v: wp.vec4d) -> wp.float64:
 
 @wp.func
 def _closest_on_triangle(p: wp.vec3d, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d) -> wp.vec3d:
-    """Closest point to ``p`` on triangle ``abc``, by the triangle's Voronoi regions (vertex, edge, face)."""
+    """Closest point to ``p`` on triangle ``abc``, by the triangle's Voronoi regions (vertex, edge, face).
+
+    A float64 twin of :func:`warpface.geometry.closest_point_on_triangle` (float32, used by the
+    tracking kernels): embedding distances are checked to 1e-12 m, beyond float32's reach."""
     zero = wp.float64(0.0)
     ab = b - a
     ac = c - a

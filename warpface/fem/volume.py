@@ -357,7 +357,10 @@ def find_self_intersections(points, triangles, *, max_pairs: int = 64, device=No
 
 
 def _vertex_normals(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals, shape (V, 3), float64."""
+    """Area-weighted unit vertex normals, shape (V, 3), float64.
+
+    NumPy float64 rather than :meth:`FaceMesh.vertex_normals` (a float32 kernel): the inward offset
+    must reproduce the skin thickness to round-off, and this runs once per meshing."""
     p = points[triangles]
     face = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     normals = np.zeros_like(points)
