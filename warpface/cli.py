@@ -159,6 +159,10 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--stage", required=True, help="output stage (.usda); the dense points go to <stage>_track.usdc")
     track.add_argument("--frames", type=int, default=None, help="stop after this many frames")
     track.add_argument("--expression", default="smile", help="synthetic source: expression to perform (default smile)")
+    track.add_argument("--fem", action="store_true",
+                       help="let the tissue FEM move the skin the landmarks do not reach (SPEC §3 step 4)")
+    track.add_argument("--fem-dt", type=float, default=1e-3, help="FEM time step [s] (default 1e-3)")
+    track.add_argument("--fem-nodes", type=int, default=3000, help="approximate tissue node count (default 3000)")
     track.add_argument("--layout", default=None, help="live cameras: JSON with the painted dots' names and initial pixels")
     track.set_defaults(handler=_track)
     return parser

@@ -151,8 +151,9 @@ def record(source, adapter: TrackingAdapter, writer, *, max_frames: int | None =
 
     Every frame received is kept: on any error (a camera that disappears, Ctrl-C) the writer is
     closed — flushing what it holds — before the error propagates. ``on_frame(frame, dense)`` is
-    called for each frame (e.g. to drive the FEM or collect errors). Landmarks are written in the
-    face's model frame (the adapter's camera → model similarity), where the dense face is.
+    called for each frame before it is written (e.g. a :class:`~warpface.tracking.tissue_drive.TissueDrive`,
+    or to collect errors); when it returns points, those are written instead. Landmarks are
+    written in the face's model frame (the adapter's camera → model similarity), where the dense face is.
     """
     from tqdm import tqdm
 
@@ -161,9 +162,10 @@ def record(source, adapter: TrackingAdapter, writer, *, max_frames: int | None =
     try:
         for frame, dense in adapter.track(source):
             measured = np.all(np.isfinite(frame.points), axis=1) & (frame.confidence > 0)
-            writer.add(frame.timestamp, _to_model(adapter.camera_to_model, frame.points), frame.confidence, dense)
             if on_frame is not None:
-                on_frame(frame, dense)
+                replaced = on_frame(frame, dense)
+                dense = dense if replaced is None else replaced
+            writer.add(frame.timestamp, _to_model(adapter.camera_to_model, frame.points), frame.confidence, dense)
             count += 1
             found += measured.mean()
             elapsed = time.perf_counter() - started

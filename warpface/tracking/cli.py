@@ -28,11 +28,27 @@ def run_track(args) -> int:
     try:
         adapter = adapter_for_face(rest, source.landmark_names, camera_to_model=camera_to_model, device=args.device)
         writer = TrackingStageWriter(args.stage, source.landmark_names, fps, dense_rest=rest, triangles=rig.mesh.triangles)
-        stats = record(source, adapter, writer, max_frames=args.frames, progress=not args.quiet)
+        drive = _tissue_drive(rig, adapter, fps, args) if args.fem else None
+        stats = record(source, adapter, writer, max_frames=args.frames, progress=not args.quiet, on_frame=drive)
     finally:
         for close in closers:
             close()
     print(f"tracked {stats.frames} frames at {stats.frames_per_second:.0f} frames/s, "
           f"{100 * stats.landmarks_found:.0f}% of {len(source.landmark_names)} landmarks found per frame")
+    if args.fem:
+        print(f"  tissue FEM: {drive.simulation.tetmesh.node_count} nodes, "
+              f"{len(drive.driven_nodes)} driven, {len(drive.fixed_nodes)} fixed, {drive.substeps} steps per frame")
     print(f"  stage {args.stage}  ({fps:g} time codes per second; dense points in {writer.folder.name}/)")
     return 0
+
+
+def _tissue_drive(rig, adapter, fps: float, args):
+    """Tissue under the built-in face (Kato's uniform material) driven by the tracked skin."""
+    from ..fem import TissueMaterial
+    from ..fem.volume import tissue_from_surface
+    from .tissue_drive import TissueDrive
+
+    thickness = max(float(np.median(rig.thickness)), 0.004)
+    tetmesh = tissue_from_surface(rig.mesh, thickness, target_nodes=args.fem_nodes, device=args.device)
+    material = TissueMaterial(E=192.4e3, nu=0.495, eta=476.8, rho=1100.0)
+    return TissueDrive(adapter, tetmesh, material, fps=fps, dt=args.fem_dt, thickness=thickness, device=args.device)
