@@ -108,9 +108,11 @@ class NumpyExpression:
         x2 = x1 + ((1.0 / np.maximum(r, 1e-4) - 1.0) * self.thickness)[:, None] * self._normals(av)
         n2 = self._normals(self._area_vectors(x2))
         rr, kr = r[self.wrinkle_row], self.kr[self.wrinkle_col]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            stretched = np.where(kr > 0, kr * np.exp((1 - 1 / np.maximum(kr, 1e-30)) * (rr - 1)), 0.0)
-        c = np.where(rr <= 1, (kr - 1) * rr + 1, stretched).astype(np.float32)
+        c = ((kr - 1) * rr + 1).astype(np.float32)
+        above = rr > 1
+        c[above] = 0.0
+        fading = above & (kr > 0)  # k_r = 0: no furrow on stretched skin
+        c[fading] = kr[fading] * np.exp((1 - 1 / kr[fading]) * (rr[fading] - 1))
         height = np.bincount(self.wrinkle_row, depth.astype(np.float32)[self.wrinkle_col] * self.wrinkle_shape * c, minlength=self.v)
         return x2 + height.astype(np.float32)[:, None] * n2
 
