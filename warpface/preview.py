@@ -264,11 +264,14 @@ def _color_bar(image: np.ndarray, vmin: float, vmax: float, units: str, cmap: st
     import cv2
 
     height = image.shape[0]
-    bar = np.full((height, 110, 3), 255, dtype=np.uint8)
+    background = image[0, 0]
+    ink = (20, 20, 20) if background.mean() > 128 else (235, 235, 235)
+    bar = np.empty((height, 110, 3), dtype=np.uint8)
+    bar[:] = background
     ramp = heat_colors(np.linspace(1.0, 0.0, height - 80), vmin=0.0, vmax=1.0, cmap=cmap)
     bar[40:height - 40, 15:40] = (ramp[:, None, :] * 255).astype(np.uint8)
     for y, value in ((50, vmax), (height - 35, vmin)):
-        cv2.putText(bar, f"{value:.3g}", (45, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (20, 20, 20), 1, cv2.LINE_AA)
+        cv2.putText(bar, f"{value:.3g}", (45, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, ink, 1, cv2.LINE_AA)
     if units:
-        cv2.putText(bar, units, (15, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (20, 20, 20), 1, cv2.LINE_AA)
+        cv2.putText(bar, units, (15, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.45, ink, 1, cv2.LINE_AA)
     return np.concatenate([image, bar], axis=1)
