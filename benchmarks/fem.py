@@ -21,6 +21,7 @@ to the host) and "ms/step step()" one ``step()`` call per frame as a live tracke
 then waits only once per ring of ``cg_chunk`` steps). "ratio" is the baseline's time per
 step over the row's run() time; "x real time" is dt over the run() time per step.
 The max difference to the baseline's displacements checks that every row computes the same motion.
+"CG iters max / mean" are the most and the mean CG iterations per step of the run() pass.
 
     python -m benchmarks.fem [--steps 200] [--sizes 40 80] [--no-anp] [--device cuda:0]
 """
@@ -124,13 +125,15 @@ def interleaved_step_times(steppers: list, trajectory: np.ndarray) -> list[float
     return [float(x) for x in np.median(samples, axis=1)]
 
 
-def cuda_step_times(sim: TissueSimulation, trajectory: np.ndarray) -> tuple[float, float, np.ndarray]:
-    """Seconds per step through run() and through step() calls, and the final displacement of run()."""
+def cuda_step_times(sim: TissueSimulation, trajectory: np.ndarray) -> tuple[float, float, np.ndarray, int, float]:
+    """Seconds per step through run() and through step() calls, the final displacement of run(), and
+    the most and mean CG iterations per step of run()."""
     sim.run(trajectory[:1])  # warm-up; the graph was captured at construction
     start = time.perf_counter()
     out = sim.run(trajectory[1:], progress=False)
     per_run = (time.perf_counter() - start) / (len(trajectory) - 1)
     final = out[-1].astype(np.float64)
+    most, mean = sim.cg_iterations[0], sim.cg_mean_iterations
     # live use: one step() per tracked frame, no read-back (the host waits once per ring of steps)
     sim.reset()
     sim.step(trajectory[0])
@@ -139,7 +142,7 @@ def cuda_step_times(sim: TissueSimulation, trajectory: np.ndarray) -> tuple[floa
     for row in trajectory[1:]:
         sim.step(row)
     sim.synchronize()
-    return per_run, (time.perf_counter() - start) / (len(trajectory) - 1), final
+    return per_run, (time.perf_counter() - start) / (len(trajectory) - 1), final, most, mean
 
 
 def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device) -> list[dict]:
@@ -174,15 +177,15 @@ def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device) -> list[dict
     for name, formulation, sim in sims:
         if sim.solver == "direct":
             per_step = step_calls = next(cpu_times)
-            final, iterations = sim.d, None
+            final, iterations, mean_iterations = sim.d, None, None
         else:
-            per_step, step_calls, final = cuda_step_times(sim, trajectory)
-            iterations = sim.cg_iterations[0]
+            per_step, step_calls, final, iterations, mean_iterations = cuda_step_times(sim, trajectory)
         diff = float(np.abs(final - reference).max()) if formulation == "linear" else None
         rows.append(dict(mesh=label, path=name, assembly_s=sim.timings["assembly"],
                          factor_s=sim.timings.get("factorization", sim.timings["solver_setup"]),
                          step_ms=1e3 * per_step, step_call_ms=1e3 * step_calls, ratio=base_step / per_step,
-                         realtime=DT / per_step, max_diff=diff, cg_iterations=iterations))
+                         realtime=DT / per_step, max_diff=diff, cg_iterations=iterations,
+                         cg_mean_iterations=mean_iterations))
     print(f"  {label}: {mesh.tet_count} tets, {fixed.size} fixed, {driven.size} driven nodes; "
           f"max displacement {np.abs(reference).max() * 1e3:.2f} mm after {steps + 1} steps")
     return rows
@@ -207,7 +210,8 @@ def main() -> None:
                        ("factor_s", "factor/setup s", ".2f"), ("step_ms", "ms/step run()", ".3f"),
                        ("step_call_ms", "ms/step step()", ".3f"),
                        ("ratio", "ratio vs splu", ".2f"), ("realtime", "x real time", ".3f"),
-                       ("max_diff", "max diff m", ".1e"), ("cg_iterations", "CG iters", "d")])
+                       ("max_diff", "max diff m", ".1e"), ("cg_iterations", "CG iters max", "d"),
+                       ("cg_mean_iterations", "CG iters mean", ".1f")])
     path = write_results("fem", {"dt": DT, "material": KATO, "steps": args.steps,
                                  "machine": machine_info(cuda or "cpu"), "rows": rows})
     print(f"wrote {path}")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warpface.fem import ConvergenceError, TetMesh, TissueMaterial, TissueSimulation, box_tet_mesh
+from warpface.fem import ConvergenceError, TetMesh, TissueMaterial, TissueSimulation, box_tet_mesh, shell_tet_mesh
 
 SOFT = TissueMaterial(1e5, 0.45, 0.0, 1000.0)
 
@@ -126,6 +126,63 @@ def test_cg_path_matches_direct_solver(beam, options):
     np.testing.assert_allclose(sim.d, ref.d, rtol=0, atol=rtol * scale)
     np.testing.assert_allclose(sim.v, ref.v, rtol=0, atol=rtol * 1e3 * scale)
     assert sim.cg_iterations[0] >= 1
+
+
+def test_cg_block_kernels_match_direct_solver_on_rough_motion(beam, monkeypatch):
+    """The kernels' CUDA block shape (many lanes and rows per block, a partial last block), run on
+    CPU fibers, through smooth motion and jumps (where the extrapolated start must be rejected)."""
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    mesh, fixed, driven = beam
+    steps = 24
+    trajectory = np.zeros((steps, driven.size, 3))
+    trajectory[:, :, 1] = 2e-3 * np.sin(np.linspace(0.1, 1.5, steps))[:, None]
+    trajectory[[9, 17], :, 2] = 3e-3  # two jumps
+    material = TissueMaterial(1e5, 0.45, 20.0, 1000.0)
+    ref = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu")
+    sim = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg", cg_tol=1e-10)
+    assert sim._stepper._kernels.block_dim > 1 and sim.free_nodes.size % sim._stepper._kernels.rows != 0
+    expected = ref.run(trajectory)
+    got = sim.run(trajectory)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-7 * np.abs(expected).max())
+    np.testing.assert_allclose(sim.v, ref.v, rtol=0, atol=1e-4 * np.abs(expected).max())
+
+
+def test_cg_extrapolated_start_saves_iterations_not_accuracy():
+    """Quasi-static tissue motion (Kato's damping): the cubic extrapolation of past displacements
+    starts CG far closer than the Newmark predictor, while the tolerance stays relative to the
+    predictor's residual, so the result keeps its accuracy."""
+    mesh = shell_tet_mesh(12, 12, 3)
+    p = mesh.points
+    fixed = np.flatnonzero(p[:, 1] > np.quantile(p[:, 1], 0.6))
+    driven = np.flatnonzero(p[:, 1] < np.quantile(p[:, 1], 0.1))
+    steps = 100
+    ramp = 0.5 * (1.0 - np.cos(np.pi * np.arange(1, steps + 1) / 150.0))
+    trajectory = np.zeros((steps, driven.size, 3))
+    trajectory[:, :, 1] = -5e-3 * ramp[:, None]
+    material = TissueMaterial(192.4e3, 0.495, 476.8, 1100.0)
+    ref = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu")
+    sim = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg", cg_tol=1e-6)
+    expected = ref.run(trajectory)
+    got = sim.run(trajectory[:3])
+    first = sim.cg_iterations[0]
+    got = np.r_[got, sim.run(trajectory[3:-4])]
+    history = []
+    for row in trajectory[-4:]:
+        sim.step(row)
+        history.append(sim.d)
+    most, last = sim.cg_iterations
+    assert most == first  # the first steps, without a history to extrapolate from, need the most
+    assert last <= 0.6 * most and sim.cg_mean_iterations < 0.8 * most
+    np.testing.assert_allclose(got, expected[:-4], rtol=0, atol=1e-6 * np.abs(expected).max())
+    np.testing.assert_allclose(sim.d, ref.d, rtol=0, atol=1e-6 * np.abs(expected).max())
+    # the next step's start: cubic extrapolation, stored relative to the Newmark predictor
+    d3, d2, d1, d = history
+    predictor = d + 1e-3 * sim.v + 0.5e-6 * sim.a
+    free = sim.free_nodes
+    guess = sim._stepper._guess.numpy()
+    np.testing.assert_allclose(guess, (4 * d - 6 * d1 + 4 * d2 - d3 - predictor)[free], rtol=0,
+                               atol=1e-9 * np.abs(d - d1).max())
+    assert np.abs(guess).max() > 1e-3 * np.abs(d - d1).max()
 
 
 def test_cg_non_convergence_raises_with_residual(beam):

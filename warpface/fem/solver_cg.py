@@ -1,22 +1,39 @@
-"""Device Newmark stepper: preconditioned CG from ``warp.optim.linear``, whole step in one graph.
+"""Device Newmark stepper: preconditioned CG in fused Warp kernels, the whole step in one graph.
 
-Everything lives on the Warp device. One step is
+Everything lives on the Warp device. One step (kernels in :mod:`warpface.fem.kernels_cg` and
+:mod:`warpface.fem.kernels_integrator`) is
 
-1. :func:`newmark_predict` — stacked input ``z = [c0 d + c1 v + c2 a; c3 d + c4 v + c5 a; d_driven]``
-   and the warm start ``x~ = d + dt v + dt²/2 a`` of the free nodes;
-2. ``b = R z − A_oo x~`` with ``R = [M_o*, C_o*, −A_od]`` stacked into one BSR matrix (one product
-   instead of three) — the residual of the warm start;
-3. CG on ``A_oo δ = b`` from ``δ = 0`` with ``check_every=0``: convergence is tested on the device
-   (a conditional while-node on CUDA), so the tolerance is relative to the warm start's residual,
-   not to the size of the displacement;
-4. :func:`cg_status` — failed-step count, residual and iteration counts, kept on the device;
-5. :func:`newmark_update` — ``d = x~ + δ`` (or the driven/fixed value), Newmark ``a`` and ``v``
-   in place, and the displacement recorded into a ring buffer of ``chunk`` steps.
+1. ``residual`` — the residual of the Newmark predictor ``x~ = d + dt v + dt²/2 a`` of the free
+   nodes, ``r_p = q_o − A_od d_driven − A_oo x~``, as one product ``P [d; v; a; d_driven]``
+   with ``P = [c0 M + c3 C − A_o·free, c1 M + c4 C − dt A_o·free, c2 M + c5 C − dt²/2 A_o·free,
+   −A_od]`` assembled once in float64 (so the large ``c0 M d`` terms cancel at setup, not in
+   every step's arithmetic), and the residual ``r_p − A_oo g`` of the extrapolated start
+   ``x~ + g`` (``g``: cubic extrapolation of the last four displacements minus the predictor,
+   left by the previous step's update);
+2. ``lower_start``, ``upper`` — CG starts from whichever of the two has the smaller residual
+   (the extrapolation wins while the motion is smooth, by orders of magnitude), ``z = Gᵀ G r0``;
+3. preconditioned CG on ``A_oo δ = r_p`` from that start: three kernels per iteration in a
+   ``wp.capture_while`` loop (a conditional graph node on CUDA) that stops on the device when
+   ``‖r‖ <= tol ‖r_p‖``. The tolerance is relative to the predictor's residual, as without the
+   extrapolation, so the better start saves iterations without loosening the result;
+4. ``newmark_update`` — ``d = x~ + δ`` (or the driven/fixed value), Newmark ``a`` and ``v`` in
+   place, the displacement recorded into a ring buffer of ``chunk`` steps, the extrapolation
+   for the next step, and the step's convergence status booked on the device.
 
 On CUDA the sequence is captured once with ``wp.ScopedCapture`` and each step is one
 ``wp.capture_launch``: no allocation, no host read-back. The host looks at the status only
 at synchronisation points (reading the state, the end of each ``chunk`` in
 :meth:`CGStepper.run_chunk`, or when the trajectory ring wraps in :meth:`CGStepper.step`).
+
+Every preconditioner is used in factored form ``M⁻¹ = Gᵀ G`` with a lower-triangular ``G``:
+FSAI (``warp.optim.linear.FSAI``), or the inverse Cholesky factors of the 3x3 diagonal blocks
+(block Jacobi) or of the diagonal (Jacobi).
+
+Measured on an H200 (``benchmarks/fem.py``, 6.7k-node face shell, dt = 1e-3, tol = 1e-5, float64):
+Warp's stock ``warp.optim.linear.cg`` in a graph took 1.56 ms per step (about eleven dependent
+launches per iteration, 32 iterations); here an iteration costs 23 µs (three kernels of about
+7 µs; an empty graph node costs 1 µs), the fixed part of a step 60 µs, and the extrapolated start
+brings the mean from about 25 to 10 iterations: 0.30 ms per step.
 """
 
 from __future__ import annotations
@@ -24,11 +41,11 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 import warp.sparse as wps
-from warp.optim.linear import FSAI, cg
-from warp.optim.linear import preconditioner as make_preconditioner
+from warp.optim.linear import FSAI
 
-from .assembly import SystemMatrices, partition_bsr
-from .kernels_integrator import advance_counter, cg_status, newmark_predict, newmark_update
+from .assembly import SystemMatrices, bsr_to_scipy, partition_bsr
+from .kernels_cg import SLOT_SPREAD, pcg_kernels
+from .kernels_integrator import newmark_update
 
 __all__ = ["CGStepper", "ConvergenceError", "PRECONDITIONERS"]
 
@@ -36,13 +53,81 @@ PRECONDITIONERS = ("fsai", "block_jacobi", "diag")
 
 # FSAI factor entries per row. On the 6.7k-node face shell at dt = 1e-3 (Kato's material), CG to a
 # 1e-6 relative residual took 148 iterations with Jacobi, 129 with 3x3 block Jacobi and 54 / 43 / 33
-# with FSAI rows of 8 / 16 / 32 entries. A step on a GPU is bound by launch latency, not by the
-# arithmetic of a longer row, so fewer iterations win.
+# with FSAI rows of 8 / 16 / 32 entries. A step on a GPU is bound by latency, not by the arithmetic
+# of a longer row (H200: 22.1 / 22.7 / 23.5 µs per iteration for rows of 8 / 16 / 32, mean
+# iterations 16.3 / 12.9 / 10.2 over the benchmark's mouth opening), so fewer iterations win.
 FSAI_ROW_SIZE = 32
+
+# Thread-block shape of the CG kernels: threads sharing a matrix row, and rows per block (see
+# warpface.fem.kernels_cg). H200, 6.7k / 26k nodes, µs per iteration: 16x8 22.6 / 53.6,
+# 8x16 24.6 / 49.8, 32x4 27.3 / 73.5, one 32-thread block per row 47 / -.
+LANES, ROWS_PER_BLOCK = 16, 8
+
+# CG iterations per pass of the device loop: the loop's condition node costs about a kernel
+# launch, and at most UNROLL - 1 finished (empty) iterations are launched after convergence.
+UNROLL = 2
 
 
 class ConvergenceError(RuntimeError):
     """The iterative solver did not reach its tolerance within its iteration limit."""
+
+
+def preconditioner_factor(A_oo: wps.BsrMatrix, kind: str):
+    """Lower-triangular ``G`` with ``Gᵀ G ≈ A_oo⁻¹``, as a SciPy CSR matrix (3F x 3F, float64).
+
+    Args:
+        A_oo: The SPD system matrix, 3x3 float64 blocks.
+        kind: One of :data:`PRECONDITIONERS`.
+
+    Raises:
+        ValueError: ``A_oo`` has a diagonal block that is not positive definite.
+    """
+    import scipy.sparse as sps
+
+    if kind == "fsai":
+        return bsr_to_scipy(FSAI(A_oo, max_row_size=FSAI_ROW_SIZE).G)
+    A = bsr_to_scipy(A_oo)
+    n = A.shape[0] // 3
+    if kind == "diag":
+        diagonal = A.diagonal()
+        if not np.all(diagonal > 0.0):
+            raise ValueError(f"the system matrix has a non-positive diagonal entry at dof {np.argmin(diagonal)}")
+        return sps.diags(1.0 / np.sqrt(diagonal), format="csr")
+    dofs = np.arange(3 * n).reshape(n, 3)
+    blocks = np.empty((n, 3, 3))  # the diagonal blocks
+    for i in range(3):
+        for j in range(3):
+            blocks[:, i, j] = np.asarray(A[dofs[:, i], dofs[:, j]]).ravel()
+    try:
+        factors = np.linalg.inv(np.linalg.cholesky(blocks))
+    except np.linalg.LinAlgError:
+        raise ValueError("a 3x3 diagonal block of the system matrix is not positive definite") from None
+    rows = np.broadcast_to(dofs[:, :, None], (n, 3, 3))
+    cols = np.broadcast_to(dofs[:, None, :], (n, 3, 3))
+    lower = np.tril(np.ones((3, 3), dtype=bool))
+    return sps.csr_matrix((factors[:, lower].ravel(), (rows[:, lower].ravel(), cols[:, lower].ravel())), shape=A.shape)
+
+
+def _block_shape(device) -> tuple[int, int]:
+    """``(lanes, rows)`` of the CG kernels' thread blocks: one thread on a CPU without block support."""
+    if device.is_cuda or wp.config.enable_cpu_blocks:
+        return LANES, ROWS_PER_BLOCK
+    return 1, 1
+
+
+def _block_row_arrays(G, dtype, device):
+    """``(offsets, keys, values)`` of a scalar CSR matrix grouped by 3-row blocks (see kernels_cg)."""
+    G = G.tocsr()
+    G.sort_indices()
+    rows = np.repeat(np.arange(G.shape[0]), np.diff(G.indptr))
+    keys = 3 * G.indices.astype(np.int64) + rows % 3
+    if keys.size and keys.max() >= 2**31:
+        raise ValueError("the preconditioner is too large for 32-bit indices")
+    return (
+        wp.array(G.indptr[0::3].astype(np.int32), dtype=wp.int32, device=device),
+        wp.array(keys.astype(np.int32), dtype=wp.int32, device=device),
+        wp.array(G.data, dtype=dtype, device=device),
+    )
 
 
 class CGStepper:
@@ -59,8 +144,7 @@ class CGStepper:
         preconditioner: ``"fsai"`` (adaptive factorised sparse approximate inverse, ``FSAI_ROW_SIZE``),
             ``"block_jacobi"`` (inverse 3x3 diagonal blocks) or ``"diag"`` (Jacobi).
         chunk: Steps per ring buffer of driven input and recorded displacement.
-        use_graph: Capture the step as a graph (CPU capture is supported by Warp, but the CG
-            loop then runs ``maxiter`` iterations unconditionally).
+        use_graph: Capture the step as a graph.
     """
 
     def __init__(
@@ -93,81 +177,80 @@ class CGStepper:
         self.maxiter = int(maxiter)
         self.tol = float(tol)
         self.chunk = int(chunk)
-        vec = wp.types.vector(length=3, dtype=dtype)
+        self._kernels = pcg_kernels(dtype, *_block_shape(dev))
+        vec = self._kernels.vec
         n = matrices.node_count
         self.node_count = n
         self.free_nodes = np.asarray(free_nodes, dtype=np.int64)
         self.driven_nodes = np.asarray(driven_nodes, dtype=np.int64)
         n_free, n_driven = self.free_nodes.size, self.driven_nodes.size
+        self.free_count = n_free
 
         free_index = np.full(n, -1, dtype=np.int32)
         free_index[self.free_nodes] = np.arange(n_free, dtype=np.int32)
         driven_slot = np.full(n, -1, dtype=np.int32)
         driven_slot[self.driven_nodes] = np.arange(n_driven, dtype=np.int32)
+        free_column = np.where(free_index >= 0, np.arange(n, dtype=np.int32), -1)
 
-        # A = K + c0 M + c3 C, then its free/driven blocks and the stacked right-hand-side operator.
+        # A = K + c0 M + c3 C, its free block and the warm-start residual operator P (module docstring).
+        c = [float(x) for x in coeffs]
         A = wps.bsr_copy(matrices.K)
-        wps.bsr_axpy(matrices.M, A, alpha=float(coeffs[0]))
-        wps.bsr_axpy(matrices.C, A, alpha=float(coeffs[3]))
+        wps.bsr_axpy(matrices.M, A, alpha=c[0])
+        wps.bsr_axpy(matrices.C, A, alpha=c[3])
         identity = np.arange(n, dtype=np.int32)
         A_oo = partition_bsr([(A, free_index, 0, 1.0)], free_index, n_free, n_free, device=dev)
-        R = partition_bsr(
-            [(matrices.M, identity, 0, 1.0), (matrices.C, identity, n, 1.0), (A, driven_slot, 2 * n, -1.0)],
-            free_index,
-            n_free,
-            2 * n + n_driven,
-            device=dev,
-        )
+        parts = []
+        for block, (cm, cc, ca) in enumerate(((c[0], c[3], 1.0), (c[1], c[4], c[8]), (c[2], c[5], c[9]))):
+            shift = block * n
+            parts += [(matrices.M, identity, shift, cm), (matrices.C, identity, shift, cc),
+                      (A, free_column, shift, -ca)]
+        parts.append((A, driven_slot, 3 * n, -1.0))
+        P = partition_bsr(parts, free_index, n_free, 3 * n + n_driven, device=dev)
+        G = preconditioner_factor(A_oo, preconditioner)
         if dtype != wp.float64:
             A_oo = wps.bsr_copy(A_oo, scalar_type=dtype)
-            R = wps.bsr_copy(R, scalar_type=dtype)
+            P = wps.bsr_copy(P, scalar_type=dtype)
         A_oo.nnz_sync()
-        R.nnz_sync()
-        self._A_oo, self._R = A_oo, R
-        if preconditioner == "fsai":
-            self._precond = FSAI(A_oo, max_row_size=FSAI_ROW_SIZE)
-        elif preconditioner == "block_jacobi":
-            self._precond = make_preconditioner(A_oo, "block_jacobi_direct")
-        else:
-            self._precond = make_preconditioner(A_oo, "diag")
+        P.nnz_sync()
+        self._A_oo, self._P = A_oo, P
+        self._G = _block_row_arrays(G, dtype, dev)
+        self._GT = _block_row_arrays(G.T, dtype, dev)
 
         # Device state and work arrays (allocated once; the captured graph binds these pointers).
         self._free_index = wp.array(free_index, dtype=wp.int32, device=dev)
         self._driven_slot = wp.array(driven_slot, dtype=wp.int32, device=dev)
-        self._coeffs = wp.array(np.asarray(coeffs), dtype=dtype, device=dev)
+        self._coefficients = np.asarray(coeffs, dtype=np.float64)
+        self._coeffs = wp.array(self._coefficients, dtype=dtype, device=dev)
         self._d = wp.zeros(n, dtype=vec, device=dev)
         self._v = wp.zeros(n, dtype=vec, device=dev)
         self._a = wp.zeros(n, dtype=vec, device=dev)
-        self._stacked = wp.zeros(2 * n + n_driven, dtype=vec, device=dev)
-        self._predicted = wp.zeros(n_free, dtype=vec, device=dev)
-        self._rhs = wp.zeros(n_free, dtype=vec, device=dev)
-        self._delta = wp.zeros(n_free, dtype=vec, device=dev)
+        self._x = wp.zeros(n_free, dtype=vec, device=dev)
+        self._r = wp.zeros((2, n_free), dtype=vec, device=dev)
+        self._p = wp.zeros((2, n_free), dtype=vec, device=dev)
+        self._q = wp.zeros(n_free, dtype=vec, device=dev)
+        self._y = wp.zeros(n_free, dtype=vec, device=dev)
+        self._z = wp.zeros(n_free, dtype=vec, device=dev)
+        # flat scalar views (index 3 node + axis) for the scalar preconditioner factors
+        self._r_flat = self._r.view(dtype).reshape((2, 3 * n_free))
+        self._q_flat = self._q.view(dtype).reshape((3 * n_free,))
+        self._y_flat = self._y.view(dtype).reshape((3 * n_free,))
+        self._history = wp.zeros((2, n_free), dtype=vec, device=dev)
+        self._guess = wp.zeros(n_free, dtype=vec, device=dev)
+        self._slots = wp.zeros((4, self.maxiter + 1, SLOT_SPREAD), dtype=wp.float64, device=dev)
+        self._cg_iter = wp.zeros(2, dtype=wp.int32, device=dev)
+        self._condition = wp.zeros(1, dtype=wp.int32, device=dev)
         self._trajectory = wp.zeros((self.chunk, max(n_driven, 1)), dtype=vec, device=dev)
         self._record = wp.zeros((self.chunk, n), dtype=vec, device=dev)
-        self._counter = wp.zeros(1, dtype=wp.int32, device=dev)
+        self._ring = wp.zeros(2, dtype=wp.int32, device=dev)
         self._step_count = wp.zeros(1, dtype=wp.int32, device=dev)
-        self._status = wp.zeros(4, dtype=wp.int32, device=dev)
+        self._status = wp.zeros(5, dtype=wp.int32, device=dev)
         self._failure = wp.zeros(2, dtype=wp.float64, device=dev)
         pinned = dev.is_cuda
         self._staging_in = wp.zeros((self.chunk, max(n_driven, 1)), dtype=vec, device="cpu", pinned=pinned)
         self._staging_out = wp.zeros((self.chunk, n), dtype=vec, device="cpu", pinned=pinned)
-        self._slot = 0  # host mirror of _counter
+        self._slot = 0  # host mirror of _ring[0]
 
-        self._cg = cg(
-            A_oo,
-            self._rhs,
-            self._delta,
-            tol=self.tol,
-            atol=0.0,
-            maxiter=self.maxiter,
-            M=self._precond,
-            check_every=0,
-            use_cuda_graph=True,
-            run=False,
-        )
-
-        # One eager step loads every kernel (generic overloads included) before capture; the
-        # state it touches is restored afterwards.
+        # One eager step loads every kernel before capture; the state it touches is restored afterwards.
         self._graph = None
         self._launch_sequence()
         self.set_state(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)))
@@ -177,36 +260,41 @@ class CGStepper:
             self._graph = capture.graph
 
     # ------------------------------------------------------------------ the step
+    def _launch_tiled(self, kernel, inputs) -> None:
+        k = self._kernels
+        blocks = -(-self.free_count // k.rows)
+        wp.launch_tiled(kernel, dim=blocks, inputs=inputs, block_dim=k.block_dim, device=self.device)
+
+    def _cg_iterations(self) -> None:
+        k, A, tol_sq = self._kernels, self._A_oo, wp.float64(self.tol**2)
+        for _ in range(UNROLL):
+            self._launch_tiled(k.direction, [A.offsets, A.columns, A.values, self._z, self._p, self._q, self._slots,
+                                             self._cg_iter, self._condition, tol_sq, self.maxiter])
+            self._launch_tiled(k.lower, [*self._G, self._p, self._q, self._q_flat, self._r, self._r_flat, self._x,
+                                         self._y, self._slots, self._cg_iter, tol_sq, self.maxiter])
+            self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq,
+                                         self.maxiter])
+
     def _launch_sequence(self) -> None:
-        dev, n = self.device, self.node_count
-        wp.launch(
-            newmark_predict,
-            dim=n,
-            inputs=[self._d, self._v, self._a, self._free_index, self._driven_slot, self._trajectory,
-                    self._counter, self._coeffs],
-            outputs=[self._stacked, self._predicted],
-            device=dev,
-        )
-        wps.bsr_mv(self._R, self._stacked, self._rhs, alpha=1.0, beta=0.0)
-        wps.bsr_mv(self._A_oo, self._predicted, self._rhs, alpha=-1.0, beta=1.0)
-        self._delta.zero_()
-        iterations, residual_sq, tolerance_sq = self._cg()
-        wp.launch(
-            cg_status,
-            dim=1,
-            inputs=[iterations, residual_sq, tolerance_sq, self._step_count],
-            outputs=[self._status, self._failure],
-            device=dev,
-        )
+        k, P, tol_sq = self._kernels, self._P, wp.float64(self.tol**2)
+        self._slots.zero_()
+        A = self._A_oo
+        self._launch_tiled(k.residual, [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, self._d,
+                                        self._v, self._a, self._trajectory, self._guess, self._ring, self._r, self._x,
+                                        self._slots, self._cg_iter, self._condition])
+        self._launch_tiled(k.lower_start, [*self._G, self._r, self._r_flat, self._x, self._slots, self._y])
+        self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq,
+                                     self.maxiter])
+        wp.capture_while(self._condition, self._cg_iterations)
         wp.launch(
             newmark_update,
-            dim=n,
-            inputs=[self._predicted, self._delta, self._free_index, self._driven_slot, self._trajectory,
-                    self._counter, self._coeffs],
-            outputs=[self._d, self._v, self._a, self._record],
-            device=dev,
+            dim=self.node_count,
+            inputs=[self._x, self._history, self._guess, self._free_index, self._driven_slot, self._trajectory,
+                    self._ring, self._coeffs,
+                    self._slots, self._cg_iter, tol_sq, self.chunk],
+            outputs=[self._d, self._v, self._a, self._record, self._step_count, self._status, self._failure],
+            device=self.device,
         )
-        wp.launch(advance_counter, dim=1, inputs=[self._counter, self._step_count, self.chunk], device=dev)
 
     def _launch_step(self) -> None:
         if self._graph is not None:
@@ -242,7 +330,7 @@ class CGStepper:
         if not 0 < k <= self.chunk:
             raise ValueError(f"run_chunk needs 1..{self.chunk} steps, got {k}")
         self.synchronize()
-        self._counter.zero_()
+        self._ring.zero_()
         self._slot = 0
         width = self._trajectory.shape[1]
         if driven.shape[1]:
@@ -274,6 +362,11 @@ class CGStepper:
         status = self._status.numpy()
         return int(status[2]), int(status[3])
 
+    @property
+    def total_iterations(self) -> int:
+        """CG iterations of all steps since the last state reset (synchronises)."""
+        return int(self._status.numpy()[4])
+
     def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(d, v, a)`` as float64 NumPy arrays, shape (N, 3) each (synchronises, checks status)."""
         self.synchronize()
@@ -282,9 +375,18 @@ class CGStepper:
     def set_state(self, d: np.ndarray, v: np.ndarray, a: np.ndarray) -> None:
         """Replace the state (each (N, 3)) and clear counters and failure status."""
         wp.synchronize_device(self.device)
+        host = np.float64 if self.dtype == wp.float64 else np.float32
+        d, v, a = (np.asarray(x, dtype=np.float64) for x in (d, v, a))
         for dest, src in ((self._d, d), (self._v, v), (self._a, a)):
-            dest.assign(np.asarray(src, dtype=np.float64).astype(np.float64 if self.dtype == wp.float64 else np.float32))
-        self._counter.zero_()
+            dest.assign(src.astype(host))
+        # Increments of a motion with constant acceleration before this state: the first
+        # extrapolated start then equals the Newmark predictor.
+        dt, half_dt_sq = self._coefficients[8], self._coefficients[9]
+        free_v, free_a = v[self.free_nodes], a[self.free_nodes]
+        increments = [dt * free_v - half_dt_sq * free_a, dt * free_v - 3.0 * half_dt_sq * free_a]
+        self._history.assign(np.stack(increments).astype(host))
+        self._guess.zero_()
+        self._ring.zero_()
         self._step_count.zero_()
         self._status.zero_()
         self._failure.zero_()
