@@ -9,6 +9,7 @@ from .embedding import Embedding, embed_points
 from .integrator import ConvergenceError, TissueSimulation
 from .material import DAMPING_MODELS, TissueMaterial
 from .primitives import box_tet_mesh, shell_tet_mesh
+from .proxy import TissueProxy, tissue_proxy
 from .regions import KATO_MODELS, KATO_REGIONS, kato_material_model, kato_regions, landmark_regions
 from .tetmesh import TetMesh, TetQuality
 from .volume import MeshingReport, TissueMeshing, mesh_tissue, tissue_from_surface
@@ -26,6 +27,7 @@ __all__ = [
     "TetQuality",
     "TissueMaterial",
     "TissueMeshing",
+    "TissueProxy",
     "TissueSimulation",
     "assemble",
     "box_tet_mesh",
@@ -36,4 +38,5 @@ __all__ = [
     "mesh_tissue",
     "shell_tet_mesh",
     "tissue_from_surface",
+    "tissue_proxy",
 ]

@@ -16,7 +16,9 @@ soft tissue under it is modelled as a shell of per-vertex thickness ``h`` [m]:
    tip, lip margins); smoothing the directions is the usual remedy, and when it cannot avoid the
    fold — or tilts the directions so far that the shell crosses itself — the thickness is wrong for
    that geometry and a ``ValueError`` says where. Surfaces with cavities (nostrils) or margins that
-   curl into the head need preprocessing first.
+   curl into the head are thickened through a proxy (:func:`warpface.fem.proxy.tissue_proxy`),
+   and ``fair_folds`` lets the mesher relax the coarsened surface locally where its offset still
+   folds or crosses itself.
 3. **Close.** The inner surface (winding reversed, normals out of the tissue) is stitched to the
    outer one along every boundary loop by side quads split into two triangles. The shell is
    checked watertight (every edge used by exactly two triangles, once in each direction) and free
@@ -415,6 +417,94 @@ def _smooth_directions(directions: np.ndarray, edges: np.ndarray) -> np.ndarray:
     return total / np.where(length > 0.0, length, 1.0)
 
 
+def _offset_directions(points: np.ndarray, triangles: np.ndarray, h: np.ndarray, max_smoothing: int):
+    """Offset directions for which no inner triangle flips: ``(directions (V, 3), passes, flipped (T,))``.
+
+    Starts from the vertex normals and smooths them (at most ``max_smoothing`` passes) while any
+    inner triangle is flipped; ``flipped`` is all False on success."""
+    edges = np.unique(np.sort(_directed_edges(triangles), axis=1), axis=0)
+    outer_normals = _triangle_normals(points, triangles)
+    directions = _vertex_normals(points, triangles)
+    iterations = 0
+    while True:
+        inner_normals = _triangle_normals(points - h[:, None] * directions, triangles)
+        flipped = np.einsum("ij,ij->i", inner_normals, outer_normals) <= 0.0
+        if not flipped.any() or iterations >= max_smoothing:
+            return directions, iterations, flipped
+        # smoothing everywhere, not just around the folds: a smoothed patch next to raw normals
+        # leaves a kink in the inner surface that can cross itself (it did on the built-in face's lips)
+        directions = _smooth_directions(directions, edges)
+        iterations += 1
+
+
+def _closed_shell(points: np.ndarray, triangles: np.ndarray, boundary: np.ndarray, inner: np.ndarray):
+    """Outer surface, reversed inner surface and side walls: ``(points (2V, 3), triangles (2T + 2B, 3))``."""
+    n = len(points)
+    # side walls: boundary edge a->b of the outer surface, inner twins a'->b'; the wall traverses
+    # b->a on top and a'->b' at the bottom so every edge is shared with opposite directions
+    a, b = boundary[:, 0], boundary[:, 1]
+    walls = np.concatenate([np.stack([b, a, a + n], axis=1), np.stack([b, a + n, b + n], axis=1)])
+    return np.concatenate([points, inner]), np.concatenate([triangles, triangles[:, ::-1] + n, walls])
+
+
+def _shell_defects(points: np.ndarray, triangles: np.ndarray, h: np.ndarray, max_smoothing: int, device) -> np.ndarray:
+    """Vertices of the outer surface where its offset shell folds or crosses itself (sorted, int64)."""
+    boundary = check_surface(points, triangles, closed=False, name="face surface")
+    directions, _, flipped = _offset_directions(points, triangles, h, max_smoothing)
+    if flipped.any():
+        return np.unique(triangles[flipped])
+    shell_points, shell_triangles = _closed_shell(points, triangles, boundary, points - h[:, None] * directions)
+    _, pairs = find_self_intersections(shell_points, shell_triangles, max_pairs=len(shell_triangles), device=device)
+    t = len(triangles)
+    # the offset parts (inner triangles, side walls) are what crossed; an outer triangle counts only
+    # when it crosses another outer one (the surface itself intersects)
+    outer_pair = (pairs < t).all(axis=1)
+    faces = np.unique(pairs.ravel())
+    faces = faces[(faces >= t) | np.isin(faces, pairs[outer_pair])]
+    inner = faces[(faces >= t) & (faces < 2 * t)] - t
+    walls = faces[faces >= 2 * t] - 2 * t
+    return np.unique(np.concatenate([triangles[faces[faces < t]].ravel(), triangles[inner].ravel(),
+                                     boundary[walls % len(boundary)].ravel()]))
+
+
+def _fair_locally(points: np.ndarray, triangles: np.ndarray, thickness: np.ndarray, vertices: np.ndarray, *,
+                  rings: int = 2, passes: int = 5, step: float = 0.5,
+                  thinning: float = 0.85) -> tuple[np.ndarray, np.ndarray]:
+    """Laplacian smoothing of a surface and its thickness within ``rings`` edge rings of ``vertices``,
+    and the thickness at ``vertices`` scaled by ``thinning``.
+
+    Interior vertices move toward the mean of their neighbours, boundary vertices toward the mean
+    of their two boundary neighbours (the loop is smoothed as a curve, not pulled inward). The
+    thickness is smoothed alike: a thickness sampled from a finer surface can jump between
+    neighbours of a small coarse triangle, which tilts its offset until it flips. Smoothing alone
+    cannot open a gap narrower than the thickness (two sides of an eye corner); thinning does.
+    Returns new ``(points (V, 3), thickness (V,))``."""
+    from scipy.sparse import coo_matrix, diags
+
+    n = len(points)
+    edges = np.unique(np.sort(_directed_edges(triangles), axis=1), axis=0)
+    boundary = np.unique(np.sort(check_surface(points, triangles, closed=False), axis=1), axis=0)
+    on_boundary = np.zeros(n, dtype=np.float64)
+    on_boundary[boundary.ravel()] = 1.0
+
+    def adjacency(e):
+        return coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+
+    graph = adjacency(edges)
+    weights = (diags(1.0 - on_boundary) @ graph + diags(on_boundary) @ adjacency(boundary)).tocsr()
+    degree = np.asarray(weights.sum(axis=1)).ravel()
+    region = np.zeros(n, dtype=bool)
+    region[vertices] = True
+    for _ in range(int(rings)):
+        region |= (graph @ region.astype(np.float64)) > 0.0
+    region &= degree > 0
+    field = np.c_[points, thickness]
+    field[vertices, 3] *= thinning
+    for _ in range(int(passes)):
+        field[region] += step * ((weights @ field)[region] / degree[region, None] - field[region])
+    return field[:, :3], field[:, 3]
+
+
 def offset_shell(
     points,
     triangles,
@@ -459,38 +549,21 @@ def offset_shell(
             f"thickness at vertex {bad[0]} must be finite and > 0 [m], got {h[bad[0]]!r} ({bad.size} such vertices)"
         )
 
-    edges = np.unique(np.sort(_directed_edges(triangles), axis=1), axis=0)
-    outer_normals = _triangle_normals(points, triangles)
-    directions = _vertex_normals(points, triangles)
-    iterations = 0
-    while True:
-        inner = points - h[:, None] * directions
-        inner_normals = _triangle_normals(inner, triangles)
-        flipped = np.einsum("ij,ij->i", inner_normals, outer_normals) <= 0.0
-        if not flipped.any():
-            break
-        if iterations >= max_smoothing:
-            t = int(np.flatnonzero(flipped)[0])
-            tri = triangles[t]
-            centre = points[tri].mean(axis=0)
-            radius = _local_radius(points, triangles, tri)
-            raise ValueError(
-                f"inward offset folds over itself at {int(flipped.sum())} triangles even after {max_smoothing} "
-                f"smoothing passes of the offset directions; first: triangle {t} {tri.tolist()} at "
-                f"{np.round(centre, 5).tolist()} m, thickness {h[tri].max():.4g} m vs local radius of curvature "
-                f"~{radius:.3g} m. Use a smaller thickness there (per-vertex thickness) or raise max_smoothing."
-            )
-        # smoothing everywhere, not just around the folds: a smoothed patch next to raw normals
-        # leaves a kink in the inner surface that can cross itself (it did on the built-in face's lips)
-        directions = _smooth_directions(directions, edges)
-        iterations += 1
+    directions, iterations, flipped = _offset_directions(points, triangles, h, max_smoothing)
+    if flipped.any():
+        t = int(np.flatnonzero(flipped)[0])
+        tri = triangles[t]
+        centre = points[tri].mean(axis=0)
+        radius = _local_radius(points, triangles, tri)
+        raise ValueError(
+            f"inward offset folds over itself at {int(flipped.sum())} triangles even after {max_smoothing} "
+            f"smoothing passes of the offset directions; first: triangle {t} {tri.tolist()} at "
+            f"{np.round(centre, 5).tolist()} m, thickness {h[tri].max():.4g} m vs local radius of curvature "
+            f"~{radius:.3g} m. Use a smaller thickness there (per-vertex thickness) or raise max_smoothing."
+        )
+    inner = points - h[:, None] * directions
 
-    # side walls: boundary edge a->b of the outer surface, inner twins a'->b'; the wall traverses
-    # b->a on top and a'->b' at the bottom so every edge is shared with opposite directions
-    a, b = boundary[:, 0], boundary[:, 1]
-    walls = np.concatenate([np.stack([b, a, a + n], axis=1), np.stack([b, a + n, b + n], axis=1)])
-    shell_points = np.concatenate([points, inner])
-    shell_triangles = np.concatenate([triangles, triangles[:, ::-1] + n, walls])
+    shell_points, shell_triangles = _closed_shell(points, triangles, boundary, inner)
     check_surface(shell_points, shell_triangles, closed=True, name="tissue shell")
     if check_intersections:
         count, pairs = find_self_intersections(shell_points, shell_triangles, device=device)
@@ -572,6 +645,8 @@ class MeshingReport:
     """Total volume of the tets [m^3]."""
     timings: dict = field(default_factory=dict)
     """Seconds per stage: "decimate", "shell", "tetrahedralize", "validate", "total"."""
+    fairing_rounds: int = 0
+    """Rounds of local fairing the coarsened surface needed for a clean shell (``fair_folds``)."""
 
     @property
     def volume_error(self) -> float:
@@ -591,7 +666,8 @@ class MeshingReport:
             f"({self.input_vertices} input, {self.boundary_loops} boundary loops"
             + (f", {self.input_intersections} crossing triangle pairs" if self.input_intersections else "")
             + f"), edge {self.edge_length * 1e3:.2f} mm, "
-            f"thickness {self.thickness_range[0] * 1e3:.2f}..{self.thickness_range[1] * 1e3:.2f} mm; "
+            + (f"{self.fairing_rounds} local fairing rounds, " if self.fairing_rounds else "")
+            + f"thickness {self.thickness_range[0] * 1e3:.2f}..{self.thickness_range[1] * 1e3:.2f} mm; "
             f"dihedral {q.min_dihedral_deg:.2f}..{q.max_dihedral_deg:.2f} deg, {100 * self.sliver_fraction:.2f} % "
             f"below 10 deg, {q.inverted_count} inverted; volume {self.tet_volume:.4e} m^3 "
             f"({100 * self.volume_error:.2f} % from the shell); {t}"
@@ -725,6 +801,7 @@ def mesh_tissue(
     threads: int = 0,
     max_smoothing: int = 200,
     input_intersections: str = "error",
+    fair_folds: int = 0,
     timeout: float | None = 600.0,
     device=None,
 ) -> TissueMeshing:
@@ -794,6 +871,8 @@ def mesh_tissue(
         raise ValueError(f"envelope must be in (0, 0.1) (relative to the bounding-box diagonal), got {envelope}")
     if int(optimize_passes) < 0:
         raise ValueError(f"optimize_passes must be >= 0, got {optimize_passes}")
+    if int(fair_folds) < 0:
+        raise ValueError(f"fair_folds must be >= 0, got {fair_folds}")
 
     t0 = time.perf_counter()
     surface_vertices = int(2.0 * area / (_SQRT3 * edge_length**2))
@@ -812,7 +891,18 @@ def mesh_tissue(
     else:
         coarse_points, coarse_triangles, h = points, triangles, h_fine
     t1 = time.perf_counter()
-    shell = offset_shell(coarse_points, coarse_triangles, h, max_smoothing=max_smoothing, device=device)
+    fairing_rounds = 0
+    while True:
+        try:
+            shell = offset_shell(coarse_points, coarse_triangles, h, max_smoothing=max_smoothing, device=device)
+            break
+        except ValueError:
+            defects = _shell_defects(coarse_points, coarse_triangles, h, max_smoothing, device) if (
+                fairing_rounds < int(fair_folds)) else np.zeros(0, dtype=np.int64)
+            if len(defects) == 0:
+                raise
+            coarse_points, h = _fair_locally(coarse_points, coarse_triangles, h, defects)
+            fairing_rounds += 1
     t2 = time.perf_counter()
 
     nodes, tets = _tetrahedralize(
@@ -848,6 +938,7 @@ def mesh_tissue(
         tet_volume=tetmesh.total_volume,
         timings={"decimate": t1 - t0, "shell": t2 - t1, "tetrahedralize": t3 - t2, "validate": t4 - t3,
                  "total": t4 - start},
+        fairing_rounds=fairing_rounds,
     )
     return TissueMeshing(tetmesh=tetmesh, shell=shell, report=report)
 
