@@ -210,29 +210,26 @@ def write_video(frames: Iterable[np.ndarray], triangles: np.ndarray, path: str |
     """Render each (V, 3) frame and write an MP4 (OpenCV, ``mp4v``) through a temporary file and a rename."""
     import cv2
 
+    from ._files import atomic_path
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.stem}.partial{path.suffix}")
-    writer = cv2.VideoWriter(str(temporary), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), tuple(size))
-    if not writer.isOpened():
-        raise ValueError(f"cannot open a video writer for {path}")
     if progress:
         from tqdm import tqdm
 
         frames = tqdm(frames, desc=f"video {path.name}", unit="frame")
-    try:
-        with PreviewRenderer(triangles, size=size, camera=camera, background=background) as renderer:
-            for index, points in enumerate(frames):
-                image = renderer.render(points)
-                if label:
-                    image = _label(image, f"{label}  frame {index}")
-                writer.write(cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
-    except BaseException:
-        writer.release()
-        temporary.unlink(missing_ok=True)
-        raise
-    writer.release()
-    os.replace(temporary, path)
+    with atomic_path(path, path.suffix) as temporary:
+        writer = cv2.VideoWriter(str(temporary), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), tuple(size))
+        if not writer.isOpened():
+            raise ValueError(f"cannot open a video writer for {path}")
+        try:
+            with PreviewRenderer(triangles, size=size, camera=camera, background=background) as renderer:
+                for index, points in enumerate(frames):
+                    image = renderer.render(points)
+                    if label:
+                        image = _label(image, f"{label}  frame {index}")
+                    writer.write(cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+        finally:
+            writer.release()
     return path
 
 
@@ -240,12 +237,12 @@ def save_image(path: str | Path, image: np.ndarray) -> Path:
     """Write an RGB uint8 image as PNG via a temporary file and a rename."""
     import cv2
 
+    from ._files import atomic_path
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.stem}.partial{path.suffix}")
-    if not cv2.imwrite(str(temporary), cv2.cvtColor(np.asarray(image, dtype=np.uint8), cv2.COLOR_RGB2BGR)):
-        raise ValueError(f"cannot write image {path}")
-    os.replace(temporary, path)
+    with atomic_path(path, path.suffix) as temporary:
+        if not cv2.imwrite(str(temporary), cv2.cvtColor(np.asarray(image, dtype=np.uint8), cv2.COLOR_RGB2BGR)):
+            raise ValueError(f"cannot write image {path}")
     return path
 
 

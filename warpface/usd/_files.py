@@ -7,6 +7,8 @@ from pathlib import Path
 
 from pxr import Sdf, Usd
 
+from .._files import atomic_path
+
 __all__ = ["open_stage", "writable_path", "export_layer_atomically", "LAYER_SUFFIXES"]
 
 LAYER_SUFFIXES = (".usda", ".usdc", ".usd")
@@ -64,14 +66,9 @@ def export_layer_atomically(layer: Sdf.Layer, path: Path) -> None:
     reloaded, so stages holding it see the new content and it is no longer dirty.
     """
     path = Path(path)
-    temporary = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
-    try:
+    with atomic_path(path, path.suffix) as temporary:
         if not layer.Export(str(temporary)):
             raise OSError(f"cannot write {temporary}")
-        os.replace(temporary, path)
-    finally:
-        if temporary.exists():
-            temporary.unlink()
     opened = Sdf.Layer.Find(str(path))
     if opened is not None:
         opened.Reload(force=True)

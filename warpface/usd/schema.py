@@ -21,6 +21,8 @@ import tempfile
 import warnings
 from pathlib import Path
 
+from .._files import atomic_path
+
 __all__ = [
     "PLUGIN_NAME",
     "TYPED_SCHEMAS",
@@ -174,9 +176,8 @@ def regenerate_schema(out_dir: str | Path | None = None, *, source: str | Path |
         written = []
         for name, text in (("generatedSchema.usda", (scratch / "generatedSchema.usda").read_text()), ("plugInfo.json", plug_info)):
             target = out_dir / name
-            temporary = target.with_name(f".{name}.tmp")
-            temporary.write_text(text)
-            os.replace(temporary, target)
+            with atomic_path(target, target.suffix) as temporary:
+                temporary.write_text(text)
             written.append(target)
     return written
 
