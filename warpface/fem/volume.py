@@ -134,32 +134,6 @@ def _self_intersections(
                         pairs[slot] = wp.vec2i(i, j)
 
 
-@wp.kernel
-def _sample_at_closest_points(
-    mesh: wp.uint64,
-    triangles: wp.array(dtype=wp.vec3i),
-    values: wp.array(dtype=wp.float64),
-    queries: wp.array(dtype=wp.vec3d),
-    max_distance: float,
-    sampled: wp.array(dtype=wp.float64),
-    found: wp.array(dtype=wp.int32),
-):
-    """A per-vertex field of a triangle surface, interpolated at the surface point closest to each query."""
-    k = wp.tid()
-    q = queries[k]
-    hit = wp.mesh_query_point_no_sign(mesh, wp.vec3(float(q[0]), float(q[1]), float(q[2])), max_distance)
-    if hit.result:
-        tri = triangles[hit.face]
-        u = wp.float64(hit.u)
-        v = wp.float64(hit.v)
-        w = wp.float64(1.0) - u - v
-        sampled[k] = u * values[tri[0]] + v * values[tri[1]] + w * values[tri[2]]
-        found[k] = 1
-    else:
-        sampled[k] = wp.float64(0.0)
-        found[k] = 0
-
-
 # ---------------------------------------------------------------------------------------------- topology
 
 
@@ -721,36 +695,15 @@ def _decimate(points: np.ndarray, triangles: np.ndarray, target_vertices: int) -
     return out_points[used], remap[out_triangles]
 
 
-class _SurfaceSampler:
-    """A per-vertex field of a fixed triangle surface, read at the closest surface point (``wp.Mesh`` BVH)."""
+def _sample_at_closest_points(points: np.ndarray, triangles: np.ndarray, values: np.ndarray, queries: np.ndarray,
+                              device) -> np.ndarray:
+    """A per-vertex field (V,) of a triangle surface, interpolated at the surface point closest to each
+    query (Q, 3) — the shared BVH closest-point kernel of :func:`warpface.tracking.closest_points`."""
+    from ..tracking.correspondence import closest_points
 
-    def __init__(self, points: np.ndarray, triangles: np.ndarray, values: np.ndarray, device):
-        self.device = wp.get_device(device)
-        tris = np.ascontiguousarray(triangles, dtype=np.int32)
-        self.mesh = wp.Mesh(
-            points=wp.array(points, dtype=wp.vec3, device=self.device),
-            indices=wp.array(tris.ravel(), dtype=wp.int32, device=self.device),
-        )
-        self.triangles = wp.array(tris, dtype=wp.vec3i, device=self.device)
-        self.values = wp.array(np.asarray(values, dtype=np.float64), dtype=wp.float64, device=self.device)
-        self.reach = 2.0 * float(np.ptp(points, axis=0).max())
-
-    def __call__(self, queries: np.ndarray) -> np.ndarray:
-        """Field values (Q,) float64 at the surface points closest to queries (Q, 3)."""
-        n = len(queries)
-        sampled = wp.empty(n, dtype=wp.float64, device=self.device)
-        found = wp.empty(n, dtype=wp.int32, device=self.device)
-        wp.launch(
-            _sample_at_closest_points,
-            dim=n,
-            inputs=[self.mesh.id, self.triangles, self.values,
-                    wp.array(np.asarray(queries, dtype=np.float64), dtype=wp.vec3d, device=self.device), self.reach],
-            outputs=[sampled, found],
-            device=self.device,
-        )
-        if not found.numpy().all():  # cannot happen within twice the surface's extent; never return zeros silently
-            raise ValueError("closest-point sampling: a query point found no surface triangle")
-        return sampled.numpy()
+    triangle, barycentric, _ = closest_points(queries, points, triangles, device=device)
+    corners = np.asarray(triangles)[triangle]
+    return np.sum(barycentric.astype(np.float64) * np.asarray(values, dtype=np.float64)[corners], axis=1)
 
 
 def _remove_ears(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -885,7 +838,7 @@ def mesh_tissue(
                 f"decimation to {len(coarse_points)} vertices changed the surface's boundary loops from "
                 f"{loop_count} to {coarse_loops}; ask for more nodes (target_nodes / edge_length) or decimate=False"
             )
-        h = _SurfaceSampler(points, triangles, h_fine, device)(coarse_points) if np.ptp(h_fine) > 0.0 else (
+        h = _sample_at_closest_points(points, triangles, h_fine, coarse_points, device) if np.ptp(h_fine) > 0.0 else (
             np.full(len(coarse_points), float(h_fine[0]))
         )
     else:
