@@ -97,9 +97,7 @@ def main(argv=None) -> None:
     stage = usd.write_rig(stage_path, rig, fps=fps)
     time_codes = (times - times[0]) * fps  # the recording's own clock, at its native rate
     usd.write_animation(stage, time_codes, contractions=contractions, fps=fps)
-    from warpface.usd._files import export_layer_atomically
-
-    export_layer_atomically(stage.GetRootLayer(), stage_path)
+    usd.export_layer_atomically(stage.GetRootLayer(), stage_path)
     cache = usd.bake(stage, device=args.device)
     print(f"driver: {source}, {fps:g} frames/s")
     print(f"wrote {stage_path} (contractions as time samples) and {cache} (baked points)")

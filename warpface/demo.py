@@ -66,7 +66,6 @@ def run_demo(out_dir: str | Path = "demo", *, device=None, fps: float = 30.0, se
     from . import preview, usd
     from .assets import EXPRESSIONS, default_rig
     from .expression import ExpressionModel
-    from .usd._files import export_layer_atomically
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -82,7 +81,7 @@ def run_demo(out_dir: str | Path = "demo", *, device=None, fps: float = 30.0, se
     stage_path = out / "face.usda"
     stage = usd.write_rig(stage_path, rig, fps=fps)
     usd.write_animation(stage, np.arange(len(contractions), dtype=np.float64), contractions=contractions, fps=fps)
-    export_layer_atomically(stage.GetRootLayer(), stage_path)
+    usd.export_layer_atomically(stage.GetRootLayer(), stage_path)
     model = ExpressionModel.from_rig(rig, device=device)
     cache = usd.bake(stage, model=model, progress=progress)
     timings["usd"] = time.perf_counter() - clock

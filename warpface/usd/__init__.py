@@ -37,6 +37,7 @@ _LAZY = {
     "validate_stage": "validate",
     "ValidationProblem": "validate",
     "open_stage": "_files",
+    "export_layer_atomically": "_files",
 }
 
 __all__ = [
