@@ -1,13 +1,33 @@
 """Warp kernels for per-frame surface quantities: triangle area vectors and vertex normals.
 
-All kernels are launched over ``(frames, elements)`` so one code path serves a single frame and a
-batch of frames. Vertex quantities are *gathered* over the vertex→triangle CSR (no atomics), so
-results are deterministic and identical on CPU and CUDA.
+Frame layout: per-frame quantities live in flat 1-D arrays, frame after frame (``frames × count``),
+and kernels are launched over ``frames × count`` threads. One code path serves a single frame and a
+batch, and every array is 1-D, so Warp's CPU backend compiles the contiguous-array fast path (fixed
+strides, no per-thread unravelling of a 2-D launch). Vertex quantities are *gathered* over the
+vertex→triangle CSR (no atomics), so results are deterministic and identical on CPU and CUDA.
 """
 
 import warp as wp
 
-__all__ = ["triangle_area_vectors", "vertex_normals_kernel", "safe_normalize"]
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
+
+
+
+
+
+__all__ = ["frame_and_element", "triangle_area_vectors", "stretch_reference_lengths", "vertex_normals_kernel", "safe_normalize"]
+
+
+@wp.func
+def frame_and_element(i: int, count: int):
+    """``(frame, element)`` of flat thread index ``i`` over ``frames × count``.
+
+    Frame 0 — the whole single-frame path — takes no integer division.
+    """
+    if i < count:
+        return 0, i
+    frame = i / count
+    return frame, i - frame * count
 
 
 @wp.func
@@ -19,34 +39,63 @@ def safe_normalize(v: wp.vec3) -> wp.vec3:
     return wp.vec3(0.0, 0.0, 0.0)
 
 
+@wp.func
+def triangle_area_vector(points: wp.array(dtype=wp.vec3), first_vertex: int, triangle: wp.vec3i, weight: float):
+    """``weight · (p1 − p0) × (p2 − p0)`` for one triangle of the frame whose points start at ``first_vertex``."""
+    p0 = points[first_vertex + triangle[0]]
+    return weight * wp.cross(points[first_vertex + triangle[1]] - p0, points[first_vertex + triangle[2]] - p0)
+
+
 @wp.kernel
 def triangle_area_vectors(
-    points: wp.array2d(dtype=wp.vec3),
-    triangles: wp.array2d(dtype=wp.int32),
+    points: wp.array(dtype=wp.vec3),
+    triangles: wp.array(dtype=wp.vec3i),
     triangle_weight: wp.array(dtype=wp.float32),
-    area_vectors: wp.array2d(dtype=wp.vec3),
+    vertex_count: int,
+    triangle_count: int,
+    area_vectors: wp.array(dtype=wp.vec3),
 ):
     """``(p1 − p0) × (p2 − p0)`` per triangle and frame: twice the area times the unit normal.
 
-    Ignored (degenerate-at-rest) triangles get weight 0 and so contribute nothing downstream.
+    ``points`` is (frames·V,), ``area_vectors`` (frames·T,). Ignored (degenerate-at-rest) triangles
+    get weight 0 and so contribute nothing downstream.
     """
-    f, t = wp.tid()
-    p0 = points[f, triangles[t, 0]]
-    p1 = points[f, triangles[t, 1]]
-    p2 = points[f, triangles[t, 2]]
-    area_vectors[f, t] = triangle_weight[t] * wp.cross(p1 - p0, p2 - p0)
+    i = wp.tid()
+    f, t = frame_and_element(i, triangle_count)
+    area_vectors[i] = triangle_area_vector(points, f * vertex_count, triangles[t], triangle_weight[t])
+
+
+@wp.kernel
+def stretch_reference_lengths(
+    area_vectors: wp.array(dtype=wp.vec3),
+    triangle_weight: wp.array(dtype=wp.float32),
+    lengths: wp.array(dtype=wp.float32),
+):
+    """``|area vector|`` of counted rest triangles, the denominator of S'/S; 1 for ignored triangles.
+
+    Ignored triangles have zero area vectors in every frame, so their ratio is 0 without a branch.
+    """
+    t = wp.tid()
+    length = float(1.0)
+    if triangle_weight[t] > 0.0:
+        length = wp.length(area_vectors[t])
+    lengths[t] = length
 
 
 @wp.kernel
 def vertex_normals_kernel(
-    area_vectors: wp.array2d(dtype=wp.vec3),
+    area_vectors: wp.array(dtype=wp.vec3),
     adjacency_offsets: wp.array(dtype=wp.int32),
     adjacency_triangles: wp.array(dtype=wp.int32),
-    normals: wp.array2d(dtype=wp.vec3),
+    vertex_count: int,
+    triangle_count: int,
+    normals: wp.array(dtype=wp.vec3),
 ):
-    """Area-weighted unit vertex normal: normalised sum of incident triangles' area vectors."""
-    f, v = wp.tid()
+    """Area-weighted unit vertex normal: normalised sum of incident triangles' area vectors, (frames·V,)."""
+    i = wp.tid()
+    f, v = frame_and_element(i, vertex_count)
+    first = f * triangle_count
     total = wp.vec3(0.0, 0.0, 0.0)
     for k in range(adjacency_offsets[v], adjacency_offsets[v + 1]):
-        total += area_vectors[f, adjacency_triangles[k]]
-    normals[f, v] = safe_normalize(total)
+        total += area_vectors[first + adjacency_triangles[k]]
+    normals[i] = safe_normalize(total)

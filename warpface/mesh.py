@@ -14,7 +14,7 @@ import numpy as np
 import warp as wp
 
 from ._validate import as_finite_array
-from .kernels_surface import triangle_area_vectors, vertex_normals_kernel
+from .kernels_surface import stretch_reference_lengths, triangle_area_vectors, vertex_normals_kernel
 
 __all__ = ["FaceMesh", "VertexTriangleAdjacency", "load_obj", "DEGENERATE_AREA_RTOL"]
 
@@ -168,14 +168,15 @@ class FaceMesh:
         if positions.shape != self.points.shape:
             raise ValueError(f"{self.name}: points must have shape {self.points.shape}, got {positions.shape}")
         buffers = self.device_buffers(device)
-        x = wp.array(positions.astype(np.float32)[None], dtype=wp.vec3, device=device)
-        area_vectors = wp.empty((1, self.triangle_count), dtype=wp.vec3, device=device)
-        normals = wp.empty((1, self.vertex_count), dtype=wp.vec3, device=device)
-        wp.launch(triangle_area_vectors, dim=(1, self.triangle_count), inputs=[x, buffers.triangles, buffers.triangle_weight],
+        counts = [self.vertex_count, self.triangle_count]
+        x = wp.array(positions.astype(np.float32), dtype=wp.vec3, device=device)
+        area_vectors = wp.empty(self.triangle_count, dtype=wp.vec3, device=device)
+        normals = wp.empty(self.vertex_count, dtype=wp.vec3, device=device)
+        wp.launch(triangle_area_vectors, dim=self.triangle_count, inputs=[x, buffers.triangles, buffers.triangle_weight, *counts],
                   outputs=[area_vectors], device=device)
-        wp.launch(vertex_normals_kernel, dim=(1, self.vertex_count),
-                  inputs=[area_vectors, buffers.adjacency_offsets, buffers.adjacency_triangles], outputs=[normals], device=device)
-        return normals.numpy()[0]
+        wp.launch(vertex_normals_kernel, dim=self.vertex_count,
+                  inputs=[area_vectors, buffers.adjacency_offsets, buffers.adjacency_triangles, *counts], outputs=[normals], device=device)
+        return normals.numpy()
 
     def device_buffers(self, device=None) -> "MeshBuffers":
         """Rest geometry uploaded to ``device`` (cached per device)."""
@@ -193,10 +194,10 @@ class MeshBuffers:
     rest_points: wp.array
     """Rest positions, shape (V,), vec3 (float32)."""
     triangles: wp.array
-    """Triangle vertex indices, shape (T, 3), int32."""
-    rest_area_vectors: wp.array
-    """Rest ``(p1 − p0) × (p2 − p0)`` per triangle, shape (T,), vec3, computed by the same kernel as
-    every frame so that an undeformed frame has a stretch ratio of exactly 1."""
+    """Triangle vertex indices, shape (T,), vec3i."""
+    rest_area_lengths: wp.array
+    """Rest ``|(p1 − p0) × (p2 − p0)|`` per counted triangle (1 for ignored ones), shape (T,), float32,
+    computed by the same kernel as every frame so that an undeformed frame has a stretch ratio of exactly 1."""
     triangle_weight: wp.array
     """1 for triangles that count in stretch and normals, 0 for ignored degenerate ones, shape (T,), float32."""
     adjacency_offsets: wp.array
@@ -208,14 +209,17 @@ class MeshBuffers:
     def upload(cls, mesh: FaceMesh, device) -> "MeshBuffers":
         weight = wp.array((~mesh.degenerate_triangles).astype(np.float32), dtype=wp.float32, device=device)
         rest_points = wp.array(mesh.points.astype(np.float32), dtype=wp.vec3, device=device)
-        triangles = wp.array(mesh.triangles, dtype=wp.int32, device=device)
-        area_vectors = wp.empty((1, mesh.triangle_count), dtype=wp.vec3, device=device)
-        wp.launch(triangle_area_vectors, dim=(1, mesh.triangle_count), inputs=[rest_points.reshape((1, -1)), triangles, weight],
+        triangles = wp.array(mesh.triangles.astype(np.int32), dtype=wp.vec3i, device=device)
+        area_vectors = wp.empty(mesh.triangle_count, dtype=wp.vec3, device=device)
+        wp.launch(triangle_area_vectors, dim=mesh.triangle_count,
+                  inputs=[rest_points, triangles, weight, mesh.vertex_count, mesh.triangle_count],
                   outputs=[area_vectors], device=device)
+        lengths = wp.empty(mesh.triangle_count, dtype=wp.float32, device=device)
+        wp.launch(stretch_reference_lengths, dim=mesh.triangle_count, inputs=[area_vectors, weight], outputs=[lengths], device=device)
         return cls(
             rest_points=rest_points,
             triangles=triangles,
-            rest_area_vectors=area_vectors.reshape((-1,)),
+            rest_area_lengths=lengths,
             triangle_weight=weight,
             adjacency_offsets=wp.array(mesh.adjacency.offsets, dtype=wp.int32, device=device),
             adjacency_triangles=wp.array(mesh.adjacency.triangles, dtype=wp.int32, device=device),

@@ -1,4 +1,4 @@
-"""Per-frame Warp kernels of the expression model (SPEC §1), launched over ``(frames, elements)``.
+"""Per-frame Warp kernels of the expression model (SPEC §1), launched over ``frames × elements``.
 
 The sequence for one frame is::
 
@@ -8,13 +8,21 @@ The sequence for one frame is::
     triangle_area_vectors(x2)                                   (triangles)
     apply_wrinkles     x3 = x2 + Σ k_d·s·C(r)·N(x2)             (vertices)
 
+Per-frame arrays are flat, frame after frame (the layout of :mod:`warpface.kernels_surface`):
+points (frames·V,), triangle values (frames·T,), contractions (frames·M,), depths (frames·W,).
 Inputs come first and outputs last in every signature; nothing allocates, so the sequence can be
 captured in a CUDA graph.
 """
 
 import warp as wp
 
-from ..kernels_surface import safe_normalize
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
+
+
+
+
+
+from ..kernels_surface import frame_and_element, safe_normalize, triangle_area_vector
 
 __all__ = ["apply_muscles", "triangle_stretch", "stretch_and_bulge", "apply_wrinkles", "contraction_factor", "STRETCH_FLOOR"]
 
@@ -38,97 +46,107 @@ def apply_muscles(
     offsets: wp.array(dtype=wp.int32),
     muscle: wp.array(dtype=wp.int32),
     weight: wp.array(dtype=wp.vec3),
-    contraction: wp.array2d(dtype=wp.float32),
-    muscle_points: wp.array2d(dtype=wp.vec3),
+    contraction: wp.array(dtype=wp.float32),
+    muscle_count: int,
+    vertex_count: int,
+    muscle_points: wp.array(dtype=wp.vec3),
 ):
     """x1 = x_rest + Σ_m K_m · w_m(x_rest) over the muscles that reach the vertex."""
-    f, v = wp.tid()
+    i = wp.tid()
+    f, v = frame_and_element(i, vertex_count)
+    first = f * muscle_count
     x = rest[v]
     for k in range(offsets[v], offsets[v + 1]):
-        x += contraction[f, muscle[k]] * weight[k]
-    muscle_points[f, v] = x
+        x += contraction[first + muscle[k]] * weight[k]
+    muscle_points[i] = x
 
 
 @wp.kernel
 def triangle_stretch(
-    points: wp.array2d(dtype=wp.vec3),
-    triangles: wp.array2d(dtype=wp.int32),
+    points: wp.array(dtype=wp.vec3),
+    triangles: wp.array(dtype=wp.vec3i),
     triangle_weight: wp.array(dtype=wp.float32),
-    rest_area_vectors: wp.array(dtype=wp.vec3),
-    area_vectors: wp.array2d(dtype=wp.vec3),
-    area_ratio: wp.array2d(dtype=wp.float32),
+    rest_area_lengths: wp.array(dtype=wp.float32),
+    vertex_count: int,
+    triangle_count: int,
+    stretch_terms: wp.array(dtype=wp.vec4),
 ):
-    """Per triangle: ``(p1 − p0) × (p2 − p0)`` and the area ratio S'/S (0 for ignored triangles)."""
-    f, t = wp.tid()
-    p0 = points[f, triangles[t, 0]]
-    weight = triangle_weight[t]
-    av = weight * wp.cross(points[f, triangles[t, 1]] - p0, points[f, triangles[t, 2]] - p0)
-    area_vectors[f, t] = av
-    ratio = float(0.0)
-    if weight > 0.0:
-        ratio = wp.length(av) / wp.length(rest_area_vectors[t])
-    area_ratio[f, t] = ratio
+    """Per triangle: ``(p1 − p0) × (p2 − p0)`` in xyz and the area ratio S'/S in w (0 for ignored triangles).
+
+    One packed vec4 per triangle: the vertex pass that consumes it reads one 16-byte value per neighbour.
+    """
+    i = wp.tid()
+    f, t = frame_and_element(i, triangle_count)
+    av = triangle_area_vector(points, f * vertex_count, triangles[t], triangle_weight[t])
+    stretch_terms[i] = wp.vec4(av[0], av[1], av[2], wp.length(av) / rest_area_lengths[t])
 
 
 @wp.kernel
 def stretch_and_bulge(
-    muscle_points: wp.array2d(dtype=wp.vec3),
-    area_vectors: wp.array2d(dtype=wp.vec3),
-    area_ratio: wp.array2d(dtype=wp.float32),
+    muscle_points: wp.array(dtype=wp.vec3),
+    stretch_terms: wp.array(dtype=wp.vec4),
     counts: wp.array(dtype=wp.float32),
     adjacency_offsets: wp.array(dtype=wp.int32),
     adjacency_triangles: wp.array(dtype=wp.int32),
     thickness: wp.array(dtype=wp.float32),
-    stretch: wp.array2d(dtype=wp.float32),
-    bulge_points: wp.array2d(dtype=wp.vec3),
+    vertex_count: int,
+    triangle_count: int,
+    stretch: wp.array(dtype=wp.float32),
+    bulge_points: wp.array(dtype=wp.vec3),
 ):
     """Stretch ratio r (eq. 1: mean of S'/S over incident triangles) and the bulge x1 + (1/r − 1)·h·N(x1).
 
     ``counts`` is the number of counted (non-degenerate) incident triangles; a vertex with none has r = 1.
     """
-    f, v = wp.tid()
-    ratio_sum = float(0.0)
-    normal_sum = wp.vec3(0.0, 0.0, 0.0)
+    i = wp.tid()
+    f, v = frame_and_element(i, vertex_count)
+    first = f * triangle_count
+    total = wp.vec4(0.0, 0.0, 0.0, 0.0)
     for k in range(adjacency_offsets[v], adjacency_offsets[v + 1]):
-        t = adjacency_triangles[k]
-        normal_sum += area_vectors[f, t]
-        ratio_sum += area_ratio[f, t]
+        total += stretch_terms[first + adjacency_triangles[k]]
     r = float(1.0)
     if counts[v] > 0.0:
-        r = ratio_sum / counts[v]
-    stretch[f, v] = r
+        r = total[3] / counts[v]
+    stretch[i] = r
     growth = 1.0 / wp.max(r, STRETCH_FLOOR) - 1.0
-    bulge_points[f, v] = muscle_points[f, v] + (growth * thickness[v]) * safe_normalize(normal_sum)
+    normal = safe_normalize(wp.vec3(total[0], total[1], total[2]))
+    bulge_points[i] = muscle_points[i] + (growth * thickness[v]) * normal
 
 
 @wp.kernel
 def apply_wrinkles(
-    bulge_points: wp.array2d(dtype=wp.vec3),
-    area_vectors: wp.array2d(dtype=wp.vec3),
+    bulge_points: wp.array(dtype=wp.vec3),
+    area_vectors: wp.array(dtype=wp.vec3),
     adjacency_offsets: wp.array(dtype=wp.int32),
     adjacency_triangles: wp.array(dtype=wp.int32),
-    stretch: wp.array2d(dtype=wp.float32),
+    stretch: wp.array(dtype=wp.float32),
     offsets: wp.array(dtype=wp.int32),
     wrinkle: wp.array(dtype=wp.int32),
     shape: wp.array(dtype=wp.float32),
     kr: wp.array(dtype=wp.float32),
-    depth: wp.array2d(dtype=wp.float32),
-    final_points: wp.array2d(dtype=wp.vec3),
+    depth: wp.array(dtype=wp.float32),
+    wrinkle_count: int,
+    vertex_count: int,
+    triangle_count: int,
+    final_points: wp.array(dtype=wp.vec3),
 ):
     """x3 = x2 + Σ_w k_d·s_w·C_w(r)·N(x2), with s_w = (d/k_w − 1)·exp(−d/k_w) precomputed."""
-    f, v = wp.tid()
-    x = bulge_points[f, v]
+    i = wp.tid()
+    f, v = frame_and_element(i, vertex_count)
+    x = bulge_points[i]
     begin = offsets[v]
     end = offsets[v + 1]
     if begin == end:
-        final_points[f, v] = x
+        final_points[i] = x
         return
+    first_triangle = f * triangle_count
     normal_sum = wp.vec3(0.0, 0.0, 0.0)
     for k in range(adjacency_offsets[v], adjacency_offsets[v + 1]):
-        normal_sum += area_vectors[f, adjacency_triangles[k]]
-    r = stretch[f, v]
+        normal_sum += area_vectors[first_triangle + adjacency_triangles[k]]
+    r = stretch[i]
+    first_wrinkle = f * wrinkle_count
     height = float(0.0)
     for k in range(begin, end):
         w = wrinkle[k]
-        height += depth[f, w] * shape[k] * contraction_factor(r, kr[w])
-    final_points[f, v] = x + height * safe_normalize(normal_sum)
+        height += depth[first_wrinkle + w] * shape[k] * contraction_factor(r, kr[w])
+    final_points[i] = x + height * safe_normalize(normal_sum)

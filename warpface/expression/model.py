@@ -41,19 +41,29 @@ class ExpressionStages:
 
 
 class _FrameBuffers:
-    """Device work arrays for ``frames`` frames at once (allocated once, reused)."""
+    """Device work arrays for ``frames`` frames at once, flat frame after frame (allocated once, reused)."""
 
     def __init__(self, frames: int, vertex_count: int, triangle_count: int, muscle_count: int, wrinkle_count: int, device):
         self.frames = frames
-        self.contraction = wp.zeros((frames, max(muscle_count, 1)), dtype=wp.float32, device=device)
-        self.depth = wp.zeros((frames, max(wrinkle_count, 1)), dtype=wp.float32, device=device)
-        self.muscle_points = wp.empty((frames, vertex_count), dtype=wp.vec3, device=device)
-        self.area_vectors = wp.empty((frames, triangle_count), dtype=wp.vec3, device=device)
-        self.area_ratio = wp.empty((frames, triangle_count), dtype=wp.float32, device=device)
-        self.stretch = wp.empty((frames, vertex_count), dtype=wp.float32, device=device)
-        self.bulge_points = wp.empty((frames, vertex_count), dtype=wp.vec3, device=device)
-        self.final_points = wp.empty((frames, vertex_count), dtype=wp.vec3, device=device)
+        self.muscle_width = max(muscle_count, 1)
+        self.wrinkle_width = max(wrinkle_count, 1)
+        self.contraction = wp.zeros(frames * self.muscle_width, dtype=wp.float32, device=device)
+        self.depth = wp.zeros(frames * self.wrinkle_width, dtype=wp.float32, device=device)
+        self.muscle_points = wp.empty(frames * vertex_count, dtype=wp.vec3, device=device)
+        self.area_vectors = wp.empty(frames * triangle_count, dtype=wp.vec3, device=device)
+        self.stretch_terms = wp.empty(frames * triangle_count, dtype=wp.vec4, device=device)
+        self.stretch = wp.empty(frames * vertex_count, dtype=wp.float32, device=device)
+        self.bulge_points = wp.empty(frames * vertex_count, dtype=wp.vec3, device=device)
+        self.final_points = wp.empty(frames * vertex_count, dtype=wp.vec3, device=device)
+        self.launches: list[wp.Launch] = []
+        """The frame's kernel launches, recorded once (CPU: replayed without re-packing arguments)."""
         self.graph = None
+        """The same sequence captured as a CUDA graph (CUDA only)."""
+
+    def frame_rows(self, array: wp.array, count: int, width: int) -> np.ndarray:
+        """The first ``count`` frames of a flat per-frame array as host numpy, shape (count, width, ...)."""
+        values = array.numpy()[: count * width]
+        return values.reshape((count, width) + values.shape[1:])
 
 
 class ExpressionModel:
@@ -158,15 +168,16 @@ class ExpressionModel:
             wp.capture_launch(buffers.graph)
         else:
             self._launch(buffers)
+        # .numpy() of a CPU array is a view of the reused buffer: hand out copies.
+        vertices = self.mesh.vertex_count
         if stages:
-            # .numpy() of a CPU array is a view of the reused buffer: hand out copies.
             return ExpressionStages(
-                muscle=buffers.muscle_points.numpy()[0].copy(),
-                stretch=buffers.stretch.numpy()[0].copy(),
-                bulge=buffers.bulge_points.numpy()[0].copy(),
-                final=buffers.final_points.numpy()[0].copy(),
+                muscle=buffers.frame_rows(buffers.muscle_points, 1, vertices)[0].copy(),
+                stretch=buffers.frame_rows(buffers.stretch, 1, vertices)[0].copy(),
+                bulge=buffers.frame_rows(buffers.bulge_points, 1, vertices)[0].copy(),
+                final=buffers.frame_rows(buffers.final_points, 1, vertices)[0].copy(),
             )
-        return buffers.final_points.numpy()[0].copy()
+        return buffers.frame_rows(buffers.final_points, 1, vertices)[0].copy()
 
     def evaluate_batch(self, contractions, *, wrinkle_depths=None, progress: bool = False) -> np.ndarray:
         """Deformed positions for many frames at once.
@@ -200,7 +211,7 @@ class ExpressionModel:
             count = stop - start
             self._upload(buffers, controls[start:stop], depths[start:stop])
             self._launch(buffers)
-            result[start:stop] = buffers.final_points.numpy()[:count]
+            result[start:stop] = buffers.frame_rows(buffers.final_points, count, self.mesh.vertex_count)
         return result
 
     # ------------------------------------------------------------------ internals
@@ -212,34 +223,50 @@ class ExpressionModel:
         return self._buffers[frames]
 
     def _upload(self, buffers: _FrameBuffers, contraction: np.ndarray, depth: np.ndarray) -> None:
-        """Copy (count, M) contractions and (count, W) depths into the first rows of ``buffers``."""
-        for target, values in ((buffers.contraction, contraction), (buffers.depth, depth)):
-            host = np.zeros(target.shape, dtype=np.float32)
+        """Copy (count, M) contractions and (count, W) depths into the first frames of ``buffers``."""
+        for target, values, width in ((buffers.contraction, contraction, buffers.muscle_width),
+                                      (buffers.depth, depth, buffers.wrinkle_width)):
+            host = np.zeros((buffers.frames, width), dtype=np.float32)
             host[: values.shape[0], : values.shape[1]] = values
-            target.assign(host)
+            target.assign(host.ravel())
 
     def _launch(self, buffers: _FrameBuffers) -> None:
+        """Run the frame's five kernels over all of ``buffers``' frames (recorded on first use)."""
+        if not buffers.launches:
+            buffers.launches = self._record_launches(buffers)
+        for launch in buffers.launches:
+            launch.launch()
+
+    def _record_launches(self, buffers: _FrameBuffers) -> list:
         mesh = self._mesh_buffers
-        vertices = (buffers.frames, self.mesh.vertex_count)
-        triangles = (buffers.frames, self.mesh.triangle_count)
+        frames, vertex_count, triangle_count = buffers.frames, self.mesh.vertex_count, self.mesh.triangle_count
+        vertices, triangles = frames * vertex_count, frames * triangle_count
+        counts = [vertex_count, triangle_count]
         device = self.device
-        wp.launch(apply_muscles, dim=vertices, device=device,
-                  inputs=[mesh.rest_points, self._muscle_offsets, self._muscle_index, self._muscle_weight, buffers.contraction],
-                  outputs=[buffers.muscle_points])
-        wp.launch(triangle_stretch, dim=triangles, device=device,
-                  inputs=[buffers.muscle_points, mesh.triangles, mesh.triangle_weight, mesh.rest_area_vectors],
-                  outputs=[buffers.area_vectors, buffers.area_ratio])
-        wp.launch(stretch_and_bulge, dim=vertices, device=device,
-                  inputs=[buffers.muscle_points, buffers.area_vectors, buffers.area_ratio, self._counts,
-                          mesh.adjacency_offsets, mesh.adjacency_triangles, self._thickness],
-                  outputs=[buffers.stretch, buffers.bulge_points])
-        wp.launch(triangle_area_vectors, dim=triangles, device=device,
-                  inputs=[buffers.bulge_points, mesh.triangles, mesh.triangle_weight], outputs=[buffers.area_vectors])
-        wp.launch(apply_wrinkles, dim=vertices, device=device,
-                  inputs=[buffers.bulge_points, buffers.area_vectors, mesh.adjacency_offsets, mesh.adjacency_triangles,
-                          buffers.stretch, self._wrinkle_offsets, self._wrinkle_index, self._wrinkle_shape, self._wrinkle_kr,
-                          buffers.depth],
-                  outputs=[buffers.final_points])
+
+        def record(kernel, dim, inputs, outputs):
+            return wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device, record_cmd=True)
+
+        return [
+            record(apply_muscles, vertices,
+                   [mesh.rest_points, self._muscle_offsets, self._muscle_index, self._muscle_weight, buffers.contraction,
+                    buffers.muscle_width, vertex_count],
+                   [buffers.muscle_points]),
+            record(triangle_stretch, triangles,
+                   [buffers.muscle_points, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, *counts],
+                   [buffers.stretch_terms]),
+            record(stretch_and_bulge, vertices,
+                   [buffers.muscle_points, buffers.stretch_terms, self._counts,
+                    mesh.adjacency_offsets, mesh.adjacency_triangles, self._thickness, *counts],
+                   [buffers.stretch, buffers.bulge_points]),
+            record(triangle_area_vectors, triangles,
+                   [buffers.bulge_points, mesh.triangles, mesh.triangle_weight, *counts], [buffers.area_vectors]),
+            record(apply_wrinkles, vertices,
+                   [buffers.bulge_points, buffers.area_vectors, mesh.adjacency_offsets, mesh.adjacency_triangles,
+                    buffers.stretch, self._wrinkle_offsets, self._wrinkle_index, self._wrinkle_shape, self._wrinkle_kr,
+                    buffers.depth, buffers.wrinkle_width, *counts],
+                   [buffers.final_points]),
+        ]
 
     @staticmethod
     def _frame_controls(values, to_vector, width: int, label: str) -> np.ndarray:
