@@ -45,6 +45,7 @@ class _FrameBuffers:
 
     def __init__(self, frames: int, vertex_count: int, triangle_count: int, muscle_count: int, wrinkle_count: int, device):
         self.frames = frames
+        self.device = device
         self.muscle_width = max(muscle_count, 1)
         self.wrinkle_width = max(wrinkle_count, 1)
         self.contraction = wp.zeros(frames * self.muscle_width, dtype=wp.float32, device=device)
@@ -59,10 +60,37 @@ class _FrameBuffers:
         """The frame's kernel launches, recorded once (CPU: replayed without re-packing arguments)."""
         self.graph = None
         """The same sequence captured as a CUDA graph (CUDA only)."""
+        # Controls are written on the host: on the CPU straight into the kernels' arrays (numpy views
+        # share their memory), on CUDA into pinned staging arrays copied up before each launch.
+        staging = device.is_cuda
+        self._control_pairs = [
+            (array, wp.zeros(array.shape, dtype=wp.float32, device="cpu", pinned=True) if staging else array, width)
+            for array, width in ((self.contraction, self.muscle_width), (self.depth, self.wrinkle_width))
+        ]
+        self._control_views = [host.numpy().reshape(frames, width) for _, host, width in self._control_pairs]
+        self._host_views: dict[int, np.ndarray] = {}
+
+    def upload_controls(self, contraction: np.ndarray, depth: np.ndarray) -> None:
+        """Write (count, M) contractions and (count, W) depths into the first frames; later frames get 0."""
+        for view, values in zip(self._control_views, (contraction, depth)):
+            view[: values.shape[0], : values.shape[1]] = values
+            view[values.shape[0]:] = 0.0
+        for array, host, _ in self._control_pairs:
+            if host is not array:
+                wp.copy(array, host)
 
     def frame_rows(self, array: wp.array, count: int, width: int) -> np.ndarray:
-        """The first ``count`` frames of a flat per-frame array as host numpy, shape (count, width, ...)."""
-        values = array.numpy()[: count * width]
+        """The first ``count`` frames of a flat per-frame array as host numpy, shape (count, width, ...).
+
+        On the CPU this is a view of the reused buffer (callers copy what they hand out).
+        """
+        if self.device.is_cpu:
+            values = self._host_views.get(id(array))
+            if values is None:
+                values = self._host_views[id(array)] = array.numpy()
+        else:
+            values = array.numpy()
+        values = values[: count * width]
         return values.reshape((count, width) + values.shape[1:])
 
 
@@ -159,7 +187,7 @@ class ExpressionModel:
             Final positions, shape (V, 3), float32 — or the stages.
         """
         buffers = self._single
-        self._upload(buffers, self.contraction_vector(contractions)[None], self.depth_vector(wrinkle_depths)[None])
+        buffers.upload_controls(self.contraction_vector(contractions)[None], self.depth_vector(wrinkle_depths)[None])
         if self.device.is_cuda:
             if buffers.graph is None:
                 with wp.ScopedCapture(device=self.device) as capture:
@@ -209,7 +237,7 @@ class ExpressionModel:
         for start in starts:
             stop = min(start + chunk, frame_count)
             count = stop - start
-            self._upload(buffers, controls[start:stop], depths[start:stop])
+            buffers.upload_controls(controls[start:stop], depths[start:stop])
             self._launch(buffers)
             result[start:stop] = buffers.frame_rows(buffers.final_points, count, self.mesh.vertex_count)
         return result
@@ -221,14 +249,6 @@ class ExpressionModel:
                 frames, self.mesh.vertex_count, self.mesh.triangle_count, len(self.muscles), len(self.wrinkles), self.device
             )
         return self._buffers[frames]
-
-    def _upload(self, buffers: _FrameBuffers, contraction: np.ndarray, depth: np.ndarray) -> None:
-        """Copy (count, M) contractions and (count, W) depths into the first frames of ``buffers``."""
-        for target, values, width in ((buffers.contraction, contraction, buffers.muscle_width),
-                                      (buffers.depth, depth, buffers.wrinkle_width)):
-            host = np.zeros((buffers.frames, width), dtype=np.float32)
-            host[: values.shape[0], : values.shape[1]] = values
-            target.assign(host.ravel())
 
     def _launch(self, buffers: _FrameBuffers) -> None:
         """Run the frame's five kernels over all of ``buffers``' frames (recorded on first use)."""
