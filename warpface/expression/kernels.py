@@ -56,8 +56,11 @@ def apply_muscles(
     f, v = frame_and_element(i, vertex_count)
     first = f * muscle_count
     x = rest[v]
-    for k in range(offsets[v], offsets[v + 1]):
+    k = offsets[v]
+    end = offsets[v + 1]
+    while k < end:
         x += contraction[first + muscle[k]] * weight[k]
+        k += 1
     muscle_points[i] = x
 
 
@@ -102,8 +105,11 @@ def stretch_and_bulge(
     f, v = frame_and_element(i, vertex_count)
     first = f * triangle_count
     total = wp.vec4(0.0, 0.0, 0.0, 0.0)
-    for k in range(adjacency_offsets[v], adjacency_offsets[v + 1]):
+    k = adjacency_offsets[v]
+    end = adjacency_offsets[v + 1]
+    while k < end:
         total += stretch_terms[first + adjacency_triangles[k]]
+        k += 1
     r = float(1.0)
     if counts[v] > 0.0:
         r = total[3] / counts[v]
@@ -141,12 +147,17 @@ def apply_wrinkles(
         return
     first_triangle = f * triangle_count
     normal_sum = wp.vec3(0.0, 0.0, 0.0)
-    for k in range(adjacency_offsets[v], adjacency_offsets[v + 1]):
+    k = adjacency_offsets[v]
+    adjacency_end = adjacency_offsets[v + 1]
+    while k < adjacency_end:
         normal_sum += area_vectors[first_triangle + adjacency_triangles[k]]
+        k += 1
     r = stretch[i]
     first_wrinkle = f * wrinkle_count
     height = float(0.0)
-    for k in range(begin, end):
+    k = begin
+    while k < end:
         w = wrinkle[k]
         height += depth[first_wrinkle + w] * shape[k] * contraction_factor(r, kr[w])
+        k += 1
     final_points[i] = x + height * safe_normalize(normal_sum)
