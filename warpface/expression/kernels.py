@@ -24,10 +24,39 @@ wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 from ..kernels_surface import frame_and_element, safe_normalize, triangle_area_vector
 
-__all__ = ["apply_muscles", "triangle_stretch", "stretch_and_bulge", "apply_wrinkles", "contraction_factor", "STRETCH_FLOOR"]
+__all__ = [
+    "MuscleEntry",
+    "WrinkleEntry",
+    "apply_muscles",
+    "triangle_stretch",
+    "stretch_and_bulge",
+    "apply_wrinkles",
+    "contraction_factor",
+    "STRETCH_FLOOR",
+]
 
 STRETCH_FLOOR = wp.constant(1.0e-4)
 """Lower bound on ``r`` before ``1/r`` in the bulge: fully collapsed skin stays finite."""
+
+
+@wp.struct
+class MuscleEntry:
+    """One muscle's pull on one vertex (a row entry of the vertex → muscle CSR), packed for one load."""
+
+    weight: wp.vec3
+    """Displacement per unit contraction [mesh units]."""
+    muscle: wp.int32
+    """Index of the muscle (column of the contraction row)."""
+
+
+@wp.struct
+class WrinkleEntry:
+    """One furrow's profile at one vertex (a row entry of the vertex → wrinkle CSR), packed for one load."""
+
+    wrinkle: wp.int32
+    """Index of the wrinkle (column of the depth row)."""
+    shape: wp.float32
+    """``s = (d/k_w − 1)·exp(−d/k_w)`` at the vertex's distance d to the furrow."""
 
 
 @wp.func
@@ -44,8 +73,7 @@ def contraction_factor(r: float, kr: float):
 def apply_muscles(
     rest: wp.array(dtype=wp.vec3),
     offsets: wp.array(dtype=wp.int32),
-    muscle: wp.array(dtype=wp.int32),
-    weight: wp.array(dtype=wp.vec3),
+    entries: wp.array(dtype=MuscleEntry),
     contraction: wp.array(dtype=wp.float32),
     muscle_count: int,
     vertex_count: int,
@@ -59,7 +87,8 @@ def apply_muscles(
     k = offsets[v]
     end = offsets[v + 1]
     while k < end:
-        x += contraction[first + muscle[k]] * weight[k]
+        entry = entries[k]
+        x += contraction[first + entry.muscle] * entry.weight
         k += 1
     muscle_points[i] = x
 
@@ -127,8 +156,7 @@ def apply_wrinkles(
     adjacency_triangles: wp.array(dtype=wp.int32),
     stretch: wp.array(dtype=wp.float32),
     offsets: wp.array(dtype=wp.int32),
-    wrinkle: wp.array(dtype=wp.int32),
-    shape: wp.array(dtype=wp.float32),
+    entries: wp.array(dtype=WrinkleEntry),
     kr: wp.array(dtype=wp.float32),
     depth: wp.array(dtype=wp.float32),
     wrinkle_count: int,
@@ -157,7 +185,8 @@ def apply_wrinkles(
     height = float(0.0)
     k = begin
     while k < end:
-        w = wrinkle[k]
-        height += depth[first_wrinkle + w] * shape[k] * contraction_factor(r, kr[w])
+        entry = entries[k]
+        w = entry.wrinkle
+        height += depth[first_wrinkle + w] * entry.shape * contraction_factor(r, kr[w])
         k += 1
     final_points[i] = x + height * safe_normalize(normal_sum)

@@ -10,7 +10,7 @@ import warp as wp
 
 from ..kernels_surface import triangle_area_vectors
 from ..mesh import FaceMesh
-from .kernels import apply_muscles, apply_wrinkles, stretch_and_bulge, triangle_stretch
+from .kernels import MuscleEntry, WrinkleEntry, apply_muscles, apply_wrinkles, stretch_and_bulge, triangle_stretch
 from .muscles import LinearMuscle, Muscle, SphincterMuscle, muscle_weights
 from .thickness import validate_thickness
 from .wrinkles import Wrinkle, wrinkle_shapes
@@ -143,11 +143,9 @@ class ExpressionModel:
         self.wrinkle_entry_count = int(len(shapes.wrinkle))
         device_ = self.device
         self._muscle_offsets = wp.array(weights.offsets, dtype=wp.int32, device=device_)
-        self._muscle_index = wp.array(_non_empty(weights.muscle, np.int32), dtype=wp.int32, device=device_)
-        self._muscle_weight = wp.array(_non_empty(weights.weight.reshape(-1, 3), np.float32, (1, 3)), dtype=wp.vec3, device=device_)
+        self._muscle_entries = _entry_array(MuscleEntry, device_, muscle=weights.muscle, weight=weights.weight.reshape(-1, 3))
         self._wrinkle_offsets = wp.array(shapes.offsets, dtype=wp.int32, device=device_)
-        self._wrinkle_index = wp.array(_non_empty(shapes.wrinkle, np.int32), dtype=wp.int32, device=device_)
-        self._wrinkle_shape = wp.array(_non_empty(shapes.shape, np.float32), dtype=wp.float32, device=device_)
+        self._wrinkle_entries = _entry_array(WrinkleEntry, device_, wrinkle=shapes.wrinkle, shape=shapes.shape)
         self._wrinkle_kr = wp.array(_non_empty(np.array([w.kr for w in self.wrinkles]), np.float32), dtype=wp.float32, device=device_)
         counted = np.bincount(mesh.triangles[~mesh.degenerate_triangles].ravel(), minlength=mesh.vertex_count)
         self._counts = wp.array(counted.astype(np.float32), dtype=wp.float32, device=device_)
@@ -269,7 +267,7 @@ class ExpressionModel:
 
         return [
             record(apply_muscles, vertices,
-                   [mesh.rest_points, self._muscle_offsets, self._muscle_index, self._muscle_weight, buffers.contraction,
+                   [mesh.rest_points, self._muscle_offsets, self._muscle_entries, buffers.contraction,
                     buffers.muscle_width, vertex_count],
                    [buffers.muscle_points]),
             record(triangle_stretch, triangles,
@@ -283,7 +281,7 @@ class ExpressionModel:
                    [buffers.bulge_points, mesh.triangles, mesh.triangle_weight, *counts], [buffers.area_vectors]),
             record(apply_wrinkles, vertices,
                    [buffers.bulge_points, buffers.area_vectors, mesh.adjacency_offsets, mesh.adjacency_triangles,
-                    buffers.stretch, self._wrinkle_offsets, self._wrinkle_index, self._wrinkle_shape, self._wrinkle_kr,
+                    buffers.stretch, self._wrinkle_offsets, self._wrinkle_entries, self._wrinkle_kr,
                     buffers.depth, buffers.wrinkle_width, *counts],
                    [buffers.final_points]),
         ]
@@ -330,6 +328,15 @@ def _control_vector(values, names: list[str], default: np.ndarray, label: str, k
     if len(bad):
         raise ValueError(f"{label} for {kind} {names[bad[0]]!r}: non-finite value {array[bad[0]]}")
     return array
+
+
+def _entry_array(struct, device, **fields: np.ndarray) -> wp.array:
+    """A Warp array of ``struct`` entries from per-field numpy columns (one unused zero entry if empty)."""
+    count = len(next(iter(fields.values())))
+    packed = np.zeros(max(count, 1), dtype=struct.numpy_dtype())
+    for name, values in fields.items():
+        packed[name][:count] = values
+    return wp.array(packed, dtype=struct, device=device)
 
 
 def _non_empty(values: np.ndarray, dtype, shape=(1,)) -> np.ndarray:
