@@ -57,6 +57,8 @@ class WrinkleEntry:
     """Index of the wrinkle (column of the depth row)."""
     shape: wp.float32
     """``s = (d/k_w − 1)·exp(−d/k_w)`` at the vertex's distance d to the furrow."""
+    kr: wp.float32
+    """The wrinkle's k_r (repeated per entry: saves a dependent load per entry)."""
 
 
 @wp.func
@@ -157,7 +159,6 @@ def apply_wrinkles(
     stretch: wp.array(dtype=wp.float32),
     offsets: wp.array(dtype=wp.int32),
     entries: wp.array(dtype=WrinkleEntry),
-    kr: wp.array(dtype=wp.float32),
     depth: wp.array(dtype=wp.float32),
     wrinkle_count: int,
     vertex_count: int,
@@ -186,7 +187,6 @@ def apply_wrinkles(
     k = begin
     while k < end:
         entry = entries[k]
-        w = entry.wrinkle
-        height += depth[first_wrinkle + w] * entry.shape * contraction_factor(r, kr[w])
+        height += depth[first_wrinkle + entry.wrinkle] * entry.shape * contraction_factor(r, entry.kr)
         k += 1
     final_points[i] = x + height * safe_normalize(normal_sum)

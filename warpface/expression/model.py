@@ -145,8 +145,10 @@ class ExpressionModel:
         self._muscle_offsets = wp.array(weights.offsets, dtype=wp.int32, device=device_)
         self._muscle_entries = _entry_array(MuscleEntry, device_, muscle=weights.muscle, weight=weights.weight.reshape(-1, 3))
         self._wrinkle_offsets = wp.array(shapes.offsets, dtype=wp.int32, device=device_)
-        self._wrinkle_entries = _entry_array(WrinkleEntry, device_, wrinkle=shapes.wrinkle, shape=shapes.shape)
-        self._wrinkle_kr = wp.array(_non_empty(np.array([w.kr for w in self.wrinkles]), np.float32), dtype=wp.float32, device=device_)
+        wrinkle_kr = np.array([w.kr for w in self.wrinkles], dtype=np.float32)
+        self._wrinkle_entries = _entry_array(
+            WrinkleEntry, device_, wrinkle=shapes.wrinkle, shape=shapes.shape, kr=wrinkle_kr[shapes.wrinkle] if len(shapes.wrinkle) else []
+        )
         counted = np.bincount(mesh.triangles[~mesh.degenerate_triangles].ravel(), minlength=mesh.vertex_count)
         self._counts = wp.array(counted.astype(np.float32), dtype=wp.float32, device=device_)
         self._thickness = wp.array(self.thickness.astype(np.float32), dtype=wp.float32, device=device_)
@@ -281,7 +283,7 @@ class ExpressionModel:
                    [buffers.bulge_points, mesh.triangles, mesh.triangle_weight, *counts], [buffers.area_vectors]),
             record(apply_wrinkles, vertices,
                    [buffers.bulge_points, buffers.area_vectors, mesh.adjacency_offsets, mesh.adjacency_triangles,
-                    buffers.stretch, self._wrinkle_offsets, self._wrinkle_entries, self._wrinkle_kr,
+                    buffers.stretch, self._wrinkle_offsets, self._wrinkle_entries,
                     buffers.depth, buffers.wrinkle_width, *counts],
                    [buffers.final_points]),
         ]
