@@ -72,14 +72,24 @@ def test_every_stage_matches_float64_reference(seed):
     assert np.all(np.isfinite(got.final))
 
 
-def test_batch_equals_single_frames(rng):
+@pytest.mark.parametrize("frames_per_launch", [None, 1, 2, 5])
+def test_batch_equals_single_frames(rng, frames_per_launch):
+    """Several frames per launch (the CUDA default, a partial last chunk with 2) equal single frames bit for bit."""
     mesh, muscles, wrinkles, thickness, contractions, *_ = random_rig(rng, n=12)
     model = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device="cpu")
     frames = np.outer(np.linspace(0, 1, 5), contractions)
     depths = np.outer(np.linspace(1, 2, 5), model.default_depths)
-    batch = model.evaluate_batch(frames, wrinkle_depths=depths)
+    batch = model.evaluate_batch(frames, wrinkle_depths=depths, frames_per_launch=frames_per_launch)
     for i in range(5):
         np.testing.assert_array_equal(batch[i], model.evaluate(frames[i], wrinkle_depths=depths[i]))
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5, "2"])
+def test_frames_per_launch_must_be_positive_integer(rng, bad):
+    mesh, muscles, wrinkles, thickness, contractions, *_ = random_rig(rng, n=6)
+    model = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device="cpu")
+    with pytest.raises(ValueError, match="frames_per_launch"):
+        model.evaluate_batch(contractions[None], frames_per_launch=bad)
 
 
 def test_named_contractions_equal_ordered_array(rng):

@@ -18,7 +18,9 @@ from .wrinkles import Wrinkle, wrinkle_shapes
 __all__ = ["ExpressionModel", "ExpressionStages"]
 
 _MAX_BATCH_VERTICES = 1 << 22
-"""A batched call processes frames in chunks of at most this many frame·vertices (bounded memory)."""
+"""On CUDA a batched call processes frames in chunks of at most this many frame·vertices (bounded
+memory). On the CPU, where kernels run serially, a chunk is one frame: its working set stays in cache
+(64 frames of the 9.4k-vertex face: 0.65 ms/frame one at a time, 0.74 in chunks of 2–8, 1.05 in one chunk)."""
 
 
 @dataclass(frozen=True)
@@ -207,13 +209,17 @@ class ExpressionModel:
             )
         return buffers.frame_rows(buffers.final_points, 1, vertices)[0].copy()
 
-    def evaluate_batch(self, contractions, *, wrinkle_depths=None, progress: bool = False) -> np.ndarray:
+    def evaluate_batch(
+        self, contractions, *, wrinkle_depths=None, progress: bool = False, frames_per_launch: int | None = None
+    ) -> np.ndarray:
         """Deformed positions for many frames at once.
 
         Args:
             contractions: shape (F, M) in muscle order, or a sequence of F mappings.
             wrinkle_depths: ``None``, shape (F, W), or a sequence of F mappings.
-            progress: show a progress bar over chunks of frames.
+            progress: show a progress bar over the frames.
+            frames_per_launch: frames evaluated by one launch of the kernels; default 1 on the CPU
+                (cache-friendly) and as many as fit in 2²² frame·vertices on CUDA.
 
         Returns:
             Positions, shape (F, V, 3), float32.
@@ -226,20 +232,30 @@ class ExpressionModel:
             depths = self._frame_controls(wrinkle_depths, self.depth_vector, len(self.wrinkles), "wrinkle_depths")
             if len(depths) != frame_count:
                 raise ValueError(f"wrinkle_depths: {len(depths)} frames, contractions have {frame_count}")
-        chunk = max(1, min(frame_count, _MAX_BATCH_VERTICES // max(self.mesh.vertex_count, 1)))
+        if frames_per_launch is None:
+            chunk = 1 if self.device.is_cpu else _MAX_BATCH_VERTICES // max(self.mesh.vertex_count, 1)
+        elif isinstance(frames_per_launch, (int, np.integer)) and frames_per_launch >= 1:
+            chunk = int(frames_per_launch)
+        else:
+            raise ValueError(f"frames_per_launch: expected a positive integer, got {frames_per_launch!r}")
+        chunk = max(1, min(frame_count, chunk))
         buffers = self._frame_buffers(chunk)
         result = np.empty((frame_count, self.mesh.vertex_count, 3), dtype=np.float32)
-        starts = range(0, frame_count, chunk)
+        bar = None
         if progress:
             from tqdm import tqdm
 
-            starts = tqdm(starts, desc="expression frames", unit="chunk")
-        for start in starts:
+            bar = tqdm(total=frame_count, desc="expression frames", unit="frame")
+        for start in range(0, frame_count, chunk):
             stop = min(start + chunk, frame_count)
             count = stop - start
             buffers.upload_controls(controls[start:stop], depths[start:stop])
             self._launch(buffers)
             result[start:stop] = buffers.frame_rows(buffers.final_points, count, self.mesh.vertex_count)
+            if bar is not None:
+                bar.update(count)
+        if bar is not None:
+            bar.close()
         return result
 
     # ------------------------------------------------------------------ internals
