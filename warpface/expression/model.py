@@ -71,6 +71,7 @@ class _FrameBuffers:
         ]
         self._control_views = [host.numpy().reshape(frames, width) for _, host, width in self._control_pairs]
         self._host_views: dict[int, np.ndarray] = {}
+        """Zero-copy numpy views of CPU buffers (the read-back copies out of them)."""
 
     def upload_controls(self, contraction: np.ndarray, depth: np.ndarray) -> None:
         """Write (count, M) contractions and (count, W) depths into the first frames; later frames get 0."""
@@ -81,19 +82,26 @@ class _FrameBuffers:
             if host is not array:
                 wp.copy(array, host)
 
-    def frame_rows(self, array: wp.array, count: int, width: int) -> np.ndarray:
-        """The first ``count`` frames of a flat per-frame array as host numpy, shape (count, width, ...).
+    def read_frames(self, array: wp.array, count: int, out: np.ndarray | None = None) -> np.ndarray:
+        """Copy the first ``count`` frames of a flat per-frame array to the host.
 
-        On the CPU this is a view of the reused buffer (callers copy what they hand out).
+        Returns ``out`` (or a new array) of shape (count, elements) for float32 arrays or
+        (count, elements, 3) for vec3 arrays. On CUDA the device-to-host copy lands in ``out`` directly (no second copy).
         """
+        per_frame = array.shape[0] // self.frames
+        inner = (3,) if array.dtype == wp.vec3 else ()
+        if out is None:
+            out = np.empty((count, per_frame) + inner, dtype=np.float32)
         if self.device.is_cpu:
-            values = self._host_views.get(id(array))
-            if values is None:
-                values = self._host_views[id(array)] = array.numpy()
+            view = self._host_views.get(id(array))
+            if view is None:
+                view = self._host_views[id(array)] = array.numpy()
+            out[...] = view[: count * per_frame].reshape(out.shape)
         else:
-            values = array.numpy()
-        values = values[: count * width]
-        return values.reshape((count, width) + values.shape[1:])
+            target = wp.array(out.reshape((count * per_frame,) + inner), dtype=array.dtype, device="cpu", copy=False)
+            wp.copy(target, array, count=count * per_frame)
+            wp.synchronize_device(self.device)
+        return out
 
 
 class ExpressionModel:
@@ -198,16 +206,14 @@ class ExpressionModel:
             wp.capture_launch(buffers.graph)
         else:
             self._launch(buffers)
-        # .numpy() of a CPU array is a view of the reused buffer: hand out copies.
-        vertices = self.mesh.vertex_count
         if stages:
             return ExpressionStages(
-                muscle=buffers.frame_rows(buffers.muscle_points, 1, vertices)[0].copy(),
-                stretch=buffers.frame_rows(buffers.stretch, 1, vertices)[0].copy(),
-                bulge=buffers.frame_rows(buffers.bulge_points, 1, vertices)[0].copy(),
-                final=buffers.frame_rows(buffers.final_points, 1, vertices)[0].copy(),
+                muscle=buffers.read_frames(buffers.muscle_points, 1)[0],
+                stretch=buffers.read_frames(buffers.stretch, 1)[0],
+                bulge=buffers.read_frames(buffers.bulge_points, 1)[0],
+                final=buffers.read_frames(buffers.final_points, 1)[0],
             )
-        return buffers.frame_rows(buffers.final_points, 1, vertices)[0].copy()
+        return buffers.read_frames(buffers.final_points, 1)[0]
 
     def evaluate_batch(
         self, contractions, *, wrinkle_depths=None, progress: bool = False, frames_per_launch: int | None = None
@@ -251,7 +257,7 @@ class ExpressionModel:
             count = stop - start
             buffers.upload_controls(controls[start:stop], depths[start:stop])
             self._launch(buffers)
-            result[start:stop] = buffers.frame_rows(buffers.final_points, count, self.mesh.vertex_count)
+            buffers.read_frames(buffers.final_points, count, out=result[start:stop])
             if bar is not None:
                 bar.update(count)
         if bar is not None:
