@@ -140,7 +140,7 @@ def run_case(label: str, mesh: wf.FaceMesh, device, quick: bool) -> dict:
     big = mesh.vertex_count > 200_000
     repeats = 3 if (quick or big) else 20
     warp_s = time_call(lambda: model.evaluate(contractions), repeats=repeats, min_seconds=0.0 if quick else 0.5)
-    numpy_s = time_call(lambda: numpy_model.frame(contractions, depths), repeats=repeats, warmup=1)
+    numpy_s = time_call(lambda: numpy_model.frame(contractions, depths), repeats=repeats, warmup=1, min_seconds=0.0 if quick else 0.5)
     device_s = None
     if model.device.is_cuda:
         graph = model._single.graph
