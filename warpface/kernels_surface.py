@@ -9,11 +9,8 @@ vertex→triangle CSR (no atomics), so results are deterministic and identical o
 
 import warp as wp
 
+# Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
-
-
-
-
 
 __all__ = ["frame_and_element", "triangle_area_vectors", "stretch_reference_lengths", "vertex_normals_kernel", "safe_normalize"]
 

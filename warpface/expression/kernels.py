@@ -16,13 +16,10 @@ captured in a CUDA graph.
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False, "optimization_level": 3})
-
-
-
-
-
 from ..kernels_surface import frame_and_element, safe_normalize, triangle_area_vector
+
+# Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 __all__ = [
     "MuscleEntry",
