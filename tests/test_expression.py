@@ -84,6 +84,14 @@ def test_batch_equals_single_frames(rng, frames_per_launch):
         np.testing.assert_array_equal(batch[i], model.evaluate(frames[i], wrinkle_depths=depths[i]))
 
 
+def test_frames_per_launch_beyond_32_bit_thread_indices_is_refused(rng):
+    mesh, muscles, wrinkles, thickness, contractions, *_ = random_rig(rng, n=6)
+    model = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device="cpu")
+    too_many = (1 << 31) // mesh.triangle_count + 1
+    with pytest.raises(ValueError, match="exceeds one launch"):
+        model.evaluate_batch(contractions[None], frames_per_launch=too_many)
+
+
 @pytest.mark.parametrize("bad", [0, -1, 1.5, "2"])
 def test_frames_per_launch_must_be_positive_integer(rng, bad):
     mesh, muscles, wrinkles, thickness, contractions, *_ = random_rig(rng, n=6)

@@ -17,6 +17,9 @@ from .wrinkles import Wrinkle, wrinkle_shapes
 
 __all__ = ["ExpressionModel", "ExpressionStages"]
 
+_MAX_LAUNCH_THREADS = (1 << 31) - 1
+"""Kernels index flat frames × elements arrays with 32-bit thread indices."""
+
 _MAX_BATCH_VERTICES = 1 << 22
 """On CUDA a batched call processes frames in chunks of at most this many frame·vertices (bounded
 memory). On the CPU, where kernels run serially, a chunk is one frame: its working set stays in cache
@@ -230,6 +233,18 @@ class ExpressionModel:
         Returns:
             Positions, shape (F, V, 3), float32.
         """
+        elements = max(self.mesh.vertex_count, self.mesh.triangle_count, 1)
+        if frames_per_launch is None:
+            chunk = 1 if self.device.is_cpu else _MAX_BATCH_VERTICES // max(self.mesh.vertex_count, 1)
+        elif isinstance(frames_per_launch, (int, np.integer)) and frames_per_launch >= 1:
+            chunk = int(frames_per_launch)
+            if chunk * elements > _MAX_LAUNCH_THREADS:
+                raise ValueError(
+                    f"frames_per_launch: {chunk} frames × {elements:,} elements exceeds one launch's "
+                    f"{_MAX_LAUNCH_THREADS:,} threads; use at most {_MAX_LAUNCH_THREADS // elements}"
+                )
+        else:
+            raise ValueError(f"frames_per_launch: expected a positive integer, got {frames_per_launch!r}")
         controls = self._frame_controls(contractions, self.contraction_vector, len(self.muscles), "contractions")
         frame_count = len(controls)
         if wrinkle_depths is None:
@@ -238,12 +253,6 @@ class ExpressionModel:
             depths = self._frame_controls(wrinkle_depths, self.depth_vector, len(self.wrinkles), "wrinkle_depths")
             if len(depths) != frame_count:
                 raise ValueError(f"wrinkle_depths: {len(depths)} frames, contractions have {frame_count}")
-        if frames_per_launch is None:
-            chunk = 1 if self.device.is_cpu else _MAX_BATCH_VERTICES // max(self.mesh.vertex_count, 1)
-        elif isinstance(frames_per_launch, (int, np.integer)) and frames_per_launch >= 1:
-            chunk = int(frames_per_launch)
-        else:
-            raise ValueError(f"frames_per_launch: expected a positive integer, got {frames_per_launch!r}")
         chunk = max(1, min(frame_count, chunk))
         buffers = self._frame_buffers(chunk)
         result = np.empty((frame_count, self.mesh.vertex_count, 3), dtype=np.float32)
