@@ -278,3 +278,52 @@ def test_tet_validation_orients_and_rejects():
         _validated_tets(flat, degenerate, volume)
     with pytest.raises(ValueError, match="not filled correctly"):
         _validated_tets(box.points, box.tets[: len(box.tets) // 2], volume)
+
+
+def _with_degenerate_tet(nodes, tets):
+    """fTetWild's output plus one zero-volume tet (a node at the midpoint of an edge of tet 0)."""
+    a, b, c = tets[0][:3]
+    nodes = np.r_[nodes, [(nodes[a] + nodes[b]) / 2]]
+    return nodes, np.r_[tets, [[a, b, len(nodes) - 1, c]]]
+
+
+def test_a_rejected_ftetwild_run_is_retried(tmp_path, monkeypatch):
+    """fTetWild is not deterministic; a run that leaves degenerate tets is repeated, not fatal."""
+    import warpface.fem.volume as volume
+
+    monkeypatch.chdir(tmp_path)
+    real = volume._tetrahedralize
+    calls = []
+
+    def first_run_degenerate(points, triangles, **options):
+        calls.append(1)
+        nodes, tets = real(points, triangles, **options)
+        return _with_degenerate_tet(nodes, tets) if len(calls) == 1 else (nodes, tets)
+
+    monkeypatch.setattr(volume, "_tetrahedralize", first_run_degenerate)
+    points, triangles = patch(11, size=0.04, bend=8.0)
+    result = mesh_tissue((points, triangles), 0.006, target_nodes=400, device="cpu")
+    assert len(calls) == 2 and result.report.tetwild_runs == 2
+    assert "2 fTetWild runs" in str(result.report)
+    assert np.all(tet_signed_volumes(result.tetmesh.points, result.tetmesh.tets) > 0.0)
+
+
+def test_ftetwild_gives_up_after_the_last_attempt(tmp_path, monkeypatch):
+    import warpface.fem.volume as volume
+
+    monkeypatch.chdir(tmp_path)
+    real = volume._tetrahedralize
+    outputs = []
+
+    def always_degenerate(points, triangles, **options):
+        if not outputs:
+            outputs.append(real(points, triangles, **options))
+        else:
+            outputs.append(outputs[0])
+        return _with_degenerate_tet(*outputs[0])
+
+    monkeypatch.setattr(volume, "_tetrahedralize", always_degenerate)
+    points, triangles = patch(11, size=0.04, bend=8.0)
+    with pytest.raises(ValueError, match=rf"degenerate.*after {volume.TETWILD_ATTEMPTS} fTetWild runs"):
+        mesh_tissue((points, triangles), 0.006, target_nodes=400, device="cpu")
+    assert len(outputs) == volume.TETWILD_ATTEMPTS

@@ -621,6 +621,8 @@ class MeshingReport:
     """Seconds per stage: "decimate", "shell", "tetrahedralize", "validate", "total"."""
     fairing_rounds: int = 0
     """Rounds of local fairing the coarsened surface needed for a clean shell (``fair_folds``)."""
+    tetwild_runs: int = 1
+    """fTetWild runs it took to get tets that pass validation (see ``TETWILD_ATTEMPTS``)."""
 
     @property
     def volume_error(self) -> float:
@@ -641,6 +643,7 @@ class MeshingReport:
             + (f", {self.input_intersections} crossing triangle pairs" if self.input_intersections else "")
             + f"), edge {self.edge_length * 1e3:.2f} mm, "
             + (f"{self.fairing_rounds} local fairing rounds, " if self.fairing_rounds else "")
+            + (f"{self.tetwild_runs} fTetWild runs, " if self.tetwild_runs > 1 else "")
             + f"thickness {self.thickness_range[0] * 1e3:.2f}..{self.thickness_range[1] * 1e3:.2f} mm; "
             f"dihedral {q.min_dihedral_deg:.2f}..{q.max_dihedral_deg:.2f} deg, {100 * self.sliver_fraction:.2f} % "
             f"below 10 deg, {q.inverted_count} inverted; volume {self.tet_volume:.4e} m^3 "
@@ -858,9 +861,8 @@ def mesh_tissue(
             fairing_rounds += 1
     t2 = time.perf_counter()
 
-    nodes, tets = _tetrahedralize(
-        shell.points,
-        shell.triangles,
+    tetmesh, tetwild_runs = _tetrahedralize_validated(
+        shell,
         edge_length_abs=edge_length,
         epsilon=float(envelope),
         optimize=int(optimize_passes) > 0,
@@ -872,7 +874,6 @@ def mesh_tissue(
         timeout=timeout,
     )
     t3 = time.perf_counter()
-    tetmesh = _validated_tets(np.asarray(nodes, dtype=np.float64), np.asarray(tets, dtype=np.int64), shell.volume)
     quality = tetmesh.quality()
     t4 = time.perf_counter()
     report = MeshingReport(
@@ -892,6 +893,7 @@ def mesh_tissue(
         timings={"decimate": t1 - t0, "shell": t2 - t1, "tetrahedralize": t3 - t2, "validate": t4 - t3,
                  "total": t4 - start},
         fairing_rounds=fairing_rounds,
+        tetwild_runs=tetwild_runs,
     )
     return TissueMeshing(tetmesh=tetmesh, shell=shell, report=report)
 
@@ -904,6 +906,25 @@ data = np.load("shell.npz")
 nodes, tets = pytetwild.tetrahedralize(data["points"], data["triangles"], **json.loads(sys.argv[1]))
 np.savez("tets.npz", nodes=nodes, tets=tets)
 """
+
+
+TETWILD_ATTEMPTS = 3
+"""fTetWild runs before :func:`mesh_tissue` gives up on tets that fail validation.
+
+fTetWild is not deterministic: about one run in 40 on a small test patch leaves a few zero-volume
+(degenerate) tets, and a second run of the same shell does not."""
+
+
+def _tetrahedralize_validated(shell, **options) -> tuple[TetMesh, int]:
+    """fTetWild on the shell until its tets pass :func:`_validated_tets`; returns the mesh and the runs taken."""
+    for run in range(1, TETWILD_ATTEMPTS + 1):
+        nodes, tets = _tetrahedralize(shell.points, shell.triangles, **options)
+        try:
+            return _validated_tets(np.asarray(nodes, dtype=np.float64), np.asarray(tets, dtype=np.int64), shell.volume), run
+        except ValueError as exc:
+            if run == TETWILD_ATTEMPTS:
+                raise ValueError(f"{exc} (after {TETWILD_ATTEMPTS} fTetWild runs)") from None
+    raise AssertionError("unreachable")
 
 
 def _tetrahedralize(points: np.ndarray, triangles: np.ndarray, *, timeout: float | None, **options):
