@@ -89,7 +89,8 @@ class _FrameBuffers:
         """Copy the first ``count`` frames of a flat per-frame array to the host.
 
         Returns ``out`` (or a new array) of shape (count, elements) for float32 arrays or
-        (count, elements, 3) for vec3 arrays. On CUDA the device-to-host copy lands in ``out`` directly (no second copy).
+        (count, elements, 3) for vec3 arrays. On CUDA the device-to-host copy lands in ``out``
+        directly (no second copy).
         """
         per_frame = array.shape[0] // self.frames
         inner = (3,) if array.dtype == wp.vec3 else ()
@@ -159,9 +160,7 @@ class ExpressionModel:
         self._muscle_entries = _entry_array(MuscleEntry, device_, muscle=weights.muscle, weight=weights.weight.reshape(-1, 3))
         self._wrinkle_offsets = wp.array(shapes.offsets, dtype=wp.int32, device=device_)
         wrinkle_kr = np.array([w.kr for w in self.wrinkles], dtype=np.float32)
-        self._wrinkle_entries = _entry_array(
-            WrinkleEntry, device_, wrinkle=shapes.wrinkle, shape=shapes.shape, kr=wrinkle_kr[shapes.wrinkle] if len(shapes.wrinkle) else []
-        )
+        self._wrinkle_entries = _entry_array(WrinkleEntry, device_, wrinkle=shapes.wrinkle, shape=shapes.shape, kr=wrinkle_kr[shapes.wrinkle])
         counted = np.bincount(mesh.triangles[~mesh.degenerate_triangles].ravel(), minlength=mesh.vertex_count)
         self._counts = wp.array(counted.astype(np.float32), dtype=wp.float32, device=device_)
         self._thickness = wp.array(self.thickness.astype(np.float32), dtype=wp.float32, device=device_)
@@ -370,9 +369,3 @@ def _entry_array(struct, device, **fields: np.ndarray) -> wp.array:
     for name, values in fields.items():
         packed[name][:count] = values
     return wp.array(packed, dtype=struct, device=device)
-
-
-def _non_empty(values: np.ndarray, dtype, shape=(1,)) -> np.ndarray:
-    """Warp arrays cannot be empty on every path; pad an empty table with one unused zero entry."""
-    values = np.asarray(values, dtype=dtype)
-    return values if len(values) else np.zeros(shape, dtype=dtype)
