@@ -281,10 +281,10 @@ def test_tet_validation_orients_and_rejects():
 
 
 def _with_degenerate_tet(nodes, tets):
-    """fTetWild's output plus one zero-volume tet (a node at the midpoint of an edge of tet 0)."""
+    """fTetWild's output plus one tet of exactly zero volume (its fourth node a copy of its first)."""
     a, b, c = tets[0][:3]
-    nodes = np.r_[nodes, [(nodes[a] + nodes[b]) / 2]]
-    return nodes, np.r_[tets, [[a, b, len(nodes) - 1, c]]]
+    nodes = np.r_[nodes, nodes[a][None]]
+    return nodes, np.r_[tets, [[a, b, c, len(nodes) - 1]]]
 
 
 def test_a_rejected_ftetwild_run_is_retried(tmp_path, monkeypatch):
