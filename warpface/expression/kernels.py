@@ -17,7 +17,7 @@ both step signs and costs about twice as much per entry on the CPU.
 
 import warp as wp
 
-from ..kernels_surface import frame_and_element, safe_normalize, triangle_area_vector
+from ..kernels_surface import frame_and_element, incident_area_sum, safe_normalize, triangle_area_vector
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -172,13 +172,7 @@ def apply_wrinkles(
     if begin == end:
         final_points[i] = x
         return
-    first_triangle = f * triangle_count
-    normal_sum = wp.vec3(0.0, 0.0, 0.0)
-    k = adjacency_offsets[v]
-    adjacency_end = adjacency_offsets[v + 1]
-    while k < adjacency_end:
-        normal_sum += area_vectors[first_triangle + adjacency_triangles[k]]
-        k += 1
+    normal_sum = incident_area_sum(area_vectors, f * triangle_count, adjacency_offsets, adjacency_triangles, v)
     r = stretch[i]
     first_wrinkle = f * wrinkle_count
     height = float(0.0)
