@@ -13,7 +13,7 @@ a 68-landmark solve touches ~1.5k of the built-in face's 9.4k vertices. Every st
 of the formulas the Warp kernels evaluate (same stretch floor, same degenerate-triangle weights), so
 ``x3`` agrees with :class:`~warpface.ExpressionModel` to float32 rounding. Arrays carry a frame axis
 second — values ``(n, F, 3)``, derivatives ``(n, F, 3, M)`` — so many frames evaluate in one pass and
-the incidence sums are single sparse products.
+the incidence sums are single sparse products; results are returned frame-first.
 """
 
 from __future__ import annotations
@@ -145,30 +145,32 @@ class LocalExpression:
         local2[s2] = np.arange(len(s2))
         local1 = np.full(len(ops.rest), -1, dtype=np.int64)
         local1[s1] = np.arange(len(s1))
-        self._s1_in_s2 = local2[s1]
-        self._s0_in_s1 = local1[s0]
-        self._t1 = local2[ops.triangles[t1]]
-        self._t1_weight = ops.triangle_weight[t1]
-        self._t1_length = ops.rest_length[t1]
-        self._t0 = local1[ops.triangles[t0]]
-        self._t0_weight = ops.triangle_weight[t0]
-        self._incidence1 = sp.csr_matrix(ops.incidence[s1][:, t1])
-        self._incidence0 = sp.csr_matrix(ops.incidence[s0][:, t0])
-        self._counts1 = ops.incident_counts[s1]
-        self._thickness1 = ops.thickness[s1]
+        self.s1_in_s2 = local2[s1]
+        self.s0_in_s1 = local1[s0]
+        self.triangles1 = local2[ops.triangles[t1]]
+        self.triangle_weight1 = ops.triangle_weight[t1]
+        self.rest_length1 = ops.rest_length[t1]
+        self.triangles0 = local1[ops.triangles[t0]]
+        self.triangle_weight0 = ops.triangle_weight[t0]
+        self.incidence1 = sp.csr_matrix(ops.incidence[s1][:, t1])
+        self.incidence0 = sp.csr_matrix(ops.incidence[s0][:, t0])
+        self.counts1 = ops.incident_counts[s1]
+        self.thickness1 = ops.thickness[s1]
         rows = (3 * s2[:, None] + np.arange(3)[None, :]).ravel()
         field = ops.muscle_field[rows].toarray().reshape(len(s2), 3, self.control_count)
-        self._rest2 = ops.rest[s2]
-        self._field2 = sp.csr_matrix(field.reshape(len(s2) * 3, self.control_count))
+        self.rest2 = ops.rest[s2]
+        self.field2 = field
+        """``W`` on the neighbourhood, (n2, 3, M)."""
+        self._field_matrix = sp.csr_matrix(field.reshape(len(s2) * 3, self.control_count))
         self._dx1 = field[:, None]  # (n2, 1, 3, M): constant in the controls and the same for every frame
-        self._profile0 = ops.wrinkle_profile[s0].toarray()
-        self._kr = ops.wrinkle_kr
-        self._wrinkled0 = np.flatnonzero(np.any(self._profile0 != 0.0, axis=1))
+        self.profile0 = ops.wrinkle_profile[s0].toarray()
+        self.kr = ops.wrinkle_kr
+        self._wrinkled0 = np.flatnonzero(np.any(self.profile0 != 0.0, axis=1))
 
     @property
     def reach(self) -> int:
         """Vertices the evaluation touches (the two rings around the targets)."""
-        return len(self._rest2)
+        return len(self.rest2)
 
     def evaluate(self, controls: np.ndarray, *, jacobian: bool = True):
         """Final positions at ``vertices`` for each frame, and their derivatives.
@@ -178,71 +180,71 @@ class LocalExpression:
             jacobian: also return ``∂x3/∂c``.
 
         Returns:
-            ``x3`` (n, F, 3) and, with ``jacobian``, ``∂x3/∂c`` (n, F, 3, M) — else ``None``.
+            ``x3`` (F, n, 3) and, with ``jacobian``, ``∂x3/∂c`` (F, n, 3, M) — else ``None``.
         """
         controls = np.asarray(controls, dtype=np.float64)
         frames = controls.shape[0]
-        moved = (self._field2 @ controls.T).reshape(len(self._rest2), 3, frames).transpose(0, 2, 1)
-        x1 = self._rest2[:, None, :] + moved
+        moved = (self._field_matrix @ controls.T).reshape(len(self.rest2), 3, frames).transpose(0, 2, 1)
+        x1 = self.rest2[:, None, :] + moved
         dx1 = self._dx1 if jacobian else None
 
         # Stretch and normal of the muscle-deformed surface on the first ring.
-        i, j, k = self._t1[:, 0], self._t1[:, 1], self._t1[:, 2]
+        i, j, k = self.triangles1[:, 0], self.triangles1[:, 1], self.triangles1[:, 2]
         e1, e2 = x1[j] - x1[i], x1[k] - x1[i]
-        w1 = self._t1_weight[:, None, None]
+        w1 = self.triangle_weight1[:, None, None]
         area = w1 * _cross(e1, e2)
         length = np.linalg.norm(area, axis=2)
-        ratio = length / self._t1_length[:, None]
-        counts = self._counts1[:, None]
+        ratio = length / self.rest_length1[:, None]
+        counts = self.counts1[:, None]
         has = counts > 0.0
-        r = np.where(has, _spmul(self._incidence1, ratio) / np.where(has, counts, 1.0), 1.0)
+        r = np.where(has, _spmul(self.incidence1, ratio) / np.where(has, counts, 1.0), 1.0)
         normal, dnormal = None, None
-        normal_sum = _spmul(self._incidence1, area)
+        normal_sum = _spmul(self.incidence1, area)
         if jacobian:
             de1, de2 = dx1[j] - dx1[i], dx1[k] - dx1[i]
             darea = w1[..., None] * (_cross(de1, e2[..., None]) + _cross(e1[..., None], de2))
             safe = np.where(length > 0.0, length, 1.0)
-            dratio = np.einsum("tfi,tfim->tfm", area, darea) / (safe * self._t1_length[:, None])[..., None]
+            dratio = np.einsum("tfi,tfim->tfm", area, darea) / (safe * self.rest_length1[:, None])[..., None]
             dratio = np.where((length > 0.0)[..., None], dratio, 0.0)
-            dr = np.where(has[..., None], _spmul(self._incidence1, dratio) / np.where(has, counts, 1.0)[..., None], 0.0)
-            normal, dnormal = _normalize(normal_sum, _spmul(self._incidence1, darea))
+            dr = np.where(has[..., None], _spmul(self.incidence1, dratio) / np.where(has, counts, 1.0)[..., None], 0.0)
+            normal, dnormal = _normalize(normal_sum, _spmul(self.incidence1, darea))
         else:
             normal, _ = _normalize(normal_sum, None)
         clamped = np.maximum(r, STRETCH_FLOOR)
         growth = 1.0 / clamped - 1.0
-        h = self._thickness1[:, None]
-        x2 = x1[self._s1_in_s2] + (growth * h)[..., None] * normal
+        h = self.thickness1[:, None]
+        x2 = x1[self.s1_in_s2] + (growth * h)[..., None] * normal
         if jacobian:
             dgrowth = np.where((r > STRETCH_FLOOR)[..., None], -dr / (clamped * clamped)[..., None], 0.0)
-            dx2 = dx1[self._s1_in_s2] + h[..., None, None] * (
+            dx2 = dx1[self.s1_in_s2] + h[..., None, None] * (
                 dgrowth[:, :, None, :] * normal[..., None] + growth[..., None, None] * dnormal)
 
         # Wrinkles along the normal of the bulged surface, on the target vertices.
-        x3 = x2[self._s0_in_s1].copy()
-        dx3 = np.broadcast_to(dx2[self._s0_in_s1], (self.count, frames, 3, self.control_count)).copy() if jacobian else None
+        x3 = x2[self.s0_in_s1].copy()
+        dx3 = np.broadcast_to(dx2[self.s0_in_s1], (self.count, frames, 3, self.control_count)).copy() if jacobian else None
         rows = self._wrinkled0
         if len(rows):
-            r0 = r[self._s0_in_s1][rows]  # (n, F)
-            kr = self._kr[None, None, :]
+            r0 = r[self.s0_in_s1][rows]  # (n, F)
+            kr = self.kr[None, None, :]
             below = r0[..., None] <= 1.0
             safe_kr = np.where(kr > 0.0, kr, 1.0)
             above = np.where(kr > 0.0, kr * np.exp((1.0 - 1.0 / safe_kr) * (r0[..., None] - 1.0)), 0.0)
             factor = np.where(below, (kr - 1.0) * r0[..., None] + 1.0, above)
-            profile = self._profile0[rows][:, None, :]
+            profile = self.profile0[rows][:, None, :]
             height = np.sum(profile * factor, axis=2)
-            i, j, k = self._t0[:, 0], self._t0[:, 1], self._t0[:, 2]
+            i, j, k = self.triangles0[:, 0], self.triangles0[:, 1], self.triangles0[:, 2]
             e1, e2 = x2[j] - x2[i], x2[k] - x2[i]
-            w0 = self._t0_weight[:, None, None]
+            w0 = self.triangle_weight0[:, None, None]
             area = w0 * _cross(e1, e2)
-            incidence = self._incidence0[rows]
+            incidence = self.incidence0[rows]
             if jacobian:
                 de1, de2 = dx2[j] - dx2[i], dx2[k] - dx2[i]
                 darea = w0[..., None] * (_cross(de1, e2[..., None]) + _cross(e1[..., None], de2))
                 n2, dn2 = _normalize(_spmul(incidence, area), _spmul(incidence, darea))
                 slope = np.where(below, kr - 1.0, np.where(kr > 0.0, (1.0 - 1.0 / safe_kr) * above, 0.0))
-                dheight = np.sum(profile * slope, axis=2)[..., None] * dr[self._s0_in_s1][rows]
+                dheight = np.sum(profile * slope, axis=2)[..., None] * dr[self.s0_in_s1][rows]
                 dx3[rows] += dheight[:, :, None, :] * n2[..., None] + height[..., None, None] * dn2
             else:
                 n2, _ = _normalize(_spmul(incidence, area), None)
             x3[rows] += height[..., None] * n2
-        return x3, dx3
+        return x3.transpose(1, 0, 2), (dx3.transpose(1, 0, 2, 3) if jacobian else None)

@@ -28,6 +28,7 @@ import numpy as np
 
 from ..errors import RigError
 from ..expression.muscles import SphincterMuscle
+from .local_kernels import KernelExpression
 from .local_model import LocalExpression, RigOperators
 from .pose import rigid_alignment, rotation_from_vector, skew
 from .targets import frame_targets, observation, point_weights
@@ -192,7 +193,7 @@ class Solver:
         self.device = device
         self._model = None
         operators = rig_operators(rig, device)
-        self.local = LocalExpression(operators, self.observation.vertices)
+        self.local = KernelExpression(LocalExpression(operators, self.observation.vertices), device)
         reach = np.abs(operators.muscle_field).max(axis=0).toarray().ravel()
         self.unit = _face_unit(rig)
         self.reach = np.where(reach > 0.0, reach, 1.0)
@@ -320,16 +321,15 @@ class Solver:
         rotation = np.tile(self.rotation, (frames, 1, 1))
         translation = np.tile(self.translation / self.unit, (frames, 1))
         if opts.pose and not self._pose_known:
-            x0 = self.observation.apply(self.local.evaluate(u / scale, jacobian=False)[0])
+            x0 = self.observation.apply_frames(self.local.evaluate(u / scale, jacobian=False)[0])
             for f in np.flatnonzero(~skipped):
-                r, t = rigid_alignment(x0[:, f], targets[f], wn[f], self.origin)
+                r, t = rigid_alignment(x0[f], targets[f], wn[f], self.origin)
                 rotation[f], translation[f] = r, t / self.unit
 
         def energy(u_, rotation_, translation_):
             x, _ = self.local.evaluate(u_ / scale, jacobian=False)
-            observed = self._posed(self.observation.apply(x), rotation_, translation_)
-            e = observed - y.transpose(1, 0, 2)
-            value = np.einsum("fn,nf->f", wn, np.sum(e * e, axis=2))
+            e = self._posed(self.observation.apply_frames(x), rotation_, translation_) - y
+            value = np.einsum("fn,fn->f", wn, np.sum(e * e, axis=2))
             return value + self._regularisation(u_, previous, smooth)
 
         active = ~skipped
@@ -386,19 +386,19 @@ class Solver:
         rotation[skipped] = self.rotation
         translation[skipped] = self.translation / self.unit
         x, _ = self.local.evaluate(controls, jacobian=False)
-        observed = self._posed(self.observation.apply(x), rotation, translation)
-        residual = np.sqrt(np.maximum(np.einsum("fn,nf->f", wn, np.sum((observed - y.transpose(1, 0, 2)) ** 2, axis=2)), 0.0))
+        e = self._posed(self.observation.apply_frames(x), rotation, translation) - y
+        residual = np.sqrt(np.maximum(np.einsum("fn,fn->f", wn, np.sum(e * e, axis=2)), 0.0))
         return dict(controls=controls, residual=np.where(skipped, 0.0, residual * self.unit),
                     converged=converged & ~skipped & (iterations <= opts.max_iterations) & ~active,
                     skipped=skipped, iterations=iterations, valid=valid_count,
                     rotation=rotation, translation=translation * self.unit)
 
     def _posed(self, observed: np.ndarray, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
-        """(N, F, 3) model points [mesh units] → posed, in face units."""
+        """(F, N, 3) model points [mesh units] → posed, in face units."""
         if not self.options.pose:
             return observed / self.unit
         centred = observed - self.origin
-        return (np.einsum("fij,nfj->nfi", rotation, centred) + self.origin) / self.unit + translation[None]
+        return (np.einsum("fij,fnj->fni", rotation, centred) + self.origin) / self.unit + translation[:, None]
 
     def _regularisation(self, u, previous, smooth):
         opts = self.options
@@ -415,17 +415,20 @@ class Solver:
         opts = self.options
         scale = self._to_scaled
         x, dx = self.local.evaluate(u / scale, jacobian=True)
-        observed = self.observation.apply(x)  # (N, F, 3)
-        jac = self.observation.apply(dx) / (scale * self.unit)  # ∂(x/ℓ)/∂u, (N, F, 3, M)
+        observed = self.observation.apply_frames(x)  # (F, N, 3)
+        jac = self.observation.apply_frames(dx)  # ∂x/∂c, (F, N, 3, M); ∂(x/ℓ)/∂u = that / (ρ/ℓ · ℓ)
+        column = np.full(jac.shape[3] + (6 if opts.pose else 0), 1.0 / self.unit)  # pose columns: mesh → face units
+        column[: len(scale)] = 1.0 / (scale * self.unit)
+        frames, count = observed.shape[:2]
         if opts.pose:
-            jac = np.einsum("fij,nfjm->nfim", rotation, jac)
-            arm = np.einsum("fij,nfj->nfi", rotation, observed - self.origin) / self.unit
-            count, frames = observed.shape[:2]
-            jac = np.concatenate([jac, -skew(arm), np.broadcast_to(np.eye(3), (count, frames, 3, 3))], axis=3)
-        e = self._posed(observed, rotation, translation) - y.transpose(1, 0, 2)
-        weighted = jac * wn.T[:, :, None, None]
-        hessian = np.einsum("nfim,nfik->fmk", weighted, jac)
-        gradient = np.einsum("nfim,nfi->fm", weighted, e)
+            jac = np.einsum("fij,fnjm->fnim", rotation, jac)
+            arm = np.einsum("fij,fnj->fni", rotation, observed - self.origin) / self.unit
+            jac = np.concatenate([jac, -skew(arm) * self.unit, np.broadcast_to(np.eye(3) * self.unit, (frames, count, 3, 3))], axis=3)
+        e = self._posed(observed, rotation, translation) - y
+        flat = jac.reshape(frames, count * 3, -1)
+        weighted = flat * np.repeat(wn, 3, axis=1)[..., None]
+        hessian = np.matmul(weighted.transpose(0, 2, 1), flat) * column[None, :, None] * column[None, None, :]
+        gradient = np.matmul(weighted.transpose(0, 2, 1), e.reshape(frames, count * 3, 1))[..., 0] * column[None]
         n = len(self.names)
         diag = np.arange(n)
         hessian[:, diag, diag] += opts.l2 + smooth

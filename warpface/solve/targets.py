@@ -29,13 +29,22 @@ class Observation:
         self.count = count
         self.dense = dense
         self.vertex_count = vertex_count
+        # Vertex targets select rows (no sparse product); dense targets in vertex order are the identity.
+        is_selection = np.allclose(values, 1.0) and len(rows) == count
+        self._selection = local[np.argsort(rows)] if is_selection else None
+        self._identity = is_selection and len(self.vertices) == count and np.array_equal(self._selection, np.arange(count))
 
     def apply(self, points: np.ndarray) -> np.ndarray:
-        """Observed positions from per-vertex positions: (V, 3) full or (n, ...) at :attr:`vertices`."""
-        if points.shape[0] == self.vertex_count and self.vertex_count != len(self.vertices):
-            points = points[self.vertices]
-        flat = self.matrix @ points.reshape(points.shape[0], -1)
-        return np.asarray(flat).reshape((self.count,) + points.shape[1:])
+        """Observed positions (N, 3) from the mesh's per-vertex positions (V, 3)."""
+        return self.apply_frames(np.asarray(points)[None, self.vertices])[0]
+
+    def apply_frames(self, values: np.ndarray) -> np.ndarray:
+        """``P`` applied to per-vertex values at :attr:`vertices`: (F, n, ...) → (F, N, ...)."""
+        if self._selection is not None:
+            return values if self._identity else values[:, self._selection]
+        moved = np.moveaxis(values, 1, 0)
+        flat = self.matrix @ moved.reshape(moved.shape[0], -1)
+        return np.moveaxis(np.asarray(flat).reshape((self.count,) + moved.shape[1:]), 0, 1)
 
 
 def _integer_indices(values, name: str, upper: int) -> np.ndarray:
