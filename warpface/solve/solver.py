@@ -326,11 +326,11 @@ class Solver:
                 r, t = rigid_alignment(x0[f], targets[f], wn[f], self.origin)
                 rotation[f], translation[f] = r, t / self.unit
 
-        def energy(u_, rotation_, translation_):
+        def energy(frame, u_, rotation_, translation_):
             x, _ = self.local.evaluate(u_ / scale, jacobian=False)
-            e = self._posed(self.observation.apply_frames(x), rotation_, translation_) - y
-            value = np.einsum("fn,fn->f", wn, np.sum(e * e, axis=2))
-            return value + self._regularisation(u_, previous, smooth)
+            e = self._posed(self.observation.apply_frames(x), rotation_, translation_) - y[frame]
+            value = np.einsum("fn,fn->f", wn[frame], np.sum(e * e, axis=2))
+            return value + self._regularisation(u_, previous[frame], smooth)
 
         active = ~skipped
         iterations = np.zeros(frames, dtype=np.int64)
@@ -338,7 +338,7 @@ class Solver:
         damping = np.full(frames, 1e-4)
         current = np.full(frames, np.inf)
         if np.any(active):
-            current[active] = energy(u[active], rotation[active], translation[active])
+            current[active] = energy(active, u[active], rotation[active], translation[active])
         for _ in range(opts.max_iterations):
             todo = np.flatnonzero(active)
             if len(todo) == 0:
@@ -365,7 +365,7 @@ class Solver:
                 if step.shape[1] > n:
                     trial_r = rotation_from_vector(step[:, n:n + 3]) @ rotation[frame]
                     trial_t = translation[frame] + step[:, n + 3:]
-                value = energy(trial_u, trial_r, trial_t)
+                value = energy(frame, trial_u, trial_r, trial_t)
                 better = np.isfinite(value) & (value <= current[frame])
                 accepted = frame[better]
                 decrease = current[accepted] - value[better]
