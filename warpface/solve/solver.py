@@ -94,8 +94,8 @@ class Fit:
 
     Attributes:
         controls: ``{control name: value}`` (muscle contractions; linear in mesh units, sphincters dimensionless).
-        points: the rig evaluated at the solution with the full model, (V, 3) float32 NumPy, rig space.
-        residual: weighted RMS distance between the (posed) model and the valid targets [mesh units].
+        residual: weighted RMS distance between the (posed) model and the valid targets [mesh units]
+            (the solver's float64 evaluation of the full pipeline at the targets).
         converged: the iteration met its tolerance (False: best iterate returned, or frame skipped).
         skipped: too few valid points; the previous controls were kept.
         valid_points: targets used (not NaN, weight > 0).
@@ -103,10 +103,11 @@ class Fit:
         rotation, translation: solved head pose (identity/zero without ``pose``); posed = R(x − origin) + origin + t.
         origin: the pose's rotation centre [mesh units], (3,).
         vector: the controls in rig order, (M,) float64.
+        points: the rig evaluated at the solution with the full model, (V, 3) float32 NumPy, rig space
+            (evaluated on first access).
     """
 
     controls: dict
-    points: np.ndarray
     residual: float
     converged: bool
     skipped: bool
@@ -116,6 +117,14 @@ class Fit:
     translation: np.ndarray
     origin: np.ndarray
     vector: np.ndarray = field(repr=False)
+    model: object = field(default=None, repr=False)
+    _points: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def points(self) -> np.ndarray:
+        if self._points is None:
+            self._points = self.model.evaluate(self.vector)
+        return self._points
 
     @property
     def posed_points(self) -> np.ndarray:
@@ -255,14 +264,11 @@ class Solver:
         if not result["skipped"][0]:
             self.rotation, self.translation = result["rotation"][0], result["translation"][0]
             self._pose_known = self._pose_known or self.options.pose
-        points = self.model.evaluate(controls)
-        posed = (points - self.origin) @ self.rotation.T + self.origin + self.translation
-        residual = self._rms(self.observation.apply(posed.astype(np.float64)), targets[0], weight)
-        return Fit(controls=dict(zip(self.names, map(float, controls))), points=points, residual=residual,
+        return Fit(controls=dict(zip(self.names, map(float, controls))), residual=float(result["residual"][0]),
                    converged=bool(result["converged"][0]), skipped=bool(result["skipped"][0]),
                    valid_points=int(result["valid"][0]), iterations=int(result["iterations"][0]),
                    rotation=self.rotation.copy(), translation=self.translation.copy(), origin=self.origin.copy(),
-                   vector=controls)
+                   vector=controls, model=self.model)
 
     def solve_batch(self, targets, weights=None, *, progress: bool = False) -> BatchFit:
         """Solve F independent frames together, each started from the solver's current controls.
@@ -296,14 +302,6 @@ class Solver:
         return BatchFit(names=list(self.names), **stacked)
 
     # ------------------------------------------------------------------ the solve
-    @staticmethod
-    def _rms(observed: np.ndarray, target: np.ndarray, weight: np.ndarray) -> float:
-        valid = np.all(np.isfinite(target), axis=1) & (weight > 0.0)
-        if not np.any(valid):
-            return 0.0
-        d2 = np.sum((observed[valid] - target[valid]) ** 2, axis=1)
-        return float(np.sqrt(np.sum(weight[valid] * d2) / np.sum(weight[valid])))
-
     def _solve_frames(self, targets: np.ndarray, weight: np.ndarray, start: np.ndarray, *, temporal: bool) -> dict:
         opts = self.options
         frames, count = targets.shape[:2]
