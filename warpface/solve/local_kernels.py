@@ -30,6 +30,11 @@ class _Buffers:
         self.dstretch, self.dx2 = scalar(frames * n1 * controls), vec(frames * n1 * controls)
         self.area0, self.darea0 = vec(frames * t0), vec(frames * t0 * controls)
         self.x3, self.dx3 = vec(frames * n0), scalar(frames * n0 * 3 * controls)
+        self.recorded: dict[bool, list] = {}
+        """Launches recorded once per mode (with / without Jacobian) and replayed: argument packing is
+        most of a small launch's cost on the CPU."""
+        self.host_controls = self.controls.numpy() if device.is_cpu else None
+        """CPU: a NumPy view sharing the controls' memory (written in place)."""
 
 
 class KernelExpression:
@@ -82,40 +87,54 @@ class KernelExpression:
 
     def launch(self, buffers: _Buffers, frames: int, jacobian: bool) -> None:
         """Run the five stages on ``buffers`` (controls already uploaded)."""
+        if jacobian not in buffers.recorded:
+            buffers.recorded[jacobian] = self._record(buffers, frames, jacobian)
+        for command in buffers.recorded[jacobian]:
+            command.launch()
+
+    def _record(self, buffers: _Buffers, frames: int, jacobian: bool) -> list:
         s, m, d = self._sizes, self.control_count, self.device
         jac = 1 if jacobian else 0
-        wp.launch(kernels.muscle_stage, dim=frames * s["n2"], device=d,
+        commands = []
+
+        def launch(kernel, **kwargs):
+            commands.append(wp.launch(kernel, record_cmd=True, **kwargs))
+
+        launch(kernels.muscle_stage, dim=frames * s["n2"], device=d,
                   inputs=[self._rest, self._field, buffers.controls, m, s["n2"]], outputs=[buffers.x1])
-        wp.launch(kernels.first_ring_triangles, dim=frames * s["t1"], device=d,
+        launch(kernels.first_ring_triangles, dim=frames * s["t1"], device=d,
                   inputs=[buffers.x1, self._field, self._t1, self._t1_weight, self._t1_length, *self._active["t1"], m, s["n2"], s["t1"], jac],
                   outputs=[buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1])
-        wp.launch(kernels.bulge_stage, dim=frames * s["n1"], device=d,
+        launch(kernels.bulge_stage, dim=frames * s["n1"], device=d,
                   inputs=[buffers.x1, self._field, buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1,
                           self._s1_in_s2, self._adj1_offsets, self._adj1, self._counts1, self._thickness1, *self._active["s1"],
                           wp.float64(STRETCH_FLOOR), m, s["n2"], s["n1"], s["t1"], jac],
                   outputs=[buffers.stretch, buffers.x2, buffers.dstretch, buffers.dx2])
-        wp.launch(kernels.second_ring_triangles, dim=frames * s["t0"], device=d,
+        launch(kernels.second_ring_triangles, dim=frames * s["t0"], device=d,
                   inputs=[buffers.x2, buffers.dx2, self._t0, self._t0_weight, *self._active["t0"], m, s["n1"], s["t0"], jac],
                   outputs=[buffers.area0, buffers.darea0])
-        wp.launch(kernels.wrinkle_stage, dim=frames * s["n0"], device=d,
+        launch(kernels.wrinkle_stage, dim=frames * s["n0"], device=d,
                   inputs=[buffers.x2, buffers.stretch, buffers.dx2, buffers.dstretch, buffers.area0, buffers.darea0,
                           self._s0_in_s1, self._adj0_offsets, self._adj0, self._profile_offsets, self._profile_wrinkle,
                           self._profile_value, self._kr, *self._active["s0"], m, s["n1"], s["n0"], s["t0"], jac],
                   outputs=[buffers.x3, buffers.dx3])
+        return commands
 
     def evaluate(self, controls: np.ndarray, *, jacobian: bool = True):
         """Same contract as :meth:`LocalExpression.evaluate`: x3 (F, n, 3) and ∂x3/∂c (F, n, 3, M) or None."""
         controls = np.ascontiguousarray(controls, dtype=np.float64)
         frames = controls.shape[0]
         buffers = self.buffers(frames)
-        buffers.controls.assign(controls.reshape(-1)) if self.device.is_cpu else wp.copy(
-            buffers.controls, wp.array(controls.reshape(-1), dtype=wp.float64, device="cpu"))
+        if buffers.host_controls is not None:
+            buffers.host_controls[:] = controls.reshape(-1)
+        else:
+            wp.copy(buffers.controls, wp.array(controls.reshape(-1), dtype=wp.float64, device="cpu"))
         self.launch(buffers, frames, jacobian)
         n0, m = self.count, self.control_count
-        x3 = buffers.x3.numpy()[: frames * n0].reshape(frames, n0, 3)
+        x3 = buffers.x3.numpy()[: frames * n0].reshape(frames, n0, 3).copy()
         if not jacobian:
             return x3, None
-        return x3, buffers.dx3.numpy()[: frames * n0 * 3 * m].reshape(frames, n0, 3, m)
+        return x3, buffers.dx3.numpy()[: frames * n0 * 3 * m].reshape(frames, n0, 3, m).copy()
 
 
 def _active_controls(local: LocalExpression) -> dict:

@@ -53,7 +53,8 @@ class SolveOptions:
         pose: also solve a rigid head pose (rotation about the observed points' centroid + translation).
         bounds: per-control ``{name: (low, high)}`` overriding the defaults (c ≥ 0, sphincters ≤ 1).
         max_iterations: Levenberg–Marquardt iterations per frame.
-        tolerance: stop when an accepted step lowers E by less than this fraction.
+        tolerance: stop when an accepted step lowers E by less than this fraction …
+        step_tolerance: … or moves no scaled control by more than this (face units).
         min_points: fewer valid (non-NaN, weighted) points keeps the previous controls and flags the frame.
         frames_per_pass: frames evaluated together (bounds the working memory of a batch).
     """
@@ -65,7 +66,8 @@ class SolveOptions:
     pose: bool = False
     bounds: dict | None = None
     max_iterations: int = 50
-    tolerance: float = 1e-10
+    tolerance: float = 1e-9
+    step_tolerance: float = 1e-7
     min_points: int = 3
     frames_per_pass: int = 64
 
@@ -76,7 +78,7 @@ class SolveOptions:
         if unknown:
             raise TypeError(f"unknown solve option {unknown[0]!r} (known: {', '.join(sorted(known))})")
         made = cls(**options)
-        for name in ("l2", "l1", "symmetry", "smoothness", "tolerance"):
+        for name in ("l2", "l1", "symmetry", "smoothness", "tolerance", "step_tolerance"):
             value = getattr(made, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
                     or not np.isfinite(value) or value < 0:
@@ -327,24 +329,24 @@ class Solver:
         def energy(frame, u_, rotation_, translation_):
             x, _ = self.local.evaluate(u_ / scale, jacobian=False)
             e = self._posed(self.observation.apply_frames(x), rotation_, translation_) - y[frame]
-            value = np.einsum("fn,fn->f", wn[frame], np.sum(e * e, axis=2))
-            return value + self._regularisation(u_, previous[frame], smooth)
+            misfit_ = np.einsum("fn,fn->f", wn[frame], np.sum(e * e, axis=2))
+            return misfit_ + self._regularisation(u_, previous[frame], smooth), misfit_
 
         active = ~skipped
         iterations = np.zeros(frames, dtype=np.int64)
         converged = np.zeros(frames, dtype=bool)
         damping = np.full(frames, 1e-4)
         current = np.full(frames, np.inf)
-        if np.any(active):
-            current[active] = energy(active, u[active], rotation[active], translation[active])
+        misfit = np.zeros(frames)
+        n = len(self.names)
         for _ in range(opts.max_iterations):
             todo = np.flatnonzero(active)
             if len(todo) == 0:
                 break
             iterations[todo] += 1
-            hessian, gradient = self._normal_equations(u[todo], rotation[todo], translation[todo], y[todo], wn[todo],
-                                                       previous[todo], smooth)
-            n = len(self.names)
+            hessian, gradient, misfit[todo] = self._normal_equations(
+                u[todo], rotation[todo], translation[todo], y[todo], wn[todo], previous[todo], smooth)
+            current[todo] = misfit[todo] + self._regularisation(u[todo], previous[todo], smooth)
             at_low = (u[todo] <= low + 1e-12) & (gradient[:, :n] > 0.0)
             at_high = (u[todo] >= high - 1e-12) & (gradient[:, :n] < 0.0)
             held = np.concatenate([at_low | at_high, np.zeros((len(todo), hessian.shape[1] - n), bool)], axis=1)
@@ -363,31 +365,30 @@ class Solver:
                 if step.shape[1] > n:
                     trial_r = rotation_from_vector(step[:, n:n + 3]) @ rotation[frame]
                     trial_t = translation[frame] + step[:, n + 3:]
-                value = energy(frame, trial_u, trial_r, trial_t)
+                value, trial_misfit = energy(frame, trial_u, trial_r, trial_t)
                 better = np.isfinite(value) & (value <= current[frame])
                 accepted = frame[better]
                 decrease = current[accepted] - value[better]
+                moved = np.abs(trial_u[better] - u[accepted]).max(axis=1, initial=0.0)
                 u[accepted], rotation[accepted], translation[accepted] = trial_u[better], trial_r[better], trial_t[better]
-                done = decrease <= opts.tolerance * np.maximum(current[accepted], 1e-300)
+                done = (decrease <= opts.tolerance * np.maximum(current[accepted], 1e-300)) | (moved < opts.step_tolerance)
                 converged[accepted[done]] = True
                 active[accepted[done]] = False
-                current[accepted] = value[better]
+                current[accepted], misfit[accepted] = value[better], trial_misfit[better]
                 damping[accepted] = np.maximum(damping[accepted] / 3.0, 1e-9)
                 damping[frame[~better]] *= 4.0
                 pending = pending[~better]
-            stalled = todo[pending] if len(pending) else np.zeros(0, dtype=np.int64)
             # No decrease even with heavy damping: at a (numerically) stationary point.
+            stalled = todo[pending]
             converged[stalled] = True
             active[stalled] = False
         controls = u / scale
         controls[skipped] = start[skipped]
         rotation[skipped] = self.rotation
         translation[skipped] = self.translation / self.unit
-        x, _ = self.local.evaluate(controls, jacobian=False)
-        e = self._posed(self.observation.apply_frames(x), rotation, translation) - y
-        residual = np.sqrt(np.maximum(np.einsum("fn,fn->f", wn, np.sum(e * e, axis=2)), 0.0))
+        residual = np.sqrt(np.maximum(misfit, 0.0))
         return dict(controls=controls, residual=np.where(skipped, 0.0, residual * self.unit),
-                    converged=converged & ~skipped & (iterations <= opts.max_iterations) & ~active,
+                    converged=converged & ~skipped & ~active,
                     skipped=skipped, iterations=iterations, valid=valid_count,
                     rotation=rotation, translation=translation * self.unit)
 
@@ -409,7 +410,7 @@ class Solver:
         return value
 
     def _normal_equations(self, u, rotation, translation, y, wn, previous, smooth):
-        """Gauss–Newton ``(H, g)`` of ½E per frame: H (F, K, K), g (F, K), K = M (+ 6 with pose)."""
+        """Gauss–Newton ``(H, g)`` of ½E per frame, H (F, K, K), g (F, K), K = M (+ 6 with pose), and the data term (F,)."""
         opts = self.options
         scale = self._to_scaled
         x, dx = self.local.evaluate(u / scale, jacobian=True)
@@ -429,6 +430,7 @@ class Solver:
         gradient = np.matmul(weighted.transpose(0, 2, 1), e.reshape(frames, count * 3, 1))[..., 0] * column[None]
         n = len(self.names)
         diag = np.arange(n)
+        misfit = np.einsum("fn,fn->f", wn, np.sum(e * e, axis=2))
         hessian[:, diag, diag] += opts.l2 + smooth
         gradient[:, :n] += opts.l2 * u + 0.5 * opts.l1 + smooth * (u - previous)
         if opts.symmetry and len(self._pairs):
@@ -440,7 +442,7 @@ class Solver:
             hessian[:, right, right] += opts.symmetry
             hessian[:, left, right] -= opts.symmetry
             hessian[:, right, left] -= opts.symmetry
-        return hessian, gradient
+        return hessian, gradient, misfit
 
     @staticmethod
     def _damped_step(hessian, gradient, held, damping):
