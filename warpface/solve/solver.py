@@ -208,7 +208,7 @@ class Solver:
         reach = np.abs(operators.muscle_field).max(axis=0).toarray().ravel()
         self.unit = _face_unit(rig)
         self.reach = np.where(reach > 0.0, reach, 1.0)
-        self._to_scaled = self.reach / self.unit
+        self.control_scale = self.reach / self.unit
         self.low, self.high = self._bounds()
         self._pairs = self._mirrored_pairs()
         self.origin = self.observation.apply(operators.rest).mean(axis=0)
@@ -313,7 +313,7 @@ class Solver:
         wn = np.where(valid, weight[None], 0.0)
         wn = wn / np.where(skipped, 1.0, wn.sum(axis=1))[:, None]
         y = np.where(valid[..., None], targets, 0.0) / self.unit
-        scale = self._to_scaled
+        scale = self.control_scale
         low, high = self.low * scale, self.high * scale
         u = np.clip(start * scale, low, high)
         previous = u.copy()
@@ -412,7 +412,7 @@ class Solver:
     def _normal_equations(self, u, rotation, translation, y, wn, previous, smooth):
         """Gauss–Newton ``(H, g)`` of ½E per frame, H (F, K, K), g (F, K), K = M (+ 6 with pose), and the data term (F,)."""
         opts = self.options
-        scale = self._to_scaled
+        scale = self.control_scale
         x, dx = self.local.evaluate(u / scale, jacobian=True)
         observed = self.observation.apply_frames(x)  # (F, N, 3)
         jac = self.observation.apply_frames(dx)  # ∂x/∂c, (F, N, 3, M); ∂(x/ℓ)/∂u = that / (ρ/ℓ · ℓ)
