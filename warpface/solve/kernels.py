@@ -12,7 +12,7 @@ import warp as wp
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
-__all__ = ["muscle_stage", "first_ring_triangles", "bulge_stage", "second_ring_triangles", "wrinkle_stage"]
+__all__ = ["muscle_stage", "first_ring_triangles", "bulge_stage", "second_ring_triangles", "wrinkle_stage", "normal_equations"]
 
 
 @wp.kernel
@@ -294,3 +294,95 @@ def wrinkle_stage(
             dn = (dsum - n * wp.dot(n, dsum)) / length
         dheight = slope * dstretch[source * control_count + m]
         _store_column(dfinal, i, m, control_count, dbulged[source * control_count + m] + dheight * n + height * dn)
+
+
+@wp.func
+def _observed(x3: wp.array(dtype=wp.vec3d), frame_first: int, point_offsets: wp.array(dtype=wp.int32),
+              point_vertex: wp.array(dtype=wp.int32), point_weight: wp.array(dtype=wp.float64), n: int):
+    """``(P x3)_n``: a target point as the weighted sum of its vertices (one vertex, or a triangle's three)."""
+    p = _zero3()
+    for k in range(point_offsets[n], point_offsets[n + 1]):
+        p += point_weight[k] * x3[frame_first + point_vertex[k]]
+    return p
+
+
+@wp.func
+def _column(dx3: wp.array(dtype=wp.float64), x3: wp.array(dtype=wp.vec3d), frame_first: int,
+            point_offsets: wp.array(dtype=wp.int32), point_vertex: wp.array(dtype=wp.int32),
+            point_weight: wp.array(dtype=wp.float64), n: int, c: int, control_count: int,
+            rotation: wp.mat33d, arm: wp.vec3d, unit: wp.float64):
+    """Column ``c`` of the posed target point's Jacobian [mesh units per variable]: a control's
+    ``R·(P ∂x3/∂c)``, then the rotation vector's ``−[R(x − o)]×`` and the translation's ``ℓ·I``."""
+    if c < control_count:
+        d = _zero3()
+        for k in range(point_offsets[n], point_offsets[n + 1]):
+            base = 3 * (frame_first + point_vertex[k]) * control_count + c
+            w = point_weight[k]
+            d += w * wp.vec3d(dx3[base], dx3[base + control_count], dx3[base + 2 * control_count])
+        return rotation * d
+    zero = wp.float64(0.0)
+    axis = wp.vec3d(zero, zero, zero)
+    if c < control_count + 3:
+        axis[c - control_count] = wp.float64(1.0)
+        return wp.cross(axis, arm)
+    axis[c - control_count - 3] = unit
+    return axis
+
+
+@wp.kernel
+def normal_equations(
+    x3: wp.array(dtype=wp.vec3d),
+    dx3: wp.array(dtype=wp.float64),
+    point_offsets: wp.array(dtype=wp.int32),
+    point_vertex: wp.array(dtype=wp.int32),
+    point_weight: wp.array(dtype=wp.float64),
+    active_offsets: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    targets: wp.array(dtype=wp.vec3d),
+    weights: wp.array(dtype=wp.float64),
+    rotation: wp.array(dtype=wp.mat33d),
+    translation: wp.array(dtype=wp.vec3d),
+    frame_on: wp.array(dtype=wp.int32),
+    origin: wp.vec3d,
+    unit: wp.float64,
+    control_count: int,
+    variable_count: int,
+    vertex_count: int,
+    point_count: int,
+    jacobian: int,
+    hessian: wp.array(dtype=wp.float64),
+    gradient: wp.array(dtype=wp.float64),
+    misfit: wp.array(dtype=wp.float64),
+):
+    """Per frame: the data term ``Σ_n w_n |e_n|²`` with ``e = (R(Px3 − o) + o)/ℓ + t − y`` and, with
+    ``jacobian``, ``Jᵀ W J`` and ``Jᵀ W e`` over each point's active variables (atomics into the frame's sums).
+
+    Columns are in mesh units per variable; the caller scales them to the solver's variables.
+    """
+    i = wp.tid()
+    f = i / point_count
+    n = i - f * point_count
+    w = weights[i]
+    if w == wp.float64(0.0) or frame_on[f] == 0:
+        return
+    first = f * vertex_count
+    p = _observed(x3, first, point_offsets, point_vertex, point_weight, n)
+    r = rotation[f]
+    arm = r * (p - origin)
+    e = (arm + origin) / unit + translation[f] - targets[i]
+    wp.atomic_add(misfit, f, w * wp.dot(e, e))
+    if jacobian == 0:
+        return
+    begin = active_offsets[n]
+    end = active_offsets[n + 1]
+    for a in range(begin, end):
+        ca = active[a]
+        col_a = _column(dx3, x3, first, point_offsets, point_vertex, point_weight, n, ca, control_count, r, arm, unit)
+        wp.atomic_add(gradient, f * variable_count + ca, w * wp.dot(col_a, e))
+        for b in range(a, end):
+            cb = active[b]
+            col_b = _column(dx3, x3, first, point_offsets, point_vertex, point_weight, n, cb, control_count, r, arm, unit)
+            value = w * wp.dot(col_a, col_b)
+            wp.atomic_add(hessian, (f * variable_count + ca) * variable_count + cb, value)
+            if cb != ca:
+                wp.atomic_add(hessian, (f * variable_count + cb) * variable_count + ca, value)

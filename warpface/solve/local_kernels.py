@@ -73,8 +73,10 @@ class KernelExpression:
         self._sizes = dict(n2=len(local.rest2), t1=len(local.triangles1), n1=len(local.s1_in_s2),
                            t0=len(local.triangles0), n0=local.count)
         self._buffers: dict[int, _Buffers] = {}
+        self.active_controls = _active_controls(local)
+        """Per element kind (``t1``, ``s1``, ``t0``, ``s0``): which controls can move it, sparse bool CSR."""
         self._active = {name: (i32(csr.indptr), i32(csr.indices if csr.nnz else np.zeros(1)))
-                        for name, csr in _active_controls(local).items()}
+                        for name, csr in self.active_controls.items()}
 
     @property
     def reach(self) -> int:
@@ -84,6 +86,14 @@ class KernelExpression:
         if frames not in self._buffers:
             self._buffers[frames] = _Buffers(frames, self._sizes, self.control_count, self.device)
         return self._buffers[frames]
+
+    def upload(self, buffers: _Buffers, controls: np.ndarray) -> None:
+        """Write (F, M) controls into ``buffers`` (CPU: in place; CUDA: one host-to-device copy)."""
+        flat = np.ascontiguousarray(controls, dtype=np.float64).reshape(-1)
+        if buffers.host_controls is not None:
+            buffers.host_controls[:] = flat
+        else:
+            buffers.controls.assign(wp.array(flat, dtype=wp.float64, device="cpu"))
 
     def launch(self, buffers: _Buffers, frames: int, jacobian: bool) -> None:
         """Run the five stages on ``buffers`` (controls already uploaded)."""
@@ -120,21 +130,23 @@ class KernelExpression:
                   outputs=[buffers.x3, buffers.dx3])
         return commands
 
-    def evaluate(self, controls: np.ndarray, *, jacobian: bool = True):
-        """Same contract as :meth:`LocalExpression.evaluate`: x3 (F, n, 3) and ∂x3/∂c (F, n, 3, M) or None."""
+    def evaluate(self, controls: np.ndarray, *, jacobian: bool = True, copy_jacobian: bool = True):
+        """Same contract as :meth:`LocalExpression.evaluate`: x3 (F, n, 3) and ∂x3/∂c (F, n, 3, M) or None.
+
+        With ``copy_jacobian=False`` the CPU Jacobian is a view of the device buffer, valid until the
+        next evaluation with a Jacobian of the same frame count (the solver consumes it at once).
+        """
         controls = np.ascontiguousarray(controls, dtype=np.float64)
         frames = controls.shape[0]
         buffers = self.buffers(frames)
-        if buffers.host_controls is not None:
-            buffers.host_controls[:] = controls.reshape(-1)
-        else:
-            wp.copy(buffers.controls, wp.array(controls.reshape(-1), dtype=wp.float64, device="cpu"))
+        self.upload(buffers, controls)
         self.launch(buffers, frames, jacobian)
         n0, m = self.count, self.control_count
         x3 = buffers.x3.numpy()[: frames * n0].reshape(frames, n0, 3).copy()
         if not jacobian:
             return x3, None
-        return x3, buffers.dx3.numpy()[: frames * n0 * 3 * m].reshape(frames, n0, 3, m).copy()
+        jacobian = buffers.dx3.numpy()[: frames * n0 * 3 * m].reshape(frames, n0, 3, m)
+        return x3, (jacobian.copy() if self.device.is_cpu and copy_jacobian else jacobian)
 
 
 def _active_controls(local: LocalExpression) -> dict:

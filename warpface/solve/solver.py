@@ -29,8 +29,9 @@ import numpy as np
 from ..errors import RigError
 from ..expression.muscles import SphincterMuscle
 from .local_kernels import KernelExpression
+from .objective import DeviceObjective
 from .local_model import LocalExpression, RigOperators
-from .pose import rigid_alignment, rotation_from_vector, skew
+from .pose import rigid_alignment, rotation_from_vector
 from .targets import frame_targets, observation, point_weights
 
 __all__ = ["SolveOptions", "Fit", "BatchFit", "Solver", "fit", "SPHINCTER_MAX"]
@@ -212,6 +213,7 @@ class Solver:
         self.low, self.high = self._bounds()
         self._pairs = self._mirrored_pairs()
         self.origin = self.observation.apply(operators.rest).mean(axis=0)
+        self.objective = DeviceObjective(self.local, self.observation, pose=self.options.pose, origin=self.origin, unit=self.unit)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -326,12 +328,7 @@ class Solver:
                 r, t = rigid_alignment(x0[f], targets[f], wn[f], self.origin)
                 rotation[f], translation[f] = r, t / self.unit
 
-        def energy(frame, u_, rotation_, translation_):
-            x, _ = self.local.evaluate(u_ / scale, jacobian=False)
-            e = self._posed(self.observation.apply_frames(x), rotation_, translation_) - y[frame]
-            misfit_ = np.einsum("fn,fn->f", wn[frame], np.sum(e * e, axis=2))
-            return misfit_ + self._regularisation(u_, previous[frame], smooth), misfit_
-
+        self.objective.bind(y, wn)
         active = ~skipped
         iterations = np.zeros(frames, dtype=np.int64)
         converged = np.zeros(frames, dtype=bool)
@@ -344,8 +341,8 @@ class Solver:
             if len(todo) == 0:
                 break
             iterations[todo] += 1
-            hessian, gradient, misfit[todo] = self._normal_equations(
-                u[todo], rotation[todo], translation[todo], y[todo], wn[todo], previous[todo], smooth)
+            hessian, gradient, data = self._system(u, rotation, translation, active, previous, smooth)
+            hessian, gradient, misfit[todo] = hessian[todo], gradient[todo], data[todo]
             current[todo] = misfit[todo] + self._regularisation(u[todo], previous[todo], smooth)
             at_low = (u[todo] <= low + 1e-12) & (gradient[:, :n] > 0.0)
             at_high = (u[todo] >= high - 1e-12) & (gradient[:, :n] < 0.0)
@@ -360,17 +357,20 @@ class Solver:
                     break
                 frame = todo[pending]
                 step = self._damped_step(hessian[pending], projected[pending], held[pending], damping[frame])
-                trial_u = np.clip(u[frame] + step[:, :n], low, high)
-                trial_r, trial_t = rotation[frame], translation[frame]
+                trial_u, trial_r, trial_t = u.copy(), rotation.copy(), translation.copy()
+                trial_u[frame] = np.clip(u[frame] + step[:, :n], low, high)
                 if step.shape[1] > n:
-                    trial_r = rotation_from_vector(step[:, n:n + 3]) @ rotation[frame]
-                    trial_t = translation[frame] + step[:, n + 3:]
-                value, trial_misfit = energy(frame, trial_u, trial_r, trial_t)
+                    trial_r[frame] = rotation_from_vector(step[:, n:n + 3]) @ rotation[frame]
+                    trial_t[frame] = translation[frame] + step[:, n + 3:]
+                on = np.zeros(frames, dtype=bool)
+                on[frame] = True
+                trial_misfit = self.objective.evaluate(trial_u / scale, trial_r, trial_t, on, jacobian=False)[0][frame]
+                value = trial_misfit + self._regularisation(trial_u[frame], previous[frame], smooth)
                 better = np.isfinite(value) & (value <= current[frame])
                 accepted = frame[better]
                 decrease = current[accepted] - value[better]
-                moved = np.abs(trial_u[better] - u[accepted]).max(axis=1, initial=0.0)
-                u[accepted], rotation[accepted], translation[accepted] = trial_u[better], trial_r[better], trial_t[better]
+                moved = np.abs(trial_u[accepted] - u[accepted]).max(axis=1, initial=0.0)
+                u[accepted], rotation[accepted], translation[accepted] = trial_u[accepted], trial_r[accepted], trial_t[accepted]
                 done = (decrease <= opts.tolerance * np.maximum(current[accepted], 1e-300)) | (moved < opts.step_tolerance)
                 converged[accepted[done]] = True
                 active[accepted[done]] = False
@@ -392,13 +392,6 @@ class Solver:
                     skipped=skipped, iterations=iterations, valid=valid_count,
                     rotation=rotation, translation=translation * self.unit)
 
-    def _posed(self, observed: np.ndarray, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
-        """(F, N, 3) model points [mesh units] → posed, in face units."""
-        if not self.options.pose:
-            return observed / self.unit
-        centred = observed - self.origin
-        return (np.einsum("fij,fnj->fni", rotation, centred) + self.origin) / self.unit + translation[:, None]
-
     def _regularisation(self, u, previous, smooth):
         opts = self.options
         value = opts.l2 * np.sum(u * u, axis=1) + opts.l1 * np.sum(u, axis=1)
@@ -409,28 +402,19 @@ class Solver:
             value = value + opts.symmetry * np.sum(diff * diff, axis=1)
         return value
 
-    def _normal_equations(self, u, rotation, translation, y, wn, previous, smooth):
-        """Gauss–Newton ``(H, g)`` of ½E per frame, H (F, K, K), g (F, K), K = M (+ 6 with pose), and the data term (F,)."""
+    def _system(self, u, rotation, translation, on, previous, smooth):
+        """Gauss–Newton ``(H, g)`` of ½E for every frame (zeros where ``on`` is False) and the data term:
+        H (F, K, K), g (F, K), misfit (F,), K = M (+ 6 with pose)."""
         opts = self.options
         scale = self.control_scale
-        x, dx = self.local.evaluate(u / scale, jacobian=True)
-        observed = self.observation.apply_frames(x)  # (F, N, 3)
-        jac = self.observation.apply_frames(dx)  # ∂x/∂c, (F, N, 3, M); ∂(x/ℓ)/∂u = that / (ρ/ℓ · ℓ)
-        column = np.full(jac.shape[3] + (6 if opts.pose else 0), 1.0 / self.unit)  # pose columns: mesh → face units
+        misfit, hessian, gradient = self.objective.evaluate(u / scale, rotation, translation, on, jacobian=True)
+        # The kernel's columns are mesh units per variable: turn them into ∂e/∂u (e in face units).
+        column = np.full(hessian.shape[1], 1.0 / self.unit)
         column[: len(scale)] = 1.0 / (scale * self.unit)
-        frames, count = observed.shape[:2]
-        if opts.pose:
-            jac = np.einsum("fij,fnjm->fnim", rotation, jac)
-            arm = np.einsum("fij,fnj->fni", rotation, observed - self.origin) / self.unit
-            jac = np.concatenate([jac, -skew(arm) * self.unit, np.broadcast_to(np.eye(3) * self.unit, (frames, count, 3, 3))], axis=3)
-        e = self._posed(observed, rotation, translation) - y
-        flat = jac.reshape(frames, count * 3, -1)
-        weighted = flat * np.repeat(wn, 3, axis=1)[..., None]
-        hessian = np.matmul(weighted.transpose(0, 2, 1), flat) * column[None, :, None] * column[None, None, :]
-        gradient = np.matmul(weighted.transpose(0, 2, 1), e.reshape(frames, count * 3, 1))[..., 0] * column[None]
+        hessian *= column[None, :, None] * column[None, None, :]
+        gradient *= column[None]
         n = len(self.names)
         diag = np.arange(n)
-        misfit = np.einsum("fn,fn->f", wn, np.sum(e * e, axis=2))
         hessian[:, diag, diag] += opts.l2 + smooth
         gradient[:, :n] += opts.l2 * u + 0.5 * opts.l1 + smooth * (u - previous)
         if opts.symmetry and len(self._pairs):
