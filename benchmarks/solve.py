@@ -152,9 +152,8 @@ def speed(device, frames_batched: int, quick: bool) -> list[dict]:
     # Batched: many independent landmark frames at once (from neutral), on the device.
     repeats = int(np.ceil(frames_batched / len(frames)))
     batch = np.tile(frames, (repeats, 1, 1))[:frames_batched]
-    chunk = len(batch) if wp.get_device(device).is_cuda else 64
-    batched = Solver(rig, rig.landmarks, device=device, frames_per_pass=chunk, **OPTIONS)
-    batched.solve_batch(batch[:chunk])
+    batched = Solver(rig, rig.landmarks, device=device, **OPTIONS)
+    batched.solve_batch(batch[: 4096 if wp.get_device(device).is_cuda else 64])
     began = time.perf_counter()
     result = batched.solve_batch(batch)
     wp.synchronize_device(device)

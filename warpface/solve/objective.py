@@ -30,6 +30,21 @@ class _FrameData:
         self.hessian = wp.zeros(frames * variables * variables, dtype=wp.float64, device=device)
         self.gradient = wp.zeros(frames * variables, dtype=wp.float64, device=device)
         self.misfit = wp.zeros(frames, dtype=wp.float64, device=device)
+        self.commands: dict[bool, object] = {}
+        """The normal-equation launch, recorded per mode (replayed without re-packing arguments)."""
+        self.cpu = device.is_cpu
+        if self.cpu:  # NumPy views sharing the arrays' memory: per-frame inputs are written in place
+            self.views = [a.numpy() for a in (self.rotation, self.translation, self.frame_on)]
+
+    def set_frame_inputs(self, rotation: np.ndarray, translation: np.ndarray, frame_on: np.ndarray) -> None:
+        values = (np.asarray(rotation, dtype=np.float64), np.asarray(translation, dtype=np.float64),
+                  np.asarray(frame_on, dtype=np.int32))
+        if self.cpu:
+            for view, value in zip(self.views, values):
+                view[...] = value
+            return
+        for array, value, dtype in zip((self.rotation, self.translation, self.frame_on), values, (wp.mat33d, wp.vec3d, wp.int32)):
+            array.assign(wp.array(np.ascontiguousarray(value), dtype=dtype, device="cpu"))
 
 
 class DeviceObjective:
@@ -88,19 +103,20 @@ class DeviceObjective:
         buffers = self.model.buffers(frames)
         self.model.upload(buffers, controls)
         self.model.launch(buffers, frames, jacobian)
-        data.rotation.assign(wp.array(np.ascontiguousarray(rotation, dtype=np.float64), dtype=wp.mat33d, device="cpu"))
-        data.translation.assign(wp.array(np.ascontiguousarray(translation, dtype=np.float64), dtype=wp.vec3d, device="cpu"))
-        data.frame_on.assign(wp.array(np.asarray(frame_on, dtype=np.int32), dtype=wp.int32, device="cpu"))
+        data.set_frame_inputs(rotation, translation, frame_on)
         data.misfit.zero_()
         if jacobian:
             data.hessian.zero_()
             data.gradient.zero_()
-        wp.launch(kernels.normal_equations, dim=frames * self.point_count, device=self.device,
-                  inputs=[buffers.x3, buffers.dx3, self._point_offsets, self._point_vertex, self._point_weight,
-                          self._active_offsets, self._active, data.targets, data.weights, data.rotation,
-                          data.translation, data.frame_on, self.origin, wp.float64(self.unit), self.control_count,
-                          self.variable_count, self.model.count, self.point_count, 1 if jacobian else 0],
-                  outputs=[data.hessian, data.gradient, data.misfit])
+        if jacobian not in data.commands:
+            data.commands[jacobian] = wp.launch(
+                kernels.normal_equations, dim=frames * self.point_count, device=self.device, record_cmd=True,
+                inputs=[buffers.x3, buffers.dx3, self._point_offsets, self._point_vertex, self._point_weight,
+                        self._active_offsets, self._active, data.targets, data.weights, data.rotation,
+                        data.translation, data.frame_on, self.origin, wp.float64(self.unit), self.control_count,
+                        self.variable_count, self.model.count, self.point_count, 1 if jacobian else 0],
+                outputs=[data.hessian, data.gradient, data.misfit])
+        data.commands[jacobian].launch()
         misfit = data.misfit.numpy().copy()
         if not jacobian:
             return misfit, None, None

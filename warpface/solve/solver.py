@@ -41,6 +41,9 @@ SPHINCTER_MAX = 1.0
 
 _OPERATORS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
+_ENERGY_FLOOR = 1e-16
+"""Decreases of E below this (a mean squared distance of (1e-8 face units)²) count as none."""
+
 
 @dataclass(frozen=True)
 class SolveOptions:
@@ -54,10 +57,11 @@ class SolveOptions:
         pose: also solve a rigid head pose (rotation about the observed points' centroid + translation).
         bounds: per-control ``{name: (low, high)}`` overriding the defaults (c ≥ 0, sphincters ≤ 1).
         max_iterations: Levenberg–Marquardt iterations per frame.
-        tolerance: stop when an accepted step lowers E by less than this fraction …
+        tolerance: stop when a step lowers E (or is predicted to) by less than this fraction …
         step_tolerance: … or moves no scaled control by more than this (face units).
         min_points: fewer valid (non-NaN, weighted) points keeps the previous controls and flags the frame.
-        frames_per_pass: frames evaluated together (bounds the working memory of a batch).
+        frames_per_pass: frames evaluated together (bounds the working memory of a batch, ~3 MB per
+            frame for 68 landmarks of the default rig); default 64 on the CPU, 4096 on CUDA.
     """
 
     l2: float = 1e-6
@@ -67,10 +71,10 @@ class SolveOptions:
     pose: bool = False
     bounds: dict | None = None
     max_iterations: int = 50
-    tolerance: float = 1e-9
+    tolerance: float = 1e-5
     step_tolerance: float = 1e-7
     min_points: int = 3
-    frames_per_pass: int = 64
+    frames_per_pass: int | None = None
 
     @classmethod
     def from_keywords(cls, **options) -> "SolveOptions":
@@ -86,6 +90,8 @@ class SolveOptions:
                 raise ValueError(f"{name}: expected a finite number ≥ 0, got {value!r}")
         for name in ("max_iterations", "min_points", "frames_per_pass"):
             value = getattr(made, name)
+            if name == "frames_per_pass" and value is None:
+                continue
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name}: expected a positive integer, got {value!r}")
         return replace(made, pose=bool(made.pose))
@@ -285,7 +291,7 @@ class Solver:
         weight = self.weights if weights is None else point_weights(weights, self.observation.count)
         frames = len(array)
         out = {key: [] for key in ("controls", "residual", "converged", "skipped", "iterations", "rotation", "translation")}
-        chunk = self.options.frames_per_pass
+        chunk = self.options.frames_per_pass or (4096 if self.local.device.is_cuda else 64)
         bar = None
         if progress:
             from tqdm import tqdm
@@ -357,6 +363,16 @@ class Solver:
                     break
                 frame = todo[pending]
                 step = self._damped_step(hessian[pending], projected[pending], held[pending], damping[frame])
+                if _try == 0:
+                    # The quadratic model's predicted decrease; negligible → converged without a trial.
+                    curvature = np.einsum("fi,fij,fj->f", step, hessian[pending], step)
+                    predicted = -(np.einsum("fi,fi->f", projected[pending], step) + 0.5 * curvature)
+                    negligible = predicted <= opts.tolerance * current[frame] + _ENERGY_FLOOR
+                    converged[frame[negligible]] = True
+                    active[frame[negligible]] = False
+                    pending, step, frame = pending[~negligible], step[~negligible], frame[~negligible]
+                    if len(pending) == 0:
+                        break
                 trial_u, trial_r, trial_t = u.copy(), rotation.copy(), translation.copy()
                 trial_u[frame] = np.clip(u[frame] + step[:, :n], low, high)
                 if step.shape[1] > n:
@@ -371,7 +387,7 @@ class Solver:
                 decrease = current[accepted] - value[better]
                 moved = np.abs(trial_u[accepted] - u[accepted]).max(axis=1, initial=0.0)
                 u[accepted], rotation[accepted], translation[accepted] = trial_u[accepted], trial_r[accepted], trial_t[accepted]
-                done = (decrease <= opts.tolerance * np.maximum(current[accepted], 1e-300)) | (moved < opts.step_tolerance)
+                done = (decrease <= opts.tolerance * current[accepted] + _ENERGY_FLOOR) | (moved < opts.step_tolerance)
                 converged[accepted[done]] = True
                 active[accepted[done]] = False
                 current[accepted], misfit[accepted] = value[better], trial_misfit[better]
