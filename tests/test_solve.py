@@ -202,3 +202,48 @@ def test_non_convergence_returns_best_iterate(rig, model, rng):
     assert not result.converged
     start = fit(rig, np.asarray(rig.mesh.points[rig.landmarks]), vertices=rig.landmarks, device="cpu")
     assert np.isfinite(result.residual) and result.residual <= np.sqrt(np.mean(np.sum((target - start.points[rig.landmarks]) ** 2, axis=1)))
+
+
+@pytest.mark.parametrize("pose", [False, True])
+def test_device_normal_equations_match_numpy_reference(rig, rng, pose):
+    from warpface.solve.objective import DeviceObjective
+    from warpface.solve.pose import skew
+    from warpface.solve.targets import observation
+
+    triangles = rng.choice(rig.mesh.triangle_count, 40, replace=False)
+    bary = rng.dirichlet([1.0, 1.0, 1.0], 40)
+    obs = observation(rig.mesh, triangles=triangles, barycentrics=bary)
+    local = LocalExpression(rig_operators(rig, "cpu"), obs.vertices)
+    kernel = KernelExpression(local, device="cpu")
+    unit, origin = 0.06, obs.apply(rig.mesh.points).mean(axis=0)
+    objective = DeviceObjective(kernel, obs, pose=pose, origin=origin, unit=unit)
+    frames = 3
+    controls = np.stack([random_controls(rig, rng, count=8) for _ in range(frames)])
+    rotation = rotation_from_vector(rng.normal(scale=0.1, size=(frames, 3)))
+    translation = rng.normal(scale=0.05, size=(frames, 3))
+    if not pose:  # the solver passes the identity pose then
+        rotation, translation = np.tile(np.eye(3), (frames, 1, 1)), np.zeros((frames, 3))
+    targets = rng.normal(size=(frames, obs.count, 3))
+    weights = rng.uniform(0.0, 1.0, (frames, obs.count))
+    weights[1, :5] = 0.0
+    objective.bind(targets, weights)
+    on = np.array([True, True, False])
+    misfit, hessian, gradient = objective.evaluate(controls, rotation, translation, on, jacobian=True)
+
+    x, dx = local.evaluate(controls)  # NumPy float64 reference
+    observed, jac = obs.apply_frames(x), obs.apply_frames(dx)  # (F, N, 3), (F, N, 3, M)
+    arm = np.einsum("fij,fnj->fni", rotation, observed - origin)
+    e = (arm + origin) / unit + translation[:, None] - targets
+    columns = np.einsum("fij,fnjm->fnim", rotation, jac)
+    if pose:
+        lever = -skew(arm)
+        columns = np.concatenate([columns, lever, np.broadcast_to(unit * np.eye(3), lever.shape)], axis=3)
+    for f in range(frames):
+        if not on[f]:
+            assert misfit[f] == 0.0 and not hessian[f].any()
+            continue
+        w = np.repeat(weights[f], 3)
+        flat = columns[f].reshape(-1, columns.shape[3])
+        assert misfit[f] == pytest.approx(np.sum(weights[f] * np.sum(e[f] ** 2, axis=1)), rel=1e-12)
+        assert np.allclose(hessian[f], flat.T @ (w[:, None] * flat), rtol=1e-10, atol=1e-12 * np.abs(hessian[f]).max())
+        assert np.allclose(gradient[f], flat.T @ (w * e[f].ravel()), rtol=1e-10, atol=1e-12 * np.abs(gradient[f]).max())
