@@ -20,16 +20,19 @@ def muscle_stage(
     rest: wp.array(dtype=wp.vec3d),
     field: wp.array(dtype=wp.vec3d),
     controls: wp.array(dtype=wp.float64),
+    active_offsets: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
     control_count: int,
     vertex_count: int,
     points: wp.array(dtype=wp.vec3d),
 ):
-    """x1 = x_rest + W c over the neighbourhood's vertices."""
+    """x1 = x_rest + W c over the neighbourhood's vertices (the muscles that reach each vertex)."""
     i = wp.tid()
     f = i / vertex_count
     v = i - f * vertex_count
     x = rest[v]
-    for m in range(control_count):
+    for slot in range(active_offsets[v], active_offsets[v + 1]):
+        m = active[slot]
         x += controls[f * control_count + m] * field[v * control_count + m]
     points[i] = x
 

@@ -74,7 +74,7 @@ class KernelExpression:
                            t0=len(local.triangles0), n0=local.count)
         self._buffers: dict[int, _Buffers] = {}
         self.active_controls = _active_controls(local)
-        """Per element kind (``t1``, ``s1``, ``t0``, ``s0``): which controls can move it, sparse bool CSR."""
+        """Per element kind (``s2``, ``t1``, ``s1``, ``t0``, ``s0``): which controls can move it, sparse bool CSR."""
         self._active = {name: (i32(csr.indptr), i32(csr.indices if csr.nnz else np.zeros(1)))
                         for name, csr in self.active_controls.items()}
 
@@ -111,7 +111,7 @@ class KernelExpression:
             commands.append(wp.launch(kernel, record_cmd=True, **kwargs))
 
         launch(kernels.muscle_stage, dim=frames * s["n2"], device=d,
-                  inputs=[self._rest, self._field, buffers.controls, m, s["n2"]], outputs=[buffers.x1])
+                  inputs=[self._rest, self._field, buffers.controls, *self._active["s2"], m, s["n2"]], outputs=[buffers.x1])
         launch(kernels.first_ring_triangles, dim=frames * s["t1"], device=d,
                   inputs=[buffers.x1, self._field, self._t1, self._t1_weight, self._t1_length, *self._active["t1"], m, s["n2"], s["t1"], jac],
                   outputs=[buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1])
@@ -172,7 +172,7 @@ def _active_controls(local: LocalExpression) -> dict:
     t0 = spread(corners0, s1)
     s0 = (spread(local.incidence0, t0) + s1[local.s0_in_s1]).astype(bool).tocsr()
     result = {}
-    for name, matrix in (("t1", t1), ("s1", s1), ("t0", t0), ("s0", s0)):
+    for name, matrix in (("s2", moved), ("t1", t1), ("s1", s1), ("t0", t0), ("s0", s0)):
         matrix.eliminate_zeros()
         matrix.sort_indices()
         result[name] = matrix
