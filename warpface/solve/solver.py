@@ -41,8 +41,7 @@ SPHINCTER_MAX = 1.0
 
 _OPERATORS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
-_ENERGY_FLOOR = 1e-16
-"""Decreases of E below this (a mean squared distance of (1e-8 face units)²) count as none."""
+
 
 
 @dataclass(frozen=True)
@@ -58,7 +57,9 @@ class SolveOptions:
         bounds: per-control ``{name: (low, high)}`` overriding the defaults (c ≥ 0, sphincters ≤ 1).
         max_iterations: Levenberg–Marquardt iterations per frame.
         tolerance: stop when a step lowers E (or is predicted to) by less than this fraction …
-        step_tolerance: … or moves no scaled control by more than this (face units).
+        step_tolerance: … or moves no scaled control by more than this (face units) …
+        energy_tolerance: … or lowers E by less than this: E is a mean squared distance in face units², so
+            1e-10 is an RMS change of 1e-5 face units (0.6 µm on a face with a 62 mm inter-ocular distance).
         min_points: fewer valid (non-NaN, weighted) points keeps the previous controls and flags the frame.
         frames_per_pass: frames evaluated together (bounds the working memory of a batch, ~3 MB per
             frame for 68 landmarks of the default rig); default 64 on the CPU, 4096 on CUDA.
@@ -73,6 +74,7 @@ class SolveOptions:
     max_iterations: int = 50
     tolerance: float = 1e-5
     step_tolerance: float = 1e-7
+    energy_tolerance: float = 1e-10
     min_points: int = 3
     frames_per_pass: int | None = None
 
@@ -83,7 +85,7 @@ class SolveOptions:
         if unknown:
             raise TypeError(f"unknown solve option {unknown[0]!r} (known: {', '.join(sorted(known))})")
         made = cls(**options)
-        for name in ("l2", "l1", "symmetry", "smoothness", "tolerance", "step_tolerance"):
+        for name in ("l2", "l1", "symmetry", "smoothness", "tolerance", "step_tolerance", "energy_tolerance"):
             value = getattr(made, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
                     or not np.isfinite(value) or value < 0:
@@ -226,6 +228,8 @@ class Solver:
     def reset(self) -> None:
         """Forget the warm start: the next frame starts from neutral (and re-aligns the pose)."""
         self.controls = np.zeros(len(self.names))
+        self._earlier: np.ndarray | None = None
+        """The controls of the frame before the last (for the constant-velocity first guess)."""
         self.rotation = np.eye(3)
         self.translation = np.zeros(3)
         self._pose_known = False
@@ -268,8 +272,13 @@ class Solver:
         """
         targets = frame_targets(target, self.observation, batched=False)
         weight = self.weights if weights is None else point_weights(weights, self.observation.count)
-        result = self._solve_frames(targets, weight, self.controls[None], temporal=True)
+        # First guess: the last two frames' motion continued (smooth motion starts one step closer);
+        # the temporal term still pulls toward the last frame itself.
+        guess = None if self._earlier is None else 2.0 * self.controls - self._earlier
+        result = self._solve_frames(targets, weight, self.controls[None], temporal=True,
+                                    guess=None if guess is None else guess[None])
         controls = result["controls"][0]
+        self._earlier = None if result["skipped"][0] else self.controls
         self.controls = controls.copy()
         if not result["skipped"][0]:
             self.rotation, self.translation = result["rotation"][0], result["translation"][0]
@@ -312,7 +321,10 @@ class Solver:
         return BatchFit(names=list(self.names), **stacked)
 
     # ------------------------------------------------------------------ the solve
-    def _solve_frames(self, targets: np.ndarray, weight: np.ndarray, start: np.ndarray, *, temporal: bool) -> dict:
+    def _solve_frames(self, targets: np.ndarray, weight: np.ndarray, start: np.ndarray, *, temporal: bool,
+                      guess: np.ndarray | None = None) -> dict:
+        """Solve (F, N, 3) targets; ``start`` (F, M) is the temporal anchor and kept by skipped frames,
+        ``guess`` (default ``start``) the first iterate."""
         opts = self.options
         frames, count = targets.shape[:2]
         valid = np.all(np.isfinite(targets), axis=2) & (weight[None] > 0.0)
@@ -323,8 +335,8 @@ class Solver:
         y = np.where(valid[..., None], targets, 0.0) / self.unit
         scale = self.control_scale
         low, high = self.low * scale, self.high * scale
-        u = np.clip(start * scale, low, high)
-        previous = u.copy()
+        previous = np.clip(start * scale, low, high)
+        u = previous.copy() if guess is None else np.clip(guess * scale, low, high)
         smooth = opts.smoothness if temporal else 0.0
         rotation = np.tile(self.rotation, (frames, 1, 1))
         translation = np.tile(self.translation / self.unit, (frames, 1))
@@ -367,7 +379,7 @@ class Solver:
                     # The quadratic model's predicted decrease; negligible → converged without a trial.
                     curvature = np.einsum("fi,fij,fj->f", step, hessian[pending], step)
                     predicted = -(np.einsum("fi,fi->f", projected[pending], step) + 0.5 * curvature)
-                    negligible = predicted <= opts.tolerance * current[frame] + _ENERGY_FLOOR
+                    negligible = predicted <= opts.tolerance * current[frame] + opts.energy_tolerance
                     converged[frame[negligible]] = True
                     active[frame[negligible]] = False
                     pending, step, frame = pending[~negligible], step[~negligible], frame[~negligible]
@@ -387,7 +399,7 @@ class Solver:
                 decrease = current[accepted] - value[better]
                 moved = np.abs(trial_u[accepted] - u[accepted]).max(axis=1, initial=0.0)
                 u[accepted], rotation[accepted], translation[accepted] = trial_u[accepted], trial_r[accepted], trial_t[accepted]
-                done = (decrease <= opts.tolerance * current[accepted] + _ENERGY_FLOOR) | (moved < opts.step_tolerance)
+                done = (decrease <= opts.tolerance * current[accepted] + opts.energy_tolerance) | (moved < opts.step_tolerance)
                 converged[accepted[done]] = True
                 active[accepted[done]] = False
                 current[accepted], misfit[accepted] = value[better], trial_misfit[better]
