@@ -35,6 +35,7 @@ class _FrameData:
         self.cpu = device.is_cpu
         if self.cpu:  # NumPy views sharing the arrays' memory: per-frame inputs are written in place
             self.views = [a.numpy() for a in (self.rotation, self.translation, self.frame_on)]
+            self.target_view, self.weight_view = self.targets.numpy(), self.weights.numpy()
 
     def set_frame_inputs(self, rotation: np.ndarray, translation: np.ndarray, frame_on: np.ndarray) -> None:
         values = (np.asarray(rotation, dtype=np.float64), np.asarray(translation, dtype=np.float64),
@@ -89,6 +90,10 @@ class DeviceObjective:
         if frames not in self._data:
             self._data[frames] = _FrameData(frames, self.point_count, self.variable_count, self.device)
         data = self._bound = self._data[frames]
+        if data.cpu:
+            data.target_view[: targets.size // 3] = np.reshape(targets, (-1, 3))
+            data.weight_view[: weights.size] = np.reshape(weights, -1)
+            return
         data.targets.assign(wp.array(np.ascontiguousarray(targets, dtype=np.float64).reshape(-1, 3), dtype=wp.vec3d, device="cpu"))
         data.weights.assign(wp.array(np.ascontiguousarray(weights, dtype=np.float64).reshape(-1), dtype=wp.float64, device="cpu"))
 
