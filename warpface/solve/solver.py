@@ -40,6 +40,8 @@ SPHINCTER_MAX = 1.0
 """Upper bound of a sphincter's contraction: at K = 1 the skin at the centre reaches it (f·K ≤ 1)."""
 
 _OPERATORS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_SOLVERS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_SOLVERS_PER_RIG = 4
 
 
 
@@ -482,11 +484,22 @@ def fit(rig, target, *, vertices=None, weights=None, device=None, **options) -> 
             Surface points: pass ``triangles=`` (N,) and ``barycentrics=`` (N, 3) instead of ``vertices``.
         vertices: (N,) vertex indices of the target points.
         weights: per-point weights (N,), ≥ 0.
-        device: Warp device of the full model evaluation (:attr:`Fit.points`).
+        device: Warp device of the solve's kernels and of :attr:`Fit.points`.
         **options: :class:`SolveOptions` fields (``l2``, ``l1``, ``symmetry``, ``pose``, ``bounds``, …).
 
     Returns:
-        :class:`Fit`.
+        :class:`Fit`, solved from neutral. The solver built for these target locations is kept with the
+        rig (a few per rig), so fitting many shapes at the same locations pays its setup once.
     """
     surface = {key: options.pop(key) for key in ("triangles", "barycentrics") if key in options}
-    return Solver(rig, vertices, weights=weights, device=device, **surface, **options).solve(target)
+    key = (str(device), repr(sorted(options.items())),
+           *(None if v is None else np.asarray(v).tobytes() for v in (vertices, *surface.values())))
+    solvers = _SOLVERS.setdefault(rig, {})
+    solver = solvers.pop(key, None)
+    if solver is None:
+        solver = Solver(rig, vertices, device=device, **surface, **options)
+    solvers[key] = solver  # most recently used last
+    while len(solvers) > _SOLVERS_PER_RIG:
+        solvers.pop(next(iter(solvers)))
+    solver.reset()
+    return solver.solve(target, weights=weights)
