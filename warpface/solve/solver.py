@@ -28,6 +28,7 @@ import numpy as np
 
 from ..errors import RigError
 from ..expression.muscles import SphincterMuscle
+from ..rig import FaceRig
 from .local_kernels import KernelExpression
 from .objective import DeviceObjective
 from .local_model import LocalExpression, RigOperators
@@ -201,8 +202,6 @@ class Solver:
     """
 
     def __init__(self, rig, vertices=None, *, triangles=None, barycentrics=None, weights=None, device=None, **options):
-        from ..rig import FaceRig
-
         if not isinstance(rig, FaceRig):
             raise TypeError(f"rig: expected a warpface.FaceRig, got {type(rig).__name__}")
         if not rig.muscles:
@@ -491,6 +490,8 @@ def fit(rig, target, *, vertices=None, weights=None, device=None, **options) -> 
         :class:`Fit`, solved from neutral. The solver built for these target locations is kept with the
         rig (a few per rig), so fitting many shapes at the same locations pays its setup once.
     """
+    if not isinstance(rig, FaceRig):
+        raise TypeError(f"rig: expected a warpface.FaceRig, got {type(rig).__name__}")
     surface = {key: options.pop(key) for key in ("triangles", "barycentrics") if key in options}
     key = (str(device), repr(sorted(options.items())),
            *(None if v is None else np.asarray(v).tobytes() for v in (vertices, *surface.values())))
