@@ -43,6 +43,10 @@ SPHINCTER_MAX = 1.0
 _OPERATORS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _SOLVERS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _SOLVERS_PER_RIG = 4
+_COLD_DAMPING, _WARM_DAMPING = 1.0, 1e-4
+"""Initial Levenberg–Marquardt damping (× the Hessian's diagonal) from neutral and from a warm start. From
+neutral, 1.0 recovered 20 of 20 random six-muscle expressions (≤ 0.3 inter-ocular units each) on the
+built-in face to < 1e-5 IOD; 1e-4 … 1e-1 missed one (a mentalis at 0.2 IOD fitted at 0.38)."""
 
 
 
@@ -351,7 +355,10 @@ class Solver:
         active = ~skipped
         iterations = np.zeros(frames, dtype=np.int64)
         converged = np.zeros(frames, dtype=bool)
-        damping = np.full(frames, 1e-4)
+        # From neutral, start cautious (large damping): the first Gauss–Newton step of a large expression
+        # can jump into another basin (a muscle pulled past its attachment); warm starts start near GN.
+        cold = ~np.any(u != 0.0, axis=1)
+        damping = np.where(cold, _COLD_DAMPING, _WARM_DAMPING)
         current = np.full(frames, np.inf)
         misfit = np.zeros(frames)
         n = len(self.names)
