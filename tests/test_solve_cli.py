@@ -76,3 +76,20 @@ def test_fit_command_errors_name_the_file(rig_stage, tmp_path, capsys):
     assert "topology differs" in capsys.readouterr().err
     assert main(["--device", "cpu", "fit", str(tmp_path / "missing.obj"), "--rig", str(path)]) == 2
     assert read_presets(path) == {}
+
+
+def test_fit_command_reads_usd_targets_in_their_units(rig_stage, tmp_path, capsys):
+    from pxr import Usd, UsdGeom
+
+    rig, path = rig_stage
+    truth = {"frontalis_R": 0.004}
+    target = rig.model("cpu").evaluate(truth).astype(np.float64)
+    shape = tmp_path / "brow.usda"
+    stage = Usd.Stage.CreateNew(str(shape))
+    UsdGeom.SetStageMetersPerUnit(stage, 0.01)  # centimetres: converted to the rig stage's metres
+    mesh = UsdGeom.Mesh.Define(stage, "/Scan")
+    mesh.CreatePointsAttr([tuple(p) for p in (target * 100.0).tolist()])
+    stage.GetRootLayer().Save()
+    assert main(["--device", "cpu", "fit", str(shape), "--rig", str(path), "--no-images", "--name", "raised"]) == 0
+    assert read_presets(path)["raised"]["frontalis_R"] == pytest.approx(0.004, rel=1e-3)
+    assert "preset 'raised'" in capsys.readouterr().out
