@@ -125,6 +125,9 @@ def test_warm_start_and_temporal_sequence(rig, model):
     assert again.iterations <= 2
     iod = rig_scale(rig)
     assert max(f.residual for f in warm) < 1e-3 * iod
+    sequence = Solver(rig, rig.landmarks, device="cpu").solve_sequence(frames)
+    assert np.allclose(sequence.controls, np.stack([f.vector for f in warm]), atol=1e-12)
+    assert np.array_equal(sequence.iterations, [f.iterations for f in warm])
     # A heavy temporal term holds a frame near the previous frame's controls (here: neutral).
     peak = frames[len(frames) // 2]
     free = Solver(rig, rig.landmarks, device="cpu").solve(peak)

@@ -294,6 +294,28 @@ class Solver:
                    rotation=self.rotation.copy(), translation=self.translation.copy(), origin=self.origin.copy(),
                    vector=controls, model=self.model)
 
+    def solve_sequence(self, targets, weights=None, *, progress: bool = False) -> BatchFit:
+        """Solve F frames in order, each warm-started from (and smoothed toward) the one before, as
+        :meth:`solve` would frame by frame; the solver's state advances to the last frame.
+
+        ``targets`` is (F, N, 3) with NaN for missing points. For tracking: feed ``controls`` to
+        :func:`warpface.usd.write_animation` as contractions, and keep ``residual`` per frame.
+        """
+        array = frame_targets(targets, self.observation, batched=True)
+        frames = range(len(array))
+        if progress:
+            from tqdm import tqdm
+
+            frames = tqdm(frames, desc="solve frames", unit="frame")
+        fits = [self.solve(array[f], weights) for f in frames]
+        names = list(self.names)
+        if not fits:
+            return BatchFit(names, np.zeros((0, len(names))), *(np.zeros(0) for _ in range(4)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
+        return BatchFit(names=names, controls=np.stack([f.vector for f in fits]),
+                        residual=np.array([f.residual for f in fits]), converged=np.array([f.converged for f in fits]),
+                        skipped=np.array([f.skipped for f in fits]), iterations=np.array([f.iterations for f in fits]),
+                        rotation=np.stack([f.rotation for f in fits]), translation=np.stack([f.translation for f in fits]))
+
     def solve_batch(self, targets, weights=None, *, progress: bool = False) -> BatchFit:
         """Solve F independent frames together, each started from the solver's current controls.
 
