@@ -70,6 +70,8 @@ def test_bad_surface_points_weights_and_options():
     name = RIG.muscle_names[0]
     with pytest.raises(ValueError, match=f"bounds\\[{name!r}\\]"):
         Solver(RIG, [0, 1, 2], bounds={name: (1, 0)}, device="cpu")
+    with pytest.raises(ValueError, match="lower bound must be ≥ 0"):
+        Solver(RIG, [0, 1, 2], bounds={name: (-1, 0)}, device="cpu")
 
 
 coordinates = st.floats(min_value=-10.0, max_value=10.0) | st.just(np.nan)

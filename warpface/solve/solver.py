@@ -198,7 +198,8 @@ class Solver:
         vertices: (N,) vertex indices of the targets; or ``triangles`` (N,) + ``barycentrics`` (N, 3)
             for surface points; neither: dense targets (V, 3) with the rig's topology.
         weights: per-point confidence (N,), ≥ 0 and finite (default 1).
-        device: Warp device of the full model that evaluates :attr:`Fit.points`.
+        device: Warp device of the solve's kernels and of the full model behind :attr:`Fit.points`
+            (default: Warp's preferred device).
         **options: :class:`SolveOptions` fields.
 
     Raises:
@@ -251,6 +252,8 @@ class Solver:
                 raise ValueError(f"bounds[{name!r}]: expected (low, high)") from None
             if np.isnan(lo) or np.isnan(hi) or lo > hi or lo == np.inf or hi == -np.inf:
                 raise ValueError(f"bounds[{name!r}]: expected low ≤ high, got ({lo}, {hi})")
+            if lo < 0.0:  # muscles only pull; the L1 term is Σ c on this feasible set
+                raise ValueError(f"bounds[{name!r}]: a muscle's lower bound must be ≥ 0, got {lo}")
             index = self.names.index(name)
             low[index], high[index] = lo, hi
         return low, high
