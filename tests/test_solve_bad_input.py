@@ -42,6 +42,7 @@ def test_topology_and_count_mismatch():
     ([0.5, 1.0], "vertices: indices must be integers"),
     ([[0, 1]], "vertices: expected a 1-D array"),
     ([], "vertices: no target points"),
+    (np.array([True, False]), "vertices: expected integer indices, got a boolean array"),
 ])
 def test_bad_vertices(vertices, match):
     with pytest.raises(ValueError, match=match):

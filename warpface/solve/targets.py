@@ -54,7 +54,9 @@ def _integer_indices(values, name: str, upper: int) -> np.ndarray:
     if array.dtype.kind == "f":
         if not np.all(np.isfinite(array)) or np.any(array != np.round(array)):
             raise ValueError(f"{name}: indices must be integers")
-    elif array.dtype.kind not in "iub":
+    elif array.dtype.kind == "b":
+        raise ValueError(f"{name}: expected integer indices, got a boolean array (np.flatnonzero(mask) gives indices)")
+    elif array.dtype.kind not in "iu":
         raise ValueError(f"{name}: indices must be integers, got dtype {array.dtype}")
     array = array.astype(np.int64)
     bad = np.flatnonzero((array < 0) | (array >= upper))
