@@ -192,7 +192,7 @@ def write_mediapipe_textproto(path, curves: Curves) -> Path:
         raise ValueError(f"{path}: {curves.source} has no ARKit channels to write")
 
     def block(frame: int, indent: str) -> str:
-        return "".join(f'{indent}classification {{\n{indent}  index: {i}\n{indent}  score: {curves.values[frame, k]!r}\n'
+        return "".join(f'{indent}classification {{\n{indent}  index: {i}\n{indent}  score: {float(curves.values[frame, k])!r}\n'
                        f'{indent}  label: "{curves.names[k]}"\n{indent}}}\n' for i, k in enumerate(columns))
 
     with atomic_path(path, path.suffix) as temporary:
@@ -201,7 +201,7 @@ def write_mediapipe_textproto(path, curves: Curves) -> Path:
             if curves.frame_count == 1 and curves.times[0] == 0.0:
                 handle.write(block(0, ""))
             for frame in range(curves.frame_count if curves.frame_count > 1 or curves.times[0] != 0.0 else 0):
-                handle.write(f"classification_list {{\n  timestamp_ms: {curves.times[frame] * 1000.0!r}\n{block(frame, '  ')}}}\n")
+                handle.write(f"classification_list {{\n  timestamp_ms: {float(curves.times[frame]) * 1000.0!r}\n{block(frame, '  ')}}}\n")
     return path
 
 
