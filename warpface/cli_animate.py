@@ -45,6 +45,8 @@ def _load_rig(rig_path):
         from .assets import default_rig
 
         return default_rig(), None, 1.0, None
+    if Path(rig_path).suffix.lower() not in (".usda", ".usdc", ".usd", ".usdz"):
+        raise ValueError(f"--rig {rig_path}: expected a USD rig stage (.usda, .usdc, .usd)")
     stage = open_stage(rig_path)
     units = stage_meters_per_unit(stage)
     rate = stage.GetTimeCodesPerSecond() if stage.GetRootLayer().HasTimeCodesPerSecond() else None
@@ -108,7 +110,7 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
     Raises:
         ValueError: bad driver, rig, mapping or output path (nothing is written then).
     """
-    from pxr import Usd
+    from pxr import Sdf, Usd
 
     from . import usd
     from .drivers import read_driver
@@ -124,6 +126,9 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
         raise ValueError(f"--fps must be a positive number, got {rate}")
     cleaned, mapped = prepare_controls(curves, rig_model, mapping, fps=rate, neutral=neutral, gain=gain, one_euro=one_euro)
     unmapped = list(dict.fromkeys(mapped.unmapped_channels + [c for c in orphaned if c in curves.names]))
+    if all(name in unmapped for name in curves.names):
+        raise ValueError(f"{curves.source}: none of its channels ({', '.join(curves.names[:5])}"
+                         f"{', …' if len(curves.names) > 5 else ''}) drives a control of rig {rig_model.name!r}")
     notes = list(cleaned.notes)
 
     stage = Usd.Stage.CreateInMemory("animate" + out.suffix)
@@ -137,8 +142,10 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
     cache_path = out.with_name(out.stem + CACHE_SUFFIX)
     model = rig_model.model(device=device)
     cache = usd.bake(stage, time_codes, cache_path=cache_path, model=model, device=device, progress=progress)
-    root.subLayerPaths[0] = "./" + cache.name  # bake gave an in-memory stage an absolute path
-    usd.export_layer_atomically(root, out)
+    saved = Sdf.Layer.CreateAnonymous(out.suffix)  # a copy: re-pathing the stage's own layer would recompose it
+    saved.TransferContent(root)
+    saved.subLayerPaths[0] = "./" + cache.name  # bake gave the in-memory stage an absolute path
+    usd.export_layer_atomically(saved, out)
     video_path = None
     if video:
         video_path = _preview(out.with_suffix(".mp4"), model, rig_model, mapped, rate, video_size, progress)
@@ -231,9 +238,12 @@ def run_animate(args) -> int:
     from .drivers.cleanup import OneEuroFilter
 
     one_euro = OneEuroFilter(min_cutoff=args.filter_min_cutoff, beta=args.filter_beta) if args.filter else None
-    result = animate(args.driver, args.out, rig=args.rig, map_spec=args.map, fps=args.fps, neutral=_neutral(args.neutral),
-                     gain=_gains(args.gain), one_euro=one_euro, video=not args.no_video, device=args.device,
-                     progress=not args.quiet)
+    try:
+        result = animate(args.driver, args.out, rig=args.rig, map_spec=args.map, fps=args.fps, neutral=_neutral(args.neutral),
+                         gain=_gains(args.gain), one_euro=one_euro, video=not args.no_video, device=args.device,
+                         progress=not args.quiet)
+    except ValueError as error:  # messages relayed from pxr can span lines: the CLI prints one
+        raise ValueError(" ".join(str(error).split())) from None
     for note in result.notes:
         print(f"note: {note}")
     if result.unmapped_channels:
