@@ -181,3 +181,21 @@ def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys):
         lines = captured.err.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("warpface animate: error:"), (name, captured.err)
         assert list(out_dir.iterdir()) == [], name
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".usda"])
+def test_animated_rig_exports_arkit_weights_that_reproduce_the_take(tmp_path, suffix):
+    from warpface.drivers import read_driver
+    from warpface.usd.skel_io import export_arkit_weights
+
+    t = np.arange(45) / 30.0
+    take = {"mouthSmileLeft": np.sin(np.pi * t / t[-1]) ** 2, "noseSneerRight": 0.6 * t / t[-1]}
+    driver = live_link_csv(tmp_path / "take.csv", take)
+    assert main(["--quiet", "--device", "cpu", "animate", str(driver), "--out", str(tmp_path / "o.usda"), "--no-video"]) == 0
+    exported = read_driver(export_arkit_weights(tmp_path / "o.usda", tmp_path / f"arkit{suffix}"))
+    assert set(exported.names) <= set(ARKIT_CHANNELS) and exported.frame_count == 45
+    np.testing.assert_allclose(exported.times, t, atol=1e-4)
+    for name, values in take.items():
+        np.testing.assert_allclose(exported.channel(name), values, atol=0.02)
+    others = [k for k, n in enumerate(exported.names) if n not in take]
+    assert exported.values[:, others].max() < 0.02

@@ -16,7 +16,7 @@ from pxr import Sdf, Usd, UsdSkel, Vt
 from ..drivers.channels import Curves, canonical_channel
 from ._files import LAYER_SUFFIXES, export_layer_atomically, open_stage, writable_path
 
-__all__ = ["read_skel_animation", "write_skel_animation", "find_skel_animations"]
+__all__ = ["read_skel_animation", "write_skel_animation", "find_skel_animations", "export_arkit_weights"]
 
 
 def find_skel_animations(stage: Usd.Stage) -> list[Usd.Prim]:
@@ -100,3 +100,45 @@ def write_skel_animation(path, curves: Curves, *, prim_path: str = "/Animation",
     layer.startTimeCode, layer.endTimeCode = float(codes[0]), float(codes[-1])
     export_layer_atomically(layer, target)
     return target
+
+
+def export_arkit_weights(stage_or_path, out_path, *, mapping: str | None = None, fps: float | None = None) -> Path:
+    """Export an animated (or solved) rig's controls as ARKit weights: a Live Link Face CSV (``.csv``) or a
+    ``SkelAnimation`` layer (``.usda``/``.usdc``).
+
+    The weights are the bounded least-squares projection of the controls onto the mapping's ARKit columns
+    (:func:`warpface.drivers.project_controls`): the rig's stored ``mapping`` (default: its ``default``
+    mapping when stored, else the default table for the rig).
+
+    Raises:
+        ValueError: nothing animated, no ARKit channel in the mapping, bad output path.
+    """
+    from ..drivers import ARKIT_CHANNELS, Mapping, controls_to_curves, mapping_for_rig, write_live_link
+    from .animation import read_animation
+    from .mapping_io import mapping_names, read_mapping
+    from .rig_io import read_rig, stage_meters_per_unit
+
+    stage = open_stage(stage_or_path)
+    out = Path(out_path)
+    if out.suffix.lower() not in (".csv",) + LAYER_SUFFIXES:
+        raise ValueError(f"{out}: export to .csv (Live Link Face) or .usda/.usdc (SkelAnimation)")
+    units = stage_meters_per_unit(stage)
+    animation = read_animation(stage, meters_per_unit=units)
+    if len(animation.times) == 0:
+        raise ValueError(f"{Path(stage.GetRootLayer().identifier).name}: the rig is not animated")
+    if mapping is not None or "default" in mapping_names(stage):
+        table = read_mapping(stage, mapping or "default")
+    else:
+        table = mapping_for_rig(read_rig(stage, meters_per_unit=units), "arkit")[0]
+    keep = [c for c, name in enumerate(table.channels) if name in set(ARKIT_CHANNELS)]
+    if not keep:
+        raise ValueError(f"mapping {table.name!r} has no ARKit channel to export")
+    arkit = Mapping(channels=[table.channels[c] for c in keep], controls=table.controls, matrix=table.matrix[:, keep],
+                    offsets=table.offsets, name=table.name)
+    controls = {name: animation.contractions[:, k] for k, name in enumerate(animation.muscle_names) if name in arkit.controls}
+    rate = float(fps or stage.GetTimeCodesPerSecond())
+    curves = controls_to_curves(arkit, animation.times / stage.GetTimeCodesPerSecond(), controls,
+                                source=Path(stage.GetRootLayer().identifier).name, fps=rate)
+    if out.suffix.lower() == ".csv":
+        return write_live_link(out, curves, fps=round(rate))
+    return write_skel_animation(out, curves, fps=rate)
