@@ -102,8 +102,12 @@ def default_table(kind: str = "all") -> Mapping:
 
 
 def rig_control_names(rig) -> list[str]:
-    """The controls a :class:`~warpface.FaceRig` has: its muscles' contractions (jaw controls once rigs have a jaw)."""
-    return list(rig.muscle_names) + [c for c in JAW_CONTROLS if c in set(getattr(rig, "control_names", ()) or ())]
+    """The controls a :class:`~warpface.FaceRig` has, by name: its muscles' contractions.
+
+    This is the one place that decides which table rows a rig keeps: when rigs gain a jaw (SPEC §6.2),
+    its controls (:data:`JAW_CONTROLS`) join this list and the jaw rows of the tables take effect.
+    """
+    return list(rig.muscle_names)
 
 
 def control_scales(rig, controls) -> dict[str, float]:
