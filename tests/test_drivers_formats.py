@@ -195,3 +195,16 @@ def test_fuzzed_jsonl_reads_or_says_why(tmp_path, records):
         assert "\n" not in str(error)
         return
     assert np.isfinite(curves.values).all() and np.all(np.diff(curves.times) > 0)
+
+
+def test_live_link_app_spelling_and_column_order(tmp_path):
+    """The app writes ``BlendShapeCount`` and ARKit's enum order (EyeBlinkLeft first), not alphabetical."""
+    path = tmp_path / "app.csv"
+    path.write_text("Timecode,BlendShapeCount,EyeBlinkLeft,JawOpen,MouthSmileLeft,HeadYaw\n"
+                    "09:15:00:58.500,52,0.1,0.2,0.3,0.01\n09:15:00:59.500,52,0.2,0.4,0.6,0.02\n"
+                    "09:15:01:00.500,52,0.3,0.6,0.9,0.03\n")
+    curves = read_driver(path)
+    assert curves.names == ["eyeBlinkLeft", "jawOpen", "mouthSmileLeft"] and not curves.notes
+    assert curves.fps == 60.0
+    np.testing.assert_allclose(curves.times, [0, 1 / 60, 2 / 60])
+    np.testing.assert_array_equal(curves.channel("mouthSmileLeft"), [0.3, 0.6, 0.9])

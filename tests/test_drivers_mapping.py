@@ -83,6 +83,18 @@ def test_channels_combine_linearly():
     assert mapped.unmapped_channels == ["unknown"]
 
 
+def test_calibrated_mapping_reproduces_each_example_at_full_weight():
+    rng = np.random.default_rng(5)
+    channels, controls = ["browInnerUp", "AU12", "jawOpen"], ["m1", "m2", "m3", "m4"]
+    examples, neutral = rng.uniform(0, 0.02, (3, 4)), rng.uniform(0, 0.001, 4)
+    mapping = Mapping.from_examples(channels, controls, examples, neutral)
+    full = np.diag([1.0, 5.0, 1.0])  # AU intensities top out at 5
+    mapped = mapping.apply(Curves(times=np.arange(3.0), names=channels, values=full))
+    np.testing.assert_allclose(mapped.values, examples, rtol=1e-12)
+    rest = mapping.apply(Curves(times=[0.0], names=channels, values=np.zeros((1, 3))))
+    np.testing.assert_allclose(rest.values[0], neutral)
+
+
 def test_default_table_on_the_built_in_rig(rig):
     from warpface.assets import rig_scale
 

@@ -160,7 +160,7 @@ def read_live_link(path, *, fps: float | None = None) -> Curves:
     known = set(ARKIT_CHANNELS)
     columns, unknown = [], []
     for name in header:
-        if name in ("Timecode", "BlendshapeCount") or name in LIVE_LINK_EXTRA_COLUMNS:
+        if name.lower() in ("timecode", "blendshapecount") or name in LIVE_LINK_EXTRA_COLUMNS:
             continue
         (columns if canonical_channel(name) in known else unknown).append(name)
     if not columns:

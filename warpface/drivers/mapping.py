@@ -89,6 +89,34 @@ class Mapping:
         c0 = np.array([float((offsets or {}).get(c, 0.0)) for c in controls])
         return cls(channels=channels, controls=controls, matrix=matrix, offsets=c0, name=name)
 
+    @classmethod
+    def from_examples(cls, channels, controls, example_controls, neutral_controls=None, *, name: str = "calibrated") -> "Mapping":
+        """A mapping calibrated from example shapes: one solved control vector per channel.
+
+        When a character's own blendshapes (its ARKit shapes, say) are solved for the rig's controls
+        (SPEC §6.1), the shape of channel ``j`` at full weight gives ``example_controls[j]`` and the
+        neutral gives ``neutral_controls``; then ``M[:, j] = (example_j − neutral) / full_j`` (``full`` =
+        the channel's top, 1 or 5) and ``c₀ = neutral``, so a one-hot weight reproduces its example.
+
+        Args:
+            channels: C channel names.
+            controls: K control names.
+            example_controls: shape (C, K), the controls that reproduce each channel's example at full weight.
+            neutral_controls: shape (K,), the controls of the neutral (default zeros).
+        """
+        from .channels import channel_range
+
+        channels = [str(c) for c in channels]
+        examples = np.asarray(example_controls, dtype=np.float64)
+        if examples.shape != (len(channels), len(controls)):
+            raise ValueError(f"example_controls: expected shape ({len(channels)}, {len(controls)}), got {examples.shape}")
+        neutral = np.zeros(len(controls)) if neutral_controls is None else np.asarray(neutral_controls, dtype=np.float64)
+        if neutral.shape != (len(controls),):
+            raise ValueError(f"neutral_controls: expected shape ({len(controls)},), got {neutral.shape}")
+        tops = np.array([channel_range(c)[1] for c in channels])
+        return cls(channels=channels, controls=list(controls), matrix=((examples - neutral) / tops[:, None]).T,
+                   offsets=neutral, name=name)
+
     def entries(self) -> list[tuple[str, str, float]]:
         """The non-zero weights as ``(channel, control, weight)``, channel by channel."""
         return [(ch, self.controls[k], float(self.matrix[k, c]))
