@@ -92,7 +92,8 @@ def prepare_controls(curves, rig, mapping, *, fps: float, neutral=None, gain=Non
 
 
 def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gain=None, one_euro=None,
-            video: bool = True, video_size=(360, 420), device=None, progress: bool = True) -> AnimateResult:
+            video: bool = True, video_size=(360, 420), video_max_frames: int = 3600, device=None,
+            progress: bool = True) -> AnimateResult:
     """Drive a rig with a driver file and write ``out`` (the rig + control time samples), its baked cache
     ``<out stem>_anim.usdc`` and, with ``video``, ``<out stem>.mp4``.
 
@@ -105,7 +106,8 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
         fps: output rate; default: the rig stage's ``timeCodesPerSecond``, else the driver's rate
             (rounded), else 30.
         neutral, gain, one_euro: clean-up (see :func:`warpface.drivers.clean`).
-        video: render a preview video labelled with the active channels.
+        video: render a preview video labelled with the active channels (at most ``video_max_frames``
+            frames: a longer take is shown at every k-th frame).
 
     Raises:
         ValueError: bad driver, rig, mapping or output path (nothing is written then).
@@ -118,6 +120,8 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
     from .usd.mapping_io import write_mapping
 
     out = _output_path(out)
+    if video and (not isinstance(video_max_frames, (int, np.integer)) or video_max_frames < 1):
+        raise ValueError(f"--video-max-frames must be a positive whole number, got {video_max_frames!r}")
     curves = read_driver(driver)
     rig_model, rig_stage, units, stage_rate = _load_rig(rig)
     mapping, label, orphaned = _mapping(rig_model, rig_stage, map_spec)
@@ -148,7 +152,7 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
     usd.export_layer_atomically(saved, out)
     video_path = None
     if video:
-        video_path = _preview(out.with_suffix(".mp4"), model, rig_model, mapped, rate, video_size, progress)
+        video_path = _preview(out.with_suffix(".mp4"), model, rig_model, mapped, rate, video_size, progress, video_max_frames)
     return AnimateResult(stage=out, cache=cache, video=video_path, fps=rate, frame_count=len(time_codes),
                          mapping=label, unmapped_channels=unmapped, notes=notes)
 
@@ -165,8 +169,12 @@ def _output_path(path) -> Path:
     return out
 
 
-def _preview(path: Path, model, rig, mapped, rate: float, size, progress: bool) -> Path:
-    """An MP4 of the animation, each frame labelled with its time and strongest active channels."""
+def _preview(path: Path, model, rig, mapped, rate: float, size, progress: bool, max_frames: int) -> Path:
+    """An MP4 of the animation, each frame labelled with its time and strongest active channels.
+
+    A take longer than ``max_frames`` is shown whole at every k-th frame (played at ``rate / k``), so a
+    ten-minute take previews in minutes rather than the better part of an hour of offscreen rendering.
+    """
     import cv2
 
     from . import preview
@@ -174,16 +182,18 @@ def _preview(path: Path, model, rig, mapped, rate: float, size, progress: bool) 
 
     muscles = list(rig.muscle_names)
     index = {name: k for k, name in enumerate(mapped.names)}
-    contractions = np.zeros((len(mapped.times), len(muscles)))
+    step = max(1, math.ceil(len(mapped.times) / max(1, int(max_frames))))
+    shown = np.arange(0, len(mapped.times), step)
+    contractions = np.zeros((len(shown), len(muscles)))
     for column, name in enumerate(muscles):
         if name in index:
-            contractions[:, column] = mapped.values[:, index[name]]
+            contractions[:, column] = mapped.values[shown, index[name]]
     landmarks = rig.landmarks if rig.landmarks is not None else np.arange(rig.mesh.vertex_count)
     camera = preview.Camera.for_face(rig.mesh.points[landmarks], yaw_deg=20.0, pitch_deg=5.0)
     from tqdm import tqdm
 
     with atomic_path(path, path.suffix) as temporary:
-        writer = cv2.VideoWriter(str(temporary), cv2.VideoWriter_fourcc(*"mp4v"), float(rate), tuple(size))
+        writer = cv2.VideoWriter(str(temporary), cv2.VideoWriter_fourcc(*"mp4v"), float(rate) / step, tuple(size))
         if not writer.isOpened():
             raise ValueError(f"cannot open a video writer for {path}")
         try:
@@ -192,7 +202,7 @@ def _preview(path: Path, model, rig, mapped, rate: float, size, progress: bool) 
                     for start in range(0, len(contractions), 64):
                         frames = model.evaluate_batch(contractions[start:start + 64])
                         for offset, points in enumerate(frames):
-                            frame = start + offset
+                            frame = int(shown[start + offset])
                             image = np.ascontiguousarray(renderer.render(points))
                             text = f"{mapped.times[frame] - mapped.times[0]:6.2f} s  " + " ".join(mapped.active_channels[frame][:3])
                             cv2.putText(image, text, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (235, 235, 235), 1, cv2.LINE_AA)
@@ -241,6 +251,7 @@ def run_animate(args) -> int:
     try:
         result = animate(args.driver, args.out, rig=args.rig, map_spec=args.map, fps=args.fps, neutral=_neutral(args.neutral),
                          gain=_gains(args.gain), one_euro=one_euro, video=not args.no_video, device=args.device,
+                         video_max_frames=args.video_max_frames,
                          progress=not args.quiet)
     except ValueError as error:  # messages relayed from pxr can span lines: the CLI prints one
         raise ValueError(" ".join(str(error).split())) from None
@@ -273,5 +284,7 @@ def add_parser(subparsers):
     parser.add_argument("--filter-min-cutoff", type=float, default=1.5, help="1€ filter cut-off at rest [Hz] (default 1.5)")
     parser.add_argument("--filter-beta", type=float, default=0.5, help="1€ filter speed coefficient (default 0.5)")
     parser.add_argument("--no-video", action="store_true", help="skip the preview video")
+    parser.add_argument("--video-max-frames", type=int, default=3600,
+                        help="longest preview in frames; longer takes show every k-th frame (default 3600)")
     parser.set_defaults(handler=run_animate)
     return parser
