@@ -208,3 +208,25 @@ def test_live_link_app_spelling_and_column_order(tmp_path):
     assert curves.fps == 60.0
     np.testing.assert_allclose(curves.times, [0, 1 / 60, 2 / 60])
     np.testing.assert_array_equal(curves.channel("mouthSmileLeft"), [0.3, 0.6, 0.9])
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(names=st.lists(st.sampled_from(["jawOpen", "browInnerUp", "foo"]), max_size=3),
+       samples=st.dictionaries(st.floats(-5, 100), st.lists(st.floats(allow_nan=True, allow_infinity=True, width=32),
+                                                              max_size=4), max_size=4))
+def test_fuzzed_skel_stage_reads_or_says_why(tmp_path, names, samples):
+    from pxr import Usd, UsdSkel
+
+    stage = Usd.Stage.CreateInMemory("fuzz.usda")
+    animation = UsdSkel.Animation.Define(stage, "/Anim")
+    animation.CreateBlendShapesAttr(names)
+    weights = animation.CreateBlendShapeWeightsAttr()
+    for time, values in samples.items():
+        weights.Set(values, Usd.TimeCode(time))
+    try:
+        curves = read_skel_animation(stage)
+    except ValueError as error:
+        assert "\n" not in str(error)
+        return
+    assert np.isfinite(curves.values).all() and np.all(np.diff(curves.times) > 0)
+    assert curves.values.shape == (len(curves.times), len(names))

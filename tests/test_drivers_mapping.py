@@ -297,3 +297,38 @@ def test_curves_reject_bad_samples_with_a_named_error(values, times):
     assert np.isfinite(curves.values).all() and np.all(np.diff(curves.times) > 0)
     cleaned = clean(curves, filter=OneEuroFilter(), fps=24.0)
     assert np.isfinite(cleaned.values).all() and cleaned.values.min() >= 0 and cleaned.values.max() <= 1
+
+
+@pytest.fixture(scope="module")
+def rig_stage(rig):
+    from pxr import Usd
+
+    from warpface import usd
+
+    return usd.write_rig(Usd.Stage.CreateInMemory("rig.usda"), rig)
+
+
+@settings(max_examples=40, deadline=None)
+@given(controls=st.lists(st.sampled_from(["zygomaticus_major_L", "procerus", "jaw_open", ""]), max_size=4),
+       weights=st.lists(st.floats(allow_nan=True, allow_infinity=True), max_size=4),
+       offsets=st.lists(st.floats(allow_nan=True, allow_infinity=True), max_size=2))
+def test_fuzzed_mapping_edits_read_or_name_the_attribute(rig_stage, controls, weights, offsets):
+    from pxr import Sdf
+
+    from warpface.errors import RigError
+    from warpface.usd.mapping_io import read_mapping, write_mapping
+
+    write_mapping(rig_stage, Mapping.from_entries([("mouthSmileLeft", "zygomaticus_major_L", 0.01)], name="fuzz"))
+    channel = rig_stage.GetPrimAtPath("/Face/Drivers/fuzz/mouthSmileLeft")
+    channel.GetAttribute("warpFace:controls").Set(controls)
+    channel.GetAttribute("warpFace:weights").Set(weights)
+    scope = rig_stage.GetPrimAtPath("/Face/Drivers/fuzz")
+    scope.CreateAttribute("warpFace:offsetControls", Sdf.ValueTypeNames.StringArray).Set(["procerus", "mentalis"][:len(offsets)])
+    scope.CreateAttribute("warpFace:offsets", Sdf.ValueTypeNames.DoubleArray).Set(offsets)
+    try:
+        mapping = read_mapping(rig_stage, "fuzz")
+    except (RigError, ValueError) as error:
+        assert "\n" not in str(error) and ("/Face/Drivers/fuzz" in str(error) or "mapping 'fuzz'" in str(error))
+        return
+    assert np.isfinite(mapping.matrix).all() and np.isfinite(mapping.offsets).all()
+    assert mapping.channels == ["mouthSmileLeft"]
