@@ -88,7 +88,7 @@ def main(argv=None) -> None:
         csv_mb = csv_path.stat().st_size / 1e6
 
         read_s, read_back = _timed(lambda: read_driver(csv_path))
-        map_s, (_, mapped) = _timed(lambda: prepare_controls(read_back, rig, mapping, fps=args.fps))
+        map_s, (_, mapped) = _timed(lambda: prepare_controls(read_back, mapping, fps=args.fps))
         time_codes = np.arange(len(mapped.times), dtype=np.float64)
         stage = usd.write_rig(folder / "controls.usda", rig, fps=args.fps)
         muscles = set(rig.muscle_names)

@@ -135,6 +135,13 @@ def test_stored_mapping_on_the_rig_stage_is_used_and_edits_matter(tmp_path):
     driven = animation.contractions[:, animation.muscle_names.index("zygomaticus_major_R")]
     np.testing.assert_allclose(driven[-1], 0.01, rtol=1e-9)
     assert np.abs(np.delete(animation.contractions, animation.muscle_names.index("zygomaticus_major_R"), axis=1)).max() == 0
+    write_mapping(stage, Mapping.from_entries([("browInnerUp", "procerus", 0.004)], name="strong"))
+    stage.GetRootLayer().Save()
+    assert main(["--quiet", "--device", "cpu", "animate", str(driver), "--rig", str(tmp_path / "rig.usda"),
+                 "--map", "strong", "--out", str(tmp_path / "o.usda"), "--no-video"]) == 0
+    animation = usd.read_animation(tmp_path / "o.usda")
+    np.testing.assert_allclose(animation.contractions[-1, animation.muscle_names.index("procerus")], 0.004, rtol=1e-9)
+    assert animation.contractions[:, animation.muscle_names.index("zygomaticus_major_R")].max() == 0
 
 
 def test_weights_outside_range_are_clamped_and_reported_once(tmp_path, capsys):

@@ -54,22 +54,27 @@ def _load_rig(rig_path):
 
 
 def _mapping(rig, rig_stage, map_spec):
-    """(mapping in the rig's units, label, channels it cannot drive on this rig)."""
-    from .drivers import mapping_for_rig, rig_control_names
+    """(mapping in the rig's units, label, channels it cannot drive on this rig).
 
-    if map_spec is None and (rig_stage is None or "default" not in _stored(rig_stage)):
+    ``map_spec``: None (the rig stage's ``default`` mapping, else the default table), ``NAME`` (stored on
+    the rig stage), or ``FILE.usda[:NAME]`` (stored on another rig stage; NAME defaults to ``default``).
+    """
+    from .drivers import mapping_for_rig, rig_control_names
+    from .usd import open_stage
+    from .usd.mapping_io import mapping_names, read_mapping
+
+    if map_spec is None and (rig_stage is None or "default" not in mapping_names(rig_stage)):
         mapping, _, orphaned = mapping_for_rig(rig)
         return mapping, "default table", orphaned
-    from .usd.mapping_io import read_mapping
-    from .usd import open_stage
-
     name, source = map_spec or "default", rig_stage
-    if map_spec and (":" in map_spec or Path(map_spec).suffix in (".usda", ".usdc", ".usd")):
-        file, _, name = map_spec.partition(":") if ":" in map_spec else (map_spec, "", "default")
-        source = open_stage(file)
-        name = name or "default"
+    file, colon, stored_name = (map_spec or "").rpartition(":")
+    usd_suffixes = (".usda", ".usdc", ".usd", ".usdz")
+    if colon and Path(file).suffix.lower() in usd_suffixes:
+        source, name = open_stage(file), stored_name or "default"
+    elif map_spec and Path(map_spec).suffix.lower() in usd_suffixes:
+        source, name = open_stage(map_spec), "default"
     if source is None:
-        raise ValueError(f"--map {map_spec}: the built-in rig has no stored mappings; pass --rig or a FILE.usda[:NAME]")
+        raise ValueError(f"--map {map_spec}: the built-in rig has no stored mappings; pass --rig or FILE.usda[:NAME]")
     mapping = read_mapping(source, name)
     missing = [c for c in mapping.controls if c not in set(rig_control_names(rig))]
     if missing:
@@ -77,13 +82,7 @@ def _mapping(rig, rig_stage, map_spec):
     return mapping, f"stored mapping {name!r}", []
 
 
-def _stored(stage) -> list[str]:
-    from .usd.mapping_io import mapping_names
-
-    return mapping_names(stage)
-
-
-def prepare_controls(curves, rig, mapping, *, fps: float, neutral=None, gain=None, one_euro=None):
+def prepare_controls(curves, mapping, *, fps: float, neutral=None, gain=None, one_euro=None):
     """Clean ``curves``, resample them to ``fps`` and map them: (cleaned curves, MappedControls)."""
     from .drivers.cleanup import clean
 
@@ -128,7 +127,7 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
     rate = float(fps or stage_rate or (round(curves.fps) if curves.fps else 30.0))
     if not math.isfinite(rate) or rate <= 0:
         raise ValueError(f"--fps must be a positive number, got {rate}")
-    cleaned, mapped = prepare_controls(curves, rig_model, mapping, fps=rate, neutral=neutral, gain=gain, one_euro=one_euro)
+    cleaned, mapped = prepare_controls(curves, mapping, fps=rate, neutral=neutral, gain=gain, one_euro=one_euro)
     unmapped = list(dict.fromkeys(mapped.unmapped_channels + [c for c in orphaned if c in curves.names]))
     if all(name in unmapped for name in curves.names):
         raise ValueError(f"{curves.source}: none of its channels ({', '.join(curves.names[:5])}"
