@@ -8,8 +8,8 @@ where ``D`` divides each control by the largest weight any channel gives it (so 
 metres and a dimensionless sphincter count alike) and the small ridge ``λ`` picks one answer when
 channels share a control (``mouthPucker`` and ``mouthFunnel`` both pull ``orbicularis_oris``).
 All frames are solved together by FISTA (Beck & Teboulle 2009): projected gradient steps of size
-``1/L``, ``L`` = the largest eigenvalue of ``2(AᵀA + λI)``, with Nesterov momentum, until no
-weight moves by more than ``tolerance``. Controls the mapping does not use are ignored.
+``1/L``, ``L`` = the largest eigenvalue of ``2(AᵀA + λI)``, with Nesterov momentum restarted when it
+points uphill (O'Donoghue & Candès 2015), until no weight moves by more than ``tolerance``. Controls the mapping does not use are ignored.
 """
 
 from __future__ import annotations
@@ -71,6 +71,8 @@ def project_controls(mapping: Mapping, controls: dict[str, np.ndarray] | np.ndar
         gradient = 2.0 * (momentum_point @ gram - linear)
         updated = np.clip(momentum_point - gradient / lipschitz, low, high)
         change = float(np.abs(updated - weights).max())
+        if float(np.sum((momentum_point - updated) * (updated - weights))) > 0.0:
+            momentum = 1.0  # adaptive restart (O'Donoghue & Candès 2015): momentum points uphill
         next_momentum = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * momentum * momentum))
         momentum_point = updated + ((momentum - 1.0) / next_momentum) * (updated - weights)
         weights, momentum = updated, next_momentum
