@@ -355,8 +355,8 @@ def assert_expressions_move_the_right_regions(rig):
 def wrinkle_depth_under(rig, results, expression: str, wrinkle_name: str) -> float:
     """Mean depth of a furrow along its own curve, k_d·C(r) [inter-ocular units]."""
     wrinkle = next(w for w in rig.wrinkles if w.name == wrinkle_name)
-    uv = project_points(wrinkle.projection, rig.mesh.points, DEVICE)
-    on_curve = bezier_distances(uv, wrinkle.control_points, DEVICE) < 0.5 * wrinkle.width
+    uv = project_points(wrinkle.projection, rig.mesh.points, device=DEVICE)
+    on_curve = bezier_distances(uv, wrinkle.control_points, device=DEVICE) < 0.5 * wrinkle.width
     stretch = results[expression]["stretch"][on_curve]
     return float(np.mean(wrinkle.depth * np.clip(1.0 - stretch, 0.0, 1.0)) / rig_scale(rig))
 

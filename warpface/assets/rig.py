@@ -268,7 +268,7 @@ def _wrinkles(L: np.ndarray, surface: SurfaceSampler, frame: FaceFrame, cylinder
 
     def wrinkle(name, projection, path_xy, depth, width, kr=0.0):
         points = np.array([surface.point(p) for p in np.asarray(path_xy, dtype=np.float64)])
-        control = project_points(projection, points, device)
+        control = project_points(projection, points, device=device)
         return Wrinkle(name, control, projection, depth * scale, max(width, min_width) * scale, kr)
 
     brow_top = float(xy[17:27, 1].max())

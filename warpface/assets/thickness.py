@@ -75,7 +75,7 @@ def thickness_map(mesh: FaceMesh, landmarks, *, device=None) -> ThicknessMap:
 
     def to_uv(points_xy):
         world = np.array([surface.point(p) for p in points_xy])
-        return project_points(cylinder, world, device)
+        return project_points(cylinder, world, device=device)
 
     edge_uv = to_uv([xy[0], xy[16]])
     margin = 0.35 * frame.scale
