@@ -121,7 +121,7 @@ def _load_gray(image) -> np.ndarray:
         return array.astype(np.float32) / 255.0
     if array.dtype == np.uint16:
         return array.astype(np.float32) / 65535.0
-    array = as_finite_array(array, "thickness map: image").astype(np.float32)
+    array = as_finite_array(array, "thickness map: image")
     if array.min() < 0.0 or array.max() > 1.0:
         raise ValueError("thickness map: float images must lie in [0, 1]")
-    return array
+    return array.astype(np.float32)
