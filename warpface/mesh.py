@@ -179,7 +179,7 @@ class FaceMesh:
         device = wp.get_device(device)
         key = ("buffers", str(device))
         if key not in self._cache:
-            self._cache[key] = MeshBuffers.upload(self, device)
+            self._cache[key] = MeshBuffers.upload(self, device=device)
         return self._cache[key]
 
 
@@ -202,7 +202,7 @@ class MeshBuffers:
     """Vertex → triangle CSR entries, shape (3·T,), int32."""
 
     @classmethod
-    def upload(cls, mesh: FaceMesh, device) -> "MeshBuffers":
+    def upload(cls, mesh: FaceMesh, *, device) -> "MeshBuffers":
         weight = wp.array((~mesh.degenerate_triangles).astype(np.float32), dtype=wp.float32, device=device)
         rest_points = wp.array(mesh.points.astype(np.float32), dtype=wp.vec3, device=device)
         triangles = wp.array(mesh.triangles.astype(np.int32), dtype=wp.vec3i, device=device)
