@@ -228,6 +228,8 @@ def load_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     Polygons are fan-triangulated; texture/normal indices (``f 1/2/3``) and negative (relative)
     indices are handled. Returns ``(points (V, 3) float64, triangles (T, 3) int64)``.
     """
+    if not isinstance(path, (str, Path)):
+        raise ValueError(f"OBJ path: expected a str or Path, got {type(path).__name__}")
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"OBJ file not found: {path}")
@@ -239,11 +241,19 @@ def load_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
                 fields = line.split()
                 if len(fields) < 4:
                     raise ValueError(f"{path}:{line_number}: vertex needs 3 coordinates")
-                points.append([float(v) for v in fields[1:4]])
+                try:
+                    points.append([float(v) for v in fields[1:4]])
+                except ValueError:
+                    raise ValueError(f"{path}:{line_number}: vertex coordinates are not numbers: {line.strip()!r}") from None
             elif line.startswith("f "):
                 corners = []
                 for token in line.split()[1:]:
-                    index = int(token.split("/")[0])
+                    try:
+                        index = int(token.split("/")[0])
+                    except ValueError:
+                        raise ValueError(f"{path}:{line_number}: face index {token!r} is not an integer") from None
+                    if index == 0:
+                        raise ValueError(f"{path}:{line_number}: face index 0 (OBJ indices start at 1)")
                     corners.append(index - 1 if index > 0 else len(points) + index)
                 if len(corners) < 3:
                     raise ValueError(f"{path}:{line_number}: face needs at least 3 vertices")
