@@ -98,7 +98,7 @@ def real_shapes(device, quick: bool) -> list[dict]:
 
 def speed(device, frames_batched: int, quick: bool) -> list[dict]:
     rig = default_rig(device=device)
-    model = rig.model(device)
+    model = rig.model(device=device)
     timeline = np.concatenate([expression_timeline(name, rig, seconds=1.0, fps=30.0) for name in EXPRESSIONS])
     if quick:
         timeline = timeline[::4]

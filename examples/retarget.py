@@ -48,7 +48,7 @@ def main(argv=None) -> int:
 
     # 1. The performance on the built-in face, seen as noisy landmarks.
     source = default_rig(device=args.device)
-    source_model = source.model(args.device)
+    source_model = source.model(device=args.device)
     timelines = [expression_timeline(name, source, seconds=args.seconds, fps=30.0) for name in EXPRESSIONS]
     truth = np.concatenate(timelines)
     captured = source_model.evaluate_batch(truth, progress=True)
@@ -77,7 +77,7 @@ def main(argv=None) -> int:
         raise SystemExit("the two rigs' controls differ; retargeting needs the same control names")
     ratio = rig_scale(target) / scale
     retargeted = solved * np.where(linear, ratio, 1.0)
-    target_model = target.model(args.device)
+    target_model = target.model(device=args.device)
 
     peaks = np.cumsum([0] + [len(t) for t in timelines])[:-1] + np.array([len(t) // 2 for t in timelines])
     source_camera = preview.Camera.for_face(source.mesh.points[source.landmarks], yaw_deg=20.0, pitch_deg=5.0)

@@ -21,7 +21,7 @@ def rig():
 
 @pytest.fixture(scope="module")
 def model(rig):
-    return rig.model("cpu")
+    return rig.model(device="cpu")
 
 
 def random_controls(rig, rng, count=5, low=0.03, high=0.15):

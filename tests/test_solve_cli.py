@@ -50,7 +50,7 @@ def test_presets_round_trip_in_stage_units(rig_stage, tmp_path):
 def test_fit_command_writes_presets_and_reports(rig_stage, tmp_path, capsys):
     rig, path = rig_stage
     truth = {"zygomaticus major L": 0.006, "orbicularis_oris": 0.25}
-    target = rig.model("cpu").evaluate(truth)
+    target = rig.model(device="cpu").evaluate(truth)
     obj = tmp_path / "grin.obj"
     write_obj(obj, target, rig.mesh.triangles)
     assert main(["--device", "cpu", "fit", str(obj), "--rig", str(path), "--out", str(tmp_path / "maps")]) == 0
@@ -83,7 +83,7 @@ def test_fit_command_reads_usd_targets_in_their_units(rig_stage, tmp_path, capsy
 
     rig, path = rig_stage
     truth = {"frontalis_R": 0.004}
-    target = rig.model("cpu").evaluate(truth).astype(np.float64)
+    target = rig.model(device="cpu").evaluate(truth).astype(np.float64)
     shape = tmp_path / "brow.usda"
     stage = Usd.Stage.CreateNew(str(shape))
     UsdGeom.SetStageMetersPerUnit(stage, 0.01)  # centimetres: converted to the rig stage's metres

@@ -75,12 +75,12 @@ class RigOperators:
             (np.ones(3 * triangle_count), (triangles.ravel(), np.repeat(np.arange(triangle_count), 3))),
             shape=(vertex_count, triangle_count),
         )
-        muscles = muscle_weights(rest, list(rig.muscles), device)
+        muscles = muscle_weights(rest, list(rig.muscles), device=device)
         entry_vertex = np.repeat(np.arange(vertex_count), np.diff(muscles.offsets))
         rows = (3 * entry_vertex[:, None] + np.arange(3)[None, :]).ravel()
         columns = np.repeat(muscles.muscle.astype(np.int64), 3)
         field = sp.csr_matrix((muscles.weight.ravel(), (rows, columns)), shape=(3 * vertex_count, len(rig.muscles)))
-        wrinkles = wrinkle_shapes(rest, list(rig.wrinkles), device)
+        wrinkles = wrinkle_shapes(rest, list(rig.wrinkles), device=device)
         depth = np.array([w.depth for w in rig.wrinkles], dtype=np.float64)
         entry_vertex = np.repeat(np.arange(vertex_count), np.diff(wrinkles.offsets))
         profile = sp.csr_matrix(

@@ -267,7 +267,7 @@ class Solver:
     @property
     def model(self):
         if self._model is None:
-            self._model = self.rig.model(self.device)
+            self._model = self.rig.model(device=self.device)
         return self._model
 
     # ------------------------------------------------------------------ public solves
