@@ -44,7 +44,7 @@ _OPERATORS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _SOLVERS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _SOLVERS_PER_RIG = 4
 _COLD_DAMPING, _WARM_DAMPING = 1.0, 1e-4
-"""Initial Levenberg–Marquardt damping (× the Hessian's diagonal) from neutral and from a warm start. From
+"""Initial Levenberg–Marquardt damping (× the Hessian's diagonal) without and with a warm start. From
 neutral, 1.0 recovered 20 of 20 random six-muscle expressions (≤ 0.3 inter-ocular units each) on the
 built-in face to < 1e-5 IOD; 1e-4 … 1e-1 missed one (a mentalis at 0.2 IOD fitted at 0.38)."""
 
@@ -239,6 +239,8 @@ class Solver:
         self.rotation = np.eye(3)
         self.translation = np.zeros(3)
         self._pose_known = False
+        self._solved_once = False
+        """A frame has been solved since the last reset: later frames are warm starts."""
 
     def _bounds(self):
         low = np.zeros(len(self.names))
@@ -283,10 +285,11 @@ class Solver:
         # First guess: the last two frames' motion continued (smooth motion starts one step closer);
         # the temporal term still pulls toward the last frame itself.
         guess = None if self._earlier is None else 2.0 * self.controls - self._earlier
-        result = self._solve_frames(targets, weight, self.controls[None], temporal=True,
+        result = self._solve_frames(targets, weight, self.controls[None], temporal=True, cold=not self._solved_once,
                                     guess=None if guess is None else guess[None])
         controls = result["controls"][0]
         self._earlier = None if result["skipped"][0] else self.controls
+        self._solved_once = self._solved_once or not result["skipped"][0]
         self.controls = controls.copy()
         if not result["skipped"][0]:
             self.rotation, self.translation = result["rotation"][0], result["translation"][0]
@@ -338,7 +341,8 @@ class Solver:
             bar = tqdm(total=frames, desc="solve frames", unit="frame")
         for start in range(0, frames, chunk):
             part = array[start:start + chunk]
-            result = self._solve_frames(part, weight, np.tile(self.controls, (len(part), 1)), temporal=False)
+            result = self._solve_frames(part, weight, np.tile(self.controls, (len(part), 1)), temporal=False,
+                                        cold=not self._solved_once)
             for key in out:
                 out[key].append(result[key])
             if bar is not None:
@@ -351,10 +355,10 @@ class Solver:
         return BatchFit(names=list(self.names), **stacked)
 
     # ------------------------------------------------------------------ the solve
-    def _solve_frames(self, targets: np.ndarray, weight: np.ndarray, start: np.ndarray, *, temporal: bool,
+    def _solve_frames(self, targets: np.ndarray, weight: np.ndarray, start: np.ndarray, *, temporal: bool, cold: bool,
                       guess: np.ndarray | None = None) -> dict:
         """Solve (F, N, 3) targets; ``start`` (F, M) is the temporal anchor and kept by skipped frames,
-        ``guess`` (default ``start``) the first iterate."""
+        ``guess`` (default ``start``) the first iterate; ``cold``: no earlier frame to start near."""
         opts = self.options
         frames, count = targets.shape[:2]
         valid = np.all(np.isfinite(targets), axis=2) & (weight[None] > 0.0)
@@ -380,10 +384,9 @@ class Solver:
         active = ~skipped
         iterations = np.zeros(frames, dtype=np.int64)
         converged = np.zeros(frames, dtype=bool)
-        # From neutral, start cautious (large damping): the first Gauss–Newton step of a large expression
-        # can jump into another basin (a muscle pulled past its attachment); warm starts start near GN.
-        cold = ~np.any(u != 0.0, axis=1)
-        damping = np.where(cold, _COLD_DAMPING, _WARM_DAMPING)
+        # Without an earlier frame, start cautious (large damping): the first Gauss–Newton step of a large
+        # expression can jump into another basin (a muscle pulled past its attachment); warm starts start near GN.
+        damping = np.full(frames, _COLD_DAMPING if cold else _WARM_DAMPING)
         current = np.full(frames, np.inf)
         misfit = np.zeros(frames)
         n = len(self.names)
