@@ -45,9 +45,9 @@ _SOLVERS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _SOLVERS_PER_RIG = 4
 _COLD_DAMPING, _WARM_DAMPING = 1.0, 1e-4
 """Initial Levenberg–Marquardt damping (× the Hessian's diagonal) without and with a warm start. From
-neutral, 1.0 recovered 20 of 20 random six-muscle expressions (≤ 0.3 inter-ocular units each) on the
-built-in face to < 1e-5 IOD; 1e-4 … 0.3 missed one (a mentalis at 0.2 IOD fitted at 0.38). Accepted steps
-divide the damping by 10, so a cold start reaches Gauss–Newton steps within a few iterations."""
+neutral, 1.0 (divided by 10 per accepted step) recovered 20 of 20 random six-muscle expressions (≤ 0.3
+inter-ocular units each) on the built-in face to < 1e-5 IOD; 1e-4 … 0.3 (divided by 3) missed one (a
+mentalis at 0.2 IOD fitted at 0.38)."""
 
 
 
