@@ -7,9 +7,9 @@ import pytest
 
 from warpface.fem import TissueMaterial
 from warpface.fem.volume import tissue_from_surface
-from warpface.tracking.capture import adapter_for_face, vertex_landmark_names
+from warpface.tracking import adapter_for_face, vertex_landmark_names
 from warpface.tracking.sources import LandmarkFrame
-from warpface.tracking.tissue_drive import TissueDrive, bone_side_nodes
+from warpface.pipelines.tissue_drive import TissueDrive, bone_side_nodes
 
 from test_fem_volume import patch
 
