@@ -2,9 +2,13 @@
 
 Modules, each with one job:
 
-* :mod:`~warpface.tracking.sources` — :class:`LandmarkFrame`, :class:`LandmarkSource`,
-  :class:`RGBDFrame`, :class:`RGBDSource`, the timestamp policy, :func:`fill_missing`,
-  :class:`RecordedLandmarks` (.npz), :class:`RGBDFolder`, :class:`RGBDLandmarks`.
+* :mod:`~warpface.tracking.frames` — :class:`LandmarkFrame`, :class:`RGBDFrame` and the
+  :class:`LandmarkSource` / :class:`RGBDSource` protocols.
+* :mod:`~warpface.tracking.streams` — the timestamp policy, :func:`checked_frames`, :func:`fill_missing`.
+* :mod:`~warpface.tracking.recorded` — :class:`RecordedLandmarks` (.npz);
+  :mod:`~warpface.tracking.rgbd_folder` — :class:`RGBDFolder`;
+  :mod:`~warpface.tracking.rgbd_landmarks` — :class:`RGBDLandmarks` (dots in colour, lifted with depth).
+  (:mod:`~warpface.tracking.sources` gathers all of these.)
 * :mod:`~warpface.tracking.cameras` — :class:`RealSenseCamera`, :class:`OrbbecCamera`.
 * :mod:`~warpface.tracking.mediapipe` — :class:`MediaPipeLandmarks`.
 * :mod:`~warpface.tracking.synthetic` — :class:`SyntheticRGBDCamera` (pyrender, ground truth).

@@ -30,7 +30,7 @@ import warp as wp
 
 from ..mesh import FaceMesh
 from .depth import KINECT_V1_INTRINSICS, CameraIntrinsics
-from .sources import RGBDFrame, SourceBase
+from .frames import RGBDFrame, SourceBase
 
 __all__ = [
     "KinectNoise",

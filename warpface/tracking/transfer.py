@@ -35,7 +35,7 @@ import warp as wp
 from ..geometry import smoothstep
 from .alignment import rigid_fit, similarity_fit
 from .correspondence import Correspondence, FaceNormalization, _as_points, _as_triangles, compute_correspondence
-from .sources import LandmarkFrame
+from .frames import LandmarkFrame
 
 __all__ = [
     "TrackingAdapter",
