@@ -249,9 +249,9 @@ def main() -> None:
     rng = np.random.default_rng(0)
     frames = [LandmarkFrame(i / 30, rest_cam + (rng.normal(scale=0.001, size=rest_cam.shape) if i else 0.0),
                             np.ones(len(sparse)), i) for i in range(64)]
-    adapter.step(frames[0])
+    adapter.track_frame(frames[0])
     counter = iter(range(10**9))
-    t_transfer = time_call(lambda: adapter.step(frames[1 + next(counter) % 63]), repeats=max(args.repeats, 50),
+    t_transfer = time_call(lambda: adapter.track_frame(frames[1 + next(counter) % 63]), repeats=max(args.repeats, 50),
                            sync=sync)
     corr = adapter.correspondence
     bary = corr.barycentric
@@ -311,7 +311,7 @@ def _usd_write_row(adapter, frames, triangles, count: int = 120) -> dict | None:
                                  triangles=triangles) as writer:
             for i in range(count):
                 frame = frames[1 + i % 63]
-                writer.add(i / 30.0, frame.points, frame.confidence, adapter.step(frame))
+                writer.add(i / 30.0, frame.points, frame.confidence, adapter.track_frame(frame))
         ours = (time.perf_counter() - started) / count
 
         started = time.perf_counter()
@@ -320,7 +320,7 @@ def _usd_write_row(adapter, frames, triangles, count: int = 120) -> dict | None:
         points = mesh.GetPointsAttr()
         for i in range(count):
             frame = frames[1 + i % 63]
-            points.Set(Vt.Vec3fArray.FromNumpy(adapter.step(frame)), float(i))
+            points.Set(Vt.Vec3fArray.FromNumpy(adapter.track_frame(frame)), float(i))
         stage.Save()
         naive = (time.perf_counter() - started) / count
     return {"stage": "transfer + USD write per frame", "n": len(adapter.dense_rest), "ms": ours * 1e3,

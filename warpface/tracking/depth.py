@@ -24,7 +24,14 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-__all__ = ["CameraIntrinsics", "backproject", "KINECT_V1_INTRINSICS"]
+from .._validate import as_count, as_finite_array, as_positive
+
+__all__ = ["CameraIntrinsics", "backproject", "KINECT_V1_INTRINSICS", "MAX_PIXELS", "MAX_DEPTH_WINDOW"]
+
+MAX_PIXELS = 65536
+"""Largest accepted image width or height [px]."""
+MAX_DEPTH_WINDOW = 101
+"""Largest back-projection window [px] (the fit visits window² pixels per landmark)."""
 
 
 @dataclass(frozen=True)
@@ -46,15 +53,18 @@ class CameraIntrinsics:
 
     def __post_init__(self):
         for name in ("fx", "fy", "cx", "cy"):
-            value = getattr(self, name)
-            if not np.isfinite(value):
-                raise ValueError(f"intrinsics: {name} must be finite, got {value}")
+            value = as_finite_array(getattr(self, name), f"intrinsics: {name}", shape=(), max_abs=MAX_PIXELS * 1e3)
+            object.__setattr__(self, name, float(value))
         if self.fx <= 0 or self.fy <= 0:
             raise ValueError(f"intrinsics: focal lengths must be > 0, got fx={self.fx}, fy={self.fy}")
-        if int(self.width) != self.width or int(self.height) != self.height or self.width <= 0 or self.height <= 0:
-            raise ValueError(f"intrinsics: width/height must be positive integers, got {self.width}×{self.height}")
-        object.__setattr__(self, "width", int(self.width))
-        object.__setattr__(self, "height", int(self.height))
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, (bool, np.bool_)):
+                raise ValueError(f"intrinsics: {name} must be a positive integer, got {value!r}")
+            number = float(as_finite_array(value, f"intrinsics: {name}", shape=()))
+            if number != int(number) or not 1 <= number <= MAX_PIXELS:
+                raise ValueError(f"intrinsics: {name} must be a whole number of pixels in [1, {MAX_PIXELS}], got {value!r}")
+            object.__setattr__(self, name, int(number))
 
     @property
     def matrix(self) -> np.ndarray:
@@ -74,10 +84,9 @@ class CameraIntrinsics:
         if missing:
             raise ValueError(f"{where}: missing {', '.join(missing)}")
         try:
-            return cls(float(data["fx"]), float(data["fy"]), float(data["cx"]), float(data["cy"]),
-                       int(data["width"]), int(data["height"]))
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{where}: {exc}") from None
+            return cls(*(data[key] for key in ("fx", "fy", "cx", "cy", "width", "height")))
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise ValueError(f"{where}: {str(exc).removeprefix('intrinsics: ')}") from None
 
     def project(self, points) -> np.ndarray:
         """Pixel coordinates of camera-frame points [m], shape (N, 3) → (N, 2), float64."""
@@ -384,7 +393,7 @@ def backproject(
         depth: depth image [m], shape (H, W) matching ``intrinsics``; 0 marks a hole.
         intrinsics: the depth image's intrinsics (depth registered to the colour camera when the
             landmarks were found in colour).
-        window: odd window size [px], ≥ 3.
+        window: odd window size [px], 3 … :data:`MAX_DEPTH_WINDOW`.
         model: ``"quadric"`` (default) or ``"plane"``.
         min_valid: fewest inlier pixels for a valid fit.
         outlier_floor: half-width of the first gate at the landmark itself [m].
@@ -403,26 +412,44 @@ def backproject(
         ValueError: bad shapes, an even or too small window, an unknown model, or a depth image
             whose size does not match ``intrinsics``.
     """
-    uv = np.asarray(pixels, dtype=np.float64)
+    if not isinstance(intrinsics, CameraIntrinsics):
+        raise TypeError(f"intrinsics: expected a CameraIntrinsics, got {type(intrinsics).__name__}")
+    try:
+        uv = np.array(pixels, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"pixels: cannot convert to a numeric array ({exc})") from None
     if uv.ndim != 2 or uv.shape[1] != 2:
         raise ValueError(f"pixels: expected shape (N, 2), got {uv.shape}")
-    z = np.asarray(depth)
+    uv[~np.all(np.isfinite(uv), axis=1)] = np.nan  # an infinite pixel is as missing as a NaN one
+    uv[np.any(np.abs(uv) > MAX_PIXELS, axis=1)] = np.nan  # far off any image
+    try:
+        z = np.asarray(depth, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"depth: cannot convert to a numeric image ({exc})") from None
     if z.ndim != 2:
         raise ValueError(f"depth: expected a 2-D image, got shape {z.shape}")
     if z.shape != (intrinsics.height, intrinsics.width):
         raise ValueError(
             f"depth: image is {z.shape[1]}×{z.shape[0]} but intrinsics are {intrinsics.width}×{intrinsics.height}"
         )
-    if window < 3 or window % 2 == 0:
+    window = as_count(window, "window", minimum=3, maximum=MAX_DEPTH_WINDOW)
+    if window % 2 == 0:
         raise ValueError(f"window: must be an odd integer ≥ 3, got {window}")
     if model not in ("plane", "quadric"):
         raise ValueError(f"model: 'plane' or 'quadric', got {model!r}")
-    if min_valid < 6:
-        raise ValueError(f"min_valid: must be ≥ 6 for a surface fit, got {min_valid}")
+    min_valid = as_count(min_valid, "min_valid", minimum=6)
+    iterations = as_count(iterations, "iterations", minimum=0, maximum=100)
+    outlier_floor = as_positive(outlier_floor, "outlier_floor", allow_zero=True)
+    max_slope = as_positive(max_slope, "max_slope", allow_zero=True)
+    noise_floor = as_positive(noise_floor, "noise_floor", allow_zero=True)
+    min_inlier_fraction = float(as_finite_array(min_inlier_fraction, "min_inlier_fraction", shape=()))
+    if not 0.0 <= min_inlier_fraction <= 1.0:
+        raise ValueError(f"min_inlier_fraction: must be in [0, 1], got {min_inlier_fraction}")
     count = uv.shape[0]
     if count == 0:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
-    z32 = np.where(np.isfinite(z) & (z > 0), z, 0).astype(np.float32)
+    # Holes: 0, negative, non-finite, or beyond any depth sensor (and float32's range).
+    z32 = np.where(np.isfinite(z) & (z > 0) & (z < 1e4), z, 0).astype(np.float32)
     device = wp.get_device(device)
     points = wp.empty(count, dtype=wp.vec3, device=device)
     inliers = wp.empty(count, dtype=wp.int32, device=device)
@@ -450,5 +477,7 @@ def backproject(
     )
     out = points.numpy().astype(np.float64)
     n_in = inliers.numpy()
-    out[n_in == 0] = np.nan
+    invalid = (n_in == 0) | ~np.all(np.isfinite(out), axis=1)
+    out[invalid] = np.nan
+    n_in = np.where(invalid, 0, n_in).astype(np.int32)
     return out, n_in

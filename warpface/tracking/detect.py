@@ -27,7 +27,33 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["Blobs", "detect_blobs", "DotTracker", "ArucoMarkers"]
+from .._validate import as_bounded, as_count, as_finite_array, as_positive
+from .streams import validate_landmark_names
+
+__all__ = ["Blobs", "detect_blobs", "DotTracker", "ArucoMarkers", "MAX_DOT_DIAMETER"]
+
+MAX_DOT_DIAMETER = 1000
+"""Largest accepted dot diameter [px] (it sizes the background filter of dark dots)."""
+
+
+def _checked_blob_options(color, threshold, min_area, max_area, min_axis_ratio, max_diameter) -> dict:
+    """The blob gates of :func:`detect_blobs`, checked; each bad one named in a ValueError."""
+    if isinstance(color, str):
+        if color != "dark":
+            raise ValueError(f"color must be 'dark' or an RGB triple, got {color!r}")
+    else:
+        rgb = as_finite_array(color, "color", shape=(3,))
+        if rgb.min() < 0 or rgb.max() > 255:
+            raise ValueError(f"color: RGB values must be in [0, 255], got {rgb.tolist()}")
+        color = tuple(float(c) for c in rgb)
+    return dict(
+        color=color,
+        threshold=as_bounded(threshold, "threshold", 0.0, 255.0),
+        min_area=as_count(min_area, "min_area", minimum=1),
+        max_area=as_count(max_area, "max_area", minimum=1),
+        min_axis_ratio=as_bounded(min_axis_ratio, "min_axis_ratio", 0.0, 1.0),
+        max_diameter=as_count(max_diameter, "max_diameter", minimum=1, maximum=MAX_DOT_DIAMETER),
+    )
 
 
 @dataclass(frozen=True)
@@ -94,13 +120,16 @@ def detect_blobs(
         threshold: contrast (0–255) a pixel needs to belong to a dot.
         min_area, max_area: accepted blob sizes [px].
         min_axis_ratio: rejects elongated blobs (edges, hair, eyelids); 1 = only perfect circles.
-        max_diameter: largest dot diameter [px] (sets the background filter for dark dots).
+        max_diameter: largest dot diameter [px], 1 … :data:`MAX_DOT_DIAMETER` (sets the background
+            filter for dark dots).
 
     Returns:
         :class:`Blobs` passing the gates, in no particular order.
     """
     import cv2
 
+    options = _checked_blob_options(color, threshold, min_area, max_area, min_axis_ratio, max_diameter)
+    color, threshold, min_area, max_area, min_axis_ratio, max_diameter = options.values()
     contrast = _contrast_map(image, color, max_diameter)
     mask = (contrast >= threshold).astype(np.uint8)
     count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
@@ -143,6 +172,10 @@ def detect_blobs(
     )
 
 
+MAX_TRACKING_PX = 1.0e5
+"""Largest accepted pixel coordinate or pixel distance in :class:`DotTracker`."""
+
+
 class DotTracker:
     """Track N painted dots from frame to frame.
 
@@ -180,27 +213,24 @@ class DotTracker:
         velocity_damping: float = 0.5,
         area_change: float = 1.6,
     ):
-        start = np.asarray(initial_pixels, dtype=np.float64)
-        if start.ndim != 2 or start.shape[1] != 2 or start.shape[0] == 0:
-            raise ValueError(f"initial_pixels: expected shape (N, 2) with N ≥ 1, got {start.shape}")
-        if not np.all(np.isfinite(start)):
-            raise ValueError(f"initial_pixels: dot {int(np.argwhere(~np.isfinite(start))[0][0])} is not finite")
+        start = as_finite_array(initial_pixels, "initial_pixels", shape=(None, 2), max_abs=MAX_TRACKING_PX)
+        if start.shape[0] == 0:
+            raise ValueError("initial_pixels: expected shape (N, 2) with N ≥ 1, got (0, 2)")
         n = start.shape[0]
-        self.landmark_names = tuple(names) if names is not None else tuple(f"dot_{i:03d}" for i in range(n))
-        if len(self.landmark_names) != n:
-            raise ValueError(f"names: {len(self.landmark_names)} names for {n} dots")
-        self.blob_options = dict(color=color, threshold=threshold, min_area=min_area, max_area=max_area,
-                                 min_axis_ratio=min_axis_ratio, max_diameter=max_diameter)
-        self.gate_px = float(gate_px)
-        self.outlier_px = float(outlier_px)
-        self.neighbours = int(neighbours)
-        self.velocity_damping = float(velocity_damping)
-        self.area_change = float(area_change)
+        default = tuple(f"dot_{i:03d}" for i in range(n))
+        self.landmark_names = default if names is None else validate_landmark_names(names, n, "names")
+        self.blob_options = _checked_blob_options(color, threshold, min_area, max_area, min_axis_ratio, max_diameter)
+        self.gate_px = as_positive(gate_px, "gate_px", maximum=MAX_TRACKING_PX)
+        self.outlier_px = as_positive(outlier_px, "outlier_px", maximum=MAX_TRACKING_PX)
+        self.neighbours = as_count(neighbours, "neighbours", minimum=1, maximum=1000)
+        self.velocity_damping = as_bounded(velocity_damping, "velocity_damping", 0.0, 1.0)
+        self.area_change = as_bounded(area_change, "area_change", 1.0, 1e6)
         self.reset(start)
 
     def reset(self, pixels) -> None:
         """Restart tracking from known dot positions [px], shape (N, 2)."""
-        self.position = np.asarray(pixels, dtype=np.float64).copy()
+        count = len(self.landmark_names)
+        self.position = as_finite_array(pixels, "pixels", shape=(count, 2), max_abs=MAX_TRACKING_PX).copy()
         """Last known position of each dot [px], shape (N, 2)."""
         self.velocity = np.zeros_like(self.position)
         """Last per-frame motion of each dot [px/frame], shape (N, 2)."""
@@ -212,8 +242,8 @@ class DotTracker:
     def detect(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Find the dots in ``image``: pixels (N, 2) with NaN for dots not found, confidence (N,)."""
         image = np.asarray(image)
-        if image.ndim != 3 or image.shape[2] != 3:
-            raise ValueError(f"image must be (H, W, 3) uint8 RGB, got {image.shape}")
+        if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+            raise ValueError(f"image must be (H, W, 3) uint8 RGB, got {image.shape} {image.dtype}")
         # Only the neighbourhood of the tracked dots can hold them: crop to it.
         margin = self.gate_px + self.blob_options["max_diameter"] + 2
         predicted = self.position + self.velocity_damping * self.velocity
@@ -242,7 +272,14 @@ class DotTracker:
            truncated, and its centroid no longer marks its centre.
         """
         n = self.position.shape[0]
-        det = np.asarray(detections, dtype=np.float64).reshape(-1, 2)
+        det = as_finite_array(detections, "detections", max_abs=MAX_TRACKING_PX)
+        if det.size % 2:
+            raise ValueError(f"detections: expected shape (K, 2), got {det.shape}")
+        det = det.reshape(-1, 2)
+        if areas is not None:
+            areas = as_finite_array(areas, "areas").reshape(-1)
+            if areas.shape != (det.shape[0],) or (areas <= 0).any():
+                raise ValueError(f"areas: expected {det.shape[0]} positive blob areas, got shape {areas.shape}")
         match = np.full(n, -1, dtype=np.int64)  # detection index per dot
         if det.shape[0]:
             predicted = self.position + self.velocity_damping * self.velocity

@@ -12,6 +12,7 @@ from typing import Iterator, Protocol, runtime_checkable
 
 import numpy as np
 
+from .._validate import MAX_COORDINATE
 from .depth import CameraIntrinsics
 
 __all__ = ["LandmarkFrame", "RGBDFrame", "LandmarkSource", "RGBDSource", "SourceBase"]
@@ -28,28 +29,37 @@ class LandmarkFrame:
     timestamp: float
     """Capture time [s]."""
     points: np.ndarray
-    """Landmark positions [m], shape (N, 3), float64, camera frame; NaN rows are missing."""
+    """Landmark positions [m], shape (N, 3), float64, camera frame; NaN rows are missing (so are
+    points beyond ±``MAX_COORDINATE``, 1e6 m: no camera measures those)."""
     confidence: np.ndarray
     """Per-landmark confidence in [0, 1], shape (N,), float32; 0 = missing (or filled in)."""
     index: int
     """Frame number in the source (0-based)."""
 
     def __post_init__(self):
-        pts = np.array(self.points, dtype=np.float64)
+        index = _frame_index(self.index)
+        try:
+            pts = np.array(self.points, dtype=np.float64)
+            with np.errstate(over="ignore"):
+                conf = np.array(self.confidence, dtype=np.float32).reshape(-1)
+            timestamp = float(self.timestamp)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"frame {index}: points, confidence and timestamp must be numeric ({exc})") from None
         if pts.ndim != 2 or pts.shape[1] != 3:
-            raise ValueError(f"frame {self.index}: points must have shape (N, 3), got {pts.shape}")
-        conf = np.array(self.confidence, dtype=np.float32).reshape(-1)
+            raise ValueError(f"frame {index}: points must have shape (N, 3), got {pts.shape}")
         if conf.shape[0] != pts.shape[0]:
             raise ValueError(
-                f"frame {self.index}: {conf.shape[0]} confidences for {pts.shape[0]} landmarks"
+                f"frame {index}: {conf.shape[0]} confidences for {pts.shape[0]} landmarks"
             )
-        if not math.isfinite(float(self.timestamp)):
-            raise ValueError(f"frame {self.index}: timestamp {self.timestamp} is not finite")
-        missing = ~np.all(np.isfinite(pts), axis=1) | ~np.isfinite(conf)
+        if not math.isfinite(timestamp):
+            raise ValueError(f"frame {index}: timestamp {self.timestamp} is not finite")
+        with np.errstate(invalid="ignore"):
+            far = np.any(np.abs(pts) > MAX_COORDINATE, axis=1)
+        missing = ~np.all(np.isfinite(pts), axis=1) | far | ~np.isfinite(conf)
         pts[missing] = np.nan
         conf = np.where(missing, 0.0, np.clip(conf, 0.0, 1.0)).astype(np.float32)
-        object.__setattr__(self, "timestamp", float(self.timestamp))
-        object.__setattr__(self, "index", int(self.index))
+        object.__setattr__(self, "timestamp", timestamp)
+        object.__setattr__(self, "index", index)
         object.__setattr__(self, "points", pts)
         object.__setattr__(self, "confidence", conf)
 
@@ -80,6 +90,7 @@ class RGBDFrame:
     """Frame number in the source (0-based)."""
 
     def __post_init__(self):
+        object.__setattr__(self, "index", _frame_index(self.index))
         color = np.asarray(self.color)
         depth = np.asarray(self.depth)
         if color.ndim != 3 or color.shape[2] != 3 or color.dtype != np.uint8:
@@ -88,10 +99,16 @@ class RGBDFrame:
             raise ValueError(f"frame {self.index}: depth must be (H, W) uint16, got {depth.shape} {depth.dtype}")
         if depth.shape != color.shape[:2]:
             raise ValueError(f"frame {self.index}: depth {depth.shape} and color {color.shape[:2]} sizes differ")
-        if not (math.isfinite(self.depth_scale) and self.depth_scale > 0):
-            raise ValueError(f"frame {self.index}: depth_scale must be > 0, got {self.depth_scale}")
-        if not math.isfinite(float(self.timestamp)):
+        try:
+            depth_scale, timestamp = float(self.depth_scale), float(self.timestamp)
+        except (TypeError, ValueError):
+            raise ValueError(f"frame {self.index}: depth_scale and timestamp must be numbers") from None
+        if not (math.isfinite(depth_scale) and 0 < depth_scale <= 1.0):
+            raise ValueError(f"frame {self.index}: depth_scale must be in (0, 1] m per unit, got {self.depth_scale}")
+        if not math.isfinite(timestamp):
             raise ValueError(f"frame {self.index}: timestamp {self.timestamp} is not finite")
+        object.__setattr__(self, "depth_scale", depth_scale)
+        object.__setattr__(self, "timestamp", timestamp)
 
     @property
     def depth_m(self) -> np.ndarray:
@@ -157,3 +174,9 @@ class SourceBase:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _frame_index(value) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"frame index must be an integer, got {value!r}")
+    return int(value)

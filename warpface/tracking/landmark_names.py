@@ -23,7 +23,13 @@ _NAME = re.compile(r"^v(\d+)$")
 
 def vertex_landmark_names(vertices) -> list[str]:
     """Landmark names for dense vertex indices: ``[12, 345] → ["v00012", "v00345"]``."""
-    return [f"v{int(v):05d}" for v in np.asarray(vertices).ravel()]
+    try:
+        indices = np.asarray(vertices)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"vertices: cannot convert to an index array ({exc})") from None
+    if indices.size and (not np.issubdtype(indices.dtype, np.integer) or indices.min() < 0):
+        raise ValueError(f"vertices: expected non-negative integer vertex indices, got {indices.dtype} {indices.ravel()[:5].tolist()}")
+    return [f"v{int(v):05d}" for v in indices.ravel()]
 
 
 def landmark_vertices(names: Sequence[str], vertex_count: int) -> np.ndarray:

@@ -42,22 +42,34 @@ class RecordedLandmarks(SourceBase):
         for key in ("timestamps", "points", "confidence", "names"):
             if key not in arrays:
                 raise ValueError(f"{self.path}: missing array {key!r}")
-        self.timestamps = np.asarray(arrays["timestamps"], dtype=np.float64)
+        for key, ndim in (("timestamps", 1), ("points", 3), ("confidence", 2), ("names", 1)):
+            if arrays[key].ndim != ndim:
+                raise ValueError(f"{self.path}: array {key!r} must have {ndim} dimension(s), got shape {arrays[key].shape}")
+        for key in ("timestamps", "points", "confidence"):
+            if not (np.issubdtype(arrays[key].dtype, np.floating) or np.issubdtype(arrays[key].dtype, np.integer)):
+                raise ValueError(f"{self.path}: array {key!r} must be numeric, got dtype {arrays[key].dtype}")
+        self.timestamps = arrays["timestamps"].astype(np.float64)
         """Frame times [s], shape (F,), float64."""
-        self.points = np.asarray(arrays["points"], dtype=np.float64)
-        """Landmark positions [m], shape (F, N, 3), float64 (NaN = missing)."""
-        self.confidence = np.asarray(arrays["confidence"], dtype=np.float32)
-        """Confidences, shape (F, N), float32."""
+        with np.errstate(over="ignore"):
+            self.points = arrays["points"].astype(np.float64)
+            """Landmark positions [m], shape (F, N, 3), float64 (NaN = missing)."""
+            self.confidence = arrays["confidence"].astype(np.float32)
+            """Confidences, shape (F, N), float32."""
         f = self.timestamps.shape[0]
-        if self.timestamps.ndim != 1 or self.points.ndim != 3 or self.points.shape[0] != f or self.points.shape[2] != 3:
+        if self.points.shape[0] != f or self.points.shape[2] != 3:
             raise ValueError(
                 f"{self.path}: expected timestamps (F,) and points (F, N, 3), got "
                 f"{self.timestamps.shape} and {self.points.shape}"
             )
         if self.confidence.shape != self.points.shape[:2]:
             raise ValueError(f"{self.path}: confidence {self.confidence.shape} ≠ points {self.points.shape[:2]}")
+        if not np.all(np.isfinite(self.timestamps)):
+            raise ValueError(f"{self.path}: timestamp of frame {int(np.argmax(~np.isfinite(self.timestamps)))} is not finite")
         self.landmark_names = validate_landmark_names(arrays["names"].tolist(), self.points.shape[1], str(self.path))
-        fps = float(arrays["fps"]) if "fps" in arrays else float("nan")
+        fps = arrays["fps"] if "fps" in arrays else np.float64(np.nan)
+        if fps.shape != () or not (np.issubdtype(fps.dtype, np.floating) or np.issubdtype(fps.dtype, np.integer)):
+            raise ValueError(f"{self.path}: array 'fps' must be a number, got shape {fps.shape} dtype {fps.dtype}")
+        fps = float(fps)
         self.fps = fps if math.isfinite(fps) and fps > 0 else estimate_fps(self.timestamps)
         self.timestamp_policy = timestamp_policy
         StreamGuard(timestamp_policy, str(self.path))  # validate the policy name now

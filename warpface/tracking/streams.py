@@ -18,6 +18,7 @@ from typing import Iterable, Iterator, Sequence
 
 import numpy as np
 
+from .._validate import as_count
 from .frames import LandmarkFrame
 
 __all__ = ["TIMESTAMP_POLICIES", "StreamGuard", "checked_frames", "fill_missing", "estimate_fps", "validate_landmark_names"]
@@ -30,7 +31,7 @@ class StreamGuard:
     """Applies the timestamp policy and the fixed landmark/image size to a stream of frames."""
 
     def __init__(self, policy: str, where: str):
-        if policy not in TIMESTAMP_POLICIES:
+        if not isinstance(policy, str) or policy not in TIMESTAMP_POLICIES:
             raise ValueError(f"timestamp_policy must be one of {TIMESTAMP_POLICIES}, got {policy!r}")
         self.policy = policy
         self.where = where
@@ -75,7 +76,7 @@ def checked_frames(
     """
     guard = StreamGuard(timestamp_policy, where)
     if landmark_count is not None:
-        guard.shape = (int(landmark_count),)
+        guard.shape = (as_count(landmark_count, "landmark_count"),)
     for frame in frames:
         if guard.accept(frame.timestamp, frame.index, (frame.landmark_count,), "landmark count"):
             yield frame
@@ -98,6 +99,7 @@ def fill_missing(
     """
     if mode not in ("hold", "interpolate"):
         raise ValueError(f"mode must be 'hold' or 'interpolate', got {mode!r}")
+    max_lookahead = as_count(max_lookahead, "max_lookahead", minimum=1)
     buffer: deque[LandmarkFrame] = deque()
     last_point: np.ndarray | None = None  # (N, 3) last measured (or filled) positions
     last_time: np.ndarray | None = None  # (N,) time of each landmark's last measurement
@@ -166,6 +168,9 @@ def estimate_fps(timestamps: np.ndarray) -> float | None:
 
 
 def validate_landmark_names(names, count: int, where: str) -> tuple[str, ...]:
+    """``names`` as a tuple of ``count`` unique strings; ValueError naming ``where`` otherwise."""
+    if isinstance(names, (str, bytes)) or not hasattr(names, "__iter__"):
+        raise ValueError(f"{where}: expected a sequence of landmark names, got {type(names).__name__}")
     names = tuple(str(n) for n in names)
     if len(names) != count:
         raise ValueError(f"{where}: {len(names)} landmark names for {count} landmarks")
