@@ -147,7 +147,7 @@ def _occluded_kernel(
 
 
 def _occluded(
-    points: np.ndarray, triangles: np.ndarray, normals: np.ndarray, eye: np.ndarray, device=None
+    points: np.ndarray, triangles: np.ndarray, normals: np.ndarray, eye: np.ndarray, *, device=None
 ) -> np.ndarray:
     """Vertices whose line of sight to ``eye`` is blocked by the mesh itself, shape (V,), bool."""
     center = points.mean(axis=0)
@@ -224,7 +224,7 @@ def place_fiducials(
             d = np.sqrt(((chunk[:, None, :] - bpts[None, :, :]) ** 2).sum(-1)).min(axis=1)
             ok[start:start + 2048] &= d >= boundary_margin
     if camera_position is not None:
-        ok &= ~_occluded(p, triangles, normals, np.asarray(camera_position, dtype=np.float64), device)
+        ok &= ~_occluded(p, triangles, normals, np.asarray(camera_position, dtype=np.float64), device=device)
     candidates = np.flatnonzero(ok)
     if candidates.size == 0:
         raise ValueError("place_fiducials: no vertex faces the camera away from the boundary")

@@ -178,7 +178,7 @@ class TrackingStageWriter:
                 layer.SetTimeSample(confidence_path, time_code, Vt.FloatArray.FromNumpy(confidence))
                 if dense is not None:
                     layer.SetTimeSample(face_points, time_code, Vt.Vec3fArray.FromNumpy(dense))
-                    columns = np.ascontiguousarray(dense.T)  # reducing contiguous rows is ~10× faster than axis 0
+                    columns = np.ascontiguousarray(dense.T)  # min/max over contiguous rows beat a strided axis-0 reduction
                     bounds = np.stack([columns.min(axis=1), columns.max(axis=1)])
                     layer.SetTimeSample(face_extent, time_code, Vt.Vec3fArray.FromNumpy(bounds))
         name = f"chunk_{len(self._chunks):04d}.usdc"
