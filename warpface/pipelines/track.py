@@ -71,7 +71,7 @@ def _open_source(rig, args):
     from .capture import open_source, synthetic_capture
 
     if args.source == "synthetic":
-        with _setup_step("rendering the synthetic camera's set-up", args.quiet):
+        with _setup_step("preparing the synthetic camera", args.quiet):
             capture = synthetic_capture(rig, expression=args.expression, device=args.device)
         return capture.source, np.linalg.inv(capture.camera.model_to_camera), [capture.camera.close]
     source = open_source(args.source, layout=getattr(args, "layout", None), device=args.device)
