@@ -26,7 +26,7 @@ import warp as wp
 
 from .._validate import as_count, as_finite_array, as_positive
 
-__all__ = ["CameraIntrinsics", "backproject", "KINECT_V1_INTRINSICS", "MAX_PIXELS", "MAX_DEPTH_WINDOW"]
+__all__ = ["CameraIntrinsics", "backproject", "KINECT_V1_INTRINSICS", "MAX_PIXELS", "MAX_DEPTH", "MAX_DEPTH_WINDOW"]
 
 MAX_PIXELS = 65536
 """Largest accepted image width or height [px]."""
@@ -109,9 +109,18 @@ KINECT_V1_INTRINSICS = CameraIntrinsics(fx=525.0, fy=525.0, cx=319.5, cy=239.5, 
 """A Kinect-v1-like 640×480 camera (the thesis's sensor): 525 px focal length, centred."""
 
 
+MAX_DEPTH = 1.0e4
+"""Depths at or beyond this [m] are holes (no depth sensor measures them; they would overflow the fit)."""
+
 _vec6f = wp.types.vector(length=6, dtype=wp.float32)
 _vec6d = wp.types.vector(length=6, dtype=wp.float64)
 _mat66d = wp.types.matrix(shape=(6, 6), dtype=wp.float64)
+
+
+@wp.func
+def _is_depth(z: float) -> bool:
+    """A measured depth: not a hole (0), negative, NaN, infinite or beyond :data:`MAX_DEPTH`."""
+    return z > 0.0 and z < wp.static(MAX_DEPTH)
 
 
 @wp.func
@@ -171,25 +180,33 @@ def _solve_spd(A: _mat66d, b: _vec6d, n: int) -> _vec6d:
 
 
 @wp.func
-def _count_residual_le(
-    depth: wp.array2d(dtype=float),
-    r0: int, r1: int, c0: int, c1: int,
-    u: float, v: float, coef: _vec6f, scale: float,
-    signed: int, threshold: float,
-) -> int:
-    """Count valid pixels in rows [r0, r1) × cols [c0, c1) whose residual Z − model (signed) or
-    |Z − model| is ≤ threshold. A zero model makes the signed residual the depth itself."""
-    count = int(0)
-    for row in range(r0, r1):
-        for col in range(c0, c1):
-            z = depth[row, col]
-            if z > 0.0:
-                r = z - _model_depth(coef, float(col) - u, float(row) - v, scale)
-                if signed == 0:
-                    r = wp.abs(r)
-                if r <= threshold:
-                    count += 1
-    return count
+def _select(values: wp.array2d(dtype=float), row: int, n: int, k: int) -> float:
+    """The k-th smallest (0-based) of ``values[row, :n]`` by quickselect (Hoare partition, middle
+    pivot); reorders that row in place. Expected O(n)."""
+    lo = int(0)
+    hi = int(n - 1)
+    while lo < hi:
+        pivot = values[row, (lo + hi) // 2]
+        i = int(lo)
+        j = int(hi)
+        while i <= j:
+            while values[row, i] < pivot:
+                i += 1
+            while values[row, j] > pivot:
+                j -= 1
+            if i <= j:
+                swap = values[row, i]
+                values[row, i] = values[row, j]
+                values[row, j] = swap
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    return values[row, k]
 
 
 @wp.func
@@ -197,18 +214,23 @@ def _median_residual(
     depth: wp.array2d(dtype=float),
     r0: int, r1: int, c0: int, c1: int,
     u: float, v: float, coef: _vec6f, scale: float,
-    signed: int, lo: float, hi: float, n: int,
+    signed: int, scratch: wp.array2d(dtype=float), slot: int,
 ) -> float:
-    """Median of the n valid pixels' residuals (see :func:`_count_residual_le`), bisection on [lo, hi]."""
-    half = (n + 1) // 2
-    # 24 halvings: 6e-8 of the bracket (sub-micrometre for any window of a face).
-    for _ in range(24):
-        mid = 0.5 * (lo + hi)
-        if _count_residual_le(depth, r0, r1, c0, c1, u, v, coef, scale, signed, mid) >= half:
-            hi = mid
-        else:
-            lo = mid
-    return hi
+    """Median (the ⌈n/2⌉-th smallest) of the valid pixels' residuals in rows [r0, r1) × cols
+    [c0, c1): Z − model (signed) or |Z − model|; a zero model makes the signed residual the depth
+    itself. The residuals are gathered once in row ``slot`` of ``scratch`` and selected there, so
+    the model is evaluated once per pixel. The window must hold at least one valid pixel."""
+    n = int(0)
+    for row in range(r0, r1):
+        for col in range(c0, c1):
+            z = depth[row, col]
+            if _is_depth(z):
+                r = z - _model_depth(coef, float(col) - u, float(row) - v, scale)
+                if signed == 0:
+                    r = wp.abs(r)
+                scratch[slot, n] = r
+                n += 1
+    return _select(scratch, slot, n, (n + 1) // 2 - 1)
 
 
 @wp.func
@@ -220,7 +242,7 @@ def _valid_range(depth: wp.array2d(dtype=float), r0: int, r1: int, c0: int, c1: 
     for row in range(r0, r1):
         for col in range(c0, c1):
             z = depth[row, col]
-            if z > 0.0:
+            if _is_depth(z):
                 n += 1.0
                 zmin = wp.min(zmin, z)
                 zmax = wp.max(zmax, z)
@@ -243,6 +265,7 @@ def _backproject_kernel(
     noise_floor: float,
     iterations: int,
     min_inlier_fraction: float,
+    scratch: wp.array2d(dtype=float),
     out_points: wp.array(dtype=wp.vec3),
     out_inliers: wp.array(dtype=wp.int32),
 ):
@@ -282,8 +305,7 @@ def _backproject_kernel(
             b1 = wp.min(vc + ring + 1, height)
             inner = _valid_range(depth, b0, b1, a0, a1)
             if int(inner[0]) >= 3:
-                z_seed = _median_residual(depth, b0, b1, a0, a1, u, v, zero, scale, 1, inner[1], inner[2],
-                                          int(inner[0]))
+                z_seed = _median_residual(depth, b0, b1, a0, a1, u, v, zero, scale, 1, scratch, i)
                 found = 1
     if found == 0:
         return
@@ -301,18 +323,12 @@ def _backproject_kernel(
         count = int(0)
         if it > 0:
             # Re-gate on this fit's residuals: 2.5 σ̂ (σ̂ = 1.4826 MAD), never below the sensor's noise.
-            lim = float(0.0)
-            for row in range(r0, r1):
-                for col in range(c0, c1):
-                    z = depth[row, col]
-                    if z > 0.0:
-                        lim = wp.max(lim, wp.abs(z - _model_depth(coef, float(col) - u, float(row) - v, scale)))
-            mad = _median_residual(depth, r0, r1, c0, c1, u, v, coef, scale, 0, 0.0, lim, n)
+            mad = _median_residual(depth, r0, r1, c0, c1, u, v, coef, scale, 0, scratch, i)
             gate = wp.max(2.5 * 1.4826 * mad, 2.5 * noise_floor)
         for row in range(r0, r1):
             for col in range(c0, c1):
                 z = depth[row, col]
-                if z > 0.0:
+                if _is_depth(z):
                     du = float(col) - u
                     dv = float(row) - v
                     keep = int(0)
@@ -423,7 +439,8 @@ def backproject(
     uv[~np.all(np.isfinite(uv), axis=1)] = np.nan  # an infinite pixel is as missing as a NaN one
     uv[np.any(np.abs(uv) > MAX_PIXELS, axis=1)] = np.nan  # far off any image
     try:
-        z = np.asarray(depth, dtype=np.float64)
+        with np.errstate(over="ignore"):  # beyond float32's range becomes inf: a hole, like NaN, 0 and < 0
+            z = np.ascontiguousarray(depth, dtype=np.float32)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"depth: cannot convert to a numeric image ({exc})") from None
     if z.ndim != 2:
@@ -448,16 +465,15 @@ def backproject(
     count = uv.shape[0]
     if count == 0:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
-    # Holes: 0, negative, non-finite, or beyond any depth sensor (and float32's range).
-    z32 = np.where(np.isfinite(z) & (z > 0) & (z < 1e4), z, 0).astype(np.float32)
     device = wp.get_device(device)
     points = wp.empty(count, dtype=wp.vec3, device=device)
     inliers = wp.empty(count, dtype=wp.int32, device=device)
+    scratch = wp.empty((count, window * window), dtype=float, device=device)  # residuals, one row per landmark
     wp.launch(
         _backproject_kernel,
         dim=count,
         inputs=[
-            wp.array(z32, dtype=float, device=device),
+            wp.array(z, dtype=float, device=device, copy=not device.is_cpu),  # CPU: the caller's image, no copy
             wp.array(uv.astype(np.float32), dtype=wp.vec2, device=device),
             window // 2,
             1 if model == "quadric" else 0,
@@ -471,6 +487,7 @@ def backproject(
             float(noise_floor),
             int(max(iterations, 1)),
             float(min_inlier_fraction),
+            scratch,
         ],
         outputs=[points, inliers],
         device=device,
