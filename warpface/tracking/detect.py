@@ -72,8 +72,8 @@ class Blobs:
 
 
 def _contrast_map(image: np.ndarray, color, max_diameter: int) -> np.ndarray:
-    """Per-pixel evidence of a dot, float32, 0–255: darkness below the local background, or
-    closeness to the target colour."""
+    """Per-pixel evidence of a dot, 0–255 (uint8 for dark dots, float32 for coloured ones): darkness
+    below the local background, or closeness to the target colour."""
     import cv2
 
     rgb = np.asarray(image)
@@ -88,7 +88,8 @@ def _contrast_map(image: np.ndarray, color, max_diameter: int) -> np.ndarray:
         size = int(max_diameter) + 2
         kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (size, size))
         background = cv2.morphologyEx(gray, cv2.MORPH_CLOSE, kernel)
-        return background.astype(np.float32) - gray.astype(np.float32)
+        # A closing never darkens a pixel, so the uint8 difference is exact (no saturation).
+        return cv2.subtract(background, gray)
     target = np.asarray(color, dtype=np.float32).reshape(-1)
     if target.shape != (3,):
         raise ValueError(f"color must be 'dark' or an RGB triple, got {color!r}")
@@ -126,10 +127,14 @@ def detect_blobs(
     Returns:
         :class:`Blobs` passing the gates, in no particular order.
     """
+    options = _checked_blob_options(color, threshold, min_area, max_area, min_axis_ratio, max_diameter)
+    return _detect_blobs(image, **options)
+
+
+def _detect_blobs(image, *, color, threshold, min_area, max_area, min_axis_ratio, max_diameter) -> Blobs:
+    """:func:`detect_blobs` with options already checked."""
     import cv2
 
-    options = _checked_blob_options(color, threshold, min_area, max_area, min_axis_ratio, max_diameter)
-    color, threshold, min_area, max_area, min_axis_ratio, max_diameter = options.values()
     contrast = _contrast_map(image, color, max_diameter)
     mask = (contrast >= threshold).astype(np.uint8)
     count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
@@ -254,7 +259,7 @@ class DotTracker:
         y1 = int(np.clip(np.ceil(predicted[:, 1].max() + margin) + 1, 0, h))
         if x1 - x0 < 3 or y1 - y0 < 3:
             return self.update(np.zeros((0, 2)))
-        blobs = detect_blobs(image[y0:y1, x0:x1], **self.blob_options)
+        blobs = _detect_blobs(image[y0:y1, x0:x1], **self.blob_options)  # options checked in __init__
         return self.update(blobs.centers + [x0, y0], blobs.areas)
 
     def update(self, detections: np.ndarray, areas: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -325,10 +330,15 @@ class DotTracker:
     def _neighbour_motion(self, known: np.ndarray, motion: np.ndarray, query: np.ndarray) -> np.ndarray:
         """Median motion of the ``neighbours`` nearest dots in ``known`` (excluding itself) for each
         dot in ``query``, shape (len(query), 2)."""
-        dist = np.linalg.norm(self.position[query][:, None, :] - self.position[known][None, :, :], axis=2)
-        dist[query[:, None] == known[None, :]] = np.inf
+        from scipy.spatial import cKDTree
+
         k = max(1, min(self.neighbours, known.size - 1 if np.isin(query, known).any() else known.size))
-        nearest = np.argpartition(dist, k - 1, axis=1)[:, :k]
+        candidates = min(k + 1, known.size)  # one more, in case the dot itself is among them
+        _, found = cKDTree(self.position[known]).query(self.position[query], k=candidates)
+        found = np.asarray(found).reshape(len(query), candidates)
+        itself = known[found] == query[:, None]
+        # The k nearest that are not the dot itself (a stable sort keeps the distance order).
+        nearest = np.take_along_axis(found, np.argsort(itself, axis=1, kind="stable")[:, :k], axis=1)
         return np.median(motion[nearest], axis=1)
 
 
