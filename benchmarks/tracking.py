@@ -13,7 +13,7 @@ measured in the same run:
 * ``correspondence (once)``: :func:`closest_points` with the ``wp.Mesh`` BVH — baseline the same
   Voronoi-region function over all triangles per vertex (O(V·T) Warp kernel); again with MediaPipe's
   468-point face mesh (898 triangles) as the sparse mesh, in SPEC §3 normalised coordinates.
-* ``transfer``: :meth:`TrackingAdapter.step` (sparse update, kernel, copy to host) — baseline the
+* ``transfer``: :meth:`TrackingAdapter.track_frame` (sparse update, kernel, copy to host) — baseline the
   same math vectorised in NumPy.
 * ``frame total``: detect + back-project + transfer, and the frame rate it allows.
 
