@@ -381,3 +381,22 @@ def test_the_reported_crashes_are_clear_errors(sparse_setup, tmp_path):
         DotTracker([[1.0, 1.0]], neighbours=float("inf"))
     with pytest.raises(ValueError, match="max_diameter"):
         DotTracker([[1.0, 1.0]], max_diameter=int(1e9))
+
+
+@FUZZ
+@given(timestamp=scalars, landmarks=arrays_of([(2, 3), (3, 3)]), confidence=arrays_of([(2,), (3,)]),
+       dense_value=st.one_of(special_floats, st.floats(-1e40, 1e40)))
+def test_tracking_stage_writer_frames(tmp_path_factory, timestamp, landmarks, confidence, dense_value):
+    from warpface.usd.tracking_io import TrackingStageWriter, read_tracking
+
+    rest, triangles = grid_surface(3)
+    path = tmp_path_factory.mktemp("cap") / "cap.usda"
+    with TrackingStageWriter(path, ["a", "b"], 30.0, dense_rest=rest, triangles=triangles) as writer:
+        try:
+            writer.add(timestamp, landmarks, confidence, np.full(rest.shape, dense_value))
+        except ALLOWED as error:
+            check_error(error, "frame at t=")
+            return
+    back = read_tracking(path)
+    assert len(back["times"]) == 1
+    assert_finite(back["landmarks"], back["confidence"], back["dense"])

@@ -121,6 +121,10 @@ def record(source, adapter: TrackingAdapter, writer, *, max_frames: int | None =
     from tqdm import tqdm
 
     from .._signals import InterruptRequest, deferred_interrupts
+    from .._validate import as_count
+
+    if max_frames is not None:
+        max_frames = as_count(max_frames, "max_frames", minimum=1)
 
     bar = tqdm(desc="track", unit="frame", disable=not progress, total=max_frames)
     found, count, started = 0.0, 0, time.perf_counter()

@@ -33,6 +33,7 @@ def run_track(args) -> int:
     """
     from ..usd.tracking_io import TrackingStageWriter
 
+    _check_options(args)
     stage = Path(args.stage).absolute()
     created = _create_missing_folders(stage.parent)
     writer = None
@@ -64,6 +65,19 @@ def run_track(args) -> int:
               f"{len(drive.driven_nodes)} driven, {len(drive.fixed_nodes)} fixed, {drive.substeps} steps per frame")
     print(f"  stage {stage}  ({fps:g} time codes per second; landmarks and dense points in {writer.folder.name}/)")
     return 130 if stats.interrupted else 0
+
+
+def _check_options(args) -> None:
+    """Refuse bad numeric options before anything is loaded or written."""
+    import math
+
+    if args.frames is not None and args.frames < 1:
+        raise ValueError(f"--frames must be ≥ 1, got {args.frames}")
+    if args.fem:
+        if not (math.isfinite(args.fem_dt) and 0.0 < args.fem_dt <= 0.1):
+            raise ValueError(f"--fem-dt must be in (0, 0.1] s, got {args.fem_dt}")
+        if not 100 <= args.fem_nodes <= 200_000:
+            raise ValueError(f"--fem-nodes must be in [100, 200000], got {args.fem_nodes}")
 
 
 def _open_source(rig, args):

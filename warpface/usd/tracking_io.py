@@ -103,17 +103,26 @@ class TrackingStageWriter:
 
     # ------------------------------------------------------------------ public
     def add(self, timestamp: float, landmarks: np.ndarray, confidence: np.ndarray, dense_points: np.ndarray | None = None) -> float:
-        """Queue one frame; returns its time code. Missing landmarks (NaN rows) are written at their
-        last known position with confidence 0 (USD points cannot be NaN), or at the origin until seen.
+        """Queue one frame; returns its time code. Missing landmarks (NaN rows, or beyond ±1e6 m) are
+        written at their last known position with confidence 0 (USD points cannot be NaN), or at the
+        origin until seen; confidences are clipped to [0, 1].
 
         Raises:
             ValueError: shapes differ from the first frame, time does not increase, or dense points
                 are not finite.
         """
-        landmarks = np.asarray(landmarks, dtype=np.float64)
-        confidence = np.asarray(confidence, dtype=np.float64)
+        try:
+            timestamp = float(timestamp)
+            landmarks = np.asarray(landmarks, dtype=np.float64)
+            confidence = np.asarray(confidence, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"frame at t={timestamp!r}: timestamp, landmarks and confidence must be numeric ({exc})") from None
+        if not np.isfinite(timestamp):
+            raise ValueError(f"frame at t={timestamp}: timestamp is not finite")
         if landmarks.shape != (len(self.names), 3) or confidence.shape != (len(self.names),):
             raise ValueError(f"frame at t={timestamp}: expected {len(self.names)} landmarks, got {landmarks.shape}")
+        with np.errstate(invalid="ignore"):
+            landmarks = np.where(np.abs(landmarks) <= 1e6, landmarks, np.nan)  # beyond float32 / any camera: missing
         if self._first_timestamp is None:
             self._first_timestamp = float(timestamp)
             self._held = np.zeros((len(self.names), 3))
@@ -122,9 +131,13 @@ class TrackingStageWriter:
             raise ValueError(f"frame at t={timestamp}: time must increase (time code {time_code} after {self._last_time})")
         seen = np.all(np.isfinite(landmarks), axis=1)
         self._held[seen] = landmarks[seen]
-        confidence = np.where(seen & np.isfinite(confidence), confidence, 0.0)
+        confidence = np.where(seen & np.isfinite(confidence), np.clip(confidence, 0.0, 1.0), 0.0)
         if dense_points is not None:
-            dense_points = np.asarray(dense_points, dtype=np.float32)
+            try:
+                with np.errstate(over="ignore"):
+                    dense_points = np.asarray(dense_points, dtype=np.float32)
+            except (TypeError, ValueError):
+                raise ValueError(f"frame at t={timestamp}: dense points must be numeric") from None
             if dense_points.shape != (self.vertex_count, 3):
                 raise ValueError(f"frame at t={timestamp}: dense points must have shape ({self.vertex_count}, 3)")
             if not np.all(np.isfinite(dense_points)):
@@ -249,12 +262,14 @@ class TrackingStageWriter:
         if self._chunks:
             # Authored at the Sdf level: composing clips on the in-memory stage would try (and fail)
             # to resolve the relative clip paths against an anonymous layer.
-            end = max(self._root.endTimeCode, 1.0)
+            end = self._root.endTimeCode
+            # Identity time mapping over the capture; a single pair for a one-frame capture (a
+            # second pair at a later time would read back as an extra sample).
             self._root.GetPrimAtPath(ROOT).SetInfo("clips", {"default": {
                 "assetPaths": Sdf.AssetPathArray([f"./{self.folder.name}/{name}" for name, _ in self._chunks]),
                 "primPath": str(ROOT),
                 "active": Vt.Vec2dArray([(start, float(index)) for index, (_, start) in enumerate(self._chunks)]),
-                "times": Vt.Vec2dArray([(0.0, 0.0), (end, end)]),
+                "times": Vt.Vec2dArray([(0.0, 0.0), (end, end)] if end > 0 else [(0.0, 0.0)]),
             }})
         export_layer_atomically(self._root, self.path)
 
