@@ -369,10 +369,12 @@ class ArucoMarkers:
                  names: Sequence[str] | None = None, refine: bool = True):
         import cv2
 
-        ids = [int(i) for i in marker_ids]
+        if isinstance(marker_ids, (str, bytes)) or not hasattr(marker_ids, "__iter__"):
+            raise ValueError(f"marker_ids: expected a sequence of integer ids, got {marker_ids!r}")
+        ids = [as_count(i, "marker_ids") for i in marker_ids]
         if len(set(ids)) != len(ids):
             raise ValueError(f"marker_ids: repeated id in {ids}")
-        if not hasattr(cv2.aruco, dictionary):
+        if not isinstance(dictionary, str) or not dictionary.startswith("DICT_") or not hasattr(cv2.aruco, dictionary):
             raise ValueError(f"dictionary: cv2.aruco has no {dictionary!r}")
         self.dictionary_name = dictionary
         self.dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
@@ -381,9 +383,8 @@ class ArucoMarkers:
         if bad:
             raise ValueError(f"marker_ids: {bad} outside {dictionary} (0…{size - 1})")
         self.marker_ids = tuple(ids)
-        self.landmark_names = tuple(names) if names is not None else tuple(f"aruco_{i}" for i in ids)
-        if len(self.landmark_names) != len(ids):
-            raise ValueError(f"names: {len(self.landmark_names)} names for {len(ids)} markers")
+        default = tuple(f"aruco_{i}" for i in ids)
+        self.landmark_names = default if names is None else validate_landmark_names(names, len(ids), "names")
         params = cv2.aruco.DetectorParameters()
         if refine:
             params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX

@@ -28,6 +28,7 @@ from typing import Iterator, Sequence
 import numpy as np
 import warp as wp
 
+from .._validate import as_count, as_finite_array, as_points, as_positive
 from ..mesh import FaceMesh
 from .depth import KINECT_V1_INTRINSICS, CameraIntrinsics
 from .frames import RGBDFrame, SourceBase
@@ -100,8 +101,9 @@ def procedural_face(
     Returns ``(points (R², 3) [m], triangles (2 (R−1)², 3) int32)`` in the model frame (+y up,
     +z toward the viewer), centred on x = y = 0, triangles oriented toward +z.
     """
-    if resolution < 3:
-        raise ValueError(f"resolution must be ≥ 3, got {resolution}")
+    resolution = as_count(resolution, "resolution", minimum=3, maximum=4096)
+    width = as_positive(width, "width")
+    height = as_positive(height, "height")
     xs = np.linspace(-0.5 * width, 0.5 * width, resolution)
     ys = np.linspace(-0.5 * height, 0.5 * height, resolution)
     x, y = np.meshgrid(xs, ys)
@@ -120,7 +122,8 @@ def procedural_face(
 def procedural_jaw_open(points: np.ndarray, amount: float) -> np.ndarray:
     """Open the jaw of :func:`procedural_face` by ``amount`` [m]: the lower face moves down and
     back, blending smoothly in over the mouth region. Returns a new (V, 3) array."""
-    p = np.array(points, dtype=np.float64)
+    p = as_points(points, "points").copy()
+    amount = float(as_finite_array(amount, "amount", shape=(), max_abs=1.0))
     t = np.clip((-0.02 - p[:, 1]) / 0.05, 0.0, 1.0)
     s = t * t * (3.0 - 2.0 * t)
     p[:, 1] -= amount * s
