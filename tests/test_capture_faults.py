@@ -54,6 +54,7 @@ CHILD = textwrap.dedent(
             self.trial = trial
 
         def frames(self):
+            print(f"start {self.trial}", flush=True)  # the capture runs: Ctrl-C is now the capture's
             i = 0
             while True:
                 points = rest[vertices] + np.array([0.0, 1e-4 * i, 0.0])
@@ -70,7 +71,6 @@ CHILD = textwrap.dedent(
         writer = LoggingWriter(f"{folder}/cap{trial}.usda", names, 30.0, dense_rest=rest, triangles=triangles,
                                chunk_frames=chunk)
         writer.trial = trial
-        print(f"start {trial}", flush=True)
         stats = record(EndlessCamera(trial), adapter, writer, progress=False)
         print(f"done {trial} {stats.frames} {stats.interrupted}", flush=True)
     """
@@ -81,8 +81,18 @@ def _start_child(folder: Path, trials: int) -> subprocess.Popen:
     script = folder / "child.py"
     script.write_text(CHILD)
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    return subprocess.Popen([sys.executable, str(script), str(folder), str(trials), str(REPO / "tests"), str(CHUNK_FRAMES)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=folder)
+    # stderr to a file: only stdout is read through a pipe (mixing readline() with communicate()
+    # would lose the lines readline() had already buffered).
+    with open(folder / "child.err", "w") as errors:
+        return subprocess.Popen([sys.executable, str(script), str(folder), str(trials), str(REPO / "tests"),
+                                 str(CHUNK_FRAMES)], stdout=subprocess.PIPE, stderr=errors, text=True, env=env, cwd=folder)
+
+
+def _finish(child: subprocess.Popen, folder: Path) -> tuple[str, str]:
+    """The rest of the child's stdout (after it exits) and its stderr."""
+    out = child.stdout.read()
+    child.wait(timeout=60)
+    return out, (folder / "child.err").read_text()
 
 
 def _wait_for(child: subprocess.Popen, line: str, log: list[str]) -> None:
@@ -90,7 +100,7 @@ def _wait_for(child: subprocess.Popen, line: str, log: list[str]) -> None:
     while time.monotonic() < deadline:
         text = child.stdout.readline()
         if not text:
-            raise AssertionError(f"child ended before {line!r}: {child.stderr.read()[-2000:]}")
+            raise AssertionError(f"child ended before {line!r}")
         log.append(text.strip())
         if text.strip() == line:
             return
@@ -123,7 +133,7 @@ def test_sigint_at_random_moments_loses_no_frame(tmp_path):
             _wait_for(child, f"start {trial}", log)
             time.sleep(delays.uniform(0.05, 0.35))
             child.send_signal(signal.SIGINT)
-        out, err = child.communicate(timeout=60)
+        out, err = _finish(child, tmp_path)
     finally:
         child.kill()
     log += out.split("\n")
@@ -146,7 +156,7 @@ def test_kill_9_keeps_every_flushed_frame(tmp_path, seed):
         _wait_for(child, "start 0", log)
         time.sleep(random.Random(seed).uniform(0.05, 0.35))
         child.send_signal(signal.SIGKILL)
-        out, _ = child.communicate(timeout=60)
+        out, _ = _finish(child, tmp_path)
     finally:
         child.kill()
     log += out.split("\n")
