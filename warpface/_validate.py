@@ -40,8 +40,7 @@ def as_finite_array(value, name: str, *, shape: tuple | None = None, dtype=np.fl
     if isinstance(value, (str, bytes)) or value is None:
         raise ValueError(f"{name}: expected numbers, got {type(value).__name__}")
     try:
-        with np.errstate(over="ignore"):
-            array = np.asarray(value, dtype=dtype)
+        array = np.asarray(value, dtype=dtype)
     except (TypeError, ValueError, OverflowError) as exc:
         raise ValueError(f"{name}: cannot convert to a numeric array ({_short(exc)})") from None
     if shape is not None:
@@ -97,7 +96,7 @@ def as_triangles(value, vertex_count: int, name: str, *, integral_floats: bool =
     if len(bad):
         t = int(bad[0])
         raise ValueError(
-            f"{name}: triangle {t} {triangles[t].tolist()} has a vertex index outside [0, {vertex_count}) "
+            f"{name}: triangle {t} {triangles[t].tolist()} has a vertex index out of range [0, {vertex_count}) "
             f"({len(bad)} such triangles)"
         )
     return triangles.astype(np.int32)
@@ -115,10 +114,13 @@ def as_per_vertex(
         values = np.full(vertex_count, float(values))
     if values.shape != (vertex_count,):
         raise ValueError(f"{name}: expected one value per vertex ({vertex_count},), got shape {values.shape}")
-    for bound, outside, word in ((minimum, values < (minimum or 0.0), "below"), (maximum, values > (maximum or 0.0), "above")):
-        if bound is not None and np.any(outside):
-            v = int(np.flatnonzero(outside)[0])
-            raise ValueError(f"{name}: value {values[v]:.6g} at vertex {v} is {word} {bound:g}")
+    if minimum is not None and np.any(values < minimum):
+        v = int(np.flatnonzero(values < minimum)[0])
+        what = "negative value" if minimum == 0.0 else f"value below {minimum:g}:"
+        raise ValueError(f"{name}: {what} {values[v]:.6g} at vertex {v}")
+    if maximum is not None and np.any(values > maximum):
+        v = int(np.flatnonzero(values > maximum)[0])
+        raise ValueError(f"{name}: value {values[v]:.6g} at vertex {v} is above the largest accepted {maximum:g}")
     return values
 
 
