@@ -286,10 +286,13 @@ def read_tracking(path) -> dict:
     attribute = points.GetPointsAttr()
     times = np.array(attribute.GetTimeSamples(), dtype=np.float64)
     confidence = UsdGeom.PrimvarsAPI(points).GetPrimvar("confidence")
+    names = UsdGeom.PrimvarsAPI(points).GetPrimvar("names")
+    if not names or not confidence or names.Get() is None:
+        raise ValueError(f"{path}: {LANDMARKS} lacks its 'names' or 'confidence' primvar; not a warpface capture")
     result = {
         "times": times,
         "fps": stage.GetTimeCodesPerSecond(),
-        "names": list(UsdGeom.PrimvarsAPI(points).GetPrimvar("names").Get()),
+        "names": list(names.Get()),
         "landmarks": np.stack([np.asarray(attribute.Get(t)) for t in times]) if len(times) else np.zeros((0, 0, 3)),
         "confidence": np.stack([np.asarray(confidence.Get(t)) for t in times]) if len(times) else np.zeros((0, 0)),
     }
