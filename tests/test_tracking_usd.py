@@ -126,3 +126,13 @@ def test_track_help_names_the_files_it_writes(capsys):
         main(["track", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "<stage>_track/" in text and "_track.usdc" not in text
+
+
+def test_a_new_capture_replaces_a_longer_one_at_the_same_path(tmp_path):
+    for frames in (7, 2):
+        with TrackingStageWriter(tmp_path / "cap.usda", ["a"], 30.0, chunk_frames=2) as writer:
+            for i in range(frames):
+                writer.add(i / 30.0, np.full((1, 3), float(frames)), np.ones(1))
+    back = read_tracking(tmp_path / "cap.usda")
+    assert len(back["times"]) == 2 and np.all(back["landmarks"] == 2.0)
+    assert sorted(p.name for p in (tmp_path / "cap_track").iterdir()) == ["chunk_0000.usdc", "static.usdc"]

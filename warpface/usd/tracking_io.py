@@ -167,11 +167,12 @@ class TrackingStageWriter:
             if not self._root_current:
                 self._write_root()
                 self._root_current = True
+                if len(self._chunks) == 1:
+                    self._remove_leftovers()
 
     def _write_chunk(self) -> None:
         if not self._chunks:
             self.folder.mkdir(exist_ok=True)
-            self._remove_leftovers()
             export_layer_atomically(self._static, self.folder / "static.usdc")
         layer = Sdf.Layer.CreateAnonymous(".usdc")
         positions = LANDMARKS.AppendProperty(UsdGeom.Tokens.points)
@@ -203,10 +204,12 @@ class TrackingStageWriter:
         self._pending.clear()
 
     def _remove_leftovers(self) -> None:
-        """Chunks of an earlier capture to this path and temporaries of a killed one: the new root
-        will not list them."""
+        """Chunks of an earlier capture to this path, which the new root no longer lists, and
+        temporaries of a killed one (removed once the new root is in place)."""
+        listed = {name for name, _ in self._chunks}
         for stale in [*self.folder.glob("chunk_*.usdc"), *self.folder.glob(".chunk_*.usdc.*"), *self.folder.glob(".static.usdc.*")]:
-            stale.unlink(missing_ok=True)
+            if stale.name not in listed:
+                stale.unlink(missing_ok=True)
 
     def close(self) -> None:
         """Flush what is queued. Safe to call twice. A writer that never received a frame leaves no files."""
