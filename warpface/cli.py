@@ -170,6 +170,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .cli_animate import add_parser as add_animate_parser
 
     add_animate_parser(commands)
+    from .cli_fit import add_parser as add_fit_parser
+
+    add_fit_parser(commands)
     return parser
 
 
