@@ -165,6 +165,13 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--fem-dt", type=float, default=1e-3, help="FEM time step [s] (default 1e-3)")
     track.add_argument("--fem-nodes", type=int, default=3000, help="approximate tissue node count (default 3000)")
     track.add_argument("--layout", default=None, help="live cameras: JSON with the painted dots' names and initial pixels")
+    track.add_argument("--solve", action="store_true",
+                       help="solve the rig's muscle controls from the landmarks (with head pose) and write them as time samples "
+                            "on /Capture/Rig's muscles, the skin with wrinkles as the baked cache and the per-frame residual")
+    track.add_argument("--residual-transfer", action="store_true",
+                       help="with --solve: add the landmark motion the solve cannot explain through the geometric transfer")
+    track.add_argument("--smoothness", type=float, default=1e-3,
+                       help="with --solve: pull of each frame's controls toward the previous frame's (default 1e-3)")
     track.set_defaults(handler=_track)
 
     from .cli_animate import add_parser as add_animate_parser

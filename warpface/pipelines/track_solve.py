@@ -57,6 +57,8 @@ class SolvedFrame:
     """Controls in rig order, (M,) float64 (linear muscles in mesh units, sphincters dimensionless)."""
     skin: np.ndarray
     """Skin points, rig frame [mesh units], (V, 3) float32 (with the residual motion when transferred)."""
+    residual_motion: np.ndarray | None
+    """The transferred residual motion included in :attr:`skin`, (V, 3) float32, or None."""
     residual: float
     """Weighted RMS distance between the posed model and the measured landmarks [mesh units]; 0 when skipped."""
     skipped: bool
@@ -114,6 +116,7 @@ class SolvingTracker:
             self.transfer = adapter_for_face(self.rest, self.names, camera_to_model=np.eye(4), device=device)
             self.transfer.bind(self.names)
         self.last: SolvedFrame | None = None
+        self._counts = {"frames": 0, "skipped": 0, "not_converged": 0, "residual": 0.0}
         self._skin = np.asarray(rig.mesh.points, dtype=np.float32)
 
     @property
@@ -149,14 +152,28 @@ class SolvingTracker:
         fit = self.solver.solve(targets, weights=np.where(valid, np.clip(confidence, 0.0, 1.0), 0.0) if valid.any() else None)
         if not fit.skipped or self.last is None:
             self._skin = np.asarray(fit.points, dtype=np.float32)
-        skin = self._skin
+        skin, motion = self._skin, None
         if self.transfer is not None:
-            skin = skin + self._residual_motion(frame, fit, targets)
+            motion = self._residual_motion(frame, fit, targets)
+            skin = skin + motion
         if not np.all(np.isfinite(skin)):
             raise ValueError(f"frame {frame.index}: the solved skin is not finite")
-        self.last = SolvedFrame(controls=fit.vector.copy(), skin=skin, residual=float(fit.residual), skipped=fit.skipped,
+        self.last = SolvedFrame(controls=fit.vector.copy(), skin=skin, residual_motion=motion, residual=float(fit.residual), skipped=fit.skipped,
                                 converged=fit.converged, rotation=fit.rotation, translation=fit.translation, origin=fit.origin)
+        counts = self._counts
+        counts["frames"] += 1
+        counts["skipped"] += int(fit.skipped)
+        counts["not_converged"] += int(not fit.skipped and not fit.converged)
+        counts["residual"] += 0.0 if fit.skipped else float(fit.residual)
         return self.last
+
+    @property
+    def summary(self) -> dict:
+        """Frames solved, ``skipped``, ``not_converged`` and the ``mean_residual`` [mesh units] of the solved ones."""
+        counts = dict(self._counts)
+        solved = counts["frames"] - counts["skipped"]
+        counts["mean_residual"] = counts.pop("residual") / solved if solved else 0.0
+        return counts
 
     def _residual_motion(self, frame: LandmarkFrame, fit, targets: np.ndarray) -> np.ndarray:
         """What the solve left at the landmarks, rig frame, carried to the skin: (V, 3) float32."""
@@ -168,7 +185,7 @@ class SolvingTracker:
         local = LandmarkFrame(timestamp=frame.timestamp, points=np.where(measured[:, None], self.rest[self.vertices] + residual, np.nan),
                               confidence=confidence, index=frame.index)
         self.transfer.track_frame(local, copy=False)
-        return self.transfer.displacements.numpy()
+        return self.transfer.displacements.numpy().copy()
 
 
 def _selection(source_names, names) -> np.ndarray:
