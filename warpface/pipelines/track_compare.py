@@ -47,22 +47,24 @@ class PathComparison:
 
     def table(self) -> str:
         """The comparison as aligned text."""
-        lines = [f"{'path':<32}{'surface (driven)':>18}{'surface (face)':>16}{'at landmarks':>14}{'controls':>10}{'frames/s':>10}"]
+        lines = [f"{'path':<32}{'surface (driven)':>18}{'surface (face)':>16}{'at landmarks':>14}{'controls':>12}{'frames/s':>10}"]
         for p in self.paths:
-            control = "-" if p.control_mm is None else f"{p.control_mm:.3f}"
+            control = "-" if p.control_mm is None else f"{p.control_mm:.3f} mm"
             lines.append(f"{p.name:<32}{p.surface_driven_mm:>15.3f} mm{p.surface_face_mm:>13.3f} mm{p.landmark_mm:>11.3f} mm"
-                         f"{control:>10}{p.frames_per_second:>10.0f}")
+                         f"{control:>12}{p.frames_per_second:>10.0f}")
         lines.append(f"{'(face that did not move)':<32}{self.still_driven_mm:>15.3f} mm{self.still_face_mm:>13.3f} mm")
         return "\n".join(lines)
 
 
-def compare_tracking_paths(capture, rig=None, *, device=None, max_frames: int | None = None, **solve_options) -> PathComparison:
+def compare_tracking_paths(capture, rig=None, *, frames=None, device=None, max_frames: int | None = None,
+                           **solve_options) -> PathComparison:
     """Run the geometric and the solved paths on the frames of a :func:`~warpface.pipelines.capture.synthetic_capture`.
 
     Args:
         capture: the synthetic capture (its ``truth`` and ``controls`` are the ground truth).
         rig: the rig that performed it (default: the built-in face).
         device: Warp device.
+        frames: the capture's landmark frames when already taken (default: read from ``capture.source``).
         max_frames: use only the first frames.
         **solve_options: for :class:`~warpface.pipelines.track_solve.SolvingTracker`.
     """
@@ -73,11 +75,15 @@ def compare_tracking_paths(capture, rig=None, *, device=None, max_frames: int | 
     rig = default_rig() if rig is None else rig
     camera = capture.camera
     camera_to_model = np.linalg.inv(camera.model_to_camera)
-    frames = []
-    for frame in capture.source.frames():
-        frames.append(frame)
-        if max_frames is not None and len(frames) >= max_frames:
-            break
+    if frames is None:
+        frames = []
+        for frame in capture.source.frames():
+            frames.append(frame)
+            if max_frames is not None and len(frames) >= max_frames:
+                break
+    frames = list(frames)[:max_frames]
+    if not frames:
+        raise ValueError("compare_tracking_paths: the capture has no frames")
     truth = capture.truth
     vertices = capture.fiducial_vertices
     geometric = adapter_for_face(rig.mesh.points, camera.landmark_names, camera_to_model=camera_to_model, device=device)
