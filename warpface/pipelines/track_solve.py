@@ -105,6 +105,7 @@ class SolvingTracker:
             raise ValueError("landmark_names: two landmarks sit on the same vertex")
         self.solver = Solver(rig, self.vertices, pose=pose, smoothness=smoothness, device=device, **options)
         self.control_names = list(self.solver.names)
+        self.solver.model  # built now (≈ 0.2 s), not inside the first frame
         self.min_confidence = float(min_confidence)
         self.fitted_camera = camera_to_model is None
         self.camera_to_model = None if camera_to_model is None else np.array(camera_to_model, dtype=np.float64)
