@@ -36,6 +36,12 @@ __all__ = ["TissueSimulation", "ConvergenceError", "SOLVERS"]
 
 SOLVERS = ("auto", "direct", "cg")
 
+DISPLACEMENT_LIMIT = 10.0
+"""Largest accepted driven (or reset) displacement, in multiples of the mesh's bounding-box diagonal.
+
+Linear elasticity means nothing far beyond the mesh's own size, and the bound keeps every quantity
+of a step (accelerations ``~ Δd / dt²``, energies) finite in float64."""
+
 # run() shows a progress bar (tqdm, when installed) from this many steps on.
 _PROGRESS_MIN_STEPS = 500
 
@@ -178,6 +184,9 @@ class TissueSimulation:
         """Set-up wall times [s]: "assembly", "factorization" (direct) or "solver_setup" (CG)."""
         self.steps_taken = 0
         """Steps since construction or the last :meth:`reset`."""
+        extent = np.ptp(tetmesh.points, axis=0)
+        self.max_displacement = DISPLACEMENT_LIMIT * float(np.linalg.norm(extent))
+        """Largest accepted driven or reset displacement [m] (:data:`DISPLACEMENT_LIMIT` mesh diagonals)."""
 
         t0 = time.perf_counter()
         self.matrices: SystemMatrices = assemble(tetmesh, material, formulation=formulation, device=device)
@@ -287,6 +296,11 @@ class TissueSimulation:
             moving = self.fixed_nodes[np.any(arr[self.fixed_nodes] != 0.0, axis=1)]
             if moving.size:
                 raise ValueError(f"reset {name} of fixed node {moving[0]} must be zero")
+            limit = self.max_displacement / (1.0 if name == "displacement" else self.dt)
+            big = np.flatnonzero(np.abs(arr).max(axis=1) > limit)
+            if big.size:
+                raise ValueError(f"reset {name} of node {big[0]} exceeds {limit:.3g} (|value| {np.abs(arr[big[0]]).max():.3g}; "
+                                 f"at most {DISPLACEMENT_LIMIT:g} mesh diagonals{'' if name == 'displacement' else ' per dt'})")
             state.append(arr)
         d, v = state
         a = np.zeros((n, 3))
@@ -311,7 +325,10 @@ class TissueSimulation:
             if k:
                 raise ValueError(f"{k} driven nodes need displacements of shape {shape}")
             return np.zeros(shape)
-        arr = np.asarray(driven, dtype=np.float64)
+        try:
+            arr = np.asarray(driven, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"driven displacements must be numbers of shape {shape}") from None
         if steps is None and arr.shape != shape:
             raise ValueError(f"driven displacements must have shape {shape}, got {arr.shape}")
         if steps is not None and (arr.ndim != 3 or arr.shape[1:] != (k, 3)):
@@ -323,6 +340,15 @@ class TissueSimulation:
                 raise ValueError(f"driven displacement of node {self.driven_nodes[where[0]]} is not finite")
             raise ValueError(
                 f"trajectory has a non-finite value at step {where[0]}, driven node {self.driven_nodes[where[1]]}"
+            )
+        big = np.abs(arr).max(axis=-1) > self.max_displacement
+        if big.any():
+            where = np.argwhere(big)[0]
+            at = (f"driven node {self.driven_nodes[where[0]]}" if steps is None
+                  else f"step {where[0]}, driven node {self.driven_nodes[where[1]]}")
+            raise ValueError(
+                f"driven displacement at {at} is {np.abs(arr[tuple(where)]).max():.3g} m, beyond the "
+                f"{self.max_displacement:.3g} m limit ({DISPLACEMENT_LIMIT:g} mesh diagonals)"
             )
         return arr
 
@@ -370,7 +396,10 @@ class TissueSimulation:
             ConvergenceError: CG did not converge at some step (the residual is in the message).
         """
         self._check_usable()
-        arr = np.asarray(trajectory, dtype=np.float64)
+        try:
+            arr = np.asarray(trajectory, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"trajectory must be numbers of shape (steps, {self.driven_nodes.size}, 3)") from None
         if arr.ndim != 3:
             raise ValueError(f"trajectory must have shape (steps, {self.driven_nodes.size}, 3), got {arr.shape}")
         steps = arr.shape[0]

@@ -18,27 +18,43 @@ import math
 
 import numpy as np
 
-__all__ = ["newmark_coefficients", "validate_newmark"]
+__all__ = ["BETA_RANGE", "DT_RANGE", "GAMMA_RANGE", "newmark_coefficients", "validate_newmark"]
+
+DT_RANGE = (1.0e-8, 10.0)
+"""Accepted time steps [s]. Below 1e-8 s the mass term ``c0 M = M / (β dt²)`` swamps the stiffness
+by more than float64 can resolve (at 1e-160 s it overflows); above 10 s a tissue step is no longer
+dynamics (use a static solve)."""
+
+BETA_RANGE = (0.01, 1.0)
+"""Accepted Newmark β. β = 0 (explicit) is not supported: the step divides by β; β = 1/4 is the
+average-acceleration rule, β = 1/6 linear acceleration."""
+
+GAMMA_RANGE = (0.5, 1.0)
+"""Accepted Newmark γ. γ < 1/2 amplifies every mode step by step (negative numerical damping);
+γ > 1/2 adds numerical damping, γ = 1 the most that is still first-order accurate."""
 
 
 def validate_newmark(dt: float, beta: float, gamma: float) -> tuple[float, float, float]:
-    """Check and convert the step size [s] and Newmark parameters; returns them as floats.
+    """Check and convert the time step [s] and Newmark parameters; returns them as floats.
 
     Raises:
-        ValueError: ``dt <= 0`` or not finite, ``beta <= 0`` (explicit schemes are not supported:
-            the step divides by β) or ``gamma <= 0``.
+        ValueError: a value is not a finite number or lies outside :data:`DT_RANGE`,
+            :data:`BETA_RANGE` or :data:`GAMMA_RANGE` (naming the parameter and its interval).
     """
-    try:
-        dt, beta, gamma = float(dt), float(beta), float(gamma)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"dt, beta and gamma must be numbers: {exc}") from None
-    if not (math.isfinite(dt) and dt > 0.0):
-        raise ValueError(f"time step dt must be a finite number > 0 [s], got {dt}")
-    if not (math.isfinite(beta) and beta > 0.0):
-        raise ValueError(f"Newmark beta must be > 0 (implicit schemes only), got {beta}")
-    if not (math.isfinite(gamma) and gamma > 0.0):
-        raise ValueError(f"Newmark gamma must be > 0, got {gamma}")
-    return dt, beta, gamma
+    values = []
+    for name, value, (low, high), unit in (("time step dt", dt, DT_RANGE, " [s]"),
+                                           ("Newmark beta", beta, BETA_RANGE, ""),
+                                           ("Newmark gamma", gamma, GAMMA_RANGE, "")):
+        if isinstance(value, (bool, np.bool_)):
+            raise TypeError(f"{name} must be a number, got {value!r}")
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            raise TypeError(f"{name} must be a number, got {type(value).__name__}") from None
+        if not (math.isfinite(number) and low <= number <= high):
+            raise ValueError(f"{name} must be in [{low:g}, {high:g}]{unit}, got {number!r}")
+        values.append(number)
+    return values[0], values[1], values[2]
 
 
 def newmark_coefficients(dt: float, beta: float = 0.25, gamma: float = 0.5) -> np.ndarray:

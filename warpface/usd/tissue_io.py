@@ -16,6 +16,7 @@ from pxr import Sdf, Usd, UsdGeom, Vt
 
 from .._validate import as_finite_array, as_positive
 from ..errors import RigError
+from ..fem.material import MATERIAL_RANGES
 from ._files import open_stage
 from .rig_io import SKIN_API, stage_meters_per_unit
 from .schema import ensure_schema
@@ -32,12 +33,8 @@ MATERIAL_PRIMVARS = {
 }
 """Tissue field → primvar name (without the ``primvars:`` namespace)."""
 
-_RANGES = {
-    "youngs_modulus": (lambda v: v > 0.0, "> 0 [Pa]"),
-    "poisson_ratio": (lambda v: (v >= 0.0) & (v < 0.5), "in [0, 0.5)"),
-    "viscosity": (lambda v: v >= 0.0, "≥ 0 [Pa s]"),
-    "density": (lambda v: v > 0.0, "> 0 [kg/m³]"),
-}
+# Tissue field -> the TissueMaterial field whose range (warpface.fem.MATERIAL_RANGES) it must satisfy.
+_MATERIAL_FIELD = {"youngs_modulus": "E", "poisson_ratio": "nu", "viscosity": "eta", "density": "rho"}
 
 
 @dataclass(eq=False)
@@ -131,11 +128,11 @@ def _validated(points, tets, youngs_modulus, poisson_ratio, viscosity, density, 
         value = as_finite_array(raw, f"{label}: {name}")
         if value.ndim not in (0, 1) or (value.ndim == 1 and len(value) != len(tets)):
             raise ValueError(f"{label}: {name} must be a scalar or one value per tet ({len(tets)},), got shape {value.shape}")
-        ok, what = _RANGES[name]
-        wrong = np.flatnonzero(~ok(np.atleast_1d(value)))
+        allowed = MATERIAL_RANGES[_MATERIAL_FIELD[name]]
+        wrong = allowed.outside(value)
         if len(wrong):
             where = f" at tet {int(wrong[0])}" if value.ndim else ""
-            raise ValueError(f"{label}: {name}{where} must be {what}, got {np.atleast_1d(value)[wrong[0]]}")
+            raise ValueError(f"{label}: {name}{where} must be {allowed.describe()}, got {np.atleast_1d(value)[wrong[0]]}")
         values[name] = float(value) if value.ndim == 0 else value
     checked = {}
     for name, indices in regions.items():
