@@ -14,6 +14,7 @@ import numpy as np
 import warp as wp
 
 from ._validate import as_finite_array
+from .geometry import triangle_areas, triangle_corners
 from .kernels_surface import stretch_reference_lengths, triangle_area_vectors, vertex_normals_kernel
 
 __all__ = ["FaceMesh", "VertexTriangleAdjacency", "load_obj", "DEGENERATE_AREA_RTOL"]
@@ -131,8 +132,7 @@ class FaceMesh:
     @cached_property
     def rest_areas(self) -> np.ndarray:
         """Rest triangle areas [units²], shape (T,), float64."""
-        p = self.points[self.triangles]
-        return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+        return triangle_areas(triangle_corners(self.points, self.triangles))
 
     @cached_property
     def degenerate_triangles(self) -> np.ndarray:

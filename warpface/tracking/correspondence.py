@@ -17,9 +17,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import warp as wp
 
-from ..geometry import closest_point_on_triangle
+from .._validate import as_points as _as_points, as_triangles as _as_triangles
+from ..geometry import TriangleMeshIndex, closest_points, triangle_corners, triangle_crosses, triangle_normals
 
 __all__ = [
     "FaceNormalization",
@@ -108,165 +108,6 @@ class FaceNormalization:
         return out
 
 
-def _as_points(points, name: str) -> np.ndarray:
-    pts = np.asarray(points, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"{name}: expected shape (N, 3), got {pts.shape}")
-    if not np.all(np.isfinite(pts)):
-        bad = int(np.argwhere(~np.isfinite(pts))[0][0])
-        raise ValueError(f"{name}: non-finite coordinate at point {bad}")
-    return pts
-
-
-def _as_triangles(triangles, vertex_count: int, name: str = "triangles") -> np.ndarray:
-    tri = np.asarray(triangles)
-    if tri.ndim != 2 or tri.shape[1] != 3 or tri.shape[0] == 0:
-        raise ValueError(f"{name}: expected shape (T, 3) with T ≥ 1, got {tri.shape}")
-    if not np.issubdtype(tri.dtype, np.integer):
-        raise ValueError(f"{name}: expected integer vertex indices, got dtype {tri.dtype}")
-    bad = np.argwhere((tri < 0) | (tri >= vertex_count))
-    if bad.size:
-        t = int(bad[0][0])
-        raise ValueError(f"{name}: triangle {t} {tri[t].tolist()} indexes outside [0, {vertex_count})")
-    return tri.astype(np.int32)
-
-
-# --------------------------------------------------------------------------------------------
-# Closest points on a triangle mesh
-# --------------------------------------------------------------------------------------------
-
-
-@wp.kernel
-def _closest_points_kernel(
-    mesh: wp.uint64,
-    vertices: wp.array(dtype=wp.vec3),
-    triangles: wp.array2d(dtype=wp.int32),
-    queries: wp.array(dtype=wp.vec3),
-    box_center: wp.vec3,
-    box_radius: float,
-    out_triangle: wp.array(dtype=wp.int32),
-    out_barycentric: wp.array(dtype=wp.vec3),
-    out_distance: wp.array(dtype=float),
-):
-    """Closest triangle per query: BVH bound → AABB candidates → exact Voronoi-region test."""
-    i = wp.tid()
-    p = queries[i]
-    # Every triangle lies within this distance of p, so it bounds the answer from above.
-    bound = wp.length(p - box_center) + box_radius
-    hit = wp.mesh_query_point_no_sign(mesh, p, bound * 1.001 + 1.0e-6)
-    if hit.result:
-        bound = wp.min(bound, wp.length(p - wp.mesh_eval_position(mesh, hit.face, hit.u, hit.v)))
-    # Any triangle at least as close as the bound overlaps this box; pad for rounding.
-    r = bound * 1.0001 + 1.0e-6 * box_radius + 1.0e-12
-    reach = wp.vec3(r, r, r)
-
-    best_t = int(-1)
-    best_d = float(1.0e30)
-    best_w = wp.vec3(1.0, 0.0, 0.0)
-    query = wp.mesh_query_aabb(mesh, p - reach, p + reach)
-    t = int(0)
-    while wp.mesh_query_next(query, t):
-        a = vertices[triangles[t, 0]]
-        b = vertices[triangles[t, 1]]
-        c = vertices[triangles[t, 2]]
-        w = closest_point_on_triangle(p, a, b, c)
-        d = wp.length_sq(p - (w[0] * a + w[1] * b + w[2] * c))
-        if d < best_d or (d == best_d and t < best_t):
-            best_d = d
-            best_t = t
-            best_w = w
-    if best_t < 0:
-        # Unreachable for valid input (the bound guarantees a candidate); exhaustive as a safety net.
-        for s in range(triangles.shape[0]):
-            a = vertices[triangles[s, 0]]
-            b = vertices[triangles[s, 1]]
-            c = vertices[triangles[s, 2]]
-            w = closest_point_on_triangle(p, a, b, c)
-            d = wp.length_sq(p - (w[0] * a + w[1] * b + w[2] * c))
-            if d < best_d:
-                best_d = d
-                best_t = s
-                best_w = w
-    out_triangle[i] = best_t
-    out_barycentric[i] = best_w
-    out_distance[i] = wp.sqrt(best_d)
-
-
-class TriangleMeshIndex:
-    """A triangle mesh uploaded once with its BVH, for repeated closest-point queries.
-
-    Coordinates are shifted to the mesh's bounding-box centre before conversion to float32, so
-    precision does not depend on where the mesh sits (e.g. 0.6 m in front of a camera).
-
-    Args:
-        vertices: mesh points [m], shape (V, 3).
-        triangles: vertex indices, shape (T, 3), integer.
-        device: Warp device; Warp's preferred device when ``None``.
-    """
-
-    def __init__(self, vertices, triangles, *, device=None):
-        verts = _as_points(vertices, "vertices")
-        tri = _as_triangles(triangles, verts.shape[0])
-        self.device = wp.get_device(device)
-        lo, hi = verts.min(axis=0), verts.max(axis=0)
-        self.center = 0.5 * (lo + hi)
-        """Coordinate shift [m], shape (3,): the bounding-box centre."""
-        self.radius = float(0.5 * np.linalg.norm(hi - lo))
-        """Bounding-sphere radius about :attr:`center` [m]."""
-        self._vertices = wp.array((verts - self.center).astype(np.float32), dtype=wp.vec3, device=self.device)
-        self._triangles = wp.array(tri, dtype=wp.int32, device=self.device)
-        self._indices = wp.array(tri.reshape(-1), dtype=wp.int32, device=self.device)
-        self._mesh = wp.Mesh(points=self._vertices, indices=self._indices)
-        self.triangle_count = int(tri.shape[0])
-
-    def query(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Closest point on the mesh for each of ``points`` (shape (Q, 3)); see :func:`closest_points`."""
-        q = _as_points(points, "query")
-        count = q.shape[0]
-        triangle = wp.empty(count, dtype=wp.int32, device=self.device)
-        bary = wp.empty(count, dtype=wp.vec3, device=self.device)
-        dist = wp.empty(count, dtype=float, device=self.device)
-        if count:
-            queries = wp.array((q - self.center).astype(np.float32), dtype=wp.vec3, device=self.device)
-            wp.launch(
-                _closest_points_kernel,
-                dim=count,
-                inputs=[
-                    self._mesh.id,
-                    self._vertices,
-                    self._triangles,
-                    queries,
-                    wp.vec3(0.0, 0.0, 0.0),
-                    max(self.radius, 1e-12),
-                ],
-                outputs=[triangle, bary, dist],
-                device=self.device,
-            )
-        return triangle.numpy(), bary.numpy().reshape(count, 3), dist.numpy()
-
-
-def closest_points(query, vertices, triangles, device=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Closest point on a triangle mesh for every query point.
-
-    Args:
-        query: query points [m], shape (Q, 3).
-        vertices: mesh points [m], shape (V, 3).
-        triangles: vertex indices, shape (T, 3), integer, T ≥ 1.
-        device: Warp device; Warp's preferred device when ``None``.
-
-    Returns:
-        ``(triangle, barycentric, distance)``: closest triangle per query, shape (Q,), int32;
-        barycentric coordinates of the closest point in that triangle (≥ 0, summing to 1), shape
-        (Q, 3), float32, so the point is ``Σ_j barycentric[:, j] · vertices[triangles[triangle, j]]``;
-        distance from the query to it [m], shape (Q,), float32. Ties between triangles at exactly
-        equal distance go to the lower triangle index.
-
-    Raises:
-        ValueError: wrong shapes, non-finite coordinates, or indices out of range.
-    """
-    return TriangleMeshIndex(vertices, triangles, device=device).query(query)
-
-
 # --------------------------------------------------------------------------------------------
 # Correspondence (eq. 4.1–4.14)
 # --------------------------------------------------------------------------------------------
@@ -322,11 +163,9 @@ def compute_correspondence(
         to_dense = dense_normalization.width
     triangle, bary, dist = TriangleMeshIndex(sparse, tri, device=device).query(dense)
 
-    corners = sparse[tri[triangle]]  # (V, 3, 3)
+    corners = triangle_corners(sparse, tri[triangle])  # (V, 3, 3)
     closest = np.einsum("vj,vjk->vk", bary.astype(np.float64), corners)
-    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    length = np.linalg.norm(normal, axis=1, keepdims=True)
-    normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0.0)
+    normal = triangle_normals(crosses=triangle_crosses(corners))
     offset = dense - closest
     tangential = offset - np.sum(offset * normal, axis=1, keepdims=True) * normal
     return Correspondence(
