@@ -7,10 +7,11 @@ imported lazily where they are used.
 from .assembly import FORMULATIONS, SystemMatrices, assemble
 from .embedding import Embedding, embed_points
 from .integrator import ConvergenceError, TissueSimulation
-from .material import DAMPING_MODELS, TissueMaterial
+from .material import DAMPING_MODELS, MATERIAL_RANGES, TissueMaterial
 from .primitives import box_tet_mesh, shell_tet_mesh
 from .proxy import TissueProxy, tissue_proxy
-from .regions import KATO_MODELS, KATO_REGIONS, kato_material_model, kato_regions, landmark_regions
+from .presets import KATO_MODELS, KATO_REGIONS, KATO_UNIFORM, kato_uniform_material
+from .regions import kato_material_model, kato_regions, landmark_regions
 from .tetmesh import TetMesh, TetQuality
 from .volume import MeshingReport, TissueMeshing, mesh_tissue, tissue_from_surface
 
@@ -21,6 +22,8 @@ __all__ = [
     "FORMULATIONS",
     "KATO_MODELS",
     "KATO_REGIONS",
+    "KATO_UNIFORM",
+    "MATERIAL_RANGES",
     "MeshingReport",
     "SystemMatrices",
     "TetMesh",
@@ -34,6 +37,7 @@ __all__ = [
     "embed_points",
     "kato_material_model",
     "kato_regions",
+    "kato_uniform_material",
     "landmark_regions",
     "mesh_tissue",
     "shell_tet_mesh",

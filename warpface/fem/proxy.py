@@ -47,7 +47,8 @@ import numpy as np
 import warp as wp
 
 from ..geometry.surface_checks import as_surface, boundary_loops, check_surface, directed_edges, find_self_intersections
-from .shell import fair_locally, offset_vertex_normals
+from ..geometry.triangles import area_weighted_vertex_normals
+from .shell import fair_locally
 
 __all__ = ["TissueProxy", "default_center", "tissue_proxy"]
 
@@ -485,7 +486,7 @@ def tissue_proxy(
 
     # 4. thickness no more than a fraction of the inward gap: opposite offsets never meet
     proxy_mesh = _RayMesh(kept_points, kept_triangles, device)
-    gap = proxy_mesh.inward_gap(offset_vertex_normals(kept_points, kept_triangles))
+    gap = proxy_mesh.inward_gap(area_weighted_vertex_normals(kept_points, kept_triangles))
     limited = np.minimum(h_kept, gap_fraction * gap)
     if boundary_thickness is not None:
         limited[boundary] = np.minimum(limited[boundary], float(boundary_thickness))

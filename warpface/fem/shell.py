@@ -13,29 +13,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry.triangles import area_weighted_vertex_normals, triangle_corners, triangle_crosses
 from ..geometry.surface_checks import as_surface, boundary_loops, check_surface, directed_edges, find_self_intersections
 
-__all__ = ["ShellSurface", "enclosed_volume", "fair_locally", "offset_shell", "offset_vertex_normals", "shell_defects",
-           "triangle_cross"]
+__all__ = ["ShellSurface", "enclosed_volume", "fair_locally", "offset_shell", "shell_defects"]
 
 
-def offset_vertex_normals(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals, shape (V, 3), float64.
-
-    NumPy float64 rather than :meth:`FaceMesh.vertex_normals` (a float32 kernel): the inward offset
-    must reproduce the skin thickness to round-off, and this runs once per meshing."""
-    p = points[triangles]
-    face = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    normals = np.zeros_like(points)
-    for k in range(3):
-        np.add.at(normals, triangles[:, k], face)
-    length = np.linalg.norm(normals, axis=1, keepdims=True)
-    return normals / np.where(length > 0.0, length, 1.0)
-
-
-def triangle_cross(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    p = points[triangles]
-    return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+def _crosses(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    return triangle_crosses(triangle_corners(points, triangles))
 
 
 def enclosed_volume(points: np.ndarray, triangles: np.ndarray) -> float:
@@ -84,11 +69,12 @@ def _offset_directions(points: np.ndarray, triangles: np.ndarray, h: np.ndarray,
     Starts from the vertex normals and smooths them (at most ``max_smoothing`` passes) while any
     inner triangle is flipped; ``flipped`` is all False on success."""
     edges = np.unique(np.sort(directed_edges(triangles), axis=1), axis=0)
-    outer_normals = triangle_cross(points, triangles)
-    directions = offset_vertex_normals(points, triangles)
+    outer_normals = _crosses(points, triangles)
+    # float64 normals: the inward offset must reproduce the skin thickness to round-off
+    directions = area_weighted_vertex_normals(points, triangles, crosses=outer_normals)
     iterations = 0
     while True:
-        inner_normals = triangle_cross(points - h[:, None] * directions, triangles)
+        inner_normals = _crosses(points - h[:, None] * directions, triangles)
         flipped = np.einsum("ij,ij->i", inner_normals, outer_normals) <= 0.0
         if not flipped.any() or iterations >= max_smoothing:
             return directions, iterations, flipped
@@ -263,7 +249,7 @@ def _describe(t: int, n_triangles: int) -> str:
 
 def _local_radius(points: np.ndarray, triangles: np.ndarray, tri: np.ndarray) -> float:
     """Rough radius of curvature around a triangle: edge length over the normal turn across its vertices."""
-    normals = offset_vertex_normals(points, triangles)[tri]
+    normals = area_weighted_vertex_normals(points, triangles)[tri]
     p = points[tri]
     lengths = np.linalg.norm(p - np.roll(p, 1, axis=0), axis=1)
     turns = np.arccos(np.clip(np.einsum("ij,ij->i", normals, np.roll(normals, 1, axis=0)), -1.0, 1.0))

@@ -20,10 +20,13 @@ from functools import cached_property
 
 import numpy as np
 
+from .._validate import MAX_COORDINATE as SHARED_MAX_COORDINATE
+
 __all__ = ["MAX_COORDINATE", "MIN_EDGE_LENGTH", "TET_EDGE_NODES", "TetMesh", "TetQuality", "tet_signed_volumes", "tet_dihedral_angles"]
 
-MAX_COORDINATE = 1.0e6
-"""Largest accepted node coordinate magnitude [m]: the BVHs of embedding and meshing are float32."""
+MAX_COORDINATE = SHARED_MAX_COORDINATE
+"""Largest accepted node coordinate magnitude [m] (:data:`warpface._validate.MAX_COORDINATE`): the
+BVHs of embedding and meshing are float32."""
 
 MIN_EDGE_LENGTH = 1.0e-9
 """Shortest accepted longest edge of a tet [m]: smaller tets underflow volumes and float32 bounds."""

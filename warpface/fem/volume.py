@@ -39,7 +39,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry.surface_checks import as_surface, boundary_loops, check_surface, find_self_intersections
-from .shell import ShellSurface, fair_locally, offset_shell, shell_defects, triangle_cross
+from ..geometry.mesh_index import closest_points
+from ..geometry.triangles import triangle_areas, triangle_corners
+from .shell import ShellSurface, fair_locally, offset_shell, shell_defects
 from .tetmesh import TetMesh, TetQuality
 from .tetwild import tetrahedralize_validated
 
@@ -134,7 +136,7 @@ class TissueMeshing:
 
 
 def _surface_area(points: np.ndarray, triangles: np.ndarray) -> float:
-    return 0.5 * float(np.linalg.norm(triangle_cross(points, triangles), axis=1).sum())
+    return float(triangle_areas(triangle_corners(points, triangles)).sum())
 
 
 def _edge_length_for(area: float, mean_thickness: float, target_nodes: int) -> float:
@@ -171,9 +173,7 @@ def _decimate(points: np.ndarray, triangles: np.ndarray, target_vertices: int) -
 def _sample_at_closest_points(points: np.ndarray, triangles: np.ndarray, values: np.ndarray, queries: np.ndarray,
                               device) -> np.ndarray:
     """A per-vertex field (V,) of a triangle surface, interpolated at the surface point closest to each
-    query (Q, 3) — the shared BVH closest-point kernel of :func:`warpface.tracking.closest_points`."""
-    from ..tracking.correspondence import closest_points
-
+    query (Q, 3), by :func:`warpface.geometry.mesh_index.closest_points`."""
     triangle, barycentric, _ = closest_points(queries, points, triangles, device=device)
     corners = np.asarray(triangles)[triangle]
     return np.sum(barycentric.astype(np.float64) * np.asarray(values, dtype=np.float64)[corners], axis=1)

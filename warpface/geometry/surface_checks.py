@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from .triangles import triangle_areas, triangle_corners
+
 __all__ = ["as_surface", "boundary_loops", "check_surface", "directed_edges", "find_self_intersections"]
 
 
@@ -146,8 +148,7 @@ def check_surface(points, triangles, *, closed: bool, name: str = "surface") -> 
     if repeated.size:
         t = repeated[0]
         raise ValueError(f"{name}: triangle {t} repeats a vertex: {triangles[t].tolist()}")
-    p = points[triangles]
-    doubled_area = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    doubled_area = 2.0 * triangle_areas(triangle_corners(points, triangles))
     extent = float(np.ptp(points, axis=0).max()) or 1.0
     flat = np.flatnonzero(doubled_area <= 1e-14 * extent * extent)
     if flat.size:

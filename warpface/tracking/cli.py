@@ -44,11 +44,11 @@ def run_track(args) -> int:
 
 def _tissue_drive(rig, adapter, fps: float, args):
     """Tissue under the built-in face (Kato's uniform material) driven by the tracked skin."""
-    from ..fem import TissueMaterial
+    from ..fem import kato_uniform_material
     from ..fem.volume import tissue_from_surface
     from .tissue_drive import TissueDrive
 
     thickness = max(float(np.median(rig.thickness)), 0.004)
     tetmesh = tissue_from_surface(rig.mesh, thickness, target_nodes=args.fem_nodes, device=args.device)
-    material = TissueMaterial(E=192.4e3, nu=0.495, eta=476.8, rho=1100.0)
+    material = kato_uniform_material()
     return TissueDrive(adapter, tetmesh, material, fps=fps, dt=args.fem_dt, thickness=thickness, device=args.device)
