@@ -11,6 +11,7 @@ from .material import DAMPING_MODELS, MATERIAL_RANGES, TissueMaterial
 from .primitives import box_tet_mesh, shell_tet_mesh
 from .proxy import TissueProxy, tissue_proxy
 from .presets import KATO_MODELS, KATO_REGIONS, KATO_UNIFORM, kato_uniform_material
+from .state import TissueControl, TissueState
 from .regions import kato_material_model, kato_regions, landmark_regions
 from .tetmesh import TetMesh, TetQuality
 from .volume import MeshingReport, TissueMeshing, mesh_tissue, tissue_from_surface
@@ -29,9 +30,11 @@ __all__ = [
     "TetMesh",
     "TetQuality",
     "TissueMaterial",
+    "TissueControl",
     "TissueMeshing",
     "TissueProxy",
     "TissueSimulation",
+    "TissueState",
     "assemble",
     "box_tet_mesh",
     "embed_points",

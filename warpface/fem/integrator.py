@@ -28,8 +28,9 @@ import warp as wp
 from .assembly import FORMULATIONS, SystemMatrices, assemble
 from .material import TissueMaterial
 from .newmark import newmark_coefficients, validate_newmark
-from .solver_cg import PRECONDITIONERS, CGStepper, ConvergenceError
-from .solver_direct import DirectStepper, node_dofs
+from .solver_cg import PRECONDITIONERS, CGSolver, ConvergenceError
+from .solver_direct import DirectSolver, factorize_spd, node_dofs
+from .state import TissueControl, TissueState
 from .tetmesh import TetMesh
 
 __all__ = ["TissueSimulation", "ConvergenceError", "SOLVERS"]
@@ -179,7 +180,7 @@ class TissueSimulation:
         self.free_nodes = free_nodes
         """Free (solved) nodes, shape (F,), int64, sorted."""
         self.coefficients = newmark_coefficients(self.dt, self.beta, self.gamma)
-        """Newmark constants, see :func:`~warpface.fem.newmark.newmark_coefficients`."""
+        """Newmark constants (:class:`~warpface.fem.newmark.NewmarkCoefficients`)."""
         self.timings: dict[str, float] = {}
         """Set-up wall times [s]: "assembly", "factorization" (direct) or "solver_setup" (CG)."""
         self.steps_taken = 0
@@ -196,10 +197,13 @@ class TissueSimulation:
         t0 = time.perf_counter()
         if solver == "direct":
             K, M, C = self.matrices.to_scipy()
-            self._stepper = DirectStepper(K, M, C, self.coefficients, free_nodes, driven_nodes)
-            self.timings["factorization"] = self._stepper.factor_seconds
+            self.stepper = DirectSolver(K, M, C, self.coefficients, free_nodes, driven_nodes)
+            """The solver object: :class:`~warpface.fem.solver_direct.DirectSolver` or
+            :class:`~warpface.fem.solver_cg.CGSolver` (``stepper.step(state_in, state_out, control)``)."""
+            self.timings["factorization"] = self.stepper.factor_seconds
+            state_dtype = wp.float64
         else:
-            self._stepper = CGStepper(
+            self.stepper = CGSolver(
                 self.matrices,
                 self.coefficients,
                 free_nodes,
@@ -211,7 +215,19 @@ class TissueSimulation:
                 chunk=cg_chunk,
                 use_graph=device.is_cuda if use_graph is None else bool(use_graph),
             )
+            state_dtype = cg_dtype
         self.timings["solver_setup"] = time.perf_counter() - t0
+        state_device = self.stepper.device
+        self.state = TissueState(n, dtype=state_dtype, device=state_device)
+        """The current :class:`~warpface.fem.state.TissueState` (stepped in place by :meth:`step` and :meth:`run`)."""
+        self.control = TissueControl(driven_nodes.size, dtype=state_dtype, device=state_device)
+        """The :class:`~warpface.fem.state.TissueControl` that :meth:`step` fills from its argument."""
+        # step(): host input goes through a (pinned) ring of `cg_chunk` rows, so queued copies never
+        # read a row the host has already overwritten; the host waits once per ring.
+        self._ring_rows = 1 if solver == "direct" else int(cg_chunk)
+        self._staging = wp.zeros((self._ring_rows, max(driven_nodes.size, 1)), dtype=self.control.driven.dtype,
+                                 device="cpu", pinned=state_device.is_cuda)
+        self._staging_slot = 0
         self._failed = False
 
     # ------------------------------------------------------------------ state
@@ -226,13 +242,8 @@ class TissueSimulation:
         return self.steps_taken * self.dt
 
     def _state(self):
-        if self.solver == "direct":
-            return self._stepper.d, self._stepper.v, self._stepper.a
-        try:
-            return self._stepper.state()
-        except ConvergenceError:
-            self._failed = True
-            raise
+        self.synchronize()
+        return self.state.numpy()
 
     @property
     def d(self) -> np.ndarray:
@@ -252,14 +263,14 @@ class TissueSimulation:
     @property
     def cg_iterations(self) -> tuple[int, int] | None:
         """``(most, last)`` CG iterations per step since the last reset; None for the direct solver."""
-        return None if self.solver == "direct" else self._stepper.iterations
+        return None if self.solver == "direct" else self.stepper.iterations
 
     @property
     def cg_mean_iterations(self) -> float | None:
         """Mean CG iterations per step since the last reset (NaN before the first); None for the direct solver."""
         if self.solver == "direct":
             return None
-        total = self._stepper.total_iterations
+        total = self.stepper.total_iterations
         return total / self.steps_taken if self.steps_taken else float("nan")
 
     def energy(self) -> tuple[float, float]:
@@ -305,15 +316,18 @@ class TissueSimulation:
         d, v = state
         a = np.zeros((n, 3))
         if np.any(d) or np.any(v):
-            from .solver_direct import factorize_spd
-
             if not hasattr(self, "_host_matrices"):
                 self._host_matrices = self.matrices.to_scipy()
             K, M, C = self._host_matrices
             o = node_dofs(self.free_nodes)
             force = -(K @ d.ravel() + C @ v.ravel())[o]
             a[self.free_nodes] = factorize_spd(M.tocsr()[o][:, o]).solve(force).reshape(-1, 3)
-        self._stepper.set_state(d, v, a)
+        if self.solver == "cg":
+            wp.synchronize_device(self.stepper.device)
+        self.state.assign(d, v, a)
+        if self.solver == "cg":
+            self.stepper.restart(self.state)
+        self._staging_slot = 0
         self.steps_taken = 0
         self._failed = False
 
@@ -372,9 +386,34 @@ class TissueSimulation:
         """
         self._check_usable()
         driven = self._check_driven(driven_displacements, None)
+        slot = self._staging_slot
+        if driven.size:
+            self._staging.numpy()[slot, : driven.shape[0]] = driven
+            wp.copy(self.control.driven, self._staging, src_offset=slot * self._staging.shape[1],
+                    count=self.control.driven.shape[0])
         try:
-            self._stepper.step(driven)
-        except (ConvergenceError, FloatingPointError):
+            self.stepper.step(self.state, self.state, self.control)
+        except FloatingPointError:
+            self._failed = True
+            raise
+        self.steps_taken += 1
+        self._staging_slot = (slot + 1) % self._ring_rows
+        if self.solver == "cg" and self._staging_slot == 0:
+            self.synchronize()
+
+    def step_control(self, control: TissueControl) -> None:
+        """Advance one time step with driven displacements already on the device (no host transfer).
+
+        Args:
+            control: A :class:`~warpface.fem.state.TissueControl` of this simulation's driven nodes,
+                dtype and device (e.g. :attr:`control`, or one filled by a kernel).
+
+        On CUDA this only queues work (see :meth:`step`); the values in ``control`` are not checked.
+        """
+        self._check_usable()
+        try:
+            self.stepper.step(self.state, self.state, control)
+        except FloatingPointError:
             self._failed = True
             raise
         self.steps_taken += 1
@@ -409,16 +448,19 @@ class TissueSimulation:
         bar = _progress_bar(steps, progress)
         try:
             if self.solver == "direct":
+                driven_view = self.control.driven.numpy()[: self.driven_nodes.size]  # zero-copy (CPU)
+                d_view = self.state.d.numpy()
                 for t in range(steps):
-                    self._stepper.step(traj[t])
-                    out[t] = self._stepper.d if nodes is None else self._stepper.d[record]
+                    driven_view[:] = traj[t]
+                    self.stepper.step(self.state, self.state, self.control)
+                    out[t] = d_view if nodes is None else d_view[record]
                     self.steps_taken += 1
                     if bar is not None:
                         bar.update(1)
             else:
-                chunk = self._stepper.chunk
+                chunk = self.stepper.chunk
                 for start in range(0, steps, chunk):
-                    block = self._stepper.run_chunk(traj[start : start + chunk])
+                    block = self.stepper.run_chunk(self.state, traj[start : start + chunk])
                     out[start : start + block.shape[0]] = block if nodes is None else block[:, record]
                     self.steps_taken += block.shape[0]
                     if bar is not None:
@@ -435,7 +477,7 @@ class TissueSimulation:
         """Wait for queued device steps; raise :class:`ConvergenceError` if one failed."""
         if self.solver == "cg":
             try:
-                self._stepper.synchronize()
+                self.stepper.synchronize()
             except ConvergenceError:
                 self._failed = True
                 raise
