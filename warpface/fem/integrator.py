@@ -84,16 +84,14 @@ class TissueSimulation:
         cg_tol: CG tolerance, relative to the residual of the Newmark predictor ``d + dt v + dt²/2 a``.
             That residual is small, so the error left in the displacement is ``cg_tol`` times the
             (tiny) correction to the predictor. CG starts from the better of the predictor and a cubic
-            extrapolation of the last four displacements, which during smooth motion is much closer:
-            on the 6.7k-node face shell (benchmarks/fem.py, 200 steps of mouth opening) FSAI-CG at
-            1e-5 needed 25.6 iterations per step from the predictor and 10.2 from the extrapolation
-            (32 in the first steps), and the displacements matched the direct solver to 2.6e-10 m.
+            extrapolation of the last four displacements, which during smooth motion is much closer
+            and saves iterations (measurements: ``benchmarks/README.md``).
         cg_maxiter: CG iteration limit per step.
         cg_preconditioner: ``"fsai"``, ``"block_jacobi"`` or ``"diag"``.
         cg_dtype: ``wp.float64`` (default) or ``wp.float32`` state and solver precision. float32 gains
-            little: a float32 state is too coarse for the extrapolation (20.6 iterations per step on the
-            benchmark instead of 10.2, 0.49 ms instead of 0.31 ms on an H200).
-        cg_chunk: Steps per device ring buffer (the host checks convergence once per chunk).
+            little: a float32 state is too coarse for the extrapolation, which then needs more iterations.
+        cg_chunk: Time steps per ring buffer of :meth:`run` and of :meth:`step`'s host input (the
+            host checks convergence once per ring).
         use_graph: Capture the CG step in a graph (default: on CUDA only).
 
     Raises:

@@ -139,12 +139,12 @@ def cg_newmark_update(
     v_out[i] = vn
     record[slot, i] = dn
     if o >= 0:
-        step = dn - di
+        increment = dn - di
         previous = history[0, o]
         three = type(dt)(3.0)
-        guess[o] = three * (step - previous) + history[1, o] - dt * vn - half_dt_squared * an
+        guess[o] = three * (increment - previous) + history[1, o] - dt * vn - half_dt_squared * an
         history[1, o] = previous
-        history[0, o] = step
+        history[0, o] = increment
     if i == 0:
         it = cg_iter[0]
         status[2] = wp.max(status[2], it)

@@ -94,7 +94,8 @@ def _closed_shell(points: np.ndarray, triangles: np.ndarray, boundary: np.ndarra
     return np.concatenate([points, inner]), np.concatenate([triangles, triangles[:, ::-1] + n, walls])
 
 
-def shell_defects(points: np.ndarray, triangles: np.ndarray, h: np.ndarray, max_smoothing: int, device) -> np.ndarray:
+def shell_defects(points: np.ndarray, triangles: np.ndarray, h: np.ndarray, *, max_smoothing: int = 200,
+                  device=None) -> np.ndarray:
     """Vertices of the outer surface where its offset shell folds or crosses itself (sorted, int64)."""
     boundary = check_surface(points, triangles, closed=False, name="face surface")
     directions, _, flipped = _offset_directions(points, triangles, h, max_smoothing)
@@ -115,7 +116,7 @@ def shell_defects(points: np.ndarray, triangles: np.ndarray, h: np.ndarray, max_
 
 
 def fair_locally(points: np.ndarray, triangles: np.ndarray, thickness: np.ndarray, vertices: np.ndarray, *,
-                  rings: int = 2, passes: int = 5, step: float = 0.5,
+                  rings: int = 2, passes: int = 5, relaxation: float = 0.5,
                   thinning: float = 0.85) -> tuple[np.ndarray, np.ndarray]:
     """Laplacian smoothing of a surface and its thickness within ``rings`` edge rings of ``vertices``,
     and the thickness at ``vertices`` scaled by ``thinning``.
@@ -148,7 +149,7 @@ def fair_locally(points: np.ndarray, triangles: np.ndarray, thickness: np.ndarra
     field = np.c_[points, thickness]
     field[vertices, 3] *= thinning
     for _ in range(int(passes)):
-        field[region] += step * ((weights @ field)[region] / degree[region, None] - field[region])
+        field[region] += relaxation * ((weights @ field)[region] / degree[region, None] - field[region])
     return field[:, :3], field[:, 3]
 
 

@@ -29,11 +29,9 @@ Every preconditioner is used in factored form ``M⁻¹ = Gᵀ G`` with a lower-t
 FSAI (``warp.optim.linear.FSAI``), or the inverse Cholesky factors of the 3x3 diagonal blocks
 (block Jacobi) or of the diagonal (Jacobi).
 
-Measured on an H200 (``benchmarks/fem.py``, 6.7k-node face shell, dt = 1e-3, tol = 1e-5, float64):
-Warp's stock ``warp.optim.linear.cg`` in a graph took 1.56 ms per step (about eleven dependent
-launches per iteration, 32 iterations); here an iteration costs 23 µs (three kernels of about
-7 µs; an empty graph node costs 1 µs), the fixed part of a step 60 µs, and the extrapolated start
-brings the mean from about 25 to 10 iterations: 0.30 ms per step.
+Compared with Warp's stock ``warp.optim.linear.cg`` (about eleven dependent launches per
+iteration), an iteration here is three kernels, and the extrapolated start cuts the iteration
+count by more than half during smooth motion (measurements: ``benchmarks/README.md``).
 """
 
 from __future__ import annotations

@@ -1,15 +1,15 @@
-"""CPU Newmark stepper: one sparse factorisation of ``A_oo``, reused every step.
+"""CPU Newmark solver: one sparse factorisation of ``A_oo``, reused every time step.
 
 ``A_oo`` (free-free block of ``K + c0 M + c3 C``) is symmetric positive definite, so it is
 factorised without pivoting by SuperLU in symmetric mode with a minimum-degree ordering of
-``A + A^T`` (``permc_spec="MMD_AT_PLUS_A"``, ``diag_pivot_thresh=0``). That is an LDLᵀ in
-LU clothing: on the face-shell benchmark it makes 0.95x the fill of SciPy's default
-(COLAMD + partial pivoting) at 6.4k nodes and 0.6x at 25k nodes, and solves 1.4-1.9x
-faster. A CHOLMOD wrapper from pip (cholespy 2.2) was measured at the same solve time as
-this, so no extra dependency is taken.
+``A + A^T`` (``permc_spec="MMD_AT_PLUS_A"``, ``diag_pivot_thresh=0``): an LDLᵀ in LU
+clothing, with less fill and faster solves than SciPy's default (COLAMD + partial pivoting) on
+face shells; a CHOLMOD wrapper was no faster, so no extra dependency is taken (measurements:
+``benchmarks/README.md``).
 
-State and arithmetic are float64 NumPy; each step is two sparse products with the mass
-and damping rows of the free nodes, one with ``A_od``, and the triangular solves.
+State and arithmetic are float64 (CPU Warp arrays read through zero-copy NumPy views); each
+time step is two sparse products with the mass and damping rows of the free nodes, one with
+``A_od``, the triangular solves and the shared Newmark update kernel.
 """
 
 from __future__ import annotations

@@ -247,8 +247,8 @@ def mesh_tissue(
         envelope: fTetWild's envelope (how far its boundary may stray from the shell), relative to
             the shell's bounding-box diagonal.
         optimize_passes: Most fTetWild optimisation passes (split, collapse, swap, smooth over its
-            whole bounding-box mesh: ~12 s each for the built-in face on 2 cores). It stops as soon
-            as no element's AMIPS energy exceeds 100, which on faces takes one pass.
+            whole bounding-box mesh, the bulk of the meshing time). It stops as soon as no element's
+            AMIPS energy exceeds 100, which on faces takes one pass.
         threads: fTetWild threads (0: all cores). Meshing is NOT reproducible: fTetWild has no seed
             and gives slightly different meshes from run to run even with one thread (the built-in
             face at 1,500 target nodes gave 1,796 to 1,851 nodes over four runs). Save a mesh you
@@ -348,7 +348,7 @@ def _mesh_tissue(surface, thickness, target_nodes, edge_length, decimate, envelo
             shell = offset_shell(coarse_points, coarse_triangles, h, max_smoothing=max_smoothing, device=device)
             break
         except ValueError:
-            defects = shell_defects(coarse_points, coarse_triangles, h, max_smoothing, device) if (
+            defects = shell_defects(coarse_points, coarse_triangles, h, max_smoothing=max_smoothing, device=device) if (
                 fairing_rounds < int(fair_folds)) else np.zeros(0, dtype=np.int64)
             if len(defects) == 0:
                 raise
