@@ -97,7 +97,7 @@ def as_triangles(value, vertex_count: int, name: str, *, integral_floats: bool =
     if len(bad):
         t = int(bad[0])
         raise ValueError(
-            f"{name}: triangle {t} {triangles[t].tolist()} has a vertex index outside [0, {vertex_count}) "
+            f"{name}: triangle {t} {triangles[t].tolist()} has a vertex index out of range [0, {vertex_count}) "
             f"({len(bad)} such triangles)"
         )
     return triangles.astype(np.int32)
@@ -115,10 +115,13 @@ def as_per_vertex(
         values = np.full(vertex_count, float(values))
     if values.shape != (vertex_count,):
         raise ValueError(f"{name}: expected one value per vertex ({vertex_count},), got shape {values.shape}")
-    for bound, outside, word in ((minimum, values < (minimum or 0.0), "below"), (maximum, values > (maximum or 0.0), "above")):
-        if bound is not None and np.any(outside):
-            v = int(np.flatnonzero(outside)[0])
-            raise ValueError(f"{name}: value {values[v]:.6g} at vertex {v} is {word} {bound:g}")
+    if minimum is not None and np.any(values < minimum):
+        v = int(np.flatnonzero(values < minimum)[0])
+        what = "negative value" if minimum == 0.0 else f"value below {minimum:g}:"
+        raise ValueError(f"{name}: {what} {values[v]:.6g} at vertex {v}")
+    if maximum is not None and np.any(values > maximum):
+        v = int(np.flatnonzero(values > maximum)[0])
+        raise ValueError(f"{name}: value {values[v]:.6g} at vertex {v} is above the largest accepted {maximum:g}")
     return values
 
 

@@ -92,7 +92,7 @@ def synthetic_capture(rig=None, *, expression: str = "smile", seconds: float = 2
     from .sources import RGBDLandmarks
 
     rig = default_rig() if rig is None else rig
-    truth = rig.model(device).evaluate_batch(expression_timeline(expression, rig, seconds=seconds, fps=fps)).astype(np.float64)
+    truth = rig.model(device=device).evaluate_batch(expression_timeline(expression, rig, seconds=seconds, fps=fps)).astype(np.float64)
     rest, triangles = truth[0], rig.mesh.triangles
     eye = np.linalg.inv(default_model_to_camera(rest))[:3, 3]
     fiducials = place_fiducials(rest, triangles, dots, spacing=0.014, camera_position=eye, device=device)
