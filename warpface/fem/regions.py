@@ -7,7 +7,7 @@ depend on the order regions are listed in.
 
 Kato's tables 6.4–6.5 name six regions: cheek, cphs (L), cphs (R), cheilion, cphi and alare.
 Five are small areas around landmarks (:data:`KATO_REGION_LANDMARKS`, landmark names from
-:mod:`warpface.metrics`); the thesis gives every tet a value, and the cheek is the region without a
+:mod:`warpface.landmarks`); the thesis gives every tet a value, and the cheek is the region without a
 landmark of its own, so here the cheek values apply to all remaining tissue (the project's choice).
 """
 
@@ -18,7 +18,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from ..metrics import kato_landmarks
+from ..landmarks import kato_landmarks
 from .material import TissueMaterial
 from .presets import KATO_MODELS, KATO_REGIONS, KATO_UNIFORM
 from .tetmesh import TetMesh
@@ -40,7 +40,7 @@ KATO_REGION_LANDMARKS = MappingProxyType({
     "cphi": ("cphi_L", "cphi_R"),
     "alare": ("al_L", "al_R"),
 })
-"""Landmarks (names of :data:`warpface.metrics.KATO_LANDMARKS`) each landmark region is centred on."""
+"""Landmarks (names of :data:`warpface.landmarks.KATO_LANDMARKS`) each landmark region is centred on."""
 
 
 def tet_centroids(tetmesh: TetMesh) -> np.ndarray:
@@ -105,7 +105,7 @@ def kato_regions(tetmesh: TetMesh, landmarks, *, radius=0.01) -> dict[str, np.nd
     Args:
         tetmesh: The tissue mesh.
         landmarks: Landmark name -> position (3,) [m] with at least the names in
-            :data:`KATO_REGION_LANDMARKS` (as from :func:`warpface.metrics.kato_landmarks`), or the
+            :data:`KATO_REGION_LANDMARKS` (as from :func:`warpface.landmarks.kato_landmarks`), or the
             68 iBUG positions, shape (68, 3).
         radius: Reach of each landmark region [m], scalar or region name -> radius (default 10 mm).
 
