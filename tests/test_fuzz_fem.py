@@ -7,6 +7,7 @@ whose message names the item that was wrong; never another exception, NaN or inf
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -19,7 +20,7 @@ from warpface.errors import RigError  # noqa: E402
 from warpface.fem import TetMesh, TissueMaterial, TissueSimulation, box_tet_mesh, embed_points  # noqa: E402
 
 ACCEPTED = (ValueError, TypeError, RigError)
-FUZZ = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+FUZZ = settings(max_examples=int(os.environ.get("WARPFACE_FUZZ_EXAMPLES", 40)), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
 MESH = box_tet_mesh((0.03, 0.01, 0.01), (3, 1, 1))
 FIXED = np.flatnonzero(MESH.points[:, 0] < 1e-12)

@@ -1,7 +1,14 @@
 """Viscoelastic linear-tet FEM of facial tissue (SPEC §2): mesh, material, assembly, Newmark-β.
 
-Imports only Warp, NumPy and SciPy; optional back ends (pytetwild, pxr, tqdm, cholespy) are
-imported lazily where they are used.
+Model layer: imports Warp, NumPy, SciPy and warpface's geometry layer (``warpface.geometry``,
+``warpface.landmarks``), never USD, tracking, metrics or assets; optional back ends (pytetwild,
+PyVista, tqdm) are imported lazily where they are used. Tissue meshes and materials are read and
+written on USD stages by :mod:`warpface.usd.tissue_io`.
+
+Stepping follows Newton's split: the simulation's solver object (``TissueSimulation.stepper``, a
+:class:`~warpface.fem.solver_direct.DirectSolver` or :class:`~warpface.fem.solver_cg.CGSolver`)
+advances a :class:`TissueState` under a :class:`TissueControl` with
+``stepper.step(state_in, state_out, control)``; :meth:`TissueSimulation.run` is the convenience path.
 """
 
 from .assembly import FORMULATIONS, SystemMatrices, assemble
