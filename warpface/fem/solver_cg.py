@@ -1,6 +1,6 @@
-"""Device Newmark stepper: preconditioned CG in fused Warp kernels, the whole step in one graph.
+"""Device Newmark solver: preconditioned CG in fused Warp kernels, the whole time step in one graph.
 
-Everything lives on the Warp device. One step (kernels in :mod:`warpface.fem.kernels_cg` and
+Everything lives on the Warp device. One time step (kernels in :mod:`warpface.fem.kernels_cg` and
 :mod:`warpface.fem.kernels_integrator`) is
 
 1. ``residual`` — the residual of the Newmark predictor ``x~ = d + dt v + dt²/2 a`` of the free
@@ -16,14 +16,17 @@ Everything lives on the Warp device. One step (kernels in :mod:`warpface.fem.ker
    ``wp.capture_while`` loop (a conditional graph node on CUDA) that stops on the device when
    ``‖r‖ <= tol ‖r_p‖``. The tolerance is relative to the predictor's residual, as without the
    extrapolation, so the better start saves iterations without loosening the result;
-4. ``newmark_update`` — ``d = x~ + δ`` (or the driven/fixed value), Newmark ``a`` and ``v`` in
-   place, the displacement recorded into a ring buffer of ``chunk`` steps, the extrapolation
-   for the next step, and the step's convergence status booked on the device.
+4. ``cg_newmark_update`` — ``d = x~ + δ`` (or the driven/fixed value), then the shared Newmark
+   update (:func:`~warpface.fem.kernels_integrator.newmark_advance`) into the output state, the
+   displacement recorded, the extrapolation for the next step, and the step's convergence status
+   booked on the device.
 
-On CUDA the sequence is captured once with ``wp.ScopedCapture`` and each step is one
-``wp.capture_launch``: no allocation, no host read-back. The host looks at the status only
-at synchronisation points (reading the state, the end of each ``chunk`` in
-:meth:`CGStepper.run_chunk`, or when the trajectory ring wraps in :meth:`CGStepper.step`).
+:meth:`CGSolver.step` reads ``state_in`` and the control and writes ``state_out``. On CUDA the
+sequence is captured with ``wp.ScopedCapture`` once per combination of state and control arrays
+(a simulation stepping one state in place, or two in turn, has one or two graphs), and each step
+is one ``wp.capture_launch``: no allocation, no host read-back. :meth:`CGSolver.run_chunk` binds
+a ring of ``chunk`` driven inputs and recorded displacements instead. The host looks at the
+status only at synchronisation points (:meth:`CGSolver.synchronize`).
 
 Every preconditioner is used in factored form ``M⁻¹ = Gᵀ G`` with a lower-triangular ``G``:
 FSAI (``warp.optim.linear.FSAI``), or the inverse Cholesky factors of the 3x3 diagonal blocks
