@@ -170,3 +170,19 @@ def test_embed_points_rejects_bad_queries(queries, max_distance):
     moved = embedding.apply(np.full((MESH.node_count, 3), 1e-3), device="cpu")
     assert _finite(moved)
     assert moved.shape == (len(points), 3)
+
+
+@FUZZ
+@given(option=st.sampled_from(["fixed", "driven", "formulation", "solver", "cg_tol", "cg_maxiter", "cg_chunk",
+                               "cg_preconditioner", "device"]),
+       value=st.one_of(wild_values, st.lists(st.integers(-5, 100), max_size=4),
+                       st.sampled_from(["cpu", "cuda:7", "anp", "cg", np.array([1, 2]), [[1, 2], [3]]])))
+def test_simulation_options_are_checked(option, value):
+    options = dict(fixed=FIXED, driven=DRIVEN, device="cpu", solver="cg") | {option: value}
+    try:
+        sim = TissueSimulation(MESH, SOFT, 1e-3, **options)
+    except ACCEPTED as exc:
+        assert _names(str(exc), option, "fixed", "driven", "node"), exc
+        return
+    sim.step(np.full((sim.driven_nodes.size, 3), 1e-4) if sim.driven_nodes.size else None)
+    assert _finite(sim.d, sim.v, sim.a, sim.energy())

@@ -48,7 +48,10 @@ _PROGRESS_MIN_STEPS = 500
 
 
 def _node_set(name: str, nodes, node_count: int) -> np.ndarray:
-    arr = np.asarray(nodes if nodes is not None else [])
+    try:
+        arr = np.asarray(nodes if nodes is not None else [])
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be node indices or a boolean mask, got {type(nodes).__name__}") from None
     if arr.size == 0:
         return np.zeros(0, dtype=np.int64)
     if arr.dtype == bool:
@@ -58,11 +61,22 @@ def _node_set(name: str, nodes, node_count: int) -> np.ndarray:
     if not np.issubdtype(arr.dtype, np.integer):
         if not (np.issubdtype(arr.dtype, np.floating) and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr))):
             raise ValueError(f"{name} must hold integer node indices, got dtype {arr.dtype}")
-    arr = arr.astype(np.int64).ravel()
-    bad = np.flatnonzero((arr < 0) | (arr >= node_count))
+    flat = arr.ravel()
+    bad = np.flatnonzero((flat < 0) | (flat >= node_count))
     if bad.size:
-        raise ValueError(f"{name} node index {arr[bad[0]]} (entry {bad[0]}) is out of range [0, {node_count})")
-    return arr
+        raise ValueError(f"{name} node index {flat[bad[0]]} (entry {bad[0]}) is out of range [0, {node_count})")
+    return flat.astype(np.int64)
+
+
+def _number(name: str, value, low: float, high: float, *, integer: bool = False) -> float:
+    """``value`` as a float in ``[low, high]`` (a whole number when ``integer``), else a ValueError/TypeError naming it."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__}")
+    number = float(value)
+    if not (np.isfinite(number) and low <= number <= high) or (integer and number != round(number)):
+        kind = "a whole number" if integer else "a number"
+        raise ValueError(f"{name} must be {kind} in [{low:g}, {high:g}], got {value!r}")
+    return number
 
 
 class TissueSimulation:
@@ -126,6 +140,13 @@ class TissueSimulation:
         if not isinstance(material, TissueMaterial):
             raise ValueError(f"TissueSimulation needs a TissueMaterial, got {type(material).__name__}")
         self.dt, self.beta, self.gamma = validate_newmark(dt, beta, gamma)
+        for option, value, allowed in (("formulation", formulation, FORMULATIONS), ("solver", solver, SOLVERS),
+                                       ("cg_preconditioner", cg_preconditioner, PRECONDITIONERS)):
+            if not isinstance(value, str) or value not in allowed:
+                raise ValueError(f"{option} must be one of {allowed}, got {value!r}")
+        cg_tol = _number("cg_tol", cg_tol, 1e-16, 1.0)
+        cg_maxiter = int(_number("cg_maxiter", cg_maxiter, 1, 100_000, integer=True))
+        cg_chunk = int(_number("cg_chunk", cg_chunk, 1, 100_000, integer=True))
         if formulation not in FORMULATIONS:
             raise ValueError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
         if solver not in SOLVERS:
@@ -133,7 +154,10 @@ class TissueSimulation:
         if cg_preconditioner not in PRECONDITIONERS:
             raise ValueError(f"cg_preconditioner must be one of {PRECONDITIONERS}, got {cg_preconditioner!r}")
         material.per_tet(tetmesh.tet_count)  # size check with a clear message
-        device = wp.get_device(device)
+        try:
+            device = wp.get_device(device)
+        except Exception:  # Warp raises RuntimeError/ValueError/TypeError for unknown devices
+            raise ValueError(f"device {device!r} is not a Warp device here ({[str(d) for d in wp.get_devices()]})") from None
         if solver == "auto":
             solver = "direct" if device.is_cpu else "cg"
         if solver == "direct" and not device.is_cpu:
