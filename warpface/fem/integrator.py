@@ -85,12 +85,13 @@ class TissueSimulation:
     Args:
         tetmesh: The tissue mesh.
         material: Uniform or per-tet :class:`TissueMaterial`.
-        dt: Time step [s], > 0.
+        dt: Time step [s], in [1e-8, 10] (:data:`~warpface.fem.newmark.DT_RANGE`).
         fixed: Nodes held at zero displacement: indices or a boolean mask of shape (N,).
         driven: Nodes whose displacement is given every step, in the column order of the
             trajectories passed to :meth:`step` / :meth:`run` (indices; no duplicates).
         beta, gamma: Newmark parameters (default 1/4, 1/2: average acceleration,
-            unconditionally stable, energy conserving without damping).
+            unconditionally stable, energy conserving without damping); β in [0.01, 1], γ in
+            [0.5, 1] (:data:`~warpface.fem.newmark.BETA_RANGE`, :data:`~warpface.fem.newmark.GAMMA_RANGE`).
         formulation: ``"linear"`` or ``"anp"`` (locking-free average nodal pressure), see
             :mod:`warpface.fem.assembly`.
         solver: ``"auto"`` (direct on CPU, CG elsewhere), ``"direct"`` or ``"cg"``.
@@ -109,7 +110,8 @@ class TissueSimulation:
         use_graph: Capture the CG step in a graph (default: on CUDA only).
 
     Raises:
-        ValueError: bad mesh/material type, ``dt <= 0``, bad Newmark parameters, node indices out
+        TypeError: ``dt``, ``beta``, ``gamma`` or a CG setting is not a number.
+        ValueError: bad mesh/material type, ``dt``, ``beta`` or ``gamma`` out of range, node indices out
             of range, duplicated driven nodes, a node both fixed and driven, no constrained node
             (or a connected part of the mesh without one: its rigid motion would be singular), no
             free node, unknown solver/formulation, or ``solver="direct"`` on a non-CPU device.
@@ -403,7 +405,8 @@ class TissueSimulation:
         reads results (``d``, ``v``, ``a``, :meth:`run`) or at the latest ``cg_chunk`` steps later.
 
         Raises:
-            ValueError: wrong shape or a non-finite value.
+            ValueError: wrong shape, a non-finite value, or a displacement beyond
+                :attr:`max_displacement`.
             ConvergenceError: CG did not converge (CG solver).
         """
         self._check_usable()
@@ -453,7 +456,8 @@ class TissueSimulation:
             Displacements [m], shape (T, len(nodes), 3), float32.
 
         Raises:
-            ValueError: bad trajectory (shape, NaN/inf, naming step and node) or node indices.
+            ValueError: bad trajectory (shape, NaN/inf, beyond :attr:`max_displacement`; naming step
+                and node) or node indices.
             ConvergenceError: CG did not converge at some step (the residual is in the message).
         """
         self._check_usable()
