@@ -72,9 +72,10 @@ def test_state_update_is_newmark(beam):
     assert c.mass_displacement == pytest.approx(1 / (0.3 * 4e-6))
 
 
-def test_step_rejects_mismatched_state(beam):
+@pytest.mark.parametrize("solver", ["direct", "cg"])
+def test_step_rejects_mismatched_state(beam, solver):
     mesh, fixed, driven = beam
-    sim = TissueSimulation(mesh, MATERIAL, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg")
+    sim = TissueSimulation(mesh, MATERIAL, 1e-3, fixed=fixed, driven=driven, device="cpu", solver=solver)
     with pytest.raises(ValueError, match="state_in must hold"):
         sim.stepper.step(TissueState(5, device="cpu"), sim.state, sim.control)
     with pytest.raises(ValueError, match="state_out must hold"):

@@ -15,6 +15,7 @@ time step is two sparse products with the mass and damping rows of the free node
 from __future__ import annotations
 
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import scipy.sparse as sps
@@ -91,6 +92,7 @@ class DirectSolver:
         self._solution = wp.zeros(self.free_nodes.size, dtype=wp.vec3d, device=cpu)
         self._solution_view = self._solution.numpy().reshape(-1)
         self._update_constants = c.update_scalars(wp.float64)
+        self._bindings: dict = {}
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         """``A_oo^{-1} rhs`` for a free-dof vector, shape (3F,)."""
@@ -103,21 +105,44 @@ class DirectSolver:
             state_in, state_out: float64 states on the CPU.
             control: Driven displacements at the end of the step (float64, CPU).
 
+        The first step with a new combination of state and control arrays records the update
+        launch and the input views; later steps reuse them.
+
         Raises:
+            ValueError: a state or the control does not match the solver (size, type, device).
             FloatingPointError: the solve produced non-finite displacements (``state_out`` untouched).
         """
         c = self.coefficients
-        d, v, a = (x.numpy() for x in (state_in.d, state_in.v, state_in.a))  # zero-copy CPU views
+        binding = self._binding(state_in, state_out, control)
+        d, v, a = binding.d, binding.v, binding.a
         u = c.mass_displacement * d + c.mass_velocity * v + c.mass_acceleration * a
         w = c.damping_displacement * d + c.damping_velocity * v + c.damping_acceleration * a
         rhs = (self._M_node @ u).ravel() + self._C_o @ w.ravel()
         if self.driven_nodes.size:
-            rhs -= self._A_od @ control.driven.numpy()[: self.driven_nodes.size].ravel()
+            rhs -= self._A_od @ binding.driven.ravel()
         x = self._lu.solve(rhs)
         if not np.all(np.isfinite(x)):
             raise FloatingPointError("direct solve produced non-finite displacements")
         self._solution_view[:] = x
-        wp.launch(newmark_update, dim=self.node_count,
-                  inputs=[self._solution, self._free_index, self._driven_slot, control.driven,
-                          state_in.d, state_in.v, state_in.a, *self._update_constants],
-                  outputs=[state_out.d, state_out.v, state_out.a], device=self.device)
+        binding.update.launch()
+
+    def _binding(self, state_in: TissueState, state_out: TissueState, control: TissueControl) -> SimpleNamespace:
+        """Zero-copy NumPy views of the inputs and the recorded update launch, cached per combination of arrays."""
+        key = (state_in.d.ptr, state_out.d.ptr, control.driven.ptr)
+        binding = self._bindings.get(key)
+        if binding is None:
+            for name, state in (("state_in", state_in), ("state_out", state_out)):
+                if (state.node_count != self.node_count or not wp.types.types_equal(state.d.dtype, wp.vec3d)
+                        or not state.device.is_cpu):
+                    raise ValueError(f"{name} must hold {self.node_count} nodes of float64 vec3 on the CPU")
+            if control.driven.shape[0] != max(self.driven_nodes.size, 1) or not control.driven.device.is_cpu:
+                raise ValueError(f"control must hold {self.driven_nodes.size} driven displacements on the CPU")
+            update = wp.launch(newmark_update, dim=self.node_count,
+                               inputs=[self._solution, self._free_index, self._driven_slot, control.driven,
+                                       state_in.d, state_in.v, state_in.a, *self._update_constants],
+                               outputs=[state_out.d, state_out.v, state_out.a], device=self.device, record_cmd=True)
+            binding = SimpleNamespace(d=state_in.d.numpy(), v=state_in.v.numpy(), a=state_in.a.numpy(),
+                                      driven=control.driven.numpy()[: self.driven_nodes.size], update=update,
+                                      arrays=(state_in, state_out, control))  # keeps the pointers valid
+            self._bindings[key] = binding
+        return binding
