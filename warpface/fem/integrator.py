@@ -252,6 +252,8 @@ class TissueSimulation:
         self._staging = wp.zeros((self._ring_rows, max(driven_nodes.size, 1)), dtype=self.control.driven.dtype,
                                  device="cpu", pinned=state_device.is_cuda)
         self._staging_slot = 0
+        # on the CPU every launch is synchronous: step() writes the control through a zero-copy view
+        self._control_view = self.control.driven.numpy()[: driven_nodes.size] if state_device.is_cpu else None
         self._failed = False
 
     # ------------------------------------------------------------------ state
@@ -412,7 +414,9 @@ class TissueSimulation:
         self._check_usable()
         driven = self._check_driven(driven_displacements, None)
         slot = self._staging_slot
-        if driven.size:
+        if driven.size and self._control_view is not None:
+            self._control_view[:] = driven
+        elif driven.size:
             self._staging.numpy()[slot, : driven.shape[0]] = driven
             wp.copy(self.control.driven, self._staging, src_offset=slot * self._staging.shape[1],
                     count=self.control.driven.shape[0])
