@@ -235,3 +235,20 @@ def test_issue_9_cases_raise_one_clear_line(rig, model, call, message):
 
 def test_issue_9_empty_thickness_sample_is_empty():
     assert _tmap().sample(np.zeros((0, 3)), device=DEVICE).shape == (0,)
+
+
+obj_lines = st.one_of(
+    st.builds(lambda a, b, c: f"v {a} {b} {c}", numbers, numbers, numbers),
+    st.builds(lambda a, b, c: f"f {a} {b} {c}", *(st.one_of(st.integers(-6, 6), st.sampled_from(["x", "1/2/3", "", "2.5"])),) * 3),
+    st.sampled_from(["v 1 2", "f 1 2", "# comment", "vt 0 0", "", "v nan 0 0", "f 1//1 2//2 3//3"]),
+)
+
+
+@FUZZ
+@given(lines=st.lists(obj_lines, max_size=10))
+def test_obj_files(tmp_path_factory, lines):
+    path = tmp_path_factory.mktemp("obj") / "fuzz.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\n" + "\n".join(lines) + "\nf 1 2 3\n")
+    mesh = outcome(lambda: wf.FaceMesh.from_obj(path), "fuzz")
+    if mesh is not None:
+        finite(mesh.vertex_normals(device=DEVICE))

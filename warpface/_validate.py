@@ -40,8 +40,7 @@ def as_finite_array(value, name: str, *, shape: tuple | None = None, dtype=np.fl
     if isinstance(value, (str, bytes)) or value is None:
         raise ValueError(f"{name}: expected numbers, got {type(value).__name__}")
     try:
-        with np.errstate(over="ignore"):
-            array = np.asarray(value, dtype=dtype)
+        array = np.asarray(value, dtype=dtype)
     except (TypeError, ValueError, OverflowError) as exc:
         raise ValueError(f"{name}: cannot convert to a numeric array ({_short(exc)})") from None
     if shape is not None:

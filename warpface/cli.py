@@ -165,6 +165,10 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--fem-nodes", type=int, default=3000, help="approximate tissue node count (default 3000)")
     track.add_argument("--layout", default=None, help="live cameras: JSON with the painted dots' names and initial pixels")
     track.set_defaults(handler=_track)
+
+    from .cli_animate import add_parser as add_animate_parser
+
+    add_animate_parser(commands)
     return parser
 
 

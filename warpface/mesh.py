@@ -179,7 +179,7 @@ class FaceMesh:
         device = wp.get_device(device)
         key = ("buffers", str(device))
         if key not in self._cache:
-            self._cache[key] = MeshBuffers.upload(self, device)
+            self._cache[key] = MeshBuffers.upload(self, device=device)
         return self._cache[key]
 
 
@@ -202,7 +202,7 @@ class MeshBuffers:
     """Vertex → triangle CSR entries, shape (3·T,), int32."""
 
     @classmethod
-    def upload(cls, mesh: FaceMesh, device) -> "MeshBuffers":
+    def upload(cls, mesh: FaceMesh, *, device) -> "MeshBuffers":
         weight = wp.array((~mesh.degenerate_triangles).astype(np.float32), dtype=wp.float32, device=device)
         rest_points = wp.array(mesh.points.astype(np.float32), dtype=wp.vec3, device=device)
         triangles = wp.array(mesh.triangles.astype(np.int32), dtype=wp.vec3i, device=device)
@@ -228,6 +228,8 @@ def load_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     Polygons are fan-triangulated; texture/normal indices (``f 1/2/3``) and negative (relative)
     indices are handled. Returns ``(points (V, 3) float64, triangles (T, 3) int64)``.
     """
+    if not isinstance(path, (str, Path)):
+        raise ValueError(f"OBJ path: expected a str or Path, got {type(path).__name__}")
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"OBJ file not found: {path}")
@@ -239,11 +241,19 @@ def load_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
                 fields = line.split()
                 if len(fields) < 4:
                     raise ValueError(f"{path}:{line_number}: vertex needs 3 coordinates")
-                points.append([float(v) for v in fields[1:4]])
+                try:
+                    points.append([float(v) for v in fields[1:4]])
+                except ValueError:
+                    raise ValueError(f"{path}:{line_number}: vertex coordinates are not numbers: {line.strip()!r}") from None
             elif line.startswith("f "):
                 corners = []
                 for token in line.split()[1:]:
-                    index = int(token.split("/")[0])
+                    try:
+                        index = int(token.split("/")[0])
+                    except ValueError:
+                        raise ValueError(f"{path}:{line_number}: face index {token!r} is not an integer") from None
+                    if index == 0:
+                        raise ValueError(f"{path}:{line_number}: face index 0 (OBJ indices start at 1)")
                     corners.append(index - 1 if index > 0 else len(points) + index)
                 if len(corners) < 3:
                     raise ValueError(f"{path}:{line_number}: face needs at least 3 vertices")

@@ -90,13 +90,19 @@ def control_vector(values, names: list[str], default: np.ndarray, limits: np.nda
         return vector
     if isinstance(values, (str, bytes)):
         raise ValueError(f"{label}s: expected a mapping or {len(names)} numbers, got a string")
-    array = as_finite_array(values, f"{label}s", dtype=np.float64) if not isinstance(values, np.ndarray) or values.dtype != object else None
-    if array is None or array.shape != (len(names),):
-        shape = None if array is None else array.shape
-        raise ValueError(f"{label}s: expected {len(names)} values in {kind} order, got shape {shape}")
-    over = np.flatnonzero(np.abs(array) > limits)
-    if len(over):
-        _within(float(array[over[0]]), limits[over[0]], f"{label} for {kind} {names[over[0]]!r}")
+    try:
+        array = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{label}s: expected {len(names)} numbers in {kind} order, got {type(values).__name__}") from None
+    if array.shape != (len(names),):
+        raise ValueError(f"{label}s: expected {len(names)} values in {kind} order, got shape {array.shape}")
+    inside = np.abs(array) <= limits  # False for NaN too: one test on the fast path
+    if not inside.all():
+        bad = int(np.flatnonzero(~inside)[0])
+        item = f"{label} for {kind} {names[bad]!r}"
+        if not np.isfinite(array[bad]):
+            raise ValueError(f"{item}: non-finite value {array[bad]}")
+        _within(float(array[bad]), limits[bad], item)
     return array
 
 
@@ -106,14 +112,20 @@ def _within(number: float, limit: float, name: str) -> float:
     return number
 
 
-def frame_controls(values, to_vector, width: int, label: str) -> np.ndarray:
-    """Many frames' controls, shape (F, width): an (F, width) array or a sequence of F per-frame values."""
+def frame_controls(values, to_vector, width: int, label: str, limits: np.ndarray | None = None) -> np.ndarray:
+    """Many frames' controls, shape (F, width): an (F, width) array or a sequence of F per-frame values.
+
+    An array within ±``limits`` is checked as a whole; anything else goes through ``to_vector`` frame
+    by frame (which raises the error naming the frame's bad item).
+    """
     if isinstance(values, (str, bytes, Mapping)) or values is None:
         raise ValueError(f"{label}: expected an array (frames, {width}) or a sequence of mappings, got {type(values).__name__}")
     if isinstance(values, np.ndarray) or (isinstance(values, Sequence) and len(values) and not isinstance(values[0], Mapping)):
         array = as_finite_array(values, label)
         if array.ndim != 2 or array.shape[1] != width:
             raise ValueError(f"{label}: expected shape (frames, {width}), got {array.shape}")
+        if limits is not None and not np.any(np.abs(array) > limits):
+            return array
         return np.stack([to_vector(row) for row in array]) if len(array) else array
     if isinstance(values, Sequence):
         return np.stack([to_vector(row) for row in values]) if len(values) else np.zeros((0, width))
@@ -125,7 +137,7 @@ def is_device_array(value) -> bool:
     return isinstance(value, wp.array) or (hasattr(value, "__dlpack__") and not isinstance(value, np.ndarray))
 
 
-def as_device_array(value, name: str, device, *, shape: tuple, dtype) -> wp.array:
+def as_device_array(value, name: str, *, device, shape: tuple, dtype) -> wp.array:
     """``value`` (a Warp array or a DLPack tensor) as a flat, contiguous Warp array of ``dtype`` on ``device``.
 
     ``shape`` is the expected shape in elements of ``dtype``; a float32 array whose last axis is 3 is

@@ -18,7 +18,7 @@ class FrameBuffers:
         device: the model's Warp device.
     """
 
-    def __init__(self, frames: int, vertex_count: int, triangle_count: int, muscle_count: int, wrinkle_count: int, device):
+    def __init__(self, frames: int, vertex_count: int, triangle_count: int, muscle_count: int, wrinkle_count: int, *, device):
         self.frames = frames
         self.device = device
         self.muscle_width = max(muscle_count, 1)
@@ -37,7 +37,7 @@ class FrameBuffers:
         """The same sequence captured as a CUDA graph (CUDA only)."""
         # Controls are written on the host: on the CPU straight into the kernels' arrays (numpy views
         # share their memory), on CUDA into pinned staging arrays copied up before each launch.
-        staging = device.is_cuda
+        staging = self._staging = bool(device.is_cuda)
         self._control_pairs = [
             (array, wp.zeros(array.shape, dtype=wp.float32, device="cpu", pinned=True) if staging else array, width)
             for array, width in ((self.contraction, self.muscle_width), (self.depth, self.wrinkle_width))
@@ -59,10 +59,10 @@ class FrameBuffers:
         for view, values in zip(self._control_views, (contraction, depth)):
             view[: values.shape[0], : values.shape[1]] = values
             view[values.shape[0]:] = 0.0
-        for array, host, _ in self._control_pairs:
-            if host is not array:
+        if self._staging:
+            for array, host, _ in self._control_pairs:
                 wp.copy(array, host)
-        if self.device.is_cuda:
+        if self._staging:
             self._staged = wp.get_stream(self.device).record_event()
 
     def copy_controls(self, contraction: wp.array | None, depth: wp.array | None, first: int, count: int) -> None:

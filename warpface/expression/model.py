@@ -24,8 +24,8 @@ _MAX_LAUNCH_THREADS = (1 << 31) - 1
 
 _MAX_BATCH_VERTICES = 1 << 22
 """On CUDA a batched call processes frames in chunks of at most this many frame·vertices (bounded
-memory). On the CPU, where kernels run serially, a chunk is one frame: its working set stays in cache
-(64 frames of the 9.4k-vertex face: 0.65 ms/frame one at a time, 0.74 in chunks of 2–8, 1.05 in one chunk)."""
+memory). On the CPU, where kernels run serially, a chunk is one frame: its working set stays in cache,
+which measured fastest (see benchmarks/README.md)."""
 
 
 @dataclass(frozen=True)
@@ -99,6 +99,7 @@ class ExpressionModel:
         self.muscle_names = [m.name for m in self.muscles]
         self.wrinkle_names = [w.name for w in self.wrinkles]
         self._contraction_limits = contraction_limits(self.muscles)
+        self._depth_limits = np.full(len(self.wrinkles), MAX_COORDINATE)
         self.device = wp.get_device(device)
 
         self._mesh_buffers = mesh.device_buffers(device=self.device)
@@ -140,8 +141,7 @@ class ExpressionModel:
 
         Depths are lengths: beyond ±1e6 they are rejected like other bad values (ValueError naming the wrinkle).
         """
-        limits = np.full(len(self.wrinkles), MAX_COORDINATE)
-        return control_vector(depths, self.wrinkle_names, self.default_depths, limits, "wrinkle depth", "wrinkle")
+        return control_vector(depths, self.wrinkle_names, self.default_depths, self._depth_limits, "wrinkle depth", "wrinkle")
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, contractions=None, *, wrinkle_depths=None, stages: bool = False):
@@ -181,7 +181,7 @@ class ExpressionModel:
         Returns:
             ``out``. Same kernels and bit-identical values as :meth:`evaluate`.
         """
-        target = as_device_array(out, "out", self.device, shape=(self.mesh.vertex_count,), dtype=wp.vec3)
+        target = as_device_array(out, "out", device=self.device, shape=(self.mesh.vertex_count,), dtype=wp.vec3)
         buffers = self._single
         self._upload_frames(buffers, contractions, wrinkle_depths, frames=1, first=0, count=1)
         self._run_single(buffers)
@@ -228,7 +228,7 @@ class ExpressionModel:
             ``out``. Same kernels and bit-identical values as :meth:`evaluate_batch`.
         """
         frame_count = self._batch_frame_count(contractions, wrinkle_depths)
-        target = as_device_array(out, "out", self.device, shape=(frame_count, self.mesh.vertex_count), dtype=wp.vec3)
+        target = as_device_array(out, "out", device=self.device, shape=(frame_count, self.mesh.vertex_count), dtype=wp.vec3)
         host, device_controls = self._split_controls(contractions, wrinkle_depths, frame_count)
         vertex_count = self.mesh.vertex_count
         for buffers, start, count in self._chunks(frame_count, frames_per_launch, progress):
@@ -240,11 +240,12 @@ class ExpressionModel:
     # ------------------------------------------------------------------ control plumbing
     def _host_frames(self, contractions, wrinkle_depths) -> tuple[np.ndarray, np.ndarray]:
         """Validated (F, M) contractions and (F, W) depths from host values."""
-        controls = frame_controls(contractions, self.contraction_vector, len(self.muscles), "contractions")
+        controls = frame_controls(contractions, self.contraction_vector, len(self.muscles), "contractions", self._contraction_limits)
         frame_count = len(controls)
         if wrinkle_depths is None:
             return controls, np.tile(self.default_depths, (frame_count, 1))
-        depths = frame_controls(wrinkle_depths, self.depth_vector, len(self.wrinkles), "wrinkle_depths")
+        depths = frame_controls(wrinkle_depths, self.depth_vector, len(self.wrinkles), "wrinkle_depths",
+                                self._depth_limits)
         if len(depths) != frame_count:
             raise ValueError(f"wrinkle_depths: {len(depths)} frames, contractions have {frame_count}")
         return controls, depths
@@ -255,7 +256,7 @@ class ExpressionModel:
             return None
         rows = values.shape[0] if frames is None else frames
         shape = (width,) if frames == 1 and len(values.shape) == 1 else (rows, width)
-        return as_device_array(values, name, self.device, shape=shape, dtype=wp.float32)
+        return as_device_array(values, name, device=self.device, shape=shape, dtype=wp.float32)
 
     def _batch_frame_count(self, contractions, wrinkle_depths) -> int:
         for values in (contractions, wrinkle_depths):
@@ -322,7 +323,7 @@ class ExpressionModel:
     def _frame_buffers(self, frames: int) -> FrameBuffers:
         if frames not in self._buffers:
             self._buffers[frames] = FrameBuffers(
-                frames, self.mesh.vertex_count, self.mesh.triangle_count, len(self.muscles), len(self.wrinkles), self.device
+                frames, self.mesh.vertex_count, self.mesh.triangle_count, len(self.muscles), len(self.wrinkles), device=self.device
             )
         return self._buffers[frames]
 

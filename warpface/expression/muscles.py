@@ -15,7 +15,7 @@ from typing import Union
 import numpy as np
 import warp as wp
 
-from .._validate import MAX_COORDINATE, as_finite_array, as_positive, as_vec3, orthogonal_unit_vector, unit_vector
+from .._validate import MAX_COORDINATE, as_finite_array, as_points, as_positive, as_vec3, orthogonal_unit_vector, unit_vector
 from ._sparse import vertex_csr
 
 __all__ = ["LinearMuscle", "SphincterMuscle", "Muscle", "muscle_weights", "MuscleWeights"]
@@ -206,8 +206,9 @@ def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], *, device=Non
         device: Warp device for the float64 kernels.
     """
     device = wp.get_device(device)
+    rest_points = as_points(rest_points, "rest_points")
     vertex_count = len(rest_points)
-    rest = wp.array(np.asarray(rest_points, dtype=np.float64), dtype=wp.vec3d, device=device)
+    rest = wp.array(rest_points, dtype=wp.vec3d, device=device)
     out = wp.empty(vertex_count, dtype=wp.vec3d, device=device)
     rows, columns, values = [], [], []
     for index, muscle in enumerate(muscles):

@@ -290,10 +290,11 @@ def project_points(projection: Projection, points: np.ndarray, *, device=None) -
 def bezier_distances(uv: np.ndarray, control_points: np.ndarray, *, device=None) -> np.ndarray:
     """Nearest-point distance from each 2-D point to a cubic Bézier curve: (V, 2), (4, 2) → (V,) float64."""
     device = wp.get_device(device)
-    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    uv = as_finite_array(uv, "uv", shape=(None, 2), max_abs=4.0 * MAX_COORDINATE)
+    control_points = as_finite_array(control_points, "control_points", shape=(4, 2), max_abs=4.0 * MAX_COORDINATE)
     if len(uv) == 0:
         return np.zeros(0, dtype=np.float64)
-    c = [wp.vec2d(*row) for row in np.asarray(control_points, dtype=np.float64)]
+    c = [wp.vec2d(*row) for row in control_points]
     out = wp.empty(len(uv), dtype=wp.float64, device=device)
     wp.launch(_bezier_distance_kernel, dim=len(uv), inputs=[wp.array(uv, dtype=wp.vec2d, device=device), *c],
               outputs=[out], device=device)
@@ -317,6 +318,10 @@ class WrinkleShapes:
 
 def wrinkle_shapes(rest_points: np.ndarray, wrinkles: list[Wrinkle], *, device=None) -> WrinkleShapes:
     """Distances of every rest vertex to every wrinkle's curve, turned into kept profile entries."""
+    rest_points = as_points(rest_points, "rest_points")
+    for index, wrinkle in enumerate(wrinkles):
+        if not isinstance(wrinkle, Wrinkle):
+            raise ValueError(f"wrinkle {index}: expected Wrinkle, got {type(wrinkle).__name__}")
     rows, columns, values = [], [], []
     for index, wrinkle in enumerate(wrinkles):
         uv = project_points(wrinkle.projection, rest_points, device=device)

@@ -66,28 +66,28 @@ def _min4(v: wp.vec4d) -> wp.float64:
 
 
 @wp.func
-def _closest_on_triangle(p: wp.vec3d, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d) -> wp.vec3d:
-    """Closest point to ``p`` on triangle ``abc``, in float64 (embedding distances are checked to 1e-12 m)."""
-    w = closest_point_on_triangle(p, a, b, c)
+def _on_face(x: wp.vec3d, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d) -> wp.vec3d:
+    """The point of face ``abc`` closest to ``x`` (float64: embedding distances are checked to 1e-12 m)."""
+    w = closest_point_on_triangle(x, a, b, c)
     return w[0] * a + w[1] * b + w[2] * c
 
 
 @wp.func
 def _closest_in_tet(x: wp.vec3d, p0: wp.vec3d, p1: wp.vec3d, p2: wp.vec3d, p3: wp.vec3d) -> wp.vec3d:
     """Closest point to an exterior point ``x`` on the boundary of a tet (its four faces)."""
-    best = _closest_on_triangle(x, p1, p2, p3)
+    best = _on_face(x, p1, p2, p3)
     best_d = wp.length_sq(best - x)
-    c = _closest_on_triangle(x, p0, p2, p3)
+    c = _on_face(x, p0, p2, p3)
     d = wp.length_sq(c - x)
     if d < best_d:
         best = c
         best_d = d
-    c = _closest_on_triangle(x, p0, p1, p3)
+    c = _on_face(x, p0, p1, p3)
     d = wp.length_sq(c - x)
     if d < best_d:
         best = c
         best_d = d
-    c = _closest_on_triangle(x, p0, p1, p2)
+    c = _on_face(x, p0, p1, p2)
     d = wp.length_sq(c - x)
     if d < best_d:
         best = c
