@@ -7,6 +7,7 @@ import pytest
 
 from warpface.fem import TetMesh
 from warpface.fem.tetmesh import tet_signed_volumes
+from warpface.fem.embedding import embed_points
 from warpface.fem.shell import offset_shell
 from warpface.fem.tetwild import validated_tets
 from warpface.fem.volume import mesh_tissue, tissue_from_surface
@@ -327,7 +328,8 @@ def test_ftetwild_gives_up_after_the_last_attempt(tmp_path, monkeypatch):
 
 def test_built_in_face_meshes_with_default_options_and_reports_progress(tmp_path, monkeypatch):
     """`warpface track synthetic --fem` meshes the built-in face with a uniform 4 mm at 3,000 nodes:
-    the inner offset of the lips crossed itself there until local fairing became the default."""
+    the inner offsets of the lips crossed until thickness clamping (thin_defects) became the default.
+    The skin is not moved, so every vertex of the render surface still embeds in the tissue."""
     from warpface.assets import default_rig
 
     monkeypatch.chdir(tmp_path)
@@ -336,8 +338,11 @@ def test_built_in_face_meshes_with_default_options_and_reports_progress(tmp_path
     result = mesh_tissue(rig.mesh, 0.004, target_nodes=3000, device="cpu",
                          progress=lambda stage, seconds: stages.append((stage, seconds)))
     report = result.report
-    assert report.fairing_rounds >= 1 and report.thickness_range[1] == pytest.approx(0.004)
-    assert report.thickness_range[0] >= 0.004 * 0.85**4 - 1e-12
+    assert report.thinning_rounds >= 1 and report.fairing_rounds == 0
+    assert report.thickness_range[1] == pytest.approx(0.004)
+    assert 0.004 * 0.85**6 - 1e-12 <= report.thickness_range[0] < 0.004
+    assert "thickness clamping rounds" in str(report)
+    embed_points(result.tetmesh, rig.mesh.points, device="cpu")  # raises if a skin vertex is off the tissue
     assert report.quality.inverted_count == 0 and report.volume_error < 0.05
     assert find_self_intersections(result.shell.points, result.shell.triangles, device="cpu")[0] == 0
     names = [s for s, _ in stages]
@@ -346,6 +351,8 @@ def test_built_in_face_meshes_with_default_options_and_reports_progress(tmp_path
     assert len(waits) >= 2 and waits == sorted(waits)  # reported while fTetWild ran, time increasing
     with pytest.raises(TypeError, match="progress"):
         mesh_tissue(rig.mesh, 0.004, progress="yes", device="cpu")
+    with pytest.raises(ValueError, match="thin_defects must be an integer >= 0"):
+        mesh_tissue(rig.mesh, 0.004, thin_defects=-1, device="cpu")
 
 
 def volume_stages():

@@ -116,10 +116,11 @@ def shell_defects(points: np.ndarray, triangles: np.ndarray, h: np.ndarray, *, m
 
 
 def fair_locally(points: np.ndarray, triangles: np.ndarray, thickness: np.ndarray, vertices: np.ndarray, *,
-                  rings: int = 2, passes: int = 5, relaxation: float = 0.5,
-                  thinning: float = 0.85) -> tuple[np.ndarray, np.ndarray]:
+                  rings: int = 2, passes: int = 5, relaxation: float = 0.5, thinning: float = 0.85,
+                  move_surface: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Laplacian smoothing of a surface and its thickness within ``rings`` edge rings of ``vertices``,
-    and the thickness at ``vertices`` scaled by ``thinning``.
+    and the thickness at ``vertices`` scaled by ``thinning``. With ``move_surface=False`` only the
+    thickness is thinned and smoothed (the surface, and so the skin the tissue is fitted to, stays).
 
     Interior vertices move toward the mean of their neighbours, boundary vertices toward the mean
     of their two boundary neighbours (the loop is smoothed as a curve, not pulled inward). The
@@ -148,8 +149,10 @@ def fair_locally(points: np.ndarray, triangles: np.ndarray, thickness: np.ndarra
     region &= degree > 0
     field = np.c_[points, thickness]
     field[vertices, 3] *= thinning
+    columns = slice(0, 4) if move_surface else slice(3, 4)
     for _ in range(int(passes)):
-        field[region] += relaxation * ((weights @ field)[region] / degree[region, None] - field[region])
+        smoothed = (weights @ field[:, columns])[region] / degree[region, None]
+        field[region, columns] += relaxation * (smoothed - field[region, columns])
     return field[:, :3], field[:, 3]
 
 

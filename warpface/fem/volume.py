@@ -17,8 +17,9 @@ soft tissue under it is modelled as a shell of per-vertex thickness ``h`` [m]:
    fold — or tilts the directions so far that the shell crosses itself — the thickness is wrong for
    that geometry and a ``ValueError`` says where. Surfaces with cavities (nostrils) or margins that
    curl into the head are thickened through a proxy (:func:`warpface.fem.proxy.tissue_proxy`),
-   and ``fair_folds`` lets the mesher relax the coarsened surface locally where its offset still
-   folds or crosses itself.
+   the mesher thins the thickness locally where the offset still folds or crosses itself
+   (``thin_defects``, on by default: the lips and lids of the built-in face need it), and
+   ``fair_folds`` lets it also relax the coarsened surface there.
 3. **Close.** The inner surface (winding reversed, normals out of the tissue) is stitched to the
    outer one along every boundary loop by side quads split into two triangles. The shell is
    checked watertight (every edge used by exactly two triangles, once in each direction) and free
@@ -93,6 +94,8 @@ class MeshingReport:
     """Seconds per stage: "decimate", "shell", "tetrahedralize", "validate", "total"."""
     fairing_rounds: int = 0
     """Rounds of local fairing the coarsened surface needed for a clean shell (``fair_folds``)."""
+    thinning_rounds: int = 0
+    """Rounds of thickness clamping the shell needed (``thin_defects``)."""
     tetwild_runs: int = 1
     """fTetWild runs it took to get tets that pass validation (see ``TETWILD_ATTEMPTS``)."""
 
@@ -114,6 +117,7 @@ class MeshingReport:
             f"({self.input_vertices} input, {self.boundary_loops} boundary loops"
             + (f", {self.input_intersections} crossing triangle pairs" if self.input_intersections else "")
             + f"), edge {self.edge_length * 1e3:.2f} mm, "
+            + (f"{self.thinning_rounds} thickness clamping rounds, " if self.thinning_rounds else "")
             + (f"{self.fairing_rounds} local fairing rounds, " if self.fairing_rounds else "")
             + (f"{self.tetwild_runs} fTetWild runs, " if self.tetwild_runs > 1 else "")
             + f"thickness {self.thickness_range[0] * 1e3:.2f}..{self.thickness_range[1] * 1e3:.2f} mm; "
@@ -227,7 +231,8 @@ def mesh_tissue(
     threads: int = 0,
     max_smoothing: int = 200,
     input_intersections: str = "error",
-    fair_folds: int = 4,
+    thin_defects: int = 6,
+    fair_folds: int = 0,
     timeout: float | None = 600.0,
     progress=None,
     device=None,
@@ -258,11 +263,14 @@ def mesh_tissue(
             ``"ignore"`` (count it in the report and go on: scanned and artist faces often fold a
             little, e.g. ICT-FaceKit's alar creases cross the cheek). The shell that is
             tetrahedralised is always checked.
-        fair_folds: Most rounds of local fairing where the offset shell folds or crosses itself:
-            each round smooths the coarsened surface and its thickness within two edge rings of
-            the defect and thins the thickness there by 15 % (so 4 rounds clamp it to no less than
-            52 % of the input near tight features such as the lips and eye corners). 0 refuses
-            such a shell with the location of the defect.
+        thin_defects: Most rounds of thickness clamping where the offset shell folds or crosses
+            itself (a thickness beyond the local radius of curvature, or beyond the gap between the
+            lips or lids): each round thins the thickness at the defect by 15 % and smooths it within
+            two edge rings; the outer surface is not moved, so the tissue still fits the skin. 6
+            rounds keep at least 38 % of the input thickness there. 0 refuses such a shell.
+        fair_folds: Rounds of local fairing tried after ``thin_defects``: like a thinning round, but
+            the coarsened surface is smoothed too (it moves away from the skin by up to a fraction
+            of an edge; needed for surfaces that fold, e.g. scanned faces).
         timeout: Seconds fTetWild may take before it is stopped (``None``: no limit).
         progress: Report progress: ``True`` shows a tqdm bar (when tqdm is installed), ``False``
             nothing, ``None`` (default) a bar only when stderr is a terminal; or a callable
@@ -284,13 +292,14 @@ def mesh_tissue(
     report_stage = _progress_reporter(progress)
     try:
         return _mesh_tissue(surface, thickness, target_nodes, edge_length, decimate, envelope, optimize_passes, threads,
-                            max_smoothing, input_intersections, fair_folds, timeout, report_stage, device, start)
+                            max_smoothing, input_intersections, thin_defects, fair_folds, timeout, report_stage, device, start)
     finally:
         report_stage.close()
 
 
 def _mesh_tissue(surface, thickness, target_nodes, edge_length, decimate, envelope, optimize_passes, threads,
-                 max_smoothing, input_intersections, fair_folds, timeout, report_stage, device, start) -> TissueMeshing:
+                 max_smoothing, input_intersections, thin_defects, fair_folds, timeout, report_stage, device,
+                 start) -> TissueMeshing:
     points, triangles = as_surface(surface)
     boundary = check_surface(points, triangles, closed=False, name="face surface")
     if len(boundary) == 0:
@@ -320,8 +329,9 @@ def _mesh_tissue(surface, thickness, target_nodes, edge_length, decimate, envelo
         raise ValueError(f"envelope must be in (0, 0.1) (relative to the bounding-box diagonal), got {envelope}")
     if int(optimize_passes) < 0:
         raise ValueError(f"optimize_passes must be >= 0, got {optimize_passes}")
-    if int(fair_folds) < 0:
-        raise ValueError(f"fair_folds must be >= 0, got {fair_folds}")
+    for option, rounds in (("thin_defects", thin_defects), ("fair_folds", fair_folds)):
+        if isinstance(rounds, bool) or not isinstance(rounds, (int, np.integer)) or rounds < 0:
+            raise ValueError(f"{option} must be an integer >= 0, got {rounds!r}")
 
     t0 = time.perf_counter()
     report_stage("decimate", 0.0)
@@ -342,18 +352,22 @@ def _mesh_tissue(surface, thickness, target_nodes, edge_length, decimate, envelo
         coarse_points, coarse_triangles, h = points, triangles, h_fine
     t1 = time.perf_counter()
     report_stage("offset shell", 0.0)
-    fairing_rounds = 0
+    thinning_rounds = fairing_rounds = 0
     while True:
         try:
             shell = offset_shell(coarse_points, coarse_triangles, h, max_smoothing=max_smoothing, device=device)
             break
         except ValueError:
+            thinning = thinning_rounds < int(thin_defects)
             defects = shell_defects(coarse_points, coarse_triangles, h, max_smoothing=max_smoothing, device=device) if (
-                fairing_rounds < int(fair_folds)) else np.zeros(0, dtype=np.int64)
+                thinning or fairing_rounds < int(fair_folds)) else np.zeros(0, dtype=np.int64)
             if len(defects) == 0:
                 raise
-            coarse_points, h = fair_locally(coarse_points, coarse_triangles, h, defects)
-            fairing_rounds += 1
+            coarse_points, h = fair_locally(coarse_points, coarse_triangles, h, defects, move_surface=not thinning)
+            if thinning:
+                thinning_rounds += 1
+            else:
+                fairing_rounds += 1
     t2 = time.perf_counter()
 
     report_stage("tetrahedralize", 0.0)
@@ -391,6 +405,7 @@ def _mesh_tissue(surface, thickness, target_nodes, edge_length, decimate, envelo
         timings={"decimate": t1 - t0, "shell": t2 - t1, "tetrahedralize": t3 - t2, "validate": t4 - t3,
                  "total": t4 - start},
         fairing_rounds=fairing_rounds,
+        thinning_rounds=thinning_rounds,
         tetwild_runs=tetwild_runs,
     )
     return TissueMeshing(tetmesh=tetmesh, shell=shell, report=report)
