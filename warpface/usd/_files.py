@@ -3,23 +3,74 @@
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 from pxr import Sdf, Usd
 
 from .._files import atomic_path
 
-__all__ = ["open_stage", "writable_path", "export_layer_atomically", "LAYER_SUFFIXES"]
+__all__ = ["open_stage", "open_layer", "writable_path", "export_layer_atomically", "usd_error_message", "LAYER_SUFFIXES"]
 
 LAYER_SUFFIXES = (".usda", ".usdc", ".usd")
 """File extensions warpface writes layers to."""
 
 
-def open_stage(stage_or_path) -> Usd.Stage:
-    """``stage_or_path`` itself when it is a ``Usd.Stage``, else the stage opened from that file.
+_PXR_NAMESPACE = re.compile(r"pxrInternal_v\d+_\d+__pxrReserved__::")
+_PXR_DIAGNOSTIC = re.compile(r"Error in '[^']*' at line \d+ in file [^:]*: '(.*)'$")
+
+
+def usd_error_message(error: BaseException) -> str:
+    """One line from a pxr ``Tf.ErrorException`` (or any exception): the diagnostics' own messages
+    joined with "; ", without C++ function names, source files and line numbers."""
+    messages = []
+    for line in str(error).splitlines():
+        line = line.strip()
+        if not line:
+            continue
+        match = _PXR_DIAGNOSTIC.match(line)
+        messages.append(match.group(1) if match else line)
+    text = "; ".join(dict.fromkeys(_PXR_NAMESPACE.sub("", m) for m in messages))
+    return text or type(error).__name__
+
+
+def open_layer(path, *, referenced_by: str | None = None, allow_missing=()) -> Sdf.Layer | None:
+    """The USD layer in file ``path`` (already open or read now), with its sublayers checked recursively.
+
+    ``allow_missing``: sublayer files that may be absent (a bake's cache about to be written); an
+    absent one gives ``None``.
 
     Raises:
-        ValueError: the file does not exist or is not a USD layer.
+        ValueError: the file (or a sublayer) is missing, not a USD layer, or corrupt — named in the message.
+    """
+    label = f"{path}" if referenced_by is None else f"sublayer {path} of {referenced_by}"
+    if not Path(path).is_file():
+        if referenced_by is not None and any(os.path.realpath(path) == os.path.realpath(p) for p in allow_missing):
+            return None
+        raise ValueError(f"{label}: file not found" + ("" if referenced_by is None else " (restore it or remove it from the subLayers)"))
+    try:
+        layer = Sdf.Layer.FindOrOpen(str(path))
+    except Exception as exc:  # pxr raises Tf.ErrorException with the parser's message
+        raise ValueError(f"{label}: cannot read as a USD layer ({usd_error_message(exc)})") from None
+    if layer is None:
+        raise ValueError(f"{label}: cannot read as a USD layer")
+    for entry in layer.subLayerPaths:
+        resolved = Sdf.ComputeAssetPathRelativeToLayer(layer, entry) or entry
+        if Path(resolved) == Path(layer.realPath):
+            raise ValueError(f"{path}: lists itself as a sublayer")
+        open_layer(resolved, referenced_by=str(path), allow_missing=allow_missing)
+    return layer
+
+
+def open_stage(stage_or_path, *, allow_missing=()) -> Usd.Stage:
+    """``stage_or_path`` itself when it is a ``Usd.Stage``, else the stage opened from that file.
+
+    The root layer and every sublayer are read first, so a missing, truncated or foreign sublayer
+    is an error naming that file (USD itself would only warn and skip it) — except the files in
+    ``allow_missing`` (paths), which are skipped quietly when absent.
+
+    Raises:
+        ValueError: the file or a sublayer does not exist or is not a readable USD layer.
     """
     if isinstance(stage_or_path, Usd.Stage):
         return stage_or_path
@@ -28,13 +79,39 @@ def open_stage(stage_or_path) -> Usd.Stage:
     path = Path(stage_or_path)
     if not path.is_file():
         raise ValueError(f"USD file not found: {path}")
+    root = open_layer(path, allow_missing=allow_missing)
     try:
-        stage = Usd.Stage.Open(str(path))
-    except Exception as exc:  # pxr raises Tf.ErrorException with the parser's message
-        raise ValueError(f"{path}: cannot open as a USD stage ({str(exc).strip()})") from None
+        stage = _without_missing_sublayer_warnings(lambda: Usd.Stage.Open(root))
+    except Exception as exc:
+        raise ValueError(f"{path}: cannot open as a USD stage ({usd_error_message(exc)})") from None
     if stage is None:
         raise ValueError(f"{path}: cannot open as a USD stage")
     return stage
+
+
+def _without_missing_sublayer_warnings(open_call):
+    """Run ``open_call`` with USD's "Could not load sublayer" warnings (written by C++ to fd 2) dropped;
+    every other line written meanwhile is passed on."""
+    import sys
+    import tempfile
+
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):
+        return open_call()
+    with tempfile.TemporaryFile() as captured:
+        os.dup2(captured.fileno(), 2)
+        try:
+            result = open_call()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        captured.seek(0)
+        kept = [line for line in captured.read().decode(errors="replace").splitlines() if "Could not load sublayer" not in line]
+    if kept:
+        print("\n".join(kept), file=sys.stderr)
+    return result
 
 
 def writable_path(path, suffixes: tuple[str, ...] = LAYER_SUFFIXES) -> Path:
@@ -67,8 +144,12 @@ def export_layer_atomically(layer: Sdf.Layer, path: Path) -> None:
     """
     path = Path(path)
     with atomic_path(path, path.suffix) as temporary:
-        if not layer.Export(str(temporary)):
-            raise OSError(f"cannot write {temporary}")
+        try:
+            exported = layer.Export(str(temporary))
+        except Exception as exc:  # Tf.ErrorException: full disk, permissions, ...
+            raise OSError(f"cannot write {path}: {usd_error_message(exc)}") from None
+        if not exported:
+            raise OSError(f"cannot write {path}")
     opened = Sdf.Layer.Find(str(path))
     if opened is not None:
         opened.Reload(force=True)
