@@ -10,7 +10,8 @@ from pxr import Sdf, Usd
 
 from .._files import atomic_path
 
-__all__ = ["open_stage", "open_layer", "writable_path", "export_layer_atomically", "usd_error_message", "LAYER_SUFFIXES"]
+__all__ = ["open_stage", "open_layer", "writable_path", "export_layer_atomically", "usd_error_message", "without_usd_warnings",
+           "LAYER_SUFFIXES"]
 
 LAYER_SUFFIXES = (".usda", ".usdc", ".usd")
 """File extensions warpface writes layers to."""
@@ -81,7 +82,7 @@ def open_stage(stage_or_path, *, allow_missing=()) -> Usd.Stage:
         raise ValueError(f"USD file not found: {path}")
     root = open_layer(path, allow_missing=allow_missing)
     try:
-        stage = _without_missing_sublayer_warnings(lambda: Usd.Stage.Open(root))
+        stage = without_usd_warnings(lambda: Usd.Stage.Open(root))
     except Exception as exc:
         raise ValueError(f"{path}: cannot open as a USD stage ({usd_error_message(exc)})") from None
     if stage is None:
@@ -89,9 +90,9 @@ def open_stage(stage_or_path, *, allow_missing=()) -> Usd.Stage:
     return stage
 
 
-def _without_missing_sublayer_warnings(open_call):
-    """Run ``open_call`` with USD's "Could not load sublayer" warnings (written by C++ to fd 2) dropped;
-    every other line written meanwhile is passed on."""
+def without_usd_warnings(call, dropping: tuple[str, ...] = ("Could not load sublayer",)):
+    """``call()`` with the lines USD's C++ diagnostics write to fd 2 that contain one of ``dropping``
+    removed; every other line written meanwhile is passed on."""
     import sys
     import tempfile
 
@@ -99,16 +100,16 @@ def _without_missing_sublayer_warnings(open_call):
         sys.stderr.flush()
         saved = os.dup(2)
     except (OSError, ValueError):
-        return open_call()
+        return call()
     with tempfile.TemporaryFile() as captured:
         os.dup2(captured.fileno(), 2)
         try:
-            result = open_call()
+            result = call()
         finally:
             os.dup2(saved, 2)
             os.close(saved)
         captured.seek(0)
-        kept = [line for line in captured.read().decode(errors="replace").splitlines() if "Could not load sublayer" not in line]
+        kept = [line for line in captured.read().decode(errors="replace").splitlines() if not any(text in line for text in dropping)]
     if kept:
         print("\n".join(kept), file=sys.stderr)
     return result

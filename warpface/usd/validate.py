@@ -8,7 +8,7 @@ import numpy as np
 from pxr import Usd, UsdGeom, UsdValidation
 
 from ..errors import RigError
-from ._files import open_stage
+from ._files import open_stage, without_usd_warnings
 from .animation import read_animation
 from .baking import check_bake, existing_cache_path
 from .rig_io import SKIN_API, read_rig, rig_prims
@@ -65,8 +65,8 @@ def validate_stage(stage_or_path, *, usd_validators: bool = True, bake_checks: b
         problems += [ValidationProblem("error", path, message, "warpface")
                      for path, message in capture_problems(stage, progress=progress)]
         return problems
-    if usd_validators:
-        problems += _usd_problems(stage)
+    if usd_validators:  # their findings are reported as problems; the same diagnostics on stderr are noise
+        problems += without_usd_warnings(lambda: _usd_problems(stage), dropping=("Warning: in ",))
     problems += _rig_problems(stage)
     if bake_checks and not any(p.severity == "error" for p in problems):
         problems += _bake_problems(stage, device)
