@@ -19,13 +19,10 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..usd import open_stage, validate_stage
-    from ..usd.baking import CACHE_SUFFIX
 
-    path = Path(args.stage)
-    if not path.is_file():
+    if not Path(args.stage).is_file():
         raise ValueError(f"{args.stage}: file not found")
-    # An unreadable stage or sublayer is an error (exit 2), not a finding; a deleted cache is not (bake recreates it).
-    stage = open_stage(path, allow_missing=(path.absolute().with_name(path.stem + CACHE_SUFFIX),))
+    stage = open_stage(args.stage)  # an unreadable stage or sublayer is an error (exit 2), not a finding
     problems = validate_stage(stage, device=args.device, progress=not args.quiet)
     errors = [p for p in problems if p.severity == "error"]
     for problem in problems:

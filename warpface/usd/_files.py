@@ -17,58 +17,60 @@ LAYER_SUFFIXES = (".usda", ".usdc", ".usd")
 """File extensions warpface writes layers to."""
 
 
-_PXR_NAMESPACE = re.compile(r"pxrInternal_v\d+_\d+__pxrReserved__::")
-_PXR_DIAGNOSTIC = re.compile(r"Error in '[^']*' at line \d+ in file [^:]*: '(.*)'$")
+_PXR_NAMESPACE = re.compile(r"pxrInternal_v[0-9_]+?__pxrReserved__::")
+_PXR_DIAGNOSTIC = re.compile(r"\s*(?:Error|Warning|Coding Error|Fatal Error) in '[^']*' at line \d+ in file [^\n]*? : '")
 
 
 def usd_error_message(error: BaseException) -> str:
     """One line from a pxr ``Tf.ErrorException`` (or any exception): the diagnostics' own messages
     joined with "; ", without C++ function names, source files and line numbers."""
     messages = []
-    for line in str(error).splitlines():
-        line = line.strip()
-        if not line:
-            continue
-        match = _PXR_DIAGNOSTIC.match(line)
-        messages.append(match.group(1) if match else line)
-    text = "; ".join(dict.fromkeys(_PXR_NAMESPACE.sub("", m) for m in messages))
-    return text or type(error).__name__
+    for piece in _PXR_DIAGNOSTIC.split(str(error)):
+        piece = piece.strip()
+        if piece.endswith("'"):
+            piece = piece[:-1]
+        piece = " ".join(_PXR_NAMESPACE.sub("", piece).split())
+        if piece:
+            messages.append(piece)
+    return "; ".join(dict.fromkeys(messages)) or type(error).__name__
 
 
-def open_layer(path, *, referenced_by: str | None = None, allow_missing=()) -> Sdf.Layer | None:
+def open_layer(path, *, referenced_by: str | None = None) -> Sdf.Layer | None:
     """The USD layer in file ``path`` (already open or read now), with its sublayers checked recursively.
 
-    ``allow_missing``: sublayer files that may be absent (a bake's cache about to be written); an
-    absent one gives ``None``.
+    A sublayer file that does not exist is skipped (``None``), as USD composition does — a deleted
+    cache is recreated by the next bake, and ``validate`` reports it; one that exists but cannot be
+    read is an error.
 
     Raises:
-        ValueError: the file (or a sublayer) is missing, not a USD layer, or corrupt — named in the message.
+        ValueError: the file is missing, or it or a sublayer is not a USD layer or is corrupt — named
+            in the message.
     """
     label = f"{path}" if referenced_by is None else f"sublayer {path} of {referenced_by}"
     if not Path(path).is_file():
-        if referenced_by is not None and any(os.path.realpath(path) == os.path.realpath(p) for p in allow_missing):
+        if referenced_by is not None and not Path(path).exists():
             return None
-        raise ValueError(f"{label}: file not found" + ("" if referenced_by is None else " (restore it or remove it from the subLayers)"))
+        raise ValueError(f"{label}: file not found")
     try:
         layer = Sdf.Layer.FindOrOpen(str(path))
     except Exception as exc:  # pxr raises Tf.ErrorException with the parser's message
-        raise ValueError(f"{label}: cannot read as a USD layer ({usd_error_message(exc)})") from None
+        raise ValueError(f"{label}: cannot open as a USD layer ({usd_error_message(exc)})") from None
     if layer is None:
-        raise ValueError(f"{label}: cannot read as a USD layer")
+        raise ValueError(f"{label}: cannot open as a USD layer")
     for entry in layer.subLayerPaths:
         resolved = Sdf.ComputeAssetPathRelativeToLayer(layer, entry) or entry
         if Path(resolved) == Path(layer.realPath):
             raise ValueError(f"{path}: lists itself as a sublayer")
-        open_layer(resolved, referenced_by=str(path), allow_missing=allow_missing)
+        open_layer(resolved, referenced_by=str(path))
     return layer
 
 
-def open_stage(stage_or_path, *, allow_missing=()) -> Usd.Stage:
+def open_stage(stage_or_path) -> Usd.Stage:
     """``stage_or_path`` itself when it is a ``Usd.Stage``, else the stage opened from that file.
 
     The root layer and every sublayer are read first, so a missing, truncated or foreign sublayer
-    is an error naming that file (USD itself would only warn and skip it) — except the files in
-    ``allow_missing`` (paths), which are skipped quietly when absent.
+    is an error naming that file (USD itself would only warn and skip it); a sublayer file that does
+    not exist is skipped quietly, as USD does.
 
     Raises:
         ValueError: the file or a sublayer does not exist or is not a readable USD layer.
@@ -80,7 +82,7 @@ def open_stage(stage_or_path, *, allow_missing=()) -> Usd.Stage:
     path = Path(stage_or_path)
     if not path.is_file():
         raise ValueError(f"USD file not found: {path}")
-    root = open_layer(path, allow_missing=allow_missing)
+    root = open_layer(path)
     try:
         stage = without_usd_warnings(lambda: Usd.Stage.Open(root))
     except Exception as exc:

@@ -98,11 +98,7 @@ def check_bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | 
         ValueError, RigError: as :func:`bake` would, naming the file, prim or time code.
     """
     ensure_schema()
-    if isinstance(stage_or_path, (str, os.PathLike)):  # a cache sublayer about to be (re)written may be absent
-        planned = Path(cache_path) if cache_path is not None else Path(stage_or_path).with_name(Path(stage_or_path).stem + CACHE_SUFFIX)
-        stage = open_stage(stage_or_path, allow_missing=(planned.absolute(),))
-    else:
-        stage = open_stage(stage_or_path)
+    stage = open_stage(stage_or_path)
     prims = rig_prims(stage, skin_path)
     skin_path = prims.skin.GetPath()
     times = frame_times(stage, skin_path, max_frames=max_frames) if frames is None else as_time_codes(frames, "frames")
