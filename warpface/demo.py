@@ -22,6 +22,8 @@ __all__ = ["DemoResult", "run_demo", "expression_sequence"]
 
 BACKGROUND = (0.12, 0.12, 0.14)
 """Dark, so the eye and mouth openings of the open face surface read as eyes and mouth."""
+INTERIOR = (0.06, 0.05, 0.05)
+"""The back of the face surface, seen through the eye and mouth openings: darker than the background."""
 
 
 @dataclass
@@ -99,7 +101,7 @@ def run_demo(out_dir: str | Path = "demo", *, device=None, fps: float = 30.0, se
     smooth = ExpressionModel(rig.mesh, rig.muscles, [], rig.thickness, device=device)
     rest = rig.mesh.points
     camera = preview.Camera.for_face(rest[rig.landmarks], yaw_deg=30.0, pitch_deg=5.0)
-    style = {"camera": camera, "size": size, "background": BACKGROUND}
+    style = {"camera": camera, "size": size, "background": BACKGROUND, "interior": INTERIOR}
     triangles = rig.mesh.triangles
     images, without_row, with_row, peaks_wrinkled = [], [], [], {}
     for name in names:

@@ -89,10 +89,12 @@ class PreviewRenderer:
         size: (width, height) in pixels.
         camera: fixed camera; when omitted, framed on the first rendered points.
         background: RGB in [0, 1].
+        interior: RGB in [0, 1] of the surface's back side (seen through eye and mouth openings of an
+            open face surface); ``None`` shades both sides alike. Needs consistently wound triangles.
     """
 
     def __init__(self, triangles: np.ndarray, size: tuple[int, int] = (640, 480), camera: Camera | None = None,
-                 background=(1.0, 1.0, 1.0)):
+                 background=(1.0, 1.0, 1.0), interior=None):
         platform = check_offscreen_rendering()
         from .offscreen import INSTALL_HINT, OffscreenUnavailable
 
@@ -108,6 +110,7 @@ class PreviewRenderer:
         self.size = size
         self.camera = camera
         self.background = background
+        self.interior = interior
         self._topology = None  # a FaceMesh built on the first frame: its Warp kernel gives the normals
 
     def render(self, points: np.ndarray, colors: np.ndarray | None = None) -> np.ndarray:
@@ -127,11 +130,16 @@ class PreviewRenderer:
             colors = np.broadcast_to(np.asarray(SKIN_COLOR), points.shape)
         rgba = np.c_[np.asarray(colors, dtype=np.float32), np.ones(len(points), dtype=np.float32)]
         material = pyrender.MetallicRoughnessMaterial(baseColorFactor=(1.0, 1.0, 1.0, 1.0), metallicFactor=0.0,
-                                                      roughnessFactor=0.65, doubleSided=True)
-        primitive = pyrender.Primitive(positions=points.astype(np.float32), normals=normals.astype(np.float32),
-                                       indices=self.triangles, color_0=rgba, material=material)
+                                                      roughnessFactor=0.65, doubleSided=self.interior is None)
+        primitives = [pyrender.Primitive(positions=points.astype(np.float32), normals=normals.astype(np.float32),
+                                         indices=self.triangles, color_0=rgba, material=material)]
+        if self.interior is not None:  # the back side: the same triangles wound the other way, unlit flat colour
+            inside = pyrender.MetallicRoughnessMaterial(baseColorFactor=(*self.interior, 1.0), metallicFactor=0.0,
+                                                        roughnessFactor=1.0, doubleSided=False)
+            primitives.append(pyrender.Primitive(positions=points.astype(np.float32), normals=-normals.astype(np.float32),
+                                                 indices=self.triangles[:, ::-1].copy(), material=inside))
         scene = pyrender.Scene(bg_color=(*self.background, 1.0), ambient_light=(0.1, 0.1, 0.1))
-        scene.add(pyrender.Mesh([primitive]))
+        scene.add(pyrender.Mesh(primitives))
         pose = self.camera.pose()
         scene.add(pyrender.PerspectiveCamera(yfov=np.radians(self.camera.yfov_deg), aspectRatio=self.size[0] / self.size[1]), pose=pose)
         scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=2.6), pose=_rotated(pose, yaw_deg=-35, pitch_deg=30))
@@ -160,9 +168,11 @@ def _rotated(pose: np.ndarray, *, yaw_deg: float, pitch_deg: float) -> np.ndarra
 
 
 def render(points: np.ndarray, triangles: np.ndarray, path: str | Path | None = None, *, colors=None,
-           camera: Camera | None = None, size=(640, 480), label: str | None = None, background=(1.0, 1.0, 1.0)) -> np.ndarray:
-    """Render one shaded image of a mesh; writes a PNG when ``path`` is given. Returns (H, W, 3) uint8 RGB."""
-    with PreviewRenderer(triangles, size=size, camera=camera, background=background) as renderer:
+           camera: Camera | None = None, size=(640, 480), label: str | None = None, background=(1.0, 1.0, 1.0),
+           interior=None) -> np.ndarray:
+    """Render one shaded image of a mesh; writes a PNG when ``path`` is given. Returns (H, W, 3) uint8 RGB.
+    ``interior``: colour of the back side (see :class:`PreviewRenderer`)."""
+    with PreviewRenderer(triangles, size=size, camera=camera, background=background, interior=interior) as renderer:
         image = renderer.render(points, colors)
     if label:
         image = _label(image, label)
@@ -173,12 +183,12 @@ def render(points: np.ndarray, triangles: np.ndarray, path: str | Path | None = 
 
 def render_comparison(views: Sequence[tuple[str, np.ndarray]], triangles: np.ndarray, path: str | Path | None = None, *,
                       camera: Camera | None = None, size=(480, 480), colors: Sequence | None = None,
-                      background=(1.0, 1.0, 1.0)) -> np.ndarray:
+                      background=(1.0, 1.0, 1.0), interior=None) -> np.ndarray:
     """Labelled views side by side, all with one camera (framed on the first). Returns the joined image."""
     if camera is None:
         camera = Camera.framing(np.asarray(views[0][1]), aspect=size[0] / size[1])
     images = []
-    with PreviewRenderer(triangles, size=size, camera=camera, background=background) as renderer:
+    with PreviewRenderer(triangles, size=size, camera=camera, background=background, interior=interior) as renderer:
         for index, (title, points) in enumerate(views):
             images.append(_label(renderer.render(points, None if colors is None else colors[index]), title))
     joined = np.concatenate(images, axis=1)
@@ -201,7 +211,7 @@ def heat_colors(values: np.ndarray, *, vmin: float | None = None, vmax: float | 
 def render_heat_map(points: np.ndarray, triangles: np.ndarray, values: np.ndarray, path: str | Path | None = None, *,
                     title: str = "", units: str = "", camera: Camera | None = None, size=(640, 480), cmap: str = "inferno",
                     scale: float = 1.0, vmin: float | None = None, vmax: float | None = None,
-                    background=(1.0, 1.0, 1.0)) -> np.ndarray:
+                    background=(1.0, 1.0, 1.0), interior=None) -> np.ndarray:
     """Render ``points`` coloured by ``values`` (V,), with a colour bar and its range; returns the image.
 
     ``vmin``/``vmax`` fix the colour scale (default: the values' own range) — give several heat maps
@@ -212,7 +222,7 @@ def render_heat_map(points: np.ndarray, triangles: np.ndarray, values: np.ndarra
     vmin = float(values.min()) if vmin is None else float(vmin)
     vmax = float(values.max()) if vmax is None else float(vmax)
     image = render(points, triangles, camera=camera, size=size, colors=heat_colors(values, vmin=vmin, vmax=vmax, cmap=cmap),
-                   background=background)
+                   background=background, interior=interior)
     image = _color_bar(image, vmin * scale, vmax * scale, units, cmap)
     if title:
         image = _label(image, title)
@@ -223,7 +233,7 @@ def render_heat_map(points: np.ndarray, triangles: np.ndarray, values: np.ndarra
 
 def write_video(frames: Iterable[np.ndarray], triangles: np.ndarray, path: str | Path, *, fps: float = 30.0,
                 size=(640, 480), camera: Camera | None = None, label=None, progress: bool = True,
-                total: int | None = None, background=(1.0, 1.0, 1.0)) -> Path:
+                total: int | None = None, background=(1.0, 1.0, 1.0), interior=None) -> Path:
     """Render each (V, 3) frame and write an MP4 (OpenCV, ``mp4v``) through a temporary file and a rename.
 
     ``label`` is drawn on every frame: a string (followed by the frame number) or a function of the
@@ -246,7 +256,7 @@ def write_video(frames: Iterable[np.ndarray], triangles: np.ndarray, path: str |
         if not writer.isOpened():
             raise ValueError(f"cannot open a video writer for {path}")
         try:
-            with PreviewRenderer(triangles, size=size, camera=camera, background=background) as renderer:
+            with PreviewRenderer(triangles, size=size, camera=camera, background=background, interior=interior) as renderer:
                 for index, points in enumerate(frames):
                     image = renderer.render(points)
                     if callable(label):
