@@ -355,8 +355,8 @@ def assert_expressions_move_the_right_regions(rig):
 def wrinkle_depth_under(rig, results, expression: str, wrinkle_name: str) -> float:
     """Mean depth of a furrow along its own curve, k_d·C(r) [inter-ocular units]."""
     wrinkle = next(w for w in rig.wrinkles if w.name == wrinkle_name)
-    uv = project_points(wrinkle.projection, rig.mesh.points, DEVICE)
-    on_curve = bezier_distances(uv, wrinkle.control_points, DEVICE) < 0.5 * wrinkle.width
+    uv = project_points(wrinkle.projection, rig.mesh.points, device=DEVICE)
+    on_curve = bezier_distances(uv, wrinkle.control_points, device=DEVICE) < 0.5 * wrinkle.width
     stretch = results[expression]["stretch"][on_curve]
     return float(np.mean(wrinkle.depth * np.clip(1.0 - stretch, 0.0, 1.0)) / rig_scale(rig))
 
@@ -440,3 +440,39 @@ def test_default_rig_fits_the_ict_face(ict_rig):
     assert thickness.min() > 0.05 and thickness.max() < 1.2, "thickness in cm"
     results = assert_expressions_move_the_right_regions(ict_rig)
     assert_wrinkles_show(ict_rig, results)
+
+
+def test_landmark_sets_and_mirror_pairs_agree_with_names_and_the_symmetric_face():
+    """warpface.landmarks: every mirrored pair swaps "right"/"left" in its names (or is the jaw's i ↔ 16 − i),
+    midline points have no side, and on the mirror-symmetric built-in face each pair mirrors x."""
+    from warpface import landmarks as lm
+
+    assert len(lm.IBUG_NAMES) == lm.IBUG_COUNT == 68
+    sets = (lm.JAW, lm.RIGHT_BROW, lm.LEFT_BROW, lm.NOSE_BRIDGE, lm.NOSE_BASE, lm.RIGHT_EYE, lm.LEFT_EYE, lm.MOUTH)
+    assert sorted(i for s in sets for i in s) == list(range(68))
+    for right, left in lm.MIRROR_PAIRS:
+        r, l = lm.IBUG_NAMES[right], lm.IBUG_NAMES[left]
+        assert r.replace("right", "left") == l or (r.startswith("jaw_") and right + left == 16), (r, l)
+        assert "left" not in r
+    assert np.array_equal(lm.IBUG_MIRROR[lm.IBUG_MIRROR], np.arange(68))
+    for i in np.flatnonzero(lm.IBUG_MIRROR == np.arange(68)):
+        assert "right" not in lm.IBUG_NAMES[i] and "left" not in lm.IBUG_NAMES[i]
+    points = default_face().points[default_landmarks()]
+    np.testing.assert_allclose(points[lm.IBUG_MIRROR] * [-1, 1, 1], points, atol=1e-9)
+    for side in (lm.LEFT_SIDE, lm.RIGHT_SIDE):
+        for index in (side.eye_outer, side.eye_inner, side.nose_wing, side.mouth_corner, *side.brow, *side.eye):
+            assert np.sign(points[index, 0]) == side.sign
+    assert lm.IBUG_MIRROR[lm.LEFT_SIDE.mouth_corner] == lm.RIGHT_SIDE.mouth_corner
+
+
+def test_kato_landmarks_live_in_landmarks_and_metrics_reexports_them():
+    from warpface import landmarks as lm
+    from warpface import metrics
+
+    assert metrics.kato_landmarks is lm.kato_landmarks and metrics.KATO_LANDMARKS is lm.KATO_LANDMARKS
+    points = default_face().points[default_landmarks()]
+    kato = lm.kato_landmarks(points)
+    np.testing.assert_array_equal(kato["ch_L"], points[54])
+    np.testing.assert_allclose(kato["glabella"], 0.5 * (points[21] + points[22]))
+    with pytest.raises(ValueError, match="kato_landmarks"):
+        lm.kato_landmarks({"a": 1})

@@ -1,4 +1,4 @@
-"""``warpface track``: a landmark source → dense face motion → USD time samples (see warpface.tracking.cli)."""
+"""``warpface track``: a landmark source → dense face motion → USD time samples (see warpface.pipelines.track)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,8 @@ def add_parser(subparsers, common) -> None:
                     "landmarks and the dense face as time samples.")
     track.add_argument("source", help=".npz, RGB-D folder, synthetic, realsense or orbbec")
     track.add_argument("--stage", required=True,
-                       help="output stage (.usda); the time samples go to value clips in the folder <stage>_track/")
+                       help="output stage (.usda, folder created if missing); landmarks and dense points go to value clips "
+                            "in <stage>_track/, flushed every 30 frames or 1 s (a hard kill loses at most that; Ctrl-C nothing)")
     track.add_argument("--frames", type=positive_int, default=None, help="stop after this many frames")
     track.add_argument("--expression", default="smile", help="synthetic source: expression to perform (default smile)")
     track.add_argument("--fem", action="store_true",
@@ -26,6 +27,6 @@ def add_parser(subparsers, common) -> None:
 
 
 def run(args) -> int:
-    from ..tracking.cli import run_track
+    from ..pipelines.track import run_track
 
     return run_track(args)

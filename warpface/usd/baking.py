@@ -213,6 +213,11 @@ def _evaluate(stage: Usd.Stage, model, times: np.ndarray, skin_path, stage_unit:
     try:
         positions = model.evaluate_batch(animation.contractions, wrinkle_depths=animation.wrinkle_depths)
     except ValueError as exc:
+        for row, time in enumerate(times.tolist()):  # name the first frame the model refuses
+            try:
+                model.evaluate_batch(animation.contractions[row:row + 1], wrinkle_depths=animation.wrinkle_depths[row:row + 1])
+            except ValueError as frame_error:
+                raise ValueError(f"{skin_path}: controls at time {time:g}: {frame_error}") from None
         raise ValueError(f"{skin_path}: controls at time codes {times[0]:g} … {times[-1]:g}: {exc}") from None
     bounds = _extents(positions)
     finite = np.isfinite(bounds).all(axis=(1, 2))  # min/max propagate NaN and reach ±inf

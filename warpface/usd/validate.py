@@ -81,6 +81,8 @@ def _bake_problems(stage: Usd.Stage, device) -> list[ValidationProblem]:
             check_bake(stage, skin_path=str(skin.GetPath()), cache_path=cache, device=device)
         except (ValueError, RigError) as exc:
             message = str(exc)
+            prefix = f"{skin.GetPath()}: "
+            message = message[len(prefix):] if message.startswith(prefix) else message
             if "nothing to bake" in message:
                 continue  # a rig without animation is valid; there is just nothing to bake
             problems.append(ValidationProblem("error", str(skin.GetPath()), message, "warpface (bake)"))
