@@ -20,10 +20,13 @@ from .rig_io import ItemPlacements, RigPrims, rig_prims, stage_meters_per_unit
 from .schema import ensure_schema
 
 __all__ = ["Animation", "write_animation", "read_animation", "frame_times", "frame_range", "as_time_codes",
-           "cover_time_range", "DEFAULT_FPS", "MAX_FRAMES"]
+           "cover_time_range", "DEFAULT_FPS", "MAX_FRAMES", "CACHE_SUFFIX"]
 
 DEFAULT_FPS = 30.0
 """``timeCodesPerSecond`` / ``framesPerSecond`` given to an animated stage that has none."""
+
+CACHE_SUFFIX = "_anim.usdc"
+"""Default bake cache file: ``<rig layer stem>_anim.usdc`` beside the rig layer (see :mod:`warpface.usd.baking`)."""
 
 MAX_FRAMES = 100_000
 """Most frames :func:`frame_times`, :func:`frame_range` and :func:`~warpface.usd.bake` accept unless told otherwise

@@ -23,14 +23,11 @@ from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 from .._files import atomic_path
 from ..errors import RigError
 from ._files import open_layer, open_stage, usd_error_message, writable_path
-from .animation import MAX_FRAMES, as_time_codes, cover_time_range, frame_times, read_animation
+from .animation import CACHE_SUFFIX, MAX_FRAMES, as_time_codes, cover_time_range, frame_times, read_animation
 from .rig_io import SHAPE_VARIANT_SET, read_rig, rig_prims, stage_meters_per_unit
 from .schema import ensure_schema
 
 __all__ = ["bake", "check_bake", "check_cache_path", "default_cache_path", "existing_cache_path", "CACHE_SUFFIX"]
-
-CACHE_SUFFIX = "_anim.usdc"
-"""Default cache file: ``<rig layer stem>_anim.usdc`` beside the rig layer."""
 
 MAX_REACH = 10.0
 """A bake refuses a frame whose skin leaves the rest shape's bounding box by more than this many times
