@@ -30,7 +30,10 @@ _LAZY = {
     "read_animation": "animation",
     "Animation": "animation",
     "frame_times": "animation",
-    "bake": "animation",
+    "frame_range": "animation",
+    "MAX_FRAMES": "animation",
+    "bake": "baking",
+    "check_bake": "baking",
     "write_tissue": "tissue_io",
     "read_tissue": "tissue_io",
     "Tissue": "tissue_io",
@@ -40,6 +43,7 @@ _LAZY = {
     "validate_stage": "validate",
     "ValidationProblem": "validate",
     "open_stage": "_files",
+    "open_layer": "_files",
     "export_layer_atomically": "_files",
 }
 
