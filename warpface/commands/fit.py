@@ -24,10 +24,10 @@ REGIONS = {
 """Face regions by the iBUG-68 landmarks nearest to a vertex."""
 
 
-def add_parser(subparsers) -> None:
-    """Register ``fit`` on the CLI's sub-command parsers."""
+def add_parser(subparsers, common) -> None:
+    """Register ``fit`` on the CLI's sub-parsers (``common``: the shared options)."""
     fit = subparsers.add_parser(
-        "fit", help="solve muscle contractions for shapes, store them as presets on the rig stage",
+        "fit", parents=[common], help="solve muscle contractions for shapes, store them as presets on the rig stage",
         description="Fit the rig of --rig to each TARGET (OBJ, or a USD stage with a mesh of the rig's topology), "
                     "write the controls as named presets on the rig stage, print per-region error before/after "
                     "in mm and the controls used, and render a heat map of the remaining error.")
@@ -62,7 +62,7 @@ def _load_target(path: Path, rig, scale: float, stage_units: float) -> np.ndarra
     if not path.is_file():
         raise ValueError(f"{path}: file not found")
     if path.suffix.lower() == ".obj":
-        from .mesh import load_obj
+        from ..mesh import load_obj
 
         points, triangles = load_obj(path)
         points = points * scale
@@ -72,7 +72,7 @@ def _load_target(path: Path, rig, scale: float, stage_units: float) -> np.ndarra
     else:
         from pxr import Usd, UsdGeom
 
-        from .usd import open_stage, stage_meters_per_unit
+        from ..usd import open_stage, stage_meters_per_unit
 
         stage = open_stage(path)
         meshes = [UsdGeom.Mesh(p) for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
@@ -91,9 +91,9 @@ def _load_target(path: Path, rig, scale: float, stage_units: float) -> np.ndarra
 
 def run_fit(args) -> int:
     """Handler of ``warpface fit`` (returns the exit code; errors raise ValueError for the CLI to report)."""
-    from .solve import Solver
-    from .usd import export_layer_atomically, open_stage, read_rig, stage_meters_per_unit
-    from .usd.presets_io import write_presets
+    from ..solve import Solver
+    from ..usd import export_layer_atomically, open_stage, read_rig, stage_meters_per_unit
+    from ..usd.presets_io import write_presets
 
     rig_path = Path(args.rig)
     stage = open_stage(rig_path)
@@ -130,7 +130,7 @@ def run_fit(args) -> int:
         used = sorted(presets[name].items(), key=lambda item: -abs(item[1]))
         print("  controls: " + (", ".join(f"{k} {v:.4g}" for k, v in used) if used else "none (neutral)"))
         if not args.no_images:
-            from . import preview
+            from .. import preview
 
             out.mkdir(parents=True, exist_ok=True)
             image = out / f"{name}_error.png"
