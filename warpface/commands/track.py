@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from .common import positive_int, positive_float
+from .common import non_negative_float, positive_float, positive_int
 
 __all__ = ["add_parser", "run"]
 
@@ -29,7 +29,7 @@ def add_parser(subparsers, common) -> None:
                             "on /Capture/Rig's muscles, the skin with wrinkles as the baked cache and the per-frame residual")
     track.add_argument("--residual-transfer", action="store_true",
                        help="with --solve: add the landmark motion the solve cannot explain through the geometric transfer")
-    track.add_argument("--smoothness", type=float, default=1e-3,
+    track.add_argument("--smoothness", type=non_negative_float, default=1e-3,
                        help="with --solve: pull of each frame's controls toward the previous frame's (default 1e-3)")
     track.set_defaults(handler=run)
 
