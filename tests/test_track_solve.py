@@ -109,6 +109,12 @@ def test_exact_landmarks_recover_the_controls_and_the_stage_round_trips(tmp_path
     np.testing.assert_allclose(animation.contractions, back["controls"], rtol=0, atol=1e-12)
     assert read_rig(stage).muscle_names == rig.muscle_names
     assert not [p for p in validate_stage(stage) if getattr(p, "severity", "error") == "error"]
+    from warpface.usd.frames import open_frames  # what `warpface preview` plays: the solved skin
+
+    frames = open_frames(stage)
+    np.testing.assert_array_equal(frames.times, back["times"])
+    np.testing.assert_array_equal(frames.points_at(7.0), back["skin"][7])
+    np.testing.assert_array_equal(frames.triangles, rig.mesh.triangles)
 
 
 def test_head_motion_is_solved_as_the_pose_and_written(tmp_path, rig, vertices):
