@@ -204,7 +204,7 @@ class SolvedStageLayout:
 
     skin: Sdf.Path
     muscles: tuple
-    """Muscle prim paths in control order."""
+    """Muscle prim paths in control order (a control without a muscle prim is refused when writing)."""
     pose: bool
 
     @property
@@ -251,7 +251,11 @@ def solved_stage_writer(path, tracker: SolvingTracker, fps: float, *, chunk_fram
 
     rig = tracker.rig
     root = Sdf.Path(RIG_ROOT)
-    muscles = tuple(_muscle_paths(rig, root))
+    paths = _muscle_paths(rig, root)
+    unplaced = [name for name in tracker.control_names if name not in paths]
+    if unplaced:  # every control must land on a prim, or the stage would silently lose it
+        raise ValueError(f"controls {unplaced[:5]} have no muscle prim on the stage; cannot write them")
+    muscles = tuple(paths[name] for name in tracker.control_names)
     layout = SolvedStageLayout(skin=root.AppendChild("Skin"), muscles=muscles, pose=tracker.solver.options.pose)
     writer = TrackingStageWriter(path, tracker.names, fps, chunk_frames=chunk_frames, flush_seconds=flush_seconds,
                                  extra_prims=lambda stage: write_rig(stage, rig, root_path=RIG_ROOT, fps=fps),
@@ -259,13 +263,14 @@ def solved_stage_writer(path, tracker: SolvingTracker, fps: float, *, chunk_fram
     return writer, layout
 
 
-def _muscle_paths(rig, root: Sdf.Path):
-    """The muscle prim paths :func:`warpface.usd.write_rig` gives ``rig`` under ``root``, in control order."""
-    stage = Usd.Stage.CreateInMemory()
+def _muscle_paths(rig, root: Sdf.Path) -> dict:
+    """``{muscle name: prim path}`` as :func:`warpface.usd.write_rig` authors ``rig`` under ``root``."""
     from ..usd import rig_prims, write_rig
 
+    stage = Usd.Stage.CreateInMemory()
     write_rig(stage, rig, root_path=str(root))
-    return [prim.GetPath() for prim in rig_prims(stage).muscles]
+    prims = rig_prims(stage)
+    return {name: prim.GetPath() for name, prim in zip(prims.muscle_names, prims.muscles)}
 
 
 def read_solved_capture(path) -> dict:
