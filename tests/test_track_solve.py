@@ -260,3 +260,35 @@ def test_ctrl_c_during_a_solved_capture_keeps_every_frame_with_its_controls(tmp_
     assert len(back["times"]) == kept > 0
     assert back["controls"].shape == (kept, len(back["control_names"])) and np.all(np.isfinite(back["controls"]))
     assert back["skin"].shape[0] == kept and len(back["residual"]) == kept
+
+
+def test_capture_writer_channels_refuse_bad_samples_and_keep_the_good_frames(tmp_path):
+    """The writer's extra channels: a missing, undeclared or non-finite sample is refused (naming it) and the
+    frame is not queued; the frames before it are written and read back."""
+    from pxr import Sdf, UsdGeom
+
+    from warpface.usd.tracking_io import TrackingStageWriter, read_tracking
+
+    def extra(stage):
+        UsdGeom.Xform.Define(stage, "/Capture/Thing")
+
+    channel = "/Capture/Thing.value"
+    writer = TrackingStageWriter(tmp_path / "c.usda", ["a", "b"], 30.0, extra_prims=extra,
+                                 channels={channel: Sdf.ValueTypeNames.Double})
+    points, confidence = np.zeros((2, 3)), np.ones(2)
+    writer.add(0.0, points, confidence, samples={channel: 1.5})
+    for samples, message in (({}, "lack"), ({channel: 1.0, "/Capture/Thing.other": 2.0}, "undeclared"),
+                             ({channel: float("nan")}, "not finite"), ({channel: "x"}, "numeric")):
+        with pytest.raises(ValueError, match=message):
+            writer.add(1 / 30.0, points, confidence, samples=samples)
+    writer.add(1 / 30.0, points, confidence, samples={channel: -2.0})
+    writer.close()
+    back = read_tracking(tmp_path / "c.usda")
+    assert len(back["times"]) == 2
+    from warpface.usd import open_stage
+
+    stage = open_stage(tmp_path / "c.usda")
+    value = stage.GetPrimAtPath("/Capture/Thing").GetAttribute("value")
+    assert [value.Get(t) for t in back["times"]] == [1.5, -2.0]
+    with pytest.raises(ValueError, match="not an attribute path"):
+        TrackingStageWriter(tmp_path / "d.usda", ["a"], 30.0, channels={"/Elsewhere.value": Sdf.ValueTypeNames.Double})
