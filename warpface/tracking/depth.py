@@ -199,33 +199,48 @@ def _solve_spd(A: _mat66d, b: _vec6d, n: int) -> _vec6d:
 
 
 @wp.func
+def _move_to_front(values: wp.array2d(dtype=float), row: int, lo: int, hi: int, pivot: float, equal: int) -> int:
+    """Move the values of ``values[row, lo:hi]`` below ``pivot`` (equal to it with ``equal``) to the
+    front of that range; returns the end of that front part. Branch-free (Lomuto with selects): the
+    comparisons on noisy depths are unpredictable, and mispredicted branches cost more than the
+    two stores per element."""
+    i = int(lo)
+    for j in range(lo, hi):
+        v = values[row, j]
+        t = values[row, i]
+        front = v < pivot
+        if equal != 0:
+            front = v == pivot
+        values[row, j] = wp.where(front, t, v)
+        values[row, i] = wp.where(front, v, t)
+        i += wp.where(front, 1, 0)
+    return i
+
+
+@wp.func
 def _select(values: wp.array2d(dtype=float), row: int, n: int, k: int) -> float:
-    """The k-th smallest (0-based) of ``values[row, :n]`` by quickselect (Hoare partition, middle
-    pivot); reorders that row in place. Expected O(n)."""
+    """The k-th smallest (0-based) of ``values[row, :n]`` by quickselect (middle pivot, three-way
+    split so that repeated values — quantised depths — cost no more than distinct ones); reorders
+    that row in place. Expected O(n)."""
     lo = int(0)
-    hi = int(n - 1)
-    while lo < hi:
+    hi = int(n)  # the k-th smallest lies in [lo, hi)
+    result = float(0.0)
+    found = int(0)
+    while found == 0 and hi - lo > 1:
         pivot = values[row, (lo + hi) // 2]
-        i = int(lo)
-        j = int(hi)
-        while i <= j:
-            while values[row, i] < pivot:
-                i += 1
-            while values[row, j] > pivot:
-                j -= 1
-            if i <= j:
-                swap = values[row, i]
-                values[row, i] = values[row, j]
-                values[row, j] = swap
-                i += 1
-                j -= 1
-        if k <= j:
-            hi = j
-        elif k >= i:
-            lo = i
+        below = _move_to_front(values, row, lo, hi, pivot, 0)
+        if k < below:
+            hi = below
         else:
-            break
-    return values[row, k]
+            equal = _move_to_front(values, row, below, hi, pivot, 1)
+            if k < equal:
+                result = pivot
+                found = 1
+            else:
+                lo = equal
+    if found == 0:
+        result = values[row, lo]
+    return result
 
 
 @wp.func
