@@ -316,15 +316,14 @@ class DotTracker:
                 match[rows[outlier]] = -1
             rows = np.flatnonzero(match >= 0)
             lost = np.flatnonzero(match < 0)
-            if lost.size and rows.size >= min(self.neighbours, 3):
+            taken = np.zeros(det.shape[0], dtype=bool)
+            taken[match[rows]] = True
+            free = np.flatnonzero(~taken)
+            if lost.size and free.size and rows.size >= min(self.neighbours, 3):
                 motion = det[match[rows]] - self.position[rows]
                 guess = self.position[lost] + self._neighbour_motion(rows, motion, lost)
-                taken = np.zeros(det.shape[0], dtype=bool)
-                taken[match[rows]] = True
-                free = np.flatnonzero(~taken)
-                if free.size:
-                    r2, c2 = _assign(guess, det[free], self.outlier_px)
-                    match[lost[r2]] = free[c2]
+                r2, c2 = _assign(guess, det[free], self.outlier_px)
+                match[lost[r2]] = free[c2]
 
         if areas is not None and det.shape[0]:
             area = np.asarray(areas, dtype=np.float64).reshape(-1)
