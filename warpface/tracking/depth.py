@@ -27,7 +27,7 @@ import warp as wp
 
 from .._validate import as_count, as_finite_array, as_positive
 
-__all__ = ["CameraIntrinsics", "backproject", "KINECT_V1_INTRINSICS", "MAX_PIXELS", "MAX_DEPTH", "MAX_DEPTH_WINDOW"]
+__all__ = ["CameraIntrinsics", "backproject", "kth_smallest", "KINECT_V1_INTRINSICS", "MAX_PIXELS", "MAX_DEPTH", "MAX_DEPTH_WINDOW"]
 
 MAX_PIXELS = 65536
 """Largest accepted image width or height [px]."""
@@ -218,7 +218,7 @@ def _move_to_front(values: wp.array2d(dtype=float), row: int, lo: int, hi: int, 
 
 
 @wp.func
-def _select(values: wp.array2d(dtype=float), row: int, n: int, k: int) -> float:
+def kth_smallest(values: wp.array2d(dtype=float), row: int, n: int, k: int) -> float:
     """The k-th smallest (0-based) of ``values[row, :n]`` by quickselect (middle pivot, three-way
     split so that repeated values — quantised depths — cost no more than distinct ones); reorders
     that row in place. Expected O(n)."""
@@ -264,7 +264,7 @@ def _median_residual(
                     r = wp.abs(r)
                 scratch[slot, n] = r
                 n += 1
-    return _select(scratch, slot, n, (n + 1) // 2 - 1)
+    return kth_smallest(scratch, slot, n, (n + 1) // 2 - 1)
 
 
 @wp.func
