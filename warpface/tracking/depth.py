@@ -537,9 +537,11 @@ def backproject(
                 float(intrinsics.cx), float(intrinsics.cy), float(outlier_floor), float(max_slope), float(noise_floor),
                 int(max(iterations, 1)), float(min_inlier_fraction))
     launch, points, inliers = _recorded_launch(device, count, window, settings)
-    launch.set_param_at_index(0, wp.array(z, dtype=float, device=device, copy=not device.is_cpu))  # CPU: the caller's image, no copy
-    launch.set_param_at_index(1, wp.array(uv.astype(np.float32), dtype=wp.vec2, device=device))
-    launch.launch()
+    image = wp.array(z, dtype=float, device=device, copy=not device.is_cpu)  # CPU: the caller's image, no copy
+    landmarks = wp.array(uv.astype(np.float32), dtype=wp.vec2, device=device)
+    launch.set_param_at_index(0, image)
+    launch.set_param_at_index(1, landmarks)
+    launch.launch()  # (the inputs stay referenced until the results are read back below)
     out = points.numpy().astype(np.float64)
     n_in = inliers.numpy()
     invalid = (n_in == 0) | ~np.all(np.isfinite(out), axis=1)

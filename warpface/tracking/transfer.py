@@ -366,18 +366,22 @@ class TrackingAdapter:
         """Dense displacements of the last frame [m], shape (V,), vec3, on the device."""
         self.points = wp.zeros(count, dtype=wp.vec3, device=dev)
         """Dense points of the last frame [m], shape (V,), vec3, on the device."""
-        # Recorded once, without and with ``other``: packing the ten arguments anew every frame
-        # costs a fifth of the kernel itself on the CPU.
+        self._record_transfer()
+        self.reset()
+
+    def _record_transfer(self) -> None:
+        """Record the transfer launch, without and with ``other``: packing its ten arguments anew
+        every frame costs a fifth of the kernel itself on the CPU."""
+        self._recorded_scale = float(self.scale)
         self._transfer_launches = tuple(wp.launch(
             _transfer_kernel,
-            dim=count,
-            inputs=[self._sparse_disp, self._corners, self._weighted_bary, self._weights, float(self.scale),
+            dim=self.dense_rest.shape[0],
+            inputs=[self._sparse_disp, self._corners, self._weighted_bary, self._weights, self._recorded_scale,
                     self._rest, self._other, flag],
             outputs=[self.displacements, self.points],
-            device=dev,
+            device=self.device,
             record_cmd=True,
         ) for flag in (0, 1))
-        self.reset()
 
     # -- state -----------------------------------------------------------------------------------
 
@@ -508,6 +512,8 @@ class TrackingAdapter:
                 raise ValueError(f"other: expected finite shape ({self.dense_rest.shape[0]}, 3), got {other.shape}")
             self._other.assign(other)
             use_other = 1
+        if float(self.scale) != self._recorded_scale:  # ``scale`` was changed by the caller
+            self._record_transfer()
         self._transfer_launches[use_other].launch()
         self.frames_processed += 1
         out = self.points.numpy()
