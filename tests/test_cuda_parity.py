@@ -185,8 +185,8 @@ def test_back_to_back_frames_without_sync_each_keep_their_controls(face_rig, mod
     rest = wp.array(face_rig.mesh.points.astype(np.float32), dtype=wp.vec3, device=DEVICE)
     wp.launch(_max_motion, dim=out.shape, inputs=[out, rest], outputs=[moved], device=DEVICE)
     np.testing.assert_array_equal(out.numpy(), expected)
-    assert moved.numpy()[0] == pytest.approx(np.linalg.norm(expected - face_rig.mesh.points.astype(np.float32), axis=2).max(),
-                                             rel=1e-6)
+    largest = np.linalg.norm(expected - face_rig.mesh.points.astype(np.float32), axis=2).max()
+    assert moved.numpy()[0] == pytest.approx(largest, rel=1e-6)
 
 
 @wp.kernel
@@ -207,13 +207,19 @@ def test_torch_tensors_in_and_out(face_rig, models):
     out = torch.empty((vertex_count, 3), dtype=torch.float32, device=torch_device)
     controls = torch.tensor(contractions.astype(np.float32), device=torch_device)
     wrinkles = torch.tensor(depths.astype(np.float32), device=torch_device)
-    assert model.evaluate_into(out, controls[0], wrinkle_depths=wrinkles[0]) is out
-    np.testing.assert_array_equal(out.cpu().numpy(), expected[0])
     batch = torch.zeros((3, vertex_count, 3), dtype=torch.float32, device=torch_device)
+    # Warp and torch queue work on their own streams: hand over at synchronisation points, as the
+    # model's docstring asks (torch's inputs ready before Warp reads them, Warp done before torch reads).
+    synchronize_torch = torch.cuda.synchronize if DEVICE.is_cuda else (lambda: None)
+    synchronize_torch()
+    assert model.evaluate_into(out, controls[0], wrinkle_depths=wrinkles[0]) is out
     model.evaluate_batch_into(batch, controls, wrinkle_depths=wrinkles)
+    wp.synchronize_device(DEVICE)
+    np.testing.assert_array_equal(out.cpu().numpy(), expected[0])
     np.testing.assert_array_equal(batch.cpu().numpy(), expected)
     warp_out = wp.empty((3, vertex_count), dtype=wp.vec3, device=DEVICE)
     model.evaluate_batch_into(warp_out, contractions, wrinkle_depths=depths)
+    wp.synchronize_device(DEVICE)
     shared = wp.to_torch(warp_out)  # a view, no copy
     assert shared.data_ptr() == warp_out.ptr
     assert torch.equal(shared, batch)
@@ -510,7 +516,8 @@ def test_closest_points_match_cpu_and_brute_force():
         # float32 search around the box centre: 1e-6 of the distance plus 1e-6 of the mesh size
         np.testing.assert_allclose(dist, true_distance, rtol=1e-6, atol=1e-6 * size)
         closest = np.einsum("qj,qjk->qk", bary.astype(np.float64), points[triangles[tri]])
-        np.testing.assert_allclose(np.linalg.norm(closest - queries, axis=1), true_distance, rtol=1e-5, atol=2e-6 * size)
+        np.testing.assert_allclose(np.linalg.norm(closest - queries, axis=1), true_distance,
+                                   rtol=1e-5, atol=2e-6 * size)
     # The same triangle wherever the runner-up is clearly farther; within float32 rounding of a tie
     # (closest point on a shared edge or vertex) FMA contraction may pick either neighbour.
     ranked = np.sort(reference, axis=1)
