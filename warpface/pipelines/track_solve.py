@@ -222,9 +222,11 @@ class SolvedStageLayout:
 
     def samples(self, solved: SolvedFrame, skin: np.ndarray) -> dict:
         """One frame's values of :attr:`channels` (``skin``: the points written, (V, 3))."""
+        from ..usd.tracking_io import vec3f_array
+
         skin = np.ascontiguousarray(skin, dtype=np.float32)
         values = {path.AppendProperty("contraction"): float(value) for path, value in zip(self.muscles, solved.controls)}
-        values[self.skin.AppendProperty(UsdGeom.Tokens.points)] = Vt.Vec3fArray.FromNumpy(skin)
+        values[self.skin.AppendProperty(UsdGeom.Tokens.points)] = vec3f_array(skin)
         values[self.skin.AppendProperty(UsdGeom.Tokens.extent)] = Vt.Vec3fArray.FromNumpy(np.stack([skin.min(axis=0), skin.max(axis=0)]))
         values[self.skin.AppendProperty(_RESIDUAL)] = float(solved.residual)
         values[self.skin.AppendProperty(_SKIPPED)] = bool(solved.skipped)
