@@ -107,7 +107,6 @@ class SolvingTracker:
         self.control_names = list(self.solver.names)
         self.solver.model  # built now (≈ 0.2 s), not inside the first frame
         self.min_confidence = float(min_confidence)
-        self.fitted_camera = camera_to_model is None
         self.camera_to_model = None if camera_to_model is None else np.array(camera_to_model, dtype=np.float64)
         if self.camera_to_model is not None and (self.camera_to_model.shape != (4, 4) or not np.all(np.isfinite(self.camera_to_model))):
             raise ValueError("camera_to_model: expected a finite 4×4 matrix")
