@@ -16,16 +16,7 @@ from helpers import assert_rigs_equal, scaled_rig, small_face_rig  # noqa: E402
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt  # noqa: E402
 
 import warpface.usd._files as usd_files  # noqa: E402
-from warpface import (  # noqa: E402
-    CylindricalProjection,
-    FaceMesh,
-    FaceRig,
-    LinearMuscle,
-    PlanarProjection,
-    RigError,
-    SphincterMuscle,
-    Wrinkle,
-)
+from warpface import FaceMesh, FaceRig, LinearMuscle, PlanarProjection, RigError  # noqa: E402
 from warpface.usd import read_rig, read_tissue, validate_stage, write_rig, write_tissue  # noqa: E402
 
 
