@@ -61,7 +61,7 @@ class RigOperators:
     wrinkle_kr: np.ndarray
 
     @classmethod
-    def from_rig(cls, rig, device=None) -> "RigOperators":
+    def from_rig(cls, rig, *, device=None) -> "RigOperators":
         mesh = rig.mesh
         rest = np.asarray(mesh.points, dtype=np.float64)
         triangles = mesh.triangles.astype(np.int64)
