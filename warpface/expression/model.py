@@ -10,8 +10,11 @@ import warp as wp
 
 from ..kernels_surface import triangle_area_vectors
 from ..mesh import FaceMesh
-from .kernels import MuscleEntry, WrinkleEntry, apply_muscles, apply_wrinkles, stretch_and_bulge, triangle_stretch
+from .jaw import JAW_CONTROL_NAMES, Jaw
+from .kernels import (MuscleEntry, WrinkleEntry, apply_jaw_and_muscles, apply_muscles, apply_wrinkles, stretch_and_bulge,
+                      triangle_stretch)
 from .muscles import LinearMuscle, Muscle, SphincterMuscle, muscle_weights
+from .tissue import tissue_response
 from .thickness import validate_thickness
 from .wrinkles import Wrinkle, wrinkle_shapes
 
@@ -121,6 +124,9 @@ class ExpressionModel:
         wrinkles: wrinkle furrows; their order is the depth order.
         thickness: subcutaneous thickness ``h`` [mesh units]: a scalar or shape (V,), ≥ 0.
         device: Warp device (default: Warp's preferred device).
+        jaw: optional :class:`~warpface.expression.Jaw`, applied before the muscles (SPEC §6.2); its
+            controls :data:`~warpface.expression.JAW_CONTROL_NAMES` follow the muscles in the control
+            vector (:attr:`control_names`).
 
     Raises:
         ValueError: duplicate muscle or wrinkle names, wrong thickness, wrong item types.
@@ -133,6 +139,8 @@ class ExpressionModel:
         wrinkles: Sequence[Wrinkle] = (),
         thickness: float | np.ndarray = 0.0,
         device=None,
+        *,
+        jaw: Jaw | None = None,
     ):
         if not isinstance(mesh, FaceMesh):
             raise ValueError(f"mesh: expected a FaceMesh, got {type(mesh).__name__}")
@@ -147,11 +155,21 @@ class ExpressionModel:
                 raise ValueError(f"wrinkles[{index}]: expected Wrinkle, got {type(wrinkle).__name__}")
         self.muscle_names = _unique_names([m.name for m in self.muscles], "muscle")
         self.wrinkle_names = _unique_names([w.name for w in self.wrinkles], "wrinkle")
+        if jaw is not None:
+            if not isinstance(jaw, Jaw):
+                raise ValueError(f"jaw: expected a Jaw, got {type(jaw).__name__}")
+            jaw.check_vertex_count(mesh.vertex_count)
+        self.jaw = jaw
+        self.control_names = _unique_names(self.muscle_names + (list(JAW_CONTROL_NAMES) if jaw is not None else []), "control")
+        """Muscle names, then the jaw's controls when there is a jaw: the order of a control vector."""
         self.thickness = validate_thickness(thickness, mesh.vertex_count)
         self.device = wp.get_device(device)
 
         self._mesh_buffers = mesh.device_buffers(self.device)
         weights = muscle_weights(mesh.points, self.muscles, self.device)
+        if any(m.sliding > 0.0 or m.bunching > 0.0 for m in self.muscles):
+            normals = mesh.vertex_normals(device=self.device)
+            weights = tissue_response(mesh.points, mesh.triangles, normals, self.thickness, self.muscles, weights)
         shapes = wrinkle_shapes(mesh.points, self.wrinkles, self.device)
         self.muscle_entry_count = int(len(weights.muscle))
         self.wrinkle_entry_count = int(len(shapes.wrinkle))
@@ -165,22 +183,25 @@ class ExpressionModel:
         self._counts = wp.array(counted.astype(np.float32), dtype=wp.float32, device=device_)
         self._thickness = wp.array(self.thickness.astype(np.float32), dtype=wp.float32, device=device_)
         self.default_depths = np.array([w.depth for w in self.wrinkles], dtype=np.float64)
+        if jaw is not None:
+            self._jaw_weight = wp.array(jaw.weights.astype(np.float32), dtype=wp.float32, device=device_)
         self._buffers: dict[int, _FrameBuffers] = {}
         self._single = self._frame_buffers(1)
 
     @classmethod
     def from_rig(cls, rig, device=None) -> "ExpressionModel":
         """Build from a :class:`warpface.FaceRig` (mesh, muscles, wrinkles, thickness)."""
-        return cls(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=device)
+        return cls(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=device, jaw=getattr(rig, "jaw", None))
 
     # ------------------------------------------------------------------ controls
     def contraction_vector(self, contractions) -> np.ndarray:
-        """Contractions as an array in muscle order, shape (M,), float64.
+        """Controls as an array in :attr:`control_names` order, shape (M,) or (M + 3,) with a jaw, float64.
 
-        ``contractions`` is a mapping ``{muscle name: K}`` (absent muscles are 0), a sequence of
-        length M, or ``None`` (all zero). Unknown names and non-finite values raise ValueError.
+        ``contractions`` is a mapping ``{muscle or jaw control name: value}`` (absent ones are 0), a
+        sequence in control order, or ``None`` (all zero). Unknown names and non-finite values raise
+        ValueError.
         """
-        return _control_vector(contractions, self.muscle_names, np.zeros(len(self.muscles)), "contraction", "muscle")
+        return _control_vector(contractions, self.control_names, np.zeros(len(self.control_names)), "contraction", "control")
 
     def depth_vector(self, depths) -> np.ndarray:
         """Wrinkle depths ``k_d`` in wrinkle order, shape (W,); ``None`` or absent names keep each wrinkle's own depth."""
@@ -244,7 +265,7 @@ class ExpressionModel:
                 )
         else:
             raise ValueError(f"frames_per_launch: expected a positive integer, got {frames_per_launch!r}")
-        controls = self._frame_controls(contractions, self.contraction_vector, len(self.muscles), "contractions")
+        controls = self._frame_controls(contractions, self.contraction_vector, len(self.control_names), "contractions")
         frame_count = len(controls)
         if wrinkle_depths is None:
             depths = np.tile(self.default_depths, (frame_count, 1))
@@ -276,7 +297,7 @@ class ExpressionModel:
     def _frame_buffers(self, frames: int) -> _FrameBuffers:
         if frames not in self._buffers:
             self._buffers[frames] = _FrameBuffers(
-                frames, self.mesh.vertex_count, self.mesh.triangle_count, len(self.muscles), len(self.wrinkles), self.device
+                frames, self.mesh.vertex_count, self.mesh.triangle_count, len(self.control_names), len(self.wrinkles), self.device
             )
         return self._buffers[frames]
 
@@ -297,11 +318,20 @@ class ExpressionModel:
         def record(kernel, dim, inputs, outputs):
             return wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device, record_cmd=True)
 
+        if self.jaw is None:
+            first = record(apply_muscles, vertices,
+                           [mesh.rest_points, self._muscle_offsets, self._muscle_entries, buffers.contraction,
+                            buffers.muscle_width, vertex_count],
+                           [buffers.muscle_points])
+        else:
+            jaw = self.jaw
+            first = record(apply_jaw_and_muscles, vertices,
+                           [mesh.rest_points, self._jaw_weight, wp.vec3(*jaw.pivot), wp.vec3(*jaw.axis),
+                            wp.vec3(*jaw.forward), self._muscle_offsets, self._muscle_entries, buffers.contraction,
+                            buffers.muscle_width, len(self.muscles), vertex_count],
+                           [buffers.muscle_points])
         return [
-            record(apply_muscles, vertices,
-                   [mesh.rest_points, self._muscle_offsets, self._muscle_entries, buffers.contraction,
-                    buffers.muscle_width, vertex_count],
-                   [buffers.muscle_points]),
+            first,
             record(triangle_stretch, triangles,
                    [buffers.muscle_points, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, *counts],
                    [buffers.stretch_terms]),
