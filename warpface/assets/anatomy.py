@@ -21,7 +21,8 @@ Sphincters (replacing the classic lateral orbicularis oculi):
 - orbicularis oculi orbital part, per side: centred between the eye and its medial canthus (the fibres
   arise from the medial orbital margin and the medial palpebral ligament, so the skin around the
   eye is drawn toward it: cheek up, brow tail down, temple skin medially — AU6, ``cheekSquint``);
-- orbicularis oculi palpebral part, per side: the lids, toward the lid line (AU45/AU7, blink, squint);
+- orbicularis oculi palpebral part, per side and lid: a ring centred on the opposite lid margin closes
+  its lid (upper: AU45, ``eyeBlink``; lower: AU7, ``eyeSquint``);
 - orbicularis oris press: a flat ellipse on the lips' contact line that presses the lips together
   (AU24, ``mouthPress``, ``mouthClose``).
 """
@@ -52,16 +53,14 @@ ANATOMY_LINEAR_MUSCLE_NAMES: tuple[str, ...] = (
     *(f"buccinator_{s}" for s, _ in _SIDES),
     *(f"platysma_{s}" for s, _ in _SIDES),
     *(f"nasalis_{s}" for s, _ in _SIDES),
+    *(f"orbicularis_oculi_upper_lid_{s}" for s, _ in _SIDES),
+    *(f"orbicularis_oculi_lower_lid_{s}" for s, _ in _SIDES),
     "orbicularis_oris_roll_upper",
     "orbicularis_oris_roll_lower",
 )
 """Linear muscles added by the full anatomy, in rig order."""
 
-ANATOMY_SPHINCTER_MUSCLE_NAMES: tuple[str, ...] = (
-    "orbicularis_oculi_palpebral_L",
-    "orbicularis_oculi_palpebral_R",
-    "orbicularis_oris_press",
-)
+ANATOMY_SPHINCTER_MUSCLE_NAMES: tuple[str, ...] = ("orbicularis_oris_press",)
 """Sphincters added by the full anatomy (the orbital orbicularis oculi keeps its classic name)."""
 
 
@@ -71,6 +70,12 @@ def _linear(name, surface: SurfaceSampler, origin_xy, depth, insertion_xy, zone_
     insertion = surface.point(insertion_xy)
     length = float(np.linalg.norm(insertion - attachment))
     return LinearMuscle(name, attachment, insertion, zone_deg, start * length, finish * length)
+
+
+FRONTALIS_REACH = 2.8
+"""Falloff finish of the frontalis as a multiple of its length: the brow skin drags the lids and the
+upper cheek along (on the ICT-FaceKit brow shapes the skin 1 unit below the brows still rises by
+a fifth of the brows' rise)."""
 
 
 def frontalis_bellies(local: np.ndarray, surface: SurfaceSampler, classic: list[LinearMuscle]) -> list[LinearMuscle]:
@@ -91,7 +96,7 @@ def frontalis_bellies(local: np.ndarray, surface: SurfaceSampler, classic: list[
         insertion = surface.frame.to_local(muscle.insertion)
         attachment = surface.below((insertion[0], brow_top + 0.55), 0.12)
         length = float(np.linalg.norm(muscle.insertion - attachment))
-        out.append(LinearMuscle(muscle.name, attachment, muscle.insertion, 40.0, 0.90 * length, 1.60 * length))
+        out.append(LinearMuscle(muscle.name, attachment, muscle.insertion, 45.0, 0.90 * length, FRONTALIS_REACH * length))
     return out
 
 
@@ -124,6 +129,19 @@ def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame
         linear[f"nasalis_{tag}"] = _linear(
             f"nasalis_{tag}", surface, (wing[0] + 0.06 * s, wing[1] + 0.02), 0.12,
             (0.45 * wing[0], xy[29, 1]), 30.0, 0.80, 1.45)
+    for tag, s in _SIDES:
+        # Palpebral part, one per lid: its fibres run round the lid between the palpebral ligaments,
+        # so a contraction carries the lid (and the skin beyond it) toward the opposite lid margin
+        # and a little medially, and nothing on the far side of that margin moves (a ring centred
+        # there would also pull the brow down).
+        ring = xy[list(_LANDMARKS[tag]["eye"])]
+        eye, inner = ring.mean(axis=0), xy[_LANDMARKS[tag]["eye_inner"]]
+        top, bottom = ring[:, 1].max(), ring[:, 1].min()
+        medial = eye[0] + 0.75 * (inner[0] - eye[0])
+        linear[f"orbicularis_oculi_upper_lid_{tag}"] = _linear(
+            f"orbicularis_oculi_upper_lid_{tag}", surface, (medial, bottom), 0.06, (eye[0], top + 0.10), 70.0, 0.90, 1.70)
+        linear[f"orbicularis_oculi_lower_lid_{tag}"] = _linear(
+            f"orbicularis_oculi_lower_lid_{tag}", surface, (medial, top), 0.06, (eye[0], bottom - 0.12), 70.0, 0.90, 2.20)
     mouth_line = 0.5 * (xy[62, 1] + xy[66, 1])
     linear["orbicularis_oris_roll_upper"] = _linear(
         "orbicularis_oris_roll_upper", surface, (0.0, mouth_line + 0.02), 0.35, (0.0, xy[51, 1]), 60.0, 0.90, 1.45)
@@ -140,10 +158,6 @@ def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame
         centre = eye + 0.20 * (inner - eye)
         sphincters[f"orbicularis_oculi_{tag}"] = SphincterMuscle(
             f"orbicularis_oculi_{tag}", world(centre), across, up, (0.72 * frame.scale, 0.58 * frame.scale))
-        lid_height = float(np.ptp(local[list(i["eye"]), 1]))
-        sphincters[f"orbicularis_oculi_palpebral_{tag}"] = SphincterMuscle(
-            f"orbicularis_oculi_palpebral_{tag}", world(eye), across, up,
-            (0.36 * frame.scale, (0.5 * lid_height + 0.16) * frame.scale))
     mouth = local[60:68].mean(axis=0)
     half_width = 0.5 * np.linalg.norm(local[54] - local[48])
     sphincters["orbicularis_oris_press"] = SphincterMuscle(

@@ -167,7 +167,7 @@ class ExpressionModel:
 
         self._mesh_buffers = mesh.device_buffers(self.device)
         weights = muscle_weights(mesh.points, self.muscles, self.device)
-        if any(m.sliding > 0.0 or m.bunching > 0.0 for m in self.muscles):
+        if any(m.sliding > 0.0 or m.bunching > 0.0 or m.thickening > 0.0 for m in self.muscles):
             normals = mesh.vertex_normals(device=self.device)
             weights = tissue_response(mesh.points, mesh.triangles, normals, self.thickness, self.muscles, weights)
         shapes = wrinkle_shapes(mesh.points, self.wrinkles, self.device)

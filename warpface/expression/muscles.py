@@ -50,6 +50,8 @@ class LinearMuscle:
         bunching: ≥ 0, dimensionless: tissue the muscle compresses moves out of the face by
             ``bunching · h · (−dr/dK)`` per unit contraction (docs/RIG.md §3); needs the mesh, so
             :class:`~warpface.ExpressionModel` adds it.
+        thickening: ≥ 0, dimensionless: a shortening muscle thickens, lifting the skin over it by
+            ``thickening · |w|`` along the normal per unit contraction (docs/RIG.md §3).
 
     Contraction ``K`` is a length [mesh units]: the largest displacement, reached at ``μ = 0``,
     ``D = Rs``.
@@ -64,6 +66,7 @@ class LinearMuscle:
     falloff: str = "waters"
     sliding: float = 0.0
     bunching: float = 0.0
+    thickening: float = 0.0
 
     def __post_init__(self) -> None:
         label = f"linear muscle {self.name!r}"
@@ -107,7 +110,7 @@ class SphincterMuscle:
         axis_x, axis_y: in-plane axes, shape (3,) each. Both are normalised; ``axis_y`` is made
             orthogonal to ``axis_x`` (Gram–Schmidt) so ``(x, y)`` are true frame coordinates.
         semi_axes: ``(lx, ly)`` [mesh units], both > 0.
-        falloff, sliding, bunching: as for :class:`LinearMuscle`; ``"smooth"`` replaces ``f`` by
+        falloff, sliding, bunching, thickening: as for :class:`LinearMuscle`; ``"smooth"`` replaces ``f`` by
             ``(1 − ρ²)²`` with ``ρ = sqrt(x²/lx² + y²/ly²)``.
 
     Contraction ``K`` is dimensionless: the displacement is ``K·f`` times the in-plane offset.
@@ -121,6 +124,7 @@ class SphincterMuscle:
     falloff: str = "waters"
     sliding: float = 0.0
     bunching: float = 0.0
+    thickening: float = 0.0
 
     def __post_init__(self) -> None:
         label = f"sphincter muscle {self.name!r}"
@@ -158,8 +162,12 @@ def _check_response(muscle, label: str) -> None:
     bunching = float(as_finite_array(muscle.bunching, f"{label}: bunching", shape=()))
     if bunching < 0.0:
         raise ValueError(f"{label}: bunching must be ≥ 0, got {bunching}")
+    thickening = float(as_finite_array(muscle.thickening, f"{label}: thickening", shape=()))
+    if thickening < 0.0:
+        raise ValueError(f"{label}: thickening must be ≥ 0, got {thickening}")
     object.__setattr__(muscle, "sliding", sliding)
     object.__setattr__(muscle, "bunching", bunching)
+    object.__setattr__(muscle, "thickening", thickening)
 
 
 # ---------------------------------------------------------------------------------------------- kernels

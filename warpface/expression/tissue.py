@@ -14,6 +14,8 @@ stays ``d = K · w'(P)`` and the solver's Jacobian of the muscle stage is still 
   :data:`FASCIA_RADIUS` and the height saturates at :data:`BUNCHING_CAP` times the muscle's
   largest pull (``c·tanh(b/c)``, still per unit K). It is the linearised §1.3 bulge
   ``(1/r − 1)·h ≈ −ρ·K·h`` of the muscle belly and fat pads, which the thin-sheet bulge under-states.
+- **thickening** ``τ ≥ 0``: ``w' += τ · |w| · N``: a shortening muscle belly thickens (its volume is
+  conserved), lifting the skin over it in proportion to the pull there.
 """
 
 from __future__ import annotations
@@ -119,8 +121,11 @@ def tissue_response(points: np.ndarray, triangles: np.ndarray, normals: np.ndarr
         mine = weights.muscle == index
         field = np.zeros((vertex_count, 3))
         field[row[mine]] = weights.weight[mine]
+        pull = np.linalg.norm(field, axis=1)
         if muscle.sliding > 0.0:
             field -= muscle.sliding * np.sum(field * normals, axis=1, keepdims=True) * normals
+        if muscle.thickening > 0.0:
+            field += (muscle.thickening * pull)[:, None] * normals
         if muscle.bunching > 0.0:
             height = -muscle.bunching * thickness * neighbourhood_mean(points, stretch_rate(points, triangles, field), radius)
             cap = BUNCHING_CAP * float(np.linalg.norm(field, axis=1).max())
