@@ -409,7 +409,7 @@ def test_expression_contractions_scale_linear_muscles_only(rig):
 
 def test_expression_timeline_goes_neutral_to_expression_to_neutral(rig):
     timeline = expression_timeline("disgust", rig, seconds=2.0, fps=30)
-    assert timeline.shape == (61, len(rig.muscles))
+    assert timeline.shape == (61, len(rig.control_names))
     assert np.all(timeline[0] == 0.0) and np.all(timeline[-1] == 0.0)
     peak = expression_contractions("disgust", rig)
     index = {name: i for i, name in enumerate(rig.muscle_names)}

@@ -142,7 +142,9 @@ def test_sliding_removes_the_normal_pull_and_bunching_lifts_compressed_skin():
     field = np.zeros((len(points), 3))
     field[np.repeat(np.arange(len(points)), np.diff(slid.offsets))] = slid.weight
     np.testing.assert_allclose(field[:, 2], 0.0, atol=1e-12)
-    np.testing.assert_allclose(field[:, :2], plain[:, :2], atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(field, axis=1), np.linalg.norm(plain, axis=1), atol=1e-12)
+    np.testing.assert_allclose(np.cross(field[:, :2], plain[:, :2]), 0.0, atol=1e-12)
+    assert np.all(np.sum(field[:, :2] * plain[:, :2], axis=1) >= 0.0)
     bunched = tissue_response(points, triangles, normals, thickness, [replace(muscle, sliding=1.0, bunching=2.0)], weights)
     lift = np.zeros(len(points))
     lift[np.repeat(np.arange(len(points)), np.diff(bunched.offsets))] = bunched.weight[:, 2]
@@ -180,3 +182,63 @@ def test_full_rig_round_trips_through_usd_with_its_jaw(rig, tmp_path):
             original.falloff, original.sliding, original.bunching, original.thickening)
     controls = {"jaw_open": 0.2, "zygomaticus_major_L": 0.004, "orbicularis_oculi_R": 0.2}
     np.testing.assert_allclose(back.model(DEVICE).evaluate(controls), rig.model(DEVICE).evaluate(controls), atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------------------ presets
+
+
+def region_centres(local_landmarks):
+    """Local (|x|, y) of the regions preset names refer to (sided ones: the subject's left side) [inter-ocular units]."""
+    xy = local_landmarks[:, :2]
+    left_eye, mouth = xy[42:48].mean(axis=0), xy[48:68].mean(axis=0)
+    return {
+        "brow": xy[22:27].mean(axis=0), "eye": left_eye, "cheek": 0.7 * left_eye + 0.3 * xy[54],  # the malar cheek
+        "nose": xy[[31, 35]].mean(axis=0) * [0.0, 1.0] + [abs(xy[35, 0]), 0.0], "mouth": mouth, "corner": xy[54],
+        "jaw": xy[[7, 8, 9, 57]].mean(axis=0),
+    }
+
+
+@pytest.mark.parametrize("anatomy_face", ["builtin"])
+def test_presets_move_the_regions_they_name(rig, anatomy_face):
+    from warpface.assets import ARKIT_PRESET_NAMES, PRESETS, preset_controls
+    from warpface.assets.rig import face_frame
+
+    frame = face_frame(rig.mesh, rig.landmarks)
+    local = frame.to_local(rig.mesh.points)
+    centres = region_centres(local[rig.landmarks])
+    model = rig.model(DEVICE)
+    names = list(PRESETS)
+    frames = model.evaluate_batch([preset_controls(name, rig) for name in names])
+    for name, frame_points in zip(names, frames):
+        moved = np.linalg.norm(frame_points - rig.mesh.points, axis=1) / frame.scale
+        assert moved.max() > 0.02, f"{name}: visibly moves the face (> 2 % of the eye distance)"
+        if name not in ARKIT_PRESET_NAMES:
+            continue
+        weight = moved ** 2
+        centroid = (local[:, :2] * weight[:, None]).sum(axis=0) / weight.sum()
+        region = next(key for key in ("brow", "eye", "cheek", "nose", "jaw", "mouth") if name.lower().startswith(key))
+        sided = name.endswith(("Left", "Right")) and region in ("brow", "eye", "cheek", "nose", "mouth")
+        sided = sided and name not in ("mouthLeft", "mouthRight")
+        x = abs(centroid[0]) if sided else centroid[0]
+        target = centres["corner" if sided and region == "mouth" else region]
+        target = target if sided else target * [0.0, 1.0]
+        if name in ("mouthLeft", "mouthRight"):  # the named corner is drawn toward its side (muscle stage)
+            pulled = model.evaluate(preset_controls(name, rig), stages=True).muscle - rig.mesh.points
+            corner = rig.landmarks[54 if name == "mouthLeft" else 48]
+            assert pulled[corner] @ frame.axes[0] * (1.0 if name == "mouthLeft" else -1.0) > 0.003 * frame.scale, name
+            x = target[0]
+        distance = np.hypot(x - target[0], centroid[1] - target[1])
+        assert distance < 0.45, f"{name}: motion centred at {centroid.round(2)}, {region} is at {target.round(2)}"
+        if name.endswith("Left") and not name.startswith(("jaw", "mouthLeft")):
+            assert centroid[0] > 0.05, f"{name}: the subject's left side (+x) moves"
+        if name.endswith("Right") and not name.startswith(("jaw", "mouthRight")):
+            assert centroid[0] < -0.05, f"{name}: the subject's right side (−x) moves"
+    opened = frames[names.index("jawOpen")]
+    lm = rig.landmarks
+    assert np.linalg.norm(opened[lm[66]] - opened[lm[62]]) > np.linalg.norm(rig.mesh.points[lm[66]] - rig.mesh.points[lm[62]]) + 0.1 * frame.scale
+    left = frames[names.index("jawLeft")][lm[8]] - rig.mesh.points[lm[8]]
+    assert left @ frame.axes[0] > 0.03 * frame.scale
+    with pytest.raises(ValueError, match="unknown preset"):
+        preset_controls("mouthYawn", rig)
+    with pytest.raises(wf.RigError, match="jaw_open"):
+        preset_controls("jawOpen", default_rig(device=DEVICE, anatomy="classic"))

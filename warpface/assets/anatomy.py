@@ -13,6 +13,8 @@ Linear, per side:
 - platysma: fascia over the lower mandible → lip corner and lower lip, down and out (AU20/AU25,
   ``mouthStretch``, ``mouthLower``); its wide zone reaches the jaw line and lower cheek;
 - nasalis: maxilla beside the nose wing → side of the nose, up and in (AU9, ``noseSneer``);
+- orbicularis oculi palpebral part, per lid (upper: AU45 ``eyeBlink``; lower: AU7 ``eyeSquint``), and the
+  levator palpebrae superioris that opens the upper lid (AU5, ``eyeWide``);
 - orbicularis oris roll, upper and lower lip: a bone point behind the lips' contact line → the
   vermilion, rolling each lip in (AU28, ``mouthRollUpper/Lower``).
 
@@ -21,8 +23,6 @@ Sphincters (replacing the classic lateral orbicularis oculi):
 - orbicularis oculi orbital part, per side: centred between the eye and its medial canthus (the fibres
   arise from the medial orbital margin and the medial palpebral ligament, so the skin around the
   eye is drawn toward it: cheek up, brow tail down, temple skin medially — AU6, ``cheekSquint``);
-- orbicularis oculi palpebral part, per side and lid: a ring centred on the opposite lid margin closes
-  its lid (upper: AU45, ``eyeBlink``; lower: AU7, ``eyeSquint``);
 - orbicularis oris press: a flat ellipse on the lips' contact line that presses the lips together
   (AU24, ``mouthPress``, ``mouthClose``).
 """
@@ -55,6 +55,7 @@ ANATOMY_LINEAR_MUSCLE_NAMES: tuple[str, ...] = (
     *(f"nasalis_{s}" for s, _ in _SIDES),
     *(f"orbicularis_oculi_upper_lid_{s}" for s, _ in _SIDES),
     *(f"orbicularis_oculi_lower_lid_{s}" for s, _ in _SIDES),
+    *(f"levator_palpebrae_{s}" for s, _ in _SIDES),
     "orbicularis_oris_roll_upper",
     "orbicularis_oris_roll_lower",
 )
@@ -90,6 +91,16 @@ def frontalis_bellies(local: np.ndarray, surface: SurfaceSampler, classic: list[
     brow_top = float(local[17:27, 1].max())
     out = []
     for muscle in classic:
+        if muscle.name.startswith("risorius_"):
+            # Risorius lies in the superficial fascia over the masseter: its fixed end is just under the
+            # skin at the side of the face (a point 0.30 deep along the side's normal would lie behind
+            # the mouth corner and pull it into the face).
+            origin = surface.frame.to_local(surface.below(surface.frame.to_local(muscle.attachment)[:2], 0.0))
+            side_xy = (np.sign(origin[0]) * max(abs(origin[0]), 0.9), surface.frame.to_local(muscle.insertion)[1] + 0.02)
+            attachment = surface.below(side_xy, 0.04)
+            length = float(np.linalg.norm(muscle.insertion - attachment))
+            out.append(LinearMuscle(muscle.name, attachment, muscle.insertion, 24.0, 0.90 * length, 1.40 * length))
+            continue
         if not muscle.name.startswith("frontalis_"):
             out.append(muscle)
             continue
@@ -121,7 +132,7 @@ def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame
             f"zygomaticus_minor_{tag}", surface, (eye[0] + 0.12 * s, eye[1] - 0.42), 0.22,
             (0.5 * (upper[0] + corner[0]), upper[1] + 0.03), 24.0, 0.85, 1.40)
         linear[f"buccinator_{tag}"] = _linear(
-            f"buccinator_{tag}", surface, (0.80 * jaw_mouth[0], corner[1] - 0.02), 0.45,
+            f"buccinator_{tag}", surface, (0.80 * jaw_mouth[0], corner[1] - 0.02), 0.12,
             (corner[0] + 0.05 * s, corner[1]), 34.0, 0.90, 1.45)
         linear[f"platysma_{tag}"] = _linear(
             f"platysma_{tag}", surface, (jaw_low[0] + 0.05 * s, jaw_low[1] - 0.35), 0.20,
@@ -142,6 +153,9 @@ def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame
             f"orbicularis_oculi_upper_lid_{tag}", surface, (medial, bottom), 0.06, (eye[0], top + 0.10), 70.0, 0.90, 1.70)
         linear[f"orbicularis_oculi_lower_lid_{tag}"] = _linear(
             f"orbicularis_oculi_lower_lid_{tag}", surface, (medial, top), 0.06, (eye[0], bottom - 0.12), 70.0, 0.90, 2.20)
+        # Levator palpebrae superioris: from the orbit's roof, deep behind the brow, into the upper lid (eyeWide).
+        linear[f"levator_palpebrae_{tag}"] = _linear(
+            f"levator_palpebrae_{tag}", surface, (eye[0], top + 0.30), 0.35, (eye[0], top + 0.02), 40.0, 0.90, 1.30)
     mouth_line = 0.5 * (xy[62, 1] + xy[66, 1])
     linear["orbicularis_oris_roll_upper"] = _linear(
         "orbicularis_oris_roll_upper", surface, (0.0, mouth_line + 0.02), 0.35, (0.0, xy[51, 1]), 60.0, 0.90, 1.45)

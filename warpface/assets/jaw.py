@@ -14,7 +14,7 @@ height below that line, ``w = smoothstep((φ + a)/(a + b))`` (cubic, C¹): near 
 small, so the lips part along the contact line; beside it the ramp widens (``a`` = 0.30, ``b`` = 0.30)
 over the cheeks. Where the mesh has a mouth opening, its rim is split at the corners into an upper and
 a lower arc; with geodesic distances ``d_u``, ``d_l`` to them, ``φ`` gains
-``ε·(d_u − d_l)/(d_u + d_l)`` near the mouth, so each lip follows its own side of the opening
+``ε·(d_u − d_l)/(d_u + d_l + c)`` near the mouth, so each lip follows its own side of the opening
 (the lower lip the jaw, the upper lip not) and the term fades to 0 at the corners, where both
 distances agree.
 """
@@ -39,6 +39,9 @@ _NECK_RAMP = (0.02, 0.28)
 """Below the mandible's lower border (iBUG 4–12) the weight falls from 1 to 0 between these depths."""
 _LIP_OFFSET = 0.17
 """ε: how far the lip-side term moves a lip off the contact line [inter-ocular units]."""
+_CORNER_SOFTENING = 0.25
+"""Added to ``d_u + d_l`` [inter-ocular units]: near a mouth corner, where both distances are small,
+the lip-side term fades smoothly instead of flipping between neighbouring vertices."""
 _LIP_REACH = (0.25, 0.55)
 """Geodesic distance from the mouth rim over which the lip-side term fades out [inter-ocular units]."""
 
@@ -64,7 +67,7 @@ def _jaw_line(local_landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray, floa
 
 
 def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarray, scale: float):
-    """``(d_u − d_l)/(d_u + d_l)`` and the distance to the rim [inter-ocular units], or None without a mouth opening."""
+    """``(d_u − d_l)/(d_u + d_l + c)`` and the distance to the rim [inter-ocular units], or None without a mouth opening."""
     edges = np.sort(mesh.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     unique, counts = np.unique(edges, axis=0, return_counts=True)
     open_edges = unique[counts == 1]
@@ -95,14 +98,15 @@ def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarr
     if len(arcs) != 2 or min(len(a) for a in arcs) == 0:
         return None
     upper, lower = sorted(arcs, key=lambda arc: -local[arc, 1].mean())
-    lengths = np.linalg.norm(local[edges[:, 0]] - local[edges[:, 1]], axis=1)
+    lengths = np.linalg.norm(local[edges[:, 0]] - local[edges[:, 1]], axis=1) * scale
     graph = coo_matrix((lengths, (edges[:, 0], edges[:, 1])), shape=(mesh.vertex_count,) * 2).tocsr()
     d_upper = dijkstra(graph, directed=False, indices=upper, min_only=True)
     d_lower = dijkstra(graph, directed=False, indices=lower, min_only=True)
     finite = np.isfinite(d_upper) & np.isfinite(d_lower) & (d_upper + d_lower > 0.0)
     side = np.zeros(mesh.vertex_count)
-    side[finite] = (d_upper[finite] - d_lower[finite]) / (d_upper[finite] + d_lower[finite])
-    reach = np.where(finite, np.minimum(d_upper, d_lower), np.inf)
+    softening = _CORNER_SOFTENING * scale
+    side[finite] = (d_upper[finite] - d_lower[finite]) / (d_upper[finite] + d_lower[finite] + softening)
+    reach = np.where(finite, np.minimum(d_upper, d_lower), np.inf) / scale
     return side, reach
 
 

@@ -168,7 +168,7 @@ def default_rig(mesh: FaceMesh | None = None, landmarks=None, *, name: str = "Fa
 
 SKIN_SLIDING = 1.0
 """Sliding of every muscle of the full rig (docs/RIG.md §2; chosen by benchmarks/rig_reach.py)."""
-SKIN_BUNCHING = 2.0
+SKIN_BUNCHING = 1.0
 """Bunching gain β of every muscle of the full rig (docs/RIG.md §3; chosen by benchmarks/rig_reach.py)."""
 
 

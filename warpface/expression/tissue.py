@@ -3,8 +3,10 @@
 Both are rig-time, per-vertex and linear in the contraction (docs/RIG.md §2–3), so a muscle's field
 stays ``d = K · w'(P)`` and the solver's Jacobian of the muscle stage is still exactly ``W``:
 
-- **sliding** ``s ∈ [0, 1]``: ``w_s = w − s · (w·N) N`` with ``N`` the rest unit vertex normal averaged
-  over :data:`FASCIA_RADIUS` (the fascia's normal). Skin glides
+- **sliding** ``s ∈ [0, 1]``: ``w_s = (1 − s)·w + s·|w|·t̂`` with ``t̂`` the unit direction of the pull's
+  tangential part ``w − (w·N) N`` and ``N`` the rest unit vertex normal averaged over
+  :data:`FASCIA_RADIUS` (the fascia's normal): the skin glides along the surface toward the
+  attachment by the full pull instead of sinking toward the bone beneath it. Skin glides
   over the fascia instead of sinking toward a bone attachment beneath it.
 - **bunching** ``β ≥ 0``: ``w' = w_s − β · h · ρ(w_s) · N`` where ``ρ(w)`` is the first-order relative
   area change of the skin around a vertex under the field: ``Σ_t δA_t / Σ_t A_t`` over the incident
@@ -123,7 +125,10 @@ def tissue_response(points: np.ndarray, triangles: np.ndarray, normals: np.ndarr
         field[row[mine]] = weights.weight[mine]
         pull = np.linalg.norm(field, axis=1)
         if muscle.sliding > 0.0:
-            field -= muscle.sliding * np.sum(field * normals, axis=1, keepdims=True) * normals
+            tangential = field - np.sum(field * normals, axis=1, keepdims=True) * normals
+            length = np.linalg.norm(tangential, axis=1, keepdims=True)
+            along = np.divide(tangential * pull[:, None], length, out=np.zeros_like(tangential), where=length > 1e-12 * (pull.max() + 1e-300))
+            field = (1.0 - muscle.sliding) * field + muscle.sliding * along
         if muscle.thickening > 0.0:
             field += (muscle.thickening * pull)[:, None] * normals
         if muscle.bunching > 0.0:
