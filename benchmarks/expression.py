@@ -69,8 +69,8 @@ class NumpyExpression:
     """The per-frame math of ``ExpressionModel`` in vectorised NumPy float32 (scatter with bincount)."""
 
     def __init__(self, mesh: wf.FaceMesh, muscles, wrinkles, thickness: float, device):
-        weights = muscle_weights(mesh.points, muscles, device)
-        shapes = wrinkle_shapes(mesh.points, wrinkles, device)
+        weights = muscle_weights(mesh.points, muscles, device=device)
+        shapes = wrinkle_shapes(mesh.points, wrinkles, device=device)
         v = mesh.vertex_count
         self.v = v
         self.rest = mesh.points.astype(np.float32)

@@ -105,7 +105,7 @@ def errors(points: np.ndarray, target: np.ndarray, moved: np.ndarray) -> tuple[f
 
 
 def reach(rig, mesh, landmarks, shapes, device, dense_only: bool = False) -> list[dict]:
-    model = rig.model(device)
+    model = rig.model(device=device)
     scale = rig_scale(rig)
     lower, upper, step = control_bounds(model, rig, scale)
     all_rows = np.arange(mesh.vertex_count)
@@ -157,7 +157,7 @@ def main(argv=None) -> int:
     payload = {"machine": machine_info(args.device), "moved_mm": MOVED_MM, "rigs": {}}
     for label, rig in rigs.items():
         rows = reach(rig, mesh, landmarks, args.shapes, args.device, dense_only=args.dense_only)
-        payload["rigs"][label] = {"controls": len(rig.model(args.device).control_names), "rows": rows}
+        payload["rigs"][label] = {"controls": len(rig.model(device=args.device).control_names), "rows": rows}
         print(f"\n{label} rig ({payload['rigs'][label]['controls']} controls), error over moved vertices [mm]:")
         print_table(rows, [("shape", "shape", "s"), ("moved", "moved", "d"),
                            ("before_mean_mm", "mean before", ".3f"), ("before_max_mm", "max before", ".2f"),

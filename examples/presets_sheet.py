@@ -29,7 +29,7 @@ COLUMNS = 8
 
 def contact_sheet(rig, device=None, tile=(220, 260)) -> np.ndarray:
     """All presets of :data:`~warpface.assets.PRESETS` on ``rig`` (metres), as one RGB image."""
-    model = rig.model(device)
+    model = rig.model(device=device)
     points = rig.mesh.points
     camera = preview.Camera.for_face(points[rig.landmarks], yaw_deg=20.0, pitch_deg=5.0)
     names = list(PRESETS)

@@ -2,11 +2,12 @@
 
 The driver is a real recording when ``../shared/data`` is present — OpenFace 2.x action-unit
 intensities (AUplayer, recorded for the AMHUSE dataset, Boccignone et al., ICMI 2017) at the
-recording's own frame rate — and otherwise a scripted sequence of AU pulses. Each FACS action unit
-maps to the muscles that produce it (SPEC §5); intensities 0–5 scale the muscles' contractions,
-given in inter-ocular distances (the built-in rig's presets use the same unit). The contractions
-become time samples on the rig's muscle prims, the stage is baked to a ``.usdc`` point cache, and
-a video and a contact sheet are rendered from the baked stage.
+recording's own frame rate — and otherwise a scripted sequence of AU pulses. The curves go through
+:mod:`warpface.drivers`: clamped to the AU range, mapped onto the rig's muscles by the default FACS
+table (SPEC §6.4; stored on the stage under ``/Face/Drivers/default`` where any USD tool can edit
+it), written as time samples on the rig's muscle prims, baked to a ``.usdc`` point cache, and
+rendered to a video and a contact sheet from the baked stage. ``warpface animate`` does the same
+from the command line for any driver format.
 
     python examples/scripted_animation.py [--recording 10_3_au.txt] [--out out/scripted] [--device cpu]
 """
@@ -20,57 +21,19 @@ import numpy as np
 import warp as wp
 
 from warpface import preview, usd
-from warpface.assets import default_rig, rig_scale
+from warpface.assets import default_rig
 from warpface.data import shared_data_path
-
-AU_MUSCLES = {
-    # action unit: {muscle: contraction at intensity 5, in inter-ocular distances (sphincters: K)}
-    "AU01": {"frontalis_inner_L": 0.16, "frontalis_inner_R": 0.16},
-    "AU02": {"frontalis_outer_L": 0.14, "frontalis_outer_R": 0.14},
-    "AU04": {"corrugator_L": 0.09, "corrugator_R": 0.09, "procerus": 0.06},
-    "AU06": {"orbicularis_oculi_L": 0.22, "orbicularis_oculi_R": 0.22},
-    "AU09": {"levator_labii_alaeque_nasi_L": 0.11, "levator_labii_alaeque_nasi_R": 0.11},
-    "AU10": {"levator_labii_superioris_L": 0.06, "levator_labii_superioris_R": 0.06},
-    "AU12": {"zygomaticus_major_L": 0.22, "zygomaticus_major_R": 0.22},
-    "AU15": {"depressor_anguli_oris_L": 0.06, "depressor_anguli_oris_R": 0.06},
-    "AU17": {"mentalis": 0.05},
-    "AU20": {"risorius_L": 0.06, "risorius_R": 0.06},
-}
+from warpface.drivers import Curves, clean, mapping_for_rig, read_driver
+from warpface.usd.mapping_io import write_mapping
 
 
-def read_openface(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Timestamps [s] (F,) and AU intensities {AUxx: (F,)} of successfully tracked frames of an OpenFace CSV."""
-    table = np.genfromtxt(path, delimiter=",", names=True, dtype=float, autostrip=True)
-    ok = table["success"] > 0.5
-    intensities = {name[:-2]: table[name][ok] for name in table.dtype.names if name.endswith("_r")}
-    return table["timestamp"][ok], intensities
-
-
-def scripted_aus(fps: float = 30.0, seconds: float = 6.0) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """A scripted performance: brows up, a frown, a sneer, then a smile, as smooth AU pulses."""
+def scripted_aus(fps: float = 30.0, seconds: float = 6.0) -> Curves:
+    """A scripted performance: brows up, a frown, a sneer, then a smile, as smooth AU pulses (0–5)."""
     times = np.arange(int(seconds * fps) + 1) / fps
-    pulse = lambda centre: 5.0 * np.exp(-0.5 * ((times - centre) / 0.35) ** 2)
-    aus = {au: np.zeros_like(times) for au in AU_MUSCLES}
-    aus["AU01"] = aus["AU02"] = pulse(1.0)
-    aus["AU04"] = pulse(2.4)
-    aus["AU09"] = aus["AU10"] = pulse(3.7)
-    aus["AU06"] = aus["AU12"] = pulse(5.0)
-    return times, aus
-
-
-def contractions_from_aus(rig, intensities: dict[str, np.ndarray], frames: int) -> np.ndarray:
-    """Per-frame contractions (F, M) in the rig's muscle order: the sum of each AU's muscle pattern."""
-    scale = rig_scale(rig)
-    index = {m.name: i for i, m in enumerate(rig.muscles)}
-    linear = {m.name: type(m).__name__ == "LinearMuscle" for m in rig.muscles}
-    out = np.zeros((frames, len(rig.muscles)))
-    for au, pattern in AU_MUSCLES.items():
-        if au not in intensities:
-            continue
-        level = np.clip(intensities[au], 0.0, 5.0) / 5.0
-        for muscle, value in pattern.items():
-            out[:, index[muscle]] += level * value * (scale if linear[muscle] else 1.0)
-    return out
+    pulse = lambda centre: 5.0 * np.exp(-0.5 * ((times - centre) / 0.35) ** 2)  # noqa: E731
+    aus = {"AU01": pulse(1.0), "AU02": pulse(1.0), "AU04": pulse(2.4), "AU09": pulse(3.7), "AU10": pulse(3.7),
+           "AU06": pulse(5.0), "AU12": pulse(5.0)}
+    return Curves(times=times, names=list(aus), values=np.stack(list(aus.values()), axis=1), source="scripted", fps=fps)
 
 
 def main(argv=None) -> None:
@@ -83,24 +46,29 @@ def main(argv=None) -> None:
     args.out.mkdir(parents=True, exist_ok=True)
 
     recording = shared_data_path("auplayer_openface_au", args.recording)
-    if recording is not None:
-        times, aus = read_openface(recording)
-        source = f"OpenFace recording {recording.name} ({len(times)} frames)"
-    else:
-        times, aus = scripted_aus()
-        source = "scripted AU pulses (../shared/data not present)"
-    fps = float(round(1.0 / np.median(np.diff(times)), 3))
+    curves = read_driver(recording) if recording is not None else scripted_aus()
+    source = f"OpenFace recording {recording.name}" if recording is not None else "scripted AU pulses (../shared/data not present)"
+    fps = float(round(curves.fps or 30.0, 3))
+    curves = clean(curves, fps=fps)  # clamp to [0, 5], resample onto whole frames
     rig = default_rig()
-    contractions = contractions_from_aus(rig, aus, len(times))
+    mapping, _, no_control = mapping_for_rig(rig, "facs")
+    mapped = mapping.apply(curves)
+    contractions = np.zeros((len(mapped.times), len(rig.muscles)))
+    for column, name in enumerate(rig.muscle_names):
+        if name in mapped.names:
+            contractions[:, column] = mapped.values[:, mapped.names.index(name)]
 
     stage_path = args.out / "face.usda"
     stage = usd.write_rig(stage_path, rig, fps=fps)
-    time_codes = (times - times[0]) * fps  # the recording's own clock, at its native rate
+    write_mapping(stage, mapping)
+    time_codes = np.arange(len(mapped.times), dtype=np.float64)  # the recording's clock, at its native rate
+    times = mapped.times
     usd.write_animation(stage, time_codes, contractions=contractions, fps=fps)
     usd.export_layer_atomically(stage.GetRootLayer(), stage_path)
     cache = usd.bake(stage, device=args.device)
-    print(f"driver: {source}, {fps:g} frames/s")
-    print(f"wrote {stage_path} (contractions as time samples) and {cache} (baked points)")
+    ignored = [c for c in dict.fromkeys(mapped.unmapped_channels + no_control) if c in curves.names]
+    print(f"driver: {source} ({len(times)} frames at {fps:g} frames/s); no control on this rig for: {', '.join(ignored) or 'none'}")
+    print(f"wrote {stage_path} (contractions as time samples, mapping under /Face/Drivers) and {cache} (baked points)")
 
     from pxr import Usd
 

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpface.tracking.capture import adapter_for_face, record, synthetic_capture
+from warpface.pipelines.capture import record, synthetic_capture
+from warpface.tracking import adapter_for_face
 from warpface.usd.tracking_io import TrackingStageWriter
 
 

@@ -113,11 +113,17 @@ def rig():
 
 
 @pytest.fixture(scope="module")
+def classic_rig():
+    """The paper's four presets were written for the classic rig (thesis table 2.1, SPEC §1.1 zones)."""
+    return default_rig(device=DEVICE, anatomy="classic")
+
+
+@pytest.fixture(scope="module")
 def ict_rig():
     path, landmarks = ict_face_region(), ict_landmark_indices()
     if path is None or landmarks is None:
         pytest.skip("ICT-FaceKit data not found in ../shared/data (set WARPFACE_SHARED_DATA)")
-    return default_rig(FaceMesh.from_obj(path), landmarks, name="ict", device=DEVICE)
+    return default_rig(FaceMesh.from_obj(path), landmarks, name="ict", device=DEVICE, anatomy="classic")
 
 
 def evaluate_expressions(rig):
@@ -355,8 +361,8 @@ def assert_expressions_move_the_right_regions(rig):
 def wrinkle_depth_under(rig, results, expression: str, wrinkle_name: str) -> float:
     """Mean depth of a furrow along its own curve, k_d·C(r) [inter-ocular units]."""
     wrinkle = next(w for w in rig.wrinkles if w.name == wrinkle_name)
-    uv = project_points(wrinkle.projection, rig.mesh.points, DEVICE)
-    on_curve = bezier_distances(uv, wrinkle.control_points, DEVICE) < 0.5 * wrinkle.width
+    uv = project_points(wrinkle.projection, rig.mesh.points, device=DEVICE)
+    on_curve = bezier_distances(uv, wrinkle.control_points, device=DEVICE) < 0.5 * wrinkle.width
     stretch = results[expression]["stretch"][on_curve]
     return float(np.mean(wrinkle.depth * np.clip(1.0 - stretch, 0.0, 1.0)) / rig_scale(rig))
 
@@ -380,7 +386,8 @@ def assert_wrinkles_show(rig, results):
     np.testing.assert_allclose(neutral, rig.mesh.points, atol=1e-6 * rig.mesh.size)
 
 
-def test_expressions_move_the_right_regions_and_make_their_wrinkles(rig):
+def test_expressions_move_the_right_regions_and_make_their_wrinkles(classic_rig):
+    rig = classic_rig
     results = assert_expressions_move_the_right_regions(rig)
     assert_wrinkles_show(rig, results)
     for name, result in results.items():
@@ -409,7 +416,7 @@ def test_expression_contractions_scale_linear_muscles_only(rig):
 
 def test_expression_timeline_goes_neutral_to_expression_to_neutral(rig):
     timeline = expression_timeline("disgust", rig, seconds=2.0, fps=30)
-    assert timeline.shape == (61, len(rig.control_names))
+    assert timeline.shape == (61, len(rig.muscles))
     assert np.all(timeline[0] == 0.0) and np.all(timeline[-1] == 0.0)
     peak = expression_contractions("disgust", rig)
     index = {name: i for i, name in enumerate(rig.muscle_names)}
@@ -440,3 +447,39 @@ def test_default_rig_fits_the_ict_face(ict_rig):
     assert thickness.min() > 0.05 and thickness.max() < 1.2, "thickness in cm"
     results = assert_expressions_move_the_right_regions(ict_rig)
     assert_wrinkles_show(ict_rig, results)
+
+
+def test_landmark_sets_and_mirror_pairs_agree_with_names_and_the_symmetric_face():
+    """warpface.landmarks: every mirrored pair swaps "right"/"left" in its names (or is the jaw's i ↔ 16 − i),
+    midline points have no side, and on the mirror-symmetric built-in face each pair mirrors x."""
+    from warpface import landmarks as lm
+
+    assert len(lm.IBUG_NAMES) == lm.IBUG_COUNT == 68
+    sets = (lm.JAW, lm.RIGHT_BROW, lm.LEFT_BROW, lm.NOSE_BRIDGE, lm.NOSE_BASE, lm.RIGHT_EYE, lm.LEFT_EYE, lm.MOUTH)
+    assert sorted(i for s in sets for i in s) == list(range(68))
+    for right, left in lm.MIRROR_PAIRS:
+        r, l = lm.IBUG_NAMES[right], lm.IBUG_NAMES[left]
+        assert r.replace("right", "left") == l or (r.startswith("jaw_") and right + left == 16), (r, l)
+        assert "left" not in r
+    assert np.array_equal(lm.IBUG_MIRROR[lm.IBUG_MIRROR], np.arange(68))
+    for i in np.flatnonzero(lm.IBUG_MIRROR == np.arange(68)):
+        assert "right" not in lm.IBUG_NAMES[i] and "left" not in lm.IBUG_NAMES[i]
+    points = default_face().points[default_landmarks()]
+    np.testing.assert_allclose(points[lm.IBUG_MIRROR] * [-1, 1, 1], points, atol=1e-9)
+    for side in (lm.LEFT_SIDE, lm.RIGHT_SIDE):
+        for index in (side.eye_outer, side.eye_inner, side.nose_wing, side.mouth_corner, *side.brow, *side.eye):
+            assert np.sign(points[index, 0]) == side.sign
+    assert lm.IBUG_MIRROR[lm.LEFT_SIDE.mouth_corner] == lm.RIGHT_SIDE.mouth_corner
+
+
+def test_kato_landmarks_live_in_landmarks_and_metrics_reexports_them():
+    from warpface import landmarks as lm
+    from warpface import metrics
+
+    assert metrics.kato_landmarks is lm.kato_landmarks and metrics.KATO_LANDMARKS is lm.KATO_LANDMARKS
+    points = default_face().points[default_landmarks()]
+    kato = lm.kato_landmarks(points)
+    np.testing.assert_array_equal(kato["ch_L"], points[54])
+    np.testing.assert_allclose(kato["glabella"], 0.5 * (points[21] + points[22]))
+    with pytest.raises(ValueError, match="kato_landmarks"):
+        lm.kato_landmarks({"a": 1})

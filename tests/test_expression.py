@@ -239,9 +239,9 @@ def test_bezier_distance_matches_dense_sampling(seed):
 def test_projections_give_lengths_in_mesh_units(rng):
     points = rng.normal(size=(50, 3))
     planar = wf.PlanarProjection([0.1, 0.2, 0.3], [2, 0, 0], [0, 0, 3])
-    np.testing.assert_allclose(project_points(planar, points, "cpu"), ref.project(points, dict(kind="planar", origin=np.array([0.1, 0.2, 0.3]), u=np.array([1.0, 0, 0]), v=np.array([0, 0, 1.0]))), atol=1e-12)
+    np.testing.assert_allclose(project_points(planar, points, device="cpu"), ref.project(points, dict(kind="planar", origin=np.array([0.1, 0.2, 0.3]), u=np.array([1.0, 0, 0]), v=np.array([0, 0, 1.0]))), atol=1e-12)
     cylinder = wf.CylindricalProjection([0, 0, 0], [0, 1, 0], [0, 0, 1], 2.0)
-    uv = project_points(cylinder, np.array([[0, 5, 1.0], [1.0, -1, 0], [0, 0, -1.0]]), "cpu")
+    uv = project_points(cylinder, np.array([[0, 5, 1.0], [1.0, -1, 0], [0, 0, -1.0]]), device="cpu")
     np.testing.assert_allclose(uv, [[0, 5], [2.0 * np.pi / 2, -1], [2.0 * np.pi, 0]], atol=1e-12)
 
 

@@ -91,12 +91,11 @@ def test_jaw_controls_are_finite_or_refused(values):
     points, triangles = grid_surface(6)
     model = _SMALL_MODEL.setdefault("model", wf.ExpressionModel(
         wf.FaceMesh(points, triangles), device=DEVICE, jaw=Jaw([0, 1, -1], [1, 0, 0], [0, 0, 1], np.ones(len(points)))))
-    if not np.all(np.isfinite(values)):
+    if not np.all(np.isfinite(values)) or max(abs(v) for v in values) > 1e6:
         with pytest.raises(ValueError, match="jaw_"):
             model.evaluate(dict(zip(JAW_CONTROL_NAMES, values)))
         return
-    result = model.evaluate(dict(zip(JAW_CONTROL_NAMES, values)))
-    assert np.all(np.isfinite(result)) or max(abs(v) for v in values) > 1e30
+    assert np.all(np.isfinite(model.evaluate(dict(zip(JAW_CONTROL_NAMES, values)))))
 
 
 _SMALL_MODEL: dict = {}
@@ -115,12 +114,12 @@ def test_default_jaw_weights_follow_the_anatomy(rig):
     assert w.min() >= 0.0 and w.max() <= 1.0
     assert np.all(w[lm[[7, 8, 9, 56, 57, 58, 65, 66, 67]]] > 0.9), "chin and lower lip follow the jaw"
     assert np.all(w[lm[[17, 19, 21, 22, 24, 26, 27, 30, 36, 45]]] < 1e-6), "brows, nose, eyes do not"
-    assert np.all(w[lm[[50, 51, 52, 61, 62, 63]]] < 0.1), "the upper lip stays"
+    assert np.all(w[lm[[50, 51, 52, 61, 62, 63]]] < 0.35), "the upper lip follows only partly: the lips part"
     assert 0.0 < w[lm[3]] <= 1.0 and 0.0 < w[lm[13]] <= 1.0
 
 
 def test_jaw_open_parts_the_lips_and_moves_the_chin_down(rig):
-    model = rig.model(DEVICE)
+    model = rig.model(device=DEVICE)
     lm = rig.landmarks
     scale = np.linalg.norm(rig.mesh.points[lm[45]] - rig.mesh.points[lm[36]])
     rest = rig.mesh.points
@@ -128,7 +127,7 @@ def test_jaw_open_parts_the_lips_and_moves_the_chin_down(rig):
     gap = lambda x: np.linalg.norm(x[lm[66]] - x[lm[62]])  # noqa: E731
     assert gap(opened) > gap(rest) + 0.2 * scale
     up = np.cross(rig.jaw.forward, rig.jaw.axis)
-    assert (opened[lm[8]] - rest[lm[8]]) @ up < -0.2 * scale
+    assert (opened[lm[8]] - rest[lm[8]]) @ up < -0.1 * scale  # down, and (more) back: the hinge is high behind
     np.testing.assert_allclose(opened[lm[[19, 24, 27]]], rest[lm[[19, 24, 27]]], atol=1e-6)
     slid = model.evaluate({"jaw_left": 0.05 * scale})
     assert (slid[lm[8]] - rest[lm[8]]) @ rig.jaw.axis == pytest.approx(0.05 * scale, rel=1e-3)

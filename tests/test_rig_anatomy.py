@@ -21,7 +21,7 @@ DEVICE = "cpu"
 
 
 def dense(points, muscle):
-    weights = muscle_weights(points, [muscle], DEVICE)
+    weights = muscle_weights(points, [muscle], device=DEVICE)
     out = np.zeros((len(points), 3))
     out[np.repeat(np.arange(len(points)), np.diff(weights.offsets))] = weights.weight
     return out
@@ -134,7 +134,7 @@ def test_sliding_removes_the_normal_pull_and_bunching_lifts_compressed_skin():
     points, triangles = grid_surface(30, size=2.0, height=0.0, seed=None)
     normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
     muscle = wf.LinearMuscle("m", [0.0, -0.2, -0.3], [0.0, 0.8, 0.0], 40.0, 0.7, 1.4)
-    weights = muscle_weights(points, [muscle], DEVICE)
+    weights = muscle_weights(points, [muscle], device=DEVICE)
     thickness = np.full(len(points), 0.1)
     plain = dense(points, muscle)
     assert np.abs(plain[:, 2]).max() > 0.05, "the Waters pull sinks toward the bone beneath the skin"
@@ -181,7 +181,7 @@ def test_full_rig_round_trips_through_usd_with_its_jaw(rig, tmp_path):
         assert (read.falloff, read.sliding, read.bunching, read.thickening) == (
             original.falloff, original.sliding, original.bunching, original.thickening)
     controls = {"jaw_open": 0.2, "zygomaticus_major_L": 0.004, "orbicularis_oculi_R": 0.2}
-    np.testing.assert_allclose(back.model(DEVICE).evaluate(controls), rig.model(DEVICE).evaluate(controls), atol=1e-6)
+    np.testing.assert_allclose(back.model(device=DEVICE).evaluate(controls), rig.model(device=DEVICE).evaluate(controls), atol=1e-6)
 
 
 # ------------------------------------------------------------------------------------------------ presets
@@ -206,7 +206,7 @@ def test_presets_move_the_regions_they_name(rig, anatomy_face):
     frame = face_frame(rig.mesh, rig.landmarks)
     local = frame.to_local(rig.mesh.points)
     centres = region_centres(local[rig.landmarks])
-    model = rig.model(DEVICE)
+    model = rig.model(device=DEVICE)
     names = list(PRESETS)
     frames = model.evaluate_batch([preset_controls(name, rig) for name in names])
     for name, frame_points in zip(names, frames):

@@ -21,10 +21,10 @@ def test_pixel_centres_give_pixel_values_and_midpoints_interpolate():
     rows, cols = np.meshgrid(np.arange(2), np.arange(4), indexing="ij")
     centres = np.c_[cols.ravel() + 0.5, 2 - (rows.ravel() + 0.5)]  # row 0 is the top (largest v)
     expected = 1.0 + 5.0 * IMAGE.ravel() / 255.0
-    np.testing.assert_allclose(tmap.sample(points_at(centres), "cpu"), expected, atol=1e-5)
-    between = tmap.sample(points_at([[1.0, 1.5], [1.5, 1.0]]), "cpu")
+    np.testing.assert_allclose(tmap.sample(points_at(centres), device="cpu"), expected, atol=1e-5)
+    between = tmap.sample(points_at([[1.0, 1.5], [1.5, 1.0]]), device="cpu")
     np.testing.assert_allclose(between, [1 + 5 * (0 + 51) / 2 / 255, 1 + 5 * (51 + 255) / 2 / 255], atol=1e-4)
-    np.testing.assert_allclose(tmap.sample(points_at([[-3.0, 1.5]]), "cpu"), [1.0], atol=1e-6)  # clamped edge
+    np.testing.assert_allclose(tmap.sample(points_at([[-3.0, 1.5]]), device="cpu"), [1.0], atol=1e-6)  # clamped edge
 
 
 def test_blur_smooths_and_keeps_the_mean(tmp_path):
@@ -35,8 +35,8 @@ def test_blur_smooths_and_keeps_the_mean(tmp_path):
     path = tmp_path / "map.png"
     cv2.imwrite(str(path), noisy)
     grid = np.stack(np.meshgrid(np.linspace(0.5, 63.5, 64), np.linspace(0.5, 63.5, 64)), -1).reshape(-1, 2)
-    sharp = wf.ThicknessMap(path, PLANAR, (0, 64), (0, 64), 0.0, 20.0).sample(points_at(grid), "cpu")
-    smooth = wf.ThicknessMap(path, PLANAR, (0, 64), (0, 64), 0.0, 20.0, blur_sigma=3.0).sample(points_at(grid), "cpu")
+    sharp = wf.ThicknessMap(path, PLANAR, (0, 64), (0, 64), 0.0, 20.0).sample(points_at(grid), device="cpu")
+    smooth = wf.ThicknessMap(path, PLANAR, (0, 64), (0, 64), 0.0, 20.0, blur_sigma=3.0).sample(points_at(grid), device="cpu")
     assert smooth.std() < 0.25 * sharp.std()
     assert smooth.mean() == pytest.approx(sharp.mean(), rel=0.02)
     assert sharp.min() >= 0.0 and sharp.max() <= 20.0

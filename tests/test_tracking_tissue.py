@@ -7,9 +7,9 @@ import pytest
 
 from warpface.fem import TissueMaterial
 from warpface.fem.volume import tissue_from_surface
-from warpface.tracking.capture import adapter_for_face, vertex_landmark_names
+from warpface.tracking import adapter_for_face, vertex_landmark_names
 from warpface.tracking.sources import LandmarkFrame
-from warpface.tracking.tissue_drive import TissueDrive, bone_side_nodes
+from warpface.pipelines.tissue_drive import TissueDrive, bone_side_nodes
 
 from test_fem_volume import patch
 
@@ -35,7 +35,7 @@ def test_tissue_drive_keeps_tracked_skin_and_moves_the_rest(skin_and_tissue):
     for i in range(6):
         frame = LandmarkFrame(timestamp=i / 30.0, points=points[centre] + lift * min(i, 3) / 3,
                               confidence=np.ones(len(centre)), index=i)
-        direct = adapter.step(frame)
+        direct = adapter.track_frame(frame)
         blended = drive(frame, direct)
     assert np.all(np.isfinite(blended))
     tracked = adapter.weights >= 1.0

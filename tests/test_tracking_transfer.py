@@ -111,11 +111,11 @@ def test_adapter_translation_rotation_and_missing_landmarks(meshes):
     names = [f"lm{i}" for i in range(len(sparse))]
     adapter = TrackingAdapter(sparse, tri, dense, landmark_names=names, camera_to_model=CAMERA_TO_MODEL, device="cpu")
     adapter.bind(names)
-    rest = adapter.step(camera_frame(sparse, 0))
+    rest = adapter.track_frame(camera_frame(sparse, 0))
     np.testing.assert_allclose(rest, dense, atol=1e-7)
     # A translation of every landmark moves each dense vertex by w × that translation (model frame).
     shift = np.array([0.002, -0.001, 0.003])
-    moved = adapter.step(camera_frame(sparse + shift, 1, 0.033))
+    moved = adapter.track_frame(camera_frame(sparse + shift, 1, 0.033))
     np.testing.assert_allclose(moved - dense, adapter.weights[:, None] * shift, atol=2e-7)
     # Missing landmarks (NaN, or confidence 0) hold their last displacement: nothing NaN, no jump.
     frame = camera_frame(sparse + shift, 2, 0.066)
@@ -123,7 +123,7 @@ def test_adapter_translation_rotation_and_missing_landmarks(meshes):
     pts[:5] = np.nan
     conf = np.ones(len(sparse))
     conf[5:8] = 0.0
-    held = adapter.step(LandmarkFrame(0.066, pts, conf, 2))
+    held = adapter.track_frame(LandmarkFrame(0.066, pts, conf, 2))
     assert np.all(np.isfinite(held))
     np.testing.assert_allclose(held, moved, atol=1e-7)
 
@@ -131,16 +131,16 @@ def test_adapter_translation_rotation_and_missing_landmarks(meshes):
 def test_adapter_stabilisation_removes_head_motion(meshes):
     sparse, tri, dense, _ = meshes
     adapter = TrackingAdapter(sparse, tri, dense, camera_to_model=CAMERA_TO_MODEL, stabilize=True, device="cpu")
-    adapter.step(camera_frame(sparse, 0))
+    adapter.track_frame(camera_frame(sparse, 0))
     angle = np.radians(8.0)
     rot = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
     turned = (sparse - sparse.mean(0)) @ rot.T + sparse.mean(0) + [0.01, 0.0, -0.02]
-    out = adapter.step(camera_frame(turned, 1, 0.1))
+    out = adapter.track_frame(camera_frame(turned, 1, 0.1))
     np.testing.assert_allclose(out, dense, atol=1e-6)
     # Without stabilisation the same head turn moves the face.
     plain = TrackingAdapter(sparse, tri, dense, camera_to_model=CAMERA_TO_MODEL, device="cpu")
-    plain.step(camera_frame(sparse, 0))
-    assert np.abs(plain.step(camera_frame(turned, 1, 0.1)) - dense).max() > 1e-3
+    plain.track_frame(camera_frame(sparse, 0))
+    assert np.abs(plain.track_frame(camera_frame(turned, 1, 0.1)) - dense).max() > 1e-3
 
 
 def test_adapter_fits_camera_transform_and_matches_names(meshes, tmp_path):
@@ -173,19 +173,19 @@ def test_adapter_fits_camera_transform_and_matches_names(meshes, tmp_path):
     unnamed = TrackingAdapter(sparse, tri, dense, device="cpu")
     with pytest.raises(ValueError, match="landmarks but the sparse mesh has"):
         unnamed.bind(names + ["x"])
-    unnamed.step(camera_frame(sparse, 0))
+    unnamed.track_frame(camera_frame(sparse, 0))
     with pytest.raises(ValueError, match="frame 1 has"):
-        unnamed.step(LandmarkFrame(0.1, np.zeros((len(sparse) + 1, 3)), np.ones(len(sparse) + 1), 1))
+        unnamed.track_frame(LandmarkFrame(0.1, np.zeros((len(sparse) + 1, 3)), np.ones(len(sparse) + 1), 1))
 
 
 def test_adapter_blends_other_field(meshes):
     sparse, tri, dense, _ = meshes
     adapter = TrackingAdapter(sparse, tri, dense, camera_to_model=CAMERA_TO_MODEL, device="cpu")
-    adapter.step(camera_frame(sparse, 0))
+    adapter.track_frame(camera_frame(sparse, 0))
     other = np.tile([0.0, 0.0, 0.005], (len(dense), 1))
-    out = adapter.step(camera_frame(sparse, 1, 0.1), other=other)
+    out = adapter.track_frame(camera_frame(sparse, 1, 0.1), other=other)
     np.testing.assert_allclose(out - dense, (1.0 - adapter.weights)[:, None] * other, atol=1e-7)
     driven = adapter.driven_vertices()
     assert driven.size > 0 and np.all(adapter.weights[driven] >= 0.999)
     with pytest.raises(ValueError, match="other"):
-        adapter.step(camera_frame(sparse, 2, 0.2), other=np.zeros((3, 3)))
+        adapter.track_frame(camera_frame(sparse, 2, 0.2), other=np.zeros((3, 3)))

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from warpface.cli import main
-from warpface.tracking.capture import adapter_for_face, landmark_vertices, record, vertex_landmark_names
+from warpface.pipelines.capture import record
+from warpface.tracking import adapter_for_face, landmark_vertices, vertex_landmark_names
 from warpface.tracking.sources import LandmarkFrame
 from warpface.usd.tracking_io import TrackingStageWriter, read_tracking
 
@@ -97,9 +98,41 @@ def test_landmark_names_map_to_vertices():
 
 
 def test_track_command_on_the_synthetic_camera(tmp_path, capsys):
-    stage = tmp_path / "capture.usda"
+    stage = tmp_path / "new" / "folder" / "capture.usda"  # track creates the folders it needs
     assert main(["--device", "cpu", "--quiet", "track", "synthetic", "--stage", str(stage), "--frames", "4"]) == 0
     back = read_tracking(stage)
     assert len(back["times"]) == 4 and back["dense"].shape[1] == back["rest"].shape[0]
+    assert sorted(p.name for p in (stage.parent / "capture_track").iterdir()) == ["chunk_0000.usdc", "static.usdc"]
     assert "4 frames" in capsys.readouterr().out
     assert main(["track", str(tmp_path / "nothing.txt"), "--stage", str(stage)]) == 2
+
+
+def test_a_failing_track_command_leaves_nothing_behind(tmp_path, monkeypatch):
+    import warpface.fem.volume
+
+    def failing_meshing(*args, **kwargs):
+        raise ValueError("tissue shell intersects itself")
+
+    monkeypatch.setattr(warpface.fem.volume, "tissue_from_surface", failing_meshing)
+    out = tmp_path / "out"
+    assert main(["--device", "cpu", "--quiet", "track", "synthetic", "--stage", str(out / "cap.usda"), "--fem"]) == 2
+    assert not out.exists()
+    assert main(["--quiet", "track", str(tmp_path / "missing.npz"), "--stage", str(out / "cap.usda")]) == 2
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_track_help_names_the_files_it_writes(capsys):
+    with pytest.raises(SystemExit):
+        main(["track", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "<stage>_track/" in text and "_track.usdc" not in text
+
+
+def test_a_new_capture_replaces_a_longer_one_at_the_same_path(tmp_path):
+    for frames in (7, 2):
+        with TrackingStageWriter(tmp_path / "cap.usda", ["a"], 30.0, chunk_frames=2) as writer:
+            for i in range(frames):
+                writer.add(i / 30.0, np.full((1, 3), float(frames)), np.ones(1))
+    back = read_tracking(tmp_path / "cap.usda")
+    assert len(back["times"]) == 2 and np.all(back["landmarks"] == 2.0)
+    assert sorted(p.name for p in (tmp_path / "cap_track").iterdir()) == ["chunk_0000.usdc", "static.usdc"]

@@ -1,42 +1,161 @@
-"""Small validation helpers shared by the constructors (boundary checks, clear messages)."""
+"""Validation at the boundary, written once: points, triangles, per-vertex arrays, scalars, vectors.
+
+Every public constructor and call of the model layer checks its inputs with these helpers, so the
+same fault gives the same error type and a one-line message naming the item. Ranges are chosen so
+that nothing valid can overflow the float32 kernels (see :data:`MAX_COORDINATE`).
+"""
 
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 
-__all__ = ["as_finite_array", "as_vec3", "as_positive", "unit_vector", "orthogonal_unit_vector"]
+__all__ = [
+    "MAX_COORDINATE",
+    "as_finite_array",
+    "as_points",
+    "as_triangles",
+    "as_per_vertex",
+    "as_vec3",
+    "as_positive",
+    "as_bounded",
+    "as_count",
+    "unit_vector",
+    "orthogonal_unit_vector",
+]
+
+MAX_COORDINATE = 1.0e6
+"""Largest accepted |coordinate|, length or thickness [mesh units]. The per-frame kernels run in
+float32 and square edge cross products (≈ length⁴), which overflow float32 (3.4e38) near 1e9; 1e6
+leaves room for deformation, and covers faces in metres, millimetres or micrometres."""
 
 
-def as_finite_array(value, name: str, *, shape: tuple | None = None, dtype=np.float64) -> np.ndarray:
+def as_finite_array(value, name: str, *, shape: tuple | None = None, dtype=np.float64, max_abs: float | None = None) -> np.ndarray:
     """``value`` as an array of ``dtype``; raises ValueError naming ``name`` on bad shape or non-finite values.
 
-    ``shape`` may contain ``None`` for a free dimension.
+    ``shape`` may contain ``None`` for a free dimension. With ``max_abs``, values of larger magnitude
+    are rejected too.
     """
+    if isinstance(value, (str, bytes)) or value is None:
+        raise ValueError(f"{name}: expected numbers, got {type(value).__name__}")
     try:
         array = np.asarray(value, dtype=dtype)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: cannot convert to a numeric array ({exc})") from None
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise ValueError(f"{name}: cannot convert to a numeric array ({_short(exc)})") from None
     if shape is not None:
         if array.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, array.shape)):
             expected = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
             raise ValueError(f"{name}: expected shape {expected}, got {array.shape}")
-    if np.issubdtype(array.dtype, np.floating) and not np.all(np.isfinite(array)):
-        bad = np.argwhere(~np.isfinite(array))
-        raise ValueError(f"{name}: non-finite value at index {tuple(int(i) for i in bad[0])}")
+    if np.issubdtype(array.dtype, np.floating):
+        if not np.all(np.isfinite(array)):
+            bad = np.argwhere(~np.isfinite(array))
+            raise ValueError(f"{name}: non-finite value at index {tuple(int(i) for i in bad[0])}")
+        if max_abs is not None and array.size and float(np.abs(array).max()) > max_abs:
+            bad = np.unravel_index(int(np.argmax(np.abs(array))), array.shape)
+            raise ValueError(
+                f"{name}: value {array[bad]:.6g} at index {tuple(int(i) for i in bad)} is outside ±{max_abs:g}"
+            )
     return array
 
 
-def as_vec3(value, name: str) -> np.ndarray:
-    """A finite 3-vector, float64, shape (3,)."""
-    return as_finite_array(value, name, shape=(3,))
+def as_points(value, name: str, *, max_abs: float = MAX_COORDINATE, min_count: int = 0) -> np.ndarray:
+    """Finite points, shape (N, 3), float64, every coordinate within ±``max_abs``; N ≥ ``min_count``."""
+    points = as_finite_array(value, name, shape=(None, 3), max_abs=max_abs)
+    if len(points) < min_count:
+        raise ValueError(f"{name}: need at least {min_count} point(s), got {len(points)}")
+    return points
 
 
-def as_positive(value, name: str, *, allow_zero: bool = False) -> float:
-    """A finite scalar that is > 0 (or ≥ 0 with ``allow_zero``)."""
+def as_triangles(value, vertex_count: int, name: str, *, integral_floats: bool = False) -> np.ndarray:
+    """Triangle vertex indices, shape (T, 3) with T ≥ 1, int32, each in [0, vertex_count).
+
+    Index arrays must have an integer dtype; with ``integral_floats``, float arrays whose values are
+    whole numbers (as some loaders produce) are accepted too.
+    """
+    if isinstance(value, (str, bytes)) or value is None:
+        raise ValueError(f"{name}: expected an integer array of shape (T, 3), got {type(value).__name__}")
+    try:
+        triangles = np.asarray(value)
+    except (TypeError, ValueError) as exc:  # ragged nesting
+        raise ValueError(f"{name}: cannot convert to an index array ({_short(exc)})") from None
+    if triangles.ndim != 2 or triangles.shape[1] != 3:
+        raise ValueError(f"{name}: expected shape (T, 3), got {triangles.shape}")
+    if len(triangles) == 0:
+        raise ValueError(f"{name}: no triangles")
+    if triangles.dtype == np.bool_ or not (np.issubdtype(triangles.dtype, np.integer) or np.issubdtype(triangles.dtype, np.floating)):
+        raise ValueError(f"{name}: expected integer vertex indices, got dtype {triangles.dtype}")
+    if np.issubdtype(triangles.dtype, np.floating):
+        if not integral_floats:
+            raise ValueError(f"{name}: expected integer vertex indices, got dtype {triangles.dtype}")
+        if not np.all(np.isfinite(triangles)) or np.any(triangles != np.round(triangles)):
+            raise ValueError(f"{name}: triangle indices must be whole numbers")
+        triangles = np.clip(triangles, -1, vertex_count)  # out-of-range stays out of range, fits int64
+    triangles = triangles.astype(np.int64)
+    bad = np.flatnonzero(np.any((triangles < 0) | (triangles >= vertex_count), axis=1))
+    if len(bad):
+        t = int(bad[0])
+        raise ValueError(
+            f"{name}: triangle {t} {triangles[t].tolist()} has a vertex index out of range [0, {vertex_count}) "
+            f"({len(bad)} such triangles)"
+        )
+    return triangles.astype(np.int32)
+
+
+def as_per_vertex(
+    value, vertex_count: int, name: str, *, minimum: float | None = None, maximum: float | None = None, broadcast: bool = True
+) -> np.ndarray:
+    """One finite float64 per vertex, shape (V,); a scalar is broadcast (with ``broadcast``).
+
+    Values below ``minimum`` or above ``maximum`` are rejected naming the first offending vertex.
+    """
+    values = as_finite_array(value, name)
+    if values.ndim == 0 and broadcast:
+        values = np.full(vertex_count, float(values))
+    if values.shape != (vertex_count,):
+        raise ValueError(f"{name}: expected one value per vertex ({vertex_count},), got shape {values.shape}")
+    if minimum is not None and np.any(values < minimum):
+        v = int(np.flatnonzero(values < minimum)[0])
+        what = "negative value" if minimum == 0.0 else f"value below {minimum:g}:"
+        raise ValueError(f"{name}: {what} {values[v]:.6g} at vertex {v}")
+    if maximum is not None and np.any(values > maximum):
+        v = int(np.flatnonzero(values > maximum)[0])
+        raise ValueError(f"{name}: value {values[v]:.6g} at vertex {v} is above the largest accepted {maximum:g}")
+    return values
+
+
+def as_vec3(value, name: str, *, max_abs: float = MAX_COORDINATE) -> np.ndarray:
+    """A finite 3-vector, float64, shape (3,), within ±``max_abs``."""
+    return as_finite_array(value, name, shape=(3,), max_abs=max_abs)
+
+
+def as_positive(value, name: str, *, allow_zero: bool = False, maximum: float = MAX_COORDINATE) -> float:
+    """A finite scalar that is > 0 (or ≥ 0 with ``allow_zero``) and ≤ ``maximum``."""
     number = float(as_finite_array(value, name, shape=()))
     if number < 0.0 or (number == 0.0 and not allow_zero):
         raise ValueError(f"{name}: must be {'≥' if allow_zero else '>'} 0, got {number}")
+    if number > maximum:
+        raise ValueError(f"{name}: {number:.6g} is above the largest accepted value {maximum:g}")
     return number
+
+
+def as_bounded(value, name: str, lower: float, upper: float) -> float:
+    """A finite scalar in the closed range [``lower``, ``upper``]."""
+    number = float(as_finite_array(value, name, shape=()))
+    if not lower <= number <= upper:
+        raise ValueError(f"{name}: {number:.6g} is outside [{lower:g}, {upper:g}]")
+    return number
+
+
+def as_count(value, name: str, *, minimum: int = 0, maximum: int | None = None) -> int:
+    """A Python/NumPy integer (not bool) in [``minimum``, ``maximum``]."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{name}: expected an integer, got {type(value).__name__}")
+    count = int(value)
+    if count < minimum or (maximum is not None and count > maximum):
+        upper = "∞" if maximum is None else str(maximum)
+        raise ValueError(f"{name}: {count} is outside [{minimum}, {upper}]")
+    return count
 
 
 def unit_vector(value, name: str) -> np.ndarray:
@@ -44,9 +163,12 @@ def unit_vector(value, name: str) -> np.ndarray:
 
     A vector whose length already rounds to 1 is returned unchanged: dividing it by that length can
     flip its last bit, and validated records (muscles, projections) must survive re-validation exactly
-    (e.g. a USD round trip).
+    (e.g. a USD round trip). Any finite magnitude is accepted (huge vectors are pre-scaled).
     """
-    vector = as_vec3(value, name)
+    vector = as_finite_array(value, name, shape=(3,))
+    scale = float(np.abs(vector).max())
+    if scale > 1e150:  # |v|² would overflow float64
+        vector = vector / scale
     length = float(np.linalg.norm(vector))
     if length <= 1e-12 * max(1.0, float(np.abs(vector).max())):
         raise ValueError(f"{name}: zero-length vector")
@@ -61,8 +183,16 @@ def orthogonal_unit_vector(value, axis: np.ndarray, name: str) -> np.ndarray:
     A vector already orthogonal to ``axis`` to within 1e-12 (relative) is only normalised, so that
     re-validating a validated frame is exact. Raises ValueError if ``value`` is parallel to ``axis``.
     """
-    vector = as_vec3(value, name)
+    vector = as_finite_array(value, name, shape=(3,))
+    scale = float(np.abs(vector).max())
+    if scale > 1e150:
+        vector = vector / scale
     along = float(np.dot(vector, axis))
     if abs(along) > 1e-12 * float(np.linalg.norm(vector)):
         vector = vector - along * axis
     return unit_vector(vector, name)
+
+
+def _short(exc: Exception) -> str:
+    return str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
+

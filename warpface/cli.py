@@ -103,7 +103,7 @@ def _validate(args) -> int:
 
 
 def _track(args) -> int:
-    from .tracking.cli import run_track
+    from .pipelines.track import run_track
 
     return run_track(args)
 
@@ -156,7 +156,8 @@ def build_parser() -> argparse.ArgumentParser:
                                 description="Track SOURCE (.npz recording, RGB-D folder, 'synthetic', 'realsense' or 'orbbec') "
                                             "and write landmarks and the dense face as time samples.")
     track.add_argument("source", help=".npz, RGB-D folder, synthetic, realsense or orbbec")
-    track.add_argument("--stage", required=True, help="output stage (.usda); the dense points go to <stage>_track.usdc")
+    track.add_argument("--stage", required=True, help="output stage (.usda, folder created if missing); landmarks and dense points go to value clips "
+                       "in <stage>_track/, flushed every 30 frames or 1 s (a hard kill loses at most that; Ctrl-C nothing)")
     track.add_argument("--frames", type=int, default=None, help="stop after this many frames")
     track.add_argument("--expression", default="smile", help="synthetic source: expression to perform (default smile)")
     track.add_argument("--fem", action="store_true",
@@ -165,6 +166,10 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--fem-nodes", type=int, default=3000, help="approximate tissue node count (default 3000)")
     track.add_argument("--layout", default=None, help="live cameras: JSON with the painted dots' names and initial pixels")
     track.set_defaults(handler=_track)
+
+    from .cli_animate import add_parser as add_animate_parser
+
+    add_animate_parser(commands)
     return parser
 
 

@@ -13,13 +13,20 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from ._validate import as_finite_array
+from ._validate import MAX_COORDINATE, as_points, as_triangles
+from .geometry import triangle_areas, triangle_corners, triangle_crosses
 from .kernels_surface import stretch_reference_lengths, triangle_area_vectors, vertex_normals_kernel
 
-__all__ = ["FaceMesh", "VertexTriangleAdjacency", "load_obj", "DEGENERATE_AREA_RTOL"]
+__all__ = ["FaceMesh", "VertexTriangleAdjacency", "load_obj", "DEGENERATE_AREA_RTOL", "MIN_TRIANGLE_AREA"]
 
 DEGENERATE_AREA_RTOL = 1e-12
 """A rest triangle is degenerate when its area ≤ this × (bounding-box diagonal)²."""
+
+MIN_TRIANGLE_AREA = 1e-15
+"""A rest triangle is degenerate when its area ≤ this [mesh units²], whatever the mesh's size: the
+float32 kernels square area vectors (≈ area²), which would underflow to 0 and divide the stretch
+ratio by zero. It is also degenerate when rounding its corners to float32 loses half its area
+(a tiny triangle far from the origin), for the same reason."""
 
 
 @dataclass(frozen=True)
@@ -52,9 +59,12 @@ class FaceMesh:
             naming them; ``"ignore"`` keeps them for topology but gives them no weight in the
             stretch ratio and normals (their stretch is undefined).
 
+    Points must lie within ±:data:`~warpface._validate.MAX_COORDINATE` (1e6) mesh units: the
+    per-frame kernels run in float32.
+
     Raises:
-        ValueError: non-finite points, indices out of range, repeated indices in a triangle, or
-            degenerate triangles under the ``"error"`` policy.
+        ValueError: non-finite or out-of-range points, indices out of range, repeated indices in a
+            triangle, or degenerate triangles under the ``"error"`` policy.
     """
 
     points: np.ndarray
@@ -64,33 +74,18 @@ class FaceMesh:
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
-        self.points = as_finite_array(self.points, f"{self.name}: points", shape=(None, 3))
-        if len(self.points) == 0:
-            raise ValueError(f"{self.name}: mesh has no points")
-        triangles = np.asarray(self.triangles)
-        if triangles.ndim != 2 or triangles.shape[1] != 3:
-            raise ValueError(f"{self.name}: triangles must have shape (T, 3), got {triangles.shape}")
-        if len(triangles) == 0:
-            raise ValueError(f"{self.name}: mesh has no triangles")
-        if not np.issubdtype(triangles.dtype, np.integer):
-            if not np.all(np.isfinite(triangles)) or np.any(triangles != np.round(triangles)):
-                raise ValueError(f"{self.name}: triangle indices must be integers")
-        triangles = triangles.astype(np.int64)
-        out_of_range = np.flatnonzero(np.any((triangles < 0) | (triangles >= len(self.points)), axis=1))
-        if len(out_of_range):
-            t = int(out_of_range[0])
-            raise ValueError(
-                f"{self.name}: triangle {t} has vertex index out of range [0, {len(self.points)}): "
-                f"{triangles[t].tolist()} ({len(out_of_range)} such triangles)"
-            )
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"mesh name: expected a non-empty string, got {self.name!r}")
+        self.points = as_points(self.points, f"{self.name}: points", min_count=1)
+        triangles = as_triangles(self.triangles, len(self.points), f"{self.name}: triangles", integral_floats=True)
         repeated = np.flatnonzero(
             (triangles[:, 0] == triangles[:, 1]) | (triangles[:, 1] == triangles[:, 2]) | (triangles[:, 0] == triangles[:, 2])
         )
         if len(repeated):
             t = int(repeated[0])
             raise ValueError(f"{self.name}: triangle {t} repeats a vertex: {triangles[t].tolist()}")
-        self.triangles = triangles.astype(np.int32)
-        if self.degenerate not in ("error", "ignore"):
+        self.triangles = triangles
+        if not isinstance(self.degenerate, str) or self.degenerate not in ("error", "ignore"):
             raise ValueError(f"{self.name}: degenerate policy must be 'error' or 'ignore', got {self.degenerate!r}")
         bad = np.flatnonzero(self.degenerate_triangles)
         if len(bad) and self.degenerate == "error":
@@ -131,13 +126,14 @@ class FaceMesh:
     @cached_property
     def rest_areas(self) -> np.ndarray:
         """Rest triangle areas [units²], shape (T,), float64."""
-        p = self.points[self.triangles]
-        return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+        return triangle_areas(triangle_corners(self.points, self.triangles))
 
     @cached_property
     def degenerate_triangles(self) -> np.ndarray:
-        """Mask of zero-area rest triangles, shape (T,), bool."""
-        return self.rest_areas <= DEGENERATE_AREA_RTOL * max(self.size, 1e-30) ** 2
+        """Mask of zero-area rest triangles, shape (T,), bool (see :data:`MIN_TRIANGLE_AREA`)."""
+        tiny = self.rest_areas <= max(DEGENERATE_AREA_RTOL * self.size**2, MIN_TRIANGLE_AREA)
+        area32 = triangle_areas(crosses=triangle_crosses(triangle_corners(self.points.astype(np.float32), self.triangles)))
+        return tiny | (area32 <= 0.5 * self.rest_areas)
 
     @cached_property
     def adjacency(self) -> VertexTriangleAdjacency:
@@ -156,18 +152,18 @@ class FaceMesh:
         unique, counts = np.unique(edges, axis=0, return_counts=True)
         return np.unique(unique[counts == 1])
 
-    def vertex_normals(self, points: np.ndarray | None = None, device=None) -> np.ndarray:
+    def vertex_normals(self, points: np.ndarray | None = None, *, device=None) -> np.ndarray:
         """Area-weighted unit vertex normals, shape (V, 3), float32, computed by a Warp kernel.
 
         Args:
-            points: positions to take normals of, shape (V, 3); the rest points when omitted.
+            points: positions to take normals of, shape (V, 3), within ±1e6; the rest points when omitted.
             device: Warp device (default: Warp's preferred device).
         """
         device = wp.get_device(device)
-        positions = self.points if points is None else np.asarray(points)
+        positions = self.points if points is None else as_points(points, f"{self.name}: points")
         if positions.shape != self.points.shape:
             raise ValueError(f"{self.name}: points must have shape {self.points.shape}, got {positions.shape}")
-        buffers = self.device_buffers(device)
+        buffers = self.device_buffers(device=device)
         counts = [self.vertex_count, self.triangle_count]
         x = wp.array(positions.astype(np.float32), dtype=wp.vec3, device=device)
         area_vectors = wp.empty(self.triangle_count, dtype=wp.vec3, device=device)
@@ -178,12 +174,12 @@ class FaceMesh:
                   inputs=[area_vectors, buffers.adjacency_offsets, buffers.adjacency_triangles, *counts], outputs=[normals], device=device)
         return normals.numpy()
 
-    def device_buffers(self, device=None) -> "MeshBuffers":
+    def device_buffers(self, *, device=None) -> "MeshBuffers":
         """Rest geometry uploaded to ``device`` (cached per device)."""
         device = wp.get_device(device)
         key = ("buffers", str(device))
         if key not in self._cache:
-            self._cache[key] = MeshBuffers.upload(self, device)
+            self._cache[key] = MeshBuffers.upload(self, device=device)
         return self._cache[key]
 
 
@@ -206,7 +202,7 @@ class MeshBuffers:
     """Vertex → triangle CSR entries, shape (3·T,), int32."""
 
     @classmethod
-    def upload(cls, mesh: FaceMesh, device) -> "MeshBuffers":
+    def upload(cls, mesh: FaceMesh, *, device) -> "MeshBuffers":
         weight = wp.array((~mesh.degenerate_triangles).astype(np.float32), dtype=wp.float32, device=device)
         rest_points = wp.array(mesh.points.astype(np.float32), dtype=wp.vec3, device=device)
         triangles = wp.array(mesh.triangles.astype(np.int32), dtype=wp.vec3i, device=device)
@@ -232,6 +228,8 @@ def load_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     Polygons are fan-triangulated; texture/normal indices (``f 1/2/3``) and negative (relative)
     indices are handled. Returns ``(points (V, 3) float64, triangles (T, 3) int64)``.
     """
+    if not isinstance(path, (str, Path)):
+        raise ValueError(f"OBJ path: expected a str or Path, got {type(path).__name__}")
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"OBJ file not found: {path}")
@@ -243,11 +241,19 @@ def load_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
                 fields = line.split()
                 if len(fields) < 4:
                     raise ValueError(f"{path}:{line_number}: vertex needs 3 coordinates")
-                points.append([float(v) for v in fields[1:4]])
+                try:
+                    points.append([float(v) for v in fields[1:4]])
+                except ValueError:
+                    raise ValueError(f"{path}:{line_number}: vertex coordinates are not numbers: {line.strip()!r}") from None
             elif line.startswith("f "):
                 corners = []
                 for token in line.split()[1:]:
-                    index = int(token.split("/")[0])
+                    try:
+                        index = int(token.split("/")[0])
+                    except ValueError:
+                        raise ValueError(f"{path}:{line_number}: face index {token!r} is not an integer") from None
+                    if index == 0:
+                        raise ValueError(f"{path}:{line_number}: face index 0 (OBJ indices start at 1)")
                     corners.append(index - 1 if index > 0 else len(points) + index)
                 if len(corners) < 3:
                     raise ValueError(f"{path}:{line_number}: face needs at least 3 vertices")

@@ -1,36 +1,17 @@
 """Evaluation metrics: Kato's left/right symmetry ξ (SPEC §4) and surface distances.
 
-Landmarks follow the thesis's table 2.2 (anthropometric names, Farkas). Faces in warpface carry
-the 68 iBUG / Multi-PIE landmarks, so each Kato landmark is defined as a fixed affine combination
-of iBUG points (:data:`KATO_LANDMARKS`); the combination is applied to positions at every time,
-so a tracked or simulated face gives tracked Kato landmarks. "L" / "R" are the subject's left
-(+x in warpface) and right. iBUG numbering is 0-based; iBUG's "right" points (e.g. 36–41, 48) are
-the subject's right.
-
-================  ====  =========================================================  ==================
-Kato landmark     key   iBUG definition                                            where
-================  ====  =========================================================  ==================
-glabella          g     mean of 21, 22 (inner brow ends)                            between the brows
-exocanthion       ex    36 (R), 45 (L)                                              outer eye corner
-palp. inferius    pi    mean of 40, 41 (R); mean of 46, 47 (L)                      lowest lid point
-pronasale         prn   30                                                          nose tip
-alare             al    31 (R), 35 (L)                                              nose wing
-crista phil. sup. cphs  33 + 0.6 (50 − 51) (R); 33 + 0.6 (52 − 51) (L)               philtrum top
-crista phil. inf. cphi  50 (R), 52 (L)                                              cupid's-bow peaks
-cheilion          ch    48 (R), 54 (L)                                              mouth corner
-================  ====  =========================================================  ==================
-
-cphs has no iBUG point: the tops of the philtral columns sit at the nose base (subnasale, 33),
-spread sideways by a little less than the cupid's-bow peaks below them (the columns converge
-upward), hence ``33 + 0.6 (cphi − 51)`` with 51 the bow's midline.
+Landmarks follow the thesis's table 2.2 (anthropometric names, Farkas), defined as affine
+combinations of the 68 iBUG points in :mod:`warpface.landmarks` (:data:`KATO_LANDMARKS`,
+:func:`kato_landmarks`, re-exported here). "L" / "R" are the subject's left (+x in warpface) and right.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from types import MappingProxyType
 
 import numpy as np
+
+from .landmarks import KATO_LANDMARKS, kato_landmarks
 
 __all__ = [
     "KATO_LANDMARKS",
@@ -44,50 +25,8 @@ __all__ = [
     "surface_error",
 ]
 
-KATO_LANDMARKS = MappingProxyType({
-    "glabella": ((21, 0.5), (22, 0.5)),
-    "pronasale": ((30, 1.0),),
-    "ex_R": ((36, 1.0),),
-    "ex_L": ((45, 1.0),),
-    "pi_R": ((40, 0.5), (41, 0.5)),
-    "pi_L": ((46, 0.5), (47, 0.5)),
-    "al_R": ((31, 1.0),),
-    "al_L": ((35, 1.0),),
-    "cphs_R": ((33, 1.0), (50, 0.6), (51, -0.6)),
-    "cphs_L": ((33, 1.0), (52, 0.6), (51, -0.6)),
-    "cphi_R": ((50, 1.0),),
-    "cphi_L": ((52, 1.0),),
-    "ch_R": ((48, 1.0),),
-    "ch_L": ((54, 1.0),),
-})
-"""Kato landmark name -> ((iBUG index, weight), ...); weights sum to 1 (affine combinations)."""
-
 SYMMETRY_PAIRS = ("ex", "pi", "al", "cphi")
 """The landmarks whose distance from the cheilion (ch) of the same side enters ξ (SPEC §4, k = 1..4)."""
-
-
-def kato_landmarks(ibug_points) -> dict[str, np.ndarray]:
-    """Kato landmark positions from iBUG-68 positions.
-
-    Args:
-        ibug_points: Positions of the 68 iBUG landmarks, shape (..., 68, 3) (e.g. (68, 3) for one
-            face, (T, 68, 3) for a track).
-
-    Returns:
-        Name (see :data:`KATO_LANDMARKS`) -> positions of shape (..., 3), float64.
-
-    Raises:
-        ValueError: wrong shape or non-finite positions.
-    """
-    p = np.asarray(ibug_points, dtype=np.float64)
-    if p.ndim < 2 or p.shape[-2:] != (68, 3):
-        raise ValueError(f"kato_landmarks: expected iBUG positions of shape (..., 68, 3), got {p.shape}")
-    if not np.isfinite(p).all():
-        bad = np.argwhere(~np.isfinite(p))[0]
-        raise ValueError(f"kato_landmarks: iBUG position at index {tuple(int(i) for i in bad)} is not finite")
-    return {
-        name: sum(weight * p[..., index, :] for index, weight in terms) for name, terms in KATO_LANDMARKS.items()
-    }
 
 
 def _track(landmarks, name: str) -> np.ndarray:

@@ -7,9 +7,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import RigError
+from .expression.controls import check_rig_parts
 from .expression.jaw import JAW_CONTROL_NAMES, Jaw
-from .expression.muscles import LinearMuscle, Muscle, SphincterMuscle
-from .expression.thickness import validate_thickness
+from .expression.muscles import Muscle
 from .expression.wrinkles import Wrinkle
 from .mesh import FaceMesh
 
@@ -30,7 +30,9 @@ class FaceRig:
         jaw: optional :class:`~warpface.expression.Jaw` (hinge and per-vertex weights, SPEC §6.2).
 
     Raises:
-        RigError: duplicate names, wrong thickness, landmark indices out of range.
+        RigError: (a ``ValueError``) mesh not a FaceMesh, wrong item types, duplicate names, wrong
+            thickness — the same errors :class:`~warpface.ExpressionModel` raises — or landmark
+            indices out of range.
     """
 
     mesh: FaceMesh
@@ -42,24 +44,16 @@ class FaceRig:
     jaw: Jaw | None = None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.mesh, FaceMesh):
-            raise RigError(f"rig {self.name!r}: mesh must be a FaceMesh, got {type(self.mesh).__name__}")
-        self.muscles = list(self.muscles)
-        self.wrinkles = list(self.wrinkles)
-        for kind, items, types in (("muscle", self.muscles, (LinearMuscle, SphincterMuscle)), ("wrinkle", self.wrinkles, (Wrinkle,))):
-            names = set()
-            for index, item in enumerate(items):
-                if not isinstance(item, types):
-                    raise RigError(f"rig {self.name!r}: {kind} {index} has wrong type {type(item).__name__}")
-                if item.name in names:
-                    raise RigError(f"rig {self.name!r}: duplicate {kind} name {item.name!r}")
-                names.add(item.name)
-        try:
-            self.thickness = validate_thickness(self.thickness, self.mesh.vertex_count)
-        except ValueError as exc:
-            raise RigError(f"rig {self.name!r}: {exc}") from None
+        if not isinstance(self.name, str) or not self.name:
+            raise RigError(f"rig name: expected a non-empty string, got {self.name!r}")
+        self.muscles, self.wrinkles, self.thickness = check_rig_parts(
+            self.mesh, self.muscles, self.wrinkles, self.thickness, owner=f"rig {self.name!r}"
+        )
         if self.landmarks is not None:
-            landmarks = np.asarray(self.landmarks)
+            try:
+                landmarks = np.asarray(self.landmarks)
+            except (TypeError, ValueError):  # ragged nesting
+                landmarks = np.asarray(0.5)
             if landmarks.ndim != 1 or not np.issubdtype(landmarks.dtype, np.integer):
                 raise RigError(f"rig {self.name!r}: landmarks must be a 1-D integer array of vertex indices")
             bad = np.flatnonzero((landmarks < 0) | (landmarks >= self.mesh.vertex_count))
@@ -87,7 +81,7 @@ class FaceRig:
     def wrinkle_names(self) -> list[str]:
         return [w.name for w in self.wrinkles]
 
-    def model(self, device=None):
+    def model(self, *, device=None):
         """An :class:`~warpface.ExpressionModel` for this rig on ``device``."""
         from .expression.model import ExpressionModel
 

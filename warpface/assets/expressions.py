@@ -100,8 +100,8 @@ def expression_envelope(frames: int, hold: float = 0.2) -> np.ndarray:
 
 def expression_timeline(name: str, rig: FaceRig, seconds: float = 2.0, fps: float = 30.0, *, hold: float = 0.2,
                         intensity: float = 1.0) -> np.ndarray:
-    """Per-frame controls for neutral → ``name`` → neutral, shape (F, C), in the rig's control order
-    (:attr:`~warpface.FaceRig.control_names`: the muscles, then the jaw's controls).
+    """Per-frame contractions for neutral → ``name`` → neutral, shape (F, M), in the rig's muscle order
+    (the paper's expressions use muscles only; append zeros for a jaw's controls to evaluate them).
 
     ``F = round(seconds · fps) + 1`` frames: frame ``f`` is at time ``f / fps``, and both the first
     and the last frame are neutral. Feed it to :meth:`~warpface.ExpressionModel.evaluate_batch`.
@@ -112,8 +112,8 @@ def expression_timeline(name: str, rig: FaceRig, seconds: float = 2.0, fps: floa
     if not (np.isfinite(fps) and fps > 0.0):
         raise ValueError(f"expression timeline: fps must be > 0, got {fps}")
     frames = int(round(seconds * fps)) + 1
-    peak = np.zeros(len(rig.control_names))
-    index = {name: i for i, name in enumerate(rig.control_names)}
+    peak = np.zeros(len(rig.muscles))
+    index = {m.name: i for i, m in enumerate(rig.muscles)}
     for muscle, value in expression_contractions(name, rig, intensity=intensity).items():
         peak[index[muscle]] = value
     return expression_envelope(frames, hold)[:, None] * peak[None, :]

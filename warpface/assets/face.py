@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..landmarks import IBUG_NAMES, INNER_LIPS, LEFT_EYE, RIGHT_EYE
 from ..mesh import FaceMesh
 
 __all__ = ["default_face", "default_landmarks", "LANDMARK_NAMES", "FACE_SPACING"]
@@ -45,24 +46,8 @@ _ARC_RADIUS = 0.08
 _BOUNDARY_CLEARANCE = 0.7
 """Lattice points closer than this × spacing to a hole or the outline are replaced by curve samples."""
 
-LANDMARK_NAMES: tuple[str, ...] = (
-    *(f"jaw_{i}" for i in range(17)),
-    "right_brow_outer", "right_brow_2", "right_brow_3", "right_brow_4", "right_brow_inner",
-    "left_brow_inner", "left_brow_4", "left_brow_3", "left_brow_2", "left_brow_outer",
-    "nasion", "nose_bridge_1", "nose_bridge_2", "pronasale",
-    "right_nose_wing", "right_nostril", "subnasale", "left_nostril", "left_nose_wing",
-    "right_eye_outer", "right_eye_upper_outer", "right_eye_upper_inner", "right_eye_inner",
-    "right_eye_lower_inner", "right_eye_lower_outer",
-    "left_eye_inner", "left_eye_upper_inner", "left_eye_upper_outer", "left_eye_outer",
-    "left_eye_lower_outer", "left_eye_lower_inner",
-    "right_mouth_corner", "right_upper_lip_outer", "right_cupid_peak", "upper_lip_top", "left_cupid_peak",
-    "left_upper_lip_outer", "left_mouth_corner", "left_lower_lip_outer", "left_lower_lip",
-    "lower_lip_bottom", "right_lower_lip", "right_lower_lip_outer",
-    "right_inner_corner", "right_upper_lip_inner", "upper_lip_inner", "left_upper_lip_inner",
-    "left_inner_corner", "left_lower_lip_inner", "lower_lip_inner", "right_lower_lip_inner",
-)
-"""Names of the 68 iBUG / Multi-PIE landmarks, in iBUG order. "right"/"left" are the subject's:
-iBUG point 0 and the right eye (36–41) lie at −x."""
+LANDMARK_NAMES = IBUG_NAMES
+"""Names of the 68 iBUG / Multi-PIE landmarks, in iBUG order (:data:`warpface.landmarks.IBUG_NAMES`)."""
 
 
 # ------------------------------------------------------------------------------------------------
@@ -540,7 +525,7 @@ def _landmark_vertices(plane: np.ndarray, boundary_used: np.ndarray, curves: lis
     # Boundary vertices come first in ``plane`` (in curve order), compacted by ``boundary_used``.
     compact = np.cumsum(boundary_used) - 1
     start = np.cumsum([0] + [len(c) for c in curves])
-    for curve, members in ((1, range(36, 42)), (2, range(42, 48)), (3, range(60, 68))):
+    for curve, members in ((1, RIGHT_EYE), (2, LEFT_EYE), (3, INNER_LIPS)):
         rows = np.arange(start[curve], start[curve + 1])
         rows = rows[boundary_used[rows]]
         vertices = compact[rows]

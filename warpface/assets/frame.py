@@ -12,16 +12,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import RigError
+from ..landmarks import IBUG_COUNT, LEFT_EYE, MOUTH, RIGHT_EYE
 from ..expression.wrinkles import CylindricalProjection
 from ..mesh import FaceMesh
 
 __all__ = ["FaceFrame", "SurfaceSampler", "check_landmarks", "head_cylinder"]
 
-LANDMARK_COUNT = 68
-
-RIGHT_EYE = slice(36, 42)
-LEFT_EYE = slice(42, 48)
-MOUTH = slice(48, 68)
+LANDMARK_COUNT = IBUG_COUNT
 
 
 def check_landmarks(mesh: FaceMesh, landmarks, label: str = "landmarks") -> np.ndarray:
@@ -58,14 +55,14 @@ class FaceFrame:
     def from_landmarks(cls, landmark_points: np.ndarray, label: str = "landmarks") -> "FaceFrame":
         """Frame from the 68 landmark positions, shape (68, 3); RigError if they cannot define one."""
         points = np.asarray(landmark_points, dtype=np.float64)
-        right_eye, left_eye = points[RIGHT_EYE].mean(axis=0), points[LEFT_EYE].mean(axis=0)
+        right_eye, left_eye = points[list(RIGHT_EYE)].mean(axis=0), points[list(LEFT_EYE)].mean(axis=0)
         across = left_eye - right_eye
         scale = float(np.linalg.norm(across))
         if not np.isfinite(scale) or scale <= 0.0:
             raise RigError(f"{label}: the two eye centres coincide; cannot measure the face")
         x_axis = across / scale
         origin = 0.5 * (left_eye + right_eye)
-        up = origin - points[MOUTH].mean(axis=0)
+        up = origin - points[list(MOUTH)].mean(axis=0)
         up = up - np.dot(up, x_axis) * x_axis
         if np.linalg.norm(up) < 0.2 * scale:
             raise RigError(f"{label}: the mouth is not below the eyes (landmarks out of iBUG order?)")

@@ -31,13 +31,13 @@ from .frame import FaceFrame
 
 __all__ = ["default_jaw", "jaw_weights"]
 
-_ABOVE_RAMP = 0.40
+_ABOVE_RAMP = 0.30
 """Reach of the weight ramp above the jaw line [inter-ocular units]: upper lip and cheeks follow partly."""
 _BELOW_RAMP = (0.12, 0.30)
 """Reach of the ramp below the jaw line at the mouth and beside it [inter-ocular units]."""
 _NECK_RAMP = (0.02, 0.28)
 """Below the mandible's lower border (iBUG 4–12) the weight falls from 1 to 0 between these depths."""
-_LIP_OFFSET = 0.17
+_LIP_OFFSET = 0.20
 """ε: how far the lip-side term moves a lip off the contact line [inter-ocular units]."""
 _CORNER_SOFTENING = 0.25
 """Added to ``d_u + d_l`` [inter-ocular units]: near a mouth corner, where both distances are small,

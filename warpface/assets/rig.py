@@ -12,13 +12,14 @@ FACS. Muscles follow thesis table 2.1 (SPEC §5); the wrinkles are the furrows t
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from ..errors import RigError
 from ..expression.muscles import LinearMuscle, SphincterMuscle
 from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrinkle, project_points
+from ..landmarks import LEFT_SIDE, RIGHT_SIDE
 from ..mesh import FaceMesh
 from ..rig import FaceRig
 from .face import default_face, default_landmarks
@@ -83,24 +84,7 @@ WRINKLE_NAMES: tuple[str, ...] = (
 """Wrinkles of the default rig, in rig order."""
 
 
-@dataclass(frozen=True)
-class _Side:
-    """iBUG indices of one side of the face, and the sign of x on that side."""
-
-    sign: float
-    brow: tuple[int, ...]  # outer → inner
-    eye_outer: int
-    eye_inner: int
-    eye: tuple[int, ...]
-    nose_wing: int
-    mouth_corner: int
-    upper_lip: int  # on the upper-lip border, between Cupid's peak and the corner
-    lower_lip: int  # on the lower-lip border, near the midline
-    jaw: tuple[int, ...]  # ear level → chin
-
-
-_LEFT = _Side(+1.0, (26, 25, 24, 23, 22), 45, 42, tuple(range(42, 48)), 35, 54, 53, 56, tuple(range(16, 7, -1)))
-_RIGHT = _Side(-1.0, (17, 18, 19, 20, 21), 36, 39, tuple(range(36, 42)), 31, 48, 49, 58, tuple(range(0, 9)))
+_LEFT, _RIGHT = LEFT_SIDE, RIGHT_SIDE  # the iBUG index sets of each side (warpface.landmarks)
 
 
 def face_frame(mesh: FaceMesh, landmarks) -> FaceFrame:
@@ -306,7 +290,7 @@ def _wrinkles(L: np.ndarray, surface: SurfaceSampler, frame: FaceFrame, cylinder
 
     def wrinkle(name, projection, path_xy, depth, width, kr=0.0):
         points = np.array([surface.point(p) for p in np.asarray(path_xy, dtype=np.float64)])
-        control = project_points(projection, points, device)
+        control = project_points(projection, points, device=device)
         return Wrinkle(name, control, projection, depth * scale, max(width, min_width) * scale, kr)
 
     brow_top = float(xy[17:27, 1].max())

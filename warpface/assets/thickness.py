@@ -15,6 +15,7 @@ import numpy as np
 
 from ..expression.thickness import ThicknessMap
 from ..expression.wrinkles import project_points
+from ..landmarks import LEFT_EYE, MOUTH, RIGHT_EYE
 from ..mesh import FaceMesh
 from .frame import FaceFrame, SurfaceSampler, check_landmarks, head_cylinder
 
@@ -75,7 +76,7 @@ def thickness_map(mesh: FaceMesh, landmarks, *, device=None) -> ThicknessMap:
 
     def to_uv(points_xy):
         world = np.array([surface.point(p) for p in points_xy])
-        return project_points(cylinder, world, device)
+        return project_points(cylinder, world, device=device)
 
     edge_uv = to_uv([xy[0], xy[16]])
     margin = 0.35 * frame.scale
@@ -103,8 +104,8 @@ def thickness_map(mesh: FaceMesh, landmarks, *, device=None) -> ThicknessMap:
         angle = np.linspace(0.0, 2.0 * np.pi, count, endpoint=False)
         return np.stack([centre[0] + radii[0] * np.cos(angle), centre[1] + radii[1] * np.sin(angle)], axis=1)
 
-    eye_right, eye_left = xy[36:42].mean(axis=0), xy[42:48].mean(axis=0)
-    mouth = xy[48:68].mean(axis=0)
+    eye_right, eye_left = xy[list(RIGHT_EYE)].mean(axis=0), xy[list(LEFT_EYE)].mean(axis=0)
+    mouth = xy[list(MOUTH)].mean(axis=0)
     mouth_half = 0.5 * abs(xy[54, 0] - xy[48, 0])
     paint("forehead", [(-1.1, brow_top + 0.05), (-0.45, brow_top + 0.02), (0.45, brow_top + 0.02), (1.1, brow_top + 0.05),
                        (1.1, brow_top + 1.6), (-1.1, brow_top + 1.6)])

@@ -3,19 +3,21 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import Sequence
 
 import numpy as np
 import warp as wp
 
+from .._validate import MAX_COORDINATE, as_count
 from ..kernels_surface import triangle_area_vectors
 from ..mesh import FaceMesh
+from .controls import as_device_array, check_rig_parts, contraction_limits, control_vector, frame_controls, is_device_array
+from .frame_buffers import FrameBuffers
 from .jaw import JAW_CONTROL_NAMES, Jaw
 from .kernels import (MuscleEntry, WrinkleEntry, apply_jaw_and_muscles, apply_muscles, apply_wrinkles, stretch_and_bulge,
                       triangle_stretch)
-from .muscles import LinearMuscle, Muscle, SphincterMuscle, muscle_weights
+from .muscles import Muscle, muscle_weights
 from .tissue import tissue_response
-from .thickness import validate_thickness
 from .wrinkles import Wrinkle, wrinkle_shapes
 
 __all__ = ["ExpressionModel", "ExpressionStages"]
@@ -25,8 +27,8 @@ _MAX_LAUNCH_THREADS = (1 << 31) - 1
 
 _MAX_BATCH_VERTICES = 1 << 22
 """On CUDA a batched call processes frames in chunks of at most this many frame·vertices (bounded
-memory). On the CPU, where kernels run serially, a chunk is one frame: its working set stays in cache
-(64 frames of the 9.4k-vertex face: 0.65 ms/frame one at a time, 0.74 in chunks of 2–8, 1.05 in one chunk)."""
+memory). On the CPU, where kernels run serially, a chunk is one frame: its working set stays in cache,
+which measured fastest (see benchmarks/README.md)."""
 
 
 @dataclass(frozen=True)
@@ -48,69 +50,6 @@ class ExpressionStages:
         return getattr(self, name)
 
 
-class _FrameBuffers:
-    """Device work arrays for ``frames`` frames at once, flat frame after frame (allocated once, reused)."""
-
-    def __init__(self, frames: int, vertex_count: int, triangle_count: int, muscle_count: int, wrinkle_count: int, device):
-        self.frames = frames
-        self.device = device
-        self.muscle_width = max(muscle_count, 1)
-        self.wrinkle_width = max(wrinkle_count, 1)
-        self.contraction = wp.zeros(frames * self.muscle_width, dtype=wp.float32, device=device)
-        self.depth = wp.zeros(frames * self.wrinkle_width, dtype=wp.float32, device=device)
-        self.muscle_points = wp.empty(frames * vertex_count, dtype=wp.vec3, device=device)
-        self.area_vectors = wp.empty(frames * triangle_count, dtype=wp.vec3, device=device)
-        self.stretch_terms = wp.empty(frames * triangle_count, dtype=wp.vec4, device=device)
-        self.stretch = wp.empty(frames * vertex_count, dtype=wp.float32, device=device)
-        self.bulge_points = wp.empty(frames * vertex_count, dtype=wp.vec3, device=device)
-        self.final_points = wp.empty(frames * vertex_count, dtype=wp.vec3, device=device)
-        self.launches: list[wp.Launch] = []
-        """The frame's kernel launches, recorded once (CPU: replayed without re-packing arguments)."""
-        self.graph = None
-        """The same sequence captured as a CUDA graph (CUDA only)."""
-        # Controls are written on the host: on the CPU straight into the kernels' arrays (numpy views
-        # share their memory), on CUDA into pinned staging arrays copied up before each launch.
-        staging = device.is_cuda
-        self._control_pairs = [
-            (array, wp.zeros(array.shape, dtype=wp.float32, device="cpu", pinned=True) if staging else array, width)
-            for array, width in ((self.contraction, self.muscle_width), (self.depth, self.wrinkle_width))
-        ]
-        self._control_views = [host.numpy().reshape(frames, width) for _, host, width in self._control_pairs]
-        self._host_views: dict[int, np.ndarray] = {}
-        """Zero-copy numpy views of CPU buffers (the read-back copies out of them)."""
-
-    def upload_controls(self, contraction: np.ndarray, depth: np.ndarray) -> None:
-        """Write (count, M) contractions and (count, W) depths into the first frames; later frames get 0."""
-        for view, values in zip(self._control_views, (contraction, depth)):
-            view[: values.shape[0], : values.shape[1]] = values
-            view[values.shape[0]:] = 0.0
-        for array, host, _ in self._control_pairs:
-            if host is not array:
-                wp.copy(array, host)
-
-    def read_frames(self, array: wp.array, count: int, out: np.ndarray | None = None) -> np.ndarray:
-        """Copy the first ``count`` frames of a flat per-frame array to the host.
-
-        Returns ``out`` (or a new array) of shape (count, elements) for float32 arrays or
-        (count, elements, 3) for vec3 arrays. On CUDA the device-to-host copy lands in ``out``
-        directly (no second copy).
-        """
-        per_frame = array.shape[0] // self.frames
-        inner = (3,) if array.dtype == wp.vec3 else ()
-        if out is None:
-            out = np.empty((count, per_frame) + inner, dtype=np.float32)
-        if self.device.is_cpu:
-            view = self._host_views.get(id(array))
-            if view is None:
-                view = self._host_views[id(array)] = array.numpy()
-            out[...] = view[: count * per_frame].reshape(out.shape)
-        else:
-            target = wp.array(out.reshape((count * per_frame,) + inner), dtype=array.dtype, device="cpu", copy=False)
-            wp.copy(target, array, count=count * per_frame)
-            wp.synchronize_device(self.device)
-        return out
-
-
 class ExpressionModel:
     """Muscles → stretch → bulge → wrinkles, per vertex, from the rest mesh every frame (never cumulative).
 
@@ -118,18 +57,38 @@ class ExpressionModel:
     once here in float64; a frame is then five kernel launches over vertices and triangles. On CUDA
     the single-frame sequence is captured once as a graph and replayed.
 
+    Two ways to get results, running the same kernels:
+
+    * NumPy: :meth:`evaluate` (one frame) and :meth:`evaluate_batch` (many) return host arrays.
+    * Device-resident: :meth:`evaluate_into` and :meth:`evaluate_batch_into` write into a caller's
+      array on the model's device and return without waiting for the GPU, so the result can feed
+      further kernels (an activation solver, a renderer) with no host round trip. The output may be
+      a ``wp.array`` (``wp.vec3`` or float32 with a last axis of 3) or any DLPack tensor, e.g. a
+      torch CUDA tensor — shared zero-copy, as are the controls when given as device arrays::
+
+          out = torch.empty((V, 3), device="cuda")
+          model.evaluate_into(out, torch_contractions)   # float32 (M,), same device; no sync
+          warp_view = wp.from_torch(out, dtype=wp.vec3)  # or wp.from_dlpack(out); back: wp.to_torch(a)
+
+      Synchronise (``wp.synchronize_device``) or use the same stream before reading on the host.
+
+    Controls given on the host are checked (names, types, finite, within range) and the call raises
+    ``ValueError`` naming the item; device-resident controls are used as they are (checking them
+    would need a host sync).
+
     Args:
         mesh: the rest surface.
         muscles: linear and sphincter muscles; their order is the contraction order.
         wrinkles: wrinkle furrows; their order is the depth order.
-        thickness: subcutaneous thickness ``h`` [mesh units]: a scalar or shape (V,), ≥ 0.
+        thickness: subcutaneous thickness ``h`` [mesh units]: a scalar or shape (V,), in [0, 1e6].
         device: Warp device (default: Warp's preferred device).
         jaw: optional :class:`~warpface.expression.Jaw`, applied before the muscles (SPEC §6.2); its
             controls :data:`~warpface.expression.JAW_CONTROL_NAMES` follow the muscles in the control
             vector (:attr:`control_names`).
 
     Raises:
-        ValueError: duplicate muscle or wrinkle names, wrong thickness, wrong item types.
+        RigError: (a ``ValueError``) mesh not a FaceMesh, wrong item types, duplicate muscle or
+            wrinkle names, wrong thickness — the same errors :class:`~warpface.FaceRig` raises.
     """
 
     def __init__(
@@ -138,39 +97,34 @@ class ExpressionModel:
         muscles: Sequence[Muscle] = (),
         wrinkles: Sequence[Wrinkle] = (),
         thickness: float | np.ndarray = 0.0,
-        device=None,
         *,
+        device=None,
         jaw: Jaw | None = None,
     ):
-        if not isinstance(mesh, FaceMesh):
-            raise ValueError(f"mesh: expected a FaceMesh, got {type(mesh).__name__}")
+        self.muscles, self.wrinkles, self.thickness = check_rig_parts(mesh, muscles, wrinkles, thickness, owner="expression model")
         self.mesh = mesh
-        self.muscles = list(muscles)
-        self.wrinkles = list(wrinkles)
-        for index, muscle in enumerate(self.muscles):
-            if not isinstance(muscle, (LinearMuscle, SphincterMuscle)):
-                raise ValueError(f"muscles[{index}]: expected LinearMuscle or SphincterMuscle, got {type(muscle).__name__}")
-        for index, wrinkle in enumerate(self.wrinkles):
-            if not isinstance(wrinkle, Wrinkle):
-                raise ValueError(f"wrinkles[{index}]: expected Wrinkle, got {type(wrinkle).__name__}")
-        self.muscle_names = _unique_names([m.name for m in self.muscles], "muscle")
-        self.wrinkle_names = _unique_names([w.name for w in self.wrinkles], "wrinkle")
+        self.muscle_names = [m.name for m in self.muscles]
+        self.wrinkle_names = [w.name for w in self.wrinkles]
         if jaw is not None:
             if not isinstance(jaw, Jaw):
                 raise ValueError(f"jaw: expected a Jaw, got {type(jaw).__name__}")
             jaw.check_vertex_count(mesh.vertex_count)
+            if set(JAW_CONTROL_NAMES) & set(self.muscle_names):
+                raise ValueError(f"muscle names must not repeat the jaw's controls {', '.join(JAW_CONTROL_NAMES)}")
         self.jaw = jaw
-        self.control_names = _unique_names(self.muscle_names + (list(JAW_CONTROL_NAMES) if jaw is not None else []), "control")
+        self.control_names = self.muscle_names + (list(JAW_CONTROL_NAMES) if jaw is not None else [])
         """Muscle names, then the jaw's controls when there is a jaw: the order of a control vector."""
-        self.thickness = validate_thickness(thickness, mesh.vertex_count)
+        jaw_limits = np.full(len(self.control_names) - len(self.muscles), MAX_COORDINATE)
+        self._contraction_limits = np.concatenate([contraction_limits(self.muscles), jaw_limits])
+        self._depth_limits = np.full(len(self.wrinkles), MAX_COORDINATE)
         self.device = wp.get_device(device)
 
-        self._mesh_buffers = mesh.device_buffers(self.device)
-        weights = muscle_weights(mesh.points, self.muscles, self.device)
+        self._mesh_buffers = mesh.device_buffers(device=self.device)
+        weights = muscle_weights(mesh.points, self.muscles, device=self.device)
         if any(m.sliding > 0.0 or m.bunching > 0.0 or m.thickening > 0.0 for m in self.muscles):
             normals = mesh.vertex_normals(device=self.device)
             weights = tissue_response(mesh.points, mesh.triangles, normals, self.thickness, self.muscles, weights)
-        shapes = wrinkle_shapes(mesh.points, self.wrinkles, self.device)
+        shapes = wrinkle_shapes(mesh.points, self.wrinkles, device=self.device)
         self.muscle_entry_count = int(len(weights.muscle))
         self.wrinkle_entry_count = int(len(shapes.wrinkle))
         device_ = self.device
@@ -185,31 +139,36 @@ class ExpressionModel:
         self.default_depths = np.array([w.depth for w in self.wrinkles], dtype=np.float64)
         if jaw is not None:
             self._jaw_weight = wp.array(jaw.weights.astype(np.float32), dtype=wp.float32, device=device_)
-        self._buffers: dict[int, _FrameBuffers] = {}
+        self._buffers: dict[int, FrameBuffers] = {}
         self._single = self._frame_buffers(1)
 
     @classmethod
-    def from_rig(cls, rig, device=None) -> "ExpressionModel":
-        """Build from a :class:`warpface.FaceRig` (mesh, muscles, wrinkles, thickness)."""
+    def from_rig(cls, rig, *, device=None) -> "ExpressionModel":
+        """Build from a :class:`warpface.FaceRig` (mesh, muscles, wrinkles, thickness, jaw)."""
         return cls(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=device, jaw=getattr(rig, "jaw", None))
 
     # ------------------------------------------------------------------ controls
     def contraction_vector(self, contractions) -> np.ndarray:
-        """Controls as an array in :attr:`control_names` order, shape (M,) or (M + 3,) with a jaw, float64.
+        """Controls in :attr:`control_names` order (muscles, then the jaw's), shape (M,) or (M + 3,), float64.
 
         ``contractions`` is a mapping ``{muscle or jaw control name: value}`` (absent ones are 0), a
-        sequence in control order, or ``None`` (all zero). Unknown names and non-finite values raise
-        ValueError.
+        sequence in control order (with a jaw, M muscle values alone leave the jaw at rest), or ``None`` (all zero). Unknown names, non-numbers, non-finite values
+        and values beyond ±1e6 (linear muscles and jaw, lengths and radians) or ±1e3 (sphincters) raise
+        ValueError naming the control.
         """
-        return _control_vector(contractions, self.control_names, np.zeros(len(self.control_names)), "contraction", "control")
+        return control_vector(self._muscles_only_padded(contractions), self.control_names, np.zeros(len(self.control_names)), self._contraction_limits,
+                              "contraction", "muscle" if self.jaw is None else "control")
 
     def depth_vector(self, depths) -> np.ndarray:
-        """Wrinkle depths ``k_d`` in wrinkle order, shape (W,); ``None`` or absent names keep each wrinkle's own depth."""
-        return _control_vector(depths, self.wrinkle_names, self.default_depths, "wrinkle depth", "wrinkle")
+        """Wrinkle depths ``k_d`` in wrinkle order, shape (W,); ``None`` or absent names keep each wrinkle's own depth.
+
+        Depths are lengths: beyond ±1e6 they are rejected like other bad values (ValueError naming the wrinkle).
+        """
+        return control_vector(depths, self.wrinkle_names, self.default_depths, self._depth_limits, "wrinkle depth", "wrinkle")
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, contractions=None, *, wrinkle_depths=None, stages: bool = False):
-        """Deformed positions for one frame.
+        """Deformed positions for one frame, returned as NumPy.
 
         Args:
             contractions: ``{name: K}`` or an array in muscle order (see :meth:`contraction_vector`).
@@ -219,16 +178,11 @@ class ExpressionModel:
         Returns:
             Final positions, shape (V, 3), float32 — or the stages.
         """
+        if not isinstance(stages, (bool, np.bool_)):
+            raise ValueError(f"stages: expected True or False, got {type(stages).__name__}")
         buffers = self._single
         buffers.upload_controls(self.contraction_vector(contractions)[None], self.depth_vector(wrinkle_depths)[None])
-        if self.device.is_cuda:
-            if buffers.graph is None:
-                with wp.ScopedCapture(device=self.device) as capture:
-                    self._launch(buffers)
-                buffers.graph = capture.graph
-            wp.capture_launch(buffers.graph)
-        else:
-            self._launch(buffers)
+        self._run_single(buffers)
         if stages:
             return ExpressionStages(
                 muscle=buffers.read_frames(buffers.muscle_points, 1)[0],
@@ -238,10 +192,29 @@ class ExpressionModel:
             )
         return buffers.read_frames(buffers.final_points, 1)[0]
 
+    def evaluate_into(self, out, contractions=None, *, wrinkle_depths=None):
+        """Deformed positions for one frame, written into ``out`` on the device; no host sync.
+
+        Args:
+            out: a ``wp.array`` on the model's device — shape (V,) of ``wp.vec3`` or (V, 3) float32 —
+                or a DLPack tensor of the latter (e.g. a torch tensor), written in place.
+            contractions: as in :meth:`evaluate`, or a float32 device array (M,) in muscle order.
+            wrinkle_depths: as in :meth:`evaluate`, or a float32 device array (W,).
+
+        Returns:
+            ``out``. Same kernels and bit-identical values as :meth:`evaluate`.
+        """
+        target = as_device_array(out, "out", device=self.device, shape=(self.mesh.vertex_count,), dtype=wp.vec3)
+        buffers = self._single
+        self._upload_frames(buffers, contractions, wrinkle_depths, frames=1, first=0, count=1)
+        self._run_single(buffers)
+        wp.copy(target, buffers.final_points, count=self.mesh.vertex_count)
+        return out
+
     def evaluate_batch(
         self, contractions, *, wrinkle_depths=None, progress: bool = False, frames_per_launch: int | None = None
     ) -> np.ndarray:
-        """Deformed positions for many frames at once.
+        """Deformed positions for many frames at once, returned as NumPy.
 
         Args:
             contractions: shape (F, M) in muscle order, or a sequence of F mappings.
@@ -253,62 +226,164 @@ class ExpressionModel:
         Returns:
             Positions, shape (F, V, 3), float32.
         """
+        controls, depths = self._host_frames(contractions, wrinkle_depths)
+        frame_count = len(controls)
+        result = np.empty((frame_count, self.mesh.vertex_count, 3), dtype=np.float32)
+        for buffers, start, count in self._chunks(frame_count, frames_per_launch, progress):
+            buffers.upload_controls(controls[start:start + count], depths[start:start + count])
+            self._launch(buffers)
+            buffers.read_frames(buffers.final_points, count, out=result[start:start + count])
+        return result
+
+    def evaluate_batch_into(
+        self, out, contractions, *, wrinkle_depths=None, progress: bool = False, frames_per_launch: int | None = None
+    ):
+        """Deformed positions for many frames, written into ``out`` on the device; no host sync.
+
+        Args:
+            out: a ``wp.array`` on the model's device — shape (F, V) of ``wp.vec3`` or (F, V, 3)
+                float32 — or a DLPack tensor of the latter, written in place.
+            contractions: as in :meth:`evaluate_batch`, or a float32 device array (F, M).
+            wrinkle_depths: as in :meth:`evaluate_batch`, or a float32 device array (F, W).
+            progress, frames_per_launch: as in :meth:`evaluate_batch`.
+
+        Returns:
+            ``out``. Same kernels and bit-identical values as :meth:`evaluate_batch`.
+        """
+        frame_count = self._batch_frame_count(contractions, wrinkle_depths)
+        target = as_device_array(out, "out", device=self.device, shape=(frame_count, self.mesh.vertex_count), dtype=wp.vec3)
+        host, device_controls = self._split_controls(contractions, wrinkle_depths, frame_count)
+        vertex_count = self.mesh.vertex_count
+        for buffers, start, count in self._chunks(frame_count, frames_per_launch, progress):
+            self._upload_chunk(buffers, host, device_controls, start, count)
+            self._launch(buffers)
+            wp.copy(target, buffers.final_points, dest_offset=start * vertex_count, count=count * vertex_count)
+        return out
+
+    # ------------------------------------------------------------------ control plumbing
+    def _muscles_only_padded(self, values):
+        """With a jaw, a host array of muscle contractions only ((M,) or (F, M)) gets the jaw at rest appended."""
+        if self.jaw is None or values is None or isinstance(values, (str, bytes, dict)) or is_device_array(values):
+            return values
+        if not isinstance(values, (np.ndarray, list, tuple)):
+            return values
+        try:
+            array = np.asarray(values, dtype=np.float64)
+        except (TypeError, ValueError):
+            return values
+        if array.ndim in (1, 2) and array.shape[-1] == len(self.muscles) != len(self.control_names):
+            return np.concatenate([array, np.zeros(array.shape[:-1] + (len(self.control_names) - len(self.muscles),))], axis=-1)
+        return values
+
+    def _host_frames(self, contractions, wrinkle_depths) -> tuple[np.ndarray, np.ndarray]:
+        """Validated (F, M) contractions and (F, W) depths from host values."""
+        controls = frame_controls(self._muscles_only_padded(contractions), self.contraction_vector, len(self.control_names),
+                                  "contractions", self._contraction_limits)
+        frame_count = len(controls)
+        if wrinkle_depths is None:
+            return controls, np.tile(self.default_depths, (frame_count, 1))
+        depths = frame_controls(wrinkle_depths, self.depth_vector, len(self.wrinkles), "wrinkle_depths",
+                                self._depth_limits)
+        if len(depths) != frame_count:
+            raise ValueError(f"wrinkle_depths: {len(depths)} frames, contractions have {frame_count}")
+        return controls, depths
+
+    def _device_controls(self, values, frames: int | None, width: int, name: str):
+        """A device control array (flat float32, frames·width) or ``None`` for host values."""
+        if not is_device_array(values):
+            return None
+        rows = values.shape[0] if frames is None else frames
+        shape = (width,) if frames == 1 and len(values.shape) == 1 else (rows, width)
+        return as_device_array(values, name, device=self.device, shape=shape, dtype=wp.float32)
+
+    def _batch_frame_count(self, contractions, wrinkle_depths) -> int:
+        for values in (contractions, wrinkle_depths):
+            if is_device_array(values):
+                return int(values.shape[0])
+        return len(self._host_frames(contractions, wrinkle_depths)[0])
+
+    def _split_controls(self, contractions, wrinkle_depths, frame_count: int):
+        """Host (F, M)/(F, W) arrays for host controls and zeros/defaults under device ones; device arrays."""
+        device_c = self._device_controls(contractions, frame_count, len(self.control_names), "contractions")
+        device_d = self._device_controls(wrinkle_depths, frame_count, len(self.wrinkles), "wrinkle_depths")
+        host_c = None if device_c is not None else contractions
+        host_d = None if device_d is not None else wrinkle_depths
+        if host_c is None:
+            host_c = np.zeros((frame_count, len(self.control_names)))
+        controls, depths = self._host_frames(host_c, host_d)
+        if len(controls) != frame_count:
+            raise ValueError(f"contractions: {len(controls)} frames, wrinkle_depths have {frame_count}")
+        return (controls, depths), (device_c, device_d)
+
+    def _upload_chunk(self, buffers: FrameBuffers, host, device_controls, start: int, count: int) -> None:
+        controls, depths = host
+        buffers.upload_controls(controls[start:start + count], depths[start:start + count])
+        buffers.copy_controls(*device_controls, first=start, count=count)
+
+    def _upload_frames(self, buffers, contractions, wrinkle_depths, *, frames: int, first: int, count: int) -> None:
+        device_c = self._device_controls(contractions, frames, len(self.control_names), "contractions")
+        device_d = self._device_controls(wrinkle_depths, frames, len(self.wrinkles), "wrinkle_depths")
+        host_c = self.contraction_vector(None if device_c is not None else contractions)
+        host_d = self.depth_vector(None if device_d is not None else wrinkle_depths)
+        buffers.upload_controls(host_c[None], host_d[None])
+        buffers.copy_controls(device_c, device_d, first=first, count=count)
+
+    def _chunks(self, frame_count: int, frames_per_launch, progress: bool):
+        """``(buffers, first frame, frame count)`` per launch, with an optional progress bar."""
         elements = max(self.mesh.vertex_count, self.mesh.triangle_count, 1)
         if frames_per_launch is None:
             chunk = 1 if self.device.is_cpu else _MAX_BATCH_VERTICES // max(self.mesh.vertex_count, 1)
-        elif isinstance(frames_per_launch, (int, np.integer)) and frames_per_launch >= 1:
-            chunk = int(frames_per_launch)
+        else:
+            chunk = as_count(frames_per_launch, "frames_per_launch", minimum=1)
             if chunk * elements > _MAX_LAUNCH_THREADS:
                 raise ValueError(
                     f"frames_per_launch: {chunk} frames × {elements:,} elements exceeds one launch's "
                     f"{_MAX_LAUNCH_THREADS:,} threads; use at most {_MAX_LAUNCH_THREADS // elements}"
                 )
-        else:
-            raise ValueError(f"frames_per_launch: expected a positive integer, got {frames_per_launch!r}")
-        controls = self._frame_controls(contractions, self.contraction_vector, len(self.control_names), "contractions")
-        frame_count = len(controls)
-        if wrinkle_depths is None:
-            depths = np.tile(self.default_depths, (frame_count, 1))
-        else:
-            depths = self._frame_controls(wrinkle_depths, self.depth_vector, len(self.wrinkles), "wrinkle_depths")
-            if len(depths) != frame_count:
-                raise ValueError(f"wrinkle_depths: {len(depths)} frames, contractions have {frame_count}")
+        if not isinstance(progress, (bool, np.bool_)):
+            raise ValueError(f"progress: expected True or False, got {type(progress).__name__}")
         chunk = max(1, min(frame_count, chunk))
         buffers = self._frame_buffers(chunk)
-        result = np.empty((frame_count, self.mesh.vertex_count, 3), dtype=np.float32)
         bar = None
         if progress:
             from tqdm import tqdm
 
             bar = tqdm(total=frame_count, desc="expression frames", unit="frame")
         for start in range(0, frame_count, chunk):
-            stop = min(start + chunk, frame_count)
-            count = stop - start
-            buffers.upload_controls(controls[start:stop], depths[start:stop])
-            self._launch(buffers)
-            buffers.read_frames(buffers.final_points, count, out=result[start:stop])
+            count = min(chunk, frame_count - start)
+            yield buffers, start, count
             if bar is not None:
                 bar.update(count)
         if bar is not None:
             bar.close()
-        return result
 
     # ------------------------------------------------------------------ internals
-    def _frame_buffers(self, frames: int) -> _FrameBuffers:
+    def _frame_buffers(self, frames: int) -> FrameBuffers:
         if frames not in self._buffers:
-            self._buffers[frames] = _FrameBuffers(
-                frames, self.mesh.vertex_count, self.mesh.triangle_count, len(self.control_names), len(self.wrinkles), self.device
+            self._buffers[frames] = FrameBuffers(
+                frames, self.mesh.vertex_count, self.mesh.triangle_count, len(self.control_names), len(self.wrinkles), device=self.device
             )
         return self._buffers[frames]
 
-    def _launch(self, buffers: _FrameBuffers) -> None:
+    def _run_single(self, buffers: FrameBuffers) -> None:
+        """One frame's kernels: replayed as a CUDA graph on CUDA, recorded launches on the CPU."""
+        if self.device.is_cuda:
+            if buffers.graph is None:
+                with wp.ScopedCapture(device=self.device) as capture:
+                    self._launch(buffers)
+                buffers.graph = capture.graph
+            wp.capture_launch(buffers.graph)
+        else:
+            self._launch(buffers)
+
+    def _launch(self, buffers: FrameBuffers) -> None:
         """Run the frame's five kernels over all of ``buffers``' frames (recorded on first use)."""
         if not buffers.launches:
             buffers.launches = self._record_launches(buffers)
         for launch in buffers.launches:
             launch.launch()
 
-    def _record_launches(self, buffers: _FrameBuffers) -> list:
+    def _record_launches(self, buffers: FrameBuffers) -> list:
         mesh = self._mesh_buffers
         frames, vertex_count, triangle_count = buffers.frames, self.mesh.vertex_count, self.mesh.triangle_count
         vertices, triangles = frames * vertex_count, frames * triangle_count
@@ -347,49 +422,6 @@ class ExpressionModel:
                     buffers.depth, buffers.wrinkle_width, *counts],
                    [buffers.final_points]),
         ]
-
-    @staticmethod
-    def _frame_controls(values, to_vector, width: int, label: str) -> np.ndarray:
-        if isinstance(values, np.ndarray) or (isinstance(values, Sequence) and values and not isinstance(values[0], Mapping)):
-            array = np.asarray(values, dtype=np.float64)
-            if array.ndim != 2 or array.shape[1] != width:
-                raise ValueError(f"{label}: expected shape (frames, {width}), got {array.shape}")
-            return np.stack([to_vector(row) for row in array]) if len(array) else array
-        if isinstance(values, Sequence):
-            return np.stack([to_vector(row) for row in values]) if values else np.zeros((0, width))
-        raise ValueError(f"{label}: expected an array (frames, {width}) or a sequence of mappings")
-
-
-def _unique_names(names: list[str], kind: str) -> list[str]:
-    seen = set()
-    for name in names:
-        if name in seen:
-            raise ValueError(f"duplicate {kind} name {name!r}")
-        seen.add(name)
-    return names
-
-
-def _control_vector(values, names: list[str], default: np.ndarray, label: str, kind: str) -> np.ndarray:
-    vector = np.array(default, dtype=np.float64)
-    if values is None:
-        return vector
-    if isinstance(values, Mapping):
-        index = {name: i for i, name in enumerate(names)}
-        for name, value in values.items():
-            if name not in index:
-                raise ValueError(f"{label}: unknown {kind} name {name!r} (known: {', '.join(names) or 'none'})")
-            number = float(value)
-            if not np.isfinite(number):
-                raise ValueError(f"{label} for {kind} {name!r}: non-finite value {number}")
-            vector[index[name]] = number
-        return vector
-    array = np.asarray(values, dtype=np.float64)
-    if array.shape != (len(names),):
-        raise ValueError(f"{label}s: expected {len(names)} values in {kind} order, got shape {array.shape}")
-    bad = np.flatnonzero(~np.isfinite(array))
-    if len(bad):
-        raise ValueError(f"{label} for {kind} {names[bad[0]]!r}: non-finite value {array[bad[0]]}")
-    return array
 
 
 def _entry_array(struct, device, **fields: np.ndarray) -> wp.array:

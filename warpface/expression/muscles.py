@@ -15,7 +15,7 @@ from typing import Union
 import numpy as np
 import warp as wp
 
-from .._validate import as_finite_array, as_vec3, orthogonal_unit_vector, unit_vector
+from .._validate import MAX_COORDINATE, as_finite_array, as_points, as_positive, as_vec3, orthogonal_unit_vector, unit_vector
 from ._sparse import vertex_csr
 from .falloff import linear_angular_factor, linear_radial_factor, sphincter_factor
 
@@ -79,9 +79,9 @@ class LinearMuscle:
             raise ValueError(f"{label}: zone_angle_deg must be in (0, 180), got {zone}")
         set_(self, "zone_angle_deg", zone)
         start = float(as_finite_array(self.falloff_start, f"{label}: falloff_start", shape=()))
-        finish = float(as_finite_array(self.falloff_finish, f"{label}: falloff_finish", shape=()))
         if start < 0.0:
             raise ValueError(f"{label}: falloff_start must be ≥ 0, got {start}")
+        finish = as_positive(self.falloff_finish, f"{label}: falloff_finish")
         if start >= finish:
             raise ValueError(f"{label}: falloff_start ({start}) must be < falloff_finish ({finish})")
         set_(self, "falloff_start", start)
@@ -138,8 +138,8 @@ class SphincterMuscle:
         set_(self, "axis_x", ex)
         set_(self, "axis_y", orthogonal_unit_vector(ey, ex, f"{label}: axis_y"))
         semi = as_finite_array(self.semi_axes, f"{label}: semi_axes", shape=(2,))
-        if np.any(semi <= 0.0):
-            raise ValueError(f"{label}: semi_axes must be > 0, got {semi.tolist()}")
+        if np.any(semi <= 0.0) or np.any(semi > MAX_COORDINATE):
+            raise ValueError(f"{label}: semi_axes must be in (0, {MAX_COORDINATE:g}], got {semi.tolist()}")
         set_(self, "semi_axes", (float(semi[0]), float(semi[1])))
         _check_response(self, label)
 
@@ -237,7 +237,7 @@ class MuscleWeights:
     """Displacement per unit contraction [mesh units per unit K], shape (E, 3), float64."""
 
 
-def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], device=None) -> MuscleWeights:
+def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], *, device=None) -> MuscleWeights:
     """Evaluate every muscle's weight field at the rest points and keep the non-zero entries.
 
     Args:
@@ -246,8 +246,9 @@ def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], device=None) 
         device: Warp device for the float64 kernels.
     """
     device = wp.get_device(device)
+    rest_points = as_points(rest_points, "rest_points")
     vertex_count = len(rest_points)
-    rest = wp.array(np.asarray(rest_points, dtype=np.float64), dtype=wp.vec3d, device=device)
+    rest = wp.array(rest_points, dtype=wp.vec3d, device=device)
     out = wp.empty(vertex_count, dtype=wp.vec3d, device=device)
     rows, columns, values = [], [], []
     for index, muscle in enumerate(muscles):

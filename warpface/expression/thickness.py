@@ -7,23 +7,24 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validate import as_finite_array
-from .wrinkles import Projection, project_points
+from .._validate import MAX_COORDINATE, as_bounded, as_finite_array, as_per_vertex, as_points
+from .wrinkles import CylindricalProjection, PlanarProjection, Projection, project_points
 
-__all__ = ["ThicknessMap", "validate_thickness"]
+__all__ = ["ThicknessMap", "validate_thickness", "MAX_BLUR_SIGMA"]
 
 
 def validate_thickness(thickness, vertex_count: int) -> np.ndarray:
-    """Per-vertex thickness [mesh units] as float64 (V,): a scalar is broadcast; negatives rejected."""
-    values = as_finite_array(thickness, "thickness")
-    if values.ndim == 0:
-        values = np.full(vertex_count, float(values))
-    if values.shape != (vertex_count,):
-        raise ValueError(f"thickness: expected one value per vertex ({vertex_count},), got shape {values.shape}")
-    negative = np.flatnonzero(values < 0.0)
-    if len(negative):
-        raise ValueError(f"thickness: negative value {values[negative[0]]} at vertex {int(negative[0])}")
-    return values
+    """Per-vertex thickness [mesh units] as float64 (V,): a scalar is broadcast.
+
+    Raises ValueError naming ``thickness`` for a wrong shape, non-finite or negative values, or values
+    above :data:`~warpface._validate.MAX_COORDINATE` (1e6 mesh units; they would overflow float32).
+    """
+    return as_per_vertex(thickness, vertex_count, "thickness", minimum=0.0, maximum=MAX_COORDINATE)
+
+
+MAX_BLUR_SIGMA = 256.0
+"""Largest accepted :attr:`ThicknessMap.blur_sigma` [pixels]: the blur's cost grows with its kernel
+width (≈ 6σ), and beyond a few hundred pixels it is a constant image in all but name."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,11 +59,15 @@ class ThicknessMap:
             if not hi > lo:
                 raise ValueError(f"thickness map: {name} must be increasing, got ({lo}, {hi})")
             object.__setattr__(self, name, (float(lo), float(hi)))
-        for name in ("black", "white", "blur_sigma"):
+        if not isinstance(self.projection, (PlanarProjection, CylindricalProjection)):
+            raise ValueError(
+                f"thickness map: projection must be PlanarProjection or CylindricalProjection, got {type(self.projection).__name__}"
+            )
+        for name, upper in (("black", MAX_COORDINATE), ("white", MAX_COORDINATE), ("blur_sigma", MAX_BLUR_SIGMA)):
             value = float(as_finite_array(getattr(self, name), f"thickness map: {name}", shape=()))
             if value < 0.0:
                 raise ValueError(f"thickness map: {name} must be ≥ 0, got {value}")
-            object.__setattr__(self, name, value)
+            object.__setattr__(self, name, as_bounded(value, f"thickness map: {name}", 0.0, upper))
 
     def luminance(self) -> np.ndarray:
         """The (optionally blurred) image as float32 luminance in [0, 1], shape (H, W)."""
@@ -73,11 +78,17 @@ class ThicknessMap:
             image = cv2.GaussianBlur(image, ksize=(0, 0), sigmaX=self.blur_sigma, borderType=cv2.BORDER_REPLICATE)
         return image
 
-    def sample(self, points: np.ndarray, device=None) -> np.ndarray:
-        """Thickness at each point [mesh units]: (V, 3) → (V,) float64, bilinear, edges clamped."""
+    def sample(self, points: np.ndarray, *, device=None) -> np.ndarray:
+        """Thickness at each point [mesh units]: (V, 3) → (V,) float64, bilinear, edges clamped.
+
+        Raises ValueError naming ``points`` unless they are finite, shape (V, 3), within ±1e6.
+        """
         import cv2
 
-        uv = project_points(self.projection, points, device)
+        points = as_points(points, "thickness map: points")
+        if len(points) == 0:
+            return np.zeros(0, dtype=np.float64)
+        uv = project_points(self.projection, points, device=device)
         height, width = self.image.shape
         (u0, u1), (v0, v1) = self.u_range, self.v_range
         column = (uv[:, 0] - u0) / (u1 - u0) * width - 0.5
@@ -110,7 +121,7 @@ def _load_gray(image) -> np.ndarray:
         return array.astype(np.float32) / 255.0
     if array.dtype == np.uint16:
         return array.astype(np.float32) / 65535.0
-    array = as_finite_array(array, "thickness map: image").astype(np.float32)
+    array = as_finite_array(array, "thickness map: image")
     if array.min() < 0.0 or array.max() > 1.0:
         raise ValueError("thickness map: float images must lie in [0, 1]")
-    return array
+    return array.astype(np.float32)

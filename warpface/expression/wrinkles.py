@@ -15,7 +15,7 @@ from typing import Union
 import numpy as np
 import warp as wp
 
-from .._validate import as_finite_array, as_positive, as_vec3, orthogonal_unit_vector, unit_vector
+from .._validate import MAX_COORDINATE, as_bounded, as_finite_array, as_points, as_positive, as_vec3, orthogonal_unit_vector, unit_vector
 from ._sparse import vertex_csr
 
 __all__ = [
@@ -134,11 +134,14 @@ class Wrinkle:
         if not isinstance(self.name, str) or not self.name:
             raise ValueError(f"{label}: name must be a non-empty string")
         object.__setattr__(
-            self, "control_points", as_finite_array(self.control_points, f"{label}: control_points", shape=(4, 2))
+            self,
+            "control_points",
+            # u of a cylindrical projection reaches radius·π: allow that beyond the coordinate bound
+            as_finite_array(self.control_points, f"{label}: control_points", shape=(4, 2), max_abs=4.0 * MAX_COORDINATE),
         )
         if not isinstance(self.projection, (PlanarProjection, CylindricalProjection)):
             raise ValueError(f"{label}: projection must be PlanarProjection or CylindricalProjection")
-        object.__setattr__(self, "depth", float(as_finite_array(self.depth, f"{label}: depth", shape=())))
+        object.__setattr__(self, "depth", as_bounded(self.depth, f"{label}: depth", -MAX_COORDINATE, MAX_COORDINATE))
         object.__setattr__(self, "width", as_positive(self.width, f"{label}: width (k_w)"))
         kr = float(as_finite_array(self.kr, f"{label}: kr", shape=()))
         if not 0.0 <= kr <= 1.0:
@@ -263,10 +266,14 @@ def _bezier_distance_kernel(
 # ---------------------------------------------------------------------------------------------- API
 
 
-def project_points(projection: Projection, points: np.ndarray, device=None) -> np.ndarray:
+def project_points(projection: Projection, points: np.ndarray, *, device=None) -> np.ndarray:
     """Project points into a projection's (u, v) plane [mesh units]: (V, 3) → (V, 2) float64."""
+    if not isinstance(projection, (PlanarProjection, CylindricalProjection)):
+        raise ValueError(f"projection: expected PlanarProjection or CylindricalProjection, got {type(projection).__name__}")
     device = wp.get_device(device)
-    points = np.asarray(points, dtype=np.float64)
+    points = as_points(points, "points")
+    if len(points) == 0:
+        return np.zeros((0, 2), dtype=np.float64)
     kind, origin, e1, e2, e3, radius = projection._frame()
     uv = wp.empty(len(points), dtype=wp.vec2d, device=device)
     wp.launch(
@@ -280,13 +287,14 @@ def project_points(projection: Projection, points: np.ndarray, device=None) -> n
     return uv.numpy()
 
 
-def bezier_distances(uv: np.ndarray, control_points: np.ndarray, device=None) -> np.ndarray:
+def bezier_distances(uv: np.ndarray, control_points: np.ndarray, *, device=None) -> np.ndarray:
     """Nearest-point distance from each 2-D point to a cubic Bézier curve: (V, 2), (4, 2) → (V,) float64."""
     device = wp.get_device(device)
-    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    uv = as_finite_array(uv, "uv", shape=(None, 2), max_abs=4.0 * MAX_COORDINATE)
+    control_points = as_finite_array(control_points, "control_points", shape=(4, 2), max_abs=4.0 * MAX_COORDINATE)
     if len(uv) == 0:
         return np.zeros(0, dtype=np.float64)
-    c = [wp.vec2d(*row) for row in np.asarray(control_points, dtype=np.float64)]
+    c = [wp.vec2d(*row) for row in control_points]
     out = wp.empty(len(uv), dtype=wp.float64, device=device)
     wp.launch(_bezier_distance_kernel, dim=len(uv), inputs=[wp.array(uv, dtype=wp.vec2d, device=device), *c],
               outputs=[out], device=device)
@@ -308,18 +316,22 @@ class WrinkleShapes:
     """``(d/k_w − 1)·exp(−d/k_w)`` per entry (dimensionless, in [−1, e⁻²]), shape (E,), float64."""
 
 
-def wrinkle_shapes(rest_points: np.ndarray, wrinkles: list[Wrinkle], device=None) -> WrinkleShapes:
+def wrinkle_shapes(rest_points: np.ndarray, wrinkles: list[Wrinkle], *, device=None) -> WrinkleShapes:
     """Distances of every rest vertex to every wrinkle's curve, turned into kept profile entries."""
+    rest_points = as_points(rest_points, "rest_points")
+    for index, wrinkle in enumerate(wrinkles):
+        if not isinstance(wrinkle, Wrinkle):
+            raise ValueError(f"wrinkle {index}: expected Wrinkle, got {type(wrinkle).__name__}")
     rows, columns, values = [], [], []
     for index, wrinkle in enumerate(wrinkles):
-        uv = project_points(wrinkle.projection, rest_points, device)
+        uv = project_points(wrinkle.projection, rest_points, device=device)
         # The curve lies in its control points' bounding box (convex hull property), so vertices
         # farther than the cutoff from that box have no kept entry: skip their distance queries.
         reach = _CUTOFF_SCALED_DISTANCE * wrinkle.width
         lo = wrinkle.control_points.min(axis=0) - reach
         hi = wrinkle.control_points.max(axis=0) + reach
         near = np.flatnonzero(np.all((uv >= lo) & (uv <= hi), axis=1))
-        scaled = bezier_distances(uv[near], wrinkle.control_points, device) / wrinkle.width
+        scaled = bezier_distances(uv[near], wrinkle.control_points, device=device) / wrinkle.width
         shape = (scaled - 1.0) * np.exp(-scaled)
         kept = np.abs(shape) >= WRINKLE_SHAPE_CUTOFF
         rows.append(near[kept])

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
+from ..geometry import closest_point_on_triangle
 from .tetmesh import TetMesh, _EDGE_NODES
 
 __all__ = ["Embedding", "embed_points"]
@@ -65,58 +66,28 @@ def _min4(v: wp.vec4d) -> wp.float64:
 
 
 @wp.func
-def _closest_on_triangle(p: wp.vec3d, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d) -> wp.vec3d:
-    """Closest point to ``p`` on triangle ``abc``, by the triangle's Voronoi regions (vertex, edge, face).
-
-    A float64 twin of :func:`warpface.geometry.closest_point_on_triangle` (float32, used by the
-    tracking kernels): embedding distances are checked to 1e-12 m, beyond float32's reach."""
-    zero = wp.float64(0.0)
-    ab = b - a
-    ac = c - a
-    ap = p - a
-    d1 = wp.dot(ab, ap)
-    d2 = wp.dot(ac, ap)
-    if d1 <= zero and d2 <= zero:
-        return a
-    bp = p - b
-    d3 = wp.dot(ab, bp)
-    d4 = wp.dot(ac, bp)
-    if d3 >= zero and d4 <= d3:
-        return b
-    vc = d1 * d4 - d3 * d2
-    if vc <= zero and d1 >= zero and d3 <= zero:
-        return a + ab * (d1 / (d1 - d3))
-    cp = p - c
-    d5 = wp.dot(ab, cp)
-    d6 = wp.dot(ac, cp)
-    if d6 >= zero and d5 <= d6:
-        return c
-    vb = d5 * d2 - d1 * d6
-    if vb <= zero and d2 >= zero and d6 <= zero:
-        return a + ac * (d2 / (d2 - d6))
-    va = d3 * d6 - d5 * d4
-    if va <= zero and (d4 - d3) >= zero and (d5 - d6) >= zero:
-        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)))
-    scale = wp.float64(1.0) / (va + vb + vc)
-    return a + ab * (vb * scale) + ac * (vc * scale)
+def _on_face(x: wp.vec3d, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d) -> wp.vec3d:
+    """The point of face ``abc`` closest to ``x`` (float64: embedding distances are checked to 1e-12 m)."""
+    w = closest_point_on_triangle(x, a, b, c)
+    return w[0] * a + w[1] * b + w[2] * c
 
 
 @wp.func
 def _closest_in_tet(x: wp.vec3d, p0: wp.vec3d, p1: wp.vec3d, p2: wp.vec3d, p3: wp.vec3d) -> wp.vec3d:
     """Closest point to an exterior point ``x`` on the boundary of a tet (its four faces)."""
-    best = _closest_on_triangle(x, p1, p2, p3)
+    best = _on_face(x, p1, p2, p3)
     best_d = wp.length_sq(best - x)
-    c = _closest_on_triangle(x, p0, p2, p3)
+    c = _on_face(x, p0, p2, p3)
     d = wp.length_sq(c - x)
     if d < best_d:
         best = c
         best_d = d
-    c = _closest_on_triangle(x, p0, p1, p3)
+    c = _on_face(x, p0, p1, p3)
     d = wp.length_sq(c - x)
     if d < best_d:
         best = c
         best_d = d
-    c = _closest_on_triangle(x, p0, p1, p2)
+    c = _on_face(x, p0, p1, p2)
     d = wp.length_sq(c - x)
     if d < best_d:
         best = c

@@ -2,9 +2,13 @@
 
 Modules, each with one job:
 
-* :mod:`~warpface.tracking.sources` — :class:`LandmarkFrame`, :class:`LandmarkSource`,
-  :class:`RGBDFrame`, :class:`RGBDSource`, the timestamp policy, :func:`fill_missing`,
-  :class:`RecordedLandmarks` (.npz), :class:`RGBDFolder`, :class:`RGBDLandmarks`.
+* :mod:`~warpface.tracking.frames` — :class:`LandmarkFrame`, :class:`RGBDFrame` and the
+  :class:`LandmarkSource` / :class:`RGBDSource` protocols.
+* :mod:`~warpface.tracking.streams` — the timestamp policy, :func:`checked_frames`, :func:`fill_missing`.
+* :mod:`~warpface.tracking.recorded` — :class:`RecordedLandmarks` (.npz);
+  :mod:`~warpface.tracking.rgbd_folder` — :class:`RGBDFolder`;
+  :mod:`~warpface.tracking.rgbd_landmarks` — :class:`RGBDLandmarks` (dots in colour, lifted with depth).
+  (:mod:`~warpface.tracking.sources` gathers all of these.)
 * :mod:`~warpface.tracking.cameras` — :class:`RealSenseCamera`, :class:`OrbbecCamera`.
 * :mod:`~warpface.tracking.mediapipe` — :class:`MediaPipeLandmarks`.
 * :mod:`~warpface.tracking.synthetic` — :class:`SyntheticRGBDCamera` (pyrender, ground truth).
@@ -13,6 +17,11 @@ Modules, each with one job:
 * :mod:`~warpface.tracking.correspondence` — :class:`FaceNormalization`, :func:`closest_points`,
   :func:`compute_correspondence`.
 * :mod:`~warpface.tracking.transfer` — :func:`blend_weights`, :class:`TrackingAdapter`.
+* :mod:`~warpface.tracking.landmark_names` — landmarks named after dense vertices,
+  :func:`adapter_for_face`.
+
+Orchestration (recording to USD, the tissue FEM coupling, the ``track`` command) lives in
+:mod:`warpface.pipelines`; this package imports no fem, usd, assets or metrics.
 
 Importing this package needs only Warp and NumPy; OpenCV, pyrender and the camera SDKs are
 imported when first used.
@@ -30,6 +39,7 @@ from .correspondence import (
 )
 from .depth import KINECT_V1_INTRINSICS, CameraIntrinsics, backproject
 from .detect import ArucoMarkers, Blobs, DotTracker, detect_blobs
+from .landmark_names import adapter_for_face, landmark_vertices, vertex_landmark_names
 from .mediapipe import MediaPipeLandmarks, parse_landmark_list
 from .sources import (
     TIMESTAMP_POLICIES,
@@ -98,4 +108,8 @@ __all__ = [
     "TrackingAdapter",
     "similarity_fit",
     "rigid_fit",
+    # landmarks named after dense vertices
+    "vertex_landmark_names",
+    "landmark_vertices",
+    "adapter_for_face",
 ]

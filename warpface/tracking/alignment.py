@@ -8,15 +8,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validate import as_finite_array, as_points
+
 __all__ = ["similarity_fit", "rigid_fit"]
 
 
 def _weighted(source, target, weights):
-    src = np.asarray(source, dtype=np.float64).reshape(-1, 3)
-    dst = np.asarray(target, dtype=np.float64).reshape(-1, 3)
+    src = as_points(source, "source")
+    dst = as_points(target, "target")
     if src.shape != dst.shape or src.shape[0] < 3:
-        raise ValueError(f"need matching (N, 3) point sets with N ≥ 3, got {src.shape} and {dst.shape}")
-    w = np.ones(src.shape[0]) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
+        raise ValueError(f"source, target: need matching (N, 3) point sets with N ≥ 3, got {src.shape} and {dst.shape}")
+    w = np.ones(src.shape[0]) if weights is None else as_finite_array(weights, "weights", max_abs=1e300).reshape(-1)
     if w.shape[0] != src.shape[0] or (w < 0).any() or w.sum() <= 0:
         raise ValueError("weights: need one non-negative weight per point, not all zero")
     w = w / w.sum()

@@ -27,7 +27,8 @@ from typing import Iterator
 import numpy as np
 
 from .depth import CameraIntrinsics
-from .sources import RGBDFrame, SourceBase, _StreamGuard
+from .frames import RGBDFrame, SourceBase
+from .streams import StreamGuard
 
 __all__ = ["CameraError", "CameraUnavailable", "CameraDisconnected", "RealSenseCamera", "OrbbecCamera"]
 
@@ -77,7 +78,7 @@ class RealSenseCamera(SourceBase):
         self.timeout_ms = int(timeout_ms)
         self.max_frames = max_frames
         self.timestamp_policy = timestamp_policy
-        _StreamGuard(timestamp_policy, "RealSense")
+        StreamGuard(timestamp_policy, "RealSense")
         devices = list(rs.context().query_devices())
         if not devices:
             raise CameraUnavailable("no RealSense device attached")
@@ -111,7 +112,7 @@ class RealSenseCamera(SourceBase):
         Raises:
             CameraDisconnected: no frame within ``timeout_ms`` (device unplugged or stalled).
         """
-        guard = _StreamGuard(self.timestamp_policy, "RealSense")
+        guard = StreamGuard(self.timestamp_policy, "RealSense")
         index = 0
         while self._running and (self.max_frames is None or index < self.max_frames):
             try:
@@ -161,7 +162,7 @@ class OrbbecCamera(SourceBase):
         self.max_empty_waits = int(max_empty_waits)
         self.max_frames = max_frames
         self.timestamp_policy = timestamp_policy
-        _StreamGuard(timestamp_policy, "Orbbec")
+        StreamGuard(timestamp_policy, "Orbbec")
         if ob.Context().query_devices().get_count() < 1:
             raise CameraUnavailable("no Orbbec device attached")
         self._pipeline = ob.Pipeline()
@@ -199,7 +200,7 @@ class OrbbecCamera(SourceBase):
         Raises:
             CameraDisconnected: ``max_empty_waits`` consecutive waits without a frame set.
         """
-        guard = _StreamGuard(self.timestamp_policy, "Orbbec")
+        guard = StreamGuard(self.timestamp_policy, "Orbbec")
         index = 0
         empty = 0
         while self._running and (self.max_frames is None or index < self.max_frames):

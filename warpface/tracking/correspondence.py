@@ -17,9 +17,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import warp as wp
 
-from ..geometry import closest_point_on_triangle
+from .._validate import as_finite_array, as_points, as_positive, as_triangles
+from ..geometry import TriangleMeshIndex, closest_points, triangle_corners, triangle_crosses, triangle_normals
 
 __all__ = [
     "FaceNormalization",
@@ -57,6 +57,11 @@ class FaceNormalization:
     lower: float
     """Height below the eye line ``h_d`` [m]."""
 
+    def __post_init__(self):
+        object.__setattr__(self, "origin", as_finite_array(self.origin, "FaceNormalization.origin", shape=(3,), max_abs=1e6))
+        for name in ("width", "upper", "lower"):
+            object.__setattr__(self, name, as_positive(getattr(self, name), f"FaceNormalization.{name}"))
+
     @classmethod
     def measure(cls, points, eye_y: float, *, front_z: float | None = None) -> "FaceNormalization":
         """Measure a model: width from its x extent, heights from ``eye_y`` to its top and bottom.
@@ -70,15 +75,15 @@ class FaceNormalization:
         Raises:
             ValueError: points not (P, 3) finite, or the eye line not strictly inside the y range.
         """
-        pts = _as_points(points, "points")
+        pts = as_points(points, "points", min_count=1)
         lo, hi = pts.min(axis=0), pts.max(axis=0)
-        eye_y = float(eye_y)
+        eye_y = float(as_finite_array(eye_y, "eye_y", shape=()))
         if not (lo[1] < eye_y < hi[1]):
             raise ValueError(f"eye_y={eye_y} must lie strictly inside the model's y range [{lo[1]}, {hi[1]}]")
         width = float(hi[0] - lo[0])
         if width <= 0.0:
             raise ValueError("points: the model has zero width along x")
-        z0 = float(hi[2]) if front_z is None else float(front_z)
+        z0 = float(hi[2]) if front_z is None else float(as_finite_array(front_z, "front_z", shape=(), max_abs=1e6))
         origin = np.array([0.5 * (lo[0] + hi[0]), eye_y, z0])
         return cls(origin=origin, width=width, upper=float(hi[1] - eye_y), lower=float(eye_y - lo[1]))
 
@@ -87,7 +92,7 @@ class FaceNormalization:
 
         With ``match``, heights above/below the eye line are rescaled to ``match``'s proportions.
         """
-        pts = _as_points(points, "points")
+        pts = as_points(points, "points")
         out = (pts - self.origin) / self.width
         if match is not None:
             dy = pts[:, 1] - self.origin[1]
@@ -98,7 +103,7 @@ class FaceNormalization:
 
     def denormalize(self, normalized, *, match: "FaceNormalization | None" = None) -> np.ndarray:
         """Inverse of :meth:`normalize` (same ``match``), shape (P, 3), float64."""
-        nrm = _as_points(normalized, "normalized")
+        nrm = as_points(normalized, "normalized")
         out = nrm * self.width + self.origin
         if match is not None:
             y = nrm[:, 1]
@@ -106,165 +111,6 @@ class FaceNormalization:
                 y >= 0.0, y * self.upper / (match.upper / match.width), y * self.lower / (match.lower / match.width)
             )
         return out
-
-
-def _as_points(points, name: str) -> np.ndarray:
-    pts = np.asarray(points, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"{name}: expected shape (N, 3), got {pts.shape}")
-    if not np.all(np.isfinite(pts)):
-        bad = int(np.argwhere(~np.isfinite(pts))[0][0])
-        raise ValueError(f"{name}: non-finite coordinate at point {bad}")
-    return pts
-
-
-def _as_triangles(triangles, vertex_count: int, name: str = "triangles") -> np.ndarray:
-    tri = np.asarray(triangles)
-    if tri.ndim != 2 or tri.shape[1] != 3 or tri.shape[0] == 0:
-        raise ValueError(f"{name}: expected shape (T, 3) with T ≥ 1, got {tri.shape}")
-    if not np.issubdtype(tri.dtype, np.integer):
-        raise ValueError(f"{name}: expected integer vertex indices, got dtype {tri.dtype}")
-    bad = np.argwhere((tri < 0) | (tri >= vertex_count))
-    if bad.size:
-        t = int(bad[0][0])
-        raise ValueError(f"{name}: triangle {t} {tri[t].tolist()} indexes outside [0, {vertex_count})")
-    return tri.astype(np.int32)
-
-
-# --------------------------------------------------------------------------------------------
-# Closest points on a triangle mesh
-# --------------------------------------------------------------------------------------------
-
-
-@wp.kernel
-def _closest_points_kernel(
-    mesh: wp.uint64,
-    vertices: wp.array(dtype=wp.vec3),
-    triangles: wp.array2d(dtype=wp.int32),
-    queries: wp.array(dtype=wp.vec3),
-    box_center: wp.vec3,
-    box_radius: float,
-    out_triangle: wp.array(dtype=wp.int32),
-    out_barycentric: wp.array(dtype=wp.vec3),
-    out_distance: wp.array(dtype=float),
-):
-    """Closest triangle per query: BVH bound → AABB candidates → exact Voronoi-region test."""
-    i = wp.tid()
-    p = queries[i]
-    # Every triangle lies within this distance of p, so it bounds the answer from above.
-    bound = wp.length(p - box_center) + box_radius
-    hit = wp.mesh_query_point_no_sign(mesh, p, bound * 1.001 + 1.0e-6)
-    if hit.result:
-        bound = wp.min(bound, wp.length(p - wp.mesh_eval_position(mesh, hit.face, hit.u, hit.v)))
-    # Any triangle at least as close as the bound overlaps this box; pad for rounding.
-    r = bound * 1.0001 + 1.0e-6 * box_radius + 1.0e-12
-    reach = wp.vec3(r, r, r)
-
-    best_t = int(-1)
-    best_d = float(1.0e30)
-    best_w = wp.vec3(1.0, 0.0, 0.0)
-    query = wp.mesh_query_aabb(mesh, p - reach, p + reach)
-    t = int(0)
-    while wp.mesh_query_next(query, t):
-        a = vertices[triangles[t, 0]]
-        b = vertices[triangles[t, 1]]
-        c = vertices[triangles[t, 2]]
-        w = closest_point_on_triangle(p, a, b, c)
-        d = wp.length_sq(p - (w[0] * a + w[1] * b + w[2] * c))
-        if d < best_d or (d == best_d and t < best_t):
-            best_d = d
-            best_t = t
-            best_w = w
-    if best_t < 0:
-        # Unreachable for valid input (the bound guarantees a candidate); exhaustive as a safety net.
-        for s in range(triangles.shape[0]):
-            a = vertices[triangles[s, 0]]
-            b = vertices[triangles[s, 1]]
-            c = vertices[triangles[s, 2]]
-            w = closest_point_on_triangle(p, a, b, c)
-            d = wp.length_sq(p - (w[0] * a + w[1] * b + w[2] * c))
-            if d < best_d:
-                best_d = d
-                best_t = s
-                best_w = w
-    out_triangle[i] = best_t
-    out_barycentric[i] = best_w
-    out_distance[i] = wp.sqrt(best_d)
-
-
-class TriangleMeshIndex:
-    """A triangle mesh uploaded once with its BVH, for repeated closest-point queries.
-
-    Coordinates are shifted to the mesh's bounding-box centre before conversion to float32, so
-    precision does not depend on where the mesh sits (e.g. 0.6 m in front of a camera).
-
-    Args:
-        vertices: mesh points [m], shape (V, 3).
-        triangles: vertex indices, shape (T, 3), integer.
-        device: Warp device; Warp's preferred device when ``None``.
-    """
-
-    def __init__(self, vertices, triangles, *, device=None):
-        verts = _as_points(vertices, "vertices")
-        tri = _as_triangles(triangles, verts.shape[0])
-        self.device = wp.get_device(device)
-        lo, hi = verts.min(axis=0), verts.max(axis=0)
-        self.center = 0.5 * (lo + hi)
-        """Coordinate shift [m], shape (3,): the bounding-box centre."""
-        self.radius = float(0.5 * np.linalg.norm(hi - lo))
-        """Bounding-sphere radius about :attr:`center` [m]."""
-        self._vertices = wp.array((verts - self.center).astype(np.float32), dtype=wp.vec3, device=self.device)
-        self._triangles = wp.array(tri, dtype=wp.int32, device=self.device)
-        self._indices = wp.array(tri.reshape(-1), dtype=wp.int32, device=self.device)
-        self._mesh = wp.Mesh(points=self._vertices, indices=self._indices)
-        self.triangle_count = int(tri.shape[0])
-
-    def query(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Closest point on the mesh for each of ``points`` (shape (Q, 3)); see :func:`closest_points`."""
-        q = _as_points(points, "query")
-        count = q.shape[0]
-        triangle = wp.empty(count, dtype=wp.int32, device=self.device)
-        bary = wp.empty(count, dtype=wp.vec3, device=self.device)
-        dist = wp.empty(count, dtype=float, device=self.device)
-        if count:
-            queries = wp.array((q - self.center).astype(np.float32), dtype=wp.vec3, device=self.device)
-            wp.launch(
-                _closest_points_kernel,
-                dim=count,
-                inputs=[
-                    self._mesh.id,
-                    self._vertices,
-                    self._triangles,
-                    queries,
-                    wp.vec3(0.0, 0.0, 0.0),
-                    max(self.radius, 1e-12),
-                ],
-                outputs=[triangle, bary, dist],
-                device=self.device,
-            )
-        return triangle.numpy(), bary.numpy().reshape(count, 3), dist.numpy()
-
-
-def closest_points(query, vertices, triangles, device=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Closest point on a triangle mesh for every query point.
-
-    Args:
-        query: query points [m], shape (Q, 3).
-        vertices: mesh points [m], shape (V, 3).
-        triangles: vertex indices, shape (T, 3), integer, T ≥ 1.
-        device: Warp device; Warp's preferred device when ``None``.
-
-    Returns:
-        ``(triangle, barycentric, distance)``: closest triangle per query, shape (Q,), int32;
-        barycentric coordinates of the closest point in that triangle (≥ 0, summing to 1), shape
-        (Q, 3), float32, so the point is ``Σ_j barycentric[:, j] · vertices[triangles[triangle, j]]``;
-        distance from the query to it [m], shape (Q,), float32. Ties between triangles at exactly
-        equal distance go to the lower triangle index.
-
-    Raises:
-        ValueError: wrong shapes, non-finite coordinates, or indices out of range.
-    """
-    return TriangleMeshIndex(vertices, triangles, device=device).query(query)
 
 
 # --------------------------------------------------------------------------------------------
@@ -285,6 +131,59 @@ class Correspondence:
     overhang: np.ndarray
     """In-plane part of that offset [dense m], shape (V,), float64: 0 where the vertex projects inside
     a sparse triangle, growing with the distance beyond the sparse mesh's contour."""
+
+    def __post_init__(self):
+        checked = self.checked()
+        for name in ("triangle", "barycentric", "distance", "overhang"):
+            object.__setattr__(self, name, getattr(checked, name))
+
+    def checked(self, triangle_count: int | None = None, vertex_count: int | None = None) -> "Correspondence":
+        """The arrays converted and checked, optionally against the sparse triangle count and the
+        dense vertex count; returns a correspondence with contiguous arrays of the documented dtypes.
+
+        Raises:
+            ValueError: mismatched lengths, a triangle index that is not a whole number in
+                [0, ``triangle_count``), or non-finite or negative coordinates/distances (naming the item).
+        """
+        triangle = _as_index_array(self.triangle, "correspondence.triangle")
+        count = triangle.shape[0]
+        if vertex_count is not None and count != vertex_count:
+            raise ValueError(f"correspondence is for {count} dense vertices, not {vertex_count}")
+        if triangle_count is not None and count and int(triangle.max()) >= triangle_count:
+            v = int(np.argmax(triangle))
+            raise ValueError(f"correspondence.triangle: vertex {v} refers to sparse triangle {int(triangle[v])}, "
+                             f"but there are {triangle_count}")
+        barycentric = as_finite_array(self.barycentric, "correspondence.barycentric", shape=(count, 3), max_abs=1e6)
+        distance = as_finite_array(self.distance, "correspondence.distance", shape=(count,), max_abs=1e6)
+        overhang = as_finite_array(self.overhang, "correspondence.overhang", shape=(count,), max_abs=1e6)
+        for name, values in (("distance", distance), ("overhang", overhang)):
+            if count and values.min() < 0:
+                raise ValueError(f"correspondence.{name}: negative value at vertex {int(np.argmin(values))}")
+        result = object.__new__(Correspondence)
+        for name, value in (("triangle", triangle.astype(np.int32)), ("barycentric", barycentric.astype(np.float32)),
+                            ("distance", distance), ("overhang", overhang)):
+            object.__setattr__(result, name, np.ascontiguousarray(value))
+        return result
+
+
+def _as_index_array(value, name: str) -> np.ndarray:
+    """Non-negative whole-number indices, shape (N,), int64 (float arrays of whole numbers accepted)."""
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: cannot convert to an index array ({exc})") from None
+    if array.ndim != 1:
+        raise ValueError(f"{name}: expected shape (N,), got {array.shape}")
+    if array.dtype == np.bool_ or not (np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)):
+        raise ValueError(f"{name}: expected integer indices, got dtype {array.dtype}")
+    if np.issubdtype(array.dtype, np.floating):
+        bad = ~np.isfinite(array) | (array != np.round(array))
+        if bad.any():
+            raise ValueError(f"{name}: entry {int(np.argmax(bad))} is {array[np.argmax(bad)]}, not a whole number")
+    if array.size and (array.min() < 0 or array.max() > np.iinfo(np.int32).max):
+        i = int(np.argmin(array)) if array.min() < 0 else int(np.argmax(array))
+        raise ValueError(f"{name}: entry {i} is {array[i]}, outside [0, 2³¹)")
+    return array.astype(np.int64)
 
 
 def compute_correspondence(
@@ -312,9 +211,12 @@ def compute_correspondence(
     """
     if (sparse_normalization is None) != (dense_normalization is None):
         raise ValueError("give both sparse_normalization and dense_normalization, or neither")
-    dense = _as_points(dense_points, "dense_points")
-    sparse = _as_points(sparse_points, "sparse_points")
-    tri = _as_triangles(sparse_triangles, sparse.shape[0], "sparse_triangles")
+    for name, value in (("sparse_normalization", sparse_normalization), ("dense_normalization", dense_normalization)):
+        if value is not None and not isinstance(value, FaceNormalization):
+            raise TypeError(f"{name}: expected a FaceNormalization, got {type(value).__name__}")
+    dense = as_points(dense_points, "dense_points")
+    sparse = as_points(sparse_points, "sparse_points")
+    tri = as_triangles(sparse_triangles, sparse.shape[0], "sparse_triangles")
     to_dense = 1.0
     if sparse_normalization is not None:
         sparse = sparse_normalization.normalize(sparse)
@@ -322,11 +224,9 @@ def compute_correspondence(
         to_dense = dense_normalization.width
     triangle, bary, dist = TriangleMeshIndex(sparse, tri, device=device).query(dense)
 
-    corners = sparse[tri[triangle]]  # (V, 3, 3)
+    corners = triangle_corners(sparse, tri[triangle])  # (V, 3, 3)
     closest = np.einsum("vj,vjk->vk", bary.astype(np.float64), corners)
-    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    length = np.linalg.norm(normal, axis=1, keepdims=True)
-    normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0.0)
+    normal = triangle_normals(crosses=triangle_crosses(corners))
     offset = dense - closest
     tangential = offset - np.sum(offset * normal, axis=1, keepdims=True) * normal
     return Correspondence(
@@ -349,14 +249,27 @@ def triangulate_landmarks(points, *, max_edge: float | None = None) -> np.ndarra
         Triangles, shape (T, 3), int32, oriented toward +z.
 
     Raises:
-        ValueError: fewer than 3 points, or no triangle left.
+        ValueError: fewer than 3 points, points whose (x, y) projections are collinear or
+            coincide, a ``max_edge`` that is not positive, or no triangle left.
     """
     from scipy.spatial import Delaunay
+    from scipy.spatial import QhullError
 
-    pts = _as_points(points, "points")
+    pts = as_points(points, "points")
     if pts.shape[0] < 3:
         raise ValueError(f"points: need ≥ 3 landmarks to triangulate, got {pts.shape[0]}")
-    tri = Delaunay(pts[:, :2]).simplices.astype(np.int64)
+    if max_edge is not None:
+        max_edge = as_positive(max_edge, "max_edge")
+    front = pts[:, :2] - pts[:, :2].mean(axis=0)
+    extent = float(np.abs(front).max())
+    singular = np.linalg.svd(front / extent, compute_uv=False) if extent > 0 else np.zeros(2)
+    if singular[-1] <= 1e-9 * max(singular[0], 1e-300) or len(np.unique(pts[:, :2], axis=0)) < 3:
+        raise ValueError("points: the landmarks' (x, y) projections are collinear or coincide; nothing to triangulate")
+    try:
+        tri = Delaunay(pts[:, :2]).simplices.astype(np.int64)
+    except QhullError as exc:
+        raise ValueError(f"points: cannot triangulate the landmarks' (x, y) projections "
+                         f"({str(exc).strip().splitlines()[0]})") from None
     # Orient toward +z: counter-clockwise in (x, y).
     e1 = pts[tri[:, 1], :2] - pts[tri[:, 0], :2]
     e2 = pts[tri[:, 2], :2] - pts[tri[:, 0], :2]

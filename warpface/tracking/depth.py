@@ -24,7 +24,14 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-__all__ = ["CameraIntrinsics", "backproject", "KINECT_V1_INTRINSICS"]
+from .._validate import as_count, as_finite_array, as_positive
+
+__all__ = ["CameraIntrinsics", "backproject", "KINECT_V1_INTRINSICS", "MAX_PIXELS", "MAX_DEPTH", "MAX_DEPTH_WINDOW"]
+
+MAX_PIXELS = 65536
+"""Largest accepted image width or height [px]."""
+MAX_DEPTH_WINDOW = 101
+"""Largest back-projection window [px] (the fit visits window² pixels per landmark)."""
 
 
 @dataclass(frozen=True)
@@ -46,15 +53,18 @@ class CameraIntrinsics:
 
     def __post_init__(self):
         for name in ("fx", "fy", "cx", "cy"):
-            value = getattr(self, name)
-            if not np.isfinite(value):
-                raise ValueError(f"intrinsics: {name} must be finite, got {value}")
+            value = as_finite_array(getattr(self, name), f"intrinsics: {name}", shape=(), max_abs=MAX_PIXELS * 1e3)
+            object.__setattr__(self, name, float(value))
         if self.fx <= 0 or self.fy <= 0:
             raise ValueError(f"intrinsics: focal lengths must be > 0, got fx={self.fx}, fy={self.fy}")
-        if int(self.width) != self.width or int(self.height) != self.height or self.width <= 0 or self.height <= 0:
-            raise ValueError(f"intrinsics: width/height must be positive integers, got {self.width}×{self.height}")
-        object.__setattr__(self, "width", int(self.width))
-        object.__setattr__(self, "height", int(self.height))
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, (bool, np.bool_)):
+                raise ValueError(f"intrinsics: {name} must be a positive integer, got {value!r}")
+            number = float(as_finite_array(value, f"intrinsics: {name}", shape=()))
+            if number != int(number) or not 1 <= number <= MAX_PIXELS:
+                raise ValueError(f"intrinsics: {name} must be a whole number of pixels in [1, {MAX_PIXELS}], got {value!r}")
+            object.__setattr__(self, name, int(number))
 
     @property
     def matrix(self) -> np.ndarray:
@@ -74,10 +84,9 @@ class CameraIntrinsics:
         if missing:
             raise ValueError(f"{where}: missing {', '.join(missing)}")
         try:
-            return cls(float(data["fx"]), float(data["fy"]), float(data["cx"]), float(data["cy"]),
-                       int(data["width"]), int(data["height"]))
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{where}: {exc}") from None
+            return cls(*(data[key] for key in ("fx", "fy", "cx", "cy", "width", "height")))
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise ValueError(f"{where}: {str(exc).removeprefix('intrinsics: ')}") from None
 
     def project(self, points) -> np.ndarray:
         """Pixel coordinates of camera-frame points [m], shape (N, 3) → (N, 2), float64."""
@@ -100,9 +109,18 @@ KINECT_V1_INTRINSICS = CameraIntrinsics(fx=525.0, fy=525.0, cx=319.5, cy=239.5, 
 """A Kinect-v1-like 640×480 camera (the thesis's sensor): 525 px focal length, centred."""
 
 
+MAX_DEPTH = 1.0e4
+"""Depths at or beyond this [m] are holes (no depth sensor measures them; they would overflow the fit)."""
+
 _vec6f = wp.types.vector(length=6, dtype=wp.float32)
 _vec6d = wp.types.vector(length=6, dtype=wp.float64)
 _mat66d = wp.types.matrix(shape=(6, 6), dtype=wp.float64)
+
+
+@wp.func
+def _is_depth(z: float) -> bool:
+    """A measured depth: not a hole (0), negative, NaN, infinite or beyond :data:`MAX_DEPTH`."""
+    return z > 0.0 and z < wp.static(MAX_DEPTH)
 
 
 @wp.func
@@ -162,25 +180,33 @@ def _solve_spd(A: _mat66d, b: _vec6d, n: int) -> _vec6d:
 
 
 @wp.func
-def _count_residual_le(
-    depth: wp.array2d(dtype=float),
-    r0: int, r1: int, c0: int, c1: int,
-    u: float, v: float, coef: _vec6f, scale: float,
-    signed: int, threshold: float,
-) -> int:
-    """Count valid pixels in rows [r0, r1) × cols [c0, c1) whose residual Z − model (signed) or
-    |Z − model| is ≤ threshold. A zero model makes the signed residual the depth itself."""
-    count = int(0)
-    for row in range(r0, r1):
-        for col in range(c0, c1):
-            z = depth[row, col]
-            if z > 0.0:
-                r = z - _model_depth(coef, float(col) - u, float(row) - v, scale)
-                if signed == 0:
-                    r = wp.abs(r)
-                if r <= threshold:
-                    count += 1
-    return count
+def _select(values: wp.array2d(dtype=float), row: int, n: int, k: int) -> float:
+    """The k-th smallest (0-based) of ``values[row, :n]`` by quickselect (Hoare partition, middle
+    pivot); reorders that row in place. Expected O(n)."""
+    lo = int(0)
+    hi = int(n - 1)
+    while lo < hi:
+        pivot = values[row, (lo + hi) // 2]
+        i = int(lo)
+        j = int(hi)
+        while i <= j:
+            while values[row, i] < pivot:
+                i += 1
+            while values[row, j] > pivot:
+                j -= 1
+            if i <= j:
+                swap = values[row, i]
+                values[row, i] = values[row, j]
+                values[row, j] = swap
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    return values[row, k]
 
 
 @wp.func
@@ -188,18 +214,23 @@ def _median_residual(
     depth: wp.array2d(dtype=float),
     r0: int, r1: int, c0: int, c1: int,
     u: float, v: float, coef: _vec6f, scale: float,
-    signed: int, lo: float, hi: float, n: int,
+    signed: int, scratch: wp.array2d(dtype=float), slot: int,
 ) -> float:
-    """Median of the n valid pixels' residuals (see :func:`_count_residual_le`), bisection on [lo, hi]."""
-    half = (n + 1) // 2
-    # 24 halvings: 6e-8 of the bracket (sub-micrometre for any window of a face).
-    for _ in range(24):
-        mid = 0.5 * (lo + hi)
-        if _count_residual_le(depth, r0, r1, c0, c1, u, v, coef, scale, signed, mid) >= half:
-            hi = mid
-        else:
-            lo = mid
-    return hi
+    """Median (the ⌈n/2⌉-th smallest) of the valid pixels' residuals in rows [r0, r1) × cols
+    [c0, c1): Z − model (signed) or |Z − model|; a zero model makes the signed residual the depth
+    itself. The residuals are gathered once in row ``slot`` of ``scratch`` and selected there, so
+    the model is evaluated once per pixel. The window must hold at least one valid pixel."""
+    n = int(0)
+    for row in range(r0, r1):
+        for col in range(c0, c1):
+            z = depth[row, col]
+            if _is_depth(z):
+                r = z - _model_depth(coef, float(col) - u, float(row) - v, scale)
+                if signed == 0:
+                    r = wp.abs(r)
+                scratch[slot, n] = r
+                n += 1
+    return _select(scratch, slot, n, (n + 1) // 2 - 1)
 
 
 @wp.func
@@ -211,7 +242,7 @@ def _valid_range(depth: wp.array2d(dtype=float), r0: int, r1: int, c0: int, c1: 
     for row in range(r0, r1):
         for col in range(c0, c1):
             z = depth[row, col]
-            if z > 0.0:
+            if _is_depth(z):
                 n += 1.0
                 zmin = wp.min(zmin, z)
                 zmax = wp.max(zmax, z)
@@ -234,6 +265,7 @@ def _backproject_kernel(
     noise_floor: float,
     iterations: int,
     min_inlier_fraction: float,
+    scratch: wp.array2d(dtype=float),
     out_points: wp.array(dtype=wp.vec3),
     out_inliers: wp.array(dtype=wp.int32),
 ):
@@ -273,8 +305,7 @@ def _backproject_kernel(
             b1 = wp.min(vc + ring + 1, height)
             inner = _valid_range(depth, b0, b1, a0, a1)
             if int(inner[0]) >= 3:
-                z_seed = _median_residual(depth, b0, b1, a0, a1, u, v, zero, scale, 1, inner[1], inner[2],
-                                          int(inner[0]))
+                z_seed = _median_residual(depth, b0, b1, a0, a1, u, v, zero, scale, 1, scratch, i)
                 found = 1
     if found == 0:
         return
@@ -292,18 +323,12 @@ def _backproject_kernel(
         count = int(0)
         if it > 0:
             # Re-gate on this fit's residuals: 2.5 σ̂ (σ̂ = 1.4826 MAD), never below the sensor's noise.
-            lim = float(0.0)
-            for row in range(r0, r1):
-                for col in range(c0, c1):
-                    z = depth[row, col]
-                    if z > 0.0:
-                        lim = wp.max(lim, wp.abs(z - _model_depth(coef, float(col) - u, float(row) - v, scale)))
-            mad = _median_residual(depth, r0, r1, c0, c1, u, v, coef, scale, 0, 0.0, lim, n)
+            mad = _median_residual(depth, r0, r1, c0, c1, u, v, coef, scale, 0, scratch, i)
             gate = wp.max(2.5 * 1.4826 * mad, 2.5 * noise_floor)
         for row in range(r0, r1):
             for col in range(c0, c1):
                 z = depth[row, col]
-                if z > 0.0:
+                if _is_depth(z):
                     du = float(col) - u
                     dv = float(row) - v
                     keep = int(0)
@@ -384,7 +409,7 @@ def backproject(
         depth: depth image [m], shape (H, W) matching ``intrinsics``; 0 marks a hole.
         intrinsics: the depth image's intrinsics (depth registered to the colour camera when the
             landmarks were found in colour).
-        window: odd window size [px], ≥ 3.
+        window: odd window size [px], 3 … :data:`MAX_DEPTH_WINDOW`.
         model: ``"quadric"`` (default) or ``"plane"``.
         min_valid: fewest inlier pixels for a valid fit.
         outlier_floor: half-width of the first gate at the landmark itself [m].
@@ -403,34 +428,52 @@ def backproject(
         ValueError: bad shapes, an even or too small window, an unknown model, or a depth image
             whose size does not match ``intrinsics``.
     """
-    uv = np.asarray(pixels, dtype=np.float64)
+    if not isinstance(intrinsics, CameraIntrinsics):
+        raise TypeError(f"intrinsics: expected a CameraIntrinsics, got {type(intrinsics).__name__}")
+    try:
+        uv = np.array(pixels, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"pixels: cannot convert to a numeric array ({exc})") from None
     if uv.ndim != 2 or uv.shape[1] != 2:
         raise ValueError(f"pixels: expected shape (N, 2), got {uv.shape}")
-    z = np.asarray(depth)
+    uv[~np.all(np.isfinite(uv), axis=1)] = np.nan  # an infinite pixel is as missing as a NaN one
+    uv[np.any(np.abs(uv) > MAX_PIXELS, axis=1)] = np.nan  # far off any image
+    try:
+        with np.errstate(over="ignore"):  # beyond float32's range becomes inf: a hole, like NaN, 0 and < 0
+            z = np.ascontiguousarray(depth, dtype=np.float32)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"depth: cannot convert to a numeric image ({exc})") from None
     if z.ndim != 2:
         raise ValueError(f"depth: expected a 2-D image, got shape {z.shape}")
     if z.shape != (intrinsics.height, intrinsics.width):
         raise ValueError(
             f"depth: image is {z.shape[1]}×{z.shape[0]} but intrinsics are {intrinsics.width}×{intrinsics.height}"
         )
-    if window < 3 or window % 2 == 0:
+    window = as_count(window, "window", minimum=3, maximum=MAX_DEPTH_WINDOW)
+    if window % 2 == 0:
         raise ValueError(f"window: must be an odd integer ≥ 3, got {window}")
     if model not in ("plane", "quadric"):
         raise ValueError(f"model: 'plane' or 'quadric', got {model!r}")
-    if min_valid < 6:
-        raise ValueError(f"min_valid: must be ≥ 6 for a surface fit, got {min_valid}")
+    min_valid = as_count(min_valid, "min_valid", minimum=6)
+    iterations = as_count(iterations, "iterations", minimum=0, maximum=100)
+    outlier_floor = as_positive(outlier_floor, "outlier_floor", allow_zero=True)
+    max_slope = as_positive(max_slope, "max_slope", allow_zero=True)
+    noise_floor = as_positive(noise_floor, "noise_floor", allow_zero=True)
+    min_inlier_fraction = float(as_finite_array(min_inlier_fraction, "min_inlier_fraction", shape=()))
+    if not 0.0 <= min_inlier_fraction <= 1.0:
+        raise ValueError(f"min_inlier_fraction: must be in [0, 1], got {min_inlier_fraction}")
     count = uv.shape[0]
     if count == 0:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
-    z32 = np.where(np.isfinite(z) & (z > 0), z, 0).astype(np.float32)
     device = wp.get_device(device)
     points = wp.empty(count, dtype=wp.vec3, device=device)
     inliers = wp.empty(count, dtype=wp.int32, device=device)
+    scratch = wp.empty((count, window * window), dtype=float, device=device)  # residuals, one row per landmark
     wp.launch(
         _backproject_kernel,
         dim=count,
         inputs=[
-            wp.array(z32, dtype=float, device=device),
+            wp.array(z, dtype=float, device=device, copy=not device.is_cpu),  # CPU: the caller's image, no copy
             wp.array(uv.astype(np.float32), dtype=wp.vec2, device=device),
             window // 2,
             1 if model == "quadric" else 0,
@@ -444,11 +487,14 @@ def backproject(
             float(noise_floor),
             int(max(iterations, 1)),
             float(min_inlier_fraction),
+            scratch,
         ],
         outputs=[points, inliers],
         device=device,
     )
     out = points.numpy().astype(np.float64)
     n_in = inliers.numpy()
-    out[n_in == 0] = np.nan
+    invalid = (n_in == 0) | ~np.all(np.isfinite(out), axis=1)
+    out[invalid] = np.nan
+    n_in = np.where(invalid, 0, n_in).astype(np.int32)
     return out, n_in

@@ -27,7 +27,33 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["Blobs", "detect_blobs", "DotTracker", "ArucoMarkers"]
+from .._validate import as_bounded, as_count, as_finite_array, as_positive
+from .streams import validate_landmark_names
+
+__all__ = ["Blobs", "detect_blobs", "DotTracker", "ArucoMarkers", "MAX_DOT_DIAMETER"]
+
+MAX_DOT_DIAMETER = 1000
+"""Largest accepted dot diameter [px] (it sizes the background filter of dark dots)."""
+
+
+def _checked_blob_options(color, threshold, min_area, max_area, min_axis_ratio, max_diameter) -> dict:
+    """The blob gates of :func:`detect_blobs`, checked; each bad one named in a ValueError."""
+    if isinstance(color, str):
+        if color != "dark":
+            raise ValueError(f"color must be 'dark' or an RGB triple, got {color!r}")
+    else:
+        rgb = as_finite_array(color, "color", shape=(3,))
+        if rgb.min() < 0 or rgb.max() > 255:
+            raise ValueError(f"color: RGB values must be in [0, 255], got {rgb.tolist()}")
+        color = tuple(float(c) for c in rgb)
+    return dict(
+        color=color,
+        threshold=as_bounded(threshold, "threshold", 0.0, 255.0),
+        min_area=as_count(min_area, "min_area", minimum=1),
+        max_area=as_count(max_area, "max_area", minimum=1),
+        min_axis_ratio=as_bounded(min_axis_ratio, "min_axis_ratio", 0.0, 1.0),
+        max_diameter=as_count(max_diameter, "max_diameter", minimum=1, maximum=MAX_DOT_DIAMETER),
+    )
 
 
 @dataclass(frozen=True)
@@ -46,8 +72,8 @@ class Blobs:
 
 
 def _contrast_map(image: np.ndarray, color, max_diameter: int) -> np.ndarray:
-    """Per-pixel evidence of a dot, float32, 0–255: darkness below the local background, or
-    closeness to the target colour."""
+    """Per-pixel evidence of a dot, 0–255 (uint8 for dark dots, float32 for coloured ones): darkness
+    below the local background, or closeness to the target colour."""
     import cv2
 
     rgb = np.asarray(image)
@@ -62,7 +88,8 @@ def _contrast_map(image: np.ndarray, color, max_diameter: int) -> np.ndarray:
         size = int(max_diameter) + 2
         kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (size, size))
         background = cv2.morphologyEx(gray, cv2.MORPH_CLOSE, kernel)
-        return background.astype(np.float32) - gray.astype(np.float32)
+        # A closing never darkens a pixel, so the uint8 difference is exact (no saturation).
+        return cv2.subtract(background, gray)
     target = np.asarray(color, dtype=np.float32).reshape(-1)
     if target.shape != (3,):
         raise ValueError(f"color must be 'dark' or an RGB triple, got {color!r}")
@@ -94,11 +121,18 @@ def detect_blobs(
         threshold: contrast (0–255) a pixel needs to belong to a dot.
         min_area, max_area: accepted blob sizes [px].
         min_axis_ratio: rejects elongated blobs (edges, hair, eyelids); 1 = only perfect circles.
-        max_diameter: largest dot diameter [px] (sets the background filter for dark dots).
+        max_diameter: largest dot diameter [px], 1 … :data:`MAX_DOT_DIAMETER` (sets the background
+            filter for dark dots).
 
     Returns:
         :class:`Blobs` passing the gates, in no particular order.
     """
+    options = _checked_blob_options(color, threshold, min_area, max_area, min_axis_ratio, max_diameter)
+    return _detect_blobs(image, **options)
+
+
+def _detect_blobs(image, *, color, threshold, min_area, max_area, min_axis_ratio, max_diameter) -> Blobs:
+    """:func:`detect_blobs` with options already checked."""
     import cv2
 
     contrast = _contrast_map(image, color, max_diameter)
@@ -143,6 +177,10 @@ def detect_blobs(
     )
 
 
+MAX_TRACKING_PX = 1.0e5
+"""Largest accepted pixel coordinate or pixel distance in :class:`DotTracker`."""
+
+
 class DotTracker:
     """Track N painted dots from frame to frame.
 
@@ -180,27 +218,24 @@ class DotTracker:
         velocity_damping: float = 0.5,
         area_change: float = 1.6,
     ):
-        start = np.asarray(initial_pixels, dtype=np.float64)
-        if start.ndim != 2 or start.shape[1] != 2 or start.shape[0] == 0:
-            raise ValueError(f"initial_pixels: expected shape (N, 2) with N ≥ 1, got {start.shape}")
-        if not np.all(np.isfinite(start)):
-            raise ValueError(f"initial_pixels: dot {int(np.argwhere(~np.isfinite(start))[0][0])} is not finite")
+        start = as_finite_array(initial_pixels, "initial_pixels", shape=(None, 2), max_abs=MAX_TRACKING_PX)
+        if start.shape[0] == 0:
+            raise ValueError("initial_pixels: expected shape (N, 2) with N ≥ 1, got (0, 2)")
         n = start.shape[0]
-        self.landmark_names = tuple(names) if names is not None else tuple(f"dot_{i:03d}" for i in range(n))
-        if len(self.landmark_names) != n:
-            raise ValueError(f"names: {len(self.landmark_names)} names for {n} dots")
-        self.blob_options = dict(color=color, threshold=threshold, min_area=min_area, max_area=max_area,
-                                 min_axis_ratio=min_axis_ratio, max_diameter=max_diameter)
-        self.gate_px = float(gate_px)
-        self.outlier_px = float(outlier_px)
-        self.neighbours = int(neighbours)
-        self.velocity_damping = float(velocity_damping)
-        self.area_change = float(area_change)
+        default = tuple(f"dot_{i:03d}" for i in range(n))
+        self.landmark_names = default if names is None else validate_landmark_names(names, n, "names")
+        self.blob_options = _checked_blob_options(color, threshold, min_area, max_area, min_axis_ratio, max_diameter)
+        self.gate_px = as_positive(gate_px, "gate_px", maximum=MAX_TRACKING_PX)
+        self.outlier_px = as_positive(outlier_px, "outlier_px", maximum=MAX_TRACKING_PX)
+        self.neighbours = as_count(neighbours, "neighbours", minimum=1, maximum=1000)
+        self.velocity_damping = as_bounded(velocity_damping, "velocity_damping", 0.0, 1.0)
+        self.area_change = as_bounded(area_change, "area_change", 1.0, 1e6)
         self.reset(start)
 
     def reset(self, pixels) -> None:
         """Restart tracking from known dot positions [px], shape (N, 2)."""
-        self.position = np.asarray(pixels, dtype=np.float64).copy()
+        count = len(self.landmark_names)
+        self.position = as_finite_array(pixels, "pixels", shape=(count, 2), max_abs=MAX_TRACKING_PX).copy()
         """Last known position of each dot [px], shape (N, 2)."""
         self.velocity = np.zeros_like(self.position)
         """Last per-frame motion of each dot [px/frame], shape (N, 2)."""
@@ -212,8 +247,8 @@ class DotTracker:
     def detect(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Find the dots in ``image``: pixels (N, 2) with NaN for dots not found, confidence (N,)."""
         image = np.asarray(image)
-        if image.ndim != 3 or image.shape[2] != 3:
-            raise ValueError(f"image must be (H, W, 3) uint8 RGB, got {image.shape}")
+        if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+            raise ValueError(f"image must be (H, W, 3) uint8 RGB, got {image.shape} {image.dtype}")
         # Only the neighbourhood of the tracked dots can hold them: crop to it.
         margin = self.gate_px + self.blob_options["max_diameter"] + 2
         predicted = self.position + self.velocity_damping * self.velocity
@@ -224,7 +259,7 @@ class DotTracker:
         y1 = int(np.clip(np.ceil(predicted[:, 1].max() + margin) + 1, 0, h))
         if x1 - x0 < 3 or y1 - y0 < 3:
             return self.update(np.zeros((0, 2)))
-        blobs = detect_blobs(image[y0:y1, x0:x1], **self.blob_options)
+        blobs = _detect_blobs(image[y0:y1, x0:x1], **self.blob_options)  # options checked in __init__
         return self.update(blobs.centers + [x0, y0], blobs.areas)
 
     def update(self, detections: np.ndarray, areas: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -242,7 +277,14 @@ class DotTracker:
            truncated, and its centroid no longer marks its centre.
         """
         n = self.position.shape[0]
-        det = np.asarray(detections, dtype=np.float64).reshape(-1, 2)
+        det = as_finite_array(detections, "detections", max_abs=MAX_TRACKING_PX)
+        if det.size % 2:
+            raise ValueError(f"detections: expected shape (K, 2), got {det.shape}")
+        det = det.reshape(-1, 2)
+        if areas is not None:
+            areas = as_finite_array(areas, "areas").reshape(-1)
+            if areas.shape != (det.shape[0],) or (areas <= 0).any():
+                raise ValueError(f"areas: expected {det.shape[0]} positive blob areas, got shape {areas.shape}")
         match = np.full(n, -1, dtype=np.int64)  # detection index per dot
         if det.shape[0]:
             predicted = self.position + self.velocity_damping * self.velocity
@@ -288,10 +330,15 @@ class DotTracker:
     def _neighbour_motion(self, known: np.ndarray, motion: np.ndarray, query: np.ndarray) -> np.ndarray:
         """Median motion of the ``neighbours`` nearest dots in ``known`` (excluding itself) for each
         dot in ``query``, shape (len(query), 2)."""
-        dist = np.linalg.norm(self.position[query][:, None, :] - self.position[known][None, :, :], axis=2)
-        dist[query[:, None] == known[None, :]] = np.inf
+        from scipy.spatial import cKDTree
+
         k = max(1, min(self.neighbours, known.size - 1 if np.isin(query, known).any() else known.size))
-        nearest = np.argpartition(dist, k - 1, axis=1)[:, :k]
+        candidates = min(k + 1, known.size)  # one more, in case the dot itself is among them
+        _, found = cKDTree(self.position[known]).query(self.position[query], k=candidates)
+        found = np.asarray(found).reshape(len(query), candidates)
+        itself = known[found] == query[:, None]
+        # The k nearest that are not the dot itself (a stable sort keeps the distance order).
+        nearest = np.take_along_axis(found, np.argsort(itself, axis=1, kind="stable")[:, :k], axis=1)
         return np.median(motion[nearest], axis=1)
 
 
@@ -322,10 +369,12 @@ class ArucoMarkers:
                  names: Sequence[str] | None = None, refine: bool = True):
         import cv2
 
-        ids = [int(i) for i in marker_ids]
+        if isinstance(marker_ids, (str, bytes)) or not hasattr(marker_ids, "__iter__"):
+            raise ValueError(f"marker_ids: expected a sequence of integer ids, got {marker_ids!r}")
+        ids = [as_count(i, "marker_ids") for i in marker_ids]
         if len(set(ids)) != len(ids):
             raise ValueError(f"marker_ids: repeated id in {ids}")
-        if not hasattr(cv2.aruco, dictionary):
+        if not isinstance(dictionary, str) or not dictionary.startswith("DICT_") or not hasattr(cv2.aruco, dictionary):
             raise ValueError(f"dictionary: cv2.aruco has no {dictionary!r}")
         self.dictionary_name = dictionary
         self.dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
@@ -334,9 +383,8 @@ class ArucoMarkers:
         if bad:
             raise ValueError(f"marker_ids: {bad} outside {dictionary} (0…{size - 1})")
         self.marker_ids = tuple(ids)
-        self.landmark_names = tuple(names) if names is not None else tuple(f"aruco_{i}" for i in ids)
-        if len(self.landmark_names) != len(ids):
-            raise ValueError(f"names: {len(self.landmark_names)} names for {len(ids)} markers")
+        default = tuple(f"aruco_{i}" for i in ids)
+        self.landmark_names = default if names is None else validate_landmark_names(names, len(ids), "names")
         params = cv2.aruco.DetectorParameters()
         if refine:
             params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX

@@ -27,7 +27,8 @@ import numpy as np
 
 from .alignment import similarity_fit
 from .depth import CameraIntrinsics
-from .sources import LandmarkFrame, SourceBase, checked_frames
+from .frames import LandmarkFrame, SourceBase
+from .streams import checked_frames
 
 __all__ = ["MediaPipeLandmarks", "parse_landmark_list", "MEDIAPIPE_VERTICAL_FOV_DEG"]
 

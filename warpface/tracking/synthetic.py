@@ -28,9 +28,10 @@ from typing import Iterator, Sequence
 import numpy as np
 import warp as wp
 
+from .._validate import as_count, as_finite_array, as_points, as_positive
 from ..mesh import FaceMesh
 from .depth import KINECT_V1_INTRINSICS, CameraIntrinsics
-from .sources import RGBDFrame, SourceBase
+from .frames import RGBDFrame, SourceBase
 
 __all__ = [
     "KinectNoise",
@@ -100,8 +101,9 @@ def procedural_face(
     Returns ``(points (R², 3) [m], triangles (2 (R−1)², 3) int32)`` in the model frame (+y up,
     +z toward the viewer), centred on x = y = 0, triangles oriented toward +z.
     """
-    if resolution < 3:
-        raise ValueError(f"resolution must be ≥ 3, got {resolution}")
+    resolution = as_count(resolution, "resolution", minimum=3, maximum=4096)
+    width = as_positive(width, "width")
+    height = as_positive(height, "height")
     xs = np.linspace(-0.5 * width, 0.5 * width, resolution)
     ys = np.linspace(-0.5 * height, 0.5 * height, resolution)
     x, y = np.meshgrid(xs, ys)
@@ -120,7 +122,8 @@ def procedural_face(
 def procedural_jaw_open(points: np.ndarray, amount: float) -> np.ndarray:
     """Open the jaw of :func:`procedural_face` by ``amount`` [m]: the lower face moves down and
     back, blending smoothly in over the mouth region. Returns a new (V, 3) array."""
-    p = np.array(points, dtype=np.float64)
+    p = as_points(points, "points").copy()
+    amount = float(as_finite_array(amount, "amount", shape=(), max_abs=1.0))
     t = np.clip((-0.02 - p[:, 1]) / 0.05, 0.0, 1.0)
     s = t * t * (3.0 - 2.0 * t)
     p[:, 1] -= amount * s
@@ -147,7 +150,7 @@ def _occluded_kernel(
 
 
 def _occluded(
-    points: np.ndarray, triangles: np.ndarray, normals: np.ndarray, eye: np.ndarray, device=None
+    points: np.ndarray, triangles: np.ndarray, normals: np.ndarray, eye: np.ndarray, *, device=None
 ) -> np.ndarray:
     """Vertices whose line of sight to ``eye`` is blocked by the mesh itself, shape (V,), bool."""
     center = points.mean(axis=0)
@@ -224,7 +227,7 @@ def place_fiducials(
             d = np.sqrt(((chunk[:, None, :] - bpts[None, :, :]) ** 2).sum(-1)).min(axis=1)
             ok[start:start + 2048] &= d >= boundary_margin
     if camera_position is not None:
-        ok &= ~_occluded(p, triangles, normals, np.asarray(camera_position, dtype=np.float64), device)
+        ok &= ~_occluded(p, triangles, normals, np.asarray(camera_position, dtype=np.float64), device=device)
     candidates = np.flatnonzero(ok)
     if candidates.size == 0:
         raise ValueError("place_fiducials: no vertex faces the camera away from the boundary")

@@ -34,8 +34,10 @@ import warp as wp
 
 from ..geometry import smoothstep
 from .alignment import rigid_fit, similarity_fit
-from .correspondence import Correspondence, FaceNormalization, _as_points, _as_triangles, compute_correspondence
-from .sources import LandmarkFrame
+from .._validate import as_bounded, as_finite_array, as_points, as_positive, as_triangles
+from .correspondence import Correspondence, FaceNormalization, compute_correspondence
+from .frames import LandmarkFrame
+from .streams import validate_landmark_names
 
 __all__ = [
     "TrackingAdapter",
@@ -147,15 +149,15 @@ def blend_weights(
     Raises:
         ValueError: bad shapes, an empty region, or a falloff with end ≤ start.
     """
-    points = _as_points(dense_points, "dense_points")
+    points = as_points(dense_points, "dense_points")
     count = points.shape[0]
-    if correspondence.overhang.shape != (count,):
-        raise ValueError(f"correspondence is for {correspondence.overhang.shape[0]} vertices, not {count}")
-    start, end = (float(x) for x in cover_falloff)
+    if not isinstance(correspondence, Correspondence):
+        raise TypeError(f"correspondence: expected a Correspondence, got {type(correspondence).__name__}")
+    correspondence = correspondence.checked(vertex_count=count)
+    start, end = (float(x) for x in as_finite_array(cover_falloff, "cover_falloff", shape=(2,), max_abs=1e6))
     if not (end > start >= 0.0):
         raise ValueError(f"cover_falloff must satisfy 0 ≤ start < end, got {cover_falloff}")
-    if region_falloff < 0:
-        raise ValueError(f"region_falloff must be ≥ 0, got {region_falloff}")
+    region_falloff = as_positive(region_falloff, "region_falloff", allow_zero=True)
     device = wp.get_device(device)
     distance = wp.zeros(count, dtype=float, device=device)
     if region is not None:
@@ -166,6 +168,8 @@ def blend_weights(
                 raise ValueError(f"region: boolean mask must have shape ({count},), got {region.shape}")
             mask = region.copy()
         else:
+            if not np.issubdtype(region.dtype, np.integer):
+                raise ValueError(f"region: expected a boolean mask or integer vertex indices, got dtype {region.dtype}")
             idx = region.astype(np.int64).reshape(-1)
             if idx.size and (idx.min() < 0 or idx.max() >= count):
                 raise ValueError(f"region: vertex index out of range [0, {count})")
@@ -208,17 +212,24 @@ def transfer_displacements(
     """Dense displacements ``w · scale · Σ_j a_j d_j``, shape (V, 3), float32 (one-off helper).
 
     For per-frame use, :class:`TrackingAdapter` keeps everything on the device instead.
+
+    Raises:
+        ValueError: bad shapes, non-finite values, a correspondence that refers to a sparse
+            triangle that is not there, or a result too large for float32 (naming the item).
     """
-    disp = np.asarray(sparse_displacement, dtype=np.float64)
-    if disp.ndim != 2 or disp.shape[1] != 3 or not np.all(np.isfinite(disp)):
-        raise ValueError(f"sparse_displacement: expected finite (N, 3), got shape {disp.shape}")
-    tri = _as_triangles(sparse_triangles, disp.shape[0], "sparse_triangles")
+    disp = as_points(sparse_displacement, "sparse_displacement")
+    tri = as_triangles(sparse_triangles, disp.shape[0], "sparse_triangles")
+    if not isinstance(correspondence, Correspondence):
+        raise TypeError(f"correspondence: expected a Correspondence, got {type(correspondence).__name__}")
+    correspondence = correspondence.checked(triangle_count=tri.shape[0])
     count = correspondence.triangle.shape[0]
-    if correspondence.triangle.size and correspondence.triangle.max() >= tri.shape[0]:
-        raise ValueError("correspondence refers to more sparse triangles than given")
-    w = np.ones(count, np.float32) if weights is None else np.asarray(weights, dtype=np.float32).reshape(-1)
-    if w.shape != (count,):
-        raise ValueError(f"weights: expected shape ({count},), got {w.shape}")
+    if weights is None:
+        w = np.ones(count, np.float32)
+    else:
+        w = as_finite_array(weights, "weights", max_abs=1e6).reshape(-1).astype(np.float32)
+        if w.shape != (count,):
+            raise ValueError(f"weights: expected shape ({count},), got {w.shape}")
+    scale = float(as_finite_array(scale, "scale", shape=(), max_abs=1e6))
     device = wp.get_device(device)
     out_u = wp.empty(count, dtype=wp.vec3, device=device)
     out_p = wp.empty(count, dtype=wp.vec3, device=device)
@@ -240,7 +251,11 @@ def transfer_displacements(
         outputs=[out_u, out_p],
         device=device,
     )
-    return out_u.numpy().copy()
+    result = out_u.numpy().copy()
+    if not np.all(np.isfinite(result)):
+        raise ValueError("transfer_displacements: the dense displacements overflow float32; "
+                         "sparse_displacement, weights or scale are too large")
+    return result
 
 
 # --------------------------------------------------------------------------------------------
@@ -252,7 +267,7 @@ class TrackingAdapter:
     """Maps landmark frames to dense face points, frame after frame.
 
     Built once from the sparse tracking mesh (at rest, model frame) and the dense face (at rest,
-    model frame); then :meth:`step` turns each :class:`LandmarkFrame` (camera frame) into dense
+    model frame); then :meth:`track_frame` turns each :class:`LandmarkFrame` (camera frame) into dense
     points, and :meth:`track` does so for a whole source as a generator.
 
     Per frame:
@@ -308,21 +323,14 @@ class TrackingAdapter:
         device=None,
     ):
         self.device = wp.get_device(device)
-        self.sparse_rest = _as_points(sparse_points, "sparse_points")
+        self.sparse_rest = as_points(sparse_points, "sparse_points")
         """Sparse rest points [m], shape (N, 3), model frame."""
-        self.sparse_triangles = _as_triangles(sparse_triangles, self.sparse_rest.shape[0], "sparse_triangles")
-        self.dense_rest = _as_points(dense_points, "dense_points")
+        self.sparse_triangles = as_triangles(sparse_triangles, self.sparse_rest.shape[0], "sparse_triangles")
+        self.dense_rest = as_points(dense_points, "dense_points")
         """Dense rest points [m], shape (V, 3), model frame."""
         n = self.sparse_rest.shape[0]
-        if landmark_names is not None:
-            names = tuple(str(x) for x in landmark_names)
-            if len(names) != n:
-                raise ValueError(f"landmark_names: {len(names)} names for {n} sparse points")
-            if len(set(names)) != n:
-                raise ValueError("landmark_names: names must be unique")
-            self.landmark_names: tuple[str, ...] | None = names
-        else:
-            self.landmark_names = None
+        self.landmark_names: tuple[str, ...] | None = (
+            None if landmark_names is None else validate_landmark_names(landmark_names, n, "landmark_names"))
         self.correspondence = compute_correspondence(
             self.dense_rest, self.sparse_rest, self.sparse_triangles,
             sparse_normalization=sparse_normalization, dense_normalization=dense_normalization, device=self.device,
@@ -336,13 +344,11 @@ class TrackingAdapter:
         )
         """Sparse → dense displacement scale (dense face width / sparse face width)."""
         if camera_to_model is not None:
-            camera_to_model = np.asarray(camera_to_model, dtype=np.float64)
-            if camera_to_model.shape != (4, 4) or not np.all(np.isfinite(camera_to_model)):
-                raise ValueError("camera_to_model: expected a finite 4×4 matrix")
+            camera_to_model = as_finite_array(camera_to_model, "camera_to_model", shape=(4, 4), max_abs=1e6)
         self.camera_to_model = camera_to_model
         """Camera → sparse model similarity, 4×4 (set on the first usable frame if not given)."""
         self._stable_spec = stabilize
-        self.min_confidence = float(min_confidence)
+        self.min_confidence = as_bounded(min_confidence, "min_confidence", 0.0, 1.0)
 
         count = self.dense_rest.shape[0]
         dev = self.device
@@ -409,6 +415,8 @@ class TrackingAdapter:
         elif spec is True:
             self._stable = np.arange(n)
         else:
+            if isinstance(spec, (str, bytes)) or not hasattr(spec, "__iter__"):
+                raise ValueError(f"stabilize: expected True, False, or sparse vertex indices or names, got {spec!r}")
             items = list(spec)
             if items and isinstance(items[0], str):
                 if self.landmark_names is None:
@@ -418,6 +426,8 @@ class TrackingAdapter:
                 if unknown:
                     raise ValueError(f"stabilize: unknown landmark names {unknown[:5]}")
                 items = [lookup[s] for s in items]
+            if not all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in items):
+                raise ValueError("stabilize: expected True, or sparse vertex indices or names")
             stable = np.asarray(items, dtype=np.int64)
             if stable.size < 3 or stable.min() < 0 or stable.max() >= n:
                 raise ValueError("stabilize: need ≥ 3 valid sparse vertex indices")
@@ -465,7 +475,7 @@ class TrackingAdapter:
         self.sparse_displacement[valid] = moved
         return self.sparse_displacement
 
-    def step(self, frame: LandmarkFrame, *, other=None, copy: bool = True) -> np.ndarray:
+    def track_frame(self, frame: LandmarkFrame, *, other=None, copy: bool = True) -> np.ndarray:
         """Dense points [m] for one frame, shape (V, 3), float32, model frame.
 
         Args:
@@ -494,6 +504,8 @@ class TrackingAdapter:
         )
         self.frames_processed += 1
         out = self.points.numpy()
+        if not np.all(np.isfinite(out)):
+            raise ValueError(f"frame {frame.index}: the dense points overflow float32 (landmarks too far from the reference)")
         return out.copy() if copy else out
 
     def track(
@@ -506,4 +518,4 @@ class TrackingAdapter:
         """
         self.bind(source.landmark_names)
         for frame in (source.frames() if frames is None else frames):
-            yield frame, self.step(frame)
+            yield frame, self.track_frame(frame)

@@ -297,7 +297,9 @@ def bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | None =
     with tqdm(total=len(times), desc="bake", unit="frame", disable=not progress, leave=False) as bar:
         for start in range(0, len(times), chunk_frames):
             stop = min(start + chunk_frames, len(times))
-            positions = model.evaluate_batch(animation.contractions[start:stop], wrinkle_depths=animation.wrinkle_depths[start:stop])
+            controls = animation.contractions[start:stop]  # a jaw's controls (after the muscles) stay at rest
+            controls = np.pad(controls, ((0, 0), (0, len(getattr(model, "control_names", model.muscle_names)) - controls.shape[1])))
+            positions = model.evaluate_batch(controls, wrinkle_depths=animation.wrinkle_depths[start:stop])
             bounds = _extents(positions)
             finite = np.isfinite(bounds).all(axis=(1, 2))  # min/max propagate NaN and reach ±inf
             if not finite.all():

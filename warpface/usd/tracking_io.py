@@ -11,21 +11,33 @@ Layout of a capture written to ``capture.usda``::
 
 Value clips are USD's mechanism for caches split over files: each chunk is consulted for the time
 codes it covers (sublayers would not do — the strongest layer with samples wins for *all* times).
-Frames are flushed in chunks: every ``chunk_frames`` frames the chunk is written through a
-temporary file and a rename, then the root layer (small) is rewritten the same way to list it.
-A capture that is interrupted — Ctrl-C, a camera that disappears, an exception — flushes the frames
-it holds in :meth:`TrackingStageWriter.close` (called by the context manager), so every frame
-received is kept; a hard kill loses at most the current chunk. Time code of a frame:
-``(timestamp − first timestamp) · fps``.
+
+Flushing and what an interruption can cost. Frames are queued in memory and flushed as a chunk
+every ``chunk_frames`` frames (default 30) or once the oldest queued frame has waited
+``flush_seconds`` (default 1 s, checked as each frame arrives), whichever comes first. A flush
+writes the chunk through a temporary file and a rename, *then* rewrites the small root layer the
+same way to list it; Ctrl-C (SIGINT) is held back until both are done, so the stage on disk always
+lists every chunk beside it. Hence:
+
+* Ctrl-C, a camera that disappears, an exception: :meth:`TrackingStageWriter.close` (called by
+  the context manager and by :func:`warpface.pipelines.capture.record`) flushes what is queued —
+  every frame received is on the stage.
+* A hard kill (``kill -9``, power loss): the stage holds every frame up to the last flush; at most
+  the frames of the last ``flush_seconds`` (and never more than ``chunk_frames``) are lost.
+
+Nothing is written before the first flush, so a capture that fails before its first frame leaves
+no files. Time code of a frame: ``(timestamp − first timestamp) · fps``.
 """
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
+from .._signals import deferred_interrupts
 from ._files import export_layer_atomically, writable_path
 
 __all__ = ["TrackingStageWriter", "read_tracking"]
@@ -44,25 +56,33 @@ class TrackingStageWriter:
         fps: the source's native frame rate [1/s]; becomes ``timeCodesPerSecond``/``framesPerSecond``.
         dense_rest: rest points of the dense face [m], shape (V, 3), or ``None`` for landmarks only.
         triangles: dense face triangles, shape (T, 3) (required with ``dense_rest``).
-        chunk_frames: frames per flushed chunk layer.
+        chunk_frames: flush after this many queued frames.
+        flush_seconds: flush once the oldest queued frame has waited this long [s] (wall clock),
+            bounding what a hard kill can lose for slow sources.
 
     Raises:
-        ValueError: bad path, shapes or fps; non-finite data passed to :meth:`add`.
+        ValueError: bad path, shapes, fps or flush settings; non-finite data passed to :meth:`add`.
     """
 
-    def __init__(self, path, landmark_names, fps: float, *, dense_rest=None, triangles=None, chunk_frames: int = 30):
+    def __init__(self, path, landmark_names, fps: float, *, dense_rest=None, triangles=None, chunk_frames: int = 30,
+                 flush_seconds: float = 1.0):
         self.path = writable_path(path, (".usda", ".usdc"))
-        self.fps = float(fps)
+        try:
+            self.fps = float(fps)
+            self.flush_seconds = float(flush_seconds)
+        except (TypeError, ValueError):
+            raise TypeError(f"fps and flush_seconds must be numbers, got {fps!r} and {flush_seconds!r}") from None
         if not np.isfinite(self.fps) or self.fps <= 0:
             raise ValueError(f"fps must be > 0, got {fps}")
+        if not self.flush_seconds > 0:
+            raise ValueError(f"flush_seconds must be > 0, got {flush_seconds}")
         self.names = [str(name) for name in landmark_names]
         if not self.names:
             raise ValueError("landmark_names: need at least one landmark")
+        if isinstance(chunk_frames, bool) or not isinstance(chunk_frames, (int, np.integer)) or chunk_frames < 1:
+            raise ValueError(f"chunk_frames must be an integer ≥ 1, got {chunk_frames!r}")
         self.chunk_frames = int(chunk_frames)
-        if self.chunk_frames < 1:
-            raise ValueError("chunk_frames must be ≥ 1")
         self.folder = self.path.with_name(self.path.stem + "_track")
-        self.folder.mkdir(exist_ok=True)
         self.vertex_count = None
         if dense_rest is not None:
             dense_rest = np.asarray(dense_rest, dtype=np.float32)
@@ -76,23 +96,33 @@ class TrackingStageWriter:
         self._pending: list[tuple[float, np.ndarray, np.ndarray, np.ndarray | None]] = []
         self._first_timestamp: float | None = None
         self._last_time = -np.inf
+        self._oldest_pending = 0.0  # time.monotonic() when the first queued frame arrived
+        self._root_current = True  # False while a chunk on disk is not yet listed by the root layer
         self.frames_written = 0
-        self._root = self._author_root(dense_rest, triangles)
-        self._write_root()
+        self._static, self._root = self._author_layers(dense_rest, triangles)
 
     # ------------------------------------------------------------------ public
     def add(self, timestamp: float, landmarks: np.ndarray, confidence: np.ndarray, dense_points: np.ndarray | None = None) -> float:
-        """Queue one frame; returns its time code. Missing landmarks (NaN rows) are written at their
-        last known position with confidence 0 (USD points cannot be NaN), or at the origin until seen.
+        """Queue one frame; returns its time code. Missing landmarks (NaN rows, or beyond ±1e6 m) are
+        written at their last known position with confidence 0 (USD points cannot be NaN), or at the
+        origin until seen; confidences are clipped to [0, 1].
 
         Raises:
             ValueError: shapes differ from the first frame, time does not increase, or dense points
                 are not finite.
         """
-        landmarks = np.asarray(landmarks, dtype=np.float64)
-        confidence = np.asarray(confidence, dtype=np.float64)
+        try:
+            timestamp = float(timestamp)
+            landmarks = np.asarray(landmarks, dtype=np.float64)
+            confidence = np.asarray(confidence, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"frame at t={timestamp!r}: timestamp, landmarks and confidence must be numeric ({exc})") from None
+        if not np.isfinite(timestamp):
+            raise ValueError(f"frame at t={timestamp}: timestamp is not finite")
         if landmarks.shape != (len(self.names), 3) or confidence.shape != (len(self.names),):
             raise ValueError(f"frame at t={timestamp}: expected {len(self.names)} landmarks, got {landmarks.shape}")
+        with np.errstate(invalid="ignore"):
+            landmarks = np.where(np.abs(landmarks) <= 1e6, landmarks, np.nan)  # beyond float32 / any camera: missing
         if self._first_timestamp is None:
             self._first_timestamp = float(timestamp)
             self._held = np.zeros((len(self.names), 3))
@@ -101,23 +131,49 @@ class TrackingStageWriter:
             raise ValueError(f"frame at t={timestamp}: time must increase (time code {time_code} after {self._last_time})")
         seen = np.all(np.isfinite(landmarks), axis=1)
         self._held[seen] = landmarks[seen]
-        confidence = np.where(seen & np.isfinite(confidence), confidence, 0.0)
+        confidence = np.where(seen & np.isfinite(confidence), np.clip(confidence, 0.0, 1.0), 0.0)
         if dense_points is not None:
-            dense_points = np.asarray(dense_points, dtype=np.float32)
+            try:
+                with np.errstate(over="ignore"):
+                    dense_points = np.asarray(dense_points, dtype=np.float32)
+            except (TypeError, ValueError):
+                raise ValueError(f"frame at t={timestamp}: dense points must be numeric") from None
             if dense_points.shape != (self.vertex_count, 3):
                 raise ValueError(f"frame at t={timestamp}: dense points must have shape ({self.vertex_count}, 3)")
             if not np.all(np.isfinite(dense_points)):
                 raise ValueError(f"frame at t={timestamp}: dense points are not finite; nothing written for it")
+        if not self._pending:
+            self._oldest_pending = time.monotonic()
         self._pending.append((time_code, self._held.astype(np.float32), confidence.astype(np.float32), dense_points))
         self._last_time = time_code
-        if len(self._pending) >= self.chunk_frames:
+        if len(self._pending) >= self.chunk_frames or time.monotonic() - self._oldest_pending >= self.flush_seconds:
             self.flush()
         return time_code
 
+    @property
+    def frames_queued(self) -> int:
+        """Frames received but not yet on disk."""
+        return len(self._pending)
+
     def flush(self) -> None:
-        """Write the queued frames as a new chunk layer and list it in the root layer."""
-        if not self._pending:
-            return
+        """Write the queued frames as a new chunk layer, then rewrite the root layer to list it.
+
+        Ctrl-C is held until both files are in place. A flush that fails part way (a full disk)
+        keeps its frames queued (or the root marked stale) for the next :meth:`flush` or :meth:`close`.
+        """
+        with deferred_interrupts():
+            if self._pending:
+                self._write_chunk()
+            if not self._root_current:
+                self._write_root()
+                self._root_current = True
+                if len(self._chunks) == 1:
+                    self._remove_leftovers()
+
+    def _write_chunk(self) -> None:
+        if not self._chunks:
+            self.folder.mkdir(exist_ok=True)
+            export_layer_atomically(self._static, self.folder / "static.usdc")
         layer = Sdf.Layer.CreateAnonymous(".usdc")
         positions = LANDMARKS.AppendProperty(UsdGeom.Tokens.points)
         confidence_path = LANDMARKS.AppendProperty("primvars:confidence")
@@ -136,19 +192,27 @@ class TrackingStageWriter:
                 layer.SetTimeSample(confidence_path, time_code, Vt.FloatArray.FromNumpy(confidence))
                 if dense is not None:
                     layer.SetTimeSample(face_points, time_code, Vt.Vec3fArray.FromNumpy(dense))
-                    columns = np.ascontiguousarray(dense.T)  # reducing contiguous rows is ~10× faster than axis 0
+                    columns = np.ascontiguousarray(dense.T)  # min/max over contiguous rows beat a strided axis-0 reduction
                     bounds = np.stack([columns.min(axis=1), columns.max(axis=1)])
                     layer.SetTimeSample(face_extent, time_code, Vt.Vec3fArray.FromNumpy(bounds))
         name = f"chunk_{len(self._chunks):04d}.usdc"
         export_layer_atomically(layer, self.folder / name)
+        self._root_current = False
         self._chunks.append((name, self._pending[0][0]))
         self.frames_written += len(self._pending)
         self._root.endTimeCode = max(self._pending[-1][0], self._root.startTimeCode)
         self._pending.clear()
-        self._write_root()
+
+    def _remove_leftovers(self) -> None:
+        """Chunks of an earlier capture to this path, which the new root no longer lists, and
+        temporaries of a killed one (removed once the new root is in place)."""
+        listed = {name for name, _ in self._chunks}
+        for stale in [*self.folder.glob("chunk_*.usdc"), *self.folder.glob(".chunk_*.usdc.*"), *self.folder.glob(".static.usdc.*")]:
+            if stale.name not in listed:
+                stale.unlink(missing_ok=True)
 
     def close(self) -> None:
-        """Flush what is queued. Safe to call twice."""
+        """Flush what is queued. Safe to call twice. A writer that never received a frame leaves no files."""
         self.flush()
 
     def __enter__(self) -> "TrackingStageWriter":
@@ -158,7 +222,8 @@ class TrackingStageWriter:
         self.close()
 
     # ------------------------------------------------------------------ internals
-    def _author_root(self, dense_rest, triangles) -> Sdf.Layer:
+    def _author_layers(self, dense_rest, triangles) -> tuple[Sdf.Layer, Sdf.Layer]:
+        """The static layer and the root layer, in memory (written at the first flush)."""
         stage = Usd.Stage.CreateInMemory("capture.usda")
         UsdGeom.SetStageMetersPerUnit(stage, 1.0)
         UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
@@ -187,24 +252,27 @@ class TrackingStageWriter:
         # keeps only metadata and the clip list, so rewriting it after every chunk stays cheap. The
         # root is a stage-free layer: clip edits must not trigger composition (the relative clip
         # paths cannot resolve against an in-memory layer).
-        export_layer_atomically(stage.GetRootLayer(), self.folder / "static.usdc")
         root = Sdf.Layer.CreateAnonymous(".usda")
         for key in ("metersPerUnit", "upAxis", "timeCodesPerSecond", "framesPerSecond", "startTimeCode", "endTimeCode", "defaultPrim"):
             root.pseudoRoot.SetInfo(key, stage.GetRootLayer().pseudoRoot.GetInfo(key))
         root.subLayerPaths = [f"./{self.folder.name}/static.usdc"]
         Sdf.CreatePrimInLayer(root, ROOT).specifier = Sdf.SpecifierOver
-        return root
+        static = Sdf.Layer.CreateAnonymous(".usdc")  # owned here: the stage's layer dies with the stage
+        static.TransferContent(stage.GetRootLayer())
+        return static, root
 
     def _write_root(self) -> None:
         if self._chunks:
             # Authored at the Sdf level: composing clips on the in-memory stage would try (and fail)
             # to resolve the relative clip paths against an anonymous layer.
-            end = max(self._root.endTimeCode, 1.0)
+            end = self._root.endTimeCode
+            # Identity time mapping over the capture; a single pair for a one-frame capture (a
+            # second pair at a later time would read back as an extra sample).
             self._root.GetPrimAtPath(ROOT).SetInfo("clips", {"default": {
                 "assetPaths": Sdf.AssetPathArray([f"./{self.folder.name}/{name}" for name, _ in self._chunks]),
                 "primPath": str(ROOT),
                 "active": Vt.Vec2dArray([(start, float(index)) for index, (_, start) in enumerate(self._chunks)]),
-                "times": Vt.Vec2dArray([(0.0, 0.0), (end, end)]),
+                "times": Vt.Vec2dArray([(0.0, 0.0), (end, end)] if end > 0 else [(0.0, 0.0)]),
             }})
         export_layer_atomically(self._root, self.path)
 
@@ -221,10 +289,13 @@ def read_tracking(path) -> dict:
     attribute = points.GetPointsAttr()
     times = np.array(attribute.GetTimeSamples(), dtype=np.float64)
     confidence = UsdGeom.PrimvarsAPI(points).GetPrimvar("confidence")
+    names = UsdGeom.PrimvarsAPI(points).GetPrimvar("names")
+    if not names or not confidence or names.Get() is None:
+        raise ValueError(f"{path}: {LANDMARKS} lacks its 'names' or 'confidence' primvar; not a warpface capture")
     result = {
         "times": times,
         "fps": stage.GetTimeCodesPerSecond(),
-        "names": list(UsdGeom.PrimvarsAPI(points).GetPrimvar("names").Get()),
+        "names": list(names.Get()),
         "landmarks": np.stack([np.asarray(attribute.Get(t)) for t in times]) if len(times) else np.zeros((0, 0, 3)),
         "confidence": np.stack([np.asarray(confidence.Get(t)) for t in times]) if len(times) else np.zeros((0, 0)),
     }

@@ -1,70 +1,29 @@
-"""Capture pipelines: a landmark source → :class:`TrackingAdapter` → USD time samples.
+"""Capture pipelines: a landmark source → :class:`~warpface.tracking.TrackingAdapter` → USD time samples.
 
-Landmarks that drive a warpface face are named after the dense vertex they sit on, ``v01234``
-(:func:`vertex_landmark_names`): a recording, an RGB-D folder or a live camera's fiducial layout
-made for a face then maps onto it with no other bookkeeping. The sparse tracking mesh is the
-Delaunay triangulation of those vertices at rest.
+:func:`open_source` turns a command-line spec into a landmark source, :func:`synthetic_capture`
+films the built-in face with a synthetic RGB-D camera, :func:`record` runs a source through an
+adapter into a :class:`~warpface.usd.tracking_io.TrackingStageWriter`, keeping every frame received.
 """
 
 from __future__ import annotations
 
 import json
-import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
-from .transfer import TrackingAdapter
+from ..tracking import TrackingAdapter
+from ..tracking.landmark_names import vertex_landmark_names
 
 __all__ = [
-    "vertex_landmark_names",
-    "landmark_vertices",
-    "adapter_for_face",
     "SyntheticCapture",
     "synthetic_capture",
     "open_source",
     "CaptureStats",
     "record",
 ]
-
-_NAME = re.compile(r"^v(\d+)$")
-
-
-def vertex_landmark_names(vertices) -> list[str]:
-    """Landmark names for dense vertex indices: ``[12, 345] → ["v00012", "v00345"]``."""
-    return [f"v{int(v):05d}" for v in np.asarray(vertices).ravel()]
-
-
-def landmark_vertices(names: Sequence[str], vertex_count: int) -> np.ndarray:
-    """Dense vertex indices from names made by :func:`vertex_landmark_names`.
-
-    Raises:
-        ValueError: a name that is not ``v<index>``, or an index outside the face.
-    """
-    indices = []
-    for name in names:
-        match = _NAME.match(str(name))
-        if match is None:
-            raise ValueError(f"landmark {name!r}: expected a dense-vertex name like 'v01234' (see vertex_landmark_names)")
-        index = int(match.group(1))
-        if index >= vertex_count:
-            raise ValueError(f"landmark {name!r}: vertex {index} is outside the face ({vertex_count} vertices)")
-        indices.append(index)
-    return np.asarray(indices, dtype=np.int64)
-
-
-def adapter_for_face(rest_points: np.ndarray, landmark_names: Sequence[str], *, camera_to_model=None,
-                     stabilize=False, device=None) -> TrackingAdapter:
-    """A :class:`TrackingAdapter` whose sparse mesh is the face's own landmark vertices, triangulated."""
-    from .correspondence import triangulate_landmarks
-
-    vertices = landmark_vertices(landmark_names, len(rest_points))
-    sparse = np.asarray(rest_points, dtype=np.float64)[vertices]
-    return TrackingAdapter(sparse, triangulate_landmarks(sparse), rest_points, landmark_names=list(landmark_names),
-                           camera_to_model=camera_to_model, stabilize=stabilize, device=device)
 
 
 @dataclass
@@ -88,11 +47,10 @@ def synthetic_capture(rig=None, *, expression: str = "smile", seconds: float = 2
     """The built-in face (or ``rig``) performs ``expression``; a 640×480 Kinect-like camera at 0.6 m
     films it with painted dots (and, with ``noise``, depth noise and holes)."""
     from ..assets import default_rig, expression_timeline
-    from .synthetic import KinectNoise, SyntheticRGBDCamera, default_model_to_camera, place_fiducials
-    from .sources import RGBDLandmarks
+    from ..tracking import KinectNoise, RGBDLandmarks, SyntheticRGBDCamera, default_model_to_camera, place_fiducials
 
     rig = default_rig() if rig is None else rig
-    truth = rig.model(device).evaluate_batch(expression_timeline(expression, rig, seconds=seconds, fps=fps)).astype(np.float64)
+    truth = rig.model(device=device).evaluate_batch(expression_timeline(expression, rig, seconds=seconds, fps=fps)).astype(np.float64)
     rest, triangles = truth[0], rig.mesh.triangles
     eye = np.linalg.inv(default_model_to_camera(rest))[:3, 3]
     fiducials = place_fiducials(rest, triangles, dots, spacing=0.014, camera_position=eye, device=device)
@@ -106,14 +64,13 @@ def open_source(spec: str, *, layout: str | None = None, device=None):
     """A landmark source from a command-line spec: a ``.npz`` recording, an RGB-D folder, or
     ``realsense`` / ``orbbec`` (which need ``layout``: a JSON file with ``names`` and
     ``initial_pixels`` of the painted dots, e.g. an RGB-D folder's ``fiducials``)."""
-    from .detect import DotTracker
-    from .sources import RecordedLandmarks, RGBDFolder, RGBDLandmarks
+    from ..tracking import DotTracker, RecordedLandmarks, RGBDFolder, RGBDLandmarks
 
     if spec in ("realsense", "orbbec"):
         if layout is None:
             raise ValueError(f"a live {spec} capture needs --layout: a JSON file with the dots' 'names' and 'initial_pixels'")
         fiducials = json.loads(Path(layout).read_text())
-        from .cameras import OrbbecCamera, RealSenseCamera
+        from ..tracking import OrbbecCamera, RealSenseCamera
 
         camera = RealSenseCamera() if spec == "realsense" else OrbbecCamera()
         tracker = DotTracker(np.asarray(fiducials["initial_pixels"]), names=fiducials["names"])
@@ -136,9 +93,12 @@ class CaptureStats:
     """What a capture did."""
 
     frames: int
+    """Frames handed to the writer (all of them are on its stage once :func:`record` returns)."""
     seconds: float
     landmarks_found: float
     """Mean fraction of landmarks measured per frame."""
+    interrupted: bool = False
+    """True when Ctrl-C ended the capture (cleanly, between two frames)."""
 
     @property
     def frames_per_second(self) -> float:
@@ -149,34 +109,47 @@ def record(source, adapter: TrackingAdapter, writer, *, max_frames: int | None =
            on_frame=None) -> CaptureStats:
     """Run ``source`` through ``adapter`` into ``writer`` (a :class:`~warpface.usd.tracking_io.TrackingStageWriter`).
 
-    Every frame received is kept: on any error (a camera that disappears, Ctrl-C) the writer is
-    closed — flushing what it holds — before the error propagates. ``on_frame(frame, dense)`` is
-    called for each frame before it is written (e.g. a :class:`~warpface.tracking.tissue_drive.TissueDrive`,
-    or to collect errors); when it returns points, those are written instead. Landmarks are
-    written in the face's model frame (the adapter's camera → model similarity), where the dense face is.
+    Every frame handed to the writer is kept. Ctrl-C stops the capture between two frames: the
+    writer is closed (flushing what it holds) and the stats come back with ``interrupted=True``; a
+    second Ctrl-C raises :class:`KeyboardInterrupt` at once (for a source that blocks) — the writer is
+    still closed first. On any other error (a camera that disappears) the writer is closed before the
+    error propagates. ``on_frame(frame, dense)`` is called for each frame before it is written (e.g. a
+    :class:`~warpface.pipelines.tissue_drive.TissueDrive`, or to collect errors); when it returns
+    points, those are written instead. Landmarks are written in the face's model frame (the
+    adapter's camera → model similarity), where the dense face is.
     """
     from tqdm import tqdm
 
+    from .._signals import InterruptRequest, deferred_interrupts
+    from .._validate import as_count
+
+    if max_frames is not None:
+        max_frames = as_count(max_frames, "max_frames", minimum=1)
+
     bar = tqdm(desc="track", unit="frame", disable=not progress, total=max_frames)
     found, count, started = 0.0, 0, time.perf_counter()
-    try:
-        for frame, dense in adapter.track(source):
-            measured = np.all(np.isfinite(frame.points), axis=1) & (frame.confidence > 0)
-            if on_frame is not None:
-                replaced = on_frame(frame, dense)
-                dense = dense if replaced is None else replaced
-            writer.add(frame.timestamp, _to_model(adapter.camera_to_model, frame.points), frame.confidence, dense)
-            count += 1
-            found += measured.mean()
-            elapsed = time.perf_counter() - started
-            bar.set_postfix(fps=f"{count / elapsed:.0f}" if elapsed > 0 else "-", landmarks=f"{measured.sum()}/{len(measured)}")
-            bar.update()
-            if max_frames is not None and count >= max_frames:
-                break
-    finally:
-        bar.close()
-        writer.close()
-    return CaptureStats(frames=count, seconds=time.perf_counter() - started, landmarks_found=found / max(count, 1))
+    with InterruptRequest() as stop:
+        try:
+            for frame, dense in adapter.track(source):
+                measured = np.all(np.isfinite(frame.points), axis=1) & (frame.confidence > 0)
+                if on_frame is not None:
+                    replaced = on_frame(frame, dense)
+                    dense = dense if replaced is None else replaced
+                with deferred_interrupts():  # the frame is either fully queued and counted, or not at all
+                    writer.add(frame.timestamp, _to_model(adapter.camera_to_model, frame.points), frame.confidence, dense)
+                    count += 1
+                found += measured.mean()
+                elapsed = time.perf_counter() - started
+                bar.set_postfix(fps=f"{count / elapsed:.0f}" if elapsed > 0 else "-", landmarks=f"{measured.sum()}/{len(measured)}")
+                bar.update()
+                if stop or (max_frames is not None and count >= max_frames):
+                    break
+        finally:
+            with deferred_interrupts():
+                writer.close()
+            bar.close()
+    return CaptureStats(frames=count, seconds=time.perf_counter() - started, landmarks_found=found / max(count, 1),
+                        interrupted=stop.requested)
 
 
 def _to_model(camera_to_model, points: np.ndarray) -> np.ndarray:

@@ -1,0 +1,108 @@
+"""Device-resident results: evaluate_into / evaluate_batch_into write the same bits as the NumPy path,
+into Warp arrays and (zero-copy, DLPack) foreign arrays, with host or device controls."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+from conftest import small_face_rig
+
+DEVICE = "cpu"
+
+
+@pytest.fixture(scope="module")
+def model():
+    return small_face_rig().model(device=DEVICE)
+
+
+def random_controls(model, rng, frames):
+    contractions = rng.uniform(0.0, 0.02, (frames, len(model.muscles)))
+    contractions[:, 2] = rng.uniform(0.0, 0.6, frames)  # the sphincter, dimensionless
+    depths = rng.uniform(0.0, 0.003, (frames, len(model.wrinkles)))
+    return contractions, depths
+
+
+def test_single_frame_into_warp_array_is_bit_identical(model, rng):
+    contractions, depths = random_controls(model, rng, 1)
+    expected = model.evaluate(contractions[0], wrinkle_depths=depths[0])
+    vec = wp.empty(model.mesh.vertex_count, dtype=wp.vec3, device=DEVICE)
+    assert model.evaluate_into(vec, contractions[0], wrinkle_depths=depths[0]) is vec
+    np.testing.assert_array_equal(vec.numpy(), expected)
+    flat = wp.empty((model.mesh.vertex_count, 3), dtype=wp.float32, device=DEVICE)
+    model.evaluate_into(flat, dict(zip(model.muscle_names, contractions[0])), wrinkle_depths=depths[0])
+    np.testing.assert_array_equal(flat.numpy(), expected)
+
+
+def test_device_controls_equal_host_controls(model, rng):
+    contractions, depths = random_controls(model, rng, 1)
+    expected = model.evaluate(contractions[0], wrinkle_depths=depths[0])
+    out = wp.empty(model.mesh.vertex_count, dtype=wp.vec3, device=DEVICE)
+    model.evaluate_into(out, wp.array(contractions[0].astype(np.float32), device=DEVICE),
+                        wrinkle_depths=wp.array(depths[0].astype(np.float32), device=DEVICE))
+    np.testing.assert_array_equal(out.numpy(), expected)
+    # device contractions with the wrinkles' own default depths
+    model.evaluate_into(out, wp.array(contractions[0].astype(np.float32), device=DEVICE))
+    np.testing.assert_array_equal(out.numpy(), model.evaluate(contractions[0]))
+
+
+@pytest.mark.parametrize("frames_per_launch", [None, 2, 5])
+def test_batch_into_is_bit_identical(model, rng, frames_per_launch):
+    contractions, depths = random_controls(model, rng, 7)
+    expected = model.evaluate_batch(contractions, wrinkle_depths=depths, frames_per_launch=frames_per_launch)
+    out = wp.empty((7, model.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
+    model.evaluate_batch_into(out, contractions, wrinkle_depths=depths, frames_per_launch=frames_per_launch)
+    np.testing.assert_array_equal(out.numpy(), expected)
+    flat = wp.empty((7, model.mesh.vertex_count, 3), dtype=wp.float32, device=DEVICE)
+    model.evaluate_batch_into(flat, wp.array(contractions.astype(np.float32), device=DEVICE),
+                              wrinkle_depths=wp.array(depths.astype(np.float32), device=DEVICE),
+                              frames_per_launch=frames_per_launch)
+    np.testing.assert_array_equal(flat.numpy(), expected)
+
+
+def test_dlpack_output_is_written_in_place(model, rng):
+    """A foreign array shared through DLPack (here NumPy's own exporter) receives the frame zero-copy."""
+    contractions, depths = random_controls(model, rng, 3)
+    host = np.zeros((3, model.mesh.vertex_count, 3), dtype=np.float32)
+
+    class Foreign:  # an exporter that is not a NumPy array (as a torch tensor would be)
+        def __init__(self, array):
+            self.array = array
+
+        def __dlpack__(self, **kwargs):
+            return self.array.__dlpack__(**kwargs)
+
+        def __dlpack_device__(self):
+            return self.array.__dlpack_device__()
+
+        @property
+        def shape(self):
+            return self.array.shape
+
+    model.evaluate_batch_into(Foreign(host), contractions, wrinkle_depths=depths)
+    np.testing.assert_array_equal(host, model.evaluate_batch(contractions, wrinkle_depths=depths))
+    single = np.zeros((model.mesh.vertex_count, 3), dtype=np.float32)
+    model.evaluate_into(Foreign(single), contractions[1], wrinkle_depths=depths[1])
+    np.testing.assert_array_equal(single, model.evaluate(contractions[1], wrinkle_depths=depths[1]))
+
+
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda v: wp.empty(v + 1, dtype=wp.vec3, device=DEVICE), "out.*shape"),
+        (lambda v: wp.empty(v, dtype=wp.vec3d, device=DEVICE), "out.*dtype"),
+        (lambda v: wp.empty((v, 4), dtype=wp.float32, device=DEVICE), "out"),
+        (lambda v: np.zeros((v, 3), dtype=np.float64), "out.*dtype"),
+        (lambda v: "points", "out"),
+    ],
+)
+def test_bad_outputs_are_refused(model, make, message):
+    with pytest.raises(ValueError, match=message):
+        model.evaluate_into(make(model.mesh.vertex_count))
+
+
+def test_bad_device_controls_are_refused(model):
+    out = wp.empty(model.mesh.vertex_count, dtype=wp.vec3, device=DEVICE)
+    with pytest.raises(ValueError, match="contractions.*shape"):
+        model.evaluate_into(out, wp.zeros(len(model.muscles) + 1, dtype=wp.float32, device=DEVICE))
+    with pytest.raises(ValueError, match="contractions.*dtype"):
+        model.evaluate_into(out, wp.zeros(len(model.muscles), dtype=wp.float64, device=DEVICE))

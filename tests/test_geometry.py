@@ -1,0 +1,135 @@
+"""Shared surface math (warpface.geometry): the generic closest-point function in float32 and float64
+against an independent float64 NumPy reference, the mesh index on far and degenerate input, and the
+NumPy triangle helpers against Heron's formula and the Warp vertex-normal kernel."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+from conftest import grid_surface
+from warpface import FaceMesh
+from warpface.geometry import (
+    TriangleMeshIndex,
+    area_weighted_vertex_normals,
+    closest_point_on_triangle,
+    closest_points,
+    triangle_areas,
+    triangle_corners,
+    triangle_crosses,
+    triangle_normals,
+)
+
+
+@wp.kernel
+def _closest_f32(p: wp.array(dtype=wp.vec3), tri: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    out[i] = closest_point_on_triangle(p[i], tri[3 * i], tri[3 * i + 1], tri[3 * i + 2])
+
+
+@wp.kernel
+def _closest_f64(p: wp.array(dtype=wp.vec3d), tri: wp.array(dtype=wp.vec3d), out: wp.array(dtype=wp.vec3d)):
+    i = wp.tid()
+    out[i] = closest_point_on_triangle(p[i], tri[3 * i], tri[3 * i + 1], tri[3 * i + 2])
+
+
+def reference_distance(p, a, b, c):
+    """Point–triangle distance by a different method: the plane projection's 2×2 normal equations when
+    it falls inside, otherwise the best of the three clamped edge projections (float64)."""
+    ab, ac, ap = b - a, c - a, p - a
+    gram = np.array([[ab @ ab, ab @ ac], [ab @ ac, ac @ ac]])
+    best = np.inf
+    if np.linalg.det(gram) > 1e-14 * gram[0, 0] * gram[1, 1]:
+        v, w = np.linalg.solve(gram, [ap @ ab, ap @ ac])
+        if v >= 0 and w >= 0 and v + w <= 1:
+            best = np.linalg.norm(ap - v * ab - w * ac)
+    for s, e in ((a, b), (a, c), (b, c)):
+        se = e - s
+        t = 0.0 if se @ se == 0 else np.clip((p - s) @ se / (se @ se), 0.0, 1.0)
+        best = min(best, np.linalg.norm(p - s - t * se))
+    return best
+
+
+def random_cases(rng, count):
+    tris = rng.normal(size=(count, 3, 3))
+    tris[::7, 2] = tris[::7, 0] + 0.5 * (tris[::7, 1] - tris[::7, 0])  # collinear (zero area)
+    tris[::11, 1] = tris[::11, 0]  # a zero-length edge
+    tris[::13, 1] = tris[::13, 2] = tris[::13, 0]  # a point
+    points = rng.normal(size=(count, 3)) * 2.0
+    return points, tris
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_closest_point_on_triangle_generic_matches_reference(rng, precision):
+    points, tris = random_cases(rng, 300)
+    vec, kernel, tol = (wp.vec3, _closest_f32, 2e-5) if precision == "float32" else (wp.vec3d, _closest_f64, 1e-12)
+    out = wp.empty(len(points), dtype=vec, device="cpu")
+    wp.launch(kernel, dim=len(points), inputs=[wp.array(points, dtype=vec, device="cpu"),
+                                                wp.array(tris.reshape(-1, 3), dtype=vec, device="cpu")],
+              outputs=[out], device="cpu")
+    bary = out.numpy().astype(np.float64)
+    assert out.dtype == vec
+    assert np.all(np.isfinite(bary)) and bary.min() >= -tol and np.abs(bary.sum(axis=1) - 1).max() <= 10 * tol
+    closest = np.einsum("ij,ijk->ik", bary, tris)
+    got = np.linalg.norm(points - closest, axis=1)
+    want = np.array([reference_distance(p, *t) for p, t in zip(points, tris)])
+    np.testing.assert_allclose(got, want, atol=tol * 10, rtol=0)
+
+
+def test_float64_keeps_precision_beyond_float32():
+    """A point 1e-9 m above a triangle 1 m from the origin: float64 resolves the distance, float32 cannot."""
+    tri = np.array([[1.0, 0.0, 0.0], [1.1, 0.0, 0.0], [1.0, 0.1, 0.0]])
+    p = np.array([[1.02, 0.02, 1e-9]])
+    out = wp.empty(1, dtype=wp.vec3d, device="cpu")
+    wp.launch(_closest_f64, dim=1, inputs=[wp.array(p, dtype=wp.vec3d, device="cpu"), wp.array(tri, dtype=wp.vec3d, device="cpu")],
+              outputs=[out], device="cpu")
+    closest = out.numpy()[0] @ tri
+    assert abs(np.linalg.norm(p[0] - closest) - 1e-9) < 1e-15
+
+
+def test_closest_points_far_and_out_of_range_queries():
+    v = np.eye(3)
+    t = np.array([[0, 1, 2]])
+    tri, bary, dist = closest_points(np.array([[9e5, 0.0, 0.0], [0.0, -9e5, 3e5]]), v, t, device="cpu")
+    assert tri.tolist() == [0, 0] and np.all(np.isfinite(bary)) and np.all(np.isfinite(dist))
+    np.testing.assert_allclose(dist, [reference_distance(q, *v) for q in ([9e5, 0, 0], [0, -9e5, 3e5])], rtol=1e-5)
+    with pytest.raises(ValueError, match="query"):
+        closest_points(np.array([[1e16, 0.0, 0.0]]), v, t, device="cpu")
+    with pytest.raises(ValueError, match="vertices"):
+        closest_points(np.zeros((1, 3)), v * 1e20, t, device="cpu")
+    with pytest.raises(ValueError, match="triangles"):
+        closest_points(np.zeros((1, 3)), v, np.array([[0, 1, -5]]), device="cpu")
+
+
+def test_mesh_index_all_degenerate_triangles_never_invalid(rng):
+    """A mesh of only zero-area triangles still gives a valid triangle and finite weights."""
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]])
+    t = np.array([[0, 1, 2], [1, 2, 3]])
+    index = TriangleMeshIndex(v, t, device="cpu")
+    q = rng.normal(size=(50, 3)) * 3
+    tri, bary, dist = index.query(q)
+    assert set(tri.tolist()) <= {0, 1} and np.all(np.isfinite(bary)) and np.all(np.isfinite(dist))
+    want = [min(reference_distance(p, *v[t[0]]), reference_distance(p, *v[t[1]])) for p in q]
+    np.testing.assert_allclose(dist, want, atol=1e-5)
+
+
+def test_triangle_helpers_match_heron_and_the_normal_kernel(rng):
+
+    points, triangles = grid_surface(12)
+    corners = triangle_corners(points, triangles)
+    crosses = triangle_crosses(corners)
+    a, b, c = (np.linalg.norm(corners[:, i] - corners[:, j], axis=1) for i, j in ((0, 1), (1, 2), (2, 0)))
+    s = 0.5 * (a + b + c)
+    heron = np.sqrt(np.maximum(s * (s - a) * (s - b) * (s - c), 0.0))
+    np.testing.assert_allclose(triangle_areas(corners), heron, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(triangle_areas(crosses=crosses), triangle_areas(corners))
+    normals = triangle_normals(crosses=crosses)
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, rtol=1e-12)
+    for i, j in ((0, 1), (1, 2)):
+        assert np.abs(np.einsum("ij,ij->i", normals, corners[:, j] - corners[:, i])).max() < 1e-12
+    assert np.all(normals[:, 2] > 0)  # the grid faces +z in corner order
+    np.testing.assert_array_equal(triangle_normals(np.zeros((1, 3, 3))), np.zeros((1, 3)))
+    vertex = area_weighted_vertex_normals(points, triangles)
+    kernel = FaceMesh(points, triangles).vertex_normals(device="cpu")
+    np.testing.assert_allclose(vertex, kernel, atol=2e-6)
+    isolated = area_weighted_vertex_normals(np.vstack([points, [[9.0, 9.0, 9.0]]]), triangles)
+    assert np.array_equal(isolated[-1], np.zeros(3))

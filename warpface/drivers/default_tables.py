@@ -1,0 +1,139 @@
+"""The default channel → control tables for ARKit's 52 weights and FACS action units.
+
+Weights are in face units, so one table serves every landmark-rigged face: a linear muscle's
+contraction (a length) per unit channel is given in inter-ocular distances and scaled by the face's
+size (:func:`~warpface.assets.rig_scale`) when the table is made for a rig; sphincter contractions
+``K`` and the jaw's opening angle [rad] are dimensionless; jaw slides are lengths like muscles.
+ARKit's ``Left``/``Right`` is the subject's side, the side of the rig's ``_L``/``_R`` muscles (+x is
+the subject's left). Full strength (ARKit 1, AU intensity 5) gives the contractions of the built-in
+expression presets: a broad smile is ~0.22 inter-ocular distances of zygomaticus pull.
+
+Channels with no skin motion (gaze, ``tongueOut``) and ``cheekPuff`` (air, not muscle) have no row.
+Jaw channels drive the jaw controls ``jaw_open``, ``jaw_forward``, ``jaw_left``, ``jaw_right``;
+they take effect on rigs that have them and are reported as unmapped on rigs that do not.
+"""
+
+from __future__ import annotations
+
+from .mapping import Mapping
+
+__all__ = ["ARKIT_TABLE", "FACS_TABLE", "JAW_CONTROLS", "LENGTH_CONTROLS", "default_table", "mapping_for_rig",
+           "rig_control_names", "control_scales"]
+
+JAW_CONTROLS = ("jaw_open", "jaw_forward", "jaw_left", "jaw_right")
+"""Jaw controls the tables name (SPEC §6.2): opening angle [rad], protrusion and lateral slides [lengths]."""
+
+LENGTH_CONTROLS = frozenset({"jaw_forward", "jaw_left", "jaw_right"})
+"""Non-muscle controls whose values are lengths (scaled by the face's size like linear muscles)."""
+
+
+def _both(channel: str, muscle: str, weight: float) -> list[tuple[str, str, float]]:
+    return [(channel, f"{muscle}_L", weight), (channel, f"{muscle}_R", weight)]
+
+
+def _sided(stem: str, rows) -> list[tuple[str, str, float]]:
+    """``stemLeft`` → the ``_L`` muscles, ``stemRight`` → the ``_R`` ones; ``rows`` = [(muscle or muscle_{s}, w)]."""
+    out = []
+    for arkit_side, tag in (("Left", "L"), ("Right", "R")):
+        for muscle, weight in rows:
+            out.append((f"{stem}{arkit_side}", muscle.format(s=tag), weight))
+    return out
+
+
+ARKIT_TABLE: tuple[tuple[str, str, float], ...] = tuple(
+    _sided("browDown", [("corrugator_{s}", 0.09), ("procerus", 0.03)])
+    + _both("browInnerUp", "frontalis_inner", 0.16)
+    + _sided("browOuterUp", [("frontalis_outer_{s}", 0.14)])
+    + _sided("cheekSquint", [("orbicularis_oculi_{s}", 0.16)])
+    + _sided("eyeBlink", [("orbicularis_oculi_{s}", 0.06)])
+    + _sided("eyeSquint", [("orbicularis_oculi_{s}", 0.10)])
+    + _sided("eyeWide", [("frontalis_outer_{s}", 0.04), ("frontalis_inner_{s}", 0.03)])
+    + [("jawOpen", "jaw_open", 0.35), ("jawForward", "jaw_forward", 0.08), ("jawLeft", "jaw_left", 0.08),
+       ("jawRight", "jaw_right", 0.08)]
+    + [("mouthClose", "orbicularis_oris", 0.10), ("mouthFunnel", "orbicularis_oris", 0.30),
+       ("mouthPucker", "orbicularis_oris", 0.45), ("mouthRollLower", "orbicularis_oris", 0.15),
+       ("mouthRollUpper", "orbicularis_oris", 0.15)]
+    + [("mouthLeft", "risorius_L", 0.06), ("mouthLeft", "zygomaticus_major_L", 0.03),
+       ("mouthRight", "risorius_R", 0.06), ("mouthRight", "zygomaticus_major_R", 0.03)]
+    + _sided("mouthSmile", [("zygomaticus_major_{s}", 0.22)])
+    + _sided("mouthFrown", [("depressor_anguli_oris_{s}", 0.06)])
+    + _sided("mouthDimple", [("risorius_{s}", 0.04)])
+    + _sided("mouthStretch", [("risorius_{s}", 0.05), ("depressor_labii_inferioris_{s}", 0.02)])
+    + _sided("mouthPress", [("orbicularis_oris", 0.05)])
+    + _sided("mouthLowerDown", [("depressor_labii_inferioris_{s}", 0.06)])
+    + _sided("mouthUpperUp", [("levator_labii_superioris_{s}", 0.06)])
+    + [("mouthShrugLower", "mentalis", 0.05)]
+    + _both("mouthShrugUpper", "levator_labii_superioris", 0.025) + [("mouthShrugUpper", "mentalis", 0.02)]
+    + _sided("noseSneer", [("levator_labii_alaeque_nasi_{s}", 0.11)])
+)
+"""(ARKit channel, control, weight per unit weight) rows."""
+
+_FACS_AT_FULL: tuple[tuple[str, str, float], ...] = tuple(
+    _both("AU01", "frontalis_inner", 0.16)
+    + _both("AU02", "frontalis_outer", 0.14)
+    + _both("AU04", "corrugator", 0.09) + [("AU04", "procerus", 0.06)]
+    + _both("AU05", "frontalis_outer", 0.04) + _both("AU05", "frontalis_inner", 0.03)
+    + _both("AU06", "orbicularis_oculi", 0.22)
+    + _both("AU07", "orbicularis_oculi", 0.10)
+    + _both("AU09", "levator_labii_alaeque_nasi", 0.11)
+    + _both("AU10", "levator_labii_superioris", 0.06)
+    + _both("AU12", "zygomaticus_major", 0.22)
+    + _both("AU14", "risorius", 0.04)
+    + _both("AU15", "depressor_anguli_oris", 0.06)
+    + _both("AU16", "depressor_labii_inferioris", 0.06)
+    + [("AU17", "mentalis", 0.05), ("AU18", "orbicularis_oris", 0.45)]
+    + _both("AU20", "risorius", 0.06)
+    + [("AU22", "orbicularis_oris", 0.30), ("AU23", "orbicularis_oris", 0.15), ("AU24", "orbicularis_oris", 0.10)]
+    + _both("AU25", "depressor_labii_inferioris", 0.03)
+    + [("AU26", "jaw_open", 0.25), ("AU27", "jaw_open", 0.45), ("AU28", "orbicularis_oris", 0.15)]
+    + _both("AU43", "orbicularis_oculi", 0.06) + _both("AU45", "orbicularis_oculi", 0.06)
+)
+
+FACS_TABLE: tuple[tuple[str, str, float], ...] = tuple((au, control, w / 5.0) for au, control, w in _FACS_AT_FULL)
+"""(action unit, control, weight per intensity unit) rows; intensity 5 gives the full pattern."""
+
+
+def default_table(kind: str = "all") -> Mapping:
+    """The default table in face units: ``"arkit"``, ``"facs"`` or ``"all"`` (both; their channels differ)."""
+    tables = {"arkit": ARKIT_TABLE, "facs": FACS_TABLE, "all": ARKIT_TABLE + FACS_TABLE}
+    if kind not in tables:
+        raise ValueError(f"default table {kind!r}: expected one of {', '.join(tables)}")
+    return Mapping.from_entries(tables[kind], name="default")
+
+
+def rig_control_names(rig) -> list[str]:
+    """The controls a :class:`~warpface.FaceRig` has, by name: its muscles' contractions.
+
+    This is the one place that decides which table rows a rig keeps: when rigs gain a jaw (SPEC §6.2),
+    its controls (:data:`JAW_CONTROLS`) join this list and the jaw rows of the tables take effect.
+    """
+    return list(rig.control_names)
+
+
+def control_scales(rig, controls) -> dict[str, float]:
+    """Factor from face units to the rig's units per control: the face size for lengths, else 1."""
+    from ..assets.rig import rig_scale  # the assets package knows how to measure a landmarked face
+
+    from ..expression.muscles import LinearMuscle
+
+    linear = {m.name for m in rig.muscles if isinstance(m, LinearMuscle)} | set(LENGTH_CONTROLS)
+    needs_scale = [c for c in controls if c in linear]
+    scale = rig_scale(rig) if needs_scale else 1.0
+    return {c: (scale if c in linear else 1.0) for c in controls}
+
+
+def mapping_for_rig(rig, kind: str = "all", *, name: str = "default") -> tuple[Mapping, list[str], list[str]]:
+    """The default table in ``rig``'s units, keeping only controls the rig has.
+
+    Returns:
+        (mapping, controls the rig lacks, channels left with no control on this rig).
+
+    Raises:
+        RigError: a linear muscle is mapped but the rig has no landmarks to measure its size.
+    """
+    table = default_table(kind)
+    mapping, dropped, orphaned = table.restricted_to(rig_control_names(rig))
+    scales = control_scales(rig, mapping.controls)
+    factors = [scales[c] for c in mapping.controls]
+    return (Mapping(channels=mapping.channels, controls=mapping.controls, matrix=mapping.matrix * [[f] for f in factors],
+                    offsets=mapping.offsets * factors, name=name), dropped, orphaned)

@@ -1,0 +1,161 @@
+"""``warpface track SOURCE --stage out.usda``: a landmark stream → the built-in face → USD time samples.
+
+Output: ``out.usda`` (a small root layer) and ``out_track/`` beside it (``static.usdc`` with the
+topology and rest points, ``chunk_NNNN.usdc`` value clips with the landmarks and the dense points
+of each frame); see :mod:`warpface.usd.tracking_io`. The stage's folder is created when needed.
+
+Nothing is written until the first frame has been tracked: every set-up step (the source, the
+adapter, the tissue mesh of ``--fem``) runs first, so a run that fails before its first frame
+leaves no files (and removes the folder it created). Once frames flow they are flushed every 30
+frames or 1 s; Ctrl-C stops between two frames and keeps every frame received.
+"""
+
+from __future__ import annotations
+
+import threading
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["run_track", "TRACK_FLUSH_SECONDS", "TRACK_CHUNK_FRAMES"]
+
+TRACK_CHUNK_FRAMES = 30
+"""Frames per flushed chunk."""
+TRACK_FLUSH_SECONDS = 1.0
+"""Longest a received frame waits in memory [s]: what a hard kill can lose at most."""
+
+
+def run_track(args) -> int:
+    """Handler of the ``track`` sub-command (arguments from :func:`warpface.cli.build_parser`).
+
+    Returns 0, or 130 when Ctrl-C ended the capture (every frame received is on the stage).
+    """
+    from ..usd.tracking_io import TrackingStageWriter
+
+    _check_options(args)
+    stage = Path(args.stage).absolute()
+    created = _create_missing_folders(stage.parent)
+    writer = None
+    try:
+        with _setup_step("loading the built-in face", args.quiet):
+            from ..assets import default_rig
+
+            rig = default_rig()
+        source, camera_to_model, closers = _open_source(rig, args)
+        try:
+            fps = getattr(source, "fps", None) or 30.0
+            writer = TrackingStageWriter(stage, source.landmark_names, fps, dense_rest=rig.mesh.points,
+                                         triangles=rig.mesh.triangles, chunk_frames=TRACK_CHUNK_FRAMES,
+                                         flush_seconds=TRACK_FLUSH_SECONDS)
+            stats, drive = _capture(rig, source, camera_to_model, writer, fps, args)
+        finally:
+            for close in closers:
+                close()
+    finally:
+        if writer is None or writer.frames_written == 0:
+            _remove_created(created)
+    if stats.interrupted:
+        print(f"interrupted: kept all {stats.frames} frames received in {stage}")
+    else:
+        print(f"tracked {stats.frames} frames at {stats.frames_per_second:.0f} frames/s, "
+              f"{100 * stats.landmarks_found:.0f}% of {len(source.landmark_names)} landmarks found per frame")
+    if drive is not None:
+        print(f"  tissue FEM: {drive.simulation.tetmesh.node_count} nodes, "
+              f"{len(drive.driven_nodes)} driven, {len(drive.fixed_nodes)} fixed, {drive.substeps} steps per frame")
+    print(f"  stage {stage}  ({fps:g} time codes per second; landmarks and dense points in {writer.folder.name}/)")
+    return 130 if stats.interrupted else 0
+
+
+def _check_options(args) -> None:
+    """Refuse bad numeric options before anything is loaded or written."""
+    import math
+
+    if args.frames is not None and args.frames < 1:
+        raise ValueError(f"--frames must be ≥ 1, got {args.frames}")
+    if args.fem:
+        if not (math.isfinite(args.fem_dt) and 0.0 < args.fem_dt <= 0.1):
+            raise ValueError(f"--fem-dt must be in (0, 0.1] s, got {args.fem_dt}")
+        if not 100 <= args.fem_nodes <= 200_000:
+            raise ValueError(f"--fem-nodes must be in [100, 200000], got {args.fem_nodes}")
+
+
+def _open_source(rig, args):
+    """The landmark source, its camera → model transform (or None) and what closes it."""
+    from .capture import open_source, synthetic_capture
+
+    if args.source == "synthetic":
+        with _setup_step("preparing the synthetic camera", args.quiet):
+            capture = synthetic_capture(rig, expression=args.expression, device=args.device)
+        return capture.source, np.linalg.inv(capture.camera.model_to_camera), [capture.camera.close]
+    source = open_source(args.source, layout=getattr(args, "layout", None), device=args.device)
+    return source, None, [getattr(source, "close", lambda: None)]
+
+
+def _capture(rig, source, camera_to_model, writer, fps: float, args):
+    from ..tracking import adapter_for_face
+    from .capture import record
+
+    adapter = adapter_for_face(rig.mesh.points, source.landmark_names, camera_to_model=camera_to_model, device=args.device)
+    drive = _tissue_drive(rig, adapter, fps, args) if args.fem else None
+    stats = record(source, adapter, writer, max_frames=args.frames, progress=not args.quiet, on_frame=drive)
+    return stats, drive
+
+
+def _tissue_drive(rig, adapter, fps: float, args):
+    """Tissue under the built-in face (Kato's uniform material) driven by the tracked skin."""
+    from ..fem import TissueMaterial
+    from ..fem.volume import tissue_from_surface
+    from .tissue_drive import TissueDrive
+
+    thickness = max(float(np.median(rig.thickness)), 0.004)
+    with _setup_step(f"meshing the tissue (fTetWild, ~{args.fem_nodes} nodes; tens of seconds)", args.quiet):
+        tetmesh = tissue_from_surface(rig.mesh, thickness, target_nodes=args.fem_nodes, device=args.device)
+    material = TissueMaterial(E=192.4e3, nu=0.495, eta=476.8, rho=1100.0)
+    with _setup_step("setting up the tissue FEM", args.quiet):
+        return TissueDrive(adapter, tetmesh, material, fps=fps, dt=args.fem_dt, thickness=thickness, device=args.device)
+
+
+@contextmanager
+def _setup_step(label: str, quiet: bool):
+    """A one-line progress display with the elapsed time, ticking while a long set-up step runs."""
+    if quiet:
+        yield
+        return
+    from tqdm import tqdm
+
+    bar = tqdm(desc=label, total=None, bar_format="{desc}: {elapsed}", leave=True)
+    done = threading.Event()
+
+    def tick():
+        while not done.wait(0.5):
+            bar.refresh()
+
+    ticker = threading.Thread(target=tick, daemon=True)
+    ticker.start()
+    try:
+        yield
+    finally:
+        done.set()
+        ticker.join()
+        bar.close()
+
+
+def _create_missing_folders(folder: Path) -> list[Path]:
+    """Create ``folder`` and its missing parents; returns the ones created, deepest last."""
+    missing = []
+    while not folder.exists():
+        missing.append(folder)
+        folder = folder.parent
+    for path in reversed(missing):
+        path.mkdir()
+    return list(reversed(missing))
+
+
+def _remove_created(created: list[Path]) -> None:
+    """Remove folders :func:`_create_missing_folders` made, if nothing was put in them."""
+    for path in reversed(created):
+        try:
+            path.rmdir()
+        except OSError:
+            return
