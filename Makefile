@@ -2,7 +2,6 @@
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.warpface-installed
-export PYOPENGL_PLATFORM ?= osmesa
 
 .PHONY: demo test bench setup clean
 

@@ -1,7 +1,7 @@
 """Animation drivers end to end: minutes of 60 fps ARKit curves animate the built-in face and bake.
 
 A Live Link Face CSV with all 52 ARKit channels (smooth random curves, 60 fps) drives the built-in
-face's rig through :func:`warpface.cli_animate.animate` (no video): read the CSV, clamp, resample,
+face's rig through :func:`warpface.commands.animate.animate` (no video): read the CSV, clamp, resample,
 map with the default table, write the controls as time samples, bake the skin into a ``.usdc``.
 
 Rows (same run):
@@ -80,7 +80,7 @@ def main(argv=None) -> None:
 
     from warpface import usd
     from warpface.assets import default_rig
-    from warpface.cli_animate import animate, prepare_controls
+    from warpface.commands.animate import animate, prepare_controls
     from warpface.drivers import ARKIT_CHANNELS, Curves, mapping_for_rig, read_driver, write_live_link
 
     frames = int(round(args.minutes * 60 * args.fps))

@@ -35,13 +35,12 @@ import numpy as np
 import scipy.sparse.linalg as spla
 import warp as wp
 
-from warpface.fem import TissueMaterial, TissueSimulation, assemble, shell_tet_mesh
+from warpface.fem import KATO_UNIFORM, TissueSimulation, assemble, kato_uniform_material, shell_tet_mesh
 from warpface.fem.solver_direct import node_dofs
 
 from ._timing import machine_info, print_table, write_results
 
 DT = 1.0e-3
-KATO = dict(E=192.4e3, nu=0.495, eta=476.8, rho=1100.0)
 
 
 def face_problem(cells: int):
@@ -147,7 +146,7 @@ def cuda_step_times(sim: TissueSimulation, trajectory: np.ndarray) -> tuple[floa
 
 def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device) -> list[dict]:
     mesh, fixed, driven, lower = face_problem(cells)
-    material = TissueMaterial(**KATO)
+    material = kato_uniform_material()
     trajectory = mouth_opening(steps + 1, lower)
     label = f"{mesh.node_count} nodes"
 
@@ -212,7 +211,7 @@ def main() -> None:
                        ("ratio", "ratio vs splu", ".2f"), ("realtime", "x real time", ".3f"),
                        ("max_diff", "max diff m", ".1e"), ("cg_iterations", "CG iters max", "d"),
                        ("cg_mean_iterations", "CG iters mean", ".1f")])
-    path = write_results("fem", {"dt": DT, "material": KATO, "steps": args.steps,
+    path = write_results("fem", {"dt": DT, "material": dict(KATO_UNIFORM), "steps": args.steps,
                                  "machine": machine_info(cuda or "cpu"), "rows": rows})
     print(f"wrote {path}")
 

@@ -18,6 +18,9 @@ import warpface as wf
 from warpface import preview
 
 SIDE = 450.0
+PANEL = (480, 320)
+"""Pixels of each panel: landscape, like the tilted sheet."""
+ASPECT = PANEL[0] / PANEL[1]
 THICKNESS = 60.0
 
 
@@ -56,17 +59,18 @@ def main(argv=None) -> None:
     print(f"bulge height: {np.ptp(stages.bulge[:, 1]):.1f}; furrow depth below the bulge: "
           f"{(stages.bulge[:, 1] - stages.final[:, 1]).max():.1f}")
 
-    camera = preview.Camera.framing(mesh.points, pitch_deg=35.0, margin=0.9, aspect=1.0)
+    # margin > 1: the tilted sheet projects taller than its bounding box; every panel shows it whole
+    camera = preview.Camera.framing(mesh.points, pitch_deg=35.0, margin=1.05, aspect=ASPECT)
     moved = np.linalg.norm(stages.muscle - mesh.points, axis=1)  # in-plane: shown as colour, not relief
     views = [("1 muscle (colour: |displacement|)", stages.muscle), ("2 + bulge (h = 60)", stages.bulge), ("3 + wrinkle (kd 70, kw 50)", stages.final)]
     args.out.mkdir(parents=True, exist_ok=True)
     colors = [preview.heat_colors(moved, cmap="viridis"), None, None]
     for index, (title, points) in enumerate(views, start=1):
-        preview.render(points, mesh.triangles, args.out / f"stage{index}.png", camera=camera, size=(480, 480), label=title,
+        preview.render(points, mesh.triangles, args.out / f"stage{index}.png", camera=camera, size=PANEL, label=title,
                        colors=colors[index - 1])
-    preview.render_comparison(views, mesh.triangles, args.out / "stages.png", camera=camera, colors=colors)
+    preview.render_comparison(views, mesh.triangles, args.out / "stages.png", camera=camera, colors=colors, size=PANEL)
     preview.render_heat_map(stages.bulge, mesh.triangles, stages.stretch, args.out / "stretch.png", camera=camera,
-                            title="stretch ratio r", size=(480, 480), cmap="coolwarm")
+                            title="stretch ratio r", size=PANEL, cmap="coolwarm")
     print(f"wrote {args.out}/stage1.png stage2.png stage3.png stages.png stretch.png")
 
 

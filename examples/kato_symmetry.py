@@ -36,7 +36,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 import warpface as wf  # noqa: E402
 from warpface.assets import default_face, default_landmarks, default_thickness  # noqa: E402
 from warpface.data import ict_face_region, ict_landmark_indices  # noqa: E402
-from warpface.fem import TissueSimulation  # noqa: E402
+from warpface.fem import KATO_MODELS, TissueSimulation  # noqa: E402
 from warpface.fem.embedding import embed_points  # noqa: E402
 from warpface.fem.proxy import tissue_proxy  # noqa: E402
 from warpface.fem.regions import kato_material_model, kato_regions  # noqa: E402
@@ -173,7 +173,9 @@ def run_face(face: Face, args) -> dict:
     from tqdm import tqdm
 
     results = {}
-    for model in (1, 2, 3):
+    for model in KATO_MODELS:  # the thesis's tables 6.4-6.5 (warpface.fem.presets)
+        print(f"model {model}: right cphs E = {KATO_MODELS[model]['E']['cphs_R'] / 1e3:.1f} kPa, "
+              f"eta = {KATO_MODELS[model]['eta']['cphs_R']:.1f} Pa s")
         material = kato_material_model(tetmesh, landmarks_at_rest, model)
         start = time.perf_counter()
         sim = TissueSimulation(tetmesh, material, DT, fixed=fixed, driven=driven, formulation="anp", device="cpu")

@@ -24,6 +24,7 @@ fi
 "$VENV/bin/python" -m pip install -q --upgrade pip
 echo "[setup] installing warpface and its dependencies (first time: a few minutes)"
 "$VENV/bin/python" -m pip install -q -e ".[test]"
-# pyrender pins PyOpenGL 3.1.0, which cannot render offscreen; the newer one must come after it.
+# pyrender pins PyOpenGL 3.1.0: it renders through EGL (warpface picks EGL when it works); the newer one
+# adds the OSMesa back end for machines without EGL. A plain `pip install warpface` needs neither step.
 "$VENV/bin/python" -m pip install -q --upgrade "PyOpenGL>=3.1.7"
 echo "[setup] done"

@@ -20,7 +20,7 @@ def _schema_or_skip():
         ensure_schema()
     except SchemaRegistrationError as exc:
         pytest.skip(f"warpface USD schema not available: {exc}")
-    return pytest.importorskip("warpface.fem.usd_io")
+    return pytest.importorskip("warpface.usd.tissue_io")
 
 
 def float32_mesh(mesh: TetMesh) -> TetMesh:

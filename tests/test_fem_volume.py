@@ -7,15 +7,11 @@ import pytest
 
 from warpface.fem import TetMesh
 from warpface.fem.tetmesh import tet_signed_volumes
-from warpface.fem.volume import (
-    _validated_tets,
-    boundary_loops,
-    check_surface,
-    find_self_intersections,
-    mesh_tissue,
-    offset_shell,
-    tissue_from_surface,
-)
+from warpface.fem.embedding import embed_points
+from warpface.fem.shell import offset_shell
+from warpface.fem.tetwild import validated_tets
+from warpface.fem.volume import mesh_tissue, tissue_from_surface
+from warpface.geometry.surface_checks import boundary_loops, check_surface, find_self_intersections
 
 
 def patch(n: int = 13, size: float = 0.06, hole: bool = True, bend: float = 0.0):
@@ -265,19 +261,19 @@ def test_tet_validation_orients_and_rejects():
     box = box_tet_mesh((0.02, 0.01, 0.01), (2, 1, 1))
     volume = box.total_volume
     flipped = box.tets[:, [0, 1, 3, 2]]  # all one (the other) orientation: turned around
-    mesh = _validated_tets(box.points, flipped, volume)
+    mesh = validated_tets(box.points, flipped, volume)
     assert np.all(mesh.volumes > 0.0) and mesh.total_volume == pytest.approx(volume)
     mixed = box.tets.copy()
     mixed[4] = mixed[4][[0, 1, 3, 2]]
     with pytest.raises(ValueError, match="1 inverted tets.*tet 4"):
-        _validated_tets(box.points, mixed, volume)
+        validated_tets(box.points, mixed, volume)
     flat = np.r_[box.points, [[0.005, 0.005, 0.0], [0.006, 0.005, 0.0]]]
     n = len(box.points)
     degenerate = np.r_[box.tets, [[0, 1, n, n + 1]]]  # four points on the plane z = 0
     with pytest.raises(ValueError, match="rejected.*degenerate"):
-        _validated_tets(flat, degenerate, volume)
+        validated_tets(flat, degenerate, volume)
     with pytest.raises(ValueError, match="not filled correctly"):
-        _validated_tets(box.points, box.tets[: len(box.tets) // 2], volume)
+        validated_tets(box.points, box.tets[: len(box.tets) // 2], volume)
 
 
 def _with_degenerate_tet(nodes, tets):
@@ -289,10 +285,10 @@ def _with_degenerate_tet(nodes, tets):
 
 def test_a_rejected_ftetwild_run_is_retried(tmp_path, monkeypatch):
     """fTetWild is not deterministic; a run that leaves degenerate tets is repeated, not fatal."""
-    import warpface.fem.volume as volume
+    import warpface.fem.tetwild as tetwild
 
     monkeypatch.chdir(tmp_path)
-    real = volume._tetrahedralize
+    real = tetwild.tetrahedralize
     calls = []
 
     def first_run_degenerate(points, triangles, **options):
@@ -300,7 +296,7 @@ def test_a_rejected_ftetwild_run_is_retried(tmp_path, monkeypatch):
         nodes, tets = real(points, triangles, **options)
         return _with_degenerate_tet(nodes, tets) if len(calls) == 1 else (nodes, tets)
 
-    monkeypatch.setattr(volume, "_tetrahedralize", first_run_degenerate)
+    monkeypatch.setattr(tetwild, "tetrahedralize", first_run_degenerate)
     points, triangles = patch(11, size=0.04, bend=8.0)
     result = mesh_tissue((points, triangles), 0.006, target_nodes=400, device="cpu")
     # fTetWild itself fails validation now and then, so a later run may also have been needed
@@ -310,10 +306,10 @@ def test_a_rejected_ftetwild_run_is_retried(tmp_path, monkeypatch):
 
 
 def test_ftetwild_gives_up_after_the_last_attempt(tmp_path, monkeypatch):
-    import warpface.fem.volume as volume
+    import warpface.fem.tetwild as tetwild
 
     monkeypatch.chdir(tmp_path)
-    real = volume._tetrahedralize
+    real = tetwild.tetrahedralize
     outputs = []
 
     def always_degenerate(points, triangles, **options):
@@ -323,8 +319,44 @@ def test_ftetwild_gives_up_after_the_last_attempt(tmp_path, monkeypatch):
             outputs.append(outputs[0])
         return _with_degenerate_tet(*outputs[0])
 
-    monkeypatch.setattr(volume, "_tetrahedralize", always_degenerate)
+    monkeypatch.setattr(tetwild, "tetrahedralize", always_degenerate)
     points, triangles = patch(11, size=0.04, bend=8.0)
-    with pytest.raises(ValueError, match=rf"fTetWild .*after {volume.TETWILD_ATTEMPTS} fTetWild runs"):
+    with pytest.raises(ValueError, match=rf"fTetWild .*after {tetwild.TETWILD_ATTEMPTS} fTetWild runs"):
         mesh_tissue((points, triangles), 0.006, target_nodes=400, device="cpu")
-    assert len(outputs) == volume.TETWILD_ATTEMPTS
+    assert len(outputs) == tetwild.TETWILD_ATTEMPTS
+
+
+def test_built_in_face_meshes_with_default_options_and_reports_progress(tmp_path, monkeypatch):
+    """The built-in face meshes with default options at 3,000 nodes: at a uniform 6 mm the inner offsets
+    of the lips cross, and thickness clamping (thin_defects, on by default) thins them until they do not.
+    The skin is not moved, so every vertex of the render surface still embeds in the tissue.
+    (`warpface track synthetic --fem` uses 4 mm, which the face takes without clamping.)"""
+    from warpface.assets import default_rig
+
+    monkeypatch.chdir(tmp_path)
+    rig = default_rig()
+    stages = []
+    result = mesh_tissue(rig.mesh, 0.006, target_nodes=3000, device="cpu",
+                         progress=lambda stage, seconds: stages.append((stage, seconds)))
+    report = result.report
+    assert report.thinning_rounds >= 1 and report.fairing_rounds == 0
+    assert report.thickness_range[1] == pytest.approx(0.006)
+    assert 0.006 * 0.85**6 - 1e-12 <= report.thickness_range[0] < 0.006
+    assert "thickness clamping rounds" in str(report)
+    embed_points(result.tetmesh, rig.mesh.points, device="cpu")  # raises if a skin vertex is off the tissue
+    assert report.quality.inverted_count == 0 and report.volume_error < 0.05
+    assert find_self_intersections(result.shell.points, result.shell.triangles, device="cpu")[0] == 0
+    names = [s for s, _ in stages]
+    assert [s for i, s in enumerate(names) if i == 0 or names[i - 1] != s] == list(volume_stages())
+    waits = [t for s, t in stages if s == "tetrahedralize"]
+    assert len(waits) >= 2 and waits == sorted(waits)  # reported while fTetWild ran, time increasing
+    with pytest.raises(TypeError, match="progress"):
+        mesh_tissue(rig.mesh, 0.004, progress="yes", device="cpu")
+    with pytest.raises(ValueError, match="thin_defects must be an integer >= 0"):
+        mesh_tissue(rig.mesh, 0.004, thin_defects=-1, device="cpu")
+
+
+def volume_stages():
+    from warpface.fem.volume import MESHING_STAGES
+
+    return MESHING_STAGES

@@ -54,3 +54,35 @@ def test_non_finite_points_are_refused(sphere):
     bad[3] = np.nan
     with pytest.raises(ValueError, match="non-finite"):
         preview.render(bad, triangles, size=(32, 32))
+
+
+def test_no_gl_gives_one_line_naming_what_to_install(monkeypatch):
+    from warpface import offscreen
+
+    monkeypatch.delenv("PYOPENGL_PLATFORM", raising=False)
+    monkeypatch.setattr(offscreen, "egl_works", lambda: False)
+    monkeypatch.setattr(offscreen, "osmesa_usable", lambda: False)
+    monkeypatch.delitem(__import__("sys").modules, "OpenGL.platform", raising=False)
+    with pytest.raises(offscreen.OffscreenUnavailable, match="apt install libegl1") as error:
+        offscreen.choose_platform()
+    assert "\n" not in str(error.value)
+    monkeypatch.setattr(offscreen, "egl_works", lambda: True)
+    assert offscreen.choose_platform() == "egl"
+
+
+def test_egl_is_probed_without_choosing_pyopengls_platform():
+    import subprocess
+    import sys
+
+    probe = "import sys; from warpface import offscreen; offscreen.egl_works(); print('OpenGL.platform' in sys.modules)"
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0 and result.stdout.strip() == "False"
+
+
+def test_shared_heat_scale_and_clean_labels():
+    assert preview.scale_label(8.68e-08, 15.0) == "0"
+    assert preview.scale_label(15.0, 15.0) == "15.0"
+    assert preview.scale_label(2.5, 5.0) == "2.50"
+    low = preview.heat_colors(np.array([1.0]), vmin=0.0, vmax=10.0)
+    high = preview.heat_colors(np.array([1.0]), vmin=0.0, vmax=2.0)
+    assert not np.allclose(low, high)  # the colour follows the given scale, not the values' own range

@@ -3,11 +3,23 @@
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path"]
+__all__ = ["atomic_path", "new_file_mode"]
+
+
+def new_file_mode(path: str | Path) -> int:
+    """The permission bits ``open(path, "w")`` would leave: an existing file keeps its own, a new one
+    gets 0o666 less the process umask."""
+    try:
+        return stat.S_IMODE(os.stat(path).st_mode)
+    except FileNotFoundError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
 
 
 @contextmanager
@@ -16,15 +28,18 @@ def atomic_path(path: str | Path, suffix: str = ""):
 
     A crash or exception inside the block leaves any previous ``path`` untouched and removes the
     temporary file. ``suffix`` is the temporary file's extension (writers that pick a format by
-    extension — USD layers, images, videos — need the real one).
+    extension — USD layers, images, videos — need the real one). The renamed file gets the
+    permissions ``open()`` would give it (:func:`new_file_mode`), not the temporary file's 0600.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    mode = new_file_mode(path)
     handle, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or ".tmp", dir=path.parent)
     os.close(handle)
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        os.chmod(tmp_path, mode)
         os.replace(tmp_path, path)
     finally:
         if tmp_path.exists():

@@ -22,6 +22,8 @@ __all__ = ["DemoResult", "run_demo", "expression_sequence"]
 
 BACKGROUND = (0.12, 0.12, 0.14)
 """Dark, so the eye and mouth openings of the open face surface read as eyes and mouth."""
+INTERIOR = (0.06, 0.05, 0.05)
+"""The back of the face surface, seen through the eye and mouth openings: darker than the background."""
 
 
 @dataclass
@@ -64,25 +66,34 @@ def run_demo(out_dir: str | Path = "demo", *, device=None, fps: float = 30.0, se
         progress: show progress bars.
     """
     from . import preview, usd
+    from ._validate import as_positive
     from .assets import EXPRESSIONS, default_rig
     from .expression import ExpressionModel
 
+    fps, seconds = as_positive(fps, "fps"), as_positive(seconds, "seconds")
+    if fps * seconds < 2:
+        raise ValueError(f"fps × seconds must give at least 2 frames per expression, got {fps:g} × {seconds:g}")
+    if fps * seconds * len(EXPRESSIONS) > usd.MAX_FRAMES:
+        raise ValueError(f"fps × seconds gives more than {usd.MAX_FRAMES} frames")
+    preview.check_offscreen_rendering()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"output folder {out}: exists and is not a folder")
     timings: dict[str, float] = {}
     clock = time.perf_counter()
 
     rig = default_rig()
     names = list(EXPRESSIONS)
     contractions, peaks = expression_sequence(rig, names, seconds, fps)
+    model = ExpressionModel.from_rig(rig, device=device)  # a bad device fails here, before anything is written
     timings["rig"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
     stage_path = out / "face.usda"
     stage = usd.write_rig(stage_path, rig, fps=fps)
     usd.write_animation(stage, np.arange(len(contractions), dtype=np.float64), contractions=contractions, fps=fps)
     usd.export_layer_atomically(stage.GetRootLayer(), stage_path)
-    model = ExpressionModel.from_rig(rig, device=device)
     cache = usd.bake(stage, model=model, progress=progress)
     timings["usd"] = time.perf_counter() - clock
 
@@ -90,9 +101,9 @@ def run_demo(out_dir: str | Path = "demo", *, device=None, fps: float = 30.0, se
     smooth = ExpressionModel(rig.mesh, rig.muscles, [], rig.thickness, device=device)
     rest = rig.mesh.points
     camera = preview.Camera.for_face(rest[rig.landmarks], yaw_deg=30.0, pitch_deg=5.0)
-    style = {"camera": camera, "size": size, "background": BACKGROUND}
+    style = {"camera": camera, "size": size, "background": BACKGROUND, "interior": INTERIOR}
     triangles = rig.mesh.triangles
-    images, without_row, with_row = [], [], []
+    images, without_row, with_row, peaks_wrinkled = [], [], [], {}
     for name in names:
         peak = contractions[peaks[name]]
         plain, wrinkled = smooth.evaluate(peak), model.evaluate(peak)
@@ -101,10 +112,14 @@ def run_demo(out_dir: str | Path = "demo", *, device=None, fps: float = 30.0, se
         preview.render_comparison(views, triangles, images[-1], **style)
         without_row.append((f"{name}: no wrinkles", plain))
         with_row.append((f"{name}: with wrinkles", wrinkled))
-        displacement_mm = np.linalg.norm(wrinkled - rest, axis=1) * 1e3
+        peaks_wrinkled[name] = wrinkled
+    # One colour scale for all four heat maps, so they compare: 0 to the largest displacement, rounded up.
+    displacement_mm = {name: np.linalg.norm(p - rest, axis=1) * 1e3 for name, p in peaks_wrinkled.items()}
+    top_mm = _nice_ceiling(max(float(d.max()) for d in displacement_mm.values()))
+    for name in names:
         images.append(out / f"heatmap_{name}.png")
-        preview.render_heat_map(wrinkled, triangles, displacement_mm, images[-1], title=f"{name}: |displacement|",
-                                units="mm", **style)
+        preview.render_heat_map(peaks_wrinkled[name], triangles, displacement_mm[name], images[-1],
+                                title=f"{name}: |displacement|", units="mm", vmin=0.0, vmax=top_mm, **style)
     top = preview.render_comparison(without_row, triangles, **style)
     bottom = preview.render_comparison(with_row, triangles, **style)
     images.append(preview.save_image(out / "expressions.png", np.concatenate([top, bottom], axis=0)))
@@ -113,19 +128,37 @@ def run_demo(out_dir: str | Path = "demo", *, device=None, fps: float = 30.0, se
     result = DemoResult(stage=stage_path, cache=cache, images=images, timings=timings)
     if video:
         clock = time.perf_counter()
+        labels = _frame_labels(names, peaks, len(contractions), fps)
         result.video = preview.write_video(_baked_frames(stage_path), triangles, out / "face_anim.mp4", fps=fps,
-                                           label="warpface", progress=progress, **style)
+                                           label=labels.__getitem__, total=len(contractions), progress=progress, **style)
         timings["video"] = time.perf_counter() - clock
     return result
 
 
 def _baked_frames(stage_path: Path):
     """The skin's baked points at every time code, read back from the stage (proves the cache plays)."""
-    from pxr import Usd, UsdGeom
+    from .usd.frames import open_frames
 
-    from .usd import frame_times, rig_prims
+    return open_frames(stage_path)
 
-    stage = Usd.Stage.Open(str(stage_path))
-    points = rig_prims(stage).skin.GetAttribute(UsdGeom.Tokens.points)
-    for time_code in frame_times(stage):
-        yield np.asarray(points.Get(Usd.TimeCode(float(time_code))), dtype=np.float64)
+
+def _frame_labels(names: list[str], peaks: dict[str, int], frame_count: int, fps: float) -> list[str]:
+    """Per frame: the expression being performed, and the time — each expression owns the frames from
+    the neutral frame before its peak to the neutral frame after."""
+    labels, start = [], 0
+    bounds = [peaks[n] for n in names]
+    for index in range(frame_count):
+        while start + 1 < len(names) and index > (bounds[start] + bounds[start + 1]) // 2:
+            start += 1
+        labels.append(f"{names[start]}   {index / fps:5.2f} s")
+    return labels
+
+
+def _nice_ceiling(value: float) -> float:
+    """The smallest of 1, 2, 2.5, 5 × 10^k at or above ``value`` (> 0): a clean top for a colour bar."""
+    import math
+
+    if not value > 0:
+        return 1.0
+    power = 10.0 ** math.floor(math.log10(value))
+    return next(step * power for step in (1.0, 2.0, 2.5, 5.0, 10.0) if step * power >= value * (1 - 1e-9))

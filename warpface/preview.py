@@ -1,20 +1,20 @@
 """Offscreen previews with pyrender: shaded images, side-by-side comparisons, heat maps and videos.
 
-Rendering is offscreen: ``PYOPENGL_PLATFORM`` defaults to ``osmesa`` (CPU; Debian ``libosmesa6``)
-unless it is already set (``egl`` where a GPU driver is present). pyrender, OpenGL, OpenCV and
-matplotlib are imported only when a preview is made.
+Rendering is offscreen, through EGL (a GPU driver or Mesa's ``libegl1``) or OSMesa, chosen by
+:func:`warpface.offscreen.choose_platform` unless ``PYOPENGL_PLATFORM`` is already set. pyrender,
+OpenGL, OpenCV and matplotlib are imported only when a preview is made.
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
 
-__all__ = ["Camera", "PreviewRenderer", "render", "render_comparison", "render_heat_map", "heat_colors", "write_video", "save_image"]
+__all__ = ["Camera", "PreviewRenderer", "render", "render_comparison", "render_heat_map", "heat_colors", "write_video",
+           "save_image", "check_offscreen_rendering", "scale_label"]
 
 SKIN_COLOR = (0.86, 0.68, 0.58)
 
@@ -70,8 +70,15 @@ class Camera:
         return pose
 
 
-def _ensure_platform() -> None:
-    os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+def check_offscreen_rendering() -> str:
+    """Choose the offscreen OpenGL back end (see :mod:`warpface.offscreen`) and return its name.
+
+    Raises:
+        warpface.offscreen.OffscreenUnavailable: no back end works; the message names what to install.
+    """
+    from .offscreen import choose_platform
+
+    return choose_platform()
 
 
 class PreviewRenderer:
@@ -82,19 +89,28 @@ class PreviewRenderer:
         size: (width, height) in pixels.
         camera: fixed camera; when omitted, framed on the first rendered points.
         background: RGB in [0, 1].
+        interior: RGB in [0, 1] of the surface's back side (seen through eye and mouth openings of an
+            open face surface); ``None`` shades both sides alike. Needs consistently wound triangles.
     """
 
     def __init__(self, triangles: np.ndarray, size: tuple[int, int] = (640, 480), camera: Camera | None = None,
-                 background=(1.0, 1.0, 1.0)):
-        _ensure_platform()
-        import pyrender
+                 background=(1.0, 1.0, 1.0), interior=None):
+        platform = check_offscreen_rendering()
+        from .offscreen import INSTALL_HINT, OffscreenUnavailable
 
+        try:
+            import pyrender
+
+            self._renderer = pyrender.OffscreenRenderer(viewport_width=size[0], viewport_height=size[1])
+        except Exception as exc:  # noqa: BLE001 — ImportError, OpenGL errors: all mean "no working GL here"
+            raise OffscreenUnavailable(f"cannot start offscreen rendering with PYOPENGL_PLATFORM={platform} "
+                                       f"({type(exc).__name__}: {' '.join(str(exc).split())[:200]}); {INSTALL_HINT}") from None
         self._pyrender = pyrender
         self.triangles = np.asarray(triangles, dtype=np.uint32)
         self.size = size
         self.camera = camera
         self.background = background
-        self._renderer = pyrender.OffscreenRenderer(viewport_width=size[0], viewport_height=size[1])
+        self.interior = interior
         self._topology = None  # a FaceMesh built on the first frame: its Warp kernel gives the normals
 
     def render(self, points: np.ndarray, colors: np.ndarray | None = None) -> np.ndarray:
@@ -114,11 +130,16 @@ class PreviewRenderer:
             colors = np.broadcast_to(np.asarray(SKIN_COLOR), points.shape)
         rgba = np.c_[np.asarray(colors, dtype=np.float32), np.ones(len(points), dtype=np.float32)]
         material = pyrender.MetallicRoughnessMaterial(baseColorFactor=(1.0, 1.0, 1.0, 1.0), metallicFactor=0.0,
-                                                      roughnessFactor=0.65, doubleSided=True)
-        primitive = pyrender.Primitive(positions=points.astype(np.float32), normals=normals.astype(np.float32),
-                                       indices=self.triangles, color_0=rgba, material=material)
+                                                      roughnessFactor=0.65, doubleSided=self.interior is None)
+        primitives = [pyrender.Primitive(positions=points.astype(np.float32), normals=normals.astype(np.float32),
+                                         indices=self.triangles, color_0=rgba, material=material)]
+        if self.interior is not None:  # the back side: the same triangles wound the other way, unlit flat colour
+            inside = pyrender.MetallicRoughnessMaterial(baseColorFactor=(*self.interior, 1.0), metallicFactor=0.0,
+                                                        roughnessFactor=1.0, doubleSided=False)
+            primitives.append(pyrender.Primitive(positions=points.astype(np.float32), normals=-normals.astype(np.float32),
+                                                 indices=self.triangles[:, ::-1].copy(), material=inside))
         scene = pyrender.Scene(bg_color=(*self.background, 1.0), ambient_light=(0.1, 0.1, 0.1))
-        scene.add(pyrender.Mesh([primitive]))
+        scene.add(pyrender.Mesh(primitives))
         pose = self.camera.pose()
         scene.add(pyrender.PerspectiveCamera(yfov=np.radians(self.camera.yfov_deg), aspectRatio=self.size[0] / self.size[1]), pose=pose)
         scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=2.6), pose=_rotated(pose, yaw_deg=-35, pitch_deg=30))
@@ -147,9 +168,11 @@ def _rotated(pose: np.ndarray, *, yaw_deg: float, pitch_deg: float) -> np.ndarra
 
 
 def render(points: np.ndarray, triangles: np.ndarray, path: str | Path | None = None, *, colors=None,
-           camera: Camera | None = None, size=(640, 480), label: str | None = None, background=(1.0, 1.0, 1.0)) -> np.ndarray:
-    """Render one shaded image of a mesh; writes a PNG when ``path`` is given. Returns (H, W, 3) uint8 RGB."""
-    with PreviewRenderer(triangles, size=size, camera=camera, background=background) as renderer:
+           camera: Camera | None = None, size=(640, 480), label: str | None = None, background=(1.0, 1.0, 1.0),
+           interior=None) -> np.ndarray:
+    """Render one shaded image of a mesh; writes a PNG when ``path`` is given. Returns (H, W, 3) uint8 RGB.
+    ``interior``: colour of the back side (see :class:`PreviewRenderer`)."""
+    with PreviewRenderer(triangles, size=size, camera=camera, background=background, interior=interior) as renderer:
         image = renderer.render(points, colors)
     if label:
         image = _label(image, label)
@@ -160,12 +183,12 @@ def render(points: np.ndarray, triangles: np.ndarray, path: str | Path | None = 
 
 def render_comparison(views: Sequence[tuple[str, np.ndarray]], triangles: np.ndarray, path: str | Path | None = None, *,
                       camera: Camera | None = None, size=(480, 480), colors: Sequence | None = None,
-                      background=(1.0, 1.0, 1.0)) -> np.ndarray:
+                      background=(1.0, 1.0, 1.0), interior=None) -> np.ndarray:
     """Labelled views side by side, all with one camera (framed on the first). Returns the joined image."""
     if camera is None:
         camera = Camera.framing(np.asarray(views[0][1]), aspect=size[0] / size[1])
     images = []
-    with PreviewRenderer(triangles, size=size, camera=camera, background=background) as renderer:
+    with PreviewRenderer(triangles, size=size, camera=camera, background=background, interior=interior) as renderer:
         for index, (title, points) in enumerate(views):
             images.append(_label(renderer.render(points, None if colors is None else colors[index]), title))
     joined = np.concatenate(images, axis=1)
@@ -187,15 +210,19 @@ def heat_colors(values: np.ndarray, *, vmin: float | None = None, vmax: float | 
 
 def render_heat_map(points: np.ndarray, triangles: np.ndarray, values: np.ndarray, path: str | Path | None = None, *,
                     title: str = "", units: str = "", camera: Camera | None = None, size=(640, 480), cmap: str = "inferno",
-                    scale: float = 1.0, background=(1.0, 1.0, 1.0)) -> np.ndarray:
+                    scale: float = 1.0, vmin: float | None = None, vmax: float | None = None,
+                    background=(1.0, 1.0, 1.0), interior=None) -> np.ndarray:
     """Render ``points`` coloured by ``values`` (V,), with a colour bar and its range; returns the image.
 
-    ``scale`` multiplies the values shown on the colour bar (e.g. 1000 to show metres as millimetres).
+    ``vmin``/``vmax`` fix the colour scale (default: the values' own range) — give several heat maps
+    the same ones to compare them. ``scale`` multiplies the values shown on the colour bar (e.g. 1000
+    to show metres as millimetres).
     """
     values = np.asarray(values, dtype=np.float64)
-    vmin, vmax = float(values.min()), float(values.max())
+    vmin = float(values.min()) if vmin is None else float(vmin)
+    vmax = float(values.max()) if vmax is None else float(vmax)
     image = render(points, triangles, camera=camera, size=size, colors=heat_colors(values, vmin=vmin, vmax=vmax, cmap=cmap),
-                   background=background)
+                   background=background, interior=interior)
     image = _color_bar(image, vmin * scale, vmax * scale, units, cmap)
     if title:
         image = _label(image, title)
@@ -205,9 +232,14 @@ def render_heat_map(points: np.ndarray, triangles: np.ndarray, values: np.ndarra
 
 
 def write_video(frames: Iterable[np.ndarray], triangles: np.ndarray, path: str | Path, *, fps: float = 30.0,
-                size=(640, 480), camera: Camera | None = None, label: str | None = None, progress: bool = True,
-                background=(1.0, 1.0, 1.0)) -> Path:
-    """Render each (V, 3) frame and write an MP4 (OpenCV, ``mp4v``) through a temporary file and a rename."""
+                size=(640, 480), camera: Camera | None = None, label=None, progress: bool = True,
+                total: int | None = None, background=(1.0, 1.0, 1.0), interior=None) -> Path:
+    """Render each (V, 3) frame and write an MP4 (OpenCV, ``mp4v``) through a temporary file and a rename.
+
+    ``label`` is drawn on every frame: a string (followed by the frame number) or a function of the
+    frame index returning the text. ``total`` is the frame count for the progress bar (default
+    ``len(frames)`` when it has one).
+    """
     import cv2
 
     from ._files import atomic_path
@@ -216,16 +248,20 @@ def write_video(frames: Iterable[np.ndarray], triangles: np.ndarray, path: str |
     if progress:
         from tqdm import tqdm
 
-        frames = tqdm(frames, desc=f"video {path.name}", unit="frame")
+        if total is None and hasattr(frames, "__len__"):
+            total = len(frames)
+        frames = tqdm(frames, desc=f"video {path.name}", unit="frame", total=total, leave=False)
     with atomic_path(path, path.suffix) as temporary:
         writer = cv2.VideoWriter(str(temporary), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), tuple(size))
         if not writer.isOpened():
             raise ValueError(f"cannot open a video writer for {path}")
         try:
-            with PreviewRenderer(triangles, size=size, camera=camera, background=background) as renderer:
+            with PreviewRenderer(triangles, size=size, camera=camera, background=background, interior=interior) as renderer:
                 for index, points in enumerate(frames):
                     image = renderer.render(points)
-                    if label:
+                    if callable(label):
+                        image = _label(image, label(index))
+                    elif label:
                         image = _label(image, f"{label}  frame {index}")
                     writer.write(cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
         finally:
@@ -256,6 +292,17 @@ def _label(image: np.ndarray, text: str) -> np.ndarray:
     return out
 
 
+def scale_label(value: float, span: float) -> str:
+    """``value`` written to the precision a colour bar of range ``span`` resolves (three significant
+    digits of the span): 8.68e-08 on a 15 mm bar is "0", 14.97 is "15.0"."""
+    import math
+
+    span = abs(span) if math.isfinite(span) and span > 0 else abs(value) or 1.0
+    decimals = max(0, 2 - math.floor(math.log10(span)))
+    text = f"{round(value, decimals):.{decimals}f}"
+    return "0" if float(text) == 0 else text
+
+
 def _color_bar(image: np.ndarray, vmin: float, vmax: float, units: str, cmap: str) -> np.ndarray:
     """Append a vertical colour bar with its end values to the right of ``image``."""
     import cv2
@@ -268,7 +315,7 @@ def _color_bar(image: np.ndarray, vmin: float, vmax: float, units: str, cmap: st
     ramp = heat_colors(np.linspace(1.0, 0.0, height - 80), vmin=0.0, vmax=1.0, cmap=cmap)
     bar[40:height - 40, 15:40] = (ramp[:, None, :] * 255).astype(np.uint8)
     for y, value in ((50, vmax), (height - 35, vmin)):
-        cv2.putText(bar, f"{value:.3g}", (45, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, ink, 1, cv2.LINE_AA)
+        cv2.putText(bar, scale_label(value, vmax - vmin), (45, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, ink, 1, cv2.LINE_AA)
     if units:
         cv2.putText(bar, units, (15, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.45, ink, 1, cv2.LINE_AA)
     return np.concatenate([image, bar], axis=1)

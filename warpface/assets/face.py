@@ -329,13 +329,15 @@ def _heights(x: np.ndarray, y: np.ndarray, theta: np.ndarray) -> np.ndarray:
     h += 0.0030 * _gauss(X, y, 0.0, -0.0335, 0.0068, 0.0058)
     h += 0.0068 * _gauss(X, y, 0.0135, -0.0395, 0.0052, 0.0048)
     alar_ring = np.hypot((X - 0.0135) / 1.05, y + 0.0395)
-    h -= 0.0016 * np.exp(-(((alar_ring - 0.0068) / 0.0013) ** 2)) * (y > -0.046)
-    h -= 0.0030 * _gauss(X, y, 0.0058, -0.0432, 0.0026, 0.0016)
+    # Features narrower than ~1.2 lattice spacings (2 mm) alias into lumps: widths stay above that,
+    # and no feature is cut off by a step.
+    h -= 0.0014 * np.exp(-(((alar_ring - 0.0068) / 0.0024) ** 2)) * _smoothstep(-0.049, -0.043, y)
+    h -= 0.0026 * _gauss(X, y, 0.0058, -0.0432, 0.0032, 0.0024)
 
     # Upper lip: maxillary protrusion, philtrum, vermilion.
     h += 0.0065 * _gauss(X, y, 0.0, -0.066, 0.024, 0.020)
-    h += 0.0006 * _gauss(X, y, 0.0045, -0.052, 0.0013, 0.006)
-    h -= 0.0005 * _gauss(X, y, 0.0, -0.052, 0.0018, 0.006)
+    h += 0.0005 * _gauss(X, y, 0.0045, -0.052, 0.0028, 0.006)
+    h -= 0.0004 * _gauss(X, y, 0.0, -0.052, 0.0030, 0.006)
     line = _MOUTH.line(x)
     upper_border, lower_border = _MOUTH.vermilion(x)
     corner_fade = _smoothstep(_MOUTH.corner[0] * 1.05, _MOUTH.corner[0] * 0.55, X)

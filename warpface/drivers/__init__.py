@@ -8,7 +8,7 @@ action units) read, cleaned and mapped onto a rig's controls (SPEC §6.4), and e
 
 USD pieces live in :mod:`warpface.usd.mapping_io` (mappings on the rig stage) and
 :mod:`warpface.usd.skel_io` (``UsdSkel.Animation`` blendshape weights); the command is
-``warpface animate`` (:mod:`warpface.cli_animate`).
+``warpface animate`` (:mod:`warpface.commands.animate`).
 """
 
 from .channels import ARKIT_CHANNELS, ARKIT_RANGE, AU_RANGE, Curves, canonical_channel, channel_range

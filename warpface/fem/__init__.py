@@ -1,16 +1,25 @@
 """Viscoelastic linear-tet FEM of facial tissue (SPEC §2): mesh, material, assembly, Newmark-β.
 
-Imports only Warp, NumPy and SciPy; optional back ends (pytetwild, pxr, tqdm, cholespy) are
-imported lazily where they are used.
+Model layer: imports Warp, NumPy, SciPy and warpface's geometry layer (``warpface.geometry``,
+``warpface.landmarks``), never USD, tracking, metrics or assets; optional back ends (pytetwild,
+PyVista, tqdm) are imported lazily where they are used. Tissue meshes and materials are read and
+written on USD stages by :mod:`warpface.usd.tissue_io`.
+
+Stepping follows Newton's split: the simulation's solver object (``TissueSimulation.stepper``, a
+:class:`~warpface.fem.solver_direct.DirectSolver` or :class:`~warpface.fem.solver_cg.CGSolver`)
+advances a :class:`TissueState` under a :class:`TissueControl` with
+``stepper.step(state_in, state_out, control)``; :meth:`TissueSimulation.run` is the convenience path.
 """
 
 from .assembly import FORMULATIONS, SystemMatrices, assemble
 from .embedding import Embedding, embed_points
 from .integrator import ConvergenceError, TissueSimulation
-from .material import DAMPING_MODELS, TissueMaterial
+from .material import DAMPING_MODELS, MATERIAL_RANGES, TissueMaterial
 from .primitives import box_tet_mesh, shell_tet_mesh
 from .proxy import TissueProxy, tissue_proxy
-from .regions import KATO_MODELS, KATO_REGIONS, kato_material_model, kato_regions, landmark_regions
+from .presets import KATO_MODELS, KATO_REGIONS, KATO_UNIFORM, kato_uniform_material
+from .state import TissueControl, TissueState
+from .regions import kato_material_model, kato_regions, landmark_regions
 from .tetmesh import TetMesh, TetQuality
 from .volume import MeshingReport, TissueMeshing, mesh_tissue, tissue_from_surface
 
@@ -21,19 +30,24 @@ __all__ = [
     "FORMULATIONS",
     "KATO_MODELS",
     "KATO_REGIONS",
+    "KATO_UNIFORM",
+    "MATERIAL_RANGES",
     "MeshingReport",
     "SystemMatrices",
     "TetMesh",
     "TetQuality",
     "TissueMaterial",
+    "TissueControl",
     "TissueMeshing",
     "TissueProxy",
     "TissueSimulation",
+    "TissueState",
     "assemble",
     "box_tet_mesh",
     "embed_points",
     "kato_material_model",
     "kato_regions",
+    "kato_uniform_material",
     "landmark_regions",
     "mesh_tissue",
     "shell_tet_mesh",

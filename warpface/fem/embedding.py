@@ -19,7 +19,7 @@ import numpy as np
 import warp as wp
 
 from ..geometry import closest_point_on_triangle
-from .tetmesh import TetMesh, _EDGE_NODES
+from .tetmesh import MAX_COORDINATE, TET_EDGE_NODES, TetMesh
 
 __all__ = ["Embedding", "embed_points"]
 
@@ -341,7 +341,7 @@ def _frozen_embedding(node_count, tets, nodes, weights, distances) -> Embedding:
 
 def _median_edge_length(tetmesh: TetMesh) -> float:
     p = tetmesh.points[tetmesh.tets]
-    d = p[:, _EDGE_NODES[:, 0]] - p[:, _EDGE_NODES[:, 1]]
+    d = p[:, TET_EDGE_NODES[:, 0]] - p[:, TET_EDGE_NODES[:, 1]]
     return float(np.median(np.linalg.norm(d, axis=2)))
 
 
@@ -366,15 +366,25 @@ def embed_points(tetmesh: TetMesh, points, *, max_distance: float | None = None,
     """
     if not isinstance(tetmesh, TetMesh):
         raise ValueError(f"embed_points: expected a TetMesh, got {type(tetmesh).__name__}")
-    points = np.asarray(getattr(points, "points", points), dtype=np.float64)
+    try:
+        points = np.asarray(getattr(points, "points", points), dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError("embed_points: points must be numbers of shape (V, 3)") from None
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"embed_points: points must have shape (V, 3), got {points.shape}")
     bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
     if bad.size:
         raise ValueError(f"embed_points: point {bad[0]} is not finite: {points[bad[0]].tolist()}")
+    far = np.flatnonzero(np.abs(points).max(axis=1) > MAX_COORDINATE) if len(points) else np.zeros(0, dtype=np.int64)
+    if far.size:
+        raise ValueError(f"embed_points: point {far[0]} lies beyond {MAX_COORDINATE:g} m from the origin: "
+                         f"{points[far[0]].tolist()}")
     if max_distance is None:
         max_distance = 0.5 * _median_edge_length(tetmesh)
-    max_distance = float(max_distance)
+    try:
+        max_distance = float(max_distance)
+    except (TypeError, ValueError):
+        raise ValueError(f"embed_points: max_distance must be a number [m], got {max_distance!r}") from None
     if not (np.isfinite(max_distance) and max_distance >= 0.0):
         raise ValueError(f"embed_points: max_distance must be finite and >= 0 [m], got {max_distance}")
 

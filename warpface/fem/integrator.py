@@ -28,20 +28,30 @@ import warp as wp
 from .assembly import FORMULATIONS, SystemMatrices, assemble
 from .material import TissueMaterial
 from .newmark import newmark_coefficients, validate_newmark
-from .solver_cg import PRECONDITIONERS, CGStepper, ConvergenceError
-from .solver_direct import DirectStepper, node_dofs
+from .solver_cg import PRECONDITIONERS, CGSolver, ConvergenceError
+from .solver_direct import DirectSolver, factorize_spd, node_dofs
+from .state import TissueControl, TissueState
 from .tetmesh import TetMesh
 
 __all__ = ["TissueSimulation", "ConvergenceError", "SOLVERS"]
 
 SOLVERS = ("auto", "direct", "cg")
 
+DISPLACEMENT_LIMIT = 10.0
+"""Largest accepted driven (or reset) displacement, in multiples of the mesh's bounding-box diagonal.
+
+Linear elasticity means nothing far beyond the mesh's own size, and the bound keeps every quantity
+of a step (accelerations ``~ Δd / dt²``, energies) finite in float64."""
+
 # run() shows a progress bar (tqdm, when installed) from this many steps on.
 _PROGRESS_MIN_STEPS = 500
 
 
 def _node_set(name: str, nodes, node_count: int) -> np.ndarray:
-    arr = np.asarray(nodes if nodes is not None else [])
+    try:
+        arr = np.asarray(nodes if nodes is not None else [])
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be node indices or a boolean mask, got {type(nodes).__name__}") from None
     if arr.size == 0:
         return np.zeros(0, dtype=np.int64)
     if arr.dtype == bool:
@@ -51,11 +61,22 @@ def _node_set(name: str, nodes, node_count: int) -> np.ndarray:
     if not np.issubdtype(arr.dtype, np.integer):
         if not (np.issubdtype(arr.dtype, np.floating) and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr))):
             raise ValueError(f"{name} must hold integer node indices, got dtype {arr.dtype}")
-    arr = arr.astype(np.int64).ravel()
-    bad = np.flatnonzero((arr < 0) | (arr >= node_count))
+    flat = arr.ravel()
+    bad = np.flatnonzero((flat < 0) | (flat >= node_count))
     if bad.size:
-        raise ValueError(f"{name} node index {arr[bad[0]]} (entry {bad[0]}) is out of range [0, {node_count})")
-    return arr
+        raise ValueError(f"{name} node index {flat[bad[0]]} (entry {bad[0]}) is out of range [0, {node_count})")
+    return flat.astype(np.int64)
+
+
+def _number(name: str, value, low: float, high: float, *, integer: bool = False) -> float:
+    """``value`` as a float in ``[low, high]`` (a whole number when ``integer``), else a ValueError/TypeError naming it."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__}")
+    number = float(value)
+    if not (np.isfinite(number) and low <= number <= high) or (integer and number != round(number)):
+        kind = "a whole number" if integer else "a number"
+        raise ValueError(f"{name} must be {kind} in [{low:g}, {high:g}], got {value!r}")
+    return number
 
 
 class TissueSimulation:
@@ -64,12 +85,13 @@ class TissueSimulation:
     Args:
         tetmesh: The tissue mesh.
         material: Uniform or per-tet :class:`TissueMaterial`.
-        dt: Time step [s], > 0.
+        dt: Time step [s], in [1e-8, 10] (:data:`~warpface.fem.newmark.DT_RANGE`).
         fixed: Nodes held at zero displacement: indices or a boolean mask of shape (N,).
         driven: Nodes whose displacement is given every step, in the column order of the
             trajectories passed to :meth:`step` / :meth:`run` (indices; no duplicates).
         beta, gamma: Newmark parameters (default 1/4, 1/2: average acceleration,
-            unconditionally stable, energy conserving without damping).
+            unconditionally stable, energy conserving without damping); β in [0.01, 1], γ in
+            [0.5, 1] (:data:`~warpface.fem.newmark.BETA_RANGE`, :data:`~warpface.fem.newmark.GAMMA_RANGE`).
         formulation: ``"linear"`` or ``"anp"`` (locking-free average nodal pressure), see
             :mod:`warpface.fem.assembly`.
         solver: ``"auto"`` (direct on CPU, CG elsewhere), ``"direct"`` or ``"cg"``.
@@ -77,20 +99,19 @@ class TissueSimulation:
         cg_tol: CG tolerance, relative to the residual of the Newmark predictor ``d + dt v + dt²/2 a``.
             That residual is small, so the error left in the displacement is ``cg_tol`` times the
             (tiny) correction to the predictor. CG starts from the better of the predictor and a cubic
-            extrapolation of the last four displacements, which during smooth motion is much closer:
-            on the 6.7k-node face shell (benchmarks/fem.py, 200 steps of mouth opening) FSAI-CG at
-            1e-5 needed 25.6 iterations per step from the predictor and 10.2 from the extrapolation
-            (32 in the first steps), and the displacements matched the direct solver to 2.6e-10 m.
+            extrapolation of the last four displacements, which during smooth motion is much closer
+            and saves iterations (measurements: ``benchmarks/README.md``).
         cg_maxiter: CG iteration limit per step.
         cg_preconditioner: ``"fsai"``, ``"block_jacobi"`` or ``"diag"``.
         cg_dtype: ``wp.float64`` (default) or ``wp.float32`` state and solver precision. float32 gains
-            little: a float32 state is too coarse for the extrapolation (20.6 iterations per step on the
-            benchmark instead of 10.2, 0.49 ms instead of 0.31 ms on an H200).
-        cg_chunk: Steps per device ring buffer (the host checks convergence once per chunk).
+            little: a float32 state is too coarse for the extrapolation, which then needs more iterations.
+        cg_chunk: Time steps per ring buffer of :meth:`run` and of :meth:`step`'s host input (the
+            host checks convergence once per ring).
         use_graph: Capture the CG step in a graph (default: on CUDA only).
 
     Raises:
-        ValueError: bad mesh/material type, ``dt <= 0``, bad Newmark parameters, node indices out
+        TypeError: ``dt``, ``beta``, ``gamma`` or a CG setting is not a number.
+        ValueError: bad mesh/material type, ``dt``, ``beta`` or ``gamma`` out of range, node indices out
             of range, duplicated driven nodes, a node both fixed and driven, no constrained node
             (or a connected part of the mesh without one: its rigid motion would be singular), no
             free node, unknown solver/formulation, or ``solver="direct"`` on a non-CPU device.
@@ -121,6 +142,13 @@ class TissueSimulation:
         if not isinstance(material, TissueMaterial):
             raise ValueError(f"TissueSimulation needs a TissueMaterial, got {type(material).__name__}")
         self.dt, self.beta, self.gamma = validate_newmark(dt, beta, gamma)
+        for option, value, allowed in (("formulation", formulation, FORMULATIONS), ("solver", solver, SOLVERS),
+                                       ("cg_preconditioner", cg_preconditioner, PRECONDITIONERS)):
+            if not isinstance(value, str) or value not in allowed:
+                raise ValueError(f"{option} must be one of {allowed}, got {value!r}")
+        cg_tol = _number("cg_tol", cg_tol, 1e-16, 1.0)
+        cg_maxiter = int(_number("cg_maxiter", cg_maxiter, 1, 100_000, integer=True))
+        cg_chunk = int(_number("cg_chunk", cg_chunk, 1, 100_000, integer=True))
         if formulation not in FORMULATIONS:
             raise ValueError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
         if solver not in SOLVERS:
@@ -128,7 +156,10 @@ class TissueSimulation:
         if cg_preconditioner not in PRECONDITIONERS:
             raise ValueError(f"cg_preconditioner must be one of {PRECONDITIONERS}, got {cg_preconditioner!r}")
         material.per_tet(tetmesh.tet_count)  # size check with a clear message
-        device = wp.get_device(device)
+        try:
+            device = wp.get_device(device)
+        except Exception:  # Warp raises RuntimeError/ValueError/TypeError for unknown devices
+            raise ValueError(f"device {device!r} is not a Warp device here ({[str(d) for d in wp.get_devices()]})") from None
         if solver == "auto":
             solver = "direct" if device.is_cpu else "cg"
         if solver == "direct" and not device.is_cpu:
@@ -173,11 +204,14 @@ class TissueSimulation:
         self.free_nodes = free_nodes
         """Free (solved) nodes, shape (F,), int64, sorted."""
         self.coefficients = newmark_coefficients(self.dt, self.beta, self.gamma)
-        """Newmark constants, see :func:`~warpface.fem.newmark.newmark_coefficients`."""
+        """Newmark constants (:class:`~warpface.fem.newmark.NewmarkCoefficients`)."""
         self.timings: dict[str, float] = {}
         """Set-up wall times [s]: "assembly", "factorization" (direct) or "solver_setup" (CG)."""
         self.steps_taken = 0
         """Steps since construction or the last :meth:`reset`."""
+        extent = np.ptp(tetmesh.points, axis=0)
+        self.max_displacement = DISPLACEMENT_LIMIT * float(np.linalg.norm(extent))
+        """Largest accepted driven or reset displacement [m] (:data:`DISPLACEMENT_LIMIT` mesh diagonals)."""
 
         t0 = time.perf_counter()
         self.matrices: SystemMatrices = assemble(tetmesh, material, formulation=formulation, device=device)
@@ -187,10 +221,13 @@ class TissueSimulation:
         t0 = time.perf_counter()
         if solver == "direct":
             K, M, C = self.matrices.to_scipy()
-            self._stepper = DirectStepper(K, M, C, self.coefficients, free_nodes, driven_nodes)
-            self.timings["factorization"] = self._stepper.factor_seconds
+            self.stepper = DirectSolver(K, M, C, self.coefficients, free_nodes, driven_nodes)
+            """The solver object: :class:`~warpface.fem.solver_direct.DirectSolver` or
+            :class:`~warpface.fem.solver_cg.CGSolver` (``stepper.step(state_in, state_out, control)``)."""
+            self.timings["factorization"] = self.stepper.factor_seconds
+            state_dtype = wp.float64
         else:
-            self._stepper = CGStepper(
+            self.stepper = CGSolver(
                 self.matrices,
                 self.coefficients,
                 free_nodes,
@@ -202,7 +239,21 @@ class TissueSimulation:
                 chunk=cg_chunk,
                 use_graph=device.is_cuda if use_graph is None else bool(use_graph),
             )
+            state_dtype = cg_dtype
         self.timings["solver_setup"] = time.perf_counter() - t0
+        state_device = self.stepper.device
+        self.state = TissueState(n, dtype=state_dtype, device=state_device)
+        """The current :class:`~warpface.fem.state.TissueState` (stepped in place by :meth:`step` and :meth:`run`)."""
+        self.control = TissueControl(driven_nodes.size, dtype=state_dtype, device=state_device)
+        """The :class:`~warpface.fem.state.TissueControl` that :meth:`step` fills from its argument."""
+        # step(): host input goes through a (pinned) ring of `cg_chunk` rows, so queued copies never
+        # read a row the host has already overwritten; the host waits once per ring.
+        self._ring_rows = 1 if solver == "direct" else int(cg_chunk)
+        self._staging = wp.zeros((self._ring_rows, max(driven_nodes.size, 1)), dtype=self.control.driven.dtype,
+                                 device="cpu", pinned=state_device.is_cuda)
+        self._staging_slot = 0
+        # on the CPU every launch is synchronous: step() writes the control through a zero-copy view
+        self._control_view = self.control.driven.numpy()[: driven_nodes.size] if state_device.is_cpu else None
         self._failed = False
 
     # ------------------------------------------------------------------ state
@@ -217,13 +268,8 @@ class TissueSimulation:
         return self.steps_taken * self.dt
 
     def _state(self):
-        if self.solver == "direct":
-            return self._stepper.d, self._stepper.v, self._stepper.a
-        try:
-            return self._stepper.state()
-        except ConvergenceError:
-            self._failed = True
-            raise
+        self.synchronize()
+        return self.state.numpy()
 
     @property
     def d(self) -> np.ndarray:
@@ -243,14 +289,14 @@ class TissueSimulation:
     @property
     def cg_iterations(self) -> tuple[int, int] | None:
         """``(most, last)`` CG iterations per step since the last reset; None for the direct solver."""
-        return None if self.solver == "direct" else self._stepper.iterations
+        return None if self.solver == "direct" else self.stepper.iterations
 
     @property
     def cg_mean_iterations(self) -> float | None:
         """Mean CG iterations per step since the last reset (NaN before the first); None for the direct solver."""
         if self.solver == "direct":
             return None
-        total = self._stepper.total_iterations
+        total = self.stepper.total_iterations
         return total / self.steps_taken if self.steps_taken else float("nan")
 
     def energy(self) -> tuple[float, float]:
@@ -287,19 +333,27 @@ class TissueSimulation:
             moving = self.fixed_nodes[np.any(arr[self.fixed_nodes] != 0.0, axis=1)]
             if moving.size:
                 raise ValueError(f"reset {name} of fixed node {moving[0]} must be zero")
+            limit = self.max_displacement / (1.0 if name == "displacement" else self.dt)
+            big = np.flatnonzero(np.abs(arr).max(axis=1) > limit)
+            if big.size:
+                raise ValueError(f"reset {name} of node {big[0]} exceeds {limit:.3g} (|value| {np.abs(arr[big[0]]).max():.3g}; "
+                                 f"at most {DISPLACEMENT_LIMIT:g} mesh diagonals{'' if name == 'displacement' else ' per dt'})")
             state.append(arr)
         d, v = state
         a = np.zeros((n, 3))
         if np.any(d) or np.any(v):
-            from .solver_direct import factorize_spd
-
             if not hasattr(self, "_host_matrices"):
                 self._host_matrices = self.matrices.to_scipy()
             K, M, C = self._host_matrices
             o = node_dofs(self.free_nodes)
             force = -(K @ d.ravel() + C @ v.ravel())[o]
             a[self.free_nodes] = factorize_spd(M.tocsr()[o][:, o]).solve(force).reshape(-1, 3)
-        self._stepper.set_state(d, v, a)
+        if self.solver == "cg":
+            wp.synchronize_device(self.stepper.device)
+        self.state.assign(d, v, a)
+        if self.solver == "cg":
+            self.stepper.restart(self.state)
+        self._staging_slot = 0
         self.steps_taken = 0
         self._failed = False
 
@@ -311,7 +365,10 @@ class TissueSimulation:
             if k:
                 raise ValueError(f"{k} driven nodes need displacements of shape {shape}")
             return np.zeros(shape)
-        arr = np.asarray(driven, dtype=np.float64)
+        try:
+            arr = np.asarray(driven, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"driven displacements must be numbers of shape {shape}") from None
         if steps is None and arr.shape != shape:
             raise ValueError(f"driven displacements must have shape {shape}, got {arr.shape}")
         if steps is not None and (arr.ndim != 3 or arr.shape[1:] != (k, 3)):
@@ -323,6 +380,15 @@ class TissueSimulation:
                 raise ValueError(f"driven displacement of node {self.driven_nodes[where[0]]} is not finite")
             raise ValueError(
                 f"trajectory has a non-finite value at step {where[0]}, driven node {self.driven_nodes[where[1]]}"
+            )
+        big = np.abs(arr).max(axis=-1) > self.max_displacement
+        if big.any():
+            where = np.argwhere(big)[0]
+            at = (f"driven node {self.driven_nodes[where[0]]}" if steps is None
+                  else f"step {where[0]}, driven node {self.driven_nodes[where[1]]}")
+            raise ValueError(
+                f"driven displacement at {at} is {np.abs(arr[tuple(where)]).max():.3g} m, beyond the "
+                f"{self.max_displacement:.3g} m limit ({DISPLACEMENT_LIMIT:g} mesh diagonals)"
             )
         return arr
 
@@ -341,14 +407,42 @@ class TissueSimulation:
         reads results (``d``, ``v``, ``a``, :meth:`run`) or at the latest ``cg_chunk`` steps later.
 
         Raises:
-            ValueError: wrong shape or a non-finite value.
+            ValueError: wrong shape, a non-finite value, or a displacement beyond
+                :attr:`max_displacement`.
             ConvergenceError: CG did not converge (CG solver).
         """
         self._check_usable()
         driven = self._check_driven(driven_displacements, None)
+        slot = self._staging_slot
+        if driven.size and self._control_view is not None:
+            self._control_view[:] = driven
+        elif driven.size:
+            self._staging.numpy()[slot, : driven.shape[0]] = driven
+            wp.copy(self.control.driven, self._staging, src_offset=slot * self._staging.shape[1],
+                    count=self.control.driven.shape[0])
         try:
-            self._stepper.step(driven)
-        except (ConvergenceError, FloatingPointError):
+            self.stepper.step(self.state, self.state, self.control)
+        except FloatingPointError:
+            self._failed = True
+            raise
+        self.steps_taken += 1
+        self._staging_slot = (slot + 1) % self._ring_rows
+        if self.solver == "cg" and self._staging_slot == 0:
+            self.synchronize()
+
+    def step_control(self, control: TissueControl) -> None:
+        """Advance one time step with driven displacements already on the device (no host transfer).
+
+        Args:
+            control: A :class:`~warpface.fem.state.TissueControl` of this simulation's driven nodes,
+                dtype and device (e.g. :attr:`control`, or one filled by a kernel).
+
+        On CUDA this only queues work (see :meth:`step`); the values in ``control`` are not checked.
+        """
+        self._check_usable()
+        try:
+            self.stepper.step(self.state, self.state, control)
+        except FloatingPointError:
             self._failed = True
             raise
         self.steps_taken += 1
@@ -366,11 +460,15 @@ class TissueSimulation:
             Displacements [m], shape (T, len(nodes), 3), float32.
 
         Raises:
-            ValueError: bad trajectory (shape, NaN/inf, naming step and node) or node indices.
+            ValueError: bad trajectory (shape, NaN/inf, beyond :attr:`max_displacement`; naming step
+                and node) or node indices.
             ConvergenceError: CG did not converge at some step (the residual is in the message).
         """
         self._check_usable()
-        arr = np.asarray(trajectory, dtype=np.float64)
+        try:
+            arr = np.asarray(trajectory, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"trajectory must be numbers of shape (steps, {self.driven_nodes.size}, 3)") from None
         if arr.ndim != 3:
             raise ValueError(f"trajectory must have shape (steps, {self.driven_nodes.size}, 3), got {arr.shape}")
         steps = arr.shape[0]
@@ -380,16 +478,19 @@ class TissueSimulation:
         bar = _progress_bar(steps, progress)
         try:
             if self.solver == "direct":
+                driven_view = self.control.driven.numpy()[: self.driven_nodes.size]  # zero-copy (CPU)
+                d_view = self.state.d.numpy()
                 for t in range(steps):
-                    self._stepper.step(traj[t])
-                    out[t] = self._stepper.d if nodes is None else self._stepper.d[record]
+                    driven_view[:] = traj[t]
+                    self.stepper.step(self.state, self.state, self.control)
+                    out[t] = d_view if nodes is None else d_view[record]
                     self.steps_taken += 1
                     if bar is not None:
                         bar.update(1)
             else:
-                chunk = self._stepper.chunk
+                chunk = self.stepper.chunk
                 for start in range(0, steps, chunk):
-                    block = self._stepper.run_chunk(traj[start : start + chunk])
+                    block = self.stepper.run_chunk(self.state, traj[start : start + chunk])
                     out[start : start + block.shape[0]] = block if nodes is None else block[:, record]
                     self.steps_taken += block.shape[0]
                     if bar is not None:
@@ -406,7 +507,7 @@ class TissueSimulation:
         """Wait for queued device steps; raise :class:`ConvergenceError` if one failed."""
         if self.solver == "cg":
             try:
-                self._stepper.synchronize()
+                self.stepper.synchronize()
             except ConvergenceError:
                 self._failed = True
                 raise

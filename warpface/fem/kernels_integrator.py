@@ -1,14 +1,11 @@
-"""Warp kernels of one Newmark-β step with a Dirichlet partition (SPEC §2), device-resident.
+"""The Newmark-β state update (SPEC §2), written once for both solvers, and its kernels.
 
-Generic over the float type (vec3f/vec3d state with a matching scalar ``coeffs`` array), so
-the same kernels run the float32 and float64 CG paths. None of them allocates or reads back
-to the host, so the whole step can be captured in one graph. The step's right-hand side and
-its linear solve are in :mod:`warpface.fem.kernels_cg`.
-
-``coeffs`` holds the Newmark constants for time step ``dt``:
-``[c0, c1, c2, c3, c4, c5, c6, c7, dt, dt^2 / 2]`` with
-``c0 = 1/(β dt²)``, ``c1 = 1/(β dt)``, ``c2 = 1/(2β) − 1``, ``c3 = γ/(β dt)``, ``c4 = γ/β − 1``,
-``c5 = dt (γ/(2β) − 1)``, ``c6 = dt (1 − γ)``, ``c7 = dt γ``.
+:func:`newmark_advance` is the update of one node's velocity and acceleration from its new
+displacement (constants by name in :class:`~warpface.fem.newmark.NewmarkCoefficients`).
+:data:`newmark_update` applies it to a whole state after a direct solve; the CG solver's fused
+end-of-step kernel (:data:`cg_newmark_update`) calls the same function. Both are generic over the
+float type (vec3f/vec3d with matching scalars), never allocate or read back to the host, and so can
+be captured in a graph.
 """
 
 from __future__ import annotations
@@ -19,11 +16,68 @@ import warp as wp
 
 from .kernels_cg import RR, START, slot_total
 
-__all__ = ["newmark_update"]
+__all__ = ["cg_newmark_update", "interpolate_control", "newmark_advance", "newmark_update"]
+
+
+@wp.func
+def newmark_advance(
+    d_new: Any, d: Any, v: Any, a: Any,
+    mass_displacement: Any, mass_velocity: Any, mass_acceleration: Any,
+    velocity_old_acceleration: Any, velocity_new_acceleration: Any,
+):
+    """``(a', v')`` of a node whose displacement goes from ``d`` to ``d_new`` (velocity ``v``, acceleration ``a``):
+    ``a' = c0 (d_new − d) − c1 v − c2 a`` and ``v' = v + c6 a + c7 a'``."""
+    a_new = mass_displacement * (d_new - d) - mass_velocity * v - mass_acceleration * a
+    v_new = v + velocity_old_acceleration * a + velocity_new_acceleration * a_new
+    return a_new, v_new
 
 
 @wp.kernel
 def newmark_update(
+    solution: wp.array(dtype=Any),
+    free_index: wp.array(dtype=wp.int32),
+    driven_slot: wp.array(dtype=wp.int32),
+    driven: wp.array(dtype=Any),
+    d_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    a_in: wp.array(dtype=Any),
+    mass_displacement: Any,
+    mass_velocity: Any,
+    mass_acceleration: Any,
+    velocity_old_acceleration: Any,
+    velocity_new_acceleration: Any,
+    d_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+    a_out: wp.array(dtype=Any),
+):
+    """Per node: the new displacement (``solution[free_index]`` for free nodes, ``driven[driven_slot]``
+    for driven ones, zero for fixed ones) and its Newmark acceleration and velocity.
+    ``*_out`` may be the same arrays as ``*_in``."""
+    i = wp.tid()
+    di = d_in[i]
+    dn = type(di)()
+    o = free_index[i]
+    s = driven_slot[i]
+    if o >= 0:
+        dn = solution[o]
+    elif s >= 0:
+        dn = driven[s]
+    an, vn = newmark_advance(dn, di, v_in[i], a_in[i], mass_displacement, mass_velocity, mass_acceleration,
+                             velocity_old_acceleration, velocity_new_acceleration)
+    d_out[i] = dn
+    v_out[i] = vn
+    a_out[i] = an
+
+
+@wp.kernel
+def interpolate_control(start: wp.array(dtype=Any), end: wp.array(dtype=Any), fraction: Any, out: wp.array(dtype=Any)):
+    """``out = start + fraction (end − start)`` per driven node (sub-steps between two camera frames)."""
+    i = wp.tid()
+    out[i] = start[i] + fraction * (end[i] - start[i])
+
+
+@wp.kernel
+def cg_newmark_update(
     correction: wp.array(dtype=Any),
     history: wp.array2d(dtype=Any),
     guess: wp.array(dtype=Any),
@@ -31,26 +85,35 @@ def newmark_update(
     driven_slot: wp.array(dtype=wp.int32),
     trajectory: wp.array2d(dtype=Any),
     ring: wp.array(dtype=wp.int32),
-    coeffs: wp.array(dtype=Any),
+    mass_displacement: Any,
+    mass_velocity: Any,
+    mass_acceleration: Any,
+    velocity_old_acceleration: Any,
+    velocity_new_acceleration: Any,
+    dt: Any,
+    half_dt_squared: Any,
     slots: wp.array3d(dtype=wp.float64),
     cg_iter: wp.array(dtype=wp.int32),
     tol_sq: wp.float64,
     chunk: int,
-    d: wp.array(dtype=Any),
-    v: wp.array(dtype=Any),
-    a: wp.array(dtype=Any),
+    d_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    a_in: wp.array(dtype=Any),
+    d_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+    a_out: wp.array(dtype=Any),
     record: wp.array2d(dtype=Any),
     step_count: wp.array(dtype=wp.int32),
     status: wp.array(dtype=wp.int32),
     failure: wp.array(dtype=wp.float64),
 ):
-    """Per node: new displacement, then Newmark a and v in place; thread 0 books the step.
+    """End of a CG step, per node: new displacement, then :func:`newmark_advance`; thread 0 books the step.
 
     The new displacement is the predictor ``d + dt v + dt²/2 a`` plus the CG ``correction``
     (free nodes), ``trajectory[ring[1], slot]`` (driven) or zero (fixed); it is also written to
     ``record[ring[1], node]``. For free node ``o`` the last two increments are kept in
     ``history[0, o]``, ``history[1, o]`` and ``guess[o]`` becomes the next step's cubic
-    extrapolation ``4 d − 6 d₋₁ + 4 d₋₂ − d₋₃`` minus its predictor.
+    extrapolation ``4 d − 6 d₋₁ + 4 d₋₂ − d₋₃`` minus its predictor. ``*_out`` may be ``*_in``.
 
     Thread 0 records CG convergence (``status = [failed steps, first failed step, max iterations,
     last iterations, total iterations]``, ``failure = [residual, tolerance]`` of the first failed
@@ -59,29 +122,29 @@ def newmark_update(
     """
     i = wp.tid()
     slot = ring[1]
-    dn = type(d[i])()
-    di = d[i]
-    vi = v[i]
-    ai = a[i]
+    di = d_in[i]
+    vi = v_in[i]
+    ai = a_in[i]
+    dn = type(di)()
     o = free_index[i]
     s = driven_slot[i]
     if o >= 0:
-        dn = di + coeffs[8] * vi + coeffs[9] * ai + correction[o]
+        dn = di + dt * vi + half_dt_squared * ai + correction[o]
     elif s >= 0:
         dn = trajectory[slot, s]
-    an = coeffs[0] * (dn - di) - coeffs[1] * vi - coeffs[2] * ai
-    vn = vi + coeffs[6] * ai + coeffs[7] * an
-    d[i] = dn
-    a[i] = an
-    v[i] = vn
+    an, vn = newmark_advance(dn, di, vi, ai, mass_displacement, mass_velocity, mass_acceleration,
+                             velocity_old_acceleration, velocity_new_acceleration)
+    d_out[i] = dn
+    a_out[i] = an
+    v_out[i] = vn
     record[slot, i] = dn
     if o >= 0:
-        step = dn - di
+        increment = dn - di
         previous = history[0, o]
-        three = type(coeffs[0])(3.0)
-        guess[o] = three * (step - previous) + history[1, o] - coeffs[8] * vn - coeffs[9] * an
+        three = type(dt)(3.0)
+        guess[o] = three * (increment - previous) + history[1, o] - dt * vn - half_dt_squared * an
         history[1, o] = previous
-        history[0, o] = step
+        history[0, o] = increment
     if i == 0:
         it = cg_iter[0]
         status[2] = wp.max(status[2], it)

@@ -16,43 +16,84 @@ viscous law is chosen by ``damping`` (SPEC §2):
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["TissueMaterial", "DAMPING_MODELS"]
+__all__ = ["TissueMaterial", "DAMPING_MODELS", "MATERIAL_RANGES", "MaterialRange"]
 
 DAMPING_MODELS = ("stokes", "thesis")
 
 _FIELDS = ("E", "nu", "eta", "rho")
 
 
+@dataclass(frozen=True)
+class MaterialRange:
+    """Closed interval ``[low, high]`` of one material field, in SI units."""
+
+    low: float
+    high: float
+    unit: str
+
+    def describe(self) -> str:
+        """The interval as text, e.g. ``"in [0.001, 1e+12] Pa"``."""
+        return f"in [{self.low:g}, {self.high:g}]" + (f" {self.unit}" if self.unit else "")
+
+    def outside(self, values) -> np.ndarray:
+        """Indices of the entries of ``values`` (float64, any shape, flattened) not finite or out of range."""
+        arr = np.atleast_1d(np.asarray(values, dtype=np.float64)).ravel()
+        return np.flatnonzero(~(np.isfinite(arr) & (arr >= self.low) & (arr <= self.high)))
+
+
+MATERIAL_RANGES = {
+    "E": MaterialRange(1.0e-3, 1.0e12, "Pa"),
+    "nu": MaterialRange(0.0, 0.4999, ""),
+    "eta": MaterialRange(0.0, 1.0e9, "Pa s"),
+    "rho": MaterialRange(1.0e-3, 1.0e6, "kg/m^3"),
+}
+"""Accepted values of each :class:`TissueMaterial` field (also used when reading a tissue from USD).
+
+Soft tissue is ``E`` ~ 1e3..1e6 Pa, ``nu`` ~ 0.45..0.499, ``eta`` ~ 1..1e3 Pa s and ``rho`` ~ 1e3 kg/m^3;
+the intervals are wide around that (steel has E = 2e11 Pa) but keep the assembled matrices finite
+and factorisable: ``nu`` up to 0.4999 gives a Lamé ratio lambda/mu of 5,000 (nearer to 0.5 the
+"linear" formulation locks and the system matrix loses every significant digit; use
+``formulation="anp"`` for incompressible tissue)."""
+
+
 def _as_field(name: str, value) -> np.ndarray | float:
-    arr = np.asarray(value, dtype=np.float64)
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"TissueMaterial {name} must be a number or an array of numbers: {exc}") from None
     if arr.ndim == 0:
         return float(arr)
     if arr.ndim != 1:
         raise ValueError(f"TissueMaterial {name} must be a scalar or a 1-D per-tet array, got shape {arr.shape}")
+    if arr.size == 0:
+        raise ValueError(f"TissueMaterial {name} is an empty array; give a scalar or one value per tet")
     arr = arr.copy()
     arr.setflags(write=False)
     return arr
 
 
-def _check_range(name: str, value, ok, what: str) -> None:
-    arr = np.atleast_1d(value)
-    bad = np.flatnonzero(~(np.isfinite(arr) & ok(arr)))
+def _check_range(name: str, value) -> None:
+    bad = MATERIAL_RANGES[name].outside(value)
     if bad.size:
         where = "" if np.ndim(value) == 0 else f" at tet {bad[0]}"
-        raise ValueError(f"TissueMaterial {name}{where} must be {what}, got {arr[bad[0]]!r}")
+        raise ValueError(
+            f"TissueMaterial {name}{where} must be {MATERIAL_RANGES[name].describe()}, got {np.atleast_1d(value)[bad[0]]!r}"
+        )
 
 
 class TissueMaterial:
     """Isotropic linear viscoelastic material, uniform or per tet.
 
     Args:
-        E: Young's modulus [Pa], > 0. Scalar or shape (M,).
-        nu: Poisson's ratio, 0 <= nu < 0.5. Scalar or shape (M,).
-        eta: Shear viscosity [Pa s], >= 0. Scalar or shape (M,).
-        rho: Density [kg/m^3], > 0. Scalar or shape (M,).
+        E: Young's modulus [Pa], in [1e-3, 1e12]. Scalar or shape (M,).
+        nu: Poisson's ratio, in [0, 0.4999]. Scalar or shape (M,).
+        eta: Shear viscosity [Pa s], in [0, 1e9]. Scalar or shape (M,).
+        rho: Density [kg/m^3], in [1e-3, 1e6]. Scalar or shape (M,).
+        (The intervals are :data:`MATERIAL_RANGES`.)
         damping: Viscous law, ``"stokes"`` (isotropic, default) or ``"thesis"`` (the
             thesis's printed, non-isotropic matrix, for reproduction only).
 
@@ -70,15 +111,13 @@ class TissueMaterial:
         """Shear viscosity [Pa s], scalar or shape (M,), float64."""
         self.rho = _as_field("rho", rho)
         """Density [kg/m^3], scalar or shape (M,), float64."""
-        if damping not in DAMPING_MODELS:
+        if not isinstance(damping, str) or damping not in DAMPING_MODELS:
             raise ValueError(f"TissueMaterial damping must be one of {DAMPING_MODELS}, got {damping!r}")
         self.damping = damping
         """Viscous law: "stokes" or "thesis"."""
 
-        _check_range("E", self.E, lambda a: a > 0.0, "> 0 [Pa]")
-        _check_range("nu", self.nu, lambda a: (a >= 0.0) & (a < 0.5), "in [0, 0.5)")
-        _check_range("eta", self.eta, lambda a: a >= 0.0, ">= 0 [Pa s]")
-        _check_range("rho", self.rho, lambda a: a > 0.0, "> 0 [kg/m^3]")
+        for name in _FIELDS:
+            _check_range(name, getattr(self, name))
         lengths = {name: np.size(getattr(self, name)) for name in _FIELDS if np.ndim(getattr(self, name)) == 1}
         if len(set(lengths.values())) > 1:
             raise ValueError(f"TissueMaterial per-tet arrays differ in length: {lengths}")
@@ -146,14 +185,24 @@ class TissueMaterial:
             ValueError: an override names an unknown region or field, tet indices are out of
                 range, or a resulting value is out of range.
         """
-        fields = base.per_tet(tet_count)
+        if not isinstance(base, TissueMaterial):
+            raise TypeError(f"TissueMaterial.from_regions base must be a TissueMaterial, got {type(base).__name__}")
+        if isinstance(tet_count, bool) or not isinstance(tet_count, (int, np.integer)) or tet_count < 1:
+            raise ValueError(f"TissueMaterial.from_regions tet_count must be an integer >= 1, got {tet_count!r}")
+        if not isinstance(regions, Mapping) or not isinstance(overrides, Mapping):
+            raise TypeError("TissueMaterial.from_regions regions and overrides must be mappings (name -> ...)")
+        fields = base.per_tet(int(tet_count))
         for region, values in overrides.items():
+            if not isinstance(values, Mapping):
+                raise TypeError(f"TissueMaterial region {region!r} override must be a mapping of field -> value")
             if region not in regions:
                 raise ValueError(f"TissueMaterial region {region!r} is not defined; known: {sorted(regions)}")
             unknown = set(values) - set(_FIELDS)
             if unknown:
                 raise ValueError(f"TissueMaterial region {region!r} sets unknown fields {sorted(unknown)}")
             sel = np.asarray(regions[region])
+            if sel.dtype != bool and not np.issubdtype(sel.dtype, np.integer) and sel.size:
+                raise ValueError(f"TissueMaterial region {region!r} must be tet indices or a boolean mask, got {sel.dtype}")
             if sel.dtype == bool:
                 if sel.shape != (tet_count,):
                     raise ValueError(
@@ -167,7 +216,10 @@ class TissueMaterial:
                         f"TissueMaterial region {region!r} has tet index out of range [0, {tet_count})"
                     )
             for name, value in values.items():
-                fields[name][index] = float(value)
+                try:
+                    fields[name][index] = float(value)
+                except (TypeError, ValueError):
+                    raise ValueError(f"TissueMaterial region {region!r} {name} must be a number, got {value!r}") from None
         return cls(**fields, damping=base.damping)
 
     def __repr__(self) -> str:

@@ -2,7 +2,7 @@
 
 A render surface such as ICT-FaceKit's follows every crease of a face: nostrils are cavities a
 centimetre deep, lid and lip margins curl into the head, the lips overlap at the mouth corners
-and cross each other. An inward offset of such a surface (:func:`~warpface.fem.volume.offset_shell`)
+and cross each other. An inward offset of such a surface (:func:`~warpface.fem.shell.offset_shell`)
 crosses itself wherever the thickness exceeds the gap between two parts of the surface. The tissue
 *volume* need not follow those creases: it is built from a proxy surface and the render surface
 is embedded in it afterwards (:func:`~warpface.fem.embedding.embed_points` with a ``max_distance``
@@ -46,15 +46,9 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .volume import (
-    _as_surface,
-    _directed_edges,
-    _fair_locally,
-    _vertex_normals,
-    boundary_loops,
-    check_surface,
-    find_self_intersections,
-)
+from ..geometry.surface_checks import as_surface, boundary_loops, check_surface, directed_edges, find_self_intersections
+from ..geometry.triangles import area_weighted_vertex_normals
+from .shell import fair_locally
 
 __all__ = ["TissueProxy", "default_center", "tissue_proxy"]
 
@@ -179,7 +173,7 @@ def _triangle_labels(triangles: np.ndarray, vertex_count: int) -> np.ndarray:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    keys = _edge_keys(_directed_edges(triangles), vertex_count)
+    keys = _edge_keys(directed_edges(triangles), vertex_count)
     owner = np.repeat(np.arange(len(triangles)), 3)
     order = np.argsort(keys, kind="stable")
     keys, owner = keys[order], owner[order]
@@ -199,7 +193,7 @@ def _manifold_piece(points: np.ndarray, triangles: np.ndarray, keep: np.ndarray)
         keep[:] = False
         keep[kept[labels == np.argmax(np.bincount(labels))]] = True
         tris = triangles[keep]
-        directed = _directed_edges(tris)
+        directed = directed_edges(tris)
         keys = _edge_keys(directed, len(points))
         _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
         boundary = directed[counts[inverse.ravel()] == 1]
@@ -225,14 +219,14 @@ def _cavity_loops(points: np.ndarray, triangles: np.ndarray, keep: np.ndarray, l
     A loop is a cavity's rim unless it runs along the input's boundary or borders a removed piece
     that reaches it (then it is an eye, the mouth or the rim, grown)."""
     n = len(points)
-    keys_all = _edge_keys(_directed_edges(triangles), n)
+    keys_all = _edge_keys(directed_edges(triangles), n)
     uniq, counts = np.unique(keys_all, return_counts=True)
     input_open = uniq[counts == 1]
     removed = np.flatnonzero(~keep)
     if len(removed) == 0:
         return []
     labels = _triangle_labels(triangles[removed], n)
-    removed_keys = _edge_keys(_directed_edges(triangles[removed]), n)
+    removed_keys = _edge_keys(directed_edges(triangles[removed]), n)
     removed_owner = labels[np.repeat(np.arange(len(removed)), 3)]
     reaches_open = np.zeros(labels.max() + 1, dtype=bool)
     reaches_open[removed_owner[np.isin(removed_keys, input_open)]] = True
@@ -277,7 +271,7 @@ def _lipschitz(points: np.ndarray, triangles: np.ndarray, values: np.ndarray, sl
     A thickness that drops faster than the surface runs tilts the inner surface steeply over short
     triangles; limiting its slope (min-plus relaxation over the edges) keeps the inner surface
     roughly parallel to the outer."""
-    edges = np.unique(np.sort(_directed_edges(triangles), axis=1), axis=0)
+    edges = np.unique(np.sort(directed_edges(triangles), axis=1), axis=0)
     bound = slope * np.linalg.norm(points[edges[:, 0]] - points[edges[:, 1]], axis=1)
     values = values.copy()
     for _ in range(len(points)):
@@ -295,7 +289,7 @@ def _relax(points: np.ndarray, triangles: np.ndarray, free: np.ndarray, iteratio
     from scipy.sparse import coo_matrix
 
     n = len(points)
-    edges = np.unique(np.sort(_directed_edges(triangles), axis=1), axis=0)
+    edges = np.unique(np.sort(directed_edges(triangles), axis=1), axis=0)
     rows, cols = np.r_[edges[:, 0], edges[:, 1]], np.r_[edges[:, 1], edges[:, 0]]
     adjacency = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)).tocsr()[free]
     degree = np.asarray(adjacency.sum(axis=1))
@@ -402,10 +396,10 @@ def tissue_proxy(
         The :class:`TissueProxy`.
 
     Raises:
-        ValueError: a bad surface (see :func:`~warpface.fem.volume.check_surface`), thickness or
+        ValueError: a bad surface (see :func:`~warpface.geometry.surface_checks.check_surface`), thickness or
             option; nothing left after the removal; or a proxy that still crosses itself (naming where).
     """
-    points, triangles = _as_surface(surface)
+    points, triangles = as_surface(surface)
     check_surface(points, triangles, closed=False, name="face surface")
     h = np.asarray(thickness, dtype=np.float64)
     if h.ndim == 0:
@@ -487,12 +481,12 @@ def tissue_proxy(
         source, h_kept = source[used], h_kept[used]
     # the cuts leave zigzag loops, which a coarsening keeps (it holds boundaries) as needle triangles
     boundary = np.unique(check_surface(kept_points, kept_triangles, closed=False, name="tissue proxy"))
-    kept_points, _ = _fair_locally(kept_points, kept_triangles, h_kept, boundary, rings=2, passes=int(boundary_passes),
+    kept_points, _ = fair_locally(kept_points, kept_triangles, h_kept, boundary, rings=2, passes=int(boundary_passes),
                                    thinning=1.0)
 
     # 4. thickness no more than a fraction of the inward gap: opposite offsets never meet
     proxy_mesh = _RayMesh(kept_points, kept_triangles, device)
-    gap = proxy_mesh.inward_gap(_vertex_normals(kept_points, kept_triangles))
+    gap = proxy_mesh.inward_gap(area_weighted_vertex_normals(kept_points, kept_triangles))
     limited = np.minimum(h_kept, gap_fraction * gap)
     if boundary_thickness is not None:
         limited[boundary] = np.minimum(limited[boundary], float(boundary_thickness))

@@ -7,7 +7,7 @@ depend on the order regions are listed in.
 
 Kato's tables 6.4–6.5 name six regions: cheek, cphs (L), cphs (R), cheilion, cphi and alare.
 Five are small areas around landmarks (:data:`KATO_REGION_LANDMARKS`, landmark names from
-:mod:`warpface.metrics`); the thesis gives every tet a value, and the cheek is the region without a
+:mod:`warpface.landmarks`); the thesis gives every tet a value, and the cheek is the region without a
 landmark of its own, so here the cheek values apply to all remaining tissue (the project's choice).
 """
 
@@ -18,8 +18,9 @@ from types import MappingProxyType
 
 import numpy as np
 
-from ..metrics import kato_landmarks
+from ..landmarks import kato_landmarks
 from .material import TissueMaterial
+from .presets import KATO_MODELS, KATO_REGIONS, KATO_UNIFORM
 from .tetmesh import TetMesh
 
 __all__ = [
@@ -32,9 +33,6 @@ __all__ = [
     "tet_centroids",
 ]
 
-KATO_REGIONS = ("cheek", "cphs_L", "cphs_R", "cheilion", "cphi", "alare")
-"""Region names of Kato's tables 6.4–6.5, in table order."""
-
 KATO_REGION_LANDMARKS = MappingProxyType({
     "cphs_L": ("cphs_L",),
     "cphs_R": ("cphs_R",),
@@ -42,23 +40,7 @@ KATO_REGION_LANDMARKS = MappingProxyType({
     "cphi": ("cphi_L", "cphi_R"),
     "alare": ("al_L", "al_R"),
 })
-"""Landmarks (names of :data:`warpface.metrics.KATO_LANDMARKS`) each landmark region is centred on."""
-
-
-def _table(e_kpa, eta):
-    return MappingProxyType({
-        "E": MappingProxyType({r: 1e3 * v for r, v in zip(KATO_REGIONS, e_kpa, strict=True)}),
-        "eta": MappingProxyType(dict(zip(KATO_REGIONS, eta, strict=True))),
-    })
-
-
-KATO_MODELS = MappingProxyType({
-    1: _table((162.7, 148.9, 148.9, 116.5, 169.0, 216.9), (430.3, 408.6, 408.6, 362.9, 453.0, 434.3)),
-    2: _table((162.7, 148.9, 205.6, 116.5, 169.0, 216.9), (430.3, 408.6, 427.8, 362.9, 453.0, 434.3)),
-    3: _table((162.7, 148.9, 92.2, 116.5, 169.0, 216.9), (430.3, 408.6, 389.4, 362.9, 453.0, 434.3)),
-})
-"""Kato's models (SPEC §2.1): model -> {"E": region -> Young's modulus [Pa], "eta": region -> viscosity [Pa s]}.
-Model 1 healthy, 2 a stiffer (scarred) right cphs, 3 a softer right cphs."""
+"""Landmarks (names of :data:`warpface.landmarks.KATO_LANDMARKS`) each landmark region is centred on."""
 
 
 def tet_centroids(tetmesh: TetMesh) -> np.ndarray:
@@ -123,7 +105,7 @@ def kato_regions(tetmesh: TetMesh, landmarks, *, radius=0.01) -> dict[str, np.nd
     Args:
         tetmesh: The tissue mesh.
         landmarks: Landmark name -> position (3,) [m] with at least the names in
-            :data:`KATO_REGION_LANDMARKS` (as from :func:`warpface.metrics.kato_landmarks`), or the
+            :data:`KATO_REGION_LANDMARKS` (as from :func:`warpface.landmarks.kato_landmarks`), or the
             68 iBUG positions, shape (68, 3).
         radius: Reach of each landmark region [m], scalar or region name -> radius (default 10 mm).
 
@@ -152,8 +134,8 @@ def kato_material_model(
     model: int = 1,
     *,
     radius=0.01,
-    nu: float = 0.495,
-    rho: float = 1100.0,
+    nu: float = KATO_UNIFORM["nu"],
+    rho: float = KATO_UNIFORM["rho"],
     damping: str = "stokes",
 ) -> TissueMaterial:
     """Per-tet material of Kato's heterogeneous model 1, 2 or 3 (SPEC §2.1, tables 6.4–6.5).

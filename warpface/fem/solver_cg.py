@@ -1,6 +1,6 @@
-"""Device Newmark stepper: preconditioned CG in fused Warp kernels, the whole step in one graph.
+"""Device Newmark solver: preconditioned CG in fused Warp kernels, the whole time step in one graph.
 
-Everything lives on the Warp device. One step (kernels in :mod:`warpface.fem.kernels_cg` and
+Everything lives on the Warp device. One time step (kernels in :mod:`warpface.fem.kernels_cg` and
 :mod:`warpface.fem.kernels_integrator`) is
 
 1. ``residual`` — the residual of the Newmark predictor ``x~ = d + dt v + dt²/2 a`` of the free
@@ -16,27 +16,30 @@ Everything lives on the Warp device. One step (kernels in :mod:`warpface.fem.ker
    ``wp.capture_while`` loop (a conditional graph node on CUDA) that stops on the device when
    ``‖r‖ <= tol ‖r_p‖``. The tolerance is relative to the predictor's residual, as without the
    extrapolation, so the better start saves iterations without loosening the result;
-4. ``newmark_update`` — ``d = x~ + δ`` (or the driven/fixed value), Newmark ``a`` and ``v`` in
-   place, the displacement recorded into a ring buffer of ``chunk`` steps, the extrapolation
-   for the next step, and the step's convergence status booked on the device.
+4. ``cg_newmark_update`` — ``d = x~ + δ`` (or the driven/fixed value), then the shared Newmark
+   update (:func:`~warpface.fem.kernels_integrator.newmark_advance`) into the output state, the
+   displacement recorded, the extrapolation for the next step, and the step's convergence status
+   booked on the device.
 
-On CUDA the sequence is captured once with ``wp.ScopedCapture`` and each step is one
-``wp.capture_launch``: no allocation, no host read-back. The host looks at the status only
-at synchronisation points (reading the state, the end of each ``chunk`` in
-:meth:`CGStepper.run_chunk`, or when the trajectory ring wraps in :meth:`CGStepper.step`).
+:meth:`CGSolver.step` reads ``state_in`` and the control and writes ``state_out``. On CUDA the
+sequence is captured with ``wp.ScopedCapture`` once per combination of state and control arrays
+(a simulation stepping one state in place, or two in turn, has one or two graphs), and each step
+is one ``wp.capture_launch``: no allocation, no host read-back. :meth:`CGSolver.run_chunk` binds
+a ring of ``chunk`` driven inputs and recorded displacements instead. The host looks at the
+status only at synchronisation points (:meth:`CGSolver.synchronize`).
 
 Every preconditioner is used in factored form ``M⁻¹ = Gᵀ G`` with a lower-triangular ``G``:
 FSAI (``warp.optim.linear.FSAI``), or the inverse Cholesky factors of the 3x3 diagonal blocks
 (block Jacobi) or of the diagonal (Jacobi).
 
-Measured on an H200 (``benchmarks/fem.py``, 6.7k-node face shell, dt = 1e-3, tol = 1e-5, float64):
-Warp's stock ``warp.optim.linear.cg`` in a graph took 1.56 ms per step (about eleven dependent
-launches per iteration, 32 iterations); here an iteration costs 23 µs (three kernels of about
-7 µs; an empty graph node costs 1 µs), the fixed part of a step 60 µs, and the extrapolated start
-brings the mean from about 25 to 10 iterations: 0.30 ms per step.
+Compared with Warp's stock ``warp.optim.linear.cg`` (about eleven dependent launches per
+iteration), an iteration here is three kernels, and the extrapolated start cuts the iteration
+count by more than half during smooth motion (measurements: ``benchmarks/README.md``).
 """
 
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import numpy as np
 import warp as wp
@@ -45,9 +48,11 @@ from warp.optim.linear import FSAI
 
 from .assembly import SystemMatrices, bsr_to_scipy, partition_bsr
 from .kernels_cg import SLOT_SPREAD, pcg_kernels
-from .kernels_integrator import newmark_update
+from .kernels_integrator import cg_newmark_update
+from .newmark import NewmarkCoefficients
+from .state import TissueControl, TissueState
 
-__all__ = ["CGStepper", "ConvergenceError", "PRECONDITIONERS"]
+__all__ = ["CGSolver", "ConvergenceError", "PRECONDITIONERS"]
 
 PRECONDITIONERS = ("fsai", "block_jacobi", "diag")
 
@@ -130,12 +135,12 @@ def _block_row_arrays(G, dtype, device):
     )
 
 
-class CGStepper:
+class CGSolver:
     """Newmark steps on a Warp device with graph-captured preconditioned CG.
 
     Args:
         matrices: K, M, C assembled on the target device (float64).
-        coeffs: :func:`~warpface.fem.newmark.newmark_coefficients`.
+        coefficients: :class:`~warpface.fem.newmark.NewmarkCoefficients`.
         free_nodes: Nodes solved for, shape (F,), int.
         driven_nodes: Nodes with prescribed displacement, shape (D,), int.
         dtype: ``wp.float32`` or ``wp.float64`` for the solver and the state.
@@ -150,7 +155,7 @@ class CGStepper:
     def __init__(
         self,
         matrices: SystemMatrices,
-        coeffs: np.ndarray,
+        coefficients: NewmarkCoefficients,
         free_nodes: np.ndarray,
         driven_nodes: np.ndarray,
         *,
@@ -193,14 +198,17 @@ class CGStepper:
         free_column = np.where(free_index >= 0, np.arange(n, dtype=np.int32), -1)
 
         # A = K + c0 M + c3 C, its free block and the warm-start residual operator P (module docstring).
-        c = [float(x) for x in coeffs]
+        c = coefficients
         A = wps.bsr_copy(matrices.K)
-        wps.bsr_axpy(matrices.M, A, alpha=c[0])
-        wps.bsr_axpy(matrices.C, A, alpha=c[3])
+        wps.bsr_axpy(matrices.M, A, alpha=c.mass_displacement)
+        wps.bsr_axpy(matrices.C, A, alpha=c.damping_displacement)
         identity = np.arange(n, dtype=np.int32)
         A_oo = partition_bsr([(A, free_index, 0, 1.0)], free_index, n_free, n_free, device=dev)
         parts = []
-        for block, (cm, cc, ca) in enumerate(((c[0], c[3], 1.0), (c[1], c[4], c[8]), (c[2], c[5], c[9]))):
+        predictor = ((c.mass_displacement, c.damping_displacement, 1.0),
+                     (c.mass_velocity, c.damping_velocity, c.dt),
+                     (c.mass_acceleration, c.damping_acceleration, c.half_dt_squared))
+        for block, (cm, cc, ca) in enumerate(predictor):
             shift = block * n
             parts += [(matrices.M, identity, shift, cm), (matrices.C, identity, shift, cc),
                       (A, free_column, shift, -ca)]
@@ -216,14 +224,12 @@ class CGStepper:
         self._G = _block_row_arrays(G, dtype, dev)
         self._GT = _block_row_arrays(G.T, dtype, dev)
 
-        # Device state and work arrays (allocated once; the captured graph binds these pointers).
+        # Work arrays (allocated once; captured graphs bind these pointers).
+        self.coefficients = coefficients
+        scalar = wp.float64 if dtype == wp.float64 else wp.float32
+        self._update_constants = [*coefficients.update_scalars(scalar), scalar(c.dt), scalar(c.half_dt_squared)]
         self._free_index = wp.array(free_index, dtype=wp.int32, device=dev)
         self._driven_slot = wp.array(driven_slot, dtype=wp.int32, device=dev)
-        self._coefficients = np.asarray(coeffs, dtype=np.float64)
-        self._coeffs = wp.array(self._coefficients, dtype=dtype, device=dev)
-        self._d = wp.zeros(n, dtype=vec, device=dev)
-        self._v = wp.zeros(n, dtype=vec, device=dev)
-        self._a = wp.zeros(n, dtype=vec, device=dev)
         self._x = wp.zeros(n_free, dtype=vec, device=dev)
         self._r = wp.zeros((2, n_free), dtype=vec, device=dev)
         self._p = wp.zeros((2, n_free), dtype=vec, device=dev)
@@ -239,25 +245,26 @@ class CGStepper:
         self._slots = wp.zeros((4, self.maxiter + 1, SLOT_SPREAD), dtype=wp.float64, device=dev)
         self._cg_iter = wp.zeros(2, dtype=wp.int32, device=dev)
         self._condition = wp.zeros(1, dtype=wp.int32, device=dev)
-        self._trajectory = wp.zeros((self.chunk, max(n_driven, 1)), dtype=vec, device=dev)
-        self._record = wp.zeros((self.chunk, n), dtype=vec, device=dev)
-        self._ring = wp.zeros(2, dtype=wp.int32, device=dev)
         self._step_count = wp.zeros(1, dtype=wp.int32, device=dev)
         self._status = wp.zeros(5, dtype=wp.int32, device=dev)
         self._failure = wp.zeros(2, dtype=wp.float64, device=dev)
+        # run_chunk's ring of `chunk` driven inputs and recorded displacements (slot index on the device)
+        self._trajectory = wp.zeros((self.chunk, max(n_driven, 1)), dtype=vec, device=dev)
+        self._record = wp.zeros((self.chunk, n), dtype=vec, device=dev)
+        self._ring = wp.zeros(2, dtype=wp.int32, device=dev)
+        self._step_ring = wp.zeros(2, dtype=wp.int32, device=dev)  # step(): a ring of one slot, always 0
         pinned = dev.is_cuda
         self._staging_in = wp.zeros((self.chunk, max(n_driven, 1)), dtype=vec, device="cpu", pinned=pinned)
         self._staging_out = wp.zeros((self.chunk, n), dtype=vec, device="cpu", pinned=pinned)
-        self._slot = 0  # host mirror of _ring[0]
+        self._use_graph = bool(use_graph)
+        self._graphs: dict = {}
+        self._bindings: dict = {}
 
-        # One eager step loads every kernel before capture; the state it touches is restored afterwards.
-        self._graph = None
-        self._launch_sequence()
-        self.set_state(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)))
-        if use_graph:
-            with wp.ScopedCapture(device=dev, force_module_load=False) as capture:
-                self._launch_sequence()
-            self._graph = capture.graph
+        # One eager step loads every kernel before any capture; the counters it touches are cleared.
+        scratch = TissueState(n, dtype=dtype, device=dev)
+        self._launch_sequence(self._binding_for_step(scratch, scratch, TissueControl(n_driven, dtype=dtype, device=dev)))
+        self._bindings.clear()
+        self.restart(scratch)
 
     # ------------------------------------------------------------------ the step
     def _launch_tiled(self, kernel, inputs) -> None:
@@ -275,53 +282,84 @@ class CGStepper:
             self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq,
                                          self.maxiter])
 
-    def _launch_sequence(self) -> None:
+    def _launch_sequence(self, b) -> None:
         k, P, tol_sq = self._kernels, self._P, wp.float64(self.tol**2)
         self._slots.zero_()
         A = self._A_oo
-        self._launch_tiled(k.residual, [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, self._d,
-                                        self._v, self._a, self._trajectory, self._guess, self._ring, self._r, self._x,
+        self._launch_tiled(k.residual, [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, b.d_in,
+                                        b.v_in, b.a_in, b.trajectory, self._guess, b.ring, self._r, self._x,
                                         self._slots, self._cg_iter, self._condition])
         self._launch_tiled(k.lower_start, [*self._G, self._r, self._r_flat, self._x, self._slots, self._y])
         self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq,
                                      self.maxiter])
         wp.capture_while(self._condition, self._cg_iterations)
         wp.launch(
-            newmark_update,
+            cg_newmark_update,
             dim=self.node_count,
-            inputs=[self._x, self._history, self._guess, self._free_index, self._driven_slot, self._trajectory,
-                    self._ring, self._coeffs,
-                    self._slots, self._cg_iter, tol_sq, self.chunk],
-            outputs=[self._d, self._v, self._a, self._record, self._step_count, self._status, self._failure],
+            inputs=[self._x, self._history, self._guess, self._free_index, self._driven_slot, b.trajectory, b.ring,
+                    *self._update_constants, self._slots, self._cg_iter, tol_sq, b.chunk, b.d_in, b.v_in, b.a_in],
+            outputs=[b.d_out, b.v_out, b.a_out, b.record, self._step_count, self._status, self._failure],
             device=self.device,
         )
 
-    def _launch_step(self) -> None:
-        if self._graph is not None:
-            wp.capture_launch(self._graph)
-        else:
-            self._launch_sequence()
+    def _binding_for_step(self, state_in: TissueState, state_out: TissueState, control: TissueControl):
+        key = ("step", state_in.d.ptr, state_out.d.ptr, control.driven.ptr)
+        binding = self._bindings.get(key)
+        if binding is None:
+            vec, precision = self._kernels.vec, wp.types.type_repr(self.dtype)
+            for name, state in (("state_in", state_in), ("state_out", state_out)):
+                if (state.node_count != self.node_count or not wp.types.types_equal(state.d.dtype, vec)
+                        or state.device != self.device):
+                    raise ValueError(f"{name} must hold {self.node_count} nodes of {precision} vec3 on {self.device}")
+            if control.driven.shape[0] != self._trajectory.shape[1] or not wp.types.types_equal(control.driven.dtype, vec):
+                raise ValueError(f"control must hold {self.driven_nodes.size} driven displacements of {precision} vec3")
+            binding = SimpleNamespace(
+                d_in=state_in.d, v_in=state_in.v, a_in=state_in.a, d_out=state_out.d, v_out=state_out.v,
+                a_out=state_out.a, trajectory=control.driven.reshape((1, control.driven.shape[0])),
+                ring=self._step_ring, record=state_out.d.reshape((1, self.node_count)), chunk=1, key=key,
+            )
+            self._bindings[key] = binding
+        return binding
 
-    def step(self, driven: np.ndarray) -> None:
-        """Queue one step with driven displacements [m], shape (D, 3); does not wait for the device.
+    def _binding_for_chunks(self, state: TissueState):
+        key = ("chunk", state.d.ptr)
+        binding = self._bindings.get(key)
+        if binding is None:
+            binding = SimpleNamespace(d_in=state.d, v_in=state.v, a_in=state.a, d_out=state.d, v_out=state.v,
+                                      a_out=state.a, trajectory=self._trajectory, ring=self._ring, record=self._record,
+                                      chunk=self.chunk, key=key)
+            self._bindings[key] = binding
+        return binding
 
-        The driven values go through a pinned ring of ``chunk`` slots; when it wraps, the host
-        waits for the device once and checks convergence of the last ``chunk`` steps.
+    def _launch(self, binding) -> None:
+        if not self._use_graph:
+            self._launch_sequence(binding)
+            return
+        graph = self._graphs.get(binding.key)
+        if graph is None:
+            with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
+                self._launch_sequence(binding)
+            graph = self._graphs[binding.key] = capture.graph
+        wp.capture_launch(graph)
+
+    def step(self, state_in: TissueState, state_out: TissueState, control: TissueControl) -> None:
+        """Queue one time step from ``state_in`` to ``state_out`` (may be the same object); never waits.
+
+        The first step with a new combination of state and control arrays captures a graph for it
+        (on CUDA); alternate between the same two states (or step one state in place) and every
+        later step is one ``wp.capture_launch``: no allocation, no host synchronisation. A
+        convergence failure is booked on the device and raised by :meth:`synchronize`.
+
+        Raises:
+            ValueError: a state or the control does not match the solver (size, type, device).
         """
-        slot = self._slot
-        if driven.size:
-            self._staging_in.numpy()[slot] = driven
-            wp.copy(self._trajectory, self._staging_in, dest_offset=slot * self._trajectory.shape[1],
-                    src_offset=slot * self._trajectory.shape[1], count=self._trajectory.shape[1])
-        self._launch_step()
-        self._slot = (slot + 1) % self.chunk
-        if self._slot == 0:
-            self.synchronize()
+        self._launch(self._binding_for_step(state_in, state_out, control))
 
-    def run_chunk(self, driven: np.ndarray) -> np.ndarray:
-        """Run ``k <= chunk`` steps, driven displacements shape (k, D, 3); returns displacements (k, N, 3).
+    def run_chunk(self, state: TissueState, driven: np.ndarray) -> np.ndarray:
+        """Advance ``state`` in place by ``k <= chunk`` steps, driven displacements (k, D, 3) [m];
+        returns the displacements (k, N, 3), a view of a host staging buffer valid until the next call.
 
-        The result is a view of a host staging buffer, valid until the next call.
+        One host-to-device copy of the driven inputs, ``k`` graph launches, one copy back.
 
         Raises:
             ConvergenceError: a step of this chunk (or an earlier queued one) did not converge.
@@ -330,20 +368,19 @@ class CGStepper:
         if not 0 < k <= self.chunk:
             raise ValueError(f"run_chunk needs 1..{self.chunk} steps, got {k}")
         self.synchronize()
+        binding = self._binding_for_chunks(state)
         self._ring.zero_()
-        self._slot = 0
         width = self._trajectory.shape[1]
         if driven.shape[1]:
             self._staging_in.numpy()[:k] = driven
             wp.copy(self._trajectory, self._staging_in, count=k * width)
         for _ in range(k):
-            self._launch_step()
+            self._launch(binding)
         wp.copy(self._staging_out, self._record, count=k * self.node_count)
-        self._slot = k % self.chunk
         self.synchronize()
         return self._staging_out.numpy()[:k]
 
-    # ------------------------------------------------------------------ status and state
+    # ------------------------------------------------------------------ status and restart
     def synchronize(self) -> None:
         """Wait for queued steps and raise :class:`ConvergenceError` if any failed."""
         wp.synchronize_device(self.device)
@@ -358,36 +395,29 @@ class CGStepper:
 
     @property
     def iterations(self) -> tuple[int, int]:
-        """``(most, last)`` CG iterations per step since the last state reset (synchronises)."""
+        """``(most, last)`` CG iterations per step since the last restart (synchronises)."""
         status = self._status.numpy()
         return int(status[2]), int(status[3])
 
     @property
     def total_iterations(self) -> int:
-        """CG iterations of all steps since the last state reset (synchronises)."""
+        """CG iterations of all steps since the last restart (synchronises)."""
         return int(self._status.numpy()[4])
 
-    def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(d, v, a)`` as float64 NumPy arrays, shape (N, 3) each (synchronises, checks status)."""
-        self.synchronize()
-        return tuple(x.numpy().astype(np.float64) for x in (self._d, self._v, self._a))
-
-    def set_state(self, d: np.ndarray, v: np.ndarray, a: np.ndarray) -> None:
-        """Replace the state (each (N, 3)) and clear counters and failure status."""
+    def restart(self, state: TissueState) -> None:
+        """Start a new trajectory from ``state``: clear counters and failure status, and seed the
+        extrapolation with the increments of a motion of constant acceleration that ends in ``state``
+        (so the first extrapolated start equals the Newmark predictor). Synchronises."""
         wp.synchronize_device(self.device)
+        c = self.coefficients
         host = np.float64 if self.dtype == wp.float64 else np.float32
-        d, v, a = (np.asarray(x, dtype=np.float64) for x in (d, v, a))
-        for dest, src in ((self._d, d), (self._v, v), (self._a, a)):
-            dest.assign(src.astype(host))
-        # Increments of a motion with constant acceleration before this state: the first
-        # extrapolated start then equals the Newmark predictor.
-        dt, half_dt_sq = self._coefficients[8], self._coefficients[9]
+        _, v, a = state.numpy()
         free_v, free_a = v[self.free_nodes], a[self.free_nodes]
-        increments = [dt * free_v - half_dt_sq * free_a, dt * free_v - 3.0 * half_dt_sq * free_a]
+        increments = [c.dt * free_v - c.half_dt_squared * free_a, c.dt * free_v - 3.0 * c.half_dt_squared * free_a]
         self._history.assign(np.stack(increments).astype(host))
         self._guess.zero_()
         self._ring.zero_()
+        self._step_ring.zero_()
         self._step_count.zero_()
         self._status.zero_()
         self._failure.zero_()
-        self._slot = 0

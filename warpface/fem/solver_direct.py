@@ -1,26 +1,32 @@
-"""CPU Newmark stepper: one sparse factorisation of ``A_oo``, reused every step.
+"""CPU Newmark solver: one sparse factorisation of ``A_oo``, reused every time step.
 
 ``A_oo`` (free-free block of ``K + c0 M + c3 C``) is symmetric positive definite, so it is
 factorised without pivoting by SuperLU in symmetric mode with a minimum-degree ordering of
-``A + A^T`` (``permc_spec="MMD_AT_PLUS_A"``, ``diag_pivot_thresh=0``). That is an LDLᵀ in
-LU clothing: on the face-shell benchmark it makes 0.95x the fill of SciPy's default
-(COLAMD + partial pivoting) at 6.4k nodes and 0.6x at 25k nodes, and solves 1.4-1.9x
-faster. A CHOLMOD wrapper from pip (cholespy 2.2) was measured at the same solve time as
-this, so no extra dependency is taken.
+``A + A^T`` (``permc_spec="MMD_AT_PLUS_A"``, ``diag_pivot_thresh=0``): an LDLᵀ in LU
+clothing, with less fill and faster solves than SciPy's default (COLAMD + partial pivoting) on
+face shells; a CHOLMOD wrapper was no faster, so no extra dependency is taken (measurements:
+``benchmarks/README.md``).
 
-State and arithmetic are float64 NumPy; each step is two sparse products with the mass
-and damping rows of the free nodes, one with ``A_od``, and the triangular solves.
+State and arithmetic are float64 (CPU Warp arrays read through zero-copy NumPy views); each
+time step is two sparse products with the mass and damping rows of the free nodes, one with
+``A_od``, the triangular solves and the shared Newmark update kernel.
 """
 
 from __future__ import annotations
 
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
+import warp as wp
 
-__all__ = ["DirectStepper", "factorize_spd"]
+from .kernels_integrator import newmark_update
+from .newmark import NewmarkCoefficients
+from .state import TissueControl, TissueState
+
+__all__ = ["DirectSolver", "factorize_spd", "node_dofs"]
 
 
 def factorize_spd(matrix):
@@ -39,26 +45,32 @@ def node_dofs(nodes: np.ndarray) -> np.ndarray:
     return (3 * nodes[:, None] + np.arange(3)).ravel()
 
 
-class DirectStepper:
-    """Newmark steps on the CPU with a prefactored ``A_oo``.
+class DirectSolver:
+    """Newmark steps on the CPU with a prefactored ``A_oo``; the state lives in CPU Warp arrays.
 
     Args:
         K, M, C: SciPy sparse (3N x 3N) stiffness, mass and damping.
-        coeffs: :func:`~warpface.fem.newmark.newmark_coefficients`.
+        coefficients: :class:`~warpface.fem.newmark.NewmarkCoefficients`.
         free_nodes: Nodes solved for, shape (F,), int.
         driven_nodes: Nodes with prescribed displacement, shape (D,), int (fixed nodes are the rest).
+
+    :meth:`step` reads ``state_in`` and the control through zero-copy NumPy views, solves, and
+    writes ``state_out`` with the shared Newmark update kernel
+    (:data:`~warpface.fem.kernels_integrator.newmark_update`).
     """
 
-    def __init__(self, K, M, C, coeffs: np.ndarray, free_nodes: np.ndarray, driven_nodes: np.ndarray):
-        self.coeffs = np.asarray(coeffs, dtype=np.float64)
-        c = self.coeffs
+    device = wp.get_device("cpu")
+
+    def __init__(self, K, M, C, coefficients: NewmarkCoefficients, free_nodes: np.ndarray, driven_nodes: np.ndarray):
+        self.coefficients = coefficients
+        c = coefficients
         n = K.shape[0] // 3
         self.node_count = n
         self.free_nodes = np.asarray(free_nodes, dtype=np.int64)
         self.driven_nodes = np.asarray(driven_nodes, dtype=np.int64)
         o = node_dofs(self.free_nodes)
         dd = node_dofs(self.driven_nodes)
-        A = (K + c[0] * M + c[3] * C).tocsr()
+        A = (K + c.mass_displacement * M + c.damping_displacement * C).tocsr()
         rows = A[o]
         t0 = time.perf_counter()
         self._lu = factorize_spd(rows[:, o])
@@ -70,37 +82,67 @@ class DirectStepper:
         # M is (scalar node mass) ⊗ I3, so its product acts on (N, 3) arrays with a third of the work.
         self._M_node = sps.csr_matrix(M.tocsr()[0::3][:, 0::3])[self.free_nodes]
         self._C_o = C.tocsr()[o]
-        self.d = np.zeros((n, 3))
-        """Displacement [m], shape (N, 3), float64."""
-        self.v = np.zeros((n, 3))
-        """Velocity [m/s], shape (N, 3), float64."""
-        self.a = np.zeros((n, 3))
-        """Acceleration [m/s^2], shape (N, 3), float64."""
+        free_index = np.full(n, -1, dtype=np.int32)
+        free_index[self.free_nodes] = np.arange(self.free_nodes.size, dtype=np.int32)
+        driven_slot = np.full(n, -1, dtype=np.int32)
+        driven_slot[self.driven_nodes] = np.arange(self.driven_nodes.size, dtype=np.int32)
+        cpu = self.device
+        self._free_index = wp.array(free_index, dtype=wp.int32, device=cpu)
+        self._driven_slot = wp.array(driven_slot, dtype=wp.int32, device=cpu)
+        self._solution = wp.zeros(self.free_nodes.size, dtype=wp.vec3d, device=cpu)
+        self._solution_view = self._solution.numpy().reshape(-1)
+        self._update_constants = c.update_scalars(wp.float64)
+        self._bindings: dict = {}
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         """``A_oo^{-1} rhs`` for a free-dof vector, shape (3F,)."""
         return self._lu.solve(rhs)
 
-    def step(self, driven: np.ndarray) -> None:
-        """Advance one step with driven-node displacements ``driven`` [m], shape (D, 3), float64."""
-        c = self.coeffs
-        d, v, a = self.d, self.v, self.a
-        u = c[0] * d + c[1] * v + c[2] * a
-        w = c[3] * d + c[4] * v + c[5] * a
+    def step(self, state_in: TissueState, state_out: TissueState, control: TissueControl) -> None:
+        """Advance one time step from ``state_in`` to ``state_out`` (may be the same object).
+
+        Args:
+            state_in, state_out: float64 states on the CPU.
+            control: Driven displacements at the end of the step (float64, CPU).
+
+        The first step with a new combination of state and control arrays records the update
+        launch and the input views; later steps reuse them.
+
+        Raises:
+            ValueError: a state or the control does not match the solver (size, type, device).
+            FloatingPointError: the solve produced non-finite displacements (``state_out`` untouched).
+        """
+        c = self.coefficients
+        binding = self._binding(state_in, state_out, control)
+        d, v, a = binding.d, binding.v, binding.a
+        u = c.mass_displacement * d + c.mass_velocity * v + c.mass_acceleration * a
+        w = c.damping_displacement * d + c.damping_velocity * v + c.damping_acceleration * a
         rhs = (self._M_node @ u).ravel() + self._C_o @ w.ravel()
-        if driven.size:
-            rhs -= self._A_od @ driven.ravel()
+        if self.driven_nodes.size:
+            rhs -= self._A_od @ binding.driven.ravel()
         x = self._lu.solve(rhs)
         if not np.all(np.isfinite(x)):
             raise FloatingPointError("direct solve produced non-finite displacements")
-        d_new = np.zeros_like(d)
-        d_new[self.free_nodes] = x.reshape(-1, 3)
-        d_new[self.driven_nodes] = driven
-        a_new = c[0] * (d_new - d) - c[1] * v - c[2] * a
-        self.v = v + c[6] * a + c[7] * a_new
-        self.a = a_new
-        self.d = d_new
+        self._solution_view[:] = x
+        binding.update.launch()
 
-    def set_state(self, d: np.ndarray, v: np.ndarray, a: np.ndarray) -> None:
-        """Replace the state (each (N, 3) float64)."""
-        self.d, self.v, self.a = (np.array(x, dtype=np.float64) for x in (d, v, a))
+    def _binding(self, state_in: TissueState, state_out: TissueState, control: TissueControl) -> SimpleNamespace:
+        """Zero-copy NumPy views of the inputs and the recorded update launch, cached per combination of arrays."""
+        key = (state_in.d.ptr, state_out.d.ptr, control.driven.ptr)
+        binding = self._bindings.get(key)
+        if binding is None:
+            for name, state in (("state_in", state_in), ("state_out", state_out)):
+                if (state.node_count != self.node_count or not wp.types.types_equal(state.d.dtype, wp.vec3d)
+                        or not state.device.is_cpu):
+                    raise ValueError(f"{name} must hold {self.node_count} nodes of float64 vec3 on the CPU")
+            if control.driven.shape[0] != max(self.driven_nodes.size, 1) or not control.driven.device.is_cpu:
+                raise ValueError(f"control must hold {self.driven_nodes.size} driven displacements on the CPU")
+            update = wp.launch(newmark_update, dim=self.node_count,
+                               inputs=[self._solution, self._free_index, self._driven_slot, control.driven,
+                                       state_in.d, state_in.v, state_in.a, *self._update_constants],
+                               outputs=[state_out.d, state_out.v, state_out.a], device=self.device, record_cmd=True)
+            binding = SimpleNamespace(d=state_in.d.numpy(), v=state_in.v.numpy(), a=state_in.a.numpy(),
+                                      driven=control.driven.numpy()[: self.driven_nodes.size], update=update,
+                                      arrays=(state_in, state_out, control))  # keeps the pointers valid
+            self._bindings[key] = binding
+        return binding

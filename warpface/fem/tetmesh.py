@@ -20,7 +20,16 @@ from functools import cached_property
 
 import numpy as np
 
-__all__ = ["TetMesh", "TetQuality", "tet_signed_volumes", "tet_dihedral_angles"]
+from .._validate import MAX_COORDINATE as SHARED_MAX_COORDINATE
+
+__all__ = ["MAX_COORDINATE", "MIN_EDGE_LENGTH", "TET_EDGE_NODES", "TetMesh", "TetQuality", "tet_signed_volumes", "tet_dihedral_angles"]
+
+MAX_COORDINATE = SHARED_MAX_COORDINATE
+"""Largest accepted node coordinate magnitude [m] (:data:`warpface._validate.MAX_COORDINATE`): the
+BVHs of embedding and meshing are float32."""
+
+MIN_EDGE_LENGTH = 1.0e-9
+"""Shortest accepted longest edge of a tet [m]: smaller tets underflow volumes and float32 bounds."""
 
 # Local node triples of the four faces, face k opposite node k, wound outward for a
 # positively oriented tet.
@@ -28,7 +37,7 @@ _FACE_NODES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.in
 
 # The six edges (local node pairs) and, for each, the two faces that meet there
 # (the faces opposite the two nodes *not* on the edge).
-_EDGE_NODES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtype=np.int64)
+TET_EDGE_NODES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtype=np.int64)
 _EDGE_FACES = np.array([[2, 3], [1, 3], [1, 2], [0, 3], [0, 2], [0, 1]], dtype=np.int64)
 
 # A tet whose volume is below this fraction of (longest edge)^3 / (6 sqrt 2) -- the
@@ -48,7 +57,7 @@ def tet_signed_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
 def _longest_edges(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """Longest edge length per tet [m], shape (M,)."""
     p = points[tets]
-    d = p[:, _EDGE_NODES[:, 0]] - p[:, _EDGE_NODES[:, 1]]
+    d = p[:, TET_EDGE_NODES[:, 0]] - p[:, TET_EDGE_NODES[:, 1]]
     return np.sqrt(np.max(np.einsum("ijk,ijk->ij", d, d), axis=1))
 
 
@@ -114,7 +123,10 @@ class TetMesh:
     """
 
     def __init__(self, points, tets):
-        points = np.array(points, dtype=np.float64, copy=True)
+        try:
+            points = np.array(points, dtype=np.float64, copy=True)
+        except (TypeError, ValueError):
+            raise ValueError("TetMesh points must be numbers of shape (N, 3)") from None
         if points.ndim != 2 or points.shape[1] != 3:
             raise ValueError(f"TetMesh points must have shape (N, 3), got {points.shape}")
         if points.shape[0] < 4:
@@ -122,8 +134,15 @@ class TetMesh:
         bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
         if bad.size:
             raise ValueError(f"TetMesh point {bad[0]} is not finite: {points[bad[0]].tolist()}")
+        far = np.flatnonzero(np.abs(points).max(axis=1) > MAX_COORDINATE)
+        if far.size:
+            raise ValueError(
+                f"TetMesh point {far[0]} lies beyond {MAX_COORDINATE:g} m from the origin: {points[far[0]].tolist()}"
+            )
 
         tets_in = np.asarray(tets)
+        if tets_in.dtype == object or tets_in.dtype.kind in "USV":
+            raise ValueError(f"TetMesh tets must hold integer node indices, got dtype {tets_in.dtype}")
         if tets_in.ndim != 2 or tets_in.shape[1] != 4:
             raise ValueError(f"TetMesh tets must have shape (M, 4), got {tets_in.shape}")
         if tets_in.shape[0] == 0:
@@ -144,7 +163,15 @@ class TetMesh:
             raise ValueError(f"TetMesh tet {t} repeats a node: {tets_i64[t].tolist()}")
 
         volumes = tet_signed_volumes(points, tets_i64)
-        scale = _longest_edges(points, tets_i64) ** 3 / (6.0 * np.sqrt(2.0))
+        longest = _longest_edges(points, tets_i64)
+        tiny = np.flatnonzero(longest < MIN_EDGE_LENGTH)
+        if tiny.size:
+            t = tiny[0]
+            raise ValueError(
+                f"TetMesh tet {t} is smaller than {MIN_EDGE_LENGTH:g} m (longest edge {longest[t]:.3e} m); "
+                "points are in metres"
+            )
+        scale = longest**3 / (6.0 * np.sqrt(2.0))
         degenerate = np.flatnonzero(np.abs(volumes) <= _DEGENERATE_RELATIVE_VOLUME * scale)
         if degenerate.size:
             t = degenerate[0]
@@ -274,7 +301,7 @@ class TetMesh:
     @cached_property
     def edges(self) -> np.ndarray:
         """Unique undirected edges, shape (E, 2), int32, each row sorted ascending."""
-        e = np.sort(self._tets[:, _EDGE_NODES].reshape(-1, 2), axis=1)
+        e = np.sort(self._tets[:, TET_EDGE_NODES].reshape(-1, 2), axis=1)
         result = np.unique(e, axis=0).astype(np.int32)
         result.setflags(write=False)
         return result

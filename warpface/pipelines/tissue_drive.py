@@ -10,6 +10,10 @@ node displacements to the surface; the two motions are blended with the adapter'
 from __future__ import annotations
 
 import numpy as np
+import warp as wp
+
+from ..fem.kernels_integrator import interpolate_control
+from ..fem.state import TissueControl
 
 __all__ = ["TissueDrive", "bone_side_nodes"]
 
@@ -29,7 +33,7 @@ class TissueDrive:
 
     Args:
         adapter: the :class:`~warpface.tracking.TrackingAdapter` whose dense face is the skin.
-        tetmesh: the tissue under that skin (:func:`warpface.fem.volume.tissue_from_surface`).
+        tetmesh: the tissue under that skin (:func:`warpface.fem.tissue_from_surface`).
         material: a :class:`~warpface.fem.TissueMaterial`.
         fps: camera frame rate [1/s].
         dt: FEM time step [s]; each frame advances ``round(1 / (fps·dt))`` Newmark steps with the
@@ -66,14 +70,27 @@ class TissueDrive:
                                            formulation=formulation, device=device)
         self.device = device
         self._weights = adapter.weights.astype(np.float32)[:, None]
-        self._previous = np.zeros((len(self.driven_nodes), 3))
+        # The tissue's state stays on its device: per frame one upload of the driven targets, the
+        # sub-step controls interpolated by a kernel, one download of the embedded skin.
+        sim = self.simulation
+        self.control = TissueControl(len(self.driven_nodes), device=sim.state.device)
+        """Driven displacements of the current sub-step (device)."""
+        self._previous = TissueControl(len(self.driven_nodes), device=sim.state.device)
+        self._target = TissueControl(len(self.driven_nodes), device=sim.state.device)
 
     def __call__(self, frame, dense_points: np.ndarray) -> np.ndarray:
         rest = self.adapter.dense_rest
         tracked = np.asarray(dense_points, dtype=np.float64) - rest
-        target = tracked[self._driven_vertex]
+        sim = self.simulation
+        count = len(self.driven_nodes)
+        target = self._target.driven
+        target.assign(np.pad(tracked[self._driven_vertex], ((0, target.shape[0] - count), (0, 0))))
         for k in range(1, self.substeps + 1):
-            self.simulation.step(self._previous + (target - self._previous) * (k / self.substeps))
-        self._previous = target
-        skin = np.asarray(self.embedding.apply(self.simulation.d, device=self.device), dtype=np.float64)
+            wp.launch(interpolate_control, dim=target.shape[0],
+                      inputs=[self._previous.driven, target, wp.float64(k / self.substeps)],
+                      outputs=[self.control.driven], device=target.device)
+            sim.step_control(self.control)
+        wp.copy(self._previous.driven, target)
+        skin = self.embedding.apply(sim.state.d).numpy()  # waits for the steps
+        sim.synchronize()  # raises if a CG step failed to converge
         return (rest + self._weights * tracked + (1.0 - self._weights) * skin).astype(np.float32)

@@ -104,14 +104,14 @@ def _capture(rig, source, camera_to_model, writer, fps: float, args):
 
 def _tissue_drive(rig, adapter, fps: float, args):
     """Tissue under the built-in face (Kato's uniform material) driven by the tracked skin."""
-    from ..fem import TissueMaterial
+    from ..fem import kato_uniform_material
     from ..fem.volume import tissue_from_surface
     from .tissue_drive import TissueDrive
 
     thickness = max(float(np.median(rig.thickness)), 0.004)
     with _setup_step(f"meshing the tissue (fTetWild, ~{args.fem_nodes} nodes; tens of seconds)", args.quiet):
         tetmesh = tissue_from_surface(rig.mesh, thickness, target_nodes=args.fem_nodes, device=args.device)
-    material = TissueMaterial(E=192.4e3, nu=0.495, eta=476.8, rho=1100.0)
+    material = kato_uniform_material()
     with _setup_step("setting up the tissue FEM", args.quiet):
         return TissueDrive(adapter, tetmesh, material, fps=fps, dt=args.fem_dt, thickness=thickness, device=args.device)
 

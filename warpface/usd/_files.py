@@ -3,23 +3,77 @@
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 from pxr import Sdf, Usd
 
 from .._files import atomic_path
 
-__all__ = ["open_stage", "writable_path", "export_layer_atomically", "LAYER_SUFFIXES"]
+__all__ = ["open_stage", "open_layer", "writable_path", "export_layer_atomically", "usd_error_message", "without_usd_warnings",
+           "LAYER_SUFFIXES"]
 
 LAYER_SUFFIXES = (".usda", ".usdc", ".usd")
 """File extensions warpface writes layers to."""
 
 
+_PXR_NAMESPACE = re.compile(r"pxrInternal_v[0-9_]+?__pxrReserved__::")
+_PXR_DIAGNOSTIC = re.compile(r"\s*(?:Error|Warning|Coding Error|Fatal Error) in '[^']*' at line \d+ in file [^\n]*? : '")
+
+
+def usd_error_message(error: BaseException) -> str:
+    """One line from a pxr ``Tf.ErrorException`` (or any exception): the diagnostics' own messages
+    joined with "; ", without C++ function names, source files and line numbers."""
+    messages = []
+    for piece in _PXR_DIAGNOSTIC.split(str(error)):
+        piece = piece.strip()
+        if piece.endswith("'"):
+            piece = piece[:-1]
+        piece = " ".join(_PXR_NAMESPACE.sub("", piece).split())
+        if piece:
+            messages.append(piece)
+    return "; ".join(dict.fromkeys(messages)) or type(error).__name__
+
+
+def open_layer(path, *, referenced_by: str | None = None) -> Sdf.Layer | None:
+    """The USD layer in file ``path`` (already open or read now), with its sublayers checked recursively.
+
+    A sublayer file that does not exist is skipped (``None``), as USD composition does — a deleted
+    cache is recreated by the next bake, and ``validate`` reports it; one that exists but cannot be
+    read is an error.
+
+    Raises:
+        ValueError: the file is missing, or it or a sublayer is not a USD layer or is corrupt — named
+            in the message.
+    """
+    label = f"{path}" if referenced_by is None else f"sublayer {path} of {referenced_by}"
+    if not Path(path).is_file():
+        if referenced_by is not None and not Path(path).exists():
+            return None
+        raise ValueError(f"{label}: file not found")
+    try:
+        layer = Sdf.Layer.FindOrOpen(str(path))
+    except Exception as exc:  # pxr raises Tf.ErrorException with the parser's message
+        raise ValueError(f"{label}: cannot open as a USD layer ({usd_error_message(exc)})") from None
+    if layer is None:
+        raise ValueError(f"{label}: cannot open as a USD layer")
+    for entry in layer.subLayerPaths:
+        resolved = Sdf.ComputeAssetPathRelativeToLayer(layer, entry) or entry
+        if Path(resolved) == Path(layer.realPath):
+            raise ValueError(f"{path}: lists itself as a sublayer")
+        open_layer(resolved, referenced_by=str(path))
+    return layer
+
+
 def open_stage(stage_or_path) -> Usd.Stage:
     """``stage_or_path`` itself when it is a ``Usd.Stage``, else the stage opened from that file.
 
+    The root layer and every sublayer are read first, so a missing, truncated or foreign sublayer
+    is an error naming that file (USD itself would only warn and skip it); a sublayer file that does
+    not exist is skipped quietly, as USD does.
+
     Raises:
-        ValueError: the file does not exist or is not a USD layer.
+        ValueError: the file or a sublayer does not exist or is not a readable USD layer.
     """
     if isinstance(stage_or_path, Usd.Stage):
         return stage_or_path
@@ -28,13 +82,39 @@ def open_stage(stage_or_path) -> Usd.Stage:
     path = Path(stage_or_path)
     if not path.is_file():
         raise ValueError(f"USD file not found: {path}")
+    root = open_layer(path)
     try:
-        stage = Usd.Stage.Open(str(path))
-    except Exception as exc:  # pxr raises Tf.ErrorException with the parser's message
-        raise ValueError(f"{path}: cannot open as a USD stage ({str(exc).strip()})") from None
+        stage = without_usd_warnings(lambda: Usd.Stage.Open(root))
+    except Exception as exc:
+        raise ValueError(f"{path}: cannot open as a USD stage ({usd_error_message(exc)})") from None
     if stage is None:
         raise ValueError(f"{path}: cannot open as a USD stage")
     return stage
+
+
+def without_usd_warnings(call, dropping: tuple[str, ...] = ("Could not load sublayer",)):
+    """``call()`` with the lines USD's C++ diagnostics write to fd 2 that contain one of ``dropping``
+    removed; every other line written meanwhile is passed on."""
+    import sys
+    import tempfile
+
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):
+        return call()
+    with tempfile.TemporaryFile() as captured:
+        os.dup2(captured.fileno(), 2)
+        try:
+            result = call()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        captured.seek(0)
+        kept = [line for line in captured.read().decode(errors="replace").splitlines() if not any(text in line for text in dropping)]
+    if kept:
+        print("\n".join(kept), file=sys.stderr)
+    return result
 
 
 def writable_path(path, suffixes: tuple[str, ...] = LAYER_SUFFIXES) -> Path:
@@ -67,8 +147,12 @@ def export_layer_atomically(layer: Sdf.Layer, path: Path) -> None:
     """
     path = Path(path)
     with atomic_path(path, path.suffix) as temporary:
-        if not layer.Export(str(temporary)):
-            raise OSError(f"cannot write {temporary}")
+        try:
+            exported = layer.Export(str(temporary))
+        except Exception as exc:  # Tf.ErrorException: full disk, permissions, ...
+            raise OSError(f"cannot write {path}: {usd_error_message(exc)}") from None
+        if not exported:
+            raise OSError(f"cannot write {path}")
     opened = Sdf.Layer.Find(str(path))
     if opened is not None:
         opened.Reload(force=True)

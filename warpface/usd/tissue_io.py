@@ -1,5 +1,12 @@
 """Tissue tetrahedral meshes with ``WarpFaceTetMaterialAPI``: write and read, validated.
 
+Two levels: :func:`write_tissue` / :func:`read_tissue` take and return plain arrays (:class:`Tissue`);
+:func:`write_tissue_mesh` / :func:`read_tissue_mesh` take and return the FEM's types
+(:class:`~warpface.fem.TetMesh`, :class:`~warpface.fem.TissueMaterial`, region masks), so what is read
+back is a validated, positively oriented mesh ready to simulate. USD's ``rightHanded`` tets and
+warpface's positively oriented tets (``det[p1 − p0, p2 − p0, p3 − p0] > 0``) are the same
+convention, which the writer checks with ``UsdGeom.TetMesh.FindInvertedElements``.
+
 Material values are SI regardless of the stage's ``metersPerUnit`` (Young's modulus and viscosity
 in Pa and Pa·s, density in kg/m³); point positions are lengths and are converted like the rig's.
 Each material property is a ``constant`` primvar (one value) or a ``uniform`` one (a value per tet).
@@ -9,6 +16,7 @@ Named regions are ``GeomSubset`` children of element type ``tetrahedron`` in the
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,11 +24,24 @@ from pxr import Sdf, Usd, UsdGeom, Vt
 
 from .._validate import as_finite_array, as_positive
 from ..errors import RigError
+from ..fem.material import MATERIAL_RANGES, TissueMaterial
+from ..fem.tetmesh import TetMesh
 from ._files import open_stage
 from .rig_io import SKIN_API, stage_meters_per_unit
 from .schema import ensure_schema
 
-__all__ = ["Tissue", "write_tissue", "read_tissue", "TET_MATERIAL_API", "REGION_FAMILY", "MATERIAL_PRIMVARS"]
+__all__ = [
+    "MATERIAL_PRIMVARS",
+    "REGION_FAMILY",
+    "TET_MATERIAL_API",
+    "Tissue",
+    "TissueMeshData",
+    "find_inverted_elements",
+    "read_tissue",
+    "read_tissue_mesh",
+    "write_tissue",
+    "write_tissue_mesh",
+]
 
 TET_MATERIAL_API = "WarpFaceTetMaterialAPI"
 REGION_FAMILY = "warpFace:region"
@@ -32,12 +53,8 @@ MATERIAL_PRIMVARS = {
 }
 """Tissue field → primvar name (without the ``primvars:`` namespace)."""
 
-_RANGES = {
-    "youngs_modulus": (lambda v: v > 0.0, "> 0 [Pa]"),
-    "poisson_ratio": (lambda v: (v >= 0.0) & (v < 0.5), "in [0, 0.5)"),
-    "viscosity": (lambda v: v >= 0.0, "≥ 0 [Pa s]"),
-    "density": (lambda v: v > 0.0, "> 0 [kg/m³]"),
-}
+# Tissue field -> the TissueMaterial field whose range (warpface.fem.MATERIAL_RANGES) it must satisfy.
+_MATERIAL_FIELD = {"youngs_modulus": "E", "poisson_ratio": "nu", "viscosity": "eta", "density": "rho"}
 
 
 @dataclass(eq=False)
@@ -61,8 +78,6 @@ class Tissue:
 
     def material(self, **kwargs):
         """A :class:`warpface.fem.material.TissueMaterial` with these values (keyword arguments pass through)."""
-        from ..fem.material import TissueMaterial
-
         return TissueMaterial(self.youngs_modulus, self.poisson_ratio, self.viscosity, self.density, **kwargs)
 
 
@@ -131,11 +146,11 @@ def _validated(points, tets, youngs_modulus, poisson_ratio, viscosity, density, 
         value = as_finite_array(raw, f"{label}: {name}")
         if value.ndim not in (0, 1) or (value.ndim == 1 and len(value) != len(tets)):
             raise ValueError(f"{label}: {name} must be a scalar or one value per tet ({len(tets)},), got shape {value.shape}")
-        ok, what = _RANGES[name]
-        wrong = np.flatnonzero(~ok(np.atleast_1d(value)))
+        allowed = MATERIAL_RANGES[_MATERIAL_FIELD[name]]
+        wrong = allowed.outside(value)
         if len(wrong):
             where = f" at tet {int(wrong[0])}" if value.ndim else ""
-            raise ValueError(f"{label}: {name}{where} must be {what}, got {np.atleast_1d(value)[wrong[0]]}")
+            raise ValueError(f"{label}: {name}{where} must be {allowed.describe()}, got {np.atleast_1d(value)[wrong[0]]}")
         values[name] = float(value) if value.ndim == 0 else value
     checked = {}
     for name, indices in regions.items():
@@ -223,3 +238,123 @@ def _find_tissue(stage: Usd.Stage, path: str | None) -> Usd.Prim:
     if len(candidates) != 1:
         raise RigError(f"stage {stage.GetRootLayer().identifier}: {len(candidates)} TetMesh prims with {TET_MATERIAL_API}; pass path")
     return candidates[0]
+
+
+# ---------------------------------------------------------------------------------------------- FEM types
+
+
+@dataclass(frozen=True, eq=False)
+class TissueMeshData:
+    """A tissue mesh read from a stage."""
+
+    tetmesh: TetMesh
+    """The validated mesh [m]."""
+    material: TissueMaterial
+    """Uniform or per-tet material."""
+    regions: dict
+    """Region name -> boolean mask over tets, shape (M,)."""
+
+
+def _region_indices(regions: Mapping[str, object] | None, tet_count: int) -> dict[str, np.ndarray]:
+    out = {}
+    for name, selection in (regions or {}).items():
+        sel = np.asarray(selection)
+        if sel.dtype == bool:
+            if sel.shape != (tet_count,):
+                raise ValueError(f"region {name!r}: mask has shape {sel.shape}, expected ({tet_count},)")
+            out[name] = np.flatnonzero(sel)
+        else:
+            out[name] = sel.astype(np.int64).ravel()
+    return out
+
+
+def write_tissue_mesh(stage, path: str, tetmesh: TetMesh, material: TissueMaterial, *, regions=None,
+                      skin_path: str | None = None):
+    """Author ``tetmesh`` with ``material`` as a ``UsdGeom.TetMesh`` at ``path``.
+
+    Points are written as float32 (USD ``point3f[]``); material values as SI doubles, ``constant``
+    primvars for a uniform material and ``uniform`` (per tet) otherwise.
+
+    Args:
+        stage: A ``Usd.Stage`` (edits go to its edit target).
+        path: Prim path of the tissue mesh.
+        tetmesh: The mesh [m] (stage lengths are metres: warpface stages use ``metersPerUnit = 1``).
+        material: Uniform or per-tet material; its ``damping`` law is not stored (the schema has
+            no slot for it) and is chosen again on reading.
+        regions: Region name -> boolean mask (M,) or tet indices; written as GeomSubsets.
+        skin_path: A skin mesh (``WarpFaceSkinAPI``) whose ``warpFace:tissue`` should target it.
+
+    Returns:
+        The ``Usd.Prim``.
+
+    Raises:
+        ValueError: material of the wrong size, bad regions, or a tet USD reports as inverted.
+    """
+    if not isinstance(tetmesh, TetMesh):
+        raise ValueError(f"write_tissue_mesh: expected a TetMesh, got {type(tetmesh).__name__}")
+    if not isinstance(material, TissueMaterial):
+        raise ValueError(f"write_tissue_mesh: expected a TissueMaterial, got {type(material).__name__}")
+    material.per_tet(tetmesh.tet_count)  # size check with a clear message
+    prim = write_tissue(
+        stage,
+        path,
+        tetmesh.points,
+        tetmesh.tets,
+        youngs_modulus=material.E,
+        poisson_ratio=material.nu,
+        viscosity=material.eta,
+        density=material.rho,
+        regions=_region_indices(regions, tetmesh.tet_count),
+        skin_path=skin_path,
+    )
+    inverted = UsdGeom.TetMesh.FindInvertedElements(UsdGeom.TetMesh(prim), Usd.TimeCode.Default())
+    if len(inverted):
+        raise ValueError(
+            f"{path}: USD reports {len(inverted)} inverted tets after writing (first {inverted[0]}); "
+            "float32 rounding of the points collapsed a sliver"
+        )
+    return prim
+
+
+def read_tissue_mesh(stage_or_path, path: str | None = None, *, damping: str = "stokes") -> TissueMeshData:
+    """Read a tissue mesh written by :func:`write_tissue_mesh` (or any conforming TetMesh prim).
+
+    Args:
+        stage_or_path: A ``Usd.Stage`` or a USD file path.
+        path: The TetMesh prim; default: the target of the skin's ``warpFace:tissue``, else the
+            only TetMesh with ``WarpFaceTetMaterialAPI``.
+        damping: Viscous law of the returned material ("stokes" or "thesis").
+
+    Returns:
+        :class:`TissueMeshData`; points in metres whatever the stage's ``metersPerUnit``.
+
+    Raises:
+        warpface.RigError: the prim is missing or malformed (see :func:`warpface.usd.read_tissue`).
+        ValueError: the tets are inverted, degenerate or leave nodes unused (from :class:`TetMesh`),
+            or the material is out of range.
+    """
+    tissue = read_tissue(stage_or_path, path, meters_per_unit=1.0)
+    tetmesh = TetMesh(tissue.points, tissue.tets)
+    material = TissueMaterial(tissue.youngs_modulus, tissue.poisson_ratio, tissue.viscosity, tissue.density,
+                              damping=damping)
+    material.per_tet(tetmesh.tet_count)
+    regions = {}
+    for name, indices in tissue.regions.items():
+        mask = np.zeros(tetmesh.tet_count, dtype=bool)
+        mask[indices] = True
+        regions[name] = mask
+    return TissueMeshData(tetmesh=tetmesh, material=material, regions=regions)
+
+
+def find_inverted_elements(points, tets) -> np.ndarray:
+    """Indices of tets that ``UsdGeom.TetMesh.FindInvertedElements`` reports as inverted, shape (K,), int64.
+
+    An independent check of orientation (USD's own code, on float32 points, in a throwaway
+    in-memory stage) to compare with :func:`~warpface.fem.tetmesh.tet_signed_volumes`.
+    """
+    stage = Usd.Stage.CreateInMemory()
+    mesh = UsdGeom.TetMesh.Define(stage, "/Tissue")
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(points, dtype=np.float32)))
+    mesh.CreateTetVertexIndicesAttr(Vt.Vec4iArray.FromNumpy(np.ascontiguousarray(tets, dtype=np.int32)))
+    mesh.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
+    return np.asarray(UsdGeom.TetMesh.FindInvertedElements(mesh, Usd.TimeCode.Default()), dtype=np.int64)

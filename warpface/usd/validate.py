@@ -8,11 +8,13 @@ import numpy as np
 from pxr import Usd, UsdGeom, UsdValidation
 
 from ..errors import RigError
-from ._files import open_stage
+from ._files import open_stage, without_usd_warnings
 from .animation import read_animation
+from .baking import check_bake, existing_cache_path
 from .rig_io import SKIN_API, read_rig, rig_prims
 from .schema import CONCRETE_SCHEMAS, ensure_schema
 from .tissue_io import TET_MATERIAL_API, read_tissue
+from .frames import capture_problems, is_capture
 
 __all__ = ["ValidationProblem", "validate_stage"]
 
@@ -33,18 +35,25 @@ class ValidationProblem:
         return f"{self.severity}: {self.path}: {self.message} [{self.source}]"
 
 
-def validate_stage(stage_or_path, *, usd_validators: bool = True) -> list[ValidationProblem]:
+def validate_stage(stage_or_path, *, usd_validators: bool = True, bake_checks: bool = True, device=None,
+                   progress: bool = False) -> list[ValidationProblem]:
     """Check a stage; an empty list means no problems.
 
     Runs every registered ``pxr.UsdValidation`` validator (errors and warnings) and warpface's own
-    checks: each skin reads as a valid rig, its animation controls are finite, an animated stage
-    authors ``timeCodesPerSecond``, ``framesPerSecond``, ``startTimeCode`` and ``endTimeCode``,
-    cached skin points have the rest point count and are finite, warpface prims are reachable from
-    a skin, tissue meshes read as valid materials.
+    checks. A rig stage: every layer and sublayer reads, each skin reads as a valid rig, its animation
+    controls are finite, an animated stage authors ``timeCodesPerSecond``, ``framesPerSecond``,
+    ``startTimeCode`` and ``endTimeCode``, cached skin points have the rest point count and are
+    finite, warpface prims are reachable from a skin, tissue meshes read as valid materials, and
+    everything :func:`~warpface.usd.bake` would refuse (:func:`~warpface.usd.check_bake`: time range,
+    frame count, the default cache file, controls giving non-finite positions). A capture written by
+    ``warpface track``: see :func:`~warpface.usd.frames.capture_problems`.
 
     Args:
         stage_or_path: a ``Usd.Stage`` or a path to a USD file.
         usd_validators: also run OpenUSD's validators.
+        bake_checks: also run the bake checks (they evaluate the expression model).
+        device: Warp device for the bake checks' model evaluation.
+        progress: show a progress bar while checking a capture's frames.
     """
     try:
         stage = open_stage(stage_or_path)
@@ -52,9 +61,31 @@ def validate_stage(stage_or_path, *, usd_validators: bool = True) -> list[Valida
         return [ValidationProblem("error", str(stage_or_path), str(exc), "warpface")]
     ensure_schema()
     problems: list[ValidationProblem] = []
-    if usd_validators:
-        problems += _usd_problems(stage)
+    if is_capture(stage):
+        problems += [ValidationProblem("error", path, message, "warpface")
+                     for path, message in capture_problems(stage, progress=progress)]
+        return problems
+    if usd_validators:  # their findings are reported as problems; the same diagnostics on stderr are noise
+        problems += without_usd_warnings(lambda: _usd_problems(stage), dropping=("Warning: in ",))
     problems += _rig_problems(stage)
+    if bake_checks and not any(p.severity == "error" for p in problems):
+        problems += _bake_problems(stage, device)
+    return problems
+
+
+def _bake_problems(stage: Usd.Stage, device) -> list[ValidationProblem]:
+    problems = []
+    for skin in [p for p in stage.Traverse() if p.HasAPI(SKIN_API)]:
+        try:
+            cache = existing_cache_path(stage, skin.GetPath())  # re-baking goes there; else the default cache file
+            check_bake(stage, skin_path=str(skin.GetPath()), cache_path=cache, device=device)
+        except (ValueError, RigError) as exc:
+            message = str(exc)
+            prefix = f"{skin.GetPath()}: "
+            message = message[len(prefix):] if message.startswith(prefix) else message
+            if "nothing to bake" in message:
+                continue  # a rig without animation is valid; there is just nothing to bake
+            problems.append(ValidationProblem("error", str(skin.GetPath()), message, "warpface (bake)"))
     return problems
 
 

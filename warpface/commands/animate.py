@@ -39,10 +39,10 @@ class AnimateResult:
 
 def _load_rig(rig_path):
     """(FaceRig in stage units, the rig's stage or None, meters per unit, the stage's rate or None)."""
-    from .usd import open_stage, read_rig, stage_meters_per_unit
+    from ..usd import open_stage, read_rig, stage_meters_per_unit
 
     if rig_path is None:
-        from .assets import default_rig
+        from ..assets import default_rig
 
         return default_rig(), None, 1.0, None
     if Path(rig_path).suffix.lower() not in (".usda", ".usdc", ".usd", ".usdz"):
@@ -59,9 +59,9 @@ def _mapping(rig, rig_stage, map_spec):
     ``map_spec``: None (the rig stage's ``default`` mapping, else the default table), ``NAME`` (stored on
     the rig stage), or ``FILE.usda[:NAME]`` (stored on another rig stage; NAME defaults to ``default``).
     """
-    from .drivers import mapping_for_rig, rig_control_names
-    from .usd import open_stage
-    from .usd.mapping_io import mapping_names, read_mapping
+    from ..drivers import mapping_for_rig, rig_control_names
+    from ..usd import open_stage
+    from ..usd.mapping_io import mapping_names, read_mapping
 
     if map_spec is None and (rig_stage is None or "default" not in mapping_names(rig_stage)):
         mapping, _, orphaned = mapping_for_rig(rig)
@@ -84,7 +84,7 @@ def _mapping(rig, rig_stage, map_spec):
 
 def prepare_controls(curves, mapping, *, fps: float, neutral=None, gain=None, one_euro=None):
     """Clean ``curves``, resample them to ``fps`` and map them: (cleaned curves, MappedControls)."""
-    from .drivers.cleanup import clean
+    from ..drivers.cleanup import clean
 
     cleaned = clean(curves, neutral=neutral, gain=gain, clamp=True, filter=one_euro, fps=fps)
     return cleaned, mapping.apply(cleaned)
@@ -113,10 +113,10 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
     """
     from pxr import Sdf, Usd
 
-    from . import usd
-    from .drivers import read_driver
-    from .usd.animation import CACHE_SUFFIX
-    from .usd.mapping_io import write_mapping
+    from .. import usd
+    from ..drivers import read_driver
+    from ..usd.animation import CACHE_SUFFIX
+    from ..usd.mapping_io import write_mapping
 
     out = _output_path(out)
     if video and (not isinstance(video_max_frames, (int, np.integer)) or video_max_frames < 1):
@@ -176,8 +176,8 @@ def _preview(path: Path, model, rig, mapped, rate: float, size, progress: bool, 
     """
     import cv2
 
-    from . import preview
-    from ._files import atomic_path
+    from .. import preview
+    from .._files import atomic_path
 
     muscles = list(rig.control_names)  # the muscles, then a jaw's controls
     index = {name: k for k, name in enumerate(mapped.names)}
@@ -230,7 +230,7 @@ def _neutral(text: str | None):
 def _gains(items) -> dict[str, float] | None:
     if not items:
         return None
-    from .drivers import canonical_channel
+    from ..drivers import canonical_channel
 
     gains = {}
     for item in items:
@@ -244,7 +244,7 @@ def _gains(items) -> dict[str, float] | None:
 
 def run_animate(args) -> int:
     """The ``animate`` command's handler: one summary line per output; notes and unmapped channels once."""
-    from .drivers.cleanup import OneEuroFilter
+    from ..drivers.cleanup import OneEuroFilter
 
     one_euro = OneEuroFilter(min_cutoff=args.filter_min_cutoff, beta=args.filter_beta) if args.filter else None
     try:
@@ -266,10 +266,10 @@ def run_animate(args) -> int:
     return 0
 
 
-def add_parser(subparsers):
-    """Register ``animate`` on an argparse sub-parser collection; returns the parser."""
+def add_parser(subparsers, common):
+    """Register ``animate`` on the CLI's sub-parsers (``common``: the shared options); returns the parser."""
     parser = subparsers.add_parser(
-        "animate", help="driver curves (ARKit, MediaPipe, Audio2Face, OpenFace AUs) -> rig time samples, bake, video",
+        "animate", parents=[common], help="driver curves (ARKit, MediaPipe, Audio2Face, OpenFace AUs) -> rig time samples, bake, video",
         description=__doc__.split("\n\n")[1] if __doc__ else None)
     parser.add_argument("driver", help="OpenFace/Live Link Face CSV, MediaPipe .pbtxt/.jsonl, or USD SkelAnimation")
     parser.add_argument("--rig", default=None, help="rig stage (default: the built-in face's rig)")

@@ -1,0 +1,197 @@
+"""Solving controls (SPEC §6.1): accuracy on real shapes, and speed against SciPy on the same objective.
+
+(a) Real shapes: the ICT-FaceKit face region (``../shared/data``; skipped when absent) rigged from its
+    own 68 landmarks with the default rig; each expression shape (browInnerUp_L/R, browOuterUp_L/R,
+    eyeSquint_L/R, jawOpen; cm → m) is fitted densely and from the 68 landmarks only. Errors are over
+    the vertices the shape moves (> 0.1 mm): "before" is the rest face against the shape, "after" the
+    fitted rig.
+(b) Speed on the built-in face (default rig, 23 muscles), same objective for both solvers
+    (``l2 = 1e-6``, ``l1 = 1e-6``, bounds): warpface's projected Levenberg–Marquardt with the exact
+    Jacobian against ``scipy.optimize.least_squares`` (trust-region reflective, 2-point differences
+    with a 20 µm step; its residual is evaluated by the same Warp kernels). Rows: a warm-started
+    landmark solve of the four expression animations (frames/s), a dense fit of one shape (seconds),
+    and a batched landmark solve of many frames (frames/s) on ``--device``.
+
+    python -m benchmarks.solve [--device cuda:0] [--frames 4096] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import warp as wp
+
+import warpface as wf
+from warpface.assets import EXPRESSIONS, default_rig, expression_timeline, rig_scale
+from warpface.data import ict_face_region, ict_landmark_indices
+from warpface.solve import Solver
+
+from ._timing import machine_info, print_table, write_results
+
+ICT_SHAPES = ("browInnerUp_L", "browInnerUp_R", "browOuterUp_L", "browOuterUp_R", "eyeSquint_L", "eyeSquint_R", "jawOpen")
+CENTIMETRE = 0.01
+MOVED = 1e-4
+"""A vertex counts as moved by a shape when it moves more than 0.1 mm."""
+OPTIONS = dict(l2=1e-6, l1=1e-6)
+FD_STEP = 20e-6
+"""SciPy's finite-difference step [m]: well above float32 resolution of face coordinates."""
+
+
+def scipy_solve(solver: Solver, target: np.ndarray, start: np.ndarray):
+    """``least_squares`` on the same objective as ``solver`` (no pose/symmetry/smoothness terms used here)."""
+    from scipy.optimize import least_squares
+
+    opts = solver.options
+    scale = solver.control_scale
+    valid = np.all(np.isfinite(target), axis=1)
+    weight = solver.weights * valid
+    weight = weight / weight.sum()
+    y = np.where(valid[:, None], target, 0.0) / solver.unit
+    root_w = np.sqrt(weight)[:, None]
+
+    def residual(u):
+        x, _ = solver.local.evaluate((u / scale)[None], jacobian=False)
+        e = solver.observation.apply_frames(x)[0] / solver.unit - y
+        return np.concatenate([(root_w * e).ravel(), np.sqrt(opts.l2) * u, np.sqrt(opts.l1 * np.maximum(u, 0.0))])
+
+    low, high = solver.low * scale, solver.high * scale
+    result = least_squares(residual, np.clip(start * scale, low, high), bounds=(low, high), method="trf",
+                           diff_step=FD_STEP / solver.unit, x_scale=1.0)
+    return result.x / scale, result.nfev
+
+
+def real_shapes(device, quick: bool) -> list[dict]:
+    path, landmarks = ict_face_region(), ict_landmark_indices()
+    if path is None or landmarks is None:
+        print("(a) ICT-FaceKit data not found in ../shared/data: real-shape rows skipped")
+        return []
+    neutral = wf.FaceMesh.from_obj(path)
+    mesh = wf.FaceMesh(neutral.points * CENTIMETRE, neutral.triangles, name="ict_face")
+    rig = default_rig(mesh, landmarks, name="ICTFace", device=device)
+    dense = Solver(rig, device=device, **OPTIONS)
+    sparse = Solver(rig, landmarks, device=device, **OPTIONS)
+    rows = []
+    for shape in ICT_SHAPES[:2] if quick else ICT_SHAPES:
+        shape_path = ict_face_region(shape)
+        if shape_path is None:
+            continue
+        target = wf.load_obj(shape_path)[0] * CENTIMETRE
+        before = np.linalg.norm(target - mesh.points, axis=1)
+        moved = before > MOVED
+        row = {"shape": shape, "moved": int(moved.sum()), "before_mean_mm": before[moved].mean() * 1e3,
+               "before_max_mm": before[moved].max() * 1e3}
+        for label, solver, goal in (("dense", dense, target), ("landmarks", sparse, target[landmarks])):
+            solver.reset()
+            began = time.perf_counter()
+            fit = solver.solve(goal)
+            seconds = time.perf_counter() - began
+            after = np.linalg.norm(fit.points - target, axis=1)
+            row[f"{label}_mean_mm"] = after[moved].mean() * 1e3
+            row[f"{label}_max_mm"] = after[moved].max() * 1e3
+            row[f"{label}_s"] = seconds
+            row[f"{label}_controls"] = {k: v for k, v in fit.controls.items() if v > 0.0}
+        rows.append(row)
+    return rows
+
+
+def speed(device, frames_batched: int, quick: bool) -> list[dict]:
+    rig = default_rig(device=device)
+    model = rig.model(device=device)
+    timeline = np.concatenate([expression_timeline(name, rig, seconds=1.0, fps=30.0) for name in EXPRESSIONS])
+    if quick:
+        timeline = timeline[::4]
+    frames = model.evaluate_batch(timeline).astype(np.float64)[:, rig.landmarks]
+    rows = []
+
+    # Warm-started landmark solve, frame after frame.
+    solver = Solver(rig, rig.landmarks, device=device, **OPTIONS)
+    for frame in frames[:5]:
+        solver.solve(frame)  # compile and allocate outside the timing
+    solver.reset()
+    began = time.perf_counter()
+    fits = [solver.solve(frame) for frame in frames]
+    ours = (time.perf_counter() - began) / len(frames)
+    ours_error = max(f.residual for f in fits) / rig_scale(rig)
+    reference = frames[: max(8, len(frames) // 8)]
+    start = np.zeros(len(rig.muscles))
+    began = time.perf_counter()
+    evaluations = 0
+    worst = 0.0
+    for frame in reference:
+        start, nfev = scipy_solve(solver, frame, start)
+        evaluations += nfev
+        x, _ = solver.local.evaluate(start[None], jacobian=False)
+        observed = solver.observation.apply_frames(x)[0]
+        worst = max(worst, float(np.sqrt(np.mean(np.sum((observed - frame) ** 2, axis=1)))) / rig_scale(rig))
+    theirs = (time.perf_counter() - began) / len(reference)
+    rows.append({"case": "landmarks, warm-started", "unit": "frames/s", "warpface": 1.0 / ours, "scipy": 1.0 / theirs,
+                 "ratio": theirs / ours, "warpface_rms_iod": ours_error, "scipy_rms_iod": worst,
+                 "warpface_iterations": float(np.mean([f.iterations for f in fits])),
+                 "scipy_evaluations": evaluations / len(reference), "frames": len(frames)})
+
+    # Dense fit of one shape (the smile at full intensity), from neutral.
+    peak = timeline[len(timeline) // 8 * 7]
+    target = model.evaluate(peak).astype(np.float64)
+    dense = Solver(rig, device=device, **OPTIONS)
+    dense.solve(target)
+    dense.reset()
+    began = time.perf_counter()
+    fit = dense.solve(target)
+    ours = time.perf_counter() - began
+    began = time.perf_counter()
+    controls, nfev = scipy_solve(dense, target, np.zeros(len(rig.muscles)))
+    theirs = time.perf_counter() - began
+    x, _ = dense.local.evaluate(controls[None], jacobian=False)
+    rows.append({"case": "dense fit, one shape", "unit": "s", "warpface": ours, "scipy": theirs, "ratio": theirs / ours,
+                 "warpface_rms_iod": fit.residual / rig_scale(rig),
+                 "scipy_rms_iod": float(np.sqrt(np.mean(np.sum((x[0] - target) ** 2, axis=1)))) / rig_scale(rig),
+                 "warpface_iterations": fit.iterations, "scipy_evaluations": nfev})
+
+    # Batched: many independent landmark frames at once (from neutral), on the device.
+    repeats = int(np.ceil(frames_batched / len(frames)))
+    batch = np.tile(frames, (repeats, 1, 1))[:frames_batched]
+    batched = Solver(rig, rig.landmarks, device=device, **OPTIONS)
+    batched.solve_batch(batch[: 4096 if wp.get_device(device).is_cuda else 64])
+    began = time.perf_counter()
+    result = batched.solve_batch(batch)
+    wp.synchronize_device(device)
+    seconds = time.perf_counter() - began
+    rows.append({"case": f"landmarks, batched ({len(batch)} frames)", "unit": "frames/s", "warpface": len(batch) / seconds,
+                 "scipy": None, "ratio": None, "warpface_rms_iod": float(result.residual.max()) / rig_scale(rig),
+                 "warpface_iterations": float(result.iterations.mean()), "frames": len(batch)})
+    return rows
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", default=None, help="Warp device (default: Warp's preferred device)")
+    parser.add_argument("--frames", type=int, default=None, help="frames of the batched solve (default 512 on CPU, 65536 on CUDA)")
+    parser.add_argument("--quick", action="store_true", help="fewer shapes and frames (smoke run)")
+    parser.add_argument("--skip-shapes", action="store_true", help="skip the real-shape rows")
+    args = parser.parse_args(argv)
+    wp.config.quiet = True
+    device = wp.get_device(args.device)
+    frames = args.frames or (65536 if device.is_cuda else 512)
+    shapes = [] if args.skip_shapes else real_shapes(device, args.quick)
+    if shapes:
+        print("(a) ICT-FaceKit shapes: error over moved vertices [mm], before → after (dense | 68 landmarks only)")
+        print_table(shapes, [("shape", "shape", "s"), ("moved", "moved", "d"),
+                             ("before_mean_mm", "before mean", ".2f"), ("before_max_mm", "before max", ".2f"),
+                             ("dense_mean_mm", "dense mean", ".2f"), ("dense_max_mm", "dense max", ".2f"),
+                             ("landmarks_mean_mm", "lmk mean", ".2f"), ("landmarks_max_mm", "lmk max", ".2f"),
+                             ("dense_s", "dense s", ".3f")])
+    rows = speed(device, frames, args.quick)
+    print(f"\n(b) speed on the built-in face, device {device.alias} (ratio = warpface speed / SciPy speed)")
+    print_table(rows, [("case", "case", "s"), ("unit", "unit", "s"), ("warpface", "warpface", ".4g"), ("scipy", "scipy", ".4g"),
+                       ("ratio", "ratio", ".1f"), ("warpface_rms_iod", "rms/IOD", ".1e"), ("scipy_rms_iod", "scipy rms/IOD", ".1e"),
+                       ("warpface_iterations", "iterations", ".1f"), ("scipy_evaluations", "scipy evals", ".0f")])
+    name = "solve" if device.is_cpu else f"solve_{device.alias.replace(':', '')}"
+    path = write_results(name, {"benchmark": "solve", "machine": machine_info(device), "options": OPTIONS,
+                                "fd_step_m": FD_STEP, "shapes": shapes, "speed": rows})
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,11 @@
+"""The sub-commands of the ``warpface`` command line, one module each.
+
+A command module provides ``add_parser(subparsers, common)`` — it adds its sub-parser (with
+``parents=[common]`` so the shared options work after the command too) and sets ``handler`` to its
+``run(args) -> int``. Register a new command by adding its module name to :data:`COMMANDS`.
+"""
+
+COMMANDS = ("demo", "bake", "preview", "validate", "track", "animate", "fit")
+"""Module names under :mod:`warpface.commands`, in the order ``warpface --help`` lists them."""
+
+__all__ = ["COMMANDS"]

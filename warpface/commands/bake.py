@@ -1,0 +1,40 @@
+"""``warpface bake``: evaluate a rig stage's time codes into a ``.usdc`` points cache."""
+
+from __future__ import annotations
+
+from .common import finite_float, positive_int, positive_float
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(subparsers, common) -> None:
+    from ..usd.animation import MAX_FRAMES
+
+    bake = subparsers.add_parser(
+        "bake", parents=[common], help="evaluate a rig stage at its time codes into a .usdc points cache",
+        description="Evaluate the expression model at every time code of STAGE (or --start..--end) and write the "
+                    "skin's points as time samples in a .usdc cache sublayered under STAGE.")
+    bake.add_argument("stage", help="rig stage (.usda/.usdc) with contraction time samples")
+    bake.add_argument("--cache", default=None, help="cache file (default: <stage>_anim.usdc); not the stage or one of its layers")
+    bake.add_argument("--start", type=finite_float, default=None, help="first time code (default: the stage's start)")
+    bake.add_argument("--end", type=finite_float, default=None, help="last time code (default: the stage's end)")
+    bake.add_argument("--step", type=positive_float, default=1.0, help="time code step, > 0 (default 1)")
+    bake.add_argument("--max-frames", type=positive_int, default=MAX_FRAMES,
+                      help=f"refuse to bake more frames than this (default {MAX_FRAMES}); raise it for longer bakes")
+    bake.set_defaults(handler=run)
+
+
+def run(args) -> int:
+    from .. import usd
+    from ..usd.animation import frame_range
+
+    frames = None
+    if args.start is not None or args.end is not None or args.step != 1.0:
+        stage = usd.open_stage(args.stage)
+        start = stage.GetStartTimeCode() if args.start is None else args.start
+        end = stage.GetEndTimeCode() if args.end is None else args.end
+        frames = frame_range(start, end, args.step, max_frames=args.max_frames, label="--start/--end/--step")
+    cache = usd.bake(args.stage, frames, cache_path=args.cache, device=args.device, progress=not args.quiet,
+                     max_frames=args.max_frames)
+    print(f"baked {args.stage} -> {cache}")
+    return 0

@@ -1,0 +1,85 @@
+"""``warpface preview``: a frame of a rig stage, a capture written by ``track``, or an OBJ → PNG (or every frame → MP4)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .common import finite_float, pixel_count
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(subparsers, common) -> None:
+    show = subparsers.add_parser(
+        "preview", parents=[common], help="render a stage frame (or all of them) or an OBJ to PNG/MP4",
+        description="Render SOURCE — a warpface rig stage, a capture written by `warpface track`, or an OBJ — at "
+                    "--time to a PNG, or every frame to an MP4 (--video), with pyrender (offscreen).")
+    show.add_argument("source", help="stage (.usda/.usdc/.usd) or mesh (.obj)")
+    show.add_argument("--time", type=finite_float, default=None,
+                      help="time code, within the stage's time range (default: its first frame)")
+    show.add_argument("--out", default=None, help="PNG path (default: <source>_preview.png)")
+    show.add_argument("--video", default=None, metavar="MP4", help="also render every frame of the stage into this MP4")
+    show.add_argument("--heat", action="store_true", help="colour by displacement magnitude from rest [mm]")
+    show.add_argument("--yaw", type=finite_float, default=15.0, help="camera yaw [degrees] (default 15)")
+    show.add_argument("--pitch", type=finite_float, default=5.0, help="camera pitch [degrees] (default 5)")
+    show.add_argument("--width", type=pixel_count, default=640, help="image width [pixels] (default 640)")
+    show.add_argument("--height", type=pixel_count, default=720, help="image height [pixels] (default 720)")
+    show.set_defaults(handler=run)
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from .. import preview
+
+    source = Path(args.source)
+    out = Path(args.out) if args.out else source.with_name(f"{source.stem}_preview.png")
+    _check_output(out, (".png",), "--out")
+    video = None if args.video is None else _check_output(Path(args.video), (".mp4",), "--video")
+    if not source.is_file():
+        raise ValueError(f"{source}: file not found")
+    preview.check_offscreen_rendering()
+    if source.suffix.lower() == ".obj":
+        from ..mesh import FaceMesh
+
+        if args.heat or args.video or args.time is not None:
+            raise ValueError(f"{source}: an OBJ has no animation; --time, --heat and --video need a stage")
+        mesh = FaceMesh.from_obj(source)
+        frames, points, unit_mm = None, mesh.points, 1.0
+        triangles, rest = mesh.triangles, mesh.points
+    else:
+        from pxr import UsdGeom
+
+        from ..usd.frames import open_frames
+
+        frames = open_frames(source)
+        time = None if args.time is None else frames.check_time(args.time)
+        points, triangles, rest = frames.points_at(time), frames.triangles, frames.rest
+        unit_mm = UsdGeom.GetStageMetersPerUnit(frames.stage) * 1e3
+    size = (args.width, args.height)
+    camera = preview.Camera.framing(rest, yaw_deg=args.yaw, pitch_deg=args.pitch, aspect=args.width / args.height)
+    if args.heat:
+        magnitude = np.linalg.norm(points - rest, axis=1) * unit_mm
+        preview.render_heat_map(points, triangles, magnitude, out, camera=camera, size=size,
+                                title="|displacement| from rest", units="mm")
+    else:
+        preview.render(points, triangles, out, camera=camera, size=size)
+    print(f"wrote {out}")
+    if video is not None:
+        if not len(frames.times):
+            raise ValueError(f"{source}: the stage is not animated; nothing to put in --video")
+        fps = frames.stage.GetTimeCodesPerSecond()
+        preview.write_video(frames, triangles, video, fps=fps, size=size, camera=camera, progress=not args.quiet,
+                            total=len(frames.times), label=lambda index: f"time {frames.times[index]:g}")
+        print(f"wrote {video}")
+    return 0
+
+
+def _check_output(path: Path, suffixes: tuple[str, ...], option: str) -> Path:
+    if path.suffix.lower() not in suffixes:
+        raise ValueError(f"{option} {path}: must end in {' or '.join(suffixes)}")
+    if not path.parent.is_dir():
+        raise ValueError(f"{option} {path}: folder {path.parent} does not exist")
+    if path.is_dir():
+        raise ValueError(f"{option} {path}: is a folder")
+    return path

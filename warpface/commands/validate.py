@@ -1,0 +1,32 @@
+"""``warpface validate``: OpenUSD's validators plus warpface's checks (everything ``bake`` would refuse)."""
+
+from __future__ import annotations
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(subparsers, common) -> None:
+    check = subparsers.add_parser(
+        "validate", parents=[common], help="check a stage with UsdValidation and warpface's rig checks",
+        description="Run pxr.UsdValidation and warpface's checks on STAGE (a rig stage, or a capture written by "
+                    "`warpface track`): everything bake or preview would refuse. Exit 1 on errors.")
+    check.add_argument("stage", help="stage to check")
+    check.add_argument("--strict", action="store_true", help="exit 1 on warnings too")
+    check.set_defaults(handler=run)
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from ..usd import open_stage, validate_stage
+
+    if not Path(args.stage).is_file():
+        raise ValueError(f"{args.stage}: file not found")
+    stage = open_stage(args.stage)  # an unreadable stage or sublayer is an error (exit 2), not a finding
+    problems = validate_stage(stage, device=args.device, progress=not args.quiet)
+    errors = [p for p in problems if p.severity == "error"]
+    for problem in problems:
+        print(problem)
+    if not problems:
+        print(f"{args.stage}: no problems found")
+    return 1 if errors or (args.strict and problems) else 0

@@ -1,0 +1,391 @@
+"""Warp kernels: the expression pipeline and its forward-mode Jacobian on a target's neighbourhood (float64).
+
+The same chain rule as :mod:`.local_model`'s NumPy reference, one thread per (frame, element), with one
+derivative column per control looped inside the thread. Layouts are flat, frame after frame:
+values ``(frames·n,)``, derivatives ``(frames·n·M,)`` (control fastest). A column whose muscle does not
+reach an element is never written: the derivative buffers are zeroed once, and each element loops
+over its ``active`` controls only (a CSR fixed by the rig: which muscles reach the element's stencil),
+which is most of the work saved — each vertex feels a few of the muscles.
+"""
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
+
+__all__ = ["muscle_stage", "first_ring_triangles", "bulge_stage", "second_ring_triangles", "wrinkle_stage", "normal_equations"]
+
+
+@wp.kernel
+def muscle_stage(
+    rest: wp.array(dtype=wp.vec3d),
+    field: wp.array(dtype=wp.vec3d),
+    controls: wp.array(dtype=wp.float64),
+    active_offsets: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    control_count: int,
+    vertex_count: int,
+    points: wp.array(dtype=wp.vec3d),
+):
+    """x1 = x_rest + W c over the neighbourhood's vertices (the muscles that reach each vertex)."""
+    i = wp.tid()
+    f = i / vertex_count
+    v = i - f * vertex_count
+    x = rest[v]
+    for slot in range(active_offsets[v], active_offsets[v + 1]):
+        m = active[slot]
+        x += controls[f * control_count + m] * field[v * control_count + m]
+    points[i] = x
+
+
+@wp.func
+def _zero3() -> wp.vec3d:
+    return wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+
+
+@wp.kernel
+def first_ring_triangles(
+    points: wp.array(dtype=wp.vec3d),
+    field: wp.array(dtype=wp.vec3d),
+    triangles: wp.array(dtype=wp.vec3i),
+    weight: wp.array(dtype=wp.float64),
+    rest_length: wp.array(dtype=wp.float64),
+    active_offsets: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    control_count: int,
+    vertex_count: int,
+    triangle_count: int,
+    jacobian: int,
+    area: wp.array(dtype=wp.vec3d),
+    ratio: wp.array(dtype=wp.float64),
+    darea: wp.array(dtype=wp.vec3d),
+    dratio: wp.array(dtype=wp.float64),
+):
+    """Area vector ``w·(p1 − p0) × (p2 − p0)`` of x1, ratio S'/S, and their derivatives (derivative of x1 = W)."""
+    i = wp.tid()
+    f = i / triangle_count
+    t = i - f * triangle_count
+    tri = triangles[t]
+    base = f * vertex_count
+    p0 = points[base + tri[0]]
+    e1 = points[base + tri[1]] - p0
+    e2 = points[base + tri[2]] - p0
+    a = weight[t] * wp.cross(e1, e2)
+    length = wp.length(a)
+    area[i] = a
+    ratio[i] = length / rest_length[t]
+    if jacobian == 0:
+        return
+    zero = wp.float64(0.0)
+    for slot in range(active_offsets[t], active_offsets[t + 1]):
+        m = active[slot]
+        w0 = field[tri[0] * control_count + m]
+        de1 = field[tri[1] * control_count + m] - w0
+        de2 = field[tri[2] * control_count + m] - w0
+        k = i * control_count + m
+        da = weight[t] * (wp.cross(de1, e2) + wp.cross(e1, de2))
+        darea[k] = da
+        dr = zero
+        if length > zero:
+            dr = wp.dot(a, da) / (length * rest_length[t])
+        dratio[k] = dr
+
+
+@wp.kernel
+def bulge_stage(
+    points: wp.array(dtype=wp.vec3d),
+    field: wp.array(dtype=wp.vec3d),
+    area: wp.array(dtype=wp.vec3d),
+    ratio: wp.array(dtype=wp.float64),
+    darea: wp.array(dtype=wp.vec3d),
+    dratio: wp.array(dtype=wp.float64),
+    ring_vertex: wp.array(dtype=wp.int32),
+    adjacency_offsets: wp.array(dtype=wp.int32),
+    adjacency: wp.array(dtype=wp.int32),
+    counts: wp.array(dtype=wp.float64),
+    thickness: wp.array(dtype=wp.float64),
+    active_offsets: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    floor: wp.float64,
+    control_count: int,
+    point_count: int,
+    vertex_count: int,
+    triangle_count: int,
+    jacobian: int,
+    stretch: wp.array(dtype=wp.float64),
+    bulged: wp.array(dtype=wp.vec3d),
+    dstretch: wp.array(dtype=wp.float64),
+    dbulged: wp.array(dtype=wp.vec3d),
+):
+    """r (mean S'/S), N(x1), x2 = x1 + (1/max(r, floor) − 1)·h·N and ∂r/∂c, ∂x2/∂c on the first ring.
+
+    ``ring_vertex[v]`` is the vertex's index among the x1 points (``point_count`` per frame).
+    """
+    i = wp.tid()
+    f = i / vertex_count
+    v = i - f * vertex_count
+    first = f * triangle_count
+    zero = wp.float64(0.0)
+    one = wp.float64(1.0)
+    total = zero
+    normal_sum = _zero3()
+    begin = adjacency_offsets[v]
+    end = adjacency_offsets[v + 1]
+    for k in range(begin, end):
+        total += ratio[first + adjacency[k]]
+        normal_sum += area[first + adjacency[k]]
+    count = counts[v]
+    r = one
+    if count > zero:
+        r = total / count
+    clamped = wp.max(r, floor)
+    growth = one / clamped - one
+    length = wp.length(normal_sum)
+    n = _zero3()
+    if length > zero:
+        n = normal_sum / length
+    h = thickness[v]
+    source = f * point_count + ring_vertex[v]
+    stretch[i] = r
+    bulged[i] = points[source] + (growth * h) * n
+    if jacobian == 0:
+        return
+    for slot in range(active_offsets[v], active_offsets[v + 1]):
+        m = active[slot]
+        dtotal = zero
+        dsum = _zero3()
+        for k in range(begin, end):
+            j = (first + adjacency[k]) * control_count + m
+            dtotal += dratio[j]
+            dsum += darea[j]
+        dr = zero
+        if count > zero:
+            dr = dtotal / count
+        dgrowth = zero
+        if r > floor:
+            dgrowth = -dr / (clamped * clamped)
+        dn = _zero3()
+        if length > zero:
+            dn = (dsum - n * wp.dot(n, dsum)) / length
+        out = i * control_count + m
+        dstretch[out] = dr
+        dbulged[out] = field[ring_vertex[v] * control_count + m] + h * (dgrowth * n + growth * dn)
+
+
+@wp.kernel
+def second_ring_triangles(
+    points: wp.array(dtype=wp.vec3d),
+    dpoints: wp.array(dtype=wp.vec3d),
+    triangles: wp.array(dtype=wp.vec3i),
+    weight: wp.array(dtype=wp.float64),
+    active_offsets: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    control_count: int,
+    vertex_count: int,
+    triangle_count: int,
+    jacobian: int,
+    area: wp.array(dtype=wp.vec3d),
+    darea: wp.array(dtype=wp.vec3d),
+):
+    """Area vectors of x2 (for the wrinkles' normal) and their derivatives."""
+    i = wp.tid()
+    f = i / triangle_count
+    t = i - f * triangle_count
+    tri = triangles[t]
+    base = f * vertex_count
+    p0 = points[base + tri[0]]
+    e1 = points[base + tri[1]] - p0
+    e2 = points[base + tri[2]] - p0
+    area[i] = weight[t] * wp.cross(e1, e2)
+    if jacobian == 0:
+        return
+    for slot in range(active_offsets[t], active_offsets[t + 1]):
+        m = active[slot]
+        w0 = dpoints[(base + tri[0]) * control_count + m]
+        de1 = dpoints[(base + tri[1]) * control_count + m] - w0
+        de2 = dpoints[(base + tri[2]) * control_count + m] - w0
+        darea[i * control_count + m] = weight[t] * (wp.cross(de1, e2) + wp.cross(e1, de2))
+
+
+@wp.func
+def _store_column(out: wp.array(dtype=wp.float64), row: int, m: int, control_count: int, value: wp.vec3d):
+    base = 3 * row * control_count + m
+    out[base] = value[0]
+    out[base + control_count] = value[1]
+    out[base + 2 * control_count] = value[2]
+
+
+@wp.kernel
+def wrinkle_stage(
+    bulged: wp.array(dtype=wp.vec3d),
+    stretch: wp.array(dtype=wp.float64),
+    dbulged: wp.array(dtype=wp.vec3d),
+    dstretch: wp.array(dtype=wp.float64),
+    area: wp.array(dtype=wp.vec3d),
+    darea: wp.array(dtype=wp.vec3d),
+    ring_vertex: wp.array(dtype=wp.int32),
+    adjacency_offsets: wp.array(dtype=wp.int32),
+    adjacency: wp.array(dtype=wp.int32),
+    profile_offsets: wp.array(dtype=wp.int32),
+    profile_wrinkle: wp.array(dtype=wp.int32),
+    profile_value: wp.array(dtype=wp.float64),
+    kr: wp.array(dtype=wp.float64),
+    active_offsets: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    control_count: int,
+    ring_count: int,
+    vertex_count: int,
+    triangle_count: int,
+    jacobian: int,
+    final: wp.array(dtype=wp.vec3d),
+    dfinal: wp.array(dtype=wp.float64),
+):
+    """x3 = x2 + Σ_w depth·s·C_w(r)·N(x2) and ∂x3/∂c on the target vertices.
+
+    ``dfinal`` is laid out (frames, vertices, 3, controls): a frame's Jacobian is one (3n, M) matrix.
+    """
+    i = wp.tid()
+    f = i / vertex_count
+    v = i - f * vertex_count
+    source = f * ring_count + ring_vertex[v]
+    x = bulged[source]
+    begin = profile_offsets[v]
+    end = profile_offsets[v + 1]
+    zero = wp.float64(0.0)
+    one = wp.float64(1.0)
+    if begin == end:
+        final[i] = x
+        if jacobian != 0:
+            for slot in range(active_offsets[v], active_offsets[v + 1]):
+                m = active[slot]
+                _store_column(dfinal, i, m, control_count, dbulged[source * control_count + m])
+        return
+    r = stretch[source]
+    height = zero
+    slope = zero
+    for k in range(begin, end):
+        c = kr[profile_wrinkle[k]]
+        factor = zero
+        dfactor = zero
+        if r <= one:
+            factor = (c - one) * r + one
+            dfactor = c - one
+        elif c > zero:
+            factor = c * wp.exp((one - one / c) * (r - one))
+            dfactor = (one - one / c) * factor
+        height += profile_value[k] * factor
+        slope += profile_value[k] * dfactor
+    first = f * triangle_count
+    normal_sum = _zero3()
+    a_begin = adjacency_offsets[v]
+    a_end = adjacency_offsets[v + 1]
+    for k in range(a_begin, a_end):
+        normal_sum += area[first + adjacency[k]]
+    length = wp.length(normal_sum)
+    n = _zero3()
+    if length > zero:
+        n = normal_sum / length
+    final[i] = x + height * n
+    if jacobian == 0:
+        return
+    for slot in range(active_offsets[v], active_offsets[v + 1]):
+        m = active[slot]
+        dsum = _zero3()
+        for k in range(a_begin, a_end):
+            dsum += darea[(first + adjacency[k]) * control_count + m]
+        dn = _zero3()
+        if length > zero:
+            dn = (dsum - n * wp.dot(n, dsum)) / length
+        dheight = slope * dstretch[source * control_count + m]
+        _store_column(dfinal, i, m, control_count, dbulged[source * control_count + m] + dheight * n + height * dn)
+
+
+@wp.func
+def _observed(x3: wp.array(dtype=wp.vec3d), frame_first: int, point_offsets: wp.array(dtype=wp.int32),
+              point_vertex: wp.array(dtype=wp.int32), point_weight: wp.array(dtype=wp.float64), n: int):
+    """``(P x3)_n``: a target point as the weighted sum of its vertices (one vertex, or a triangle's three)."""
+    p = _zero3()
+    for k in range(point_offsets[n], point_offsets[n + 1]):
+        p += point_weight[k] * x3[frame_first + point_vertex[k]]
+    return p
+
+
+@wp.func
+def _column(dx3: wp.array(dtype=wp.float64), x3: wp.array(dtype=wp.vec3d), frame_first: int,
+            point_offsets: wp.array(dtype=wp.int32), point_vertex: wp.array(dtype=wp.int32),
+            point_weight: wp.array(dtype=wp.float64), n: int, c: int, control_count: int,
+            rotation: wp.mat33d, arm: wp.vec3d, unit: wp.float64):
+    """Column ``c`` of the posed target point's Jacobian [mesh units per variable]: a control's
+    ``R·(P ∂x3/∂c)``, then the rotation vector's ``−[R(x − o)]×`` and the translation's ``ℓ·I``."""
+    if c < control_count:
+        d = _zero3()
+        for k in range(point_offsets[n], point_offsets[n + 1]):
+            base = 3 * (frame_first + point_vertex[k]) * control_count + c
+            w = point_weight[k]
+            d += w * wp.vec3d(dx3[base], dx3[base + control_count], dx3[base + 2 * control_count])
+        return rotation * d
+    zero = wp.float64(0.0)
+    axis = wp.vec3d(zero, zero, zero)
+    if c < control_count + 3:
+        axis[c - control_count] = wp.float64(1.0)
+        return wp.cross(axis, arm)
+    axis[c - control_count - 3] = unit
+    return axis
+
+
+@wp.kernel
+def normal_equations(
+    x3: wp.array(dtype=wp.vec3d),
+    dx3: wp.array(dtype=wp.float64),
+    point_offsets: wp.array(dtype=wp.int32),
+    point_vertex: wp.array(dtype=wp.int32),
+    point_weight: wp.array(dtype=wp.float64),
+    active_offsets: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    targets: wp.array(dtype=wp.vec3d),
+    weights: wp.array(dtype=wp.float64),
+    rotation: wp.array(dtype=wp.mat33d),
+    translation: wp.array(dtype=wp.vec3d),
+    frame_on: wp.array(dtype=wp.int32),
+    origin: wp.vec3d,
+    unit: wp.float64,
+    control_count: int,
+    variable_count: int,
+    vertex_count: int,
+    point_count: int,
+    jacobian: int,
+    hessian: wp.array(dtype=wp.float64),
+    gradient: wp.array(dtype=wp.float64),
+    misfit: wp.array(dtype=wp.float64),
+):
+    """Per frame: the data term ``Σ_n w_n |e_n|²`` with ``e = (R(Px3 − o) + o)/ℓ + t − y`` and, with
+    ``jacobian``, ``Jᵀ W J`` and ``Jᵀ W e`` over each point's active variables (atomics into the frame's sums).
+
+    Columns are in mesh units per variable; the caller scales them to the solver's variables.
+    """
+    i = wp.tid()
+    f = i / point_count
+    n = i - f * point_count
+    w = weights[i]
+    if w == wp.float64(0.0) or frame_on[f] == 0:
+        return
+    first = f * vertex_count
+    p = _observed(x3, first, point_offsets, point_vertex, point_weight, n)
+    r = rotation[f]
+    arm = r * (p - origin)
+    e = (arm + origin) / unit + translation[f] - targets[i]
+    wp.atomic_add(misfit, f, w * wp.dot(e, e))
+    if jacobian == 0:
+        return
+    begin = active_offsets[n]
+    end = active_offsets[n + 1]
+    for a in range(begin, end):
+        ca = active[a]
+        col_a = _column(dx3, x3, first, point_offsets, point_vertex, point_weight, n, ca, control_count, r, arm, unit)
+        wp.atomic_add(gradient, f * variable_count + ca, w * wp.dot(col_a, e))
+        for b in range(a, end):
+            cb = active[b]
+            col_b = _column(dx3, x3, first, point_offsets, point_vertex, point_weight, n, cb, control_count, r, arm, unit)
+            value = w * wp.dot(col_a, col_b)
+            wp.atomic_add(hessian, (f * variable_count + ca) * variable_count + cb, value)
+            if cb != ca:
+                wp.atomic_add(hessian, (f * variable_count + cb) * variable_count + ca, value)

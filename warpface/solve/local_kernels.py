@@ -1,0 +1,179 @@
+"""The neighbourhood evaluation of :mod:`.local_model` on a Warp device (the solver's fast path)."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import warp as wp
+
+from . import kernels
+from .local_model import STRETCH_FLOOR, LocalExpression
+
+__all__ = ["KernelExpression"]
+
+
+class _Buffers:
+    def __init__(self, frames: int, sizes: dict, controls: int, device):
+        # Zeroed once: derivative entries outside an element's active controls are never written.
+        def vec(n):
+            return wp.zeros(max(n, 1), dtype=wp.vec3d, device=device)
+
+        def scalar(n):
+            return wp.zeros(max(n, 1), dtype=wp.float64, device=device)
+
+        n2, t1, n1, t0, n0 = (sizes[k] for k in ("n2", "t1", "n1", "t0", "n0"))
+        self.controls = wp.zeros(frames * controls, dtype=wp.float64, device=device)
+        self.x1 = vec(frames * n2)
+        self.area1, self.ratio1 = vec(frames * t1), scalar(frames * t1)
+        self.darea1, self.dratio1 = vec(frames * t1 * controls), scalar(frames * t1 * controls)
+        self.stretch, self.x2 = scalar(frames * n1), vec(frames * n1)
+        self.dstretch, self.dx2 = scalar(frames * n1 * controls), vec(frames * n1 * controls)
+        self.area0, self.darea0 = vec(frames * t0), vec(frames * t0 * controls)
+        self.x3, self.dx3 = vec(frames * n0), scalar(frames * n0 * 3 * controls)
+        self.recorded: dict[bool, list] = {}
+        """Launches recorded once per mode (with / without Jacobian) and replayed: argument packing is
+        most of a small launch's cost on the CPU."""
+        self.host_controls = self.controls.numpy() if device.is_cpu else None
+        """CPU: a NumPy view sharing the controls' memory (written in place)."""
+
+
+class KernelExpression:
+    """``x3(c)`` and ``∂x3/∂c`` at the same vertices as a :class:`LocalExpression`, by Warp kernels.
+
+    Args:
+        local: the neighbourhood (index structures and rig data) to evaluate.
+        device: Warp device.
+    """
+
+    def __init__(self, local: LocalExpression, device=None):
+        self.device = wp.get_device(device)
+        self.local = local
+        self.vertices, self.count, self.control_count = local.vertices, local.count, local.control_count
+        d = self.device
+        m = self.control_count
+        f64 = lambda a: wp.array(np.ascontiguousarray(a, dtype=np.float64), dtype=wp.float64, device=d)  # noqa: E731
+        i32 = lambda a: wp.array(np.ascontiguousarray(a, dtype=np.int32), dtype=wp.int32, device=d)  # noqa: E731
+        self._rest = wp.array(local.rest2, dtype=wp.vec3d, device=d)
+        self._field = wp.array(np.ascontiguousarray(local.field2.transpose(0, 2, 1)).reshape(-1, 3), dtype=wp.vec3d, device=d)
+        self._t1 = wp.array(local.triangles1.astype(np.int32), dtype=wp.vec3i, device=d)
+        self._t1_weight, self._t1_length = f64(local.triangle_weight1), f64(local.rest_length1)
+        inc1 = local.incidence1
+        self._adj1_offsets, self._adj1 = i32(inc1.indptr), i32(inc1.indices)
+        self._counts1, self._thickness1 = f64(local.counts1), f64(local.thickness1)
+        self._s1_in_s2, self._s0_in_s1 = i32(local.s1_in_s2), i32(local.s0_in_s1)
+        self._t0 = wp.array(local.triangles0.astype(np.int32), dtype=wp.vec3i, device=d)
+        self._t0_weight = f64(local.triangle_weight0)
+        inc0 = local.incidence0
+        self._adj0_offsets, self._adj0 = i32(inc0.indptr), i32(inc0.indices)
+        profile = sp.csr_matrix(local.profile0)
+        profile.eliminate_zeros()
+        self._profile_offsets, self._profile_wrinkle = i32(profile.indptr), i32(profile.indices)
+        self._profile_value = f64(profile.data if profile.nnz else np.zeros(1))
+        self._kr = f64(local.kr if len(local.kr) else np.zeros(1))
+        self._sizes = dict(n2=len(local.rest2), t1=len(local.triangles1), n1=len(local.s1_in_s2),
+                           t0=len(local.triangles0), n0=local.count)
+        self._buffers: dict[int, _Buffers] = {}
+        self.active_controls = _active_controls(local)
+        """Per element kind (``s2``, ``t1``, ``s1``, ``t0``, ``s0``): which controls can move it, sparse bool CSR."""
+        self._active = {name: (i32(csr.indptr), i32(csr.indices if csr.nnz else np.zeros(1)))
+                        for name, csr in self.active_controls.items()}
+
+    @property
+    def reach(self) -> int:
+        return self.local.reach
+
+    def buffers(self, frames: int) -> _Buffers:
+        if frames not in self._buffers:
+            self._buffers[frames] = _Buffers(frames, self._sizes, self.control_count, self.device)
+        return self._buffers[frames]
+
+    def upload(self, buffers: _Buffers, controls: np.ndarray) -> None:
+        """Write (F, M) controls into ``buffers`` (CPU: in place; CUDA: one host-to-device copy)."""
+        flat = np.ascontiguousarray(controls, dtype=np.float64).reshape(-1)
+        if buffers.host_controls is not None:
+            buffers.host_controls[:] = flat
+        else:
+            buffers.controls.assign(wp.array(flat, dtype=wp.float64, device="cpu"))
+
+    def launch(self, buffers: _Buffers, frames: int, jacobian: bool) -> None:
+        """Run the five stages on ``buffers`` (controls already uploaded)."""
+        if jacobian not in buffers.recorded:
+            buffers.recorded[jacobian] = self._record(buffers, frames, jacobian)
+        for command in buffers.recorded[jacobian]:
+            command.launch()
+
+    def _record(self, buffers: _Buffers, frames: int, jacobian: bool) -> list:
+        s, m, d = self._sizes, self.control_count, self.device
+        jac = 1 if jacobian else 0
+        commands = []
+
+        def launch(kernel, **kwargs):
+            commands.append(wp.launch(kernel, record_cmd=True, **kwargs))
+
+        launch(kernels.muscle_stage, dim=frames * s["n2"], device=d,
+                  inputs=[self._rest, self._field, buffers.controls, *self._active["s2"], m, s["n2"]], outputs=[buffers.x1])
+        launch(kernels.first_ring_triangles, dim=frames * s["t1"], device=d,
+                  inputs=[buffers.x1, self._field, self._t1, self._t1_weight, self._t1_length, *self._active["t1"], m, s["n2"], s["t1"], jac],
+                  outputs=[buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1])
+        launch(kernels.bulge_stage, dim=frames * s["n1"], device=d,
+                  inputs=[buffers.x1, self._field, buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1,
+                          self._s1_in_s2, self._adj1_offsets, self._adj1, self._counts1, self._thickness1, *self._active["s1"],
+                          wp.float64(STRETCH_FLOOR), m, s["n2"], s["n1"], s["t1"], jac],
+                  outputs=[buffers.stretch, buffers.x2, buffers.dstretch, buffers.dx2])
+        launch(kernels.second_ring_triangles, dim=frames * s["t0"], device=d,
+                  inputs=[buffers.x2, buffers.dx2, self._t0, self._t0_weight, *self._active["t0"], m, s["n1"], s["t0"], jac],
+                  outputs=[buffers.area0, buffers.darea0])
+        launch(kernels.wrinkle_stage, dim=frames * s["n0"], device=d,
+                  inputs=[buffers.x2, buffers.stretch, buffers.dx2, buffers.dstretch, buffers.area0, buffers.darea0,
+                          self._s0_in_s1, self._adj0_offsets, self._adj0, self._profile_offsets, self._profile_wrinkle,
+                          self._profile_value, self._kr, *self._active["s0"], m, s["n1"], s["n0"], s["t0"], jac],
+                  outputs=[buffers.x3, buffers.dx3])
+        return commands
+
+    def evaluate(self, controls: np.ndarray, *, jacobian: bool = True, copy_jacobian: bool = True):
+        """Same contract as :meth:`LocalExpression.evaluate`: x3 (F, n, 3) and ∂x3/∂c (F, n, 3, M) or None.
+
+        With ``copy_jacobian=False`` the CPU Jacobian is a view of the device buffer, valid until the
+        next evaluation with a Jacobian of the same frame count (the solver consumes it at once).
+        """
+        controls = np.ascontiguousarray(controls, dtype=np.float64)
+        frames = controls.shape[0]
+        buffers = self.buffers(frames)
+        self.upload(buffers, controls)
+        self.launch(buffers, frames, jacobian)
+        n0, m = self.count, self.control_count
+        x3 = buffers.x3.numpy()[: frames * n0].reshape(frames, n0, 3).copy()
+        if not jacobian:
+            return x3, None
+        jacobian = buffers.dx3.numpy()[: frames * n0 * 3 * m].reshape(frames, n0, 3, m)
+        return x3, (jacobian.copy() if self.device.is_cpu and copy_jacobian else jacobian)
+
+
+def _active_controls(local: LocalExpression) -> dict:
+    """Per element, the controls whose derivative can be non-zero there (CSR, sorted), fixed by the rig.
+
+    A triangle of the first ring feels the muscles that move one of its corners; a first-ring vertex,
+    those of its own motion and of its incident triangles (stretch, normal); and so on outward.
+    """
+    def spread(incidence: sp.csr_matrix, inner: sp.csr_matrix) -> sp.csr_matrix:
+        return (incidence.astype(bool) @ inner).astype(bool).tocsr()
+
+    moved = sp.csr_matrix(np.any(local.field2 != 0.0, axis=1))  # (n2, M)
+    n2 = len(local.rest2)
+    corners1 = sp.csr_matrix((np.ones(local.triangles1.size, bool),
+                              (np.repeat(np.arange(len(local.triangles1)), 3), local.triangles1.ravel())),
+                             shape=(len(local.triangles1), n2))
+    t1 = spread(corners1, moved)
+    s1 = (spread(local.incidence1, t1) + moved[local.s1_in_s2]).astype(bool).tocsr()
+    n1 = len(local.s1_in_s2)
+    corners0 = sp.csr_matrix((np.ones(local.triangles0.size, bool),
+                              (np.repeat(np.arange(len(local.triangles0)), 3), local.triangles0.ravel())),
+                             shape=(len(local.triangles0), n1))
+    t0 = spread(corners0, s1)
+    s0 = (spread(local.incidence0, t0) + s1[local.s0_in_s1]).astype(bool).tocsr()
+    result = {}
+    for name, matrix in (("s2", moved), ("t1", t1), ("s1", s1), ("t0", t0), ("s0", s0)):
+        matrix.eliminate_zeros()
+        matrix.sort_indices()
+        result[name] = matrix
+    return result
