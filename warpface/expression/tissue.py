@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 from ._sparse import vertex_csr
 from .muscles import Muscle, MuscleWeights
 
-__all__ = ["tissue_response", "stretch_rate", "neighbourhood_mean", "FASCIA_RADIUS", "BUNCHING_CAP"]
+__all__ = ["tissue_response", "skin_muscle_weights", "stretch_rate", "neighbourhood_mean", "FASCIA_RADIUS", "BUNCHING_CAP"]
 
 FASCIA_RADIUS = 0.03
 """Radius of the neighbourhood averages below, as a fraction of the mesh's size (its bounding-box
@@ -142,3 +142,19 @@ def tissue_response(points: np.ndarray, triangles: np.ndarray, normals: np.ndarr
         values.append(field[moved])
     offsets, column, value = vertex_csr(vertex_count, rows, columns, values)
     return MuscleWeights(offsets=offsets, muscle=column, weight=value)
+
+
+def skin_muscle_weights(mesh, muscles: Sequence[Muscle], thickness: np.ndarray, *, device=None) -> MuscleWeights:
+    """The weights the expression model applies: zone weights, then each muscle's sliding and bunching.
+
+    Args:
+        mesh: the rest :class:`~warpface.FaceMesh`; muscles: in contraction order;
+        thickness: h per vertex [mesh units], shape (V,); device: Warp device of the weight kernels.
+    """
+    from .muscles import muscle_weights
+
+    weights = muscle_weights(mesh.points, list(muscles), device=device)
+    if any(m.sliding > 0.0 or m.bunching > 0.0 or m.thickening > 0.0 for m in muscles):
+        normals = mesh.vertex_normals(device=device)
+        weights = tissue_response(mesh.points, mesh.triangles, normals, np.asarray(thickness, dtype=np.float64), muscles, weights)
+    return weights
