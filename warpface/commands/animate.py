@@ -179,7 +179,7 @@ def _preview(path: Path, model, rig, mapped, rate: float, size, progress: bool, 
     from .. import preview
     from .._files import atomic_path
 
-    muscles = list(rig.muscle_names)
+    muscles = list(rig.control_names)  # the muscles, then a jaw's controls
     index = {name: k for k, name in enumerate(mapped.names)}
     step = max(1, math.ceil(len(mapped.times) / max(1, int(max_frames))))
     shown = np.arange(0, len(mapped.times), step)
