@@ -13,7 +13,7 @@ from warpface.assets import default_rig
 from warpface.expression import JAW_CONTROL_NAMES, Jaw, jaw_points
 
 import reference_expression as ref
-from conftest import grid_surface
+from helpers import grid_surface
 
 DEVICE = "cpu"
 

@@ -15,7 +15,7 @@ from warpface.expression import muscle_weights
 from warpface.expression.tissue import neighbourhood_mean, tissue_response
 
 import reference_expression as ref
-from conftest import grid_surface
+from helpers import grid_surface
 
 DEVICE = "cpu"
 
