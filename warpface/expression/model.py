@@ -11,6 +11,7 @@ import warp as wp
 from .._validate import MAX_COORDINATE, as_count
 from ..kernels_surface import triangle_area_vectors
 from ..mesh import FaceMesh
+from .batch_graph import BatchGraphs
 from .controls import as_device_array, check_rig_parts, contraction_limits, control_vector, frame_controls, is_device_array
 from .frame_buffers import FrameBuffers
 from .jaw import JAW_CONTROL_NAMES, Jaw
@@ -141,6 +142,7 @@ class ExpressionModel:
             self._jaw_weight = wp.array(jaw.weights.astype(np.float32), dtype=wp.float32, device=device_)
         self._buffers: dict[int, FrameBuffers] = {}
         self._single = self._frame_buffers(1)
+        self._batch_graphs = BatchGraphs(self.device) if self.device.is_cuda else None
 
     @classmethod
     def from_rig(cls, rig, *, device=None) -> "ExpressionModel":
@@ -248,17 +250,40 @@ class ExpressionModel:
             progress, frames_per_launch: as in :meth:`evaluate_batch`.
 
         Returns:
-            ``out``. Same kernels and bit-identical values as :meth:`evaluate_batch`.
+            ``out``. Same kernels and bit-identical values as :meth:`evaluate_batch`. On CUDA (without a
+            progress bar) the whole batch — every chunk's control copies, kernels and result copy — is
+            one CUDA graph, captured on the first call with these arrays and sizes and replayed after.
         """
         frame_count = self._batch_frame_count(contractions, wrinkle_depths)
         target = as_device_array(out, "out", device=self.device, shape=(frame_count, self.mesh.vertex_count), dtype=wp.vec3)
         host, device_controls = self._split_controls(contractions, wrinkle_depths, frame_count)
+        if self._batch_graphs is not None and not progress:
+            self._run_batch_graph(target, host, device_controls, frame_count, frames_per_launch)
+            return out
         vertex_count = self.mesh.vertex_count
         for buffers, start, count in self._chunks(frame_count, frames_per_launch, progress):
             self._upload_chunk(buffers, host, device_controls, start, count)
             self._launch(buffers)
             wp.copy(target, buffers.final_points, dest_offset=start * vertex_count, count=count * vertex_count)
         return out
+
+    def _run_batch_graph(self, target: wp.array, host, device_controls, frame_count: int, frames_per_launch) -> None:
+        """The chunked batch as one replayed CUDA graph; host controls are staged to stable device arrays."""
+        chunks = list(self._chunks(frame_count, frames_per_launch, False))
+        if not chunks:
+            return
+        sources = [self._batch_graphs.stage(values, slot) if given is None else given
+                   for values, given, slot in zip(host, device_controls, ("contraction", "depth"))]
+        vertex_count = self.mesh.vertex_count
+
+        def capture():
+            for buffers, start, count in chunks:
+                buffers.copy_controls(*sources, first=start, count=count)
+                self._launch(buffers)
+                wp.copy(target, buffers.final_points, dest_offset=start * vertex_count, count=count * vertex_count)
+
+        key = (target.ptr, frame_count, chunks[0][2], sources[0].ptr, sources[1].ptr)
+        self._batch_graphs.run(key, capture)
 
     # ------------------------------------------------------------------ control plumbing
     def _muscles_only_padded(self, values):
