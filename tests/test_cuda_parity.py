@@ -240,6 +240,8 @@ def test_batch_graph_replays_read_each_calls_controls(face_rig, models):
         calls.append(expression_controls(face_rig, frames, seed=seed))
     expected = [model.evaluate_batch(c, wrinkle_depths=d, frames_per_launch=2) for c, d in calls]
     assert np.abs(expected[0] - expected[1]).max() > 1e-3 * face_rig.mesh.size  # the calls really differ
+    # the host path's pinned double-buffered read-back: chunks of 2 (three copies in flight in turn) == one chunk
+    np.testing.assert_array_equal(expected[0], model.evaluate_batch(calls[0][0], wrinkle_depths=calls[0][1]))
     outs = [wp.empty((frames, vertex_count), dtype=wp.vec3, device=DEVICE) for _ in range(2)]
     for index, (controls, depths) in enumerate(calls):  # host controls: staged, same graph per output
         model.evaluate_batch_into(outs[index % 2], controls, wrinkle_depths=depths, frames_per_launch=2)

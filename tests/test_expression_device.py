@@ -159,3 +159,15 @@ def test_benchmark_torch_peer_computes_the_model(use_torch):
     flat = np.asarray(peer.frames(torch.as_tensor(frames, dtype=torch.float32, device="cpu"),
                                   torch.as_tensor(0 * depths, dtype=torch.float32, device="cpu")))
     assert np.abs(flat - expected).max() > 10 * TORCH_TOLERANCE * mesh.size
+
+
+def test_batch_into_with_progress_and_partial_chunks(model, rng):
+    """The chunked path writes each chunk's frames (the last one partial) straight into the output."""
+    contractions, depths = random_controls(model, rng, 5)
+    expected = model.evaluate_batch(contractions, wrinkle_depths=depths)
+    for progress, frames_per_launch in ((True, None), (False, 2), (True, 3)):
+        out = wp.zeros((5, model.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
+        model.evaluate_batch_into(out, contractions, wrinkle_depths=depths, progress=progress, frames_per_launch=frames_per_launch)
+        np.testing.assert_array_equal(out.numpy(), expected, err_msg=f"progress={progress}, {frames_per_launch}")
+    with pytest.raises(ValueError, match="progress"):
+        model.evaluate_batch_into(out, contractions, progress=0)

@@ -14,13 +14,16 @@ __all__ = ["BatchGraphs"]
 class BatchGraphs:
     """Captured graphs of a chunked batched evaluation on CUDA, and the device copies of host controls.
 
+    On the CPU nothing is captured (:meth:`run` runs the work) and host controls are written straight
+    into the kernels' array.
+
     A batch of F frames runs in chunks of frames; the whole sequence — per chunk: copy the chunk's
     controls device to device, the kernels, copy the result into the caller's array — is captured
     once per key (output, control arrays, F, chunk size) and then replayed: one launch from the host
     per batch and no host sync. Graphs are kept for the ``capacity`` most recent keys.
 
     Args:
-        device: the CUDA device.
+        device: the model's Warp device.
         capacity: number of graphs kept (least recently used dropped first).
     """
 
@@ -28,7 +31,7 @@ class BatchGraphs:
         self.device = device
         self.capacity = capacity
         self._graphs: OrderedDict = OrderedDict()
-        self._staging: dict[tuple, tuple[wp.array, list]] = {}
+        self._staging: dict[tuple, object] = {}
 
     def stage(self, values: np.ndarray, slot: str) -> wp.array:
         """Host ``values`` (F, width) copied asynchronously to a device array kept for this slot and shape.
@@ -39,6 +42,12 @@ class BatchGraphs:
         """
         frames, width = values.shape
         key = (slot, frames, width)
+        if self.device.is_cpu:  # kernels run synchronously: write the kernels' array directly
+            array = self._staging.get(key)
+            if array is None:
+                array = self._staging[key] = wp.zeros(frames * width, dtype=wp.float32, device=self.device)
+            array.numpy().reshape(frames, width)[...] = values
+            return array
         entry = self._staging.get(key)
         if entry is None:
             device_array = wp.zeros(frames * width, dtype=wp.float32, device=self.device)
@@ -57,6 +66,9 @@ class BatchGraphs:
 
     def run(self, key: tuple, capture: Callable[[], None]) -> None:
         """Replay the graph of ``key``, capturing ``capture()``'s device work first if it is new."""
+        if not self.device.is_cuda:
+            capture()
+            return
         graph = self._graphs.get(key)
         if graph is None:
             with wp.ScopedCapture(device=self.device) as scope:
