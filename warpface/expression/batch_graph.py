@@ -27,7 +27,7 @@ class BatchGraphs:
         capacity: number of graphs kept (least recently used dropped first).
     """
 
-    def __init__(self, device, *, capacity: int = 8):
+    def __init__(self, *, device, capacity: int = 8):
         self.device = device
         self.capacity = capacity
         self._graphs: OrderedDict = OrderedDict()

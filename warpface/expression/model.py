@@ -143,7 +143,7 @@ class ExpressionModel:
             self._jaw_weight = wp.array(jaw.weights.astype(np.float32), dtype=wp.float32, device=device_)
         self._buffers: dict[int, FrameBuffers] = {}
         self._single = self._frame_buffers(1)
-        self._batch_graphs = BatchGraphs(self.device)
+        self._batch_graphs = BatchGraphs(device=self.device)
         self._readbacks: dict[int, PinnedReadback] = {}
 
     @classmethod
@@ -245,7 +245,7 @@ class ExpressionModel:
                     continue
                 readback = self._readbacks.get(buffers.frames)
                 if readback is None:
-                    readback = self._readbacks[buffers.frames] = PinnedReadback(self.device, buffers.frames * vertex_count, wp.vec3)
+                    readback = self._readbacks[buffers.frames] = PinnedReadback(buffers.frames * vertex_count, wp.vec3, device=self.device)
                 readback.submit(buffers.final_points, count * vertex_count, result[start:start + count])
         finally:
             if readback is not None:

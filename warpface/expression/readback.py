@@ -16,12 +16,12 @@ class PinnedReadback:
     caller's array — the host copy overlaps the device's next chunk. :meth:`finish` completes the last.
 
     Args:
-        device: the CUDA device the results live on.
         elements: capacity of one buffer in elements of ``dtype`` (a chunk's frames × vertices).
         dtype: Warp element type (e.g. ``wp.vec3``).
+        device: the CUDA device the results live on.
     """
 
-    def __init__(self, device, elements: int, dtype):
+    def __init__(self, elements: int, dtype, *, device):
         self.device = device
         self._buffers = [wp.empty(elements, dtype=dtype, device="cpu", pinned=True) for _ in range(2)]
         self._views = [buffer.numpy() for buffer in self._buffers]
