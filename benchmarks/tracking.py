@@ -17,6 +17,12 @@ measured in the same run:
   same math vectorised in NumPy.
 * ``frame total``: detect + back-project + transfer, and the frame rate it allows; then the same
   with the incremental USD write (``transfer + USD write``) in place of the transfer alone.
+* ``frame loop with USD write``: the capture loop itself, measured end to end — detect, back-project,
+  ``track_frame(copy=False)`` and ``TrackingStageWriter.add`` for 120 frames (four chunk flushes and
+  the final close included) — as wall time and as this process's CPU time per frame; on a shared
+  machine the wall time includes waiting for a core, the CPU time does not.
+
+Every row reports the median and the minimum over its repetitions (``min ms``).
 
     python -m benchmarks.tracking [--device cpu] [--repeats 20]
 """
@@ -80,6 +86,24 @@ def _brute_force_kernel(
         w = closest_point_on_triangle(p, a, b, c)
         best = wp.min(best, wp.length_sq(p - (w[0] * a + w[1] * b + w[2] * c)))
     out_distance[i] = wp.sqrt(best)
+
+
+def timed(function, *, repeats: int, sync=None) -> tuple[float, float]:
+    """(median, minimum) wall time of ``function()`` [s] over ``repeats`` runs after two warm-ups."""
+    import time
+
+    for _ in range(2):
+        function()
+        if sync:
+            sync()
+    samples = []
+    for _ in range(repeats):
+        begin = time.perf_counter()
+        function()
+        if sync:
+            sync()
+        samples.append(time.perf_counter() - begin)
+    return float(np.median(samples)), float(np.min(samples))
 
 
 def main() -> None:
@@ -155,32 +179,33 @@ def main() -> None:
             tracker.detect(color)
 
         pixels, conf = tracker.detect(color)
-        t_detect = time_call(detect, repeats=args.repeats)
+        t_detect, t_detect_min = timed(detect, repeats=args.repeats)
         params = cv2.SimpleBlobDetector_Params()
         params.filterByColor, params.blobColor = True, 0
         params.minArea, params.maxArea = 6, 2000
         blob = cv2.SimpleBlobDetector_create(params)
         gray = cv2.cvtColor(color, cv2.COLOR_RGB2GRAY)
         t_blob = time_call(lambda: blob.detect(gray), repeats=args.repeats)
-        rows.append({"stage": "detect dots", "n": len(pixels0), "ms": t_detect * 1e3,
+        rows.append({"stage": "detect dots", "n": len(pixels0), "ms": t_detect * 1e3, "min_ms": t_detect_min * 1e3,
                      "baseline": "cv2.SimpleBlobDetector",
                      "baseline_ms": t_blob * 1e3, "found": int(conf.sum())})
     except ImportError:
         pixels = pixels0
-        t_detect = 0.0
+        tracker = None
+        t_detect = t_detect_min = 0.0
         print("OpenCV not installed: detection row skipped")
 
     # -- back-projection -------------------------------------------------------------------------
     pix = np.where(np.isfinite(pixels), pixels, pixels0)
     backproject(pix, depth, intr, device=device)
-    t_back = time_call(lambda: backproject(pix, depth, intr, device=device), repeats=args.repeats, sync=sync)
+    t_back, t_back_min = timed(lambda: backproject(pix, depth, intr, device=device), repeats=args.repeats, sync=sync)
 
     def nearest():
         near = np.clip(np.round(pix).astype(int), 0, [intr.width - 1, intr.height - 1])
         return intr.unproject(pix, depth[near[:, 1], near[:, 0]])
 
     t_near = time_call(nearest, repeats=args.repeats)
-    row = {"stage": "back-project (quadric 9×9)", "n": len(pix), "ms": t_back * 1e3,
+    row = {"stage": "back-project (quadric 9×9)", "n": len(pix), "ms": t_back * 1e3, "min_ms": t_back_min * 1e3,
            "baseline": "nearest depth pixel (NumPy)", "baseline_ms": t_near * 1e3}
     if truth is not None:  # accuracy against the synthetic camera's ground truth
         lifted, _ = backproject(pix, depth, intr, device=device)
@@ -252,8 +277,8 @@ def main() -> None:
                             np.ones(len(sparse)), i) for i in range(64)]
     adapter.track_frame(frames[0])
     counter = iter(range(10**9))
-    t_transfer = time_call(lambda: adapter.track_frame(frames[1 + next(counter) % 63]), repeats=max(args.repeats, 50),
-                           sync=sync)
+    t_transfer, t_transfer_min = timed(lambda: adapter.track_frame(frames[1 + next(counter) % 63], copy=False),
+                                       repeats=max(args.repeats, 50), sync=sync)
     corr = adapter.correspondence
     bary = corr.barycentric
     corners = sparse_tri[corr.triangle]
@@ -265,7 +290,7 @@ def main() -> None:
         return rest32 + weights * np.einsum("vj,vjk->vk", bary, disp[corners])
 
     t_numpy = time_call(numpy_transfer, repeats=max(args.repeats, 50))
-    rows.append({"stage": "transfer per frame", "n": len(dense), "ms": t_transfer * 1e3,
+    rows.append({"stage": "transfer per frame", "n": len(dense), "ms": t_transfer * 1e3, "min_ms": t_transfer_min * 1e3,
                  "baseline": "NumPy einsum", "baseline_ms": t_numpy * 1e3})
 
     usd_row = _usd_write_row(adapter, frames, dense_tri)
@@ -273,31 +298,40 @@ def main() -> None:
         rows.append(usd_row)
 
     total = t_detect + t_back + t_transfer
-    rows.append({"stage": "frame total (detect+lift+transfer)", "n": len(dense), "ms": total * 1e3})
+    rows.append({"stage": "frame total (detect+lift+transfer)", "n": len(dense), "ms": total * 1e3,
+                 "min_ms": (t_detect_min + t_back_min + t_transfer_min) * 1e3})
     if usd_row is not None:  # the USD row includes the transfer
         rows.append({"stage": "frame total with USD write", "n": len(dense),
-                     "ms": (t_detect + t_back) * 1e3 + usd_row["ms"]})
+                     "ms": (t_detect + t_back) * 1e3 + usd_row["ms"],
+                     "min_ms": (t_detect_min + t_back_min) * 1e3 + usd_row["min_ms"]})
+        if tracker is not None:
+            rows.extend(_frame_loop_rows(tracker, pixels0, color, depth, intr, adapter, dense_tri, device,
+                                         repeats=max(3, args.repeats // 4)))
     for row in rows:
         if row.get("baseline_ms"):
             row["speedup"] = row["baseline_ms"] / row["ms"]
         row["fps"] = 1e3 / row["ms"]
-    print(f"image: {image_source}")
-    print_table(rows, [("stage", "stage", "s"), ("n", "n", "d"), ("ms", "ms", ".3f"), ("fps", "frames/s", ".0f"),
+    print(f"image: {image_source}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+    print_table(rows, [("stage", "stage", "s"), ("n", "n", "d"), ("ms", "ms", ".3f"), ("min_ms", "min ms", ".3f"),
+                       ("cpu_ms", "CPU ms", ".3f"),
+                       ("fps", "frames/s", ".0f"),
                        ("baseline", "baseline", "s"), ("baseline_ms", "baseline ms", ".3f"),
+                       ("baseline_cpu_ms", "baseline CPU ms", ".3f"),
                        ("speedup", "speed-up", ".1f"), ("error_mm", "error mm", ".2f"),
                        ("baseline_error_mm", "baseline error mm", ".2f")])
     name = "tracking" if device.is_cpu else f"tracking_{str(device).replace(':', '')}"
     path = write_results(name, {
         "benchmark": "tracking", "dense": dense_name, "dense_vertices": len(dense), "dense_triangles": len(dense_tri),
         "sparse_landmarks": len(sparse), "sparse_triangles": len(sparse_tri), "image": image_source,
-        "machine": machine_info(device), "rows": rows,
+        "machine": machine_info(device), "load_average": os.getloadavg(), "cpu_count": os.cpu_count(), "rows": rows,
     })
     print(f"wrote {path}")
 
 
-def _usd_write_row(adapter, frames, triangles, count: int = 120) -> dict | None:
+def _usd_write_row(adapter, frames, triangles, count: int = 120, repeats: int = 5) -> dict | None:
     """Transfer + incremental USD write (value-clip chunks of 30 frames, each flushed through a
-    temporary file) per frame, against writing the same samples on a stage saved once at the end."""
+    temporary file) per frame, against writing the same samples on a stage saved once at the end;
+    each timed ``repeats`` times over ``count`` frames."""
     try:
         from pxr import Usd, UsdGeom, Vt
     except ImportError:
@@ -309,26 +343,72 @@ def _usd_write_row(adapter, frames, triangles, count: int = 120) -> dict | None:
     from warpface.usd.tracking_io import TrackingStageWriter
 
     names = [f"l{i}" for i in range(len(frames[0].points))]
-    with tempfile.TemporaryDirectory() as folder:
-        started = time.perf_counter()
-        with TrackingStageWriter(Path(folder) / "capture.usda", names, 30.0, dense_rest=adapter.dense_rest,
+
+    def ours(folder: Path) -> tuple[float, float]:
+        started, started_cpu = time.perf_counter(), time.process_time()
+        with TrackingStageWriter(folder / "capture.usda", names, 30.0, dense_rest=adapter.dense_rest,
                                  triangles=triangles) as writer:
             for i in range(count):
                 frame = frames[1 + i % 63]
-                writer.add(i / 30.0, frame.points, frame.confidence, adapter.track_frame(frame))
-        ours = (time.perf_counter() - started) / count
+                writer.add(i / 30.0, frame.points, frame.confidence, adapter.track_frame(frame, copy=False))
+        return (time.perf_counter() - started) / count, (time.process_time() - started_cpu) / count
 
-        started = time.perf_counter()
-        stage = Usd.Stage.CreateNew(str(Path(folder) / "naive.usdc"))
-        mesh = UsdGeom.Mesh.Define(stage, "/Face")
-        points = mesh.GetPointsAttr()
+    def naive(folder: Path) -> tuple[float, float]:
+        started, started_cpu = time.perf_counter(), time.process_time()
+        stage = Usd.Stage.CreateNew(str(folder / "naive.usdc"))
+        points = UsdGeom.Mesh.Define(stage, "/Face").GetPointsAttr()
         for i in range(count):
-            frame = frames[1 + i % 63]
-            points.Set(Vt.Vec3fArray.FromNumpy(adapter.track_frame(frame)), float(i))
+            points.Set(Vt.Vec3fArray.FromNumpy(adapter.track_frame(frames[1 + i % 63])), float(i))
         stage.Save()
-        naive = (time.perf_counter() - started) / count
-    return {"stage": "transfer + USD write per frame", "n": len(adapter.dense_rest), "ms": ours * 1e3,
-            "baseline": "Attribute.Set, one save at the end", "baseline_ms": naive * 1e3}
+        return (time.perf_counter() - started) / count, (time.process_time() - started_cpu) / count
+
+    results = {}
+    for name, write in (("ours", ours), ("naive", naive)):
+        samples = []
+        for _ in range(repeats):
+            with tempfile.TemporaryDirectory() as folder:
+                samples.append(write(Path(folder)))
+        results[name] = np.array(samples)  # (repeats, [wall, CPU])
+    ours_s, naive_s = results["ours"], results["naive"]
+    return {"stage": "transfer + USD write per frame", "n": len(adapter.dense_rest),
+            "ms": float(np.median(ours_s[:, 0])) * 1e3, "min_ms": float(np.min(ours_s[:, 0])) * 1e3,
+            "cpu_ms": float(np.median(ours_s[:, 1])) * 1e3,
+            "baseline": "Attribute.Set, one save at the end", "baseline_ms": float(np.median(naive_s[:, 0])) * 1e3,
+            "baseline_cpu_ms": float(np.median(naive_s[:, 1])) * 1e3}
+
+
+def _frame_loop_rows(tracker, pixels0, color, depth, intrinsics, adapter, triangles, device, *, repeats: int,
+                     count: int = 120) -> list[dict]:
+    """The capture loop end to end (detect → back-project → transfer → ``TrackingStageWriter.add``)
+    over ``count`` frames, ``repeats`` times: wall and process CPU time per frame."""
+    import tempfile
+    import time
+    from pathlib import Path
+
+    from warpface.tracking import LandmarkFrame, backproject
+    from warpface.usd.tracking_io import TrackingStageWriter
+
+    names = [f"l{i}" for i in range(len(pixels0))]
+    wall, cpu = [], []
+    for _ in range(repeats):
+        tracker.reset(pixels0)
+        with tempfile.TemporaryDirectory() as folder:
+            started, started_cpu = time.perf_counter(), time.process_time()
+            with TrackingStageWriter(Path(folder) / "capture.usda", names, 30.0, dense_rest=adapter.dense_rest,
+                                     triangles=triangles) as writer:
+                for i in range(count):
+                    pixels, confidence = tracker.detect(color)
+                    points, _ = backproject(pixels, depth, intrinsics, device=device)
+                    dense = adapter.track_frame(LandmarkFrame(i / 30.0, points, confidence, i), copy=False)
+                    writer.add(i / 30.0, points, confidence, dense)
+            wall.append((time.perf_counter() - started) / count)
+            cpu.append((time.process_time() - started_cpu) / count)
+    return [
+        {"stage": "frame loop with USD write (wall)", "n": len(adapter.dense_rest),
+         "ms": float(np.median(wall)) * 1e3, "min_ms": float(np.min(wall)) * 1e3, "cpu_ms": float(np.median(cpu)) * 1e3},
+        {"stage": "frame loop with USD write (CPU time)", "n": len(adapter.dense_rest),
+         "ms": float(np.median(cpu)) * 1e3, "min_ms": float(np.min(cpu)) * 1e3},
+    ]
 
 
 if __name__ == "__main__":

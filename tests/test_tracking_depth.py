@@ -117,3 +117,46 @@ def test_missing_landmarks_and_bad_input():
         backproject(np.zeros((1, 2)), depth, K, window=8, device="cpu")
     with pytest.raises(ValueError, match="model"):
         backproject(np.zeros((1, 2)), depth, K, model="cubic", device="cpu")
+
+
+def test_repeated_depth_values_select_the_right_surface():
+    """Quantised depths repeat: the medians (seed and MAD) must pick the right order statistic among
+    ties. A flat face at 0.6 m with a background at 0.9 m on one side of each landmark: the seed is
+    the majority surface of the innermost ring, whichever it is."""
+    rng = np.random.default_rng(3)
+    depth = np.full((K.height, K.width), 0.6)
+    depth[:, 320:] = 0.9  # background right of column 320
+    depth[rng.random(depth.shape) < 0.1] = 0.0  # holes
+    pixels = np.array([[318.0, 100.0], [321.0, 200.0], [150.0, 300.0], [500.0, 50.0]])
+    points, _ = backproject(pixels, depth, K, min_inlier_fraction=0.0)
+    # 318: ring 1 is columns 317–319 — all face; 321: columns 320–322 — all background.
+    np.testing.assert_allclose(points[:, 2], [0.6, 0.9, 0.6, 0.9], atol=1e-6)
+    # Three quantisation levels, many ties each: the fit stays within the levels' spread.
+    levels = rng.choice([0.599, 0.600, 0.601], size=depth.shape)
+    points, inliers = backproject(pixels[2:], levels, K)
+    assert np.all(inliers > 0) and np.all(np.abs(points[:, 2] - 0.6) < 1e-3)
+
+
+def test_kth_smallest_with_ties_matches_numpy():
+    """The in-kernel selection behind the medians, on rows full of repeated values, every rank."""
+    import warp as wp
+
+    from warpface.tracking.depth import kth_smallest
+
+    @wp.kernel
+    def select_rows(values: wp.array2d(dtype=float), lengths: wp.array(dtype=wp.int32), ranks: wp.array(dtype=wp.int32),
+                    out: wp.array(dtype=float)):
+        i = wp.tid()
+        out[i] = kth_smallest(values, i, lengths[i], ranks[i])
+
+    rng = np.random.default_rng(5)
+    rows, width = 400, 81
+    values = rng.integers(0, 4, size=(rows, width)).astype(np.float32) * 0.001 + 0.6  # four distinct depths
+    values[::3] = rng.normal(size=(len(values[::3]), width)).astype(np.float32)  # and rows without ties
+    lengths = rng.integers(1, width + 1, size=rows).astype(np.int32)
+    ranks = (rng.random(rows) * lengths).astype(np.int32)
+    out = wp.empty(rows, dtype=float, device="cpu")
+    wp.launch(select_rows, dim=rows, inputs=[wp.array(values, dtype=float, device="cpu"), wp.array(lengths, device="cpu"),
+                                             wp.array(ranks, device="cpu")], outputs=[out], device="cpu")
+    expected = [np.sort(values[i, :lengths[i]])[ranks[i]] for i in range(rows)]
+    np.testing.assert_array_equal(out.numpy(), expected)

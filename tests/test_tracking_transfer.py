@@ -117,6 +117,10 @@ def test_adapter_translation_rotation_and_missing_landmarks(meshes):
     shift = np.array([0.002, -0.001, 0.003])
     moved = adapter.track_frame(camera_frame(sparse + shift, 1, 0.033))
     np.testing.assert_allclose(moved - dense, adapter.weights[:, None] * shift, atol=2e-7)
+    adapter.scale = 2.0  # the sparse → dense scale is read every frame
+    doubled = adapter.track_frame(camera_frame(sparse + shift, 1, 0.034), copy=False)
+    np.testing.assert_allclose(doubled - dense, 2.0 * adapter.weights[:, None] * shift, atol=4e-7)
+    adapter.scale = 1.0
     # Missing landmarks (NaN, or confidence 0) hold their last displacement: nothing NaN, no jump.
     frame = camera_frame(sparse + shift, 2, 0.066)
     pts = frame.points.copy()

@@ -136,3 +136,32 @@ def test_a_new_capture_replaces_a_longer_one_at_the_same_path(tmp_path):
     back = read_tracking(tmp_path / "cap.usda")
     assert len(back["times"]) == 2 and np.all(back["landmarks"] == 2.0)
     assert sorted(p.name for p in (tmp_path / "cap_track").iterdir()) == ["chunk_0000.usdc", "static.usdc"]
+
+
+def test_a_reused_buffer_is_copied_when_queued_and_extents_are_exact(tmp_path, rng):
+    """``track_frame(copy=False)`` hands the writer the same buffer every frame: each queued frame
+    must keep its own values, and the extent must be its exact bounds."""
+    from pxr import Usd, UsdGeom
+
+    from warpface.usd.tracking_io import vec3f_array
+
+    rest, triangles = grid_surface(6)
+    buffer = np.empty(rest.shape, dtype=np.float32)
+    written = []
+    with TrackingStageWriter(tmp_path / "cap.usda", ["a"], 30.0, dense_rest=rest, triangles=triangles, chunk_frames=3) as writer:
+        for i in range(5):
+            buffer[:] = rest + rng.normal(size=rest.shape) * 1e-2
+            written.append(buffer.copy())
+            writer.add(i / 30.0, np.zeros((1, 3)), np.ones(1), buffer)
+    back = read_tracking(tmp_path / "cap.usda")
+    np.testing.assert_array_equal(back["dense"], np.stack(written))
+    stage = Usd.Stage.Open(str(tmp_path / "cap.usda"))
+    face = UsdGeom.Mesh(stage.GetPrimAtPath("/Capture/Face"))
+    for i, points in enumerate(written):
+        np.testing.assert_array_equal(np.asarray(face.GetExtentAttr().Get(float(i))), [points.min(0), points.max(0)])
+    points = rng.normal(size=(7, 3)).astype(np.float32)
+    copied = vec3f_array(points)
+    points[:] = 0.0  # the Vt array owns its copy
+    assert np.asarray(copied).any() and np.asarray(vec3f_array(np.zeros((0, 3), np.float32))).shape == (0, 3)
+    with pytest.raises(ValueError, match="float32"):
+        vec3f_array(np.zeros((4, 3)))

@@ -19,6 +19,7 @@ gates, and fits a plane in *inverse depth* — exact for a planar patch, since `
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +27,7 @@ import warp as wp
 
 from .._validate import as_count, as_finite_array, as_positive
 
-__all__ = ["CameraIntrinsics", "backproject", "KINECT_V1_INTRINSICS", "MAX_PIXELS", "MAX_DEPTH", "MAX_DEPTH_WINDOW"]
+__all__ = ["CameraIntrinsics", "backproject", "kth_smallest", "KINECT_V1_INTRINSICS", "MAX_PIXELS", "MAX_DEPTH", "MAX_DEPTH_WINDOW"]
 
 MAX_PIXELS = 65536
 """Largest accepted image width or height [px]."""
@@ -117,6 +118,24 @@ _vec6d = wp.types.vector(length=6, dtype=wp.float64)
 _mat66d = wp.types.matrix(shape=(6, 6), dtype=wp.float64)
 
 
+_vec10d = wp.types.vector(length=10, dtype=wp.float64)
+_vec5d = wp.types.vector(length=5, dtype=wp.float64)
+
+
+@wp.func
+def _normal_matrix(low: _vec10d, high: _vec5d) -> _mat66d:
+    """The normal matrix Σ t³ m mᵀ of the basis m = (1, x, y, x², xy, y²) from its moments: entry
+    (i, j) is the moment of the monomial m_i m_j (x^a y^b, a + b ≤ 4)."""
+    return _mat66d(
+        low[0], low[1], low[2], low[3], low[4], low[5],
+        low[1], low[3], low[4], low[6], low[7], low[8],
+        low[2], low[4], low[5], low[7], low[8], low[9],
+        low[3], low[6], low[7], high[0], high[1], high[2],
+        low[4], low[7], low[8], high[1], high[2], high[3],
+        low[5], low[8], low[9], high[2], high[3], high[4],
+    )
+
+
 @wp.func
 def _is_depth(z: float) -> bool:
     """A measured depth: not a hole (0), negative, NaN, infinite or beyond :data:`MAX_DEPTH`."""
@@ -180,33 +199,48 @@ def _solve_spd(A: _mat66d, b: _vec6d, n: int) -> _vec6d:
 
 
 @wp.func
-def _select(values: wp.array2d(dtype=float), row: int, n: int, k: int) -> float:
-    """The k-th smallest (0-based) of ``values[row, :n]`` by quickselect (Hoare partition, middle
-    pivot); reorders that row in place. Expected O(n)."""
+def _move_to_front(values: wp.array2d(dtype=float), row: int, lo: int, hi: int, pivot: float, equal: int) -> int:
+    """Move the values of ``values[row, lo:hi]`` below ``pivot`` (equal to it with ``equal``) to the
+    front of that range; returns the end of that front part. Branch-free (Lomuto with selects): the
+    comparisons on noisy depths are unpredictable, and mispredicted branches cost more than the
+    two stores per element."""
+    i = int(lo)
+    for j in range(lo, hi):
+        v = values[row, j]
+        t = values[row, i]
+        front = v < pivot
+        if equal != 0:
+            front = v == pivot
+        values[row, j] = wp.where(front, t, v)
+        values[row, i] = wp.where(front, v, t)
+        i += wp.where(front, 1, 0)
+    return i
+
+
+@wp.func
+def kth_smallest(values: wp.array2d(dtype=float), row: int, n: int, k: int) -> float:
+    """The k-th smallest (0-based) of ``values[row, :n]`` by quickselect (middle pivot, three-way
+    split so that repeated values — quantised depths — cost no more than distinct ones); reorders
+    that row in place. Expected O(n)."""
     lo = int(0)
-    hi = int(n - 1)
-    while lo < hi:
+    hi = int(n)  # the k-th smallest lies in [lo, hi)
+    result = float(0.0)
+    found = int(0)
+    while found == 0 and hi - lo > 1:
         pivot = values[row, (lo + hi) // 2]
-        i = int(lo)
-        j = int(hi)
-        while i <= j:
-            while values[row, i] < pivot:
-                i += 1
-            while values[row, j] > pivot:
-                j -= 1
-            if i <= j:
-                swap = values[row, i]
-                values[row, i] = values[row, j]
-                values[row, j] = swap
-                i += 1
-                j -= 1
-        if k <= j:
-            hi = j
-        elif k >= i:
-            lo = i
+        below = _move_to_front(values, row, lo, hi, pivot, 0)
+        if k < below:
+            hi = below
         else:
-            break
-    return values[row, k]
+            equal = _move_to_front(values, row, below, hi, pivot, 1)
+            if k < equal:
+                result = pivot
+                found = 1
+            else:
+                lo = equal
+    if found == 0:
+        result = values[row, lo]
+    return result
 
 
 @wp.func
@@ -230,7 +264,7 @@ def _median_residual(
                     r = wp.abs(r)
                 scratch[slot, n] = r
                 n += 1
-    return _select(scratch, slot, n, (n + 1) // 2 - 1)
+    return kth_smallest(scratch, slot, n, (n + 1) // 2 - 1)
 
 
 @wp.func
@@ -318,7 +352,8 @@ def _backproject_kernel(
     inliers = int(0)
     gate = float(0.0)
     for it in range(iterations + 1):
-        A = _mat66d()
+        moments_low = _vec10d()  # Σ t³ x^a y^b for a + b ≤ 3: 1, x, y, x², xy, y², x³, x²y, xy², y³
+        moments_high = _vec5d()  # a + b = 4: x⁴, x³y, x²y², xy³, y⁴
         rhs = _vec6d()
         count = int(0)
         if it > 0:
@@ -342,11 +377,18 @@ def _backproject_kernel(
                         # Tricube weights (as in LOESS): the centre, where the landmark is, counts most.
                         q = wp.min(wp.sqrt(du * du + dv * dv) / reach_px, 1.0)
                         t = 1.0 - q * q * q
-                        # Normal equations accumulate in float64 (the quadric terms span decades).
-                        m = _vec6d(_basis(du, dv, scale))
-                        wm = m * wp.float64(t * t * t)
-                        A += wp.outer(wm, m)
-                        rhs += wm * wp.float64(1.0 / z)
+                        # Normal equations accumulate in float64 (the quadric terms span decades),
+                        # as the 15 distinct weighted moments x^a y^b (a + b ≤ 4) of the 6×6 matrix.
+                        wt = wp.float64(t * t * t)
+                        x = wp.float64(du * scale)
+                        y = wp.float64(dv * scale)
+                        xx = x * x
+                        xy = x * y
+                        yy = y * y
+                        low = wt * _vec10d(wp.float64(1.0), x, y, xx, xy, yy, xx * x, xx * y, x * yy, yy * y)
+                        moments_low += low
+                        moments_high += wt * _vec5d(xx * xx, xx * xy, xx * yy, xy * yy, yy * yy)
+                        rhs += wp.float64(1.0 / z) * _vec6d(low[0], low[1], low[2], low[3], low[4], low[5])
                         count += 1
         # The first fit is a plane (robust on little data); later ones the requested model.
         terms = int(3)
@@ -354,7 +396,7 @@ def _backproject_kernel(
             terms = int(6)
         if count < min_valid:
             return
-        sol = _solve_spd(A, rhs, terms)
+        sol = _solve_spd(_normal_matrix(moments_low, moments_high), rhs, terms)
         if sol[0] <= wp.float64(0.0):
             return
         coef = _vec6f(sol)
@@ -367,6 +409,31 @@ def _backproject_kernel(
     z0 = 1.0 / float(coef[0])
     out_points[i] = wp.vec3((u - cx) * z0 / fx, (v - cy) * z0 / fy, z0)
     out_inliers[i] = inliers
+
+
+_recorded = threading.local()  # per thread: a recorded launch owns its output buffers
+
+
+def _recorded_launch(device, count: int, window: int, settings: tuple) -> tuple:
+    """``(launch, points, inliers)``: the back-projection kernel recorded once per device, landmark
+    count and settings (packing its 17 arguments anew costs ~0.1 ms a frame on the CPU); the depth
+    image and the pixels (parameters 0 and 1) are set per call."""
+    cache = getattr(_recorded, "launches", None)
+    if cache is None:
+        cache = _recorded.launches = {}
+    key = (str(device), count, window, settings)
+    if key not in cache:
+        if len(cache) >= 8:
+            cache.clear()
+        points = wp.empty(count, dtype=wp.vec3, device=device)
+        inliers = wp.empty(count, dtype=wp.int32, device=device)
+        scratch = wp.empty((count, window * window), dtype=float, device=device)  # residuals, one row per landmark
+        placeholder_depth = wp.zeros((1, 1), dtype=float, device=device)
+        placeholder_pixels = wp.zeros(count, dtype=wp.vec2, device=device)
+        launch = wp.launch(_backproject_kernel, dim=count, inputs=[placeholder_depth, placeholder_pixels, *settings, scratch],
+                           outputs=[points, inliers], device=device, record_cmd=True)
+        cache[key] = (launch, points, inliers)
+    return cache[key]
 
 
 def backproject(
@@ -466,32 +533,15 @@ def backproject(
     if count == 0:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
     device = wp.get_device(device)
-    points = wp.empty(count, dtype=wp.vec3, device=device)
-    inliers = wp.empty(count, dtype=wp.int32, device=device)
-    scratch = wp.empty((count, window * window), dtype=float, device=device)  # residuals, one row per landmark
-    wp.launch(
-        _backproject_kernel,
-        dim=count,
-        inputs=[
-            wp.array(z, dtype=float, device=device, copy=not device.is_cpu),  # CPU: the caller's image, no copy
-            wp.array(uv.astype(np.float32), dtype=wp.vec2, device=device),
-            window // 2,
-            1 if model == "quadric" else 0,
-            int(min_valid),
-            float(intrinsics.fx),
-            float(intrinsics.fy),
-            float(intrinsics.cx),
-            float(intrinsics.cy),
-            float(outlier_floor),
-            float(max_slope),
-            float(noise_floor),
-            int(max(iterations, 1)),
-            float(min_inlier_fraction),
-            scratch,
-        ],
-        outputs=[points, inliers],
-        device=device,
-    )
+    settings = (window // 2, 1 if model == "quadric" else 0, int(min_valid), float(intrinsics.fx), float(intrinsics.fy),
+                float(intrinsics.cx), float(intrinsics.cy), float(outlier_floor), float(max_slope), float(noise_floor),
+                int(max(iterations, 1)), float(min_inlier_fraction))
+    launch, points, inliers = _recorded_launch(device, count, window, settings)
+    image = wp.array(z, dtype=float, device=device, copy=not device.is_cpu)  # CPU: the caller's image, no copy
+    landmarks = wp.array(uv.astype(np.float32), dtype=wp.vec2, device=device)
+    launch.set_param_at_index(0, image)
+    launch.set_param_at_index(1, landmarks)
+    launch.launch()  # (the inputs stay referenced until the results are read back below)
     out = points.numpy().astype(np.float64)
     n_in = inliers.numpy()
     invalid = (n_in == 0) | ~np.all(np.isfinite(out), axis=1)

@@ -54,9 +54,8 @@ __all__ = [
 @wp.kernel
 def _transfer_kernel(
     sparse_displacement: wp.array(dtype=wp.vec3),
-    sparse_triangles: wp.array2d(dtype=wp.int32),
-    triangle: wp.array(dtype=wp.int32),
-    barycentric: wp.array(dtype=wp.vec3),
+    corners: wp.array(dtype=wp.vec3i),
+    weighted_barycentric: wp.array(dtype=wp.vec3),
     weight: wp.array(dtype=float),
     scale: float,
     rest: wp.array(dtype=wp.vec3),
@@ -65,21 +64,28 @@ def _transfer_kernel(
     out_displacement: wp.array(dtype=wp.vec3),
     out_points: wp.array(dtype=wp.vec3),
 ):
-    """u = w s Σ_j a_j d_j + (1 − w) u_other per dense vertex (eq. 4.15 with the blend)."""
+    """u = s Σ_j (w a_j) d_j + (1 − w) u_other per dense vertex (eq. 4.15 with the blend).
+
+    ``corners`` are the sparse vertices of each dense vertex's triangle and ``weighted_barycentric``
+    its barycentric coordinates times its blend weight w, both gathered once per correspondence
+    (half the loads of looking up the triangle every frame); ``weight`` is read only with ``other``.
+    """
     v = wp.tid()
-    t = triangle[v]
-    a = barycentric[v]
-    d = (
-        a[0] * sparse_displacement[sparse_triangles[t, 0]]
-        + a[1] * sparse_displacement[sparse_triangles[t, 1]]
-        + a[2] * sparse_displacement[sparse_triangles[t, 2]]
-    )
-    w = weight[v]
-    u = (w * scale) * d
+    c = corners[v]
+    a = weighted_barycentric[v]
+    u = scale * (a[0] * sparse_displacement[c[0]] + a[1] * sparse_displacement[c[1]] + a[2] * sparse_displacement[c[2]])
     if use_other != 0:
-        u = u + (1.0 - w) * other[v]
+        u = u + (1.0 - weight[v]) * other[v]
     out_displacement[v] = u
     out_points[v] = rest[v] + u
+
+
+def _transfer_coefficients(sparse_triangles: np.ndarray, correspondence: Correspondence, weights: np.ndarray,
+                           device) -> tuple[wp.array, wp.array]:
+    """Per dense vertex: its triangle's sparse vertex indices (vec3i) and ``w · barycentric`` (vec3)."""
+    corners = np.ascontiguousarray(sparse_triangles[correspondence.triangle], dtype=np.int32)
+    weighted = (correspondence.barycentric * weights[:, None]).astype(np.float32)
+    return wp.array(corners, dtype=wp.vec3i, device=device), wp.array(weighted, dtype=wp.vec3, device=device)
 
 
 @wp.kernel
@@ -239,9 +245,7 @@ def transfer_displacements(
         dim=count,
         inputs=[
             wp.array(disp.astype(np.float32), dtype=wp.vec3, device=device),
-            wp.array(tri, dtype=wp.int32, device=device),
-            wp.array(correspondence.triangle, dtype=wp.int32, device=device),
-            wp.array(correspondence.barycentric, dtype=wp.vec3, device=device),
+            *_transfer_coefficients(tri, correspondence, w, device),
             wp.array(w, dtype=float, device=device),
             float(scale),
             zeros,
@@ -352,9 +356,8 @@ class TrackingAdapter:
 
         count = self.dense_rest.shape[0]
         dev = self.device
-        self._tri = wp.array(self.sparse_triangles, dtype=wp.int32, device=dev)
-        self._corr_tri = wp.array(self.correspondence.triangle, dtype=wp.int32, device=dev)
-        self._corr_bary = wp.array(self.correspondence.barycentric, dtype=wp.vec3, device=dev)
+        self._corners, self._weighted_bary = _transfer_coefficients(self.sparse_triangles, self.correspondence,
+                                                                    self.weights, dev)
         self._weights = wp.array(self.weights, dtype=float, device=dev)
         self._rest = wp.array(self.dense_rest.astype(np.float32), dtype=wp.vec3, device=dev)
         self._sparse_disp = wp.zeros(n, dtype=wp.vec3, device=dev)
@@ -363,7 +366,22 @@ class TrackingAdapter:
         """Dense displacements of the last frame [m], shape (V,), vec3, on the device."""
         self.points = wp.zeros(count, dtype=wp.vec3, device=dev)
         """Dense points of the last frame [m], shape (V,), vec3, on the device."""
+        self._record_transfer()
         self.reset()
+
+    def _record_transfer(self) -> None:
+        """Record the transfer launch, without and with ``other``: packing its ten arguments anew
+        every frame costs a fifth of the kernel itself on the CPU."""
+        self._recorded_scale = float(self.scale)
+        self._transfer_launches = tuple(wp.launch(
+            _transfer_kernel,
+            dim=self.dense_rest.shape[0],
+            inputs=[self._sparse_disp, self._corners, self._weighted_bary, self._weights, self._recorded_scale,
+                    self._rest, self._other, flag],
+            outputs=[self.displacements, self.points],
+            device=self.device,
+            record_cmd=True,
+        ) for flag in (0, 1))
 
     # -- state -----------------------------------------------------------------------------------
 
@@ -494,14 +512,9 @@ class TrackingAdapter:
                 raise ValueError(f"other: expected finite shape ({self.dense_rest.shape[0]}, 3), got {other.shape}")
             self._other.assign(other)
             use_other = 1
-        wp.launch(
-            _transfer_kernel,
-            dim=self.dense_rest.shape[0],
-            inputs=[self._sparse_disp, self._tri, self._corr_tri, self._corr_bary, self._weights, float(self.scale),
-                    self._rest, self._other, use_other],
-            outputs=[self.displacements, self.points],
-            device=self.device,
-        )
+        if float(self.scale) != self._recorded_scale:  # ``scale`` was changed by the caller
+            self._record_transfer()
+        self._transfer_launches[use_other].launch()
         self.frames_processed += 1
         out = self.points.numpy()
         if not np.all(np.isfinite(out)):

@@ -31,6 +31,7 @@ no files. Time code of a frame: ``(timestamp − first timestamp) · fps``.
 
 from __future__ import annotations
 
+import ctypes
 import time
 from pathlib import Path
 
@@ -40,11 +41,39 @@ from pxr import Sdf, Usd, UsdGeom, Vt
 from .._signals import deferred_interrupts
 from ._files import export_layer_atomically, writable_path
 
-__all__ = ["TrackingStageWriter", "read_tracking"]
+__all__ = ["TrackingStageWriter", "read_tracking", "vec3f_array"]
 
 ROOT = Sdf.Path("/Capture")
 LANDMARKS = ROOT.AppendChild("Landmarks")
 FACE = ROOT.AppendChild("Face")
+
+
+def _writes_through_buffer() -> bool:
+    """Whether a new ``Vt.Vec3fArray``'s exported buffer is its own storage (checked once, by value)."""
+    probe = Vt.Vec3fArray(2)
+    ctypes.memmove(np.asarray(probe).ctypes.data, np.arange(6, dtype=np.float32).ctypes.data, 24)
+    return tuple(probe[1]) == (3.0, 4.0, 5.0)
+
+
+_DIRECT_COPY = _writes_through_buffer()
+
+
+def vec3f_array(points: np.ndarray) -> Vt.Vec3fArray:
+    """A new ``Vt.Vec3fArray`` holding ``points`` (V, 3), C-contiguous float32, by one memory copy.
+
+    ``Vt.Vec3fArray.FromNumpy`` converts element by element: ≈ 0.29 ms for 37k points against
+    0.02 ms here. A freshly constructed array owns its storage alone (no copy-on-write sharing yet),
+    so filling it through the buffer it exports changes no other value; Vt marks that buffer
+    read-only, hence the raw copy. Where a Vt build exports a copy instead (checked once at import),
+    this falls back to ``FromNumpy``.
+    """
+    if points.dtype != np.float32 or points.ndim != 2 or points.shape[1] != 3 or not points.flags.c_contiguous:
+        raise ValueError(f"points: expected C-contiguous float32 of shape (V, 3), got {points.dtype} {points.shape}")
+    if not _DIRECT_COPY or len(points) == 0:
+        return Vt.Vec3fArray.FromNumpy(points)
+    out = Vt.Vec3fArray(len(points))
+    ctypes.memmove(np.asarray(out).ctypes.data, points.ctypes.data, points.nbytes)
+    return out
 
 
 class TrackingStageWriter:
@@ -93,7 +122,8 @@ class TrackingStageWriter:
                 raise ValueError("triangles: expected (T, 3) indices into dense_rest")
             self.vertex_count = len(dense_rest)
         self._chunks: list[tuple[str, float]] = []  # (file name, first time code)
-        self._pending: list[tuple[float, np.ndarray, np.ndarray, np.ndarray | None]] = []
+        # (time code, landmarks, confidence, (dense points, extent) or None)
+        self._pending: list[tuple[float, np.ndarray, np.ndarray, tuple[Vt.Vec3fArray, Vt.Vec3fArray] | None]] = []
         self._first_timestamp: float | None = None
         self._last_time = -np.inf
         self._oldest_pending = 0.0  # time.monotonic() when the first queued frame arrived
@@ -140,8 +170,14 @@ class TrackingStageWriter:
                 raise ValueError(f"frame at t={timestamp}: dense points must be numeric") from None
             if dense_points.shape != (self.vertex_count, 3):
                 raise ValueError(f"frame at t={timestamp}: dense points must have shape ({self.vertex_count}, 3)")
-            if not np.all(np.isfinite(dense_points)):
+            dense_points = np.ascontiguousarray(dense_points)
+            # The extent doubles as the finiteness check: a NaN or ±inf anywhere reaches a min or a max.
+            columns = np.ascontiguousarray(dense_points.T)  # min/max over contiguous rows beat a strided axis-0 reduction
+            bounds = np.stack([columns.min(axis=1), columns.max(axis=1)])
+            if not np.all(np.isfinite(bounds)):
                 raise ValueError(f"frame at t={timestamp}: dense points are not finite; nothing written for it")
+            # Copied now: the caller may reuse its buffer (``TrackingAdapter.track_frame(copy=False)``).
+            dense_points = (vec3f_array(dense_points), Vt.Vec3fArray.FromNumpy(bounds))
         if not self._pending:
             self._oldest_pending = time.monotonic()
         self._pending.append((time_code, self._held.astype(np.float32), confidence.astype(np.float32), dense_points))
@@ -191,10 +227,8 @@ class TrackingStageWriter:
                 layer.SetTimeSample(positions, time_code, Vt.Vec3fArray.FromNumpy(landmarks))
                 layer.SetTimeSample(confidence_path, time_code, Vt.FloatArray.FromNumpy(confidence))
                 if dense is not None:
-                    layer.SetTimeSample(face_points, time_code, Vt.Vec3fArray.FromNumpy(dense))
-                    columns = np.ascontiguousarray(dense.T)  # min/max over contiguous rows beat a strided axis-0 reduction
-                    bounds = np.stack([columns.min(axis=1), columns.max(axis=1)])
-                    layer.SetTimeSample(face_extent, time_code, Vt.Vec3fArray.FromNumpy(bounds))
+                    layer.SetTimeSample(face_points, time_code, dense[0])
+                    layer.SetTimeSample(face_extent, time_code, dense[1])
         name = f"chunk_{len(self._chunks):04d}.usdc"
         export_layer_atomically(layer, self.folder / name)
         self._root_current = False
