@@ -36,14 +36,14 @@ def _trajectories(steps, models, driven_count):
     return traj
 
 
-@pytest.mark.parametrize("formulation", ["linear", "anp"])
-def test_batched_cg_matches_each_models_direct_simulation(shell, formulation):
+@pytest.mark.parametrize("formulation, preconditioner", [("linear", "fsai"), ("anp", "fsai"), ("anp", "block_jacobi")])
+def test_batched_cg_matches_each_models_direct_simulation(shell, formulation, preconditioner):
     mesh, fixed, driven = shell
     materials = _materials(mesh)
     steps = 12
     traj = _trajectories(steps, len(materials), driven.size)
     batch = TissueBatch(mesh, materials, 1e-3, fixed=fixed, driven=driven, formulation=formulation, solver="cg",
-                        device="cpu", cg_tol=1e-10, chunk=5)
+                        device="cpu", cg_tol=1e-10, cg_preconditioner=preconditioner, chunk=5)
     assert batch.solver == "cg" and batch.model_count == 3
     got = batch.run(traj[:8], nodes=np.arange(0, mesh.node_count, 3))
     for t in range(8, steps):  # queued single steps through the host ring (wraps at chunk = 5)

@@ -36,6 +36,7 @@ class TissueBatch:
         device: Warp device; ``None`` uses Warp's preferred device.
         cg_tol: CG tolerance relative to each model's predictor residual (see :class:`TissueSimulation`).
         cg_maxiter: CG iteration limit per step.
+        cg_preconditioner: ``"fsai"`` (one FSAI factor shared by the models) or ``"block_jacobi"`` (per model).
         chunk: Steps per ring buffer of :meth:`run` and of :meth:`step`'s host input.
         use_graph: Capture the batched step as a graph (default: on CUDA).
 
@@ -45,8 +46,8 @@ class TissueBatch:
 
     def __init__(self, tetmesh: TetMesh, materials: Sequence[TissueMaterial], dt: float, *, fixed=None, driven=None,
                  beta: float = 0.25, gamma: float = 0.5, formulation: str = "linear", solver: str = "auto",
-                 device=None, cg_tol: float = 1.0e-5, cg_maxiter: int = 500, chunk: int = 64,
-                 use_graph: bool | None = None):
+                 device=None, cg_tol: float = 1.0e-5, cg_maxiter: int = 500, cg_preconditioner: str = "fsai",
+                 chunk: int = 64, use_graph: bool | None = None):
         if not isinstance(tetmesh, TetMesh):
             raise ValueError(f"TissueBatch needs a TetMesh, got {type(tetmesh).__name__}")
         materials = list(materials) if isinstance(materials, Sequence) else None
@@ -58,6 +59,8 @@ class TissueBatch:
             material.per_tet(tetmesh.tet_count)
         if formulation not in FORMULATIONS:
             raise ValueError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
+        if cg_preconditioner not in ("fsai", "block_jacobi"):
+            raise ValueError(f"cg_preconditioner must be 'fsai' or 'block_jacobi', got {cg_preconditioner!r}")
         if solver not in ("auto", "direct", "cg"):
             raise ValueError(f"solver must be one of ('auto', 'direct', 'cg'), got {solver!r}")
         for name, value, low in (("cg_tol", cg_tol, 1e-16), ("cg_maxiter", cg_maxiter, 1), ("chunk", chunk, 1)):
@@ -91,6 +94,7 @@ class TissueBatch:
         matrices = [assemble(tetmesh, m, formulation=formulation, device=device) for m in materials]
         self.stepper = BatchedCGSolver(matrices, newmark_coefficients(dt, beta, gamma), self.free_nodes,
                                        self.driven_nodes, tol=float(cg_tol), maxiter=int(cg_maxiter), chunk=self.chunk,
+                                       preconditioner=cg_preconditioner,
                                        use_graph=device.is_cuda if use_graph is None else bool(use_graph))
         """:class:`~warpface.fem.solver_batch.BatchedCGSolver` (``None`` for the direct solver)."""
         pinned = device.is_cuda

@@ -21,8 +21,10 @@ One time step (see :class:`warpface.fem.solver_batch.BatchedCGSolver`) is
    :func:`~warpface.fem.kernels_integrator.newmark_advance`, the record of the step, and the cubic
    extrapolation for the next step (as the single-model CG solver).
 
-The preconditioner is 3x3 block Jacobi (the inverse diagonal blocks, per model). All arithmetic is
-float64.
+The preconditioner is either 3x3 block Jacobi (the inverse diagonal blocks, per model) or one
+factorised ``M⁻¹ = Gᵀ G`` shared by all models (:data:`batch_factor_product`, :data:`batch_factor_finish`:
+FSAI of one model's matrix; any SPD preconditioner keeps CG exact, a shared one only costs
+iterations where the models differ). All arithmetic is float64.
 """
 
 from __future__ import annotations
@@ -33,10 +35,14 @@ from .kernels_integrator import newmark_advance
 
 __all__ = [
     "SCALARS",
+    "S_RZ",
+    "S_RZ_NEW",
     "batch_begin",
     "batch_block_jacobi",
     "batch_check",
     "batch_direction",
+    "batch_factor_finish",
+    "batch_factor_product",
     "batch_newmark_update",
     "batch_product",
     "batch_residual",
@@ -146,8 +152,10 @@ def batch_start(
     z: wp.array2d(dtype=wp.vec3d),
     p: wp.array2d(dtype=wp.vec3d),
     scalars: wp.array2d(dtype=wp.float64),
+    use_inverse: int,
 ):
-    """Start each model from the better of predictor and extrapolation; ``z = p = M⁻¹ r``; ``r·z`` into ``S_RZ``."""
+    """Start each model from the better of predictor and extrapolation; with ``use_inverse`` also
+    ``z = p = M⁻¹ r`` (block Jacobi) and ``r·z`` into ``S_RZ`` (else the factor kernels do that)."""
     b, i = wp.tid()
     ri = r[b, i]
     xi = guess[b, i]
@@ -156,10 +164,11 @@ def batch_start(
         xi = wp.vec3d()
         r[b, i] = ri
     x[b, i] = xi
-    zi = inverse[b, i] * ri
-    z[b, i] = zi
-    p[b, i] = zi
-    wp.atomic_add(scalars, b, S_RZ, wp.dot(ri, zi))
+    if use_inverse == 1:
+        zi = inverse[b, i] * ri
+        z[b, i] = zi
+        p[b, i] = zi
+        wp.atomic_add(scalars, b, S_RZ, wp.dot(ri, zi))
 
 
 @wp.kernel(enable_backward=False)
@@ -230,8 +239,10 @@ def batch_update(
     r: wp.array2d(dtype=wp.vec3d),
     z: wp.array2d(dtype=wp.vec3d),
     scalars: wp.array2d(dtype=wp.float64),
+    use_inverse: int,
 ):
-    """``α = r·z / p·q``, ``x += α p``, ``r −= α q``, ``z = M⁻¹ r``; ``r·z`` into ``S_RZ_NEW``, ``r·r`` into ``S_RR``."""
+    """``α = r·z / p·q``, ``x += α p``, ``r −= α q``, ``r·r`` into ``S_RR``; with ``use_inverse``
+    ``z = M⁻¹ r`` and ``r·z`` into ``S_RZ_NEW``."""
     b, i = wp.tid()
     if active[b] == 0:
         return
@@ -239,9 +250,10 @@ def batch_update(
     x[b, i] = x[b, i] + alpha * p[b, i]
     ri = r[b, i] - alpha * q[b, i]
     r[b, i] = ri
-    zi = inverse[b, i] * ri
-    z[b, i] = zi
-    wp.atomic_add(scalars, b, S_RZ_NEW, wp.dot(ri, zi))
+    if use_inverse == 1:
+        zi = inverse[b, i] * ri
+        z[b, i] = zi
+        wp.atomic_add(scalars, b, S_RZ_NEW, wp.dot(ri, zi))
     wp.atomic_add(scalars, b, S_RR, wp.dot(ri, ri))
 
 
@@ -330,3 +342,64 @@ def batch_newmark_update(
         if b == 0:
             step_count[0] = step_count[1] + 1
             ring[0] = (slot + 1) % chunk
+
+
+# The shared factorised preconditioner M⁻¹ = Gᵀ G (FSAI of one model's matrix, applied to every model):
+# scalar CSR grouped by block row, ``keys[e] = 3 * column + row % 3`` (as the single-model CG kernels).
+
+
+@wp.func
+def _unit(axis: int, value: wp.float64):
+    zero = wp.float64(0.0)
+    return wp.vec3d(wp.where(axis == 0, value, zero), wp.where(axis == 1, value, zero), wp.where(axis == 2, value, zero))
+
+
+@wp.kernel(enable_backward=False)
+def batch_factor_product(
+    offsets: wp.array(dtype=wp.int32),
+    keys: wp.array(dtype=wp.int32),
+    values: wp.array(dtype=wp.float64),
+    u_flat: wp.array2d(dtype=wp.float64),
+    active: wp.array(dtype=wp.int32),
+    out: wp.array2d(dtype=wp.vec3d),
+):
+    """``out[b] = G u[b]`` for active models (``u_flat``: the scalar view (B, 3F) of ``u``)."""
+    b, i = wp.tid()
+    if active[b] == 0:
+        return
+    acc = wp.vec3d()
+    for e in range(offsets[i], offsets[i + 1]):
+        key = keys[e]
+        col = key // 3
+        acc += _unit(key - 3 * col, values[e] * u_flat[b, col])
+    out[b, i] = acc
+
+
+@wp.kernel(enable_backward=False)
+def batch_factor_finish(
+    offsets: wp.array(dtype=wp.int32),
+    keys: wp.array(dtype=wp.int32),
+    values: wp.array(dtype=wp.float64),
+    y_flat: wp.array2d(dtype=wp.float64),
+    r: wp.array2d(dtype=wp.vec3d),
+    active: wp.array(dtype=wp.int32),
+    which: int,
+    set_direction: int,
+    z: wp.array2d(dtype=wp.vec3d),
+    p: wp.array2d(dtype=wp.vec3d),
+    scalars: wp.array2d(dtype=wp.float64),
+):
+    """``z[b] = Gᵀ y[b]`` (``Gᵀ`` in the same grouped form), ``r·z`` into ``scalars[b, which]``; ``p = z`` if
+    ``set_direction``."""
+    b, i = wp.tid()
+    if active[b] == 0:
+        return
+    acc = wp.vec3d()
+    for e in range(offsets[i], offsets[i + 1]):
+        key = keys[e]
+        col = key // 3
+        acc += _unit(key - 3 * col, values[e] * y_flat[b, col])
+    z[b, i] = acc
+    if set_direction == 1:
+        p[b, i] = acc
+    wp.atomic_add(scalars, b, which, wp.dot(r[b, i], acc))

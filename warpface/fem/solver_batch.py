@@ -19,11 +19,15 @@ import warp as wp
 
 from .assembly import SystemMatrices
 from .kernels_batch import (
+    S_RZ,
+    S_RZ_NEW,
     SCALARS,
     batch_begin,
     batch_block_jacobi,
     batch_check,
     batch_direction,
+    batch_factor_finish,
+    batch_factor_product,
     batch_newmark_update,
     batch_product,
     batch_residual,
@@ -31,9 +35,20 @@ from .kernels_batch import (
     batch_update,
 )
 from .newmark import NewmarkCoefficients
-from .solver_cg import ConvergenceError, newmark_operators
+from .solver_cg import ConvergenceError, newmark_operators, preconditioner_factor
 
 __all__ = ["BatchedCGSolver"]
+
+
+def _grouped_rows(G, device):
+    """``(offsets, keys, values)`` of a scalar CSR matrix grouped by 3-row blocks (see kernels_batch)."""
+    G = G.tocsr()
+    G.sort_indices()
+    rows = np.repeat(np.arange(G.shape[0]), np.diff(G.indptr))
+    keys = 3 * G.indices.astype(np.int64) + rows % 3
+    return (wp.array(G.indptr[0::3].astype(np.int32), dtype=wp.int32, device=device),
+            wp.array(keys.astype(np.int32), dtype=wp.int32, device=device),
+            wp.array(G.data, dtype=wp.float64, device=device))
 
 
 def _stack_values(matrices, label: str):
@@ -59,6 +74,8 @@ class BatchedCGSolver:
         free_nodes: Nodes solved for, shape (F,), int.
         driven_nodes: Nodes with prescribed displacement, shape (D,), int.
         tol: CG tolerance relative to each model's predictor residual norm.
+        preconditioner: ``"fsai"`` (one FSAI factor, of the model of median mean Young's modulus, shared
+            by all models: far fewer iterations than block Jacobi on tissue) or ``"block_jacobi"`` (per model).
         maxiter: CG iteration limit per step.
         chunk: Ring slots of driven input and recorded displacement.
         use_graph: Capture the step as a graph (CUDA).
@@ -68,7 +85,10 @@ class BatchedCGSolver:
     """
 
     def __init__(self, matrices: list[SystemMatrices], coefficients: NewmarkCoefficients, free_nodes, driven_nodes, *,
-                 tol: float = 1.0e-5, maxiter: int = 500, chunk: int = 64, use_graph: bool = True):
+                 tol: float = 1.0e-5, maxiter: int = 500, chunk: int = 64, use_graph: bool = True,
+                 preconditioner: str = "fsai"):
+        if preconditioner not in ("fsai", "block_jacobi"):
+            raise ValueError(f"batched preconditioner must be 'fsai' or 'block_jacobi', got {preconditioner!r}")
         if not matrices:
             raise ValueError("a batch needs at least one model")
         dev = matrices[0].device
@@ -87,6 +107,11 @@ class BatchedCGSolver:
         driven_slot[self.driven_nodes] = np.arange(n_driven, dtype=np.int32)
         operators = [newmark_operators(m, coefficients, free_index, driven_slot) for m in matrices]
         self._A = _stack_values([A for A, _ in operators], "system")
+        self._factor = None
+        if preconditioner == "fsai":
+            stiffness = [float(np.mean(m.K.values.numpy()[: m.K.nnz_sync()].diagonal(axis1=1, axis2=2))) for m in matrices]
+            G = preconditioner_factor(operators[int(np.argsort(stiffness)[len(stiffness) // 2])][0], "fsai")
+            self._factor = (_grouped_rows(G, dev), _grouped_rows(G.T, dev))
         self._P = _stack_values([P for _, P in operators], "right-hand-side")
         del operators
         self._inverse = wp.empty((batch, n_free), dtype=wp.mat33d, device=dev)
@@ -100,7 +125,9 @@ class BatchedCGSolver:
 
         self.d, self.v, self.a = vectors(n), vectors(n), vectors(n)
         """State of every model [m, m/s, m/s²], shape (B, N) of vec3d (updated in place)."""
-        self._x, self._r, self._z, self._p, self._q = (vectors(n_free) for _ in range(5))
+        self._x, self._r, self._z, self._p, self._q, self._y = (vectors(n_free) for _ in range(6))
+        self._r_flat = self._r.view(wp.float64).reshape((batch, 3 * n_free))
+        self._y_flat = self._y.view(wp.float64).reshape((batch, 3 * n_free))
         self._predicted, self._guess = vectors(n_free), vectors(n_free)
         self._history = wp.zeros((2, batch, n_free), dtype=wp.vec3d, device=dev)
         self._scalars = wp.zeros((batch, SCALARS), dtype=wp.float64, device=dev)
@@ -127,12 +154,25 @@ class BatchedCGSolver:
         b, f, dev = self.model_count, self.free_nodes.size, self.device
         wp.launch(batch_product, dim=(b, f), inputs=[*self._A, self._p, self._active],
                   outputs=[self._q, self._scalars, self._condition], device=dev)
-        wp.launch(batch_update, dim=(b, f), inputs=[self._p, self._q, self._inverse, self._active],
-                  outputs=[self._x, self._r, self._z, self._scalars], device=dev)
+        wp.launch(batch_update, dim=(b, f), inputs=[self._p, self._q, self._inverse, self._active, self._x, self._r,
+                                                    self._z, self._scalars, int(self._factor is None)], device=dev)
+        self._apply_factor(S_RZ_NEW, 0)
         wp.launch(batch_check, dim=b, inputs=[self._scalars, self._active, wp.float64(self.tol**2), self.maxiter, 0],
                   outputs=[self._condition], device=dev)
         wp.launch(batch_direction, dim=(b, f), inputs=[self._z, self._active, self._scalars], outputs=[self._p],
                   device=dev)
+
+    def _apply_factor(self, which: int, set_direction: int) -> None:
+        """``z = Gᵀ G r`` and ``r·z`` into ``scalars[:, which]`` with the shared factor (no-op for block Jacobi)."""
+        if self._factor is None:
+            return
+        b, f, dev = self.model_count, self.free_nodes.size, self.device
+        lower, upper = self._factor
+        wp.launch(batch_factor_product, dim=(b, f), inputs=[*lower, self._r_flat, self._active], outputs=[self._y],
+                  device=dev)
+        wp.launch(batch_factor_finish, dim=(b, f),
+                  inputs=[*upper, self._y_flat, self._r, self._active, int(which), int(set_direction)],
+                  outputs=[self._z, self._p, self._scalars], device=dev)
 
     def _launch_sequence(self) -> None:
         b, f, n, dev = self.model_count, self.free_nodes.size, self.node_count, self.device
@@ -141,8 +181,10 @@ class BatchedCGSolver:
         wp.launch(batch_residual, dim=(b, f),
                   inputs=[*self._P, *self._A, self.d, self.v, self.a, self.trajectory, self._ring, self._guess],
                   outputs=[self._predicted, self._r, self._scalars], device=dev)
-        wp.launch(batch_start, dim=(b, f), inputs=[self._guess, self._predicted, self._inverse],
-                  outputs=[self._r, self._x, self._z, self._p, self._scalars], device=dev)
+        wp.launch(batch_start, dim=(b, f), inputs=[self._guess, self._predicted, self._inverse, self._r, self._x,
+                                                   self._z, self._p, self._scalars, int(self._factor is None)],
+                  device=dev)
+        self._apply_factor(S_RZ, 1)
         wp.launch(batch_check, dim=b, inputs=[self._scalars, self._active, wp.float64(self.tol**2), self.maxiter, 1],
                   outputs=[self._condition], device=dev)
         wp.capture_while(self._condition, self._iteration)
