@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from . import kernels_batch
 from .assembly import SystemMatrices
 from .kernels_batch import (
     S_RZ,
@@ -200,7 +201,8 @@ class BatchedCGSolver:
             self._launch_sequence()
             return
         if self._graph is None:
-            with wp.ScopedCapture(device=self.device, force_module_load=True) as capture:
+            wp.load_module(kernels_batch, device=self.device)  # compiled before, not during, the capture
+            with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
                 self._launch_sequence()
             self._graph = capture.graph
         wp.capture_launch(self._graph)
