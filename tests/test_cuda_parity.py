@@ -39,7 +39,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from conftest import grid_surface
+from helpers import grid_surface
 
 PARITY_DEVICE = os.environ.get("WARPFACE_PARITY_DEVICE", "cuda:0")
 

@@ -18,7 +18,8 @@ from warpface.drivers.export import project_controls
 def rig():
     from warpface.assets import default_rig
 
-    return default_rig(device="cpu")
+    # The default tables were written for the classic rig's muscles (thesis table 2.1, no jaw).
+    return default_rig(device="cpu", anatomy="classic")
 
 
 def dense(mapping: Mapping, channels, controls) -> np.ndarray:
@@ -93,6 +94,16 @@ def test_calibrated_mapping_reproduces_each_example_at_full_weight():
     np.testing.assert_allclose(mapped.values, examples, rtol=1e-12)
     rest = mapping.apply(Curves(times=[0.0], names=channels, values=np.zeros((1, 3))))
     np.testing.assert_allclose(rest.values[0], neutral)
+
+
+def test_default_table_keeps_the_jaw_rows_on_a_rig_with_a_jaw():
+    from warpface.assets import default_rig
+
+    full = default_rig(device="cpu")
+    mapping, dropped, orphaned = mapping_for_rig(full)
+    assert set(mapping.controls) <= set(full.control_names) and "jaw_open" in mapping.controls
+    assert set(dropped) == {"jaw_right"}  # this jaw slides right with a negative jaw_left
+    assert "jawOpen" not in orphaned
 
 
 def test_default_table_on_the_built_in_rig(rig):

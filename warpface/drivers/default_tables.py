@@ -107,7 +107,7 @@ def rig_control_names(rig) -> list[str]:
     This is the one place that decides which table rows a rig keeps: when rigs gain a jaw (SPEC §6.2),
     its controls (:data:`JAW_CONTROLS`) join this list and the jaw rows of the tables take effect.
     """
-    return list(rig.muscle_names)
+    return list(rig.control_names)
 
 
 def control_scales(rig, controls) -> dict[str, float]:
