@@ -105,10 +105,29 @@ class DeviceObjective:
         """
         data = self._bound
         frames = data.frames
-        buffers = self.model.buffers(frames)
-        self.model.upload(buffers, controls)
-        self.model.launch(buffers, frames, jacobian)
+        self.model.upload(self.model.buffers(frames), controls)
         data.set_frame_inputs(rotation, translation, frame_on)
+        self.launch(jacobian=jacobian)
+        misfit = data.misfit.numpy().copy()
+        if not jacobian:
+            return misfit, None, None
+        k = self.variable_count
+        return misfit, data.hessian.numpy().reshape(frames, k, k).copy(), data.gradient.numpy().reshape(frames, k).copy()
+
+    def inputs(self):
+        """The bound chunk's device inputs and outputs: ``(controls (F·M,), rotation (F,), translation (F,),
+        frame_on (F,), hessian (F·K·K,), gradient (F·K,), misfit (F,))`` — written and read by the
+        on-device iteration (:mod:`.device_steps`) between :meth:`launch` calls."""
+        data = self._bound
+        buffers = self.model.buffers(data.frames)
+        return (buffers.controls, data.rotation, data.translation, data.frame_on, data.hessian, data.gradient, data.misfit)
+
+    def launch(self, *, jacobian: bool) -> None:
+        """Evaluate the bound chunk at the device inputs already in place (see :meth:`inputs`); no readback."""
+        data = self._bound
+        frames = data.frames
+        buffers = self.model.buffers(frames)
+        self.model.launch(buffers, frames, jacobian)
         data.misfit.zero_()
         if jacobian:
             data.hessian.zero_()
@@ -122,8 +141,3 @@ class DeviceObjective:
                         self.variable_count, self.model.count, self.point_count, 1 if jacobian else 0],
                 outputs=[data.hessian, data.gradient, data.misfit])
         data.commands[jacobian].launch()
-        misfit = data.misfit.numpy().copy()
-        if not jacobian:
-            return misfit, None, None
-        k = self.variable_count
-        return misfit, data.hessian.numpy().reshape(frames, k, k).copy(), data.gradient.numpy().reshape(frames, k).copy()
