@@ -20,13 +20,14 @@ __all__ = ["DeviceObjective"]
 
 
 class _FrameData:
-    def __init__(self, frames: int, points: int, variables: int, device):
+    def __init__(self, frames: int, points: int, variables: int, device, frame_on):
         self.frames = frames
         self.targets = wp.zeros(max(frames * points, 1), dtype=wp.vec3d, device=device)
         self.weights = wp.zeros(max(frames * points, 1), dtype=wp.float64, device=device)
         self.rotation = wp.zeros(frames, dtype=wp.mat33d, device=device)
         self.translation = wp.zeros(frames, dtype=wp.vec3d, device=device)
-        self.frame_on = wp.zeros(frames, dtype=wp.int32, device=device)
+        self.frame_on = frame_on
+        """Shared with the model's stages: a frame turned off is neither evaluated nor summed."""
         self.hessian = wp.zeros(frames * variables * variables, dtype=wp.float64, device=device)
         self.gradient = wp.zeros(frames * variables, dtype=wp.float64, device=device)
         self.misfit = wp.zeros(frames, dtype=wp.float64, device=device)
@@ -88,7 +89,8 @@ class DeviceObjective:
         """Upload a chunk's targets (F, N, 3) [face units] and normalised weights (F, N) (0 = missing)."""
         frames = len(targets)
         if frames not in self._data:
-            self._data[frames] = _FrameData(frames, self.point_count, self.variable_count, self.device)
+            self._data[frames] = _FrameData(frames, self.point_count, self.variable_count, self.device,
+                                            self.model.buffers(frames).frame_on)
         data = self._bound = self._data[frames]
         if data.cpu:
             data.target_view[: targets.size // 3] = np.reshape(targets, (-1, 3))
