@@ -34,7 +34,28 @@ class _State:
         self.tries, self.pending, self.counter = i32(frames), i32(frames), i32(1)
         self.held, self.step, self.system = i32(frames * size), f64(frames * size), f64(frames * size * size)
         self.commands: dict | None = None
-        self.counter_view = self.counter.numpy() if device.is_cpu else None
+        self.cpu = device.is_cpu
+        self.counter_view = self.counter.numpy() if self.cpu else None
+        self._views: dict[int, np.ndarray] = {}
+        """CPU: NumPy views sharing the arrays' memory (read and written in place, no copies)."""
+
+    def host(self, array: wp.array) -> np.ndarray:
+        """The array's values on the host (CPU: a cached view; CUDA: a copy)."""
+        if not self.cpu:
+            return array.numpy()
+        view = self._views.get(id(array))
+        if view is None:
+            view = self._views[id(array)] = array.numpy()
+        return view
+
+    def upload(self, array: wp.array, value: np.ndarray) -> None:
+        """Write host values into a state array of the same size (CPU: in place)."""
+        if self.cpu:
+            self.host(array).reshape(-1)[: np.size(value)] = np.reshape(value, -1)
+            return
+        dtype = array.dtype
+        flat = np.ascontiguousarray(value, dtype=np.int32 if dtype is wp.int32 else np.float64)
+        array.assign(wp.array(flat.reshape(-1) if dtype in (wp.float64, wp.int32) else flat, dtype=dtype, device="cpu"))
 
     def count(self) -> int:
         """The counter's value (a host read: on CUDA, a synchronisation)."""
@@ -80,12 +101,9 @@ class DeviceSteps:
         state = self._states.get(frames)
         if state is None:
             state = self._states[frames] = _State(frames, self.control_count, self.size, self.device)
-        upload = [(state.u, u, wp.float64), (state.previous, previous, wp.float64), (state.rotation, rotation, wp.mat33d),
-                  (state.translation, translation, wp.vec3d), (state.damping, damping, wp.float64),
-                  (state.active, active, wp.int32)]
-        for array, value, dtype in upload:
-            flat = np.ascontiguousarray(value, dtype=np.int32 if dtype is wp.int32 else np.float64)
-            array.assign(wp.array(flat.reshape(-1) if dtype in (wp.float64, wp.int32) else flat, dtype=dtype, device="cpu"))
+        for array, value in ((state.u, u), (state.previous, previous), (state.rotation, rotation),
+                             (state.translation, translation), (state.damping, damping), (state.active, active)):
+            state.upload(array, value)
         for array in (state.converged, state.iterations, state.misfit):
             array.zero_()
         load, begin, judge = self._commands(state, frames, options, smooth)
@@ -102,11 +120,11 @@ class DeviceSteps:
                 state.counter.zero_()
                 judge.launch()
         m = self.control_count
-        return dict(u=state.u.numpy()[: frames * m].reshape(frames, m).copy(), rotation=state.rotation.numpy().copy(),
-                    translation=state.translation.numpy().copy(), misfit=state.misfit.numpy()[:frames].copy(),
-                    converged=state.converged.numpy()[:frames].astype(bool),
-                    active=state.active.numpy()[:frames].astype(bool),
-                    iterations=state.iterations.numpy()[:frames].astype(np.int64))
+        host = state.host
+        return dict(u=host(state.u)[: frames * m].reshape(frames, m).copy(), rotation=host(state.rotation).copy(),
+                    translation=host(state.translation).copy(), misfit=host(state.misfit)[:frames].copy(),
+                    converged=host(state.converged)[:frames].astype(bool), active=host(state.active)[:frames].astype(bool),
+                    iterations=host(state.iterations)[:frames].astype(np.int64))
 
     def _commands(self, state: _State, frames: int, options, smooth: float):
         """The three launches of a chunk, recorded once per (options, smoothness) and replayed."""

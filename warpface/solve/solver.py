@@ -73,9 +73,9 @@ class SolveOptions:
         frames_per_pass: frames evaluated together (bounds the working memory of a batch, ~3 MB per
             frame for 68 landmarks of the default rig); default 64 on the CPU, 4096 on CUDA.
         device_steps: run the iteration itself (damped bounded step, accept/reject, convergence) on the
-            device, one thread per frame, reading back only a counter per launch round; None: on CUDA, and
-            for batches on the CPU (~15% faster there; a single CPU frame runs the same speed in NumPy).
-            Results agree to rounding either way.
+            device, one thread per frame, reading back only a counter per launch round (default; measured
+            faster on the CPU too: fewer Python operations per iteration); False: the NumPy loop. Results
+            agree to rounding either way.
     """
 
     l2: float = 1e-6
@@ -400,8 +400,7 @@ class Solver:
         # Without an earlier frame, start cautious (large damping): the first Gauss–Newton step of a large
         # expression can jump into another basin (a muscle pulled past its attachment); warm starts start near GN.
         damping = np.full(frames, _COLD_DAMPING if cold else _WARM_DAMPING)
-        on_device = self.options.device_steps or (self.options.device_steps is None and (self.local.device.is_cuda or frames > 1))
-        if self._device_steps is not None and on_device:
+        if self._device_steps is not None:
             out = self._device_steps.run(u, rotation, translation, previous, active, damping, options=opts, smooth=smooth)
             u, rotation, translation, misfit = out["u"], out["rotation"], out["translation"], out["misfit"]
             converged, active, iterations = out["converged"], out["active"], out["iterations"]
