@@ -81,6 +81,15 @@ class KernelExpression:
                         for name, csr in self.active_controls.items()}
 
     @property
+    def bytes_per_frame(self) -> int:
+        """Device memory one frame of :meth:`buffers` takes with its Jacobian [bytes]."""
+        s, m = self._sizes, self.control_count
+        vec, scalar = 24, 8
+        per_control = s["t1"] * (vec + scalar) + s["n1"] * (vec + scalar) + s["t0"] * vec + s["n0"] * 3 * scalar
+        values = s["n2"] * vec + s["t1"] * (vec + scalar) + s["n1"] * (vec + scalar) + s["t0"] * vec + s["n0"] * vec
+        return per_control * m + values + m * scalar
+
+    @property
     def reach(self) -> int:
         return self.local.reach
 

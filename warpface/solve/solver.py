@@ -44,6 +44,8 @@ SPHINCTER_MAX = 1.0
 _OPERATORS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _SOLVERS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _SOLVERS_PER_RIG = 4
+_CUDA_PASS_BYTES, _CUDA_PASS_FRAMES = 16 << 30, 16384
+"""Working memory and frame count of one batched pass on CUDA (see ``frames_per_pass``)."""
 _COLD_DAMPING, _WARM_DAMPING = 1.0, 1e-4
 """Initial Levenberg–Marquardt damping (× the Hessian's diagonal) without and with a warm start. From
 neutral, 1.0 (divided by 10 per accepted step) recovered 20 of 20 random six-muscle expressions (≤ 0.3
@@ -70,8 +72,10 @@ class SolveOptions:
         energy_tolerance: … or lowers E by less than this: E is a mean squared distance in face units², so
             1e-10 is an RMS change of 1e-5 face units (0.6 µm on a face with a 62 mm inter-ocular distance).
         min_points: fewer valid (non-NaN, weighted) points keeps the previous controls and flags the frame.
-        frames_per_pass: frames evaluated together (bounds the working memory of a batch, ~3 MB per
-            frame for 68 landmarks of the default rig); default 64 on the CPU, 4096 on CUDA.
+        frames_per_pass: frames evaluated together (bounds the working memory of a batch, ~1.7 MB per
+            frame for 68 landmarks of the default rig); default 64 on the CPU; on CUDA as many as fit in
+            16 GiB, at most 16384 (~10k frames of 68 landmarks; converged frames cost little, so a
+            larger pass keeps more of the GPU busy per launch).
         device_steps: run the iteration itself (damped bounded step, accept/reject, convergence) on the
             device, one thread per frame, reading back only a counter per launch round (default; measured
             faster on the CPU too: fewer Python operations per iteration); False: the NumPy loop. Results
@@ -346,7 +350,7 @@ class Solver:
         weight = self.weights if weights is None else point_weights(weights, self.observation.count)
         frames = len(array)
         out = {key: [] for key in ("controls", "residual", "converged", "skipped", "iterations", "rotation", "translation")}
-        chunk = self.options.frames_per_pass or (4096 if self.local.device.is_cuda else 64)
+        chunk = self.options.frames_per_pass or self._default_pass()
         bar = None
         if progress:
             from tqdm import tqdm
@@ -366,6 +370,13 @@ class Solver:
         if frames == 0:
             stacked["controls"] = np.zeros((0, len(self.names)))
         return BatchFit(names=list(self.names), **stacked)
+
+    def _default_pass(self) -> int:
+        if not self.local.device.is_cuda:
+            return 64
+        k = self.objective.variable_count
+        per_frame = self.local.bytes_per_frame + 3 * 8 * k * k + 8 * 8 * k + 4 * self.observation.count * 8
+        return int(np.clip(_CUDA_PASS_BYTES // per_frame, 1, _CUDA_PASS_FRAMES))
 
     # ------------------------------------------------------------------ the solve
     def _solve_frames(self, targets: np.ndarray, weight: np.ndarray, start: np.ndarray, *, temporal: bool, cold: bool,
