@@ -14,7 +14,8 @@ Method — projected Levenberg–Marquardt with the exact Jacobian (:mod:`.local
 Gauss–Newton normal equations (M×M, plus 6 with pose) are solved on the free controls (those not held at
 a bound by their gradient), the step is projected onto the box, and accepted if E decreases, otherwise
 the damping grows. Frames are independent and advance together (arrays over frames), so a batch is one
-pass per iteration. Chosen over SciPy's ``least_squares`` (trust-region reflective on the same
+pass per iteration; the iteration itself runs on the device, one thread per frame (:mod:`.device_steps`),
+so only a counter comes back per launch round (``device_steps=False``: the NumPy reference loop). Chosen over SciPy's ``least_squares`` (trust-region reflective on the same
 objective, measured in ``benchmarks/solve.py``): the exact Jacobian restricted to the rows the targets
 touch, and the tiny bounded system, make each iteration cheaper than one finite-difference Jacobian.
 """
