@@ -2,11 +2,19 @@
 
 The built-in face performs an expression; a synthetic 640×480 Kinect-like RGB-D camera at 0.6 m
 films it with painted dots and depth noise; the dots are detected, tracked and lifted to 3-D with
-depth; the landmarks drive the dense face through the sparse → dense transfer; everything goes to
-a USD stage as time samples. Prints landmark and dense-surface errors against the ground truth and
-writes an overlay image and a trajectory plot.
+depth. The same landmark frames then drive the face two ways:
+
+* geometric: the sparse → dense transfer moves the skin like the landmarks' triangles;
+* solved: the rig's muscle controls are solved from the landmarks (warpface.solve, head pose on),
+  the expression model makes the skin with wrinkles; optionally plus the residual motion the solve
+  could not explain, through the geometric transfer.
+
+Prints landmark, surface and control errors of both paths against the ground truth, writes both as
+USD stages (``capture.usda``: landmarks and the transferred face; ``capture_solved.usda``: the rig
+with the solved contractions, skin and residual per frame), an overlay image and a trajectory plot.
 
     python examples/track_synthetic.py [--expression smile] [--out out/track] [--seconds 2] [--device cpu]
+                                       [--residual-transfer]
 """
 
 from __future__ import annotations
@@ -18,8 +26,20 @@ import numpy as np
 import warp as wp
 
 from warpface.pipelines.capture import record, synthetic_capture
+from warpface.pipelines.track_compare import compare_tracking_paths
+from warpface.pipelines.track_solve import SolvingTracker, solved_stage_writer
 from warpface.tracking import adapter_for_face
 from warpface.usd.tracking_io import TrackingStageWriter
+
+
+class Replay:
+    """The landmark frames of one capture, played again (both paths see the identical frames)."""
+
+    def __init__(self, frames, landmark_names, fps):
+        self.landmark_frames, self.landmark_names, self.fps = frames, landmark_names, fps
+
+    def frames(self):
+        return iter(self.landmark_frames)
 
 
 def overlay(color: np.ndarray, detected: np.ndarray, truth: np.ndarray, zoom: int = 3) -> np.ndarray:
@@ -45,6 +65,8 @@ def main(argv=None) -> None:
     parser.add_argument("--seconds", type=float, default=2.0, help="length of neutral → expression → neutral")
     parser.add_argument("--out", type=Path, default=Path("out/track"), help="output folder")
     parser.add_argument("--device", default=None, help="Warp device")
+    parser.add_argument("--residual-transfer", action="store_true",
+                        help="solved stage: add the residual motion through the geometric transfer")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     wp.config.log_level = wp.LOG_WARNING
@@ -66,9 +88,16 @@ def main(argv=None) -> None:
         tracked.append(np.where(ok[:, None], frame.points, np.nan))
         actual.append(true_landmarks)
 
+    frames = list(capture.source.frames())  # detected and back-projected once; replayed for each path
+    replay = Replay(frames, camera.landmark_names, camera.fps)
     writer = TrackingStageWriter(args.out / "capture.usda", camera.landmark_names, camera.fps,
                                  dense_rest=truth[0], triangles=capture.triangles)
-    stats = record(capture.source, adapter, writer, on_frame=compare)
+    stats = record(replay, adapter, writer, on_frame=compare)
+
+    tracker = SolvingTracker(capture_rig(), camera.landmark_names, camera_to_model=np.linalg.inv(camera.model_to_camera),
+                             residual_transfer=args.residual_transfer, device=args.device)
+    solved_writer, layout = solved_stage_writer(args.out / "capture_solved.usda", tracker, camera.fps)
+    record(replay, tracker, solved_writer, samples=lambda frame, skin: layout.samples(tracker.last, skin))
 
     landmark_mm = np.concatenate(landmark_errors) * 1e3
     surface_mm, still_mm = np.concatenate(surface_errors) * 1e3, np.concatenate(still_errors) * 1e3
@@ -77,6 +106,11 @@ def main(argv=None) -> None:
           f"max {landmark_mm.max():.2f} mm")
     print(f"dense surface error over {driven.sum()} driven vertices: mean {surface_mm.mean():.2f} mm "
           f"(a face that did not move would be off by {still_mm.mean():.2f} mm)")
+    summary = tracker.summary
+    print(f"solve: mean landmark residual {summary['mean_residual'] * 1e3:.2f} mm, {summary['skipped']} frames skipped, "
+          f"{summary['not_converged']} not converged")
+    print("\nBoth paths on the same frames, errors against ground truth (controls: RMS of |Δc|·reach):")
+    print(compare_tracking_paths(capture, frames=frames, device=args.device).table())
 
     peak = int(np.argmax([np.nanmean(np.linalg.norm(a - actual[0], axis=1)) for a in actual]))
     color, _ = camera.render(peak)
@@ -104,7 +138,13 @@ def main(argv=None) -> None:
     figure.tight_layout()
     figure.savefig(args.out / "trajectories.png", dpi=120)
     camera.close()
-    print(f"wrote {args.out}/capture.usda, overlay.png, trajectories.png")
+    print(f"wrote {args.out}/capture.usda, capture_solved.usda, overlay.png, trajectories.png")
+
+
+def capture_rig():
+    from warpface.assets import default_rig
+
+    return default_rig()
 
 
 if __name__ == "__main__":

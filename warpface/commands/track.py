@@ -1,8 +1,9 @@
-"""``warpface track``: a landmark source → dense face motion → USD time samples (see warpface.pipelines.track)."""
+"""``warpface track``: a landmark source → dense face motion (or, with ``--solve``, solved muscle controls)
+→ USD time samples (see warpface.pipelines.track)."""
 
 from __future__ import annotations
 
-from .common import positive_int, positive_float
+from .common import non_negative_float, positive_float, positive_int
 
 __all__ = ["add_parser", "run"]
 
@@ -23,6 +24,13 @@ def add_parser(subparsers, common) -> None:
     track.add_argument("--fem-dt", type=positive_float, default=1e-3, help="FEM time step [s] (default 1e-3)")
     track.add_argument("--fem-nodes", type=positive_int, default=3000, help="approximate tissue node count (default 3000)")
     track.add_argument("--layout", default=None, help="live cameras: JSON with the painted dots' names and initial pixels")
+    track.add_argument("--solve", action="store_true",
+                       help="solve the rig's muscle controls from the landmarks (with head pose) and write them as time samples "
+                            "on /Capture/Rig's muscles, the skin with wrinkles as the baked cache and the per-frame residual")
+    track.add_argument("--residual-transfer", action="store_true",
+                       help="with --solve: add the landmark motion the solve cannot explain through the geometric transfer")
+    track.add_argument("--smoothness", type=non_negative_float, default=1e-3,
+                       help="with --solve: pull of each frame's controls toward the previous frame's (default 1e-3)")
     track.set_defaults(handler=run)
 
 

@@ -40,6 +40,8 @@ class SyntheticCapture:
     """Dense face triangles, shape (T, 3)."""
     fiducial_vertices: np.ndarray
     """Dense vertex under each painted dot, shape (K,)."""
+    controls: np.ndarray | None = None
+    """Ground-truth contractions per frame in the rig's muscle order, shape (F, M)."""
 
 
 def synthetic_capture(rig=None, *, expression: str = "smile", seconds: float = 2.0, fps: float = 30.0, dots: int = 60,
@@ -50,14 +52,16 @@ def synthetic_capture(rig=None, *, expression: str = "smile", seconds: float = 2
     from ..tracking import KinectNoise, RGBDLandmarks, SyntheticRGBDCamera, default_model_to_camera, place_fiducials
 
     rig = default_rig() if rig is None else rig
-    truth = rig.model(device=device).evaluate_batch(expression_timeline(expression, rig, seconds=seconds, fps=fps)).astype(np.float64)
+    controls = expression_timeline(expression, rig, seconds=seconds, fps=fps)
+    truth = rig.model(device=device).evaluate_batch(controls).astype(np.float64)
     rest, triangles = truth[0], rig.mesh.triangles
     eye = np.linalg.inv(default_model_to_camera(rest))[:3, 3]
     fiducials = place_fiducials(rest, triangles, dots, spacing=0.014, camera_position=eye, device=device)
     camera = SyntheticRGBDCamera(truth, triangles, fiducials, names=vertex_landmark_names(fiducials), fps=fps,
                                  depth_noise=KinectNoise() if noise else None, seed=seed)
     source = RGBDLandmarks(camera, camera.dot_tracker(), device=device)
-    return SyntheticCapture(camera=camera, source=source, truth=truth, triangles=triangles, fiducial_vertices=fiducials)
+    return SyntheticCapture(camera=camera, source=source, truth=truth, triangles=triangles, fiducial_vertices=fiducials,
+                            controls=controls)
 
 
 def open_source(spec: str, *, layout: str | None = None, device=None):
@@ -106,7 +110,7 @@ class CaptureStats:
 
 
 def record(source, adapter: TrackingAdapter, writer, *, max_frames: int | None = None, progress: bool = True,
-           on_frame=None) -> CaptureStats:
+           on_frame=None, samples=None) -> CaptureStats:
     """Run ``source`` through ``adapter`` into ``writer`` (a :class:`~warpface.usd.tracking_io.TrackingStageWriter`).
 
     Every frame handed to the writer is kept. Ctrl-C stops the capture between two frames: the
@@ -117,6 +121,11 @@ def record(source, adapter: TrackingAdapter, writer, *, max_frames: int | None =
     :class:`~warpface.pipelines.tissue_drive.TissueDrive`, or to collect errors); when it returns
     points, those are written instead. Landmarks are written in the face's model frame (the
     adapter's camera → model similarity), where the dense face is.
+
+    ``adapter`` may also be a :class:`~warpface.pipelines.track_solve.SolvingTracker` (anything with
+    ``track(source)`` and ``camera_to_model``). ``samples(frame, dense)`` returns the frame's values of
+    the writer's extra channels (``writer.add(..., samples=)``); a writer without a dense face is
+    given no dense points.
     """
     from tqdm import tqdm
 
@@ -135,8 +144,11 @@ def record(source, adapter: TrackingAdapter, writer, *, max_frames: int | None =
                 if on_frame is not None:
                     replaced = on_frame(frame, dense)
                     dense = dense if replaced is None else replaced
+                extra = {} if samples is None else {"samples": samples(frame, dense)}
+                if getattr(writer, "vertex_count", True) is None:
+                    dense = None
                 with deferred_interrupts():  # the frame is either fully queued and counted, or not at all
-                    writer.add(frame.timestamp, _to_model(adapter.camera_to_model, frame.points), frame.confidence, dense)
+                    writer.add(frame.timestamp, _to_model(adapter.camera_to_model, frame.points), frame.confidence, dense, **extra)
                     count += 1
                 found += measured.mean()
                 elapsed = time.perf_counter() - started

@@ -4,6 +4,11 @@ Output: ``out.usda`` (a small root layer) and ``out_track/`` beside it (``static
 topology and rest points, ``chunk_NNNN.usdc`` value clips with the landmarks and the dense points
 of each frame); see :mod:`warpface.usd.tracking_io`. The stage's folder is created when needed.
 
+With ``--solve`` the landmarks drive the muscles instead (:mod:`warpface.pipelines.track_solve`):
+the stage gains the rig under ``/Capture/Rig`` with the solved contractions, the skin (with wrinkles)
+and the residual per frame in the same chunks; ``--residual-transfer`` adds the motion the solve
+cannot explain through the geometric transfer.
+
 Nothing is written until the first frame has been tracked: every set-up step (the source, the
 adapter, the tissue mesh of ``--fem``) runs first, so a run that fails before its first frame
 leaves no files (and removes the folder it created). Once frames flow they are flushed every 30
@@ -34,6 +39,7 @@ def run_track(args) -> int:
     from ..usd.tracking_io import TrackingStageWriter
 
     _check_options(args)
+    solve = getattr(args, "solve", False)
     stage = Path(args.stage).absolute()
     created = _create_missing_folders(stage.parent)
     writer = None
@@ -45,10 +51,14 @@ def run_track(args) -> int:
         source, camera_to_model, closers = _open_source(rig, args)
         try:
             fps = getattr(source, "fps", None) or 30.0
-            writer = TrackingStageWriter(stage, source.landmark_names, fps, dense_rest=rig.mesh.points,
-                                         triangles=rig.mesh.triangles, chunk_frames=TRACK_CHUNK_FRAMES,
-                                         flush_seconds=TRACK_FLUSH_SECONDS)
-            stats, drive = _capture(rig, source, camera_to_model, writer, fps, args)
+            if solve:
+                stats, writer, tracker = _solved_capture(rig, source, camera_to_model, stage, fps, args)
+                drive = None
+            else:
+                writer = TrackingStageWriter(stage, source.landmark_names, fps, dense_rest=rig.mesh.points,
+                                             triangles=rig.mesh.triangles, chunk_frames=TRACK_CHUNK_FRAMES,
+                                             flush_seconds=TRACK_FLUSH_SECONDS)
+                stats, drive = _capture(rig, source, camera_to_model, writer, fps, args)
         finally:
             for close in closers:
                 close()
@@ -63,7 +73,14 @@ def run_track(args) -> int:
     if drive is not None:
         print(f"  tissue FEM: {drive.simulation.tetmesh.node_count} nodes, "
               f"{len(drive.driven_nodes)} driven, {len(drive.fixed_nodes)} fixed, {drive.substeps} steps per frame")
-    print(f"  stage {stage}  ({fps:g} time codes per second; landmarks and dense points in {writer.folder.name}/)")
+    if solve:
+        solved = tracker.summary
+        print(f"  solved {solved['frames']} frames: mean landmark residual {1e3 * solved['mean_residual']:.2f} mm, "
+              f"{solved['skipped']} skipped (too few landmarks), {solved['not_converged']} not converged")
+        print(f"  stage {stage}  ({fps:g} time codes per second; rig at /Capture/Rig: contractions, skin and "
+              f"residual per frame in {writer.folder.name}/)")
+    else:
+        print(f"  stage {stage}  ({fps:g} time codes per second; landmarks and dense points in {writer.folder.name}/)")
     return 130 if stats.interrupted else 0
 
 
@@ -73,6 +90,13 @@ def _check_options(args) -> None:
 
     if args.frames is not None and args.frames < 1:
         raise ValueError(f"--frames must be ≥ 1, got {args.frames}")
+    if getattr(args, "solve", False):
+        if args.fem:
+            raise ValueError("--fem and --solve do not combine (the solved skin comes from the muscles)")
+        if not (math.isfinite(args.smoothness) and args.smoothness >= 0.0):
+            raise ValueError(f"--smoothness must be a finite number ≥ 0, got {args.smoothness}")
+    elif getattr(args, "residual_transfer", False):
+        raise ValueError("--residual-transfer needs --solve")
     if args.fem:
         if not (math.isfinite(args.fem_dt) and 0.0 < args.fem_dt <= 0.1):
             raise ValueError(f"--fem-dt must be in (0, 0.1] s, got {args.fem_dt}")
@@ -100,6 +124,21 @@ def _capture(rig, source, camera_to_model, writer, fps: float, args):
     drive = _tissue_drive(rig, adapter, fps, args) if args.fem else None
     stats = record(source, adapter, writer, max_frames=args.frames, progress=not args.quiet, on_frame=drive)
     return stats, drive
+
+
+def _solved_capture(rig, source, camera_to_model, stage: Path, fps: float, args):
+    """Landmarks → solved controls → skin, into a solved capture stage (nothing lost on Ctrl-C)."""
+    from .capture import record
+    from .track_solve import SolvingTracker, solved_stage_writer
+
+    with _setup_step("preparing the solver", args.quiet):
+        tracker = SolvingTracker(rig, source.landmark_names, camera_to_model=camera_to_model,
+                                 residual_transfer=args.residual_transfer, smoothness=args.smoothness, device=args.device)
+        writer, layout = solved_stage_writer(stage, tracker, fps, chunk_frames=TRACK_CHUNK_FRAMES,
+                                             flush_seconds=TRACK_FLUSH_SECONDS)
+    stats = record(source, tracker, writer, max_frames=args.frames, progress=not args.quiet,
+                   samples=lambda frame, skin: layout.samples(tracker.last, skin))
+    return stats, writer, tracker
 
 
 def _tissue_drive(rig, adapter, fps: float, args):

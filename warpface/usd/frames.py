@@ -104,6 +104,8 @@ def open_frames(stage_or_path, *, max_frames: int | None = MAX_FRAMES) -> StageF
 def _capture_frames(stage: Usd.Stage, max_frames: int | None) -> StageFrames:
     label = stage.GetRootLayer().realPath or stage.GetRootLayer().identifier
     face = UsdGeom.Mesh(stage.GetPrimAtPath(FACE))
+    if not face and stage.GetPrimAtPath(ROOT.AppendChild("Rig")):
+        return _solved_capture_frames(stage, label, max_frames)
     if not face:
         raise ValueError(f"{label}: capture has landmarks only (no {FACE} mesh to render)")
     rest = face.GetPrim().GetAttribute("warpFace:restPoints").Get()
@@ -123,6 +125,18 @@ def _capture_frames(stage: Usd.Stage, max_frames: int | None) -> StageFrames:
     if max_frames is not None and len(times) > max_frames:
         raise ValueError(f"{label}: {len(times)} frames, more than the limit of {max_frames}")
     return StageFrames(stage, "capture", indices.reshape(-1, 3), rest, times, attribute)
+
+
+def _solved_capture_frames(stage: Usd.Stage, label: str, max_frames: int | None) -> StageFrames:
+    """A capture solved by ``warpface track --solve``: its rig's skin moves (points in the value clips)."""
+    from .rig_io import read_rig, rig_prims, stage_meters_per_unit
+
+    rig = read_rig(stage, meters_per_unit=stage_meters_per_unit(stage))
+    attribute = rig_prims(stage).skin.GetAttribute(UsdGeom.Tokens.points)
+    times = np.array(attribute.GetTimeSamples(), dtype=np.float64)
+    if max_frames is not None and len(times) > max_frames:
+        raise ValueError(f"{label}: {len(times)} frames, more than the limit of {max_frames}")
+    return StageFrames(stage, "capture", rig.mesh.triangles, rig.mesh.points, times, attribute)
 
 
 def capture_problems(stage: Usd.Stage, *, progress: bool = False) -> list[tuple[str, str]]:

@@ -27,6 +27,10 @@ lists every chunk beside it. Hence:
 
 Nothing is written before the first flush, so a capture that fails before its first frame leaves
 no files. Time code of a frame: ``(timestamp − first timestamp) · fps``.
+
+More per-frame data (a solved rig's controls and skin, see :mod:`warpface.pipelines.track_solve`) rides
+in the same chunks: ``extra_prims`` authors prims under ``/Capture`` in the static layer and ``channels``
+declares the attributes sampled per frame (``add(..., samples=...)``), with the same guarantees.
 """
 
 from __future__ import annotations
@@ -88,13 +92,18 @@ class TrackingStageWriter:
         chunk_frames: flush after this many queued frames.
         flush_seconds: flush once the oldest queued frame has waited this long [s] (wall clock),
             bounding what a hard kill can lose for slow sources.
+        extra_prims: optional ``callable(stage)`` authoring more prims under ``/Capture`` in the static
+            layer (e.g. a rig with :func:`warpface.usd.write_rig`).
+        channels: optional ``{attribute path: Sdf.ValueTypeName}`` of more time-sampled attributes under
+            ``/Capture``; their prims must exist (``extra_prims``). A default value authored there is
+            cleared (it would hide the chunks' samples).
 
     Raises:
         ValueError: bad path, shapes, fps or flush settings; non-finite data passed to :meth:`add`.
     """
 
     def __init__(self, path, landmark_names, fps: float, *, dense_rest=None, triangles=None, chunk_frames: int = 30,
-                 flush_seconds: float = 1.0):
+                 flush_seconds: float = 1.0, extra_prims=None, channels=None):
         self.path = writable_path(path, (".usda", ".usdc"))
         try:
             self.fps = float(fps)
@@ -129,17 +138,24 @@ class TrackingStageWriter:
         self._oldest_pending = 0.0  # time.monotonic() when the first queued frame arrived
         self._root_current = True  # False while a chunk on disk is not yet listed by the root layer
         self.frames_written = 0
-        self._static, self._root = self._author_layers(dense_rest, triangles)
+        self.channels = {Sdf.Path(str(path)): type_name for path, type_name in (channels or {}).items()}
+        for path in self.channels:
+            if not path.IsPropertyPath() or not path.HasPrefix(ROOT):
+                raise ValueError(f"channels: {path} is not an attribute path under {ROOT}")
+        self._pending_samples: list[dict] = []  # per queued frame: {attribute path: value}
+        self._static, self._root = self._author_layers(dense_rest, triangles, extra_prims)
 
     # ------------------------------------------------------------------ public
-    def add(self, timestamp: float, landmarks: np.ndarray, confidence: np.ndarray, dense_points: np.ndarray | None = None) -> float:
+    def add(self, timestamp: float, landmarks: np.ndarray, confidence: np.ndarray, dense_points: np.ndarray | None = None,
+            *, samples: dict | None = None) -> float:
         """Queue one frame; returns its time code. Missing landmarks (NaN rows, or beyond ±1e6 m) are
         written at their last known position with confidence 0 (USD points cannot be NaN), or at the
-        origin until seen; confidences are clipped to [0, 1].
+        origin until seen; confidences are clipped to [0, 1]. ``samples`` gives this frame's value of
+        every declared channel (``{attribute path: value}``, numbers or arrays, all finite).
 
         Raises:
-            ValueError: shapes differ from the first frame, time does not increase, or dense points
-                are not finite.
+            ValueError: shapes differ from the first frame, time does not increase, dense points
+                or samples are not finite, or samples miss a channel or name an undeclared one.
         """
         try:
             timestamp = float(timestamp)
@@ -178,13 +194,30 @@ class TrackingStageWriter:
                 raise ValueError(f"frame at t={timestamp}: dense points are not finite; nothing written for it")
             # Copied now: the caller may reuse its buffer (``TrackingAdapter.track_frame(copy=False)``).
             dense_points = (vec3f_array(dense_points), Vt.Vec3fArray.FromNumpy(bounds))
+        samples = self._checked_samples(samples, timestamp)
         if not self._pending:
             self._oldest_pending = time.monotonic()
+        self._pending_samples.append(samples)
         self._pending.append((time_code, self._held.astype(np.float32), confidence.astype(np.float32), dense_points))
         self._last_time = time_code
         if len(self._pending) >= self.chunk_frames or time.monotonic() - self._oldest_pending >= self.flush_seconds:
             self.flush()
         return time_code
+
+    def _checked_samples(self, samples, timestamp) -> dict:
+        given = {Sdf.Path(str(path)): value for path, value in (samples or {}).items()}
+        unknown = sorted(str(p) for p in set(given) - set(self.channels))
+        missing = sorted(str(p) for p in set(self.channels) - set(given))
+        if unknown or missing:
+            raise ValueError(f"frame at t={timestamp}: samples " + (f"name undeclared channels {unknown}" if unknown else f"lack {missing}"))
+        for path, value in given.items():
+            try:
+                finite = bool(np.all(np.isfinite(np.asarray(value, dtype=np.float64))))
+            except (TypeError, ValueError):
+                raise ValueError(f"frame at t={timestamp}: {path} must be numeric") from None
+            if not finite:
+                raise ValueError(f"frame at t={timestamp}: {path} is not finite; nothing written for the frame")
+        return given
 
     @property
     def frames_queued(self) -> int:
@@ -229,6 +262,7 @@ class TrackingStageWriter:
                 if dense is not None:
                     layer.SetTimeSample(face_points, time_code, dense[0])
                     layer.SetTimeSample(face_extent, time_code, dense[1])
+        self._write_channels(layer)
         name = f"chunk_{len(self._chunks):04d}.usdc"
         export_layer_atomically(layer, self.folder / name)
         self._root_current = False
@@ -236,6 +270,20 @@ class TrackingStageWriter:
         self.frames_written += len(self._pending)
         self._root.endTimeCode = max(self._pending[-1][0], self._root.startTimeCode)
         self._pending.clear()
+        self._pending_samples.clear()
+
+    def _write_channels(self, layer: Sdf.Layer) -> None:
+        """The declared channels' samples of the queued frames, into the chunk ``layer``."""
+        if not self.channels:
+            return
+        for path, type_name in self.channels.items():
+            prim = Sdf.CreatePrimInLayer(layer, path.GetPrimPath())
+            prim.specifier = Sdf.SpecifierOver
+            Sdf.AttributeSpec(prim, path.name, type_name)
+        with Sdf.ChangeBlock():
+            for (time_code, *_), samples in zip(self._pending, self._pending_samples):
+                for path, value in samples.items():
+                    layer.SetTimeSample(path, time_code, value)
 
     def _remove_leftovers(self) -> None:
         """Chunks of an earlier capture to this path, which the new root no longer lists, and
@@ -256,7 +304,7 @@ class TrackingStageWriter:
         self.close()
 
     # ------------------------------------------------------------------ internals
-    def _author_layers(self, dense_rest, triangles) -> tuple[Sdf.Layer, Sdf.Layer]:
+    def _author_layers(self, dense_rest, triangles, extra_prims=None) -> tuple[Sdf.Layer, Sdf.Layer]:
         """The static layer and the root layer, in memory (written at the first flush)."""
         stage = Usd.Stage.CreateInMemory("capture.usda")
         UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -282,6 +330,14 @@ class TrackingStageWriter:
             mesh.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
             rest = mesh.GetPrim().CreateAttribute("warpFace:restPoints", Sdf.ValueTypeNames.Point3fArray, custom=True)
             rest.Set(Vt.Vec3fArray.FromNumpy(dense_rest))
+        if extra_prims is not None:
+            extra_prims(stage)
+        for path, type_name in self.channels.items():
+            prim = stage.GetPrimAtPath(path.GetPrimPath())
+            if not prim:
+                raise ValueError(f"channels: no prim at {path.GetPrimPath()} (author it with extra_prims)")
+            attribute = prim.GetAttribute(path.name) or prim.CreateAttribute(path.name, type_name, custom=True)
+            attribute.ClearDefault()  # a default in this (stronger) layer would hide the chunks' samples
         # The heavy, static data (topology, rest points, names) goes once to a binary layer; the root
         # keeps only metadata and the clip list, so rewriting it after every chunk stays cheap. The
         # root is a stage-free layer: clip edits must not trigger composition (the relative clip
