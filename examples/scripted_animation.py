@@ -23,7 +23,7 @@ import warp as wp
 from warpface import preview, usd
 from warpface.assets import default_rig
 from warpface.data import shared_data_path
-from warpface.drivers import Curves, clean, mapping_for_rig, read_driver
+from warpface.drivers import Curves, clean, mapping_for_rig
 from warpface.usd.mapping_io import write_mapping
 
 
@@ -46,7 +46,7 @@ def main(argv=None) -> None:
     args.out.mkdir(parents=True, exist_ok=True)
 
     recording = shared_data_path("auplayer_openface_au", args.recording)
-    curves = read_driver(recording) if recording is not None else scripted_aus()
+    curves = usd.read_driver(recording) if recording is not None else scripted_aus()
     source = f"OpenFace recording {recording.name}" if recording is not None else "scripted AU pulses (../shared/data not present)"
     fps = float(round(curves.fps or 30.0, 3))
     curves = clean(curves, fps=fps)  # clamp to [0, 5], resample onto whole frames

@@ -7,7 +7,7 @@ import pytest
 
 import warpface as wf
 
-from conftest import grid_surface
+from helpers import grid_surface
 
 PLANAR = wf.PlanarProjection([0, 0, 0], [1, 0, 0], [0, 1, 0])
 CURVE = [[0, 0], [1, 0], [2, 0], [3, 0]]

@@ -34,7 +34,7 @@ CHILD = textwrap.dedent(
     import sys, time
     import numpy as np
     sys.path.insert(0, sys.argv[3])
-    from conftest import grid_surface
+    from helpers import grid_surface
     from warpface.pipelines.capture import record
     from warpface.tracking import LandmarkFrame
     from warpface.tracking import adapter_for_face, vertex_landmark_names

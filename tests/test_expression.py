@@ -11,7 +11,7 @@ from warpface.expression import bezier_distances, project_points
 from warpface.expression.kernels import contraction_factor
 
 import reference_expression as ref
-from conftest import grid_surface
+from helpers import grid_surface
 
 
 def random_rig(rng, n=22):

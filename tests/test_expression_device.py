@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from conftest import small_face_rig
+from helpers import small_face_rig
 
 DEVICE = "cpu"
 

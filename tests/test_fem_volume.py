@@ -13,30 +13,7 @@ from warpface.fem.tetwild import validated_tets
 from warpface.fem.volume import mesh_tissue, tissue_from_surface
 from warpface.geometry.surface_checks import boundary_loops, check_surface, find_self_intersections
 
-
-def patch(n: int = 13, size: float = 0.06, hole: bool = True, bend: float = 0.0):
-    """A square patch [m] in the xy plane (normals +z), optionally with a square hole in the middle
-    and bent into a cylinder of curvature ``bend`` around the y axis (convex toward +z)."""
-    xs = np.linspace(-size / 2, size / 2, n)
-    x, y = np.meshgrid(xs, xs)
-    z = np.zeros_like(x)
-    if bend:
-        radius = 1.0 / bend
-        angle = x / radius
-        x, z = radius * np.sin(angle), radius * (np.cos(angle) - 1.0)
-    points = np.c_[x.ravel(), y.ravel(), z.ravel()]
-    index = np.arange(n * n).reshape(n, n)
-    cells = [(i, j) for i in range(n - 1) for j in range(n - 1)]
-    if hole:
-        mid = (n - 1) // 2
-        cells = [(i, j) for i, j in cells if not (mid - 1 <= i <= mid and mid - 1 <= j <= mid)]
-    i, j = np.array(cells).T
-    a, b, c, d = index[i, j], index[i, j + 1], index[i + 1, j], index[i + 1, j + 1]
-    triangles = np.r_[np.c_[a, b, d], np.c_[a, d, c]]
-    used = np.unique(triangles)
-    remap = np.full(len(points), -1)
-    remap[used] = np.arange(len(used))
-    return points[used], remap[triangles]
+from helpers import patch
 
 
 def edge_use(triangles):

@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import warpface as wf
-from conftest import grid_surface, small_face_rig
+from helpers import grid_surface, small_face_rig
 from warpface.errors import RigError
 from warpface.geometry import closest_points
 

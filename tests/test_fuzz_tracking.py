@@ -36,7 +36,7 @@ from warpface.tracking import (
     vertex_landmark_names,
 )
 
-from conftest import grid_surface
+from helpers import grid_surface
 
 FUZZ = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
                                                                         HealthCheck.too_slow])

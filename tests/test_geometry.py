@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from conftest import grid_surface
+from helpers import grid_surface
 from warpface import FaceMesh
 from warpface.geometry import (
     TriangleMeshIndex,

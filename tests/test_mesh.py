@@ -9,25 +9,7 @@ import warpface as wf
 from warpface.data import ict_face_region
 
 import reference_expression as ref
-from conftest import grid_surface
-
-
-def icosphere_like(n=16):
-    """A UV sphere of radius 2 (poles merged), for checking outward normals."""
-    theta = np.linspace(0, np.pi, n)[1:-1]
-    phi = np.linspace(0, 2 * np.pi, 2 * n, endpoint=False)
-    t, p = np.meshgrid(theta, phi, indexing="ij")
-    ring = np.c_[np.sin(t).ravel() * np.cos(p).ravel(), np.sin(t).ravel() * np.sin(p).ravel(), np.cos(t).ravel()]
-    points = 2.0 * np.r_[[[0, 0, 1]], ring, [[0, 0, -1]]]
-    rows, cols = len(theta), len(phi)
-    idx = 1 + np.arange(rows * cols).reshape(rows, cols)
-    nxt = np.roll(idx, -1, axis=1)
-    tris = [np.c_[np.zeros(cols, int), idx[0], nxt[0]]]
-    for r in range(rows - 1):
-        tris += [np.c_[idx[r], idx[r + 1], nxt[r + 1]], np.c_[idx[r], nxt[r + 1], nxt[r]]]
-    last = len(points) - 1
-    tris.append(np.c_[np.full(cols, last), nxt[-1], idx[-1]])
-    return points, np.concatenate(tris)
+from helpers import grid_surface, icosphere_like
 
 
 def test_normals_match_reference_and_point_outward_on_a_sphere():

@@ -7,7 +7,7 @@ import pytest
 
 from warpface import preview
 
-from test_mesh import icosphere_like
+from helpers import icosphere_like
 
 
 @pytest.fixture(scope="module")

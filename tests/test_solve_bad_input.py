@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from conftest import small_face_rig
+from helpers import small_face_rig
 from warpface import FaceRig, RigError
 from warpface.solve import Solver, fit
 

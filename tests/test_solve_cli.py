@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import small_face_rig
+from helpers import small_face_rig
 from warpface import usd
 from warpface.cli import main
 from warpface.usd.presets_io import read_presets, write_presets

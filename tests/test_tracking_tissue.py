@@ -11,7 +11,7 @@ from warpface.tracking import adapter_for_face, vertex_landmark_names
 from warpface.tracking.sources import LandmarkFrame
 from warpface.pipelines.tissue_drive import TissueDrive, bone_side_nodes
 
-from test_fem_volume import patch
+from helpers import patch
 
 
 @pytest.fixture(scope="module")

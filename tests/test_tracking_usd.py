@@ -11,7 +11,7 @@ from warpface.tracking import adapter_for_face, landmark_vertices, vertex_landma
 from warpface.tracking.sources import LandmarkFrame
 from warpface.usd.tracking_io import TrackingStageWriter, read_tracking
 
-from conftest import grid_surface
+from helpers import grid_surface
 
 
 def test_round_trip_is_exact_across_chunks(tmp_path, rng):

@@ -12,7 +12,7 @@ import pytest
 
 pytest.importorskip("pxr")
 
-from conftest import small_face_rig  # noqa: E402
+from helpers import small_face_rig  # noqa: E402
 from pxr import Sdf, Usd, UsdGeom, Vt  # noqa: E402
 
 import warpface.usd._files as usd_files  # noqa: E402
@@ -84,7 +84,7 @@ def test_rewriting_a_range_keeps_samples_outside_it(small_rig):
 
 
 def test_centimetre_stage_animation_is_converted(small_rig):
-    from test_usd_rig_io import scaled_rig
+    from helpers import scaled_rig
 
     stage = write_rig(Usd.Stage.CreateInMemory(), scaled_rig(small_rig, 100.0), meters_per_unit=0.01)
     contractions, depths = controls(FRAMES)
@@ -134,7 +134,7 @@ def test_bake_writes_the_model_output_as_a_usdc_cache(rig_file, small_rig, cpu_m
     extent = UsdGeom.Mesh(stage.GetPrimAtPath("/Face/Skin")).GetExtentAttr()
     assert np.array_equal(np.asarray(extent.Get(7)), np.stack([expected[7].min(axis=0), expected[7].max(axis=0)]))
     # the rest shape is still what the rig reads; the stage metadata covers the bake
-    from test_usd_rig_io import assert_rigs_equal
+    from helpers import assert_rigs_equal
 
     assert_rigs_equal(read_rig(stage), small_rig)
     assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (0, 23)

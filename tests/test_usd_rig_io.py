@@ -12,69 +12,15 @@ import pytest
 
 pytest.importorskip("pxr")
 
-from conftest import small_face_rig  # noqa: E402
+from helpers import assert_rigs_equal, scaled_rig, small_face_rig  # noqa: E402
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt  # noqa: E402
 
 import warpface.usd._files as usd_files  # noqa: E402
-from warpface import (  # noqa: E402
-    CylindricalProjection,
-    FaceMesh,
-    FaceRig,
-    LinearMuscle,
-    PlanarProjection,
-    RigError,
-    SphincterMuscle,
-    Wrinkle,
-)
+from warpface import FaceMesh, FaceRig, LinearMuscle, PlanarProjection, RigError  # noqa: E402
 from warpface.usd import read_rig, read_tissue, validate_stage, write_rig, write_tissue  # noqa: E402
 
 
 # ---------------------------------------------------------------------------------------------- helpers
-
-
-def assert_rigs_equal(a: FaceRig, b: FaceRig) -> None:
-    """Every field identical (bit-exact arrays, same types and order)."""
-    assert a.name == b.name
-    assert a.mesh.name == b.mesh.name
-    assert np.array_equal(a.mesh.points, b.mesh.points)
-    assert np.array_equal(a.mesh.triangles, b.mesh.triangles)
-    assert np.array_equal(a.thickness, b.thickness)
-    assert (a.landmarks is None) == (b.landmarks is None)
-    if a.landmarks is not None:
-        assert np.array_equal(a.landmarks, b.landmarks)
-    assert [type(m) for m in a.muscles] == [type(m) for m in b.muscles]
-    for m, n in zip(a.muscles, b.muscles):
-        fields = ("attachment", "insertion", "zone_angle_deg", "falloff_start", "falloff_finish") if isinstance(m, LinearMuscle) \
-            else ("center", "axis_x", "axis_y", "semi_axes")
-        assert m.name == n.name
-        for field in fields:
-            assert np.array_equal(getattr(m, field), getattr(n, field)), (m.name, field)
-    assert len(a.wrinkles) == len(b.wrinkles)
-    for w, v in zip(a.wrinkles, b.wrinkles):
-        assert (w.name, w.depth, w.width, w.kr) == (v.name, v.depth, v.width, v.kr)
-        assert np.array_equal(w.control_points, v.control_points)
-        assert type(w.projection) is type(v.projection)
-        for field in vars(w.projection):
-            assert np.array_equal(getattr(w.projection, field), getattr(v.projection, field)), (w.name, field)
-
-
-def scaled_rig(rig: FaceRig, factor: float) -> FaceRig:
-    """The same rig with every length multiplied by ``factor``."""
-    muscles = []
-    for m in rig.muscles:
-        if isinstance(m, LinearMuscle):
-            muscles.append(LinearMuscle(m.name, m.attachment * factor, m.insertion * factor, m.zone_angle_deg,
-                                        m.falloff_start * factor, m.falloff_finish * factor))
-        else:
-            muscles.append(SphincterMuscle(m.name, m.center * factor, m.axis_x, m.axis_y, tuple(np.multiply(m.semi_axes, factor))))
-    wrinkles = []
-    for w in rig.wrinkles:
-        p = w.projection
-        projection = PlanarProjection(p.origin * factor, p.u_axis, p.v_axis) if isinstance(p, PlanarProjection) \
-            else CylindricalProjection(p.origin * factor, p.axis, p.reference, p.radius * factor)
-        wrinkles.append(Wrinkle(w.name, w.control_points * factor, projection, w.depth * factor, w.width * factor, w.kr))
-    mesh = FaceMesh(rig.mesh.points * factor, rig.mesh.triangles, name=rig.mesh.name)
-    return FaceRig(mesh, muscles, wrinkles, rig.thickness * factor, rig.landmarks, rig.name)
 
 
 def _without_plugin(code: str) -> subprocess.CompletedProcess:

@@ -43,9 +43,10 @@ _configure_warp_quietly()
 
 # First, before anything can touch Usd.SchemaRegistry: register the codeless USD schema plugin
 # (skipped when usd-core is not installed; see warpface.usd.schema).
-from .usd.schema import _register_at_import
+from .usd.schema import register_at_import
 
-_register_at_import()
+register_at_import()
+del register_at_import
 
 from .errors import RigError  # noqa: E402
 from .expression import (

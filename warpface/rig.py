@@ -8,6 +8,7 @@ import numpy as np
 
 from .errors import RigError
 from .expression.controls import check_rig_parts
+from .expression.jaw import JAW_CONTROL_NAMES, Jaw
 from .expression.muscles import Muscle
 from .expression.wrinkles import Wrinkle
 from .mesh import FaceMesh
@@ -26,6 +27,7 @@ class FaceRig:
         thickness: subcutaneous thickness [mesh units], scalar or shape (V,); stored as (V,) float64.
         landmarks: optional vertex indices of named landmarks, shape (L,) int (e.g. the 68 iBUG points).
         name: rig name (used for prim names and messages).
+        jaw: optional :class:`~warpface.expression.Jaw` (hinge and per-vertex weights, SPEC §6.2).
 
     Raises:
         RigError: (a ``ValueError``) mesh not a FaceMesh, wrong item types, duplicate names, wrong
@@ -39,6 +41,7 @@ class FaceRig:
     thickness: np.ndarray | float = 0.0
     landmarks: np.ndarray | None = None
     name: str = "Face"
+    jaw: Jaw | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -57,10 +60,22 @@ class FaceRig:
             if len(bad):
                 raise RigError(f"rig {self.name!r}: landmark {int(bad[0])} index {int(landmarks[bad[0]])} out of range")
             self.landmarks = landmarks.astype(np.int64)
+        if self.jaw is not None:
+            if not isinstance(self.jaw, Jaw):
+                raise RigError(f"rig {self.name!r}: jaw must be a Jaw, got {type(self.jaw).__name__}")
+            try:
+                self.jaw.check_vertex_count(self.mesh.vertex_count)
+            except ValueError as exc:
+                raise RigError(f"rig {self.name!r}: {exc}") from None
 
     @property
     def muscle_names(self) -> list[str]:
         return [m.name for m in self.muscles]
+
+    @property
+    def control_names(self) -> list[str]:
+        """Muscle names, then the jaw's controls when the rig has a jaw (the model's control order)."""
+        return self.muscle_names + (list(JAW_CONTROL_NAMES) if self.jaw is not None else [])
 
     @property
     def wrinkle_names(self) -> list[str]:

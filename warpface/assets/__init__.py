@@ -11,6 +11,7 @@ landmark-anchored default rig, and the paper's four expressions as presets.
 from .expressions import EXPRESSIONS, expression_contractions, expression_envelope, expression_timeline
 from .face import FACE_SPACING, LANDMARK_NAMES, default_face, default_landmarks
 from .frame import FaceFrame, SurfaceSampler, head_cylinder
+from .presets import ARKIT_PRESET_NAMES, PRESETS, preset_controls
 from .rig import LINEAR_MUSCLE_NAMES, SPHINCTER_MUSCLE_NAMES, WRINKLE_NAMES, default_rig, face_frame, rig_scale
 from .thickness import THICKNESS_MM, default_thickness, thickness_map
 
@@ -20,6 +21,9 @@ __all__ = [
     "default_thickness",
     "default_rig",
     "EXPRESSIONS",
+    "PRESETS",
+    "ARKIT_PRESET_NAMES",
+    "preset_controls",
     "expression_contractions",
     "expression_timeline",
     "expression_envelope",

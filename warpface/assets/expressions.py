@@ -100,7 +100,8 @@ def expression_envelope(frames: int, hold: float = 0.2) -> np.ndarray:
 
 def expression_timeline(name: str, rig: FaceRig, seconds: float = 2.0, fps: float = 30.0, *, hold: float = 0.2,
                         intensity: float = 1.0) -> np.ndarray:
-    """Per-frame contractions for neutral → ``name`` → neutral, shape (F, M), in the rig's muscle order.
+    """Per-frame contractions for neutral → ``name`` → neutral, shape (F, M), in the rig's muscle order
+    (the paper's expressions use muscles only; append zeros for a jaw's controls to evaluate them).
 
     ``F = round(seconds · fps) + 1`` frames: frame ``f`` is at time ``f / fps``, and both the first
     and the last frame are neutral. Feed it to :meth:`~warpface.ExpressionModel.evaluate_batch`.

@@ -12,6 +12,8 @@ FACS. Muscles follow thesis table 2.1 (SPEC §5); the wrinkles are the furrows t
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ..errors import RigError
@@ -21,11 +23,16 @@ from ..landmarks import LEFT_SIDE, RIGHT_SIDE
 from ..mesh import FaceMesh
 from ..rig import FaceRig
 from .face import default_face, default_landmarks
+from .anatomy import ANATOMY_LINEAR_MUSCLE_NAMES, ANATOMY_SPHINCTER_MUSCLE_NAMES, anatomy_muscles, frontalis_bellies
 from .frame import FaceFrame, SurfaceSampler, check_landmarks, head_cylinder
+from .jaw import default_jaw
 from .thickness import default_thickness
 
 __all__ = [
     "default_rig",
+    "ANATOMIES",
+    "CLASSIC_LINEAR_MUSCLE_NAMES",
+    "CLASSIC_SPHINCTER_MUSCLE_NAMES",
     "rig_scale",
     "face_frame",
     "LINEAR_MUSCLE_NAMES",
@@ -35,7 +42,7 @@ __all__ = [
 
 _SIDES = ("L", "R")
 
-LINEAR_MUSCLE_NAMES: tuple[str, ...] = (
+CLASSIC_LINEAR_MUSCLE_NAMES: tuple[str, ...] = (
     *(f"frontalis_inner_{s}" for s in _SIDES),
     *(f"frontalis_outer_{s}" for s in _SIDES),
     *(f"corrugator_{s}" for s in _SIDES),
@@ -48,10 +55,21 @@ LINEAR_MUSCLE_NAMES: tuple[str, ...] = (
     *(f"depressor_labii_inferioris_{s}" for s in _SIDES),
     "mentalis",
 )
-"""Linear (Waters) muscles of the default rig, in rig order. Their contraction ``K`` is a length."""
+"""Linear (Waters) muscles of the ``"classic"`` rig (thesis table 2.1), in rig order. ``K`` is a length."""
 
-SPHINCTER_MUSCLE_NAMES: tuple[str, ...] = ("orbicularis_oris", "orbicularis_oculi_L", "orbicularis_oculi_R")
-"""Sphincter muscles of the default rig; their contraction ``K`` is dimensionless."""
+CLASSIC_SPHINCTER_MUSCLE_NAMES: tuple[str, ...] = ("orbicularis_oris", "orbicularis_oculi_L", "orbicularis_oculi_R")
+"""Sphincter muscles of the ``"classic"`` rig; their contraction ``K`` is dimensionless."""
+
+LINEAR_MUSCLE_NAMES: tuple[str, ...] = CLASSIC_LINEAR_MUSCLE_NAMES + ANATOMY_LINEAR_MUSCLE_NAMES
+"""Linear muscles of the default (``"full"``) rig, in rig order: the classic ones, then those of
+:mod:`warpface.assets.anatomy`."""
+
+SPHINCTER_MUSCLE_NAMES: tuple[str, ...] = CLASSIC_SPHINCTER_MUSCLE_NAMES + ANATOMY_SPHINCTER_MUSCLE_NAMES
+"""Sphincter muscles of the default (``"full"``) rig."""
+
+ANATOMIES = ("full", "classic")
+"""``"full"``: the default — every muscle, C¹ zones, skin sliding and bunching, and the jaw
+(docs/RIG.md). ``"classic"``: the 23 muscles of thesis table 2.1 with the SPEC §1.1 zones, no jaw."""
 
 WRINKLE_NAMES: tuple[str, ...] = (
     "forehead_1", "forehead_2", "forehead_3", "forehead_4",
@@ -86,7 +104,8 @@ def rig_scale(rig: FaceRig) -> float:
     return face_frame(rig.mesh, rig.landmarks).scale
 
 
-def default_rig(mesh: FaceMesh | None = None, landmarks=None, *, name: str = "Face", device=None) -> FaceRig:
+def default_rig(mesh: FaceMesh | None = None, landmarks=None, *, name: str = "Face", device=None,
+                anatomy: str = "full") -> FaceRig:
     """The default rig on a face: muscles, wrinkles and thickness placed from its 68 iBUG landmarks.
 
     Args:
@@ -95,6 +114,7 @@ def default_rig(mesh: FaceMesh | None = None, landmarks=None, *, name: str = "Fa
         landmarks: 68 iBUG-order vertex indices into ``mesh``; required with a custom mesh.
         name: rig name.
         device: Warp device for the vertex normals.
+        anatomy: one of :data:`ANATOMIES`.
 
     Returns:
         A :class:`~warpface.FaceRig` with the muscles of :data:`LINEAR_MUSCLE_NAMES` and
@@ -111,14 +131,34 @@ def default_rig(mesh: FaceMesh | None = None, landmarks=None, *, name: str = "Fa
         raise RigError(f"default_rig: mesh {mesh.name!r} needs its 68 iBUG landmark vertex indices")
     if not isinstance(mesh, FaceMesh):
         raise RigError(f"default_rig: mesh must be a FaceMesh, got {type(mesh).__name__}")
+    if anatomy not in ANATOMIES:
+        raise RigError(f"default_rig: anatomy must be one of {', '.join(ANATOMIES)}, got {anatomy!r}")
     landmarks = check_landmarks(mesh, landmarks)
     frame = FaceFrame.from_landmarks(mesh.points[landmarks])
     surface = SurfaceSampler(mesh, frame, mesh.vertex_normals(device=device))
     local = frame.to_local(mesh.points[landmarks])
-    muscles = _linear_muscles(local, surface) + _sphincters(local, frame)
+    linear, sphincters = _linear_muscles(local, surface), _sphincters(local, frame)
+    jaw = None
+    if anatomy == "full":
+        extra_linear, sphincters = anatomy_muscles(local, surface, frame, sphincters)
+        linear = [_with_skin_response(m) for m in frontalis_bellies(local, surface, linear) + extra_linear]
+        sphincters = [_with_skin_response(m) for m in sphincters]
+        jaw = default_jaw(mesh, frame, landmarks)
     wrinkles = _wrinkles(local, surface, frame, head_cylinder(frame, local), _typical_edge(mesh) / frame.scale, device)
     thickness = default_thickness(mesh, landmarks, device=device)
-    return FaceRig(mesh=mesh, muscles=muscles, wrinkles=wrinkles, thickness=thickness, landmarks=landmarks, name=name)
+    return FaceRig(mesh=mesh, muscles=linear + sphincters, wrinkles=wrinkles, thickness=thickness, landmarks=landmarks,
+                   name=name, jaw=jaw)
+
+
+SKIN_SLIDING = 1.0
+"""Sliding of every muscle of the full rig (docs/RIG.md §2; chosen by benchmarks/rig_reach.py)."""
+SKIN_BUNCHING = 1.0
+"""Bunching gain β of every muscle of the full rig (docs/RIG.md §3; chosen by benchmarks/rig_reach.py)."""
+
+
+def _with_skin_response(muscle):
+    """The full rig's form of a muscle: C¹ zone, sliding skin, bunching tissue (unless it sets its own)."""
+    return replace(muscle, falloff="smooth", sliding=muscle.sliding or SKIN_SLIDING, bunching=muscle.bunching or SKIN_BUNCHING)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -201,7 +241,7 @@ def _linear_muscles(L: np.ndarray, surface: SurfaceSampler) -> list[LinearMuscle
     # Mentalis: incisive fossa below the lower lip → chin skin, raising it (AU17).
     muscles["mentalis"] = _linear(
         "mentalis", surface, (0.0, xy[57, 1] - 0.14), 0.20, (0.0, 0.55 * xy[8, 1] + 0.45 * xy[57, 1]), 50.0, 0.90, 1.60)
-    return [muscles[name] for name in LINEAR_MUSCLE_NAMES]
+    return [muscles[name] for name in CLASSIC_LINEAR_MUSCLE_NAMES]
 
 
 def _sphincters(L: np.ndarray, frame: FaceFrame) -> list[SphincterMuscle]:

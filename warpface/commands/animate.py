@@ -1,6 +1,6 @@
 """``warpface animate DRIVER``: animation curves (ARKit/MediaPipe weights, Audio2Face, FACS AUs) drive a rig.
 
-The driver file's format comes from its extension and content (:func:`warpface.drivers.read_driver`).
+The driver file's format comes from its extension and content (:func:`warpface.usd.read_driver`).
 Its channels are cleaned (neutral, gains, clamping, optional 1€ filter), resampled to the stage's
 rate, mapped onto the rig's controls (SPEC §6.4: the mapping stored on the rig stage, or the default
 table), written as time samples on a new rig stage, baked into a points cache beside it, and
@@ -114,9 +114,9 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
     from pxr import Sdf, Usd
 
     from .. import usd
-    from ..drivers import read_driver
     from ..usd.animation import CACHE_SUFFIX
     from ..usd.mapping_io import write_mapping
+    from ..usd.skel_io import read_driver
 
     out = _output_path(out)
     if video and (not isinstance(video_max_frames, (int, np.integer)) or video_max_frames < 1):
@@ -179,7 +179,7 @@ def _preview(path: Path, model, rig, mapped, rate: float, size, progress: bool, 
     from .. import preview
     from .._files import atomic_path
 
-    muscles = list(rig.muscle_names)
+    muscles = list(rig.control_names)  # the muscles, then a jaw's controls
     index = {name: k for k, name in enumerate(mapped.names)}
     step = max(1, math.ceil(len(mapped.times) / max(1, int(max_frames))))
     shown = np.arange(0, len(mapped.times), step)

@@ -92,7 +92,7 @@ def one_line(error: BaseException) -> str:
     from ..errors import RigError
 
     if type(error).__name__ == "ErrorException":  # pxr.Tf.ErrorException, without importing pxr here
-        from ..usd._files import usd_error_message
+        from ..usd import usd_error_message
 
         text = usd_error_message(error)
     else:

@@ -51,7 +51,10 @@ def detect_format(path) -> str:
 
 
 def read_driver(path, *, fps: float | None = None) -> Curves:
-    """Read a driver file in any of :data:`DRIVER_FORMATS` into :class:`Curves`.
+    """Read a driver file in any of :data:`DRIVER_FORMATS` but ``usdskel`` into :class:`Curves`.
+
+    USD ``SkelAnimation`` layers are read by :func:`warpface.usd.read_driver` (every format, USD
+    included): USD I/O lives in :mod:`warpface.usd`, which sits above the drivers.
 
     Args:
         path: the file.
@@ -59,7 +62,7 @@ def read_driver(path, *, fps: float | None = None) -> Curves:
             Live Link Face timecodes, overriding the detected rate).
 
     Raises:
-        ValueError: unreadable or malformed file (one line naming the file and the problem).
+        ValueError: unreadable or malformed file, or a USD layer (one line naming the file and the problem).
     """
     kind = detect_format(path)
     if kind == "openface":
@@ -70,6 +73,4 @@ def read_driver(path, *, fps: float | None = None) -> Curves:
         return read_mediapipe_jsonl(path, fps=fps or 30.0)
     if kind == "mediapipe-textproto":
         return read_mediapipe_textproto(path, fps=fps or 30.0)
-    from ..usd.skel_io import read_skel_animation  # the USD layer sits above the drivers
-
-    return read_skel_animation(path)
+    raise ValueError(f"{path}: a USD SkelAnimation layer; read it with warpface.usd.read_driver")

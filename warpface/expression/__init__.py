@@ -1,5 +1,6 @@
 """The expression model (SPEC §1): muscles, skin stretch and bulge, wrinkles, thickness."""
 
+from .jaw import JAW_CONTROL_NAMES, Jaw, jaw_points
 from .model import ExpressionModel, ExpressionStages
 from .muscles import LinearMuscle, Muscle, SphincterMuscle, muscle_weights
 from .thickness import ThicknessMap, validate_thickness
@@ -12,6 +13,9 @@ __all__ = [
     "SphincterMuscle",
     "Muscle",
     "muscle_weights",
+    "Jaw",
+    "JAW_CONTROL_NAMES",
+    "jaw_points",
     "Wrinkle",
     "PlanarProjection",
     "CylindricalProjection",

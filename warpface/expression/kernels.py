@@ -26,6 +26,7 @@ __all__ = [
     "MuscleEntry",
     "WrinkleEntry",
     "apply_muscles",
+    "apply_jaw_and_muscles",
     "triangle_stretch",
     "stretch_and_bulge",
     "apply_wrinkles",
@@ -89,6 +90,45 @@ def apply_muscles(
     while k < end:
         entry = entries[k]
         x += contraction[first + entry.muscle] * entry.weight
+        k += 1
+    muscle_points[i] = x
+
+
+@wp.kernel
+def apply_jaw_and_muscles(
+    rest: wp.array(dtype=wp.vec3),
+    jaw_weight: wp.array(dtype=wp.float32),
+    pivot: wp.vec3,
+    hinge_axis: wp.vec3,
+    forward: wp.vec3,
+    offsets: wp.array(dtype=wp.int32),
+    entries: wp.array(dtype=MuscleEntry),
+    controls: wp.array(dtype=wp.float32),
+    control_count: int,
+    jaw_first: int,
+    vertex_count: int,
+    muscle_points: wp.array(dtype=wp.vec3),
+):
+    """SPEC §6.2 then §1.1: ``x_jaw = x + w·(R(θ)(x − p) + p + t − x)``, ``x1 = x_jaw + Σ_m K_m·w_m(x_rest)``.
+
+    A frame's control row holds the muscle contractions, then at ``jaw_first`` the jaw's opening
+    angle θ [rad], protrusion (along ``forward``) and lateral slide (along ``hinge_axis``).
+    """
+    i = wp.tid()
+    f, v = frame_and_element(i, vertex_count)
+    first = f * control_count
+    x = rest[v]
+    w = jaw_weight[v]
+    if w > 0.0:
+        rotation = wp.quat_from_axis_angle(hinge_axis, controls[first + jaw_first])
+        slide = controls[first + jaw_first + 1] * forward + controls[first + jaw_first + 2] * hinge_axis
+        moved = wp.quat_rotate(rotation, x - pivot) + pivot + slide
+        x = x + w * (moved - x)
+    k = offsets[v]
+    end = offsets[v + 1]
+    while k < end:
+        entry = entries[k]
+        x += controls[first + entry.muscle] * entry.weight
         k += 1
     muscle_points[i] = x
 

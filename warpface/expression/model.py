@@ -13,8 +13,11 @@ from ..kernels_surface import triangle_area_vectors
 from ..mesh import FaceMesh
 from .controls import as_device_array, check_rig_parts, contraction_limits, control_vector, frame_controls, is_device_array
 from .frame_buffers import FrameBuffers
-from .kernels import MuscleEntry, WrinkleEntry, apply_muscles, apply_wrinkles, stretch_and_bulge, triangle_stretch
+from .jaw import JAW_CONTROL_NAMES, Jaw
+from .kernels import (MuscleEntry, WrinkleEntry, apply_jaw_and_muscles, apply_muscles, apply_wrinkles, stretch_and_bulge,
+                      triangle_stretch)
 from .muscles import Muscle, muscle_weights
+from .tissue import tissue_response
 from .wrinkles import Wrinkle, wrinkle_shapes
 
 __all__ = ["ExpressionModel", "ExpressionStages"]
@@ -79,6 +82,9 @@ class ExpressionModel:
         wrinkles: wrinkle furrows; their order is the depth order.
         thickness: subcutaneous thickness ``h`` [mesh units]: a scalar or shape (V,), in [0, 1e6].
         device: Warp device (default: Warp's preferred device).
+        jaw: optional :class:`~warpface.expression.Jaw`, applied before the muscles (SPEC §6.2); its
+            controls :data:`~warpface.expression.JAW_CONTROL_NAMES` follow the muscles in the control
+            vector (:attr:`control_names`).
 
     Raises:
         RigError: (a ``ValueError``) mesh not a FaceMesh, wrong item types, duplicate muscle or
@@ -93,17 +99,31 @@ class ExpressionModel:
         thickness: float | np.ndarray = 0.0,
         *,
         device=None,
+        jaw: Jaw | None = None,
     ):
         self.muscles, self.wrinkles, self.thickness = check_rig_parts(mesh, muscles, wrinkles, thickness, owner="expression model")
         self.mesh = mesh
         self.muscle_names = [m.name for m in self.muscles]
         self.wrinkle_names = [w.name for w in self.wrinkles]
-        self._contraction_limits = contraction_limits(self.muscles)
+        if jaw is not None:
+            if not isinstance(jaw, Jaw):
+                raise ValueError(f"jaw: expected a Jaw, got {type(jaw).__name__}")
+            jaw.check_vertex_count(mesh.vertex_count)
+            if set(JAW_CONTROL_NAMES) & set(self.muscle_names):
+                raise ValueError(f"muscle names must not repeat the jaw's controls {', '.join(JAW_CONTROL_NAMES)}")
+        self.jaw = jaw
+        self.control_names = self.muscle_names + (list(JAW_CONTROL_NAMES) if jaw is not None else [])
+        """Muscle names, then the jaw's controls when there is a jaw: the order of a control vector."""
+        jaw_limits = np.full(len(self.control_names) - len(self.muscles), MAX_COORDINATE)
+        self._contraction_limits = np.concatenate([contraction_limits(self.muscles), jaw_limits])
         self._depth_limits = np.full(len(self.wrinkles), MAX_COORDINATE)
         self.device = wp.get_device(device)
 
         self._mesh_buffers = mesh.device_buffers(device=self.device)
         weights = muscle_weights(mesh.points, self.muscles, device=self.device)
+        if any(m.sliding > 0.0 or m.bunching > 0.0 or m.thickening > 0.0 for m in self.muscles):
+            normals = mesh.vertex_normals(device=self.device)
+            weights = tissue_response(mesh.points, mesh.triangles, normals, self.thickness, self.muscles, weights)
         shapes = wrinkle_shapes(mesh.points, self.wrinkles, device=self.device)
         self.muscle_entry_count = int(len(weights.muscle))
         self.wrinkle_entry_count = int(len(shapes.wrinkle))
@@ -117,24 +137,27 @@ class ExpressionModel:
         self._counts = wp.array(counted.astype(np.float32), dtype=wp.float32, device=device_)
         self._thickness = wp.array(self.thickness.astype(np.float32), dtype=wp.float32, device=device_)
         self.default_depths = np.array([w.depth for w in self.wrinkles], dtype=np.float64)
+        if jaw is not None:
+            self._jaw_weight = wp.array(jaw.weights.astype(np.float32), dtype=wp.float32, device=device_)
         self._buffers: dict[int, FrameBuffers] = {}
         self._single = self._frame_buffers(1)
 
     @classmethod
     def from_rig(cls, rig, *, device=None) -> "ExpressionModel":
-        """Build from a :class:`warpface.FaceRig` (mesh, muscles, wrinkles, thickness)."""
-        return cls(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=device)
+        """Build from a :class:`warpface.FaceRig` (mesh, muscles, wrinkles, thickness, jaw)."""
+        return cls(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=device, jaw=getattr(rig, "jaw", None))
 
     # ------------------------------------------------------------------ controls
     def contraction_vector(self, contractions) -> np.ndarray:
-        """Contractions as an array in muscle order, shape (M,), float64.
+        """Controls in :attr:`control_names` order (muscles, then the jaw's), shape (M,) or (M + 3,), float64.
 
-        ``contractions`` is a mapping ``{muscle name: K}`` (absent muscles are 0), a sequence of
-        length M, or ``None`` (all zero). Unknown names, non-numbers, non-finite values and values
-        beyond ±1e6 (linear muscles, a length) or ±1e3 (sphincters) raise ValueError naming the muscle.
+        ``contractions`` is a mapping ``{muscle or jaw control name: value}`` (absent ones are 0), a
+        sequence in control order (with a jaw, M muscle values alone leave the jaw at rest), or ``None`` (all zero). Unknown names, non-numbers, non-finite values
+        and values beyond ±1e6 (linear muscles and jaw, lengths and radians) or ±1e3 (sphincters) raise
+        ValueError naming the control.
         """
-        return control_vector(contractions, self.muscle_names, np.zeros(len(self.muscles)), self._contraction_limits,
-                              "contraction", "muscle")
+        return control_vector(self._muscles_only_padded(contractions), self.control_names, np.zeros(len(self.control_names)), self._contraction_limits,
+                              "contraction", "muscle" if self.jaw is None else "control")
 
     def depth_vector(self, depths) -> np.ndarray:
         """Wrinkle depths ``k_d`` in wrinkle order, shape (W,); ``None`` or absent names keep each wrinkle's own depth.
@@ -238,9 +261,24 @@ class ExpressionModel:
         return out
 
     # ------------------------------------------------------------------ control plumbing
+    def _muscles_only_padded(self, values):
+        """With a jaw, a host array of muscle contractions only ((M,) or (F, M)) gets the jaw at rest appended."""
+        if self.jaw is None or values is None or isinstance(values, (str, bytes, dict)) or is_device_array(values):
+            return values
+        if not isinstance(values, (np.ndarray, list, tuple)):
+            return values
+        try:
+            array = np.asarray(values, dtype=np.float64)
+        except (TypeError, ValueError):
+            return values
+        if array.ndim in (1, 2) and array.shape[-1] == len(self.muscles) != len(self.control_names):
+            return np.concatenate([array, np.zeros(array.shape[:-1] + (len(self.control_names) - len(self.muscles),))], axis=-1)
+        return values
+
     def _host_frames(self, contractions, wrinkle_depths) -> tuple[np.ndarray, np.ndarray]:
         """Validated (F, M) contractions and (F, W) depths from host values."""
-        controls = frame_controls(contractions, self.contraction_vector, len(self.muscles), "contractions", self._contraction_limits)
+        controls = frame_controls(self._muscles_only_padded(contractions), self.contraction_vector, len(self.control_names),
+                                  "contractions", self._contraction_limits)
         frame_count = len(controls)
         if wrinkle_depths is None:
             return controls, np.tile(self.default_depths, (frame_count, 1))
@@ -266,12 +304,12 @@ class ExpressionModel:
 
     def _split_controls(self, contractions, wrinkle_depths, frame_count: int):
         """Host (F, M)/(F, W) arrays for host controls and zeros/defaults under device ones; device arrays."""
-        device_c = self._device_controls(contractions, frame_count, len(self.muscles), "contractions")
+        device_c = self._device_controls(contractions, frame_count, len(self.control_names), "contractions")
         device_d = self._device_controls(wrinkle_depths, frame_count, len(self.wrinkles), "wrinkle_depths")
         host_c = None if device_c is not None else contractions
         host_d = None if device_d is not None else wrinkle_depths
         if host_c is None:
-            host_c = np.zeros((frame_count, len(self.muscles)))
+            host_c = np.zeros((frame_count, len(self.control_names)))
         controls, depths = self._host_frames(host_c, host_d)
         if len(controls) != frame_count:
             raise ValueError(f"contractions: {len(controls)} frames, wrinkle_depths have {frame_count}")
@@ -283,7 +321,7 @@ class ExpressionModel:
         buffers.copy_controls(*device_controls, first=start, count=count)
 
     def _upload_frames(self, buffers, contractions, wrinkle_depths, *, frames: int, first: int, count: int) -> None:
-        device_c = self._device_controls(contractions, frames, len(self.muscles), "contractions")
+        device_c = self._device_controls(contractions, frames, len(self.control_names), "contractions")
         device_d = self._device_controls(wrinkle_depths, frames, len(self.wrinkles), "wrinkle_depths")
         host_c = self.contraction_vector(None if device_c is not None else contractions)
         host_d = self.depth_vector(None if device_d is not None else wrinkle_depths)
@@ -323,7 +361,7 @@ class ExpressionModel:
     def _frame_buffers(self, frames: int) -> FrameBuffers:
         if frames not in self._buffers:
             self._buffers[frames] = FrameBuffers(
-                frames, self.mesh.vertex_count, self.mesh.triangle_count, len(self.muscles), len(self.wrinkles), device=self.device
+                frames, self.mesh.vertex_count, self.mesh.triangle_count, len(self.control_names), len(self.wrinkles), device=self.device
             )
         return self._buffers[frames]
 
@@ -355,11 +393,20 @@ class ExpressionModel:
         def record(kernel, dim, inputs, outputs):
             return wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device, record_cmd=True)
 
+        if self.jaw is None:
+            first = record(apply_muscles, vertices,
+                           [mesh.rest_points, self._muscle_offsets, self._muscle_entries, buffers.contraction,
+                            buffers.muscle_width, vertex_count],
+                           [buffers.muscle_points])
+        else:
+            jaw = self.jaw
+            first = record(apply_jaw_and_muscles, vertices,
+                           [mesh.rest_points, self._jaw_weight, wp.vec3(*jaw.pivot), wp.vec3(*jaw.axis),
+                            wp.vec3(*jaw.forward), self._muscle_offsets, self._muscle_entries, buffers.contraction,
+                            buffers.muscle_width, len(self.muscles), vertex_count],
+                           [buffers.muscle_points])
         return [
-            record(apply_muscles, vertices,
-                   [mesh.rest_points, self._muscle_offsets, self._muscle_entries, buffers.contraction,
-                    buffers.muscle_width, vertex_count],
-                   [buffers.muscle_points]),
+            first,
             record(triangle_stretch, triangles,
                    [buffers.muscle_points, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, *counts],
                    [buffers.stretch_terms]),

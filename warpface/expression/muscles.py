@@ -17,8 +17,14 @@ import warp as wp
 
 from .._validate import MAX_COORDINATE, as_finite_array, as_points, as_positive, as_vec3, orthogonal_unit_vector, unit_vector
 from ._sparse import vertex_csr
+from .falloff import linear_angular_factor, linear_radial_factor, sphincter_factor
 
-__all__ = ["LinearMuscle", "SphincterMuscle", "Muscle", "muscle_weights", "MuscleWeights"]
+__all__ = ["LinearMuscle", "SphincterMuscle", "Muscle", "muscle_weights", "MuscleWeights", "FALLOFFS"]
+
+FALLOFFS = ("waters", "smooth")
+"""Zone shapes: ``"waters"`` is SPEC §1.1 (the default of the primitives), ``"smooth"`` the C¹ forms of
+SPEC §6.3 / docs/RIG.md: angular ``cos²(μ/Ω·π/2)``, radial ``sin²(D/Rs·π/2)`` then
+``cos²((D − Rs)/(Rf − Rs)·π/2)``, sphincter rim ``(1 − ρ²)²``; all vanish with zero slope."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,6 +44,14 @@ class LinearMuscle:
         zone_angle_deg: half-angle ``Ω`` of the zone of influence [degrees], in (0, 180).
         falloff_start: ``Rs`` [mesh units], ≥ 0 and < ``falloff_finish``.
         falloff_finish: ``Rf`` [mesh units].
+        falloff: zone shape, one of :data:`FALLOFFS` (``"waters"``: the §1.1 factors above).
+        sliding: in [0, 1]: the fraction of the pull's normal component removed, so the skin slides
+            along its rest tangent plane instead of sinking toward the bone (docs/RIG.md §2).
+        bunching: ≥ 0, dimensionless: tissue the muscle compresses moves out of the face by
+            ``bunching · h · (−dr/dK)`` per unit contraction (docs/RIG.md §3); needs the mesh, so
+            :class:`~warpface.ExpressionModel` adds it.
+        thickening: ≥ 0, dimensionless: a shortening muscle thickens, lifting the skin over it by
+            ``thickening · |w|`` along the normal per unit contraction (docs/RIG.md §3).
 
     Contraction ``K`` is a length [mesh units]: the largest displacement, reached at ``μ = 0``,
     ``D = Rs``.
@@ -49,6 +63,10 @@ class LinearMuscle:
     zone_angle_deg: float
     falloff_start: float
     falloff_finish: float
+    falloff: str = "waters"
+    sliding: float = 0.0
+    bunching: float = 0.0
+    thickening: float = 0.0
 
     def __post_init__(self) -> None:
         label = f"linear muscle {self.name!r}"
@@ -69,6 +87,7 @@ class LinearMuscle:
         set_(self, "falloff_start", start)
         set_(self, "falloff_finish", finish)
         unit_vector(self.insertion - self.attachment, f"{label}: axis (insertion − attachment)")
+        _check_response(self, label)
 
     @property
     def axis(self) -> np.ndarray:
@@ -91,6 +110,8 @@ class SphincterMuscle:
         axis_x, axis_y: in-plane axes, shape (3,) each. Both are normalised; ``axis_y`` is made
             orthogonal to ``axis_x`` (Gram–Schmidt) so ``(x, y)`` are true frame coordinates.
         semi_axes: ``(lx, ly)`` [mesh units], both > 0.
+        falloff, sliding, bunching, thickening: as for :class:`LinearMuscle`; ``"smooth"`` replaces ``f`` by
+            ``(1 − ρ²)²`` with ``ρ = sqrt(x²/lx² + y²/ly²)``.
 
     Contraction ``K`` is dimensionless: the displacement is ``K·f`` times the in-plane offset.
     """
@@ -100,6 +121,10 @@ class SphincterMuscle:
     axis_x: np.ndarray
     axis_y: np.ndarray
     semi_axes: tuple[float, float]
+    falloff: str = "waters"
+    sliding: float = 0.0
+    bunching: float = 0.0
+    thickening: float = 0.0
 
     def __post_init__(self) -> None:
         label = f"sphincter muscle {self.name!r}"
@@ -116,6 +141,7 @@ class SphincterMuscle:
         if np.any(semi <= 0.0) or np.any(semi > MAX_COORDINATE):
             raise ValueError(f"{label}: semi_axes must be in (0, {MAX_COORDINATE:g}], got {semi.tolist()}")
         set_(self, "semi_axes", (float(semi[0]), float(semi[1])))
+        _check_response(self, label)
 
 
 Muscle = Union[LinearMuscle, SphincterMuscle]
@@ -126,9 +152,25 @@ def _check_name(name, label: str) -> None:
         raise ValueError(f"{label}: name must be a non-empty string")
 
 
-# ---------------------------------------------------------------------------------------------- kernels
+def _check_response(muscle, label: str) -> None:
+    """Validate and normalise the falloff form, sliding and bunching of a muscle."""
+    if muscle.falloff not in FALLOFFS:
+        raise ValueError(f"{label}: falloff must be one of {', '.join(FALLOFFS)}, got {muscle.falloff!r}")
+    sliding = float(as_finite_array(muscle.sliding, f"{label}: sliding", shape=()))
+    if not 0.0 <= sliding <= 1.0:
+        raise ValueError(f"{label}: sliding must be in [0, 1], got {sliding}")
+    bunching = float(as_finite_array(muscle.bunching, f"{label}: bunching", shape=()))
+    if bunching < 0.0:
+        raise ValueError(f"{label}: bunching must be ≥ 0, got {bunching}")
+    thickening = float(as_finite_array(muscle.thickening, f"{label}: thickening", shape=()))
+    if thickening < 0.0:
+        raise ValueError(f"{label}: thickening must be ≥ 0, got {thickening}")
+    object.__setattr__(muscle, "sliding", sliding)
+    object.__setattr__(muscle, "bunching", bunching)
+    object.__setattr__(muscle, "thickening", thickening)
 
-_HALF_PI = wp.constant(wp.float64(math.pi / 2.0))
+
+# ---------------------------------------------------------------------------------------------- kernels
 
 
 @wp.kernel
@@ -139,6 +181,7 @@ def _linear_muscle_weight_kernel(
     zone: wp.float64,
     falloff_start: wp.float64,
     falloff_finish: wp.float64,
+    smooth: int,
     weight: wp.array(dtype=wp.vec3d),
 ):
     i = wp.tid()
@@ -152,12 +195,8 @@ def _linear_muscle_weight_kernel(
     mu = wp.atan2(wp.length(wp.cross(axis, offset)), wp.dot(axis, offset))
     if mu > zone:
         return
-    angular = wp.cos(mu / zone * _HALF_PI)
-    radial = zero
-    if distance < falloff_start:
-        radial = wp.cos((wp.float64(1.0) - distance / falloff_start) * _HALF_PI)
-    else:
-        radial = wp.cos((distance - falloff_start) / (falloff_finish - falloff_start) * _HALF_PI)
+    angular = linear_angular_factor(mu, zone, smooth)
+    radial = linear_radial_factor(distance, falloff_start, falloff_finish, smooth)
     weight[i] = -(angular * radial / distance) * offset
 
 
@@ -169,13 +208,14 @@ def _sphincter_weight_kernel(
     axis_y: wp.vec3d,
     semi_x: wp.float64,
     semi_y: wp.float64,
+    smooth: int,
     weight: wp.array(dtype=wp.vec3d),
 ):
     i = wp.tid()
     offset = rest[i] - center
     x = wp.dot(offset, axis_x)
     y = wp.dot(offset, axis_y)
-    falloff = wp.float64(1.0) - wp.sqrt(x * x / (semi_x * semi_x) + y * y / (semi_y * semi_y))
+    falloff = sphincter_factor(x * x / (semi_x * semi_x) + y * y / (semi_y * semi_y), smooth)
     zero = wp.float64(0.0)
     weight[i] = wp.vec3d(zero, zero, zero)
     if falloff > zero:
@@ -214,11 +254,11 @@ def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], *, device=Non
     for index, muscle in enumerate(muscles):
         if isinstance(muscle, LinearMuscle):
             inputs = [rest, wp.vec3d(*muscle.attachment), wp.vec3d(*muscle.axis), math.radians(muscle.zone_angle_deg),
-                      muscle.falloff_start, muscle.falloff_finish]
+                      muscle.falloff_start, muscle.falloff_finish, int(muscle.falloff == "smooth")]
             wp.launch(_linear_muscle_weight_kernel, dim=vertex_count, inputs=inputs, outputs=[out], device=device)
         elif isinstance(muscle, SphincterMuscle):
             inputs = [rest, wp.vec3d(*muscle.center), wp.vec3d(*muscle.axis_x), wp.vec3d(*muscle.axis_y),
-                      muscle.semi_axes[0], muscle.semi_axes[1]]
+                      muscle.semi_axes[0], muscle.semi_axes[1], int(muscle.falloff == "smooth")]
             wp.launch(_sphincter_weight_kernel, dim=vertex_count, inputs=inputs, outputs=[out], device=device)
         else:
             raise ValueError(f"muscle {index}: expected LinearMuscle or SphincterMuscle, got {type(muscle).__name__}")

@@ -47,7 +47,7 @@ class KernelExpression:
         device: Warp device.
     """
 
-    def __init__(self, local: LocalExpression, device=None):
+    def __init__(self, local: LocalExpression, *, device=None):
         self.device = wp.get_device(device)
         self.local = local
         self.vertices, self.count, self.control_count = local.vertices, local.count, local.control_count

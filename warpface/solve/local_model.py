@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from ..expression.muscles import muscle_weights
+from ..expression.tissue import skin_muscle_weights
 from ..expression.wrinkles import wrinkle_shapes
 
 __all__ = ["RigOperators", "LocalExpression", "STRETCH_FLOOR"]
@@ -61,7 +61,7 @@ class RigOperators:
     wrinkle_kr: np.ndarray
 
     @classmethod
-    def from_rig(cls, rig, device=None) -> "RigOperators":
+    def from_rig(cls, rig, *, device=None) -> "RigOperators":
         mesh = rig.mesh
         rest = np.asarray(mesh.points, dtype=np.float64)
         triangles = mesh.triangles.astype(np.int64)
@@ -75,7 +75,7 @@ class RigOperators:
             (np.ones(3 * triangle_count), (triangles.ravel(), np.repeat(np.arange(triangle_count), 3))),
             shape=(vertex_count, triangle_count),
         )
-        muscles = muscle_weights(rest, list(rig.muscles), device=device)
+        muscles = skin_muscle_weights(mesh, list(rig.muscles), rig.thickness, device=device)  # with sliding and bunching
         entry_vertex = np.repeat(np.arange(vertex_count), np.diff(muscles.offsets))
         rows = (3 * entry_vertex[:, None] + np.arange(3)[None, :]).ravel()
         columns = np.repeat(muscles.muscle.astype(np.int64), 3)

@@ -189,7 +189,7 @@ def rig_operators(rig, device=None) -> RigOperators:
     """The rig's precomputed solver operators (cached per rig object)."""
     cached = _OPERATORS.get(rig)
     if cached is None:
-        cached = _OPERATORS[rig] = RigOperators.from_rig(rig, device)
+        cached = _OPERATORS[rig] = RigOperators.from_rig(rig, device=device)
     return cached
 
 
@@ -233,7 +233,7 @@ class Solver:
         self.device = device
         self._model = None
         operators = rig_operators(rig, device)
-        self.local = KernelExpression(LocalExpression(operators, self.observation.vertices), device)
+        self.local = KernelExpression(LocalExpression(operators, self.observation.vertices), device=device)
         reach = np.abs(operators.muscle_field).max(axis=0).toarray().ravel()
         self.unit = _face_unit(rig)
         self.reach = np.where(reach > 0.0, reach, 1.0)

@@ -42,7 +42,9 @@ _LAZY = {
     "read_tissue_mesh": "tissue_io",
     "validate_stage": "validate",
     "ValidationProblem": "validate",
+    "read_driver": "skel_io",
     "open_stage": "_files",
+    "usd_error_message": "_files",
     "open_layer": "_files",
     "export_layer_atomically": "_files",
 }

@@ -29,10 +29,11 @@ from pxr import Kind, Sdf, Tf, Usd, UsdGeom, UsdPhysics, Vt
 
 from .._validate import as_positive
 from ..errors import RigError
-from ..expression.muscles import LinearMuscle, SphincterMuscle
+from ..expression.muscles import FALLOFFS, LinearMuscle, SphincterMuscle
 from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrinkle
 from ..mesh import FaceMesh
 from ..rig import FaceRig
+from .jaw_io import author_jaw, read_jaw
 from ._files import LAYER_SUFFIXES, export_layer_atomically, open_stage, writable_path
 from .schema import ensure_schema
 
@@ -59,6 +60,7 @@ _THICKNESS = "warpFace:thickness"
 _LANDMARKS = "warpFace:landmarkIndices"
 _MUSCLES_REL = "warpFace:muscles"
 _WRINKLES_REL = "warpFace:wrinkles"
+_RESPONSE = ("sliding", "bunching", "thickening")
 _DEFAULT = Usd.TimeCode.Default()
 
 
@@ -149,6 +151,7 @@ def _author_rig(stage: Usd.Stage, rig: FaceRig, root: Sdf.Path, meters_per_unit:
     wrinkle_paths = _author_items(stage, root.AppendChild("Wrinkles"), rig.wrinkles, skin_path, _author_wrinkle)
     skin_prim.CreateRelationship(_MUSCLES_REL, custom=False).SetTargets(muscle_paths)
     skin_prim.CreateRelationship(_WRINKLES_REL, custom=False).SetTargets(wrinkle_paths)
+    author_jaw(stage, root.AppendChild(_identifier(rig.jaw.name)) if rig.jaw else None, rig.jaw, skin_prim)
 
 
 def _author_items(stage, scope_path: Sdf.Path, items, skin_path: Sdf.Path, author) -> list[Sdf.Path]:
@@ -190,6 +193,9 @@ def _author_muscle(stage, path, muscle) -> Usd.Prim:
         _set(prim, "axisY", types.Double3, tuple(muscle.axis_y))
         _set(prim, "semiAxes", types.Double2, tuple(muscle.semi_axes))
     _set(prim, "contraction", types.Double, 0.0, uniform=False)
+    _set(prim, "falloff", types.Token, muscle.falloff)
+    for name in _RESPONSE:
+        _set(prim, name, types.Double, getattr(muscle, name))
     return prim
 
 
@@ -363,7 +369,7 @@ def read_rig(stage_or_path, *, skin_path: str | None = None, meters_per_unit: fl
     parent = skin.GetParent()
     name = item_name(parent) if parent and not parent.IsPseudoRoot() else item_name(skin)
     try:
-        return FaceRig(mesh=mesh, muscles=muscles, wrinkles=wrinkles, thickness=thickness, landmarks=landmarks, name=name)
+        return FaceRig(mesh, muscles, wrinkles, thickness, landmarks, name, read_jaw(stage, skin, placements.of, to_units, mesh.vertex_count))
     except ValueError as exc:
         raise RigError(f"{skin.GetPath()}: {exc}") from None
 
@@ -490,6 +496,7 @@ def _read_muscle(prim: Usd.Prim, place: Placement, to_units: float):
                 zone_angle_deg=_scalar(prim, "zoneAngle"),
                 falloff_start=_scalar(prim, "falloffStart") * length,
                 falloff_finish=_scalar(prim, "falloffFinish") * length,
+                **_muscle_response(prim),
             )
         return SphincterMuscle(
             name=item_name(prim),
@@ -497,11 +504,16 @@ def _read_muscle(prim: Usd.Prim, place: Placement, to_units: float):
             axis_x=place.direction(_array(prim, "axisX", (3,))),
             axis_y=place.direction(_array(prim, "axisY", (3,))),
             semi_axes=_array(prim, "semiAxes", (2,)) * length,
+            **_muscle_response(prim),
         )
     except RigError:
         raise
     except ValueError as exc:
         raise RigError(f"{prim.GetPath()}: {exc}") from None
+
+
+def _muscle_response(prim: Usd.Prim) -> dict:  # zone form, sliding, bunching, thickening (fallbacks: SPEC §1.1)
+    return dict(falloff=_token(prim, "falloff", FALLOFFS), **{name: _scalar(prim, name) for name in _RESPONSE})
 
 
 def _read_wrinkle(prim: Usd.Prim, place: Placement, to_units: float) -> Wrinkle:

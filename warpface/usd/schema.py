@@ -118,7 +118,7 @@ def ensure_schema() -> None:
     _verified = True
 
 
-def _register_at_import() -> None:
+def register_at_import() -> None:
     """Called by ``import warpface``: register when usd-core is installed, skip silently when not.
 
     A failure here must not make warpface unimportable (its kernels need no USD), so it becomes a

@@ -1,0 +1,151 @@
+"""Procedural meshes and rigs shared by the test modules, and a field-by-field rig comparison.
+
+A plain module, not a test module: tests import it (``from helpers import grid_surface``); fixtures that
+wrap these live in ``conftest.py``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from warpface import (CylindricalProjection, FaceMesh, FaceRig, LinearMuscle, PlanarProjection, SphincterMuscle,
+                      Wrinkle)
+
+__all__ = ["grid_surface", "small_face_rig", "patch", "icosphere_like", "assert_rigs_equal", "scaled_rig"]
+
+
+def grid_surface(n: int = 24, size: float = 2.0, height: float = 0.3, seed: int | None = 0):
+    """A wavy height-field patch: points (n·n, 3) float64, triangles (2(n−1)², 3) int.
+
+    With ``seed`` a little random jitter is added so normals and areas are all different.
+    """
+    xs = np.linspace(-size / 2, size / 2, n)
+    x, y = np.meshgrid(xs, xs)
+    z = height * np.sin(1.7 * x) * np.cos(1.3 * y)
+    points = np.c_[x.ravel(), y.ravel(), z.ravel()]
+    if seed is not None:
+        rng = np.random.default_rng(seed)
+        points += rng.uniform(-0.15, 0.15, points.shape) * (size / n)
+    index = np.arange(n * n).reshape(n, n)
+    a, b, c, d = index[:-1, :-1].ravel(), index[:-1, 1:].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel()
+    triangles = np.r_[np.c_[a, b, d], np.c_[a, d, c]]
+    return points, triangles
+
+
+def small_face_rig(n: int = 16, *, name: str = "Face"):
+    """A small procedural :class:`warpface.FaceRig` on a :func:`grid_surface` patch (for USD I/O tests).
+
+    Points are rounded to float32 (USD stores mesh points as point3f) so round trips can be exact.
+    Two linear muscles, one sphincter, a planar and a cylindrical wrinkle, a varying thickness,
+    four landmarks; one name is not a valid USD identifier.
+    """
+    points, triangles = grid_surface(n, size=0.2, height=0.02, seed=3)
+    points = points.astype(np.float32).astype(np.float64)
+    muscles = [
+        LinearMuscle("zygomaticus major L", attachment=[0.09, 0.08, -0.03], insertion=[0.02, -0.02, 0.01],
+                     zone_angle_deg=35.0, falloff_start=0.05, falloff_finish=0.14),
+        LinearMuscle("frontalis_R", attachment=[-0.05, 0.12, -0.02], insertion=[-0.04, 0.03, 0.01],
+                     zone_angle_deg=28.5, falloff_start=0.04, falloff_finish=0.11),
+        SphincterMuscle("orbicularis_oris", center=[0.0, -0.03, 0.0], axis_x=[1.0, 0.0, 0.1], axis_y=[0.0, 1.0, 0.0],
+                        semi_axes=(0.05, 0.03)),
+    ]
+    wrinkles = [
+        Wrinkle("forehead_1", control_points=[[-0.06, 0.05], [-0.02, 0.06], [0.02, 0.06], [0.06, 0.05]],
+                projection=PlanarProjection([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
+                depth=0.002, width=0.004, kr=0.0),
+        Wrinkle("crow_L", control_points=[[0.01, -0.02], [0.015, -0.01], [0.02, 0.0], [0.022, 0.015]],
+                projection=CylindricalProjection([0.0, 0.0, -0.1], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], 0.1),
+                depth=0.0015, width=0.003, kr=0.25),
+    ]
+    thickness = 0.004 + 0.003 * (points[:, 0] - points[:, 0].min()) / np.ptp(points[:, 0])
+    mesh = FaceMesh(points, triangles, name="skin mesh")
+    return FaceRig(mesh=mesh, muscles=muscles, wrinkles=wrinkles, thickness=thickness,
+                   landmarks=np.array([0, 5, n * n - 1, n + 3]), name=name)
+
+
+def patch(n: int = 13, size: float = 0.06, hole: bool = True, bend: float = 0.0):
+    """A square patch [m] in the xy plane (normals +z), optionally with a square hole in the middle
+    and bent into a cylinder of curvature ``bend`` around the y axis (convex toward +z)."""
+    xs = np.linspace(-size / 2, size / 2, n)
+    x, y = np.meshgrid(xs, xs)
+    z = np.zeros_like(x)
+    if bend:
+        radius = 1.0 / bend
+        angle = x / radius
+        x, z = radius * np.sin(angle), radius * (np.cos(angle) - 1.0)
+    points = np.c_[x.ravel(), y.ravel(), z.ravel()]
+    index = np.arange(n * n).reshape(n, n)
+    cells = [(i, j) for i in range(n - 1) for j in range(n - 1)]
+    if hole:
+        mid = (n - 1) // 2
+        cells = [(i, j) for i, j in cells if not (mid - 1 <= i <= mid and mid - 1 <= j <= mid)]
+    i, j = np.array(cells).T
+    a, b, c, d = index[i, j], index[i, j + 1], index[i + 1, j], index[i + 1, j + 1]
+    triangles = np.r_[np.c_[a, b, d], np.c_[a, d, c]]
+    used = np.unique(triangles)
+    remap = np.full(len(points), -1)
+    remap[used] = np.arange(len(used))
+    return points[used], remap[triangles]
+
+
+def icosphere_like(n=16):
+    """A UV sphere of radius 2 (poles merged), for checking outward normals."""
+    theta = np.linspace(0, np.pi, n)[1:-1]
+    phi = np.linspace(0, 2 * np.pi, 2 * n, endpoint=False)
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    ring = np.c_[np.sin(t).ravel() * np.cos(p).ravel(), np.sin(t).ravel() * np.sin(p).ravel(), np.cos(t).ravel()]
+    points = 2.0 * np.r_[[[0, 0, 1]], ring, [[0, 0, -1]]]
+    rows, cols = len(theta), len(phi)
+    idx = 1 + np.arange(rows * cols).reshape(rows, cols)
+    nxt = np.roll(idx, -1, axis=1)
+    tris = [np.c_[np.zeros(cols, int), idx[0], nxt[0]]]
+    for r in range(rows - 1):
+        tris += [np.c_[idx[r], idx[r + 1], nxt[r + 1]], np.c_[idx[r], nxt[r + 1], nxt[r]]]
+    last = len(points) - 1
+    tris.append(np.c_[np.full(cols, last), nxt[-1], idx[-1]])
+    return points, np.concatenate(tris)
+
+
+def assert_rigs_equal(a: FaceRig, b: FaceRig) -> None:
+    """Every field identical (bit-exact arrays, same types and order)."""
+    assert a.name == b.name
+    assert a.mesh.name == b.mesh.name
+    assert np.array_equal(a.mesh.points, b.mesh.points)
+    assert np.array_equal(a.mesh.triangles, b.mesh.triangles)
+    assert np.array_equal(a.thickness, b.thickness)
+    assert (a.landmarks is None) == (b.landmarks is None)
+    if a.landmarks is not None:
+        assert np.array_equal(a.landmarks, b.landmarks)
+    assert [type(m) for m in a.muscles] == [type(m) for m in b.muscles]
+    for m, n in zip(a.muscles, b.muscles):
+        fields = ("attachment", "insertion", "zone_angle_deg", "falloff_start", "falloff_finish") if isinstance(m, LinearMuscle) \
+            else ("center", "axis_x", "axis_y", "semi_axes")
+        assert m.name == n.name
+        for field in fields:
+            assert np.array_equal(getattr(m, field), getattr(n, field)), (m.name, field)
+    assert len(a.wrinkles) == len(b.wrinkles)
+    for w, v in zip(a.wrinkles, b.wrinkles):
+        assert (w.name, w.depth, w.width, w.kr) == (v.name, v.depth, v.width, v.kr)
+        assert np.array_equal(w.control_points, v.control_points)
+        assert type(w.projection) is type(v.projection)
+        for field in vars(w.projection):
+            assert np.array_equal(getattr(w.projection, field), getattr(v.projection, field)), (w.name, field)
+
+
+def scaled_rig(rig: FaceRig, factor: float) -> FaceRig:
+    """The same rig with every length multiplied by ``factor``."""
+    muscles = []
+    for m in rig.muscles:
+        if isinstance(m, LinearMuscle):
+            muscles.append(LinearMuscle(m.name, m.attachment * factor, m.insertion * factor, m.zone_angle_deg,
+                                        m.falloff_start * factor, m.falloff_finish * factor))
+        else:
+            muscles.append(SphincterMuscle(m.name, m.center * factor, m.axis_x, m.axis_y, tuple(np.multiply(m.semi_axes, factor))))
+    wrinkles = []
+    for w in rig.wrinkles:
+        p = w.projection
+        projection = PlanarProjection(p.origin * factor, p.u_axis, p.v_axis) if isinstance(p, PlanarProjection) \
+            else CylindricalProjection(p.origin * factor, p.axis, p.reference, p.radius * factor)
+        wrinkles.append(Wrinkle(w.name, w.control_points * factor, projection, w.depth * factor, w.width * factor, w.kr))
+    mesh = FaceMesh(rig.mesh.points * factor, rig.mesh.triangles, name=rig.mesh.name)
+    return FaceRig(mesh, muscles, wrinkles, rig.thickness * factor, rig.landmarks, rig.name)

@@ -1,0 +1,181 @@
+"""The default rig's muscles beyond thesis table 2.1: FACS/ARKit skin motion the classic 23 cannot make.
+
+Placed like the classic muscles (:mod:`warpface.assets.rig`): local ``(x, y)`` in the face frame,
+inter-ocular units, relative to the 68 iBUG landmarks; bone attachments beneath the skin along
+−normal. Each entry names its anatomy and the action units it serves.
+
+Linear, per side:
+
+- depressor supercilii: medial orbital rim → skin of the brow head, down (AU4, ``browDown``);
+- levator anguli oris: canine fossa → mouth corner, straight up (AU13, ``mouthSmile``, ``cheekPuff``);
+- zygomaticus minor: zygomatic bone → lateral upper lip, up and out (AU11, ``mouthUpper``);
+- buccinator: pterygomandibular raphe (deep, at mouth level) → mouth corner, back (AU14, dimple);
+- platysma: fascia over the lower mandible → lip corner and lower lip, down and out (AU20/AU25,
+  ``mouthStretch``, ``mouthLower``); its wide zone reaches the jaw line and lower cheek;
+- nasalis: maxilla beside the nose wing → side of the nose, up and in (AU9, ``noseSneer``);
+- orbicularis oculi palpebral part, per lid (upper: AU45 ``eyeBlink``; lower: AU7 ``eyeSquint``), and the
+  levator palpebrae superioris that opens the upper lid (AU5, ``eyeWide``);
+- orbicularis oris roll, upper and lower lip: a bone point behind the lips' contact line → the
+  vermilion, rolling each lip in (AU28, ``mouthRollUpper/Lower``).
+
+Sphincters (replacing the classic lateral orbicularis oculi):
+
+- orbicularis oculi orbital part, per side: centred between the eye and its medial canthus (the fibres
+  arise from the medial orbital margin and the medial palpebral ligament, so the skin around the
+  eye is drawn toward it: cheek up, brow tail down, temple skin medially — AU6, ``cheekSquint``);
+- orbicularis oris press: a flat ellipse on the lips' contact line that presses the lips together
+  (AU24, ``mouthPress``, ``mouthClose``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..expression.muscles import LinearMuscle, SphincterMuscle
+from .frame import FaceFrame, SurfaceSampler
+
+__all__ = ["ANATOMY_LINEAR_MUSCLE_NAMES", "ANATOMY_SPHINCTER_MUSCLE_NAMES", "anatomy_muscles", "frontalis_bellies"]
+
+_SIDES = (("L", +1.0), ("R", -1.0))
+# iBUG indices per side: brow inner end, eye inner/outer corner, eye ring, nose wing, mouth corner,
+# upper-lip border point, lower-lip border point, jaw outline at mouth level, jaw outline below the corner.
+_LANDMARKS = {
+    "L": dict(brow_inner=22, eye_inner=42, eye_outer=45, eye=tuple(range(42, 48)), wing=35, corner=54, upper=52,
+              lower=56, jaw_mouth=12, jaw_low=10),
+    "R": dict(brow_inner=21, eye_inner=39, eye_outer=36, eye=tuple(range(36, 42)), wing=31, corner=48, upper=50,
+              lower=58, jaw_mouth=4, jaw_low=6),
+}
+
+ANATOMY_LINEAR_MUSCLE_NAMES: tuple[str, ...] = (
+    *(f"depressor_supercilii_{s}" for s, _ in _SIDES),
+    *(f"levator_anguli_oris_{s}" for s, _ in _SIDES),
+    *(f"zygomaticus_minor_{s}" for s, _ in _SIDES),
+    *(f"buccinator_{s}" for s, _ in _SIDES),
+    *(f"platysma_{s}" for s, _ in _SIDES),
+    *(f"nasalis_{s}" for s, _ in _SIDES),
+    *(f"orbicularis_oculi_upper_lid_{s}" for s, _ in _SIDES),
+    *(f"orbicularis_oculi_lower_lid_{s}" for s, _ in _SIDES),
+    *(f"levator_palpebrae_{s}" for s, _ in _SIDES),
+    "orbicularis_oris_roll_upper",
+    "orbicularis_oris_roll_lower",
+)
+"""Linear muscles added by the full anatomy, in rig order."""
+
+ANATOMY_SPHINCTER_MUSCLE_NAMES: tuple[str, ...] = ("orbicularis_oris_press",)
+"""Sphincters added by the full anatomy (the orbital orbicularis oculi keeps its classic name)."""
+
+
+def _linear(name, surface: SurfaceSampler, origin_xy, depth, insertion_xy, zone_deg, start, finish) -> LinearMuscle:
+    """Bone point ``depth`` units beneath ``origin_xy`` → skin at ``insertion_xy``; radii as fractions of the length."""
+    attachment = surface.below(origin_xy, depth)
+    insertion = surface.point(insertion_xy)
+    length = float(np.linalg.norm(insertion - attachment))
+    return LinearMuscle(name, attachment, insertion, zone_deg, start * length, finish * length)
+
+
+FRONTALIS_REACH = 2.8
+"""Falloff finish of the frontalis as a multiple of its length: the brow skin drags the lids and the
+upper cheek along (on the ICT-FaceKit brow shapes the skin 1 unit below the brows still rises by
+a fifth of the brows' rise)."""
+
+
+def frontalis_bellies(local: np.ndarray, surface: SurfaceSampler, classic: list[LinearMuscle]) -> list[LinearMuscle]:
+    """The full rig's frontalis: each belly anchored in the mid-forehead instead of beyond the hairline.
+
+    The frontalis has no bony origin: it arises from the galea aponeurotica, which glides over the
+    skull on loose areolar tissue. Raising the brows, the skin below the belly's middle rises and
+    the skin above it barely moves (measured on the ICT-FaceKit brow shapes: the brows rise 6 mm
+    while the skin 0.6 inter-ocular units above them stays within 0.5 mm), so the fixed point of the
+    pull is the belly's middle, 0.55 units above the brow top and 0.12 beneath the skin.
+    """
+    brow_top = float(local[17:27, 1].max())
+    out = []
+    for muscle in classic:
+        if muscle.name.startswith("risorius_"):
+            # Risorius lies in the superficial fascia over the masseter: its fixed end is just under the
+            # skin at the side of the face (a point 0.30 deep along the side's normal would lie behind
+            # the mouth corner and pull it into the face).
+            origin = surface.frame.to_local(surface.below(surface.frame.to_local(muscle.attachment)[:2], 0.0))
+            side_xy = (np.sign(origin[0]) * max(abs(origin[0]), 0.9), surface.frame.to_local(muscle.insertion)[1] + 0.02)
+            attachment = surface.below(side_xy, 0.04)
+            length = float(np.linalg.norm(muscle.insertion - attachment))
+            out.append(LinearMuscle(muscle.name, attachment, muscle.insertion, 24.0, 0.90 * length, 1.40 * length))
+            continue
+        if not muscle.name.startswith("frontalis_"):
+            out.append(muscle)
+            continue
+        insertion = surface.frame.to_local(muscle.insertion)
+        attachment = surface.below((insertion[0], brow_top + 0.55), 0.12)
+        length = float(np.linalg.norm(muscle.insertion - attachment))
+        out.append(LinearMuscle(muscle.name, attachment, muscle.insertion, 45.0, 0.90 * length, FRONTALIS_REACH * length))
+    return out
+
+
+def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame,
+                    classic_sphincters: list[SphincterMuscle]) -> tuple[list[LinearMuscle], list[SphincterMuscle]]:
+    """The added linear muscles and the full rig's sphincters, from the local landmarks (68, 3)."""
+    xy = local[:, :2]
+    linear: dict[str, LinearMuscle] = {}
+    for tag, s in _SIDES:
+        i = _LANDMARKS[tag]
+        brow_inner, eye_inner, eye_outer = xy[i["brow_inner"]], xy[i["eye_inner"]], xy[i["eye_outer"]]
+        eye = xy[list(i["eye"])].mean(axis=0)
+        wing, corner, upper, lower = xy[i["wing"]], xy[i["corner"]], xy[i["upper"]], xy[i["lower"]]
+        jaw_mouth, jaw_low = xy[i["jaw_mouth"]], xy[i["jaw_low"]]
+        linear[f"depressor_supercilii_{tag}"] = _linear(
+            f"depressor_supercilii_{tag}", surface, (0.5 * (eye_inner[0] + 0.05 * s), eye_inner[1] - 0.02), 0.10,
+            (brow_inner[0] + 0.02 * s, brow_inner[1] + 0.04), 40.0, 0.75, 1.45)
+        linear[f"levator_anguli_oris_{tag}"] = _linear(
+            f"levator_anguli_oris_{tag}", surface, (wing[0] + 0.12 * s, wing[1] - 0.02), 0.25,
+            (corner[0] + 0.02 * s, corner[1] + 0.02), 30.0, 0.85, 1.45)
+        linear[f"zygomaticus_minor_{tag}"] = _linear(
+            f"zygomaticus_minor_{tag}", surface, (eye[0] + 0.12 * s, eye[1] - 0.42), 0.22,
+            (0.5 * (upper[0] + corner[0]), upper[1] + 0.03), 24.0, 0.85, 1.40)
+        linear[f"buccinator_{tag}"] = _linear(
+            f"buccinator_{tag}", surface, (0.80 * jaw_mouth[0], corner[1] - 0.02), 0.12,
+            (corner[0] + 0.05 * s, corner[1]), 34.0, 0.90, 1.45)
+        linear[f"platysma_{tag}"] = _linear(
+            f"platysma_{tag}", surface, (jaw_low[0] + 0.05 * s, jaw_low[1] - 0.35), 0.20,
+            (corner[0] + 0.03 * s, corner[1] - 0.06), 38.0, 0.95, 1.55)
+        linear[f"nasalis_{tag}"] = _linear(
+            f"nasalis_{tag}", surface, (wing[0] + 0.06 * s, wing[1] + 0.02), 0.12,
+            (0.45 * wing[0], xy[29, 1]), 30.0, 0.80, 1.45)
+    for tag, s in _SIDES:
+        # Palpebral part, one per lid: its fibres run round the lid between the palpebral ligaments,
+        # so a contraction carries the lid (and the skin beyond it) toward the opposite lid margin
+        # and a little medially, and nothing on the far side of that margin moves (a ring centred
+        # there would also pull the brow down).
+        ring = xy[list(_LANDMARKS[tag]["eye"])]
+        eye, inner = ring.mean(axis=0), xy[_LANDMARKS[tag]["eye_inner"]]
+        top, bottom = ring[:, 1].max(), ring[:, 1].min()
+        medial = eye[0] + 0.75 * (inner[0] - eye[0])
+        linear[f"orbicularis_oculi_upper_lid_{tag}"] = _linear(
+            f"orbicularis_oculi_upper_lid_{tag}", surface, (medial, bottom), 0.06, (eye[0], top + 0.10), 70.0, 0.90, 1.70)
+        linear[f"orbicularis_oculi_lower_lid_{tag}"] = _linear(
+            f"orbicularis_oculi_lower_lid_{tag}", surface, (medial, top), 0.06, (eye[0], bottom - 0.12), 70.0, 0.90, 2.20)
+        # Levator palpebrae superioris: from the orbit's roof, deep behind the brow, into the upper lid (eyeWide).
+        linear[f"levator_palpebrae_{tag}"] = _linear(
+            f"levator_palpebrae_{tag}", surface, (eye[0], top + 0.30), 0.35, (eye[0], top + 0.02), 40.0, 0.90, 1.30)
+    mouth_line = 0.5 * (xy[62, 1] + xy[66, 1])
+    linear["orbicularis_oris_roll_upper"] = _linear(
+        "orbicularis_oris_roll_upper", surface, (0.0, mouth_line + 0.02), 0.35, (0.0, xy[51, 1]), 60.0, 0.90, 1.45)
+    linear["orbicularis_oris_roll_lower"] = _linear(
+        "orbicularis_oris_roll_lower", surface, (0.0, mouth_line - 0.02), 0.35, (0.0, xy[57, 1]), 60.0, 0.90, 1.45)
+
+    world, up = frame.to_world, frame.axes[1]
+    sphincters = {m.name: m for m in classic_sphincters}
+    for tag, s in _SIDES:
+        i = _LANDMARKS[tag]
+        eye = local[list(i["eye"])].mean(axis=0)
+        across = world(local[i["eye_outer"]]) - world(local[i["eye_inner"]])
+        inner = local[i["eye_inner"]]
+        centre = eye + 0.20 * (inner - eye)
+        sphincters[f"orbicularis_oculi_{tag}"] = SphincterMuscle(
+            f"orbicularis_oculi_{tag}", world(centre), across, up, (0.72 * frame.scale, 0.58 * frame.scale))
+    mouth = local[60:68].mean(axis=0)
+    half_width = 0.5 * np.linalg.norm(local[54] - local[48])
+    sphincters["orbicularis_oris_press"] = SphincterMuscle(
+        "orbicularis_oris_press", world(mouth), world(local[54]) - world(local[48]), up,
+        (1.15 * half_width * frame.scale, 0.30 * frame.scale))
+    order = [m.name for m in classic_sphincters] + list(ANATOMY_SPHINCTER_MUSCLE_NAMES)
+    return [linear[name] for name in ANATOMY_LINEAR_MUSCLE_NAMES], [sphincters[name] for name in order]

@@ -1,0 +1,140 @@
+"""The default rig's jaw (SPEC §6.2): a hinge between the temporomandibular joints and smooth skin weights.
+
+Everything is placed from the 68 iBUG landmarks in the :class:`~warpface.assets.frame.FaceFrame`
+(inter-ocular units), so the same construction fits any landmark-rigged face.
+
+**Hinge.** The pivot lies on the midline between the ear-level jaw points (iBUG 0 and 16), 0.15 units
+below and 0.20 behind them — the condyles sit just in front of and below the tragus, inside the head;
+the axis is the frame's x axis (positive angles open the mouth), protrusion is the frame's z axis.
+
+**Weights** ``w ∈ [0, 1]`` (docs/RIG.md §4). A *jaw line* in the face plane runs along the lips' contact
+line (inner-lip landmarks 60–67) between the mouth corners and from each corner up to the jaw outline
+at iBUG 2/14 (the lower cheek follows the mandible, the cheek above it only partly). With ``φ`` the
+height below that line, ``w = smoothstep((φ + a)/(a + b))`` (cubic, C¹): near the mouth ``a = b`` is
+small, so the lips part along the contact line; beside it the ramp widens (``a`` = 0.30, ``b`` = 0.30)
+over the cheeks. Where the mesh has a mouth opening, its rim is split at the corners into an upper and
+a lower arc; with geodesic distances ``d_u``, ``d_l`` to them, ``φ`` gains
+``ε·(d_u − d_l)/(d_u + d_l + c)`` near the mouth, so each lip follows its own side of the opening
+(the lower lip the jaw, the upper lip not) and the term fades to 0 at the corners, where both
+distances agree.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from ..expression.jaw import Jaw
+from ..mesh import FaceMesh
+from .frame import FaceFrame
+
+__all__ = ["default_jaw", "jaw_weights"]
+
+_ABOVE_RAMP = 0.30
+"""Reach of the weight ramp above the jaw line [inter-ocular units]: upper lip and cheeks follow partly."""
+_BELOW_RAMP = (0.12, 0.30)
+"""Reach of the ramp below the jaw line at the mouth and beside it [inter-ocular units]."""
+_NECK_RAMP = (0.02, 0.28)
+"""Below the mandible's lower border (iBUG 4–12) the weight falls from 1 to 0 between these depths."""
+_LIP_OFFSET = 0.20
+"""ε: how far the lip-side term moves a lip off the contact line [inter-ocular units]."""
+_CORNER_SOFTENING = 0.25
+"""Added to ``d_u + d_l`` [inter-ocular units]: near a mouth corner, where both distances are small,
+the lip-side term fades smoothly instead of flipping between neighbouring vertices."""
+_LIP_REACH = (0.25, 0.55)
+"""Geodesic distance from the mouth rim over which the lip-side term fades out [inter-ocular units]."""
+
+
+_PIVOT_OFFSET = (0.35, -0.65)
+"""Hinge pivot relative to the ear-level jaw points (iBUG 0/16 midpoint), (up, out) [inter-ocular units]."""
+
+
+def _smoothstep(t: np.ndarray) -> np.ndarray:
+    t = np.clip(t, 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def _jaw_line(local_landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Knots (x, y) of the jaw line, sorted by x, and the mouth half-width [inter-ocular units]."""
+    L = local_landmarks[:, :2]
+    contact = [L[60], 0.5 * (L[61] + L[67]), 0.5 * (L[62] + L[66]), 0.5 * (L[63] + L[65]), L[64]]
+    knots = np.array([L[2], *contact, L[14]])
+    far = np.array([[knots[0, 0] - 1.0, knots[0, 1]], [knots[-1, 0] + 1.0, knots[-1, 1]]])
+    knots = np.concatenate([far[:1], knots, far[1:]])
+    order = np.argsort(knots[:, 0])
+    return knots[order, 0], knots[order, 1], 0.5 * abs(L[64, 0] - L[60, 0])
+
+
+def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarray, scale: float):
+    """``(d_u − d_l)/(d_u + d_l + c)`` and the distance to the rim [inter-ocular units], or None without a mouth opening."""
+    edges = np.sort(mesh.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    open_edges = unique[counts == 1]
+    centre = local_landmarks[60:68, :2].mean(axis=0)
+    half_width = 0.5 * abs(local_landmarks[64, 0] - local_landmarks[60, 0])
+    near = np.linalg.norm(local[open_edges, :2] - centre, axis=2).max(axis=1) < 1.3 * half_width
+    rim_edges = open_edges[near]
+    if len(rim_edges) < 6:
+        return None
+    rim = np.unique(rim_edges)
+    corners = [rim[np.argmin(np.linalg.norm(local[rim, :2] - local_landmarks[i, :2], axis=1))] for i in (60, 64)]
+    # Walk the rim from one corner to the other both ways round: the two arcs.
+    neighbours: dict[int, list[int]] = {int(v): [] for v in rim}
+    for a, b in rim_edges:
+        neighbours[int(a)].append(int(b))
+        neighbours[int(b)].append(int(a))
+    arcs = []
+    for first in neighbours[int(corners[0])][:2]:
+        arc, previous, current = [int(corners[0])], int(corners[0]), first
+        while current != int(corners[1]) and current not in arc and len(arc) <= len(rim):
+            arc.append(current)
+            following = [n for n in neighbours[current] if n != previous]
+            if not following:
+                break
+            previous, current = current, following[0]
+        arc.append(current)
+        arcs.append(np.array(arc[1:-1]))
+    if len(arcs) != 2 or min(len(a) for a in arcs) == 0:
+        return None
+    upper, lower = sorted(arcs, key=lambda arc: -local[arc, 1].mean())
+    lengths = np.linalg.norm(local[edges[:, 0]] - local[edges[:, 1]], axis=1) * scale
+    graph = coo_matrix((lengths, (edges[:, 0], edges[:, 1])), shape=(mesh.vertex_count,) * 2).tocsr()
+    d_upper = dijkstra(graph, directed=False, indices=upper, min_only=True)
+    d_lower = dijkstra(graph, directed=False, indices=lower, min_only=True)
+    finite = np.isfinite(d_upper) & np.isfinite(d_lower) & (d_upper + d_lower > 0.0)
+    side = np.zeros(mesh.vertex_count)
+    softening = _CORNER_SOFTENING * scale
+    side[finite] = (d_upper[finite] - d_lower[finite]) / (d_upper[finite] + d_lower[finite] + softening)
+    reach = np.where(finite, np.minimum(d_upper, d_lower), np.inf) / scale
+    return side, reach
+
+
+def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.ndarray:
+    """Per-vertex jaw weights of the default rig, shape (V,), in [0, 1] (module docstring)."""
+    local = frame.to_local(mesh.points)
+    local_landmarks = local[landmarks]
+    knot_x, knot_y, half_width = _jaw_line(local_landmarks)
+    below = np.interp(local[:, 0], knot_x, knot_y) - local[:, 1]
+    mouth_x = local_landmarks[60:68, 0].mean()
+    lateral = _smoothstep((np.abs(local[:, 0] - mouth_x) - 0.55 * half_width) / (0.75 * half_width))
+    above_ramp = _ABOVE_RAMP
+    below_ramp = _BELOW_RAMP[0] + lateral * (_BELOW_RAMP[1] - _BELOW_RAMP[0])
+    rim = _mouth_rim_side(mesh, local, local_landmarks, frame.scale)
+    if rim is not None:
+        side, reach = rim
+        fade = 1.0 - _smoothstep((reach - _LIP_REACH[0]) / (_LIP_REACH[1] - _LIP_REACH[0]))
+        below = below + _LIP_OFFSET * side * fade
+    border = local_landmarks[4:13, :2]
+    border = np.concatenate([[border[0] - (1.0, 0.0)], border, [border[-1] + (1.0, 0.0)]])
+    under = np.interp(local[:, 0], border[:, 0], border[:, 1]) - local[:, 1]
+    neck = 1.0 - _smoothstep((under - _NECK_RAMP[0]) / (_NECK_RAMP[1] - _NECK_RAMP[0]))
+    return _smoothstep((below + above_ramp) / (above_ramp + below_ramp)) * neck
+
+
+def default_jaw(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> Jaw:
+    """The default rig's :class:`~warpface.expression.Jaw` on a face (module docstring)."""
+    local_landmarks = frame.to_local(mesh.points[landmarks])
+    ears = 0.5 * (local_landmarks[0] + local_landmarks[16])
+    pivot = frame.to_world([0.0, ears[1] + _PIVOT_OFFSET[0], ears[2] + _PIVOT_OFFSET[1]])
+    return Jaw(pivot=pivot, axis=frame.axes[0], forward=frame.axes[2], weights=jaw_weights(mesh, frame, landmarks))

@@ -1,0 +1,160 @@
+"""How the skin answers a muscle's pull: sliding on its tangent plane and bunching out of the face.
+
+Both are rig-time, per-vertex and linear in the contraction (docs/RIG.md §2–3), so a muscle's field
+stays ``d = K · w'(P)`` and the solver's Jacobian of the muscle stage is still exactly ``W``:
+
+- **sliding** ``s ∈ [0, 1]``: ``w_s = (1 − s)·w + s·|w|·t̂`` with ``t̂`` the unit direction of the pull's
+  tangential part ``w − (w·N) N`` and ``N`` the rest unit vertex normal averaged over
+  :data:`FASCIA_RADIUS` (the fascia's normal): the skin glides along the surface toward the
+  attachment by the full pull instead of sinking toward the bone beneath it. Skin glides
+  over the fascia instead of sinking toward a bone attachment beneath it.
+- **bunching** ``β ≥ 0``: ``w' = w_s − β · h · ρ(w_s) · N`` where ``ρ(w)`` is the first-order relative
+  area change of the skin around a vertex under the field: ``Σ_t δA_t / Σ_t A_t`` over the incident
+  triangles, ``δA_t = Σ_i ∂A_t/∂p_i · w_i`` with ``∂A/∂p_i = ½ n̂ × (p_{i+2} − p_{i+1})`` (the
+  area-weighted form of §1.2's ``dr/dK``: a sliver triangle cannot dominate it). Compressed tissue
+  (``ρ < 0``) moves out along ``N``, stretched tissue thins. ``ρ`` is averaged over
+  :data:`FASCIA_RADIUS` and the height saturates at :data:`BUNCHING_CAP` times the muscle's
+  largest pull (``c·tanh(b/c)``, still per unit K). It is the linearised §1.3 bulge
+  ``(1/r − 1)·h ≈ −ρ·K·h`` of the muscle belly and fat pads, which the thin-sheet bulge under-states.
+- **thickening** ``τ ≥ 0``: ``w' += τ · |w| · N``: a shortening muscle belly thickens (its volume is
+  conserved), lifting the skin over it in proportion to the pull there.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.spatial import cKDTree
+
+from ._sparse import vertex_csr
+from .muscles import Muscle, MuscleWeights
+
+__all__ = ["tissue_response", "skin_muscle_weights", "stretch_rate", "neighbourhood_mean", "FASCIA_RADIUS", "BUNCHING_CAP"]
+
+FASCIA_RADIUS = 0.03
+"""Radius of the neighbourhood averages below, as a fraction of the mesh's size (its bounding-box
+diagonal; 6 mm on a 20 cm face). Skin slides over the fascia beneath it, whose surface is smoother
+than the skin's own curls (a lip rolling into the mouth, a lid margin); and the area change of a
+sliver triangle at a mouth or eye corner must not raise a spike. Neighbourhoods are Euclidean, so
+they reach across the lips' slit and the lid opening."""
+BUNCHING_CAP = 0.5
+"""Bunching saturates smoothly (``c·tanh(b/c)``) at this fraction of the muscle's largest pull."""
+
+
+def neighbourhood_mean(points: np.ndarray, values: np.ndarray, radius: float) -> np.ndarray:
+    """Gaussian-weighted mean (σ = radius/2) of per-vertex ``values`` (V, ...) over the points within ``radius``."""
+    tree = cKDTree(points)
+    pairs = tree.query_pairs(radius, output_type="ndarray")
+    sigma2 = (0.5 * radius) ** 2
+    weight = np.exp(-np.sum((points[pairs[:, 0]] - points[pairs[:, 1]]) ** 2, axis=1) / (2.0 * sigma2))
+    count = len(points)
+    matrix = coo_matrix((np.concatenate([weight, weight, np.ones(count)]),
+                         (np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(count)]),
+                          np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(count)]))), shape=(count, count)).tocsr()
+    total = np.asarray(matrix.sum(axis=1)).ravel()
+    flat = values.reshape(count, -1)
+    return (matrix @ flat / total[:, None]).reshape(values.shape)
+
+
+def stretch_rate(points: np.ndarray, triangles: np.ndarray, field: np.ndarray) -> np.ndarray:
+    """First-order relative area change around each vertex under displacements ``field`` (module docstring).
+
+    Args:
+        points: rest positions, shape (V, 3), float64.
+        triangles: shape (T, 3), int.
+        field: displacement per unit control, shape (V, 3) or (M, V, 3).
+
+    Returns:
+        ``Σ_t δA_t / Σ_t A_t`` per vertex, shape (V,) or (M, V); 0 where a vertex has no
+        non-degenerate triangle.
+    """
+    field = np.asarray(field, dtype=np.float64)
+    batched = field.ndim == 3
+    fields = field if batched else field[None]
+    corners = points[triangles]
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    double_area = np.linalg.norm(normal, axis=1)
+    counted = double_area > 1e-30 * max(1.0, float(np.abs(points).max()) ** 2)
+    unit = np.zeros_like(normal)
+    unit[counted] = normal[counted] / double_area[counted, None]
+    change = np.zeros((len(fields), len(triangles)))
+    for i in range(3):
+        # ∂A/∂p_i = ½ n̂ × (p_{i+2} − p_{i+1}).
+        gradient = 0.5 * np.cross(unit, corners[:, (i + 2) % 3] - corners[:, (i + 1) % 3])
+        change += np.einsum("tk,mtk->mt", gradient, fields[:, triangles[:, i]])
+    kept = triangles[counted]
+    area = np.zeros(len(points))
+    for i in range(3):
+        np.add.at(area, kept[:, i], 0.5 * double_area[counted])
+    total = np.zeros((len(fields), len(points)))
+    for m in range(len(fields)):
+        for i in range(3):
+            total[m] += np.bincount(kept[:, i], weights=change[m, counted], minlength=len(points))
+    result = np.divide(total, area, out=np.zeros_like(total), where=area > 0)
+    return result if batched else result[0]
+
+
+def tissue_response(points: np.ndarray, triangles: np.ndarray, normals: np.ndarray, thickness: np.ndarray,
+                    muscles: Sequence[Muscle], weights: MuscleWeights) -> MuscleWeights:
+    """Muscle weights with each muscle's sliding and bunching applied (module docstring).
+
+    Args:
+        points: rest positions, shape (V, 3); triangles: shape (T, 3).
+        normals: rest unit vertex normals, shape (V, 3).
+        thickness: subcutaneous thickness h [mesh units], shape (V,).
+        muscles: the muscles, in the column order of ``weights``.
+        weights: the §1.1/§6.3 zone weights from :func:`~warpface.expression.muscle_weights`.
+
+    Returns:
+        New sparse weights (bunching reaches one ring of vertices beyond a zone).
+    """
+    points = np.asarray(points, dtype=np.float64)
+    extent = points.max(axis=0) - points.min(axis=0) if len(points) else np.zeros(3)
+    radius = FASCIA_RADIUS * float(np.linalg.norm(extent))
+    normals = neighbourhood_mean(points, np.asarray(normals, dtype=np.float64), radius)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    normals = np.divide(normals, length, out=np.zeros_like(normals), where=length > 1e-12)
+    vertex_count = len(points)
+    row = np.repeat(np.arange(vertex_count), np.diff(weights.offsets))
+    rows, columns, values = [], [], []
+    for index, muscle in enumerate(muscles):
+        mine = weights.muscle == index
+        field = np.zeros((vertex_count, 3))
+        field[row[mine]] = weights.weight[mine]
+        pull = np.linalg.norm(field, axis=1)
+        if muscle.sliding > 0.0:
+            tangential = field - np.sum(field * normals, axis=1, keepdims=True) * normals
+            length = np.linalg.norm(tangential, axis=1, keepdims=True)
+            along = np.divide(tangential * pull[:, None], length, out=np.zeros_like(tangential), where=length > 1e-12 * (pull.max() + 1e-300))
+            field = (1.0 - muscle.sliding) * field + muscle.sliding * along
+        if muscle.thickening > 0.0:
+            field += (muscle.thickening * pull)[:, None] * normals
+        if muscle.bunching > 0.0:
+            height = -muscle.bunching * thickness * neighbourhood_mean(points, stretch_rate(points, triangles, field), radius)
+            cap = BUNCHING_CAP * float(np.linalg.norm(field, axis=1).max())
+            if cap > 0.0:
+                field += (cap * np.tanh(height / cap))[:, None] * normals
+        moved = np.flatnonzero(np.any(field != 0.0, axis=1))
+        rows.append(moved)
+        columns.append(np.full(len(moved), index, dtype=np.int32))
+        values.append(field[moved])
+    offsets, column, value = vertex_csr(vertex_count, rows, columns, values)
+    return MuscleWeights(offsets=offsets, muscle=column, weight=value)
+
+
+def skin_muscle_weights(mesh, muscles: Sequence[Muscle], thickness: np.ndarray, *, device=None) -> MuscleWeights:
+    """The weights the expression model applies: zone weights, then each muscle's sliding and bunching.
+
+    Args:
+        mesh: the rest :class:`~warpface.FaceMesh`; muscles: in contraction order;
+        thickness: h per vertex [mesh units], shape (V,); device: Warp device of the weight kernels.
+    """
+    from .muscles import muscle_weights
+
+    weights = muscle_weights(mesh.points, list(muscles), device=device)
+    if any(m.sliding > 0.0 or m.bunching > 0.0 or m.thickening > 0.0 for m in muscles):
+        normals = mesh.vertex_normals(device=device)
+        weights = tissue_response(mesh.points, mesh.triangles, normals, np.asarray(thickness, dtype=np.float64), muscles, weights)
+    return weights
