@@ -117,6 +117,70 @@ class NumpyExpression:
         return x2 + height.astype(np.float32)[:, None] * n2
 
 
+class TorchExpression:
+    """The same per-frame math in PyTorch float32, vectorised over frames: gathers and ``index_add_`` scatters.
+
+    Built from a :class:`NumpyExpression` (the same rig-time precomputation). ``torch`` is passed in
+    (imported lazily by the caller); :meth:`frames` takes (B, M) contractions and (B, W) depths and
+    returns (B, V, 3) positions. Stretch ratio and normal sum share one 4-wide scatter, as in the
+    Warp kernels' packed per-triangle terms.
+    """
+
+    def __init__(self, reference: NumpyExpression, torch, device: str):
+        self.torch, self.v = torch, reference.v
+
+        def tensor(values, dtype=torch.float32):
+            return torch.as_tensor(np.ascontiguousarray(values), dtype=dtype, device=device)
+
+        self.rest = tensor(reference.rest)[None]
+        self.corner_a, self.corner_b, self.corner_c = (tensor(reference.triangles[:, i], torch.int64) for i in range(3))
+        self.corners = tensor(reference.corners, torch.int64)
+        counts = reference.corner_count
+        self.inverse_count = tensor(np.where(counts > 0, 1.0 / np.maximum(counts, 1), 0.0))
+        self.no_triangles = tensor(counts == 0, torch.bool)
+        self.muscle_row, self.muscle_col = tensor(reference.muscle_row, torch.int64), tensor(reference.muscle_col, torch.int64)
+        self.muscle_weight = tensor(reference.muscle_weight)[None]
+        self.wrinkle_row, self.wrinkle_col = tensor(reference.wrinkle_row, torch.int64), tensor(reference.wrinkle_col, torch.int64)
+        self.wrinkle_shape = tensor(reference.wrinkle_shape)[None]
+        kr = reference.kr[reference.wrinkle_col]
+        self.kr = tensor(kr)[None]
+        self.fade_rate = tensor(np.where(kr > 0, 1.0 - 1.0 / np.where(kr > 0, kr, 1.0), 0.0))[None]
+        self.thickness = float(reference.thickness)
+        self.inverse_rest_length = tensor(1.0 / reference.rest_length)[None]
+
+    def _scatter(self, rows, values):
+        """Per-entry (B, E, C) values summed into per-vertex (B, V, C)."""
+        out = self.torch.zeros((values.shape[0], self.v, values.shape[2]), dtype=values.dtype, device=values.device)
+        return out.index_add_(1, rows, values)
+
+    def _area_vectors(self, x):
+        p0 = x[:, self.corner_a]
+        return self.torch.cross(x[:, self.corner_b] - p0, x[:, self.corner_c] - p0, dim=-1)
+
+    def _unit(self, vectors):
+        """Normalised rows; zero rows stay zero (as ``safe_normalize``)."""
+        length = self.torch.linalg.vector_norm(vectors, dim=-1, keepdim=True)
+        return vectors / self.torch.clamp(length, min=1e-30)
+
+    def frames(self, contraction, depth):
+        torch = self.torch
+        x1 = self.rest + self._scatter(self.muscle_row, self.muscle_weight * contraction[:, self.muscle_col, None])
+        av = self._area_vectors(x1)
+        ratio = torch.linalg.vector_norm(av, dim=-1, keepdim=True) * self.inverse_rest_length[..., None]
+        terms = torch.cat([av, ratio], dim=-1)
+        summed = self._scatter(self.corners, torch.cat([terms, terms, terms], dim=1))
+        r = torch.where(self.no_triangles, 1.0, summed[..., 3] * self.inverse_count)
+        growth = (1.0 / torch.clamp(r, min=1e-4) - 1.0) * self.thickness
+        x2 = x1 + growth[..., None] * self._unit(summed[..., :3])
+        av2 = self._area_vectors(x2)
+        n2 = self._unit(self._scatter(self.corners, torch.cat([av2, av2, av2], dim=1)))
+        rr = r[:, self.wrinkle_row]
+        fading = torch.where(self.kr > 0, self.kr * torch.exp(self.fade_rate * (rr - 1.0)), 0.0)
+        c = torch.where(rr <= 1.0, (self.kr - 1.0) * rr + 1.0, fading)
+        height = self._scatter(self.wrinkle_row, (depth[:, self.wrinkle_col] * self.wrinkle_shape * c)[..., None])
+        return x2 + height * n2
+
+
 def face_mesh() -> tuple[wf.FaceMesh, str]:
     path = ict_face_region()
     if path is not None:
@@ -129,7 +193,78 @@ def face_mesh() -> tuple[wf.FaceMesh, str]:
         return wavy_grid(10_000), "grid (no face available)"
 
 
-def run_case(label: str, mesh: wf.FaceMesh, device, quick: bool) -> dict:
+TORCH_TOLERANCE = 1e-5
+"""Torch peer vs warpface, max |Δx| as a fraction of the mesh size: float32 sums in another order."""
+
+
+def torch_rows(reference: NumpyExpression, model, contractions: np.ndarray, depths: np.ndarray, quick: bool) -> dict:
+    """The PyTorch CUDA peer on the model's device: single frame (synchronised) and batched; {} without torch/CUDA."""
+    if not model.device.is_cuda:
+        return {}
+    try:
+        import torch
+    except ImportError:
+        return {}
+    if not torch.cuda.is_available():
+        return {}
+    device = f"cuda:{model.device.ordinal}"
+    peer = TorchExpression(reference, torch, device)
+    one_c = torch.as_tensor(contractions[None], dtype=torch.float32, device=device)
+    one_d = torch.as_tensor(depths[None], dtype=torch.float32, device=device)
+    frames = int(np.clip((1 << 22) // reference.v, 1, 512))
+    rng = np.random.default_rng(3)
+    batch_c = torch.as_tensor(contractions * rng.uniform(0.5, 1.0, (frames, len(contractions))), dtype=torch.float32, device=device)
+    batch_d = one_d.expand(frames, -1).contiguous()
+    with torch.inference_mode():
+        got = peer.frames(batch_c[:2], batch_d[:2]).cpu().numpy()
+        expected = model.evaluate_batch(batch_c[:2].cpu().numpy().astype(np.float64), wrinkle_depths=np.tile(depths, (2, 1)))
+        difference = float(np.abs(got - expected).max())
+        sync = torch.cuda.synchronize
+        single_s = time_call(lambda: peer.frames(one_c, one_d), repeats=20 if quick else 200, sync=sync)
+        batch_s = time_call(lambda: peer.frames(batch_c, batch_d), repeats=3 if quick else 10, sync=sync) / frames
+    size = float(np.linalg.norm(np.ptp(reference.rest, axis=0)))
+    return {"torch_ms": single_s * 1e3, "torch_batch_ms_per_frame": batch_s * 1e3, "torch_batch_frames": frames,
+            "max_abs_diff_vs_torch": difference, "torch_matches": difference <= TORCH_TOLERANCE * size}
+
+
+def copy_bandwidth(device, megabytes: int = 512) -> float:
+    """Device-to-device ``wp.copy`` bandwidth [bytes/s] counting read + write, median of 20 copies."""
+    count = megabytes * (1 << 20) // 4
+    source = wp.zeros(count, dtype=wp.float32, device=device)
+    target = wp.empty(count, dtype=wp.float32, device=device)
+    seconds = time_call(lambda: wp.copy(target, source), repeats=20, sync=lambda: wp.synchronize_device(device))
+    return 2 * 4 * count / seconds
+
+
+def frame_bytes(vertex_count: int, control_count: int) -> int:
+    """Minimum bytes one frame moves: rest positions read and final positions written (12 B each per
+    vertex, float32 xyz) and its controls read (4 B each); intermediates and rig data are not counted."""
+    return 24 * vertex_count + 4 * control_count
+
+
+def device_batch_rows(model, contractions: np.ndarray, quick: bool, bandwidth: float | None) -> dict:
+    """``evaluate_batch_into`` a device array from device controls (one replayed graph per batch)."""
+    if not model.device.is_cuda:
+        return {}
+    vertex_count = model.mesh.vertex_count
+    frames = int(np.clip((1 << 26) // vertex_count, 16, 4096))
+    rng = np.random.default_rng(5)
+    controls = contractions * rng.uniform(0.5, 1.0, (frames, len(contractions)))
+    device_c = wp.array(controls.astype(np.float32), dtype=wp.float32, device=model.device)
+    device_d = wp.array(np.tile(model.default_depths, (frames, 1)).astype(np.float32), dtype=wp.float32, device=model.device)
+    out = wp.empty((frames, vertex_count), dtype=wp.vec3, device=model.device)
+    run = lambda: model.evaluate_batch_into(out, device_c, wrinkle_depths=device_d)  # noqa: E731
+    seconds = time_call(run, repeats=3 if quick else 10, warmup=2, sync=lambda: wp.synchronize_device(model.device))
+    check = min(frames, 4)
+    exact = bool(np.array_equal(out[:check].numpy(), model.evaluate_batch(controls[:check])))
+    rate = frames / seconds
+    moved = frame_bytes(vertex_count, len(model.control_names) + len(model.wrinkle_names)) * rate
+    return {"device_batch_frames": frames, "device_batch_frames_per_s": rate, "device_batch_ms_per_frame": 1e3 / rate,
+            "device_batch_bytes_per_s": moved, "device_batch_exact": exact,
+            "device_batch_pct_copy_bw": None if not bandwidth else 100.0 * moved / bandwidth}
+
+
+def run_case(label: str, mesh: wf.FaceMesh, device, quick: bool, bandwidth: float | None = None) -> dict:
     muscles, wrinkles, thickness, contractions = benchmark_rig(mesh)
     started = time.perf_counter()
     model = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device=device)
@@ -148,7 +283,7 @@ def run_case(label: str, mesh: wf.FaceMesh, device, quick: bool) -> dict:
     frames = 64 if not big else 8
     batch = np.tile(contractions, (frames, 1))
     batch_s = time_call(lambda: model.evaluate_batch(batch), repeats=3, warmup=1) / frames
-    return {
+    row = {
         "mesh": label,
         "vertices": mesh.vertex_count,
         "triangles": mesh.triangle_count,
@@ -162,6 +297,13 @@ def run_case(label: str, mesh: wf.FaceMesh, device, quick: bool) -> dict:
         "speedup": numpy_s / warp_s,
         "max_abs_diff_vs_numpy": float(check),
     }
+    row.update(device_batch_rows(model, contractions, quick, bandwidth))
+    row.update(torch_rows(numpy_model, model, contractions, depths, quick))
+    if row.get("torch_ms") and device_s:
+        row["x_torch"] = row["torch_ms"] / row["device_ms"]
+    if row.get("torch_batch_ms_per_frame") and row.get("device_batch_ms_per_frame"):
+        row["x_torch_batch"] = row["torch_batch_ms_per_frame"] / row["device_batch_ms_per_frame"]
+    return row
 
 
 def main(argv=None) -> None:
@@ -176,9 +318,10 @@ def main(argv=None) -> None:
     device = wp.get_device(args.device)
     face, face_label = face_mesh()
     cases = [(face_label, face)] + [(f"grid {size:,}", wavy_grid(size)) for size in args.sizes]
+    bandwidth = copy_bandwidth(device) if device.is_cuda else None
     rows = []
     for label, mesh in cases:
-        rows.append(run_case(label, mesh, device, args.quick))
+        rows.append(run_case(label, mesh, device, args.quick, bandwidth))
         print(f"  measured {label}: {rows[-1]['warp_ms']:.3f} ms/frame", flush=True)
     print(f"\nExpression model, {MUSCLES} linear muscles + {WRINKLES} wrinkles, device {device} ({device.name})")
     print("baseline: vectorised NumPy float32 of the same per-frame math, same run\n")
@@ -187,7 +330,23 @@ def main(argv=None) -> None:
         ("batch_ms_per_frame", "batch ms/frame", ".3f"), ("numpy_ms", "numpy ms", ".3f"), ("speedup", "× numpy", ".1f"),
         ("setup_s", "setup s", ".2f"),
     ])
-    path = write_results(f"expression_{device.alias.replace(':', '')}", {"benchmark": "expression", "machine": machine_info(device), "rows": rows})
+    if device.is_cuda:
+        print(f"\nOn device: evaluate_batch_into a device array from device controls, one CUDA graph per batch;"
+              f"\ncopy bandwidth (wp.copy, read + write) {bandwidth / 1e9:.0f} GB/s; bytes/frame = 24·V + 4·(controls)"
+              f" (rest read + result written + controls)")
+        print("PyTorch peer: the same math in float32 on the same GPU (index_add_ scatters), synchronised per call;"
+              f"\nmatch = max |Δx| ≤ {TORCH_TOLERANCE:g} × mesh size; × torch = torch ms / warp device ms\n")
+        print_table(rows, [
+            ("mesh", "mesh", "s"), ("vertices", "vertices", ",d"), ("device_ms", "device ms", ".4f"),
+            ("torch_ms", "torch ms", ".4f"), ("x_torch", "× torch", ".1f"),
+            ("device_batch_frames_per_s", "batched on device (frames/s)", ",.0f"),
+            ("torch_batch_ms_per_frame", "torch batch ms/frame", ".4f"), ("x_torch_batch", "× torch batch", ".1f"),
+            ("device_batch_pct_copy_bw", "% copy bw", ".0f"), ("device_batch_exact", "batch exact", ""),
+            ("torch_matches", "torch match", ""),
+        ])
+    results = {"benchmark": "expression", "machine": machine_info(device), "rows": rows,
+               "copy_bandwidth_bytes_per_s": bandwidth, "torch_tolerance_fraction_of_size": TORCH_TOLERANCE}
+    path = write_results(f"expression_{device.alias.replace(':', '')}", results)
     print(f"\nwrote {path}")
 
 

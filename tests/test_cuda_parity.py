@@ -2,7 +2,7 @@
 
 The project promises that every kernel runs on the CPU in tests and on CUDA unchanged. The rest of
 the suite runs on the CPU; this module runs each device path — the expression model's graph-replayed
-``evaluate_into`` / ``evaluate_batch_into`` with pinned control staging, the batched activation
+``evaluate_into`` / ``evaluate_batch_into`` (a whole batch as one graph) with pinned control staging, the batched activation
 solve, depth back-projection (quickselect kernel), the graph-captured CG tissue step on
 ``TissueState``/``TissueControl``, the tracking → tissue drive and ``geometry.closest_points`` — on
 the parity device and compares it with the CPU.
@@ -81,7 +81,8 @@ def models(face_rig):
 
 
 def expression_controls(rig, frames: int, seed: int):
-    """(F, M) contractions (linear muscles up to 0.15 face units, sphincters up to 0.5) and (F, W) depths."""
+    """(F, M[+3]) controls (linear muscles up to 0.15 face units, sphincters up to 0.5, then the jaw's
+    three when the rig has a jaw) and (F, W) depths."""
     from warpface.assets import rig_scale
     from warpface.expression import SphincterMuscle
 
@@ -91,6 +92,9 @@ def expression_controls(rig, frames: int, seed: int):
     contractions[:, sphincter] = rng.uniform(0.0, 0.5, (frames, int(sphincter.sum())))
     contractions[rng.uniform(size=contractions.shape) < 0.5] = 0.0  # sparse, as expressions are
     depths = rng.uniform(0.0, 2.0, (frames, len(rig.wrinkles))) * np.array([w.depth for w in rig.wrinkles])
+    if getattr(rig, "jaw", None) is not None:  # jaw opening [rad], protrusion and slide [lengths]
+        jaw = rng.uniform(0.0, 1.0, (frames, 3)) * np.array([0.2, 0.02 * rig_scale(rig), 0.01 * rig_scale(rig)])
+        contractions = np.concatenate([contractions, jaw], axis=1)
     return contractions, depths
 
 
@@ -223,6 +227,36 @@ def test_torch_tensors_in_and_out(face_rig, models):
     shared = wp.to_torch(warp_out)  # a view, no copy
     assert shared.data_ptr() == warp_out.ptr
     assert torch.equal(shared, batch)
+
+
+def test_batch_graph_replays_read_each_calls_controls(face_rig, models):
+    """On CUDA a device batch is one captured graph, replayed while its arrays stay the same: every
+    replay must read that call's controls (host ones restaged, device ones rewritten in place), with
+    jaw controls and a partial last chunk, queued back to back with no sync in between."""
+    _, model = models
+    frames, vertex_count = 5, face_rig.mesh.vertex_count
+    calls = []
+    for seed in (6, 7, 8):
+        calls.append(expression_controls(face_rig, frames, seed=seed))
+    expected = [model.evaluate_batch(c, wrinkle_depths=d, frames_per_launch=2) for c, d in calls]
+    assert np.abs(expected[0] - expected[1]).max() > 1e-3 * face_rig.mesh.size  # the calls really differ
+    # the host path's pinned double-buffered read-back: chunks of 2 (three copies in flight in turn) == one chunk
+    np.testing.assert_array_equal(expected[0], model.evaluate_batch(calls[0][0], wrinkle_depths=calls[0][1]))
+    outs = [wp.empty((frames, vertex_count), dtype=wp.vec3, device=DEVICE) for _ in range(2)]
+    for index, (controls, depths) in enumerate(calls):  # host controls: staged, same graph per output
+        model.evaluate_batch_into(outs[index % 2], controls, wrinkle_depths=depths, frames_per_launch=2)
+        if index == 1:
+            np.testing.assert_array_equal(outs[0].numpy(), expected[0])
+    np.testing.assert_array_equal(outs[1].numpy(), expected[1])
+    np.testing.assert_array_equal(outs[0].numpy(), expected[2])
+
+    device_c = wp.array(calls[0][0].astype(np.float32), dtype=wp.float32, device=DEVICE)
+    device_d = wp.array(calls[0][1].astype(np.float32), dtype=wp.float32, device=DEVICE)
+    for index in (0, 1, 2):  # device controls rewritten in place between replays of one graph
+        wp.copy(device_c, wp.array(calls[index][0].astype(np.float32), dtype=wp.float32, device=DEVICE))
+        wp.copy(device_d, wp.array(calls[index][1].astype(np.float32), dtype=wp.float32, device=DEVICE))
+        model.evaluate_batch_into(outs[0], device_c, wrinkle_depths=device_d)
+        np.testing.assert_array_equal(outs[0].numpy(), expected[index], err_msg=f"device controls, call {index}")
 
 
 # ------------------------------------------------------------------------------------------------ solve

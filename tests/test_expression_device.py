@@ -106,3 +106,68 @@ def test_bad_device_controls_are_refused(model):
         model.evaluate_into(out, wp.zeros(len(model.muscles) + 1, dtype=wp.float32, device=DEVICE))
     with pytest.raises(ValueError, match="contractions.*dtype"):
         model.evaluate_into(out, wp.zeros(len(model.muscles), dtype=wp.float64, device=DEVICE))
+
+
+# ------------------------------------------------------------------ the benchmark's PyTorch peer
+class _ShimTensor(np.ndarray):
+    """A NumPy array with torch's in-place ``index_add_`` (all the peer needs beyond free functions)."""
+
+    def index_add_(self, dim, index, values):
+        np.add.at(np.moveaxis(self, dim, 0), index, np.moveaxis(np.asarray(values), dim, 0))
+        return self
+
+
+def numpy_torch_shim():
+    """The subset of the torch API that ``benchmarks.expression.TorchExpression`` uses, on NumPy
+    (float32 kept: NumPy 2 promotes Python scalars weakly, as torch does)."""
+    from types import SimpleNamespace
+
+    def tensor(values, dtype, device):
+        return np.array(values, dtype=dtype).view(_ShimTensor)
+
+    return SimpleNamespace(
+        float32=np.float32, int64=np.int64, bool=np.bool_, as_tensor=tensor,
+        zeros=lambda shape, dtype, device: np.zeros(shape, dtype).view(_ShimTensor),
+        cross=lambda a, b, dim: np.cross(a, b, axis=dim), cat=lambda parts, dim: np.concatenate(parts, axis=dim),
+        clamp=lambda x, min: np.maximum(x, np.float32(min)), where=np.where, exp=np.exp,
+        linalg=SimpleNamespace(vector_norm=lambda x, dim, keepdim: np.linalg.norm(x, axis=dim, keepdims=keepdim)),
+    )
+
+
+@pytest.mark.parametrize("use_torch", [False, True], ids=["numpy-shim", "torch-cpu"])
+def test_benchmark_torch_peer_computes_the_model(use_torch):
+    """The GPU peer's vectorised math (run here through a NumPy shim of its torch calls, or torch on
+    the CPU when installed) equals the Warp model on a batch of frames, within float32 rounding."""
+    from warpface import ExpressionModel
+    from benchmarks.expression import TORCH_TOLERANCE, NumpyExpression, TorchExpression, benchmark_rig, wavy_grid
+
+    torch = pytest.importorskip("torch") if use_torch else numpy_torch_shim()
+    mesh = wavy_grid(900)
+    muscles, wrinkles, thickness, contractions = benchmark_rig(mesh)
+    model = ExpressionModel(mesh, muscles, wrinkles, thickness, device=DEVICE)
+    peer = TorchExpression(NumpyExpression(mesh, muscles, wrinkles, thickness, DEVICE), torch, "cpu")
+    rng = np.random.default_rng(11)
+    frames = contractions * rng.uniform(0.0, 2.0, (3, len(contractions)))
+    depths = model.default_depths * rng.uniform(0.0, 2.0, (3, len(model.wrinkles)))
+    expected = model.evaluate_batch(frames, wrinkle_depths=depths)
+    got = np.asarray(peer.frames(torch.as_tensor(frames, dtype=torch.float32, device="cpu"),
+                                 torch.as_tensor(depths, dtype=torch.float32, device="cpu")))
+    assert got.shape == expected.shape and got.dtype == np.float32
+    assert np.abs(expected - mesh.points).max() > 0.01 * mesh.size  # frames that really move
+    assert np.abs(got - expected).max() <= TORCH_TOLERANCE * mesh.size
+    # each stage matters: dropping the wrinkles (depth 0) must change the result beyond the tolerance
+    flat = np.asarray(peer.frames(torch.as_tensor(frames, dtype=torch.float32, device="cpu"),
+                                  torch.as_tensor(0 * depths, dtype=torch.float32, device="cpu")))
+    assert np.abs(flat - expected).max() > 10 * TORCH_TOLERANCE * mesh.size
+
+
+def test_batch_into_with_progress_and_partial_chunks(model, rng):
+    """The chunked path writes each chunk's frames (the last one partial) straight into the output."""
+    contractions, depths = random_controls(model, rng, 5)
+    expected = model.evaluate_batch(contractions, wrinkle_depths=depths)
+    for progress, frames_per_launch in ((True, None), (False, 2), (True, 3)):
+        out = wp.zeros((5, model.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
+        model.evaluate_batch_into(out, contractions, wrinkle_depths=depths, progress=progress, frames_per_launch=frames_per_launch)
+        np.testing.assert_array_equal(out.numpy(), expected, err_msg=f"progress={progress}, {frames_per_launch}")
+    with pytest.raises(ValueError, match="progress"):
+        model.evaluate_batch_into(out, contractions, progress=0)

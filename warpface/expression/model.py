@@ -11,12 +11,14 @@ import warp as wp
 from .._validate import MAX_COORDINATE, as_count
 from ..kernels_surface import triangle_area_vectors
 from ..mesh import FaceMesh
+from .batch_graph import BatchGraphs
 from .controls import as_device_array, check_rig_parts, contraction_limits, control_vector, frame_controls, is_device_array
 from .frame_buffers import FrameBuffers
 from .jaw import JAW_CONTROL_NAMES, Jaw
 from .kernels import (MuscleEntry, WrinkleEntry, apply_jaw_and_muscles, apply_muscles, apply_wrinkles, stretch_and_bulge,
                       triangle_stretch)
 from .muscles import Muscle, muscle_weights
+from .readback import PinnedReadback
 from .tissue import tissue_response
 from .wrinkles import Wrinkle, wrinkle_shapes
 
@@ -141,6 +143,8 @@ class ExpressionModel:
             self._jaw_weight = wp.array(jaw.weights.astype(np.float32), dtype=wp.float32, device=device_)
         self._buffers: dict[int, FrameBuffers] = {}
         self._single = self._frame_buffers(1)
+        self._batch_graphs = BatchGraphs(device=self.device)
+        self._readbacks: dict[int, PinnedReadback] = {}
 
     @classmethod
     def from_rig(cls, rig, *, device=None) -> "ExpressionModel":
@@ -224,15 +228,28 @@ class ExpressionModel:
                 (cache-friendly) and as many as fit in 2²² frame·vertices on CUDA.
 
         Returns:
-            Positions, shape (F, V, 3), float32.
+            Positions, shape (F, V, 3), float32. On CUDA each chunk comes back through a pinned
+            double buffer: its copy to the host overlaps the next chunk's kernels.
         """
         controls, depths = self._host_frames(contractions, wrinkle_depths)
         frame_count = len(controls)
-        result = np.empty((frame_count, self.mesh.vertex_count, 3), dtype=np.float32)
-        for buffers, start, count in self._chunks(frame_count, frames_per_launch, progress):
-            buffers.upload_controls(controls[start:start + count], depths[start:start + count])
-            self._launch(buffers)
-            buffers.read_frames(buffers.final_points, count, out=result[start:start + count])
+        vertex_count = self.mesh.vertex_count
+        result = np.empty((frame_count, vertex_count, 3), dtype=np.float32)
+        readback = None
+        try:
+            for buffers, start, count in self._chunks(frame_count, frames_per_launch, progress):
+                buffers.upload_controls(controls[start:start + count], depths[start:start + count])
+                self._launch(buffers)
+                if self.device.is_cpu:
+                    buffers.read_frames(buffers.final_points, count, out=result[start:start + count])
+                    continue
+                readback = self._readbacks.get(buffers.frames)
+                if readback is None:
+                    readback = self._readbacks[buffers.frames] = PinnedReadback(buffers.frames * vertex_count, wp.vec3, device=self.device)
+                readback.submit(buffers.final_points, count * vertex_count, result[start:start + count])
+        finally:
+            if readback is not None:
+                readback.finish()
         return result
 
     def evaluate_batch_into(
@@ -248,17 +265,47 @@ class ExpressionModel:
             progress, frames_per_launch: as in :meth:`evaluate_batch`.
 
         Returns:
-            ``out``. Same kernels and bit-identical values as :meth:`evaluate_batch`.
+            ``out``. Same kernels and bit-identical values as :meth:`evaluate_batch`. On CUDA (without a
+            progress bar) the whole batch — every chunk's control copies, kernels and result copy — is
+            one CUDA graph, captured on the first call with these arrays and sizes and replayed after.
         """
         frame_count = self._batch_frame_count(contractions, wrinkle_depths)
         target = as_device_array(out, "out", device=self.device, shape=(frame_count, self.mesh.vertex_count), dtype=wp.vec3)
         host, device_controls = self._split_controls(contractions, wrinkle_depths, frame_count)
+        self._run_batch(target, host, device_controls, frame_count, frames_per_launch, progress)
+        return out
         vertex_count = self.mesh.vertex_count
         for buffers, start, count in self._chunks(frame_count, frames_per_launch, progress):
             self._upload_chunk(buffers, host, device_controls, start, count)
             self._launch(buffers)
             wp.copy(target, buffers.final_points, dest_offset=start * vertex_count, count=count * vertex_count)
         return out
+
+    def _run_batch(self, target: wp.array, host, device_controls, frame_count: int, frames_per_launch, progress: bool) -> None:
+        """Chunk after chunk: copy its controls, run the kernels, the last one writing into ``target``.
+
+        Host controls are staged once into device arrays kept for their shape. On CUDA without a
+        progress bar the whole sequence is one graph, replayed while the arrays and sizes stay the same.
+        """
+        if not isinstance(progress, (bool, np.bool_)):
+            raise ValueError(f"progress: expected True or False, got {type(progress).__name__}")
+        chunks = list(self._chunks(frame_count, frames_per_launch, False))  # checks frames_per_launch
+        if not chunks:
+            return
+        sources = [self._batch_graphs.stage(values, slot) if given is None else given
+                   for values, given, slot in zip(host, device_controls, ("contraction", "depth"))]
+        vertex_count = self.mesh.vertex_count
+
+        def write(buffers: FrameBuffers, start: int, count: int) -> None:
+            buffers.copy_controls(*sources, first=start, count=count)
+            self._launch(buffers, final_points=target[start * vertex_count:(start + count) * vertex_count], frames=count)
+
+        if progress:
+            for chunk in self._chunks(frame_count, frames_per_launch, True):
+                write(*chunk)
+            return
+        key = (target.ptr, frame_count, chunks[0][2], sources[0].ptr, sources[1].ptr)
+        self._batch_graphs.run(key, lambda: [write(*chunk) for chunk in chunks])
 
     # ------------------------------------------------------------------ control plumbing
     def _muscles_only_padded(self, values):
@@ -376,12 +423,28 @@ class ExpressionModel:
         else:
             self._launch(buffers)
 
-    def _launch(self, buffers: FrameBuffers) -> None:
-        """Run the frame's five kernels over all of ``buffers``' frames (recorded on first use)."""
+    def _launch(self, buffers: FrameBuffers, final_points: wp.array | None = None, frames: int = 0) -> None:
+        """Run the frame's five kernels over all of ``buffers``' frames (recorded on first use).
+
+        With ``final_points`` the last kernel writes the first ``frames`` frames there instead of
+        into ``buffers.final_points`` (a caller's array: no copy afterwards).
+        """
         if not buffers.launches:
             buffers.launches = self._record_launches(buffers)
-        for launch in buffers.launches:
+        if final_points is None:
+            for launch in buffers.launches:
+                launch.launch()
+            return
+        for launch in buffers.launches[:-1]:
             launch.launch()
+        wp.launch(apply_wrinkles, dim=frames * self.mesh.vertex_count, inputs=self._wrinkle_inputs(buffers),
+                  outputs=[final_points], device=self.device)
+
+    def _wrinkle_inputs(self, buffers: FrameBuffers) -> list:
+        mesh = self._mesh_buffers
+        return [buffers.bulge_points, buffers.area_vectors, mesh.adjacency_offsets, mesh.adjacency_triangles,
+                buffers.stretch, self._wrinkle_offsets, self._wrinkle_entries, buffers.depth, buffers.wrinkle_width,
+                self.mesh.vertex_count, self.mesh.triangle_count]
 
     def _record_launches(self, buffers: FrameBuffers) -> list:
         mesh = self._mesh_buffers
@@ -416,11 +479,7 @@ class ExpressionModel:
                    [buffers.stretch, buffers.bulge_points]),
             record(triangle_area_vectors, triangles,
                    [buffers.bulge_points, mesh.triangles, mesh.triangle_weight, *counts], [buffers.area_vectors]),
-            record(apply_wrinkles, vertices,
-                   [buffers.bulge_points, buffers.area_vectors, mesh.adjacency_offsets, mesh.adjacency_triangles,
-                    buffers.stretch, self._wrinkle_offsets, self._wrinkle_entries,
-                    buffers.depth, buffers.wrinkle_width, *counts],
-                   [buffers.final_points]),
+            record(apply_wrinkles, vertices, self._wrinkle_inputs(buffers), [buffers.final_points]),
         ]
 
 
