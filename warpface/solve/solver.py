@@ -27,6 +27,7 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 
 from ..errors import RigError
+from ..expression.jaw import JAW_CONTROL_NAMES, JAW_RANGE
 from ..expression.muscles import SphincterMuscle
 from ..rig import FaceRig
 from .local_kernels import KernelExpression
@@ -214,14 +215,15 @@ class Solver:
             raise RigError(f"rig {rig.name!r}: has no muscles, nothing to solve for")
         self.rig = rig
         self.options = SolveOptions.from_keywords(**options)
-        self.names = rig.muscle_names
+        self.names = rig.control_names
+        self.muscle_count = len(rig.muscles)
         self.observation = observation(rig.mesh, vertices, triangles, barycentrics)
         self.weights = point_weights(weights, self.observation.count)
         self.device = device
         self._model = None
         operators = rig_operators(rig, device)
         self.local = KernelExpression(LocalExpression(operators, self.observation.vertices), device=device)
-        reach = np.abs(operators.muscle_field).max(axis=0).toarray().ravel()
+        reach = operators.control_reach()
         self.unit = _face_unit(rig)
         self.reach = np.where(reach > 0.0, reach, 1.0)
         self.control_scale = self.reach / self.unit
@@ -245,7 +247,12 @@ class Solver:
 
     def _bounds(self):
         low = np.zeros(len(self.names))
-        high = np.array([SPHINCTER_MAX if isinstance(m, SphincterMuscle) else np.inf for m in self.rig.muscles])
+        high = np.array([SPHINCTER_MAX if isinstance(m, SphincterMuscle) else np.inf for m in self.rig.muscles]
+                        + [0.0] * (len(self.names) - self.muscle_count))
+        for index, name in enumerate(JAW_CONTROL_NAMES if self.rig.jaw is not None else (), start=self.muscle_count):
+            lo, hi = JAW_RANGE[name]
+            unit = 1.0 if name == "jaw_open" else self.unit  # the slides' range is in face units
+            low[index], high[index] = lo * unit, hi * unit
         for name, pair in (self.options.bounds or {}).items():
             if name not in self.names:
                 raise ValueError(f"bounds: unknown control {name!r}")
@@ -255,7 +262,7 @@ class Solver:
                 raise ValueError(f"bounds[{name!r}]: expected (low, high)") from None
             if np.isnan(lo) or np.isnan(hi) or lo > hi or lo == np.inf or hi == -np.inf:
                 raise ValueError(f"bounds[{name!r}]: expected low ≤ high, got ({lo}, {hi})")
-            if lo < 0.0:  # muscles only pull; the L1 term is Σ c on this feasible set
+            if lo < 0.0 and name not in JAW_CONTROL_NAMES:  # muscles only pull; the L1 term is Σ c on this set
                 raise ValueError(f"bounds[{name!r}]: a muscle's lower bound must be ≥ 0, got {lo}")
             index = self.names.index(name)
             low[index], high[index] = lo, hi
@@ -457,9 +464,15 @@ class Solver:
                     skipped=skipped, iterations=iterations, valid=valid_count,
                     rotation=rotation, translation=translation * self.unit)
 
+    def _l1_slope(self, u):
+        """``∂Σ|u|/∂u``: 1 for the muscles (≥ 0 on their feasible set, so held at 0), sign(u) for the jaw."""
+        slope = np.ones_like(u)
+        slope[:, self.muscle_count:] = np.sign(u[:, self.muscle_count:])
+        return slope
+
     def _regularisation(self, u, previous, smooth):
         opts = self.options
-        value = opts.l2 * np.sum(u * u, axis=1) + opts.l1 * np.sum(u, axis=1)
+        value = opts.l2 * np.sum(u * u, axis=1) + opts.l1 * np.sum(np.abs(u), axis=1)
         if smooth:
             value = value + smooth * np.sum((u - previous) ** 2, axis=1)
         if opts.symmetry and len(self._pairs):
@@ -481,7 +494,7 @@ class Solver:
         n = len(self.names)
         diag = np.arange(n)
         hessian[:, diag, diag] += opts.l2 + smooth
-        gradient[:, :n] += opts.l2 * u + 0.5 * opts.l1 + smooth * (u - previous)
+        gradient[:, :n] += opts.l2 * u + 0.5 * opts.l1 * self._l1_slope(u) + smooth * (u - previous)
         if opts.symmetry and len(self._pairs):
             left, right = self._pairs[:, 0], self._pairs[:, 1]
             diff = u[:, left] - u[:, right]
