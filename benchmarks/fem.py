@@ -14,6 +14,11 @@ Rows per mesh:
 * ``warpface cpu direct`` — :class:`warpface.fem.TissueSimulation` on the CPU (its default solver).
 * ``warpface cuda cg`` — the graph-captured CG path, when a CUDA device is present.
 * ``... anp`` — the same with the locking-free average-nodal-pressure stiffness.
+* ``cupy cg (jacobi) peer`` — the GPU peer (CUDA, when CuPy is installed): CuPy's sparse CG on the same
+  matrices, solving for the correction to the Newmark predictor with the same relative tolerance.
+* ``warpface cuda cg batch xB`` — :class:`warpface.fem.TissueBatch` of B models (Kato's uniform tissue
+  and a sweep of E and eta) stepped together, first mesh size only (``--batch``); "ms/step/model" is
+  its time per step over B. Its max diff is model 0's (Kato's uniform tissue) against the baseline.
 
 CPU rows are timed step by step, interleaved with the baseline (median per step). On CUDA,
 "ms/step run()" times :meth:`TissueSimulation.run` (displacements of every node recorded and copied
@@ -23,7 +28,7 @@ step over the row's run() time; "x real time" is dt over the run() time per step
 The max difference to the baseline's displacements checks that every row computes the same motion.
 "CG iters max / mean" are the most and the mean CG iterations per step of the run() pass.
 
-    python -m benchmarks.fem [--steps 200] [--sizes 40 80] [--no-anp] [--device cuda:0]
+    python -m benchmarks.fem [--steps 200] [--sizes 40 80] [--no-anp] [--batch 1 3 10 100] [--device cuda:0]
 """
 
 from __future__ import annotations
@@ -35,7 +40,8 @@ import numpy as np
 import scipy.sparse.linalg as spla
 import warp as wp
 
-from warpface.fem import KATO_UNIFORM, TissueSimulation, assemble, kato_uniform_material, shell_tet_mesh
+from warpface.fem import (KATO_UNIFORM, TissueBatch, TissueMaterial, TissueSimulation, assemble,
+                          kato_uniform_material, shell_tet_mesh)
 from warpface.fem.solver_direct import node_dofs
 
 from ._timing import machine_info, print_table, write_results
@@ -144,7 +150,80 @@ def cuda_step_times(sim: TissueSimulation, trajectory: np.ndarray) -> tuple[floa
     return per_run, (time.perf_counter() - start) / (len(trajectory) - 1), final, most, mean
 
 
-def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device) -> list[dict]:
+def cupy_step_seconds(base: SplitBaseline, trajectory: np.ndarray, tol: float) -> tuple[float, np.ndarray, float]:
+    """The GPU peer: CuPy's ``cupyx.scipy.sparse.linalg.cg`` (Jacobi preconditioner) on the baseline's matrices.
+
+    Each step solves for the correction to the Newmark predictor ``d + dt v + dt²/2 a`` (as warpface's CG)
+    from zero with ``tol`` relative to the predictor's residual, warpface's CG criterion. Returns seconds per step, the final
+    displacement (N, 3) and the mean CG iterations per step.
+    """
+    import inspect
+
+    import cupy as cp
+    import cupyx.scipy.sparse as csp
+    import cupyx.scipy.sparse.linalg as cspla
+
+    A_oo = csp.csr_matrix(base.A[base.o][:, base.o])
+    A_oc, Qd, Qv, M = (csp.csr_matrix(x) for x in (base.A_oc, base.Qd, base.Qv, base.M))
+    inverse_diagonal = cp.asarray(1.0 / base.A[base.o][:, base.o].diagonal())
+    jacobi = cspla.LinearOperator(A_oo.shape, matvec=lambda r: inverse_diagonal * r, dtype=cp.float64)
+    o, c = cp.asarray(base.o), cp.asarray(base.c)
+    d = cp.zeros(base.d.shape[0])
+    v, a = cp.zeros_like(d), cp.zeros_like(d)
+    tolerance = {"rtol" if "rtol" in inspect.signature(cspla.cg).parameters else "tol": tol}
+    iterations = [0]
+
+    def count(_):
+        iterations[0] += 1
+
+    driven = cp.asarray(trajectory.reshape(len(trajectory), -1))
+    cp.cuda.Device().synchronize()
+    start = time.perf_counter()
+    for row in driven:
+        q = Qd @ d + Qv @ v + M @ a
+        predictor = d + DT * v + 0.5 * DT * DT * a
+        rhs = q[o] - A_oc @ row - A_oo @ predictor[o]
+        delta, _ = cspla.cg(A_oo, rhs, M=jacobi, callback=count, **tolerance)
+        d_new = cp.zeros_like(d)
+        d_new[o] = predictor[o] + delta
+        d_new[c] = row
+        a_new = 4 / DT**2 * (d_new - d) - 4 / DT * v - a
+        v = 2 / DT * (d_new - d) - v
+        d, a = d_new, a_new
+    cp.cuda.Device().synchronize()
+    seconds = (time.perf_counter() - start) / len(trajectory)
+    return seconds, cp.asnumpy(d).reshape(-1, 3), iterations[0] / len(trajectory)
+
+
+def batch_step_seconds(mesh, fixed, driven, trajectory, models: int, device) -> dict:
+    """A :class:`warpface.fem.TissueBatch` of ``models`` materials (model 0 Kato's uniform tissue, the rest a sweep
+    of E over 0.5-2x and eta over 0.5-2x): the final displacement of model 0 after the whole trajectory, then
+    seconds per batched step (graph launches only, the driven inputs already on the device)."""
+    scale = np.linspace(0.5, 2.0, max(models - 1, 1))
+    materials = [kato_uniform_material()] + [
+        TissueMaterial(KATO_UNIFORM["E"] * e, KATO_UNIFORM["nu"], KATO_UNIFORM["eta"] * eta, KATO_UNIFORM["rho"])
+        for e, eta in zip(scale, scale[::-1])
+    ][: models - 1]
+    start = time.perf_counter()
+    batch = TissueBatch(mesh, materials, DT, fixed=fixed, driven=driven, solver="cg", device=device, chunk=16)
+    setup = time.perf_counter() - start
+    batch.run(trajectory, nodes=np.zeros(1, dtype=np.int64))
+    final = batch.d[0]
+    iterations = batch.cg_iterations
+    batch.reset()
+    batch.run(trajectory[:16], nodes=np.zeros(1, dtype=np.int64))  # the ring now holds 16 driven rows
+    steps = len(trajectory)
+    wp.synchronize_device(device)
+    start = time.perf_counter()
+    for _ in range(steps):
+        batch.stepper.step()
+    batch.synchronize()
+    seconds = (time.perf_counter() - start) / steps
+    return dict(setup=setup, seconds=seconds, final=final, most=int(iterations[:, 0].max()),
+                mean=float(iterations[:, 2].max()) / steps)
+
+
+def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=()) -> list[dict]:
     mesh, fixed, driven, lower = face_problem(cells)
     material = kato_uniform_material()
     trajectory = mouth_opening(steps + 1, lower)
@@ -185,6 +264,23 @@ def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device) -> list[dict
                          step_ms=1e3 * per_step, step_call_ms=1e3 * step_calls, ratio=base_step / per_step,
                          realtime=DT / per_step, max_diff=diff, cg_iterations=iterations,
                          cg_mean_iterations=mean_iterations))
+    if cuda_device is not None:
+        try:
+            import cupy  # noqa: F401
+        except ImportError:
+            print("  (cupy not installed: no CuPy CG row)")
+        else:
+            seconds, final, mean = cupy_step_seconds(base, trajectory, 1.0e-5)
+            rows.append(dict(mesh=label, path="cupy cg (jacobi) peer", step_ms=1e3 * seconds, step_call_ms=1e3 * seconds,
+                             ratio=base_step / seconds, realtime=DT / seconds,
+                             max_diff=float(np.abs(final - reference).max()), cg_mean_iterations=mean))
+        for models in batch_sizes:
+            result = batch_step_seconds(mesh, fixed, driven, trajectory, models, cuda_device)
+            rows.append(dict(mesh=label, path=f"warpface cuda cg batch x{models}", factor_s=result["setup"],
+                             step_ms=1e3 * result["seconds"], step_call_ms=1e3 * result["seconds"],
+                             model_ms=1e3 * result["seconds"] / models, ratio=base_step / result["seconds"],
+                             realtime=DT / result["seconds"], max_diff=float(np.abs(result["final"] - reference).max()),
+                             cg_iterations=result["most"], cg_mean_iterations=result["mean"]))
     print(f"  {label}: {mesh.tet_count} tets, {fixed.size} fixed, {driven.size} driven nodes; "
           f"max displacement {np.abs(reference).max() * 1e3:.2f} mm after {steps + 1} steps")
     return rows
@@ -196,6 +292,8 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[40, 80],
                         help="shell cells per side: 40 -> 6.7k nodes, 80 -> 26k nodes")
     parser.add_argument("--no-anp", action="store_true", help="skip the locking-free rows")
+    parser.add_argument("--batch", type=int, nargs="*", default=[1, 3, 10, 100],
+                        help="models per TissueBatch row on CUDA, on the first mesh size (default 1 3 10 100)")
     parser.add_argument("--device", default=None, help="CUDA device for the CG rows (default: first CUDA device)")
     args = parser.parse_args()
 
@@ -203,11 +301,12 @@ def main() -> None:
     wp.init()
     cuda = args.device or ("cuda:0" if wp.is_cuda_available() else None)
     rows = []
-    for cells in args.sizes:
-        rows.extend(bench_mesh(cells, args.steps, not args.no_anp, cuda))
+    for index, cells in enumerate(args.sizes):
+        rows.extend(bench_mesh(cells, args.steps, not args.no_anp, cuda, args.batch if index == 0 else ()))
     print_table(rows, [("mesh", "mesh", "s"), ("path", "path", "s"), ("assembly_s", "assembly s", ".2f"),
                        ("factor_s", "factor/setup s", ".2f"), ("step_ms", "ms/step run()", ".3f"),
                        ("step_call_ms", "ms/step step()", ".3f"),
+                       ("model_ms", "ms/step/model", ".4f"),
                        ("ratio", "ratio vs splu", ".2f"), ("realtime", "x real time", ".3f"),
                        ("max_diff", "max diff m", ".1e"), ("cg_iterations", "CG iters max", "d"),
                        ("cg_mean_iterations", "CG iters mean", ".1f")])

@@ -416,6 +416,32 @@ def test_cg_run_chunks_match_direct(beam, direct_reference):
     assert sim.steps_taken == len(direct_reference)
 
 
+
+@pytest.mark.parametrize("preconditioner", ["fsai", "block_jacobi"])
+def test_tissue_batch_graph_matches_per_model_direct(beam, direct_reference, preconditioner):
+    """TissueBatch: three materials (the reference one first) stepped as one captured graph, each
+    with its own trajectory, through run() (ring chunks) and queued step() calls; model 0 against the
+    direct reference, the others against their own direct runs."""
+    from warpface.fem import TissueBatch, TissueMaterial, TissueSimulation
+
+    mesh, fixed, driven = beam
+    steps = len(direct_reference)
+    materials = [tissue_material(), TissueMaterial(6e4, 0.45, 30.0, 1000.0), TissueMaterial(2e5, 0.49, 5.0, 1100.0)]
+    base = beam_trajectory(steps, driven.size)
+    own = np.stack([base, 0.5 * base, -base], axis=1)  # (T, 3, D, 3)
+    batch = TissueBatch(mesh, materials, 1e-3, fixed=fixed, driven=driven, solver="cg", device=DEVICE,
+                        cg_tol=1e-12, cg_maxiter=400, cg_preconditioner=preconditioner, chunk=5)
+    got = batch.run(own[: steps - 4])
+    for t in range(steps - 4, steps):
+        batch.step(own[t])
+    final = batch.d
+    np.testing.assert_allclose(got[:, 0], direct_reference[: steps - 4], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(final[0], direct_reference[-1], rtol=0, atol=1e-9)
+    for b in (1, 2):
+        ref = TissueSimulation(mesh, materials[b], 1e-3, fixed=fixed, driven=driven, solver="direct", device=CPU)
+        ref.run(own[:, b])
+        np.testing.assert_allclose(final[b], ref.d, rtol=0, atol=1e-9)
+
 # ------------------------------------------------------------------------------- tracking → tissue drive
 @pytest.fixture(scope="module")
 def skin_patch():

@@ -12,6 +12,7 @@ USD pieces live in :mod:`warpface.usd.mapping_io` (mappings on the rig stage) an
 """
 
 from .channels import ARKIT_CHANNELS, ARKIT_RANGE, AU_RANGE, Curves, canonical_channel, channel_range
+from .calibrate import calibrate_mapping
 from .cleanup import OneEuroFilter, calibrate_neutral, clamp_to_range, clean, resample
 from .csv_formats import read_live_link, read_openface, write_live_link, write_openface
 from .default_tables import (ARKIT_TABLE, FACS_TABLE, JAW_CONTROLS, control_scales, default_table, mapping_for_rig,
@@ -30,5 +31,5 @@ __all__ = [
     "Mapping", "MappedControls", "ARKIT_TABLE", "FACS_TABLE", "JAW_CONTROLS", "default_table", "mapping_for_rig",
     "rig_control_names", "control_scales",
     "clean", "OneEuroFilter", "calibrate_neutral", "clamp_to_range", "resample",
-    "project_controls", "controls_to_curves",
+    "project_controls", "controls_to_curves", "calibrate_mapping",
 ]

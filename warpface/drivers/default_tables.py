@@ -9,8 +9,9 @@ the subject's left). Full strength (ARKit 1, AU intensity 5) gives the contracti
 expression presets: a broad smile is ~0.22 inter-ocular distances of zygomaticus pull.
 
 Channels with no skin motion (gaze, ``tongueOut``) and ``cheekPuff`` (air, not muscle) have no row.
-Jaw channels drive the jaw controls ``jaw_open``, ``jaw_forward``, ``jaw_left``, ``jaw_right``;
-they take effect on rigs that have them and are reported as unmapped on rigs that do not.
+Jaw channels drive the jaw controls ``jaw_open``, ``jaw_forward`` and ``jaw_left`` (a signed lateral slide:
+``jawRight`` is a negative ``jaw_left``); they take effect on rigs that have them and are reported as
+unmapped on rigs that do not.
 """
 
 from __future__ import annotations
@@ -20,10 +21,10 @@ from .mapping import Mapping
 __all__ = ["ARKIT_TABLE", "FACS_TABLE", "JAW_CONTROLS", "LENGTH_CONTROLS", "default_table", "mapping_for_rig",
            "rig_control_names", "control_scales"]
 
-JAW_CONTROLS = ("jaw_open", "jaw_forward", "jaw_left", "jaw_right")
+JAW_CONTROLS = ("jaw_open", "jaw_forward", "jaw_left")
 """Jaw controls the tables name (SPEC §6.2): opening angle [rad], protrusion and lateral slides [lengths]."""
 
-LENGTH_CONTROLS = frozenset({"jaw_forward", "jaw_left", "jaw_right"})
+LENGTH_CONTROLS = frozenset({"jaw_forward", "jaw_left"})
 """Non-muscle controls whose values are lengths (scaled by the face's size like linear muscles)."""
 
 
@@ -49,7 +50,7 @@ ARKIT_TABLE: tuple[tuple[str, str, float], ...] = tuple(
     + _sided("eyeSquint", [("orbicularis_oculi_{s}", 0.10)])
     + _sided("eyeWide", [("frontalis_outer_{s}", 0.04), ("frontalis_inner_{s}", 0.03)])
     + [("jawOpen", "jaw_open", 0.35), ("jawForward", "jaw_forward", 0.08), ("jawLeft", "jaw_left", 0.08),
-       ("jawRight", "jaw_right", 0.08)]
+       ("jawRight", "jaw_left", -0.08)]
     + [("mouthClose", "orbicularis_oris", 0.10), ("mouthFunnel", "orbicularis_oris", 0.30),
        ("mouthPucker", "orbicularis_oris", 0.45), ("mouthRollLower", "orbicularis_oris", 0.15),
        ("mouthRollUpper", "orbicularis_oris", 0.15)]

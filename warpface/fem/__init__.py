@@ -14,6 +14,7 @@ advances a :class:`TissueState` under a :class:`TissueControl` with
 from .assembly import FORMULATIONS, SystemMatrices, assemble
 from .embedding import Embedding, embed_points
 from .integrator import ConvergenceError, TissueSimulation
+from .batch import TissueBatch
 from .material import DAMPING_MODELS, MATERIAL_RANGES, TissueMaterial
 from .primitives import box_tet_mesh, shell_tet_mesh
 from .proxy import TissueProxy, tissue_proxy
@@ -40,6 +41,7 @@ __all__ = [
     "TissueControl",
     "TissueMeshing",
     "TissueProxy",
+    "TissueBatch",
     "TissueSimulation",
     "TissueState",
     "assemble",

@@ -33,7 +33,7 @@ from .solver_direct import DirectSolver, factorize_spd, node_dofs
 from .state import TissueControl, TissueState
 from .tetmesh import TetMesh
 
-__all__ = ["TissueSimulation", "ConvergenceError", "SOLVERS"]
+__all__ = ["TissueSimulation", "ConvergenceError", "SOLVERS", "split_nodes"]
 
 SOLVERS = ("auto", "direct", "cg")
 
@@ -166,26 +166,7 @@ class TissueSimulation:
             raise ValueError(f"solver='direct' runs on the CPU; got device {device}. Use solver='cg' or device='cpu'")
 
         n = tetmesh.node_count
-        fixed_nodes = np.unique(_node_set("fixed", fixed, n))
-        driven_nodes = _node_set("driven", driven, n)
-        uniq, counts = np.unique(driven_nodes, return_counts=True)
-        if np.any(counts > 1):
-            raise ValueError(f"driven node {uniq[counts > 1][0]} is listed more than once")
-        both = np.intersect1d(fixed_nodes, driven_nodes)
-        if both.size:
-            raise ValueError(f"node {both[0]} is both fixed and driven ({both.size} such nodes)")
-        constrained = np.union1d(fixed_nodes, driven_nodes)
-        if constrained.size == 0:
-            raise ValueError(
-                "no fixed or driven node: the stiffness matrix is singular (6 rigid-body modes) and the "
-                "tissue would drift freely; fix or drive at least three non-collinear nodes"
-            )
-        _check_every_part_constrained(tetmesh, constrained)
-        free_mask = np.ones(n, dtype=bool)
-        free_mask[constrained] = False
-        free_nodes = np.flatnonzero(free_mask)
-        if free_nodes.size == 0:
-            raise ValueError("every node is fixed or driven: there is nothing to simulate")
+        fixed_nodes, driven_nodes, free_nodes = split_nodes(tetmesh, fixed, driven)
 
         self.tetmesh = tetmesh
         """The mesh."""
@@ -517,6 +498,45 @@ class TissueSimulation:
             f"TissueSimulation({self.tetmesh!r}, dt={self.dt:g} s, {self.formulation}, solver={self.solver}, "
             f"free={self.free_nodes.size}, fixed={self.fixed_nodes.size}, driven={self.driven_nodes.size})"
         )
+
+
+def split_nodes(tetmesh: TetMesh, fixed, driven) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Check the constrained node sets of a simulation and return ``(fixed, driven, free)`` node indices.
+
+    Args:
+        tetmesh: The mesh.
+        fixed: Nodes held at zero displacement: indices or a boolean mask of shape (N,).
+        driven: Driven nodes in trajectory column order (indices; no duplicates).
+
+    Returns:
+        Fixed nodes (sorted, unique), driven nodes (as given), free nodes (sorted); int64 arrays.
+
+    Raises:
+        ValueError: see :class:`TissueSimulation` (indices out of range, duplicates, a node both fixed
+            and driven, no constrained node or an unconstrained connected part, no free node).
+    """
+    n = tetmesh.node_count
+    fixed_nodes = np.unique(_node_set("fixed", fixed, n))
+    driven_nodes = _node_set("driven", driven, n)
+    uniq, counts = np.unique(driven_nodes, return_counts=True)
+    if np.any(counts > 1):
+        raise ValueError(f"driven node {uniq[counts > 1][0]} is listed more than once")
+    both = np.intersect1d(fixed_nodes, driven_nodes)
+    if both.size:
+        raise ValueError(f"node {both[0]} is both fixed and driven ({both.size} such nodes)")
+    constrained = np.union1d(fixed_nodes, driven_nodes)
+    if constrained.size == 0:
+        raise ValueError(
+            "no fixed or driven node: the stiffness matrix is singular (6 rigid-body modes) and the "
+            "tissue would drift freely; fix or drive at least three non-collinear nodes"
+        )
+    _check_every_part_constrained(tetmesh, constrained)
+    free_mask = np.ones(n, dtype=bool)
+    free_mask[constrained] = False
+    free_nodes = np.flatnonzero(free_mask)
+    if free_nodes.size == 0:
+        raise ValueError("every node is fixed or driven: there is nothing to simulate")
+    return fixed_nodes, driven_nodes, free_nodes
 
 
 def _check_every_part_constrained(tetmesh: TetMesh, constrained: np.ndarray) -> None:

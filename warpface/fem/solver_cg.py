@@ -52,7 +52,7 @@ from .kernels_integrator import cg_newmark_update
 from .newmark import NewmarkCoefficients
 from .state import TissueControl, TissueState
 
-__all__ = ["CGSolver", "ConvergenceError", "PRECONDITIONERS"]
+__all__ = ["CGSolver", "ConvergenceError", "PRECONDITIONERS", "newmark_operators"]
 
 PRECONDITIONERS = ("fsai", "block_jacobi", "diag")
 
@@ -111,6 +111,44 @@ def preconditioner_factor(A_oo: wps.BsrMatrix, kind: str):
     cols = np.broadcast_to(dofs[:, None, :], (n, 3, 3))
     lower = np.tril(np.ones((3, 3), dtype=bool))
     return sps.csr_matrix((factors[:, lower].ravel(), (rows[:, lower].ravel(), cols[:, lower].ravel())), shape=A.shape)
+
+
+def newmark_operators(matrices: SystemMatrices, coefficients: NewmarkCoefficients, free_index: np.ndarray,
+                      driven_slot: np.ndarray) -> tuple[wps.BsrMatrix, wps.BsrMatrix]:
+    """``(A_oo, P)`` of the device Newmark step (module docstring), float64 BSR on the matrices' device.
+
+    Args:
+        matrices: K, M, C.
+        coefficients: The Newmark constants.
+        free_index: Row of each node in ``A_oo`` (-1: constrained), shape (N,), int32.
+        driven_slot: Column of each node in the driven block of ``P`` (-1: not driven), shape (N,), int32.
+
+    ``A_oo`` is F x F blocks; ``P`` is F x (3N + D) blocks, its columns multiplying ``[d; v; a; d_driven]``.
+    For one mesh and node split the sparsity of both depends only on the mesh, not on the material
+    (the batched solver relies on that).
+    """
+    c = coefficients
+    dev = matrices.device
+    n = matrices.node_count
+    n_free = int(np.count_nonzero(free_index >= 0))
+    n_driven = int(np.count_nonzero(driven_slot >= 0))
+    free_column = np.where(free_index >= 0, np.arange(n, dtype=np.int32), -1)
+    A = wps.bsr_copy(matrices.K)
+    wps.bsr_axpy(matrices.M, A, alpha=c.mass_displacement)
+    wps.bsr_axpy(matrices.C, A, alpha=c.damping_displacement)
+    identity = np.arange(n, dtype=np.int32)
+    A_oo = partition_bsr([(A, free_index, 0, 1.0)], free_index, n_free, n_free, device=dev)
+    parts = []
+    predictor = ((c.mass_displacement, c.damping_displacement, 1.0),
+                 (c.mass_velocity, c.damping_velocity, c.dt),
+                 (c.mass_acceleration, c.damping_acceleration, c.half_dt_squared))
+    for block, (cm, cc, ca) in enumerate(predictor):
+        shift = block * n
+        parts += [(matrices.M, identity, shift, cm), (matrices.C, identity, shift, cc),
+                  (A, free_column, shift, -ca)]
+    parts.append((A, driven_slot, 3 * n, -1.0))
+    P = partition_bsr(parts, free_index, n_free, 3 * n + n_driven, device=dev)
+    return A_oo, P
 
 
 def _block_shape(device) -> tuple[int, int]:
@@ -195,25 +233,8 @@ class CGSolver:
         free_index[self.free_nodes] = np.arange(n_free, dtype=np.int32)
         driven_slot = np.full(n, -1, dtype=np.int32)
         driven_slot[self.driven_nodes] = np.arange(n_driven, dtype=np.int32)
-        free_column = np.where(free_index >= 0, np.arange(n, dtype=np.int32), -1)
 
-        # A = K + c0 M + c3 C, its free block and the warm-start residual operator P (module docstring).
-        c = coefficients
-        A = wps.bsr_copy(matrices.K)
-        wps.bsr_axpy(matrices.M, A, alpha=c.mass_displacement)
-        wps.bsr_axpy(matrices.C, A, alpha=c.damping_displacement)
-        identity = np.arange(n, dtype=np.int32)
-        A_oo = partition_bsr([(A, free_index, 0, 1.0)], free_index, n_free, n_free, device=dev)
-        parts = []
-        predictor = ((c.mass_displacement, c.damping_displacement, 1.0),
-                     (c.mass_velocity, c.damping_velocity, c.dt),
-                     (c.mass_acceleration, c.damping_acceleration, c.half_dt_squared))
-        for block, (cm, cc, ca) in enumerate(predictor):
-            shift = block * n
-            parts += [(matrices.M, identity, shift, cm), (matrices.C, identity, shift, cc),
-                      (A, free_column, shift, -ca)]
-        parts.append((A, driven_slot, 3 * n, -1.0))
-        P = partition_bsr(parts, free_index, n_free, 3 * n + n_driven, device=dev)
+        A_oo, P = newmark_operators(matrices, coefficients, free_index, driven_slot)
         G = preconditioner_factor(A_oo, preconditioner)
         if dtype != wp.float64:
             A_oo = wps.bsr_copy(A_oo, scalar_type=dtype)
@@ -227,7 +248,7 @@ class CGSolver:
         # Work arrays (allocated once; captured graphs bind these pointers).
         self.coefficients = coefficients
         scalar = wp.float64 if dtype == wp.float64 else wp.float32
-        self._update_constants = [*coefficients.update_scalars(scalar), scalar(c.dt), scalar(c.half_dt_squared)]
+        self._update_constants = [*coefficients.update_scalars(scalar), scalar(coefficients.dt), scalar(coefficients.half_dt_squared)]
         self._free_index = wp.array(free_index, dtype=wp.int32, device=dev)
         self._driven_slot = wp.array(driven_slot, dtype=wp.int32, device=dev)
         self._x = wp.zeros(n_free, dtype=vec, device=dev)
