@@ -105,3 +105,10 @@ def test_jaw_bounds_come_from_its_range_and_hold(rig, model):
     result = fit(rig, target, device="cpu", bounds={"jaw_open": (0.0, 0.3)})
     assert 0.299 <= result.controls["jaw_open"] <= 0.3 + 1e-12
     assert JAW_RANGE["jaw_open"][0] < 0.0 < JAW_RANGE["jaw_open"][1]
+
+
+def test_jaw_can_be_left_out_of_the_solve(rig):
+    target = np.asarray(rig.mesh.points, dtype=np.float64)[rig.landmarks]
+    result = fit(rig, target, vertices=rig.landmarks, device="cpu", jaw=False)
+    assert list(result.controls) == rig.muscle_names
+    assert result.residual < 1e-6 * rig_scale(rig)

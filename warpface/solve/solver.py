@@ -63,7 +63,9 @@ class SolveOptions:
         symmetry: pulls mirrored pairs ``name_L``/``name_R`` together.
         smoothness: pulls a frame toward the previous frame's controls (sequential :meth:`Solver.solve`).
         pose: also solve a rigid head pose (rotation about the observed points' centroid + translation).
-        bounds: per-control ``{name: (low, high)}`` overriding the defaults (c ≥ 0, sphincters ≤ 1).
+        bounds: per-control ``{name: (low, high)}`` overriding the defaults (c ≥ 0, sphincters ≤ 1,
+            the jaw's controls :data:`~warpface.expression.jaw.JAW_RANGE`).
+        jaw: solve the jaw's controls too when the rig has a jaw (False: muscles only, the jaw at rest).
         max_iterations: Levenberg–Marquardt iterations per frame.
         tolerance: stop when a step lowers E (or is predicted to) by less than this fraction …
         step_tolerance: … or moves no scaled control by more than this (face units) …
@@ -80,6 +82,7 @@ class SolveOptions:
     smoothness: float = 0.0
     pose: bool = False
     bounds: dict | None = None
+    jaw: bool = True
     max_iterations: int = 50
     tolerance: float = 1e-5
     step_tolerance: float = 1e-7
@@ -105,7 +108,7 @@ class SolveOptions:
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name}: expected a positive integer, got {value!r}")
-        return replace(made, pose=bool(made.pose))
+        return replace(made, pose=bool(made.pose), jaw=bool(made.jaw))
 
 
 @dataclass
@@ -215,13 +218,16 @@ class Solver:
             raise RigError(f"rig {rig.name!r}: has no muscles, nothing to solve for")
         self.rig = rig
         self.options = SolveOptions.from_keywords(**options)
-        self.names = rig.control_names
         self.muscle_count = len(rig.muscles)
+        self.has_jaw = rig.jaw is not None and self.options.jaw
+        self.names = rig.control_names if self.has_jaw else rig.muscle_names
         self.observation = observation(rig.mesh, vertices, triangles, barycentrics)
         self.weights = point_weights(weights, self.observation.count)
         self.device = device
         self._model = None
         operators = rig_operators(rig, device)
+        if not self.has_jaw:
+            operators = replace(operators, jaw_field=None)
         self.local = KernelExpression(LocalExpression(operators, self.observation.vertices), device=device)
         reach = operators.control_reach()
         self.unit = _face_unit(rig)
@@ -249,7 +255,7 @@ class Solver:
         low = np.zeros(len(self.names))
         high = np.array([SPHINCTER_MAX if isinstance(m, SphincterMuscle) else np.inf for m in self.rig.muscles]
                         + [0.0] * (len(self.names) - self.muscle_count))
-        for index, name in enumerate(JAW_CONTROL_NAMES if self.rig.jaw is not None else (), start=self.muscle_count):
+        for index, name in enumerate(JAW_CONTROL_NAMES if self.has_jaw else (), start=self.muscle_count):
             lo, hi = JAW_RANGE[name]
             unit = 1.0 if name == "jaw_open" else self.unit  # the slides' range is in face units
             low[index], high[index] = lo * unit, hi * unit
