@@ -129,8 +129,9 @@ def test_head_motion_is_solved_as_the_pose_and_written(tmp_path, rig, vertices):
     truth = model.evaluate_batch(controls).astype(np.float64)
     back = read_solved_capture(stage)
     for f, (rotation, translation) in enumerate(poses):
-        # < 0.2 mm of muscle motion: the orbital orbicularis oculi overlaps the lids and cheek muscles (0.14 mm seen)
-        assert np.abs((solved[f].controls - controls[f]) * tracker.solver.reach).max() < 2e-4
+        # 0.25 mm of skin per control: the full rig's 47 controls and the pose share 60 dots, and the lid and
+        # lip muscles are nearly collinear there (the classic rig's 23 gave < 0.1 mm)
+        assert np.abs((solved[f].controls - controls[f]) * tracker.solver.reach).max() < 2.5e-4
         moved = np.c_[truth[f], np.ones(len(truth[f]))] @ back["head_pose"][f]  # row vectors, as USD
         expected = truth[f] @ rotation.T + translation
         assert np.abs(moved[:, :3] - expected).max() < 1e-4  # 0.1 mm: the face placed where the camera saw it

@@ -1,7 +1,8 @@
 """Warp kernels: the expression pipeline and its forward-mode Jacobian on a target's neighbourhood (float64).
 
 The same chain rule as :mod:`.local_model`'s NumPy reference, one thread per (frame, element), with one
-derivative column per control looped inside the thread. Layouts are flat, frame after frame:
+derivative column per control looped inside the thread. Frames with ``frame_on`` 0 are skipped
+(their outputs keep stale values; the solver reads only the frames it evaluates). Layouts are flat, frame after frame:
 values ``(frames·n,)``, derivatives ``(frames·n·M,)`` (control fastest). A column whose muscle does not
 reach an element is never written: the derivative buffers are zeroed once, and each element loops
 over its ``active`` controls only (a CSR fixed by the rig: which muscles reach the element's stencil),
@@ -17,6 +18,7 @@ __all__ = ["muscle_stage", "first_ring_triangles", "bulge_stage", "second_ring_t
 
 @wp.kernel
 def muscle_stage(
+    frame_on: wp.array(dtype=wp.int32),
     rest: wp.array(dtype=wp.vec3d),
     field: wp.array(dtype=wp.vec3d),
     controls: wp.array(dtype=wp.float64),
@@ -29,6 +31,8 @@ def muscle_stage(
     """x1 = x_rest + W c over the neighbourhood's vertices (the muscles that reach each vertex)."""
     i = wp.tid()
     f = i / vertex_count
+    if frame_on[f] == 0:
+        return
     v = i - f * vertex_count
     x = rest[v]
     for slot in range(active_offsets[v], active_offsets[v + 1]):
@@ -44,6 +48,7 @@ def _zero3() -> wp.vec3d:
 
 @wp.kernel
 def first_ring_triangles(
+    frame_on: wp.array(dtype=wp.int32),
     points: wp.array(dtype=wp.vec3d),
     field: wp.array(dtype=wp.vec3d),
     triangles: wp.array(dtype=wp.vec3i),
@@ -63,6 +68,8 @@ def first_ring_triangles(
     """Area vector ``w·(p1 − p0) × (p2 − p0)`` of x1, ratio S'/S, and their derivatives (derivative of x1 = W)."""
     i = wp.tid()
     f = i / triangle_count
+    if frame_on[f] == 0:
+        return
     t = i - f * triangle_count
     tri = triangles[t]
     base = f * vertex_count
@@ -92,6 +99,7 @@ def first_ring_triangles(
 
 @wp.kernel
 def bulge_stage(
+    frame_on: wp.array(dtype=wp.int32),
     points: wp.array(dtype=wp.vec3d),
     field: wp.array(dtype=wp.vec3d),
     area: wp.array(dtype=wp.vec3d),
@@ -122,6 +130,8 @@ def bulge_stage(
     """
     i = wp.tid()
     f = i / vertex_count
+    if frame_on[f] == 0:
+        return
     v = i - f * vertex_count
     first = f * triangle_count
     zero = wp.float64(0.0)
@@ -173,6 +183,7 @@ def bulge_stage(
 
 @wp.kernel
 def second_ring_triangles(
+    frame_on: wp.array(dtype=wp.int32),
     points: wp.array(dtype=wp.vec3d),
     dpoints: wp.array(dtype=wp.vec3d),
     triangles: wp.array(dtype=wp.vec3i),
@@ -189,6 +200,8 @@ def second_ring_triangles(
     """Area vectors of x2 (for the wrinkles' normal) and their derivatives."""
     i = wp.tid()
     f = i / triangle_count
+    if frame_on[f] == 0:
+        return
     t = i - f * triangle_count
     tri = triangles[t]
     base = f * vertex_count
@@ -216,6 +229,7 @@ def _store_column(out: wp.array(dtype=wp.float64), row: int, m: int, control_cou
 
 @wp.kernel
 def wrinkle_stage(
+    frame_on: wp.array(dtype=wp.int32),
     bulged: wp.array(dtype=wp.vec3d),
     stretch: wp.array(dtype=wp.float64),
     dbulged: wp.array(dtype=wp.vec3d),
@@ -245,6 +259,8 @@ def wrinkle_stage(
     """
     i = wp.tid()
     f = i / vertex_count
+    if frame_on[f] == 0:
+        return
     v = i - f * vertex_count
     source = f * ring_count + ring_vertex[v]
     x = bulged[source]

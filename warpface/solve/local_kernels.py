@@ -61,6 +61,8 @@ class _Buffers:
         """The pipeline's derivatives per basis column; with a jaw, ``dx3`` holds them per control."""
         if outputs is not None and outputs != controls:
             self.dx3 = scalar(frames * n0 * 3 * outputs)
+        self.frame_on = wp.ones(frames, dtype=wp.int32, device=device)
+        """Frames to evaluate (1) or skip (0): the solver turns off the frames that have converged."""
         self.recorded: dict[bool, list] = {}
         """Launches recorded once per mode (with / without Jacobian) and replayed: argument packing is
         most of a small launch's cost on the CPU."""
@@ -111,6 +113,15 @@ class KernelExpression:
                         for name, csr in active_basis.items()}
 
     @property
+    def bytes_per_frame(self) -> int:
+        """Device memory one frame of :meth:`buffers` takes with its Jacobian [bytes]."""
+        s, m = self._sizes, self.basis_count
+        vec, scalar = 24, 8
+        per_control = s["t1"] * (vec + scalar) + s["n1"] * (vec + scalar) + s["t0"] * vec + s["n0"] * 3 * scalar
+        values = s["n2"] * vec + s["t1"] * (vec + scalar) + s["n1"] * (vec + scalar) + s["t0"] * vec + s["n0"] * vec
+        return per_control * m + values + m * scalar
+
+    @property
     def reach(self) -> int:
         return self.local.reach
 
@@ -146,20 +157,20 @@ class KernelExpression:
             commands.append(wp.launch(kernel, record_cmd=True, **kwargs))
 
         launch(kernels.muscle_stage, dim=frames * s["n2"], device=d,
-                  inputs=[self._rest, self._field, buffers.controls, *self._active["s2"], m, s["n2"]], outputs=[buffers.x1])
+                  inputs=[buffers.frame_on, self._rest, self._field, buffers.controls, *self._active["s2"], m, s["n2"]], outputs=[buffers.x1])
         launch(kernels.first_ring_triangles, dim=frames * s["t1"], device=d,
-                  inputs=[buffers.x1, self._field, self._t1, self._t1_weight, self._t1_length, *self._active["t1"], m, s["n2"], s["t1"], jac],
+                  inputs=[buffers.frame_on, buffers.x1, self._field, self._t1, self._t1_weight, self._t1_length, *self._active["t1"], m, s["n2"], s["t1"], jac],
                   outputs=[buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1])
         launch(kernels.bulge_stage, dim=frames * s["n1"], device=d,
-                  inputs=[buffers.x1, self._field, buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1,
+                  inputs=[buffers.frame_on, buffers.x1, self._field, buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1,
                           self._s1_in_s2, self._adj1_offsets, self._adj1, self._counts1, self._thickness1, *self._active["s1"],
                           wp.float64(STRETCH_FLOOR), m, s["n2"], s["n1"], s["t1"], jac],
                   outputs=[buffers.stretch, buffers.x2, buffers.dstretch, buffers.dx2])
         launch(kernels.second_ring_triangles, dim=frames * s["t0"], device=d,
-                  inputs=[buffers.x2, buffers.dx2, self._t0, self._t0_weight, *self._active["t0"], m, s["n1"], s["t0"], jac],
+                  inputs=[buffers.frame_on, buffers.x2, buffers.dx2, self._t0, self._t0_weight, *self._active["t0"], m, s["n1"], s["t0"], jac],
                   outputs=[buffers.area0, buffers.darea0])
         launch(kernels.wrinkle_stage, dim=frames * s["n0"], device=d,
-                  inputs=[buffers.x2, buffers.stretch, buffers.dx2, buffers.dstretch, buffers.area0, buffers.darea0,
+                  inputs=[buffers.frame_on, buffers.x2, buffers.stretch, buffers.dx2, buffers.dstretch, buffers.area0, buffers.darea0,
                           self._s0_in_s1, self._adj0_offsets, self._adj0, self._profile_offsets, self._profile_wrinkle,
                           self._profile_value, self._kr, *self._active["s0"], m, s["n1"], s["n0"], s["t0"], jac],
                   outputs=[buffers.x3, buffers.dx3_basis])
@@ -179,6 +190,7 @@ class KernelExpression:
         frames = controls.shape[0]
         buffers = self.buffers(frames)
         self.upload(buffers, controls)
+        buffers.frame_on.fill_(1)
         self.launch(buffers, frames, jacobian)
         n0, m = self.count, self.control_count
         x3 = buffers.x3.numpy()[: frames * n0].reshape(frames, n0, 3).copy()

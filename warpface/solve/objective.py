@@ -20,13 +20,14 @@ __all__ = ["DeviceObjective"]
 
 
 class _FrameData:
-    def __init__(self, frames: int, points: int, variables: int, device):
+    def __init__(self, frames: int, points: int, variables: int, device, frame_on):
         self.frames = frames
         self.targets = wp.zeros(max(frames * points, 1), dtype=wp.vec3d, device=device)
         self.weights = wp.zeros(max(frames * points, 1), dtype=wp.float64, device=device)
         self.rotation = wp.zeros(frames, dtype=wp.mat33d, device=device)
         self.translation = wp.zeros(frames, dtype=wp.vec3d, device=device)
-        self.frame_on = wp.zeros(frames, dtype=wp.int32, device=device)
+        self.frame_on = frame_on
+        """Shared with the model's stages: a frame turned off is neither evaluated nor summed."""
         self.hessian = wp.zeros(frames * variables * variables, dtype=wp.float64, device=device)
         self.gradient = wp.zeros(frames * variables, dtype=wp.float64, device=device)
         self.misfit = wp.zeros(frames, dtype=wp.float64, device=device)
@@ -88,7 +89,8 @@ class DeviceObjective:
         """Upload a chunk's targets (F, N, 3) [face units] and normalised weights (F, N) (0 = missing)."""
         frames = len(targets)
         if frames not in self._data:
-            self._data[frames] = _FrameData(frames, self.point_count, self.variable_count, self.device)
+            self._data[frames] = _FrameData(frames, self.point_count, self.variable_count, self.device,
+                                            self.model.buffers(frames).frame_on)
         data = self._bound = self._data[frames]
         if data.cpu:
             data.target_view[: targets.size // 3] = np.reshape(targets, (-1, 3))
@@ -105,10 +107,29 @@ class DeviceObjective:
         """
         data = self._bound
         frames = data.frames
-        buffers = self.model.buffers(frames)
-        self.model.upload(buffers, controls)
-        self.model.launch(buffers, frames, jacobian)
+        self.model.upload(self.model.buffers(frames), controls)
         data.set_frame_inputs(rotation, translation, frame_on)
+        self.launch(jacobian=jacobian)
+        misfit = data.misfit.numpy().copy()
+        if not jacobian:
+            return misfit, None, None
+        k = self.variable_count
+        return misfit, data.hessian.numpy().reshape(frames, k, k).copy(), data.gradient.numpy().reshape(frames, k).copy()
+
+    def inputs(self):
+        """The bound chunk's device inputs and outputs: ``(controls (F·M,), rotation (F,), translation (F,),
+        frame_on (F,), hessian (F·K·K,), gradient (F·K,), misfit (F,))`` — written and read by the
+        on-device iteration (:mod:`.device_steps`) between :meth:`launch` calls."""
+        data = self._bound
+        buffers = self.model.buffers(data.frames)
+        return (buffers.controls, data.rotation, data.translation, data.frame_on, data.hessian, data.gradient, data.misfit)
+
+    def launch(self, *, jacobian: bool) -> None:
+        """Evaluate the bound chunk at the device inputs already in place (see :meth:`inputs`); no readback."""
+        data = self._bound
+        frames = data.frames
+        buffers = self.model.buffers(frames)
+        self.model.launch(buffers, frames, jacobian)
         data.misfit.zero_()
         if jacobian:
             data.hessian.zero_()
@@ -122,8 +143,3 @@ class DeviceObjective:
                         self.variable_count, self.model.count, self.point_count, 1 if jacobian else 0],
                 outputs=[data.hessian, data.gradient, data.misfit])
         data.commands[jacobian].launch()
-        misfit = data.misfit.numpy().copy()
-        if not jacobian:
-            return misfit, None, None
-        k = self.variable_count
-        return misfit, data.hessian.numpy().reshape(frames, k, k).copy(), data.gradient.numpy().reshape(frames, k).copy()

@@ -14,7 +14,8 @@ Method — projected Levenberg–Marquardt with the exact Jacobian (:mod:`.local
 Gauss–Newton normal equations (M×M, plus 6 with pose) are solved on the free controls (those not held at
 a bound by their gradient), the step is projected onto the box, and accepted if E decreases, otherwise
 the damping grows. Frames are independent and advance together (arrays over frames), so a batch is one
-pass per iteration. Chosen over SciPy's ``least_squares`` (trust-region reflective on the same
+pass per iteration; the iteration itself runs on the device, one thread per frame (:mod:`.device_steps`),
+so only a counter comes back per launch round (``device_steps=False``: the NumPy reference loop). Chosen over SciPy's ``least_squares`` (trust-region reflective on the same
 objective, measured in ``benchmarks/solve.py``): the exact Jacobian restricted to the rows the targets
 touch, and the tiny bounded system, make each iteration cheaper than one finite-difference Jacobian.
 """
@@ -31,6 +32,7 @@ from ..expression.jaw import JAW_CONTROL_NAMES, JAW_RANGE
 from ..expression.muscles import SphincterMuscle
 from ..rig import FaceRig
 from .local_kernels import KernelExpression
+from .device_steps import DeviceSteps
 from .objective import DeviceObjective
 from .local_model import LocalExpression, RigOperators
 from .pose import rigid_alignment, rotation_from_vector
@@ -44,6 +46,8 @@ SPHINCTER_MAX = 1.0
 _OPERATORS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _SOLVERS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _SOLVERS_PER_RIG = 4
+_CUDA_PASS_BYTES, _CUDA_PASS_FRAMES = 16 << 30, 16384
+"""Working memory and frame count of one batched pass on CUDA (see ``frames_per_pass``)."""
 _COLD_DAMPING, _WARM_DAMPING = 1.0, 1e-4
 """Initial Levenberg–Marquardt damping (× the Hessian's diagonal) without and with a warm start. From
 neutral, 1.0 (divided by 10 per accepted step) recovered 20 of 20 random six-muscle expressions (≤ 0.3
@@ -63,8 +67,7 @@ class SolveOptions:
         symmetry: pulls mirrored pairs ``name_L``/``name_R`` together.
         smoothness: pulls a frame toward the previous frame's controls (sequential :meth:`Solver.solve`).
         pose: also solve a rigid head pose (rotation about the observed points' centroid + translation).
-        bounds: per-control ``{name: (low, high)}`` overriding the defaults (c ≥ 0, sphincters ≤ 1,
-            the jaw's controls :data:`~warpface.expression.jaw.JAW_RANGE`).
+        bounds: per-control ``{name: (low, high)}`` overriding the defaults (c ≥ 0, sphincters ≤ 1, jaw: JAW_RANGE).
         jaw: solve the jaw's controls too when the rig has a jaw (False: muscles only, the jaw at rest).
         max_iterations: Levenberg–Marquardt iterations per frame.
         tolerance: stop when a step lowers E (or is predicted to) by less than this fraction …
@@ -72,8 +75,14 @@ class SolveOptions:
         energy_tolerance: … or lowers E by less than this: E is a mean squared distance in face units², so
             1e-10 is an RMS change of 1e-5 face units (0.6 µm on a face with a 62 mm inter-ocular distance).
         min_points: fewer valid (non-NaN, weighted) points keeps the previous controls and flags the frame.
-        frames_per_pass: frames evaluated together (bounds the working memory of a batch, ~3 MB per
-            frame for 68 landmarks of the default rig); default 64 on the CPU, 4096 on CUDA.
+        frames_per_pass: frames evaluated together (bounds the working memory of a batch, ~1.7 MB per
+            frame for 68 landmarks of the default rig); default 64 on the CPU; on CUDA as many as fit in
+            16 GiB, at most 16384 (~10k frames of 68 landmarks; converged frames cost little, so a
+            larger pass keeps more of the GPU busy per launch).
+        device_steps: run the iteration itself (damped bounded step, accept/reject, convergence) on the
+            device, one thread per frame, reading back only a counter per launch round (default; measured
+            faster on the CPU too: fewer Python operations per iteration); False: the NumPy loop. Results
+            agree to rounding either way.
     """
 
     l2: float = 1e-6
@@ -89,6 +98,7 @@ class SolveOptions:
     energy_tolerance: float = 1e-10
     min_points: int = 3
     frames_per_pass: int | None = None
+    device_steps: bool | None = None
 
     @classmethod
     def from_keywords(cls, **options) -> "SolveOptions":
@@ -108,6 +118,8 @@ class SolveOptions:
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name}: expected a positive integer, got {value!r}")
+        if made.device_steps is not None and not isinstance(made.device_steps, (bool, np.bool_)):
+            raise TypeError(f"device_steps: expected True, False or None, got {made.device_steps!r}")
         return replace(made, pose=bool(made.pose), jaw=bool(made.jaw))
 
 
@@ -237,6 +249,11 @@ class Solver:
         self._pairs = self._mirrored_pairs()
         self.origin = self.observation.apply(operators.rest).mean(axis=0)
         self.objective = DeviceObjective(self.local, self.observation, pose=self.options.pose, origin=self.origin, unit=self.unit)
+        self._device_steps = None
+        # The device iteration skips the jaw's (sin θ, 1 − cos θ) basis upload: with a jaw, the NumPy loop.
+        if self.options.device_steps is not False and not self.has_jaw:
+            self._device_steps = DeviceSteps(self.objective, scale=self.control_scale, low=self.low * self.control_scale,
+                                             high=self.high * self.control_scale, pairs=self._pairs, unit=self.unit)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -347,7 +364,7 @@ class Solver:
         weight = self.weights if weights is None else point_weights(weights, self.observation.count)
         frames = len(array)
         out = {key: [] for key in ("controls", "residual", "converged", "skipped", "iterations", "rotation", "translation")}
-        chunk = self.options.frames_per_pass or (4096 if self.local.device.is_cuda else 64)
+        chunk = self.options.frames_per_pass or self._default_pass()
         bar = None
         if progress:
             from tqdm import tqdm
@@ -367,6 +384,13 @@ class Solver:
         if frames == 0:
             stacked["controls"] = np.zeros((0, len(self.names)))
         return BatchFit(names=list(self.names), **stacked)
+
+    def _default_pass(self) -> int:
+        if not self.local.device.is_cuda:
+            return 64
+        k = self.objective.variable_count
+        per_frame = self.local.bytes_per_frame + 3 * 8 * k * k + 8 * 8 * k + 4 * self.observation.count * 8
+        return int(np.clip(_CUDA_PASS_BYTES // per_frame, 1, _CUDA_PASS_FRAMES))
 
     # ------------------------------------------------------------------ the solve
     def _solve_frames(self, targets: np.ndarray, weight: np.ndarray, start: np.ndarray, *, temporal: bool, cold: bool,
@@ -401,6 +425,23 @@ class Solver:
         # Without an earlier frame, start cautious (large damping): the first Gauss–Newton step of a large
         # expression can jump into another basin (a muscle pulled past its attachment); warm starts start near GN.
         damping = np.full(frames, _COLD_DAMPING if cold else _WARM_DAMPING)
+        if self._device_steps is not None:
+            out = self._device_steps.run(u, rotation, translation, previous, active, damping, options=opts, smooth=smooth)
+            u, rotation, translation, misfit = out["u"], out["rotation"], out["translation"], out["misfit"]
+            converged, active, iterations = out["converged"], out["active"], out["iterations"]
+        else:
+            misfit = self._host_iterations(u, rotation, translation, previous, active, damping, iterations, converged,
+                                           smooth)
+        return self._frames_result(u, rotation, translation, misfit, converged, active, iterations, skipped, start,
+                                   valid_count)
+
+    def _host_iterations(self, u, rotation, translation, previous, active, damping, iterations, converged, smooth):
+        """The iteration in NumPy (the reference of :mod:`.step_kernels`); updates the arrays in place,
+        returns the data misfit per frame."""
+        opts = self.options
+        frames = len(u)
+        scale = self.control_scale
+        low, high = self.low * scale, self.high * scale
         current = np.full(frames, np.inf)
         misfit = np.zeros(frames)
         n = len(self.names)
@@ -460,6 +501,10 @@ class Solver:
             stalled = todo[pending]
             converged[stalled] = True
             active[stalled] = False
+        return misfit
+
+    def _frames_result(self, u, rotation, translation, misfit, converged, active, iterations, skipped, start, valid_count):
+        scale = self.control_scale
         controls = u / scale
         controls[skipped] = start[skipped]
         rotation[skipped] = self.rotation
@@ -469,12 +514,6 @@ class Solver:
                     converged=converged & ~skipped & ~active,
                     skipped=skipped, iterations=iterations, valid=valid_count,
                     rotation=rotation, translation=translation * self.unit)
-
-    def _l1_slope(self, u):
-        """``∂Σ|u|/∂u``: 1 for the muscles (≥ 0 on their feasible set, so held at 0), sign(u) for the jaw."""
-        slope = np.ones_like(u)
-        slope[:, self.muscle_count:] = np.sign(u[:, self.muscle_count:])
-        return slope
 
     def _regularisation(self, u, previous, smooth):
         opts = self.options
@@ -500,7 +539,7 @@ class Solver:
         n = len(self.names)
         diag = np.arange(n)
         hessian[:, diag, diag] += opts.l2 + smooth
-        gradient[:, :n] += opts.l2 * u + 0.5 * opts.l1 * self._l1_slope(u) + smooth * (u - previous)
+        gradient[:, :n] += opts.l2 * u + 0.5 * opts.l1 * np.where(np.arange(n) < self.muscle_count, 1.0, np.sign(u))  # jaw: |u| + smooth * (u - previous)
         if opts.symmetry and len(self._pairs):
             left, right = self._pairs[:, 0], self._pairs[:, 1]
             diff = u[:, left] - u[:, right]
