@@ -1,13 +1,12 @@
 """How much of a real expression the default rig can reach: fit its controls to ICT-FaceKit shapes.
 
 For each expression shape of ``../shared/data/ict_facekit/face_region_tri`` (delta = shape − neutral)
-the default rig, placed on the ICT face from its 68 landmarks, is fitted by bounded Gauss–Newton
-(``scipy.optimize.lsq_linear`` per step on a forward-difference Jacobian with steps of 1e-3
-inter-ocular units ≈ 60 µm, far above float32 resolution) over the full expression pipeline (jaw → muscles → stretch →
-bulge → wrinkles). Two fits per shape:
+the default rig, placed on the ICT face from its 68 landmarks, is fitted with :func:`warpface.solve.fit`
+(Levenberg–Marquardt on the exact Jacobian of the full pipeline: jaw → muscles → stretch → bulge →
+wrinkles; default options, muscles and the jaw's three controls). Two fits per shape:
 
 - **dense**: every vertex is a target;
-- **landmarks**: only the 68 landmark vertices are targets (a small ridge keeps the fit determined).
+- **landmarks**: only the 68 landmark vertices are targets.
 
 Reported per shape, over the *moved* vertices (|delta| > 0.2 mm): mean and max error before (the
 neutral face) and after the fit, and the reduction of the mean. A peer column fits the same shapes
@@ -24,22 +23,19 @@ from dataclasses import replace
 
 import numpy as np
 import warp as wp
-from scipy.optimize import lsq_linear
 
 import warpface as wf
 from warpface import FaceRig
 from warpface.assets import default_rig
 from warpface.assets.rig import rig_scale
 from warpface.data import ict_face_region, ict_landmark_indices
-from warpface.expression.muscles import LinearMuscle
+from warpface.solve import fit
 
 from ._timing import machine_info, print_table, write_results
 
 SHAPES = ("browInnerUp_L", "browInnerUp_R", "browOuterUp_L", "browOuterUp_R", "eyeSquint_L", "eyeSquint_R", "jawOpen")
 CENTIMETRE = 0.01
 MOVED_MM = 0.2
-STEP = 1.0e-3
-"""Finite-difference step in inter-ocular units (linear muscles, jaw translation) or as is (sphincters, radians)."""
 
 
 def load_face():
@@ -50,55 +46,6 @@ def load_face():
     return wf.FaceMesh(source.points * CENTIMETRE, source.triangles, name="ict_face"), landmarks
 
 
-def control_bounds(model, rig, scale: float):
-    """Lower/upper bounds and FD steps per control, in the model's control order."""
-    kinds = {m.name: m for m in rig.muscles}
-    lower, upper, step = [], [], []
-    for name in model.control_names:
-        muscle = kinds.get(name)
-        if isinstance(muscle, LinearMuscle):
-            lower.append(0.0), upper.append(0.6 * scale), step.append(STEP * scale)
-        elif muscle is not None:
-            lower.append(0.0), upper.append(1.0), step.append(STEP)
-        elif name == "jaw_open":
-            lower.append(-0.05), upper.append(0.6), step.append(STEP)
-        else:
-            lower.append(-0.15 * scale), upper.append(0.15 * scale), step.append(STEP * scale)
-    return np.array(lower), np.array(upper), np.array(step)
-
-
-def fit(model, target: np.ndarray, rows: np.ndarray, lower, upper, step, ridge: float, iterations: int = 6) -> np.ndarray:
-    """Controls minimising Σ_rows |x(c) − target|² + ridge·|c/step|² within the bounds.
-
-    Gauss–Newton with a box: each iteration linearises x(c) by forward differences (exact for the
-    muscle stage, which is linear in c) and solves the bounded linear problem with ``lsq_linear``.
-    """
-    count = len(lower)
-    unit = step / STEP
-    controls = np.clip(np.zeros(count), lower, upper)
-    penalty = np.sqrt(ridge) * np.diag(1.0 / unit)
-    best, best_cost = controls, np.inf
-    for _ in range(iterations):
-        probes = np.repeat(controls[None], count + 1, axis=0)
-        h = np.where(controls + step <= upper, step, -step)
-        probes[np.arange(1, count + 1), np.arange(count)] += h
-        points = model.evaluate_batch(probes).astype(np.float64)[:, rows]
-        residual = (points[0] - target[rows]).ravel()
-        cost = residual @ residual + ridge * np.sum((controls / unit) ** 2)
-        if cost < best_cost:
-            best, best_cost = controls.copy(), cost
-        jacobian = ((points[1:] - points[0]).reshape(count, -1) / h[:, None]).T
-        matrix = np.concatenate([jacobian * unit, penalty * unit])
-        rhs = -np.concatenate([residual, np.sqrt(ridge) * controls / unit])
-        delta = lsq_linear(matrix, rhs, bounds=((lower - controls) / unit, (upper - controls) / unit), method="bvls").x
-        controls = np.clip(controls + delta * unit, lower, upper)
-    points = model.evaluate(controls).astype(np.float64)[rows]
-    residual = (points - target[rows]).ravel()
-    if residual @ residual + ridge * np.sum((controls / unit) ** 2) < best_cost:
-        best = controls
-    return best
-
-
 def errors(points: np.ndarray, target: np.ndarray, moved: np.ndarray) -> tuple[float, float]:
     distance = np.linalg.norm(points[moved] - target[moved], axis=1) * 1000.0
     return float(distance.mean()), float(distance.max())
@@ -107,8 +54,6 @@ def errors(points: np.ndarray, target: np.ndarray, moved: np.ndarray) -> tuple[f
 def reach(rig, mesh, landmarks, shapes, device, dense_only: bool = False) -> list[dict]:
     model = rig.model(device=device)
     scale = rig_scale(rig)
-    lower, upper, step = control_bounds(model, rig, scale)
-    all_rows = np.arange(mesh.vertex_count)
     results = []
     for shape in shapes:
         target = wf.FaceMesh.from_obj(ict_face_region(shape)).points * CENTIMETRE
@@ -116,17 +61,20 @@ def reach(rig, mesh, landmarks, shapes, device, dense_only: bool = False) -> lis
         moved = delta > MOVED_MM
         before_mean, before_max = errors(mesh.points, target, moved)
         row = {"shape": shape, "moved": int(moved.sum()), "before_mean_mm": before_mean, "before_max_mm": before_max}
-        fits = (("dense", all_rows, 1e-10),) if dense_only else (("dense", all_rows, 1e-10), ("landmarks", landmarks, 1e-8))
-        for label, rows, ridge in fits:
+        fits = (("dense", None),) if dense_only else (("dense", None), ("landmarks", np.asarray(landmarks)))
+        for label, rows in fits:
             started = time.perf_counter()
-            controls = fit(model, target, rows, lower, upper, step, ridge)
-            after_mean, after_max = errors(model.evaluate(controls).astype(np.float64), target, moved)
+            solved = fit(rig, target if rows is None else target[rows], vertices=rows, device=device)
+            controls = solved.vector
+            after_mean, after_max = errors(solved.points.astype(np.float64), target, moved)
             row[f"{label}_mean_mm"] = after_mean
             row[f"{label}_max_mm"] = after_max
             row[f"{label}_reduction"] = 1.0 - after_mean / before_mean
             row[f"{label}_seconds"] = time.perf_counter() - started
-            top = np.argsort(-np.abs(controls / step))[:4]
-            row[f"{label}_top"] = {model.control_names[i]: float(controls[i] / (step[i] / STEP)) for i in top}
+            row[f"{label}_converged"] = bool(solved.converged)
+            size = np.abs(controls) / np.where(np.array([n.startswith("jaw_") for n in model.control_names]), 1.0, scale)
+            top = np.argsort(-size)[:4]
+            row[f"{label}_top"] = {model.control_names[i]: float(size[i]) for i in top}
         results.append(row)
     return results
 

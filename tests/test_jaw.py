@@ -115,7 +115,11 @@ def test_default_jaw_weights_follow_the_anatomy(rig):
     assert np.all(w[lm[[7, 8, 9, 56, 57, 58, 65, 66, 67]]] > 0.9), "chin and lower lip follow the jaw"
     assert np.all(w[lm[[17, 19, 21, 22, 24, 26, 27, 30, 36, 45]]] < 1e-6), "brows, nose, eyes do not"
     assert np.all(w[lm[[50, 51, 52, 61, 62, 63]]] < 0.35), "the upper lip follows only partly: the lips part"
-    assert 0.0 < w[lm[3]] <= 1.0 and 0.0 < w[lm[13]] <= 1.0
+    # The jaw outline follows less the higher it sits (on ICT-FaceKit's jawOpen iBUG 3/13 move 2.9 mm,
+    # 4/12 8.6 mm, the chin 40.5 mm).
+    for upper, lower in ((3, 4), (4, 5), (13, 12), (12, 11)):
+        assert w[lm[upper]] <= w[lm[lower]]
+    assert w[lm[4]] > 0.0 and w[lm[12]] > 0.0
 
 
 def test_jaw_open_parts_the_lips_and_moves_the_chin_down(rig):

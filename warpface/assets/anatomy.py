@@ -73,6 +73,11 @@ def _linear(name, surface: SurfaceSampler, origin_xy, depth, insertion_xy, zone_
     return LinearMuscle(name, attachment, insertion, zone_deg, start * length, finish * length)
 
 
+ORBITAL_SEMI_AXES = (0.95, 0.85)
+"""Semi-axes (across, up) of the orbital orbicularis oculi [inter-ocular units]: its pull reaches the
+upper cheek below and lateral of the eye, where a squint (AU6) moves the skin most (eyeSquint reach
+24 % → 29 % dense against (0.72, 0.58); docs/RIG.md)."""
+
 FRONTALIS_REACH = 2.8
 """Falloff finish of the frontalis as a multiple of its length: the brow skin drags the lids and the
 upper cheek along (on the ICT-FaceKit brow shapes the skin 1 unit below the brows still rises by
@@ -171,7 +176,8 @@ def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame
         inner = local[i["eye_inner"]]
         centre = eye + 0.20 * (inner - eye)
         sphincters[f"orbicularis_oculi_{tag}"] = SphincterMuscle(
-            f"orbicularis_oculi_{tag}", world(centre), across, up, (0.72 * frame.scale, 0.58 * frame.scale))
+            f"orbicularis_oculi_{tag}", world(centre), across, up,
+            (ORBITAL_SEMI_AXES[0] * frame.scale, ORBITAL_SEMI_AXES[1] * frame.scale))
     mouth = local[60:68].mean(axis=0)
     half_width = 0.5 * np.linalg.norm(local[54] - local[48])
     sphincters["orbicularis_oris_press"] = SphincterMuscle(

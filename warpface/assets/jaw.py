@@ -8,8 +8,10 @@ below and 0.20 behind them — the condyles sit just in front of and below the t
 the axis is the frame's x axis (positive angles open the mouth), protrusion is the frame's z axis.
 
 **Weights** ``w ∈ [0, 1]`` (docs/RIG.md §4). A *jaw line* in the face plane runs along the lips' contact
-line (inner-lip landmarks 60–67) between the mouth corners and from each corner up to the jaw outline
-at iBUG 2/14 (the lower cheek follows the mandible, the cheek above it only partly). With ``φ`` the
+line (inner-lip landmarks 60–67) between the mouth corners and from each corner out to the jaw outline
+at iBUG 4/12 (the mandible's body: the lower cheek follows it; the cheek above the line only partly,
+through the ramp — a line up to iBUG 2/14 moved the whole lower cheek rigidly and cost 7 points of
+jawOpen reach, docs/RIG.md). With ``φ`` the
 height below that line, ``w = smoothstep((φ + a)/(a + b))`` (cubic, C¹): near the mouth ``a = b`` is
 small, so the lips part along the contact line; beside it the ramp widens (``a`` = 0.30, ``b`` = 0.30)
 over the cheeks. Where the mesh has a mouth opening, its rim is split at the corners into an upper and
@@ -59,7 +61,7 @@ def _jaw_line(local_landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray, floa
     """Knots (x, y) of the jaw line, sorted by x, and the mouth half-width [inter-ocular units]."""
     L = local_landmarks[:, :2]
     contact = [L[60], 0.5 * (L[61] + L[67]), 0.5 * (L[62] + L[66]), 0.5 * (L[63] + L[65]), L[64]]
-    knots = np.array([L[2], *contact, L[14]])
+    knots = np.array([L[4], *contact, L[12]])
     far = np.array([[knots[0, 0] - 1.0, knots[0, 1]], [knots[-1, 0] + 1.0, knots[-1, 1]]])
     knots = np.concatenate([far[:1], knots, far[1:]])
     order = np.argsort(knots[:, 0])

@@ -14,11 +14,20 @@ import numpy as np
 
 from .._validate import as_finite_array, as_vec3, orthogonal_unit_vector, unit_vector
 
-__all__ = ["Jaw", "JAW_CONTROL_NAMES", "jaw_points"]
+__all__ = ["Jaw", "JAW_CONTROL_NAMES", "JAW_RANGE", "jaw_points"]
 
 JAW_CONTROL_NAMES: tuple[str, ...] = ("jaw_open", "jaw_forward", "jaw_left")
 """The jaw's controls, in order: opening angle θ [rad] (positive opens the mouth), protrusion along
 ``forward`` [mesh units] and slide toward the subject's left [mesh units]."""
+
+JAW_RANGE: dict[str, tuple[float, float]] = {
+    "jaw_open": (-0.05, 0.6),
+    "jaw_forward": (-0.1, 0.15),
+    "jaw_left": (-0.15, 0.15),
+}
+"""The mandible's range of motion (the solver's default bounds): the opening angle [rad] (a slight
+over-closure up to a maximal opening of ~34°, ~50 mm between the incisors), protrusion and lateral
+slide as fractions of the inter-ocular distance (~6 mm back to ~9 mm forward, ~9 mm either side)."""
 
 
 @dataclass(frozen=True, eq=False)

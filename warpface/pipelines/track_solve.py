@@ -103,6 +103,8 @@ class SolvingTracker:
         self.vertices = landmark_vertices(self.names, rig.mesh.vertex_count)
         if len(np.unique(self.vertices)) != len(self.vertices):
             raise ValueError("landmark_names: two landmarks sit on the same vertex")
+        # The solved stage writes muscle prims only (jaw time samples are not laid out yet): muscles only.
+        options.setdefault("jaw", False)
         self.solver = Solver(rig, self.vertices, pose=pose, smoothness=smoothness, device=device, **options)
         self.control_names = list(self.solver.names)
         self.solver.model  # built now (≈ 0.2 s), not inside the first frame

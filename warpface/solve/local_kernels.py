@@ -7,13 +7,40 @@ import scipy.sparse as sp
 import warp as wp
 
 from . import kernels
-from .local_model import STRETCH_FLOOR, LocalExpression
+from .local_model import STRETCH_FLOOR, LocalExpression, jaw_basis
 
-__all__ = ["KernelExpression"]
+__all__ = ["KernelExpression", "jaw_chain_rule_kernel"]
+
+
+@wp.kernel
+def jaw_chain_rule_kernel(
+    dbasis: wp.array(dtype=wp.float64),
+    basis: wp.array(dtype=wp.float64),
+    rows_per_frame: int,
+    muscle_count: int,
+    basis_count: int,
+    control_count: int,
+    dcontrols: wp.array(dtype=wp.float64),
+):
+    """Per (frame, vertex, axis) row: basis derivatives → control derivatives (``local_model`` docstring).
+
+    ``∂x/∂θ = cos θ · ∂x/∂(sin θ) + sin θ · ∂x/∂(1 − cos θ)``; muscle and slide columns are copied.
+    """
+    row = wp.tid()
+    frame = row // rows_per_frame
+    source = row * basis_count
+    target = row * control_count
+    for m in range(muscle_count):
+        dcontrols[target + m] = dbasis[source + m]
+    sine = basis[frame * basis_count + muscle_count]
+    cosine = wp.float64(1.0) - basis[frame * basis_count + muscle_count + 1]
+    dcontrols[target + muscle_count] = dbasis[source + muscle_count] * cosine + dbasis[source + muscle_count + 1] * sine
+    dcontrols[target + muscle_count + 1] = dbasis[source + muscle_count + 2]
+    dcontrols[target + muscle_count + 2] = dbasis[source + muscle_count + 3]
 
 
 class _Buffers:
-    def __init__(self, frames: int, sizes: dict, controls: int, device):
+    def __init__(self, frames: int, sizes: dict, controls: int, device, outputs: int | None = None):
         # Zeroed once: derivative entries outside an element's active controls are never written.
         def vec(n):
             return wp.zeros(max(n, 1), dtype=wp.vec3d, device=device)
@@ -30,6 +57,10 @@ class _Buffers:
         self.dstretch, self.dx2 = scalar(frames * n1 * controls), vec(frames * n1 * controls)
         self.area0, self.darea0 = vec(frames * t0), vec(frames * t0 * controls)
         self.x3, self.dx3 = vec(frames * n0), scalar(frames * n0 * 3 * controls)
+        self.dx3_basis = self.dx3
+        """The pipeline's derivatives per basis column; with a jaw, ``dx3`` holds them per control."""
+        if outputs is not None and outputs != controls:
+            self.dx3 = scalar(frames * n0 * 3 * outputs)
         self.frame_on = wp.ones(frames, dtype=wp.int32, device=device)
         """Frames to evaluate (1) or skip (0): the solver turns off the frames that have converged."""
         self.recorded: dict[bool, list] = {}
@@ -51,8 +82,8 @@ class KernelExpression:
         self.device = wp.get_device(device)
         self.local = local
         self.vertices, self.count, self.control_count = local.vertices, local.count, local.control_count
+        self.basis_count, self.muscle_count, self.has_jaw = local.basis_count, local.muscle_count, local.has_jaw
         d = self.device
-        m = self.control_count
         f64 = lambda a: wp.array(np.ascontiguousarray(a, dtype=np.float64), dtype=wp.float64, device=d)  # noqa: E731
         i32 = lambda a: wp.array(np.ascontiguousarray(a, dtype=np.int32), dtype=wp.int32, device=d)  # noqa: E731
         self._rest = wp.array(local.rest2, dtype=wp.vec3d, device=d)
@@ -75,15 +106,16 @@ class KernelExpression:
         self._sizes = dict(n2=len(local.rest2), t1=len(local.triangles1), n1=len(local.s1_in_s2),
                            t0=len(local.triangles0), n0=local.count)
         self._buffers: dict[int, _Buffers] = {}
-        self.active_controls = _active_controls(local)
+        active_basis = _active_controls(local)
+        self.active_controls = {name: _basis_to_controls(csr, local) for name, csr in active_basis.items()}
         """Per element kind (``s2``, ``t1``, ``s1``, ``t0``, ``s0``): which controls can move it, sparse bool CSR."""
         self._active = {name: (i32(csr.indptr), i32(csr.indices if csr.nnz else np.zeros(1)))
-                        for name, csr in self.active_controls.items()}
+                        for name, csr in active_basis.items()}
 
     @property
     def bytes_per_frame(self) -> int:
         """Device memory one frame of :meth:`buffers` takes with its Jacobian [bytes]."""
-        s, m = self._sizes, self.control_count
+        s, m = self._sizes, self.basis_count
         vec, scalar = 24, 8
         per_control = s["t1"] * (vec + scalar) + s["n1"] * (vec + scalar) + s["t0"] * vec + s["n0"] * 3 * scalar
         values = s["n2"] * vec + s["t1"] * (vec + scalar) + s["n1"] * (vec + scalar) + s["t0"] * vec + s["n0"] * vec
@@ -95,12 +127,15 @@ class KernelExpression:
 
     def buffers(self, frames: int) -> _Buffers:
         if frames not in self._buffers:
-            self._buffers[frames] = _Buffers(frames, self._sizes, self.control_count, self.device)
+            self._buffers[frames] = _Buffers(frames, self._sizes, self.basis_count, self.device, outputs=self.control_count)
         return self._buffers[frames]
 
     def upload(self, buffers: _Buffers, controls: np.ndarray) -> None:
-        """Write (F, M) controls into ``buffers`` (CPU: in place; CUDA: one host-to-device copy)."""
-        flat = np.ascontiguousarray(controls, dtype=np.float64).reshape(-1)
+        """Write (F, C) controls into ``buffers`` (CPU: in place; CUDA: one host-to-device copy)."""
+        controls = np.asarray(controls, dtype=np.float64).reshape(-1, self.control_count)
+        if self.has_jaw:
+            controls = jaw_basis(controls, self.muscle_count)
+        flat = np.ascontiguousarray(controls).reshape(-1)
         if buffers.host_controls is not None:
             buffers.host_controls[:] = flat
         else:
@@ -114,7 +149,7 @@ class KernelExpression:
             command.launch()
 
     def _record(self, buffers: _Buffers, frames: int, jacobian: bool) -> list:
-        s, m, d = self._sizes, self.control_count, self.device
+        s, m, d = self._sizes, self.basis_count, self.device
         jac = 1 if jacobian else 0
         commands = []
 
@@ -138,7 +173,11 @@ class KernelExpression:
                   inputs=[buffers.frame_on, buffers.x2, buffers.stretch, buffers.dx2, buffers.dstretch, buffers.area0, buffers.darea0,
                           self._s0_in_s1, self._adj0_offsets, self._adj0, self._profile_offsets, self._profile_wrinkle,
                           self._profile_value, self._kr, *self._active["s0"], m, s["n1"], s["n0"], s["t0"], jac],
-                  outputs=[buffers.x3, buffers.dx3])
+                  outputs=[buffers.x3, buffers.dx3_basis])
+        if jacobian and self.has_jaw:
+            launch(jaw_chain_rule_kernel, dim=frames * s["n0"] * 3, device=d,
+                   inputs=[buffers.dx3_basis, buffers.controls, s["n0"] * 3, self.muscle_count, m, self.control_count],
+                   outputs=[buffers.dx3])
         return commands
 
     def evaluate(self, controls: np.ndarray, *, jacobian: bool = True, copy_jacobian: bool = True):
@@ -159,6 +198,19 @@ class KernelExpression:
             return x3, None
         jacobian = buffers.dx3.numpy()[: frames * n0 * 3 * m].reshape(frames, n0, 3, m)
         return x3, (jacobian.copy() if self.device.is_cpu and copy_jacobian else jacobian)
+
+
+def _basis_to_controls(active: sp.csr_matrix, local: LocalExpression) -> sp.csr_matrix:
+    """Active basis columns → active controls (both angle columns belong to ``jaw_open``)."""
+    if not local.has_jaw:
+        return active
+    m = local.muscle_count
+    owner = np.concatenate([np.arange(m), [m, m, m + 1, m + 2]])
+    mapping = sp.csr_matrix((np.ones(len(owner), bool), (np.arange(len(owner)), owner)), shape=(len(owner), m + 3))
+    matrix = (active.astype(bool) @ mapping).astype(bool).tocsr()
+    matrix.eliminate_zeros()
+    matrix.sort_indices()
+    return matrix
 
 
 def _active_controls(local: LocalExpression) -> dict:

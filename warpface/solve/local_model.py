@@ -6,6 +6,12 @@ The model ``x3(c)`` at a vertex depends on a bounded neighbourhood of the rest m
 * ``x2_u = x1_u + (1/r_u − 1) · h_u · N(x1)_u`` needs ``x1`` on the one-ring of ``u``;
 * ``x1 = x_rest + W c`` is linear in the controls (a sphincter's displacement is ``K`` times a rest
   field as well), so ``∂x1/∂c = W`` exactly.
+* With a jaw (SPEC §6.2) ``x1 = x_jaw(θ, f, l) + W c``. By Rodrigues' formula
+  ``R(θ)(x − p) = (x − p) + sin θ · a×(x − p) + (1 − cos θ) · a×(a×(x − p))``, so
+  ``x_jaw = x_rest + w·(sin θ · A + (1 − cos θ) · B + f·e_forward + l·e_left)`` is linear in the *basis*
+  ``b = (sin θ, 1 − cos θ, f, l)`` with constant fields ``w·A``, ``w·B``, ``w·e_forward``, ``w·e_left``.
+  The pipeline runs on the basis (four extra columns of ``W``) and the chain rule
+  ``∂x/∂θ = cos θ · ∂x/∂b₀ + sin θ · ∂x/∂b₁`` turns its derivatives into the jaw's three controls.
 
 :class:`LocalExpression` gathers the two rings around the observed vertices once, then evaluates
 ``x3`` and, in forward mode, ``∂x3/∂c`` (one derivative column per control) on those rows only:
@@ -26,7 +32,7 @@ import scipy.sparse as sp
 from ..expression.tissue import skin_muscle_weights
 from ..expression.wrinkles import wrinkle_shapes
 
-__all__ = ["RigOperators", "LocalExpression", "STRETCH_FLOOR"]
+__all__ = ["RigOperators", "LocalExpression", "STRETCH_FLOOR", "jaw_basis", "jaw_chain_rule"]
 
 STRETCH_FLOOR = 1.0e-4
 """Lower bound on the stretch ratio before ``1/r`` (the value the bulge kernel uses)."""
@@ -47,6 +53,7 @@ class RigOperators:
         thickness: (V,) [mesh units].
         wrinkle_profile: ``depth_w · s_w(v)``, sparse (V, W) CSR.
         wrinkle_kr: (W,).
+        jaw_field: the jaw's four basis fields (module docstring), sparse (V·3, 4) CSR, or None without a jaw.
     """
 
     rest: np.ndarray
@@ -59,6 +66,26 @@ class RigOperators:
     thickness: np.ndarray
     wrinkle_profile: sp.csr_matrix
     wrinkle_kr: np.ndarray
+    jaw_field: sp.csr_matrix | None = None
+
+    @property
+    def muscle_count(self) -> int:
+        return self.muscle_field.shape[1]
+
+    @property
+    def control_count(self) -> int:
+        """Muscles, then the jaw's three controls when there is a jaw."""
+        return self.muscle_count + (0 if self.jaw_field is None else 3)
+
+    def control_reach(self) -> np.ndarray:
+        """Largest skin displacement per unit of each control, (control_count,) [mesh units per unit]
+        (0 for a control that moves nothing): muscles, then jaw_open (per radian), jaw_forward, jaw_left."""
+        reach = np.abs(self.muscle_field).max(axis=0).toarray().ravel()
+        if self.jaw_field is None:
+            return reach
+        fields = np.asarray(self.jaw_field.toarray()).reshape(-1, 3, 4)
+        length = np.linalg.norm(fields, axis=1).max(axis=0)
+        return np.concatenate([reach, [length[0], length[2], length[3]]])
 
     @classmethod
     def from_rig(cls, rig, *, device=None) -> "RigOperators":
@@ -88,8 +115,37 @@ class RigOperators:
             shape=(vertex_count, len(rig.wrinkles)),
         )
         kr = np.array([w.kr for w in rig.wrinkles], dtype=np.float64)
+        jaw = getattr(rig, "jaw", None)
         return cls(rest, triangles, weight, rest_length, counts, incidence, field,
-                   np.asarray(rig.thickness, dtype=np.float64), profile, kr)
+                   np.asarray(rig.thickness, dtype=np.float64), profile, kr,
+                   None if jaw is None else _jaw_fields(jaw, rest))
+
+
+def _jaw_fields(jaw, rest: np.ndarray) -> sp.csr_matrix:
+    """``w·(a×(x − p), a×(a×(x − p)), e_forward, e_left)`` per vertex: (V·3, 4) CSR (module docstring)."""
+    arm = rest - jaw.pivot
+    across = np.cross(jaw.axis, arm)
+    twice = np.cross(jaw.axis, across)
+    ones = np.ones_like(arm)
+    columns = np.stack([across, twice, ones * jaw.forward, ones * jaw.left], axis=2) * jaw.weights[:, None, None]
+    matrix = sp.csr_matrix(columns.reshape(-1, 4))
+    matrix.eliminate_zeros()
+    return matrix
+
+
+def jaw_basis(controls: np.ndarray, muscle_count: int) -> np.ndarray:
+    """Controls (F, M + 3) → pipeline basis (F, M + 4): ``θ`` becomes ``(sin θ, 1 − cos θ)``."""
+    angle = controls[:, muscle_count:muscle_count + 1]
+    return np.concatenate([controls[:, :muscle_count], np.sin(angle), 1.0 - np.cos(angle),
+                           controls[:, muscle_count + 1:]], axis=1)
+
+
+def jaw_chain_rule(derivative: np.ndarray, controls: np.ndarray, muscle_count: int) -> np.ndarray:
+    """Basis derivatives (F, …, M + 4) → control derivatives (F, …, M + 3) at controls (F, M + 3)."""
+    angle = controls[:, muscle_count].reshape((-1,) + (1,) * (derivative.ndim - 2))
+    m = muscle_count
+    opening = derivative[..., m] * np.cos(angle) + derivative[..., m + 1] * np.sin(angle)
+    return np.concatenate([derivative[..., :m], opening[..., None], derivative[..., m + 2:]], axis=-1)
 
 
 def _incident(incidence: sp.csr_matrix, vertices: np.ndarray) -> np.ndarray:
@@ -140,7 +196,13 @@ class LocalExpression:
         s2 = np.union1d(s1, np.unique(ops.triangles[t1]))
         self.vertices = s0
         self.count = len(s0)
-        self.control_count = ops.muscle_field.shape[1]
+        self.muscle_count = ops.muscle_count
+        self.has_jaw = ops.jaw_field is not None
+        self.control_count = ops.control_count
+        """Controls of :meth:`evaluate`: muscles, then the jaw's three."""
+        self.basis_count = self.muscle_count + (4 if self.has_jaw else 0)
+        """Columns the pipeline propagates (the jaw's angle as ``sin θ, 1 − cos θ``)."""
+        field_matrix = ops.muscle_field if not self.has_jaw else sp.hstack([ops.muscle_field, ops.jaw_field]).tocsr()
         local2 = np.full(len(ops.rest), -1, dtype=np.int64)
         local2[s2] = np.arange(len(s2))
         local1 = np.full(len(ops.rest), -1, dtype=np.int64)
@@ -157,11 +219,11 @@ class LocalExpression:
         self.counts1 = ops.incident_counts[s1]
         self.thickness1 = ops.thickness[s1]
         rows = (3 * s2[:, None] + np.arange(3)[None, :]).ravel()
-        field = ops.muscle_field[rows].toarray().reshape(len(s2), 3, self.control_count)
+        field = field_matrix[rows].toarray().reshape(len(s2), 3, self.basis_count)
         self.rest2 = ops.rest[s2]
         self.field2 = field
-        """``W`` on the neighbourhood, (n2, 3, M)."""
-        self._field_matrix = sp.csr_matrix(field.reshape(len(s2) * 3, self.control_count))
+        """``W`` (and the jaw's basis fields) on the neighbourhood, (n2, 3, basis_count)."""
+        self._field_matrix = sp.csr_matrix(field.reshape(len(s2) * 3, self.basis_count))
         self._dx1 = field[:, None]  # (n2, 1, 3, M): constant in the controls and the same for every frame
         self.profile0 = ops.wrinkle_profile[s0].toarray()
         self.kr = ops.wrinkle_kr
@@ -176,13 +238,19 @@ class LocalExpression:
         """Final positions at ``vertices`` for each frame, and their derivatives.
 
         Args:
-            controls: (F, M) contractions in muscle order.
+            controls: (F, C) contractions in muscle order, then the jaw's controls when there is a jaw.
             jacobian: also return ``∂x3/∂c``.
 
         Returns:
-            ``x3`` (F, n, 3) and, with ``jacobian``, ``∂x3/∂c`` (F, n, 3, M) — else ``None``.
+            ``x3`` (F, n, 3) and, with ``jacobian``, ``∂x3/∂c`` (F, n, 3, C) — else ``None``.
         """
         controls = np.asarray(controls, dtype=np.float64)
+        if not self.has_jaw:
+            return self._evaluate_basis(controls, jacobian)
+        x3, dx3 = self._evaluate_basis(jaw_basis(controls, self.muscle_count), jacobian)
+        return x3, (None if dx3 is None else jaw_chain_rule(dx3, controls, self.muscle_count))
+
+    def _evaluate_basis(self, controls: np.ndarray, jacobian: bool):
         frames = controls.shape[0]
         moved = (self._field_matrix @ controls.T).reshape(len(self.rest2), 3, frames).transpose(0, 2, 1)
         x1 = self.rest2[:, None, :] + moved
@@ -221,7 +289,7 @@ class LocalExpression:
 
         # Wrinkles along the normal of the bulged surface, on the target vertices.
         x3 = x2[self.s0_in_s1].copy()
-        dx3 = np.broadcast_to(dx2[self.s0_in_s1], (self.count, frames, 3, self.control_count)).copy() if jacobian else None
+        dx3 = np.broadcast_to(dx2[self.s0_in_s1], (self.count, frames, 3, self.basis_count)).copy() if jacobian else None
         rows = self._wrinkled0
         if len(rows):
             r0 = r[self.s0_in_s1][rows]  # (n, F)

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 
 from ..errors import RigError
+from ..expression.jaw import JAW_CONTROL_NAMES, JAW_RANGE
 from ..expression.muscles import SphincterMuscle
 from ..rig import FaceRig
 from .local_kernels import KernelExpression
@@ -66,7 +67,8 @@ class SolveOptions:
         symmetry: pulls mirrored pairs ``name_L``/``name_R`` together.
         smoothness: pulls a frame toward the previous frame's controls (sequential :meth:`Solver.solve`).
         pose: also solve a rigid head pose (rotation about the observed points' centroid + translation).
-        bounds: per-control ``{name: (low, high)}`` overriding the defaults (c ≥ 0, sphincters ≤ 1).
+        bounds: per-control ``{name: (low, high)}`` overriding the defaults (c ≥ 0, sphincters ≤ 1, jaw: JAW_RANGE).
+        jaw: solve the jaw's controls too when the rig has a jaw (False: muscles only, the jaw at rest).
         max_iterations: Levenberg–Marquardt iterations per frame.
         tolerance: stop when a step lowers E (or is predicted to) by less than this fraction …
         step_tolerance: … or moves no scaled control by more than this (face units) …
@@ -89,6 +91,7 @@ class SolveOptions:
     smoothness: float = 0.0
     pose: bool = False
     bounds: dict | None = None
+    jaw: bool = True
     max_iterations: int = 50
     tolerance: float = 1e-5
     step_tolerance: float = 1e-7
@@ -117,7 +120,7 @@ class SolveOptions:
                 raise ValueError(f"{name}: expected a positive integer, got {value!r}")
         if made.device_steps is not None and not isinstance(made.device_steps, (bool, np.bool_)):
             raise TypeError(f"device_steps: expected True, False or None, got {made.device_steps!r}")
-        return replace(made, pose=bool(made.pose))
+        return replace(made, pose=bool(made.pose), jaw=bool(made.jaw))
 
 
 @dataclass
@@ -227,14 +230,18 @@ class Solver:
             raise RigError(f"rig {rig.name!r}: has no muscles, nothing to solve for")
         self.rig = rig
         self.options = SolveOptions.from_keywords(**options)
-        self.names = rig.muscle_names
+        self.muscle_count = len(rig.muscles)
+        self.has_jaw = rig.jaw is not None and self.options.jaw
+        self.names = rig.control_names if self.has_jaw else rig.muscle_names
         self.observation = observation(rig.mesh, vertices, triangles, barycentrics)
         self.weights = point_weights(weights, self.observation.count)
         self.device = device
         self._model = None
         operators = rig_operators(rig, device)
+        if not self.has_jaw:
+            operators = replace(operators, jaw_field=None)
         self.local = KernelExpression(LocalExpression(operators, self.observation.vertices), device=device)
-        reach = np.abs(operators.muscle_field).max(axis=0).toarray().ravel()
+        reach = operators.control_reach()
         self.unit = _face_unit(rig)
         self.reach = np.where(reach > 0.0, reach, 1.0)
         self.control_scale = self.reach / self.unit
@@ -243,7 +250,8 @@ class Solver:
         self.origin = self.observation.apply(operators.rest).mean(axis=0)
         self.objective = DeviceObjective(self.local, self.observation, pose=self.options.pose, origin=self.origin, unit=self.unit)
         self._device_steps = None
-        if self.options.device_steps is not False:
+        # The device iteration skips the jaw's (sin θ, 1 − cos θ) basis upload: with a jaw, the NumPy loop.
+        if self.options.device_steps is not False and not self.has_jaw:
             self._device_steps = DeviceSteps(self.objective, scale=self.control_scale, low=self.low * self.control_scale,
                                              high=self.high * self.control_scale, pairs=self._pairs, unit=self.unit)
         self.reset()
@@ -262,7 +270,12 @@ class Solver:
 
     def _bounds(self):
         low = np.zeros(len(self.names))
-        high = np.array([SPHINCTER_MAX if isinstance(m, SphincterMuscle) else np.inf for m in self.rig.muscles])
+        high = np.array([SPHINCTER_MAX if isinstance(m, SphincterMuscle) else np.inf for m in self.rig.muscles]
+                        + [0.0] * (len(self.names) - self.muscle_count))
+        for index, name in enumerate(JAW_CONTROL_NAMES if self.has_jaw else (), start=self.muscle_count):
+            lo, hi = JAW_RANGE[name]
+            unit = 1.0 if name == "jaw_open" else self.unit  # the slides' range is in face units
+            low[index], high[index] = lo * unit, hi * unit
         for name, pair in (self.options.bounds or {}).items():
             if name not in self.names:
                 raise ValueError(f"bounds: unknown control {name!r}")
@@ -272,7 +285,7 @@ class Solver:
                 raise ValueError(f"bounds[{name!r}]: expected (low, high)") from None
             if np.isnan(lo) or np.isnan(hi) or lo > hi or lo == np.inf or hi == -np.inf:
                 raise ValueError(f"bounds[{name!r}]: expected low ≤ high, got ({lo}, {hi})")
-            if lo < 0.0:  # muscles only pull; the L1 term is Σ c on this feasible set
+            if lo < 0.0 and name not in JAW_CONTROL_NAMES:  # muscles only pull; the L1 term is Σ c on this set
                 raise ValueError(f"bounds[{name!r}]: a muscle's lower bound must be ≥ 0, got {lo}")
             index = self.names.index(name)
             low[index], high[index] = lo, hi
@@ -504,7 +517,7 @@ class Solver:
 
     def _regularisation(self, u, previous, smooth):
         opts = self.options
-        value = opts.l2 * np.sum(u * u, axis=1) + opts.l1 * np.sum(u, axis=1)
+        value = opts.l2 * np.sum(u * u, axis=1) + opts.l1 * np.sum(np.abs(u), axis=1)
         if smooth:
             value = value + smooth * np.sum((u - previous) ** 2, axis=1)
         if opts.symmetry and len(self._pairs):
@@ -526,7 +539,7 @@ class Solver:
         n = len(self.names)
         diag = np.arange(n)
         hessian[:, diag, diag] += opts.l2 + smooth
-        gradient[:, :n] += opts.l2 * u + 0.5 * opts.l1 + smooth * (u - previous)
+        gradient[:, :n] += opts.l2 * u + 0.5 * opts.l1 * np.where(np.arange(n) < self.muscle_count, 1.0, np.sign(u))  # jaw: |u| + smooth * (u - previous)
         if opts.symmetry and len(self._pairs):
             left, right = self._pairs[:, 0], self._pairs[:, 1]
             diff = u[:, left] - u[:, right]

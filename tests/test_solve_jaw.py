@@ -1,0 +1,114 @@
+"""warpface.solve with the jaw's controls: exact Jacobian columns and closed loops on the built-in face."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from warpface.assets import default_rig, rig_scale
+from warpface.expression import JAW_CONTROL_NAMES, SphincterMuscle
+from warpface.solve import fit
+from warpface.solve.local_kernels import KernelExpression
+from warpface.solve.local_model import LocalExpression
+from warpface.solve.solver import rig_operators
+
+
+@pytest.fixture(scope="module")
+def rig():
+    made = default_rig(device="cpu")
+    assert made.jaw is not None
+    return made
+
+
+@pytest.fixture(scope="module")
+def model(rig):
+    return rig.model(device="cpu")
+
+
+def controls_with_jaw(rig, rng, count=6, jaw=(0.18, 0.02, -0.015)):
+    """Sparse muscle contractions in (0.03, 0.1) face units (sphincters dimensionless), then the jaw's
+    opening [rad] and slides [face units]; every muscle value is away from 0 (the wrinkle and sliding
+    terms have kinks at rest)."""
+    scale = rig_scale(rig)
+    controls = np.zeros(len(rig.control_names))
+    for m in rng.choice(len(rig.muscles), count, replace=False):
+        controls[m] = rng.uniform(0.03, 0.1) * (1.0 if isinstance(rig.muscles[m], SphincterMuscle) else scale)
+    controls[len(rig.muscles):] = np.array(jaw) * np.array([1.0, scale, scale])
+    return controls
+
+
+def test_control_order_names_the_jaw_last(rig):
+    assert rig.control_names[-3:] == list(JAW_CONTROL_NAMES)
+
+
+def test_jaw_columns_match_the_full_model_and_finite_differences(rig, model, rng):
+    controls = controls_with_jaw(rig, rng, count=len(rig.muscles))
+    local = LocalExpression(rig_operators(rig, "cpu"), rig.landmarks)
+    assert local.control_count == len(rig.control_names)
+    x, jacobian = local.evaluate(controls[None])
+    full = np.asarray(model.evaluate(controls), dtype=np.float64)
+    scale = rig_scale(rig)
+    assert np.abs(x[0] - full[local.vertices]).max() < 1e-5 * scale  # float32 model vs float64
+    muscles = len(rig.muscles)
+    for column, step in zip(range(muscles, muscles + 3), (1e-4, 3e-4 * scale, 3e-4 * scale)):
+        plus, minus = controls.copy(), controls.copy()
+        plus[column] += step
+        minus[column] -= step
+        difference = (local.evaluate(plus[None], jacobian=False)[0] - local.evaluate(minus[None], jacobian=False)[0]) / (2 * step)
+        size = np.abs(jacobian[..., column]).max()
+        assert size > 1e-3 * (1.0 if column > muscles else scale)  # the jaw moves the landmarks
+        assert np.abs(difference - jacobian[..., column]).max() < 1e-5 * size, rig.control_names[column]
+    # The angle column is the chain rule of the rotation, not the displacement at θ = 0.
+    at_rest = controls.copy()
+    at_rest[muscles] = 0.0
+    assert np.abs(local.evaluate(at_rest[None])[1][..., muscles] - jacobian[..., muscles]).max() > 1e-3 * size
+
+
+def test_kernel_evaluation_matches_numpy_with_the_jaw(rig, rng):
+    # Every muscle on: at rest a rigidly moved vertex has stretch exactly 1, where the wrinkle factor of a
+    # kr = 0 wrinkle has a kink and float rounding may pick either side.
+    every = len(rig.muscles)
+    controls = np.stack([controls_with_jaw(rig, rng, count=every),
+                         controls_with_jaw(rig, rng, count=every, jaw=(0.35, -0.03, 0.04))])
+    local = LocalExpression(rig_operators(rig, "cpu"), rig.landmarks)
+    kernel = KernelExpression(local, device="cpu")
+    x, jacobian = local.evaluate(controls)
+    xk, jacobian_k = kernel.evaluate(controls)
+    assert np.abs(x - xk).max() < 1e-12
+    assert np.abs(jacobian - jacobian_k).max() < 1e-9 * np.abs(jacobian).max()
+
+
+@pytest.mark.parametrize("landmarks_only", [False, True])
+def test_closed_loop_recovers_jaw_and_muscles(rig, model, rng, landmarks_only):
+    truth = controls_with_jaw(rig, rng, count=4, jaw=(0.25, 0.03, -0.02))
+    target = np.asarray(model.evaluate(truth), dtype=np.float64)
+    if landmarks_only:
+        result = fit(rig, target[rig.landmarks], vertices=rig.landmarks, device="cpu")
+    else:
+        result = fit(rig, target, device="cpu")
+    scale = rig_scale(rig)
+    assert set(JAW_CONTROL_NAMES) <= set(result.controls)
+    surface = np.linalg.norm(result.points - target, axis=1)
+    if landmarks_only:
+        surface = surface[rig.landmarks]
+    assert surface.mean() < 1e-3 * scale
+    assert abs(result.controls["jaw_open"] - truth[-3]) < 0.01  # [rad]
+    assert abs(result.controls["jaw_forward"] - truth[-2]) < 0.01 * scale
+    assert abs(result.controls["jaw_left"] - truth[-1]) < 0.01 * scale
+
+
+def test_jaw_bounds_come_from_its_range_and_hold(rig, model):
+    from warpface.expression.jaw import JAW_RANGE
+    controls = np.zeros(len(rig.control_names))
+    controls[len(rig.muscles)] = 0.5
+    target = np.asarray(model.evaluate(controls), dtype=np.float64)
+    result = fit(rig, target, device="cpu", bounds={"jaw_open": (0.0, 0.3)})
+    assert 0.299 <= result.controls["jaw_open"] <= 0.3 + 1e-12
+    assert JAW_RANGE["jaw_open"][0] < 0.0 < JAW_RANGE["jaw_open"][1]
+
+
+def test_jaw_can_be_left_out_of_the_solve(rig):
+    target = np.asarray(rig.mesh.points, dtype=np.float64)[rig.landmarks]
+    result = fit(rig, target, vertices=rig.landmarks, device="cpu", jaw=False)
+    assert list(result.controls) == rig.muscle_names
+    assert result.residual < 1e-6 * rig_scale(rig)
