@@ -54,7 +54,9 @@ CPU = wp.get_device("cpu")
 # float32 positions: a few units in the last place of the face's size, from FMA contraction and
 # libdevice/libm differences in the per-frame kernels (each stage rounds a handful of times; the
 # stretch → bulge step multiplies a ratio's rounding by the thickness, millimetres, so adds less).
-FLOAT32_FACE_TOLERANCE = 2e-6
+# Measured on an H200 with the full rig: 2.2e-6 of the size at one vertex of 69k (a thin corner
+# triangle, where the bulge's 1/r amplifies the ratio's rounding); the bound leaves 2x above that.
+FLOAT32_FACE_TOLERANCE = 5e-6
 """Cross-device tolerance of float32 face positions, as a fraction of the mesh's size (0.28 m → 0.6 µm)."""
 
 
