@@ -310,7 +310,8 @@ def main() -> None:
                        ("ratio", "ratio vs splu", ".2f"), ("realtime", "x real time", ".3f"),
                        ("max_diff", "max diff m", ".1e"), ("cg_iterations", "CG iters max", "d"),
                        ("cg_mean_iterations", "CG iters mean", ".1f")])
-    path = write_results("fem", {"dt": DT, "material": dict(KATO_UNIFORM), "steps": args.steps,
+    name = f"fem_{str(cuda).replace(':', '')}" if cuda else "fem"  # a CUDA run keeps the CPU file
+    path = write_results(name, {"dt": DT, "material": dict(KATO_UNIFORM), "steps": args.steps,
                                  "machine": machine_info(cuda or "cpu"), "rows": rows})
     print(f"wrote {path}")
 
