@@ -8,7 +8,7 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "new_file_mode"]
+__all__ = ["atomic_path", "new_file_mode", "read_text"]
 
 
 def new_file_mode(path: str | Path) -> int:
@@ -44,3 +44,14 @@ def atomic_path(path: str | Path, suffix: str = ""):
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def read_text(path) -> str:
+    """The text of a UTF-8 file (a byte-order mark is dropped); ValueError naming the file when it is not
+    text or cannot be read."""
+    try:
+        return Path(path).read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a text file") from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None

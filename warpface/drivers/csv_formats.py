@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._files import atomic_path
+from .._files import atomic_path, read_text
 from .channels import ARKIT_CHANNELS, Curves, canonical_channel
 
 __all__ = ["read_openface", "write_openface", "read_live_link", "write_live_link", "LIVE_LINK_EXTRA_COLUMNS",
@@ -40,12 +40,7 @@ _TIMECODE = re.compile(r"^(\d+):(\d{1,2}):(\d{1,2})[:;](\d+)(?:\.(\d+))?$")
 
 def _rows(path: Path) -> tuple[list[str], list[list[str]]]:
     """Header (stripped) and data rows of a CSV file; blank lines skipped."""
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError:
-        raise ValueError(f"{path}: not a text file") from None
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    text = read_text(path)
     rows = [row for row in csv.reader(io.StringIO(text)) if any(cell.strip() for cell in row)]
     if not rows:
         raise ValueError(f"{path}: empty file")

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._files import atomic_path
+from .._files import atomic_path, read_text
 from .channels import ARKIT_CHANNELS, Curves, canonical_channel
 
 __all__ = ["read_mediapipe_textproto", "read_mediapipe_jsonl", "write_mediapipe_textproto", "write_mediapipe_jsonl"]
@@ -32,12 +32,7 @@ _FIELD = re.compile(r"(\w+)\s*:\s*(\"(?:[^\"\\]|\\.)*\"|[^\s}]+)")
 
 
 def _read_text(path: Path) -> str:
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError:
-        raise ValueError(f"{path}: not a text file") from None
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    text = read_text(path)
     if not text.strip():
         raise ValueError(f"{path}: empty file")
     return text
