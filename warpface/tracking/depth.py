@@ -447,9 +447,10 @@ _recorded = threading.local()  # per thread: a recorded launch owns its output b
 
 
 def _recorded_launch(device, count: int, window: int, settings: tuple) -> tuple:
-    """``(launch, points, inliers)``: the back-projection kernel recorded once per device, landmark
-    count and settings (packing its 17 arguments anew costs ~0.1 ms a frame on the CPU); the depth
-    image and the pixels (parameters 0 and 1) are set per call."""
+    """``(launch, points, inliers, pixel_view, pixel_buffer)``: the back-projection kernel recorded once per device,
+    landmark count and settings (packing its 17 arguments anew costs ~0.1 ms a frame on the CPU); the
+    depth image and the pixels (parameters 0 and 1) are set per call — on the CPU the pixels through
+    ``pixel_view``, a NumPy view (N, 2) of the recorded pixel buffer (None on other devices)."""
     cache = getattr(_recorded, "launches", None)
     if cache is None:
         cache = _recorded.launches = {}
@@ -461,10 +462,12 @@ def _recorded_launch(device, count: int, window: int, settings: tuple) -> tuple:
         inliers = wp.empty(count, dtype=wp.int32, device=device)
         scratch = wp.empty((_PLANES * count, window * window), dtype=float, device=device)  # _PLANES rows per landmark
         placeholder_depth = wp.zeros((1, 1), dtype=float, device=device)
-        placeholder_pixels = wp.zeros(count, dtype=wp.vec2, device=device)
-        launch = wp.launch(_backproject_kernel, dim=count, inputs=[placeholder_depth, placeholder_pixels, *settings, scratch],
+        pixel_buffer = wp.zeros(count, dtype=wp.vec2, device=device)
+        launch = wp.launch(_backproject_kernel, dim=count, inputs=[placeholder_depth, pixel_buffer, *settings, scratch],
                            outputs=[points, inliers], device=device, record_cmd=True)
-        cache[key] = (launch, points, inliers)
+        # On the CPU the pixels are written into this buffer through a NumPy view (no array per call).
+        pixel_view = pixel_buffer.numpy().reshape(count, 2) if wp.get_device(device).is_cpu else None
+        cache[key] = (launch, points, inliers, pixel_view, pixel_buffer)  # (the buffer: kept alive with its view)
     return cache[key]
 
 
@@ -568,12 +571,23 @@ def backproject(
     settings = (window // 2, 1 if model == "quadric" else 0, int(min_valid), float(intrinsics.fx), float(intrinsics.fy),
                 float(intrinsics.cx), float(intrinsics.cy), float(outlier_floor), float(max_slope), float(noise_floor),
                 int(max(iterations, 1)), float(min_inlier_fraction))
-    launch, points, inliers = _recorded_launch(device, count, window, settings)
-    image = wp.array(z, dtype=float, device=device, copy=not device.is_cpu)  # CPU: the caller's image, no copy
-    landmarks = wp.array(uv.astype(np.float32), dtype=wp.vec2, device=device)
-    launch.set_param_at_index(0, image)
-    launch.set_param_at_index(1, landmarks)
-    launch.launch()  # (the inputs stay referenced until the results are read back below)
+    launch, points, inliers, pixel_view, _ = _recorded_launch(device, count, window, settings)
+    if device.is_cpu:
+        # The caller's image, no copy; its wrapper is kept while the same buffer comes back (a live camera's
+        # frame buffer), so that buffer cannot be freed and its address reused by another image meanwhile.
+        key = (z.ctypes.data, z.shape)
+        if getattr(_recorded, "image_key", None) != key:
+            _recorded.image = wp.array(z, dtype=float, device=device, copy=False)
+            _recorded.image_key = key
+        launch.set_param_at_index(0, _recorded.image)
+        pixel_view[:] = uv  # into the recorded launch's own pixel buffer (parameter 1)
+        launch.launch()
+    else:
+        image = wp.array(z, dtype=float, device=device)
+        landmarks = wp.array(uv.astype(np.float32), dtype=wp.vec2, device=device)
+        launch.set_param_at_index(0, image)
+        launch.set_param_at_index(1, landmarks)
+        launch.launch()  # (the inputs stay referenced until the results are read back below)
     out = points.numpy().astype(np.float64)
     n_in = inliers.numpy()
     invalid = (n_in == 0) | ~np.all(np.isfinite(out), axis=1)
