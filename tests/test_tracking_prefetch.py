@@ -123,3 +123,28 @@ def test_a_prefetched_capture_stops_after_max_frames(tmp_path):
     assert stats.frames == 8 and len(read_tracking(tmp_path / "cap.usda")["times"]) == 8
     with pytest.raises(ValueError, match="prefetch"):
         record(source, adapter, writer, progress=False, prefetch=-1)
+
+
+def test_the_synthetic_rgbd_capture_prefetched_matches_the_plain_one(tmp_path):
+    """The real source side in the background thread: rendering (pyrender), dot detection (OpenCV)
+    and back-projection (Warp kernel); the stage must be bitwise the same as without prefetching."""
+    pytest.importorskip("pyrender")
+    pytest.importorskip("cv2")
+    from warpface.pipelines.capture import synthetic_capture
+
+    stages = []
+    for prefetch_depth in (0, 2):
+        capture = synthetic_capture(seconds=0.2, device="cpu")
+        rest = capture.truth[0]
+        adapter = adapter_for_face(rest, capture.source.landmark_names, device="cpu")
+        path = tmp_path / f"cap{prefetch_depth}.usda"
+        writer = TrackingStageWriter(path, capture.source.landmark_names, 30.0, dense_rest=rest,
+                                     triangles=capture.triangles)
+        try:
+            stats = record(capture.source, adapter, writer, progress=False, prefetch=prefetch_depth)
+        finally:
+            capture.camera.close()
+        assert stats.frames == len(capture.truth)  # every frame of the expression
+        stages.append(read_tracking(path))
+    for key in ("times", "landmarks", "confidence", "dense"):
+        np.testing.assert_array_equal(stages[1][key], stages[0][key])
