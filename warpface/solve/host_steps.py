@@ -20,7 +20,7 @@ import numpy as np
 from .objective import DeviceObjective
 from .pose import rotation_from_vector
 
-__all__ = ["HostSteps", "MAX_TRIES", "BOUND_SLACK", "orthant", "damped_step"]
+__all__ = ["HostSteps", "MAX_TRIES", "BOUND_SLACK", "orthant", "damped_update"]
 
 MAX_TRIES = 8
 """Rejected trials per iteration before a frame counts as stationary."""
@@ -81,7 +81,7 @@ class HostSteps:
                 if len(pending) == 0:
                     break
                 frame = todo[pending]
-                step = damped_step(hessian[pending], projected[pending], held[pending], damping[frame])
+                step = damped_update(hessian[pending], projected[pending], held[pending], damping[frame])
                 if _try == 0:
                     # The quadratic model's predicted decrease; negligible → converged without a trial.
                     curvature = np.einsum("fi,fij,fj->f", step, hessian[pending], step)
@@ -170,7 +170,7 @@ def orthant(u, gradient, low, high, l1):
     return slope, np.where(slope > 0.0, np.maximum(low, 0.0), low), np.where(slope < 0.0, np.minimum(high, 0.0), high)
 
 
-def damped_step(hessian, gradient, held, damping):
+def damped_update(hessian, gradient, held, damping):
     """Levenberg–Marquardt step ``(H + λ·diag(H)) s = −g`` on the free variables (held ones stay): (F, K)."""
     size = hessian.shape[1]
     free = ~held
