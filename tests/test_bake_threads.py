@@ -1,0 +1,116 @@
+"""The bake's worker threads: the cache holds exactly the per-frame model's points, whatever the thread
+count or the order chunks finish in; the first bad frame in time order is the one reported."""
+
+from __future__ import annotations
+
+import random
+import threading
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pxr")
+
+from helpers import small_face_rig  # noqa: E402
+from pxr import Usd, UsdGeom  # noqa: E402
+
+import warpface.usd.baking as baking  # noqa: E402
+from warpface import ExpressionModel  # noqa: E402
+from warpface.expression.tissue import neighbourhood_averager, neighbourhood_mean  # noqa: E402
+from warpface.usd import bake, read_animation, write_animation, write_rig  # noqa: E402
+
+FRAMES = np.arange(0.0, 40.0)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return ExpressionModel.from_rig(small_face_rig(), device="cpu")
+
+
+@pytest.fixture
+def animated_rig(tmp_path):
+    """A rig layer with 40 frames of smooth, all-different controls."""
+    path = tmp_path / "face.usda"
+    stage = write_rig(path, small_face_rig())
+    phase = FRAMES / len(FRAMES) * 2 * np.pi
+    contractions = np.stack([0.012 * np.sin(phase), 0.008 * (1 - np.cos(phase)), 0.4 * np.sin(2 * phase)], axis=1)
+    depths = np.stack([0.002 + 0.001 * np.sin(phase), 0.0015 * np.cos(phase)], axis=1)
+    write_animation(stage, FRAMES, contractions=contractions, wrinkle_depths=depths)
+    stage.GetRootLayer().Save()
+    return path
+
+
+def baked(path) -> np.ndarray:
+    stage = Usd.Stage.Open(str(path))
+    points = UsdGeom.Mesh(stage.GetPrimAtPath("/Face/Skin")).GetPointsAttr()
+    return np.stack([np.asarray(points.Get(t), dtype=np.float32) for t in FRAMES])
+
+
+def one_frame_at_a_time(model, path) -> np.ndarray:
+    """The reference: the stage's controls, each frame through the single-frame ``evaluate``."""
+    animation = read_animation(path, FRAMES)
+    return np.stack([model.evaluate(c, wrinkle_depths=d) for c, d in zip(animation.contractions, animation.wrinkle_depths)])
+
+
+def shuffled_finish(model, monkeypatch):
+    """Worker chunks finish in a random order (earlier chunks often last)."""
+    rng = random.Random(3)
+    lock = threading.Lock()
+
+    def slow_batch(*args, **kwargs):
+        with lock:
+            delay = rng.uniform(0.0, 0.03)
+        time.sleep(delay)
+        return ExpressionModel.evaluate_batch(model, *args, **kwargs)
+
+    monkeypatch.setattr(model, "evaluate_batch", slow_batch)
+
+
+@pytest.mark.parametrize("workers", [1, 4])
+def test_threaded_bake_writes_the_single_frame_points_bit_for_bit(animated_rig, model, monkeypatch, workers):
+    monkeypatch.setattr(baking, "_evaluation_workers", lambda _: workers)
+    shuffled_finish(model, monkeypatch)
+    cache = bake(animated_rig, model=model, progress=False, chunk_frames=3)
+    points = baked(animated_rig)
+    assert np.array_equal(points, one_frame_at_a_time(model, animated_rig))
+    stage = Usd.Stage.Open(str(animated_rig))  # kept: prims of a collected stage are invalid
+    extent = UsdGeom.Mesh(stage.GetPrimAtPath("/Face/Skin")).GetExtentAttr()
+    for frame in (0, 17, 39):
+        box = np.asarray(extent.Get(FRAMES[frame]))
+        assert np.array_equal(box, np.stack([points[frame].min(axis=0), points[frame].max(axis=0)]))
+    assert cache.exists()
+
+
+def test_threads_report_the_first_bad_frame_in_time_order_and_write_nothing(animated_rig, model, monkeypatch):
+    monkeypatch.setattr(baking, "_evaluation_workers", lambda _: 4)
+    stage = Usd.Stage.Open(str(animated_rig))
+    bad = np.zeros((len(FRAMES), 3))
+    bad[[7, 12], 0] = 1e7  # beyond any muscle's range: the model refuses these frames
+    write_animation(stage, FRAMES, contractions=bad)
+    stage.GetRootLayer().Save()
+    before = animated_rig.read_bytes()
+
+    def late_first_chunks(contractions, **kwargs):
+        """Chunk [6, 7, 8] (frame 7 bad) fails only after chunk [12, 13, 14] has failed."""
+        if len(contractions) == 3 and contractions[1, 0] > 1e6:
+            time.sleep(0.3)
+        return ExpressionModel.evaluate_batch(model, contractions, **kwargs)
+
+    monkeypatch.setattr(model, "evaluate_batch", late_first_chunks)
+    with pytest.raises(ValueError, match=r"^/Face/Skin: controls at time 7: "):
+        bake(animated_rig, model=model, progress=False, chunk_frames=3)
+    assert animated_rig.read_bytes() == before
+    assert sorted(p.name for p in animated_rig.parent.iterdir()) == ["face.usda"]
+
+
+def test_bake_default_workers_use_the_cores_on_the_cpu(model):
+    assert 1 <= baking._evaluation_workers(model) <= 8
+
+
+def test_neighbourhood_averager_equals_the_one_shot_mean():
+    rng = np.random.default_rng(0)
+    points = rng.uniform(size=(400, 3))
+    average = neighbourhood_averager(points, 0.15)
+    for values in (rng.normal(size=400), rng.normal(size=(400, 3))):
+        assert np.array_equal(average(values), neighbourhood_mean(points, values, 0.15))
