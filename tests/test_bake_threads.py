@@ -18,7 +18,7 @@ from pxr import Usd, UsdGeom  # noqa: E402
 import warpface.usd.baking as baking  # noqa: E402
 from warpface import ExpressionModel  # noqa: E402
 from warpface.expression.tissue import neighbourhood_averager, neighbourhood_mean  # noqa: E402
-from warpface.usd import bake, read_animation, write_animation, write_rig  # noqa: E402
+from warpface.usd import bake, read_animation, rig_prims, write_animation, write_rig  # noqa: E402
 
 FRAMES = np.arange(0.0, 40.0)
 
@@ -114,3 +114,17 @@ def test_neighbourhood_averager_equals_the_one_shot_mean():
     average = neighbourhood_averager(points, 0.15)
     for values in (rng.normal(size=400), rng.normal(size=(400, 3))):
         assert np.array_equal(average(values), neighbourhood_mean(points, values, 0.15))
+
+
+def test_read_animation_equals_per_time_gets_for_constant_single_and_sampled_controls(tmp_path):
+    stage = write_rig(tmp_path / "face.usda", small_face_rig())
+    write_animation(stage, np.arange(0.0, 12.0), contractions={"frontalis_R": np.linspace(0.0, 0.01, 12)})  # sampled
+    write_animation(stage, [5.0], wrinkle_depths={"crow_L": [0.003]})  # one sample: held at every time
+    asked = np.array([-2.0, 0.0, 3.5, 5.0, 11.0, 20.0])
+    animation = read_animation(stage, asked)
+    rig = rig_prims(stage)
+    for table, items, name in ((animation.contractions, rig.muscles, "contraction"), (animation.wrinkle_depths, rig.wrinkles, "depth")):
+        expected = np.array([[item.GetAttribute(name).Get(t) for item in items] for t in asked.tolist()])
+        assert np.array_equal(table, expected)
+    assert np.all(animation.wrinkle_depths[:, 1] == 0.003)
+    assert len(np.unique(animation.contractions[:, 1])) == 4  # held before the first and after the last sample
