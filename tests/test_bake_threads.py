@@ -69,9 +69,8 @@ def shuffled_finish(model, monkeypatch):
 
 @pytest.mark.parametrize("workers", [1, 4])
 def test_threaded_bake_writes_the_single_frame_points_bit_for_bit(animated_rig, model, monkeypatch, workers):
-    monkeypatch.setattr(baking, "_evaluation_workers", lambda _: workers)
     shuffled_finish(model, monkeypatch)
-    cache = bake(animated_rig, model=model, progress=False, chunk_frames=3)
+    cache = bake(animated_rig, model=model, progress=False, chunk_frames=3, workers=workers)
     points = baked(animated_rig)
     assert np.array_equal(points, one_frame_at_a_time(model, animated_rig))
     stage = Usd.Stage.Open(str(animated_rig))  # kept: prims of a collected stage are invalid
@@ -83,7 +82,6 @@ def test_threaded_bake_writes_the_single_frame_points_bit_for_bit(animated_rig, 
 
 
 def test_threads_report_the_first_bad_frame_in_time_order_and_write_nothing(animated_rig, model, monkeypatch):
-    monkeypatch.setattr(baking, "_evaluation_workers", lambda _: 4)
     stage = Usd.Stage.Open(str(animated_rig))
     bad = np.zeros((len(FRAMES), 3))
     bad[[7, 12], 0] = 1e7  # beyond any muscle's range: the model refuses these frames
@@ -99,13 +97,20 @@ def test_threads_report_the_first_bad_frame_in_time_order_and_write_nothing(anim
 
     monkeypatch.setattr(model, "evaluate_batch", late_first_chunks)
     with pytest.raises(ValueError, match=r"^/Face/Skin: controls at time 7: "):
-        bake(animated_rig, model=model, progress=False, chunk_frames=3)
+        bake(animated_rig, model=model, progress=False, chunk_frames=3, workers=4)
     assert animated_rig.read_bytes() == before
     assert sorted(p.name for p in animated_rig.parent.iterdir()) == ["face.usda"]
 
 
 def test_bake_default_workers_use_the_cores_on_the_cpu(model):
     assert 1 <= baking._evaluation_workers(model) <= 8
+
+
+@pytest.mark.parametrize("workers", [0, -1, 1.5, True, "2"])
+def test_bad_worker_counts_are_refused_before_anything_is_written(animated_rig, model, workers):
+    with pytest.raises(ValueError, match=r"^workers must be a whole number ≥ 1, got "):
+        bake(animated_rig, model=model, progress=False, workers=workers)
+    assert sorted(p.name for p in animated_rig.parent.iterdir()) == ["face.usda"]
 
 
 def test_neighbourhood_averager_equals_the_one_shot_mean():

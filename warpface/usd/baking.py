@@ -133,7 +133,7 @@ def check_bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | 
 
 
 def bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | None = None, model=None, device=None,
-         progress: bool = True, chunk_frames: int = 64, max_frames: int | None = MAX_FRAMES) -> Path:
+         progress: bool = True, chunk_frames: int = 64, max_frames: int | None = MAX_FRAMES, workers: int | None = None) -> Path:
     """Evaluate the expression model at every time code and write the skin's points and extent as a cache.
 
     The cache layer (``.usdc``: raw float32, memory-mapped) is sublayered as the strongest sublayer of
@@ -153,6 +153,9 @@ def bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | None =
         progress: show a progress bar.
         chunk_frames: frames read, evaluated and written per batch (bounds the memory used).
         max_frames: refuse more frames than this (``None``: no limit).
+        workers: threads evaluating chunks of frames while this one reads controls and writes (default:
+            one per CPU core on the CPU, where Warp's kernels run serially and release the GIL; 1 on a
+            GPU). The cache is the same bits for any count.
 
     Returns:
         The cache file path.
@@ -166,6 +169,8 @@ def bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | None =
     chunk_frames = int(chunk_frames)
     if chunk_frames < 1:
         raise ValueError(f"chunk_frames must be ≥ 1, got {chunk_frames}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1):
+        raise ValueError(f"workers must be a whole number ≥ 1, got {workers!r}")
     stage, times, cache_path, model = check_bake(stage_or_path, frames, cache_path=cache_path, skin_path=skin_path,
                                                  model=model, device=device, max_frames=max_frames, evaluate=False)
     skin_path = rig_prims(stage, skin_path).skin.GetPath()
@@ -185,7 +190,8 @@ def bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | None =
                     if low <= time <= high:
                         cache.EraseTimeSample(path, time)
         chunks = [times[start:start + chunk_frames] for start in range(0, len(times), chunk_frames)]
-        with closing(_evaluated_chunks(stage, model, chunks, skin_path, stage_unit)) as evaluated, \
+        workers = int(workers) if workers is not None else _evaluation_workers(model)
+        with closing(_evaluated_chunks(stage, model, chunks, skin_path, stage_unit, workers)) as evaluated, \
                 tqdm(total=len(times), desc="bake", unit="frame", disable=not progress, leave=False) as bar:
             for chunk, (positions, bounds) in zip(chunks, evaluated):
                 with Sdf.ChangeBlock():
@@ -207,16 +213,14 @@ def bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | None =
     return cache_path
 
 
-def _evaluated_chunks(stage: Usd.Stage, model, chunks: list[np.ndarray], skin_path, stage_unit: float):
+def _evaluated_chunks(stage: Usd.Stage, model, chunks: list[np.ndarray], skin_path, stage_unit: float, workers: int):
     """``(positions (F, V, 3) float32, extents (F, 2, 3) float32)`` of each chunk of time codes, in order.
 
-    The controls are read here (USD, in this thread); the model runs in worker threads — one per core
-    on the CPU, where Warp's kernels are serial and release the GIL, one on CUDA — a few chunks ahead
-    of the caller, who writes the previous chunks meanwhile. Each chunk's frames are evaluated exactly
+    The controls are read here (USD, in this thread); the model runs in ``workers`` threads a few
+    chunks ahead of the caller, who writes the previous chunks meanwhile. Each chunk's frames are evaluated exactly
     as one serial ``evaluate_batch`` would (same kernels, frame by frame), so the bits do not depend on
     the thread count. An error is raised when its chunk's turn comes, so it is the first in time order.
     """
-    workers = _evaluation_workers(model)
     with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="warpface-bake") as pool:
         pending: deque[Future] = deque()
         upcoming = iter(chunks)
