@@ -133,3 +133,22 @@ def test_read_animation_equals_per_time_gets_for_constant_single_and_sampled_con
         assert np.array_equal(table, expected)
     assert np.all(animation.wrinkle_depths[:, 1] == 0.003)
     assert len(np.unique(animation.contractions[:, 1])) == 4  # held before the first and after the last sample
+
+
+def test_held_controls_are_evaluated_once_and_give_the_same_points(tmp_path, model, monkeypatch):
+    path = tmp_path / "face.usda"
+    stage = write_rig(path, small_face_rig())
+    held = np.repeat(np.array([[0.0, 0.0, 0.0], [0.01, 0.004, 0.2], [0.0, 0.0, 0.0], [-0.0, 0.0, 0.0]]), 10, axis=0)
+    write_animation(stage, FRAMES, contractions=held)
+    stage.GetRootLayer().Save()
+    evaluated = []
+
+    def counting(contractions, **kwargs):
+        evaluated.append(len(contractions))
+        return ExpressionModel.evaluate_batch(model, contractions, **kwargs)
+
+    monkeypatch.setattr(model, "evaluate_batch", counting)
+    bake(path, model=model, progress=False, chunk_frames=40)
+    monkeypatch.undo()
+    assert evaluated == [3]  # zeros, the pull, and -0.0 (a different bit pattern, so evaluated on its own)
+    assert np.array_equal(baked(path), one_frame_at_a_time(model, path))

@@ -260,9 +260,20 @@ def _evaluate(stage: Usd.Stage, model, times: np.ndarray, skin_path, stage_unit:
 
 
 def _evaluate_controls(model, animation, times: np.ndarray, skin_path) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_evaluate` with the controls already read: (positions (F, V, 3), extents (F, 2, 3)) float32."""
+    """:func:`_evaluate` with the controls already read: (positions (F, V, 3), extents (F, 2, 3)) float32.
+
+    Frames whose controls repeat an earlier frame's bit for bit (held curves, a neutral stretch) are
+    evaluated once and copied.
+    """
     try:
-        positions = model.evaluate_batch(animation.contractions, wrinkle_depths=animation.wrinkle_depths)
+        controls = np.ascontiguousarray(np.concatenate([animation.contractions, animation.wrinkle_depths], axis=1))
+        _, first, copies = np.unique(controls.view(np.uint8).reshape(len(controls), -1), axis=0, return_index=True,
+                                     return_inverse=True)
+        if len(first) == len(controls):
+            positions = model.evaluate_batch(animation.contractions, wrinkle_depths=animation.wrinkle_depths)
+        else:
+            positions = model.evaluate_batch(animation.contractions[first], wrinkle_depths=animation.wrinkle_depths[first])
+            positions = positions[copies.reshape(-1)]
     except ValueError as exc:
         for row, time in enumerate(times.tolist()):  # name the first frame the model refuses
             try:
