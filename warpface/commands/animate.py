@@ -22,10 +22,10 @@ import numpy as np
 
 __all__ = ["add_parser", "run_animate", "animate", "AnimateResult", "prepare_controls", "PREVIEW_MAX_FRAMES"]
 
-PREVIEW_MAX_FRAMES = 240
+PREVIEW_MAX_FRAMES = 120
 """Default length of the preview video in frames. Offscreen rendering without a GPU costs about 0.1 s of
-CPU a frame, so a longer take is previewed at every k-th frame: a ten-minute take's preview then costs
-seconds, not the better part of an hour (``--video-max-frames`` asks for more)."""
+CPU a frame, so a longer take is previewed at every k-th frame: any take's preview then costs about ten
+seconds of CPU, not the better part of an hour for ten minutes (``--video-max-frames`` asks for more)."""
 
 
 @dataclass
