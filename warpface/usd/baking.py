@@ -216,11 +216,18 @@ def bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | None =
 def _evaluated_chunks(stage: Usd.Stage, model, chunks: list[np.ndarray], skin_path, stage_unit: float, workers: int):
     """``(positions (F, V, 3) float32, extents (F, 2, 3) float32)`` of each chunk of time codes, in order.
 
-    The controls are read here (USD, in this thread); the model runs in ``workers`` threads a few
-    chunks ahead of the caller, who writes the previous chunks meanwhile. Each chunk's frames are evaluated exactly
-    as one serial ``evaluate_batch`` would (same kernels, frame by frame), so the bits do not depend on
-    the thread count. An error is raised when its chunk's turn comes, so it is the first in time order.
+    The controls are read here (USD, in this thread); with several ``workers`` the model runs in that
+    many threads a few chunks ahead of the caller, who writes the previous chunks meanwhile (with one,
+    everything runs in this thread: a GPU model is only ever used from its caller's thread). Each
+    chunk's frames are evaluated exactly as one serial ``evaluate_batch`` would (same kernels, frame by
+    frame), so the bits do not depend on the thread count. An error is raised when its chunk's turn
+    comes, so it is the first in time order.
     """
+    if workers == 1:
+        for chunk in chunks:
+            animation = read_animation(stage, chunk, skin_path=str(skin_path), meters_per_unit=stage_unit)
+            yield _evaluate_controls(model, animation, chunk, skin_path)
+        return
     with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="warpface-bake") as pool:
         pending: deque[Future] = deque()
         upcoming = iter(chunks)
