@@ -152,3 +152,25 @@ def test_held_controls_are_evaluated_once_and_give_the_same_points(tmp_path, mod
     monkeypatch.undo()
     assert evaluated == [3]  # zeros, the pull, and -0.0 (a different bit pattern, so evaluated on its own)
     assert np.array_equal(baked(path), one_frame_at_a_time(model, path))
+
+
+def test_animate_cache_equals_the_single_frame_model_on_the_built_in_face(tmp_path):
+    from warpface.assets import default_rig
+    from warpface.commands.animate import animate
+    from warpface.drivers import ARKIT_CHANNELS, Curves, write_live_link
+
+    frames = 45
+    rng = np.random.default_rng(5)
+    weights = np.clip(rng.uniform(-0.3, 1.0, (frames, len(ARKIT_CHANNELS))), 0.0, 1.0)
+    weights[10:20] = weights[10]  # a held stretch: evaluated once per chunk
+    curves = Curves(times=np.arange(frames) / 30.0, names=list(ARKIT_CHANNELS), values=weights, fps=30.0)
+    driver = write_live_link(tmp_path / "take.csv", curves)
+    result = animate(driver, tmp_path / "face.usda", video=False, device="cpu", progress=False)
+    stage = Usd.Stage.Open(str(result.stage))
+    points = UsdGeom.Mesh(stage.GetPrimAtPath(rig_prims(stage).skin.GetPath())).GetPointsAttr()
+    times = np.arange(float(result.frame_count))
+    animation = read_animation(stage, times)
+    model = default_rig().model(device="cpu")
+    for time_code, contractions, depths in zip(times.tolist(), animation.contractions, animation.wrinkle_depths):
+        assert np.array_equal(np.asarray(points.Get(time_code), dtype=np.float32), model.evaluate(contractions, wrinkle_depths=depths))
+    assert set(result.seconds) == {"read", "clean and map", "write controls", "model", "bake", "save stage"}
