@@ -154,8 +154,8 @@ def bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | None =
         chunk_frames: frames read, evaluated and written per batch (bounds the memory used).
         max_frames: refuse more frames than this (``None``: no limit).
         workers: threads evaluating chunks of frames while this one reads controls and writes (default:
-            one per CPU core on the CPU, where Warp's kernels run serially and release the GIL; 1 on a
-            GPU). The cache is the same bits for any count.
+            one per CPU core on the CPU, where Warp's kernels run serially and release the GIL). A GPU
+            model always runs in this thread. The cache is the same bits for any count.
 
     Returns:
         The cache file path.
@@ -190,7 +190,7 @@ def bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | None =
                     if low <= time <= high:
                         cache.EraseTimeSample(path, time)
         chunks = [times[start:start + chunk_frames] for start in range(0, len(times), chunk_frames)]
-        workers = int(workers) if workers is not None else _evaluation_workers(model)
+        workers = _evaluation_workers(model) if workers is None or not model.device.is_cpu else int(workers)
         with closing(_evaluated_chunks(stage, model, chunks, skin_path, stage_unit, workers)) as evaluated, \
                 tqdm(total=len(times), desc="bake", unit="frame", disable=not progress, leave=False) as bar:
             for chunk, (positions, bounds) in zip(chunks, evaluated):
@@ -272,10 +272,10 @@ def _evaluate_controls(model, animation, times: np.ndarray, skin_path) -> tuple[
     Frames whose controls repeat an earlier frame's bit for bit (held curves, a neutral stretch) are
     evaluated once and copied.
     """
+    controls = np.ascontiguousarray(np.concatenate([animation.contractions, animation.wrinkle_depths], axis=1))
+    _, first, copies = np.unique(controls.view(np.uint8).reshape(len(controls), -1), axis=0, return_index=True,
+                                 return_inverse=True)
     try:
-        controls = np.ascontiguousarray(np.concatenate([animation.contractions, animation.wrinkle_depths], axis=1))
-        _, first, copies = np.unique(controls.view(np.uint8).reshape(len(controls), -1), axis=0, return_index=True,
-                                     return_inverse=True)
         if len(first) == len(controls):
             positions = model.evaluate_batch(animation.contractions, wrinkle_depths=animation.wrinkle_depths)
         else:
