@@ -173,4 +173,4 @@ def test_animate_cache_equals_the_single_frame_model_on_the_built_in_face(tmp_pa
     model = default_rig().model(device="cpu")
     for time_code, contractions, depths in zip(times.tolist(), animation.contractions, animation.wrinkle_depths):
         assert np.array_equal(np.asarray(points.Get(time_code), dtype=np.float32), model.evaluate(contractions, wrinkle_depths=depths))
-    assert set(result.seconds) == {"read", "clean and map", "write controls", "model", "bake", "save stage"}
+    assert set(result.seconds) == {"read driver and rig", "clean and map", "write controls", "model", "bake", "save stage"}

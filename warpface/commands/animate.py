@@ -42,7 +42,7 @@ class AnimateResult:
     unmapped_channels: list[str]
     notes: list[str] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
-    """Wall time of each step: ``read``, ``clean and map``, ``write controls``, ``model``, ``bake``,
+    """Wall time of each step: ``read driver and rig``, ``clean and map``, ``write controls``, ``model``, ``bake``,
     ``save stage``, ``video``."""
 
 
@@ -134,7 +134,7 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
     curves = read_driver(driver)
     rig_model, rig_stage, units, stage_rate = _load_rig(rig)
     mapping, label, orphaned = _mapping(rig_model, rig_stage, map_spec)
-    clock.step("read")
+    clock.step("read driver and rig")
     rate = float(fps or stage_rate or (round(curves.fps) if curves.fps else 30.0))
     if not math.isfinite(rate) or rate <= 0:
         raise ValueError(f"--fps must be a positive number, got {rate}")
