@@ -26,8 +26,6 @@ class FrameBuffers:
         self.contraction = wp.zeros(frames * self.muscle_width, dtype=wp.float32, device=device)
         self.depth = wp.zeros(frames * self.wrinkle_width, dtype=wp.float32, device=device)
         self.muscle_points = wp.empty(frames * vertex_count, dtype=wp.vec3, device=device)
-        self.area_vectors = wp.empty(frames * triangle_count, dtype=wp.vec3, device=device)
-        self.stretch_terms = wp.empty(frames * triangle_count, dtype=wp.vec4, device=device)
         self.stretch = wp.empty(frames * vertex_count, dtype=wp.float32, device=device)
         self.bulge_points = wp.empty(frames * vertex_count, dtype=wp.vec3, device=device)
         self.final_points = wp.empty(frames * vertex_count, dtype=wp.vec3, device=device)
