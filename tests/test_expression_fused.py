@@ -1,11 +1,13 @@
-"""The fused two-kernel frame (kernels_fused) equals the five-kernel sequence of kernels.py bit for bit,
-on the default rig (jaw and wrinkles) and on a rig without a jaw, single frames and batches."""
+"""The fused two-kernel frame (kernels_fused, CUDA's default) and the model's five-kernel path (the CPU's)
+equal the five-kernel sequence of kernels.py launched here bit for bit, on the default rig (jaw and
+wrinkles) and on a rig without a jaw, single frames and batches."""
 
 import numpy as np
 import pytest
 import warp as wp
 
 from helpers import small_face_rig
+from warpface import ExpressionModel
 from warpface.expression.kernels import apply_jaw_and_muscles, apply_muscles, apply_wrinkles, stretch_and_bulge, triangle_stretch
 from warpface.kernels_surface import triangle_area_vectors
 
@@ -51,10 +53,11 @@ def five_kernel_frames(model, controls: np.ndarray, depths: np.ndarray) -> dict:
             "bulge": x2.numpy().reshape(shape + (3,)), "final": x3.numpy().reshape(shape + (3,))}
 
 
-def default_model():
+def build_model(rig_name: str, fused: bool):
     from warpface.assets import default_rig
 
-    return default_rig().model(device=DEVICE)
+    rig = default_rig() if rig_name == "default rig" else small_face_rig()
+    return ExpressionModel(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=DEVICE, jaw=getattr(rig, "jaw", None), fused=fused)
 
 
 def random_controls(model, rng, frames: int):
@@ -71,9 +74,10 @@ def random_controls(model, rng, frames: int):
     return contractions, depths
 
 
-@pytest.fixture(scope="module", params=["default rig", "small rig without jaw"])
+@pytest.fixture(scope="module", params=[("default rig", True), ("default rig", False), ("small rig without jaw", True)],
+                ids=["default-fused", "default-five-kernels", "small-fused"])
 def model(request):
-    return default_model() if request.param == "default rig" else small_face_rig().model(device=DEVICE)
+    return build_model(*request.param)
 
 
 def test_single_frame_and_stages_equal_the_five_kernel_sequence(model, rng):
@@ -101,16 +105,18 @@ def test_batches_equal_the_five_kernel_sequence(model, rng, frames_per_launch):
 
 
 @pytest.mark.parametrize("frames_per_thread", [2, 3])
-def test_several_frames_per_thread_equal_one(model, rng, frames_per_thread):
+@pytest.mark.parametrize("rig_name", ["default rig", "small rig without jaw"])
+def test_several_frames_per_thread_equal_one(rig_name, rng, frames_per_thread):
     """The kernels' frame loop (used on CUDA for large launches) writes the same bits as one frame per thread."""
     from warpface.expression.kernels_fused import muscles_and_bulge, wrinkles_on_bulge
 
+    model = build_model(rig_name, fused=True)
     frames = 5
     contractions, depths = random_controls(model, rng, frames)
     expected = five_kernel_frames(model, contractions, depths)["final"]
     buffers = model._frame_buffers(frames)
     buffers.upload_controls(contractions, depths)
-    for kernel, dim, inputs, outputs in model._fused_launch_args(buffers, frames, buffers.contraction, buffers.depth,
+    for kernel, dim, inputs, outputs in model._launch_args(buffers, frames, buffers.contraction, buffers.depth,
                                                                  buffers.final_points, False):
         assert kernel in (muscles_and_bulge, wrinkles_on_bulge)
         inputs = list(inputs)
@@ -118,3 +124,10 @@ def test_several_frames_per_thread_equal_one(model, rng, frames_per_thread):
         dim = -(-frames // frames_per_thread) * model.mesh.vertex_count
         wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=DEVICE)
     np.testing.assert_array_equal(buffers.read_frames(buffers.final_points, frames), expected)
+
+
+def test_fused_must_be_a_bool():
+    rig = small_face_rig()
+    with pytest.raises(ValueError, match="fused"):
+        ExpressionModel(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=DEVICE, fused="yes")
+    assert ExpressionModel(rig.mesh, rig.muscles, device=DEVICE).fused is False  # the CPU's default

@@ -14,7 +14,9 @@ from .batch_graph import BatchGraphs
 from .controls import as_device_array, check_rig_parts, contraction_limits, control_vector, frame_controls, is_device_array
 from .frame_buffers import FrameBuffers
 from .jaw import JAW_CONTROL_NAMES, Jaw
-from .kernels import MuscleEntry, WrinkleEntry
+from ..kernels_surface import triangle_area_vectors
+from .kernels import (MuscleEntry, WrinkleEntry, apply_jaw_and_muscles, apply_muscles, apply_wrinkles, stretch_and_bulge,
+                      triangle_stretch)
 from .kernels_fused import muscles_and_bulge, wrinkles_on_bulge
 from .muscles import Muscle, muscle_weights
 from .readback import PinnedReadback
@@ -55,9 +57,10 @@ class ExpressionModel:
     """Muscles → stretch → bulge → wrinkles, per vertex, from the rest mesh every frame (never cumulative).
 
     Everything that depends only on the rig (muscle weight fields, wrinkle distances) is evaluated
-    once here in float64; a frame is then two fused kernel launches over vertices
-    (:mod:`~warpface.expression.kernels_fused`). On CUDA the single-frame sequence is captured once
-    as a graph and replayed.
+    once here in float64. On CUDA a frame is then two fused kernel launches over vertices
+    (:mod:`~warpface.expression.kernels_fused`), captured once as a graph and replayed; on the CPU
+    it is the five-kernel sequence of :mod:`~warpface.expression.kernels` (see ``fused``). Both
+    give the same bits on the same device.
 
     Two ways to get results, running the same kernels:
 
@@ -87,6 +90,9 @@ class ExpressionModel:
         jaw: optional :class:`~warpface.expression.Jaw`, applied before the muscles (SPEC §6.2); its
             controls :data:`~warpface.expression.JAW_CONTROL_NAMES` follow the muscles in the control
             vector (:attr:`control_names`).
+        fused: run a frame as two fused kernels that recompute the one-ring's muscle points instead
+            of storing per-triangle intermediates (fewer launches and bytes: the GPU's choice), or as
+            the five-kernel sequence (fewer operations: the CPU's). ``None``: fused on CUDA only.
 
     Raises:
         RigError: (a ``ValueError``) mesh not a FaceMesh, wrong item types, duplicate muscle or
@@ -102,6 +108,7 @@ class ExpressionModel:
         *,
         device=None,
         jaw: Jaw | None = None,
+        fused: bool | None = None,
     ):
         self.muscles, self.wrinkles, self.thickness = check_rig_parts(mesh, muscles, wrinkles, thickness, owner="expression model")
         self.mesh = mesh
@@ -120,6 +127,10 @@ class ExpressionModel:
         self._contraction_limits = np.concatenate([contraction_limits(self.muscles), jaw_limits])
         self._depth_limits = np.full(len(self.wrinkles), MAX_COORDINATE)
         self.device = wp.get_device(device)
+        if fused is not None and not isinstance(fused, (bool, np.bool_)):
+            raise ValueError(f"fused: expected True, False or None, got {type(fused).__name__}")
+        self.fused = bool(self.device.is_cuda if fused is None else fused)
+        """Whether a frame runs as the two fused kernels (else the five-kernel sequence)."""
 
         self._mesh_buffers = mesh.device_buffers(device=self.device)
         weights = muscle_weights(mesh.points, self.muscles, device=self.device)
@@ -187,7 +198,7 @@ class ExpressionModel:
         buffers = self._single
         buffers.upload_controls(self.contraction_vector(contractions)[None], self.depth_vector(wrinkle_depths)[None])
         if stages:
-            self._launch_fused(buffers, frames=1, keep_muscle_points=True)
+            self._launch_frames(buffers, frames=1, keep_muscle_points=True)
         else:
             self._run_single(buffers)
         if stages:
@@ -298,7 +309,7 @@ class ExpressionModel:
             controls, depths = (source[start * width:(start + count) * width] if width else fallback
                                 for source, width, fallback in ((sources[0], len(self.control_names), buffers.contraction),
                                                                 (sources[1], len(self.wrinkles), buffers.depth)))
-            self._launch_fused(buffers, frames=count, controls=controls, depths=depths,
+            self._launch_frames(buffers, frames=count, controls=controls, depths=depths,
                                final_points=target[start * vertex_count:(start + count) * vertex_count])
 
         if progress:
@@ -404,8 +415,8 @@ class ExpressionModel:
     def _frame_buffers(self, frames: int) -> FrameBuffers:
         if frames not in self._buffers:
             self._buffers[frames] = FrameBuffers(
-                frames, self.mesh.vertex_count, self.mesh.triangle_count, len(self.control_names), len(self.wrinkles), device=self.device
-            )
+                frames, self.mesh.vertex_count, self.mesh.triangle_count, len(self.control_names), len(self.wrinkles), device=self.device,
+                per_triangle=not self.fused)
         return self._buffers[frames]
 
     def _run_single(self, buffers: FrameBuffers) -> None:
@@ -420,7 +431,7 @@ class ExpressionModel:
             self._launch(buffers)
 
     def _launch(self, buffers: FrameBuffers) -> None:
-        """Run the frame's two kernels over all of ``buffers``' frames (recorded on first use)."""
+        """Run the frame's kernels over all of ``buffers``' frames (recorded on first use)."""
         if not buffers.launches:
             buffers.launches = self._record_launches(buffers)
         for launch in buffers.launches:
@@ -433,9 +444,11 @@ class ExpressionModel:
             return 1
         return int(min(4, max(1, frames * self.mesh.vertex_count // (1 << 20))))
 
-    def _fused_launch_args(self, buffers: FrameBuffers, frames: int, controls: wp.array, depths: wp.array,
-                           final_points: wp.array, keep_muscle_points: bool) -> list:
-        """``(kernel, dim, inputs, outputs)`` of the two fused kernels over ``frames`` frames."""
+    def _launch_args(self, buffers: FrameBuffers, frames: int, controls: wp.array, depths: wp.array,
+                     final_points: wp.array, keep_muscle_points: bool) -> list:
+        """``(kernel, dim, inputs, outputs)`` of a frame's kernels over ``frames`` frames."""
+        if not self.fused:
+            return self._staged_launch_args(buffers, frames, controls, depths, final_points)
         mesh = self._mesh_buffers
         vertex_count = self.mesh.vertex_count
         per_thread = self._frames_per_thread(frames)
@@ -457,18 +470,48 @@ class ExpressionModel:
                     [final_points])
         return [bulge, wrinkles]
 
-    def _launch_fused(self, buffers: FrameBuffers, *, frames: int, controls: wp.array | None = None, depths: wp.array | None = None,
+    def _staged_launch_args(self, buffers: FrameBuffers, frames: int, controls: wp.array, depths: wp.array,
+                            final_points: wp.array) -> list:
+        """The five-kernel sequence (muscles, triangle stretch, stretch and bulge, area vectors, wrinkles)."""
+        mesh = self._mesh_buffers
+        vertex_count, triangle_count = self.mesh.vertex_count, self.mesh.triangle_count
+        vertices, triangles = frames * vertex_count, frames * triangle_count
+        counts = [vertex_count, triangle_count]
+        if self.jaw is None:
+            first = (apply_muscles, vertices,
+                     [mesh.rest_points, self._muscle_offsets, self._muscle_entries, controls, buffers.muscle_width, vertex_count],
+                     [buffers.muscle_points])
+        else:
+            jaw = self.jaw
+            first = (apply_jaw_and_muscles, vertices,
+                     [mesh.rest_points, self._jaw_weight, wp.vec3(*jaw.pivot), wp.vec3(*jaw.axis), wp.vec3(*jaw.forward),
+                      self._muscle_offsets, self._muscle_entries, controls, buffers.muscle_width, len(self.muscles), vertex_count],
+                     [buffers.muscle_points])
+        return [
+            first,
+            (triangle_stretch, triangles, [buffers.muscle_points, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, *counts],
+             [buffers.stretch_terms]),
+            (stretch_and_bulge, vertices, [buffers.muscle_points, buffers.stretch_terms, self._counts, mesh.adjacency_offsets,
+                                           mesh.adjacency_triangles, self._thickness, *counts], [buffers.stretch, buffers.bulge_points]),
+            (triangle_area_vectors, triangles, [buffers.bulge_points, mesh.triangles, mesh.triangle_weight, *counts],
+             [buffers.area_vectors]),
+            (apply_wrinkles, vertices, [buffers.bulge_points, buffers.area_vectors, mesh.adjacency_offsets, mesh.adjacency_triangles,
+                                        buffers.stretch, self._wrinkle_offsets, self._wrinkle_entries, depths, buffers.wrinkle_width,
+                                        *counts], [final_points]),
+        ]
+
+    def _launch_frames(self, buffers: FrameBuffers, *, frames: int, controls: wp.array | None = None, depths: wp.array | None = None,
                       final_points: wp.array | None = None, keep_muscle_points: bool = False) -> None:
-        """The two kernels over the first ``frames`` frames, reading ``controls``/``depths`` (default: the
+        """The frame's kernels over the first ``frames`` frames, reading ``controls``/``depths`` (default: the
         buffers') and writing ``final_points`` (default: the buffers'); x1 is kept for the stages on request."""
-        arguments = self._fused_launch_args(
+        arguments = self._launch_args(
             buffers, frames, buffers.contraction if controls is None else controls, buffers.depth if depths is None else depths,
             buffers.final_points if final_points is None else final_points, keep_muscle_points)
         for kernel, dim, inputs, outputs in arguments:
             wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device)
 
     def _record_launches(self, buffers: FrameBuffers) -> list:
-        arguments = self._fused_launch_args(buffers, buffers.frames, buffers.contraction, buffers.depth, buffers.final_points, False)
+        arguments = self._launch_args(buffers, buffers.frames, buffers.contraction, buffers.depth, buffers.final_points, False)
         return [wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device, record_cmd=True)
                 for kernel, dim, inputs, outputs in arguments]
 
