@@ -22,9 +22,10 @@ One time step (see :class:`warpface.fem.solver_batch.BatchedCGSolver`) is
    extrapolation for the next step (as the single-model CG solver).
 
 The preconditioner is either 3x3 block Jacobi (the inverse diagonal blocks, per model) or one
-factorised ``M⁻¹ = Gᵀ G`` shared by all models (:data:`batch_factor_product`, :data:`batch_factor_finish`:
-FSAI of one model's matrix; any SPD preconditioner keeps CG exact, a shared one only costs
-iterations where the models differ). All arithmetic is float64.
+factorised ``M⁻¹ = Gᵀ G`` (:data:`batch_factor_product`, :data:`batch_factor_finish`): FSAI of one
+model's matrix shared by all models (values (1, nnz)), or that support refitted per model (values
+(B, nnz)); any SPD preconditioner keeps CG exact, a shared one only costs iterations where the
+models differ. All arithmetic is float64.
 """
 
 from __future__ import annotations
@@ -344,7 +345,7 @@ def batch_newmark_update(
             ring[0] = (slot + 1) % chunk
 
 
-# The shared factorised preconditioner M⁻¹ = Gᵀ G (FSAI of one model's matrix, applied to every model):
+# The factorised preconditioner M⁻¹ = Gᵀ G (FSAI: one factor for every model, or one per model):
 # scalar CSR grouped by block row, ``keys[e] = 3 * column + row % 3`` (as the single-model CG kernels).
 
 
@@ -358,7 +359,7 @@ def _unit(axis: int, value: wp.float64):
 def batch_factor_product(
     offsets: wp.array(dtype=wp.int32),
     keys: wp.array(dtype=wp.int32),
-    values: wp.array(dtype=wp.float64),
+    values: wp.array2d(dtype=wp.float64),
     u_flat: wp.array2d(dtype=wp.float64),
     active: wp.array(dtype=wp.int32),
     out: wp.array2d(dtype=wp.vec3d),
@@ -367,11 +368,12 @@ def batch_factor_product(
     b, i = wp.tid()
     if active[b] == 0:
         return
+    row = wp.min(b, values.shape[0] - 1)  # one shared factor, or one per model
     acc = wp.vec3d()
     for e in range(offsets[i], offsets[i + 1]):
         key = keys[e]
         col = key // 3
-        acc += _unit(key - 3 * col, values[e] * u_flat[b, col])
+        acc += _unit(key - 3 * col, values[row, e] * u_flat[b, col])
     out[b, i] = acc
 
 
@@ -379,7 +381,7 @@ def batch_factor_product(
 def batch_factor_finish(
     offsets: wp.array(dtype=wp.int32),
     keys: wp.array(dtype=wp.int32),
-    values: wp.array(dtype=wp.float64),
+    values: wp.array2d(dtype=wp.float64),
     y_flat: wp.array2d(dtype=wp.float64),
     r: wp.array2d(dtype=wp.vec3d),
     active: wp.array(dtype=wp.int32),
@@ -394,11 +396,12 @@ def batch_factor_finish(
     b, i = wp.tid()
     if active[b] == 0:
         return
+    row = wp.min(b, values.shape[0] - 1)  # one shared factor, or one per model
     acc = wp.vec3d()
     for e in range(offsets[i], offsets[i + 1]):
         key = keys[e]
         col = key // 3
-        acc += _unit(key - 3 * col, values[e] * y_flat[b, col])
+        acc += _unit(key - 3 * col, values[row, e] * y_flat[b, col])
     z[b, i] = acc
     if set_direction == 1:
         p[b, i] = acc
