@@ -149,6 +149,34 @@ def test_expression_frames_match_cpu(face_rig, models):
     np.testing.assert_allclose(dev_stages["stretch"], cpu_stages["stretch"], rtol=1e-5, atol=0)
 
 
+def test_fused_and_five_kernel_frames_agree_on_the_device(face_rig, models):
+    """The fused two-kernel frame (the device default) against the five-kernel sequence (``fused=False``)
+    on the same device: the same operations in the same order, so equal up to the compiler's choice of
+    FMA contraction (measured: see the benchmark's "same bits" column), and both against the CPU.
+    A batch large enough for several frames per thread (``frames_per_thread`` > 1) equals single frames."""
+    from warpface import ExpressionModel
+
+    cpu_model, fused = models
+    assert fused.fused or not DEVICE.is_cuda
+    staged = ExpressionModel(face_rig.mesh, face_rig.muscles, face_rig.wrinkles, face_rig.thickness, device=DEVICE,
+                             jaw=face_rig.jaw, fused=False)
+    contractions, depths = expression_controls(face_rig, 3, seed=4)
+    tolerance = FLOAT32_FACE_TOLERANCE * face_rig.mesh.size
+    for frame in range(3):
+        got = fused.evaluate(contractions[frame], wrinkle_depths=depths[frame])
+        np.testing.assert_allclose(got, staged.evaluate(contractions[frame], wrinkle_depths=depths[frame]), rtol=0, atol=tolerance)
+        np.testing.assert_allclose(got, cpu_model.evaluate(contractions[frame], wrinkle_depths=depths[frame]), rtol=0, atol=tolerance)
+    frames = max(8, 4 * (1 << 20) // face_rig.mesh.vertex_count + 1)  # > 2^20 frame·vertices per launch
+    assert fused._frames_per_thread(frames) > 1 or not DEVICE.is_cuda
+    many_c, many_d = np.resize(contractions, (frames, contractions.shape[1])), np.resize(depths, (frames, depths.shape[1]))
+    out = wp.empty((frames, face_rig.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
+    fused.evaluate_batch_into(out, many_c, wrinkle_depths=many_d)
+    batch = out.numpy()
+    for frame in range(3):
+        np.testing.assert_array_equal(batch[frame], fused.evaluate(contractions[frame], wrinkle_depths=depths[frame]))
+        np.testing.assert_array_equal(batch[frames - 3 + frame], batch[(frames - 3 + frame) % 3])
+
+
 def test_device_resident_paths_are_bit_identical_on_the_device(face_rig, models):
     """evaluate_into / evaluate_batch_into (Warp arrays, device controls, chunked launches) write the
     same bits as the NumPy path on the same device."""
@@ -455,7 +483,7 @@ def test_cg_run_chunks_match_direct(beam, direct_reference):
 
 
 
-@pytest.mark.parametrize("preconditioner", ["fsai", "block_jacobi"])
+@pytest.mark.parametrize("preconditioner", ["fsai", "fsai_each", "block_jacobi"])
 def test_tissue_batch_graph_matches_per_model_direct(beam, direct_reference, preconditioner):
     """TissueBatch: three materials (the reference one first) stepped as one captured graph, each
     with its own trajectory, through run() (ring chunks) and queued step() calls; model 0 against the
