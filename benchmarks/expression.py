@@ -5,7 +5,7 @@ the built-in face) and wavy grids of 10k, 100k and 1M vertices, each with 16 lin
 wrinkles. Both sides use the same rig-time precomputation (sparse muscle weights, wrinkle
 profiles); the per-frame work — muscles, stretch, normals, bulge, normals again, wrinkles — is
 timed. "warp ms" includes copying the result to host memory; on CUDA "device ms" is the graph
-replay alone (the fused two-kernel frame, with the five-kernel sequence beside it), and every
+replay alone (the fused two-kernel frame, with the 3- and 5-kernel plans beside it), and every
 device row is set against a ``wp.copy`` of the same bytes timed in the same run.
 
     python -m benchmarks.expression [--device cuda:0] [--sizes 10000 100000 1000000] [--quick]
@@ -22,6 +22,7 @@ import warp as wp
 import warpface as wf
 from warpface.data import ict_face_region
 from warpface.expression import muscle_weights
+from warpface.expression.model import LAUNCH_PLANS
 from warpface.expression.wrinkles import wrinkle_shapes
 
 from ._timing import machine_info, print_table, time_call, write_results
@@ -277,18 +278,24 @@ def device_batch_rows(model, contractions: np.ndarray, quick: bool, bandwidth: f
 
 
 def single_frame_rows(model, mesh, muscles, wrinkles, thickness, contractions: np.ndarray) -> dict:
-    """On CUDA: the single-frame graph of the fused kernels (the default) and of the five-kernel sequence
-    (``fused=False``), and a ``wp.copy`` of the frame's 24·V bytes, all in the same run."""
+    """On CUDA: the single-frame graph of each launch plan — 2 fused kernels (the default), 3, and the
+    five-kernel sequence — and a ``wp.copy`` of the frame's 24·V bytes, all in the same run."""
     if not model.device.is_cuda:
         return {}
     sync = lambda: wp.synchronize_device(model.device)  # noqa: E731
-    fused_s = time_call(lambda: wp.capture_launch(model._single.graph), repeats=500, sync=sync)
-    staged = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device=model.device, fused=False)
-    exact = bool(np.array_equal(staged.evaluate(contractions), model.evaluate(contractions)))
-    staged_s = time_call(lambda: wp.capture_launch(staged._single.graph), repeats=500, sync=sync)
+    row = {}
+    expected = model.evaluate(contractions)
+    for launches in LAUNCH_PLANS:
+        other = model if launches == model.launches_per_frame else wf.ExpressionModel(
+            mesh, muscles, wrinkles, thickness, device=model.device, launches=launches)
+        same = bool(np.array_equal(other.evaluate(contractions), expected))
+        seconds = time_call(lambda: wp.capture_launch(other._single.graph), repeats=500, sync=sync)
+        row[f"device_ms_{launches}_launches"] = seconds * 1e3
+        row[f"same_bits_{launches}_launches"] = same
     copy_s = same_bytes_copy_seconds(model.device, mesh.vertex_count)
-    return {"device_ms": fused_s * 1e3, "device_ms_five_kernels": staged_s * 1e3, "fused_equals_five_kernels": exact,
-            "copy_ms_same_bytes": copy_s * 1e3, "device_pct_same_bytes_copy": 100.0 * copy_s / fused_s}
+    device_ms = row[f"device_ms_{model.launches_per_frame}_launches"]
+    row.update(device_ms=device_ms, copy_ms_same_bytes=copy_s * 1e3, device_pct_same_bytes_copy=100.0 * copy_s * 1e3 / device_ms)
+    return row
 
 
 def run_case(label: str, mesh: wf.FaceMesh, device, quick: bool, bandwidth: float | None = None) -> dict:
@@ -370,11 +377,13 @@ def main(argv=None) -> None:
             ("device_batch_pct_copy_bw", "% copy bw", ".0f"), ("device_batch_exact", "batch exact", ""),
             ("torch_matches", "torch match", ""),
         ])
-        print("\nFused (2 kernels, default on CUDA) vs five kernels (fused=False), single-frame graph; a wp.copy of the"
-              "\nsame bytes (24·V: rest read + result written) in the same run; % = copy time / warp time\n")
+        print("\nSingle-frame graph per launch plan (ExpressionModel(launches=2|3|5); 2 is the CUDA default),"
+              "\n'same' = bit-identical to the default; a wp.copy of the same bytes (24·V: rest read + result"
+              "\nwritten) in the same run; % = copy time / warp time\n")
         print_table(rows, [
-            ("mesh", "mesh", "s"), ("vertices", "vertices", ",d"), ("device_ms", "fused ms", ".4f"),
-            ("device_ms_five_kernels", "5-kernel ms", ".4f"), ("fused_equals_five_kernels", "same bits", ""),
+            ("mesh", "mesh", "s"), ("vertices", "vertices", ",d"), ("device_ms_2_launches", "2 ms", ".4f"),
+            ("device_ms_3_launches", "3 ms", ".4f"), ("device_ms_5_launches", "5 ms", ".4f"),
+            ("same_bits_3_launches", "3 same", ""), ("same_bits_5_launches", "5 same", ""),
             ("copy_ms_same_bytes", "copy ms", ".4f"), ("device_pct_same_bytes_copy", "% copy (frame)", ".0f"),
             ("device_batch_GB_per_s", "batch GB/s", ",.0f"), ("same_bytes_copy_ms_per_frame", "copy ms/frame", ".5f"),
             ("device_batch_pct_same_bytes_copy", "% copy (batch)", ".0f"),

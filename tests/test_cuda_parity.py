@@ -149,23 +149,26 @@ def test_expression_frames_match_cpu(face_rig, models):
     np.testing.assert_allclose(dev_stages["stretch"], cpu_stages["stretch"], rtol=1e-5, atol=0)
 
 
-def test_fused_and_five_kernel_frames_agree_on_the_device(face_rig, models):
-    """The fused two-kernel frame (the device default) against the five-kernel sequence (``fused=False``)
-    on the same device: the same operations in the same order, so equal up to the compiler's choice of
-    FMA contraction (measured: see the benchmark's "same bits" column), and both against the CPU.
-    A batch large enough for several frames per thread (``frames_per_thread`` > 1) equals single frames."""
+@pytest.mark.parametrize("launches", [3, 5])
+def test_launch_plans_agree_on_the_device(face_rig, models, launches):
+    """The fused two-kernel frame (the device default) against the 3- and 5-kernel plans on the same
+    device: the same operations in the same order, so equal up to the compiler's choice of FMA
+    contraction (measured: the benchmark's "same" columns), and both against the CPU. A batch of the
+    default plan large enough for several frames per thread (``frames_per_thread`` > 1) equals single frames."""
     from warpface import ExpressionModel
 
     cpu_model, fused = models
-    assert fused.fused or not DEVICE.is_cuda
+    assert fused.launches_per_frame == (2 if DEVICE.is_cuda else 5)
     staged = ExpressionModel(face_rig.mesh, face_rig.muscles, face_rig.wrinkles, face_rig.thickness, device=DEVICE,
-                             jaw=face_rig.jaw, fused=False)
+                             jaw=face_rig.jaw, launches=launches)
     contractions, depths = expression_controls(face_rig, 3, seed=4)
     tolerance = FLOAT32_FACE_TOLERANCE * face_rig.mesh.size
     for frame in range(3):
         got = fused.evaluate(contractions[frame], wrinkle_depths=depths[frame])
         np.testing.assert_allclose(got, staged.evaluate(contractions[frame], wrinkle_depths=depths[frame]), rtol=0, atol=tolerance)
         np.testing.assert_allclose(got, cpu_model.evaluate(contractions[frame], wrinkle_depths=depths[frame]), rtol=0, atol=tolerance)
+    if launches == 5:
+        return  # the batch check below runs once (it is the default plan's)
     frames = max(8, 4 * (1 << 20) // face_rig.mesh.vertex_count + 1)  # > 2^20 frame·vertices per launch
     assert fused._frames_per_thread(frames) > 1 or not DEVICE.is_cuda
     many_c, many_d = np.resize(contractions, (frames, contractions.shape[1])), np.resize(depths, (frames, depths.shape[1]))

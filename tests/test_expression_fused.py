@@ -1,5 +1,5 @@
-"""The fused two-kernel frame (kernels_fused, CUDA's default) and the model's five-kernel path (the CPU's)
-equal the five-kernel sequence of kernels.py launched here bit for bit, on the default rig (jaw and
+"""Every launch plan of the model — the fused two-kernel frame (kernels_fused, CUDA's default), three
+kernels, five (the CPU's) — equals the five-kernel sequence of kernels.py launched here bit for bit, on the default rig (jaw and
 wrinkles) and on a rig without a jaw, single frames and batches."""
 
 import numpy as np
@@ -53,11 +53,11 @@ def five_kernel_frames(model, controls: np.ndarray, depths: np.ndarray) -> dict:
             "bulge": x2.numpy().reshape(shape + (3,)), "final": x3.numpy().reshape(shape + (3,))}
 
 
-def build_model(rig_name: str, fused: bool):
+def build_model(rig_name: str, launches: int):
     from warpface.assets import default_rig
 
     rig = default_rig() if rig_name == "default rig" else small_face_rig()
-    return ExpressionModel(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=DEVICE, jaw=getattr(rig, "jaw", None), fused=fused)
+    return ExpressionModel(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=DEVICE, jaw=getattr(rig, "jaw", None), launches=launches)
 
 
 def random_controls(model, rng, frames: int):
@@ -74,8 +74,9 @@ def random_controls(model, rng, frames: int):
     return contractions, depths
 
 
-@pytest.fixture(scope="module", params=[("default rig", True), ("default rig", False), ("small rig without jaw", True)],
-                ids=["default-fused", "default-five-kernels", "small-fused"])
+@pytest.fixture(scope="module", params=[("default rig", 2), ("default rig", 3), ("default rig", 5), ("small rig without jaw", 2),
+                                        ("small rig without jaw", 3)],
+                ids=["default-2", "default-3", "default-5", "small-2", "small-3"])
 def model(request):
     return build_model(*request.param)
 
@@ -105,29 +106,37 @@ def test_batches_equal_the_five_kernel_sequence(model, rng, frames_per_launch):
 
 
 @pytest.mark.parametrize("frames_per_thread", [2, 3])
-@pytest.mark.parametrize("rig_name", ["default rig", "small rig without jaw"])
-def test_several_frames_per_thread_equal_one(rig_name, rng, frames_per_thread):
+@pytest.mark.parametrize("rig_name, launches", [("default rig", 2), ("default rig", 3), ("small rig without jaw", 2)])
+def test_several_frames_per_thread_equal_one(rig_name, launches, rng, frames_per_thread):
     """The kernels' frame loop (used on CUDA for large launches) writes the same bits as one frame per thread."""
-    from warpface.expression.kernels_fused import muscles_and_bulge, wrinkles_on_bulge
+    from warpface.expression.kernels_fused import bulge_from_muscle_points, muscles_and_bulge, wrinkles_on_bulge
 
-    model = build_model(rig_name, fused=True)
+    model = build_model(rig_name, launches=launches)
     frames = 5
     contractions, depths = random_controls(model, rng, frames)
     expected = five_kernel_frames(model, contractions, depths)["final"]
     buffers = model._frame_buffers(frames)
     buffers.upload_controls(contractions, depths)
+    looped = 0
     for kernel, dim, inputs, outputs in model._launch_args(buffers, frames, buffers.contraction, buffers.depth,
-                                                                 buffers.final_points, False):
-        assert kernel in (muscles_and_bulge, wrinkles_on_bulge)
+                                                           buffers.final_points, False):
         inputs = list(inputs)
-        inputs[-2 if kernel is muscles_and_bulge else -1] = frames_per_thread
-        dim = -(-frames // frames_per_thread) * model.mesh.vertex_count
+        if kernel in (muscles_and_bulge, bulge_from_muscle_points, wrinkles_on_bulge):
+            inputs[-2 if kernel is muscles_and_bulge else -1] = frames_per_thread
+            dim = -(-frames // frames_per_thread) * model.mesh.vertex_count
+            looped += 1
         wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=DEVICE)
+    assert looped == 2
     np.testing.assert_array_equal(buffers.read_frames(buffers.final_points, frames), expected)
 
 
-def test_fused_must_be_a_bool():
+@pytest.mark.parametrize("bad", ["2", 4, True, 2.5])
+def test_launches_must_be_a_known_plan(bad):
     rig = small_face_rig()
-    with pytest.raises(ValueError, match="fused"):
-        ExpressionModel(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=DEVICE, fused="yes")
-    assert ExpressionModel(rig.mesh, rig.muscles, device=DEVICE).fused is False  # the CPU's default
+    with pytest.raises(ValueError, match="launches"):
+        ExpressionModel(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=DEVICE, launches=bad)
+
+
+def test_default_plan_by_device():
+    rig = small_face_rig()
+    assert ExpressionModel(rig.mesh, rig.muscles, device=DEVICE).launches_per_frame == 5  # the CPU's default

@@ -12,7 +12,9 @@ bytes of those intermediates. Here a frame is two launches::
                         Σ k_d·s·C(r)·N(x2); vertices without a furrow copy x2  → x3
 
 A wrinkle needs N(x2), which needs x2 of the one-ring and so x1 of the two-ring: that dependency is
-the one launch boundary kept. Every value is computed with the same operations in the same order as
+the one launch boundary kept. A three-launch plan stores x1 instead of recomputing it (the muscle
+kernel of :mod:`~warpface.expression.kernels`, then :data:`bulge_from_muscle_points`, then the
+wrinkles): one launch more, shorter chains of dependent loads per thread. Every value is computed with the same operations in the same order as
 the five-kernel sequence, so the two paths agree bit for bit on the same device.
 
 ``jaw_first`` < 0 means the rig has no jaw (its arrays are then not read). With
@@ -29,7 +31,7 @@ from .kernels import STRETCH_FLOOR, MuscleEntry, WrinkleEntry, contraction_facto
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
-__all__ = ["muscles_and_bulge", "wrinkles_on_bulge", "muscle_point"]
+__all__ = ["muscles_and_bulge", "bulge_from_muscle_points", "wrinkles_on_bulge", "muscle_point"]
 
 
 @wp.func
@@ -144,6 +146,54 @@ def muscles_and_bulge(
         stretch[out] = r
         growth = 1.0 / wp.max(r, STRETCH_FLOOR) - 1.0
         bulge_points[out] = x1 + (growth * h) * safe_normalize(normal_sum)
+        f += 1
+
+
+@wp.kernel
+def bulge_from_muscle_points(
+    muscle_points: wp.array(dtype=wp.vec3),
+    triangles: wp.array(dtype=wp.vec3i),
+    triangle_weight: wp.array(dtype=wp.float32),
+    rest_area_lengths: wp.array(dtype=wp.float32),
+    adjacency_offsets: wp.array(dtype=wp.int32),
+    adjacency_triangles: wp.array(dtype=wp.int32),
+    counts: wp.array(dtype=wp.float32),
+    thickness: wp.array(dtype=wp.float32),
+    vertex_count: int,
+    frame_count: int,
+    frames_per_thread: int,
+    stretch: wp.array(dtype=wp.float32),
+    bulge_points: wp.array(dtype=wp.vec3),
+):
+    """As :data:`muscles_and_bulge`, from stored muscle points x1 (the three-launch plan: x1 by
+    :data:`~warpface.expression.kernels.apply_jaw_and_muscles` first, nothing recomputed)."""
+    i = wp.tid()
+    group = i / vertex_count
+    v = i - group * vertex_count
+    f = group * frames_per_thread
+    last = wp.min(f + frames_per_thread, frame_count)
+    begin = adjacency_offsets[v]
+    end = adjacency_offsets[v + 1]
+    count = counts[v]
+    h = thickness[v]
+    while f < last:
+        first_vertex = f * vertex_count
+        normal_sum = wp.vec3(0.0, 0.0, 0.0)
+        ratio_sum = float(0.0)
+        k = begin
+        while k < end:
+            t = adjacency_triangles[k]
+            area = triangle_area_vector(muscle_points, first_vertex, triangles[t], triangle_weight[t])
+            normal_sum += area
+            ratio_sum += wp.length(area) / rest_area_lengths[t]
+            k += 1
+        r = float(1.0)
+        if count > 0.0:
+            r = ratio_sum / count
+        out = first_vertex + v
+        stretch[out] = r
+        growth = 1.0 / wp.max(r, STRETCH_FLOOR) - 1.0
+        bulge_points[out] = muscle_points[out] + (growth * h) * safe_normalize(normal_sum)
         f += 1
 
 

@@ -17,13 +17,16 @@ from .jaw import JAW_CONTROL_NAMES, Jaw
 from ..kernels_surface import triangle_area_vectors
 from .kernels import (MuscleEntry, WrinkleEntry, apply_jaw_and_muscles, apply_muscles, apply_wrinkles, stretch_and_bulge,
                       triangle_stretch)
-from .kernels_fused import muscles_and_bulge, wrinkles_on_bulge
+from .kernels_fused import bulge_from_muscle_points, muscles_and_bulge, wrinkles_on_bulge
 from .muscles import Muscle, muscle_weights
 from .readback import PinnedReadback
 from .tissue import tissue_response
 from .wrinkles import Wrinkle, wrinkle_shapes
 
-__all__ = ["ExpressionModel", "ExpressionStages"]
+__all__ = ["ExpressionModel", "ExpressionStages", "LAUNCH_PLANS"]
+
+LAUNCH_PLANS = (2, 3, 5)
+"""Kernel launches per frame an :class:`ExpressionModel` can run (its ``launches`` argument)."""
 
 _MAX_LAUNCH_THREADS = (1 << 31) - 1
 """Kernels index flat frames × elements arrays with 32-bit thread indices."""
@@ -59,8 +62,8 @@ class ExpressionModel:
     Everything that depends only on the rig (muscle weight fields, wrinkle distances) is evaluated
     once here in float64. On CUDA a frame is then two fused kernel launches over vertices
     (:mod:`~warpface.expression.kernels_fused`), captured once as a graph and replayed; on the CPU
-    it is the five-kernel sequence of :mod:`~warpface.expression.kernels` (see ``fused``). Both
-    give the same bits on the same device.
+    it is the five-kernel sequence of :mod:`~warpface.expression.kernels` (see ``launches``). All
+    plans give the same bits on the same device.
 
     Two ways to get results, running the same kernels:
 
@@ -90,9 +93,10 @@ class ExpressionModel:
         jaw: optional :class:`~warpface.expression.Jaw`, applied before the muscles (SPEC §6.2); its
             controls :data:`~warpface.expression.JAW_CONTROL_NAMES` follow the muscles in the control
             vector (:attr:`control_names`).
-        fused: run a frame as two fused kernels that recompute the one-ring's muscle points instead
-            of storing per-triangle intermediates (fewer launches and bytes: the GPU's choice), or as
-            the five-kernel sequence (fewer operations: the CPU's). ``None``: fused on CUDA only.
+        launches: kernel launches per frame: 2 (fused kernels that recompute the one-ring's muscle
+            points and triangle terms instead of storing them: fewest launches and bytes, the GPU's
+            default), 3 (muscle points stored, triangle terms computed in place) or 5 (every
+            intermediate stored: fewest operations, the CPU's default). ``None``: by device.
 
     Raises:
         RigError: (a ``ValueError``) mesh not a FaceMesh, wrong item types, duplicate muscle or
@@ -108,7 +112,7 @@ class ExpressionModel:
         *,
         device=None,
         jaw: Jaw | None = None,
-        fused: bool | None = None,
+        launches: int | None = None,
     ):
         self.muscles, self.wrinkles, self.thickness = check_rig_parts(mesh, muscles, wrinkles, thickness, owner="expression model")
         self.mesh = mesh
@@ -127,10 +131,11 @@ class ExpressionModel:
         self._contraction_limits = np.concatenate([contraction_limits(self.muscles), jaw_limits])
         self._depth_limits = np.full(len(self.wrinkles), MAX_COORDINATE)
         self.device = wp.get_device(device)
-        if fused is not None and not isinstance(fused, (bool, np.bool_)):
-            raise ValueError(f"fused: expected True, False or None, got {type(fused).__name__}")
-        self.fused = bool(self.device.is_cuda if fused is None else fused)
-        """Whether a frame runs as the two fused kernels (else the five-kernel sequence)."""
+        if launches is not None and (isinstance(launches, (bool, np.bool_)) or not isinstance(launches, (int, np.integer))
+                                     or launches not in LAUNCH_PLANS):
+            raise ValueError(f"launches: expected one of {LAUNCH_PLANS} or None, got {launches!r}")
+        self.launches_per_frame = int((2 if self.device.is_cuda else 5) if launches is None else launches)
+        """Kernel launches per frame: 2 (fused), 3 or 5 (see ``launches``)."""
 
         self._mesh_buffers = mesh.device_buffers(device=self.device)
         weights = muscle_weights(mesh.points, self.muscles, device=self.device)
@@ -416,7 +421,7 @@ class ExpressionModel:
         if frames not in self._buffers:
             self._buffers[frames] = FrameBuffers(
                 frames, self.mesh.vertex_count, self.mesh.triangle_count, len(self.control_names), len(self.wrinkles), device=self.device,
-                per_triangle=not self.fused)
+                per_triangle=self.launches_per_frame == 5)
         return self._buffers[frames]
 
     def _run_single(self, buffers: FrameBuffers) -> None:
@@ -440,14 +445,14 @@ class ExpressionModel:
     def _frames_per_thread(self, frames: int) -> int:
         """Frames one thread evaluates for its vertex: 1 on the CPU and for small launches; on CUDA up
         to 4 once a launch has over 2²⁰ frame·vertices, so a vertex's rig data is read once per 4 frames."""
-        if self.device.is_cpu:
+        if self.device.is_cpu or self.launches_per_frame == 3:  # (the muscle kernel of 3 has one frame per thread)
             return 1
         return int(min(4, max(1, frames * self.mesh.vertex_count // (1 << 20))))
 
     def _launch_args(self, buffers: FrameBuffers, frames: int, controls: wp.array, depths: wp.array,
                      final_points: wp.array, keep_muscle_points: bool) -> list:
         """``(kernel, dim, inputs, outputs)`` of a frame's kernels over ``frames`` frames."""
-        if not self.fused:
+        if self.launches_per_frame == 5:
             return self._staged_launch_args(buffers, frames, controls, depths, final_points)
         mesh = self._mesh_buffers
         vertex_count = self.mesh.vertex_count
@@ -468,6 +473,13 @@ class ExpressionModel:
                      mesh.adjacency_triangles, self._wrinkle_offsets, self._wrinkle_entries, depths, buffers.wrinkle_width,
                      vertex_count, frames, per_thread],
                     [final_points])
+        if self.launches_per_frame == 3:
+            muscles = self._staged_launch_args(buffers, frames, controls, depths, final_points)[0]
+            bulge = (bulge_from_muscle_points, dim,
+                     [buffers.muscle_points, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, mesh.adjacency_offsets,
+                      mesh.adjacency_triangles, self._counts, self._thickness, vertex_count, frames, per_thread],
+                     [buffers.stretch, buffers.bulge_points])
+            return [muscles, bulge, wrinkles]
         return [bulge, wrinkles]
 
     def _staged_launch_args(self, buffers: FrameBuffers, frames: int, controls: wp.array, depths: wp.array,
