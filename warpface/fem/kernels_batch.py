@@ -51,6 +51,10 @@ __all__ = [
     "batch_update",
 ]
 
+ROW_CHUNK = wp.constant(8)
+"""Matrix-row entries per straight-line group in the per-iteration products: a thread walks a row of
+up to ~96 entries, and within a group all loads are issued before the first is used (latency bound)."""
+
 SCALARS = 10
 """Per-model scalars (second index of ``scalars``): see the ``S_*`` constants."""
 S_PRED, S_GUESS, S_RZ, S_RZ_NEW, S_PQ, S_RR, S_BETA, S_THRESHOLD, S_LAST_RR, S_ITER = (wp.constant(k) for k in range(10))
@@ -224,8 +228,15 @@ def batch_product(
     if active[b] == 0:
         return
     acc = wp.vec3d()
-    for e in range(offsets[i], offsets[i + 1]):
+    e = offsets[i]
+    end = offsets[i + 1]
+    while e + ROW_CHUNK <= end:  # straight-line groups: their loads are in flight together
+        for s in range(wp.static(ROW_CHUNK)):
+            acc += values[b, e + s] * p[b, columns[e + s]]
+        e += ROW_CHUNK
+    while e < end:
         acc += values[b, e] * p[b, columns[e]]
+        e += 1
     q[b, i] = acc
     wp.atomic_add(scalars, b, S_PQ, wp.dot(p[b, i], acc))
 
@@ -355,6 +366,15 @@ def _unit(axis: int, value: wp.float64):
     return wp.vec3d(wp.where(axis == 0, value, zero), wp.where(axis == 1, value, zero), wp.where(axis == 2, value, zero))
 
 
+@wp.func
+def _factor_entry(keys: wp.array(dtype=wp.int32), values: wp.array2d(dtype=wp.float64), u_flat: wp.array2d(dtype=wp.float64),
+                  row: int, b: int, e: int):
+    """Entry ``e`` of a grouped factor row times ``u``: ``values[row, e] · u[column]`` on its row's axis."""
+    key = keys[e]
+    col = key // 3
+    return _unit(key - 3 * col, values[row, e] * u_flat[b, col])
+
+
 @wp.kernel(enable_backward=False)
 def batch_factor_product(
     offsets: wp.array(dtype=wp.int32),
@@ -370,10 +390,15 @@ def batch_factor_product(
         return
     row = wp.min(b, values.shape[0] - 1)  # one shared factor, or one per model
     acc = wp.vec3d()
-    for e in range(offsets[i], offsets[i + 1]):
-        key = keys[e]
-        col = key // 3
-        acc += _unit(key - 3 * col, values[row, e] * u_flat[b, col])
+    e = offsets[i]
+    end = offsets[i + 1]
+    while e + ROW_CHUNK <= end:
+        for s in range(wp.static(ROW_CHUNK)):
+            acc += _factor_entry(keys, values, u_flat, row, b, e + s)
+        e += ROW_CHUNK
+    while e < end:
+        acc += _factor_entry(keys, values, u_flat, row, b, e)
+        e += 1
     out[b, i] = acc
 
 
@@ -398,10 +423,15 @@ def batch_factor_finish(
         return
     row = wp.min(b, values.shape[0] - 1)  # one shared factor, or one per model
     acc = wp.vec3d()
-    for e in range(offsets[i], offsets[i + 1]):
-        key = keys[e]
-        col = key // 3
-        acc += _unit(key - 3 * col, values[row, e] * y_flat[b, col])
+    e = offsets[i]
+    end = offsets[i + 1]
+    while e + ROW_CHUNK <= end:
+        for s in range(wp.static(ROW_CHUNK)):
+            acc += _factor_entry(keys, values, y_flat, row, b, e + s)
+        e += ROW_CHUNK
+    while e < end:
+        acc += _factor_entry(keys, values, y_flat, row, b, e)
+        e += 1
     z[b, i] = acc
     if set_direction == 1:
         p[b, i] = acc
