@@ -39,7 +39,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from helpers import grid_surface
+from helpers import FLOAT32_FACE_TOLERANCE, expression_controls, grid_surface
 
 PARITY_DEVICE = os.environ.get("WARPFACE_PARITY_DEVICE", "cuda:0")
 
@@ -50,14 +50,6 @@ except Exception as exc:  # noqa: BLE001 - Warp raises ValueError/RuntimeError f
                 allow_module_level=True)
 
 CPU = wp.get_device("cpu")
-
-# float32 positions: a few units in the last place of the face's size, from FMA contraction and
-# libdevice/libm differences in the per-frame kernels (each stage rounds a handful of times; the
-# stretch → bulge step multiplies a ratio's rounding by the thickness, millimetres, so adds less).
-# Measured on an H200 with the full rig: 2.2e-6 of the size at one vertex of 69k (a thin corner
-# triangle, where the bulge's 1/r amplifies the ratio's rounding); the bound leaves 2x above that.
-FLOAT32_FACE_TOLERANCE = 5e-6
-"""Cross-device tolerance of float32 face positions, as a fraction of the mesh's size (0.28 m → 0.6 µm)."""
 
 
 def torch_on(device):
@@ -80,24 +72,6 @@ def face_rig():
 def models(face_rig):
     """The same rig's expression model on the CPU and on the parity device."""
     return face_rig.model(device=CPU), face_rig.model(device=DEVICE)
-
-
-def expression_controls(rig, frames: int, seed: int):
-    """(F, M[+3]) controls (linear muscles up to 0.15 face units, sphincters up to 0.5, then the jaw's
-    three when the rig has a jaw) and (F, W) depths."""
-    from warpface.assets import rig_scale
-    from warpface.expression import SphincterMuscle
-
-    rng = np.random.default_rng(seed)
-    sphincter = np.array([isinstance(m, SphincterMuscle) for m in rig.muscles])
-    contractions = rng.uniform(0.0, 0.15, (frames, len(rig.muscles))) * np.where(sphincter, 1.0, rig_scale(rig))
-    contractions[:, sphincter] = rng.uniform(0.0, 0.5, (frames, int(sphincter.sum())))
-    contractions[rng.uniform(size=contractions.shape) < 0.5] = 0.0  # sparse, as expressions are
-    depths = rng.uniform(0.0, 2.0, (frames, len(rig.wrinkles))) * np.array([w.depth for w in rig.wrinkles])
-    if getattr(rig, "jaw", None) is not None:  # jaw opening [rad], protrusion and slide [lengths]
-        jaw = rng.uniform(0.0, 1.0, (frames, 3)) * np.array([0.2, 0.02 * rig_scale(rig), 0.01 * rig_scale(rig)])
-        contractions = np.concatenate([contractions, jaw], axis=1)
-    return contractions, depths
 
 
 def test_precomputed_fields_match(face_rig):
@@ -147,37 +121,6 @@ def test_expression_frames_match_cpu(face_rig, models):
     for name in ("muscle", "bulge", "final"):
         np.testing.assert_allclose(dev_stages[name], cpu_stages[name], rtol=0, atol=tolerance, err_msg=name)
     np.testing.assert_allclose(dev_stages["stretch"], cpu_stages["stretch"], rtol=1e-5, atol=0)
-
-
-@pytest.mark.parametrize("launches", [3, 5])
-def test_launch_plans_agree_on_the_device(face_rig, models, launches):
-    """The fused two-kernel frame (the device default) against the 3- and 5-kernel plans on the same
-    device: the same operations in the same order, so equal up to the compiler's choice of FMA
-    contraction (measured: the benchmark's "same" columns), and both against the CPU. A batch of the
-    default plan large enough for several frames per thread (``frames_per_thread`` > 1) equals single frames."""
-    from warpface import ExpressionModel
-
-    cpu_model, fused = models
-    assert fused.launches_per_frame == (2 if DEVICE.is_cuda else 5)
-    staged = ExpressionModel(face_rig.mesh, face_rig.muscles, face_rig.wrinkles, face_rig.thickness, device=DEVICE,
-                             jaw=face_rig.jaw, launches=launches)
-    contractions, depths = expression_controls(face_rig, 3, seed=4)
-    tolerance = FLOAT32_FACE_TOLERANCE * face_rig.mesh.size
-    for frame in range(3):
-        got = fused.evaluate(contractions[frame], wrinkle_depths=depths[frame])
-        np.testing.assert_allclose(got, staged.evaluate(contractions[frame], wrinkle_depths=depths[frame]), rtol=0, atol=tolerance)
-        np.testing.assert_allclose(got, cpu_model.evaluate(contractions[frame], wrinkle_depths=depths[frame]), rtol=0, atol=tolerance)
-    if launches == 5:
-        return  # the batch check below runs once (it is the default plan's)
-    frames = max(8, 4 * (1 << 20) // face_rig.mesh.vertex_count + 1)  # > 2^20 frame·vertices per launch
-    assert fused._frames_per_thread(frames) > 1 or not DEVICE.is_cuda
-    many_c, many_d = np.resize(contractions, (frames, contractions.shape[1])), np.resize(depths, (frames, depths.shape[1]))
-    out = wp.empty((frames, face_rig.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
-    fused.evaluate_batch_into(out, many_c, wrinkle_depths=many_d)
-    batch = out.numpy()
-    for frame in range(3):
-        np.testing.assert_array_equal(batch[frame], fused.evaluate(contractions[frame], wrinkle_depths=depths[frame]))
-        np.testing.assert_array_equal(batch[frames - 3 + frame], batch[(frames - 3 + frame) % 3])
 
 
 def test_device_resident_paths_are_bit_identical_on_the_device(face_rig, models):
