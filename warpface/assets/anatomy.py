@@ -97,12 +97,12 @@ def frontalis_bellies(local: np.ndarray, surface: SurfaceSampler, classic: list[
     out = []
     for muscle in classic:
         if muscle.name.startswith("risorius_"):
-            # Risorius lies in the superficial fascia over the masseter: its fixed end is just under the
-            # skin at the side of the face (a point 0.30 deep along the side's normal would lie behind
-            # the mouth corner and pull it into the face).
+            # Risorius arises from the fascia over the masseter, at the side of the face. Its fixed end
+            # lies 0.25 beneath that skin: a point just under the skin gathered the cheek side into a
+            # lump in a smile, and sliding (docs/RIG.md §2) removes the pull's inward part anyway.
             origin = surface.frame.to_local(surface.below(surface.frame.to_local(muscle.attachment)[:2], 0.0))
-            side_xy = (np.sign(origin[0]) * max(abs(origin[0]), 0.9), surface.frame.to_local(muscle.insertion)[1] + 0.02)
-            attachment = surface.below(side_xy, 0.04)
+            side_xy = (np.sign(origin[0]) * (max(abs(origin[0]), 0.9) - 0.1), surface.frame.to_local(muscle.insertion)[1] + 0.02)
+            attachment = surface.below(side_xy, 0.25)
             length = float(np.linalg.norm(muscle.insertion - attachment))
             out.append(LinearMuscle(muscle.name, attachment, muscle.insertion, 24.0, 0.90 * length, 1.40 * length))
             continue
