@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -74,6 +75,9 @@ class ExpressionModel:
 
       Synchronise (``wp.synchronize_device``) or use the same stream before reading on the host.
 
+    On the CPU, :meth:`evaluate_batch` may run in several threads at once (each thread has its own
+    work buffers, and Warp's CPU kernels release the GIL); the other methods are for one thread at a time.
+
     Controls given on the host are checked (names, types, finite, within range) and the call raises
     ``ValueError`` naming the item; device-resident controls are used as they are (checking them
     would need a host sync).
@@ -141,7 +145,7 @@ class ExpressionModel:
         self.default_depths = np.array([w.depth for w in self.wrinkles], dtype=np.float64)
         if jaw is not None:
             self._jaw_weight = wp.array(jaw.weights.astype(np.float32), dtype=wp.float32, device=device_)
-        self._buffers: dict[int, FrameBuffers] = {}
+        self._thread_buffers = threading.local()
         self._single = self._frame_buffers(1)
         self._batch_graphs = BatchGraphs(device=self.device)
         self._readbacks: dict[int, PinnedReadback] = {}
@@ -405,6 +409,15 @@ class ExpressionModel:
             bar.close()
 
     # ------------------------------------------------------------------ internals
+    @property
+    def _buffers(self) -> dict[int, FrameBuffers]:
+        """The calling thread's work buffers by frame count: on the CPU, where Warp's kernels release the
+        GIL, several threads may run :meth:`evaluate_batch` at once (``warpface.usd.bake`` does)."""
+        local = self._thread_buffers
+        if not hasattr(local, "by_frames"):
+            local.by_frames = {}
+        return local.by_frames
+
     def _frame_buffers(self, frames: int) -> FrameBuffers:
         if frames not in self._buffers:
             self._buffers[frames] = FrameBuffers(

@@ -244,9 +244,12 @@ def _sample(prims, name: str, times: np.ndarray) -> np.ndarray:
         if not attr:
             raise RigError(f"{prim.GetPath()}.{name}: attribute is missing")
         query = Usd.AttributeQuery(attr)
-        for row, time in enumerate(times.tolist()):
+        # An attribute without time samples (or clips) has one value at every time: read it once.
+        sampled = times.tolist() if query.ValueMightBeTimeVarying() else times[:1].tolist()
+        for row, time in enumerate(sampled):
             value = query.Get(time)
             if value is None or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise RigError(f"{attr.GetPath()}: bad value {value!r} at time {time}")
             table[row, column] = value
+        table[len(sampled):, column] = table[0, column] if len(sampled) else 0.0
     return table
