@@ -34,7 +34,7 @@ import numpy as np
 from ..expression.muscles import LinearMuscle, SphincterMuscle
 from .frame import FaceFrame, SurfaceSampler
 
-__all__ = ["ANATOMY_LINEAR_MUSCLE_NAMES", "ANATOMY_SPHINCTER_MUSCLE_NAMES", "anatomy_muscles", "frontalis_bellies"]
+__all__ = ["ANATOMY_LINEAR_MUSCLE_NAMES", "ANATOMY_SPHINCTER_MUSCLE_NAMES", "anatomy_muscles", "revised_classic_muscles"]
 
 _SIDES = (("L", +1.0), ("R", -1.0))
 # iBUG indices per side: brow inner end, eye inner/outer corner, eye ring, nose wing, mouth corner,
@@ -90,8 +90,10 @@ browOuterUp 25.3 → 45.1 %. The falloff ends 0.6 lengths beyond the brow: the l
 shapes the brows rise 6–8 mm while the upper lids move 0.3 mm)."""
 
 
-def frontalis_bellies(local: np.ndarray, surface: SurfaceSampler, classic: list[LinearMuscle]) -> list[LinearMuscle]:
-    """The full rig's frontalis: each belly's fixed point in the forehead instead of beyond the hairline.
+def revised_classic_muscles(local: np.ndarray, surface: SurfaceSampler, classic: list[LinearMuscle]) -> list[LinearMuscle]:
+    """The classic linear muscles as the full rig places them: frontalis, risorius and depressor labii inferioris moved.
+
+    Frontalis: each belly's fixed point in the forehead instead of beyond the hairline.
 
     The frontalis has no bony origin: it arises from the galea aponeurotica, which glides over the
     skull on loose areolar tissue, so the pull's fixed point lies in the upper forehead, close under
@@ -109,6 +111,17 @@ def frontalis_bellies(local: np.ndarray, surface: SurfaceSampler, classic: list[
             attachment = surface.below(side_xy, 0.25)
             length = float(np.linalg.norm(muscle.insertion - attachment))
             out.append(LinearMuscle(muscle.name, attachment, muscle.insertion, 24.0, 0.90 * length, 1.40 * length))
+            continue
+        if muscle.name.startswith("depressor_labii_inferioris_"):
+            # Depressor labii inferioris: from the mandible below the lip, 0.05 beneath the skin, into
+            # the vermilion 0.02 above the lip border. The classic placement (0.20 deep, inserting
+            # below the border) pulled the lip inward and, after sliding, lifted it 1 mm (mouthLowerDown).
+            sign = np.sign(surface.frame.to_local(muscle.insertion)[0])
+            lower = local[56 if sign > 0 else 58, :2]
+            attachment = surface.below((lower[0] + 0.12 * sign, lower[1] - 0.42), 0.05)
+            insertion = surface.point((lower[0] + 0.03 * sign, lower[1] + 0.02))
+            length = float(np.linalg.norm(insertion - attachment))
+            out.append(LinearMuscle(muscle.name, attachment, insertion, 35.0, 0.85 * length, 1.30 * length))
             continue
         if not muscle.name.startswith("frontalis_"):
             out.append(muscle)
