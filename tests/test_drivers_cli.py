@@ -217,7 +217,7 @@ def test_animated_rig_exports_arkit_weights_that_reproduce_the_take(tmp_path, su
     from warpface.usd.skel_io import export_arkit_weights, read_driver
 
     t = np.arange(45) / 30.0
-    take = {"mouthSmileLeft": np.sin(np.pi * t / t[-1]) ** 2, "noseSneerRight": 0.6 * t / t[-1]}
+    take = {"mouthSmileLeft": np.sin(np.pi * t / t[-1]) ** 2, "noseSneerRight": 0.6 * t / t[-1], "jawOpen": 0.5 * t / t[-1]}
     driver = live_link_csv(tmp_path / "take.csv", take)
     assert main(["--quiet", "--device", "cpu", "animate", str(driver), "--out", str(tmp_path / "o.usda"), "--no-video"]) == 0
     exported = read_driver(export_arkit_weights(tmp_path / "o.usda", tmp_path / f"arkit{suffix}"))
