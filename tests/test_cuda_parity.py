@@ -120,7 +120,8 @@ def test_expression_frames_match_cpu(face_rig, models):
     dev_stages = dev_model.evaluate(contractions[0], wrinkle_depths=depths[0], stages=True)
     for name in ("muscle", "bulge", "final"):
         np.testing.assert_allclose(dev_stages[name], cpu_stages[name], rtol=0, atol=tolerance, err_msg=name)
-    np.testing.assert_allclose(dev_stages["stretch"], cpu_stages["stretch"], rtol=1e-5, atol=0)
+    # r is a float32 ratio of lengths the device sums in another order: 1.1e-5 relative measured (H200).
+    np.testing.assert_allclose(dev_stages["stretch"], cpu_stages["stretch"], rtol=5e-5, atol=0)
 
 
 def test_device_resident_paths_are_bit_identical_on_the_device(face_rig, models):

@@ -36,16 +36,16 @@ def models(face_rig):
     return face_rig.model(device=CPU), face_rig.model(device=DEVICE)
 
 
-@pytest.mark.parametrize("launches", [3, 5])
+@pytest.mark.parametrize("launches", [2, 5])
 def test_launch_plans_agree_on_the_device(face_rig, models, launches):
-    """The fused two-kernel frame (the device default) against the 3- and 5-kernel plans on the same
+    """The device default (three kernels: measured fastest on the H200) against the 2- and 5-kernel plans on the same
     device: the same operations in the same order, so equal up to the compiler's choice of FMA
     contraction (measured: the benchmark's "same" columns), and both against the CPU. A batch of the
     default plan large enough for several frames per thread (``frames_per_thread`` > 1) equals single frames."""
     from warpface import ExpressionModel
 
     cpu_model, fused = models
-    assert fused.launches_per_frame == (2 if DEVICE.is_cuda else 5)
+    assert fused.launches_per_frame == (3 if DEVICE.is_cuda else 5)
     staged = ExpressionModel(face_rig.mesh, face_rig.muscles, face_rig.wrinkles, face_rig.thickness, device=DEVICE,
                              jaw=face_rig.jaw, launches=launches)
     contractions, depths = expression_controls(face_rig, 3, seed=4)
