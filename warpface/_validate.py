@@ -8,6 +8,8 @@ that nothing valid can overflow the float32 kernels (see :data:`MAX_COORDINATE`)
 from __future__ import annotations
 
 import numbers
+import os
+from pathlib import Path
 
 import numpy as np
 
@@ -23,6 +25,9 @@ __all__ = [
     "as_count",
     "unit_vector",
     "orthogonal_unit_vector",
+    "as_device",
+    "as_path",
+    "expect_instance",
 ]
 
 MAX_COORDINATE = 1.0e6
@@ -191,6 +196,49 @@ def orthogonal_unit_vector(value, axis: np.ndarray, name: str) -> np.ndarray:
     if abs(along) > 1e-12 * float(np.linalg.norm(vector)):
         vector = vector - along * axis
     return unit_vector(vector, name)
+
+
+def as_device(device, name: str = "device"):
+    """The Warp device ``device`` names: ``None`` (Warp's preferred device), a ``warp.Device``, or a
+    name such as ``"cpu"``, ``"cuda"`` or ``"cuda:1"``. TypeError/ValueError naming ``name`` otherwise
+    (Warp itself raises RuntimeError for ``"cuda"`` on a machine without CUDA)."""
+    import warp as wp
+
+    if device is None or isinstance(device, wp.Device):
+        return wp.get_device(device)
+    if not isinstance(device, str):
+        raise TypeError(f"{name}: expected a Warp device or a name such as 'cpu' or 'cuda:0', got {type(device).__name__}")
+    try:
+        return wp.get_device(device)
+    except (ValueError, RuntimeError) as exc:
+        raise ValueError(f"{name}: {device[:40]!r} is not a device of this machine (use 'cpu', 'cuda' or 'cuda:N'; "
+                         f"{_short(exc)})") from None
+
+
+def as_path(value, name: str) -> Path:
+    """``value`` as a :class:`~pathlib.Path`: a ``str``/``bytes``/``os.PathLike`` that the operating system
+    can take (not empty, no NUL byte, no component over 255 bytes). TypeError/ValueError naming ``name``
+    otherwise, so a bad path never surfaces as an OSError from deep inside a reader or writer."""
+    if not isinstance(value, (str, bytes, os.PathLike)):
+        raise TypeError(f"{name}: expected a file path, got {type(value).__name__}")
+    text = os.fsdecode(os.fspath(value))
+    if not text.strip():
+        raise ValueError(f"{name}: empty file path")
+    if "\x00" in text:
+        raise ValueError(f"{name}: file path contains a NUL byte")
+    path = Path(text)
+    if any(len(os.fsencode(part)) > 255 for part in path.parts):
+        raise ValueError(f"{name}: a component of the file path is longer than 255 bytes")
+    return path
+
+
+def expect_instance(value, types, name: str):
+    """``value`` unchanged when it is an instance of ``types`` (a class or tuple of classes), else a
+    TypeError naming ``name``, the expected class and what was given."""
+    if not isinstance(value, types):
+        expected = " or ".join(t.__name__ for t in (types if isinstance(types, tuple) else (types,)))
+        raise TypeError(f"{name}: expected a {expected}, got {type(value).__name__}")
+    return value
 
 
 def _short(exc: Exception) -> str:

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Sequence
 
+from ._validate import as_path
+
 import numpy as np
 
 __all__ = ["Camera", "PreviewRenderer", "render", "render_comparison", "render_heat_map", "heat_colors", "write_video",
@@ -244,7 +246,7 @@ def write_video(frames: Iterable[np.ndarray], triangles: np.ndarray, path: str |
 
     from ._files import atomic_path
 
-    path = Path(path)
+    path = as_path(path, "path")
     if progress:
         from tqdm import tqdm
 
@@ -275,7 +277,7 @@ def save_image(path: str | Path, image: np.ndarray) -> Path:
 
     from ._files import atomic_path
 
-    path = Path(path)
+    path = as_path(path, "path")
     with atomic_path(path, path.suffix) as temporary:
         if not cv2.imwrite(str(temporary), cv2.cvtColor(np.asarray(image, dtype=np.uint8), cv2.COLOR_RGB2BGR)):
             raise ValueError(f"cannot write image {path}")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .._validate import as_path
 from .channels import Curves
 from .csv_formats import read_live_link, read_openface
 from .mediapipe_format import read_mediapipe_jsonl, read_mediapipe_textproto
@@ -22,7 +23,7 @@ def detect_format(path) -> str:
     Raises:
         ValueError: missing, empty or unrecognised file.
     """
-    path = Path(path)
+    path = as_path(path, "path")
     if not path.is_file():
         raise ValueError(f"driver file not found: {path}")
     try:

@@ -8,7 +8,7 @@ from typing import Sequence
 import numpy as np
 import warp as wp
 
-from .._validate import MAX_COORDINATE, as_count
+from .._validate import MAX_COORDINATE, as_count, as_device
 from ..kernels_surface import triangle_area_vectors
 from ..mesh import FaceMesh
 from .batch_graph import BatchGraphs
@@ -119,7 +119,7 @@ class ExpressionModel:
         jaw_limits = np.full(len(self.control_names) - len(self.muscles), MAX_COORDINATE)
         self._contraction_limits = np.concatenate([contraction_limits(self.muscles), jaw_limits])
         self._depth_limits = np.full(len(self.wrinkles), MAX_COORDINATE)
-        self.device = wp.get_device(device)
+        self.device = as_device(device)
 
         self._mesh_buffers = mesh.device_buffers(device=self.device)
         weights = muscle_weights(mesh.points, self.muscles, device=self.device)

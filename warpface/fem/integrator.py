@@ -25,6 +25,7 @@ import time
 import numpy as np
 import warp as wp
 
+from .._validate import as_device
 from .assembly import FORMULATIONS, SystemMatrices, assemble
 from .material import TissueMaterial
 from .newmark import newmark_coefficients, validate_newmark
@@ -157,7 +158,7 @@ class TissueSimulation:
             raise ValueError(f"cg_preconditioner must be one of {PRECONDITIONERS}, got {cg_preconditioner!r}")
         material.per_tet(tetmesh.tet_count)  # size check with a clear message
         try:
-            device = wp.get_device(device)
+            device = as_device(device)
         except Exception:  # Warp raises RuntimeError/ValueError/TypeError for unknown devices
             raise ValueError(f"device {device!r} is not a Warp device here ({[str(d) for d in wp.get_devices()]})") from None
         if solver == "auto":

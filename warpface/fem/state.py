@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import warp as wp
+from .._validate import as_device
 
 __all__ = ["TissueControl", "TissueState"]
 
@@ -35,7 +36,7 @@ class TissueState:
 
     def __init__(self, node_count: int, *, dtype=wp.float64, device=None):
         vec = _vector_type(dtype)
-        device = wp.get_device(device)
+        device = as_device(device)
         self.d = wp.zeros(int(node_count), dtype=vec, device=device)
         """Displacement [m], shape (N,)."""
         self.v = wp.zeros(int(node_count), dtype=vec, device=device)
@@ -81,5 +82,5 @@ class TissueControl:
     def __init__(self, driven_count: int, *, dtype=wp.float64, device=None):
         self.driven_count = int(driven_count)
         """D."""
-        self.driven = wp.zeros(max(self.driven_count, 1), dtype=_vector_type(dtype), device=wp.get_device(device))
+        self.driven = wp.zeros(max(self.driven_count, 1), dtype=_vector_type(dtype), device=as_device(device))
         """Driven displacements [m], shape (max(D, 1),), in the solver's driven-node order."""

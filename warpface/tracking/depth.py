@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .._validate import as_count, as_finite_array, as_positive
+from .._validate import as_count, as_finite_array, as_positive, as_device
 
 __all__ = ["CameraIntrinsics", "backproject", "kth_smallest", "KINECT_V1_INTRINSICS", "MAX_PIXELS", "MAX_DEPTH", "MAX_DEPTH_WINDOW"]
 
@@ -532,7 +532,7 @@ def backproject(
     count = uv.shape[0]
     if count == 0:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
-    device = wp.get_device(device)
+    device = as_device(device)
     settings = (window // 2, 1 if model == "quadric" else 0, int(min_valid), float(intrinsics.fx), float(intrinsics.fy),
                 float(intrinsics.cx), float(intrinsics.cy), float(outlier_floor), float(max_slope), float(noise_floor),
                 int(max(iterations, 1)), float(min_inlier_fraction))

@@ -8,6 +8,7 @@ from typing import Iterable, Iterator, Sequence
 
 import numpy as np
 
+from .._validate import as_path
 from ._io import atomic_path
 from .frames import LandmarkFrame, SourceBase
 from .streams import StreamGuard, checked_frames, estimate_fps, validate_landmark_names
@@ -31,7 +32,7 @@ class RecordedLandmarks(SourceBase):
     """
 
     def __init__(self, path: str | Path, *, timestamp_policy: str = "reject"):
-        self.path = Path(path)
+        self.path = as_path(path, "path")
         if not self.path.is_file():
             raise ValueError(f"{self.path}: no such landmark file")
         try:
@@ -94,7 +95,7 @@ class RecordedLandmarks(SourceBase):
         iterable fails part-way (a camera unplugged), the frames received so far are still written
         and the exception is re-raised.
         """
-        path = Path(path)
+        path = as_path(path, "path")
         names = list(validate_landmark_names(landmark_names, len(landmark_names), str(path)))
         times, points, confidence = [], [], []
         failure: BaseException | None = None

@@ -28,7 +28,7 @@ from typing import Iterator, Sequence
 import numpy as np
 import warp as wp
 
-from .._validate import as_count, as_finite_array, as_points, as_positive
+from .._validate import as_count, as_finite_array, as_points, as_positive, as_device
 from ..mesh import FaceMesh
 from .depth import KINECT_V1_INTRINSICS, CameraIntrinsics
 from .frames import RGBDFrame, SourceBase
@@ -154,7 +154,7 @@ def _occluded(
 ) -> np.ndarray:
     """Vertices whose line of sight to ``eye`` is blocked by the mesh itself, shape (V,), bool."""
     center = points.mean(axis=0)
-    device = wp.get_device(device)
+    device = as_device(device)
     pts = wp.array((points - center).astype(np.float32), dtype=wp.vec3, device=device)
     mesh = wp.Mesh(points=pts, indices=wp.array(np.asarray(triangles, dtype=np.int32).reshape(-1), device=device))
     out = wp.zeros(points.shape[0], dtype=wp.int32, device=device)
