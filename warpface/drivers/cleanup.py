@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._validate import expect_instance
 from .channels import Curves, channel_range
 
 __all__ = ["OneEuroFilter", "neutral_values", "calibrate_neutral", "apply_gain_offset", "clamp_to_range",
@@ -108,6 +109,7 @@ def neutral_values(curves: Curves, neutral) -> np.ndarray:
 
 def calibrate_neutral(curves: Curves, neutral) -> Curves:
     """Remove the rest values of :func:`neutral_values` and stretch the rest of the range back to full."""
+    expect_instance(curves, Curves, "curves")
     rest = neutral_values(curves, neutral)
     tops = np.array([channel_range(n)[1] for n in curves.names])
     headroom = np.maximum(tops - rest, 1e-6 * tops)
@@ -136,6 +138,7 @@ def apply_gain_offset(curves: Curves, gain: dict[str, float] | None = None, offs
 
 def clamp_to_range(curves: Curves) -> Curves:
     """Values clamped to each channel's range; one note per clamped channel (count, extreme value)."""
+    expect_instance(curves, Curves, "curves")
     ranges = np.array([channel_range(n) for n in curves.names]).reshape(-1, 2)
     low, high = ranges[:, 0], ranges[:, 1]
     below, above = curves.values < low, curves.values > high
@@ -150,6 +153,7 @@ def clamp_to_range(curves: Curves) -> Curves:
 
 def resample(curves: Curves, fps: float) -> Curves:
     """Curves at ``t0 + k/fps`` for every k up to the last timestamp (linear interpolation); ``fps`` set."""
+    expect_instance(curves, Curves, "curves")
     fps = float(fps)
     if not math.isfinite(fps) or fps <= 0:
         raise ValueError(f"fps must be a positive number, got {fps!r}")
@@ -165,6 +169,7 @@ def resample(curves: Curves, fps: float) -> Curves:
 def clean(curves: Curves, *, neutral=None, gain=None, offset=None, clamp: bool = True,
           filter: OneEuroFilter | None = None, fps: float | None = None) -> Curves:
     """The clean-up steps of the module notes, in order; each is skipped when its argument is None/False."""
+    expect_instance(curves, Curves, "curves")
     if neutral is not None:
         curves = calibrate_neutral(curves, neutral)
     if gain or offset:

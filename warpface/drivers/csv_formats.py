@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validate import as_path
+from .._validate import as_path, expect_instance
 from .._files import atomic_path, read_text
 from .channels import ARKIT_CHANNELS, Curves, canonical_channel
 
@@ -106,6 +106,7 @@ def read_openface(path) -> Curves:
 def write_openface(path, curves: Curves) -> Path:
     """Write ``curves``' action-unit channels as an OpenFace 2.x-style CSV (``frame, timestamp,
     confidence, success, AUxx_r …``); other channels are left out. Written atomically."""
+    expect_instance(curves, Curves, "curves")
     path = as_path(path, "path")
     aus = [k for k, name in enumerate(curves.names) if re.match(r"^AU\d{2}$", name)]
     if not aus:
@@ -193,6 +194,7 @@ def _timecode(seconds: float, fps: float) -> str:
 def write_live_link(path, curves: Curves, *, fps: float | None = None, start_seconds: float = 0.0) -> Path:
     """Write ``curves``' ARKit channels as a Live Link Face CSV (all 52 columns, missing ones 0; head and
     eye rotations 0). ``fps`` (default ``curves.fps``, else 60) must be a whole frame rate. Atomic."""
+    expect_instance(curves, Curves, "curves")
     path = as_path(path, "path")
     rate = float(fps if fps is not None else (curves.fps or 60.0))
     if not math.isfinite(rate) or rate <= 0 or abs(rate - round(rate)) > 1e-9:

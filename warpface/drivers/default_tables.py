@@ -16,6 +16,8 @@ unmapped on rigs that do not.
 
 from __future__ import annotations
 
+from .._validate import expect_instance
+from ..rig import FaceRig
 from .mapping import Mapping
 
 __all__ = ["ARKIT_TABLE", "FACS_TABLE", "JAW_CONTROLS", "LENGTH_CONTROLS", "default_table", "mapping_for_rig",
@@ -108,11 +110,13 @@ def rig_control_names(rig) -> list[str]:
     This is the one place that decides which table rows a rig keeps: when rigs gain a jaw (SPEC §6.2),
     its controls (:data:`JAW_CONTROLS`) join this list and the jaw rows of the tables take effect.
     """
+    expect_instance(rig, FaceRig, "rig")
     return list(rig.control_names)
 
 
 def control_scales(rig, controls) -> dict[str, float]:
     """Factor from face units to the rig's units per control: the face size for lengths, else 1."""
+    expect_instance(rig, FaceRig, "rig")
     from ..assets.rig import rig_scale  # the assets package knows how to measure a landmarked face
 
     from ..expression.muscles import LinearMuscle
@@ -132,6 +136,7 @@ def mapping_for_rig(rig, kind: str = "all", *, name: str = "default") -> tuple[M
     Raises:
         RigError: a linear muscle is mapped but the rig has no landmarks to measure its size.
     """
+    expect_instance(rig, FaceRig, "rig")
     table = default_table(kind)
     mapping, dropped, orphaned = table.restricted_to(rig_control_names(rig))
     scales = control_scales(rig, mapping.controls)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validate import expect_instance
 from .channels import Curves, channel_range
 from .mapping import Mapping
 
@@ -37,6 +38,7 @@ def project_controls(mapping: Mapping, controls: dict[str, np.ndarray] | np.ndar
     Raises:
         ValueError: wrong shapes, non-finite values, an empty mapping.
     """
+    expect_instance(mapping, Mapping, "mapping")
     if not mapping.channels or not mapping.controls:
         raise ValueError(f"mapping {mapping.name!r} has no channels or controls to project onto")
     if isinstance(controls, dict):
@@ -84,6 +86,7 @@ def project_controls(mapping: Mapping, controls: dict[str, np.ndarray] | np.ndar
 def controls_to_curves(mapping: Mapping, times, controls, *, source: str = "export", fps: float | None = None,
                        **options) -> Curves:
     """:func:`project_controls` as :class:`Curves` (times [s], the mapping's channels) ready to write."""
+    expect_instance(mapping, Mapping, "mapping")
     weights = project_controls(mapping, controls, **options)
     return Curves(times=np.asarray(times, dtype=np.float64), names=list(mapping.channels), values=weights,
                   source=source, fps=fps)

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._validate import expect_instance
 from .channels import Curves
 
 __all__ = ["Mapping", "MappedControls"]
@@ -156,6 +157,7 @@ class Mapping:
         Channels of ``curves`` that the mapping does not know are ignored and listed in
         ``unmapped_channels``; mapped channels the curves lack count as zero.
         """
+        expect_instance(curves, Curves, "curves")
         index = {name: k for k, name in enumerate(curves.names)}
         present = [c for c, ch in enumerate(self.channels) if ch in index]
         signal = curves.values[:, [index[self.channels[c]] for c in present]]

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validate import as_path
+from .._validate import as_path, expect_instance
 from .._files import atomic_path, read_text
 from .channels import ARKIT_CHANNELS, Curves, canonical_channel
 
@@ -182,6 +182,7 @@ def read_mediapipe_jsonl(path, *, fps: float = 30.0) -> Curves:
 def write_mediapipe_textproto(path, curves: Curves) -> Path:
     """Write ``curves``' ARKit channels as repeated ``classification_list`` blocks with ``timestamp_ms``
     (one per frame; a single frame is written as a plain ``ClassificationList``). Atomic."""
+    expect_instance(curves, Curves, "curves")
     path = as_path(path, "path")
     columns = [k for k, n in enumerate(curves.names) if n in set(ARKIT_CHANNELS)]
     if not columns:
@@ -203,6 +204,7 @@ def write_mediapipe_textproto(path, curves: Curves) -> Path:
 
 def write_mediapipe_jsonl(path, curves: Curves) -> Path:
     """Write one JSON object per frame: ``{"timestamp_ms": …, "blendshapes": [{"category_name", "score"}, …]}``. Atomic."""
+    expect_instance(curves, Curves, "curves")
     path = as_path(path, "path")
     columns = [k for k, n in enumerate(curves.names) if n in set(ARKIT_CHANNELS)]
     if not columns:
