@@ -12,6 +12,7 @@ from types import MappingProxyType
 
 import numpy as np
 
+from .._validate import expect_instance
 from ..errors import RigError
 from ..expression.muscles import LinearMuscle
 from ..rig import FaceRig
@@ -66,6 +67,7 @@ def expression_contractions(name: str, rig: FaceRig, *, intensity: float = 1.0) 
         ValueError: unknown expression or non-finite intensity.
         RigError: the rig lacks one of the preset's muscles, or its landmarks.
     """
+    expect_instance(rig, FaceRig, "rig")
     if name not in EXPRESSIONS:
         raise ValueError(f"unknown expression {name!r} (known: {', '.join(EXPRESSIONS)})")
     intensity = float(intensity)
@@ -106,6 +108,7 @@ def expression_timeline(name: str, rig: FaceRig, seconds: float = 2.0, fps: floa
     ``F = round(seconds · fps) + 1`` frames: frame ``f`` is at time ``f / fps``, and both the first
     and the last frame are neutral. Feed it to :meth:`~warpface.ExpressionModel.evaluate_batch`.
     """
+    expect_instance(rig, FaceRig, "rig")
     seconds, fps = float(seconds), float(fps)
     if not (np.isfinite(seconds) and seconds > 0.0):
         raise ValueError(f"expression timeline: seconds must be > 0, got {seconds}")

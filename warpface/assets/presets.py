@@ -13,6 +13,7 @@ from types import MappingProxyType
 
 import numpy as np
 
+from .._validate import expect_instance
 from ..errors import RigError
 from ..expression.muscles import LinearMuscle
 from ..rig import FaceRig
@@ -87,6 +88,7 @@ def preset_controls(name: str, rig: FaceRig, *, intensity: float = 1.0) -> dict[
         ValueError: unknown preset or non-finite intensity.
         RigError: the rig lacks a control of the preset (e.g. a classic rig without a jaw), or landmarks.
     """
+    expect_instance(rig, FaceRig, "rig")
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
     intensity = float(intensity)

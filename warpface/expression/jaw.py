@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_finite_array, as_vec3, orthogonal_unit_vector, unit_vector
+from .._validate import as_finite_array, as_vec3, orthogonal_unit_vector, unit_vector, expect_instance
 
 __all__ = ["Jaw", "JAW_CONTROL_NAMES", "JAW_RANGE", "jaw_points"]
 
@@ -90,6 +90,7 @@ def jaw_points(jaw: Jaw, rest_points: np.ndarray, controls) -> np.ndarray:
         rest_points: shape (V, 3).
         controls: ``(jaw_open [rad], jaw_forward, jaw_left)`` [mesh units], shape (3,).
     """
+    expect_instance(jaw, Jaw, "jaw")
     angle, forward, left = (float(c) for c in as_finite_array(controls, "jaw controls", shape=(3,)))
     a = jaw.axis
     cross = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])

@@ -31,7 +31,7 @@ import numpy as np
 import warp as wp
 import warp.sparse as wps
 
-from .._validate import as_device
+from .._validate import as_device, expect_instance
 from .kernels_assembly import (
     element_triplets,
     mat13d,
@@ -126,6 +126,7 @@ def assemble(
     Raises:
         ValueError: unknown formulation, or material/mesh size mismatch.
     """
+    expect_instance(tetmesh, TetMesh, "tetmesh")
     if formulation not in FORMULATIONS:
         raise ValueError(f"assemble: formulation must be one of {FORMULATIONS}, got {formulation!r}")
     if not isinstance(tetmesh, TetMesh):

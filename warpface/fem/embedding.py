@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from .._validate import as_device
+from .._validate import as_device, expect_instance
 from ..geometry import closest_point_on_triangle
 from .tetmesh import MAX_COORDINATE, TET_EDGE_NODES, TetMesh
 
@@ -365,6 +365,7 @@ def embed_points(tetmesh: TetMesh, points, *, max_distance: float | None = None,
         ValueError: points are not finite or of the wrong shape, or a point is farther than
             ``max_distance`` from every tet (naming it and its position).
     """
+    expect_instance(tetmesh, TetMesh, "tetmesh")
     if not isinstance(tetmesh, TetMesh):
         raise ValueError(f"embed_points: expected a TetMesh, got {type(tetmesh).__name__}")
     try:

@@ -18,6 +18,7 @@ from types import MappingProxyType
 
 import numpy as np
 
+from .._validate import expect_instance
 from ..landmarks import kato_landmarks
 from .material import TissueMaterial
 from .presets import KATO_MODELS, KATO_REGIONS, KATO_UNIFORM
@@ -75,6 +76,7 @@ def landmark_regions(tetmesh: TetMesh, centres: Mapping[str, object], radius) ->
     Raises:
         ValueError: no regions, malformed positions, or a radius that is missing or not > 0.
     """
+    expect_instance(tetmesh, TetMesh, "tetmesh")
     if not centres:
         raise ValueError("landmark_regions: no regions given")
     names = list(centres)
@@ -113,6 +115,7 @@ def kato_regions(tetmesh: TetMesh, landmarks, *, radius=0.01) -> dict[str, np.nd
         Region name (all of :data:`KATO_REGIONS`) -> mask of shape (M,); "cheek" holds every tet in
         no landmark region.
     """
+    expect_instance(tetmesh, TetMesh, "tetmesh")
     if not isinstance(landmarks, Mapping):
         landmarks = kato_landmarks(landmarks)
     centres = {}
@@ -155,6 +158,7 @@ def kato_material_model(
     Raises:
         ValueError: unknown model, missing landmarks, or invalid material values.
     """
+    expect_instance(tetmesh, TetMesh, "tetmesh")
     if model not in KATO_MODELS:
         raise ValueError(f"kato_material_model: model must be one of {sorted(KATO_MODELS)}, got {model!r}")
     table = KATO_MODELS[model]

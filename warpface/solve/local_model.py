@@ -29,6 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from .._validate import expect_instance
+from ..rig import FaceRig
 from ..expression.tissue import skin_muscle_weights
 from ..expression.wrinkles import wrinkle_shapes
 
@@ -89,6 +91,7 @@ class RigOperators:
 
     @classmethod
     def from_rig(cls, rig, *, device=None) -> "RigOperators":
+        expect_instance(rig, FaceRig, "rig")
         mesh = rig.mesh
         rest = np.asarray(mesh.points, dtype=np.float64)
         triangles = mesh.triangles.astype(np.int64)

@@ -28,7 +28,7 @@ from typing import Iterator, Sequence
 import numpy as np
 import warp as wp
 
-from .._validate import as_count, as_finite_array, as_points, as_positive, as_device
+from .._validate import as_count, as_finite_array, as_points, as_positive, as_device, expect_instance
 from ..mesh import FaceMesh
 from .depth import KINECT_V1_INTRINSICS, CameraIntrinsics
 from .frames import RGBDFrame, SourceBase
@@ -73,6 +73,7 @@ class KinectNoise:
 
     def apply(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Corrupted copy of a depth image [m] (0 = no surface), float64."""
+        expect_instance(rng, np.random.Generator, "rng")
         z = np.asarray(depth, dtype=np.float64)
         valid = z > 0
         sigma = self.sigma0 + self.sigma2 * (z - self.z_ref) ** 2

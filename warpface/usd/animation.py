@@ -13,7 +13,7 @@ from typing import Mapping
 import numpy as np
 from pxr import Sdf, Usd
 
-from .._validate import as_finite_array, as_positive
+from .._validate import as_finite_array, as_positive, expect_instance
 from ..errors import RigError
 from ._files import open_stage
 from .rig_io import ItemPlacements, RigPrims, rig_prims, stage_meters_per_unit
@@ -113,6 +113,7 @@ def write_animation(stage: Usd.Stage, times, *, contractions=None, wrinkle_depth
         ValueError: wrong shapes, unknown names, non-finite values, repeated times.
         RigError: the stage's rig is invalid.
     """
+    expect_instance(stage, Usd.Stage, "stage")
     ensure_schema()
     times = as_time_codes(times)
     prims = rig_prims(stage, skin_path)
@@ -199,6 +200,7 @@ def frame_times(stage: Usd.Stage, skin_path: str | None = None, *, max_frames: i
         RigError: the stage's time range is not finite or ends before it starts.
         ValueError: more than ``max_frames`` frames (``None``: no limit).
     """
+    expect_instance(stage, Usd.Stage, "stage")
     if stage.HasAuthoredTimeCodeRange():
         start, end = stage.GetStartTimeCode(), stage.GetEndTimeCode()
         if not (math.isfinite(start) and math.isfinite(end)) or end < start:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
-from .._validate import as_finite_array, as_positive
+from .._validate import as_finite_array, as_positive, expect_instance, expect_instance
 from ..errors import RigError
 from ..fem.material import MATERIAL_RANGES, TissueMaterial
 from ..fem.tetmesh import TetMesh
@@ -101,6 +101,7 @@ def write_tissue(stage: Usd.Stage, path: str, points, tets, *, youngs_modulus, p
     Raises:
         ValueError: bad shapes, indices out of range, values out of range.
     """
+    expect_instance(stage, Usd.Stage, "stage")
     ensure_schema()
     tissue = _validated(points, tets, youngs_modulus, poisson_ratio, viscosity, density, regions or {}, path)
     mesh = UsdGeom.TetMesh.Define(stage, path)
@@ -290,6 +291,8 @@ def write_tissue_mesh(stage, path: str, tetmesh: TetMesh, material: TissueMateri
     Raises:
         ValueError: material of the wrong size, bad regions, or a tet USD reports as inverted.
     """
+    expect_instance(tetmesh, TetMesh, "tetmesh")
+    expect_instance(stage, Usd.Stage, "stage")
     if not isinstance(tetmesh, TetMesh):
         raise ValueError(f"write_tissue_mesh: expected a TetMesh, got {type(tetmesh).__name__}")
     if not isinstance(material, TissueMaterial):
