@@ -23,6 +23,7 @@ __all__ = [
     "as_positive",
     "as_bounded",
     "as_count",
+    "as_indices",
     "unit_vector",
     "orthogonal_unit_vector",
     "as_device",
@@ -46,8 +47,8 @@ def as_finite_array(value, name: str, *, shape: tuple | None = None, dtype=np.fl
         raise ValueError(f"{name}: expected numbers, got {type(value).__name__}")
     try:
         array = np.asarray(value, dtype=dtype)
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise ValueError(f"{name}: cannot convert to a numeric array ({_short(exc)})") from None
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name}: expected a number or a regular array of numbers, got {_kind(value)}") from None
     if shape is not None:
         if array.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, array.shape)):
             expected = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
@@ -82,8 +83,8 @@ def as_triangles(value, vertex_count: int, name: str, *, integral_floats: bool =
         raise ValueError(f"{name}: expected an integer array of shape (T, 3), got {type(value).__name__}")
     try:
         triangles = np.asarray(value)
-    except (TypeError, ValueError) as exc:  # ragged nesting
-        raise ValueError(f"{name}: cannot convert to an index array ({_short(exc)})") from None
+    except (TypeError, ValueError):  # ragged nesting
+        raise ValueError(f"{name}: expected a regular integer array of shape (T, 3), got {_kind(value)}") from None
     if triangles.ndim != 2 or triangles.shape[1] != 3:
         raise ValueError(f"{name}: expected shape (T, 3), got {triangles.shape}")
     if len(triangles) == 0:
@@ -163,6 +164,30 @@ def as_count(value, name: str, *, minimum: int = 0, maximum: int | None = None) 
     return count
 
 
+def as_indices(value, count: int, name: str) -> np.ndarray:
+    """A 1-D array of indices into ``count`` items, int64, each in [0, ``count``); integer dtype (or whole
+    floats), never bool. TypeError/ValueError naming ``name`` otherwise."""
+    if isinstance(value, (str, bytes, dict)) or value is None:
+        raise TypeError(f"{name}: expected an integer index array, got {type(value).__name__}")
+    try:
+        indices = np.asarray(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a flat integer index array, got {_kind(value)}") from None
+    if indices.ndim != 1:
+        raise ValueError(f"{name}: expected a flat (N,) index array, got shape {indices.shape}")
+    if indices.size and (indices.dtype == np.bool_ or not (np.issubdtype(indices.dtype, np.integer) or np.issubdtype(indices.dtype, np.floating))):
+        raise ValueError(f"{name}: expected integer indices, got dtype {indices.dtype}")
+    if np.issubdtype(indices.dtype, np.floating):
+        if not np.all(np.isfinite(indices)) or np.any(indices != np.round(indices)):
+            raise ValueError(f"{name}: indices must be whole numbers")
+        indices = np.clip(indices, -1, count)
+    indices = indices.astype(np.int64)
+    bad = np.flatnonzero((indices < 0) | (indices >= count))
+    if len(bad):
+        raise ValueError(f"{name}: index {int(indices[bad[0]])} at position {int(bad[0])} is out of range [0, {count})")
+    return indices
+
+
 def unit_vector(value, name: str) -> np.ndarray:
     """``value`` normalised to unit length; raises ValueError if it has zero length.
 
@@ -239,6 +264,21 @@ def expect_instance(value, types, name: str):
         expected = " or ".join(t.__name__ for t in (types if isinstance(types, tuple) else (types,)))
         raise TypeError(f"{name}: expected a {expected}, got {type(value).__name__}")
     return value
+
+
+def _kind(value) -> str:
+    """What ``value`` is, for a message: its type, and for containers the first element's type
+    that is not a number (``list containing dict``)."""
+    kind = type(value).__name__
+    if isinstance(value, (list, tuple)):
+        for item in value:
+            if not isinstance(item, (numbers.Number, np.generic)):
+                if isinstance(item, (list, tuple, np.ndarray)):
+                    return f"{kind} of unequal or nested sequences"
+                return f"{kind} containing {type(item).__name__}"
+    if isinstance(value, np.ndarray):
+        return f"array of dtype {value.dtype}"
+    return kind
 
 
 def _short(exc: Exception) -> str:

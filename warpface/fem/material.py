@@ -20,6 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+MAX_TETS = 1 << 27
+"""Largest tet count a per-tet material is made for (134 M; a face tissue has tens of thousands)."""
+
 __all__ = ["TissueMaterial", "DAMPING_MODELS", "MATERIAL_RANGES", "MaterialRange"]
 
 DAMPING_MODELS = ("stokes", "thesis")
@@ -187,8 +190,8 @@ class TissueMaterial:
         """
         if not isinstance(base, TissueMaterial):
             raise TypeError(f"TissueMaterial.from_regions base must be a TissueMaterial, got {type(base).__name__}")
-        if isinstance(tet_count, bool) or not isinstance(tet_count, (int, np.integer)) or tet_count < 1:
-            raise ValueError(f"TissueMaterial.from_regions tet_count must be an integer >= 1, got {tet_count!r}")
+        if isinstance(tet_count, bool) or not isinstance(tet_count, (int, np.integer)) or not 1 <= tet_count <= MAX_TETS:
+            raise ValueError(f"TissueMaterial.from_regions tet_count must be an integer in [1, {MAX_TETS}], got {tet_count!r}")
         if not isinstance(regions, Mapping) or not isinstance(overrides, Mapping):
             raise TypeError("TissueMaterial.from_regions regions and overrides must be mappings (name -> ...)")
         fields = base.per_tet(int(tet_count))
