@@ -29,6 +29,7 @@ __all__ = [
     "as_device",
     "as_path",
     "expect_instance",
+    "expect_iterable",
 ]
 
 MAX_COORDINATE = 1.0e6
@@ -73,7 +74,7 @@ def as_points(value, name: str, *, max_abs: float = MAX_COORDINATE, min_count: i
     return points
 
 
-def as_triangles(value, vertex_count: int, name: str, *, integral_floats: bool = False) -> np.ndarray:
+def as_triangles(value, vertex_count: int, name: str, *, integral_floats: bool = False, allow_empty: bool = False) -> np.ndarray:
     """Triangle vertex indices, shape (T, 3) with T ≥ 1, int32, each in [0, vertex_count).
 
     Index arrays must have an integer dtype; with ``integral_floats``, float arrays whose values are
@@ -87,7 +88,7 @@ def as_triangles(value, vertex_count: int, name: str, *, integral_floats: bool =
         raise ValueError(f"{name}: expected a regular integer array of shape (T, 3), got {_kind(value)}") from None
     if triangles.ndim != 2 or triangles.shape[1] != 3:
         raise ValueError(f"{name}: expected shape (T, 3), got {triangles.shape}")
-    if len(triangles) == 0:
+    if len(triangles) == 0 and not allow_empty:
         raise ValueError(f"{name}: no triangles")
     if triangles.dtype == np.bool_ or not (np.issubdtype(triangles.dtype, np.integer) or np.issubdtype(triangles.dtype, np.floating)):
         raise ValueError(f"{name}: expected integer vertex indices, got dtype {triangles.dtype}")
@@ -264,6 +265,25 @@ def expect_instance(value, types, name: str):
         expected = " or ".join(t.__name__ for t in (types if isinstance(types, tuple) else (types,)))
         raise TypeError(f"{name}: expected a {expected}, got {type(value).__name__}")
     return value
+
+
+def expect_iterable(value, name: str, *, item_types=None, sized: bool = False):
+    """``value`` when it is an iterable (a sized collection with ``sized``), not a string or bytes, else
+    a TypeError naming ``name``. With ``item_types`` the items are checked lazily: the returned
+    generator raises TypeError at the first item of another type."""
+    from collections.abc import Iterable, Sized
+
+    if isinstance(value, (str, bytes, dict)) or not isinstance(value, Iterable) or (sized and not isinstance(value, Sized)):
+        raise TypeError(f"{name}: expected {'a list' if sized else 'an iterable'} of items, got {type(value).__name__}")
+    if item_types is None:
+        return value
+
+    def checked():
+        for position, item in enumerate(value):
+            expect_instance(item, item_types, f"{name}[{position}]")
+            yield item
+
+    return checked()
 
 
 def _kind(value) -> str:

@@ -91,14 +91,23 @@ class CameraIntrinsics:
 
     def project(self, points) -> np.ndarray:
         """Pixel coordinates of camera-frame points [m], shape (N, 3) → (N, 2), float64."""
-        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        p = as_finite_array(points, "points", max_abs=MAX_DEPTH)
+        if p.size % 3 or (p.ndim and p.shape[-1] != 3):
+            raise ValueError(f"points: expected shape (N, 3), got {p.shape}")
+        p = p.reshape(-1, 3)
+        behind = np.flatnonzero(p[:, 2] <= 0.0)
+        if len(behind):
+            raise ValueError(f"points: point {int(behind[0])} is not in front of the camera (z = {p[behind[0], 2]:.6g} m)")
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.stack([self.fx * p[:, 0] / p[:, 2] + self.cx, self.fy * p[:, 1] / p[:, 2] + self.cy], axis=1)
 
     def unproject(self, pixels, depth) -> np.ndarray:
         """Camera-frame points [m] of pixels (N, 2) at depths Z (N,) [m], shape (N, 3), float64."""
-        uv = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
-        z = np.asarray(depth, dtype=np.float64).reshape(-1)
+        uv = as_finite_array(pixels, "pixels", max_abs=1e7)
+        z = as_finite_array(depth, "depth", max_abs=MAX_DEPTH).reshape(-1)
+        if uv.size % 2 or (uv.ndim and uv.shape[-1] != 2) or uv.size // 2 != z.size:
+            raise ValueError(f"pixels, depth: expected shapes (N, 2) and (N,), got {uv.shape} and {np.shape(depth)}")
+        uv = uv.reshape(-1, 2)
         return np.stack([(uv[:, 0] - self.cx) * z / self.fx, (uv[:, 1] - self.cy) * z / self.fy, z], axis=1)
 
     def to_pyrender(self) -> tuple[float, float, float, float]:

@@ -8,7 +8,7 @@ from typing import Iterable, Iterator, Sequence
 
 import numpy as np
 
-from .._validate import as_path
+from .._validate import as_path, as_positive, expect_iterable
 from ._io import atomic_path
 from .frames import LandmarkFrame, SourceBase
 from .streams import StreamGuard, checked_frames, estimate_fps, validate_landmark_names
@@ -96,6 +96,9 @@ class RecordedLandmarks(SourceBase):
         and the exception is re-raised.
         """
         path = as_path(path, "path")
+        landmark_names = expect_iterable(landmark_names, "landmark_names", sized=True)
+        frames = expect_iterable(frames, "frames")
+        fps = None if fps is None else as_positive(fps, "fps", maximum=1e6)
         names = list(validate_landmark_names(landmark_names, len(landmark_names), str(path)))
         times, points, confidence = [], [], []
         failure: BaseException | None = None
