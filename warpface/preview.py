@@ -11,9 +11,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Sequence
 
-from ._validate import as_path
-
 import numpy as np
+
+from ._validate import as_bounded, as_count, as_finite_array, as_path, as_points, as_positive, as_vec3
 
 __all__ = ["Camera", "PreviewRenderer", "render", "render_comparison", "render_heat_map", "heat_colors", "write_video",
            "save_image", "check_offscreen_rendering", "scale_label"]
@@ -34,10 +34,21 @@ class Camera:
     target: np.ndarray
     yfov_deg: float = 30.0
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "eye", as_vec3(self.eye, "camera eye"))
+        object.__setattr__(self, "target", as_vec3(self.target, "camera target"))
+        if np.array_equal(self.eye, self.target):
+            raise ValueError("camera: eye and target coincide")
+        object.__setattr__(self, "yfov_deg", as_bounded(self.yfov_deg, "camera yfov_deg", 0.1, 179.0))
+
     @classmethod
     def framing(cls, points: np.ndarray, *, yaw_deg: float = 0.0, pitch_deg: float = 0.0, margin: float = 1.15,
                 yfov_deg: float = 30.0, aspect: float = 4 / 3) -> "Camera":
         """A camera that fits the bounding box of ``points`` (V, 3), looking along −Z (rotated by yaw/pitch)."""
+        points = as_points(points, "points", min_count=1)
+        yaw_deg, pitch_deg = (as_bounded(a, n, -3600.0, 3600.0) for a, n in ((yaw_deg, "yaw_deg"), (pitch_deg, "pitch_deg")))
+        margin, aspect = as_positive(margin, "margin", maximum=1e3), as_positive(aspect, "aspect", maximum=1e3)
+        yfov_deg = as_bounded(yfov_deg, "yfov_deg", 0.1, 179.0)
         lo, hi = points.min(axis=0), points.max(axis=0)
         centre = 0.5 * (lo + hi)
         half = 0.5 * (hi - lo)
@@ -51,6 +62,8 @@ class Camera:
     def for_face(cls, landmark_points: np.ndarray, *, yaw_deg: float = 0.0, pitch_deg: float = 0.0) -> "Camera":
         """A portrait camera from 68 landmark positions (L, 3): aimed a little above their centre (the
         landmarks stop at the brows) and far enough to frame forehead to chin, 22° field of view."""
+        landmark_points = as_points(landmark_points, "landmark_points", min_count=2)
+        yaw_deg, pitch_deg = (as_bounded(a, n, -3600.0, 3600.0) for a, n in ((yaw_deg, "yaw_deg"), (pitch_deg, "pitch_deg")))
         lo, hi = landmark_points.min(axis=0), landmark_points.max(axis=0)
         height = float(hi[1] - lo[1])
         target = 0.5 * (lo + hi) + np.array([0.0, 0.25 * height, 0.0])
@@ -97,6 +110,7 @@ class PreviewRenderer:
 
     def __init__(self, triangles: np.ndarray, size: tuple[int, int] = (640, 480), camera: Camera | None = None,
                  background=(1.0, 1.0, 1.0), interior=None):
+        size = _image_size(size)
         platform = check_offscreen_rendering()
         from .offscreen import INSTALL_HINT, OffscreenUnavailable
 
@@ -203,9 +217,11 @@ def heat_colors(values: np.ndarray, *, vmin: float | None = None, vmax: float | 
     """Map scalar values (V,) to RGB colours (V, 3) in [0, 1] with a matplotlib colormap."""
     from matplotlib import colormaps
 
-    values = np.asarray(values, dtype=np.float64)
-    lo = float(np.nanmin(values)) if vmin is None else vmin
-    hi = float(np.nanmax(values)) if vmax is None else vmax
+    if not isinstance(cmap, str) or cmap not in colormaps:
+        raise ValueError(f"cmap: {str(cmap)[:40]!r} is not a matplotlib colormap")
+    values = as_finite_array(values, "values", shape=(None,))
+    lo = float(values.min(initial=0.0)) if vmin is None else as_bounded(vmin, "vmin", -1e300, 1e300)
+    hi = float(values.max(initial=0.0)) if vmax is None else as_bounded(vmax, "vmax", -1e300, 1e300)
     scaled = np.clip((values - lo) / (hi - lo if hi > lo else 1.0), 0.0, 1.0)
     return colormaps[cmap](scaled)[:, :3]
 
@@ -220,9 +236,12 @@ def render_heat_map(points: np.ndarray, triangles: np.ndarray, values: np.ndarra
     the same ones to compare them. ``scale`` multiplies the values shown on the colour bar (e.g. 1000
     to show metres as millimetres).
     """
-    values = np.asarray(values, dtype=np.float64)
-    vmin = float(values.min()) if vmin is None else float(vmin)
-    vmax = float(values.max()) if vmax is None else float(vmax)
+    if _image_size(size)[1] < MIN_HEAT_MAP_HEIGHT:
+        raise ValueError(f"size: a heat map needs at least {MIN_HEAT_MAP_HEIGHT} px of height for its colour bar, got {size[1]}")
+    scale = as_bounded(scale, "scale", -1e12, 1e12)
+    values = as_finite_array(values, "values", shape=(None,))
+    vmin = float(values.min(initial=0.0)) if vmin is None else as_bounded(vmin, "vmin", -1e300, 1e300)
+    vmax = float(values.max(initial=0.0)) if vmax is None else as_bounded(vmax, "vmax", -1e300, 1e300)
     image = render(points, triangles, camera=camera, size=size, colors=heat_colors(values, vmin=vmin, vmax=vmax, cmap=cmap),
                    background=background, interior=interior)
     image = _color_bar(image, vmin * scale, vmax * scale, units, cmap)
@@ -247,6 +266,8 @@ def write_video(frames: Iterable[np.ndarray], triangles: np.ndarray, path: str |
     from ._files import atomic_path
 
     path = as_path(path, "path")
+    size = _image_size(size)
+    fps = as_positive(fps, "fps", maximum=1000.0)
     if progress:
         from tqdm import tqdm
 
@@ -299,10 +320,23 @@ def scale_label(value: float, span: float) -> str:
     digits of the span): 8.68e-08 on a 15 mm bar is "0", 14.97 is "15.0"."""
     import math
 
+    value = as_bounded(value, "value", -1e300, 1e300)
+    span = float(as_finite_array(span, "span", shape=()))
     span = abs(span) if math.isfinite(span) and span > 0 else abs(value) or 1.0
     decimals = max(0, 2 - math.floor(math.log10(span)))
     text = f"{round(value, decimals):.{decimals}f}"
     return "0" if float(text) == 0 else text
+
+
+MIN_HEAT_MAP_HEIGHT = 120
+"""Smallest image height [px] with room for a heat map's colour bar and its two labels."""
+
+
+def _image_size(size) -> tuple[int, int]:
+    """``(width, height)`` in pixels, each in [8, 16384]; ValueError naming ``size`` otherwise."""
+    if isinstance(size, (str, bytes)) or not hasattr(size, "__len__") or len(size) != 2:
+        raise ValueError(f"size: expected (width, height) in pixels, got {type(size).__name__}")
+    return tuple(as_count(int(n) if isinstance(n, np.integer) else n, "size", minimum=8, maximum=16384) for n in size)
 
 
 def _color_bar(image: np.ndarray, vmin: float, vmax: float, units: str, cmap: str) -> np.ndarray:
