@@ -13,7 +13,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from .._validate import expect_instance
+from .._validate import as_finite_array, expect_instance
 from ..errors import RigError
 from ..expression.muscles import LinearMuscle
 from ..rig import FaceRig
@@ -89,9 +89,9 @@ def preset_controls(name: str, rig: FaceRig, *, intensity: float = 1.0) -> dict[
         RigError: the rig lacks a control of the preset (e.g. a classic rig without a jaw), or landmarks.
     """
     expect_instance(rig, FaceRig, "rig")
-    if name not in PRESETS:
+    if not isinstance(name, str) or name not in PRESETS:
         raise ValueError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
-    intensity = float(intensity)
+    intensity = float(as_finite_array(intensity, f"preset {name!r}: intensity", shape=()))
     if not np.isfinite(intensity):
         raise ValueError(f"preset {name!r}: intensity must be finite, got {intensity}")
     known = set(rig.control_names)
