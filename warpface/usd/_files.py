@@ -22,6 +22,14 @@ _PXR_NAMESPACE = re.compile(r"pxrInternal_v[0-9_]+?__pxrReserved__::")
 _PXR_DIAGNOSTIC = re.compile(r"\s*(?:Error|Warning|Coding Error|Fatal Error) in '[^']*' at line \d+ in file [^\n]*? : '")
 
 
+_WRITE_FAILURES = (
+    ("No space left", "the disk is full (No space left on device)"),
+    ("File too large", "the disk is full or the file size limit is reached (File too large)"),
+    ("Disk quota exceeded", "the disk quota is exceeded"),
+)
+"""pxr write errors whose first symptom says it all: (text in pxr's message, what to print instead)."""
+
+
 def usd_error_message(error: BaseException) -> str:
     """One line from a pxr ``Tf.ErrorException`` (or any exception): the diagnostics' own messages
     joined with "; ", without C++ function names, source files and line numbers."""
@@ -33,7 +41,11 @@ def usd_error_message(error: BaseException) -> str:
         piece = " ".join(_PXR_NAMESPACE.sub("", piece).split())
         if piece:
             messages.append(piece)
-    return "; ".join(dict.fromkeys(messages)) or type(error).__name__
+    joined = "; ".join(dict.fromkeys(messages)) or type(error).__name__
+    for symptom, meaning in _WRITE_FAILURES:
+        if symptom in joined:  # a failed write: pxr's follow-up messages ("crate file corrupt ...") are noise
+            return meaning
+    return joined
 
 
 def open_layer(path, *, referenced_by: str | None = None) -> Sdf.Layer | None:
