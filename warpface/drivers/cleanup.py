@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import expect_instance
+from .._validate import as_finite_array, as_positive, expect_instance
 from .channels import Curves, channel_range
 
 __all__ = ["OneEuroFilter", "neutral_values", "calibrate_neutral", "apply_gain_offset", "clamp_to_range",
@@ -74,6 +74,10 @@ class OneEuroFilter:
         return out
 
 
+MAX_RESAMPLED_FRAMES = 10_000_000
+"""Most frames :func:`resample` makes (over 3 days at 30 fps)."""
+
+
 def neutral_values(curves: Curves, neutral) -> np.ndarray:
     """Per-channel rest values (C,) from ``neutral``: a frame index (int), a segment ``(t0, t1)`` [s]
     whose frames are averaged, or ``{channel: value}`` (others 0).
@@ -87,7 +91,7 @@ def neutral_values(curves: Curves, neutral) -> np.ndarray:
             raise ValueError(f"neutral: unknown channel {unknown[0]!r} (channels: {', '.join(curves.names[:6])}, …)")
         rest = np.zeros(len(curves.names))
         for name, value in neutral.items():
-            number = float(value)
+            number = float(as_finite_array(value, f"neutral[{name!r}]", shape=()))
             if not math.isfinite(number):
                 raise ValueError(f"neutral: value of {name!r} is not a finite number")
             rest[curves.names.index(name)] = number
@@ -125,10 +129,12 @@ def apply_gain_offset(curves: Curves, gain: dict[str, float] | None = None, offs
     """
     values = curves.values.copy()
     for label, table, apply in (("gain", gain, np.multiply), ("offset", offset, np.add)):
+        if table is not None and not isinstance(table, dict):
+            raise TypeError(f"{label}: expected {{channel: number}}, got {type(table).__name__}")
         for name, number in (table or {}).items():
             if name not in curves.names:
                 raise ValueError(f"{label}: {curves.source} has no channel {name!r}")
-            number = float(number)
+            number = float(as_finite_array(number, f"{label}[{name!r}]", shape=()))
             if not math.isfinite(number):
                 raise ValueError(f"{label} of {name!r}: not a finite number")
             column = curves.names.index(name)
@@ -154,11 +160,11 @@ def clamp_to_range(curves: Curves) -> Curves:
 def resample(curves: Curves, fps: float) -> Curves:
     """Curves at ``t0 + k/fps`` for every k up to the last timestamp (linear interpolation); ``fps`` set."""
     expect_instance(curves, Curves, "curves")
-    fps = float(fps)
-    if not math.isfinite(fps) or fps <= 0:
-        raise ValueError(f"fps must be a positive number, got {fps!r}")
+    fps = as_positive(fps, "fps", maximum=1e4)
     start, end = curves.times[0], curves.times[-1]
     count = int(math.floor((end - start) * fps + 1e-9)) + 1
+    if count > MAX_RESAMPLED_FRAMES:
+        raise ValueError(f"fps: resampling {end - start:g} s at {fps:g} fps gives {count} frames, more than {MAX_RESAMPLED_FRAMES}")
     times = start + np.arange(count) / fps
     values = np.empty((count, len(curves.names)))
     for column in range(len(curves.names)):
@@ -177,6 +183,7 @@ def clean(curves: Curves, *, neutral=None, gain=None, offset=None, clamp: bool =
     if clamp:
         curves = clamp_to_range(curves)
     if filter is not None:
+        expect_instance(filter, OneEuroFilter, "filter")
         curves = curves.replace(values=filter(curves.times, curves.values))
     if fps is not None:
         curves = resample(curves, fps)

@@ -16,7 +16,7 @@ unmapped on rigs that do not.
 
 from __future__ import annotations
 
-from .._validate import expect_instance
+from .._validate import expect_instance, expect_iterable
 from ..rig import FaceRig
 from .mapping import Mapping
 
@@ -99,7 +99,7 @@ FACS_TABLE: tuple[tuple[str, str, float], ...] = tuple((au, control, w / 5.0) fo
 def default_table(kind: str = "all") -> Mapping:
     """The default table in face units: ``"arkit"``, ``"facs"`` or ``"all"`` (both; their channels differ)."""
     tables = {"arkit": ARKIT_TABLE, "facs": FACS_TABLE, "all": ARKIT_TABLE + FACS_TABLE}
-    if kind not in tables:
+    if not isinstance(kind, str) or kind not in tables:
         raise ValueError(f"default table {kind!r}: expected one of {', '.join(tables)}")
     return Mapping.from_entries(tables[kind], name="default")
 
@@ -122,6 +122,7 @@ def control_scales(rig, controls) -> dict[str, float]:
     from ..expression.muscles import LinearMuscle
 
     linear = {m.name for m in rig.muscles if isinstance(m, LinearMuscle)} | set(LENGTH_CONTROLS)
+    controls = list(expect_iterable(controls, "controls", item_types=str))
     needs_scale = [c for c in controls if c in linear]
     scale = rig_scale(rig) if needs_scale else 1.0
     return {c: (scale if c in linear else 1.0) for c in controls}

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validate import expect_instance
+from .._validate import as_count, as_finite_array, as_positive, expect_instance
 from .channels import Curves, channel_range
 from .mapping import Mapping
 
@@ -41,9 +41,13 @@ def project_controls(mapping: Mapping, controls: dict[str, np.ndarray] | np.ndar
     expect_instance(mapping, Mapping, "mapping")
     if not mapping.channels or not mapping.controls:
         raise ValueError(f"mapping {mapping.name!r} has no channels or controls to project onto")
+    ridge = as_positive(ridge, "ridge", allow_zero=True, maximum=1e6)
+    tolerance = as_positive(tolerance, "tolerance", maximum=1.0)
+    max_iterations = as_count(max_iterations, "max_iterations", minimum=1, maximum=10_000_000)
     if isinstance(controls, dict):
         unknown = [k for k in controls if k not in mapping.controls]
-        frames = {len(np.atleast_1d(v)) for v in controls.values()}
+        controls = {name: as_finite_array(series, f"controls[{name!r}]", max_abs=1e12).reshape(-1) for name, series in controls.items()}
+        frames = {len(v) for v in controls.values()}
         if len(frames) != 1:
             raise ValueError("controls: every control needs the same number of frames")
         count = frames.pop()
@@ -53,7 +57,7 @@ def project_controls(mapping: Mapping, controls: dict[str, np.ndarray] | np.ndar
                 continue
             table[:, mapping.controls.index(name)] = np.asarray(series, dtype=np.float64).reshape(count)
     else:
-        table = np.asarray(controls, dtype=np.float64)
+        table = as_finite_array(controls, "controls", max_abs=1e12)
         if table.ndim != 2 or table.shape[1] != len(mapping.controls):
             raise ValueError(f"controls: expected shape (F, {len(mapping.controls)}), got {table.shape}")
     if not np.isfinite(table).all():
