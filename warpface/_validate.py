@@ -30,6 +30,7 @@ __all__ = [
     "as_path",
     "expect_instance",
     "expect_iterable",
+    "shape_of",
 ]
 
 MAX_COORDINATE = 1.0e6
@@ -273,7 +274,8 @@ def expect_iterable(value, name: str, *, item_types=None, sized: bool = False):
     generator raises TypeError at the first item of another type."""
     from collections.abc import Iterable, Sized
 
-    if isinstance(value, (str, bytes, dict)) or not isinstance(value, Iterable) or (sized and not isinstance(value, Sized)):
+    if (isinstance(value, (str, bytes, dict)) or not isinstance(value, Iterable) or (sized and not isinstance(value, Sized))
+            or (isinstance(value, np.ndarray) and value.ndim == 0)):
         raise TypeError(f"{name}: expected {'a list' if sized else 'an iterable'} of items, got {type(value).__name__}")
     if item_types is None:
         return value
@@ -284,6 +286,14 @@ def expect_iterable(value, name: str, *, item_types=None, sized: bool = False):
             yield item
 
     return checked()
+
+
+def shape_of(value) -> tuple | None:
+    """NumPy's shape of ``value``, or None for a ragged nesting NumPy cannot make an array of."""
+    try:
+        return np.shape(value)
+    except (TypeError, ValueError):
+        return None
 
 
 def _kind(value) -> str:

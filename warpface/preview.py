@@ -13,7 +13,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from ._validate import as_bounded, as_count, as_finite_array, as_path, as_points, as_positive, as_vec3
+from ._validate import MAX_COORDINATE, as_bounded, as_count, as_finite_array, as_path, as_points, as_positive, as_vec3, shape_of
 
 __all__ = ["Camera", "PreviewRenderer", "render", "render_comparison", "render_heat_map", "heat_colors", "write_video",
            "save_image", "check_offscreen_rendering", "scale_label"]
@@ -47,7 +47,7 @@ class Camera:
         """A camera that fits the bounding box of ``points`` (V, 3), looking along −Z (rotated by yaw/pitch)."""
         points = as_points(points, "points", min_count=1)
         yaw_deg, pitch_deg = (as_bounded(a, n, -3600.0, 3600.0) for a, n in ((yaw_deg, "yaw_deg"), (pitch_deg, "pitch_deg")))
-        margin, aspect = as_positive(margin, "margin", maximum=1e3), as_positive(aspect, "aspect", maximum=1e3)
+        margin, aspect = as_bounded(margin, "margin", 1e-3, 1e3), as_bounded(aspect, "aspect", 1e-3, 1e3)
         yfov_deg = as_bounded(yfov_deg, "yfov_deg", 0.1, 179.0)
         lo, hi = points.min(axis=0), points.max(axis=0)
         centre = 0.5 * (lo + hi)
@@ -56,7 +56,11 @@ class Camera:
         distance = margin * max(half[1] / np.tan(fov / 2), half[0] / (np.tan(fov / 2) * aspect)) + half[2]
         yaw, pitch = np.radians(yaw_deg), np.radians(pitch_deg)
         direction = np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
-        return cls(eye=centre + distance * direction, target=centre, yfov_deg=yfov_deg)
+        eye = centre + distance * direction
+        if not np.all(np.abs(eye) <= MAX_COORDINATE):
+            raise ValueError(f"camera framing: the points need a camera {distance:.3g} units away, beyond ±{MAX_COORDINATE:g} "
+                             "(check points, margin, yfov_deg and aspect)")
+        return cls(eye=eye, target=centre, yfov_deg=yfov_deg)
 
     @classmethod
     def for_face(cls, landmark_points: np.ndarray, *, yaw_deg: float = 0.0, pitch_deg: float = 0.0) -> "Camera":
@@ -292,6 +296,10 @@ def write_video(frames: Iterable[np.ndarray], triangles: np.ndarray, path: str |
     return path
 
 
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+"""File name endings :func:`save_image` writes (OpenCV picks the format from the ending)."""
+
+
 def save_image(path: str | Path, image: np.ndarray) -> Path:
     """Write an RGB uint8 image as PNG via a temporary file and a rename."""
     import cv2
@@ -299,6 +307,14 @@ def save_image(path: str | Path, image: np.ndarray) -> Path:
     from ._files import atomic_path
 
     path = as_path(path, "path")
+    if path.suffix.lower() not in IMAGE_SUFFIXES:
+        raise ValueError(f"{path}: an image file must end in one of {', '.join(IMAGE_SUFFIXES)}")
+    pixels = as_finite_array(image, "image", max_abs=1e300)
+    if pixels.ndim != 3 or pixels.shape[2] != 3 or not pixels.shape[0] or not pixels.shape[1]:
+        raise ValueError(f"image: expected RGB pixels of shape (H, W, 3), got {pixels.shape}")
+    if pixels.min() < 0 or pixels.max() > 255:
+        raise ValueError("image: values must be in [0, 255]")
+    image = pixels.astype(np.uint8)
     with atomic_path(path, path.suffix) as temporary:
         if not cv2.imwrite(str(temporary), cv2.cvtColor(np.asarray(image, dtype=np.uint8), cv2.COLOR_RGB2BGR)):
             raise ValueError(f"cannot write image {path}")
@@ -334,7 +350,7 @@ MIN_HEAT_MAP_HEIGHT = 120
 
 def _image_size(size) -> tuple[int, int]:
     """``(width, height)`` in pixels, each in [8, 16384]; ValueError naming ``size`` otherwise."""
-    if isinstance(size, (str, bytes)) or not hasattr(size, "__len__") or len(size) != 2:
+    if not isinstance(size, (list, tuple, np.ndarray)) or shape_of(size) != (2,):
         raise ValueError(f"size: expected (width, height) in pixels, got {type(size).__name__}")
     return tuple(as_count(int(n) if isinstance(n, np.integer) else n, "size", minimum=8, maximum=16384) for n in size)
 

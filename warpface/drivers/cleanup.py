@@ -103,7 +103,7 @@ def neutral_values(curves: Curves, neutral) -> np.ndarray:
     try:
         start, end = (float(t) for t in neutral)
     except (TypeError, ValueError):
-        raise ValueError(f"neutral: expected a frame index, a (start, end) segment in seconds or {{channel: value}}, got {neutral!r}") from None
+        raise ValueError(f"neutral: expected a frame index, a (start, end) segment in seconds or {{channel: value}}, got {type(neutral).__name__}") from None
     inside = (curves.times >= start) & (curves.times <= end)
     if not inside.any():
         raise ValueError(f"neutral segment [{start:g}, {end:g}] s contains no frame of {curves.source} "

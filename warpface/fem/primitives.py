@@ -11,7 +11,7 @@ import itertools
 
 import numpy as np
 
-from .._validate import as_count, as_finite_array
+from .._validate import as_count, as_finite_array, shape_of
 from .tetmesh import TetMesh, tet_signed_volumes
 
 MAX_CELLS = 1000
@@ -58,7 +58,7 @@ def box_tet_mesh(size, cells) -> TetMesh:
     size = as_finite_array(size, "box_tet_mesh: size", shape=(3,))
     if not np.all(size > 0):
         raise ValueError(f"box_tet_mesh: size must be three positive lengths, got {size.tolist()}")
-    if isinstance(cells, (str, bytes)) or not hasattr(cells, "__len__") or len(cells) != 3:
+    if isinstance(cells, (str, bytes, dict)) or not isinstance(cells, (list, tuple, np.ndarray)) or shape_of(cells) != (3,):
         raise ValueError(f"box_tet_mesh: cells must be three counts (nx, ny, nz), got {type(cells).__name__}")
     nx, ny, nz = (as_count(c, "box_tet_mesh: cells", minimum=1, maximum=MAX_CELLS) for c in cells)
     if nx * ny * nz > MAX_CELLS**2:
