@@ -15,6 +15,7 @@ import numpy as np
 
 __all__ = [
     "MAX_COORDINATE",
+    "MAX_VERTICES",
     "as_finite_array",
     "as_points",
     "as_triangles",
@@ -37,6 +38,10 @@ MAX_COORDINATE = 1.0e6
 """Largest accepted |coordinate|, length or thickness [mesh units]. The per-frame kernels run in
 float32 and square edge cross products (≈ length⁴), which overflow float32 (3.4e38) near 1e9; 1e6
 leaves room for deformation, and covers faces in metres, millimetres or micrometres."""
+
+
+MAX_VERTICES = 1 << 26
+"""Largest vertex count a per-vertex array is made for (67 M; a face mesh has tens of thousands)."""
 
 
 def as_finite_array(value, name: str, *, shape: tuple | None = None, dtype=np.float64, max_abs: float | None = None) -> np.ndarray:

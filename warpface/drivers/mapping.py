@@ -175,6 +175,7 @@ class Mapping:
         ``unmapped_channels``; mapped channels the curves lack count as zero.
         """
         expect_instance(curves, Curves, "curves")
+        active_threshold = float(as_finite_array(active_threshold, "active_threshold", shape=()))
         index = {name: k for k, name in enumerate(curves.names)}
         present = [c for c, ch in enumerate(self.channels) if ch in index]
         signal = curves.values[:, [index[self.channels[c]] for c in present]]

@@ -25,7 +25,7 @@ import time
 import numpy as np
 import warp as wp
 
-from .._validate import as_device
+from .._validate import as_device, as_finite_array
 from .assembly import FORMULATIONS, SystemMatrices, assemble
 from .material import TissueMaterial
 from .newmark import newmark_coefficients, validate_newmark
@@ -306,7 +306,7 @@ class TissueSimulation:
         n = self.node_count
         state = []
         for name, value in (("displacement", displacement), ("velocity", velocity)):
-            arr = np.zeros((n, 3)) if value is None else np.array(value, dtype=np.float64)
+            arr = np.zeros((n, 3)) if value is None else as_finite_array(value, f"reset {name}")
             if arr.shape != (n, 3):
                 raise ValueError(f"reset {name} must have shape ({n}, 3), got {arr.shape}")
             bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))

@@ -66,8 +66,8 @@ and factorisable: ``nu`` up to 0.4999 gives a Lamé ratio lambda/mu of 5,000 (ne
 def _as_field(name: str, value) -> np.ndarray | float:
     try:
         arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"TissueMaterial {name} must be a number or an array of numbers: {exc}") from None
+    except (TypeError, ValueError):
+        raise ValueError(f"TissueMaterial {name} must be a number or an array of numbers") from None
     if arr.ndim == 0:
         return float(arr)
     if arr.ndim != 1:

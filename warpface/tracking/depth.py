@@ -508,8 +508,8 @@ def backproject(
         raise TypeError(f"intrinsics: expected a CameraIntrinsics, got {type(intrinsics).__name__}")
     try:
         uv = np.array(pixels, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"pixels: cannot convert to a numeric array ({exc})") from None
+    except (TypeError, ValueError):
+        raise ValueError("pixels: expected an (N, 2) array of numbers") from None
     if uv.ndim != 2 or uv.shape[1] != 2:
         raise ValueError(f"pixels: expected shape (N, 2), got {uv.shape}")
     uv[~np.all(np.isfinite(uv), axis=1)] = np.nan  # an infinite pixel is as missing as a NaN one

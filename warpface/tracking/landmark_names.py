@@ -26,8 +26,8 @@ def vertex_landmark_names(vertices) -> list[str]:
     """Landmark names for dense vertex indices: ``[12, 345] → ["v00012", "v00345"]``."""
     try:
         indices = np.asarray(vertices)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"vertices: cannot convert to an index array ({exc})") from None
+    except (TypeError, ValueError):
+        raise ValueError("vertices: expected a flat array of integer vertex indices") from None
     if indices.size and (not np.issubdtype(indices.dtype, np.integer) or indices.min() < 0):
         raise ValueError(f"vertices: expected non-negative integer vertex indices, got {indices.dtype} {indices.ravel()[:5].tolist()}")
     return [f"v{int(v):05d}" for v in indices.ravel()]
