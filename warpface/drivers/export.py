@@ -92,5 +92,5 @@ def controls_to_curves(mapping: Mapping, times, controls, *, source: str = "expo
     """:func:`project_controls` as :class:`Curves` (times [s], the mapping's channels) ready to write."""
     expect_instance(mapping, Mapping, "mapping")
     weights = project_controls(mapping, controls, **options)
-    return Curves(times=np.asarray(times, dtype=np.float64), names=list(mapping.channels), values=weights,
+    return Curves(times=as_finite_array(times, "times"), names=list(mapping.channels), values=weights,
                   source=source, fps=fps)

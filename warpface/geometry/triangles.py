@@ -77,6 +77,6 @@ def area_weighted_vertex_normals(
     vertex = triangles.reshape(-1)
     summed = np.stack(
         [np.bincount(vertex, weights=np.repeat(crosses[:, k], 3), minlength=len(points)) for k in range(3)], axis=1
-    )
+    ).astype(np.float64)  # bincount of no weights is int
     length = np.linalg.norm(summed, axis=1, keepdims=True)
     return np.divide(summed, length, out=np.zeros_like(summed), where=length > 0.0)

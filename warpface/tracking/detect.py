@@ -77,7 +77,7 @@ def _contrast_map(image: np.ndarray, color, max_diameter: int) -> np.ndarray:
     import cv2
 
     rgb = np.asarray(image)
-    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8 or rgb.size == 0:
         raise ValueError(f"image must be (H, W, 3) uint8 RGB, got {rgb.shape} {rgb.dtype}")
     if isinstance(color, str):
         if color != "dark":
@@ -260,7 +260,7 @@ class DotTracker:
     def detect(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Find the dots in ``image``: pixels (N, 2) with NaN for dots not found, confidence (N,)."""
         image = np.asarray(image)
-        if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8 or image.size == 0:
             raise ValueError(f"image must be (H, W, 3) uint8 RGB, got {image.shape} {image.dtype}")
         # Only the neighbourhood of the tracked dots can hold them: crop to it.
         margin = self.gate_px + self.blob_options["max_diameter"] + 2
@@ -418,7 +418,7 @@ class ArucoMarkers:
         import cv2
 
         rgb = np.asarray(image)
-        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8 or rgb.size == 0:
             raise ValueError(f"image must be (H, W, 3) uint8 RGB, got {rgb.shape} {rgb.dtype}")
         corners, ids, _ = self._detector.detectMarkers(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))
         found: dict[int, np.ndarray] = {}

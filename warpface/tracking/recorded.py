@@ -99,6 +99,8 @@ class RecordedLandmarks(SourceBase):
         landmark_names = expect_iterable(landmark_names, "landmark_names", sized=True)
         frames = expect_iterable(frames, "frames")
         fps = None if fps is None else as_positive(fps, "fps", maximum=1e6)
+        if len(landmark_names) == 0:
+            raise ValueError(f"{path}: landmark_names: a recording needs at least one landmark")
         names = list(validate_landmark_names(landmark_names, len(landmark_names), str(path)))
         times, points, confidence = [], [], []
         failure: BaseException | None = None
