@@ -37,8 +37,8 @@ class Camera:
     def __post_init__(self) -> None:
         object.__setattr__(self, "eye", as_vec3(self.eye, "camera eye"))
         object.__setattr__(self, "target", as_vec3(self.target, "camera target"))
-        if np.array_equal(self.eye, self.target):
-            raise ValueError("camera: eye and target coincide")
+        if not np.linalg.norm(self.eye - self.target) >= 1e-9:
+            raise ValueError("camera: eye and target coincide (closer than 1e-9)")
         object.__setattr__(self, "yfov_deg", as_bounded(self.yfov_deg, "camera yfov_deg", 0.1, 179.0))
 
     @classmethod

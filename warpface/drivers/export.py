@@ -63,6 +63,8 @@ def project_controls(mapping: Mapping, controls: dict[str, np.ndarray] | np.ndar
     if not np.isfinite(table).all():
         raise ValueError("controls: non-finite value")
     used = np.flatnonzero(np.abs(mapping.matrix).max(axis=1) > 0)
+    if len(used) == 0:
+        raise ValueError(f"mapping {mapping.name!r} has no non-zero weight to project onto")
     scale = np.abs(mapping.matrix[used]).max(axis=1)
     A = mapping.matrix[used] / scale[:, None]  # (K', C)
     target = (table[:, used] - mapping.offsets[used]) / scale  # (F, K')

@@ -8,7 +8,7 @@ from typing import Sequence
 import numpy as np
 import warp as wp
 
-from .._validate import MAX_COORDINATE, as_count, as_device, expect_instance
+from .._validate import MAX_COORDINATE, as_count, as_device
 from ..kernels_surface import triangle_area_vectors
 from ..mesh import FaceMesh
 from .batch_graph import BatchGraphs
@@ -149,9 +149,8 @@ class ExpressionModel:
     @classmethod
     def from_rig(cls, rig, *, device=None) -> "ExpressionModel":
         """Build from a :class:`warpface.FaceRig` (mesh, muscles, wrinkles, thickness, jaw)."""
-        from ..rig import FaceRig  # here: warpface.rig imports this module
-
-        expect_instance(rig, FaceRig, "rig")
+        if not all(hasattr(rig, field) for field in ("mesh", "muscles", "wrinkles", "thickness")):  # warpface.rig imports this module
+            raise TypeError(f"rig: expected a FaceRig, got {type(rig).__name__}")
         return cls(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=device, jaw=getattr(rig, "jaw", None))
 
     # ------------------------------------------------------------------ controls

@@ -27,7 +27,6 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-from .._validate import expect_instance
 from ..errors import RigError
 from ..expression.jaw import JAW_CONTROL_NAMES, JAW_RANGE
 from ..expression.muscles import SphincterMuscle
@@ -585,7 +584,6 @@ def fit(rig, target, *, vertices=None, weights=None, device=None, **options) -> 
         :class:`Fit`, solved from neutral. The solver built for these target locations is kept with the
         rig (a few per rig), so fitting many shapes at the same locations pays its setup once.
     """
-    expect_instance(rig, FaceRig, "rig")
     if not isinstance(rig, FaceRig):
         raise TypeError(f"rig: expected a warpface.FaceRig, got {type(rig).__name__}")
     surface = {key: options.pop(key) for key in ("triangles", "barycentrics") if key in options}

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from pxr import Kind, Sdf, Tf, Usd, UsdGeom, UsdPhysics, Vt
 
-from .._validate import as_positive, expect_instance, expect_instance
+from .._validate import as_positive, expect_instance
 from ..errors import RigError
 from ..expression.muscles import FALLOFFS, LinearMuscle, SphincterMuscle
 from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrinkle
@@ -86,7 +86,6 @@ def write_rig(stage_or_path, rig: FaceRig, *, root_path: str | None = None, mete
     Raises:
         ValueError: not a FaceRig, bad units or fps, unwritable path.
     """
-    expect_instance(rig, FaceRig, "rig")
     ensure_schema()
     if not isinstance(rig, FaceRig):
         raise ValueError(f"write_rig: expected a FaceRig, got {type(rig).__name__}")
@@ -271,9 +270,8 @@ def rig_prims(stage: Usd.Stage, skin_path: str | None = None) -> RigPrims:
         RigError: no or several skins, wrong prim types, relationships to missing prims or to the
             wrong mesh (the message names the prim path).
     """
-    expect_instance(stage, Usd.Stage, "stage")
     ensure_schema()
-    if skin_path is not None:
+    if expect_instance(stage, Usd.Stage, "stage") and skin_path is not None:
         skin = stage.GetPrimAtPath(skin_path)
         if not skin:
             raise RigError(f"{skin_path}: no prim at this path on the stage")
@@ -328,8 +326,7 @@ def _stage_label(stage: Usd.Stage) -> str:
 
 def stage_meters_per_unit(stage: Usd.Stage) -> float:
     """The stage's ``metersPerUnit`` (USD's fallback 0.01 when not authored); raises RigError if not > 0."""
-    expect_instance(stage, Usd.Stage, "stage")
-    value = UsdGeom.GetStageMetersPerUnit(stage)
+    value = UsdGeom.GetStageMetersPerUnit(expect_instance(stage, Usd.Stage, "stage"))
     if not (math.isfinite(value) and value > 0.0):
         raise RigError(f"{_stage_label(stage)}: metersPerUnit must be > 0, got {value}")
     return float(value)
