@@ -32,6 +32,7 @@ __all__ = [
     "expect_instance",
     "expect_iterable",
     "shape_of",
+    "WrongTypeError",
 ]
 
 MAX_COORDINATE = 1.0e6
@@ -269,8 +270,13 @@ def expect_instance(value, types, name: str):
     TypeError naming ``name``, the expected class and what was given."""
     if not isinstance(value, types):
         expected = " or ".join(t.__name__ for t in (types if isinstance(types, tuple) else (types,)))
-        raise TypeError(f"{name}: expected a {expected}, got {type(value).__name__}")
+        raise WrongTypeError(f"{name}: expected a {expected}, got {type(value).__name__}")
     return value
+
+
+class WrongTypeError(TypeError, ValueError):
+    """An argument of the wrong type: a TypeError, and a ValueError too, so callers that catch bad input
+    as ValueError (as warpface's own checks long raised it) still do."""
 
 
 def expect_iterable(value, name: str, *, item_types=None, sized: bool = False):
@@ -281,7 +287,7 @@ def expect_iterable(value, name: str, *, item_types=None, sized: bool = False):
 
     if (isinstance(value, (str, bytes, dict)) or not isinstance(value, Iterable) or (sized and not isinstance(value, Sized))
             or (isinstance(value, np.ndarray) and value.ndim == 0)):
-        raise TypeError(f"{name}: expected {'a list' if sized else 'an iterable'} of items, got {type(value).__name__}")
+        raise WrongTypeError(f"{name}: expected {'a list' if sized else 'an iterable'} of items, got {type(value).__name__}")
     if item_types is None:
         return value
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import zipfile
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
 
@@ -36,10 +37,13 @@ class RecordedLandmarks(SourceBase):
         if not self.path.is_file():
             raise ValueError(f"{self.path}: no such landmark file")
         try:
-            with np.load(self.path, allow_pickle=False) as data:
+            loaded = np.load(self.path, allow_pickle=False)
+            if not hasattr(loaded, "files"):
+                raise ValueError("a single array, not an .npz archive")
+            with loaded as data:
                 arrays = {k: data[k] for k in data.files}
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"{self.path}: not a readable .npz file ({exc})") from None
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise ValueError(f"{self.path}: not a readable .npz file ({str(exc).splitlines()[0][:120] or type(exc).__name__})") from None
         for key in ("timestamps", "points", "confidence", "names"):
             if key not in arrays:
                 raise ValueError(f"{self.path}: missing array {key!r}")
