@@ -71,7 +71,9 @@ def expression_contractions(name: str, rig: FaceRig, *, intensity: float = 1.0) 
         RigError: the rig lacks one of the preset's muscles, or its landmarks.
     """
     expect_instance(rig, FaceRig, "rig")
-    if not isinstance(name, str) or name not in EXPRESSIONS:
+    if not isinstance(name, str):
+        raise TypeError(f"expression name: expected a str, got {type(name).__name__}")
+    if name not in EXPRESSIONS:
         raise ValueError(f"unknown expression {name!r} (known: {', '.join(EXPRESSIONS)})")
     intensity = float(as_finite_array(intensity, f"expression {name!r}: intensity", shape=()))
     if not np.isfinite(intensity):

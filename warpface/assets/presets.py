@@ -89,7 +89,9 @@ def preset_controls(name: str, rig: FaceRig, *, intensity: float = 1.0) -> dict[
         RigError: the rig lacks a control of the preset (e.g. a classic rig without a jaw), or landmarks.
     """
     expect_instance(rig, FaceRig, "rig")
-    if not isinstance(name, str) or name not in PRESETS:
+    if not isinstance(name, str):
+        raise TypeError(f"preset name: expected a str, got {type(name).__name__}")
+    if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
     intensity = float(as_finite_array(intensity, f"preset {name!r}: intensity", shape=()))
     if not np.isfinite(intensity):
