@@ -5,7 +5,8 @@ the built-in face) and wavy grids of 10k, 100k and 1M vertices, each with 16 lin
 wrinkles. Both sides use the same rig-time precomputation (sparse muscle weights, wrinkle
 profiles); the per-frame work — muscles, stretch, normals, bulge, normals again, wrinkles — is
 timed. "warp ms" includes copying the result to host memory; on CUDA "device ms" is the graph
-replay alone.
+replay alone (the fused two-kernel frame, with the 3- and 5-kernel plans beside it), and every
+device row is set against a ``wp.copy`` of the same bytes timed in the same run.
 
     python -m benchmarks.expression [--device cuda:0] [--sizes 10000 100000 1000000] [--quick]
 """
@@ -21,6 +22,7 @@ import warp as wp
 import warpface as wf
 from warpface.data import ict_face_region
 from warpface.expression import muscle_weights
+from warpface.expression.model import LAUNCH_PLANS
 from warpface.expression.wrinkles import wrinkle_shapes
 
 from ._timing import machine_info, print_table, time_call, write_results
@@ -242,8 +244,17 @@ def frame_bytes(vertex_count: int, control_count: int) -> int:
     return 24 * vertex_count + 4 * control_count
 
 
+def same_bytes_copy_seconds(device, vec3_count: int) -> float:
+    """Median time of a device-to-device ``wp.copy`` of ``vec3_count`` float32 xyz values: it reads and
+    writes 24 B per value, the minimum traffic of a frame over that many vertices."""
+    source = wp.zeros(vec3_count, dtype=wp.vec3, device=device)
+    target = wp.empty(vec3_count, dtype=wp.vec3, device=device)
+    return time_call(lambda: wp.copy(target, source), repeats=50, warmup=3, sync=lambda: wp.synchronize_device(device))
+
+
 def device_batch_rows(model, contractions: np.ndarray, quick: bool, bandwidth: float | None) -> dict:
-    """``evaluate_batch_into`` a device array from device controls (one replayed graph per batch)."""
+    """``evaluate_batch_into`` a device array from device controls (one replayed graph per batch), against
+    a ``wp.copy`` of the same bytes (rest read + result written) timed in the same run."""
     if not model.device.is_cuda:
         return {}
     vertex_count = model.mesh.vertex_count
@@ -259,9 +270,32 @@ def device_batch_rows(model, contractions: np.ndarray, quick: bool, bandwidth: f
     exact = bool(np.array_equal(out[:check].numpy(), model.evaluate_batch(controls[:check])))
     rate = frames / seconds
     moved = frame_bytes(vertex_count, len(model.control_names) + len(model.wrinkle_names)) * rate
+    copy_s = same_bytes_copy_seconds(model.device, frames * vertex_count)
     return {"device_batch_frames": frames, "device_batch_frames_per_s": rate, "device_batch_ms_per_frame": 1e3 / rate,
-            "device_batch_bytes_per_s": moved, "device_batch_exact": exact,
-            "device_batch_pct_copy_bw": None if not bandwidth else 100.0 * moved / bandwidth}
+            "device_batch_bytes_per_s": moved, "device_batch_GB_per_s": moved / 1e9, "device_batch_exact": exact,
+            "device_batch_pct_copy_bw": None if not bandwidth else 100.0 * moved / bandwidth,
+            "same_bytes_copy_ms_per_frame": 1e3 * copy_s / frames, "device_batch_pct_same_bytes_copy": 100.0 * copy_s / seconds}
+
+
+def single_frame_rows(model, mesh, muscles, wrinkles, thickness, contractions: np.ndarray) -> dict:
+    """On CUDA: the single-frame graph of each launch plan — 2 fused kernels (the default), 3, and the
+    five-kernel sequence — and a ``wp.copy`` of the frame's 24·V bytes, all in the same run."""
+    if not model.device.is_cuda:
+        return {}
+    sync = lambda: wp.synchronize_device(model.device)  # noqa: E731
+    row = {}
+    expected = model.evaluate(contractions)
+    for launches in LAUNCH_PLANS:
+        other = model if launches == model.launches_per_frame else wf.ExpressionModel(
+            mesh, muscles, wrinkles, thickness, device=model.device, launches=launches)
+        same = bool(np.array_equal(other.evaluate(contractions), expected))
+        seconds = time_call(lambda: wp.capture_launch(other._single.graph), repeats=500, sync=sync)
+        row[f"device_ms_{launches}_launches"] = seconds * 1e3
+        row[f"same_bits_{launches}_launches"] = same
+    copy_s = same_bytes_copy_seconds(model.device, mesh.vertex_count)
+    device_ms = row[f"device_ms_{model.launches_per_frame}_launches"]
+    row.update(device_ms=device_ms, copy_ms_same_bytes=copy_s * 1e3, device_pct_same_bytes_copy=100.0 * copy_s * 1e3 / device_ms)
+    return row
 
 
 def run_case(label: str, mesh: wf.FaceMesh, device, quick: bool, bandwidth: float | None = None) -> dict:
@@ -276,10 +310,8 @@ def run_case(label: str, mesh: wf.FaceMesh, device, quick: bool, bandwidth: floa
     repeats = 3 if (quick or big) else 20
     warp_s = time_call(lambda: model.evaluate(contractions), repeats=repeats, min_seconds=0.0 if quick else 0.5)
     numpy_s = time_call(lambda: numpy_model.frame(contractions, depths), repeats=repeats, warmup=1, min_seconds=0.0 if quick else 0.5)
-    device_s = None
-    if model.device.is_cuda:
-        graph = model._single.graph
-        device_s = time_call(lambda: wp.capture_launch(graph), repeats=200, sync=lambda: wp.synchronize_device(model.device))
+    single = single_frame_rows(model, mesh, muscles, wrinkles, thickness, contractions)
+    device_s = single["device_ms"] / 1e3 if single else None
     frames = 64 if not big else 8
     batch = np.tile(contractions, (frames, 1))
     batch_s = time_call(lambda: model.evaluate_batch(batch), repeats=3, warmup=1) / frames
@@ -292,6 +324,7 @@ def run_case(label: str, mesh: wf.FaceMesh, device, quick: bool, bandwidth: floa
         "setup_s": setup,
         "warp_ms": warp_s * 1e3,
         "device_ms": None if device_s is None else device_s * 1e3,
+        **single,
         "batch_ms_per_frame": batch_s * 1e3,
         "numpy_ms": numpy_s * 1e3,
         "speedup": numpy_s / warp_s,
@@ -343,6 +376,17 @@ def main(argv=None) -> None:
             ("torch_batch_ms_per_frame", "torch batch ms/frame", ".4f"), ("x_torch_batch", "× torch batch", ".1f"),
             ("device_batch_pct_copy_bw", "% copy bw", ".0f"), ("device_batch_exact", "batch exact", ""),
             ("torch_matches", "torch match", ""),
+        ])
+        print("\nSingle-frame graph per launch plan (ExpressionModel(launches=2|3|5); 3 is the CUDA default),"
+              "\n'same' = bit-identical to the default; a wp.copy of the same bytes (24·V: rest read + result"
+              "\nwritten) in the same run; % = copy time / warp time\n")
+        print_table(rows, [
+            ("mesh", "mesh", "s"), ("vertices", "vertices", ",d"), ("device_ms_2_launches", "2 ms", ".4f"),
+            ("device_ms_3_launches", "3 ms", ".4f"), ("device_ms_5_launches", "5 ms", ".4f"),
+            ("same_bits_3_launches", "3 same", ""), ("same_bits_5_launches", "5 same", ""),
+            ("copy_ms_same_bytes", "copy ms", ".4f"), ("device_pct_same_bytes_copy", "% copy (frame)", ".0f"),
+            ("device_batch_GB_per_s", "batch GB/s", ",.0f"), ("same_bytes_copy_ms_per_frame", "copy ms/frame", ".5f"),
+            ("device_batch_pct_same_bytes_copy", "% copy (batch)", ".0f"),
         ])
     results = {"benchmark": "expression", "machine": machine_info(device), "rows": rows,
                "copy_bandwidth_bytes_per_s": bandwidth, "torch_tolerance_fraction_of_size": TORCH_TOLERANCE}

@@ -18,7 +18,9 @@ Rows per mesh:
   matrices, solving for the correction to the Newmark predictor with the same relative tolerance.
 * ``warpface cuda cg batch xB`` — :class:`warpface.fem.TissueBatch` of B models (Kato's uniform tissue
   and a sweep of E and eta) stepped together, first mesh size only (``--batch``); "ms/step/model" is
-  its time per step over B. Its max diff is model 0's (Kato's uniform tissue) against the baseline.
+  its time per step over B; "x one model" its time per step over the single-model ``warpface cuda cg``
+  row's. Its max diff is model 0's (Kato's uniform tissue) against the baseline. Rows suffixed
+  ``fsai_each`` refit the FSAI support to every model (``--batch-preconditioners``).
 
 CPU rows are timed step by step, interleaved with the baseline (median per step). On CUDA,
 "ms/step run()" times :meth:`TissueSimulation.run` (displacements of every node recorded and copied
@@ -195,7 +197,7 @@ def cupy_step_seconds(base: SplitBaseline, trajectory: np.ndarray, tol: float) -
     return seconds, cp.asnumpy(d).reshape(-1, 3), iterations[0] / len(trajectory)
 
 
-def batch_step_seconds(mesh, fixed, driven, trajectory, models: int, device) -> dict:
+def batch_step_seconds(mesh, fixed, driven, trajectory, models: int, device, preconditioner: str = "fsai") -> dict:
     """A :class:`warpface.fem.TissueBatch` of ``models`` materials (model 0 Kato's uniform tissue, the rest a sweep
     of E over 0.5-2x and eta over 0.5-2x): the final displacement of model 0 after the whole trajectory, then
     seconds per batched step (graph launches only, the driven inputs already on the device)."""
@@ -205,7 +207,8 @@ def batch_step_seconds(mesh, fixed, driven, trajectory, models: int, device) -> 
         for e, eta in zip(scale, scale[::-1])
     ][: models - 1]
     start = time.perf_counter()
-    batch = TissueBatch(mesh, materials, DT, fixed=fixed, driven=driven, solver="cg", device=device, chunk=16)
+    batch = TissueBatch(mesh, materials, DT, fixed=fixed, driven=driven, solver="cg", device=device, chunk=16,
+                        cg_preconditioner=preconditioner)
     setup = time.perf_counter() - start
     batch.run(trajectory, nodes=np.zeros(1, dtype=np.int64))
     final = batch.d[0]
@@ -223,7 +226,7 @@ def batch_step_seconds(mesh, fixed, driven, trajectory, models: int, device) -> 
                 mean=float(iterations[:, 2].max()) / steps)
 
 
-def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=()) -> list[dict]:
+def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=(), batch_preconditioners=("fsai",)) -> list[dict]:
     mesh, fixed, driven, lower = face_problem(cells)
     material = kato_uniform_material()
     trajectory = mouth_opening(steps + 1, lower)
@@ -274,13 +277,17 @@ def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=
             rows.append(dict(mesh=label, path="cupy cg (jacobi) peer", step_ms=1e3 * seconds, step_call_ms=1e3 * seconds,
                              ratio=base_step / seconds, realtime=DT / seconds,
                              max_diff=float(np.abs(final - reference).max()), cg_mean_iterations=mean))
-        for models in batch_sizes:
-            result = batch_step_seconds(mesh, fixed, driven, trajectory, models, cuda_device)
-            rows.append(dict(mesh=label, path=f"warpface cuda cg batch x{models}", factor_s=result["setup"],
-                             step_ms=1e3 * result["seconds"], step_call_ms=1e3 * result["seconds"],
-                             model_ms=1e3 * result["seconds"] / models, ratio=base_step / result["seconds"],
-                             realtime=DT / result["seconds"], max_diff=float(np.abs(result["final"] - reference).max()),
-                             cg_iterations=result["most"], cg_mean_iterations=result["mean"]))
+        single = next((row["step_ms"] for row in rows if row["path"] == "warpface cuda cg"), None)
+        for preconditioner in batch_preconditioners:
+            for models in batch_sizes:
+                result = batch_step_seconds(mesh, fixed, driven, trajectory, models, cuda_device, preconditioner)
+                suffix = "" if preconditioner == "fsai" else f" {preconditioner}"
+                rows.append(dict(mesh=label, path=f"warpface cuda cg batch x{models}{suffix}", factor_s=result["setup"],
+                                 step_ms=1e3 * result["seconds"], step_call_ms=1e3 * result["seconds"],
+                                 model_ms=1e3 * result["seconds"] / models, ratio=base_step / result["seconds"],
+                                 realtime=DT / result["seconds"], max_diff=float(np.abs(result["final"] - reference).max()),
+                                 cg_iterations=result["most"], cg_mean_iterations=result["mean"],
+                                 x_single=None if not single else 1e3 * result["seconds"] / single))
     print(f"  {label}: {mesh.tet_count} tets, {fixed.size} fixed, {driven.size} driven nodes; "
           f"max displacement {np.abs(reference).max() * 1e3:.2f} mm after {steps + 1} steps")
     return rows
@@ -294,6 +301,8 @@ def main() -> None:
     parser.add_argument("--no-anp", action="store_true", help="skip the locking-free rows")
     parser.add_argument("--batch", type=int, nargs="*", default=[1, 3, 10, 100],
                         help="models per TissueBatch row on CUDA, on the first mesh size (default 1 3 10 100)")
+    parser.add_argument("--batch-preconditioners", nargs="*", default=["fsai", "fsai_each"],
+                        help="TissueBatch preconditioners, one set of batch rows each (default fsai fsai_each)")
     parser.add_argument("--device", default=None, help="CUDA device for the CG rows (default: first CUDA device)")
     args = parser.parse_args()
 
@@ -302,11 +311,11 @@ def main() -> None:
     cuda = args.device or ("cuda:0" if wp.is_cuda_available() else None)
     rows = []
     for index, cells in enumerate(args.sizes):
-        rows.extend(bench_mesh(cells, args.steps, not args.no_anp, cuda, args.batch if index == 0 else ()))
+        rows.extend(bench_mesh(cells, args.steps, not args.no_anp, cuda, args.batch if index == 0 else (), args.batch_preconditioners))
     print_table(rows, [("mesh", "mesh", "s"), ("path", "path", "s"), ("assembly_s", "assembly s", ".2f"),
                        ("factor_s", "factor/setup s", ".2f"), ("step_ms", "ms/step run()", ".3f"),
                        ("step_call_ms", "ms/step step()", ".3f"),
-                       ("model_ms", "ms/step/model", ".4f"),
+                       ("model_ms", "ms/step/model", ".4f"), ("x_single", "x one model", ".2f"),
                        ("ratio", "ratio vs splu", ".2f"), ("realtime", "x real time", ".3f"),
                        ("max_diff", "max diff m", ".1e"), ("cg_iterations", "CG iters max", "d"),
                        ("cg_mean_iterations", "CG iters mean", ".1f")])

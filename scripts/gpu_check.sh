@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# CPU <-> CUDA parity of every device path (tests/test_cuda_parity.py), run on the GPU machine.
+# CPU <-> CUDA parity of every device path (tests/test_cuda_parity*.py), run on the GPU machine.
 #
 # Before: warp installed into /tmp/site; a pure-Python pytest carried in .gpu/site. numpy, scipy
 # (and optionally torch) come from the machine's Python. Usage, from anywhere in the checkout:
@@ -26,4 +26,4 @@ except Exception as exc:  # noqa: BLE001
     raise SystemExit(f"gpu_check: Warp {wp.__version__} cannot use {name!r} ({exc}); devices: {[str(d) for d in wp.get_devices()]}")
 print(f"warp {wp.__version__} on {device} ({device.name})")
 PY
-exec "$PYTHON" -m pytest -q -x -rs -p no:cacheprovider --durations=5 tests/test_cuda_parity.py "$@"
+exec "$PYTHON" -m pytest -q -x -rs -p no:cacheprovider --durations=5 tests/test_cuda_parity.py tests/test_cuda_parity_plans.py "$@"

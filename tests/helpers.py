@@ -149,3 +149,30 @@ def scaled_rig(rig: FaceRig, factor: float) -> FaceRig:
         wrinkles.append(Wrinkle(w.name, w.control_points * factor, projection, w.depth * factor, w.width * factor, w.kr))
     mesh = FaceMesh(rig.mesh.points * factor, rig.mesh.triangles, name=rig.mesh.name)
     return FaceRig(mesh, muscles, wrinkles, rig.thickness * factor, rig.landmarks, rig.name)
+
+
+# float32 positions: a few units in the last place of the face's size, from FMA contraction and
+# libdevice/libm differences in the per-frame kernels (each stage rounds a handful of times; the
+# stretch → bulge step multiplies a ratio's rounding by the thickness, millimetres, so adds less).
+# Measured on an H200 with the full rig: 2.2e-6 of the size at one vertex of 69k (a thin corner
+# triangle, where the bulge's 1/r amplifies the ratio's rounding); the bound leaves 2x above that.
+FLOAT32_FACE_TOLERANCE = 5e-6
+"""Cross-device tolerance of float32 face positions, as a fraction of the mesh's size (0.28 m → 0.6 µm)."""
+
+
+def expression_controls(rig, frames: int, seed: int):
+    """(F, M[+3]) controls (linear muscles up to 0.15 face units, sphincters up to 0.5, then the jaw's
+    three when the rig has a jaw) and (F, W) depths."""
+    from warpface.assets import rig_scale
+    from warpface.expression import SphincterMuscle
+
+    rng = np.random.default_rng(seed)
+    sphincter = np.array([isinstance(m, SphincterMuscle) for m in rig.muscles])
+    contractions = rng.uniform(0.0, 0.15, (frames, len(rig.muscles))) * np.where(sphincter, 1.0, rig_scale(rig))
+    contractions[:, sphincter] = rng.uniform(0.0, 0.5, (frames, int(sphincter.sum())))
+    contractions[rng.uniform(size=contractions.shape) < 0.5] = 0.0  # sparse, as expressions are
+    depths = rng.uniform(0.0, 2.0, (frames, len(rig.wrinkles))) * np.array([w.depth for w in rig.wrinkles])
+    if getattr(rig, "jaw", None) is not None:  # jaw opening [rad], protrusion and slide [lengths]
+        jaw = rng.uniform(0.0, 1.0, (frames, 3)) * np.array([0.2, 0.02 * rig_scale(rig), 0.01 * rig_scale(rig)])
+        contractions = np.concatenate([contractions, jaw], axis=1)
+    return contractions, depths

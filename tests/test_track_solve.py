@@ -1,7 +1,7 @@
 """Tracking drives the muscles (issue 11 item 2): landmarks → solved controls → skin → USD.
 
-Closed loops on ground truth: exact landmarks of a known performance (controls recovered, stage
-round trip), a known head motion (pose recovered), the synthetic Kinect-like camera (the solved path
+Closed loops on ground truth: exact landmarks of a known performance with the jaw opening (muscle and
+jaw controls recovered, the jaw's time samples on the stage's jaw prim, stage round trip), a known head motion (pose recovered), the synthetic Kinect-like camera (the solved path
 beats the geometric transfer on the surface), residual motion transferred as computed independently,
 bad frames (skipped, flagged, previous controls kept, nothing non-finite), and Ctrl-C in
 ``warpface track --solve``.
@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 
 from warpface.assets import default_rig, expression_timeline
 from warpface.pipelines.capture import record
-from warpface.pipelines.track_solve import SolvingTracker, read_solved_capture, solved_stage_writer
+from warpface.pipelines.track_solve import RIG_ROOT, SolvingTracker, read_solved_capture, solved_stage_writer
 from warpface.tracking import LandmarkFrame, vertex_landmark_names
 
 REPO = Path(__file__).resolve().parents[1]
@@ -63,8 +63,13 @@ class ExactSource:
             yield LandmarkFrame(timestamp=i / self.fps, points=points, confidence=np.ones(len(points)), index=i)
 
 
-def _performance(rig, expression="smile", seconds=0.5):
-    return expression_timeline(expression, rig, seconds=seconds, fps=30.0)
+def _performance(rig, expression="smile", seconds=0.5, jaw_open=0.25):
+    """Muscle contractions of ``expression`` with the jaw opening to ``jaw_open`` [rad] and back (and a
+    small slide), (F, C) in the rig's control order."""
+    muscles = expression_timeline(expression, rig, seconds=seconds, fps=30.0)
+    envelope = np.sin(np.linspace(0.0, np.pi, len(muscles))) ** 2
+    jaw = np.stack([jaw_open * envelope, 0.0 * envelope, 0.002 * envelope], axis=1)  # [rad], [m], [m]
+    return np.concatenate([muscles, jaw], axis=1)
 
 
 def _capture(tmp_path, rig, source, **tracker_options):
@@ -89,9 +94,11 @@ def test_exact_landmarks_recover_the_controls_and_the_stage_round_trips(tmp_path
     scale = tracker.solver.reach  # displacement per unit contraction
     for f, frame in enumerate(solved):
         assert not frame.skipped
-        assert np.abs((frame.controls - controls[f]) * scale).max() < 5e-5  # < 50 µm of muscle motion
+        # From 60 landmarks, pose free: < 0.1 mm of any muscle's motion (59 µm measured: the brows' falloff
+        # ends close below them, so a few controls are seen by only the brow landmarks) and of any skin point.
+        assert np.abs((frame.controls - controls[f]) * scale).max() < 1e-4
         error = np.linalg.norm(frame.skin - truth[f], axis=1)
-        assert error.max() < 5e-5 and error.mean() < 5e-6  # from 60 landmarks, pose free
+        assert error.max() < 1e-4 and error.mean() < 5e-6
         assert frame.residual < 1e-5
 
     back = read_solved_capture(stage)
@@ -100,13 +107,26 @@ def test_exact_landmarks_recover_the_controls_and_the_stage_round_trips(tmp_path
     np.testing.assert_array_equal(back["skin"], np.stack([s.skin for s in solved]))
     np.testing.assert_allclose(back["residual"], [s.residual for s in solved], rtol=0, atol=0)
     assert not back["skipped"].any()
-    assert back["control_names"] == rig.muscle_names
+    assert back["control_names"] == rig.control_names  # the muscles, then jaw_open, jaw_forward, jaw_left
     assert back["head_pose"].shape == (len(controls), 4, 4)
+    # The jaw's samples sit on the rig stage's own jaw prim (linked from the skin) and follow the truth.
+    from warpface.usd import open_stage
+    from warpface.usd.jaw_io import JAW_CONTROL_ATTRIBUTES, JAW_RELATIONSHIP
+
+    opened = open_stage(stage)
+    jaw = opened.GetPrimAtPath(opened.GetPrimAtPath(RIG_ROOT + "/Skin").GetRelationship(JAW_RELATIONSHIP).GetTargets()[0])
+    muscles = len(rig.muscles)
+    for column, attribute in enumerate(JAW_CONTROL_ATTRIBUTES.values(), start=muscles):
+        values = np.array([jaw.GetAttribute(attribute).Get(t) for t in back["times"]])
+        np.testing.assert_array_equal(values, back["controls"][:, column])
+    assert np.abs(back["controls"][:, muscles] - controls[:, muscles]).max() < 1e-3  # jaw_open [rad]
+    assert np.abs(back["controls"][:, muscles + 1:] - controls[:, muscles + 1:]).max() < 5e-5  # slides [m]
+    assert back["controls"][:, muscles].max() > 0.2
     # The stage is an ordinary rig stage too: read_rig, read_animation and validation work on it.
     from warpface.usd import read_animation, read_rig, validate_stage
 
     animation = read_animation(stage)
-    np.testing.assert_allclose(animation.contractions, back["controls"], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(animation.contractions, back["controls"][:, :muscles], rtol=0, atol=1e-12)
     assert read_rig(stage).muscle_names == rig.muscle_names
     assert not [p for p in validate_stage(stage) if getattr(p, "severity", "error") == "error"]
     from warpface.usd.frames import open_frames  # what `warpface preview` plays: the solved skin

@@ -14,12 +14,18 @@ from __future__ import annotations
 
 import math
 import os
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["add_parser", "run_animate", "animate", "AnimateResult", "prepare_controls"]
+__all__ = ["add_parser", "run_animate", "animate", "AnimateResult", "prepare_controls", "PREVIEW_MAX_FRAMES"]
+
+PREVIEW_MAX_FRAMES = 120
+"""Default length of the preview video in frames. Offscreen rendering without a GPU costs about 0.1 s of
+CPU a frame, so a longer take is previewed at every k-th frame: any take's preview then costs about ten
+seconds of CPU, not the better part of an hour for ten minutes (``--video-max-frames`` asks for more)."""
 
 
 @dataclass
@@ -35,6 +41,9 @@ class AnimateResult:
     """``"default table"`` or the stored mapping's name."""
     unmapped_channels: list[str]
     notes: list[str] = field(default_factory=list)
+    seconds: dict[str, float] = field(default_factory=dict)
+    """Wall time of each step: ``read driver and rig``, ``clean and map``, ``write controls``, ``model``, ``bake``,
+    ``save stage``, ``video``."""
 
 
 def _load_rig(rig_path):
@@ -91,7 +100,7 @@ def prepare_controls(curves, mapping, *, fps: float, neutral=None, gain=None, on
 
 
 def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gain=None, one_euro=None,
-            video: bool = True, video_size=(360, 420), video_max_frames: int = 3600, device=None,
+            video: bool = True, video_size=(360, 420), video_max_frames: int = PREVIEW_MAX_FRAMES, device=None,
             progress: bool = True) -> AnimateResult:
     """Drive a rig with a driver file and write ``out`` (the rig + control time samples), its baked cache
     ``<out stem>_anim.usdc`` and, with ``video``, ``<out stem>.mp4``.
@@ -115,15 +124,18 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
 
     from .. import usd
     from ..usd.animation import CACHE_SUFFIX
+    from ..usd.jaw_io import JAW_CONTROL_ATTRIBUTES
     from ..usd.mapping_io import write_mapping
     from ..usd.skel_io import read_driver
 
     out = _output_path(out)
     if video and (not isinstance(video_max_frames, (int, np.integer)) or video_max_frames < 1):
         raise ValueError(f"--video-max-frames must be a positive whole number, got {video_max_frames!r}")
+    clock = _StepClock()
     curves = read_driver(driver)
     rig_model, rig_stage, units, stage_rate = _load_rig(rig)
     mapping, label, orphaned = _mapping(rig_model, rig_stage, map_spec)
+    clock.step("read driver and rig")
     rate = float(fps or stage_rate or (round(curves.fps) if curves.fps else 30.0))
     if not math.isfinite(rate) or rate <= 0:
         raise ValueError(f"--fps must be a positive number, got {rate}")
@@ -133,6 +145,7 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
         raise ValueError(f"{curves.source}: none of its channels ({', '.join(curves.names[:5])}"
                          f"{', …' if len(curves.names) > 5 else ''}) drives a control of rig {rig_model.name!r}")
     notes = list(cleaned.notes)
+    clock.step("clean and map")
 
     stage = Usd.Stage.CreateInMemory("animate" + out.suffix)
     usd.write_rig(stage, rig_model, meters_per_unit=units, fps=rate)
@@ -140,20 +153,40 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
     time_codes = np.round((mapped.times - mapped.times[0]) * rate, 6)
     muscles = set(rig_model.muscle_names)
     contractions = {name: mapped.values[:, k] for k, name in enumerate(mapped.names) if name in muscles}
-    usd.write_animation(stage, time_codes, contractions=contractions, fps=rate, meters_per_unit=units)
+    jaw = {name: mapped.values[:, k] for k, name in enumerate(mapped.names) if name in JAW_CONTROL_ATTRIBUTES}
+    usd.write_animation(stage, time_codes, contractions=contractions, jaw=jaw if rig_model.jaw is not None and jaw else None,
+                        fps=rate, meters_per_unit=units)
+    clock.step("write controls")
     root = stage.GetRootLayer()
     cache_path = out.with_name(out.stem + CACHE_SUFFIX)
     model = rig_model.model(device=device)
+    clock.step("model")
     cache = usd.bake(stage, time_codes, cache_path=cache_path, model=model, device=device, progress=progress)
+    clock.step("bake")
     saved = Sdf.Layer.CreateAnonymous(out.suffix)  # a copy: re-pathing the stage's own layer would recompose it
     saved.TransferContent(root)
     saved.subLayerPaths[0] = "./" + cache.name  # bake gave the in-memory stage an absolute path
     usd.export_layer_atomically(saved, out)
+    clock.step("save stage")
     video_path = None
     if video:
         video_path = _preview(out.with_suffix(".mp4"), model, rig_model, mapped, rate, video_size, progress, video_max_frames)
+        clock.step("video")
     return AnimateResult(stage=out, cache=cache, video=video_path, fps=rate, frame_count=len(time_codes),
-                         mapping=label, unmapped_channels=unmapped, notes=notes)
+                         mapping=label, unmapped_channels=unmapped, notes=notes, seconds=clock.seconds)
+
+
+class _StepClock:
+    """Wall seconds between successive :meth:`step` calls, by step name."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = {}
+        self._last = time.perf_counter()
+
+    def step(self, name: str) -> None:
+        now = time.perf_counter()
+        self.seconds[name] = now - self._last
+        self._last = now
 
 
 def _output_path(path) -> Path:
@@ -171,8 +204,8 @@ def _output_path(path) -> Path:
 def _preview(path: Path, model, rig, mapped, rate: float, size, progress: bool, max_frames: int) -> Path:
     """An MP4 of the animation, each frame labelled with its time and strongest active channels.
 
-    A take longer than ``max_frames`` is shown whole at every k-th frame (played at ``rate / k``), so a
-    ten-minute take previews in minutes rather than the better part of an hour of offscreen rendering.
+    A take longer than ``max_frames`` is shown whole at every k-th frame (played at ``rate / k``; see
+    :data:`PREVIEW_MAX_FRAMES`).
     """
     import cv2
 
@@ -283,7 +316,7 @@ def add_parser(subparsers, common):
     parser.add_argument("--filter-min-cutoff", type=float, default=1.5, help="1€ filter cut-off at rest [Hz] (default 1.5)")
     parser.add_argument("--filter-beta", type=float, default=0.5, help="1€ filter speed coefficient (default 0.5)")
     parser.add_argument("--no-video", action="store_true", help="skip the preview video")
-    parser.add_argument("--video-max-frames", type=int, default=3600,
-                        help="longest preview in frames; longer takes show every k-th frame (default 3600)")
+    parser.add_argument("--video-max-frames", type=int, default=PREVIEW_MAX_FRAMES,
+                        help=f"longest preview in frames; longer takes show every k-th frame (default {PREVIEW_MAX_FRAMES})")
     parser.set_defaults(handler=run_animate)
     return parser

@@ -57,6 +57,13 @@ def _rows(path: Path) -> tuple[list[str], list[list[str]]]:
 def _column(path: Path, header: list[str], rows: list[list[str]], name: str) -> np.ndarray:
     """One numeric column; a clear error naming the line for anything that is not a finite number."""
     index = header.index(name)
+    cells = [row[index] for row in rows]
+    try:  # NumPy parses the whole column; the loop below only runs to name a bad cell (or parse 1_000)
+        out = np.array(cells, dtype=np.float64)
+        if np.isfinite(out).all():
+            return out
+    except ValueError:
+        pass
     out = np.empty(len(rows), dtype=np.float64)
     for row_number, row in enumerate(rows):
         try:

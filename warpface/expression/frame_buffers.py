@@ -16,9 +16,12 @@ class FrameBuffers:
         vertex_count, triangle_count: sizes of the mesh.
         muscle_count, wrinkle_count: control widths (a zero width still gets one unused column).
         device: the model's Warp device.
+        per_triangle: allocate the per-triangle intermediates of the five-kernel sequence (the fused
+            kernels do not store them).
     """
 
-    def __init__(self, frames: int, vertex_count: int, triangle_count: int, muscle_count: int, wrinkle_count: int, *, device):
+    def __init__(self, frames: int, vertex_count: int, triangle_count: int, muscle_count: int, wrinkle_count: int, *, device,
+                 per_triangle: bool = True):
         self.frames = frames
         self.device = device
         self.muscle_width = max(muscle_count, 1)
@@ -26,8 +29,8 @@ class FrameBuffers:
         self.contraction = wp.zeros(frames * self.muscle_width, dtype=wp.float32, device=device)
         self.depth = wp.zeros(frames * self.wrinkle_width, dtype=wp.float32, device=device)
         self.muscle_points = wp.empty(frames * vertex_count, dtype=wp.vec3, device=device)
-        self.area_vectors = wp.empty(frames * triangle_count, dtype=wp.vec3, device=device)
-        self.stretch_terms = wp.empty(frames * triangle_count, dtype=wp.vec4, device=device)
+        self.area_vectors = wp.empty(frames * triangle_count if per_triangle else 0, dtype=wp.vec3, device=device)
+        self.stretch_terms = wp.empty(frames * triangle_count if per_triangle else 0, dtype=wp.vec4, device=device)
         self.stretch = wp.empty(frames * vertex_count, dtype=wp.float32, device=device)
         self.bulge_points = wp.empty(frames * vertex_count, dtype=wp.vec3, device=device)
         self.final_points = wp.empty(frames * vertex_count, dtype=wp.vec3, device=device)

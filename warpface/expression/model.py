@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -9,20 +10,24 @@ import numpy as np
 import warp as wp
 
 from .._validate import MAX_COORDINATE, as_count, as_device
-from ..kernels_surface import triangle_area_vectors
 from ..mesh import FaceMesh
 from .batch_graph import BatchGraphs
 from .controls import as_device_array, check_rig_parts, contraction_limits, control_vector, frame_controls, is_device_array
 from .frame_buffers import FrameBuffers
 from .jaw import JAW_CONTROL_NAMES, Jaw
+from ..kernels_surface import triangle_area_vectors
 from .kernels import (MuscleEntry, WrinkleEntry, apply_jaw_and_muscles, apply_muscles, apply_wrinkles, stretch_and_bulge,
                       triangle_stretch)
+from .kernels_fused import bulge_from_muscle_points, muscles_and_bulge, wrinkles_on_bulge
 from .muscles import Muscle, muscle_weights
 from .readback import PinnedReadback
 from .tissue import tissue_response
 from .wrinkles import Wrinkle, wrinkle_shapes
 
-__all__ = ["ExpressionModel", "ExpressionStages"]
+__all__ = ["ExpressionModel", "ExpressionStages", "LAUNCH_PLANS"]
+
+LAUNCH_PLANS = (2, 3, 5)
+"""Kernel launches per frame an :class:`ExpressionModel` can run (its ``launches`` argument)."""
 
 _MAX_LAUNCH_THREADS = (1 << 31) - 1
 """Kernels index flat frames × elements arrays with 32-bit thread indices."""
@@ -56,8 +61,10 @@ class ExpressionModel:
     """Muscles → stretch → bulge → wrinkles, per vertex, from the rest mesh every frame (never cumulative).
 
     Everything that depends only on the rig (muscle weight fields, wrinkle distances) is evaluated
-    once here in float64; a frame is then five kernel launches over vertices and triangles. On CUDA
-    the single-frame sequence is captured once as a graph and replayed.
+    once here in float64. On CUDA a frame is then two fused kernel launches over vertices
+    (:mod:`~warpface.expression.kernels_fused`), captured once as a graph and replayed; on the CPU
+    it is the five-kernel sequence of :mod:`~warpface.expression.kernels` (see ``launches``). All
+    plans give the same bits on the same device.
 
     Two ways to get results, running the same kernels:
 
@@ -74,6 +81,9 @@ class ExpressionModel:
 
       Synchronise (``wp.synchronize_device``) or use the same stream before reading on the host.
 
+    On the CPU, :meth:`evaluate_batch` may run in several threads at once (each thread has its own
+    work buffers, and Warp's CPU kernels release the GIL); the other methods are for one thread at a time.
+
     Controls given on the host are checked (names, types, finite, within range) and the call raises
     ``ValueError`` naming the item; device-resident controls are used as they are (checking them
     would need a host sync).
@@ -87,6 +97,11 @@ class ExpressionModel:
         jaw: optional :class:`~warpface.expression.Jaw`, applied before the muscles (SPEC §6.2); its
             controls :data:`~warpface.expression.JAW_CONTROL_NAMES` follow the muscles in the control
             vector (:attr:`control_names`).
+        launches: kernel launches per frame: 2 (fused kernels that recompute the one-ring's muscle
+            points and triangle terms instead of storing them: fewest launches and bytes), 3 (muscle
+            points stored, triangle terms computed in place: the GPU's default, the fastest single
+            frame on an H200 from 10k to 1M vertices, benchmarks/README.md) or 5 (every intermediate
+            stored: fewest operations, the CPU's default). ``None``: by device.
 
     Raises:
         RigError: (a ``ValueError``) mesh not a FaceMesh, wrong item types, duplicate muscle or
@@ -102,6 +117,7 @@ class ExpressionModel:
         *,
         device=None,
         jaw: Jaw | None = None,
+        launches: int | None = None,
     ):
         self.muscles, self.wrinkles, self.thickness = check_rig_parts(mesh, muscles, wrinkles, thickness, owner="expression model")
         self.mesh = mesh
@@ -120,6 +136,11 @@ class ExpressionModel:
         self._contraction_limits = np.concatenate([contraction_limits(self.muscles), jaw_limits])
         self._depth_limits = np.full(len(self.wrinkles), MAX_COORDINATE)
         self.device = as_device(device)
+        if launches is not None and (isinstance(launches, (bool, np.bool_)) or not isinstance(launches, (int, np.integer))
+                                     or launches not in LAUNCH_PLANS):
+            raise ValueError(f"launches: expected one of {LAUNCH_PLANS} or None, got {launches!r}")
+        self.launches_per_frame = int((3 if self.device.is_cuda else 5) if launches is None else launches)
+        """Kernel launches per frame: 2 (fused), 3 or 5 (see ``launches``)."""
 
         self._mesh_buffers = mesh.device_buffers(device=self.device)
         weights = muscle_weights(mesh.points, self.muscles, device=self.device)
@@ -141,7 +162,7 @@ class ExpressionModel:
         self.default_depths = np.array([w.depth for w in self.wrinkles], dtype=np.float64)
         if jaw is not None:
             self._jaw_weight = wp.array(jaw.weights.astype(np.float32), dtype=wp.float32, device=device_)
-        self._buffers: dict[int, FrameBuffers] = {}
+        self._thread_buffers = threading.local()
         self._single = self._frame_buffers(1)
         self._batch_graphs = BatchGraphs(device=self.device)
         self._readbacks: dict[int, PinnedReadback] = {}
@@ -188,7 +209,10 @@ class ExpressionModel:
             raise ValueError(f"stages: expected True or False, got {type(stages).__name__}")
         buffers = self._single
         buffers.upload_controls(self.contraction_vector(contractions)[None], self.depth_vector(wrinkle_depths)[None])
-        self._run_single(buffers)
+        if stages:
+            self._launch_frames(buffers, frames=1, keep_muscle_points=True)
+        else:
+            self._run_single(buffers)
         if stages:
             return ExpressionStages(
                 muscle=buffers.read_frames(buffers.muscle_points, 1)[0],
@@ -276,18 +300,13 @@ class ExpressionModel:
         host, device_controls = self._split_controls(contractions, wrinkle_depths, frame_count)
         self._run_batch(target, host, device_controls, frame_count, frames_per_launch, progress)
         return out
-        vertex_count = self.mesh.vertex_count
-        for buffers, start, count in self._chunks(frame_count, frames_per_launch, progress):
-            self._upload_chunk(buffers, host, device_controls, start, count)
-            self._launch(buffers)
-            wp.copy(target, buffers.final_points, dest_offset=start * vertex_count, count=count * vertex_count)
-        return out
 
     def _run_batch(self, target: wp.array, host, device_controls, frame_count: int, frames_per_launch, progress: bool) -> None:
         """Chunk after chunk: copy its controls, run the kernels, the last one writing into ``target``.
 
-        Host controls are staged once into device arrays kept for their shape. On CUDA without a
-        progress bar the whole sequence is one graph, replayed while the arrays and sizes stay the same.
+        Host controls are staged once into device arrays kept for their shape; the kernels read each
+        chunk's rows of the control arrays in place (no copy). On CUDA without a progress bar the whole
+        sequence is one graph, replayed while the arrays and sizes stay the same.
         """
         if not isinstance(progress, (bool, np.bool_)):
             raise ValueError(f"progress: expected True or False, got {type(progress).__name__}")
@@ -299,8 +318,11 @@ class ExpressionModel:
         vertex_count = self.mesh.vertex_count
 
         def write(buffers: FrameBuffers, start: int, count: int) -> None:
-            buffers.copy_controls(*sources, first=start, count=count)
-            self._launch(buffers, final_points=target[start * vertex_count:(start + count) * vertex_count], frames=count)
+            controls, depths = (source[start * width:(start + count) * width] if width else fallback
+                                for source, width, fallback in ((sources[0], len(self.control_names), buffers.contraction),
+                                                                (sources[1], len(self.wrinkles), buffers.depth)))
+            self._launch_frames(buffers, frames=count, controls=controls, depths=depths,
+                               final_points=target[start * vertex_count:(start + count) * vertex_count])
 
         if progress:
             for chunk in self._chunks(frame_count, frames_per_launch, True):
@@ -364,11 +386,6 @@ class ExpressionModel:
             raise ValueError(f"contractions: {len(controls)} frames, wrinkle_depths have {frame_count}")
         return (controls, depths), (device_c, device_d)
 
-    def _upload_chunk(self, buffers: FrameBuffers, host, device_controls, start: int, count: int) -> None:
-        controls, depths = host
-        buffers.upload_controls(controls[start:start + count], depths[start:start + count])
-        buffers.copy_controls(*device_controls, first=start, count=count)
-
     def _upload_frames(self, buffers, contractions, wrinkle_depths, *, frames: int, first: int, count: int) -> None:
         device_c = self._device_controls(contractions, frames, len(self.control_names), "contractions")
         device_d = self._device_controls(wrinkle_depths, frames, len(self.wrinkles), "wrinkle_depths")
@@ -407,11 +424,20 @@ class ExpressionModel:
             bar.close()
 
     # ------------------------------------------------------------------ internals
+    @property
+    def _buffers(self) -> dict[int, FrameBuffers]:
+        """The calling thread's work buffers by frame count: on the CPU, where Warp's kernels release the
+        GIL, several threads may run :meth:`evaluate_batch` at once (``warpface.usd.bake`` does)."""
+        local = self._thread_buffers
+        if not hasattr(local, "by_frames"):
+            local.by_frames = {}
+        return local.by_frames
+
     def _frame_buffers(self, frames: int) -> FrameBuffers:
         if frames not in self._buffers:
             self._buffers[frames] = FrameBuffers(
-                frames, self.mesh.vertex_count, self.mesh.triangle_count, len(self.control_names), len(self.wrinkles), device=self.device
-            )
+                frames, self.mesh.vertex_count, self.mesh.triangle_count, len(self.control_names), len(self.wrinkles), device=self.device,
+                per_triangle=self.launches_per_frame == 5)
         return self._buffers[frames]
 
     def _run_single(self, buffers: FrameBuffers) -> None:
@@ -425,64 +451,97 @@ class ExpressionModel:
         else:
             self._launch(buffers)
 
-    def _launch(self, buffers: FrameBuffers, final_points: wp.array | None = None, frames: int = 0) -> None:
-        """Run the frame's five kernels over all of ``buffers``' frames (recorded on first use).
-
-        With ``final_points`` the last kernel writes the first ``frames`` frames there instead of
-        into ``buffers.final_points`` (a caller's array: no copy afterwards).
-        """
+    def _launch(self, buffers: FrameBuffers) -> None:
+        """Run the frame's kernels over all of ``buffers``' frames (recorded on first use)."""
         if not buffers.launches:
             buffers.launches = self._record_launches(buffers)
-        if final_points is None:
-            for launch in buffers.launches:
-                launch.launch()
-            return
-        for launch in buffers.launches[:-1]:
+        for launch in buffers.launches:
             launch.launch()
-        wp.launch(apply_wrinkles, dim=frames * self.mesh.vertex_count, inputs=self._wrinkle_inputs(buffers),
-                  outputs=[final_points], device=self.device)
 
-    def _wrinkle_inputs(self, buffers: FrameBuffers) -> list:
-        mesh = self._mesh_buffers
-        return [buffers.bulge_points, buffers.area_vectors, mesh.adjacency_offsets, mesh.adjacency_triangles,
-                buffers.stretch, self._wrinkle_offsets, self._wrinkle_entries, buffers.depth, buffers.wrinkle_width,
-                self.mesh.vertex_count, self.mesh.triangle_count]
+    def _frames_per_thread(self, frames: int) -> int:
+        """Frames one thread evaluates for its vertex: 1 on the CPU and for small launches; on CUDA up
+        to 4 once a launch has over 2²⁰ frame·vertices, so a vertex's rig data is read once per 4 frames."""
+        if self.device.is_cpu or self.launches_per_frame == 3:  # (the muscle kernel of 3 has one frame per thread)
+            return 1
+        return int(min(4, max(1, frames * self.mesh.vertex_count // (1 << 20))))
 
-    def _record_launches(self, buffers: FrameBuffers) -> list:
+    def _launch_args(self, buffers: FrameBuffers, frames: int, controls: wp.array, depths: wp.array,
+                     final_points: wp.array, keep_muscle_points: bool) -> list:
+        """``(kernel, dim, inputs, outputs)`` of a frame's kernels over ``frames`` frames."""
+        if self.launches_per_frame == 5:
+            return self._staged_launch_args(buffers, frames, controls, depths, final_points)
         mesh = self._mesh_buffers
-        frames, vertex_count, triangle_count = buffers.frames, self.mesh.vertex_count, self.mesh.triangle_count
+        vertex_count = self.mesh.vertex_count
+        per_thread = self._frames_per_thread(frames)
+        dim = -(-frames // per_thread) * vertex_count
+        jaw = self.jaw
+        if jaw is None:
+            jaw_inputs = [self._counts, wp.vec3(), wp.vec3(), wp.vec3(), -1]  # jaw arrays unread
+        else:
+            jaw_inputs = [self._jaw_weight, wp.vec3(*jaw.pivot), wp.vec3(*jaw.axis), wp.vec3(*jaw.forward), len(self.muscles)]
+        bulge = (muscles_and_bulge, dim,
+                 [mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, controls, buffers.muscle_width,
+                  mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, mesh.adjacency_offsets, mesh.adjacency_triangles,
+                  self._counts, self._thickness, vertex_count, frames, per_thread, int(keep_muscle_points)],
+                 [buffers.muscle_points, buffers.stretch, buffers.bulge_points])
+        wrinkles = (wrinkles_on_bulge, dim,
+                    [buffers.bulge_points, buffers.stretch, mesh.triangles, mesh.triangle_weight, mesh.adjacency_offsets,
+                     mesh.adjacency_triangles, self._wrinkle_offsets, self._wrinkle_entries, depths, buffers.wrinkle_width,
+                     vertex_count, frames, per_thread],
+                    [final_points])
+        if self.launches_per_frame == 3:
+            muscles = self._staged_launch_args(buffers, frames, controls, depths, final_points)[0]
+            bulge = (bulge_from_muscle_points, dim,
+                     [buffers.muscle_points, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, mesh.adjacency_offsets,
+                      mesh.adjacency_triangles, self._counts, self._thickness, vertex_count, frames, per_thread],
+                     [buffers.stretch, buffers.bulge_points])
+            return [muscles, bulge, wrinkles]
+        return [bulge, wrinkles]
+
+    def _staged_launch_args(self, buffers: FrameBuffers, frames: int, controls: wp.array, depths: wp.array,
+                            final_points: wp.array) -> list:
+        """The five-kernel sequence (muscles, triangle stretch, stretch and bulge, area vectors, wrinkles)."""
+        mesh = self._mesh_buffers
+        vertex_count, triangle_count = self.mesh.vertex_count, self.mesh.triangle_count
         vertices, triangles = frames * vertex_count, frames * triangle_count
         counts = [vertex_count, triangle_count]
-        device = self.device
-
-        def record(kernel, dim, inputs, outputs):
-            return wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device, record_cmd=True)
-
         if self.jaw is None:
-            first = record(apply_muscles, vertices,
-                           [mesh.rest_points, self._muscle_offsets, self._muscle_entries, buffers.contraction,
-                            buffers.muscle_width, vertex_count],
-                           [buffers.muscle_points])
+            first = (apply_muscles, vertices,
+                     [mesh.rest_points, self._muscle_offsets, self._muscle_entries, controls, buffers.muscle_width, vertex_count],
+                     [buffers.muscle_points])
         else:
             jaw = self.jaw
-            first = record(apply_jaw_and_muscles, vertices,
-                           [mesh.rest_points, self._jaw_weight, wp.vec3(*jaw.pivot), wp.vec3(*jaw.axis),
-                            wp.vec3(*jaw.forward), self._muscle_offsets, self._muscle_entries, buffers.contraction,
-                            buffers.muscle_width, len(self.muscles), vertex_count],
-                           [buffers.muscle_points])
+            first = (apply_jaw_and_muscles, vertices,
+                     [mesh.rest_points, self._jaw_weight, wp.vec3(*jaw.pivot), wp.vec3(*jaw.axis), wp.vec3(*jaw.forward),
+                      self._muscle_offsets, self._muscle_entries, controls, buffers.muscle_width, len(self.muscles), vertex_count],
+                     [buffers.muscle_points])
         return [
             first,
-            record(triangle_stretch, triangles,
-                   [buffers.muscle_points, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, *counts],
-                   [buffers.stretch_terms]),
-            record(stretch_and_bulge, vertices,
-                   [buffers.muscle_points, buffers.stretch_terms, self._counts,
-                    mesh.adjacency_offsets, mesh.adjacency_triangles, self._thickness, *counts],
-                   [buffers.stretch, buffers.bulge_points]),
-            record(triangle_area_vectors, triangles,
-                   [buffers.bulge_points, mesh.triangles, mesh.triangle_weight, *counts], [buffers.area_vectors]),
-            record(apply_wrinkles, vertices, self._wrinkle_inputs(buffers), [buffers.final_points]),
+            (triangle_stretch, triangles, [buffers.muscle_points, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, *counts],
+             [buffers.stretch_terms]),
+            (stretch_and_bulge, vertices, [buffers.muscle_points, buffers.stretch_terms, self._counts, mesh.adjacency_offsets,
+                                           mesh.adjacency_triangles, self._thickness, *counts], [buffers.stretch, buffers.bulge_points]),
+            (triangle_area_vectors, triangles, [buffers.bulge_points, mesh.triangles, mesh.triangle_weight, *counts],
+             [buffers.area_vectors]),
+            (apply_wrinkles, vertices, [buffers.bulge_points, buffers.area_vectors, mesh.adjacency_offsets, mesh.adjacency_triangles,
+                                        buffers.stretch, self._wrinkle_offsets, self._wrinkle_entries, depths, buffers.wrinkle_width,
+                                        *counts], [final_points]),
         ]
+
+    def _launch_frames(self, buffers: FrameBuffers, *, frames: int, controls: wp.array | None = None, depths: wp.array | None = None,
+                      final_points: wp.array | None = None, keep_muscle_points: bool = False) -> None:
+        """The frame's kernels over the first ``frames`` frames, reading ``controls``/``depths`` (default: the
+        buffers') and writing ``final_points`` (default: the buffers'); x1 is kept for the stages on request."""
+        arguments = self._launch_args(
+            buffers, frames, buffers.contraction if controls is None else controls, buffers.depth if depths is None else depths,
+            buffers.final_points if final_points is None else final_points, keep_muscle_points)
+        for kernel, dim, inputs, outputs in arguments:
+            wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device)
+
+    def _record_launches(self, buffers: FrameBuffers) -> list:
+        arguments = self._launch_args(buffers, buffers.frames, buffers.contraction, buffers.depth, buffers.final_points, False)
+        return [wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device, record_cmd=True)
+                for kernel, dim, inputs, outputs in arguments]
 
 
 def _entry_array(struct, device, **fields: np.ndarray) -> wp.array:

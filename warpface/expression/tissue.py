@@ -31,7 +31,8 @@ from scipy.spatial import cKDTree
 from ._sparse import vertex_csr
 from .muscles import Muscle, MuscleWeights
 
-__all__ = ["tissue_response", "skin_muscle_weights", "stretch_rate", "neighbourhood_mean", "FASCIA_RADIUS", "BUNCHING_CAP"]
+__all__ = ["tissue_response", "skin_muscle_weights", "stretch_rate", "neighbourhood_mean", "neighbourhood_averager", "FASCIA_RADIUS",
+           "BUNCHING_CAP"]
 
 FASCIA_RADIUS = 0.03
 """Radius of the neighbourhood averages below, as a fraction of the mesh's size (its bounding-box
@@ -45,6 +46,12 @@ BUNCHING_CAP = 0.5
 
 def neighbourhood_mean(points: np.ndarray, values: np.ndarray, radius: float) -> np.ndarray:
     """Gaussian-weighted mean (σ = radius/2) of per-vertex ``values`` (V, ...) over the points within ``radius``."""
+    return neighbourhood_averager(points, radius)(values)
+
+
+def neighbourhood_averager(points: np.ndarray, radius: float):
+    """:func:`neighbourhood_mean` over ``points`` as a function of the values alone: the neighbour search
+    and the weights are done once, for a rig's many averages (the same results, bit for bit)."""
     tree = cKDTree(points)
     pairs = tree.query_pairs(radius, output_type="ndarray")
     sigma2 = (0.5 * radius) ** 2
@@ -54,8 +61,12 @@ def neighbourhood_mean(points: np.ndarray, values: np.ndarray, radius: float) ->
                          (np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(count)]),
                           np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(count)]))), shape=(count, count)).tocsr()
     total = np.asarray(matrix.sum(axis=1)).ravel()
-    flat = values.reshape(count, -1)
-    return (matrix @ flat / total[:, None]).reshape(values.shape)
+
+    def mean(values: np.ndarray) -> np.ndarray:
+        flat = values.reshape(count, -1)
+        return (matrix @ flat / total[:, None]).reshape(values.shape)
+
+    return mean
 
 
 def stretch_rate(points: np.ndarray, triangles: np.ndarray, field: np.ndarray) -> np.ndarray:
@@ -113,7 +124,8 @@ def tissue_response(points: np.ndarray, triangles: np.ndarray, normals: np.ndarr
     points = np.asarray(points, dtype=np.float64)
     extent = points.max(axis=0) - points.min(axis=0) if len(points) else np.zeros(3)
     radius = FASCIA_RADIUS * float(np.linalg.norm(extent))
-    normals = neighbourhood_mean(points, np.asarray(normals, dtype=np.float64), radius)
+    average = neighbourhood_averager(points, radius)
+    normals = average(np.asarray(normals, dtype=np.float64))
     length = np.linalg.norm(normals, axis=1, keepdims=True)
     normals = np.divide(normals, length, out=np.zeros_like(normals), where=length > 1e-12)
     vertex_count = len(points)
@@ -125,14 +137,15 @@ def tissue_response(points: np.ndarray, triangles: np.ndarray, normals: np.ndarr
         field[row[mine]] = weights.weight[mine]
         pull = np.linalg.norm(field, axis=1)
         if muscle.sliding > 0.0:
-            tangential = field - np.sum(field * normals, axis=1, keepdims=True) * normals
-            length = np.linalg.norm(tangential, axis=1, keepdims=True)
-            along = np.divide(tangential * pull[:, None], length, out=np.zeros_like(tangential), where=length > 1e-12 * (pull.max() + 1e-300))
+            # Remove the pull's normal part: the skin glides on the fascia. Carrying the full pull
+            # along the surface instead folded the skin wherever the fascia turns steeply under a
+            # pull (nose side, inner canthus, cheek sides; docs/RIG.md §2).
+            along = field - np.sum(field * normals, axis=1, keepdims=True) * normals
             field = (1.0 - muscle.sliding) * field + muscle.sliding * along
         if muscle.thickening > 0.0:
             field += (muscle.thickening * pull)[:, None] * normals
         if muscle.bunching > 0.0:
-            height = -muscle.bunching * thickness * neighbourhood_mean(points, stretch_rate(points, triangles, field), radius)
+            height = -muscle.bunching * thickness * average(stretch_rate(points, triangles, field))
             cap = BUNCHING_CAP * float(np.linalg.norm(field, axis=1).max())
             if cap > 0.0:
                 field += (cap * np.tanh(height / cap))[:, None] * normals

@@ -19,7 +19,7 @@ from .assembly import FORMULATIONS, assemble
 from .integrator import DISPLACEMENT_LIMIT, TissueSimulation, split_nodes
 from .material import TissueMaterial
 from .newmark import newmark_coefficients, validate_newmark
-from .solver_batch import BatchedCGSolver
+from .solver_batch import BATCH_PRECONDITIONERS, BatchedCGSolver
 from .tetmesh import TetMesh
 
 __all__ = ["TissueBatch"]
@@ -37,7 +37,8 @@ class TissueBatch:
         device: Warp device; ``None`` uses Warp's preferred device.
         cg_tol: CG tolerance relative to each model's predictor residual (see :class:`TissueSimulation`).
         cg_maxiter: CG iteration limit per step.
-        cg_preconditioner: ``"fsai"`` (one FSAI factor shared by the models) or ``"block_jacobi"`` (per model).
+        cg_preconditioner: ``"fsai"`` (one FSAI factor shared by the models), ``"fsai_each"`` (its support
+            refitted to each model: fewer iterations where the models differ) or ``"block_jacobi"`` (per model).
         chunk: Steps per ring buffer of :meth:`run` and of :meth:`step`'s host input.
         use_graph: Capture the batched step as a graph (default: on CUDA).
 
@@ -60,8 +61,8 @@ class TissueBatch:
             material.per_tet(tetmesh.tet_count)
         if formulation not in FORMULATIONS:
             raise ValueError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
-        if cg_preconditioner not in ("fsai", "block_jacobi"):
-            raise ValueError(f"cg_preconditioner must be 'fsai' or 'block_jacobi', got {cg_preconditioner!r}")
+        if cg_preconditioner not in BATCH_PRECONDITIONERS:
+            raise ValueError(f"cg_preconditioner must be one of {BATCH_PRECONDITIONERS}, got {cg_preconditioner!r}")
         if solver not in ("auto", "direct", "cg"):
             raise ValueError(f"solver must be one of ('auto', 'direct', 'cg'), got {solver!r}")
         for name, value, low in (("cg_tol", cg_tol, 1e-16), ("cg_maxiter", cg_maxiter, 1), ("chunk", chunk, 1)):

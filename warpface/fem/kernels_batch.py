@@ -22,9 +22,10 @@ One time step (see :class:`warpface.fem.solver_batch.BatchedCGSolver`) is
    extrapolation for the next step (as the single-model CG solver).
 
 The preconditioner is either 3x3 block Jacobi (the inverse diagonal blocks, per model) or one
-factorised ``M⁻¹ = Gᵀ G`` shared by all models (:data:`batch_factor_product`, :data:`batch_factor_finish`:
-FSAI of one model's matrix; any SPD preconditioner keeps CG exact, a shared one only costs
-iterations where the models differ). All arithmetic is float64.
+factorised ``M⁻¹ = Gᵀ G`` (:data:`batch_factor_product`, :data:`batch_factor_finish`): FSAI of one
+model's matrix shared by all models (values (1, nnz)), or that support refitted per model (values
+(B, nnz)); any SPD preconditioner keeps CG exact, a shared one only costs iterations where the
+models differ. All arithmetic is float64.
 """
 
 from __future__ import annotations
@@ -49,6 +50,10 @@ __all__ = [
     "batch_start",
     "batch_update",
 ]
+
+ROW_CHUNK = wp.constant(8)
+"""Matrix-row entries per straight-line group in the per-iteration products: a thread walks a row of
+up to ~96 entries, and within a group all loads are issued before the first is used (latency bound)."""
 
 SCALARS = 10
 """Per-model scalars (second index of ``scalars``): see the ``S_*`` constants."""
@@ -223,8 +228,15 @@ def batch_product(
     if active[b] == 0:
         return
     acc = wp.vec3d()
-    for e in range(offsets[i], offsets[i + 1]):
+    e = offsets[i]
+    end = offsets[i + 1]
+    while e + ROW_CHUNK <= end:  # straight-line groups: their loads are in flight together
+        for s in range(wp.static(ROW_CHUNK)):
+            acc += values[b, e + s] * p[b, columns[e + s]]
+        e += ROW_CHUNK
+    while e < end:
         acc += values[b, e] * p[b, columns[e]]
+        e += 1
     q[b, i] = acc
     wp.atomic_add(scalars, b, S_PQ, wp.dot(p[b, i], acc))
 
@@ -344,7 +356,7 @@ def batch_newmark_update(
             ring[0] = (slot + 1) % chunk
 
 
-# The shared factorised preconditioner M⁻¹ = Gᵀ G (FSAI of one model's matrix, applied to every model):
+# The factorised preconditioner M⁻¹ = Gᵀ G (FSAI: one factor for every model, or one per model):
 # scalar CSR grouped by block row, ``keys[e] = 3 * column + row % 3`` (as the single-model CG kernels).
 
 
@@ -354,11 +366,20 @@ def _unit(axis: int, value: wp.float64):
     return wp.vec3d(wp.where(axis == 0, value, zero), wp.where(axis == 1, value, zero), wp.where(axis == 2, value, zero))
 
 
+@wp.func
+def _factor_entry(keys: wp.array(dtype=wp.int32), values: wp.array2d(dtype=wp.float64), u_flat: wp.array2d(dtype=wp.float64),
+                  row: int, b: int, e: int):
+    """Entry ``e`` of a grouped factor row times ``u``: ``values[row, e] · u[column]`` on its row's axis."""
+    key = keys[e]
+    col = key // 3
+    return _unit(key - 3 * col, values[row, e] * u_flat[b, col])
+
+
 @wp.kernel(enable_backward=False)
 def batch_factor_product(
     offsets: wp.array(dtype=wp.int32),
     keys: wp.array(dtype=wp.int32),
-    values: wp.array(dtype=wp.float64),
+    values: wp.array2d(dtype=wp.float64),
     u_flat: wp.array2d(dtype=wp.float64),
     active: wp.array(dtype=wp.int32),
     out: wp.array2d(dtype=wp.vec3d),
@@ -367,11 +388,17 @@ def batch_factor_product(
     b, i = wp.tid()
     if active[b] == 0:
         return
+    row = wp.min(b, values.shape[0] - 1)  # one shared factor, or one per model
     acc = wp.vec3d()
-    for e in range(offsets[i], offsets[i + 1]):
-        key = keys[e]
-        col = key // 3
-        acc += _unit(key - 3 * col, values[e] * u_flat[b, col])
+    e = offsets[i]
+    end = offsets[i + 1]
+    while e + ROW_CHUNK <= end:
+        for s in range(wp.static(ROW_CHUNK)):
+            acc += _factor_entry(keys, values, u_flat, row, b, e + s)
+        e += ROW_CHUNK
+    while e < end:
+        acc += _factor_entry(keys, values, u_flat, row, b, e)
+        e += 1
     out[b, i] = acc
 
 
@@ -379,7 +406,7 @@ def batch_factor_product(
 def batch_factor_finish(
     offsets: wp.array(dtype=wp.int32),
     keys: wp.array(dtype=wp.int32),
-    values: wp.array(dtype=wp.float64),
+    values: wp.array2d(dtype=wp.float64),
     y_flat: wp.array2d(dtype=wp.float64),
     r: wp.array2d(dtype=wp.vec3d),
     active: wp.array(dtype=wp.int32),
@@ -394,11 +421,17 @@ def batch_factor_finish(
     b, i = wp.tid()
     if active[b] == 0:
         return
+    row = wp.min(b, values.shape[0] - 1)  # one shared factor, or one per model
     acc = wp.vec3d()
-    for e in range(offsets[i], offsets[i + 1]):
-        key = keys[e]
-        col = key // 3
-        acc += _unit(key - 3 * col, values[e] * y_flat[b, col])
+    e = offsets[i]
+    end = offsets[i + 1]
+    while e + ROW_CHUNK <= end:
+        for s in range(wp.static(ROW_CHUNK)):
+            acc += _factor_entry(keys, values, y_flat, row, b, e + s)
+        e += ROW_CHUNK
+    while e < end:
+        acc += _factor_entry(keys, values, y_flat, row, b, e)
+        e += 1
     z[b, i] = acc
     if set_direction == 1:
         p[b, i] = acc

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 import warp as wp
+from warp.optim.linear import FSAI
 
 from . import kernels_batch
 from .assembly import SystemMatrices
@@ -36,20 +37,53 @@ from .kernels_batch import (
     batch_update,
 )
 from .newmark import NewmarkCoefficients
-from .solver_cg import ConvergenceError, newmark_operators, preconditioner_factor
+from .assembly import bsr_to_scipy
+from .solver_cg import FSAI_ROW_SIZE, ConvergenceError, newmark_operators, preconditioner_factor
 
-__all__ = ["BatchedCGSolver"]
+__all__ = ["BATCH_PRECONDITIONERS", "BatchedCGSolver", "per_model_fsai"]
+
+BATCH_PRECONDITIONERS = ("fsai", "fsai_each", "block_jacobi")
 
 
-def _grouped_rows(G, device):
-    """``(offsets, keys, values)`` of a scalar CSR matrix grouped by 3-row blocks (see kernels_batch)."""
-    G = G.tocsr()
-    G.sort_indices()
-    rows = np.repeat(np.arange(G.shape[0]), np.diff(G.indptr))
-    keys = 3 * G.indices.astype(np.int64) + rows % 3
-    return (wp.array(G.indptr[0::3].astype(np.int32), dtype=wp.int32, device=device),
+def _grouped_rows(factors, device):
+    """``(offsets, keys, values)`` of scalar CSR matrices of one pattern grouped by 3-row blocks (see
+    kernels_batch): shared ``offsets`` and ``keys``, ``values`` of shape (len(factors), nnz)."""
+    grouped = []
+    for G in factors:
+        G = G.tocsr()
+        G.sort_indices()
+        grouped.append(G)
+    first = grouped[0]
+    rows = np.repeat(np.arange(first.shape[0]), np.diff(first.indptr))
+    keys = 3 * first.indices.astype(np.int64) + rows % 3
+    return (wp.array(first.indptr[0::3].astype(np.int32), dtype=wp.int32, device=device),
             wp.array(keys.astype(np.int32), dtype=wp.int32, device=device),
-            wp.array(G.data, dtype=wp.float64, device=device))
+            wp.array(np.stack([G.data for G in grouped]), dtype=wp.float64, device=device))
+
+
+def per_model_fsai(systems: list, reference: int) -> list:
+    """One FSAI factor per model on the support chosen for model ``reference`` (SciPy CSR, float64).
+
+    The support is selected once (``warp.optim.linear.FSAI`` with ``reuse_pattern``) and refitted to
+    each model's values, so all factors share one pattern and the batch kernels share its indices. A
+    model whose refit fails (or whose factor comes back with another pattern) keeps the reference
+    model's factor: any SPD preconditioner keeps CG exact.
+    """
+    fsai = FSAI(systems[reference], max_row_size=FSAI_ROW_SIZE, reuse_pattern=True)
+    shared = bsr_to_scipy(fsai.G)
+    factors = []
+    for index, system in enumerate(systems):
+        if index == reference:
+            factors.append(shared)
+            continue
+        try:
+            G = bsr_to_scipy(fsai.update(system).G)
+        except ValueError:
+            G = None
+        same = (G is not None and np.array_equal(G.indptr, shared.indptr) and np.array_equal(G.indices, shared.indices)
+                and np.all(np.isfinite(G.data)))
+        factors.append(G if same else shared)
+    return factors
 
 
 def _stack_values(matrices, label: str):
@@ -76,7 +110,9 @@ class BatchedCGSolver:
         driven_nodes: Nodes with prescribed displacement, shape (D,), int.
         tol: CG tolerance relative to each model's predictor residual norm.
         preconditioner: ``"fsai"`` (one FSAI factor, of the model of median mean Young's modulus, shared
-            by all models: far fewer iterations than block Jacobi on tissue) or ``"block_jacobi"`` (per model).
+            by all models: far fewer iterations than block Jacobi on tissue), ``"fsai_each"`` (that
+            factor's support refitted to every model: each model converges as fast as alone, at the
+            cost of a factor's values per model) or ``"block_jacobi"`` (per model).
         maxiter: CG iteration limit per step.
         chunk: Ring slots of driven input and recorded displacement.
         use_graph: Capture the step as a graph (CUDA).
@@ -88,8 +124,8 @@ class BatchedCGSolver:
     def __init__(self, matrices: list[SystemMatrices], coefficients: NewmarkCoefficients, free_nodes, driven_nodes, *,
                  tol: float = 1.0e-5, maxiter: int = 500, chunk: int = 64, use_graph: bool = True,
                  preconditioner: str = "fsai"):
-        if preconditioner not in ("fsai", "block_jacobi"):
-            raise ValueError(f"batched preconditioner must be 'fsai' or 'block_jacobi', got {preconditioner!r}")
+        if preconditioner not in BATCH_PRECONDITIONERS:
+            raise ValueError(f"batched preconditioner must be one of {BATCH_PRECONDITIONERS}, got {preconditioner!r}")
         if not matrices:
             raise ValueError("a batch needs at least one model")
         dev = matrices[0].device
@@ -109,10 +145,14 @@ class BatchedCGSolver:
         operators = [newmark_operators(m, coefficients, free_index, driven_slot) for m in matrices]
         self._A = _stack_values([A for A, _ in operators], "system")
         self._factor = None
-        if preconditioner == "fsai":
+        if preconditioner in ("fsai", "fsai_each"):
             stiffness = [float(np.mean(m.K.values.numpy()[: m.K.nnz_sync()].diagonal(axis1=1, axis2=2))) for m in matrices]
-            G = preconditioner_factor(operators[int(np.argsort(stiffness)[len(stiffness) // 2])][0], "fsai")
-            self._factor = (_grouped_rows(G, dev), _grouped_rows(G.T, dev))
+            median = int(np.argsort(stiffness)[len(stiffness) // 2])
+            if preconditioner == "fsai":
+                factors = [preconditioner_factor(operators[median][0], "fsai")]
+            else:
+                factors = per_model_fsai([A for A, _ in operators], median)
+            self._factor = (_grouped_rows(factors, dev), _grouped_rows([G.T for G in factors], dev))
         self._P = _stack_values([P for _, P in operators], "right-hand-side")
         del operators
         self._inverse = wp.empty((batch, n_free), dtype=wp.mat33d, device=dev)
@@ -164,7 +204,7 @@ class BatchedCGSolver:
                   device=dev)
 
     def _apply_factor(self, which: int, set_direction: int) -> None:
-        """``z = Gᵀ G r`` and ``r·z`` into ``scalars[:, which]`` with the shared factor (no-op for block Jacobi)."""
+        """``z = Gᵀ G r`` and ``r·z`` into ``scalars[:, which]`` with the FSAI factor(s) (no-op for block Jacobi)."""
         if self._factor is None:
             return
         b, f, dev = self.model_count, self.free_nodes.size, self.device

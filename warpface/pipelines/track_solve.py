@@ -5,8 +5,9 @@ Per frame, :class:`SolvingTracker`
 1. maps the source's landmarks into the face's model frame (``camera_to_model``, or a similarity
    fitted on the first frame with ≥ 4 landmarks, which should be neutral, as for the geometric
    :class:`~warpface.tracking.TrackingAdapter`);
-2. solves the rig's controls with a :class:`warpface.solve.Solver` at the landmarks' vertices,
-   warm-started from (and smoothed toward) the previous frame, with a rigid head pose;
+2. solves the rig's controls (the muscles, and the jaw's opening, protrusion and slide when the rig
+   has a jaw) with a :class:`warpface.solve.Solver` at the landmarks' vertices, warm-started from
+   (and smoothed toward) the previous frame, with a rigid head pose;
 3. evaluates the expression model (muscles → stretch → bulge → wrinkles) at those controls: the skin;
 4. optionally (``residual_transfer``) adds what the solve could not explain: the landmarks' residual
    ``y − pose(x(c))``, taken back into the rig frame and relative to its value when each landmark was
@@ -22,6 +23,8 @@ writer's value clips, so Ctrl-C keeps every frame received, controls included)::
     /Capture/Landmarks                          the landmarks, model frame (as a geometric capture)
     /Capture/Rig                                the rig (warpface.usd.write_rig), contractions cleared
     /Capture/Rig/Muscles/<name>.contraction     solved control per frame (time samples)
+    /Capture/Rig/<Jaw>.jawOpen, .jawForward,    the jaw's solved controls per frame (time samples; the
+        .jawLeft                                jaw prim the rig stage links from the skin)
     /Capture/Rig/Skin.points, .extent           the skin per frame: the baked cache, rig frame
     /Capture/Rig/Skin.warpFace:track:residual   RMS landmark distance of the solve [m] (0 when skipped)
     /Capture/Rig/Skin.warpFace:track:skipped    True: too few landmarks, previous controls kept
@@ -40,6 +43,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
 from ..tracking import LandmarkFrame, adapter_for_face, landmark_vertices, similarity_fit
+from ..usd.jaw_io import JAW_CONTROL_ATTRIBUTES, jaw_prim
 
 __all__ = ["SolvedFrame", "SolvingTracker", "SolvedStageLayout", "solved_stage_writer", "read_solved_capture",
            "RIG_ROOT"]
@@ -54,7 +58,8 @@ class SolvedFrame:
     """One tracked frame's solve."""
 
     controls: np.ndarray
-    """Controls in rig order, (M,) float64 (linear muscles in mesh units, sphincters dimensionless)."""
+    """Controls in the solver's order, (C,) float64: the muscles (linear in mesh units, sphincters
+    dimensionless), then the jaw's opening [rad], protrusion and slide [mesh units] when solved."""
     skin: np.ndarray
     """Skin points, rig frame [mesh units], (V, 3) float32 (with the residual motion when transferred)."""
     residual_motion: np.ndarray | None
@@ -91,7 +96,8 @@ class SolvingTracker:
         smoothness: temporal weight of the solve (pull toward the previous frame's controls).
         min_confidence: landmarks at or below this confidence count as missing.
         device: Warp device.
-        **options: more :class:`warpface.solve.SolveOptions` fields (``l1``, ``symmetry``, ``min_points`` …).
+        **options: more :class:`warpface.solve.SolveOptions` fields (``l1``, ``symmetry``, ``min_points``,
+            ``jaw=False`` to keep the jaw at rest …).
     """
 
     def __init__(self, rig, landmark_names, *, camera_to_model=None, residual_transfer: bool = False, pose: bool = True,
@@ -103,8 +109,6 @@ class SolvingTracker:
         self.vertices = landmark_vertices(self.names, rig.mesh.vertex_count)
         if len(np.unique(self.vertices)) != len(self.vertices):
             raise ValueError("landmark_names: two landmarks sit on the same vertex")
-        # The solved stage writes muscle prims only (jaw time samples are not laid out yet): muscles only.
-        options.setdefault("jaw", False)
         self.solver = Solver(rig, self.vertices, pose=pose, smoothness=smoothness, device=device, **options)
         self.control_names = list(self.solver.names)
         self.solver.model  # built now (≈ 0.2 s), not inside the first frame
@@ -204,15 +208,16 @@ class SolvedStageLayout:
     """Attribute paths of a solved capture (see the module docstring)."""
 
     skin: Sdf.Path
-    muscles: tuple
-    """Muscle prim paths in control order (a control without a muscle prim is refused when writing)."""
+    controls: tuple
+    """Attribute paths in control order: each muscle's ``contraction``, the jaw prim's ``jawOpen`` … (a
+    control without an attribute on the stage is refused when writing)."""
     pose: bool
 
     @property
     def channels(self) -> dict:
         """The capture writer's per-frame channels: ``{attribute path: Sdf.ValueTypeName}``."""
         types = Sdf.ValueTypeNames
-        channels = {path.AppendProperty("contraction"): types.Double for path in self.muscles}
+        channels = {path: types.Double for path in self.controls}
         channels[self.skin.AppendProperty(UsdGeom.Tokens.points)] = types.Point3fArray
         channels[self.skin.AppendProperty(UsdGeom.Tokens.extent)] = types.Float3Array
         channels[self.skin.AppendProperty(_RESIDUAL)] = types.Double
@@ -226,7 +231,7 @@ class SolvedStageLayout:
         from ..usd.tracking_io import vec3f_array
 
         skin = np.ascontiguousarray(skin, dtype=np.float32)
-        values = {path.AppendProperty("contraction"): float(value) for path, value in zip(self.muscles, solved.controls)}
+        values = {path: float(value) for path, value in zip(self.controls, solved.controls)}
         values[self.skin.AppendProperty(UsdGeom.Tokens.points)] = vec3f_array(skin)
         values[self.skin.AppendProperty(UsdGeom.Tokens.extent)] = Vt.Vec3fArray.FromNumpy(np.stack([skin.min(axis=0), skin.max(axis=0)]))
         values[self.skin.AppendProperty(_RESIDUAL)] = float(solved.residual)
@@ -254,30 +259,36 @@ def solved_stage_writer(path, tracker: SolvingTracker, fps: float, *, chunk_fram
 
     rig = tracker.rig
     root = Sdf.Path(RIG_ROOT)
-    paths = _muscle_paths(rig, root)
+    paths = _control_attributes(rig, root)
     unplaced = [name for name in tracker.control_names if name not in paths]
-    if unplaced:  # every control must land on a prim, or the stage would silently lose it
-        raise ValueError(f"controls {unplaced[:5]} have no muscle prim on the stage; cannot write them")
-    muscles = tuple(paths[name] for name in tracker.control_names)
-    layout = SolvedStageLayout(skin=root.AppendChild("Skin"), muscles=muscles, pose=tracker.solver.options.pose)
+    if unplaced:  # every control must land on an attribute, or the stage would silently lose it
+        raise ValueError(f"controls {unplaced[:5]} have no muscle or jaw prim on the stage; cannot write them")
+    controls = tuple(paths[name] for name in tracker.control_names)
+    layout = SolvedStageLayout(skin=root.AppendChild("Skin"), controls=controls, pose=tracker.solver.options.pose)
     writer = TrackingStageWriter(path, tracker.names, fps, chunk_frames=chunk_frames, flush_seconds=flush_seconds,
                                  extra_prims=lambda stage: write_rig(stage, rig, root_path=RIG_ROOT, fps=fps),
                                  channels=layout.channels)
     return writer, layout
 
 
-def _muscle_paths(rig, root: Sdf.Path) -> dict:
-    """``{muscle name: prim path}`` as :func:`warpface.usd.write_rig` authors ``rig`` under ``root``."""
+def _control_attributes(rig, root: Sdf.Path) -> dict:
+    """``{control name: attribute path}`` as :func:`warpface.usd.write_rig` authors ``rig`` under ``root``:
+    each muscle's ``contraction`` and, with a jaw, the jaw prim's control attributes."""
     from ..usd import rig_prims, write_rig
 
     stage = Usd.Stage.CreateInMemory()
     write_rig(stage, rig, root_path=str(root))
     prims = rig_prims(stage)
-    return {name: prim.GetPath() for name, prim in zip(prims.muscle_names, prims.muscles)}
+    paths = {name: prim.GetPath().AppendProperty("contraction") for name, prim in zip(prims.muscle_names, prims.muscles)}
+    jaw = jaw_prim(stage, prims.skin)
+    if jaw is not None:
+        paths.update({name: jaw.GetPath().AppendProperty(attribute) for name, attribute in JAW_CONTROL_ATTRIBUTES.items()})
+    return paths
 
 
 def read_solved_capture(path) -> dict:
-    """Read a solved capture: ``times`` (F,), ``controls`` (F, M), ``control_names``, ``skin`` (F, V, 3),
+    """Read a solved capture: ``times`` (F,), ``controls`` (F, C), ``control_names`` (the muscles, then the
+    jaw's when the capture solved them), ``skin`` (F, V, 3),
     ``residual`` (F,), ``skipped`` (F,) and, when solved, ``head_pose`` (F, 4, 4); plus what
     :func:`~warpface.usd.tracking_io.read_tracking` returns (``landmarks``, ``confidence``, ``fps`` …)."""
     from ..usd import open_stage, rig_prims
@@ -289,7 +300,14 @@ def read_solved_capture(path) -> dict:
     times = result["times"]
     contraction = [Usd.AttributeQuery(p.GetAttribute("contraction")) for p in prims.muscles]
     skin = prims.skin
-    result["control_names"] = prims.muscle_names
+    names = list(prims.muscle_names)
+    jaw = jaw_prim(stage, skin)
+    if jaw is not None:  # the jaw's controls, when the capture solved them (time samples)
+        solved = [(name, jaw.GetAttribute(attribute)) for name, attribute in JAW_CONTROL_ATTRIBUTES.items()]
+        if all(attribute and attribute.GetNumTimeSamples() > 0 for _, attribute in solved):
+            names += [name for name, _ in solved]
+            contraction += [Usd.AttributeQuery(attribute) for _, attribute in solved]
+    result["control_names"] = names
     result["controls"] = np.array([[q.Get(t) for q in contraction] for t in times], dtype=np.float64).reshape(len(times), -1)
     points = skin.GetAttribute(UsdGeom.Tokens.points)
     result["skin"] = np.stack([np.asarray(points.Get(t)) for t in times]) if len(times) else np.zeros((0, 0, 3))

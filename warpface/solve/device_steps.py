@@ -27,6 +27,8 @@ class _State:
             return wp.zeros(max(n, 1), dtype=wp.int32, device=device)
 
         self.u, self.previous, self.trial_u = f64(frames * controls), f64(frames * controls), f64(frames * controls)
+        self.lower, self.upper = f64(frames * controls), f64(frames * controls)
+        """The bounds of the current iteration (the box narrowed to each control's L1 orthant)."""
         self.rotation, self.trial_rotation = (wp.zeros(frames, dtype=wp.mat33d, device=device) for _ in range(2))
         self.translation, self.trial_translation = (wp.zeros(frames, dtype=wp.vec3d, device=device) for _ in range(2))
         self.damping, self.current, self.misfit = f64(frames), f64(frames), f64(frames)
@@ -69,7 +71,7 @@ class DeviceSteps:
 
     Args:
         objective: the data term (targets bound per chunk by the caller).
-        scale: (M,) control scale (``u = c·scale``); low, high: (M,) scaled bounds.
+        scale: (C,) control scale (``u = c·scale``); low, high: (C,) scaled bounds.
         pairs: (P, 2) mirrored control pairs; unit: the face unit ℓ [mesh units].
     """
 
@@ -78,6 +80,9 @@ class DeviceSteps:
         self.objective = objective
         d = self.device = objective.device
         self.control_count = objective.control_count
+        self.muscle_count = objective.model.muscle_count
+        self.basis_count = objective.model.basis_count
+        """Columns of the model's input per frame: muscles, then with a jaw ``sin θ, 1 − cos θ``, protrusion, slide."""
         self.size = objective.variable_count
         column = np.full(self.size, 1.0 / unit)
         column[: self.control_count] = 1.0 / (scale * unit)
@@ -134,22 +139,23 @@ class DeviceSteps:
             return state.commands[1]
         controls, rotation_out, translation_out, frame_on, hessian, gradient, data_misfit = self.objective.inputs()
         s, d, m, k = state, self.device, self.control_count, self.size
+        layout = [m, self.muscle_count, self.basis_count]
         f = wp.float64
         symmetry = options.symmetry if self._pair_count else 0.0
         regular = [self._pairs, self._pair_count, f(options.l2), f(options.l1), f(smooth), f(symmetry)]
         model_io = [controls, rotation_out, translation_out, frame_on]
         load = wp.launch(step_kernels.load_current, dim=frames, device=d, record_cmd=True,
-                         inputs=[s.u, s.rotation, s.translation, s.active, self._scale, m],
+                         inputs=[s.u, s.rotation, s.translation, s.active, self._scale, *layout],
                          outputs=[controls, rotation_out, translation_out, frame_on, s.counter])
         begin = wp.launch(step_kernels.begin_iteration, dim=frames, device=d, record_cmd=True,
                           inputs=[hessian, gradient, data_misfit, self._column, self._low, self._high, self._scale,
-                                  s.previous, *regular, f(options.tolerance), f(options.energy_tolerance), m, k],
+                                  s.previous, *regular, f(options.tolerance), f(options.energy_tolerance), *layout, k],
                           outputs=[s.u, s.rotation, s.translation, s.damping, s.current, s.misfit, s.active, s.converged,
-                                   s.iterations, s.held, s.tries, s.system, s.step, s.trial_u, s.trial_rotation,
+                                   s.iterations, s.held, s.lower, s.upper, s.tries, s.system, s.step, s.trial_u, s.trial_rotation,
                                    s.trial_translation, *model_io, s.pending, s.counter])
         judge = wp.launch(step_kernels.judge_trial, dim=frames, device=d, record_cmd=True,
-                          inputs=[hessian, gradient, data_misfit, self._low, self._high, self._scale, s.previous, *regular,
-                                  f(options.tolerance), f(options.step_tolerance), f(options.energy_tolerance), m, k],
+                          inputs=[hessian, gradient, data_misfit, s.lower, s.upper, self._scale, s.previous, *regular,
+                                  f(options.tolerance), f(options.step_tolerance), f(options.energy_tolerance), *layout, k],
                           outputs=[s.u, s.rotation, s.translation, s.damping, s.current, s.misfit, s.active, s.converged,
                                    s.held, s.tries, s.system, s.step, s.trial_u, s.trial_rotation, s.trial_translation,
                                    *model_io, s.pending, s.counter])

@@ -243,6 +243,7 @@ def wrinkle_stage(
     profile_wrinkle: wp.array(dtype=wp.int32),
     profile_value: wp.array(dtype=wp.float64),
     kr: wp.array(dtype=wp.float64),
+    rest_band: wp.float64,
     active_offsets: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
     control_count: int,
@@ -253,7 +254,7 @@ def wrinkle_stage(
     final: wp.array(dtype=wp.vec3d),
     dfinal: wp.array(dtype=wp.float64),
 ):
-    """x3 = x2 + Σ_w depth·s·C_w(r)·N(x2) and ∂x3/∂c on the target vertices.
+    """x3 = x2 + Σ_w depth·s·C_w(r)·N(x2) and ∂x3/∂c on the target vertices (``r ≤ 1 + rest_band``: compressed side).
 
     ``dfinal`` is laid out (frames, vertices, 3, controls): a frame's Jacobian is one (3n, M) matrix.
     """
@@ -282,7 +283,7 @@ def wrinkle_stage(
         c = kr[profile_wrinkle[k]]
         factor = zero
         dfactor = zero
-        if r <= one:
+        if r <= one + rest_band:  # within the band of rest: the compressed side (local_model.REST_STRETCH_BAND)
             factor = (c - one) * r + one
             dfactor = c - one
         elif c > zero:

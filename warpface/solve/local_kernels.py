@@ -8,9 +8,41 @@ import warp as wp
 
 from .._validate import as_device
 from . import kernels
-from .local_model import STRETCH_FLOOR, LocalExpression, jaw_basis
+from .local_model import REST_STRETCH_BAND, STRETCH_FLOOR, LocalExpression
 
-__all__ = ["KernelExpression", "jaw_chain_rule_kernel"]
+__all__ = ["KernelExpression", "jaw_chain_rule_kernel", "write_model_input", "model_input_kernel"]
+
+
+@wp.func
+def write_model_input(values: wp.array(dtype=wp.float64), scale: wp.array(dtype=wp.float64), f: int,
+                      control_count: int, muscle_count: int, basis_count: int, out: wp.array(dtype=wp.float64)):
+    """Frame ``f``'s controls ``values/scale`` (C per frame) → the pipeline's input (B per frame).
+
+    Muscles are copied; with a jaw (``B = C + 1``) the angle θ becomes ``sin θ, 1 − cos θ`` and the
+    slides follow. One function for the host upload and the on-device iteration, so both hand the model
+    the same bits (a muscle at rest next to a rigidly moved vertex sits on the wrinkle term's kink, where
+    an ulp of ``sin θ`` picks the side of the derivative).
+    """
+    ub = f * control_count
+    ob = f * basis_count
+    for m in range(muscle_count):
+        out[ob + m] = values[ub + m] / scale[m]
+    if basis_count > control_count:
+        angle = values[ub + muscle_count] / scale[muscle_count]
+        out[ob + muscle_count] = wp.sin(angle)
+        out[ob + muscle_count + 1] = wp.float64(1.0) - wp.cos(angle)
+        for j in range(muscle_count + 1, control_count):
+            out[ob + j + 1] = values[ub + j] / scale[j]
+    else:
+        for j in range(muscle_count, control_count):
+            out[ob + j] = values[ub + j] / scale[j]
+
+
+@wp.kernel
+def model_input_kernel(controls: wp.array(dtype=wp.float64), ones: wp.array(dtype=wp.float64), control_count: int,
+                       muscle_count: int, basis_count: int, out: wp.array(dtype=wp.float64)):
+    """Per frame: controls (F·C) → the pipeline's basis (F·B), see :func:`write_model_input`."""
+    write_model_input(controls, ones, wp.tid(), control_count, muscle_count, basis_count, out)
 
 
 @wp.kernel
@@ -62,13 +94,21 @@ class _Buffers:
         """The pipeline's derivatives per basis column; with a jaw, ``dx3`` holds them per control."""
         if outputs is not None and outputs != controls:
             self.dx3 = scalar(frames * n0 * 3 * outputs)
+        self.raw_controls = None
+        """With a jaw: the controls as given (F·C), turned into ``controls`` (the basis) by a kernel."""
+        if outputs is not None and outputs != controls:
+            self.raw_controls = wp.zeros(frames * outputs, dtype=wp.float64, device=device)
         self.frame_on = wp.ones(frames, dtype=wp.int32, device=device)
         """Frames to evaluate (1) or skip (0): the solver turns off the frames that have converged."""
         self.recorded: dict[bool, list] = {}
         """Launches recorded once per mode (with / without Jacobian) and replayed: argument packing is
         most of a small launch's cost on the CPU."""
-        self.host_controls = self.controls.numpy() if device.is_cpu else None
-        """CPU: a NumPy view sharing the controls' memory (written in place)."""
+        staged = self.controls if self.raw_controls is None else self.raw_controls
+        self.staged = staged
+        self.host_controls = staged.numpy() if device.is_cpu else None
+        """CPU: a NumPy view sharing the uploaded controls' memory (written in place)."""
+        self.basis_command = None
+        """The recorded controls → basis launch (with a jaw)."""
 
 
 class KernelExpression:
@@ -107,6 +147,7 @@ class KernelExpression:
         self._sizes = dict(n2=len(local.rest2), t1=len(local.triangles1), n1=len(local.s1_in_s2),
                            t0=len(local.triangles0), n0=local.count)
         self._buffers: dict[int, _Buffers] = {}
+        self._ones = f64(np.ones(self.control_count))
         active_basis = _active_controls(local)
         self.active_controls = {name: _basis_to_controls(csr, local) for name, csr in active_basis.items()}
         """Per element kind (``s2``, ``t1``, ``s1``, ``t0``, ``s0``): which controls can move it, sparse bool CSR."""
@@ -134,13 +175,19 @@ class KernelExpression:
     def upload(self, buffers: _Buffers, controls: np.ndarray) -> None:
         """Write (F, C) controls into ``buffers`` (CPU: in place; CUDA: one host-to-device copy)."""
         controls = np.asarray(controls, dtype=np.float64).reshape(-1, self.control_count)
-        if self.has_jaw:
-            controls = jaw_basis(controls, self.muscle_count)
         flat = np.ascontiguousarray(controls).reshape(-1)
         if buffers.host_controls is not None:
-            buffers.host_controls[:] = flat
+            buffers.host_controls[: flat.size] = flat
         else:
-            buffers.controls.assign(wp.array(flat, dtype=wp.float64, device="cpu"))
+            buffers.staged.assign(wp.array(flat, dtype=wp.float64, device="cpu"))
+        if buffers.raw_controls is not None:
+            if buffers.basis_command is None:
+                frames = len(buffers.frame_on)
+                buffers.basis_command = wp.launch(
+                    model_input_kernel, dim=frames, device=self.device, record_cmd=True,
+                    inputs=[buffers.raw_controls, self._ones, self.control_count, self.muscle_count, self.basis_count],
+                    outputs=[buffers.controls])
+            buffers.basis_command.launch()
 
     def launch(self, buffers: _Buffers, frames: int, jacobian: bool) -> None:
         """Run the five stages on ``buffers`` (controls already uploaded)."""
@@ -173,7 +220,8 @@ class KernelExpression:
         launch(kernels.wrinkle_stage, dim=frames * s["n0"], device=d,
                   inputs=[buffers.frame_on, buffers.x2, buffers.stretch, buffers.dx2, buffers.dstretch, buffers.area0, buffers.darea0,
                           self._s0_in_s1, self._adj0_offsets, self._adj0, self._profile_offsets, self._profile_wrinkle,
-                          self._profile_value, self._kr, *self._active["s0"], m, s["n1"], s["n0"], s["t0"], jac],
+                          self._profile_value, self._kr, wp.float64(REST_STRETCH_BAND), *self._active["s0"], m, s["n1"],
+                          s["n0"], s["t0"], jac],
                   outputs=[buffers.x3, buffers.dx3_basis])
         if jacobian and self.has_jaw:
             launch(jaw_chain_rule_kernel, dim=frames * s["n0"] * 3, device=d,

@@ -34,10 +34,16 @@ from ..rig import FaceRig
 from ..expression.tissue import skin_muscle_weights
 from ..expression.wrinkles import wrinkle_shapes
 
-__all__ = ["RigOperators", "LocalExpression", "STRETCH_FLOOR", "jaw_basis", "jaw_chain_rule"]
+__all__ = ["RigOperators", "LocalExpression", "STRETCH_FLOOR", "REST_STRETCH_BAND", "jaw_basis", "jaw_chain_rule"]
 
 STRETCH_FLOOR = 1.0e-4
 """Lower bound on the stretch ratio before ``1/r`` (the value the bulge kernel uses)."""
+REST_STRETCH_BAND = 1.0e-12
+"""A stretch ratio within this of 1 takes the compressed side of the wrinkle factor. A ``kr = 0``
+wrinkle has a kink at ``r = 1`` (slope −1 below, 0 above), and skin the jaw moves rigidly has ``r = 1``
+up to rounding: without the band an ulp would pick the derivative's side at random, and two evaluations
+of the same iterate (on the host and on the device) would take different Gauss–Newton steps. The value
+changes by at most the band times the wrinkle depth."""
 
 
 @dataclass(frozen=True)
@@ -297,7 +303,7 @@ class LocalExpression:
         if len(rows):
             r0 = r[self.s0_in_s1][rows]  # (n, F)
             kr = self.kr[None, None, :]
-            below = r0[..., None] <= 1.0
+            below = r0[..., None] <= 1.0 + REST_STRETCH_BAND
             safe_kr = np.where(kr > 0.0, kr, 1.0)
             above = np.where(kr > 0.0, kr * np.exp((1.0 - 1.0 / safe_kr) * (r0[..., None] - 1.0)), 0.0)
             factor = np.where(below, (kr - 1.0) * r0[..., None] + 1.0, above)

@@ -3,7 +3,7 @@
 Objective per frame, in scaled controls ``u_m = c_m·ρ_m/ℓ`` (``ρ_m`` the muscle's largest displacement
 per unit contraction, ``ℓ`` the face's size unit, so every ``u`` is "displacement in face units")::
 
-    E(u) = Σ_i ŵ_i |e_i|² + l2·|u|² + l1·Σ u + symmetry·Σ_(l,r) (u_l − u_r)² + smoothness·|u − u_prev|²
+    E(u) = Σ_i ŵ_i |e_i|² + l2·|u|² + l1·Σ|u| + symmetry·Σ_(l,r) (u_l − u_r)² + smoothness·|u − u_prev|²
 
 with ``e_i = (R(x_i(c) − o) + o + t − y_i)/ℓ`` (pose optional, else R = I, t = 0) and ``ŵ`` the point
 weights normalised to sum to 1 over the frame's valid points. Every control has box bounds (a linear
@@ -15,9 +15,11 @@ Gauss–Newton normal equations (M×M, plus 6 with pose) are solved on the free 
 a bound by their gradient), the step is projected onto the box, and accepted if E decreases, otherwise
 the damping grows. Frames are independent and advance together (arrays over frames), so a batch is one
 pass per iteration; the iteration itself runs on the device, one thread per frame (:mod:`.device_steps`),
-so only a counter comes back per launch round (``device_steps=False``: the NumPy reference loop). Chosen over SciPy's ``least_squares`` (trust-region reflective on the same
-objective, measured in ``benchmarks/solve.py``): the exact Jacobian restricted to the rows the targets
-touch, and the tiny bounded system, make each iteration cheaper than one finite-difference Jacobian.
+so only a counter comes back per launch round (``device_steps=False``: the NumPy reference loop of
+:mod:`.host_steps`). The jaw's controls are signed (its L1 term is ``Σ|u|``, smooth away from 0).
+Chosen over SciPy's ``least_squares`` (trust-region reflective on the same objective, measured in
+``benchmarks/solve.py``): the exact Jacobian restricted to the rows the targets touch, and the tiny
+bounded system, make each iteration cheaper than one finite-difference Jacobian.
 """
 
 from __future__ import annotations
@@ -33,9 +35,10 @@ from ..expression.muscles import SphincterMuscle
 from ..rig import FaceRig
 from .local_kernels import KernelExpression
 from .device_steps import DeviceSteps
+from .host_steps import HostSteps
 from .objective import DeviceObjective
 from .local_model import LocalExpression, RigOperators
-from .pose import rigid_alignment, rotation_from_vector
+from .pose import rigid_alignment
 from .targets import frame_targets, observation, point_weights
 
 __all__ = ["SolveOptions", "Fit", "BatchFit", "Solver", "fit", "SPHINCTER_MAX"]
@@ -249,11 +252,11 @@ class Solver:
         self._pairs = self._mirrored_pairs()
         self.origin = self.observation.apply(operators.rest).mean(axis=0)
         self.objective = DeviceObjective(self.local, self.observation, pose=self.options.pose, origin=self.origin, unit=self.unit)
-        self._device_steps = None
-        # The device iteration skips the jaw's (sin θ, 1 − cos θ) basis upload: with a jaw, the NumPy loop.
-        if self.options.device_steps is not False and not self.has_jaw:
-            self._device_steps = DeviceSteps(self.objective, scale=self.control_scale, low=self.low * self.control_scale,
-                                             high=self.high * self.control_scale, pairs=self._pairs, unit=self.unit)
+        iteration = HostSteps if self.options.device_steps is False else DeviceSteps
+        self.steps = iteration(self.objective, scale=self.control_scale, low=self.low * self.control_scale,
+                               high=self.high * self.control_scale, pairs=self._pairs, unit=self.unit)
+        """The Levenberg–Marquardt loop: :class:`~.device_steps.DeviceSteps` (default) or the NumPy
+        :class:`~.host_steps.HostSteps`."""
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -420,88 +423,13 @@ class Solver:
 
         self.objective.bind(y, wn)
         active = ~skipped
-        iterations = np.zeros(frames, dtype=np.int64)
-        converged = np.zeros(frames, dtype=bool)
         # Without an earlier frame, start cautious (large damping): the first Gauss–Newton step of a large
         # expression can jump into another basin (a muscle pulled past its attachment); warm starts start near GN.
         damping = np.full(frames, _COLD_DAMPING if cold else _WARM_DAMPING)
-        if self._device_steps is not None:
-            out = self._device_steps.run(u, rotation, translation, previous, active, damping, options=opts, smooth=smooth)
-            u, rotation, translation, misfit = out["u"], out["rotation"], out["translation"], out["misfit"]
-            converged, active, iterations = out["converged"], out["active"], out["iterations"]
-        else:
-            misfit = self._host_iterations(u, rotation, translation, previous, active, damping, iterations, converged,
-                                           smooth)
-        return self._frames_result(u, rotation, translation, misfit, converged, active, iterations, skipped, start,
-                                   valid_count)
-
-    def _host_iterations(self, u, rotation, translation, previous, active, damping, iterations, converged, smooth):
-        """The iteration in NumPy (the reference of :mod:`.step_kernels`); updates the arrays in place,
-        returns the data misfit per frame."""
-        opts = self.options
-        frames = len(u)
-        scale = self.control_scale
-        low, high = self.low * scale, self.high * scale
-        current = np.full(frames, np.inf)
-        misfit = np.zeros(frames)
-        n = len(self.names)
-        for _ in range(opts.max_iterations):
-            todo = np.flatnonzero(active)
-            if len(todo) == 0:
-                break
-            iterations[todo] += 1
-            hessian, gradient, data = self._system(u, rotation, translation, active, previous, smooth)
-            hessian, gradient, misfit[todo] = hessian[todo], gradient[todo], data[todo]
-            current[todo] = misfit[todo] + self._regularisation(u[todo], previous[todo], smooth)
-            at_low = (u[todo] <= low + 1e-12) & (gradient[:, :n] > 0.0)
-            at_high = (u[todo] >= high - 1e-12) & (gradient[:, :n] < 0.0)
-            held = np.concatenate([at_low | at_high, np.zeros((len(todo), hessian.shape[1] - n), bool)], axis=1)
-            projected = np.where(held, 0.0, gradient)
-            small = np.abs(projected).max(axis=1) < 1e-14
-            converged[todo[small]] = True
-            active[todo[small]] = False
-            pending = np.flatnonzero(~small)
-            for _try in range(8):
-                if len(pending) == 0:
-                    break
-                frame = todo[pending]
-                step = self._damped_step(hessian[pending], projected[pending], held[pending], damping[frame])
-                if _try == 0:
-                    # The quadratic model's predicted decrease; negligible → converged without a trial.
-                    curvature = np.einsum("fi,fij,fj->f", step, hessian[pending], step)
-                    predicted = -(np.einsum("fi,fi->f", projected[pending], step) + 0.5 * curvature)
-                    negligible = predicted <= opts.tolerance * current[frame] + opts.energy_tolerance
-                    converged[frame[negligible]] = True
-                    active[frame[negligible]] = False
-                    pending, step, frame = pending[~negligible], step[~negligible], frame[~negligible]
-                    if len(pending) == 0:
-                        break
-                trial_u, trial_r, trial_t = u.copy(), rotation.copy(), translation.copy()
-                trial_u[frame] = np.clip(u[frame] + step[:, :n], low, high)
-                if step.shape[1] > n:
-                    trial_r[frame] = rotation_from_vector(step[:, n:n + 3]) @ rotation[frame]
-                    trial_t[frame] = translation[frame] + step[:, n + 3:]
-                on = np.zeros(frames, dtype=bool)
-                on[frame] = True
-                trial_misfit = self.objective.evaluate(trial_u / scale, trial_r, trial_t, on, jacobian=False)[0][frame]
-                value = trial_misfit + self._regularisation(trial_u[frame], previous[frame], smooth)
-                better = np.isfinite(value) & (value <= current[frame])
-                accepted = frame[better]
-                decrease = current[accepted] - value[better]
-                moved = np.abs(trial_u[accepted] - u[accepted]).max(axis=1, initial=0.0)
-                u[accepted], rotation[accepted], translation[accepted] = trial_u[accepted], trial_r[accepted], trial_t[accepted]
-                done = (decrease <= opts.tolerance * current[accepted] + opts.energy_tolerance) | (moved < opts.step_tolerance)
-                converged[accepted[done]] = True
-                active[accepted[done]] = False
-                current[accepted], misfit[accepted] = value[better], trial_misfit[better]
-                damping[accepted] = np.maximum(damping[accepted] / 10.0, 1e-9)
-                damping[frame[~better]] *= 4.0
-                pending = pending[~better]
-            # No decrease even with heavy damping: at a (numerically) stationary point.
-            stalled = todo[pending]
-            converged[stalled] = True
-            active[stalled] = False
-        return misfit
+        out = self.steps.run(u, rotation, translation, previous, active, damping, options=opts, smooth=smooth)
+        u, rotation, translation, misfit = out["u"], out["rotation"], out["translation"], out["misfit"]
+        return self._frames_result(u, rotation, translation, misfit, out["converged"], out["active"], out["iterations"],
+                                   skipped, start, valid_count)
 
     def _frames_result(self, u, rotation, translation, misfit, converged, active, iterations, skipped, start, valid_count):
         scale = self.control_scale
@@ -514,58 +442,6 @@ class Solver:
                     converged=converged & ~skipped & ~active,
                     skipped=skipped, iterations=iterations, valid=valid_count,
                     rotation=rotation, translation=translation * self.unit)
-
-    def _regularisation(self, u, previous, smooth):
-        opts = self.options
-        value = opts.l2 * np.sum(u * u, axis=1) + opts.l1 * np.sum(np.abs(u), axis=1)
-        if smooth:
-            value = value + smooth * np.sum((u - previous) ** 2, axis=1)
-        if opts.symmetry and len(self._pairs):
-            diff = u[:, self._pairs[:, 0]] - u[:, self._pairs[:, 1]]
-            value = value + opts.symmetry * np.sum(diff * diff, axis=1)
-        return value
-
-    def _system(self, u, rotation, translation, on, previous, smooth):
-        """Gauss–Newton ``(H, g)`` of ½E for every frame (zeros where ``on`` is False) and the data term:
-        H (F, K, K), g (F, K), misfit (F,), K = M (+ 6 with pose)."""
-        opts = self.options
-        scale = self.control_scale
-        misfit, hessian, gradient = self.objective.evaluate(u / scale, rotation, translation, on, jacobian=True)
-        # The kernel's columns are mesh units per variable: turn them into ∂e/∂u (e in face units).
-        column = np.full(hessian.shape[1], 1.0 / self.unit)
-        column[: len(scale)] = 1.0 / (scale * self.unit)
-        hessian *= column[None, :, None] * column[None, None, :]
-        gradient *= column[None]
-        n = len(self.names)
-        diag = np.arange(n)
-        hessian[:, diag, diag] += opts.l2 + smooth
-        gradient[:, :n] += opts.l2 * u + 0.5 * opts.l1 * np.where(np.arange(n) < self.muscle_count, 1.0, np.sign(u))  # jaw: |u| + smooth * (u - previous)
-        if opts.symmetry and len(self._pairs):
-            left, right = self._pairs[:, 0], self._pairs[:, 1]
-            diff = u[:, left] - u[:, right]
-            gradient[:, left] += opts.symmetry * diff
-            gradient[:, right] -= opts.symmetry * diff
-            hessian[:, left, left] += opts.symmetry
-            hessian[:, right, right] += opts.symmetry
-            hessian[:, left, right] -= opts.symmetry
-            hessian[:, right, left] -= opts.symmetry
-        return hessian, gradient, misfit
-
-    @staticmethod
-    def _damped_step(hessian, gradient, held, damping):
-        """Levenberg–Marquardt step on the free variables (held ones stay): (F, K)."""
-        size = hessian.shape[1]
-        free = ~held
-        system = np.where(free[:, :, None] & free[:, None, :], hessian, 0.0)
-        diagonal = np.einsum("fii->fi", hessian)
-        scaled = damping[:, None] * np.maximum(diagonal, 1e-12 * np.maximum(diagonal.max(axis=1, keepdims=True), 1e-300))
-        system[:, np.arange(size), np.arange(size)] = np.where(free, diagonal + scaled, 1.0)
-        rhs = np.where(free, -gradient, 0.0)
-        try:
-            step = np.linalg.solve(system, rhs[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            step = rhs / np.where(free, diagonal + scaled, 1.0)
-        return np.where(np.isfinite(step), step, 0.0)
 
 
 def fit(rig, target, *, vertices=None, weights=None, device=None, **options) -> Fit:

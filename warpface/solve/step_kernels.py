@@ -5,12 +5,21 @@ frames makes no host round trip per frame: after the data term's normal equation
 :func:`begin_iteration` adds the regularisation, holds the controls pushed against a bound, solves the
 damped system on the free variables (Cholesky in the frame's global scratch) and proposes a trial;
 after the trial's misfit, :func:`judge_trial` accepts it (less damping) or retries with more damping.
-Layouts are flat and frame-major: a frame's K×K system is ``[f·K·K, (f+1)·K·K)``, K = M controls
+Layouts are flat and frame-major: a frame's K×K system is ``[f·K·K, (f+1)·K·K)``, K = C controls
 (+ 6 pose variables: rotation vector, translation in face units). Variables are the scaled controls
 ``u`` (face units), so every frame's state stays on the device between launches.
+
+With a jaw the C controls are M muscles then the jaw's three (opening angle θ, protrusion, slide), and
+the model's input is its B = M + 4 column basis (``sin θ, 1 − cos θ`` for the angle, see
+:mod:`.local_model`): the kernels that hand an iterate to the model write the basis with the same
+function as the host upload (:func:`.local_kernels.write_model_input`).
+The L1 term ``l1·Σ|u|`` is handled per orthant as in :mod:`.host_steps`: :func:`begin_iteration`
+picks each control's side (the bounds of the iteration, ``lower``/``upper``), the trials stay in it.
 """
 
 import warp as wp
+
+from .local_kernels import write_model_input
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
@@ -26,16 +35,27 @@ MAX_TRIES = wp.constant(8)
 def _regularisation(u: wp.array(dtype=wp.float64), base: int, previous: wp.array(dtype=wp.float64),
                     control_count: int, l2: wp.float64, l1: wp.float64, smooth: wp.float64, symmetry: wp.float64,
                     pairs: wp.array(dtype=wp.int32), pair_count: int):
-    """``l2·|u|² + l1·Σu + smooth·|u − u_prev|² + symmetry·Σ (u_l − u_r)²`` of one frame."""
+    """``l2·|u|² + l1·Σ|u| + smooth·|u − u_prev|² + symmetry·Σ (u_l − u_r)²`` of one frame."""
     value = wp.float64(0.0)
     for m in range(control_count):
         x = u[base + m]
         d = x - previous[base + m]
-        value += l2 * x * x + l1 * x + smooth * d * d
+        value += l2 * x * x + l1 * wp.abs(x) + smooth * d * d
     for p in range(pair_count):
         d = u[base + pairs[2 * p]] - u[base + pairs[2 * p + 1]]
         value += symmetry * d * d
     return value
+
+
+@wp.func
+def _orthant_slope(x: wp.float64, gradient: wp.float64, l1: wp.float64):
+    """∂|u|/∂u in this iteration's orthant: the sign of ``u``; at 0 the side the smooth gradient descends to."""
+    slope = wp.float64(1.0)
+    if x < wp.float64(0.0):
+        slope = wp.float64(-1.0)
+    elif x == wp.float64(0.0) and gradient - wp.float64(0.5) * l1 > wp.float64(0.0):
+        slope = wp.float64(-1.0)
+    return slope
 
 
 @wp.func
@@ -122,20 +142,19 @@ def _damped_step(hessian: wp.array(dtype=wp.float64), gradient: wp.array(dtype=w
 
 
 @wp.func
-def _propose(f: int, control_count: int, size: int, step: wp.array(dtype=wp.float64),
+def _propose(f: int, control_count: int, muscle_count: int, basis_count: int, size: int, step: wp.array(dtype=wp.float64),
              u: wp.array(dtype=wp.float64), rotation: wp.array(dtype=wp.mat33d), translation: wp.array(dtype=wp.vec3d),
-             low: wp.array(dtype=wp.float64), high: wp.array(dtype=wp.float64), scale: wp.array(dtype=wp.float64),
+             lower: wp.array(dtype=wp.float64), upper: wp.array(dtype=wp.float64), scale: wp.array(dtype=wp.float64),
              trial_u: wp.array(dtype=wp.float64), trial_rotation: wp.array(dtype=wp.mat33d),
              trial_translation: wp.array(dtype=wp.vec3d), controls_out: wp.array(dtype=wp.float64),
              rotation_out: wp.array(dtype=wp.mat33d), translation_out: wp.array(dtype=wp.vec3d),
              frame_on: wp.array(dtype=wp.int32), pending: wp.array(dtype=wp.int32), counter: wp.array(dtype=wp.int32)):
-    """The trial ``clip(u + s)`` (and the composed pose), written as the model's next input."""
+    """The trial ``clip(u + s)`` to the iteration's bounds (and the composed pose), written as the model's next input."""
     ub = f * control_count
     vb = f * size
     for m in range(control_count):
-        x = wp.min(wp.max(u[ub + m] + step[vb + m], low[m]), high[m])
-        trial_u[ub + m] = x
-        controls_out[ub + m] = x / scale[m]
+        trial_u[ub + m] = wp.min(wp.max(u[ub + m] + step[vb + m], lower[ub + m]), upper[ub + m])
+    write_model_input(trial_u, scale, f, control_count, muscle_count, basis_count, controls_out)
     r = rotation[f]
     t = translation[f]
     if size > control_count:
@@ -159,6 +178,8 @@ def load_current(
     active: wp.array(dtype=wp.int32),
     scale: wp.array(dtype=wp.float64),
     control_count: int,
+    muscle_count: int,
+    basis_count: int,
     controls_out: wp.array(dtype=wp.float64),
     rotation_out: wp.array(dtype=wp.mat33d),
     translation_out: wp.array(dtype=wp.vec3d),
@@ -167,9 +188,7 @@ def load_current(
 ):
     """The current iterate as the model's input; counts the frames still iterating."""
     f = wp.tid()
-    base = f * control_count
-    for m in range(control_count):
-        controls_out[base + m] = u[base + m] / scale[m]
+    write_model_input(u, scale, f, control_count, muscle_count, basis_count, controls_out)
     rotation_out[f] = rotation[f]
     translation_out[f] = translation[f]
     frame_on[f] = active[f]
@@ -196,6 +215,8 @@ def begin_iteration(
     tolerance: wp.float64,
     energy_tolerance: wp.float64,
     control_count: int,
+    muscle_count: int,
+    basis_count: int,
     size: int,
     u: wp.array(dtype=wp.float64),
     rotation: wp.array(dtype=wp.mat33d),
@@ -207,6 +228,8 @@ def begin_iteration(
     converged: wp.array(dtype=wp.int32),
     iterations: wp.array(dtype=wp.int32),
     held: wp.array(dtype=wp.int32),
+    lower: wp.array(dtype=wp.float64),
+    upper: wp.array(dtype=wp.float64),
     tries: wp.array(dtype=wp.int32),
     system: wp.array(dtype=wp.float64),
     step: wp.array(dtype=wp.float64),
@@ -239,7 +262,7 @@ def begin_iteration(
     for m in range(control_count):
         x = u[ub + m]
         hessian[hb + m * size + m] += l2 + smooth
-        gradient[vb + m] += l2 * x + half * l1 + smooth * (x - previous[ub + m])
+        gradient[vb + m] += l2 * x + smooth * (x - previous[ub + m])
     for p in range(pair_count):
         left = pairs[2 * p]
         right = pairs[2 * p + 1]
@@ -260,7 +283,19 @@ def begin_iteration(
         g = gradient[vb + a]
         if a < control_count:
             x = u[ub + a]
-            if (x <= low[a] + wp.float64(BOUND_SLACK) and g > zero) or (x >= high[a] - wp.float64(BOUND_SLACK) and g < zero):
+            slope = _orthant_slope(x, g, l1)
+            g = g + half * l1 * slope
+            gradient[vb + a] = g
+            lo = low[a]
+            hi = high[a]
+            if l1 > zero:
+                if slope > zero:
+                    lo = wp.max(lo, zero)
+                else:
+                    hi = wp.min(hi, zero)
+            lower[ub + a] = lo
+            upper[ub + a] = hi
+            if (x <= lo + wp.float64(BOUND_SLACK) and g > zero) or (x >= hi - wp.float64(BOUND_SLACK) and g < zero):
                 h = 1
                 gradient[vb + a] = zero
         held[vb + a] = h
@@ -287,8 +322,9 @@ def begin_iteration(
         active[f] = 0
         return
     tries[f] = 0
-    _propose(f, control_count, size, step, u, rotation, translation, low, high, scale, trial_u, trial_rotation,
-             trial_translation, controls_out, rotation_out, translation_out, frame_on, pending, counter)
+    _propose(f, control_count, muscle_count, basis_count, size, step, u, rotation, translation, lower, upper, scale,
+             trial_u, trial_rotation, trial_translation, controls_out, rotation_out, translation_out, frame_on, pending,
+             counter)
 
 
 @wp.kernel
@@ -296,8 +332,8 @@ def judge_trial(
     hessian: wp.array(dtype=wp.float64),
     gradient: wp.array(dtype=wp.float64),
     data_misfit: wp.array(dtype=wp.float64),
-    low: wp.array(dtype=wp.float64),
-    high: wp.array(dtype=wp.float64),
+    lower: wp.array(dtype=wp.float64),
+    upper: wp.array(dtype=wp.float64),
     scale: wp.array(dtype=wp.float64),
     previous: wp.array(dtype=wp.float64),
     pairs: wp.array(dtype=wp.int32),
@@ -310,6 +346,8 @@ def judge_trial(
     step_tolerance: wp.float64,
     energy_tolerance: wp.float64,
     control_count: int,
+    muscle_count: int,
+    basis_count: int,
     size: int,
     u: wp.array(dtype=wp.float64),
     rotation: wp.array(dtype=wp.mat33d),
@@ -365,5 +403,6 @@ def judge_trial(
         active[f] = 0
         return
     _damped_step(hessian, gradient, held, damping[f], f, size, system, step)
-    _propose(f, control_count, size, step, u, rotation, translation, low, high, scale, trial_u, trial_rotation,
-             trial_translation, controls_out, rotation_out, translation_out, frame_on, pending, counter)
+    _propose(f, control_count, muscle_count, basis_count, size, step, u, rotation, translation, lower, upper, scale,
+             trial_u, trial_rotation, trial_translation, controls_out, rotation_out, translation_out, frame_on, pending,
+             counter)

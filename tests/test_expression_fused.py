@@ -1,0 +1,142 @@
+"""Every launch plan of the model — the fused two-kernel frame (kernels_fused, CUDA's default), three
+kernels, five (the CPU's) — equals the five-kernel sequence of kernels.py launched here bit for bit, on the default rig (jaw and
+wrinkles) and on a rig without a jaw, single frames and batches."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+from helpers import small_face_rig
+from warpface import ExpressionModel
+from warpface.expression.kernels import apply_jaw_and_muscles, apply_muscles, apply_wrinkles, stretch_and_bulge, triangle_stretch
+from warpface.kernels_surface import triangle_area_vectors
+
+DEVICE = "cpu"
+
+
+def five_kernel_frames(model, controls: np.ndarray, depths: np.ndarray) -> dict:
+    """The unfused sequence (muscles, triangle stretch, stretch and bulge, area vectors, wrinkles) over
+    F frames at once, on the model's rig data; every stage as numpy, (F, V, ...)."""
+    mesh, device = model._mesh_buffers, model.device
+    frames, vertex_count, triangle_count = len(controls), model.mesh.vertex_count, model.mesh.triangle_count
+    vertices, triangles = frames * vertex_count, frames * triangle_count
+    width, wrinkle_width = max(controls.shape[1], 1), max(depths.shape[1], 1)
+    control_array = wp.array(np.pad(controls, ((0, 0), (0, width - controls.shape[1]))).ravel().astype(np.float32), device=device)
+    depth_array = wp.array(np.pad(depths, ((0, 0), (0, wrinkle_width - depths.shape[1]))).ravel().astype(np.float32), device=device)
+    x1 = wp.empty(vertices, dtype=wp.vec3, device=device)
+    terms = wp.empty(triangles, dtype=wp.vec4, device=device)
+    stretch = wp.empty(vertices, dtype=wp.float32, device=device)
+    x2 = wp.empty(vertices, dtype=wp.vec3, device=device)
+    areas = wp.empty(triangles, dtype=wp.vec3, device=device)
+    x3 = wp.empty(vertices, dtype=wp.vec3, device=device)
+    counts = [vertex_count, triangle_count]
+    if model.jaw is None:
+        wp.launch(apply_muscles, dim=vertices, inputs=[mesh.rest_points, model._muscle_offsets, model._muscle_entries, control_array,
+                                                       width, vertex_count], outputs=[x1], device=device)
+    else:
+        jaw = model.jaw
+        wp.launch(apply_jaw_and_muscles, dim=vertices,
+                  inputs=[mesh.rest_points, model._jaw_weight, wp.vec3(*jaw.pivot), wp.vec3(*jaw.axis), wp.vec3(*jaw.forward),
+                          model._muscle_offsets, model._muscle_entries, control_array, width, len(model.muscles), vertex_count],
+                  outputs=[x1], device=device)
+    wp.launch(triangle_stretch, dim=triangles, inputs=[x1, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, *counts],
+              outputs=[terms], device=device)
+    wp.launch(stretch_and_bulge, dim=vertices, inputs=[x1, terms, model._counts, mesh.adjacency_offsets, mesh.adjacency_triangles,
+                                                       model._thickness, *counts], outputs=[stretch, x2], device=device)
+    wp.launch(triangle_area_vectors, dim=triangles, inputs=[x2, mesh.triangles, mesh.triangle_weight, *counts], outputs=[areas],
+              device=device)
+    wp.launch(apply_wrinkles, dim=vertices, inputs=[x2, areas, mesh.adjacency_offsets, mesh.adjacency_triangles, stretch,
+                                                    model._wrinkle_offsets, model._wrinkle_entries, depth_array, wrinkle_width, *counts],
+              outputs=[x3], device=device)
+    shape = (frames, vertex_count)
+    return {"muscle": x1.numpy().reshape(shape + (3,)), "stretch": stretch.numpy().reshape(shape),
+            "bulge": x2.numpy().reshape(shape + (3,)), "final": x3.numpy().reshape(shape + (3,))}
+
+
+def build_model(rig_name: str, launches: int):
+    from warpface.assets import default_rig
+
+    rig = default_rig() if rig_name == "default rig" else small_face_rig()
+    return ExpressionModel(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=DEVICE, jaw=getattr(rig, "jaw", None), launches=launches)
+
+
+def random_controls(model, rng, frames: int):
+    contractions = rng.uniform(0.0, 0.6, (frames, len(model.muscles)))
+    contractions[rng.uniform(size=contractions.shape) < 0.4] = 0.0
+    scale = float(model.mesh.size)
+    for index, muscle in enumerate(model.muscles):
+        if type(muscle).__name__ == "LinearMuscle":
+            contractions[:, index] *= 0.03 * scale
+    if model.jaw is not None:
+        jaw = rng.uniform(0.0, 1.0, (frames, 3)) * np.array([0.25, 0.02 * scale, 0.01 * scale])
+        contractions = np.concatenate([contractions, jaw], axis=1)
+    depths = rng.uniform(0.0, 2.0, (frames, len(model.wrinkles))) * model.default_depths
+    return contractions, depths
+
+
+@pytest.fixture(scope="module", params=[("default rig", 2), ("default rig", 3), ("default rig", 5), ("small rig without jaw", 2),
+                                        ("small rig without jaw", 3)],
+                ids=["default-2", "default-3", "default-5", "small-2", "small-3"])
+def model(request):
+    return build_model(*request.param)
+
+
+def test_single_frame_and_stages_equal_the_five_kernel_sequence(model, rng):
+    contractions, depths = random_controls(model, rng, 1)
+    expected = five_kernel_frames(model, contractions, depths)
+    moved = np.linalg.norm(expected["final"][0] - model.mesh.points, axis=1).max()
+    assert moved > 1e-3 * model.mesh.size  # a real expression
+    if model.wrinkles:
+        assert np.abs(expected["final"] - expected["bulge"]).max() > 0  # wrinkles act
+    stages = model.evaluate(contractions[0], wrinkle_depths=depths[0], stages=True)
+    for name in ("muscle", "stretch", "bulge", "final"):
+        np.testing.assert_array_equal(stages[name], expected[name][0], err_msg=name)
+    np.testing.assert_array_equal(model.evaluate(contractions[0], wrinkle_depths=depths[0]), expected["final"][0])
+
+
+@pytest.mark.parametrize("frames_per_launch", [None, 3])
+def test_batches_equal_the_five_kernel_sequence(model, rng, frames_per_launch):
+    contractions, depths = random_controls(model, rng, 5)
+    expected = five_kernel_frames(model, contractions, depths)["final"]
+    np.testing.assert_array_equal(model.evaluate_batch(contractions, wrinkle_depths=depths, frames_per_launch=frames_per_launch), expected)
+    out = wp.empty((5, model.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
+    model.evaluate_batch_into(out, wp.array(contractions.astype(np.float32), device=DEVICE),
+                              wrinkle_depths=wp.array(depths.astype(np.float32), device=DEVICE), frames_per_launch=frames_per_launch)
+    np.testing.assert_array_equal(out.numpy(), expected)
+
+
+@pytest.mark.parametrize("frames_per_thread", [2, 3])
+@pytest.mark.parametrize("rig_name, launches", [("default rig", 2), ("default rig", 3), ("small rig without jaw", 2)])
+def test_several_frames_per_thread_equal_one(rig_name, launches, rng, frames_per_thread):
+    """The kernels' frame loop (used on CUDA for large launches) writes the same bits as one frame per thread."""
+    from warpface.expression.kernels_fused import bulge_from_muscle_points, muscles_and_bulge, wrinkles_on_bulge
+
+    model = build_model(rig_name, launches=launches)
+    frames = 5
+    contractions, depths = random_controls(model, rng, frames)
+    expected = five_kernel_frames(model, contractions, depths)["final"]
+    buffers = model._frame_buffers(frames)
+    buffers.upload_controls(contractions, depths)
+    looped = 0
+    for kernel, dim, inputs, outputs in model._launch_args(buffers, frames, buffers.contraction, buffers.depth,
+                                                           buffers.final_points, False):
+        inputs = list(inputs)
+        if kernel in (muscles_and_bulge, bulge_from_muscle_points, wrinkles_on_bulge):
+            inputs[-2 if kernel is muscles_and_bulge else -1] = frames_per_thread
+            dim = -(-frames // frames_per_thread) * model.mesh.vertex_count
+            looped += 1
+        wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=DEVICE)
+    assert looped == 2
+    np.testing.assert_array_equal(buffers.read_frames(buffers.final_points, frames), expected)
+
+
+@pytest.mark.parametrize("bad", ["2", 4, True, 2.5])
+def test_launches_must_be_a_known_plan(bad):
+    rig = small_face_rig()
+    with pytest.raises(ValueError, match="launches"):
+        ExpressionModel(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=DEVICE, launches=bad)
+
+
+def test_default_plan_by_device():
+    rig = small_face_rig()
+    assert ExpressionModel(rig.mesh, rig.muscles, device=DEVICE).launches_per_frame == 5  # the CPU's default
