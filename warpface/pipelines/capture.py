@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -68,18 +67,22 @@ def open_source(spec: str, *, layout: str | None = None, device=None):
     """A landmark source from a command-line spec: a ``.npz`` recording, an RGB-D folder, or
     ``realsense`` / ``orbbec`` (which need ``layout``: a JSON file with ``names`` and
     ``initial_pixels`` of the painted dots, e.g. an RGB-D folder's ``fiducials``)."""
+    from .._files import read_text
+    from .._validate import as_path
     from ..tracking import DotTracker, RecordedLandmarks, RGBDFolder, RGBDLandmarks
 
+    path = as_path(spec, "source")
     if spec in ("realsense", "orbbec"):
         if layout is None:
             raise ValueError(f"a live {spec} capture needs --layout: a JSON file with the dots' 'names' and 'initial_pixels'")
-        fiducials = json.loads(Path(layout).read_text())
+        fiducials = json.loads(read_text(as_path(layout, "layout")))
+        if not isinstance(fiducials, dict) or not {"names", "initial_pixels"} <= set(fiducials):
+            raise ValueError(f"layout {layout}: expected a JSON object with 'names' and 'initial_pixels'")
         from ..tracking import OrbbecCamera, RealSenseCamera
 
         camera = RealSenseCamera() if spec == "realsense" else OrbbecCamera()
         tracker = DotTracker(np.asarray(fiducials["initial_pixels"]), names=fiducials["names"])
         return RGBDLandmarks(camera, tracker, timestamp_policy="drop", device=device)
-    path = Path(spec)
     if path.suffix == ".npz":
         return RecordedLandmarks(path)
     if path.is_dir():

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .._validate import as_count, as_finite_array, as_positive
+from .._validate import as_count, as_finite_array, as_positive, as_device
 
 __all__ = ["CameraIntrinsics", "backproject", "kth_smallest", "KINECT_V1_INTRINSICS", "MAX_PIXELS", "MAX_DEPTH", "MAX_DEPTH_WINDOW"]
 
@@ -91,14 +91,23 @@ class CameraIntrinsics:
 
     def project(self, points) -> np.ndarray:
         """Pixel coordinates of camera-frame points [m], shape (N, 3) → (N, 2), float64."""
-        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        p = as_finite_array(points, "points", max_abs=MAX_DEPTH)
+        if p.size % 3 or (p.ndim and p.shape[-1] != 3):
+            raise ValueError(f"points: expected shape (N, 3), got {p.shape}")
+        p = p.reshape(-1, 3)
+        behind = np.flatnonzero(p[:, 2] <= 0.0)
+        if len(behind):
+            raise ValueError(f"points: point {int(behind[0])} is not in front of the camera (z = {p[behind[0], 2]:.6g} m)")
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.stack([self.fx * p[:, 0] / p[:, 2] + self.cx, self.fy * p[:, 1] / p[:, 2] + self.cy], axis=1)
 
     def unproject(self, pixels, depth) -> np.ndarray:
         """Camera-frame points [m] of pixels (N, 2) at depths Z (N,) [m], shape (N, 3), float64."""
-        uv = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
-        z = np.asarray(depth, dtype=np.float64).reshape(-1)
+        uv = as_finite_array(pixels, "pixels", max_abs=1e7)
+        z = as_finite_array(depth, "depth", max_abs=MAX_DEPTH).reshape(-1)
+        if uv.size % 2 or (uv.ndim and uv.shape[-1] != 2) or uv.size // 2 != z.size:
+            raise ValueError(f"pixels, depth: expected shapes (N, 2) and (N,), got {uv.shape} and {np.shape(depth)}")
+        uv = uv.reshape(-1, 2)
         return np.stack([(uv[:, 0] - self.cx) * z / self.fx, (uv[:, 1] - self.cy) * z / self.fy, z], axis=1)
 
     def to_pyrender(self) -> tuple[float, float, float, float]:
@@ -534,8 +543,8 @@ def backproject(
         raise TypeError(f"intrinsics: expected a CameraIntrinsics, got {type(intrinsics).__name__}")
     try:
         uv = np.array(pixels, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"pixels: cannot convert to a numeric array ({exc})") from None
+    except (TypeError, ValueError):
+        raise ValueError("pixels: expected an (N, 2) array of numbers") from None
     if uv.ndim != 2 or uv.shape[1] != 2:
         raise ValueError(f"pixels: expected shape (N, 2), got {uv.shape}")
     uv[~np.all(np.isfinite(uv), axis=1)] = np.nan  # an infinite pixel is as missing as a NaN one
@@ -567,7 +576,7 @@ def backproject(
     count = uv.shape[0]
     if count == 0:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
-    device = wp.get_device(device)
+    device = as_device(device)
     settings = (window // 2, 1 if model == "quadric" else 0, int(min_valid), float(intrinsics.fx), float(intrinsics.fy),
                 float(intrinsics.cx), float(intrinsics.cy), float(outlier_floor), float(max_slope), float(noise_floor),
                 int(max(iterations, 1)), float(min_inlier_fraction))

@@ -34,7 +34,7 @@ import warp as wp
 
 from ..geometry import smoothstep
 from .alignment import rigid_fit, similarity_fit
-from .._validate import as_bounded, as_finite_array, as_points, as_positive, as_triangles
+from .._validate import as_bounded, as_finite_array, as_points, as_positive, as_triangles, as_device
 from .correspondence import Correspondence, FaceNormalization, compute_correspondence
 from .frames import LandmarkFrame
 from .streams import validate_landmark_names
@@ -164,7 +164,7 @@ def blend_weights(
     if not (end > start >= 0.0):
         raise ValueError(f"cover_falloff must satisfy 0 ≤ start < end, got {cover_falloff}")
     region_falloff = as_positive(region_falloff, "region_falloff", allow_zero=True)
-    device = wp.get_device(device)
+    device = as_device(device)
     distance = wp.zeros(count, dtype=float, device=device)
     if region is not None:
         mask = np.zeros(count, dtype=bool)
@@ -236,7 +236,7 @@ def transfer_displacements(
         if w.shape != (count,):
             raise ValueError(f"weights: expected shape ({count},), got {w.shape}")
     scale = float(as_finite_array(scale, "scale", shape=(), max_abs=1e6))
-    device = wp.get_device(device)
+    device = as_device(device)
     out_u = wp.empty(count, dtype=wp.vec3, device=device)
     out_p = wp.empty(count, dtype=wp.vec3, device=device)
     zeros = wp.zeros(count, dtype=wp.vec3, device=device)
@@ -326,7 +326,7 @@ class TrackingAdapter:
         min_confidence: float = 0.0,
         device=None,
     ):
-        self.device = wp.get_device(device)
+        self.device = as_device(device)
         self.sparse_rest = as_points(sparse_points, "sparse_points")
         """Sparse rest points [m], shape (N, 3), model frame."""
         self.sparse_triangles = as_triangles(sparse_triangles, self.sparse_rest.shape[0], "sparse_triangles")
