@@ -15,7 +15,8 @@ Modules, each with one job:
 * :mod:`~warpface.tracking.mediapipe` — :class:`MediaPipeLandmarks`.
 * :mod:`~warpface.tracking.synthetic` — :class:`SyntheticRGBDCamera` (pyrender, ground truth).
 * :mod:`~warpface.tracking.detect` — ArUco markers, dot blobs, :class:`DotTracker`.
-* :mod:`~warpface.tracking.depth` — :class:`CameraIntrinsics`, robust :func:`backproject`.
+* :mod:`~warpface.tracking.intrinsics` — :class:`CameraIntrinsics` (the pixel convention).
+* :mod:`~warpface.tracking.depth` — robust :func:`backproject`.
 * :mod:`~warpface.tracking.correspondence` — :class:`FaceNormalization`, :func:`closest_points`,
   :func:`compute_correspondence`.
 * :mod:`~warpface.tracking.transfer` — :func:`blend_weights`, :class:`TrackingAdapter`.
@@ -39,7 +40,8 @@ from .correspondence import (
     compute_correspondence,
     triangulate_landmarks,
 )
-from .depth import KINECT_V1_INTRINSICS, CameraIntrinsics, backproject
+from .depth import backproject
+from .intrinsics import KINECT_V1_INTRINSICS, CameraIntrinsics
 from .detect import ArucoMarkers, Blobs, DotTracker, detect_blobs
 from .landmark_names import adapter_for_face, landmark_vertices, vertex_landmark_names
 from .mediapipe import MediaPipeLandmarks, parse_landmark_list

@@ -26,7 +26,7 @@ from typing import Iterator
 
 import numpy as np
 
-from .depth import CameraIntrinsics
+from .intrinsics import CameraIntrinsics
 from .frames import RGBDFrame, SourceBase
 from .streams import StreamGuard
 

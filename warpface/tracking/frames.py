@@ -13,7 +13,7 @@ from typing import Iterator, Protocol, runtime_checkable
 import numpy as np
 
 from .._validate import MAX_COORDINATE
-from .depth import CameraIntrinsics
+from .intrinsics import CameraIntrinsics
 
 __all__ = ["LandmarkFrame", "RGBDFrame", "LandmarkSource", "RGBDSource", "SourceBase"]
 

@@ -26,7 +26,7 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from .alignment import similarity_fit
-from .depth import CameraIntrinsics
+from .intrinsics import CameraIntrinsics
 from .frames import LandmarkFrame, SourceBase
 from .streams import checked_frames
 

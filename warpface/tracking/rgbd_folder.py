@@ -11,7 +11,7 @@ import numpy as np
 
 from .._validate import as_path
 from ._io import atomic_path, write_json_atomic
-from .depth import CameraIntrinsics
+from .intrinsics import CameraIntrinsics
 from .frames import RGBDFrame, SourceBase
 from .streams import StreamGuard, estimate_fps
 

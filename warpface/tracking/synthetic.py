@@ -13,7 +13,7 @@ dot painted round in texture space is round on the face as seen from the camera.
 
 Rendering needs ``pyrender`` and an offscreen OpenGL: ``PYOPENGL_PLATFORM`` defaults to
 ``osmesa`` here when unset. The OpenCV/pyrender half-pixel offset is handled by
-:meth:`~warpface.tracking.depth.CameraIntrinsics.to_pyrender`.
+:meth:`~warpface.tracking.intrinsics.CameraIntrinsics.to_pyrender`.
 
 Also here: :func:`procedural_face` and :func:`procedural_jaw_open` (a face-like test surface that
 needs no data), and :func:`place_fiducials` (well-spaced, camera-facing surface points).
@@ -30,7 +30,7 @@ import warp as wp
 
 from .._validate import as_bounded, as_count, as_device, as_finite_array, as_points, as_positive, as_vec3, expect_instance
 from ..mesh import FaceMesh
-from .depth import KINECT_V1_INTRINSICS, CameraIntrinsics
+from .intrinsics import KINECT_V1_INTRINSICS, CameraIntrinsics
 from .frames import RGBDFrame, SourceBase
 
 __all__ = [
