@@ -129,7 +129,7 @@ class DeviceObjective:
         data = self._bound
         frames = data.frames
         buffers = self.model.buffers(frames)
-        self.model.launch(buffers, frames, jacobian)
+        self.model.launch(buffers, frames, jacobian, per_control=False)  # the jaw's chain rule is in the kernel below
         data.misfit.zero_()
         if jacobian:
             data.hessian.zero_()
@@ -137,9 +137,9 @@ class DeviceObjective:
         if jacobian not in data.commands:
             data.commands[jacobian] = wp.launch(
                 kernels.normal_equations, dim=frames * self.point_count, device=self.device, record_cmd=True,
-                inputs=[buffers.x3, buffers.dx3, self._point_offsets, self._point_vertex, self._point_weight,
+                inputs=[buffers.x3, buffers.dx3_basis, buffers.controls, self._point_offsets, self._point_vertex, self._point_weight,
                         self._active_offsets, self._active, data.targets, data.weights, data.rotation,
                         data.translation, data.frame_on, self.origin, wp.float64(self.unit), self.control_count,
-                        self.variable_count, self.model.count, self.point_count, 1 if jacobian else 0],
+                        self.model.muscle_count, self.model.basis_count, self.variable_count, self.model.count, self.point_count, 1 if jacobian else 0],
                 outputs=[data.hessian, data.gradient, data.misfit])
         data.commands[jacobian].launch()
