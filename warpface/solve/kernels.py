@@ -399,6 +399,7 @@ def normal_equations(
 ):
     """Per frame: the data term ``Σ_n w_n |e_n|²`` with ``e = (R(Px3 − o) + o)/ℓ + t − y`` and, with
     ``jacobian``, ``Jᵀ W J`` and ``Jᵀ W e`` over each point's active variables (atomics into the frame's sums).
+    Only the upper triangle of ``Jᵀ W J`` is summed (half the atomics); its readers mirror it.
 
     Columns are in mesh units per variable; the caller scales them to the solver's variables.
     """
@@ -427,7 +428,5 @@ def normal_equations(
             cb = active[b]
             col_b = _column(dx3, basis, x3, f, first, point_offsets, point_vertex, point_weight, n, cb, control_count,
                             muscle_count, basis_count, r, arm, unit)
-            value = w * wp.dot(col_a, col_b)
-            wp.atomic_add(hessian, (f * variable_count + ca) * variable_count + cb, value)
-            if cb != ca:
-                wp.atomic_add(hessian, (f * variable_count + cb) * variable_count + ca, value)
+            wp.atomic_add(hessian, (f * variable_count + ca) * variable_count + cb, w * wp.dot(col_a, col_b))
+

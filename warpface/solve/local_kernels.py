@@ -88,11 +88,12 @@ class _Buffers:
         self.stretch, self.x2 = scalar(frames * n1), vec(frames * n1)
         self.dstretch, self.dx2 = scalar(frames * n1 * controls), vec(frames * n1 * controls)
         self.area0, self.darea0 = vec(frames * t0), vec(frames * t0 * controls)
-        self.x3, self.dx3 = vec(frames * n0), scalar(frames * n0 * 3 * controls)
-        self.dx3_basis = self.dx3
-        """The pipeline's derivatives per basis column; with a jaw, ``dx3`` holds them per control."""
+        self.x3, self.dx3_basis = vec(frames * n0), scalar(frames * n0 * 3 * controls)
+        """The pipeline's derivatives per basis column; with a jaw, :attr:`dx3` holds them per control."""
+        self._dx3 = self.dx3_basis
         if outputs is not None and outputs != controls:
-            self.dx3 = scalar(frames * n0 * 3 * outputs)
+            self._dx3 = None  # allocated on first use: the solver's normal equations read dx3_basis
+            self._dx3_size, self._device = max(frames * n0 * 3 * outputs, 1), device
         self.raw_controls = None
         """With a jaw: the controls as given (F·C), turned into ``controls`` (the basis) by a kernel."""
         if outputs is not None and outputs != controls:
@@ -100,14 +101,21 @@ class _Buffers:
         self.frame_on = wp.ones(frames, dtype=wp.int32, device=device)
         """Frames to evaluate (1) or skip (0): the solver turns off the frames that have converged."""
         self.recorded: dict[tuple, list] = {}
-        """Launches recorded once per mode (with / without Jacobian, per control / per basis column) and replayed: argument packing is
-        most of a small launch's cost on the CPU."""
+        """Launches recorded once per mode (with / without Jacobian; per control / per basis column) and
+        replayed: argument packing is most of a small launch's cost on the CPU."""
         staged = self.controls if self.raw_controls is None else self.raw_controls
         self.staged = staged
         self.host_controls = staged.numpy() if device.is_cpu else None
         """CPU: a NumPy view sharing the uploaded controls' memory (written in place)."""
         self.basis_command = None
         """The recorded controls → basis launch (with a jaw)."""
+
+    @property
+    def dx3(self) -> wp.array:
+        """``∂x3/∂c`` per control, (F·n·3·C,) (with a jaw: the chain rule of :attr:`dx3_basis`)."""
+        if self._dx3 is None:
+            self._dx3 = wp.zeros(self._dx3_size, dtype=wp.float64, device=self._device)
+        return self._dx3
 
 
 class KernelExpression:

@@ -114,11 +114,13 @@ class DeviceObjective:
         if not jacobian:
             return misfit, None, None
         k = self.variable_count
-        return misfit, data.hessian.numpy().reshape(frames, k, k).copy(), data.gradient.numpy().reshape(frames, k).copy()
+        upper = data.hessian.numpy().reshape(frames, k, k)  # the kernel sums the upper triangle only
+        hessian = np.triu(upper) + np.transpose(np.triu(upper, 1), (0, 2, 1))
+        return misfit, hessian, data.gradient.numpy().reshape(frames, k).copy()
 
     def inputs(self):
         """The bound chunk's device inputs and outputs: ``(controls (F·M,), rotation (F,), translation (F,),
-        frame_on (F,), hessian (F·K·K,), gradient (F·K,), misfit (F,))`` — written and read by the
+        frame_on (F,), hessian (F·K·K,; upper triangle summed), gradient (F·K,), misfit (F,))`` — written and read by the
         on-device iteration (:mod:`.device_steps`) between :meth:`launch` calls."""
         data = self._bound
         buffers = self.model.buffers(data.frames)
