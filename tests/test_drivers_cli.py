@@ -61,6 +61,22 @@ def test_live_link_drives_brows_and_a_one_sided_smile(tmp_path, capsys, landmark
     assert lift[0] > 2e-3 and lift[0] > 5 * abs(lift[1])  # the subject's left corner (+x) rises, the right barely
 
 
+def test_jaw_open_drops_the_chin_in_the_baked_cache(tmp_path, landmarks):
+    opening = np.r_[np.zeros(3), np.linspace(0, 1, 8), np.ones(3)]
+    driver = live_link_csv(tmp_path / "jaw.csv", {"jawOpen": opening})
+    out = tmp_path / "jaw.usda"
+    assert main(["--quiet", "--device", "cpu", "animate", str(driver), "--out", str(out), "--no-video"]) == 0
+    rest, stage = baked_points(out, 0)
+    opened, _ = baked_points(out, 13)
+    jaw = next(p for p in stage.Traverse() if p.GetTypeName() == "WarpFaceJaw")
+    assert jaw.GetAttribute("jawOpen").GetNumTimeSamples() == len(opening)
+    assert jaw.GetAttribute("jawOpen").Get(13) > 0.05  # radians
+    drop = (opened - rest)[landmarks[8]]  # iBUG 8, the chin's lowest point [m]
+    assert drop[1] < -3e-3, f"chin moved {drop * 1000} mm"
+    brows = np.abs(opened - rest)[landmarks[17:27]].max()
+    assert brows < 1e-4  # the upper face stays
+
+
 def test_audio2face_style_stage_drives_the_rig(tmp_path):
     from pxr import Usd, UsdSkel
 
@@ -201,7 +217,7 @@ def test_animated_rig_exports_arkit_weights_that_reproduce_the_take(tmp_path, su
     from warpface.usd.skel_io import export_arkit_weights, read_driver
 
     t = np.arange(45) / 30.0
-    take = {"mouthSmileLeft": np.sin(np.pi * t / t[-1]) ** 2, "noseSneerRight": 0.6 * t / t[-1]}
+    take = {"mouthSmileLeft": np.sin(np.pi * t / t[-1]) ** 2, "noseSneerRight": 0.6 * t / t[-1], "jawOpen": 0.5 * t / t[-1]}
     driver = live_link_csv(tmp_path / "take.csv", take)
     assert main(["--quiet", "--device", "cpu", "animate", str(driver), "--out", str(tmp_path / "o.usda"), "--no-video"]) == 0
     exported = read_driver(export_arkit_weights(tmp_path / "o.usda", tmp_path / f"arkit{suffix}"))

@@ -165,11 +165,8 @@ NO_SKIN_MOTION = {"cheekPuff", "tongueOut", *(f"eyeLook{d}{s}" for d in ("Down",
 JAW = {"jawOpen", "jawForward", "jawLeft", "jawRight"}
 
 
-# Known gaps of the full anatomy (measured): its depressor labii inferioris lifts the lower lip (+1 mm) and
-# pushes it in instead of pulling it down, and the levator labii superioris barely moves the upper lip.
+# Known gap of the full anatomy (measured): the levator labii superioris barely moves the upper lip's middle.
 FULL_RIG_GAPS = {
-    "mouthLowerDownLeft": "full rig: depressor labii inferioris lifts the lower lip instead of lowering it",
-    "mouthLowerDownRight": "full rig: depressor labii inferioris lifts the lower lip instead of lowering it",
     "mouthShrugUpper": "full rig: levator labii superioris moves the upper lip < 0.05 mm",
 }
 

@@ -69,6 +69,47 @@ def test_control_samples_read_back_exactly(small_rig):
     assert attr.Get(2.5) == pytest.approx(0.5 * (contractions[2, 1] + contractions[3, 1]), rel=1e-12)  # USD interpolates
 
 
+def test_jaw_controls_round_trip_and_reach_the_bake(tmp_path):
+    from warpface.assets import default_rig
+
+    rig = default_rig(device="cpu")
+    stage = Usd.Stage.CreateInMemory("jaw.usda")
+    write_rig(stage, rig, meters_per_unit=0.01)  # a centimetre stage: slides scale, the angle does not
+    times = np.arange(4.0)
+    jaw = np.array([[0.0, 0.0, 0.0], [0.1, 0.001, -0.002], [0.3, 0.002, 0.0], [0.2, 0.0, 0.003]])
+    write_animation(stage, times, contractions={rig.muscle_names[0]: np.full(4, 0.001)}, jaw=jaw)
+    animation = read_animation(stage)
+    np.testing.assert_array_equal(animation.times, times)
+    np.testing.assert_allclose(animation.jaw, jaw, rtol=1e-12, atol=1e-15)
+    assert animation.control_names == rig.control_names and animation.controls.shape == (4, len(rig.control_names))
+    jaw_prim = next(p for p in stage.Traverse() if p.GetTypeName() == "WarpFaceJaw")
+    assert jaw_prim.GetAttribute("jawForward").Get(1) == pytest.approx(0.1)  # 1 mm in centimetres
+    with pytest.raises(ValueError, match="unknown jaw control name 'jaw_up'"):
+        write_animation(stage, times, jaw={"jaw_up": np.zeros(4)})
+    with pytest.raises(ValueError, match="jaw"):
+        write_animation(stage, times, jaw=np.full((4, 3), np.nan))
+    layer = tmp_path / "jaw.usda"
+    stage.GetRootLayer().Export(str(layer))
+    bake(str(layer), device="cpu", progress=False)
+    baked = Usd.Stage.Open(str(layer))
+    skin = next(p for p in baked.Traverse() if p.IsA(UsdGeom.Mesh))
+    model = rig.model(device="cpu")
+    controls = read_animation(layer, meters_per_unit=0.01).controls[2]  # the rig's numbers are centimetres here
+    assert controls[-3] == pytest.approx(0.3) and controls[-2] == pytest.approx(0.2)
+    expected = model.evaluate(controls)
+    points = np.asarray(skin.GetAttribute("points").Get(2), dtype=np.float64)
+    np.testing.assert_allclose(points, expected, atol=2e-6)
+    assert np.abs(points - rig.mesh.points).max() > 1e-3  # the jaw moved the skin
+
+
+def test_animation_on_a_rig_without_a_jaw_refuses_jaw_controls(small_rig):
+    stage = Usd.Stage.CreateInMemory("nojaw.usda")
+    write_rig(stage, small_rig)
+    with pytest.raises(ValueError, match="has no jaw"):
+        write_animation(stage, [0.0], jaw=np.zeros((1, 3)))
+    assert read_animation(stage, [0.0]).jaw is None
+
+
 def test_rewriting_a_range_keeps_samples_outside_it(small_rig):
     stage = write_rig(Usd.Stage.CreateInMemory(), small_rig)
     contractions, _ = controls(FRAMES)

@@ -34,7 +34,7 @@ import numpy as np
 from ..expression.muscles import LinearMuscle, SphincterMuscle
 from .frame import FaceFrame, SurfaceSampler
 
-__all__ = ["ANATOMY_LINEAR_MUSCLE_NAMES", "ANATOMY_SPHINCTER_MUSCLE_NAMES", "anatomy_muscles", "frontalis_bellies"]
+__all__ = ["ANATOMY_LINEAR_MUSCLE_NAMES", "ANATOMY_SPHINCTER_MUSCLE_NAMES", "anatomy_muscles", "revised_classic_muscles"]
 
 _SIDES = (("L", +1.0), ("R", -1.0))
 # iBUG indices per side: brow inner end, eye inner/outer corner, eye ring, nose wing, mouth corner,
@@ -78,41 +78,59 @@ ORBITAL_SEMI_AXES = (0.95, 0.85)
 upper cheek below and lateral of the eye, where a squint (AU6) moves the skin most (eyeSquint reach
 24 % → 29 % dense against (0.72, 0.58); docs/RIG.md)."""
 
-FRONTALIS_REACH = 2.8
-"""Falloff finish of the frontalis as a multiple of its length: the brow skin drags the lids and the
-upper cheek along (on the ICT-FaceKit brow shapes the skin 1 unit below the brows still rises by
-a fifth of the brows' rise)."""
+FRONTALIS_BELLIES = {
+    # belly: (height of the fixed point above the brow top, its depth beneath the skin, zone half-angle [deg],
+    #         falloff start and finish as multiples of the belly's length)
+    "inner": (0.60, 0.20, 42.0, 1.15, 1.60),
+    "outer": (0.90, 0.00, 48.0, 1.15, 1.60),
+}
+"""The full rig's frontalis bellies [inter-ocular units], fitted by coordinate search to the ICT-FaceKit
+brow shapes with :func:`warpface.solve.fit` (docs/RIG.md §5): dense reach browInnerUp 30.5 → 33.3 %,
+browOuterUp 25.3 → 45.1 %. The falloff ends 0.6 lengths beyond the brow: the lids stay put (on those
+shapes the brows rise 6–8 mm while the upper lids move 0.3 mm)."""
 
 
-def frontalis_bellies(local: np.ndarray, surface: SurfaceSampler, classic: list[LinearMuscle]) -> list[LinearMuscle]:
-    """The full rig's frontalis: each belly anchored in the mid-forehead instead of beyond the hairline.
+def revised_classic_muscles(local: np.ndarray, surface: SurfaceSampler, classic: list[LinearMuscle]) -> list[LinearMuscle]:
+    """The classic linear muscles as the full rig places them: frontalis, risorius and depressor labii inferioris moved.
+
+    Frontalis: each belly's fixed point in the forehead instead of beyond the hairline.
 
     The frontalis has no bony origin: it arises from the galea aponeurotica, which glides over the
-    skull on loose areolar tissue. Raising the brows, the skin below the belly's middle rises and
-    the skin above it barely moves (measured on the ICT-FaceKit brow shapes: the brows rise 6 mm
-    while the skin 0.6 inter-ocular units above them stays within 0.5 mm), so the fixed point of the
-    pull is the belly's middle, 0.55 units above the brow top and 0.12 beneath the skin.
+    skull on loose areolar tissue, so the pull's fixed point lies in the upper forehead, close under
+    the skin (:data:`FRONTALIS_BELLIES`); the zone reaches the brows and a short way below them.
     """
     brow_top = float(local[17:27, 1].max())
     out = []
     for muscle in classic:
         if muscle.name.startswith("risorius_"):
-            # Risorius lies in the superficial fascia over the masseter: its fixed end is just under the
-            # skin at the side of the face (a point 0.30 deep along the side's normal would lie behind
-            # the mouth corner and pull it into the face).
+            # Risorius arises from the fascia over the masseter, at the side of the face. Its fixed end
+            # lies 0.25 beneath that skin: a point just under the skin gathered the cheek side into a
+            # lump in a smile, and sliding (docs/RIG.md §2) removes the pull's inward part anyway.
             origin = surface.frame.to_local(surface.below(surface.frame.to_local(muscle.attachment)[:2], 0.0))
-            side_xy = (np.sign(origin[0]) * max(abs(origin[0]), 0.9), surface.frame.to_local(muscle.insertion)[1] + 0.02)
-            attachment = surface.below(side_xy, 0.04)
+            side_xy = (np.sign(origin[0]) * (max(abs(origin[0]), 0.9) - 0.1), surface.frame.to_local(muscle.insertion)[1] + 0.02)
+            attachment = surface.below(side_xy, 0.25)
             length = float(np.linalg.norm(muscle.insertion - attachment))
             out.append(LinearMuscle(muscle.name, attachment, muscle.insertion, 24.0, 0.90 * length, 1.40 * length))
+            continue
+        if muscle.name.startswith("depressor_labii_inferioris_"):
+            # Depressor labii inferioris: from the mandible below the lip, 0.05 beneath the skin, into
+            # the vermilion 0.02 above the lip border. The classic placement (0.20 deep, inserting
+            # below the border) pulled the lip inward and, after sliding, lifted it 1 mm (mouthLowerDown).
+            sign = np.sign(surface.frame.to_local(muscle.insertion)[0])
+            lower = local[56 if sign > 0 else 58, :2]
+            attachment = surface.below((lower[0] + 0.12 * sign, lower[1] - 0.42), 0.05)
+            insertion = surface.point((lower[0] + 0.03 * sign, lower[1] + 0.02))
+            length = float(np.linalg.norm(insertion - attachment))
+            out.append(LinearMuscle(muscle.name, attachment, insertion, 35.0, 0.85 * length, 1.30 * length))
             continue
         if not muscle.name.startswith("frontalis_"):
             out.append(muscle)
             continue
+        height, depth, zone, start, finish = FRONTALIS_BELLIES["inner" if "_inner_" in muscle.name else "outer"]
         insertion = surface.frame.to_local(muscle.insertion)
-        attachment = surface.below((insertion[0], brow_top + 0.55), 0.12)
+        attachment = surface.below((insertion[0], brow_top + height), depth)
         length = float(np.linalg.norm(muscle.insertion - attachment))
-        out.append(LinearMuscle(muscle.name, attachment, muscle.insertion, 45.0, 0.90 * length, FRONTALIS_REACH * length))
+        out.append(LinearMuscle(muscle.name, attachment, muscle.insertion, zone, start * length, finish * length))
     return out
 
 

@@ -23,7 +23,7 @@ from ..landmarks import LEFT_SIDE, RIGHT_SIDE
 from ..mesh import FaceMesh
 from ..rig import FaceRig
 from .face import default_face, default_landmarks
-from .anatomy import ANATOMY_LINEAR_MUSCLE_NAMES, ANATOMY_SPHINCTER_MUSCLE_NAMES, anatomy_muscles, frontalis_bellies
+from .anatomy import ANATOMY_LINEAR_MUSCLE_NAMES, ANATOMY_SPHINCTER_MUSCLE_NAMES, anatomy_muscles, revised_classic_muscles
 from .frame import FaceFrame, SurfaceSampler, check_landmarks, head_cylinder
 from .jaw import default_jaw
 from .thickness import default_thickness
@@ -141,7 +141,7 @@ def default_rig(mesh: FaceMesh | None = None, landmarks=None, *, name: str = "Fa
     jaw = None
     if anatomy == "full":
         extra_linear, sphincters = anatomy_muscles(local, surface, frame, sphincters)
-        linear = [_with_skin_response(m) for m in frontalis_bellies(local, surface, linear) + extra_linear]
+        linear = [_with_skin_response(m) for m in revised_classic_muscles(local, surface, linear) + extra_linear]
         sphincters = [_with_skin_response(m) for m in sphincters]
         jaw = default_jaw(mesh, frame, landmarks)
     wrinkles = _wrinkles(local, surface, frame, head_cylinder(frame, local), _typical_edge(mesh) / frame.scale, device)

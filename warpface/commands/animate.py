@@ -124,6 +124,7 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
 
     from .. import usd
     from ..usd.animation import CACHE_SUFFIX
+    from ..usd.jaw_io import JAW_CONTROL_ATTRIBUTES
     from ..usd.mapping_io import write_mapping
     from ..usd.skel_io import read_driver
 
@@ -152,7 +153,9 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
     time_codes = np.round((mapped.times - mapped.times[0]) * rate, 6)
     muscles = set(rig_model.muscle_names)
     contractions = {name: mapped.values[:, k] for k, name in enumerate(mapped.names) if name in muscles}
-    usd.write_animation(stage, time_codes, contractions=contractions, fps=rate, meters_per_unit=units)
+    jaw = {name: mapped.values[:, k] for k, name in enumerate(mapped.names) if name in JAW_CONTROL_ATTRIBUTES}
+    usd.write_animation(stage, time_codes, contractions=contractions, jaw=jaw if rig_model.jaw is not None and jaw else None,
+                        fps=rate, meters_per_unit=units)
     clock.step("write controls")
     root = stage.GetRootLayer()
     cache_path = out.with_name(out.stem + CACHE_SUFFIX)

@@ -137,9 +137,10 @@ def tissue_response(points: np.ndarray, triangles: np.ndarray, normals: np.ndarr
         field[row[mine]] = weights.weight[mine]
         pull = np.linalg.norm(field, axis=1)
         if muscle.sliding > 0.0:
-            tangential = field - np.sum(field * normals, axis=1, keepdims=True) * normals
-            length = np.linalg.norm(tangential, axis=1, keepdims=True)
-            along = np.divide(tangential * pull[:, None], length, out=np.zeros_like(tangential), where=length > 1e-12 * (pull.max() + 1e-300))
+            # Remove the pull's normal part: the skin glides on the fascia. Carrying the full pull
+            # along the surface instead folded the skin wherever the fascia turns steeply under a
+            # pull (nose side, inner canthus, cheek sides; docs/RIG.md §2).
+            along = field - np.sum(field * normals, axis=1, keepdims=True) * normals
             field = (1.0 - muscle.sliding) * field + muscle.sliding * along
         if muscle.thickening > 0.0:
             field += (muscle.thickening * pull)[:, None] * normals

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..tracking import TrackingAdapter
+from ..tracking import PrefetchedSource, TrackingAdapter
 from ..tracking.landmark_names import vertex_landmark_names
 
 __all__ = [
@@ -110,7 +110,7 @@ class CaptureStats:
 
 
 def record(source, adapter: TrackingAdapter, writer, *, max_frames: int | None = None, progress: bool = True,
-           on_frame=None, samples=None) -> CaptureStats:
+           on_frame=None, samples=None, prefetch: int = 0) -> CaptureStats:
     """Run ``source`` through ``adapter`` into ``writer`` (a :class:`~warpface.usd.tracking_io.TrackingStageWriter`).
 
     Every frame handed to the writer is kept. Ctrl-C stops the capture between two frames: the
@@ -126,6 +126,12 @@ def record(source, adapter: TrackingAdapter, writer, *, max_frames: int | None =
     ``track(source)`` and ``camera_to_model``). ``samples(frame, dense)`` returns the frame's values of
     the writer's extra channels (``writer.add(..., samples=)``); a writer without a dense face is
     given no dense points.
+
+    ``prefetch`` > 0 reads that many frames ahead in a background thread
+    (:class:`~warpface.tracking.PrefetchedSource`): the source's detection and back-projection of the
+    next frame run on the second CPU core while this thread transfers and writes the current one. The
+    frames and what is written are the same; the source must tolerate being read from another thread
+    (files, recordings and the RGB-D cameras do).
     """
     from tqdm import tqdm
 
@@ -134,6 +140,8 @@ def record(source, adapter: TrackingAdapter, writer, *, max_frames: int | None =
 
     if max_frames is not None:
         max_frames = as_count(max_frames, "max_frames", minimum=1)
+    if as_count(prefetch, "prefetch", minimum=0, maximum=1024):
+        source = PrefetchedSource(source, depth=prefetch)
 
     bar = tqdm(desc="track", unit="frame", disable=not progress, total=max_frames)
     found, count, started = 0.0, 0, time.perf_counter()

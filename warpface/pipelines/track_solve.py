@@ -43,7 +43,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
 from ..tracking import LandmarkFrame, adapter_for_face, landmark_vertices, similarity_fit
-from ..usd.jaw_io import JAW_CONTROL_ATTRIBUTES, JAW_RELATIONSHIP
+from ..usd.jaw_io import JAW_CONTROL_ATTRIBUTES, jaw_prim
 
 __all__ = ["SolvedFrame", "SolvingTracker", "SolvedStageLayout", "solved_stage_writer", "read_solved_capture",
            "RIG_ROOT"]
@@ -280,18 +280,10 @@ def _control_attributes(rig, root: Sdf.Path) -> dict:
     write_rig(stage, rig, root_path=str(root))
     prims = rig_prims(stage)
     paths = {name: prim.GetPath().AppendProperty("contraction") for name, prim in zip(prims.muscle_names, prims.muscles)}
-    jaw = _jaw_prim(stage, prims.skin)
+    jaw = jaw_prim(stage, prims.skin)
     if jaw is not None:
         paths.update({name: jaw.GetPath().AppendProperty(attribute) for name, attribute in JAW_CONTROL_ATTRIBUTES.items()})
     return paths
-
-
-def _jaw_prim(stage: Usd.Stage, skin: Usd.Prim):
-    """The jaw prim the skin links to (``warpFace:jaw``), or None."""
-    relationship = skin.GetRelationship(JAW_RELATIONSHIP)
-    targets = relationship.GetTargets() if relationship else []
-    prim = stage.GetPrimAtPath(targets[0]) if targets else None
-    return prim if prim else None
 
 
 def read_solved_capture(path) -> dict:
@@ -309,7 +301,7 @@ def read_solved_capture(path) -> dict:
     contraction = [Usd.AttributeQuery(p.GetAttribute("contraction")) for p in prims.muscles]
     skin = prims.skin
     names = list(prims.muscle_names)
-    jaw = _jaw_prim(stage, skin)
+    jaw = jaw_prim(stage, skin)
     if jaw is not None:  # the jaw's controls, when the capture solved them (time samples)
         solved = [(name, jaw.GetAttribute(attribute)) for name, attribute in JAW_CONTROL_ATTRIBUTES.items()]
         if all(attribute and attribute.GetNumTimeSamples() > 0 for _, attribute in solved):

@@ -361,6 +361,7 @@ class TrackingAdapter:
         self._weights = wp.array(self.weights, dtype=float, device=dev)
         self._rest = wp.array(self.dense_rest.astype(np.float32), dtype=wp.vec3, device=dev)
         self._sparse_disp = wp.zeros(n, dtype=wp.vec3, device=dev)
+        self._sparse_view = self._sparse_disp.numpy() if self._sparse_disp.device.is_cpu else None  # zero-copy on the CPU
         self._other = wp.zeros(count, dtype=wp.vec3, device=dev)
         self.displacements = wp.zeros(count, dtype=wp.vec3, device=dev)
         """Dense displacements of the last frame [m], shape (V,), vec3, on the device."""
@@ -504,7 +505,10 @@ class TrackingAdapter:
                 overwritten by the next step).
         """
         disp = self.update_sparse(frame)
-        self._sparse_disp.assign(disp.astype(np.float32))
+        if self._sparse_view is not None:
+            self._sparse_view[:] = disp  # into the device buffer (float32), no temporary array
+        else:
+            self._sparse_disp.assign(disp.astype(np.float32))
         use_other = 0
         if other is not None:
             other = np.asarray(other, dtype=np.float32)

@@ -1,7 +1,8 @@
-"""Animation on a rig stage: contractions and wrinkle depths as time samples, and the frames they play at.
+"""Animation on a rig stage: contractions, wrinkle depths and the jaw's controls as time samples, and the
+frames they play at.
 
-Controls live on the rig prims (``contraction`` on muscles, ``depth`` on wrinkles), authored in the
-stage's edit target. Baking them into a point cache is :mod:`warpface.usd.baking`.
+Controls live on the rig prims (``contraction`` on muscles, ``depth`` on wrinkles, ``jawOpen`` [rad],
+``jawForward`` and ``jawLeft`` [lengths] on the jaw), authored in the stage's edit target. Baking them into a point cache is :mod:`warpface.usd.baking`.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from pxr import Sdf, Usd
 from .._validate import as_finite_array, as_positive
 from ..errors import RigError
 from ._files import open_stage
+from .jaw_io import JAW_CONTROL_ATTRIBUTES, jaw_prim
 from .rig_io import ItemPlacements, RigPrims, rig_prims, stage_meters_per_unit
 from .schema import ensure_schema
 
@@ -48,22 +50,38 @@ class Animation:
     """Wrinkle depths ``k_d`` in wrinkle order [length units], shape (F, W), float64."""
     muscle_names: list[str]
     wrinkle_names: list[str]
+    jaw: np.ndarray | None = None
+    """The jaw's controls ``jaw_open`` [rad], ``jaw_forward``, ``jaw_left`` [length units], shape (F, 3),
+    float64; ``None`` when the rig has no jaw."""
+
+    @property
+    def control_names(self) -> list[str]:
+        """The muscles, then the jaw's controls when the rig has a jaw (the expression model's control order)."""
+        return self.muscle_names + (list(JAW_CONTROL_ATTRIBUTES) if self.jaw is not None else [])
+
+    @property
+    def controls(self) -> np.ndarray:
+        """Contractions, then the jaw's controls: shape (F, M) or (F, M + 3), in :attr:`control_names` order."""
+        return self.contractions if self.jaw is None else np.concatenate([self.contractions, self.jaw], axis=1)
 
 
 # ---------------------------------------------------------------------------------------------- controls
 
 
-def _length_scales(stage: Usd.Stage, prims: RigPrims, meters_per_unit: float) -> tuple[np.ndarray, np.ndarray]:
-    """Factors turning stored control values into values in ``meters_per_unit`` units, per muscle and wrinkle.
+def _length_scales(stage: Usd.Stage, prims: RigPrims, meters_per_unit: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Factors turning stored control values into values in ``meters_per_unit`` units, per muscle, wrinkle and
+    jaw control.
 
-    Linear-muscle contractions and wrinkle depths are lengths in their prim's local space; sphincter
-    contractions are dimensionless.
+    Linear-muscle contractions, wrinkle depths and the jaw's slides are lengths in their prim's local
+    space; sphincter contractions and the jaw's opening angle are dimensionless.
     """
     to_units = stage_meters_per_unit(stage) / as_positive(meters_per_unit, "meters_per_unit")
     placements = ItemPlacements(stage, prims.skin)
     muscle = np.array([placements.of(p).scale * to_units if p.GetTypeName() == _LINEAR else 1.0 for p in prims.muscles])
     wrinkle = np.array([placements.of(p).scale * to_units for p in prims.wrinkles])
-    return muscle, wrinkle
+    jaw = jaw_prim(stage, prims.skin)
+    slide = placements.of(jaw).scale * to_units if jaw is not None else 1.0
+    return muscle, wrinkle, np.array([1.0, slide, slide])
 
 
 def _control_table(values, names: list[str], frame_count: int, label: str, kind: str) -> tuple[list[int], np.ndarray]:
@@ -91,9 +109,9 @@ def as_time_codes(times, label: str = "times") -> np.ndarray:
     return times
 
 
-def write_animation(stage: Usd.Stage, times, *, contractions=None, wrinkle_depths=None, skin_path: str | None = None,
-                    fps: float | None = None, meters_per_unit: float = 1.0) -> None:
-    """Author contractions and wrinkle depths as time samples on the rig prims.
+def write_animation(stage: Usd.Stage, times, *, contractions=None, wrinkle_depths=None, jaw=None,
+                    skin_path: str | None = None, fps: float | None = None, meters_per_unit: float = 1.0) -> None:
+    """Author contractions, wrinkle depths and the jaw's controls as time samples on the rig prims.
 
     Existing samples of an animated attribute between ``min(times)`` and ``max(times)`` are replaced;
     samples outside that range are kept. The stage's ``startTimeCode``/``endTimeCode`` grow to cover
@@ -105,18 +123,21 @@ def write_animation(stage: Usd.Stage, times, *, contractions=None, wrinkle_depth
         times: time codes, shape (F,).
         contractions: shape (F, M) in muscle order, or ``{muscle name: (F,) values}``.
         wrinkle_depths: shape (F, W) in wrinkle order, or ``{wrinkle name: (F,) values}``.
+        jaw: the jaw's controls, shape (F, 3) (``jaw_open`` [rad], ``jaw_forward``, ``jaw_left``), or
+            ``{control name: (F,) values}``; the rig must have a jaw.
         skin_path: the rig's skin mesh (default: the only one).
         fps: frames per second.
         meters_per_unit: length unit of the given values in metres (as returned by ``read_rig``).
 
     Raises:
-        ValueError: wrong shapes, unknown names, non-finite values, repeated times.
+        ValueError: wrong shapes, unknown names, non-finite values, repeated times, jaw controls for a rig
+            without a jaw.
         RigError: the stage's rig is invalid.
     """
     ensure_schema()
     times = as_time_codes(times)
     prims = rig_prims(stage, skin_path)
-    muscle_scale, wrinkle_scale = _length_scales(stage, prims, meters_per_unit)
+    muscle_scale, wrinkle_scale, jaw_scale = _length_scales(stage, prims, meters_per_unit)
     series = []
     if contractions is not None:
         columns, table = _control_table(contractions, prims.muscle_names, len(times), "contractions", "muscle")
@@ -124,6 +145,13 @@ def write_animation(stage: Usd.Stage, times, *, contractions=None, wrinkle_depth
     if wrinkle_depths is not None:
         columns, table = _control_table(wrinkle_depths, prims.wrinkle_names, len(times), "wrinkle_depths", "wrinkle")
         series += [(prims.wrinkles[c], "depth", table[:, k] / wrinkle_scale[c]) for k, c in enumerate(columns)]
+    if jaw is not None:
+        prim = jaw_prim(stage, prims.skin)
+        if prim is None:
+            raise ValueError(f"jaw: rig {prims.skin.GetPath()} has no jaw to animate")
+        names = list(JAW_CONTROL_ATTRIBUTES)
+        columns, table = _control_table(jaw, names, len(times), "jaw", "jaw control")
+        series += [(prim, JAW_CONTROL_ATTRIBUTES[names[c]], table[:, k] / jaw_scale[c]) for k, c in enumerate(columns)]
 
     layer = stage.GetEditTarget().GetLayer()
     paths = []
@@ -209,13 +237,16 @@ def frame_times(stage: Usd.Stage, skin_path: str | None = None, *, max_frames: i
         return np.arange(first, last + 1, dtype=np.float64)
     prims = rig_prims(stage, skin_path)
     samples = set()
-    for prim, name in [(p, "contraction") for p in prims.muscles] + [(p, "depth") for p in prims.wrinkles]:
+    jaw = jaw_prim(stage, prims.skin)
+    jaw_controls = [(jaw, name) for name in JAW_CONTROL_ATTRIBUTES.values()] if jaw is not None else []
+    for prim, name in [(p, "contraction") for p in prims.muscles] + [(p, "depth") for p in prims.wrinkles] + jaw_controls:
         samples.update(prim.GetAttribute(name).GetTimeSamples())
     return np.array(sorted(samples), dtype=np.float64)
 
 
 def read_animation(stage_or_path, times=None, *, skin_path: str | None = None, meters_per_unit: float = 1.0) -> Animation:
-    """Sample contractions and wrinkle depths at time codes (USD value resolution: held or interpolated).
+    """Sample contractions, wrinkle depths and the jaw's controls at time codes (USD value resolution: held or
+    interpolated).
 
     Args:
         stage_or_path: the rig stage or its file.
@@ -230,11 +261,14 @@ def read_animation(stage_or_path, times=None, *, skin_path: str | None = None, m
     stage = open_stage(stage_or_path)
     prims = rig_prims(stage, skin_path)
     times = frame_times(stage, skin_path) if times is None else as_finite_array(times, "times", shape=(None,))
-    muscle_scale, wrinkle_scale = _length_scales(stage, prims, meters_per_unit)
+    muscle_scale, wrinkle_scale, jaw_scale = _length_scales(stage, prims, meters_per_unit)
     contractions = _sample(prims.muscles, "contraction", times) * muscle_scale
     depths = _sample(prims.wrinkles, "depth", times) * wrinkle_scale
+    jaw = jaw_prim(stage, prims.skin)
+    if jaw is not None:
+        jaw = np.stack([_sample([jaw], name, times)[:, 0] for name in JAW_CONTROL_ATTRIBUTES.values()], axis=1) * jaw_scale
     return Animation(times=times, contractions=contractions, wrinkle_depths=depths,
-                     muscle_names=prims.muscle_names, wrinkle_names=prims.wrinkle_names)
+                     muscle_names=prims.muscle_names, wrinkle_names=prims.wrinkle_names, jaw=jaw)
 
 
 def _sample(prims, name: str, times: np.ndarray) -> np.ndarray:

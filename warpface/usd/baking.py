@@ -272,19 +272,20 @@ def _evaluate_controls(model, animation, times: np.ndarray, skin_path) -> tuple[
     Frames whose controls repeat an earlier frame's bit for bit (held curves, a neutral stretch) are
     evaluated once and copied.
     """
-    controls = np.ascontiguousarray(np.concatenate([animation.contractions, animation.wrinkle_depths], axis=1))
+    muscles_and_jaw = animation.controls
+    controls = np.ascontiguousarray(np.concatenate([muscles_and_jaw, animation.wrinkle_depths], axis=1))
     _, first, copies = np.unique(controls.view(np.uint8).reshape(len(controls), -1), axis=0, return_index=True,
                                  return_inverse=True)
     try:
         if len(first) == len(controls):
-            positions = model.evaluate_batch(animation.contractions, wrinkle_depths=animation.wrinkle_depths)
+            positions = model.evaluate_batch(muscles_and_jaw, wrinkle_depths=animation.wrinkle_depths)
         else:
-            positions = model.evaluate_batch(animation.contractions[first], wrinkle_depths=animation.wrinkle_depths[first])
+            positions = model.evaluate_batch(muscles_and_jaw[first], wrinkle_depths=animation.wrinkle_depths[first])
             positions = positions[copies.reshape(-1)]
     except ValueError as exc:
         for row, time in enumerate(times.tolist()):  # name the first frame the model refuses
             try:
-                model.evaluate_batch(animation.contractions[row:row + 1], wrinkle_depths=animation.wrinkle_depths[row:row + 1])
+                model.evaluate_batch(muscles_and_jaw[row:row + 1], wrinkle_depths=animation.wrinkle_depths[row:row + 1])
             except ValueError as frame_error:
                 raise ValueError(f"{skin_path}: controls at time {time:g}: {frame_error}") from None
         raise ValueError(f"{skin_path}: controls at time codes {times[0]:g} … {times[-1]:g}: {exc}") from None

@@ -16,7 +16,7 @@ from pxr import Sdf, Usd, UsdGeom, Vt
 from ..errors import RigError
 from ..expression.jaw import Jaw
 
-__all__ = ["author_jaw", "read_jaw", "JAW_TYPE", "JAW_RELATIONSHIP", "JAW_CONTROL_ATTRIBUTES"]
+__all__ = ["author_jaw", "read_jaw", "jaw_prim", "JAW_TYPE", "JAW_RELATIONSHIP", "JAW_CONTROL_ATTRIBUTES"]
 
 JAW_TYPE = "WarpFaceJaw"
 JAW_RELATIONSHIP = "warpFace:jaw"
@@ -46,6 +46,14 @@ def author_jaw(stage: Usd.Stage, path: Sdf.Path | None, jaw: Jaw | None, skin: U
     UsdGeom.Imageable(prim).CreatePurposeAttr(UsdGeom.Tokens.guide)
     skin.CreateRelationship(JAW_RELATIONSHIP, custom=False).SetTargets([path])
     return prim
+
+
+def jaw_prim(stage: Usd.Stage, skin: Usd.Prim) -> Usd.Prim | None:
+    """The jaw prim ``skin`` links to (``warpFace:jaw``), or ``None`` (no link, or a link to nothing)."""
+    relationship = skin.GetRelationship(JAW_RELATIONSHIP)
+    targets = relationship.GetTargets() if relationship else []
+    prim = stage.GetPrimAtPath(targets[0]) if targets else None
+    return prim if prim else None
 
 
 def read_jaw(stage: Usd.Stage, skin: Usd.Prim, placement_of: Callable, to_units: float, vertex_count: int) -> Jaw | None:

@@ -150,7 +150,7 @@ def export_arkit_weights(stage_or_path, out_path, *, mapping: str | None = None,
         raise ValueError(f"mapping {table.name!r} has no ARKit channel to export")
     arkit = Mapping(channels=[table.channels[c] for c in keep], controls=table.controls, matrix=table.matrix[:, keep],
                     offsets=table.offsets, name=table.name)
-    controls = {name: animation.contractions[:, k] for k, name in enumerate(animation.muscle_names) if name in arkit.controls}
+    controls = {name: animation.controls[:, k] for k, name in enumerate(animation.control_names) if name in arkit.controls}
     rate = float(fps or stage.GetTimeCodesPerSecond())
     curves = controls_to_curves(arkit, animation.times / stage.GetTimeCodesPerSecond(), controls,
                                 source=Path(stage.GetRootLayer().identifier).name, fps=rate)
