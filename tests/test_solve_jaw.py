@@ -78,6 +78,42 @@ def test_kernel_evaluation_matches_numpy_with_the_jaw(rig, rng):
     assert np.abs(jacobian - jacobian_k).max() < 1e-9 * np.abs(jacobian).max()
 
 
+def test_device_normal_equations_with_the_jaw_match_numpy(rig, rng):
+    """The normal equations take the jaw's chain rule from the per-basis derivatives themselves and sum the
+    upper triangle only: against ``JᵀWJ``, ``JᵀWe`` of the NumPy Jacobian (per control) of the same points."""
+    from warpface.solve.objective import DeviceObjective
+    from warpface.solve.targets import observation
+
+    every = len(rig.muscles)
+    controls = np.stack([controls_with_jaw(rig, rng, count=every),
+                         controls_with_jaw(rig, rng, count=every, jaw=(0.35, -0.03, 0.04))])
+    obs = observation(rig.mesh, vertices=rig.landmarks)
+    local = LocalExpression(rig_operators(rig, "cpu"), obs.vertices)
+    unit = rig_scale(rig)
+    objective = DeviceObjective(KernelExpression(local, device="cpu"), obs, pose=False,
+                                origin=np.zeros(3), unit=unit)
+    frames = len(controls)
+    targets = rng.normal(size=(frames, obs.count, 3))
+    weights = rng.uniform(0.1, 1.0, (frames, obs.count))
+    objective.bind(targets, weights)
+    identity = np.tile(np.eye(3), (frames, 1, 1))
+    misfit, hessian, gradient = objective.evaluate(controls, identity, np.zeros((frames, 3)), np.ones(frames, bool),
+                                                   jacobian=True)
+    x, dx = local.evaluate(controls)
+    e = obs.apply_frames(x) / unit - targets
+    columns = obs.apply_frames(dx)  # (F, N, 3, C)
+    jaw_open = every
+    for f in range(frames):
+        w = np.repeat(weights[f], 3)
+        flat = columns[f].reshape(-1, columns.shape[3])
+        expected = flat.T @ (w[:, None] * flat)
+        assert np.abs(expected[jaw_open, jaw_open]) > 0.0  # the jaw's columns take part
+        np.testing.assert_array_equal(hessian[f], hessian[f].T)
+        assert np.allclose(hessian[f], expected, rtol=1e-9, atol=1e-10 * np.abs(expected).max())
+        assert np.allclose(gradient[f], flat.T @ (w * e[f].ravel()), rtol=1e-9, atol=1e-10 * np.abs(gradient[f]).max())
+        assert misfit[f] == pytest.approx(np.sum(weights[f] * np.sum(e[f] ** 2, axis=1)), rel=1e-12)
+
+
 @pytest.mark.parametrize("landmarks_only", [False, True])
 def test_closed_loop_recovers_jaw_and_muscles(rig, model, rng, landmarks_only):
     truth = controls_with_jaw(rig, rng, count=4, jaw=(0.25, 0.03, -0.02))

@@ -327,18 +327,38 @@ def _observed(x3: wp.array(dtype=wp.vec3d), frame_first: int, point_offsets: wp.
 
 
 @wp.func
-def _column(dx3: wp.array(dtype=wp.float64), x3: wp.array(dtype=wp.vec3d), frame_first: int,
-            point_offsets: wp.array(dtype=wp.int32), point_vertex: wp.array(dtype=wp.int32),
-            point_weight: wp.array(dtype=wp.float64), n: int, c: int, control_count: int,
-            rotation: wp.mat33d, arm: wp.vec3d, unit: wp.float64):
+def _column(dx3: wp.array(dtype=wp.float64), basis: wp.array(dtype=wp.float64), x3: wp.array(dtype=wp.vec3d),
+            frame: int, frame_first: int, point_offsets: wp.array(dtype=wp.int32), point_vertex: wp.array(dtype=wp.int32),
+            point_weight: wp.array(dtype=wp.float64), n: int, c: int, control_count: int, muscle_count: int,
+            basis_count: int, rotation: wp.mat33d, arm: wp.vec3d, unit: wp.float64):
     """Column ``c`` of the posed target point's Jacobian [mesh units per variable]: a control's
-    ``R·(P ∂x3/∂c)``, then the rotation vector's ``−[R(x − o)]×`` and the translation's ``ℓ·I``."""
+    ``R·(P ∂x3/∂c)``, then the rotation vector's ``−[R(x − o)]×`` and the translation's ``ℓ·I``.
+
+    ``dx3`` holds the pipeline's derivatives per *basis* column (``basis_count`` per row). With a jaw
+    (``basis_count = control_count + 1``) the angle's column is the chain rule
+    ``cos θ · ∂x/∂(sin θ) + sin θ · ∂x/∂(1 − cos θ)`` (``local_model`` docstring), taken here rather than
+    by a separate pass over every row, and the slides sit one basis column later.
+    """
     if c < control_count:
+        # Branch-free: every column is ``first·cosine + second·sine``, with (1, 0) for all but the angle
+        # (exact: ``d·1 + d·0 = d``). A branch here made the CPU build of this kernel 4× slower.
+        jaw = basis_count > control_count
+        angle = jaw and c == muscle_count
+        source = c + wp.where(jaw and c > muscle_count, 1, 0)
+        second = source + wp.where(angle, 1, 0)
+        frame_basis = frame * basis_count
+        sine = wp.where(angle, basis[frame_basis + wp.min(muscle_count, basis_count - 1)], wp.float64(0.0))
+        one_minus_cos = basis[frame_basis + wp.min(muscle_count + 1, basis_count - 1)]
+        cosine = wp.where(angle, wp.float64(1.0) - one_minus_cos, wp.float64(1.0))
         d = _zero3()
         for k in range(point_offsets[n], point_offsets[n + 1]):
-            base = 3 * (frame_first + point_vertex[k]) * control_count + c
-            w = point_weight[k]
-            d += w * wp.vec3d(dx3[base], dx3[base + control_count], dx3[base + 2 * control_count])
+            row = 3 * (frame_first + point_vertex[k]) * basis_count
+            base = row + source
+            other = row + second
+            d += point_weight[k] * wp.vec3d(
+                dx3[base] * cosine + dx3[other] * sine,
+                dx3[base + basis_count] * cosine + dx3[other + basis_count] * sine,
+                dx3[base + 2 * basis_count] * cosine + dx3[other + 2 * basis_count] * sine)
         return rotation * d
     zero = wp.float64(0.0)
     axis = wp.vec3d(zero, zero, zero)
@@ -353,6 +373,7 @@ def _column(dx3: wp.array(dtype=wp.float64), x3: wp.array(dtype=wp.vec3d), frame
 def normal_equations(
     x3: wp.array(dtype=wp.vec3d),
     dx3: wp.array(dtype=wp.float64),
+    basis: wp.array(dtype=wp.float64),
     point_offsets: wp.array(dtype=wp.int32),
     point_vertex: wp.array(dtype=wp.int32),
     point_weight: wp.array(dtype=wp.float64),
@@ -366,6 +387,8 @@ def normal_equations(
     origin: wp.vec3d,
     unit: wp.float64,
     control_count: int,
+    muscle_count: int,
+    basis_count: int,
     variable_count: int,
     vertex_count: int,
     point_count: int,
@@ -376,6 +399,7 @@ def normal_equations(
 ):
     """Per frame: the data term ``Σ_n w_n |e_n|²`` with ``e = (R(Px3 − o) + o)/ℓ + t − y`` and, with
     ``jacobian``, ``Jᵀ W J`` and ``Jᵀ W e`` over each point's active variables (atomics into the frame's sums).
+    Only the upper triangle of ``Jᵀ W J`` is summed (half the atomics); its readers mirror it.
 
     Columns are in mesh units per variable; the caller scales them to the solver's variables.
     """
@@ -397,12 +421,12 @@ def normal_equations(
     end = active_offsets[n + 1]
     for a in range(begin, end):
         ca = active[a]
-        col_a = _column(dx3, x3, first, point_offsets, point_vertex, point_weight, n, ca, control_count, r, arm, unit)
+        col_a = _column(dx3, basis, x3, f, first, point_offsets, point_vertex, point_weight, n, ca, control_count, muscle_count,
+                        basis_count, r, arm, unit)
         wp.atomic_add(gradient, f * variable_count + ca, w * wp.dot(col_a, e))
         for b in range(a, end):
             cb = active[b]
-            col_b = _column(dx3, x3, first, point_offsets, point_vertex, point_weight, n, cb, control_count, r, arm, unit)
-            value = w * wp.dot(col_a, col_b)
-            wp.atomic_add(hessian, (f * variable_count + ca) * variable_count + cb, value)
-            if cb != ca:
-                wp.atomic_add(hessian, (f * variable_count + cb) * variable_count + ca, value)
+            col_b = _column(dx3, basis, x3, f, first, point_offsets, point_vertex, point_weight, n, cb, control_count,
+                            muscle_count, basis_count, r, arm, unit)
+            wp.atomic_add(hessian, (f * variable_count + ca) * variable_count + cb, w * wp.dot(col_a, col_b))
+

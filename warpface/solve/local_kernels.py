@@ -89,26 +89,34 @@ class _Buffers:
         self.stretch, self.x2 = scalar(frames * n1), vec(frames * n1)
         self.dstretch, self.dx2 = scalar(frames * n1 * controls), vec(frames * n1 * controls)
         self.area0, self.darea0 = vec(frames * t0), vec(frames * t0 * controls)
-        self.x3, self.dx3 = vec(frames * n0), scalar(frames * n0 * 3 * controls)
-        self.dx3_basis = self.dx3
-        """The pipeline's derivatives per basis column; with a jaw, ``dx3`` holds them per control."""
+        self.x3, self.dx3_basis = vec(frames * n0), scalar(frames * n0 * 3 * controls)
+        """The pipeline's derivatives per basis column; with a jaw, :attr:`dx3` holds them per control."""
+        self._dx3 = self.dx3_basis
         if outputs is not None and outputs != controls:
-            self.dx3 = scalar(frames * n0 * 3 * outputs)
+            self._dx3 = None  # allocated on first use: the solver's normal equations read dx3_basis
+            self._dx3_size, self._device = max(frames * n0 * 3 * outputs, 1), device
         self.raw_controls = None
         """With a jaw: the controls as given (F·C), turned into ``controls`` (the basis) by a kernel."""
         if outputs is not None and outputs != controls:
             self.raw_controls = wp.zeros(frames * outputs, dtype=wp.float64, device=device)
         self.frame_on = wp.ones(frames, dtype=wp.int32, device=device)
         """Frames to evaluate (1) or skip (0): the solver turns off the frames that have converged."""
-        self.recorded: dict[bool, list] = {}
-        """Launches recorded once per mode (with / without Jacobian) and replayed: argument packing is
-        most of a small launch's cost on the CPU."""
+        self.recorded: dict[tuple, list] = {}
+        """Launches recorded once per mode (with / without Jacobian; per control / per basis column) and
+        replayed: argument packing is most of a small launch's cost on the CPU."""
         staged = self.controls if self.raw_controls is None else self.raw_controls
         self.staged = staged
         self.host_controls = staged.numpy() if device.is_cpu else None
         """CPU: a NumPy view sharing the uploaded controls' memory (written in place)."""
         self.basis_command = None
         """The recorded controls → basis launch (with a jaw)."""
+
+    @property
+    def dx3(self) -> wp.array:
+        """``∂x3/∂c`` per control, (F·n·3·C,) (with a jaw: the chain rule of :attr:`dx3_basis`)."""
+        if self._dx3 is None:
+            self._dx3 = wp.zeros(self._dx3_size, dtype=wp.float64, device=self._device)
+        return self._dx3
 
 
 class KernelExpression:
@@ -189,14 +197,19 @@ class KernelExpression:
                     outputs=[buffers.controls])
             buffers.basis_command.launch()
 
-    def launch(self, buffers: _Buffers, frames: int, jacobian: bool) -> None:
-        """Run the five stages on ``buffers`` (controls already uploaded)."""
-        if jacobian not in buffers.recorded:
-            buffers.recorded[jacobian] = self._record(buffers, frames, jacobian)
-        for command in buffers.recorded[jacobian]:
+    def launch(self, buffers: _Buffers, frames: int, jacobian: bool, *, per_control: bool = True) -> None:
+        """Run the five stages on ``buffers`` (controls already uploaded).
+
+        ``per_control=False`` leaves the derivatives per basis column in ``buffers.dx3_basis`` (no jaw
+        chain-rule pass): for a consumer that applies the chain rule itself (the solver's normal equations).
+        """
+        key = (jacobian, per_control)
+        if key not in buffers.recorded:
+            buffers.recorded[key] = self._record(buffers, frames, jacobian, per_control)
+        for command in buffers.recorded[key]:
             command.launch()
 
-    def _record(self, buffers: _Buffers, frames: int, jacobian: bool) -> list:
+    def _record(self, buffers: _Buffers, frames: int, jacobian: bool, per_control: bool) -> list:
         s, m, d = self._sizes, self.basis_count, self.device
         jac = 1 if jacobian else 0
         commands = []
@@ -223,7 +236,7 @@ class KernelExpression:
                           self._profile_value, self._kr, wp.float64(REST_STRETCH_BAND), *self._active["s0"], m, s["n1"],
                           s["n0"], s["t0"], jac],
                   outputs=[buffers.x3, buffers.dx3_basis])
-        if jacobian and self.has_jaw:
+        if jacobian and per_control and self.has_jaw:
             launch(jaw_chain_rule_kernel, dim=frames * s["n0"] * 3, device=d,
                    inputs=[buffers.dx3_basis, buffers.controls, s["n0"] * 3, self.muscle_count, m, self.control_count],
                    outputs=[buffers.dx3])

@@ -114,11 +114,13 @@ class DeviceObjective:
         if not jacobian:
             return misfit, None, None
         k = self.variable_count
-        return misfit, data.hessian.numpy().reshape(frames, k, k).copy(), data.gradient.numpy().reshape(frames, k).copy()
+        upper = data.hessian.numpy().reshape(frames, k, k)  # the kernel sums the upper triangle only
+        hessian = np.triu(upper) + np.transpose(np.triu(upper, 1), (0, 2, 1))
+        return misfit, hessian, data.gradient.numpy().reshape(frames, k).copy()
 
     def inputs(self):
         """The bound chunk's device inputs and outputs: ``(controls (F·M,), rotation (F,), translation (F,),
-        frame_on (F,), hessian (F·K·K,), gradient (F·K,), misfit (F,))`` — written and read by the
+        frame_on (F,), hessian (F·K·K,; upper triangle summed), gradient (F·K,), misfit (F,))`` — written and read by the
         on-device iteration (:mod:`.device_steps`) between :meth:`launch` calls."""
         data = self._bound
         buffers = self.model.buffers(data.frames)
@@ -129,7 +131,7 @@ class DeviceObjective:
         data = self._bound
         frames = data.frames
         buffers = self.model.buffers(frames)
-        self.model.launch(buffers, frames, jacobian)
+        self.model.launch(buffers, frames, jacobian, per_control=False)  # the jaw's chain rule is in the kernel below
         data.misfit.zero_()
         if jacobian:
             data.hessian.zero_()
@@ -137,9 +139,9 @@ class DeviceObjective:
         if jacobian not in data.commands:
             data.commands[jacobian] = wp.launch(
                 kernels.normal_equations, dim=frames * self.point_count, device=self.device, record_cmd=True,
-                inputs=[buffers.x3, buffers.dx3, self._point_offsets, self._point_vertex, self._point_weight,
+                inputs=[buffers.x3, buffers.dx3_basis, buffers.controls, self._point_offsets, self._point_vertex, self._point_weight,
                         self._active_offsets, self._active, data.targets, data.weights, data.rotation,
                         data.translation, data.frame_on, self.origin, wp.float64(self.unit), self.control_count,
-                        self.variable_count, self.model.count, self.point_count, 1 if jacobian else 0],
+                        self.model.muscle_count, self.model.basis_count, self.variable_count, self.model.count, self.point_count, 1 if jacobian else 0],
                 outputs=[data.hessian, data.gradient, data.misfit])
         data.commands[jacobian].launch()

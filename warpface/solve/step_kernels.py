@@ -254,6 +254,9 @@ def begin_iteration(
     hb = f * size * size
     vb = f * size
     ub = f * control_count
+    for a in range(1, size):  # the data term sums the upper triangle only
+        for b in range(a):
+            hessian[hb + a * size + b] = hessian[hb + b * size + a]
     for a in range(size):
         gradient[vb + a] = gradient[vb + a] * column[a]
         for b in range(size):
