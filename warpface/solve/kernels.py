@@ -20,7 +20,7 @@ __all__ = ["muscle_stage", "first_ring_triangles", "bulge_stage", "second_ring_t
 def muscle_stage(
     frame_on: wp.array(dtype=wp.int32),
     rest: wp.array(dtype=wp.vec3d),
-    field: wp.array(dtype=wp.vec3d),
+    slot_field: wp.array(dtype=wp.vec3d),
     controls: wp.array(dtype=wp.float64),
     active_offsets: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
@@ -28,7 +28,10 @@ def muscle_stage(
     vertex_count: int,
     points: wp.array(dtype=wp.vec3d),
 ):
-    """x1 = x_rest + W c over the neighbourhood's vertices (the muscles that reach each vertex)."""
+    """x1 = x_rest + W c over the neighbourhood's vertices (the muscles that reach each vertex).
+
+    ``slot_field`` is ``W`` per active slot (the order of ``active``), so a vertex's columns are contiguous.
+    """
     i = wp.tid()
     f = i / vertex_count
     if frame_on[f] == 0:
@@ -37,7 +40,7 @@ def muscle_stage(
     x = rest[v]
     for slot in range(active_offsets[v], active_offsets[v + 1]):
         m = active[slot]
-        x += controls[f * control_count + m] * field[v * control_count + m]
+        x += controls[f * control_count + m] * slot_field[slot]
     points[i] = x
 
 
@@ -50,7 +53,7 @@ def _zero3() -> wp.vec3d:
 def first_ring_triangles(
     frame_on: wp.array(dtype=wp.int32),
     points: wp.array(dtype=wp.vec3d),
-    field: wp.array(dtype=wp.vec3d),
+    slot_edges: wp.array(dtype=wp.vec3d),
     triangles: wp.array(dtype=wp.vec3i),
     weight: wp.array(dtype=wp.float64),
     rest_length: wp.array(dtype=wp.float64),
@@ -65,7 +68,8 @@ def first_ring_triangles(
     darea: wp.array(dtype=wp.vec3d),
     dratio: wp.array(dtype=wp.float64),
 ):
-    """Area vector ``w·(p1 − p0) × (p2 − p0)`` of x1, ratio S'/S, and their derivatives (derivative of x1 = W)."""
+    """Area vector ``w·(p1 − p0) × (p2 − p0)`` of x1, ratio S'/S, and their derivatives (derivative of x1 = W;
+    ``slot_edges[2·slot], [2·slot + 1]`` are the edges' constant derivatives ``W1 − W0``, ``W2 − W0`` per active slot)."""
     i = wp.tid()
     f = i / triangle_count
     if frame_on[f] == 0:
@@ -85,9 +89,8 @@ def first_ring_triangles(
     zero = wp.float64(0.0)
     for slot in range(active_offsets[t], active_offsets[t + 1]):
         m = active[slot]
-        w0 = field[tri[0] * control_count + m]
-        de1 = field[tri[1] * control_count + m] - w0
-        de2 = field[tri[2] * control_count + m] - w0
+        de1 = slot_edges[2 * slot]
+        de2 = slot_edges[2 * slot + 1]
         k = i * control_count + m
         da = weight[t] * (wp.cross(de1, e2) + wp.cross(e1, de2))
         darea[k] = da

@@ -152,6 +152,18 @@ class KernelExpression:
         """Per element kind (``s2``, ``t1``, ``s1``, ``t0``, ``s0``): which controls can move it, sparse bool CSR."""
         self._active = {name: (i32(csr.indptr), i32(csr.indices if csr.nnz else np.zeros(1)))
                         for name, csr in active_basis.items()}
+        # The rig's constant derivative data per active (element, column) slot, stored in slot order: the
+        # stages stream them instead of gathering from the dense (n2·B) field (~5x the bytes, cache misses).
+        vec = lambda a: wp.array(np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 3) if len(a) else np.zeros((1, 3)),  # noqa: E731
+                                 dtype=wp.vec3d, device=d)
+        moved = active_basis["s2"]
+        self._slot_field = vec(local.field2[np.repeat(np.arange(len(local.rest2)), np.diff(moved.indptr)), :, moved.indices])
+        """``W`` per active (vertex, column) slot of ``s2``, (slots,) vec3d."""
+        touched = active_basis["t1"]
+        owner = np.repeat(np.arange(len(local.triangles1)), np.diff(touched.indptr))
+        corners = [local.field2[local.triangles1[owner, c], :, touched.indices] for c in range(3)]
+        self._slot_edges = vec(np.stack([corners[1] - corners[0], corners[2] - corners[0]], axis=1))
+        """Per active (triangle, column) slot of ``t1``: the derivatives of its two edges ``(W1 − W0, W2 − W0)``."""
 
     @property
     def bytes_per_frame(self) -> int:
@@ -204,9 +216,9 @@ class KernelExpression:
             commands.append(wp.launch(kernel, record_cmd=True, **kwargs))
 
         launch(kernels.muscle_stage, dim=frames * s["n2"], device=d,
-                  inputs=[buffers.frame_on, self._rest, self._field, buffers.controls, *self._active["s2"], m, s["n2"]], outputs=[buffers.x1])
+                  inputs=[buffers.frame_on, self._rest, self._slot_field, buffers.controls, *self._active["s2"], m, s["n2"]], outputs=[buffers.x1])
         launch(kernels.first_ring_triangles, dim=frames * s["t1"], device=d,
-                  inputs=[buffers.frame_on, buffers.x1, self._field, self._t1, self._t1_weight, self._t1_length, *self._active["t1"], m, s["n2"], s["t1"], jac],
+                  inputs=[buffers.frame_on, buffers.x1, self._slot_edges, self._t1, self._t1_weight, self._t1_length, *self._active["t1"], m, s["n2"], s["t1"], jac],
                   outputs=[buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1])
         launch(kernels.bulge_stage, dim=frames * s["n1"], device=d,
                   inputs=[buffers.frame_on, buffers.x1, self._field, buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1,
