@@ -104,7 +104,7 @@ def first_ring_triangles(
 def bulge_stage(
     frame_on: wp.array(dtype=wp.int32),
     points: wp.array(dtype=wp.vec3d),
-    field: wp.array(dtype=wp.vec3d),
+    slot_own: wp.array(dtype=wp.vec3d),
     area: wp.array(dtype=wp.vec3d),
     ratio: wp.array(dtype=wp.float64),
     darea: wp.array(dtype=wp.vec3d),
@@ -129,7 +129,8 @@ def bulge_stage(
 ):
     """r (mean S'/S), N(x1), x2 = x1 + (1/max(r, floor) − 1)·h·N and ∂r/∂c, ∂x2/∂c on the first ring.
 
-    ``ring_vertex[v]`` is the vertex's index among the x1 points (``point_count`` per frame).
+    ``ring_vertex[v]`` is the vertex's index among the x1 points (``point_count`` per frame); ``slot_own`` is the
+    vertex's own ``W`` per active slot (the derivative of its x1).
     """
     i = wp.tid()
     f = i / vertex_count
@@ -181,7 +182,7 @@ def bulge_stage(
             dn = (dsum - n * wp.dot(n, dsum)) / length
         out = i * control_count + m
         dstretch[out] = dr
-        dbulged[out] = field[ring_vertex[v] * control_count + m] + h * (dgrowth * n + growth * dn)
+        dbulged[out] = slot_own[slot] + h * (dgrowth * n + growth * dn)
 
 
 @wp.kernel

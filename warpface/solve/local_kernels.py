@@ -127,7 +127,6 @@ class KernelExpression:
         f64 = lambda a: wp.array(np.ascontiguousarray(a, dtype=np.float64), dtype=wp.float64, device=d)  # noqa: E731
         i32 = lambda a: wp.array(np.ascontiguousarray(a, dtype=np.int32), dtype=wp.int32, device=d)  # noqa: E731
         self._rest = wp.array(local.rest2, dtype=wp.vec3d, device=d)
-        self._field = wp.array(np.ascontiguousarray(local.field2.transpose(0, 2, 1)).reshape(-1, 3), dtype=wp.vec3d, device=d)
         self._t1 = wp.array(local.triangles1.astype(np.int32), dtype=wp.vec3i, device=d)
         self._t1_weight, self._t1_length = f64(local.triangle_weight1), f64(local.rest_length1)
         inc1 = local.incidence1
@@ -164,6 +163,10 @@ class KernelExpression:
         corners = [local.field2[local.triangles1[owner, c], :, touched.indices] for c in range(3)]
         self._slot_edges = vec(np.stack([corners[1] - corners[0], corners[2] - corners[0]], axis=1))
         """Per active (triangle, column) slot of ``t1``: the derivatives of its two edges ``(W1 − W0, W2 − W0)``."""
+        ring = active_basis["s1"]
+        own = local.s1_in_s2[np.repeat(np.arange(len(local.s1_in_s2)), np.diff(ring.indptr))]
+        self._slot_own = vec(local.field2[own, :, ring.indices])
+        """Per active (vertex, column) slot of ``s1``: the vertex's own ``W`` (0 for a column that moves only its ring)."""
 
     @property
     def bytes_per_frame(self) -> int:
@@ -221,7 +224,7 @@ class KernelExpression:
                   inputs=[buffers.frame_on, buffers.x1, self._slot_edges, self._t1, self._t1_weight, self._t1_length, *self._active["t1"], m, s["n2"], s["t1"], jac],
                   outputs=[buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1])
         launch(kernels.bulge_stage, dim=frames * s["n1"], device=d,
-                  inputs=[buffers.frame_on, buffers.x1, self._field, buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1,
+                  inputs=[buffers.frame_on, buffers.x1, self._slot_own, buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1,
                           self._s1_in_s2, self._adj1_offsets, self._adj1, self._counts1, self._thickness1, *self._active["s1"],
                           wp.float64(STRETCH_FLOOR), m, s["n2"], s["n1"], s["t1"], jac],
                   outputs=[buffers.stretch, buffers.x2, buffers.dstretch, buffers.dx2])
