@@ -69,7 +69,11 @@ def first_ring_triangles(
     dratio: wp.array(dtype=wp.float64),
 ):
     """Area vector ``w·(p1 − p0) × (p2 − p0)`` of x1, ratio S'/S, and their derivatives (derivative of x1 = W;
-    ``slot_edges[2·slot], [2·slot + 1]`` are the edges' constant derivatives ``W1 − W0``, ``W2 − W0`` per active slot)."""
+    ``slot_edges[2·slot], [2·slot + 1]`` are the edges' constant derivatives ``W1 − W0``, ``W2 − W0`` per active slot).
+
+    The derivatives are stored per active slot, ``slots + 1`` per frame (the last one stays 0: the
+    bulge stage reads it for a column that does not reach the triangle).
+    """
     i = wp.tid()
     f = i / triangle_count
     if frame_on[f] == 0:
@@ -88,10 +92,9 @@ def first_ring_triangles(
         return
     zero = wp.float64(0.0)
     for slot in range(active_offsets[t], active_offsets[t + 1]):
-        m = active[slot]
         de1 = slot_edges[2 * slot]
         de2 = slot_edges[2 * slot + 1]
-        k = i * control_count + m
+        k = f * (active_offsets[triangle_count] + 1) + slot
         da = weight[t] * (wp.cross(de1, e2) + wp.cross(e1, de2))
         darea[k] = da
         dr = zero
@@ -116,11 +119,14 @@ def bulge_stage(
     thickness: wp.array(dtype=wp.float64),
     active_offsets: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
+    pair_offsets: wp.array(dtype=wp.int32),
+    pair_slot: wp.array(dtype=wp.int32),
     floor: wp.float64,
     control_count: int,
     point_count: int,
     vertex_count: int,
     triangle_count: int,
+    triangle_slots: int,
     jacobian: int,
     stretch: wp.array(dtype=wp.float64),
     bulged: wp.array(dtype=wp.vec3d),
@@ -130,7 +136,9 @@ def bulge_stage(
     """r (mean S'/S), N(x1), x2 = x1 + (1/max(r, floor) − 1)·h·N and ∂r/∂c, ∂x2/∂c on the first ring.
 
     ``ring_vertex[v]`` is the vertex's index among the x1 points (``point_count`` per frame); ``slot_own`` is the
-    vertex's own ``W`` per active slot (the derivative of its x1).
+    vertex's own ``W`` per active slot (the derivative of its x1). The first ring's derivatives are per
+    slot (``triangle_slots`` per frame, see :func:`first_ring_triangles`): ``pair_slot`` lists, from
+    ``pair_offsets[v]`` on, the slot of each (active column, incident triangle) pair of the vertex in loop order.
     """
     i = wp.tid()
     f = i / vertex_count
@@ -163,12 +171,15 @@ def bulge_stage(
     bulged[i] = points[source] + (growth * h) * n
     if jacobian == 0:
         return
+    pair = pair_offsets[v]
+    first_slot = f * triangle_slots
     for slot in range(active_offsets[v], active_offsets[v + 1]):
         m = active[slot]
         dtotal = zero
         dsum = _zero3()
         for k in range(begin, end):
-            j = (first + adjacency[k]) * control_count + m
+            j = first_slot + pair_slot[pair]
+            pair += 1
             dtotal += dratio[j]
             dsum += darea[j]
         dr = zero
