@@ -11,6 +11,9 @@ Rows per mesh:
 * ``scipy splu baseline`` — a plain implementation of SPEC §2: ``A = K + 4/dt² M + 2/dt C``,
   ``splu(A_oo)`` once with SciPy's defaults, then per step ``q`` from the full matrices, the
   Dirichlet right-hand side, one solve and the Newmark update, all float64 NumPy.
+* ``scipy splu baseline anp`` — the same on the average-nodal-pressure matrices: the peer of the
+  ``... anp`` rows (same matrices), whose "ratio" is against it; "× plain splu" is every row's
+  time against the plain baseline (different physics: ANP couples two rings of neighbours).
 * ``warpface cpu direct`` — :class:`warpface.fem.TissueSimulation` on the CPU (its default solver).
 * ``warpface cuda cg`` — the graph-captured CG path, when a CUDA device is present.
 * ``... anp`` — the same with the locking-free average-nodal-pressure stiffness.
@@ -36,6 +39,7 @@ The max difference to the baseline's displacements checks that every row compute
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import numpy as np
@@ -86,9 +90,9 @@ def mouth_opening(steps: int, opens_down: np.ndarray) -> np.ndarray:
 class SplitBaseline:
     """Plain SPEC §2 Newmark with SciPy ``splu`` (default options) factorised once."""
 
-    def __init__(self, mesh, material, fixed, driven):
+    def __init__(self, mesh, material, fixed, driven, formulation: str = "linear"):
         t0 = time.perf_counter()
-        K, M, C = assemble(mesh, material, device="cpu").to_scipy()
+        K, M, C = assemble(mesh, material, formulation=formulation, device="cpu").to_scipy()
         self.assembly_seconds = time.perf_counter() - t0
         n = mesh.node_count
         free = np.setdiff1d(np.arange(n), np.union1d(fixed, driven))
@@ -233,6 +237,9 @@ def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=
     label = f"{mesh.node_count} nodes"
 
     base = SplitBaseline(mesh, material, fixed, driven)
+    bases = {"linear": base}
+    if with_anp:
+        bases["anp"] = SplitBaseline(mesh, material, fixed, driven, formulation="anp")
     configs = [("warpface cpu direct", "linear", "cpu")]
     if with_anp:
         configs.append(("warpface cpu direct anp", "anp", "cpu"))
@@ -246,25 +253,34 @@ def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=
         for name, formulation, device in configs
     ]
     cpu_sims = [sim for _, _, sim in sims if sim.solver == "direct"]
-    for step in [base.step] + [sim.step for sim in cpu_sims]:
+    steppers = [b.step for b in bases.values()] + [sim.step for sim in cpu_sims]
+    for step in steppers:
         step(trajectory[0])
-    cpu_times = interleaved_step_times([base.step] + [sim.step for sim in cpu_sims], trajectory[1:])
-    base_step = cpu_times[0]
+    cpu_times = interleaved_step_times(steppers, trajectory[1:])
+    base_times = dict(zip(bases, cpu_times))
+    base_step = base_times["linear"]
     reference = base.d.reshape(-1, 3)
-    rows = [dict(mesh=label, path="scipy splu baseline", assembly_s=base.assembly_seconds,
-                 factor_s=base.factor_seconds, step_ms=1e3 * base_step, step_call_ms=1e3 * base_step, ratio=1.0,
-                 realtime=DT / base_step, max_diff=0.0)]
-    cpu_times = iter(cpu_times[1:])
+    references = {formulation: b.d.reshape(-1, 3) for formulation, b in bases.items()}
+    rows = [dict(mesh=label, path="scipy splu baseline" + ("" if formulation == "linear" else f" {formulation}"),
+                 assembly_s=b.assembly_seconds, factor_s=b.factor_seconds, factor_nnz=b.lu.L.nnz + b.lu.U.nnz,
+                 step_ms=1e3 * base_times[formulation], step_call_ms=1e3 * base_times[formulation],
+                 ratio=1.0, ratio_plain=base_step / base_times[formulation],
+                 realtime=DT / base_times[formulation], max_diff=0.0)
+            for formulation, b in bases.items()]
+    cpu_times = iter(cpu_times[len(bases):])
     for name, formulation, sim in sims:
         if sim.solver == "direct":
             per_step = step_calls = next(cpu_times)
             final, iterations, mean_iterations = sim.d, None, None
         else:
             per_step, step_calls, final, iterations, mean_iterations = cuda_step_times(sim, trajectory)
-        diff = float(np.abs(final - reference).max()) if formulation == "linear" else None
+        diff = float(np.abs(final - references[formulation]).max())
         rows.append(dict(mesh=label, path=name, assembly_s=sim.timings["assembly"],
                          factor_s=sim.timings.get("factorization", sim.timings["solver_setup"]),
-                         step_ms=1e3 * per_step, step_call_ms=1e3 * step_calls, ratio=base_step / per_step,
+                         factor_nnz=getattr(sim.stepper, "factor_nnz", None),
+                         step_ms=1e3 * per_step, step_call_ms=1e3 * step_calls,
+                         ratio=base_times[formulation] / per_step if formulation in base_times else base_step / per_step,
+                         ratio_plain=base_step / per_step,
                          realtime=DT / per_step, max_diff=diff, cg_iterations=iterations,
                          cg_mean_iterations=mean_iterations))
     if cuda_device is not None:
@@ -313,15 +329,19 @@ def main() -> None:
     for index, cells in enumerate(args.sizes):
         rows.extend(bench_mesh(cells, args.steps, not args.no_anp, cuda, args.batch if index == 0 else (), args.batch_preconditioners))
     print_table(rows, [("mesh", "mesh", "s"), ("path", "path", "s"), ("assembly_s", "assembly s", ".2f"),
-                       ("factor_s", "factor/setup s", ".2f"), ("step_ms", "ms/step run()", ".3f"),
+                       ("factor_s", "factor/setup s", ".2f"), ("factor_nnz", "factor nnz", "d"),
+                       ("step_ms", "ms/step run()", ".3f"),
                        ("step_call_ms", "ms/step step()", ".3f"),
                        ("model_ms", "ms/step/model", ".4f"), ("x_single", "x one model", ".2f"),
-                       ("ratio", "ratio vs splu", ".2f"), ("realtime", "x real time", ".3f"),
+                       ("ratio", "ratio vs splu", ".2f"), ("ratio_plain", "x plain splu", ".2f"),
+                       ("realtime", "x real time", ".3f"),
                        ("max_diff", "max diff m", ".1e"), ("cg_iterations", "CG iters max", "d"),
                        ("cg_mean_iterations", "CG iters mean", ".1f")])
     name = f"fem_{str(cuda).replace(':', '')}" if cuda else "fem"  # a CUDA run keeps the CPU file
     path = write_results(name, {"dt": DT, "material": dict(KATO_UNIFORM), "steps": args.steps,
-                                 "machine": machine_info(cuda or "cpu"), "rows": rows})
+                                 "machine": machine_info(cuda or "cpu"), "cpu_count": os.cpu_count(),
+                                 "load_average": os.getloadavg(), "rows": rows})
+    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
     print(f"wrote {path}")
 
 

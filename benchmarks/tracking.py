@@ -20,7 +20,10 @@ measured in the same run:
 * ``frame loop with USD write``: the capture loop itself, measured end to end — detect, back-project,
   ``track_frame(copy=False)`` and ``TrackingStageWriter.add`` for 120 frames (four chunk flushes and
   the final close included) — as wall time and as this process's CPU time per frame; on a shared
-  machine the wall time includes waiting for a core, the CPU time does not.
+  machine the wall time includes waiting for a core, the CPU time does not. Then the same loop with
+  the source's side (detect, back-project) read ahead in a second thread by
+  :func:`warpface.tracking.prefetch`, as ``record(..., prefetch=2)`` runs it, against the one-thread loop
+  (interleaved repetitions, wall time): the two sides overlap on the machine's two cores.
 
 Every row reports the median and the minimum over its repetitions (``min ms``).
 
@@ -385,29 +388,41 @@ def _frame_loop_rows(tracker, pixels0, color, depth, intrinsics, adapter, triang
     import time
     from pathlib import Path
 
-    from warpface.tracking import LandmarkFrame, backproject
+    from warpface.tracking import LandmarkFrame, backproject, prefetch
     from warpface.usd.tracking_io import TrackingStageWriter
 
     names = [f"l{i}" for i in range(len(pixels0))]
-    wall, cpu = [], []
+
+    def landmark_frames():  # the source's side: detect and back-project
+        for i in range(count):
+            pixels, confidence = tracker.detect(color)
+            points, _ = backproject(pixels, depth, intrinsics, device=device)
+            yield LandmarkFrame(i / 30.0, points, confidence, i)
+
+    samples = {False: ([], []), True: ([], [])}  # prefetched? -> (wall, CPU) per repetition
     for _ in range(repeats):
-        tracker.reset(pixels0)
-        with tempfile.TemporaryDirectory() as folder:
-            started, started_cpu = time.perf_counter(), time.process_time()
-            with TrackingStageWriter(Path(folder) / "capture.usda", names, 30.0, dense_rest=adapter.dense_rest,
-                                     triangles=triangles) as writer:
-                for i in range(count):
-                    pixels, confidence = tracker.detect(color)
-                    points, _ = backproject(pixels, depth, intrinsics, device=device)
-                    dense = adapter.track_frame(LandmarkFrame(i / 30.0, points, confidence, i), copy=False)
-                    writer.add(i / 30.0, points, confidence, dense)
-            wall.append((time.perf_counter() - started) / count)
-            cpu.append((time.process_time() - started_cpu) / count)
+        for prefetched in (False, True):  # interleaved: both under the same machine load
+            tracker.reset(pixels0)
+            frames = prefetch(landmark_frames(), depth=2) if prefetched else landmark_frames()
+            with tempfile.TemporaryDirectory() as folder:
+                started, started_cpu = time.perf_counter(), time.process_time()
+                with TrackingStageWriter(Path(folder) / "capture.usda", names, 30.0, dense_rest=adapter.dense_rest,
+                                         triangles=triangles) as writer:
+                    for frame in frames:
+                        dense = adapter.track_frame(frame, copy=False)
+                        writer.add(frame.timestamp, frame.points, frame.confidence, dense)
+                samples[prefetched][0].append((time.perf_counter() - started) / count)
+                samples[prefetched][1].append((time.process_time() - started_cpu) / count)
+    (wall, cpu), (wall_ahead, cpu_ahead) = samples[False], samples[True]
     return [
         {"stage": "frame loop with USD write (wall)", "n": len(adapter.dense_rest),
          "ms": float(np.median(wall)) * 1e3, "min_ms": float(np.min(wall)) * 1e3, "cpu_ms": float(np.median(cpu)) * 1e3},
         {"stage": "frame loop with USD write (CPU time)", "n": len(adapter.dense_rest),
          "ms": float(np.median(cpu)) * 1e3, "min_ms": float(np.min(cpu)) * 1e3},
+        {"stage": "frame loop, source prefetched in a thread (wall)", "n": len(adapter.dense_rest),
+         "ms": float(np.median(wall_ahead)) * 1e3, "min_ms": float(np.min(wall_ahead)) * 1e3,
+         "cpu_ms": float(np.median(cpu_ahead)) * 1e3,
+         "baseline": "the same loop in one thread (wall)", "baseline_ms": float(np.median(wall)) * 1e3},
     ]
 
 

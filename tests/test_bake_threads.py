@@ -171,6 +171,6 @@ def test_animate_cache_equals_the_single_frame_model_on_the_built_in_face(tmp_pa
     times = np.arange(float(result.frame_count))
     animation = read_animation(stage, times)
     model = default_rig().model(device="cpu")
-    for time_code, contractions, depths in zip(times.tolist(), animation.contractions, animation.wrinkle_depths):
-        assert np.array_equal(np.asarray(points.Get(time_code), dtype=np.float32), model.evaluate(contractions, wrinkle_depths=depths))
+    for time_code, controls, depths in zip(times.tolist(), animation.controls, animation.wrinkle_depths):
+        assert np.array_equal(np.asarray(points.Get(time_code), dtype=np.float32), model.evaluate(controls, wrinkle_depths=depths))
     assert set(result.seconds) == {"read driver and rig", "clean and map", "write controls", "model", "bake", "save stage"}

@@ -160,3 +160,18 @@ def test_kth_smallest_with_ties_matches_numpy():
                                              wp.array(ranks, device="cpu")], outputs=[out], device="cpu")
     expected = [np.sort(values[i, :lengths[i]])[ranks[i]] for i in range(rows)]
     np.testing.assert_array_equal(out.numpy(), expected)
+
+
+def test_a_reused_image_buffer_and_new_pixels_are_read_every_call():
+    """The CPU path keeps the last image's wrapper and writes pixels into a recorded buffer: a camera
+    that refills the same buffer, and new landmark positions, must still be seen on every call."""
+    n = np.array([0.2, -0.1, -1.0])
+    n /= np.linalg.norm(n)
+    frame = plane_depth(n, -0.6 * abs(n[2])).astype(np.float32)  # float32, contiguous: used in place
+    px = np.random.default_rng(1).uniform([40, 40], [600, 440], size=(20, 2))
+    for offset in (-0.6, -0.7, -0.55):
+        frame[:] = plane_depth(n, offset * abs(n[2]))
+        for pixels in (px, px[::-1] + 3.0):
+            got, _ = backproject(pixels, frame, K, device="cpu")
+            r = rays(K, pixels[:, 0], pixels[:, 1])
+            np.testing.assert_allclose(got, r * (offset * abs(n[2]) / (r @ n))[:, None], atol=5e-6)

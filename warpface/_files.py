@@ -8,6 +8,8 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
+from ._validate import as_path
+
 __all__ = ["atomic_path", "new_file_mode", "read_text"]
 
 
@@ -31,10 +33,15 @@ def atomic_path(path: str | Path, suffix: str = ""):
     extension — USD layers, images, videos — need the real one). The renamed file gets the
     permissions ``open()`` would give it (:func:`new_file_mode`), not the temporary file's 0600.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    mode = new_file_mode(path)
-    handle, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or ".tmp", dir=path.parent)
+    path = as_path(path, "path")
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder, not a file")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        mode = new_file_mode(path)
+        handle, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or ".tmp", dir=path.parent)
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot write there ({exc.strerror or exc})") from None
     os.close(handle)
     tmp_path = Path(tmp)
     try:
@@ -50,7 +57,7 @@ def read_text(path) -> str:
     """The text of a UTF-8 file (a byte-order mark is dropped); ValueError naming the file when it is not
     text or cannot be read."""
     try:
-        return Path(path).read_text(encoding="utf-8-sig")
+        return as_path(path, "path").read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         raise ValueError(f"{path}: not a text file") from None
     except OSError as exc:

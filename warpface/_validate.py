@@ -8,11 +8,14 @@ that nothing valid can overflow the float32 kernels (see :data:`MAX_COORDINATE`)
 from __future__ import annotations
 
 import numbers
+import os
+from pathlib import Path
 
 import numpy as np
 
 __all__ = [
     "MAX_COORDINATE",
+    "MAX_VERTICES",
     "as_finite_array",
     "as_points",
     "as_triangles",
@@ -21,14 +24,25 @@ __all__ = [
     "as_positive",
     "as_bounded",
     "as_count",
+    "as_indices",
     "unit_vector",
     "orthogonal_unit_vector",
+    "as_device",
+    "as_path",
+    "expect_instance",
+    "expect_iterable",
+    "shape_of",
+    "WrongTypeError",
 ]
 
 MAX_COORDINATE = 1.0e6
 """Largest accepted |coordinate|, length or thickness [mesh units]. The per-frame kernels run in
 float32 and square edge cross products (≈ length⁴), which overflow float32 (3.4e38) near 1e9; 1e6
 leaves room for deformation, and covers faces in metres, millimetres or micrometres."""
+
+
+MAX_VERTICES = 1 << 26
+"""Largest vertex count a per-vertex array is made for (67 M; a face mesh has tens of thousands)."""
 
 
 def as_finite_array(value, name: str, *, shape: tuple | None = None, dtype=np.float64, max_abs: float | None = None) -> np.ndarray:
@@ -41,8 +55,8 @@ def as_finite_array(value, name: str, *, shape: tuple | None = None, dtype=np.fl
         raise ValueError(f"{name}: expected numbers, got {type(value).__name__}")
     try:
         array = np.asarray(value, dtype=dtype)
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise ValueError(f"{name}: cannot convert to a numeric array ({_short(exc)})") from None
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name}: expected a number or a regular array of numbers, got {_kind(value)}") from None
     if shape is not None:
         if array.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, array.shape)):
             expected = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
@@ -67,7 +81,7 @@ def as_points(value, name: str, *, max_abs: float = MAX_COORDINATE, min_count: i
     return points
 
 
-def as_triangles(value, vertex_count: int, name: str, *, integral_floats: bool = False) -> np.ndarray:
+def as_triangles(value, vertex_count: int, name: str, *, integral_floats: bool = False, allow_empty: bool = False) -> np.ndarray:
     """Triangle vertex indices, shape (T, 3) with T ≥ 1, int32, each in [0, vertex_count).
 
     Index arrays must have an integer dtype; with ``integral_floats``, float arrays whose values are
@@ -77,11 +91,11 @@ def as_triangles(value, vertex_count: int, name: str, *, integral_floats: bool =
         raise ValueError(f"{name}: expected an integer array of shape (T, 3), got {type(value).__name__}")
     try:
         triangles = np.asarray(value)
-    except (TypeError, ValueError) as exc:  # ragged nesting
-        raise ValueError(f"{name}: cannot convert to an index array ({_short(exc)})") from None
+    except (TypeError, ValueError):  # ragged nesting
+        raise ValueError(f"{name}: expected a regular integer array of shape (T, 3), got {_kind(value)}") from None
     if triangles.ndim != 2 or triangles.shape[1] != 3:
         raise ValueError(f"{name}: expected shape (T, 3), got {triangles.shape}")
-    if len(triangles) == 0:
+    if len(triangles) == 0 and not allow_empty:
         raise ValueError(f"{name}: no triangles")
     if triangles.dtype == np.bool_ or not (np.issubdtype(triangles.dtype, np.integer) or np.issubdtype(triangles.dtype, np.floating)):
         raise ValueError(f"{name}: expected integer vertex indices, got dtype {triangles.dtype}")
@@ -158,6 +172,30 @@ def as_count(value, name: str, *, minimum: int = 0, maximum: int | None = None) 
     return count
 
 
+def as_indices(value, count: int, name: str) -> np.ndarray:
+    """A 1-D array of indices into ``count`` items, int64, each in [0, ``count``); integer dtype (or whole
+    floats), never bool. TypeError/ValueError naming ``name`` otherwise."""
+    if isinstance(value, (str, bytes, dict)) or value is None:
+        raise TypeError(f"{name}: expected an integer index array, got {type(value).__name__}")
+    try:
+        indices = np.asarray(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a flat integer index array, got {_kind(value)}") from None
+    if indices.ndim != 1:
+        raise ValueError(f"{name}: expected a flat (N,) index array, got shape {indices.shape}")
+    if indices.size and (indices.dtype == np.bool_ or not (np.issubdtype(indices.dtype, np.integer) or np.issubdtype(indices.dtype, np.floating))):
+        raise ValueError(f"{name}: expected integer indices, got dtype {indices.dtype}")
+    if np.issubdtype(indices.dtype, np.floating):
+        if not np.all(np.isfinite(indices)) or np.any(indices != np.round(indices)):
+            raise ValueError(f"{name}: indices must be whole numbers")
+        indices = np.clip(indices, -1, count)
+    indices = indices.astype(np.int64)
+    bad = np.flatnonzero((indices < 0) | (indices >= count))
+    if len(bad):
+        raise ValueError(f"{name}: index {int(indices[bad[0]])} at position {int(bad[0])} is out of range [0, {count})")
+    return indices
+
+
 def unit_vector(value, name: str) -> np.ndarray:
     """``value`` normalised to unit length; raises ValueError if it has zero length.
 
@@ -191,6 +229,97 @@ def orthogonal_unit_vector(value, axis: np.ndarray, name: str) -> np.ndarray:
     if abs(along) > 1e-12 * float(np.linalg.norm(vector)):
         vector = vector - along * axis
     return unit_vector(vector, name)
+
+
+def as_device(device, name: str = "device"):
+    """The Warp device ``device`` names: ``None`` (Warp's preferred device), a ``warp.Device``, or a
+    name such as ``"cpu"``, ``"cuda"`` or ``"cuda:1"``. TypeError/ValueError naming ``name`` otherwise
+    (Warp itself raises RuntimeError for ``"cuda"`` on a machine without CUDA)."""
+    import warp as wp
+
+    if device is None or isinstance(device, wp.Device):
+        return wp.get_device(device)
+    if not isinstance(device, str):
+        raise TypeError(f"{name}: expected a Warp device or a name such as 'cpu' or 'cuda:0', got {type(device).__name__}")
+    try:
+        return wp.get_device(device)
+    except (ValueError, RuntimeError) as exc:
+        raise ValueError(f"{name}: {device[:40]!r} is not a device of this machine (use 'cpu', 'cuda' or 'cuda:N'; "
+                         f"{_short(exc)})") from None
+
+
+def as_path(value, name: str) -> Path:
+    """``value`` as a :class:`~pathlib.Path`: a ``str``/``bytes``/``os.PathLike`` that the operating system
+    can take (not empty, no NUL byte, no component over 255 bytes). TypeError/ValueError naming ``name``
+    otherwise, so a bad path never surfaces as an OSError from deep inside a reader or writer."""
+    if not isinstance(value, (str, bytes, os.PathLike)):
+        raise TypeError(f"{name}: expected a file path, got {type(value).__name__}")
+    text = os.fsdecode(os.fspath(value))
+    if not text.strip():
+        raise ValueError(f"{name}: empty file path")
+    if "\x00" in text:
+        raise ValueError(f"{name}: file path contains a NUL byte")
+    path = Path(text)
+    if any(len(os.fsencode(part)) > 255 for part in path.parts):
+        raise ValueError(f"{name}: a component of the file path is longer than 255 bytes")
+    return path
+
+
+def expect_instance(value, types, name: str):
+    """``value`` unchanged when it is an instance of ``types`` (a class or tuple of classes), else a
+    TypeError naming ``name``, the expected class and what was given."""
+    if not isinstance(value, types):
+        expected = " or ".join(t.__name__ for t in (types if isinstance(types, tuple) else (types,)))
+        raise WrongTypeError(f"{name}: expected a {expected}, got {type(value).__name__}")
+    return value
+
+
+class WrongTypeError(TypeError, ValueError):
+    """An argument of the wrong type: a TypeError, and a ValueError too, so callers that catch bad input
+    as ValueError (as warpface's own checks long raised it) still do."""
+
+
+def expect_iterable(value, name: str, *, item_types=None, sized: bool = False):
+    """``value`` when it is an iterable (a sized collection with ``sized``), not a string or bytes, else
+    a TypeError naming ``name``. With ``item_types`` the items are checked lazily: the returned
+    generator raises TypeError at the first item of another type."""
+    from collections.abc import Iterable, Sized
+
+    if (isinstance(value, (str, bytes, dict)) or not isinstance(value, Iterable) or (sized and not isinstance(value, Sized))
+            or (isinstance(value, np.ndarray) and value.ndim == 0)):
+        raise WrongTypeError(f"{name}: expected {'a list' if sized else 'an iterable'} of items, got {type(value).__name__}")
+    if item_types is None:
+        return value
+
+    def checked():
+        for position, item in enumerate(value):
+            expect_instance(item, item_types, f"{name}[{position}]")
+            yield item
+
+    return checked()
+
+
+def shape_of(value) -> tuple | None:
+    """NumPy's shape of ``value``, or None for a ragged nesting NumPy cannot make an array of."""
+    try:
+        return np.shape(value)
+    except (TypeError, ValueError):
+        return None
+
+
+def _kind(value) -> str:
+    """What ``value`` is, for a message: its type, and for containers the first element's type
+    that is not a number (``list containing dict``)."""
+    kind = type(value).__name__
+    if isinstance(value, (list, tuple)):
+        for item in value:
+            if not isinstance(item, (numbers.Number, np.generic)):
+                if isinstance(item, (list, tuple, np.ndarray)):
+                    return f"{kind} of unequal or nested sequences"
+                return f"{kind} containing {type(item).__name__}"
+    if isinstance(value, np.ndarray):
+        return f"array of dtype {value.dtype}"
+    return kind
 
 
 def _short(exc: Exception) -> str:

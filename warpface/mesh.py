@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from ._validate import MAX_COORDINATE, as_points, as_triangles
+from ._validate import MAX_COORDINATE, as_points, as_triangles, as_device, as_path
 from .geometry import triangle_areas, triangle_corners, triangle_crosses
 from .kernels_surface import stretch_reference_lengths, triangle_area_vectors, vertex_normals_kernel
 
@@ -159,7 +159,7 @@ class FaceMesh:
             points: positions to take normals of, shape (V, 3), within ±1e6; the rest points when omitted.
             device: Warp device (default: Warp's preferred device).
         """
-        device = wp.get_device(device)
+        device = as_device(device)
         positions = self.points if points is None else as_points(points, f"{self.name}: points")
         if positions.shape != self.points.shape:
             raise ValueError(f"{self.name}: points must have shape {self.points.shape}, got {positions.shape}")
@@ -176,7 +176,7 @@ class FaceMesh:
 
     def device_buffers(self, *, device=None) -> "MeshBuffers":
         """Rest geometry uploaded to ``device`` (cached per device)."""
-        device = wp.get_device(device)
+        device = as_device(device)
         key = ("buffers", str(device))
         if key not in self._cache:
             self._cache[key] = MeshBuffers.upload(self, device=device)
@@ -230,7 +230,7 @@ def load_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """
     if not isinstance(path, (str, Path)):
         raise ValueError(f"OBJ path: expected a str or Path, got {type(path).__name__}")
-    path = Path(path)
+    path = as_path(path, "path")
     if not path.is_file():
         raise ValueError(f"OBJ file not found: {path}")
     points: list[list[float]] = []

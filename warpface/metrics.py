@@ -7,10 +7,12 @@ combinations of the 68 iBUG points in :mod:`warpface.landmarks` (:data:`KATO_LAN
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
 
+from ._validate import MAX_COORDINATE, as_finite_array, as_indices
 from .landmarks import KATO_LANDMARKS, kato_landmarks
 
 __all__ = [
@@ -60,6 +62,8 @@ def symmetry_side(landmarks, side: str, *, reference: int = 0) -> np.ndarray:
     if side not in ("L", "R"):
         raise ValueError(f"symmetry: side must be 'L' or 'R', got {side!r}")
     ch = _track(landmarks, f"ch_{side}")
+    if isinstance(reference, bool) or not isinstance(reference, numbers.Integral):
+        raise TypeError(f"symmetry: reference frame must be an integer, got {type(reference).__name__}")
     if not -len(ch) <= int(reference) < len(ch):
         raise ValueError(f"symmetry: reference frame {reference} out of range for {len(ch)} frames")
     xi = np.zeros(len(ch))
@@ -117,8 +121,8 @@ def symmetry(landmarks, *, reference: int = 0, floor: float = 1e-12) -> Symmetry
 
 def point_distances(points, reference) -> np.ndarray:
     """Distance between corresponding points [m]: (..., V, 3) × (..., V, 3) → (..., V), float64."""
-    a = np.asarray(points, dtype=np.float64)
-    b = np.asarray(reference, dtype=np.float64)
+    a = as_finite_array(points, "point_distances: points", max_abs=MAX_COORDINATE)
+    b = as_finite_array(reference, "point_distances: reference", max_abs=MAX_COORDINATE)
     if a.shape != b.shape or a.ndim < 2 or a.shape[-1] != 3:
         raise ValueError(f"point_distances: need two arrays of the same shape (..., V, 3), got {a.shape} and {b.shape}")
     if not (np.isfinite(a).all() and np.isfinite(b).all()):
@@ -148,11 +152,9 @@ def surface_error(points, reference, *, vertices=None) -> SurfaceError:
     d = point_distances(points, reference)
     if d.ndim != 1:
         raise ValueError(f"surface_error: expected (V, 3) surfaces, got {np.shape(points)}")
-    index = np.arange(len(d)) if vertices is None else np.asarray(vertices, dtype=np.int64)
+    index = np.arange(len(d)) if vertices is None else as_indices(vertices, len(d), "surface_error: vertices")
     if index.size == 0:
         raise ValueError("surface_error: no vertices selected")
-    if index.min() < 0 or index.max() >= len(d):
-        raise ValueError(f"surface_error: vertex index out of range [0, {len(d)})")
     sel = d[index]
     worst = int(np.argmax(sel))
     return SurfaceError(mean=float(sel.mean()), max=float(sel[worst]), rms=float(np.sqrt(np.mean(sel**2))),

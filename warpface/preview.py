@@ -13,6 +13,8 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from ._validate import MAX_COORDINATE, as_bounded, as_count, as_finite_array, as_path, as_points, as_positive, as_vec3, shape_of
+
 __all__ = ["Camera", "PreviewRenderer", "render", "render_comparison", "render_heat_map", "heat_colors", "write_video",
            "save_image", "check_offscreen_rendering", "scale_label"]
 
@@ -32,10 +34,21 @@ class Camera:
     target: np.ndarray
     yfov_deg: float = 30.0
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "eye", as_vec3(self.eye, "camera eye"))
+        object.__setattr__(self, "target", as_vec3(self.target, "camera target"))
+        if not np.linalg.norm(self.eye - self.target) >= 1e-9:
+            raise ValueError("camera: eye and target coincide (closer than 1e-9)")
+        object.__setattr__(self, "yfov_deg", as_bounded(self.yfov_deg, "camera yfov_deg", 0.1, 179.0))
+
     @classmethod
     def framing(cls, points: np.ndarray, *, yaw_deg: float = 0.0, pitch_deg: float = 0.0, margin: float = 1.15,
                 yfov_deg: float = 30.0, aspect: float = 4 / 3) -> "Camera":
         """A camera that fits the bounding box of ``points`` (V, 3), looking along −Z (rotated by yaw/pitch)."""
+        points = as_points(points, "points", min_count=1)
+        yaw_deg, pitch_deg = (as_bounded(a, n, -3600.0, 3600.0) for a, n in ((yaw_deg, "yaw_deg"), (pitch_deg, "pitch_deg")))
+        margin, aspect = as_bounded(margin, "margin", 1e-3, 1e3), as_bounded(aspect, "aspect", 1e-3, 1e3)
+        yfov_deg = as_bounded(yfov_deg, "yfov_deg", 0.1, 179.0)
         lo, hi = points.min(axis=0), points.max(axis=0)
         centre = 0.5 * (lo + hi)
         half = 0.5 * (hi - lo)
@@ -43,12 +56,18 @@ class Camera:
         distance = margin * max(half[1] / np.tan(fov / 2), half[0] / (np.tan(fov / 2) * aspect)) + half[2]
         yaw, pitch = np.radians(yaw_deg), np.radians(pitch_deg)
         direction = np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
-        return cls(eye=centre + distance * direction, target=centre, yfov_deg=yfov_deg)
+        eye = centre + distance * direction
+        if not np.all(np.abs(eye) <= MAX_COORDINATE):
+            raise ValueError(f"camera framing: the points need a camera {distance:.3g} units away, beyond ±{MAX_COORDINATE:g} "
+                             "(check points, margin, yfov_deg and aspect)")
+        return cls(eye=eye, target=centre, yfov_deg=yfov_deg)
 
     @classmethod
     def for_face(cls, landmark_points: np.ndarray, *, yaw_deg: float = 0.0, pitch_deg: float = 0.0) -> "Camera":
         """A portrait camera from 68 landmark positions (L, 3): aimed a little above their centre (the
         landmarks stop at the brows) and far enough to frame forehead to chin, 22° field of view."""
+        landmark_points = as_points(landmark_points, "landmark_points", min_count=2)
+        yaw_deg, pitch_deg = (as_bounded(a, n, -3600.0, 3600.0) for a, n in ((yaw_deg, "yaw_deg"), (pitch_deg, "pitch_deg")))
         lo, hi = landmark_points.min(axis=0), landmark_points.max(axis=0)
         height = float(hi[1] - lo[1])
         target = 0.5 * (lo + hi) + np.array([0.0, 0.25 * height, 0.0])
@@ -95,6 +114,7 @@ class PreviewRenderer:
 
     def __init__(self, triangles: np.ndarray, size: tuple[int, int] = (640, 480), camera: Camera | None = None,
                  background=(1.0, 1.0, 1.0), interior=None):
+        size = _image_size(size)
         platform = check_offscreen_rendering()
         from .offscreen import INSTALL_HINT, OffscreenUnavailable
 
@@ -201,9 +221,11 @@ def heat_colors(values: np.ndarray, *, vmin: float | None = None, vmax: float | 
     """Map scalar values (V,) to RGB colours (V, 3) in [0, 1] with a matplotlib colormap."""
     from matplotlib import colormaps
 
-    values = np.asarray(values, dtype=np.float64)
-    lo = float(np.nanmin(values)) if vmin is None else vmin
-    hi = float(np.nanmax(values)) if vmax is None else vmax
+    if not isinstance(cmap, str) or cmap not in colormaps:
+        raise ValueError(f"cmap: {str(cmap)[:40]!r} is not a matplotlib colormap")
+    values = as_finite_array(values, "values", shape=(None,))
+    lo = float(values.min(initial=0.0)) if vmin is None else as_bounded(vmin, "vmin", -1e300, 1e300)
+    hi = float(values.max(initial=0.0)) if vmax is None else as_bounded(vmax, "vmax", -1e300, 1e300)
     scaled = np.clip((values - lo) / (hi - lo if hi > lo else 1.0), 0.0, 1.0)
     return colormaps[cmap](scaled)[:, :3]
 
@@ -218,9 +240,12 @@ def render_heat_map(points: np.ndarray, triangles: np.ndarray, values: np.ndarra
     the same ones to compare them. ``scale`` multiplies the values shown on the colour bar (e.g. 1000
     to show metres as millimetres).
     """
-    values = np.asarray(values, dtype=np.float64)
-    vmin = float(values.min()) if vmin is None else float(vmin)
-    vmax = float(values.max()) if vmax is None else float(vmax)
+    if _image_size(size)[1] < MIN_HEAT_MAP_HEIGHT:
+        raise ValueError(f"size: a heat map needs at least {MIN_HEAT_MAP_HEIGHT} px of height for its colour bar, got {size[1]}")
+    scale = as_bounded(scale, "scale", -1e12, 1e12)
+    values = as_finite_array(values, "values", shape=(None,))
+    vmin = float(values.min(initial=0.0)) if vmin is None else as_bounded(vmin, "vmin", -1e300, 1e300)
+    vmax = float(values.max(initial=0.0)) if vmax is None else as_bounded(vmax, "vmax", -1e300, 1e300)
     image = render(points, triangles, camera=camera, size=size, colors=heat_colors(values, vmin=vmin, vmax=vmax, cmap=cmap),
                    background=background, interior=interior)
     image = _color_bar(image, vmin * scale, vmax * scale, units, cmap)
@@ -244,7 +269,9 @@ def write_video(frames: Iterable[np.ndarray], triangles: np.ndarray, path: str |
 
     from ._files import atomic_path
 
-    path = Path(path)
+    path = as_path(path, "path")
+    size = _image_size(size)
+    fps = as_positive(fps, "fps", maximum=1000.0)
     if progress:
         from tqdm import tqdm
 
@@ -269,13 +296,25 @@ def write_video(frames: Iterable[np.ndarray], triangles: np.ndarray, path: str |
     return path
 
 
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+"""File name endings :func:`save_image` writes (OpenCV picks the format from the ending)."""
+
+
 def save_image(path: str | Path, image: np.ndarray) -> Path:
     """Write an RGB uint8 image as PNG via a temporary file and a rename."""
     import cv2
 
     from ._files import atomic_path
 
-    path = Path(path)
+    path = as_path(path, "path")
+    if path.suffix.lower() not in IMAGE_SUFFIXES:
+        raise ValueError(f"{path}: an image file must end in one of {', '.join(IMAGE_SUFFIXES)}")
+    pixels = as_finite_array(image, "image", max_abs=1e300)
+    if pixels.ndim != 3 or pixels.shape[2] != 3 or not pixels.shape[0] or not pixels.shape[1]:
+        raise ValueError(f"image: expected RGB pixels of shape (H, W, 3), got {pixels.shape}")
+    if pixels.min() < 0 or pixels.max() > 255:
+        raise ValueError("image: values must be in [0, 255]")
+    image = pixels.astype(np.uint8)
     with atomic_path(path, path.suffix) as temporary:
         if not cv2.imwrite(str(temporary), cv2.cvtColor(np.asarray(image, dtype=np.uint8), cv2.COLOR_RGB2BGR)):
             raise ValueError(f"cannot write image {path}")
@@ -297,10 +336,23 @@ def scale_label(value: float, span: float) -> str:
     digits of the span): 8.68e-08 on a 15 mm bar is "0", 14.97 is "15.0"."""
     import math
 
+    value = as_bounded(value, "value", -1e300, 1e300)
+    span = float(as_finite_array(span, "span", shape=()))
     span = abs(span) if math.isfinite(span) and span > 0 else abs(value) or 1.0
     decimals = max(0, 2 - math.floor(math.log10(span)))
     text = f"{round(value, decimals):.{decimals}f}"
     return "0" if float(text) == 0 else text
+
+
+MIN_HEAT_MAP_HEIGHT = 120
+"""Smallest image height [px] with room for a heat map's colour bar and its two labels."""
+
+
+def _image_size(size) -> tuple[int, int]:
+    """``(width, height)`` in pixels, each in [8, 16384]; ValueError naming ``size`` otherwise."""
+    if not isinstance(size, (list, tuple, np.ndarray)) or shape_of(size) != (2,):
+        raise ValueError(f"size: expected (width, height) in pixels, got {type(size).__name__}")
+    return tuple(as_count(int(n) if isinstance(n, np.integer) else n, "size", minimum=8, maximum=16384) for n in size)
 
 
 def _color_bar(image: np.ndarray, vmin: float, vmax: float, units: str, cmap: str) -> np.ndarray:

@@ -91,7 +91,7 @@ shapes the brows rise 6–8 mm while the upper lids move 0.3 mm)."""
 
 
 def revised_classic_muscles(local: np.ndarray, surface: SurfaceSampler, classic: list[LinearMuscle]) -> list[LinearMuscle]:
-    """The classic linear muscles as the full rig places them: frontalis, risorius and depressor labii inferioris moved.
+    """The classic linear muscles as the full rig places them: frontalis, risorius and the lip levator/depressor moved.
 
     Frontalis: each belly's fixed point in the forehead instead of beyond the hairline.
 
@@ -122,6 +122,19 @@ def revised_classic_muscles(local: np.ndarray, surface: SurfaceSampler, classic:
             insertion = surface.point((lower[0] + 0.03 * sign, lower[1] + 0.02))
             length = float(np.linalg.norm(insertion - attachment))
             out.append(LinearMuscle(muscle.name, attachment, insertion, 35.0, 0.85 * length, 1.30 * length))
+            continue
+        if muscle.name.startswith("levator_labii_superioris_"):
+            # Levator labii superioris: from the infraorbital margin, 0.05 beneath the skin, into the
+            # vermilion below the Cupid's-bow peak. The classic one (0.18 deep, inserting 0.06 above
+            # the outer upper lip) pulled the lip into the face and, after sliding, raised the lip's
+            # middle < 0.05 mm (mouthShrugUpper) and its side 0.2 mm (mouthUpperUp; now 0.8 and 1.8 mm).
+            sign = np.sign(surface.frame.to_local(muscle.insertion)[0])
+            eye = local[list(range(42, 48)) if sign > 0 else list(range(36, 42)), :2].mean(axis=0)
+            peak = local[52 if sign > 0 else 50, :2]
+            attachment = surface.below((eye[0] - 0.02 * sign, eye[1] - 0.36), 0.05)
+            insertion = surface.point((peak[0] + 0.02 * sign, peak[1] - 0.02))
+            length = float(np.linalg.norm(insertion - attachment))
+            out.append(LinearMuscle(muscle.name, attachment, insertion, 30.0, 0.88 * length, 1.30 * length))
             continue
         if not muscle.name.startswith("frontalis_"):
             out.append(muscle)

@@ -12,12 +12,16 @@ from types import MappingProxyType
 
 import numpy as np
 
+from .._validate import as_count, as_finite_array, as_positive, expect_instance
 from ..errors import RigError
 from ..expression.muscles import LinearMuscle
 from ..rig import FaceRig
 from .rig import rig_scale
 
 __all__ = ["EXPRESSIONS", "expression_contractions", "expression_timeline", "expression_envelope"]
+
+MAX_TIMELINE_FRAMES = 1_000_000
+"""Most frames an expression timeline or envelope is made with (9 h at 30 fps)."""
 
 EXPRESSIONS = MappingProxyType({
     # Raise the brows (AU1 + AU2): frontalis, inner and outer.
@@ -66,9 +70,12 @@ def expression_contractions(name: str, rig: FaceRig, *, intensity: float = 1.0) 
         ValueError: unknown expression or non-finite intensity.
         RigError: the rig lacks one of the preset's muscles, or its landmarks.
     """
+    expect_instance(rig, FaceRig, "rig")
+    if not isinstance(name, str):
+        raise TypeError(f"expression name: expected a str, got {type(name).__name__}")
     if name not in EXPRESSIONS:
         raise ValueError(f"unknown expression {name!r} (known: {', '.join(EXPRESSIONS)})")
-    intensity = float(intensity)
+    intensity = float(as_finite_array(intensity, f"expression {name!r}: intensity", shape=()))
     if not np.isfinite(intensity):
         raise ValueError(f"expression {name!r}: intensity must be finite, got {intensity}")
     muscles = {m.name: m for m in rig.muscles}
@@ -88,8 +95,8 @@ def expression_envelope(frames: int, hold: float = 0.2) -> np.ndarray:
     The rise and fall are quintic smoothsteps (zero velocity and acceleration at both ends of each
     ramp); the peak is held for the fraction ``hold`` ∈ [0, 1) of the span. First and last are 0.
     """
-    if frames < 2:
-        raise ValueError(f"expression envelope: need at least 2 frames, got {frames}")
+    frames = as_count(frames, "expression envelope: frames", minimum=2, maximum=MAX_TIMELINE_FRAMES)
+    hold = float(as_finite_array(hold, "expression envelope: hold", shape=()))
     if not 0.0 <= hold < 1.0:
         raise ValueError(f"expression envelope: hold must be in [0, 1), got {hold}")
     t = np.linspace(0.0, 1.0, frames)
@@ -106,12 +113,12 @@ def expression_timeline(name: str, rig: FaceRig, seconds: float = 2.0, fps: floa
     ``F = round(seconds · fps) + 1`` frames: frame ``f`` is at time ``f / fps``, and both the first
     and the last frame are neutral. Feed it to :meth:`~warpface.ExpressionModel.evaluate_batch`.
     """
-    seconds, fps = float(seconds), float(fps)
-    if not (np.isfinite(seconds) and seconds > 0.0):
-        raise ValueError(f"expression timeline: seconds must be > 0, got {seconds}")
-    if not (np.isfinite(fps) and fps > 0.0):
-        raise ValueError(f"expression timeline: fps must be > 0, got {fps}")
+    expect_instance(rig, FaceRig, "rig")
+    seconds = as_positive(seconds, "expression timeline: seconds", maximum=1e6)
+    fps = as_positive(fps, "expression timeline: fps", maximum=1e4)
     frames = int(round(seconds * fps)) + 1
+    if frames > MAX_TIMELINE_FRAMES:
+        raise ValueError(f"expression timeline: {seconds:g} s at {fps:g} fps is {frames} frames, more than {MAX_TIMELINE_FRAMES}")
     peak = np.zeros(len(rig.muscles))
     index = {m.name: i for i, m in enumerate(rig.muscles)}
     for muscle, value in expression_contractions(name, rig, intensity=intensity).items():

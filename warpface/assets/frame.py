@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._validate import as_finite_array, as_vec3
 from ..errors import RigError
 from ..landmarks import IBUG_COUNT, LEFT_EYE, MOUTH, RIGHT_EYE
 from ..expression.wrinkles import CylindricalProjection
@@ -71,16 +72,27 @@ class FaceFrame:
 
     def to_local(self, points: np.ndarray) -> np.ndarray:
         """Mesh-unit points (..., 3) → local coordinates in inter-ocular units (..., 3)."""
-        return (np.asarray(points, dtype=np.float64) - self.origin) @ self.axes.T / self.scale
+        return (_points3(points, "points") - self.origin) @ self.axes.T / self.scale
 
     def to_world(self, local: np.ndarray) -> np.ndarray:
         """Local coordinates (..., 3) in inter-ocular units → mesh-unit points (..., 3)."""
-        return self.origin + self.scale * (np.asarray(local, dtype=np.float64) @ self.axes)
+        return self.origin + self.scale * (_points3(local, "local") @ self.axes)
 
     def direction(self, local_direction) -> np.ndarray:
         """A local direction (3,) as a unit vector in mesh space."""
-        vector = np.asarray(local_direction, dtype=np.float64) @ self.axes
-        return vector / np.linalg.norm(vector)
+        vector = as_vec3(local_direction, "local_direction", max_abs=1e100) @ self.axes
+        length = np.linalg.norm(vector)
+        if not length > 0.0:
+            raise ValueError("local_direction: zero-length vector")
+        return vector / length
+
+
+def _points3(value, name: str) -> np.ndarray:
+    """Finite float64 points of shape (..., 3) (magnitudes up to 1e100, so transforms stay finite)."""
+    points = as_finite_array(value, name, max_abs=1e100)
+    if points.ndim == 0 or points.shape[-1] != 3:
+        raise ValueError(f"{name}: expected shape (..., 3), got {points.shape}")
+    return points
 
 
 class SurfaceSampler:
@@ -115,7 +127,7 @@ class SurfaceSampler:
 
     def hit(self, xy) -> tuple[np.ndarray, np.ndarray]:
         """Surface point [mesh units] (3,) and unit normal (3,) under local ``(x, y)``."""
-        x, y = float(xy[0]), float(xy[1])
+        x, y = (float(c) for c in as_finite_array(xy, "xy", shape=(2,), max_abs=1e6))
         near = np.flatnonzero(self._usable & (self._lo[:, 0] <= x) & (self._hi[:, 0] >= x) & (self._lo[:, 1] <= y) & (self._hi[:, 1] >= y))
         if len(near):
             offset = np.array([x, y]) - self._a[near]
@@ -144,6 +156,7 @@ class SurfaceSampler:
     def below(self, xy, depth: float) -> np.ndarray:
         """A point ``depth`` inter-ocular units beneath the surface at ``(x, y)``, along −normal [mesh units]."""
         point, normal = self.hit(xy)
+        depth = float(as_finite_array(depth, "depth", shape=(), max_abs=1e6))
         return point - depth * self.frame.scale * normal
 
 

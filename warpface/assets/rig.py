@@ -16,6 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .._validate import expect_instance
 from ..errors import RigError
 from ..expression.muscles import LinearMuscle, SphincterMuscle
 from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrinkle, project_points
@@ -89,6 +90,7 @@ _LEFT, _RIGHT = LEFT_SIDE, RIGHT_SIDE  # the iBUG index sets of each side (warpf
 
 def face_frame(mesh: FaceMesh, landmarks) -> FaceFrame:
     """The landmark frame of a face (see :class:`~warpface.assets.frame.FaceFrame`)."""
+    expect_instance(mesh, FaceMesh, "mesh")
     landmarks = check_landmarks(mesh, landmarks)
     return FaceFrame.from_landmarks(mesh.points[landmarks])
 
@@ -99,6 +101,7 @@ def rig_scale(rig: FaceRig) -> float:
     Raises:
         RigError: the rig has no 68 iBUG landmarks.
     """
+    expect_instance(rig, FaceRig, "rig")
     if rig.landmarks is None:
         raise RigError(f"rig {rig.name!r}: has no landmarks; the 68 iBUG points are needed to measure the face")
     return face_frame(rig.mesh, rig.landmarks).scale

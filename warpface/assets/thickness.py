@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validate import expect_instance
 from ..expression.thickness import ThicknessMap
 from ..expression.wrinkles import project_points
 from ..landmarks import LEFT_EYE, MOUTH, RIGHT_EYE
@@ -63,6 +64,7 @@ def default_thickness(mesh: FaceMesh | None = None, landmarks=None, *, device=No
 
 def thickness_map(mesh: FaceMesh, landmarks, *, device=None) -> ThicknessMap:
     """The painted, blurred thickness image of a face over its head cylinder."""
+    expect_instance(mesh, FaceMesh, "mesh")
     import cv2
 
     if landmarks is None:

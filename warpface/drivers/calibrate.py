@@ -13,6 +13,8 @@ from collections.abc import Mapping as MappingABC
 
 import numpy as np
 
+from .._validate import expect_instance
+from ..rig import FaceRig
 from .channels import canonical_channel
 from .mapping import Mapping
 
@@ -41,6 +43,7 @@ def calibrate_mapping(rig, examples, *, neutral=None, vertices=None, device=None
     Raises:
         ValueError: no examples, a repeated channel, or a shape the solver refuses (named).
     """
+    expect_instance(rig, FaceRig, "rig")
     from ..solve import fit
 
     if not isinstance(examples, MappingABC) or len(examples) == 0:

@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._validate import as_positive, expect_instance, expect_iterable
+
 __all__ = [
     "ARKIT_CHANNELS",
     "AU_RANGE",
@@ -50,7 +52,8 @@ def canonical_channel(name: str) -> str:
     (``browInnerUp``); action units (``AU1``, ``AU01_r``, ``au_12``) become ``AU01``; other names are
     returned stripped and unchanged.
     """
-    stripped = str(name).strip()
+    expect_instance(name, str, "channel name")
+    stripped = name.strip()
     arkit = _ARKIT_BY_LOWER.get(stripped.lower())
     if arkit is not None:
         return arkit
@@ -62,7 +65,12 @@ def canonical_channel(name: str) -> str:
 
 def channel_range(name: str) -> tuple[float, float]:
     """The valid value range of a canonical channel: [0, 5] for action units, [0, 1] otherwise."""
+    expect_instance(name, str, "channel name")
     return AU_RANGE if _AU.match(name) else ARKIT_RANGE
+
+
+MAX_CHANNEL_VALUE = 1.0e6
+"""Largest accepted |channel value| (weights are 0–1, action units 0–5; larger is a corrupt file)."""
 
 
 @dataclass(frozen=True)
@@ -90,9 +98,9 @@ class Curves:
         try:
             times = np.asarray(self.times, dtype=np.float64)
             values = np.asarray(self.values, dtype=np.float64)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{label}: times and values must be numeric ({exc})") from None
-        names = [str(n) for n in self.names]
+        except (TypeError, ValueError):
+            raise ValueError(f"{label}: times and values must be regular arrays of numbers") from None
+        names = [str(n) for n in expect_iterable(self.names, f"{label}: names", item_types=str)]
         if times.ndim != 1 or len(times) == 0:
             raise ValueError(f"{label}: no frames")
         if values.shape != (len(times), len(names)):
@@ -112,8 +120,13 @@ class Curves:
         if len(bad):
             frame, column = (int(i) for i in bad[0])
             raise ValueError(f"{label}: channel {names[column]!r} is not a number at frame {frame} (t = {times[frame]:g} s)")
-        if self.fps is not None and not (np.isfinite(self.fps) and self.fps > 0):
-            raise ValueError(f"{label}: frame rate {self.fps!r} must be a positive number")
+        far = np.abs(values) > MAX_CHANNEL_VALUE
+        if np.any(far):
+            frame, column = (int(i) for i in np.argwhere(far)[0])
+            raise ValueError(f"{label}: channel {names[column]!r} value {values[frame, column]:.6g} at frame {frame} is outside "
+                             f"±{MAX_CHANNEL_VALUE:g}")
+        if self.fps is not None:
+            object.__setattr__(self, "fps", as_positive(self.fps, f"{label}: frame rate", maximum=1e6))
         object.__setattr__(self, "times", times)
         object.__setattr__(self, "values", values)
         object.__setattr__(self, "names", names)

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._validate import as_finite_array, as_positive, expect_instance
 from .channels import Curves, channel_range
 
 __all__ = ["OneEuroFilter", "neutral_values", "calibrate_neutral", "apply_gain_offset", "clamp_to_range",
@@ -73,6 +74,10 @@ class OneEuroFilter:
         return out
 
 
+MAX_RESAMPLED_FRAMES = 10_000_000
+"""Most frames :func:`resample` makes (over 3 days at 30 fps)."""
+
+
 def neutral_values(curves: Curves, neutral) -> np.ndarray:
     """Per-channel rest values (C,) from ``neutral``: a frame index (int), a segment ``(t0, t1)`` [s]
     whose frames are averaged, or ``{channel: value}`` (others 0).
@@ -86,7 +91,7 @@ def neutral_values(curves: Curves, neutral) -> np.ndarray:
             raise ValueError(f"neutral: unknown channel {unknown[0]!r} (channels: {', '.join(curves.names[:6])}, …)")
         rest = np.zeros(len(curves.names))
         for name, value in neutral.items():
-            number = float(value)
+            number = float(as_finite_array(value, f"neutral[{name!r}]", shape=()))
             if not math.isfinite(number):
                 raise ValueError(f"neutral: value of {name!r} is not a finite number")
             rest[curves.names.index(name)] = number
@@ -98,7 +103,7 @@ def neutral_values(curves: Curves, neutral) -> np.ndarray:
     try:
         start, end = (float(t) for t in neutral)
     except (TypeError, ValueError):
-        raise ValueError(f"neutral: expected a frame index, a (start, end) segment in seconds or {{channel: value}}, got {neutral!r}") from None
+        raise ValueError(f"neutral: expected a frame index, a (start, end) segment in seconds or {{channel: value}}, got {type(neutral).__name__}") from None
     inside = (curves.times >= start) & (curves.times <= end)
     if not inside.any():
         raise ValueError(f"neutral segment [{start:g}, {end:g}] s contains no frame of {curves.source} "
@@ -108,6 +113,7 @@ def neutral_values(curves: Curves, neutral) -> np.ndarray:
 
 def calibrate_neutral(curves: Curves, neutral) -> Curves:
     """Remove the rest values of :func:`neutral_values` and stretch the rest of the range back to full."""
+    expect_instance(curves, Curves, "curves")
     rest = neutral_values(curves, neutral)
     tops = np.array([channel_range(n)[1] for n in curves.names])
     headroom = np.maximum(tops - rest, 1e-6 * tops)
@@ -123,10 +129,12 @@ def apply_gain_offset(curves: Curves, gain: dict[str, float] | None = None, offs
     """
     values = curves.values.copy()
     for label, table, apply in (("gain", gain, np.multiply), ("offset", offset, np.add)):
+        if table is not None and not isinstance(table, dict):
+            raise TypeError(f"{label}: expected {{channel: number}}, got {type(table).__name__}")
         for name, number in (table or {}).items():
             if name not in curves.names:
                 raise ValueError(f"{label}: {curves.source} has no channel {name!r}")
-            number = float(number)
+            number = float(as_finite_array(number, f"{label}[{name!r}]", shape=()))
             if not math.isfinite(number):
                 raise ValueError(f"{label} of {name!r}: not a finite number")
             column = curves.names.index(name)
@@ -136,6 +144,7 @@ def apply_gain_offset(curves: Curves, gain: dict[str, float] | None = None, offs
 
 def clamp_to_range(curves: Curves) -> Curves:
     """Values clamped to each channel's range; one note per clamped channel (count, extreme value)."""
+    expect_instance(curves, Curves, "curves")
     ranges = np.array([channel_range(n) for n in curves.names]).reshape(-1, 2)
     low, high = ranges[:, 0], ranges[:, 1]
     below, above = curves.values < low, curves.values > high
@@ -150,11 +159,12 @@ def clamp_to_range(curves: Curves) -> Curves:
 
 def resample(curves: Curves, fps: float) -> Curves:
     """Curves at ``t0 + k/fps`` for every k up to the last timestamp (linear interpolation); ``fps`` set."""
-    fps = float(fps)
-    if not math.isfinite(fps) or fps <= 0:
-        raise ValueError(f"fps must be a positive number, got {fps!r}")
+    expect_instance(curves, Curves, "curves")
+    fps = as_positive(fps, "fps", maximum=1e4)
     start, end = curves.times[0], curves.times[-1]
     count = int(math.floor((end - start) * fps + 1e-9)) + 1
+    if count > MAX_RESAMPLED_FRAMES:
+        raise ValueError(f"fps: resampling {end - start:g} s at {fps:g} fps gives {count} frames, more than {MAX_RESAMPLED_FRAMES}")
     times = start + np.arange(count) / fps
     values = np.empty((count, len(curves.names)))
     for column in range(len(curves.names)):
@@ -165,6 +175,7 @@ def resample(curves: Curves, fps: float) -> Curves:
 def clean(curves: Curves, *, neutral=None, gain=None, offset=None, clamp: bool = True,
           filter: OneEuroFilter | None = None, fps: float | None = None) -> Curves:
     """The clean-up steps of the module notes, in order; each is skipped when its argument is None/False."""
+    expect_instance(curves, Curves, "curves")
     if neutral is not None:
         curves = calibrate_neutral(curves, neutral)
     if gain or offset:
@@ -172,6 +183,7 @@ def clean(curves: Curves, *, neutral=None, gain=None, offset=None, clamp: bool =
     if clamp:
         curves = clamp_to_range(curves)
     if filter is not None:
+        expect_instance(filter, OneEuroFilter, "filter")
         curves = curves.replace(values=filter(curves.times, curves.values))
     if fps is not None:
         curves = resample(curves, fps)

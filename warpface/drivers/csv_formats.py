@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validate import as_path, expect_instance
 from .._files import atomic_path, read_text
 from .channels import ARKIT_CHANNELS, Curves, canonical_channel
 
@@ -86,7 +87,7 @@ def read_openface(path) -> Curves:
         ValueError: empty file, no ``timestamp`` or no ``AU.._r`` column, a value that is not a
             number, no tracked frame, timestamps not strictly increasing.
     """
-    path = Path(path)
+    path = as_path(path, "path")
     header, rows = _rows(path)
     if "timestamp" not in header:
         raise ValueError(f"{path}: missing column 'timestamp' (not an OpenFace CSV?)")
@@ -112,7 +113,8 @@ def read_openface(path) -> Curves:
 def write_openface(path, curves: Curves) -> Path:
     """Write ``curves``' action-unit channels as an OpenFace 2.x-style CSV (``frame, timestamp,
     confidence, success, AUxx_r …``); other channels are left out. Written atomically."""
-    path = Path(path)
+    expect_instance(curves, Curves, "curves")
+    path = as_path(path, "path")
     aus = [k for k, name in enumerate(curves.names) if re.match(r"^AU\d{2}$", name)]
     if not aus:
         raise ValueError(f"{path}: {curves.source} has no action-unit channels to write")
@@ -155,7 +157,7 @@ def read_live_link(path, *, fps: float | None = None) -> Curves:
         ValueError: empty file, no ``Timecode`` column or no ARKit column, a malformed timecode or value,
             timecodes not strictly increasing.
     """
-    path = Path(path)
+    path = as_path(path, "path")
     header, rows = _rows(path)
     if "Timecode" not in header:
         raise ValueError(f"{path}: missing column 'Timecode' (not a Live Link Face CSV?)")
@@ -199,7 +201,8 @@ def _timecode(seconds: float, fps: float) -> str:
 def write_live_link(path, curves: Curves, *, fps: float | None = None, start_seconds: float = 0.0) -> Path:
     """Write ``curves``' ARKit channels as a Live Link Face CSV (all 52 columns, missing ones 0; head and
     eye rotations 0). ``fps`` (default ``curves.fps``, else 60) must be a whole frame rate. Atomic."""
-    path = Path(path)
+    expect_instance(curves, Curves, "curves")
+    path = as_path(path, "path")
     rate = float(fps if fps is not None else (curves.fps or 60.0))
     if not math.isfinite(rate) or rate <= 0 or abs(rate - round(rate)) > 1e-9:
         raise ValueError(f"{path}: Live Link timecodes need a whole frame rate, got {rate!r}")

@@ -16,6 +16,8 @@ unmapped on rigs that do not.
 
 from __future__ import annotations
 
+from .._validate import expect_instance, expect_iterable
+from ..rig import FaceRig
 from .mapping import Mapping
 
 __all__ = ["ARKIT_TABLE", "FACS_TABLE", "JAW_CONTROLS", "LENGTH_CONTROLS", "default_table", "mapping_for_rig",
@@ -97,7 +99,7 @@ FACS_TABLE: tuple[tuple[str, str, float], ...] = tuple((au, control, w / 5.0) fo
 def default_table(kind: str = "all") -> Mapping:
     """The default table in face units: ``"arkit"``, ``"facs"`` or ``"all"`` (both; their channels differ)."""
     tables = {"arkit": ARKIT_TABLE, "facs": FACS_TABLE, "all": ARKIT_TABLE + FACS_TABLE}
-    if kind not in tables:
+    if not isinstance(kind, str) or kind not in tables:
         raise ValueError(f"default table {kind!r}: expected one of {', '.join(tables)}")
     return Mapping.from_entries(tables[kind], name="default")
 
@@ -108,16 +110,19 @@ def rig_control_names(rig) -> list[str]:
     This is the one place that decides which table rows a rig keeps: when rigs gain a jaw (SPEC §6.2),
     its controls (:data:`JAW_CONTROLS`) join this list and the jaw rows of the tables take effect.
     """
+    expect_instance(rig, FaceRig, "rig")
     return list(rig.control_names)
 
 
 def control_scales(rig, controls) -> dict[str, float]:
     """Factor from face units to the rig's units per control: the face size for lengths, else 1."""
+    expect_instance(rig, FaceRig, "rig")
     from ..assets.rig import rig_scale  # the assets package knows how to measure a landmarked face
 
     from ..expression.muscles import LinearMuscle
 
     linear = {m.name for m in rig.muscles if isinstance(m, LinearMuscle)} | set(LENGTH_CONTROLS)
+    controls = list(expect_iterable(controls, "controls", item_types=str))
     needs_scale = [c for c in controls if c in linear]
     scale = rig_scale(rig) if needs_scale else 1.0
     return {c: (scale if c in linear else 1.0) for c in controls}
@@ -132,6 +137,7 @@ def mapping_for_rig(rig, kind: str = "all", *, name: str = "default") -> tuple[M
     Raises:
         RigError: a linear muscle is mapped but the rig has no landmarks to measure its size.
     """
+    expect_instance(rig, FaceRig, "rig")
     table = default_table(kind)
     mapping, dropped, orphaned = table.restricted_to(rig_control_names(rig))
     scales = control_scales(rig, mapping.controls)

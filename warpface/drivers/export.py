@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validate import as_count, as_finite_array, as_positive, expect_instance
 from .channels import Curves, channel_range
 from .mapping import Mapping
 
@@ -37,11 +38,16 @@ def project_controls(mapping: Mapping, controls: dict[str, np.ndarray] | np.ndar
     Raises:
         ValueError: wrong shapes, non-finite values, an empty mapping.
     """
+    expect_instance(mapping, Mapping, "mapping")
     if not mapping.channels or not mapping.controls:
         raise ValueError(f"mapping {mapping.name!r} has no channels or controls to project onto")
+    ridge = as_positive(ridge, "ridge", allow_zero=True, maximum=1e6)
+    tolerance = as_positive(tolerance, "tolerance", maximum=1.0)
+    max_iterations = as_count(max_iterations, "max_iterations", minimum=1, maximum=10_000_000)
     if isinstance(controls, dict):
         unknown = [k for k in controls if k not in mapping.controls]
-        frames = {len(np.atleast_1d(v)) for v in controls.values()}
+        controls = {name: as_finite_array(series, f"controls[{name!r}]", max_abs=1e12).reshape(-1) for name, series in controls.items()}
+        frames = {len(v) for v in controls.values()}
         if len(frames) != 1:
             raise ValueError("controls: every control needs the same number of frames")
         count = frames.pop()
@@ -51,12 +57,14 @@ def project_controls(mapping: Mapping, controls: dict[str, np.ndarray] | np.ndar
                 continue
             table[:, mapping.controls.index(name)] = np.asarray(series, dtype=np.float64).reshape(count)
     else:
-        table = np.asarray(controls, dtype=np.float64)
+        table = as_finite_array(controls, "controls", max_abs=1e12)
         if table.ndim != 2 or table.shape[1] != len(mapping.controls):
             raise ValueError(f"controls: expected shape (F, {len(mapping.controls)}), got {table.shape}")
     if not np.isfinite(table).all():
         raise ValueError("controls: non-finite value")
     used = np.flatnonzero(np.abs(mapping.matrix).max(axis=1) > 0)
+    if len(used) == 0:
+        raise ValueError(f"mapping {mapping.name!r} has no non-zero weight to project onto")
     scale = np.abs(mapping.matrix[used]).max(axis=1)
     A = mapping.matrix[used] / scale[:, None]  # (K', C)
     target = (table[:, used] - mapping.offsets[used]) / scale  # (F, K')
@@ -84,6 +92,7 @@ def project_controls(mapping: Mapping, controls: dict[str, np.ndarray] | np.ndar
 def controls_to_curves(mapping: Mapping, times, controls, *, source: str = "export", fps: float | None = None,
                        **options) -> Curves:
     """:func:`project_controls` as :class:`Curves` (times [s], the mapping's channels) ready to write."""
+    expect_instance(mapping, Mapping, "mapping")
     weights = project_controls(mapping, controls, **options)
-    return Curves(times=np.asarray(times, dtype=np.float64), names=list(mapping.channels), values=weights,
+    return Curves(times=as_finite_array(times, "times"), names=list(mapping.channels), values=weights,
                   source=source, fps=fps)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .._validate import as_path, as_positive
 from .channels import Curves
 from .csv_formats import read_live_link, read_openface
 from .mediapipe_format import read_mediapipe_jsonl, read_mediapipe_textproto
@@ -22,7 +23,7 @@ def detect_format(path) -> str:
     Raises:
         ValueError: missing, empty or unrecognised file.
     """
-    path = Path(path)
+    path = as_path(path, "path")
     if not path.is_file():
         raise ValueError(f"driver file not found: {path}")
     try:
@@ -64,6 +65,8 @@ def read_driver(path, *, fps: float | None = None) -> Curves:
     Raises:
         ValueError: unreadable or malformed file, or a USD layer (one line naming the file and the problem).
     """
+    if fps is not None:
+        fps = as_positive(fps, "fps", maximum=1e6)
     kind = detect_format(path)
     if kind == "openface":
         return read_openface(path)

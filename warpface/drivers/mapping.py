@@ -7,10 +7,12 @@ angles dimensionless). Channels combine linearly: two channels that pull the sam
 
 from __future__ import annotations
 
+from collections.abc import Mapping as MappingABC
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._validate import as_finite_array, expect_instance, expect_iterable
 from .channels import Curves
 
 __all__ = ["Mapping", "MappedControls"]
@@ -35,6 +37,16 @@ class MappedControls:
         return {name: self.values[:, k] for k, name in enumerate(self.names)}
 
 
+def _entry(item, position: int) -> tuple[str, str, float]:
+    """One ``(channel, control, weight)`` triple of :meth:`Mapping.from_entries`, checked."""
+    if isinstance(item, (str, bytes)) or not isinstance(item, (tuple, list)) or len(item) != 3:
+        raise ValueError(f"entries[{position}]: expected a (channel, control, weight) triple, got {type(item).__name__}")
+    channel, control, weight = item
+    if not isinstance(channel, str) or not isinstance(control, str):
+        raise TypeError(f"entries[{position}]: channel and control must be names (str)")
+    return channel, control, float(as_finite_array(weight, f"entries[{position}] weight", shape=()))
+
+
 @dataclass(frozen=True)
 class Mapping:
     """``controls = matrix · channels + offsets``.
@@ -54,7 +66,8 @@ class Mapping:
     name: str = "default"
 
     def __post_init__(self) -> None:
-        channels, controls = [str(c) for c in self.channels], [str(c) for c in self.controls]
+        channels = [str(c) for c in expect_iterable(self.channels, f"mapping {self.name!r}: channels", item_types=str)]
+        controls = [str(c) for c in expect_iterable(self.controls, f"mapping {self.name!r}: controls", item_types=str)]
         for kind, names in (("channel", channels), ("control", controls)):
             if len(set(names)) != len(names):
                 raise ValueError(f"mapping {self.name!r}: {kind} {next(n for n in names if names.count(n) > 1)!r} appears twice")
@@ -80,7 +93,10 @@ class Mapping:
     @classmethod
     def from_entries(cls, entries, *, name: str = "default", offsets: dict[str, float] | None = None) -> "Mapping":
         """A mapping from ``(channel, control, weight)`` triples (repeated pairs add up) and ``{control: c₀}``."""
-        entries = [(str(ch), str(co), float(w)) for ch, co, w in entries]
+        entries = [_entry(item, position) for position, item in enumerate(expect_iterable(entries, "entries"))]
+        if offsets is not None:
+            expect_instance(offsets, MappingABC, "offsets")
+            offsets = {str(control): float(as_finite_array(value, f"offsets[{control!r}]", shape=())) for control, value in offsets.items()}
         channels = list(dict.fromkeys(ch for ch, _, _ in entries))
         controls = list(dict.fromkeys([co for _, co, _ in entries] + list(offsets or {})))
         matrix = np.zeros((len(controls), len(channels)))
@@ -106,11 +122,12 @@ class Mapping:
         """
         from .channels import channel_range
 
-        channels = [str(c) for c in channels]
-        examples = np.asarray(example_controls, dtype=np.float64)
+        channels = [str(c) for c in expect_iterable(channels, "channels", item_types=str)]
+        controls = [str(c) for c in expect_iterable(controls, "controls", item_types=str)]
+        examples = as_finite_array(example_controls, "example_controls")
         if examples.shape != (len(channels), len(controls)):
             raise ValueError(f"example_controls: expected shape ({len(channels)}, {len(controls)}), got {examples.shape}")
-        neutral = np.zeros(len(controls)) if neutral_controls is None else np.asarray(neutral_controls, dtype=np.float64)
+        neutral = np.zeros(len(controls)) if neutral_controls is None else as_finite_array(neutral_controls, "neutral_controls")
         if neutral.shape != (len(controls),):
             raise ValueError(f"neutral_controls: expected shape ({len(controls)},), got {neutral.shape}")
         tops = np.array([channel_range(c)[1] for c in channels])
@@ -128,7 +145,7 @@ class Mapping:
         Returns:
             (mapping, dropped controls, channels left with no control at all).
         """
-        available = set(available_controls)
+        available = set(expect_iterable(available_controls, "available_controls", item_types=str))
         keep = [k for k, c in enumerate(self.controls) if c in available]
         dropped = [c for c in self.controls if c not in available]
         matrix = self.matrix[keep]
@@ -139,6 +156,7 @@ class Mapping:
 
     def merged(self, other: "Mapping", *, name: str | None = None) -> "Mapping":
         """The sum of two mappings over the union of their channels and controls (offsets add too)."""
+        expect_instance(other, Mapping, "other")
         channels = list(dict.fromkeys(self.channels + other.channels))
         controls = list(dict.fromkeys(self.controls + other.controls))
         matrix = np.zeros((len(controls), len(channels)))
@@ -156,6 +174,8 @@ class Mapping:
         Channels of ``curves`` that the mapping does not know are ignored and listed in
         ``unmapped_channels``; mapped channels the curves lack count as zero.
         """
+        expect_instance(curves, Curves, "curves")
+        active_threshold = float(as_finite_array(active_threshold, "active_threshold", shape=()))
         index = {name: k for k, name in enumerate(curves.names)}
         present = [c for c, ch in enumerate(self.channels) if ch in index]
         signal = curves.values[:, [index[self.channels[c]] for c in present]]

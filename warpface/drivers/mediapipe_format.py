@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validate import as_path, expect_instance
 from .._files import atomic_path, read_text
 from .channels import ARKIT_CHANNELS, Curves, canonical_channel
 
@@ -96,7 +97,7 @@ def read_mediapipe_textproto(path, *, fps: float = 30.0) -> Curves:
     Raises:
         ValueError: empty file, no classification, a score that is not a number, a repeated category.
     """
-    path = Path(path)
+    path = as_path(path, "path")
     text = re.sub(r"#[^\n]*", "", _read_text(path))
     lists = _LIST.findall(text)
     if lists:
@@ -163,7 +164,7 @@ def read_mediapipe_jsonl(path, *, fps: float = 30.0) -> Curves:
         ValueError: empty file, a line that is not JSON or lacks scores, a score that is not a number,
             timestamps missing on some lines only or not strictly increasing.
     """
-    path = Path(path)
+    path = as_path(path, "path")
     frames, times = [], []
     for line, text in enumerate(_read_text(path).splitlines(), start=1):
         if not text.strip():
@@ -181,7 +182,8 @@ def read_mediapipe_jsonl(path, *, fps: float = 30.0) -> Curves:
 def write_mediapipe_textproto(path, curves: Curves) -> Path:
     """Write ``curves``' ARKit channels as repeated ``classification_list`` blocks with ``timestamp_ms``
     (one per frame; a single frame is written as a plain ``ClassificationList``). Atomic."""
-    path = Path(path)
+    expect_instance(curves, Curves, "curves")
+    path = as_path(path, "path")
     columns = [k for k, n in enumerate(curves.names) if n in set(ARKIT_CHANNELS)]
     if not columns:
         raise ValueError(f"{path}: {curves.source} has no ARKit channels to write")
@@ -202,7 +204,8 @@ def write_mediapipe_textproto(path, curves: Curves) -> Path:
 
 def write_mediapipe_jsonl(path, curves: Curves) -> Path:
     """Write one JSON object per frame: ``{"timestamp_ms": …, "blendshapes": [{"category_name", "score"}, …]}``. Atomic."""
-    path = Path(path)
+    expect_instance(curves, Curves, "curves")
+    path = as_path(path, "path")
     columns = [k for k, n in enumerate(curves.names) if n in set(ARKIT_CHANNELS)]
     if not columns:
         raise ValueError(f"{path}: {curves.source} has no ARKit channels to write")

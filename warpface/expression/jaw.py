@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_finite_array, as_vec3, orthogonal_unit_vector, unit_vector
+from .._validate import as_finite_array, as_points, as_vec3, expect_instance, orthogonal_unit_vector, unit_vector
 
 __all__ = ["Jaw", "JAW_CONTROL_NAMES", "JAW_RANGE", "jaw_points"]
 
@@ -90,10 +90,13 @@ def jaw_points(jaw: Jaw, rest_points: np.ndarray, controls) -> np.ndarray:
         rest_points: shape (V, 3).
         controls: ``(jaw_open [rad], jaw_forward, jaw_left)`` [mesh units], shape (3,).
     """
+    expect_instance(jaw, Jaw, "jaw")
     angle, forward, left = (float(c) for c in as_finite_array(controls, "jaw controls", shape=(3,)))
     a = jaw.axis
     cross = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
     rotation = np.eye(3) + np.sin(angle) * cross + (1.0 - np.cos(angle)) * cross @ cross
-    rest = np.asarray(rest_points, dtype=np.float64)
+    rest = as_points(rest_points, "rest_points")
+    if len(rest) != len(jaw.weights):
+        raise ValueError(f"rest_points: {len(rest)} points but the jaw has weights for {len(jaw.weights)} vertices")
     moved = (rest - jaw.pivot) @ rotation.T + jaw.pivot + forward * jaw.forward + left * jaw.left
     return rest + jaw.weights[:, None] * (moved - rest)

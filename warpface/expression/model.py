@@ -9,7 +9,7 @@ from typing import Sequence
 import numpy as np
 import warp as wp
 
-from .._validate import MAX_COORDINATE, as_count
+from .._validate import MAX_COORDINATE, as_count, as_device
 from ..mesh import FaceMesh
 from .batch_graph import BatchGraphs
 from .controls import as_device_array, check_rig_parts, contraction_limits, control_vector, frame_controls, is_device_array
@@ -135,7 +135,7 @@ class ExpressionModel:
         jaw_limits = np.full(len(self.control_names) - len(self.muscles), MAX_COORDINATE)
         self._contraction_limits = np.concatenate([contraction_limits(self.muscles), jaw_limits])
         self._depth_limits = np.full(len(self.wrinkles), MAX_COORDINATE)
-        self.device = wp.get_device(device)
+        self.device = as_device(device)
         if launches is not None and (isinstance(launches, (bool, np.bool_)) or not isinstance(launches, (int, np.integer))
                                      or launches not in LAUNCH_PLANS):
             raise ValueError(f"launches: expected one of {LAUNCH_PLANS} or None, got {launches!r}")
@@ -170,6 +170,8 @@ class ExpressionModel:
     @classmethod
     def from_rig(cls, rig, *, device=None) -> "ExpressionModel":
         """Build from a :class:`warpface.FaceRig` (mesh, muscles, wrinkles, thickness, jaw)."""
+        if not all(hasattr(rig, field) for field in ("mesh", "muscles", "wrinkles", "thickness")):  # warpface.rig imports this module
+            raise TypeError(f"rig: expected a FaceRig, got {type(rig).__name__}")
         return cls(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=device, jaw=getattr(rig, "jaw", None))
 
     # ------------------------------------------------------------------ controls

@@ -15,7 +15,7 @@ from typing import Union
 import numpy as np
 import warp as wp
 
-from .._validate import MAX_COORDINATE, as_finite_array, as_points, as_positive, as_vec3, orthogonal_unit_vector, unit_vector
+from .._validate import MAX_COORDINATE, as_finite_array, as_points, as_positive, as_vec3, orthogonal_unit_vector, unit_vector, as_device, expect_iterable
 from ._sparse import vertex_csr
 from .falloff import linear_angular_factor, linear_radial_factor, sphincter_factor
 
@@ -245,13 +245,13 @@ def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], *, device=Non
         muscles: linear and sphincter muscles, in contraction order.
         device: Warp device for the float64 kernels.
     """
-    device = wp.get_device(device)
+    device = as_device(device)
     rest_points = as_points(rest_points, "rest_points")
     vertex_count = len(rest_points)
     rest = wp.array(rest_points, dtype=wp.vec3d, device=device)
     out = wp.empty(vertex_count, dtype=wp.vec3d, device=device)
     rows, columns, values = [], [], []
-    for index, muscle in enumerate(muscles):
+    for index, muscle in enumerate(expect_iterable(muscles, "muscles", item_types=(LinearMuscle, SphincterMuscle))):
         if isinstance(muscle, LinearMuscle):
             inputs = [rest, wp.vec3d(*muscle.attachment), wp.vec3d(*muscle.axis), math.radians(muscle.zone_angle_deg),
                       muscle.falloff_start, muscle.falloff_finish, int(muscle.falloff == "smooth")]

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validate import MAX_COORDINATE, as_bounded, as_finite_array, as_per_vertex, as_points
+from .._validate import MAX_COORDINATE, MAX_VERTICES, as_bounded, as_count, as_finite_array, as_per_vertex, as_points
 from .wrinkles import CylindricalProjection, PlanarProjection, Projection, project_points
 
 __all__ = ["ThicknessMap", "validate_thickness", "MAX_BLUR_SIGMA"]
@@ -19,6 +19,7 @@ def validate_thickness(thickness, vertex_count: int) -> np.ndarray:
     Raises ValueError naming ``thickness`` for a wrong shape, non-finite or negative values, or values
     above :data:`~warpface._validate.MAX_COORDINATE` (1e6 mesh units; they would overflow float32).
     """
+    vertex_count = as_count(vertex_count, "vertex_count", maximum=MAX_VERTICES)
     return as_per_vertex(thickness, vertex_count, "thickness", minimum=0.0, maximum=MAX_COORDINATE)
 
 

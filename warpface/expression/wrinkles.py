@@ -15,7 +15,7 @@ from typing import Union
 import numpy as np
 import warp as wp
 
-from .._validate import MAX_COORDINATE, as_bounded, as_finite_array, as_points, as_positive, as_vec3, orthogonal_unit_vector, unit_vector
+from .._validate import MAX_COORDINATE, as_bounded, as_finite_array, as_points, as_positive, as_vec3, orthogonal_unit_vector, unit_vector, as_device
 from ._sparse import vertex_csr
 
 __all__ = [
@@ -270,7 +270,7 @@ def project_points(projection: Projection, points: np.ndarray, *, device=None) -
     """Project points into a projection's (u, v) plane [mesh units]: (V, 3) → (V, 2) float64."""
     if not isinstance(projection, (PlanarProjection, CylindricalProjection)):
         raise ValueError(f"projection: expected PlanarProjection or CylindricalProjection, got {type(projection).__name__}")
-    device = wp.get_device(device)
+    device = as_device(device)
     points = as_points(points, "points")
     if len(points) == 0:
         return np.zeros((0, 2), dtype=np.float64)
@@ -289,7 +289,7 @@ def project_points(projection: Projection, points: np.ndarray, *, device=None) -
 
 def bezier_distances(uv: np.ndarray, control_points: np.ndarray, *, device=None) -> np.ndarray:
     """Nearest-point distance from each 2-D point to a cubic Bézier curve: (V, 2), (4, 2) → (V,) float64."""
-    device = wp.get_device(device)
+    device = as_device(device)
     uv = as_finite_array(uv, "uv", shape=(None, 2), max_abs=4.0 * MAX_COORDINATE)
     control_points = as_finite_array(control_points, "control_points", shape=(4, 2), max_abs=4.0 * MAX_COORDINATE)
     if len(uv) == 0:

@@ -31,6 +31,7 @@ import numpy as np
 import warp as wp
 import warp.sparse as wps
 
+from .._validate import as_device, expect_instance
 from .kernels_assembly import (
     element_triplets,
     mat13d,
@@ -125,13 +126,14 @@ def assemble(
     Raises:
         ValueError: unknown formulation, or material/mesh size mismatch.
     """
+    expect_instance(tetmesh, TetMesh, "tetmesh")
     if formulation not in FORMULATIONS:
         raise ValueError(f"assemble: formulation must be one of {FORMULATIONS}, got {formulation!r}")
     if not isinstance(tetmesh, TetMesh):
         raise ValueError(f"assemble: expected a TetMesh, got {type(tetmesh).__name__}")
     if not isinstance(material, TissueMaterial):
         raise ValueError(f"assemble: expected a TissueMaterial, got {type(material).__name__}")
-    device = wp.get_device(device)
+    device = as_device(device)
     n, m = tetmesh.node_count, tetmesh.tet_count
     fields = material.per_tet(m)
     lam, mu = material.lame(m)
@@ -235,7 +237,7 @@ def partition_bsr(
     Returns:
         A (row_count x col_count)-block BSR matrix of 3x3 float64 blocks.
     """
-    device = wp.get_device(device)
+    device = as_device(device)
     total = sum(int(matrix.nnz_sync()) for matrix, *_ in parts)
     rows = wp.empty(total, dtype=wp.int32, device=device)
     cols = wp.empty(total, dtype=wp.int32, device=device)

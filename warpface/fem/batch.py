@@ -14,6 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 import warp as wp
 
+from .._validate import as_device
 from .assembly import FORMULATIONS, assemble
 from .integrator import DISPLACEMENT_LIMIT, TissueSimulation, split_nodes
 from .material import TissueMaterial
@@ -71,7 +72,7 @@ class TissueBatch:
                 raise ValueError(f"{name} must be >= {low:g}, got {value!r}")
         dt, beta, gamma = validate_newmark(dt, beta, gamma)
         try:
-            device = wp.get_device(device)
+            device = as_device(device)
         except Exception:  # Warp raises RuntimeError/ValueError/TypeError for unknown devices
             raise ValueError(f"device {device!r} is not a Warp device here") from None
         if solver == "auto":

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
+from .._validate import as_device, expect_instance
 from ..geometry import closest_point_on_triangle
 from .tetmesh import MAX_COORDINATE, TET_EDGE_NODES, TetMesh
 
@@ -239,7 +240,7 @@ class Embedding:
         if not np.isfinite(values).all():
             bad = np.argwhere(~np.isfinite(values))[0]
             raise ValueError(f"Embedding.apply: node value at index {tuple(int(i) for i in bad)} is not finite")
-        device = wp.get_device(device)
+        device = as_device(device)
         frames = values.reshape(-1, self.node_count, 3)
         src = wp.array(np.ascontiguousarray(frames), dtype=wp.vec3d, device=device)
         out = self._launch(src, device)
@@ -364,6 +365,7 @@ def embed_points(tetmesh: TetMesh, points, *, max_distance: float | None = None,
         ValueError: points are not finite or of the wrong shape, or a point is farther than
             ``max_distance`` from every tet (naming it and its position).
     """
+    expect_instance(tetmesh, TetMesh, "tetmesh")
     if not isinstance(tetmesh, TetMesh):
         raise ValueError(f"embed_points: expected a TetMesh, got {type(tetmesh).__name__}")
     try:
@@ -388,7 +390,7 @@ def embed_points(tetmesh: TetMesh, points, *, max_distance: float | None = None,
     if not (np.isfinite(max_distance) and max_distance >= 0.0):
         raise ValueError(f"embed_points: max_distance must be finite and >= 0 [m], got {max_distance}")
 
-    device = wp.get_device(device)
+    device = as_device(device)
     extent = float(np.ptp(np.concatenate([tetmesh.points, points]), axis=0).max()) or 1.0
     pad = 1e-6 * extent  # float32 bounds must never exclude a tet that touches the point
     nodes_wp = wp.array(tetmesh.points, dtype=wp.vec3d, device=device)

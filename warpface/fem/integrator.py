@@ -25,6 +25,7 @@ import time
 import numpy as np
 import warp as wp
 
+from .._validate import as_device, as_finite_array
 from .assembly import FORMULATIONS, SystemMatrices, assemble
 from .material import TissueMaterial
 from .newmark import newmark_coefficients, validate_newmark
@@ -157,7 +158,7 @@ class TissueSimulation:
             raise ValueError(f"cg_preconditioner must be one of {PRECONDITIONERS}, got {cg_preconditioner!r}")
         material.per_tet(tetmesh.tet_count)  # size check with a clear message
         try:
-            device = wp.get_device(device)
+            device = as_device(device)
         except Exception:  # Warp raises RuntimeError/ValueError/TypeError for unknown devices
             raise ValueError(f"device {device!r} is not a Warp device here ({[str(d) for d in wp.get_devices()]})") from None
         if solver == "auto":
@@ -305,7 +306,7 @@ class TissueSimulation:
         n = self.node_count
         state = []
         for name, value in (("displacement", displacement), ("velocity", velocity)):
-            arr = np.zeros((n, 3)) if value is None else np.array(value, dtype=np.float64)
+            arr = np.zeros((n, 3)) if value is None else as_finite_array(value, f"reset {name}")
             if arr.shape != (n, 3):
                 raise ValueError(f"reset {name} must have shape ({n}, 3), got {arr.shape}")
             bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))

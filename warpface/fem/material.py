@@ -20,6 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+MAX_TETS = 1 << 27
+"""Largest tet count a per-tet material is made for (134 M; a face tissue has tens of thousands)."""
+
 __all__ = ["TissueMaterial", "DAMPING_MODELS", "MATERIAL_RANGES", "MaterialRange"]
 
 DAMPING_MODELS = ("stokes", "thesis")
@@ -63,8 +66,8 @@ and factorisable: ``nu`` up to 0.4999 gives a Lamé ratio lambda/mu of 5,000 (ne
 def _as_field(name: str, value) -> np.ndarray | float:
     try:
         arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"TissueMaterial {name} must be a number or an array of numbers: {exc}") from None
+    except (TypeError, ValueError):
+        raise ValueError(f"TissueMaterial {name} must be a number or an array of numbers") from None
     if arr.ndim == 0:
         return float(arr)
     if arr.ndim != 1:
@@ -187,8 +190,8 @@ class TissueMaterial:
         """
         if not isinstance(base, TissueMaterial):
             raise TypeError(f"TissueMaterial.from_regions base must be a TissueMaterial, got {type(base).__name__}")
-        if isinstance(tet_count, bool) or not isinstance(tet_count, (int, np.integer)) or tet_count < 1:
-            raise ValueError(f"TissueMaterial.from_regions tet_count must be an integer >= 1, got {tet_count!r}")
+        if isinstance(tet_count, bool) or not isinstance(tet_count, (int, np.integer)) or not 1 <= tet_count <= MAX_TETS:
+            raise ValueError(f"TissueMaterial.from_regions tet_count must be an integer in [1, {MAX_TETS}], got {tet_count!r}")
         if not isinstance(regions, Mapping) or not isinstance(overrides, Mapping):
             raise TypeError("TissueMaterial.from_regions regions and overrides must be mappings (name -> ...)")
         fields = base.per_tet(int(tet_count))

@@ -11,7 +11,11 @@ import itertools
 
 import numpy as np
 
+from .._validate import as_count, as_finite_array, shape_of
 from .tetmesh import TetMesh, tet_signed_volumes
+
+MAX_CELLS = 1000
+"""Largest cell count along one axis of the primitive meshes; their product is limited to MAX_CELLS²."""
 
 __all__ = ["box_tet_mesh", "shell_tet_mesh", "grid_tets"]
 
@@ -51,10 +55,14 @@ def box_tet_mesh(size, cells) -> TetMesh:
 
     Node ``(i, j, k)`` has index ``i + (nx+1)(j + (ny+1) k)`` and position ``(i hx, j hy, k hz)``.
     """
-    size = np.asarray(size, dtype=np.float64)
-    if size.shape != (3,) or not np.all(size > 0):
+    size = as_finite_array(size, "box_tet_mesh: size", shape=(3,))
+    if not np.all(size > 0):
         raise ValueError(f"box_tet_mesh: size must be three positive lengths, got {size.tolist()}")
-    nx, ny, nz = (int(c) for c in cells)
+    if isinstance(cells, (str, bytes, dict)) or not isinstance(cells, (list, tuple, np.ndarray)) or shape_of(cells) != (3,):
+        raise ValueError(f"box_tet_mesh: cells must be three counts (nx, ny, nz), got {type(cells).__name__}")
+    nx, ny, nz = (as_count(c, "box_tet_mesh: cells", minimum=1, maximum=MAX_CELLS) for c in cells)
+    if nx * ny * nz > MAX_CELLS**2:
+        raise ValueError(f"box_tet_mesh: {nx}·{ny}·{nz} cells is more than the largest accepted {MAX_CELLS**2}")
     x, y, z = (np.linspace(0.0, s, c + 1) for s, c in zip(size, (nx, ny, nz), strict=True))
     gx, gy, gz = np.meshgrid(x, y, z, indexing="ij")
     points = np.stack([gx.transpose(2, 1, 0).ravel(), gy.transpose(2, 1, 0).ravel(), gz.transpose(2, 1, 0).ravel()], 1)
@@ -79,8 +87,10 @@ def shell_tet_mesh(
     ``(cells_u + 1) (cells_v + 1) (layers + 1)`` nodes; the default has 6,724 nodes, the
     scale of Kato's 6,434-node face (SPEC §2.1).
     """
-    if min(cells_u, cells_v, layers) < 1:
-        raise ValueError("shell_tet_mesh: cells_u, cells_v and layers must be >= 1")
+    cells_u, cells_v, layers = (as_count(c, f"shell_tet_mesh: {n}", minimum=1, maximum=MAX_CELLS)
+                                for c, n in ((cells_u, "cells_u"), (cells_v, "cells_v"), (layers, "layers")))
+    if cells_u * cells_v * layers > MAX_CELLS**2:
+        raise ValueError(f"shell_tet_mesh: {cells_u}·{cells_v}·{layers} cells is more than the largest accepted {MAX_CELLS**2}")
     if not 0.0 < thickness < min(radii):
         raise ValueError(f"shell_tet_mesh: thickness must be in (0, {min(radii)}), got {thickness}")
     a, b, c = (float(r) for r in radii)

@@ -46,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from .._validate import as_device
 from ..geometry.surface_checks import as_surface, boundary_loops, check_surface, directed_edges, find_self_intersections
 from ..geometry.triangles import area_weighted_vertex_normals
 from .shell import fair_locally
@@ -121,7 +122,7 @@ class _RayMesh:
     """A float32 ``wp.Mesh`` of a triangle surface for ray and closest-point queries."""
 
     def __init__(self, points: np.ndarray, triangles: np.ndarray, device):
-        self.device = wp.get_device(device)
+        self.device = as_device(device)
         self.points = wp.array(np.asarray(points, dtype=np.float32), dtype=wp.vec3, device=self.device)
         tris = np.ascontiguousarray(triangles, dtype=np.int32)
         self.triangles = wp.array(tris, dtype=wp.vec3i, device=self.device)
@@ -430,7 +431,7 @@ def tissue_proxy(
     close_near = np.zeros((0, 3)) if close_near is None else np.asarray(close_near, dtype=np.float64).reshape(-1, 3)
     if not np.isfinite(close_near).all():
         raise ValueError("close_near points must be finite")
-    device = wp.get_device(device)
+    device = as_device(device)
 
     # 1. remove what the skin seen from the centre does not show
     crossings, pairs = find_self_intersections(points, triangles, max_pairs=len(triangles), device=device)

@@ -18,6 +18,7 @@ from types import MappingProxyType
 
 import numpy as np
 
+from .._validate import MAX_COORDINATE, as_finite_array, expect_instance
 from ..landmarks import kato_landmarks
 from .material import TissueMaterial
 from .presets import KATO_MODELS, KATO_REGIONS, KATO_UNIFORM
@@ -49,7 +50,7 @@ def tet_centroids(tetmesh: TetMesh) -> np.ndarray:
 
 
 def _positions(name: str, value) -> np.ndarray:
-    p = np.asarray(value, dtype=np.float64)
+    p = as_finite_array(value, f"region {name!r}: landmark positions", max_abs=MAX_COORDINATE)
     if p.ndim == 1:
         p = p[None]
     if p.ndim != 2 or p.shape[1] != 3 or len(p) == 0:
@@ -75,6 +76,9 @@ def landmark_regions(tetmesh: TetMesh, centres: Mapping[str, object], radius) ->
     Raises:
         ValueError: no regions, malformed positions, or a radius that is missing or not > 0.
     """
+    expect_instance(tetmesh, TetMesh, "tetmesh")
+    if not isinstance(centres, Mapping):
+        raise TypeError(f"landmark_regions: centres must be a {{region name: position(s)}} mapping, got {type(centres).__name__}")
     if not centres:
         raise ValueError("landmark_regions: no regions given")
     names = list(centres)
@@ -83,7 +87,7 @@ def landmark_regions(tetmesh: TetMesh, centres: Mapping[str, object], radius) ->
         r = radius.get(name) if isinstance(radius, Mapping) else radius
         if r is None:
             raise ValueError(f"landmark_regions: no radius for region {name!r}")
-        r = float(r)
+        r = float(as_finite_array(r, f"landmark_regions: radius of region {name!r}", shape=()))
         if not (np.isfinite(r) and r > 0.0):
             raise ValueError(f"landmark_regions: radius of region {name!r} must be finite and > 0 [m], got {r}")
         radii[name] = r
@@ -113,6 +117,7 @@ def kato_regions(tetmesh: TetMesh, landmarks, *, radius=0.01) -> dict[str, np.nd
         Region name (all of :data:`KATO_REGIONS`) -> mask of shape (M,); "cheek" holds every tet in
         no landmark region.
     """
+    expect_instance(tetmesh, TetMesh, "tetmesh")
     if not isinstance(landmarks, Mapping):
         landmarks = kato_landmarks(landmarks)
     centres = {}
@@ -155,6 +160,7 @@ def kato_material_model(
     Raises:
         ValueError: unknown model, missing landmarks, or invalid material values.
     """
+    expect_instance(tetmesh, TetMesh, "tetmesh")
     if model not in KATO_MODELS:
         raise ValueError(f"kato_material_model: model must be one of {sorted(KATO_MODELS)}, got {model!r}")
     table = KATO_MODELS[model]

@@ -10,6 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 import warp as wp
+from .._validate import as_count, as_device
+
+MAX_NODES = 1 << 25
+"""Largest node count of a tissue state (33.5 M; a face tissue has thousands)."""
 
 __all__ = ["TissueControl", "TissueState"]
 
@@ -35,7 +39,8 @@ class TissueState:
 
     def __init__(self, node_count: int, *, dtype=wp.float64, device=None):
         vec = _vector_type(dtype)
-        device = wp.get_device(device)
+        device = as_device(device)
+        node_count = as_count(node_count, "TissueState: node_count", maximum=MAX_NODES)
         self.d = wp.zeros(int(node_count), dtype=vec, device=device)
         """Displacement [m], shape (N,)."""
         self.v = wp.zeros(int(node_count), dtype=vec, device=device)
@@ -79,7 +84,7 @@ class TissueControl:
     """
 
     def __init__(self, driven_count: int, *, dtype=wp.float64, device=None):
-        self.driven_count = int(driven_count)
+        self.driven_count = as_count(driven_count, "TissueControl: driven_count", maximum=MAX_NODES)
         """D."""
-        self.driven = wp.zeros(max(self.driven_count, 1), dtype=_vector_type(dtype), device=wp.get_device(device))
+        self.driven = wp.zeros(max(self.driven_count, 1), dtype=_vector_type(dtype), device=as_device(device))
         """Driven displacements [m], shape (max(D, 1),), in the solver's driven-node order."""

@@ -214,8 +214,14 @@ class TetMesh:
             ``(mesh, node_map)`` where ``node_map[old] = new`` index, or -1 for a dropped
             node; shape (N_in,), int64.
         """
-        points = np.asarray(points, dtype=np.float64)
-        tets = np.array(tets, dtype=np.int64, copy=True)
+        try:
+            points = np.asarray(points, dtype=np.float64)
+            tets = np.asarray(tets)
+        except (TypeError, ValueError):
+            raise ValueError("TetMesh points and tets must be regular numeric arrays") from None
+        if tets.dtype.kind not in "iuf" or (tets.dtype.kind == "f" and not np.all(np.isfinite(tets) & (tets == np.round(tets)))):
+            raise ValueError(f"TetMesh tets must hold integer node indices, got dtype {tets.dtype}")
+        tets = np.clip(tets, -1, 2**62).astype(np.int64) if tets.dtype.kind == "f" else tets.astype(np.int64)
         if tets.ndim != 2 or tets.shape[1] != 4:
             raise ValueError(f"TetMesh tets must have shape (M, 4), got {tets.shape}")
         if points.ndim != 2 or points.shape[1] != 3:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .._validate import as_points, as_triangles
+from .._validate import as_points, as_triangles, as_device
 from .funcs import closest_point_on_triangle
 
 __all__ = ["TriangleMeshIndex", "closest_points"]
@@ -92,7 +92,7 @@ class TriangleMeshIndex:
     def __init__(self, vertices, triangles, *, device=None):
         verts = as_points(vertices, "vertices", min_count=1)
         tri = as_triangles(triangles, verts.shape[0], "triangles")
-        self.device = wp.get_device(device)
+        self.device = as_device(device)
         lo, hi = verts.min(axis=0), verts.max(axis=0)
         self.center = 0.5 * (lo + hi)
         """Coordinate shift [m], shape (3,): the bounding-box centre."""

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from .._validate import as_device
 from .triangles import triangle_areas, triangle_corners
 
 __all__ = ["as_surface", "boundary_loops", "check_surface", "directed_edges", "find_self_intersections"]
@@ -252,7 +253,7 @@ def find_self_intersections(points, triangles, *, max_pairs: int = 64, device=No
         shape (K, 2), int32, ``i < j``. Triangles sharing a vertex are not tested (they touch by
         construction); a fold between neighbours shows up as a flipped triangle instead.
     """
-    device = wp.get_device(device)
+    device = as_device(device)
     points = np.asarray(points, dtype=np.float64)
     triangles = np.ascontiguousarray(triangles, dtype=np.int32)
     extent = float(np.ptp(points, axis=0).max()) or 1.0

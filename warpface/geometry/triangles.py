@@ -9,12 +9,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validate import as_finite_array, as_triangles
+
+_MAX_ABS = 1e60  # |coordinate| bound: squared cross-product norms (≈ coordinate⁴) stay finite in float64
+
 __all__ = ["triangle_corners", "triangle_crosses", "triangle_areas", "triangle_normals", "area_weighted_vertex_normals"]
 
 
 def triangle_corners(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Corner positions per triangle, shape (T, 3, 3): ``corners[t, k]`` is vertex ``triangles[t, k]``."""
-    return np.asarray(points, dtype=np.float64)[np.asarray(triangles)]
+    points = as_finite_array(points, "points", shape=(None, 3), max_abs=_MAX_ABS)
+    return points[as_triangles(triangles, len(points), "triangles", allow_empty=True)]
 
 
 def triangle_crosses(corners: np.ndarray) -> np.ndarray:
@@ -23,13 +28,13 @@ def triangle_crosses(corners: np.ndarray) -> np.ndarray:
     Args:
         corners: triangle corners, shape (T, 3, 3) (see :func:`triangle_corners`).
     """
-    corners = np.asarray(corners, dtype=np.float64)
+    corners = as_finite_array(corners, "corners", shape=(None, 3, 3), max_abs=_MAX_ABS)
     return np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
 
 
 def _crosses(corners, crosses) -> np.ndarray:
     if crosses is not None:
-        return np.asarray(crosses, dtype=np.float64)
+        return as_finite_array(crosses, "crosses", shape=(None, 3), max_abs=_MAX_ABS**2)
     if corners is None:
         raise ValueError("give corners or crosses")
     return triangle_crosses(corners)
@@ -63,13 +68,15 @@ def area_weighted_vertex_normals(
         triangles: vertex indices, shape (T, 3).
         crosses: precomputed :func:`triangle_crosses` of these triangles, shape (T, 3).
     """
-    points = np.asarray(points, dtype=np.float64)
-    triangles = np.asarray(triangles)
+    points = as_finite_array(points, "points", shape=(None, 3), max_abs=_MAX_ABS)
+    triangles = as_triangles(triangles, len(points), "triangles", allow_empty=True)
     if crosses is None:
         crosses = triangle_crosses(triangle_corners(points, triangles))
+    else:
+        crosses = as_finite_array(crosses, "crosses", shape=(len(triangles), 3), max_abs=_MAX_ABS**2)
     vertex = triangles.reshape(-1)
     summed = np.stack(
         [np.bincount(vertex, weights=np.repeat(crosses[:, k], 3), minlength=len(points)) for k in range(3)], axis=1
-    )
+    ).astype(np.float64)  # bincount of no weights is int
     length = np.linalg.norm(summed, axis=1, keepdims=True)
     return np.divide(summed, length, out=np.zeros_like(summed), where=length > 0.0)

@@ -10,11 +10,10 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from ..tracking import TrackingAdapter
+from ..tracking import PrefetchedSource, TrackingAdapter
 from ..tracking.landmark_names import vertex_landmark_names
 
 __all__ = [
@@ -68,18 +67,22 @@ def open_source(spec: str, *, layout: str | None = None, device=None):
     """A landmark source from a command-line spec: a ``.npz`` recording, an RGB-D folder, or
     ``realsense`` / ``orbbec`` (which need ``layout``: a JSON file with ``names`` and
     ``initial_pixels`` of the painted dots, e.g. an RGB-D folder's ``fiducials``)."""
+    from .._files import read_text
+    from .._validate import as_path
     from ..tracking import DotTracker, RecordedLandmarks, RGBDFolder, RGBDLandmarks
 
+    path = as_path(spec, "source")
     if spec in ("realsense", "orbbec"):
         if layout is None:
             raise ValueError(f"a live {spec} capture needs --layout: a JSON file with the dots' 'names' and 'initial_pixels'")
-        fiducials = json.loads(Path(layout).read_text())
+        fiducials = json.loads(read_text(as_path(layout, "layout")))
+        if not isinstance(fiducials, dict) or not {"names", "initial_pixels"} <= set(fiducials):
+            raise ValueError(f"layout {layout}: expected a JSON object with 'names' and 'initial_pixels'")
         from ..tracking import OrbbecCamera, RealSenseCamera
 
         camera = RealSenseCamera() if spec == "realsense" else OrbbecCamera()
         tracker = DotTracker(np.asarray(fiducials["initial_pixels"]), names=fiducials["names"])
         return RGBDLandmarks(camera, tracker, timestamp_policy="drop", device=device)
-    path = Path(spec)
     if path.suffix == ".npz":
         return RecordedLandmarks(path)
     if path.is_dir():
@@ -110,7 +113,7 @@ class CaptureStats:
 
 
 def record(source, adapter: TrackingAdapter, writer, *, max_frames: int | None = None, progress: bool = True,
-           on_frame=None, samples=None) -> CaptureStats:
+           on_frame=None, samples=None, prefetch: int = 0) -> CaptureStats:
     """Run ``source`` through ``adapter`` into ``writer`` (a :class:`~warpface.usd.tracking_io.TrackingStageWriter`).
 
     Every frame handed to the writer is kept. Ctrl-C stops the capture between two frames: the
@@ -126,6 +129,12 @@ def record(source, adapter: TrackingAdapter, writer, *, max_frames: int | None =
     ``track(source)`` and ``camera_to_model``). ``samples(frame, dense)`` returns the frame's values of
     the writer's extra channels (``writer.add(..., samples=)``); a writer without a dense face is
     given no dense points.
+
+    ``prefetch`` > 0 reads that many frames ahead in a background thread
+    (:class:`~warpface.tracking.PrefetchedSource`): the source's detection and back-projection of the
+    next frame run on the second CPU core while this thread transfers and writes the current one. The
+    frames and what is written are the same; the source must tolerate being read from another thread
+    (files, recordings and the RGB-D cameras do).
     """
     from tqdm import tqdm
 
@@ -134,6 +143,8 @@ def record(source, adapter: TrackingAdapter, writer, *, max_frames: int | None =
 
     if max_frames is not None:
         max_frames = as_count(max_frames, "max_frames", minimum=1)
+    if as_count(prefetch, "prefetch", minimum=0, maximum=1024):
+        source = PrefetchedSource(source, depth=prefetch)
 
     bar = tqdm(desc="track", unit="frame", disable=not progress, total=max_frames)
     found, count, started = 0.0, 0, time.perf_counter()

@@ -17,6 +17,7 @@ frames or 1 s; Ctrl-C stops between two frames and keeps every frame received.
 
 from __future__ import annotations
 
+import sys
 import threading
 from contextlib import contextmanager
 from pathlib import Path
@@ -90,6 +91,15 @@ def _check_options(args) -> None:
 
     if args.frames is not None and args.frames < 1:
         raise ValueError(f"--frames must be ≥ 1, got {args.frames}")
+    if Path(args.stage).suffix not in (".usda", ".usdc"):
+        raise ValueError(f"--stage {args.stage}: output must end in one of .usda, .usdc")
+    if args.source in ("realsense", "orbbec"):
+        if getattr(args, "layout", None) is None:
+            raise ValueError(f"a live {args.source} capture needs --layout: a JSON file with the dots' 'names' and 'initial_pixels'")
+    elif args.source != "synthetic" and not (Path(args.source).suffix == ".npz" and Path(args.source).is_file()) \
+            and not Path(args.source).is_dir():
+        raise ValueError(f"unknown source {args.source!r}: expected an existing .npz recording or RGB-D folder, synthetic, "
+                         "realsense or orbbec")
     if getattr(args, "solve", False):
         if args.fem:
             raise ValueError("--fem and --solve do not combine (the solved skin comes from the muscles)")
@@ -98,8 +108,8 @@ def _check_options(args) -> None:
     elif getattr(args, "residual_transfer", False):
         raise ValueError("--residual-transfer needs --solve")
     if args.fem:
-        if not (math.isfinite(args.fem_dt) and 0.0 < args.fem_dt <= 0.1):
-            raise ValueError(f"--fem-dt must be in (0, 0.1] s, got {args.fem_dt}")
+        if not (math.isfinite(args.fem_dt) and 1e-8 <= args.fem_dt <= 0.1):
+            raise ValueError(f"--fem-dt must be in [1e-8, 0.1] s, got {args.fem_dt}")
         if not 100 <= args.fem_nodes <= 200_000:
             raise ValueError(f"--fem-nodes must be in [100, 200000], got {args.fem_nodes}")
 
@@ -158,7 +168,7 @@ def _tissue_drive(rig, adapter, fps: float, args):
 @contextmanager
 def _setup_step(label: str, quiet: bool):
     """A one-line progress display with the elapsed time, ticking while a long set-up step runs."""
-    if quiet:
+    if quiet or not getattr(sys.stderr, "isatty", lambda: False)():  # a log file gets no ticking lines
         yield
         return
     from tqdm import tqdm

@@ -6,6 +6,7 @@ import numpy as np
 import scipy.sparse as sp
 import warp as wp
 
+from .._validate import as_device
 from . import kernels
 from .local_model import REST_STRETCH_BAND, STRETCH_FLOOR, LocalExpression
 
@@ -120,7 +121,7 @@ class KernelExpression:
     """
 
     def __init__(self, local: LocalExpression, *, device=None):
-        self.device = wp.get_device(device)
+        self.device = as_device(device)
         self.local = local
         self.vertices, self.count, self.control_count = local.vertices, local.count, local.control_count
         self.basis_count, self.muscle_count, self.has_jaw = local.basis_count, local.muscle_count, local.has_jaw

@@ -29,6 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from .._validate import MAX_COORDINATE, as_finite_array, expect_instance
+from ..rig import FaceRig
 from ..expression.tissue import skin_muscle_weights
 from ..expression.wrinkles import wrinkle_shapes
 
@@ -95,6 +97,7 @@ class RigOperators:
 
     @classmethod
     def from_rig(cls, rig, *, device=None) -> "RigOperators":
+        expect_instance(rig, FaceRig, "rig")
         mesh = rig.mesh
         rest = np.asarray(mesh.points, dtype=np.float64)
         triangles = mesh.triangles.astype(np.int64)
@@ -250,7 +253,7 @@ class LocalExpression:
         Returns:
             ``x3`` (F, n, 3) and, with ``jacobian``, ``∂x3/∂c`` (F, n, 3, C) — else ``None``.
         """
-        controls = np.asarray(controls, dtype=np.float64)
+        controls = as_finite_array(controls, "controls", shape=(None, self.control_count), max_abs=MAX_COORDINATE)
         if not self.has_jaw:
             return self._evaluate_basis(controls, jacobian)
         x3, dx3 = self._evaluate_basis(jaw_basis(controls, self.muscle_count), jacobian)

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from .._validate import MAX_COORDINATE
+
 __all__ = ["Observation", "observation", "frame_targets", "point_weights"]
 
 
@@ -125,6 +127,10 @@ def frame_targets(target, obs: Observation, *, batched: bool) -> np.ndarray:
         raise ValueError(f"target: {array.shape[-2]} points but {obs.count} target locations were given")
     if np.any(np.isinf(array)):
         raise ValueError("target: infinite coordinate (use NaN for a missing point)")
+    with np.errstate(invalid="ignore"):
+        far = np.abs(array) > MAX_COORDINATE
+    if np.any(far):
+        raise ValueError(f"target: coordinate {array[far][0]:.6g} is outside ±{MAX_COORDINATE:g} (use NaN for a missing point)")
     return array if batched else array[None]
 
 

@@ -5,6 +5,8 @@ Modules, each with one job:
 * :mod:`~warpface.tracking.frames` — :class:`LandmarkFrame`, :class:`RGBDFrame` and the
   :class:`LandmarkSource` / :class:`RGBDSource` protocols.
 * :mod:`~warpface.tracking.streams` — the timestamp policy, :func:`checked_frames`, :func:`fill_missing`.
+* :mod:`~warpface.tracking.prefetch` — :func:`prefetch`, :class:`PrefetchedSource`: a stream read
+  ahead in a background thread (the second CPU core).
 * :mod:`~warpface.tracking.recorded` — :class:`RecordedLandmarks` (.npz);
   :mod:`~warpface.tracking.rgbd_folder` — :class:`RGBDFolder`;
   :mod:`~warpface.tracking.rgbd_landmarks` — :class:`RGBDLandmarks` (dots in colour, lifted with depth).
@@ -41,6 +43,7 @@ from .depth import KINECT_V1_INTRINSICS, CameraIntrinsics, backproject
 from .detect import ArucoMarkers, Blobs, DotTracker, detect_blobs
 from .landmark_names import adapter_for_face, landmark_vertices, vertex_landmark_names
 from .mediapipe import MediaPipeLandmarks, parse_landmark_list
+from .prefetch import PrefetchedSource, prefetch
 from .sources import (
     TIMESTAMP_POLICIES,
     LandmarkFrame,
@@ -72,6 +75,8 @@ __all__ = [
     "TIMESTAMP_POLICIES",
     "checked_frames",
     "fill_missing",
+    "prefetch",
+    "PrefetchedSource",
     "RecordedLandmarks",
     "RGBDFolder",
     "RGBDLandmarks",

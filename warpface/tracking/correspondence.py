@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_finite_array, as_points, as_positive, as_triangles
+from .._validate import as_finite_array, as_points, as_positive, as_triangles, as_count
 from ..geometry import TriangleMeshIndex, closest_points, triangle_corners, triangle_crosses, triangle_normals
 
 __all__ = [
@@ -147,6 +147,10 @@ class Correspondence:
         """
         triangle = _as_index_array(self.triangle, "correspondence.triangle")
         count = triangle.shape[0]
+        if triangle_count is not None:
+            triangle_count = as_count(triangle_count, "triangle_count")
+        if vertex_count is not None:
+            vertex_count = as_count(vertex_count, "vertex_count")
         if vertex_count is not None and count != vertex_count:
             raise ValueError(f"correspondence is for {count} dense vertices, not {vertex_count}")
         if triangle_count is not None and count and int(triangle.max()) >= triangle_count:
@@ -170,8 +174,8 @@ def _as_index_array(value, name: str) -> np.ndarray:
     """Non-negative whole-number indices, shape (N,), int64 (float arrays of whole numbers accepted)."""
     try:
         array = np.asarray(value)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: cannot convert to an index array ({exc})") from None
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a flat array of integer indices") from None
     if array.ndim != 1:
         raise ValueError(f"{name}: expected shape (N,), got {array.shape}")
     if array.dtype == np.bool_ or not (np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)):

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .._validate import as_count, as_finite_array, as_positive
+from .._validate import as_count, as_finite_array, as_positive, as_device
 
 __all__ = ["CameraIntrinsics", "backproject", "kth_smallest", "KINECT_V1_INTRINSICS", "MAX_PIXELS", "MAX_DEPTH", "MAX_DEPTH_WINDOW"]
 
@@ -91,14 +91,23 @@ class CameraIntrinsics:
 
     def project(self, points) -> np.ndarray:
         """Pixel coordinates of camera-frame points [m], shape (N, 3) → (N, 2), float64."""
-        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        p = as_finite_array(points, "points", max_abs=MAX_DEPTH)
+        if p.size % 3 or (p.ndim and p.shape[-1] != 3):
+            raise ValueError(f"points: expected shape (N, 3), got {p.shape}")
+        p = p.reshape(-1, 3)
+        behind = np.flatnonzero(p[:, 2] <= 0.0)
+        if len(behind):
+            raise ValueError(f"points: point {int(behind[0])} is not in front of the camera (z = {p[behind[0], 2]:.6g} m)")
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.stack([self.fx * p[:, 0] / p[:, 2] + self.cx, self.fy * p[:, 1] / p[:, 2] + self.cy], axis=1)
 
     def unproject(self, pixels, depth) -> np.ndarray:
         """Camera-frame points [m] of pixels (N, 2) at depths Z (N,) [m], shape (N, 3), float64."""
-        uv = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
-        z = np.asarray(depth, dtype=np.float64).reshape(-1)
+        uv = as_finite_array(pixels, "pixels", max_abs=1e7)
+        z = as_finite_array(depth, "depth", max_abs=MAX_DEPTH).reshape(-1)
+        if uv.size % 2 or (uv.ndim and uv.shape[-1] != 2) or uv.size // 2 != z.size:
+            raise ValueError(f"pixels, depth: expected shapes (N, 2) and (N,), got {uv.shape} and {np.shape(depth)}")
+        uv = uv.reshape(-1, 2)
         return np.stack([(uv[:, 0] - self.cx) * z / self.fx, (uv[:, 1] - self.cy) * z / self.fy, z], axis=1)
 
     def to_pyrender(self) -> tuple[float, float, float, float]:
@@ -283,6 +292,41 @@ def _valid_range(depth: wp.array2d(dtype=float), r0: int, r1: int, c0: int, c1: 
     return wp.vec3(n, zmin, zmax)
 
 
+# Planes of the per-landmark scratch rows (row ``_PLANES * landmark + plane``): the window's valid pixels
+# gathered once, in row-major order, so the three fits and two medians loop over a compact list and
+# compute each pixel's distance weight, inverse depth and model residual once instead of per pass.
+_SELECT, _Z, _DU, _DV, _DIST, _WEIGHT, _INV_Z, _RESIDUAL = range(8)
+_PLANES = 8
+
+
+@wp.func
+def _gather_window(
+    depth: wp.array2d(dtype=float), r0: int, r1: int, c0: int, c1: int, u: float, v: float, reach_px: float,
+    scratch: wp.array2d(dtype=float), base: int,
+) -> int:
+    """Store the window's valid pixels (depth, offsets, distance, tricube weight, inverse depth) in
+    the planes of rows ``base + plane`` of ``scratch``; returns their count."""
+    n = int(0)
+    for row in range(r0, r1):
+        for col in range(c0, c1):
+            z = depth[row, col]
+            if _is_depth(z):
+                du = float(col) - u
+                dv = float(row) - v
+                dist = wp.sqrt(du * du + dv * dv)
+                # Tricube weights (as in LOESS): the centre, where the landmark is, counts most.
+                q = wp.min(dist / reach_px, 1.0)
+                t = 1.0 - q * q * q
+                scratch[base + _Z, n] = z
+                scratch[base + _DU, n] = du
+                scratch[base + _DV, n] = dv
+                scratch[base + _DIST, n] = dist
+                scratch[base + _WEIGHT, n] = t * t * t
+                scratch[base + _INV_Z, n] = 1.0 / z
+                n += 1
+    return n
+
+
 @wp.kernel
 def _backproject_kernel(
     depth: wp.array2d(dtype=float),
@@ -321,8 +365,10 @@ def _backproject_kernel(
     r1 = wp.min(vc + half + 1, height)
     if c0 >= c1 or r0 >= r1:
         return
-    stats = _valid_range(depth, r0, r1, c0, c1)
-    n = int(stats[0])
+    base = i * wp.static(_PLANES)
+    select = base + wp.static(_SELECT)
+    reach_px = float(half) * 1.4143 + 1.0
+    n = _gather_window(depth, r0, r1, c0, c1, u, v, reach_px, scratch, base)
     if n < min_valid:
         return
     scale = 1.0 / float(half)
@@ -339,7 +385,7 @@ def _backproject_kernel(
             b1 = wp.min(vc + ring + 1, height)
             inner = _valid_range(depth, b0, b1, a0, a1)
             if int(inner[0]) >= 3:
-                z_seed = _median_residual(depth, b0, b1, a0, a1, u, v, zero, scale, 1, scratch, i)
+                z_seed = _median_residual(depth, b0, b1, a0, a1, u, v, zero, scale, 1, scratch, select)
                 found = 1
     if found == 0:
         return
@@ -347,7 +393,6 @@ def _backproject_kernel(
     # First pass: a cone around the seed depth — a surface up to max_slope steep stays inside,
     # an occluding or occluded surface a few millimetres away does not.
     focal = 0.5 * (fx + fy)
-    reach_px = float(half) * 1.4143 + 1.0
     coef = zero
     inliers = int(0)
     gate = float(0.0)
@@ -358,38 +403,34 @@ def _backproject_kernel(
         count = int(0)
         if it > 0:
             # Re-gate on this fit's residuals: 2.5 σ̂ (σ̂ = 1.4826 MAD), never below the sensor's noise.
-            mad = _median_residual(depth, r0, r1, c0, c1, u, v, coef, scale, 0, scratch, i)
+            for k in range(n):
+                residual = wp.abs(scratch[base + _Z, k] - _model_depth(coef, scratch[base + _DU, k], scratch[base + _DV, k], scale))
+                scratch[base + _RESIDUAL, k] = residual
+                scratch[select, k] = residual
+            mad = kth_smallest(scratch, select, n, (n + 1) // 2 - 1)
             gate = wp.max(2.5 * 1.4826 * mad, 2.5 * noise_floor)
-        for row in range(r0, r1):
-            for col in range(c0, c1):
-                z = depth[row, col]
-                if _is_depth(z):
-                    du = float(col) - u
-                    dv = float(row) - v
-                    keep = int(0)
-                    if it == 0:
-                        reach = outlier_floor + max_slope * wp.sqrt(du * du + dv * dv) * z_seed / focal
-                        if wp.abs(z - z_seed) <= reach:
-                            keep = 1
-                    elif wp.abs(z - _model_depth(coef, du, dv, scale)) <= gate:
-                        keep = 1
-                    if keep == 1:
-                        # Tricube weights (as in LOESS): the centre, where the landmark is, counts most.
-                        q = wp.min(wp.sqrt(du * du + dv * dv) / reach_px, 1.0)
-                        t = 1.0 - q * q * q
-                        # Normal equations accumulate in float64 (the quadric terms span decades),
-                        # as the 15 distinct weighted moments x^a y^b (a + b ≤ 4) of the 6×6 matrix.
-                        wt = wp.float64(t * t * t)
-                        x = wp.float64(du * scale)
-                        y = wp.float64(dv * scale)
-                        xx = x * x
-                        xy = x * y
-                        yy = y * y
-                        low = wt * _vec10d(wp.float64(1.0), x, y, xx, xy, yy, xx * x, xx * y, x * yy, yy * y)
-                        moments_low += low
-                        moments_high += wt * _vec5d(xx * xx, xx * xy, xx * yy, xy * yy, yy * yy)
-                        rhs += wp.float64(1.0 / z) * _vec6d(low[0], low[1], low[2], low[3], low[4], low[5])
-                        count += 1
+        for k in range(n):
+            keep = int(0)
+            if it == 0:
+                reach = outlier_floor + max_slope * scratch[base + _DIST, k] * z_seed / focal
+                if wp.abs(scratch[base + _Z, k] - z_seed) <= reach:
+                    keep = 1
+            elif scratch[base + _RESIDUAL, k] <= gate:
+                keep = 1
+            if keep == 1:
+                # Normal equations accumulate in float64 (the quadric terms span decades),
+                # as the 15 distinct weighted moments x^a y^b (a + b ≤ 4) of the 6×6 matrix.
+                wt = wp.float64(scratch[base + _WEIGHT, k])
+                x = wp.float64(scratch[base + _DU, k] * scale)
+                y = wp.float64(scratch[base + _DV, k] * scale)
+                xx = x * x
+                xy = x * y
+                yy = y * y
+                low = wt * _vec10d(wp.float64(1.0), x, y, xx, xy, yy, xx * x, xx * y, x * yy, yy * y)
+                moments_low += low
+                moments_high += wt * _vec5d(xx * xx, xx * xy, xx * yy, xy * yy, yy * yy)
+                rhs += wp.float64(scratch[base + _INV_Z, k]) * _vec6d(low[0], low[1], low[2], low[3], low[4], low[5])
+                count += 1
         # The first fit is a plane (robust on little data); later ones the requested model.
         terms = int(3)
         if it > 0 and quadric == 1 and count >= 12:
@@ -415,9 +456,10 @@ _recorded = threading.local()  # per thread: a recorded launch owns its output b
 
 
 def _recorded_launch(device, count: int, window: int, settings: tuple) -> tuple:
-    """``(launch, points, inliers)``: the back-projection kernel recorded once per device, landmark
-    count and settings (packing its 17 arguments anew costs ~0.1 ms a frame on the CPU); the depth
-    image and the pixels (parameters 0 and 1) are set per call."""
+    """``(launch, points, inliers, pixel_view, pixel_buffer)``: the back-projection kernel recorded once per device,
+    landmark count and settings (packing its 17 arguments anew costs ~0.1 ms a frame on the CPU); the
+    depth image and the pixels (parameters 0 and 1) are set per call — on the CPU the pixels through
+    ``pixel_view``, a NumPy view (N, 2) of the recorded pixel buffer (None on other devices)."""
     cache = getattr(_recorded, "launches", None)
     if cache is None:
         cache = _recorded.launches = {}
@@ -427,12 +469,14 @@ def _recorded_launch(device, count: int, window: int, settings: tuple) -> tuple:
             cache.clear()
         points = wp.empty(count, dtype=wp.vec3, device=device)
         inliers = wp.empty(count, dtype=wp.int32, device=device)
-        scratch = wp.empty((count, window * window), dtype=float, device=device)  # residuals, one row per landmark
+        scratch = wp.empty((_PLANES * count, window * window), dtype=float, device=device)  # _PLANES rows per landmark
         placeholder_depth = wp.zeros((1, 1), dtype=float, device=device)
-        placeholder_pixels = wp.zeros(count, dtype=wp.vec2, device=device)
-        launch = wp.launch(_backproject_kernel, dim=count, inputs=[placeholder_depth, placeholder_pixels, *settings, scratch],
+        pixel_buffer = wp.zeros(count, dtype=wp.vec2, device=device)
+        launch = wp.launch(_backproject_kernel, dim=count, inputs=[placeholder_depth, pixel_buffer, *settings, scratch],
                            outputs=[points, inliers], device=device, record_cmd=True)
-        cache[key] = (launch, points, inliers)
+        # On the CPU the pixels are written into this buffer through a NumPy view (no array per call).
+        pixel_view = pixel_buffer.numpy().reshape(count, 2) if wp.get_device(device).is_cpu else None
+        cache[key] = (launch, points, inliers, pixel_view, pixel_buffer)  # (the buffer: kept alive with its view)
     return cache[key]
 
 
@@ -499,8 +543,8 @@ def backproject(
         raise TypeError(f"intrinsics: expected a CameraIntrinsics, got {type(intrinsics).__name__}")
     try:
         uv = np.array(pixels, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"pixels: cannot convert to a numeric array ({exc})") from None
+    except (TypeError, ValueError):
+        raise ValueError("pixels: expected an (N, 2) array of numbers") from None
     if uv.ndim != 2 or uv.shape[1] != 2:
         raise ValueError(f"pixels: expected shape (N, 2), got {uv.shape}")
     uv[~np.all(np.isfinite(uv), axis=1)] = np.nan  # an infinite pixel is as missing as a NaN one
@@ -532,16 +576,27 @@ def backproject(
     count = uv.shape[0]
     if count == 0:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
-    device = wp.get_device(device)
+    device = as_device(device)
     settings = (window // 2, 1 if model == "quadric" else 0, int(min_valid), float(intrinsics.fx), float(intrinsics.fy),
                 float(intrinsics.cx), float(intrinsics.cy), float(outlier_floor), float(max_slope), float(noise_floor),
                 int(max(iterations, 1)), float(min_inlier_fraction))
-    launch, points, inliers = _recorded_launch(device, count, window, settings)
-    image = wp.array(z, dtype=float, device=device, copy=not device.is_cpu)  # CPU: the caller's image, no copy
-    landmarks = wp.array(uv.astype(np.float32), dtype=wp.vec2, device=device)
-    launch.set_param_at_index(0, image)
-    launch.set_param_at_index(1, landmarks)
-    launch.launch()  # (the inputs stay referenced until the results are read back below)
+    launch, points, inliers, pixel_view, _ = _recorded_launch(device, count, window, settings)
+    if device.is_cpu:
+        # The caller's image, no copy; its wrapper is kept while the same buffer comes back (a live camera's
+        # frame buffer), so that buffer cannot be freed and its address reused by another image meanwhile.
+        key = (z.ctypes.data, z.shape)
+        if getattr(_recorded, "image_key", None) != key:
+            _recorded.image = wp.array(z, dtype=float, device=device, copy=False)
+            _recorded.image_key = key
+        launch.set_param_at_index(0, _recorded.image)
+        pixel_view[:] = uv  # into the recorded launch's own pixel buffer (parameter 1)
+        launch.launch()
+    else:
+        image = wp.array(z, dtype=float, device=device)
+        landmarks = wp.array(uv.astype(np.float32), dtype=wp.vec2, device=device)
+        launch.set_param_at_index(0, image)
+        launch.set_param_at_index(1, landmarks)
+        launch.launch()  # (the inputs stay referenced until the results are read back below)
     out = points.numpy().astype(np.float64)
     n_in = inliers.numpy()
     invalid = (n_in == 0) | ~np.all(np.isfinite(out), axis=1)

@@ -71,13 +71,21 @@ class Blobs:
     """Mean contrast of the blob's pixels, shape (K,), float64, 0–255 scale."""
 
 
+def _image_array(image) -> np.ndarray:
+    """``image`` as an array; a ragged nesting is a ValueError naming the image."""
+    try:
+        return np.asarray(image)
+    except (TypeError, ValueError):
+        raise ValueError("image must be (H, W, 3) uint8 RGB, got a ragged nesting") from None
+
+
 def _contrast_map(image: np.ndarray, color, max_diameter: int) -> np.ndarray:
     """Per-pixel evidence of a dot, 0–255 (uint8 for dark dots, float32 for coloured ones): darkness
     below the local background, or closeness to the target colour."""
     import cv2
 
-    rgb = np.asarray(image)
-    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+    rgb = _image_array(image)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8 or rgb.size == 0:
         raise ValueError(f"image must be (H, W, 3) uint8 RGB, got {rgb.shape} {rgb.dtype}")
     if isinstance(color, str):
         if color != "dark":
@@ -259,8 +267,8 @@ class DotTracker:
 
     def detect(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Find the dots in ``image``: pixels (N, 2) with NaN for dots not found, confidence (N,)."""
-        image = np.asarray(image)
-        if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        image = _image_array(image)
+        if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8 or image.size == 0:
             raise ValueError(f"image must be (H, W, 3) uint8 RGB, got {image.shape} {image.dtype}")
         # Only the neighbourhood of the tracked dots can hold them: crop to it.
         margin = self.gate_px + self.blob_options["max_diameter"] + 2
@@ -417,8 +425,8 @@ class ArucoMarkers:
         """Corners [px] of each expected marker found, ``{id: (4, 2)}`` in ArUco's corner order."""
         import cv2
 
-        rgb = np.asarray(image)
-        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        rgb = _image_array(image)
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8 or rgb.size == 0:
             raise ValueError(f"image must be (H, W, 3) uint8 RGB, got {rgb.shape} {rgb.dtype}")
         corners, ids, _ = self._detector.detectMarkers(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))
         found: dict[int, np.ndarray] = {}

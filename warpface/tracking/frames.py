@@ -43,8 +43,8 @@ class LandmarkFrame:
             with np.errstate(over="ignore"):
                 conf = np.array(self.confidence, dtype=np.float32).reshape(-1)
             timestamp = float(self.timestamp)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"frame {index}: points, confidence and timestamp must be numeric ({exc})") from None
+        except (TypeError, ValueError):
+            raise ValueError(f"frame {index}: points, confidence and timestamp must be numbers and arrays of numbers") from None
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ValueError(f"frame {index}: points must have shape (N, 3), got {pts.shape}")
         if conf.shape[0] != pts.shape[0]:

@@ -13,6 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .._validate import as_count, as_points, expect_iterable
 from .correspondence import triangulate_landmarks
 from .transfer import TrackingAdapter
 
@@ -25,8 +26,8 @@ def vertex_landmark_names(vertices) -> list[str]:
     """Landmark names for dense vertex indices: ``[12, 345] → ["v00012", "v00345"]``."""
     try:
         indices = np.asarray(vertices)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"vertices: cannot convert to an index array ({exc})") from None
+    except (TypeError, ValueError):
+        raise ValueError("vertices: expected a flat array of integer vertex indices") from None
     if indices.size and (not np.issubdtype(indices.dtype, np.integer) or indices.min() < 0):
         raise ValueError(f"vertices: expected non-negative integer vertex indices, got {indices.dtype} {indices.ravel()[:5].tolist()}")
     return [f"v{int(v):05d}" for v in indices.ravel()]
@@ -38,8 +39,9 @@ def landmark_vertices(names: Sequence[str], vertex_count: int) -> np.ndarray:
     Raises:
         ValueError: a name that is not ``v<index>``, or an index outside the face.
     """
+    vertex_count = as_count(vertex_count, "vertex_count")
     indices = []
-    for name in names:
+    for name in expect_iterable(names, "landmark names", item_types=str):
         match = _NAME.match(str(name))
         if match is None:
             raise ValueError(f"landmark {name!r}: expected a dense-vertex name like 'v01234' (see vertex_landmark_names)")
@@ -53,7 +55,8 @@ def landmark_vertices(names: Sequence[str], vertex_count: int) -> np.ndarray:
 def adapter_for_face(rest_points: np.ndarray, landmark_names: Sequence[str], *, camera_to_model=None,
                      stabilize=False, device=None) -> TrackingAdapter:
     """A :class:`TrackingAdapter` whose sparse mesh is the face's own landmark vertices, triangulated."""
+    rest_points = as_points(rest_points, "rest_points", min_count=3)
     vertices = landmark_vertices(landmark_names, len(rest_points))
-    sparse = np.asarray(rest_points, dtype=np.float64)[vertices]
+    sparse = rest_points[vertices]
     return TrackingAdapter(sparse, triangulate_landmarks(sparse), rest_points, landmark_names=list(landmark_names),
                            camera_to_model=camera_to_model, stabilize=stabilize, device=device)

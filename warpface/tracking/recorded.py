@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import math
+import zipfile
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
 
 import numpy as np
 
+from .._validate import as_path, as_positive, expect_iterable
 from ._io import atomic_path
 from .frames import LandmarkFrame, SourceBase
 from .streams import StreamGuard, checked_frames, estimate_fps, validate_landmark_names
@@ -31,14 +33,17 @@ class RecordedLandmarks(SourceBase):
     """
 
     def __init__(self, path: str | Path, *, timestamp_policy: str = "reject"):
-        self.path = Path(path)
+        self.path = as_path(path, "path")
         if not self.path.is_file():
             raise ValueError(f"{self.path}: no such landmark file")
         try:
-            with np.load(self.path, allow_pickle=False) as data:
+            loaded = np.load(self.path, allow_pickle=False)
+            if not hasattr(loaded, "files"):
+                raise ValueError("a single array, not an .npz archive")
+            with loaded as data:
                 arrays = {k: data[k] for k in data.files}
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"{self.path}: not a readable .npz file ({exc})") from None
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise ValueError(f"{self.path}: not a readable .npz file ({str(exc).splitlines()[0][:120] or type(exc).__name__})") from None
         for key in ("timestamps", "points", "confidence", "names"):
             if key not in arrays:
                 raise ValueError(f"{self.path}: missing array {key!r}")
@@ -94,7 +99,12 @@ class RecordedLandmarks(SourceBase):
         iterable fails part-way (a camera unplugged), the frames received so far are still written
         and the exception is re-raised.
         """
-        path = Path(path)
+        path = as_path(path, "path")
+        landmark_names = expect_iterable(landmark_names, "landmark_names", sized=True)
+        frames = expect_iterable(frames, "frames")
+        fps = None if fps is None else as_positive(fps, "fps", maximum=1e6)
+        if len(landmark_names) == 0:
+            raise ValueError(f"{path}: landmark_names: a recording needs at least one landmark")
         names = list(validate_landmark_names(landmark_names, len(landmark_names), str(path)))
         times, points, confidence = [], [], []
         failure: BaseException | None = None

@@ -9,6 +9,7 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
+from .._validate import as_path
 from ._io import atomic_path, write_json_atomic
 from .depth import CameraIntrinsics
 from .frames import RGBDFrame, SourceBase
@@ -57,7 +58,7 @@ class RGBDFolder(SourceBase):
     """
 
     def __init__(self, path: str | Path, *, timestamp_policy: str = "reject"):
-        self.path = Path(path)
+        self.path = as_path(path, "path")
         meta_path = self.path / "meta.json"
         if not meta_path.is_file():
             raise ValueError(f"{self.path}: not an RGB-D folder (no meta.json)")
@@ -128,7 +129,7 @@ class RGBDFolder(SourceBase):
         every frame written; the exception is then re-raised. Frames must share one depth scale and
         the intrinsics' image size, with strictly increasing timestamps.
         """
-        path = Path(path)
+        path = as_path(path, "path")
         (path / "color").mkdir(parents=True, exist_ok=True)
         (path / "depth").mkdir(parents=True, exist_ok=True)
         guard = StreamGuard("reject", str(path))

@@ -18,7 +18,7 @@ from typing import Iterable, Iterator, Sequence
 
 import numpy as np
 
-from .._validate import as_count
+from .._validate import as_count, expect_iterable
 from .frames import LandmarkFrame
 
 __all__ = ["TIMESTAMP_POLICIES", "StreamGuard", "checked_frames", "fill_missing", "estimate_fps", "validate_landmark_names"]
@@ -77,7 +77,7 @@ def checked_frames(
     guard = StreamGuard(timestamp_policy, where)
     if landmark_count is not None:
         guard.shape = (as_count(landmark_count, "landmark_count"),)
-    for frame in frames:
+    for frame in expect_iterable(frames, where, item_types=LandmarkFrame):
         if guard.accept(frame.timestamp, frame.index, (frame.landmark_count,), "landmark count"):
             yield frame
 
@@ -100,6 +100,7 @@ def fill_missing(
     if mode not in ("hold", "interpolate"):
         raise ValueError(f"mode must be 'hold' or 'interpolate', got {mode!r}")
     max_lookahead = as_count(max_lookahead, "max_lookahead", minimum=1)
+    frames = expect_iterable(frames, "frames", item_types=LandmarkFrame)
     buffer: deque[LandmarkFrame] = deque()
     last_point: np.ndarray | None = None  # (N, 3) last measured (or filled) positions
     last_time: np.ndarray | None = None  # (N,) time of each landmark's last measurement

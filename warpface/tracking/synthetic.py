@@ -28,7 +28,7 @@ from typing import Iterator, Sequence
 import numpy as np
 import warp as wp
 
-from .._validate import as_count, as_finite_array, as_points, as_positive
+from .._validate import as_bounded, as_count, as_device, as_finite_array, as_points, as_positive, as_vec3, expect_instance
 from ..mesh import FaceMesh
 from .depth import KINECT_V1_INTRINSICS, CameraIntrinsics
 from .frames import RGBDFrame, SourceBase
@@ -71,8 +71,16 @@ class KinectNoise:
     dropout: float = 0.0
     """Fraction of valid pixels randomly set to 0 (holes)."""
 
+    def __post_init__(self) -> None:
+        for field in ("sigma0", "sigma2", "z_ref"):
+            object.__setattr__(self, field, as_positive(getattr(self, field), f"KinectNoise: {field}", allow_zero=True, maximum=1e3))
+        for field in ("baseline_focal", "disparity_step"):
+            object.__setattr__(self, field, as_positive(getattr(self, field), f"KinectNoise: {field}", maximum=1e6))
+        object.__setattr__(self, "dropout", as_bounded(self.dropout, "KinectNoise: dropout", 0.0, 1.0))
+
     def apply(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Corrupted copy of a depth image [m] (0 = no surface), float64."""
+        expect_instance(rng, np.random.Generator, "rng")
         z = np.asarray(depth, dtype=np.float64)
         valid = z > 0
         sigma = self.sigma0 + self.sigma2 * (z - self.z_ref) ** 2
@@ -154,7 +162,7 @@ def _occluded(
 ) -> np.ndarray:
     """Vertices whose line of sight to ``eye`` is blocked by the mesh itself, shape (V,), bool."""
     center = points.mean(axis=0)
-    device = wp.get_device(device)
+    device = as_device(device)
     pts = wp.array((points - center).astype(np.float32), dtype=wp.vec3, device=device)
     mesh = wp.Mesh(points=pts, indices=wp.array(np.asarray(triangles, dtype=np.int32).reshape(-1), device=device))
     out = wp.zeros(points.shape[0], dtype=wp.int32, device=device)
@@ -171,7 +179,8 @@ def _occluded(
 def default_model_to_camera(rest_points: np.ndarray, distance: float = 0.6) -> np.ndarray:
     """Model → camera (OpenCV) transform, 4×4: the face looks into the camera, centred in x and y,
     its front-most point ``distance`` [m] away."""
-    p = np.asarray(rest_points, dtype=np.float64)
+    p = as_points(rest_points, "rest_points", min_count=1)
+    distance = as_positive(distance, "distance")
     lo, hi = p.min(axis=0), p.max(axis=0)
     center = 0.5 * (lo + hi)
     return np.array([
@@ -209,8 +218,14 @@ def place_fiducials(
     Raises:
         ValueError: no vertex qualifies.
     """
-    p = np.asarray(points, dtype=np.float64)
+    p = as_points(points, "fiducial surface: points")
     surface = FaceMesh(p, triangles, name="fiducial surface", degenerate="ignore")
+    count = as_count(count, "count", minimum=1, maximum=len(p))
+    spacing = as_positive(spacing, "spacing", allow_zero=True)
+    min_facing = as_bounded(min_facing, "min_facing", -1.0, 1.0)
+    boundary_margin = as_positive(boundary_margin, "boundary_margin", allow_zero=True)
+    if camera_position is not None:
+        camera_position = as_vec3(camera_position, "camera_position")
     normals = surface.vertex_normals(device=device).astype(np.float64)
     if camera_position is None:
         view = np.broadcast_to(np.array([0.0, 0.0, 1.0]), p.shape)

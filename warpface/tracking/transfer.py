@@ -34,7 +34,7 @@ import warp as wp
 
 from ..geometry import smoothstep
 from .alignment import rigid_fit, similarity_fit
-from .._validate import as_bounded, as_finite_array, as_points, as_positive, as_triangles
+from .._validate import as_bounded, as_finite_array, as_points, as_positive, as_triangles, as_device
 from .correspondence import Correspondence, FaceNormalization, compute_correspondence
 from .frames import LandmarkFrame
 from .streams import validate_landmark_names
@@ -164,7 +164,7 @@ def blend_weights(
     if not (end > start >= 0.0):
         raise ValueError(f"cover_falloff must satisfy 0 ≤ start < end, got {cover_falloff}")
     region_falloff = as_positive(region_falloff, "region_falloff", allow_zero=True)
-    device = wp.get_device(device)
+    device = as_device(device)
     distance = wp.zeros(count, dtype=float, device=device)
     if region is not None:
         mask = np.zeros(count, dtype=bool)
@@ -236,7 +236,7 @@ def transfer_displacements(
         if w.shape != (count,):
             raise ValueError(f"weights: expected shape ({count},), got {w.shape}")
     scale = float(as_finite_array(scale, "scale", shape=(), max_abs=1e6))
-    device = wp.get_device(device)
+    device = as_device(device)
     out_u = wp.empty(count, dtype=wp.vec3, device=device)
     out_p = wp.empty(count, dtype=wp.vec3, device=device)
     zeros = wp.zeros(count, dtype=wp.vec3, device=device)
@@ -326,7 +326,7 @@ class TrackingAdapter:
         min_confidence: float = 0.0,
         device=None,
     ):
-        self.device = wp.get_device(device)
+        self.device = as_device(device)
         self.sparse_rest = as_points(sparse_points, "sparse_points")
         """Sparse rest points [m], shape (N, 3), model frame."""
         self.sparse_triangles = as_triangles(sparse_triangles, self.sparse_rest.shape[0], "sparse_triangles")
@@ -361,6 +361,7 @@ class TrackingAdapter:
         self._weights = wp.array(self.weights, dtype=float, device=dev)
         self._rest = wp.array(self.dense_rest.astype(np.float32), dtype=wp.vec3, device=dev)
         self._sparse_disp = wp.zeros(n, dtype=wp.vec3, device=dev)
+        self._sparse_view = self._sparse_disp.numpy() if self._sparse_disp.device.is_cpu else None  # zero-copy on the CPU
         self._other = wp.zeros(count, dtype=wp.vec3, device=dev)
         self.displacements = wp.zeros(count, dtype=wp.vec3, device=dev)
         """Dense displacements of the last frame [m], shape (V,), vec3, on the device."""
@@ -504,7 +505,10 @@ class TrackingAdapter:
                 overwritten by the next step).
         """
         disp = self.update_sparse(frame)
-        self._sparse_disp.assign(disp.astype(np.float32))
+        if self._sparse_view is not None:
+            self._sparse_view[:] = disp  # into the device buffer (float32), no temporary array
+        else:
+            self._sparse_disp.assign(disp.astype(np.float32))
         use_other = 0
         if other is not None:
             other = np.asarray(other, dtype=np.float32)

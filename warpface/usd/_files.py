@@ -8,6 +8,7 @@ from pathlib import Path
 
 from pxr import Sdf, Usd
 
+from .._validate import as_path
 from .._files import atomic_path
 
 __all__ = ["open_stage", "open_layer", "writable_path", "export_layer_atomically", "usd_error_message", "without_usd_warnings",
@@ -21,6 +22,14 @@ _PXR_NAMESPACE = re.compile(r"pxrInternal_v[0-9_]+?__pxrReserved__::")
 _PXR_DIAGNOSTIC = re.compile(r"\s*(?:Error|Warning|Coding Error|Fatal Error) in '[^']*' at line \d+ in file [^\n]*? : '")
 
 
+_WRITE_FAILURES = (
+    ("No space left", "the disk is full (No space left on device)"),
+    ("File too large", "the disk is full or the file size limit is reached (File too large)"),
+    ("Disk quota exceeded", "the disk quota is exceeded"),
+)
+"""pxr write errors whose first symptom says it all: (text in pxr's message, what to print instead)."""
+
+
 def usd_error_message(error: BaseException) -> str:
     """One line from a pxr ``Tf.ErrorException`` (or any exception): the diagnostics' own messages
     joined with "; ", without C++ function names, source files and line numbers."""
@@ -32,7 +41,11 @@ def usd_error_message(error: BaseException) -> str:
         piece = " ".join(_PXR_NAMESPACE.sub("", piece).split())
         if piece:
             messages.append(piece)
-    return "; ".join(dict.fromkeys(messages)) or type(error).__name__
+    joined = "; ".join(dict.fromkeys(messages)) or type(error).__name__
+    for symptom, meaning in _WRITE_FAILURES:
+        if symptom in joined:  # a failed write: pxr's follow-up messages ("crate file corrupt ...") are noise
+            return meaning
+    return joined
 
 
 def open_layer(path, *, referenced_by: str | None = None) -> Sdf.Layer | None:
@@ -46,6 +59,7 @@ def open_layer(path, *, referenced_by: str | None = None) -> Sdf.Layer | None:
         ValueError: the file is missing, or it or a sublayer is not a USD layer or is corrupt — named
             in the message.
     """
+    path = as_path(path, "path" if referenced_by is None else f"sublayer of {referenced_by}")
     label = f"{path}" if referenced_by is None else f"sublayer {path} of {referenced_by}"
     if not Path(path).is_file():
         if referenced_by is not None and not Path(path).exists():
@@ -79,7 +93,7 @@ def open_stage(stage_or_path) -> Usd.Stage:
         return stage_or_path
     if not isinstance(stage_or_path, (str, os.PathLike)):
         raise ValueError(f"expected a Usd.Stage or a path to a USD file, got {type(stage_or_path).__name__}")
-    path = Path(stage_or_path)
+    path = as_path(stage_or_path, "path")
     if not path.is_file():
         raise ValueError(f"USD file not found: {path}")
     root = open_layer(path)
@@ -125,7 +139,7 @@ def writable_path(path, suffixes: tuple[str, ...] = LAYER_SUFFIXES) -> Path:
     """
     if not isinstance(path, (str, os.PathLike)):
         raise ValueError(f"output path: expected a str or path, got {type(path).__name__}")
-    path = Path(path).absolute()
+    path = as_path(path, "path").absolute()
     if path.suffix not in suffixes:
         raise ValueError(f"{path}: output must end in one of {', '.join(suffixes)}")
     folder = path.parent
@@ -145,7 +159,7 @@ def export_layer_atomically(layer: Sdf.Layer, path: Path) -> None:
     atomic on POSIX and Windows. A layer already open from ``path`` (``layer`` itself included) is
     reloaded, so stages holding it see the new content and it is no longer dirty.
     """
-    path = Path(path)
+    path = as_path(path, "path")
     with atomic_path(path, path.suffix) as temporary:
         try:
             exported = layer.Export(str(temporary))

@@ -14,7 +14,7 @@ from typing import Mapping
 import numpy as np
 from pxr import Sdf, Usd
 
-from .._validate import as_finite_array, as_positive
+from .._validate import as_finite_array, as_positive, expect_instance
 from ..errors import RigError
 from ._files import open_stage
 from .jaw_io import JAW_CONTROL_ATTRIBUTES, jaw_prim
@@ -134,6 +134,7 @@ def write_animation(stage: Usd.Stage, times, *, contractions=None, wrinkle_depth
             without a jaw.
         RigError: the stage's rig is invalid.
     """
+    expect_instance(stage, Usd.Stage, "stage")
     ensure_schema()
     times = as_time_codes(times)
     prims = rig_prims(stage, skin_path)
@@ -227,6 +228,7 @@ def frame_times(stage: Usd.Stage, skin_path: str | None = None, *, max_frames: i
         RigError: the stage's time range is not finite or ends before it starts.
         ValueError: more than ``max_frames`` frames (``None``: no limit).
     """
+    expect_instance(stage, Usd.Stage, "stage")
     if stage.HasAuthoredTimeCodeRange():
         start, end = stage.GetStartTimeCode(), stage.GetEndTimeCode()
         if not (math.isfinite(start) and math.isfinite(end)) or end < start:

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from pxr import Kind, Sdf, Tf, Usd, UsdGeom, UsdPhysics, Vt
 
-from .._validate import as_positive
+from .._validate import as_positive, expect_instance
 from ..errors import RigError
 from ..expression.muscles import FALLOFFS, LinearMuscle, SphincterMuscle
 from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrinkle
@@ -271,7 +271,7 @@ def rig_prims(stage: Usd.Stage, skin_path: str | None = None) -> RigPrims:
             wrong mesh (the message names the prim path).
     """
     ensure_schema()
-    if skin_path is not None:
+    if expect_instance(stage, Usd.Stage, "stage") and skin_path is not None:
         skin = stage.GetPrimAtPath(skin_path)
         if not skin:
             raise RigError(f"{skin_path}: no prim at this path on the stage")
@@ -326,7 +326,7 @@ def _stage_label(stage: Usd.Stage) -> str:
 
 def stage_meters_per_unit(stage: Usd.Stage) -> float:
     """The stage's ``metersPerUnit`` (USD's fallback 0.01 when not authored); raises RigError if not > 0."""
-    value = UsdGeom.GetStageMetersPerUnit(stage)
+    value = UsdGeom.GetStageMetersPerUnit(expect_instance(stage, Usd.Stage, "stage"))
     if not (math.isfinite(value) and value > 0.0):
         raise RigError(f"{_stage_label(stage)}: metersPerUnit must be > 0, got {value}")
     return float(value)

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
-from .._validate import as_finite_array, as_positive
+from .._validate import as_finite_array, as_positive, expect_instance, expect_instance
 from ..errors import RigError
 from ..fem.material import MATERIAL_RANGES, TissueMaterial
 from ..fem.tetmesh import TetMesh
@@ -81,6 +81,16 @@ class Tissue:
         return TissueMaterial(self.youngs_modulus, self.poisson_ratio, self.viscosity, self.density, **kwargs)
 
 
+def check_prim_path(path, name: str) -> None:
+    """ValueError/TypeError naming ``name`` unless ``path`` is an absolute USD prim path string."""
+    if not isinstance(path, str):
+        raise TypeError(f"{name}: expected an absolute prim path such as '/Face/Tissue', got {type(path).__name__}")
+    valid = Sdf.Path.IsValidPathString(path)  # (False, reason) when invalid
+    if (not (valid[0] if isinstance(valid, tuple) else valid) or not Sdf.Path(path).IsAbsolutePath()
+            or not Sdf.Path(path).IsPrimPath() or Sdf.Path(path) == Sdf.Path.absoluteRootPath):
+        raise ValueError(f"{name}: {path[:60]!r} is not an absolute prim path such as '/Face/Tissue'")
+
+
 def write_tissue(stage: Usd.Stage, path: str, points, tets, *, youngs_modulus, poisson_ratio, viscosity, density,
                  regions: dict | None = None, skin_path: str | None = None) -> Usd.Prim:
     """Define a ``TetMesh`` with ``WarpFaceTetMaterialAPI`` at ``path`` (authored in the edit target).
@@ -101,6 +111,8 @@ def write_tissue(stage: Usd.Stage, path: str, points, tets, *, youngs_modulus, p
     Raises:
         ValueError: bad shapes, indices out of range, values out of range.
     """
+    expect_instance(stage, Usd.Stage, "stage")
+    check_prim_path(path, "path")
     ensure_schema()
     tissue = _validated(points, tets, youngs_modulus, poisson_ratio, viscosity, density, regions or {}, path)
     mesh = UsdGeom.TetMesh.Define(stage, path)
@@ -290,6 +302,8 @@ def write_tissue_mesh(stage, path: str, tetmesh: TetMesh, material: TissueMateri
     Raises:
         ValueError: material of the wrong size, bad regions, or a tet USD reports as inverted.
     """
+    expect_instance(stage, Usd.Stage, "stage")
+    check_prim_path(path, "path")
     if not isinstance(tetmesh, TetMesh):
         raise ValueError(f"write_tissue_mesh: expected a TetMesh, got {type(tetmesh).__name__}")
     if not isinstance(material, TissueMaterial):

@@ -241,8 +241,22 @@ class TrackingStageWriter:
 
     def _write_chunk(self) -> None:
         if not self._chunks:
-            self.folder.mkdir(exist_ok=True)
-            export_layer_atomically(self._static, self.folder / "static.usdc")
+            # The first chunk: a failure (a full disk) must not leave a static layer no stage lists.
+            created = not self.folder.exists()
+            try:
+                self.folder.mkdir(exist_ok=True)
+                export_layer_atomically(self._static, self.folder / "static.usdc")
+                self._write_chunk_layer()
+            except BaseException:
+                if not self.path.exists():
+                    (self.folder / "static.usdc").unlink(missing_ok=True)
+                if created and self.folder.is_dir() and not any(self.folder.iterdir()):
+                    self.folder.rmdir()
+                raise
+            return
+        self._write_chunk_layer()
+
+    def _write_chunk_layer(self) -> None:
         layer = Sdf.Layer.CreateAnonymous(".usdc")
         positions = LANDMARKS.AppendProperty(UsdGeom.Tokens.points)
         confidence_path = LANDMARKS.AppendProperty("primvars:confidence")
