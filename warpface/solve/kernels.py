@@ -20,7 +20,7 @@ __all__ = ["muscle_stage", "first_ring_triangles", "bulge_stage", "second_ring_t
 def muscle_stage(
     frame_on: wp.array(dtype=wp.int32),
     rest: wp.array(dtype=wp.vec3d),
-    field: wp.array(dtype=wp.vec3d),
+    slot_field: wp.array(dtype=wp.vec3d),
     controls: wp.array(dtype=wp.float64),
     active_offsets: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
@@ -28,7 +28,10 @@ def muscle_stage(
     vertex_count: int,
     points: wp.array(dtype=wp.vec3d),
 ):
-    """x1 = x_rest + W c over the neighbourhood's vertices (the muscles that reach each vertex)."""
+    """x1 = x_rest + W c over the neighbourhood's vertices (the muscles that reach each vertex).
+
+    ``slot_field`` is ``W`` per active slot (the order of ``active``), so a vertex's columns are contiguous.
+    """
     i = wp.tid()
     f = i / vertex_count
     if frame_on[f] == 0:
@@ -37,7 +40,7 @@ def muscle_stage(
     x = rest[v]
     for slot in range(active_offsets[v], active_offsets[v + 1]):
         m = active[slot]
-        x += controls[f * control_count + m] * field[v * control_count + m]
+        x += controls[f * control_count + m] * slot_field[slot]
     points[i] = x
 
 
@@ -50,7 +53,7 @@ def _zero3() -> wp.vec3d:
 def first_ring_triangles(
     frame_on: wp.array(dtype=wp.int32),
     points: wp.array(dtype=wp.vec3d),
-    field: wp.array(dtype=wp.vec3d),
+    slot_edges: wp.array(dtype=wp.vec3d),
     triangles: wp.array(dtype=wp.vec3i),
     weight: wp.array(dtype=wp.float64),
     rest_length: wp.array(dtype=wp.float64),
@@ -65,7 +68,12 @@ def first_ring_triangles(
     darea: wp.array(dtype=wp.vec3d),
     dratio: wp.array(dtype=wp.float64),
 ):
-    """Area vector ``w·(p1 − p0) × (p2 − p0)`` of x1, ratio S'/S, and their derivatives (derivative of x1 = W)."""
+    """Area vector ``w·(p1 − p0) × (p2 − p0)`` of x1, ratio S'/S, and their derivatives (derivative of x1 = W;
+    ``slot_edges[2·slot], [2·slot + 1]`` are the edges' constant derivatives ``W1 − W0``, ``W2 − W0`` per active slot).
+
+    The derivatives are stored per active slot, ``slots + 1`` per frame (the last one stays 0: the
+    bulge stage reads it for a column that does not reach the triangle).
+    """
     i = wp.tid()
     f = i / triangle_count
     if frame_on[f] == 0:
@@ -84,11 +92,9 @@ def first_ring_triangles(
         return
     zero = wp.float64(0.0)
     for slot in range(active_offsets[t], active_offsets[t + 1]):
-        m = active[slot]
-        w0 = field[tri[0] * control_count + m]
-        de1 = field[tri[1] * control_count + m] - w0
-        de2 = field[tri[2] * control_count + m] - w0
-        k = i * control_count + m
+        de1 = slot_edges[2 * slot]
+        de2 = slot_edges[2 * slot + 1]
+        k = f * (active_offsets[triangle_count] + 1) + slot
         da = weight[t] * (wp.cross(de1, e2) + wp.cross(e1, de2))
         darea[k] = da
         dr = zero
@@ -101,7 +107,7 @@ def first_ring_triangles(
 def bulge_stage(
     frame_on: wp.array(dtype=wp.int32),
     points: wp.array(dtype=wp.vec3d),
-    field: wp.array(dtype=wp.vec3d),
+    slot_own: wp.array(dtype=wp.vec3d),
     area: wp.array(dtype=wp.vec3d),
     ratio: wp.array(dtype=wp.float64),
     darea: wp.array(dtype=wp.vec3d),
@@ -113,11 +119,14 @@ def bulge_stage(
     thickness: wp.array(dtype=wp.float64),
     active_offsets: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
+    pair_offsets: wp.array(dtype=wp.int32),
+    pair_slot: wp.array(dtype=wp.int32),
     floor: wp.float64,
     control_count: int,
     point_count: int,
     vertex_count: int,
     triangle_count: int,
+    triangle_slots: int,
     jacobian: int,
     stretch: wp.array(dtype=wp.float64),
     bulged: wp.array(dtype=wp.vec3d),
@@ -126,7 +135,10 @@ def bulge_stage(
 ):
     """r (mean S'/S), N(x1), x2 = x1 + (1/max(r, floor) − 1)·h·N and ∂r/∂c, ∂x2/∂c on the first ring.
 
-    ``ring_vertex[v]`` is the vertex's index among the x1 points (``point_count`` per frame).
+    ``ring_vertex[v]`` is the vertex's index among the x1 points (``point_count`` per frame); ``slot_own`` is the
+    vertex's own ``W`` per active slot (the derivative of its x1). The first ring's derivatives are per
+    slot (``triangle_slots`` per frame, see :func:`first_ring_triangles`): ``pair_slot`` lists, from
+    ``pair_offsets[v]`` on, the slot of each (active column, incident triangle) pair of the vertex in loop order.
     """
     i = wp.tid()
     f = i / vertex_count
@@ -159,12 +171,15 @@ def bulge_stage(
     bulged[i] = points[source] + (growth * h) * n
     if jacobian == 0:
         return
+    pair = pair_offsets[v]
+    first_slot = f * triangle_slots
     for slot in range(active_offsets[v], active_offsets[v + 1]):
         m = active[slot]
         dtotal = zero
         dsum = _zero3()
         for k in range(begin, end):
-            j = (first + adjacency[k]) * control_count + m
+            j = first_slot + pair_slot[pair]
+            pair += 1
             dtotal += dratio[j]
             dsum += darea[j]
         dr = zero
@@ -178,7 +193,7 @@ def bulge_stage(
             dn = (dsum - n * wp.dot(n, dsum)) / length
         out = i * control_count + m
         dstretch[out] = dr
-        dbulged[out] = field[ring_vertex[v] * control_count + m] + h * (dgrowth * n + growth * dn)
+        dbulged[out] = slot_own[slot] + h * (dgrowth * n + growth * dn)
 
 
 @wp.kernel
