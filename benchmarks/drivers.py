@@ -107,8 +107,8 @@ def _check_cache(stage_path: Path, model, frames: int) -> None:
     points = UsdGeom.Mesh(stage.GetPrimAtPath(usd.rig_prims(stage).skin.GetPath())).GetPointsAttr()
     sampled = np.unique(np.linspace(0, frames - 1, 7).round()).astype(np.float64)
     animation = usd.read_animation(stage, sampled, meters_per_unit=usd.stage_meters_per_unit(stage))
-    for time_code, contractions, depths in zip(sampled.tolist(), animation.contractions, animation.wrinkle_depths):
-        expected = model.evaluate(contractions, wrinkle_depths=depths)
+    for time_code, controls, depths in zip(sampled.tolist(), animation.controls, animation.wrinkle_depths):
+        expected = model.evaluate(controls, wrinkle_depths=depths)  # muscles, then the jaw's controls
         assert np.array_equal(np.asarray(points.Get(time_code), dtype=np.float32), expected), f"cache differs at frame {time_code:g}"
 
 
