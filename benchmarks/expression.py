@@ -377,7 +377,7 @@ def main(argv=None) -> None:
             ("device_batch_pct_copy_bw", "% copy bw", ".0f"), ("device_batch_exact", "batch exact", ""),
             ("torch_matches", "torch match", ""),
         ])
-        print("\nSingle-frame graph per launch plan (ExpressionModel(launches=2|3|5); 5 is the default),"
+        print("\nSingle-frame graph per launch plan (ExpressionModel(launches=2|3|5); 3 is the CUDA default),"
               "\n'same' = bit-identical to the default; a wp.copy of the same bytes (24·V: rest read + result"
               "\nwritten) in the same run; % = copy time / warp time\n")
         print_table(rows, [

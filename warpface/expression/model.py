@@ -98,10 +98,11 @@ class ExpressionModel:
             controls :data:`~warpface.expression.JAW_CONTROL_NAMES` follow the muscles in the control
             vector (:attr:`control_names`).
         launches: kernel launches per frame: 2 (fused kernels that recompute the one-ring's muscle
-            points and triangle terms instead of storing them: fewest launches and bytes), 3 (muscle
-            points stored, triangle terms computed in place: the fastest single frame on an H200 from
-            10k to 1M vertices, but it differs from the others by up to 3.8 µm at a few vertices there,
-            unexplained) or 5 (every intermediate stored: fewest operations; the default, ``None``).
+            points and triangle terms instead of storing them: fewest launches and bytes; on an H200
+            it differs from the other two by up to 3.8 µm at a few vertices, unexplained), 3 (muscle
+            points stored, triangle terms computed in place: the GPU's default, the fastest single
+            frame on an H200 from 10k to 1M vertices) or 5 (every intermediate stored: fewest
+            operations, the CPU's default). ``None``: by device.
 
     Raises:
         RigError: (a ``ValueError``) mesh not a FaceMesh, wrong item types, duplicate muscle or
@@ -139,7 +140,7 @@ class ExpressionModel:
         if launches is not None and (isinstance(launches, (bool, np.bool_)) or not isinstance(launches, (int, np.integer))
                                      or launches not in LAUNCH_PLANS):
             raise ValueError(f"launches: expected one of {LAUNCH_PLANS} or None, got {launches!r}")
-        self.launches_per_frame = int(5 if launches is None else launches)
+        self.launches_per_frame = int((3 if self.device.is_cuda else 5) if launches is None else launches)
         """Kernel launches per frame: 2 (fused), 3 or 5 (see ``launches``)."""
 
         self._mesh_buffers = mesh.device_buffers(device=self.device)
