@@ -98,8 +98,7 @@ class ExpressionModel:
             controls :data:`~warpface.expression.JAW_CONTROL_NAMES` follow the muscles in the control
             vector (:attr:`control_names`).
         launches: kernel launches per frame: 2 (fused kernels that recompute the one-ring's muscle
-            points and triangle terms instead of storing them: fewest launches and bytes; on an H200
-            it differs from the other two by up to 3.8 µm at a few vertices, unexplained), 3 (muscle
+            points and triangle terms instead of storing them: fewest launches and bytes), 3 (muscle
             points stored, triangle terms computed in place: the GPU's default, the fastest single
             frame on an H200 from 10k to 1M vertices) or 5 (every intermediate stored: fewest
             operations, the CPU's default). ``None``: by device.
