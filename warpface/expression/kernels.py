@@ -70,6 +70,19 @@ def contraction_factor(r: float, kr: float):
     return kr * wp.exp((1.0 - 1.0 / kr) * (r - 1.0))
 
 
+@wp.func
+def add_muscles(x: wp.vec3, controls: wp.array(dtype=wp.float32), first: int, offsets: wp.array(dtype=wp.int32),
+                entries: wp.array(dtype=MuscleEntry), v: int):
+    """``x + Σ K[m]·w_m(v)`` over the muscle entries of vertex ``v``; ``first`` indexes the frame's controls."""
+    k = offsets[v]
+    end = offsets[v + 1]
+    while k < end:
+        entry = entries[k]
+        x += controls[first + entry.muscle] * entry.weight
+        k += 1
+    return x
+
+
 @wp.kernel
 def apply_muscles(
     rest: wp.array(dtype=wp.vec3),
@@ -84,14 +97,7 @@ def apply_muscles(
     i = wp.tid()
     f, v = frame_and_element(i, vertex_count)
     first = f * muscle_count
-    x = rest[v]
-    k = offsets[v]
-    end = offsets[v + 1]
-    while k < end:
-        entry = entries[k]
-        x += contraction[first + entry.muscle] * entry.weight
-        k += 1
-    muscle_points[i] = x
+    muscle_points[i] = add_muscles(rest[v], contraction, first, offsets, entries, v)
 
 
 @wp.kernel
@@ -124,13 +130,7 @@ def apply_jaw_and_muscles(
         slide = controls[first + jaw_first + 1] * forward + controls[first + jaw_first + 2] * hinge_axis
         moved = wp.quat_rotate(rotation, x - pivot) + pivot + slide
         x = x + w * (moved - x)
-    k = offsets[v]
-    end = offsets[v + 1]
-    while k < end:
-        entry = entries[k]
-        x += controls[first + entry.muscle] * entry.weight
-        k += 1
-    muscle_points[i] = x
+    muscle_points[i] = add_muscles(x, controls, first, offsets, entries, v)
 
 
 @wp.kernel

@@ -26,7 +26,7 @@ is then over ``ceil(frames / G) × vertices`` threads.
 import warp as wp
 
 from ..kernels_surface import safe_normalize, triangle_area_vector
-from .kernels import STRETCH_FLOOR, MuscleEntry, WrinkleEntry, contraction_factor
+from .kernels import STRETCH_FLOOR, MuscleEntry, WrinkleEntry, add_muscles, contraction_factor
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -63,13 +63,7 @@ def muscle_point(
         if w > 0.0:
             moved = wp.quat_rotate(rotation, x - pivot) + pivot + slide
             x = x + w * (moved - x)
-    k = offsets[u]
-    end = offsets[u + 1]
-    while k < end:
-        entry = entries[k]
-        x += controls[first + entry.muscle] * entry.weight
-        k += 1
-    return x
+    return add_muscles(x, controls, first, offsets, entries, u)
 
 
 @wp.kernel
