@@ -10,8 +10,9 @@ import numpy as np
 
 from warpface import (CylindricalProjection, FaceMesh, FaceRig, LinearMuscle, PlanarProjection, SphincterMuscle,
                       Wrinkle)
+from warpface.tracking import LandmarkFrame, vertex_landmark_names
 
-__all__ = ["grid_surface", "small_face_rig", "patch", "icosphere_like", "assert_rigs_equal", "scaled_rig"]
+__all__ = ["grid_surface", "small_face_rig", "patch", "icosphere_like", "assert_rigs_equal", "scaled_rig", "DisappearingCamera"]
 
 
 def grid_surface(n: int = 24, size: float = 2.0, height: float = 0.3, seed: int | None = 0):
@@ -176,3 +177,19 @@ def expression_controls(rig, frames: int, seed: int):
         jaw = rng.uniform(0.0, 1.0, (frames, 3)) * np.array([0.2, 0.02 * rig_scale(rig), 0.01 * rig_scale(rig)])
         contractions = np.concatenate([contractions, jaw], axis=1)
     return contractions, depths
+
+
+class DisappearingCamera:
+    """A landmark source that moves its landmarks up 1 mm a frame and dies after ``frames`` frames, like an
+    unplugged camera (ConnectionError)."""
+
+    def __init__(self, rest, vertices, frames):
+        self.landmark_names = vertex_landmark_names(vertices)
+        self.fps = 30.0
+        self.rest, self.vertices, self.frame_count = rest, vertices, frames
+
+    def frames(self):
+        for i in range(self.frame_count):
+            points = self.rest[self.vertices] + np.array([0.0, 0.001 * i, 0.0])
+            yield LandmarkFrame(timestamp=i / 30.0, points=points, confidence=np.ones(len(points)), index=i)
+        raise ConnectionError("camera disconnected")

@@ -13,25 +13,9 @@ from hypothesis import strategies as st
 
 from warpface.pipelines.capture import record
 from warpface.tracking import PrefetchedSource, adapter_for_face, prefetch
-from warpface.tracking import LandmarkFrame, vertex_landmark_names
 from warpface.usd.tracking_io import TrackingStageWriter, read_tracking
 
-from helpers import grid_surface
-
-
-class DisappearingCamera:
-    """A landmark source that moves its landmarks up 1 mm a frame and dies after ``frames`` frames."""
-
-    def __init__(self, rest, vertices, frames):
-        self.landmark_names = vertex_landmark_names(vertices)
-        self.fps = 30.0
-        self.rest, self.vertices, self.frame_count = rest, vertices, frames
-
-    def frames(self):
-        for i in range(self.frame_count):
-            points = self.rest[self.vertices] + np.array([0.0, 0.001 * i, 0.0])
-            yield LandmarkFrame(timestamp=i / 30.0, points=points, confidence=np.ones(len(points)), index=i)
-        raise ConnectionError("camera disconnected")
+from helpers import DisappearingCamera, grid_surface
 
 
 @settings(max_examples=25, deadline=None)

@@ -8,10 +8,9 @@ import pytest
 from warpface.cli import main
 from warpface.pipelines.capture import record
 from warpface.tracking import adapter_for_face, landmark_vertices, vertex_landmark_names
-from warpface.tracking.sources import LandmarkFrame
 from warpface.usd.tracking_io import TrackingStageWriter, read_tracking
 
-from helpers import grid_surface
+from helpers import DisappearingCamera, grid_surface
 
 
 def test_round_trip_is_exact_across_chunks(tmp_path, rng):
@@ -55,21 +54,6 @@ def test_bad_frames_are_refused(tmp_path):
         writer.add(3.0, np.zeros((1, 3)), np.ones(1), bad)
     with pytest.raises(ValueError, match="fps"):
         TrackingStageWriter(tmp_path / "other.usda", ["a"], 0.0)
-
-
-class DisappearingCamera:
-    """A landmark source that dies after ``frames`` frames, like an unplugged camera."""
-
-    def __init__(self, rest, vertices, frames):
-        self.landmark_names = vertex_landmark_names(vertices)
-        self.fps = 30.0
-        self.rest, self.vertices, self.frame_count = rest, vertices, frames
-
-    def frames(self):
-        for i in range(self.frame_count):
-            points = self.rest[self.vertices] + np.array([0.0, 0.001 * i, 0.0])
-            yield LandmarkFrame(timestamp=i / 30.0, points=points, confidence=np.ones(len(points)), index=i)
-        raise ConnectionError("camera disconnected")
 
 
 def test_a_camera_that_disappears_keeps_every_frame_received(tmp_path):
