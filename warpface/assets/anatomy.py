@@ -90,6 +90,17 @@ browOuterUp 25.3 → 45.1 %. The falloff ends 0.6 lengths beyond the brow: the l
 shapes the brows rise 6–8 mm while the upper lids move 0.3 mm)."""
 
 
+def _side_of(muscle: LinearMuscle) -> tuple[str, float]:
+    """``("L", +1)`` or ``("R", −1)`` from the muscle's name suffix."""
+    return ("L", 1.0) if muscle.name.endswith("_L") else ("R", -1.0)
+
+
+def _fixed_at(muscle: LinearMuscle, attachment: np.ndarray, zone_deg: float, start: float, finish: float) -> LinearMuscle:
+    """``muscle`` with a new fixed end; radii as fractions of the new length, the insertion kept."""
+    length = float(np.linalg.norm(muscle.insertion - attachment))
+    return LinearMuscle(muscle.name, attachment, muscle.insertion, zone_deg, start * length, finish * length)
+
+
 def revised_classic_muscles(local: np.ndarray, surface: SurfaceSampler, classic: list[LinearMuscle]) -> list[LinearMuscle]:
     """The classic linear muscles as the full rig places them: frontalis, risorius and the lip levator/depressor moved.
 
@@ -108,42 +119,34 @@ def revised_classic_muscles(local: np.ndarray, surface: SurfaceSampler, classic:
             # lump in a smile, and sliding (docs/RIG.md §2) removes the pull's inward part anyway.
             origin = surface.frame.to_local(surface.below(surface.frame.to_local(muscle.attachment)[:2], 0.0))
             side_xy = (np.sign(origin[0]) * (max(abs(origin[0]), 0.9) - 0.1), surface.frame.to_local(muscle.insertion)[1] + 0.02)
-            attachment = surface.below(side_xy, 0.25)
-            length = float(np.linalg.norm(muscle.insertion - attachment))
-            out.append(LinearMuscle(muscle.name, attachment, muscle.insertion, 24.0, 0.90 * length, 1.40 * length))
+            out.append(_fixed_at(muscle, surface.below(side_xy, 0.25), 24.0, 0.90, 1.40))
             continue
         if muscle.name.startswith("depressor_labii_inferioris_"):
             # Depressor labii inferioris: from the mandible below the lip, 0.05 beneath the skin, into
             # the vermilion 0.02 above the lip border. The classic placement (0.20 deep, inserting
             # below the border) pulled the lip inward and, after sliding, lifted it 1 mm (mouthLowerDown).
-            sign = np.sign(surface.frame.to_local(muscle.insertion)[0])
-            lower = local[56 if sign > 0 else 58, :2]
-            attachment = surface.below((lower[0] + 0.12 * sign, lower[1] - 0.42), 0.05)
-            insertion = surface.point((lower[0] + 0.03 * sign, lower[1] + 0.02))
-            length = float(np.linalg.norm(insertion - attachment))
-            out.append(LinearMuscle(muscle.name, attachment, insertion, 35.0, 0.85 * length, 1.30 * length))
+            tag, sign = _side_of(muscle)
+            lower = local[_LANDMARKS[tag]["lower"], :2]
+            out.append(_linear(muscle.name, surface, (lower[0] + 0.12 * sign, lower[1] - 0.42), 0.05,
+                               (lower[0] + 0.03 * sign, lower[1] + 0.02), 35.0, 0.85, 1.30))
             continue
         if muscle.name.startswith("levator_labii_superioris_"):
             # Levator labii superioris: from the infraorbital margin, 0.05 beneath the skin, into the
             # vermilion below the Cupid's-bow peak. The classic one (0.18 deep, inserting 0.06 above
             # the outer upper lip) pulled the lip into the face and, after sliding, raised the lip's
             # middle < 0.05 mm (mouthShrugUpper) and its side 0.2 mm (mouthUpperUp; now 0.8 and 1.8 mm).
-            sign = np.sign(surface.frame.to_local(muscle.insertion)[0])
-            eye = local[list(range(42, 48)) if sign > 0 else list(range(36, 42)), :2].mean(axis=0)
-            peak = local[52 if sign > 0 else 50, :2]
-            attachment = surface.below((eye[0] - 0.02 * sign, eye[1] - 0.36), 0.05)
-            insertion = surface.point((peak[0] + 0.02 * sign, peak[1] - 0.02))
-            length = float(np.linalg.norm(insertion - attachment))
-            out.append(LinearMuscle(muscle.name, attachment, insertion, 30.0, 0.88 * length, 1.30 * length))
+            tag, sign = _side_of(muscle)
+            eye = local[list(_LANDMARKS[tag]["eye"]), :2].mean(axis=0)
+            peak = local[_LANDMARKS[tag]["upper"], :2]
+            out.append(_linear(muscle.name, surface, (eye[0] - 0.02 * sign, eye[1] - 0.36), 0.05,
+                               (peak[0] + 0.02 * sign, peak[1] - 0.02), 30.0, 0.88, 1.30))
             continue
         if not muscle.name.startswith("frontalis_"):
             out.append(muscle)
             continue
         height, depth, zone, start, finish = FRONTALIS_BELLIES["inner" if "_inner_" in muscle.name else "outer"]
         insertion = surface.frame.to_local(muscle.insertion)
-        attachment = surface.below((insertion[0], brow_top + height), depth)
-        length = float(np.linalg.norm(muscle.insertion - attachment))
-        out.append(LinearMuscle(muscle.name, attachment, muscle.insertion, zone, start * length, finish * length))
+        out.append(_fixed_at(muscle, surface.below((insertion[0], brow_top + height), depth), zone, start, finish))
     return out
 
 
