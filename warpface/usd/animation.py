@@ -68,7 +68,8 @@ class Animation:
 # ---------------------------------------------------------------------------------------------- controls
 
 
-def _length_scales(stage: Usd.Stage, prims: RigPrims, meters_per_unit: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _length_scales(stage: Usd.Stage, prims: RigPrims, jaw: Usd.Prim | None,
+                   meters_per_unit: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Factors turning stored control values into values in ``meters_per_unit`` units, per muscle, wrinkle and
     jaw control.
 
@@ -79,7 +80,6 @@ def _length_scales(stage: Usd.Stage, prims: RigPrims, meters_per_unit: float) ->
     placements = ItemPlacements(stage, prims.skin)
     muscle = np.array([placements.of(p).scale * to_units if p.GetTypeName() == _LINEAR else 1.0 for p in prims.muscles])
     wrinkle = np.array([placements.of(p).scale * to_units for p in prims.wrinkles])
-    jaw = jaw_prim(stage, prims.skin)
     slide = placements.of(jaw).scale * to_units if jaw is not None else 1.0
     return muscle, wrinkle, np.array([1.0, slide, slide])
 
@@ -138,7 +138,8 @@ def write_animation(stage: Usd.Stage, times, *, contractions=None, wrinkle_depth
     ensure_schema()
     times = as_time_codes(times)
     prims = rig_prims(stage, skin_path)
-    muscle_scale, wrinkle_scale, jaw_scale = _length_scales(stage, prims, meters_per_unit)
+    jaw_controls = jaw_prim(stage, prims.skin)
+    muscle_scale, wrinkle_scale, jaw_scale = _length_scales(stage, prims, jaw_controls, meters_per_unit)
     series = []
     if contractions is not None:
         columns, table = _control_table(contractions, prims.muscle_names, len(times), "contractions", "muscle")
@@ -147,12 +148,11 @@ def write_animation(stage: Usd.Stage, times, *, contractions=None, wrinkle_depth
         columns, table = _control_table(wrinkle_depths, prims.wrinkle_names, len(times), "wrinkle_depths", "wrinkle")
         series += [(prims.wrinkles[c], "depth", table[:, k] / wrinkle_scale[c]) for k, c in enumerate(columns)]
     if jaw is not None:
-        prim = jaw_prim(stage, prims.skin)
-        if prim is None:
+        if jaw_controls is None:
             raise ValueError(f"jaw: rig {prims.skin.GetPath()} has no jaw to animate")
         names = list(JAW_CONTROL_ATTRIBUTES)
         columns, table = _control_table(jaw, names, len(times), "jaw", "jaw control")
-        series += [(prim, JAW_CONTROL_ATTRIBUTES[names[c]], table[:, k] / jaw_scale[c]) for k, c in enumerate(columns)]
+        series += [(jaw_controls, JAW_CONTROL_ATTRIBUTES[names[c]], table[:, k] / jaw_scale[c]) for k, c in enumerate(columns)]
 
     layer = stage.GetEditTarget().GetLayer()
     paths = []
@@ -263,10 +263,10 @@ def read_animation(stage_or_path, times=None, *, skin_path: str | None = None, m
     stage = open_stage(stage_or_path)
     prims = rig_prims(stage, skin_path)
     times = frame_times(stage, skin_path) if times is None else as_finite_array(times, "times", shape=(None,))
-    muscle_scale, wrinkle_scale, jaw_scale = _length_scales(stage, prims, meters_per_unit)
+    jaw = jaw_prim(stage, prims.skin)
+    muscle_scale, wrinkle_scale, jaw_scale = _length_scales(stage, prims, jaw, meters_per_unit)
     contractions = _sample(prims.muscles, "contraction", times) * muscle_scale
     depths = _sample(prims.wrinkles, "depth", times) * wrinkle_scale
-    jaw = jaw_prim(stage, prims.skin)
     if jaw is not None:
         jaw = np.stack([_sample([jaw], name, times)[:, 0] for name in JAW_CONTROL_ATTRIBUTES.values()], axis=1) * jaw_scale
     return Animation(times=times, contractions=contractions, wrinkle_depths=depths,
