@@ -78,8 +78,8 @@ def _naive_bake(path: Path, model, animation) -> None:
     stage = Usd.Stage.CreateNew(str(path))
     mesh = UsdGeom.Mesh.Define(stage, "/Face/Skin")
     points, extent = mesh.CreatePointsAttr(), mesh.CreateExtentAttr()
-    for time_code, contractions, depths in zip(animation.times.tolist(), animation.contractions, animation.wrinkle_depths):
-        frame = model.evaluate(contractions, wrinkle_depths=depths)
+    for time_code, controls, depths in zip(animation.times.tolist(), animation.controls, animation.wrinkle_depths):
+        frame = model.evaluate(controls, wrinkle_depths=depths)
         points.Set(Vt.Vec3fArray.FromNumpy(frame), time_code)
         extent.Set(Vt.Vec3fArray.FromNumpy(np.stack([frame.min(axis=0), frame.max(axis=0)])), time_code)
     stage.GetRootLayer().Save()
@@ -90,9 +90,13 @@ def _controls_stage(path: Path, rig, mapped, frames: int, fps: float):
     from warpface import usd
 
     stage = usd.write_rig(path, rig, fps=fps)
+    from warpface.usd.jaw_io import JAW_CONTROL_ATTRIBUTES
+
     muscles = set(rig.muscle_names)
     contractions = {n: mapped.values[:frames, k] for k, n in enumerate(mapped.names) if n in muscles}
-    usd.write_animation(stage, np.arange(frames, dtype=np.float64), contractions=contractions, fps=fps)
+    jaw = {n: mapped.values[:frames, k] for k, n in enumerate(mapped.names) if n in JAW_CONTROL_ATTRIBUTES}
+    usd.write_animation(stage, np.arange(frames, dtype=np.float64), contractions=contractions,
+                        jaw=jaw if rig.jaw is not None and jaw else None, fps=fps)
     stage.GetRootLayer().Save()
     return stage
 
