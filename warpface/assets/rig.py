@@ -24,7 +24,8 @@ from ..landmarks import LEFT_SIDE, RIGHT_SIDE
 from ..mesh import FaceMesh
 from ..rig import FaceRig
 from .face import default_face, default_landmarks
-from .anatomy import ANATOMY_LINEAR_MUSCLE_NAMES, ANATOMY_SPHINCTER_MUSCLE_NAMES, anatomy_muscles, revised_classic_muscles
+from .anatomy import (ANATOMY_LINEAR_MUSCLE_NAMES, ANATOMY_SPHINCTER_MUSCLE_NAMES, SKIN_RESPONSE_OVERRIDES, anatomy_muscles,
+                      revised_classic_muscles)
 from .frame import FaceFrame, SurfaceSampler, check_landmarks, head_cylinder
 from .jaw import default_jaw
 from .thickness import default_thickness
@@ -160,8 +161,10 @@ SKIN_BUNCHING = 1.0
 
 
 def _with_skin_response(muscle):
-    """The full rig's form of a muscle: C¹ zone, sliding skin, bunching tissue (unless it sets its own)."""
-    return replace(muscle, falloff="smooth", sliding=muscle.sliding or SKIN_SLIDING, bunching=muscle.bunching or SKIN_BUNCHING)
+    """The full rig's form of a muscle: C¹ zone, sliding skin, bunching tissue (unless it sets its own or
+    :data:`~warpface.assets.anatomy.SKIN_RESPONSE_OVERRIDES` names it)."""
+    response = dict(sliding=muscle.sliding or SKIN_SLIDING, bunching=muscle.bunching or SKIN_BUNCHING)
+    return replace(muscle, falloff="smooth", **{**response, **SKIN_RESPONSE_OVERRIDES.get(muscle.name, {})})
 
 
 # ------------------------------------------------------------------------------------------------
