@@ -6,6 +6,8 @@ inter-ocular units, relative to the 68 iBUG landmarks; bone attachments beneath 
 
 Linear, per side:
 
+- frontalis, middle belly: galea over the mid-forehead → skin above the brow's midpoint (AU1 + AU2,
+  ``browInnerUp``, ``browOuterUp``), between the classic inner and outer bellies;
 - depressor supercilii: medial orbital rim → skin of the brow head, down (AU4, ``browDown``);
 - levator anguli oris: canine fossa → mouth corner, straight up (AU13, ``mouthSmile``, ``cheekPuff``);
 - zygomaticus minor: zygomatic bone → lateral upper lip, up and out (AU11, ``mouthUpper``);
@@ -20,9 +22,10 @@ Linear, per side:
 
 Sphincters (replacing the classic lateral orbicularis oculi):
 
-- orbicularis oculi orbital part, per side: centred between the eye and its medial canthus (the fibres
-  arise from the medial orbital margin and the medial palpebral ligament, so the skin around the
-  eye is drawn toward it: cheek up, brow tail down, temple skin medially — AU6, ``cheekSquint``);
+- orbicularis oculi orbital part, per side: a ring (:data:`ORBITAL_RING`) centred between the eye and its
+  medial canthus (the fibres arise from the medial orbital margin and the medial palpebral ligament, so
+  the skin around the eye is drawn toward it: cheek up, brow tail down, temple skin medially — AU6,
+  ``cheekSquint``); the lids inside the ring are left to the palpebral part;
 - orbicularis oris press: a flat ellipse on the lips' contact line that presses the lips together
   (AU24, ``mouthPress``, ``mouthClose``).
 """

@@ -1,4 +1,8 @@
-"""The default, landmark-anchored face rig: 20 linear muscles, 3 sphincters, 21 wrinkles, thickness.
+"""The default, landmark-anchored face rig: muscles, a jaw, 21 wrinkles, thickness (docs/RIG.md).
+
+``anatomy="classic"`` is thesis table 2.1: 20 linear muscles and 3 sphincters. The full anatomy (the
+default) re-places some of them and adds the muscles of :mod:`~warpface.assets.anatomy` (42 linear,
+4 sphincters) and the jaw.
 
 Every muscle end and wrinkle curve is written in the :class:`~warpface.assets.frame.FaceFrame` of
 the face (origin between the eyes, x toward the subject's left, y up, z out, unit = inter-ocular
