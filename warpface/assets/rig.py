@@ -127,7 +127,8 @@ def default_rig(mesh: FaceMesh | None = None, landmarks=None, *, name: str = "Fa
     Returns:
         A :class:`~warpface.FaceRig` with the muscles of :data:`LINEAR_MUSCLE_NAMES` and
         :data:`SPHINCTER_MUSCLE_NAMES`, the wrinkles of :data:`WRINKLE_NAMES`, the painted and
-        blurred thickness of :func:`~warpface.assets.default_thickness`, and the landmarks.
+        blurred thickness of :func:`~warpface.assets.default_thickness` (times
+        :data:`MOBILE_TISSUE_FRACTION` in the full anatomy), and the landmarks.
 
     Raises:
         RigError: landmarks missing, malformed, or not face-like (eyes coinciding, mouth not below).
@@ -154,9 +155,17 @@ def default_rig(mesh: FaceMesh | None = None, landmarks=None, *, name: str = "Fa
         jaw = default_jaw(mesh, frame, landmarks)
     wrinkles = _wrinkles(local, surface, frame, head_cylinder(frame, local), _typical_edge(mesh) / frame.scale, device)
     thickness = default_thickness(mesh, landmarks, device=device)
+    if anatomy == "full":
+        thickness = MOBILE_TISSUE_FRACTION * thickness
     return FaceRig(mesh=mesh, muscles=linear + sphincters, wrinkles=wrinkles, thickness=thickness, landmarks=landmarks,
                    name=name, jaw=jaw)
 
+
+MOBILE_TISSUE_FRACTION = 0.6
+"""The full rig's ``h`` (the thickness that bulges, SPEC §1.3, and bunches, docs/RIG.md §3) as a fraction
+of :func:`~warpface.assets.default_thickness`'s soft-tissue depth: the skin and superficial fat that move
+over the deeper layers. Calibrated on the ICT-FaceKit shapes with ``benchmarks/rig_reach.py`` (docs/RIG.md
+§3): 0.5–0.7 reach best; the full depth bulged too much (browOuterUp 51 → 49 % at 1.5×, 40 % at 2.5×)."""
 
 SKIN_SLIDING = 1.0
 """Sliding of every muscle of the full rig (docs/RIG.md §2; chosen by benchmarks/rig_reach.py)."""
