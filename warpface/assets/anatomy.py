@@ -89,8 +89,8 @@ medial canthus: its fibres arise from the medial orbital margin and the medial p
 FRONTALIS_BELLIES = {
     # belly: (height of the fixed point above the brow top, its depth beneath the skin, zone half-angle [deg],
     #         falloff start and finish as multiples of the belly's length)
-    "inner": (0.60, 0.20, 36.0, 1.25, 2.00),
-    "middle": (0.75, 0.06, 37.0, 1.25, 1.60),
+    "inner": (0.60, 0.20, 36.0, 1.15, 2.00),
+    "middle": (0.65, 0.06, 42.0, 1.25, 1.60),
     "outer": (0.90, 0.00, 48.0, 1.15, 1.60),
 }
 """The full rig's frontalis bellies [inter-ocular units], fitted by coordinate search to the ICT-FaceKit
@@ -100,7 +100,7 @@ browInnerUp 33.3 → 42.7 %, browOuterUp 45.1 → 51.1 % with it and the inner b
 falloff ends 0.6–1 lengths beyond the brow: the lids stay put (on those shapes the brows rise 6–8 mm
 while the upper lids move 0.3 mm)."""
 
-GALEA_LOBE = (0.30, 75.0, 0.90, 2.50, 0.40)
+GALEA_LOBE = (0.30, 83.0, 0.90, 2.50, 0.40)
 """The frontalis' galea lobe [inter-ocular units]: (its insertion above the belly's fixed point, zone
 half-angle [deg], falloff start and finish as multiples of its length, gain). The frontalis has no bony
 origin: contracting, it draws the brow up and the scalp down toward its belly, and the forehead skin
@@ -108,7 +108,7 @@ between bunches out. Given to the inner and middle bellies (docs/RIG.md §5): br
 44.0 → 47.2 %, landmarks 44.4 → 47.6 % (as a separate control it reached 46 % dense and nothing from
 landmarks, which do not see the upper forehead)."""
 
-CHEEK_LOBE = (0.15, 0.10, 0.25, 0.35, 0.45, 40.0, 0.90, 1.90, 1.0)
+CHEEK_LOBE = (0.25, 0.10, 0.15, 0.35, 0.45, 40.0, 0.90, 1.90, 1.3)
 """The lower lid's cheek lobe [inter-ocular units]: (fixed point medial of the inner canthus, and above it,
 depth; insertion lateral of and below the eye's centre; zone half-angle [deg]; falloff start and finish
 as multiples of its length; gain). The lower orbital fibres of the orbicularis oculi lift the cheek
@@ -116,7 +116,7 @@ medially and up with the lower lid in a squint (AU6 with AU7). eyeSquint reach 3
 30.7 → 47.3 % landmarks; as a separate control it reached 38 % dense and the landmark fit, which sees
 two lower-lid points and the jaw outline, drove it to −33 %."""
 
-ORBITAL_RING = 0.65
+ORBITAL_RING = 0.55
 """Ring of the orbital orbicularis oculi (:attr:`~warpface.SphincterMuscle.ring`): its pull fades out inside
 0.65 of its ellipse, over the lids, which the palpebral muscles move (eyeSquint dense reach 28.8 → 32.4 %)."""
 
