@@ -9,10 +9,10 @@ correction (:data:`~warpface.fem.kernels_ldlt.ldlt_refine`), repeated until the 
 negligible. Each round shrinks the error by the factor's measured contraction (~1e-6), so from a
 good guess — in a time step, the extrapolated displacement — one round is float64-accurate.
 
-The node ordering is the cheapest to stream (fill, and loop set-up per run) among minimum degree
-(MMD on ``A + Aᵀ``), COLAMD and reverse Cuthill–McKee (an envelope whose rows are single runs: on the
-2-ring ANP shells of a few thousand nodes it is as small as COLAMD's fill and 9 % below MMD's),
-judged on the node graph. SuperLU computes the
+The node ordering is the cheaper to stream (fill, and loop set-up per run) of minimum degree
+(MMD on ``A + Aᵀ``) and reverse Cuthill–McKee (an envelope whose rows are single runs: on the 2-ring
+ANP shell of 6.7k nodes its fill is 9 % below MMD's; on larger or 1-ring meshes MMD wins), judged on
+the node graph. SuperLU computes the
 numerical factor of the reordered matrix (natural order, symmetric mode, no pivoting), from which
 ``L`` and ``D`` are read. Measurements: ``benchmarks/README.md``.
 """
@@ -29,7 +29,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from .kernels_ldlt import block_residual, ldlt_refine
 
-__all__ = ["BlockLDLT", "ORDERINGS", "UnsuitableFactor", "node_ordering"]
+__all__ = ["BlockLDLT", "DEFAULT_ORDERINGS", "ORDERINGS", "UnsuitableFactor", "node_ordering"]
 
 MAX_CONTRACTION = 1.0e-2
 """A float32 factor whose measured contraction is weaker than this is not used (:class:`UnsuitableFactor`)."""
@@ -43,19 +43,25 @@ RUN_COST = 4
 _SUPERLU_SPD = dict(diag_pivot_thresh=0.0, options={"SymmetricMode": True})
 
 
-class UnsuitableFactor(Exception):
-    """The float32 block factor would not refine reliably (ill-conditioned matrix); use a float64 factor."""
+class UnsuitableFactor(ValueError):
+    """The float32 block factor would not refine reliably (an ill-conditioned matrix): use a float64 factor."""
 
 
 ORDERINGS = ("mmd", "colamd", "rcm")
+"""Node orderings :func:`node_ordering` knows."""
+
+DEFAULT_ORDERINGS = ("mmd", "rcm")
+"""The orderings :class:`BlockLDLT` compares by default. COLAMD is left out: on the benchmark's shells it is never
+clearly the cheapest (6.7k-node ANP: 620k blocks, as RCM; 26k: 4.71 M against MMD's 4.13 M) and its symbolic pass
+costs 1.4 s at 26k nodes."""
 
 
-def node_ordering(pattern, candidates=ORDERINGS) -> tuple[np.ndarray, str, int]:
+def node_ordering(pattern, candidates=DEFAULT_ORDERINGS) -> tuple[np.ndarray, str, int]:
     """The node order whose factor streams fastest (fewest blocks plus :data:`RUN_COST` per run) for a node graph.
 
     Args:
         pattern: SciPy sparse (n x n) whose non-zeros are the coupled node pairs (symmetric, diagonal included).
-        candidates: Orderings to compare, a subset of :data:`ORDERINGS`.
+        candidates: Orderings to compare, a subset of :data:`ORDERINGS` (default :data:`DEFAULT_ORDERINGS`).
 
     Returns:
         ``(order, name, blocks)``: factor row ``k`` is node ``order[k]`` (shape (n,), int64); the ordering's
@@ -104,23 +110,34 @@ class BlockLDLT:
         rtol: A solve stops once its estimated error is below ``rtol`` times the larger of the
             solution's largest component and ``reference`` (see :meth:`solve`).
         max_rounds: Refinement rounds per solve at most.
-        orderings: Node orderings to choose from (:func:`node_ordering`).
+        orderings: Node orderings to choose from (:func:`node_ordering`; default :data:`DEFAULT_ORDERINGS`).
 
     Raises:
-        ValueError: the matrix is not square with a multiple of 3 rows, or not positive definite.
+        TypeError: ``matrix`` is not a matrix.
+        ValueError: the matrix is empty, not square with a multiple of 3 rows, has non-finite entries or is
+            not positive definite; ``rtol`` or ``max_rounds`` is out of range.
         UnsuitableFactor: the float32 factor's measured contraction is weaker than
             :data:`MAX_CONTRACTION` (or SuperLU split a node's dofs): factorise in float64 instead.
     """
 
     device = wp.get_device("cpu")
 
-    def __init__(self, matrix, *, rtol: float = 1.0e-10, max_rounds: int = 8, orderings=ORDERINGS):
+    def __init__(self, matrix, *, rtol: float = 1.0e-10, max_rounds: int = 8, orderings=DEFAULT_ORDERINGS):
         start = time.perf_counter()
-        if matrix.shape[0] != matrix.shape[1] or matrix.shape[0] % 3:
+        try:
+            matrix = sps.csr_matrix(matrix, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise TypeError(f"BlockLDLT needs a sparse or dense matrix, got {type(matrix).__name__}") from None
+        if matrix.shape[0] != matrix.shape[1] or matrix.shape[0] % 3 or matrix.shape[0] == 0:
             raise ValueError(f"BlockLDLT needs a square matrix of 3x3 node blocks, got shape {matrix.shape}")
+        if not (isinstance(rtol, (int, float)) and 0.0 < rtol < 1.0):
+            raise ValueError(f"BlockLDLT: rtol must be a number in (0, 1), got {rtol!r}")
+        if isinstance(max_rounds, bool) or not isinstance(max_rounds, (int, np.integer)) or max_rounds < 1:
+            raise ValueError(f"BlockLDLT: max_rounds must be a whole number >= 1, got {max_rounds!r}")
         self.rtol = float(rtol)
         self.max_rounds = int(max_rounds)
-        matrix = sps.csr_matrix(matrix, dtype=np.float64)
+        if not np.all(np.isfinite(matrix.data)):
+            raise ValueError("BlockLDLT: the matrix has non-finite entries")
         blocks = sps.bsr_matrix(0.5 * (matrix + matrix.T), blocksize=(3, 3))  # exactly symmetric: the residual reads half
         blocks.sort_indices()
         n = blocks.shape[0] // 3
@@ -135,11 +152,15 @@ class BlockLDLT:
         dofs = factored_dofs[np.argsort(lu.perm_c)]  # SuperLU's elimination-tree postorder, if any
         order = dofs[0::3] // 3
         if not np.array_equal(dofs, (3 * order[:, None] + np.arange(3)).ravel()):
-            raise UnsuitableFactor("SuperLU's postorder split a node's dofs")
-        pivots = lu.U.diagonal()
-        if not (np.all(np.isfinite(pivots)) and np.all(pivots > 0.0)):
-            raise ValueError("BlockLDLT: the matrix is not positive definite (a pivot is not positive)")
-        lower = sps.bsr_matrix(lu.L.tocsr(), blocksize=(3, 3))
+            raise UnsuitableFactor("BlockLDLT: SuperLU's postorder split a node's dofs")
+        # U = D Lᵀ without pivoting, so U's columns (CSC) are L's rows scaled by the pivots: L by rows, no transpose
+        upper = lu.U
+        pivots = upper.diagonal()
+        bad = np.flatnonzero(~(pivots > 0.0) | ~np.isfinite(pivots))
+        if bad.size:
+            raise ValueError(f"BlockLDLT: the matrix is not positive definite (pivot {pivots[bad[0]]:.3g} at dof {dofs[bad[0]]})")
+        unit = sps.csr_matrix((upper.data / pivots[upper.indices], upper.indices, upper.indptr), shape=upper.shape)
+        lower = sps.bsr_matrix(unit, blocksize=(3, 3))  # L, unit diagonal included
         lower.sort_indices()
         rows = np.repeat(np.arange(n), np.diff(lower.indptr))
         off = lower.indices != rows
@@ -196,7 +217,8 @@ class BlockLDLT:
         """Measured error reduction of one refinement round (largest relative error of a float32
         solve against SuperLU's float64 one, on a random solution and a random right-hand side)."""
         if not self.contraction <= MAX_CONTRACTION:
-            raise UnsuitableFactor(f"the float32 factor's contraction {self.contraction:.2g} is weaker than {MAX_CONTRACTION:g}")
+            raise UnsuitableFactor(f"BlockLDLT: the float32 factor's contraction {self.contraction:.2g} is weaker than "
+                                   f"{MAX_CONTRACTION:g} (ill-conditioned matrix)")
         self.rounds = 0
         """Refinement rounds of all solves so far."""
         self.solves = 0
@@ -234,7 +256,13 @@ class BlockLDLT:
 
         Rounds stop when ``CONTRACTION_SAFETY * contraction * max|correction| <= rtol * max(max|x|, reference)``
         or after ``max_rounds``.
+
+        Raises:
+            ValueError: ``rhs`` or ``guess`` has the wrong shape or a non-finite value.
         """
+        for name, vector in (("rhs", rhs), ("guess", guess)):
+            if vector is not None and (np.shape(vector) != self._rhs_view.shape or not np.all(np.isfinite(vector))):
+                raise ValueError(f"BlockLDLT.solve: {name} must be {self._rhs_view.size} finite numbers")
         self._rhs_view[:] = rhs
         if guess is None:
             self._x_view[:] = 0.0
