@@ -19,6 +19,7 @@ import warp as wp
 
 __all__ = ["block_residual", "ldlt_refine"]
 
+# -O3 instead of Warp's CPU default -O2: the sweeps take 5.0–5.2 ms instead of 6.0–6.4 on the 6.7k-node ANP shell
 wp.set_module_options({"optimization_level": 3})
 
 
