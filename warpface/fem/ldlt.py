@@ -12,9 +12,9 @@ good guess — in a time step, the extrapolated displacement — one round is fl
 The node ordering is the cheaper to stream (fill, and loop set-up per run) of minimum degree
 (MMD on ``A + Aᵀ``) and reverse Cuthill–McKee (an envelope whose rows are single runs: on the 2-ring
 ANP shell of 6.7k nodes its fill is 9 % below MMD's; on larger or 1-ring meshes MMD wins), judged on
-the node graph. SuperLU computes the
-numerical factor of the reordered matrix (natural order, symmetric mode, no pivoting), from which
-``L`` and ``D`` are read. Measurements: ``benchmarks/README.md``.
+the node graph. SuperLU computes the numerical factor of the reordered matrix (natural order,
+symmetric mode, no pivoting), from which ``L`` and ``D`` are read. Measurements:
+``benchmarks/README.md``.
 """
 
 from __future__ import annotations
@@ -102,6 +102,56 @@ def _run_starts(row_start: np.ndarray, columns: np.ndarray) -> np.ndarray:
     return np.flatnonzero(opens_run)
 
 
+
+def _int32(values) -> wp.array:
+    return wp.array(np.asarray(values, dtype=np.int32), dtype=wp.int32, device="cpu")
+
+
+def _reordered_factor(blocks, order: np.ndarray):
+    """SuperLU's factor of the matrix of 3x3 ``blocks`` in node ``order`` (natural order, symmetric mode, no pivoting).
+
+    Returns:
+        ``(order, factored_dofs, lu, pivots, lower)``: the node order of the factor rows (SuperLU may postorder);
+        the dof order given to SuperLU; its factor; ``D``, shape (3n,); ``L`` as a BSR matrix of 3x3 blocks
+        with its unit diagonal.
+    """
+    # every entry of every block stays structural, so SuperLU keeps a node's three dofs together
+    factored_dofs = (3 * order[:, None] + np.arange(3)).ravel()
+    lu = spla.splu(blocks.tocsr()[factored_dofs][:, factored_dofs].tocsc(), permc_spec="NATURAL", **_SUPERLU_SPD)
+    dofs = factored_dofs[np.argsort(lu.perm_c)]  # SuperLU's elimination-tree postorder, if any
+    order = dofs[0::3] // 3
+    if not np.array_equal(dofs, (3 * order[:, None] + np.arange(3)).ravel()):
+        raise UnsuitableFactor("BlockLDLT: SuperLU's postorder split a node's dofs")
+    # U = D Lᵀ without pivoting, so U's columns (CSC) are L's rows scaled by the pivots: L by rows, no transpose
+    upper = lu.U
+    pivots = upper.diagonal()
+    bad = np.flatnonzero(~(pivots > 0.0) | ~np.isfinite(pivots))
+    if bad.size:
+        raise ValueError(f"BlockLDLT: the matrix is not positive definite "
+                         f"(pivot {pivots[bad[0]]:.3g} at dof {dofs[bad[0]]})")
+    unit = sps.csr_matrix((upper.data / pivots[upper.indices], upper.indices, upper.indptr), shape=upper.shape)
+    lower = sps.bsr_matrix(unit, blocksize=(3, 3))
+    lower.sort_indices()
+    return order, factored_dofs, lu, pivots, lower
+
+
+def _symmetric_half(blocks) -> list:
+    """The arguments of :data:`~warpface.fem.kernels_ldlt.block_residual` for a symmetric BSR matrix with sorted
+    indices: block-row offsets and columns of the strictly lower blocks, those blocks, the diagonal blocks."""
+    n = blocks.shape[0] // 3
+    rows = np.repeat(np.arange(n), np.diff(blocks.indptr))
+    strictly_lower = blocks.indices < rows
+    on_diagonal = blocks.indices == rows
+    diagonal = np.zeros((n, 3, 3))
+    diagonal[rows[on_diagonal]] = blocks.data[on_diagonal]
+    return [
+        _int32(np.concatenate([[0], np.cumsum(np.bincount(rows[strictly_lower], minlength=n))])),
+        _int32(blocks.indices[strictly_lower]),
+        wp.array(np.ascontiguousarray(blocks.data[strictly_lower]), dtype=wp.mat33d, device="cpu"),
+        wp.array(diagonal, dtype=wp.mat33d, device="cpu"),
+    ]
+
+
 class BlockLDLT:
     """``A = P L D Lᵀ Pᵀ`` of an SPD matrix of 3x3 node blocks, solved on the CPU with a float32 factor.
 
@@ -138,37 +188,21 @@ class BlockLDLT:
         self.max_rounds = int(max_rounds)
         if not np.all(np.isfinite(matrix.data)):
             raise ValueError("BlockLDLT: the matrix has non-finite entries")
-        blocks = sps.bsr_matrix(0.5 * (matrix + matrix.T), blocksize=(3, 3))  # exactly symmetric: the residual reads half
+        # exactly symmetric, as the residual reads half of it
+        blocks = sps.bsr_matrix(0.5 * (matrix + matrix.T), blocksize=(3, 3))
         blocks.sort_indices()
         n = blocks.shape[0] // 3
         self.node_count = n
         pattern = sps.csr_matrix((np.ones(blocks.indices.size), blocks.indices, blocks.indptr), shape=(n, n))
         order, self.ordering, _ = node_ordering(pattern + pattern.T, orderings)
         """Name of the node ordering in use: "mmd", "colamd" or "rcm"."""
-
-        # every entry of every block stays structural, so SuperLU keeps a node's three dofs together
-        factored_dofs = (3 * order[:, None] + np.arange(3)).ravel()
-        lu = spla.splu(blocks.tocsr()[factored_dofs][:, factored_dofs].tocsc(), permc_spec="NATURAL", **_SUPERLU_SPD)
-        dofs = factored_dofs[np.argsort(lu.perm_c)]  # SuperLU's elimination-tree postorder, if any
-        order = dofs[0::3] // 3
-        if not np.array_equal(dofs, (3 * order[:, None] + np.arange(3)).ravel()):
-            raise UnsuitableFactor("BlockLDLT: SuperLU's postorder split a node's dofs")
-        # U = D Lᵀ without pivoting, so U's columns (CSC) are L's rows scaled by the pivots: L by rows, no transpose
-        upper = lu.U
-        pivots = upper.diagonal()
-        bad = np.flatnonzero(~(pivots > 0.0) | ~np.isfinite(pivots))
-        if bad.size:
-            raise ValueError(f"BlockLDLT: the matrix is not positive definite (pivot {pivots[bad[0]]:.3g} at dof {dofs[bad[0]]})")
-        unit = sps.csr_matrix((upper.data / pivots[upper.indices], upper.indices, upper.indptr), shape=upper.shape)
-        lower = sps.bsr_matrix(unit, blocksize=(3, 3))  # L, unit diagonal included
-        lower.sort_indices()
+        order, factored_dofs, lu, pivots, lower = _reordered_factor(blocks, order)
         rows = np.repeat(np.arange(n), np.diff(lower.indptr))
         off = lower.indices != rows
         columns = lower.indices[off].astype(np.int64)
         rows = rows[off]
         row_start = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n))])
         run_first = _run_starts(row_start, columns)
-        row_runs = np.concatenate([[0], np.cumsum(np.bincount(rows[run_first], minlength=n))])
 
         self.block_count = int(columns.size)
         """Off-diagonal 3x3 blocks of ``L``."""
@@ -179,27 +213,17 @@ class BlockLDLT:
         diagonal blocks and the pivots (``L`` once: no ``U``)."""
 
         cpu = self.device
-        int32 = lambda values: wp.array(np.asarray(values, dtype=np.int32), dtype=wp.int32, device=cpu)  # noqa: E731
         with np.errstate(over="ignore", under="ignore"):  # out of float32's range: the contraction check rejects it
             single = [lower.data[off].astype(np.float32), np.linalg.inv(lower.data[~off]).astype(np.float32),
                       (1.0 / pivots).reshape(n, 3).astype(np.float32)]
         self._factor_arrays = [
-            int32(order), int32(row_runs), int32(columns[run_first]), int32(np.append(run_first, columns.size)),
+            _int32(order), _int32(np.concatenate([[0], np.cumsum(np.bincount(rows[run_first], minlength=n))])),
+            _int32(columns[run_first]), _int32(np.append(run_first, columns.size)),
             wp.array(single[0], dtype=wp.mat33f, device=cpu),
             wp.array(single[1], dtype=wp.mat33f, device=cpu),
             wp.array(single[2], dtype=wp.vec3f, device=cpu),
         ]
-        block_rows = np.repeat(np.arange(n), np.diff(blocks.indptr))
-        strictly_lower = blocks.indices < block_rows
-        diagonal = np.zeros((n, 3, 3))
-        on_diagonal = blocks.indices == block_rows
-        diagonal[block_rows[on_diagonal]] = blocks.data[on_diagonal]
-        self._matrix_arrays = [
-            int32(np.concatenate([[0], np.cumsum(np.bincount(block_rows[strictly_lower], minlength=n))])),
-            int32(blocks.indices[strictly_lower]),
-            wp.array(np.ascontiguousarray(blocks.data[strictly_lower]), dtype=wp.mat33d, device=cpu),
-            wp.array(diagonal, dtype=wp.mat33d, device=cpu),
-        ]
+        self._matrix_arrays = _symmetric_half(blocks)
         self._rhs = wp.zeros(n, dtype=wp.vec3d, device=cpu)
         self._x = wp.zeros(n, dtype=wp.vec3d, device=cpu)
         self._residual = wp.zeros(n, dtype=wp.vec3d, device=cpu)
@@ -227,7 +251,7 @@ class BlockLDLT:
         """Wall time of ordering, factorisation, conversion and the contraction measurement [s]."""
 
     def _measure_contraction(self, blocks, lu, factored_dofs) -> float:
-        """One round from zero against SuperLU's float64 solve (``lu`` factors ``A[factored_dofs][:, factored_dofs]``)."""
+        """One round from zero against SuperLU's float64 solve (``lu``: of ``A[factored_dofs][:, factored_dofs]``)."""
         rng = np.random.default_rng(0)
         dofs, inverse = factored_dofs, np.argsort(factored_dofs)
         worst = 0.0
@@ -272,7 +296,8 @@ class BlockLDLT:
         for rounds in range(1, self.max_rounds + 1):
             self._residual_launch.launch()
             self._refine_launch.launch()
-            if estimate_per_correction * self._correction_view[0] <= self.rtol * max(np.abs(self._x_view).max(), reference):
+            scale = max(np.abs(self._x_view).max(), reference)
+            if estimate_per_correction * self._correction_view[0] <= self.rtol * scale:
                 break
         self.rounds += rounds
         self.solves += 1
