@@ -277,6 +277,31 @@ def device_batch_rows(model, contractions: np.ndarray, quick: bool, bandwidth: f
             "same_bytes_copy_ms_per_frame": 1e3 * copy_s / frames, "device_batch_pct_same_bytes_copy": 100.0 * copy_s / seconds}
 
 
+def kernel_split_rows(model, contractions: np.ndarray) -> dict:
+    """Where a batch chunk's time goes: each kernel of the default plan timed alone with CUDA events
+    (launched one by one, no graph), in ms per frame, over one chunk of the batched path."""
+    if not model.device.is_cuda:
+        return {}
+    frames = max(1, min(64, (1 << 24) // model.mesh.vertex_count))
+    buffers = model._frame_buffers(frames)
+    buffers.upload_controls(np.tile(contractions, (frames, 1)), np.tile(model.default_depths, (frames, 1)))
+    launches = model._launch_args(buffers, frames, buffers.contraction, buffers.depth, buffers.final_points, False)
+    events = [wp.Event(device=model.device, enable_timing=True) for _ in range(len(launches) + 1)]
+    samples: list[list[float]] = [[] for _ in launches]
+    for repeat in range(13):
+        wp.record_event(events[0])
+        for index, (kernel, dim, inputs, outputs) in enumerate(launches):
+            wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=model.device)
+            wp.record_event(events[index + 1])
+        wp.synchronize_device(model.device)
+        if repeat >= 3:
+            for index, sample in enumerate(samples):
+                sample.append(wp.get_event_elapsed_time(events[index], events[index + 1]))
+    return {"kernel_split_frames": frames, "kernel_split_frames_per_thread": model._frames_per_thread(frames),
+            "kernel_split_ms_per_frame": {kernel.key: float(np.median(sample)) / frames
+                                          for (kernel, *_), sample in zip(launches, samples)}}
+
+
 def single_frame_rows(model, mesh, muscles, wrinkles, thickness, contractions: np.ndarray) -> dict:
     """On CUDA: the single-frame graph of each launch plan — 2 fused kernels (the default), 3, and the
     five-kernel sequence — and a ``wp.copy`` of the frame's 24·V bytes, all in the same run."""
@@ -331,6 +356,8 @@ def run_case(label: str, mesh: wf.FaceMesh, device, quick: bool, bandwidth: floa
         "max_abs_diff_vs_numpy": float(check),
     }
     row.update(device_batch_rows(model, contractions, quick, bandwidth))
+    if big:
+        row.update(kernel_split_rows(model, contractions))
     row.update(torch_rows(numpy_model, model, contractions, depths, quick))
     if row.get("torch_ms") and device_s:
         row["x_torch"] = row["torch_ms"] / row["device_ms"]

@@ -18,7 +18,8 @@ from .jaw import JAW_CONTROL_NAMES, Jaw
 from ..kernels_surface import triangle_area_vectors
 from .kernels import (MuscleEntry, WrinkleEntry, apply_jaw_and_muscles, apply_muscles, apply_wrinkles, stretch_and_bulge,
                       triangle_stretch)
-from .kernels_fused import bulge_from_muscle_points, muscles_and_bulge, wrinkles_on_bulge
+from .kernels_fused import (MUSCLE_SLOTS, WRINKLE_SLOTS, bulge_from_ring, muscle_points_over_frames, muscles_and_bulge_from_ring, ring_table,
+                            slot_table, wrinkles_from_ring)
 from .muscles import Muscle, muscle_weights
 from .readback import PinnedReadback
 from .tissue import tissue_response
@@ -162,6 +163,12 @@ class ExpressionModel:
         self.default_depths = np.array([w.depth for w in self.wrinkles], dtype=np.float64)
         if jaw is not None:
             self._jaw_weight = wp.array(jaw.weights.astype(np.float32), dtype=wp.float32, device=device_)
+        if self.launches_per_frame != 5:  # the fused plans' fixed-width tables (kernels_fused)
+            buffers = self._mesh_buffers
+            self._ring = ring_table(mesh.triangles.astype(np.int32), buffers.triangle_weight.numpy(), buffers.rest_area_lengths.numpy(),
+                                    mesh.adjacency.offsets, mesh.adjacency.triangles, device=device_)
+            self._muscle_slots = slot_table(MuscleEntry, weights.offsets, self._muscle_entries.numpy(), int(MUSCLE_SLOTS), device=device_)
+            self._wrinkle_slots = slot_table(WrinkleEntry, shapes.offsets, self._wrinkle_entries.numpy(), int(WRINKLE_SLOTS), device=device_)
         self._thread_buffers = threading.local()
         self._single = self._frame_buffers(1)
         self._batch_graphs = BatchGraphs(device=self.device)
@@ -461,7 +468,7 @@ class ExpressionModel:
     def _frames_per_thread(self, frames: int) -> int:
         """Frames one thread evaluates for its vertex: 1 on the CPU and for small launches; on CUDA up
         to 4 once a launch has over 2²⁰ frame·vertices, so a vertex's rig data is read once per 4 frames."""
-        if self.device.is_cpu or self.launches_per_frame == 3:  # (the muscle kernel of 3 has one frame per thread)
+        if self.device.is_cpu:
             return 1
         return int(min(4, max(1, frames * self.mesh.vertex_count // (1 << 20))))
 
@@ -479,23 +486,21 @@ class ExpressionModel:
             jaw_inputs = [self._counts, wp.vec3(), wp.vec3(), wp.vec3(), -1]  # jaw arrays unread
         else:
             jaw_inputs = [self._jaw_weight, wp.vec3(*jaw.pivot), wp.vec3(*jaw.axis), wp.vec3(*jaw.forward), len(self.muscles)]
-        bulge = (muscles_and_bulge, dim,
-                 [mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, controls, buffers.muscle_width,
-                  mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, mesh.adjacency_offsets, mesh.adjacency_triangles,
-                  self._counts, self._thickness, vertex_count, frames, per_thread, int(keep_muscle_points)],
-                 [buffers.muscle_points, buffers.stretch, buffers.bulge_points])
-        wrinkles = (wrinkles_on_bulge, dim,
-                    [buffers.bulge_points, buffers.stretch, mesh.triangles, mesh.triangle_weight, mesh.adjacency_offsets,
-                     mesh.adjacency_triangles, self._wrinkle_offsets, self._wrinkle_entries, depths, buffers.wrinkle_width,
-                     vertex_count, frames, per_thread],
+        muscle_inputs = [mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, self._muscle_slots, controls,
+                         buffers.muscle_width]
+        ring_inputs = [self._ring, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, mesh.adjacency_offsets,
+                       mesh.adjacency_triangles, self._counts, self._thickness, vertex_count, frames, per_thread]
+        wrinkles = (wrinkles_from_ring, dim,
+                    [buffers.bulge_points, buffers.stretch, self._ring, mesh.triangles, mesh.triangle_weight, mesh.adjacency_offsets,
+                     mesh.adjacency_triangles, self._wrinkle_offsets, self._wrinkle_entries, self._wrinkle_slots, depths,
+                     buffers.wrinkle_width, vertex_count, frames, per_thread],
                     [final_points])
         if self.launches_per_frame == 3:
-            muscles = self._staged_launch_args(buffers, frames, controls, depths, final_points)[0]
-            bulge = (bulge_from_muscle_points, dim,
-                     [buffers.muscle_points, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, mesh.adjacency_offsets,
-                      mesh.adjacency_triangles, self._counts, self._thickness, vertex_count, frames, per_thread],
-                     [buffers.stretch, buffers.bulge_points])
+            muscles = (muscle_points_over_frames, dim, [*muscle_inputs, vertex_count, frames, per_thread], [buffers.muscle_points])
+            bulge = (bulge_from_ring, dim, [buffers.muscle_points, *ring_inputs], [buffers.stretch, buffers.bulge_points])
             return [muscles, bulge, wrinkles]
+        bulge = (muscles_and_bulge_from_ring, dim, [*muscle_inputs, *ring_inputs, int(keep_muscle_points)],
+                 [buffers.muscle_points, buffers.stretch, buffers.bulge_points])
         return [bulge, wrinkles]
 
     def _staged_launch_args(self, buffers: FrameBuffers, frames: int, controls: wp.array, depths: wp.array,
