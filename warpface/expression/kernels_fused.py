@@ -35,7 +35,7 @@ import numpy as np
 import warp as wp
 
 from ..kernels_surface import safe_normalize, triangle_area_vector
-from .kernels import STRETCH_FLOOR, MuscleEntry, WrinkleEntry, contraction_factor
+from .kernels import STRETCH_FLOOR, MuscleEntry, WrinkleEntry, add_muscles, contraction_factor
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -43,11 +43,11 @@ wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 __all__ = ["RING_SLOTS", "MUSCLE_SLOTS", "WRINKLE_SLOTS", "RingTriangle", "ring_table", "slot_table", "muscle_points_over_frames",
            "muscles_and_bulge_from_ring", "bulge_from_ring", "wrinkles_from_ring"]
 
-RING_SLOTS = wp.constant(8)
+RING_SLOTS = wp.constant(6)
 """Incident triangles per vertex held in the fixed-width table (valence 6 on a regular mesh)."""
 MUSCLE_SLOTS = wp.constant(4)
 """Muscle entries per vertex held in slots (the rest, if any, is walked over the CSR)."""
-WRINKLE_SLOTS = wp.constant(8)
+WRINKLE_SLOTS = wp.constant(6)
 """Wrinkle entries per vertex held in slots (the rest, if any, is walked over the CSR)."""
 
 
@@ -162,7 +162,6 @@ def muscle_points_over_frames(
     jaw_first: int,
     muscle_offsets: wp.array(dtype=wp.int32),
     muscle_entries: wp.array(dtype=MuscleEntry),
-    muscle_slots: wp.array(dtype=MuscleEntry),
     controls: wp.array(dtype=wp.float32),
     control_count: int,
     vertex_count: int,
@@ -172,20 +171,25 @@ def muscle_points_over_frames(
 ):
     """x1 per vertex and frame (the first kernel of the three-launch plan), ``frames_per_thread``
     consecutive frames per thread: the values of :data:`~warpface.expression.kernels.apply_jaw_and_muscles`
-    (``apply_muscles`` without a jaw)."""
+    (``apply_muscles`` without a jaw). The muscle entries are walked over the CSR: a vertex has few, and
+    padded slots would cost a batch more loads than they save a single frame (measured on an H200)."""
     i = wp.tid()
     group = i / vertex_count
     v = i - group * vertex_count
     f = group * frames_per_thread
     last = wp.min(f + frames_per_thread, frame_count)
+    x_rest = rest[v]
+    w = float(0.0)
+    if jaw_first >= 0:
+        w = jaw_weight[v]
     while f < last:
         first = f * control_count
-        rotation = wp.quat_identity()
-        slide = wp.vec3(0.0, 0.0, 0.0)
-        if jaw_first >= 0:
+        x = x_rest
+        if w > 0.0:
             rotation, slide = jaw_motion(controls, first, jaw_first, hinge_axis, forward)
-        muscle_points[f * vertex_count + v] = muscle_point_from_slots(v, rest, jaw_weight, jaw_first, pivot, rotation, slide, muscle_slots,
-                                                                      vertex_count, muscle_offsets, muscle_entries, controls, first)
+            moved = wp.quat_rotate(rotation, x - pivot) + pivot + slide
+            x = x + w * (moved - x)
+        muscle_points[f * vertex_count + v] = add_muscles(x, controls, first, muscle_offsets, muscle_entries, v)
         f += 1
 
 
