@@ -70,10 +70,10 @@ class ExpressionModel:
     """Muscles → stretch → bulge → wrinkles, per vertex, from the rest mesh every frame (never cumulative).
 
     Everything that depends only on the rig (muscle weight fields, wrinkle distances) is evaluated
-    once here in float64. On CUDA a frame is then two fused kernel launches over vertices
+    once here in float64. On CUDA a frame is then three fused kernel launches over vertices
     (:mod:`~warpface.expression.kernels_fused`), captured once as a graph and replayed; on the CPU
     it is the five-kernel sequence of :mod:`~warpface.expression.kernels` (see ``launches``). All
-    plans give the same bits on the same device.
+    plans give the same bits on the same device (on CUDA up to the compiler's FMA contraction).
 
     Two ways to get results, running the same kernels:
 
@@ -109,8 +109,8 @@ class ExpressionModel:
         launches: kernel launches per frame: 2 (fused kernels that recompute the one-ring's muscle
             points and triangle terms instead of storing them: fewest launches and bytes), 3 (muscle
             points stored, triangle terms computed in place: the GPU's default, the fastest single
-            frame on an H200 from 10k to 1M vertices) or 5 (every intermediate stored: fewest
-            operations, the CPU's default). ``None``: by device.
+            frame on an H200 from 10k to 100k vertices and the fastest batch from 10k to 1M) or 5
+            (every intermediate stored: fewest operations, the CPU's default). ``None``: by device.
 
     Raises:
         RigError: (a ``ValueError``) mesh not a FaceMesh, wrong item types, duplicate muscle or
