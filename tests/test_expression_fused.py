@@ -123,7 +123,7 @@ def test_several_frames_per_thread_equal_one(rig_name, launches, rng, frames_per
                                                            buffers.final_points, False):
         inputs = list(inputs)
         if kernel in (muscles_and_bulge_from_ring, muscle_points_over_frames, bulge_from_ring, wrinkles_from_ring):
-            inputs[-2 if kernel in (muscles_and_bulge_from_ring, bulge_from_ring) else -1] = frames_per_thread
+            inputs[-2 if kernel is muscles_and_bulge_from_ring else -1] = frames_per_thread
             dim = -(-frames // frames_per_thread) * model.mesh.vertex_count
             looped += 1
         wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=DEVICE)

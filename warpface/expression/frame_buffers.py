@@ -16,9 +16,8 @@ class FrameBuffers:
         vertex_count, triangle_count: sizes of the mesh.
         muscle_count, wrinkle_count: control widths (a zero width still gets one unused column).
         device: the model's Warp device.
-        per_triangle: the five-kernel sequence's buffers: its per-triangle intermediates, and x1, x2
-            as vec3. Without it (the fused plans) x1 and x2 are vec4 — x2 carrying r in w — so that a
-            gathered point is one aligned 16-byte load.
+        per_triangle: allocate the per-triangle intermediates of the five-kernel sequence (the fused
+            kernels do not store them).
     """
 
     def __init__(self, frames: int, vertex_count: int, triangle_count: int, muscle_count: int, wrinkle_count: int, *, device,
@@ -29,12 +28,11 @@ class FrameBuffers:
         self.wrinkle_width = max(wrinkle_count, 1)
         self.contraction = wp.zeros(frames * self.muscle_width, dtype=wp.float32, device=device)
         self.depth = wp.zeros(frames * self.wrinkle_width, dtype=wp.float32, device=device)
-        point = wp.vec3 if per_triangle else wp.vec4
-        self.muscle_points = wp.empty(frames * vertex_count, dtype=point, device=device)
+        self.muscle_points = wp.empty(frames * vertex_count, dtype=wp.vec3, device=device)
         self.area_vectors = wp.empty(frames * triangle_count if per_triangle else 0, dtype=wp.vec3, device=device)
         self.stretch_terms = wp.empty(frames * triangle_count if per_triangle else 0, dtype=wp.vec4, device=device)
         self.stretch = wp.empty(frames * vertex_count, dtype=wp.float32, device=device)
-        self.bulge_points = wp.empty(frames * vertex_count, dtype=point, device=device)
+        self.bulge_points = wp.empty(frames * vertex_count, dtype=wp.vec3, device=device)
         self.final_points = wp.empty(frames * vertex_count, dtype=wp.vec3, device=device)
         self.launches: list[wp.Launch] = []
         """The frame's kernel launches, recorded once (CPU: replayed without re-packing arguments)."""
@@ -85,31 +83,20 @@ class FrameBuffers:
         """Copy the first ``count`` frames of a flat per-frame array to the host.
 
         Returns ``out`` (or a new array) of shape (count, elements) for float32 arrays or
-        (count, elements, 3) for vec3 arrays — and for vec4 ones, their xyz (a new array). On CUDA
-        the device-to-host copy lands in ``out`` directly (no second copy).
+        (count, elements, 3) for vec3 arrays. On CUDA the device-to-host copy lands in ``out``
+        directly (no second copy).
         """
         per_frame = array.shape[0] // self.frames
-        if array.dtype == wp.vec4:
-            padded = self.read_frames_raw(array, count, np.empty((count, per_frame, 4), dtype=np.float32))
-            if out is None:
-                return np.ascontiguousarray(padded[..., :3])
-            out[...] = padded[..., :3].reshape(out.shape)
-            return out
         inner = (3,) if array.dtype == wp.vec3 else ()
         if out is None:
             out = np.empty((count, per_frame) + inner, dtype=np.float32)
-        return self.read_frames_raw(array, count, out)
-
-    def read_frames_raw(self, array: wp.array, count: int, out: np.ndarray) -> np.ndarray:
-        """The first ``count`` frames of ``array`` copied into ``out`` as they are stored (float32 components)."""
-        per_frame = array.shape[0] // self.frames
         if self.device.is_cpu:
             view = self._host_views.get(id(array))
             if view is None:
                 view = self._host_views[id(array)] = array.numpy()
             out[...] = view[: count * per_frame].reshape(out.shape)
         else:
-            target = wp.array(out.reshape((count * per_frame,) + out.shape[2:]), dtype=array.dtype, device="cpu", copy=False)
+            target = wp.array(out.reshape((count * per_frame,) + inner), dtype=array.dtype, device="cpu", copy=False)
             wp.copy(target, array, count=count * per_frame)
             wp.synchronize_device(self.device)
         return out

@@ -37,7 +37,7 @@ fetched from memory once per G frames: the launch is then over ``ceil(frames / G
 import numpy as np
 import warp as wp
 
-from ..kernels_surface import safe_normalize
+from ..kernels_surface import safe_normalize, triangle_area_vector
 from .kernels import STRETCH_FLOOR, MuscleEntry, WrinkleEntry, add_muscles, contraction_factor
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
@@ -98,24 +98,6 @@ def slot_table(struct, offsets: np.ndarray, entries: np.ndarray, slots: int, *, 
         filled = np.flatnonzero(counts > slot)
         table[slot, filled] = entries[offsets[filled] + slot]
     return wp.array(packed, dtype=struct, device=device)
-
-
-@wp.func
-def padded(x: wp.vec3, w: float):
-    """``(x, w)``: intermediates are stored as 16-byte vec4 (one aligned load per gathered point, not three)."""
-    return wp.vec4(x[0], x[1], x[2], w)
-
-
-@wp.func
-def xyz(p: wp.vec4):
-    return wp.vec3(p[0], p[1], p[2])
-
-
-@wp.func
-def padded_area_vector(points: wp.array(dtype=wp.vec4), first_vertex: int, triangle: wp.vec3i, weight: float):
-    """``weight · (p1 − p0) × (p2 − p0)`` of one triangle over vec4-stored points (as ``triangle_area_vector``)."""
-    p0 = xyz(points[first_vertex + triangle[0]])
-    return weight * wp.cross(xyz(points[first_vertex + triangle[1]]) - p0, xyz(points[first_vertex + triangle[2]]) - p0)
 
 
 @wp.func
@@ -188,7 +170,7 @@ def muscle_points_over_frames(
     vertex_count: int,
     frame_count: int,
     frames_per_thread: int,
-    muscle_points: wp.array(dtype=wp.vec4),
+    muscle_points: wp.array(dtype=wp.vec3),
 ):
     """x1 per vertex and frame (the first kernel of the three-launch plan), ``frames_per_thread``
     consecutive frames per thread: the values of :data:`~warpface.expression.kernels.apply_jaw_and_muscles`
@@ -210,7 +192,7 @@ def muscle_points_over_frames(
             rotation, slide = jaw_motion(controls, first, jaw_first, hinge_axis, forward)
             moved = wp.quat_rotate(rotation, x - pivot) + pivot + slide
             x = x + w * (moved - x)
-        muscle_points[f * vertex_count + v] = padded(add_muscles(x, controls, first, muscle_offsets, muscle_entries, v), 0.0)
+        muscle_points[f * vertex_count + v] = add_muscles(x, controls, first, muscle_offsets, muscle_entries, v)
         f += 1
 
 
@@ -258,14 +240,14 @@ def muscles_and_bulge_from_ring(
     vertex_count: int,
     frame_count: int,
     frames_per_thread: int,
-    keep_stages: int,
-    muscle_points: wp.array(dtype=wp.vec4),
+    keep_muscle_points: int,
+    muscle_points: wp.array(dtype=wp.vec3),
     stretch: wp.array(dtype=wp.float32),
-    bulge_points: wp.array(dtype=wp.vec4),
+    bulge_points: wp.array(dtype=wp.vec3),
 ):
     """The first kernel of the two-launch plan: x1 of the vertex and of its one-ring recomputed from the
-    slots (no stored x1 to wait for), r and x2 = x1 + (1/r − 1)·h·N(x1), stored as (x2, r); x1 and r alone
-    are written only with ``keep_stages`` ≠ 0 (the stages of one frame)."""
+    slots (no stored x1 to wait for), r and x2 = x1 + (1/r − 1)·h·N(x1); x1 is written only with
+    ``keep_muscle_points`` ≠ 0 (the stages of one frame)."""
     i = wp.tid()
     group = i / vertex_count
     v = i - group * vertex_count
@@ -303,16 +285,16 @@ def muscles_and_bulge_from_ring(
         if count > 0.0:
             r = ratio_sum / count
         out = f * vertex_count + v
-        if keep_stages != 0:
-            muscle_points[out] = padded(x1, 0.0)
-            stretch[out] = r
+        if keep_muscle_points != 0:
+            muscle_points[out] = x1
+        stretch[out] = r
         growth = 1.0 / wp.max(r, STRETCH_FLOOR) - 1.0
-        bulge_points[out] = padded(x1 + (growth * h) * safe_normalize(normal_sum), r)
+        bulge_points[out] = x1 + (growth * h) * safe_normalize(normal_sum)
         f += 1
 
 
 @wp.func
-def ring_sums(points: wp.array(dtype=wp.vec4), first_vertex: int, ring: wp.array(dtype=RingTriangle), vertex_count: int, v: int,
+def ring_sums(points: wp.array(dtype=wp.vec3), first_vertex: int, ring: wp.array(dtype=RingTriangle), vertex_count: int, v: int,
               triangles: wp.array(dtype=wp.vec3i), triangle_weight: wp.array(dtype=wp.float32),
               rest_area_lengths: wp.array(dtype=wp.float32), incident: wp.array(dtype=wp.int32), begin: int, end: int):
     """Σ area vectors and Σ |area|/rest length over vertex ``v``'s incident triangles (slots, then the CSR's rest)."""
@@ -320,13 +302,13 @@ def ring_sums(points: wp.array(dtype=wp.vec4), first_vertex: int, ring: wp.array
     ratio_sum = float(0.0)
     for j in range(RING_SLOTS):
         entry = ring[j * vertex_count + v]
-        area = padded_area_vector(points, first_vertex, entry.corners, entry.weight)
+        area = triangle_area_vector(points, first_vertex, entry.corners, entry.weight)
         normal_sum += area
         ratio_sum += wp.length(area) / entry.rest_length
     k = begin + RING_SLOTS
     while k < end:
         t = incident[k]
-        area = padded_area_vector(points, first_vertex, triangles[t], triangle_weight[t])
+        area = triangle_area_vector(points, first_vertex, triangles[t], triangle_weight[t])
         normal_sum += area
         ratio_sum += wp.length(area) / rest_area_lengths[t]
         k += 1
@@ -334,25 +316,25 @@ def ring_sums(points: wp.array(dtype=wp.vec4), first_vertex: int, ring: wp.array
 
 
 @wp.func
-def ring_normal_sum(points: wp.array(dtype=wp.vec4), first_vertex: int, ring: wp.array(dtype=RingTriangle), vertex_count: int, v: int,
+def ring_normal_sum(points: wp.array(dtype=wp.vec3), first_vertex: int, ring: wp.array(dtype=RingTriangle), vertex_count: int, v: int,
                     triangles: wp.array(dtype=wp.vec3i), triangle_weight: wp.array(dtype=wp.float32), incident: wp.array(dtype=wp.int32),
                     begin: int, end: int):
     """Σ area vectors over vertex ``v``'s incident triangles (slots, then the CSR's rest)."""
     normal_sum = wp.vec3(0.0, 0.0, 0.0)
     for j in range(RING_SLOTS):
         entry = ring[j * vertex_count + v]
-        normal_sum += padded_area_vector(points, first_vertex, entry.corners, entry.weight)
+        normal_sum += triangle_area_vector(points, first_vertex, entry.corners, entry.weight)
     k = begin + RING_SLOTS
     while k < end:
         t = incident[k]
-        normal_sum += padded_area_vector(points, first_vertex, triangles[t], triangle_weight[t])
+        normal_sum += triangle_area_vector(points, first_vertex, triangles[t], triangle_weight[t])
         k += 1
     return normal_sum
 
 
 @wp.kernel
 def bulge_from_ring(
-    muscle_points: wp.array(dtype=wp.vec4),
+    muscle_points: wp.array(dtype=wp.vec3),
     ring: wp.array(dtype=RingTriangle),
     triangles: wp.array(dtype=wp.vec3i),
     triangle_weight: wp.array(dtype=wp.float32),
@@ -364,13 +346,11 @@ def bulge_from_ring(
     vertex_count: int,
     frame_count: int,
     frames_per_thread: int,
-    keep_stages: int,
     stretch: wp.array(dtype=wp.float32),
-    bulge_points: wp.array(dtype=wp.vec4),
+    bulge_points: wp.array(dtype=wp.vec3),
 ):
     """Per vertex and frame from stored x1: r (mean S'/S of the counted incident triangles, 1 without any)
-    and x2 = x1 + (1/r − 1)·h·N(x1), stored as (x2, r); r alone only with ``keep_stages`` ≠ 0;
-    ``frames_per_thread`` consecutive frames per thread."""
+    and x2 = x1 + (1/r − 1)·h·N(x1); ``frames_per_thread`` consecutive frames per thread."""
     i = wp.tid()
     group = i / vertex_count
     v = i - group * vertex_count
@@ -388,16 +368,16 @@ def bulge_from_ring(
         if count > 0.0:
             r = ratio_sum / count
         out = first_vertex + v
-        if keep_stages != 0:
-            stretch[out] = r
+        stretch[out] = r
         growth = 1.0 / wp.max(r, STRETCH_FLOOR) - 1.0
-        bulge_points[out] = padded(xyz(muscle_points[out]) + (growth * h) * safe_normalize(normal_sum), r)
+        bulge_points[out] = muscle_points[out] + (growth * h) * safe_normalize(normal_sum)
         f += 1
 
 
 @wp.kernel
 def wrinkles_from_ring(
-    bulge_points: wp.array(dtype=wp.vec4),
+    bulge_points: wp.array(dtype=wp.vec3),
+    stretch: wp.array(dtype=wp.float32),
     ring: wp.array(dtype=RingTriangle),
     triangles: wp.array(dtype=wp.vec3i),
     triangle_weight: wp.array(dtype=wp.float32),
@@ -427,13 +407,12 @@ def wrinkles_from_ring(
     while f < last:
         first_vertex = f * vertex_count
         out = first_vertex + v
-        x2 = bulge_points[out]
-        x = xyz(x2)
+        x = bulge_points[out]
         if begin == end:
             final_points[out] = x
         else:
             normal_sum = ring_normal_sum(bulge_points, first_vertex, ring, vertex_count, v, triangles, triangle_weight,
                                          adjacency_triangles, ring_begin, ring_end)
-            height = wrinkle_height(x2[3], depth, f * wrinkle_count, wrinkle_slots, vertex_count, offsets, entries, v, begin, end)
+            height = wrinkle_height(stretch[out], depth, f * wrinkle_count, wrinkle_slots, vertex_count, offsets, entries, v, begin, end)
             final_points[out] = x + height * safe_normalize(normal_sum)
         f += 1

@@ -501,15 +501,14 @@ class ExpressionModel:
         ring_inputs = [self._ring, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, mesh.adjacency_offsets,
                        mesh.adjacency_triangles, self._counts, self._thickness, vertex_count, frames, per_thread]
         wrinkles = (wrinkles_from_ring, dim,
-                    [buffers.bulge_points, self._ring, mesh.triangles, mesh.triangle_weight, mesh.adjacency_offsets,
+                    [buffers.bulge_points, buffers.stretch, self._ring, mesh.triangles, mesh.triangle_weight, mesh.adjacency_offsets,
                      mesh.adjacency_triangles, self._wrinkle_offsets, self._wrinkle_entries, self._wrinkle_slots, depths,
                      buffers.wrinkle_width, vertex_count, frames, per_thread],
                     [final_points])
         if self.launches_per_frame == 3:
             muscles = (muscle_points_over_frames, dim, [mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, controls,
                                                         buffers.muscle_width, vertex_count, frames, per_thread], [buffers.muscle_points])
-            bulge = (bulge_from_ring, dim, [buffers.muscle_points, *ring_inputs, int(keep_muscle_points)],
-                     [buffers.stretch, buffers.bulge_points])
+            bulge = (bulge_from_ring, dim, [buffers.muscle_points, *ring_inputs], [buffers.stretch, buffers.bulge_points])
             return [muscles, bulge, wrinkles]
         bulge = (muscles_and_bulge_from_ring, dim, [*muscle_inputs, *ring_inputs, int(keep_muscle_points)],
                  [buffers.muscle_points, buffers.stretch, buffers.bulge_points])
