@@ -303,7 +303,8 @@ class ExpressionModel:
                 float32 — or a DLPack tensor of the latter, written in place.
             contractions: as in :meth:`evaluate_batch`, or a float32 device array (F, M).
             wrinkle_depths: as in :meth:`evaluate_batch`, or a float32 device array (F, W).
-            progress, frames_per_launch: as in :meth:`evaluate_batch`.
+            progress, frames_per_launch: as in :meth:`evaluate_batch`, except that on CUDA the default
+                chunk is as many frames as fit in 2²⁴ frame·vertices (no host copy to overlap).
 
         Returns:
             ``out``. Same kernels and bit-identical values as :meth:`evaluate_batch`. On CUDA (without a
