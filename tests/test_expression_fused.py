@@ -9,6 +9,7 @@ import warp as wp
 from helpers import small_face_rig
 from warpface import ExpressionModel
 from warpface.expression.kernels import apply_jaw_and_muscles, apply_muscles, apply_wrinkles, stretch_and_bulge, triangle_stretch
+from warpface.expression.kernels_fused import RING_SLOTS
 from warpface.kernels_surface import triangle_area_vectors
 
 DEVICE = "cpu"
@@ -168,8 +169,6 @@ def fan_rig():
 def test_ring_table_overflow_equals_the_five_kernel_sequence(rng, launches):
     """A vertex with more incident triangles than the ring table has slots continues over the CSR: the
     fused plans still equal the five-kernel sequence bit for bit, frame loop included."""
-    from warpface.expression.kernels_fused import RING_SLOTS
-
     mesh, muscles, wrinkles = fan_rig()
     assert np.diff(mesh.adjacency.offsets).max() > int(RING_SLOTS)
     model = ExpressionModel(mesh, muscles, wrinkles, 0.004, device=DEVICE, launches=launches)
@@ -182,3 +181,35 @@ def test_ring_table_overflow_equals_the_five_kernel_sequence(rng, launches):
     out = wp.empty((4, mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
     model.evaluate_batch_into(out, contractions, wrinkle_depths=depths, frames_per_launch=4)
     np.testing.assert_array_equal(out.numpy(), expected["final"])
+
+
+def test_slot_tables_hold_each_rows_first_entries_then_zeros():
+    """Slot j of row v sits at j·V + v: the row's j-th CSR entry while the row has one, a zero entry after;
+    the ring table copies the incident triangle's corners, weight and rest length, and pads with (v, v, v)."""
+    from warpface.expression.kernels import MuscleEntry
+    from warpface.expression.kernels_fused import RingTriangle, ring_table, slot_table
+
+    offsets = np.array([0, 3, 3, 8])  # rows of 3, 0 and 5 entries
+    entries = np.zeros(8, dtype=MuscleEntry.numpy_dtype())
+    entries["muscle"] = np.arange(8) + 10
+    entries["weight"] = np.arange(24, dtype=np.float32).reshape(8, 3) + 1
+    table = slot_table(MuscleEntry, offsets, entries, 4, device=DEVICE).numpy().reshape(4, 3)
+    for row in range(3):
+        count = offsets[row + 1] - offsets[row]
+        for slot in range(4):
+            got = table[slot, row]
+            if slot < count:
+                assert got["muscle"] == entries["muscle"][offsets[row] + slot]
+                np.testing.assert_array_equal(got["weight"], entries["weight"][offsets[row] + slot])
+            else:
+                assert got["muscle"] == 0 and not np.any(got["weight"])
+
+    triangles = np.array([[0, 1, 2], [2, 1, 3]], dtype=np.int32)
+    ring = ring_table(triangles, np.array([1.0, 0.0], np.float32), np.array([0.5, 1.0], np.float32),
+                      np.array([0, 1, 3, 5, 6]), np.array([0, 0, 1, 0, 1, 1]), device=DEVICE).numpy()
+    assert ring.dtype == RingTriangle.numpy_dtype() and ring.shape == (int(RING_SLOTS) * 4,)
+    by_slot = ring.reshape(int(RING_SLOTS), 4)
+    np.testing.assert_array_equal(by_slot["corners"][1, 2], [2, 1, 3])  # vertex 2's second triangle
+    assert by_slot["weight"][1, 2] == 0.0 and by_slot["rest_length"][0, 0] == 0.5
+    np.testing.assert_array_equal(by_slot["corners"][2, 1], [1, 1, 1])  # vertex 1 has two: slot 2 is padding
+    assert by_slot["weight"][2, 1] == 0.0 and by_slot["rest_length"][2, 1] == 1.0
