@@ -10,6 +10,7 @@ import pytest
 
 import warpface as wf
 from warpface.assets import SPHINCTER_MUSCLE_NAMES, default_rig
+from warpface.assets.anatomy import SKIN_RESPONSE_OVERRIDES
 from warpface.assets.rig import CLASSIC_LINEAR_MUSCLE_NAMES, LINEAR_MUSCLE_NAMES
 from warpface.expression import muscle_weights
 from warpface.expression.tissue import neighbourhood_mean, tissue_response
@@ -90,6 +91,29 @@ def test_smooth_sphincter_rim_has_zero_slope():
     np.testing.assert_allclose(dense(points, muscle), expected, atol=1e-12)
 
 
+def test_sphincter_ring_matches_its_float64_formula_and_meets_the_ring_with_zero_slope():
+    ring = 0.6
+    points = np.random.default_rng(2).uniform(-2.5, 2.5, (400, 3))
+    rho = np.sqrt(points[:, 0] ** 2 / 4.0 + points[:, 1] ** 2)
+    fade = np.where(rho < ring, np.sin(rho / ring * np.pi / 2) ** 2, 1.0)
+    expected = np.where((rho < 1)[:, None], -(fade * (1 - rho**2) ** 2)[:, None] * np.c_[points[:, :2], np.zeros(400)], 0.0)
+    muscle = wf.SphincterMuscle("s", [0, 0, 0], [1, 0, 0], [0, 1, 0], (2.0, 1.0), falloff="smooth", ring=ring)
+    np.testing.assert_allclose(dense(points, muscle), expected, atol=1e-12)
+    # Along the x axis (x = 2ρ) the fade's slope in ρ vanishes at the ring: compare one-sided differences of
+    # |d| / ((1 − ρ²)² x), the fade alone, just inside the ring.
+    slopes = []
+    for h in (1e-3, 1e-4):
+        rhos = np.array([ring, ring - h])
+        points = np.c_[2.0 * rhos, np.zeros(2), np.zeros(2)]
+        fade_values = np.linalg.norm(dense(points, muscle), axis=1) / ((1 - rhos**2) ** 2 * points[:, 0])
+        slopes.append(abs(fade_values[0] - fade_values[1]) / h)
+    assert slopes[1] < 5e-3 and slopes[1] < 0.2 * slopes[0]
+    assert np.all(dense(np.zeros((1, 3)), muscle) == 0.0)
+    for bad in (-0.1, 1.0, float("nan")):
+        with pytest.raises(ValueError, match="ring"):
+            wf.SphincterMuscle("s", [0, 0, 0], [1, 0, 0], [0, 1, 0], (2.0, 1.0), ring=bad)
+
+
 def test_smooth_linear_zone_matches_its_float64_formula():
     points = np.random.default_rng(1).uniform(-0.5, 2.0, (2000, 3))
     muscle = wf.LinearMuscle("m", falloff="smooth", **LINEAR)
@@ -106,13 +130,35 @@ def rig():
 def test_waters_forms_of_the_full_rig_still_match_the_section_1_reference(rig):
     points = rig.mesh.points
     for muscle in rig.muscles[:: 5]:
-        classic = replace(muscle, falloff="waters", sliding=0.0, bunching=0.0, thickening=0.0)
+        # §1.1 forms: Waters zones, no sliding, bunching, lobe or ring
+        extra = {"lobe": None} if isinstance(muscle, wf.LinearMuscle) else {"ring": 0.0}
+        classic = replace(muscle, falloff="waters", sliding=0.0, bunching=0.0, thickening=0.0, **extra)
         if isinstance(muscle, wf.LinearMuscle):
             expected = ref.linear_muscle(points, muscle.attachment, muscle.insertion, muscle.zone_angle_deg,
                                          muscle.falloff_start, muscle.falloff_finish, 1.0)
         else:
             expected = ref.sphincter_muscle(points, muscle.center, muscle.axis_x, muscle.axis_y, *muscle.semi_axes, 1.0)
         np.testing.assert_allclose(dense(points, classic), expected, atol=1e-9 * rig.mesh.size, err_msg=muscle.name)
+
+
+def test_a_lobe_adds_its_own_zone_scaled_by_its_gain(rig):
+    points = rig.mesh.points
+    lobed = [m for m in rig.muscles if isinstance(m, wf.LinearMuscle) and m.lobe is not None]
+    assert {m.name for m in lobed} >= {"frontalis_inner_L", "frontalis_middle_R", "orbicularis_oculi_lower_lid_L"}
+    for muscle in lobed:
+        lobe = muscle.lobe
+        classic = replace(muscle, falloff="waters", sliding=0.0, bunching=0.0, thickening=0.0)
+        expected = ref.linear_muscle(points, muscle.attachment, muscle.insertion, muscle.zone_angle_deg,
+                                     muscle.falloff_start, muscle.falloff_finish, 1.0)
+        expected += lobe.gain * ref.linear_muscle(points, lobe.attachment, lobe.insertion, lobe.zone_angle_deg,
+                                                  lobe.falloff_start, lobe.falloff_finish, 1.0)
+        np.testing.assert_allclose(dense(points, classic), expected, atol=1e-9 * rig.mesh.size, err_msg=muscle.name)
+    for bad in (dict(gain=0.0), dict(gain=float("inf")), dict(zone_angle_deg=180.0), dict(falloff_start=2.0)):
+        fields = dict(attachment=[0, 0, 0], insertion=[1, 0, 0], zone_angle_deg=40.0, falloff_start=0.5, falloff_finish=1.5)
+        with pytest.raises(ValueError, match="muscle lobe"):
+            wf.MuscleLobe(**{**fields, **bad})
+    with pytest.raises(TypeError, match="lobe"):
+        wf.LinearMuscle("m", lobe="frontalis", **LINEAR)
 
 
 def test_full_rig_has_every_muscle_with_c1_zones_and_a_jaw(rig):
@@ -122,7 +168,11 @@ def test_full_rig_has_every_muscle_with_c1_zones_and_a_jaw(rig):
                  "nasalis_R", "orbicularis_oculi_upper_lid_L", "orbicularis_oculi_lower_lid_R", "orbicularis_oris_press",
                  "orbicularis_oris_roll_upper"):
         assert name in rig.muscle_names
-    assert all(m.falloff == "smooth" and m.sliding > 0 and m.bunching > 0 for m in rig.muscles)
+    assert all(m.falloff == "smooth" and m.sliding > 0 for m in rig.muscles)
+    assert all(m.bunching > 0 for m in rig.muscles if m.name not in SKIN_RESPONSE_OVERRIDES)
+    assert {m.name for m in rig.muscles if m.bunching == 0} == set(SKIN_RESPONSE_OVERRIDES)
+    assert "frontalis_middle_L" in rig.muscle_names
+    assert next(m for m in rig.muscles if m.name == "orbicularis_oculi_L").ring > 0
     assert rig.jaw is not None and rig.control_names[-3:] == ["jaw_open", "jaw_forward", "jaw_left"]
     classic = default_rig(device=DEVICE, anatomy="classic")
     assert classic.jaw is None and all(m.falloff == "waters" and m.sliding == 0 for m in classic.muscles)
@@ -181,10 +231,39 @@ def test_full_rig_round_trips_through_usd_with_its_jaw(rig, tmp_path):
     np.testing.assert_allclose(back.jaw.weights, rig.jaw.weights)
     np.testing.assert_allclose(back.jaw.pivot, rig.jaw.pivot)
     for original, read in zip(rig.muscles, back.muscles):
-        assert (read.falloff, read.sliding, read.bunching, read.thickening) == (
-            original.falloff, original.sliding, original.bunching, original.thickening)
+        assert (read.falloff, read.sliding, read.bunching, read.thickening, getattr(read, "ring", None)) == (
+            original.falloff, original.sliding, original.bunching, original.thickening, getattr(original, "ring", None))
+        lobes = [getattr(m, "lobe", None) for m in (original, read)]
+        assert (lobes[0] is None) == (lobes[1] is None), original.name
+        if lobes[0] is not None:
+            for field in ("attachment", "insertion", "zone_angle_deg", "falloff_start", "falloff_finish", "gain"):
+                np.testing.assert_allclose(getattr(lobes[1], field), getattr(lobes[0], field), rtol=1e-12, atol=1e-15)
     controls = {"jaw_open": 0.2, "zygomaticus_major_L": 0.004, "orbicularis_oculi_R": 0.2}
     np.testing.assert_allclose(back.model(device=DEVICE).evaluate(controls), rig.model(device=DEVICE).evaluate(controls), atol=1e-6)
+
+
+def test_a_broken_lobe_on_the_stage_is_one_clear_error(rig, tmp_path):
+    from pxr import Usd
+
+    from warpface.usd import read_rig, write_rig
+
+    import shutil
+
+    path = tmp_path / "face.usda"
+    write_rig(path, rig)
+    muscle = "/Face/Muscles/frontalis_inner_L"
+    for case, (edit, message) in enumerate( ((lambda p: p.RemoveProperty("lobe:insertion"), "lobe:insertion: attribute is missing"),
+                          (lambda p: p.GetAttribute("lobe:gain").Set(-1.0), "gain must be in"),
+                          (lambda p: p.GetAttribute("lobe:zoneAngle").Set(float("nan")), "lobe:zoneAngle: expected a finite"))):
+        copy = shutil.copy(path, tmp_path / f"case{case}.usda")  # each edit on its own layer
+        stage = Usd.Stage.Open(str(copy))
+        edit(stage.GetPrimAtPath(muscle))
+        with pytest.raises(wf.RigError, match=message) as caught:
+            read_rig(stage)
+        assert "frontalis_inner_L" in str(caught.value)
+    stage = Usd.Stage.Open(str(shutil.copy(path, tmp_path / "no_lobe.usda")))
+    stage.GetPrimAtPath(muscle).GetAttribute("lobe:gain").Set(0.0)  # 0: no lobe
+    assert next(m for m in read_rig(stage).muscles if m.name == "frontalis_inner_L").lobe is None
 
 
 # ------------------------------------------------------------------------------------------------ presets

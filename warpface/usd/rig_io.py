@@ -34,19 +34,12 @@ from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrink
 from ..mesh import FaceMesh
 from ..rig import FaceRig
 from .jaw_io import author_jaw, read_jaw
+from .lobe_io import author_lobe, read_lobe
 from ._files import LAYER_SUFFIXES, export_layer_atomically, open_stage, writable_path
 from .schema import ensure_schema
 
-__all__ = [
-    "write_rig",
-    "read_rig",
-    "rig_prims",
-    "RigPrims",
-    "stage_meters_per_unit",
-    "SKIN_API",
-    "SHAPE_VARIANT_SET",
-    "REST_VARIANT",
-]
+__all__ = ["write_rig", "read_rig", "rig_prims", "RigPrims", "stage_meters_per_unit", "SKIN_API", "SHAPE_VARIANT_SET",
+           "REST_VARIANT"]
 
 SKIN_API = "WarpFaceSkinAPI"
 SHAPE_VARIANT_SET = "warpFaceShape"
@@ -186,12 +179,14 @@ def _author_muscle(stage, path, muscle) -> Usd.Prim:
         _set(prim, "zoneAngle", types.Double, muscle.zone_angle_deg)
         _set(prim, "falloffStart", types.Double, muscle.falloff_start)
         _set(prim, "falloffFinish", types.Double, muscle.falloff_finish)
+        author_lobe(prim, muscle.lobe)
     else:
         prim = stage.DefinePrim(path, _SPHINCTER)
         _set(prim, "center", types.Double3, tuple(muscle.center))
         _set(prim, "axisX", types.Double3, tuple(muscle.axis_x))
         _set(prim, "axisY", types.Double3, tuple(muscle.axis_y))
         _set(prim, "semiAxes", types.Double2, tuple(muscle.semi_axes))
+        _set(prim, "ring", types.Double, muscle.ring)
     _set(prim, "contraction", types.Double, 0.0, uniform=False)
     _set(prim, "falloff", types.Token, muscle.falloff)
     for name in _RESPONSE:
@@ -496,6 +491,7 @@ def _read_muscle(prim: Usd.Prim, place: Placement, to_units: float):
                 zone_angle_deg=_scalar(prim, "zoneAngle"),
                 falloff_start=_scalar(prim, "falloffStart") * length,
                 falloff_finish=_scalar(prim, "falloffFinish") * length,
+                lobe=read_lobe(prim, place.point, to_units, length),
                 **_muscle_response(prim),
             )
         return SphincterMuscle(
@@ -504,6 +500,7 @@ def _read_muscle(prim: Usd.Prim, place: Placement, to_units: float):
             axis_x=place.direction(_array(prim, "axisX", (3,))),
             axis_y=place.direction(_array(prim, "axisY", (3,))),
             semi_axes=_array(prim, "semiAxes", (2,)) * length,
+            ring=_scalar(prim, "ring"),
             **_muscle_response(prim),
         )
     except RigError:
