@@ -199,14 +199,14 @@ def _frontalis_belly(name, surface: SurfaceSampler, brow_top: float, insertion: 
     height, depth, zone, start, finish = FRONTALIS_BELLIES[belly]
     attachment = surface.below((surface.frame.to_local(insertion)[0] + shift, brow_top + height), depth)
     length = float(np.linalg.norm(insertion - attachment))
-    lobe = None
+    lobes = ()
     if belly in ("inner", "middle"):
         rise, lobe_zone, lobe_start, lobe_finish, gain = GALEA_LOBE
         fixed = surface.frame.to_local(attachment)
         galea = surface.point((fixed[0], fixed[1] + rise))
         lobe_length = float(np.linalg.norm(galea - attachment))
-        lobe = MuscleLobe(attachment, galea, lobe_zone, lobe_start * lobe_length, lobe_finish * lobe_length, gain)
-    return LinearMuscle(name, attachment, insertion, zone, start * length, finish * length, lobe=lobe)
+        lobes = (MuscleLobe(attachment, galea, lobe_zone, lobe_start * lobe_length, lobe_finish * lobe_length, gain),)
+    return LinearMuscle(name, attachment, insertion, zone, start * length, finish * length, lobes=lobes)
 
 
 def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame,
@@ -256,7 +256,7 @@ def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame
         linear[f"orbicularis_oculi_upper_lid_{tag}"] = _linear(
             f"orbicularis_oculi_upper_lid_{tag}", surface, (medial, bottom), 0.06, (eye[0], top + 0.10), 70.0, 0.90, 1.70)
         lid = _linear(f"orbicularis_oculi_lower_lid_{tag}", surface, (medial, top), 0.06, (eye[0], bottom - 0.12), 70.0, 0.90, 2.20)
-        linear[lid.name] = replace(lid, lobe=_cheek_lobe(surface, xy[_LANDMARKS[tag]["eye_inner"]], eye, s))
+        linear[lid.name] = replace(lid, lobes=(_cheek_lobe(surface, xy[_LANDMARKS[tag]["eye_inner"]], eye, s),))
         # Levator palpebrae superioris: from the orbit's roof, deep behind the brow, into the upper lid (eyeWide).
         linear[f"levator_palpebrae_{tag}"] = _linear(
             f"levator_palpebrae_{tag}", surface, (eye[0], top + 0.30), 0.35, (eye[0], top + 0.02), 40.0, 0.90, 1.30)
