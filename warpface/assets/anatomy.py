@@ -119,13 +119,14 @@ CHEEK_LOBE = (0.30, 0.05, 0.15, 0.30, 0.45, 40.0, 0.80, 2.20, 1.45)
 """The lower lid's cheek lobe [inter-ocular units]: (fixed point medial of the inner canthus, and above it,
 depth; insertion lateral of and below the eye's centre; zone half-angle [deg]; falloff start and finish
 as multiples of its length; gain). The lower orbital fibres of the orbicularis oculi lift the cheek
-medially and up with the lower lid in a squint (AU6 with AU7). eyeSquint reach 35.4 → 53.0 % dense,
-30.7 → 47.3 % landmarks; as a separate control it reached 38 % dense and the landmark fit, which sees
+medially and up with the lower lid in a squint (AU6 with AU7). eyeSquint reach 35.4 → 53.3 % dense,
+30.7 → 52.5 % landmarks (with the orbital ring's centre and ring re-tuned); as a separate control it reached 38 % dense and the landmark fit, which sees
 two lower-lid points and the jaw outline, drove it to −33 %."""
 
 ORBITAL_RING = 0.55
 """Ring of the orbital orbicularis oculi (:attr:`~warpface.SphincterMuscle.ring`): its pull fades out inside
-0.65 of its ellipse, over the lids, which the palpebral muscles move (eyeSquint dense reach 28.8 → 32.4 %)."""
+0.55 of its ellipse, over the lids, which the palpebral muscles move (0.65 alone took eyeSquint's dense
+reach from 28.8 to 32.4 %; 0.55 fits best with the lower lid's cheek lobe)"""
 
 SKIN_RESPONSE_OVERRIDES: dict[str, dict] = {f"orbicularis_oculi_lower_lid_{s}": {"bunching": 0.0} for s, _ in _SIDES}
 """Muscles whose skin response differs from the rig's default (``{name: {field: value}}``). The lower lid's
