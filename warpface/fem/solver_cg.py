@@ -49,12 +49,18 @@ from warp.optim.linear import FSAI
 from .assembly import SystemMatrices, bsr_to_scipy, partition_bsr
 from .kernels_cg import SLOT_SPREAD, pcg_kernels
 from .kernels_integrator import cg_newmark_update
+from .kernels_persistent import grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
 from .state import TissueControl, TissueState
 
-__all__ = ["CGSolver", "ConvergenceError", "PRECONDITIONERS", "newmark_operators"]
+__all__ = ["CG_LOOPS", "CGSolver", "ConvergenceError", "PRECONDITIONERS", "newmark_operators"]
 
 PRECONDITIONERS = ("fsai", "block_jacobi", "diag")
+
+CG_LOOPS = ("auto", "persistent", "launched")
+"""How the CG iterations run: ``"persistent"`` (one kernel for all iterations, grid-wide barriers
+between phases, :mod:`warpface.fem.kernels_persistent`), ``"launched"`` (three kernels per iteration
+in a ``wp.capture_while`` loop) or ``"auto"`` (persistent on CUDA, launched on the CPU)."""
 
 # FSAI factor entries per row. On the 6.7k-node face shell at dt = 1e-3 (Kato's material), CG to a
 # 1e-6 relative residual took 148 iterations with Jacobi, 129 with 3x3 block Jacobi and 54 / 43 / 33
@@ -188,6 +194,7 @@ class CGSolver:
             ``"block_jacobi"`` (inverse 3x3 diagonal blocks) or ``"diag"`` (Jacobi).
         chunk: Steps per ring buffer of driven input and recorded displacement.
         use_graph: Capture the step as a graph.
+        loop: One of :data:`CG_LOOPS`.
     """
 
     def __init__(
@@ -203,7 +210,10 @@ class CGSolver:
         preconditioner: str = "fsai",
         chunk: int = 64,
         use_graph: bool = True,
+        loop: str = "auto",
     ):
+        if loop not in CG_LOOPS:
+            raise ValueError(f"CG loop must be one of {CG_LOOPS}, got {loop!r}")
         if dtype not in (wp.float32, wp.float64):
             raise ValueError(f"CG dtype must be wp.float32 or wp.float64, got {dtype}")
         if preconditioner not in PRECONDITIONERS:
@@ -221,6 +231,10 @@ class CGSolver:
         self.tol = float(tol)
         self.chunk = int(chunk)
         self._kernels = pcg_kernels(dtype, *_block_shape(dev))
+        if loop == "auto":
+            loop = "persistent" if dev.is_cuda else "launched"
+        self.loop = loop
+        """``"persistent"`` or ``"launched"`` (see :data:`CG_LOOPS`)."""
         vec = self._kernels.vec
         n = matrices.node_count
         self.node_count = n
@@ -265,6 +279,13 @@ class CGSolver:
         self._guess = wp.zeros(n_free, dtype=vec, device=dev)
         self._slots = wp.zeros((4, self.maxiter + 1, SLOT_SPREAD), dtype=wp.float64, device=dev)
         self._cg_iter = wp.zeros(2, dtype=wp.int32, device=dev)
+        self._barrier = wp.zeros(2, dtype=wp.int32, device=dev)  # persistent loop: [arrivals, gave up]
+        if loop == "persistent":
+            shape = (LANES, ROWS_PER_BLOCK) if dev.is_cuda else (1, 1)  # one CPU thread walks every row
+            self._persistent = persistent_pcg_kernel(dtype, *shape)
+            wanted = -(-n_free // self._persistent.rows)
+            self._persistent_blocks = max(1, min(wanted, grid_capacity(self._persistent.cg_loop, dev,
+                                                                        self._persistent.block_dim)))
         self._condition = wp.zeros(1, dtype=wp.int32, device=dev)
         self._step_count = wp.zeros(1, dtype=wp.int32, device=dev)
         self._status = wp.zeros(5, dtype=wp.int32, device=dev)
@@ -303,6 +324,15 @@ class CGSolver:
             self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq,
                                          self.maxiter])
 
+    def _persistent_loop(self) -> None:
+        A, loop = self._A_oo, self._persistent
+        self._barrier[0:1].zero_()
+        wp.launch_tiled(loop.cg_loop, dim=self._persistent_blocks, block_dim=loop.block_dim, device=self.device,
+                        inputs=[A.offsets, A.columns, A.values, *self._G, *self._GT, self._r, self._r_flat, self._x,
+                                self._y, self._y_flat, self._z, self._p, self._q, self._q_flat, self._slots,
+                                self._cg_iter, self._barrier, wp.float64(self.tol**2), self.maxiter,
+                                self._persistent_blocks])
+
     def _launch_sequence(self, b) -> None:
         k, P, tol_sq = self._kernels, self._P, wp.float64(self.tol**2)
         self._slots.zero_()
@@ -310,10 +340,13 @@ class CGSolver:
         self._launch_tiled(k.residual, [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, b.d_in,
                                         b.v_in, b.a_in, b.trajectory, self._guess, b.ring, self._r, self._x,
                                         self._slots, self._cg_iter, self._condition])
-        self._launch_tiled(k.lower_start, [*self._G, self._r, self._r_flat, self._x, self._slots, self._y])
-        self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq,
-                                     self.maxiter])
-        wp.capture_while(self._condition, self._cg_iterations)
+        if self.loop == "persistent":
+            self._persistent_loop()
+        else:
+            self._launch_tiled(k.lower_start, [*self._G, self._r, self._r_flat, self._x, self._slots, self._y])
+            self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq,
+                                         self.maxiter])
+            wp.capture_while(self._condition, self._cg_iterations)
         wp.launch(
             cg_newmark_update,
             dim=self.node_count,
@@ -405,6 +438,11 @@ class CGSolver:
     def synchronize(self) -> None:
         """Wait for queued steps and raise :class:`ConvergenceError` if any failed."""
         wp.synchronize_device(self.device)
+        if self._barrier.numpy()[1]:
+            raise RuntimeError(
+                f"the persistent CG loop waited too long at a grid barrier on {self.device} (its "
+                f"{self._persistent_blocks} blocks were not all resident); use loop='launched' (cg_loop)"
+            )
         status = self._status.numpy()
         if status[0]:
             residual, tolerance = self._failure.numpy()
@@ -442,3 +480,4 @@ class CGSolver:
         self._step_count.zero_()
         self._status.zero_()
         self._failure.zero_()
+        self._barrier.zero_()
