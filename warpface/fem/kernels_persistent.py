@@ -33,7 +33,7 @@ __all__ = ["BARRIER_POLLS", "grid_capacity", "persistent_pcg_kernel"]
 
 # Straight-line row entries per lane, as in kernels_cg: block rows of A_oo hold ~15 blocks (up to
 # ~30), a block row of an FSAI factor up to 3 x 32 scalars.
-_SPAN_A, _SPAN_G, _MAX_UNROLL = 32, 96, 8
+_SPAN_A, _SPAN_P, _SPAN_G, _MAX_UNROLL = 32, 64, 96, 8
 
 BARRIER_POLLS = 1 << 22
 """Polls of the barrier counter (~1 s) before a block gives up waiting and raises the abort flag."""
@@ -131,13 +131,16 @@ def grid_capacity(kernel, device, block_dim: int) -> int:
 
 @functools.lru_cache(maxsize=None)
 def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
-    """The persistent CG loop for ``dtype`` and block shape (module docstring).
+    """The persistent CG step for ``dtype`` and block shape (module docstring).
 
-    Launch with ``wp.launch_tiled(dim=blocks, block_dim=rows * lanes)``, ``blocks`` at most
-    :func:`grid_capacity`, after ``residual`` of :func:`~warpface.fem.kernels_cg.pcg_kernels` and with
-    ``barrier`` zeroed; on the CPU build it with ``lanes = rows = 1`` and launch one block. Arguments
-    as the kernels of :mod:`warpface.fem.kernels_cg`; it leaves ``cg_iter[0] = cg_iter[1]`` = the
-    iterations done, as the launched loop does.
+    Launch ``cg_step`` with ``wp.launch_tiled(dim=blocks, block_dim=rows * lanes)``, ``blocks`` at
+    most :func:`grid_capacity` and at most the row groups ``ceil(F / rows)``, with the ``slots``
+    cleared; on the CPU build it with ``lanes = rows = 1`` and launch one block. It does the work of
+    ``residual``, ``lower_start``, ``upper`` and the iteration loop of
+    :func:`~warpface.fem.kernels_cg.pcg_kernels` (same arguments, same results) and leaves
+    ``cg_iter[0] = cg_iter[1]`` = the iterations done and ``ring[1] = ring[0]`` for the update kernel.
+    ``barrier`` (3 int32: arrivals, gave up, departures) must start at zero; the last block to leave
+    clears the arrivals and departures again.
     """
     if 32 % lanes:
         raise ValueError(f"lanes must divide 32, got {lanes}")
@@ -145,7 +148,9 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleN
     mat = wp.types.matrix(shape=(3, 3), dtype=dtype)
     spread = SLOT_SPREAD
     lane_sum = lane_sum64 if dtype == wp.float64 else lane_sum32
-    unroll_a, unroll_g = (min(math.ceil(span / lanes), _MAX_UNROLL) for span in (_SPAN_A, _SPAN_G))
+    unroll_a, unroll_p, unroll_g = (min(math.ceil(span / lanes), _MAX_UNROLL) for span in (_SPAN_A, _SPAN_P, _SPAN_G))
+    index_a = wp.types.vector(length=unroll_a, dtype=wp.int32)
+    index_g = wp.types.vector(length=unroll_g, dtype=wp.int32)
 
     @wp.func
     def row_total(part: vec):
@@ -157,17 +162,32 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleN
         return vec(wp.where(axis == 0, value, zero), wp.where(axis == 1, value, zero), wp.where(axis == 2, value, zero))
 
     @wp.func
-    def factor_row(i: int, lane: int, offsets: wp.array(dtype=wp.int32), keys: wp.array(dtype=wp.int32),
+    def fetch_a(offsets: wp.array(dtype=wp.int32), columns: wp.array(dtype=wp.int32), i: int, lane: int):
+        # row bounds and the columns of this lane's straight-line entries, loaded ahead of their use
+        start, end = offsets[i], offsets[i + 1]
+        found = index_a()
+        for s in range(wp.static(unroll_a)):
+            found[s] = columns[wp.min(start + lane + s * lanes, end - 1)]
+        return start, end, found
+
+    @wp.func
+    def fetch_g(offsets: wp.array(dtype=wp.int32), keys: wp.array(dtype=wp.int32), i: int, lane: int):
+        start, end = offsets[i], offsets[i + 1]
+        found = index_g()
+        for s in range(wp.static(unroll_g)):
+            found[s] = keys[wp.min(start + lane + s * lanes, end - 1)]
+        return start, end, found
+
+    @wp.func
+    def factor_row(start: int, end: int, found: index_g, lane: int, keys: wp.array(dtype=wp.int32),
                    values: wp.array(dtype=dtype), u: wp.array(dtype=dtype), w: wp.array(dtype=dtype), alpha: dtype):
         # rows 3i..3i+2 of a grouped scalar factor times (u - alpha w), summed over the lanes
-        start, end = offsets[i], offsets[i + 1]
         acc = vec()
         for s in range(wp.static(unroll_g)):
             e = start + lane + s * lanes
-            c = wp.min(e, end - 1)
-            key = keys[c]
-            col = key // 3
-            acc += wp.where(e < end, unit(key - 3 * col, values[c] * (u[col] - alpha * w[col])), vec())
+            col = found[s] // 3
+            g = values[wp.min(e, end - 1)]
+            acc += wp.where(e < end, unit(found[s] - 3 * col, g * (u[col] - alpha * w[col])), vec())
         for e in range(start + lane + unroll_g * lanes, end, lanes):
             key = keys[e]
             col = key // 3
@@ -175,23 +195,64 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleN
         return row_total(acc)
 
     @wp.func
-    def direction_row(i: int, lane: int, offsets: wp.array(dtype=wp.int32), columns: wp.array(dtype=wp.int32),
+    def direction_row(start: int, end: int, found: index_a, lane: int, columns: wp.array(dtype=wp.int32),
                       values: wp.array(dtype=mat), z: wp.array(dtype=vec), p_old: wp.array(dtype=vec), beta: dtype):
         # (A (z + beta p_old))_i, summed over the lanes
-        start, end = offsets[i], offsets[i + 1]
         acc = vec()
         for s in range(wp.static(unroll_a)):
             e = start + lane + s * lanes
-            c = wp.min(e, end - 1)
-            j = columns[c]
-            acc += wp.where(e < end, values[c] * (z[j] + beta * p_old[j]), vec())
+            j = found[s]
+            acc += wp.where(e < end, values[wp.min(e, end - 1)] * (z[j] + beta * p_old[j]), vec())
         for e in range(start + lane + unroll_a * lanes, end, lanes):
             j = columns[e]
             acc += values[e] * (z[j] + beta * p_old[j])
         return row_total(acc)
 
+    @wp.func
+    def state_entry(e: int, columns: wp.array(dtype=wp.int32), values: wp.array(dtype=mat), d: wp.array(dtype=vec),
+                    v: wp.array(dtype=vec), a: wp.array(dtype=vec), driven: wp.array(dtype=vec)):
+        c = columns[e]
+        n = d.shape[0]
+        u = vec()
+        if c < n:
+            u = d[c]
+        elif c < 2 * n:
+            u = v[c - n]
+        elif c < 3 * n:
+            u = a[c - 2 * n]
+        else:
+            u = driven[c - 3 * n]
+        return values[e] * u
+
+    @wp.func
+    def residual_row(i: int, lane: int, p_offsets: wp.array(dtype=wp.int32), p_columns: wp.array(dtype=wp.int32),
+                     p_values: wp.array(dtype=mat), a_offsets: wp.array(dtype=wp.int32),
+                     a_columns: wp.array(dtype=wp.int32), a_values: wp.array(dtype=mat), d: wp.array(dtype=vec),
+                     v: wp.array(dtype=vec), a: wp.array(dtype=vec), driven: wp.array(dtype=vec),
+                     guess: wp.array(dtype=vec)):
+        # (P [d; v; a; driven])_i and (A guess)_i, summed over the lanes (kernels_cg.residual)
+        p_start, p_end = p_offsets[i], p_offsets[i + 1]
+        a_start, a_end = a_offsets[i], a_offsets[i + 1]
+        acc = vec()
+        for s in range(wp.static(unroll_p)):
+            e = p_start + lane + s * lanes
+            acc += wp.where(e < p_end, state_entry(wp.min(e, p_end - 1), p_columns, p_values, d, v, a, driven), vec())
+        for e in range(p_start + lane + unroll_p * lanes, p_end, lanes):
+            acc += state_entry(e, p_columns, p_values, d, v, a, driven)
+        correction = vec()
+        for s in range(wp.static(unroll_a)):
+            e = wp.min(a_start + lane + s * lanes, a_end - 1)
+            correction += wp.where(a_start + lane + s * lanes < a_end, a_values[e] * guess[a_columns[e]], vec())
+        for e in range(a_start + lane + unroll_a * lanes, a_end, lanes):
+            correction += a_values[e] * guess[a_columns[e]]
+        predicted = row_total(acc)
+        return predicted, predicted - row_total(correction)
+
     @wp.kernel(enable_backward=False, module="unique", grid_stride=False)
-    def cg_loop(
+    def cg_step(
+        p_offsets: wp.array(dtype=wp.int32),
+        p_columns: wp.array(dtype=wp.int32),
+        p_values: wp.array(dtype=mat),
         a_offsets: wp.array(dtype=wp.int32),
         a_columns: wp.array(dtype=wp.int32),
         a_values: wp.array(dtype=mat),
@@ -201,6 +262,12 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleN
         t_offsets: wp.array(dtype=wp.int32),
         t_keys: wp.array(dtype=wp.int32),
         t_values: wp.array(dtype=dtype),
+        d: wp.array(dtype=vec),
+        v: wp.array(dtype=vec),
+        a: wp.array(dtype=vec),
+        trajectory: wp.array2d(dtype=vec),
+        guess: wp.array(dtype=vec),
+        ring: wp.array(dtype=wp.int32),
         r: wp.array2d(dtype=vec),
         r_flat: wp.array2d(dtype=dtype),
         x: wp.array(dtype=vec),
@@ -217,28 +284,62 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleN
         maxiter: int,
         blocks: int,
     ):
-        """Start and every CG iteration, phases separated by :func:`grid_sync` (module docstring)."""
+        """Residuals, start and every CG iteration, phases separated by :func:`grid_sync` (module docstring).
+        Each phase's row indices for the block's first row group are loaded before the barrier ahead of it."""
         block, thread = wp.tid()
         local = thread // lanes
         lane = thread - local * lanes
         count = x.shape[0]
         groups = (count + rows - 1) // rows
+        first_row = block * rows + local
+        first = wp.min(first_row, count - 1)
         arrivals = int(0)
 
-        # start from the better of residual's two points (as lower_start): y = G r0
+        # residuals of the predictor (r[1]) and of the extrapolated start (r[0]), as kernels_cg.residual
+        slot = ring[0]
+        driven = trajectory[slot]
+        predicted_sq = wp.float64(0.0)
+        extrapolated_sq = wp.float64(0.0)
+        for g in range(block, groups, blocks):
+            row = g * rows + local
+            i = wp.min(row, count - 1)
+            predicted, extrapolated = residual_row(i, lane, p_offsets, p_columns, p_values, a_offsets, a_columns,
+                                                   a_values, d, v, a, driven, guess)
+            if row < count and lane == 0:
+                r[0, i] = extrapolated
+                r[1, i] = predicted
+                x[i] = guess[i]
+                predicted_sq += wp.float64(wp.dot(predicted, predicted))
+                extrapolated_sq += wp.float64(wp.dot(extrapolated, extrapolated))
+        predicted_sq = block_sum64(predicted_sq)
+        extrapolated_sq = block_sum64(extrapolated_sq)
+        if thread == 0:
+            wp.atomic_add(slots, START, 0, block % spread, predicted_sq)
+            wp.atomic_add(slots, START, 1, block % spread, extrapolated_sq)
+            if block == 0:
+                ring[1] = slot
+        g_start, g_end, g_found = fetch_g(g_offsets, g_keys, first, lane)
+        arrivals += 1
+        grid_sync(barrier, arrivals * blocks)
+
+        # start from the better of the two points (as lower_start): y = G r0
         use = int(0)
         if not (slot_total(slots, START, 1) <= slot_total(slots, START, 0)):
             use = 1
         r_use = r_flat[use]
-        for g in range(block, groups, blocks):
+        g = block
+        while g < groups:
             row = g * rows + local
             i = wp.min(row, count - 1)
-            yi = factor_row(i, lane, g_offsets, g_keys, g_values, r_use, r_use, dtype(0.0))
+            yi = factor_row(g_start, g_end, g_found, lane, g_keys, g_values, r_use, r_use, dtype(0.0))
             if row < count and lane == 0:
                 y[i] = yi
                 if use == 1:
                     r[0, i] = r[1, i]
                     x[i] = vec()
+            g += blocks
+            g_start, g_end, g_found = fetch_g(g_offsets, g_keys, wp.min(g * rows + local, count - 1), lane)
+        t_start, t_end, t_found = fetch_g(t_offsets, t_keys, first, lane)
         arrivals += 1
         grid_sync(barrier, arrivals * blocks)
 
@@ -248,20 +349,24 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleN
             # upper: z = Gᵀ y, r·z and r·r of iteration k from r[k % 2]
             rz = wp.float64(0.0)
             rr = wp.float64(0.0)
-            for g in range(block, groups, blocks):
+            g = block
+            while g < groups:
                 row = g * rows + local
                 i = wp.min(row, count - 1)
-                zi = factor_row(i, lane, t_offsets, t_keys, t_values, y_flat, y_flat, dtype(0.0))
+                zi = factor_row(t_start, t_end, t_found, lane, t_keys, t_values, y_flat, y_flat, dtype(0.0))
                 if row < count and lane == 0:
                     ri = r[k % 2, i]
                     z[i] = zi
                     rz += wp.float64(wp.dot(ri, zi))
                     rr += wp.float64(wp.dot(ri, ri))
+                g += blocks
+                t_start, t_end, t_found = fetch_g(t_offsets, t_keys, wp.min(g * rows + local, count - 1), lane)
             rz = block_sum64(rz)
             rr = block_sum64(rr)
             if thread == 0:
                 wp.atomic_add(slots, RZ, k, block % spread, rz)
                 wp.atomic_add(slots, RR, k, block % spread, rr)
+            a_start, a_end, a_found = fetch_a(a_offsets, a_columns, first, lane)
             arrivals += 1
             grid_sync(barrier, arrivals * blocks)
             if cg_finished(slots, k, tol_sq, maxiter) or barrier[1] != 0:
@@ -274,40 +379,53 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleN
                 new = k % 2
                 p_old = p[1 - new]
                 pq = wp.float64(0.0)
-                for g in range(block, groups, blocks):
+                g = block
+                while g < groups:
                     row = g * rows + local
                     i = wp.min(row, count - 1)
-                    qi = direction_row(i, lane, a_offsets, a_columns, a_values, z, p_old, beta)
+                    qi = direction_row(a_start, a_end, a_found, lane, a_columns, a_values, z, p_old, beta)
                     if row < count and lane == 0:
                         pi = z[i] + beta * p_old[i]
                         p[new, i] = pi
                         q[i] = qi
                         pq += wp.float64(wp.dot(pi, qi))
+                    g += blocks
+                    a_start, a_end, a_found = fetch_a(a_offsets, a_columns, wp.min(g * rows + local, count - 1), lane)
                 pq = block_sum64(pq)
                 if thread == 0:
                     wp.atomic_add(slots, PQ, k, block % spread, pq)
+                g_start, g_end, g_found = fetch_g(g_offsets, g_keys, first, lane)
                 arrivals += 1
                 grid_sync(barrier, arrivals * blocks)
 
                 # lower: x += α p, r[(k+1) % 2] = r[k % 2] − α q, y = G r_new
                 alpha = dtype(slot_total(slots, RZ, k) / slot_total(slots, PQ, k))
                 r_cur = r_flat[new]
-                for g in range(block, groups, blocks):
+                g = block
+                while g < groups:
                     row = g * rows + local
                     i = wp.min(row, count - 1)
-                    yi = factor_row(i, lane, g_offsets, g_keys, g_values, r_cur, q_flat, alpha)
+                    yi = factor_row(g_start, g_end, g_found, lane, g_keys, g_values, r_cur, q_flat, alpha)
                     if row < count and lane == 0:
                         x[i] = x[i] + alpha * p[new, i]
                         r[1 - new, i] = r[new, i] - alpha * q[i]
                         y[i] = yi
+                    g += blocks
+                    g_start, g_end, g_found = fetch_g(g_offsets, g_keys, wp.min(g * rows + local, count - 1), lane)
+                t_start, t_end, t_found = fetch_g(t_offsets, t_keys, first, lane)
                 arrivals += 1
                 grid_sync(barrier, arrivals * blocks)
                 k += 1
-        if block == 0 and thread == 0:
-            if barrier[1] != 0:  # a block gave up at a barrier: book the step as not converged
-                k = maxiter
-                slots[RR, k, 0] = wp.float64(wp.nan)
-            cg_iter[0] = k
-            cg_iter[1] = k
+        if thread == 0:
+            if block == 0:
+                if barrier[1] != 0:  # a block gave up at a barrier: book the step as not converged
+                    k = maxiter
+                    slots[RR, k, 0] = wp.float64(wp.nan)
+                cg_iter[0] = k
+                cg_iter[1] = k
+            # every block has passed its last barrier: the last one out clears the counters for the next step
+            if wp.atomic_add(barrier, 2, 1) == blocks - 1:
+                barrier[0] = 0
+                barrier[2] = 0
 
-    return types.SimpleNamespace(vec=vec, block_dim=rows * lanes, rows=rows, cg_loop=cg_loop)
+    return types.SimpleNamespace(vec=vec, block_dim=rows * lanes, rows=rows, cg_step=cg_step)

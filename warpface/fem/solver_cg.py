@@ -74,6 +74,11 @@ FSAI_ROW_SIZE = 32
 # 8x16 24.6 / 49.8, 32x4 27.3 / 73.5, one 32-thread block per row 47 / -.
 LANES, ROWS_PER_BLOCK = 16, 8
 
+# Thread-block shape of the persistent CG kernel (cg_loop="persistent"). H200, 6.7k nodes (3.9k free),
+# ms per step with the mouth opening (10.2 iterations): 16x8 0.208, 8x16 0.215, 16x16 0.192, 32x4 0.275,
+# 8x8 0.227, 16x4 0.264, 4x32 0.374 (first version, before indices were loaded ahead of the barriers).
+PERSISTENT_LANES, PERSISTENT_ROWS = 16, 16
+
 # CG iterations per pass of the device loop: the loop's condition node costs about a kernel
 # launch, and at most UNROLL - 1 finished (empty) iterations are launched after convergence.
 UNROLL = 2
@@ -279,12 +284,12 @@ class CGSolver:
         self._guess = wp.zeros(n_free, dtype=vec, device=dev)
         self._slots = wp.zeros((4, self.maxiter + 1, SLOT_SPREAD), dtype=wp.float64, device=dev)
         self._cg_iter = wp.zeros(2, dtype=wp.int32, device=dev)
-        self._barrier = wp.zeros(2, dtype=wp.int32, device=dev)  # persistent loop: [arrivals, gave up]
+        self._barrier = wp.zeros(3, dtype=wp.int32, device=dev)  # persistent: [arrivals, gave up, departures]
         if loop == "persistent":
-            shape = (LANES, ROWS_PER_BLOCK) if dev.is_cuda else (1, 1)  # one CPU thread walks every row
+            shape = (PERSISTENT_LANES, PERSISTENT_ROWS) if dev.is_cuda else (1, 1)  # one CPU thread walks every row
             self._persistent = persistent_pcg_kernel(dtype, *shape)
             wanted = -(-n_free // self._persistent.rows)
-            self._persistent_blocks = max(1, min(wanted, grid_capacity(self._persistent.cg_loop, dev,
+            self._persistent_blocks = max(1, min(wanted, grid_capacity(self._persistent.cg_step, dev,
                                                                         self._persistent.block_dim)))
         self._condition = wp.zeros(1, dtype=wp.int32, device=dev)
         self._step_count = wp.zeros(1, dtype=wp.int32, device=dev)
@@ -324,25 +329,22 @@ class CGSolver:
             self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq,
                                          self.maxiter])
 
-    def _persistent_loop(self) -> None:
-        A, loop = self._A_oo, self._persistent
-        self._barrier[0:1].zero_()
-        wp.launch_tiled(loop.cg_loop, dim=self._persistent_blocks, block_dim=loop.block_dim, device=self.device,
-                        inputs=[A.offsets, A.columns, A.values, *self._G, *self._GT, self._r, self._r_flat, self._x,
-                                self._y, self._y_flat, self._z, self._p, self._q, self._q_flat, self._slots,
-                                self._cg_iter, self._barrier, wp.float64(self.tol**2), self.maxiter,
-                                self._persistent_blocks])
-
     def _launch_sequence(self, b) -> None:
         k, P, tol_sq = self._kernels, self._P, wp.float64(self.tol**2)
         self._slots.zero_()
         A = self._A_oo
-        self._launch_tiled(k.residual, [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, b.d_in,
-                                        b.v_in, b.a_in, b.trajectory, self._guess, b.ring, self._r, self._x,
-                                        self._slots, self._cg_iter, self._condition])
         if self.loop == "persistent":
-            self._persistent_loop()
+            step = self._persistent
+            wp.launch_tiled(step.cg_step, dim=self._persistent_blocks, block_dim=step.block_dim, device=self.device,
+                            inputs=[P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, *self._G, *self._GT,
+                                    b.d_in, b.v_in, b.a_in, b.trajectory, self._guess, b.ring, self._r, self._r_flat,
+                                    self._x, self._y, self._y_flat, self._z, self._p, self._q, self._q_flat,
+                                    self._slots, self._cg_iter, self._barrier, tol_sq, self.maxiter,
+                                    self._persistent_blocks])
         else:
+            self._launch_tiled(k.residual, [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, b.d_in,
+                                            b.v_in, b.a_in, b.trajectory, self._guess, b.ring, self._r, self._x,
+                                            self._slots, self._cg_iter, self._condition])
             self._launch_tiled(k.lower_start, [*self._G, self._r, self._r_flat, self._x, self._slots, self._y])
             self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq,
                                          self.maxiter])
