@@ -29,11 +29,14 @@ import warp as wp
 
 from .kernels_cg import PQ, RR, RZ, SLOT_SPREAD, START, cg_finished, slot_total
 
-__all__ = ["BARRIER_POLLS", "grid_capacity", "persistent_pcg_kernel"]
+__all__ = ["BARRIER_POLLS", "RESIDENT_THREADS", "grid_capacity", "persistent_pcg_kernel"]
 
 # Straight-line row entries per lane, as in kernels_cg: block rows of A_oo hold ~15 blocks (up to
 # ~30), a block row of an FSAI factor up to 3 x 32 scalars.
 _SPAN_A, _SPAN_P, _SPAN_G, _MAX_UNROLL = 32, 64, 96, 8
+
+RESIDENT_THREADS = 512
+"""Threads per multiprocessor the persistent kernel is compiled to fit (``__launch_bounds__``)."""
 
 BARRIER_POLLS = 1 << 22
 """Polls of the barrier counter (~1 s) before a block gives up waiting and raises the abort flag."""
@@ -248,7 +251,11 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleN
         predicted = row_total(acc)
         return predicted, predicted - row_total(correction)
 
-    @wp.kernel(enable_backward=False, module="unique", grid_stride=False)
+    # at least RESIDENT_THREADS threads per multiprocessor: caps the registers (128 a thread for 512), so that a
+    # grid of one row group per block stays resident (H200, 6.7k nodes, 16x16: 130 registers and 132 resident
+    # blocks for 247 row groups without the bound)
+    @wp.kernel(enable_backward=False, module="unique", grid_stride=False,
+               launch_bounds=(rows * lanes, max(1, RESIDENT_THREADS // (rows * lanes))))
     def cg_step(
         p_offsets: wp.array(dtype=wp.int32),
         p_columns: wp.array(dtype=wp.int32),

@@ -21,6 +21,11 @@ Everything lives on the Warp device. One time step (kernels in :mod:`warpface.fe
    displacement recorded, the extrapolation for the next step, and the step's convergence status
    booked on the device.
 
+With ``loop="persistent"`` (the default on CUDA) steps 1–3 are one kernel
+(:mod:`warpface.fem.kernels_persistent`): the same phases and arithmetic, separated by grid-wide
+barriers instead of launches, at most as many blocks as the GPU holds at once; a step is then a
+memset of the dot-product slots, that kernel and the update.
+
 :meth:`CGSolver.step` reads ``state_in`` and the control and writes ``state_out``. On CUDA the
 sequence is captured with ``wp.ScopedCapture`` once per combination of state and control arrays
 (a simulation stepping one state in place, or two in turn, has one or two graphs), and each step
@@ -33,8 +38,9 @@ FSAI (``warp.optim.linear.FSAI``), or the inverse Cholesky factors of the 3x3 di
 (block Jacobi) or of the diagonal (Jacobi).
 
 Compared with Warp's stock ``warp.optim.linear.cg`` (about eleven dependent launches per
-iteration), an iteration here is three kernels, and the extrapolated start cuts the iteration
-count by more than half during smooth motion (measurements: ``benchmarks/README.md``).
+iteration), an iteration here is three kernels (or three barriers of the persistent kernel), and
+the extrapolated start cuts the iteration count by more than half during smooth motion
+(measurements: ``benchmarks/README.md``).
 """
 
 from __future__ import annotations
