@@ -80,9 +80,11 @@ FSAI_ROW_SIZE = 32
 # 8x16 24.6 / 49.8, 32x4 27.3 / 73.5, one 32-thread block per row 47 / -.
 LANES, ROWS_PER_BLOCK = 16, 8
 
-# Thread-block shape of the persistent CG kernel (cg_loop="persistent"). H200, 6.7k nodes (3.9k free),
-# ms per step with the mouth opening (10.2 iterations): 16x8 0.208, 8x16 0.215, 16x16 0.192, 32x4 0.275,
-# 8x8 0.227, 16x4 0.264, 4x32 0.374 (first version, before indices were loaded ahead of the barriers).
+# Thread-block shape (lanes x rows) of the persistent CG kernel (cg_loop="persistent"). H200, 6.7k nodes
+# (3.9k free), ms per step of the benchmark's mouth opening (10.2 iterations), kernel compiled for 512
+# resident threads per multiprocessor: 16x16 0.185, 8x16 0.204, 8x32 0.202, 16x8 0.206 (a first version
+# without the residual phase: 16x16 0.192, 16x8 0.208, 8x16 0.215, 8x8 0.227, 16x4 0.264, 32x4 0.275,
+# 4x32 0.374). The launched loop: 0.297.
 PERSISTENT_LANES, PERSISTENT_ROWS = 16, 16
 
 # CG iterations per pass of the device loop: the loop's condition node costs about a kernel
