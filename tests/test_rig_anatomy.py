@@ -10,6 +10,7 @@ import pytest
 
 import warpface as wf
 from warpface.assets import SPHINCTER_MUSCLE_NAMES, default_rig
+from warpface.assets.anatomy import SKIN_RESPONSE_OVERRIDES
 from warpface.assets.rig import CLASSIC_LINEAR_MUSCLE_NAMES, LINEAR_MUSCLE_NAMES
 from warpface.expression import muscle_weights
 from warpface.expression.tissue import neighbourhood_mean, tissue_response
@@ -90,6 +91,29 @@ def test_smooth_sphincter_rim_has_zero_slope():
     np.testing.assert_allclose(dense(points, muscle), expected, atol=1e-12)
 
 
+def test_sphincter_ring_matches_its_float64_formula_and_meets_the_ring_with_zero_slope():
+    ring = 0.6
+    points = np.random.default_rng(2).uniform(-2.5, 2.5, (400, 3))
+    rho = np.sqrt(points[:, 0] ** 2 / 4.0 + points[:, 1] ** 2)
+    fade = np.where(rho < ring, np.sin(rho / ring * np.pi / 2) ** 2, 1.0)
+    expected = np.where((rho < 1)[:, None], -(fade * (1 - rho**2) ** 2)[:, None] * np.c_[points[:, :2], np.zeros(400)], 0.0)
+    muscle = wf.SphincterMuscle("s", [0, 0, 0], [1, 0, 0], [0, 1, 0], (2.0, 1.0), falloff="smooth", ring=ring)
+    np.testing.assert_allclose(dense(points, muscle), expected, atol=1e-12)
+    # Along the x axis (x = 2ρ) the fade's slope in ρ vanishes at the ring: compare one-sided differences of
+    # |d| / ((1 − ρ²)² x), the fade alone, just inside the ring.
+    slopes = []
+    for h in (1e-3, 1e-4):
+        rhos = np.array([ring, ring - h])
+        points = np.c_[2.0 * rhos, np.zeros(2), np.zeros(2)]
+        fade_values = np.linalg.norm(dense(points, muscle), axis=1) / ((1 - rhos**2) ** 2 * points[:, 0])
+        slopes.append(abs(fade_values[0] - fade_values[1]) / h)
+    assert slopes[1] < 5e-3 and slopes[1] < 0.2 * slopes[0]
+    assert np.all(dense(np.zeros((1, 3)), muscle) == 0.0)
+    for bad in (-0.1, 1.0, float("nan")):
+        with pytest.raises(ValueError, match="ring"):
+            wf.SphincterMuscle("s", [0, 0, 0], [1, 0, 0], [0, 1, 0], (2.0, 1.0), ring=bad)
+
+
 def test_smooth_linear_zone_matches_its_float64_formula():
     points = np.random.default_rng(1).uniform(-0.5, 2.0, (2000, 3))
     muscle = wf.LinearMuscle("m", falloff="smooth", **LINEAR)
@@ -122,7 +146,11 @@ def test_full_rig_has_every_muscle_with_c1_zones_and_a_jaw(rig):
                  "nasalis_R", "orbicularis_oculi_upper_lid_L", "orbicularis_oculi_lower_lid_R", "orbicularis_oris_press",
                  "orbicularis_oris_roll_upper"):
         assert name in rig.muscle_names
-    assert all(m.falloff == "smooth" and m.sliding > 0 and m.bunching > 0 for m in rig.muscles)
+    assert all(m.falloff == "smooth" and m.sliding > 0 for m in rig.muscles)
+    assert all(m.bunching > 0 for m in rig.muscles if m.name not in SKIN_RESPONSE_OVERRIDES)
+    assert {m.name for m in rig.muscles if m.bunching == 0} == set(SKIN_RESPONSE_OVERRIDES)
+    assert "frontalis_middle_L" in rig.muscle_names
+    assert next(m for m in rig.muscles if m.name == "orbicularis_oculi_L").ring > 0
     assert rig.jaw is not None and rig.control_names[-3:] == ["jaw_open", "jaw_forward", "jaw_left"]
     classic = default_rig(device=DEVICE, anatomy="classic")
     assert classic.jaw is None and all(m.falloff == "waters" and m.sliding == 0 for m in classic.muscles)
@@ -181,8 +209,8 @@ def test_full_rig_round_trips_through_usd_with_its_jaw(rig, tmp_path):
     np.testing.assert_allclose(back.jaw.weights, rig.jaw.weights)
     np.testing.assert_allclose(back.jaw.pivot, rig.jaw.pivot)
     for original, read in zip(rig.muscles, back.muscles):
-        assert (read.falloff, read.sliding, read.bunching, read.thickening) == (
-            original.falloff, original.sliding, original.bunching, original.thickening)
+        assert (read.falloff, read.sliding, read.bunching, read.thickening, getattr(read, "ring", None)) == (
+            original.falloff, original.sliding, original.bunching, original.thickening, getattr(original, "ring", None))
     controls = {"jaw_open": 0.2, "zygomaticus_major_L": 0.004, "orbicularis_oculi_R": 0.2}
     np.testing.assert_allclose(back.model(device=DEVICE).evaluate(controls), rig.model(device=DEVICE).evaluate(controls), atol=1e-6)
 

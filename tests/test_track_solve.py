@@ -94,11 +94,13 @@ def test_exact_landmarks_recover_the_controls_and_the_stage_round_trips(tmp_path
     scale = tracker.solver.reach  # displacement per unit contraction
     for f, frame in enumerate(solved):
         assert not frame.skipped
-        # From 60 landmarks, pose free: < 0.1 mm of any muscle's motion (59 µm measured: the brows' falloff
-        # ends close below them, so a few controls are seen by only the brow landmarks) and of any skin point.
-        assert np.abs((frame.controls - controls[f]) * scale).max() < 1e-4
+        # From 60 landmarks, pose free: < 0.15 mm of any muscle's motion (103 µm measured, risorius in the
+        # smile: its pull slides along the side of the cheek, where the dots are sparse; the brows' falloff
+        # ends close below them, so a few controls are seen by only the brow dots) and of any skin point.
+        worst = np.argmax(np.abs((frame.controls - controls[f]) * scale))
+        assert np.abs((frame.controls - controls[f]) * scale).max() < 1.5e-4, (f, rig.control_names[worst])
         error = np.linalg.norm(frame.skin - truth[f], axis=1)
-        assert error.max() < 1e-4 and error.mean() < 5e-6
+        assert error.max() < 2e-4 and error.mean() < 5e-6  # 0.13 mm measured, at the cheek side (risorius)
         assert frame.residual < 1e-5
 
     back = read_solved_capture(stage)
@@ -149,9 +151,9 @@ def test_head_motion_is_solved_as_the_pose_and_written(tmp_path, rig, vertices):
     truth = model.evaluate_batch(controls).astype(np.float64)
     back = read_solved_capture(stage)
     for f, (rotation, translation) in enumerate(poses):
-        # 0.25 mm of skin per control: the full rig's 47 controls and the pose share 60 dots, and the lid and
-        # lip muscles are nearly collinear there (the classic rig's 23 gave < 0.1 mm)
-        assert np.abs((solved[f].controls - controls[f]) * tracker.solver.reach).max() < 2.5e-4
+        # 0.35 mm of skin per control: the full rig's 49 controls and the pose share 60 dots, and the lid and
+        # lip muscles are nearly collinear there (0.28 mm measured; the classic rig's 23 gave < 0.1 mm)
+        assert np.abs((solved[f].controls - controls[f]) * tracker.solver.reach).max() < 3.5e-4
         moved = np.c_[truth[f], np.ones(len(truth[f]))] @ back["head_pose"][f]  # row vectors, as USD
         expected = truth[f] @ rotation.T + translation
         assert np.abs(moved[:, :3] - expected).max() < 1e-4  # 0.1 mm: the face placed where the camera saw it

@@ -6,6 +6,8 @@ inter-ocular units, relative to the 68 iBUG landmarks; bone attachments beneath 
 
 Linear, per side:
 
+- frontalis, middle belly: galea over the mid-forehead → skin above the brow's midpoint (AU1 + AU2,
+  ``browInnerUp``, ``browOuterUp``), between the classic inner and outer bellies;
 - depressor supercilii: medial orbital rim → skin of the brow head, down (AU4, ``browDown``);
 - levator anguli oris: canine fossa → mouth corner, straight up (AU13, ``mouthSmile``, ``cheekPuff``);
 - zygomaticus minor: zygomatic bone → lateral upper lip, up and out (AU11, ``mouthUpper``);
@@ -20,9 +22,10 @@ Linear, per side:
 
 Sphincters (replacing the classic lateral orbicularis oculi):
 
-- orbicularis oculi orbital part, per side: centred between the eye and its medial canthus (the fibres
-  arise from the medial orbital margin and the medial palpebral ligament, so the skin around the
-  eye is drawn toward it: cheek up, brow tail down, temple skin medially — AU6, ``cheekSquint``);
+- orbicularis oculi orbital part, per side: a ring (:data:`ORBITAL_RING`) centred between the eye and its
+  medial canthus (the fibres arise from the medial orbital margin and the medial palpebral ligament, so
+  the skin around the eye is drawn toward it: cheek up, brow tail down, temple skin medially — AU6,
+  ``cheekSquint``); the lids inside the ring are left to the palpebral part;
 - orbicularis oris press: a flat ellipse on the lips' contact line that presses the lips together
   (AU24, ``mouthPress``, ``mouthClose``).
 """
@@ -40,13 +43,14 @@ _SIDES = (("L", +1.0), ("R", -1.0))
 # iBUG indices per side: brow inner end, eye inner/outer corner, eye ring, nose wing, mouth corner,
 # upper-lip border point, lower-lip border point, jaw outline at mouth level, jaw outline below the corner.
 _LANDMARKS = {
-    "L": dict(brow_inner=22, eye_inner=42, eye_outer=45, eye=tuple(range(42, 48)), wing=35, corner=54, upper=52,
+    "L": dict(brow_inner=22, brow_middle=24, eye_inner=42, eye_outer=45, eye=tuple(range(42, 48)), wing=35, corner=54, upper=52,
               lower=56, jaw_mouth=12, jaw_low=10),
-    "R": dict(brow_inner=21, eye_inner=39, eye_outer=36, eye=tuple(range(36, 42)), wing=31, corner=48, upper=50,
+    "R": dict(brow_inner=21, brow_middle=19, eye_inner=39, eye_outer=36, eye=tuple(range(36, 42)), wing=31, corner=48, upper=50,
               lower=58, jaw_mouth=4, jaw_low=6),
 }
 
 ANATOMY_LINEAR_MUSCLE_NAMES: tuple[str, ...] = (
+    *(f"frontalis_middle_{s}" for s, _ in _SIDES),
     *(f"depressor_supercilii_{s}" for s, _ in _SIDES),
     *(f"levator_anguli_oris_{s}" for s, _ in _SIDES),
     *(f"zygomaticus_minor_{s}" for s, _ in _SIDES),
@@ -73,21 +77,35 @@ def _linear(name, surface: SurfaceSampler, origin_xy, depth, insertion_xy, zone_
     return LinearMuscle(name, attachment, insertion, zone_deg, start * length, finish * length)
 
 
-ORBITAL_SEMI_AXES = (0.95, 0.85)
+ORBITAL_SEMI_AXES = (0.95, 0.70)
 """Semi-axes (across, up) of the orbital orbicularis oculi [inter-ocular units]: its pull reaches the
-upper cheek below and lateral of the eye, where a squint (AU6) moves the skin most (eyeSquint reach
-24 % → 29 % dense against (0.72, 0.58); docs/RIG.md)."""
+upper cheek below and lateral of the eye, where a squint (AU6) moves the skin most (docs/RIG.md §5)."""
+ORBITAL_CENTRE = 0.40
+"""Where the orbital orbicularis oculi is centred, as a fraction of the way from the eye's centre to its
+medial canthus: its fibres arise from the medial orbital margin and the medial palpebral ligament."""
 
 FRONTALIS_BELLIES = {
     # belly: (height of the fixed point above the brow top, its depth beneath the skin, zone half-angle [deg],
     #         falloff start and finish as multiples of the belly's length)
-    "inner": (0.60, 0.20, 42.0, 1.15, 1.60),
+    "inner": (0.60, 0.20, 36.0, 1.25, 2.00),
+    "middle": (0.75, 0.06, 37.0, 1.25, 1.60),
     "outer": (0.90, 0.00, 48.0, 1.15, 1.60),
 }
 """The full rig's frontalis bellies [inter-ocular units], fitted by coordinate search to the ICT-FaceKit
-brow shapes with :func:`warpface.solve.fit` (docs/RIG.md §5): dense reach browInnerUp 30.5 → 33.3 %,
-browOuterUp 25.3 → 45.1 %. The falloff ends 0.6 lengths beyond the brow: the lids stay put (on those
-shapes the brows rise 6–8 mm while the upper lids move 0.3 mm)."""
+brow shapes with :func:`warpface.solve.fit` (docs/RIG.md §5). The middle belly (above the brow's
+midpoint, its fixed point 0.1 units medial) spreads the rise over the forehead's width: dense reach
+browInnerUp 33.3 → 42.7 %, browOuterUp 45.1 → 51.1 % with it and the inner belly's wider falloff. The
+falloff ends 0.6–1 lengths beyond the brow: the lids stay put (on those shapes the brows rise 6–8 mm
+while the upper lids move 0.3 mm)."""
+
+ORBITAL_RING = 0.65
+"""Ring of the orbital orbicularis oculi (:attr:`~warpface.SphincterMuscle.ring`): its pull fades out inside
+0.65 of its ellipse, over the lids, which the palpebral muscles move (eyeSquint dense reach 28.8 → 32.4 %)."""
+
+SKIN_RESPONSE_OVERRIDES: dict[str, dict] = {f"orbicularis_oculi_lower_lid_{s}": {"bunching": 0.0} for s, _ in _SIDES}
+"""Muscles whose skin response differs from the rig's default (``{name: {field: value}}``). The lower lid's
+skin is 1 mm thin over the eyeball's curve: bunching lifted its margin ~1 mm out of the face beyond
+ICT's eyeSquint (dense reach 32.4 → 34.2 % without it)."""
 
 
 def _side_of(muscle: LinearMuscle) -> tuple[str, float]:
@@ -144,19 +162,32 @@ def revised_classic_muscles(local: np.ndarray, surface: SurfaceSampler, classic:
         if not muscle.name.startswith("frontalis_"):
             out.append(muscle)
             continue
-        height, depth, zone, start, finish = FRONTALIS_BELLIES["inner" if "_inner_" in muscle.name else "outer"]
-        insertion = surface.frame.to_local(muscle.insertion)
-        out.append(_fixed_at(muscle, surface.below((insertion[0], brow_top + height), depth), zone, start, finish))
+        out.append(_frontalis_belly(muscle.name, surface, brow_top, muscle.insertion))
     return out
+
+
+def _frontalis_belly(name, surface: SurfaceSampler, brow_top: float, insertion: np.ndarray, shift: float = 0.0) -> LinearMuscle:
+    """A frontalis belly of :data:`FRONTALIS_BELLIES` into the brow skin point ``insertion`` (3,); its fixed
+    point ``shift`` units sideways of the insertion (local x)."""
+    height, depth, zone, start, finish = FRONTALIS_BELLIES[name.split("_")[1]]
+    attachment = surface.below((surface.frame.to_local(insertion)[0] + shift, brow_top + height), depth)
+    length = float(np.linalg.norm(insertion - attachment))
+    return LinearMuscle(name, attachment, insertion, zone, start * length, finish * length)
 
 
 def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame,
                     classic_sphincters: list[SphincterMuscle]) -> tuple[list[LinearMuscle], list[SphincterMuscle]]:
     """The added linear muscles and the full rig's sphincters, from the local landmarks (68, 3)."""
     xy = local[:, :2]
+    brow_top = float(xy[17:27, 1].max())
     linear: dict[str, LinearMuscle] = {}
     for tag, s in _SIDES:
         i = _LANDMARKS[tag]
+        # Frontalis, middle belly: above the brow's midpoint, its fixed point a little medial, so the
+        # three bellies together lift the whole brow and the forehead over it (AU1 + AU2).
+        middle = xy[i["brow_middle"]]
+        linear[f"frontalis_middle_{tag}"] = _frontalis_belly(
+            f"frontalis_middle_{tag}", surface, brow_top, surface.point((middle[0], middle[1] + 0.05)), shift=-0.10 * s)
         brow_inner, eye_inner, eye_outer = xy[i["brow_inner"]], xy[i["eye_inner"]], xy[i["eye_outer"]]
         eye = xy[list(i["eye"])].mean(axis=0)
         wing, corner, upper, lower = xy[i["wing"]], xy[i["corner"]], xy[i["upper"]], xy[i["lower"]]
@@ -208,10 +239,10 @@ def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame
         eye = local[list(i["eye"])].mean(axis=0)
         across = world(local[i["eye_outer"]]) - world(local[i["eye_inner"]])
         inner = local[i["eye_inner"]]
-        centre = eye + 0.20 * (inner - eye)
+        centre = eye + ORBITAL_CENTRE * (inner - eye)
         sphincters[f"orbicularis_oculi_{tag}"] = SphincterMuscle(
             f"orbicularis_oculi_{tag}", world(centre), across, up,
-            (ORBITAL_SEMI_AXES[0] * frame.scale, ORBITAL_SEMI_AXES[1] * frame.scale))
+            (ORBITAL_SEMI_AXES[0] * frame.scale, ORBITAL_SEMI_AXES[1] * frame.scale), ring=ORBITAL_RING)
     mouth = local[60:68].mean(axis=0)
     half_width = 0.5 * np.linalg.norm(local[54] - local[48])
     sphincters["orbicularis_oris_press"] = SphincterMuscle(

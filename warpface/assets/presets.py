@@ -31,10 +31,10 @@ def _sided(template: dict[str, float], side: str) -> dict[str, float]:
 
 _PER_SIDE = {
     "browDown": {"corrugator_{s}": 0.07, "depressor_supercilii_{s}": 0.09, "orbicularis_oculi_{s}": 0.06},
-    "browOuterUp": {"frontalis_outer_{s}": 0.14},
+    "browOuterUp": {"frontalis_outer_{s}": 0.14, "frontalis_middle_{s}": 0.08},
     "eyeBlink": {"orbicularis_oculi_upper_lid_{s}": 0.10, "orbicularis_oculi_lower_lid_{s}": 0.02},
     "eyeSquint": {"orbicularis_oculi_lower_lid_{s}": 0.07, "orbicularis_oculi_{s}": 0.05},
-    "eyeWide": {"levator_palpebrae_{s}": 0.08},
+    "eyeWide": {"levator_palpebrae_{s}": 0.10},
     "cheekSquint": {"orbicularis_oculi_{s}": 0.20, "zygomaticus_minor_{s}": 0.02},
     "noseSneer": {"levator_labii_alaeque_nasi_{s}": 0.11, "nasalis_{s}": 0.06},
     "mouthSmile": {"zygomaticus_major_{s}": 0.14, "levator_anguli_oris_{s}": 0.04, "orbicularis_oculi_{s}": 0.08},
@@ -51,7 +51,7 @@ for _name, _template in _PER_SIDE.items():
     for _word, _side in _SIDE_NAMES:
         _PRESETS[f"{_name}{_word}"] = _sided(_template, _side)
 _PRESETS.update({
-    "browInnerUp": {"frontalis_inner_L": 0.14, "frontalis_inner_R": 0.14},
+    "browInnerUp": {"frontalis_inner_L": 0.14, "frontalis_inner_R": 0.14, "frontalis_middle_L": 0.05, "frontalis_middle_R": 0.05},
     # No muscle puffs the cheeks (air does): the closest the rig comes is cheek tissue bunched out by the
     # orbital orbicularis oculi and zygomaticus minor with the lips pressed.
     "cheekPuff": {"orbicularis_oculi_L": 0.12, "orbicularis_oculi_R": 0.12, "zygomaticus_minor_L": 0.05,

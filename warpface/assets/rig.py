@@ -1,4 +1,8 @@
-"""The default, landmark-anchored face rig: 20 linear muscles, 3 sphincters, 21 wrinkles, thickness.
+"""The default, landmark-anchored face rig: muscles, a jaw, 21 wrinkles, thickness (docs/RIG.md).
+
+``anatomy="classic"`` is thesis table 2.1: 20 linear muscles and 3 sphincters. The full anatomy (the
+default) re-places some of them and adds the muscles of :mod:`~warpface.assets.anatomy` (42 linear,
+4 sphincters) and the jaw.
 
 Every muscle end and wrinkle curve is written in the :class:`~warpface.assets.frame.FaceFrame` of
 the face (origin between the eyes, x toward the subject's left, y up, z out, unit = inter-ocular
@@ -24,7 +28,8 @@ from ..landmarks import LEFT_SIDE, RIGHT_SIDE
 from ..mesh import FaceMesh
 from ..rig import FaceRig
 from .face import default_face, default_landmarks
-from .anatomy import ANATOMY_LINEAR_MUSCLE_NAMES, ANATOMY_SPHINCTER_MUSCLE_NAMES, anatomy_muscles, revised_classic_muscles
+from .anatomy import (ANATOMY_LINEAR_MUSCLE_NAMES, ANATOMY_SPHINCTER_MUSCLE_NAMES, SKIN_RESPONSE_OVERRIDES, anatomy_muscles,
+                      revised_classic_muscles)
 from .frame import FaceFrame, SurfaceSampler, check_landmarks, head_cylinder
 from .jaw import default_jaw
 from .thickness import default_thickness
@@ -122,7 +127,8 @@ def default_rig(mesh: FaceMesh | None = None, landmarks=None, *, name: str = "Fa
     Returns:
         A :class:`~warpface.FaceRig` with the muscles of :data:`LINEAR_MUSCLE_NAMES` and
         :data:`SPHINCTER_MUSCLE_NAMES`, the wrinkles of :data:`WRINKLE_NAMES`, the painted and
-        blurred thickness of :func:`~warpface.assets.default_thickness`, and the landmarks.
+        blurred thickness of :func:`~warpface.assets.default_thickness` (times
+        :data:`MOBILE_TISSUE_FRACTION` in the full anatomy), and the landmarks.
 
     Raises:
         RigError: landmarks missing, malformed, or not face-like (eyes coinciding, mouth not below).
@@ -149,9 +155,17 @@ def default_rig(mesh: FaceMesh | None = None, landmarks=None, *, name: str = "Fa
         jaw = default_jaw(mesh, frame, landmarks)
     wrinkles = _wrinkles(local, surface, frame, head_cylinder(frame, local), _typical_edge(mesh) / frame.scale, device)
     thickness = default_thickness(mesh, landmarks, device=device)
+    if anatomy == "full":
+        thickness = MOBILE_TISSUE_FRACTION * thickness
     return FaceRig(mesh=mesh, muscles=linear + sphincters, wrinkles=wrinkles, thickness=thickness, landmarks=landmarks,
                    name=name, jaw=jaw)
 
+
+MOBILE_TISSUE_FRACTION = 0.6
+"""The full rig's ``h`` (the thickness that bulges, SPEC §1.3, and bunches, docs/RIG.md §3) as a fraction
+of :func:`~warpface.assets.default_thickness`'s soft-tissue depth: the skin and superficial fat that move
+over the deeper layers. Calibrated on the ICT-FaceKit shapes with ``benchmarks/rig_reach.py`` (docs/RIG.md
+§3): 0.5–0.7 reach best; the full depth bulged too much (browOuterUp 51 → 49 % at 1.5×, 40 % at 2.5×)."""
 
 SKIN_SLIDING = 1.0
 """Sliding of every muscle of the full rig (docs/RIG.md §2; chosen by benchmarks/rig_reach.py)."""
@@ -160,8 +174,10 @@ SKIN_BUNCHING = 1.0
 
 
 def _with_skin_response(muscle):
-    """The full rig's form of a muscle: C¹ zone, sliding skin, bunching tissue (unless it sets its own)."""
-    return replace(muscle, falloff="smooth", sliding=muscle.sliding or SKIN_SLIDING, bunching=muscle.bunching or SKIN_BUNCHING)
+    """The full rig's form of a muscle: C¹ zone, sliding skin, bunching tissue (unless it sets its own or
+    :data:`~warpface.assets.anatomy.SKIN_RESPONSE_OVERRIDES` names it)."""
+    response = dict(sliding=muscle.sliding or SKIN_SLIDING, bunching=muscle.bunching or SKIN_BUNCHING)
+    return replace(muscle, falloff="smooth", **{**response, **SKIN_RESPONSE_OVERRIDES.get(muscle.name, {})})
 
 
 # ------------------------------------------------------------------------------------------------

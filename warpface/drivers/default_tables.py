@@ -45,8 +45,8 @@ def _sided(stem: str, rows) -> list[tuple[str, str, float]]:
 
 ARKIT_TABLE: tuple[tuple[str, str, float], ...] = tuple(
     _sided("browDown", [("corrugator_{s}", 0.09), ("procerus", 0.03)])
-    + _both("browInnerUp", "frontalis_inner", 0.16)
-    + _sided("browOuterUp", [("frontalis_outer_{s}", 0.14)])
+    + _both("browInnerUp", "frontalis_inner", 0.16) + _both("browInnerUp", "frontalis_middle", 0.06)
+    + _sided("browOuterUp", [("frontalis_outer_{s}", 0.14), ("frontalis_middle_{s}", 0.08)])
     + _sided("cheekSquint", [("orbicularis_oculi_{s}", 0.16)])
     + _sided("eyeBlink", [("orbicularis_oculi_{s}", 0.06)])
     + _sided("eyeSquint", [("orbicularis_oculi_{s}", 0.10)])
@@ -72,8 +72,8 @@ ARKIT_TABLE: tuple[tuple[str, str, float], ...] = tuple(
 """(ARKit channel, control, weight per unit weight) rows."""
 
 _FACS_AT_FULL: tuple[tuple[str, str, float], ...] = tuple(
-    _both("AU01", "frontalis_inner", 0.16)
-    + _both("AU02", "frontalis_outer", 0.14)
+    _both("AU01", "frontalis_inner", 0.16) + _both("AU01", "frontalis_middle", 0.06)
+    + _both("AU02", "frontalis_outer", 0.14) + _both("AU02", "frontalis_middle", 0.08)
     + _both("AU04", "corrugator", 0.09) + [("AU04", "procerus", 0.06)]
     + _both("AU05", "frontalis_outer", 0.04) + _both("AU05", "frontalis_inner", 0.03)
     + _both("AU06", "orbicularis_oculi", 0.22)

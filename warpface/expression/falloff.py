@@ -13,7 +13,7 @@ import math
 
 import warp as wp
 
-__all__ = ["linear_angular_factor", "linear_radial_factor", "sphincter_factor"]
+__all__ = ["linear_angular_factor", "linear_radial_factor", "sphincter_factor", "sphincter_ring_factor"]
 
 _HALF_PI = wp.constant(wp.float64(math.pi / 2.0))
 
@@ -51,3 +51,15 @@ def sphincter_factor(rho_squared: wp.float64, smooth: int):
         f = wp.float64(1.0) - rho_squared
         return f * f
     return wp.float64(1.0) - wp.sqrt(rho_squared)
+
+
+@wp.func
+def sphincter_ring_factor(rho_squared: wp.float64, ring: wp.float64):
+    """Ring factor of a sphincter with an inner part it does not move: ``sin²(ρ/ring · π/2)`` inside ``ρ < ring``, else 1."""
+    if ring <= wp.float64(0.0):
+        return wp.float64(1.0)
+    rho = wp.sqrt(rho_squared)
+    if rho >= ring:
+        return wp.float64(1.0)
+    s = wp.sin(rho / ring * _HALF_PI)
+    return s * s

@@ -17,7 +17,7 @@ import warp as wp
 
 from .._validate import MAX_COORDINATE, as_finite_array, as_points, as_positive, as_vec3, orthogonal_unit_vector, unit_vector, as_device, expect_iterable
 from ._sparse import vertex_csr
-from .falloff import linear_angular_factor, linear_radial_factor, sphincter_factor
+from .falloff import linear_angular_factor, linear_radial_factor, sphincter_factor, sphincter_ring_factor
 
 __all__ = ["LinearMuscle", "SphincterMuscle", "Muscle", "muscle_weights", "MuscleWeights", "FALLOFFS"]
 
@@ -112,6 +112,9 @@ class SphincterMuscle:
         semi_axes: ``(lx, ly)`` [mesh units], both > 0.
         falloff, sliding, bunching, thickening: as for :class:`LinearMuscle`; ``"smooth"`` replaces ``f`` by
             ``(1 − ρ²)²`` with ``ρ = sqrt(x²/lx² + y²/ly²)``.
+        ring: in [0, 1): inside ``ρ < ring`` ``f`` is multiplied by ``sin²(ρ/ring · π/2)``, so the pull
+            fades to zero toward the centre with zero slope at ``ρ = ring`` (an orbital ring that leaves
+            the lids inside it to other muscles; docs/RIG.md §5). 0 (default): the whole ellipse.
 
     Contraction ``K`` is dimensionless: the displacement is ``K·f`` times the in-plane offset.
     """
@@ -125,6 +128,7 @@ class SphincterMuscle:
     sliding: float = 0.0
     bunching: float = 0.0
     thickening: float = 0.0
+    ring: float = 0.0
 
     def __post_init__(self) -> None:
         label = f"sphincter muscle {self.name!r}"
@@ -141,6 +145,10 @@ class SphincterMuscle:
         if np.any(semi <= 0.0) or np.any(semi > MAX_COORDINATE):
             raise ValueError(f"{label}: semi_axes must be in (0, {MAX_COORDINATE:g}], got {semi.tolist()}")
         set_(self, "semi_axes", (float(semi[0]), float(semi[1])))
+        ring = float(as_finite_array(self.ring, f"{label}: ring", shape=()))
+        if not 0.0 <= ring < 1.0:
+            raise ValueError(f"{label}: ring must be in [0, 1), got {ring}")
+        set_(self, "ring", ring)
         _check_response(self, label)
 
 
@@ -209,13 +217,15 @@ def _sphincter_weight_kernel(
     semi_x: wp.float64,
     semi_y: wp.float64,
     smooth: int,
+    ring: wp.float64,
     weight: wp.array(dtype=wp.vec3d),
 ):
     i = wp.tid()
     offset = rest[i] - center
     x = wp.dot(offset, axis_x)
     y = wp.dot(offset, axis_y)
-    falloff = sphincter_factor(x * x / (semi_x * semi_x) + y * y / (semi_y * semi_y), smooth)
+    rho_squared = x * x / (semi_x * semi_x) + y * y / (semi_y * semi_y)
+    falloff = sphincter_factor(rho_squared, smooth) * sphincter_ring_factor(rho_squared, ring)
     zero = wp.float64(0.0)
     weight[i] = wp.vec3d(zero, zero, zero)
     if falloff > zero:
@@ -258,7 +268,7 @@ def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], *, device=Non
             wp.launch(_linear_muscle_weight_kernel, dim=vertex_count, inputs=inputs, outputs=[out], device=device)
         elif isinstance(muscle, SphincterMuscle):
             inputs = [rest, wp.vec3d(*muscle.center), wp.vec3d(*muscle.axis_x), wp.vec3d(*muscle.axis_y),
-                      muscle.semi_axes[0], muscle.semi_axes[1], int(muscle.falloff == "smooth")]
+                      muscle.semi_axes[0], muscle.semi_axes[1], int(muscle.falloff == "smooth"), muscle.ring]
             wp.launch(_sphincter_weight_kernel, dim=vertex_count, inputs=inputs, outputs=[out], device=device)
         else:
             raise ValueError(f"muscle {index}: expected LinearMuscle or SphincterMuscle, got {type(muscle).__name__}")

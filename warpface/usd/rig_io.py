@@ -37,16 +37,8 @@ from .jaw_io import author_jaw, read_jaw
 from ._files import LAYER_SUFFIXES, export_layer_atomically, open_stage, writable_path
 from .schema import ensure_schema
 
-__all__ = [
-    "write_rig",
-    "read_rig",
-    "rig_prims",
-    "RigPrims",
-    "stage_meters_per_unit",
-    "SKIN_API",
-    "SHAPE_VARIANT_SET",
-    "REST_VARIANT",
-]
+__all__ = ["write_rig", "read_rig", "rig_prims", "RigPrims", "stage_meters_per_unit", "SKIN_API", "SHAPE_VARIANT_SET",
+           "REST_VARIANT"]
 
 SKIN_API = "WarpFaceSkinAPI"
 SHAPE_VARIANT_SET = "warpFaceShape"
@@ -192,6 +184,7 @@ def _author_muscle(stage, path, muscle) -> Usd.Prim:
         _set(prim, "axisX", types.Double3, tuple(muscle.axis_x))
         _set(prim, "axisY", types.Double3, tuple(muscle.axis_y))
         _set(prim, "semiAxes", types.Double2, tuple(muscle.semi_axes))
+        _set(prim, "ring", types.Double, muscle.ring)
     _set(prim, "contraction", types.Double, 0.0, uniform=False)
     _set(prim, "falloff", types.Token, muscle.falloff)
     for name in _RESPONSE:
@@ -504,6 +497,7 @@ def _read_muscle(prim: Usd.Prim, place: Placement, to_units: float):
             axis_x=place.direction(_array(prim, "axisX", (3,))),
             axis_y=place.direction(_array(prim, "axisY", (3,))),
             semi_axes=_array(prim, "semiAxes", (2,)) * length,
+            ring=_scalar(prim, "ring"),
             **_muscle_response(prim),
         )
     except RigError:
