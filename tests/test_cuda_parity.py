@@ -432,41 +432,6 @@ def test_cg_run_chunks_match_direct(beam, direct_reference, loop):
     assert sim.steps_taken == len(direct_reference)
 
 
-@pytest.mark.parametrize("blocks", [None, 7])
-def test_persistent_cg_with_many_blocks_matches_direct(blocks):
-    """The persistent CG kernel on a 1.8k-node shell: as many blocks as row groups (grid barriers across
-    ~100 blocks on CUDA), or 7 blocks that each walk many row groups. Every step within 1e-9 m of the
-    direct solver, the same iterations as the launched loop, the barrier counters cleared after each step."""
-    from warpface.fem import TissueSimulation, shell_tet_mesh
-
-    if blocks is not None and not DEVICE.is_cuda:
-        pytest.skip("blocks that wait for each other need CUDA: on the CPU the kernel runs as one block")
-    mesh = shell_tet_mesh(20, 20, 3)
-    p = mesh.points
-    fixed = np.flatnonzero(p[:, 1] > np.quantile(p[:, 1], 0.6))
-    driven = np.flatnonzero(p[:, 1] < np.quantile(p[:, 1], 0.1))
-    steps = 30
-    trajectory = np.zeros((steps, driven.size, 3))
-    trajectory[:, :, 1] = -5e-3 * np.sin(np.linspace(0.05, 1.5, steps))[:, None]
-    trajectory[steps // 2:, :, 2] = 1e-3  # a jump
-    material = tissue_material()
-    expected = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, solver="direct",
-                                device=CPU).run(trajectory)
-    runs = {}
-    for loop in ("persistent", "launched"):
-        sim = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, solver="cg", device=DEVICE,
-                               cg_tol=1e-12, cg_maxiter=400, cg_chunk=8, cg_loop=loop)
-        if loop == "persistent" and blocks is not None:
-            sim.stepper._persistent_blocks = blocks  # before the first graph is captured
-        runs[loop] = (sim.run(trajectory), sim.stepper.total_iterations, sim.stepper._barrier.numpy())
-    got, iterations, barrier = runs["persistent"]
-    assert np.abs(expected).max() > 1e-3
-    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
-    assert abs(iterations - runs["launched"][1]) <= 2  # reduction order differs: +-1 iteration at a step or two
-    np.testing.assert_array_equal(barrier, 0)
-
-
-
 @pytest.mark.parametrize("preconditioner", ["fsai", "fsai_each", "block_jacobi"])
 def test_tissue_batch_graph_matches_per_model_direct(beam, direct_reference, preconditioner):
     """TissueBatch: three materials (the reference one first) stepped as one captured graph, each
