@@ -193,7 +193,7 @@ def test_grid_capacity_is_one_block_on_the_cpu():
     from warpface.fem.kernels_persistent import grid_capacity, persistent_pcg_kernel
 
     kernels = persistent_pcg_kernel(wp.float64)
-    assert grid_capacity(kernels.cg_step, wp.get_device("cpu"), kernels.block_dim) == 1
+    assert grid_capacity(kernels.cg_step, kernels.block_dim, device=wp.get_device("cpu")) == 1
     with pytest.raises(ValueError, match="lanes must divide 32"):
         persistent_pcg_kernel(wp.float64, 12, 2)
 

@@ -120,9 +120,10 @@ def block_sum64(value: wp.float64) -> wp.float64:
     ...
 
 
-def grid_capacity(kernel, device, block_dim: int) -> int:
-    """Blocks of ``block_dim`` threads of ``kernel`` that ``device`` holds at once (registers and threads
-    per multiprocessor; 1 on the CPU)."""
+def grid_capacity(kernel, block_dim: int, *, device=None) -> int:
+    """Blocks of ``block_dim`` threads of ``kernel`` that ``device`` (default: Warp's preferred device) holds
+    at once (registers and threads per multiprocessor; 1 on the CPU)."""
+    device = wp.get_device(device)
     if not device.is_cuda:
         return 1
     registers = wp.get_cuda_kernel_properties(kernel, device, block_dim)["register_count"]

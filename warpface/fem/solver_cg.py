@@ -297,8 +297,8 @@ class CGSolver:
             shape = (PERSISTENT_LANES, PERSISTENT_ROWS) if dev.is_cuda else (1, 1)  # one CPU thread walks every row
             self._persistent = persistent_pcg_kernel(dtype, *shape)
             wanted = -(-n_free // self._persistent.rows)
-            self._persistent_blocks = max(1, min(wanted, grid_capacity(self._persistent.cg_step, dev,
-                                                                        self._persistent.block_dim)))
+            self._persistent_blocks = max(1, min(wanted, grid_capacity(self._persistent.cg_step,
+                                                                        self._persistent.block_dim, device=dev)))
         self._condition = wp.zeros(1, dtype=wp.int32, device=dev)
         self._step_count = wp.zeros(1, dtype=wp.int32, device=dev)
         self._status = wp.zeros(5, dtype=wp.int32, device=dev)
