@@ -5,8 +5,10 @@ the built-in face) and wavy grids of 10k, 100k and 1M vertices, each with 16 lin
 wrinkles. Both sides use the same rig-time precomputation (sparse muscle weights, wrinkle
 profiles); the per-frame work — muscles, stretch, normals, bulge, normals again, wrinkles — is
 timed. "warp ms" includes copying the result to host memory; on CUDA "device ms" is the graph
-replay alone (the fused two-kernel frame, with the 3- and 5-kernel plans beside it), and every
-device row is set against a ``wp.copy`` of the same bytes timed in the same run.
+replay alone, host call and synchronisation included ("event ms": GPU time between CUDA events), for
+the default three-kernel frame with the 2- and 5-kernel plans beside it; every device row is set
+against a ``wp.copy`` of the same bytes timed in the same run, and the largest mesh's batch chunk is
+split by kernel (CUDA events, no graph).
 
     python -m benchmarks.expression [--device cuda:0] [--sizes 10000 100000 1000000] [--quick]
 """
@@ -277,9 +279,50 @@ def device_batch_rows(model, contractions: np.ndarray, quick: bool, bandwidth: f
             "same_bytes_copy_ms_per_frame": 1e3 * copy_s / frames, "device_batch_pct_same_bytes_copy": 100.0 * copy_s / seconds}
 
 
+def kernel_split_rows(model, contractions: np.ndarray) -> dict:
+    """Where a batch chunk's time goes: each kernel of the default plan timed alone with CUDA events
+    (launched one by one, no graph), in ms per frame, over one chunk of the batched path."""
+    if not model.device.is_cuda:
+        return {}
+    frames = max(1, min(64, (1 << 24) // model.mesh.vertex_count))
+    buffers = model._frame_buffers(frames)
+    buffers.upload_controls(np.tile(contractions, (frames, 1)), np.tile(model.default_depths, (frames, 1)))
+    launches = model._launch_args(buffers, frames, buffers.contraction, buffers.depth, buffers.final_points, False)
+    events = [wp.Event(device=model.device, enable_timing=True) for _ in range(len(launches) + 1)]
+    samples: list[list[float]] = [[] for _ in launches]
+    for repeat in range(13):
+        wp.record_event(events[0])
+        for index, (kernel, dim, inputs, outputs) in enumerate(launches):
+            wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=model.device)
+            wp.record_event(events[index + 1])
+        wp.synchronize_device(model.device)
+        if repeat >= 3:
+            for index, sample in enumerate(samples):
+                sample.append(wp.get_event_elapsed_time(events[index], events[index + 1]))
+    return {"kernel_split_frames": frames, "kernel_split_frames_per_thread": model._frames_per_thread(frames),
+            "kernel_split_ms_per_frame": {kernel.key: float(np.median(sample)) / frames
+                                          for (kernel, *_), sample in zip(launches, samples)}}
+
+
+def graph_event_ms(graph, device, repeats: int = 500, warmup: int = 20) -> float:
+    """Median GPU time of one replay of ``graph`` [ms] between CUDA events recorded on the stream just
+    before and after it: the frame on the device, without the host's call and synchronisation."""
+    start, end = (wp.Event(device=device, enable_timing=True) for _ in range(2))
+    samples = []
+    for index in range(warmup + repeats):
+        wp.record_event(start)
+        wp.capture_launch(graph)
+        wp.record_event(end)
+        wp.synchronize_event(end)
+        if index >= warmup:
+            samples.append(wp.get_event_elapsed_time(start, end))
+    return float(np.median(samples))
+
+
 def single_frame_rows(model, mesh, muscles, wrinkles, thickness, contractions: np.ndarray) -> dict:
-    """On CUDA: the single-frame graph of each launch plan — 2 fused kernels (the default), 3, and the
-    five-kernel sequence — and a ``wp.copy`` of the frame's 24·V bytes, all in the same run."""
+    """On CUDA: the single-frame graph of each launch plan — 2 fused kernels, 3 (the default), and the
+    five-kernel sequence — timed two ways: the host's replay + synchronize (wall, what a synchronous caller
+    waits) and CUDA events around the replay (GPU time); and a ``wp.copy`` of the frame's 24·V bytes."""
     if not model.device.is_cuda:
         return {}
     sync = lambda: wp.synchronize_device(model.device)  # noqa: E731
@@ -291,10 +334,12 @@ def single_frame_rows(model, mesh, muscles, wrinkles, thickness, contractions: n
         same = bool(np.array_equal(other.evaluate(contractions), expected))
         seconds = time_call(lambda: wp.capture_launch(other._single.graph), repeats=500, sync=sync)
         row[f"device_ms_{launches}_launches"] = seconds * 1e3
+        row[f"event_ms_{launches}_launches"] = graph_event_ms(other._single.graph, model.device)
         row[f"same_bits_{launches}_launches"] = same
     copy_s = same_bytes_copy_seconds(model.device, mesh.vertex_count)
     device_ms = row[f"device_ms_{model.launches_per_frame}_launches"]
-    row.update(device_ms=device_ms, copy_ms_same_bytes=copy_s * 1e3, device_pct_same_bytes_copy=100.0 * copy_s * 1e3 / device_ms)
+    row.update(device_ms=device_ms, event_ms=row[f"event_ms_{model.launches_per_frame}_launches"], copy_ms_same_bytes=copy_s * 1e3,
+               device_pct_same_bytes_copy=100.0 * copy_s * 1e3 / device_ms)
     return row
 
 
@@ -331,6 +376,8 @@ def run_case(label: str, mesh: wf.FaceMesh, device, quick: bool, bandwidth: floa
         "max_abs_diff_vs_numpy": float(check),
     }
     row.update(device_batch_rows(model, contractions, quick, bandwidth))
+    if big:
+        row.update(kernel_split_rows(model, contractions))
     row.update(torch_rows(numpy_model, model, contractions, depths, quick))
     if row.get("torch_ms") and device_s:
         row["x_torch"] = row["torch_ms"] / row["device_ms"]
@@ -368,10 +415,11 @@ def main(argv=None) -> None:
               f"\ncopy bandwidth (wp.copy, read + write) {bandwidth / 1e9:.0f} GB/s; bytes/frame = 24·V + 4·(controls)"
               f" (rest read + result written + controls)")
         print("PyTorch peer: the same math in float32 on the same GPU (index_add_ scatters), synchronised per call;"
-              f"\nmatch = max |Δx| ≤ {TORCH_TOLERANCE:g} × mesh size; × torch = torch ms / warp device ms\n")
+              f"\nmatch = max |Δx| ≤ {TORCH_TOLERANCE:g} × mesh size; × torch = torch ms / warp device ms (both host wall"
+              "\ntimes, synchronised per call); event ms = the frame's graph between CUDA events (GPU time, no host call)\n")
         print_table(rows, [
             ("mesh", "mesh", "s"), ("vertices", "vertices", ",d"), ("device_ms", "device ms", ".4f"),
-            ("torch_ms", "torch ms", ".4f"), ("x_torch", "× torch", ".1f"),
+            ("event_ms", "event ms", ".4f"), ("torch_ms", "torch ms", ".4f"), ("x_torch", "× torch", ".1f"),
             ("device_batch_frames_per_s", "batched on device (frames/s)", ",.0f"),
             ("torch_batch_ms_per_frame", "torch batch ms/frame", ".4f"), ("x_torch_batch", "× torch batch", ".1f"),
             ("device_batch_pct_copy_bw", "% copy bw", ".0f"), ("device_batch_exact", "batch exact", ""),
@@ -379,10 +427,11 @@ def main(argv=None) -> None:
         ])
         print("\nSingle-frame graph per launch plan (ExpressionModel(launches=2|3|5); 3 is the CUDA default),"
               "\n'same' = bit-identical to the default; a wp.copy of the same bytes (24·V: rest read + result"
-              "\nwritten) in the same run; % = copy time / warp time\n")
+              "\nwritten) in the same run; % = copy time / warp time; 'event' = GPU time between CUDA events\n")
         print_table(rows, [
             ("mesh", "mesh", "s"), ("vertices", "vertices", ",d"), ("device_ms_2_launches", "2 ms", ".4f"),
             ("device_ms_3_launches", "3 ms", ".4f"), ("device_ms_5_launches", "5 ms", ".4f"),
+            ("event_ms_2_launches", "2 event", ".4f"), ("event_ms_3_launches", "3 event", ".4f"), ("event_ms_5_launches", "5 event", ".4f"),
             ("same_bits_3_launches", "3 same", ""), ("same_bits_5_launches", "5 same", ""),
             ("copy_ms_same_bytes", "copy ms", ".4f"), ("device_pct_same_bytes_copy", "% copy (frame)", ".0f"),
             ("device_batch_GB_per_s", "batch GB/s", ",.0f"), ("same_bytes_copy_ms_per_frame", "copy ms/frame", ".5f"),

@@ -41,7 +41,8 @@ def test_launch_plans_agree_on_the_device(face_rig, models, launches):
     """The device default (three kernels: the fastest on the H200) against the 2- and 5-kernel plans on the same
     device: the same operations in the same order, so equal up to the compiler's choice of FMA
     contraction (measured: the benchmark's "same" columns), and both against the CPU. A batch of the
-    fused plan 2 large enough for several frames per thread (``frames_per_thread`` > 1) equals single frames."""
+    two-launch plan and of the default, large enough for several frames per thread (``frames_per_thread`` > 1),
+    equals single frames."""
     from warpface import ExpressionModel
 
     cpu_model, fused = models
@@ -61,11 +62,12 @@ def test_launch_plans_agree_on_the_device(face_rig, models, launches):
     if launches != 2:
         return  # the batch check below runs once, on the plan that evaluates several frames per thread
     frames = max(8, 4 * (1 << 20) // face_rig.mesh.vertex_count + 1)  # > 2^20 frame·vertices per launch
-    assert staged._frames_per_thread(frames) > 1 or not DEVICE.is_cuda
     many_c, many_d = np.resize(contractions, (frames, contractions.shape[1])), np.resize(depths, (frames, depths.shape[1]))
-    out = wp.empty((frames, face_rig.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
-    staged.evaluate_batch_into(out, many_c, wrinkle_depths=many_d)
-    batch = out.numpy()
-    for frame in range(3):
-        np.testing.assert_array_equal(batch[frame], staged.evaluate(contractions[frame], wrinkle_depths=depths[frame]))
-        np.testing.assert_array_equal(batch[frames - 3 + frame], batch[(frames - 3 + frame) % 3])
+    for model in (staged, fused):  # the two-launch plan and the default (three)
+        assert model._frames_per_thread(frames) > 1 or not DEVICE.is_cuda
+        out = wp.empty((frames, face_rig.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
+        model.evaluate_batch_into(out, many_c, wrinkle_depths=many_d)
+        batch = out.numpy()
+        for frame in range(3):
+            np.testing.assert_array_equal(batch[frame], model.evaluate(contractions[frame], wrinkle_depths=depths[frame]))
+            np.testing.assert_array_equal(batch[frames - 3 + frame], batch[(frames - 3 + frame) % 3])

@@ -32,9 +32,11 @@ Sphincters (replacing the classic lateral orbicularis oculi):
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
-from ..expression.muscles import LinearMuscle, SphincterMuscle
+from ..expression.muscles import LinearMuscle, MuscleLobe, SphincterMuscle
 from .frame import FaceFrame, SurfaceSampler
 
 __all__ = ["ANATOMY_LINEAR_MUSCLE_NAMES", "ANATOMY_SPHINCTER_MUSCLE_NAMES", "anatomy_muscles", "revised_classic_muscles"]
@@ -87,8 +89,8 @@ medial canthus: its fibres arise from the medial orbital margin and the medial p
 FRONTALIS_BELLIES = {
     # belly: (height of the fixed point above the brow top, its depth beneath the skin, zone half-angle [deg],
     #         falloff start and finish as multiples of the belly's length)
-    "inner": (0.60, 0.20, 36.0, 1.25, 2.00),
-    "middle": (0.75, 0.06, 37.0, 1.25, 1.60),
+    "inner": (0.60, 0.20, 36.0, 1.15, 2.00),
+    "middle": (0.65, 0.06, 42.0, 1.25, 1.60),
     "outer": (0.90, 0.00, 48.0, 1.15, 1.60),
 }
 """The full rig's frontalis bellies [inter-ocular units], fitted by coordinate search to the ICT-FaceKit
@@ -98,7 +100,23 @@ browInnerUp 33.3 → 42.7 %, browOuterUp 45.1 → 51.1 % with it and the inner b
 falloff ends 0.6–1 lengths beyond the brow: the lids stay put (on those shapes the brows rise 6–8 mm
 while the upper lids move 0.3 mm)."""
 
-ORBITAL_RING = 0.65
+GALEA_LOBE = (0.30, 83.0, 0.90, 2.50, 0.40)
+"""The frontalis' galea lobe [inter-ocular units]: (its insertion above the belly's fixed point, zone
+half-angle [deg], falloff start and finish as multiples of its length, gain). The frontalis has no bony
+origin: contracting, it draws the brow up and the scalp down toward its belly, and the forehead skin
+between bunches out. Given to the inner and middle bellies (docs/RIG.md §5): browInnerUp dense reach
+44.0 → 47.2 %, landmarks 44.4 → 47.6 % (as a separate control it reached 46 % dense and nothing from
+landmarks, which do not see the upper forehead)."""
+
+CHEEK_LOBE = (0.25, 0.10, 0.15, 0.35, 0.45, 40.0, 0.90, 1.90, 1.3)
+"""The lower lid's cheek lobe [inter-ocular units]: (fixed point medial of the inner canthus, and above it,
+depth; insertion lateral of and below the eye's centre; zone half-angle [deg]; falloff start and finish
+as multiples of its length; gain). The lower orbital fibres of the orbicularis oculi lift the cheek
+medially and up with the lower lid in a squint (AU6 with AU7). eyeSquint reach 35.4 → 53.0 % dense,
+30.7 → 47.3 % landmarks; as a separate control it reached 38 % dense and the landmark fit, which sees
+two lower-lid points and the jaw outline, drove it to −33 %."""
+
+ORBITAL_RING = 0.55
 """Ring of the orbital orbicularis oculi (:attr:`~warpface.SphincterMuscle.ring`): its pull fades out inside
 0.65 of its ellipse, over the lids, which the palpebral muscles move (eyeSquint dense reach 28.8 → 32.4 %)."""
 
@@ -166,13 +184,29 @@ def revised_classic_muscles(local: np.ndarray, surface: SurfaceSampler, classic:
     return out
 
 
+def _cheek_lobe(surface: SurfaceSampler, inner_canthus, eye, side: float) -> MuscleLobe:
+    """The lower lid's :data:`CHEEK_LOBE`, from the local (x, y) of the inner canthus and the eye's centre."""
+    medial, up, depth, across, down, zone, start, finish, gain = CHEEK_LOBE
+    cheek = _linear("cheek", surface, (inner_canthus[0] - medial * side, inner_canthus[1] + up), depth,
+                    (eye[0] + across * side, eye[1] - down), zone, start, finish)
+    return MuscleLobe(cheek.attachment, cheek.insertion, zone, cheek.falloff_start, cheek.falloff_finish, gain)
+
+
 def _frontalis_belly(name, surface: SurfaceSampler, brow_top: float, insertion: np.ndarray, shift: float = 0.0) -> LinearMuscle:
     """A frontalis belly of :data:`FRONTALIS_BELLIES` into the brow skin point ``insertion`` (3,); its fixed
     point ``shift`` units sideways of the insertion (local x)."""
-    height, depth, zone, start, finish = FRONTALIS_BELLIES[name.split("_")[1]]
+    belly = name.split("_")[1]
+    height, depth, zone, start, finish = FRONTALIS_BELLIES[belly]
     attachment = surface.below((surface.frame.to_local(insertion)[0] + shift, brow_top + height), depth)
     length = float(np.linalg.norm(insertion - attachment))
-    return LinearMuscle(name, attachment, insertion, zone, start * length, finish * length)
+    lobe = None
+    if belly in ("inner", "middle"):
+        rise, lobe_zone, lobe_start, lobe_finish, gain = GALEA_LOBE
+        fixed = surface.frame.to_local(attachment)
+        galea = surface.point((fixed[0], fixed[1] + rise))
+        lobe_length = float(np.linalg.norm(galea - attachment))
+        lobe = MuscleLobe(attachment, galea, lobe_zone, lobe_start * lobe_length, lobe_finish * lobe_length, gain)
+    return LinearMuscle(name, attachment, insertion, zone, start * length, finish * length, lobe=lobe)
 
 
 def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame,
@@ -221,8 +255,8 @@ def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame
         medial = eye[0] + 0.75 * (inner[0] - eye[0])
         linear[f"orbicularis_oculi_upper_lid_{tag}"] = _linear(
             f"orbicularis_oculi_upper_lid_{tag}", surface, (medial, bottom), 0.06, (eye[0], top + 0.10), 70.0, 0.90, 1.70)
-        linear[f"orbicularis_oculi_lower_lid_{tag}"] = _linear(
-            f"orbicularis_oculi_lower_lid_{tag}", surface, (medial, top), 0.06, (eye[0], bottom - 0.12), 70.0, 0.90, 2.20)
+        lid = _linear(f"orbicularis_oculi_lower_lid_{tag}", surface, (medial, top), 0.06, (eye[0], bottom - 0.12), 70.0, 0.90, 2.20)
+        linear[lid.name] = replace(lid, lobe=_cheek_lobe(surface, xy[_LANDMARKS[tag]["eye_inner"]], eye, s))
         # Levator palpebrae superioris: from the orbit's roof, deep behind the brow, into the upper lid (eyeWide).
         linear[f"levator_palpebrae_{tag}"] = _linear(
             f"levator_palpebrae_{tag}", surface, (eye[0], top + 0.30), 0.35, (eye[0], top + 0.02), 40.0, 0.90, 1.30)

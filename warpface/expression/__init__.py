@@ -2,7 +2,7 @@
 
 from .jaw import JAW_CONTROL_NAMES, Jaw, jaw_points
 from .model import ExpressionModel, ExpressionStages
-from .muscles import LinearMuscle, Muscle, SphincterMuscle, muscle_weights
+from .muscles import LinearMuscle, Muscle, MuscleLobe, SphincterMuscle, muscle_weights
 from .thickness import ThicknessMap, validate_thickness
 from .wrinkles import CylindricalProjection, PlanarProjection, Projection, Wrinkle, bezier_distances, project_points
 
@@ -10,6 +10,7 @@ __all__ = [
     "ExpressionModel",
     "ExpressionStages",
     "LinearMuscle",
+    "MuscleLobe",
     "SphincterMuscle",
     "Muscle",
     "muscle_weights",

@@ -18,7 +18,8 @@ from .jaw import JAW_CONTROL_NAMES, Jaw
 from ..kernels_surface import triangle_area_vectors
 from .kernels import (MuscleEntry, WrinkleEntry, apply_jaw_and_muscles, apply_muscles, apply_wrinkles, stretch_and_bulge,
                       triangle_stretch)
-from .kernels_fused import bulge_from_muscle_points, muscles_and_bulge, wrinkles_on_bulge
+from .kernels_fused import (MUSCLE_SLOTS, WRINKLE_SLOTS, bulge_from_ring, muscle_points_over_frames, muscles_and_bulge_from_ring, ring_table,
+                            slot_table, wrinkles_from_ring)
 from .muscles import Muscle, muscle_weights
 from .readback import PinnedReadback
 from .tissue import tissue_response
@@ -34,8 +35,16 @@ _MAX_LAUNCH_THREADS = (1 << 31) - 1
 
 _MAX_BATCH_VERTICES = 1 << 22
 """On CUDA a batched call processes frames in chunks of at most this many frame·vertices (bounded
-memory). On the CPU, where kernels run serially, a chunk is one frame: its working set stays in cache,
-which measured fastest (see benchmarks/README.md)."""
+memory); a device-resident batch (:meth:`ExpressionModel.evaluate_batch_into`, no host copy to overlap)
+in chunks of :data:`_MAX_DEVICE_BATCH_VERTICES`. On the CPU, where kernels run serially, a chunk is one
+frame: its working set stays in cache, which measured fastest (see benchmarks/README.md)."""
+
+_MAX_DEVICE_BATCH_VERTICES = 1 << 24
+"""Larger chunks let a thread evaluate more frames of its vertex (see ``_frames_per_thread``): 16 % more
+frames/s at 1M vertices on an H200 than chunks of 2²², for 0.6 GB of work buffers."""
+
+_MAX_FRAMES_PER_THREAD = 8
+"""Most frames one CUDA thread evaluates for its vertex in the fused plans (see ``_frames_per_thread``)."""
 
 
 @dataclass(frozen=True)
@@ -61,10 +70,10 @@ class ExpressionModel:
     """Muscles → stretch → bulge → wrinkles, per vertex, from the rest mesh every frame (never cumulative).
 
     Everything that depends only on the rig (muscle weight fields, wrinkle distances) is evaluated
-    once here in float64. On CUDA a frame is then two fused kernel launches over vertices
+    once here in float64. On CUDA a frame is then three fused kernel launches over vertices
     (:mod:`~warpface.expression.kernels_fused`), captured once as a graph and replayed; on the CPU
     it is the five-kernel sequence of :mod:`~warpface.expression.kernels` (see ``launches``). All
-    plans give the same bits on the same device.
+    plans give the same bits on the same device (on CUDA up to the compiler's FMA contraction).
 
     Two ways to get results, running the same kernels:
 
@@ -100,8 +109,8 @@ class ExpressionModel:
         launches: kernel launches per frame: 2 (fused kernels that recompute the one-ring's muscle
             points and triangle terms instead of storing them: fewest launches and bytes), 3 (muscle
             points stored, triangle terms computed in place: the GPU's default, the fastest single
-            frame on an H200 from 10k to 1M vertices) or 5 (every intermediate stored: fewest
-            operations, the CPU's default). ``None``: by device.
+            frame on an H200 from 10k to 100k vertices and the fastest batch from 10k to 1M) or 5
+            (every intermediate stored: fewest operations, the CPU's default). ``None``: by device.
 
     Raises:
         RigError: (a ``ValueError``) mesh not a FaceMesh, wrong item types, duplicate muscle or
@@ -162,6 +171,12 @@ class ExpressionModel:
         self.default_depths = np.array([w.depth for w in self.wrinkles], dtype=np.float64)
         if jaw is not None:
             self._jaw_weight = wp.array(jaw.weights.astype(np.float32), dtype=wp.float32, device=device_)
+        if self.launches_per_frame != 5:  # the fused plans' fixed-width tables (kernels_fused)
+            buffers = self._mesh_buffers
+            self._ring = ring_table(mesh.triangles.astype(np.int32), buffers.triangle_weight.numpy(), buffers.rest_area_lengths.numpy(),
+                                    mesh.adjacency.offsets, mesh.adjacency.triangles, device=device_)
+            self._muscle_slots = slot_table(MuscleEntry, weights.offsets, self._muscle_entries.numpy(), int(MUSCLE_SLOTS), device=device_)
+            self._wrinkle_slots = slot_table(WrinkleEntry, shapes.offsets, self._wrinkle_entries.numpy(), int(WRINKLE_SLOTS), device=device_)
         self._thread_buffers = threading.local()
         self._single = self._frame_buffers(1)
         self._batch_graphs = BatchGraphs(device=self.device)
@@ -288,7 +303,8 @@ class ExpressionModel:
                 float32 — or a DLPack tensor of the latter, written in place.
             contractions: as in :meth:`evaluate_batch`, or a float32 device array (F, M).
             wrinkle_depths: as in :meth:`evaluate_batch`, or a float32 device array (F, W).
-            progress, frames_per_launch: as in :meth:`evaluate_batch`.
+            progress, frames_per_launch: as in :meth:`evaluate_batch`, except that on CUDA the default
+                chunk is as many frames as fit in 2²⁴ frame·vertices (no host copy to overlap).
 
         Returns:
             ``out``. Same kernels and bit-identical values as :meth:`evaluate_batch`. On CUDA (without a
@@ -310,7 +326,7 @@ class ExpressionModel:
         """
         if not isinstance(progress, (bool, np.bool_)):
             raise ValueError(f"progress: expected True or False, got {type(progress).__name__}")
-        chunks = list(self._chunks(frame_count, frames_per_launch, False))  # checks frames_per_launch
+        chunks = list(self._chunks(frame_count, frames_per_launch, False, device_resident=True))  # checks frames_per_launch
         if not chunks:
             return
         sources = [self._batch_graphs.stage(values, slot) if given is None else given
@@ -325,7 +341,7 @@ class ExpressionModel:
                                final_points=target[start * vertex_count:(start + count) * vertex_count])
 
         if progress:
-            for chunk in self._chunks(frame_count, frames_per_launch, True):
+            for chunk in self._chunks(frame_count, frames_per_launch, True, device_resident=True):
                 write(*chunk)
             return
         key = (target.ptr, frame_count, chunks[0][2], sources[0].ptr, sources[1].ptr)
@@ -394,11 +410,12 @@ class ExpressionModel:
         buffers.upload_controls(host_c[None], host_d[None])
         buffers.copy_controls(device_c, device_d, first=first, count=count)
 
-    def _chunks(self, frame_count: int, frames_per_launch, progress: bool):
+    def _chunks(self, frame_count: int, frames_per_launch, progress: bool, device_resident: bool = False):
         """``(buffers, first frame, frame count)`` per launch, with an optional progress bar."""
         elements = max(self.mesh.vertex_count, self.mesh.triangle_count, 1)
         if frames_per_launch is None:
-            chunk = 1 if self.device.is_cpu else _MAX_BATCH_VERTICES // max(self.mesh.vertex_count, 1)
+            limit = _MAX_DEVICE_BATCH_VERTICES if device_resident else _MAX_BATCH_VERTICES
+            chunk = 1 if self.device.is_cpu else limit // max(self.mesh.vertex_count, 1)
         else:
             chunk = as_count(frames_per_launch, "frames_per_launch", minimum=1)
             if chunk * elements > _MAX_LAUNCH_THREADS:
@@ -459,11 +476,12 @@ class ExpressionModel:
             launch.launch()
 
     def _frames_per_thread(self, frames: int) -> int:
-        """Frames one thread evaluates for its vertex: 1 on the CPU and for small launches; on CUDA up
-        to 4 once a launch has over 2²⁰ frame·vertices, so a vertex's rig data is read once per 4 frames."""
-        if self.device.is_cpu or self.launches_per_frame == 3:  # (the muscle kernel of 3 has one frame per thread)
+        """Frames one thread evaluates for its vertex: 1 on the CPU and for small launches; on CUDA up to
+        :data:`_MAX_FRAMES_PER_THREAD`, one more per 2²⁰ frame·vertices of the launch, so a vertex's rig
+        data is read from memory once per G frames (H200, 1M vertices: G = 4 → 8, +8 % frames/s; 16: +1 %)."""
+        if self.device.is_cpu:
             return 1
-        return int(min(4, max(1, frames * self.mesh.vertex_count // (1 << 20))))
+        return int(min(_MAX_FRAMES_PER_THREAD, max(1, frames * self.mesh.vertex_count // (1 << 20))))
 
     def _launch_args(self, buffers: FrameBuffers, frames: int, controls: wp.array, depths: wp.array,
                      final_points: wp.array, keep_muscle_points: bool) -> list:
@@ -479,23 +497,22 @@ class ExpressionModel:
             jaw_inputs = [self._counts, wp.vec3(), wp.vec3(), wp.vec3(), -1]  # jaw arrays unread
         else:
             jaw_inputs = [self._jaw_weight, wp.vec3(*jaw.pivot), wp.vec3(*jaw.axis), wp.vec3(*jaw.forward), len(self.muscles)]
-        bulge = (muscles_and_bulge, dim,
-                 [mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, controls, buffers.muscle_width,
-                  mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, mesh.adjacency_offsets, mesh.adjacency_triangles,
-                  self._counts, self._thickness, vertex_count, frames, per_thread, int(keep_muscle_points)],
-                 [buffers.muscle_points, buffers.stretch, buffers.bulge_points])
-        wrinkles = (wrinkles_on_bulge, dim,
-                    [buffers.bulge_points, buffers.stretch, mesh.triangles, mesh.triangle_weight, mesh.adjacency_offsets,
-                     mesh.adjacency_triangles, self._wrinkle_offsets, self._wrinkle_entries, depths, buffers.wrinkle_width,
-                     vertex_count, frames, per_thread],
+        muscle_inputs = [mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, self._muscle_slots, controls,
+                         buffers.muscle_width]
+        ring_inputs = [self._ring, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, mesh.adjacency_offsets,
+                       mesh.adjacency_triangles, self._counts, self._thickness, vertex_count, frames, per_thread]
+        wrinkles = (wrinkles_from_ring, dim,
+                    [buffers.bulge_points, buffers.stretch, self._ring, mesh.triangles, mesh.triangle_weight, mesh.adjacency_offsets,
+                     mesh.adjacency_triangles, self._wrinkle_offsets, self._wrinkle_entries, self._wrinkle_slots, depths,
+                     buffers.wrinkle_width, vertex_count, frames, per_thread],
                     [final_points])
         if self.launches_per_frame == 3:
-            muscles = self._staged_launch_args(buffers, frames, controls, depths, final_points)[0]
-            bulge = (bulge_from_muscle_points, dim,
-                     [buffers.muscle_points, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, mesh.adjacency_offsets,
-                      mesh.adjacency_triangles, self._counts, self._thickness, vertex_count, frames, per_thread],
-                     [buffers.stretch, buffers.bulge_points])
+            muscles = (muscle_points_over_frames, dim, [mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, controls,
+                                                        buffers.muscle_width, vertex_count, frames, per_thread], [buffers.muscle_points])
+            bulge = (bulge_from_ring, dim, [buffers.muscle_points, *ring_inputs], [buffers.stretch, buffers.bulge_points])
             return [muscles, bulge, wrinkles]
+        bulge = (muscles_and_bulge_from_ring, dim, [*muscle_inputs, *ring_inputs, int(keep_muscle_points)],
+                 [buffers.muscle_points, buffers.stretch, buffers.bulge_points])
         return [bulge, wrinkles]
 
     def _staged_launch_args(self, buffers: FrameBuffers, frames: int, controls: wp.array, depths: wp.array,

@@ -19,12 +19,72 @@ from .._validate import MAX_COORDINATE, as_finite_array, as_points, as_positive,
 from ._sparse import vertex_csr
 from .falloff import linear_angular_factor, linear_radial_factor, sphincter_factor, sphincter_ring_factor
 
-__all__ = ["LinearMuscle", "SphincterMuscle", "Muscle", "muscle_weights", "MuscleWeights", "FALLOFFS"]
+__all__ = ["LinearMuscle", "MuscleLobe", "SphincterMuscle", "Muscle", "muscle_weights", "MuscleWeights", "FALLOFFS"]
 
 FALLOFFS = ("waters", "smooth")
 """Zone shapes: ``"waters"`` is SPEC §1.1 (the default of the primitives), ``"smooth"`` the C¹ forms of
 SPEC §6.3 / docs/RIG.md: angular ``cos²(μ/Ω·π/2)``, radial ``sin²(D/Rs·π/2)`` then
 ``cos²((D − Rs)/(Rf − Rs)·π/2)``, sphincter rim ``(1 − ρ²)²``; all vanish with zero slope."""
+
+
+MAX_LOBE_GAIN = 1e3
+"""Largest :attr:`MuscleLobe.gain`: beyond it the lobe, not the muscle, would be the control's field."""
+
+
+def _check_zone(record, label: str) -> None:
+    """Validate and normalise the Waters zone of a linear muscle or lobe (ends, angle, radii)."""
+    set_ = object.__setattr__
+    set_(record, "attachment", as_vec3(record.attachment, f"{label}: attachment"))
+    set_(record, "insertion", as_vec3(record.insertion, f"{label}: insertion"))
+    zone = float(as_finite_array(record.zone_angle_deg, f"{label}: zone_angle_deg", shape=()))
+    if not 0.0 < zone < 180.0:
+        raise ValueError(f"{label}: zone_angle_deg must be in (0, 180), got {zone}")
+    set_(record, "zone_angle_deg", zone)
+    start = float(as_finite_array(record.falloff_start, f"{label}: falloff_start", shape=()))
+    if start < 0.0:
+        raise ValueError(f"{label}: falloff_start must be ≥ 0, got {start}")
+    finish = as_positive(record.falloff_finish, f"{label}: falloff_finish")
+    if start >= finish:
+        raise ValueError(f"{label}: falloff_start ({start}) must be < falloff_finish ({finish})")
+    set_(record, "falloff_start", start)
+    set_(record, "falloff_finish", finish)
+    unit_vector(record.insertion - record.attachment, f"{label}: axis (insertion − attachment)")
+
+
+@dataclass(frozen=True, eq=False)
+class MuscleLobe:
+    """A second Waters zone that a linear muscle's contraction drives, scaled by ``gain``.
+
+    A muscle whose fibres reach two regions moves both with one contraction: the frontalis, which has
+    no bony origin, draws the brow up and the scalp's galea down toward its belly; the lower orbital
+    fibres of the orbicularis oculi lift the cheek with the lower lid. The lobe's field is the §1.1 /
+    §6.3 zone of its own ends and radii (same falloff form as its muscle), and the muscle's field is
+    ``w = w_muscle + gain · w_lobe`` before sliding and bunching (docs/RIG.md §5).
+
+    Args:
+        attachment, insertion, zone_angle_deg, falloff_start, falloff_finish: as for :class:`LinearMuscle`.
+        gain: > 0 and ≤ :data:`MAX_LOBE_GAIN`, dimensionless: the lobe's pull per unit of the muscle's.
+    """
+
+    attachment: np.ndarray
+    insertion: np.ndarray
+    zone_angle_deg: float
+    falloff_start: float
+    falloff_finish: float
+    gain: float = 1.0
+
+    def __post_init__(self) -> None:
+        _check_zone(self, "muscle lobe")
+        gain = float(as_finite_array(self.gain, "muscle lobe: gain", shape=()))
+        if not 0.0 < gain <= MAX_LOBE_GAIN:
+            raise ValueError(f"muscle lobe: gain must be in (0, {MAX_LOBE_GAIN:g}], got {gain}")
+        object.__setattr__(self, "gain", gain)
+
+    @property
+    def axis(self) -> np.ndarray:
+        """Unit vector from attachment to insertion, shape (3,)."""
+        axis = self.insertion - self.attachment
+        return axis / np.linalg.norm(axis)
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,6 +112,7 @@ class LinearMuscle:
             :class:`~warpface.ExpressionModel` adds it.
         thickening: ≥ 0, dimensionless: a shortening muscle thickens, lifting the skin over it by
             ``thickening · |w|`` along the normal per unit contraction (docs/RIG.md §3).
+        lobe: an optional :class:`MuscleLobe`, a second zone the same contraction moves.
 
     Contraction ``K`` is a length [mesh units]: the largest displacement, reached at ``μ = 0``,
     ``D = Rs``.
@@ -67,27 +128,15 @@ class LinearMuscle:
     sliding: float = 0.0
     bunching: float = 0.0
     thickening: float = 0.0
+    lobe: MuscleLobe | None = None
 
     def __post_init__(self) -> None:
         label = f"linear muscle {self.name!r}"
         _check_name(self.name, label)
-        set_ = object.__setattr__
-        set_(self, "attachment", as_vec3(self.attachment, f"{label}: attachment"))
-        set_(self, "insertion", as_vec3(self.insertion, f"{label}: insertion"))
-        zone = float(as_finite_array(self.zone_angle_deg, f"{label}: zone_angle_deg", shape=()))
-        if not 0.0 < zone < 180.0:
-            raise ValueError(f"{label}: zone_angle_deg must be in (0, 180), got {zone}")
-        set_(self, "zone_angle_deg", zone)
-        start = float(as_finite_array(self.falloff_start, f"{label}: falloff_start", shape=()))
-        if start < 0.0:
-            raise ValueError(f"{label}: falloff_start must be ≥ 0, got {start}")
-        finish = as_positive(self.falloff_finish, f"{label}: falloff_finish")
-        if start >= finish:
-            raise ValueError(f"{label}: falloff_start ({start}) must be < falloff_finish ({finish})")
-        set_(self, "falloff_start", start)
-        set_(self, "falloff_finish", finish)
-        unit_vector(self.insertion - self.attachment, f"{label}: axis (insertion − attachment)")
+        _check_zone(self, label)
         _check_response(self, label)
+        if self.lobe is not None and not isinstance(self.lobe, MuscleLobe):
+            raise TypeError(f"{label}: lobe must be a MuscleLobe or None, got {type(self.lobe).__name__}")
 
     @property
     def axis(self) -> np.ndarray:
@@ -232,6 +281,19 @@ def _sphincter_weight_kernel(
         weight[i] = -falloff * (x * axis_x + y * axis_y)
 
 
+@wp.kernel
+def _add_scaled_kernel(values: wp.array(dtype=wp.vec3d), scale: wp.float64, total: wp.array(dtype=wp.vec3d)):
+    i = wp.tid()
+    total[i] = total[i] + scale * values[i]
+
+
+def _linear_zone_weights(rest: wp.array, zone, falloff: str, out: wp.array) -> None:
+    """The §1.1 / §6.3 zone weights of a :class:`LinearMuscle` or :class:`MuscleLobe` into ``out`` (V,) vec3d."""
+    inputs = [rest, wp.vec3d(*zone.attachment), wp.vec3d(*zone.axis), math.radians(zone.zone_angle_deg),
+              zone.falloff_start, zone.falloff_finish, int(falloff == "smooth")]
+    wp.launch(_linear_muscle_weight_kernel, dim=len(rest), inputs=inputs, outputs=[out], device=rest.device)
+
+
 @dataclass(frozen=True)
 class MuscleWeights:
     """Sparse per-vertex muscle weights, vertex-major CSR: ``x1[v] = x[v] + Σ_k K[muscle[k]]·weight[k]``.
@@ -263,9 +325,11 @@ def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], *, device=Non
     rows, columns, values = [], [], []
     for index, muscle in enumerate(expect_iterable(muscles, "muscles", item_types=(LinearMuscle, SphincterMuscle))):
         if isinstance(muscle, LinearMuscle):
-            inputs = [rest, wp.vec3d(*muscle.attachment), wp.vec3d(*muscle.axis), math.radians(muscle.zone_angle_deg),
-                      muscle.falloff_start, muscle.falloff_finish, int(muscle.falloff == "smooth")]
-            wp.launch(_linear_muscle_weight_kernel, dim=vertex_count, inputs=inputs, outputs=[out], device=device)
+            _linear_zone_weights(rest, muscle, muscle.falloff, out)
+            if muscle.lobe is not None:
+                lobe = wp.empty_like(out)
+                _linear_zone_weights(rest, muscle.lobe, muscle.falloff, lobe)
+                wp.launch(_add_scaled_kernel, dim=vertex_count, inputs=[lobe, muscle.lobe.gain], outputs=[out], device=device)
         elif isinstance(muscle, SphincterMuscle):
             inputs = [rest, wp.vec3d(*muscle.center), wp.vec3d(*muscle.axis_x), wp.vec3d(*muscle.axis_y),
                       muscle.semi_axes[0], muscle.semi_axes[1], int(muscle.falloff == "smooth"), muscle.ring]

@@ -7,8 +7,9 @@ displacement; driven nodes follow the displacement given for each step.
 
 Solvers (``solver=``):
 
-* ``"direct"`` (default on CPU): ``A_oo`` factorised once (SuperLU, symmetric mode, no pivoting,
-  see :mod:`warpface.fem.solver_direct`), float64 NumPy state.
+* ``"direct"`` (default on CPU): ``A_oo`` factorised once as a block LDLᵀ with a float32 factor,
+  each step refined to float64 accuracy from an extrapolated start (SuperLU in float64 when the
+  matrix is too ill-conditioned for that; see :mod:`warpface.fem.solver_direct`), float64 NumPy state.
 * ``"cg"`` (default on CUDA): preconditioned CG in fused Warp kernels (FSAI preconditioner from
   ``warp.optim.linear``), started from an extrapolation of past displacements, with the whole
   step captured in one graph (see :mod:`warpface.fem.solver_cg`). It also runs on the CPU

@@ -1,15 +1,18 @@
 """CPU Newmark solver: one sparse factorisation of ``A_oo``, reused every time step.
 
-``A_oo`` (free-free block of ``K + c0 M + c3 C``) is symmetric positive definite, so it is
-factorised without pivoting by SuperLU in symmetric mode with a minimum-degree ordering of
-``A + A^T`` (``permc_spec="MMD_AT_PLUS_A"``, ``diag_pivot_thresh=0``): an LDLᵀ in LU
-clothing, with less fill and faster solves than SciPy's default (COLAMD + partial pivoting) on
-face shells; a CHOLMOD wrapper was no faster, so no extra dependency is taken (measurements:
-``benchmarks/README.md``).
+``A_oo`` (free-free block of ``K + c0 M + c3 C``) is symmetric positive definite. It is factorised
+once as a block LDLᵀ of 3x3 node blocks with a float32 factor (:class:`~warpface.fem.ldlt.BlockLDLT`):
+each step starts from a cubic extrapolation of the last four displacements (the Newmark predictor
+until there are four) and refines it with the float64 residual, one round in smooth motion, until
+the estimated error is below ``1e-10`` of the displacement's scale. The triangular sweeps stream
+``L`` once, in float32, instead of SuperLU's ``L`` and ``U`` in float64. When the float32 factor would
+not refine reliably (an ill-conditioned matrix), SuperLU's float64 factor is used instead
+(symmetric mode, minimum degree on ``A + Aᵀ``, no pivoting: :func:`factorize_spd`). Measurements:
+``benchmarks/README.md``.
 
 State and arithmetic are float64 (CPU Warp arrays read through zero-copy NumPy views); each
 time step is two sparse products with the mass and damping rows of the free nodes, one with
-``A_od``, the triangular solves and the shared Newmark update kernel.
+``A_od``, the solve and the shared Newmark update kernel.
 """
 
 from __future__ import annotations
@@ -23,20 +26,37 @@ import scipy.sparse.linalg as spla
 import warp as wp
 
 from .kernels_integrator import newmark_update
+from .ldlt import BlockLDLT, UnsuitableFactor
 from .newmark import NewmarkCoefficients
 from .state import TissueControl, TissueState
 
-__all__ = ["DirectSolver", "factorize_spd", "node_dofs"]
+__all__ = ["DirectSolver", "SuperLUFactor", "factorize_spd", "node_dofs"]
 
 
 def factorize_spd(matrix):
-    """SuperLU factorisation of a sparse SPD matrix without pivoting (see module docstring)."""
+    """SuperLU factorisation of a sparse SPD matrix without pivoting (symmetric mode, MMD on ``A + Aᵀ``):
+    an LDLᵀ in LU clothing, with less fill and faster solves than SciPy's default (COLAMD + partial
+    pivoting) on face shells."""
     return spla.splu(
         sps.csc_matrix(matrix),
         permc_spec="MMD_AT_PLUS_A",
         diag_pivot_thresh=0.0,
         options={"SymmetricMode": True},
     )
+
+
+class SuperLUFactor:
+    """The float64 fallback of :class:`DirectSolver`: :func:`factorize_spd` with the solve signature of
+    :class:`~warpface.fem.ldlt.BlockLDLT` (the guess and reference are not needed)."""
+
+    def __init__(self, matrix):
+        self._lu = factorize_spd(matrix)
+        self.factor_nnz = int(self._lu.L.nnz + self._lu.U.nnz)
+        """Non-zeros of the L and U factors."""
+
+    def solve(self, rhs: np.ndarray, guess: np.ndarray | None = None, *, reference: float = 0.0) -> np.ndarray:
+        """``A⁻¹ rhs``, shape (3n,)."""
+        return self._lu.solve(rhs)
 
 
 def node_dofs(nodes: np.ndarray) -> np.ndarray:
@@ -73,11 +93,16 @@ class DirectSolver:
         A = (K + c.mass_displacement * M + c.damping_displacement * C).tocsr()
         rows = A[o]
         t0 = time.perf_counter()
-        self._lu = factorize_spd(rows[:, o])
+        try:
+            self.factor = BlockLDLT(rows[:, o])
+            """The factorisation: :class:`~warpface.fem.ldlt.BlockLDLT`, or :class:`SuperLUFactor` when the
+            float32 factor would not refine reliably."""
+        except UnsuitableFactor:
+            self.factor = SuperLUFactor(rows[:, o])
         self.factor_seconds = time.perf_counter() - t0
         """Wall time of the factorisation [s]."""
-        self.factor_nnz = int(self._lu.L.nnz + self._lu.U.nnz)
-        """Non-zeros of the L and U factors."""
+        self.factor_nnz = self.factor.factor_nnz
+        """Stored non-zeros of the factor."""
         self._A_od = rows[:, dd].tocsr()
         # M is (scalar node mass) ⊗ I3, so its product acts on (N, 3) arrays with a third of the work.
         self._M_node = sps.csr_matrix(M.tocsr()[0::3][:, 0::3])[self.free_nodes]
@@ -93,10 +118,31 @@ class DirectSolver:
         self._solution_view = self._solution.numpy().reshape(-1)
         self._update_constants = c.update_scalars(wp.float64)
         self._bindings: dict = {}
+        # the last four solutions, newest last, for the extrapolated start of the next step
+        self._history = np.zeros((4, 3 * self.free_nodes.size))
+        self._history_count = 0
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
-        """``A_oo^{-1} rhs`` for a free-dof vector, shape (3F,)."""
-        return self._lu.solve(rhs)
+        """``A_oo^{-1} rhs`` for a free-dof vector, shape (3F,) (a new array)."""
+        return np.array(self.factor.solve(rhs))
+
+    def _start(self, d: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """The step's starting guess for the free dofs: the cubic extrapolation of the last four solutions when
+        ``d`` continues them, else the Newmark predictor ``d + dt v + dt²/2 a``."""
+        free = self.free_nodes
+        d_free = d[free].ravel()
+        if self._history_count and not np.array_equal(d_free, self._history[-1]):
+            self._history_count = 0  # a new trajectory (reset, or another state)
+        if self._history_count == 4:
+            h = self._history
+            return 4.0 * h[3] - 6.0 * h[2] + 4.0 * h[1] - h[0]
+        c = self.coefficients
+        return d_free + c.dt * v[free].ravel() + c.half_dt_squared * a[free].ravel()
+
+    def _remember(self, x: np.ndarray) -> None:
+        self._history[:-1] = self._history[1:]
+        self._history[-1] = x
+        self._history_count = min(self._history_count + 1, 4)
 
     def step(self, state_in: TissueState, state_out: TissueState, control: TissueControl) -> None:
         """Advance one time step from ``state_in`` to ``state_out`` (may be the same object).
@@ -118,13 +164,17 @@ class DirectSolver:
         u = c.mass_displacement * d + c.mass_velocity * v + c.mass_acceleration * a
         w = c.damping_displacement * d + c.damping_velocity * v + c.damping_acceleration * a
         rhs = (self._M_node @ u).ravel() + self._C_o @ w.ravel()
+        reference = 0.0
         if self.driven_nodes.size:
             rhs -= self._A_od @ binding.driven.ravel()
-        x = self._lu.solve(rhs)
+            reference = float(np.abs(binding.driven).max())
+        x = self.factor.solve(rhs, self._start(d, v, a), reference=reference)
         if not np.all(np.isfinite(x)):
+            self._history_count = 0
             raise FloatingPointError("direct solve produced non-finite displacements")
         self._solution_view[:] = x
         binding.update.launch()
+        self._remember(x)
 
     def _binding(self, state_in: TissueState, state_out: TissueState, control: TissueControl) -> SimpleNamespace:
         """Zero-copy NumPy views of the inputs and the recorded update launch, cached per combination of arrays."""
