@@ -131,7 +131,7 @@ def test_waters_forms_of_the_full_rig_still_match_the_section_1_reference(rig):
     points = rig.mesh.points
     for muscle in rig.muscles[:: 5]:
         # §1.1 forms: Waters zones, no sliding, bunching, lobe or ring
-        extra = {"lobe": None} if isinstance(muscle, wf.LinearMuscle) else {"ring": 0.0}
+        extra = {"lobes": ()} if isinstance(muscle, wf.LinearMuscle) else {"ring": 0.0}
         classic = replace(muscle, falloff="waters", sliding=0.0, bunching=0.0, thickening=0.0, **extra)
         if isinstance(muscle, wf.LinearMuscle):
             expected = ref.linear_muscle(points, muscle.attachment, muscle.insertion, muscle.zone_angle_deg,
@@ -143,22 +143,24 @@ def test_waters_forms_of_the_full_rig_still_match_the_section_1_reference(rig):
 
 def test_a_lobe_adds_its_own_zone_scaled_by_its_gain(rig):
     points = rig.mesh.points
-    lobed = [m for m in rig.muscles if isinstance(m, wf.LinearMuscle) and m.lobe is not None]
+    lobed = [m for m in rig.muscles if isinstance(m, wf.LinearMuscle) and m.lobes]
     assert {m.name for m in lobed} >= {"frontalis_inner_L", "frontalis_middle_R", "orbicularis_oculi_lower_lid_L"}
     for muscle in lobed:
-        lobe = muscle.lobe
         classic = replace(muscle, falloff="waters", sliding=0.0, bunching=0.0, thickening=0.0)
         expected = ref.linear_muscle(points, muscle.attachment, muscle.insertion, muscle.zone_angle_deg,
                                      muscle.falloff_start, muscle.falloff_finish, 1.0)
-        expected += lobe.gain * ref.linear_muscle(points, lobe.attachment, lobe.insertion, lobe.zone_angle_deg,
-                                                  lobe.falloff_start, lobe.falloff_finish, 1.0)
+        for lobe in muscle.lobes:
+            expected += lobe.gain * ref.linear_muscle(points, lobe.attachment, lobe.insertion, lobe.zone_angle_deg,
+                                                      lobe.falloff_start, lobe.falloff_finish, 1.0)
         np.testing.assert_allclose(dense(points, classic), expected, atol=1e-9 * rig.mesh.size, err_msg=muscle.name)
     for bad in (dict(gain=0.0), dict(gain=float("inf")), dict(zone_angle_deg=180.0), dict(falloff_start=2.0)):
         fields = dict(attachment=[0, 0, 0], insertion=[1, 0, 0], zone_angle_deg=40.0, falloff_start=0.5, falloff_finish=1.5)
         with pytest.raises(ValueError, match="muscle lobe"):
             wf.MuscleLobe(**{**fields, **bad})
-    with pytest.raises(TypeError, match="lobe"):
-        wf.LinearMuscle("m", lobe="frontalis", **LINEAR)
+    with pytest.raises(TypeError, match="lobes"):
+        wf.LinearMuscle("m", lobes=["frontalis"], **LINEAR)
+    with pytest.raises(TypeError, match="lobes"):
+        wf.LinearMuscle("m", lobes=5, **LINEAR)
 
 
 def test_full_rig_has_every_muscle_with_c1_zones_and_a_jaw(rig):
@@ -233,11 +235,11 @@ def test_full_rig_round_trips_through_usd_with_its_jaw(rig, tmp_path):
     for original, read in zip(rig.muscles, back.muscles):
         assert (read.falloff, read.sliding, read.bunching, read.thickening, getattr(read, "ring", None)) == (
             original.falloff, original.sliding, original.bunching, original.thickening, getattr(original, "ring", None))
-        lobes = [getattr(m, "lobe", None) for m in (original, read)]
-        assert (lobes[0] is None) == (lobes[1] is None), original.name
-        if lobes[0] is not None:
+        lobes = [getattr(m, "lobes", ()) for m in (original, read)]
+        assert len(lobes[0]) == len(lobes[1]), original.name
+        for lobe, lobe_read in zip(*lobes):
             for field in ("attachment", "insertion", "zone_angle_deg", "falloff_start", "falloff_finish", "gain"):
-                np.testing.assert_allclose(getattr(lobes[1], field), getattr(lobes[0], field), rtol=1e-12, atol=1e-15)
+                np.testing.assert_allclose(getattr(lobe_read, field), getattr(lobe, field), rtol=1e-12, atol=1e-15)
     controls = {"jaw_open": 0.2, "zygomaticus_major_L": 0.004, "orbicularis_oculi_R": 0.2}
     np.testing.assert_allclose(back.model(device=DEVICE).evaluate(controls), rig.model(device=DEVICE).evaluate(controls), atol=1e-6)
 
@@ -252,9 +254,13 @@ def test_a_broken_lobe_on_the_stage_is_one_clear_error(rig, tmp_path):
     path = tmp_path / "face.usda"
     write_rig(path, rig)
     muscle = "/Face/Muscles/frontalis_inner_L"
-    for case, (edit, message) in enumerate( ((lambda p: p.RemoveProperty("lobe:insertion"), "lobe:insertion: attribute is missing"),
-                          (lambda p: p.GetAttribute("lobe:gain").Set(-1.0), "gain must be in"),
-                          (lambda p: p.GetAttribute("lobe:zoneAngle").Set(float("nan")), "lobe:zoneAngle: expected a finite"))):
+    from pxr import Vt
+
+    cases = ((lambda p: p.RemoveProperty("lobes:insertion"), "lobes:insertion: attribute is missing"),
+             (lambda p: p.GetAttribute("lobes:gain").Set(Vt.DoubleArray([-1.0])), "gain must be in"),
+             (lambda p: p.GetAttribute("lobes:zoneAngle").Set(Vt.DoubleArray([float("nan")])), "lobes:zoneAngle: non-finite"),
+             (lambda p: p.GetAttribute("lobes:gain").Set(Vt.DoubleArray([0.4, 0.4])), "one entry per lobe"))
+    for case, (edit, message) in enumerate(cases):
         copy = shutil.copy(path, tmp_path / f"case{case}.usda")  # each edit on its own layer
         stage = Usd.Stage.Open(str(copy))
         edit(stage.GetPrimAtPath(muscle))
@@ -262,8 +268,8 @@ def test_a_broken_lobe_on_the_stage_is_one_clear_error(rig, tmp_path):
             read_rig(stage)
         assert "frontalis_inner_L" in str(caught.value)
     stage = Usd.Stage.Open(str(shutil.copy(path, tmp_path / "no_lobe.usda")))
-    stage.GetPrimAtPath(muscle).GetAttribute("lobe:gain").Set(0.0)  # 0: no lobe
-    assert next(m for m in read_rig(stage).muscles if m.name == "frontalis_inner_L").lobe is None
+    stage.GetPrimAtPath(muscle).GetAttribute("lobes:gain").Set(Vt.DoubleArray())  # empty: no lobes
+    assert next(m for m in read_rig(stage).muscles if m.name == "frontalis_inner_L").lobes == ()
 
 
 # ------------------------------------------------------------------------------------------------ presets

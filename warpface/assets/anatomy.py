@@ -108,6 +108,13 @@ between bunches out. Given to the inner and middle bellies (docs/RIG.md §5): br
 44.0 → 47.2 %, landmarks 44.4 → 47.6 % (as a separate control it reached 46 % dense and nothing from
 landmarks, which do not see the upper forehead)."""
 
+NASAL_LOBE = (0.10, 0.00, 36.0, 1.00, 1.30, 0.05)
+"""The inner frontalis' nasal lobe [inter-ocular units]: (its insertion beside the midline and above the
+nose tip, iBUG 30; zone half-angle [deg]; falloff start and finish as multiples of its length; gain).
+The inner belly's medial fibres continue into the procerus and the nasal skin, which ICT's browInnerUp
+lifts ~0.5 mm as one piece with the brow (686 of its 2194 moved vertices): dense reach 48.1 → 50.6 %,
+landmarks 48.6 → 50.6 % (a lobe from the glabella to the nose tip lost 0.5–14 points)."""
+
 CHEEK_LOBE = (0.25, 0.10, 0.15, 0.35, 0.45, 40.0, 0.90, 1.90, 1.3)
 """The lower lid's cheek lobe [inter-ocular units]: (fixed point medial of the inner canthus, and above it,
 depth; insertion lateral of and below the eye's centre; zone half-angle [deg]; falloff start and finish
@@ -180,7 +187,7 @@ def revised_classic_muscles(local: np.ndarray, surface: SurfaceSampler, classic:
         if not muscle.name.startswith("frontalis_"):
             out.append(muscle)
             continue
-        out.append(_frontalis_belly(muscle.name, surface, brow_top, muscle.insertion))
+        out.append(_frontalis_belly(muscle.name, surface, brow_top, float(local[30, 1]), muscle.insertion))
     return out
 
 
@@ -192,21 +199,31 @@ def _cheek_lobe(surface: SurfaceSampler, inner_canthus, eye, side: float) -> Mus
     return MuscleLobe(cheek.attachment, cheek.insertion, zone, cheek.falloff_start, cheek.falloff_finish, gain)
 
 
-def _frontalis_belly(name, surface: SurfaceSampler, brow_top: float, insertion: np.ndarray, shift: float = 0.0) -> LinearMuscle:
-    """A frontalis belly of :data:`FRONTALIS_BELLIES` into the brow skin point ``insertion`` (3,); its fixed
-    point ``shift`` units sideways of the insertion (local x)."""
+def _lobe(attachment, insertion, zone: float, start: float, finish: float, gain: float) -> MuscleLobe:
+    """A lobe between two points; its radii as multiples of its length."""
+    length = float(np.linalg.norm(insertion - attachment))
+    return MuscleLobe(attachment, insertion, zone, start * length, finish * length, gain)
+
+
+def _frontalis_belly(name, surface: SurfaceSampler, brow_top: float, nose_tip_y: float, insertion: np.ndarray,
+                     shift: float = 0.0) -> LinearMuscle:
+    """A frontalis belly of :data:`FRONTALIS_BELLIES` into the brow skin point ``insertion`` (3,), its fixed
+    point ``shift`` units sideways of the insertion (local x), with its lobes (:data:`GALEA_LOBE`,
+    :data:`NASAL_LOBE`); ``brow_top`` and ``nose_tip_y`` are local heights."""
     belly = name.split("_")[1]
     height, depth, zone, start, finish = FRONTALIS_BELLIES[belly]
     attachment = surface.below((surface.frame.to_local(insertion)[0] + shift, brow_top + height), depth)
     length = float(np.linalg.norm(insertion - attachment))
-    lobe = None
+    lobes = []
     if belly in ("inner", "middle"):
-        rise, lobe_zone, lobe_start, lobe_finish, gain = GALEA_LOBE
+        rise, *shape = GALEA_LOBE
         fixed = surface.frame.to_local(attachment)
-        galea = surface.point((fixed[0], fixed[1] + rise))
-        lobe_length = float(np.linalg.norm(galea - attachment))
-        lobe = MuscleLobe(attachment, galea, lobe_zone, lobe_start * lobe_length, lobe_finish * lobe_length, gain)
-    return LinearMuscle(name, attachment, insertion, zone, start * length, finish * length, lobe=lobe)
+        lobes.append(_lobe(attachment, surface.point((fixed[0], fixed[1] + rise)), *shape))
+    if belly == "inner":
+        across, up, *shape = NASAL_LOBE
+        side = 1.0 if name.endswith("_L") else -1.0
+        lobes.append(_lobe(attachment, surface.point((across * side, nose_tip_y + up)), *shape))
+    return LinearMuscle(name, attachment, insertion, zone, start * length, finish * length, lobes=tuple(lobes))
 
 
 def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame,
@@ -221,7 +238,8 @@ def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame
         # three bellies together lift the whole brow and the forehead over it (AU1 + AU2).
         middle = xy[i["brow_middle"]]
         linear[f"frontalis_middle_{tag}"] = _frontalis_belly(
-            f"frontalis_middle_{tag}", surface, brow_top, surface.point((middle[0], middle[1] + 0.05)), shift=-0.10 * s)
+            f"frontalis_middle_{tag}", surface, brow_top, float(xy[30, 1]), surface.point((middle[0], middle[1] + 0.05)),
+            shift=-0.10 * s)
         brow_inner, eye_inner, eye_outer = xy[i["brow_inner"]], xy[i["eye_inner"]], xy[i["eye_outer"]]
         eye = xy[list(i["eye"])].mean(axis=0)
         wing, corner, upper, lower = xy[i["wing"]], xy[i["corner"]], xy[i["upper"]], xy[i["lower"]]
@@ -256,7 +274,7 @@ def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame
         linear[f"orbicularis_oculi_upper_lid_{tag}"] = _linear(
             f"orbicularis_oculi_upper_lid_{tag}", surface, (medial, bottom), 0.06, (eye[0], top + 0.10), 70.0, 0.90, 1.70)
         lid = _linear(f"orbicularis_oculi_lower_lid_{tag}", surface, (medial, top), 0.06, (eye[0], bottom - 0.12), 70.0, 0.90, 2.20)
-        linear[lid.name] = replace(lid, lobe=_cheek_lobe(surface, xy[_LANDMARKS[tag]["eye_inner"]], eye, s))
+        linear[lid.name] = replace(lid, lobes=(_cheek_lobe(surface, xy[_LANDMARKS[tag]["eye_inner"]], eye, s),))
         # Levator palpebrae superioris: from the orbit's roof, deep behind the brow, into the upper lid (eyeWide).
         linear[f"levator_palpebrae_{tag}"] = _linear(
             f"levator_palpebrae_{tag}", surface, (eye[0], top + 0.30), 0.35, (eye[0], top + 0.02), 40.0, 0.90, 1.30)

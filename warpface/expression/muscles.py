@@ -27,6 +27,8 @@ SPEC §6.3 / docs/RIG.md: angular ``cos²(μ/Ω·π/2)``, radial ``sin²(D/Rs·�
 ``cos²((D − Rs)/(Rf − Rs)·π/2)``, sphincter rim ``(1 − ρ²)²``; all vanish with zero slope."""
 
 
+MAX_LOBES = 8
+"""Most lobes one linear muscle drives."""
 MAX_LOBE_GAIN = 1e3
 """Largest :attr:`MuscleLobe.gain`: beyond it the lobe, not the muscle, would be the control's field."""
 
@@ -59,7 +61,7 @@ class MuscleLobe:
     no bony origin, draws the brow up and the scalp's galea down toward its belly; the lower orbital
     fibres of the orbicularis oculi lift the cheek with the lower lid. The lobe's field is the §1.1 /
     §6.3 zone of its own ends and radii (same falloff form as its muscle), and the muscle's field is
-    ``w = w_muscle + gain · w_lobe`` before sliding and bunching (docs/RIG.md §5).
+    ``w = w_muscle + Σ gain · w_lobe`` before sliding and bunching (docs/RIG.md §5).
 
     Args:
         attachment, insertion, zone_angle_deg, falloff_start, falloff_finish: as for :class:`LinearMuscle`.
@@ -112,7 +114,7 @@ class LinearMuscle:
             :class:`~warpface.ExpressionModel` adds it.
         thickening: ≥ 0, dimensionless: a shortening muscle thickens, lifting the skin over it by
             ``thickening · |w|`` along the normal per unit contraction (docs/RIG.md §3).
-        lobe: an optional :class:`MuscleLobe`, a second zone the same contraction moves.
+        lobes: :class:`MuscleLobe` s, further zones the same contraction moves (default none).
 
     Contraction ``K`` is a length [mesh units]: the largest displacement, reached at ``μ = 0``,
     ``D = Rs``.
@@ -128,15 +130,16 @@ class LinearMuscle:
     sliding: float = 0.0
     bunching: float = 0.0
     thickening: float = 0.0
-    lobe: MuscleLobe | None = None
+    lobes: tuple[MuscleLobe, ...] = ()
 
     def __post_init__(self) -> None:
         label = f"linear muscle {self.name!r}"
         _check_name(self.name, label)
         _check_zone(self, label)
         _check_response(self, label)
-        if self.lobe is not None and not isinstance(self.lobe, MuscleLobe):
-            raise TypeError(f"{label}: lobe must be a MuscleLobe or None, got {type(self.lobe).__name__}")
+        if len(expect_iterable(self.lobes, f"{label}: lobes", sized=True)) > MAX_LOBES:
+            raise ValueError(f"{label}: at most {MAX_LOBES} lobes, got {len(self.lobes)}")
+        object.__setattr__(self, "lobes", tuple(expect_iterable(self.lobes, f"{label}: lobes", item_types=(MuscleLobe,))))
 
     @property
     def axis(self) -> np.ndarray:
@@ -326,10 +329,10 @@ def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], *, device=Non
     for index, muscle in enumerate(expect_iterable(muscles, "muscles", item_types=(LinearMuscle, SphincterMuscle))):
         if isinstance(muscle, LinearMuscle):
             _linear_zone_weights(rest, muscle, muscle.falloff, out)
-            if muscle.lobe is not None:
-                lobe = wp.empty_like(out)
-                _linear_zone_weights(rest, muscle.lobe, muscle.falloff, lobe)
-                wp.launch(_add_scaled_kernel, dim=vertex_count, inputs=[lobe, muscle.lobe.gain], outputs=[out], device=device)
+            lobe_weights = wp.empty_like(out) if muscle.lobes else None
+            for lobe in muscle.lobes:
+                _linear_zone_weights(rest, lobe, muscle.falloff, lobe_weights)
+                wp.launch(_add_scaled_kernel, dim=vertex_count, inputs=[lobe_weights, lobe.gain], outputs=[out], device=device)
         elif isinstance(muscle, SphincterMuscle):
             inputs = [rest, wp.vec3d(*muscle.center), wp.vec3d(*muscle.axis_x), wp.vec3d(*muscle.axis_y),
                       muscle.semi_axes[0], muscle.semi_axes[1], int(muscle.falloff == "smooth"), muscle.ring]

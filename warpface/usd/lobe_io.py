@@ -1,84 +1,82 @@
-"""A linear muscle's lobe (:class:`~warpface.MuscleLobe`) as ``lobe:*`` attributes of its muscle prim.
+"""A linear muscle's lobes (:class:`~warpface.MuscleLobe`) as ``lobes:*`` array attributes of its muscle prim.
 
-``lobe:gain`` (schema fallback 0: no lobe) and, when it is above 0, the lobe's own zone:
-``lobe:attachment``, ``lobe:insertion`` [stage units, the muscle prim's local space], ``lobe:zoneAngle``
-[degrees], ``lobe:falloffStart``, ``lobe:falloffFinish`` [stage units].
+One entry per lobe, in order: ``lobes:gain`` (schema fallback ``[]``: no lobes), ``lobes:attachment``,
+``lobes:insertion`` [stage units, the muscle prim's local space], ``lobes:zoneAngle`` [degrees],
+``lobes:falloffStart``, ``lobes:falloffFinish`` [stage units].
 """
 
 from __future__ import annotations
 
-import math
 from typing import Callable
 
 import numpy as np
-from pxr import Sdf, Usd
+from pxr import Sdf, Usd, Vt
 
 from ..errors import RigError
-from ..expression.muscles import MuscleLobe
+from ..expression.muscles import MAX_LOBES, MuscleLobe
 
-__all__ = ["author_lobe", "read_lobe", "LOBE_GAIN"]
+__all__ = ["author_lobes", "read_lobes", "LOBE_ATTRIBUTES"]
 
-LOBE_GAIN = "lobe:gain"
+LOBE_ATTRIBUTES = ("lobes:gain", "lobes:attachment", "lobes:insertion", "lobes:zoneAngle", "lobes:falloffStart",
+                   "lobes:falloffFinish")
 _DEFAULT = Usd.TimeCode.Default()
 
 
-def author_lobe(prim: Usd.Prim, lobe: MuscleLobe | None) -> None:
-    """Write ``lobe`` on the muscle ``prim`` (uniform attributes); nothing for no lobe."""
-    if lobe is None:
+def author_lobes(prim: Usd.Prim, lobes: tuple[MuscleLobe, ...]) -> None:
+    """Write ``lobes`` on the muscle ``prim`` (uniform arrays); nothing for none."""
+    if not lobes:
         return
     types = Sdf.ValueTypeNames
-    values = ((LOBE_GAIN, types.Double, lobe.gain), ("lobe:attachment", types.Double3, tuple(lobe.attachment)),
-              ("lobe:insertion", types.Double3, tuple(lobe.insertion)), ("lobe:zoneAngle", types.Double, lobe.zone_angle_deg),
-              ("lobe:falloffStart", types.Double, lobe.falloff_start), ("lobe:falloffFinish", types.Double, lobe.falloff_finish))
-    for name, type_name, value in values:
+    columns = (
+        (types.DoubleArray, Vt.DoubleArray([lobe.gain for lobe in lobes])),
+        (types.Double3Array, Vt.Vec3dArray.FromNumpy(np.array([lobe.attachment for lobe in lobes]))),
+        (types.Double3Array, Vt.Vec3dArray.FromNumpy(np.array([lobe.insertion for lobe in lobes]))),
+        (types.DoubleArray, Vt.DoubleArray([lobe.zone_angle_deg for lobe in lobes])),
+        (types.DoubleArray, Vt.DoubleArray([lobe.falloff_start for lobe in lobes])),
+        (types.DoubleArray, Vt.DoubleArray([lobe.falloff_finish for lobe in lobes])),
+    )
+    for name, (type_name, value) in zip(LOBE_ATTRIBUTES, columns):
         prim.CreateAttribute(name, type_name, custom=False, variability=Sdf.VariabilityUniform).Set(value)
 
 
-def read_lobe(prim: Usd.Prim, point: Callable[[np.ndarray], np.ndarray], to_units: float, length: float) -> MuscleLobe | None:
-    """The lobe of the muscle ``prim``, or ``None`` where ``lobe:gain`` is 0 or absent.
+def read_lobes(prim: Usd.Prim, point: Callable[[np.ndarray], np.ndarray], to_units: float, length: float) -> tuple[MuscleLobe, ...]:
+    """The lobes of the muscle ``prim`` (empty where ``lobes:gain`` is empty or absent).
 
     Args:
-        point: maps a point of the prim's local space into the skin's; to_units: stage → output units
-            for points; length: stage → output units for lengths (the placement's scale included).
+        point: maps points of the prim's local space (N, 3) into the skin's; to_units: stage → output
+            units for points; length: stage → output units for lengths (the placement's scale included).
 
     Raises:
-        RigError: a lobe attribute is missing or not a finite number / 3-vector (ValueError from
-            :class:`~warpface.MuscleLobe` for out-of-range values).
+        RigError: a ``lobes:*`` attribute is missing, not finite, or of another length than ``lobes:gain``
+            (ValueError from :class:`~warpface.MuscleLobe` for out-of-range values).
     """
-    gain = _number(prim, LOBE_GAIN, required=False)
-    if gain is None or gain == 0.0:
-        return None
-    return MuscleLobe(
-        attachment=point(_vector(prim, "lobe:attachment")) * to_units,
-        insertion=point(_vector(prim, "lobe:insertion")) * to_units,
-        zone_angle_deg=_number(prim, "lobe:zoneAngle"),
-        falloff_start=_number(prim, "lobe:falloffStart") * length,
-        falloff_finish=_number(prim, "lobe:falloffFinish") * length,
-        gain=gain,
-    )
+    gains = _column(prim, "lobes:gain", (None,), required=False)
+    if gains is None or len(gains) == 0:
+        return ()
+    count = len(gains)
+    if count > MAX_LOBES:
+        raise RigError(f"{prim.GetPath()}.lobes:gain: at most {MAX_LOBES} lobes, got {count}")
+    attachments = point(_column(prim, "lobes:attachment", (count, 3))) * to_units
+    insertions = point(_column(prim, "lobes:insertion", (count, 3))) * to_units
+    zones, starts, finishes = (_column(prim, name, (count,)) for name in LOBE_ATTRIBUTES[3:])
+    return tuple(MuscleLobe(attachments[k], insertions[k], zones[k], starts[k] * length, finishes[k] * length, gains[k])
+                 for k in range(count))
 
 
-def _number(prim: Usd.Prim, name: str, required: bool = True) -> float | None:
+def _column(prim: Usd.Prim, name: str, shape: tuple, required: bool = True) -> np.ndarray | None:
     attr = prim.GetAttribute(name)
     value = attr.Get(_DEFAULT) if attr else None
     if value is None:
         if required:
-            raise RigError(f"{prim.GetPath()}.{name}: attribute is missing (the muscle has a lobe)")
+            raise RigError(f"{prim.GetPath()}.{name}: attribute is missing (the muscle has lobes)")
         return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise RigError(f"{prim.GetPath()}.{name}: expected a finite number, got {value!r}")
-    return float(value)
-
-
-def _vector(prim: Usd.Prim, name: str) -> np.ndarray:
-    attr = prim.GetAttribute(name)
-    value = attr.Get(_DEFAULT) if attr else None
-    if value is None:
-        raise RigError(f"{prim.GetPath()}.{name}: attribute is missing (the muscle has a lobe)")
     try:
-        vector = np.asarray(value, dtype=np.float64)
+        array = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise RigError(f"{prim.GetPath()}.{name}: expected 3 numbers, got {value!r}") from None
-    if vector.shape != (3,) or not np.isfinite(vector).all():
-        raise RigError(f"{prim.GetPath()}.{name}: expected 3 finite numbers, got {value!r}")
-    return vector
+        raise RigError(f"{prim.GetPath()}.{name}: expected numbers, got {type(value).__name__}") from None
+    if array.ndim != len(shape) or any(want is not None and got != want for got, want in zip(array.shape, shape)):
+        raise RigError(f"{prim.GetPath()}.{name}: expected shape {tuple(s or 'n' for s in shape)} (one entry per lobe), "
+                       f"got {array.shape}")
+    if not np.isfinite(array).all():
+        raise RigError(f"{prim.GetPath()}.{name}: non-finite value")
+    return array

@@ -34,7 +34,7 @@ from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrink
 from ..mesh import FaceMesh
 from ..rig import FaceRig
 from .jaw_io import author_jaw, read_jaw
-from .lobe_io import author_lobe, read_lobe
+from .lobe_io import author_lobes, read_lobes
 from ._files import LAYER_SUFFIXES, export_layer_atomically, open_stage, writable_path
 from .schema import ensure_schema
 
@@ -179,7 +179,7 @@ def _author_muscle(stage, path, muscle) -> Usd.Prim:
         _set(prim, "zoneAngle", types.Double, muscle.zone_angle_deg)
         _set(prim, "falloffStart", types.Double, muscle.falloff_start)
         _set(prim, "falloffFinish", types.Double, muscle.falloff_finish)
-        author_lobe(prim, muscle.lobe)
+        author_lobes(prim, muscle.lobes)
     else:
         prim = stage.DefinePrim(path, _SPHINCTER)
         _set(prim, "center", types.Double3, tuple(muscle.center))
@@ -491,7 +491,7 @@ def _read_muscle(prim: Usd.Prim, place: Placement, to_units: float):
                 zone_angle_deg=_scalar(prim, "zoneAngle"),
                 falloff_start=_scalar(prim, "falloffStart") * length,
                 falloff_finish=_scalar(prim, "falloffFinish") * length,
-                lobe=read_lobe(prim, place.point, to_units, length),
+                lobes=read_lobes(prim, place.point, to_units, length),
                 **_muscle_response(prim),
             )
         return SphincterMuscle(
