@@ -111,8 +111,9 @@ def test_default_table_on_the_built_in_rig(rig):
 
     mapping, dropped, orphaned = mapping_for_rig(rig)
     assert set(mapping.controls) <= set(rig.muscle_names)
-    # the classic rig has no jaw and no middle frontalis belly
-    assert set(dropped) == {"jaw_open", "jaw_forward", "jaw_left", "frontalis_middle_L", "frontalis_middle_R"}
+    # the classic rig has no jaw, no middle frontalis belly and no palpebral lid muscles
+    assert set(dropped) == {"jaw_open", "jaw_forward", "jaw_left", "frontalis_middle_L", "frontalis_middle_R",
+                            "orbicularis_oculi_lower_lid_L", "orbicularis_oculi_lower_lid_R"}
     assert {"jawOpen", "AU26", "AU27"} <= set(orphaned)
     smile = mapping.matrix[:, mapping.channels.index("mouthSmileLeft")]
     assert smile[mapping.controls.index("zygomaticus_major_L")] == pytest.approx(0.22 * rig_scale(rig))

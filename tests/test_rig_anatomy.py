@@ -256,10 +256,20 @@ def test_a_broken_lobe_on_the_stage_is_one_clear_error(rig, tmp_path):
     muscle = "/Face/Muscles/frontalis_inner_L"
     from pxr import Vt
 
+    def with_first(name, value):  # the array with its first entry replaced
+        def edit(prim):
+            values = list(prim.GetAttribute(name).Get())
+            prim.GetAttribute(name).Set(Vt.DoubleArray([value] + values[1:]))
+        return edit
+
+    def one_more(prim):
+        gains = list(prim.GetAttribute("lobes:gain").Get())
+        prim.GetAttribute("lobes:gain").Set(Vt.DoubleArray(gains + [0.4]))
+
     cases = ((lambda p: p.RemoveProperty("lobes:insertion"), "lobes:insertion: attribute is missing"),
-             (lambda p: p.GetAttribute("lobes:gain").Set(Vt.DoubleArray([-1.0])), "gain must be in"),
-             (lambda p: p.GetAttribute("lobes:zoneAngle").Set(Vt.DoubleArray([float("nan")])), "lobes:zoneAngle: non-finite"),
-             (lambda p: p.GetAttribute("lobes:gain").Set(Vt.DoubleArray([0.4, 0.4])), "one entry per lobe"))
+             (with_first("lobes:gain", -1.0), "gain must be in"),
+             (with_first("lobes:zoneAngle", float("nan")), "lobes:zoneAngle: non-finite"),
+             (one_more, "one entry per lobe"))
     for case, (edit, message) in enumerate(cases):
         copy = shutil.copy(path, tmp_path / f"case{case}.usda")  # each edit on its own layer
         stage = Usd.Stage.Open(str(copy))

@@ -82,7 +82,7 @@ def _linear(name, surface: SurfaceSampler, origin_xy, depth, insertion_xy, zone_
 ORBITAL_SEMI_AXES = (0.95, 0.70)
 """Semi-axes (across, up) of the orbital orbicularis oculi [inter-ocular units]: its pull reaches the
 upper cheek below and lateral of the eye, where a squint (AU6) moves the skin most (docs/RIG.md §5)."""
-ORBITAL_CENTRE = 0.40
+ORBITAL_CENTRE = 0.30
 """Where the orbital orbicularis oculi is centred, as a fraction of the way from the eye's centre to its
 medial canthus: its fibres arise from the medial orbital margin and the medial palpebral ligament."""
 
@@ -115,7 +115,7 @@ The inner belly's medial fibres continue into the procerus and the nasal skin, w
 lifts ~0.5 mm as one piece with the brow (686 of its 2194 moved vertices): dense reach 48.1 → 50.6 %,
 landmarks 48.6 → 50.6 % (a lobe from the glabella to the nose tip lost 0.5–14 points)."""
 
-CHEEK_LOBE = (0.25, 0.10, 0.15, 0.35, 0.45, 40.0, 0.90, 1.90, 1.3)
+CHEEK_LOBE = (0.30, 0.05, 0.15, 0.30, 0.45, 40.0, 0.80, 2.20, 1.45)
 """The lower lid's cheek lobe [inter-ocular units]: (fixed point medial of the inner canthus, and above it,
 depth; insertion lateral of and below the eye's centre; zone half-angle [deg]; falloff start and finish
 as multiples of its length; gain). The lower orbital fibres of the orbicularis oculi lift the cheek

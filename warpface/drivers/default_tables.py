@@ -49,7 +49,7 @@ ARKIT_TABLE: tuple[tuple[str, str, float], ...] = tuple(
     + _sided("browOuterUp", [("frontalis_outer_{s}", 0.14), ("frontalis_middle_{s}", 0.08)])
     + _sided("cheekSquint", [("orbicularis_oculi_{s}", 0.16)])
     + _sided("eyeBlink", [("orbicularis_oculi_{s}", 0.06)])
-    + _sided("eyeSquint", [("orbicularis_oculi_{s}", 0.10)])
+    + _sided("eyeSquint", [("orbicularis_oculi_{s}", 0.10), ("orbicularis_oculi_lower_lid_{s}", 0.025)])
     + _sided("eyeWide", [("frontalis_outer_{s}", 0.04), ("frontalis_inner_{s}", 0.03)])
     + [("jawOpen", "jaw_open", 0.35), ("jawForward", "jaw_forward", 0.08), ("jawLeft", "jaw_left", 0.08),
        ("jawRight", "jaw_left", -0.08)]
@@ -77,7 +77,7 @@ _FACS_AT_FULL: tuple[tuple[str, str, float], ...] = tuple(
     + _both("AU04", "corrugator", 0.09) + [("AU04", "procerus", 0.06)]
     + _both("AU05", "frontalis_outer", 0.04) + _both("AU05", "frontalis_inner", 0.03)
     + _both("AU06", "orbicularis_oculi", 0.22)
-    + _both("AU07", "orbicularis_oculi", 0.10)
+    + _both("AU07", "orbicularis_oculi", 0.10) + _both("AU07", "orbicularis_oculi_lower_lid", 0.025)
     + _both("AU09", "levator_labii_alaeque_nasi", 0.11)
     + _both("AU10", "levator_labii_superioris", 0.06)
     + _both("AU12", "zygomaticus_major", 0.22)
