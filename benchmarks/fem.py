@@ -15,7 +15,10 @@ Rows per mesh:
   ``... anp`` rows (same matrices), whose "ratio" is against it; "× plain splu" is every row's
   time against the plain baseline (different physics: ANP couples two rings of neighbours).
 * ``warpface cpu direct`` — :class:`warpface.fem.TissueSimulation` on the CPU (its default solver).
-* ``warpface cuda cg`` — the graph-captured CG path, when a CUDA device is present.
+* ``warpface cuda cg`` — the graph-captured CG path, when a CUDA device is present (its default loop:
+  one persistent kernel for all CG iterations); ``... launched`` the same with three launched kernels
+  per iteration in a conditional graph loop (``cg_loop="launched"``). "x cupy" is the CuPy peer's time
+  per step over the row's.
 * ``... anp`` — the same with the locking-free average-nodal-pressure stiffness.
 * ``cupy cg (jacobi) peer`` — the GPU peer (CUDA, when CuPy is installed): CuPy's sparse CG on the same
   matrices, solving for the correction to the Newmark predictor with the same relative tolerance.
@@ -240,17 +243,18 @@ def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=
     bases = {"linear": base}
     if with_anp:
         bases["anp"] = SplitBaseline(mesh, material, fixed, driven, formulation="anp")
-    configs = [("warpface cpu direct", "linear", "cpu")]
+    configs = [("warpface cpu direct", "linear", "cpu", {})]
     if with_anp:
-        configs.append(("warpface cpu direct anp", "anp", "cpu"))
+        configs.append(("warpface cpu direct anp", "anp", "cpu", {}))
     if cuda_device is not None:
-        configs.append(("warpface cuda cg", "linear", cuda_device))
+        configs.append(("warpface cuda cg", "linear", cuda_device, {}))
+        configs.append(("warpface cuda cg launched", "linear", cuda_device, {"cg_loop": "launched"}))
         if with_anp:
-            configs.append(("warpface cuda cg anp", "anp", cuda_device))
+            configs.append(("warpface cuda cg anp", "anp", cuda_device, {}))
     sims = [
         (name, formulation, TissueSimulation(mesh, material, DT, fixed=fixed, driven=driven,
-                                             formulation=formulation, device=device))
-        for name, formulation, device in configs
+                                             formulation=formulation, device=device, **options))
+        for name, formulation, device, options in configs
     ]
     cpu_sims = [sim for _, _, sim in sims if sim.solver == "direct"]
     steppers = [b.step for b in bases.values()] + [sim.step for sim in cpu_sims]
@@ -293,6 +297,9 @@ def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=
             rows.append(dict(mesh=label, path="cupy cg (jacobi) peer", step_ms=1e3 * seconds, step_call_ms=1e3 * seconds,
                              ratio=base_step / seconds, realtime=DT / seconds,
                              max_diff=float(np.abs(final - reference).max()), cg_mean_iterations=mean))
+            for row in rows:
+                if row["path"].startswith("warpface cuda cg"):
+                    row["x_cupy"] = seconds / (1e-3 * row["step_ms"])
         single = next((row["step_ms"] for row in rows if row["path"] == "warpface cuda cg"), None)
         for preconditioner in batch_preconditioners:
             for models in batch_sizes:
@@ -333,7 +340,7 @@ def main() -> None:
                        ("step_ms", "ms/step run()", ".3f"),
                        ("step_call_ms", "ms/step step()", ".3f"),
                        ("model_ms", "ms/step/model", ".4f"), ("x_single", "x one model", ".2f"),
-                       ("ratio", "ratio vs splu", ".2f"), ("ratio_plain", "x plain splu", ".2f"),
+                       ("ratio", "ratio vs splu", ".2f"), ("x_cupy", "x cupy", ".1f"), ("ratio_plain", "x plain splu", ".2f"),
                        ("realtime", "x real time", ".3f"),
                        ("max_diff", "max diff m", ".1e"), ("cg_iterations", "CG iters max", "d"),
                        ("cg_mean_iterations", "CG iters mean", ".1f")])

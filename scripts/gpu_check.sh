@@ -26,4 +26,4 @@ except Exception as exc:  # noqa: BLE001
     raise SystemExit(f"gpu_check: Warp {wp.__version__} cannot use {name!r} ({exc}); devices: {[str(d) for d in wp.get_devices()]}")
 print(f"warp {wp.__version__} on {device} ({device.name})")
 PY
-exec "$PYTHON" -m pytest -q -x -rs -p no:cacheprovider --durations=5 tests/test_cuda_parity.py tests/test_cuda_parity_plans.py "$@"
+exec "$PYTHON" -m pytest -q -x -rs -p no:cacheprovider --durations=5 tests/test_cuda_parity.py tests/test_cuda_parity_plans.py tests/test_cuda_parity_cg.py "$@"

@@ -417,17 +417,19 @@ def test_cg_step_graph_on_device_state_matches_direct(beam, direct_reference):
     del torch
 
 
-def test_cg_run_chunks_match_direct(beam, direct_reference):
-    """TissueSimulation.run on the device: driven inputs through the ring (several chunks), graph launches."""
+@pytest.mark.parametrize("loop", ["persistent", "launched"])
+def test_cg_run_chunks_match_direct(beam, direct_reference, loop):
+    """TissueSimulation.run on the device: driven inputs through the ring (several chunks), graph launches,
+    the CG iterations in one persistent kernel or in launched kernels."""
     from warpface.fem import TissueSimulation
 
     mesh, fixed, driven = beam
     sim = TissueSimulation(mesh, tissue_material(), 1e-3, fixed=fixed, driven=driven, solver="cg", device=DEVICE,
-                           cg_tol=1e-12, cg_maxiter=400, cg_chunk=5, use_graph=True)
+                           cg_tol=1e-12, cg_maxiter=400, cg_chunk=5, use_graph=True, cg_loop=loop)
+    assert sim.stepper.loop == loop
     got = sim.run(beam_trajectory(len(direct_reference), driven.size))
     np.testing.assert_allclose(got, direct_reference, rtol=0, atol=1e-9)
     assert sim.steps_taken == len(direct_reference)
-
 
 
 @pytest.mark.parametrize("preconditioner", ["fsai", "fsai_each", "block_jacobi"])

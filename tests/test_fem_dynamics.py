@@ -104,6 +104,9 @@ def test_run_matches_step_and_records_selected_nodes(beam):
         dict(use_graph=False, cg_tol=1e-10, cg_maxiter=60),
         dict(use_graph=True, cg_tol=1e-10, cg_maxiter=60, cg_preconditioner="block_jacobi", cg_chunk=4),
         dict(use_graph=True, cg_tol=1e-5, cg_maxiter=60, cg_dtype=wp.float32, cg_chunk=3),
+        dict(use_graph=False, cg_tol=1e-10, cg_maxiter=60, cg_loop="persistent"),
+        dict(use_graph=True, cg_tol=1e-10, cg_maxiter=60, cg_preconditioner="diag", cg_chunk=4, cg_loop="persistent"),
+        dict(use_graph=True, cg_tol=1e-5, cg_maxiter=60, cg_dtype=wp.float32, cg_chunk=3, cg_loop="persistent"),
     ],
 )
 def test_cg_path_matches_direct_solver(beam, options):
@@ -145,6 +148,54 @@ def test_cg_block_kernels_match_direct_solver_on_rough_motion(beam, monkeypatch)
     got = sim.run(trajectory)
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-7 * np.abs(expected).max())
     np.testing.assert_allclose(sim.v, ref.v, rtol=0, atol=1e-4 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize("preconditioner", ["fsai", "block_jacobi"])
+def test_persistent_cg_loop_matches_launched_loop_and_direct(beam, preconditioner):
+    """The persistent CG kernel (residual, start and every iteration in one launch) against the launched
+    kernels and the direct solver through smooth motion and jumps: the same iterations per step, the
+    same displacements to round-off, and its grid-barrier counters back at zero after every step."""
+    mesh, fixed, driven = beam
+    steps = 20
+    trajectory = np.zeros((steps, driven.size, 3))
+    trajectory[:, :, 1] = 2e-3 * np.sin(np.linspace(0.1, 1.5, steps))[:, None]
+    trajectory[[7, 13], :, 2] = 3e-3  # jumps: the extrapolated start is rejected there
+    material = TissueMaterial(1e5, 0.45, 20.0, 1000.0)
+    ref = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu")
+    expected = ref.run(trajectory)
+    results = {}
+    for loop in ("launched", "persistent"):
+        sim = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg",
+                               cg_tol=1e-10, cg_preconditioner=preconditioner, cg_loop=loop)
+        assert sim.stepper.loop == loop
+        per_step = []
+        for row in trajectory:
+            sim.step(row)
+            per_step.append(sim.cg_iterations[1])
+        results[loop] = (sim.d, per_step, sim.stepper._barrier.numpy())
+    (launched, launched_iterations, _), (persistent, persistent_iterations, barrier) = results.values()
+    assert persistent_iterations == launched_iterations and max(persistent_iterations) > 2
+    np.testing.assert_allclose(persistent, launched, rtol=0, atol=1e-12 * np.abs(launched).max())
+    np.testing.assert_allclose(persistent, expected[-1], rtol=0, atol=1e-7 * np.abs(expected).max())
+    np.testing.assert_array_equal(barrier, 0)  # arrivals and departures cleared, never gave up
+
+
+def test_persistent_cg_loop_reports_non_convergence(beam):
+    mesh, fixed, driven = beam
+    sim = TissueSimulation(mesh, SOFT, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg",
+                           cg_tol=1e-14, cg_maxiter=2, cg_preconditioner="diag", cg_loop="persistent")
+    with pytest.raises(ConvergenceError, match=r"step 0 .*after 2 iterations"):
+        sim.run(np.full((2, driven.size, 3), 1e-3))
+    assert sim.stepper.iterations[0] == 2
+
+
+def test_grid_capacity_is_one_block_on_the_cpu():
+    from warpface.fem.kernels_persistent import grid_capacity, persistent_pcg_kernel
+
+    kernels = persistent_pcg_kernel(wp.float64)
+    assert grid_capacity(kernels.cg_step, kernels.block_dim, device=wp.get_device("cpu")) == 1
+    with pytest.raises(ValueError, match="lanes must divide 32"):
+        persistent_pcg_kernel(wp.float64, 12, 2)
 
 
 def test_cg_extrapolated_start_saves_iterations_not_accuracy():
@@ -232,6 +283,7 @@ def test_bad_input_is_rejected(beam):
         (dict(solver="lu"), "solver must be"),
         (dict(formulation="q2"), "formulation"),
         (dict(cg_preconditioner="ilu"), "cg_preconditioner"),
+        (dict(cg_loop="unrolled"), "cg_loop must be one of"),
         (dict(fixed=np.arange(n), driven=None), "nothing to simulate"),
     ]:
         args = dict(ok, dt=1e-3) | kwargs

@@ -30,7 +30,7 @@ from .._validate import as_device, as_finite_array
 from .assembly import FORMULATIONS, SystemMatrices, assemble
 from .material import TissueMaterial
 from .newmark import newmark_coefficients, validate_newmark
-from .solver_cg import PRECONDITIONERS, CGSolver, ConvergenceError
+from .solver_cg import CG_LOOPS, PRECONDITIONERS, CGSolver, ConvergenceError
 from .solver_direct import DirectSolver, factorize_spd, node_dofs
 from .state import TissueControl, TissueState
 from .tetmesh import TetMesh
@@ -109,6 +109,8 @@ class TissueSimulation:
             little: a float32 state is too coarse for the extrapolation, which then needs more iterations.
         cg_chunk: Time steps per ring buffer of :meth:`run` and of :meth:`step`'s host input (the
             host checks convergence once per ring).
+        cg_loop: ``"auto"`` (default: one persistent kernel for the CG iterations on CUDA, launched
+            kernels on the CPU), ``"persistent"`` or ``"launched"`` (:data:`~warpface.fem.solver_cg.CG_LOOPS`).
         use_graph: Capture the CG step in a graph (default: on CUDA only).
 
     Raises:
@@ -137,6 +139,7 @@ class TissueSimulation:
         cg_preconditioner: str = "fsai",
         cg_dtype=wp.float64,
         cg_chunk: int = 64,
+        cg_loop: str = "auto",
         use_graph: bool | None = None,
     ):
         if not isinstance(tetmesh, TetMesh):
@@ -145,7 +148,8 @@ class TissueSimulation:
             raise ValueError(f"TissueSimulation needs a TissueMaterial, got {type(material).__name__}")
         self.dt, self.beta, self.gamma = validate_newmark(dt, beta, gamma)
         for option, value, allowed in (("formulation", formulation, FORMULATIONS), ("solver", solver, SOLVERS),
-                                       ("cg_preconditioner", cg_preconditioner, PRECONDITIONERS)):
+                                       ("cg_preconditioner", cg_preconditioner, PRECONDITIONERS),
+                                       ("cg_loop", cg_loop, CG_LOOPS)):
             if not isinstance(value, str) or value not in allowed:
                 raise ValueError(f"{option} must be one of {allowed}, got {value!r}")
         cg_tol = _number("cg_tol", cg_tol, 1e-16, 1.0)
@@ -220,6 +224,7 @@ class TissueSimulation:
                 maxiter=cg_maxiter,
                 preconditioner=cg_preconditioner,
                 chunk=cg_chunk,
+                loop=cg_loop,
                 use_graph=device.is_cuda if use_graph is None else bool(use_graph),
             )
             state_dtype = cg_dtype

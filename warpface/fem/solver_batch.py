@@ -109,7 +109,7 @@ class BatchedCGSolver:
         free_nodes: Nodes solved for, shape (F,), int.
         driven_nodes: Nodes with prescribed displacement, shape (D,), int.
         tol: CG tolerance relative to each model's predictor residual norm.
-        preconditioner: ``"fsai"`` (one FSAI factor, of the model of median mean Young's modulus, shared
+        preconditioner: ``"fsai"`` (one FSAI factor, of the model of median mean system diagonal, shared
             by all models: far fewer iterations than block Jacobi on tissue), ``"fsai_each"`` (that
             factor's support refitted to every model: each model converges as fast as alone, at the
             cost of a factor's values per model) or ``"block_jacobi"`` (per model).
@@ -145,9 +145,16 @@ class BatchedCGSolver:
         operators = [newmark_operators(m, coefficients, free_index, driven_slot) for m in matrices]
         self._A = _stack_values([A for A, _ in operators], "system")
         self._factor = None
+        self.reference_model = None
         if preconditioner in ("fsai", "fsai_each"):
-            stiffness = [float(np.mean(m.K.values.numpy()[: m.K.nnz_sync()].diagonal(axis1=1, axis2=2))) for m in matrices]
-            median = int(np.argsort(stiffness)[len(stiffness) // 2])
+            # the model of median system diagonal (K, M and C with the Newmark constants). Every 3x3 block's
+            # diagonal of K (as before) sums to about zero per row, which picked an arbitrary model: on the
+            # 10-model sweep of benchmarks/fem.py the softest one, whose sparser FSAI support cost the stiffest
+            # model 19 instead of 13 iterations (refitted) or 24 (shared) on a 1.2k-node shell.
+            stiffness = [float(bsr_to_scipy(A).diagonal().mean()) for A, _ in operators]
+            median = int(np.argsort(stiffness, kind="stable")[len(stiffness) // 2])
+            self.reference_model = median
+            """Model whose FSAI factor (``"fsai"``) or support (``"fsai_each"``) preconditions every model."""
             if preconditioner == "fsai":
                 factors = [preconditioner_factor(operators[median][0], "fsai")]
             else:

@@ -21,6 +21,11 @@ Everything lives on the Warp device. One time step (kernels in :mod:`warpface.fe
    displacement recorded, the extrapolation for the next step, and the step's convergence status
    booked on the device.
 
+With ``loop="persistent"`` (the default on CUDA) steps 1–3 are one kernel
+(:mod:`warpface.fem.kernels_persistent`): the same phases and arithmetic, separated by grid-wide
+barriers instead of launches, at most as many blocks as the GPU holds at once; a step is then a
+memset of the dot-product slots, that kernel and the update.
+
 :meth:`CGSolver.step` reads ``state_in`` and the control and writes ``state_out``. On CUDA the
 sequence is captured with ``wp.ScopedCapture`` once per combination of state and control arrays
 (a simulation stepping one state in place, or two in turn, has one or two graphs), and each step
@@ -33,8 +38,9 @@ FSAI (``warp.optim.linear.FSAI``), or the inverse Cholesky factors of the 3x3 di
 (block Jacobi) or of the diagonal (Jacobi).
 
 Compared with Warp's stock ``warp.optim.linear.cg`` (about eleven dependent launches per
-iteration), an iteration here is three kernels, and the extrapolated start cuts the iteration
-count by more than half during smooth motion (measurements: ``benchmarks/README.md``).
+iteration), an iteration here is three kernels (or three barriers of the persistent kernel), and
+the extrapolated start cuts the iteration count by more than half during smooth motion
+(measurements: ``benchmarks/README.md``).
 """
 
 from __future__ import annotations
@@ -49,12 +55,18 @@ from warp.optim.linear import FSAI
 from .assembly import SystemMatrices, bsr_to_scipy, partition_bsr
 from .kernels_cg import SLOT_SPREAD, pcg_kernels
 from .kernels_integrator import cg_newmark_update
+from .kernels_persistent import grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
 from .state import TissueControl, TissueState
 
-__all__ = ["CGSolver", "ConvergenceError", "PRECONDITIONERS", "newmark_operators"]
+__all__ = ["CG_LOOPS", "CGSolver", "ConvergenceError", "PRECONDITIONERS", "newmark_operators"]
 
 PRECONDITIONERS = ("fsai", "block_jacobi", "diag")
+
+CG_LOOPS = ("auto", "persistent", "launched")
+"""How the CG iterations run: ``"persistent"`` (one kernel for all iterations, grid-wide barriers
+between phases, :mod:`warpface.fem.kernels_persistent`), ``"launched"`` (three kernels per iteration
+in a ``wp.capture_while`` loop) or ``"auto"`` (persistent on CUDA, launched on the CPU)."""
 
 # FSAI factor entries per row. On the 6.7k-node face shell at dt = 1e-3 (Kato's material), CG to a
 # 1e-6 relative residual took 148 iterations with Jacobi, 129 with 3x3 block Jacobi and 54 / 43 / 33
@@ -67,6 +79,13 @@ FSAI_ROW_SIZE = 32
 # warpface.fem.kernels_cg). H200, 6.7k / 26k nodes, µs per iteration: 16x8 22.6 / 53.6,
 # 8x16 24.6 / 49.8, 32x4 27.3 / 73.5, one 32-thread block per row 47 / -.
 LANES, ROWS_PER_BLOCK = 16, 8
+
+# Thread-block shape (lanes x rows) of the persistent CG kernel (cg_loop="persistent"). H200, 6.7k nodes
+# (3.9k free), ms per step of the benchmark's mouth opening (10.2 iterations), kernel compiled for 512
+# resident threads per multiprocessor: 16x16 0.185, 8x16 0.204, 8x32 0.202, 16x8 0.206 (a first version
+# without the residual phase: 16x16 0.192, 16x8 0.208, 8x16 0.215, 8x8 0.227, 16x4 0.264, 32x4 0.275,
+# 4x32 0.374). The launched loop: 0.297.
+PERSISTENT_LANES, PERSISTENT_ROWS = 16, 16
 
 # CG iterations per pass of the device loop: the loop's condition node costs about a kernel
 # launch, and at most UNROLL - 1 finished (empty) iterations are launched after convergence.
@@ -188,6 +207,7 @@ class CGSolver:
             ``"block_jacobi"`` (inverse 3x3 diagonal blocks) or ``"diag"`` (Jacobi).
         chunk: Steps per ring buffer of driven input and recorded displacement.
         use_graph: Capture the step as a graph.
+        loop: One of :data:`CG_LOOPS`.
     """
 
     def __init__(
@@ -203,7 +223,10 @@ class CGSolver:
         preconditioner: str = "fsai",
         chunk: int = 64,
         use_graph: bool = True,
+        loop: str = "auto",
     ):
+        if loop not in CG_LOOPS:
+            raise ValueError(f"CG loop must be one of {CG_LOOPS}, got {loop!r}")
         if dtype not in (wp.float32, wp.float64):
             raise ValueError(f"CG dtype must be wp.float32 or wp.float64, got {dtype}")
         if preconditioner not in PRECONDITIONERS:
@@ -221,6 +244,10 @@ class CGSolver:
         self.tol = float(tol)
         self.chunk = int(chunk)
         self._kernels = pcg_kernels(dtype, *_block_shape(dev))
+        if loop == "auto":
+            loop = "persistent" if dev.is_cuda else "launched"
+        self.loop = loop
+        """``"persistent"`` or ``"launched"`` (see :data:`CG_LOOPS`)."""
         vec = self._kernels.vec
         n = matrices.node_count
         self.node_count = n
@@ -265,6 +292,13 @@ class CGSolver:
         self._guess = wp.zeros(n_free, dtype=vec, device=dev)
         self._slots = wp.zeros((4, self.maxiter + 1, SLOT_SPREAD), dtype=wp.float64, device=dev)
         self._cg_iter = wp.zeros(2, dtype=wp.int32, device=dev)
+        self._barrier = wp.zeros(3, dtype=wp.int32, device=dev)  # persistent: [arrivals, gave up, departures]
+        if loop == "persistent":
+            shape = (PERSISTENT_LANES, PERSISTENT_ROWS) if dev.is_cuda else (1, 1)  # one CPU thread walks every row
+            self._persistent = persistent_pcg_kernel(dtype, *shape)
+            wanted = -(-n_free // self._persistent.rows)
+            self._persistent_blocks = max(1, min(wanted, grid_capacity(self._persistent.cg_step,
+                                                                        self._persistent.block_dim, device=dev)))
         self._condition = wp.zeros(1, dtype=wp.int32, device=dev)
         self._step_count = wp.zeros(1, dtype=wp.int32, device=dev)
         self._status = wp.zeros(5, dtype=wp.int32, device=dev)
@@ -307,13 +341,22 @@ class CGSolver:
         k, P, tol_sq = self._kernels, self._P, wp.float64(self.tol**2)
         self._slots.zero_()
         A = self._A_oo
-        self._launch_tiled(k.residual, [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, b.d_in,
-                                        b.v_in, b.a_in, b.trajectory, self._guess, b.ring, self._r, self._x,
-                                        self._slots, self._cg_iter, self._condition])
-        self._launch_tiled(k.lower_start, [*self._G, self._r, self._r_flat, self._x, self._slots, self._y])
-        self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq,
-                                     self.maxiter])
-        wp.capture_while(self._condition, self._cg_iterations)
+        if self.loop == "persistent":
+            step = self._persistent
+            wp.launch_tiled(step.cg_step, dim=self._persistent_blocks, block_dim=step.block_dim, device=self.device,
+                            inputs=[P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, *self._G, *self._GT,
+                                    b.d_in, b.v_in, b.a_in, b.trajectory, self._guess, b.ring, self._r, self._r_flat,
+                                    self._x, self._y, self._y_flat, self._z, self._p, self._q, self._q_flat,
+                                    self._slots, self._cg_iter, self._barrier, tol_sq, self.maxiter,
+                                    self._persistent_blocks])
+        else:
+            self._launch_tiled(k.residual, [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, b.d_in,
+                                            b.v_in, b.a_in, b.trajectory, self._guess, b.ring, self._r, self._x,
+                                            self._slots, self._cg_iter, self._condition])
+            self._launch_tiled(k.lower_start, [*self._G, self._r, self._r_flat, self._x, self._slots, self._y])
+            self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq,
+                                         self.maxiter])
+            wp.capture_while(self._condition, self._cg_iterations)
         wp.launch(
             cg_newmark_update,
             dim=self.node_count,
@@ -405,6 +448,11 @@ class CGSolver:
     def synchronize(self) -> None:
         """Wait for queued steps and raise :class:`ConvergenceError` if any failed."""
         wp.synchronize_device(self.device)
+        if self._barrier.numpy()[1]:
+            raise RuntimeError(
+                f"the persistent CG loop waited too long at a grid barrier on {self.device} (its "
+                f"{self._persistent_blocks} blocks were not all resident); use loop='launched' (cg_loop)"
+            )
         status = self._status.numpy()
         if status[0]:
             residual, tolerance = self._failure.numpy()
@@ -442,3 +490,4 @@ class CGSolver:
         self._step_count.zero_()
         self._status.zero_()
         self._failure.zero_()
+        self._barrier.zero_()

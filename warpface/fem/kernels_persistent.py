@@ -1,0 +1,439 @@
+"""The whole CG loop of the device Newmark step as one persistent kernel with grid-wide barriers.
+
+:mod:`warpface.fem.kernels_cg` runs an iteration as three launches in a ``wp.capture_while``
+loop; on a GPU each launch (and the loop's condition node) costs a few microseconds of latency
+on top of the work, which at 6.7k nodes is most of an iteration. Here one launch runs every
+iteration: the same three phases (``direction``, ``lower``, ``upper``; their arithmetic is that
+of :mod:`warpface.fem.kernels_cg`) and the start (``y = G r0``, ``z = Gᵀ y``), separated by
+grid-wide barriers instead of kernel boundaries. The iteration counter is a register, the dot
+products are summed per block (warp shuffles) and added to the same float64 slots, and every
+block reads the same slot sums after a barrier, so all blocks agree on ``α``, ``β`` and on when
+CG has finished.
+
+A grid barrier is only safe when every block of the launch is resident on the GPU at once: the
+solver launches at most as many blocks as the device holds (from the kernel's register count;
+each block then walks row groups ``block, block + blocks, ...``), and a barrier that waits far
+longer than any step could (a block not resident) gives up and raises the ``barrier[1]`` flag
+instead of hanging; the solver reports it. On the CPU the kernel runs as a single block of one
+thread that walks every row (the barriers are then no-ops).
+
+Row sums of the lanes of a matrix row use warp shuffles (``lanes`` divides 32), dot products a
+block reduction in shared memory; on the CPU (one lane, one thread) both are the identity.
+"""
+
+import functools
+import math
+import types
+
+import warp as wp
+
+from .kernels_cg import PQ, RR, RZ, SLOT_SPREAD, START, cg_finished, slot_total
+
+__all__ = ["BARRIER_POLLS", "RESIDENT_THREADS", "grid_capacity", "persistent_pcg_kernel"]
+
+# Straight-line row entries per lane, as in kernels_cg: block rows of A_oo hold ~15 blocks (up to
+# ~30), a block row of an FSAI factor up to 3 x 32 scalars.
+_SPAN_A, _SPAN_P, _SPAN_G, _MAX_UNROLL = 32, 64, 96, 8
+
+RESIDENT_THREADS = 512
+"""Threads per multiprocessor the persistent kernel is compiled to fit (``__launch_bounds__``)."""
+
+BARRIER_POLLS = 1 << 22
+"""Polls of the barrier counter (~1 s) before a block gives up waiting and raises the abort flag."""
+
+_GRID_SYNC = """
+#if defined(__CUDA_ARCH__)
+    __syncthreads();
+    if (threadIdx.x == 0) {
+        int* counter = (int*)barrier.data;
+        volatile int* watched = counter;
+        __threadfence();
+        atomicAdd(counter, 1);
+        long long polls = 0;
+        while (watched[0] < target && watched[1] == 0) {
+            if (++polls > (long long)BARRIER_LIMIT) {
+                atomicExch(counter + 1, 1);
+            }
+        }
+        __threadfence();
+    }
+    __syncthreads();
+#endif
+""".replace("BARRIER_LIMIT", str(BARRIER_POLLS))
+
+
+@wp.func_native(_GRID_SYNC)
+def grid_sync(barrier: wp.array(dtype=wp.int32), target: int):
+    """Wait until ``barrier[0]`` (advanced by one per arriving block) reaches ``target``; all writes
+    before the barrier are visible to every block after it. Gives up (sets ``barrier[1]``) after
+    :data:`BARRIER_POLLS` polls. CUDA only; a no-op on the CPU."""
+    ...
+
+
+_LANE_SUM = """
+#if defined(__CUDA_ARCH__)
+    for (int offset = lanes / 2; offset > 0; offset /= 2) {
+        value += __shfl_xor_sync(0xffffffffu, value, offset);
+    }
+#endif
+    return value;
+"""
+
+
+@wp.func_native(_LANE_SUM)
+def lane_sum64(value: wp.float64, lanes: int) -> wp.float64:
+    """Sum of ``value`` over the ``lanes`` consecutive threads of a warp that share a row (CUDA)."""
+    ...
+
+
+@wp.func_native(_LANE_SUM)
+def lane_sum32(value: wp.float32, lanes: int) -> wp.float32:
+    """float32 :func:`lane_sum64`."""
+    ...
+
+
+_BLOCK_SUM = """
+#if defined(__CUDA_ARCH__)
+    __shared__ double warp_parts[32];
+    for (int offset = 16; offset > 0; offset /= 2) {
+        value += __shfl_xor_sync(0xffffffffu, value, offset);
+    }
+    __syncthreads();
+    if ((threadIdx.x & 31) == 0) {
+        warp_parts[threadIdx.x / 32] = value;
+    }
+    __syncthreads();
+    if (threadIdx.x == 0) {
+        value = 0.0;
+        for (int w = 0; w < (int)((blockDim.x + 31) / 32); ++w) {
+            value += warp_parts[w];
+        }
+    }
+#endif
+    return value;
+"""
+
+
+@wp.func_native(_BLOCK_SUM)
+def block_sum64(value: wp.float64) -> wp.float64:
+    """Sum of ``value`` over the thread block, valid in thread 0 (CUDA; the identity on the CPU)."""
+    ...
+
+
+def grid_capacity(kernel, block_dim: int, *, device=None) -> int:
+    """Blocks of ``block_dim`` threads of ``kernel`` that ``device`` (default: Warp's preferred device) holds
+    at once (registers and threads per multiprocessor; 1 on the CPU)."""
+    device = wp.get_device(device)
+    if not device.is_cuda:
+        return 1
+    registers = wp.get_cuda_kernel_properties(kernel, device, block_dim)["register_count"]
+    warps = -(-block_dim // 32)
+    per_warp = -(-max(registers, 1) * 32 // 256) * 256  # allocated per warp in units of 256 registers
+    per_sm = min(32, 2048 // block_dim, 65536 // (warps * per_warp))
+    return max(per_sm, 0) * device.sm_count
+
+
+@functools.lru_cache(maxsize=None)
+def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
+    """The persistent CG step for ``dtype`` and block shape (module docstring).
+
+    Launch ``cg_step`` with ``wp.launch_tiled(dim=blocks, block_dim=rows * lanes)``, ``blocks`` at
+    most :func:`grid_capacity` and at most the row groups ``ceil(F / rows)``, with the ``slots``
+    cleared; on the CPU build it with ``lanes = rows = 1`` and launch one block. It does the work of
+    ``residual``, ``lower_start``, ``upper`` and the iteration loop of
+    :func:`~warpface.fem.kernels_cg.pcg_kernels` (same arguments, same results) and leaves
+    ``cg_iter[0] = cg_iter[1]`` = the iterations done and ``ring[1] = ring[0]`` for the update kernel.
+    ``barrier`` (3 int32: arrivals, gave up, departures) must start at zero; the last block to leave
+    clears the arrivals and departures again.
+    """
+    if 32 % lanes:
+        raise ValueError(f"lanes must divide 32, got {lanes}")
+    vec = wp.types.vector(length=3, dtype=dtype)
+    mat = wp.types.matrix(shape=(3, 3), dtype=dtype)
+    spread = SLOT_SPREAD
+    lane_sum = lane_sum64 if dtype == wp.float64 else lane_sum32
+    unroll_a, unroll_p, unroll_g = (min(math.ceil(span / lanes), _MAX_UNROLL) for span in (_SPAN_A, _SPAN_P, _SPAN_G))
+    index_a = wp.types.vector(length=unroll_a, dtype=wp.int32)
+    index_g = wp.types.vector(length=unroll_g, dtype=wp.int32)
+
+    @wp.func
+    def row_total(part: vec):
+        return vec(lane_sum(part[0], lanes), lane_sum(part[1], lanes), lane_sum(part[2], lanes))
+
+    @wp.func
+    def unit(axis: int, value: dtype):
+        zero = dtype(0.0)
+        return vec(wp.where(axis == 0, value, zero), wp.where(axis == 1, value, zero), wp.where(axis == 2, value, zero))
+
+    @wp.func
+    def fetch_a(offsets: wp.array(dtype=wp.int32), columns: wp.array(dtype=wp.int32), i: int, lane: int):
+        # row bounds and the columns of this lane's straight-line entries, loaded ahead of their use
+        start, end = offsets[i], offsets[i + 1]
+        found = index_a()
+        for s in range(wp.static(unroll_a)):
+            found[s] = columns[wp.min(start + lane + s * lanes, end - 1)]
+        return start, end, found
+
+    @wp.func
+    def fetch_g(offsets: wp.array(dtype=wp.int32), keys: wp.array(dtype=wp.int32), i: int, lane: int):
+        start, end = offsets[i], offsets[i + 1]
+        found = index_g()
+        for s in range(wp.static(unroll_g)):
+            found[s] = keys[wp.min(start + lane + s * lanes, end - 1)]
+        return start, end, found
+
+    @wp.func
+    def factor_row(start: int, end: int, found: index_g, lane: int, keys: wp.array(dtype=wp.int32),
+                   values: wp.array(dtype=dtype), u: wp.array(dtype=dtype), w: wp.array(dtype=dtype), alpha: dtype):
+        # rows 3i..3i+2 of a grouped scalar factor times (u - alpha w), summed over the lanes
+        acc = vec()
+        for s in range(wp.static(unroll_g)):
+            e = start + lane + s * lanes
+            col = found[s] // 3
+            g = values[wp.min(e, end - 1)]
+            acc += wp.where(e < end, unit(found[s] - 3 * col, g * (u[col] - alpha * w[col])), vec())
+        for e in range(start + lane + unroll_g * lanes, end, lanes):
+            key = keys[e]
+            col = key // 3
+            acc += unit(key - 3 * col, values[e] * (u[col] - alpha * w[col]))
+        return row_total(acc)
+
+    @wp.func
+    def direction_row(start: int, end: int, found: index_a, lane: int, columns: wp.array(dtype=wp.int32),
+                      values: wp.array(dtype=mat), z: wp.array(dtype=vec), p_old: wp.array(dtype=vec), beta: dtype):
+        # (A (z + beta p_old))_i, summed over the lanes
+        acc = vec()
+        for s in range(wp.static(unroll_a)):
+            e = start + lane + s * lanes
+            j = found[s]
+            acc += wp.where(e < end, values[wp.min(e, end - 1)] * (z[j] + beta * p_old[j]), vec())
+        for e in range(start + lane + unroll_a * lanes, end, lanes):
+            j = columns[e]
+            acc += values[e] * (z[j] + beta * p_old[j])
+        return row_total(acc)
+
+    @wp.func
+    def state_entry(e: int, columns: wp.array(dtype=wp.int32), values: wp.array(dtype=mat), d: wp.array(dtype=vec),
+                    v: wp.array(dtype=vec), a: wp.array(dtype=vec), driven: wp.array(dtype=vec)):
+        c = columns[e]
+        n = d.shape[0]
+        u = vec()
+        if c < n:
+            u = d[c]
+        elif c < 2 * n:
+            u = v[c - n]
+        elif c < 3 * n:
+            u = a[c - 2 * n]
+        else:
+            u = driven[c - 3 * n]
+        return values[e] * u
+
+    @wp.func
+    def residual_row(i: int, lane: int, p_offsets: wp.array(dtype=wp.int32), p_columns: wp.array(dtype=wp.int32),
+                     p_values: wp.array(dtype=mat), a_offsets: wp.array(dtype=wp.int32),
+                     a_columns: wp.array(dtype=wp.int32), a_values: wp.array(dtype=mat), d: wp.array(dtype=vec),
+                     v: wp.array(dtype=vec), a: wp.array(dtype=vec), driven: wp.array(dtype=vec),
+                     guess: wp.array(dtype=vec)):
+        # (P [d; v; a; driven])_i and (A guess)_i, summed over the lanes (kernels_cg.residual)
+        p_start, p_end = p_offsets[i], p_offsets[i + 1]
+        a_start, a_end = a_offsets[i], a_offsets[i + 1]
+        acc = vec()
+        for s in range(wp.static(unroll_p)):
+            e = p_start + lane + s * lanes
+            acc += wp.where(e < p_end, state_entry(wp.min(e, p_end - 1), p_columns, p_values, d, v, a, driven), vec())
+        for e in range(p_start + lane + unroll_p * lanes, p_end, lanes):
+            acc += state_entry(e, p_columns, p_values, d, v, a, driven)
+        correction = vec()
+        for s in range(wp.static(unroll_a)):
+            e = wp.min(a_start + lane + s * lanes, a_end - 1)
+            correction += wp.where(a_start + lane + s * lanes < a_end, a_values[e] * guess[a_columns[e]], vec())
+        for e in range(a_start + lane + unroll_a * lanes, a_end, lanes):
+            correction += a_values[e] * guess[a_columns[e]]
+        predicted = row_total(acc)
+        return predicted, predicted - row_total(correction)
+
+    # at least RESIDENT_THREADS threads per multiprocessor: caps the registers (128 a thread for 512), so that a
+    # grid of one row group per block stays resident (H200, 6.7k nodes, 16x16: 130 registers and 132 resident
+    # blocks for 247 row groups without the bound)
+    @wp.kernel(enable_backward=False, module="unique", grid_stride=False,
+               launch_bounds=(rows * lanes, max(1, RESIDENT_THREADS // (rows * lanes))))
+    def cg_step(
+        p_offsets: wp.array(dtype=wp.int32),
+        p_columns: wp.array(dtype=wp.int32),
+        p_values: wp.array(dtype=mat),
+        a_offsets: wp.array(dtype=wp.int32),
+        a_columns: wp.array(dtype=wp.int32),
+        a_values: wp.array(dtype=mat),
+        g_offsets: wp.array(dtype=wp.int32),
+        g_keys: wp.array(dtype=wp.int32),
+        g_values: wp.array(dtype=dtype),
+        t_offsets: wp.array(dtype=wp.int32),
+        t_keys: wp.array(dtype=wp.int32),
+        t_values: wp.array(dtype=dtype),
+        d: wp.array(dtype=vec),
+        v: wp.array(dtype=vec),
+        a: wp.array(dtype=vec),
+        trajectory: wp.array2d(dtype=vec),
+        guess: wp.array(dtype=vec),
+        ring: wp.array(dtype=wp.int32),
+        r: wp.array2d(dtype=vec),
+        r_flat: wp.array2d(dtype=dtype),
+        x: wp.array(dtype=vec),
+        y: wp.array(dtype=vec),
+        y_flat: wp.array(dtype=dtype),
+        z: wp.array(dtype=vec),
+        p: wp.array2d(dtype=vec),
+        q: wp.array(dtype=vec),
+        q_flat: wp.array(dtype=dtype),
+        slots: wp.array3d(dtype=wp.float64),
+        cg_iter: wp.array(dtype=wp.int32),
+        barrier: wp.array(dtype=wp.int32),
+        tol_sq: wp.float64,
+        maxiter: int,
+        blocks: int,
+    ):
+        """Residuals, start and every CG iteration, phases separated by :func:`grid_sync` (module docstring).
+        Each phase's row indices for the block's first row group are loaded before the barrier ahead of it."""
+        block, thread = wp.tid()
+        local = thread // lanes
+        lane = thread - local * lanes
+        count = x.shape[0]
+        groups = (count + rows - 1) // rows
+        first_row = block * rows + local
+        first = wp.min(first_row, count - 1)
+        arrivals = int(0)
+
+        # residuals of the predictor (r[1]) and of the extrapolated start (r[0]), as kernels_cg.residual
+        slot = ring[0]
+        driven = trajectory[slot]
+        predicted_sq = wp.float64(0.0)
+        extrapolated_sq = wp.float64(0.0)
+        for g in range(block, groups, blocks):
+            row = g * rows + local
+            i = wp.min(row, count - 1)
+            predicted, extrapolated = residual_row(i, lane, p_offsets, p_columns, p_values, a_offsets, a_columns,
+                                                   a_values, d, v, a, driven, guess)
+            if row < count and lane == 0:
+                r[0, i] = extrapolated
+                r[1, i] = predicted
+                x[i] = guess[i]
+                predicted_sq += wp.float64(wp.dot(predicted, predicted))
+                extrapolated_sq += wp.float64(wp.dot(extrapolated, extrapolated))
+        predicted_sq = block_sum64(predicted_sq)
+        extrapolated_sq = block_sum64(extrapolated_sq)
+        if thread == 0:
+            wp.atomic_add(slots, START, 0, block % spread, predicted_sq)
+            wp.atomic_add(slots, START, 1, block % spread, extrapolated_sq)
+            if block == 0:
+                ring[1] = slot
+        g_start, g_end, g_found = fetch_g(g_offsets, g_keys, first, lane)
+        arrivals += 1
+        grid_sync(barrier, arrivals * blocks)
+
+        # start from the better of the two points (as lower_start): y = G r0
+        use = int(0)
+        if not (slot_total(slots, START, 1) <= slot_total(slots, START, 0)):
+            use = 1
+        r_use = r_flat[use]
+        g = block
+        while g < groups:
+            row = g * rows + local
+            i = wp.min(row, count - 1)
+            yi = factor_row(g_start, g_end, g_found, lane, g_keys, g_values, r_use, r_use, dtype(0.0))
+            if row < count and lane == 0:
+                y[i] = yi
+                if use == 1:
+                    r[0, i] = r[1, i]
+                    x[i] = vec()
+            g += blocks
+            g_start, g_end, g_found = fetch_g(g_offsets, g_keys, wp.min(g * rows + local, count - 1), lane)
+        t_start, t_end, t_found = fetch_g(t_offsets, t_keys, first, lane)
+        arrivals += 1
+        grid_sync(barrier, arrivals * blocks)
+
+        k = int(0)
+        searching = bool(True)
+        while searching:
+            # upper: z = Gᵀ y, r·z and r·r of iteration k from r[k % 2]
+            rz = wp.float64(0.0)
+            rr = wp.float64(0.0)
+            g = block
+            while g < groups:
+                row = g * rows + local
+                i = wp.min(row, count - 1)
+                zi = factor_row(t_start, t_end, t_found, lane, t_keys, t_values, y_flat, y_flat, dtype(0.0))
+                if row < count and lane == 0:
+                    ri = r[k % 2, i]
+                    z[i] = zi
+                    rz += wp.float64(wp.dot(ri, zi))
+                    rr += wp.float64(wp.dot(ri, ri))
+                g += blocks
+                t_start, t_end, t_found = fetch_g(t_offsets, t_keys, wp.min(g * rows + local, count - 1), lane)
+            rz = block_sum64(rz)
+            rr = block_sum64(rr)
+            if thread == 0:
+                wp.atomic_add(slots, RZ, k, block % spread, rz)
+                wp.atomic_add(slots, RR, k, block % spread, rr)
+            a_start, a_end, a_found = fetch_a(a_offsets, a_columns, first, lane)
+            arrivals += 1
+            grid_sync(barrier, arrivals * blocks)
+            if cg_finished(slots, k, tol_sq, maxiter) or barrier[1] != 0:
+                searching = False
+            else:
+                # direction: p[k % 2] = z + β p[(k+1) % 2], q = A p, p·q
+                beta = dtype(0.0)
+                if k > 0:
+                    beta = dtype(slot_total(slots, RZ, k) / slot_total(slots, RZ, k - 1))
+                new = k % 2
+                p_old = p[1 - new]
+                pq = wp.float64(0.0)
+                g = block
+                while g < groups:
+                    row = g * rows + local
+                    i = wp.min(row, count - 1)
+                    qi = direction_row(a_start, a_end, a_found, lane, a_columns, a_values, z, p_old, beta)
+                    if row < count and lane == 0:
+                        pi = z[i] + beta * p_old[i]
+                        p[new, i] = pi
+                        q[i] = qi
+                        pq += wp.float64(wp.dot(pi, qi))
+                    g += blocks
+                    a_start, a_end, a_found = fetch_a(a_offsets, a_columns, wp.min(g * rows + local, count - 1), lane)
+                pq = block_sum64(pq)
+                if thread == 0:
+                    wp.atomic_add(slots, PQ, k, block % spread, pq)
+                g_start, g_end, g_found = fetch_g(g_offsets, g_keys, first, lane)
+                arrivals += 1
+                grid_sync(barrier, arrivals * blocks)
+
+                # lower: x += α p, r[(k+1) % 2] = r[k % 2] − α q, y = G r_new
+                alpha = dtype(slot_total(slots, RZ, k) / slot_total(slots, PQ, k))
+                r_cur = r_flat[new]
+                g = block
+                while g < groups:
+                    row = g * rows + local
+                    i = wp.min(row, count - 1)
+                    yi = factor_row(g_start, g_end, g_found, lane, g_keys, g_values, r_cur, q_flat, alpha)
+                    if row < count and lane == 0:
+                        x[i] = x[i] + alpha * p[new, i]
+                        r[1 - new, i] = r[new, i] - alpha * q[i]
+                        y[i] = yi
+                    g += blocks
+                    g_start, g_end, g_found = fetch_g(g_offsets, g_keys, wp.min(g * rows + local, count - 1), lane)
+                t_start, t_end, t_found = fetch_g(t_offsets, t_keys, first, lane)
+                arrivals += 1
+                grid_sync(barrier, arrivals * blocks)
+                k += 1
+        if thread == 0:
+            if block == 0:
+                if barrier[1] != 0:  # a block gave up at a barrier: book the step as not converged
+                    k = maxiter
+                    slots[RR, k, 0] = wp.float64(wp.nan)
+                cg_iter[0] = k
+                cg_iter[1] = k
+            # every block has passed its last barrier: the last one out clears the counters for the next step
+            if wp.atomic_add(barrier, 2, 1) == blocks - 1:
+                barrier[0] = 0
+                barrier[2] = 0
+
+    return types.SimpleNamespace(vec=vec, block_dim=rows * lanes, rows=rows, cg_step=cg_step)
