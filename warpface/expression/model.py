@@ -20,14 +20,16 @@ from .kernels import (MuscleEntry, WrinkleEntry, apply_jaw_and_muscles, apply_mu
                       triangle_stretch)
 from .kernels_fused import (MUSCLE_SLOTS, WRINKLE_SLOTS, bulge_from_ring, muscle_points_over_frames, muscles_and_bulge_from_ring, ring_table,
                             slot_table, wrinkles_from_ring)
+from .kernels_tiled import expression_tiles
 from .muscles import Muscle, muscle_weights
 from .readback import PinnedReadback
+from .tiling import vertex_tiles
 from .tissue import tissue_response
 from .wrinkles import Wrinkle, wrinkle_shapes
 
 __all__ = ["ExpressionModel", "ExpressionStages", "LAUNCH_PLANS"]
 
-LAUNCH_PLANS = (2, 3, 5)
+LAUNCH_PLANS = (1, 2, 3, 5)
 """Kernel launches per frame an :class:`ExpressionModel` can run (its ``launches`` argument)."""
 
 _MAX_LAUNCH_THREADS = (1 << 31) - 1
@@ -106,7 +108,9 @@ class ExpressionModel:
         jaw: optional :class:`~warpface.expression.Jaw`, applied before the muscles (SPEC §6.2); its
             controls :data:`~warpface.expression.JAW_CONTROL_NAMES` follow the muscles in the control
             vector (:attr:`control_names`).
-        launches: kernel launches per frame: 2 (fused kernels that recompute the one-ring's muscle
+        launches: kernel launches per frame: 1 (vertex tiles with a two-ring halo in shared memory,
+            :mod:`~warpface.expression.kernels_tiled`: each triangle once per tile, no intermediate in
+            memory; opt-in), 2 (fused kernels that recompute the one-ring's muscle
             points and triangle terms instead of storing them: fewest launches and bytes), 3 (muscle
             points stored, triangle terms computed in place: the GPU's default, the fastest single
             frame on an H200 from 10k to 100k vertices and the fastest batch from 10k to 1M) or 5
@@ -149,7 +153,7 @@ class ExpressionModel:
                                      or launches not in LAUNCH_PLANS):
             raise ValueError(f"launches: expected one of {LAUNCH_PLANS} or None, got {launches!r}")
         self.launches_per_frame = int((3 if self.device.is_cuda else 5) if launches is None else launches)
-        """Kernel launches per frame: 2 (fused), 3 or 5 (see ``launches``)."""
+        """Kernel launches per frame: 1 (tiled), 2 (fused), 3 or 5 (see ``launches``)."""
 
         self._mesh_buffers = mesh.device_buffers(device=self.device)
         weights = muscle_weights(mesh.points, self.muscles, device=self.device)
@@ -171,12 +175,18 @@ class ExpressionModel:
         self.default_depths = np.array([w.depth for w in self.wrinkles], dtype=np.float64)
         if jaw is not None:
             self._jaw_weight = wp.array(jaw.weights.astype(np.float32), dtype=wp.float32, device=device_)
-        if self.launches_per_frame != 5:  # the fused plans' fixed-width tables (kernels_fused)
+        if self.launches_per_frame == 1:  # the tiled plan's tiles (tiling)
+            buffers = self._mesh_buffers
+            self._tiles = vertex_tiles(mesh.points, mesh.triangles, buffers.triangle_weight.numpy(), buffers.rest_area_lengths.numpy(),
+                                       mesh.adjacency.offsets, mesh.adjacency.triangles).to_device(device_)
+        if self.launches_per_frame in (2, 3):  # the fused plans' fixed-width tables (kernels_fused)
             buffers = self._mesh_buffers
             self._ring = ring_table(mesh.triangles.astype(np.int32), buffers.triangle_weight.numpy(), buffers.rest_area_lengths.numpy(),
                                     mesh.adjacency.offsets, mesh.adjacency.triangles, device=device_)
             self._muscle_slots = slot_table(MuscleEntry, weights.offsets, self._muscle_entries.numpy(), int(MUSCLE_SLOTS), device=device_)
             self._wrinkle_slots = slot_table(WrinkleEntry, shapes.offsets, self._wrinkle_entries.numpy(), int(WRINKLE_SLOTS), device=device_)
+        self._block_dim = 256 if self.device.is_cuda else 1
+        """Threads per block of every launch (the tiled plan's blocks are its third launch dimension)."""
         self._thread_buffers = threading.local()
         self._single = self._frame_buffers(1)
         self._batch_graphs = BatchGraphs(device=self.device)
@@ -497,6 +507,13 @@ class ExpressionModel:
             jaw_inputs = [self._counts, wp.vec3(), wp.vec3(), wp.vec3(), -1]  # jaw arrays unread
         else:
             jaw_inputs = [self._jaw_weight, wp.vec3(*jaw.pivot), wp.vec3(*jaw.axis), wp.vec3(*jaw.forward), len(self.muscles)]
+        if self.launches_per_frame == 1:  # blocks over (frame groups, tiles), per_thread frames per block
+            tiled = (expression_tiles, (-(-frames // per_thread), len(self._tiles[0]), self._block_dim),
+                     [*self._tiles, mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, controls, buffers.muscle_width,
+                      self._counts, self._thickness, self._wrinkle_offsets, self._wrinkle_entries, depths, buffers.wrinkle_width,
+                      vertex_count, frames, per_thread, int(keep_muscle_points)],
+                     [buffers.muscle_points, buffers.stretch, buffers.bulge_points, final_points])
+            return [tiled]
         muscle_inputs = [mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, self._muscle_slots, controls,
                          buffers.muscle_width]
         ring_inputs = [self._ring, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, mesh.adjacency_offsets,
@@ -553,11 +570,11 @@ class ExpressionModel:
             buffers, frames, buffers.contraction if controls is None else controls, buffers.depth if depths is None else depths,
             buffers.final_points if final_points is None else final_points, keep_muscle_points)
         for kernel, dim, inputs, outputs in arguments:
-            wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device)
+            wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device, block_dim=self._block_dim)
 
     def _record_launches(self, buffers: FrameBuffers) -> list:
         arguments = self._launch_args(buffers, buffers.frames, buffers.contraction, buffers.depth, buffers.final_points, False)
-        return [wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device, record_cmd=True)
+        return [wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device, block_dim=self._block_dim, record_cmd=True)
                 for kernel, dim, inputs, outputs in arguments]
 
 
