@@ -24,13 +24,21 @@ _MORTON_BITS = 10
 
 
 def morton_order(points: np.ndarray) -> np.ndarray:
-    """Indices sorting ``points`` (V, 3) along a Z-order curve of their bounding box (stable for ties)."""
+    """Indices sorting ``points`` (V, 3) along a Z-order curve of cubic cells over their bounding box (stable
+    for ties). A sheet-like point set (a face region: its thinnest principal extent under half the middle
+    one) is first projected onto its two main principal axes, so that runs of the curve are compact patches
+    of the surface rather than slabs cut by its relief."""
     points = np.asarray(points, dtype=np.float64)
     if len(points) == 0:
         return np.zeros(0, dtype=np.int64)
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    scale = ((1 << _MORTON_BITS) - 1) / np.where(hi > lo, hi - lo, 1.0)
-    cells = np.clip(((points - lo) * scale).astype(np.int64), 0, (1 << _MORTON_BITS) - 1)
+    centred = points - points.mean(axis=0)
+    if len(points) >= 3:
+        _, spread, axes = np.linalg.svd(centred, full_matrices=False)
+        if spread[2] < 0.5 * spread[1]:
+            centred = np.c_[centred @ axes[:2].T, np.zeros(len(points))]
+    lo, hi = centred.min(axis=0), centred.max(axis=0)
+    scale = ((1 << _MORTON_BITS) - 1) / max(float(np.max(hi - lo)), 1e-30)  # one scale: cells stay cubes
+    cells = np.clip(((centred - lo) * scale).astype(np.int64), 0, (1 << _MORTON_BITS) - 1)
     code = np.zeros(len(points), dtype=np.int64)
     for bit in range(_MORTON_BITS):
         for axis in range(3):
@@ -45,6 +53,12 @@ def _expand(rows: np.ndarray, offsets: np.ndarray, entries: np.ndarray) -> tuple
     which = np.repeat(np.arange(len(rows)), lengths)
     starts = np.repeat(offsets[rows] - (np.cumsum(lengths) - lengths), lengths)
     return which, entries[starts + np.arange(len(which))]
+
+
+def _unique(keys: np.ndarray) -> np.ndarray:
+    """Sorted unique values (a sort and a mask: faster than ``np.unique``'s hashing on these large key arrays)."""
+    keys = np.sort(keys)
+    return keys[np.r_[True, keys[1:] != keys[:-1]]] if len(keys) else keys
 
 
 @dataclass
@@ -77,33 +91,36 @@ def _neighbour_csr(triangles: np.ndarray, vertex_count: int) -> tuple[np.ndarray
     corners = triangles.astype(np.int64)
     src = np.r_[np.repeat(corners, 3, axis=1).ravel(), np.arange(vertex_count)]
     dst = np.r_[np.tile(corners, (1, 3)).ravel(), np.arange(vertex_count)]
-    keys = np.unique(src * vertex_count + dst)
+    keys = _unique(src * vertex_count + dst)
     offsets = np.searchsorted(keys // vertex_count, np.arange(vertex_count + 1))
     return offsets, keys % vertex_count
 
 
-def _tile_sets(tile_of, tile_count, neighbours, adjacency, vertex_count, triangle_count):
+def _tile_sets(tile_of, neighbours, adjacency, vertex_count, triangle_count):
     """Sorted (tile, vertex) keys of every tile's one-ring and two-ring, (tile, triangle) keys of the
     triangles touching its one-ring and of those touching an owned vertex."""
     n_offsets, n_entries = neighbours
     a_offsets, a_entries = adjacency
     all_vertices = np.arange(vertex_count)
     which, near = _expand(all_vertices, n_offsets, n_entries)
-    ring = np.unique(tile_of[which] * vertex_count + near)
+    ring = _unique(tile_of[which] * vertex_count + near)
     ring_tile, ring_vertex = ring // vertex_count, ring % vertex_count
     which, far = _expand(ring_vertex, n_offsets, n_entries)
-    halo = np.unique(ring_tile[which] * vertex_count + far)
+    halo = _unique(ring_tile[which] * vertex_count + far)
     which, touching = _expand(ring_vertex, a_offsets, a_entries)
-    ring_triangles = np.unique(ring_tile[which] * triangle_count + touching)
+    ring_triangles = _unique(ring_tile[which] * triangle_count + touching)
     which, owned_touching = _expand(all_vertices, a_offsets, a_entries)
-    near_triangles = np.unique(tile_of[which] * triangle_count + owned_touching)
+    near_triangles = _unique(tile_of[which] * triangle_count + owned_touching)
     return ring, halo, ring_triangles, near_triangles
 
 
 def vertex_tiles(points: np.ndarray, triangles: np.ndarray, triangle_weight: np.ndarray, rest_length: np.ndarray,
-                 adjacency_offsets: np.ndarray, adjacency_triangles: np.ndarray) -> VertexTiles:
+                 adjacency_offsets: np.ndarray, adjacency_triangles: np.ndarray, *, max_owned: int = int(TILE_OWNED),
+                 max_halo: int = int(TILE_VERTICES), max_triangles: int = int(TILE_TRIANGLES)) -> VertexTiles:
     """Tile a mesh: ``points`` (V, 3) rest positions, ``triangles`` (T, 3), per-triangle ``triangle_weight``
     and ``rest_length`` (T,), and the vertex → triangle CSR (``adjacency_offsets`` (V + 1,), ``adjacency_triangles``).
+    ``max_owned``, ``max_halo`` and ``max_triangles`` bound a tile's owned vertices, two-ring and one-ring triangles
+    (default: the kernel's shared tiles).
 
     Raises:
         ValueError: a single vertex's two-ring or its one-ring's triangles exceed the shared tiles.
@@ -113,21 +130,21 @@ def vertex_tiles(points: np.ndarray, triangles: np.ndarray, triangle_weight: np.
     neighbours = _neighbour_csr(np.asarray(triangles), vertex_count)
     rank = np.empty(vertex_count, dtype=np.int64)
     rank[morton_order(points)] = np.arange(vertex_count)
-    cuts = np.arange(0, vertex_count, int(TILE_OWNED), dtype=np.int64)  # first rank of each tile
+    cuts = np.arange(0, vertex_count, max_owned, dtype=np.int64)  # first rank of each tile
     while True:
         tile_of = np.searchsorted(cuts, rank, side="right") - 1
         tile_count = len(cuts)
-        ring, halo, ring_triangles, near_triangles = _tile_sets(tile_of, tile_count, neighbours, adjacency, vertex_count, triangle_count)
+        ring, halo, ring_triangles, near_triangles = _tile_sets(tile_of, neighbours, adjacency, vertex_count, triangle_count)
         halo_size = np.bincount(halo // vertex_count, minlength=tile_count)
         triangle_size = np.bincount(ring_triangles // triangle_count, minlength=tile_count)
-        over = np.flatnonzero((halo_size > int(TILE_VERTICES)) | (triangle_size > int(TILE_TRIANGLES)))
+        over = np.flatnonzero((halo_size > max_halo) | (triangle_size > max_triangles))
         if len(over) == 0:
             break
         sizes = np.diff(np.r_[cuts, vertex_count])
         if np.any(sizes[over] == 1):
             vertex = int(np.flatnonzero(tile_of == over[sizes[over] == 1][0])[0])
-            raise ValueError(f"tiled plan: vertex {vertex}'s two-ring has more than {int(TILE_VERTICES)} vertices or its one-ring "
-                             f"more than {int(TILE_TRIANGLES)} triangles; use launches=3")
+            raise ValueError(f"tiled plan: vertex {vertex}'s two-ring has more than {max_halo} vertices or its one-ring "
+                             f"more than {max_triangles} triangles; use launches=3")
         cuts = np.sort(np.r_[cuts, cuts[over] + sizes[over] // 2])
 
     # local vertex order per tile: owned, rest of the one-ring, rest of the two-ring (each by vertex index)

@@ -1,0 +1,140 @@
+"""The tiled one-launch plan (``launches=1``, kernels_tiled + tiling): its tiles against an independent
+per-tile set construction, and its frames against the five-kernel sequence of kernels.py bit for bit —
+blocks of one thread (the CPU's) and of many (CPU blocks, as on CUDA), several frames per block."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+from test_expression_fused import build_model, fan_rig, five_kernel_frames, random_controls
+from warpface import ExpressionModel
+from warpface.expression.kernels_tiled import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES
+from warpface.expression.tiling import morton_order, vertex_tiles
+
+DEVICE = "cpu"
+
+
+def tiles_of(mesh, **caps):
+    buffers = mesh.device_buffers(device=DEVICE)
+    return vertex_tiles(mesh.points, mesh.triangles, buffers.triangle_weight.numpy(), buffers.rest_area_lengths.numpy(),
+                        mesh.adjacency.offsets, mesh.adjacency.triangles, **caps)
+
+
+def check_tiles(mesh, tiles, max_owned, max_halo, max_triangles):
+    """Each tile against sets built here vertex by vertex: owned vertices partition the mesh; the local
+    vertices are owned, then the rest of their one-ring, then the rest of the two-ring; local triangles
+    are those touching the one-ring, the ones touching an owned vertex first; local corners and each
+    one-ring vertex's local incident triangles (in the CSR's order) name the right global items."""
+    triangles = mesh.triangles
+    offsets, incident = mesh.adjacency.offsets, mesh.adjacency.triangles
+    neighbours = [set(triangles[incident[offsets[v]:offsets[v + 1]]].ravel()) | {v} for v in range(mesh.vertex_count)]
+    touching = [set(incident[offsets[v]:offsets[v + 1]]) for v in range(mesh.vertex_count)]
+    owners = np.zeros(mesh.vertex_count, dtype=int)
+    for info in tiles.info:
+        start, owned_count, ring_count, halo_count = (int(info[k]) for k in ("vertex_start", "owned", "ring", "halo"))
+        local = tiles.vertices[start:start + halo_count]
+        owned = set(local[:owned_count])
+        ring = set().union(*(neighbours[v] for v in owned))
+        halo = set().union(*(neighbours[v] for v in ring))
+        assert len(owned) == owned_count <= max_owned and halo_count <= max_halo
+        assert set(local[:ring_count]) == ring and set(local) == halo and len(local) == len(halo)
+        tri_start, near_count, tri_count = (int(info[k]) for k in ("triangle_start", "near", "triangles"))
+        local_triangles = tiles.triangles[tri_start:tri_start + tri_count]
+        global_triangles = [tuple(local[c]) for c in local_triangles["corners"]]
+        ring_triangles = set().union(*(touching[v] for v in ring))
+        near = set().union(*(touching[v] for v in owned))
+        assert tri_count == len(ring_triangles) <= max_triangles and near_count == len(near)
+        assert {tuple(triangles[t]) for t in near} == set(global_triangles[:near_count])
+        assert {tuple(triangles[t]) for t in ring_triangles} == set(global_triangles)
+        for s in range(halo_count):
+            rows = tiles.adjacency[tiles.adjacency_offsets[start + s]:tiles.adjacency_offsets[start + s + 1]]
+            expected = [tuple(triangles[t]) for t in incident[offsets[local[s]]:offsets[local[s] + 1]]] if s < ring_count else []
+            assert [global_triangles[t] for t in rows] == expected
+        owners[list(owned)] += 1
+    np.testing.assert_array_equal(owners, 1)
+
+
+def test_tiles_of_the_default_face_hold_each_tiles_two_ring():
+    from warpface.assets import default_face
+
+    mesh = default_face()
+    tiles = tiles_of(mesh)
+    check_tiles(mesh, tiles, int(TILE_OWNED), int(TILE_VERTICES), int(TILE_TRIANGLES))
+    assert tiles.info["owned"].mean() > 0.5 * int(TILE_OWNED)  # compact tiles: few are split
+
+
+def grid_mesh(n: int):
+    """A wavy n × n grid of two triangles per cell."""
+    import warpface as wf
+
+    x, y = np.meshgrid(np.linspace(0.0, 0.1, n), np.linspace(0.0, 0.1, n))
+    index = np.arange(n * n).reshape(n, n)
+    a, b, c, d = index[:-1, :-1].ravel(), index[:-1, 1:].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel()
+    points = np.c_[x.ravel(), y.ravel(), 0.002 * np.sin(60 * x.ravel()) * np.cos(50 * y.ravel())]
+    return wf.FaceMesh(points, np.r_[np.c_[a, b, d], np.c_[a, d, c]], name="grid")
+
+
+def test_small_caps_split_tiles_until_they_fit():
+    mesh = grid_mesh(20)
+    tiles = tiles_of(mesh, max_owned=32, max_halo=40, max_triangles=60)
+    assert tiles.count > -(-mesh.vertex_count // 32)  # tiles were halved
+    check_tiles(mesh, tiles, 32, 40, 60)
+    with pytest.raises(ValueError, match="two-ring has more than 20 vertices"):  # the fan: any vertex's two-ring is 29
+        tiles_of(fan_rig()[0], max_owned=8, max_halo=20, max_triangles=100)
+
+
+def test_morton_order_keeps_neighbours_close():
+    rng = np.random.default_rng(0)
+    points = rng.uniform(size=(4096, 3))
+    order = morton_order(points)
+    assert sorted(order) == list(range(4096))
+    steps = np.linalg.norm(np.diff(points[order], axis=0), axis=1)
+    assert np.median(steps) < 0.25 * np.median(np.linalg.norm(np.diff(points, axis=0), axis=1))
+
+
+@pytest.mark.parametrize("rig_name", ["default rig", "small rig without jaw"])
+def test_tiled_frames_equal_the_five_kernel_sequence(rig_name, rng):
+    model = build_model(rig_name, 1)
+    contractions, depths = random_controls(model, rng, 4)
+    expected = five_kernel_frames(model, contractions, depths)
+    stages = model.evaluate(contractions[0], wrinkle_depths=depths[0], stages=True)
+    for name in ("muscle", "stretch", "bulge", "final"):
+        np.testing.assert_array_equal(stages[name], expected[name][0], err_msg=name)
+    np.testing.assert_array_equal(model.evaluate_batch(contractions, wrinkle_depths=depths), expected["final"])
+    out = wp.empty((4, model.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
+    model.evaluate_batch_into(out, contractions, wrinkle_depths=depths, frames_per_launch=3)
+    np.testing.assert_array_equal(out.numpy(), expected["final"])
+
+
+@pytest.mark.parametrize("block_dim, frames_per_block", [(8, 3), (64, 2)])
+def test_blocks_of_many_threads_equal_the_five_kernel_sequence(rng, block_dim, frames_per_block):
+    """The kernel's strided passes and barriers with many threads per block (as on CUDA, 256), here as
+    Warp's CPU blocks, and several frames per block: the same bits."""
+    model = build_model("default rig", 1)
+    frames = 5
+    contractions, depths = random_controls(model, rng, frames)
+    expected = five_kernel_frames(model, contractions, depths)["final"]
+    buffers = model._frame_buffers(frames)
+    buffers.upload_controls(contractions, depths)
+    (kernel, dim, inputs, outputs), = model._launch_args(buffers, frames, buffers.contraction, buffers.depth, buffers.final_points, False)
+    inputs = list(inputs)
+    inputs[-2] = frames_per_block
+    saved = wp.config.enable_cpu_blocks
+    wp.config.enable_cpu_blocks = True
+    try:
+        wp.launch(kernel, dim=(-(-frames // frames_per_block), dim[1], block_dim), inputs=inputs, outputs=outputs, device=DEVICE,
+                  block_dim=block_dim)
+    finally:
+        wp.config.enable_cpu_blocks = saved
+    np.testing.assert_array_equal(buffers.read_frames(buffers.final_points, frames), expected)
+
+
+def test_tiled_plan_with_more_incident_triangles_than_ring_slots(rng):
+    """The fan's centre (14 incident triangles): local adjacency has no fixed width, several frames per block."""
+    mesh, muscles, wrinkles = fan_rig()
+    model = ExpressionModel(mesh, muscles, wrinkles, 0.004, device=DEVICE, launches=1)
+    contractions = rng.uniform(0.005, 0.02, (4, 2))
+    depths = rng.uniform(0.5, 2.0, (4, 1)) * model.default_depths
+    expected = five_kernel_frames(model, contractions, depths)["final"]
+    model._frames_per_thread = lambda frames: 3
+    np.testing.assert_array_equal(model.evaluate_batch(contractions, wrinkle_depths=depths, frames_per_launch=4), expected)
