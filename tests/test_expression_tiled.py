@@ -8,7 +8,7 @@ import warp as wp
 
 from test_expression_fused import build_model, fan_rig, five_kernel_frames, random_controls
 from warpface import ExpressionModel
-from warpface.expression.kernels_tiled import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES
+from warpface.expression.kernels_tiled import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, expression_tiles
 from warpface.expression.tiling import morton_order, vertex_tiles
 
 DEVICE = "cpu"
@@ -106,10 +106,10 @@ def test_tiled_frames_equal_the_five_kernel_sequence(rig_name, rng):
     np.testing.assert_array_equal(out.numpy(), expected["final"])
 
 
-@pytest.mark.parametrize("block_dim, frames_per_block", [(8, 3), (64, 2)])
-def test_blocks_of_many_threads_equal_the_five_kernel_sequence(rng, block_dim, frames_per_block):
+@pytest.mark.parametrize("block_dim, frames_per_block, frames_per_pass", [(1, 5, 2), (1, 4, 3), (8, 3, 1), (64, 4, 2)])
+def test_blocks_of_many_threads_equal_the_five_kernel_sequence(rng, block_dim, frames_per_block, frames_per_pass):
     """The kernel's strided passes and barriers with many threads per block (as on CUDA, 256), here as
-    Warp's CPU blocks, and several frames per block: the same bits."""
+    Warp's CPU blocks, several frames per block and per pass (the last pass partial): the same bits."""
     model = build_model("default rig", 1)
     frames = 5
     contractions, depths = random_controls(model, rng, frames)
@@ -119,6 +119,7 @@ def test_blocks_of_many_threads_equal_the_five_kernel_sequence(rng, block_dim, f
     (kernel, dim, inputs, outputs), = model._launch_args(buffers, frames, buffers.contraction, buffers.depth, buffers.final_points, False)
     inputs = list(inputs)
     inputs[-2] = frames_per_block
+    kernel = expression_tiles(frames_per_pass)
     saved = wp.config.enable_cpu_blocks
     wp.config.enable_cpu_blocks = True
     try:

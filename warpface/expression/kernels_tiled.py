@@ -67,155 +67,197 @@ class TileInfo:
     triangles: wp.int32
 
 
-@wp.kernel
-def expression_tiles(
-    tiles: wp.array(dtype=TileInfo),
-    tile_vertices: wp.array(dtype=wp.int32),
-    tile_adjacency_offsets: wp.array(dtype=wp.int32),
-    tile_adjacency: wp.array(dtype=wp.int32),
-    tile_triangles: wp.array(dtype=RingTriangle),
-    rest: wp.array(dtype=wp.vec3),
-    jaw_weight: wp.array(dtype=wp.float32),
-    pivot: wp.vec3,
-    hinge_axis: wp.vec3,
-    forward: wp.vec3,
-    jaw_first: int,
-    muscle_offsets: wp.array(dtype=wp.int32),
-    muscle_entries: wp.array(dtype=MuscleEntry),
-    controls: wp.array(dtype=wp.float32),
-    control_count: int,
-    counts: wp.array(dtype=wp.float32),
-    thickness: wp.array(dtype=wp.float32),
-    wrinkle_offsets: wp.array(dtype=wp.int32),
-    wrinkle_entries: wp.array(dtype=WrinkleEntry),
-    depth: wp.array(dtype=wp.float32),
-    wrinkle_count: int,
-    vertex_count: int,
-    frame_count: int,
-    frames_per_block: int,
-    keep_stages: int,
-    muscle_points: wp.array(dtype=wp.vec3),
-    stretch: wp.array(dtype=wp.float32),
-    bulge_points: wp.array(dtype=wp.vec3),
-    final_points: wp.array(dtype=wp.vec3),
-):
-    """x3 of a tile's owned vertices for ``frames_per_block`` consecutive frames (block = (frame group, tile)).
+_kernels: dict = {}
 
-    Local adjacency (``tile_adjacency_offsets`` per local vertex slot, entries = local triangle indices)
-    lists a one-ring vertex's incident triangles in the mesh CSR's order; ``tile_triangles`` holds local
-    corners, weight and rest length. With ``keep_stages`` ≠ 0, x1, r and x2 of owned vertices are written too.
+
+def expression_tiles(frames_per_pass: int = 1):
+    """The tiled frame kernel evaluating ``frames_per_pass`` frames in each pass (built once per value).
+
+    A pass loads each item's rig data (vertex, muscle and wrinkle entries, local triangle, adjacency) once
+    and applies it to all of its frames, accumulating per frame in registers in the same order as the
+    five-kernel sequence; the shared tiles hold one slice per frame of the pass.
     """
-    group, tile, lane = wp.tid()
-    threads = wp.block_dim()
-    info = tiles[tile]
-    vertex_start = info.vertex_start
-    triangle_start = info.triangle_start
-    x1 = wp.tile_empty(shape=TILE_VERTICES, dtype=wp.vec3, storage="shared")
-    x2 = wp.tile_empty(shape=TILE_VERTICES, dtype=wp.vec3, storage="shared")
-    terms = wp.tile_empty(shape=TILE_TRIANGLES, dtype=wp.vec4, storage="shared")
-    ratio = wp.tile_empty(shape=TILE_OWNED, dtype=wp.float32, storage="shared")
-    f = group * frames_per_block
-    last = wp.min(f + frames_per_block, frame_count)
-    while f < last:
-        first = f * control_count
-        rotation = wp.quat_identity()
-        slide = wp.vec3(0.0, 0.0, 0.0)
-        if jaw_first >= 0:
-            rotation = wp.quat_from_axis_angle(hinge_axis, controls[first + jaw_first])
-            slide = controls[first + jaw_first + 1] * forward + controls[first + jaw_first + 2] * hinge_axis
-        # A: x1 of the two-ring
-        k = int(0)
-        while k < info.halo:
-            s = k + lane
-            point = wp.vec3(0.0, 0.0, 0.0)
-            if s < info.halo:
-                v = tile_vertices[vertex_start + s]
-                x = rest[v]
-                if jaw_first >= 0:
-                    w = jaw_weight[v]
-                    if w > 0.0:
-                        moved = wp.quat_rotate(rotation, x - pivot) + pivot + slide
-                        x = x + w * (moved - x)
-                point = add_muscles(x, controls, first, muscle_offsets, muscle_entries, v)
-            wp.tile_scatter_masked(x1, s, point, s < info.halo)
-            k += threads
-        # B: area vector and S'/S of every triangle touching the one-ring
-        k = int(0)
-        while k < info.triangles:
-            t = k + lane
-            term = wp.vec4(0.0, 0.0, 0.0, 0.0)
-            if t < info.triangles:
-                entry = tile_triangles[triangle_start + t]
-                p0 = x1[entry.corners[0]]
-                av = entry.weight * wp.cross(x1[entry.corners[1]] - p0, x1[entry.corners[2]] - p0)
-                term = wp.vec4(av[0], av[1], av[2], wp.length(av) / entry.rest_length)
-            wp.tile_scatter_masked(terms, t, term, t < info.triangles)
-            k += threads
-        # C: r and x2 of the one-ring
-        k = int(0)
-        while k < info.ring:
-            s = k + lane
-            point = wp.vec3(0.0, 0.0, 0.0)
-            r = float(1.0)
-            if s < info.ring:
-                v = tile_vertices[vertex_start + s]
-                total = wp.vec4(0.0, 0.0, 0.0, 0.0)
-                j = tile_adjacency_offsets[vertex_start + s]
-                end = tile_adjacency_offsets[vertex_start + s + 1]
+    frames = int(frames_per_pass)
+    if frames < 1:
+        raise ValueError(f"frames_per_pass: expected a positive count, got {frames_per_pass!r}")
+    if frames not in _kernels:
+        _kernels[frames] = _build_kernel(frames)
+    return _kernels[frames]
+
+
+def _build_kernel(frames_per_pass: int):
+    F = frames_per_pass
+    frame_points = wp.types.matrix(shape=(F, 3), dtype=wp.float32)
+    frame_terms = wp.types.matrix(shape=(F, 4), dtype=wp.float32)
+    frame_values = wp.types.vector(length=F, dtype=wp.float32)
+
+    @wp.kernel(enable_backward=False, module="unique", module_options={"optimization_level": 3})
+    def expression_tiles_kernel(
+        tiles: wp.array(dtype=TileInfo),
+        tile_vertices: wp.array(dtype=wp.int32),
+        tile_adjacency_offsets: wp.array(dtype=wp.int32),
+        tile_adjacency: wp.array(dtype=wp.int32),
+        tile_triangles: wp.array(dtype=RingTriangle),
+        rest: wp.array(dtype=wp.vec3),
+        jaw_weight: wp.array(dtype=wp.float32),
+        pivot: wp.vec3,
+        hinge_axis: wp.vec3,
+        forward: wp.vec3,
+        jaw_first: int,
+        muscle_offsets: wp.array(dtype=wp.int32),
+        muscle_entries: wp.array(dtype=MuscleEntry),
+        controls: wp.array(dtype=wp.float32),
+        control_count: int,
+        counts: wp.array(dtype=wp.float32),
+        thickness: wp.array(dtype=wp.float32),
+        wrinkle_offsets: wp.array(dtype=wp.int32),
+        wrinkle_entries: wp.array(dtype=WrinkleEntry),
+        depth: wp.array(dtype=wp.float32),
+        wrinkle_count: int,
+        vertex_count: int,
+        frame_count: int,
+        frames_per_block: int,
+        keep_stages: int,
+        muscle_points: wp.array(dtype=wp.vec3),
+        stretch: wp.array(dtype=wp.float32),
+        bulge_points: wp.array(dtype=wp.vec3),
+        final_points: wp.array(dtype=wp.vec3),
+    ):
+        """x3 of a tile's owned vertices for ``frames_per_block`` consecutive frames (block = (frame group, tile)).
+
+        Local adjacency (``tile_adjacency_offsets`` per local vertex slot, entries = local triangle indices)
+        lists a one-ring vertex's incident triangles in the mesh CSR's order; ``tile_triangles`` holds local
+        corners, weight and rest length. With ``keep_stages`` ≠ 0, x1, r and x2 of owned vertices are written too.
+        """
+        group, tile, lane = wp.tid()
+        threads = wp.block_dim()
+        info = tiles[tile]
+        vertex_start = info.vertex_start
+        triangle_start = info.triangle_start
+        points = wp.tile_empty(shape=(F, TILE_VERTICES), dtype=wp.vec3, storage="shared")  # x1, then x2 over the one-ring
+        terms = wp.tile_empty(shape=(F, TILE_TRIANGLES), dtype=wp.vec4, storage="shared")
+        ratio = wp.tile_empty(shape=(F, TILE_OWNED), dtype=wp.float32, storage="shared")
+        f = group * frames_per_block
+        last = wp.min(f + frames_per_block, frame_count)
+        while f < last:
+            # A: x1 of the two-ring; a pass's frames past the last one repeat it (computed, never written)
+            k = int(0)
+            while k < info.halo:
+                s = k + lane
+                v = int(0)
+                if s < info.halo:
+                    v = tile_vertices[vertex_start + s]
+                x_rest = rest[v]
+                moved_points = frame_points()
+                for ff in range(F):
+                    x = x_rest
+                    if jaw_first >= 0:
+                        w = jaw_weight[v]
+                        if w > 0.0:
+                            first = wp.min(f + ff, last - 1) * control_count
+                            rotation = wp.quat_from_axis_angle(hinge_axis, controls[first + jaw_first])
+                            slide = controls[first + jaw_first + 1] * forward + controls[first + jaw_first + 2] * hinge_axis
+                            moved = wp.quat_rotate(rotation, x - pivot) + pivot + slide
+                            x = x + w * (moved - x)
+                    moved_points[ff] = x
+                j = muscle_offsets[v]
+                end = muscle_offsets[v + 1]
+                if s >= info.halo:
+                    end = j
                 while j < end:
-                    total += terms[tile_adjacency[j]]
+                    pull = muscle_entries[j]
+                    for ff in range(F):
+                        moved_points[ff] += controls[wp.min(f + ff, last - 1) * control_count + pull.muscle] * pull.weight
                     j += 1
-                if counts[v] > 0.0:
-                    r = total[3] / counts[v]
-                growth = 1.0 / wp.max(r, STRETCH_FLOOR) - 1.0
-                normal = safe_normalize(wp.vec3(total[0], total[1], total[2]))
-                point = x1[s] + (growth * thickness[v]) * normal
-                if s < info.owned and keep_stages != 0:
-                    out = f * vertex_count + v
-                    muscle_points[out] = x1[s]
-                    stretch[out] = r
-                    bulge_points[out] = point
-            wp.tile_scatter_masked(ratio, s, r, s < info.owned)
-            wp.tile_scatter_masked(x2, s, point, s < info.ring)
-            k += threads
-        # D: area vectors of x2 of the triangles touching an owned vertex (over the stretch terms, read in C)
-        k = int(0)
-        while k < info.near:
-            t = k + lane
-            term = wp.vec4(0.0, 0.0, 0.0, 0.0)
-            if t < info.near:
-                entry = tile_triangles[triangle_start + t]
-                p0 = x2[entry.corners[0]]
-                av = entry.weight * wp.cross(x2[entry.corners[1]] - p0, x2[entry.corners[2]] - p0)
-                term = wp.vec4(av[0], av[1], av[2], 0.0)
-            wp.tile_scatter_masked(terms, t, term, t < info.near)
-            k += threads
-        # E: wrinkles of the owned vertices; the next frame's pass A may start once all have read the tiles
-        k = int(0)
-        while k < info.owned:
-            s = k + lane
-            if s < info.owned:
-                v = tile_vertices[vertex_start + s]
-                x = x2[s]
-                begin = wrinkle_offsets[v]
-                end = wrinkle_offsets[v + 1]
-                if begin < end:
-                    normal_sum = wp.vec3(0.0, 0.0, 0.0)
-                    j = tile_adjacency_offsets[vertex_start + s]
-                    stop = tile_adjacency_offsets[vertex_start + s + 1]
-                    while j < stop:
-                        term = terms[tile_adjacency[j]]
-                        normal_sum += wp.vec3(term[0], term[1], term[2])
-                        j += 1
-                    r = ratio[s]
-                    first_wrinkle = f * wrinkle_count
-                    height = float(0.0)
-                    while begin < end:
-                        wrinkle = wrinkle_entries[begin]
-                        height += depth[first_wrinkle + wrinkle.wrinkle] * wrinkle.shape * contraction_factor(r, wrinkle.kr)
-                        begin += 1
-                    x = x + height * safe_normalize(normal_sum)
-                final_points[f * vertex_count + v] = x
-            k += threads
-        wp.tile_scatter_masked(ratio, 0, 0.0, False)  # a barrier: pass E's reads end before the next frame's writes
-        f += 1
+                for ff in range(F):
+                    wp.tile_scatter_masked(points, ff, s, moved_points[ff], s < info.halo)
+                k += threads
+            # B: area vector and S'/S of every triangle touching the one-ring
+            k = int(0)
+            while k < info.triangles:
+                t = k + lane
+                entry = tile_triangles[triangle_start + wp.min(t, info.triangles - 1)]
+                for ff in range(F):
+                    p0 = points[ff, entry.corners[0]]
+                    av = entry.weight * wp.cross(points[ff, entry.corners[1]] - p0, points[ff, entry.corners[2]] - p0)
+                    wp.tile_scatter_masked(terms, ff, t, wp.vec4(av[0], av[1], av[2], wp.length(av) / entry.rest_length), t < info.triangles)
+                k += threads
+            # C: r and x2 of the one-ring (x2 replaces x1 in place: a slot is read and written by one thread only)
+            k = int(0)
+            while k < info.ring:
+                s = k + lane
+                slot = wp.min(s, info.ring - 1)
+                v = tile_vertices[vertex_start + slot]
+                totals = frame_terms()
+                j = tile_adjacency_offsets[vertex_start + slot]
+                end = tile_adjacency_offsets[vertex_start + slot + 1]
+                while j < end:
+                    triangle = tile_adjacency[j]
+                    for ff in range(F):
+                        totals[ff] += terms[ff, triangle]
+                    j += 1
+                count = counts[v]
+                h = thickness[v]
+                for ff in range(F):
+                    total = totals[ff]
+                    r = float(1.0)
+                    if count > 0.0:
+                        r = total[3] / count
+                    growth = 1.0 / wp.max(r, STRETCH_FLOOR) - 1.0
+                    x1 = points[ff, slot]
+                    point = x1 + (growth * h) * safe_normalize(wp.vec3(total[0], total[1], total[2]))
+                    if s < info.owned and keep_stages != 0 and f + ff < last:
+                        out = (f + ff) * vertex_count + v
+                        muscle_points[out] = x1
+                        stretch[out] = r
+                        bulge_points[out] = point
+                    wp.tile_scatter_masked(ratio, ff, s, r, s < info.owned)
+                    wp.tile_scatter_masked(points, ff, s, point, s < info.ring)
+                k += threads
+            # D: area vectors of x2 of the triangles touching an owned vertex (over the stretch terms, read in C)
+            k = int(0)
+            while k < info.near:
+                t = k + lane
+                entry = tile_triangles[triangle_start + wp.min(t, info.near - 1)]
+                for ff in range(F):
+                    p0 = points[ff, entry.corners[0]]
+                    av = entry.weight * wp.cross(points[ff, entry.corners[1]] - p0, points[ff, entry.corners[2]] - p0)
+                    wp.tile_scatter_masked(terms, ff, t, wp.vec4(av[0], av[1], av[2], 0.0), t < info.near)
+                k += threads
+            # E: wrinkles of the owned vertices
+            k = int(0)
+            while k < info.owned:
+                s = k + lane
+                if s < info.owned:
+                    v = tile_vertices[vertex_start + s]
+                    begin = wrinkle_offsets[v]
+                    end = wrinkle_offsets[v + 1]
+                    normals = frame_points()
+                    heights = frame_values()
+                    wrinkled = begin < end
+                    if wrinkled:
+                        j = tile_adjacency_offsets[vertex_start + s]
+                        stop = tile_adjacency_offsets[vertex_start + s + 1]
+                        while j < stop:
+                            triangle = tile_adjacency[j]
+                            for ff in range(F):
+                                term = terms[ff, triangle]
+                                normals[ff] += wp.vec3(term[0], term[1], term[2])
+                            j += 1
+                        while begin < end:
+                            wrinkle = wrinkle_entries[begin]
+                            for ff in range(F):
+                                heights[ff] += (depth[wp.min(f + ff, last - 1) * wrinkle_count + wrinkle.wrinkle] * wrinkle.shape
+                                                * contraction_factor(ratio[ff, s], wrinkle.kr))
+                            begin += 1
+                    for ff in range(F):
+                        if f + ff < last:
+                            x = points[ff, s]
+                            if wrinkled:
+                                x = x + heights[ff] * safe_normalize(normals[ff])
+                            final_points[(f + ff) * vertex_count + v] = x
+                k += threads
+            wp.tile_scatter_masked(ratio, 0, 0, 0.0, False)  # a barrier: pass E's reads end before the next pass's writes
+            f += F
+
+    return expression_tiles_kernel

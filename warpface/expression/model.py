@@ -46,6 +46,9 @@ _MAX_DEVICE_BATCH_VERTICES = 1 << 24
 frames/s at 1M vertices on an H200 than chunks of 2²², for 0.6 GB of work buffers."""
 
 _MAX_FRAMES_PER_THREAD = 8
+
+_TILE_FRAMES_PER_PASS = 2
+"""Frames each pass of the tiled plan evaluates at once (rig data loaded once for all of them)."""
 """Most frames one CUDA thread evaluates for its vertex in the fused plans (see ``_frames_per_thread``)."""
 
 
@@ -186,6 +189,7 @@ class ExpressionModel:
             self._muscle_slots = slot_table(MuscleEntry, weights.offsets, self._muscle_entries.numpy(), int(MUSCLE_SLOTS), device=device_)
             self._wrinkle_slots = slot_table(WrinkleEntry, shapes.offsets, self._wrinkle_entries.numpy(), int(WRINKLE_SLOTS), device=device_)
         self._block_dim = 256 if self.device.is_cuda else 1
+        self._tile_frames_per_pass = _TILE_FRAMES_PER_PASS
         """Threads per block of every launch (the tiled plan's blocks are its third launch dimension)."""
         self._thread_buffers = threading.local()
         self._single = self._frame_buffers(1)
@@ -508,7 +512,7 @@ class ExpressionModel:
         else:
             jaw_inputs = [self._jaw_weight, wp.vec3(*jaw.pivot), wp.vec3(*jaw.axis), wp.vec3(*jaw.forward), len(self.muscles)]
         if self.launches_per_frame == 1:  # blocks over (frame groups, tiles), per_thread frames per block
-            tiled = (expression_tiles, (-(-frames // per_thread), len(self._tiles[0]), self._block_dim),
+            tiled = (expression_tiles(min(self._tile_frames_per_pass, per_thread)), (-(-frames // per_thread), len(self._tiles[0]), self._block_dim),
                      [*self._tiles, mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, controls, buffers.muscle_width,
                       self._counts, self._thickness, self._wrinkle_offsets, self._wrinkle_entries, depths, buffers.wrinkle_width,
                       vertex_count, frames, per_thread, int(keep_muscle_points)],
