@@ -137,5 +137,4 @@ def test_tiled_plan_with_more_incident_triangles_than_ring_slots(rng):
     contractions = rng.uniform(0.005, 0.02, (4, 2))
     depths = rng.uniform(0.5, 2.0, (4, 1)) * model.default_depths
     expected = five_kernel_frames(model, contractions, depths)["final"]
-    model._frames_per_thread = lambda frames: 3
-    np.testing.assert_array_equal(model.evaluate_batch(contractions, wrinkle_depths=depths, frames_per_launch=4), expected)
+    np.testing.assert_array_equal(model.evaluate_batch(contractions, wrinkle_depths=depths, frames_per_launch=4), expected)  # 4 per block

@@ -70,8 +70,9 @@ class TileInfo:
 _kernels: dict = {}
 
 
-def expression_tiles(frames_per_pass: int = 1):
-    """The tiled frame kernel evaluating ``frames_per_pass`` frames in each pass (built once per value).
+def expression_tiles(frames_per_pass: int = 1, blocks_per_sm: int | None = None):
+    """The tiled frame kernel evaluating ``frames_per_pass`` frames in each pass (built once per value);
+    ``blocks_per_sm``: CUDA launch bounds of 256 threads and that many resident blocks (register cap).
 
     A pass loads each item's rig data (vertex, muscle and wrinkle entries, local triangle, adjacency) once
     and applies it to all of its frames, accumulating per frame in registers in the same order as the
@@ -80,18 +81,21 @@ def expression_tiles(frames_per_pass: int = 1):
     frames = int(frames_per_pass)
     if frames < 1:
         raise ValueError(f"frames_per_pass: expected a positive count, got {frames_per_pass!r}")
-    if frames not in _kernels:
-        _kernels[frames] = _build_kernel(frames)
-    return _kernels[frames]
+    key = (frames, blocks_per_sm)
+    if key not in _kernels:
+        _kernels[key] = _build_kernel(frames, blocks_per_sm)
+    return _kernels[key]
 
 
-def _build_kernel(frames_per_pass: int):
+def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
     F = frames_per_pass
     frame_points = wp.types.matrix(shape=(F, 3), dtype=wp.float32)
     frame_terms = wp.types.matrix(shape=(F, 4), dtype=wp.float32)
     frame_values = wp.types.vector(length=F, dtype=wp.float32)
 
-    @wp.kernel(enable_backward=False, module="unique", module_options={"optimization_level": 3})
+    bounds = None if blocks_per_sm is None else (256, int(blocks_per_sm))
+
+    @wp.kernel(enable_backward=False, module="unique", module_options={"optimization_level": 3}, launch_bounds=bounds)
     def expression_tiles_kernel(
         tiles: wp.array(dtype=TileInfo),
         tile_vertices: wp.array(dtype=wp.int32),
