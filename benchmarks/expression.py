@@ -321,7 +321,8 @@ def graph_event_ms(graph, device, repeats: int = 500, warmup: int = 20) -> float
 
 def single_frame_rows(model, mesh, muscles, wrinkles, thickness, contractions: np.ndarray, plans: dict | None = None) -> dict:
     """On CUDA: the single-frame graph of each launch plan — 1 tiled kernel, 2 fused kernels, 3 (the default),
-    and the five-kernel sequence (``plans``: models already built, by plan) — timed two ways: the host's replay + synchronize (wall, what a synchronous caller
+    and the five-kernel sequence (``plans``: models already built, by plan) — timed two ways: the host's
+    replay + synchronize (wall, what a synchronous caller
     waits) and CUDA events around the replay (GPU time); and a ``wp.copy`` of the frame's 24·V bytes."""
     if not model.device.is_cuda:
         return {}
@@ -450,9 +451,11 @@ def main(argv=None) -> None:
               "\n'same' = bit-identical to the default; a wp.copy of the same bytes (24·V: rest read + result"
               "\nwritten) in the same run; % = copy time / warp time; 'event' = GPU time between CUDA events\n")
         print_table(rows, [
-            ("mesh", "mesh", "s"), ("vertices", "vertices", ",d"), ("device_ms_1_launches", "1 ms", ".4f"), ("device_ms_2_launches", "2 ms", ".4f"),
+            ("mesh", "mesh", "s"), ("vertices", "vertices", ",d"), ("device_ms_1_launches", "1 ms", ".4f"),
+            ("device_ms_2_launches", "2 ms", ".4f"),
             ("device_ms_3_launches", "3 ms", ".4f"), ("device_ms_5_launches", "5 ms", ".4f"),
-            ("event_ms_1_launches", "1 event", ".4f"), ("event_ms_2_launches", "2 event", ".4f"), ("event_ms_3_launches", "3 event", ".4f"), ("event_ms_5_launches", "5 event", ".4f"),
+            ("event_ms_1_launches", "1 event", ".4f"), ("event_ms_2_launches", "2 event", ".4f"),
+            ("event_ms_3_launches", "3 event", ".4f"), ("event_ms_5_launches", "5 event", ".4f"),
             ("same_bits_1_launches", "1 same", ""), ("same_bits_3_launches", "3 same", ""), ("same_bits_5_launches", "5 same", ""),
             ("copy_ms_same_bytes", "copy ms", ".4f"), ("device_pct_same_bytes_copy", "% copy (frame)", ".0f"),
             ("device_batch_GB_per_s", "batch GB/s", ",.0f"), ("same_bytes_copy_ms_per_frame", "copy ms/frame", ".5f"),

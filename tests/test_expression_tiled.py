@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from test_expression_fused import build_model, fan_rig, five_kernel_frames, random_controls
+from expression_plans import build_model, fan_rig, five_kernel_frames, random_controls
 from warpface import ExpressionModel
 from warpface.expression.kernels_tiled import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, expression_tiles
 from warpface.expression.tiling import morton_order, vertex_tiles

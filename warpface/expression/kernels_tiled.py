@@ -3,12 +3,12 @@
 The fused plans of :mod:`~warpface.expression.kernels_fused` keep one launch boundary (a wrinkle needs
 N(x2), so x2 of the one-ring, so x1 of the two-ring) and gather every incident triangle's corners from
 memory, computing each triangle three times. Here a block of threads owns a spatially compact tile of
-vertices (:mod:`~warpface.expression.tiling`) and evaluates it for a group of consecutive frames; per
-frame, with a barrier after each pass::
+vertices (:mod:`~warpface.expression.tiling`) and evaluates it for a group of consecutive frames, a few
+frames per pass (their rig data loaded once); per pass, with barriers between::
 
     A  x1 of every vertex of the tile's two-ring halo (jaw, then muscles)   → shared x1
     B  area vector and S'/S of every triangle touching the one-ring          → shared terms (vec4)
-    C  r and x2 = x1 + (1/r − 1)·h·N(x1) of the one-ring                     → shared x2, r
+    C  r and x2 = x1 + (1/r − 1)·h·N(x1) of the one-ring                     → shared x2 (over x1), r
     D  area vector of x2 of every triangle touching an owned vertex         → shared terms (reused)
     E  x3 = x2 + Σ k_d·s·C(r)·N(x2) of the owned vertices                   → memory
 
@@ -23,8 +23,8 @@ equal it bit for bit on the same device (on CUDA up to the compiler's choice of 
 Launch: ``wp.launch_tiled`` over ``(frame groups, tiles)`` with any block size (the kernel strides by
 ``wp.block_dim()``; on the CPU a block is one thread). A pass over ``n`` items takes ``ceil(n / block)``
 rounds in which every thread of the block writes at most one shared slot (``wp.tile_scatter_masked``,
-which ends in the barrier). The shared tiles hold :data:`TILE_VERTICES` points and
-:data:`TILE_TRIANGLES` triangle terms (29 KB).
+which ends in the barrier). Per frame of a pass the shared tiles hold :data:`TILE_VERTICES` points,
+:data:`TILE_TRIANGLES` triangle terms and :data:`TILE_OWNED` ratios (23 KB).
 """
 
 import warp as wp

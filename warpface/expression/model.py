@@ -520,8 +520,8 @@ class ExpressionModel:
             per_block = min(_TILE_FRAMES_PER_BLOCK, frames)
             kernel = expression_tiles(min(self._tile_frames_per_pass, per_block), blocks_per_sm=_TILE_BLOCKS_PER_SM)
             tiled = (kernel, (-(-frames // per_block), len(self._tiles[0]), self._block_dim),
-                     [*self._tiles, mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, controls, buffers.muscle_width,
-                      self._counts, self._thickness, self._wrinkle_offsets, self._wrinkle_entries, depths, buffers.wrinkle_width,
+                     [*self._tiles, mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, controls,
+                      buffers.muscle_width,                      self._counts, self._thickness, self._wrinkle_offsets, self._wrinkle_entries, depths, buffers.wrinkle_width,
                       vertex_count, frames, per_block, int(keep_muscle_points)],
                      [buffers.muscle_points, buffers.stretch, buffers.bulge_points, final_points])
             return [tiled]
