@@ -186,7 +186,7 @@ class ExpressionModel:
         if self.launches_per_frame == 1:  # the tiled plan's tiles (tiling)
             buffers = self._mesh_buffers
             self._tiles = vertex_tiles(mesh.points, mesh.triangles, buffers.triangle_weight.numpy(), buffers.rest_area_lengths.numpy(),
-                                       mesh.adjacency.offsets, mesh.adjacency.triangles).to_device(device_)
+                                       mesh.adjacency.offsets, mesh.adjacency.triangles).to_device(device=device_)
         if self.launches_per_frame in (2, 3):  # the fused plans' fixed-width tables (kernels_fused)
             buffers = self._mesh_buffers
             self._ring = ring_table(mesh.triangles.astype(np.int32), buffers.triangle_weight.numpy(), buffers.rest_area_lengths.numpy(),

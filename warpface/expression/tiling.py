@@ -80,7 +80,8 @@ class VertexTiles:
     def count(self) -> int:
         return len(self.info)
 
-    def to_device(self, device) -> tuple[wp.array, ...]:
+    def to_device(self, *, device=None) -> tuple[wp.array, ...]:
+        """``(info, vertices, adjacency_offsets, adjacency, triangles)`` as Warp arrays on ``device``."""
         return (wp.array(self.info, dtype=TileInfo, device=device), wp.array(self.vertices, dtype=wp.int32, device=device),
                 wp.array(self.adjacency_offsets, dtype=wp.int32, device=device), wp.array(self.adjacency, dtype=wp.int32, device=device),
                 wp.array(self.triangles, dtype=RingTriangle, device=device))
