@@ -96,9 +96,9 @@ FRONTALIS_BELLIES = {
 """The full rig's frontalis bellies [inter-ocular units], fitted by coordinate search to the ICT-FaceKit
 brow shapes with :func:`warpface.solve.fit` (docs/RIG.md §5). The middle belly (above the brow's
 midpoint, its fixed point 0.1 units medial) spreads the rise over the forehead's width: dense reach
-browInnerUp 33.3 → 42.7 %, browOuterUp 45.1 → 51.1 % with it and the inner belly's wider falloff. The
-falloff ends 0.6–1 lengths beyond the brow: the lids stay put (on those shapes the brows rise 6–8 mm
-while the upper lids move 0.3 mm)."""
+browInnerUp 33.3 → 43.0 %, browOuterUp 45.1 → 50.9 % with it and the inner belly's wider falloff (the
+inner and middle values were re-tuned with the lobes below). The falloff ends 0.4–1 lengths beyond the
+brow, so the lids follow only a little (ICT's brows rise 6–8 mm while the upper lids move 0.3–0.5 mm)."""
 
 GALEA_LOBE = (0.30, 83.0, 0.90, 2.50, 0.40)
 """The frontalis' galea lobe [inter-ocular units]: (its insertion above the belly's fixed point, zone
