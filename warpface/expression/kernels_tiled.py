@@ -23,8 +23,7 @@ equal it bit for bit on the same device (on CUDA up to the compiler's choice of 
 Launch: ``wp.launch_tiled`` over ``(frame groups, tiles)`` with any block size (the kernel strides by
 ``wp.block_dim()``; on the CPU a block is one thread). A pass over ``n`` items takes ``ceil(n / block)``
 rounds in which every thread of the block writes at most one shared slot (``wp.tile_scatter_masked``,
-which ends in the barrier); a slot's element holds all frames of the pass (``matrix(F, 3|4)``), so a round
-costs one barrier whatever F. Per frame of a pass the shared tiles hold :data:`TILE_VERTICES` points,
+which ends in the barrier). Per frame of a pass the shared tiles hold :data:`TILE_VERTICES` points,
 :data:`TILE_TRIANGLES` triangle terms and :data:`TILE_OWNED` ratios (23 KB).
 """
 
@@ -139,10 +138,9 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
         info = tiles[tile]
         vertex_start = info.vertex_start
         triangle_start = info.triangle_start
-        # one element per slot holds all F frames: one write (and barrier) per slot and round
-        points = wp.tile_empty(shape=TILE_VERTICES, dtype=frame_points, storage="shared")  # x1, then x2 over the one-ring
-        terms = wp.tile_empty(shape=TILE_TRIANGLES, dtype=frame_terms, storage="shared")
-        ratio = wp.tile_empty(shape=TILE_OWNED, dtype=frame_values, storage="shared")
+        points = wp.tile_empty(shape=(F, TILE_VERTICES), dtype=wp.vec3, storage="shared")  # x1, then x2 over the one-ring
+        terms = wp.tile_empty(shape=(F, TILE_TRIANGLES), dtype=wp.vec4, storage="shared")
+        ratio = wp.tile_empty(shape=(F, TILE_OWNED), dtype=wp.float32, storage="shared")
         f = group * frames_per_block
         last = wp.min(f + frames_per_block, frame_count)
         while f < last:
@@ -175,20 +173,18 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                     for ff in range(F):
                         moved_points[ff] += controls[wp.min(f + ff, last - 1) * control_count + pull.muscle] * pull.weight
                     j += 1
-                wp.tile_scatter_masked(points, s, moved_points, s < info.halo)
+                for ff in range(F):
+                    wp.tile_scatter_masked(points, ff, s, moved_points[ff], s < info.halo)
                 k += threads
             # B: area vector and S'/S of every triangle touching the one-ring
             k = int(0)
             while k < info.triangles:
                 t = k + lane
                 entry = tile_triangles[triangle_start + wp.min(t, info.triangles - 1)]
-                corner0, corner1, corner2 = points[entry.corners[0]], points[entry.corners[1]], points[entry.corners[2]]
-                triangle_terms = frame_terms()
                 for ff in range(F):
-                    p0 = corner0[ff]
-                    av = entry.weight * wp.cross(corner1[ff] - p0, corner2[ff] - p0)
-                    triangle_terms[ff] = wp.vec4(av[0], av[1], av[2], wp.length(av) / entry.rest_length)
-                wp.tile_scatter_masked(terms, t, triangle_terms, t < info.triangles)
+                    p0 = points[ff, entry.corners[0]]
+                    av = entry.weight * wp.cross(points[ff, entry.corners[1]] - p0, points[ff, entry.corners[2]] - p0)
+                    wp.tile_scatter_masked(terms, ff, t, wp.vec4(av[0], av[1], av[2], wp.length(av) / entry.rest_length), t < info.triangles)
                 k += threads
             # C: r and x2 of the one-ring (x2 replaces x1 in place: a slot is read and written by one thread only)
             k = int(0)
@@ -200,45 +196,37 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                 j = tile_adjacency_offsets[vertex_start + slot]
                 end = tile_adjacency_offsets[vertex_start + slot + 1]
                 while j < end:
-                    triangle_terms = terms[tile_adjacency[j]]
+                    triangle = tile_adjacency[j]
                     for ff in range(F):
-                        totals[ff] += triangle_terms[ff]
+                        totals[ff] += terms[ff, triangle]
                     j += 1
                 count = counts[v]
                 h = thickness[v]
-                x1s = points[slot]
-                x2s = frame_points()
-                rs = frame_values()
                 for ff in range(F):
                     total = totals[ff]
                     r = float(1.0)
                     if count > 0.0:
                         r = total[3] / count
                     growth = 1.0 / wp.max(r, STRETCH_FLOOR) - 1.0
-                    x1 = x1s[ff]
+                    x1 = points[ff, slot]
                     point = x1 + (growth * h) * safe_normalize(wp.vec3(total[0], total[1], total[2]))
                     if s < info.owned and keep_stages != 0 and f + ff < last:
                         out = (f + ff) * vertex_count + v
                         muscle_points[out] = x1
                         stretch[out] = r
                         bulge_points[out] = point
-                    x2s[ff] = point
-                    rs[ff] = r
-                wp.tile_scatter_masked(ratio, s, rs, s < info.owned)
-                wp.tile_scatter_masked(points, s, x2s, s < info.ring)
+                    wp.tile_scatter_masked(ratio, ff, s, r, s < info.owned)
+                    wp.tile_scatter_masked(points, ff, s, point, s < info.ring)
                 k += threads
             # D: area vectors of x2 of the triangles touching an owned vertex (over the stretch terms, read in C)
             k = int(0)
             while k < info.near:
                 t = k + lane
                 entry = tile_triangles[triangle_start + wp.min(t, info.near - 1)]
-                corner0, corner1, corner2 = points[entry.corners[0]], points[entry.corners[1]], points[entry.corners[2]]
-                triangle_terms = frame_terms()
                 for ff in range(F):
-                    p0 = corner0[ff]
-                    av = entry.weight * wp.cross(corner1[ff] - p0, corner2[ff] - p0)
-                    triangle_terms[ff] = wp.vec4(av[0], av[1], av[2], 0.0)
-                wp.tile_scatter_masked(terms, t, triangle_terms, t < info.near)
+                    p0 = points[ff, entry.corners[0]]
+                    av = entry.weight * wp.cross(points[ff, entry.corners[1]] - p0, points[ff, entry.corners[2]] - p0)
+                    wp.tile_scatter_masked(terms, ff, t, wp.vec4(av[0], av[1], av[2], 0.0), t < info.near)
                 k += threads
             # E: wrinkles of the owned vertices
             k = int(0)
@@ -255,27 +243,25 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                         j = tile_adjacency_offsets[vertex_start + s]
                         stop = tile_adjacency_offsets[vertex_start + s + 1]
                         while j < stop:
-                            triangle_terms = terms[tile_adjacency[j]]
+                            triangle = tile_adjacency[j]
                             for ff in range(F):
-                                term = triangle_terms[ff]
+                                term = terms[ff, triangle]
                                 normals[ff] += wp.vec3(term[0], term[1], term[2])
                             j += 1
-                        rs = ratio[s]
                         while begin < end:
                             wrinkle = wrinkle_entries[begin]
                             for ff in range(F):
                                 heights[ff] += (depth[wp.min(f + ff, last - 1) * wrinkle_count + wrinkle.wrinkle] * wrinkle.shape
-                                                * contraction_factor(rs[ff], wrinkle.kr))
+                                                * contraction_factor(ratio[ff, s], wrinkle.kr))
                             begin += 1
-                    x2s = points[s]
                     for ff in range(F):
                         if f + ff < last:
-                            x = x2s[ff]
+                            x = points[ff, s]
                             if wrinkled:
                                 x = x + heights[ff] * safe_normalize(normals[ff])
                             final_points[(f + ff) * vertex_count + v] = x
                 k += threads
-            wp.tile_scatter_masked(ratio, 0, frame_values(), False)  # a barrier: pass E's reads end before the next pass's writes
+            wp.tile_scatter_masked(ratio, 0, 0, 0.0, False)  # a barrier: pass E's reads end before the next pass's writes
             f += F
 
     return expression_tiles_kernel
