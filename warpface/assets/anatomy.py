@@ -194,10 +194,9 @@ def revised_classic_muscles(local: np.ndarray, surface: SurfaceSampler, classic:
 
 def _cheek_lobe(surface: SurfaceSampler, inner_canthus, eye, side: float) -> MuscleLobe:
     """The lower lid's :data:`CHEEK_LOBE`, from the local (x, y) of the inner canthus and the eye's centre."""
-    medial, up, depth, across, down, zone, start, finish, gain = CHEEK_LOBE
-    cheek = _linear("cheek", surface, (inner_canthus[0] - medial * side, inner_canthus[1] + up), depth,
-                    (eye[0] + across * side, eye[1] - down), zone, start, finish)
-    return MuscleLobe(cheek.attachment, cheek.insertion, zone, cheek.falloff_start, cheek.falloff_finish, gain)
+    medial, up, depth, across, down, *shape = CHEEK_LOBE
+    return _lobe(surface.below((inner_canthus[0] - medial * side, inner_canthus[1] + up), depth),
+                 surface.point((eye[0] + across * side, eye[1] - down)), *shape)
 
 
 def _lobe(attachment, insertion, zone: float, start: float, finish: float, gain: float) -> MuscleLobe:

@@ -14,6 +14,7 @@ from pxr import Sdf, Usd, Vt
 
 from ..errors import RigError
 from ..expression.muscles import MAX_LOBES, MuscleLobe
+from .prim_values import array_value
 
 __all__ = ["author_lobes", "read_lobes", "LOBE_ATTRIBUTES"]
 
@@ -50,33 +51,24 @@ def read_lobes(prim: Usd.Prim, point: Callable[[np.ndarray], np.ndarray], to_uni
         RigError: a ``lobes:*`` attribute is missing, not finite, or of another length than ``lobes:gain``
             (ValueError from :class:`~warpface.MuscleLobe` for out-of-range values).
     """
-    gains = _column(prim, "lobes:gain", (None,), required=False)
-    if gains is None or len(gains) == 0:
+    gain = prim.GetAttribute(LOBE_ATTRIBUTES[0])
+    if not gain or gain.Get(_DEFAULT) is None:
         return ()
+    gains = array_value(prim, LOBE_ATTRIBUTES[0], (None,))
     count = len(gains)
+    if count == 0:
+        return ()
     if count > MAX_LOBES:
-        raise RigError(f"{prim.GetPath()}.lobes:gain: at most {MAX_LOBES} lobes, got {count}")
-    attachments = point(_column(prim, "lobes:attachment", (count, 3))) * to_units
-    insertions = point(_column(prim, "lobes:insertion", (count, 3))) * to_units
-    zones, starts, finishes = (_column(prim, name, (count,)) for name in LOBE_ATTRIBUTES[3:])
+        raise RigError(f"{prim.GetPath()}.{LOBE_ATTRIBUTES[0]}: at most {MAX_LOBES} lobes, got {count}")
+    for name in LOBE_ATTRIBUTES[1:]:
+        attr = prim.GetAttribute(name)
+        if not attr or attr.Get(_DEFAULT) is None:
+            raise RigError(f"{prim.GetPath()}.{name}: attribute is missing (the muscle has lobes)")
+    columns = [array_value(prim, name, (None, 3) if name in LOBE_ATTRIBUTES[1:3] else (None,)) for name in LOBE_ATTRIBUTES[1:]]
+    for name, column in zip(LOBE_ATTRIBUTES[1:], columns):
+        if len(column) != count:
+            raise RigError(f"{prim.GetPath()}.{name}: {len(column)} entries for {count} lobes (one entry per lobe)")
+    attachments, insertions, zones, starts, finishes = columns
+    attachments, insertions = point(attachments) * to_units, point(insertions) * to_units
     return tuple(MuscleLobe(attachments[k], insertions[k], zones[k], starts[k] * length, finishes[k] * length, gains[k])
                  for k in range(count))
-
-
-def _column(prim: Usd.Prim, name: str, shape: tuple, required: bool = True) -> np.ndarray | None:
-    attr = prim.GetAttribute(name)
-    value = attr.Get(_DEFAULT) if attr else None
-    if value is None:
-        if required:
-            raise RigError(f"{prim.GetPath()}.{name}: attribute is missing (the muscle has lobes)")
-        return None
-    try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise RigError(f"{prim.GetPath()}.{name}: expected numbers, got {type(value).__name__}") from None
-    if array.ndim != len(shape) or any(want is not None and got != want for got, want in zip(array.shape, shape)):
-        raise RigError(f"{prim.GetPath()}.{name}: expected shape {tuple(s or 'n' for s in shape)} (one entry per lobe), "
-                       f"got {array.shape}")
-    if not np.isfinite(array).all():
-        raise RigError(f"{prim.GetPath()}.{name}: non-finite value")
-    return array

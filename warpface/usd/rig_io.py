@@ -35,6 +35,7 @@ from ..mesh import FaceMesh
 from ..rig import FaceRig
 from .jaw_io import author_jaw, read_jaw
 from .lobe_io import author_lobes, read_lobes
+from .prim_values import array_value, attribute_value, check_finite, scalar_value, token_value
 from ._files import LAYER_SUFFIXES, export_layer_atomically, open_stage, writable_path
 from .schema import ensure_schema
 
@@ -371,9 +372,9 @@ def read_rig(stage_or_path, *, skin_path: str | None = None, meters_per_unit: fl
 
 def _read_mesh(skin: Usd.Prim, to_units: float, degenerate: str) -> FaceMesh:
     geom = UsdGeom.Mesh(skin)
-    points = _array(skin, "points", (None, 3))
-    counts = _array(skin, "faceVertexCounts", (None,), np.int64)
-    indices = _array(skin, "faceVertexIndices", (None,), np.int64)
+    points = array_value(skin, "points", (None, 3))
+    counts = array_value(skin, "faceVertexCounts", (None,), np.int64)
+    indices = array_value(skin, "faceVertexIndices", (None,), np.int64)
     if len(counts) and counts.min() < 3:
         face = int(np.argmin(counts))
         raise RigError(f"{skin.GetPath()}.faceVertexCounts: face {face} has {int(counts[face])} vertices (needs ≥ 3)")
@@ -418,7 +419,7 @@ def _read_thickness(skin: Usd.Prim, vertex_count: int) -> np.ndarray:
         raise RigError(f"{label}: interpolation must be 'vertex', got {interpolation!r}")
     if len(values) != vertex_count:
         raise RigError(f"{label}: has {len(values)} values, the mesh has {vertex_count} points")
-    _check_finite(values, label)
+    check_finite(values, label)
     negative = np.flatnonzero(values < 0.0)
     if len(negative):
         raise RigError(f"{label}: negative thickness {values[negative[0]]} at point {int(negative[0])}")
@@ -486,21 +487,21 @@ def _read_muscle(prim: Usd.Prim, place: Placement, to_units: float):
         if prim.GetTypeName() == _LINEAR:
             return LinearMuscle(
                 name=item_name(prim),
-                attachment=place.point(_array(prim, "attachment", (3,))) * to_units,
-                insertion=place.point(_array(prim, "insertion", (3,))) * to_units,
-                zone_angle_deg=_scalar(prim, "zoneAngle"),
-                falloff_start=_scalar(prim, "falloffStart") * length,
-                falloff_finish=_scalar(prim, "falloffFinish") * length,
+                attachment=place.point(array_value(prim, "attachment", (3,))) * to_units,
+                insertion=place.point(array_value(prim, "insertion", (3,))) * to_units,
+                zone_angle_deg=scalar_value(prim, "zoneAngle"),
+                falloff_start=scalar_value(prim, "falloffStart") * length,
+                falloff_finish=scalar_value(prim, "falloffFinish") * length,
                 lobes=read_lobes(prim, place.point, to_units, length),
                 **_muscle_response(prim),
             )
         return SphincterMuscle(
             name=item_name(prim),
-            center=place.point(_array(prim, "center", (3,))) * to_units,
-            axis_x=place.direction(_array(prim, "axisX", (3,))),
-            axis_y=place.direction(_array(prim, "axisY", (3,))),
-            semi_axes=_array(prim, "semiAxes", (2,)) * length,
-            ring=_scalar(prim, "ring"),
+            center=place.point(array_value(prim, "center", (3,))) * to_units,
+            axis_x=place.direction(array_value(prim, "axisX", (3,))),
+            axis_y=place.direction(array_value(prim, "axisY", (3,))),
+            semi_axes=array_value(prim, "semiAxes", (2,)) * length,
+            ring=scalar_value(prim, "ring"),
             **_muscle_response(prim),
         )
     except RigError:
@@ -510,88 +511,33 @@ def _read_muscle(prim: Usd.Prim, place: Placement, to_units: float):
 
 
 def _muscle_response(prim: Usd.Prim) -> dict:  # zone form, sliding, bunching, thickening (fallbacks: SPEC §1.1)
-    return dict(falloff=_token(prim, "falloff", FALLOFFS), **{name: _scalar(prim, name) for name in _RESPONSE})
+    return dict(falloff=token_value(prim, "falloff", FALLOFFS), **{name: scalar_value(prim, name) for name in _RESPONSE})
 
 
 def _read_wrinkle(prim: Usd.Prim, place: Placement, to_units: float) -> Wrinkle:
     length = place.scale * to_units
-    control_points = _array(prim, "controlPoints", (None, 2))
+    control_points = array_value(prim, "controlPoints", (None, 2))
     if len(control_points) != 4:
         raise RigError(f"{prim.GetPath()}.controlPoints: a cubic Bézier needs 4 control points, got {len(control_points)}")
-    kind = _token(prim, "projection", ("planar", "cylindrical"))
-    origin = place.point(_array(prim, "projection:origin", (3,))) * to_units
+    kind = token_value(prim, "projection", ("planar", "cylindrical"))
+    origin = place.point(array_value(prim, "projection:origin", (3,))) * to_units
     try:
         if kind == "planar":
-            projection = PlanarProjection(origin, place.direction(_array(prim, "projection:uAxis", (3,))),
-                                          place.direction(_array(prim, "projection:vAxis", (3,))))
+            projection = PlanarProjection(origin, place.direction(array_value(prim, "projection:uAxis", (3,))),
+                                          place.direction(array_value(prim, "projection:vAxis", (3,))))
         else:
-            projection = CylindricalProjection(origin, place.direction(_array(prim, "projection:axis", (3,))),
-                                               place.direction(_array(prim, "projection:reference", (3,))),
-                                               _scalar(prim, "projection:radius") * length)
+            projection = CylindricalProjection(origin, place.direction(array_value(prim, "projection:axis", (3,))),
+                                               place.direction(array_value(prim, "projection:reference", (3,))),
+                                               scalar_value(prim, "projection:radius") * length)
         return Wrinkle(
             name=item_name(prim),
             control_points=control_points * length,
             projection=projection,
-            depth=_scalar(prim, "depth") * length,
-            width=_scalar(prim, "width") * length,
-            kr=_scalar(prim, "kr"),
+            depth=scalar_value(prim, "depth") * length,
+            width=scalar_value(prim, "width") * length,
+            kr=scalar_value(prim, "kr"),
         )
     except RigError:
         raise
     except ValueError as exc:
         raise RigError(f"{prim.GetPath()}: {exc}") from None
-
-
-# ---------------------------------------------------------------------------------------------- values
-
-
-def _value(prim: Usd.Prim, name: str):
-    attr = prim.GetAttribute(name)
-    if not attr:
-        raise RigError(f"{prim.GetPath()}.{name}: attribute is missing")
-    value = attr.Get(_DEFAULT)
-    if value is None:
-        raise RigError(f"{prim.GetPath()}.{name}: no value authored and no schema fallback")
-    return value
-
-
-def _array(prim: Usd.Prim, name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
-    """An attribute's default value as an array of ``shape`` (``None`` = any length), checked finite."""
-    value = _value(prim, name)
-    label = f"{prim.GetPath()}.{name}"
-    try:
-        array = np.array(value, dtype=dtype)
-    except (TypeError, ValueError):
-        raise RigError(f"{label}: expected numbers, got a {type(value).__name__}") from None
-    if array.size == 0 and len(shape) == 2:
-        array = array.reshape(0, shape[1])
-    if array.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, array.shape)):
-        expected = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
-        raise RigError(f"{label}: expected shape {expected}, got {array.shape}")
-    if np.issubdtype(array.dtype, np.floating):
-        _check_finite(array, label)
-    return array
-
-
-def _scalar(prim: Usd.Prim, name: str) -> float:
-    value = _value(prim, name)
-    if not isinstance(value, (int, float)):
-        raise RigError(f"{prim.GetPath()}.{name}: expected a number, got {type(value).__name__}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise RigError(f"{prim.GetPath()}.{name}: non-finite value {value}")
-    return value
-
-
-def _token(prim: Usd.Prim, name: str, allowed: tuple[str, ...]) -> str:
-    value = _value(prim, name)
-    if value not in allowed:
-        raise RigError(f"{prim.GetPath()}.{name}: must be one of {', '.join(allowed)}, got {value!r}")
-    return str(value)
-
-
-def _check_finite(array: np.ndarray, label: str) -> None:
-    bad = np.argwhere(~np.isfinite(array))
-    if len(bad):
-        index = tuple(int(i) for i in bad[0])
-        raise RigError(f"{label}: non-finite value {array[index]} at index {index if len(index) > 1 else index[0]}")
