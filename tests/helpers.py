@@ -193,3 +193,19 @@ class DisappearingCamera:
             points = self.rest[self.vertices] + np.array([0.0, 0.001 * i, 0.0])
             yield LandmarkFrame(timestamp=i / 30.0, points=points, confidence=np.ones(len(points)), index=i)
         raise ConnectionError("camera disconnected")
+
+
+def parity_device():
+    """The Warp device of the CPU ↔ CUDA parity tests (``WARPFACE_PARITY_DEVICE``, default ``cuda:0``);
+    skips the calling test module, with the reason, where Warp cannot use it."""
+    import os
+
+    import pytest
+    import warp as wp
+
+    name = os.environ.get("WARPFACE_PARITY_DEVICE", "cuda:0")
+    try:
+        return wp.get_device(name)
+    except Exception as exc:  # noqa: BLE001 - Warp raises ValueError/RuntimeError for an unknown device
+        pytest.skip(f"parity device {name!r} is not available here ({exc}); set WARPFACE_PARITY_DEVICE",
+                    allow_module_level=True)

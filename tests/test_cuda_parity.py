@@ -33,21 +33,14 @@ Comparisons:
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 import pytest
 import warp as wp
 
-from helpers import FLOAT32_FACE_TOLERANCE, expression_controls, grid_surface
+from helpers import FLOAT32_FACE_TOLERANCE, expression_controls, grid_surface, parity_device
 
-PARITY_DEVICE = os.environ.get("WARPFACE_PARITY_DEVICE", "cuda:0")
-
-try:
-    DEVICE = wp.get_device(PARITY_DEVICE)
-except Exception as exc:  # noqa: BLE001 - Warp raises ValueError/RuntimeError for an unknown device
-    pytest.skip(f"parity device {PARITY_DEVICE!r} is not available here ({exc}); set WARPFACE_PARITY_DEVICE",
-                allow_module_level=True)
+DEVICE = parity_device()
 
 CPU = wp.get_device("cpu")
 

@@ -5,19 +5,14 @@ barriers across many blocks, and fewer blocks than row groups. Device selection 
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 import pytest
 import warp as wp
 
-PARITY_DEVICE = os.environ.get("WARPFACE_PARITY_DEVICE", "cuda:0")
+from helpers import parity_device
 
-try:
-    DEVICE = wp.get_device(PARITY_DEVICE)
-except Exception as exc:  # noqa: BLE001 - Warp raises ValueError/RuntimeError for an unknown device
-    pytest.skip(f"parity device {PARITY_DEVICE!r} is not available here ({exc}); set WARPFACE_PARITY_DEVICE",
-                allow_module_level=True)
+DEVICE = parity_device()
 
 CPU = wp.get_device("cpu")
 
