@@ -8,8 +8,8 @@ import warp as wp
 
 from expression_plans import build_model, fan_rig, five_kernel_frames, random_controls
 from warpface import ExpressionModel
-from warpface.expression.kernels_tiled import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, expression_tiles
-from warpface.expression.tiling import morton_order, vertex_tiles
+from warpface.expression.kernels_tiled import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, expression_tiles, expression_tiles_resident
+from warpface.expression.tiling import mesh_tiles, morton_order, vertex_tiles
 
 DEVICE = "cpu"
 
@@ -83,6 +83,17 @@ def test_small_caps_split_tiles_until_they_fit():
         tiles_of(fan_rig()[0], max_owned=8, max_halo=20, max_triangles=100)
 
 
+def test_a_mesh_that_cannot_be_tiled_is_an_error_only_when_the_tiled_plan_is_required():
+    """The model's default plan on CUDA tiles large meshes and falls back to three launches when a vertex cannot fit."""
+    mesh = fan_rig()[0]
+    caps = dict(max_owned=8, max_halo=20, max_triangles=100)
+    assert mesh_tiles(mesh, mesh.device_buffers(device=DEVICE), device=DEVICE, required=False, **caps) is None
+    with pytest.raises(ValueError, match="use launches=3"):
+        mesh_tiles(mesh, mesh.device_buffers(device=DEVICE), device=DEVICE, **caps)
+    tiles = mesh_tiles(mesh, mesh.device_buffers(device=DEVICE), device=DEVICE, required=False)
+    assert len(tiles) == 5 and tiles[0].shape[0] >= 1
+
+
 def test_morton_order_keeps_neighbours_close():
     rng = np.random.default_rng(0)
     points = rng.uniform(size=(4096, 3))
@@ -104,6 +115,39 @@ def test_tiled_frames_equal_the_five_kernel_sequence(rig_name, rng):
     out = wp.empty((4, model.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
     model.evaluate_batch_into(out, contractions, wrinkle_depths=depths, frames_per_launch=3)
     np.testing.assert_array_equal(out.numpy(), expected["final"])
+
+
+def launch_tiled_blocks(model, rng, kernel, block_dim, frames_per_block, frames=5):
+    """``kernel`` over a batch of ``frames`` with ``block_dim`` threads per block (Warp's CPU blocks, as on
+    CUDA) and ``frames_per_block``; returns the frames and the five-kernel sequence's."""
+    contractions, depths = random_controls(model, rng, frames)
+    expected = five_kernel_frames(model, contractions, depths)["final"]
+    buffers = model._frame_buffers(frames)
+    buffers.upload_controls(contractions, depths)
+    (_, dim, inputs, outputs), = model._launch_args(buffers, frames, buffers.contraction, buffers.depth, buffers.final_points, False)
+    inputs = list(inputs)
+    inputs[-2] = frames_per_block
+    saved = wp.config.enable_cpu_blocks
+    wp.config.enable_cpu_blocks = True
+    try:
+        wp.launch(kernel, dim=(-(-frames // frames_per_block), dim[1], block_dim), inputs=inputs, outputs=outputs, device=DEVICE,
+                  block_dim=block_dim)
+    finally:
+        wp.config.enable_cpu_blocks = saved
+    return buffers.read_frames(buffers.final_points, frames), expected
+
+
+@pytest.mark.parametrize("rig_name, block_dim, frames_per_block, frames_per_pass, slots", [
+    ("default rig", 256, 5, 2, (3, 6, 4)), ("default rig", 64, 3, 1, (1, 2, 1)), ("small rig without jaw", 128, 4, 3, (2, 6, 6)),
+    ("default rig", 512, 2, 1, (0, 0, 0))])
+def test_resident_rig_data_equals_the_five_kernel_sequence(rng, rig_name, block_dim, frames_per_block, frames_per_pass, slots):
+    """The CUDA kernel that reads each thread's rig data once per block (its fixed items in registers, rows
+    cut after ``slots`` entries continuing over the CSR; slots of 0 walk every row over the CSR), over
+    blocks of 64–512 threads, several frames per block and pass: the same bits as the five kernels."""
+    model = build_model(rig_name, 1)
+    got, expected = launch_tiled_blocks(model, rng, expression_tiles_resident(frames_per_pass, block_dim, slots=slots), block_dim,
+                                        frames_per_block)
+    np.testing.assert_array_equal(got, expected)
 
 
 @pytest.mark.parametrize("block_dim, frames_per_block, frames_per_pass", [(1, 5, 2), (1, 4, 3), (8, 3, 1), (64, 4, 2)])

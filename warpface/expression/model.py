@@ -20,10 +20,10 @@ from .kernels import (MuscleEntry, WrinkleEntry, apply_jaw_and_muscles, apply_mu
                       triangle_stretch)
 from .kernels_fused import (MUSCLE_SLOTS, WRINKLE_SLOTS, bulge_from_ring, muscle_points_over_frames, muscles_and_bulge_from_ring, ring_table,
                             slot_table, wrinkles_from_ring)
-from .kernels_tiled import expression_tiles
+from .kernels_tiled import model_kernel
 from .muscles import Muscle, muscle_weights
 from .readback import PinnedReadback
-from .tiling import vertex_tiles
+from .tiling import mesh_tiles
 from .tissue import tissue_response
 from .wrinkles import Wrinkle, wrinkle_shapes
 
@@ -46,15 +46,14 @@ _MAX_DEVICE_BATCH_VERTICES = 1 << 24
 frames/s at 1M vertices on an H200 than chunks of 2²², for 0.6 GB of work buffers."""
 
 _MAX_FRAMES_PER_THREAD = 8
-
-_TILE_FRAMES_PER_PASS = 2
-"""Frames each pass of the tiled plan evaluates at once (rig data loaded once for all of them)."""
-_TILE_FRAMES_PER_BLOCK = 16
-_TILE_BLOCKS_PER_SM = 4
-"""Launch bounds of the tiled kernel (H200, 2 frames per pass: 4 blocks of 256 threads per SM gave 4–10 %
-more frames/s than the compiler's own register choice; 2 and 3 fewer)."""
-"""Frames one block of the tiled plan evaluates (H200, 1M vertices: 16 gave 4 % more frames/s than 8)."""
 """Most frames one CUDA thread evaluates for its vertex in the fused plans (see ``_frames_per_thread``)."""
+
+_TILE_FRAMES_PER_PASS = 4
+"""Frames each pass of the tiled plan evaluates at once (H200, 1M vertices, CUDA kernel: 4 gave 6–10 % more frames/s than 2)."""
+_TILE_FRAMES_PER_BLOCK = 16
+"""Frames one block of the tiled plan evaluates (H200, 1M vertices: 16 gave 4 % more frames/s than 8)."""
+_TILED_FROM_VERTICES = 1 << 16
+"""CUDA meshes this large default to the tiled plan (H200, batched: 0.98–1.00× the 3-launch plan at 10k, 1.02–1.06× at 100k, 1.04–1.11× at 1M)."""
 
 
 @dataclass(frozen=True)
@@ -117,12 +116,11 @@ class ExpressionModel:
             controls :data:`~warpface.expression.JAW_CONTROL_NAMES` follow the muscles in the control
             vector (:attr:`control_names`).
         launches: kernel launches per frame: 1 (vertex tiles with a two-ring halo in shared memory,
-            :mod:`~warpface.expression.kernels_tiled`: each triangle once per tile, no intermediate in
-            memory; opt-in), 2 (fused kernels that recompute the one-ring's muscle
-            points and triangle terms instead of storing them: fewest launches and bytes), 3 (muscle
-            points stored, triangle terms computed in place: the GPU's default, the fastest single
-            frame on an H200 from 10k to 100k vertices and the fastest batch from 10k to 1M) or 5
-            (every intermediate stored: fewest operations, the CPU's default). ``None``: by device.
+            :mod:`~warpface.expression.kernels_tiled`: each triangle once per tile, no intermediate in memory;
+            the GPU's default from 2¹⁶ vertices), 2 (fused kernels that recompute the one-ring's muscle points and
+            triangle terms instead of storing them: fewest launches and bytes), 3 (muscle points stored, triangle
+            terms computed in place: the GPU's default below 2¹⁶ vertices) or 5 (every intermediate stored:
+            fewest operations, the CPU's default). ``None``: by device and mesh size.
 
     Raises:
         RigError: (a ``ValueError``) mesh not a FaceMesh, wrong item types, duplicate muscle or
@@ -160,7 +158,8 @@ class ExpressionModel:
         if launches is not None and (isinstance(launches, (bool, np.bool_)) or not isinstance(launches, (int, np.integer))
                                      or launches not in LAUNCH_PLANS):
             raise ValueError(f"launches: expected one of {LAUNCH_PLANS} or None, got {launches!r}")
-        self.launches_per_frame = int((3 if self.device.is_cuda else 5) if launches is None else launches)
+        self.launches_per_frame = int(launches if launches is not None else 5 if self.device.is_cpu
+                                      else 1 if mesh.vertex_count >= _TILED_FROM_VERTICES else 3)
         """Kernel launches per frame: 1 (tiled), 2 (fused), 3 or 5 (see ``launches``)."""
 
         self._mesh_buffers = mesh.device_buffers(device=self.device)
@@ -183,10 +182,9 @@ class ExpressionModel:
         self.default_depths = np.array([w.depth for w in self.wrinkles], dtype=np.float64)
         if jaw is not None:
             self._jaw_weight = wp.array(jaw.weights.astype(np.float32), dtype=wp.float32, device=device_)
-        if self.launches_per_frame == 1:  # the tiled plan's tiles (tiling)
-            buffers = self._mesh_buffers
-            self._tiles = vertex_tiles(mesh.points, mesh.triangles, buffers.triangle_weight.numpy(), buffers.rest_area_lengths.numpy(),
-                                       mesh.adjacency.offsets, mesh.adjacency.triangles).to_device(device=device_)
+        if self.launches_per_frame == 1:  # the tiled plan's tiles; by default a mesh that cannot be tiled runs 3 launches
+            self._tiles = mesh_tiles(mesh, self._mesh_buffers, device=device_, required=launches == 1)
+            self.launches_per_frame = 3 if self._tiles is None else 1
         if self.launches_per_frame in (2, 3):  # the fused plans' fixed-width tables (kernels_fused)
             buffers = self._mesh_buffers
             self._ring = ring_table(mesh.triangles.astype(np.int32), buffers.triangle_weight.numpy(), buffers.rest_area_lengths.numpy(),
@@ -518,7 +516,7 @@ class ExpressionModel:
             jaw_inputs = [self._jaw_weight, wp.vec3(*jaw.pivot), wp.vec3(*jaw.axis), wp.vec3(*jaw.forward), len(self.muscles)]
         if self.launches_per_frame == 1:  # blocks over (frame groups, tiles)
             per_block = min(_TILE_FRAMES_PER_BLOCK, frames)
-            kernel = expression_tiles(min(self._tile_frames_per_pass, per_block), blocks_per_sm=_TILE_BLOCKS_PER_SM)
+            kernel = model_kernel(self.device.is_cuda, per_block, self._tile_frames_per_pass)
             tiled = (kernel, (-(-frames // per_block), len(self._tiles[0]), self._block_dim),
                      [*self._tiles, mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, controls,
                       buffers.muscle_width,                      self._counts, self._thickness, self._wrinkle_offsets, self._wrinkle_entries, depths, buffers.wrinkle_width,

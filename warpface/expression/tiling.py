@@ -17,7 +17,7 @@ import warp as wp
 from .kernels_fused import RingTriangle
 from .kernels_tiled import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, TileInfo
 
-__all__ = ["VertexTiles", "vertex_tiles", "morton_order"]
+__all__ = ["VertexTiles", "vertex_tiles", "mesh_tiles", "morton_order"]
 
 _MORTON_BITS = 10
 """Bits per axis of the Morton code (a 1024³ lattice over the mesh's bounding box)."""
@@ -192,3 +192,17 @@ def vertex_tiles(points: np.ndarray, triangles: np.ndarray, triangle_weight: np.
     return VertexTiles(info=info, vertices=slot_vertex.astype(np.int32), adjacency_offsets=np.r_[0, np.cumsum(lengths)].astype(np.int32),
                        adjacency=local_triangles.astype(np.int32), triangles=packed)
 
+
+
+def mesh_tiles(mesh, buffers, *, device, required: bool = True, **caps) -> tuple[wp.array, ...] | None:
+    """:func:`vertex_tiles` of a :class:`~warpface.FaceMesh` (``buffers``: its ``device_buffers``) as the kernel's device
+    arrays (:meth:`VertexTiles.to_device`); ``caps`` as there. A mesh with a vertex that cannot fit a tile raises
+    ``ValueError`` when ``required``, else gives ``None`` (the model's default plan then falls back to three launches)."""
+    try:
+        tiles = vertex_tiles(mesh.points, mesh.triangles, buffers.triangle_weight.numpy(), buffers.rest_area_lengths.numpy(),
+                             mesh.adjacency.offsets, mesh.adjacency.triangles, **caps)
+    except ValueError:
+        if required:
+            raise
+        return None
+    return tiles.to_device(device=device)
