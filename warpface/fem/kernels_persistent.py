@@ -134,7 +134,7 @@ def grid_capacity(kernel, block_dim: int, *, device=None) -> int:
 
 
 @functools.lru_cache(maxsize=None)
-def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
+def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads: int = RESIDENT_THREADS) -> types.SimpleNamespace:
     """The persistent CG step for ``dtype`` and block shape (module docstring), for one model or a batch.
 
     ``cg_step`` solves the step of models ``first_model .. first_model + M − 1`` of a batch of B models
@@ -153,6 +153,8 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleN
     Per model it does the work of ``residual``, ``lower_start``, ``upper`` and the iteration loop of
     :func:`~warpface.fem.kernels_cg.pcg_kernels` (same arithmetic, same results) and leaves
     ``cg_iter[b, 0] = cg_iter[b, 1]`` = the iterations done and ``ring[1] = ring[0]`` for the update kernel.
+    The kernel is compiled to keep at least ``resident_threads`` threads per multiprocessor resident
+    (``__launch_bounds__``: fewer registers per thread, more blocks at once).
     """
     if 32 % lanes:
         raise ValueError(f"lanes must divide 32, got {lanes}")
@@ -260,11 +262,11 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleN
         predicted = row_total(acc)
         return predicted, predicted - row_total(correction)
 
-    # at least RESIDENT_THREADS threads per multiprocessor: caps the registers (128 a thread for 512), so that a
+    # at least resident_threads (default RESIDENT_THREADS) threads per multiprocessor: caps the registers (128 a thread for 512), so that a
     # grid of one row group per block stays resident (H200, 6.7k nodes, 16x16: 130 registers and 132 resident
     # blocks for 247 row groups without the bound)
     @wp.kernel(enable_backward=False, module="unique", grid_stride=False,
-               launch_bounds=(rows * lanes, max(1, RESIDENT_THREADS // (rows * lanes))))
+               launch_bounds=(rows * lanes, max(1, resident_threads // (rows * lanes))))
     def cg_step(
         p_offsets: wp.array(dtype=wp.int32),
         p_columns: wp.array(dtype=wp.int32),

@@ -36,6 +36,10 @@ __all__ = ["BATCH_PRECONDITIONERS", "BatchedCGSolver", "per_model_fsai"]
 
 BATCH_PRECONDITIONERS = ("fsai", "fsai_each", "block_jacobi")
 
+BATCH_LANES, BATCH_ROWS, BATCH_RESIDENT_THREADS = PERSISTENT_LANES, PERSISTENT_ROWS, 512
+"""Thread-block shape (lanes x rows) of the batched persistent CG kernel on CUDA and the threads per
+multiprocessor it is compiled to keep resident."""
+
 
 def _grouped_rows(factors, device):
     """``(offsets, keys, values)`` of scalar CSR matrices of one pattern grouped by 3-row blocks (see
@@ -193,7 +197,7 @@ class BatchedCGSolver:
         self._update_constants = [*coefficients.update_scalars(wp.float64), wp.float64(coefficients.dt),
                                   wp.float64(coefficients.half_dt_squared)]
 
-        shape = (PERSISTENT_LANES, PERSISTENT_ROWS) if dev.is_cuda else (1, 1)  # one CPU thread walks every row
+        shape = (BATCH_LANES, BATCH_ROWS, BATCH_RESIDENT_THREADS) if dev.is_cuda else (1, 1)  # CPU: one thread
         self._kernel = persistent_pcg_kernel(wp.float64, *shape)
         groups = -(-n_free // self._kernel.rows)
         if dev.is_cuda:
