@@ -149,3 +149,25 @@ def test_fsai_of_the_median_model_keeps_every_model_near_its_own_iterations(prec
     assert batched.max() <= 1.25 * max(alone), (batched, alone)
     if preconditioner == "fsai_each":
         assert np.all(batched <= 1.15 * np.asarray(alone) + 0.5), (batched, alone)
+
+
+def test_batch_in_waves_equals_one_launch_and_the_single_model_solver(shell):
+    """The batched CG step is the single-model persistent kernel with a model index: models launched in
+    separate waves give the same bits as one launch, and each model the same bits as a CGSolver alone
+    (the same FSAI factor: each model's own, so the shared ``"fsai"`` is not used here)."""
+    mesh, fixed, driven = shell
+    materials = _materials(mesh)
+    traj = _trajectories(6, len(materials), driven.size)
+    runs = []
+    for waves in (None, [(0, 1), (1, 2)]):
+        batch = TissueBatch(mesh, materials, 1e-3, fixed=fixed, driven=driven, solver="cg", device="cpu",
+                            cg_tol=1e-10, cg_preconditioner="block_jacobi")
+        assert batch.stepper.waves == [(0, 3)]
+        if waves is not None:
+            batch.stepper.waves = waves
+        runs.append(batch.run(traj))
+    np.testing.assert_array_equal(runs[0], runs[1])
+    for b, material in enumerate(materials):
+        sim = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, solver="cg", device="cpu",
+                               cg_tol=1e-10, cg_preconditioner="block_jacobi", cg_loop="persistent")
+        np.testing.assert_array_equal(runs[0][:, b], sim.run(traj[:, b]), err_msg=f"model {b}")

@@ -2,7 +2,8 @@
 
 :class:`TissueBatch` is the batched sibling of :class:`~warpface.fem.integrator.TissueSimulation`
 for parameter sweeps and model comparisons (Kato's three models, a sweep of E and η). On CUDA all
-models advance together in one graph per step (:class:`~warpface.fem.solver_batch.BatchedCGSolver`);
+models advance together, one kernel for every model's CG and one update per step, captured as a graph
+(:class:`~warpface.fem.solver_batch.BatchedCGSolver`);
 on the CPU each model gets its own prefactored direct solver (the ``"cg"`` solver also runs there,
 which is how its code path is tested).
 """
@@ -33,7 +34,7 @@ class TissueBatch:
         materials: One :class:`TissueMaterial` per model (uniform or per tet).
         dt, fixed, driven, beta, gamma, formulation: as for :class:`TissueSimulation` (shared by all models).
         solver: ``"auto"`` (direct on CPU, CG elsewhere), ``"direct"`` (CPU, one factorisation per
-            model) or ``"cg"`` (batched block-Jacobi CG on ``device``).
+            model) or ``"cg"`` (preconditioned CG of every model in one persistent kernel on ``device``).
         device: Warp device; ``None`` uses Warp's preferred device.
         cg_tol: CG tolerance relative to each model's predictor residual (see :class:`TissueSimulation`).
         cg_maxiter: CG iteration limit per step.

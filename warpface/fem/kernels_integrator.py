@@ -78,12 +78,12 @@ def interpolate_control(start: wp.array(dtype=Any), end: wp.array(dtype=Any), fr
 
 @wp.kernel
 def cg_newmark_update(
-    correction: wp.array(dtype=Any),
-    history: wp.array2d(dtype=Any),
-    guess: wp.array(dtype=Any),
+    correction: wp.array2d(dtype=Any),
+    history: wp.array3d(dtype=Any),
+    guess: wp.array2d(dtype=Any),
     free_index: wp.array(dtype=wp.int32),
     driven_slot: wp.array(dtype=wp.int32),
-    trajectory: wp.array2d(dtype=Any),
+    trajectory: wp.array3d(dtype=Any),
     ring: wp.array(dtype=wp.int32),
     mass_displacement: Any,
     mass_velocity: Any,
@@ -92,69 +92,73 @@ def cg_newmark_update(
     velocity_new_acceleration: Any,
     dt: Any,
     half_dt_squared: Any,
-    slots: wp.array3d(dtype=wp.float64),
-    cg_iter: wp.array(dtype=wp.int32),
+    slots: wp.array4d(dtype=wp.float64),
+    cg_iter: wp.array2d(dtype=wp.int32),
     tol_sq: wp.float64,
     chunk: int,
-    d_in: wp.array(dtype=Any),
-    v_in: wp.array(dtype=Any),
-    a_in: wp.array(dtype=Any),
-    d_out: wp.array(dtype=Any),
-    v_out: wp.array(dtype=Any),
-    a_out: wp.array(dtype=Any),
-    record: wp.array2d(dtype=Any),
+    d_in: wp.array2d(dtype=Any),
+    v_in: wp.array2d(dtype=Any),
+    a_in: wp.array2d(dtype=Any),
+    d_out: wp.array2d(dtype=Any),
+    v_out: wp.array2d(dtype=Any),
+    a_out: wp.array2d(dtype=Any),
+    record: wp.array3d(dtype=Any),
     step_count: wp.array(dtype=wp.int32),
-    status: wp.array(dtype=wp.int32),
-    failure: wp.array(dtype=wp.float64),
+    status: wp.array2d(dtype=wp.int32),
+    failure: wp.array2d(dtype=wp.float64),
 ):
-    """End of a CG step, per node: new displacement, then :func:`newmark_advance`; thread 0 books the step.
+    """End of a CG step, per (model, node) of a batch of B models (one model: B = 1): new displacement,
+    then :func:`newmark_advance`; thread ``(b, 0)`` books model ``b``'s step.
 
-    The new displacement is the predictor ``d + dt v + dt²/2 a`` plus the CG ``correction``
-    (free nodes), ``trajectory[ring[1], slot]`` (driven) or zero (fixed); it is also written to
-    ``record[ring[1], node]``. For free node ``o`` the last two increments are kept in
-    ``history[0, o]``, ``history[1, o]`` and ``guess[o]`` becomes the next step's cubic
+    The new displacement is the predictor ``d + dt v + dt²/2 a`` plus the CG ``correction[b]``
+    (free nodes), ``trajectory[ring[1], b, slot]`` (driven) or zero (fixed); it is also written to
+    ``record[ring[1], b, node]``. For free node ``o`` the last two increments are kept in
+    ``history[0, b, o]``, ``history[1, b, o]`` and ``guess[b, o]`` becomes the next step's cubic
     extrapolation ``4 d − 6 d₋₁ + 4 d₋₂ − d₋₃`` minus its predictor. ``*_out`` may be ``*_in``.
 
-    Thread 0 records CG convergence (``status = [failed steps, first failed step, max iterations,
-    last iterations, total iterations]``, ``failure = [residual, tolerance]`` of the first failed
-    step, NaN counting as a failure), counts the step and advances the ring slot ``ring[0]``
+    Thread ``(b, 0)`` records model ``b``'s CG convergence from its ``slots[b]`` and ``cg_iter[b]``
+    (``status[b] = [failed steps, first failed step, max iterations, last iterations, total
+    iterations]``, ``failure[b] = [residual, tolerance]`` of the first failed step, NaN counting as a
+    failure) and counts its steps in ``step_count[b]``; thread (0, 0) advances the ring slot ``ring[0]``
     (read by the next step; this kernel reads only ``ring[1]``).
     """
-    i = wp.tid()
+    b, i = wp.tid()
     slot = ring[1]
-    di = d_in[i]
-    vi = v_in[i]
-    ai = a_in[i]
+    di = d_in[b, i]
+    vi = v_in[b, i]
+    ai = a_in[b, i]
     dn = type(di)()
     o = free_index[i]
     s = driven_slot[i]
     if o >= 0:
-        dn = di + dt * vi + half_dt_squared * ai + correction[o]
+        dn = di + dt * vi + half_dt_squared * ai + correction[b, o]
     elif s >= 0:
-        dn = trajectory[slot, s]
+        dn = trajectory[slot, b, s]
     an, vn = newmark_advance(dn, di, vi, ai, mass_displacement, mass_velocity, mass_acceleration,
                              velocity_old_acceleration, velocity_new_acceleration)
-    d_out[i] = dn
-    a_out[i] = an
-    v_out[i] = vn
-    record[slot, i] = dn
+    d_out[b, i] = dn
+    a_out[b, i] = an
+    v_out[b, i] = vn
+    record[slot, b, i] = dn
     if o >= 0:
         increment = dn - di
-        previous = history[0, o]
+        previous = history[0, b, o]
         three = type(dt)(3.0)
-        guess[o] = three * (increment - previous) + history[1, o] - dt * vn - half_dt_squared * an
-        history[1, o] = previous
-        history[0, o] = increment
+        guess[b, o] = three * (increment - previous) + history[1, b, o] - dt * vn - half_dt_squared * an
+        history[1, b, o] = previous
+        history[0, b, o] = increment
     if i == 0:
-        it = cg_iter[0]
-        status[2] = wp.max(status[2], it)
-        status[3] = it
-        status[4] = status[4] + it
-        if not (slot_total(slots, RR, it) <= tol_sq * slot_total(slots, START, 0)):
-            if status[0] == 0:
-                status[1] = step_count[0]
-                failure[0] = wp.sqrt(slot_total(slots, RR, it))
-                failure[1] = wp.sqrt(tol_sq * slot_total(slots, START, 0))
-            status[0] = status[0] + 1
-        step_count[0] = step_count[0] + 1
-        ring[0] = (slot + 1) % chunk
+        it = cg_iter[b, 0]
+        model_slots = slots[b]
+        status[b, 2] = wp.max(status[b, 2], it)
+        status[b, 3] = it
+        status[b, 4] = status[b, 4] + it
+        if not (slot_total(model_slots, RR, it) <= tol_sq * slot_total(model_slots, START, 0)):
+            if status[b, 0] == 0:
+                status[b, 1] = step_count[b]
+                failure[b, 0] = wp.sqrt(slot_total(model_slots, RR, it))
+                failure[b, 1] = wp.sqrt(tol_sq * slot_total(model_slots, START, 0))
+            status[b, 0] = status[b, 0] + 1
+        step_count[b] = step_count[b] + 1
+        if b == 0:
+            ring[0] = (slot + 1) % chunk

@@ -134,17 +134,27 @@ def grid_capacity(kernel, block_dim: int, *, device=None) -> int:
 
 
 @functools.lru_cache(maxsize=None)
-def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
-    """The persistent CG step for ``dtype`` and block shape (module docstring).
+def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads: int = RESIDENT_THREADS) -> types.SimpleNamespace:
+    """The persistent CG step for ``dtype`` and block shape (module docstring), for one model or a batch.
 
-    Launch ``cg_step`` with ``wp.launch_tiled(dim=blocks, block_dim=rows * lanes)``, ``blocks`` at
-    most :func:`grid_capacity` and at most the row groups ``ceil(F / rows)``, with the ``slots``
-    cleared; on the CPU build it with ``lanes = rows = 1`` and launch one block. It does the work of
-    ``residual``, ``lower_start``, ``upper`` and the iteration loop of
-    :func:`~warpface.fem.kernels_cg.pcg_kernels` (same arguments, same results) and leaves
-    ``cg_iter[0] = cg_iter[1]`` = the iterations done and ``ring[1] = ring[0]`` for the update kernel.
-    ``barrier`` (3 int32: arrivals, gave up, departures) must start at zero; the last block to leave
-    clears the arrivals and departures again.
+    ``cg_step`` solves the step of models ``first_model .. first_model + M − 1`` of a batch of B models
+    that share the mesh (one sparsity pattern): launch it with ``wp.launch_tiled(dim=M * blocks,
+    block_dim=rows * lanes)``; the first ``blocks`` blocks work on the first of those models, the next
+    ``blocks`` on the second, and so on, each model's blocks meeting at their own barrier and stopping
+    at their own convergence. ``M * blocks`` must be at most :func:`grid_capacity` (every block resident),
+    ``blocks`` at most the row groups ``ceil(F / rows)``; on the CPU build it with ``lanes = rows = 1``
+    and launch one block per model. Per-model arrays have the model as their first index: the state
+    ``d, v, a`` (B, N), ``trajectory`` (chunk, B, D), work vectors (B, F) or (B, 2, F) (flat scalar views
+    (B, 3F), (B, 2, 3F)), ``slots`` (B, 4, maxiter + 1, SLOT_SPREAD) cleared, ``cg_iter`` (B, 2) and
+    ``barrier`` (B, 3: arrivals, gave up, departures), which must start at zero (the last block of a model
+    to leave clears its arrivals and departures again). Matrix and factor values are (B, nnz), or (1, nnz)
+    when one is shared by all models. A single model is a batch of one.
+
+    Per model it does the work of ``residual``, ``lower_start``, ``upper`` and the iteration loop of
+    :func:`~warpface.fem.kernels_cg.pcg_kernels` (same arithmetic, same results) and leaves
+    ``cg_iter[b, 0] = cg_iter[b, 1]`` = the iterations done and ``ring[1] = ring[0]`` for the update kernel.
+    The kernel is compiled to keep at least ``resident_threads`` threads per multiprocessor resident
+    (``__launch_bounds__``: fewer registers per thread, more blocks at once).
     """
     if 32 % lanes:
         raise ValueError(f"lanes must divide 32, got {lanes}")
@@ -252,49 +262,62 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleN
         predicted = row_total(acc)
         return predicted, predicted - row_total(correction)
 
-    # at least RESIDENT_THREADS threads per multiprocessor: caps the registers (128 a thread for 512), so that a
+    # at least resident_threads (default RESIDENT_THREADS) threads per multiprocessor: caps the registers (128 a thread for 512), so that a
     # grid of one row group per block stays resident (H200, 6.7k nodes, 16x16: 130 registers and 132 resident
     # blocks for 247 row groups without the bound)
     @wp.kernel(enable_backward=False, module="unique", grid_stride=False,
-               launch_bounds=(rows * lanes, max(1, RESIDENT_THREADS // (rows * lanes))))
+               launch_bounds=(rows * lanes, max(1, resident_threads // (rows * lanes))))
     def cg_step(
         p_offsets: wp.array(dtype=wp.int32),
         p_columns: wp.array(dtype=wp.int32),
-        p_values: wp.array(dtype=mat),
+        p_values_all: wp.array2d(dtype=mat),
         a_offsets: wp.array(dtype=wp.int32),
         a_columns: wp.array(dtype=wp.int32),
-        a_values: wp.array(dtype=mat),
+        a_values_all: wp.array2d(dtype=mat),
         g_offsets: wp.array(dtype=wp.int32),
         g_keys: wp.array(dtype=wp.int32),
-        g_values: wp.array(dtype=dtype),
+        g_values_all: wp.array2d(dtype=dtype),
         t_offsets: wp.array(dtype=wp.int32),
         t_keys: wp.array(dtype=wp.int32),
-        t_values: wp.array(dtype=dtype),
-        d: wp.array(dtype=vec),
-        v: wp.array(dtype=vec),
-        a: wp.array(dtype=vec),
-        trajectory: wp.array2d(dtype=vec),
-        guess: wp.array(dtype=vec),
+        t_values_all: wp.array2d(dtype=dtype),
+        d_all: wp.array2d(dtype=vec),
+        v_all: wp.array2d(dtype=vec),
+        a_all: wp.array2d(dtype=vec),
+        trajectory: wp.array3d(dtype=vec),
+        guess_all: wp.array2d(dtype=vec),
         ring: wp.array(dtype=wp.int32),
-        r: wp.array2d(dtype=vec),
-        r_flat: wp.array2d(dtype=dtype),
-        x: wp.array(dtype=vec),
-        y: wp.array(dtype=vec),
-        y_flat: wp.array(dtype=dtype),
-        z: wp.array(dtype=vec),
-        p: wp.array2d(dtype=vec),
-        q: wp.array(dtype=vec),
-        q_flat: wp.array(dtype=dtype),
-        slots: wp.array3d(dtype=wp.float64),
-        cg_iter: wp.array(dtype=wp.int32),
-        barrier: wp.array(dtype=wp.int32),
+        r_all: wp.array3d(dtype=vec),
+        r_flat_all: wp.array3d(dtype=dtype),
+        x_all: wp.array2d(dtype=vec),
+        y_all: wp.array2d(dtype=vec),
+        y_flat_all: wp.array2d(dtype=dtype),
+        z_all: wp.array2d(dtype=vec),
+        p_all: wp.array3d(dtype=vec),
+        q_all: wp.array2d(dtype=vec),
+        q_flat_all: wp.array2d(dtype=dtype),
+        slots_all: wp.array4d(dtype=wp.float64),
+        cg_iter_all: wp.array2d(dtype=wp.int32),
+        barrier_all: wp.array2d(dtype=wp.int32),
         tol_sq: wp.float64,
         maxiter: int,
         blocks: int,
+        first_model: int,
     ):
         """Residuals, start and every CG iteration, phases separated by :func:`grid_sync` (module docstring).
         Each phase's row indices for the block's first row group are loaded before the barrier ahead of it."""
-        block, thread = wp.tid()
+        launched_block, thread = wp.tid()
+        model = launched_block // blocks
+        block = launched_block - model * blocks
+        b = first_model + model
+        # this model's views; a matrix or factor given once (leading dimension 1) is shared by every model
+        p_values = p_values_all[wp.min(b, p_values_all.shape[0] - 1)]
+        a_values = a_values_all[wp.min(b, a_values_all.shape[0] - 1)]
+        g_values = g_values_all[wp.min(b, g_values_all.shape[0] - 1)]
+        t_values = t_values_all[wp.min(b, t_values_all.shape[0] - 1)]
+        d, v, a, guess = d_all[b], v_all[b], a_all[b], guess_all[b]
+        r, r_flat, x, y, y_flat = r_all[b], r_flat_all[b], x_all[b], y_all[b], y_flat_all[b]
+        z, p, q, q_flat = z_all[b], p_all[b], q_all[b], q_flat_all[b]
+        slots, cg_iter, barrier = slots_all[b], cg_iter_all[b], barrier_all[b]
         local = thread // lanes
         lane = thread - local * lanes
         count = x.shape[0]
@@ -305,7 +328,7 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleN
 
         # residuals of the predictor (r[1]) and of the extrapolated start (r[0]), as kernels_cg.residual
         slot = ring[0]
-        driven = trajectory[slot]
+        driven = trajectory[slot][b]
         predicted_sq = wp.float64(0.0)
         extrapolated_sq = wp.float64(0.0)
         for g in range(block, groups, blocks):
@@ -324,7 +347,7 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleN
         if thread == 0:
             wp.atomic_add(slots, START, 0, block % spread, predicted_sq)
             wp.atomic_add(slots, START, 1, block % spread, extrapolated_sq)
-            if block == 0:
+            if launched_block == 0:
                 ring[1] = slot
         g_start, g_end, g_found = fetch_g(g_offsets, g_keys, first, lane)
         arrivals += 1

@@ -1,11 +1,17 @@
-"""Batched device Newmark solver: B material models on one mesh stepped together by block-Jacobi CG.
+"""Batched device Newmark solver: B material models on one mesh stepped together by preconditioned CG.
 
 All B models share the mesh, the node split, ``dt`` and the Newmark parameters; each has its own
 matrices (values per model, one sparsity pattern), state, driven trajectory and CG convergence.
-One time step for all B models is one sequence of launches over ``(B, nodes)``
-(:mod:`warpface.fem.kernels_batch`), captured once as a graph on CUDA: the CG loop is a
-``wp.capture_while`` that runs while any model has not converged, and converged models skip their
-work. Launch latency, which bounds a single small model on a GPU, is thus shared by the batch.
+A time step of all B models is two launches (captured once as a graph on CUDA): the persistent CG
+kernel of the single-model solver (:mod:`warpface.fem.kernels_persistent`), launched over every
+model at once — each model gets its own group of blocks, its own grid barrier and its own
+convergence test, so a model that has converged stops while the others go on — and the end-of-step
+update (:data:`~warpface.fem.kernels_integrator.cg_newmark_update`) over ``(B, nodes)``. A model's
+arithmetic is exactly that of :class:`~warpface.fem.solver_cg.CGSolver` with the same factor.
+
+On CUDA every block must be resident: the models share the blocks the GPU holds at once
+(:func:`~warpface.fem.kernels_persistent.grid_capacity`), at least one each; a batch with more models
+than that is stepped in waves of launches. On the CPU each model is one block of one thread.
 
 The state lives in arrays of shape (B, N) of ``vec3d`` (model-major, coalesced per model). Driven
 displacements come through a ring of ``chunk`` slots ``(chunk, B, D)``, and every step's
@@ -18,36 +24,26 @@ import numpy as np
 import warp as wp
 from warp.optim.linear import FSAI
 
-from . import kernels_batch
-from .assembly import SystemMatrices
-from .kernels_batch import (
-    S_RZ,
-    S_RZ_NEW,
-    SCALARS,
-    batch_begin,
-    batch_block_jacobi,
-    batch_check,
-    batch_direction,
-    batch_factor_finish,
-    batch_factor_product,
-    batch_newmark_update,
-    batch_product,
-    batch_residual,
-    batch_start,
-    batch_update,
-)
+from .assembly import SystemMatrices, bsr_to_scipy
+from .kernels_cg import SLOT_SPREAD
+from .kernels_integrator import cg_newmark_update
+from .kernels_persistent import grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
-from .assembly import bsr_to_scipy
-from .solver_cg import FSAI_ROW_SIZE, ConvergenceError, newmark_operators, preconditioner_factor
+from .solver_cg import (FSAI_ROW_SIZE, PERSISTENT_LANES, PERSISTENT_ROWS, ConvergenceError, newmark_operators,
+                        preconditioner_factor)
 
 __all__ = ["BATCH_PRECONDITIONERS", "BatchedCGSolver", "per_model_fsai"]
 
 BATCH_PRECONDITIONERS = ("fsai", "fsai_each", "block_jacobi")
 
+BATCH_LANES, BATCH_ROWS, BATCH_RESIDENT_THREADS = PERSISTENT_LANES, PERSISTENT_ROWS, 512
+"""Thread-block shape (lanes x rows) of the batched persistent CG kernel on CUDA and the threads per
+multiprocessor it is compiled to keep resident."""
+
 
 def _grouped_rows(factors, device):
     """``(offsets, keys, values)`` of scalar CSR matrices of one pattern grouped by 3-row blocks (see
-    kernels_batch): shared ``offsets`` and ``keys``, ``values`` of shape (len(factors), nnz)."""
+    kernels_cg): shared ``offsets`` and ``keys``, ``values`` of shape (len(factors), nnz)."""
     grouped = []
     for G in factors:
         G = G.tocsr()
@@ -100,6 +96,7 @@ def _stack_values(matrices, label: str):
     return first.offsets, first.columns, values
 
 
+
 class BatchedCGSolver:
     """Newmark steps of B models on a Warp device (module docstring).
 
@@ -118,7 +115,8 @@ class BatchedCGSolver:
         use_graph: Capture the step as a graph (CUDA).
 
     Raises:
-        ValueError: no model, or models whose matrices differ in sparsity (different meshes).
+        ValueError: no model, models whose matrices differ in sparsity (different meshes), or a model
+            whose system matrix has a 3x3 diagonal block that is not positive definite.
     """
 
     def __init__(self, matrices: list[SystemMatrices], coefficients: NewmarkCoefficients, free_nodes, driven_nodes, *,
@@ -144,9 +142,18 @@ class BatchedCGSolver:
         driven_slot[self.driven_nodes] = np.arange(n_driven, dtype=np.int32)
         operators = [newmark_operators(m, coefficients, free_index, driven_slot) for m in matrices]
         self._A = _stack_values([A for A, _ in operators], "system")
-        self._factor = None
+        self._P = _stack_values([P for _, P in operators], "right-hand-side")
+        block_jacobi = []
+        for b, (A, _) in enumerate(operators):
+            try:
+                block_jacobi.append(preconditioner_factor(A, "block_jacobi"))
+            except ValueError:
+                raise ValueError(f"model {b}: a 3x3 diagonal block of its system matrix is not positive definite") from None
         self.reference_model = None
-        if preconditioner in ("fsai", "fsai_each"):
+        """Model whose FSAI factor (``"fsai"``) or support (``"fsai_each"``) preconditions every model."""
+        if preconditioner == "block_jacobi":
+            factors = block_jacobi
+        else:
             # the model of median system diagonal (K, M and C with the Newmark constants). Every 3x3 block's
             # diagonal of K (as before) sums to about zero per row, which picked an arbitrary model: on the
             # 10-model sweep of benchmarks/fem.py the softest one, whose sparser FSAI support cost the stiffest
@@ -154,35 +161,31 @@ class BatchedCGSolver:
             stiffness = [float(bsr_to_scipy(A).diagonal().mean()) for A, _ in operators]
             median = int(np.argsort(stiffness, kind="stable")[len(stiffness) // 2])
             self.reference_model = median
-            """Model whose FSAI factor (``"fsai"``) or support (``"fsai_each"``) preconditions every model."""
             if preconditioner == "fsai":
                 factors = [preconditioner_factor(operators[median][0], "fsai")]
             else:
                 factors = per_model_fsai([A for A, _ in operators], median)
-            self._factor = (_grouped_rows(factors, dev), _grouped_rows([G.T for G in factors], dev))
-        self._P = _stack_values([P for _, P in operators], "right-hand-side")
-        del operators
-        self._inverse = wp.empty((batch, n_free), dtype=wp.mat33d, device=dev)
-        wp.launch(batch_block_jacobi, dim=(batch, n_free), inputs=[*self._A], outputs=[self._inverse], device=dev)
-        if not np.all(np.isfinite(self._inverse.numpy())):
-            bad = int(np.flatnonzero(~np.isfinite(self._inverse.numpy()).reshape(batch, -1).all(axis=1))[0])
-            raise ValueError(f"model {bad}: a 3x3 diagonal block of its system matrix is not positive definite")
+        self._factor = (_grouped_rows(factors, dev), _grouped_rows([G.T for G in factors], dev))
+        """``(G, Gᵀ)`` as ``(offsets, keys, values)``, values (1, nnz) for a shared factor or (B, nnz)."""
+        del operators, block_jacobi
 
-        def vectors(rows):
-            return wp.zeros((batch, rows), dtype=wp.vec3d, device=dev)
+        def vectors(*shape):
+            return wp.zeros(shape, dtype=wp.vec3d, device=dev)
 
-        self.d, self.v, self.a = vectors(n), vectors(n), vectors(n)
+        self.d, self.v, self.a = vectors(batch, n), vectors(batch, n), vectors(batch, n)
         """State of every model [m, m/s, m/s²], shape (B, N) of vec3d (updated in place)."""
-        self._x, self._r, self._z, self._p, self._q, self._y = (vectors(n_free) for _ in range(6))
-        self._r_flat = self._r.view(wp.float64).reshape((batch, 3 * n_free))
+        self._x, self._y, self._z, self._q, self._guess = (vectors(batch, n_free) for _ in range(5))
+        self._r, self._p = vectors(batch, 2, n_free), vectors(batch, 2, n_free)
+        # flat scalar views (index 3 node + axis) for the scalar preconditioner factors
+        self._r_flat = self._r.view(wp.float64).reshape((batch, 2, 3 * n_free))
         self._y_flat = self._y.view(wp.float64).reshape((batch, 3 * n_free))
-        self._predicted, self._guess = vectors(n_free), vectors(n_free)
-        self._history = wp.zeros((2, batch, n_free), dtype=wp.vec3d, device=dev)
-        self._scalars = wp.zeros((batch, SCALARS), dtype=wp.float64, device=dev)
-        self._active = wp.zeros(batch, dtype=wp.int32, device=dev)
-        self._condition = wp.zeros(1, dtype=wp.int32, device=dev)
+        self._q_flat = self._q.view(wp.float64).reshape((batch, 3 * n_free))
+        self._history = vectors(2, batch, n_free)
+        self._slots = wp.zeros((batch, 4, self.maxiter + 1, SLOT_SPREAD), dtype=wp.float64, device=dev)
+        self._cg_iter = wp.zeros((batch, 2), dtype=wp.int32, device=dev)
+        self._barrier = wp.zeros((batch, 3), dtype=wp.int32, device=dev)  # per model: arrivals, gave up, departures
         self._ring = wp.zeros(2, dtype=wp.int32, device=dev)
-        self._step_count = wp.zeros(2, dtype=wp.int32, device=dev)
+        self._step_count = wp.zeros(batch, dtype=wp.int32, device=dev)
         self._status = wp.zeros((batch, 5), dtype=wp.int32, device=dev)
         self._failure = wp.zeros((batch, 2), dtype=wp.float64, device=dev)
         self.trajectory = wp.zeros((self.chunk, batch, max(n_driven, 1)), dtype=wp.vec3d, device=dev)
@@ -191,55 +194,43 @@ class BatchedCGSolver:
         """Ring of recorded displacements [m], shape (chunk, B, N)."""
         self._free_index = wp.array(free_index, dtype=wp.int32, device=dev)
         self._driven_slot = wp.array(driven_slot, dtype=wp.int32, device=dev)
-        c = coefficients
-        self._update_constants = [*c.update_scalars(wp.float64), wp.float64(c.dt), wp.float64(c.half_dt_squared)]
+        self._update_constants = [*coefficients.update_scalars(wp.float64), wp.float64(coefficients.dt),
+                                  wp.float64(coefficients.half_dt_squared)]
+
+        shape = (BATCH_LANES, BATCH_ROWS, BATCH_RESIDENT_THREADS) if dev.is_cuda else (1, 1)  # CPU: one thread
+        self._kernel = persistent_pcg_kernel(wp.float64, *shape)
+        groups = -(-n_free // self._kernel.rows)
+        if dev.is_cuda:
+            capacity = grid_capacity(self._kernel.cg_step, self._kernel.block_dim, device=dev)
+            self.blocks_per_model = max(1, min(groups, capacity // batch))
+            per_wave = max(1, capacity // self.blocks_per_model)
+        else:  # blocks run one after the other: no residency limit
+            self.blocks_per_model, per_wave = 1, batch
+        self.waves = [(first, min(per_wave, batch - first)) for first in range(0, batch, per_wave)]
+        """``(first model, models)`` of each launch of the CG kernel per step (one launch unless B exceeds
+        the blocks the GPU holds at once)."""
         self._use_graph = bool(use_graph) and dev.is_cuda
         self._graph = None
+        self._launch_sequence()  # loads every kernel before any capture; restart clears what it touched
         self.restart()
 
     # ------------------------------------------------------------------ the step
-    def _iteration(self) -> None:
-        b, f, dev = self.model_count, self.free_nodes.size, self.device
-        wp.launch(batch_product, dim=(b, f), inputs=[*self._A, self._p, self._active],
-                  outputs=[self._q, self._scalars, self._condition], device=dev)
-        wp.launch(batch_update, dim=(b, f), inputs=[self._p, self._q, self._inverse, self._active, self._x, self._r,
-                                                    self._z, self._scalars, int(self._factor is None)], device=dev)
-        self._apply_factor(S_RZ_NEW, 0)
-        wp.launch(batch_check, dim=b, inputs=[self._scalars, self._active, wp.float64(self.tol**2), self.maxiter, 0],
-                  outputs=[self._condition], device=dev)
-        wp.launch(batch_direction, dim=(b, f), inputs=[self._z, self._active, self._scalars], outputs=[self._p],
-                  device=dev)
-
-    def _apply_factor(self, which: int, set_direction: int) -> None:
-        """``z = Gᵀ G r`` and ``r·z`` into ``scalars[:, which]`` with the FSAI factor(s) (no-op for block Jacobi)."""
-        if self._factor is None:
-            return
-        b, f, dev = self.model_count, self.free_nodes.size, self.device
-        lower, upper = self._factor
-        wp.launch(batch_factor_product, dim=(b, f), inputs=[*lower, self._r_flat, self._active], outputs=[self._y],
-                  device=dev)
-        wp.launch(batch_factor_finish, dim=(b, f),
-                  inputs=[*upper, self._y_flat, self._r, self._active, int(which), int(set_direction)],
-                  outputs=[self._z, self._p, self._scalars], device=dev)
-
     def _launch_sequence(self) -> None:
-        b, f, n, dev = self.model_count, self.free_nodes.size, self.node_count, self.device
-        wp.launch(batch_begin, dim=b, inputs=[self._scalars, self._active, self._ring, self._step_count,
-                                              self._condition], device=dev)
-        wp.launch(batch_residual, dim=(b, f),
-                  inputs=[*self._P, *self._A, self.d, self.v, self.a, self.trajectory, self._ring, self._guess],
-                  outputs=[self._predicted, self._r, self._scalars], device=dev)
-        wp.launch(batch_start, dim=(b, f), inputs=[self._guess, self._predicted, self._inverse, self._r, self._x,
-                                                   self._z, self._p, self._scalars, int(self._factor is None)],
-                  device=dev)
-        self._apply_factor(S_RZ, 1)
-        wp.launch(batch_check, dim=b, inputs=[self._scalars, self._active, wp.float64(self.tol**2), self.maxiter, 1],
-                  outputs=[self._condition], device=dev)
-        wp.capture_while(self._condition, self._iteration)
-        wp.launch(batch_newmark_update, dim=(b, n),
+        dev, kernel, tol_sq = self.device, self._kernel, wp.float64(self.tol**2)
+        (g_offsets, g_keys, g_values), (t_offsets, t_keys, t_values) = self._factor
+        self._slots.zero_()
+        for first, models in self.waves:
+            wp.launch_tiled(kernel.cg_step, dim=models * self.blocks_per_model, block_dim=kernel.block_dim, device=dev,
+                            inputs=[*self._P, *self._A, g_offsets, g_keys, g_values, t_offsets, t_keys, t_values,
+                                    self.d, self.v, self.a, self.trajectory, self._guess, self._ring, self._r,
+                                    self._r_flat, self._x, self._y, self._y_flat, self._z, self._p, self._q,
+                                    self._q_flat, self._slots, self._cg_iter, self._barrier, tol_sq, self.maxiter,
+                                    self.blocks_per_model, first])
+        wp.launch(cg_newmark_update, dim=(self.model_count, self.node_count),
                   inputs=[self._x, self._history, self._guess, self._free_index, self._driven_slot, self.trajectory,
-                          self._ring, *self._update_constants, self._scalars, self.chunk],
-                  outputs=[self.d, self.v, self.a, self.record, self._status, self._failure, self._step_count],
+                          self._ring, *self._update_constants, self._slots, self._cg_iter, tol_sq, self.chunk,
+                          self.d, self.v, self.a],
+                  outputs=[self.d, self.v, self.a, self.record, self._step_count, self._status, self._failure],
                   device=dev)
 
     def step(self) -> None:
@@ -248,7 +239,6 @@ class BatchedCGSolver:
             self._launch_sequence()
             return
         if self._graph is None:
-            wp.load_module(kernels_batch, device=self.device)  # compiled before, not during, the capture
             with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
                 self._launch_sequence()
             self._graph = capture.graph
@@ -279,6 +269,9 @@ class BatchedCGSolver:
         """Wait for queued steps; raise :class:`~warpface.fem.solver_cg.ConvergenceError` naming the first
         model that failed."""
         wp.synchronize_device(self.device)
+        if np.any(self._barrier.numpy()[:, 1]):
+            raise RuntimeError(f"the persistent CG loop waited too long at a grid barrier on {self.device} (its "
+                               f"{self.blocks_per_model} blocks per model were not all resident)")
         status = self._status.numpy()
         failed = np.flatnonzero(status[:, 0])
         if failed.size:
@@ -302,5 +295,6 @@ class BatchedCGSolver:
         v = self.v.numpy()[:, self.free_nodes]
         a = self.a.numpy()[:, self.free_nodes]
         self._history.assign(np.stack([c.dt * v - c.half_dt_squared * a, c.dt * v - 3.0 * c.half_dt_squared * a]))
-        for array in (self._guess, self._ring, self._step_count, self._status, self._failure):
+        for array in (self._guess, self._ring, self._step_count, self._status, self._failure, self._cg_iter,
+                      self._barrier):
             array.zero_()

@@ -341,14 +341,19 @@ class CGSolver:
         k, P, tol_sq = self._kernels, self._P, wp.float64(self.tol**2)
         self._slots.zero_()
         A = self._A_oo
+        one = self._one_model
         if self.loop == "persistent":
             step = self._persistent
+            G_offsets, G_keys, G_values = self._G
+            T_offsets, T_keys, T_values = self._GT
             wp.launch_tiled(step.cg_step, dim=self._persistent_blocks, block_dim=step.block_dim, device=self.device,
-                            inputs=[P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, *self._G, *self._GT,
-                                    b.d_in, b.v_in, b.a_in, b.trajectory, self._guess, b.ring, self._r, self._r_flat,
-                                    self._x, self._y, self._y_flat, self._z, self._p, self._q, self._q_flat,
-                                    self._slots, self._cg_iter, self._barrier, tol_sq, self.maxiter,
-                                    self._persistent_blocks])
+                            inputs=[P.offsets, P.columns, one(P.values), A.offsets, A.columns, one(A.values), G_offsets,
+                                    G_keys, one(G_values), T_offsets, T_keys, one(T_values), one(b.d_in), one(b.v_in),
+                                    one(b.a_in), b.batch_trajectory, one(self._guess), b.ring, one(self._r),
+                                    one(self._r_flat), one(self._x), one(self._y), one(self._y_flat), one(self._z),
+                                    one(self._p), one(self._q), one(self._q_flat), one(self._slots),
+                                    one(self._cg_iter), one(self._barrier), tol_sq, self.maxiter,
+                                    self._persistent_blocks, 0])
         else:
             self._launch_tiled(k.residual, [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, b.d_in,
                                             b.v_in, b.a_in, b.trajectory, self._guess, b.ring, self._r, self._x,
@@ -357,14 +362,23 @@ class CGSolver:
             self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq,
                                          self.maxiter])
             wp.capture_while(self._condition, self._cg_iterations)
+        history = self._history.reshape((2, 1, self.free_count))
         wp.launch(
             cg_newmark_update,
-            dim=self.node_count,
-            inputs=[self._x, self._history, self._guess, self._free_index, self._driven_slot, b.trajectory, b.ring,
-                    *self._update_constants, self._slots, self._cg_iter, tol_sq, b.chunk, b.d_in, b.v_in, b.a_in],
-            outputs=[b.d_out, b.v_out, b.a_out, b.record, self._step_count, self._status, self._failure],
+            dim=(1, self.node_count),
+            inputs=[one(self._x), history, one(self._guess), self._free_index, self._driven_slot, b.batch_trajectory,
+                    b.ring, *self._update_constants, one(self._slots), one(self._cg_iter), tol_sq, b.chunk,
+                    one(b.d_in), one(b.v_in), one(b.a_in)],
+            outputs=[one(b.d_out), one(b.v_out), one(b.a_out), b.batch_record, self._step_count, one(self._status),
+                     one(self._failure)],
             device=self.device,
         )
+
+    @staticmethod
+    def _one_model(array: wp.array) -> wp.array:
+        """``array`` as the only model of a batch (a view with a leading dimension of 1), as the persistent
+        and update kernels take it (they serve :class:`~warpface.fem.solver_batch.BatchedCGSolver` too)."""
+        return array.reshape((1, *array.shape))
 
     def _binding_for_step(self, state_in: TissueState, state_out: TissueState, control: TissueControl):
         key = ("step", state_in.d.ptr, state_out.d.ptr, control.driven.ptr)
@@ -380,7 +394,9 @@ class CGSolver:
             binding = SimpleNamespace(
                 d_in=state_in.d, v_in=state_in.v, a_in=state_in.a, d_out=state_out.d, v_out=state_out.v,
                 a_out=state_out.a, trajectory=control.driven.reshape((1, control.driven.shape[0])),
-                ring=self._step_ring, record=state_out.d.reshape((1, self.node_count)), chunk=1, key=key,
+                batch_trajectory=control.driven.reshape((1, 1, control.driven.shape[0])), ring=self._step_ring,
+                record=state_out.d.reshape((1, self.node_count)), batch_record=state_out.d.reshape((1, 1, self.node_count)),
+                chunk=1, key=key,
             )
             self._bindings[key] = binding
         return binding
@@ -390,7 +406,10 @@ class CGSolver:
         binding = self._bindings.get(key)
         if binding is None:
             binding = SimpleNamespace(d_in=state.d, v_in=state.v, a_in=state.a, d_out=state.d, v_out=state.v,
-                                      a_out=state.a, trajectory=self._trajectory, ring=self._ring, record=self._record,
+                                      a_out=state.a, trajectory=self._trajectory,
+                                      batch_trajectory=self._trajectory.reshape((self.chunk, 1, self._trajectory.shape[1])),
+                                      ring=self._ring, record=self._record,
+                                      batch_record=self._record.reshape((self.chunk, 1, self.node_count)),
                                       chunk=self.chunk, key=key)
             self._bindings[key] = binding
         return binding
