@@ -347,7 +347,7 @@ def single_frame_rows(model, mesh, muscles, wrinkles, thickness, contractions: n
 def run_case(label: str, mesh: wf.FaceMesh, device, quick: bool, bandwidth: float | None = None) -> dict:
     muscles, wrinkles, thickness, contractions = benchmark_rig(mesh)
     started = time.perf_counter()
-    # on CUDA the three-launch plan, the peer of the tiled one (the default from 2¹⁶ vertices, timed beside it)
+    # on CUDA the three-launch plan, the peer of the tiled one (the CUDA default, timed beside it)
     model = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device=device, launches=3 if device.is_cuda else None)
     setup = time.perf_counter() - started
     numpy_model = NumpyExpression(mesh, muscles, wrinkles, thickness, device)
@@ -439,7 +439,7 @@ def main(argv=None) -> None:
             ("torch_matches", "torch match", ""),
         ])
         print("\nTiled plan (ExpressionModel(launches=1): one kernel, vertex tiles with a two-ring halo in shared"
-              "\nmemory; the CUDA default from 2¹⁶ vertices), batched on device as above; × 3 = tiled frames/s /"
+              "\nmemory; the CUDA default), batched on device as above; × 3 = tiled frames/s /"
               "\nthree-launch frames/s (same run); max |Δ| = against the three-launch plan over 4 frames (FMA contraction)\n")
         print_table(rows, [
             ("mesh", "mesh", "s"), ("vertices", "vertices", ",d"), ("device_batch_frames_per_s", "3-launch frames/s", ",.0f"),
@@ -448,8 +448,8 @@ def main(argv=None) -> None:
             ("tiled_device_batch_pct_same_bytes_copy", "tiled % copy (batch)", ".1f"), ("tiled_max_abs_diff_vs_default", "max |Δ|", ".2e"),
             ("tiled_device_batch_exact", "tiled exact", ""), ("tiled_setup_s", "tiling s", ".2f"),
         ])
-        print("\nSingle-frame graph per launch plan (ExpressionModel(launches=1|2|3|5); the CUDA default: 3, 1 from 2¹⁶"
-              "\nvertices), 'same' = bit-identical to plan 3; a wp.copy of the same bytes (24·V: rest read + result"
+        print("\nSingle-frame graph per launch plan (ExpressionModel(launches=1|2|3|5); the CUDA default: 1),"
+              "\n'same' = bit-identical to plan 3; a wp.copy of the same bytes (24·V: rest read + result"
               "\nwritten) in the same run; % = copy time / warp time; 'event' = GPU time between CUDA events\n")
         print_table(rows, [
             ("mesh", "mesh", "s"), ("vertices", "vertices", ",d"), ("device_ms_1_launches", "1 ms", ".4f"),

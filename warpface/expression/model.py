@@ -52,8 +52,6 @@ _TILE_FRAMES_PER_PASS = 4
 """Frames each pass of the tiled plan evaluates at once (H200, 1M vertices, CUDA kernel: 4 gave 6–10 % more frames/s than 2)."""
 _TILE_FRAMES_PER_BLOCK = 16
 """Frames one block of the tiled plan evaluates (H200, 1M vertices: 16 gave 4 % more frames/s than 8)."""
-_TILED_FROM_VERTICES = 1 << 16
-"""CUDA meshes this large default to the tiled plan (H200, batched: 0.98–1.00× the 3-launch plan at 10k, 1.02–1.06× at 100k, 1.04–1.11× at 1M)."""
 
 
 @dataclass(frozen=True)
@@ -117,10 +115,11 @@ class ExpressionModel:
             vector (:attr:`control_names`).
         launches: kernel launches per frame: 1 (vertex tiles with a two-ring halo in shared memory,
             :mod:`~warpface.expression.kernels_tiled`: each triangle once per tile, no intermediate in memory;
-            the GPU's default from 2¹⁶ vertices), 2 (fused kernels that recompute the one-ring's muscle points and
+            the GPU's default: H200, 1.00–1.18× the frames/s of plan 3 batched from 10k to 1M vertices and the
+            faster single frame; a mesh a tile cannot hold falls back to 3), 2 (fused kernels that recompute the one-ring's muscle points and
             triangle terms instead of storing them: fewest launches and bytes), 3 (muscle points stored, triangle
-            terms computed in place: the GPU's default below 2¹⁶ vertices) or 5 (every intermediate stored:
-            fewest operations, the CPU's default). ``None``: by device and mesh size.
+            terms computed in place) or 5 (every intermediate stored:
+            fewest operations, the CPU's default). ``None``: by device (and by whether the mesh tiles).
 
     Raises:
         RigError: (a ``ValueError``) mesh not a FaceMesh, wrong item types, duplicate muscle or
@@ -159,7 +158,7 @@ class ExpressionModel:
                                      or launches not in LAUNCH_PLANS):
             raise ValueError(f"launches: expected one of {LAUNCH_PLANS} or None, got {launches!r}")
         self.launches_per_frame = int(launches if launches is not None else 5 if self.device.is_cpu
-                                      else 1 if mesh.vertex_count >= _TILED_FROM_VERTICES else 3)
+                                      else 1)
         """Kernel launches per frame: 1 (tiled), 2 (fused), 3 or 5 (see ``launches``)."""
 
         self._mesh_buffers = mesh.device_buffers(device=self.device)
