@@ -30,17 +30,17 @@ def models(face_rig):
     return face_rig.model(device=CPU), face_rig.model(device=DEVICE)
 
 
-@pytest.mark.parametrize("launches", [1, 2, 5])
+@pytest.mark.parametrize("launches", [2, 3, 5])
 def test_launch_plans_agree_on_the_device(face_rig, models, launches):
-    """The device default (three kernels: the fastest on the H200) against the 2- and 5-kernel plans on the same
-    device (and the tiled one-launch plan): the same operations in the same order, so equal up to the compiler's choice of FMA
+    """The device default (the tiled one-launch plan: the fastest on the H200) against the 2-, 3- and 5-kernel
+    plans on the same device: the same operations in the same order, so equal up to the compiler's choice of FMA
     contraction (measured: the benchmark's "same" columns), and both against the CPU. A batch of the
     two-launch plan and of the default, large enough for several frames per thread (``frames_per_thread`` > 1),
     equals single frames."""
     from warpface import ExpressionModel
 
     cpu_model, fused = models
-    assert fused.launches_per_frame == (3 if DEVICE.is_cuda else 5)
+    assert fused.launches_per_frame == (1 if DEVICE.is_cuda else 5)
     staged = ExpressionModel(face_rig.mesh, face_rig.muscles, face_rig.wrinkles, face_rig.thickness, device=DEVICE,
                              jaw=face_rig.jaw, launches=launches)
     contractions, depths = expression_controls(face_rig, 3, seed=4)
@@ -57,7 +57,7 @@ def test_launch_plans_agree_on_the_device(face_rig, models, launches):
         return  # the batch check below runs on the plans that evaluate several frames per thread (block)
     frames = max(8, 4 * (1 << 20) // face_rig.mesh.vertex_count + 1)  # > 2^20 frame·vertices per launch
     many_c, many_d = np.resize(contractions, (frames, contractions.shape[1])), np.resize(depths, (frames, depths.shape[1]))
-    for model in (staged, fused) if launches == 2 else (staged,):  # the two-launch plan and the default (three); the tiled one
+    for model in (staged, fused) if launches == 2 else (staged,):  # the two- or three-launch plan and the default (tiled)
         assert model._frames_per_thread(frames) > 1 or not DEVICE.is_cuda
         out = wp.empty((frames, face_rig.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
         model.evaluate_batch_into(out, many_c, wrinkle_depths=many_d)

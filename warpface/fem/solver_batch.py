@@ -36,9 +36,13 @@ __all__ = ["BATCH_PRECONDITIONERS", "BatchedCGSolver", "per_model_fsai"]
 
 BATCH_PRECONDITIONERS = ("fsai", "fsai_each", "block_jacobi")
 
-BATCH_LANES, BATCH_ROWS, BATCH_RESIDENT_THREADS = PERSISTENT_LANES, PERSISTENT_ROWS, 512
-"""Thread-block shape (lanes x rows) of the batched persistent CG kernel on CUDA and the threads per
-multiprocessor it is compiled to keep resident."""
+BATCH_LANES, BATCH_ROWS, BATCH_RESIDENT_THREADS = 8, 32, 1024
+"""Thread-block shape (lanes x rows) of the persistent CG kernel on CUDA for two or more models, and the
+threads per multiprocessor it is compiled to keep resident (one model uses the single-model solver's shape,
+16 x 16 and 512). H200, 6.7k-node shell, ms per step of x1 / x10 / x100 models: 16x16 and 512 threads
+0.195 / 1.22 / 14.1; 16x16, 1024: 0.259 / 1.17 / 8.6; 8x32, 1024: 0.273 / 1.25 / 7.6; 4x32, 1024: 0.362 / 1.56 /
+7.5; 8x32, 2048: 0.357 / 2.55 / 15.0 (more resident blocks share the latency of many row groups per block
+between models; fewer registers slow each thread)."""
 
 
 def _grouped_rows(factors, device):
@@ -197,7 +201,12 @@ class BatchedCGSolver:
         self._update_constants = [*coefficients.update_scalars(wp.float64), wp.float64(coefficients.dt),
                                   wp.float64(coefficients.half_dt_squared)]
 
-        shape = (BATCH_LANES, BATCH_ROWS, BATCH_RESIDENT_THREADS) if dev.is_cuda else (1, 1)  # CPU: one thread
+        if not dev.is_cuda:
+            shape = (1, 1)  # one CPU thread walks every row of a model
+        elif batch == 1:
+            shape = (PERSISTENT_LANES, PERSISTENT_ROWS)
+        else:
+            shape = (BATCH_LANES, BATCH_ROWS, BATCH_RESIDENT_THREADS)
         self._kernel = persistent_pcg_kernel(wp.float64, *shape)
         groups = -(-n_free // self._kernel.rows)
         if dev.is_cuda:
