@@ -51,20 +51,14 @@ def test_persistent_cg_with_many_blocks_matches_direct(blocks):
     np.testing.assert_array_equal(barrier, 0)
 
 
-@pytest.mark.parametrize("blocks_per_chunk, waves, model_chunk",
-                         [(None, None, 1), (5, [(0, 2), (2, 1)], 1), (None, None, 2), (5, [(0, 2), (2, 1)], 2),
-                          (None, None, 3)])
-def test_batched_persistent_cg_matches_each_models_direct(blocks_per_chunk, waves, model_chunk, monkeypatch):
-    """TissueBatch on the 1.8k-node shell: three models in one launch of the persistent kernel, each chunk's
+@pytest.mark.parametrize("blocks_per_model, waves", [(None, None), (5, [(0, 2), (2, 1)])])
+def test_batched_persistent_cg_matches_each_models_direct(blocks_per_model, waves):
+    """TissueBatch on the 1.8k-node shell: three models in one launch of the persistent kernel, each model's
     blocks meeting at its own barrier (as many as the GPU gives each, or 5 that walk many row groups, the
-    models split over two launches), one model per chunk, chunks of two (the last one partial) or all three
-    in one chunk. Each model within 1e-9 m of its own direct run, every barrier cleared."""
+    models split over two launches). Each model within 1e-9 m of its own direct run, every barrier cleared."""
     from warpface.fem import TissueBatch, TissueMaterial, TissueSimulation, shell_tet_mesh
-    from warpface.fem import solver_batch
 
-    monkeypatch.setattr(solver_batch, "BATCH_MODEL_CHUNK", model_chunk)
-
-    if blocks_per_chunk is not None and not DEVICE.is_cuda:
+    if blocks_per_model is not None and not DEVICE.is_cuda:
         pytest.skip("blocks that wait for each other need CUDA: on the CPU a model runs as one block")
     mesh = shell_tet_mesh(20, 20, 3)
     p = mesh.points
@@ -79,9 +73,8 @@ def test_batched_persistent_cg_matches_each_models_direct(blocks_per_chunk, wave
                  TissueMaterial(2e5, 0.40, 60.0, 1000.0)]
     batch = TissueBatch(mesh, materials, 1e-3, fixed=fixed, driven=driven, solver="cg", device=DEVICE,
                         cg_tol=1e-12, cg_maxiter=400, chunk=8)
-    if blocks_per_chunk is not None:  # before the first graph is captured
-        batch.stepper.blocks_per_chunk, batch.stepper.waves = blocks_per_chunk, waves
-    assert batch.stepper.model_chunk == model_chunk
+    if blocks_per_model is not None:  # before the first graph is captured
+        batch.stepper.blocks_per_model, batch.stepper.waves = blocks_per_model, waves
     got = batch.run(trajectory)
     for b, material in enumerate(materials):
         expected = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, solver="direct",

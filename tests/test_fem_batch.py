@@ -171,34 +171,3 @@ def test_batch_in_waves_equals_one_launch_and_the_single_model_solver(shell):
         sim = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, solver="cg", device="cpu",
                                cg_tol=1e-10, cg_preconditioner="block_jacobi", cg_loop="persistent")
         np.testing.assert_array_equal(runs[0][:, b], sim.run(traj[:, b]), err_msg=f"model {b}")
-
-
-@pytest.mark.parametrize("preconditioner", ["fsai", "block_jacobi"])
-def test_model_chunks_leave_every_models_bits_unchanged(shell, preconditioner, monkeypatch):
-    """Chunks of 1, 2 (the last one partial) or 4 models per CG thread give every model the same bits, and
-    the same iterations, as one model per chunk; a model at rest (no driven motion: converged before its
-    first iteration) shares a chunk with models that iterate, and stays exactly at rest."""
-    from warpface.fem import solver_batch
-
-    mesh, fixed, driven = shell
-    materials = _materials(mesh)
-    materials.insert(1, materials[0])
-    traj = _trajectories(6, len(materials), driven.size)
-    traj[:, 1] = 0.0  # model 1 stays at rest
-    runs = {}
-    for model_chunk in (1, 2, 4):
-        monkeypatch.setattr(solver_batch, "BATCH_MODEL_CHUNK", model_chunk)
-        batch = TissueBatch(mesh, materials, 1e-3, fixed=fixed, driven=driven, solver="cg", device="cpu",
-                            cg_tol=1e-10, cg_preconditioner=preconditioner)
-        assert batch.stepper.model_chunk == model_chunk
-        runs[model_chunk] = (batch.run(traj), batch.cg_iterations)
-    out, iterations = runs[1]
-    assert np.all(out[:, 1] == 0.0) and iterations[1, 2] == 0 and np.all(iterations[[0, 2, 3], 2] > 6)
-    for model_chunk in (2, 4):
-        np.testing.assert_array_equal(runs[model_chunk][0], out, err_msg=f"chunks of {model_chunk}")
-        np.testing.assert_array_equal(runs[model_chunk][1], iterations, err_msg=f"chunks of {model_chunk}")
-    if preconditioner == "block_jacobi":  # each model's own factor: the single-model solver gives the same bits
-        for b in (0, 3):
-            sim = TissueSimulation(mesh, materials[b], 1e-3, fixed=fixed, driven=driven, solver="cg", device="cpu",
-                                   cg_tol=1e-10, cg_preconditioner="block_jacobi", cg_loop="persistent")
-            np.testing.assert_array_equal(out[:, b], sim.run(traj[:, b]), err_msg=f"model {b}")

@@ -9,12 +9,9 @@ convergence test, so a model that has converged stops while the others go on —
 update (:data:`~warpface.fem.kernels_integrator.cg_newmark_update`) over ``(B, nodes)``. A model's
 arithmetic is exactly that of :class:`~warpface.fem.solver_cg.CGSolver` with the same factor.
 
-Models go in chunks of ``model_chunk``: a thread works on its row for every model of its chunk, and
-the chunk's models share blocks and a barrier (each still stops at its own convergence).
-
-On CUDA every block must be resident: the chunks share the blocks the GPU holds at once
-(:func:`~warpface.fem.kernels_persistent.grid_capacity`), at least one each; a batch with more chunks
-than that is stepped in waves of launches. On the CPU each chunk is one block of one thread.
+On CUDA every block must be resident: the models share the blocks the GPU holds at once
+(:func:`~warpface.fem.kernels_persistent.grid_capacity`), at least one each; a batch with more models
+than that is stepped in waves of launches. On the CPU each model is one block of one thread.
 
 The state lives in arrays of shape (B, N) of ``vec3d`` (model-major, coalesced per model). Driven
 displacements come through a ring of ``chunk`` slots ``(chunk, B, D)``, and every step's
@@ -30,12 +27,12 @@ from warp.optim.linear import FSAI
 from .assembly import SystemMatrices, bsr_to_scipy
 from .kernels_cg import SLOT_SPREAD
 from .kernels_integrator import cg_newmark_update
-from .kernels_persistent import MAX_CHUNK, grid_capacity, persistent_pcg_kernel
+from .kernels_persistent import grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
 from .solver_cg import (FSAI_ROW_SIZE, PERSISTENT_LANES, PERSISTENT_ROWS, ConvergenceError, newmark_operators,
                         preconditioner_factor)
 
-__all__ = ["BATCH_MODEL_CHUNK", "BATCH_PRECONDITIONERS", "BatchedCGSolver", "per_model_fsai"]
+__all__ = ["BATCH_PRECONDITIONERS", "BatchedCGSolver", "per_model_fsai"]
 
 BATCH_PRECONDITIONERS = ("fsai", "fsai_each", "block_jacobi")
 
@@ -46,13 +43,6 @@ threads per multiprocessor it is compiled to keep resident (one model uses the s
 0.195 / 1.22 / 14.1; 16x16, 1024: 0.259 / 1.17 / 8.6; 8x32, 1024: 0.273 / 1.25 / 7.6; 4x32, 1024: 0.362 / 1.56 /
 7.5; 8x32, 2048: 0.357 / 2.55 / 15.0 (more resident blocks share the latency of many row groups per block
 between models; fewer registers slow each thread)."""
-
-BATCH_MODEL_CHUNK = 1
-"""Models per chunk of the batched CG kernel (see :class:`BatchedCGSolver`). H200, 6.7k-node shell, ms per step
-of x10 / x100 models (8x32 blocks, 1024 resident threads unless said): chunks of 1: 1.175 / 7.33; 2: 1.66 / 7.67;
-4: 2.07 / 10.4; 2 at 512 resident threads: 1.23 / 7.19; 4 at 512: 1.72 / 8.48; 8 at 512: 2.81 (x10); 16x16, 4 at
-512: 1.60 / 9.47. Latency-bound at the register file: a thread's M models' gathers in flight cost the
-registers of M threads."""
 
 
 def _grouped_rows(factors, device):
@@ -127,8 +117,6 @@ class BatchedCGSolver:
         maxiter: CG iteration limit per step.
         chunk: Ring slots of driven input and recorded displacement.
         use_graph: Capture the step as a graph (CUDA).
-        model_chunk: Models per chunk of the CG kernel (1 .. 16; default :data:`BATCH_MODEL_CHUNK`, at most
-            the batch). Results do not depend on it.
 
     Raises:
         ValueError: no model, models whose matrices differ in sparsity (different meshes), or a model
@@ -137,14 +125,11 @@ class BatchedCGSolver:
 
     def __init__(self, matrices: list[SystemMatrices], coefficients: NewmarkCoefficients, free_nodes, driven_nodes, *,
                  tol: float = 1.0e-5, maxiter: int = 500, chunk: int = 64, use_graph: bool = True,
-                 preconditioner: str = "fsai", model_chunk: int | None = None):
+                 preconditioner: str = "fsai"):
         if preconditioner not in BATCH_PRECONDITIONERS:
             raise ValueError(f"batched preconditioner must be one of {BATCH_PRECONDITIONERS}, got {preconditioner!r}")
         if not matrices:
             raise ValueError("a batch needs at least one model")
-        model_chunk = BATCH_MODEL_CHUNK if model_chunk is None else model_chunk
-        if not isinstance(model_chunk, (int, np.integer)) or not 1 <= model_chunk <= MAX_CHUNK:
-            raise ValueError(f"model_chunk must be an integer in 1 .. {MAX_CHUNK}, got {model_chunk!r}")
         dev = matrices[0].device
         self.device = dev
         self.model_count = batch = len(matrices)
@@ -195,10 +180,10 @@ class BatchedCGSolver:
         """State of every model [m, m/s, m/s²], shape (B, N) of vec3d (updated in place)."""
         self._x, self._y, self._z, self._q, self._guess = (vectors(batch, n_free) for _ in range(5))
         self._r, self._p = vectors(batch, 2, n_free), vectors(batch, 2, n_free)
-        # flat scalar views (index 3 node + axis; y and q with a middle dimension of 1, as r) for the scalar factors
+        # flat scalar views (index 3 node + axis) for the scalar preconditioner factors
         self._r_flat = self._r.view(wp.float64).reshape((batch, 2, 3 * n_free))
-        self._y_flat = self._y.view(wp.float64).reshape((batch, 1, 3 * n_free))
-        self._q_flat = self._q.view(wp.float64).reshape((batch, 1, 3 * n_free))
+        self._y_flat = self._y.view(wp.float64).reshape((batch, 3 * n_free))
+        self._q_flat = self._q.view(wp.float64).reshape((batch, 3 * n_free))
         self._history = vectors(2, batch, n_free)
         self._slots = wp.zeros((batch, 4, self.maxiter + 1, SLOT_SPREAD), dtype=wp.float64, device=dev)
         self._cg_iter = wp.zeros((batch, 2), dtype=wp.int32, device=dev)
@@ -217,26 +202,22 @@ class BatchedCGSolver:
                                   wp.float64(coefficients.half_dt_squared)]
 
         if not dev.is_cuda:
-            shape = (1, 1)  # one CPU thread walks every row of a chunk
+            shape = (1, 1)  # one CPU thread walks every row of a model
         elif batch == 1:
             shape = (PERSISTENT_LANES, PERSISTENT_ROWS)
         else:
             shape = (BATCH_LANES, BATCH_ROWS, BATCH_RESIDENT_THREADS)
-        self.model_chunk = models = int(min(model_chunk, batch))
-        """Models per chunk: a thread of the CG kernel works on its row for each of them."""
-        self._kernel = persistent_pcg_kernel(wp.float64, *shape, models=models,
-                                             shared_factor=models > 1 and preconditioner == "fsai")
+        self._kernel = persistent_pcg_kernel(wp.float64, *shape)
         groups = -(-n_free // self._kernel.rows)
-        chunks = -(-batch // models)
         if dev.is_cuda:
             capacity = grid_capacity(self._kernel.cg_step, self._kernel.block_dim, device=dev)
-            self.blocks_per_chunk = max(1, min(groups, capacity // chunks))
-            per_wave = models * max(1, capacity // self.blocks_per_chunk)
+            self.blocks_per_model = max(1, min(groups, capacity // batch))
+            per_wave = max(1, capacity // self.blocks_per_model)
         else:  # blocks run one after the other: no residency limit
-            self.blocks_per_chunk, per_wave = 1, batch
+            self.blocks_per_model, per_wave = 1, batch
         self.waves = [(first, min(per_wave, batch - first)) for first in range(0, batch, per_wave)]
-        """``(first model, models)`` of each launch of the CG kernel per step (one launch unless the chunks
-        need more blocks than the GPU holds at once); a launch's last chunk may be partial."""
+        """``(first model, models)`` of each launch of the CG kernel per step (one launch unless B exceeds
+        the blocks the GPU holds at once)."""
         self._use_graph = bool(use_graph) and dev.is_cuda
         self._graph = None
         self._launch_sequence()  # loads every kernel before any capture; restart clears what it touched
@@ -248,13 +229,12 @@ class BatchedCGSolver:
         (g_offsets, g_keys, g_values), (t_offsets, t_keys, t_values) = self._factor
         self._slots.zero_()
         for first, models in self.waves:
-            chunks = -(-models // kernel.models)
-            wp.launch_tiled(kernel.cg_step, dim=chunks * self.blocks_per_chunk, block_dim=kernel.block_dim, device=dev,
+            wp.launch_tiled(kernel.cg_step, dim=models * self.blocks_per_model, block_dim=kernel.block_dim, device=dev,
                             inputs=[*self._P, *self._A, g_offsets, g_keys, g_values, t_offsets, t_keys, t_values,
                                     self.d, self.v, self.a, self.trajectory, self._guess, self._ring, self._r,
                                     self._r_flat, self._x, self._y, self._y_flat, self._z, self._p, self._q,
                                     self._q_flat, self._slots, self._cg_iter, self._barrier, tol_sq, self.maxiter,
-                                    self.blocks_per_chunk, first, first + models])
+                                    self.blocks_per_model, first])
         wp.launch(cg_newmark_update, dim=(self.model_count, self.node_count),
                   inputs=[self._x, self._history, self._guess, self._free_index, self._driven_slot, self.trajectory,
                           self._ring, *self._update_constants, self._slots, self._cg_iter, tol_sq, self.chunk,
@@ -300,7 +280,7 @@ class BatchedCGSolver:
         wp.synchronize_device(self.device)
         if np.any(self._barrier.numpy()[:, 1]):
             raise RuntimeError(f"the persistent CG loop waited too long at a grid barrier on {self.device} (its "
-                               f"{self.blocks_per_chunk} blocks per chunk were not all resident)")
+                               f"{self.blocks_per_model} blocks per model were not all resident)")
         status = self._status.numpy()
         failed = np.flatnonzero(status[:, 0])
         if failed.size:

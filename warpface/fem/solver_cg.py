@@ -350,10 +350,10 @@ class CGSolver:
                             inputs=[P.offsets, P.columns, one(P.values), A.offsets, A.columns, one(A.values), G_offsets,
                                     G_keys, one(G_values), T_offsets, T_keys, one(T_values), one(b.d_in), one(b.v_in),
                                     one(b.a_in), b.batch_trajectory, one(self._guess), b.ring, one(self._r),
-                                    one(self._r_flat), one(self._x), one(self._y), one(one(self._y_flat)), one(self._z),
-                                    one(self._p), one(self._q), one(one(self._q_flat)), one(self._slots),
+                                    one(self._r_flat), one(self._x), one(self._y), one(self._y_flat), one(self._z),
+                                    one(self._p), one(self._q), one(self._q_flat), one(self._slots),
                                     one(self._cg_iter), one(self._barrier), tol_sq, self.maxiter,
-                                    self._persistent_blocks, 0, 1])
+                                    self._persistent_blocks, 0])
         else:
             self._launch_tiled(k.residual, [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, b.d_in,
                                             b.v_in, b.a_in, b.trajectory, self._guess, b.ring, self._r, self._x,
