@@ -37,12 +37,15 @@ __all__ = ["BATCH_PRECONDITIONERS", "BatchedCGSolver", "per_model_fsai"]
 BATCH_PRECONDITIONERS = ("fsai", "fsai_each", "block_jacobi")
 
 BATCH_LANES, BATCH_ROWS, BATCH_RESIDENT_THREADS = 8, 32, 1024
-"""Thread-block shape (lanes x rows) of the persistent CG kernel on CUDA for two or more models, and the
-threads per multiprocessor it is compiled to keep resident (one model uses the single-model solver's shape,
-16 x 16 and 512). H200, 6.7k-node shell, ms per step of x1 / x10 / x100 models: 16x16 and 512 threads
-0.195 / 1.22 / 14.1; 16x16, 1024: 0.259 / 1.17 / 8.6; 8x32, 1024: 0.273 / 1.25 / 7.6; 4x32, 1024: 0.362 / 1.56 /
-7.5; 8x32, 2048: 0.357 / 2.55 / 15.0 (more resident blocks share the latency of many row groups per block
-between models; fewer registers slow each thread)."""
+"""Thread-block shape (lanes x rows) of the persistent CG kernel on CUDA for :data:`WIDE_BATCH` models or more,
+and the threads per multiprocessor it is compiled to keep resident (fewer models use the single-model solver's
+shape, 16 x 16 and 512). H200, 6.7k-node shell, ms per step of x1 / x3 / x10 / x100 models: 16x16 and 512 threads
+0.195 / 0.453 / 1.22 / 14.1; 8x32, 1024: 0.273 / 0.690 / 1.25 / 7.6; other shapes at x1 / x10 / x100: 16x16, 1024:
+0.259 / 1.17 / 8.6; 4x32, 1024: 0.362 / 1.56 / 7.5; 8x32, 2048: 0.357 / 2.55 / 15.0. With many models each gets
+only a few blocks, which walk many row groups one after another: more resident blocks hide more of that latency,
+but fewer registers slow each thread."""
+WIDE_BATCH = 16
+"""Models from which the batch uses the wider residency above (between the measured 10 and 100)."""
 
 
 def _grouped_rows(factors, device):
@@ -203,7 +206,7 @@ class BatchedCGSolver:
 
         if not dev.is_cuda:
             shape = (1, 1)  # one CPU thread walks every row of a model
-        elif batch == 1:
+        elif batch < WIDE_BATCH:
             shape = (PERSISTENT_LANES, PERSISTENT_ROWS)
         else:
             shape = (BATCH_LANES, BATCH_ROWS, BATCH_RESIDENT_THREADS)
