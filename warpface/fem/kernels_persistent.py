@@ -10,6 +10,10 @@ products are summed per block (warp shuffles) and added to the same float64 slot
 block reads the same slot sums after a barrier, so all blocks agree on ``α``, ``β`` and on when
 CG has finished.
 
+The kernel steps a batch of models on one mesh (:class:`~warpface.fem.solver_batch.BatchedCGSolver`;
+a single model is a batch of one): each model has its own group of blocks, barrier, dot-product slots
+and convergence, so the models of one launch never wait for each other.
+
 A grid barrier is only safe when every block of the launch is resident on the GPU at once: the
 solver launches at most as many blocks as the device holds (from the kernel's register count;
 each block then walks row groups ``block, block + blocks, ...``), and a barrier that waits far
