@@ -155,23 +155,8 @@ def test_blocks_of_many_threads_equal_the_five_kernel_sequence(rng, block_dim, f
     """The kernel's strided passes and barriers with many threads per block (as on CUDA, 256), here as
     Warp's CPU blocks, several frames per block and per pass (the last pass partial): the same bits."""
     model = build_model("default rig", 1)
-    frames = 5
-    contractions, depths = random_controls(model, rng, frames)
-    expected = five_kernel_frames(model, contractions, depths)["final"]
-    buffers = model._frame_buffers(frames)
-    buffers.upload_controls(contractions, depths)
-    (kernel, dim, inputs, outputs), = model._launch_args(buffers, frames, buffers.contraction, buffers.depth, buffers.final_points, False)
-    inputs = list(inputs)
-    inputs[-2] = frames_per_block
-    kernel = expression_tiles(frames_per_pass)
-    saved = wp.config.enable_cpu_blocks
-    wp.config.enable_cpu_blocks = True
-    try:
-        wp.launch(kernel, dim=(-(-frames // frames_per_block), dim[1], block_dim), inputs=inputs, outputs=outputs, device=DEVICE,
-                  block_dim=block_dim)
-    finally:
-        wp.config.enable_cpu_blocks = saved
-    np.testing.assert_array_equal(buffers.read_frames(buffers.final_points, frames), expected)
+    got, expected = launch_tiled_blocks(model, rng, expression_tiles(frames_per_pass), block_dim, frames_per_block)
+    np.testing.assert_array_equal(got, expected)
 
 
 def test_tiled_plan_with_more_incident_triangles_than_ring_slots(rng):
