@@ -17,19 +17,27 @@ DEVICE = parity_device()
 CPU = wp.get_device("cpu")
 
 
+def pulled_shell():
+    """A 1.8k-node shell, its top 40 % fixed and its bottom 10 % driven: ``(mesh, fixed, driven)``."""
+    from warpface.fem import shell_tet_mesh
+
+    mesh = shell_tet_mesh(20, 20, 3)
+    p = mesh.points
+    fixed = np.flatnonzero(p[:, 1] > np.quantile(p[:, 1], 0.6))
+    driven = np.flatnonzero(p[:, 1] < np.quantile(p[:, 1], 0.1))
+    return mesh, fixed, driven
+
+
 @pytest.mark.parametrize("blocks", [None, 7])
 def test_persistent_cg_with_many_blocks_matches_direct(blocks):
     """The persistent CG kernel on a 1.8k-node shell: as many blocks as row groups (grid barriers across
     ~100 blocks on CUDA), or 7 blocks that each walk many row groups. Every step within 1e-9 m of the
     direct solver, the same iterations as the launched loop, the barrier counters cleared after each step."""
-    from warpface.fem import TissueMaterial, TissueSimulation, shell_tet_mesh
+    from warpface.fem import TissueMaterial, TissueSimulation
 
     if blocks is not None and not DEVICE.is_cuda:
         pytest.skip("blocks that wait for each other need CUDA: on the CPU the kernel runs as one block")
-    mesh = shell_tet_mesh(20, 20, 3)
-    p = mesh.points
-    fixed = np.flatnonzero(p[:, 1] > np.quantile(p[:, 1], 0.6))
-    driven = np.flatnonzero(p[:, 1] < np.quantile(p[:, 1], 0.1))
+    mesh, fixed, driven = pulled_shell()
     steps = 30
     trajectory = np.zeros((steps, driven.size, 3))
     trajectory[:, :, 1] = -5e-3 * np.sin(np.linspace(0.05, 1.5, steps))[:, None]
@@ -56,14 +64,11 @@ def test_batched_persistent_cg_matches_each_models_direct(blocks_per_model, wave
     """TissueBatch on the 1.8k-node shell: three models in one launch of the persistent kernel, each model's
     blocks meeting at its own barrier (as many as the GPU gives each, or 5 that walk many row groups, the
     models split over two launches). Each model within 1e-9 m of its own direct run, every barrier cleared."""
-    from warpface.fem import TissueBatch, TissueMaterial, TissueSimulation, shell_tet_mesh
+    from warpface.fem import TissueBatch, TissueMaterial, TissueSimulation
 
     if blocks_per_model is not None and not DEVICE.is_cuda:
         pytest.skip("blocks that wait for each other need CUDA: on the CPU a model runs as one block")
-    mesh = shell_tet_mesh(20, 20, 3)
-    p = mesh.points
-    fixed = np.flatnonzero(p[:, 1] > np.quantile(p[:, 1], 0.6))
-    driven = np.flatnonzero(p[:, 1] < np.quantile(p[:, 1], 0.1))
+    mesh, fixed, driven = pulled_shell()
     steps = 20
     trajectory = np.zeros((steps, 3, driven.size, 3))
     for b in range(3):
