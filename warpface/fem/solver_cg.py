@@ -92,6 +92,11 @@ PERSISTENT_LANES, PERSISTENT_ROWS = 16, 16
 UNROLL = 2
 
 
+def _as_one_model(array: wp.array) -> wp.array:
+    """A view of ``array`` with a leading dimension of 1: the only model of a batch."""
+    return array.reshape((1, *array.shape))
+
+
 class ConvergenceError(RuntimeError):
     """The iterative solver did not reach its tolerance within its iteration limit."""
 
@@ -303,6 +308,14 @@ class CGSolver:
         self._step_count = wp.zeros(1, dtype=wp.int32, device=dev)
         self._status = wp.zeros(5, dtype=wp.int32, device=dev)
         self._failure = wp.zeros(2, dtype=wp.float64, device=dev)
+        # the solver's arrays as the only model of a batch, for the persistent and update kernels
+        one = _as_one_model
+        self._as_batch = SimpleNamespace(
+            P_values=one(P.values), A_values=one(A_oo.values), G_values=one(self._G[2]), GT_values=one(self._GT[2]),
+            x=one(self._x), r=one(self._r), r_flat=one(self._r_flat), y=one(self._y), y_flat=one(self._y_flat),
+            z=one(self._z), p=one(self._p), q=one(self._q), q_flat=one(self._q_flat), guess=one(self._guess),
+            history=self._history.reshape((2, 1, n_free)), slots=one(self._slots), cg_iter=one(self._cg_iter),
+            barrier=one(self._barrier), status=one(self._status), failure=one(self._failure))
         # run_chunk's ring of `chunk` driven inputs and recorded displacements (slot index on the device)
         self._trajectory = wp.zeros((self.chunk, max(n_driven, 1)), dtype=vec, device=dev)
         self._record = wp.zeros((self.chunk, n), dtype=vec, device=dev)
@@ -341,44 +354,44 @@ class CGSolver:
         k, P, tol_sq = self._kernels, self._P, wp.float64(self.tol**2)
         self._slots.zero_()
         A = self._A_oo
-        one = self._one_model
         if self.loop == "persistent":
-            step = self._persistent
-            G_offsets, G_keys, G_values = self._G
-            T_offsets, T_keys, T_values = self._GT
+            step, m = self._persistent, self._as_batch
             wp.launch_tiled(step.cg_step, dim=self._persistent_blocks, block_dim=step.block_dim, device=self.device,
-                            inputs=[P.offsets, P.columns, one(P.values), A.offsets, A.columns, one(A.values), G_offsets,
-                                    G_keys, one(G_values), T_offsets, T_keys, one(T_values), one(b.d_in), one(b.v_in),
-                                    one(b.a_in), b.batch_trajectory, one(self._guess), b.ring, one(self._r),
-                                    one(self._r_flat), one(self._x), one(self._y), one(self._y_flat), one(self._z),
-                                    one(self._p), one(self._q), one(self._q_flat), one(self._slots),
-                                    one(self._cg_iter), one(self._barrier), tol_sq, self.maxiter,
+                            inputs=[P.offsets, P.columns, m.P_values, A.offsets, A.columns, m.A_values, self._G[0],
+                                    self._G[1], m.G_values, self._GT[0], self._GT[1], m.GT_values, b.d_in, b.v_in,
+                                    b.a_in, b.trajectory, m.guess, b.ring, m.r, m.r_flat, m.x, m.y, m.y_flat, m.z, m.p,
+                                    m.q, m.q_flat, m.slots, m.cg_iter, m.barrier, tol_sq, self.maxiter,
                                     self._persistent_blocks, 0])
         else:
-            self._launch_tiled(k.residual, [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, b.d_in,
-                                            b.v_in, b.a_in, b.trajectory, self._guess, b.ring, self._r, self._x,
+            self._launch_tiled(k.residual, [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, b.state[0],
+                                            b.state[1], b.state[2], b.driven, self._guess, b.ring, self._r, self._x,
                                             self._slots, self._cg_iter, self._condition])
             self._launch_tiled(k.lower_start, [*self._G, self._r, self._r_flat, self._x, self._slots, self._y])
             self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq,
                                          self.maxiter])
             wp.capture_while(self._condition, self._cg_iterations)
-        history = self._history.reshape((2, 1, self.free_count))
+        m = self._as_batch
         wp.launch(
             cg_newmark_update,
             dim=(1, self.node_count),
-            inputs=[one(self._x), history, one(self._guess), self._free_index, self._driven_slot, b.batch_trajectory,
-                    b.ring, *self._update_constants, one(self._slots), one(self._cg_iter), tol_sq, b.chunk,
-                    one(b.d_in), one(b.v_in), one(b.a_in)],
-            outputs=[one(b.d_out), one(b.v_out), one(b.a_out), b.batch_record, self._step_count, one(self._status),
-                     one(self._failure)],
+            inputs=[m.x, m.history, m.guess, self._free_index, self._driven_slot, b.trajectory, b.ring,
+                    *self._update_constants, m.slots, m.cg_iter, tol_sq, b.chunk, b.d_in, b.v_in, b.a_in],
+            outputs=[b.d_out, b.v_out, b.a_out, b.record, self._step_count, m.status, m.failure],
             device=self.device,
         )
 
     @staticmethod
-    def _one_model(array: wp.array) -> wp.array:
-        """``array`` as the only model of a batch (a view with a leading dimension of 1), as the persistent
-        and update kernels take it (they serve :class:`~warpface.fem.solver_batch.BatchedCGSolver` too)."""
-        return array.reshape((1, *array.shape))
+    def _binding(state_in: TissueState, state_out: TissueState, driven: wp.array, ring: wp.array, record: wp.array,
+                 chunk: int, key) -> SimpleNamespace:
+        """The arrays of one step: ``state`` (d, v, a of ``state_in``) and ``driven`` (chunk, D) for the launched
+        loop's kernels; the states, ``trajectory`` (chunk, 1, D) and ``record`` (chunk, 1, N) as the only model of a
+        batch for the persistent and update kernels (which also step batches)."""
+        one = _as_one_model
+        return SimpleNamespace(
+            state=(state_in.d, state_in.v, state_in.a), driven=driven, d_in=one(state_in.d), v_in=one(state_in.v),
+            a_in=one(state_in.a), d_out=one(state_out.d), v_out=one(state_out.v), a_out=one(state_out.a),
+            trajectory=driven.reshape((driven.shape[0], 1, driven.shape[1])), ring=ring,
+            record=record.reshape((record.shape[0], 1, record.shape[1])), chunk=chunk, key=key)
 
     def _binding_for_step(self, state_in: TissueState, state_out: TissueState, control: TissueControl):
         key = ("step", state_in.d.ptr, state_out.d.ptr, control.driven.ptr)
@@ -391,13 +404,8 @@ class CGSolver:
                     raise ValueError(f"{name} must hold {self.node_count} nodes of {precision} vec3 on {self.device}")
             if control.driven.shape[0] != self._trajectory.shape[1] or not wp.types.types_equal(control.driven.dtype, vec):
                 raise ValueError(f"control must hold {self.driven_nodes.size} driven displacements of {precision} vec3")
-            binding = SimpleNamespace(
-                d_in=state_in.d, v_in=state_in.v, a_in=state_in.a, d_out=state_out.d, v_out=state_out.v,
-                a_out=state_out.a, trajectory=control.driven.reshape((1, control.driven.shape[0])),
-                batch_trajectory=control.driven.reshape((1, 1, control.driven.shape[0])), ring=self._step_ring,
-                record=state_out.d.reshape((1, self.node_count)), batch_record=state_out.d.reshape((1, 1, self.node_count)),
-                chunk=1, key=key,
-            )
+            binding = self._binding(state_in, state_out, control.driven.reshape((1, control.driven.shape[0])),
+                                    self._step_ring, state_out.d.reshape((1, self.node_count)), 1, key)
             self._bindings[key] = binding
         return binding
 
@@ -405,12 +413,7 @@ class CGSolver:
         key = ("chunk", state.d.ptr)
         binding = self._bindings.get(key)
         if binding is None:
-            binding = SimpleNamespace(d_in=state.d, v_in=state.v, a_in=state.a, d_out=state.d, v_out=state.v,
-                                      a_out=state.a, trajectory=self._trajectory,
-                                      batch_trajectory=self._trajectory.reshape((self.chunk, 1, self._trajectory.shape[1])),
-                                      ring=self._ring, record=self._record,
-                                      batch_record=self._record.reshape((self.chunk, 1, self.node_count)),
-                                      chunk=self.chunk, key=key)
+            binding = self._binding(state, state, self._trajectory, self._ring, self._record, self.chunk, key)
             self._bindings[key] = binding
         return binding
 
