@@ -174,3 +174,37 @@ def test_animate_cache_equals_the_single_frame_model_on_the_built_in_face(tmp_pa
     for time_code, controls, depths in zip(times.tolist(), animation.controls, animation.wrinkle_depths):
         assert np.array_equal(np.asarray(points.Get(time_code), dtype=np.float32), model.evaluate(controls, wrinkle_depths=depths))
     assert set(result.seconds) == {"read driver and rig", "clean and map", "write controls", "model", "bake", "save stage"}
+
+
+FRESH_PROCESS_THREADS = """
+import sys, threading
+import numpy as np
+import warp as wp
+wp.config.quiet = True
+from helpers import small_face_rig
+model = small_face_rig().model(device="cpu")
+controls = np.random.default_rng(0).uniform(0.0, 0.3, (16, len(model.control_names)))
+results = [None, None]
+def evaluate(k):
+    results[k] = model.evaluate_batch(controls)
+threads = [threading.Thread(target=evaluate, args=(k,)) for k in range(2)]
+[t.start() for t in threads]
+[t.join() for t in threads]
+sys.exit(0 if np.array_equal(results[0], results[1]) else 3)
+"""
+
+
+def test_threads_of_a_fresh_process_evaluate_at_once_without_crashing():
+    """The bake's first chunks start in two threads of a process whose kernels are not loaded yet: both threads
+    recording (and so loading Warp modules) at once crashed the process in about half the runs (the demo's bake
+    segfaulted); six fresh processes in a row must all finish with equal results."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    tests = Path(__file__).parent
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tests.parent), str(tests), os.environ.get("PYTHONPATH", "")])}
+    codes = [subprocess.run([sys.executable, "-c", FRESH_PROCESS_THREADS], env=env, cwd=tests, capture_output=True,
+                            timeout=300).returncode for _ in range(6)]
+    assert codes == [0] * 6, codes

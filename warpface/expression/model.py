@@ -45,6 +45,10 @@ _MAX_DEVICE_BATCH_VERTICES = 1 << 24
 """Larger chunks let a thread evaluate more frames of its vertex (see ``_frames_per_thread``): 16 % more
 frames/s at 1M vertices on an H200 than chunks of 2²², for 0.6 GB of work buffers."""
 
+_RECORDING = threading.Lock()
+"""Held while a thread records its launches: recording loads the kernels' Warp modules, and two threads loading
+at once crash the process (the demo's two-thread bake: ~60 % of runs). Recorded launches may then run at once."""
+
 _MAX_FRAMES_PER_THREAD = 8
 """Most frames one CUDA thread evaluates for its vertex in the fused plans (see ``_frames_per_thread``)."""
 
@@ -487,7 +491,8 @@ class ExpressionModel:
     def _launch(self, buffers: FrameBuffers) -> None:
         """Run the frame's kernels over all of ``buffers``' frames (recorded on first use)."""
         if not buffers.launches:
-            buffers.launches = self._record_launches(buffers)
+            with _RECORDING:
+                buffers.launches = self._record_launches(buffers)
         for launch in buffers.launches:
             launch.launch()
 
