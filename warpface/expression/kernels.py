@@ -30,12 +30,37 @@ __all__ = [
     "triangle_stretch",
     "stretch_and_bulge",
     "apply_wrinkles",
+    "bulge_point",
     "contraction_factor",
+    "jaw_blend",
+    "jaw_motion",
     "STRETCH_FLOOR",
 ]
 
 STRETCH_FLOOR = wp.constant(1.0e-4)
 """Lower bound on ``r`` before ``1/r`` in the bulge: fully collapsed skin stays finite."""
+
+
+@wp.func
+def jaw_motion(controls: wp.array(dtype=wp.float32), first: int, jaw_first: int, hinge_axis: wp.vec3, forward: wp.vec3):
+    """The frame's jaw rotation (about ``hinge_axis`` by θ) and slide (protrusion, lateral) from its control row."""
+    rotation = wp.quat_from_axis_angle(hinge_axis, controls[first + jaw_first])
+    slide = controls[first + jaw_first + 1] * forward + controls[first + jaw_first + 2] * hinge_axis
+    return rotation, slide
+
+
+@wp.func
+def jaw_blend(x: wp.vec3, w: float, pivot: wp.vec3, rotation: wp.quat, slide: wp.vec3):
+    """SPEC §6.2: ``x + w·(R(θ)(x − p) + p + t − x)``, the jaw's rigid motion of ``x`` blended by its weight."""
+    moved = wp.quat_rotate(rotation, x - pivot) + pivot + slide
+    return x + w * (moved - x)
+
+
+@wp.func
+def bulge_point(x1: wp.vec3, normal_sum: wp.vec3, r: float, h: float):
+    """SPEC §1.2: ``x2 = x1 + (1/r − 1)·h·N``, N the normalised sum of incident area vectors, r floored."""
+    growth = 1.0 / wp.max(r, STRETCH_FLOOR) - 1.0
+    return x1 + (growth * h) * safe_normalize(normal_sum)
 
 
 @wp.struct
@@ -126,10 +151,8 @@ def apply_jaw_and_muscles(
     x = rest[v]
     w = jaw_weight[v]
     if w > 0.0:
-        rotation = wp.quat_from_axis_angle(hinge_axis, controls[first + jaw_first])
-        slide = controls[first + jaw_first + 1] * forward + controls[first + jaw_first + 2] * hinge_axis
-        moved = wp.quat_rotate(rotation, x - pivot) + pivot + slide
-        x = x + w * (moved - x)
+        rotation, slide = jaw_motion(controls, first, jaw_first, hinge_axis, forward)
+        x = jaw_blend(x, w, pivot, rotation, slide)
     muscle_points[i] = add_muscles(x, controls, first, offsets, entries, v)
 
 
@@ -183,9 +206,7 @@ def stretch_and_bulge(
     if counts[v] > 0.0:
         r = total[3] / counts[v]
     stretch[i] = r
-    growth = 1.0 / wp.max(r, STRETCH_FLOOR) - 1.0
-    normal = safe_normalize(wp.vec3(total[0], total[1], total[2]))
-    bulge_points[i] = muscle_points[i] + (growth * thickness[v]) * normal
+    bulge_points[i] = bulge_point(muscle_points[i], wp.vec3(total[0], total[1], total[2]), r, thickness[v])
 
 
 @wp.kernel

@@ -38,7 +38,7 @@ import numpy as np
 import warp as wp
 
 from ..kernels_surface import safe_normalize, triangle_area_vector
-from .kernels import STRETCH_FLOOR, MuscleEntry, WrinkleEntry, add_muscles, contraction_factor
+from .kernels import MuscleEntry, WrinkleEntry, add_muscles, bulge_point, contraction_factor, jaw_blend, jaw_motion
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -101,14 +101,6 @@ def slot_table(struct, offsets: np.ndarray, entries: np.ndarray, slots: int, *, 
 
 
 @wp.func
-def jaw_motion(controls: wp.array(dtype=wp.float32), first: int, jaw_first: int, hinge_axis: wp.vec3, forward: wp.vec3):
-    """The frame's jaw rotation (about ``hinge_axis`` by θ) and slide (protrusion, lateral)."""
-    rotation = wp.quat_from_axis_angle(hinge_axis, controls[first + jaw_first])
-    slide = controls[first + jaw_first + 1] * forward + controls[first + jaw_first + 2] * hinge_axis
-    return rotation, slide
-
-
-@wp.func
 def add_muscle_slots(x: wp.vec3, controls: wp.array(dtype=wp.float32), first: int, slots: wp.array(dtype=MuscleEntry), vertex_count: int,
                      offsets: wp.array(dtype=wp.int32), entries: wp.array(dtype=MuscleEntry), u: int):
     """``x + Σ K[m]·w_m(u)`` over vertex ``u``'s muscle entries: its slots (all loads issued at once), then the CSR's rest."""
@@ -134,8 +126,7 @@ def muscle_point_from_slots(u: int, rest: wp.array(dtype=wp.vec3), jaw_weight: w
     if jaw_first >= 0:
         w = jaw_weight[u]
         if w > 0.0:
-            moved = wp.quat_rotate(rotation, x - pivot) + pivot + slide
-            x = x + w * (moved - x)
+            x = jaw_blend(x, w, pivot, rotation, slide)
     return add_muscle_slots(x, controls, first, slots, vertex_count, offsets, entries, u)
 
 
@@ -190,8 +181,7 @@ def muscle_points_over_frames(
         x = x_rest
         if w > 0.0:
             rotation, slide = jaw_motion(controls, first, jaw_first, hinge_axis, forward)
-            moved = wp.quat_rotate(rotation, x - pivot) + pivot + slide
-            x = x + w * (moved - x)
+            x = jaw_blend(x, w, pivot, rotation, slide)
         muscle_points[f * vertex_count + v] = add_muscles(x, controls, first, muscle_offsets, muscle_entries, v)
         f += 1
 
@@ -288,8 +278,7 @@ def muscles_and_bulge_from_ring(
         if keep_muscle_points != 0:
             muscle_points[out] = x1
         stretch[out] = r
-        growth = 1.0 / wp.max(r, STRETCH_FLOOR) - 1.0
-        bulge_points[out] = x1 + (growth * h) * safe_normalize(normal_sum)
+        bulge_points[out] = bulge_point(x1, normal_sum, r, h)
         f += 1
 
 
@@ -369,8 +358,7 @@ def bulge_from_ring(
             r = ratio_sum / count
         out = first_vertex + v
         stretch[out] = r
-        growth = 1.0 / wp.max(r, STRETCH_FLOOR) - 1.0
-        bulge_points[out] = muscle_points[out] + (growth * h) * safe_normalize(normal_sum)
+        bulge_points[out] = bulge_point(muscle_points[out], normal_sum, r, h)
         f += 1
 
 

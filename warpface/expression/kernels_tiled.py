@@ -36,7 +36,7 @@ which ends in the barrier). Per frame of a pass the shared tiles hold :data:`TIL
 import warp as wp
 
 from ..kernels_surface import safe_normalize
-from .kernels import STRETCH_FLOOR, MuscleEntry, WrinkleEntry, add_muscles, contraction_factor
+from .kernels import MuscleEntry, WrinkleEntry, add_muscles, bulge_point, contraction_factor, jaw_blend, jaw_motion
 from .kernels_fused import RingTriangle
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
@@ -165,11 +165,9 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                     if jaw_first >= 0:
                         w = jaw_weight[v]
                         if w > 0.0:
-                            first = wp.min(f + ff, last - 1) * control_count
-                            rotation = wp.quat_from_axis_angle(hinge_axis, controls[first + jaw_first])
-                            slide = controls[first + jaw_first + 1] * forward + controls[first + jaw_first + 2] * hinge_axis
-                            moved = wp.quat_rotate(rotation, x - pivot) + pivot + slide
-                            x = x + w * (moved - x)
+                            rotation, slide = jaw_motion(controls, wp.min(f + ff, last - 1) * control_count, jaw_first,
+                                                         hinge_axis, forward)
+                            x = jaw_blend(x, w, pivot, rotation, slide)
                     moved_points[ff] = x
                 j = muscle_offsets[v]
                 end = muscle_offsets[v + 1]
@@ -214,9 +212,8 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                     r = float(1.0)
                     if count > 0.0:
                         r = total[3] / count
-                    growth = 1.0 / wp.max(r, STRETCH_FLOOR) - 1.0
                     x1 = points[ff, slot]
-                    point = x1 + (growth * h) * safe_normalize(wp.vec3(total[0], total[1], total[2]))
+                    point = bulge_point(x1, wp.vec3(total[0], total[1], total[2]), r, h)
                     if s < info.owned and keep_stages != 0 and f + ff < last:
                         out = (f + ff) * vertex_count + v
                         muscle_points[out] = x1
@@ -484,11 +481,9 @@ def _build_resident_kernel(frames_per_pass: int, block_dim: int, blocks_per_sm: 
                         if jaw_first >= 0:
                             w = w_jaw[k]
                             if w > 0.0:
-                                first = wp.min(f + ff, last - 1) * control_count
-                                rotation = wp.quat_from_axis_angle(hinge_axis, controls[first + jaw_first])
-                                slide = controls[first + jaw_first + 1] * forward + controls[first + jaw_first + 2] * hinge_axis
-                                moved = wp.quat_rotate(rotation, x - pivot) + pivot + slide
-                                x = x + w * (moved - x)
+                                rotation, slide = jaw_motion(controls, wp.min(f + ff, last - 1) * control_count, jaw_first,
+                                                             hinge_axis, forward)
+                                x = jaw_blend(x, w, pivot, rotation, slide)
                         moved_points[ff] = x
                     for m in range(MS):
                         if muscle_first[k] + m < muscle_end[k]:
@@ -534,9 +529,8 @@ def _build_resident_kernel(frames_per_pass: int, block_dim: int, blocks_per_sm: 
                         r = float(1.0)
                         if count > 0.0:
                             r = total[3] / count
-                        growth = 1.0 / wp.max(r, STRETCH_FLOOR) - 1.0
                         x1 = points[ff, slot]
-                        point = x1 + (growth * h) * safe_normalize(wp.vec3(total[0], total[1], total[2]))
+                        point = bulge_point(x1, wp.vec3(total[0], total[1], total[2]), r, h)
                         if s < info.owned and keep_stages != 0 and f + ff < last:
                             out = (f + ff) * vertex_count + slot_vertex[k]
                             muscle_points[out] = x1
