@@ -29,8 +29,8 @@ from .kernels_cg import SLOT_SPREAD
 from .kernels_integrator import cg_newmark_update
 from .kernels_persistent import grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
-from .solver_cg import (FSAI_ROW_SIZE, PERSISTENT_LANES, PERSISTENT_ROWS, ConvergenceError, newmark_operators,
-                        preconditioner_factor)
+from .solver_cg import (FSAI_ROW_SIZE, PERSISTENT_LANES, PERSISTENT_ROWS, ConvergenceError, grouped_factor_rows,
+                        newmark_operators, preconditioner_factor)
 
 __all__ = ["BATCH_PRECONDITIONERS", "BatchedCGSolver", "per_model_fsai"]
 
@@ -46,22 +46,6 @@ only a few blocks, which walk many row groups one after another: more resident b
 but fewer registers slow each thread."""
 WIDE_BATCH = 16
 """Models from which the batch uses the wider residency above (between the measured 10 and 100)."""
-
-
-def _grouped_rows(factors, device):
-    """``(offsets, keys, values)`` of scalar CSR matrices of one pattern grouped by 3-row blocks (see
-    kernels_cg): shared ``offsets`` and ``keys``, ``values`` of shape (len(factors), nnz)."""
-    grouped = []
-    for G in factors:
-        G = G.tocsr()
-        G.sort_indices()
-        grouped.append(G)
-    first = grouped[0]
-    rows = np.repeat(np.arange(first.shape[0]), np.diff(first.indptr))
-    keys = 3 * first.indices.astype(np.int64) + rows % 3
-    return (wp.array(first.indptr[0::3].astype(np.int32), dtype=wp.int32, device=device),
-            wp.array(keys.astype(np.int32), dtype=wp.int32, device=device),
-            wp.array(np.stack([G.data for G in grouped]), dtype=wp.float64, device=device))
 
 
 def per_model_fsai(systems: list, reference: int) -> list:
@@ -172,7 +156,8 @@ class BatchedCGSolver:
                 factors = [preconditioner_factor(operators[median][0], "fsai")]
             else:
                 factors = per_model_fsai([A for A, _ in operators], median)
-        self._factor = (_grouped_rows(factors, dev), _grouped_rows([G.T for G in factors], dev))
+        self._factor = (grouped_factor_rows(factors, wp.float64, dev),
+                        grouped_factor_rows([G.T for G in factors], wp.float64, dev))
         """``(G, Gᵀ)`` as ``(offsets, keys, values)``, values (1, nnz) for a shared factor or (B, nnz)."""
         del operators, block_jacobi
 

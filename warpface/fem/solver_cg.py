@@ -59,7 +59,7 @@ from .kernels_persistent import grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
 from .state import TissueControl, TissueState
 
-__all__ = ["CG_LOOPS", "CGSolver", "ConvergenceError", "PRECONDITIONERS", "newmark_operators"]
+__all__ = ["CG_LOOPS", "CGSolver", "ConvergenceError", "PRECONDITIONERS", "grouped_factor_rows", "newmark_operators"]
 
 PRECONDITIONERS = ("fsai", "block_jacobi", "diag")
 
@@ -182,18 +182,28 @@ def _block_shape(device) -> tuple[int, int]:
     return 1, 1
 
 
-def _block_row_arrays(G, dtype, device):
-    """``(offsets, keys, values)`` of a scalar CSR matrix grouped by 3-row blocks (see kernels_cg)."""
-    G = G.tocsr()
-    G.sort_indices()
-    rows = np.repeat(np.arange(G.shape[0]), np.diff(G.indptr))
-    keys = 3 * G.indices.astype(np.int64) + rows % 3
+def grouped_factor_rows(factors, dtype, device) -> tuple[wp.array, wp.array, wp.array]:
+    """``(offsets, keys, values)`` of scalar CSR matrices (SciPy) of one sparsity pattern grouped by 3-row blocks
+    (see :mod:`~warpface.fem.kernels_cg`): shared ``offsets`` (rows / 3 + 1,) and ``keys`` (nnz,), ``values`` of shape
+    (len(factors), nnz) in ``dtype`` — one factor per model of a batch, or one shared by all.
+
+    Raises:
+        ValueError: a key does not fit in 32 bits.
+    """
+    grouped = []
+    for G in factors:
+        G = G.tocsr()
+        G.sort_indices()
+        grouped.append(G)
+    first = grouped[0]
+    rows = np.repeat(np.arange(first.shape[0]), np.diff(first.indptr))
+    keys = 3 * first.indices.astype(np.int64) + rows % 3
     if keys.size and keys.max() >= 2**31:
         raise ValueError("the preconditioner is too large for 32-bit indices")
     return (
-        wp.array(G.indptr[0::3].astype(np.int32), dtype=wp.int32, device=device),
+        wp.array(first.indptr[0::3].astype(np.int32), dtype=wp.int32, device=device),
         wp.array(keys.astype(np.int32), dtype=wp.int32, device=device),
-        wp.array(G.data, dtype=dtype, device=device),
+        wp.array(np.stack([G.data for G in grouped]), dtype=dtype, device=device),
     )
 
 
@@ -274,8 +284,9 @@ class CGSolver:
         A_oo.nnz_sync()
         P.nnz_sync()
         self._A_oo, self._P = A_oo, P
-        self._G = _block_row_arrays(G, dtype, dev)
-        self._GT = _block_row_arrays(G.T, dtype, dev)
+        lower, upper = grouped_factor_rows([G], dtype, dev), grouped_factor_rows([G.T], dtype, dev)
+        self._G = (lower[0], lower[1], lower[2][0])  # the launched loop's kernels take one factor's values
+        self._GT = (upper[0], upper[1], upper[2][0])
 
         # Work arrays (allocated once; captured graphs bind these pointers).
         self.coefficients = coefficients
@@ -311,7 +322,7 @@ class CGSolver:
         # the solver's arrays as the only model of a batch, for the persistent and update kernels
         one = _as_one_model
         self._as_batch = SimpleNamespace(
-            P_values=one(P.values), A_values=one(A_oo.values), G_values=one(self._G[2]), GT_values=one(self._GT[2]),
+            P_values=one(P.values), A_values=one(A_oo.values), G_values=lower[2], GT_values=upper[2],
             x=one(self._x), r=one(self._r), r_flat=one(self._r_flat), y=one(self._y), y_flat=one(self._y_flat),
             z=one(self._z), p=one(self._p), q=one(self._q), q_flat=one(self._q_flat), guess=one(self._guess),
             history=self._history.reshape((2, 1, n_free)), slots=one(self._slots), cg_iter=one(self._cg_iter),
