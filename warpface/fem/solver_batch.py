@@ -156,8 +156,8 @@ class BatchedCGSolver:
                 factors = [preconditioner_factor(operators[median][0], "fsai")]
             else:
                 factors = per_model_fsai([A for A, _ in operators], median)
-        self._factor = (grouped_factor_rows(factors, wp.float64, dev),
-                        grouped_factor_rows([G.T for G in factors], wp.float64, dev))
+        self._factor = (grouped_factor_rows(factors, wp.float64, device=dev),
+                        grouped_factor_rows([G.T for G in factors], wp.float64, device=dev))
         """``(G, Gᵀ)`` as ``(offsets, keys, values)``, values (1, nnz) for a shared factor or (B, nnz)."""
         del operators, block_jacobi
 

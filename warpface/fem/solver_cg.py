@@ -182,7 +182,7 @@ def _block_shape(device) -> tuple[int, int]:
     return 1, 1
 
 
-def grouped_factor_rows(factors, dtype, device) -> tuple[wp.array, wp.array, wp.array]:
+def grouped_factor_rows(factors, dtype, *, device) -> tuple[wp.array, wp.array, wp.array]:
     """``(offsets, keys, values)`` of scalar CSR matrices (SciPy) of one sparsity pattern grouped by 3-row blocks
     (see :mod:`~warpface.fem.kernels_cg`): shared ``offsets`` (rows / 3 + 1,) and ``keys`` (nnz,), ``values`` of shape
     (len(factors), nnz) in ``dtype`` — one factor per model of a batch, or one shared by all.
@@ -284,7 +284,7 @@ class CGSolver:
         A_oo.nnz_sync()
         P.nnz_sync()
         self._A_oo, self._P = A_oo, P
-        lower, upper = grouped_factor_rows([G], dtype, dev), grouped_factor_rows([G.T], dtype, dev)
+        lower, upper = grouped_factor_rows([G], dtype, device=dev), grouped_factor_rows([G.T], dtype, device=dev)
         self._G = (lower[0], lower[1], lower[2][0])  # the launched loop's kernels take one factor's values
         self._GT = (upper[0], upper[1], upper[2][0])
 
