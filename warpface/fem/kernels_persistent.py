@@ -137,101 +137,22 @@ def grid_capacity(kernel, block_dim: int, *, device=None) -> int:
     return max(per_sm, 0) * device.sm_count
 
 
-
-MAX_GROUP_MODELS = 32
-"""Most models one group of blocks steps together (the models interleaved in every block)."""
-
-_MODEL_SUM = """
-#if defined(__CUDA_ARCH__)
-    __shared__ double model_parts[32];
-    if (threadIdx.x < 32) {
-        model_parts[threadIdx.x] = 0.0;
-    }
-    __syncthreads();
-    if (value != 0.0) {
-        atomicAdd(&model_parts[model], value);
-    }
-    __syncthreads();
-    double total = threadIdx.x < models ? model_parts[threadIdx.x] : 0.0;
-    __syncthreads();
-    return total;
-#else
-    return value;
-#endif
-"""
-
-
-@wp.func_native(_MODEL_SUM)
-def block_model_sum(value: wp.float64, model: int, models: int) -> wp.float64:
-    """Per-model sums of ``value`` over the thread block: thread ``t < models`` gets model ``t``'s sum (CUDA,
-    ``models`` at most 32); on the CPU (a block of one thread, one model) the identity. See :func:`block_sum_model`."""
-    ...
-
-
-_SUM_MODEL = """
-#if defined(__CUDA_ARCH__)
-    return (int)threadIdx.x;
-#else
-    return model;
-#endif
-"""
-
-
-@wp.func_native(_SUM_MODEL)
-def block_sum_model(model: int) -> int:
-    """The model whose :func:`block_model_sum` this thread holds: its thread index on CUDA, its own model on the CPU."""
-    ...
-
-
-_BLOCK_ANY = """
-#if defined(__CUDA_ARCH__)
-    return __syncthreads_or(flag);
-#else
-    return flag;
-#endif
-"""
-
-
-@wp.func_native(_BLOCK_ANY)
-def block_any(flag: int) -> int:
-    """Whether ``flag`` is non-zero in any thread of the block (a block barrier on CUDA; the identity on the CPU)."""
-    ...
-
-
-def group_shape(models: int) -> tuple[int, int]:
-    """``(lanes, rows)`` of a CUDA block that interleaves ``models`` models (1 .. :data:`MAX_GROUP_MODELS`): lanes
-    per matrix row and node rows per block, the block ``rows * models * lanes`` threads, a multiple of 32."""
-    if not 1 <= models <= MAX_GROUP_MODELS:
-        raise ValueError(f"a group holds 1 to {MAX_GROUP_MODELS} models, got {models}")
-    if models == 1:
-        return 16, 16
-    lanes = 8 if models <= 3 else 4 if models <= 16 else 2
-    step = 32 // math.gcd(32, models * lanes)
-    rows = max(step, (256 // (models * lanes)) // step * step)
-    return lanes, rows
-
-
 @functools.lru_cache(maxsize=None)
-def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads: int = RESIDENT_THREADS,
-                          models: int = 1) -> types.SimpleNamespace:
-    """The persistent CG step for ``dtype``, block shape and models per group (module docstring).
+def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads: int = RESIDENT_THREADS) -> types.SimpleNamespace:
+    """The persistent CG step for ``dtype`` and block shape (module docstring), for one model or a batch.
 
-    ``cg_step`` solves the step of the models ``first_model .. model_end − 1`` of a batch of Bt models that share
-    the mesh (one sparsity pattern), in groups of ``models``: launch it with ``wp.launch_tiled(dim=groups * blocks,
-    block_dim=threads)``. Each group's ``blocks`` blocks meet at their own barrier; every block works on all the
-    group's models at once, thread ``((row * models) + model) * lanes + lane`` — the models of a row side by side,
-    so that their entries of a vector are neighbours in memory and one index load serves them all. A group
-    runs until its last model has converged; a model that has converged stops writing. On CUDA
-    ``threads = rows * models * lanes`` and ``groups * blocks`` must be at most :func:`grid_capacity`; on the CPU
-    build it with ``lanes = rows = 1`` and launch ``blocks = models`` blocks of one thread per group (one model each).
-
-    Arrays: the state ``d, v, a`` (Bt, N), ``trajectory`` (chunk, Bt, D), ``guess`` and the solution ``x`` (Bt, F)
-    are model-major; the work vectors are interleaved, model last: ``r, p`` (2, F, Bt), ``y, z, q`` (F, Bt), their
-    flat scalar views ``r_flat`` (2, 3 F Bt), ``y_flat, q_flat`` (3 F Bt,) (entry ``(3 (node Bt + model) + axis)``).
-    ``slots`` (Bt, 4, maxiter + 1, SLOT_SPREAD) cleared, ``cg_iter`` (Bt, 2) and ``barrier`` (Bt, 3: arrivals, gave
-    up, departures; a group uses its first model's row), which must start at zero (the last block of a group to
-    leave clears its arrivals and departures again). Matrix and factor values are (Bt, nnz), or (1, nnz) when one is
-    shared by all models. A single model is a batch of one.
+    ``cg_step`` solves the step of models ``first_model .. first_model + M − 1`` of a batch of B models
+    that share the mesh (one sparsity pattern): launch it with ``wp.launch_tiled(dim=M * blocks,
+    block_dim=rows * lanes)``; the first ``blocks`` blocks work on the first of those models, the next
+    ``blocks`` on the second, and so on, each model's blocks meeting at their own barrier and stopping
+    at their own convergence. ``M * blocks`` must be at most :func:`grid_capacity` (every block resident),
+    ``blocks`` at most the row groups ``ceil(F / rows)``; on the CPU build it with ``lanes = rows = 1``
+    and launch one block per model. Per-model arrays have the model as their first index: the state
+    ``d, v, a`` (B, N), ``trajectory`` (chunk, B, D), work vectors (B, F) or (B, 2, F) (flat scalar views
+    (B, 3F), (B, 2, 3F)), ``slots`` (B, 4, maxiter + 1, SLOT_SPREAD) cleared, ``cg_iter`` (B, 2) and
+    ``barrier`` (B, 3: arrivals, gave up, departures), which must start at zero (the last block of a model
+    to leave clears its arrivals and departures again). Matrix and factor values are (B, nnz), or (1, nnz)
+    when one is shared by all models. A single model is a batch of one.
 
     Per model it does the work of ``residual``, ``lower_start``, ``upper`` and the iteration loop of
     :func:`~warpface.fem.kernels_cg.pcg_kernels` (same arithmetic, same results) and leaves
@@ -241,8 +162,6 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
     """
     if 32 % lanes:
         raise ValueError(f"lanes must divide 32, got {lanes}")
-    if not 1 <= models <= MAX_GROUP_MODELS:
-        raise ValueError(f"a group holds 1 to {MAX_GROUP_MODELS} models, got {models}")
     vec = wp.types.vector(length=3, dtype=dtype)
     mat = wp.types.matrix(shape=(3, 3), dtype=dtype)
     spread = SLOT_SPREAD
@@ -250,28 +169,15 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
     unroll_a, unroll_p, unroll_g = (min(math.ceil(span / lanes), _MAX_UNROLL) for span in (_SPAN_A, _SPAN_P, _SPAN_G))
     index_a = wp.types.vector(length=unroll_a, dtype=wp.int32)
     index_g = wp.types.vector(length=unroll_g, dtype=wp.int32)
-    block_dim = rows * models * lanes
 
     @wp.func
     def row_total(part: vec):
         return vec(lane_sum(part[0], lanes), lane_sum(part[1], lanes), lane_sum(part[2], lanes))
 
     @wp.func
-    def model_total(value: wp.float64, model: int):
-        if wp.static(models == 1):
-            return block_sum64(value)
-        return block_model_sum(value, model, models)
-
-    @wp.func
     def unit(axis: int, value: dtype):
         zero = dtype(0.0)
         return vec(wp.where(axis == 0, value, zero), wp.where(axis == 1, value, zero), wp.where(axis == 2, value, zero))
-
-    @wp.func
-    def flat(scalar: int, model: int, stride: int):
-        # entry (node, model, axis) of an interleaved vector's flat view, scalar = 3 node + axis
-        node = scalar // 3
-        return (node * stride + model) * 3 + scalar - 3 * node
 
     @wp.func
     def fetch_a(offsets: wp.array(dtype=wp.int32), columns: wp.array(dtype=wp.int32), i: int, lane: int):
@@ -292,35 +198,32 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
 
     @wp.func
     def factor_row(start: int, end: int, found: index_g, lane: int, keys: wp.array(dtype=wp.int32),
-                   values: wp.array(dtype=dtype), u: wp.array(dtype=dtype), w: wp.array(dtype=dtype), alpha: dtype,
-                   model: int, stride: int):
-        # rows 3i..3i+2 of a grouped scalar factor times model's (u - alpha w), summed over the lanes
+                   values: wp.array(dtype=dtype), u: wp.array(dtype=dtype), w: wp.array(dtype=dtype), alpha: dtype):
+        # rows 3i..3i+2 of a grouped scalar factor times (u - alpha w), summed over the lanes
         acc = vec()
         for s in range(wp.static(unroll_g)):
             e = start + lane + s * lanes
-            j = flat(found[s] // 3, model, stride)
+            col = found[s] // 3
             g = values[wp.min(e, end - 1)]
-            acc += wp.where(e < end, unit(found[s] - 3 * (found[s] // 3), g * (u[j] - alpha * w[j])), vec())
+            acc += wp.where(e < end, unit(found[s] - 3 * col, g * (u[col] - alpha * w[col])), vec())
         for e in range(start + lane + unroll_g * lanes, end, lanes):
             key = keys[e]
             col = key // 3
-            j = flat(col, model, stride)
-            acc += unit(key - 3 * col, values[e] * (u[j] - alpha * w[j]))
+            acc += unit(key - 3 * col, values[e] * (u[col] - alpha * w[col]))
         return row_total(acc)
 
     @wp.func
     def direction_row(start: int, end: int, found: index_a, lane: int, columns: wp.array(dtype=wp.int32),
-                      values: wp.array(dtype=mat), z: wp.array2d(dtype=vec), p_old: wp.array2d(dtype=vec), beta: dtype,
-                      model: int):
-        # (A (z + beta p_old))_i of model, summed over the lanes
+                      values: wp.array(dtype=mat), z: wp.array(dtype=vec), p_old: wp.array(dtype=vec), beta: dtype):
+        # (A (z + beta p_old))_i, summed over the lanes
         acc = vec()
         for s in range(wp.static(unroll_a)):
             e = start + lane + s * lanes
             j = found[s]
-            acc += wp.where(e < end, values[wp.min(e, end - 1)] * (z[j, model] + beta * p_old[j, model]), vec())
+            acc += wp.where(e < end, values[wp.min(e, end - 1)] * (z[j] + beta * p_old[j]), vec())
         for e in range(start + lane + unroll_a * lanes, end, lanes):
             j = columns[e]
-            acc += values[e] * (z[j, model] + beta * p_old[j, model])
+            acc += values[e] * (z[j] + beta * p_old[j])
         return row_total(acc)
 
     @wp.func
@@ -363,11 +266,11 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
         predicted = row_total(acc)
         return predicted, predicted - row_total(correction)
 
-    # at least resident_threads (default RESIDENT_THREADS) threads per multiprocessor: caps the registers (128 a
-    # thread for 512), so that a grid of one row group per block stays resident (H200, 6.7k nodes, 16x16: 130
-    # registers and 132 resident blocks for 247 row groups without the bound)
+    # at least resident_threads (default RESIDENT_THREADS) threads per multiprocessor: caps the registers (128 a thread for 512), so that a
+    # grid of one row group per block stays resident (H200, 6.7k nodes, 16x16: 130 registers and 132 resident
+    # blocks for 247 row groups without the bound)
     @wp.kernel(enable_backward=False, module="unique", grid_stride=False,
-               launch_bounds=(block_dim, max(1, resident_threads // block_dim)))
+               launch_bounds=(rows * lanes, max(1, resident_threads // (rows * lanes))))
     def cg_step(
         p_offsets: wp.array(dtype=wp.int32),
         p_columns: wp.array(dtype=wp.int32),
@@ -387,57 +290,44 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
         trajectory: wp.array3d(dtype=vec),
         guess_all: wp.array2d(dtype=vec),
         ring: wp.array(dtype=wp.int32),
-        r: wp.array3d(dtype=vec),
-        r_flat: wp.array2d(dtype=dtype),
+        r_all: wp.array3d(dtype=vec),
+        r_flat_all: wp.array3d(dtype=dtype),
         x_all: wp.array2d(dtype=vec),
-        y: wp.array2d(dtype=vec),
-        y_flat: wp.array(dtype=dtype),
-        z: wp.array2d(dtype=vec),
-        p: wp.array3d(dtype=vec),
-        q: wp.array2d(dtype=vec),
-        q_flat: wp.array(dtype=dtype),
+        y_all: wp.array2d(dtype=vec),
+        y_flat_all: wp.array2d(dtype=dtype),
+        z_all: wp.array2d(dtype=vec),
+        p_all: wp.array3d(dtype=vec),
+        q_all: wp.array2d(dtype=vec),
+        q_flat_all: wp.array2d(dtype=dtype),
         slots_all: wp.array4d(dtype=wp.float64),
         cg_iter_all: wp.array2d(dtype=wp.int32),
         barrier_all: wp.array2d(dtype=wp.int32),
         tol_sq: wp.float64,
         maxiter: int,
         blocks: int,
-        threads: int,
         first_model: int,
-        model_end: int,
     ):
         """Residuals, start and every CG iteration, phases separated by :func:`grid_sync` (module docstring).
         Each phase's row indices for the block's first row group are loaded before the barrier ahead of it."""
         launched_block, thread = wp.tid()
-        group = launched_block // blocks
-        block = launched_block - group * blocks
-        stride = y.shape[1]
-        group_first = first_model + group * models
-        # worker (row slot, model, lane) of the group; on the CPU each block is one model's only thread
-        worker = block * threads + thread
-        lane = worker % lanes
-        pair = worker // lanes
-        model = pair % models
-        row_slot = pair // models
-        local = row_slot % rows
-        first_group = row_slot // rows
-        round_groups = wp.max(1, blocks * threads // (lanes * models * rows))
-        b = wp.min(group_first + model, stride - 1)
-        active = group_first + model < model_end
+        model = launched_block // blocks
+        block = launched_block - model * blocks
+        b = first_model + model
         # this model's views; a matrix or factor given once (leading dimension 1) is shared by every model
         p_values = p_values_all[wp.min(b, p_values_all.shape[0] - 1)]
         a_values = a_values_all[wp.min(b, a_values_all.shape[0] - 1)]
         g_values = g_values_all[wp.min(b, g_values_all.shape[0] - 1)]
         t_values = t_values_all[wp.min(b, t_values_all.shape[0] - 1)]
-        d, v, a, guess, x = d_all[b], v_all[b], a_all[b], guess_all[b], x_all[b]
-        slots, cg_iter = slots_all[b], cg_iter_all[b]
-        barrier = barrier_all[wp.min(group_first, stride - 1)]
+        d, v, a, guess = d_all[b], v_all[b], a_all[b], guess_all[b]
+        r, r_flat, x, y, y_flat = r_all[b], r_flat_all[b], x_all[b], y_all[b], y_flat_all[b]
+        z, p, q, q_flat = z_all[b], p_all[b], q_all[b], q_flat_all[b]
+        slots, cg_iter, barrier = slots_all[b], cg_iter_all[b], barrier_all[b]
+        local = thread // lanes
+        lane = thread - local * lanes
         count = x.shape[0]
         groups = (count + rows - 1) // rows
-        first = wp.min(first_group * rows + local, count - 1)
-        flush = block_sum_model(model)
-        flush_model = wp.min(group_first + flush, stride - 1)
-        flushes = flush < models and group_first + flush < model_end
+        first_row = block * rows + local
+        first = wp.min(first_row, count - 1)
         arrivals = int(0)
 
         # residuals of the predictor (r[1]) and of the extrapolated start (r[0]), as kernels_cg.residual
@@ -445,24 +335,24 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
         driven = trajectory[slot][b]
         predicted_sq = wp.float64(0.0)
         extrapolated_sq = wp.float64(0.0)
-        for g in range(first_group, groups, round_groups):
+        for g in range(block, groups, blocks):
             row = g * rows + local
             i = wp.min(row, count - 1)
             predicted, extrapolated = residual_row(i, lane, p_offsets, p_columns, p_values, a_offsets, a_columns,
                                                    a_values, d, v, a, driven, guess)
-            if row < count and lane == 0 and active:
-                r[0, i, b] = extrapolated
-                r[1, i, b] = predicted
+            if row < count and lane == 0:
+                r[0, i] = extrapolated
+                r[1, i] = predicted
                 x[i] = guess[i]
                 predicted_sq += wp.float64(wp.dot(predicted, predicted))
                 extrapolated_sq += wp.float64(wp.dot(extrapolated, extrapolated))
-        predicted_sq = model_total(predicted_sq, model)
-        extrapolated_sq = model_total(extrapolated_sq, model)
-        if flushes:
-            wp.atomic_add(slots_all[flush_model], START, 0, block % spread, predicted_sq)
-            wp.atomic_add(slots_all[flush_model], START, 1, block % spread, extrapolated_sq)
-        if launched_block == 0 and thread == 0:
-            ring[1] = slot
+        predicted_sq = block_sum64(predicted_sq)
+        extrapolated_sq = block_sum64(extrapolated_sq)
+        if thread == 0:
+            wp.atomic_add(slots, START, 0, block % spread, predicted_sq)
+            wp.atomic_add(slots, START, 1, block % spread, extrapolated_sq)
+            if launched_block == 0:
+                ring[1] = slot
         g_start, g_end, g_found = fetch_g(g_offsets, g_keys, first, lane)
         arrivals += 1
         grid_sync(barrier, arrivals * blocks)
@@ -472,110 +362,105 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
         if not (slot_total(slots, START, 1) <= slot_total(slots, START, 0)):
             use = 1
         r_use = r_flat[use]
-        g = first_group
+        g = block
         while g < groups:
             row = g * rows + local
             i = wp.min(row, count - 1)
-            yi = factor_row(g_start, g_end, g_found, lane, g_keys, g_values, r_use, r_use, dtype(0.0), b, stride)
-            if row < count and lane == 0 and active:
-                y[i, b] = yi
+            yi = factor_row(g_start, g_end, g_found, lane, g_keys, g_values, r_use, r_use, dtype(0.0))
+            if row < count and lane == 0:
+                y[i] = yi
                 if use == 1:
-                    r[0, i, b] = r[1, i, b]
+                    r[0, i] = r[1, i]
                     x[i] = vec()
-            g += round_groups
+            g += blocks
             g_start, g_end, g_found = fetch_g(g_offsets, g_keys, wp.min(g * rows + local, count - 1), lane)
         t_start, t_end, t_found = fetch_g(t_offsets, t_keys, first, lane)
         arrivals += 1
         grid_sync(barrier, arrivals * blocks)
 
         k = int(0)
-        done = not active
-        iterations = int(0)
         searching = bool(True)
         while searching:
             # upper: z = Gᵀ y, r·z and r·r of iteration k from r[k % 2]
             rz = wp.float64(0.0)
             rr = wp.float64(0.0)
-            g = first_group
+            g = block
             while g < groups:
                 row = g * rows + local
                 i = wp.min(row, count - 1)
-                zi = factor_row(t_start, t_end, t_found, lane, t_keys, t_values, y_flat, y_flat, dtype(0.0), b, stride)
-                if row < count and lane == 0 and not done:
-                    ri = r[k % 2, i, b]
-                    z[i, b] = zi
+                zi = factor_row(t_start, t_end, t_found, lane, t_keys, t_values, y_flat, y_flat, dtype(0.0))
+                if row < count and lane == 0:
+                    ri = r[k % 2, i]
+                    z[i] = zi
                     rz += wp.float64(wp.dot(ri, zi))
                     rr += wp.float64(wp.dot(ri, ri))
-                g += round_groups
+                g += blocks
                 t_start, t_end, t_found = fetch_g(t_offsets, t_keys, wp.min(g * rows + local, count - 1), lane)
-            rz = model_total(rz, model)
-            rr = model_total(rr, model)
-            if flushes:
-                wp.atomic_add(slots_all[flush_model], RZ, k, block % spread, rz)
-                wp.atomic_add(slots_all[flush_model], RR, k, block % spread, rr)
+            rz = block_sum64(rz)
+            rr = block_sum64(rr)
+            if thread == 0:
+                wp.atomic_add(slots, RZ, k, block % spread, rz)
+                wp.atomic_add(slots, RR, k, block % spread, rr)
             a_start, a_end, a_found = fetch_a(a_offsets, a_columns, first, lane)
             arrivals += 1
             grid_sync(barrier, arrivals * blocks)
-            if not done and (cg_finished(slots, k, tol_sq, maxiter) or barrier[1] != 0):
-                done = True
-                iterations = k
-            searching = block_any(wp.where(done, 0, 1)) != 0
-            if searching:
+            if cg_finished(slots, k, tol_sq, maxiter) or barrier[1] != 0:
+                searching = False
+            else:
                 # direction: p[k % 2] = z + β p[(k+1) % 2], q = A p, p·q
                 beta = dtype(0.0)
-                if k > 0 and not done:
+                if k > 0:
                     beta = dtype(slot_total(slots, RZ, k) / slot_total(slots, RZ, k - 1))
                 new = k % 2
                 p_old = p[1 - new]
                 pq = wp.float64(0.0)
-                g = first_group
+                g = block
                 while g < groups:
                     row = g * rows + local
                     i = wp.min(row, count - 1)
-                    qi = direction_row(a_start, a_end, a_found, lane, a_columns, a_values, z, p_old, beta, b)
-                    if row < count and lane == 0 and not done:
-                        pi = z[i, b] + beta * p_old[i, b]
-                        p[new, i, b] = pi
-                        q[i, b] = qi
+                    qi = direction_row(a_start, a_end, a_found, lane, a_columns, a_values, z, p_old, beta)
+                    if row < count and lane == 0:
+                        pi = z[i] + beta * p_old[i]
+                        p[new, i] = pi
+                        q[i] = qi
                         pq += wp.float64(wp.dot(pi, qi))
-                    g += round_groups
+                    g += blocks
                     a_start, a_end, a_found = fetch_a(a_offsets, a_columns, wp.min(g * rows + local, count - 1), lane)
-                pq = model_total(pq, model)
-                if flushes:
-                    wp.atomic_add(slots_all[flush_model], PQ, k, block % spread, pq)
+                pq = block_sum64(pq)
+                if thread == 0:
+                    wp.atomic_add(slots, PQ, k, block % spread, pq)
                 g_start, g_end, g_found = fetch_g(g_offsets, g_keys, first, lane)
                 arrivals += 1
                 grid_sync(barrier, arrivals * blocks)
 
                 # lower: x += α p, r[(k+1) % 2] = r[k % 2] − α q, y = G r_new
-                alpha = dtype(0.0)
-                if not done:
-                    alpha = dtype(slot_total(slots, RZ, k) / slot_total(slots, PQ, k))
+                alpha = dtype(slot_total(slots, RZ, k) / slot_total(slots, PQ, k))
                 r_cur = r_flat[new]
-                g = first_group
+                g = block
                 while g < groups:
                     row = g * rows + local
                     i = wp.min(row, count - 1)
-                    yi = factor_row(g_start, g_end, g_found, lane, g_keys, g_values, r_cur, q_flat, alpha, b, stride)
-                    if row < count and lane == 0 and not done:
-                        x[i] = x[i] + alpha * p[new, i, b]
-                        r[1 - new, i, b] = r[new, i, b] - alpha * q[i, b]
-                        y[i, b] = yi
-                    g += round_groups
+                    yi = factor_row(g_start, g_end, g_found, lane, g_keys, g_values, r_cur, q_flat, alpha)
+                    if row < count and lane == 0:
+                        x[i] = x[i] + alpha * p[new, i]
+                        r[1 - new, i] = r[new, i] - alpha * q[i]
+                        y[i] = yi
+                    g += blocks
                     g_start, g_end, g_found = fetch_g(g_offsets, g_keys, wp.min(g * rows + local, count - 1), lane)
                 t_start, t_end, t_found = fetch_g(t_offsets, t_keys, first, lane)
                 arrivals += 1
                 grid_sync(barrier, arrivals * blocks)
                 k += 1
-        if first_group == 0 and local == 0 and lane == 0 and active:
-            if barrier[1] != 0:  # a block gave up at a barrier: book the step as not converged
-                iterations = maxiter
-                slots[RR, iterations, 0] = wp.float64(wp.nan)
-            cg_iter[0] = iterations
-            cg_iter[1] = iterations
-        # every block has passed its last barrier: the last one out clears the counters for the next step
-        if thread == 0 and wp.atomic_add(barrier, 2, 1) == blocks - 1:
-            barrier[0] = 0
-            barrier[2] = 0
+        if thread == 0:
+            if block == 0:
+                if barrier[1] != 0:  # a block gave up at a barrier: book the step as not converged
+                    k = maxiter
+                    slots[RR, k, 0] = wp.float64(wp.nan)
+                cg_iter[0] = k
+                cg_iter[1] = k
+            # every block has passed its last barrier: the last one out clears the counters for the next step
+            if wp.atomic_add(barrier, 2, 1) == blocks - 1:
+                barrier[0] = 0
+                barrier[2] = 0
 
-    return types.SimpleNamespace(vec=vec, block_dim=block_dim, rows=rows, models=models, lanes=lanes, cg_step=cg_step)
+    return types.SimpleNamespace(vec=vec, block_dim=rows * lanes, rows=rows, cg_step=cg_step)

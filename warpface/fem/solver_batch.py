@@ -27,25 +27,25 @@ from warp.optim.linear import FSAI
 from .assembly import SystemMatrices, bsr_to_scipy
 from .kernels_cg import SLOT_SPREAD
 from .kernels_integrator import cg_newmark_update
-from .kernels_persistent import MAX_GROUP_MODELS, RESIDENT_THREADS, grid_capacity, group_shape, persistent_pcg_kernel
+from .kernels_persistent import grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
-from .solver_cg import (FSAI_ROW_SIZE, ConvergenceError, grouped_factor_rows, newmark_operators,
-                        preconditioner_factor)
+from .solver_cg import (FSAI_ROW_SIZE, PERSISTENT_LANES, PERSISTENT_ROWS, ConvergenceError, grouped_factor_rows,
+                        newmark_operators, preconditioner_factor)
 
-__all__ = ["BATCH_PRECONDITIONERS", "BATCH_RESIDENT_THREADS", "BatchedCGSolver", "model_groups", "per_model_fsai"]
+__all__ = ["BATCH_PRECONDITIONERS", "BatchedCGSolver", "per_model_fsai"]
 
 BATCH_PRECONDITIONERS = ("fsai", "fsai_each", "block_jacobi")
 
-BATCH_RESIDENT_THREADS = 1024
-"""Threads per multiprocessor the persistent CG kernel of a batch (2 or more models per group) is compiled to keep
-resident; one model uses the single-model solver's 16 x 16 blocks and 512 threads."""
-
-
-def model_groups(batch: int) -> tuple[int, int]:
-    """``(groups, models per group)``: the fewest groups of at most :data:`~warpface.fem.kernels_persistent.MAX_GROUP_MODELS`
-    models that hold ``batch`` models, as even as possible (100 models: 4 groups of 25)."""
-    groups = -(-batch // MAX_GROUP_MODELS)
-    return groups, -(-batch // groups)
+BATCH_LANES, BATCH_ROWS, BATCH_RESIDENT_THREADS = 8, 32, 1024
+"""Thread-block shape (lanes x rows) of the persistent CG kernel on CUDA for :data:`WIDE_BATCH` models or more,
+and the threads per multiprocessor it is compiled to keep resident (fewer models use the single-model solver's
+shape, 16 x 16 and 512). H200, 6.7k-node shell, ms per step of x1 / x3 / x10 / x100 models: 16x16 and 512 threads
+0.195 / 0.453 / 1.22 / 14.1; 8x32, 1024: 0.273 / 0.690 / 1.25 / 7.6; other shapes at x1 / x10 / x100: 16x16, 1024:
+0.259 / 1.17 / 8.6; 4x32, 1024: 0.362 / 1.56 / 7.5; 8x32, 2048: 0.357 / 2.55 / 15.0. With many models each gets
+only a few blocks, which walk many row groups one after another: more resident blocks hide more of that latency,
+but fewer registers slow each thread."""
+WIDE_BATCH = 16
+"""Models from which the batch uses the wider residency above (between the measured 10 and 100)."""
 
 
 def per_model_fsai(systems: list, reference: int) -> list:
@@ -166,13 +166,12 @@ class BatchedCGSolver:
 
         self.d, self.v, self.a = vectors(batch, n), vectors(batch, n), vectors(batch, n)
         """State of every model [m, m/s, m/s²], shape (B, N) of vec3d (updated in place)."""
-        self._x, self._guess = vectors(batch, n_free), vectors(batch, n_free)
-        # CG work vectors interleaved, model last; flat scalar views (index 3 (node B + model) + axis) for the factors
-        self._y, self._z, self._q = (vectors(n_free, batch) for _ in range(3))
-        self._r, self._p = vectors(2, n_free, batch), vectors(2, n_free, batch)
-        self._r_flat = self._r.view(wp.float64).reshape((2, 3 * n_free * batch))
-        self._y_flat = self._y.view(wp.float64).reshape((3 * n_free * batch,))
-        self._q_flat = self._q.view(wp.float64).reshape((3 * n_free * batch,))
+        self._x, self._y, self._z, self._q, self._guess = (vectors(batch, n_free) for _ in range(5))
+        self._r, self._p = vectors(batch, 2, n_free), vectors(batch, 2, n_free)
+        # flat scalar views (index 3 node + axis) for the scalar preconditioner factors
+        self._r_flat = self._r.view(wp.float64).reshape((batch, 2, 3 * n_free))
+        self._y_flat = self._y.view(wp.float64).reshape((batch, 3 * n_free))
+        self._q_flat = self._q.view(wp.float64).reshape((batch, 3 * n_free))
         self._history = vectors(2, batch, n_free)
         self._slots = wp.zeros((batch, 4, self.maxiter + 1, SLOT_SPREAD), dtype=wp.float64, device=dev)
         self._cg_iter = wp.zeros((batch, 2), dtype=wp.int32, device=dev)
@@ -190,18 +189,20 @@ class BatchedCGSolver:
         self._update_constants = [*coefficients.update_scalars(wp.float64), wp.float64(coefficients.dt),
                                   wp.float64(coefficients.half_dt_squared)]
 
-        group_count, models = model_groups(batch)
+        if not dev.is_cuda:
+            shape = (1, 1)  # one CPU thread walks every row of a model
+        elif batch < WIDE_BATCH:
+            shape = (PERSISTENT_LANES, PERSISTENT_ROWS)
+        else:
+            shape = (BATCH_LANES, BATCH_ROWS, BATCH_RESIDENT_THREADS)
+        self._kernel = persistent_pcg_kernel(wp.float64, *shape)
+        groups = -(-n_free // self._kernel.rows)
         if dev.is_cuda:
-            lanes, rows = group_shape(models)
-            resident = RESIDENT_THREADS if models == 1 else BATCH_RESIDENT_THREADS
-            self._kernel = persistent_pcg_kernel(wp.float64, lanes, rows, resident, models)
             capacity = grid_capacity(self._kernel.cg_step, self._kernel.block_dim, device=dev)
-            row_groups = -(-n_free // rows)
-            self.blocks_per_group = max(1, min(row_groups, capacity // group_count))
-            per_wave = models * max(1, capacity // self.blocks_per_group)
-        else:  # one CPU thread per model walks every row; blocks run one after the other: no residency limit
-            self._kernel = persistent_pcg_kernel(wp.float64, 1, 1, models=models)
-            self.blocks_per_group, per_wave = models, batch
+            self.blocks_per_model = max(1, min(groups, capacity // batch))
+            per_wave = max(1, capacity // self.blocks_per_model)
+        else:  # blocks run one after the other: no residency limit
+            self.blocks_per_model, per_wave = 1, batch
         self.waves = [(first, min(per_wave, batch - first)) for first in range(0, batch, per_wave)]
         """``(first model, models)`` of each launch of the CG kernel per step (one launch unless B exceeds
         the blocks the GPU holds at once)."""
@@ -215,15 +216,13 @@ class BatchedCGSolver:
         dev, kernel, tol_sq = self.device, self._kernel, wp.float64(self.tol**2)
         (g_offsets, g_keys, g_values), (t_offsets, t_keys, t_values) = self._factor
         self._slots.zero_()
-        threads = kernel.block_dim if dev.is_cuda else 1
         for first, models in self.waves:
-            groups = -(-models // kernel.models)
-            wp.launch_tiled(kernel.cg_step, dim=groups * self.blocks_per_group, block_dim=threads, device=dev,
+            wp.launch_tiled(kernel.cg_step, dim=models * self.blocks_per_model, block_dim=kernel.block_dim, device=dev,
                             inputs=[*self._P, *self._A, g_offsets, g_keys, g_values, t_offsets, t_keys, t_values,
                                     self.d, self.v, self.a, self.trajectory, self._guess, self._ring, self._r,
                                     self._r_flat, self._x, self._y, self._y_flat, self._z, self._p, self._q,
                                     self._q_flat, self._slots, self._cg_iter, self._barrier, tol_sq, self.maxiter,
-                                    self.blocks_per_group, threads, first, first + models])
+                                    self.blocks_per_model, first])
         wp.launch(cg_newmark_update, dim=(self.model_count, self.node_count),
                   inputs=[self._x, self._history, self._guess, self._free_index, self._driven_slot, self.trajectory,
                           self._ring, *self._update_constants, self._slots, self._cg_iter, tol_sq, self.chunk,
@@ -269,7 +268,7 @@ class BatchedCGSolver:
         wp.synchronize_device(self.device)
         if np.any(self._barrier.numpy()[:, 1]):
             raise RuntimeError(f"the persistent CG loop waited too long at a grid barrier on {self.device} (its "
-                               f"{self.blocks_per_group} blocks per group of models were not all resident)")
+                               f"{self.blocks_per_model} blocks per model were not all resident)")
         status = self._status.numpy()
         failed = np.flatnonzero(status[:, 0])
         if failed.size:

@@ -97,11 +97,6 @@ def _as_one_model(array: wp.array) -> wp.array:
     return array.reshape((1, *array.shape))
 
 
-def _as_interleaved(array: wp.array) -> wp.array:
-    """A view of ``array`` with a trailing dimension of 1: the only model of a batch's interleaved work vectors."""
-    return array.reshape((*array.shape, 1))
-
-
 class ConvergenceError(RuntimeError):
     """The iterative solver did not reach its tolerance within its iteration limit."""
 
@@ -328,9 +323,8 @@ class CGSolver:
         one = _as_one_model
         self._as_batch = SimpleNamespace(
             P_values=one(P.values), A_values=one(A_oo.values), G_values=lower[2], GT_values=upper[2],
-            x=one(self._x), r=_as_interleaved(self._r), r_flat=self._r_flat, y=_as_interleaved(self._y),
-            y_flat=self._y_flat, z=_as_interleaved(self._z), p=_as_interleaved(self._p), q=_as_interleaved(self._q),
-            q_flat=self._q_flat, guess=one(self._guess),
+            x=one(self._x), r=one(self._r), r_flat=one(self._r_flat), y=one(self._y), y_flat=one(self._y_flat),
+            z=one(self._z), p=one(self._p), q=one(self._q), q_flat=one(self._q_flat), guess=one(self._guess),
             history=self._history.reshape((2, 1, n_free)), slots=one(self._slots), cg_iter=one(self._cg_iter),
             barrier=one(self._barrier), status=one(self._status), failure=one(self._failure))
         # run_chunk's ring of `chunk` driven inputs and recorded displacements (slot index on the device)
@@ -378,7 +372,7 @@ class CGSolver:
                                     self._G[1], m.G_values, self._GT[0], self._GT[1], m.GT_values, b.d_in, b.v_in,
                                     b.a_in, b.trajectory, m.guess, b.ring, m.r, m.r_flat, m.x, m.y, m.y_flat, m.z, m.p,
                                     m.q, m.q_flat, m.slots, m.cg_iter, m.barrier, tol_sq, self.maxiter,
-                                    self._persistent_blocks, step.block_dim if self.device.is_cuda else 1, 0, 1])
+                                    self._persistent_blocks, 0])
         else:
             self._launch_tiled(k.residual, [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, b.state[0],
                                             b.state[1], b.state[2], b.driven, self._guess, b.ring, self._r, self._x,
