@@ -33,11 +33,18 @@ import warp as wp
 
 from .kernels_cg import PQ, RR, RZ, SLOT_SPREAD, START, cg_finished, slot_total
 
-__all__ = ["BARRIER_POLLS", "RESIDENT_THREADS", "grid_capacity", "persistent_pcg_kernel"]
+__all__ = ["BARRIER_POLLS", "RESIDENT_THREADS", "WORK_P", "WORK_Q", "WORK_R", "WORK_ROWS", "WORK_X", "WORK_Y", "WORK_Z",
+           "grid_capacity", "persistent_pcg_kernel"]
 
 # Straight-line row entries per lane, as in kernels_cg: block rows of A_oo hold ~15 blocks (up to
 # ~30), a block row of an FSAI factor up to 3 x 32 scalars.
 _SPAN_A, _SPAN_P, _SPAN_G, _MAX_UNROLL = 32, 64, 96, 8
+
+WORK_ROWS = 8
+"""Rows of a model's work array: the residual (2, alternating), the direction (2), the solution x, y = G r,
+z = Gᵀ y and q = A p, each (F,) vec3 (one array: one base address and stride live in the kernel, not nine)."""
+WORK_R, WORK_P, WORK_X, WORK_Y, WORK_Z, WORK_Q = (wp.constant(row) for row in (0, 2, 4, 5, 6, 7))
+"""First row of each work vector in the work array."""
 
 RESIDENT_THREADS = 512
 """Threads per multiprocessor the persistent kernel is compiled to fit (``__launch_bounds__``)."""
@@ -148,8 +155,8 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
     at their own convergence. ``M * blocks`` must be at most :func:`grid_capacity` (every block resident),
     ``blocks`` at most the row groups ``ceil(F / rows)``; on the CPU build it with ``lanes = rows = 1``
     and launch one block per model. Per-model arrays have the model as their first index: the state
-    ``d, v, a`` (B, N), ``trajectory`` (chunk, B, D), work vectors (B, F) or (B, 2, F) (flat scalar views
-    (B, 3F), (B, 2, 3F)), ``slots`` (B, 4, maxiter + 1, SLOT_SPREAD) cleared, ``cg_iter`` (B, 2) and
+    ``d, v, a`` (B, N), ``trajectory`` (chunk, B, D), ``guess`` (B, F), the work vectors in ``work``
+    (B, :data:`WORK_ROWS`, F) and its flat scalar view ``work_flat`` (B, WORK_ROWS, 3F), ``slots`` (B, 4, maxiter + 1, SLOT_SPREAD) cleared, ``cg_iter`` (B, 2) and
     ``barrier`` (B, 3: arrivals, gave up, departures), which must start at zero (the last block of a model
     to leave clears its arrivals and departures again). Matrix and factor values are (B, nnz), or (1, nnz)
     when one is shared by all models. A single model is a batch of one.
@@ -290,15 +297,8 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
         trajectory: wp.array3d(dtype=vec),
         guess_all: wp.array2d(dtype=vec),
         ring: wp.array(dtype=wp.int32),
-        r_all: wp.array3d(dtype=vec),
-        r_flat_all: wp.array3d(dtype=dtype),
-        x_all: wp.array2d(dtype=vec),
-        y_all: wp.array2d(dtype=vec),
-        y_flat_all: wp.array2d(dtype=dtype),
-        z_all: wp.array2d(dtype=vec),
-        p_all: wp.array3d(dtype=vec),
-        q_all: wp.array2d(dtype=vec),
-        q_flat_all: wp.array2d(dtype=dtype),
+        work_all: wp.array3d(dtype=vec),
+        work_flat_all: wp.array3d(dtype=dtype),
         slots_all: wp.array4d(dtype=wp.float64),
         cg_iter_all: wp.array2d(dtype=wp.int32),
         barrier_all: wp.array2d(dtype=wp.int32),
@@ -319,12 +319,11 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
         g_values = g_values_all[wp.min(b, g_values_all.shape[0] - 1)]
         t_values = t_values_all[wp.min(b, t_values_all.shape[0] - 1)]
         d, v, a, guess = d_all[b], v_all[b], a_all[b], guess_all[b]
-        r, r_flat, x, y, y_flat = r_all[b], r_flat_all[b], x_all[b], y_all[b], y_flat_all[b]
-        z, p, q, q_flat = z_all[b], p_all[b], q_all[b], q_flat_all[b]
+        w, wf = work_all[b], work_flat_all[b]  # rows WORK_R (2), WORK_P (2), WORK_X, WORK_Y, WORK_Z, WORK_Q
         slots, cg_iter, barrier = slots_all[b], cg_iter_all[b], barrier_all[b]
         local = thread // lanes
         lane = thread - local * lanes
-        count = x.shape[0]
+        count = w.shape[1]
         groups = (count + rows - 1) // rows
         first_row = block * rows + local
         first = wp.min(first_row, count - 1)
@@ -341,9 +340,9 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
             predicted, extrapolated = residual_row(i, lane, p_offsets, p_columns, p_values, a_offsets, a_columns,
                                                    a_values, d, v, a, driven, guess)
             if row < count and lane == 0:
-                r[0, i] = extrapolated
-                r[1, i] = predicted
-                x[i] = guess[i]
+                w[WORK_R, i] = extrapolated
+                w[WORK_R + 1, i] = predicted
+                w[WORK_X, i] = guess[i]
                 predicted_sq += wp.float64(wp.dot(predicted, predicted))
                 extrapolated_sq += wp.float64(wp.dot(extrapolated, extrapolated))
         predicted_sq = block_sum64(predicted_sq)
@@ -361,17 +360,17 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
         use = int(0)
         if not (slot_total(slots, START, 1) <= slot_total(slots, START, 0)):
             use = 1
-        r_use = r_flat[use]
+        r_use = wf[WORK_R + use]
         g = block
         while g < groups:
             row = g * rows + local
             i = wp.min(row, count - 1)
             yi = factor_row(g_start, g_end, g_found, lane, g_keys, g_values, r_use, r_use, dtype(0.0))
             if row < count and lane == 0:
-                y[i] = yi
+                w[WORK_Y, i] = yi
                 if use == 1:
-                    r[0, i] = r[1, i]
-                    x[i] = vec()
+                    w[WORK_R, i] = w[WORK_R + 1, i]
+                    w[WORK_X, i] = vec()
             g += blocks
             g_start, g_end, g_found = fetch_g(g_offsets, g_keys, wp.min(g * rows + local, count - 1), lane)
         t_start, t_end, t_found = fetch_g(t_offsets, t_keys, first, lane)
@@ -384,14 +383,15 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
             # upper: z = Gᵀ y, r·z and r·r of iteration k from r[k % 2]
             rz = wp.float64(0.0)
             rr = wp.float64(0.0)
+            y_flat = wf[WORK_Y]
             g = block
             while g < groups:
                 row = g * rows + local
                 i = wp.min(row, count - 1)
                 zi = factor_row(t_start, t_end, t_found, lane, t_keys, t_values, y_flat, y_flat, dtype(0.0))
                 if row < count and lane == 0:
-                    ri = r[k % 2, i]
-                    z[i] = zi
+                    ri = w[WORK_R + k % 2, i]
+                    w[WORK_Z, i] = zi
                     rz += wp.float64(wp.dot(ri, zi))
                     rr += wp.float64(wp.dot(ri, ri))
                 g += blocks
@@ -412,7 +412,8 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
                 if k > 0:
                     beta = dtype(slot_total(slots, RZ, k) / slot_total(slots, RZ, k - 1))
                 new = k % 2
-                p_old = p[1 - new]
+                p_old = w[WORK_P + 1 - new]
+                z = w[WORK_Z]
                 pq = wp.float64(0.0)
                 g = block
                 while g < groups:
@@ -421,8 +422,8 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
                     qi = direction_row(a_start, a_end, a_found, lane, a_columns, a_values, z, p_old, beta)
                     if row < count and lane == 0:
                         pi = z[i] + beta * p_old[i]
-                        p[new, i] = pi
-                        q[i] = qi
+                        w[WORK_P + new, i] = pi
+                        w[WORK_Q, i] = qi
                         pq += wp.float64(wp.dot(pi, qi))
                     g += blocks
                     a_start, a_end, a_found = fetch_a(a_offsets, a_columns, wp.min(g * rows + local, count - 1), lane)
@@ -435,16 +436,17 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
 
                 # lower: x += α p, r[(k+1) % 2] = r[k % 2] − α q, y = G r_new
                 alpha = dtype(slot_total(slots, RZ, k) / slot_total(slots, PQ, k))
-                r_cur = r_flat[new]
+                r_cur = wf[WORK_R + new]
+                q_flat = wf[WORK_Q]
                 g = block
                 while g < groups:
                     row = g * rows + local
                     i = wp.min(row, count - 1)
                     yi = factor_row(g_start, g_end, g_found, lane, g_keys, g_values, r_cur, q_flat, alpha)
                     if row < count and lane == 0:
-                        x[i] = x[i] + alpha * p[new, i]
-                        r[1 - new, i] = r[new, i] - alpha * q[i]
-                        y[i] = yi
+                        w[WORK_X, i] = w[WORK_X, i] + alpha * w[WORK_P + new, i]
+                        w[WORK_R + 1 - new, i] = w[WORK_R + new, i] - alpha * w[WORK_Q, i]
+                        w[WORK_Y, i] = yi
                     g += blocks
                     g_start, g_end, g_found = fetch_g(g_offsets, g_keys, wp.min(g * rows + local, count - 1), lane)
                 t_start, t_end, t_found = fetch_g(t_offsets, t_keys, first, lane)

@@ -27,7 +27,7 @@ from warp.optim.linear import FSAI
 from .assembly import SystemMatrices, bsr_to_scipy
 from .kernels_cg import SLOT_SPREAD
 from .kernels_integrator import cg_newmark_update
-from .kernels_persistent import grid_capacity, persistent_pcg_kernel
+from .kernels_persistent import WORK_ROWS, WORK_X, grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
 from .solver_cg import (FSAI_ROW_SIZE, PERSISTENT_LANES, PERSISTENT_ROWS, ConvergenceError, grouped_factor_rows,
                         newmark_operators, preconditioner_factor)
@@ -166,12 +166,11 @@ class BatchedCGSolver:
 
         self.d, self.v, self.a = vectors(batch, n), vectors(batch, n), vectors(batch, n)
         """State of every model [m, m/s, m/s²], shape (B, N) of vec3d (updated in place)."""
-        self._x, self._y, self._z, self._q, self._guess = (vectors(batch, n_free) for _ in range(5))
-        self._r, self._p = vectors(batch, 2, n_free), vectors(batch, 2, n_free)
-        # flat scalar views (index 3 node + axis) for the scalar preconditioner factors
-        self._r_flat = self._r.view(wp.float64).reshape((batch, 2, 3 * n_free))
-        self._y_flat = self._y.view(wp.float64).reshape((batch, 3 * n_free))
-        self._q_flat = self._q.view(wp.float64).reshape((batch, 3 * n_free))
+        self._guess = vectors(batch, n_free)
+        # each model's CG vectors as rows of its work array, and their flat scalar views (index 3 node + axis)
+        self._work = vectors(batch, WORK_ROWS, n_free)
+        self._work_flat = self._work.view(wp.float64).reshape((batch, WORK_ROWS, 3 * n_free))
+        self._x = self._work[:, WORK_X]  # each model's CG solution (B, F), a strided view
         self._history = vectors(2, batch, n_free)
         self._slots = wp.zeros((batch, 4, self.maxiter + 1, SLOT_SPREAD), dtype=wp.float64, device=dev)
         self._cg_iter = wp.zeros((batch, 2), dtype=wp.int32, device=dev)
@@ -219,9 +218,8 @@ class BatchedCGSolver:
         for first, models in self.waves:
             wp.launch_tiled(kernel.cg_step, dim=models * self.blocks_per_model, block_dim=kernel.block_dim, device=dev,
                             inputs=[*self._P, *self._A, g_offsets, g_keys, g_values, t_offsets, t_keys, t_values,
-                                    self.d, self.v, self.a, self.trajectory, self._guess, self._ring, self._r,
-                                    self._r_flat, self._x, self._y, self._y_flat, self._z, self._p, self._q,
-                                    self._q_flat, self._slots, self._cg_iter, self._barrier, tol_sq, self.maxiter,
+                                    self.d, self.v, self.a, self.trajectory, self._guess, self._ring, self._work,
+                                    self._work_flat, self._slots, self._cg_iter, self._barrier, tol_sq, self.maxiter,
                                     self.blocks_per_model, first])
         wp.launch(cg_newmark_update, dim=(self.model_count, self.node_count),
                   inputs=[self._x, self._history, self._guess, self._free_index, self._driven_slot, self.trajectory,

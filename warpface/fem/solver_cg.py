@@ -55,7 +55,8 @@ from warp.optim.linear import FSAI
 from .assembly import SystemMatrices, bsr_to_scipy, partition_bsr
 from .kernels_cg import SLOT_SPREAD, pcg_kernels
 from .kernels_integrator import cg_newmark_update
-from .kernels_persistent import grid_capacity, persistent_pcg_kernel
+from .kernels_persistent import (WORK_P, WORK_Q, WORK_R, WORK_ROWS, WORK_X, WORK_Y, WORK_Z, grid_capacity,
+                                 persistent_pcg_kernel)
 from .newmark import NewmarkCoefficients
 from .state import TissueControl, TissueState
 
@@ -294,16 +295,14 @@ class CGSolver:
         self._update_constants = [*coefficients.update_scalars(scalar), scalar(coefficients.dt), scalar(coefficients.half_dt_squared)]
         self._free_index = wp.array(free_index, dtype=wp.int32, device=dev)
         self._driven_slot = wp.array(driven_slot, dtype=wp.int32, device=dev)
-        self._x = wp.zeros(n_free, dtype=vec, device=dev)
-        self._r = wp.zeros((2, n_free), dtype=vec, device=dev)
-        self._p = wp.zeros((2, n_free), dtype=vec, device=dev)
-        self._q = wp.zeros(n_free, dtype=vec, device=dev)
-        self._y = wp.zeros(n_free, dtype=vec, device=dev)
-        self._z = wp.zeros(n_free, dtype=vec, device=dev)
-        # flat scalar views (index 3 node + axis) for the scalar preconditioner factors
-        self._r_flat = self._r.view(dtype).reshape((2, 3 * n_free))
-        self._q_flat = self._q.view(dtype).reshape((3 * n_free,))
-        self._y_flat = self._y.view(dtype).reshape((3 * n_free,))
+        # the CG vectors as rows of one work array (the persistent kernel's layout) and their flat scalar views
+        # (index 3 node + axis) for the scalar preconditioner factors
+        self._work = wp.zeros((WORK_ROWS, n_free), dtype=vec, device=dev)
+        self._work_flat = self._work.view(dtype).reshape((WORK_ROWS, 3 * n_free))
+        self._r, self._p = self._work[WORK_R:WORK_R + 2], self._work[WORK_P:WORK_P + 2]
+        self._x, self._y, self._z, self._q = (self._work[row] for row in (WORK_X, WORK_Y, WORK_Z, WORK_Q))
+        self._r_flat = self._work_flat[WORK_R:WORK_R + 2]
+        self._q_flat, self._y_flat = self._work_flat[WORK_Q], self._work_flat[WORK_Y]
         self._history = wp.zeros((2, n_free), dtype=vec, device=dev)
         self._guess = wp.zeros(n_free, dtype=vec, device=dev)
         self._slots = wp.zeros((4, self.maxiter + 1, SLOT_SPREAD), dtype=wp.float64, device=dev)
@@ -323,8 +322,7 @@ class CGSolver:
         one = _as_one_model
         self._as_batch = SimpleNamespace(
             P_values=one(P.values), A_values=one(A_oo.values), G_values=lower[2], GT_values=upper[2],
-            x=one(self._x), r=one(self._r), r_flat=one(self._r_flat), y=one(self._y), y_flat=one(self._y_flat),
-            z=one(self._z), p=one(self._p), q=one(self._q), q_flat=one(self._q_flat), guess=one(self._guess),
+            x=one(self._x), work=one(self._work), work_flat=one(self._work_flat), guess=one(self._guess),
             history=self._history.reshape((2, 1, n_free)), slots=one(self._slots), cg_iter=one(self._cg_iter),
             barrier=one(self._barrier), status=one(self._status), failure=one(self._failure))
         # run_chunk's ring of `chunk` driven inputs and recorded displacements (slot index on the device)
@@ -370,8 +368,7 @@ class CGSolver:
             wp.launch_tiled(step.cg_step, dim=self._persistent_blocks, block_dim=step.block_dim, device=self.device,
                             inputs=[P.offsets, P.columns, m.P_values, A.offsets, A.columns, m.A_values, self._G[0],
                                     self._G[1], m.G_values, self._GT[0], self._GT[1], m.GT_values, b.d_in, b.v_in,
-                                    b.a_in, b.trajectory, m.guess, b.ring, m.r, m.r_flat, m.x, m.y, m.y_flat, m.z, m.p,
-                                    m.q, m.q_flat, m.slots, m.cg_iter, m.barrier, tol_sq, self.maxiter,
+                                    b.a_in, b.trajectory, m.guess, b.ring, m.work, m.work_flat, m.slots, m.cg_iter, m.barrier, tol_sq, self.maxiter,
                                     self._persistent_blocks, 0])
         else:
             self._launch_tiled(k.residual, [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, b.state[0],
