@@ -145,7 +145,8 @@ def grid_capacity(kernel, block_dim: int, *, device=None) -> int:
 
 
 @functools.lru_cache(maxsize=None)
-def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads: int = RESIDENT_THREADS) -> types.SimpleNamespace:
+def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads: int = RESIDENT_THREADS,
+                          single: bool = False) -> types.SimpleNamespace:
     """The persistent CG step for ``dtype`` and block shape (module docstring), for one model or a batch.
 
     ``cg_step`` solves the step of models ``first_model .. first_model + M − 1`` of a batch of B models
@@ -165,7 +166,9 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
     :func:`~warpface.fem.kernels_cg.pcg_kernels` (same arithmetic, same results) and leaves
     ``cg_iter[b, 0] = cg_iter[b, 1]`` = the iterations done and ``ring[1] = ring[0]`` for the update kernel.
     The kernel is compiled to keep at least ``resident_threads`` threads per multiprocessor resident
-    (``__launch_bounds__``: fewer registers per thread, more blocks at once).
+    (``__launch_bounds__``: fewer registers per thread, more blocks at once). ``single`` compiles it for a batch
+    of exactly one model (launched with ``first_model = 0``): the model index is then a constant, and the
+    per-model views need no registers of their own.
     """
     if 32 % lanes:
         raise ValueError(f"lanes must divide 32, got {lanes}")
@@ -313,6 +316,9 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
         model = launched_block // blocks
         block = launched_block - model * blocks
         b = first_model + model
+        if wp.static(single):  # model 0 known when compiled: its views are the arrays' own addresses
+            block = launched_block
+            b = 0
         # this model's views; a matrix or factor given once (leading dimension 1) is shared by every model
         p_values = p_values_all[wp.min(b, p_values_all.shape[0] - 1)]
         a_values = a_values_all[wp.min(b, a_values_all.shape[0] - 1)]
@@ -465,4 +471,4 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
                 barrier[0] = 0
                 barrier[2] = 0
 
-    return types.SimpleNamespace(vec=vec, block_dim=rows * lanes, rows=rows, cg_step=cg_step)
+    return types.SimpleNamespace(vec=vec, block_dim=rows * lanes, rows=rows, single=single, cg_step=cg_step)

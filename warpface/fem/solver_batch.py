@@ -194,7 +194,7 @@ class BatchedCGSolver:
             shape = (PERSISTENT_LANES, PERSISTENT_ROWS)
         else:
             shape = (BATCH_LANES, BATCH_ROWS, BATCH_RESIDENT_THREADS)
-        self._kernel = persistent_pcg_kernel(wp.float64, *shape)
+        self._kernel = persistent_pcg_kernel(wp.float64, *shape, single=batch == 1)
         groups = -(-n_free // self._kernel.rows)
         if dev.is_cuda:
             capacity = grid_capacity(self._kernel.cg_step, self._kernel.block_dim, device=dev)

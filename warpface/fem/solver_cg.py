@@ -310,7 +310,7 @@ class CGSolver:
         self._barrier = wp.zeros(3, dtype=wp.int32, device=dev)  # persistent: [arrivals, gave up, departures]
         if loop == "persistent":
             shape = (PERSISTENT_LANES, PERSISTENT_ROWS) if dev.is_cuda else (1, 1)  # one CPU thread walks every row
-            self._persistent = persistent_pcg_kernel(dtype, *shape)
+            self._persistent = persistent_pcg_kernel(dtype, *shape, single=True)
             wanted = -(-n_free // self._persistent.rows)
             self._persistent_blocks = max(1, min(wanted, grid_capacity(self._persistent.cg_step,
                                                                         self._persistent.block_dim, device=dev)))
