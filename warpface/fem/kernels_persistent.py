@@ -157,7 +157,8 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
     ``blocks`` at most the row groups ``ceil(F / rows)``; on the CPU build it with ``lanes = rows = 1``
     and launch one block per model. Per-model arrays have the model as their first index: the state
     ``d, v, a`` (B, N), ``trajectory`` (chunk, B, D), ``guess`` (B, F), the work vectors in ``work``
-    (B, :data:`WORK_ROWS`, F) and its flat scalar view ``work_flat`` (B, WORK_ROWS, 3F), ``slots`` (B, 4, maxiter + 1, SLOT_SPREAD) cleared, ``cg_iter`` (B, 2) and
+    (B, :data:`WORK_ROWS`, F) and its flat scalar view ``work_flat`` (B, WORK_ROWS, 3F), ``slots``
+    (B, 4, maxiter + 1, SLOT_SPREAD) cleared, ``cg_iter`` (B, 2) and
     ``barrier`` (B, 3: arrivals, gave up, departures), which must start at zero (the last block of a model
     to leave clears its arrivals and departures again). Matrix and factor values are (B, nnz), or (1, nnz)
     when one is shared by all models. A single model is a batch of one.
@@ -313,12 +314,13 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
         """Residuals, start and every CG iteration, phases separated by :func:`grid_sync` (module docstring).
         Each phase's row indices for the block's first row group are loaded before the barrier ahead of it."""
         launched_block, thread = wp.tid()
-        model = launched_block // blocks
-        block = launched_block - model * blocks
-        b = first_model + model
         if wp.static(single):  # model 0 known when compiled: its views are the arrays' own addresses
             block = launched_block
             b = 0
+        else:
+            model = launched_block // blocks
+            block = launched_block - model * blocks
+            b = first_model + model
         # this model's views; a matrix or factor given once (leading dimension 1) is shared by every model
         p_values = p_values_all[wp.min(b, p_values_all.shape[0] - 1)]
         a_values = a_values_all[wp.min(b, a_values_all.shape[0] - 1)]
@@ -471,4 +473,4 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
                 barrier[0] = 0
                 barrier[2] = 0
 
-    return types.SimpleNamespace(vec=vec, block_dim=rows * lanes, rows=rows, single=single, cg_step=cg_step)
+    return types.SimpleNamespace(vec=vec, block_dim=rows * lanes, rows=rows, cg_step=cg_step)

@@ -368,7 +368,8 @@ class CGSolver:
             wp.launch_tiled(step.cg_step, dim=self._persistent_blocks, block_dim=step.block_dim, device=self.device,
                             inputs=[P.offsets, P.columns, m.P_values, A.offsets, A.columns, m.A_values, self._G[0],
                                     self._G[1], m.G_values, self._GT[0], self._GT[1], m.GT_values, b.d_in, b.v_in,
-                                    b.a_in, b.trajectory, m.guess, b.ring, m.work, m.work_flat, m.slots, m.cg_iter, m.barrier, tol_sq, self.maxiter,
+                                    b.a_in, b.trajectory, m.guess, b.ring, m.work, m.work_flat, m.slots, m.cg_iter,
+                                    m.barrier, tol_sq, self.maxiter,
                                     self._persistent_blocks, 0])
         else:
             self._launch_tiled(k.residual, [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, b.state[0],
