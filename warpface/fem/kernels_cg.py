@@ -12,9 +12,9 @@ One iteration is three grid-wide phases, the fewest the data dependencies allow:
 
 A step is short of arithmetic (a few hundred thousand multiply-adds per phase) and long on
 dependent memory loads, so the kernels are shaped for latency: each free node's matrix row is
-shared by ``lanes`` threads of a block of ``rows x lanes`` threads, every thread loads its first
-few entries of the row in straight-line code (all loads in flight at once; a thread per row would
-walk 15–96 entries one after another), and the lanes of a row are summed in shared memory.
+shared by ``lanes`` threads of a block of ``rows x lanes`` threads, each computing its part of the
+row (:mod:`warpface.fem.kernels_cg_rows`, shared with the persistent loop), and the lanes of a row
+are summed in shared memory.
 Loads that do not depend on the iteration counter come before the loads that do. Each block
 adds its part of a dot product to one of ``SLOT_SPREAD`` float64 slots with one atomic (spreading
 the atomics avoids thousands queueing on one address); ``slots[which, k, :]`` sums to ``r·z``
@@ -34,10 +34,11 @@ dot products, ``α`` and ``β`` always float64) and block shape.
 """
 
 import functools
-import math
 import types
 
 import warp as wp
+
+from .kernels_cg_rows import cg_row_functions
 
 __all__ = ["PQ", "RR", "RZ", "SLOT_SPREAD", "START", "cg_finished", "pcg_kernels", "slot_total"]
 
@@ -46,12 +47,6 @@ SLOT_SPREAD = wp.constant(16)
 
 RZ, PQ, RR, START = wp.constant(0), wp.constant(1), wp.constant(2), wp.constant(3)
 """First index of ``slots``: which dot product (``START``: ``[0]`` predictor, ``[1]`` extrapolated start)."""
-
-# Row entries covered by the straight-line (unrolled) part of a row loop; longer rows finish
-# in an ordinary loop. Block rows of A_oo hold about 15 blocks (up to ~30); rows of P three
-# times that; a block row of an FSAI factor up to 3 x 32 scalars.
-_SPAN_A, _SPAN_P, _SPAN_G, _MAX_UNROLL = 32, 64, 96, 8
-
 
 @wp.func
 def slot_total(slots: wp.array3d(dtype=wp.float64), which: int, k: int):
@@ -81,28 +76,11 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
     offsets[i+1]``, and ``keys[e] = 3 * column + row % 3``. No (block) row may be empty; the
     rows of all four hold at least their diagonal.
     """
-    vec = wp.types.vector(length=3, dtype=dtype)
-    mat = wp.types.matrix(shape=(3, 3), dtype=dtype)
+    parts = cg_row_functions(dtype, lanes)
+    vec, mat = parts.vec, parts.mat
+    fetch_a, fetch_g = parts.fetch_a, parts.fetch_g
+    factor_part, direction_part, residual_part = parts.factor_part, parts.direction_part, parts.residual_part
     spread = SLOT_SPREAD
-    unroll_a, unroll_p, unroll_g = (min(math.ceil(span / lanes), _MAX_UNROLL) for span in (_SPAN_A, _SPAN_P, _SPAN_G))
-
-    index_a = wp.types.vector(length=unroll_a, dtype=wp.int32)
-    index_g = wp.types.vector(length=unroll_g, dtype=wp.int32)
-
-    @wp.func
-    def fetch_a(columns: wp.array(dtype=wp.int32), start: int, end: int, lane: int):
-        # the columns of this lane's straight-line entries (clamped to the row: rows are never empty)
-        cols = index_a()
-        for s in range(wp.static(unroll_a)):
-            cols[s] = columns[wp.min(start + lane + s * lanes, end - 1)]
-        return cols
-
-    @wp.func
-    def fetch_g(keys: wp.array(dtype=wp.int32), start: int, end: int, lane: int):
-        found = index_g()
-        for s in range(wp.static(unroll_g)):
-            found[s] = keys[wp.min(start + lane + s * lanes, end - 1)]
-        return found
 
     @wp.func
     def place(block: int, thread: int, count: int):
@@ -121,76 +99,6 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
     @wp.func
     def block_sum(x: wp.float64):
         return wp.tile_extract(wp.tile_sum(wp.tile(x)), 0)
-
-    @wp.func
-    def unit(axis: int, value: dtype):
-        # value * e_axis without indexing a vector by a runtime value (that spills it to local memory)
-        zero = dtype(0.0)
-        return vec(wp.where(axis == 0, value, zero), wp.where(axis == 1, value, zero), wp.where(axis == 2, value, zero))
-
-    @wp.func
-    def state_entry(
-        e: int,
-        columns: wp.array(dtype=wp.int32),
-        values: wp.array(dtype=mat),
-        d: wp.array(dtype=vec),
-        v: wp.array(dtype=vec),
-        a: wp.array(dtype=vec),
-        driven: wp.array(dtype=vec),
-    ):
-        c = columns[e]
-        n = d.shape[0]
-        u = vec()
-        if c < n:
-            u = d[c]
-        elif c < 2 * n:
-            u = v[c - n]
-        elif c < 3 * n:
-            u = a[c - 2 * n]
-        else:
-            u = driven[c - 3 * n]
-        return values[e] * u
-
-    @wp.func
-    def product_entry(e: int, columns: wp.array(dtype=wp.int32), values: wp.array(dtype=mat), u: wp.array(dtype=vec)):
-        return values[e] * u[columns[e]]
-
-    @wp.func
-    def direction_entry(
-        e: int,
-        columns: wp.array(dtype=wp.int32),
-        values: wp.array(dtype=mat),
-        z: wp.array(dtype=vec),
-        p_old: wp.array(dtype=vec),
-        beta: dtype,
-        first: bool,
-    ):
-        j = columns[e]
-        pj = z[j]
-        if not first:
-            pj += beta * p_old[j]
-        return values[e] * pj
-
-    # G and Gᵀ entries address scalar dofs: they read the vectors through flat scalar views
-    # (``r_flat[3 node + axis]``), which loads one scalar instead of a whole vec3.
-
-    @wp.func
-    def lower_entry(
-        e: int, keys: wp.array(dtype=wp.int32), values: wp.array(dtype=dtype), r: wp.array(dtype=dtype),
-        q: wp.array(dtype=dtype), alpha: dtype,
-    ):
-        key = keys[e]
-        col = key // 3
-        return unit(key - 3 * col, values[e] * (r[col] - alpha * q[col]))
-
-    @wp.func
-    def upper_entry(e: int, keys: wp.array(dtype=wp.int32), values: wp.array(dtype=dtype), y: wp.array(dtype=dtype)):
-        key = keys[e]
-        col = key // 3
-        return unit(key - 3 * col, values[e] * y[col])
-
-    # Each row loop below: `unroll` straight-line entries per lane (clamped index, masked
-    # result, so all their loads can be in flight together), then an ordinary loop for the rest.
 
     @wp.kernel(enable_backward=False, module="unique")
     def residual(
@@ -223,22 +131,9 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         """
         block, thread = wp.tid()
         row, lane, local, i = place(block, thread, guess.shape[0])
-        p_start, p_end = p_offsets[i], p_offsets[i + 1]
-        a_start, a_end = a_offsets[i], a_offsets[i + 1]
         slot = ring[0]
-        driven = trajectory[slot]
-        acc = vec()
-        for s in range(wp.static(unroll_p)):
-            e = p_start + lane + s * lanes
-            acc += wp.where(e < p_end, state_entry(wp.min(e, p_end - 1), p_columns, p_values, d, v, a, driven), vec())
-        for e in range(p_start + lane + unroll_p * lanes, p_end, lanes):
-            acc += state_entry(e, p_columns, p_values, d, v, a, driven)
-        correction = vec()
-        for s in range(wp.static(unroll_a)):
-            e = a_start + lane + s * lanes
-            correction += wp.where(e < a_end, product_entry(wp.min(e, a_end - 1), a_columns, a_values, guess), vec())
-        for e in range(a_start + lane + unroll_a * lanes, a_end, lanes):
-            correction += product_entry(e, a_columns, a_values, guess)
+        acc, correction = residual_part(i, lane, p_offsets, p_columns, p_values, a_offsets, a_columns, a_values,
+                                        d, v, a, trajectory[slot], guess)
         start_x = guess[i]
         predicted = row_sum(acc, local, lane)
         extrapolated = predicted - row_sum(correction, local, lane)
@@ -275,9 +170,8 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         """Phase 1: ``p[k % 2] = z + β p[(k+1) % 2]``, ``q = A p``, slots ``PQ`` += ``p·q``."""
         block, thread = wp.tid()
         row, lane, local, i = place(block, thread, z.shape[0])
-        start, end = offsets[i], offsets[i + 1]
         k = cg_iter[0]
-        cols = fetch_a(columns, start, end, lane)
+        start, end, cols = fetch_a(offsets, columns, i, lane)
         rz = slot_total(slots, RZ, k)
         rz_old = slot_total(slots, RZ, wp.max(k - 1, 0))
         if block == 0 and thread == 0:
@@ -286,26 +180,13 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
             if block == 0 and thread == 0:
                 condition[0] = 0
             return
-        first = k == 0
         beta = dtype(0.0)
-        if not first:
+        if k > 0:
             beta = dtype(rz / rz_old)
         new = k % 2
-        p_old = p[1 - new]
-        acc = vec()
-        for s in range(wp.static(unroll_a)):
-            e = start + lane + s * lanes
-            j = cols[s]
-            pj = z[j]
-            if not first:
-                pj += beta * p_old[j]
-            acc += wp.where(e < end, values[wp.min(e, end - 1)] * pj, vec())
-        for e in range(start + lane + unroll_a * lanes, end, lanes):
-            acc += direction_entry(e, columns, values, z, p_old, beta, first)
-        pi = z[i]
-        if not first:
-            pi += beta * p_old[i]
-        qi = row_sum(acc, local, lane)
+        p_old = p[1 - new]  # at k = 0 the previous step's (finite) direction, times β = 0
+        pi = z[i] + beta * p_old[i]
+        qi = row_sum(direction_part(start, end, cols, lane, columns, values, z, p_old, beta), local, lane)
         mine = row < z.shape[0] and lane == 0
         pq = wp.float64(0.0)
         if mine:
@@ -336,9 +217,8 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         """Phase 2: ``x += α p``, ``r[(k+1) % 2] = r[k % 2] − α q`` and ``y = G r_new``."""
         block, thread = wp.tid()
         row, lane, local, i = place(block, thread, q.shape[0])
-        start, end = offsets[i], offsets[i + 1]
         k = cg_iter[0]
-        found = fetch_g(keys, start, end, lane)
+        start, end, found = fetch_g(offsets, keys, i, lane)
         rz = slot_total(slots, RZ, k)
         pq = slot_total(slots, PQ, k)
         if cg_finished(slots, k, tol_sq, maxiter):
@@ -348,15 +228,7 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         r_cur = r_flat[cur]
         x_new = x[i] + alpha * p[cur, i]
         r_new = r[cur, i] - alpha * q[i]
-        acc = vec()
-        for s in range(wp.static(unroll_g)):
-            e = start + lane + s * lanes
-            col = found[s] // 3
-            g = values[wp.min(e, end - 1)]
-            acc += wp.where(e < end, unit(found[s] - 3 * col, g * (r_cur[col] - alpha * q_flat[col])), vec())
-        for e in range(start + lane + unroll_g * lanes, end, lanes):
-            acc += lower_entry(e, keys, values, r_cur, q_flat, alpha)
-        yi = row_sum(acc, local, lane)
+        yi = row_sum(factor_part(start, end, found, lane, keys, values, r_cur, q_flat, alpha), local, lane)
         if row < q.shape[0] and lane == 0:
             x[i] = x_new
             r[1 - cur, i] = r_new
@@ -380,18 +252,12 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         """
         block, thread = wp.tid()
         row, lane, local, i = place(block, thread, x.shape[0])
-        start, end = offsets[i], offsets[i + 1]
+        start, end, found = fetch_g(offsets, keys, i, lane)
         use = 0
         if not (slot_total(slots, START, 1) <= slot_total(slots, START, 0)):
             use = 1
         r_use = r_flat[use]
-        acc = vec()
-        for s in range(wp.static(unroll_g)):
-            e = start + lane + s * lanes
-            acc += wp.where(e < end, lower_entry(wp.min(e, end - 1), keys, values, r_use, r_use, dtype(0.0)), vec())
-        for e in range(start + lane + unroll_g * lanes, end, lanes):
-            acc += lower_entry(e, keys, values, r_use, r_use, dtype(0.0))
-        yi = row_sum(acc, local, lane)
+        yi = row_sum(factor_part(start, end, found, lane, keys, values, r_use, r_use, dtype(0.0)), local, lane)
         if row < x.shape[0] and lane == 0:
             y[i] = yi
             if use == 1:
@@ -417,20 +283,12 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         """
         block, thread = wp.tid()
         row, lane, local, i = place(block, thread, z.shape[0])
-        start, end = offsets[i], offsets[i + 1]
         k = cg_iter[1]
-        found = fetch_g(keys, start, end, lane)
+        start, end, found = fetch_g(offsets, keys, i, lane)
         if cg_finished(slots, wp.max(k, 0), tol_sq, maxiter) and k >= 0:
             return
         ri = r[(k + 1) % 2, i]
-        acc = vec()
-        for s in range(wp.static(unroll_g)):
-            e = start + lane + s * lanes
-            col = found[s] // 3
-            acc += wp.where(e < end, unit(found[s] - 3 * col, values[wp.min(e, end - 1)] * y_flat[col]), vec())
-        for e in range(start + lane + unroll_g * lanes, end, lanes):
-            acc += upper_entry(e, keys, values, y_flat)
-        zi = row_sum(acc, local, lane)
+        zi = row_sum(factor_part(start, end, found, lane, keys, values, y_flat, y_flat, dtype(0.0)), local, lane)
         rz = wp.float64(0.0)
         rr = wp.float64(0.0)
         if row < z.shape[0] and lane == 0:

@@ -26,19 +26,15 @@ block reduction in shared memory; on the CPU (one lane, one thread) both are the
 """
 
 import functools
-import math
 import types
 
 import warp as wp
 
 from .kernels_cg import PQ, RR, RZ, SLOT_SPREAD, START, cg_finished, slot_total
+from .kernels_cg_rows import cg_row_functions
 
 __all__ = ["BARRIER_POLLS", "RESIDENT_THREADS", "WORK_P", "WORK_Q", "WORK_R", "WORK_ROWS", "WORK_X", "WORK_Y", "WORK_Z",
            "grid_capacity", "persistent_pcg_kernel"]
-
-# Straight-line row entries per lane, as in kernels_cg: block rows of A_oo hold ~15 blocks (up to
-# ~30), a block row of an FSAI factor up to 3 x 32 scalars.
-_SPAN_A, _SPAN_P, _SPAN_G, _MAX_UNROLL = 32, 64, 96, 8
 
 WORK_ROWS = 8
 """Rows of a model's work array: the residual (2, alternating), the direction (2), the solution x, y = G r,
@@ -173,109 +169,16 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
     """
     if 32 % lanes:
         raise ValueError(f"lanes must divide 32, got {lanes}")
-    vec = wp.types.vector(length=3, dtype=dtype)
-    mat = wp.types.matrix(shape=(3, 3), dtype=dtype)
+    parts = cg_row_functions(dtype, lanes)
+    vec, mat = parts.vec, parts.mat
+    fetch_a, fetch_g = parts.fetch_a, parts.fetch_g
+    factor_part, direction_part, residual_part = parts.factor_part, parts.direction_part, parts.residual_part
     spread = SLOT_SPREAD
     lane_sum = lane_sum64 if dtype == wp.float64 else lane_sum32
-    unroll_a, unroll_p, unroll_g = (min(math.ceil(span / lanes), _MAX_UNROLL) for span in (_SPAN_A, _SPAN_P, _SPAN_G))
-    index_a = wp.types.vector(length=unroll_a, dtype=wp.int32)
-    index_g = wp.types.vector(length=unroll_g, dtype=wp.int32)
 
     @wp.func
     def row_total(part: vec):
         return vec(lane_sum(part[0], lanes), lane_sum(part[1], lanes), lane_sum(part[2], lanes))
-
-    @wp.func
-    def unit(axis: int, value: dtype):
-        zero = dtype(0.0)
-        return vec(wp.where(axis == 0, value, zero), wp.where(axis == 1, value, zero), wp.where(axis == 2, value, zero))
-
-    @wp.func
-    def fetch_a(offsets: wp.array(dtype=wp.int32), columns: wp.array(dtype=wp.int32), i: int, lane: int):
-        # row bounds and the columns of this lane's straight-line entries, loaded ahead of their use
-        start, end = offsets[i], offsets[i + 1]
-        found = index_a()
-        for s in range(wp.static(unroll_a)):
-            found[s] = columns[wp.min(start + lane + s * lanes, end - 1)]
-        return start, end, found
-
-    @wp.func
-    def fetch_g(offsets: wp.array(dtype=wp.int32), keys: wp.array(dtype=wp.int32), i: int, lane: int):
-        start, end = offsets[i], offsets[i + 1]
-        found = index_g()
-        for s in range(wp.static(unroll_g)):
-            found[s] = keys[wp.min(start + lane + s * lanes, end - 1)]
-        return start, end, found
-
-    @wp.func
-    def factor_row(start: int, end: int, found: index_g, lane: int, keys: wp.array(dtype=wp.int32),
-                   values: wp.array(dtype=dtype), u: wp.array(dtype=dtype), w: wp.array(dtype=dtype), alpha: dtype):
-        # rows 3i..3i+2 of a grouped scalar factor times (u - alpha w), summed over the lanes
-        acc = vec()
-        for s in range(wp.static(unroll_g)):
-            e = start + lane + s * lanes
-            col = found[s] // 3
-            g = values[wp.min(e, end - 1)]
-            acc += wp.where(e < end, unit(found[s] - 3 * col, g * (u[col] - alpha * w[col])), vec())
-        for e in range(start + lane + unroll_g * lanes, end, lanes):
-            key = keys[e]
-            col = key // 3
-            acc += unit(key - 3 * col, values[e] * (u[col] - alpha * w[col]))
-        return row_total(acc)
-
-    @wp.func
-    def direction_row(start: int, end: int, found: index_a, lane: int, columns: wp.array(dtype=wp.int32),
-                      values: wp.array(dtype=mat), z: wp.array(dtype=vec), p_old: wp.array(dtype=vec), beta: dtype):
-        # (A (z + beta p_old))_i, summed over the lanes
-        acc = vec()
-        for s in range(wp.static(unroll_a)):
-            e = start + lane + s * lanes
-            j = found[s]
-            acc += wp.where(e < end, values[wp.min(e, end - 1)] * (z[j] + beta * p_old[j]), vec())
-        for e in range(start + lane + unroll_a * lanes, end, lanes):
-            j = columns[e]
-            acc += values[e] * (z[j] + beta * p_old[j])
-        return row_total(acc)
-
-    @wp.func
-    def state_entry(e: int, columns: wp.array(dtype=wp.int32), values: wp.array(dtype=mat), d: wp.array(dtype=vec),
-                    v: wp.array(dtype=vec), a: wp.array(dtype=vec), driven: wp.array(dtype=vec)):
-        c = columns[e]
-        n = d.shape[0]
-        u = vec()
-        if c < n:
-            u = d[c]
-        elif c < 2 * n:
-            u = v[c - n]
-        elif c < 3 * n:
-            u = a[c - 2 * n]
-        else:
-            u = driven[c - 3 * n]
-        return values[e] * u
-
-    @wp.func
-    def residual_row(i: int, lane: int, p_offsets: wp.array(dtype=wp.int32), p_columns: wp.array(dtype=wp.int32),
-                     p_values: wp.array(dtype=mat), a_offsets: wp.array(dtype=wp.int32),
-                     a_columns: wp.array(dtype=wp.int32), a_values: wp.array(dtype=mat), d: wp.array(dtype=vec),
-                     v: wp.array(dtype=vec), a: wp.array(dtype=vec), driven: wp.array(dtype=vec),
-                     guess: wp.array(dtype=vec)):
-        # (P [d; v; a; driven])_i and (A guess)_i, summed over the lanes (kernels_cg.residual)
-        p_start, p_end = p_offsets[i], p_offsets[i + 1]
-        a_start, a_end = a_offsets[i], a_offsets[i + 1]
-        acc = vec()
-        for s in range(wp.static(unroll_p)):
-            e = p_start + lane + s * lanes
-            acc += wp.where(e < p_end, state_entry(wp.min(e, p_end - 1), p_columns, p_values, d, v, a, driven), vec())
-        for e in range(p_start + lane + unroll_p * lanes, p_end, lanes):
-            acc += state_entry(e, p_columns, p_values, d, v, a, driven)
-        correction = vec()
-        for s in range(wp.static(unroll_a)):
-            e = wp.min(a_start + lane + s * lanes, a_end - 1)
-            correction += wp.where(a_start + lane + s * lanes < a_end, a_values[e] * guess[a_columns[e]], vec())
-        for e in range(a_start + lane + unroll_a * lanes, a_end, lanes):
-            correction += a_values[e] * guess[a_columns[e]]
-        predicted = row_total(acc)
-        return predicted, predicted - row_total(correction)
 
     # at least resident_threads (default RESIDENT_THREADS) threads per multiprocessor: caps the registers (128 a thread for 512), so that a
     # grid of one row group per block stays resident (H200, 6.7k nodes, 16x16: 130 registers and 132 resident
@@ -345,8 +248,10 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
         for g in range(block, groups, blocks):
             row = g * rows + local
             i = wp.min(row, count - 1)
-            predicted, extrapolated = residual_row(i, lane, p_offsets, p_columns, p_values, a_offsets, a_columns,
-                                                   a_values, d, v, a, driven, guess)
+            acc, correction = residual_part(i, lane, p_offsets, p_columns, p_values, a_offsets, a_columns, a_values,
+                                            d, v, a, driven, guess)
+            predicted = row_total(acc)
+            extrapolated = predicted - row_total(correction)
             if row < count and lane == 0:
                 w[WORK_R, i] = extrapolated
                 w[WORK_R + 1, i] = predicted
@@ -373,7 +278,7 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
         while g < groups:
             row = g * rows + local
             i = wp.min(row, count - 1)
-            yi = factor_row(g_start, g_end, g_found, lane, g_keys, g_values, r_use, r_use, dtype(0.0))
+            yi = row_total(factor_part(g_start, g_end, g_found, lane, g_keys, g_values, r_use, r_use, dtype(0.0)))
             if row < count and lane == 0:
                 w[WORK_Y, i] = yi
                 if use == 1:
@@ -396,7 +301,7 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
             while g < groups:
                 row = g * rows + local
                 i = wp.min(row, count - 1)
-                zi = factor_row(t_start, t_end, t_found, lane, t_keys, t_values, y_flat, y_flat, dtype(0.0))
+                zi = row_total(factor_part(t_start, t_end, t_found, lane, t_keys, t_values, y_flat, y_flat, dtype(0.0)))
                 if row < count and lane == 0:
                     ri = w[WORK_R + k % 2, i]
                     w[WORK_Z, i] = zi
@@ -427,7 +332,7 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
                 while g < groups:
                     row = g * rows + local
                     i = wp.min(row, count - 1)
-                    qi = direction_row(a_start, a_end, a_found, lane, a_columns, a_values, z, p_old, beta)
+                    qi = row_total(direction_part(a_start, a_end, a_found, lane, a_columns, a_values, z, p_old, beta))
                     if row < count and lane == 0:
                         pi = z[i] + beta * p_old[i]
                         w[WORK_P + new, i] = pi
@@ -450,7 +355,7 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
                 while g < groups:
                     row = g * rows + local
                     i = wp.min(row, count - 1)
-                    yi = factor_row(g_start, g_end, g_found, lane, g_keys, g_values, r_cur, q_flat, alpha)
+                    yi = row_total(factor_part(g_start, g_end, g_found, lane, g_keys, g_values, r_cur, q_flat, alpha))
                     if row < count and lane == 0:
                         w[WORK_X, i] = w[WORK_X, i] + alpha * w[WORK_P + new, i]
                         w[WORK_R + 1 - new, i] = w[WORK_R + new, i] - alpha * w[WORK_Q, i]
