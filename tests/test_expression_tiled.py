@@ -139,7 +139,7 @@ def launch_tiled_blocks(model, rng, kernel, block_dim, frames_per_block, frames=
 
 @pytest.mark.parametrize("rig_name, block_dim, frames_per_block, frames_per_pass, slots", [
     ("default rig", 256, 5, 2, (3, 6, 4)), ("default rig", 64, 3, 1, (1, 2, 1)), ("small rig without jaw", 128, 4, 3, (2, 6, 6)),
-    ("default rig", 512, 2, 1, (0, 0, 0))])
+    ("default rig", 512, 2, 1, (0, 0, 0)), ("default rig", 256, 1, 1, (4, 6, 8))])
 def test_resident_rig_data_equals_the_five_kernel_sequence(rng, rig_name, block_dim, frames_per_block, frames_per_pass, slots):
     """The CUDA kernel that reads each thread's rig data once per block (its fixed items in registers, rows
     cut after ``slots`` entries continuing over the CSR; slots of 0 walk every row over the CSR), over
