@@ -25,7 +25,9 @@ Rows per mesh:
 * ``warpface cuda cg batch xB`` — :class:`warpface.fem.TissueBatch` of B models (Kato's uniform tissue
   and a sweep of E and eta) stepped together, first mesh size only (``--batch``); "ms/step/model" is
   its time per step over B; "x one model" its time per step over the single-model ``warpface cuda cg``
-  row's. Its max diff is model 0's (Kato's uniform tissue) against the baseline. Rows suffixed
+  row's, "x slowest alone" over the ``step()`` time of the batch's slowest model (most CG iterations)
+  stepped alone by its own ``TissueSimulation``: a batched step cannot end before that model's does.
+  Its max diff is model 0's (Kato's uniform tissue) against the baseline. Rows suffixed
   ``fsai_each`` refit the FSAI support to every model (``--batch-preconditioners``).
 
 CPU rows are timed step by step, interleaved with the baseline (median per step). On CUDA,
@@ -235,8 +237,9 @@ def batch_step_seconds(mesh, fixed, driven, trajectory, models: int, device, pre
         batch.stepper.step()
     batch.synchronize()
     seconds = (time.perf_counter() - start) / steps
+    slowest = int(np.argmax(iterations[:, 2]))
     return dict(setup=setup, seconds=seconds, final=final, most=int(iterations[:, 0].max()),
-                mean=float(iterations[:, 2].max()) / steps)
+                mean=float(iterations[:, 2].max()) / steps, slowest=materials[slowest])
 
 
 def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=(), batch_preconditioners=("fsai",)) -> list[dict]:
@@ -310,13 +313,17 @@ def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=
         for preconditioner in batch_preconditioners:
             for models in batch_sizes:
                 result = batch_step_seconds(mesh, fixed, driven, trajectory, models, cuda_device, preconditioner)
+                # the batch cannot finish a step before its slowest model: that model alone, stepped the same way
+                alone = TissueSimulation(mesh, result["slowest"], DT, fixed=fixed, driven=driven, device=cuda_device)
+                slowest_ms = 1e3 * cuda_step_times(alone, trajectory)[1]
                 suffix = "" if preconditioner == "fsai" else f" {preconditioner}"
                 rows.append(dict(mesh=label, path=f"warpface cuda cg batch x{models}{suffix}", factor_s=result["setup"],
                                  step_ms=1e3 * result["seconds"], step_call_ms=1e3 * result["seconds"],
                                  model_ms=1e3 * result["seconds"] / models, ratio=base_step / result["seconds"],
                                  realtime=DT / result["seconds"], max_diff=float(np.abs(result["final"] - reference).max()),
                                  cg_iterations=result["most"], cg_mean_iterations=result["mean"],
-                                 x_single=None if not single else 1e3 * result["seconds"] / single))
+                                 x_single=None if not single else 1e3 * result["seconds"] / single,
+                                 slowest_alone_ms=slowest_ms, x_slowest_alone=1e3 * result["seconds"] / slowest_ms))
     print(f"  {label}: {mesh.tet_count} tets, {fixed.size} fixed, {driven.size} driven nodes; "
           f"max displacement {np.abs(reference).max() * 1e3:.2f} mm after {steps + 1} steps")
     return rows
@@ -346,6 +353,7 @@ def main() -> None:
                        ("step_ms", "ms/step run()", ".3f"),
                        ("step_call_ms", "ms/step step()", ".3f"),
                        ("model_ms", "ms/step/model", ".4f"), ("x_single", "x one model", ".2f"),
+                       ("x_slowest_alone", "x slowest alone", ".2f"),
                        ("ratio", "ratio vs splu", ".2f"), ("x_cupy", "x cupy", ".1f"), ("ratio_plain", "x plain splu", ".2f"),
                        ("realtime", "x real time", ".3f"),
                        ("max_diff", "max diff m", ".1e"), ("cg_iterations", "CG iters max", "d"),
