@@ -289,25 +289,23 @@ SINGLE_FRAME_BLOCKS_PER_SM = 4
 than none, 2 or 3)."""
 SINGLE_WAVE_SLOTS = (4, 6, 8)
 """Row entries (:data:`RESIDENT_SLOTS`) the resident kernel keeps in registers for a single frame whose tiles fit one
-block per SM: every load of the block's rig data is then issued before the first pass, so a block waits for one round
-of loads instead of a chain of them in every pass. H200, single frame GPU time (CUDA events around a graph of the one
-kernel, medians of three runs of 500): ICT face (52 tiles) 15.8 µs against 20.6 for the strided kernel, 10k grid
-(40 tiles) 14.1 against 18.7, built-in face (50) 14.2 against 18.7, 30k grid (117) 15.0 against 19.0; slots (2, 6, 8),
-(3, 6, 12), (2, 6, 12) and seven others 0.1–1.6 µs slower. Bit-identical. At 100k (391 tiles, three per SM) the
-strided kernel stays faster: 22.0 against 28.6 µs."""
+block per SM: all of a block's rig loads are issued before its first pass, instead of a chain of loads per pass.
+H200, GPU time (CUDA events around a graph of the one kernel, medians): ICT face (52 tiles) 15.8 µs against 20.6 for
+the strided kernel, 10k grid (40) 14.1 against 18.7, 30k grid (117) 15.0 against 19.0; other slot sets 0.1–1.6 µs
+slower; bit-identical. At 100k (391 tiles) the strided kernel stays faster: 22.0 against 28.6 µs."""
 
 
-def model_kernel(is_cuda: bool, frames_per_block: int, frames_per_pass: int, one_wave: bool = False):
-    """The tiled kernel an :class:`~warpface.expression.ExpressionModel` launches, ``frames_per_pass`` capped by
-    ``frames_per_block``: on CUDA the resident kernel (blocks of 256 threads) when a block evaluates several frames,
-    or a single frame whose tiles are at most one block per SM (``one_wave``: latency-bound, see
-    :data:`SINGLE_WAVE_SLOTS`); the strided one for other single frames (each reads its rig data once then; H200,
-    1M vertices: 0.15 against 0.18 ms); on the CPU the strided one (blocks of one thread)."""
+def model_kernel(frames_per_block: int, frames_per_pass: int, tiles: int, *, device):
+    """The tiled kernel an :class:`~warpface.expression.ExpressionModel` launches on ``device`` over ``tiles`` tiles,
+    ``frames_per_pass`` capped by ``frames_per_block``: on CUDA the resident kernel (blocks of 256 threads) when a
+    block evaluates several frames, or a single frame whose tiles are at most one block per SM (one wave:
+    latency-bound, see :data:`SINGLE_WAVE_SLOTS`); the strided one for other single frames (each reads its rig data
+    once then; H200, 1M vertices: 0.15 against 0.18 ms); on the CPU the strided one (blocks of one thread)."""
     frames = min(frames_per_pass, frames_per_block)
-    if not is_cuda:
+    if not device.is_cuda:
         return expression_tiles(frames)
     if frames_per_block == 1:
-        if one_wave:
+        if tiles <= device.sm_count:
             return expression_tiles_resident(1, int(TILE_OWNED), None, SINGLE_WAVE_SLOTS)
         return expression_tiles(1, blocks_per_sm=SINGLE_FRAME_BLOCKS_PER_SM)
     return expression_tiles_resident(frames, int(TILE_OWNED), BATCH_BLOCKS_PER_SM)

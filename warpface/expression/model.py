@@ -520,10 +520,8 @@ class ExpressionModel:
             jaw_inputs = [self._jaw_weight, wp.vec3(*jaw.pivot), wp.vec3(*jaw.axis), wp.vec3(*jaw.forward), len(self.muscles)]
         if self.launches_per_frame == 1:  # blocks over (frame groups, tiles)
             per_block = min(_TILE_FRAMES_PER_BLOCK, frames)
-            tiles = len(self._tiles[0])
-            one_wave = self.device.is_cuda and tiles <= self.device.sm_count  # a block per SM at most: latency-bound
-            kernel = model_kernel(self.device.is_cuda, per_block, self._tile_frames_per_pass, one_wave)
-            tiled = (kernel, (-(-frames // per_block), tiles, self._block_dim),
+            kernel = model_kernel(per_block, self._tile_frames_per_pass, len(self._tiles[0]), device=self.device)
+            tiled = (kernel, (-(-frames // per_block), len(self._tiles[0]), self._block_dim),
                      [*self._tiles, mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, controls,
                       buffers.muscle_width, self._counts, self._thickness, self._wrinkle_offsets, self._wrinkle_entries,
                       depths, buffers.wrinkle_width, vertex_count, frames, per_block, int(keep_muscle_points)],
