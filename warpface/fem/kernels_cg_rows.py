@@ -31,6 +31,21 @@ __all__ = ["cg_row_functions"]
 _SPAN_A, _SPAN_P, _SPAN_G, _MAX_UNROLL = 32, 64, 96, 8
 
 
+def _row_fetch(index_type, unroll: int, lanes: int):
+    """``fetch(offsets, indices, i, lane)`` → ``(start, end, indices)``: the bounds of row ``i`` and the indices
+    (columns or keys) of this lane's ``unroll`` straight-line entries, clamped to the row (rows are never empty)."""
+
+    @wp.func
+    def fetch(offsets: wp.array(dtype=wp.int32), indices: wp.array(dtype=wp.int32), i: int, lane: int):
+        start, end = offsets[i], offsets[i + 1]
+        found = index_type()
+        for s in range(wp.static(unroll)):
+            found[s] = indices[wp.min(start + lane + s * lanes, end - 1)]
+        return start, end, found
+
+    return fetch
+
+
 @functools.lru_cache(maxsize=None)
 def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
     """Row functions for vectors of ``wp.vec3`` of ``dtype`` and ``lanes`` threads per row (module docstring).
@@ -61,22 +76,7 @@ def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
         zero = dtype(0.0)
         return vec(wp.where(axis == 0, value, zero), wp.where(axis == 1, value, zero), wp.where(axis == 2, value, zero))
 
-    @wp.func
-    def fetch_a(offsets: wp.array(dtype=wp.int32), columns: wp.array(dtype=wp.int32), i: int, lane: int):
-        # the row's bounds and the columns of this lane's straight-line entries (clamped: rows are never empty)
-        start, end = offsets[i], offsets[i + 1]
-        found = index_a()
-        for s in range(wp.static(unroll_a)):
-            found[s] = columns[wp.min(start + lane + s * lanes, end - 1)]
-        return start, end, found
-
-    @wp.func
-    def fetch_g(offsets: wp.array(dtype=wp.int32), keys: wp.array(dtype=wp.int32), i: int, lane: int):
-        start, end = offsets[i], offsets[i + 1]
-        found = index_g()
-        for s in range(wp.static(unroll_g)):
-            found[s] = keys[wp.min(start + lane + s * lanes, end - 1)]
-        return start, end, found
+    fetch_a, fetch_g = _row_fetch(index_a, unroll_a, lanes), _row_fetch(index_g, unroll_g, lanes)
 
     @wp.func
     def factor_part(start: int, end: int, found: index_g, lane: int, keys: wp.array(dtype=wp.int32),
