@@ -476,10 +476,10 @@ class TissueSimulation:
                     if bar is not None:
                         bar.update(1)
             else:
-                chunk = self.stepper.chunk
-                for start in range(0, steps, chunk):
-                    block = self.stepper.run_chunk(self.state, traj[start : start + chunk])
+                start = 0
+                for block in self.stepper.run_chunks(self.state, traj):
                     out[start : start + block.shape[0]] = block if nodes is None else block[:, record]
+                    start += block.shape[0]
                     self.steps_taken += block.shape[0]
                     if bar is not None:
                         bar.update(block.shape[0])

@@ -29,7 +29,7 @@ memset of the dot-product slots, that kernel and the update.
 :meth:`CGSolver.step` reads ``state_in`` and the control and writes ``state_out``. On CUDA the
 sequence is captured with ``wp.ScopedCapture`` once per combination of state and control arrays
 (a simulation stepping one state in place, or two in turn, has one or two graphs), and each step
-is one ``wp.capture_launch``: no allocation, no host read-back. :meth:`CGSolver.run_chunk` binds
+is one ``wp.capture_launch``: no allocation, no host read-back. :meth:`CGSolver.run_chunks` binds
 a ring of ``chunk`` driven inputs and recorded displacements instead. The host looks at the
 status only at synchronisation points (:meth:`CGSolver.synchronize`).
 
@@ -325,14 +325,18 @@ class CGSolver:
             x=one(self._x), work=one(self._work), work_flat=one(self._work_flat), guess=one(self._guess),
             history=self._history.reshape((2, 1, n_free)), slots=one(self._slots), cg_iter=one(self._cg_iter),
             barrier=one(self._barrier), status=one(self._status), failure=one(self._failure))
-        # run_chunk's ring of `chunk` driven inputs and recorded displacements (slot index on the device)
+        # run_chunks' ring of `chunk` driven inputs and recorded displacements (slot index on the device)
         self._trajectory = wp.zeros((self.chunk, max(n_driven, 1)), dtype=vec, device=dev)
         self._record = wp.zeros((self.chunk, n), dtype=vec, device=dev)
         self._ring = wp.zeros(2, dtype=wp.int32, device=dev)
         self._step_ring = wp.zeros(2, dtype=wp.int32, device=dev)  # step(): a ring of one slot, always 0
+        # two host buffers of each kind: run_chunks queues chunk i + 1 before the host copies chunk i out
         pinned = dev.is_cuda
-        self._staging_in = wp.zeros((self.chunk, max(n_driven, 1)), dtype=vec, device="cpu", pinned=pinned)
-        self._staging_out = wp.zeros((self.chunk, n), dtype=vec, device="cpu", pinned=pinned)
+        self._staging_in = wp.zeros((2, self.chunk, max(n_driven, 1)), dtype=vec, device="cpu", pinned=pinned)
+        self._staging_out = wp.zeros((2, self.chunk, n), dtype=vec, device="cpu", pinned=pinned)
+        self._status_out = wp.zeros((2, 5), dtype=wp.int32, device="cpu", pinned=pinned)
+        self._failure_out = wp.zeros((2, 2), dtype=wp.float64, device="cpu", pinned=pinned)
+        self._barrier_out = wp.zeros((2, 3), dtype=wp.int32, device="cpu", pinned=pinned)
         self._use_graph = bool(use_graph)
         self._graphs: dict = {}
         self._bindings: dict = {}
@@ -450,43 +454,71 @@ class CGSolver:
         """
         self._launch(self._binding_for_step(state_in, state_out, control))
 
-    def run_chunk(self, state: TissueState, driven: np.ndarray) -> np.ndarray:
-        """Advance ``state`` in place by ``k <= chunk`` steps, driven displacements (k, D, 3) [m];
-        returns the displacements (k, N, 3), a view of a host staging buffer valid until the next call.
+    def run_chunks(self, state: TissueState, driven: np.ndarray):
+        """Advance ``state`` in place through driven displacements (T, D, 3) [m], ``chunk`` steps at a time;
+        yields each chunk's displacements (k, N, 3), a view of a host staging buffer valid until the next one.
 
-        One host-to-device copy of the driven inputs, ``k`` graph launches, one copy back.
+        A chunk is one host-to-device copy of its driven inputs, ``k`` graph launches and one copy back. Chunk
+        ``i + 1`` is queued before chunk ``i`` is waited for, so on CUDA the device steps on while the host copies
+        a chunk out (two staging buffers of each kind take turns).
 
         Raises:
-            ConvergenceError: a step of this chunk (or an earlier queued one) did not converge.
+            ConvergenceError: a step of the yielded chunk (or an earlier one) did not converge.
         """
-        k = driven.shape[0]
-        if not 0 < k <= self.chunk:
-            raise ValueError(f"run_chunk needs 1..{self.chunk} steps, got {k}")
         self.synchronize()
         binding = self._binding_for_chunks(state)
+        pending = None
+        try:
+            for index, start in enumerate(range(0, driven.shape[0], self.chunk)):
+                queued = self._queue_chunk(binding, driven[start : start + self.chunk], index % 2)
+                if pending is not None:
+                    yield self._finish_chunk(*pending)
+                pending = queued
+            if pending is not None:
+                yield self._finish_chunk(*pending)
+        finally:
+            wp.synchronize_device(self.device)  # nothing queued outlives the caller's loop
+
+    def _queue_chunk(self, binding, driven: np.ndarray, slot: int) -> tuple:
+        k = driven.shape[0]
+        if not 0 < k <= self.chunk:
+            raise ValueError(f"a chunk needs 1..{self.chunk} steps, got {k}")
         self._ring.zero_()
         width = self._trajectory.shape[1]
         if driven.shape[1]:
-            self._staging_in.numpy()[:k] = driven
-            wp.copy(self._trajectory, self._staging_in, count=k * width)
+            self._staging_in.numpy()[slot, :k] = driven
+            wp.copy(self._trajectory, self._staging_in[slot], count=k * width)
         for _ in range(k):
             self._launch(binding)
-        wp.copy(self._staging_out, self._record, count=k * self.node_count)
-        self.synchronize()
-        return self._staging_out.numpy()[:k]
+        wp.copy(self._staging_out[slot], self._record, count=k * self.node_count)
+        for host, device in ((self._status_out, self._status), (self._failure_out, self._failure),
+                             (self._barrier_out, self._barrier)):
+            wp.copy(host[slot], device)
+        done = wp.get_stream(self.device).record_event() if self.device.is_cuda else None
+        return slot, k, done
+
+    def _finish_chunk(self, slot: int, k: int, done) -> np.ndarray:
+        if done is not None:
+            wp.synchronize_event(done)
+        self._raise_on_failure(self._barrier_out.numpy()[slot], self._status_out.numpy()[slot],
+                               self._failure_out.numpy()[slot])
+        return self._staging_out.numpy()[slot, :k]
 
     # ------------------------------------------------------------------ status and restart
     def synchronize(self) -> None:
         """Wait for queued steps and raise :class:`ConvergenceError` if any failed."""
         wp.synchronize_device(self.device)
-        if self._barrier.numpy()[1]:
+        self._raise_on_failure(self._barrier.numpy(), self._status.numpy(), self._failure.numpy())
+
+    def _raise_on_failure(self, barrier: np.ndarray, status: np.ndarray, failure: np.ndarray) -> None:
+        """Raise if the device booked a failure: ``barrier``, ``status`` and ``failure`` as read from the device."""
+        if barrier[1]:
             raise RuntimeError(
                 f"the persistent CG loop waited too long at a grid barrier on {self.device} (its "
                 f"{self._persistent_blocks} blocks were not all resident); use loop='launched' (cg_loop)"
             )
-        status = self._status.numpy()
         if status[0]:
-            residual, tolerance = self._failure.numpy()
+            residual, tolerance = failure
             raise ConvergenceError(
                 f"CG did not converge at step {int(status[1])} ({int(status[0])} failed steps): residual "
                 f"{residual:.3e} > tolerance {tolerance:.3e} after {self.maxiter} iterations; raise cg_maxiter, "
