@@ -236,6 +236,22 @@ def test_cg_extrapolated_start_saves_iterations_not_accuracy():
     assert np.abs(guess).max() > 1e-3 * np.abs(d - d1).max()
 
 
+def test_cg_run_returns_the_state_rounded_to_float32(beam):
+    """run() copies each chunk out in float32 (rounded on the device): every step's row is the float64 state of
+    that step rounded to nearest, the same bits as NumPy's astype; chunks of 2 alternate the staging buffers."""
+    mesh, fixed, driven = beam
+    sim = TissueSimulation(mesh, SOFT, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg", cg_chunk=2)
+    trajectory = np.linspace(0.0, 1e-3, 5)[:, None, None] * np.ones((1, driven.size, 3))
+    states = []
+    for row in trajectory:
+        sim.step(row)
+        states.append(sim.d.copy())
+    sim.reset()
+    out = sim.run(trajectory)
+    assert out.dtype == np.float32
+    np.testing.assert_array_equal(out, np.asarray(states).astype(np.float32))
+
+
 def test_cg_non_convergence_raises_with_residual(beam):
     mesh, fixed, driven = beam
     sim = TissueSimulation(mesh, SOFT, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg",

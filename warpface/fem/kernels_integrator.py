@@ -162,3 +162,10 @@ def cg_newmark_update(
         step_count[b] = step_count[b] + 1
         if b == 0:
             ring[0] = (slot + 1) % chunk
+
+
+@wp.kernel
+def single_precision(values: wp.array2d(dtype=Any), out: wp.array2d(dtype=wp.vec3f)):
+    """``out = values`` rounded to float32 (round to nearest, as NumPy's ``astype``), over (rows, nodes)."""
+    i, j = wp.tid()
+    out[i, j] = wp.vec3f(values[i, j])

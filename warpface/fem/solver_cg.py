@@ -54,7 +54,7 @@ from warp.optim.linear import FSAI
 
 from .assembly import SystemMatrices, bsr_to_scipy, partition_bsr
 from .kernels_cg import SLOT_SPREAD, pcg_kernels
-from .kernels_integrator import cg_newmark_update
+from .kernels_integrator import cg_newmark_update, single_precision
 from .kernels_persistent import (WORK_P, WORK_Q, WORK_R, WORK_ROWS, WORK_X, WORK_Y, WORK_Z, grid_capacity,
                                  persistent_pcg_kernel)
 from .newmark import NewmarkCoefficients
@@ -333,7 +333,9 @@ class CGSolver:
         # two host buffers of each kind: run_chunks queues chunk i + 1 before the host copies chunk i out
         pinned = dev.is_cuda
         self._staging_in = wp.zeros((2, self.chunk, max(n_driven, 1)), dtype=vec, device="cpu", pinned=pinned)
-        self._staging_out = wp.zeros((2, self.chunk, n), dtype=vec, device="cpu", pinned=pinned)
+        # displacements go out in float32 (what run() returns): half the bytes, and no conversion on the host
+        self._record32 = wp.zeros((self.chunk, n), dtype=wp.vec3f, device=dev)
+        self._staging_out = wp.zeros((2, self.chunk, n), dtype=wp.vec3f, device="cpu", pinned=pinned)
         self._status_out = wp.zeros((2, 5), dtype=wp.int32, device="cpu", pinned=pinned)
         self._failure_out = wp.zeros((2, 2), dtype=wp.float64, device="cpu", pinned=pinned)
         self._barrier_out = wp.zeros((2, 3), dtype=wp.int32, device="cpu", pinned=pinned)
@@ -456,7 +458,7 @@ class CGSolver:
 
     def run_chunks(self, state: TissueState, driven: np.ndarray):
         """Advance ``state`` in place through driven displacements (T, D, 3) [m], ``chunk`` steps at a time;
-        yields each chunk's displacements (k, N, 3), a view of a host staging buffer valid until the next one.
+        yields each chunk's displacements (k, N, 3) float32, a view of a host staging buffer valid until the next one.
 
         A chunk is one host-to-device copy of its driven inputs, ``k`` graph launches and one copy back. Chunk
         ``i + 1`` is queued before chunk ``i`` is waited for, so on CUDA the device steps on while the host copies
@@ -490,7 +492,9 @@ class CGSolver:
             wp.copy(self._trajectory, self._staging_in[slot], count=k * width)
         for _ in range(k):
             self._launch(binding)
-        wp.copy(self._staging_out[slot], self._record, count=k * self.node_count)
+        wp.launch(single_precision, dim=(k, self.node_count), inputs=[self._record], outputs=[self._record32],
+                  device=self.device)
+        wp.copy(self._staging_out[slot], self._record32, count=k * self.node_count)
         for host, device in ((self._status_out, self._status), (self._failure_out, self._failure),
                              (self._barrier_out, self._barrier)):
             wp.copy(host[slot], device)
