@@ -236,6 +236,26 @@ def test_cg_extrapolated_start_saves_iterations_not_accuracy():
     assert np.abs(guess).max() > 1e-3 * np.abs(d - d1).max()
 
 
+def test_pipelined_chunks_queue_the_next_chunk_before_finishing_one():
+    from warpface.fem.chunks import pipelined_chunks
+
+    calls = []
+
+    def queue(start, stop, parity):
+        calls.append(("queue", start, stop, parity))
+        return start, stop
+
+    def finish(queued):
+        calls.append(("finish", *queued))
+        return queued
+
+    got = list(pipelined_chunks(10, 4, queue, finish, device=wp.get_device("cpu")))
+    assert got == [(0, 4), (4, 8), (8, 10)]
+    assert calls == [("queue", 0, 4, 0), ("queue", 4, 8, 1), ("finish", 0, 4), ("queue", 8, 10, 0), ("finish", 4, 8),
+                     ("finish", 8, 10)]
+    assert list(pipelined_chunks(0, 4, queue, finish, device=wp.get_device("cpu"))) == []
+
+
 def test_cg_run_returns_the_state_rounded_to_float32(beam):
     """run() copies each chunk out in float32 (rounded on the device): every step's row is the float64 state of
     that step rounded to nearest, the same bits as NumPy's astype; chunks of 2 alternate the staging buffers."""

@@ -103,8 +103,6 @@ class TissueBatch:
         pinned = device.is_cuda
         width = max(self.driven_nodes.size, 1)
         self._staging_in = wp.zeros((self.chunk, len(materials), width), dtype=wp.vec3d, device="cpu", pinned=pinned)
-        self._staging_out = wp.zeros((self.chunk, len(materials), tetmesh.node_count), dtype=wp.vec3d, device="cpu",
-                                     pinned=pinned)
         self._slot = 0
 
     @property
@@ -194,9 +192,10 @@ class TissueBatch:
                 self.step(traj[t])
                 out[t] = self.d[:, record]
             return out
-        for start in range(0, steps, self.chunk):  # each chunk restarts the ring at slot 0
-            block = self.stepper.run_chunk(traj[start : start + self.chunk], self._staging_in, self._staging_out)
+        start = 0
+        for block in self.stepper.run_chunks(traj):
             out[start : start + block.shape[0]] = block[:, :, record]
+            start += block.shape[0]
             self.steps_taken += block.shape[0]
             self._slot = block.shape[0] % self.chunk
         return out

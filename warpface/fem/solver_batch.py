@@ -26,7 +26,8 @@ from warp.optim.linear import FSAI
 
 from .assembly import SystemMatrices, bsr_to_scipy
 from .kernels_cg import SLOT_SPREAD
-from .kernels_integrator import cg_newmark_update
+from .chunks import DeviceMirror, pipelined_chunks
+from .kernels_integrator import cg_newmark_update, single_precision
 from .kernels_persistent import WORK_ROWS, WORK_X, grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
 from .solver_cg import (FSAI_ROW_SIZE, PERSISTENT_LANES, PERSISTENT_ROWS, ConvergenceError, grouped_factor_rows,
@@ -183,6 +184,12 @@ class BatchedCGSolver:
         """Ring of driven displacements [m], shape (chunk, B, max(D, 1)); a step reads slot ``ring[0]``."""
         self.record = wp.zeros((self.chunk, batch, n), dtype=wp.vec3d, device=dev)
         """Ring of recorded displacements [m], shape (chunk, B, N)."""
+        # run_chunks: two pinned host buffers of each kind take turns; displacements go out in float32
+        pinned = dev.is_cuda
+        self._record32 = wp.zeros((self.chunk * batch, n), dtype=wp.vec3f, device=dev)
+        self._run_in = wp.zeros((2, self.chunk, batch, max(n_driven, 1)), dtype=wp.vec3d, device="cpu", pinned=pinned)
+        self._run_out = wp.zeros((2, self.chunk, batch, n), dtype=wp.vec3f, device="cpu", pinned=pinned)
+        self._status_mirror = DeviceMirror(self._barrier, self._status, self._failure)
         self._free_index = wp.array(free_index, dtype=wp.int32, device=dev)
         self._driven_slot = wp.array(driven_slot, dtype=wp.int32, device=dev)
         self._update_constants = [*coefficients.update_scalars(wp.float64), wp.float64(coefficients.dt),
@@ -239,39 +246,56 @@ class BatchedCGSolver:
             self._graph = capture.graph
         wp.capture_launch(self._graph)
 
-    def run_chunk(self, driven: np.ndarray, staging_in, staging_out) -> np.ndarray:
-        """Advance every model by ``k <= chunk`` steps with driven displacements (k, B, D, 3) [m]; returns the
-        displacements (k, B, N, 3), a view of ``staging_out`` (host, shape (chunk, B, N) vec3d).
+    def run_chunks(self, driven: np.ndarray):
+        """Advance every model through driven displacements (T, B, D, 3) [m], ``chunk`` steps at a time; yields
+        each chunk's displacements (k, B, N, 3) float32, a view of a host staging buffer valid until the next one.
+        Each chunk is queued before the previous one is waited for (:func:`~warpface.fem.chunks.pipelined_chunks`).
 
         Raises:
             ConvergenceError: a model's step did not converge.
         """
-        k = driven.shape[0]
         self.synchronize()
-        self._ring.zero_()
+        return pipelined_chunks(driven.shape[0], self.chunk,
+                                lambda start, stop, slot: self._queue_chunk(driven[start:stop], slot),
+                                lambda queued: self._finish_chunk(*queued), device=self.device)
+
+    def _queue_chunk(self, driven: np.ndarray, slot: int) -> tuple:
+        k = driven.shape[0]
+        self._ring.zero_()  # each chunk restarts the ring at slot 0
         width = self.trajectory.shape[1] * self.trajectory.shape[2]
         if driven.shape[2]:
-            staging_in.numpy()[:k, :, : driven.shape[2]] = driven
-            wp.copy(self.trajectory, staging_in, count=k * width)
+            self._run_in.numpy()[slot, :k, :, : driven.shape[2]] = driven
+            wp.copy(self.trajectory, self._run_in[slot], count=k * width)
         for _ in range(k):
             self.step()
-        wp.copy(staging_out, self.record, count=k * self.model_count * self.node_count)
-        self.synchronize()
-        return staging_out.numpy()[:k]
+        rows = k * self.model_count
+        wp.launch(single_precision, dim=(rows, self.node_count), device=self.device,
+                  inputs=[self.record.reshape((self.chunk * self.model_count, self.node_count))],
+                  outputs=[self._record32])
+        wp.copy(self._run_out[slot], self._record32, count=rows * self.node_count)
+        return slot, k, self._status_mirror.queue(slot)
+
+    def _finish_chunk(self, slot: int, k: int, done) -> np.ndarray:
+        self._raise_on_failure(*self._status_mirror.read(slot, done))
+        return self._run_out.numpy()[slot, :k]
 
     # ------------------------------------------------------------------ status and restart
     def synchronize(self) -> None:
         """Wait for queued steps; raise :class:`~warpface.fem.solver_cg.ConvergenceError` naming the first
         model that failed."""
         wp.synchronize_device(self.device)
-        if np.any(self._barrier.numpy()[:, 1]):
+        self._raise_on_failure(self._barrier.numpy(), self._status.numpy(), self._failure.numpy())
+
+    def _raise_on_failure(self, barrier: np.ndarray, status: np.ndarray, failure: np.ndarray) -> None:
+        """Raise for the first model whose failure the device booked (``barrier`` (B, 3), ``status`` (B, 5),
+        ``failure`` (B, 2) as read from the device)."""
+        if np.any(barrier[:, 1]):
             raise RuntimeError(f"the persistent CG loop waited too long at a grid barrier on {self.device} (its "
                                f"{self.blocks_per_model} blocks per model were not all resident)")
-        status = self._status.numpy()
         failed = np.flatnonzero(status[:, 0])
         if failed.size:
             b = int(failed[0])
-            residual, tolerance = self._failure.numpy()[b]
+            residual, tolerance = failure[b]
             raise ConvergenceError(
                 f"model {b}: CG did not converge at step {int(status[b, 1])} ({int(status[b, 0])} failed steps): "
                 f"residual {residual:.3e} > tolerance {tolerance:.3e} after {self.maxiter} iterations"

@@ -53,6 +53,7 @@ import warp.sparse as wps
 from warp.optim.linear import FSAI
 
 from .assembly import SystemMatrices, bsr_to_scipy, partition_bsr
+from .chunks import DeviceMirror, pipelined_chunks
 from .kernels_cg import SLOT_SPREAD, pcg_kernels
 from .kernels_integrator import cg_newmark_update, single_precision
 from .kernels_persistent import (WORK_P, WORK_Q, WORK_R, WORK_ROWS, WORK_X, WORK_Y, WORK_Z, grid_capacity,
@@ -336,9 +337,7 @@ class CGSolver:
         # displacements go out in float32 (what run() returns): half the bytes, and no conversion on the host
         self._record32 = wp.zeros((self.chunk, n), dtype=wp.vec3f, device=dev)
         self._staging_out = wp.zeros((2, self.chunk, n), dtype=wp.vec3f, device="cpu", pinned=pinned)
-        self._status_out = wp.zeros((2, 5), dtype=wp.int32, device="cpu", pinned=pinned)
-        self._failure_out = wp.zeros((2, 2), dtype=wp.float64, device="cpu", pinned=pinned)
-        self._barrier_out = wp.zeros((2, 3), dtype=wp.int32, device="cpu", pinned=pinned)
+        self._status_mirror = DeviceMirror(self._barrier, self._status, self._failure)
         self._use_graph = bool(use_graph)
         self._graphs: dict = {}
         self._bindings: dict = {}
@@ -460,26 +459,18 @@ class CGSolver:
         """Advance ``state`` in place through driven displacements (T, D, 3) [m], ``chunk`` steps at a time;
         yields each chunk's displacements (k, N, 3) float32, a view of a host staging buffer valid until the next one.
 
-        A chunk is one host-to-device copy of its driven inputs, ``k`` graph launches and one copy back. Chunk
-        ``i + 1`` is queued before chunk ``i`` is waited for, so on CUDA the device steps on while the host copies
-        a chunk out (two staging buffers of each kind take turns).
+        A chunk is one host-to-device copy of its driven inputs, ``k`` graph launches and one copy back, queued
+        before the previous chunk is waited for (:func:`~warpface.fem.chunks.pipelined_chunks`): on CUDA the device
+        steps on while the host copies a chunk out.
 
         Raises:
             ConvergenceError: a step of the yielded chunk (or an earlier one) did not converge.
         """
         self.synchronize()
         binding = self._binding_for_chunks(state)
-        pending = None
-        try:
-            for index, start in enumerate(range(0, driven.shape[0], self.chunk)):
-                queued = self._queue_chunk(binding, driven[start : start + self.chunk], index % 2)
-                if pending is not None:
-                    yield self._finish_chunk(*pending)
-                pending = queued
-            if pending is not None:
-                yield self._finish_chunk(*pending)
-        finally:
-            wp.synchronize_device(self.device)  # nothing queued outlives the caller's loop
+        return pipelined_chunks(driven.shape[0], self.chunk,
+                                lambda start, stop, slot: self._queue_chunk(binding, driven[start:stop], slot),
+                                lambda queued: self._finish_chunk(*queued), device=self.device)
 
     def _queue_chunk(self, binding, driven: np.ndarray, slot: int) -> tuple:
         k = driven.shape[0]
@@ -495,17 +486,10 @@ class CGSolver:
         wp.launch(single_precision, dim=(k, self.node_count), inputs=[self._record], outputs=[self._record32],
                   device=self.device)
         wp.copy(self._staging_out[slot], self._record32, count=k * self.node_count)
-        for host, device in ((self._status_out, self._status), (self._failure_out, self._failure),
-                             (self._barrier_out, self._barrier)):
-            wp.copy(host[slot], device)
-        done = wp.get_stream(self.device).record_event() if self.device.is_cuda else None
-        return slot, k, done
+        return slot, k, self._status_mirror.queue(slot)
 
     def _finish_chunk(self, slot: int, k: int, done) -> np.ndarray:
-        if done is not None:
-            wp.synchronize_event(done)
-        self._raise_on_failure(self._barrier_out.numpy()[slot], self._status_out.numpy()[slot],
-                               self._failure_out.numpy()[slot])
+        self._raise_on_failure(*self._status_mirror.read(slot, done))
         return self._staging_out.numpy()[slot, :k]
 
     # ------------------------------------------------------------------ status and restart
