@@ -194,7 +194,7 @@ class TissueBatch:
             return out
         start = 0
         for block in self.stepper.run_chunks(traj):
-            out[start : start + block.shape[0]] = block[:, :, record]
+            out[start : start + block.shape[0]] = block if nodes is None else block[:, :, record]
             start += block.shape[0]
             self.steps_taken += block.shape[0]
             self._slot = block.shape[0] % self.chunk
