@@ -20,6 +20,8 @@ displacements are recorded into a ring ``(chunk, B, N)``, as in the single-model
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import warp as wp
 from warp.optim.linear import FSAI
@@ -184,12 +186,7 @@ class BatchedCGSolver:
         """Ring of driven displacements [m], shape (chunk, B, max(D, 1)); a step reads slot ``ring[0]``."""
         self.record = wp.zeros((self.chunk, batch, n), dtype=wp.vec3d, device=dev)
         """Ring of recorded displacements [m], shape (chunk, B, N)."""
-        # run_chunks: two pinned host buffers of each kind take turns; displacements go out in float32
-        pinned = dev.is_cuda
-        self._record32 = wp.zeros((self.chunk * batch, n), dtype=wp.vec3f, device=dev)
-        self._run_in = wp.zeros((2, self.chunk, batch, max(n_driven, 1)), dtype=wp.vec3d, device="cpu", pinned=pinned)
-        self._run_out = wp.zeros((2, self.chunk, batch, n), dtype=wp.vec3f, device="cpu", pinned=pinned)
-        self._status_mirror = DeviceMirror(self._barrier, self._status, self._failure)
+        self._run_buffers = None  # run_chunks' buffers, allocated on its first call (a stepping-only batch needs none)
         self._free_index = wp.array(free_index, dtype=wp.int32, device=dev)
         self._driven_slot = wp.array(driven_slot, dtype=wp.int32, device=dev)
         self._update_constants = [*coefficients.update_scalars(wp.float64), wp.float64(coefficients.dt),
@@ -255,29 +252,36 @@ class BatchedCGSolver:
             ConvergenceError: a model's step did not converge.
         """
         self.synchronize()
+        if self._run_buffers is None:  # two pinned host buffers of each kind take turns; float32 out
+            pinned, batch, n = self.device.is_cuda, self.model_count, self.node_count
+            self._run_buffers = SimpleNamespace(
+                record32=wp.zeros((self.chunk * batch, n), dtype=wp.vec3f, device=self.device),
+                driven=wp.zeros((2, *self.trajectory.shape), dtype=wp.vec3d, device="cpu", pinned=pinned),
+                out=wp.zeros((2, self.chunk, batch, n), dtype=wp.vec3f, device="cpu", pinned=pinned),
+                status=DeviceMirror(self._barrier, self._status, self._failure))
         return pipelined_chunks(driven.shape[0], self.chunk,
                                 lambda start, stop, slot: self._queue_chunk(driven[start:stop], slot),
                                 lambda queued: self._finish_chunk(*queued), device=self.device)
 
     def _queue_chunk(self, driven: np.ndarray, slot: int) -> tuple:
-        k = driven.shape[0]
+        k, buffers = driven.shape[0], self._run_buffers
         self._ring.zero_()  # each chunk restarts the ring at slot 0
         width = self.trajectory.shape[1] * self.trajectory.shape[2]
         if driven.shape[2]:
-            self._run_in.numpy()[slot, :k, :, : driven.shape[2]] = driven
-            wp.copy(self.trajectory, self._run_in[slot], count=k * width)
+            buffers.driven.numpy()[slot, :k, :, : driven.shape[2]] = driven
+            wp.copy(self.trajectory, buffers.driven[slot], count=k * width)
         for _ in range(k):
             self.step()
         rows = k * self.model_count
         wp.launch(single_precision, dim=(rows, self.node_count), device=self.device,
                   inputs=[self.record.reshape((self.chunk * self.model_count, self.node_count))],
-                  outputs=[self._record32])
-        wp.copy(self._run_out[slot], self._record32, count=rows * self.node_count)
-        return slot, k, self._status_mirror.queue(slot)
+                  outputs=[buffers.record32])
+        wp.copy(buffers.out[slot], buffers.record32, count=rows * self.node_count)
+        return slot, k, buffers.status.queue(slot)
 
     def _finish_chunk(self, slot: int, k: int, done) -> np.ndarray:
-        self._raise_on_failure(*self._status_mirror.read(slot, done))
-        return self._run_out.numpy()[slot, :k]
+        self._raise_on_failure(*self._run_buffers.status.read(slot, done))
+        return self._run_buffers.out.numpy()[slot, :k]
 
     # ------------------------------------------------------------------ status and restart
     def synchronize(self) -> None:
