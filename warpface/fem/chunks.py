@@ -10,9 +10,12 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 
+import numpy as np
 import warp as wp
 
-__all__ = ["DeviceMirror", "pipelined_chunks"]
+from .kernels_integrator import single_precision
+
+__all__ = ["ChunkedRun", "DeviceMirror", "pipelined_chunks"]
 
 
 def pipelined_chunks(steps: int, chunk: int, queue: Callable, finish: Callable, *, device) -> Iterator:
@@ -66,3 +69,56 @@ class DeviceMirror:
         if done is not None:
             wp.synchronize_event(done)
         return [host.numpy()[parity] for host in self.host]
+
+
+class ChunkedRun:
+    """A solver's ``run`` in pipelined chunks: its device rings, two pinned host buffers of each kind (driven inputs
+    in, float32 displacements out, status flags) taking turns by parity, and the work of one chunk.
+
+    Args:
+        trajectory: The device ring of driven displacements, shape (chunk, ..., D) of vec3 (``...``: models).
+        record: The device ring of recorded displacements, shape (chunk, ..., N) of vec3.
+        ring: The device ring index (``ring[0]``, the slot a step reads), zeroed at each chunk's start.
+        status: Device arrays read back after each chunk, as handed to :meth:`run`'s ``check``.
+    """
+
+    def __init__(self, trajectory: wp.array, record: wp.array, ring: wp.array, *status: wp.array):
+        device, pinned = record.device, record.device.is_cuda
+        self.trajectory, self.ring, self.chunk = trajectory, ring, record.shape[0]
+        self._rows = record.reshape((record.size // record.shape[-1], record.shape[-1]))  # (chunk · models, N)
+        self._record32 = wp.zeros(self._rows.shape, dtype=wp.vec3f, device=device)
+        self._driven = wp.zeros((2, *trajectory.shape), dtype=trajectory.dtype, device="cpu", pinned=pinned)
+        self._out = wp.zeros((2, *record.shape), dtype=wp.vec3f, device="cpu", pinned=pinned)
+        self._status = DeviceMirror(*status)
+
+    def run(self, driven: np.ndarray, step: Callable, check: Callable) -> Iterator:
+        """Step through driven displacements (T, ..., D, 3) [m]; yields each chunk's displacements (k, ..., N, 3)
+        float32, a view of a host buffer valid until the next chunk is yielded.
+
+        Args:
+            driven: One row per step (its ``...`` and D at most the rings').
+            step: Queues one step reading ring slot ``ring[0]`` (and advancing it); never waits.
+            check: ``check(*status)`` raises if the status read back after a chunk booked a failure.
+        """
+        models = self._rows.shape[0] // self.chunk
+        width = self.trajectory.size // self.chunk
+
+        def queue(start: int, stop: int, slot: int):
+            k = stop - start
+            self.ring.zero_()  # each chunk restarts the ring at slot 0
+            if driven.shape[-2]:  # any driven nodes
+                self._driven.numpy()[slot][tuple(slice(0, size) for size in (k, *driven.shape[1:]))] = driven[start:stop]
+                wp.copy(self.trajectory, self._driven[slot], count=k * width)
+            for _ in range(k):
+                step()
+            wp.launch(single_precision, dim=(k * models, self._rows.shape[1]), inputs=[self._rows],
+                      outputs=[self._record32], device=self._record32.device)
+            wp.copy(self._out[slot], self._record32, count=k * models * self._rows.shape[1])
+            return slot, k, self._status.queue(slot)
+
+        def finish(queued) -> np.ndarray:
+            slot, k, done = queued
+            check(*self._status.read(slot, done))
+            return self._out.numpy()[slot, :k]
+
+        return pipelined_chunks(driven.shape[0], self.chunk, queue, finish, device=self._record32.device)

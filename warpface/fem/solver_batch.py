@@ -20,16 +20,14 @@ displacements are recorded into a ring ``(chunk, B, N)``, as in the single-model
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import numpy as np
 import warp as wp
 from warp.optim.linear import FSAI
 
 from .assembly import SystemMatrices, bsr_to_scipy
 from .kernels_cg import SLOT_SPREAD
-from .chunks import DeviceMirror, pipelined_chunks
-from .kernels_integrator import cg_newmark_update, single_precision
+from .chunks import ChunkedRun
+from .kernels_integrator import cg_newmark_update
 from .kernels_persistent import WORK_ROWS, WORK_X, grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
 from .solver_cg import (FSAI_ROW_SIZE, PERSISTENT_LANES, PERSISTENT_ROWS, ConvergenceError, grouped_factor_rows,
@@ -186,7 +184,7 @@ class BatchedCGSolver:
         """Ring of driven displacements [m], shape (chunk, B, max(D, 1)); a step reads slot ``ring[0]``."""
         self.record = wp.zeros((self.chunk, batch, n), dtype=wp.vec3d, device=dev)
         """Ring of recorded displacements [m], shape (chunk, B, N)."""
-        self._run_buffers = None  # run_chunks' buffers, allocated on its first call (a stepping-only batch needs none)
+        self._chunked = None  # run_chunks' buffers, allocated on its first call (a stepping-only batch needs none)
         self._free_index = wp.array(free_index, dtype=wp.int32, device=dev)
         self._driven_slot = wp.array(driven_slot, dtype=wp.int32, device=dev)
         self._update_constants = [*coefficients.update_scalars(wp.float64), wp.float64(coefficients.dt),
@@ -246,42 +244,16 @@ class BatchedCGSolver:
     def run_chunks(self, driven: np.ndarray):
         """Advance every model through driven displacements (T, B, D, 3) [m], ``chunk`` steps at a time; yields
         each chunk's displacements (k, B, N, 3) float32, a view of a host staging buffer valid until the next one.
-        Each chunk is queued before the previous one is waited for (:func:`~warpface.fem.chunks.pipelined_chunks`).
+        Each chunk is queued before the previous one is waited for (:class:`~warpface.fem.chunks.ChunkedRun`).
 
         Raises:
             ConvergenceError: a model's step did not converge.
         """
         self.synchronize()
-        if self._run_buffers is None:  # two pinned host buffers of each kind take turns; float32 out
-            pinned, batch, n = self.device.is_cuda, self.model_count, self.node_count
-            self._run_buffers = SimpleNamespace(
-                record32=wp.zeros((self.chunk * batch, n), dtype=wp.vec3f, device=self.device),
-                driven=wp.zeros((2, *self.trajectory.shape), dtype=wp.vec3d, device="cpu", pinned=pinned),
-                out=wp.zeros((2, self.chunk, batch, n), dtype=wp.vec3f, device="cpu", pinned=pinned),
-                status=DeviceMirror(self._barrier, self._status, self._failure))
-        return pipelined_chunks(driven.shape[0], self.chunk,
-                                lambda start, stop, slot: self._queue_chunk(driven[start:stop], slot),
-                                lambda queued: self._finish_chunk(*queued), device=self.device)
-
-    def _queue_chunk(self, driven: np.ndarray, slot: int) -> tuple:
-        k, buffers = driven.shape[0], self._run_buffers
-        self._ring.zero_()  # each chunk restarts the ring at slot 0
-        width = self.trajectory.shape[1] * self.trajectory.shape[2]
-        if driven.shape[2]:
-            buffers.driven.numpy()[slot, :k, :, : driven.shape[2]] = driven
-            wp.copy(self.trajectory, buffers.driven[slot], count=k * width)
-        for _ in range(k):
-            self.step()
-        rows = k * self.model_count
-        wp.launch(single_precision, dim=(rows, self.node_count), device=self.device,
-                  inputs=[self.record.reshape((self.chunk * self.model_count, self.node_count))],
-                  outputs=[buffers.record32])
-        wp.copy(buffers.out[slot], buffers.record32, count=rows * self.node_count)
-        return slot, k, buffers.status.queue(slot)
-
-    def _finish_chunk(self, slot: int, k: int, done) -> np.ndarray:
-        self._raise_on_failure(*self._run_buffers.status.read(slot, done))
-        return self._run_buffers.out.numpy()[slot, :k]
+        if self._chunked is None:
+            self._chunked = ChunkedRun(self.trajectory, self.record, self._ring, self._barrier, self._status,
+                                       self._failure)
+        return self._chunked.run(driven, self.step, self._raise_on_failure)
 
     # ------------------------------------------------------------------ status and restart
     def synchronize(self) -> None:

@@ -53,9 +53,9 @@ import warp.sparse as wps
 from warp.optim.linear import FSAI
 
 from .assembly import SystemMatrices, bsr_to_scipy, partition_bsr
-from .chunks import DeviceMirror, pipelined_chunks
+from .chunks import ChunkedRun
 from .kernels_cg import SLOT_SPREAD, pcg_kernels
-from .kernels_integrator import cg_newmark_update, single_precision
+from .kernels_integrator import cg_newmark_update
 from .kernels_persistent import (WORK_P, WORK_Q, WORK_R, WORK_ROWS, WORK_X, WORK_Y, WORK_Z, grid_capacity,
                                  persistent_pcg_kernel)
 from .newmark import NewmarkCoefficients
@@ -331,13 +331,7 @@ class CGSolver:
         self._record = wp.zeros((self.chunk, n), dtype=vec, device=dev)
         self._ring = wp.zeros(2, dtype=wp.int32, device=dev)
         self._step_ring = wp.zeros(2, dtype=wp.int32, device=dev)  # step(): a ring of one slot, always 0
-        # two host buffers of each kind: run_chunks queues chunk i + 1 before the host copies chunk i out
-        pinned = dev.is_cuda
-        self._staging_in = wp.zeros((2, self.chunk, max(n_driven, 1)), dtype=vec, device="cpu", pinned=pinned)
-        # displacements go out in float32 (what run() returns): half the bytes, and no conversion on the host
-        self._record32 = wp.zeros((self.chunk, n), dtype=wp.vec3f, device=dev)
-        self._staging_out = wp.zeros((2, self.chunk, n), dtype=wp.vec3f, device="cpu", pinned=pinned)
-        self._status_mirror = DeviceMirror(self._barrier, self._status, self._failure)
+        self._chunked = None  # run_chunks' host buffers, allocated on its first call
         self._use_graph = bool(use_graph)
         self._graphs: dict = {}
         self._bindings: dict = {}
@@ -460,7 +454,7 @@ class CGSolver:
         yields each chunk's displacements (k, N, 3) float32, a view of a host staging buffer valid until the next one.
 
         A chunk is one host-to-device copy of its driven inputs, ``k`` graph launches and one copy back, queued
-        before the previous chunk is waited for (:func:`~warpface.fem.chunks.pipelined_chunks`): on CUDA the device
+        before the previous chunk is waited for (:class:`~warpface.fem.chunks.ChunkedRun`): on CUDA the device
         steps on while the host copies a chunk out.
 
         Raises:
@@ -468,29 +462,10 @@ class CGSolver:
         """
         self.synchronize()
         binding = self._binding_for_chunks(state)
-        return pipelined_chunks(driven.shape[0], self.chunk,
-                                lambda start, stop, slot: self._queue_chunk(binding, driven[start:stop], slot),
-                                lambda queued: self._finish_chunk(*queued), device=self.device)
-
-    def _queue_chunk(self, binding, driven: np.ndarray, slot: int) -> tuple:
-        k = driven.shape[0]
-        if not 0 < k <= self.chunk:
-            raise ValueError(f"a chunk needs 1..{self.chunk} steps, got {k}")
-        self._ring.zero_()
-        width = self._trajectory.shape[1]
-        if driven.shape[1]:
-            self._staging_in.numpy()[slot, :k] = driven
-            wp.copy(self._trajectory, self._staging_in[slot], count=k * width)
-        for _ in range(k):
-            self._launch(binding)
-        wp.launch(single_precision, dim=(k, self.node_count), inputs=[self._record], outputs=[self._record32],
-                  device=self.device)
-        wp.copy(self._staging_out[slot], self._record32, count=k * self.node_count)
-        return slot, k, self._status_mirror.queue(slot)
-
-    def _finish_chunk(self, slot: int, k: int, done) -> np.ndarray:
-        self._raise_on_failure(*self._status_mirror.read(slot, done))
-        return self._staging_out.numpy()[slot, :k]
+        if self._chunked is None:
+            self._chunked = ChunkedRun(self._trajectory, self._record, self._ring, self._barrier, self._status,
+                                       self._failure)
+        return self._chunked.run(driven, lambda: self._launch(binding), self._raise_on_failure)
 
     # ------------------------------------------------------------------ status and restart
     def synchronize(self) -> None:
