@@ -222,6 +222,32 @@ def test_output_files_get_umask_permissions(tmp_path):
     assert stat.S_IMODE((tmp_path / "out.txt").stat().st_mode) == 0o604  # an existing file keeps its mode
 
 
+def test_atomic_path_without_creating_hands_out_a_fresh_name_and_cleans_up(tmp_path):
+    """``create=False``: the temporary name does not exist yet, lies beside the target with its suffix, and is
+    renamed onto the target on success; a failed block leaves the old target and no temporary behind."""
+    from pxr import Sdf
+
+    from warpface._files import atomic_path
+    from warpface.usd._files import export_layer_atomically
+
+    target = tmp_path / "root.usda"
+    target.write_text("old")
+    with atomic_path(target, ".usda", create=False) as temporary:
+        assert not temporary.exists() and temporary.parent == tmp_path and temporary.suffix == ".usda"
+        temporary.write_text("new")
+    assert target.read_text() == "new"
+    with pytest.raises(RuntimeError):
+        with atomic_path(target, ".usda", create=False) as temporary:
+            temporary.write_text("partial")
+            raise RuntimeError("writer failed")
+    assert target.read_text() == "new" and sorted(p.name for p in tmp_path.iterdir()) == ["root.usda"]
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    layer.comment = "exported"
+    export_layer_atomically(layer, target)
+    assert Sdf.Layer.OpenAsAnonymous(str(target)).comment == "exported"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["root.usda"]
+
+
 def test_version_and_quiet_output():
     import warpface
 

@@ -160,7 +160,7 @@ def export_layer_atomically(layer: Sdf.Layer, path: Path) -> None:
     reloaded, so stages holding it see the new content and it is no longer dirty.
     """
     path = as_path(path, "path")
-    with atomic_path(path, path.suffix) as temporary:
+    with atomic_path(path, path.suffix, create=False) as temporary:
         try:
             exported = layer.Export(str(temporary))
         except Exception as exc:  # Tf.ErrorException: full disk, permissions, ...
