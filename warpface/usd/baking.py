@@ -182,7 +182,7 @@ def bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | None =
 
     from tqdm import tqdm
 
-    with atomic_path(cache_path, cache_path.suffix) as temporary:
+    with atomic_path(cache_path, cache_path.suffix, create=False) as temporary:
         cache = _new_cache_layer(temporary, cache_path, skin_path, stage)
         with Sdf.ChangeBlock():
             for path in (points_path, extent_path):
