@@ -87,7 +87,7 @@ def grid_sync_acquire(barrier: wp.array(dtype=wp.int32), target: int):
     (PTX memory model, GPU scope) in place of the two full fences: the single model's barrier.
 
     H200, 6.7k-node shell, interleaved runs (session 9): one model's ``step()`` 0.179–0.184 ms against
-    0.187–0.193 with the fences; but ten models 1.243–1.259 ms against 1.210–1.223 (and 1.268–1.271 when every
+    0.187–0.195 with the fences; but ten models 1.243–1.259 ms against 1.210–1.246 (and 1.268–1.271 when every
     poll was an acquire load), so batches keep the fences."""
     ...
 
