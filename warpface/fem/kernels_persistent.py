@@ -48,6 +48,7 @@ RESIDENT_THREADS = 512
 BARRIER_POLLS = 1 << 22
 """Polls of the barrier counter (~1 s) before a block gives up waiting and raises the abort flag."""
 
+
 def _grid_sync_source(arrive: str, leave: str) -> str:
     """CUDA source of a grid barrier on ``barrier[0]`` whose thread 0 announces its block with ``arrive``, polls
     (relaxed loads) until every block has arrived or the abort flag ``barrier[1]`` is up, then runs ``leave``."""
