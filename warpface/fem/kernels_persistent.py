@@ -76,7 +76,8 @@ def _grid_sync_source(arrive: str, leave: str) -> str:
 def grid_sync(barrier: wp.array(dtype=wp.int32), target: int):
     """Wait until ``barrier[0]`` (advanced by one per arriving block) reaches ``target``; all writes
     before the barrier are visible to every block after it. Gives up (sets ``barrier[1]``) after
-    :data:`BARRIER_POLLS` polls. CUDA only; a no-op on the CPU. Fences around the arrival: the batch's barrier."""
+    :data:`BARRIER_POLLS` polls. CUDA only; a no-op on the CPU. A ``__threadfence`` before the arrival and after
+    the poll: the barrier of a batch."""
     ...
 
 
