@@ -12,7 +12,9 @@ from typing import Callable
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def time_call(function: Callable[[], object], *, repeats: int = 20, warmup: int = 2, min_seconds: float = 0.0, sync=None) -> float:
+def time_call(
+    function: Callable[[], object], *, repeats: int = 20, warmup: int = 2, min_seconds: float = 0.0, sync=None
+) -> float:
     """Median wall time of ``function()`` in seconds over ``repeats`` runs (after ``warmup`` runs).
 
     ``sync`` (e.g. ``warp.synchronize_device``) is called after each run so asynchronous device work
@@ -46,7 +48,11 @@ def print_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> None:
 
 
 def machine_info(device=None) -> dict:
-    info = {"python": platform.python_version(), "machine": platform.machine(), "processor": platform.processor() or platform.machine()}
+    info = {
+        "python": platform.python_version(),
+        "machine": platform.machine(),
+        "processor": platform.processor() or platform.machine(),
+    }
     try:
         import warp as wp
 

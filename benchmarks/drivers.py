@@ -95,8 +95,13 @@ def _controls_stage(path: Path, rig, mapped, frames: int, fps: float):
     muscles = set(rig.muscle_names)
     contractions = {n: mapped.values[:frames, k] for k, n in enumerate(mapped.names) if n in muscles}
     jaw = {n: mapped.values[:frames, k] for k, n in enumerate(mapped.names) if n in JAW_CONTROL_ATTRIBUTES}
-    usd.write_animation(stage, np.arange(frames, dtype=np.float64), contractions=contractions,
-                        jaw=jaw if rig.jaw is not None and jaw else None, fps=fps)
+    usd.write_animation(
+        stage,
+        np.arange(frames, dtype=np.float64),
+        contractions=contractions,
+        jaw=jaw if rig.jaw is not None and jaw else None,
+        fps=fps,
+    )
     stage.GetRootLayer().Save()
     return stage
 
@@ -113,7 +118,9 @@ def _check_cache(stage_path: Path, model, frames: int) -> None:
     animation = usd.read_animation(stage, sampled, meters_per_unit=usd.stage_meters_per_unit(stage))
     for time_code, controls, depths in zip(sampled.tolist(), animation.controls, animation.wrinkle_depths):
         expected = model.evaluate(controls, wrinkle_depths=depths)  # muscles, then the jaw's controls
-        assert np.array_equal(np.asarray(points.Get(time_code), dtype=np.float32), expected), f"cache differs at frame {time_code:g}"
+        assert np.array_equal(np.asarray(points.Get(time_code), dtype=np.float32), expected), (
+            f"cache differs at frame {time_code:g}"
+        )
 
 
 def _cpu_name() -> str:
@@ -153,19 +160,31 @@ def main(argv=None) -> None:
     rows = []
 
     def row(name, wall, cpu, timed_frames=frames, scaled=1.0):
-        rows.append({"row": name, "seconds": wall * scaled, "cpu_seconds": None if cpu is None else cpu * scaled,
-                     "frames_timed": timed_frames, "frames_per_s": frames / (wall * scaled)})
+        rows.append(
+            {
+                "row": name,
+                "seconds": wall * scaled,
+                "cpu_seconds": None if cpu is None else cpu * scaled,
+                "frames_timed": timed_frames,
+                "frames_per_s": frames / (wall * scaled),
+            }
+        )
 
     with tempfile.TemporaryDirectory(prefix="warpface-drivers-") as folder:
         folder = Path(folder)
-        curves = Curves(times=np.arange(frames) / args.fps, names=list(ARKIT_CHANNELS),
-                        values=smooth_curves(frames, len(ARKIT_CHANNELS), args.fps), fps=args.fps)
+        curves = Curves(
+            times=np.arange(frames) / args.fps,
+            names=list(ARKIT_CHANNELS),
+            values=smooth_curves(frames, len(ARKIT_CHANNELS), args.fps),
+            fps=args.fps,
+        )
         csv_path = write_live_link(folder / "take.csv", curves)
         csv_mb = csv_path.stat().st_size / 1e6
         _, mapped = prepare_controls(read_driver(csv_path), mapping, fps=args.fps)
 
-        wall, cpu, result = _timed(lambda: animate(csv_path, folder / "face.usda", video=False, fps=args.fps, device=device,
-                                                   progress=False))
+        wall, cpu, result = _timed(
+            lambda: animate(csv_path, folder / "face.usda", video=False, fps=args.fps, device=device, progress=False)
+        )
         row("animate total (read→bake, no video)", wall, cpu)
         for step, seconds in result.seconds.items():
             row(f"  {step}", seconds, None)
@@ -175,7 +194,9 @@ def main(argv=None) -> None:
 
         total_s = wall
         # The preview renders PREVIEW_MAX_FRAMES frames whatever the take's length: time it on the peer slice.
-        short = Curves(times=curves.times[:peer_frames], names=curves.names, values=curves.values[:peer_frames], fps=args.fps)
+        short = Curves(
+            times=curves.times[:peer_frames], names=curves.names, values=curves.values[:peer_frames], fps=args.fps
+        )
         short_csv = write_live_link(folder / "short.csv", short)
         with_video = animate(short_csv, folder / "video.usda", video=True, fps=args.fps, device=device, progress=False)
         video_s = with_video.seconds["video"]
@@ -184,17 +205,24 @@ def main(argv=None) -> None:
 
         stage = _controls_stage(folder / "slice.usda", rig, mapped, peer_frames, args.fps)
         times = np.arange(peer_frames, dtype=np.float64)
-        wall, cpu, _ = _timed(lambda: usd.bake(stage, times, cache_path=folder / "slice_anim.usdc", model=model, progress=False))
+        wall, cpu, _ = _timed(
+            lambda: usd.bake(stage, times, cache_path=folder / "slice_anim.usdc", model=model, progress=False)
+        )
         row("bake (threads), peer slice", wall, cpu, peer_frames, scale)
-        wall, cpu, _ = _timed(lambda: usd.bake(stage, times, cache_path=folder / "slice1_anim.usdc", model=model,
-                                               progress=False, workers=1))
+        wall, cpu, _ = _timed(
+            lambda: usd.bake(
+                stage, times, cache_path=folder / "slice1_anim.usdc", model=model, progress=False, workers=1
+            )
+        )
         row("bake, 1 worker (serial)", wall, cpu, peer_frames, scale)
         animation = usd.read_animation(stage, times)
         wall, cpu, _ = _timed(lambda: _naive_bake(folder / "naive.usdc", model, animation))
         row("naive per-frame bake (evaluate + Attribute.Set)", wall, cpu, peer_frames, scale)
 
         time_codes = np.arange(len(mapped.times), dtype=np.float64)
-        wall, cpu, _ = _timed(lambda: _naive_controls(folder / "naive.usda", rig, mapped.names, mapped.values, time_codes))
+        wall, cpu, _ = _timed(
+            lambda: _naive_controls(folder / "naive.usda", rig, mapped.names, mapped.values, time_codes)
+        )
         row("naive controls Attribute.Set", wall, cpu)
 
     naive_bake = next(r["seconds"] for r in rows if r["row"].startswith("naive per-frame bake"))
@@ -202,20 +230,50 @@ def main(argv=None) -> None:
         entry["x_naive_bake"] = None if entry["row"].startswith(" ") else naive_bake / entry["seconds"]
     load_after = os.getloadavg()
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    print(f"\nDrivers: {args.minutes:g} min of {args.fps:g} fps ARKit curves ({frames:,} frames × 52 channels, CSV "
-          f"{csv_mb:.0f} MB) → built-in face ({rig.mesh.vertex_count:,} points, {len(rig.muscles)} muscles, "
-          f"{len(rig.wrinkles)} wrinkles), cache {cache_mb:,.0f} MB, device {device} ({device.name})")
+    print(
+        f"\nDrivers: {args.minutes:g} min of {args.fps:g} fps ARKit curves ({frames:,} frames × 52 channels, CSV "
+        f"{csv_mb:.0f} MB) → built-in face ({rig.mesh.vertex_count:,} points, {len(rig.muscles)} muscles, "
+        f"{len(rig.wrinkles)} wrinkles), cache {cache_mb:,.0f} MB, device {device} ({device.name})"
+    )
     print(f"machine: {_cpu_name()}, {cores} cores; load average before {load_before[0]:.2f}, after {load_after[0]:.2f}")
-    print(f"peers: the first {peer_frames:,} frames, times ×{scale:g}; target: total < 60 s; cache checked bit for bit\n")
-    print_table(rows, [("row", "row", "s"), ("seconds", "seconds", ".2f"), ("cpu_seconds", "CPU s", ".2f"),
-                       ("frames_timed", "frames timed", ",d"), ("frames_per_s", "frames/s", ",.0f"),
-                       ("x_naive_bake", "× naive bake", ".2f")])
-    machine = machine_info(device) | {"cpu": _cpu_name(), "cores": cores, "host": platform.node(),
-                                      "load_average_before": load_before, "load_average_after": load_after}
-    write_results("drivers" + ("" if device.is_cpu else f"_{device.alias.replace(':', '')}"), {
-        "benchmark": "drivers", "machine": machine, "minutes": args.minutes, "fps": args.fps,
-        "frames": frames, "peer_frames": peer_frames, "vertices": rig.mesh.vertex_count, "muscles": len(rig.muscles),
-        "wrinkles": len(rig.wrinkles), "cache_mb": cache_mb, "target_seconds": 60.0, "rows": rows})
+    print(
+        f"peers: the first {peer_frames:,} frames, times ×{scale:g}; target: total < 60 s; cache checked bit for bit\n"
+    )
+    print_table(
+        rows,
+        [
+            ("row", "row", "s"),
+            ("seconds", "seconds", ".2f"),
+            ("cpu_seconds", "CPU s", ".2f"),
+            ("frames_timed", "frames timed", ",d"),
+            ("frames_per_s", "frames/s", ",.0f"),
+            ("x_naive_bake", "× naive bake", ".2f"),
+        ],
+    )
+    machine = machine_info(device) | {
+        "cpu": _cpu_name(),
+        "cores": cores,
+        "host": platform.node(),
+        "load_average_before": load_before,
+        "load_average_after": load_after,
+    }
+    write_results(
+        "drivers" + ("" if device.is_cpu else f"_{device.alias.replace(':', '')}"),
+        {
+            "benchmark": "drivers",
+            "machine": machine,
+            "minutes": args.minutes,
+            "fps": args.fps,
+            "frames": frames,
+            "peer_frames": peer_frames,
+            "vertices": rig.mesh.vertex_count,
+            "muscles": len(rig.muscles),
+            "wrinkles": len(rig.wrinkles),
+            "cache_mb": cache_mb,
+            "target_seconds": 60.0,
+            "rows": rows,
+        },
+    )
 
 
 if __name__ == "__main__":

@@ -51,8 +51,15 @@ import numpy as np
 import scipy.sparse.linalg as spla
 import warp as wp
 
-from warpface.fem import (KATO_UNIFORM, TissueBatch, TissueMaterial, TissueSimulation, assemble,
-                          kato_uniform_material, shell_tet_mesh)
+from warpface.fem import (
+    KATO_UNIFORM,
+    TissueBatch,
+    TissueMaterial,
+    TissueSimulation,
+    assemble,
+    kato_uniform_material,
+    shell_tet_mesh,
+)
 from warpface.fem.solver_direct import node_dofs
 
 from ._timing import machine_info, print_table, write_results
@@ -69,8 +76,15 @@ def face_problem(cells: int):
     outer = mesh.surface_nodes[p[mesh.surface_nodes, 2] > 0.0]
     mouth_y = p[:, 1].min() + 0.25 * height
     targets = np.array(
-        [[0.0, mouth_y + 0.006], [-0.02, mouth_y], [0.02, mouth_y], [0.0, mouth_y - 0.006],  # lips
-         [-0.035, p[:, 1].min() + 0.02], [0.0, p[:, 1].min() + 0.01], [0.035, p[:, 1].min() + 0.02]]  # jaw
+        [
+            [0.0, mouth_y + 0.006],
+            [-0.02, mouth_y],
+            [0.02, mouth_y],
+            [0.0, mouth_y - 0.006],  # lips
+            [-0.035, p[:, 1].min() + 0.02],
+            [0.0, p[:, 1].min() + 0.01],
+            [0.035, p[:, 1].min() + 0.02],
+        ]  # jaw
     )
     driven, lower = [], []
     for k, (x, y) in enumerate(targets):
@@ -222,8 +236,17 @@ def batch_step_seconds(mesh, fixed, driven, trajectory, models: int, device, pre
         for e, eta in zip(scale, scale[::-1])
     ][: models - 1]
     start = time.perf_counter()
-    batch = TissueBatch(mesh, materials, DT, fixed=fixed, driven=driven, solver="cg", device=device, chunk=16,
-                        cg_preconditioner=preconditioner)
+    batch = TissueBatch(
+        mesh,
+        materials,
+        DT,
+        fixed=fixed,
+        driven=driven,
+        solver="cg",
+        device=device,
+        chunk=16,
+        cg_preconditioner=preconditioner,
+    )
     setup = time.perf_counter() - start
     batch.run(trajectory, nodes=np.zeros(1, dtype=np.int64))
     final = batch.d[0]
@@ -238,11 +261,19 @@ def batch_step_seconds(mesh, fixed, driven, trajectory, models: int, device, pre
     batch.synchronize()
     seconds = (time.perf_counter() - start) / steps
     slowest = int(np.argmax(iterations[:, 2]))
-    return dict(setup=setup, seconds=seconds, final=final, most=int(iterations[:, 0].max()),
-                mean=float(iterations[:, 2].max()) / steps, slowest=materials[slowest])
+    return dict(
+        setup=setup,
+        seconds=seconds,
+        final=final,
+        most=int(iterations[:, 0].max()),
+        mean=float(iterations[:, 2].max()) / steps,
+        slowest=materials[slowest],
+    )
 
 
-def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=(), batch_preconditioners=("fsai",)) -> list[dict]:
+def bench_mesh(
+    cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=(), batch_preconditioners=("fsai",)
+) -> list[dict]:
     mesh, fixed, driven, lower = face_problem(cells)
     material = kato_uniform_material()
     trajectory = mouth_opening(steps + 1, lower)
@@ -261,8 +292,13 @@ def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=
         if with_anp:
             configs.append(("warpface cuda cg anp", "anp", cuda_device, {}))
     sims = [
-        (name, formulation, TissueSimulation(mesh, material, DT, fixed=fixed, driven=driven,
-                                             formulation=formulation, device=device, **options))
+        (
+            name,
+            formulation,
+            TissueSimulation(
+                mesh, material, DT, fixed=fixed, driven=driven, formulation=formulation, device=device, **options
+            ),
+        )
         for name, formulation, device, options in configs
     ]
     cpu_sims = [sim for _, _, sim in sims if sim.solver == "direct"]
@@ -274,13 +310,23 @@ def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=
     base_step = base_times["linear"]
     reference = base.d.reshape(-1, 3)
     references = {formulation: b.d.reshape(-1, 3) for formulation, b in bases.items()}
-    rows = [dict(mesh=label, path="scipy splu baseline" + ("" if formulation == "linear" else f" {formulation}"),
-                 assembly_s=b.assembly_seconds, factor_s=b.factor_seconds, factor_nnz=b.lu.L.nnz + b.lu.U.nnz,
-                 step_ms=1e3 * base_times[formulation], step_call_ms=1e3 * base_times[formulation],
-                 ratio=1.0, ratio_plain=base_step / base_times[formulation],
-                 realtime=DT / base_times[formulation], max_diff=0.0)
-            for formulation, b in bases.items()]
-    cpu_times = iter(cpu_times[len(bases):])
+    rows = [
+        dict(
+            mesh=label,
+            path="scipy splu baseline" + ("" if formulation == "linear" else f" {formulation}"),
+            assembly_s=b.assembly_seconds,
+            factor_s=b.factor_seconds,
+            factor_nnz=b.lu.L.nnz + b.lu.U.nnz,
+            step_ms=1e3 * base_times[formulation],
+            step_call_ms=1e3 * base_times[formulation],
+            ratio=1.0,
+            ratio_plain=base_step / base_times[formulation],
+            realtime=DT / base_times[formulation],
+            max_diff=0.0,
+        )
+        for formulation, b in bases.items()
+    ]
+    cpu_times = iter(cpu_times[len(bases) :])
     for name, formulation, sim in sims:
         if sim.solver == "direct":
             per_step = step_calls = next(cpu_times)
@@ -288,14 +334,23 @@ def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=
         else:
             per_step, step_calls, final, iterations, mean_iterations = cuda_step_times(sim, trajectory)
         diff = float(np.abs(final - references[formulation]).max())
-        rows.append(dict(mesh=label, path=name, assembly_s=sim.timings["assembly"],
-                         factor_s=sim.timings.get("factorization", sim.timings["solver_setup"]),
-                         factor_nnz=getattr(sim.stepper, "factor_nnz", None),
-                         step_ms=1e3 * per_step, step_call_ms=1e3 * step_calls,
-                         ratio=base_times[formulation] / per_step if formulation in base_times else base_step / per_step,
-                         ratio_plain=base_step / per_step,
-                         realtime=DT / per_step, max_diff=diff, cg_iterations=iterations,
-                         cg_mean_iterations=mean_iterations))
+        rows.append(
+            dict(
+                mesh=label,
+                path=name,
+                assembly_s=sim.timings["assembly"],
+                factor_s=sim.timings.get("factorization", sim.timings["solver_setup"]),
+                factor_nnz=getattr(sim.stepper, "factor_nnz", None),
+                step_ms=1e3 * per_step,
+                step_call_ms=1e3 * step_calls,
+                ratio=base_times[formulation] / per_step if formulation in base_times else base_step / per_step,
+                ratio_plain=base_step / per_step,
+                realtime=DT / per_step,
+                max_diff=diff,
+                cg_iterations=iterations,
+                cg_mean_iterations=mean_iterations,
+            )
+        )
     if cuda_device is not None:
         try:
             import cupy  # noqa: F401
@@ -303,9 +358,18 @@ def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=
             print("  (cupy not installed: no CuPy CG row)")
         else:
             seconds, final, mean = cupy_step_seconds(base, trajectory, 1.0e-5)
-            rows.append(dict(mesh=label, path="cupy cg (jacobi) peer", step_ms=1e3 * seconds, step_call_ms=1e3 * seconds,
-                             ratio=base_step / seconds, realtime=DT / seconds,
-                             max_diff=float(np.abs(final - reference).max()), cg_mean_iterations=mean))
+            rows.append(
+                dict(
+                    mesh=label,
+                    path="cupy cg (jacobi) peer",
+                    step_ms=1e3 * seconds,
+                    step_call_ms=1e3 * seconds,
+                    ratio=base_step / seconds,
+                    realtime=DT / seconds,
+                    max_diff=float(np.abs(final - reference).max()),
+                    cg_mean_iterations=mean,
+                )
+            )
             for row in rows:
                 if row["path"].startswith("warpface cuda cg"):
                     row["x_cupy"] = seconds / (1e-3 * row["step_ms"])
@@ -317,28 +381,51 @@ def bench_mesh(cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=
                 alone = TissueSimulation(mesh, result["slowest"], DT, fixed=fixed, driven=driven, device=cuda_device)
                 slowest_ms = 1e3 * cuda_step_times(alone, trajectory)[1]
                 suffix = "" if preconditioner == "fsai" else f" {preconditioner}"
-                rows.append(dict(mesh=label, path=f"warpface cuda cg batch x{models}{suffix}", factor_s=result["setup"],
-                                 step_ms=1e3 * result["seconds"], step_call_ms=1e3 * result["seconds"],
-                                 model_ms=1e3 * result["seconds"] / models, ratio=base_step / result["seconds"],
-                                 realtime=DT / result["seconds"], max_diff=float(np.abs(result["final"] - reference).max()),
-                                 cg_iterations=result["most"], cg_mean_iterations=result["mean"],
-                                 x_single=None if not single else 1e3 * result["seconds"] / single,
-                                 slowest_alone_ms=slowest_ms, x_slowest_alone=1e3 * result["seconds"] / slowest_ms))
-    print(f"  {label}: {mesh.tet_count} tets, {fixed.size} fixed, {driven.size} driven nodes; "
-          f"max displacement {np.abs(reference).max() * 1e3:.2f} mm after {steps + 1} steps")
+                rows.append(
+                    dict(
+                        mesh=label,
+                        path=f"warpface cuda cg batch x{models}{suffix}",
+                        factor_s=result["setup"],
+                        step_ms=1e3 * result["seconds"],
+                        step_call_ms=1e3 * result["seconds"],
+                        model_ms=1e3 * result["seconds"] / models,
+                        ratio=base_step / result["seconds"],
+                        realtime=DT / result["seconds"],
+                        max_diff=float(np.abs(result["final"] - reference).max()),
+                        cg_iterations=result["most"],
+                        cg_mean_iterations=result["mean"],
+                        x_single=None if not single else 1e3 * result["seconds"] / single,
+                        slowest_alone_ms=slowest_ms,
+                        x_slowest_alone=1e3 * result["seconds"] / slowest_ms,
+                    )
+                )
+    print(
+        f"  {label}: {mesh.tet_count} tets, {fixed.size} fixed, {driven.size} driven nodes; "
+        f"max displacement {np.abs(reference).max() * 1e3:.2f} mm after {steps + 1} steps"
+    )
     return rows
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=200, help="timed steps per row (default 200)")
-    parser.add_argument("--sizes", type=int, nargs="+", default=[40, 80],
-                        help="shell cells per side: 40 -> 6.7k nodes, 80 -> 26k nodes")
+    parser.add_argument(
+        "--sizes", type=int, nargs="+", default=[40, 80], help="shell cells per side: 40 -> 6.7k nodes, 80 -> 26k nodes"
+    )
     parser.add_argument("--no-anp", action="store_true", help="skip the locking-free rows")
-    parser.add_argument("--batch", type=int, nargs="*", default=[1, 3, 10, 100],
-                        help="models per TissueBatch row on CUDA, on the first mesh size (default 1 3 10 100)")
-    parser.add_argument("--batch-preconditioners", nargs="*", default=["fsai", "fsai_each"],
-                        help="TissueBatch preconditioners, one set of batch rows each (default fsai fsai_each)")
+    parser.add_argument(
+        "--batch",
+        type=int,
+        nargs="*",
+        default=[1, 3, 10, 100],
+        help="models per TissueBatch row on CUDA, on the first mesh size (default 1 3 10 100)",
+    )
+    parser.add_argument(
+        "--batch-preconditioners",
+        nargs="*",
+        default=["fsai", "fsai_each"],
+        help="TissueBatch preconditioners, one set of batch rows each (default fsai fsai_each)",
+    )
     parser.add_argument("--device", default=None, help="CUDA device for the CG rows (default: first CUDA device)")
     args = parser.parse_args()
 
@@ -347,21 +434,46 @@ def main() -> None:
     cuda = args.device or ("cuda:0" if wp.is_cuda_available() else None)
     rows = []
     for index, cells in enumerate(args.sizes):
-        rows.extend(bench_mesh(cells, args.steps, not args.no_anp, cuda, args.batch if index == 0 else (), args.batch_preconditioners))
-    print_table(rows, [("mesh", "mesh", "s"), ("path", "path", "s"), ("assembly_s", "assembly s", ".2f"),
-                       ("factor_s", "factor/setup s", ".2f"), ("factor_nnz", "factor nnz", "d"),
-                       ("step_ms", "ms/step run()", ".3f"),
-                       ("step_call_ms", "ms/step step()", ".3f"),
-                       ("model_ms", "ms/step/model", ".4f"), ("x_single", "x one model", ".2f"),
-                       ("x_slowest_alone", "x slowest alone", ".2f"),
-                       ("ratio", "ratio vs splu", ".2f"), ("x_cupy", "x cupy", ".1f"), ("ratio_plain", "x plain splu", ".2f"),
-                       ("realtime", "x real time", ".3f"),
-                       ("max_diff", "max diff m", ".1e"), ("cg_iterations", "CG iters max", "d"),
-                       ("cg_mean_iterations", "CG iters mean", ".1f")])
+        rows.extend(
+            bench_mesh(
+                cells, args.steps, not args.no_anp, cuda, args.batch if index == 0 else (), args.batch_preconditioners
+            )
+        )
+    print_table(
+        rows,
+        [
+            ("mesh", "mesh", "s"),
+            ("path", "path", "s"),
+            ("assembly_s", "assembly s", ".2f"),
+            ("factor_s", "factor/setup s", ".2f"),
+            ("factor_nnz", "factor nnz", "d"),
+            ("step_ms", "ms/step run()", ".3f"),
+            ("step_call_ms", "ms/step step()", ".3f"),
+            ("model_ms", "ms/step/model", ".4f"),
+            ("x_single", "x one model", ".2f"),
+            ("x_slowest_alone", "x slowest alone", ".2f"),
+            ("ratio", "ratio vs splu", ".2f"),
+            ("x_cupy", "x cupy", ".1f"),
+            ("ratio_plain", "x plain splu", ".2f"),
+            ("realtime", "x real time", ".3f"),
+            ("max_diff", "max diff m", ".1e"),
+            ("cg_iterations", "CG iters max", "d"),
+            ("cg_mean_iterations", "CG iters mean", ".1f"),
+        ],
+    )
     name = f"fem_{str(cuda).replace(':', '')}" if cuda else "fem"  # a CUDA run keeps the CPU file
-    path = write_results(name, {"dt": DT, "material": dict(KATO_UNIFORM), "steps": args.steps,
-                                 "machine": machine_info(cuda or "cpu"), "cpu_count": os.cpu_count(),
-                                 "load_average": os.getloadavg(), "rows": rows})
+    path = write_results(
+        name,
+        {
+            "dt": DT,
+            "material": dict(KATO_UNIFORM),
+            "steps": args.steps,
+            "machine": machine_info(cuda or "cpu"),
+            "cpu_count": os.cpu_count(),
+            "load_average": os.getloadavg(),
+            "rows": rows,
+        },
+    )
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
     print(f"wrote {path}")
 

@@ -72,7 +72,9 @@ def reach(rig, mesh, landmarks, shapes, device, dense_only: bool = False) -> lis
             row[f"{label}_reduction"] = 1.0 - after_mean / before_mean
             row[f"{label}_seconds"] = time.perf_counter() - started
             row[f"{label}_converged"] = bool(solved.converged)
-            size = np.abs(controls) / np.where(np.array([n.startswith("jaw_") for n in model.control_names]), 1.0, scale)
+            size = np.abs(controls) / np.where(
+                np.array([n.startswith("jaw_") for n in model.control_names]), 1.0, scale
+            )
             top = np.argsort(-size)[:4]
             row[f"{label}_top"] = {model.control_names[i]: float(size[i]) for i in top}
         results.append(row)
@@ -83,9 +85,16 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--shapes", nargs="*", default=list(SHAPES))
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--compare", action="store_true", help="also fit the classic rig (§1.1 zones, 23 muscles, no jaw)")
-    parser.add_argument("--response", nargs="*", default=[], metavar="S,B",
-                        help="also fit the full rig with every muscle's sliding S and bunching B replaced")
+    parser.add_argument(
+        "--compare", action="store_true", help="also fit the classic rig (§1.1 zones, 23 muscles, no jaw)"
+    )
+    parser.add_argument(
+        "--response",
+        nargs="*",
+        default=[],
+        metavar="S,B",
+        help="also fit the full rig with every muscle's sliding S and bunching B replaced",
+    )
     parser.add_argument("--dense-only", action="store_true", help="skip the landmark fits")
     args = parser.parse_args(argv)
     wp.config.quiet = True
@@ -100,19 +109,35 @@ def main(argv=None) -> int:
         sliding, bunching = (float(v) for v in pair.split(","))
         base = rigs["default"]
         muscles = [replace(m, sliding=sliding, bunching=bunching) for m in base.muscles]
-        rigs[f"s={sliding:g},b={bunching:g}"] = FaceRig(mesh=mesh, muscles=muscles, wrinkles=base.wrinkles, thickness=base.thickness,
-                                                        landmarks=base.landmarks, name=base.name, jaw=base.jaw)
+        rigs[f"s={sliding:g},b={bunching:g}"] = FaceRig(
+            mesh=mesh,
+            muscles=muscles,
+            wrinkles=base.wrinkles,
+            thickness=base.thickness,
+            landmarks=base.landmarks,
+            name=base.name,
+            jaw=base.jaw,
+        )
     payload = {"machine": machine_info(args.device), "moved_mm": MOVED_MM, "rigs": {}}
     for label, rig in rigs.items():
         rows = reach(rig, mesh, landmarks, args.shapes, args.device, dense_only=args.dense_only)
         payload["rigs"][label] = {"controls": len(rig.model(device=args.device).control_names), "rows": rows}
         print(f"\n{label} rig ({payload['rigs'][label]['controls']} controls), error over moved vertices [mm]:")
-        print_table(rows, [("shape", "shape", "s"), ("moved", "moved", "d"),
-                           ("before_mean_mm", "mean before", ".3f"), ("before_max_mm", "max before", ".2f"),
-                           ("dense_mean_mm", "dense mean", ".3f"), ("dense_max_mm", "dense max", ".2f"),
-                           ("dense_reduction", "dense red.", ".1%"),
-                           ("landmarks_mean_mm", "lmk mean", ".3f"), ("landmarks_max_mm", "lmk max", ".2f"),
-                           ("landmarks_reduction", "lmk red.", ".1%")])
+        print_table(
+            rows,
+            [
+                ("shape", "shape", "s"),
+                ("moved", "moved", "d"),
+                ("before_mean_mm", "mean before", ".3f"),
+                ("before_max_mm", "max before", ".2f"),
+                ("dense_mean_mm", "dense mean", ".3f"),
+                ("dense_max_mm", "dense max", ".2f"),
+                ("dense_reduction", "dense red.", ".1%"),
+                ("landmarks_mean_mm", "lmk mean", ".3f"),
+                ("landmarks_max_mm", "lmk max", ".2f"),
+                ("landmarks_reduction", "lmk red.", ".1%"),
+            ],
+        )
         for row in rows:
             print(f"  {row['shape']}: dense top {', '.join(f'{k}={v:.3f}' for k, v in row['dense_top'].items())}")
     path = write_results("rig_reach", payload)

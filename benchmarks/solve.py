@@ -33,7 +33,15 @@ from warpface.solve import Solver
 
 from ._timing import machine_info, print_table, write_results
 
-ICT_SHAPES = ("browInnerUp_L", "browInnerUp_R", "browOuterUp_L", "browOuterUp_R", "eyeSquint_L", "eyeSquint_R", "jawOpen")
+ICT_SHAPES = (
+    "browInnerUp_L",
+    "browInnerUp_R",
+    "browOuterUp_L",
+    "browOuterUp_R",
+    "eyeSquint_L",
+    "eyeSquint_R",
+    "jawOpen",
+)
 CENTIMETRE = 0.01
 MOVED = 1e-4
 """A vertex counts as moved by a shape when it moves more than 0.1 mm."""
@@ -66,11 +74,17 @@ def scipy_solve(solver: Solver, target: np.ndarray, start: np.ndarray):
     def residual(u):
         x, _ = solver.local.evaluate((u / scale)[None], jacobian=False)
         e = solver.observation.apply_frames(x)[0] / solver.unit - y
-        size = np.where(signed, np.sqrt(u * u + SIGNED_SMOOTHING ** 2), np.maximum(u, 0.0))
+        size = np.where(signed, np.sqrt(u * u + SIGNED_SMOOTHING**2), np.maximum(u, 0.0))
         return np.concatenate([(root_w * e).ravel(), np.sqrt(opts.l2) * u, np.sqrt(opts.l1 * size)])
 
-    result = least_squares(residual, np.clip(start * scale, low, high), bounds=(low, high), method="trf",
-                           diff_step=FD_STEP / solver.unit, x_scale=1.0)
+    result = least_squares(
+        residual,
+        np.clip(start * scale, low, high),
+        bounds=(low, high),
+        method="trf",
+        diff_step=FD_STEP / solver.unit,
+        x_scale=1.0,
+    )
     return result.x / scale, result.nfev
 
 
@@ -92,8 +106,12 @@ def real_shapes(device, quick: bool) -> list[dict]:
         target = wf.load_obj(shape_path)[0] * CENTIMETRE
         before = np.linalg.norm(target - mesh.points, axis=1)
         moved = before > MOVED
-        row = {"shape": shape, "moved": int(moved.sum()), "before_mean_mm": before[moved].mean() * 1e3,
-               "before_max_mm": before[moved].max() * 1e3}
+        row = {
+            "shape": shape,
+            "moved": int(moved.sum()),
+            "before_mean_mm": before[moved].mean() * 1e3,
+            "before_max_mm": before[moved].max() * 1e3,
+        }
         for label, solver, goal in (("dense", dense, target), ("landmarks", sparse, target[landmarks])):
             solver.reset()
             began = time.perf_counter()
@@ -160,14 +178,32 @@ def speed(device, frames_batched: int, quick: bool) -> list[dict]:
         observed = solver.observation.apply_frames(x)[0]
         worst = max(worst, float(np.sqrt(np.mean(np.sum((observed - frame) ** 2, axis=1)))) / rig_scale(rig))
     theirs = (time.perf_counter() - began) / len(reference)
-    rows.append({"case": "landmarks, warm-started", "unit": "frames/s", "warpface": 1.0 / ours, "scipy": 1.0 / theirs,
-                 "ratio": theirs / ours, "warpface_rms_iod": ours_error, "scipy_rms_iod": worst,
-                 "warpface_iterations": float(np.mean([f.iterations for f in fits])),
-                 "scipy_evaluations": evaluations / len(reference), "frames": len(frames)})
-    rows.append({"case": "landmarks, warm-started, NumPy loop", "unit": "frames/s", "warpface": 1.0 / host_seconds,
-                 "scipy": 1.0 / theirs, "ratio": theirs / host_seconds,
-                 "warpface_rms_iod": max(f.residual for f in host_fits) / rig_scale(rig),
-                 "warpface_iterations": float(np.mean([f.iterations for f in host_fits])), "frames": len(frames)})
+    rows.append(
+        {
+            "case": "landmarks, warm-started",
+            "unit": "frames/s",
+            "warpface": 1.0 / ours,
+            "scipy": 1.0 / theirs,
+            "ratio": theirs / ours,
+            "warpface_rms_iod": ours_error,
+            "scipy_rms_iod": worst,
+            "warpface_iterations": float(np.mean([f.iterations for f in fits])),
+            "scipy_evaluations": evaluations / len(reference),
+            "frames": len(frames),
+        }
+    )
+    rows.append(
+        {
+            "case": "landmarks, warm-started, NumPy loop",
+            "unit": "frames/s",
+            "warpface": 1.0 / host_seconds,
+            "scipy": 1.0 / theirs,
+            "ratio": theirs / host_seconds,
+            "warpface_rms_iod": max(f.residual for f in host_fits) / rig_scale(rig),
+            "warpface_iterations": float(np.mean([f.iterations for f in host_fits])),
+            "frames": len(frames),
+        }
+    )
 
     # Dense fit of one shape (the smile at full intensity), from neutral.
     peak = timeline[len(timeline) // 8 * 7]
@@ -182,10 +218,19 @@ def speed(device, frames_batched: int, quick: bool) -> list[dict]:
     controls, nfev = scipy_solve(dense, target, np.zeros(len(dense.names)))
     theirs = time.perf_counter() - began
     x, _ = dense.local.evaluate(controls[None], jacobian=False)
-    rows.append({"case": "dense fit, one shape", "unit": "s", "warpface": ours, "scipy": theirs, "ratio": theirs / ours,
-                 "warpface_rms_iod": fit.residual / rig_scale(rig),
-                 "scipy_rms_iod": float(np.sqrt(np.mean(np.sum((x[0] - target) ** 2, axis=1)))) / rig_scale(rig),
-                 "warpface_iterations": fit.iterations, "scipy_evaluations": nfev})
+    rows.append(
+        {
+            "case": "dense fit, one shape",
+            "unit": "s",
+            "warpface": ours,
+            "scipy": theirs,
+            "ratio": theirs / ours,
+            "warpface_rms_iod": fit.residual / rig_scale(rig),
+            "scipy_rms_iod": float(np.sqrt(np.mean(np.sum((x[0] - target) ** 2, axis=1)))) / rig_scale(rig),
+            "warpface_iterations": fit.iterations,
+            "scipy_evaluations": nfev,
+        }
+    )
 
     # Batched: many independent landmark frames at once (from neutral), on the device.
     repeats = int(np.ceil(frames_batched / len(frames)))
@@ -199,12 +244,22 @@ def speed(device, frames_batched: int, quick: bool) -> list[dict]:
         result = results[label] = batched.solve_batch(batch)
         wp.synchronize_device(device)
         seconds = time.perf_counter() - began
-        rows.append({"case": f"landmarks, batched ({len(batch)} frames), {label}", "unit": "frames/s",
-                     "warpface": len(batch) / seconds, "scipy": None, "ratio": None,
-                     "warpface_rms_iod": float(result.residual.max()) / rig_scale(rig),
-                     "warpface_iterations": float(result.iterations.mean()), "frames": len(batch)})
+        rows.append(
+            {
+                "case": f"landmarks, batched ({len(batch)} frames), {label}",
+                "unit": "frames/s",
+                "warpface": len(batch) / seconds,
+                "scipy": None,
+                "ratio": None,
+                "warpface_rms_iod": float(result.residual.max()) / rig_scale(rig),
+                "warpface_iterations": float(result.iterations.mean()),
+                "frames": len(batch),
+            }
+        )
     # Each control's difference as the skin displacement it makes (the solver's scaled controls, IOD).
-    gap = float((np.abs(results["NumPy loop"].controls - results["device steps"].controls) * batched.control_scale).max())
+    gap = float(
+        (np.abs(results["NumPy loop"].controls - results["device steps"].controls) * batched.control_scale).max()
+    )
     print(f"batched: device steps vs NumPy loop, largest control difference {gap:.1e} IOD of skin motion")
     rows[-1]["max_control_difference_iod"] = gap
     rows[-1]["controls"] = len(batched.names)
@@ -214,7 +269,9 @@ def speed(device, frames_batched: int, quick: bool) -> list[dict]:
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default=None, help="Warp device (default: Warp's preferred device)")
-    parser.add_argument("--frames", type=int, default=None, help="frames of the batched solve (default 512 on CPU, 65536 on CUDA)")
+    parser.add_argument(
+        "--frames", type=int, default=None, help="frames of the batched solve (default 512 on CPU, 65536 on CUDA)"
+    )
     parser.add_argument("--quick", action="store_true", help="fewer shapes and frames (smoke run)")
     parser.add_argument("--skip-shapes", action="store_true", help="skip the real-shape rows")
     args = parser.parse_args(argv)
@@ -224,19 +281,48 @@ def main(argv=None) -> None:
     shapes = [] if args.skip_shapes else real_shapes(device, args.quick)
     if shapes:
         print("(a) ICT-FaceKit shapes: error over moved vertices [mm], before → after (dense | 68 landmarks only)")
-        print_table(shapes, [("shape", "shape", "s"), ("moved", "moved", "d"),
-                             ("before_mean_mm", "before mean", ".2f"), ("before_max_mm", "before max", ".2f"),
-                             ("dense_mean_mm", "dense mean", ".2f"), ("dense_max_mm", "dense max", ".2f"),
-                             ("landmarks_mean_mm", "lmk mean", ".2f"), ("landmarks_max_mm", "lmk max", ".2f"),
-                             ("dense_s", "dense s", ".3f")])
+        print_table(
+            shapes,
+            [
+                ("shape", "shape", "s"),
+                ("moved", "moved", "d"),
+                ("before_mean_mm", "before mean", ".2f"),
+                ("before_max_mm", "before max", ".2f"),
+                ("dense_mean_mm", "dense mean", ".2f"),
+                ("dense_max_mm", "dense max", ".2f"),
+                ("landmarks_mean_mm", "lmk mean", ".2f"),
+                ("landmarks_max_mm", "lmk max", ".2f"),
+                ("dense_s", "dense s", ".3f"),
+            ],
+        )
     rows = speed(device, frames, args.quick)
     print(f"\n(b) speed on the built-in face, device {device.alias} (ratio = warpface speed / SciPy speed)")
-    print_table(rows, [("case", "case", "s"), ("unit", "unit", "s"), ("warpface", "warpface", ".4g"), ("scipy", "scipy", ".4g"),
-                       ("ratio", "ratio", ".1f"), ("warpface_rms_iod", "rms/IOD", ".1e"), ("scipy_rms_iod", "scipy rms/IOD", ".1e"),
-                       ("warpface_iterations", "iterations", ".1f"), ("scipy_evaluations", "scipy evals", ".0f")])
+    print_table(
+        rows,
+        [
+            ("case", "case", "s"),
+            ("unit", "unit", "s"),
+            ("warpface", "warpface", ".4g"),
+            ("scipy", "scipy", ".4g"),
+            ("ratio", "ratio", ".1f"),
+            ("warpface_rms_iod", "rms/IOD", ".1e"),
+            ("scipy_rms_iod", "scipy rms/IOD", ".1e"),
+            ("warpface_iterations", "iterations", ".1f"),
+            ("scipy_evaluations", "scipy evals", ".0f"),
+        ],
+    )
     name = "solve" if device.is_cpu else f"solve_{device.alias.replace(':', '')}"
-    path = write_results(name, {"benchmark": "solve", "machine": machine_info(device), "options": OPTIONS,
-                                "fd_step_m": FD_STEP, "shapes": shapes, "speed": rows})
+    path = write_results(
+        name,
+        {
+            "benchmark": "solve",
+            "machine": machine_info(device),
+            "options": OPTIONS,
+            "fd_step_m": FD_STEP,
+            "shapes": shapes,
+            "speed": rows,
+        },
+    )
     print(f"wrote {path}")
 
 

@@ -48,20 +48,40 @@ def main() -> None:
             capture.camera.close()
         geometric = result.paths[0]
         for path in result.paths:
-            rows.append({"expression": expression, "path": path.name, "frames": result.frames,
-                         "measured_landmark_mm": result.measured_landmark_mm,
-                         "surface_driven_mm": path.surface_driven_mm, "surface_face_mm": path.surface_face_mm,
-                         "landmark_mm": path.landmark_mm, "control_mm": path.control_mm, "fps": path.frames_per_second,
-                         "face_error_ratio": path.surface_face_mm / geometric.surface_face_mm,
-                         "still_face_mm": result.still_face_mm})
-    print_table(rows, [("expression", "expression", "s"), ("path", "path", "s"), ("measured_landmark_mm", "camera landmarks mm", ".2f"),
-                       ("surface_driven_mm", "surface (driven) mm", ".3f"), ("surface_face_mm", "surface (face) mm", ".3f"),
-                       ("landmark_mm", "at landmarks mm", ".3f"), ("control_mm", "controls mm", ".3f"),
-                       ("fps", "frames/s", ".0f"), ("face_error_ratio", "face error × geometric", ".2f"),
-                       ("still_face_mm", "no motion mm", ".3f")])
+            rows.append(
+                {
+                    "expression": expression,
+                    "path": path.name,
+                    "frames": result.frames,
+                    "measured_landmark_mm": result.measured_landmark_mm,
+                    "surface_driven_mm": path.surface_driven_mm,
+                    "surface_face_mm": path.surface_face_mm,
+                    "landmark_mm": path.landmark_mm,
+                    "control_mm": path.control_mm,
+                    "fps": path.frames_per_second,
+                    "face_error_ratio": path.surface_face_mm / geometric.surface_face_mm,
+                    "still_face_mm": result.still_face_mm,
+                }
+            )
+    print_table(
+        rows,
+        [
+            ("expression", "expression", "s"),
+            ("path", "path", "s"),
+            ("measured_landmark_mm", "camera landmarks mm", ".2f"),
+            ("surface_driven_mm", "surface (driven) mm", ".3f"),
+            ("surface_face_mm", "surface (face) mm", ".3f"),
+            ("landmark_mm", "at landmarks mm", ".3f"),
+            ("control_mm", "controls mm", ".3f"),
+            ("fps", "frames/s", ".0f"),
+            ("face_error_ratio", "face error × geometric", ".2f"),
+            ("still_face_mm", "no motion mm", ".3f"),
+        ],
+    )
     name = "track_solve" if device.is_cpu else f"track_solve_{str(device).replace(':', '')}"
-    path = write_results(name, {"benchmark": "track_solve", "seconds": args.seconds, "machine": machine_info(device),
-                                "rows": rows})
+    path = write_results(
+        name, {"benchmark": "track_solve", "seconds": args.seconds, "machine": machine_info(device), "rows": rows}
+    )
     print(f"wrote {path}")
 
 

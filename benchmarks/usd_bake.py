@@ -70,7 +70,10 @@ def _write_naive(positions: np.ndarray, times: np.ndarray, path: Path) -> None:
     for frame, time_code in enumerate(times.tolist()):
         values = positions[frame].tolist()
         points.Set([Gf.Vec3f(*p) for p in values], time_code)
-        extent.Set([Gf.Vec3f(*positions[frame].min(axis=0).tolist()), Gf.Vec3f(*positions[frame].max(axis=0).tolist())], time_code)
+        extent.Set(
+            [Gf.Vec3f(*positions[frame].min(axis=0).tolist()), Gf.Vec3f(*positions[frame].max(axis=0).tolist())],
+            time_code,
+        )
     stage.Save()
 
 
@@ -133,15 +136,34 @@ def main(argv=None) -> None:
         row["frames_per_s"] = args.frames / row["seconds"]
         row["x_naive"] = naive_s / row["seconds"]
 
-    print(f"\nUSD bake: {mesh.vertex_count:,} points × {args.frames} frames, {len(muscles)} muscles + {len(wrinkles)} wrinkles, "
-          f"device {device} ({device.name})")
+    print(
+        f"\nUSD bake: {mesh.vertex_count:,} points × {args.frames} frames, {len(muscles)} muscles + {len(wrinkles)} wrinkles, "
+        f"device {device} ({device.name})"
+    )
     print("baseline: naive per-frame Attribute.Set with Python lists, same run, same positions\n")
-    print_table(rows, [("row", "row", "s"), ("seconds", "seconds", ".3f"), ("frames_per_s", "frames/s", ",.0f"),
-                       ("x_naive", "× naive", ".1f"), ("file_mb", "file MB", ".1f")])
-    path = write_results("usd_bake", {
-        "benchmark": "usd_bake", "machine": machine_info(device), "vertices": mesh.vertex_count, "frames": args.frames,
-        "muscles": len(muscles), "wrinkles": len(wrinkles), "target_seconds": 2.0, "rows": rows,
-    })
+    print_table(
+        rows,
+        [
+            ("row", "row", "s"),
+            ("seconds", "seconds", ".3f"),
+            ("frames_per_s", "frames/s", ",.0f"),
+            ("x_naive", "× naive", ".1f"),
+            ("file_mb", "file MB", ".1f"),
+        ],
+    )
+    path = write_results(
+        "usd_bake",
+        {
+            "benchmark": "usd_bake",
+            "machine": machine_info(device),
+            "vertices": mesh.vertex_count,
+            "frames": args.frames,
+            "muscles": len(muscles),
+            "wrinkles": len(wrinkles),
+            "target_seconds": 2.0,
+            "rows": rows,
+        },
+    )
     print(f"\nwrote {path}")
 
 

@@ -37,10 +37,22 @@ def flat_sheet(resolution: int = 91) -> wf.FaceMesh:
 def flat_sheet_rig():
     """The muscle pulls skin toward its attachment at (225, 0, 330); the furrow crosses the compressed
     band just behind it, in the sheet's (x, z) plane."""
-    muscle = wf.LinearMuscle("muscle", attachment=[225.0, 0.0, 330.0], insertion=[225.0, 0.0, 80.0],
-                             zone_angle_deg=40.0, falloff_start=160.0, falloff_finish=320.0)
-    furrow = wf.Wrinkle("furrow", control_points=[[110.0, 250.0], [170.0, 235.0], [280.0, 235.0], [340.0, 250.0]],
-                        projection=wf.PlanarProjection([0, 0, 0], [1, 0, 0], [0, 0, 1]), depth=70.0, width=50.0, kr=0.0)
+    muscle = wf.LinearMuscle(
+        "muscle",
+        attachment=[225.0, 0.0, 330.0],
+        insertion=[225.0, 0.0, 80.0],
+        zone_angle_deg=40.0,
+        falloff_start=160.0,
+        falloff_finish=320.0,
+    )
+    furrow = wf.Wrinkle(
+        "furrow",
+        control_points=[[110.0, 250.0], [170.0, 235.0], [280.0, 235.0], [340.0, 250.0]],
+        projection=wf.PlanarProjection([0, 0, 0], [1, 0, 0], [0, 0, 1]),
+        depth=70.0,
+        width=50.0,
+        kr=0.0,
+    )
     return muscle, furrow
 
 
@@ -56,21 +68,42 @@ def main(argv=None) -> None:
     model = wf.ExpressionModel(mesh, [muscle], [furrow], THICKNESS, device=args.device)
     stages = model.evaluate({"muscle": args.contraction}, stages=True)
     print(f"stretch ratio r: min {stages.stretch.min():.3f}, max {stages.stretch.max():.3f}")
-    print(f"bulge height: {np.ptp(stages.bulge[:, 1]):.1f}; furrow depth below the bulge: "
-          f"{(stages.bulge[:, 1] - stages.final[:, 1]).max():.1f}")
+    print(
+        f"bulge height: {np.ptp(stages.bulge[:, 1]):.1f}; furrow depth below the bulge: "
+        f"{(stages.bulge[:, 1] - stages.final[:, 1]).max():.1f}"
+    )
 
     # margin > 1: the tilted sheet projects taller than its bounding box; every panel shows it whole
     camera = preview.Camera.framing(mesh.points, pitch_deg=35.0, margin=1.05, aspect=ASPECT)
     moved = np.linalg.norm(stages.muscle - mesh.points, axis=1)  # in-plane: shown as colour, not relief
-    views = [("1 muscle (colour: |displacement|)", stages.muscle), ("2 + bulge (h = 60)", stages.bulge), ("3 + wrinkle (kd 70, kw 50)", stages.final)]
+    views = [
+        ("1 muscle (colour: |displacement|)", stages.muscle),
+        ("2 + bulge (h = 60)", stages.bulge),
+        ("3 + wrinkle (kd 70, kw 50)", stages.final),
+    ]
     args.out.mkdir(parents=True, exist_ok=True)
     colors = [preview.heat_colors(moved, cmap="viridis"), None, None]
     for index, (title, points) in enumerate(views, start=1):
-        preview.render(points, mesh.triangles, args.out / f"stage{index}.png", camera=camera, size=PANEL, label=title,
-                       colors=colors[index - 1])
+        preview.render(
+            points,
+            mesh.triangles,
+            args.out / f"stage{index}.png",
+            camera=camera,
+            size=PANEL,
+            label=title,
+            colors=colors[index - 1],
+        )
     preview.render_comparison(views, mesh.triangles, args.out / "stages.png", camera=camera, colors=colors, size=PANEL)
-    preview.render_heat_map(stages.bulge, mesh.triangles, stages.stretch, args.out / "stretch.png", camera=camera,
-                            title="stretch ratio r", size=PANEL, cmap="coolwarm")
+    preview.render_heat_map(
+        stages.bulge,
+        mesh.triangles,
+        stages.stretch,
+        args.out / "stretch.png",
+        camera=camera,
+        title="stretch ratio r",
+        size=PANEL,
+        cmap="coolwarm",
+    )
     print(f"wrote {args.out}/stage1.png stage2.png stage3.png stages.png stretch.png")
 
 

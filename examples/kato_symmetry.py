@@ -128,8 +128,13 @@ def run_face(face: Face, args) -> dict:
         start = time.perf_counter()
         proxy = tissue_proxy(face.mesh, thickness, close_near=eyes, device="cpu")
         print(f"proxy: {proxy} ({time.perf_counter() - start:.2f} s)")
-        meshing = mesh_tissue((proxy.points, proxy.triangles), proxy.thickness, target_nodes=args.nodes,
-                              fair_folds=FAIR_FOLDS, device="cpu")
+        meshing = mesh_tissue(
+            (proxy.points, proxy.triangles),
+            proxy.thickness,
+            target_nodes=args.nodes,
+            fair_folds=FAIR_FOLDS,
+            device="cpu",
+        )
         # removed parts (nostril interiors, inner lips, lid margins) lie off the tissue: bind them to
         # their nearest tet
         reach = proxy.max_deviation + meshing.report.edge_length
@@ -139,8 +144,10 @@ def run_face(face: Face, args) -> dict:
     tetmesh = meshing.tetmesh
     print(f"tissue: {meshing.report}")
     embedding = embed_points(tetmesh, face.mesh, max_distance=reach, device="cpu")
-    print(f"embedding: {embedding.outside_count} of {embedding.point_count} vertices outside the tets "
-          f"(at most {1e3 * embedding.distances.max():.2f} mm), bound to the nearest tet")
+    print(
+        f"embedding: {embedding.outside_count} of {embedding.point_count} vertices outside the tets "
+        f"(at most {1e3 * embedding.distances.max():.2f} mm), bound to the nearest tet"
+    )
 
     # boundary conditions: fixed brows and forehead; lips and chin driven by a jaw rotation
     brow_y = ibug[17:27, 1].mean()
@@ -155,11 +162,16 @@ def run_face(face: Face, args) -> dict:
     steps = int(round(DURATION / DT))
     times = DT * np.arange(1, steps + 1)
     angle = opening_angle(times)
-    trajectory = np.where(upper[None, :, None], rotate_about_x(tetmesh.points[driven], hinge, UPPER_LIP_SHARE * angle),
-                          rotate_about_x(tetmesh.points[driven], hinge, angle))
+    trajectory = np.where(
+        upper[None, :, None],
+        rotate_about_x(tetmesh.points[driven], hinge, UPPER_LIP_SHARE * angle),
+        rotate_about_x(tetmesh.points[driven], hinge, angle),
+    )
     chin_travel = np.linalg.norm(trajectory[:, ~upper], axis=2).max()
-    print(f"{len(fixed)} fixed nodes (above y = {brow_y * 1e3:.1f} mm), {len(driven)} driven nodes "
-          f"(chin travel up to {chin_travel * 1e3:.1f} mm), {steps} steps of {DT * 1e3:g} ms")
+    print(
+        f"{len(fixed)} fixed nodes (above y = {brow_y * 1e3:.1f} mm), {len(driven)} driven nodes "
+        f"(chin travel up to {chin_travel * 1e3:.1f} mm), {steps} steps of {DT * 1e3:g} ms"
+    )
 
     # landmark tracks need only the nodes of the landmark vertices' tets
     landmark_embedding = embedding.subset(face.landmarks)
@@ -172,8 +184,10 @@ def run_face(face: Face, args) -> dict:
     results = {}
     materials = [kato_material_model(tetmesh, landmarks_at_rest, model) for model in KATO_MODELS]
     for model in KATO_MODELS:  # the thesis's tables 6.4-6.5 (warpface.fem.presets)
-        print(f"model {model}: right cphs E = {KATO_MODELS[model]['E']['cphs_R'] / 1e3:.1f} kPa, "
-              f"eta = {KATO_MODELS[model]['eta']['cphs_R']:.1f} Pa s")
+        print(
+            f"model {model}: right cphs E = {KATO_MODELS[model]['E']['cphs_R'] / 1e3:.1f} kPa, "
+            f"eta = {KATO_MODELS[model]['eta']['cphs_R']:.1f} Pa s"
+        )
     # the three models as one batch: one graph per step for all of them on CUDA, one direct solver each on the CPU
     start = time.perf_counter()
     batch = TissueBatch(tetmesh, materials, DT, fixed=fixed, driven=driven, formulation="anp", device=args.device)
@@ -188,15 +202,21 @@ def run_face(face: Face, args) -> dict:
         snapshots.append(block[-1])
     elapsed = time.perf_counter() - start
     snapshots = np.stack(snapshots, axis=1)  # (models, S, N, 3)
-    print(f"{batch}: set-up {setup:.2f} s, {elapsed / steps * 1e3:.2f} ms/step for {batch.model_count} models "
-          f"({elapsed / steps / batch.model_count * 1e3:.2f} ms/step/model)")
+    print(
+        f"{batch}: set-up {setup:.2f} s, {elapsed / steps * 1e3:.2f} ms/step for {batch.model_count} models "
+        f"({elapsed / steps / batch.model_count * 1e3:.2f} ms/step/model)"
+    )
     window = (times >= 0.2) & (times <= 0.6)
     for index, model in enumerate(KATO_MODELS):
         # iBUG landmark positions over time: rest + displacement interpolated in their tets
         moved = ibug[None] + local.apply(tracks[:, index], device="cpu")
         result = symmetry(kato_landmarks(np.concatenate([ibug[None], moved])))  # frame 0: rest (t0)
-        results[model] = {"cost": result.cost[1:], "xi_left": result.xi_left[1:], "xi_right": result.xi_right[1:],
-                          "snapshots": snapshots[index]}
+        results[model] = {
+            "cost": result.cost[1:],
+            "xi_left": result.xi_left[1:],
+            "xi_right": result.xi_right[1:],
+            "snapshots": snapshots[index],
+        }
         print(f"model {model}: mean ξ_cost over 0.2–0.6 s = {results[model]['cost'][window].mean():.3f}")
 
     _plot(face.name, times, angle, results, out / f"{face.name}_xi_cost.png")
@@ -209,14 +229,27 @@ def run_face(face: Face, args) -> dict:
 
     t_worst = (worst_frame + 1) * snapshot_every * DT
     path = out / f"{face.name}_model2_vs_model1.png"
-    preview.render_heat_map(shown, face.mesh.triangles, surface_difference, path,
-                            title=f"|u2 - u1| at t = {t_worst:.2f} s (model 1 shape)", units="mm", scale=1e3)
-    print(f"model 2 vs 1: largest surface difference {surface_difference.max() * 1e3:.3f} mm at t = {t_worst:.2f} s "
-          f"-> {path}")
-    np.savez(out / f"{face.name}_xi.npz", time=times, angle=angle,
-             **{f"cost_{m}": r["cost"] for m, r in results.items()},
-             **{f"xi_left_{m}": r["xi_left"] for m, r in results.items()},
-             **{f"xi_right_{m}": r["xi_right"] for m, r in results.items()})
+    preview.render_heat_map(
+        shown,
+        face.mesh.triangles,
+        surface_difference,
+        path,
+        title=f"|u2 - u1| at t = {t_worst:.2f} s (model 1 shape)",
+        units="mm",
+        scale=1e3,
+    )
+    print(
+        f"model 2 vs 1: largest surface difference {surface_difference.max() * 1e3:.3f} mm at t = {t_worst:.2f} s "
+        f"-> {path}"
+    )
+    np.savez(
+        out / f"{face.name}_xi.npz",
+        time=times,
+        angle=angle,
+        **{f"cost_{m}": r["cost"] for m, r in results.items()},
+        **{f"xi_left_{m}": r["xi_left"] for m, r in results.items()},
+        **{f"xi_right_{m}": r["xi_right"] for m, r in results.items()},
+    )
     return results
 
 
@@ -229,8 +262,9 @@ def _plot(name: str, times, angle, results, path: Path) -> None:
     labels = {1: "model 1 (healthy)", 2: "model 2 (stiff right cphs: scar)", 3: "model 3 (soft right cphs)"}
     styles = {1: "-", 2: "--", 3: "-."}
     colors = {1: "C0", 2: "C1", 3: "C2"}
-    fig, (top, middle, change, bottom) = plt.subplots(4, 1, figsize=(8, 10), sharex=True,
-                                                      gridspec_kw={"height_ratios": [3, 2, 2, 1]})
+    fig, (top, middle, change, bottom) = plt.subplots(
+        4, 1, figsize=(8, 10), sharex=True, gridspec_kw={"height_ratios": [3, 2, 2, 1]}
+    )
     # the tet mesh is not mirror-symmetric, so even the healthy face moves a little asymmetrically;
     # on ICT that baseline dwarfs the material's effect, so the jaw's hold is also shown enlarged
     # (inset) and the effect itself as the change from model 1
@@ -275,13 +309,21 @@ def _plot(name: str, times, angle, results, path: Path) -> None:
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--face", choices=("auto", "builtin", "ict", "all"), default="auto",
-                        help="which face (auto: built-in, plus ICT when its data is present)")
+    parser.add_argument(
+        "--face",
+        choices=("auto", "builtin", "ict", "all"),
+        default="auto",
+        help="which face (auto: built-in, plus ICT when its data is present)",
+    )
     parser.add_argument("--out", type=Path, default=Path("out/kato_symmetry"), help="output folder")
     parser.add_argument("--nodes", type=int, default=None, help="target tet nodes (default 6400, --quick 2500)")
     parser.add_argument("--quick", action="store_true", help="coarser tissue mesh for a fast run")
-    parser.add_argument("--device", default=None, help="Warp device of the simulation (default: Warp's preferred; "
-                        "CUDA steps the three models as one batched graph)")
+    parser.add_argument(
+        "--device",
+        default=None,
+        help="Warp device of the simulation (default: Warp's preferred; "
+        "CUDA steps the three models as one batched graph)",
+    )
     args = parser.parse_args(argv)
     if args.nodes is None:
         args.nodes = 2500 if args.quick else 6400

@@ -34,14 +34,21 @@ def contact_sheet(rig, device=None, tile=(220, 260)) -> np.ndarray:
     camera = preview.Camera.for_face(points[rig.landmarks], yaw_deg=20.0, pitch_deg=5.0)
     names = list(PRESETS)
     frames = model.evaluate_batch([preset_controls(name, rig) for name in names])
-    colors = [preview.heat_colors(np.linalg.norm(frame - points, axis=1) * 1000.0, vmin=0.0, vmax=MAX_MM) for frame in frames]
+    colors = [
+        preview.heat_colors(np.linalg.norm(frame - points, axis=1) * 1000.0, vmin=0.0, vmax=MAX_MM) for frame in frames
+    ]
     rows = []
     for start in range(0, len(names), COLUMNS):
-        views = [(name, frames[i]) for i, name in enumerate(names[start:start + COLUMNS], start=start)]
+        views = [(name, frames[i]) for i, name in enumerate(names[start : start + COLUMNS], start=start)]
         views += [("", points)] * (COLUMNS - len(views))
-        tile_colors = colors[start:start + COLUMNS] + [np.ones((len(points), 3))] * (COLUMNS - len(colors[start:start + COLUMNS]))
-        rows.append(preview.render_comparison(views, rig.mesh.triangles, camera=camera, size=tile, colors=tile_colors,
-                                              background=(0.12, 0.12, 0.14)))
+        tile_colors = colors[start : start + COLUMNS] + [np.ones((len(points), 3))] * (
+            COLUMNS - len(colors[start : start + COLUMNS])
+        )
+        rows.append(
+            preview.render_comparison(
+                views, rig.mesh.triangles, camera=camera, size=tile, colors=tile_colors, background=(0.12, 0.12, 0.14)
+            )
+        )
     return np.concatenate(rows, axis=0)
 
 
@@ -58,8 +65,12 @@ def main(argv=None) -> int:
             print("ICT-FaceKit data not found in ../shared/data (set WARPFACE_SHARED_DATA); nothing to do")
             return 0
         source = wf.FaceMesh.from_obj(path)
-        rig = default_rig(wf.FaceMesh(source.points * CENTIMETRE, source.triangles, name="ict_face"), landmarks,
-                          name="ICTFace", device=args.device)
+        rig = default_rig(
+            wf.FaceMesh(source.points * CENTIMETRE, source.triangles, name="ict_face"),
+            landmarks,
+            name="ICTFace",
+            device=args.device,
+        )
         out = args.out or Path("out/ict/presets.png")
     else:
         rig = default_rig(device=args.device)

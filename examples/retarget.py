@@ -65,9 +65,11 @@ def main(argv=None) -> int:
     error = np.abs(solved - truth) / np.where(linear, scale, 1.0)
     solved_points = source_model.evaluate_batch(solved)
     surface = np.linalg.norm(solved_points - captured, axis=2).mean(axis=1) / scale
-    print(f"{len(truth)} frames: control error mean {error.mean():.4f}, max {error.max():.4f} "
-          f"(linear in inter-ocular units, sphincters dimensionless); "
-          f"surface error mean {surface.mean():.2e} IOD, worst frame {surface.max():.2e} IOD")
+    print(
+        f"{len(truth)} frames: control error mean {error.mean():.4f}, max {error.max():.4f} "
+        f"(linear in inter-ocular units, sphincters dimensionless); "
+        f"surface error mean {surface.mean():.2e} IOD, worst frame {surface.max():.2e} IOD"
+    )
 
     # 3. The ICT face plays the same controls.
     ict_source = wf.FaceMesh.from_obj(path)
@@ -86,11 +88,18 @@ def main(argv=None) -> int:
     columns = []
     for name, frame in zip(EXPRESSIONS, peaks):
         rows = [
-            preview.render_comparison([(f"{name}: captured", captured[frame])], source.mesh.triangles, camera=source_camera, **style),
-            preview.render_comparison([("solved from landmarks", solved_points[frame])], source.mesh.triangles,
-                                      camera=source_camera, **style),
-            preview.render_comparison([("ICT face, same controls", target_model.evaluate(retargeted[frame]))],
-                                      target.mesh.triangles, camera=target_camera, **style),
+            preview.render_comparison(
+                [(f"{name}: captured", captured[frame])], source.mesh.triangles, camera=source_camera, **style
+            ),
+            preview.render_comparison(
+                [("solved from landmarks", solved_points[frame])], source.mesh.triangles, camera=source_camera, **style
+            ),
+            preview.render_comparison(
+                [("ICT face, same controls", target_model.evaluate(retargeted[frame]))],
+                target.mesh.triangles,
+                camera=target_camera,
+                **style,
+            ),
         ]
         columns.append(np.concatenate(rows, axis=0))
     args.out.mkdir(parents=True, exist_ok=True)

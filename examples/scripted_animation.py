@@ -31,8 +31,15 @@ def scripted_aus(fps: float = 30.0, seconds: float = 6.0) -> Curves:
     """A scripted performance: brows up, a frown, a sneer, then a smile, as smooth AU pulses (0–5)."""
     times = np.arange(int(seconds * fps) + 1) / fps
     pulse = lambda centre: 5.0 * np.exp(-0.5 * ((times - centre) / 0.35) ** 2)  # noqa: E731
-    aus = {"AU01": pulse(1.0), "AU02": pulse(1.0), "AU04": pulse(2.4), "AU09": pulse(3.7), "AU10": pulse(3.7),
-           "AU06": pulse(5.0), "AU12": pulse(5.0)}
+    aus = {
+        "AU01": pulse(1.0),
+        "AU02": pulse(1.0),
+        "AU04": pulse(2.4),
+        "AU09": pulse(3.7),
+        "AU10": pulse(3.7),
+        "AU06": pulse(5.0),
+        "AU12": pulse(5.0),
+    }
     return Curves(times=times, names=list(aus), values=np.stack(list(aus.values()), axis=1), source="scripted", fps=fps)
 
 
@@ -47,7 +54,11 @@ def main(argv=None) -> None:
 
     recording = shared_data_path("auplayer_openface_au", args.recording)
     curves = usd.read_driver(recording) if recording is not None else scripted_aus()
-    source = f"OpenFace recording {recording.name}" if recording is not None else "scripted AU pulses (../shared/data not present)"
+    source = (
+        f"OpenFace recording {recording.name}"
+        if recording is not None
+        else "scripted AU pulses (../shared/data not present)"
+    )
     fps = float(round(curves.fps or 30.0, 3))
     curves = clean(curves, fps=fps)  # clamp to [0, 5], resample onto whole frames
     rig = default_rig()
@@ -67,7 +78,9 @@ def main(argv=None) -> None:
     usd.export_layer_atomically(stage.GetRootLayer(), stage_path)
     cache = usd.bake(stage, device=args.device)
     ignored = [c for c in dict.fromkeys(mapped.unmapped_channels + no_control) if c in curves.names]
-    print(f"driver: {source} ({len(times)} frames at {fps:g} frames/s); no control on this rig for: {', '.join(ignored) or 'none'}")
+    print(
+        f"driver: {source} ({len(times)} frames at {fps:g} frames/s); no control on this rig for: {', '.join(ignored) or 'none'}"
+    )
     print(f"wrote {stage_path} (contractions as time samples, mapping under /Face/Drivers) and {cache} (baked points)")
 
     from pxr import Usd

@@ -49,7 +49,7 @@ def overlay(color: np.ndarray, detected: np.ndarray, truth: np.ndarray, zoom: in
 
     lo = np.maximum(np.floor(truth.min(axis=0)) - 30, 0).astype(int)
     hi = np.minimum(np.ceil(truth.max(axis=0)) + 30, [color.shape[1], color.shape[0]]).astype(int)
-    crop = cv2.resize(color[lo[1]:hi[1], lo[0]:hi[0]], None, fx=zoom, fy=zoom, interpolation=cv2.INTER_NEAREST)
+    crop = cv2.resize(color[lo[1] : hi[1], lo[0] : hi[0]], None, fx=zoom, fy=zoom, interpolation=cv2.INTER_NEAREST)
     image = cv2.cvtColor(crop, cv2.COLOR_RGB2BGR)
     place = lambda uv: tuple(int(round(c)) for c in (np.asarray(uv) - lo + 0.5) * zoom)  # pixel centres
     for uv in truth:
@@ -65,16 +65,20 @@ def main(argv=None) -> None:
     parser.add_argument("--seconds", type=float, default=2.0, help="length of neutral → expression → neutral")
     parser.add_argument("--out", type=Path, default=Path("out/track"), help="output folder")
     parser.add_argument("--device", default=None, help="Warp device")
-    parser.add_argument("--residual-transfer", action="store_true",
-                        help="solved stage: add the residual motion through the geometric transfer")
+    parser.add_argument(
+        "--residual-transfer",
+        action="store_true",
+        help="solved stage: add the residual motion through the geometric transfer",
+    )
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     wp.config.log_level = wp.LOG_WARNING
 
     capture = synthetic_capture(expression=args.expression, seconds=args.seconds, device=args.device)
     camera, truth = capture.camera, capture.truth
-    adapter = adapter_for_face(truth[0], camera.landmark_names, camera_to_model=np.linalg.inv(camera.model_to_camera),
-                               device=args.device)
+    adapter = adapter_for_face(
+        truth[0], camera.landmark_names, camera_to_model=np.linalg.inv(camera.model_to_camera), device=args.device
+    )
     driven = adapter.weights > 0.999
     landmark_errors, surface_errors, still_errors, tracked, actual = [], [], [], [], []
 
@@ -90,25 +94,39 @@ def main(argv=None) -> None:
 
     frames = list(capture.source.frames())  # detected and back-projected once; replayed for each path
     replay = Replay(frames, camera.landmark_names, camera.fps)
-    writer = TrackingStageWriter(args.out / "capture.usda", camera.landmark_names, camera.fps,
-                                 dense_rest=truth[0], triangles=capture.triangles)
+    writer = TrackingStageWriter(
+        args.out / "capture.usda", camera.landmark_names, camera.fps, dense_rest=truth[0], triangles=capture.triangles
+    )
     stats = record(replay, adapter, writer, on_frame=compare)
 
-    tracker = SolvingTracker(capture_rig(), camera.landmark_names, camera_to_model=np.linalg.inv(camera.model_to_camera),
-                             residual_transfer=args.residual_transfer, device=args.device)
+    tracker = SolvingTracker(
+        capture_rig(),
+        camera.landmark_names,
+        camera_to_model=np.linalg.inv(camera.model_to_camera),
+        residual_transfer=args.residual_transfer,
+        device=args.device,
+    )
     solved_writer, layout = solved_stage_writer(args.out / "capture_solved.usda", tracker, camera.fps)
     record(replay, tracker, solved_writer, samples=lambda frame, skin: layout.samples(tracker.last, skin))
 
     landmark_mm = np.concatenate(landmark_errors) * 1e3
     surface_mm, still_mm = np.concatenate(surface_errors) * 1e3, np.concatenate(still_errors) * 1e3
-    print(f"{stats.frames} frames, {len(camera.landmark_names)} dots, {100 * stats.landmarks_found:.0f}% found per frame")
-    print(f"3-D landmark error: mean {landmark_mm.mean():.2f} mm, 95th percentile {np.percentile(landmark_mm, 95):.2f} mm, "
-          f"max {landmark_mm.max():.2f} mm")
-    print(f"dense surface error over {driven.sum()} driven vertices: mean {surface_mm.mean():.2f} mm "
-          f"(a face that did not move would be off by {still_mm.mean():.2f} mm)")
+    print(
+        f"{stats.frames} frames, {len(camera.landmark_names)} dots, {100 * stats.landmarks_found:.0f}% found per frame"
+    )
+    print(
+        f"3-D landmark error: mean {landmark_mm.mean():.2f} mm, 95th percentile {np.percentile(landmark_mm, 95):.2f} mm, "
+        f"max {landmark_mm.max():.2f} mm"
+    )
+    print(
+        f"dense surface error over {driven.sum()} driven vertices: mean {surface_mm.mean():.2f} mm "
+        f"(a face that did not move would be off by {still_mm.mean():.2f} mm)"
+    )
     summary = tracker.summary
-    print(f"solve: mean landmark residual {summary['mean_residual'] * 1e3:.2f} mm, {summary['skipped']} frames skipped, "
-          f"{summary['not_converged']} not converged")
+    print(
+        f"solve: mean landmark residual {summary['mean_residual'] * 1e3:.2f} mm, {summary['skipped']} frames skipped, "
+        f"{summary['not_converged']} not converged"
+    )
     print("\nBoth paths on the same frames, errors against ground truth (controls: RMS of |Δc|·reach):")
     print(compare_tracking_paths(capture, frames=frames, device=args.device).table())
 
@@ -129,8 +147,15 @@ def main(argv=None) -> None:
     times = np.arange(len(actual_mm)) / camera.fps
     figure, axis = plt.subplots(figsize=(7, 4))
     for k, index in enumerate(moving):
-        axis.plot(times, actual_mm[:, index, 1] - actual_mm[0, index, 1], color=f"C{k}", label=f"{camera.landmark_names[index]} truth")
-        axis.plot(times, tracked_mm[:, index, 1] - actual_mm[0, index, 1], "o", color=f"C{k}", markersize=3, label="tracked")
+        axis.plot(
+            times,
+            actual_mm[:, index, 1] - actual_mm[0, index, 1],
+            color=f"C{k}",
+            label=f"{camera.landmark_names[index]} truth",
+        )
+        axis.plot(
+            times, tracked_mm[:, index, 1] - actual_mm[0, index, 1], "o", color=f"C{k}", markersize=3, label="tracked"
+        )
     axis.set_xlabel("time [s]")
     axis.set_ylabel("vertical motion in the camera [mm] (y down)")
     axis.set_title(f"Synthetic capture, {args.expression}: the three most moving dots")

@@ -88,9 +88,7 @@ def assemble_reference(mesh: TetMesh, E, nu, eta, rho, damping="stokes"):
         cv.append(C.ravel())
     n = 3 * mesh.node_count
     rows, cols = np.concatenate(rows), np.concatenate(cols)
-    return tuple(
-        sps.csr_matrix((np.concatenate(v), (rows, cols)), shape=(n, n)) for v in (kv, mv, cv)
-    )
+    return tuple(sps.csr_matrix((np.concatenate(v), (rows, cols)), shape=(n, n)) for v in (kv, mv, cv))
 
 
 def anp_reference(mesh: TetMesh, E, nu) -> sps.csr_matrix:

@@ -8,11 +8,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from warpface import (CylindricalProjection, FaceMesh, FaceRig, LinearMuscle, PlanarProjection, SphincterMuscle,
-                      Wrinkle)
+from warpface import CylindricalProjection, FaceMesh, FaceRig, LinearMuscle, PlanarProjection, SphincterMuscle, Wrinkle
 from warpface.tracking import LandmarkFrame, vertex_landmark_names
 
-__all__ = ["grid_surface", "small_face_rig", "patch", "icosphere_like", "assert_rigs_equal", "scaled_rig", "DisappearingCamera"]
+__all__ = [
+    "grid_surface",
+    "small_face_rig",
+    "patch",
+    "icosphere_like",
+    "assert_rigs_equal",
+    "scaled_rig",
+    "DisappearingCamera",
+]
 
 
 def grid_surface(n: int = 24, size: float = 2.0, height: float = 0.3, seed: int | None = 0):
@@ -43,25 +50,58 @@ def small_face_rig(n: int = 16, *, name: str = "Face"):
     points, triangles = grid_surface(n, size=0.2, height=0.02, seed=3)
     points = points.astype(np.float32).astype(np.float64)
     muscles = [
-        LinearMuscle("zygomaticus major L", attachment=[0.09, 0.08, -0.03], insertion=[0.02, -0.02, 0.01],
-                     zone_angle_deg=35.0, falloff_start=0.05, falloff_finish=0.14),
-        LinearMuscle("frontalis_R", attachment=[-0.05, 0.12, -0.02], insertion=[-0.04, 0.03, 0.01],
-                     zone_angle_deg=28.5, falloff_start=0.04, falloff_finish=0.11),
-        SphincterMuscle("orbicularis_oris", center=[0.0, -0.03, 0.0], axis_x=[1.0, 0.0, 0.1], axis_y=[0.0, 1.0, 0.0],
-                        semi_axes=(0.05, 0.03)),
+        LinearMuscle(
+            "zygomaticus major L",
+            attachment=[0.09, 0.08, -0.03],
+            insertion=[0.02, -0.02, 0.01],
+            zone_angle_deg=35.0,
+            falloff_start=0.05,
+            falloff_finish=0.14,
+        ),
+        LinearMuscle(
+            "frontalis_R",
+            attachment=[-0.05, 0.12, -0.02],
+            insertion=[-0.04, 0.03, 0.01],
+            zone_angle_deg=28.5,
+            falloff_start=0.04,
+            falloff_finish=0.11,
+        ),
+        SphincterMuscle(
+            "orbicularis_oris",
+            center=[0.0, -0.03, 0.0],
+            axis_x=[1.0, 0.0, 0.1],
+            axis_y=[0.0, 1.0, 0.0],
+            semi_axes=(0.05, 0.03),
+        ),
     ]
     wrinkles = [
-        Wrinkle("forehead_1", control_points=[[-0.06, 0.05], [-0.02, 0.06], [0.02, 0.06], [0.06, 0.05]],
-                projection=PlanarProjection([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
-                depth=0.002, width=0.004, kr=0.0),
-        Wrinkle("crow_L", control_points=[[0.01, -0.02], [0.015, -0.01], [0.02, 0.0], [0.022, 0.015]],
-                projection=CylindricalProjection([0.0, 0.0, -0.1], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], 0.1),
-                depth=0.0015, width=0.003, kr=0.25),
+        Wrinkle(
+            "forehead_1",
+            control_points=[[-0.06, 0.05], [-0.02, 0.06], [0.02, 0.06], [0.06, 0.05]],
+            projection=PlanarProjection([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
+            depth=0.002,
+            width=0.004,
+            kr=0.0,
+        ),
+        Wrinkle(
+            "crow_L",
+            control_points=[[0.01, -0.02], [0.015, -0.01], [0.02, 0.0], [0.022, 0.015]],
+            projection=CylindricalProjection([0.0, 0.0, -0.1], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], 0.1),
+            depth=0.0015,
+            width=0.003,
+            kr=0.25,
+        ),
     ]
     thickness = 0.004 + 0.003 * (points[:, 0] - points[:, 0].min()) / np.ptp(points[:, 0])
     mesh = FaceMesh(points, triangles, name="skin mesh")
-    return FaceRig(mesh=mesh, muscles=muscles, wrinkles=wrinkles, thickness=thickness,
-                   landmarks=np.array([0, 5, n * n - 1, n + 3]), name=name)
+    return FaceRig(
+        mesh=mesh,
+        muscles=muscles,
+        wrinkles=wrinkles,
+        thickness=thickness,
+        landmarks=np.array([0, 5, n * n - 1, n + 3]),
+        name=name,
+    )
 
 
 def patch(n: int = 13, size: float = 0.06, hole: bool = True, bend: float = 0.0):
@@ -119,8 +159,11 @@ def assert_rigs_equal(a: FaceRig, b: FaceRig) -> None:
         assert np.array_equal(a.landmarks, b.landmarks)
     assert [type(m) for m in a.muscles] == [type(m) for m in b.muscles]
     for m, n in zip(a.muscles, b.muscles):
-        fields = ("attachment", "insertion", "zone_angle_deg", "falloff_start", "falloff_finish") if isinstance(m, LinearMuscle) \
+        fields = (
+            ("attachment", "insertion", "zone_angle_deg", "falloff_start", "falloff_finish")
+            if isinstance(m, LinearMuscle)
             else ("center", "axis_x", "axis_y", "semi_axes")
+        )
         assert m.name == n.name
         for field in fields:
             assert np.array_equal(getattr(m, field), getattr(n, field)), (m.name, field)
@@ -138,16 +181,31 @@ def scaled_rig(rig: FaceRig, factor: float) -> FaceRig:
     muscles = []
     for m in rig.muscles:
         if isinstance(m, LinearMuscle):
-            muscles.append(LinearMuscle(m.name, m.attachment * factor, m.insertion * factor, m.zone_angle_deg,
-                                        m.falloff_start * factor, m.falloff_finish * factor))
+            muscles.append(
+                LinearMuscle(
+                    m.name,
+                    m.attachment * factor,
+                    m.insertion * factor,
+                    m.zone_angle_deg,
+                    m.falloff_start * factor,
+                    m.falloff_finish * factor,
+                )
+            )
         else:
-            muscles.append(SphincterMuscle(m.name, m.center * factor, m.axis_x, m.axis_y, tuple(np.multiply(m.semi_axes, factor))))
+            muscles.append(
+                SphincterMuscle(m.name, m.center * factor, m.axis_x, m.axis_y, tuple(np.multiply(m.semi_axes, factor)))
+            )
     wrinkles = []
     for w in rig.wrinkles:
         p = w.projection
-        projection = PlanarProjection(p.origin * factor, p.u_axis, p.v_axis) if isinstance(p, PlanarProjection) \
+        projection = (
+            PlanarProjection(p.origin * factor, p.u_axis, p.v_axis)
+            if isinstance(p, PlanarProjection)
             else CylindricalProjection(p.origin * factor, p.axis, p.reference, p.radius * factor)
-        wrinkles.append(Wrinkle(w.name, w.control_points * factor, projection, w.depth * factor, w.width * factor, w.kr))
+        )
+        wrinkles.append(
+            Wrinkle(w.name, w.control_points * factor, projection, w.depth * factor, w.width * factor, w.kr)
+        )
     mesh = FaceMesh(rig.mesh.points * factor, rig.mesh.triangles, name=rig.mesh.name)
     return FaceRig(mesh, muscles, wrinkles, rig.thickness * factor, rig.landmarks, rig.name)
 
@@ -207,5 +265,6 @@ def parity_device():
     try:
         return wp.get_device(name)
     except Exception as exc:  # noqa: BLE001 - Warp raises ValueError/RuntimeError for an unknown device
-        pytest.skip(f"parity device {name!r} is not available here ({exc}); set WARPFACE_PARITY_DEVICE",
-                    allow_module_level=True)
+        pytest.skip(
+            f"parity device {name!r} is not available here ({exc}); set WARPFACE_PARITY_DEVICE", allow_module_level=True
+        )

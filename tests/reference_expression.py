@@ -23,7 +23,9 @@ def linear_muscle(points, v1, v2, zone_deg, rs, rf, k):
     affected = (distance > 0) & (distance <= rf) & (mu <= zone)
     angular = np.cos(mu / zone * np.pi / 2)
     with np.errstate(invalid="ignore", divide="ignore"):
-        radial = np.where(distance < rs, np.cos((1 - distance / rs) * np.pi / 2), np.cos((distance - rs) / (rf - rs) * np.pi / 2))
+        radial = np.where(
+            distance < rs, np.cos((1 - distance / rs) * np.pi / 2), np.cos((distance - rs) / (rf - rs) * np.pi / 2)
+        )
         direction = -offset / distance[:, None]
     out = np.zeros_like(points)
     out[affected] = (k * angular * radial)[affected, None] * direction[affected]
@@ -83,7 +85,12 @@ def project(points, projection):
 
 def bezier(control, t):
     s = 1 - t
-    return (s**3)[:, None] * control[0] + (3 * s * s * t)[:, None] * control[1] + (3 * s * t * t)[:, None] * control[2] + (t**3)[:, None] * control[3]
+    return (
+        (s**3)[:, None] * control[0]
+        + (3 * s * s * t)[:, None] * control[1]
+        + (3 * s * t * t)[:, None] * control[2]
+        + (t**3)[:, None] * control[3]
+    )
 
 
 def bezier_distance(uv, control, samples: int = 20001):

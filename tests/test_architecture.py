@@ -32,12 +32,22 @@ LAYERS: dict[str, tuple[str, ...]] = {
 }
 """Every top-level part of ``warpface`` by layer (``docs/ARCHITECTURE.md`` shows the same table)."""
 
-MODEL_LAYER = ("expression", "fem", "geometry", "mesh", "kernels_surface", "rig", "_validate", "landmarks",
-               "errors")
+MODEL_LAYER = ("expression", "fem", "geometry", "mesh", "kernels_surface", "rig", "_validate", "landmarks", "errors")
 """Parts that hold the math: they must not reach up into I/O, tracking, solvers or applications."""
 
-FORBIDDEN_FOR_MODELS = ("usd", "tracking", "metrics", "assets", "cli", "commands", "pipelines", "solve",
-                        "drivers", "preview", "pxr")
+FORBIDDEN_FOR_MODELS = (
+    "usd",
+    "tracking",
+    "metrics",
+    "assets",
+    "cli",
+    "commands",
+    "pipelines",
+    "solve",
+    "drivers",
+    "preview",
+    "pxr",
+)
 
 MAX_LINES = 600
 SOURCE_DIRS = ("warpface", "benchmarks", "examples", "tests")
@@ -111,8 +121,11 @@ def _part_edges() -> dict[tuple[str, str], list[str]]:
 
 
 def test_every_part_has_a_layer():
-    parts = {p.stem if p.suffix == ".py" else p.name for p in PACKAGE.iterdir()
-             if (p.suffix == ".py" and p.name != "__init__.py") or (p / "__init__.py").is_file()}
+    parts = {
+        p.stem if p.suffix == ".py" else p.name
+        for p in PACKAGE.iterdir()
+        if (p.suffix == ".py" and p.name != "__init__.py") or (p / "__init__.py").is_file()
+    }
     assert parts == set(_layer_of()), "add new parts to LAYERS (and docs/ARCHITECTURE.md)"
 
 
@@ -133,8 +146,11 @@ def test_imports_follow_the_layers():
     layer = _layer_of()
     layer["pxr"] = layer["usd"]  # only the I/O layer and above may touch pxr
     layer["warpface"] = layer["mesh"]  # ``from warpface import FaceRig``: the model layer's API
-    upward = [f"{source} ({rank_name(layer[source])}) → {target} ({rank_name(layer[target])}): {', '.join(where)}"
-              for (source, target), where in sorted(_part_edges().items()) if layer[target] > layer[source]]
+    upward = [
+        f"{source} ({rank_name(layer[source])}) → {target} ({rank_name(layer[target])}): {', '.join(where)}"
+        for (source, target), where in sorted(_part_edges().items())
+        if layer[target] > layer[source]
+    ]
     assert not upward, "\n".join(upward)
 
 
@@ -153,7 +169,7 @@ def test_no_import_cycles_between_parts():
         state[node] = 1
         for nxt in sorted(graph[node]):
             if state.get(nxt) == 1:
-                cycles.append(" → ".join(trail[trail.index(nxt):] + [nxt]))
+                cycles.append(" → ".join(trail[trail.index(nxt) :] + [nxt]))
             elif nxt not in state:
                 visit(nxt, trail + [nxt])
         state[node] = 2
@@ -188,8 +204,11 @@ def test_one_closest_point_on_triangle():
                 if isinstance(node, ast.FunctionDef) and pattern.search(node.name):
                     definitions.append(f"{path.relative_to(ROOT)} {node.name}")
     assert definitions == ["warpface/geometry/funcs.py closest_point_on_triangle"], "\n".join(definitions)
-    users = [path.relative_to(ROOT) for path in _package_files() if "closest_point_on_triangle(" in path.read_text()
-             and path.parent.name != "geometry"]
+    users = [
+        path.relative_to(ROOT)
+        for path in _package_files()
+        if "closest_point_on_triangle(" in path.read_text() and path.parent.name != "geometry"
+    ]
     for path in users:
         imported = {name for module, name, _ in _imports(ROOT / path) if module.startswith("warpface.geometry")}
         assert "closest_point_on_triangle" in imported, f"{path} uses closest_point_on_triangle without importing it"
@@ -216,7 +235,11 @@ def _private_imports(path: Path):
             yield f"{path.relative_to(ROOT)}:{line} imports private name {name} from {module}"
         pieces = (module + ("." + name if name else "")).split(".")
         for depth, piece in enumerate(pieces[1:], start=1):
-            if piece.startswith("_") and not piece.startswith("__") and (PACKAGE.joinpath(*pieces[1:depth + 1]).with_suffix(".py").is_file()):
+            if (
+                piece.startswith("_")
+                and not piece.startswith("__")
+                and (PACKAGE.joinpath(*pieces[1 : depth + 1]).with_suffix(".py").is_file())
+            ):
                 owner = ".".join(pieces[:depth])
                 if not in_tests and not (here == owner or here.startswith(owner + ".")):
                     yield f"{path.relative_to(ROOT)}:{line} imports {owner}'s private module {piece}"
@@ -226,15 +249,19 @@ def _private_imports(path: Path):
 def test_no_private_names_imported_across_modules():
     """Private modules (``warpface._files``, ``warpface.usd._files``) serve their own package; tests may
     open them to test them, but no one imports a ``_name`` from another module."""
-    found = [problem for folder in SOURCE_DIRS for path in sorted((ROOT / folder).rglob("*.py"))
-             for problem in _private_imports(path)]
+    found = [
+        problem
+        for folder in SOURCE_DIRS
+        for path in sorted((ROOT / folder).rglob("*.py"))
+        for problem in _private_imports(path)
+    ]
     assert not found, "\n".join(found)
 
 
 def test_tests_do_not_import_tests():
     found = []
     for path in sorted((ROOT / "tests").glob("*.py")):
-        for module, name, line in _imports(path):
+        for module, _name, line in _imports(path):
             if module.startswith("test_") or module == "conftest" or module.startswith("tests."):
                 found.append(f"{path.relative_to(ROOT)}:{line} imports {module}")
     assert not found, "\n".join(found)
@@ -303,8 +330,11 @@ def test_device_is_keyword_only_everywhere():
 def test_step_means_the_fem_time_step():
     """``step`` is the FEM's time step only; the tracker's per-frame call is ``track_frame``, the
     expression model's ``evaluate``."""
-    elsewhere = {q for q, _ in _public_callables() if "step" in q.rsplit(".", 1)[-1].lower()
-                 and not q.startswith("warpface.fem.")}
+    elsewhere = {
+        q
+        for q, _ in _public_callables()
+        if "step" in q.rsplit(".", 1)[-1].lower() and not q.startswith("warpface.fem.")
+    }
     assert not elsewhere, "\n".join(sorted(elsewhere))
     from warpface.expression import ExpressionModel
     from warpface.tracking import TrackingAdapter

@@ -33,18 +33,73 @@ DEVICE = "cpu"
 
 # iBUG index of each landmark's mirror image (subject's left ↔ right).
 IBUG_MIRROR = np.array(
-    [*range(16, -1, -1), *range(26, 16, -1), 27, 28, 29, 30, 35, 34, 33, 32, 31,
-     45, 44, 43, 42, 47, 46, 39, 38, 37, 36, 41, 40,
-     54, 53, 52, 51, 50, 49, 48, 59, 58, 57, 56, 55, 64, 63, 62, 61, 60, 67, 66, 65]
+    [
+        *range(16, -1, -1),
+        *range(26, 16, -1),
+        27,
+        28,
+        29,
+        30,
+        35,
+        34,
+        33,
+        32,
+        31,
+        45,
+        44,
+        43,
+        42,
+        47,
+        46,
+        39,
+        38,
+        37,
+        36,
+        41,
+        40,
+        54,
+        53,
+        52,
+        51,
+        50,
+        49,
+        48,
+        59,
+        58,
+        57,
+        56,
+        55,
+        64,
+        63,
+        62,
+        61,
+        60,
+        67,
+        66,
+        65,
+    ]
 )
 RIGHT_SIDE = [*range(0, 8), *range(17, 22), 31, 32, *range(36, 42), 48, 49, 50, 58, 59, 60, 61, 67]
 REQUIRED_MUSCLES = {
-    "frontalis_inner_L", "frontalis_inner_R", "frontalis_outer_L", "frontalis_outer_R",
-    "corrugator_L", "corrugator_R", "procerus",
-    "levator_labii_superioris_L", "levator_labii_superioris_R",
-    "zygomaticus_major_L", "zygomaticus_major_R", "risorius_L", "risorius_R",
-    "depressor_anguli_oris_L", "depressor_anguli_oris_R", "mentalis",
-    "orbicularis_oris", "orbicularis_oculi_L", "orbicularis_oculi_R",
+    "frontalis_inner_L",
+    "frontalis_inner_R",
+    "frontalis_outer_L",
+    "frontalis_outer_R",
+    "corrugator_L",
+    "corrugator_R",
+    "procerus",
+    "levator_labii_superioris_L",
+    "levator_labii_superioris_R",
+    "zygomaticus_major_L",
+    "zygomaticus_major_R",
+    "risorius_L",
+    "risorius_R",
+    "depressor_anguli_oris_L",
+    "depressor_anguli_oris_R",
+    "mentalis",
+    "orbicularis_oris",
+    "orbicularis_oculi_L",
+    "orbicularis_oculi_R",
 }
 
 
@@ -173,14 +228,18 @@ def test_face_is_a_consistently_oriented_manifold_with_eye_and_mouth_holes():
     loops = boundary_loops(mesh.triangles)
     assert len(loops) == 4, "outline, two eyes, mouth"
     landmarks = default_landmarks()
-    holes = {name: {int(v) for v in landmarks[span]} for name, span in
-             (("right eye", slice(36, 42)), ("left eye", slice(42, 48)), ("mouth", slice(60, 68)))}
+    holes = {
+        name: {int(v) for v in landmarks[span]}
+        for name, span in (("right eye", slice(36, 42)), ("left eye", slice(42, 48)), ("mouth", slice(60, 68)))
+    }
     for name, members in holes.items():
         assert sum(members <= loop for loop in loops) == 1, f"the {name} landmarks lie on one hole's margin"
     outer = max(loops, key=len)
     assert len(outer) > 3 * max(len(loop) for loop in loops if loop is not outer)
     normals = mesh.vertex_normals(device=DEVICE)
-    assert normals[landmarks[30], 2] > 0.8 and normals[landmarks[8], 1] < 0.0, "outward: nose tip faces +z, chin faces down"
+    assert normals[landmarks[30], 2] > 0.8 and normals[landmarks[8], 1] < 0.0, (
+        "outward: nose tip faces +z, chin faces down"
+    )
 
 
 def test_face_has_the_features_of_a_face():
@@ -296,7 +355,9 @@ def test_rig_does_not_depend_on_units(rig):
             np.testing.assert_allclose(muscle_cm.attachment, 100.0 * muscle.attachment, rtol=1e-5, atol=1e-5)
             assert muscle_cm.falloff_finish == pytest.approx(100.0 * muscle.falloff_finish)
     for wrinkle, wrinkle_cm in zip(rig.wrinkles, rig_cm.wrinkles):
-        assert wrinkle_cm.depth == pytest.approx(100.0 * wrinkle.depth) and wrinkle_cm.width == pytest.approx(100.0 * wrinkle.width)
+        assert wrinkle_cm.depth == pytest.approx(100.0 * wrinkle.depth) and wrinkle_cm.width == pytest.approx(
+            100.0 * wrinkle.width
+        )
     smile, smile_cm = expression_contractions("smile", rig), expression_contractions("smile", rig_cm)
     assert smile_cm["zygomaticus_major_L"] == pytest.approx(100.0 * smile["zygomaticus_major_L"])
     assert smile_cm["orbicularis_oculi_L"] == pytest.approx(smile["orbicularis_oculi_L"])
@@ -430,7 +491,9 @@ def test_expression_timeline_goes_neutral_to_expression_to_neutral(rig):
     assert np.all(np.diff(envelope[:31]) >= 0.0) and np.all(np.diff(envelope[30:]) <= 0.0)
     np.testing.assert_allclose(envelope, envelope[::-1], atol=1e-12)
     assert envelope[1] < 1e-3, "eases in: zero velocity at the start"
-    np.testing.assert_allclose(timeline / np.maximum(middle, 1e-30)[None, :] * (middle > 0), envelope[:, None] * (middle > 0))
+    np.testing.assert_allclose(
+        timeline / np.maximum(middle, 1e-30)[None, :] * (middle > 0), envelope[:, None] * (middle > 0)
+    )
     frames = rig.model(device=DEVICE).evaluate_batch(timeline[::15])
     np.testing.assert_allclose(frames[0], rig.mesh.points, atol=1e-6)
     with pytest.raises(ValueError):

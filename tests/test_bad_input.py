@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import grid_surface
 
 import warpface as wf
-
-from helpers import grid_surface
 
 PLANAR = wf.PlanarProjection([0, 0, 0], [1, 0, 0], [0, 1, 0])
 CURVE = [[0, 0], [1, 0], [2, 0], [3, 0]]
@@ -64,7 +63,9 @@ def test_unknown_muscle_name(small_model):
         model.evaluate_batch(np.zeros((3, 2)))
 
 
-@pytest.mark.parametrize("thickness, message", [(np.ones(5), "one value per vertex"), (-1.0, "negative"), (np.nan, "non-finite")])
+@pytest.mark.parametrize(
+    "thickness, message", [(np.ones(5), "one value per vertex"), (-1.0, "negative"), (np.nan, "non-finite")]
+)
 def test_bad_thickness(small_model, thickness, message):
     mesh, muscle = small_model
     with pytest.raises(ValueError, match=f"thickness.*{message}"):

@@ -50,7 +50,9 @@ def baked(path) -> np.ndarray:
 def one_frame_at_a_time(model, path) -> np.ndarray:
     """The reference: the stage's controls, each frame through the single-frame ``evaluate``."""
     animation = read_animation(path, FRAMES)
-    return np.stack([model.evaluate(c, wrinkle_depths=d) for c, d in zip(animation.contractions, animation.wrinkle_depths)])
+    return np.stack(
+        [model.evaluate(c, wrinkle_depths=d) for c, d in zip(animation.contractions, animation.wrinkle_depths)]
+    )
 
 
 def shuffled_finish(model, monkeypatch):
@@ -128,7 +130,10 @@ def test_read_animation_equals_per_time_gets_for_constant_single_and_sampled_con
     asked = np.array([-2.0, 0.0, 3.5, 5.0, 11.0, 20.0])
     animation = read_animation(stage, asked)
     rig = rig_prims(stage)
-    for table, items, name in ((animation.contractions, rig.muscles, "contraction"), (animation.wrinkle_depths, rig.wrinkles, "depth")):
+    for table, items, name in (
+        (animation.contractions, rig.muscles, "contraction"),
+        (animation.wrinkle_depths, rig.wrinkles, "depth"),
+    ):
         expected = np.array([[item.GetAttribute(name).Get(t) for item in items] for t in asked.tolist()])
         assert np.array_equal(table, expected)
     assert np.all(animation.wrinkle_depths[:, 1] == 0.003)
@@ -172,8 +177,17 @@ def test_animate_cache_equals_the_single_frame_model_on_the_built_in_face(tmp_pa
     animation = read_animation(stage, times)
     model = default_rig().model(device="cpu")
     for time_code, controls, depths in zip(times.tolist(), animation.controls, animation.wrinkle_depths):
-        assert np.array_equal(np.asarray(points.Get(time_code), dtype=np.float32), model.evaluate(controls, wrinkle_depths=depths))
-    assert set(result.seconds) == {"read driver and rig", "clean and map", "write controls", "model", "bake", "save stage"}
+        assert np.array_equal(
+            np.asarray(points.Get(time_code), dtype=np.float32), model.evaluate(controls, wrinkle_depths=depths)
+        )
+    assert set(result.seconds) == {
+        "read driver and rig",
+        "clean and map",
+        "write controls",
+        "model",
+        "bake",
+        "save stage",
+    }
 
 
 FRESH_PROCESS_THREADS = """
@@ -204,7 +218,14 @@ def test_threads_of_a_fresh_process_evaluate_at_once_without_crashing():
     from pathlib import Path
 
     tests = Path(__file__).parent
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tests.parent), str(tests), os.environ.get("PYTHONPATH", "")])}
-    codes = [subprocess.run([sys.executable, "-c", FRESH_PROCESS_THREADS], env=env, cwd=tests, capture_output=True,
-                            timeout=300).returncode for _ in range(6)]
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(tests.parent), str(tests), os.environ.get("PYTHONPATH", "")]),
+    }
+    codes = [
+        subprocess.run(
+            [sys.executable, "-c", FRESH_PROCESS_THREADS], env=env, cwd=tests, capture_output=True, timeout=300
+        ).returncode
+        for _ in range(6)
+    ]
     assert codes == [0] * 6, codes

@@ -84,8 +84,14 @@ def _start_child(folder: Path, trials: int) -> subprocess.Popen:
     # stderr to a file: only stdout is read through a pipe (mixing readline() with communicate()
     # would lose the lines readline() had already buffered).
     with open(folder / "child.err", "w") as errors:
-        return subprocess.Popen([sys.executable, str(script), str(folder), str(trials), str(REPO / "tests"),
-                                 str(CHUNK_FRAMES)], stdout=subprocess.PIPE, stderr=errors, text=True, env=env, cwd=folder)
+        return subprocess.Popen(
+            [sys.executable, str(script), str(folder), str(trials), str(REPO / "tests"), str(CHUNK_FRAMES)],
+            stdout=subprocess.PIPE,
+            stderr=errors,
+            text=True,
+            env=env,
+            cwd=folder,
+        )
 
 
 def _finish(child: subprocess.Popen, folder: Path) -> tuple[str, str]:
@@ -117,8 +123,9 @@ def _assert_stage_lists_every_chunk(stage: Path, unlisted_allowed: int = 0, temp
     chunks = sorted(p.name for p in folder.glob("chunk_*.usdc"))
     listed = stage.read_text()
     unlisted = [name for name in chunks if name not in listed]
-    assert len(unlisted) <= unlisted_allowed and all(name == chunks[-1] for name in unlisted), \
+    assert len(unlisted) <= unlisted_allowed and all(name == chunks[-1] for name in unlisted), (
         f"{stage.name}: chunk files on disk the stage does not list: {unlisted}"
+    )
     assert temporaries_allowed or not list(folder.glob(".*")), "temporary files left behind"
     np.testing.assert_allclose(back["times"], np.arange(len(back["times"])), atol=1e-6)  # a gap-free prefix
     return back
@@ -145,7 +152,9 @@ def test_sigint_at_random_moments_loses_no_frame(tmp_path):
         back = _assert_stage_lists_every_chunk(tmp_path / f"cap{trial}.usda")
         assert len(handed_out) > 0 and len(back["times"]) == len(handed_out) == int(done[0].split()[2])
         # the last frame's landmarks are the ones the source produced
-        assert back["landmarks"][-1][0, 1] - back["landmarks"][0][0, 1] == pytest.approx(1e-4 * (len(handed_out) - 1), abs=1e-6)
+        assert back["landmarks"][-1][0, 1] - back["landmarks"][0][0, 1] == pytest.approx(
+            1e-4 * (len(handed_out) - 1), abs=1e-6
+        )
 
 
 @pytest.mark.parametrize("seed", [3, 4])
@@ -165,7 +174,11 @@ def test_kill_9_keeps_every_flushed_frame(tmp_path, seed):
     stage = tmp_path / "cap0.usda"
     # a kill between a chunk's rename and the root's may leave that newest chunk unlisted (its frames
     # were not yet flushed); every earlier one must be listed
-    kept = len(_assert_stage_lists_every_chunk(stage, unlisted_allowed=1, temporaries_allowed=True)["times"]) if stage.exists() else 0
+    kept = (
+        len(_assert_stage_lists_every_chunk(stage, unlisted_allowed=1, temporaries_allowed=True)["times"])
+        if stage.exists()
+        else 0
+    )
     assert kept >= max(flushed, default=0)
     assert len(handed_out) - kept <= CHUNK_FRAMES  # lost at most the frames queued since the last flush
 
@@ -175,8 +188,24 @@ def test_ctrl_c_during_warpface_track_keeps_every_frame(tmp_path):
     stage = tmp_path / "out" / "capture.usda"
     env = dict(os.environ, PYTHONPATH=str(REPO))
     with open(tmp_path / "err.txt", "w") as errors:
-        child = subprocess.Popen([sys.executable, "-m", "warpface.cli", "--device", "cpu", "--quiet", "track", "synthetic",
-                                  "--stage", str(stage)], stdout=subprocess.PIPE, stderr=errors, text=True, env=env)
+        child = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "warpface.cli",
+                "--device",
+                "cpu",
+                "--quiet",
+                "track",
+                "synthetic",
+                "--stage",
+                str(stage),
+            ],
+            stdout=subprocess.PIPE,
+            stderr=errors,
+            text=True,
+            env=env,
+        )
     try:
         deadline = time.monotonic() + 120
         while not stage.exists() and child.poll() is None and time.monotonic() < deadline:

@@ -21,7 +21,9 @@ def test_help_for_every_command(capsys):
 
 
 def test_console_script_is_installed():
-    result = subprocess.run([sys.executable, "-m", "warpface.cli", "--help"], capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [sys.executable, "-m", "warpface.cli", "--help"], capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 0 and "demo" in result.stdout
 
 
@@ -102,12 +104,15 @@ def test_pxr_and_file_errors_are_one_line(demo_dir, tmp_path, capsys):
     assert "fresh_anim.usdc" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("argv, fragments", [
-    (["demo", "--fps", "0"], ["--fps", "> 0"]),
-    (["demo", "--seconds", "-1"], ["--seconds", "> 0"]),
-    (["--device", "cuda:7", "demo"], ["cuda:7"]),
-    (["demo", "--device", "gpu"], ["gpu", "unknown device"]),
-])
+@pytest.mark.parametrize(
+    "argv, fragments",
+    [
+        (["demo", "--fps", "0"], ["--fps", "> 0"]),
+        (["demo", "--seconds", "-1"], ["--seconds", "> 0"]),
+        (["--device", "cuda:7", "demo"], ["cuda:7"]),
+        (["demo", "--device", "gpu"], ["gpu", "unknown device"]),
+    ],
+)
 def test_demo_argument_errors_write_nothing(tmp_path, capsys, argv, fragments):
     out = tmp_path / "never"
     _one_line_error(capsys, [*argv, "--out", str(out)] if argv[0] == "demo" else [*argv, "--out", str(out)], *fragments)
@@ -136,20 +141,25 @@ def test_bake_refuses_its_own_stage_as_cache(demo_dir, tmp_path, capsys):
     _one_line_error(capsys, ["bake", str(stage), "--cache", str(stage)], "is the stage itself")
     (tmp_path / "rig_part.usda").write_text('#usda 1.0\ndef Xform "Extra"\n{\n}\n')
     stage.write_text(stage.read_text().replace("@./face_anim.usdc@", "@./face_anim.usdc@, @./rig_part.usda@"))
-    _one_line_error(capsys, ["bake", str(stage), "--cache", str(tmp_path / "rig_part.usda")], "rig_part.usda", "own layers")
+    _one_line_error(
+        capsys, ["bake", str(stage), "--cache", str(tmp_path / "rig_part.usda")], "rig_part.usda", "own layers"
+    )
     stage.write_bytes(before)
     assert main(["--quiet", "bake", str(stage)]) == 0  # re-baking into the existing cache sublayer is fine
     assert "@./face_anim.usdc@" in stage.read_text() and stage.read_text().count("face_anim.usdc") == 1
 
 
-@pytest.mark.parametrize("argv, fragments", [
-    (["--step", "0"], ["--step", "> 0"]),
-    (["--step", "-2"], ["--step"]),
-    (["--step", "nan"], ["--step", "finite"]),
-    (["--step", "1e-9"], ["frames", "limit", "--max-frames"]),
-    (["--end", "1e7"], ["frames", "limit", "--max-frames"]),
-    (["--start", "5", "--end", "1"], ["before start"]),
-])
+@pytest.mark.parametrize(
+    "argv, fragments",
+    [
+        (["--step", "0"], ["--step", "> 0"]),
+        (["--step", "-2"], ["--step"]),
+        (["--step", "nan"], ["--step", "finite"]),
+        (["--step", "1e-9"], ["frames", "limit", "--max-frames"]),
+        (["--end", "1e7"], ["frames", "limit", "--max-frames"]),
+        (["--start", "5", "--end", "1"], ["before start"]),
+    ],
+)
 def test_bake_refuses_bad_frame_ranges(demo_dir, capsys, argv, fragments):
     _one_line_error(capsys, ["bake", str(demo_dir / "face.usda"), *argv], *fragments)
 
@@ -168,11 +178,18 @@ def _huge_contraction(text):
     return text[:sample] + "                3: 1e30," + text[end:]
 
 
-@pytest.mark.parametrize("name, edit, fragment", [
-    ("long.usda", lambda t: re.sub(r"endTimeCode = [0-9.]+", "endTimeCode = 1e15", t, count=1), "limit"),
-    ("backwards.usda", lambda t: re.sub(r"endTimeCode = [0-9.]+", "endTimeCode = -5", t, count=1), "invalid time range"),
-    ("huge.usda", _huge_contraction, "time 3"),
-])
+@pytest.mark.parametrize(
+    "name, edit, fragment",
+    [
+        ("long.usda", lambda t: re.sub(r"endTimeCode = [0-9.]+", "endTimeCode = 1e15", t, count=1), "limit"),
+        (
+            "backwards.usda",
+            lambda t: re.sub(r"endTimeCode = [0-9.]+", "endTimeCode = -5", t, count=1),
+            "invalid time range",
+        ),
+        ("huge.usda", _huge_contraction, "time 3"),
+    ],
+)
 def test_validate_reports_what_bake_refuses(demo_dir, tmp_path, capsys, name, edit, fragment):
     stage = _edited_stage(demo_dir, tmp_path, name, edit)
     assert stage.read_text() != (demo_dir / "face.usda").read_text().replace("@./face_anim.usdc@", "")
@@ -197,7 +214,9 @@ def test_bake_streams_in_chunks_and_matches_whole_evaluation(demo_dir, tmp_path)
     rig = usd.read_rig(stage)
     times = usd.frame_times(stage)
     animation = usd.read_animation(stage, times)
-    expected = ExpressionModel.from_rig(rig, device="cpu").evaluate_batch(animation.contractions, wrinkle_depths=animation.wrinkle_depths)
+    expected = ExpressionModel.from_rig(rig, device="cpu").evaluate_batch(
+        animation.contractions, wrinkle_depths=animation.wrinkle_depths
+    )
     points = usd.rig_prims(stage).skin.GetAttribute("points")
     baked = np.stack([np.asarray(points.Get(Usd.TimeCode(t))) for t in times])
     assert cache.stat().st_size > 0 and np.array_equal(baked, expected)
@@ -251,18 +270,42 @@ def test_atomic_path_without_creating_hands_out_a_fresh_name_and_cleans_up(tmp_p
 def test_version_and_quiet_output():
     import warpface
 
-    result = subprocess.run([sys.executable, "-m", "warpface.cli", "--version"], capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [sys.executable, "-m", "warpface.cli", "--version"], capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 0 and result.stdout.strip() == f"warpface {warpface.__version__}"
-    noise = subprocess.run([sys.executable, "-c", "import warpface, warpface.assets; warpface.assets.default_rig()"],
-                           capture_output=True, text=True, timeout=300)
+    noise = subprocess.run(
+        [sys.executable, "-c", "import warpface, warpface.assets; warpface.assets.default_rig()"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert noise.returncode == 0 and noise.stdout == "" and noise.stderr == "", noise.stderr
 
 
 def test_quiet_keeps_the_result_line(demo_dir, tmp_path):
     out = tmp_path / "q.png"
-    result = subprocess.run([sys.executable, "-m", "warpface.cli", "--quiet", "preview", str(demo_dir / "face.usda"),
-                             "--out", str(out), "--width", "64", "--height", "72", "--device", "cpu"],
-                            capture_output=True, text=True, timeout=300)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "warpface.cli",
+            "--quiet",
+            "preview",
+            str(demo_dir / "face.usda"),
+            "--out",
+            str(out),
+            "--width",
+            "64",
+            "--height",
+            "72",
+            "--device",
+            "cpu",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 0 and result.stdout.strip() == f"wrote {out}" and result.stderr == "", result.stderr
 
 
@@ -277,10 +320,31 @@ def test_every_option_has_help():
 
 def test_preview_of_a_baked_frame(demo_dir, tmp_path, capsys):
     out = tmp_path / "frame.png"
-    assert main(["preview", str(demo_dir / "face.usda"), "--time", "6", "--out", str(out), "--width", "160", "--height", "180", "--heat"]) == 0
+    assert (
+        main(
+            [
+                "preview",
+                str(demo_dir / "face.usda"),
+                "--time",
+                "6",
+                "--out",
+                str(out),
+                "--width",
+                "160",
+                "--height",
+                "180",
+                "--heat",
+            ]
+        )
+        == 0
+    )
     assert out.is_file()
-    _one_line_error(capsys, ["preview", str(demo_dir / "face.usda"), "--time", "9999", "--out", str(tmp_path / "late.png")],
-                    "9999", "outside the stage's time range")
+    _one_line_error(
+        capsys,
+        ["preview", str(demo_dir / "face.usda"), "--time", "9999", "--out", str(tmp_path / "late.png")],
+        "9999",
+        "outside the stage's time range",
+    )
     assert not (tmp_path / "late.png").exists()
 
 
@@ -293,7 +357,24 @@ def test_capture_from_track_is_previewed_and_validated(tmp_path, capsys):
     assert main(["validate", str(stage), "--quiet"]) == 0
     assert "no problems" in capsys.readouterr().out
     frame, video = tmp_path / "cap.png", tmp_path / "cap.mp4"
-    assert main(["--quiet", "preview", str(stage), "--out", str(frame), "--video", str(video), "--width", "96", "--height", "112"]) == 0
+    assert (
+        main(
+            [
+                "--quiet",
+                "preview",
+                str(stage),
+                "--out",
+                str(frame),
+                "--video",
+                str(video),
+                "--width",
+                "96",
+                "--height",
+                "112",
+            ]
+        )
+        == 0
+    )
     image = cv2.imread(str(frame))
     assert image.shape == (112, 96, 3) and image.std() > 5  # a face, not a blank frame
     capture = cv2.VideoCapture(str(video))

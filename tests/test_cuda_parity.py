@@ -33,11 +33,9 @@ Comparisons:
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 import warp as wp
-
 from helpers import FLOAT32_FACE_TOLERANCE, expression_controls, grid_surface, parity_device
 
 DEVICE = parity_device()
@@ -281,8 +279,12 @@ def test_batched_solve_matches_cpu_and_truth():
     # One frame through solve(): the fit's points come from the full model on the parity device.
     fit = dev.solve(targets[0])
     assert fit.model.device == DEVICE
-    np.testing.assert_allclose(fit.points, rig_cpu.model(device=CPU).evaluate(fit.vector), rtol=0,
-                               atol=FLOAT32_FACE_TOLERANCE * rig_cpu.mesh.size)
+    np.testing.assert_allclose(
+        fit.points,
+        rig_cpu.model(device=CPU).evaluate(fit.vector),
+        rtol=0,
+        atol=FLOAT32_FACE_TOLERANCE * rig_cpu.mesh.size,
+    )
 
 
 # ------------------------------------------------------------------------------------ back-projection
@@ -358,7 +360,7 @@ def beam():
 def beam_trajectory(steps: int, driven: int) -> np.ndarray:
     out = np.zeros((steps, driven, 3))
     out[:, :, 1] = 2e-3 * np.sin(np.linspace(0.1, 1.5, steps))[:, None]
-    out[steps // 2:, :, 2] = 1e-3  # a jump: CG has real work after it
+    out[steps // 2 :, :, 2] = 1e-3  # a jump: CG has real work after it
     return out
 
 
@@ -381,8 +383,18 @@ def test_cg_step_graph_on_device_state_matches_direct(beam, direct_reference):
 
     mesh, fixed, driven = beam
     steps = len(direct_reference)
-    sim = TissueSimulation(mesh, tissue_material(), 1e-3, fixed=fixed, driven=driven, solver="cg", device=DEVICE,
-                           cg_tol=1e-12, cg_maxiter=400, use_graph=True)
+    sim = TissueSimulation(
+        mesh,
+        tissue_material(),
+        1e-3,
+        fixed=fixed,
+        driven=driven,
+        solver="cg",
+        device=DEVICE,
+        cg_tol=1e-12,
+        cg_maxiter=400,
+        use_graph=True,
+    )
     trajectory = wp.array(beam_trajectory(steps, driven.size).reshape(-1, 3), dtype=wp.vec3d, device=DEVICE)
     states = [TissueState(mesh.node_count, device=DEVICE), TissueState(mesh.node_count, device=DEVICE)]
     control = TissueControl(driven.size, device=DEVICE)
@@ -417,8 +429,20 @@ def test_cg_run_chunks_match_direct(beam, direct_reference, loop):
     from warpface.fem import TissueSimulation
 
     mesh, fixed, driven = beam
-    sim = TissueSimulation(mesh, tissue_material(), 1e-3, fixed=fixed, driven=driven, solver="cg", device=DEVICE,
-                           cg_tol=1e-12, cg_maxiter=400, cg_chunk=5, use_graph=True, cg_loop=loop)
+    sim = TissueSimulation(
+        mesh,
+        tissue_material(),
+        1e-3,
+        fixed=fixed,
+        driven=driven,
+        solver="cg",
+        device=DEVICE,
+        cg_tol=1e-12,
+        cg_maxiter=400,
+        cg_chunk=5,
+        use_graph=True,
+        cg_loop=loop,
+    )
     assert sim.stepper.loop == loop
     got = sim.run(beam_trajectory(len(direct_reference), driven.size))
     np.testing.assert_allclose(got, direct_reference, rtol=0, atol=1e-9)
@@ -437,8 +461,19 @@ def test_tissue_batch_graph_matches_per_model_direct(beam, direct_reference, pre
     materials = [tissue_material(), TissueMaterial(6e4, 0.45, 30.0, 1000.0), TissueMaterial(2e5, 0.49, 5.0, 1100.0)]
     base = beam_trajectory(steps, driven.size)
     own = np.stack([base, 0.5 * base, -base], axis=1)  # (T, 3, D, 3)
-    batch = TissueBatch(mesh, materials, 1e-3, fixed=fixed, driven=driven, solver="cg", device=DEVICE,
-                        cg_tol=1e-12, cg_maxiter=400, cg_preconditioner=preconditioner, chunk=5)
+    batch = TissueBatch(
+        mesh,
+        materials,
+        1e-3,
+        fixed=fixed,
+        driven=driven,
+        solver="cg",
+        device=DEVICE,
+        cg_tol=1e-12,
+        cg_maxiter=400,
+        cg_preconditioner=preconditioner,
+        chunk=5,
+    )
     got = batch.run(own[: steps - 4])
     for t in range(steps - 4, steps):
         batch.step(own[t])
@@ -449,6 +484,7 @@ def test_tissue_batch_graph_matches_per_model_direct(beam, direct_reference, pre
         ref = TissueSimulation(mesh, materials[b], 1e-3, fixed=fixed, driven=driven, solver="direct", device=CPU)
         ref.run(own[:, b])
         np.testing.assert_allclose(final[b], ref.d, rtol=0, atol=1e-9)
+
 
 # ------------------------------------------------------------------------------- tracking → tissue drive
 @pytest.fixture(scope="module")
@@ -486,13 +522,16 @@ def test_tissue_drive_matches_cpu(skin_patch):
     adapter = adapter_for_face(skin, names, camera_to_model=np.eye(4), device=CPU)  # shared: isolates the drive
     adapter.bind(names)
     material = TissueMaterial(E=192.4e3, nu=0.495, eta=476.8, rho=1100.0)
-    drives = [TissueDrive(adapter, tetmesh, material, fps=30.0, dt=1.0 / 90.0, thickness=thickness, device=device)
-              for device in (CPU, DEVICE)]
+    drives = [
+        TissueDrive(adapter, tetmesh, material, fps=30.0, dt=1.0 / 90.0, thickness=thickness, device=device)
+        for device in (CPU, DEVICE)
+    ]
     assert drives[1].simulation.solver == ("cg" if DEVICE.is_cuda else "direct")
     lift = np.array([0.0, 0.0, 0.002])
     for i in range(6):
-        frame = LandmarkFrame(timestamp=i / 30.0, points=skin[centre] + lift * min(i, 3) / 3,
-                              confidence=np.ones(len(centre)), index=i)
+        frame = LandmarkFrame(
+            timestamp=i / 30.0, points=skin[centre] + lift * min(i, 3) / 3, confidence=np.ones(len(centre)), index=i
+        )
         tracked = adapter.track_frame(frame)
         expected, got = (drive(frame, tracked) for drive in drives)
         np.testing.assert_allclose(got, expected, rtol=0, atol=2e-6, err_msg=f"frame {i}")
@@ -550,8 +589,9 @@ def test_closest_points_match_cpu_and_brute_force():
         # float32 search around the box centre: 1e-6 of the distance plus 1e-6 of the mesh size
         np.testing.assert_allclose(dist, true_distance, rtol=1e-6, atol=1e-6 * size)
         closest = np.einsum("qj,qjk->qk", bary.astype(np.float64), points[triangles[tri]])
-        np.testing.assert_allclose(np.linalg.norm(closest - queries, axis=1), true_distance,
-                                   rtol=1e-5, atol=2e-6 * size)
+        np.testing.assert_allclose(
+            np.linalg.norm(closest - queries, axis=1), true_distance, rtol=1e-5, atol=2e-6 * size
+        )
     # The same triangle wherever the runner-up is clearly farther; within float32 rounding of a tie
     # (closest point on a shared edge or vertex) FMA contraction may pick either neighbour.
     ranked = np.sort(reference, axis=1)

@@ -5,11 +5,9 @@ barriers across many blocks, and fewer blocks than row groups. Device selection 
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 import warp as wp
-
 from helpers import parity_device
 
 DEVICE = parity_device()
@@ -41,14 +39,26 @@ def test_persistent_cg_with_many_blocks_matches_direct(blocks):
     steps = 30
     trajectory = np.zeros((steps, driven.size, 3))
     trajectory[:, :, 1] = -5e-3 * np.sin(np.linspace(0.05, 1.5, steps))[:, None]
-    trajectory[steps // 2:, :, 2] = 1e-3  # a jump
+    trajectory[steps // 2 :, :, 2] = 1e-3  # a jump
     material = TissueMaterial(1e5, 0.45, 20.0, 1000.0)
-    expected = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, solver="direct",
-                                device=CPU).run(trajectory)
+    expected = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, solver="direct", device=CPU).run(
+        trajectory
+    )
     runs = {}
     for loop in ("persistent", "launched"):
-        sim = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, solver="cg", device=DEVICE,
-                               cg_tol=1e-12, cg_maxiter=400, cg_chunk=8, cg_loop=loop)
+        sim = TissueSimulation(
+            mesh,
+            material,
+            1e-3,
+            fixed=fixed,
+            driven=driven,
+            solver="cg",
+            device=DEVICE,
+            cg_tol=1e-12,
+            cg_maxiter=400,
+            cg_chunk=8,
+            cg_loop=loop,
+        )
         if loop == "persistent" and blocks is not None:
             sim.stepper._persistent_blocks = blocks  # before the first graph is captured
         runs[loop] = (sim.run(trajectory), sim.stepper.total_iterations, sim.stepper._barrier.numpy())
@@ -73,17 +83,31 @@ def test_batched_persistent_cg_matches_each_models_direct(blocks_per_model, wave
     trajectory = np.zeros((steps, 3, driven.size, 3))
     for b in range(3):
         trajectory[:, b, :, 1] = -(3.0 + b) * 1e-3 * np.sin(np.linspace(0.05, 1.5, steps))[:, None]
-    trajectory[steps // 2:, 1, :, 2] = 1e-3  # a jump in one model only
-    materials = [TissueMaterial(1e5, 0.45, 20.0, 1000.0), TissueMaterial(5e4, 0.49, 5.0, 1100.0),
-                 TissueMaterial(2e5, 0.40, 60.0, 1000.0)]
-    batch = TissueBatch(mesh, materials, 1e-3, fixed=fixed, driven=driven, solver="cg", device=DEVICE,
-                        cg_tol=1e-12, cg_maxiter=400, chunk=8)
+    trajectory[steps // 2 :, 1, :, 2] = 1e-3  # a jump in one model only
+    materials = [
+        TissueMaterial(1e5, 0.45, 20.0, 1000.0),
+        TissueMaterial(5e4, 0.49, 5.0, 1100.0),
+        TissueMaterial(2e5, 0.40, 60.0, 1000.0),
+    ]
+    batch = TissueBatch(
+        mesh,
+        materials,
+        1e-3,
+        fixed=fixed,
+        driven=driven,
+        solver="cg",
+        device=DEVICE,
+        cg_tol=1e-12,
+        cg_maxiter=400,
+        chunk=8,
+    )
     if blocks_per_model is not None:  # before the first graph is captured
         batch.stepper.blocks_per_model, batch.stepper.waves = blocks_per_model, waves
     got = batch.run(trajectory)
     for b, material in enumerate(materials):
-        expected = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, solver="direct",
-                                    device=CPU).run(trajectory[:, b])
+        expected = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, solver="direct", device=CPU).run(
+            trajectory[:, b]
+        )
         assert np.abs(expected).max() > 1e-3
         np.testing.assert_allclose(got[:, b], expected, rtol=0, atol=1e-9, err_msg=f"model {b}")
     np.testing.assert_array_equal(batch.stepper._barrier.numpy(), 0)

@@ -6,11 +6,9 @@ device of ``tests/test_cuda_parity.py`` (``WARPFACE_PARITY_DEVICE``, default ``c
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 import warp as wp
-
 from helpers import FLOAT32_FACE_TOLERANCE, expression_controls, parity_device
 
 DEVICE = parity_device()
@@ -41,13 +39,22 @@ def test_launch_plans_agree_on_the_device(face_rig, models, launches):
 
     cpu_model, fused = models
     assert fused.launches_per_frame == (1 if DEVICE.is_cuda else 5)
-    staged = ExpressionModel(face_rig.mesh, face_rig.muscles, face_rig.wrinkles, face_rig.thickness, device=DEVICE,
-                             jaw=face_rig.jaw, launches=launches)
+    staged = ExpressionModel(
+        face_rig.mesh,
+        face_rig.muscles,
+        face_rig.wrinkles,
+        face_rig.thickness,
+        device=DEVICE,
+        jaw=face_rig.jaw,
+        launches=launches,
+    )
     contractions, depths = expression_controls(face_rig, 3, seed=4)
     tolerance = FLOAT32_FACE_TOLERANCE * face_rig.mesh.size
     for frame in range(3):
         got = fused.evaluate(contractions[frame], wrinkle_depths=depths[frame])
-        np.testing.assert_allclose(got, staged.evaluate(contractions[frame], wrinkle_depths=depths[frame]), rtol=0, atol=tolerance)
+        np.testing.assert_allclose(
+            got, staged.evaluate(contractions[frame], wrinkle_depths=depths[frame]), rtol=0, atol=tolerance
+        )
         # Against the CPU: every plan on the H200 differs by up to 3.8e-6 m (2.7x the float32 tolerance) at
         # 6 of 11,492 vertices for these controls (float32 rounding amplified at a few points), so: the
         # tolerance at 99.9 % of the points, 4x it at the rest.
@@ -56,12 +63,19 @@ def test_launch_plans_agree_on_the_device(face_rig, models, launches):
     if launches == 5:
         return  # the batch check below runs on the plans that evaluate several frames per thread (block)
     frames = max(8, 4 * (1 << 20) // face_rig.mesh.vertex_count + 1)  # > 2^20 frame·vertices per launch
-    many_c, many_d = np.resize(contractions, (frames, contractions.shape[1])), np.resize(depths, (frames, depths.shape[1]))
-    for model in (staged, fused) if launches == 2 else (staged,):  # the two- or three-launch plan and the default (tiled)
+    many_c, many_d = (
+        np.resize(contractions, (frames, contractions.shape[1])),
+        np.resize(depths, (frames, depths.shape[1])),
+    )
+    for model in (
+        (staged, fused) if launches == 2 else (staged,)
+    ):  # the two- or three-launch plan and the default (tiled)
         assert model._frames_per_thread(frames) > 1 or not DEVICE.is_cuda
         out = wp.empty((frames, face_rig.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
         model.evaluate_batch_into(out, many_c, wrinkle_depths=many_d)
         batch = out.numpy()
         for frame in range(3):
-            np.testing.assert_array_equal(batch[frame], model.evaluate(contractions[frame], wrinkle_depths=depths[frame]))
+            np.testing.assert_array_equal(
+                batch[frame], model.evaluate(contractions[frame], wrinkle_depths=depths[frame])
+            )
             np.testing.assert_array_equal(batch[frames - 3 + frame], batch[(frames - 3 + frame) % 3])

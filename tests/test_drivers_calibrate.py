@@ -13,9 +13,14 @@ from warpface.drivers.calibrate import calibrate_mapping
 
 CENTIMETRE = 0.01
 # ICT-FaceKit shape names → ARKit channels (ICT's _L is the subject's left, as ARKit's Left)
-ICT_CHANNELS = {"browInnerUp_L": "browInnerUp", "browOuterUp_L": "browOuterUpLeft",
-                "browOuterUp_R": "browOuterUpRight", "eyeSquint_L": "eyeSquintLeft",
-                "eyeSquint_R": "eyeSquintRight", "jawOpen": "jawOpen"}
+ICT_CHANNELS = {
+    "browInnerUp_L": "browInnerUp",
+    "browOuterUp_L": "browOuterUpLeft",
+    "browOuterUp_R": "browOuterUpRight",
+    "eyeSquint_L": "eyeSquintLeft",
+    "eyeSquint_R": "eyeSquintRight",
+    "jawOpen": "jawOpen",
+}
 
 
 def one_hot(channel: str) -> Curves:
@@ -31,8 +36,10 @@ def test_one_hot_weights_reproduce_synthetic_examples_exactly():
     """Closed loop: examples made by known controls come back from their one-hot weights."""
     rig = default_rig(device="cpu", anatomy="classic")
     model = rig.model(device="cpu")
-    truth = {"mouthSmileLeft": {"zygomaticus_major_L": 0.008, "risorius_L": 0.003},
-             "BrowInnerUp": {"frontalis_inner_L": 0.006, "frontalis_inner_R": 0.006}}
+    truth = {
+        "mouthSmileLeft": {"zygomaticus_major_L": 0.008, "risorius_L": 0.003},
+        "BrowInnerUp": {"frontalis_inner_L": 0.006, "frontalis_inner_R": 0.006},
+    }
     examples = {channel: model.evaluate(controls) for channel, controls in truth.items()}
     mapping, fits = calibrate_mapping(rig, examples, device="cpu")
     assert mapping.channels == ["mouthSmileLeft", "browInnerUp"]
@@ -53,8 +60,10 @@ def test_bad_examples_are_named():
         calibrate_mapping(rig, {"smile": rig.mesh.points[:10]}, device="cpu")
 
 
-@pytest.mark.skipif(ict_face_region() is None or ict_landmark_indices() is None,
-                    reason="ICT-FaceKit data not in ../shared/data (set WARPFACE_SHARED_DATA)")
+@pytest.mark.skipif(
+    ict_face_region() is None or ict_landmark_indices() is None,
+    reason="ICT-FaceKit data not in ../shared/data (set WARPFACE_SHARED_DATA)",
+)
 def test_ict_shapes_calibrate_a_mapping_whose_one_hot_weights_reproduce_each_fit():
     """The ICT face's own shapes calibrate its mapping: a one-hot weight gives the solver's fit of that
     shape, so the distance to the real shape is the solver's residual (what the rig can reach)."""
@@ -73,5 +82,7 @@ def test_ict_shapes_calibrate_a_mapping_whose_one_hot_weights_reproduce_each_fit
     # channels combine linearly: both brow-outer channels at once move both brows
     both = Curves(times=np.array([0.0]), names=["browOuterUpLeft", "browOuterUpRight"], values=np.array([[1.0, 1.0]]))
     controls = mapping.apply(both)
-    expected = mapping.apply(one_hot("browOuterUpLeft")).values[0] + mapping.apply(one_hot("browOuterUpRight")).values[0]
+    expected = (
+        mapping.apply(one_hot("browOuterUpLeft")).values[0] + mapping.apply(one_hot("browOuterUpRight")).values[0]
+    )
     np.testing.assert_allclose(controls.values[0], expected - mapping.offsets, atol=1e-12)

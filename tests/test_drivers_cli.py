@@ -20,7 +20,12 @@ def live_link_csv(path, rows: dict[str, np.ndarray], fps: int = 30, extra_header
     for frame in range(frames):
         seconds, sub = divmod(frame, fps)
         weights = [f"{rows[n][frame]:.6f}" if n in rows else "0" for n in ARKIT_CHANNELS]
-        lines.append(f"10:20:{seconds:02d}:{sub:02d}.000,52," + ",".join(weights) + ",0.1,0.0,0.0" + (",1" if extra_header else ""))
+        lines.append(
+            f"10:20:{seconds:02d}:{sub:02d}.000,52,"
+            + ",".join(weights)
+            + ",0.1,0.0,0.0"
+            + (",1" if extra_header else "")
+        )
     path.write_text("\n".join(lines) + "\n")
     return path
 
@@ -31,7 +36,9 @@ def baked_points(stage_path, time_code):
     from warpface import usd
 
     stage = Usd.Stage.Open(str(stage_path))
-    return np.asarray(usd.rig_prims(stage).skin.GetAttribute("points").Get(Usd.TimeCode(time_code)), dtype=np.float64), stage
+    return np.asarray(
+        usd.rig_prims(stage).skin.GetAttribute("points").Get(Usd.TimeCode(time_code)), dtype=np.float64
+    ), stage
 
 
 @pytest.fixture(scope="module")
@@ -44,8 +51,11 @@ def landmarks():
 def test_live_link_drives_brows_and_a_one_sided_smile(tmp_path, capsys, landmarks):
     pulse = np.r_[np.zeros(5), np.linspace(0, 1, 10), np.ones(5)]
     quiet = np.zeros_like(pulse)
-    driver = live_link_csv(tmp_path / "take.csv", {"browInnerUp": np.r_[pulse, quiet], "mouthSmileLeft": np.r_[quiet, pulse],
-                                                    "jawOpen": np.r_[quiet, quiet]}, extra_header=",Mystery")
+    driver = live_link_csv(
+        tmp_path / "take.csv",
+        {"browInnerUp": np.r_[pulse, quiet], "mouthSmileLeft": np.r_[quiet, pulse], "jawOpen": np.r_[quiet, quiet]},
+        extra_header=",Mystery",
+    )
     out = tmp_path / "out.usda"
     assert main(["--quiet", "--device", "cpu", "animate", str(driver), "--out", str(out), "--no-video"]) == 0
     printed = capsys.readouterr().out
@@ -90,7 +100,9 @@ def test_audio2face_style_stage_drives_the_rig(tmp_path):
         weights.Set([frame / 60, 0.5, 0.2], Usd.TimeCode(frame))
     stage.Save()
     out = tmp_path / "a2f_out.usdc"
-    assert main(["--quiet", "--device", "cpu", "animate", str(path), "--out", str(out), "--no-video", "--fps", "30"]) == 0
+    assert (
+        main(["--quiet", "--device", "cpu", "animate", str(path), "--out", str(out), "--no-video", "--fps", "30"]) == 0
+    )
     rest, baked = baked_points(out, 0)
     assert baked.GetEndTimeCode() == 30
     last, _ = baked_points(out, 30)
@@ -102,8 +114,17 @@ def test_real_openface_recording_animates_a_face(tmp_path, face, capsys):
     recording = shared_data_path("auplayer_openface_au", "19_3_au.txt")
     if recording is None:
         pytest.skip("../shared/data/auplayer_openface_au is not present")
-    arguments = ["--quiet", "--device", "cpu", "animate", str(recording), "--out", str(tmp_path / "of.usda"),
-                 "--video-max-frames", "100"]
+    arguments = [
+        "--quiet",
+        "--device",
+        "cpu",
+        "animate",
+        str(recording),
+        "--out",
+        str(tmp_path / "of.usda"),
+        "--video-max-frames",
+        "100",
+    ]
     if face == "ict":
         from warpface import usd
         from warpface.assets import default_rig
@@ -145,16 +166,51 @@ def test_stored_mapping_on_the_rig_stage_is_used_and_edits_matter(tmp_path):
     write_mapping(stage, Mapping.from_entries([("browInnerUp", "zygomaticus_major_R", 0.01)], name="default"))
     stage.GetRootLayer().Save()
     driver = live_link_csv(tmp_path / "t.csv", {"browInnerUp": np.linspace(0, 1, 40)})
-    assert main(["--quiet", "--device", "cpu", "animate", str(driver), "--rig", str(tmp_path / "rig.usda"),
-                 "--out", str(tmp_path / "o.usda"), "--no-video"]) == 0
+    assert (
+        main(
+            [
+                "--quiet",
+                "--device",
+                "cpu",
+                "animate",
+                str(driver),
+                "--rig",
+                str(tmp_path / "rig.usda"),
+                "--out",
+                str(tmp_path / "o.usda"),
+                "--no-video",
+            ]
+        )
+        == 0
+    )
     animation = usd.read_animation(tmp_path / "o.usda")
     driven = animation.contractions[:, animation.muscle_names.index("zygomaticus_major_R")]
     np.testing.assert_allclose(driven[-1], 0.01, rtol=1e-9)
-    assert np.abs(np.delete(animation.contractions, animation.muscle_names.index("zygomaticus_major_R"), axis=1)).max() == 0
+    assert (
+        np.abs(np.delete(animation.contractions, animation.muscle_names.index("zygomaticus_major_R"), axis=1)).max()
+        == 0
+    )
     write_mapping(stage, Mapping.from_entries([("browInnerUp", "procerus", 0.004)], name="strong"))
     stage.GetRootLayer().Save()
-    assert main(["--quiet", "--device", "cpu", "animate", str(driver), "--rig", str(tmp_path / "rig.usda"),
-                 "--map", "strong", "--out", str(tmp_path / "o.usda"), "--no-video"]) == 0
+    assert (
+        main(
+            [
+                "--quiet",
+                "--device",
+                "cpu",
+                "animate",
+                str(driver),
+                "--rig",
+                str(tmp_path / "rig.usda"),
+                "--map",
+                "strong",
+                "--out",
+                str(tmp_path / "o.usda"),
+                "--no-video",
+            ]
+        )
+        == 0
+    )
     animation = usd.read_animation(tmp_path / "o.usda")
     np.testing.assert_allclose(animation.contractions[-1, animation.muscle_names.index("procerus")], 0.004, rtol=1e-9)
     assert animation.contractions[:, animation.muscle_names.index("zygomaticus_major_R")].max() == 0
@@ -162,7 +218,10 @@ def test_stored_mapping_on_the_rig_stage_is_used_and_edits_matter(tmp_path):
 
 def test_weights_outside_range_are_clamped_and_reported_once(tmp_path, capsys):
     driver = live_link_csv(tmp_path / "t.csv", {"browInnerUp": np.array([0.0, 1.7, 0.5, -0.2])})
-    assert main(["--quiet", "--device", "cpu", "animate", str(driver), "--out", str(tmp_path / "o.usda"), "--no-video"]) == 0
+    assert (
+        main(["--quiet", "--device", "cpu", "animate", str(driver), "--out", str(tmp_path / "o.usda"), "--no-video"])
+        == 0
+    )
     printed = capsys.readouterr().out
     assert printed.count("clamped") == 1 and "2 values outside [0, 1]" in printed
 
@@ -217,9 +276,16 @@ def test_animated_rig_exports_arkit_weights_that_reproduce_the_take(tmp_path, su
     from warpface.usd.skel_io import export_arkit_weights, read_driver
 
     t = np.arange(45) / 30.0
-    take = {"mouthSmileLeft": np.sin(np.pi * t / t[-1]) ** 2, "noseSneerRight": 0.6 * t / t[-1], "jawOpen": 0.5 * t / t[-1]}
+    take = {
+        "mouthSmileLeft": np.sin(np.pi * t / t[-1]) ** 2,
+        "noseSneerRight": 0.6 * t / t[-1],
+        "jawOpen": 0.5 * t / t[-1],
+    }
     driver = live_link_csv(tmp_path / "take.csv", take)
-    assert main(["--quiet", "--device", "cpu", "animate", str(driver), "--out", str(tmp_path / "o.usda"), "--no-video"]) == 0
+    assert (
+        main(["--quiet", "--device", "cpu", "animate", str(driver), "--out", str(tmp_path / "o.usda"), "--no-video"])
+        == 0
+    )
     exported = read_driver(export_arkit_weights(tmp_path / "o.usda", tmp_path / f"arkit{suffix}"))
     assert set(exported.names) <= set(ARKIT_CHANNELS) and exported.frame_count == 45
     np.testing.assert_allclose(exported.times, t, atol=1e-4)

@@ -10,17 +10,33 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from warpface.data import shared_data_path
-from warpface.drivers import (ARKIT_CHANNELS, Curves, canonical_channel, detect_format, read_driver, read_live_link,
-                              read_mediapipe_jsonl, read_mediapipe_textproto, read_openface, write_live_link,
-                              write_mediapipe_jsonl, write_mediapipe_textproto, write_openface)
+from warpface.drivers import (
+    ARKIT_CHANNELS,
+    Curves,
+    canonical_channel,
+    detect_format,
+    read_driver,
+    read_live_link,
+    read_mediapipe_jsonl,
+    read_mediapipe_textproto,
+    write_live_link,
+    write_mediapipe_jsonl,
+    write_mediapipe_textproto,
+    write_openface,
+)
 from warpface.usd.skel_io import read_driver as usd_read_driver
 from warpface.usd.skel_io import read_skel_animation, write_skel_animation
 
 
 def arkit_curves(frames=40, fps=60.0, seed=0, names=ARKIT_CHANNELS):
     rng = np.random.default_rng(seed)
-    return Curves(times=np.arange(frames) / fps, names=list(names), values=rng.uniform(0, 1, (frames, len(names))),
-                  source="random", fps=fps)
+    return Curves(
+        times=np.arange(frames) / fps,
+        names=list(names),
+        values=rng.uniform(0, 1, (frames, len(names))),
+        source="random",
+        fps=fps,
+    )
 
 
 def test_canonical_names():
@@ -63,8 +79,13 @@ def test_openface_round_trip(tmp_path):
     np.testing.assert_array_equal(back.values, curves.values)
 
 
-@pytest.mark.parametrize("writer, reader, suffix", [(write_mediapipe_textproto, read_mediapipe_textproto, ".pbtxt"),
-                                                    (write_mediapipe_jsonl, read_mediapipe_jsonl, ".jsonl")])
+@pytest.mark.parametrize(
+    "writer, reader, suffix",
+    [
+        (write_mediapipe_textproto, read_mediapipe_textproto, ".pbtxt"),
+        (write_mediapipe_jsonl, read_mediapipe_jsonl, ".jsonl"),
+    ],
+)
 def test_mediapipe_round_trips(tmp_path, writer, reader, suffix):
     curves = arkit_curves(frames=12, fps=30.0)
     path = writer(tmp_path / f"mp{suffix}", curves)
@@ -77,9 +98,15 @@ def test_mediapipe_round_trips(tmp_path, writer, reader, suffix):
 def test_mediapipe_single_frame_and_json_variants(tmp_path):
     single = write_mediapipe_textproto(tmp_path / "one.pbtxt", arkit_curves(frames=1))
     assert read_driver(single).frame_count == 1 and "classification_list" not in single.read_text()
-    lines = [{"timestamp": 0.0, "face_blendshapes": [[{"category_name": "_neutral", "score": 0.1},
-                                                      {"category_name": "jawOpen", "score": 0.4}]]},
-             {"timestamp": 0.5, "blendshapes": {"jawOpen": 0.7, "_neutral": 0.0}}]
+    lines = [
+        {
+            "timestamp": 0.0,
+            "face_blendshapes": [
+                [{"category_name": "_neutral", "score": 0.1}, {"category_name": "jawOpen", "score": 0.4}]
+            ],
+        },
+        {"timestamp": 0.5, "blendshapes": {"jawOpen": 0.7, "_neutral": 0.0}},
+    ]
     path = tmp_path / "v.jsonl"
     path.write_text("\n".join(json.dumps(line) for line in lines))
     back = read_driver(path)
@@ -168,9 +195,39 @@ def test_bad_files_give_one_line_value_errors(tmp_path, case):
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(tokens=st.lists(st.sampled_from(["0", "1.5", "-2", "7", "nan", "inf", "1e400", ":", ".", ",", ", ", "\n", " ",
-                                         "00:00:00:01.5", "00:00:01:59.999", "AU01_r", "AU12_r", "timestamp", "Timecode",
-                                         "BrowInnerUp", "MouthSmileLeft", "success", "HeadYaw", "x"]), max_size=60))
+@given(
+    tokens=st.lists(
+        st.sampled_from(
+            [
+                "0",
+                "1.5",
+                "-2",
+                "7",
+                "nan",
+                "inf",
+                "1e400",
+                ":",
+                ".",
+                ",",
+                ", ",
+                "\n",
+                " ",
+                "00:00:00:01.5",
+                "00:00:01:59.999",
+                "AU01_r",
+                "AU12_r",
+                "timestamp",
+                "Timecode",
+                "BrowInnerUp",
+                "MouthSmileLeft",
+                "success",
+                "HeadYaw",
+                "x",
+            ]
+        ),
+        max_size=60,
+    )
+)
 def test_fuzzed_csv_reads_or_says_why(tmp_path, tokens):
     path = tmp_path / "fuzz.csv"
     path.write_text("".join(tokens))
@@ -183,12 +240,25 @@ def test_fuzzed_csv_reads_or_says_why(tmp_path, tokens):
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(records=st.lists(st.one_of(
-    st.fixed_dictionaries({"timestamp_ms": st.one_of(st.floats(allow_nan=True), st.integers(), st.text(max_size=3)),
-                           "blendshapes": st.dictionaries(st.sampled_from(["jawOpen", "browInnerUp", "foo", "_neutral"]),
-                                                          st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=2)),
-                                                          max_size=3)}),
-    st.integers(), st.text(max_size=5)), max_size=5))
+@given(
+    records=st.lists(
+        st.one_of(
+            st.fixed_dictionaries(
+                {
+                    "timestamp_ms": st.one_of(st.floats(allow_nan=True), st.integers(), st.text(max_size=3)),
+                    "blendshapes": st.dictionaries(
+                        st.sampled_from(["jawOpen", "browInnerUp", "foo", "_neutral"]),
+                        st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=2)),
+                        max_size=3,
+                    ),
+                }
+            ),
+            st.integers(),
+            st.text(max_size=5),
+        ),
+        max_size=5,
+    )
+)
 def test_fuzzed_jsonl_reads_or_says_why(tmp_path, records):
     path = tmp_path / "fuzz.jsonl"
     path.write_text("\n".join(json.dumps(r) for r in records))
@@ -203,9 +273,11 @@ def test_fuzzed_jsonl_reads_or_says_why(tmp_path, records):
 def test_live_link_app_spelling_and_column_order(tmp_path):
     """The app writes ``BlendShapeCount`` and ARKit's enum order (EyeBlinkLeft first), not alphabetical."""
     path = tmp_path / "app.csv"
-    path.write_text("Timecode,BlendShapeCount,EyeBlinkLeft,JawOpen,MouthSmileLeft,HeadYaw\n"
-                    "09:15:00:58.500,52,0.1,0.2,0.3,0.01\n09:15:00:59.500,52,0.2,0.4,0.6,0.02\n"
-                    "09:15:01:00.500,52,0.3,0.6,0.9,0.03\n")
+    path.write_text(
+        "Timecode,BlendShapeCount,EyeBlinkLeft,JawOpen,MouthSmileLeft,HeadYaw\n"
+        "09:15:00:58.500,52,0.1,0.2,0.3,0.01\n09:15:00:59.500,52,0.2,0.4,0.6,0.02\n"
+        "09:15:01:00.500,52,0.3,0.6,0.9,0.03\n"
+    )
     curves = read_driver(path)
     assert curves.names == ["eyeBlinkLeft", "jawOpen", "mouthSmileLeft"] and not curves.notes
     assert curves.fps == 60.0
@@ -214,9 +286,12 @@ def test_live_link_app_spelling_and_column_order(tmp_path):
 
 
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(names=st.lists(st.sampled_from(["jawOpen", "browInnerUp", "foo"]), max_size=3),
-       samples=st.dictionaries(st.floats(-5, 100), st.lists(st.floats(allow_nan=True, allow_infinity=True, width=32),
-                                                              max_size=4), max_size=4))
+@given(
+    names=st.lists(st.sampled_from(["jawOpen", "browInnerUp", "foo"]), max_size=3),
+    samples=st.dictionaries(
+        st.floats(-5, 100), st.lists(st.floats(allow_nan=True, allow_infinity=True, width=32), max_size=4), max_size=4
+    ),
+)
 def test_fuzzed_skel_stage_reads_or_says_why(tmp_path, names, samples):
     from pxr import Usd, UsdSkel
 

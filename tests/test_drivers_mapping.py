@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from warpface.drivers import ARKIT_CHANNELS, Curves, Mapping, default_table, mapping_for_rig
+from warpface.drivers import ARKIT_CHANNELS, Curves, Mapping, mapping_for_rig
 from warpface.drivers.cleanup import OneEuroFilter, calibrate_neutral, clamp_to_range, clean, resample
 from warpface.drivers.export import project_controls
 
@@ -36,8 +36,13 @@ def test_mapping_round_trips_through_the_rig_stage(rig, tmp_path):
     from warpface.usd.mapping_io import mapping_names, read_mapping, write_mapping
 
     mapping, dropped, orphaned = mapping_for_rig(rig)
-    mapping = Mapping(channels=mapping.channels, controls=mapping.controls, matrix=mapping.matrix,
-                      offsets=np.linspace(0, 0.01, len(mapping.controls)), name="custom")
+    mapping = Mapping(
+        channels=mapping.channels,
+        controls=mapping.controls,
+        matrix=mapping.matrix,
+        offsets=np.linspace(0, 0.01, len(mapping.controls)),
+        name="custom",
+    )
     stage = usd.write_rig(tmp_path / "rig.usda", rig)
     path = write_mapping(stage, mapping)
     assert str(path) == "/Face/Drivers/custom"
@@ -112,8 +117,15 @@ def test_default_table_on_the_built_in_rig(rig):
     mapping, dropped, orphaned = mapping_for_rig(rig)
     assert set(mapping.controls) <= set(rig.muscle_names)
     # the classic rig has no jaw, no middle frontalis belly and no palpebral lid muscles
-    assert set(dropped) == {"jaw_open", "jaw_forward", "jaw_left", "frontalis_middle_L", "frontalis_middle_R",
-                            "orbicularis_oculi_lower_lid_L", "orbicularis_oculi_lower_lid_R"}
+    assert set(dropped) == {
+        "jaw_open",
+        "jaw_forward",
+        "jaw_left",
+        "frontalis_middle_L",
+        "frontalis_middle_R",
+        "orbicularis_oculi_lower_lid_L",
+        "orbicularis_oculi_lower_lid_R",
+    }
     assert {"jawOpen", "AU26", "AU27"} <= set(orphaned)
     smile = mapping.matrix[:, mapping.channels.index("mouthSmileLeft")]
     assert smile[mapping.controls.index("zygomaticus_major_L")] == pytest.approx(0.22 * rig_scale(rig))
@@ -126,8 +138,14 @@ def test_default_table_on_the_built_in_rig(rig):
 
 L, R = +1, -1
 # channel: (landmark(s) whose neighbourhood must move, check on the displacement d of landmarks (mm))
-_LANDMARK = {"brow_L": [22, 23, 24, 25, 26], "brow_R": [17, 18, 19, 20, 21], "eye_L": list(range(42, 48)),
-             "eye_R": list(range(36, 42)), "mouth": list(range(48, 68)), "chin": [7, 8, 9, 57]}
+_LANDMARK = {
+    "brow_L": [22, 23, 24, 25, 26],
+    "brow_R": [17, 18, 19, 20, 21],
+    "eye_L": list(range(42, 48)),
+    "eye_R": list(range(36, 42)),
+    "mouth": list(range(48, 68)),
+    "chin": [7, 8, 9, 57],
+}
 
 
 def _side(d, left, right, axis=1):
@@ -135,8 +153,14 @@ def _side(d, left, right, axis=1):
 
 
 EXPECT = {
-    "browDownLeft": lambda d: _side(d, _LANDMARK["brow_L"], _LANDMARK["brow_R"])[0] < min(-0.3, _side(d, _LANDMARK["brow_L"], _LANDMARK["brow_R"])[1]),
-    "browDownRight": lambda d: _side(d, _LANDMARK["brow_R"], _LANDMARK["brow_L"])[0] < min(-0.3, _side(d, _LANDMARK["brow_R"], _LANDMARK["brow_L"])[1]),
+    "browDownLeft": lambda d: (
+        _side(d, _LANDMARK["brow_L"], _LANDMARK["brow_R"])[0]
+        < min(-0.3, _side(d, _LANDMARK["brow_L"], _LANDMARK["brow_R"])[1])
+    ),
+    "browDownRight": lambda d: (
+        _side(d, _LANDMARK["brow_R"], _LANDMARK["brow_L"])[0]
+        < min(-0.3, _side(d, _LANDMARK["brow_R"], _LANDMARK["brow_L"])[1])
+    ),
     "browInnerUp": lambda d: d[[21, 22], 1].min() > 0.3 and d[[21, 22], 1].mean() > d[[17, 26], 1].mean(),
     "browOuterUpLeft": lambda d: d[[24, 25, 26], 1].mean() > max(0.3, d[[17, 18, 19], 1].mean()),
     "browOuterUpRight": lambda d: d[[17, 18, 19], 1].mean() > max(0.3, d[[24, 25, 26], 1].mean()),
@@ -161,9 +185,21 @@ EXPECT = {
     "mouthShrugUpper": lambda d: d[[50, 51, 52], 1].mean() > 0.05,
 }
 # The sided channels not listed above must move their own side more than the other.
-REGION = {"cheekSquint": "eye", "eyeBlink": "eye", "eyeSquint": "eye", "mouthDimple": "corner", "mouthStretch": "corner",
-          "mouthPress": "mouth", "mouthClose": "mouth", "mouthRoll": "mouth"}
-NO_SKIN_MOTION = {"cheekPuff", "tongueOut", *(f"eyeLook{d}{s}" for d in ("Down", "In", "Out", "Up") for s in ("Left", "Right"))}
+REGION = {
+    "cheekSquint": "eye",
+    "eyeBlink": "eye",
+    "eyeSquint": "eye",
+    "mouthDimple": "corner",
+    "mouthStretch": "corner",
+    "mouthPress": "mouth",
+    "mouthClose": "mouth",
+    "mouthRoll": "mouth",
+}
+NO_SKIN_MOTION = {
+    "cheekPuff",
+    "tongueOut",
+    *(f"eyeLook{d}{s}" for d in ("Down", "In", "Out", "Up") for s in ("Left", "Right")),
+}
 JAW = {"jawOpen", "jawForward", "jawLeft", "jawRight"}
 
 
@@ -182,7 +218,9 @@ def one_hot_motion(rig):
     """Vertex displacements [mm] for each ARKit channel the rig maps, at weight 1: {channel: (V, 3)}."""
     mapping, _, _ = mapping_for_rig(rig, "arkit")
     channels = [c for c in ARKIT_CHANNELS if c in mapping.channels]
-    mapped = mapping.apply(Curves(times=np.arange(len(channels), dtype=float), names=channels, values=np.eye(len(channels))))
+    mapped = mapping.apply(
+        Curves(times=np.arange(len(channels), dtype=float), names=channels, values=np.eye(len(channels)))
+    )
     controls = np.zeros((len(channels), len(rig.control_names)))
     for column, name in enumerate(rig.control_names):
         if name in mapped.names:
@@ -230,8 +268,12 @@ def test_one_hot_channel_moves_its_region(anatomy, channel, request):
             assert channel not in one_hot, f"{channel} is mapped on a rig without a jaw"
             return
         chin = one_hot[channel][rig.landmarks[8]]  # iBUG 8: the chin's lowest point; mm, x = subject's left
-        expect = {"jawOpen": chin[1] < -3.0, "jawLeft": chin[0] > 1.0, "jawRight": chin[0] < -1.0,
-                  "jawForward": np.dot(chin, _forward(rig)) > 1.0}
+        expect = {
+            "jawOpen": chin[1] < -3.0,
+            "jawLeft": chin[0] > 1.0,
+            "jawRight": chin[0] < -1.0,
+            "jawForward": np.dot(chin, _forward(rig)) > 1.0,
+        }
         assert expect[channel], f"{channel}: chin moved {np.round(chin, 2).tolist()} mm"
         return
     if channel in NO_SKIN_MOTION:
@@ -294,6 +336,7 @@ def test_one_sided_smile_projects_back_to_its_channel(rig):
 
 def _one_euro_reference(times, x, min_cutoff, beta, d_cutoff):
     """Casiez et al. 2012, written out per sample for one channel."""
+
     def alpha(cutoff, dt):
         tau = 1.0 / (2 * math.pi * cutoff)
         return 1.0 / (1.0 + tau / dt)
@@ -337,8 +380,10 @@ def test_neutral_gain_clamp_and_resample():
 
 
 @settings(max_examples=40, deadline=None)
-@given(values=st.lists(st.floats(allow_nan=True, allow_infinity=True, width=32), min_size=1, max_size=8),
-       times=st.lists(st.one_of(st.floats(-10, 10), st.just(math.nan)), min_size=1, max_size=8))
+@given(
+    values=st.lists(st.floats(allow_nan=True, allow_infinity=True, width=32), min_size=1, max_size=8),
+    times=st.lists(st.one_of(st.floats(-10, 10), st.just(math.nan)), min_size=1, max_size=8),
+)
 def test_curves_reject_bad_samples_with_a_named_error(values, times):
     count = min(len(values), len(times))
     try:
@@ -361,9 +406,11 @@ def rig_stage(rig):
 
 
 @settings(max_examples=40, deadline=None)
-@given(controls=st.lists(st.sampled_from(["zygomaticus_major_L", "procerus", "jaw_open", ""]), max_size=4),
-       weights=st.lists(st.floats(allow_nan=True, allow_infinity=True), max_size=4),
-       offsets=st.lists(st.floats(allow_nan=True, allow_infinity=True), max_size=2))
+@given(
+    controls=st.lists(st.sampled_from(["zygomaticus_major_L", "procerus", "jaw_open", ""]), max_size=4),
+    weights=st.lists(st.floats(allow_nan=True, allow_infinity=True), max_size=4),
+    offsets=st.lists(st.floats(allow_nan=True, allow_infinity=True), max_size=2),
+)
 def test_fuzzed_mapping_edits_read_or_name_the_attribute(rig_stage, controls, weights, offsets):
     from pxr import Sdf
 
@@ -375,7 +422,9 @@ def test_fuzzed_mapping_edits_read_or_name_the_attribute(rig_stage, controls, we
     channel.GetAttribute("warpFace:controls").Set(controls)
     channel.GetAttribute("warpFace:weights").Set(weights)
     scope = rig_stage.GetPrimAtPath("/Face/Drivers/fuzz")
-    scope.CreateAttribute("warpFace:offsetControls", Sdf.ValueTypeNames.StringArray).Set(["procerus", "mentalis"][:len(offsets)])
+    scope.CreateAttribute("warpFace:offsetControls", Sdf.ValueTypeNames.StringArray).Set(
+        ["procerus", "mentalis"][: len(offsets)]
+    )
     scope.CreateAttribute("warpFace:offsets", Sdf.ValueTypeNames.DoubleArray).Set(offsets)
     try:
         mapping = read_mapping(rig_stage, "fuzz")

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import reference_expression as ref
 import warp as wp
+from helpers import grid_surface
 
 import warpface as wf
 from warpface.expression import bezier_distances, project_points
 from warpface.expression.kernels import contraction_factor
-
-import reference_expression as ref
-from helpers import grid_surface
 
 
 def random_rig(rng, n=22):
@@ -63,7 +62,9 @@ def test_every_stage_matches_float64_reference(seed):
     model = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device="cpu")
     got = model.evaluate(contractions, stages=True)
     expected = ref.evaluate(mesh.points, mesh.triangles, spec_muscles, contractions, spec_wrinkles, thickness)
-    assert expected["stretch"].min() < 0.9 and expected["stretch"].max() > 1.1, "the random rig should compress and stretch"
+    assert expected["stretch"].min() < 0.9 and expected["stretch"].max() > 1.1, (
+        "the random rig should compress and stretch"
+    )
     for stage in ("muscle", "bulge", "final"):
         displacement = expected[stage] - mesh.points
         error = np.abs(got[stage] - expected[stage]).max() / np.abs(displacement).max()
@@ -176,8 +177,13 @@ def _contraction_factor_kernel(r: wp.array(dtype=float), kr: float, out: wp.arra
 
 def _c(r, kr):
     out = wp.empty(len(r), dtype=float, device="cpu")
-    wp.launch(_contraction_factor_kernel, dim=len(r), inputs=[wp.array(np.asarray(r, np.float32), device="cpu"), kr],
-              outputs=[out], device="cpu")
+    wp.launch(
+        _contraction_factor_kernel,
+        dim=len(r),
+        inputs=[wp.array(np.asarray(r, np.float32), device="cpu"), kr],
+        outputs=[out],
+        device="cpu",
+    )
     return out.numpy().astype(np.float64)
 
 
@@ -239,7 +245,14 @@ def test_bezier_distance_matches_dense_sampling(seed):
 def test_projections_give_lengths_in_mesh_units(rng):
     points = rng.normal(size=(50, 3))
     planar = wf.PlanarProjection([0.1, 0.2, 0.3], [2, 0, 0], [0, 0, 3])
-    np.testing.assert_allclose(project_points(planar, points, device="cpu"), ref.project(points, dict(kind="planar", origin=np.array([0.1, 0.2, 0.3]), u=np.array([1.0, 0, 0]), v=np.array([0, 0, 1.0]))), atol=1e-12)
+    np.testing.assert_allclose(
+        project_points(planar, points, device="cpu"),
+        ref.project(
+            points,
+            dict(kind="planar", origin=np.array([0.1, 0.2, 0.3]), u=np.array([1.0, 0, 0]), v=np.array([0, 0, 1.0])),
+        ),
+        atol=1e-12,
+    )
     cylinder = wf.CylindricalProjection([0, 0, 0], [0, 1, 0], [0, 0, 1], 2.0)
     uv = project_points(cylinder, np.array([[0, 5, 1.0], [1.0, -1, 0], [0, 0, -1.0]]), device="cpu")
     np.testing.assert_allclose(uv, [[0, 5], [2.0 * np.pi / 2, -1], [2.0 * np.pi, 0]], atol=1e-12)

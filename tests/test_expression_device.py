@@ -4,7 +4,6 @@ into Warp arrays and (zero-copy, DLPack) foreign arrays, with host or device con
 import numpy as np
 import pytest
 import warp as wp
-
 from helpers import small_face_rig
 
 DEVICE = "cpu"
@@ -37,8 +36,11 @@ def test_device_controls_equal_host_controls(model, rng):
     contractions, depths = random_controls(model, rng, 1)
     expected = model.evaluate(contractions[0], wrinkle_depths=depths[0])
     out = wp.empty(model.mesh.vertex_count, dtype=wp.vec3, device=DEVICE)
-    model.evaluate_into(out, wp.array(contractions[0].astype(np.float32), device=DEVICE),
-                        wrinkle_depths=wp.array(depths[0].astype(np.float32), device=DEVICE))
+    model.evaluate_into(
+        out,
+        wp.array(contractions[0].astype(np.float32), device=DEVICE),
+        wrinkle_depths=wp.array(depths[0].astype(np.float32), device=DEVICE),
+    )
     np.testing.assert_array_equal(out.numpy(), expected)
     # device contractions with the wrinkles' own default depths
     model.evaluate_into(out, wp.array(contractions[0].astype(np.float32), device=DEVICE))
@@ -53,9 +55,12 @@ def test_batch_into_is_bit_identical(model, rng, frames_per_launch):
     model.evaluate_batch_into(out, contractions, wrinkle_depths=depths, frames_per_launch=frames_per_launch)
     np.testing.assert_array_equal(out.numpy(), expected)
     flat = wp.empty((7, model.mesh.vertex_count, 3), dtype=wp.float32, device=DEVICE)
-    model.evaluate_batch_into(flat, wp.array(contractions.astype(np.float32), device=DEVICE),
-                              wrinkle_depths=wp.array(depths.astype(np.float32), device=DEVICE),
-                              frames_per_launch=frames_per_launch)
+    model.evaluate_batch_into(
+        flat,
+        wp.array(contractions.astype(np.float32), device=DEVICE),
+        wrinkle_depths=wp.array(depths.astype(np.float32), device=DEVICE),
+        frames_per_launch=frames_per_launch,
+    )
     np.testing.assert_array_equal(flat.numpy(), expected)
 
 
@@ -126,10 +131,16 @@ def numpy_torch_shim():
         return np.array(values, dtype=dtype).view(_ShimTensor)
 
     return SimpleNamespace(
-        float32=np.float32, int64=np.int64, bool=np.bool_, as_tensor=tensor,
+        float32=np.float32,
+        int64=np.int64,
+        bool=np.bool_,
+        as_tensor=tensor,
         zeros=lambda shape, dtype, device: np.zeros(shape, dtype).view(_ShimTensor),
-        cross=lambda a, b, dim: np.cross(a, b, axis=dim), cat=lambda parts, dim: np.concatenate(parts, axis=dim),
-        clamp=lambda x, min: np.maximum(x, np.float32(min)), where=np.where, exp=np.exp,
+        cross=lambda a, b, dim: np.cross(a, b, axis=dim),
+        cat=lambda parts, dim: np.concatenate(parts, axis=dim),
+        clamp=lambda x, min: np.maximum(x, np.float32(min)),
+        where=np.where,
+        exp=np.exp,
         linalg=SimpleNamespace(vector_norm=lambda x, dim, keepdim: np.linalg.norm(x, axis=dim, keepdims=keepdim)),
     )
 
@@ -138,8 +149,8 @@ def numpy_torch_shim():
 def test_benchmark_torch_peer_computes_the_model(use_torch):
     """The GPU peer's vectorised math (run here through a NumPy shim of its torch calls, or torch on
     the CPU when installed) equals the Warp model on a batch of frames, within float32 rounding."""
-    from warpface import ExpressionModel
     from benchmarks.expression import TORCH_TOLERANCE, NumpyExpression, TorchExpression, benchmark_rig, wavy_grid
+    from warpface import ExpressionModel
 
     torch = pytest.importorskip("torch") if use_torch else numpy_torch_shim()
     mesh = wavy_grid(900)
@@ -150,14 +161,22 @@ def test_benchmark_torch_peer_computes_the_model(use_torch):
     frames = contractions * rng.uniform(0.0, 2.0, (3, len(contractions)))
     depths = model.default_depths * rng.uniform(0.0, 2.0, (3, len(model.wrinkles)))
     expected = model.evaluate_batch(frames, wrinkle_depths=depths)
-    got = np.asarray(peer.frames(torch.as_tensor(frames, dtype=torch.float32, device="cpu"),
-                                 torch.as_tensor(depths, dtype=torch.float32, device="cpu")))
+    got = np.asarray(
+        peer.frames(
+            torch.as_tensor(frames, dtype=torch.float32, device="cpu"),
+            torch.as_tensor(depths, dtype=torch.float32, device="cpu"),
+        )
+    )
     assert got.shape == expected.shape and got.dtype == np.float32
     assert np.abs(expected - mesh.points).max() > 0.01 * mesh.size  # frames that really move
     assert np.abs(got - expected).max() <= TORCH_TOLERANCE * mesh.size
     # each stage matters: dropping the wrinkles (depth 0) must change the result beyond the tolerance
-    flat = np.asarray(peer.frames(torch.as_tensor(frames, dtype=torch.float32, device="cpu"),
-                                  torch.as_tensor(0 * depths, dtype=torch.float32, device="cpu")))
+    flat = np.asarray(
+        peer.frames(
+            torch.as_tensor(frames, dtype=torch.float32, device="cpu"),
+            torch.as_tensor(0 * depths, dtype=torch.float32, device="cpu"),
+        )
+    )
     assert np.abs(flat - expected).max() > 10 * TORCH_TOLERANCE * mesh.size
 
 
@@ -167,7 +186,9 @@ def test_batch_into_with_progress_and_partial_chunks(model, rng):
     expected = model.evaluate_batch(contractions, wrinkle_depths=depths)
     for progress, frames_per_launch in ((True, None), (False, 2), (True, 3)):
         out = wp.zeros((5, model.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
-        model.evaluate_batch_into(out, contractions, wrinkle_depths=depths, progress=progress, frames_per_launch=frames_per_launch)
+        model.evaluate_batch_into(
+            out, contractions, wrinkle_depths=depths, progress=progress, frames_per_launch=frames_per_launch
+        )
         np.testing.assert_array_equal(out.numpy(), expected, err_msg=f"progress={progress}, {frames_per_launch}")
     with pytest.raises(ValueError, match="progress"):
         model.evaluate_batch_into(out, contractions, progress=0)

@@ -5,18 +5,26 @@ wrinkles) and on a rig without a jaw, single frames and batches."""
 import numpy as np
 import pytest
 import warp as wp
-
 from expression_plans import build_model, fan_rig, five_kernel_frames, random_controls
 from helpers import small_face_rig
+
 from warpface import ExpressionModel
 from warpface.expression.kernels_fused import RING_SLOTS
 
 DEVICE = "cpu"
 
 
-@pytest.fixture(scope="module", params=[("default rig", 2), ("default rig", 3), ("default rig", 5), ("small rig without jaw", 2),
-                                        ("small rig without jaw", 3)],
-                ids=["default-2", "default-3", "default-5", "small-2", "small-3"])
+@pytest.fixture(
+    scope="module",
+    params=[
+        ("default rig", 2),
+        ("default rig", 3),
+        ("default rig", 5),
+        ("small rig without jaw", 2),
+        ("small rig without jaw", 3),
+    ],
+    ids=["default-2", "default-3", "default-5", "small-2", "small-3"],
+)
 def model(request):
     return build_model(*request.param)
 
@@ -38,19 +46,32 @@ def test_single_frame_and_stages_equal_the_five_kernel_sequence(model, rng):
 def test_batches_equal_the_five_kernel_sequence(model, rng, frames_per_launch):
     contractions, depths = random_controls(model, rng, 5)
     expected = five_kernel_frames(model, contractions, depths)["final"]
-    np.testing.assert_array_equal(model.evaluate_batch(contractions, wrinkle_depths=depths, frames_per_launch=frames_per_launch), expected)
+    np.testing.assert_array_equal(
+        model.evaluate_batch(contractions, wrinkle_depths=depths, frames_per_launch=frames_per_launch), expected
+    )
     out = wp.empty((5, model.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
-    model.evaluate_batch_into(out, wp.array(contractions.astype(np.float32), device=DEVICE),
-                              wrinkle_depths=wp.array(depths.astype(np.float32), device=DEVICE), frames_per_launch=frames_per_launch)
+    model.evaluate_batch_into(
+        out,
+        wp.array(contractions.astype(np.float32), device=DEVICE),
+        wrinkle_depths=wp.array(depths.astype(np.float32), device=DEVICE),
+        frames_per_launch=frames_per_launch,
+    )
     np.testing.assert_array_equal(out.numpy(), expected)
 
 
 @pytest.mark.parametrize("frames_per_thread", [2, 3])
-@pytest.mark.parametrize("rig_name, launches", [("default rig", 2), ("default rig", 3), ("small rig without jaw", 2),
-                                                ("small rig without jaw", 3)])
+@pytest.mark.parametrize(
+    "rig_name, launches",
+    [("default rig", 2), ("default rig", 3), ("small rig without jaw", 2), ("small rig without jaw", 3)],
+)
 def test_several_frames_per_thread_equal_one(rig_name, launches, rng, frames_per_thread):
     """The kernels' frame loop (used on CUDA for large launches) writes the same bits as one frame per thread."""
-    from warpface.expression.kernels_fused import bulge_from_ring, muscle_points_over_frames, muscles_and_bulge_from_ring, wrinkles_from_ring
+    from warpface.expression.kernels_fused import (
+        bulge_from_ring,
+        muscle_points_over_frames,
+        muscles_and_bulge_from_ring,
+        wrinkles_from_ring,
+    )
 
     model = build_model(rig_name, launches=launches)
     frames = 5
@@ -59,8 +80,9 @@ def test_several_frames_per_thread_equal_one(rig_name, launches, rng, frames_per
     buffers = model._frame_buffers(frames)
     buffers.upload_controls(contractions, depths)
     looped = 0
-    for kernel, dim, inputs, outputs in model._launch_args(buffers, frames, buffers.contraction, buffers.depth,
-                                                           buffers.final_points, False):
+    for kernel, dim, inputs, outputs in model._launch_args(
+        buffers, frames, buffers.contraction, buffers.depth, buffers.final_points, False
+    ):
         inputs = list(inputs)
         if kernel in (muscles_and_bulge_from_ring, muscle_points_over_frames, bulge_from_ring, wrinkles_from_ring):
             inputs[-2 if kernel is muscles_and_bulge_from_ring else -1] = frames_per_thread
@@ -93,7 +115,9 @@ def test_ring_table_overflow_equals_the_five_kernel_sequence(rng, launches):
     contractions = rng.uniform(0.005, 0.02, (4, 2))
     depths = rng.uniform(0.5, 2.0, (4, 1)) * model.default_depths
     expected = five_kernel_frames(model, contractions, depths)
-    assert np.abs(expected["final"] - expected["bulge"]).max() > 0 and np.abs(expected["stretch"][:, 0] - 1).max() > 1e-3
+    assert (
+        np.abs(expected["final"] - expected["bulge"]).max() > 0 and np.abs(expected["stretch"][:, 0] - 1).max() > 1e-3
+    )
     np.testing.assert_array_equal(model.evaluate_batch(contractions, wrinkle_depths=depths), expected["final"])
     model._frames_per_thread = lambda frames: 3  # two thread groups over 4 frames, the second partial
     out = wp.empty((4, mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
@@ -123,8 +147,14 @@ def test_slot_tables_hold_each_rows_first_entries_then_zeros():
                 assert got["muscle"] == 0 and not np.any(got["weight"])
 
     triangles = np.array([[0, 1, 2], [2, 1, 3]], dtype=np.int32)
-    ring = ring_table(triangles, np.array([1.0, 0.0], np.float32), np.array([0.5, 1.0], np.float32),
-                      np.array([0, 1, 3, 5, 6]), np.array([0, 0, 1, 0, 1, 1]), device=DEVICE).numpy()
+    ring = ring_table(
+        triangles,
+        np.array([1.0, 0.0], np.float32),
+        np.array([0.5, 1.0], np.float32),
+        np.array([0, 1, 3, 5, 6]),
+        np.array([0, 0, 1, 0, 1, 1]),
+        device=DEVICE,
+    ).numpy()
     assert ring.dtype == RingTriangle.numpy_dtype() and ring.shape == (int(RING_SLOTS) * 4,)
     by_slot = ring.reshape(int(RING_SLOTS), 4)
     np.testing.assert_array_equal(by_slot["corners"][1, 2], [2, 1, 3])  # vertex 2's second triangle

@@ -5,10 +5,16 @@ blocks of one thread (the CPU's) and of many (CPU blocks, as on CUDA), several f
 import numpy as np
 import pytest
 import warp as wp
-
 from expression_plans import build_model, fan_rig, five_kernel_frames, random_controls
+
 from warpface import ExpressionModel
-from warpface.expression.kernels_tiled import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, expression_tiles, expression_tiles_resident
+from warpface.expression.kernels_tiled import (
+    TILE_OWNED,
+    TILE_TRIANGLES,
+    TILE_VERTICES,
+    expression_tiles,
+    expression_tiles_resident,
+)
 from warpface.expression.tiling import mesh_tiles, morton_order, vertex_tiles
 
 DEVICE = "cpu"
@@ -16,8 +22,15 @@ DEVICE = "cpu"
 
 def tiles_of(mesh, **caps):
     buffers = mesh.device_buffers(device=DEVICE)
-    return vertex_tiles(mesh.points, mesh.triangles, buffers.triangle_weight.numpy(), buffers.rest_area_lengths.numpy(),
-                        mesh.adjacency.offsets, mesh.adjacency.triangles, **caps)
+    return vertex_tiles(
+        mesh.points,
+        mesh.triangles,
+        buffers.triangle_weight.numpy(),
+        buffers.rest_area_lengths.numpy(),
+        mesh.adjacency.offsets,
+        mesh.adjacency.triangles,
+        **caps,
+    )
 
 
 def check_tiles(mesh, tiles, max_owned, max_halo, max_triangles):
@@ -27,19 +40,19 @@ def check_tiles(mesh, tiles, max_owned, max_halo, max_triangles):
     one-ring vertex's local incident triangles (in the CSR's order) name the right global items."""
     triangles = mesh.triangles
     offsets, incident = mesh.adjacency.offsets, mesh.adjacency.triangles
-    neighbours = [set(triangles[incident[offsets[v]:offsets[v + 1]]].ravel()) | {v} for v in range(mesh.vertex_count)]
-    touching = [set(incident[offsets[v]:offsets[v + 1]]) for v in range(mesh.vertex_count)]
+    neighbours = [set(triangles[incident[offsets[v] : offsets[v + 1]]].ravel()) | {v} for v in range(mesh.vertex_count)]
+    touching = [set(incident[offsets[v] : offsets[v + 1]]) for v in range(mesh.vertex_count)]
     owners = np.zeros(mesh.vertex_count, dtype=int)
     for info in tiles.info:
         start, owned_count, ring_count, halo_count = (int(info[k]) for k in ("vertex_start", "owned", "ring", "halo"))
-        local = tiles.vertices[start:start + halo_count]
+        local = tiles.vertices[start : start + halo_count]
         owned = set(local[:owned_count])
         ring = set().union(*(neighbours[v] for v in owned))
         halo = set().union(*(neighbours[v] for v in ring))
         assert len(owned) == owned_count <= max_owned and halo_count <= max_halo
         assert set(local[:ring_count]) == ring and set(local) == halo and len(local) == len(halo)
         tri_start, near_count, tri_count = (int(info[k]) for k in ("triangle_start", "near", "triangles"))
-        local_triangles = tiles.triangles[tri_start:tri_start + tri_count]
+        local_triangles = tiles.triangles[tri_start : tri_start + tri_count]
         global_triangles = [tuple(local[c]) for c in local_triangles["corners"]]
         ring_triangles = set().union(*(touching[v] for v in ring))
         near = set().union(*(touching[v] for v in owned))
@@ -47,8 +60,12 @@ def check_tiles(mesh, tiles, max_owned, max_halo, max_triangles):
         assert {tuple(triangles[t]) for t in near} == set(global_triangles[:near_count])
         assert {tuple(triangles[t]) for t in ring_triangles} == set(global_triangles)
         for s in range(halo_count):
-            rows = tiles.adjacency[tiles.adjacency_offsets[start + s]:tiles.adjacency_offsets[start + s + 1]]
-            expected = [tuple(triangles[t]) for t in incident[offsets[local[s]]:offsets[local[s] + 1]]] if s < ring_count else []
+            rows = tiles.adjacency[tiles.adjacency_offsets[start + s] : tiles.adjacency_offsets[start + s + 1]]
+            expected = (
+                [tuple(triangles[t]) for t in incident[offsets[local[s]] : offsets[local[s] + 1]]]
+                if s < ring_count
+                else []
+            )
             assert [global_triangles[t] for t in rows] == expected
         owners[list(owned)] += 1
     np.testing.assert_array_equal(owners, 1)
@@ -124,29 +141,47 @@ def launch_tiled_blocks(model, rng, kernel, block_dim, frames_per_block, frames=
     expected = five_kernel_frames(model, contractions, depths)["final"]
     buffers = model._frame_buffers(frames)
     buffers.upload_controls(contractions, depths)
-    (_, dim, inputs, outputs), = model._launch_args(buffers, frames, buffers.contraction, buffers.depth, buffers.final_points, False)
+    ((_, dim, inputs, outputs),) = model._launch_args(
+        buffers, frames, buffers.contraction, buffers.depth, buffers.final_points, False
+    )
     inputs = list(inputs)
     inputs[-2] = frames_per_block
     saved = wp.config.enable_cpu_blocks
     wp.config.enable_cpu_blocks = True
     try:
-        wp.launch(kernel, dim=(-(-frames // frames_per_block), dim[1], block_dim), inputs=inputs, outputs=outputs, device=DEVICE,
-                  block_dim=block_dim)
+        wp.launch(
+            kernel,
+            dim=(-(-frames // frames_per_block), dim[1], block_dim),
+            inputs=inputs,
+            outputs=outputs,
+            device=DEVICE,
+            block_dim=block_dim,
+        )
     finally:
         wp.config.enable_cpu_blocks = saved
     return buffers.read_frames(buffers.final_points, frames), expected
 
 
-@pytest.mark.parametrize("rig_name, block_dim, frames_per_block, frames_per_pass, slots", [
-    ("default rig", 256, 5, 2, (3, 6, 4)), ("default rig", 64, 3, 1, (1, 2, 1)), ("small rig without jaw", 128, 4, 3, (2, 6, 6)),
-    ("default rig", 512, 2, 1, (0, 0, 0)), ("default rig", 256, 1, 1, (4, 6, 8))])
-def test_resident_rig_data_equals_the_five_kernel_sequence(rng, rig_name, block_dim, frames_per_block, frames_per_pass, slots):
+@pytest.mark.parametrize(
+    "rig_name, block_dim, frames_per_block, frames_per_pass, slots",
+    [
+        ("default rig", 256, 5, 2, (3, 6, 4)),
+        ("default rig", 64, 3, 1, (1, 2, 1)),
+        ("small rig without jaw", 128, 4, 3, (2, 6, 6)),
+        ("default rig", 512, 2, 1, (0, 0, 0)),
+        ("default rig", 256, 1, 1, (4, 6, 8)),
+    ],
+)
+def test_resident_rig_data_equals_the_five_kernel_sequence(
+    rng, rig_name, block_dim, frames_per_block, frames_per_pass, slots
+):
     """The CUDA kernel that reads each thread's rig data once per block (its fixed items in registers, rows
     cut after ``slots`` entries continuing over the CSR; slots of 0 walk every row over the CSR), over
     blocks of 64–512 threads, several frames per block and pass: the same bits as the five kernels."""
     model = build_model(rig_name, 1)
-    got, expected = launch_tiled_blocks(model, rng, expression_tiles_resident(frames_per_pass, block_dim, slots=slots), block_dim,
-                                        frames_per_block)
+    got, expected = launch_tiled_blocks(
+        model, rng, expression_tiles_resident(frames_per_pass, block_dim, slots=slots), block_dim, frames_per_block
+    )
     np.testing.assert_array_equal(got, expected)
 
 
@@ -166,4 +201,6 @@ def test_tiled_plan_with_more_incident_triangles_than_ring_slots(rng):
     contractions = rng.uniform(0.005, 0.02, (4, 2))
     depths = rng.uniform(0.5, 2.0, (4, 1)) * model.default_depths
     expected = five_kernel_frames(model, contractions, depths)["final"]
-    np.testing.assert_array_equal(model.evaluate_batch(contractions, wrinkle_depths=depths, frames_per_launch=4), expected)  # 4 per block
+    np.testing.assert_array_equal(
+        model.evaluate_batch(contractions, wrinkle_depths=depths, frames_per_launch=4), expected
+    )  # 4 per block

@@ -7,7 +7,7 @@ import pytest
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 import warp as wp
-from fem_reference import anp_reference, assemble_reference, rigid_modes, random_tet_mesh
+from fem_reference import anp_reference, assemble_reference, random_tet_mesh, rigid_modes
 
 from warpface.fem import TetMesh, TissueMaterial, assemble, box_tet_mesh
 from warpface.fem.assembly import bsr_to_scipy

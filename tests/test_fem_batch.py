@@ -20,8 +20,11 @@ def shell():
 def _materials(mesh):
     rng = np.random.default_rng(3)
     per_tet_e = 150e3 * (1.0 + 0.5 * rng.random(mesh.tet_count))  # a heterogeneous model
-    return [TissueMaterial(192.4e3, 0.495, 476.8, 1100.0), TissueMaterial(60e3, 0.45, 50.0, 1000.0),
-            TissueMaterial(per_tet_e, 0.49, 300.0, 1100.0)]
+    return [
+        TissueMaterial(192.4e3, 0.495, 476.8, 1100.0),
+        TissueMaterial(60e3, 0.45, 50.0, 1000.0),
+        TissueMaterial(per_tet_e, 0.49, 300.0, 1100.0),
+    ]
 
 
 def _trajectories(steps, models, driven_count):
@@ -36,14 +39,27 @@ def _trajectories(steps, models, driven_count):
     return traj
 
 
-@pytest.mark.parametrize("formulation, preconditioner", [("linear", "fsai"), ("anp", "fsai"), ("anp", "fsai_each"), ("anp", "block_jacobi")])
+@pytest.mark.parametrize(
+    "formulation, preconditioner", [("linear", "fsai"), ("anp", "fsai"), ("anp", "fsai_each"), ("anp", "block_jacobi")]
+)
 def test_batched_cg_matches_each_models_direct_simulation(shell, formulation, preconditioner):
     mesh, fixed, driven = shell
     materials = _materials(mesh)
     steps = 12
     traj = _trajectories(steps, len(materials), driven.size)
-    batch = TissueBatch(mesh, materials, 1e-3, fixed=fixed, driven=driven, formulation=formulation, solver="cg",
-                        device="cpu", cg_tol=1e-10, cg_preconditioner=preconditioner, chunk=5)
+    batch = TissueBatch(
+        mesh,
+        materials,
+        1e-3,
+        fixed=fixed,
+        driven=driven,
+        formulation=formulation,
+        solver="cg",
+        device="cpu",
+        cg_tol=1e-10,
+        cg_preconditioner=preconditioner,
+        chunk=5,
+    )
     assert batch.solver == "cg" and batch.model_count == 3
     got = batch.run(traj[:8], nodes=np.arange(0, mesh.node_count, 3))
     for t in range(8, steps):  # queued single steps through the host ring (wraps at chunk = 5)
@@ -91,8 +107,9 @@ def test_batch_bad_input_and_non_convergence():
         TissueBatch(mesh, [soft, "steel"], 1e-3, fixed=fixed, device="cpu")
     with pytest.raises(ValueError, match="both fixed and driven"):
         TissueBatch(mesh, [soft], 1e-3, fixed=fixed, driven=fixed, device="cpu")
-    batch = TissueBatch(mesh, [soft, soft], 1e-3, fixed=fixed, driven=driven, solver="cg", device="cpu",
-                        cg_tol=1e-14, cg_maxiter=1)
+    batch = TissueBatch(
+        mesh, [soft, soft], 1e-3, fixed=fixed, driven=driven, solver="cg", device="cpu", cg_tol=1e-14, cg_maxiter=1
+    )
     for bad in (np.zeros((3, driven.size, 3)), np.full((driven.size, 3), np.nan), np.full((driven.size, 3), 1e3)):
         with pytest.raises(ValueError):
             batch.step(bad)
@@ -109,8 +126,18 @@ def test_per_model_fsai_fits_each_model_on_one_support(shell):
     traj = _trajectories(steps, len(materials), driven.size)
     totals = {}
     for preconditioner in ("fsai", "fsai_each"):
-        batch = TissueBatch(mesh, materials, 1e-3, fixed=fixed, driven=driven, formulation="linear", solver="cg",
-                            device="cpu", cg_tol=1e-10, cg_preconditioner=preconditioner)
+        batch = TissueBatch(
+            mesh,
+            materials,
+            1e-3,
+            fixed=fixed,
+            driven=driven,
+            formulation="linear",
+            solver="cg",
+            device="cpu",
+            cg_tol=1e-10,
+            cg_preconditioner=preconditioner,
+        )
         batch.run(traj)
         totals[preconditioner] = batch.cg_iterations[:, 2]
         lower = batch.stepper._factor[0][2].numpy()
@@ -135,8 +162,9 @@ def test_fsai_of_the_median_model_keeps_every_model_near_its_own_iterations(prec
     steps = 24
     traj = np.zeros((steps, driven.size, 3))
     traj[:, :, 1] = -4e-3 * np.sin(0.5 * np.pi * np.arange(1, steps + 1) / steps)[:, None]
-    batch = TissueBatch(mesh, materials, 1e-3, fixed=fixed, driven=driven, solver="cg", device="cpu",
-                        cg_preconditioner=preconditioner)
+    batch = TissueBatch(
+        mesh, materials, 1e-3, fixed=fixed, driven=driven, solver="cg", device="cpu", cg_preconditioner=preconditioner
+    )
     assert batch.stepper.reference_model == 2  # E and eta sweep opposite ways; the diagonal follows E here
     batch.run(traj)
     batched = batch.cg_iterations[:, 2] / steps
@@ -160,14 +188,33 @@ def test_batch_in_waves_equals_one_launch_and_the_single_model_solver(shell):
     traj = _trajectories(6, len(materials), driven.size)
     runs = []
     for waves in (None, [(0, 1), (1, 2)]):
-        batch = TissueBatch(mesh, materials, 1e-3, fixed=fixed, driven=driven, solver="cg", device="cpu",
-                            cg_tol=1e-10, cg_preconditioner="block_jacobi")
+        batch = TissueBatch(
+            mesh,
+            materials,
+            1e-3,
+            fixed=fixed,
+            driven=driven,
+            solver="cg",
+            device="cpu",
+            cg_tol=1e-10,
+            cg_preconditioner="block_jacobi",
+        )
         assert batch.stepper.waves == [(0, 3)]
         if waves is not None:
             batch.stepper.waves = waves
         runs.append(batch.run(traj))
     np.testing.assert_array_equal(runs[0], runs[1])
     for b, material in enumerate(materials):
-        sim = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, solver="cg", device="cpu",
-                               cg_tol=1e-10, cg_preconditioner="block_jacobi", cg_loop="persistent")
+        sim = TissueSimulation(
+            mesh,
+            material,
+            1e-3,
+            fixed=fixed,
+            driven=driven,
+            solver="cg",
+            device="cpu",
+            cg_tol=1e-10,
+            cg_preconditioner="block_jacobi",
+            cg_loop="persistent",
+        )
         np.testing.assert_array_equal(runs[0][:, b], sim.run(traj[:, b]), err_msg=f"model {b}")

@@ -165,8 +165,18 @@ def test_persistent_cg_loop_matches_launched_loop_and_direct(beam, preconditione
     expected = ref.run(trajectory)
     results = {}
     for loop in ("launched", "persistent"):
-        sim = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg",
-                               cg_tol=1e-10, cg_preconditioner=preconditioner, cg_loop=loop)
+        sim = TissueSimulation(
+            mesh,
+            material,
+            1e-3,
+            fixed=fixed,
+            driven=driven,
+            device="cpu",
+            solver="cg",
+            cg_tol=1e-10,
+            cg_preconditioner=preconditioner,
+            cg_loop=loop,
+        )
         assert sim.stepper.loop == loop
         per_step = []
         for row in trajectory:
@@ -182,8 +192,19 @@ def test_persistent_cg_loop_matches_launched_loop_and_direct(beam, preconditione
 
 def test_persistent_cg_loop_reports_non_convergence(beam):
     mesh, fixed, driven = beam
-    sim = TissueSimulation(mesh, SOFT, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg",
-                           cg_tol=1e-14, cg_maxiter=2, cg_preconditioner="diag", cg_loop="persistent")
+    sim = TissueSimulation(
+        mesh,
+        SOFT,
+        1e-3,
+        fixed=fixed,
+        driven=driven,
+        device="cpu",
+        solver="cg",
+        cg_tol=1e-14,
+        cg_maxiter=2,
+        cg_preconditioner="diag",
+        cg_loop="persistent",
+    )
     with pytest.raises(ConvergenceError, match=r"step 0 .*after 2 iterations"):
         sim.run(np.full((2, driven.size, 3), 1e-3))
     assert sim.stepper.iterations[0] == 2
@@ -231,8 +252,9 @@ def test_cg_extrapolated_start_saves_iterations_not_accuracy():
     predictor = d + 1e-3 * sim.v + 0.5e-6 * sim.a
     free = sim.free_nodes
     guess = sim.stepper._guess.numpy()
-    np.testing.assert_allclose(guess, (4 * d - 6 * d1 + 4 * d2 - d3 - predictor)[free], rtol=0,
-                               atol=1e-9 * np.abs(d - d1).max())
+    np.testing.assert_allclose(
+        guess, (4 * d - 6 * d1 + 4 * d2 - d3 - predictor)[free], rtol=0, atol=1e-9 * np.abs(d - d1).max()
+    )
     assert np.abs(guess).max() > 1e-3 * np.abs(d - d1).max()
 
 
@@ -251,8 +273,14 @@ def test_pipelined_chunks_queue_the_next_chunk_before_finishing_one():
 
     got = list(pipelined_chunks(10, 4, queue, finish, device=wp.get_device("cpu")))
     assert got == [(0, 4), (4, 8), (8, 10)]
-    assert calls == [("queue", 0, 4, 0), ("queue", 4, 8, 1), ("finish", 0, 4), ("queue", 8, 10, 0), ("finish", 4, 8),
-                     ("finish", 8, 10)]
+    assert calls == [
+        ("queue", 0, 4, 0),
+        ("queue", 4, 8, 1),
+        ("finish", 0, 4),
+        ("queue", 8, 10, 0),
+        ("finish", 4, 8),
+        ("finish", 8, 10),
+    ]
     assert list(pipelined_chunks(0, 4, queue, finish, device=wp.get_device("cpu"))) == []
 
 
@@ -274,8 +302,18 @@ def test_cg_run_returns_the_state_rounded_to_float32(beam):
 
 def test_cg_non_convergence_raises_with_residual(beam):
     mesh, fixed, driven = beam
-    sim = TissueSimulation(mesh, SOFT, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg",
-                           cg_tol=1e-14, cg_maxiter=1, cg_preconditioner="diag")
+    sim = TissueSimulation(
+        mesh,
+        SOFT,
+        1e-3,
+        fixed=fixed,
+        driven=driven,
+        device="cpu",
+        solver="cg",
+        cg_tol=1e-14,
+        cg_maxiter=1,
+        cg_preconditioner="diag",
+    )
     trajectory = np.full((2, driven.size, 3), 1e-3)
     with pytest.raises(ConvergenceError, match=r"step 0 .*residual [0-9.e+-]+ > tolerance"):
         sim.run(trajectory)

@@ -38,8 +38,9 @@ def test_quality_of_regular_and_kuhn_tets():
     assert box.min_dihedral_deg == pytest.approx(45.0, abs=1e-9)
     assert box.max_dihedral_deg == pytest.approx(90.0, abs=1e-9)
     # angles do not depend on node order
-    np.testing.assert_allclose(np.sort(tet_dihedral_angles(UNIT, [[0, 1, 2, 3]])),
-                               np.sort(tet_dihedral_angles(UNIT, [[0, 2, 1, 3]])))
+    np.testing.assert_allclose(
+        np.sort(tet_dihedral_angles(UNIT, [[0, 1, 2, 3]])), np.sort(tet_dihedral_angles(UNIT, [[0, 2, 1, 3]]))
+    )
 
 
 def test_shell_mesh_is_valid_and_face_sized():

@@ -20,8 +20,11 @@ def grid(n: int, size: float, hole: tuple[int, int] | None = None):
     points = np.c_[x.ravel(), y.ravel(), np.zeros(n * n)]
     index = np.arange(n * n).reshape(n, n)
     i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
-    keep = np.ones_like(i, dtype=bool) if hole is None else ~(
-        (i >= hole[0]) & (i < hole[1]) & (j >= hole[0]) & (j < hole[1]))
+    keep = (
+        np.ones_like(i, dtype=bool)
+        if hole is None
+        else ~((i >= hole[0]) & (i < hole[1]) & (j >= hole[0]) & (j < hole[1]))
+    )
     i, j = i[keep], j[keep]
     a, b, c, d = index[i, j], index[i, j + 1], index[i + 1, j], index[i + 1, j + 1]
     return points, np.r_[np.c_[a, b, d], np.c_[a, d, c]]
@@ -32,7 +35,6 @@ def pitted_plate(depth: float = 0.008):
     wound so normals point out of the tissue, i.e. into the pit)."""
     n, size = 13, 0.06
     points, triangles = grid(n, size, hole=(5, 7))
-    step = size / (n - 1)
     index = np.arange(n * n).reshape(n, n)
     rim = np.r_[index[5, 5:7], index[5:7, 7], index[7, 7:5:-1], index[7:5:-1, 5]]  # the hole's loop, 8 vertices
     # the loop runs counter-clockwise seen from +z, against the plate's boundary edges around the
@@ -50,8 +52,8 @@ def pitted_plate(depth: float = 0.008):
     new_points.append(points[rim].mean(axis=0, keepdims=True) - [0.0, 0.0, depth])
     new_triangles.append(np.c_[upper, np.roll(upper, -1), np.full(len(rim), floor_centre)])
     plate = len(triangles)
-    points = np.r_[points, *new_points]
-    triangles = np.r_[triangles, *new_triangles]
+    points = np.concatenate([points, *new_points])
+    triangles = np.concatenate([triangles, *new_triangles])
     return points, triangles, plate
 
 
@@ -66,8 +68,15 @@ def test_pitted_plate_fixture_is_an_oriented_manifold():
 def test_a_pit_is_capped_flat_and_its_depth_is_the_deviation():
     depth = 0.008
     points, triangles, plate = pitted_plate(depth)
-    proxy = tissue_proxy((points, triangles), 0.003, center=[0.0, 0.0, -0.05], margin=0.0, boundary_passes=0,
-                         crease_gap=0.0, device="cpu")
+    proxy = tissue_proxy(
+        (points, triangles),
+        0.003,
+        center=[0.0, 0.0, -0.05],
+        margin=0.0,
+        boundary_passes=0,
+        crease_gap=0.0,
+        device="cpu",
+    )
     # the walls face sideways (cosine 0 to the ray from below) and are removed, the floor is cut off
     # with them; the opening is closed by a membrane, flat since its loop is
     assert proxy.capped_loops == 1
@@ -90,8 +99,15 @@ def test_close_near_caps_the_chosen_hole_and_the_rim_is_refused():
     open_proxy = tissue_proxy((points, triangles), 0.003, center=below, margin=0.0, boundary_passes=0, device="cpu")
     assert open_proxy.capped_loops == 0  # an eye or the mouth stays open by default
     assert len(boundary_loops(check_surface(open_proxy.points, open_proxy.triangles, closed=False))) == 2
-    closed = tissue_proxy((points, triangles), 0.003, center=below, close_near=[[0.0, 0.0, 0.0]], margin=0.0,
-                          boundary_passes=0, device="cpu")
+    closed = tissue_proxy(
+        (points, triangles),
+        0.003,
+        center=below,
+        close_near=[[0.0, 0.0, 0.0]],
+        margin=0.0,
+        boundary_passes=0,
+        device="cpu",
+    )
     assert closed.capped_loops == 1
     assert len(boundary_loops(check_surface(closed.points, closed.triangles, closed=False))) == 1
     np.testing.assert_allclose(closed.points[:, 2], 0.0, atol=1e-12)
@@ -131,8 +147,9 @@ def test_thickness_is_limited_by_the_inward_gap_and_the_slope():
     # a sphere cap past the equator: an inward ray from a vertex whose antipode lies on the cap
     # crosses it again after the diameter 2R
     radius, h = 0.02, 0.05
-    theta, phi = np.meshgrid(np.linspace(0.0, np.radians(140.0), 25), np.linspace(0.0, 2 * np.pi, 48, endpoint=False),
-                             indexing="ij")
+    theta, phi = np.meshgrid(
+        np.linspace(0.0, np.radians(140.0), 25), np.linspace(0.0, 2 * np.pi, 48, endpoint=False), indexing="ij"
+    )
     rings = np.c_[(np.sin(theta) * np.cos(phi)).ravel(), (np.sin(theta) * np.sin(phi)).ravel(), np.cos(theta).ravel()]
     points = radius * np.r_[[[0.0, 0.0, 1.0]], rings[48:]]  # the pole once
     index = np.arange(1, len(points)).reshape(24, 48)
@@ -141,8 +158,16 @@ def test_thickness_is_limited_by_the_inward_gap_and_the_slope():
     c, d = index[1:], np.roll(index[1:], -1, axis=1)
     triangles = np.r_[fan, np.c_[a.ravel(), c.ravel(), d.ravel()], np.c_[a.ravel(), d.ravel(), b.ravel()]]
     check_surface(points, triangles, closed=False)
-    proxy = tissue_proxy((points, triangles), h, center=[0.0, 0.0, 0.0], margin=0.0, boundary_passes=0,
-                         crease_gap=0.0, boundary_thickness=None, device="cpu")
+    proxy = tissue_proxy(
+        (points, triangles),
+        h,
+        center=[0.0, 0.0, 0.0],
+        margin=0.0,
+        boundary_passes=0,
+        crease_gap=0.0,
+        boundary_thickness=None,
+        device="cpu",
+    )
     assert proxy.removed_triangles == 0 and proxy.capped_loops == 0
     polar = np.arccos(np.clip(proxy.points[:, 2] / radius, -1.0, 1.0))
     antipode_on_cap = polar >= np.radians(50.0)  # clear of the rim, where a tilted ray may slip past
@@ -201,8 +226,9 @@ def test_fair_folds_thins_a_shell_through_a_gap(tmp_path, monkeypatch):
     triangles = np.r_[tris, tris + len(upper)]
     with pytest.raises(ValueError, match="intersects itself"):
         mesh_tissue((points, triangles), 0.005, target_nodes=300, decimate=False, thin_defects=0, device="cpu")
-    result = mesh_tissue((points, triangles), 0.005, target_nodes=300, decimate=False, thin_defects=0, fair_folds=30,
-                         device="cpu")
+    result = mesh_tissue(
+        (points, triangles), 0.005, target_nodes=300, decimate=False, thin_defects=0, fair_folds=30, device="cpu"
+    )
     report = result.report
     assert 1 <= report.fairing_rounds <= 30
     assert report.quality.inverted_count == 0
@@ -240,8 +266,9 @@ def test_ict_narrow_face_gives_a_valid_tissue_with_every_vertex_embedded(tmp_pat
     assert proxy.capped_loops >= 4
     assert np.all(proxy.thickness > 0.0) and proxy.thickness.max() <= thickness.max()
 
-    result = mesh_tissue((proxy.points, proxy.triangles), proxy.thickness, target_nodes=1600, fair_folds=10,
-                         device="cpu")
+    result = mesh_tissue(
+        (proxy.points, proxy.triangles), proxy.thickness, target_nodes=1600, fair_folds=10, device="cpu"
+    )
     mesh, report = result.tetmesh, result.report
     assert report.quality.inverted_count == 0
     assert np.all(tet_signed_volumes(mesh.points, mesh.tets) > 0.0)

@@ -26,12 +26,19 @@ def slab():
 
 def kato_points():
     """Kato landmarks laid out on the slab's top face like a face's lower half (mirror symmetric in x)."""
+
     def pair(x, y):
         return [x, y, 0.01], [0.1 - x, y, 0.01]
 
     names = {}
-    for key, (x, y) in {"ch": (0.02, 0.02), "cphi": (0.042, 0.035), "cphs": (0.045, 0.05), "al": (0.035, 0.06),
-                        "ex": (0.005, 0.075), "pi": (0.02, 0.07)}.items():
+    for key, (x, y) in {
+        "ch": (0.02, 0.02),
+        "cphi": (0.042, 0.035),
+        "cphs": (0.045, 0.05),
+        "al": (0.035, 0.06),
+        "ex": (0.005, 0.075),
+        "pi": (0.02, 0.07),
+    }.items():
         names[f"{key}_R"], names[f"{key}_L"] = (np.array(p) for p in pair(x, y))
     return names
 

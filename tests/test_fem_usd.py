@@ -107,4 +107,6 @@ def test_write_checks_types_and_sizes():
     with pytest.raises(ValueError, match="per-tet values"):
         usd_io.write_tissue_mesh(stage(), "/T", mesh, TissueMaterial(np.ones(3) * 1e5, 0.4, 1.0, 1e3))
     with pytest.raises(ValueError, match="mask has shape"):
-        usd_io.write_tissue_mesh(stage(), "/T", mesh, TissueMaterial(1e5, 0.4, 1.0, 1e3), regions={"a": np.ones(2, bool)})
+        usd_io.write_tissue_mesh(
+            stage(), "/T", mesh, TissueMaterial(1e5, 0.4, 1.0, 1e3), regions={"a": np.ones(2, bool)}
+        )

@@ -4,16 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import patch
 
 from warpface.fem import TetMesh
-from warpface.fem.tetmesh import tet_signed_volumes
 from warpface.fem.embedding import embed_points
 from warpface.fem.shell import offset_shell
+from warpface.fem.tetmesh import tet_signed_volumes
 from warpface.fem.tetwild import validated_tets
 from warpface.fem.volume import mesh_tissue, tissue_from_surface
 from warpface.geometry.surface_checks import boundary_loops, check_surface, find_self_intersections
-
-from helpers import patch
 
 
 def edge_use(triangles):
@@ -136,7 +135,7 @@ def test_per_vertex_thickness_and_curved_patch():
     points, triangles = patch(bend=10.0)
     h = 0.002 + 0.004 * (points[:, 1] - points[:, 1].min()) / np.ptp(points[:, 1])
     shell = offset_shell(points, triangles, h, device="cpu")
-    inner = shell.points[len(points):]
+    inner = shell.points[len(points) :]
     np.testing.assert_allclose(np.linalg.norm(points - inner, axis=1), h, rtol=1e-12)
     # on a cylinder the vertex normals are radial: the inner surface is the cylinder of radius R - h
     axis_distance = np.hypot(inner[:, 0], inner[:, 2] + 0.1)
@@ -177,7 +176,7 @@ def test_closed_input_is_rejected_and_winding_picks_the_side():
         offset_shell(shell.points, shell.triangles, 0.001, device="cpu")
     # reversed winding puts the tissue on the other side, with the same (positive) volume
     flipped = offset_shell(points, triangles[:, ::-1], 0.003, device="cpu")
-    np.testing.assert_allclose(flipped.points[len(points):, 2], 0.003)
+    np.testing.assert_allclose(flipped.points[len(points) :, 2], 0.003)
     assert flipped.volume == pytest.approx(shell.volume, rel=1e-12) and shell.volume > 0.0
 
 
@@ -313,8 +312,13 @@ def test_built_in_face_meshes_with_default_options_and_reports_progress(tmp_path
     monkeypatch.chdir(tmp_path)
     rig = default_rig()
     stages = []
-    result = mesh_tissue(rig.mesh, 0.006, target_nodes=3000, device="cpu",
-                         progress=lambda stage, seconds: stages.append((stage, seconds)))
+    result = mesh_tissue(
+        rig.mesh,
+        0.006,
+        target_nodes=3000,
+        device="cpu",
+        progress=lambda stage, seconds: stages.append((stage, seconds)),
+    )
     report = result.report
     assert report.thinning_rounds >= 1 and report.fairing_rounds == 0
     assert report.thickness_range[1] == pytest.approx(0.006)

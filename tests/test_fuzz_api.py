@@ -13,23 +13,45 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import small_face_rig
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import warpface
-from helpers import small_face_rig
 
-FUZZ = settings(max_examples=int(os.environ.get("WARPFACE_FUZZ_EXAMPLES", 30)), deadline=None,
-                suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+FUZZ = settings(
+    max_examples=int(os.environ.get("WARPFACE_FUZZ_EXAMPLES", 30)),
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
 PACKAGE = str(Path(warpface.__file__).parent)
 
 numbers = st.one_of(
     st.floats(-10.0, 10.0),
     st.sampled_from([0.0, -0.0, 1e-300, 1e-30, 1e6, 1e7, 1e20, 1e39, -1e39, 1e300, -1e300, np.inf, -np.inf, np.nan]),
-    st.integers(-3, 3), st.sampled_from([2**31, 2**63, -(2**63), 10**9]),
+    st.integers(-3, 3),
+    st.sampled_from([2**31, 2**63, -(2**63), 10**9]),
 )
-junk = st.sampled_from([None, "abc", "", b"x", {}, {"a": {}}, [], [1, 2], [[1, 2], [3]], True, object(), 1 + 1j,
-                        np.array(["a", "b"]), np.zeros((0, 3)), np.zeros((1, 2, 3)), np.array(1.0)])
+junk = st.sampled_from(
+    [
+        None,
+        "abc",
+        "",
+        b"x",
+        {},
+        {"a": {}},
+        [],
+        [1, 2],
+        [[1, 2], [3]],
+        True,
+        object(),
+        1 + 1j,
+        np.array(["a", "b"]),
+        np.zeros((0, 3)),
+        np.zeros((1, 2, 3)),
+        np.array(1.0),
+    ]
+)
 anything = st.one_of(numbers, junk)
 
 
@@ -77,7 +99,9 @@ def rig():
 
 
 # ------------------------------------------------------------------ devices, paths, object types
-devices = st.one_of(st.sampled_from(["cpu", None, "CPU", "cpux", "", "/", "cuda:77", "nonexistent", "\x00"]), junk, numbers)
+devices = st.one_of(
+    st.sampled_from(["cpu", None, "CPU", "cpux", "", "/", "cuda:77", "nonexistent", "\x00"]), junk, numbers
+)
 
 
 @FUZZ
@@ -102,12 +126,27 @@ def test_device_arguments_are_checked(rig, device, which):
         assert result is not None
 
 
-paths = st.one_of(junk, numbers, st.sampled_from(["x" * 300, "a\x00b", "", "/", ".", "missing/file.csv", "/proc/no/such"]))
+paths = st.one_of(
+    junk, numbers, st.sampled_from(["x" * 300, "a\x00b", "", "/", ".", "missing/file.csv", "/proc/no/such"])
+)
 
 
 @FUZZ
-@given(path=paths, which=st.sampled_from(["read_driver", "read_live_link", "detect_format", "write_live_link", "load_obj",
-                                          "open_stage", "recorded", "save_image"]))
+@given(
+    path=paths,
+    which=st.sampled_from(
+        [
+            "read_driver",
+            "read_live_link",
+            "detect_format",
+            "write_live_link",
+            "load_obj",
+            "open_stage",
+            "recorded",
+            "save_image",
+        ]
+    ),
+)
 def test_path_arguments_never_raise_os_errors(tmp_path_factory, path, which):
     from warpface import drivers, load_obj, preview
     from warpface.tracking import RecordedLandmarks
@@ -133,9 +172,29 @@ def test_path_arguments_never_raise_os_errors(tmp_path_factory, path, which):
 
 
 @FUZZ
-@given(value=anything, which=st.sampled_from(["rig_scale", "preset", "timeline", "mapping_for_rig", "fit", "model_from_rig",
-                                              "clean", "resample", "write_openface", "project_controls", "frame_times",
-                                              "stage_meters_per_unit", "embed_points", "assemble", "jaw_points", "kinect_rng"]))
+@given(
+    value=anything,
+    which=st.sampled_from(
+        [
+            "rig_scale",
+            "preset",
+            "timeline",
+            "mapping_for_rig",
+            "fit",
+            "model_from_rig",
+            "clean",
+            "resample",
+            "write_openface",
+            "project_controls",
+            "frame_times",
+            "stage_meters_per_unit",
+            "embed_points",
+            "assemble",
+            "jaw_points",
+            "kinect_rng",
+        ]
+    ),
+)
 def test_wrong_object_types_are_type_errors(rig, value, which):
     from warpface import ExpressionModel, assets, drivers, fem, solve, usd
     from warpface.expression import jaw_points
@@ -166,7 +225,11 @@ def test_wrong_object_types_are_type_errors(rig, value, which):
 
 # ------------------------------------------------------------------ geometry, metrics, preview
 @FUZZ
-@given(scale=numbers, index=st.one_of(st.integers(-5, 70), st.sampled_from([2**40, -(2**40)])), kind=st.sampled_from(["int", "float", "bool", "junk"]))
+@given(
+    scale=numbers,
+    index=st.one_of(st.integers(-5, 70), st.sampled_from([2**40, -(2**40)])),
+    kind=st.sampled_from(["int", "float", "bool", "junk"]),
+)
 def test_triangle_helpers(rig, scale, index, kind):
     from warpface.geometry import area_weighted_vertex_normals, triangle_areas, triangle_corners, triangle_normals
 
@@ -196,8 +259,13 @@ def test_surface_error_and_distances(rig, vertices, scale):
 
 
 @FUZZ
-@given(eye=st.one_of(anything, st.lists(numbers, min_size=3, max_size=3)), fov=anything, size=st.one_of(anything, st.tuples(numbers, numbers)),
-       vmin=anything, cmap=st.sampled_from(["inferno", "nope", 3]))
+@given(
+    eye=st.one_of(anything, st.lists(numbers, min_size=3, max_size=3)),
+    fov=anything,
+    size=st.one_of(anything, st.tuples(numbers, numbers)),
+    vmin=anything,
+    cmap=st.sampled_from(["inferno", "nope", 3]),
+)
 def test_preview_arguments_without_rendering(rig, eye, fov, size, vmin, cmap):
     from warpface.preview import Camera, heat_colors, scale_label
 
@@ -214,14 +282,25 @@ def test_preview_arguments_without_rendering(rig, eye, fov, size, vmin, cmap):
 
 # ------------------------------------------------------------------ assets, drivers
 @FUZZ
-@given(frames=anything, hold=anything, seconds=anything, intensity=anything, name=st.one_of(st.sampled_from(["smile", "nope"]), junk))
+@given(
+    frames=anything,
+    hold=anything,
+    seconds=anything,
+    intensity=anything,
+    name=st.one_of(st.sampled_from(["smile", "nope"]), junk),
+)
 def test_expression_timelines(frames, hold, seconds, intensity, name):
     from warpface.assets import expression_envelope, expression_timeline
 
     envelope = outcome(lambda: expression_envelope(frames, hold), "expression envelope")
     if envelope is not None:
         assert envelope.shape == (frames,) and envelope[0] == 0.0
-    outcome(lambda: expression_timeline(name, _default_rig(), seconds, 30.0, intensity=intensity), "expression", "seconds", "intensity")
+    outcome(
+        lambda: expression_timeline(name, _default_rig(), seconds, 30.0, intensity=intensity),
+        "expression",
+        "seconds",
+        "intensity",
+    )
 
 
 _RIG = []
@@ -235,13 +314,22 @@ def _default_rig():
     return _RIG[0]
 
 
-entries = st.one_of(junk, st.lists(st.one_of(st.tuples(st.sampled_from(["jawOpen", 3]), st.sampled_from(["frontalis_R", None]), numbers), junk),
-                                   max_size=3))
+entries = st.one_of(
+    junk,
+    st.lists(
+        st.one_of(st.tuples(st.sampled_from(["jawOpen", 3]), st.sampled_from(["frontalis_R", None]), numbers), junk),
+        max_size=3,
+    ),
+)
 
 
 @FUZZ
-@given(entries=entries, offsets=st.one_of(junk, st.dictionaries(st.sampled_from(["frontalis_R", "x"]), anything, max_size=2)),
-       table=st.one_of(junk, st.dictionaries(st.sampled_from(["jawOpen", "nope"]), anything, max_size=2)), fps=anything)
+@given(
+    entries=entries,
+    offsets=st.one_of(junk, st.dictionaries(st.sampled_from(["frontalis_R", "x"]), anything, max_size=2)),
+    table=st.one_of(junk, st.dictionaries(st.sampled_from(["jawOpen", "nope"]), anything, max_size=2)),
+    fps=anything,
+)
 def test_driver_mappings_and_cleanup(entries, offsets, table, fps):
     from warpface import drivers
 
@@ -251,14 +339,26 @@ def test_driver_mappings_and_cleanup(entries, offsets, table, fps):
         mapped = outcome(lambda: mapping.apply(curves), "mapping")
         if mapped is not None:
             assert mapped.values.shape[0] == 4
-        outcome(lambda: drivers.project_controls(mapping, np.zeros((2, len(mapping.controls))), ridge=fps), "ridge", "controls",
-                "no non-zero weight")
-    outcome(lambda: drivers.clean(curves, neutral=table, gain=table, offset=table), "neutral", "gain", "offset", "curves")
+        outcome(
+            lambda: drivers.project_controls(mapping, np.zeros((2, len(mapping.controls))), ridge=fps),
+            "ridge",
+            "controls",
+            "no non-zero weight",
+        )
+    outcome(
+        lambda: drivers.clean(curves, neutral=table, gain=table, offset=table), "neutral", "gain", "offset", "curves"
+    )
     resampled = outcome(lambda: drivers.resample(curves, fps), "fps")
     if resampled is not None:
         assert resampled.frame_count >= 1
-    outcome(lambda: drivers.Curves(np.arange(2.0), [fps, "b"] if not isinstance(fps, str) else ["a", "b"], np.zeros((2, 2)), fps=fps),
-            "names", "frame rate", "curves")
+    outcome(
+        lambda: drivers.Curves(
+            np.arange(2.0), [fps, "b"] if not isinstance(fps, str) else ["a", "b"], np.zeros((2, 2)), fps=fps
+        ),
+        "names",
+        "frame rate",
+        "curves",
+    )
 
 
 # ------------------------------------------------------------------ FEM sizes, tracking helpers, solver targets
@@ -275,14 +375,23 @@ def test_fem_sizes(count, cells, tets_scale):
     outcome(lambda: shell_tet_mesh(count, 2, 1), "shell_tet_mesh")
     box = box_tet_mesh((0.01, 0.01, 0.01), (1, 1, 1))
     with np.errstate(all="ignore"):
-        tets = box.tets.astype(np.float64) * tets_scale if isinstance(tets_scale, float) else box.tets.astype(object) * tets_scale
+        tets = (
+            box.tets.astype(np.float64) * tets_scale
+            if isinstance(tets_scale, float)
+            else box.tets.astype(object) * tets_scale
+        )
     outcome(lambda: TetMesh.repaired(box.points, tets), "TetMesh")
 
 
 @FUZZ
-@given(points=st.one_of(anything, st.lists(st.lists(numbers, min_size=3, max_size=3), min_size=1, max_size=3)),
-       depth=anything, noise=st.dictionaries(st.sampled_from(["sigma0", "z_ref", "dropout", "baseline_focal"]), anything, max_size=2),
-       count=anything, spacing=anything, names=st.one_of(junk, st.lists(st.sampled_from(["v0001", "v9", "x", 3]), max_size=3)))
+@given(
+    points=st.one_of(anything, st.lists(st.lists(numbers, min_size=3, max_size=3), min_size=1, max_size=3)),
+    depth=anything,
+    noise=st.dictionaries(st.sampled_from(["sigma0", "z_ref", "dropout", "baseline_focal"]), anything, max_size=2),
+    count=anything,
+    spacing=anything,
+    names=st.one_of(junk, st.lists(st.sampled_from(["v0001", "v9", "x", 3]), max_size=3)),
+)
 def test_tracking_helpers(rig, points, depth, noise, count, spacing, names):
     from warpface.tracking import KINECT_V1_INTRINSICS, KinectNoise, landmark_vertices, place_fiducials
 
@@ -294,8 +403,12 @@ def test_tracking_helpers(rig, points, depth, noise, count, spacing, names):
     if model is not None:
         outcome(lambda: model.apply(np.full((4, 4), 0.5), np.random.default_rng(0)), "depth")
     mesh = rig.mesh
-    chosen = outcome(lambda: place_fiducials(mesh.points, mesh.triangles, count, spacing=spacing, device="cpu"), "count", "spacing",
-                     "no vertex")
+    chosen = outcome(
+        lambda: place_fiducials(mesh.points, mesh.triangles, count, spacing=spacing, device="cpu"),
+        "count",
+        "spacing",
+        "no vertex",
+    )
     if chosen is not None:
         assert np.all((chosen >= 0) & (chosen < mesh.vertex_count))
     indices = outcome(lambda: landmark_vertices(names, 10), "landmark", "vertex_count")

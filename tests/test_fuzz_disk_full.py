@@ -19,7 +19,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from helpers import small_face_rig
 
 REPO = Path(__file__).resolve().parents[1]
@@ -35,12 +34,23 @@ def _limited(limit: int):
 
 def _warpface(folder: Path, *argv: str, limit: int | None = None) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    return subprocess.run([sys.executable, "-m", "warpface.cli", "--device", "cpu", "--quiet", *argv], cwd=folder, env=env,
-                          capture_output=True, text=True, timeout=300, preexec_fn=None if limit is None else _limited(limit))
+    return subprocess.run(
+        [sys.executable, "-m", "warpface.cli", "--device", "cpu", "--quiet", *argv],
+        cwd=folder,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        preexec_fn=None if limit is None else _limited(limit),
+    )
 
 
 def _snapshot(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
 def _assert_clean_failure(result: subprocess.CompletedProcess, command: str, before: dict, after: dict) -> None:
@@ -56,7 +66,9 @@ def _stage_with_animation(folder: Path, frames: int = 10) -> Path:
 
     rig = small_face_rig(8)
     stage = write_rig(folder / "s.usda", rig)
-    write_animation(stage, np.arange(float(frames)), contractions={m.name: np.linspace(0.0, 1.0, frames) for m in rig.muscles})
+    write_animation(
+        stage, np.arange(float(frames)), contractions={m.name: np.linspace(0.0, 1.0, frames) for m in rig.muscles}
+    )
     stage.GetRootLayer().Save()
     return folder / "s.usda"
 
@@ -78,7 +90,10 @@ def test_animate_on_a_full_disk_keeps_the_previous_output(tmp_path):
     from warpface.drivers import Curves, write_live_link
 
     times = np.arange(20) / 30.0
-    write_live_link(tmp_path / "drv.csv", Curves(times, ["jawOpen", "mouthSmileLeft"], np.linspace(0, 1, 20)[:, None] * [1.0, 0.5], fps=30.0))
+    write_live_link(
+        tmp_path / "drv.csv",
+        Curves(times, ["jawOpen", "mouthSmileLeft"], np.linspace(0, 1, 20)[:, None] * [1.0, 0.5], fps=30.0),
+    )
     argv = ("animate", "drv.csv", "--out", "o.usda", "--no-video")
     assert _warpface(tmp_path, *argv).returncode == 0
     before = _snapshot(tmp_path)

@@ -20,7 +20,11 @@ from warpface.errors import RigError  # noqa: E402
 from warpface.fem import ConvergenceError, TetMesh, TissueMaterial, TissueSimulation, box_tet_mesh, embed_points  # noqa: E402
 
 ACCEPTED = (ValueError, TypeError, RigError)
-FUZZ = settings(max_examples=int(os.environ.get("WARPFACE_FUZZ_EXAMPLES", 40)), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+FUZZ = settings(
+    max_examples=int(os.environ.get("WARPFACE_FUZZ_EXAMPLES", 40)),
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
+)
 
 MESH = box_tet_mesh((0.03, 0.01, 0.01), (3, 1, 1))
 FIXED = np.flatnonzero(MESH.points[:, 0] < 1e-12)
@@ -32,8 +36,14 @@ wild_floats = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True),
     st.sampled_from([0.0, -0.0, 1e-300, 1e-200, 1e-160, 1e-9, 0.25, 0.5, 1.0, 1e39, 1e300, -1e300]),
 )
-wild_values = st.one_of(wild_floats, st.integers(-(2**70), 2**70), st.booleans(), st.none(), st.text(max_size=3),
-                        st.lists(wild_floats, max_size=3))
+wild_values = st.one_of(
+    wild_floats,
+    st.integers(-(2**70), 2**70),
+    st.booleans(),
+    st.none(),
+    st.text(max_size=3),
+    st.lists(wild_floats, max_size=3),
+)
 
 
 def _finite(*arrays) -> bool:
@@ -70,12 +80,20 @@ def test_simulation_constructor_checks_time_step_and_newmark(dt, beta, gamma):
 
 
 @FUZZ
-@given(dt=st.floats(1e-8, 10.0), beta=st.floats(0.01, 1.0), gamma=st.floats(0.5, 1.0),
-       E=st.floats(1e-3, 1e12), nu=st.floats(0.0, 0.4999), eta=st.floats(0.0, 1e9), rho=st.floats(1e-3, 1e6),
-       amplitude=st.floats(-0.3, 0.3))
+@given(
+    dt=st.floats(1e-8, 10.0),
+    beta=st.floats(0.01, 1.0),
+    gamma=st.floats(0.5, 1.0),
+    E=st.floats(1e-3, 1e12),
+    nu=st.floats(0.0, 0.4999),
+    eta=st.floats(0.0, 1e9),
+    rho=st.floats(1e-3, 1e6),
+    amplitude=st.floats(-0.3, 0.3),
+)
 def test_every_accepted_setting_steps_finitely(dt, beta, gamma, E, nu, eta, rho, amplitude):
-    sim = TissueSimulation(MESH, TissueMaterial(E, nu, eta, rho), dt, fixed=FIXED, driven=DRIVEN, beta=beta,
-                           gamma=gamma, device="cpu")
+    sim = TissueSimulation(
+        MESH, TissueMaterial(E, nu, eta, rho), dt, fixed=FIXED, driven=DRIVEN, beta=beta, gamma=gamma, device="cpu"
+    )
     trajectory = np.zeros((3, DRIVEN.size, 3))
     trajectory[:, :, 1] = amplitude * np.array([0.3, 1.0, 0.5])[:, None]
     out = sim.run(trajectory)
@@ -83,8 +101,13 @@ def test_every_accepted_setting_steps_finitely(dt, beta, gamma, E, nu, eta, rho,
 
 
 @FUZZ
-@given(value=wild_floats, step=st.integers(0, 2), node=st.integers(0, DRIVEN.size - 1), axis=st.integers(0, 2),
-       shape=st.sampled_from(["ok", "short", "flat"]))
+@given(
+    value=wild_floats,
+    step=st.integers(0, 2),
+    node=st.integers(0, DRIVEN.size - 1),
+    axis=st.integers(0, 2),
+    shape=st.sampled_from(["ok", "short", "flat"]),
+)
 def test_trajectories_are_bounded_and_finite(value, step, node, axis, shape):
     sim = TissueSimulation(MESH, SOFT, 1e-3, fixed=FIXED, driven=DRIVEN, device="cpu")
     trajectory = np.zeros((3, DRIVEN.size, 3))
@@ -122,9 +145,12 @@ def test_step_and_reset_reject_bad_values(value, which):
 
 
 @FUZZ
-@given(scale=st.one_of(st.sampled_from([1e-30, 1e-12, 1e-9, 1e-3, 1.0, 1e5, 1e6, 1e7, 1e20, 1e300]),
-                       st.floats(1e-40, 1e40)),
-       corrupt=st.sampled_from(["none", "nan", "index", "negative", "repeat", "float", "shape"]))
+@given(
+    scale=st.one_of(
+        st.sampled_from([1e-30, 1e-12, 1e-9, 1e-3, 1.0, 1e5, 1e6, 1e7, 1e20, 1e300]), st.floats(1e-40, 1e40)
+    ),
+    corrupt=st.sampled_from(["none", "nan", "index", "negative", "repeat", "float", "shape"]),
+)
 def test_tetmesh_and_embedding_reject_bad_geometry(scale, corrupt):
     points = MESH.points * scale
     tets = MESH.tets.astype(np.int64).copy()
@@ -158,8 +184,10 @@ def test_tetmesh_and_embedding_reject_bad_geometry(scale, corrupt):
 
 
 @FUZZ
-@given(queries=st.lists(st.tuples(wild_floats, wild_floats, wild_floats), min_size=0, max_size=4),
-       max_distance=st.one_of(st.none(), wild_floats))
+@given(
+    queries=st.lists(st.tuples(wild_floats, wild_floats, wild_floats), min_size=0, max_size=4),
+    max_distance=st.one_of(st.none(), wild_floats),
+)
 def test_embed_points_rejects_bad_queries(queries, max_distance):
     points = np.array(queries, dtype=np.float64).reshape(-1, 3)
     try:
@@ -173,10 +201,16 @@ def test_embed_points_rejects_bad_queries(queries, max_distance):
 
 
 @FUZZ
-@given(option=st.sampled_from(["fixed", "driven", "formulation", "solver", "cg_tol", "cg_maxiter", "cg_chunk",
-                               "cg_preconditioner", "device"]),
-       value=st.one_of(wild_values, st.lists(st.integers(-5, 100), max_size=4),
-                       st.sampled_from(["cpu", "cuda:7", "anp", "cg", np.array([1, 2]), [[1, 2], [3]]])))
+@given(
+    option=st.sampled_from(
+        ["fixed", "driven", "formulation", "solver", "cg_tol", "cg_maxiter", "cg_chunk", "cg_preconditioner", "device"]
+    ),
+    value=st.one_of(
+        wild_values,
+        st.lists(st.integers(-5, 100), max_size=4),
+        st.sampled_from(["cpu", "cuda:7", "anp", "cg", np.array([1, 2]), [[1, 2], [3]]]),
+    ),
+)
 def test_simulation_options_are_checked(option, value):
     options = dict(fixed=FIXED, driven=DRIVEN, device="cpu", solver="cg") | {option: value}
     try:

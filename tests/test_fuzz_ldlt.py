@@ -22,9 +22,14 @@ FUZZ = settings(max_examples=int(os.environ.get("WARPFACE_FUZZ_EXAMPLES", 40)), 
 
 
 @FUZZ
-@given(nodes=st.integers(1, 6), seed=st.integers(0, 2**16), shift=st.floats(allow_nan=True, allow_infinity=True),
-       scale=st.sampled_from([1e-300, 1e-40, 1e-12, 1.0, 1e12, 1e40, 1e300]), sparse=st.booleans(),
-       rhs_value=st.sampled_from([0.0, 1.0, float("nan"), float("inf")]))
+@given(
+    nodes=st.integers(1, 6),
+    seed=st.integers(0, 2**16),
+    shift=st.floats(allow_nan=True, allow_infinity=True),
+    scale=st.sampled_from([1e-300, 1e-40, 1e-12, 1.0, 1e12, 1e40, 1e300]),
+    sparse=st.booleans(),
+    rhs_value=st.sampled_from([0.0, 1.0, float("nan"), float("inf")]),
+)
 def test_block_ldlt_solves_accurately_or_rejects(nodes, seed, shift, scale, sparse, rhs_value):
     rng = np.random.default_rng(seed)
     n = 3 * nodes

@@ -6,22 +6,27 @@ import os
 
 import numpy as np
 import pytest
+from helpers import grid_surface, small_face_rig
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import warpface as wf
-from helpers import grid_surface, small_face_rig
 from warpface.errors import RigError
 from warpface.geometry import closest_points
 
 DEVICE = "cpu"
-FUZZ = settings(max_examples=int(os.environ.get("WARPFACE_FUZZ_EXAMPLES", 40)), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                                                        HealthCheck.too_slow])
+FUZZ = settings(
+    max_examples=int(os.environ.get("WARPFACE_FUZZ_EXAMPLES", 40)),
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
 
 # Numbers a user might pass: ordinary, boundary (0, ±tiny, ±huge), float32-overflowing, non-finite.
 numbers = st.one_of(
     st.floats(-10.0, 10.0),
-    st.sampled_from([0.0, -0.0, 1e-300, 1e-30, -1e-30, 1e3, -1e3, 1e6, -1e6, 1e7, 1e20, 1e39, -1e39, 1e300, np.inf, -np.inf, np.nan]),
+    st.sampled_from(
+        [0.0, -0.0, 1e-300, 1e-30, -1e-30, 1e3, -1e3, 1e6, -1e6, 1e7, 1e20, 1e39, -1e39, 1e300, np.inf, -np.inf, np.nan]
+    ),
     st.integers(-5, 5),
 )
 # Anything: numbers plus wrong types.
@@ -56,10 +61,21 @@ def model(rig):
 
 
 @FUZZ
-@given(scale=numbers, shift=numbers, triangles=st.one_of(
-    st.just([[0, 1, 2]]), st.lists(st.lists(st.one_of(st.integers(-3, 5), st.sampled_from([2**40, -2**40])), min_size=3, max_size=3),
-                                    min_size=0, max_size=3),
-    st.just(np.array([[0.0, 1.0, np.nan]])), st.just([[0, 1]]), anything))
+@given(
+    scale=numbers,
+    shift=numbers,
+    triangles=st.one_of(
+        st.just([[0, 1, 2]]),
+        st.lists(
+            st.lists(st.one_of(st.integers(-3, 5), st.sampled_from([2**40, -(2**40)])), min_size=3, max_size=3),
+            min_size=0,
+            max_size=3,
+        ),
+        st.just(np.array([[0.0, 1.0, np.nan]])),
+        st.just([[0, 1]]),
+        anything,
+    ),
+)
 def test_face_mesh_and_vertex_normals(scale, shift, triangles):
     def build():
         with np.errstate(all="ignore"):
@@ -93,20 +109,34 @@ def test_linear_muscle(attachment, insertion, zone, start, finish):
 
 
 @FUZZ
-@given(center=vectors, ax=vectors, ay=vectors, semi=st.one_of(st.tuples(numbers, numbers), anything), name=st.one_of(st.just("oris"), anything))
+@given(
+    center=vectors,
+    ax=vectors,
+    ay=vectors,
+    semi=st.one_of(st.tuples(numbers, numbers), anything),
+    name=st.one_of(st.just("oris"), anything),
+)
 def test_sphincter_muscle(center, ax, ay, semi, name):
     outcome(lambda: wf.SphincterMuscle(name, center, ax, ay, semi), "sphincter muscle")
 
 
 @FUZZ
-@given(origin=vectors, u=vectors, v=vectors, radius=numbers, depth=numbers, width=numbers, kr=numbers,
-       control=st.one_of(st.lists(st.tuples(numbers, numbers), min_size=4, max_size=4), anything))
+@given(
+    origin=vectors,
+    u=vectors,
+    v=vectors,
+    radius=numbers,
+    depth=numbers,
+    width=numbers,
+    kr=numbers,
+    control=st.one_of(st.lists(st.tuples(numbers, numbers), min_size=4, max_size=4), anything),
+)
 def test_projections_and_wrinkle(origin, u, v, radius, depth, width, kr, control):
     planar = outcome(lambda: wf.PlanarProjection(origin, u, v), "planar projection")
     cylinder = outcome(lambda: wf.CylindricalProjection(origin, u, v, radius), "cylindrical projection")
     for projection in (planar, cylinder):
         if projection is not None:
-            wrinkle = outcome(lambda: wf.Wrinkle("brow", control, projection, depth, width, kr), "brow")
+            wrinkle = outcome(lambda p=projection: wf.Wrinkle("brow", control, p, depth, width, kr), "brow")
             uv = wf.expression.project_points(projection, grid_surface(3)[0], device=DEVICE)
             finite(uv)
             if wrinkle is not None:
@@ -114,25 +144,38 @@ def test_projections_and_wrinkle(origin, u, v, radius, depth, width, kr, control
 
 
 @FUZZ
-@given(shape=st.sampled_from([(4, 4), (0, 3), (1, 2, 3), (3, 3, 3), (2,), (1, 1)]), fill=numbers,
-       blur=numbers, black=numbers, white=numbers, points=st.one_of(st.sampled_from(["grid", "empty", "bad"]), vectors))
+@given(
+    shape=st.sampled_from([(4, 4), (0, 3), (1, 2, 3), (3, 3, 3), (2,), (1, 1)]),
+    fill=numbers,
+    blur=numbers,
+    black=numbers,
+    white=numbers,
+    points=st.one_of(st.sampled_from(["grid", "empty", "bad"]), vectors),
+)
 def test_thickness_map(shape, fill, blur, black, white, points):
     planar = wf.PlanarProjection([0, 0, 0], [1, 0, 0], [0, 1, 0])
     image = np.full(shape, fill, dtype=np.float64) if np.isfinite(fill) else np.full(shape, fill)
     tmap = outcome(lambda: wf.ThicknessMap(image, planar, (-1, 1), (-1, 1), black, white, blur), "thickness map")
     if tmap is None:
         return
-    values = {"grid": grid_surface(3)[0], "empty": np.zeros((0, 3)), "bad": np.zeros((1, 2, 3))}.get(points, points) \
-        if isinstance(points, str) else points
+    values = (
+        {"grid": grid_surface(3)[0], "empty": np.zeros((0, 3)), "bad": np.zeros((1, 2, 3))}.get(points, points)
+        if isinstance(points, str)
+        else points
+    )
     sampled = outcome(lambda: tmap.sample(values, device=DEVICE), "thickness map: points")
     if sampled is not None:
         finite(sampled)
 
 
 @FUZZ
-@given(thickness=st.one_of(numbers, anything, st.just(np.full(64, 1e39)), st.just(np.full(64, 0.003))),
-       landmarks=st.one_of(st.none(), st.just(np.array([0, 63])), st.just(np.array([0, 64])), st.just([[1, 2], [3]]), anything),
-       muscles=st.sampled_from(["ok", "dup", "wrong"]))
+@given(
+    thickness=st.one_of(numbers, anything, st.just(np.full(64, 1e39)), st.just(np.full(64, 0.003))),
+    landmarks=st.one_of(
+        st.none(), st.just(np.array([0, 63])), st.just(np.array([0, 64])), st.just([[1, 2], [3]]), anything
+    ),
+    muscles=st.sampled_from(["ok", "dup", "wrong"]),
+)
 def test_face_rig_and_model_raise_the_same_errors(rig, thickness, landmarks, muscles):
     parts = {"ok": rig.muscles, "dup": rig.muscles + rig.muscles[:1], "wrong": rig.muscles + ["zyg"]}[muscles]
     rig_error = model_error = None
@@ -152,14 +195,22 @@ def test_face_rig_and_model_raise_the_same_errors(rig, thickness, landmarks, mus
 
 
 control_values = st.one_of(numbers, st.sampled_from([None, "1", {}, [], [1.0], True, object()]))
-control_names = st.one_of(st.sampled_from(["zygomaticus major L", "frontalis_R", "orbicularis_oris", "forehead_1", "crow_L", "nope"]),
-                          st.integers(), st.none())
+control_names = st.one_of(
+    st.sampled_from(["zygomaticus major L", "frontalis_R", "orbicularis_oris", "forehead_1", "crow_L", "nope"]),
+    st.integers(),
+    st.none(),
+)
 
 
 @FUZZ
-@given(contractions=st.one_of(st.dictionaries(control_names, control_values, max_size=4),
-                              st.lists(numbers, min_size=0, max_size=4), anything),
-       depths=st.one_of(st.none(), st.dictionaries(control_names, control_values, max_size=3), st.lists(numbers, max_size=3)))
+@given(
+    contractions=st.one_of(
+        st.dictionaries(control_names, control_values, max_size=4), st.lists(numbers, min_size=0, max_size=4), anything
+    ),
+    depths=st.one_of(
+        st.none(), st.dictionaries(control_names, control_values, max_size=3), st.lists(numbers, max_size=3)
+    ),
+)
 def test_evaluate(model, contractions, depths):
     points = outcome(lambda: model.evaluate(contractions, wrinkle_depths=depths), "contraction", "wrinkle depth")
     if points is not None:
@@ -170,8 +221,12 @@ def test_evaluate(model, contractions, depths):
 
 
 @FUZZ
-@given(frames=st.integers(0, 3), fill=numbers, kind=st.sampled_from(["array", "mappings", "ragged", "flat", "bad"]),
-       per_launch=st.one_of(st.none(), st.integers(-1, 3), st.sampled_from([1.5, "2", True])))
+@given(
+    frames=st.integers(0, 3),
+    fill=numbers,
+    kind=st.sampled_from(["array", "mappings", "ragged", "flat", "bad"]),
+    per_launch=st.one_of(st.none(), st.integers(-1, 3), st.sampled_from([1.5, "2", True])),
+)
 def test_evaluate_batch(model, frames, fill, kind, per_launch):
     width = len(model.muscles)
     values = {
@@ -181,21 +236,32 @@ def test_evaluate_batch(model, frames, fill, kind, per_launch):
         "flat": [fill] * width,
         "bad": "smile",
     }[kind]
-    result = outcome(lambda: model.evaluate_batch(values, frames_per_launch=per_launch), "contraction", "frames_per_launch")
+    result = outcome(
+        lambda: model.evaluate_batch(values, frames_per_launch=per_launch), "contraction", "frames_per_launch"
+    )
     if result is not None:
         assert result.shape == (frames, model.mesh.vertex_count, 3)
         finite(result)
 
 
 @FUZZ
-@given(query=st.one_of(st.lists(st.tuples(numbers, numbers, numbers), min_size=0, max_size=4), anything),
-       scale=numbers,
-       triangles=st.one_of(st.just([[0, 1, 2], [1, 2, 3]]), st.just([[0, 1, 9]]), st.just([[0, 1, -1]]),
-                           st.just(np.array([[0, 1, 2.0]])), anything))
+@given(
+    query=st.one_of(st.lists(st.tuples(numbers, numbers, numbers), min_size=0, max_size=4), anything),
+    scale=numbers,
+    triangles=st.one_of(
+        st.just([[0, 1, 2], [1, 2, 3]]),
+        st.just([[0, 1, 9]]),
+        st.just([[0, 1, -1]]),
+        st.just(np.array([[0, 1, 2.0]])),
+        anything,
+    ),
+)
 def test_closest_points(query, scale, triangles):
     with np.errstate(all="ignore"):
         vertices = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.2]]) * scale
-    result = outcome(lambda: closest_points(query, vertices, triangles, device=DEVICE), "query", "vertices", "triangles")
+    result = outcome(
+        lambda: closest_points(query, vertices, triangles, device=DEVICE), "query", "vertices", "triangles"
+    )
     if result is not None:
         tri, bary, dist = result
         assert np.all((tri >= 0) & (tri < len(np.asarray(triangles))))
@@ -204,8 +270,12 @@ def test_closest_points(query, scale, triangles):
 
 # The cases reported in issue 9, each pinned down.
 def _tmap(**kwargs):
-    args = dict(image=np.full((4, 4), 0.5), projection=wf.PlanarProjection([0, 0, 0], [1, 0, 0], [0, 1, 0]),
-                u_range=(-1, 1), v_range=(-1, 1))
+    args = dict(
+        image=np.full((4, 4), 0.5),
+        projection=wf.PlanarProjection([0, 0, 0], [1, 0, 0], [0, 1, 0]),
+        u_range=(-1, 1),
+        v_range=(-1, 1),
+    )
     args.update(kwargs)
     return wf.ThicknessMap(**args)
 
@@ -213,13 +283,22 @@ def _tmap(**kwargs):
 @pytest.mark.parametrize(
     "call, message",
     [
-        (lambda r, m: wf.FaceMesh(np.eye(3) * 1e20, [[0, 1, 2]]).vertex_normals(device=DEVICE), r"points.*outside ±1e\+06"),
+        (
+            lambda r, m: wf.FaceMesh(np.eye(3) * 1e20, [[0, 1, 2]]).vertex_normals(device=DEVICE),
+            r"points.*outside ±1e\+06",
+        ),
         (lambda r, m: wf.FaceMesh(np.eye(3) * 1e-30, [[0, 1, 2]]), "zero-area"),
         (lambda r, m: m.evaluate({"frontalis_R": {}}), "contraction for muscle 'frontalis_R': expected a number"),
         (lambda r, m: m.evaluate({"frontalis_R": 1e39}), r"contraction for muscle 'frontalis_R'.*outside"),
-        (lambda r, m: m.evaluate({"orbicularis_oris": 2e3}), r"contraction for muscle 'orbicularis_oris'.*outside ±1000"),
+        (
+            lambda r, m: m.evaluate({"orbicularis_oris": 2e3}),
+            r"contraction for muscle 'orbicularis_oris'.*outside ±1000",
+        ),
         (lambda r, m: m.evaluate(wrinkle_depths={"crow_L": 1e39}), r"wrinkle depth for wrinkle 'crow_L'.*outside"),
-        (lambda r, m: wf.Wrinkle("brow", r.wrinkles[0].control_points, r.wrinkles[0].projection, 1e39, 1.0), "wrinkle 'brow': depth"),
+        (
+            lambda r, m: wf.Wrinkle("brow", r.wrinkles[0].control_points, r.wrinkles[0].projection, 1e39, 1.0),
+            "wrinkle 'brow': depth",
+        ),
         (lambda r, m: wf.ExpressionModel(r.mesh, thickness=1e39, device=DEVICE), "thickness.*above"),
         (lambda r, m: wf.FaceRig(r.mesh, thickness=1e39), "thickness.*above"),
         (lambda r, m: _tmap().sample(np.zeros((1, 2, 3)), device=DEVICE), "thickness map: points"),
@@ -239,7 +318,10 @@ def test_issue_9_empty_thickness_sample_is_empty():
 
 obj_lines = st.one_of(
     st.builds(lambda a, b, c: f"v {a} {b} {c}", numbers, numbers, numbers),
-    st.builds(lambda a, b, c: f"f {a} {b} {c}", *(st.one_of(st.integers(-6, 6), st.sampled_from(["x", "1/2/3", "", "2.5"])),) * 3),
+    st.builds(
+        lambda a, b, c: f"f {a} {b} {c}",
+        *(st.one_of(st.integers(-6, 6), st.sampled_from(["x", "1/2/3", "", "2.5"])),) * 3,
+    ),
     st.sampled_from(["v 1 2", "f 1 2", "# comment", "vt 0 0", "", "v nan 0 0", "f 1//1 2//2 3//3"]),
 )
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import grid_surface
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -36,21 +37,39 @@ from warpface.tracking import (
     vertex_landmark_names,
 )
 
-from helpers import grid_surface
-
-FUZZ = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                                                        HealthCheck.too_slow])
+FUZZ = settings(
+    max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow]
+)
 ALLOWED = (ValueError, TypeError, RigError)
 
-special_floats = st.sampled_from([0.0, -0.0, 1.0, -1.0, 0.5, 3.0, 1e-300, -1e-300, 1e38, 1e39, 1e300, -1e300,
-                                  float("nan"), float("inf"), float("-inf")])
-numbers = st.one_of(special_floats, st.floats(allow_nan=True, allow_infinity=True),
-                    st.integers(min_value=-(2**70), max_value=2**70))
+special_floats = st.sampled_from(
+    [
+        0.0,
+        -0.0,
+        1.0,
+        -1.0,
+        0.5,
+        3.0,
+        1e-300,
+        -1e-300,
+        1e38,
+        1e39,
+        1e300,
+        -1e300,
+        float("nan"),
+        float("inf"),
+        float("-inf"),
+    ]
+)
+numbers = st.one_of(
+    special_floats, st.floats(allow_nan=True, allow_infinity=True), st.integers(min_value=-(2**70), max_value=2**70)
+)
 scalars = st.one_of(numbers, st.booleans(), st.none(), st.just("text"), st.just([1.0, 2.0]), st.just({}))
 
 
 def arrays_of(shape_options, elements=numbers):
     """Lists with a shape from ``shape_options`` (sometimes ragged or of strings)."""
+
     @st.composite
     def build(draw):
         shape = draw(st.sampled_from(shape_options))
@@ -59,6 +78,7 @@ def arrays_of(shape_options, elements=numbers):
         if draw(st.integers(0, 9)) == 0:
             return [[1.0, 2.0], [3.0]]  # ragged
         return np.array(values, dtype=object).reshape(shape).tolist() if shape else values[0]
+
     return build()
 
 
@@ -88,8 +108,12 @@ def sparse_setup():
 
 
 @FUZZ
-@given(kind=st.sampled_from(["int", "float", "shape", "object"]), where=st.integers(0, 99), special=special_floats,
-       values=st.lists(st.one_of(st.integers(-3, 40), st.integers(-(2**40), 2**40)), min_size=100, max_size=100))
+@given(
+    kind=st.sampled_from(["int", "float", "shape", "object"]),
+    where=st.integers(0, 99),
+    special=special_floats,
+    values=st.lists(st.one_of(st.integers(-3, 40), st.integers(-(2**40), 2**40)), min_size=100, max_size=100),
+)
 def test_transfer_displacements_with_bad_correspondence_indices(sparse_setup, kind, where, special, values):
     sparse, sparse_triangles, dense, corr = sparse_setup
     triangle = np.array(values, dtype=np.int64)
@@ -115,8 +139,14 @@ def test_transfer_displacements_with_bad_correspondence_indices(sparse_setup, ki
 def test_transfer_displacements_scalars(sparse_setup, displacement, weight, scale):
     sparse, sparse_triangles, dense, corr = sparse_setup
     try:
-        result = transfer_displacements(np.full((len(sparse), 3), displacement), sparse_triangles, corr,
-                                        np.full(len(dense), weight, dtype=object), scale=scale, device="cpu")
+        result = transfer_displacements(
+            np.full((len(sparse), 3), displacement),
+            sparse_triangles,
+            corr,
+            np.full(len(dense), weight, dtype=object),
+            scale=scale,
+            device="cpu",
+        )
     except ALLOWED as error:
         check_error(error, "sparse_displacement", "weights", "scale", "transfer_displacements")
         return
@@ -124,11 +154,14 @@ def test_transfer_displacements_scalars(sparse_setup, displacement, weight, scal
 
 
 @FUZZ
-@given(points=st.one_of(
-    arrays_of([(3, 3), (4, 3), (6, 3), (2, 3), (5, 2)], st.one_of(special_floats, st.integers(-3, 3))),
-    st.lists(st.tuples(st.integers(-3, 3), st.just(0), st.integers(-3, 3)), min_size=3, max_size=8),  # x-z plane
-    st.lists(st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1)), min_size=3, max_size=12),
-), max_edge=st.one_of(st.none(), numbers))
+@given(
+    points=st.one_of(
+        arrays_of([(3, 3), (4, 3), (6, 3), (2, 3), (5, 2)], st.one_of(special_floats, st.integers(-3, 3))),
+        st.lists(st.tuples(st.integers(-3, 3), st.just(0), st.integers(-3, 3)), min_size=3, max_size=8),  # x-z plane
+        st.lists(st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1)), min_size=3, max_size=12),
+    ),
+    max_edge=st.one_of(st.none(), numbers),
+)
 def test_triangulate_landmarks(points, max_edge):
     try:
         triangles = triangulate_landmarks(points, max_edge=max_edge)
@@ -141,9 +174,13 @@ def test_triangulate_landmarks(points, max_edge):
 
 
 @FUZZ
-@given(key=st.sampled_from(["window", "min_valid", "outlier_floor", "max_slope", "noise_floor", "iterations",
-                            "min_inlier_fraction"]), value=scalars,
-       pixels=arrays_of([(2, 2), (1, 2), (0, 2), (2, 3)], st.one_of(special_floats, st.floats(-10, 700))))
+@given(
+    key=st.sampled_from(
+        ["window", "min_valid", "outlier_floor", "max_slope", "noise_floor", "iterations", "min_inlier_fraction"]
+    ),
+    value=scalars,
+    pixels=arrays_of([(2, 2), (1, 2), (0, 2), (2, 3)], st.one_of(special_floats, st.floats(-10, 700))),
+)
 def test_backproject(key, value, pixels):
     depth = np.full((KINECT_V1_INTRINSICS.height, KINECT_V1_INTRINSICS.width), 0.6, dtype=np.float32)
     try:
@@ -178,9 +215,25 @@ def test_camera_intrinsics_from_dict(key, value):
 
 
 @FUZZ
-@given(key=st.sampled_from(["threshold", "min_area", "max_area", "min_axis_ratio", "max_diameter", "gate_px",
-                            "outlier_px", "neighbours", "velocity_damping", "area_change", "color", "names"]),
-       value=scalars)
+@given(
+    key=st.sampled_from(
+        [
+            "threshold",
+            "min_area",
+            "max_area",
+            "min_axis_ratio",
+            "max_diameter",
+            "gate_px",
+            "outlier_px",
+            "neighbours",
+            "velocity_damping",
+            "area_change",
+            "color",
+            "names",
+        ]
+    ),
+    value=scalars,
+)
 def test_dot_tracker_options(key, value):
     image = np.full((60, 80, 3), 200, dtype=np.uint8)
     image[28:33, 38:43] = 20
@@ -195,8 +248,9 @@ def test_dot_tracker_options(key, value):
 
 
 @FUZZ
-@given(key=st.sampled_from(["threshold", "min_area", "max_area", "min_axis_ratio", "max_diameter", "color"]),
-       value=scalars)
+@given(
+    key=st.sampled_from(["threshold", "min_area", "max_area", "min_axis_ratio", "max_diameter", "color"]), value=scalars
+)
 def test_detect_blobs_options(key, value):
     image = np.full((40, 40, 3), 220, dtype=np.uint8)
     image[18:23, 18:23] = 10
@@ -222,13 +276,27 @@ def test_dot_tracker_update(detections):
 
 
 @FUZZ
-@given(key=st.sampled_from(["timestamps", "points", "confidence", "names", "fps"]),
-       value=st.one_of(st.just(np.float64(1.0)), st.just(np.zeros((2, 2, 2))), st.just(np.array(["a", "b"])),
-                       st.just(np.array([np.nan, 1.0])), st.just(np.array([1e300, -1e300])), st.just(np.zeros(0)),
-                       st.just(np.array([[1, 2]])), st.just(np.array([True, False]))))
+@given(
+    key=st.sampled_from(["timestamps", "points", "confidence", "names", "fps"]),
+    value=st.one_of(
+        st.just(np.float64(1.0)),
+        st.just(np.zeros((2, 2, 2))),
+        st.just(np.array(["a", "b"])),
+        st.just(np.array([np.nan, 1.0])),
+        st.just(np.array([1e300, -1e300])),
+        st.just(np.zeros(0)),
+        st.just(np.array([[1, 2]])),
+        st.just(np.array([True, False])),
+    ),
+)
 def test_recorded_landmarks_with_bad_arrays(tmp_path_factory, key, value):
-    arrays = {"timestamps": np.array([0.0, 0.1]), "points": np.zeros((2, 2, 3)), "confidence": np.ones((2, 2)),
-              "names": np.array(["a", "b"]), "fps": np.float64(10.0)}
+    arrays = {
+        "timestamps": np.array([0.0, 0.1]),
+        "points": np.zeros((2, 2, 3)),
+        "confidence": np.ones((2, 2)),
+        "names": np.array(["a", "b"]),
+        "fps": np.float64(10.0),
+    }
     arrays[key] = value
     path = tmp_path_factory.mktemp("npz") / "rec.npz"
     np.savez(path, **arrays)
@@ -244,8 +312,9 @@ def test_recorded_landmarks_with_bad_arrays(tmp_path_factory, key, value):
 
 
 @FUZZ
-@given(timestamp=scalars, points=arrays_of([(2, 3), (1, 3), (2, 2)]), confidence=arrays_of([(2,), (1,), ()]),
-       index=scalars)
+@given(
+    timestamp=scalars, points=arrays_of([(2, 3), (1, 3), (2, 2)]), confidence=arrays_of([(2,), (1,), ()]), index=scalars
+)
 def test_landmark_frame(timestamp, points, confidence, index):
     try:
         frame = LandmarkFrame(timestamp, points, confidence, index)
@@ -257,8 +326,10 @@ def test_landmark_frame(timestamp, points, confidence, index):
 
 
 @FUZZ
-@given(source=arrays_of([(4, 3), (3, 3), (2, 3), (4, 2)], st.one_of(special_floats, st.floats(-2, 2))),
-       weights=st.one_of(st.none(), arrays_of([(4,), (3,)])))
+@given(
+    source=arrays_of([(4, 3), (3, 3), (2, 3), (4, 2)], st.one_of(special_floats, st.floats(-2, 2))),
+    weights=st.one_of(st.none(), arrays_of([(4,), (3,)])),
+)
 def test_alignment(source, weights):
     target = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
     for fit in (similarity_fit, rigid_fit):
@@ -271,9 +342,12 @@ def test_alignment(source, weights):
 
 
 @FUZZ
-@given(key=st.sampled_from(["region_falloff", "cover_falloff", "region"]),
-       value=st.one_of(scalars, st.just((0.0, 0.0)), st.just((1e300, 1e301)), st.just([-1, 3]), st.just([0.5]),
-                       st.just([])))
+@given(
+    key=st.sampled_from(["region_falloff", "cover_falloff", "region"]),
+    value=st.one_of(
+        scalars, st.just((0.0, 0.0)), st.just((1e300, 1e301)), st.just([-1, 3]), st.just([0.5]), st.just([])
+    ),
+)
 def test_blend_weights_options(sparse_setup, key, value):
     sparse, sparse_triangles, dense, corr = sparse_setup
     try:
@@ -285,9 +359,17 @@ def test_blend_weights_options(sparse_setup, key, value):
 
 
 @FUZZ
-@given(key=st.sampled_from(["min_confidence", "camera_to_model", "stabilize", "landmark_names", "cover_falloff"]),
-       value=st.one_of(scalars, st.just(np.full((4, 4), np.inf)), st.just([0.5, 1.5, 2.5]), st.just([0, 1, 99]),
-                       st.just(["a"] * 6), st.just(np.eye(4))))
+@given(
+    key=st.sampled_from(["min_confidence", "camera_to_model", "stabilize", "landmark_names", "cover_falloff"]),
+    value=st.one_of(
+        scalars,
+        st.just(np.full((4, 4), np.inf)),
+        st.just([0.5, 1.5, 2.5]),
+        st.just([0, 1, 99]),
+        st.just(["a"] * 6),
+        st.just(np.eye(4)),
+    ),
+)
 def test_tracking_adapter_options(sparse_setup, key, value):
     sparse, sparse_triangles, dense, _ = sparse_setup
     try:
@@ -358,12 +440,19 @@ def test_the_reported_crashes_are_clear_errors(sparse_setup, tmp_path):
     """Each input of the new-user trial (issue 9) that crashed now names what is wrong."""
     sparse, sparse_triangles, dense, corr = sparse_setup
     displacement = np.zeros((len(sparse), 3))
-    for triangle, name in (([-1], "correspondence.triangle"), ([2**40], "correspondence.triangle"),
-                           ([np.nan], "correspondence.triangle"), ([len(sparse_triangles)], "correspondence.triangle")):
+    for triangle, name in (
+        ([-1], "correspondence.triangle"),
+        ([2**40], "correspondence.triangle"),
+        ([np.nan], "correspondence.triangle"),
+        ([len(sparse_triangles)], "correspondence.triangle"),
+    ):
         with pytest.raises(ValueError, match=name):
-            transfer_displacements(displacement, sparse_triangles,
-                                   Correspondence(np.array(triangle * len(dense)), corr.barycentric, corr.distance,
-                                                  corr.overhang), device="cpu")
+            transfer_displacements(
+                displacement,
+                sparse_triangles,
+                Correspondence(np.array(triangle * len(dense)), corr.barycentric, corr.distance, corr.overhang),
+                device="cpu",
+            )
     with pytest.raises(ValueError, match="collinear"):
         triangulate_landmarks([[0, 0, 0], [1, 0, 5], [2, 0, 1], [3, 0, 2]])  # coplanar (x-z plane)
     with pytest.raises(ValueError, match="collinear"):
@@ -371,8 +460,13 @@ def test_the_reported_crashes_are_clear_errors(sparse_setup, tmp_path):
     depth = np.full((KINECT_V1_INTRINSICS.height, KINECT_V1_INTRINSICS.width), 0.6)
     with pytest.raises(ValueError, match="window"):
         backproject([[320.0, 240.0]], depth, KINECT_V1_INTRINSICS, window=float("nan"), device="cpu")
-    np.savez(tmp_path / "rec.npz", timestamps=np.float64(0.0), points=np.zeros((1, 2, 3)), confidence=np.ones((1, 2)),
-             names=np.array(["a", "b"]))
+    np.savez(
+        tmp_path / "rec.npz",
+        timestamps=np.float64(0.0),
+        points=np.zeros((1, 2, 3)),
+        confidence=np.ones((1, 2)),
+        names=np.array(["a", "b"]),
+    )
     with pytest.raises(ValueError, match="timestamps"):
         RecordedLandmarks(tmp_path / "rec.npz")
     with pytest.raises(ValueError, match="width"):
@@ -384,8 +478,12 @@ def test_the_reported_crashes_are_clear_errors(sparse_setup, tmp_path):
 
 
 @FUZZ
-@given(timestamp=scalars, landmarks=arrays_of([(2, 3), (3, 3)]), confidence=arrays_of([(2,), (3,)]),
-       dense_value=st.one_of(special_floats, st.floats(-1e40, 1e40)))
+@given(
+    timestamp=scalars,
+    landmarks=arrays_of([(2, 3), (3, 3)]),
+    confidence=arrays_of([(2,), (3,)]),
+    dense_value=st.one_of(special_floats, st.floats(-1e40, 1e40)),
+)
 def test_tracking_stage_writer_frames(tmp_path_factory, timestamp, landmarks, confidence, dense_value):
     from warpface.usd.tracking_io import TrackingStageWriter, read_tracking
 

@@ -5,8 +5,8 @@ NumPy triangle helpers against Heron's formula and the Warp vertex-normal kernel
 import numpy as np
 import pytest
 import warp as wp
-
 from helpers import grid_surface
+
 from warpface import FaceMesh
 from warpface.geometry import (
     TriangleMeshIndex,
@@ -63,9 +63,13 @@ def test_closest_point_on_triangle_generic_matches_reference(rng, precision):
     points, tris = random_cases(rng, 300)
     vec, kernel, tol = (wp.vec3, _closest_f32, 2e-5) if precision == "float32" else (wp.vec3d, _closest_f64, 1e-12)
     out = wp.empty(len(points), dtype=vec, device="cpu")
-    wp.launch(kernel, dim=len(points), inputs=[wp.array(points, dtype=vec, device="cpu"),
-                                                wp.array(tris.reshape(-1, 3), dtype=vec, device="cpu")],
-              outputs=[out], device="cpu")
+    wp.launch(
+        kernel,
+        dim=len(points),
+        inputs=[wp.array(points, dtype=vec, device="cpu"), wp.array(tris.reshape(-1, 3), dtype=vec, device="cpu")],
+        outputs=[out],
+        device="cpu",
+    )
     bary = out.numpy().astype(np.float64)
     assert out.dtype == vec
     assert np.all(np.isfinite(bary)) and bary.min() >= -tol and np.abs(bary.sum(axis=1) - 1).max() <= 10 * tol
@@ -80,8 +84,13 @@ def test_float64_keeps_precision_beyond_float32():
     tri = np.array([[1.0, 0.0, 0.0], [1.1, 0.0, 0.0], [1.0, 0.1, 0.0]])
     p = np.array([[1.02, 0.02, 1e-9]])
     out = wp.empty(1, dtype=wp.vec3d, device="cpu")
-    wp.launch(_closest_f64, dim=1, inputs=[wp.array(p, dtype=wp.vec3d, device="cpu"), wp.array(tri, dtype=wp.vec3d, device="cpu")],
-              outputs=[out], device="cpu")
+    wp.launch(
+        _closest_f64,
+        dim=1,
+        inputs=[wp.array(p, dtype=wp.vec3d, device="cpu"), wp.array(tri, dtype=wp.vec3d, device="cpu")],
+        outputs=[out],
+        device="cpu",
+    )
     closest = out.numpy()[0] @ tri
     assert abs(np.linalg.norm(p[0] - closest) - 1e-9) < 1e-15
 

@@ -5,15 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import reference_expression as ref
+from helpers import grid_surface
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import warpface as wf
 from warpface.assets import default_rig
 from warpface.expression import JAW_CONTROL_NAMES, Jaw, jaw_points
-
-import reference_expression as ref
-from helpers import grid_surface
 
 DEVICE = "cpu"
 
@@ -50,14 +49,19 @@ def test_jaw_stage_matches_float64_reference(seed):
     expected = reference_jaw(points, jaw.weights, jaw.pivot, jaw.axis, jaw.forward, controls[1:])
     expected += ref.linear_muscle(points, muscle.attachment, muscle.insertion, 40.0, 0.8, 2.2, controls[0])
     np.testing.assert_allclose(stages.muscle, expected, atol=2e-6 * (1.0 + np.abs(expected).max()))
-    np.testing.assert_allclose(jaw_points(jaw, points, controls[1:]), reference_jaw(points, jaw.weights, jaw.pivot,
-                               jaw.axis, jaw.forward, controls[1:]), atol=1e-12)
+    np.testing.assert_allclose(
+        jaw_points(jaw, points, controls[1:]),
+        reference_jaw(points, jaw.weights, jaw.pivot, jaw.axis, jaw.forward, controls[1:]),
+        atol=1e-12,
+    )
 
 
 def test_jaw_controls_by_name_equal_the_ordered_vector_and_batch_equals_single():
     rng = np.random.default_rng(5)
     points, triangles = grid_surface(12)
-    model = wf.ExpressionModel(wf.FaceMesh(points, triangles), thickness=0.05, device=DEVICE, jaw=random_jaw(rng, points))
+    model = wf.ExpressionModel(
+        wf.FaceMesh(points, triangles), thickness=0.05, device=DEVICE, jaw=random_jaw(rng, points)
+    )
     named = model.evaluate({"jaw_open": 0.3, "jaw_left": 0.05}).copy()
     np.testing.assert_array_equal(named, model.evaluate([0.3, 0.0, 0.05]))
     frames = np.array([[0.3, 0.0, 0.05], [0.0, 0.1, 0.0], [0.0, 0.0, 0.0]])
@@ -73,9 +77,13 @@ def test_jaw_rejects_bad_parts():
     points, triangles = grid_surface(6)
     good = dict(pivot=[0, 0, 0], axis=[1, 0, 0], forward=[0, 0, 1], weights=np.ones(len(points)))
     Jaw(**good)
-    for key, value, message in (("axis", [0, 0, 0], "axis"), ("forward", [2, 0, 0], "parallel"),
-                                ("weights", np.full(len(points), 1.5), r"\[0, 1\]"), ("pivot", [np.nan, 0, 0], "pivot"),
-                                ("weights", np.ones((2, 2)), "1-D")):
+    for key, value, message in (
+        ("axis", [0, 0, 0], "axis"),
+        ("forward", [2, 0, 0], "parallel"),
+        ("weights", np.full(len(points), 1.5), r"\[0, 1\]"),
+        ("pivot", [np.nan, 0, 0], "pivot"),
+        ("weights", np.ones((2, 2)), "1-D"),
+    ):
         with pytest.raises(ValueError, match=message):
             Jaw(**{**good, key: value})
     short = Jaw(**{**good, "weights": np.ones(3)})
@@ -89,8 +97,14 @@ def test_jaw_rejects_bad_parts():
 @given(st.lists(st.floats(allow_nan=True, allow_infinity=True, width=32), min_size=3, max_size=3))
 def test_jaw_controls_are_finite_or_refused(values):
     points, triangles = grid_surface(6)
-    model = _SMALL_MODEL.setdefault("model", wf.ExpressionModel(
-        wf.FaceMesh(points, triangles), device=DEVICE, jaw=Jaw([0, 1, -1], [1, 0, 0], [0, 0, 1], np.ones(len(points)))))
+    model = _SMALL_MODEL.setdefault(
+        "model",
+        wf.ExpressionModel(
+            wf.FaceMesh(points, triangles),
+            device=DEVICE,
+            jaw=Jaw([0, 1, -1], [1, 0, 0], [0, 0, 1], np.ones(len(points))),
+        ),
+    )
     if not np.all(np.isfinite(values)) or max(abs(v) for v in values) > 1e6:
         with pytest.raises(ValueError, match="jaw_"):
             model.evaluate(dict(zip(JAW_CONTROL_NAMES, values)))

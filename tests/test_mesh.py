@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import reference_expression as ref
+from helpers import grid_surface, icosphere_like
 
 import warpface as wf
 from warpface.data import ict_face_region
-
-import reference_expression as ref
-from helpers import grid_surface, icosphere_like
 
 
 def test_normals_match_reference_and_point_outward_on_a_sphere():
@@ -27,7 +26,9 @@ def test_adjacency_and_areas(rng):
     adjacency = mesh.adjacency
     for v in rng.integers(0, mesh.vertex_count, 20):
         expected = np.flatnonzero(np.any(triangles == v, axis=1))
-        np.testing.assert_array_equal(np.sort(adjacency.triangles[adjacency.offsets[v]:adjacency.offsets[v + 1]]), expected)
+        np.testing.assert_array_equal(
+            np.sort(adjacency.triangles[adjacency.offsets[v] : adjacency.offsets[v + 1]]), expected
+        )
     np.testing.assert_allclose(mesh.rest_areas, ref.triangle_areas(points, triangles), rtol=1e-12)
     assert mesh.rest_areas.sum() == pytest.approx(ref.triangle_areas(points, triangles).sum())
     assert len(mesh.boundary_vertices) == 4 * 8
@@ -35,8 +36,9 @@ def test_adjacency_and_areas(rng):
 
 def test_obj_with_quads_and_slashes(tmp_path):
     path = tmp_path / "quad.obj"
-    path.write_text("# quad + tri\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nvt 0 0\n"
-                    "f 1/1/1 2/1/1 3/1/1 4/1/1\nf -4 5 3\n")
+    path.write_text(
+        "# quad + tri\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nvt 0 0\nf 1/1/1 2/1/1 3/1/1 4/1/1\nf -4 5 3\n"
+    )
     mesh = wf.FaceMesh.from_obj(path)
     assert mesh.triangle_count == 3
     np.testing.assert_array_equal(mesh.triangles, [[0, 1, 2], [0, 2, 3], [1, 4, 2]])

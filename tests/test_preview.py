@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import icosphere_like
 
 from warpface import preview
-
-from helpers import icosphere_like
 
 
 @pytest.fixture(scope="module")

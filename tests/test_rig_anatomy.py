@@ -7,6 +7,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+import reference_expression as ref
+from helpers import grid_surface
 
 import warpface as wf
 from warpface.assets import SPHINCTER_MUSCLE_NAMES, default_rig
@@ -14,9 +16,6 @@ from warpface.assets.anatomy import SKIN_RESPONSE_OVERRIDES
 from warpface.assets.rig import CLASSIC_LINEAR_MUSCLE_NAMES, LINEAR_MUSCLE_NAMES
 from warpface.expression import muscle_weights
 from warpface.expression.tissue import neighbourhood_mean, tissue_response
-
-import reference_expression as ref
-from helpers import grid_surface
 
 DEVICE = "cpu"
 
@@ -37,12 +36,19 @@ def smooth_linear_reference(points, v1, v2, zone_deg, rs, rf):
     zone = np.radians(zone_deg)
     inside = (mu <= zone) & (distance <= rf) & (distance > 0)
     angular = np.cos(mu / zone * np.pi / 2) ** 2
-    radial = np.where(distance < rs, np.sin(distance / rs * np.pi / 2) ** 2, np.cos((distance - rs) / (rf - rs) * np.pi / 2) ** 2)
+    radial = np.where(
+        distance < rs, np.sin(distance / rs * np.pi / 2) ** 2, np.cos((distance - rs) / (rf - rs) * np.pi / 2) ** 2
+    )
     return np.where(inside[:, None], -(angular * radial / distance)[:, None] * offset, 0.0)
 
 
-LINEAR = dict(attachment=np.array([0.0, 0.0, 0.0]), insertion=np.array([1.0, 0.0, 0.0]), zone_angle_deg=35.0,
-              falloff_start=0.6, falloff_finish=1.5)
+LINEAR = dict(
+    attachment=np.array([0.0, 0.0, 0.0]),
+    insertion=np.array([1.0, 0.0, 0.0]),
+    zone_angle_deg=35.0,
+    falloff_start=0.6,
+    falloff_finish=1.5,
+)
 
 
 def edge_slope(falloff, path, parameter_at_edge):
@@ -96,7 +102,9 @@ def test_sphincter_ring_matches_its_float64_formula_and_meets_the_ring_with_zero
     points = np.random.default_rng(2).uniform(-2.5, 2.5, (400, 3))
     rho = np.sqrt(points[:, 0] ** 2 / 4.0 + points[:, 1] ** 2)
     fade = np.where(rho < ring, np.sin(rho / ring * np.pi / 2) ** 2, 1.0)
-    expected = np.where((rho < 1)[:, None], -(fade * (1 - rho**2) ** 2)[:, None] * np.c_[points[:, :2], np.zeros(400)], 0.0)
+    expected = np.where(
+        (rho < 1)[:, None], -(fade * (1 - rho**2) ** 2)[:, None] * np.c_[points[:, :2], np.zeros(400)], 0.0
+    )
     muscle = wf.SphincterMuscle("s", [0, 0, 0], [1, 0, 0], [0, 1, 0], (2.0, 1.0), falloff="smooth", ring=ring)
     np.testing.assert_allclose(dense(points, muscle), expected, atol=1e-12)
     # Along the x axis (x = 2ρ) the fade's slope in ρ vanishes at the ring: compare one-sided differences of
@@ -117,8 +125,9 @@ def test_sphincter_ring_matches_its_float64_formula_and_meets_the_ring_with_zero
 def test_smooth_linear_zone_matches_its_float64_formula():
     points = np.random.default_rng(1).uniform(-0.5, 2.0, (2000, 3))
     muscle = wf.LinearMuscle("m", falloff="smooth", **LINEAR)
-    expected = smooth_linear_reference(points, *(LINEAR[k] for k in ("attachment", "insertion", "zone_angle_deg",
-                                                                        "falloff_start", "falloff_finish")))
+    expected = smooth_linear_reference(
+        points, *(LINEAR[k] for k in ("attachment", "insertion", "zone_angle_deg", "falloff_start", "falloff_finish"))
+    )
     np.testing.assert_allclose(dense(points, muscle), expected, atol=1e-10)
 
 
@@ -129,13 +138,20 @@ def rig():
 
 def test_waters_forms_of_the_full_rig_still_match_the_section_1_reference(rig):
     points = rig.mesh.points
-    for muscle in rig.muscles[:: 5]:
+    for muscle in rig.muscles[::5]:
         # §1.1 forms: Waters zones, no sliding, bunching, lobe or ring
         extra = {"lobes": ()} if isinstance(muscle, wf.LinearMuscle) else {"ring": 0.0}
         classic = replace(muscle, falloff="waters", sliding=0.0, bunching=0.0, thickening=0.0, **extra)
         if isinstance(muscle, wf.LinearMuscle):
-            expected = ref.linear_muscle(points, muscle.attachment, muscle.insertion, muscle.zone_angle_deg,
-                                         muscle.falloff_start, muscle.falloff_finish, 1.0)
+            expected = ref.linear_muscle(
+                points,
+                muscle.attachment,
+                muscle.insertion,
+                muscle.zone_angle_deg,
+                muscle.falloff_start,
+                muscle.falloff_finish,
+                1.0,
+            )
         else:
             expected = ref.sphincter_muscle(points, muscle.center, muscle.axis_x, muscle.axis_y, *muscle.semi_axes, 1.0)
         np.testing.assert_allclose(dense(points, classic), expected, atol=1e-9 * rig.mesh.size, err_msg=muscle.name)
@@ -147,14 +163,30 @@ def test_a_lobe_adds_its_own_zone_scaled_by_its_gain(rig):
     assert {m.name for m in lobed} >= {"frontalis_inner_L", "frontalis_middle_R", "orbicularis_oculi_lower_lid_L"}
     for muscle in lobed:
         classic = replace(muscle, falloff="waters", sliding=0.0, bunching=0.0, thickening=0.0)
-        expected = ref.linear_muscle(points, muscle.attachment, muscle.insertion, muscle.zone_angle_deg,
-                                     muscle.falloff_start, muscle.falloff_finish, 1.0)
+        expected = ref.linear_muscle(
+            points,
+            muscle.attachment,
+            muscle.insertion,
+            muscle.zone_angle_deg,
+            muscle.falloff_start,
+            muscle.falloff_finish,
+            1.0,
+        )
         for lobe in muscle.lobes:
-            expected += lobe.gain * ref.linear_muscle(points, lobe.attachment, lobe.insertion, lobe.zone_angle_deg,
-                                                      lobe.falloff_start, lobe.falloff_finish, 1.0)
+            expected += lobe.gain * ref.linear_muscle(
+                points,
+                lobe.attachment,
+                lobe.insertion,
+                lobe.zone_angle_deg,
+                lobe.falloff_start,
+                lobe.falloff_finish,
+                1.0,
+            )
         np.testing.assert_allclose(dense(points, classic), expected, atol=1e-9 * rig.mesh.size, err_msg=muscle.name)
     for bad in (dict(gain=0.0), dict(gain=float("inf")), dict(zone_angle_deg=180.0), dict(falloff_start=2.0)):
-        fields = dict(attachment=[0, 0, 0], insertion=[1, 0, 0], zone_angle_deg=40.0, falloff_start=0.5, falloff_finish=1.5)
+        fields = dict(
+            attachment=[0, 0, 0], insertion=[1, 0, 0], zone_angle_deg=40.0, falloff_start=0.5, falloff_finish=1.5
+        )
         with pytest.raises(ValueError, match="muscle lobe"):
             wf.MuscleLobe(**{**fields, **bad})
     with pytest.raises(TypeError, match="lobes"):
@@ -166,9 +198,18 @@ def test_a_lobe_adds_its_own_zone_scaled_by_its_gain(rig):
 def test_full_rig_has_every_muscle_with_c1_zones_and_a_jaw(rig):
     assert rig.muscle_names == [*LINEAR_MUSCLE_NAMES, *SPHINCTER_MUSCLE_NAMES]
     assert set(CLASSIC_LINEAR_MUSCLE_NAMES) < set(rig.muscle_names)
-    for name in ("depressor_supercilii_L", "levator_anguli_oris_R", "zygomaticus_minor_L", "buccinator_R", "platysma_L",
-                 "nasalis_R", "orbicularis_oculi_upper_lid_L", "orbicularis_oculi_lower_lid_R", "orbicularis_oris_press",
-                 "orbicularis_oris_roll_upper"):
+    for name in (
+        "depressor_supercilii_L",
+        "levator_anguli_oris_R",
+        "zygomaticus_minor_L",
+        "buccinator_R",
+        "platysma_L",
+        "nasalis_R",
+        "orbicularis_oculi_upper_lid_L",
+        "orbicularis_oculi_lower_lid_R",
+        "orbicularis_oris_press",
+        "orbicularis_oris_roll_upper",
+    ):
         assert name in rig.muscle_names
     assert all(m.falloff == "smooth" and m.sliding > 0 for m in rig.muscles)
     assert all(m.bunching > 0 for m in rig.muscles if m.name not in SKIN_RESPONSE_OVERRIDES)
@@ -200,16 +241,19 @@ def test_sliding_removes_the_normal_pull_and_bunching_lifts_compressed_skin():
     halved = np.zeros((len(points), 3))
     halved[np.repeat(np.arange(len(points)), np.diff(half.offsets))] = half.weight
     np.testing.assert_allclose(halved, plain * [1.0, 1.0, 0.5], atol=1e-12)
-    bunched = tissue_response(points, triangles, normals, thickness, [replace(muscle, sliding=1.0, bunching=2.0)], weights)
+    bunched = tissue_response(
+        points, triangles, normals, thickness, [replace(muscle, sliding=1.0, bunching=2.0)], weights
+    )
     lift = np.zeros(len(points))
     lift[np.repeat(np.arange(len(points)), np.diff(bunched.offsets))] = bunched.weight[:, 2]
     # Skin between the bone point and the zone converges (compresses): it rises out of the face.
-    converging = (np.linalg.norm(points[:, :2] - [0.0, 0.3], axis=1) < 0.25)
+    converging = np.linalg.norm(points[:, :2] - [0.0, 0.3], axis=1) < 0.25
     assert lift[converging].mean() > 0.0 and lift.max() > 0.01
     # Every term is per unit contraction: the muscle stage stays linear in K.
     mesh = wf.FaceMesh(points, triangles)
-    model = wf.ExpressionModel(mesh, [replace(muscle, sliding=1.0, bunching=2.0, thickening=0.3)], thickness=thickness,
-                               device=DEVICE)
+    model = wf.ExpressionModel(
+        mesh, [replace(muscle, sliding=1.0, bunching=2.0, thickening=0.3)], thickness=thickness, device=DEVICE
+    )
     one = model.evaluate([0.05], stages=True).muscle - points
     two = model.evaluate([0.10], stages=True).muscle - points
     np.testing.assert_allclose(two, 2.0 * one, atol=1e-6)
@@ -234,22 +278,29 @@ def test_full_rig_round_trips_through_usd_with_its_jaw(rig, tmp_path):
     np.testing.assert_allclose(back.jaw.pivot, rig.jaw.pivot)
     for original, read in zip(rig.muscles, back.muscles):
         assert (read.falloff, read.sliding, read.bunching, read.thickening, getattr(read, "ring", None)) == (
-            original.falloff, original.sliding, original.bunching, original.thickening, getattr(original, "ring", None))
+            original.falloff,
+            original.sliding,
+            original.bunching,
+            original.thickening,
+            getattr(original, "ring", None),
+        )
         lobes = [getattr(m, "lobes", ()) for m in (original, read)]
         assert len(lobes[0]) == len(lobes[1]), original.name
         for lobe, lobe_read in zip(*lobes):
             for field in ("attachment", "insertion", "zone_angle_deg", "falloff_start", "falloff_finish", "gain"):
                 np.testing.assert_allclose(getattr(lobe_read, field), getattr(lobe, field), rtol=1e-12, atol=1e-15)
     controls = {"jaw_open": 0.2, "zygomaticus_major_L": 0.004, "orbicularis_oculi_R": 0.2}
-    np.testing.assert_allclose(back.model(device=DEVICE).evaluate(controls), rig.model(device=DEVICE).evaluate(controls), atol=1e-6)
+    np.testing.assert_allclose(
+        back.model(device=DEVICE).evaluate(controls), rig.model(device=DEVICE).evaluate(controls), atol=1e-6
+    )
 
 
 def test_a_broken_lobe_on_the_stage_is_one_clear_error(rig, tmp_path):
+    import shutil
+
     from pxr import Usd
 
     from warpface.usd import read_rig, write_rig
-
-    import shutil
 
     path = tmp_path / "face.usda"
     write_rig(path, rig)
@@ -260,16 +311,19 @@ def test_a_broken_lobe_on_the_stage_is_one_clear_error(rig, tmp_path):
         def edit(prim):
             values = list(prim.GetAttribute(name).Get())
             prim.GetAttribute(name).Set(Vt.DoubleArray([value] + values[1:]))
+
         return edit
 
     def one_more(prim):
         gains = list(prim.GetAttribute("lobes:gain").Get())
         prim.GetAttribute("lobes:gain").Set(Vt.DoubleArray(gains + [0.4]))
 
-    cases = ((lambda p: p.RemoveProperty("lobes:insertion"), "lobes:insertion: attribute is missing"),
-             (with_first("lobes:gain", -1.0), "gain must be in"),
-             (with_first("lobes:zoneAngle", float("nan")), "lobes:zoneAngle: non-finite"),
-             (one_more, "one entry per lobe"))
+    cases = (
+        (lambda p: p.RemoveProperty("lobes:insertion"), "lobes:insertion: attribute is missing"),
+        (with_first("lobes:gain", -1.0), "gain must be in"),
+        (with_first("lobes:zoneAngle", float("nan")), "lobes:zoneAngle: non-finite"),
+        (one_more, "one entry per lobe"),
+    )
     for case, (edit, message) in enumerate(cases):
         copy = shutil.copy(path, tmp_path / f"case{case}.usda")  # each edit on its own layer
         stage = Usd.Stage.Open(str(copy))
@@ -290,8 +344,12 @@ def region_centres(local_landmarks):
     xy = local_landmarks[:, :2]
     left_eye, mouth = xy[42:48].mean(axis=0), xy[48:68].mean(axis=0)
     return {
-        "brow": xy[22:27].mean(axis=0), "eye": left_eye, "cheek": 0.7 * left_eye + 0.3 * xy[54],  # the malar cheek
-        "nose": xy[[31, 35]].mean(axis=0) * [0.0, 1.0] + [abs(xy[35, 0]), 0.0], "mouth": mouth, "corner": xy[54],
+        "brow": xy[22:27].mean(axis=0),
+        "eye": left_eye,
+        "cheek": 0.7 * left_eye + 0.3 * xy[54],  # the malar cheek
+        "nose": xy[[31, 35]].mean(axis=0) * [0.0, 1.0] + [abs(xy[35, 0]), 0.0],
+        "mouth": mouth,
+        "corner": xy[54],
         "jaw": xy[[7, 8, 9, 57]].mean(axis=0),
     }
 
@@ -312,7 +370,7 @@ def test_presets_move_the_regions_they_name(rig, anatomy_face):
         assert moved.max() > 0.02, f"{name}: visibly moves the face (> 2 % of the eye distance)"
         if name not in ARKIT_PRESET_NAMES:
             continue
-        weight = moved ** 2
+        weight = moved**2
         centroid = (local[:, :2] * weight[:, None]).sum(axis=0) / weight.sum()
         region = next(key for key in ("brow", "eye", "cheek", "nose", "jaw", "mouth") if name.lower().startswith(key))
         sided = name.endswith(("Left", "Right")) and region in ("brow", "eye", "cheek", "nose", "mouth")
@@ -333,7 +391,10 @@ def test_presets_move_the_regions_they_name(rig, anatomy_face):
             assert centroid[0] < -0.05, f"{name}: the subject's right side (−x) moves"
     opened = frames[names.index("jawOpen")]
     lm = rig.landmarks
-    assert np.linalg.norm(opened[lm[66]] - opened[lm[62]]) > np.linalg.norm(rig.mesh.points[lm[66]] - rig.mesh.points[lm[62]]) + 0.1 * frame.scale
+    assert (
+        np.linalg.norm(opened[lm[66]] - opened[lm[62]])
+        > np.linalg.norm(rig.mesh.points[lm[66]] - rig.mesh.points[lm[62]]) + 0.1 * frame.scale
+    )
     left = frames[names.index("jawLeft")][lm[8]] - rig.mesh.points[lm[8]]
     assert left @ frame.axes[0] > 0.03 * frame.scale
     with pytest.raises(ValueError, match="unknown preset"):

@@ -46,7 +46,9 @@ def test_local_model_matches_full_pipeline_and_finite_differences(rig, model, rn
         plus, minus = controls.copy(), controls.copy()
         plus[m] += step
         minus[m] -= step
-        difference = (local.evaluate(plus[None], jacobian=False)[0] - local.evaluate(minus[None], jacobian=False)[0]) / (2 * step)
+        difference = (
+            local.evaluate(plus[None], jacobian=False)[0] - local.evaluate(minus[None], jacobian=False)[0]
+        ) / (2 * step)
         assert np.allclose(jac[..., m], difference, atol=1e-6, rtol=1e-5), rig.muscles[m].name
 
 
@@ -218,7 +220,9 @@ def test_non_convergence_returns_best_iterate(rig, model, rng):
     result = fit(rig, target, vertices=rig.landmarks, device="cpu", max_iterations=1)
     assert not result.converged
     start = fit(rig, np.asarray(rig.mesh.points[rig.landmarks]), vertices=rig.landmarks, device="cpu")
-    assert np.isfinite(result.residual) and result.residual <= np.sqrt(np.mean(np.sum((target - start.points[rig.landmarks]) ** 2, axis=1)))
+    assert np.isfinite(result.residual) and result.residual <= np.sqrt(
+        np.mean(np.sum((target - start.points[rig.landmarks]) ** 2, axis=1))
+    )
 
 
 @pytest.mark.parametrize("pose", [False, True])

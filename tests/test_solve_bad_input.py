@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import small_face_rig
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from helpers import small_face_rig
 from warpface import FaceRig, RigError
 from warpface.solve import Solver, fit
 
@@ -36,14 +36,17 @@ def test_topology_and_count_mismatch():
         fit(RIG, np.full((2, 3), np.inf), vertices=[0, 1], device="cpu")
 
 
-@pytest.mark.parametrize("vertices, match", [
-    ([0, V], f"vertices: index {V} at position 1 is out of range"),
-    ([-1, 2], "vertices: index -1"),
-    ([0.5, 1.0], "vertices: indices must be integers"),
-    ([[0, 1]], "vertices: expected a 1-D array"),
-    ([], "vertices: no target points"),
-    (np.array([True, False]), "vertices: expected integer indices, got a boolean array"),
-])
+@pytest.mark.parametrize(
+    "vertices, match",
+    [
+        ([0, V], f"vertices: index {V} at position 1 is out of range"),
+        ([-1, 2], "vertices: index -1"),
+        ([0.5, 1.0], "vertices: indices must be integers"),
+        ([[0, 1]], "vertices: expected a 1-D array"),
+        ([], "vertices: no target points"),
+        (np.array([True, False]), "vertices: expected integer indices, got a boolean array"),
+    ],
+)
 def test_bad_vertices(vertices, match):
     with pytest.raises(ValueError, match=match):
         Solver(RIG, vertices, device="cpu")
@@ -79,9 +82,11 @@ coordinates = st.floats(min_value=-10.0, max_value=10.0) | st.just(np.nan)
 
 
 @SETTINGS
-@given(target=hnp.arrays(np.float64, (8, 3), elements=coordinates),
-       weights=hnp.arrays(np.float64, (8,), elements=st.floats(0.0, 1e3)),
-       pose=st.booleans())
+@given(
+    target=hnp.arrays(np.float64, (8, 3), elements=coordinates),
+    weights=hnp.arrays(np.float64, (8,), elements=st.floats(0.0, 1e3)),
+    pose=st.booleans(),
+)
 def test_any_finite_or_missing_target_gives_a_finite_fit(target, weights, pose):
     vertices = np.arange(0, V, V // 8)[:8]
     scaled = RIG.mesh.points[vertices] + 0.01 * target  # near the face or anywhere up to 10 cm off

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from helpers import small_face_rig
+
 from warpface import usd
 from warpface.cli import main
 from warpface.usd.presets_io import read_presets, write_presets

@@ -33,7 +33,7 @@ def random_controls(rig, rng, count=5, high=0.2, jaw=(0.0, 0.0, 0.0)):
     controls = np.zeros(len(rig.control_names))
     for m in rng.choice(len(rig.muscles), count, replace=False):
         controls[m] = rng.uniform(0.02, high) * (1.0 if isinstance(rig.muscles[m], SphincterMuscle) else rig_scale(rig))
-    controls[len(rig.muscles):] = np.asarray(jaw) * np.array([1.0, rig_scale(rig), rig_scale(rig)])
+    controls[len(rig.muscles) :] = np.asarray(jaw) * np.array([1.0, rig_scale(rig), rig_scale(rig)])
     return controls
 
 
@@ -50,14 +50,37 @@ def assert_same(a, b, solver):
     assert np.abs(a.translation - b.translation).max() < 1e-10 * iod
 
 
-@pytest.mark.parametrize("options", [{}, {"pose": True}, {"symmetry": 1e-2, "l1": 1e-4},
-                                     {"bounds": {"orbicularis_oris": (0.0, 0.05), "zygomaticus_major_L": (0.0, 1e-3),
-                                                 "jaw_open": (0.0, 0.1), "jaw_left": (-1e-3, 0.0)}},
-                                     {"max_iterations": 2}, {"jaw": False}])
+@pytest.mark.parametrize(
+    "options",
+    [
+        {},
+        {"pose": True},
+        {"symmetry": 1e-2, "l1": 1e-4},
+        {
+            "bounds": {
+                "orbicularis_oris": (0.0, 0.05),
+                "zygomaticus_major_L": (0.0, 1e-3),
+                "jaw_open": (0.0, 0.1),
+                "jaw_left": (-1e-3, 0.0),
+            }
+        },
+        {"max_iterations": 2},
+        {"jaw": False},
+    ],
+)
 def test_device_steps_match_host_loop(rig, model, options):
     rng = np.random.default_rng(3)
-    jaws = [(0.0, 0.0, 0.0), (0.2, 0.0, 0.0), (0.0, 0.0, 0.0), (0.35, 0.02, 0.0), (0.0, 0.0, 0.0),
-            (0.0, 0.0, 0.0), (0.1, 0.0, 0.03), (0.0, 0.0, 0.0), (0.25, -0.02, -0.02)]
+    jaws = [
+        (0.0, 0.0, 0.0),
+        (0.2, 0.0, 0.0),
+        (0.0, 0.0, 0.0),
+        (0.35, 0.02, 0.0),
+        (0.0, 0.0, 0.0),
+        (0.0, 0.0, 0.0),
+        (0.1, 0.0, 0.03),
+        (0.0, 0.0, 0.0),
+        (0.25, -0.02, -0.02),
+    ]
     truths = np.stack([random_controls(rig, rng, jaw=jaw) for jaw in jaws])
     truths[4, rig.muscle_names.index("orbicularis_oris")] = 0.4
     frames = model.evaluate_batch(truths).astype(np.float64)[:, rig.landmarks]
@@ -158,4 +181,4 @@ def test_device_closed_loop_with_the_jaw(rig, model):
         points = model.evaluate(batch.controls[f])[rig.landmarks]
         assert np.linalg.norm(points - shapes[f, rig.landmarks], axis=1).mean() < 1e-3 * iod
     assert np.abs(batch.controls[:, muscles] - truths[:, muscles]).max() < 5e-3  # jaw_open [rad]
-    assert np.abs(batch.controls[:, muscles + 1:] - truths[:, muscles + 1:]).max() < 5e-3 * iod
+    assert np.abs(batch.controls[:, muscles + 1 :] - truths[:, muscles + 1 :]).max() < 5e-3 * iod

@@ -33,7 +33,7 @@ def controls_with_jaw(rig, rng, count=6, jaw=(0.18, 0.02, -0.015)):
     controls = np.zeros(len(rig.control_names))
     for m in rng.choice(len(rig.muscles), count, replace=False):
         controls[m] = rng.uniform(0.03, 0.1) * (1.0 if isinstance(rig.muscles[m], SphincterMuscle) else scale)
-    controls[len(rig.muscles):] = np.array(jaw) * np.array([1.0, scale, scale])
+    controls[len(rig.muscles) :] = np.array(jaw) * np.array([1.0, scale, scale])
     return controls
 
 
@@ -54,7 +54,9 @@ def test_jaw_columns_match_the_full_model_and_finite_differences(rig, model, rng
         plus, minus = controls.copy(), controls.copy()
         plus[column] += step
         minus[column] -= step
-        difference = (local.evaluate(plus[None], jacobian=False)[0] - local.evaluate(minus[None], jacobian=False)[0]) / (2 * step)
+        difference = (
+            local.evaluate(plus[None], jacobian=False)[0] - local.evaluate(minus[None], jacobian=False)[0]
+        ) / (2 * step)
         size = np.abs(jacobian[..., column]).max()
         assert size > 1e-3 * (1.0 if column > muscles else scale)  # the jaw moves the landmarks
         assert np.abs(difference - jacobian[..., column]).max() < 1e-5 * size, rig.control_names[column]
@@ -68,8 +70,9 @@ def test_kernel_evaluation_matches_numpy_with_the_jaw(rig, rng):
     # Every muscle on: at rest a rigidly moved vertex has stretch exactly 1, where the wrinkle factor of a
     # kr = 0 wrinkle has a kink and float rounding may pick either side.
     every = len(rig.muscles)
-    controls = np.stack([controls_with_jaw(rig, rng, count=every),
-                         controls_with_jaw(rig, rng, count=every, jaw=(0.35, -0.03, 0.04))])
+    controls = np.stack(
+        [controls_with_jaw(rig, rng, count=every), controls_with_jaw(rig, rng, count=every, jaw=(0.35, -0.03, 0.04))]
+    )
     local = LocalExpression(rig_operators(rig, "cpu"), rig.landmarks)
     kernel = KernelExpression(local, device="cpu")
     x, jacobian = local.evaluate(controls)
@@ -85,20 +88,21 @@ def test_device_normal_equations_with_the_jaw_match_numpy(rig, rng):
     from warpface.solve.targets import observation
 
     every = len(rig.muscles)
-    controls = np.stack([controls_with_jaw(rig, rng, count=every),
-                         controls_with_jaw(rig, rng, count=every, jaw=(0.35, -0.03, 0.04))])
+    controls = np.stack(
+        [controls_with_jaw(rig, rng, count=every), controls_with_jaw(rig, rng, count=every, jaw=(0.35, -0.03, 0.04))]
+    )
     obs = observation(rig.mesh, vertices=rig.landmarks)
     local = LocalExpression(rig_operators(rig, "cpu"), obs.vertices)
     unit = rig_scale(rig)
-    objective = DeviceObjective(KernelExpression(local, device="cpu"), obs, pose=False,
-                                origin=np.zeros(3), unit=unit)
+    objective = DeviceObjective(KernelExpression(local, device="cpu"), obs, pose=False, origin=np.zeros(3), unit=unit)
     frames = len(controls)
     targets = rng.normal(size=(frames, obs.count, 3))
     weights = rng.uniform(0.1, 1.0, (frames, obs.count))
     objective.bind(targets, weights)
     identity = np.tile(np.eye(3), (frames, 1, 1))
-    misfit, hessian, gradient = objective.evaluate(controls, identity, np.zeros((frames, 3)), np.ones(frames, bool),
-                                                   jacobian=True)
+    misfit, hessian, gradient = objective.evaluate(
+        controls, identity, np.zeros((frames, 3)), np.ones(frames, bool), jacobian=True
+    )
     x, dx = local.evaluate(controls)
     e = obs.apply_frames(x) / unit - targets
     columns = obs.apply_frames(dx)  # (F, N, 3, C)
@@ -135,6 +139,7 @@ def test_closed_loop_recovers_jaw_and_muscles(rig, model, rng, landmarks_only):
 
 def test_jaw_bounds_come_from_its_range_and_hold(rig, model):
     from warpface.expression.jaw import JAW_RANGE
+
     controls = np.zeros(len(rig.control_names))
     controls[len(rig.muscles)] = 0.5
     target = np.asarray(model.evaluate(controls), dtype=np.float64)

@@ -36,7 +36,9 @@ def test_blur_smooths_and_keeps_the_mean(tmp_path):
     cv2.imwrite(str(path), noisy)
     grid = np.stack(np.meshgrid(np.linspace(0.5, 63.5, 64), np.linspace(0.5, 63.5, 64)), -1).reshape(-1, 2)
     sharp = wf.ThicknessMap(path, PLANAR, (0, 64), (0, 64), 0.0, 20.0).sample(points_at(grid), device="cpu")
-    smooth = wf.ThicknessMap(path, PLANAR, (0, 64), (0, 64), 0.0, 20.0, blur_sigma=3.0).sample(points_at(grid), device="cpu")
+    smooth = wf.ThicknessMap(path, PLANAR, (0, 64), (0, 64), 0.0, 20.0, blur_sigma=3.0).sample(
+        points_at(grid), device="cpu"
+    )
     assert smooth.std() < 0.25 * sharp.std()
     assert smooth.mean() == pytest.approx(sharp.mean(), rel=0.02)
     assert sharp.min() >= 0.0 and sharp.max() <= 20.0

@@ -80,8 +80,14 @@ def _capture(tmp_path, rig, source, **tracker_options):
     def keep(frame, skin):
         solved.append(tracker.last)
 
-    stats = record(source, tracker, writer, progress=False, on_frame=keep,
-                   samples=lambda frame, skin: layout.samples(tracker.last, skin))
+    stats = record(
+        source,
+        tracker,
+        writer,
+        progress=False,
+        on_frame=keep,
+        samples=lambda frame, skin: layout.samples(tracker.last, skin),
+    )
     return tracker, solved, stats, tmp_path / "solved.usda"
 
 
@@ -116,13 +122,15 @@ def test_exact_landmarks_recover_the_controls_and_the_stage_round_trips(tmp_path
     from warpface.usd.jaw_io import JAW_CONTROL_ATTRIBUTES, JAW_RELATIONSHIP
 
     opened = open_stage(stage)
-    jaw = opened.GetPrimAtPath(opened.GetPrimAtPath(RIG_ROOT + "/Skin").GetRelationship(JAW_RELATIONSHIP).GetTargets()[0])
+    jaw = opened.GetPrimAtPath(
+        opened.GetPrimAtPath(RIG_ROOT + "/Skin").GetRelationship(JAW_RELATIONSHIP).GetTargets()[0]
+    )
     muscles = len(rig.muscles)
     for column, attribute in enumerate(JAW_CONTROL_ATTRIBUTES.values(), start=muscles):
         values = np.array([jaw.GetAttribute(attribute).Get(t) for t in back["times"]])
         np.testing.assert_array_equal(values, back["controls"][:, column])
     assert np.abs(back["controls"][:, muscles] - controls[:, muscles]).max() < 1e-3  # jaw_open [rad]
-    assert np.abs(back["controls"][:, muscles + 1:] - controls[:, muscles + 1:]).max() < 5e-5  # slides [m]
+    assert np.abs(back["controls"][:, muscles + 1 :] - controls[:, muscles + 1 :]).max() < 5e-5  # slides [m]
     assert back["controls"][:, muscles].max() > 0.2
     # The stage is an ordinary rig stage too: read_rig, read_animation and validation work on it.
     from warpface.usd import read_animation, read_rig, validate_stage
@@ -144,9 +152,13 @@ def test_head_motion_is_solved_as_the_pose_and_written(tmp_path, rig, vertices):
     angles = np.linspace(0.0, 0.12, len(controls))  # up to 7° about a tilted axis, and 1 cm of translation
     axis = np.array([0.3, 1.0, 0.2]) / np.linalg.norm([0.3, 1.0, 0.2])
     cross = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    poses = [(np.eye(3) + np.sin(a) * cross + (1 - np.cos(a)) * cross @ cross, np.array([0.01, -0.004, 0.002]) * a / 0.12)
-             for a in angles]
-    tracker, solved, _, stage = _capture(tmp_path, rig, ExactSource(rig, vertices, controls, poses=poses), smoothness=0.0)
+    poses = [
+        (np.eye(3) + np.sin(a) * cross + (1 - np.cos(a)) * cross @ cross, np.array([0.01, -0.004, 0.002]) * a / 0.12)
+        for a in angles
+    ]
+    tracker, solved, _, stage = _capture(
+        tmp_path, rig, ExactSource(rig, vertices, controls, poses=poses), smoothness=0.0
+    )
     model = rig.model(device="cpu")
     truth = model.evaluate_batch(controls).astype(np.float64)
     back = read_solved_capture(stage)
@@ -221,24 +233,34 @@ def test_frames_with_too_few_landmarks_keep_the_controls_and_are_flagged(tmp_pat
     assert not back["skipped"][7:].any()
 
 
-FUZZ = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                                                         HealthCheck.too_slow])
+FUZZ = settings(
+    max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow]
+)
 
 
 @FUZZ
 @given(data=st.data())
 def test_any_frame_gives_finite_bounded_controls_or_a_skipped_frame(rig, vertices, data):
     """Random NaN masks, huge or infinite values and confidences: never a non-finite result."""
-    tracker = SolvingTracker(rig, vertex_landmark_names(vertices), camera_to_model=np.eye(4), device="cpu",
-                             residual_transfer=data.draw(st.booleans()))
+    tracker = SolvingTracker(
+        rig,
+        vertex_landmark_names(vertices),
+        camera_to_model=np.eye(4),
+        device="cpu",
+        residual_transfer=data.draw(st.booleans()),
+    )
     rest = rig.mesh.points[vertices].astype(np.float64)
     for index in range(3):
         points = rest + data.draw(st.floats(-0.01, 0.01)) * np.cos(np.arange(len(rest)))[:, None]
         mask = np.array(data.draw(st.lists(st.booleans(), min_size=len(rest), max_size=len(rest))))
         bad = data.draw(st.sampled_from([np.nan, np.inf, -np.inf, 1e30, 1e7]))
         points[mask] = bad
-        confidence = np.array(data.draw(st.lists(st.sampled_from([0.0, 0.5, 1.0, np.nan, -1.0]), min_size=len(rest), max_size=len(rest))))
-        result = tracker.track_frame(LandmarkFrame(timestamp=index / 30.0, points=points, confidence=confidence, index=index))
+        confidence = np.array(
+            data.draw(st.lists(st.sampled_from([0.0, 0.5, 1.0, np.nan, -1.0]), min_size=len(rest), max_size=len(rest)))
+        )
+        result = tracker.track_frame(
+            LandmarkFrame(timestamp=index / 30.0, points=points, confidence=confidence, index=index)
+        )
         assert np.all(np.isfinite(result.controls)) and np.all(np.isfinite(result.skin))
         assert np.all(result.controls >= tracker.solver.low) and np.all(result.controls <= tracker.solver.high)
         usable = (~mask) & np.isfinite(confidence) & (confidence > 0)
@@ -247,15 +269,22 @@ def test_any_frame_gives_finite_bounded_controls_or_a_skipped_frame(rig, vertice
 
 
 def _cli(*args, env=None):
-    return subprocess.run([sys.executable, "-m", "warpface.cli", "--device", "cpu", "--quiet", "track", *args],
-                          capture_output=True, text=True, env=env or dict(os.environ, PYTHONPATH=str(REPO)), timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "warpface.cli", "--device", "cpu", "--quiet", "track", *args],
+        capture_output=True,
+        text=True,
+        env=env or dict(os.environ, PYTHONPATH=str(REPO)),
+        timeout=300,
+    )
 
 
 def test_cli_refuses_bad_combinations_before_writing(tmp_path):
     stage = tmp_path / "out" / "capture.usda"
-    for args, message in ((["--residual-transfer"], "--residual-transfer needs --solve"),
-                          (["--solve", "--fem"], "do not combine"),
-                          (["--solve", "--smoothness", "nan"], "--smoothness")):
+    for args, message in (
+        (["--residual-transfer"], "--residual-transfer needs --solve"),
+        (["--solve", "--fem"], "do not combine"),
+        (["--solve", "--smoothness", "nan"], "--smoothness"),
+    ):
         result = _cli("synthetic", "--stage", str(stage), *args)
         assert result.returncode == 2 and message in result.stderr, result.stderr[-500:]
         assert not (tmp_path / "out").exists()
@@ -265,9 +294,26 @@ def test_ctrl_c_during_a_solved_capture_keeps_every_frame_with_its_controls(tmp_
     stage = tmp_path / "out" / "capture.usda"
     env = dict(os.environ, PYTHONPATH=str(REPO))
     with open(tmp_path / "err.txt", "w") as errors:
-        child = subprocess.Popen([sys.executable, "-m", "warpface.cli", "--device", "cpu", "--quiet", "track", "synthetic",
-                                  "--stage", str(stage), "--solve", "--residual-transfer"],
-                                 stdout=subprocess.PIPE, stderr=errors, text=True, env=env)
+        child = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "warpface.cli",
+                "--device",
+                "cpu",
+                "--quiet",
+                "track",
+                "synthetic",
+                "--stage",
+                str(stage),
+                "--solve",
+                "--residual-transfer",
+            ],
+            stdout=subprocess.PIPE,
+            stderr=errors,
+            text=True,
+            env=env,
+        )
     try:
         deadline = time.monotonic() + 120
         while not stage.exists() and child.poll() is None and time.monotonic() < deadline:
@@ -279,7 +325,11 @@ def test_ctrl_c_during_a_solved_capture_keeps_every_frame_with_its_controls(tmp_
     finally:
         child.kill()
     assert child.returncode in (0, 130), (tmp_path / "err.txt").read_text()[-2000:]
-    kept = int(out.split("kept all ")[1].split()[0]) if child.returncode == 130 else int(out.split("tracked ")[1].split()[0])
+    kept = (
+        int(out.split("kept all ")[1].split()[0])
+        if child.returncode == 130
+        else int(out.split("tracked ")[1].split()[0])
+    )
     back = read_solved_capture(stage)
     assert len(back["times"]) == kept > 0
     assert back["controls"].shape == (kept, len(back["control_names"])) and np.all(np.isfinite(back["controls"]))
@@ -297,12 +347,17 @@ def test_capture_writer_channels_refuse_bad_samples_and_keep_the_good_frames(tmp
         UsdGeom.Xform.Define(stage, "/Capture/Thing")
 
     channel = "/Capture/Thing.value"
-    writer = TrackingStageWriter(tmp_path / "c.usda", ["a", "b"], 30.0, extra_prims=extra,
-                                 channels={channel: Sdf.ValueTypeNames.Double})
+    writer = TrackingStageWriter(
+        tmp_path / "c.usda", ["a", "b"], 30.0, extra_prims=extra, channels={channel: Sdf.ValueTypeNames.Double}
+    )
     points, confidence = np.zeros((2, 3)), np.ones(2)
     writer.add(0.0, points, confidence, samples={channel: 1.5})
-    for samples, message in (({}, "lack"), ({channel: 1.0, "/Capture/Thing.other": 2.0}, "undeclared"),
-                             ({channel: float("nan")}, "not finite"), ({channel: "x"}, "numeric")):
+    for samples, message in (
+        ({}, "lack"),
+        ({channel: 1.0, "/Capture/Thing.other": 2.0}, "undeclared"),
+        ({channel: float("nan")}, "not finite"),
+        ({channel: "x"}, "numeric"),
+    ):
         with pytest.raises(ValueError, match=message):
             writer.add(1 / 30.0, points, confidence, samples=samples)
     writer.add(1 / 30.0, points, confidence, samples={channel: -2.0})

@@ -82,10 +82,23 @@ def test_surface_mesh_near_and_far_queries_match_brute_force():
 
 
 def test_voronoi_regions_and_degenerate_triangles():
-    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0],  # right triangle
-                         [2, 0, 0], [3, 0, 0], [4, 0, 0],  # collinear
-                         [5, 0, 0], [5, 0, 0], [6, 0, 0],  # two coincident corners
-                         [8, 0, 0], [8, 0, 0], [8, 0, 0]], dtype=float)  # a point
+    vertices = np.array(
+        [
+            [0, 0, 0],
+            [1, 0, 0],
+            [0, 1, 0],  # right triangle
+            [2, 0, 0],
+            [3, 0, 0],
+            [4, 0, 0],  # collinear
+            [5, 0, 0],
+            [5, 0, 0],
+            [6, 0, 0],  # two coincident corners
+            [8, 0, 0],
+            [8, 0, 0],
+            [8, 0, 0],
+        ],
+        dtype=float,
+    )  # a point
     triangles = np.arange(12).reshape(4, 3)
     cases = {
         (0.2, 0.2, 0.5): (0, [0.6, 0.2, 0.2], 0.5),  # face region
@@ -150,8 +163,10 @@ def test_overhang_is_distance_beyond_the_contour():
     x, y = np.meshgrid(np.linspace(-0.5, 1.5, 21), np.linspace(-0.5, 1.5, 21))
     dense = np.stack([x.ravel(), y.ravel(), np.full(x.size, 0.01)], axis=1)
     corr = compute_correspondence(dense, sparse, sparse_tri, device="cpu")
-    beyond = np.hypot(np.clip(-dense[:, 0], 0, None) + np.clip(dense[:, 0] - 1, 0, None),
-                      np.clip(-dense[:, 1], 0, None) + np.clip(dense[:, 1] - 1, 0, None))
+    beyond = np.hypot(
+        np.clip(-dense[:, 0], 0, None) + np.clip(dense[:, 0] - 1, 0, None),
+        np.clip(-dense[:, 1], 0, None) + np.clip(dense[:, 1] - 1, 0, None),
+    )
     np.testing.assert_allclose(corr.overhang, beyond, atol=1e-6)
     np.testing.assert_allclose(corr.distance, np.hypot(beyond, 0.01), atol=1e-6)
 
@@ -177,8 +192,9 @@ def test_mediapipe_canonical_to_ict_face_against_brute_force():
 
     s = FaceNormalization.measure(sparse, eye_y=sparse[[33, 263], 1].mean())
     d = FaceNormalization.measure(dense, eye_y=dense[ict_landmark_indices()[[36, 45]], 1].mean())
-    corr = compute_correspondence(dense, sparse, sparse_tri, sparse_normalization=s, dense_normalization=d,
-                                  device="cpu")
+    corr = compute_correspondence(
+        dense, sparse, sparse_tri, sparse_normalization=s, dense_normalization=d, device="cpu"
+    )
     assert corr.triangle.shape == (len(dense),) and np.isfinite(corr.distance).all()
     rng = np.random.default_rng(1)
     pick = rng.choice(len(dense), 300, replace=False)

@@ -107,8 +107,7 @@ def test_occluding_edge_is_rejected_not_guessed():
 def test_missing_landmarks_and_bad_input():
     depth = np.full((K.height, K.width), 0.6, dtype=np.float32)
     depth[100:140, 100:140] = 0.0  # a hole
-    got, inliers = backproject([[np.nan, 3.0], [-50.0, 10.0], [120.0, 120.0], [320.0, 240.0]], depth, K,
-                               device="cpu")
+    got, inliers = backproject([[np.nan, 3.0], [-50.0, 10.0], [120.0, 120.0], [320.0, 240.0]], depth, K, device="cpu")
     assert np.isnan(got[:3]).all() and inliers[:3].tolist() == [0, 0, 0]
     np.testing.assert_allclose(got[3], [0.5 / 525 * 0.6, 0.5 / 525 * 0.6, 0.6], atol=1e-7)
     with pytest.raises(ValueError, match="intrinsics are 640×480"):
@@ -144,8 +143,12 @@ def test_kth_smallest_with_ties_matches_numpy():
     from warpface.tracking.depth import kth_smallest
 
     @wp.kernel
-    def select_rows(values: wp.array2d(dtype=float), lengths: wp.array(dtype=wp.int32), ranks: wp.array(dtype=wp.int32),
-                    out: wp.array(dtype=float)):
+    def select_rows(
+        values: wp.array2d(dtype=float),
+        lengths: wp.array(dtype=wp.int32),
+        ranks: wp.array(dtype=wp.int32),
+        out: wp.array(dtype=float),
+    ):
         i = wp.tid()
         out[i] = kth_smallest(values, i, lengths[i], ranks[i])
 
@@ -156,9 +159,18 @@ def test_kth_smallest_with_ties_matches_numpy():
     lengths = rng.integers(1, width + 1, size=rows).astype(np.int32)
     ranks = (rng.random(rows) * lengths).astype(np.int32)
     out = wp.empty(rows, dtype=float, device="cpu")
-    wp.launch(select_rows, dim=rows, inputs=[wp.array(values, dtype=float, device="cpu"), wp.array(lengths, device="cpu"),
-                                             wp.array(ranks, device="cpu")], outputs=[out], device="cpu")
-    expected = [np.sort(values[i, :lengths[i]])[ranks[i]] for i in range(rows)]
+    wp.launch(
+        select_rows,
+        dim=rows,
+        inputs=[
+            wp.array(values, dtype=float, device="cpu"),
+            wp.array(lengths, device="cpu"),
+            wp.array(ranks, device="cpu"),
+        ],
+        outputs=[out],
+        device="cpu",
+    )
+    expected = [np.sort(values[i, : lengths[i]])[ranks[i]] for i in range(rows)]
     np.testing.assert_array_equal(out.numpy(), expected)
 
 

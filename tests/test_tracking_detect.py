@@ -7,8 +7,7 @@ import pytest
 from warpface.tracking import ArucoMarkers, DotTracker, detect_blobs
 
 
-def paint_dots(centers, *, size=(480, 640), radius=4.0, background=(200, 150, 120), color=(20, 20, 20),
-               gradient=True):
+def paint_dots(centers, *, size=(480, 640), radius=4.0, background=(200, 150, 120), color=(20, 20, 20), gradient=True):
     """Anti-aliased discs by exact area coverage (4×4 supersampling) on a shaded background."""
     h, w = size
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
@@ -88,11 +87,10 @@ def render_marker(image, dictionary, marker_id, corners):
     side = 60
     marker = cv2.aruco.generateImageMarker(dictionary, marker_id, side, borderBits=1)
     padded = np.full((side + 30, side + 30), 255, np.uint8)
-    padded[15:15 + side, 15:15 + side] = marker
+    padded[15 : 15 + side, 15 : 15 + side] = marker
     src = np.array([[15, 15], [15 + side, 15], [15 + side, 15 + side], [15, 15 + side]], np.float32) - 0.5
     h = cv2.getPerspectiveTransform(src, np.asarray(corners, np.float32))
-    warped = cv2.warpPerspective(padded, h, (image.shape[1], image.shape[0]), flags=cv2.INTER_LINEAR,
-                                 borderValue=0)
+    warped = cv2.warpPerspective(padded, h, (image.shape[1], image.shape[0]), flags=cv2.INTER_LINEAR, borderValue=0)
     mask = cv2.warpPerspective(np.ones_like(padded), h, (image.shape[1], image.shape[0]), flags=cv2.INTER_NEAREST)
     image[mask > 0] = warped[mask > 0][:, None]
     return h
@@ -101,9 +99,11 @@ def render_marker(image, dictionary, marker_id, corners):
 def test_aruco_marker_centres():
     detector = ArucoMarkers([3, 7, 11], names=["brow", "chin", "cheek"])
     image = np.full((480, 640, 3), 90, np.uint8)
-    quads = {3: [[100, 100], [170, 105], [168, 172], [98, 168]],
-             7: [[300, 250], [370, 240], [380, 310], [305, 318]],
-             99: [[450, 100], [520, 100], [520, 170], [450, 170]]}  # an id we do not track
+    quads = {
+        3: [[100, 100], [170, 105], [168, 172], [98, 168]],
+        7: [[300, 250], [370, 240], [380, 310], [305, 318]],
+        99: [[450, 100], [520, 100], [520, 170], [450, 170]],
+    }  # an id we do not track
     centres = {}
     for marker, quad in quads.items():
         h = render_marker(image, detector.dictionary, marker if marker != 99 else 20, quad)

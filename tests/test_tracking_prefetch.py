@@ -8,14 +8,13 @@ import threading
 
 import numpy as np
 import pytest
+from helpers import DisappearingCamera, grid_surface
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from warpface.pipelines.capture import record
 from warpface.tracking import PrefetchedSource, adapter_for_face, prefetch
 from warpface.usd.tracking_io import TrackingStageWriter, read_tracking
-
-from helpers import DisappearingCamera, grid_surface
 
 
 @settings(max_examples=25, deadline=None)
@@ -99,8 +98,9 @@ def test_a_prefetched_capture_writes_the_same_stage(tmp_path):
         assert wrapped.landmark_names == source.landmark_names and wrapped.fps == source.fps  # attributes forwarded
         adapter = adapter_for_face(rest, source.landmark_names, camera_to_model=np.eye(4), device="cpu")
         path = tmp_path / f"cap{prefetch_depth}.usda"
-        writer = TrackingStageWriter(path, source.landmark_names, 30.0, dense_rest=rest, triangles=triangles,
-                                     chunk_frames=5)
+        writer = TrackingStageWriter(
+            path, source.landmark_names, 30.0, dense_rest=rest, triangles=triangles, chunk_frames=5
+        )
         with pytest.raises(ConnectionError):  # the camera disappears after 12 frames: all 12 are kept
             record(source, adapter, writer, progress=False, prefetch=prefetch_depth)
         stages.append(read_tracking(path))
@@ -116,8 +116,9 @@ def test_a_prefetched_capture_stops_after_max_frames(tmp_path):
     vertices = np.array([13, 17, 20, 50, 55, 60, 90, 95, 100, 130, 133])
     source = DisappearingCamera(rest, vertices, 1000)
     adapter = adapter_for_face(rest, source.landmark_names, camera_to_model=np.eye(4), device="cpu")
-    writer = TrackingStageWriter(tmp_path / "cap.usda", source.landmark_names, 30.0, dense_rest=rest,
-                                 triangles=triangles, chunk_frames=5)
+    writer = TrackingStageWriter(
+        tmp_path / "cap.usda", source.landmark_names, 30.0, dense_rest=rest, triangles=triangles, chunk_frames=5
+    )
     stats = record(source, adapter, writer, progress=False, prefetch=3, max_frames=8)
     assert stats.frames == 8 and len(read_tracking(tmp_path / "cap.usda")["times"]) == 8
     with pytest.raises(ValueError, match="prefetch"):
@@ -137,8 +138,9 @@ def test_the_synthetic_rgbd_capture_prefetched_matches_the_plain_one(tmp_path):
         rest = capture.truth[0]
         adapter = adapter_for_face(rest, capture.source.landmark_names, device="cpu")
         path = tmp_path / f"cap{prefetch_depth}.usda"
-        writer = TrackingStageWriter(path, capture.source.landmark_names, 30.0, dense_rest=rest,
-                                     triangles=capture.triangles)
+        writer = TrackingStageWriter(
+            path, capture.source.landmark_names, 30.0, dense_rest=rest, triangles=capture.triangles
+        )
         try:
             stats = record(capture.source, adapter, writer, progress=False, prefetch=prefetch_depth)
         finally:

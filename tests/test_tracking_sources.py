@@ -91,8 +91,13 @@ def test_timestamp_policy_and_landmark_count(tmp_path):
     with pytest.raises(ValueError, match="timestamp_policy"):
         list(checked_frames(frames, timestamp_policy="sort"))
     # A file that goes back in time is rejected on read.
-    np.savez(tmp_path / "bad.npz", timestamps=np.array([0.0, 0.1, 0.05]), points=np.zeros((3, 2, 3)),
-             confidence=np.ones((3, 2), np.float32), names=np.array(["a", "b"]))
+    np.savez(
+        tmp_path / "bad.npz",
+        timestamps=np.array([0.0, 0.1, 0.05]),
+        points=np.zeros((3, 2, 3)),
+        confidence=np.ones((3, 2), np.float32),
+        names=np.array(["a", "b"]),
+    )
     with pytest.raises(ValueError, match="decreasing timestamp at frame 2"):
         list(RecordedLandmarks(tmp_path / "bad.npz").frames())
     np.savez(tmp_path / "noname.npz", timestamps=np.zeros(1), points=np.zeros((1, 2, 3)), confidence=np.ones((1, 2)))
@@ -114,7 +119,7 @@ def test_fill_missing_interpolates_and_holds():
     for i, ti in enumerate(t):
         pts = base + vel * ti
         conf = np.ones(3)
-        for (fi, j) in gaps:
+        for fi, j in gaps:
             if fi == i:
                 pts[j] = np.nan
         frames.append(LandmarkFrame(ti, pts, conf, i))
@@ -278,8 +283,9 @@ class FakeRealSense:
 
             def get_stream(self, kind):
                 intr = types.SimpleNamespace(fx=600.0, fy=601.0, ppx=320.2, ppy=239.7, width=640, height=480)
-                return types.SimpleNamespace(as_video_stream_profile=lambda: types.SimpleNamespace(
-                    get_intrinsics=lambda: intr))
+                return types.SimpleNamespace(
+                    as_video_stream_profile=lambda: types.SimpleNamespace(get_intrinsics=lambda: intr)
+                )
 
         class Frame:
             def __init__(self, data):
@@ -336,8 +342,10 @@ class FakeRealSense:
 
 def camera_frames(stamps_ms, h=480, w=640):
     rng = np.random.default_rng(0)
-    return [(s, rng.integers(0, 256, (h, w, 3), dtype=np.uint8), rng.integers(0, 4000, (h, w), dtype=np.uint16))
-            for s in stamps_ms]
+    return [
+        (s, rng.integers(0, 256, (h, w, 3), dtype=np.uint8), rng.integers(0, 4000, (h, w), dtype=np.uint16))
+        for s in stamps_ms
+    ]
 
 
 def test_realsense_camera_with_fake_device(monkeypatch):

@@ -89,8 +89,10 @@ def test_closed_loop_dots_with_kinect_noise():
         errors.append(err[~frame.missing])
         found.append((~frame.missing).mean())
     errors = np.concatenate(errors)
-    print(f"\n{name}: {len(fid)} dots, {np.mean(found):.0%} found, 3-D landmark error "
-          f"mean {errors.mean() * 1e3:.2f} mm, max {errors.max() * 1e3:.2f} mm")
+    print(
+        f"\n{name}: {len(fid)} dots, {np.mean(found):.0%} found, 3-D landmark error "
+        f"mean {errors.mean() * 1e3:.2f} mm, max {errors.max() * 1e3:.2f} mm"
+    )
     assert errors.mean() <= 1e-3
     assert np.mean(found) >= 0.85
     camera.close()
@@ -103,17 +105,25 @@ def test_dense_transfer_follows_the_tracked_face():
     fid = place_fiducials(rest, tri, 50, spacing=0.016, camera_position=eye)
     camera = SyntheticRGBDCamera(frames, tri, fid, depth_noise=KinectNoise(), seed=1)
     sparse = rest[fid]
-    adapter = TrackingAdapter(sparse, triangulate_landmarks(sparse), rest, landmark_names=camera.landmark_names,
-                              camera_to_model=np.linalg.inv(camera.model_to_camera), device="cpu")
+    adapter = TrackingAdapter(
+        sparse,
+        triangulate_landmarks(sparse),
+        rest,
+        landmark_names=camera.landmark_names,
+        camera_to_model=np.linalg.inv(camera.model_to_camera),
+        device="cpu",
+    )
     source = RGBDLandmarks(camera, camera.dot_tracker(), device="cpu")
     driven = adapter.weights > 0.999
-    for frame, dense in adapter.track(source):
+    for _frame, dense in adapter.track(source):
         assert dense.shape == rest.shape and np.all(np.isfinite(dense))
     truth = frames[-1]
     err = np.linalg.norm(dense - truth, axis=1)[driven]
     still = np.linalg.norm(rest - truth, axis=1)[driven]
-    print(f"\n{name}: dense surface error in the driven region {err.mean() * 1e3:.2f} mm "
-          f"(not tracking: {still.mean() * 1e3:.2f} mm), {driven.sum()} of {len(rest)} vertices driven")
+    print(
+        f"\n{name}: dense surface error in the driven region {err.mean() * 1e3:.2f} mm "
+        f"(not tracking: {still.mean() * 1e3:.2f} mm), {driven.sum()} of {len(rest)} vertices driven"
+    )
     assert err.mean() < 0.6 * still.mean()
     camera.close()
 
@@ -121,8 +131,9 @@ def test_dense_transfer_follows_the_tracked_face():
 def test_aruco_markers_on_the_synthetic_face(tmp_path):
     points, tri = procedural_face(96)
     fid = place_fiducials(points, tri, 4, spacing=0.045, min_facing=0.85, boundary_margin=0.025)
-    cam = SyntheticRGBDCamera(points, tri, fid, style="aruco", aruco_ids=[5, 9, 13, 17][: len(fid)],
-                              aruco_size=0.024, depth_noise=None)
+    cam = SyntheticRGBDCamera(
+        points, tri, fid, style="aruco", aruco_ids=[5, 9, 13, 17][: len(fid)], aruco_size=0.024, depth_noise=None
+    )
     detector = cam.aruco_detector()
     color, depth = cam.render(0)
     pixels, conf = detector.detect(color)
@@ -140,8 +151,9 @@ def test_recorded_synthetic_capture_gives_the_same_landmarks(tmp_path):
     frames = np.stack([procedural_jaw_open(points, a) for a in (0.0, 0.003, 0.006)])
     fid = place_fiducials(points, tri, 20, spacing=0.02)
     cam = SyntheticRGBDCamera(frames, tri, fid, depth_noise=KinectNoise(), seed=2)
-    folder = RGBDFolder.write(tmp_path / "capture", cam.frames(), cam.intrinsics, fps=cam.fps,
-                              fiducials=cam.fiducial_layout())
+    folder = RGBDFolder.write(
+        tmp_path / "capture", cam.frames(), cam.intrinsics, fps=cam.fps, fiducials=cam.fiducial_layout()
+    )
     live = list(RGBDLandmarks(cam, cam.dot_tracker(), device="cpu").frames())
     recorded = RGBDFolder(folder)
     from warpface.tracking import DotTracker

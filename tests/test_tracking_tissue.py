@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import patch
 
 from warpface.fem import TissueMaterial
 from warpface.fem.volume import tissue_from_surface
+from warpface.pipelines.tissue_drive import TissueDrive, bone_side_nodes
 from warpface.tracking import adapter_for_face, vertex_landmark_names
 from warpface.tracking.sources import LandmarkFrame
-from warpface.pipelines.tissue_drive import TissueDrive, bone_side_nodes
-
-from helpers import patch
 
 
 @pytest.fixture(scope="module")
@@ -33,8 +32,9 @@ def test_tissue_drive_keeps_tracked_skin_and_moves_the_rest(skin_and_tissue):
     lift = np.array([0.0, 0.0, 0.002])
     adapter.bind(names)
     for i in range(6):
-        frame = LandmarkFrame(timestamp=i / 30.0, points=points[centre] + lift * min(i, 3) / 3,
-                              confidence=np.ones(len(centre)), index=i)
+        frame = LandmarkFrame(
+            timestamp=i / 30.0, points=points[centre] + lift * min(i, 3) / 3, confidence=np.ones(len(centre)), index=i
+        )
         direct = adapter.track_frame(frame)
         blended = drive(frame, direct)
     assert np.all(np.isfinite(blended))

@@ -41,8 +41,9 @@ def test_transfer_matches_numpy_and_has_linear_precision(meshes):
     disp = rng.normal(scale=0.003, size=sparse.shape)
     weights = rng.uniform(0, 1, len(dense)).astype(np.float32)
     got = transfer_displacements(disp, tri, corr, weights, scale=1.7, device="cpu")
-    want = 1.7 * weights[:, None] * np.einsum("vj,vjk->vk", corr.barycentric.astype(np.float64),
-                                               disp[tri[corr.triangle]])
+    want = (
+        1.7 * weights[:, None] * np.einsum("vj,vjk->vk", corr.barycentric.astype(np.float64), disp[tri[corr.triangle]])
+    )
     np.testing.assert_allclose(got, want, atol=1e-7)
     # An affine sparse motion moves points on the sparse surface exactly affinely.
     a = np.array([[0.01, 0.02, -0.01], [0.0, -0.03, 0.02], [0.015, 0.0, 0.01]])

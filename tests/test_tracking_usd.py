@@ -4,23 +4,29 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import DisappearingCamera, grid_surface
 
 from warpface.cli import main
 from warpface.pipelines.capture import record
 from warpface.tracking import adapter_for_face, landmark_vertices, vertex_landmark_names
 from warpface.usd.tracking_io import TrackingStageWriter, read_tracking
 
-from helpers import DisappearingCamera, grid_surface
-
 
 def test_round_trip_is_exact_across_chunks(tmp_path, rng):
     rest, triangles = grid_surface(8)
     landmarks = rng.normal(size=(10, 3, 3))
     dense = (rest + rng.normal(size=(10, *rest.shape)) * 1e-3).astype(np.float32)
-    with TrackingStageWriter(tmp_path / "cap.usda", ["a", "b", "c"], 24.0, dense_rest=rest, triangles=triangles, chunk_frames=4) as writer:
+    with TrackingStageWriter(
+        tmp_path / "cap.usda", ["a", "b", "c"], 24.0, dense_rest=rest, triangles=triangles, chunk_frames=4
+    ) as writer:
         for i in range(10):
             writer.add(0.5 + i / 24.0, landmarks[i], np.full(3, 0.9), dense[i])
-    assert sorted(p.name for p in (tmp_path / "cap_track").iterdir()) == ["chunk_0000.usdc", "chunk_0001.usdc", "chunk_0002.usdc", "static.usdc"]
+    assert sorted(p.name for p in (tmp_path / "cap_track").iterdir()) == [
+        "chunk_0000.usdc",
+        "chunk_0001.usdc",
+        "chunk_0002.usdc",
+        "static.usdc",
+    ]
     back = read_tracking(tmp_path / "cap.usda")
     np.testing.assert_allclose(back["times"], np.arange(10), atol=1e-9)
     assert back["fps"] == 24.0 and back["names"] == ["a", "b", "c"]
@@ -62,7 +68,9 @@ def test_a_camera_that_disappears_keeps_every_frame_received(tmp_path):
     vertices = np.array([13, 17, 20, 50, 55, 60, 90, 95, 100, 130, 133])
     source = DisappearingCamera(rest, vertices, 7)
     adapter = adapter_for_face(rest, source.landmark_names, camera_to_model=np.eye(4), device="cpu")
-    writer = TrackingStageWriter(tmp_path / "cap.usda", source.landmark_names, 30.0, dense_rest=rest, triangles=triangles, chunk_frames=5)
+    writer = TrackingStageWriter(
+        tmp_path / "cap.usda", source.landmark_names, 30.0, dense_rest=rest, triangles=triangles, chunk_frames=5
+    )
     with pytest.raises(ConnectionError):
         record(source, adapter, writer, progress=False)
     back = read_tracking(tmp_path / "cap.usda")
@@ -132,7 +140,9 @@ def test_a_reused_buffer_is_copied_when_queued_and_extents_are_exact(tmp_path, r
     rest, triangles = grid_surface(6)
     buffer = np.empty(rest.shape, dtype=np.float32)
     written = []
-    with TrackingStageWriter(tmp_path / "cap.usda", ["a"], 30.0, dense_rest=rest, triangles=triangles, chunk_frames=3) as writer:
+    with TrackingStageWriter(
+        tmp_path / "cap.usda", ["a"], 30.0, dense_rest=rest, triangles=triangles, chunk_frames=3
+    ) as writer:
         for i in range(5):
             buffer[:] = rest + rng.normal(size=rest.shape) * 1e-2
             written.append(buffer.copy())

@@ -25,7 +25,9 @@ FRAMES = np.arange(0.0, 24.0)
 def controls(times: np.ndarray, amplitude: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Contractions (F, 3) and wrinkle depths (F, 2) for the small rig: smooth, all different."""
     phase = times / len(times) * 2 * np.pi
-    contractions = amplitude * np.stack([0.012 * np.sin(phase), 0.008 * (1 - np.cos(phase)), 0.4 * np.sin(2 * phase)], axis=1)
+    contractions = amplitude * np.stack(
+        [0.012 * np.sin(phase), 0.008 * (1 - np.cos(phase)), 0.4 * np.sin(2 * phase)], axis=1
+    )
     depths = np.stack([0.002 + 0.001 * np.sin(phase), 0.0015 * np.cos(phase)], axis=1)
     return contractions, depths
 
@@ -62,11 +64,18 @@ def test_control_samples_read_back_exactly(small_rig):
     animation = read_animation(stage, FRAMES)
     assert np.array_equal(animation.contractions, contractions) and np.array_equal(animation.wrinkle_depths, depths)
     assert animation.muscle_names == small_rig.muscle_names and animation.wrinkle_names == small_rig.wrinkle_names
-    assert (stage.GetStartTimeCode(), stage.GetEndTimeCode(), stage.GetTimeCodesPerSecond(), stage.GetFramesPerSecond()) == (0, 23, 24, 24)
+    assert (
+        stage.GetStartTimeCode(),
+        stage.GetEndTimeCode(),
+        stage.GetTimeCodesPerSecond(),
+        stage.GetFramesPerSecond(),
+    ) == (0, 23, 24, 24)
     assert np.array_equal(frame_times(stage), FRAMES)
     attr = stage.GetPrimAtPath("/Face/Muscles/frontalis_R").GetAttribute("contraction")
     assert attr.GetTimeSamples() == FRAMES.tolist()
-    assert attr.Get(2.5) == pytest.approx(0.5 * (contractions[2, 1] + contractions[3, 1]), rel=1e-12)  # USD interpolates
+    assert attr.Get(2.5) == pytest.approx(
+        0.5 * (contractions[2, 1] + contractions[3, 1]), rel=1e-12
+    )  # USD interpolates
 
 
 def test_jaw_controls_round_trip_and_reach_the_bake(tmp_path):
@@ -135,7 +144,9 @@ def test_centimetre_stage_animation_is_converted(small_rig):
     assert np.array_equal(stored.contractions[:, 2], contractions[:, 2])  # sphincters are dimensionless
     assert np.allclose(stored.wrinkle_depths, depths * 100, rtol=1e-14)
     back = read_animation(stage, FRAMES)
-    assert np.allclose(back.contractions, contractions, rtol=1e-14) and np.allclose(back.wrinkle_depths, depths, rtol=1e-14)
+    assert np.allclose(back.contractions, contractions, rtol=1e-14) and np.allclose(
+        back.wrinkle_depths, depths, rtol=1e-14
+    )
 
 
 def test_bad_control_input(small_rig):
@@ -195,7 +206,9 @@ def test_rebaking_a_range_replaces_only_that_range(rig_file, cpu_model):
     outside = (FRAMES < 6) | (FRAMES > 11)
     assert np.array_equal(after[outside], before[outside])
     _, original_depths = controls(FRAMES)
-    assert np.array_equal(after[6:12], cpu_model.evaluate_batch(contractions[6:12], wrinkle_depths=original_depths[6:12]))
+    assert np.array_equal(
+        after[6:12], cpu_model.evaluate_batch(contractions[6:12], wrinkle_depths=original_depths[6:12])
+    )
     assert not np.array_equal(after[6:12], before[6:12])
     assert UsdGeom.Mesh(stage.GetPrimAtPath("/Face/Skin")).GetPointsAttr().GetTimeSamples() == FRAMES.tolist()
     assert list(Sdf.Layer.OpenAsAnonymous(str(rig_file)).subLayerPaths) == ["./face_anim.usdc"]  # not added twice
@@ -234,7 +247,9 @@ def test_bake_refuses_rest_points_that_would_hide_the_cache(tmp_path, small_rig)
     path = tmp_path / "face.usda"
     stage = write_rig(path, small_rig)
     write_animation(stage, FRAMES, contractions=controls(FRAMES)[0])
-    UsdGeom.Mesh(stage.GetPrimAtPath("/Face/Skin")).GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(small_rig.mesh.points.astype(np.float32)))
+    UsdGeom.Mesh(stage.GetPrimAtPath("/Face/Skin")).GetPointsAttr().Set(
+        Vt.Vec3fArray.FromNumpy(small_rig.mesh.points.astype(np.float32))
+    )
     with pytest.raises(RigError, match=r"^/Face/Skin.points: authored directly in layer .*stronger than the cache"):
         bake(stage, device="cpu", progress=False)
     assert not (tmp_path / "face_anim.usdc").exists()

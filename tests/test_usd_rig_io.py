@@ -19,7 +19,6 @@ import warpface.usd._files as usd_files  # noqa: E402
 from warpface import FaceMesh, FaceRig, LinearMuscle, PlanarProjection, RigError  # noqa: E402
 from warpface.usd import read_rig, read_tissue, validate_stage, write_rig, write_tissue  # noqa: E402
 
-
 # ---------------------------------------------------------------------------------------------- helpers
 
 
@@ -60,7 +59,9 @@ def test_round_trip_without_landmarks_or_items():
 
 def test_float64_points_come_back_rounded_to_float32(small_rig):
     jittered = FaceMesh(small_rig.mesh.points + 1e-9, small_rig.mesh.triangles, name=small_rig.mesh.name)
-    rig = FaceRig(jittered, small_rig.muscles, small_rig.wrinkles, small_rig.thickness, small_rig.landmarks, small_rig.name)
+    rig = FaceRig(
+        jittered, small_rig.muscles, small_rig.wrinkles, small_rig.thickness, small_rig.landmarks, small_rig.name
+    )
     back = read_rig(write_rig(Usd.Stage.CreateInMemory(), rig))
     assert np.array_equal(back.mesh.points, rig.mesh.points.astype(np.float32).astype(np.float64))
     assert np.array_equal(back.thickness, rig.thickness)  # doubles everywhere else
@@ -80,7 +81,10 @@ def test_stage_metadata_and_layout(tmp_path, small_rig):
     names = [p.GetName() for p in stage.GetPrimAtPath("/Face/Muscles").GetChildren()]
     assert names == ["zygomaticus_major_L", "frontalis_R", "orbicularis_oris"]
     assert stage.GetPrimAtPath("/Face/Muscles/zygomaticus_major_L").GetDisplayName() == "zygomaticus major L"
-    assert [str(t) for t in skin.GetRelationship("warpFace:wrinkles").GetTargets()] == ["/Face/Wrinkles/forehead_1", "/Face/Wrinkles/crow_L"]
+    assert [str(t) for t in skin.GetRelationship("warpFace:wrinkles").GetTargets()] == [
+        "/Face/Wrinkles/forehead_1",
+        "/Face/Wrinkles/crow_L",
+    ]
 
 
 def test_interpolation_and_purpose_are_authored_explicitly(tmp_path, small_rig):
@@ -215,14 +219,19 @@ def test_item_transforms_are_composed_into_skin_space(small_rig):
         prim.GetAttribute("depth").Set(w.depth / scale)
     back = read_rig(stage)
     for got, want in zip(back.muscles, small_rig.muscles):
-        for field in ("attachment", "insertion", "falloff_start", "falloff_finish", "zone_angle_deg") if isinstance(want, LinearMuscle) \
-                else ("center", "axis_x", "axis_y", "semi_axes"):
+        for field in (
+            ("attachment", "insertion", "falloff_start", "falloff_finish", "zone_angle_deg")
+            if isinstance(want, LinearMuscle)
+            else ("center", "axis_x", "axis_y", "semi_axes")
+        ):
             assert np.allclose(getattr(got, field), getattr(want, field), rtol=1e-12, atol=1e-14), (want.name, field)
     for got, want in zip(back.wrinkles, small_rig.wrinkles):
         assert np.allclose(got.control_points, want.control_points, rtol=1e-12, atol=1e-15)
         assert math.isclose(got.width, want.width, rel_tol=1e-12) and math.isclose(got.depth, want.depth, rel_tol=1e-12)
         for field in vars(want.projection):
-            assert np.allclose(getattr(got.projection, field), getattr(want.projection, field), rtol=1e-12, atol=1e-14), field
+            assert np.allclose(
+                getattr(got.projection, field), getattr(want.projection, field), rtol=1e-12, atol=1e-14
+            ), field
 
 
 def test_non_uniform_scale_on_a_muscle_is_refused(small_rig):
@@ -272,34 +281,59 @@ def test_missing_thickness_primvar(rig_stage):
 def test_wrong_length_thickness_primvar(rig_stage, small_rig):
     attr = rig_stage.GetPrimAtPath("/Face/Skin").GetAttribute("primvars:warpFace:thickness")
     attr.Set(Vt.DoubleArray.FromNumpy(small_rig.thickness[:-3]))
-    with pytest.raises(RigError, match=rf"^/Face/Skin.primvars:warpFace:thickness: has {small_rig.mesh.vertex_count - 3} values"):
+    with pytest.raises(
+        RigError, match=rf"^/Face/Skin.primvars:warpFace:thickness: has {small_rig.mesh.vertex_count - 3} values"
+    ):
         read_rig(rig_stage)
 
 
 def test_target_mesh_pointing_at_nothing(rig_stage):
-    rig_stage.GetPrimAtPath("/Face/Muscles/orbicularis_oris").GetRelationship("targetMesh").SetTargets(["/Face/Nothing"])
-    with pytest.raises(RigError, match=r"^/Face/Muscles/orbicularis_oris.targetMesh: points at /Face/Nothing, which does not exist"):
+    rig_stage.GetPrimAtPath("/Face/Muscles/orbicularis_oris").GetRelationship("targetMesh").SetTargets(
+        ["/Face/Nothing"]
+    )
+    with pytest.raises(
+        RigError, match=r"^/Face/Muscles/orbicularis_oris.targetMesh: points at /Face/Nothing, which does not exist"
+    ):
         read_rig(rig_stage)
 
 
 def test_muscle_list_pointing_at_a_missing_prim(rig_stage):
     rig_stage.RemovePrim("/Face/Muscles/frontalis_R")
-    with pytest.raises(RigError, match=r"^/Face/Skin.warpFace:muscles: target /Face/Muscles/frontalis_R does not exist"):
+    with pytest.raises(
+        RigError, match=r"^/Face/Skin.warpFace:muscles: target /Face/Muscles/frontalis_R does not exist"
+    ):
         read_rig(rig_stage)
 
 
 def test_wrinkle_with_three_control_points(rig_stage):
-    rig_stage.GetPrimAtPath("/Face/Wrinkles/crow_L").GetAttribute("controlPoints").Set(Vt.Vec2dArray([(0, 0), (1, 0), (2, 1)]))
-    with pytest.raises(RigError, match=r"^/Face/Wrinkles/crow_L.controlPoints: a cubic Bézier needs 4 control points, got 3"):
+    rig_stage.GetPrimAtPath("/Face/Wrinkles/crow_L").GetAttribute("controlPoints").Set(
+        Vt.Vec2dArray([(0, 0), (1, 0), (2, 1)])
+    )
+    with pytest.raises(
+        RigError, match=r"^/Face/Wrinkles/crow_L.controlPoints: a cubic Bézier needs 4 control points, got 3"
+    ):
         read_rig(rig_stage)
 
 
-@pytest.mark.parametrize("prim, attribute, value, message", [
-    ("/Face/Muscles/frontalis_R", "attachment", Gf.Vec3d(0, float("nan"), 0), r"attachment: non-finite value nan at index 1"),
-    ("/Face/Muscles/frontalis_R", "falloffFinish", float("inf"), r"falloffFinish: non-finite value inf"),
-    ("/Face/Wrinkles/forehead_1", "depth", float("nan"), r"depth: non-finite value nan"),
-    ("/Face/Muscles/orbicularis_oris", "semiAxes", Gf.Vec2d(0.1, float("-inf")), r"semiAxes: non-finite value -inf"),
-])
+@pytest.mark.parametrize(
+    "prim, attribute, value, message",
+    [
+        (
+            "/Face/Muscles/frontalis_R",
+            "attachment",
+            Gf.Vec3d(0, float("nan"), 0),
+            r"attachment: non-finite value nan at index 1",
+        ),
+        ("/Face/Muscles/frontalis_R", "falloffFinish", float("inf"), r"falloffFinish: non-finite value inf"),
+        ("/Face/Wrinkles/forehead_1", "depth", float("nan"), r"depth: non-finite value nan"),
+        (
+            "/Face/Muscles/orbicularis_oris",
+            "semiAxes",
+            Gf.Vec2d(0.1, float("-inf")),
+            r"semiAxes: non-finite value -inf",
+        ),
+    ],
+)
 def test_non_finite_values(rig_stage, prim, attribute, value, message):
     rig_stage.GetPrimAtPath(prim).GetAttribute(attribute).Set(value)
     with pytest.raises(RigError, match=rf"^{prim}.{message}"):
@@ -310,7 +344,9 @@ def test_non_finite_points_and_thickness(small_rig):
     stage = write_rig(Usd.Stage.CreateInMemory(), small_rig)
     thickness = small_rig.thickness.copy()
     thickness[7] = np.inf
-    stage.GetPrimAtPath("/Face/Skin").GetAttribute("primvars:warpFace:thickness").Set(Vt.DoubleArray.FromNumpy(thickness))
+    stage.GetPrimAtPath("/Face/Skin").GetAttribute("primvars:warpFace:thickness").Set(
+        Vt.DoubleArray.FromNumpy(thickness)
+    )
     with pytest.raises(RigError, match=r"^/Face/Skin.primvars:warpFace:thickness: non-finite value inf at index 7"):
         read_rig(stage)
     stage = write_rig(Usd.Stage.CreateInMemory(), small_rig)
@@ -354,8 +390,12 @@ def test_polygons_are_fan_triangulated_and_orientation_respected():
 def test_unwritable_output_paths(tmp_path, small_rig):
     blocker = tmp_path / "file.txt"
     blocker.write_text("x")
-    for path, message in ((tmp_path / "missing" / "face.usda", "does not exist"), (blocker / "face.usda", "does not exist"),
-                          (tmp_path / "face.txt", "must end in"), (tmp_path, "must end in")):
+    for path, message in (
+        (tmp_path / "missing" / "face.usda", "does not exist"),
+        (blocker / "face.usda", "does not exist"),
+        (tmp_path / "face.txt", "must end in"),
+        (tmp_path, "must end in"),
+    ):
         with pytest.raises(ValueError, match=message):
             write_rig(path, small_rig)
     folder = tmp_path / "folder.usda"
@@ -384,7 +424,7 @@ def test_reading_a_missing_or_broken_file(tmp_path):
     with pytest.raises(ValueError, match="not found"):
         read_rig(tmp_path / "nope.usda")
     broken = tmp_path / "broken.usda"
-    broken.write_text("#usda 1.0\ndef Mesh \"A\" { point3f[] points = [(0, 0 }\n")
+    broken.write_text('#usda 1.0\ndef Mesh "A" { point3f[] points = [(0, 0 }\n')
     with pytest.raises(ValueError, match="cannot open"):
         read_rig(broken)
 
@@ -413,8 +453,18 @@ def test_tissue_round_trip_and_errors(small_rig):
     points = rng.uniform(-0.05, 0.05, (30, 3)).astype(np.float32).astype(np.float64)
     tets = np.array([rng.choice(30, 4, replace=False) for _ in range(40)])
     young = rng.uniform(9e4, 2.2e5, 40)
-    write_tissue(stage, "/Face/Tissue", points, tets, youngs_modulus=young, poisson_ratio=0.495, viscosity=476.8,
-                 density=1100.0, regions={"cheek": [0, 3, 9], "alare": np.arange(20, 25)}, skin_path="/Face/Skin")
+    write_tissue(
+        stage,
+        "/Face/Tissue",
+        points,
+        tets,
+        youngs_modulus=young,
+        poisson_ratio=0.495,
+        viscosity=476.8,
+        density=1100.0,
+        regions={"cheek": [0, 3, 9], "alare": np.arange(20, 25)},
+        skin_path="/Face/Skin",
+    )
     tissue = read_tissue(stage)
     assert np.array_equal(tissue.points, points) and np.array_equal(tissue.tets, tets)
     assert np.array_equal(tissue.youngs_modulus, young) and tissue.poisson_ratio == 0.495 and tissue.density == 1100.0
@@ -428,7 +478,9 @@ def test_tissue_round_trip_and_errors(small_rig):
     with pytest.raises(ValueError, match=r"poisson_ratio must be in \[0, 0.4999\]"):
         write_tissue(stage, "/Face/T2", points, tets, youngs_modulus=1e5, poisson_ratio=0.5, viscosity=1.0, density=1.0)
     with pytest.raises(ValueError, match=r"tet 0 has node index out of range"):
-        write_tissue(stage, "/Face/T3", points, tets + 30, youngs_modulus=1e5, poisson_ratio=0.3, viscosity=1.0, density=1.0)
+        write_tissue(
+            stage, "/Face/T3", points, tets + 30, youngs_modulus=1e5, poisson_ratio=0.3, viscosity=1.0, density=1.0
+        )
 
 
 def test_landmarks_out_of_range(rig_stage, small_rig):

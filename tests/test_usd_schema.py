@@ -13,6 +13,8 @@ import pytest
 
 pxr = pytest.importorskip("pxr")
 
+from pxr import Sdf, Tf, Usd, UsdGeom  # noqa: E402
+
 import warpface  # noqa: E402,F401  (registers the plugin)
 from warpface.usd import (  # noqa: E402
     API_SCHEMAS,
@@ -22,8 +24,6 @@ from warpface.usd import (  # noqa: E402
     plugin_path,
     regenerate_schema,
 )
-
-from pxr import Sdf, Tf, Usd, UsdGeom  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 SCHEMA_SOURCE = plugin_path() / "schema.usda"
@@ -37,7 +37,9 @@ def _clean_env() -> dict:
 
 
 def _run(code: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-c", code], env=env or _clean_env(), capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-c", code], env=env or _clean_env(), capture_output=True, text=True, timeout=120
+    )
 
 
 def test_plugin_path_holds_the_plugin_files():
@@ -123,16 +125,22 @@ def test_generated_files_match_the_source(tmp_path):
     pytest.importorskip("jinja2")
     regenerate_schema(tmp_path)
     for name in ("generatedSchema.usda", "plugInfo.json"):
-        assert (tmp_path / name).read_text() == (plugin_path() / name).read_text(), f"{name} drifted from schema.usda; run python -m warpface.usd"
+        assert (tmp_path / name).read_text() == (plugin_path() / name).read_text(), (
+            f"{name} drifted from schema.usda; run python -m warpface.usd"
+        )
 
 
 def test_drift_is_detected(tmp_path):
     """The drift check is not vacuous: editing the source changes the generated files."""
     pytest.importorskip("jinja2")
     source = tmp_path / "schema.usda"
-    source.write_text(SCHEMA_SOURCE.read_text().replace("uniform double zoneAngle = 40", "uniform double zoneAngle = 45"))
+    source.write_text(
+        SCHEMA_SOURCE.read_text().replace("uniform double zoneAngle = 40", "uniform double zoneAngle = 45")
+    )
     regenerate_schema(tmp_path / "out", source=source)
-    assert (tmp_path / "out" / "generatedSchema.usda").read_text() != (plugin_path() / "generatedSchema.usda").read_text()
+    assert (tmp_path / "out" / "generatedSchema.usda").read_text() != (
+        plugin_path() / "generatedSchema.usda"
+    ).read_text()
 
 
 def test_import_without_pxr_skips_registration_and_gives_plugin_path():
@@ -181,8 +189,20 @@ def test_wheel_contains_the_schema_plugin(tmp_path):
             shutil.copy(REPO / name, source / name)
     shutil.copytree(REPO / "warpface", source / "warpface", ignore=shutil.ignore_patterns("__pycache__"))
     out = tmp_path / "dist"
-    attempts = ([sys.executable, "-m", "build", "--wheel", "--outdir", str(out), str(source)],
-                [sys.executable, "-m", "build", "--wheel", "--no-isolation", "--skip-dependency-check", "--outdir", str(out), str(source)])
+    attempts = (
+        [sys.executable, "-m", "build", "--wheel", "--outdir", str(out), str(source)],
+        [
+            sys.executable,
+            "-m",
+            "build",
+            "--wheel",
+            "--no-isolation",
+            "--skip-dependency-check",
+            "--outdir",
+            str(out),
+            str(source),
+        ],
+    )
     logs = []
     for command in attempts:  # the isolated build needs setuptools from an index; fall back to the local one
         result = subprocess.run(command, capture_output=True, text=True, timeout=300)

@@ -35,7 +35,9 @@ def test_plain_pip_install_of_the_wheel_renders_the_demo(tmp_path):
 
     environment = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYOPENGL_PLATFORM", "VIRTUAL_ENV")}
     run = lambda *args, **kw: subprocess.run(args, capture_output=True, text=True, env=environment, **kw)  # noqa: E731
-    built = run(sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp_path / "dist"), str(ROOT), timeout=600)
+    built = run(
+        sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp_path / "dist"), str(ROOT), timeout=600
+    )
     assert built.returncode == 0, built.stderr[-2000:]
     wheel = next((tmp_path / "dist").glob("warpface-*.whl"))
     venv = tmp_path / "venv"
@@ -47,8 +49,20 @@ def test_plain_pip_install_of_the_wheel_renders_the_demo(tmp_path):
     opengl = run(str(python), "-c", "import OpenGL; print(OpenGL.__version__)", timeout=120)
     print("PyOpenGL in the fresh venv:", opengl.stdout.strip())
     out = tmp_path / "demo"
-    demo = run(str(venv / "bin" / "warpface"), "--device", "cpu", "--quiet", "demo", "--out", str(out), "--seconds", "0.2",
-               "--no-video", cwd=str(tmp_path), timeout=900)
+    demo = run(
+        str(venv / "bin" / "warpface"),
+        "--device",
+        "cpu",
+        "--quiet",
+        "demo",
+        "--out",
+        str(out),
+        "--seconds",
+        "0.2",
+        "--no-video",
+        cwd=str(tmp_path),
+        timeout=900,
+    )
     assert demo.returncode == 0, demo.stderr[-2000:]
     assert demo.stderr == "", demo.stderr  # no Warp banner, no GL warnings
     image = cv2.imread(str(out / "expressions.png"))

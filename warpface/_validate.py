@@ -45,7 +45,9 @@ MAX_VERTICES = 1 << 26
 """Largest vertex count a per-vertex array is made for (67 M; a face mesh has tens of thousands)."""
 
 
-def as_finite_array(value, name: str, *, shape: tuple | None = None, dtype=np.float64, max_abs: float | None = None) -> np.ndarray:
+def as_finite_array(
+    value, name: str, *, shape: tuple | None = None, dtype=np.float64, max_abs: float | None = None
+) -> np.ndarray:
     """``value`` as an array of ``dtype``; raises ValueError naming ``name`` on bad shape or non-finite values.
 
     ``shape`` may contain ``None`` for a free dimension. With ``max_abs``, values of larger magnitude
@@ -81,7 +83,9 @@ def as_points(value, name: str, *, max_abs: float = MAX_COORDINATE, min_count: i
     return points
 
 
-def as_triangles(value, vertex_count: int, name: str, *, integral_floats: bool = False, allow_empty: bool = False) -> np.ndarray:
+def as_triangles(
+    value, vertex_count: int, name: str, *, integral_floats: bool = False, allow_empty: bool = False
+) -> np.ndarray:
     """Triangle vertex indices, shape (T, 3) with T ≥ 1, int32, each in [0, vertex_count).
 
     Index arrays must have an integer dtype; with ``integral_floats``, float arrays whose values are
@@ -97,7 +101,9 @@ def as_triangles(value, vertex_count: int, name: str, *, integral_floats: bool =
         raise ValueError(f"{name}: expected shape (T, 3), got {triangles.shape}")
     if len(triangles) == 0 and not allow_empty:
         raise ValueError(f"{name}: no triangles")
-    if triangles.dtype == np.bool_ or not (np.issubdtype(triangles.dtype, np.integer) or np.issubdtype(triangles.dtype, np.floating)):
+    if triangles.dtype == np.bool_ or not (
+        np.issubdtype(triangles.dtype, np.integer) or np.issubdtype(triangles.dtype, np.floating)
+    ):
         raise ValueError(f"{name}: expected integer vertex indices, got dtype {triangles.dtype}")
     if np.issubdtype(triangles.dtype, np.floating):
         if not integral_floats:
@@ -117,7 +123,13 @@ def as_triangles(value, vertex_count: int, name: str, *, integral_floats: bool =
 
 
 def as_per_vertex(
-    value, vertex_count: int, name: str, *, minimum: float | None = None, maximum: float | None = None, broadcast: bool = True
+    value,
+    vertex_count: int,
+    name: str,
+    *,
+    minimum: float | None = None,
+    maximum: float | None = None,
+    broadcast: bool = True,
 ) -> np.ndarray:
     """One finite float64 per vertex, shape (V,); a scalar is broadcast (with ``broadcast``).
 
@@ -183,7 +195,10 @@ def as_indices(value, count: int, name: str) -> np.ndarray:
         raise ValueError(f"{name}: expected a flat integer index array, got {_kind(value)}") from None
     if indices.ndim != 1:
         raise ValueError(f"{name}: expected a flat (N,) index array, got shape {indices.shape}")
-    if indices.size and (indices.dtype == np.bool_ or not (np.issubdtype(indices.dtype, np.integer) or np.issubdtype(indices.dtype, np.floating))):
+    if indices.size and (
+        indices.dtype == np.bool_
+        or not (np.issubdtype(indices.dtype, np.integer) or np.issubdtype(indices.dtype, np.floating))
+    ):
         raise ValueError(f"{name}: expected integer indices, got dtype {indices.dtype}")
     if np.issubdtype(indices.dtype, np.floating):
         if not np.all(np.isfinite(indices)) or np.any(indices != np.round(indices)):
@@ -240,12 +255,15 @@ def as_device(device, name: str = "device"):
     if device is None or isinstance(device, wp.Device):
         return wp.get_device(device)
     if not isinstance(device, str):
-        raise TypeError(f"{name}: expected a Warp device or a name such as 'cpu' or 'cuda:0', got {type(device).__name__}")
+        raise TypeError(
+            f"{name}: expected a Warp device or a name such as 'cpu' or 'cuda:0', got {type(device).__name__}"
+        )
     try:
         return wp.get_device(device)
     except (ValueError, RuntimeError) as exc:
-        raise ValueError(f"{name}: {device[:40]!r} is not a device of this machine (use 'cpu', 'cuda' or 'cuda:N'; "
-                         f"{_short(exc)})") from None
+        raise ValueError(
+            f"{name}: {device[:40]!r} is not a device of this machine (use 'cpu', 'cuda' or 'cuda:N'; {_short(exc)})"
+        ) from None
 
 
 def as_path(value, name: str) -> Path:
@@ -285,9 +303,15 @@ def expect_iterable(value, name: str, *, item_types=None, sized: bool = False):
     generator raises TypeError at the first item of another type."""
     from collections.abc import Iterable, Sized
 
-    if (isinstance(value, (str, bytes, dict)) or not isinstance(value, Iterable) or (sized and not isinstance(value, Sized))
-            or (isinstance(value, np.ndarray) and value.ndim == 0)):
-        raise WrongTypeError(f"{name}: expected {'a list' if sized else 'an iterable'} of items, got {type(value).__name__}")
+    if (
+        isinstance(value, (str, bytes, dict))
+        or not isinstance(value, Iterable)
+        or (sized and not isinstance(value, Sized))
+        or (isinstance(value, np.ndarray) and value.ndim == 0)
+    ):
+        raise WrongTypeError(
+            f"{name}: expected {'a list' if sized else 'an iterable'} of items, got {type(value).__name__}"
+        )
     if item_types is None:
         return value
 
@@ -324,4 +348,3 @@ def _kind(value) -> str:
 
 def _short(exc: Exception) -> str:
     return str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
-

@@ -33,17 +33,22 @@ def _common_options(top_level: bool) -> argparse.ArgumentParser:
     is not overwritten when it is not repeated after it."""
     common = argparse.ArgumentParser(add_help=False)
     default = {} if top_level else {"default": argparse.SUPPRESS}
-    common.add_argument("--device", help="Warp device: cpu, cuda or cuda:N (default: Warp's preferred device)",
-                        **({"default": None} if top_level else default))
-    common.add_argument("--quiet", action="store_true", help="no progress bars (results are still printed)",
-                        **default)
+    common.add_argument(
+        "--device",
+        help="Warp device: cpu, cuda or cuda:N (default: Warp's preferred device)",
+        **({"default": None} if top_level else default),
+    )
+    common.add_argument("--quiet", action="store_true", help="no progress bars (results are still printed)", **default)
     return common
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The full parser; each command module in :data:`warpface.commands.COMMANDS` adds its sub-parser."""
-    parser = _Parser(prog="warpface", parents=[_common_options(True)],
-                     description="Muscle-driven facial expressions with wrinkles, on Warp and USD.")
+    parser = _Parser(
+        prog="warpface",
+        parents=[_common_options(True)],
+        description="Muscle-driven facial expressions with wrinkles, on Warp and USD.",
+    )
     parser.add_argument("--version", action="version", version=f"warpface {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
     common = _common_options(False)

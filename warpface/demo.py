@@ -52,8 +52,16 @@ def expression_sequence(rig, names, seconds: float, fps: float) -> tuple[np.ndar
     return np.concatenate(blocks), peaks
 
 
-def run_demo(out_dir: str | Path = "demo", *, device=None, fps: float = 30.0, seconds: float = 2.0, video: bool = True,
-             size: tuple[int, int] = (480, 560), progress: bool = True) -> DemoResult:
+def run_demo(
+    out_dir: str | Path = "demo",
+    *,
+    device=None,
+    fps: float = 30.0,
+    seconds: float = 2.0,
+    video: bool = True,
+    size: tuple[int, int] = (480, 560),
+    progress: bool = True,
+) -> DemoResult:
     """Build the built-in face, animate the four expressions, bake to USD, and render previews.
 
     Args:
@@ -118,8 +126,17 @@ def run_demo(out_dir: str | Path = "demo", *, device=None, fps: float = 30.0, se
     top_mm = _nice_ceiling(max(float(d.max()) for d in displacement_mm.values()))
     for name in names:
         images.append(out / f"heatmap_{name}.png")
-        preview.render_heat_map(peaks_wrinkled[name], triangles, displacement_mm[name], images[-1],
-                                title=f"{name}: |displacement|", units="mm", vmin=0.0, vmax=top_mm, **style)
+        preview.render_heat_map(
+            peaks_wrinkled[name],
+            triangles,
+            displacement_mm[name],
+            images[-1],
+            title=f"{name}: |displacement|",
+            units="mm",
+            vmin=0.0,
+            vmax=top_mm,
+            **style,
+        )
     top = preview.render_comparison(without_row, triangles, **style)
     bottom = preview.render_comparison(with_row, triangles, **style)
     images.append(preview.save_image(out / "expressions.png", np.concatenate([top, bottom], axis=0)))
@@ -129,8 +146,16 @@ def run_demo(out_dir: str | Path = "demo", *, device=None, fps: float = 30.0, se
     if video:
         clock = time.perf_counter()
         labels = _frame_labels(names, peaks, len(contractions), fps)
-        result.video = preview.write_video(_baked_frames(stage_path), triangles, out / "face_anim.mp4", fps=fps,
-                                           label=labels.__getitem__, total=len(contractions), progress=progress, **style)
+        result.video = preview.write_video(
+            _baked_frames(stage_path),
+            triangles,
+            out / "face_anim.mp4",
+            fps=fps,
+            label=labels.__getitem__,
+            total=len(contractions),
+            progress=progress,
+            **style,
+        )
         timings["video"] = time.perf_counter() - clock
     return result
 

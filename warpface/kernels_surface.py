@@ -13,7 +13,14 @@ import warp as wp
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
-__all__ = ["frame_and_element", "incident_area_sum", "triangle_area_vectors", "stretch_reference_lengths", "vertex_normals_kernel", "safe_normalize"]
+__all__ = [
+    "frame_and_element",
+    "incident_area_sum",
+    "triangle_area_vectors",
+    "stretch_reference_lengths",
+    "vertex_normals_kernel",
+    "safe_normalize",
+]
 
 
 @wp.func
@@ -110,4 +117,6 @@ def vertex_normals_kernel(
     """Area-weighted unit vertex normal: normalised sum of incident triangles' area vectors, (frames·V,)."""
     i = wp.tid()
     f, v = frame_and_element(i, vertex_count)
-    normals[i] = safe_normalize(incident_area_sum(area_vectors, f * triangle_count, adjacency_offsets, adjacency_triangles, v))
+    normals[i] = safe_normalize(
+        incident_area_sum(area_vectors, f * triangle_count, adjacency_offsets, adjacency_triangles, v)
+    )

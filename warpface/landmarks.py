@@ -60,19 +60,57 @@ IBUG_COUNT = 68
 
 IBUG_NAMES: tuple[str, ...] = (
     *(f"jaw_{i}" for i in range(17)),
-    "right_brow_outer", "right_brow_2", "right_brow_3", "right_brow_4", "right_brow_inner",
-    "left_brow_inner", "left_brow_4", "left_brow_3", "left_brow_2", "left_brow_outer",
-    "nasion", "nose_bridge_1", "nose_bridge_2", "pronasale",
-    "right_nose_wing", "right_nostril", "subnasale", "left_nostril", "left_nose_wing",
-    "right_eye_outer", "right_eye_upper_outer", "right_eye_upper_inner", "right_eye_inner",
-    "right_eye_lower_inner", "right_eye_lower_outer",
-    "left_eye_inner", "left_eye_upper_inner", "left_eye_upper_outer", "left_eye_outer",
-    "left_eye_lower_outer", "left_eye_lower_inner",
-    "right_mouth_corner", "right_upper_lip_outer", "right_cupid_peak", "upper_lip_top", "left_cupid_peak",
-    "left_upper_lip_outer", "left_mouth_corner", "left_lower_lip_outer", "left_lower_lip",
-    "lower_lip_bottom", "right_lower_lip", "right_lower_lip_outer",
-    "right_inner_corner", "right_upper_lip_inner", "upper_lip_inner", "left_upper_lip_inner",
-    "left_inner_corner", "left_lower_lip_inner", "lower_lip_inner", "right_lower_lip_inner",
+    "right_brow_outer",
+    "right_brow_2",
+    "right_brow_3",
+    "right_brow_4",
+    "right_brow_inner",
+    "left_brow_inner",
+    "left_brow_4",
+    "left_brow_3",
+    "left_brow_2",
+    "left_brow_outer",
+    "nasion",
+    "nose_bridge_1",
+    "nose_bridge_2",
+    "pronasale",
+    "right_nose_wing",
+    "right_nostril",
+    "subnasale",
+    "left_nostril",
+    "left_nose_wing",
+    "right_eye_outer",
+    "right_eye_upper_outer",
+    "right_eye_upper_inner",
+    "right_eye_inner",
+    "right_eye_lower_inner",
+    "right_eye_lower_outer",
+    "left_eye_inner",
+    "left_eye_upper_inner",
+    "left_eye_upper_outer",
+    "left_eye_outer",
+    "left_eye_lower_outer",
+    "left_eye_lower_inner",
+    "right_mouth_corner",
+    "right_upper_lip_outer",
+    "right_cupid_peak",
+    "upper_lip_top",
+    "left_cupid_peak",
+    "left_upper_lip_outer",
+    "left_mouth_corner",
+    "left_lower_lip_outer",
+    "left_lower_lip",
+    "lower_lip_bottom",
+    "right_lower_lip",
+    "right_lower_lip_outer",
+    "right_inner_corner",
+    "right_upper_lip_inner",
+    "upper_lip_inner",
+    "left_upper_lip_inner",
+    "left_inner_corner",
+    "left_lower_lip_inner",
+    "lower_lip_inner",
+    "right_lower_lip_inner",
 )
 """Names of the 68 iBUG landmarks, in iBUG order."""
 
@@ -101,10 +139,22 @@ MOUTH = OUTER_LIPS + INNER_LIPS
 MIRROR_PAIRS: tuple[tuple[int, int], ...] = (
     *((i, 16 - i) for i in range(8)),
     *((17 + i, 26 - i) for i in range(5)),
-    (31, 35), (32, 34),
-    (36, 45), (37, 44), (38, 43), (39, 42), (40, 47), (41, 46),
-    (48, 54), (49, 53), (50, 52), (59, 55), (58, 56),
-    (60, 64), (61, 63), (67, 65),
+    (31, 35),
+    (32, 34),
+    (36, 45),
+    (37, 44),
+    (38, 43),
+    (39, 42),
+    (40, 47),
+    (41, 46),
+    (48, 54),
+    (49, 53),
+    (50, 52),
+    (59, 55),
+    (58, 56),
+    (60, 64),
+    (61, 63),
+    (67, 65),
 )
 """(right, left) iBUG index pairs that are each other's mirror image across the face's midline."""
 
@@ -153,22 +203,24 @@ RIGHT_SIDE = FaceSide(-1.0, RIGHT_BROW, 36, 39, RIGHT_EYE, 31, 48, 49, 58, tuple
 """The subject's right side (−x)."""
 
 
-KATO_LANDMARKS = MappingProxyType({
-    "glabella": ((21, 0.5), (22, 0.5)),
-    "pronasale": ((30, 1.0),),
-    "ex_R": ((36, 1.0),),
-    "ex_L": ((45, 1.0),),
-    "pi_R": ((40, 0.5), (41, 0.5)),
-    "pi_L": ((46, 0.5), (47, 0.5)),
-    "al_R": ((31, 1.0),),
-    "al_L": ((35, 1.0),),
-    "cphs_R": ((33, 1.0), (50, 0.6), (51, -0.6)),
-    "cphs_L": ((33, 1.0), (52, 0.6), (51, -0.6)),
-    "cphi_R": ((50, 1.0),),
-    "cphi_L": ((52, 1.0),),
-    "ch_R": ((48, 1.0),),
-    "ch_L": ((54, 1.0),),
-})
+KATO_LANDMARKS = MappingProxyType(
+    {
+        "glabella": ((21, 0.5), (22, 0.5)),
+        "pronasale": ((30, 1.0),),
+        "ex_R": ((36, 1.0),),
+        "ex_L": ((45, 1.0),),
+        "pi_R": ((40, 0.5), (41, 0.5)),
+        "pi_L": ((46, 0.5), (47, 0.5)),
+        "al_R": ((31, 1.0),),
+        "al_L": ((35, 1.0),),
+        "cphs_R": ((33, 1.0), (50, 0.6), (51, -0.6)),
+        "cphs_L": ((33, 1.0), (52, 0.6), (51, -0.6)),
+        "cphi_R": ((50, 1.0),),
+        "cphi_L": ((52, 1.0),),
+        "ch_R": ((48, 1.0),),
+        "ch_L": ((54, 1.0),),
+    }
+)
 """Kato landmark name -> ((iBUG index, weight), ...); weights sum to 1 (affine combinations)."""
 
 
@@ -188,12 +240,12 @@ def kato_landmarks(ibug_points) -> dict[str, np.ndarray]:
     try:
         p = np.asarray(ibug_points, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(f"kato_landmarks: expected iBUG positions of shape (..., 68, 3), got {type(ibug_points).__name__}") from None
+        raise ValueError(
+            f"kato_landmarks: expected iBUG positions of shape (..., 68, 3), got {type(ibug_points).__name__}"
+        ) from None
     if p.ndim < 2 or p.shape[-2:] != (IBUG_COUNT, 3):
         raise ValueError(f"kato_landmarks: expected iBUG positions of shape (..., 68, 3), got {p.shape}")
     if not np.isfinite(p).all():
         bad = np.argwhere(~np.isfinite(p))[0]
         raise ValueError(f"kato_landmarks: iBUG position at index {tuple(int(i) for i in bad)} is not finite")
-    return {
-        name: sum(weight * p[..., index, :] for index, weight in terms) for name, terms in KATO_LANDMARKS.items()
-    }
+    return {name: sum(weight * p[..., index, :] for index, weight in terms) for name, terms in KATO_LANDMARKS.items()}

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from ._validate import MAX_COORDINATE, as_points, as_triangles, as_device, as_path
+from ._validate import as_device, as_path, as_points, as_triangles
 from .geometry import triangle_areas, triangle_corners, triangle_crosses
 from .kernels_surface import stretch_reference_lengths, triangle_area_vectors, vertex_normals_kernel
 
@@ -79,7 +79,9 @@ class FaceMesh:
         self.points = as_points(self.points, f"{self.name}: points", min_count=1)
         triangles = as_triangles(self.triangles, len(self.points), f"{self.name}: triangles", integral_floats=True)
         repeated = np.flatnonzero(
-            (triangles[:, 0] == triangles[:, 1]) | (triangles[:, 1] == triangles[:, 2]) | (triangles[:, 0] == triangles[:, 2])
+            (triangles[:, 0] == triangles[:, 1])
+            | (triangles[:, 1] == triangles[:, 2])
+            | (triangles[:, 0] == triangles[:, 2])
         )
         if len(repeated):
             t = int(repeated[0])
@@ -132,7 +134,9 @@ class FaceMesh:
     def degenerate_triangles(self) -> np.ndarray:
         """Mask of zero-area rest triangles, shape (T,), bool (see :data:`MIN_TRIANGLE_AREA`)."""
         tiny = self.rest_areas <= max(DEGENERATE_AREA_RTOL * self.size**2, MIN_TRIANGLE_AREA)
-        area32 = triangle_areas(crosses=triangle_crosses(triangle_corners(self.points.astype(np.float32), self.triangles)))
+        area32 = triangle_areas(
+            crosses=triangle_crosses(triangle_corners(self.points.astype(np.float32), self.triangles))
+        )
         return tiny | (area32 <= 0.5 * self.rest_areas)
 
     @cached_property
@@ -168,10 +172,20 @@ class FaceMesh:
         x = wp.array(positions.astype(np.float32), dtype=wp.vec3, device=device)
         area_vectors = wp.empty(self.triangle_count, dtype=wp.vec3, device=device)
         normals = wp.empty(self.vertex_count, dtype=wp.vec3, device=device)
-        wp.launch(triangle_area_vectors, dim=self.triangle_count, inputs=[x, buffers.triangles, buffers.triangle_weight, *counts],
-                  outputs=[area_vectors], device=device)
-        wp.launch(vertex_normals_kernel, dim=self.vertex_count,
-                  inputs=[area_vectors, buffers.adjacency_offsets, buffers.adjacency_triangles, *counts], outputs=[normals], device=device)
+        wp.launch(
+            triangle_area_vectors,
+            dim=self.triangle_count,
+            inputs=[x, buffers.triangles, buffers.triangle_weight, *counts],
+            outputs=[area_vectors],
+            device=device,
+        )
+        wp.launch(
+            vertex_normals_kernel,
+            dim=self.vertex_count,
+            inputs=[area_vectors, buffers.adjacency_offsets, buffers.adjacency_triangles, *counts],
+            outputs=[normals],
+            device=device,
+        )
         return normals.numpy()
 
     def device_buffers(self, *, device=None) -> "MeshBuffers":
@@ -207,11 +221,21 @@ class MeshBuffers:
         rest_points = wp.array(mesh.points.astype(np.float32), dtype=wp.vec3, device=device)
         triangles = wp.array(mesh.triangles.astype(np.int32), dtype=wp.vec3i, device=device)
         area_vectors = wp.empty(mesh.triangle_count, dtype=wp.vec3, device=device)
-        wp.launch(triangle_area_vectors, dim=mesh.triangle_count,
-                  inputs=[rest_points, triangles, weight, mesh.vertex_count, mesh.triangle_count],
-                  outputs=[area_vectors], device=device)
+        wp.launch(
+            triangle_area_vectors,
+            dim=mesh.triangle_count,
+            inputs=[rest_points, triangles, weight, mesh.vertex_count, mesh.triangle_count],
+            outputs=[area_vectors],
+            device=device,
+        )
         lengths = wp.empty(mesh.triangle_count, dtype=wp.float32, device=device)
-        wp.launch(stretch_reference_lengths, dim=mesh.triangle_count, inputs=[area_vectors, weight], outputs=[lengths], device=device)
+        wp.launch(
+            stretch_reference_lengths,
+            dim=mesh.triangle_count,
+            inputs=[area_vectors, weight],
+            outputs=[lengths],
+            device=device,
+        )
         return cls(
             rest_points=rest_points,
             triangles=triangles,
@@ -244,7 +268,9 @@ def load_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
                 try:
                     points.append([float(v) for v in fields[1:4]])
                 except ValueError:
-                    raise ValueError(f"{path}:{line_number}: vertex coordinates are not numbers: {line.strip()!r}") from None
+                    raise ValueError(
+                        f"{path}:{line_number}: vertex coordinates are not numbers: {line.strip()!r}"
+                    ) from None
             elif line.startswith("f "):
                 corners = []
                 for token in line.split()[1:]:

@@ -38,7 +38,9 @@ def _track(landmarks, name: str) -> np.ndarray:
     if track.ndim != 2 or track.shape[1] != 3 or len(track) < 1:
         raise ValueError(f"symmetry: landmark {name!r} must be a track of shape (T, 3), got {track.shape}")
     if not np.isfinite(track).all():
-        raise ValueError(f"symmetry: landmark {name!r} has non-finite positions (frame {np.argwhere(~np.isfinite(track))[0, 0]})")
+        raise ValueError(
+            f"symmetry: landmark {name!r} has non-finite positions (frame {np.argwhere(~np.isfinite(track))[0, 0]})"
+        )
     return track
 
 
@@ -157,5 +159,6 @@ def surface_error(points, reference, *, vertices=None) -> SurfaceError:
         raise ValueError("surface_error: no vertices selected")
     sel = d[index]
     worst = int(np.argmax(sel))
-    return SurfaceError(mean=float(sel.mean()), max=float(sel[worst]), rms=float(np.sqrt(np.mean(sel**2))),
-                        argmax=int(index[worst]))
+    return SurfaceError(
+        mean=float(sel.mean()), max=float(sel[worst]), rms=float(np.sqrt(np.mean(sel**2))), argmax=int(index[worst])
+    )

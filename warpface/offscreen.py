@@ -18,8 +18,10 @@ from functools import lru_cache
 
 __all__ = ["OffscreenUnavailable", "choose_platform", "egl_works", "osmesa_usable", "INSTALL_HINT"]
 
-INSTALL_HINT = ("install the system GL libraries (Debian/Ubuntu: sudo apt install libegl1 libgl1; "
-                "or libosmesa6 with pip install 'PyOpenGL>=3.1.7')")
+INSTALL_HINT = (
+    "install the system GL libraries (Debian/Ubuntu: sudo apt install libegl1 libgl1; "
+    "or libosmesa6 with pip install 'PyOpenGL>=3.1.7')"
+)
 
 
 class OffscreenUnavailable(OSError):
@@ -45,10 +47,12 @@ def egl_works() -> bool:
     query_address = egl.eglGetProcAddress(b"eglQueryDevicesEXT")
     platform_address = egl.eglGetProcAddress(b"eglGetPlatformDisplayEXT")
     if query_address and platform_address:
-        query = ctypes.CFUNCTYPE(ctypes.c_uint, ctypes.c_int, ctypes.POINTER(ctypes.c_void_p),
-                                 ctypes.POINTER(ctypes.c_int))(query_address)
-        platform_display = ctypes.CFUNCTYPE(ctypes.c_void_p, ctypes.c_uint, ctypes.c_void_p,
-                                            ctypes.c_void_p)(platform_address)
+        query = ctypes.CFUNCTYPE(
+            ctypes.c_uint, ctypes.c_int, ctypes.POINTER(ctypes.c_void_p), ctypes.POINTER(ctypes.c_int)
+        )(query_address)
+        platform_display = ctypes.CFUNCTYPE(ctypes.c_void_p, ctypes.c_uint, ctypes.c_void_p, ctypes.c_void_p)(
+            platform_address
+        )
         devices, count = (ctypes.c_void_p * 1)(), ctypes.c_int(0)
         if query(1, devices, ctypes.byref(count)) and count.value > 0:
             display = platform_display(0x313F, devices[0], None)  # EGL_PLATFORM_DEVICE_EXT
@@ -100,6 +104,8 @@ def choose_platform() -> str:
     elif osmesa_usable():
         chosen = "osmesa"
     else:
-        raise OffscreenUnavailable(f"offscreen rendering needs OpenGL through EGL or OSMesa, and neither works here: {INSTALL_HINT}")
+        raise OffscreenUnavailable(
+            f"offscreen rendering needs OpenGL through EGL or OSMesa, and neither works here: {INSTALL_HINT}"
+        )
     os.environ["PYOPENGL_PLATFORM"] = chosen
     return chosen

@@ -13,10 +13,30 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from ._validate import MAX_COORDINATE, as_bounded, as_count, as_finite_array, as_path, as_points, as_positive, as_vec3, shape_of
+from ._validate import (
+    MAX_COORDINATE,
+    as_bounded,
+    as_count,
+    as_finite_array,
+    as_path,
+    as_points,
+    as_positive,
+    as_vec3,
+    shape_of,
+)
 
-__all__ = ["Camera", "PreviewRenderer", "render", "render_comparison", "render_heat_map", "heat_colors", "write_video",
-           "save_image", "check_offscreen_rendering", "scale_label"]
+__all__ = [
+    "Camera",
+    "PreviewRenderer",
+    "render",
+    "render_comparison",
+    "render_heat_map",
+    "heat_colors",
+    "write_video",
+    "save_image",
+    "check_offscreen_rendering",
+    "scale_label",
+]
 
 SKIN_COLOR = (0.86, 0.68, 0.58)
 
@@ -42,11 +62,21 @@ class Camera:
         object.__setattr__(self, "yfov_deg", as_bounded(self.yfov_deg, "camera yfov_deg", 0.1, 179.0))
 
     @classmethod
-    def framing(cls, points: np.ndarray, *, yaw_deg: float = 0.0, pitch_deg: float = 0.0, margin: float = 1.15,
-                yfov_deg: float = 30.0, aspect: float = 4 / 3) -> "Camera":
+    def framing(
+        cls,
+        points: np.ndarray,
+        *,
+        yaw_deg: float = 0.0,
+        pitch_deg: float = 0.0,
+        margin: float = 1.15,
+        yfov_deg: float = 30.0,
+        aspect: float = 4 / 3,
+    ) -> "Camera":
         """A camera that fits the bounding box of ``points`` (V, 3), looking along −Z (rotated by yaw/pitch)."""
         points = as_points(points, "points", min_count=1)
-        yaw_deg, pitch_deg = (as_bounded(a, n, -3600.0, 3600.0) for a, n in ((yaw_deg, "yaw_deg"), (pitch_deg, "pitch_deg")))
+        yaw_deg, pitch_deg = (
+            as_bounded(a, n, -3600.0, 3600.0) for a, n in ((yaw_deg, "yaw_deg"), (pitch_deg, "pitch_deg"))
+        )
         margin, aspect = as_bounded(margin, "margin", 1e-3, 1e3), as_bounded(aspect, "aspect", 1e-3, 1e3)
         yfov_deg = as_bounded(yfov_deg, "yfov_deg", 0.1, 179.0)
         lo, hi = points.min(axis=0), points.max(axis=0)
@@ -58,8 +88,10 @@ class Camera:
         direction = np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
         eye = centre + distance * direction
         if not np.all(np.abs(eye) <= MAX_COORDINATE):
-            raise ValueError(f"camera framing: the points need a camera {distance:.3g} units away, beyond ±{MAX_COORDINATE:g} "
-                             "(check points, margin, yfov_deg and aspect)")
+            raise ValueError(
+                f"camera framing: the points need a camera {distance:.3g} units away, beyond ±{MAX_COORDINATE:g} "
+                "(check points, margin, yfov_deg and aspect)"
+            )
         return cls(eye=eye, target=centre, yfov_deg=yfov_deg)
 
     @classmethod
@@ -67,7 +99,9 @@ class Camera:
         """A portrait camera from 68 landmark positions (L, 3): aimed a little above their centre (the
         landmarks stop at the brows) and far enough to frame forehead to chin, 22° field of view."""
         landmark_points = as_points(landmark_points, "landmark_points", min_count=2)
-        yaw_deg, pitch_deg = (as_bounded(a, n, -3600.0, 3600.0) for a, n in ((yaw_deg, "yaw_deg"), (pitch_deg, "pitch_deg")))
+        yaw_deg, pitch_deg = (
+            as_bounded(a, n, -3600.0, 3600.0) for a, n in ((yaw_deg, "yaw_deg"), (pitch_deg, "pitch_deg"))
+        )
         lo, hi = landmark_points.min(axis=0), landmark_points.max(axis=0)
         height = float(hi[1] - lo[1])
         target = 0.5 * (lo + hi) + np.array([0.0, 0.25 * height, 0.0])
@@ -112,8 +146,14 @@ class PreviewRenderer:
             open face surface); ``None`` shades both sides alike. Needs consistently wound triangles.
     """
 
-    def __init__(self, triangles: np.ndarray, size: tuple[int, int] = (640, 480), camera: Camera | None = None,
-                 background=(1.0, 1.0, 1.0), interior=None):
+    def __init__(
+        self,
+        triangles: np.ndarray,
+        size: tuple[int, int] = (640, 480),
+        camera: Camera | None = None,
+        background=(1.0, 1.0, 1.0),
+        interior=None,
+    ):
         size = _image_size(size)
         platform = check_offscreen_rendering()
         from .offscreen import INSTALL_HINT, OffscreenUnavailable
@@ -123,8 +163,10 @@ class PreviewRenderer:
 
             self._renderer = pyrender.OffscreenRenderer(viewport_width=size[0], viewport_height=size[1])
         except Exception as exc:  # noqa: BLE001 — ImportError, OpenGL errors: all mean "no working GL here"
-            raise OffscreenUnavailable(f"cannot start offscreen rendering with PYOPENGL_PLATFORM={platform} "
-                                       f"({type(exc).__name__}: {' '.join(str(exc).split())[:200]}); {INSTALL_HINT}") from None
+            raise OffscreenUnavailable(
+                f"cannot start offscreen rendering with PYOPENGL_PLATFORM={platform} "
+                f"({type(exc).__name__}: {' '.join(str(exc).split())[:200]}); {INSTALL_HINT}"
+            ) from None
         self._pyrender = pyrender
         self.triangles = np.asarray(triangles, dtype=np.uint32)
         self.size = size
@@ -149,21 +191,46 @@ class PreviewRenderer:
         if colors is None:
             colors = np.broadcast_to(np.asarray(SKIN_COLOR), points.shape)
         rgba = np.c_[np.asarray(colors, dtype=np.float32), np.ones(len(points), dtype=np.float32)]
-        material = pyrender.MetallicRoughnessMaterial(baseColorFactor=(1.0, 1.0, 1.0, 1.0), metallicFactor=0.0,
-                                                      roughnessFactor=0.65, doubleSided=self.interior is None)
-        primitives = [pyrender.Primitive(positions=points.astype(np.float32), normals=normals.astype(np.float32),
-                                         indices=self.triangles, color_0=rgba, material=material)]
+        material = pyrender.MetallicRoughnessMaterial(
+            baseColorFactor=(1.0, 1.0, 1.0, 1.0),
+            metallicFactor=0.0,
+            roughnessFactor=0.65,
+            doubleSided=self.interior is None,
+        )
+        primitives = [
+            pyrender.Primitive(
+                positions=points.astype(np.float32),
+                normals=normals.astype(np.float32),
+                indices=self.triangles,
+                color_0=rgba,
+                material=material,
+            )
+        ]
         if self.interior is not None:  # the back side: the same triangles wound the other way, unlit flat colour
-            inside = pyrender.MetallicRoughnessMaterial(baseColorFactor=(*self.interior, 1.0), metallicFactor=0.0,
-                                                        roughnessFactor=1.0, doubleSided=False)
-            primitives.append(pyrender.Primitive(positions=points.astype(np.float32), normals=-normals.astype(np.float32),
-                                                 indices=self.triangles[:, ::-1].copy(), material=inside))
+            inside = pyrender.MetallicRoughnessMaterial(
+                baseColorFactor=(*self.interior, 1.0), metallicFactor=0.0, roughnessFactor=1.0, doubleSided=False
+            )
+            primitives.append(
+                pyrender.Primitive(
+                    positions=points.astype(np.float32),
+                    normals=-normals.astype(np.float32),
+                    indices=self.triangles[:, ::-1].copy(),
+                    material=inside,
+                )
+            )
         scene = pyrender.Scene(bg_color=(*self.background, 1.0), ambient_light=(0.1, 0.1, 0.1))
         scene.add(pyrender.Mesh(primitives))
         pose = self.camera.pose()
-        scene.add(pyrender.PerspectiveCamera(yfov=np.radians(self.camera.yfov_deg), aspectRatio=self.size[0] / self.size[1]), pose=pose)
-        scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=2.6), pose=_rotated(pose, yaw_deg=-35, pitch_deg=30))
-        scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=0.7), pose=_rotated(pose, yaw_deg=40, pitch_deg=-5))
+        scene.add(
+            pyrender.PerspectiveCamera(yfov=np.radians(self.camera.yfov_deg), aspectRatio=self.size[0] / self.size[1]),
+            pose=pose,
+        )
+        scene.add(
+            pyrender.DirectionalLight(color=np.ones(3), intensity=2.6), pose=_rotated(pose, yaw_deg=-35, pitch_deg=30)
+        )
+        scene.add(
+            pyrender.DirectionalLight(color=np.ones(3), intensity=0.7), pose=_rotated(pose, yaw_deg=40, pitch_deg=-5)
+        )
         color, _ = self._renderer.render(scene)
         return np.ascontiguousarray(color[..., :3])
 
@@ -187,9 +254,18 @@ def _rotated(pose: np.ndarray, *, yaw_deg: float, pitch_deg: float) -> np.ndarra
     return out
 
 
-def render(points: np.ndarray, triangles: np.ndarray, path: str | Path | None = None, *, colors=None,
-           camera: Camera | None = None, size=(640, 480), label: str | None = None, background=(1.0, 1.0, 1.0),
-           interior=None) -> np.ndarray:
+def render(
+    points: np.ndarray,
+    triangles: np.ndarray,
+    path: str | Path | None = None,
+    *,
+    colors=None,
+    camera: Camera | None = None,
+    size=(640, 480),
+    label: str | None = None,
+    background=(1.0, 1.0, 1.0),
+    interior=None,
+) -> np.ndarray:
     """Render one shaded image of a mesh; writes a PNG when ``path`` is given. Returns (H, W, 3) uint8 RGB.
     ``interior``: colour of the back side (see :class:`PreviewRenderer`)."""
     with PreviewRenderer(triangles, size=size, camera=camera, background=background, interior=interior) as renderer:
@@ -201,9 +277,17 @@ def render(points: np.ndarray, triangles: np.ndarray, path: str | Path | None = 
     return image
 
 
-def render_comparison(views: Sequence[tuple[str, np.ndarray]], triangles: np.ndarray, path: str | Path | None = None, *,
-                      camera: Camera | None = None, size=(480, 480), colors: Sequence | None = None,
-                      background=(1.0, 1.0, 1.0), interior=None) -> np.ndarray:
+def render_comparison(
+    views: Sequence[tuple[str, np.ndarray]],
+    triangles: np.ndarray,
+    path: str | Path | None = None,
+    *,
+    camera: Camera | None = None,
+    size=(480, 480),
+    colors: Sequence | None = None,
+    background=(1.0, 1.0, 1.0),
+    interior=None,
+) -> np.ndarray:
     """Labelled views side by side, all with one camera (framed on the first). Returns the joined image."""
     if camera is None:
         camera = Camera.framing(np.asarray(views[0][1]), aspect=size[0] / size[1])
@@ -217,7 +301,9 @@ def render_comparison(views: Sequence[tuple[str, np.ndarray]], triangles: np.nda
     return joined
 
 
-def heat_colors(values: np.ndarray, *, vmin: float | None = None, vmax: float | None = None, cmap: str = "inferno") -> np.ndarray:
+def heat_colors(
+    values: np.ndarray, *, vmin: float | None = None, vmax: float | None = None, cmap: str = "inferno"
+) -> np.ndarray:
     """Map scalar values (V,) to RGB colours (V, 3) in [0, 1] with a matplotlib colormap."""
     from matplotlib import colormaps
 
@@ -230,10 +316,23 @@ def heat_colors(values: np.ndarray, *, vmin: float | None = None, vmax: float | 
     return colormaps[cmap](scaled)[:, :3]
 
 
-def render_heat_map(points: np.ndarray, triangles: np.ndarray, values: np.ndarray, path: str | Path | None = None, *,
-                    title: str = "", units: str = "", camera: Camera | None = None, size=(640, 480), cmap: str = "inferno",
-                    scale: float = 1.0, vmin: float | None = None, vmax: float | None = None,
-                    background=(1.0, 1.0, 1.0), interior=None) -> np.ndarray:
+def render_heat_map(
+    points: np.ndarray,
+    triangles: np.ndarray,
+    values: np.ndarray,
+    path: str | Path | None = None,
+    *,
+    title: str = "",
+    units: str = "",
+    camera: Camera | None = None,
+    size=(640, 480),
+    cmap: str = "inferno",
+    scale: float = 1.0,
+    vmin: float | None = None,
+    vmax: float | None = None,
+    background=(1.0, 1.0, 1.0),
+    interior=None,
+) -> np.ndarray:
     """Render ``points`` coloured by ``values`` (V,), with a colour bar and its range; returns the image.
 
     ``vmin``/``vmax`` fix the colour scale (default: the values' own range) — give several heat maps
@@ -241,13 +340,22 @@ def render_heat_map(points: np.ndarray, triangles: np.ndarray, values: np.ndarra
     to show metres as millimetres).
     """
     if _image_size(size)[1] < MIN_HEAT_MAP_HEIGHT:
-        raise ValueError(f"size: a heat map needs at least {MIN_HEAT_MAP_HEIGHT} px of height for its colour bar, got {size[1]}")
+        raise ValueError(
+            f"size: a heat map needs at least {MIN_HEAT_MAP_HEIGHT} px of height for its colour bar, got {size[1]}"
+        )
     scale = as_bounded(scale, "scale", -1e12, 1e12)
     values = as_finite_array(values, "values", shape=(None,))
     vmin = float(values.min(initial=0.0)) if vmin is None else as_bounded(vmin, "vmin", -1e300, 1e300)
     vmax = float(values.max(initial=0.0)) if vmax is None else as_bounded(vmax, "vmax", -1e300, 1e300)
-    image = render(points, triangles, camera=camera, size=size, colors=heat_colors(values, vmin=vmin, vmax=vmax, cmap=cmap),
-                   background=background, interior=interior)
+    image = render(
+        points,
+        triangles,
+        camera=camera,
+        size=size,
+        colors=heat_colors(values, vmin=vmin, vmax=vmax, cmap=cmap),
+        background=background,
+        interior=interior,
+    )
     image = _color_bar(image, vmin * scale, vmax * scale, units, cmap)
     if title:
         image = _label(image, title)
@@ -256,9 +364,20 @@ def render_heat_map(points: np.ndarray, triangles: np.ndarray, values: np.ndarra
     return image
 
 
-def write_video(frames: Iterable[np.ndarray], triangles: np.ndarray, path: str | Path, *, fps: float = 30.0,
-                size=(640, 480), camera: Camera | None = None, label=None, progress: bool = True,
-                total: int | None = None, background=(1.0, 1.0, 1.0), interior=None) -> Path:
+def write_video(
+    frames: Iterable[np.ndarray],
+    triangles: np.ndarray,
+    path: str | Path,
+    *,
+    fps: float = 30.0,
+    size=(640, 480),
+    camera: Camera | None = None,
+    label=None,
+    progress: bool = True,
+    total: int | None = None,
+    background=(1.0, 1.0, 1.0),
+    interior=None,
+) -> Path:
     """Render each (V, 3) frame and write an MP4 (OpenCV, ``mp4v``) through a temporary file and a rename.
 
     ``label`` is drawn on every frame: a string (followed by the frame number) or a function of the
@@ -283,7 +402,9 @@ def write_video(frames: Iterable[np.ndarray], triangles: np.ndarray, path: str |
         if not writer.isOpened():
             raise ValueError(f"cannot open a video writer for {path}")
         try:
-            with PreviewRenderer(triangles, size=size, camera=camera, background=background, interior=interior) as renderer:
+            with PreviewRenderer(
+                triangles, size=size, camera=camera, background=background, interior=interior
+            ) as renderer:
                 for index, points in enumerate(frames):
                     image = renderer.render(points)
                     if callable(label):
@@ -365,7 +486,7 @@ def _color_bar(image: np.ndarray, vmin: float, vmax: float, units: str, cmap: st
     bar = np.empty((height, 110, 3), dtype=np.uint8)
     bar[:] = background
     ramp = heat_colors(np.linspace(1.0, 0.0, height - 80), vmin=0.0, vmax=1.0, cmap=cmap)
-    bar[40:height - 40, 15:40] = (ramp[:, None, :] * 255).astype(np.uint8)
+    bar[40 : height - 40, 15:40] = (ramp[:, None, :] * 255).astype(np.uint8)
     for y, value in ((50, vmax), (height - 35, vmin)):
         cv2.putText(bar, scale_label(value, vmax - vmin), (45, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, ink, 1, cv2.LINE_AA)
     if units:

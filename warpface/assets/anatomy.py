@@ -39,16 +39,43 @@ import numpy as np
 from ..expression.muscles import LinearMuscle, MuscleLobe, SphincterMuscle
 from .frame import FaceFrame, SurfaceSampler
 
-__all__ = ["ANATOMY_LINEAR_MUSCLE_NAMES", "ANATOMY_SPHINCTER_MUSCLE_NAMES", "anatomy_muscles", "revised_classic_muscles"]
+__all__ = [
+    "ANATOMY_LINEAR_MUSCLE_NAMES",
+    "ANATOMY_SPHINCTER_MUSCLE_NAMES",
+    "anatomy_muscles",
+    "revised_classic_muscles",
+]
 
 _SIDES = (("L", +1.0), ("R", -1.0))
 # iBUG indices per side: brow inner end, eye inner/outer corner, eye ring, nose wing, mouth corner,
 # upper-lip border point, lower-lip border point, jaw outline at mouth level, jaw outline below the corner.
 _LANDMARKS = {
-    "L": dict(brow_inner=22, brow_middle=24, eye_inner=42, eye_outer=45, eye=tuple(range(42, 48)), wing=35, corner=54, upper=52,
-              lower=56, jaw_mouth=12, jaw_low=10),
-    "R": dict(brow_inner=21, brow_middle=19, eye_inner=39, eye_outer=36, eye=tuple(range(36, 42)), wing=31, corner=48, upper=50,
-              lower=58, jaw_mouth=4, jaw_low=6),
+    "L": dict(
+        brow_inner=22,
+        brow_middle=24,
+        eye_inner=42,
+        eye_outer=45,
+        eye=tuple(range(42, 48)),
+        wing=35,
+        corner=54,
+        upper=52,
+        lower=56,
+        jaw_mouth=12,
+        jaw_low=10,
+    ),
+    "R": dict(
+        brow_inner=21,
+        brow_middle=19,
+        eye_inner=39,
+        eye_outer=36,
+        eye=tuple(range(36, 42)),
+        wing=31,
+        corner=48,
+        upper=50,
+        lower=58,
+        jaw_mouth=4,
+        jaw_low=6,
+    ),
 }
 
 ANATOMY_LINEAR_MUSCLE_NAMES: tuple[str, ...] = (
@@ -139,13 +166,17 @@ def _side_of(muscle: LinearMuscle) -> tuple[str, float]:
     return ("L", 1.0) if muscle.name.endswith("_L") else ("R", -1.0)
 
 
-def _fixed_at(muscle: LinearMuscle, attachment: np.ndarray, zone_deg: float, start: float, finish: float) -> LinearMuscle:
+def _fixed_at(
+    muscle: LinearMuscle, attachment: np.ndarray, zone_deg: float, start: float, finish: float
+) -> LinearMuscle:
     """``muscle`` with a new fixed end; radii as fractions of the new length, the insertion kept."""
     length = float(np.linalg.norm(muscle.insertion - attachment))
     return LinearMuscle(muscle.name, attachment, muscle.insertion, zone_deg, start * length, finish * length)
 
 
-def revised_classic_muscles(local: np.ndarray, surface: SurfaceSampler, classic: list[LinearMuscle]) -> list[LinearMuscle]:
+def revised_classic_muscles(
+    local: np.ndarray, surface: SurfaceSampler, classic: list[LinearMuscle]
+) -> list[LinearMuscle]:
     """The classic linear muscles as the full rig places them: frontalis, risorius and the lip levator/depressor moved.
 
     Frontalis: each belly's fixed point in the forehead instead of beyond the hairline.
@@ -162,7 +193,10 @@ def revised_classic_muscles(local: np.ndarray, surface: SurfaceSampler, classic:
             # lies 0.25 beneath that skin: a point just under the skin gathered the cheek side into a
             # lump in a smile, and sliding (docs/RIG.md §2) removes the pull's inward part anyway.
             origin = surface.frame.to_local(surface.below(surface.frame.to_local(muscle.attachment)[:2], 0.0))
-            side_xy = (np.sign(origin[0]) * (max(abs(origin[0]), 0.9) - 0.1), surface.frame.to_local(muscle.insertion)[1] + 0.02)
+            side_xy = (
+                np.sign(origin[0]) * (max(abs(origin[0]), 0.9) - 0.1),
+                surface.frame.to_local(muscle.insertion)[1] + 0.02,
+            )
             out.append(_fixed_at(muscle, surface.below(side_xy, 0.25), 24.0, 0.90, 1.40))
             continue
         if muscle.name.startswith("depressor_labii_inferioris_"):
@@ -171,8 +205,18 @@ def revised_classic_muscles(local: np.ndarray, surface: SurfaceSampler, classic:
             # below the border) pulled the lip inward and, after sliding, lifted it 1 mm (mouthLowerDown).
             tag, sign = _side_of(muscle)
             lower = local[_LANDMARKS[tag]["lower"], :2]
-            out.append(_linear(muscle.name, surface, (lower[0] + 0.12 * sign, lower[1] - 0.42), 0.05,
-                               (lower[0] + 0.03 * sign, lower[1] + 0.02), 35.0, 0.85, 1.30))
+            out.append(
+                _linear(
+                    muscle.name,
+                    surface,
+                    (lower[0] + 0.12 * sign, lower[1] - 0.42),
+                    0.05,
+                    (lower[0] + 0.03 * sign, lower[1] + 0.02),
+                    35.0,
+                    0.85,
+                    1.30,
+                )
+            )
             continue
         if muscle.name.startswith("levator_labii_superioris_"):
             # Levator labii superioris: from the infraorbital margin, 0.05 beneath the skin, into the
@@ -182,8 +226,18 @@ def revised_classic_muscles(local: np.ndarray, surface: SurfaceSampler, classic:
             tag, sign = _side_of(muscle)
             eye = local[list(_LANDMARKS[tag]["eye"]), :2].mean(axis=0)
             peak = local[_LANDMARKS[tag]["upper"], :2]
-            out.append(_linear(muscle.name, surface, (eye[0] - 0.02 * sign, eye[1] - 0.36), 0.05,
-                               (peak[0] + 0.02 * sign, peak[1] - 0.02), 30.0, 0.88, 1.30))
+            out.append(
+                _linear(
+                    muscle.name,
+                    surface,
+                    (eye[0] - 0.02 * sign, eye[1] - 0.36),
+                    0.05,
+                    (peak[0] + 0.02 * sign, peak[1] - 0.02),
+                    30.0,
+                    0.88,
+                    1.30,
+                )
+            )
             continue
         if not muscle.name.startswith("frontalis_"):
             out.append(muscle)
@@ -195,8 +249,11 @@ def revised_classic_muscles(local: np.ndarray, surface: SurfaceSampler, classic:
 def _cheek_lobe(surface: SurfaceSampler, inner_canthus, eye, side: float) -> MuscleLobe:
     """The lower lid's :data:`CHEEK_LOBE`, from the local (x, y) of the inner canthus and the eye's centre."""
     medial, up, depth, across, down, *shape = CHEEK_LOBE
-    return _lobe(surface.below((inner_canthus[0] - medial * side, inner_canthus[1] + up), depth),
-                 surface.point((eye[0] + across * side, eye[1] - down)), *shape)
+    return _lobe(
+        surface.below((inner_canthus[0] - medial * side, inner_canthus[1] + up), depth),
+        surface.point((eye[0] + across * side, eye[1] - down)),
+        *shape,
+    )
 
 
 def _lobe(attachment, insertion, zone: float, start: float, finish: float, gain: float) -> MuscleLobe:
@@ -205,8 +262,9 @@ def _lobe(attachment, insertion, zone: float, start: float, finish: float, gain:
     return MuscleLobe(attachment, insertion, zone, start * length, finish * length, gain)
 
 
-def _frontalis_belly(name, surface: SurfaceSampler, brow_top: float, nose_tip_y: float, insertion: np.ndarray,
-                     shift: float = 0.0) -> LinearMuscle:
+def _frontalis_belly(
+    name, surface: SurfaceSampler, brow_top: float, nose_tip_y: float, insertion: np.ndarray, shift: float = 0.0
+) -> LinearMuscle:
     """A frontalis belly of :data:`FRONTALIS_BELLIES` into the brow skin point ``insertion`` (3,), its fixed
     point ``shift`` units sideways of the insertion (local x), with its lobes (:data:`GALEA_LOBE`,
     :data:`NASAL_LOBE`); ``brow_top`` and ``nose_tip_y`` are local heights."""
@@ -226,8 +284,9 @@ def _frontalis_belly(name, surface: SurfaceSampler, brow_top: float, nose_tip_y:
     return LinearMuscle(name, attachment, insertion, zone, start * length, finish * length, lobes=tuple(lobes))
 
 
-def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame,
-                    classic_sphincters: list[SphincterMuscle]) -> tuple[list[LinearMuscle], list[SphincterMuscle]]:
+def anatomy_muscles(
+    local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame, classic_sphincters: list[SphincterMuscle]
+) -> tuple[list[LinearMuscle], list[SphincterMuscle]]:
     """The added linear muscles and the full rig's sphincters, from the local landmarks (68, 3)."""
     xy = local[:, :2]
     brow_top = float(xy[17:27, 1].max())
@@ -238,30 +297,77 @@ def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame
         # three bellies together lift the whole brow and the forehead over it (AU1 + AU2).
         middle = xy[i["brow_middle"]]
         linear[f"frontalis_middle_{tag}"] = _frontalis_belly(
-            f"frontalis_middle_{tag}", surface, brow_top, float(xy[30, 1]), surface.point((middle[0], middle[1] + 0.05)),
-            shift=-0.10 * s)
-        brow_inner, eye_inner, eye_outer = xy[i["brow_inner"]], xy[i["eye_inner"]], xy[i["eye_outer"]]
+            f"frontalis_middle_{tag}",
+            surface,
+            brow_top,
+            float(xy[30, 1]),
+            surface.point((middle[0], middle[1] + 0.05)),
+            shift=-0.10 * s,
+        )
+        brow_inner, eye_inner = xy[i["brow_inner"]], xy[i["eye_inner"]]
         eye = xy[list(i["eye"])].mean(axis=0)
-        wing, corner, upper, lower = xy[i["wing"]], xy[i["corner"]], xy[i["upper"]], xy[i["lower"]]
+        wing, corner, upper = xy[i["wing"]], xy[i["corner"]], xy[i["upper"]]
         jaw_mouth, jaw_low = xy[i["jaw_mouth"]], xy[i["jaw_low"]]
         linear[f"depressor_supercilii_{tag}"] = _linear(
-            f"depressor_supercilii_{tag}", surface, (0.5 * (eye_inner[0] + 0.05 * s), eye_inner[1] - 0.02), 0.10,
-            (brow_inner[0] + 0.02 * s, brow_inner[1] + 0.04), 40.0, 0.75, 1.45)
+            f"depressor_supercilii_{tag}",
+            surface,
+            (0.5 * (eye_inner[0] + 0.05 * s), eye_inner[1] - 0.02),
+            0.10,
+            (brow_inner[0] + 0.02 * s, brow_inner[1] + 0.04),
+            40.0,
+            0.75,
+            1.45,
+        )
         linear[f"levator_anguli_oris_{tag}"] = _linear(
-            f"levator_anguli_oris_{tag}", surface, (wing[0] + 0.12 * s, wing[1] - 0.02), 0.25,
-            (corner[0] + 0.02 * s, corner[1] + 0.02), 30.0, 0.85, 1.45)
+            f"levator_anguli_oris_{tag}",
+            surface,
+            (wing[0] + 0.12 * s, wing[1] - 0.02),
+            0.25,
+            (corner[0] + 0.02 * s, corner[1] + 0.02),
+            30.0,
+            0.85,
+            1.45,
+        )
         linear[f"zygomaticus_minor_{tag}"] = _linear(
-            f"zygomaticus_minor_{tag}", surface, (eye[0] + 0.12 * s, eye[1] - 0.42), 0.22,
-            (0.5 * (upper[0] + corner[0]), upper[1] + 0.03), 24.0, 0.85, 1.40)
+            f"zygomaticus_minor_{tag}",
+            surface,
+            (eye[0] + 0.12 * s, eye[1] - 0.42),
+            0.22,
+            (0.5 * (upper[0] + corner[0]), upper[1] + 0.03),
+            24.0,
+            0.85,
+            1.40,
+        )
         linear[f"buccinator_{tag}"] = _linear(
-            f"buccinator_{tag}", surface, (0.80 * jaw_mouth[0], corner[1] - 0.02), 0.12,
-            (corner[0] + 0.05 * s, corner[1]), 34.0, 0.90, 1.45)
+            f"buccinator_{tag}",
+            surface,
+            (0.80 * jaw_mouth[0], corner[1] - 0.02),
+            0.12,
+            (corner[0] + 0.05 * s, corner[1]),
+            34.0,
+            0.90,
+            1.45,
+        )
         linear[f"platysma_{tag}"] = _linear(
-            f"platysma_{tag}", surface, (jaw_low[0] + 0.05 * s, jaw_low[1] - 0.35), 0.20,
-            (corner[0] + 0.03 * s, corner[1] - 0.06), 38.0, 0.95, 1.55)
+            f"platysma_{tag}",
+            surface,
+            (jaw_low[0] + 0.05 * s, jaw_low[1] - 0.35),
+            0.20,
+            (corner[0] + 0.03 * s, corner[1] - 0.06),
+            38.0,
+            0.95,
+            1.55,
+        )
         linear[f"nasalis_{tag}"] = _linear(
-            f"nasalis_{tag}", surface, (wing[0] + 0.06 * s, wing[1] + 0.02), 0.12,
-            (0.45 * wing[0], xy[29, 1]), 30.0, 0.80, 1.45)
+            f"nasalis_{tag}",
+            surface,
+            (wing[0] + 0.06 * s, wing[1] + 0.02),
+            0.12,
+            (0.45 * wing[0], xy[29, 1]),
+            30.0,
+            0.80,
+            1.45,
+        )
     for tag, s in _SIDES:
         # Palpebral part, one per lid: its fibres run round the lid between the palpebral ligaments,
         # so a contraction carries the lid (and the skin beyond it) toward the opposite lid margin
@@ -272,33 +378,62 @@ def anatomy_muscles(local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame
         top, bottom = ring[:, 1].max(), ring[:, 1].min()
         medial = eye[0] + 0.75 * (inner[0] - eye[0])
         linear[f"orbicularis_oculi_upper_lid_{tag}"] = _linear(
-            f"orbicularis_oculi_upper_lid_{tag}", surface, (medial, bottom), 0.06, (eye[0], top + 0.10), 70.0, 0.90, 1.70)
-        lid = _linear(f"orbicularis_oculi_lower_lid_{tag}", surface, (medial, top), 0.06, (eye[0], bottom - 0.12), 70.0, 0.90, 2.20)
+            f"orbicularis_oculi_upper_lid_{tag}",
+            surface,
+            (medial, bottom),
+            0.06,
+            (eye[0], top + 0.10),
+            70.0,
+            0.90,
+            1.70,
+        )
+        lid = _linear(
+            f"orbicularis_oculi_lower_lid_{tag}",
+            surface,
+            (medial, top),
+            0.06,
+            (eye[0], bottom - 0.12),
+            70.0,
+            0.90,
+            2.20,
+        )
         linear[lid.name] = replace(lid, lobes=(_cheek_lobe(surface, xy[_LANDMARKS[tag]["eye_inner"]], eye, s),))
         # Levator palpebrae superioris: from the orbit's roof, deep behind the brow, into the upper lid (eyeWide).
         linear[f"levator_palpebrae_{tag}"] = _linear(
-            f"levator_palpebrae_{tag}", surface, (eye[0], top + 0.30), 0.35, (eye[0], top + 0.02), 40.0, 0.90, 1.30)
+            f"levator_palpebrae_{tag}", surface, (eye[0], top + 0.30), 0.35, (eye[0], top + 0.02), 40.0, 0.90, 1.30
+        )
     mouth_line = 0.5 * (xy[62, 1] + xy[66, 1])
     linear["orbicularis_oris_roll_upper"] = _linear(
-        "orbicularis_oris_roll_upper", surface, (0.0, mouth_line + 0.02), 0.35, (0.0, xy[51, 1]), 60.0, 0.90, 1.45)
+        "orbicularis_oris_roll_upper", surface, (0.0, mouth_line + 0.02), 0.35, (0.0, xy[51, 1]), 60.0, 0.90, 1.45
+    )
     linear["orbicularis_oris_roll_lower"] = _linear(
-        "orbicularis_oris_roll_lower", surface, (0.0, mouth_line - 0.02), 0.35, (0.0, xy[57, 1]), 60.0, 0.90, 1.45)
+        "orbicularis_oris_roll_lower", surface, (0.0, mouth_line - 0.02), 0.35, (0.0, xy[57, 1]), 60.0, 0.90, 1.45
+    )
 
     world, up = frame.to_world, frame.axes[1]
     sphincters = {m.name: m for m in classic_sphincters}
-    for tag, s in _SIDES:
+    for tag, _sign in _SIDES:
         i = _LANDMARKS[tag]
         eye = local[list(i["eye"])].mean(axis=0)
         across = world(local[i["eye_outer"]]) - world(local[i["eye_inner"]])
         inner = local[i["eye_inner"]]
         centre = eye + ORBITAL_CENTRE * (inner - eye)
         sphincters[f"orbicularis_oculi_{tag}"] = SphincterMuscle(
-            f"orbicularis_oculi_{tag}", world(centre), across, up,
-            (ORBITAL_SEMI_AXES[0] * frame.scale, ORBITAL_SEMI_AXES[1] * frame.scale), ring=ORBITAL_RING)
+            f"orbicularis_oculi_{tag}",
+            world(centre),
+            across,
+            up,
+            (ORBITAL_SEMI_AXES[0] * frame.scale, ORBITAL_SEMI_AXES[1] * frame.scale),
+            ring=ORBITAL_RING,
+        )
     mouth = local[60:68].mean(axis=0)
     half_width = 0.5 * np.linalg.norm(local[54] - local[48])
     sphincters["orbicularis_oris_press"] = SphincterMuscle(
-        "orbicularis_oris_press", world(mouth), world(local[54]) - world(local[48]), up,
-        (1.15 * half_width * frame.scale, 0.30 * frame.scale))
+        "orbicularis_oris_press",
+        world(mouth),
+        world(local[54]) - world(local[48]),
+        up,
+        (1.15 * half_width * frame.scale, 0.30 * frame.scale),
+    )
     order = [m.name for m in classic_sphincters] + list(ANATOMY_SPHINCTER_MUSCLE_NAMES)
     return [linear[name] for name in ANATOMY_LINEAR_MUSCLE_NAMES], [sphincters[name] for name in order]

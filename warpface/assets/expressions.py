@@ -23,37 +23,60 @@ __all__ = ["EXPRESSIONS", "expression_contractions", "expression_timeline", "exp
 MAX_TIMELINE_FRAMES = 1_000_000
 """Most frames an expression timeline or envelope is made with (9 h at 30 fps)."""
 
-EXPRESSIONS = MappingProxyType({
-    # Raise the brows (AU1 + AU2): frontalis, inner and outer.
-    "thinking": MappingProxyType({
-        "frontalis_inner_L": 0.16, "frontalis_inner_R": 0.16,
-        "frontalis_outer_L": 0.13, "frontalis_outer_R": 0.13,
-    }),
-    # Knit the brows (AU4): corrugators pull them together and down, the procerus lowers the
-    # glabella, the eyes narrow slightly.
-    "puzzled": MappingProxyType({
-        "corrugator_L": 0.09, "corrugator_R": 0.09,
-        "procerus": 0.07,
-        "orbicularis_oculi_L": 0.10, "orbicularis_oculi_R": 0.10,
-    }),
-    # Raise the nose and upper lip (AU9 + AU10), lower the brows (AU4), narrow the eyes.
-    "disgust": MappingProxyType({
-        "levator_labii_alaeque_nasi_L": 0.11, "levator_labii_alaeque_nasi_R": 0.11,
-        "levator_labii_superioris_L": 0.06, "levator_labii_superioris_R": 0.06,
-        "corrugator_L": 0.08, "corrugator_R": 0.08,
-        "procerus": 0.10,
-        "orbicularis_oculi_L": 0.15, "orbicularis_oculi_R": 0.15,
-        "depressor_anguli_oris_L": 0.04, "depressor_anguli_oris_R": 0.04,
-        "mentalis": 0.035,
-    }),
-    # Pull the mouth corners up and back (AU12), raise the cheeks and narrow the eyes (AU6).
-    "smile": MappingProxyType({
-        "zygomaticus_major_L": 0.22, "zygomaticus_major_R": 0.22,
-        "risorius_L": 0.04, "risorius_R": 0.04,
-        "levator_labii_superioris_L": 0.03, "levator_labii_superioris_R": 0.03,
-        "orbicularis_oculi_L": 0.26, "orbicularis_oculi_R": 0.26,
-    }),
-})
+EXPRESSIONS = MappingProxyType(
+    {
+        # Raise the brows (AU1 + AU2): frontalis, inner and outer.
+        "thinking": MappingProxyType(
+            {
+                "frontalis_inner_L": 0.16,
+                "frontalis_inner_R": 0.16,
+                "frontalis_outer_L": 0.13,
+                "frontalis_outer_R": 0.13,
+            }
+        ),
+        # Knit the brows (AU4): corrugators pull them together and down, the procerus lowers the
+        # glabella, the eyes narrow slightly.
+        "puzzled": MappingProxyType(
+            {
+                "corrugator_L": 0.09,
+                "corrugator_R": 0.09,
+                "procerus": 0.07,
+                "orbicularis_oculi_L": 0.10,
+                "orbicularis_oculi_R": 0.10,
+            }
+        ),
+        # Raise the nose and upper lip (AU9 + AU10), lower the brows (AU4), narrow the eyes.
+        "disgust": MappingProxyType(
+            {
+                "levator_labii_alaeque_nasi_L": 0.11,
+                "levator_labii_alaeque_nasi_R": 0.11,
+                "levator_labii_superioris_L": 0.06,
+                "levator_labii_superioris_R": 0.06,
+                "corrugator_L": 0.08,
+                "corrugator_R": 0.08,
+                "procerus": 0.10,
+                "orbicularis_oculi_L": 0.15,
+                "orbicularis_oculi_R": 0.15,
+                "depressor_anguli_oris_L": 0.04,
+                "depressor_anguli_oris_R": 0.04,
+                "mentalis": 0.035,
+            }
+        ),
+        # Pull the mouth corners up and back (AU12), raise the cheeks and narrow the eyes (AU6).
+        "smile": MappingProxyType(
+            {
+                "zygomaticus_major_L": 0.22,
+                "zygomaticus_major_R": 0.22,
+                "risorius_L": 0.04,
+                "risorius_R": 0.04,
+                "levator_labii_superioris_L": 0.03,
+                "levator_labii_superioris_R": 0.03,
+                "orbicularis_oculi_L": 0.26,
+                "orbicularis_oculi_R": 0.26,
+            }
+        ),
+    }
+)
 """Expression name → {muscle name: relative contraction} (linear muscles in inter-ocular units,
 sphincters dimensionless). Read-only."""
 
@@ -105,8 +128,9 @@ def expression_envelope(frames: int, hold: float = 0.2) -> np.ndarray:
     return s * s * s * (s * (6.0 * s - 15.0) + 10.0)
 
 
-def expression_timeline(name: str, rig: FaceRig, seconds: float = 2.0, fps: float = 30.0, *, hold: float = 0.2,
-                        intensity: float = 1.0) -> np.ndarray:
+def expression_timeline(
+    name: str, rig: FaceRig, seconds: float = 2.0, fps: float = 30.0, *, hold: float = 0.2, intensity: float = 1.0
+) -> np.ndarray:
     """Per-frame contractions for neutral → ``name`` → neutral, shape (F, M), in the rig's muscle order
     (the paper's expressions use muscles only; append zeros for a jaw's controls to evaluate them).
 
@@ -118,7 +142,9 @@ def expression_timeline(name: str, rig: FaceRig, seconds: float = 2.0, fps: floa
     fps = as_positive(fps, "expression timeline: fps", maximum=1e4)
     frames = int(round(seconds * fps)) + 1
     if frames > MAX_TIMELINE_FRAMES:
-        raise ValueError(f"expression timeline: {seconds:g} s at {fps:g} fps is {frames} frames, more than {MAX_TIMELINE_FRAMES}")
+        raise ValueError(
+            f"expression timeline: {seconds:g} s at {fps:g} fps is {frames} frames, more than {MAX_TIMELINE_FRAMES}"
+        )
     peak = np.zeros(len(rig.muscles))
     index = {m.name: i for i, m in enumerate(rig.muscles)}
     for muscle, value in expression_contractions(name, rig, intensity=intensity).items():

@@ -120,8 +120,17 @@ _BROW = ((0.060, 0.0200), (0.051, 0.0260), (0.040, 0.0285), (0.029, 0.0270), (0.
 """iBUG brow points 17–21 of the right brow as (|x|, y), outer → inner."""
 _NOSE_BRIDGE_Y = (0.004, -0.008, -0.019, -0.031)
 _NOSE_BASE = ((0.0115, -0.0405), (0.0058, -0.0437), (0.0, -0.0450))
-_JAW = ((0.0710, 0.0000), (0.0700, -0.0200), (0.0675, -0.0395), (0.0640, -0.0585), (0.0570, -0.0775),
-        (0.0455, -0.0935), (0.0320, -0.1040), (0.0165, -0.1105), (0.0, -0.1125))
+_JAW = (
+    (0.0710, 0.0000),
+    (0.0700, -0.0200),
+    (0.0675, -0.0395),
+    (0.0640, -0.0585),
+    (0.0570, -0.0775),
+    (0.0455, -0.0935),
+    (0.0320, -0.1040),
+    (0.0165, -0.1105),
+    (0.0, -0.1125),
+)
 """iBUG jaw points 0–8 as (|x|, y): the face's front-view contour, ear level to chin."""
 
 
@@ -202,8 +211,17 @@ def _theta_of_s(s: np.ndarray) -> np.ndarray:
 # Outline (in θ, y) and hole curves (in front-view x, y).
 
 _OUTLINE_TOP = ((0.0, 0.096), (30.0, 0.094), (50.0, 0.088), (65.0, 0.077), (78.0, 0.062), (88.0, 0.045))
-_OUTLINE_BOTTOM = ((0.0, -0.1245), (15.0, -0.1225), (30.0, -0.1150), (45.0, -0.1030), (58.0, -0.0910),
-                   (68.0, -0.0800), (78.0, -0.0600), (86.0, -0.0350), (88.0, -0.0200))
+_OUTLINE_BOTTOM = (
+    (0.0, -0.1245),
+    (15.0, -0.1225),
+    (30.0, -0.1150),
+    (45.0, -0.1030),
+    (58.0, -0.0910),
+    (68.0, -0.0800),
+    (78.0, -0.0600),
+    (86.0, -0.0350),
+    (88.0, -0.0200),
+)
 _OUTLINE_SIDE_DEG = 88.0
 
 
@@ -311,7 +329,9 @@ def _heights(x: np.ndarray, y: np.ndarray, theta: np.ndarray) -> np.ndarray:
     eye_distance = np.where(_inside_eye(x, y), 0.0, _curve_distance(eye_curve, X, y))
     h -= 0.0032 * np.exp(-((eye_distance / 0.0026) ** 2))
     h += 0.0010 * np.exp(-(((eye_distance - 0.0035) / 0.0022) ** 2))
-    lid_span = _smoothstep(_EYE.inner[0] - 0.008, _EYE.inner[0], X) * _smoothstep(_EYE.outer[0] + 0.010, _EYE.outer[0] + 0.002, X)
+    lid_span = _smoothstep(_EYE.inner[0] - 0.008, _EYE.inner[0], X) * _smoothstep(
+        _EYE.outer[0] + 0.010, _EYE.outer[0] + 0.002, X
+    )
     above = _smoothstep(cy - 0.002, cy + 0.003, y)
     h -= 0.0012 * lid_span * above * np.exp(-(((eye_distance - 0.0075) / 0.0018) ** 2))  # upper-lid crease
     h -= 0.0007 * lid_span * (1.0 - above) * np.exp(-(((eye_distance - 0.0085) / 0.0025) ** 2))  # lower-lid edge
@@ -322,10 +342,13 @@ def _heights(x: np.ndarray, y: np.ndarray, theta: np.ndarray) -> np.ndarray:
     h -= 0.0025 * _gauss(X, y, 0.058, -0.055, 0.010, 0.018)  # under the cheekbone
 
     # Nose: dorsum with a height profile and a width profile, rounded tip, alae, nostrils.
-    dorsum = np.interp(y, [-0.048, -0.044, -0.040, -0.034, -0.031, -0.020, -0.008, 0.004, 0.014, 0.022],
-                       [0.000, 0.008, 0.0165, 0.0215, 0.0222, 0.0170, 0.0118, 0.0072, 0.0040, 0.0])
+    dorsum = np.interp(
+        y,
+        [-0.048, -0.044, -0.040, -0.034, -0.031, -0.020, -0.008, 0.004, 0.014, 0.022],
+        [0.000, 0.008, 0.0165, 0.0215, 0.0222, 0.0170, 0.0118, 0.0072, 0.0040, 0.0],
+    )
     width = np.interp(y, [-0.048, -0.040, -0.030, -0.015, 0.0, 0.012], [0.0085, 0.0100, 0.0085, 0.0068, 0.0060, 0.0080])
-    h += dorsum * np.exp(-np.abs(x / width) ** 2.2)
+    h += dorsum * np.exp(-(np.abs(x / width) ** 2.2))
     h += 0.0030 * _gauss(X, y, 0.0, -0.0335, 0.0068, 0.0058)
     h += 0.0068 * _gauss(X, y, 0.0135, -0.0395, 0.0052, 0.0048)
     alar_ring = np.hypot((X - 0.0135) / 1.05, y + 0.0395)
@@ -433,9 +456,7 @@ def _build() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     col, row = np.meshgrid(columns, rows)
     lattice = np.stack([(col + 0.5 * (row % 2 != 0)) * h, row * row_height], axis=-1).reshape(-1, 2)
     lattice = lattice[_inside_domain(lattice[:, 0], lattice[:, 1])]
-    dense = np.concatenate([
-        _resample(c, h / 12.0, closed=k != 0) for k, c in enumerate(curves)
-    ])
+    dense = np.concatenate([_resample(c, h / 12.0, closed=k != 0) for k, c in enumerate(curves)])
     clearance, _ = cKDTree(dense).query(lattice)
     lattice = lattice[clearance > _BOUNDARY_CLEARANCE * h]
 
@@ -461,7 +482,9 @@ def _build() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
     # Orient every triangle outward (+z in front): the (s, y) plane maps with positive orientation.
     p = plane[triangles]
-    signed = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 1, 1] - p[:, 0, 1]) * (p[:, 2, 0] - p[:, 0, 0])
+    signed = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 1, 1] - p[:, 0, 1]) * (
+        p[:, 2, 0] - p[:, 0, 0]
+    )
     triangles = np.where((signed < 0.0)[:, None], triangles[:, [0, 2, 1]], triangles)
 
     landmarks = _landmark_vertices(plane, used[: len(boundary)], curves)
@@ -488,8 +511,16 @@ def _landmark_targets() -> np.ndarray:
     fractions = np.array([1.0, 2 / 3, 1 / 3, 0.0])
     x, upper, lower = _EYE.lids(fractions)
     _, _, lower_mid = _EYE.lids(np.array([1 / 3, 2 / 3]))
-    right_eye = np.array([[x[0], upper[0]], [x[1], upper[1]], [x[2], upper[2]], [x[3], upper[3]],
-                          [x[2], lower_mid[0]], [x[1], lower_mid[1]]])
+    right_eye = np.array(
+        [
+            [x[0], upper[0]],
+            [x[1], upper[1]],
+            [x[2], upper[2]],
+            [x[3], upper[3]],
+            [x[2], lower_mid[0]],
+            [x[1], lower_mid[1]],
+        ]
+    )
     targets[36:42] = right_eye * [-1.0, 1.0]
     targets[42:48] = right_eye[[3, 2, 1, 0, 5, 4]]
     # Outer lip contour 48–59: corners just outside the slit, upper border 49–53, lower border 55–59.

@@ -13,8 +13,8 @@ import numpy as np
 
 from .._validate import as_finite_array, as_vec3
 from ..errors import RigError
-from ..landmarks import IBUG_COUNT, LEFT_EYE, MOUTH, RIGHT_EYE
 from ..expression.wrinkles import CylindricalProjection
+from ..landmarks import IBUG_COUNT, LEFT_EYE, MOUTH, RIGHT_EYE
 from ..mesh import FaceMesh
 
 __all__ = ["FaceFrame", "SurfaceSampler", "check_landmarks", "head_cylinder"]
@@ -31,7 +31,9 @@ def check_landmarks(mesh: FaceMesh, landmarks, label: str = "landmarks") -> np.n
         raise RigError(f"{label}: vertex indices must be integers, got dtype {array.dtype}")
     bad = np.flatnonzero((array < 0) | (array >= mesh.vertex_count))
     if len(bad):
-        raise RigError(f"{label}: landmark {int(bad[0])} has vertex index {int(array[bad[0]])} outside [0, {mesh.vertex_count})")
+        raise RigError(
+            f"{label}: landmark {int(bad[0])} has vertex index {int(array[bad[0]])} outside [0, {mesh.vertex_count})"
+        )
     return array.astype(np.int64)
 
 
@@ -128,7 +130,9 @@ class SurfaceSampler:
     def hit(self, xy) -> tuple[np.ndarray, np.ndarray]:
         """Surface point [mesh units] (3,) and unit normal (3,) under local ``(x, y)``."""
         x, y = (float(c) for c in as_finite_array(xy, "xy", shape=(2,), max_abs=1e6))
-        near = np.flatnonzero(self._usable & (self._lo[:, 0] <= x) & (self._hi[:, 0] >= x) & (self._lo[:, 1] <= y) & (self._hi[:, 1] >= y))
+        near = np.flatnonzero(
+            self._usable & (self._lo[:, 0] <= x) & (self._hi[:, 0] >= x) & (self._lo[:, 1] <= y) & (self._hi[:, 1] >= y)
+        )
         if len(near):
             offset = np.array([x, y]) - self._a[near]
             ab, ac, det = self._ab[near], self._ac[near], self._det[near]

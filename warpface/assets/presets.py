@@ -50,27 +50,39 @@ _PRESETS: dict[str, dict[str, float]] = {}
 for _name, _template in _PER_SIDE.items():
     for _word, _side in _SIDE_NAMES:
         _PRESETS[f"{_name}{_word}"] = _sided(_template, _side)
-_PRESETS.update({
-    "browInnerUp": {"frontalis_inner_L": 0.14, "frontalis_inner_R": 0.14, "frontalis_middle_L": 0.05, "frontalis_middle_R": 0.05},
-    # No muscle puffs the cheeks (air does): the closest the rig comes is cheek tissue bunched out by the
-    # orbital orbicularis oculi and zygomaticus minor with the lips pressed.
-    "cheekPuff": {"orbicularis_oculi_L": 0.12, "orbicularis_oculi_R": 0.12, "zygomaticus_minor_L": 0.05,
-                  "zygomaticus_minor_R": 0.05, "orbicularis_oris_press": 0.08},
-    "jawOpen": {"jaw_open": 0.25},
-    "jawForward": {"jaw_forward": 0.08},
-    "jawLeft": {"jaw_left": 0.08},
-    "jawRight": {"jaw_left": -0.08},
-    "mouthClose": {"jaw_open": 0.12, "orbicularis_oris_press": 0.30, "mentalis": 0.04},
-    "mouthFunnel": {"orbicularis_oris": 0.18, "jaw_open": 0.08},
-    "mouthPucker": {"orbicularis_oris": 0.25, "orbicularis_oris_press": 0.08},
-    # The mouth moves toward the subject's side: that corner drawn out and back.
-    "mouthLeft": {"risorius_L": 0.10, "buccinator_L": 0.04},
-    "mouthRight": {"risorius_R": 0.10, "buccinator_R": 0.04},
-    "mouthRollLower": {"orbicularis_oris_roll_lower": 0.05},
-    "mouthRollUpper": {"orbicularis_oris_roll_upper": 0.05},
-    "mouthShrugLower": {"mentalis": 0.10},
-    "mouthShrugUpper": {"mentalis": 0.05, "levator_labii_superioris_L": 0.03, "levator_labii_superioris_R": 0.03},
-})
+_PRESETS.update(
+    {
+        "browInnerUp": {
+            "frontalis_inner_L": 0.14,
+            "frontalis_inner_R": 0.14,
+            "frontalis_middle_L": 0.05,
+            "frontalis_middle_R": 0.05,
+        },
+        # No muscle puffs the cheeks (air does): the closest the rig comes is cheek tissue bunched out by the
+        # orbital orbicularis oculi and zygomaticus minor with the lips pressed.
+        "cheekPuff": {
+            "orbicularis_oculi_L": 0.12,
+            "orbicularis_oculi_R": 0.12,
+            "zygomaticus_minor_L": 0.05,
+            "zygomaticus_minor_R": 0.05,
+            "orbicularis_oris_press": 0.08,
+        },
+        "jawOpen": {"jaw_open": 0.25},
+        "jawForward": {"jaw_forward": 0.08},
+        "jawLeft": {"jaw_left": 0.08},
+        "jawRight": {"jaw_left": -0.08},
+        "mouthClose": {"jaw_open": 0.12, "orbicularis_oris_press": 0.30, "mentalis": 0.04},
+        "mouthFunnel": {"orbicularis_oris": 0.18, "jaw_open": 0.08},
+        "mouthPucker": {"orbicularis_oris": 0.25, "orbicularis_oris_press": 0.08},
+        # The mouth moves toward the subject's side: that corner drawn out and back.
+        "mouthLeft": {"risorius_L": 0.10, "buccinator_L": 0.04},
+        "mouthRight": {"risorius_R": 0.10, "buccinator_R": 0.04},
+        "mouthRollLower": {"orbicularis_oris_roll_lower": 0.05},
+        "mouthRollUpper": {"orbicularis_oris_roll_upper": 0.05},
+        "mouthShrugLower": {"mentalis": 0.10},
+        "mouthShrugUpper": {"mentalis": 0.05, "levator_labii_superioris_L": 0.03, "levator_labii_superioris_R": 0.03},
+    }
+)
 
 ARKIT_PRESET_NAMES: tuple[str, ...] = tuple(sorted(_PRESETS))
 """The ARKit skin-motion shapes with a preset (eye-gaze and tongue shapes move no skin)."""
@@ -102,5 +114,7 @@ def preset_controls(name: str, rig: FaceRig, *, intensity: float = 1.0) -> dict[
         raise RigError(f"rig {rig.name!r}: preset {name!r} needs control(s) {', '.join(missing)}")
     scale = rig_scale(rig)
     linear = {m.name for m in rig.muscles if isinstance(m, LinearMuscle)}
-    return {control: value * intensity * (scale if control in linear or control in _JAW_LENGTHS else 1.0)
-            for control, value in PRESETS[name].items()}
+    return {
+        control: value * intensity * (scale if control in linear or control in _JAW_LENGTHS else 1.0)
+        for control, value in PRESETS[name].items()
+    }

@@ -27,9 +27,14 @@ from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrink
 from ..landmarks import LEFT_SIDE, RIGHT_SIDE
 from ..mesh import FaceMesh
 from ..rig import FaceRig
+from .anatomy import (
+    ANATOMY_LINEAR_MUSCLE_NAMES,
+    ANATOMY_SPHINCTER_MUSCLE_NAMES,
+    SKIN_RESPONSE_OVERRIDES,
+    anatomy_muscles,
+    revised_classic_muscles,
+)
 from .face import default_face, default_landmarks
-from .anatomy import (ANATOMY_LINEAR_MUSCLE_NAMES, ANATOMY_SPHINCTER_MUSCLE_NAMES, SKIN_RESPONSE_OVERRIDES, anatomy_muscles,
-                      revised_classic_muscles)
 from .frame import FaceFrame, SurfaceSampler, check_landmarks, head_cylinder
 from .jaw import default_jaw
 from .thickness import default_thickness
@@ -78,13 +83,21 @@ ANATOMIES = ("full", "classic")
 (docs/RIG.md). ``"classic"``: the 23 muscles of thesis table 2.1 with the SPEC §1.1 zones, no jaw."""
 
 WRINKLE_NAMES: tuple[str, ...] = (
-    "forehead_1", "forehead_2", "forehead_3", "forehead_4",
-    "glabella_L", "glabella_R",
-    "nasal_root_1", "nasal_root_2",
-    "bunny_L", "bunny_R",
+    "forehead_1",
+    "forehead_2",
+    "forehead_3",
+    "forehead_4",
+    "glabella_L",
+    "glabella_R",
+    "nasal_root_1",
+    "nasal_root_2",
+    "bunny_L",
+    "bunny_R",
     *(f"crows_feet_{s}_{i}" for s in _SIDES for i in (1, 2, 3)),
-    "nasolabial_L", "nasolabial_R",
-    "under_eye_L", "under_eye_R",
+    "nasolabial_L",
+    "nasolabial_R",
+    "under_eye_L",
+    "under_eye_R",
     "chin",
 )
 """Wrinkles of the default rig, in rig order."""
@@ -112,8 +125,9 @@ def rig_scale(rig: FaceRig) -> float:
     return face_frame(rig.mesh, rig.landmarks).scale
 
 
-def default_rig(mesh: FaceMesh | None = None, landmarks=None, *, name: str = "Face", device=None,
-                anatomy: str = "full") -> FaceRig:
+def default_rig(
+    mesh: FaceMesh | None = None, landmarks=None, *, name: str = "Face", device=None, anatomy: str = "full"
+) -> FaceRig:
     """The default rig on a face: muscles, wrinkles and thickness placed from its 68 iBUG landmarks.
 
     Args:
@@ -157,8 +171,15 @@ def default_rig(mesh: FaceMesh | None = None, landmarks=None, *, name: str = "Fa
     thickness = default_thickness(mesh, landmarks, device=device)
     if anatomy == "full":
         thickness = MOBILE_TISSUE_FRACTION * thickness
-    return FaceRig(mesh=mesh, muscles=linear + sphincters, wrinkles=wrinkles, thickness=thickness, landmarks=landmarks,
-                   name=name, jaw=jaw)
+    return FaceRig(
+        mesh=mesh,
+        muscles=linear + sphincters,
+        wrinkles=wrinkles,
+        thickness=thickness,
+        landmarks=landmarks,
+        name=name,
+        jaw=jaw,
+    )
 
 
 MOBILE_TISSUE_FRACTION = 0.6
@@ -219,47 +240,99 @@ def _linear_muscles(L: np.ndarray, surface: SurfaceSampler) -> list[LinearMuscle
         # The attachment lies beyond the top of a typical face mesh, so the pull is nearly uniform
         # over the forehead instead of concentrated at a point on it.
         muscles[f"frontalis_inner_{tag}"] = _galea_muscle(
-            f"frontalis_inner_{tag}", surface, inner[0] + 0.08 * s, brow_top, (inner[0] + 0.03 * s, inner[1] + 0.05))
+            f"frontalis_inner_{tag}", surface, inner[0] + 0.08 * s, brow_top, (inner[0] + 0.03 * s, inner[1] + 0.05)
+        )
         muscles[f"frontalis_outer_{tag}"] = _galea_muscle(
-            f"frontalis_outer_{tag}", surface, second[0] - 0.05 * s, brow_top, (second[0] + 0.02 * s, second[1] + 0.05))
+            f"frontalis_outer_{tag}", surface, second[0] - 0.05 * s, brow_top, (second[0] + 0.02 * s, second[1] + 0.05)
+        )
         # Corrugator: from the medial end of the brow ridge into the skin above mid-brow; pulls the
         # brows together and down (AU4), squeezing the skin between them into vertical furrows.
         muscles[f"corrugator_{tag}"] = _linear(
-            f"corrugator_{tag}", surface, (0.03 * s, inner[1] - 0.06), 0.06,
-            (0.5 * (middle[0] + fourth[0]), fourth[1] + 0.07), 40.0, 0.75, 1.50)
+            f"corrugator_{tag}",
+            surface,
+            (0.03 * s, inner[1] - 0.06),
+            0.06,
+            (0.5 * (middle[0] + fourth[0]), fourth[1] + 0.07),
+            40.0,
+            0.75,
+            1.50,
+        )
         # Levator labii superioris alaeque nasi: frontal process of the maxilla → nose wing (AU9).
         muscles[f"levator_labii_alaeque_nasi_{tag}"] = _linear(
-            f"levator_labii_alaeque_nasi_{tag}", surface, (0.45 * eye_inner[0], eye_inner[1] + 0.05), 0.22,
-            (wing[0] + 0.02 * s, wing[1] + 0.04), 24.0, 0.85, 1.40)
+            f"levator_labii_alaeque_nasi_{tag}",
+            surface,
+            (0.45 * eye_inner[0], eye_inner[1] + 0.05),
+            0.22,
+            (wing[0] + 0.02 * s, wing[1] + 0.04),
+            24.0,
+            0.85,
+            1.40,
+        )
         # Levator labii superioris: infraorbital margin → upper lip (AU10).
         muscles[f"levator_labii_superioris_{tag}"] = _linear(
-            f"levator_labii_superioris_{tag}", surface, (eye[0] - 0.02 * s, eye[1] - 0.36), 0.18,
-            (xy[side.upper_lip, 0] + 0.02 * s, xy[side.upper_lip, 1] + 0.06), 20.0, 0.88, 1.30)
+            f"levator_labii_superioris_{tag}",
+            surface,
+            (eye[0] - 0.02 * s, eye[1] - 0.36),
+            0.18,
+            (xy[side.upper_lip, 0] + 0.02 * s, xy[side.upper_lip, 1] + 0.06),
+            20.0,
+            0.88,
+            1.30,
+        )
         # Zygomaticus major: zygomatic bone → mouth corner, up and back (AU12, smile).
         muscles[f"zygomaticus_major_{tag}"] = _linear(
-            f"zygomaticus_major_{tag}", surface, (eye_outer[0] + 0.40 * s, eye[1] - 0.30), 0.25,
-            (corner[0] + 0.07 * s, corner[1] + 0.01), 30.0, 0.90, 1.45)
+            f"zygomaticus_major_{tag}",
+            surface,
+            (eye_outer[0] + 0.40 * s, eye[1] - 0.30),
+            0.25,
+            (corner[0] + 0.07 * s, corner[1] + 0.01),
+            30.0,
+            0.90,
+            1.45,
+        )
         # Risorius: masseteric fascia → mouth corner, sideways (AU20).
         cheek_side = xy[side.jaw[3]]
         muscles[f"risorius_{tag}"] = _linear(
-            f"risorius_{tag}", surface, (0.85 * cheek_side[0], corner[1] + 0.02), 0.30,
-            (corner[0] + 0.07 * s, corner[1]), 24.0, 0.90, 1.40)
+            f"risorius_{tag}",
+            surface,
+            (0.85 * cheek_side[0], corner[1] + 0.02),
+            0.30,
+            (corner[0] + 0.07 * s, corner[1]),
+            24.0,
+            0.90,
+            1.40,
+        )
         # Depressor anguli oris: mandible below the corner → mouth corner, down (AU15).
         chin_side = xy[side.jaw[6]]
         muscles[f"depressor_anguli_oris_{tag}"] = _linear(
-            f"depressor_anguli_oris_{tag}", surface, (corner[0] + 0.10 * s, 0.5 * (corner[1] + chin_side[1]) - 0.10), 0.18,
-            (corner[0] + 0.02 * s, corner[1] - 0.02), 24.0, 0.88, 1.35)
+            f"depressor_anguli_oris_{tag}",
+            surface,
+            (corner[0] + 0.10 * s, 0.5 * (corner[1] + chin_side[1]) - 0.10),
+            0.18,
+            (corner[0] + 0.02 * s, corner[1] - 0.02),
+            24.0,
+            0.88,
+            1.35,
+        )
         # Depressor labii inferioris: mandible → lower lip, down (AU16).
         lower = xy[side.lower_lip]
         muscles[f"depressor_labii_inferioris_{tag}"] = _linear(
-            f"depressor_labii_inferioris_{tag}", surface, (lower[0] + 0.12 * s, lower[1] - 0.42), 0.20,
-            (lower[0] + 0.03 * s, lower[1] - 0.02), 22.0, 0.85, 1.30)
+            f"depressor_labii_inferioris_{tag}",
+            surface,
+            (lower[0] + 0.12 * s, lower[1] - 0.42),
+            0.20,
+            (lower[0] + 0.03 * s, lower[1] - 0.02),
+            22.0,
+            0.85,
+            1.30,
+        )
     # Procerus: nasal bone → skin between the brows, pulling it down (nasal-root lines).
     glabella_y = 0.5 * (xy[21, 1] + xy[22, 1]) + 0.12
     muscles["procerus"] = _linear("procerus", surface, (0.0, xy[28, 1]), 0.10, (0.0, glabella_y), 34.0, 0.80, 1.30)
     # Mentalis: incisive fossa below the lower lip → chin skin, raising it (AU17).
     muscles["mentalis"] = _linear(
-        "mentalis", surface, (0.0, xy[57, 1] - 0.14), 0.20, (0.0, 0.55 * xy[8, 1] + 0.45 * xy[57, 1]), 50.0, 0.90, 1.60)
+        "mentalis", surface, (0.0, xy[57, 1] - 0.14), 0.20, (0.0, 0.55 * xy[8, 1] + 0.45 * xy[57, 1]), 50.0, 0.90, 1.60
+    )
     return [muscles[name] for name in CLASSIC_LINEAR_MUSCLE_NAMES]
 
 
@@ -271,7 +344,10 @@ def _sphincters(L: np.ndarray, frame: FaceFrame) -> list[SphincterMuscle]:
     to_nose = mouth_centre[1] - L[33, 1]
     muscles = [
         SphincterMuscle(
-            "orbicularis_oris", world(mouth_centre), world(L[54]) - world(L[48]), up,
+            "orbicularis_oris",
+            world(mouth_centre),
+            world(L[54]) - world(L[48]),
+            up,
             (1.45 * mouth_half_width * frame.scale, 1.15 * abs(to_nose) * frame.scale),
         )
     ]
@@ -283,7 +359,11 @@ def _sphincters(L: np.ndarray, frame: FaceFrame) -> list[SphincterMuscle]:
         # skin (compressed only within ~2/3 of the semi-axes) and lifts the cheek while it narrows
         # the eye.
         centre = eye + np.array([0.17 * side.sign, 0.0, 0.0])
-        muscles.append(SphincterMuscle(f"orbicularis_oculi_{tag}", world(centre), across, up, (0.78 * frame.scale, 0.56 * frame.scale)))
+        muscles.append(
+            SphincterMuscle(
+                f"orbicularis_oculi_{tag}", world(centre), across, up, (0.78 * frame.scale, 0.56 * frame.scale)
+            )
+        )
     return muscles
 
 
@@ -297,8 +377,9 @@ def _typical_edge(mesh: FaceMesh) -> float:
     return float(np.median(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)))
 
 
-def _wrinkles(L: np.ndarray, surface: SurfaceSampler, frame: FaceFrame, cylinder: CylindricalProjection, edge: float,
-              device=None) -> list[Wrinkle]:
+def _wrinkles(
+    L: np.ndarray, surface: SurfaceSampler, frame: FaceFrame, cylinder: CylindricalProjection, edge: float, device=None
+) -> list[Wrinkle]:
     """The 21 furrows. Paths are local (x, y) through skin points; depth ``k_d`` and width ``k_w`` are in
     inter-ocular units (``k_d`` is large because a furrow shows ``k_d·(1 − r)``: a few percent of compression)."""
     xy = L[:, :2]
@@ -319,29 +400,54 @@ def _wrinkles(L: np.ndarray, surface: SurfaceSampler, frame: FaceFrame, cylinder
     for index, (height, half_span) in enumerate(((0.20, 0.55), (0.38, 0.72), (0.56, 0.78), (0.74, 0.62)), start=1):
         y = brow_top + height
         wrinkles[f"forehead_{index}"] = wrinkle(
-            f"forehead_{index}", plane,
-            [(-half_span, y + 0.05), (-0.33 * half_span, y - 0.035), (0.33 * half_span, y - 0.035), (half_span, y + 0.05)],
-            0.15, 0.060)
+            f"forehead_{index}",
+            plane,
+            [
+                (-half_span, y + 0.05),
+                (-0.33 * half_span, y - 0.035),
+                (0.33 * half_span, y - 0.035),
+                (half_span, y + 0.05),
+            ],
+            0.15,
+            0.060,
+        )
     for side, tag in ((_LEFT, "L"), (_RIGHT, "R")):
         s = side.sign
         # Glabella: the vertical "11" lines between the brows (corrugator, AU4).
         x0 = 0.17 * s
         wrinkles[f"glabella_{tag}"] = wrinkle(
-            f"glabella_{tag}", plane,
-            [(x0, brow_inner - 0.10), (x0 + 0.005 * s, brow_inner + 0.0), (x0 + 0.015 * s, brow_inner + 0.10), (x0 + 0.04 * s, brow_inner + 0.20)],
-            0.10, 0.050)
+            f"glabella_{tag}",
+            plane,
+            [
+                (x0, brow_inner - 0.10),
+                (x0 + 0.005 * s, brow_inner + 0.0),
+                (x0 + 0.015 * s, brow_inner + 0.10),
+                (x0 + 0.04 * s, brow_inner + 0.20),
+            ],
+            0.10,
+            0.050,
+        )
     for index, offset in enumerate((0.02, -0.10), start=1):
         # Nasal root: horizontal lines across the top of the nose (procerus).
         y = xy[27, 1] + offset
         wrinkles[f"nasal_root_{index}"] = wrinkle(
-            f"nasal_root_{index}", plane, [(-0.17, y + 0.015), (-0.06, y - 0.01), (0.06, y - 0.01), (0.17, y + 0.015)], 0.16, 0.045)
+            f"nasal_root_{index}",
+            plane,
+            [(-0.17, y + 0.015), (-0.06, y - 0.01), (0.06, y - 0.01), (0.17, y + 0.015)],
+            0.16,
+            0.045,
+        )
     for side, tag in ((_LEFT, "L"), (_RIGHT, "R")):
         s = side.sign
         # Bunny lines: oblique furrows on the sides of the nose bridge (nose wrinkler, AU9).
         top = (0.08 * s, xy[28, 1] + 0.02)
         wrinkles[f"bunny_{tag}"] = wrinkle(
-            f"bunny_{tag}", plane,
-            [top, (0.12 * s, xy[28, 1] - 0.06), (0.16 * s, xy[29, 1] - 0.02), (0.20 * s, xy[29, 1] - 0.10)], 0.10, 0.045)
+            f"bunny_{tag}",
+            plane,
+            [top, (0.12 * s, xy[28, 1] - 0.06), (0.16 * s, xy[29, 1] - 0.02), (0.20 * s, xy[29, 1] - 0.10)],
+            0.10,
+            0.045,
+        )
     for side, tag in ((_LEFT, "L"), (_RIGHT, "R")):
         s = side.sign
         outer = xy[side.eye_outer]
@@ -356,21 +462,37 @@ def _wrinkles(L: np.ndarray, surface: SurfaceSampler, frame: FaceFrame, cylinder
         wing, corner = xy[side.nose_wing], xy[side.mouth_corner]
         # Nasolabial fold: from above the nose wing, round the cheek, past the mouth corner (AU12, AU10).
         wrinkles[f"nasolabial_{tag}"] = wrinkle(
-            f"nasolabial_{tag}", cylinder,
-            [(wing[0] + 0.07 * s, wing[1] + 0.10), (wing[0] + 0.20 * s, wing[1] - 0.14),
-             (corner[0] + 0.14 * s, corner[1] + 0.06), (corner[0] + 0.12 * s, corner[1] - 0.16)],
-            0.12, 0.070)
+            f"nasolabial_{tag}",
+            cylinder,
+            [
+                (wing[0] + 0.07 * s, wing[1] + 0.10),
+                (wing[0] + 0.20 * s, wing[1] - 0.14),
+                (corner[0] + 0.14 * s, corner[1] + 0.06),
+                (corner[0] + 0.12 * s, corner[1] - 0.16),
+            ],
+            0.12,
+            0.070,
+        )
     for side, tag in ((_LEFT, "L"), (_RIGHT, "R")):
         s = side.sign
         inner, outer = xy[side.eye_inner], xy[side.eye_outer]
         lower = xy[list(side.eye)][:, 1].min()
         # Under-eye fold: below the lower lid, where the rising cheek bunches the skin (AU6).
         wrinkles[f"under_eye_{tag}"] = wrinkle(
-            f"under_eye_{tag}", cylinder,
-            [(inner[0] + 0.06 * s, lower - 0.13), (inner[0] + 0.20 * s, lower - 0.20),
-             (outer[0] - 0.10 * s, lower - 0.20), (outer[0] + 0.04 * s, lower - 0.12)],
-            0.10, 0.045)
+            f"under_eye_{tag}",
+            cylinder,
+            [
+                (inner[0] + 0.06 * s, lower - 0.13),
+                (inner[0] + 0.20 * s, lower - 0.20),
+                (outer[0] - 0.10 * s, lower - 0.20),
+                (outer[0] + 0.04 * s, lower - 0.12),
+            ],
+            0.10,
+            0.045,
+        )
     # Chin: the mentolabial furrow, deepened when the mentalis raises the chin (AU17).
     y = xy[57, 1] - 0.13
-    wrinkles["chin"] = wrinkle("chin", plane, [(-0.26, y + 0.04), (-0.09, y - 0.02), (0.09, y - 0.02), (0.26, y + 0.04)], 0.12, 0.055)
+    wrinkles["chin"] = wrinkle(
+        "chin", plane, [(-0.26, y + 0.04), (-0.09, y - 0.02), (0.09, y - 0.02), (0.26, y + 0.04)], 0.12, 0.055
+    )
     return [wrinkles[name] for name in WRINKLE_NAMES]

@@ -109,8 +109,17 @@ def thickness_map(mesh: FaceMesh, landmarks, *, device=None) -> ThicknessMap:
     eye_right, eye_left = xy[list(RIGHT_EYE)].mean(axis=0), xy[list(LEFT_EYE)].mean(axis=0)
     mouth = xy[list(MOUTH)].mean(axis=0)
     mouth_half = 0.5 * abs(xy[54, 0] - xy[48, 0])
-    paint("forehead", [(-1.1, brow_top + 0.05), (-0.45, brow_top + 0.02), (0.45, brow_top + 0.02), (1.1, brow_top + 0.05),
-                       (1.1, brow_top + 1.6), (-1.1, brow_top + 1.6)])
+    paint(
+        "forehead",
+        [
+            (-1.1, brow_top + 0.05),
+            (-0.45, brow_top + 0.02),
+            (0.45, brow_top + 0.02),
+            (1.1, brow_top + 0.05),
+            (1.1, brow_top + 1.6),
+            (-1.1, brow_top + 1.6),
+        ],
+    )
     for sign, eye in ((-1.0, eye_right), (1.0, eye_left)):
         paint("temple", ellipse((sign * 1.05, eye[1] + 0.35), (0.22, 0.35)))
         paint("cheek", ellipse((sign * 0.62, eye[1] - 0.58), (0.36, 0.32)))
@@ -119,7 +128,10 @@ def thickness_map(mesh: FaceMesh, landmarks, *, device=None) -> ThicknessMap:
     paint("lips", ellipse(mouth, (1.05 * mouth_half, 0.17)))
     paint("chin", ellipse((0.0, 0.55 * xy[8, 1] + 0.45 * xy[57, 1]), (0.30, 0.22)))
     paint("nose_tip", ellipse((0.0, xy[30, 1] - 0.06), (0.26, 0.16)))
-    paint("nose_bridge", [(-0.10, xy[27, 1] + 0.12), (0.10, xy[27, 1] + 0.12), (0.12, xy[30, 1] + 0.12), (-0.12, xy[30, 1] + 0.12)])
+    paint(
+        "nose_bridge",
+        [(-0.10, xy[27, 1] + 0.12), (0.10, xy[27, 1] + 0.12), (0.12, xy[30, 1] + 0.12), (-0.12, xy[30, 1] + 0.12)],
+    )
 
     pixels_per_unit = rows / (v_range[1] - v_range[0]) * frame.scale
     scale_mm = frame.scale / REFERENCE_INTEROCULAR_MM  # mesh units per millimetre at this face's size

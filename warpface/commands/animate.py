@@ -99,9 +99,22 @@ def prepare_controls(curves, mapping, *, fps: float, neutral=None, gain=None, on
     return cleaned, mapping.apply(cleaned)
 
 
-def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gain=None, one_euro=None,
-            video: bool = True, video_size=(360, 420), video_max_frames: int = PREVIEW_MAX_FRAMES, device=None,
-            progress: bool = True) -> AnimateResult:
+def animate(
+    driver,
+    out,
+    *,
+    rig=None,
+    map_spec=None,
+    fps=None,
+    neutral=None,
+    gain=None,
+    one_euro=None,
+    video: bool = True,
+    video_size=(360, 420),
+    video_max_frames: int = PREVIEW_MAX_FRAMES,
+    device=None,
+    progress: bool = True,
+) -> AnimateResult:
     """Drive a rig with a driver file and write ``out`` (the rig + control time samples), its baked cache
     ``<out stem>_anim.usdc`` and, with ``video``, ``<out stem>.mp4``.
 
@@ -142,8 +155,10 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
     cleaned, mapped = prepare_controls(curves, mapping, fps=rate, neutral=neutral, gain=gain, one_euro=one_euro)
     unmapped = list(dict.fromkeys(mapped.unmapped_channels + [c for c in orphaned if c in curves.names]))
     if all(name in unmapped for name in curves.names):
-        raise ValueError(f"{curves.source}: none of its channels ({', '.join(curves.names[:5])}"
-                         f"{', …' if len(curves.names) > 5 else ''}) drives a control of rig {rig_model.name!r}")
+        raise ValueError(
+            f"{curves.source}: none of its channels ({', '.join(curves.names[:5])}"
+            f"{', …' if len(curves.names) > 5 else ''}) drives a control of rig {rig_model.name!r}"
+        )
     notes = list(cleaned.notes)
     clock.step("clean and map")
 
@@ -154,8 +169,14 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
     muscles = set(rig_model.muscle_names)
     contractions = {name: mapped.values[:, k] for k, name in enumerate(mapped.names) if name in muscles}
     jaw = {name: mapped.values[:, k] for k, name in enumerate(mapped.names) if name in JAW_CONTROL_ATTRIBUTES}
-    usd.write_animation(stage, time_codes, contractions=contractions, jaw=jaw if rig_model.jaw is not None and jaw else None,
-                        fps=rate, meters_per_unit=units)
+    usd.write_animation(
+        stage,
+        time_codes,
+        contractions=contractions,
+        jaw=jaw if rig_model.jaw is not None and jaw else None,
+        fps=rate,
+        meters_per_unit=units,
+    )
     clock.step("write controls")
     root = stage.GetRootLayer()
     cache_path = out.with_name(out.stem + CACHE_SUFFIX)
@@ -170,10 +191,21 @@ def animate(driver, out, *, rig=None, map_spec=None, fps=None, neutral=None, gai
     clock.step("save stage")
     video_path = None
     if video:
-        video_path = _preview(out.with_suffix(".mp4"), model, rig_model, mapped, rate, video_size, progress, video_max_frames)
+        video_path = _preview(
+            out.with_suffix(".mp4"), model, rig_model, mapped, rate, video_size, progress, video_max_frames
+        )
         clock.step("video")
-    return AnimateResult(stage=out, cache=cache, video=video_path, fps=rate, frame_count=len(time_codes),
-                         mapping=label, unmapped_channels=unmapped, notes=notes, seconds=clock.seconds)
+    return AnimateResult(
+        stage=out,
+        cache=cache,
+        video=video_path,
+        fps=rate,
+        frame_count=len(time_codes),
+        mapping=label,
+        unmapped_channels=unmapped,
+        notes=notes,
+        seconds=clock.seconds,
+    )
 
 
 class _StepClock:
@@ -229,15 +261,23 @@ def _preview(path: Path, model, rig, mapped, rate: float, size, progress: bool, 
         if not writer.isOpened():
             raise ValueError(f"cannot open a video writer for {path}")
         try:
-            with preview.PreviewRenderer(rig.mesh.triangles, size=size, camera=camera, background=(0.12, 0.12, 0.14)) as renderer:
-                with tqdm(total=len(contractions), desc=f"video {path.name}", unit="frame", disable=not progress, leave=False) as bar:
+            with preview.PreviewRenderer(
+                rig.mesh.triangles, size=size, camera=camera, background=(0.12, 0.12, 0.14)
+            ) as renderer:
+                with tqdm(
+                    total=len(contractions), desc=f"video {path.name}", unit="frame", disable=not progress, leave=False
+                ) as bar:
                     for start in range(0, len(contractions), 64):
-                        frames = model.evaluate_batch(contractions[start:start + 64])
+                        frames = model.evaluate_batch(contractions[start : start + 64])
                         for offset, points in enumerate(frames):
                             frame = int(shown[start + offset])
                             image = np.ascontiguousarray(renderer.render(points))
-                            text = f"{mapped.times[frame] - mapped.times[0]:6.2f} s  " + " ".join(mapped.active_channels[frame][:3])
-                            cv2.putText(image, text, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (235, 235, 235), 1, cv2.LINE_AA)
+                            text = f"{mapped.times[frame] - mapped.times[0]:6.2f} s  " + " ".join(
+                                mapped.active_channels[frame][:3]
+                            )
+                            cv2.putText(
+                                image, text, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (235, 235, 235), 1, cv2.LINE_AA
+                            )
                             writer.write(cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
                         bar.update(len(frames))
         finally:
@@ -281,16 +321,28 @@ def run_animate(args) -> int:
 
     one_euro = OneEuroFilter(min_cutoff=args.filter_min_cutoff, beta=args.filter_beta) if args.filter else None
     try:
-        result = animate(args.driver, args.out, rig=args.rig, map_spec=args.map, fps=args.fps, neutral=_neutral(args.neutral),
-                         gain=_gains(args.gain), one_euro=one_euro, video=not args.no_video, device=args.device,
-                         video_max_frames=args.video_max_frames,
-                         progress=not args.quiet)
+        result = animate(
+            args.driver,
+            args.out,
+            rig=args.rig,
+            map_spec=args.map,
+            fps=args.fps,
+            neutral=_neutral(args.neutral),
+            gain=_gains(args.gain),
+            one_euro=one_euro,
+            video=not args.no_video,
+            device=args.device,
+            video_max_frames=args.video_max_frames,
+            progress=not args.quiet,
+        )
     except ValueError as error:  # messages relayed from pxr can span lines: the CLI prints one
         raise ValueError(" ".join(str(error).split())) from None
     for note in result.notes:
         print(f"note: {note}")
     if result.unmapped_channels:
-        print(f"note: ignored {len(result.unmapped_channels)} channels the rig cannot drive: {', '.join(result.unmapped_channels)}")
+        print(
+            f"note: ignored {len(result.unmapped_channels)} channels the rig cannot drive: {', '.join(result.unmapped_channels)}"
+        )
     print(f"animated {result.frame_count} frames at {result.fps:g} frames/s with the {result.mapping}")
     print(f"  stage {result.stage}")
     print(f"  cache {result.cache}")
@@ -302,21 +354,40 @@ def run_animate(args) -> int:
 def add_parser(subparsers, common):
     """Register ``animate`` on the CLI's sub-parsers (``common``: the shared options); returns the parser."""
     parser = subparsers.add_parser(
-        "animate", parents=[common], help="driver curves (ARKit, MediaPipe, Audio2Face, OpenFace AUs) -> rig time samples, bake, video",
-        description=__doc__.split("\n\n")[1] if __doc__ else None)
+        "animate",
+        parents=[common],
+        help="driver curves (ARKit, MediaPipe, Audio2Face, OpenFace AUs) -> rig time samples, bake, video",
+        description=__doc__.split("\n\n")[1] if __doc__ else None,
+    )
     parser.add_argument("driver", help="OpenFace/Live Link Face CSV, MediaPipe .pbtxt/.jsonl, or USD SkelAnimation")
     parser.add_argument("--rig", default=None, help="rig stage (default: the built-in face's rig)")
-    parser.add_argument("--out", required=True, help="output stage (.usda/.usdc); cache <out>_anim.usdc, video <out>.mp4")
-    parser.add_argument("--map", default=None, help="mapping stored on the rig stage (NAME) or FILE.usda[:NAME] "
-                                                    "(default: the rig's 'default' mapping, else the default table)")
-    parser.add_argument("--fps", type=float, default=None, help="output frame rate (default: the rig stage's, else the driver's)")
+    parser.add_argument(
+        "--out", required=True, help="output stage (.usda/.usdc); cache <out>_anim.usdc, video <out>.mp4"
+    )
+    parser.add_argument(
+        "--map",
+        default=None,
+        help="mapping stored on the rig stage (NAME) or FILE.usda[:NAME] "
+        "(default: the rig's 'default' mapping, else the default table)",
+    )
+    parser.add_argument(
+        "--fps", type=float, default=None, help="output frame rate (default: the rig stage's, else the driver's)"
+    )
     parser.add_argument("--neutral", default=None, help="neutral FRAME index or START:END segment in seconds")
-    parser.add_argument("--gain", action="append", default=None, metavar="CHANNEL=GAIN", help="per-channel gain (repeatable)")
+    parser.add_argument(
+        "--gain", action="append", default=None, metavar="CHANNEL=GAIN", help="per-channel gain (repeatable)"
+    )
     parser.add_argument("--filter", action="store_true", help="smooth the channels with a 1€ filter")
-    parser.add_argument("--filter-min-cutoff", type=float, default=1.5, help="1€ filter cut-off at rest [Hz] (default 1.5)")
+    parser.add_argument(
+        "--filter-min-cutoff", type=float, default=1.5, help="1€ filter cut-off at rest [Hz] (default 1.5)"
+    )
     parser.add_argument("--filter-beta", type=float, default=0.5, help="1€ filter speed coefficient (default 0.5)")
     parser.add_argument("--no-video", action="store_true", help="skip the preview video")
-    parser.add_argument("--video-max-frames", type=int, default=PREVIEW_MAX_FRAMES,
-                        help=f"longest preview in frames; longer takes show every k-th frame (default {PREVIEW_MAX_FRAMES})")
+    parser.add_argument(
+        "--video-max-frames",
+        type=int,
+        default=PREVIEW_MAX_FRAMES,
+        help=f"longest preview in frames; longer takes show every k-th frame (default {PREVIEW_MAX_FRAMES})",
+    )
     parser.set_defaults(handler=run_animate)
     return parser

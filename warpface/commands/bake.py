@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .common import finite_float, positive_int, positive_float
+from .common import finite_float, positive_float, positive_int
 
 __all__ = ["add_parser", "run"]
 
@@ -11,16 +11,25 @@ def add_parser(subparsers, common) -> None:
     from ..usd.animation import MAX_FRAMES
 
     bake = subparsers.add_parser(
-        "bake", parents=[common], help="evaluate a rig stage at its time codes into a .usdc points cache",
+        "bake",
+        parents=[common],
+        help="evaluate a rig stage at its time codes into a .usdc points cache",
         description="Evaluate the expression model at every time code of STAGE (or --start..--end) and write the "
-                    "skin's points as time samples in a .usdc cache sublayered under STAGE.")
+        "skin's points as time samples in a .usdc cache sublayered under STAGE.",
+    )
     bake.add_argument("stage", help="rig stage (.usda/.usdc) with contraction time samples")
-    bake.add_argument("--cache", default=None, help="cache file (default: <stage>_anim.usdc); not the stage or one of its layers")
+    bake.add_argument(
+        "--cache", default=None, help="cache file (default: <stage>_anim.usdc); not the stage or one of its layers"
+    )
     bake.add_argument("--start", type=finite_float, default=None, help="first time code (default: the stage's start)")
     bake.add_argument("--end", type=finite_float, default=None, help="last time code (default: the stage's end)")
     bake.add_argument("--step", type=positive_float, default=1.0, help="time code step, > 0 (default 1)")
-    bake.add_argument("--max-frames", type=positive_int, default=MAX_FRAMES,
-                      help=f"refuse to bake more frames than this (default {MAX_FRAMES}); raise it for longer bakes")
+    bake.add_argument(
+        "--max-frames",
+        type=positive_int,
+        default=MAX_FRAMES,
+        help=f"refuse to bake more frames than this (default {MAX_FRAMES}); raise it for longer bakes",
+    )
     bake.set_defaults(handler=run)
 
 
@@ -34,7 +43,13 @@ def run(args) -> int:
         start = stage.GetStartTimeCode() if args.start is None else args.start
         end = stage.GetEndTimeCode() if args.end is None else args.end
         frames = frame_range(start, end, args.step, max_frames=args.max_frames, label="--start/--end/--step")
-    cache = usd.bake(args.stage, frames, cache_path=args.cache, device=args.device, progress=not args.quiet,
-                     max_frames=args.max_frames)
+    cache = usd.bake(
+        args.stage,
+        frames,
+        cache_path=args.cache,
+        device=args.device,
+        progress=not args.quiet,
+        max_frames=args.max_frames,
+    )
     print(f"baked {args.stage} -> {cache}")
     return 0

@@ -6,7 +6,15 @@ import argparse
 import math
 import re
 
-__all__ = ["positive_float", "non_negative_float", "finite_float", "pixel_count", "positive_int", "check_device", "one_line"]
+__all__ = [
+    "positive_float",
+    "non_negative_float",
+    "finite_float",
+    "pixel_count",
+    "positive_int",
+    "check_device",
+    "one_line",
+]
 
 MAX_PIXELS = 8192
 """Largest --width / --height accepted."""
@@ -81,8 +89,10 @@ def check_device(name: str | None) -> str | None:
         raise ValueError(f"--device {name}: no CUDA device is available on this machine (use --device cpu)")
     ordinal = int(match.group(2) or 0)
     if ordinal >= count:
-        raise ValueError(f"--device {name}: this machine has {count} CUDA device{'s' if count > 1 else ''} "
-                         f"(cuda:0{f' … cuda:{count - 1}' if count > 1 else ''})")
+        raise ValueError(
+            f"--device {name}: this machine has {count} CUDA device{'s' if count > 1 else ''} "
+            f"(cuda:0{f' … cuda:{count - 1}' if count > 1 else ''})"
+        )
     return f"cuda:{ordinal}"
 
 

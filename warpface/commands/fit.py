@@ -27,16 +27,31 @@ REGIONS = {
 def add_parser(subparsers, common) -> None:
     """Register ``fit`` on the CLI's sub-parsers (``common``: the shared options)."""
     fit = subparsers.add_parser(
-        "fit", parents=[common], help="solve muscle contractions for shapes, store them as presets on the rig stage",
+        "fit",
+        parents=[common],
+        help="solve muscle contractions for shapes, store them as presets on the rig stage",
         description="Fit the rig of --rig to each TARGET (OBJ, or a USD stage with a mesh of the rig's topology), "
-                    "write the controls as named presets on the rig stage, print per-region error before/after "
-                    "in mm and the controls used, and render a heat map of the remaining error.")
-    fit.add_argument("targets", nargs="+", metavar="TARGET", help="shape(s) with the rig's topology (.obj, .usda/.usdc/.usd)")
-    fit.add_argument("--rig", required=True, help="rig stage (.usda/.usdc) written by warpface; presets are added to it")
-    fit.add_argument("--name", action="append", default=None,
-                     help="preset name per target, in order (default: the target's file name without extension)")
-    fit.add_argument("--target-scale", type=float, default=1.0,
-                     help="multiply OBJ coordinates by this to get the rig stage's units (e.g. 0.01 for cm -> m)")
+        "write the controls as named presets on the rig stage, print per-region error before/after "
+        "in mm and the controls used, and render a heat map of the remaining error.",
+    )
+    fit.add_argument(
+        "targets", nargs="+", metavar="TARGET", help="shape(s) with the rig's topology (.obj, .usda/.usdc/.usd)"
+    )
+    fit.add_argument(
+        "--rig", required=True, help="rig stage (.usda/.usdc) written by warpface; presets are added to it"
+    )
+    fit.add_argument(
+        "--name",
+        action="append",
+        default=None,
+        help="preset name per target, in order (default: the target's file name without extension)",
+    )
+    fit.add_argument(
+        "--target-scale",
+        type=float,
+        default=1.0,
+        help="multiply OBJ coordinates by this to get the rig stage's units (e.g. 0.01 for cm -> m)",
+    )
     fit.add_argument("--landmarks", action="store_true", help="fit from the rig's landmark vertices only")
     fit.add_argument("--symmetry", type=float, default=0.0, help="left/right symmetry weight (default 0)")
     fit.add_argument("--out", default=None, help="folder for heat maps (default: <rig>_fit next to the rig)")
@@ -67,7 +82,8 @@ def _load_target(path: Path, rig, scale: float, stage_units: float) -> np.ndarra
         points, triangles = load_obj(path)
         points = points * scale
         if len(points) == rig.mesh.vertex_count and (
-                triangles.shape != rig.mesh.triangles.shape or not np.array_equal(triangles, rig.mesh.triangles)):
+            triangles.shape != rig.mesh.triangles.shape or not np.array_equal(triangles, rig.mesh.triangles)
+        ):
             raise ValueError(f"{path}: same vertex count as the rig but different triangles (topology differs)")
     else:
         from pxr import Usd, UsdGeom
@@ -119,14 +135,20 @@ def run_fit(args) -> int:
         presets[name] = {k: v for k, v in fit.controls.items() if v != 0.0}
         residuals[name] = fit.residual
         status = "converged" if fit.converged else "NOT converged (best iterate kept)"
-        print(f"{target_path} -> preset {name!r}: {status} in {fit.iterations} iterations, RMS {fit.residual * mm:.3f} mm")
+        print(
+            f"{target_path} -> preset {name!r}: {status} in {fit.iterations} iterations, RMS {fit.residual * mm:.3f} mm"
+        )
         print(f"  {'region':<10} {'vertices':>8} {'before mean':>11} {'max':>7} {'after mean':>10} {'max':>7}   [mm]")
         for index, region_name in enumerate(region_names):
             rows = region == index
             if rows.any():
-                print(f"  {region_name:<10} {int(rows.sum()):>8} {before[rows].mean():>11.3f} {before[rows].max():>7.3f} "
-                      f"{after[rows].mean():>10.3f} {after[rows].max():>7.3f}")
-        print(f"  {'all':<10} {len(before):>8} {before.mean():>11.3f} {before.max():>7.3f} {after.mean():>10.3f} {after.max():>7.3f}")
+                print(
+                    f"  {region_name:<10} {int(rows.sum()):>8} {before[rows].mean():>11.3f} {before[rows].max():>7.3f} "
+                    f"{after[rows].mean():>10.3f} {after[rows].max():>7.3f}"
+                )
+        print(
+            f"  {'all':<10} {len(before):>8} {before.mean():>11.3f} {before.max():>7.3f} {after.mean():>10.3f} {after.max():>7.3f}"
+        )
         used = sorted(presets[name].items(), key=lambda item: -abs(item[1]))
         print("  controls: " + (", ".join(f"{k} {v:.4g}" for k, v in used) if used else "none (neutral)"))
         if not args.no_images:
@@ -135,8 +157,9 @@ def run_fit(args) -> int:
             out.mkdir(parents=True, exist_ok=True)
             image = out / f"{name}_error.png"
             camera = preview.Camera.framing(rig.mesh.points, yaw_deg=15.0, pitch_deg=5.0)
-            preview.render_heat_map(fit.points, rig.mesh.triangles, after, image, camera=camera,
-                                    title=f"{name}: |fit - target|", units="mm")
+            preview.render_heat_map(
+                fit.points, rig.mesh.triangles, after, image, camera=camera, title=f"{name}: |fit - target|", units="mm"
+            )
             print(f"  heat map {image}")
     write_presets(stage, presets, residuals=residuals, meters_per_unit=units)
     export_layer_atomically(stage.GetRootLayer(), rig_path)

@@ -11,12 +11,19 @@ __all__ = ["add_parser", "run"]
 
 def add_parser(subparsers, common) -> None:
     show = subparsers.add_parser(
-        "preview", parents=[common], help="render a stage frame (or all of them) or an OBJ to PNG/MP4",
+        "preview",
+        parents=[common],
+        help="render a stage frame (or all of them) or an OBJ to PNG/MP4",
         description="Render SOURCE — a warpface rig stage, a capture written by `warpface track`, or an OBJ — at "
-                    "--time to a PNG, or every frame to an MP4 (--video), with pyrender (offscreen).")
+        "--time to a PNG, or every frame to an MP4 (--video), with pyrender (offscreen).",
+    )
     show.add_argument("source", help="stage (.usda/.usdc/.usd) or mesh (.obj)")
-    show.add_argument("--time", type=finite_float, default=None,
-                      help="time code, within the stage's time range (default: its first frame)")
+    show.add_argument(
+        "--time",
+        type=finite_float,
+        default=None,
+        help="time code, within the stage's time range (default: its first frame)",
+    )
     show.add_argument("--out", default=None, help="PNG path (default: <source>_preview.png)")
     show.add_argument("--video", default=None, metavar="MP4", help="also render every frame of the stage into this MP4")
     show.add_argument("--heat", action="store_true", help="colour by displacement magnitude from rest [mm]")
@@ -60,8 +67,9 @@ def run(args) -> int:
     camera = preview.Camera.framing(rest, yaw_deg=args.yaw, pitch_deg=args.pitch, aspect=args.width / args.height)
     if args.heat:
         magnitude = np.linalg.norm(points - rest, axis=1) * unit_mm
-        preview.render_heat_map(points, triangles, magnitude, out, camera=camera, size=size,
-                                title="|displacement| from rest", units="mm")
+        preview.render_heat_map(
+            points, triangles, magnitude, out, camera=camera, size=size, title="|displacement| from rest", units="mm"
+        )
     else:
         preview.render(points, triangles, out, camera=camera, size=size)
     print(f"wrote {out}")
@@ -69,8 +77,17 @@ def run(args) -> int:
         if not len(frames.times):
             raise ValueError(f"{source}: the stage is not animated; nothing to put in --video")
         fps = frames.stage.GetTimeCodesPerSecond()
-        preview.write_video(frames, triangles, video, fps=fps, size=size, camera=camera, progress=not args.quiet,
-                            total=len(frames.times), label=lambda index: f"time {frames.times[index]:g}")
+        preview.write_video(
+            frames,
+            triangles,
+            video,
+            fps=fps,
+            size=size,
+            camera=camera,
+            progress=not args.quiet,
+            total=len(frames.times),
+            label=lambda index: f"time {frames.times[index]:g}",
+        )
         print(f"wrote {video}")
     return 0
 

@@ -21,8 +21,9 @@ from .mapping import Mapping
 __all__ = ["calibrate_mapping"]
 
 
-def calibrate_mapping(rig, examples, *, neutral=None, vertices=None, device=None, name: str = "calibrated",
-                      **solve_options):
+def calibrate_mapping(
+    rig, examples, *, neutral=None, vertices=None, device=None, name: str = "calibrated", **solve_options
+):
     """A :class:`Mapping` whose one-hot weights reproduce each example shape.
 
     Args:

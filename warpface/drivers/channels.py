@@ -24,17 +24,58 @@ __all__ = [
 ]
 
 ARKIT_CHANNELS: tuple[str, ...] = (
-    "browDownLeft", "browDownRight", "browInnerUp", "browOuterUpLeft", "browOuterUpRight",
-    "cheekPuff", "cheekSquintLeft", "cheekSquintRight",
-    "eyeBlinkLeft", "eyeBlinkRight", "eyeLookDownLeft", "eyeLookDownRight", "eyeLookInLeft", "eyeLookInRight",
-    "eyeLookOutLeft", "eyeLookOutRight", "eyeLookUpLeft", "eyeLookUpRight", "eyeSquintLeft", "eyeSquintRight",
-    "eyeWideLeft", "eyeWideRight",
-    "jawForward", "jawLeft", "jawOpen", "jawRight",
-    "mouthClose", "mouthDimpleLeft", "mouthDimpleRight", "mouthFrownLeft", "mouthFrownRight", "mouthFunnel",
-    "mouthLeft", "mouthLowerDownLeft", "mouthLowerDownRight", "mouthPressLeft", "mouthPressRight", "mouthPucker",
-    "mouthRight", "mouthRollLower", "mouthRollUpper", "mouthShrugLower", "mouthShrugUpper", "mouthSmileLeft",
-    "mouthSmileRight", "mouthStretchLeft", "mouthStretchRight", "mouthUpperUpLeft", "mouthUpperUpRight",
-    "noseSneerLeft", "noseSneerRight", "tongueOut",
+    "browDownLeft",
+    "browDownRight",
+    "browInnerUp",
+    "browOuterUpLeft",
+    "browOuterUpRight",
+    "cheekPuff",
+    "cheekSquintLeft",
+    "cheekSquintRight",
+    "eyeBlinkLeft",
+    "eyeBlinkRight",
+    "eyeLookDownLeft",
+    "eyeLookDownRight",
+    "eyeLookInLeft",
+    "eyeLookInRight",
+    "eyeLookOutLeft",
+    "eyeLookOutRight",
+    "eyeLookUpLeft",
+    "eyeLookUpRight",
+    "eyeSquintLeft",
+    "eyeSquintRight",
+    "eyeWideLeft",
+    "eyeWideRight",
+    "jawForward",
+    "jawLeft",
+    "jawOpen",
+    "jawRight",
+    "mouthClose",
+    "mouthDimpleLeft",
+    "mouthDimpleRight",
+    "mouthFrownLeft",
+    "mouthFrownRight",
+    "mouthFunnel",
+    "mouthLeft",
+    "mouthLowerDownLeft",
+    "mouthLowerDownRight",
+    "mouthPressLeft",
+    "mouthPressRight",
+    "mouthPucker",
+    "mouthRight",
+    "mouthRollLower",
+    "mouthRollUpper",
+    "mouthShrugLower",
+    "mouthShrugUpper",
+    "mouthSmileLeft",
+    "mouthSmileRight",
+    "mouthStretchLeft",
+    "mouthStretchRight",
+    "mouthUpperUpLeft",
+    "mouthUpperUpRight",
+    "noseSneerLeft",
+    "noseSneerRight",
+    "tongueOut",
 )
 """ARKit's 52 blendshape channels (``ARFaceAnchor.BlendShapeLocation``), alphabetical as MediaPipe lists them."""
 
@@ -115,16 +156,22 @@ class Curves:
         if np.any(steps <= 0.0):
             frame = int(np.flatnonzero(steps <= 0.0)[0]) + 1
             kind = "repeats" if steps[frame - 1] == 0.0 else "goes backwards"
-            raise ValueError(f"{label}: timestamp {times[frame]:g} s of frame {frame} {kind} (timestamps must increase)")
+            raise ValueError(
+                f"{label}: timestamp {times[frame]:g} s of frame {frame} {kind} (timestamps must increase)"
+            )
         bad = np.argwhere(~np.isfinite(values))
         if len(bad):
             frame, column = (int(i) for i in bad[0])
-            raise ValueError(f"{label}: channel {names[column]!r} is not a number at frame {frame} (t = {times[frame]:g} s)")
+            raise ValueError(
+                f"{label}: channel {names[column]!r} is not a number at frame {frame} (t = {times[frame]:g} s)"
+            )
         far = np.abs(values) > MAX_CHANNEL_VALUE
         if np.any(far):
             frame, column = (int(i) for i in np.argwhere(far)[0])
-            raise ValueError(f"{label}: channel {names[column]!r} value {values[frame, column]:.6g} at frame {frame} is outside "
-                             f"±{MAX_CHANNEL_VALUE:g}")
+            raise ValueError(
+                f"{label}: channel {names[column]!r} value {values[frame, column]:.6g} at frame {frame} is outside "
+                f"±{MAX_CHANNEL_VALUE:g}"
+            )
         if self.fps is not None:
             object.__setattr__(self, "fps", as_positive(self.fps, f"{label}: frame rate", maximum=1e6))
         object.__setattr__(self, "times", times)
@@ -148,7 +195,13 @@ class Curves:
 
     def replace(self, **changes) -> "Curves":
         """A copy with some fields changed (validated again)."""
-        fields = dict(times=self.times, names=self.names, values=self.values, source=self.source, fps=self.fps,
-                      notes=list(self.notes))
+        fields = dict(
+            times=self.times,
+            names=self.names,
+            values=self.values,
+            source=self.source,
+            fps=self.fps,
+            notes=list(self.notes),
+        )
         fields.update(changes)
         return Curves(**fields)

@@ -27,8 +27,15 @@ import numpy as np
 from .._validate import as_finite_array, as_positive, expect_instance
 from .channels import Curves, channel_range
 
-__all__ = ["OneEuroFilter", "neutral_values", "calibrate_neutral", "apply_gain_offset", "clamp_to_range",
-           "resample", "clean"]
+__all__ = [
+    "OneEuroFilter",
+    "neutral_values",
+    "calibrate_neutral",
+    "apply_gain_offset",
+    "clamp_to_range",
+    "resample",
+    "clean",
+]
 
 
 @dataclass(frozen=True)
@@ -48,8 +55,15 @@ class OneEuroFilter:
     def __post_init__(self) -> None:
         for name in ("min_cutoff", "beta", "derivative_cutoff"):
             value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0 or (value == 0 and name != "beta"):
-                raise ValueError(f"1€ filter: {name} must be a {'non-negative' if name == 'beta' else 'positive'} number, got {value!r}")
+            if (
+                not isinstance(value, (int, float))
+                or not math.isfinite(value)
+                or value < 0
+                or (value == 0 and name != "beta")
+            ):
+                raise ValueError(
+                    f"1€ filter: {name} must be a {'non-negative' if name == 'beta' else 'positive'} number, got {value!r}"
+                )
 
     def __call__(self, times: np.ndarray, values: np.ndarray) -> np.ndarray:
         """Filter ``values`` (F, C) sampled at ``times`` (F,) [s]; returns a new (F, C) array."""
@@ -98,16 +112,22 @@ def neutral_values(curves: Curves, neutral) -> np.ndarray:
         return rest
     if isinstance(neutral, (int, np.integer)) and not isinstance(neutral, bool):
         if not -curves.frame_count <= int(neutral) < curves.frame_count:
-            raise ValueError(f"neutral frame {int(neutral)} is outside the {curves.frame_count} frames of {curves.source}")
+            raise ValueError(
+                f"neutral frame {int(neutral)} is outside the {curves.frame_count} frames of {curves.source}"
+            )
         return curves.values[int(neutral)].copy()
     try:
         start, end = (float(t) for t in neutral)
     except (TypeError, ValueError):
-        raise ValueError(f"neutral: expected a frame index, a (start, end) segment in seconds or {{channel: value}}, got {type(neutral).__name__}") from None
+        raise ValueError(
+            f"neutral: expected a frame index, a (start, end) segment in seconds or {{channel: value}}, got {type(neutral).__name__}"
+        ) from None
     inside = (curves.times >= start) & (curves.times <= end)
     if not inside.any():
-        raise ValueError(f"neutral segment [{start:g}, {end:g}] s contains no frame of {curves.source} "
-                         f"({curves.times[0]:g}–{curves.times[-1]:g} s)")
+        raise ValueError(
+            f"neutral segment [{start:g}, {end:g}] s contains no frame of {curves.source} "
+            f"({curves.times[0]:g}–{curves.times[-1]:g} s)"
+        )
     return curves.values[inside].mean(axis=0)
 
 
@@ -121,7 +141,9 @@ def calibrate_neutral(curves: Curves, neutral) -> Curves:
     return curves.replace(values=values)
 
 
-def apply_gain_offset(curves: Curves, gain: dict[str, float] | None = None, offset: dict[str, float] | None = None) -> Curves:
+def apply_gain_offset(
+    curves: Curves, gain: dict[str, float] | None = None, offset: dict[str, float] | None = None
+) -> Curves:
     """``s' = gain · s + offset`` per named channel (others unchanged).
 
     Raises:
@@ -151,9 +173,13 @@ def clamp_to_range(curves: Curves) -> Curves:
     notes = list(curves.notes)
     for column in np.flatnonzero(below.any(axis=0) | above.any(axis=0)):
         bad = below[:, column] | above[:, column]
-        worst = curves.values[bad, column][np.argmax(np.abs(curves.values[bad, column] - 0.5 * (low[column] + high[column])))]
-        notes.append(f"{curves.source}: {curves.names[column]}: {int(bad.sum())} values outside "
-                     f"[{low[column]:g}, {high[column]:g}] clamped (extreme {worst:.4g})")
+        worst = curves.values[bad, column][
+            np.argmax(np.abs(curves.values[bad, column] - 0.5 * (low[column] + high[column])))
+        ]
+        notes.append(
+            f"{curves.source}: {curves.names[column]}: {int(bad.sum())} values outside "
+            f"[{low[column]:g}, {high[column]:g}] clamped (extreme {worst:.4g})"
+        )
     return curves.replace(values=np.clip(curves.values, low, high), notes=notes)
 
 
@@ -164,7 +190,9 @@ def resample(curves: Curves, fps: float) -> Curves:
     start, end = curves.times[0], curves.times[-1]
     count = int(math.floor((end - start) * fps + 1e-9)) + 1
     if count > MAX_RESAMPLED_FRAMES:
-        raise ValueError(f"fps: resampling {end - start:g} s at {fps:g} fps gives {count} frames, more than {MAX_RESAMPLED_FRAMES}")
+        raise ValueError(
+            f"fps: resampling {end - start:g} s at {fps:g} fps gives {count} frames, more than {MAX_RESAMPLED_FRAMES}"
+        )
     times = start + np.arange(count) / fps
     values = np.empty((count, len(curves.names)))
     for column in range(len(curves.names)):
@@ -172,8 +200,16 @@ def resample(curves: Curves, fps: float) -> Curves:
     return curves.replace(times=times, values=values, fps=fps)
 
 
-def clean(curves: Curves, *, neutral=None, gain=None, offset=None, clamp: bool = True,
-          filter: OneEuroFilter | None = None, fps: float | None = None) -> Curves:
+def clean(
+    curves: Curves,
+    *,
+    neutral=None,
+    gain=None,
+    offset=None,
+    clamp: bool = True,
+    filter: OneEuroFilter | None = None,
+    fps: float | None = None,
+) -> Curves:
     """The clean-up steps of the module notes, in order; each is skipped when its argument is None/False."""
     expect_instance(curves, Curves, "curves")
     if neutral is not None:

@@ -21,15 +21,30 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validate import as_path, expect_instance
 from .._files import atomic_path, read_text
+from .._validate import as_path, expect_instance
 from .channels import ARKIT_CHANNELS, Curves, canonical_channel
 
-__all__ = ["read_openface", "write_openface", "read_live_link", "write_live_link", "LIVE_LINK_EXTRA_COLUMNS",
-           "STANDARD_FRAME_RATES"]
+__all__ = [
+    "read_openface",
+    "write_openface",
+    "read_live_link",
+    "write_live_link",
+    "LIVE_LINK_EXTRA_COLUMNS",
+    "STANDARD_FRAME_RATES",
+]
 
-LIVE_LINK_EXTRA_COLUMNS = ("HeadYaw", "HeadPitch", "HeadRoll", "LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll",
-                           "RightEyeYaw", "RightEyePitch", "RightEyeRoll")
+LIVE_LINK_EXTRA_COLUMNS = (
+    "HeadYaw",
+    "HeadPitch",
+    "HeadRoll",
+    "LeftEyeYaw",
+    "LeftEyePitch",
+    "LeftEyeRoll",
+    "RightEyeYaw",
+    "RightEyePitch",
+    "RightEyeRoll",
+)
 """Live Link Face's rotation columns after the 52 weights (radians-like, not channels for the rig)."""
 
 STANDARD_FRAME_RATES = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 72.0, 90.0, 100.0, 120.0, 240.0)
@@ -71,7 +86,9 @@ def _column(path: Path, header: list[str], rows: list[list[str]], name: str) -> 
         except ValueError:
             value = math.nan
         if not math.isfinite(value):
-            raise ValueError(f"{path}: column {name!r} line {row_number + 2}: {row[index].strip()!r} is not a finite number")
+            raise ValueError(
+                f"{path}: column {name!r} line {row_number + 2}: {row[index].strip()!r} is not a finite number"
+            )
         out[row_number] = value
     return out
 
@@ -106,8 +123,14 @@ def read_openface(path) -> Curves:
         times, values = times[tracked], values[tracked]
     steps = np.diff(times)
     fps = float(1.0 / np.median(steps)) if len(steps) and np.median(steps) > 0 else None
-    return Curves(times=times, names=[canonical_channel(n) for n in au_columns], values=values, source=path.name,
-                  fps=fps, notes=notes)
+    return Curves(
+        times=times,
+        names=[canonical_channel(n) for n in au_columns],
+        values=values,
+        source=path.name,
+        fps=fps,
+        notes=notes,
+    )
 
 
 def write_openface(path, curves: Curves) -> Path:
@@ -123,7 +146,9 @@ def write_openface(path, curves: Curves) -> Path:
         with open(temporary, "w", newline="") as handle:
             handle.write(", ".join(header) + "\n")
             for frame, time in enumerate(curves.times):
-                cells = [str(frame + 1), repr(float(time)), "0.98", "1"] + [repr(float(curves.values[frame, k])) for k in aus]
+                cells = [str(frame + 1), repr(float(time)), "0.98", "1"] + [
+                    repr(float(curves.values[frame, k])) for k in aus
+                ]
                 handle.write(", ".join(cells) + "\n")
     return path
 
@@ -185,8 +210,14 @@ def read_live_link(path, *, fps: float | None = None) -> Curves:
     absolute = seconds + frames / rate
     values = np.stack([_column(path, header, rows, name) for name in columns], axis=1)
     notes = [f"{path.name}: ignored unknown columns {', '.join(unknown)}"] if unknown else []
-    return Curves(times=absolute - absolute[0], names=[canonical_channel(n) for n in columns], values=values,
-                  source=path.name, fps=rate, notes=notes)
+    return Curves(
+        times=absolute - absolute[0],
+        names=[canonical_channel(n) for n in columns],
+        values=values,
+        source=path.name,
+        fps=rate,
+        notes=notes,
+    )
 
 
 def _timecode(seconds: float, fps: float) -> str:
@@ -213,6 +244,11 @@ def write_live_link(path, curves: Curves, *, fps: float | None = None, start_sec
             handle.write(",".join(["Timecode", "BlendshapeCount", *capitalised, *LIVE_LINK_EXTRA_COLUMNS]) + "\n")
             zeros = ",".join("0" for _ in LIVE_LINK_EXTRA_COLUMNS)
             for frame, time in enumerate(curves.times):
-                weights = [repr(float(curves.values[frame, columns[n]])) if n in columns else "0" for n in ARKIT_CHANNELS]
-                handle.write(",".join([_timecode(start_seconds + float(time), rate), str(len(ARKIT_CHANNELS)), *weights, zeros]) + "\n")
+                weights = [
+                    repr(float(curves.values[frame, columns[n]])) if n in columns else "0" for n in ARKIT_CHANNELS
+                ]
+                handle.write(
+                    ",".join([_timecode(start_seconds + float(time), rate), str(len(ARKIT_CHANNELS)), *weights, zeros])
+                    + "\n"
+                )
     return path

@@ -20,8 +20,16 @@ from .._validate import expect_instance, expect_iterable
 from ..rig import FaceRig
 from .mapping import Mapping
 
-__all__ = ["ARKIT_TABLE", "FACS_TABLE", "JAW_CONTROLS", "LENGTH_CONTROLS", "default_table", "mapping_for_rig",
-           "rig_control_names", "control_scales"]
+__all__ = [
+    "ARKIT_TABLE",
+    "FACS_TABLE",
+    "JAW_CONTROLS",
+    "LENGTH_CONTROLS",
+    "default_table",
+    "mapping_for_rig",
+    "rig_control_names",
+    "control_scales",
+]
 
 JAW_CONTROLS = ("jaw_open", "jaw_forward", "jaw_left")
 """Jaw controls the tables name (SPEC §6.2): opening angle [rad], protrusion and lateral slides [lengths]."""
@@ -45,19 +53,32 @@ def _sided(stem: str, rows) -> list[tuple[str, str, float]]:
 
 ARKIT_TABLE: tuple[tuple[str, str, float], ...] = tuple(
     _sided("browDown", [("corrugator_{s}", 0.09), ("procerus", 0.03)])
-    + _both("browInnerUp", "frontalis_inner", 0.16) + _both("browInnerUp", "frontalis_middle", 0.06)
+    + _both("browInnerUp", "frontalis_inner", 0.16)
+    + _both("browInnerUp", "frontalis_middle", 0.06)
     + _sided("browOuterUp", [("frontalis_outer_{s}", 0.14), ("frontalis_middle_{s}", 0.08)])
     + _sided("cheekSquint", [("orbicularis_oculi_{s}", 0.16)])
     + _sided("eyeBlink", [("orbicularis_oculi_{s}", 0.06)])
     + _sided("eyeSquint", [("orbicularis_oculi_{s}", 0.10), ("orbicularis_oculi_lower_lid_{s}", 0.025)])
     + _sided("eyeWide", [("frontalis_outer_{s}", 0.04), ("frontalis_inner_{s}", 0.03)])
-    + [("jawOpen", "jaw_open", 0.35), ("jawForward", "jaw_forward", 0.08), ("jawLeft", "jaw_left", 0.08),
-       ("jawRight", "jaw_left", -0.08)]
-    + [("mouthClose", "orbicularis_oris", 0.10), ("mouthFunnel", "orbicularis_oris", 0.30),
-       ("mouthPucker", "orbicularis_oris", 0.45), ("mouthRollLower", "orbicularis_oris", 0.15),
-       ("mouthRollUpper", "orbicularis_oris", 0.15)]
-    + [("mouthLeft", "risorius_L", 0.06), ("mouthLeft", "zygomaticus_major_L", 0.03),
-       ("mouthRight", "risorius_R", 0.06), ("mouthRight", "zygomaticus_major_R", 0.03)]
+    + [
+        ("jawOpen", "jaw_open", 0.35),
+        ("jawForward", "jaw_forward", 0.08),
+        ("jawLeft", "jaw_left", 0.08),
+        ("jawRight", "jaw_left", -0.08),
+    ]
+    + [
+        ("mouthClose", "orbicularis_oris", 0.10),
+        ("mouthFunnel", "orbicularis_oris", 0.30),
+        ("mouthPucker", "orbicularis_oris", 0.45),
+        ("mouthRollLower", "orbicularis_oris", 0.15),
+        ("mouthRollUpper", "orbicularis_oris", 0.15),
+    ]
+    + [
+        ("mouthLeft", "risorius_L", 0.06),
+        ("mouthLeft", "zygomaticus_major_L", 0.03),
+        ("mouthRight", "risorius_R", 0.06),
+        ("mouthRight", "zygomaticus_major_R", 0.03),
+    ]
     + _sided("mouthSmile", [("zygomaticus_major_{s}", 0.22)])
     + _sided("mouthFrown", [("depressor_anguli_oris_{s}", 0.06)])
     + _sided("mouthDimple", [("risorius_{s}", 0.04)])
@@ -66,18 +87,24 @@ ARKIT_TABLE: tuple[tuple[str, str, float], ...] = tuple(
     + _sided("mouthLowerDown", [("depressor_labii_inferioris_{s}", 0.06)])
     + _sided("mouthUpperUp", [("levator_labii_superioris_{s}", 0.06)])
     + [("mouthShrugLower", "mentalis", 0.05)]
-    + _both("mouthShrugUpper", "levator_labii_superioris", 0.025) + [("mouthShrugUpper", "mentalis", 0.02)]
+    + _both("mouthShrugUpper", "levator_labii_superioris", 0.025)
+    + [("mouthShrugUpper", "mentalis", 0.02)]
     + _sided("noseSneer", [("levator_labii_alaeque_nasi_{s}", 0.11)])
 )
 """(ARKit channel, control, weight per unit weight) rows."""
 
 _FACS_AT_FULL: tuple[tuple[str, str, float], ...] = tuple(
-    _both("AU01", "frontalis_inner", 0.16) + _both("AU01", "frontalis_middle", 0.06)
-    + _both("AU02", "frontalis_outer", 0.14) + _both("AU02", "frontalis_middle", 0.08)
-    + _both("AU04", "corrugator", 0.09) + [("AU04", "procerus", 0.06)]
-    + _both("AU05", "frontalis_outer", 0.04) + _both("AU05", "frontalis_inner", 0.03)
+    _both("AU01", "frontalis_inner", 0.16)
+    + _both("AU01", "frontalis_middle", 0.06)
+    + _both("AU02", "frontalis_outer", 0.14)
+    + _both("AU02", "frontalis_middle", 0.08)
+    + _both("AU04", "corrugator", 0.09)
+    + [("AU04", "procerus", 0.06)]
+    + _both("AU05", "frontalis_outer", 0.04)
+    + _both("AU05", "frontalis_inner", 0.03)
     + _both("AU06", "orbicularis_oculi", 0.22)
-    + _both("AU07", "orbicularis_oculi", 0.10) + _both("AU07", "orbicularis_oculi_lower_lid", 0.025)
+    + _both("AU07", "orbicularis_oculi", 0.10)
+    + _both("AU07", "orbicularis_oculi_lower_lid", 0.025)
     + _both("AU09", "levator_labii_alaeque_nasi", 0.11)
     + _both("AU10", "levator_labii_superioris", 0.06)
     + _both("AU12", "zygomaticus_major", 0.22)
@@ -89,7 +116,8 @@ _FACS_AT_FULL: tuple[tuple[str, str, float], ...] = tuple(
     + [("AU22", "orbicularis_oris", 0.30), ("AU23", "orbicularis_oris", 0.15), ("AU24", "orbicularis_oris", 0.10)]
     + _both("AU25", "depressor_labii_inferioris", 0.03)
     + [("AU26", "jaw_open", 0.25), ("AU27", "jaw_open", 0.45), ("AU28", "orbicularis_oris", 0.15)]
-    + _both("AU43", "orbicularis_oculi", 0.06) + _both("AU45", "orbicularis_oculi", 0.06)
+    + _both("AU43", "orbicularis_oculi", 0.06)
+    + _both("AU45", "orbicularis_oculi", 0.06)
 )
 
 FACS_TABLE: tuple[tuple[str, str, float], ...] = tuple((au, control, w / 5.0) for au, control, w in _FACS_AT_FULL)
@@ -118,7 +146,6 @@ def control_scales(rig, controls) -> dict[str, float]:
     """Factor from face units to the rig's units per control: the face size for lengths, else 1."""
     expect_instance(rig, FaceRig, "rig")
     from ..assets.rig import rig_scale  # the assets package knows how to measure a landmarked face
-
     from ..expression.muscles import LinearMuscle
 
     linear = {m.name for m in rig.muscles if isinstance(m, LinearMuscle)} | set(LENGTH_CONTROLS)
@@ -142,5 +169,14 @@ def mapping_for_rig(rig, kind: str = "all", *, name: str = "default") -> tuple[M
     mapping, dropped, orphaned = table.restricted_to(rig_control_names(rig))
     scales = control_scales(rig, mapping.controls)
     factors = [scales[c] for c in mapping.controls]
-    return (Mapping(channels=mapping.channels, controls=mapping.controls, matrix=mapping.matrix * [[f] for f in factors],
-                    offsets=mapping.offsets * factors, name=name), dropped, orphaned)
+    return (
+        Mapping(
+            channels=mapping.channels,
+            controls=mapping.controls,
+            matrix=mapping.matrix * [[f] for f in factors],
+            offsets=mapping.offsets * factors,
+            name=name,
+        ),
+        dropped,
+        orphaned,
+    )

@@ -23,8 +23,14 @@ from .mapping import Mapping
 __all__ = ["project_controls", "controls_to_curves"]
 
 
-def project_controls(mapping: Mapping, controls: dict[str, np.ndarray] | np.ndarray, *, ridge: float = 1e-4,
-                     tolerance: float = 1e-7, max_iterations: int = 5000) -> np.ndarray:
+def project_controls(
+    mapping: Mapping,
+    controls: dict[str, np.ndarray] | np.ndarray,
+    *,
+    ridge: float = 1e-4,
+    tolerance: float = 1e-7,
+    max_iterations: int = 5000,
+) -> np.ndarray:
     """Channel weights (F, C) in the mapping's channel order whose mapped controls best match ``controls``.
 
     Args:
@@ -46,7 +52,10 @@ def project_controls(mapping: Mapping, controls: dict[str, np.ndarray] | np.ndar
     max_iterations = as_count(max_iterations, "max_iterations", minimum=1, maximum=10_000_000)
     if isinstance(controls, dict):
         unknown = [k for k in controls if k not in mapping.controls]
-        controls = {name: as_finite_array(series, f"controls[{name!r}]", max_abs=1e12).reshape(-1) for name, series in controls.items()}
+        controls = {
+            name: as_finite_array(series, f"controls[{name!r}]", max_abs=1e12).reshape(-1)
+            for name, series in controls.items()
+        }
         frames = {len(v) for v in controls.values()}
         if len(frames) != 1:
             raise ValueError("controls: every control needs the same number of frames")
@@ -89,10 +98,12 @@ def project_controls(mapping: Mapping, controls: dict[str, np.ndarray] | np.ndar
     return weights
 
 
-def controls_to_curves(mapping: Mapping, times, controls, *, source: str = "export", fps: float | None = None,
-                       **options) -> Curves:
+def controls_to_curves(
+    mapping: Mapping, times, controls, *, source: str = "export", fps: float | None = None, **options
+) -> Curves:
     """:func:`project_controls` as :class:`Curves` (times [s], the mapping's channels) ready to write."""
     expect_instance(mapping, Mapping, "mapping")
     weights = project_controls(mapping, controls, **options)
-    return Curves(times=as_finite_array(times, "times"), names=list(mapping.channels), values=weights,
-                  source=source, fps=fps)
+    return Curves(
+        times=as_finite_array(times, "times"), names=list(mapping.channels), values=weights, source=source, fps=fps
+    )

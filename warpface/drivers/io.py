@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from .._validate import as_path, as_positive
 from .channels import Curves
 from .csv_formats import read_live_link, read_openface
@@ -47,8 +45,10 @@ def detect_format(path) -> str:
         return "mediapipe-jsonl"
     if "classification" in text or suffix in (".pbtxt", ".prototxt", ".txtpb", ".textproto"):
         return "mediapipe-textproto"
-    raise ValueError(f"{path}: unrecognised driver format (expected OpenFace or Live Link Face CSV, MediaPipe "
-                     f"blendshapes as text-proto or JSON lines, or a USD SkelAnimation)")
+    raise ValueError(
+        f"{path}: unrecognised driver format (expected OpenFace or Live Link Face CSV, MediaPipe "
+        f"blendshapes as text-proto or JSON lines, or a USD SkelAnimation)"
+    )
 
 
 def read_driver(path, *, fps: float | None = None) -> Curves:

@@ -40,7 +40,9 @@ class MappedControls:
 def _entry(item, position: int) -> tuple[str, str, float]:
     """One ``(channel, control, weight)`` triple of :meth:`Mapping.from_entries`, checked."""
     if isinstance(item, (str, bytes)) or not isinstance(item, (tuple, list)) or len(item) != 3:
-        raise ValueError(f"entries[{position}]: expected a (channel, control, weight) triple, got {type(item).__name__}")
+        raise ValueError(
+            f"entries[{position}]: expected a (channel, control, weight) triple, got {type(item).__name__}"
+        )
     channel, control, weight = item
     if not isinstance(channel, str) or not isinstance(control, str):
         raise TypeError(f"entries[{position}]: channel and control must be names (str)")
@@ -70,21 +72,33 @@ class Mapping:
         controls = [str(c) for c in expect_iterable(self.controls, f"mapping {self.name!r}: controls", item_types=str)]
         for kind, names in (("channel", channels), ("control", controls)):
             if len(set(names)) != len(names):
-                raise ValueError(f"mapping {self.name!r}: {kind} {next(n for n in names if names.count(n) > 1)!r} appears twice")
+                raise ValueError(
+                    f"mapping {self.name!r}: {kind} {next(n for n in names if names.count(n) > 1)!r} appears twice"
+                )
             if any(not n for n in names):
                 raise ValueError(f"mapping {self.name!r}: empty {kind} name")
         try:
             matrix = np.array(self.matrix, dtype=np.float64).reshape(len(controls), len(channels))
-            offsets = np.zeros(len(controls)) if self.offsets is None else np.array(self.offsets, dtype=np.float64).reshape(len(controls))
+            offsets = (
+                np.zeros(len(controls))
+                if self.offsets is None
+                else np.array(self.offsets, dtype=np.float64).reshape(len(controls))
+            )
         except (TypeError, ValueError):
-            raise ValueError(f"mapping {self.name!r}: matrix must be ({len(controls)}, {len(channels)}) numbers and "
-                             f"offsets ({len(controls)},)") from None
+            raise ValueError(
+                f"mapping {self.name!r}: matrix must be ({len(controls)}, {len(channels)}) numbers and "
+                f"offsets ({len(controls)},)"
+            ) from None
         bad = np.argwhere(~np.isfinite(matrix))
         if len(bad):
             row, column = bad[0]
-            raise ValueError(f"mapping {self.name!r}: weight of channel {channels[column]!r} on control {controls[row]!r} is not finite")
+            raise ValueError(
+                f"mapping {self.name!r}: weight of channel {channels[column]!r} on control {controls[row]!r} is not finite"
+            )
         if not np.isfinite(offsets).all():
-            raise ValueError(f"mapping {self.name!r}: offset of control {controls[int(np.argmin(np.isfinite(offsets)))]!r} is not finite")
+            raise ValueError(
+                f"mapping {self.name!r}: offset of control {controls[int(np.argmin(np.isfinite(offsets)))]!r} is not finite"
+            )
         object.__setattr__(self, "channels", channels)
         object.__setattr__(self, "controls", controls)
         object.__setattr__(self, "matrix", matrix)
@@ -96,7 +110,10 @@ class Mapping:
         entries = [_entry(item, position) for position, item in enumerate(expect_iterable(entries, "entries"))]
         if offsets is not None:
             expect_instance(offsets, MappingABC, "offsets")
-            offsets = {str(control): float(as_finite_array(value, f"offsets[{control!r}]", shape=())) for control, value in offsets.items()}
+            offsets = {
+                str(control): float(as_finite_array(value, f"offsets[{control!r}]", shape=()))
+                for control, value in offsets.items()
+            }
         channels = list(dict.fromkeys(ch for ch, _, _ in entries))
         controls = list(dict.fromkeys([co for _, co, _ in entries] + list(offsets or {})))
         matrix = np.zeros((len(controls), len(channels)))
@@ -106,7 +123,9 @@ class Mapping:
         return cls(channels=channels, controls=controls, matrix=matrix, offsets=c0, name=name)
 
     @classmethod
-    def from_examples(cls, channels, controls, example_controls, neutral_controls=None, *, name: str = "calibrated") -> "Mapping":
+    def from_examples(
+        cls, channels, controls, example_controls, neutral_controls=None, *, name: str = "calibrated"
+    ) -> "Mapping":
         """A mapping calibrated from example shapes: one solved control vector per channel.
 
         When a character's own blendshapes (its ARKit shapes, say) are solved for the rig's controls
@@ -126,18 +145,32 @@ class Mapping:
         controls = [str(c) for c in expect_iterable(controls, "controls", item_types=str)]
         examples = as_finite_array(example_controls, "example_controls")
         if examples.shape != (len(channels), len(controls)):
-            raise ValueError(f"example_controls: expected shape ({len(channels)}, {len(controls)}), got {examples.shape}")
-        neutral = np.zeros(len(controls)) if neutral_controls is None else as_finite_array(neutral_controls, "neutral_controls")
+            raise ValueError(
+                f"example_controls: expected shape ({len(channels)}, {len(controls)}), got {examples.shape}"
+            )
+        neutral = (
+            np.zeros(len(controls))
+            if neutral_controls is None
+            else as_finite_array(neutral_controls, "neutral_controls")
+        )
         if neutral.shape != (len(controls),):
             raise ValueError(f"neutral_controls: expected shape ({len(controls)},), got {neutral.shape}")
         tops = np.array([channel_range(c)[1] for c in channels])
-        return cls(channels=channels, controls=list(controls), matrix=((examples - neutral) / tops[:, None]).T,
-                   offsets=neutral, name=name)
+        return cls(
+            channels=channels,
+            controls=list(controls),
+            matrix=((examples - neutral) / tops[:, None]).T,
+            offsets=neutral,
+            name=name,
+        )
 
     def entries(self) -> list[tuple[str, str, float]]:
         """The non-zero weights as ``(channel, control, weight)``, channel by channel."""
-        return [(ch, self.controls[k], float(self.matrix[k, c]))
-                for c, ch in enumerate(self.channels) for k in np.flatnonzero(self.matrix[:, c])]
+        return [
+            (ch, self.controls[k], float(self.matrix[k, c]))
+            for c, ch in enumerate(self.channels)
+            for k in np.flatnonzero(self.matrix[:, c])
+        ]
 
     def restricted_to(self, available_controls) -> tuple["Mapping", list[str], list[str]]:
         """This mapping without the controls a rig lacks.
@@ -151,8 +184,17 @@ class Mapping:
         matrix = self.matrix[keep]
         columns = [c for c in range(len(self.channels)) if np.any(matrix[:, c] != 0.0)]
         orphaned = [ch for c, ch in enumerate(self.channels) if c not in columns and np.any(self.matrix[:, c] != 0.0)]
-        return (Mapping(channels=[self.channels[c] for c in columns], controls=[self.controls[k] for k in keep],
-                        matrix=matrix[:, columns], offsets=self.offsets[keep], name=self.name), dropped, orphaned)
+        return (
+            Mapping(
+                channels=[self.channels[c] for c in columns],
+                controls=[self.controls[k] for k in keep],
+                matrix=matrix[:, columns],
+                offsets=self.offsets[keep],
+                name=self.name,
+            ),
+            dropped,
+            orphaned,
+        )
 
     def merged(self, other: "Mapping", *, name: str | None = None) -> "Mapping":
         """The sum of two mappings over the union of their channels and controls (offsets add too)."""
@@ -184,5 +226,10 @@ class Mapping:
         names = [self.channels[c] for c in present]
         order = np.argsort(-signal, axis=1, kind="stable")
         active = [[names[j] for j in row if signal[f, j] > active_threshold][:4] for f, row in enumerate(order)]
-        return MappedControls(times=curves.times, names=list(self.controls), values=values,
-                              unmapped_channels=unmapped, active_channels=active)
+        return MappedControls(
+            times=curves.times,
+            names=list(self.controls),
+            values=values,
+            unmapped_channels=unmapped,
+            active_channels=active,
+        )

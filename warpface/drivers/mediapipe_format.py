@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validate import as_path, expect_instance
 from .._files import atomic_path, read_text
+from .._validate import as_path, expect_instance
 from .channels import ARKIT_CHANNELS, Curves, canonical_channel
 
 __all__ = ["read_mediapipe_textproto", "read_mediapipe_jsonl", "write_mediapipe_textproto", "write_mediapipe_jsonl"]
@@ -69,7 +69,9 @@ def _frames_to_curves(path: Path, frames: list[dict[str, float]], times: list[fl
     if all(t is None for t in times):
         stamps = np.arange(len(frames)) / float(fps)
     elif any(t is None for t in times):
-        raise ValueError(f"{path}: frame {next(i for i, t in enumerate(times) if t is None)} has no timestamp, others do")
+        raise ValueError(
+            f"{path}: frame {next(i for i, t in enumerate(times) if t is None)} has no timestamp, others do"
+        )
     else:
         stamps = np.array(times, dtype=np.float64)
     notes = [f"{path.name}: ignored unknown categories {', '.join(unknown)}"] if unknown else []
@@ -144,7 +146,14 @@ def _json_frame(path: Path, line: int, record) -> tuple[dict[str, float], float 
         for number, entry in enumerate(categories):
             if not isinstance(entry, dict):
                 raise ValueError(f"{path}: {where}: category {number} is not an object")
-            name = next((entry[k] for k in ("category_name", "categoryName", "label", "display_name", "displayName") if entry.get(k)), None)
+            name = next(
+                (
+                    entry[k]
+                    for k in ("category_name", "categoryName", "label", "display_name", "displayName")
+                    if entry.get(k)
+                ),
+                None,
+            )
             if not isinstance(name, str):
                 raise ValueError(f"{path}: {where}: category {number} has no name")
             items.append((name, entry.get("score")))
@@ -189,8 +198,11 @@ def write_mediapipe_textproto(path, curves: Curves) -> Path:
         raise ValueError(f"{path}: {curves.source} has no ARKit channels to write")
 
     def block(frame: int, indent: str) -> str:
-        return "".join(f'{indent}classification {{\n{indent}  index: {i}\n{indent}  score: {float(curves.values[frame, k])!r}\n'
-                       f'{indent}  label: "{curves.names[k]}"\n{indent}}}\n' for i, k in enumerate(columns))
+        return "".join(
+            f"{indent}classification {{\n{indent}  index: {i}\n{indent}  score: {float(curves.values[frame, k])!r}\n"
+            f'{indent}  label: "{curves.names[k]}"\n{indent}}}\n'
+            for i, k in enumerate(columns)
+        )
 
     with atomic_path(path, path.suffix) as temporary:
         with open(temporary, "w") as handle:
@@ -198,7 +210,9 @@ def write_mediapipe_textproto(path, curves: Curves) -> Path:
             if curves.frame_count == 1 and curves.times[0] == 0.0:
                 handle.write(block(0, ""))
             for frame in range(curves.frame_count if curves.frame_count > 1 or curves.times[0] != 0.0 else 0):
-                handle.write(f"classification_list {{\n  timestamp_ms: {float(curves.times[frame]) * 1000.0!r}\n{block(frame, '  ')}}}\n")
+                handle.write(
+                    f"classification_list {{\n  timestamp_ms: {float(curves.times[frame]) * 1000.0!r}\n{block(frame, '  ')}}}\n"
+                )
     return path
 
 
@@ -212,8 +226,12 @@ def write_mediapipe_jsonl(path, curves: Curves) -> Path:
     with atomic_path(path, path.suffix) as temporary:
         with open(temporary, "w") as handle:
             for frame, time in enumerate(curves.times):
-                record = {"timestamp_ms": float(time) * 1000.0,
-                          "blendshapes": [{"index": i, "category_name": curves.names[k], "score": float(curves.values[frame, k])}
-                                          for i, k in enumerate(columns)]}
+                record = {
+                    "timestamp_ms": float(time) * 1000.0,
+                    "blendshapes": [
+                        {"index": i, "category_name": curves.names[k], "score": float(curves.values[frame, k])}
+                        for i, k in enumerate(columns)
+                    ],
+                }
                 handle.write(json.dumps(record) + "\n")
     return path

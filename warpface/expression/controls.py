@@ -47,12 +47,16 @@ def check_rig_parts(mesh, muscles, wrinkles, thickness, *, owner: str):
     parts = []
     for kind, items, types in (("muscle", muscles, (LinearMuscle, SphincterMuscle)), ("wrinkle", wrinkles, (Wrinkle,))):
         if isinstance(items, (str, bytes, Mapping)) or not isinstance(items, (Sequence, np.ndarray, tuple, list)):
-            raise RigError(f"{owner}: {kind}s must be a sequence of {' or '.join(t.__name__ for t in types)}, got {type(items).__name__}")
+            raise RigError(
+                f"{owner}: {kind}s must be a sequence of {' or '.join(t.__name__ for t in types)}, got {type(items).__name__}"
+            )
         items = list(items)
         names = set()
         for index, item in enumerate(items):
             if not isinstance(item, types):
-                raise RigError(f"{owner}: {kind} {index} has wrong type {type(item).__name__} (expected {' or '.join(t.__name__ for t in types)})")
+                raise RigError(
+                    f"{owner}: {kind} {index} has wrong type {type(item).__name__} (expected {' or '.join(t.__name__ for t in types)})"
+                )
             if item.name in names:
                 raise RigError(f"{owner}: duplicate {kind} name {item.name!r}")
             names.add(item.name)
@@ -69,7 +73,9 @@ def contraction_limits(muscles) -> np.ndarray:
     return np.array([MAX_SPHINCTER_CONTRACTION if isinstance(m, SphincterMuscle) else MAX_COORDINATE for m in muscles])
 
 
-def control_vector(values, names: list[str], default: np.ndarray, limits: np.ndarray, label: str, kind: str) -> np.ndarray:
+def control_vector(
+    values, names: list[str], default: np.ndarray, limits: np.ndarray, label: str, kind: str
+) -> np.ndarray:
     """One frame's controls in rig order, shape (N,), float64.
 
     ``values``: ``None`` (``default``), a mapping ``{name: number}`` (absent names keep ``default``),
@@ -93,7 +99,9 @@ def control_vector(values, names: list[str], default: np.ndarray, limits: np.nda
     try:
         array = np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
-        raise ValueError(f"{label}s: expected {len(names)} numbers in {kind} order, got {type(values).__name__}") from None
+        raise ValueError(
+            f"{label}s: expected {len(names)} numbers in {kind} order, got {type(values).__name__}"
+        ) from None
     if array.shape != (len(names),):
         raise ValueError(f"{label}s: expected {len(names)} values in {kind} order, got shape {array.shape}")
     inside = np.abs(array) <= limits  # False for NaN too: one test on the fast path
@@ -119,8 +127,12 @@ def frame_controls(values, to_vector, width: int, label: str, limits: np.ndarray
     by frame (which raises the error naming the frame's bad item).
     """
     if isinstance(values, (str, bytes, Mapping)) or values is None:
-        raise ValueError(f"{label}: expected an array (frames, {width}) or a sequence of mappings, got {type(values).__name__}")
-    if isinstance(values, np.ndarray) or (isinstance(values, Sequence) and len(values) and not isinstance(values[0], Mapping)):
+        raise ValueError(
+            f"{label}: expected an array (frames, {width}) or a sequence of mappings, got {type(values).__name__}"
+        )
+    if isinstance(values, np.ndarray) or (
+        isinstance(values, Sequence) and len(values) and not isinstance(values[0], Mapping)
+    ):
         array = as_finite_array(values, label)
         if array.ndim != 2 or array.shape[1] != width:
             raise ValueError(f"{label}: expected shape (frames, {width}), got {array.shape}")
@@ -129,7 +141,9 @@ def frame_controls(values, to_vector, width: int, label: str, limits: np.ndarray
         return np.stack([to_vector(row) for row in array]) if len(array) else array
     if isinstance(values, Sequence):
         return np.stack([to_vector(row) for row in values]) if len(values) else np.zeros((0, width))
-    raise ValueError(f"{label}: expected an array (frames, {width}) or a sequence of mappings, got {type(values).__name__}")
+    raise ValueError(
+        f"{label}: expected an array (frames, {width}) or a sequence of mappings, got {type(values).__name__}"
+    )
 
 
 def is_device_array(value) -> bool:

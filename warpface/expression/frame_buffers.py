@@ -20,8 +20,17 @@ class FrameBuffers:
             kernels do not store them).
     """
 
-    def __init__(self, frames: int, vertex_count: int, triangle_count: int, muscle_count: int, wrinkle_count: int, *, device,
-                 per_triangle: bool = True):
+    def __init__(
+        self,
+        frames: int,
+        vertex_count: int,
+        triangle_count: int,
+        muscle_count: int,
+        wrinkle_count: int,
+        *,
+        device,
+        per_triangle: bool = True,
+    ):
         self.frames = frames
         self.device = device
         self.muscle_width = max(muscle_count, 1)
@@ -61,7 +70,7 @@ class FrameBuffers:
             wp.synchronize_event(self._staged)
         for view, values in zip(self._control_views, (contraction, depth)):
             view[: values.shape[0], : values.shape[1]] = values
-            view[values.shape[0]:] = 0.0
+            view[values.shape[0] :] = 0.0
         if self._staging:
             for array, host, _ in self._control_pairs:
                 wp.copy(array, host)
@@ -75,7 +84,10 @@ class FrameBuffers:
         (``None``: zero contractions / the given default depths already uploaded). Device to device,
         no host involvement.
         """
-        for array, source, width in ((self.contraction, contraction, self.muscle_width), (self.depth, depth, self.wrinkle_width)):
+        for array, source, width in (
+            (self.contraction, contraction, self.muscle_width),
+            (self.depth, depth, self.wrinkle_width),
+        ):
             if source is not None and source.shape[0]:
                 wp.copy(array, source, dest_offset=0, src_offset=first * width, count=count * width)
 

@@ -96,8 +96,14 @@ def contraction_factor(r: float, kr: float):
 
 
 @wp.func
-def add_muscles(x: wp.vec3, controls: wp.array(dtype=wp.float32), first: int, offsets: wp.array(dtype=wp.int32),
-                entries: wp.array(dtype=MuscleEntry), v: int):
+def add_muscles(
+    x: wp.vec3,
+    controls: wp.array(dtype=wp.float32),
+    first: int,
+    offsets: wp.array(dtype=wp.int32),
+    entries: wp.array(dtype=MuscleEntry),
+    v: int,
+):
     """``x + Σ K[m]·w_m(v)`` over the muscle entries of vertex ``v``; ``first`` indexes the frame's controls."""
     k = offsets[v]
     end = offsets[v + 1]

@@ -43,8 +43,18 @@ from .kernels import MuscleEntry, WrinkleEntry, add_muscles, bulge_point, contra
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
-__all__ = ["RING_SLOTS", "MUSCLE_SLOTS", "WRINKLE_SLOTS", "RingTriangle", "ring_table", "slot_table", "muscle_points_over_frames",
-           "muscles_and_bulge_from_ring", "bulge_from_ring", "wrinkles_from_ring"]
+__all__ = [
+    "RING_SLOTS",
+    "MUSCLE_SLOTS",
+    "WRINKLE_SLOTS",
+    "RingTriangle",
+    "ring_table",
+    "slot_table",
+    "muscle_points_over_frames",
+    "muscles_and_bulge_from_ring",
+    "bulge_from_ring",
+    "wrinkles_from_ring",
+]
 
 RING_SLOTS = wp.constant(6)
 """Incident triangles per vertex held in the fixed-width table (valence 6 on a regular mesh)."""
@@ -66,8 +76,15 @@ class RingTriangle:
     """Rest ``|(p1 − p0) × (p2 − p0)|`` (1 for ignored triangles and unused slots)."""
 
 
-def ring_table(triangles: np.ndarray, weight: np.ndarray, rest_length: np.ndarray, offsets: np.ndarray,
-               incident: np.ndarray, *, device) -> wp.array:
+def ring_table(
+    triangles: np.ndarray,
+    weight: np.ndarray,
+    rest_length: np.ndarray,
+    offsets: np.ndarray,
+    incident: np.ndarray,
+    *,
+    device,
+) -> wp.array:
     """The slot-major table, shape (RING_SLOTS·V,), from the vertex → triangle CSR (``offsets`` (V + 1,),
     ``incident`` (nnz,)) and per-triangle ``triangles`` (T, 3), ``weight`` (T,), ``rest_length`` (T,)."""
     slots = int(RING_SLOTS)
@@ -101,8 +118,16 @@ def slot_table(struct, offsets: np.ndarray, entries: np.ndarray, slots: int, *, 
 
 
 @wp.func
-def add_muscle_slots(x: wp.vec3, controls: wp.array(dtype=wp.float32), first: int, slots: wp.array(dtype=MuscleEntry), vertex_count: int,
-                     offsets: wp.array(dtype=wp.int32), entries: wp.array(dtype=MuscleEntry), u: int):
+def add_muscle_slots(
+    x: wp.vec3,
+    controls: wp.array(dtype=wp.float32),
+    first: int,
+    slots: wp.array(dtype=MuscleEntry),
+    vertex_count: int,
+    offsets: wp.array(dtype=wp.int32),
+    entries: wp.array(dtype=MuscleEntry),
+    u: int,
+):
     """``x + Σ K[m]·w_m(u)`` over vertex ``u``'s muscle entries: its slots (all loads issued at once), then the CSR's rest."""
     for j in range(MUSCLE_SLOTS):
         entry = slots[j * vertex_count + u]
@@ -117,10 +142,21 @@ def add_muscle_slots(x: wp.vec3, controls: wp.array(dtype=wp.float32), first: in
 
 
 @wp.func
-def muscle_point_from_slots(u: int, rest: wp.array(dtype=wp.vec3), jaw_weight: wp.array(dtype=wp.float32), jaw_first: int, pivot: wp.vec3,
-                            rotation: wp.quat, slide: wp.vec3, slots: wp.array(dtype=MuscleEntry), vertex_count: int,
-                            offsets: wp.array(dtype=wp.int32), entries: wp.array(dtype=MuscleEntry), controls: wp.array(dtype=wp.float32),
-                            first: int):
+def muscle_point_from_slots(
+    u: int,
+    rest: wp.array(dtype=wp.vec3),
+    jaw_weight: wp.array(dtype=wp.float32),
+    jaw_first: int,
+    pivot: wp.vec3,
+    rotation: wp.quat,
+    slide: wp.vec3,
+    slots: wp.array(dtype=MuscleEntry),
+    vertex_count: int,
+    offsets: wp.array(dtype=wp.int32),
+    entries: wp.array(dtype=MuscleEntry),
+    controls: wp.array(dtype=wp.float32),
+    first: int,
+):
     """x1 of vertex ``u``: the jaw's rigid motion blended by its weight (SPEC §6.2), then Σ_m K_m·w_m."""
     x = rest[u]
     if jaw_first >= 0:
@@ -131,8 +167,18 @@ def muscle_point_from_slots(u: int, rest: wp.array(dtype=wp.vec3), jaw_weight: w
 
 
 @wp.func
-def wrinkle_height(r: float, depth: wp.array(dtype=wp.float32), first_wrinkle: int, slots: wp.array(dtype=WrinkleEntry), vertex_count: int,
-                   offsets: wp.array(dtype=wp.int32), entries: wp.array(dtype=WrinkleEntry), v: int, begin: int, end: int):
+def wrinkle_height(
+    r: float,
+    depth: wp.array(dtype=wp.float32),
+    first_wrinkle: int,
+    slots: wp.array(dtype=WrinkleEntry),
+    vertex_count: int,
+    offsets: wp.array(dtype=wp.int32),
+    entries: wp.array(dtype=WrinkleEntry),
+    v: int,
+    begin: int,
+    end: int,
+):
     """Σ_w k_d·s_w·C_w(r) over vertex ``v``'s wrinkle entries: its slots, then the CSR's rest."""
     height = float(0.0)
     for j in range(WRINKLE_SLOTS):
@@ -187,22 +233,76 @@ def muscle_points_over_frames(
 
 
 @wp.func
-def recomputed_area(corners: wp.vec3i, weight: float, x1: wp.vec3, v: int, rest: wp.array(dtype=wp.vec3), jaw_weight: wp.array(dtype=wp.float32),
-                    jaw_first: int, pivot: wp.vec3, rotation: wp.quat, slide: wp.vec3, slots: wp.array(dtype=MuscleEntry), vertex_count: int,
-                    offsets: wp.array(dtype=wp.int32), entries: wp.array(dtype=MuscleEntry), controls: wp.array(dtype=wp.float32), first: int):
+def recomputed_area(
+    corners: wp.vec3i,
+    weight: float,
+    x1: wp.vec3,
+    v: int,
+    rest: wp.array(dtype=wp.vec3),
+    jaw_weight: wp.array(dtype=wp.float32),
+    jaw_first: int,
+    pivot: wp.vec3,
+    rotation: wp.quat,
+    slide: wp.vec3,
+    slots: wp.array(dtype=MuscleEntry),
+    vertex_count: int,
+    offsets: wp.array(dtype=wp.int32),
+    entries: wp.array(dtype=MuscleEntry),
+    controls: wp.array(dtype=wp.float32),
+    first: int,
+):
     """``weight · (p1 − p0) × (p2 − p0)`` of a triangle of vertex ``v`` (x1 given) with its other corners' x1 recomputed."""
     p0 = x1
     if corners[0] != v:
-        p0 = muscle_point_from_slots(corners[0], rest, jaw_weight, jaw_first, pivot, rotation, slide, slots, vertex_count, offsets, entries,
-                                     controls, first)
+        p0 = muscle_point_from_slots(
+            corners[0],
+            rest,
+            jaw_weight,
+            jaw_first,
+            pivot,
+            rotation,
+            slide,
+            slots,
+            vertex_count,
+            offsets,
+            entries,
+            controls,
+            first,
+        )
     p1 = x1
     if corners[1] != v:
-        p1 = muscle_point_from_slots(corners[1], rest, jaw_weight, jaw_first, pivot, rotation, slide, slots, vertex_count, offsets, entries,
-                                     controls, first)
+        p1 = muscle_point_from_slots(
+            corners[1],
+            rest,
+            jaw_weight,
+            jaw_first,
+            pivot,
+            rotation,
+            slide,
+            slots,
+            vertex_count,
+            offsets,
+            entries,
+            controls,
+            first,
+        )
     p2 = x1
     if corners[2] != v:
-        p2 = muscle_point_from_slots(corners[2], rest, jaw_weight, jaw_first, pivot, rotation, slide, slots, vertex_count, offsets, entries,
-                                     controls, first)
+        p2 = muscle_point_from_slots(
+            corners[2],
+            rest,
+            jaw_weight,
+            jaw_first,
+            pivot,
+            rotation,
+            slide,
+            slots,
+            vertex_count,
+            offsets,
+            entries,
+            controls,
+            first,
+        )
     return weight * wp.cross(p1 - p0, p2 - p0)
 
 
@@ -253,21 +353,66 @@ def muscles_and_bulge_from_ring(
         slide = wp.vec3(0.0, 0.0, 0.0)
         if jaw_first >= 0:
             rotation, slide = jaw_motion(controls, first, jaw_first, hinge_axis, forward)
-        x1 = muscle_point_from_slots(v, rest, jaw_weight, jaw_first, pivot, rotation, slide, muscle_slots, vertex_count, muscle_offsets,
-                                     muscle_entries, controls, first)
+        x1 = muscle_point_from_slots(
+            v,
+            rest,
+            jaw_weight,
+            jaw_first,
+            pivot,
+            rotation,
+            slide,
+            muscle_slots,
+            vertex_count,
+            muscle_offsets,
+            muscle_entries,
+            controls,
+            first,
+        )
         normal_sum = wp.vec3(0.0, 0.0, 0.0)
         ratio_sum = float(0.0)
         for j in range(RING_SLOTS):
             entry = ring[j * vertex_count + v]
-            area = recomputed_area(entry.corners, entry.weight, x1, v, rest, jaw_weight, jaw_first, pivot, rotation, slide, muscle_slots,
-                                   vertex_count, muscle_offsets, muscle_entries, controls, first)
+            area = recomputed_area(
+                entry.corners,
+                entry.weight,
+                x1,
+                v,
+                rest,
+                jaw_weight,
+                jaw_first,
+                pivot,
+                rotation,
+                slide,
+                muscle_slots,
+                vertex_count,
+                muscle_offsets,
+                muscle_entries,
+                controls,
+                first,
+            )
             normal_sum += area
             ratio_sum += wp.length(area) / entry.rest_length
         k = begin + RING_SLOTS
         while k < end:
             t = adjacency_triangles[k]
-            area = recomputed_area(triangles[t], triangle_weight[t], x1, v, rest, jaw_weight, jaw_first, pivot, rotation, slide, muscle_slots,
-                                   vertex_count, muscle_offsets, muscle_entries, controls, first)
+            area = recomputed_area(
+                triangles[t],
+                triangle_weight[t],
+                x1,
+                v,
+                rest,
+                jaw_weight,
+                jaw_first,
+                pivot,
+                rotation,
+                slide,
+                muscle_slots,
+                vertex_count,
+                muscle_offsets,
+                muscle_entries,
+                controls,
+                first,
+            )
             normal_sum += area
             ratio_sum += wp.length(area) / rest_area_lengths[t]
             k += 1
@@ -283,9 +428,19 @@ def muscles_and_bulge_from_ring(
 
 
 @wp.func
-def ring_sums(points: wp.array(dtype=wp.vec3), first_vertex: int, ring: wp.array(dtype=RingTriangle), vertex_count: int, v: int,
-              triangles: wp.array(dtype=wp.vec3i), triangle_weight: wp.array(dtype=wp.float32),
-              rest_area_lengths: wp.array(dtype=wp.float32), incident: wp.array(dtype=wp.int32), begin: int, end: int):
+def ring_sums(
+    points: wp.array(dtype=wp.vec3),
+    first_vertex: int,
+    ring: wp.array(dtype=RingTriangle),
+    vertex_count: int,
+    v: int,
+    triangles: wp.array(dtype=wp.vec3i),
+    triangle_weight: wp.array(dtype=wp.float32),
+    rest_area_lengths: wp.array(dtype=wp.float32),
+    incident: wp.array(dtype=wp.int32),
+    begin: int,
+    end: int,
+):
     """Σ area vectors and Σ |area|/rest length over vertex ``v``'s incident triangles (slots, then the CSR's rest)."""
     normal_sum = wp.vec3(0.0, 0.0, 0.0)
     ratio_sum = float(0.0)
@@ -305,9 +460,18 @@ def ring_sums(points: wp.array(dtype=wp.vec3), first_vertex: int, ring: wp.array
 
 
 @wp.func
-def ring_normal_sum(points: wp.array(dtype=wp.vec3), first_vertex: int, ring: wp.array(dtype=RingTriangle), vertex_count: int, v: int,
-                    triangles: wp.array(dtype=wp.vec3i), triangle_weight: wp.array(dtype=wp.float32), incident: wp.array(dtype=wp.int32),
-                    begin: int, end: int):
+def ring_normal_sum(
+    points: wp.array(dtype=wp.vec3),
+    first_vertex: int,
+    ring: wp.array(dtype=RingTriangle),
+    vertex_count: int,
+    v: int,
+    triangles: wp.array(dtype=wp.vec3i),
+    triangle_weight: wp.array(dtype=wp.float32),
+    incident: wp.array(dtype=wp.int32),
+    begin: int,
+    end: int,
+):
     """Σ area vectors over vertex ``v``'s incident triangles (slots, then the CSR's rest)."""
     normal_sum = wp.vec3(0.0, 0.0, 0.0)
     for j in range(RING_SLOTS):
@@ -351,8 +515,19 @@ def bulge_from_ring(
     h = thickness[v]
     while f < last:
         first_vertex = f * vertex_count
-        normal_sum, ratio_sum = ring_sums(muscle_points, first_vertex, ring, vertex_count, v, triangles, triangle_weight,
-                                          rest_area_lengths, adjacency_triangles, begin, end)
+        normal_sum, ratio_sum = ring_sums(
+            muscle_points,
+            first_vertex,
+            ring,
+            vertex_count,
+            v,
+            triangles,
+            triangle_weight,
+            rest_area_lengths,
+            adjacency_triangles,
+            begin,
+            end,
+        )
         r = float(1.0)
         if count > 0.0:
             r = ratio_sum / count
@@ -399,8 +574,20 @@ def wrinkles_from_ring(
         if begin == end:
             final_points[out] = x
         else:
-            normal_sum = ring_normal_sum(bulge_points, first_vertex, ring, vertex_count, v, triangles, triangle_weight,
-                                         adjacency_triangles, ring_begin, ring_end)
-            height = wrinkle_height(stretch[out], depth, f * wrinkle_count, wrinkle_slots, vertex_count, offsets, entries, v, begin, end)
+            normal_sum = ring_normal_sum(
+                bulge_points,
+                first_vertex,
+                ring,
+                vertex_count,
+                v,
+                triangles,
+                triangle_weight,
+                adjacency_triangles,
+                ring_begin,
+                ring_end,
+            )
+            height = wrinkle_height(
+                stretch[out], depth, f * wrinkle_count, wrinkle_slots, vertex_count, offsets, entries, v, begin, end
+            )
             final_points[out] = x + height * safe_normalize(normal_sum)
         f += 1

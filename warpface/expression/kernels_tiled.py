@@ -36,14 +36,22 @@ which ends in the barrier). Per frame of a pass the shared tiles hold :data:`TIL
 import warp as wp
 
 from ..kernels_surface import safe_normalize
-from .kernels import MuscleEntry, WrinkleEntry, add_muscles, bulge_point, contraction_factor, jaw_blend, jaw_motion
+from .kernels import MuscleEntry, WrinkleEntry, bulge_point, contraction_factor, jaw_blend, jaw_motion
 from .kernels_fused import RingTriangle
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
-__all__ = ["TILE_OWNED", "TILE_VERTICES", "TILE_TRIANGLES", "RESIDENT_SLOTS", "TileInfo", "expression_tiles", "expression_tiles_resident",
-           "model_kernel"]
+__all__ = [
+    "TILE_OWNED",
+    "TILE_VERTICES",
+    "TILE_TRIANGLES",
+    "RESIDENT_SLOTS",
+    "TileInfo",
+    "expression_tiles",
+    "expression_tiles_resident",
+    "model_kernel",
+]
 
 TILE_OWNED = wp.constant(256)
 """Most vertices one tile owns (evaluates and writes)."""
@@ -145,7 +153,9 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
         info = tiles[tile]
         vertex_start = info.vertex_start
         triangle_start = info.triangle_start
-        points = wp.tile_empty(shape=(F, TILE_VERTICES), dtype=wp.vec3, storage="shared")  # x1, then x2 over the one-ring
+        points = wp.tile_empty(
+            shape=(F, TILE_VERTICES), dtype=wp.vec3, storage="shared"
+        )  # x1, then x2 over the one-ring
         terms = wp.tile_empty(shape=(F, TILE_TRIANGLES), dtype=wp.vec4, storage="shared")
         ratio = wp.tile_empty(shape=(F, TILE_OWNED), dtype=wp.float32, storage="shared")
         f = group * frames_per_block
@@ -165,8 +175,9 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                     if jaw_first >= 0:
                         w = jaw_weight[v]
                         if w > 0.0:
-                            rotation, slide = jaw_motion(controls, wp.min(f + ff, last - 1) * control_count, jaw_first,
-                                                         hinge_axis, forward)
+                            rotation, slide = jaw_motion(
+                                controls, wp.min(f + ff, last - 1) * control_count, jaw_first, hinge_axis, forward
+                            )
                             x = jaw_blend(x, w, pivot, rotation, slide)
                     moved_points[ff] = x
                 j = muscle_offsets[v]
@@ -176,7 +187,9 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                 while j < end:
                     pull = muscle_entries[j]
                     for ff in range(F):
-                        moved_points[ff] += controls[wp.min(f + ff, last - 1) * control_count + pull.muscle] * pull.weight
+                        moved_points[ff] += (
+                            controls[wp.min(f + ff, last - 1) * control_count + pull.muscle] * pull.weight
+                        )
                     j += 1
                 for ff in range(F):
                     wp.tile_scatter_masked(points, ff, s, moved_points[ff], s < info.halo)
@@ -189,7 +202,13 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                 for ff in range(F):
                     p0 = points[ff, entry.corners[0]]
                     av = entry.weight * wp.cross(points[ff, entry.corners[1]] - p0, points[ff, entry.corners[2]] - p0)
-                    wp.tile_scatter_masked(terms, ff, t, wp.vec4(av[0], av[1], av[2], wp.length(av) / entry.rest_length), t < info.triangles)
+                    wp.tile_scatter_masked(
+                        terms,
+                        ff,
+                        t,
+                        wp.vec4(av[0], av[1], av[2], wp.length(av) / entry.rest_length),
+                        t < info.triangles,
+                    )
                 k += threads
             # C: r and x2 of the one-ring (x2 replaces x1 in place: a slot is read and written by one thread only)
             k = int(0)
@@ -255,8 +274,11 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                         while begin < end:
                             wrinkle = wrinkle_entries[begin]
                             for ff in range(F):
-                                heights[ff] += (depth[wp.min(f + ff, last - 1) * wrinkle_count + wrinkle.wrinkle] * wrinkle.shape
-                                                * contraction_factor(ratio[ff, s], wrinkle.kr))
+                                heights[ff] += (
+                                    depth[wp.min(f + ff, last - 1) * wrinkle_count + wrinkle.wrinkle]
+                                    * wrinkle.shape
+                                    * contraction_factor(ratio[ff, s], wrinkle.kr)
+                                )
                             begin += 1
                     for ff in range(F):
                         if f + ff < last:
@@ -265,7 +287,9 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                                 x = x + heights[ff] * safe_normalize(normals[ff])
                             final_points[(f + ff) * vertex_count + v] = x
                 k += threads
-            wp.tile_scatter_masked(ratio, 0, 0, 0.0, False)  # a barrier: pass E's reads end before the next pass's writes
+            wp.tile_scatter_masked(
+                ratio, 0, 0, 0.0, False
+            )  # a barrier: pass E's reads end before the next pass's writes
             f += F
 
     return expression_tiles_kernel
@@ -318,8 +342,12 @@ default: on an H200 (1M vertices, 2 frames per pass) keeping (3, 6, 4) gave 0.89
 1.03×, (1, 0, 0) 0.99× the frames/s of (0, 0, 0) — the registers cost more than the loads they save."""
 
 
-def expression_tiles_resident(frames_per_pass: int = 1, block_dim: int = 256, blocks_per_sm: int | None = None,
-                              slots: tuple[int, int, int] = RESIDENT_SLOTS):
+def expression_tiles_resident(
+    frames_per_pass: int = 1,
+    block_dim: int = 256,
+    blocks_per_sm: int | None = None,
+    slots: tuple[int, int, int] = RESIDENT_SLOTS,
+):
     """The tiled frame with each thread's rig data loaded ONCE per block (``block_dim`` threads, fixed) and kept
     in registers for all of the block's frames; built once per key.
 
@@ -337,7 +365,9 @@ def expression_tiles_resident(frames_per_pass: int = 1, block_dim: int = 256, bl
     return _kernels[key]
 
 
-def _build_resident_kernel(frames_per_pass: int, block_dim: int, blocks_per_sm: int | None, slots: tuple[int, int, int]):
+def _build_resident_kernel(
+    frames_per_pass: int, block_dim: int, blocks_per_sm: int | None, slots: tuple[int, int, int]
+):
     F, B = frames_per_pass, block_dim
     MS, RS, WS = slots
     HR = -(-int(TILE_VERTICES) // B)  # halo (and one-ring) rounds per thread
@@ -474,7 +504,9 @@ def _build_resident_kernel(frames_per_pass: int, block_dim: int, blocks_per_sm: 
                     if wrinkle.kr > 0.0:
                         wrinkle_slope[k * WS + m] = 1.0 - 1.0 / wrinkle.kr
 
-        points = wp.tile_empty(shape=(F, TILE_VERTICES), dtype=wp.vec3, storage="shared")  # x1, then x2 over the one-ring
+        points = wp.tile_empty(
+            shape=(F, TILE_VERTICES), dtype=wp.vec3, storage="shared"
+        )  # x1, then x2 over the one-ring
         terms = wp.tile_empty(shape=(F, TILE_TRIANGLES), dtype=wp.vec4, storage="shared")
         ratio = wp.tile_empty(shape=(F, TILE_OWNED), dtype=wp.float32, storage="shared")
         f = group * frames_per_block
@@ -490,20 +522,25 @@ def _build_resident_kernel(frames_per_pass: int, block_dim: int, blocks_per_sm: 
                         if jaw_first >= 0:
                             w = w_jaw[k]
                             if w > 0.0:
-                                rotation, slide = jaw_motion(controls, wp.min(f + ff, last - 1) * control_count, jaw_first,
-                                                             hinge_axis, forward)
+                                rotation, slide = jaw_motion(
+                                    controls, wp.min(f + ff, last - 1) * control_count, jaw_first, hinge_axis, forward
+                                )
                                 x = jaw_blend(x, w, pivot, rotation, slide)
                         moved_points[ff] = x
                     for m in range(MS):
                         if muscle_first[k] + m < muscle_end[k]:
                             for ff in range(F):
-                                moved_points[ff] += (controls[wp.min(f + ff, last - 1) * control_count + muscle_index[k * MS + m]]
-                                                     * muscle_weight[k * MS + m])
+                                moved_points[ff] += (
+                                    controls[wp.min(f + ff, last - 1) * control_count + muscle_index[k * MS + m]]
+                                    * muscle_weight[k * MS + m]
+                                )
                     j = muscle_first[k] + MS
                     while j < muscle_end[k]:
                         pull = muscle_entries[j]
                         for ff in range(F):
-                            moved_points[ff] += controls[wp.min(f + ff, last - 1) * control_count + pull.muscle] * pull.weight
+                            moved_points[ff] += (
+                                controls[wp.min(f + ff, last - 1) * control_count + pull.muscle] * pull.weight
+                            )
                         j += 1
                     for ff in range(F):
                         wp.tile_scatter_masked(points, ff, s, moved_points[ff], s < info.halo)
@@ -514,7 +551,13 @@ def _build_resident_kernel(frames_per_pass: int, block_dim: int, blocks_per_sm: 
                     for ff in range(F):
                         p0 = points[ff, corner0[k]]
                         av = weight[k] * wp.cross(points[ff, corner1[k]] - p0, points[ff, corner2[k]] - p0)
-                        wp.tile_scatter_masked(terms, ff, t, wp.vec4(av[0], av[1], av[2], wp.length(av) / rest_length[k]), t < info.triangles)
+                        wp.tile_scatter_masked(
+                            terms,
+                            ff,
+                            t,
+                            wp.vec4(av[0], av[1], av[2], wp.length(av) / rest_length[k]),
+                            t < info.triangles,
+                        )
             # C: r and x2 of the one-ring (x2 over x1 in place: a slot is read and written by one thread only)
             for k in range(HR):
                 if k * B < info.ring:
@@ -578,15 +621,22 @@ def _build_resident_kernel(frames_per_pass: int, block_dim: int, blocks_per_sm: 
                         for m in range(WS):
                             if wrinkle_first[k] + m < wrinkle_end[k]:
                                 for ff in range(F):
-                                    heights[ff] += (depth[wp.min(f + ff, last - 1) * wrinkle_count + wrinkle_index[k * WS + m]]
-                                                    * wrinkle_shape[k * WS + m]
-                                                    * contraction_from_slope(ratio[ff, s], wrinkle_kr[k * WS + m], wrinkle_slope[k * WS + m]))
+                                    heights[ff] += (
+                                        depth[wp.min(f + ff, last - 1) * wrinkle_count + wrinkle_index[k * WS + m]]
+                                        * wrinkle_shape[k * WS + m]
+                                        * contraction_from_slope(
+                                            ratio[ff, s], wrinkle_kr[k * WS + m], wrinkle_slope[k * WS + m]
+                                        )
+                                    )
                         j = wrinkle_first[k] + WS
                         while j < wrinkle_end[k]:
                             wrinkle = wrinkle_entries[j]
                             for ff in range(F):
-                                heights[ff] += (depth[wp.min(f + ff, last - 1) * wrinkle_count + wrinkle.wrinkle] * wrinkle.shape
-                                                * contraction_factor(ratio[ff, s], wrinkle.kr))
+                                heights[ff] += (
+                                    depth[wp.min(f + ff, last - 1) * wrinkle_count + wrinkle.wrinkle]
+                                    * wrinkle.shape
+                                    * contraction_factor(ratio[ff, s], wrinkle.kr)
+                                )
                             j += 1
                     for ff in range(F):
                         if f + ff < last:
@@ -594,7 +644,9 @@ def _build_resident_kernel(frames_per_pass: int, block_dim: int, blocks_per_sm: 
                             if wrinkled:
                                 x = x + heights[ff] * safe_normalize(normals[ff])
                             final_points[(f + ff) * vertex_count + slot_vertex[k]] = x
-            wp.tile_scatter_masked(ratio, 0, 0, 0.0, False)  # a barrier: pass E's reads end before the next pass's writes
+            wp.tile_scatter_masked(
+                ratio, 0, 0, 0.0, False
+            )  # a barrier: pass E's reads end before the next pass's writes
             f += F
 
     return expression_tiles_resident_kernel

@@ -10,16 +10,38 @@ import numpy as np
 import warp as wp
 
 from .._validate import MAX_COORDINATE, as_count, as_device
+from ..kernels_surface import triangle_area_vectors
 from ..mesh import FaceMesh
 from .batch_graph import BatchGraphs
-from .controls import as_device_array, check_rig_parts, contraction_limits, control_vector, frame_controls, is_device_array
+from .controls import (
+    as_device_array,
+    check_rig_parts,
+    contraction_limits,
+    control_vector,
+    frame_controls,
+    is_device_array,
+)
 from .frame_buffers import FrameBuffers
 from .jaw import JAW_CONTROL_NAMES, Jaw
-from ..kernels_surface import triangle_area_vectors
-from .kernels import (MuscleEntry, WrinkleEntry, apply_jaw_and_muscles, apply_muscles, apply_wrinkles, stretch_and_bulge,
-                      triangle_stretch)
-from .kernels_fused import (MUSCLE_SLOTS, WRINKLE_SLOTS, bulge_from_ring, muscle_points_over_frames, muscles_and_bulge_from_ring, ring_table,
-                            slot_table, wrinkles_from_ring)
+from .kernels import (
+    MuscleEntry,
+    WrinkleEntry,
+    apply_jaw_and_muscles,
+    apply_muscles,
+    apply_wrinkles,
+    stretch_and_bulge,
+    triangle_stretch,
+)
+from .kernels_fused import (
+    MUSCLE_SLOTS,
+    WRINKLE_SLOTS,
+    bulge_from_ring,
+    muscle_points_over_frames,
+    muscles_and_bulge_from_ring,
+    ring_table,
+    slot_table,
+    wrinkles_from_ring,
+)
 from .kernels_tiled import model_kernel
 from .muscles import Muscle, muscle_weights
 from .readback import PinnedReadback
@@ -141,7 +163,9 @@ class ExpressionModel:
         jaw: Jaw | None = None,
         launches: int | None = None,
     ):
-        self.muscles, self.wrinkles, self.thickness = check_rig_parts(mesh, muscles, wrinkles, thickness, owner="expression model")
+        self.muscles, self.wrinkles, self.thickness = check_rig_parts(
+            mesh, muscles, wrinkles, thickness, owner="expression model"
+        )
         self.mesh = mesh
         self.muscle_names = [m.name for m in self.muscles]
         self.wrinkle_names = [w.name for w in self.wrinkles]
@@ -158,11 +182,13 @@ class ExpressionModel:
         self._contraction_limits = np.concatenate([contraction_limits(self.muscles), jaw_limits])
         self._depth_limits = np.full(len(self.wrinkles), MAX_COORDINATE)
         self.device = as_device(device)
-        if launches is not None and (isinstance(launches, (bool, np.bool_)) or not isinstance(launches, (int, np.integer))
-                                     or launches not in LAUNCH_PLANS):
+        if launches is not None and (
+            isinstance(launches, (bool, np.bool_))
+            or not isinstance(launches, (int, np.integer))
+            or launches not in LAUNCH_PLANS
+        ):
             raise ValueError(f"launches: expected one of {LAUNCH_PLANS} or None, got {launches!r}")
-        self.launches_per_frame = int(launches if launches is not None else 5 if self.device.is_cpu
-                                      else 1)
+        self.launches_per_frame = int(launches if launches is not None else 5 if self.device.is_cpu else 1)
         """Kernel launches per frame: 1 (tiled), 2 (fused), 3 or 5 (see ``launches``)."""
 
         self._mesh_buffers = mesh.device_buffers(device=self.device)
@@ -175,25 +201,41 @@ class ExpressionModel:
         self.wrinkle_entry_count = int(len(shapes.wrinkle))
         device_ = self.device
         self._muscle_offsets = wp.array(weights.offsets, dtype=wp.int32, device=device_)
-        self._muscle_entries = _entry_array(MuscleEntry, device_, muscle=weights.muscle, weight=weights.weight.reshape(-1, 3))
+        self._muscle_entries = _entry_array(
+            MuscleEntry, device_, muscle=weights.muscle, weight=weights.weight.reshape(-1, 3)
+        )
         self._wrinkle_offsets = wp.array(shapes.offsets, dtype=wp.int32, device=device_)
         wrinkle_kr = np.array([w.kr for w in self.wrinkles], dtype=np.float32)
-        self._wrinkle_entries = _entry_array(WrinkleEntry, device_, wrinkle=shapes.wrinkle, shape=shapes.shape, kr=wrinkle_kr[shapes.wrinkle])
+        self._wrinkle_entries = _entry_array(
+            WrinkleEntry, device_, wrinkle=shapes.wrinkle, shape=shapes.shape, kr=wrinkle_kr[shapes.wrinkle]
+        )
         counted = np.bincount(mesh.triangles[~mesh.degenerate_triangles].ravel(), minlength=mesh.vertex_count)
         self._counts = wp.array(counted.astype(np.float32), dtype=wp.float32, device=device_)
         self._thickness = wp.array(self.thickness.astype(np.float32), dtype=wp.float32, device=device_)
         self.default_depths = np.array([w.depth for w in self.wrinkles], dtype=np.float64)
         if jaw is not None:
             self._jaw_weight = wp.array(jaw.weights.astype(np.float32), dtype=wp.float32, device=device_)
-        if self.launches_per_frame == 1:  # the tiled plan's tiles; by default a mesh that cannot be tiled runs 3 launches
+        if (
+            self.launches_per_frame == 1
+        ):  # the tiled plan's tiles; by default a mesh that cannot be tiled runs 3 launches
             self._tiles = mesh_tiles(mesh, self._mesh_buffers, device=device_, required=launches == 1)
             self.launches_per_frame = 3 if self._tiles is None else 1
         if self.launches_per_frame in (2, 3):  # the fused plans' fixed-width tables (kernels_fused)
             buffers = self._mesh_buffers
-            self._ring = ring_table(mesh.triangles.astype(np.int32), buffers.triangle_weight.numpy(), buffers.rest_area_lengths.numpy(),
-                                    mesh.adjacency.offsets, mesh.adjacency.triangles, device=device_)
-            self._muscle_slots = slot_table(MuscleEntry, weights.offsets, self._muscle_entries.numpy(), int(MUSCLE_SLOTS), device=device_)
-            self._wrinkle_slots = slot_table(WrinkleEntry, shapes.offsets, self._wrinkle_entries.numpy(), int(WRINKLE_SLOTS), device=device_)
+            self._ring = ring_table(
+                mesh.triangles.astype(np.int32),
+                buffers.triangle_weight.numpy(),
+                buffers.rest_area_lengths.numpy(),
+                mesh.adjacency.offsets,
+                mesh.adjacency.triangles,
+                device=device_,
+            )
+            self._muscle_slots = slot_table(
+                MuscleEntry, weights.offsets, self._muscle_entries.numpy(), int(MUSCLE_SLOTS), device=device_
+            )
+            self._wrinkle_slots = slot_table(
+                WrinkleEntry, shapes.offsets, self._wrinkle_entries.numpy(), int(WRINKLE_SLOTS), device=device_
+            )
         self._block_dim = 256 if self.device.is_cuda else 1
         self._tile_frames_per_pass = _TILE_FRAMES_PER_PASS
         """Threads per block of every launch (the tiled plan's blocks are its third launch dimension)."""
@@ -205,7 +247,9 @@ class ExpressionModel:
     @classmethod
     def from_rig(cls, rig, *, device=None) -> "ExpressionModel":
         """Build from a :class:`warpface.FaceRig` (mesh, muscles, wrinkles, thickness, jaw)."""
-        if not all(hasattr(rig, field) for field in ("mesh", "muscles", "wrinkles", "thickness")):  # warpface.rig imports this module
+        if not all(
+            hasattr(rig, field) for field in ("mesh", "muscles", "wrinkles", "thickness")
+        ):  # warpface.rig imports this module
             raise TypeError(f"rig: expected a FaceRig, got {type(rig).__name__}")
         return cls(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=device, jaw=getattr(rig, "jaw", None))
 
@@ -218,15 +262,23 @@ class ExpressionModel:
         and values beyond ±1e6 (linear muscles and jaw, lengths and radians) or ±1e3 (sphincters) raise
         ValueError naming the control.
         """
-        return control_vector(self._muscles_only_padded(contractions), self.control_names, np.zeros(len(self.control_names)), self._contraction_limits,
-                              "contraction", "muscle" if self.jaw is None else "control")
+        return control_vector(
+            self._muscles_only_padded(contractions),
+            self.control_names,
+            np.zeros(len(self.control_names)),
+            self._contraction_limits,
+            "contraction",
+            "muscle" if self.jaw is None else "control",
+        )
 
     def depth_vector(self, depths) -> np.ndarray:
         """Wrinkle depths ``k_d`` in wrinkle order, shape (W,); ``None`` or absent names keep each wrinkle's own depth.
 
         Depths are lengths: beyond ±1e6 they are rejected like other bad values (ValueError naming the wrinkle).
         """
-        return control_vector(depths, self.wrinkle_names, self.default_depths, self._depth_limits, "wrinkle depth", "wrinkle")
+        return control_vector(
+            depths, self.wrinkle_names, self.default_depths, self._depth_limits, "wrinkle depth", "wrinkle"
+        )
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, contractions=None, *, wrinkle_depths=None, stages: bool = False):
@@ -299,15 +351,17 @@ class ExpressionModel:
         readback = None
         try:
             for buffers, start, count in self._chunks(frame_count, frames_per_launch, progress):
-                buffers.upload_controls(controls[start:start + count], depths[start:start + count])
+                buffers.upload_controls(controls[start : start + count], depths[start : start + count])
                 self._launch(buffers)
                 if self.device.is_cpu:
-                    buffers.read_frames(buffers.final_points, count, out=result[start:start + count])
+                    buffers.read_frames(buffers.final_points, count, out=result[start : start + count])
                     continue
                 readback = self._readbacks.get(buffers.frames)
                 if readback is None:
-                    readback = self._readbacks[buffers.frames] = PinnedReadback(buffers.frames * vertex_count, wp.vec3, device=self.device)
-                readback.submit(buffers.final_points, count * vertex_count, result[start:start + count])
+                    readback = self._readbacks[buffers.frames] = PinnedReadback(
+                        buffers.frames * vertex_count, wp.vec3, device=self.device
+                    )
+                readback.submit(buffers.final_points, count * vertex_count, result[start : start + count])
         finally:
             if readback is not None:
                 readback.finish()
@@ -332,12 +386,16 @@ class ExpressionModel:
             one CUDA graph, captured on the first call with these arrays and sizes and replayed after.
         """
         frame_count = self._batch_frame_count(contractions, wrinkle_depths)
-        target = as_device_array(out, "out", device=self.device, shape=(frame_count, self.mesh.vertex_count), dtype=wp.vec3)
+        target = as_device_array(
+            out, "out", device=self.device, shape=(frame_count, self.mesh.vertex_count), dtype=wp.vec3
+        )
         host, device_controls = self._split_controls(contractions, wrinkle_depths, frame_count)
         self._run_batch(target, host, device_controls, frame_count, frames_per_launch, progress)
         return out
 
-    def _run_batch(self, target: wp.array, host, device_controls, frame_count: int, frames_per_launch, progress: bool) -> None:
+    def _run_batch(
+        self, target: wp.array, host, device_controls, frame_count: int, frames_per_launch, progress: bool
+    ) -> None:
         """Chunk after chunk: copy its controls, run the kernels, the last one writing into ``target``.
 
         Host controls are staged once into device arrays kept for their shape; the kernels read each
@@ -346,19 +404,32 @@ class ExpressionModel:
         """
         if not isinstance(progress, (bool, np.bool_)):
             raise ValueError(f"progress: expected True or False, got {type(progress).__name__}")
-        chunks = list(self._chunks(frame_count, frames_per_launch, False, device_resident=True))  # checks frames_per_launch
+        chunks = list(
+            self._chunks(frame_count, frames_per_launch, False, device_resident=True)
+        )  # checks frames_per_launch
         if not chunks:
             return
-        sources = [self._batch_graphs.stage(values, slot) if given is None else given
-                   for values, given, slot in zip(host, device_controls, ("contraction", "depth"))]
+        sources = [
+            self._batch_graphs.stage(values, slot) if given is None else given
+            for values, given, slot in zip(host, device_controls, ("contraction", "depth"))
+        ]
         vertex_count = self.mesh.vertex_count
 
         def write(buffers: FrameBuffers, start: int, count: int) -> None:
-            controls, depths = (source[start * width:(start + count) * width] if width else fallback
-                                for source, width, fallback in ((sources[0], len(self.control_names), buffers.contraction),
-                                                                (sources[1], len(self.wrinkles), buffers.depth)))
-            self._launch_frames(buffers, frames=count, controls=controls, depths=depths,
-                               final_points=target[start * vertex_count:(start + count) * vertex_count])
+            controls, depths = (
+                source[start * width : (start + count) * width] if width else fallback
+                for source, width, fallback in (
+                    (sources[0], len(self.control_names), buffers.contraction),
+                    (sources[1], len(self.wrinkles), buffers.depth),
+                )
+            )
+            self._launch_frames(
+                buffers,
+                frames=count,
+                controls=controls,
+                depths=depths,
+                final_points=target[start * vertex_count : (start + count) * vertex_count],
+            )
 
         if progress:
             for chunk in self._chunks(frame_count, frames_per_launch, True, device_resident=True):
@@ -379,18 +450,26 @@ class ExpressionModel:
         except (TypeError, ValueError):
             return values
         if array.ndim in (1, 2) and array.shape[-1] == len(self.muscles) != len(self.control_names):
-            return np.concatenate([array, np.zeros(array.shape[:-1] + (len(self.control_names) - len(self.muscles),))], axis=-1)
+            return np.concatenate(
+                [array, np.zeros(array.shape[:-1] + (len(self.control_names) - len(self.muscles),))], axis=-1
+            )
         return values
 
     def _host_frames(self, contractions, wrinkle_depths) -> tuple[np.ndarray, np.ndarray]:
         """Validated (F, M) contractions and (F, W) depths from host values."""
-        controls = frame_controls(self._muscles_only_padded(contractions), self.contraction_vector, len(self.control_names),
-                                  "contractions", self._contraction_limits)
+        controls = frame_controls(
+            self._muscles_only_padded(contractions),
+            self.contraction_vector,
+            len(self.control_names),
+            "contractions",
+            self._contraction_limits,
+        )
         frame_count = len(controls)
         if wrinkle_depths is None:
             return controls, np.tile(self.default_depths, (frame_count, 1))
-        depths = frame_controls(wrinkle_depths, self.depth_vector, len(self.wrinkles), "wrinkle_depths",
-                                self._depth_limits)
+        depths = frame_controls(
+            wrinkle_depths, self.depth_vector, len(self.wrinkles), "wrinkle_depths", self._depth_limits
+        )
         if len(depths) != frame_count:
             raise ValueError(f"wrinkle_depths: {len(depths)} frames, contractions have {frame_count}")
         return controls, depths
@@ -473,8 +552,14 @@ class ExpressionModel:
     def _frame_buffers(self, frames: int) -> FrameBuffers:
         if frames not in self._buffers:
             self._buffers[frames] = FrameBuffers(
-                frames, self.mesh.vertex_count, self.mesh.triangle_count, len(self.control_names), len(self.wrinkles), device=self.device,
-                per_triangle=self.launches_per_frame == 5)
+                frames,
+                self.mesh.vertex_count,
+                self.mesh.triangle_count,
+                len(self.control_names),
+                len(self.wrinkles),
+                device=self.device,
+                per_triangle=self.launches_per_frame == 5,
+            )
         return self._buffers[frames]
 
     def _run_single(self, buffers: FrameBuffers) -> None:
@@ -504,8 +589,15 @@ class ExpressionModel:
             return 1
         return int(min(_MAX_FRAMES_PER_THREAD, max(1, frames * self.mesh.vertex_count // (1 << 20))))
 
-    def _launch_args(self, buffers: FrameBuffers, frames: int, controls: wp.array, depths: wp.array,
-                     final_points: wp.array, keep_muscle_points: bool) -> list:
+    def _launch_args(
+        self,
+        buffers: FrameBuffers,
+        frames: int,
+        controls: wp.array,
+        depths: wp.array,
+        final_points: wp.array,
+        keep_muscle_points: bool,
+    ) -> list:
         """``(kernel, dim, inputs, outputs)`` of a frame's kernels over ``frames`` frames."""
         if self.launches_per_frame == 5:
             return self._staged_launch_args(buffers, frames, controls, depths, final_points)
@@ -517,78 +609,245 @@ class ExpressionModel:
         if jaw is None:
             jaw_inputs = [self._counts, wp.vec3(), wp.vec3(), wp.vec3(), -1]  # jaw arrays unread
         else:
-            jaw_inputs = [self._jaw_weight, wp.vec3(*jaw.pivot), wp.vec3(*jaw.axis), wp.vec3(*jaw.forward), len(self.muscles)]
+            jaw_inputs = [
+                self._jaw_weight,
+                wp.vec3(*jaw.pivot),
+                wp.vec3(*jaw.axis),
+                wp.vec3(*jaw.forward),
+                len(self.muscles),
+            ]
         if self.launches_per_frame == 1:  # blocks over (frame groups, tiles)
             per_block = min(_TILE_FRAMES_PER_BLOCK, frames)
             kernel = model_kernel(per_block, self._tile_frames_per_pass, len(self._tiles[0]), device=self.device)
-            tiled = (kernel, (-(-frames // per_block), len(self._tiles[0]), self._block_dim),
-                     [*self._tiles, mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, controls,
-                      buffers.muscle_width, self._counts, self._thickness, self._wrinkle_offsets, self._wrinkle_entries,
-                      depths, buffers.wrinkle_width, vertex_count, frames, per_block, int(keep_muscle_points)],
-                     [buffers.muscle_points, buffers.stretch, buffers.bulge_points, final_points])
+            tiled = (
+                kernel,
+                (-(-frames // per_block), len(self._tiles[0]), self._block_dim),
+                [
+                    *self._tiles,
+                    mesh.rest_points,
+                    *jaw_inputs,
+                    self._muscle_offsets,
+                    self._muscle_entries,
+                    controls,
+                    buffers.muscle_width,
+                    self._counts,
+                    self._thickness,
+                    self._wrinkle_offsets,
+                    self._wrinkle_entries,
+                    depths,
+                    buffers.wrinkle_width,
+                    vertex_count,
+                    frames,
+                    per_block,
+                    int(keep_muscle_points),
+                ],
+                [buffers.muscle_points, buffers.stretch, buffers.bulge_points, final_points],
+            )
             return [tiled]
-        muscle_inputs = [mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, self._muscle_slots, controls,
-                         buffers.muscle_width]
-        ring_inputs = [self._ring, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, mesh.adjacency_offsets,
-                       mesh.adjacency_triangles, self._counts, self._thickness, vertex_count, frames, per_thread]
-        wrinkles = (wrinkles_from_ring, dim,
-                    [buffers.bulge_points, buffers.stretch, self._ring, mesh.triangles, mesh.triangle_weight, mesh.adjacency_offsets,
-                     mesh.adjacency_triangles, self._wrinkle_offsets, self._wrinkle_entries, self._wrinkle_slots, depths,
-                     buffers.wrinkle_width, vertex_count, frames, per_thread],
-                    [final_points])
+        muscle_inputs = [
+            mesh.rest_points,
+            *jaw_inputs,
+            self._muscle_offsets,
+            self._muscle_entries,
+            self._muscle_slots,
+            controls,
+            buffers.muscle_width,
+        ]
+        ring_inputs = [
+            self._ring,
+            mesh.triangles,
+            mesh.triangle_weight,
+            mesh.rest_area_lengths,
+            mesh.adjacency_offsets,
+            mesh.adjacency_triangles,
+            self._counts,
+            self._thickness,
+            vertex_count,
+            frames,
+            per_thread,
+        ]
+        wrinkles = (
+            wrinkles_from_ring,
+            dim,
+            [
+                buffers.bulge_points,
+                buffers.stretch,
+                self._ring,
+                mesh.triangles,
+                mesh.triangle_weight,
+                mesh.adjacency_offsets,
+                mesh.adjacency_triangles,
+                self._wrinkle_offsets,
+                self._wrinkle_entries,
+                self._wrinkle_slots,
+                depths,
+                buffers.wrinkle_width,
+                vertex_count,
+                frames,
+                per_thread,
+            ],
+            [final_points],
+        )
         if self.launches_per_frame == 3:
-            muscles = (muscle_points_over_frames, dim, [mesh.rest_points, *jaw_inputs, self._muscle_offsets, self._muscle_entries, controls,
-                                                        buffers.muscle_width, vertex_count, frames, per_thread], [buffers.muscle_points])
-            bulge = (bulge_from_ring, dim, [buffers.muscle_points, *ring_inputs], [buffers.stretch, buffers.bulge_points])
+            muscles = (
+                muscle_points_over_frames,
+                dim,
+                [
+                    mesh.rest_points,
+                    *jaw_inputs,
+                    self._muscle_offsets,
+                    self._muscle_entries,
+                    controls,
+                    buffers.muscle_width,
+                    vertex_count,
+                    frames,
+                    per_thread,
+                ],
+                [buffers.muscle_points],
+            )
+            bulge = (
+                bulge_from_ring,
+                dim,
+                [buffers.muscle_points, *ring_inputs],
+                [buffers.stretch, buffers.bulge_points],
+            )
             return [muscles, bulge, wrinkles]
-        bulge = (muscles_and_bulge_from_ring, dim, [*muscle_inputs, *ring_inputs, int(keep_muscle_points)],
-                 [buffers.muscle_points, buffers.stretch, buffers.bulge_points])
+        bulge = (
+            muscles_and_bulge_from_ring,
+            dim,
+            [*muscle_inputs, *ring_inputs, int(keep_muscle_points)],
+            [buffers.muscle_points, buffers.stretch, buffers.bulge_points],
+        )
         return [bulge, wrinkles]
 
-    def _staged_launch_args(self, buffers: FrameBuffers, frames: int, controls: wp.array, depths: wp.array,
-                            final_points: wp.array) -> list:
+    def _staged_launch_args(
+        self, buffers: FrameBuffers, frames: int, controls: wp.array, depths: wp.array, final_points: wp.array
+    ) -> list:
         """The five-kernel sequence (muscles, triangle stretch, stretch and bulge, area vectors, wrinkles)."""
         mesh = self._mesh_buffers
         vertex_count, triangle_count = self.mesh.vertex_count, self.mesh.triangle_count
         vertices, triangles = frames * vertex_count, frames * triangle_count
         counts = [vertex_count, triangle_count]
         if self.jaw is None:
-            first = (apply_muscles, vertices,
-                     [mesh.rest_points, self._muscle_offsets, self._muscle_entries, controls, buffers.muscle_width, vertex_count],
-                     [buffers.muscle_points])
+            first = (
+                apply_muscles,
+                vertices,
+                [
+                    mesh.rest_points,
+                    self._muscle_offsets,
+                    self._muscle_entries,
+                    controls,
+                    buffers.muscle_width,
+                    vertex_count,
+                ],
+                [buffers.muscle_points],
+            )
         else:
             jaw = self.jaw
-            first = (apply_jaw_and_muscles, vertices,
-                     [mesh.rest_points, self._jaw_weight, wp.vec3(*jaw.pivot), wp.vec3(*jaw.axis), wp.vec3(*jaw.forward),
-                      self._muscle_offsets, self._muscle_entries, controls, buffers.muscle_width, len(self.muscles), vertex_count],
-                     [buffers.muscle_points])
+            first = (
+                apply_jaw_and_muscles,
+                vertices,
+                [
+                    mesh.rest_points,
+                    self._jaw_weight,
+                    wp.vec3(*jaw.pivot),
+                    wp.vec3(*jaw.axis),
+                    wp.vec3(*jaw.forward),
+                    self._muscle_offsets,
+                    self._muscle_entries,
+                    controls,
+                    buffers.muscle_width,
+                    len(self.muscles),
+                    vertex_count,
+                ],
+                [buffers.muscle_points],
+            )
         return [
             first,
-            (triangle_stretch, triangles, [buffers.muscle_points, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, *counts],
-             [buffers.stretch_terms]),
-            (stretch_and_bulge, vertices, [buffers.muscle_points, buffers.stretch_terms, self._counts, mesh.adjacency_offsets,
-                                           mesh.adjacency_triangles, self._thickness, *counts], [buffers.stretch, buffers.bulge_points]),
-            (triangle_area_vectors, triangles, [buffers.bulge_points, mesh.triangles, mesh.triangle_weight, *counts],
-             [buffers.area_vectors]),
-            (apply_wrinkles, vertices, [buffers.bulge_points, buffers.area_vectors, mesh.adjacency_offsets, mesh.adjacency_triangles,
-                                        buffers.stretch, self._wrinkle_offsets, self._wrinkle_entries, depths, buffers.wrinkle_width,
-                                        *counts], [final_points]),
+            (
+                triangle_stretch,
+                triangles,
+                [buffers.muscle_points, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, *counts],
+                [buffers.stretch_terms],
+            ),
+            (
+                stretch_and_bulge,
+                vertices,
+                [
+                    buffers.muscle_points,
+                    buffers.stretch_terms,
+                    self._counts,
+                    mesh.adjacency_offsets,
+                    mesh.adjacency_triangles,
+                    self._thickness,
+                    *counts,
+                ],
+                [buffers.stretch, buffers.bulge_points],
+            ),
+            (
+                triangle_area_vectors,
+                triangles,
+                [buffers.bulge_points, mesh.triangles, mesh.triangle_weight, *counts],
+                [buffers.area_vectors],
+            ),
+            (
+                apply_wrinkles,
+                vertices,
+                [
+                    buffers.bulge_points,
+                    buffers.area_vectors,
+                    mesh.adjacency_offsets,
+                    mesh.adjacency_triangles,
+                    buffers.stretch,
+                    self._wrinkle_offsets,
+                    self._wrinkle_entries,
+                    depths,
+                    buffers.wrinkle_width,
+                    *counts,
+                ],
+                [final_points],
+            ),
         ]
 
-    def _launch_frames(self, buffers: FrameBuffers, *, frames: int, controls: wp.array | None = None, depths: wp.array | None = None,
-                      final_points: wp.array | None = None, keep_muscle_points: bool = False) -> None:
+    def _launch_frames(
+        self,
+        buffers: FrameBuffers,
+        *,
+        frames: int,
+        controls: wp.array | None = None,
+        depths: wp.array | None = None,
+        final_points: wp.array | None = None,
+        keep_muscle_points: bool = False,
+    ) -> None:
         """The frame's kernels over the first ``frames`` frames, reading ``controls``/``depths`` (default: the
         buffers') and writing ``final_points`` (default: the buffers'); x1 is kept for the stages on request."""
         arguments = self._launch_args(
-            buffers, frames, buffers.contraction if controls is None else controls, buffers.depth if depths is None else depths,
-            buffers.final_points if final_points is None else final_points, keep_muscle_points)
+            buffers,
+            frames,
+            buffers.contraction if controls is None else controls,
+            buffers.depth if depths is None else depths,
+            buffers.final_points if final_points is None else final_points,
+            keep_muscle_points,
+        )
         for kernel, dim, inputs, outputs in arguments:
             wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device, block_dim=self._block_dim)
 
     def _record_launches(self, buffers: FrameBuffers) -> list:
-        arguments = self._launch_args(buffers, buffers.frames, buffers.contraction, buffers.depth, buffers.final_points, False)
-        return [wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device, block_dim=self._block_dim, record_cmd=True)
-                for kernel, dim, inputs, outputs in arguments]
+        arguments = self._launch_args(
+            buffers, buffers.frames, buffers.contraction, buffers.depth, buffers.final_points, False
+        )
+        return [
+            wp.launch(
+                kernel,
+                dim=dim,
+                inputs=inputs,
+                outputs=outputs,
+                device=self.device,
+                block_dim=self._block_dim,
+                record_cmd=True,
+            )
+            for kernel, dim, inputs, outputs in arguments
+        ]
 
 
 def _entry_array(struct, device, **fields: np.ndarray) -> wp.array:

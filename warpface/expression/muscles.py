@@ -15,7 +15,17 @@ from typing import Union
 import numpy as np
 import warp as wp
 
-from .._validate import MAX_COORDINATE, as_finite_array, as_points, as_positive, as_vec3, orthogonal_unit_vector, unit_vector, as_device, expect_iterable
+from .._validate import (
+    MAX_COORDINATE,
+    as_device,
+    as_finite_array,
+    as_points,
+    as_positive,
+    as_vec3,
+    expect_iterable,
+    orthogonal_unit_vector,
+    unit_vector,
+)
 from ._sparse import vertex_csr
 from .falloff import linear_angular_factor, linear_radial_factor, sphincter_factor, sphincter_ring_factor
 
@@ -139,7 +149,9 @@ class LinearMuscle:
         _check_response(self, label)
         if len(expect_iterable(self.lobes, f"{label}: lobes", sized=True)) > MAX_LOBES:
             raise ValueError(f"{label}: at most {MAX_LOBES} lobes, got {len(self.lobes)}")
-        object.__setattr__(self, "lobes", tuple(expect_iterable(self.lobes, f"{label}: lobes", item_types=(MuscleLobe,))))
+        object.__setattr__(
+            self, "lobes", tuple(expect_iterable(self.lobes, f"{label}: lobes", item_types=(MuscleLobe,)))
+        )
 
     @property
     def axis(self) -> np.ndarray:
@@ -292,8 +304,15 @@ def _add_scaled_kernel(values: wp.array(dtype=wp.vec3d), scale: wp.float64, tota
 
 def _linear_zone_weights(rest: wp.array, zone, falloff: str, out: wp.array) -> None:
     """The §1.1 / §6.3 zone weights of a :class:`LinearMuscle` or :class:`MuscleLobe` into ``out`` (V,) vec3d."""
-    inputs = [rest, wp.vec3d(*zone.attachment), wp.vec3d(*zone.axis), math.radians(zone.zone_angle_deg),
-              zone.falloff_start, zone.falloff_finish, int(falloff == "smooth")]
+    inputs = [
+        rest,
+        wp.vec3d(*zone.attachment),
+        wp.vec3d(*zone.axis),
+        math.radians(zone.zone_angle_deg),
+        zone.falloff_start,
+        zone.falloff_finish,
+        int(falloff == "smooth"),
+    ]
     wp.launch(_linear_muscle_weight_kernel, dim=len(rest), inputs=inputs, outputs=[out], device=rest.device)
 
 
@@ -332,10 +351,20 @@ def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], *, device=Non
             lobe_weights = wp.empty_like(out) if muscle.lobes else None
             for lobe in muscle.lobes:
                 _linear_zone_weights(rest, lobe, muscle.falloff, lobe_weights)
-                wp.launch(_add_scaled_kernel, dim=vertex_count, inputs=[lobe_weights, lobe.gain], outputs=[out], device=device)
+                wp.launch(
+                    _add_scaled_kernel, dim=vertex_count, inputs=[lobe_weights, lobe.gain], outputs=[out], device=device
+                )
         elif isinstance(muscle, SphincterMuscle):
-            inputs = [rest, wp.vec3d(*muscle.center), wp.vec3d(*muscle.axis_x), wp.vec3d(*muscle.axis_y),
-                      muscle.semi_axes[0], muscle.semi_axes[1], int(muscle.falloff == "smooth"), muscle.ring]
+            inputs = [
+                rest,
+                wp.vec3d(*muscle.center),
+                wp.vec3d(*muscle.axis_x),
+                wp.vec3d(*muscle.axis_y),
+                muscle.semi_axes[0],
+                muscle.semi_axes[1],
+                int(muscle.falloff == "smooth"),
+                muscle.ring,
+            ]
             wp.launch(_sphincter_weight_kernel, dim=vertex_count, inputs=inputs, outputs=[out], device=device)
         else:
             raise ValueError(f"muscle {index}: expected LinearMuscle or SphincterMuscle, got {type(muscle).__name__}")

@@ -82,9 +82,13 @@ class VertexTiles:
 
     def to_device(self, *, device=None) -> tuple[wp.array, ...]:
         """``(info, vertices, adjacency_offsets, adjacency, triangles)`` as Warp arrays on ``device``."""
-        return (wp.array(self.info, dtype=TileInfo, device=device), wp.array(self.vertices, dtype=wp.int32, device=device),
-                wp.array(self.adjacency_offsets, dtype=wp.int32, device=device), wp.array(self.adjacency, dtype=wp.int32, device=device),
-                wp.array(self.triangles, dtype=RingTriangle, device=device))
+        return (
+            wp.array(self.info, dtype=TileInfo, device=device),
+            wp.array(self.vertices, dtype=wp.int32, device=device),
+            wp.array(self.adjacency_offsets, dtype=wp.int32, device=device),
+            wp.array(self.adjacency, dtype=wp.int32, device=device),
+            wp.array(self.triangles, dtype=RingTriangle, device=device),
+        )
 
 
 def _neighbour_csr(triangles: np.ndarray, vertex_count: int) -> tuple[np.ndarray, np.ndarray]:
@@ -115,9 +119,18 @@ def _tile_sets(tile_of, neighbours, adjacency, vertex_count, triangle_count):
     return ring, halo, ring_triangles, near_triangles
 
 
-def vertex_tiles(points: np.ndarray, triangles: np.ndarray, triangle_weight: np.ndarray, rest_length: np.ndarray,
-                 adjacency_offsets: np.ndarray, adjacency_triangles: np.ndarray, *, max_owned: int = int(TILE_OWNED),
-                 max_halo: int = int(TILE_VERTICES), max_triangles: int = int(TILE_TRIANGLES)) -> VertexTiles:
+def vertex_tiles(
+    points: np.ndarray,
+    triangles: np.ndarray,
+    triangle_weight: np.ndarray,
+    rest_length: np.ndarray,
+    adjacency_offsets: np.ndarray,
+    adjacency_triangles: np.ndarray,
+    *,
+    max_owned: int = int(TILE_OWNED),
+    max_halo: int = int(TILE_VERTICES),
+    max_triangles: int = int(TILE_TRIANGLES),
+) -> VertexTiles:
     """Tile a mesh: ``points`` (V, 3) rest positions, ``triangles`` (T, 3), per-triangle ``triangle_weight``
     and ``rest_length`` (T,), and the vertex → triangle CSR (``adjacency_offsets`` (V + 1,), ``adjacency_triangles``).
     ``max_owned``, ``max_halo`` and ``max_triangles`` bound a tile's owned vertices, two-ring and one-ring triangles
@@ -135,7 +148,9 @@ def vertex_tiles(points: np.ndarray, triangles: np.ndarray, triangle_weight: np.
     while True:
         tile_of = np.searchsorted(cuts, rank, side="right") - 1
         tile_count = len(cuts)
-        ring, halo, ring_triangles, near_triangles = _tile_sets(tile_of, neighbours, adjacency, vertex_count, triangle_count)
+        ring, halo, ring_triangles, near_triangles = _tile_sets(
+            tile_of, neighbours, adjacency, vertex_count, triangle_count
+        )
         halo_size = np.bincount(halo // vertex_count, minlength=tile_count)
         triangle_size = np.bincount(ring_triangles // triangle_count, minlength=tile_count)
         over = np.flatnonzero((halo_size > max_halo) | (triangle_size > max_triangles))
@@ -144,8 +159,10 @@ def vertex_tiles(points: np.ndarray, triangles: np.ndarray, triangle_weight: np.
         sizes = np.diff(np.r_[cuts, vertex_count])
         if np.any(sizes[over] == 1):
             vertex = int(np.flatnonzero(tile_of == over[sizes[over] == 1][0])[0])
-            raise ValueError(f"tiled plan: vertex {vertex}'s two-ring has more than {max_halo} vertices or its one-ring "
-                             f"more than {max_triangles} triangles; use launches=3")
+            raise ValueError(
+                f"tiled plan: vertex {vertex}'s two-ring has more than {max_halo} vertices or its one-ring "
+                f"more than {max_triangles} triangles; use launches=3"
+            )
         cuts = np.sort(np.r_[cuts, cuts[over] + sizes[over] // 2])
 
     # local vertex order per tile: owned, rest of the one-ring, rest of the two-ring (each by vertex index)
@@ -177,7 +194,9 @@ def vertex_tiles(points: np.ndarray, triangles: np.ndarray, triangle_weight: np.
     one_ring = np.flatnonzero(slot_kind <= 1)
     which, incident = _expand(slot_vertex[one_ring], *adjacency)
     owner = slot_tile[one_ring][which]
-    local_triangles = tri_slot_of[np.searchsorted(ring_triangles, owner * triangle_count + incident)] - triangle_start[owner]
+    local_triangles = (
+        tri_slot_of[np.searchsorted(ring_triangles, owner * triangle_count + incident)] - triangle_start[owner]
+    )
     lengths = np.zeros(len(slot_key), dtype=np.int64)
     lengths[one_ring] = np.diff(adjacency[0])[slot_vertex[one_ring]]
 
@@ -189,9 +208,13 @@ def vertex_tiles(points: np.ndarray, triangles: np.ndarray, triangle_weight: np.
     info["triangle_start"] = triangle_start[:-1]
     info["near"] = np.bincount(tri_tile[tri_kind == 0], minlength=tile_count)
     info["triangles"] = np.diff(triangle_start)
-    return VertexTiles(info=info, vertices=slot_vertex.astype(np.int32), adjacency_offsets=np.r_[0, np.cumsum(lengths)].astype(np.int32),
-                       adjacency=local_triangles.astype(np.int32), triangles=packed)
-
+    return VertexTiles(
+        info=info,
+        vertices=slot_vertex.astype(np.int32),
+        adjacency_offsets=np.r_[0, np.cumsum(lengths)].astype(np.int32),
+        adjacency=local_triangles.astype(np.int32),
+        triangles=packed,
+    )
 
 
 def mesh_tiles(mesh, buffers, *, device, required: bool = True, **caps) -> tuple[wp.array, ...] | None:
@@ -199,8 +222,15 @@ def mesh_tiles(mesh, buffers, *, device, required: bool = True, **caps) -> tuple
     arrays (:meth:`VertexTiles.to_device`); ``caps`` as there. A mesh with a vertex that cannot fit a tile raises
     ``ValueError`` when ``required``, else gives ``None`` (the model's default plan then falls back to three launches)."""
     try:
-        tiles = vertex_tiles(mesh.points, mesh.triangles, buffers.triangle_weight.numpy(), buffers.rest_area_lengths.numpy(),
-                             mesh.adjacency.offsets, mesh.adjacency.triangles, **caps)
+        tiles = vertex_tiles(
+            mesh.points,
+            mesh.triangles,
+            buffers.triangle_weight.numpy(),
+            buffers.rest_area_lengths.numpy(),
+            mesh.adjacency.offsets,
+            mesh.adjacency.triangles,
+            **caps,
+        )
     except ValueError:
         if required:
             raise

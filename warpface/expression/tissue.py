@@ -31,8 +31,15 @@ from scipy.spatial import cKDTree
 from ._sparse import vertex_csr
 from .muscles import Muscle, MuscleWeights
 
-__all__ = ["tissue_response", "skin_muscle_weights", "stretch_rate", "neighbourhood_mean", "neighbourhood_averager", "FASCIA_RADIUS",
-           "BUNCHING_CAP"]
+__all__ = [
+    "tissue_response",
+    "skin_muscle_weights",
+    "stretch_rate",
+    "neighbourhood_mean",
+    "neighbourhood_averager",
+    "FASCIA_RADIUS",
+    "BUNCHING_CAP",
+]
 
 FASCIA_RADIUS = 0.03
 """Radius of the neighbourhood averages below, as a fraction of the mesh's size (its bounding-box
@@ -57,9 +64,16 @@ def neighbourhood_averager(points: np.ndarray, radius: float):
     sigma2 = (0.5 * radius) ** 2
     weight = np.exp(-np.sum((points[pairs[:, 0]] - points[pairs[:, 1]]) ** 2, axis=1) / (2.0 * sigma2))
     count = len(points)
-    matrix = coo_matrix((np.concatenate([weight, weight, np.ones(count)]),
-                         (np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(count)]),
-                          np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(count)]))), shape=(count, count)).tocsr()
+    matrix = coo_matrix(
+        (
+            np.concatenate([weight, weight, np.ones(count)]),
+            (
+                np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(count)]),
+                np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(count)]),
+            ),
+        ),
+        shape=(count, count),
+    ).tocsr()
     total = np.asarray(matrix.sum(axis=1)).ravel()
 
     def mean(values: np.ndarray) -> np.ndarray:
@@ -107,8 +121,14 @@ def stretch_rate(points: np.ndarray, triangles: np.ndarray, field: np.ndarray) -
     return result if batched else result[0]
 
 
-def tissue_response(points: np.ndarray, triangles: np.ndarray, normals: np.ndarray, thickness: np.ndarray,
-                    muscles: Sequence[Muscle], weights: MuscleWeights) -> MuscleWeights:
+def tissue_response(
+    points: np.ndarray,
+    triangles: np.ndarray,
+    normals: np.ndarray,
+    thickness: np.ndarray,
+    muscles: Sequence[Muscle],
+    weights: MuscleWeights,
+) -> MuscleWeights:
     """Muscle weights with each muscle's sliding and bunching applied (module docstring).
 
     Args:
@@ -169,5 +189,7 @@ def skin_muscle_weights(mesh, muscles: Sequence[Muscle], thickness: np.ndarray, 
     weights = muscle_weights(mesh.points, list(muscles), device=device)
     if any(m.sliding > 0.0 or m.bunching > 0.0 or m.thickening > 0.0 for m in muscles):
         normals = mesh.vertex_normals(device=device)
-        weights = tissue_response(mesh.points, mesh.triangles, normals, np.asarray(thickness, dtype=np.float64), muscles, weights)
+        weights = tissue_response(
+            mesh.points, mesh.triangles, normals, np.asarray(thickness, dtype=np.float64), muscles, weights
+        )
     return weights

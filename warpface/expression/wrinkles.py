@@ -15,7 +15,17 @@ from typing import Union
 import numpy as np
 import warp as wp
 
-from .._validate import MAX_COORDINATE, as_bounded, as_finite_array, as_points, as_positive, as_vec3, orthogonal_unit_vector, unit_vector, as_device
+from .._validate import (
+    MAX_COORDINATE,
+    as_bounded,
+    as_device,
+    as_finite_array,
+    as_points,
+    as_positive,
+    as_vec3,
+    orthogonal_unit_vector,
+    unit_vector,
+)
 from ._sparse import vertex_csr
 
 __all__ = [
@@ -34,6 +44,7 @@ WRINKLE_SHAPE_CUTOFF = 1e-7
 """Entries with ``|(d/k_w − 1)·exp(−d/k_w)| <`` this are dropped (beyond ``d ≈ 19.6·k_w``): their
 contribution is below 1e-7·k_d, under float32 resolution of the positions, and skipping them makes a
 frame's cost proportional to the skin a wrinkle actually touches."""
+
 
 def _cutoff_distance(cutoff: float) -> float:
     """The scaled distance x = d/k_w beyond which |(x − 1)·e^(−x)| < ``cutoff`` (bisection on x > 2)."""
@@ -137,7 +148,9 @@ class Wrinkle:
             self,
             "control_points",
             # u of a cylindrical projection reaches radius·π: allow that beyond the coordinate bound
-            as_finite_array(self.control_points, f"{label}: control_points", shape=(4, 2), max_abs=4.0 * MAX_COORDINATE),
+            as_finite_array(
+                self.control_points, f"{label}: control_points", shape=(4, 2), max_abs=4.0 * MAX_COORDINATE
+            ),
         )
         if not isinstance(self.projection, (PlanarProjection, CylindricalProjection)):
             raise ValueError(f"{label}: projection must be PlanarProjection or CylindricalProjection")
@@ -269,7 +282,9 @@ def _bezier_distance_kernel(
 def project_points(projection: Projection, points: np.ndarray, *, device=None) -> np.ndarray:
     """Project points into a projection's (u, v) plane [mesh units]: (V, 3) → (V, 2) float64."""
     if not isinstance(projection, (PlanarProjection, CylindricalProjection)):
-        raise ValueError(f"projection: expected PlanarProjection or CylindricalProjection, got {type(projection).__name__}")
+        raise ValueError(
+            f"projection: expected PlanarProjection or CylindricalProjection, got {type(projection).__name__}"
+        )
     device = as_device(device)
     points = as_points(points, "points")
     if len(points) == 0:
@@ -279,8 +294,15 @@ def project_points(projection: Projection, points: np.ndarray, *, device=None) -
     wp.launch(
         _project_kernel,
         dim=len(points),
-        inputs=[wp.array(points, dtype=wp.vec3d, device=device), kind, wp.vec3d(*origin), wp.vec3d(*e1), wp.vec3d(*e2),
-                wp.vec3d(*e3), float(radius)],
+        inputs=[
+            wp.array(points, dtype=wp.vec3d, device=device),
+            kind,
+            wp.vec3d(*origin),
+            wp.vec3d(*e1),
+            wp.vec3d(*e2),
+            wp.vec3d(*e3),
+            float(radius),
+        ],
         outputs=[uv],
         device=device,
     )
@@ -296,8 +318,13 @@ def bezier_distances(uv: np.ndarray, control_points: np.ndarray, *, device=None)
         return np.zeros(0, dtype=np.float64)
     c = [wp.vec2d(*row) for row in control_points]
     out = wp.empty(len(uv), dtype=wp.float64, device=device)
-    wp.launch(_bezier_distance_kernel, dim=len(uv), inputs=[wp.array(uv, dtype=wp.vec2d, device=device), *c],
-              outputs=[out], device=device)
+    wp.launch(
+        _bezier_distance_kernel,
+        dim=len(uv),
+        inputs=[wp.array(uv, dtype=wp.vec2d, device=device), *c],
+        outputs=[out],
+        device=device,
+    )
     return out.numpy()
 
 

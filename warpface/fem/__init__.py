@@ -12,15 +12,15 @@ advances a :class:`TissueState` under a :class:`TissueControl` with
 """
 
 from .assembly import FORMULATIONS, SystemMatrices, assemble
+from .batch import TissueBatch
 from .embedding import Embedding, embed_points
 from .integrator import ConvergenceError, TissueSimulation
-from .batch import TissueBatch
 from .material import DAMPING_MODELS, MATERIAL_RANGES, TissueMaterial
+from .presets import KATO_MODELS, KATO_REGIONS, KATO_UNIFORM, kato_uniform_material
 from .primitives import box_tet_mesh, shell_tet_mesh
 from .proxy import TissueProxy, tissue_proxy
-from .presets import KATO_MODELS, KATO_REGIONS, KATO_UNIFORM, kato_uniform_material
-from .state import TissueControl, TissueState
 from .regions import kato_material_model, kato_regions, landmark_regions
+from .state import TissueControl, TissueState
 from .tetmesh import TetMesh, TetQuality
 from .volume import MeshingReport, TissueMeshing, mesh_tissue, tissue_from_surface
 

@@ -47,10 +47,25 @@ class TissueBatch:
         ValueError, TypeError: as :class:`TissueSimulation`, or an empty / non-material ``materials``.
     """
 
-    def __init__(self, tetmesh: TetMesh, materials: Sequence[TissueMaterial], dt: float, *, fixed=None, driven=None,
-                 beta: float = 0.25, gamma: float = 0.5, formulation: str = "linear", solver: str = "auto",
-                 device=None, cg_tol: float = 1.0e-5, cg_maxiter: int = 500, cg_preconditioner: str = "fsai",
-                 chunk: int = 64, use_graph: bool | None = None):
+    def __init__(
+        self,
+        tetmesh: TetMesh,
+        materials: Sequence[TissueMaterial],
+        dt: float,
+        *,
+        fixed=None,
+        driven=None,
+        beta: float = 0.25,
+        gamma: float = 0.5,
+        formulation: str = "linear",
+        solver: str = "auto",
+        device=None,
+        cg_tol: float = 1.0e-5,
+        cg_maxiter: int = 500,
+        cg_preconditioner: str = "fsai",
+        chunk: int = 64,
+        use_graph: bool | None = None,
+    ):
         if not isinstance(tetmesh, TetMesh):
             raise ValueError(f"TissueBatch needs a TetMesh, got {type(tetmesh).__name__}")
         materials = list(materials) if isinstance(materials, Sequence) else None
@@ -81,7 +96,13 @@ class TissueBatch:
         if solver == "direct" and not device.is_cpu:
             raise ValueError(f"solver='direct' runs on the CPU; got device {device}")
         self.fixed_nodes, self.driven_nodes, self.free_nodes = split_nodes(tetmesh, fixed, driven)
-        self.tetmesh, self.materials, self.dt, self.formulation, self.solver = tetmesh, materials, dt, formulation, solver
+        self.tetmesh, self.materials, self.dt, self.formulation, self.solver = (
+            tetmesh,
+            materials,
+            dt,
+            formulation,
+            solver,
+        )
         self.device = device
         self.steps_taken = 0
         """Steps since construction or the last :meth:`reset`."""
@@ -89,16 +110,35 @@ class TissueBatch:
         """Largest accepted driven displacement [m]."""
         self.chunk = int(chunk)
         if solver == "direct":
-            self._simulations = [TissueSimulation(tetmesh, m, dt, fixed=self.fixed_nodes, driven=self.driven_nodes,
-                                                  beta=beta, gamma=gamma, formulation=formulation, solver="direct",
-                                                  device="cpu") for m in materials]
+            self._simulations = [
+                TissueSimulation(
+                    tetmesh,
+                    m,
+                    dt,
+                    fixed=self.fixed_nodes,
+                    driven=self.driven_nodes,
+                    beta=beta,
+                    gamma=gamma,
+                    formulation=formulation,
+                    solver="direct",
+                    device="cpu",
+                )
+                for m in materials
+            ]
             self.stepper = None
             return
         matrices = [assemble(tetmesh, m, formulation=formulation, device=device) for m in materials]
-        self.stepper = BatchedCGSolver(matrices, newmark_coefficients(dt, beta, gamma), self.free_nodes,
-                                       self.driven_nodes, tol=float(cg_tol), maxiter=int(cg_maxiter), chunk=self.chunk,
-                                       preconditioner=cg_preconditioner,
-                                       use_graph=device.is_cuda if use_graph is None else bool(use_graph))
+        self.stepper = BatchedCGSolver(
+            matrices,
+            newmark_coefficients(dt, beta, gamma),
+            self.free_nodes,
+            self.driven_nodes,
+            tol=float(cg_tol),
+            maxiter=int(cg_maxiter),
+            chunk=self.chunk,
+            preconditioner=cg_preconditioner,
+            use_graph=device.is_cuda if use_graph is None else bool(use_graph),
+        )
         """:class:`~warpface.fem.solver_batch.BatchedCGSolver` (``None`` for the direct solver)."""
         pinned = device.is_cuda
         width = max(self.driven_nodes.size, 1)
@@ -145,8 +185,10 @@ class TissueBatch:
         if not np.isfinite(arr).all():
             raise ValueError("driven displacements must be finite (found NaN or inf)")
         if arr.size and np.abs(arr).max() > self.max_displacement:
-            raise ValueError(f"a driven displacement exceeds the {self.max_displacement:.3g} m limit "
-                             f"({DISPLACEMENT_LIMIT:g} mesh diagonals)")
+            raise ValueError(
+                f"a driven displacement exceeds the {self.max_displacement:.3g} m limit "
+                f"({DISPLACEMENT_LIMIT:g} mesh diagonals)"
+            )
         return arr.reshape((-1, b, k, 3))
 
     def step(self, driven_displacements=None) -> None:
@@ -164,8 +206,13 @@ class TissueBatch:
             if driven.shape[1]:
                 self._staging_in.numpy()[self._slot, :, : driven.shape[1]] = driven
                 width = self._staging_in.shape[1] * self._staging_in.shape[2]
-                wp.copy(self.stepper.trajectory, self._staging_in, dest_offset=self._slot * width,
-                        src_offset=self._slot * width, count=width)
+                wp.copy(
+                    self.stepper.trajectory,
+                    self._staging_in,
+                    dest_offset=self._slot * width,
+                    src_offset=self._slot * width,
+                    count=width,
+                )
             self.stepper.step()
             self._slot = (self._slot + 1) % self.chunk
             if self._slot == 0:
@@ -219,5 +266,7 @@ class TissueBatch:
             self.stepper.synchronize()
 
     def __repr__(self) -> str:
-        return (f"TissueBatch({self.model_count} models, {self.tetmesh!r}, dt={self.dt:g} s, {self.formulation}, "
-                f"solver={self.solver})")
+        return (
+            f"TissueBatch({self.model_count} models, {self.tetmesh!r}, dt={self.dt:g} s, {self.formulation}, "
+            f"solver={self.solver})"
+        )

@@ -107,12 +107,19 @@ class ChunkedRun:
             k = stop - start
             self.ring.zero_()  # each chunk restarts the ring at slot 0
             if driven.shape[-2]:  # any driven nodes
-                self._driven.numpy()[slot][tuple(slice(0, size) for size in (k, *driven.shape[1:]))] = driven[start:stop]
+                self._driven.numpy()[slot][tuple(slice(0, size) for size in (k, *driven.shape[1:]))] = driven[
+                    start:stop
+                ]
                 wp.copy(self.trajectory, self._driven[slot], count=k * width)
             for _ in range(k):
                 step()
-            wp.launch(single_precision, dim=(k * models, self._rows.shape[1]), inputs=[self._rows],
-                      outputs=[self._record32], device=self._record32.device)
+            wp.launch(
+                single_precision,
+                dim=(k * models, self._rows.shape[1]),
+                inputs=[self._rows],
+                outputs=[self._record32],
+                device=self._record32.device,
+            )
             wp.copy(self._out[slot], self._record32, count=k * models * self._rows.shape[1])
             return slot, k, self._status.queue(slot)
 

@@ -291,8 +291,9 @@ class Embedding:
     def subset(self, vertex_indices) -> Embedding:
         """The embedding of only the given points, in the given order (e.g. landmark vertices)."""
         index = self._check_indices(vertex_indices)
-        return _frozen_embedding(self.node_count, self.tets[index], self.nodes[index], self.weights[index],
-                                 self.distances[index])
+        return _frozen_embedding(
+            self.node_count, self.tets[index], self.nodes[index], self.weights[index], self.distances[index]
+        )
 
     def on_nodes(self, nodes) -> Embedding:
         """The same embedding for node values given only on ``nodes`` (e.g. nodes recorded by a simulation).
@@ -333,8 +334,12 @@ class Embedding:
 
 
 def _frozen_embedding(node_count, tets, nodes, weights, distances) -> Embedding:
-    arrays = [np.ascontiguousarray(tets, dtype=np.int32), np.ascontiguousarray(nodes, dtype=np.int32),
-              np.ascontiguousarray(weights, dtype=np.float64), np.ascontiguousarray(distances, dtype=np.float64)]
+    arrays = [
+        np.ascontiguousarray(tets, dtype=np.int32),
+        np.ascontiguousarray(nodes, dtype=np.int32),
+        np.ascontiguousarray(weights, dtype=np.float64),
+        np.ascontiguousarray(distances, dtype=np.float64),
+    ]
     for a in arrays:
         a.setflags(write=False)
     return Embedding(int(node_count), *arrays)
@@ -379,8 +384,9 @@ def embed_points(tetmesh: TetMesh, points, *, max_distance: float | None = None,
         raise ValueError(f"embed_points: point {bad[0]} is not finite: {points[bad[0]].tolist()}")
     far = np.flatnonzero(np.abs(points).max(axis=1) > MAX_COORDINATE) if len(points) else np.zeros(0, dtype=np.int64)
     if far.size:
-        raise ValueError(f"embed_points: point {far[0]} lies beyond {MAX_COORDINATE:g} m from the origin: "
-                         f"{points[far[0]].tolist()}")
+        raise ValueError(
+            f"embed_points: point {far[0]} lies beyond {MAX_COORDINATE:g} m from the origin: {points[far[0]].tolist()}"
+        )
     if max_distance is None:
         max_distance = 0.5 * _median_edge_length(tetmesh)
     try:
@@ -398,8 +404,13 @@ def embed_points(tetmesh: TetMesh, points, *, max_distance: float | None = None,
     inverse = wp.empty(tetmesh.tet_count, dtype=wp.mat33d, device=device)
     lowers = wp.empty(tetmesh.tet_count, dtype=wp.vec3, device=device)
     uppers = wp.empty(tetmesh.tet_count, dtype=wp.vec3, device=device)
-    wp.launch(_tet_setup, dim=tetmesh.tet_count, inputs=[nodes_wp, tets_wp, pad], outputs=[inverse, lowers, uppers],
-              device=device)
+    wp.launch(
+        _tet_setup,
+        dim=tetmesh.tet_count,
+        inputs=[nodes_wp, tets_wp, pad],
+        outputs=[inverse, lowers, uppers],
+        device=device,
+    )
     bvh = wp.Bvh(lowers, uppers)
     n = len(points)
     found = wp.empty(n, dtype=wp.int32, device=device)
@@ -409,8 +420,15 @@ def embed_points(tetmesh: TetMesh, points, *, max_distance: float | None = None,
         wp.launch(
             _locate,
             dim=n,
-            inputs=[bvh.id, nodes_wp, tets_wp, inverse, wp.array(points, dtype=wp.vec3d, device=device), pad,
-                    max_distance],
+            inputs=[
+                bvh.id,
+                nodes_wp,
+                tets_wp,
+                inverse,
+                wp.array(points, dtype=wp.vec3d, device=device),
+                pad,
+                max_distance,
+            ],
             outputs=[found, weights, distance],
             device=device,
         )

@@ -147,9 +147,12 @@ class TissueSimulation:
         if not isinstance(material, TissueMaterial):
             raise ValueError(f"TissueSimulation needs a TissueMaterial, got {type(material).__name__}")
         self.dt, self.beta, self.gamma = validate_newmark(dt, beta, gamma)
-        for option, value, allowed in (("formulation", formulation, FORMULATIONS), ("solver", solver, SOLVERS),
-                                       ("cg_preconditioner", cg_preconditioner, PRECONDITIONERS),
-                                       ("cg_loop", cg_loop, CG_LOOPS)):
+        for option, value, allowed in (
+            ("formulation", formulation, FORMULATIONS),
+            ("solver", solver, SOLVERS),
+            ("cg_preconditioner", cg_preconditioner, PRECONDITIONERS),
+            ("cg_loop", cg_loop, CG_LOOPS),
+        ):
             if not isinstance(value, str) or value not in allowed:
                 raise ValueError(f"{option} must be one of {allowed}, got {value!r}")
         cg_tol = _number("cg_tol", cg_tol, 1e-16, 1.0)
@@ -165,7 +168,9 @@ class TissueSimulation:
         try:
             device = as_device(device)
         except Exception:  # Warp raises RuntimeError/ValueError/TypeError for unknown devices
-            raise ValueError(f"device {device!r} is not a Warp device here ({[str(d) for d in wp.get_devices()]})") from None
+            raise ValueError(
+                f"device {device!r} is not a Warp device here ({[str(d) for d in wp.get_devices()]})"
+            ) from None
         if solver == "auto":
             solver = "direct" if device.is_cpu else "cg"
         if solver == "direct" and not device.is_cpu:
@@ -237,8 +242,12 @@ class TissueSimulation:
         # step(): host input goes through a (pinned) ring of `cg_chunk` rows, so queued copies never
         # read a row the host has already overwritten; the host waits once per ring.
         self._ring_rows = 1 if solver == "direct" else int(cg_chunk)
-        self._staging = wp.zeros((self._ring_rows, max(driven_nodes.size, 1)), dtype=self.control.driven.dtype,
-                                 device="cpu", pinned=state_device.is_cuda)
+        self._staging = wp.zeros(
+            (self._ring_rows, max(driven_nodes.size, 1)),
+            dtype=self.control.driven.dtype,
+            device="cpu",
+            pinned=state_device.is_cuda,
+        )
         self._staging_slot = 0
         # on the CPU every launch is synchronous: step() writes the control through a zero-copy view
         self._control_view = self.control.driven.numpy()[: driven_nodes.size] if state_device.is_cpu else None
@@ -324,8 +333,10 @@ class TissueSimulation:
             limit = self.max_displacement / (1.0 if name == "displacement" else self.dt)
             big = np.flatnonzero(np.abs(arr).max(axis=1) > limit)
             if big.size:
-                raise ValueError(f"reset {name} of node {big[0]} exceeds {limit:.3g} (|value| {np.abs(arr[big[0]]).max():.3g}; "
-                                 f"at most {DISPLACEMENT_LIMIT:g} mesh diagonals{'' if name == 'displacement' else ' per dt'})")
+                raise ValueError(
+                    f"reset {name} of node {big[0]} exceeds {limit:.3g} (|value| {np.abs(arr[big[0]]).max():.3g}; "
+                    f"at most {DISPLACEMENT_LIMIT:g} mesh diagonals{'' if name == 'displacement' else ' per dt'})"
+                )
             state.append(arr)
         d, v = state
         a = np.zeros((n, 3))
@@ -372,8 +383,11 @@ class TissueSimulation:
         big = np.abs(arr).max(axis=-1) > self.max_displacement
         if big.any():
             where = np.argwhere(big)[0]
-            at = (f"driven node {self.driven_nodes[where[0]]}" if steps is None
-                  else f"step {where[0]}, driven node {self.driven_nodes[where[1]]}")
+            at = (
+                f"driven node {self.driven_nodes[where[0]]}"
+                if steps is None
+                else f"step {where[0]}, driven node {self.driven_nodes[where[1]]}"
+            )
             raise ValueError(
                 f"driven displacement at {at} is {np.abs(arr[tuple(where)]).max():.3g} m, beyond the "
                 f"{self.max_displacement:.3g} m limit ({DISPLACEMENT_LIMIT:g} mesh diagonals)"
@@ -406,8 +420,12 @@ class TissueSimulation:
             self._control_view[:] = driven
         elif driven.size:
             self._staging.numpy()[slot, : driven.shape[0]] = driven
-            wp.copy(self.control.driven, self._staging, src_offset=slot * self._staging.shape[1],
-                    count=self.control.driven.shape[0])
+            wp.copy(
+                self.control.driven,
+                self._staging,
+                src_offset=slot * self._staging.shape[1],
+                count=self.control.driven.shape[0],
+            )
         try:
             self.stepper.step(self.state, self.state, self.control)
         except FloatingPointError:

@@ -48,6 +48,7 @@ SLOT_SPREAD = wp.constant(16)
 RZ, PQ, RR, START = wp.constant(0), wp.constant(1), wp.constant(2), wp.constant(3)
 """First index of ``slots``: which dot product (``START``: ``[0]`` predictor, ``[1]`` extrapolated start)."""
 
+
 @wp.func
 def slot_total(slots: wp.array3d(dtype=wp.float64), which: int, k: int):
     """Dot product ``which`` (``RZ``, ``PQ``, ``RR``, ``START``) of iteration ``k``: the sum of its slots."""
@@ -132,8 +133,9 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         block, thread = wp.tid()
         row, lane, local, i = place(block, thread, guess.shape[0])
         slot = ring[0]
-        acc, correction = residual_part(i, lane, p_offsets, p_columns, p_values, a_offsets, a_columns, a_values,
-                                        d, v, a, trajectory[slot], guess)
+        acc, correction = residual_part(
+            i, lane, p_offsets, p_columns, p_values, a_offsets, a_columns, a_values, d, v, a, trajectory[slot], guess
+        )
         start_x = guess[i]
         predicted = row_sum(acc, local, lane)
         extrapolated = predicted - row_sum(correction, local, lane)
@@ -304,6 +306,13 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
                 cg_iter[0] = k + 1
 
     return types.SimpleNamespace(
-        vec=vec, mat=mat, block_dim=rows * lanes, rows=rows,
-        residual=residual, direction=direction, lower=lower, lower_start=lower_start, upper=upper,
+        vec=vec,
+        mat=mat,
+        block_dim=rows * lanes,
+        rows=rows,
+        residual=residual,
+        direction=direction,
+        lower=lower,
+        lower_start=lower_start,
+        upper=upper,
     )

@@ -79,8 +79,17 @@ def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
     fetch_a, fetch_g = _row_fetch(index_a, unroll_a, lanes), _row_fetch(index_g, unroll_g, lanes)
 
     @wp.func
-    def factor_part(start: int, end: int, found: index_g, lane: int, keys: wp.array(dtype=wp.int32),
-                    values: wp.array(dtype=dtype), u: wp.array(dtype=dtype), w: wp.array(dtype=dtype), alpha: dtype):
+    def factor_part(
+        start: int,
+        end: int,
+        found: index_g,
+        lane: int,
+        keys: wp.array(dtype=wp.int32),
+        values: wp.array(dtype=dtype),
+        u: wp.array(dtype=dtype),
+        w: wp.array(dtype=dtype),
+        alpha: dtype,
+    ):
         acc = vec()
         for s in range(wp.static(unroll_g)):
             e = start + lane + s * lanes
@@ -94,8 +103,17 @@ def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
         return acc
 
     @wp.func
-    def direction_part(start: int, end: int, found: index_a, lane: int, columns: wp.array(dtype=wp.int32),
-                       values: wp.array(dtype=mat), z: wp.array(dtype=vec), p_old: wp.array(dtype=vec), beta: dtype):
+    def direction_part(
+        start: int,
+        end: int,
+        found: index_a,
+        lane: int,
+        columns: wp.array(dtype=wp.int32),
+        values: wp.array(dtype=mat),
+        z: wp.array(dtype=vec),
+        p_old: wp.array(dtype=vec),
+        beta: dtype,
+    ):
         acc = vec()
         for s in range(wp.static(unroll_a)):
             e = start + lane + s * lanes
@@ -107,8 +125,15 @@ def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
         return acc
 
     @wp.func
-    def state_entry(e: int, columns: wp.array(dtype=wp.int32), values: wp.array(dtype=mat), d: wp.array(dtype=vec),
-                    v: wp.array(dtype=vec), a: wp.array(dtype=vec), driven: wp.array(dtype=vec)):
+    def state_entry(
+        e: int,
+        columns: wp.array(dtype=wp.int32),
+        values: wp.array(dtype=mat),
+        d: wp.array(dtype=vec),
+        v: wp.array(dtype=vec),
+        a: wp.array(dtype=vec),
+        driven: wp.array(dtype=vec),
+    ):
         c = columns[e]
         n = d.shape[0]
         u = vec()
@@ -123,11 +148,21 @@ def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
         return values[e] * u
 
     @wp.func
-    def residual_part(i: int, lane: int, p_offsets: wp.array(dtype=wp.int32), p_columns: wp.array(dtype=wp.int32),
-                      p_values: wp.array(dtype=mat), a_offsets: wp.array(dtype=wp.int32),
-                      a_columns: wp.array(dtype=wp.int32), a_values: wp.array(dtype=mat), d: wp.array(dtype=vec),
-                      v: wp.array(dtype=vec), a: wp.array(dtype=vec), driven: wp.array(dtype=vec),
-                      guess: wp.array(dtype=vec)):
+    def residual_part(
+        i: int,
+        lane: int,
+        p_offsets: wp.array(dtype=wp.int32),
+        p_columns: wp.array(dtype=wp.int32),
+        p_values: wp.array(dtype=mat),
+        a_offsets: wp.array(dtype=wp.int32),
+        a_columns: wp.array(dtype=wp.int32),
+        a_values: wp.array(dtype=mat),
+        d: wp.array(dtype=vec),
+        v: wp.array(dtype=vec),
+        a: wp.array(dtype=vec),
+        driven: wp.array(dtype=vec),
+        guess: wp.array(dtype=vec),
+    ):
         p_start, p_end = p_offsets[i], p_offsets[i + 1]
         a_start, a_end = a_offsets[i], a_offsets[i + 1]
         acc = vec()
@@ -144,5 +179,12 @@ def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
             correction += a_values[e] * guess[a_columns[e]]
         return acc, correction
 
-    return types.SimpleNamespace(vec=vec, mat=mat, fetch_a=fetch_a, fetch_g=fetch_g, factor_part=factor_part,
-                                 direction_part=direction_part, residual_part=residual_part)
+    return types.SimpleNamespace(
+        vec=vec,
+        mat=mat,
+        fetch_a=fetch_a,
+        fetch_g=fetch_g,
+        factor_part=factor_part,
+        direction_part=direction_part,
+        residual_part=residual_part,
+    )

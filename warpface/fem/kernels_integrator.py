@@ -21,9 +21,15 @@ __all__ = ["cg_newmark_update", "interpolate_control", "newmark_advance", "newma
 
 @wp.func
 def newmark_advance(
-    d_new: Any, d: Any, v: Any, a: Any,
-    mass_displacement: Any, mass_velocity: Any, mass_acceleration: Any,
-    velocity_old_acceleration: Any, velocity_new_acceleration: Any,
+    d_new: Any,
+    d: Any,
+    v: Any,
+    a: Any,
+    mass_displacement: Any,
+    mass_velocity: Any,
+    mass_acceleration: Any,
+    velocity_old_acceleration: Any,
+    velocity_new_acceleration: Any,
 ):
     """``(a', v')`` of a node whose displacement goes from ``d`` to ``d_new`` (velocity ``v``, acceleration ``a``):
     ``a' = c0 (d_new − d) − c1 v − c2 a`` and ``v' = v + c6 a + c7 a'``."""
@@ -62,8 +68,17 @@ def newmark_update(
         dn = solution[o]
     elif s >= 0:
         dn = driven[s]
-    an, vn = newmark_advance(dn, di, v_in[i], a_in[i], mass_displacement, mass_velocity, mass_acceleration,
-                             velocity_old_acceleration, velocity_new_acceleration)
+    an, vn = newmark_advance(
+        dn,
+        di,
+        v_in[i],
+        a_in[i],
+        mass_displacement,
+        mass_velocity,
+        mass_acceleration,
+        velocity_old_acceleration,
+        velocity_new_acceleration,
+    )
     d_out[i] = dn
     v_out[i] = vn
     a_out[i] = an
@@ -134,8 +149,17 @@ def cg_newmark_update(
         dn = di + dt * vi + half_dt_squared * ai + correction[b, o]
     elif s >= 0:
         dn = trajectory[slot, b, s]
-    an, vn = newmark_advance(dn, di, vi, ai, mass_displacement, mass_velocity, mass_acceleration,
-                             velocity_old_acceleration, velocity_new_acceleration)
+    an, vn = newmark_advance(
+        dn,
+        di,
+        vi,
+        ai,
+        mass_displacement,
+        mass_velocity,
+        mass_acceleration,
+        velocity_old_acceleration,
+        velocity_new_acceleration,
+    )
     d_out[b, i] = dn
     a_out[b, i] = an
     v_out[b, i] = vn

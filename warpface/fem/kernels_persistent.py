@@ -33,8 +33,21 @@ import warp as wp
 from .kernels_cg import PQ, RR, RZ, SLOT_SPREAD, START, cg_finished, slot_total
 from .kernels_cg_rows import cg_row_functions
 
-__all__ = ["BARRIER_POLLS", "RESIDENT_THREADS", "WORK_P", "WORK_Q", "WORK_R", "WORK_ROWS", "WORK_X", "WORK_Y", "WORK_Z",
-           "grid_capacity", "grid_sync", "grid_sync_acquire", "persistent_pcg_kernel"]
+__all__ = [
+    "BARRIER_POLLS",
+    "RESIDENT_THREADS",
+    "WORK_P",
+    "WORK_Q",
+    "WORK_R",
+    "WORK_ROWS",
+    "WORK_X",
+    "WORK_Y",
+    "WORK_Z",
+    "grid_capacity",
+    "grid_sync",
+    "grid_sync_acquire",
+    "persistent_pcg_kernel",
+]
 
 WORK_ROWS = 8
 """Rows of a model's work array: the residual (2, alternating), the direction (2), the solution x, y = G r,
@@ -81,9 +94,12 @@ def grid_sync(barrier: wp.array(dtype=wp.int32), target: int):
     ...
 
 
-@wp.func_native(_grid_sync_source(
-    'asm volatile("red.release.gpu.global.add.s32 [%0], 1;" :: "l"(counter) : "memory");',
-    'int seen; asm volatile("ld.acquire.gpu.global.s32 %0, [%1];" : "=r"(seen) : "l"(counter) : "memory");'))
+@wp.func_native(
+    _grid_sync_source(
+        'asm volatile("red.release.gpu.global.add.s32 [%0], 1;" :: "l"(counter) : "memory");',
+        'int seen; asm volatile("ld.acquire.gpu.global.s32 %0, [%1];" : "=r"(seen) : "l"(counter) : "memory");',
+    )
+)
 def grid_sync_acquire(barrier: wp.array(dtype=wp.int32), target: int):
     """:func:`grid_sync` with a release add for the arrival and one acquire load of the counter after the poll
     (PTX memory model, GPU scope) in place of the two full fences: the single model's barrier.
@@ -158,8 +174,9 @@ def grid_capacity(kernel, block_dim: int, *, device=None) -> int:
 
 
 @functools.lru_cache(maxsize=None)
-def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads: int = RESIDENT_THREADS,
-                          single: bool = False) -> types.SimpleNamespace:
+def persistent_pcg_kernel(
+    dtype, lanes: int = 1, rows: int = 1, resident_threads: int = RESIDENT_THREADS, single: bool = False
+) -> types.SimpleNamespace:
     """The persistent CG step for ``dtype`` and block shape (module docstring), for one model or a batch.
 
     ``cg_step`` solves the step of models ``first_model .. first_model + M − 1`` of a batch of B models
@@ -201,8 +218,12 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
     # at least resident_threads (default RESIDENT_THREADS) threads per multiprocessor: caps the registers (128 a thread for 512), so that a
     # grid of one row group per block stays resident (H200, 6.7k nodes, 16x16: 130 registers and 132 resident
     # blocks for 247 row groups without the bound)
-    @wp.kernel(enable_backward=False, module="unique", grid_stride=False,
-               launch_bounds=(rows * lanes, max(1, resident_threads // (rows * lanes))))
+    @wp.kernel(
+        enable_backward=False,
+        module="unique",
+        grid_stride=False,
+        launch_bounds=(rows * lanes, max(1, resident_threads // (rows * lanes))),
+    )
     def cg_step(
         p_offsets: wp.array(dtype=wp.int32),
         p_columns: wp.array(dtype=wp.int32),
@@ -266,8 +287,9 @@ def persistent_pcg_kernel(dtype, lanes: int = 1, rows: int = 1, resident_threads
         for g in range(block, groups, blocks):
             row = g * rows + local
             i = wp.min(row, count - 1)
-            acc, correction = residual_part(i, lane, p_offsets, p_columns, p_values, a_offsets, a_columns, a_values,
-                                            d, v, a, driven, guess)
+            acc, correction = residual_part(
+                i, lane, p_offsets, p_columns, p_values, a_offsets, a_columns, a_values, d, v, a, driven, guess
+            )
             predicted = row_total(acc)
             extrapolated = predicted - row_total(correction)
             if row < count and lane == 0:

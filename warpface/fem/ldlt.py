@@ -102,7 +102,6 @@ def _run_starts(row_start: np.ndarray, columns: np.ndarray) -> np.ndarray:
     return np.flatnonzero(opens_run)
 
 
-
 def _int32(values) -> wp.array:
     return wp.array(np.asarray(values, dtype=np.int32), dtype=wp.int32, device="cpu")
 
@@ -127,8 +126,9 @@ def _reordered_factor(blocks, order: np.ndarray):
     pivots = upper.diagonal()
     bad = np.flatnonzero(~(pivots > 0.0) | ~np.isfinite(pivots))
     if bad.size:
-        raise ValueError(f"BlockLDLT: the matrix is not positive definite "
-                         f"(pivot {pivots[bad[0]]:.3g} at dof {dofs[bad[0]]})")
+        raise ValueError(
+            f"BlockLDLT: the matrix is not positive definite (pivot {pivots[bad[0]]:.3g} at dof {dofs[bad[0]]})"
+        )
     unit = sps.csr_matrix((upper.data / pivots[upper.indices], upper.indices, upper.indptr), shape=upper.shape)
     lower = sps.bsr_matrix(unit, blocksize=(3, 3))
     lower.sort_indices()
@@ -214,11 +214,16 @@ class BlockLDLT:
 
         cpu = self.device
         with np.errstate(over="ignore", under="ignore"):  # out of float32's range: the contraction check rejects it
-            single = [lower.data[off].astype(np.float32), np.linalg.inv(lower.data[~off]).astype(np.float32),
-                      (1.0 / pivots).reshape(n, 3).astype(np.float32)]
+            single = [
+                lower.data[off].astype(np.float32),
+                np.linalg.inv(lower.data[~off]).astype(np.float32),
+                (1.0 / pivots).reshape(n, 3).astype(np.float32),
+            ]
         self._factor_arrays = [
-            _int32(order), _int32(np.concatenate([[0], np.cumsum(np.bincount(rows[run_first], minlength=n))])),
-            _int32(columns[run_first]), _int32(np.append(run_first, columns.size)),
+            _int32(order),
+            _int32(np.concatenate([[0], np.cumsum(np.bincount(rows[run_first], minlength=n))])),
+            _int32(columns[run_first]),
+            _int32(np.append(run_first, columns.size)),
             wp.array(single[0], dtype=wp.mat33f, device=cpu),
             wp.array(single[1], dtype=wp.mat33f, device=cpu),
             wp.array(single[2], dtype=wp.vec3f, device=cpu),
@@ -232,17 +237,31 @@ class BlockLDLT:
         self._rhs_view = self._rhs.numpy().reshape(-1)
         self._x_view = self._x.numpy().reshape(-1)
         self._correction_view = self._correction.numpy()
-        self._residual_launch = wp.launch(block_residual, dim=1, inputs=[*self._matrix_arrays, self._rhs, self._x],
-                                          outputs=[self._residual], device=cpu, record_cmd=True)
-        self._refine_launch = wp.launch(ldlt_refine, dim=1, inputs=[*self._factor_arrays, self._residual, self._work],
-                                        outputs=[self._x, self._correction], device=cpu, record_cmd=True)
+        self._residual_launch = wp.launch(
+            block_residual,
+            dim=1,
+            inputs=[*self._matrix_arrays, self._rhs, self._x],
+            outputs=[self._residual],
+            device=cpu,
+            record_cmd=True,
+        )
+        self._refine_launch = wp.launch(
+            ldlt_refine,
+            dim=1,
+            inputs=[*self._factor_arrays, self._residual, self._work],
+            outputs=[self._x, self._correction],
+            device=cpu,
+            record_cmd=True,
+        )
 
         self.contraction = self._measure_contraction(blocks, lu, factored_dofs)
         """Measured error reduction of one refinement round (largest relative error of a float32
         solve against SuperLU's float64 one, on a random solution and a random right-hand side)."""
         if not self.contraction <= MAX_CONTRACTION:
-            raise UnsuitableFactor(f"BlockLDLT: the float32 factor's contraction {self.contraction:.2g} is weaker than "
-                                   f"{MAX_CONTRACTION:g} (ill-conditioned matrix)")
+            raise UnsuitableFactor(
+                f"BlockLDLT: the float32 factor's contraction {self.contraction:.2g} is weaker than "
+                f"{MAX_CONTRACTION:g} (ill-conditioned matrix)"
+            )
         self.rounds = 0
         """Refinement rounds of all solves so far."""
         self.solves = 0
@@ -293,7 +312,7 @@ class BlockLDLT:
         else:
             self._x_view[:] = guess
         estimate_per_correction = CONTRACTION_SAFETY * self.contraction
-        for rounds in range(1, self.max_rounds + 1):
+        for rounds in range(1, self.max_rounds + 1):  # noqa: B007 (the count is read after the loop)
             self._residual_launch.launch()
             self._refine_launch.launch()
             scale = max(np.abs(self._x_view).max(), reference)

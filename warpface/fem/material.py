@@ -190,8 +190,14 @@ class TissueMaterial:
         """
         if not isinstance(base, TissueMaterial):
             raise TypeError(f"TissueMaterial.from_regions base must be a TissueMaterial, got {type(base).__name__}")
-        if isinstance(tet_count, bool) or not isinstance(tet_count, (int, np.integer)) or not 1 <= tet_count <= MAX_TETS:
-            raise ValueError(f"TissueMaterial.from_regions tet_count must be an integer in [1, {MAX_TETS}], got {tet_count!r}")
+        if (
+            isinstance(tet_count, bool)
+            or not isinstance(tet_count, (int, np.integer))
+            or not 1 <= tet_count <= MAX_TETS
+        ):
+            raise ValueError(
+                f"TissueMaterial.from_regions tet_count must be an integer in [1, {MAX_TETS}], got {tet_count!r}"
+            )
         if not isinstance(regions, Mapping) or not isinstance(overrides, Mapping):
             raise TypeError("TissueMaterial.from_regions regions and overrides must be mappings (name -> ...)")
         fields = base.per_tet(int(tet_count))
@@ -205,7 +211,9 @@ class TissueMaterial:
                 raise ValueError(f"TissueMaterial region {region!r} sets unknown fields {sorted(unknown)}")
             sel = np.asarray(regions[region])
             if sel.dtype != bool and not np.issubdtype(sel.dtype, np.integer) and sel.size:
-                raise ValueError(f"TissueMaterial region {region!r} must be tet indices or a boolean mask, got {sel.dtype}")
+                raise ValueError(
+                    f"TissueMaterial region {region!r} must be tet indices or a boolean mask, got {sel.dtype}"
+                )
             if sel.dtype == bool:
                 if sel.shape != (tet_count,):
                     raise ValueError(
@@ -215,14 +223,14 @@ class TissueMaterial:
             else:
                 index = sel.astype(np.int64).ravel()
                 if index.size and (index.min() < 0 or index.max() >= tet_count):
-                    raise ValueError(
-                        f"TissueMaterial region {region!r} has tet index out of range [0, {tet_count})"
-                    )
+                    raise ValueError(f"TissueMaterial region {region!r} has tet index out of range [0, {tet_count})")
             for name, value in values.items():
                 try:
                     fields[name][index] = float(value)
                 except (TypeError, ValueError):
-                    raise ValueError(f"TissueMaterial region {region!r} {name} must be a number, got {value!r}") from None
+                    raise ValueError(
+                        f"TissueMaterial region {region!r} {name} must be a number, got {value!r}"
+                    ) from None
         return cls(**fields, damping=base.damping)
 
     def __repr__(self) -> str:

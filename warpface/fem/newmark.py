@@ -43,9 +43,11 @@ def validate_newmark(dt: float, beta: float, gamma: float) -> tuple[float, float
             :data:`BETA_RANGE` or :data:`GAMMA_RANGE` (naming the parameter and its interval).
     """
     values = []
-    for name, value, (low, high), unit in (("time step dt", dt, DT_RANGE, " [s]"),
-                                           ("Newmark beta", beta, BETA_RANGE, ""),
-                                           ("Newmark gamma", gamma, GAMMA_RANGE, "")):
+    for name, value, (low, high), unit in (
+        ("time step dt", dt, DT_RANGE, " [s]"),
+        ("Newmark beta", beta, BETA_RANGE, ""),
+        ("Newmark gamma", gamma, GAMMA_RANGE, ""),
+    ):
         if isinstance(value, (bool, np.bool_)):
             raise TypeError(f"{name} must be a number, got {value!r}")
         try:
@@ -95,8 +97,16 @@ class NewmarkCoefficients:
         """The five constants of the state update, as Warp scalars of ``scalar_type`` (kernel arguments):
         ``[mass_displacement, mass_velocity, mass_acceleration, velocity_old_acceleration,
         velocity_new_acceleration]``."""
-        return [scalar_type(x) for x in (self.mass_displacement, self.mass_velocity, self.mass_acceleration,
-                                         self.velocity_old_acceleration, self.velocity_new_acceleration)]
+        return [
+            scalar_type(x)
+            for x in (
+                self.mass_displacement,
+                self.mass_velocity,
+                self.mass_acceleration,
+                self.velocity_old_acceleration,
+                self.velocity_new_acceleration,
+            )
+        ]
 
 
 def newmark_coefficients(dt: float, beta: float = 0.25, gamma: float = 0.5) -> NewmarkCoefficients:

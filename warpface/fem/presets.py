@@ -24,17 +24,21 @@ KATO_REGIONS = ("cheek", "cphs_L", "cphs_R", "cheilion", "cphi", "alare")
 
 
 def _table(e_kpa, eta):
-    return MappingProxyType({
-        "E": MappingProxyType({r: 1e3 * v for r, v in zip(KATO_REGIONS, e_kpa, strict=True)}),
-        "eta": MappingProxyType(dict(zip(KATO_REGIONS, eta, strict=True))),
-    })
+    return MappingProxyType(
+        {
+            "E": MappingProxyType({r: 1e3 * v for r, v in zip(KATO_REGIONS, e_kpa, strict=True)}),
+            "eta": MappingProxyType(dict(zip(KATO_REGIONS, eta, strict=True))),
+        }
+    )
 
 
-KATO_MODELS = MappingProxyType({
-    1: _table((162.7, 148.9, 148.9, 116.5, 169.0, 216.9), (430.3, 408.6, 408.6, 362.9, 453.0, 434.3)),
-    2: _table((162.7, 148.9, 205.6, 116.5, 169.0, 216.9), (430.3, 408.6, 427.8, 362.9, 453.0, 434.3)),
-    3: _table((162.7, 148.9, 92.2, 116.5, 169.0, 216.9), (430.3, 408.6, 389.4, 362.9, 453.0, 434.3)),
-})
+KATO_MODELS = MappingProxyType(
+    {
+        1: _table((162.7, 148.9, 148.9, 116.5, 169.0, 216.9), (430.3, 408.6, 408.6, 362.9, 453.0, 434.3)),
+        2: _table((162.7, 148.9, 205.6, 116.5, 169.0, 216.9), (430.3, 408.6, 427.8, 362.9, 453.0, 434.3)),
+        3: _table((162.7, 148.9, 92.2, 116.5, 169.0, 216.9), (430.3, 408.6, 389.4, 362.9, 453.0, 434.3)),
+    }
+)
 """Kato's models (SPEC §2.1): model -> {"E": region -> Young's modulus [Pa], "eta": region -> viscosity [Pa s]}.
 ν = 0.495 and ρ = 1100 kg/m³ everywhere (as in :data:`KATO_UNIFORM`)."""
 

@@ -58,7 +58,11 @@ def box_tet_mesh(size, cells) -> TetMesh:
     size = as_finite_array(size, "box_tet_mesh: size", shape=(3,))
     if not np.all(size > 0):
         raise ValueError(f"box_tet_mesh: size must be three positive lengths, got {size.tolist()}")
-    if isinstance(cells, (str, bytes, dict)) or not isinstance(cells, (list, tuple, np.ndarray)) or shape_of(cells) != (3,):
+    if (
+        isinstance(cells, (str, bytes, dict))
+        or not isinstance(cells, (list, tuple, np.ndarray))
+        or shape_of(cells) != (3,)
+    ):
         raise ValueError(f"box_tet_mesh: cells must be three counts (nx, ny, nz), got {type(cells).__name__}")
     nx, ny, nz = (as_count(c, "box_tet_mesh: cells", minimum=1, maximum=MAX_CELLS) for c in cells)
     if nx * ny * nz > MAX_CELLS**2:
@@ -87,10 +91,14 @@ def shell_tet_mesh(
     ``(cells_u + 1) (cells_v + 1) (layers + 1)`` nodes; the default has 6,724 nodes, the
     scale of Kato's 6,434-node face (SPEC §2.1).
     """
-    cells_u, cells_v, layers = (as_count(c, f"shell_tet_mesh: {n}", minimum=1, maximum=MAX_CELLS)
-                                for c, n in ((cells_u, "cells_u"), (cells_v, "cells_v"), (layers, "layers")))
+    cells_u, cells_v, layers = (
+        as_count(c, f"shell_tet_mesh: {n}", minimum=1, maximum=MAX_CELLS)
+        for c, n in ((cells_u, "cells_u"), (cells_v, "cells_v"), (layers, "layers"))
+    )
     if cells_u * cells_v * layers > MAX_CELLS**2:
-        raise ValueError(f"shell_tet_mesh: {cells_u}·{cells_v}·{layers} cells is more than the largest accepted {MAX_CELLS**2}")
+        raise ValueError(
+            f"shell_tet_mesh: {cells_u}·{cells_v}·{layers} cells is more than the largest accepted {MAX_CELLS**2}"
+        )
     if not 0.0 < thickness < min(radii):
         raise ValueError(f"shell_tet_mesh: thickness must be in (0, {min(radii)}), got {thickness}")
     a, b, c = (float(r) for r in radii)

@@ -109,7 +109,9 @@ def _inward_gap(
 
 
 @wp.kernel
-def _distance_to_surface(mesh: wp.uint64, queries: wp.array(dtype=wp.vec3), reach: float, distance: wp.array(dtype=float)):
+def _distance_to_surface(
+    mesh: wp.uint64, queries: wp.array(dtype=wp.vec3), reach: float, distance: wp.array(dtype=float)
+):
     k = wp.tid()
     q = queries[k]
     distance[k] = reach
@@ -135,28 +137,54 @@ class _RayMesh:
         facing = wp.empty(n, dtype=float, device=self.device)
         hidden = wp.empty(n, dtype=wp.int32, device=self.device)
         clearance = wp.empty(n, dtype=float, device=self.device)
-        wp.launch(_view_tests, dim=n,
-                  inputs=[self.mesh.id, self.points, self.triangles, wp.vec3(*np.asarray(center, dtype=np.float32)),
-                          self.eps, 4.0 * self.extent],
-                  outputs=[facing, hidden, clearance], device=self.device)
+        wp.launch(
+            _view_tests,
+            dim=n,
+            inputs=[
+                self.mesh.id,
+                self.points,
+                self.triangles,
+                wp.vec3(*np.asarray(center, dtype=np.float32)),
+                self.eps,
+                4.0 * self.extent,
+            ],
+            outputs=[facing, hidden, clearance],
+            device=self.device,
+        )
         return facing.numpy().astype(np.float64), hidden.numpy().astype(bool), clearance.numpy().astype(np.float64)
 
     def inward_gap(self, normals: np.ndarray) -> np.ndarray:
         n = self.points.shape[0]
         gap = wp.empty(n, dtype=float, device=self.device)
-        wp.launch(_inward_gap, dim=n,
-                  inputs=[self.mesh.id, self.points, wp.array(np.asarray(normals, dtype=np.float32), dtype=wp.vec3,
-                                                                device=self.device), self.eps, 4.0 * self.extent],
-                  outputs=[gap], device=self.device)
+        wp.launch(
+            _inward_gap,
+            dim=n,
+            inputs=[
+                self.mesh.id,
+                self.points,
+                wp.array(np.asarray(normals, dtype=np.float32), dtype=wp.vec3, device=self.device),
+                self.eps,
+                4.0 * self.extent,
+            ],
+            outputs=[gap],
+            device=self.device,
+        )
         return gap.numpy().astype(np.float64)
 
     def distance(self, queries: np.ndarray) -> np.ndarray:
         n = len(queries)
         distance = wp.empty(n, dtype=float, device=self.device)
-        wp.launch(_distance_to_surface, dim=n,
-                  inputs=[self.mesh.id, wp.array(np.asarray(queries, dtype=np.float32), dtype=wp.vec3, device=self.device),
-                          4.0 * self.extent],
-                  outputs=[distance], device=self.device)
+        wp.launch(
+            _distance_to_surface,
+            dim=n,
+            inputs=[
+                self.mesh.id,
+                wp.array(np.asarray(queries, dtype=np.float32), dtype=wp.vec3, device=self.device),
+                4.0 * self.extent,
+            ],
+            outputs=[distance],
+            device=self.device,
+        )
         return distance.numpy().astype(np.float64)
 
 
@@ -253,7 +281,9 @@ def _cap(points: np.ndarray, loop: np.ndarray, rings: int) -> tuple[np.ndarray, 
     m = len(loop)
     centroid = points[loop].mean(axis=0)
     steps = np.arange(1, rings)[:, None, None] / rings
-    new = np.concatenate([(points[loop][None] + steps * (centroid - points[loop])[None]).reshape(-1, 3), centroid[None]])
+    new = np.concatenate(
+        [(points[loop][None] + steps * (centroid - points[loop])[None]).reshape(-1, 3), centroid[None]]
+    )
     base = len(points)
     triangles = []
     outer = loop
@@ -448,8 +478,10 @@ def tissue_proxy(
         # the loop passing nearest to the point (an eye's centre picks that eye's loop)
         nearest = int(np.argmin([np.linalg.norm(kept_points[loop] - point, axis=1).min() for loop in loops]))
         if nearest == 0:
-            raise ValueError(f"close_near point {np.round(point, 5).tolist()} is nearest to the outer rim loop, "
-                             "which cannot be closed")
+            raise ValueError(
+                f"close_near point {np.round(point, 5).tolist()} is nearest to the outer rim loop, "
+                "which cannot be closed"
+            )
         if not any(loop is loops[nearest] for loop in cavities):
             cavities.append(loops[nearest])
     source = used.copy()
@@ -458,8 +490,9 @@ def tissue_proxy(
     count = len(kept_points)
     for loop in cavities:
         cap_points, cap_triangles = _cap(kept_points, loop, int(cap_rings))
-        new_triangles.append(np.where(cap_triangles >= len(kept_points), cap_triangles - len(kept_points) + count,
-                                      cap_triangles))
+        new_triangles.append(
+            np.where(cap_triangles >= len(kept_points), cap_triangles - len(kept_points) + count, cap_triangles)
+        )
         new_points.append(cap_points)
         new_h.append(np.full(len(cap_points), h_kept[loop].mean()))
         count += len(cap_points)
@@ -482,8 +515,9 @@ def tissue_proxy(
         source, h_kept = source[used], h_kept[used]
     # the cuts leave zigzag loops, which a coarsening keeps (it holds boundaries) as needle triangles
     boundary = np.unique(check_surface(kept_points, kept_triangles, closed=False, name="tissue proxy"))
-    kept_points, _ = fair_locally(kept_points, kept_triangles, h_kept, boundary, rings=2, passes=int(boundary_passes),
-                                   thinning=1.0)
+    kept_points, _ = fair_locally(
+        kept_points, kept_triangles, h_kept, boundary, rings=2, passes=int(boundary_passes), thinning=1.0
+    )
 
     # 4. thickness no more than a fraction of the inward gap: opposite offsets never meet
     proxy_mesh = _RayMesh(kept_points, kept_triangles, device)

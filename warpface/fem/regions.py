@@ -34,13 +34,15 @@ __all__ = [
     "tet_centroids",
 ]
 
-KATO_REGION_LANDMARKS = MappingProxyType({
-    "cphs_L": ("cphs_L",),
-    "cphs_R": ("cphs_R",),
-    "cheilion": ("ch_L", "ch_R"),
-    "cphi": ("cphi_L", "cphi_R"),
-    "alare": ("al_L", "al_R"),
-})
+KATO_REGION_LANDMARKS = MappingProxyType(
+    {
+        "cphs_L": ("cphs_L",),
+        "cphs_R": ("cphs_R",),
+        "cheilion": ("ch_L", "ch_R"),
+        "cphi": ("cphi_L", "cphi_R"),
+        "alare": ("al_L", "al_R"),
+    }
+)
 """Landmarks (names of :data:`warpface.landmarks.KATO_LANDMARKS`) each landmark region is centred on."""
 
 
@@ -78,7 +80,9 @@ def landmark_regions(tetmesh: TetMesh, centres: Mapping[str, object], radius) ->
     """
     expect_instance(tetmesh, TetMesh, "tetmesh")
     if not isinstance(centres, Mapping):
-        raise TypeError(f"landmark_regions: centres must be a {{region name: position(s)}} mapping, got {type(centres).__name__}")
+        raise TypeError(
+            f"landmark_regions: centres must be a {{region name: position(s)}} mapping, got {type(centres).__name__}"
+        )
     if not centres:
         raise ValueError("landmark_regions: no regions given")
     names = list(centres)
@@ -124,7 +128,9 @@ def kato_regions(tetmesh: TetMesh, landmarks, *, radius=0.01) -> dict[str, np.nd
     for region, names in KATO_REGION_LANDMARKS.items():
         missing = [n for n in names if n not in landmarks]
         if missing:
-            raise ValueError(f"kato_regions: landmark(s) {missing} for region {region!r} missing; have {sorted(landmarks)}")
+            raise ValueError(
+                f"kato_regions: landmark(s) {missing} for region {region!r} missing; have {sorted(landmarks)}"
+            )
         centres[region] = np.stack([_positions(region, landmarks[n])[0] for n in names])
     masks = landmark_regions(tetmesh, centres, radius)
     taken = np.zeros(tetmesh.tet_count, dtype=bool)

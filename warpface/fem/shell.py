@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry.triangles import area_weighted_vertex_normals, triangle_corners, triangle_crosses
 from ..geometry.surface_checks import as_surface, boundary_loops, check_surface, directed_edges, find_self_intersections
+from ..geometry.triangles import area_weighted_vertex_normals, triangle_corners, triangle_crosses
 
 __all__ = ["ShellSurface", "enclosed_volume", "fair_locally", "offset_shell", "shell_defects"]
 
@@ -94,8 +94,9 @@ def _closed_shell(points: np.ndarray, triangles: np.ndarray, boundary: np.ndarra
     return np.concatenate([points, inner]), np.concatenate([triangles, triangles[:, ::-1] + n, walls])
 
 
-def shell_defects(points: np.ndarray, triangles: np.ndarray, h: np.ndarray, *, max_smoothing: int = 200,
-                  device=None) -> np.ndarray:
+def shell_defects(
+    points: np.ndarray, triangles: np.ndarray, h: np.ndarray, *, max_smoothing: int = 200, device=None
+) -> np.ndarray:
     """Vertices of the outer surface where its offset shell folds or crosses itself (sorted, int64)."""
     boundary = check_surface(points, triangles, closed=False, name="face surface")
     directions, _, flipped = _offset_directions(points, triangles, h, max_smoothing)
@@ -111,13 +112,25 @@ def shell_defects(points: np.ndarray, triangles: np.ndarray, h: np.ndarray, *, m
     faces = faces[(faces >= t) | np.isin(faces, pairs[outer_pair])]
     inner = faces[(faces >= t) & (faces < 2 * t)] - t
     walls = faces[faces >= 2 * t] - 2 * t
-    return np.unique(np.concatenate([triangles[faces[faces < t]].ravel(), triangles[inner].ravel(),
-                                     boundary[walls % len(boundary)].ravel()]))
+    return np.unique(
+        np.concatenate(
+            [triangles[faces[faces < t]].ravel(), triangles[inner].ravel(), boundary[walls % len(boundary)].ravel()]
+        )
+    )
 
 
-def fair_locally(points: np.ndarray, triangles: np.ndarray, thickness: np.ndarray, vertices: np.ndarray, *,
-                  rings: int = 2, passes: int = 5, relaxation: float = 0.5, thinning: float = 0.85,
-                  move_surface: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def fair_locally(
+    points: np.ndarray,
+    triangles: np.ndarray,
+    thickness: np.ndarray,
+    vertices: np.ndarray,
+    *,
+    rings: int = 2,
+    passes: int = 5,
+    relaxation: float = 0.5,
+    thinning: float = 0.85,
+    move_surface: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
     """Laplacian smoothing of a surface and its thickness within ``rings`` edge rings of ``vertices``,
     and the thickness at ``vertices`` scaled by ``thinning``. With ``move_surface=False`` only the
     thickness is thinned and smoothed (the surface, and so the skin the tissue is fitted to, stays).
@@ -137,7 +150,9 @@ def fair_locally(points: np.ndarray, triangles: np.ndarray, thickness: np.ndarra
     on_boundary[boundary.ravel()] = 1.0
 
     def adjacency(e):
-        return coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+        return coo_matrix(
+            (np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)
+        ).tocsr()
 
     graph = adjacency(edges)
     weights = (diags(1.0 - on_boundary) @ graph + diags(on_boundary) @ adjacency(boundary)).tocsr()
@@ -226,8 +241,11 @@ def offset_shell(
                 f"{np.round(shell_points[shell_triangles[i]].mean(axis=0), 5).tolist()} m. "
                 "The input surface intersects itself, or the thickness exceeds the gap between two parts of the "
                 "face (e.g. the lips or lids, or the walls of a cavity such as a nostril): reduce the thickness there"
-                + (f" (unfolding the offset took {iterations} smoothing passes, which tilt the offset directions)"
-                   if iterations else "")
+                + (
+                    f" (unfolding the offset took {iterations} smoothing passes, which tilt the offset directions)"
+                    if iterations
+                    else ""
+                )
                 + "."
             )
     return ShellSurface(

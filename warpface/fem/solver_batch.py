@@ -25,13 +25,20 @@ import warp as wp
 from warp.optim.linear import FSAI
 
 from .assembly import SystemMatrices, bsr_to_scipy
-from .kernels_cg import SLOT_SPREAD
 from .chunks import ChunkedRun
+from .kernels_cg import SLOT_SPREAD
 from .kernels_integrator import cg_newmark_update
 from .kernels_persistent import WORK_ROWS, WORK_X, grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
-from .solver_cg import (FSAI_ROW_SIZE, PERSISTENT_LANES, PERSISTENT_ROWS, ConvergenceError, grouped_factor_rows,
-                        newmark_operators, preconditioner_factor)
+from .solver_cg import (
+    FSAI_ROW_SIZE,
+    PERSISTENT_LANES,
+    PERSISTENT_ROWS,
+    ConvergenceError,
+    grouped_factor_rows,
+    newmark_operators,
+    preconditioner_factor,
+)
 
 __all__ = ["BATCH_PRECONDITIONERS", "BatchedCGSolver", "per_model_fsai"]
 
@@ -68,8 +75,12 @@ def per_model_fsai(systems: list, reference: int) -> list:
             G = bsr_to_scipy(fsai.update(system).G)
         except ValueError:
             G = None
-        same = (G is not None and np.array_equal(G.indptr, shared.indptr) and np.array_equal(G.indices, shared.indices)
-                and np.all(np.isfinite(G.data)))
+        same = (
+            G is not None
+            and np.array_equal(G.indptr, shared.indptr)
+            and np.array_equal(G.indices, shared.indices)
+            and np.all(np.isfinite(G.data))
+        )
         factors.append(G if same else shared)
     return factors
 
@@ -81,12 +92,14 @@ def _stack_values(matrices, label: str):
     offsets, columns = first.offsets.numpy()[: first.nrow + 1], first.columns.numpy()[:nnz]
     values = wp.empty((len(matrices), nnz), dtype=wp.mat33d, device=first.device)
     for b, matrix in enumerate(matrices):
-        if (matrix.nnz_sync() != nnz or not np.array_equal(matrix.offsets.numpy()[: matrix.nrow + 1], offsets)
-                or not np.array_equal(matrix.columns.numpy()[:nnz], columns)):
+        if (
+            matrix.nnz_sync() != nnz
+            or not np.array_equal(matrix.offsets.numpy()[: matrix.nrow + 1], offsets)
+            or not np.array_equal(matrix.columns.numpy()[:nnz], columns)
+        ):
             raise ValueError(f"model {b}: its {label} matrix does not share model 0's sparsity pattern")
         wp.copy(values, matrix.values, dest_offset=b * nnz, count=nnz)
     return first.offsets, first.columns, values
-
 
 
 class BatchedCGSolver:
@@ -111,9 +124,19 @@ class BatchedCGSolver:
             whose system matrix has a 3x3 diagonal block that is not positive definite.
     """
 
-    def __init__(self, matrices: list[SystemMatrices], coefficients: NewmarkCoefficients, free_nodes, driven_nodes, *,
-                 tol: float = 1.0e-5, maxiter: int = 500, chunk: int = 64, use_graph: bool = True,
-                 preconditioner: str = "fsai"):
+    def __init__(
+        self,
+        matrices: list[SystemMatrices],
+        coefficients: NewmarkCoefficients,
+        free_nodes,
+        driven_nodes,
+        *,
+        tol: float = 1.0e-5,
+        maxiter: int = 500,
+        chunk: int = 64,
+        use_graph: bool = True,
+        preconditioner: str = "fsai",
+    ):
         if preconditioner not in BATCH_PRECONDITIONERS:
             raise ValueError(f"batched preconditioner must be one of {BATCH_PRECONDITIONERS}, got {preconditioner!r}")
         if not matrices:
@@ -140,7 +163,9 @@ class BatchedCGSolver:
             try:
                 block_jacobi.append(preconditioner_factor(A, "block_jacobi"))
             except ValueError:
-                raise ValueError(f"model {b}: a 3x3 diagonal block of its system matrix is not positive definite") from None
+                raise ValueError(
+                    f"model {b}: a 3x3 diagonal block of its system matrix is not positive definite"
+                ) from None
         self.reference_model = None
         """Model whose FSAI factor (``"fsai"``) or support (``"fsai_each"``) preconditions every model."""
         if preconditioner == "block_jacobi":
@@ -157,8 +182,10 @@ class BatchedCGSolver:
                 factors = [preconditioner_factor(operators[median][0], "fsai")]
             else:
                 factors = per_model_fsai([A for A, _ in operators], median)
-        self._factor = (grouped_factor_rows(factors, wp.float64, device=dev),
-                        grouped_factor_rows([G.T for G in factors], wp.float64, device=dev))
+        self._factor = (
+            grouped_factor_rows(factors, wp.float64, device=dev),
+            grouped_factor_rows([G.T for G in factors], wp.float64, device=dev),
+        )
         """``(G, Gᵀ)`` as ``(offsets, keys, values)``, values (1, nnz) for a shared factor or (B, nnz)."""
         del operators, block_jacobi
 
@@ -187,8 +214,11 @@ class BatchedCGSolver:
         self._chunked = None  # run_chunks' buffers, allocated on its first call (a stepping-only batch needs none)
         self._free_index = wp.array(free_index, dtype=wp.int32, device=dev)
         self._driven_slot = wp.array(driven_slot, dtype=wp.int32, device=dev)
-        self._update_constants = [*coefficients.update_scalars(wp.float64), wp.float64(coefficients.dt),
-                                  wp.float64(coefficients.half_dt_squared)]
+        self._update_constants = [
+            *coefficients.update_scalars(wp.float64),
+            wp.float64(coefficients.dt),
+            wp.float64(coefficients.half_dt_squared),
+        ]
 
         if not dev.is_cuda:
             shape = (1, 1)  # one CPU thread walks every row of a model
@@ -218,17 +248,60 @@ class BatchedCGSolver:
         (g_offsets, g_keys, g_values), (t_offsets, t_keys, t_values) = self._factor
         self._slots.zero_()
         for first, models in self.waves:
-            wp.launch_tiled(kernel.cg_step, dim=models * self.blocks_per_model, block_dim=kernel.block_dim, device=dev,
-                            inputs=[*self._P, *self._A, g_offsets, g_keys, g_values, t_offsets, t_keys, t_values,
-                                    self.d, self.v, self.a, self.trajectory, self._guess, self._ring, self._work,
-                                    self._work_flat, self._slots, self._cg_iter, self._barrier, tol_sq, self.maxiter,
-                                    self.blocks_per_model, first])
-        wp.launch(cg_newmark_update, dim=(self.model_count, self.node_count),
-                  inputs=[self._x, self._history, self._guess, self._free_index, self._driven_slot, self.trajectory,
-                          self._ring, *self._update_constants, self._slots, self._cg_iter, tol_sq, self.chunk,
-                          self.d, self.v, self.a],
-                  outputs=[self.d, self.v, self.a, self.record, self._step_count, self._status, self._failure],
-                  device=dev)
+            wp.launch_tiled(
+                kernel.cg_step,
+                dim=models * self.blocks_per_model,
+                block_dim=kernel.block_dim,
+                device=dev,
+                inputs=[
+                    *self._P,
+                    *self._A,
+                    g_offsets,
+                    g_keys,
+                    g_values,
+                    t_offsets,
+                    t_keys,
+                    t_values,
+                    self.d,
+                    self.v,
+                    self.a,
+                    self.trajectory,
+                    self._guess,
+                    self._ring,
+                    self._work,
+                    self._work_flat,
+                    self._slots,
+                    self._cg_iter,
+                    self._barrier,
+                    tol_sq,
+                    self.maxiter,
+                    self.blocks_per_model,
+                    first,
+                ],
+            )
+        wp.launch(
+            cg_newmark_update,
+            dim=(self.model_count, self.node_count),
+            inputs=[
+                self._x,
+                self._history,
+                self._guess,
+                self._free_index,
+                self._driven_slot,
+                self.trajectory,
+                self._ring,
+                *self._update_constants,
+                self._slots,
+                self._cg_iter,
+                tol_sq,
+                self.chunk,
+                self.d,
+                self.v,
+                self.a,
+            ],
+            outputs=[self.d, self.v, self.a, self.record, self._step_count, self._status, self._failure],
+            device=dev,
+        )
 
     def step(self) -> None:
         """Queue one step of every model, driven by ring slot ``ring[0]`` (advanced by the step); never waits."""
@@ -251,8 +324,9 @@ class BatchedCGSolver:
         """
         self.synchronize()
         if self._chunked is None:
-            self._chunked = ChunkedRun(self.trajectory, self.record, self._ring, self._barrier, self._status,
-                                       self._failure)
+            self._chunked = ChunkedRun(
+                self.trajectory, self.record, self._ring, self._barrier, self._status, self._failure
+            )
         return self._chunked.run(driven, self.step, self._raise_on_failure)
 
     # ------------------------------------------------------------------ status and restart
@@ -266,8 +340,10 @@ class BatchedCGSolver:
         """Raise for the first model whose failure the device booked (``barrier`` (B, 3), ``status`` (B, 5),
         ``failure`` (B, 2) as read from the device)."""
         if np.any(barrier[:, 1]):
-            raise RuntimeError(f"the persistent CG loop waited too long at a grid barrier on {self.device} (its "
-                               f"{self.blocks_per_model} blocks per model were not all resident)")
+            raise RuntimeError(
+                f"the persistent CG loop waited too long at a grid barrier on {self.device} (its "
+                f"{self.blocks_per_model} blocks per model were not all resident)"
+            )
         failed = np.flatnonzero(status[:, 0])
         if failed.size:
             b = int(failed[0])
@@ -290,6 +366,13 @@ class BatchedCGSolver:
         v = self.v.numpy()[:, self.free_nodes]
         a = self.a.numpy()[:, self.free_nodes]
         self._history.assign(np.stack([c.dt * v - c.half_dt_squared * a, c.dt * v - 3.0 * c.half_dt_squared * a]))
-        for array in (self._guess, self._ring, self._step_count, self._status, self._failure, self._cg_iter,
-                      self._barrier):
+        for array in (
+            self._guess,
+            self._ring,
+            self._step_count,
+            self._status,
+            self._failure,
+            self._cg_iter,
+            self._barrier,
+        ):
             array.zero_()

@@ -56,8 +56,17 @@ from .assembly import SystemMatrices, bsr_to_scipy, partition_bsr
 from .chunks import ChunkedRun
 from .kernels_cg import SLOT_SPREAD, pcg_kernels
 from .kernels_integrator import cg_newmark_update
-from .kernels_persistent import (WORK_P, WORK_Q, WORK_R, WORK_ROWS, WORK_X, WORK_Y, WORK_Z, grid_capacity,
-                                 persistent_pcg_kernel)
+from .kernels_persistent import (
+    WORK_P,
+    WORK_Q,
+    WORK_R,
+    WORK_ROWS,
+    WORK_X,
+    WORK_Y,
+    WORK_Z,
+    grid_capacity,
+    persistent_pcg_kernel,
+)
 from .newmark import NewmarkCoefficients
 from .state import TissueControl, TissueState
 
@@ -139,8 +148,9 @@ def preconditioner_factor(A_oo: wps.BsrMatrix, kind: str):
     return sps.csr_matrix((factors[:, lower].ravel(), (rows[:, lower].ravel(), cols[:, lower].ravel())), shape=A.shape)
 
 
-def newmark_operators(matrices: SystemMatrices, coefficients: NewmarkCoefficients, free_index: np.ndarray,
-                      driven_slot: np.ndarray) -> tuple[wps.BsrMatrix, wps.BsrMatrix]:
+def newmark_operators(
+    matrices: SystemMatrices, coefficients: NewmarkCoefficients, free_index: np.ndarray, driven_slot: np.ndarray
+) -> tuple[wps.BsrMatrix, wps.BsrMatrix]:
     """``(A_oo, P)`` of the device Newmark step (module docstring), float64 BSR on the matrices' device.
 
     Args:
@@ -165,13 +175,14 @@ def newmark_operators(matrices: SystemMatrices, coefficients: NewmarkCoefficient
     identity = np.arange(n, dtype=np.int32)
     A_oo = partition_bsr([(A, free_index, 0, 1.0)], free_index, n_free, n_free, device=dev)
     parts = []
-    predictor = ((c.mass_displacement, c.damping_displacement, 1.0),
-                 (c.mass_velocity, c.damping_velocity, c.dt),
-                 (c.mass_acceleration, c.damping_acceleration, c.half_dt_squared))
+    predictor = (
+        (c.mass_displacement, c.damping_displacement, 1.0),
+        (c.mass_velocity, c.damping_velocity, c.dt),
+        (c.mass_acceleration, c.damping_acceleration, c.half_dt_squared),
+    )
     for block, (cm, cc, ca) in enumerate(predictor):
         shift = block * n
-        parts += [(matrices.M, identity, shift, cm), (matrices.C, identity, shift, cc),
-                  (A, free_column, shift, -ca)]
+        parts += [(matrices.M, identity, shift, cm), (matrices.C, identity, shift, cc), (A, free_column, shift, -ca)]
     parts.append((A, driven_slot, 3 * n, -1.0))
     P = partition_bsr(parts, free_index, n_free, 3 * n + n_driven, device=dev)
     return A_oo, P
@@ -293,16 +304,20 @@ class CGSolver:
         # Work arrays (allocated once; captured graphs bind these pointers).
         self.coefficients = coefficients
         scalar = wp.float64 if dtype == wp.float64 else wp.float32
-        self._update_constants = [*coefficients.update_scalars(scalar), scalar(coefficients.dt), scalar(coefficients.half_dt_squared)]
+        self._update_constants = [
+            *coefficients.update_scalars(scalar),
+            scalar(coefficients.dt),
+            scalar(coefficients.half_dt_squared),
+        ]
         self._free_index = wp.array(free_index, dtype=wp.int32, device=dev)
         self._driven_slot = wp.array(driven_slot, dtype=wp.int32, device=dev)
         # the CG vectors as rows of one work array (the persistent kernel's layout) and their flat scalar views
         # (index 3 node + axis) for the scalar preconditioner factors
         self._work = wp.zeros((WORK_ROWS, n_free), dtype=vec, device=dev)
         self._work_flat = self._work.view(dtype).reshape((WORK_ROWS, 3 * n_free))
-        self._r, self._p = self._work[WORK_R:WORK_R + 2], self._work[WORK_P:WORK_P + 2]
+        self._r, self._p = self._work[WORK_R : WORK_R + 2], self._work[WORK_P : WORK_P + 2]
         self._x, self._y, self._z, self._q = (self._work[row] for row in (WORK_X, WORK_Y, WORK_Z, WORK_Q))
-        self._r_flat = self._work_flat[WORK_R:WORK_R + 2]
+        self._r_flat = self._work_flat[WORK_R : WORK_R + 2]
         self._q_flat, self._y_flat = self._work_flat[WORK_Q], self._work_flat[WORK_Y]
         self._history = wp.zeros((2, n_free), dtype=vec, device=dev)
         self._guess = wp.zeros(n_free, dtype=vec, device=dev)
@@ -313,8 +328,9 @@ class CGSolver:
             shape = (PERSISTENT_LANES, PERSISTENT_ROWS) if dev.is_cuda else (1, 1)  # one CPU thread walks every row
             self._persistent = persistent_pcg_kernel(dtype, *shape, single=True)
             wanted = -(-n_free // self._persistent.rows)
-            self._persistent_blocks = max(1, min(wanted, grid_capacity(self._persistent.cg_step,
-                                                                        self._persistent.block_dim, device=dev)))
+            self._persistent_blocks = max(
+                1, min(wanted, grid_capacity(self._persistent.cg_step, self._persistent.block_dim, device=dev))
+            )
         self._condition = wp.zeros(1, dtype=wp.int32, device=dev)
         self._step_count = wp.zeros(1, dtype=wp.int32, device=dev)
         self._status = wp.zeros(5, dtype=wp.int32, device=dev)
@@ -322,10 +338,21 @@ class CGSolver:
         # the solver's arrays as the only model of a batch, for the persistent and update kernels
         one = _as_one_model
         self._as_batch = SimpleNamespace(
-            P_values=one(P.values), A_values=one(A_oo.values), G_values=lower[2], GT_values=upper[2],
-            x=one(self._x), work=one(self._work), work_flat=one(self._work_flat), guess=one(self._guess),
-            history=self._history.reshape((2, 1, n_free)), slots=one(self._slots), cg_iter=one(self._cg_iter),
-            barrier=one(self._barrier), status=one(self._status), failure=one(self._failure))
+            P_values=one(P.values),
+            A_values=one(A_oo.values),
+            G_values=lower[2],
+            GT_values=upper[2],
+            x=one(self._x),
+            work=one(self._work),
+            work_flat=one(self._work_flat),
+            guess=one(self._guess),
+            history=self._history.reshape((2, 1, n_free)),
+            slots=one(self._slots),
+            cg_iter=one(self._cg_iter),
+            barrier=one(self._barrier),
+            status=one(self._status),
+            failure=one(self._failure),
+        )
         # run_chunks' ring of `chunk` driven inputs and recorded displacements (slot index on the device)
         self._trajectory = wp.zeros((self.chunk, max(n_driven, 1)), dtype=vec, device=dev)
         self._record = wp.zeros((self.chunk, n), dtype=vec, device=dev)
@@ -338,7 +365,9 @@ class CGSolver:
 
         # One eager step loads every kernel before any capture; the counters it touches are cleared.
         scratch = TissueState(n, dtype=dtype, device=dev)
-        self._launch_sequence(self._binding_for_step(scratch, scratch, TissueControl(n_driven, dtype=dtype, device=dev)))
+        self._launch_sequence(
+            self._binding_for_step(scratch, scratch, TissueControl(n_driven, dtype=dtype, device=dev))
+        )
         self._bindings.clear()
         self.restart(scratch)
 
@@ -351,12 +380,42 @@ class CGSolver:
     def _cg_iterations(self) -> None:
         k, A, tol_sq = self._kernels, self._A_oo, wp.float64(self.tol**2)
         for _ in range(UNROLL):
-            self._launch_tiled(k.direction, [A.offsets, A.columns, A.values, self._z, self._p, self._q, self._slots,
-                                             self._cg_iter, self._condition, tol_sq, self.maxiter])
-            self._launch_tiled(k.lower, [*self._G, self._p, self._q, self._q_flat, self._r, self._r_flat, self._x,
-                                         self._y, self._slots, self._cg_iter, tol_sq, self.maxiter])
-            self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq,
-                                         self.maxiter])
+            self._launch_tiled(
+                k.direction,
+                [
+                    A.offsets,
+                    A.columns,
+                    A.values,
+                    self._z,
+                    self._p,
+                    self._q,
+                    self._slots,
+                    self._cg_iter,
+                    self._condition,
+                    tol_sq,
+                    self.maxiter,
+                ],
+            )
+            self._launch_tiled(
+                k.lower,
+                [
+                    *self._G,
+                    self._p,
+                    self._q,
+                    self._q_flat,
+                    self._r,
+                    self._r_flat,
+                    self._x,
+                    self._y,
+                    self._slots,
+                    self._cg_iter,
+                    tol_sq,
+                    self.maxiter,
+                ],
+            )
+            self._launch_tiled(
+                k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq, self.maxiter]
+            )
 
     def _launch_sequence(self, b) -> None:
         k, P, tol_sq = self._kernels, self._P, wp.float64(self.tol**2)
@@ -364,42 +423,123 @@ class CGSolver:
         A = self._A_oo
         if self.loop == "persistent":
             step, m = self._persistent, self._as_batch
-            wp.launch_tiled(step.cg_step, dim=self._persistent_blocks, block_dim=step.block_dim, device=self.device,
-                            inputs=[P.offsets, P.columns, m.P_values, A.offsets, A.columns, m.A_values, self._G[0],
-                                    self._G[1], m.G_values, self._GT[0], self._GT[1], m.GT_values, b.d_in, b.v_in,
-                                    b.a_in, b.trajectory, m.guess, b.ring, m.work, m.work_flat, m.slots, m.cg_iter,
-                                    m.barrier, tol_sq, self.maxiter,
-                                    self._persistent_blocks, 0])
+            wp.launch_tiled(
+                step.cg_step,
+                dim=self._persistent_blocks,
+                block_dim=step.block_dim,
+                device=self.device,
+                inputs=[
+                    P.offsets,
+                    P.columns,
+                    m.P_values,
+                    A.offsets,
+                    A.columns,
+                    m.A_values,
+                    self._G[0],
+                    self._G[1],
+                    m.G_values,
+                    self._GT[0],
+                    self._GT[1],
+                    m.GT_values,
+                    b.d_in,
+                    b.v_in,
+                    b.a_in,
+                    b.trajectory,
+                    m.guess,
+                    b.ring,
+                    m.work,
+                    m.work_flat,
+                    m.slots,
+                    m.cg_iter,
+                    m.barrier,
+                    tol_sq,
+                    self.maxiter,
+                    self._persistent_blocks,
+                    0,
+                ],
+            )
         else:
-            self._launch_tiled(k.residual, [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, b.state[0],
-                                            b.state[1], b.state[2], b.driven, self._guess, b.ring, self._r, self._x,
-                                            self._slots, self._cg_iter, self._condition])
+            self._launch_tiled(
+                k.residual,
+                [
+                    P.offsets,
+                    P.columns,
+                    P.values,
+                    A.offsets,
+                    A.columns,
+                    A.values,
+                    b.state[0],
+                    b.state[1],
+                    b.state[2],
+                    b.driven,
+                    self._guess,
+                    b.ring,
+                    self._r,
+                    self._x,
+                    self._slots,
+                    self._cg_iter,
+                    self._condition,
+                ],
+            )
             self._launch_tiled(k.lower_start, [*self._G, self._r, self._r_flat, self._x, self._slots, self._y])
-            self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq,
-                                         self.maxiter])
+            self._launch_tiled(
+                k.upper, [*self._GT, self._y_flat, self._r, self._z, self._slots, self._cg_iter, tol_sq, self.maxiter]
+            )
             wp.capture_while(self._condition, self._cg_iterations)
         m = self._as_batch
         wp.launch(
             cg_newmark_update,
             dim=(1, self.node_count),
-            inputs=[m.x, m.history, m.guess, self._free_index, self._driven_slot, b.trajectory, b.ring,
-                    *self._update_constants, m.slots, m.cg_iter, tol_sq, b.chunk, b.d_in, b.v_in, b.a_in],
+            inputs=[
+                m.x,
+                m.history,
+                m.guess,
+                self._free_index,
+                self._driven_slot,
+                b.trajectory,
+                b.ring,
+                *self._update_constants,
+                m.slots,
+                m.cg_iter,
+                tol_sq,
+                b.chunk,
+                b.d_in,
+                b.v_in,
+                b.a_in,
+            ],
             outputs=[b.d_out, b.v_out, b.a_out, b.record, self._step_count, m.status, m.failure],
             device=self.device,
         )
 
     @staticmethod
-    def _binding(state_in: TissueState, state_out: TissueState, driven: wp.array, ring: wp.array, record: wp.array,
-                 chunk: int, key) -> SimpleNamespace:
+    def _binding(
+        state_in: TissueState,
+        state_out: TissueState,
+        driven: wp.array,
+        ring: wp.array,
+        record: wp.array,
+        chunk: int,
+        key,
+    ) -> SimpleNamespace:
         """The arrays of one step: ``state`` (d, v, a of ``state_in``) and ``driven`` (chunk, D) for the launched
         loop's kernels; the states, ``trajectory`` (chunk, 1, D) and ``record`` (chunk, 1, N) as the only model of a
         batch for the persistent and update kernels (which also step batches)."""
         one = _as_one_model
         return SimpleNamespace(
-            state=(state_in.d, state_in.v, state_in.a), driven=driven, d_in=one(state_in.d), v_in=one(state_in.v),
-            a_in=one(state_in.a), d_out=one(state_out.d), v_out=one(state_out.v), a_out=one(state_out.a),
-            trajectory=driven.reshape((driven.shape[0], 1, driven.shape[1])), ring=ring,
-            record=record.reshape((record.shape[0], 1, record.shape[1])), chunk=chunk, key=key)
+            state=(state_in.d, state_in.v, state_in.a),
+            driven=driven,
+            d_in=one(state_in.d),
+            v_in=one(state_in.v),
+            a_in=one(state_in.a),
+            d_out=one(state_out.d),
+            v_out=one(state_out.v),
+            a_out=one(state_out.a),
+            trajectory=driven.reshape((driven.shape[0], 1, driven.shape[1])),
+            ring=ring,
+            record=record.reshape((record.shape[0], 1, record.shape[1])),
+            chunk=chunk,
+            key=key,
+        )
 
     def _binding_for_step(self, state_in: TissueState, state_out: TissueState, control: TissueControl):
         key = ("step", state_in.d.ptr, state_out.d.ptr, control.driven.ptr)
@@ -407,13 +547,25 @@ class CGSolver:
         if binding is None:
             vec, precision = self._kernels.vec, wp.types.type_repr(self.dtype)
             for name, state in (("state_in", state_in), ("state_out", state_out)):
-                if (state.node_count != self.node_count or not wp.types.types_equal(state.d.dtype, vec)
-                        or state.device != self.device):
+                if (
+                    state.node_count != self.node_count
+                    or not wp.types.types_equal(state.d.dtype, vec)
+                    or state.device != self.device
+                ):
                     raise ValueError(f"{name} must hold {self.node_count} nodes of {precision} vec3 on {self.device}")
-            if control.driven.shape[0] != self._trajectory.shape[1] or not wp.types.types_equal(control.driven.dtype, vec):
+            if control.driven.shape[0] != self._trajectory.shape[1] or not wp.types.types_equal(
+                control.driven.dtype, vec
+            ):
                 raise ValueError(f"control must hold {self.driven_nodes.size} driven displacements of {precision} vec3")
-            binding = self._binding(state_in, state_out, control.driven.reshape((1, control.driven.shape[0])),
-                                    self._step_ring, state_out.d.reshape((1, self.node_count)), 1, key)
+            binding = self._binding(
+                state_in,
+                state_out,
+                control.driven.reshape((1, control.driven.shape[0])),
+                self._step_ring,
+                state_out.d.reshape((1, self.node_count)),
+                1,
+                key,
+            )
             self._bindings[key] = binding
         return binding
 
@@ -463,8 +615,9 @@ class CGSolver:
         self.synchronize()
         binding = self._binding_for_chunks(state)
         if self._chunked is None:
-            self._chunked = ChunkedRun(self._trajectory, self._record, self._ring, self._barrier, self._status,
-                                       self._failure)
+            self._chunked = ChunkedRun(
+                self._trajectory, self._record, self._ring, self._barrier, self._status, self._failure
+            )
         return self._chunked.run(driven, lambda: self._launch(binding), self._raise_on_failure)
 
     # ------------------------------------------------------------------ status and restart

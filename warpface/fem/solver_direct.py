@@ -182,17 +182,38 @@ class DirectSolver:
         binding = self._bindings.get(key)
         if binding is None:
             for name, state in (("state_in", state_in), ("state_out", state_out)):
-                if (state.node_count != self.node_count or not wp.types.types_equal(state.d.dtype, wp.vec3d)
-                        or not state.device.is_cpu):
+                if (
+                    state.node_count != self.node_count
+                    or not wp.types.types_equal(state.d.dtype, wp.vec3d)
+                    or not state.device.is_cpu
+                ):
                     raise ValueError(f"{name} must hold {self.node_count} nodes of float64 vec3 on the CPU")
             if control.driven.shape[0] != max(self.driven_nodes.size, 1) or not control.driven.device.is_cpu:
                 raise ValueError(f"control must hold {self.driven_nodes.size} driven displacements on the CPU")
-            update = wp.launch(newmark_update, dim=self.node_count,
-                               inputs=[self._solution, self._free_index, self._driven_slot, control.driven,
-                                       state_in.d, state_in.v, state_in.a, *self._update_constants],
-                               outputs=[state_out.d, state_out.v, state_out.a], device=self.device, record_cmd=True)
-            binding = SimpleNamespace(d=state_in.d.numpy(), v=state_in.v.numpy(), a=state_in.a.numpy(),
-                                      driven=control.driven.numpy()[: self.driven_nodes.size], update=update,
-                                      arrays=(state_in, state_out, control))  # keeps the pointers valid
+            update = wp.launch(
+                newmark_update,
+                dim=self.node_count,
+                inputs=[
+                    self._solution,
+                    self._free_index,
+                    self._driven_slot,
+                    control.driven,
+                    state_in.d,
+                    state_in.v,
+                    state_in.a,
+                    *self._update_constants,
+                ],
+                outputs=[state_out.d, state_out.v, state_out.a],
+                device=self.device,
+                record_cmd=True,
+            )
+            binding = SimpleNamespace(
+                d=state_in.d.numpy(),
+                v=state_in.v.numpy(),
+                a=state_in.a.numpy(),
+                driven=control.driven.numpy()[: self.driven_nodes.size],
+                update=update,
+                arrays=(state_in, state_out, control),
+            )  # keeps the pointers valid
             self._bindings[key] = binding
         return binding

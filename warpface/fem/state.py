@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import warp as wp
+
 from .._validate import as_count, as_device
 
 MAX_NODES = 1 << 25

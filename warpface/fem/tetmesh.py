@@ -22,7 +22,15 @@ import numpy as np
 
 from .._validate import MAX_COORDINATE as SHARED_MAX_COORDINATE
 
-__all__ = ["MAX_COORDINATE", "MIN_EDGE_LENGTH", "TET_EDGE_NODES", "TetMesh", "TetQuality", "tet_signed_volumes", "tet_dihedral_angles"]
+__all__ = [
+    "MAX_COORDINATE",
+    "MIN_EDGE_LENGTH",
+    "TET_EDGE_NODES",
+    "TetMesh",
+    "TetQuality",
+    "tet_signed_volumes",
+    "tet_dihedral_angles",
+]
 
 MAX_COORDINATE = SHARED_MAX_COORDINATE
 """Largest accepted node coordinate magnitude [m] (:data:`warpface._validate.MAX_COORDINATE`): the
@@ -219,7 +227,9 @@ class TetMesh:
             tets = np.asarray(tets)
         except (TypeError, ValueError):
             raise ValueError("TetMesh points and tets must be regular numeric arrays") from None
-        if tets.dtype.kind not in "iuf" or (tets.dtype.kind == "f" and not np.all(np.isfinite(tets) & (tets == np.round(tets)))):
+        if tets.dtype.kind not in "iuf" or (
+            tets.dtype.kind == "f" and not np.all(np.isfinite(tets) & (tets == np.round(tets)))
+        ):
             raise ValueError(f"TetMesh tets must hold integer node indices, got dtype {tets.dtype}")
         tets = np.clip(tets, -1, 2**62).astype(np.int64) if tets.dtype.kind == "f" else tets.astype(np.int64)
         if tets.ndim != 2 or tets.shape[1] != 4:

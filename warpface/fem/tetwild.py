@@ -43,7 +43,9 @@ def tetrahedralize_validated(shell, *, on_wait=None, **options) -> tuple[TetMesh
     for run in range(1, TETWILD_ATTEMPTS + 1):
         nodes, tets = tetrahedralize(shell.points, shell.triangles, on_wait=tick, **options)
         try:
-            return validated_tets(np.asarray(nodes, dtype=np.float64), np.asarray(tets, dtype=np.int64), shell.volume), run
+            return validated_tets(
+                np.asarray(nodes, dtype=np.float64), np.asarray(tets, dtype=np.int64), shell.volume
+            ), run
         except ValueError as exc:
             if run == TETWILD_ATTEMPTS:
                 raise ValueError(f"{exc} (after {TETWILD_ATTEMPTS} fTetWild runs)") from None
@@ -70,10 +72,18 @@ def tetrahedralize(points: np.ndarray, triangles: np.ndarray, *, timeout: float 
         raise RuntimeError("tetrahedralising needs pytetwild (pip install pytetwild)")
     with tempfile.TemporaryDirectory(prefix="warpface-tetwild-") as scratch:
         folder = Path(scratch)
-        np.savez(folder / "shell.npz", points=np.ascontiguousarray(points, dtype=np.float64),
-                 triangles=np.ascontiguousarray(triangles, dtype=np.int32))
-        child = subprocess.Popen([sys.executable, "-c", _TETWILD_SCRIPT, json.dumps(options)], cwd=folder,
-                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        np.savez(
+            folder / "shell.npz",
+            points=np.ascontiguousarray(points, dtype=np.float64),
+            triangles=np.ascontiguousarray(triangles, dtype=np.int32),
+        )
+        child = subprocess.Popen(
+            [sys.executable, "-c", _TETWILD_SCRIPT, json.dumps(options)],
+            cwd=folder,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         deadline = None if timeout is None else time.monotonic() + float(timeout)
         try:
             while True:
@@ -96,7 +106,9 @@ def tetrahedralize(points: np.ndarray, triangles: np.ndarray, *, timeout: float 
         return result["nodes"], result["tets"]
 
 
-def validated_tets(nodes: np.ndarray, tets: np.ndarray, shell_volume: float, *, volume_tolerance: float = 0.05) -> TetMesh:
+def validated_tets(
+    nodes: np.ndarray, tets: np.ndarray, shell_volume: float, *, volume_tolerance: float = 0.05
+) -> TetMesh:
     """Orient fTetWild's tets positively and reject inverted, degenerate or missing ones."""
     if len(tets) == 0:
         raise ValueError("fTetWild returned no tets: the shell is too thin for the edge length, or not closed")
@@ -125,4 +137,3 @@ def validated_tets(nodes: np.ndarray, tets: np.ndarray, shell_volume: float, *, 
             f"({100 * error:.1f} % off): the shell was not filled correctly"
         )
     return mesh
-

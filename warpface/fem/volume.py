@@ -39,8 +39,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry.surface_checks import as_surface, boundary_loops, check_surface, find_self_intersections
 from ..geometry.mesh_index import closest_points
+from ..geometry.surface_checks import as_surface, boundary_loops, check_surface, find_self_intersections
 from ..geometry.triangles import triangle_areas, triangle_corners
 from .shell import ShellSurface, fair_locally, offset_shell, shell_defects
 from .tetmesh import TetMesh, TetQuality
@@ -174,8 +174,9 @@ def _decimate(points: np.ndarray, triangles: np.ndarray, target_vertices: int) -
     return out_points[used], remap[out_triangles]
 
 
-def _sample_at_closest_points(points: np.ndarray, triangles: np.ndarray, values: np.ndarray, queries: np.ndarray,
-                              device) -> np.ndarray:
+def _sample_at_closest_points(
+    points: np.ndarray, triangles: np.ndarray, values: np.ndarray, queries: np.ndarray, device
+) -> np.ndarray:
     """A per-vertex field (V,) of a triangle surface, interpolated at the surface point closest to each
     query (Q, 3), by :func:`warpface.geometry.mesh_index.closest_points`."""
     triangle, barycentric, _ = closest_points(queries, points, triangles, device=device)
@@ -291,15 +292,46 @@ def mesh_tissue(
     start = time.perf_counter()
     report_stage = _progress_reporter(progress)
     try:
-        return _mesh_tissue(surface, thickness, target_nodes, edge_length, decimate, envelope, optimize_passes, threads,
-                            max_smoothing, input_intersections, thin_defects, fair_folds, timeout, report_stage, device, start)
+        return _mesh_tissue(
+            surface,
+            thickness,
+            target_nodes,
+            edge_length,
+            decimate,
+            envelope,
+            optimize_passes,
+            threads,
+            max_smoothing,
+            input_intersections,
+            thin_defects,
+            fair_folds,
+            timeout,
+            report_stage,
+            device,
+            start,
+        )
     finally:
         report_stage.close()
 
 
-def _mesh_tissue(surface, thickness, target_nodes, edge_length, decimate, envelope, optimize_passes, threads,
-                 max_smoothing, input_intersections, thin_defects, fair_folds, timeout, report_stage, device,
-                 start) -> TissueMeshing:
+def _mesh_tissue(
+    surface,
+    thickness,
+    target_nodes,
+    edge_length,
+    decimate,
+    envelope,
+    optimize_passes,
+    threads,
+    max_smoothing,
+    input_intersections,
+    thin_defects,
+    fair_folds,
+    timeout,
+    report_stage,
+    device,
+    start,
+) -> TissueMeshing:
     points, triangles = as_surface(surface)
     boundary = check_surface(points, triangles, closed=False, name="face surface")
     if len(boundary) == 0:
@@ -345,8 +377,10 @@ def _mesh_tissue(surface, thickness, target_nodes, edge_length, decimate, envelo
                 f"decimation to {len(coarse_points)} vertices changed the surface's boundary loops from "
                 f"{loop_count} to {coarse_loops}; ask for more nodes (target_nodes / edge_length) or decimate=False"
             )
-        h = _sample_at_closest_points(points, triangles, h_fine, coarse_points, device) if np.ptp(h_fine) > 0.0 else (
-            np.full(len(coarse_points), float(h_fine[0]))
+        h = (
+            _sample_at_closest_points(points, triangles, h_fine, coarse_points, device)
+            if np.ptp(h_fine) > 0.0
+            else (np.full(len(coarse_points), float(h_fine[0])))
         )
     else:
         coarse_points, coarse_triangles, h = points, triangles, h_fine
@@ -359,8 +393,11 @@ def _mesh_tissue(surface, thickness, target_nodes, edge_length, decimate, envelo
             break
         except ValueError:
             thinning = thinning_rounds < int(thin_defects)
-            defects = shell_defects(coarse_points, coarse_triangles, h, max_smoothing=max_smoothing, device=device) if (
-                thinning or fairing_rounds < int(fair_folds)) else np.zeros(0, dtype=np.int64)
+            defects = (
+                shell_defects(coarse_points, coarse_triangles, h, max_smoothing=max_smoothing, device=device)
+                if (thinning or fairing_rounds < int(fair_folds))
+                else np.zeros(0, dtype=np.int64)
+            )
             if len(defects) == 0:
                 raise
             coarse_points, h = fair_locally(coarse_points, coarse_triangles, h, defects, move_surface=not thinning)
@@ -402,14 +439,18 @@ def _mesh_tissue(surface, thickness, target_nodes, edge_length, decimate, envelo
         quality=quality,
         shell_volume=shell.volume,
         tet_volume=tetmesh.total_volume,
-        timings={"decimate": t1 - t0, "shell": t2 - t1, "tetrahedralize": t3 - t2, "validate": t4 - t3,
-                 "total": t4 - start},
+        timings={
+            "decimate": t1 - t0,
+            "shell": t2 - t1,
+            "tetrahedralize": t3 - t2,
+            "validate": t4 - t3,
+            "total": t4 - start,
+        },
         fairing_rounds=fairing_rounds,
         thinning_rounds=thinning_rounds,
         tetwild_runs=tetwild_runs,
     )
     return TissueMeshing(tetmesh=tetmesh, shell=shell, report=report)
-
 
 
 MESHING_STAGES = ("decimate", "offset shell", "tetrahedralize", "validate")
@@ -441,7 +482,9 @@ def _progress_reporter(progress) -> _StageReporter:
     if callable(progress):
         return _StageReporter(callback=progress)
     if progress is not None and not isinstance(progress, (bool, np.bool_)):
-        raise TypeError(f"progress must be True, False, None or a callable(stage, seconds), got {type(progress).__name__}")
+        raise TypeError(
+            f"progress must be True, False, None or a callable(stage, seconds), got {type(progress).__name__}"
+        )
     if progress is None:
         import sys
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .._validate import as_points, as_triangles, as_device
+from .._validate import as_device, as_points, as_triangles
 from .funcs import closest_point_on_triangle
 
 __all__ = ["TriangleMeshIndex", "closest_points"]
@@ -116,7 +116,14 @@ class TriangleMeshIndex:
             wp.launch(
                 _closest_points_kernel,
                 dim=count,
-                inputs=[self._mesh.id, self._vertices, self._triangles, queries, wp.vec3(0.0, 0.0, 0.0), max(self.radius, 1e-12)],
+                inputs=[
+                    self._mesh.id,
+                    self._vertices,
+                    self._triangles,
+                    queries,
+                    wp.vec3(0.0, 0.0, 0.0),
+                    max(self.radius, 1e-12),
+                ],
                 outputs=[triangle, bary, dist],
                 device=self.device,
             )

@@ -70,7 +70,9 @@ def _self_intersections(
                 b0 = points[tj[0]]
                 b1 = points[tj[1]]
                 b2 = points[tj[2]]
-                size = wp.max(wp.max(wp.length(a1 - a0), wp.length(a2 - a0)), wp.max(wp.length(b1 - b0), wp.length(b2 - b0)))
+                size = wp.max(
+                    wp.max(wp.length(a1 - a0), wp.length(a2 - a0)), wp.max(wp.length(b1 - b0), wp.length(b2 - b0))
+                )
                 s = wp.float64(1.0) / size
                 hit = wp.intersect_tri_tri(
                     wp.vec3d(0.0, 0.0, 0.0), (a1 - a0) * s, (a2 - a0) * s, (b0 - a0) * s, (b1 - a0) * s, (b2 - a0) * s
@@ -144,7 +146,9 @@ def check_surface(points, triangles, *, closed: bool, name: str = "surface") -> 
     points = np.asarray(points, dtype=np.float64)
     triangles = np.asarray(triangles, dtype=np.int64)
     repeated = np.flatnonzero(
-        (triangles[:, 0] == triangles[:, 1]) | (triangles[:, 1] == triangles[:, 2]) | (triangles[:, 2] == triangles[:, 0])
+        (triangles[:, 0] == triangles[:, 1])
+        | (triangles[:, 1] == triangles[:, 2])
+        | (triangles[:, 2] == triangles[:, 0])
     )
     if repeated.size:
         t = repeated[0]
@@ -262,13 +266,23 @@ def find_self_intersections(points, triangles, *, max_pairs: int = 64, device=No
     lowers = wp.empty(len(triangles), dtype=wp.vec3, device=device)
     uppers = wp.empty(len(triangles), dtype=wp.vec3, device=device)
     # pad the float32 boxes so rounding never drops a touching pair from the broad phase
-    wp.launch(_triangle_bounds, dim=len(triangles), inputs=[wp_points, wp_tris, 1e-6 * extent],
-              outputs=[lowers, uppers], device=device)
+    wp.launch(
+        _triangle_bounds,
+        dim=len(triangles),
+        inputs=[wp_points, wp_tris, 1e-6 * extent],
+        outputs=[lowers, uppers],
+        device=device,
+    )
     bvh = wp.Bvh(lowers, uppers)
     count = wp.zeros(1, dtype=wp.int32, device=device)
     pairs = wp.zeros(max(int(max_pairs), 1), dtype=wp.vec2i, device=device)
-    wp.launch(_self_intersections, dim=len(triangles), inputs=[bvh.id, wp_points, wp_tris, lowers, uppers],
-              outputs=[count, pairs], device=device)
+    wp.launch(
+        _self_intersections,
+        dim=len(triangles),
+        inputs=[bvh.id, wp_points, wp_tris, lowers, uppers],
+        outputs=[count, pairs],
+        device=device,
+    )
     n = int(count.numpy()[0])
     found = pairs.numpy()[: min(n, int(max_pairs))]
     order = np.lexsort((found[:, 1], found[:, 0])) if len(found) else np.arange(0)

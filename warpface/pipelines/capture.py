@@ -43,8 +43,17 @@ class SyntheticCapture:
     """Ground-truth contractions per frame in the rig's muscle order, shape (F, M)."""
 
 
-def synthetic_capture(rig=None, *, expression: str = "smile", seconds: float = 2.0, fps: float = 30.0, dots: int = 60,
-                      noise: bool = True, seed: int = 0, device=None) -> SyntheticCapture:
+def synthetic_capture(
+    rig=None,
+    *,
+    expression: str = "smile",
+    seconds: float = 2.0,
+    fps: float = 30.0,
+    dots: int = 60,
+    noise: bool = True,
+    seed: int = 0,
+    device=None,
+) -> SyntheticCapture:
     """The built-in face (or ``rig``) performs ``expression``; a 640×480 Kinect-like camera at 0.6 m
     films it with painted dots (and, with ``noise``, depth noise and holes)."""
     from ..assets import default_rig, expression_timeline
@@ -56,11 +65,19 @@ def synthetic_capture(rig=None, *, expression: str = "smile", seconds: float = 2
     rest, triangles = truth[0], rig.mesh.triangles
     eye = np.linalg.inv(default_model_to_camera(rest))[:3, 3]
     fiducials = place_fiducials(rest, triangles, dots, spacing=0.014, camera_position=eye, device=device)
-    camera = SyntheticRGBDCamera(truth, triangles, fiducials, names=vertex_landmark_names(fiducials), fps=fps,
-                                 depth_noise=KinectNoise() if noise else None, seed=seed)
+    camera = SyntheticRGBDCamera(
+        truth,
+        triangles,
+        fiducials,
+        names=vertex_landmark_names(fiducials),
+        fps=fps,
+        depth_noise=KinectNoise() if noise else None,
+        seed=seed,
+    )
     source = RGBDLandmarks(camera, camera.dot_tracker(), device=device)
-    return SyntheticCapture(camera=camera, source=source, truth=truth, triangles=triangles, fiducial_vertices=fiducials,
-                            controls=controls)
+    return SyntheticCapture(
+        camera=camera, source=source, truth=truth, triangles=triangles, fiducial_vertices=fiducials, controls=controls
+    )
 
 
 def open_source(spec: str, *, layout: str | None = None, device=None):
@@ -74,7 +91,9 @@ def open_source(spec: str, *, layout: str | None = None, device=None):
     path = as_path(spec, "source")
     if spec in ("realsense", "orbbec"):
         if layout is None:
-            raise ValueError(f"a live {spec} capture needs --layout: a JSON file with the dots' 'names' and 'initial_pixels'")
+            raise ValueError(
+                f"a live {spec} capture needs --layout: a JSON file with the dots' 'names' and 'initial_pixels'"
+            )
         fiducials = json.loads(read_text(as_path(layout, "layout")))
         if not isinstance(fiducials, dict) or not {"names", "initial_pixels"} <= set(fiducials):
             raise ValueError(f"layout {layout}: expected a JSON object with 'names' and 'initial_pixels'")
@@ -92,7 +111,9 @@ def open_source(spec: str, *, layout: str | None = None, device=None):
             raise ValueError(f"{path}: meta.json has no 'fiducials' layout (names and initial pixels of the dots)")
         tracker = DotTracker(np.asarray(fiducials["initial_pixels"]), names=fiducials["names"])
         return RGBDLandmarks(folder, tracker, device=device)
-    raise ValueError(f"unknown source {spec!r}: expected a .npz recording, an RGB-D folder, synthetic, realsense or orbbec")
+    raise ValueError(
+        f"unknown source {spec!r}: expected a .npz recording, an RGB-D folder, synthetic, realsense or orbbec"
+    )
 
 
 @dataclass
@@ -112,8 +133,17 @@ class CaptureStats:
         return self.frames / self.seconds if self.seconds > 0 else float("nan")
 
 
-def record(source, adapter: TrackingAdapter, writer, *, max_frames: int | None = None, progress: bool = True,
-           on_frame=None, samples=None, prefetch: int = 0) -> CaptureStats:
+def record(
+    source,
+    adapter: TrackingAdapter,
+    writer,
+    *,
+    max_frames: int | None = None,
+    progress: bool = True,
+    on_frame=None,
+    samples=None,
+    prefetch: int = 0,
+) -> CaptureStats:
     """Run ``source`` through ``adapter`` into ``writer`` (a :class:`~warpface.usd.tracking_io.TrackingStageWriter`).
 
     Every frame handed to the writer is kept. Ctrl-C stops the capture between two frames: the
@@ -159,11 +189,19 @@ def record(source, adapter: TrackingAdapter, writer, *, max_frames: int | None =
                 if getattr(writer, "vertex_count", True) is None:
                     dense = None
                 with deferred_interrupts():  # the frame is either fully queued and counted, or not at all
-                    writer.add(frame.timestamp, _to_model(adapter.camera_to_model, frame.points), frame.confidence, dense, **extra)
+                    writer.add(
+                        frame.timestamp,
+                        _to_model(adapter.camera_to_model, frame.points),
+                        frame.confidence,
+                        dense,
+                        **extra,
+                    )
                     count += 1
                 found += measured.mean()
                 elapsed = time.perf_counter() - started
-                bar.set_postfix(fps=f"{count / elapsed:.0f}" if elapsed > 0 else "-", landmarks=f"{measured.sum()}/{len(measured)}")
+                bar.set_postfix(
+                    fps=f"{count / elapsed:.0f}" if elapsed > 0 else "-", landmarks=f"{measured.sum()}/{len(measured)}"
+                )
                 bar.update()
                 if stop or (max_frames is not None and count >= max_frames):
                     break
@@ -171,8 +209,12 @@ def record(source, adapter: TrackingAdapter, writer, *, max_frames: int | None =
             with deferred_interrupts():
                 writer.close()
             bar.close()
-    return CaptureStats(frames=count, seconds=time.perf_counter() - started, landmarks_found=found / max(count, 1),
-                        interrupted=stop.requested)
+    return CaptureStats(
+        frames=count,
+        seconds=time.perf_counter() - started,
+        landmarks_found=found / max(count, 1),
+        interrupted=stop.requested,
+    )
 
 
 def _to_model(camera_to_model, points: np.ndarray) -> np.ndarray:

@@ -47,8 +47,19 @@ class TissueDrive:
     blended dense points (V, 3), float32.
     """
 
-    def __init__(self, adapter, tetmesh, material, *, fps: float, dt: float = 1e-3, fixed=None, thickness: float | None = None,
-                 formulation: str = "anp", device=None):
+    def __init__(
+        self,
+        adapter,
+        tetmesh,
+        material,
+        *,
+        fps: float,
+        dt: float = 1e-3,
+        fixed=None,
+        thickness: float | None = None,
+        formulation: str = "anp",
+        device=None,
+    ):
         from ..fem import TissueSimulation
         from ..fem.embedding import embed_points
 
@@ -66,8 +77,15 @@ class TissueDrive:
             fixed = bone_side_nodes(tetmesh, adapter.dense_rest, thickness)
         self.fixed_nodes = np.setdiff1d(np.asarray(fixed, dtype=np.int64), self.driven_nodes)
         self.substeps = max(1, int(round(1.0 / (float(fps) * float(dt)))))
-        self.simulation = TissueSimulation(tetmesh, material, dt, fixed=self.fixed_nodes, driven=self.driven_nodes,
-                                           formulation=formulation, device=device)
+        self.simulation = TissueSimulation(
+            tetmesh,
+            material,
+            dt,
+            fixed=self.fixed_nodes,
+            driven=self.driven_nodes,
+            formulation=formulation,
+            device=device,
+        )
         self.device = device
         self._weights = adapter.weights.astype(np.float32)[:, None]
         # The tissue's state stays on its device: per frame one upload of the driven targets, the
@@ -86,9 +104,13 @@ class TissueDrive:
         target = self._target.driven
         target.assign(np.pad(tracked[self._driven_vertex], ((0, target.shape[0] - count), (0, 0))))
         for k in range(1, self.substeps + 1):
-            wp.launch(interpolate_control, dim=target.shape[0],
-                      inputs=[self._previous.driven, target, wp.float64(k / self.substeps)],
-                      outputs=[self.control.driven], device=target.device)
+            wp.launch(
+                interpolate_control,
+                dim=target.shape[0],
+                inputs=[self._previous.driven, target, wp.float64(k / self.substeps)],
+                outputs=[self.control.driven],
+                device=target.device,
+            )
             sim.step_control(self.control)
         wp.copy(self._previous.driven, target)
         skin = self.embedding.apply(sim.state.d).numpy()  # waits for the steps

@@ -56,9 +56,15 @@ def run_track(args) -> int:
                 stats, writer, tracker = _solved_capture(rig, source, camera_to_model, stage, fps, args)
                 drive = None
             else:
-                writer = TrackingStageWriter(stage, source.landmark_names, fps, dense_rest=rig.mesh.points,
-                                             triangles=rig.mesh.triangles, chunk_frames=TRACK_CHUNK_FRAMES,
-                                             flush_seconds=TRACK_FLUSH_SECONDS)
+                writer = TrackingStageWriter(
+                    stage,
+                    source.landmark_names,
+                    fps,
+                    dense_rest=rig.mesh.points,
+                    triangles=rig.mesh.triangles,
+                    chunk_frames=TRACK_CHUNK_FRAMES,
+                    flush_seconds=TRACK_FLUSH_SECONDS,
+                )
                 stats, drive = _capture(rig, source, camera_to_model, writer, fps, args)
         finally:
             for close in closers:
@@ -69,17 +75,25 @@ def run_track(args) -> int:
     if stats.interrupted:
         print(f"interrupted: kept all {stats.frames} frames received in {stage}")
     else:
-        print(f"tracked {stats.frames} frames at {stats.frames_per_second:.0f} frames/s, "
-              f"{100 * stats.landmarks_found:.0f}% of {len(source.landmark_names)} landmarks found per frame")
+        print(
+            f"tracked {stats.frames} frames at {stats.frames_per_second:.0f} frames/s, "
+            f"{100 * stats.landmarks_found:.0f}% of {len(source.landmark_names)} landmarks found per frame"
+        )
     if drive is not None:
-        print(f"  tissue FEM: {drive.simulation.tetmesh.node_count} nodes, "
-              f"{len(drive.driven_nodes)} driven, {len(drive.fixed_nodes)} fixed, {drive.substeps} steps per frame")
+        print(
+            f"  tissue FEM: {drive.simulation.tetmesh.node_count} nodes, "
+            f"{len(drive.driven_nodes)} driven, {len(drive.fixed_nodes)} fixed, {drive.substeps} steps per frame"
+        )
     if solve:
         solved = tracker.summary
-        print(f"  solved {solved['frames']} frames: mean landmark residual {1e3 * solved['mean_residual']:.2f} mm, "
-              f"{solved['skipped']} skipped (too few landmarks), {solved['not_converged']} not converged")
-        print(f"  stage {stage}  ({fps:g} time codes per second; rig at /Capture/Rig: contractions, skin and "
-              f"residual per frame in {writer.folder.name}/)")
+        print(
+            f"  solved {solved['frames']} frames: mean landmark residual {1e3 * solved['mean_residual']:.2f} mm, "
+            f"{solved['skipped']} skipped (too few landmarks), {solved['not_converged']} not converged"
+        )
+        print(
+            f"  stage {stage}  ({fps:g} time codes per second; rig at /Capture/Rig: contractions, skin and "
+            f"residual per frame in {writer.folder.name}/)"
+        )
     else:
         print(f"  stage {stage}  ({fps:g} time codes per second; landmarks and dense points in {writer.folder.name}/)")
     return 130 if stats.interrupted else 0
@@ -95,11 +109,18 @@ def _check_options(args) -> None:
         raise ValueError(f"--stage {args.stage}: output must end in one of .usda, .usdc")
     if args.source in ("realsense", "orbbec"):
         if getattr(args, "layout", None) is None:
-            raise ValueError(f"a live {args.source} capture needs --layout: a JSON file with the dots' 'names' and 'initial_pixels'")
-    elif args.source != "synthetic" and not (Path(args.source).suffix == ".npz" and Path(args.source).is_file()) \
-            and not Path(args.source).is_dir():
-        raise ValueError(f"unknown source {args.source!r}: expected an existing .npz recording or RGB-D folder, synthetic, "
-                         "realsense or orbbec")
+            raise ValueError(
+                f"a live {args.source} capture needs --layout: a JSON file with the dots' 'names' and 'initial_pixels'"
+            )
+    elif (
+        args.source != "synthetic"
+        and not (Path(args.source).suffix == ".npz" and Path(args.source).is_file())
+        and not Path(args.source).is_dir()
+    ):
+        raise ValueError(
+            f"unknown source {args.source!r}: expected an existing .npz recording or RGB-D folder, synthetic, "
+            "realsense or orbbec"
+        )
     if getattr(args, "solve", False):
         if args.fem:
             raise ValueError("--fem and --solve do not combine (the solved skin comes from the muscles)")
@@ -130,7 +151,9 @@ def _capture(rig, source, camera_to_model, writer, fps: float, args):
     from ..tracking import adapter_for_face
     from .capture import record
 
-    adapter = adapter_for_face(rig.mesh.points, source.landmark_names, camera_to_model=camera_to_model, device=args.device)
+    adapter = adapter_for_face(
+        rig.mesh.points, source.landmark_names, camera_to_model=camera_to_model, device=args.device
+    )
     drive = _tissue_drive(rig, adapter, fps, args) if args.fem else None
     stats = record(source, adapter, writer, max_frames=args.frames, progress=not args.quiet, on_frame=drive)
     return stats, drive
@@ -142,12 +165,25 @@ def _solved_capture(rig, source, camera_to_model, stage: Path, fps: float, args)
     from .track_solve import SolvingTracker, solved_stage_writer
 
     with _setup_step("preparing the solver", args.quiet):
-        tracker = SolvingTracker(rig, source.landmark_names, camera_to_model=camera_to_model,
-                                 residual_transfer=args.residual_transfer, smoothness=args.smoothness, device=args.device)
-        writer, layout = solved_stage_writer(stage, tracker, fps, chunk_frames=TRACK_CHUNK_FRAMES,
-                                             flush_seconds=TRACK_FLUSH_SECONDS)
-    stats = record(source, tracker, writer, max_frames=args.frames, progress=not args.quiet,
-                   samples=lambda frame, skin: layout.samples(tracker.last, skin))
+        tracker = SolvingTracker(
+            rig,
+            source.landmark_names,
+            camera_to_model=camera_to_model,
+            residual_transfer=args.residual_transfer,
+            smoothness=args.smoothness,
+            device=args.device,
+        )
+        writer, layout = solved_stage_writer(
+            stage, tracker, fps, chunk_frames=TRACK_CHUNK_FRAMES, flush_seconds=TRACK_FLUSH_SECONDS
+        )
+    stats = record(
+        source,
+        tracker,
+        writer,
+        max_frames=args.frames,
+        progress=not args.quiet,
+        samples=lambda frame, skin: layout.samples(tracker.last, skin),
+    )
     return stats, writer, tracker
 
 

@@ -47,17 +47,22 @@ class PathComparison:
 
     def table(self) -> str:
         """The comparison as aligned text."""
-        lines = [f"{'path':<32}{'surface (driven)':>18}{'surface (face)':>16}{'at landmarks':>14}{'controls':>12}{'frames/s':>10}"]
+        lines = [
+            f"{'path':<32}{'surface (driven)':>18}{'surface (face)':>16}{'at landmarks':>14}{'controls':>12}{'frames/s':>10}"
+        ]
         for p in self.paths:
             control = "-" if p.control_mm is None else f"{p.control_mm:.3f} mm"
-            lines.append(f"{p.name:<32}{p.surface_driven_mm:>15.3f} mm{p.surface_face_mm:>13.3f} mm{p.landmark_mm:>11.3f} mm"
-                         f"{control:>12}{p.frames_per_second:>10.0f}")
+            lines.append(
+                f"{p.name:<32}{p.surface_driven_mm:>15.3f} mm{p.surface_face_mm:>13.3f} mm{p.landmark_mm:>11.3f} mm"
+                f"{control:>12}{p.frames_per_second:>10.0f}"
+            )
         lines.append(f"{'(face that did not move)':<32}{self.still_driven_mm:>15.3f} mm{self.still_face_mm:>13.3f} mm")
         return "\n".join(lines)
 
 
-def compare_tracking_paths(capture, rig=None, *, frames=None, device=None, max_frames: int | None = None,
-                           **solve_options) -> PathComparison:
+def compare_tracking_paths(
+    capture, rig=None, *, frames=None, device=None, max_frames: int | None = None, **solve_options
+) -> PathComparison:
     """Run the geometric and the solved paths on the frames of a :func:`~warpface.pipelines.capture.synthetic_capture`.
 
     Args:
@@ -102,22 +107,39 @@ def compare_tracking_paths(capture, rig=None, *, frames=None, device=None, max_f
             # A muscles-only performance leaves the jaw at rest: its solved controls are compared with 0.
             truth_controls = np.pad(truth_controls, ((0, 0), (0, solved.shape[1] - truth_controls.shape[1])))
             wrong = (solved - truth_controls) * reach * 1e3
-            control = float(np.sqrt(np.mean(wrong ** 2, axis=1)).mean())
-        return PathScore(name=name, surface_driven_mm=float(errors[:, driven].mean()), surface_face_mm=float(errors.mean()),
-                         landmark_mm=float(errors[:, vertices].mean()), control_mm=control,
-                         frames_per_second=len(frames) / seconds if seconds > 0 else float("inf"),
-                         per_frame_surface_mm=errors.mean(axis=1))
+            control = float(np.sqrt(np.mean(wrong**2, axis=1)).mean())
+        return PathScore(
+            name=name,
+            surface_driven_mm=float(errors[:, driven].mean()),
+            surface_face_mm=float(errors.mean()),
+            landmark_mm=float(errors[:, vertices].mean()),
+            control_mm=control,
+            frames_per_second=len(frames) / seconds if seconds > 0 else float("inf"),
+            per_frame_surface_mm=errors.mean(axis=1),
+        )
 
     outputs, started = [], time.perf_counter()
     for frame in frames:
         outputs.append(geometric.track_frame(frame))
     scores = [score("geometric transfer", outputs, time.perf_counter() - started)]
     for residual in (False, True):
-        tracker = SolvingTracker(rig, camera.landmark_names, camera_to_model=camera_to_model, residual_transfer=residual,
-                                 device=device, **solve_options)
+        tracker = SolvingTracker(
+            rig,
+            camera.landmark_names,
+            camera_to_model=camera_to_model,
+            residual_transfer=residual,
+            device=device,
+            **solve_options,
+        )
         tracker.track_frame(frames[0])  # compiles the kernels outside the timing; then start over
-        tracker = SolvingTracker(rig, camera.landmark_names, camera_to_model=camera_to_model, residual_transfer=residual,
-                                 device=device, **solve_options)
+        tracker = SolvingTracker(
+            rig,
+            camera.landmark_names,
+            camera_to_model=camera_to_model,
+            residual_transfer=residual,
+            device=device,
+            **solve_options,
+        )
         outputs, controls, started = [], [], time.perf_counter()
         for frame in frames:
             solved = tracker.track_frame(frame)
@@ -131,5 +153,10 @@ def compare_tracking_paths(capture, rig=None, *, frames=None, device=None, max_f
         ok = np.all(np.isfinite(frame.points), axis=1)
         measured.append(np.linalg.norm(frame.points[ok] - camera.landmark_positions(frame.index)[ok], axis=1))
     still = np.stack([np.linalg.norm(truth[0] - truth[f.index], axis=1) for f in frames]) * 1e3
-    return PathComparison(frames=len(frames), measured_landmark_mm=float(np.concatenate(measured).mean() * 1e3),
-                          still_driven_mm=float(still[:, driven].mean()), still_face_mm=float(still.mean()), paths=scores)
+    return PathComparison(
+        frames=len(frames),
+        measured_landmark_mm=float(np.concatenate(measured).mean() * 1e3),
+        still_driven_mm=float(still[:, driven].mean()),
+        still_face_mm=float(still.mean()),
+        paths=scores,
+    )

@@ -45,8 +45,14 @@ from pxr import Sdf, Usd, UsdGeom, Vt
 from ..tracking import LandmarkFrame, adapter_for_face, landmark_vertices, similarity_fit
 from ..usd.jaw_io import JAW_CONTROL_ATTRIBUTES, jaw_prim
 
-__all__ = ["SolvedFrame", "SolvingTracker", "SolvedStageLayout", "solved_stage_writer", "read_solved_capture",
-           "RIG_ROOT"]
+__all__ = [
+    "SolvedFrame",
+    "SolvingTracker",
+    "SolvedStageLayout",
+    "solved_stage_writer",
+    "read_solved_capture",
+    "RIG_ROOT",
+]
 
 RIG_ROOT = "/Capture/Rig"
 """Where a solved capture keeps its rig."""
@@ -100,8 +106,19 @@ class SolvingTracker:
             ``jaw=False`` to keep the jaw at rest …).
     """
 
-    def __init__(self, rig, landmark_names, *, camera_to_model=None, residual_transfer: bool = False, pose: bool = True,
-                 smoothness: float = 1e-3, min_confidence: float = 0.0, device=None, **options):
+    def __init__(
+        self,
+        rig,
+        landmark_names,
+        *,
+        camera_to_model=None,
+        residual_transfer: bool = False,
+        pose: bool = True,
+        smoothness: float = 1e-3,
+        min_confidence: float = 0.0,
+        device=None,
+        **options,
+    ):
         from ..solve import Solver
 
         self.rig = rig
@@ -111,10 +128,12 @@ class SolvingTracker:
             raise ValueError("landmark_names: two landmarks sit on the same vertex")
         self.solver = Solver(rig, self.vertices, pose=pose, smoothness=smoothness, device=device, **options)
         self.control_names = list(self.solver.names)
-        self.solver.model  # built now (≈ 0.2 s), not inside the first frame
+        _ = self.solver.model  # built now (≈ 0.2 s), not inside the first frame
         self.min_confidence = float(min_confidence)
         self.camera_to_model = None if camera_to_model is None else np.array(camera_to_model, dtype=np.float64)
-        if self.camera_to_model is not None and (self.camera_to_model.shape != (4, 4) or not np.all(np.isfinite(self.camera_to_model))):
+        if self.camera_to_model is not None and (
+            self.camera_to_model.shape != (4, 4) or not np.all(np.isfinite(self.camera_to_model))
+        ):
             raise ValueError("camera_to_model: expected a finite 4×4 matrix")
         self.rest = np.asarray(rig.mesh.points, dtype=np.float64)
         self.transfer = None
@@ -145,8 +164,12 @@ class SolvingTracker:
         if points.shape != (len(self.names), 3) or confidence.shape != (len(self.names),):
             raise ValueError(f"frame {frame.index}: expected {len(self.names)} landmarks, got {points.shape}")
         with np.errstate(invalid="ignore"):
-            valid = np.all(np.isfinite(points), axis=1) & np.isfinite(confidence) & (confidence > self.min_confidence) \
+            valid = (
+                np.all(np.isfinite(points), axis=1)
+                & np.isfinite(confidence)
+                & (confidence > self.min_confidence)
                 & np.all(np.abs(points) < 1e6, axis=1)
+            )
         if self.camera_to_model is None and valid.sum() >= 4:
             scale, rotation, translation, _ = similarity_fit(points[valid], self.rest[self.vertices][valid])
             self.camera_to_model = np.eye(4)
@@ -154,8 +177,12 @@ class SolvingTracker:
         if self.camera_to_model is None:
             targets = np.full_like(points, np.nan)  # no model frame yet: a skipped frame
         else:
-            targets = np.where(valid[:, None], points @ self.camera_to_model[:3, :3].T + self.camera_to_model[:3, 3], np.nan)
-        fit = self.solver.solve(targets, weights=np.where(valid, np.clip(confidence, 0.0, 1.0), 0.0) if valid.any() else None)
+            targets = np.where(
+                valid[:, None], points @ self.camera_to_model[:3, :3].T + self.camera_to_model[:3, 3], np.nan
+            )
+        fit = self.solver.solve(
+            targets, weights=np.where(valid, np.clip(confidence, 0.0, 1.0), 0.0) if valid.any() else None
+        )
         if not fit.skipped or self.last is None:
             self._skin = np.asarray(fit.points, dtype=np.float32)
         skin, motion = self._skin, None
@@ -164,8 +191,17 @@ class SolvingTracker:
             skin = skin + motion
         if not np.all(np.isfinite(skin)):
             raise ValueError(f"frame {frame.index}: the solved skin is not finite")
-        self.last = SolvedFrame(controls=fit.vector.copy(), skin=skin, residual_motion=motion, residual=float(fit.residual), skipped=fit.skipped,
-                                converged=fit.converged, rotation=fit.rotation, translation=fit.translation, origin=fit.origin)
+        self.last = SolvedFrame(
+            controls=fit.vector.copy(),
+            skin=skin,
+            residual_motion=motion,
+            residual=float(fit.residual),
+            skipped=fit.skipped,
+            converged=fit.converged,
+            rotation=fit.rotation,
+            translation=fit.translation,
+            origin=fit.origin,
+        )
         counts = self._counts
         counts["frames"] += 1
         counts["skipped"] += int(fit.skipped)
@@ -188,8 +224,12 @@ class SolvingTracker:
         residual = (targets - posed) @ fit.rotation  # back into the rig frame (R⁻¹ = Rᵀ, row vectors)
         measured = np.all(np.isfinite(residual), axis=1)
         confidence = measured.astype(np.float64)
-        local = LandmarkFrame(timestamp=frame.timestamp, points=np.where(measured[:, None], self.rest[self.vertices] + residual, np.nan),
-                              confidence=confidence, index=frame.index)
+        local = LandmarkFrame(
+            timestamp=frame.timestamp,
+            points=np.where(measured[:, None], self.rest[self.vertices] + residual, np.nan),
+            confidence=confidence,
+            index=frame.index,
+        )
         self.transfer.track_frame(local, copy=False)
         return self.transfer.displacements.numpy().copy()
 
@@ -233,7 +273,9 @@ class SolvedStageLayout:
         skin = np.ascontiguousarray(skin, dtype=np.float32)
         values = {path: float(value) for path, value in zip(self.controls, solved.controls)}
         values[self.skin.AppendProperty(UsdGeom.Tokens.points)] = vec3f_array(skin)
-        values[self.skin.AppendProperty(UsdGeom.Tokens.extent)] = Vt.Vec3fArray.FromNumpy(np.stack([skin.min(axis=0), skin.max(axis=0)]))
+        values[self.skin.AppendProperty(UsdGeom.Tokens.extent)] = Vt.Vec3fArray.FromNumpy(
+            np.stack([skin.min(axis=0), skin.max(axis=0)])
+        )
         values[self.skin.AppendProperty(_RESIDUAL)] = float(solved.residual)
         values[self.skin.AppendProperty(_SKIPPED)] = bool(solved.skipped)
         if self.pose:
@@ -247,7 +289,9 @@ def _matrix(array: np.ndarray):
     return Gf.Matrix4d(*map(float, np.asarray(array, dtype=np.float64).ravel()))
 
 
-def solved_stage_writer(path, tracker: SolvingTracker, fps: float, *, chunk_frames: int = 30, flush_seconds: float = 1.0):
+def solved_stage_writer(
+    path, tracker: SolvingTracker, fps: float, *, chunk_frames: int = 30, flush_seconds: float = 1.0
+):
     """A :class:`~warpface.usd.tracking_io.TrackingStageWriter` for ``tracker``'s captures and its layout.
 
     Returns ``(writer, layout)``; write a frame with
@@ -265,9 +309,15 @@ def solved_stage_writer(path, tracker: SolvingTracker, fps: float, *, chunk_fram
         raise ValueError(f"controls {unplaced[:5]} have no muscle or jaw prim on the stage; cannot write them")
     controls = tuple(paths[name] for name in tracker.control_names)
     layout = SolvedStageLayout(skin=root.AppendChild("Skin"), controls=controls, pose=tracker.solver.options.pose)
-    writer = TrackingStageWriter(path, tracker.names, fps, chunk_frames=chunk_frames, flush_seconds=flush_seconds,
-                                 extra_prims=lambda stage: write_rig(stage, rig, root_path=RIG_ROOT, fps=fps),
-                                 channels=layout.channels)
+    writer = TrackingStageWriter(
+        path,
+        tracker.names,
+        fps,
+        chunk_frames=chunk_frames,
+        flush_seconds=flush_seconds,
+        extra_prims=lambda stage: write_rig(stage, rig, root_path=RIG_ROOT, fps=fps),
+        channels=layout.channels,
+    )
     return writer, layout
 
 
@@ -279,10 +329,14 @@ def _control_attributes(rig, root: Sdf.Path) -> dict:
     stage = Usd.Stage.CreateInMemory()
     write_rig(stage, rig, root_path=str(root))
     prims = rig_prims(stage)
-    paths = {name: prim.GetPath().AppendProperty("contraction") for name, prim in zip(prims.muscle_names, prims.muscles)}
+    paths = {
+        name: prim.GetPath().AppendProperty("contraction") for name, prim in zip(prims.muscle_names, prims.muscles)
+    }
     jaw = jaw_prim(stage, prims.skin)
     if jaw is not None:
-        paths.update({name: jaw.GetPath().AppendProperty(attribute) for name, attribute in JAW_CONTROL_ATTRIBUTES.items()})
+        paths.update(
+            {name: jaw.GetPath().AppendProperty(attribute) for name, attribute in JAW_CONTROL_ATTRIBUTES.items()}
+        )
     return paths
 
 
@@ -308,7 +362,9 @@ def read_solved_capture(path) -> dict:
             names += [name for name, _ in solved]
             contraction += [Usd.AttributeQuery(attribute) for _, attribute in solved]
     result["control_names"] = names
-    result["controls"] = np.array([[q.Get(t) for q in contraction] for t in times], dtype=np.float64).reshape(len(times), -1)
+    result["controls"] = np.array([[q.Get(t) for q in contraction] for t in times], dtype=np.float64).reshape(
+        len(times), -1
+    )
     points = skin.GetAttribute(UsdGeom.Tokens.points)
     result["skin"] = np.stack([np.asarray(points.Get(t)) for t in times]) if len(times) else np.zeros((0, 0, 3))
     result["residual"] = np.array([skin.GetAttribute(_RESIDUAL).Get(t) for t in times], dtype=np.float64)

@@ -13,6 +13,6 @@ after frame (warm-started, optionally smoothed in time) or many frames at once.
 """
 
 from .local_model import LocalExpression, RigOperators
-from .solver import SPHINCTER_MAX, BatchFit, Fit, Solver, SolveOptions, fit
+from .solver import SPHINCTER_MAX, BatchFit, Fit, SolveOptions, Solver, fit
 
 __all__ = ["fit", "Fit", "BatchFit", "Solver", "SolveOptions", "SPHINCTER_MAX", "LocalExpression", "RigOperators"]

@@ -75,8 +75,16 @@ class DeviceSteps:
         pairs: (P, 2) mirrored control pairs; unit: the face unit ℓ [mesh units].
     """
 
-    def __init__(self, objective: DeviceObjective, *, scale: np.ndarray, low: np.ndarray, high: np.ndarray,
-                 pairs: np.ndarray, unit: float):
+    def __init__(
+        self,
+        objective: DeviceObjective,
+        *,
+        scale: np.ndarray,
+        low: np.ndarray,
+        high: np.ndarray,
+        pairs: np.ndarray,
+        unit: float,
+    ):
         self.objective = objective
         d = self.device = objective.device
         self.control_count = objective.control_count
@@ -106,8 +114,14 @@ class DeviceSteps:
         state = self._states.get(frames)
         if state is None:
             state = self._states[frames] = _State(frames, self.control_count, self.size, self.device)
-        for array, value in ((state.u, u), (state.previous, previous), (state.rotation, rotation),
-                             (state.translation, translation), (state.damping, damping), (state.active, active)):
+        for array, value in (
+            (state.u, u),
+            (state.previous, previous),
+            (state.rotation, rotation),
+            (state.translation, translation),
+            (state.damping, damping),
+            (state.active, active),
+        ):
             state.upload(array, value)
         for array in (state.converged, state.iterations, state.misfit):
             array.zero_()
@@ -126,15 +140,27 @@ class DeviceSteps:
                 judge.launch()
         m = self.control_count
         host = state.host
-        return dict(u=host(state.u)[: frames * m].reshape(frames, m).copy(), rotation=host(state.rotation).copy(),
-                    translation=host(state.translation).copy(), misfit=host(state.misfit)[:frames].copy(),
-                    converged=host(state.converged)[:frames].astype(bool), active=host(state.active)[:frames].astype(bool),
-                    iterations=host(state.iterations)[:frames].astype(np.int64))
+        return dict(
+            u=host(state.u)[: frames * m].reshape(frames, m).copy(),
+            rotation=host(state.rotation).copy(),
+            translation=host(state.translation).copy(),
+            misfit=host(state.misfit)[:frames].copy(),
+            converged=host(state.converged)[:frames].astype(bool),
+            active=host(state.active)[:frames].astype(bool),
+            iterations=host(state.iterations)[:frames].astype(np.int64),
+        )
 
     def _commands(self, state: _State, frames: int, options, smooth: float):
         """The three launches of a chunk, recorded once per (options, smoothness) and replayed."""
-        key = (options.l2, options.l1, smooth, options.symmetry, options.tolerance, options.step_tolerance,
-               options.energy_tolerance)
+        key = (
+            options.l2,
+            options.l1,
+            smooth,
+            options.symmetry,
+            options.tolerance,
+            options.step_tolerance,
+            options.energy_tolerance,
+        )
         if state.commands is not None and state.commands[0] == key:
             return state.commands[1]
         controls, rotation_out, translation_out, frame_on, hessian, gradient, data_misfit = self.objective.inputs()
@@ -144,20 +170,98 @@ class DeviceSteps:
         symmetry = options.symmetry if self._pair_count else 0.0
         regular = [self._pairs, self._pair_count, f(options.l2), f(options.l1), f(smooth), f(symmetry)]
         model_io = [controls, rotation_out, translation_out, frame_on]
-        load = wp.launch(step_kernels.load_current, dim=frames, device=d, record_cmd=True,
-                         inputs=[s.u, s.rotation, s.translation, s.active, self._scale, *layout],
-                         outputs=[controls, rotation_out, translation_out, frame_on, s.counter])
-        begin = wp.launch(step_kernels.begin_iteration, dim=frames, device=d, record_cmd=True,
-                          inputs=[hessian, gradient, data_misfit, self._column, self._low, self._high, self._scale,
-                                  s.previous, *regular, f(options.tolerance), f(options.energy_tolerance), *layout, k],
-                          outputs=[s.u, s.rotation, s.translation, s.damping, s.current, s.misfit, s.active, s.converged,
-                                   s.iterations, s.held, s.lower, s.upper, s.tries, s.system, s.step, s.trial_u, s.trial_rotation,
-                                   s.trial_translation, *model_io, s.pending, s.counter])
-        judge = wp.launch(step_kernels.judge_trial, dim=frames, device=d, record_cmd=True,
-                          inputs=[hessian, gradient, data_misfit, s.lower, s.upper, self._scale, s.previous, *regular,
-                                  f(options.tolerance), f(options.step_tolerance), f(options.energy_tolerance), *layout, k],
-                          outputs=[s.u, s.rotation, s.translation, s.damping, s.current, s.misfit, s.active, s.converged,
-                                   s.held, s.tries, s.system, s.step, s.trial_u, s.trial_rotation, s.trial_translation,
-                                   *model_io, s.pending, s.counter])
+        load = wp.launch(
+            step_kernels.load_current,
+            dim=frames,
+            device=d,
+            record_cmd=True,
+            inputs=[s.u, s.rotation, s.translation, s.active, self._scale, *layout],
+            outputs=[controls, rotation_out, translation_out, frame_on, s.counter],
+        )
+        begin = wp.launch(
+            step_kernels.begin_iteration,
+            dim=frames,
+            device=d,
+            record_cmd=True,
+            inputs=[
+                hessian,
+                gradient,
+                data_misfit,
+                self._column,
+                self._low,
+                self._high,
+                self._scale,
+                s.previous,
+                *regular,
+                f(options.tolerance),
+                f(options.energy_tolerance),
+                *layout,
+                k,
+            ],
+            outputs=[
+                s.u,
+                s.rotation,
+                s.translation,
+                s.damping,
+                s.current,
+                s.misfit,
+                s.active,
+                s.converged,
+                s.iterations,
+                s.held,
+                s.lower,
+                s.upper,
+                s.tries,
+                s.system,
+                s.step,
+                s.trial_u,
+                s.trial_rotation,
+                s.trial_translation,
+                *model_io,
+                s.pending,
+                s.counter,
+            ],
+        )
+        judge = wp.launch(
+            step_kernels.judge_trial,
+            dim=frames,
+            device=d,
+            record_cmd=True,
+            inputs=[
+                hessian,
+                gradient,
+                data_misfit,
+                s.lower,
+                s.upper,
+                self._scale,
+                s.previous,
+                *regular,
+                f(options.tolerance),
+                f(options.step_tolerance),
+                f(options.energy_tolerance),
+                *layout,
+                k,
+            ],
+            outputs=[
+                s.u,
+                s.rotation,
+                s.translation,
+                s.damping,
+                s.current,
+                s.misfit,
+                s.active,
+                s.converged,
+                s.held,
+                s.tries,
+                s.system,
+                s.step,
+                s.trial_u,
+                s.trial_rotation,
+                s.trial_translation,
+                *model_io,
+                s.pending,
+                s.counter,
+            ],
+        )
         state.commands = (key, (load, begin, judge))
         return load, begin, judge

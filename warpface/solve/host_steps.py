@@ -37,8 +37,16 @@ class HostSteps:
         pairs: (P, 2) mirrored control pairs; unit: the face unit ℓ [mesh units].
     """
 
-    def __init__(self, objective: DeviceObjective, *, scale: np.ndarray, low: np.ndarray, high: np.ndarray,
-                 pairs: np.ndarray, unit: float):
+    def __init__(
+        self,
+        objective: DeviceObjective,
+        *,
+        scale: np.ndarray,
+        low: np.ndarray,
+        high: np.ndarray,
+        pairs: np.ndarray,
+        unit: float,
+    ):
         self.objective = objective
         self.scale = np.asarray(scale, dtype=np.float64)
         self.low, self.high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
@@ -95,19 +103,26 @@ class HostSteps:
                 trial_u, trial_r, trial_t = u.copy(), rotation.copy(), translation.copy()
                 trial_u[frame] = np.clip(u[frame] + step[:, :n], lower[pending], upper[pending])
                 if step.shape[1] > n:
-                    trial_r[frame] = rotation_from_vector(step[:, n:n + 3]) @ rotation[frame]
-                    trial_t[frame] = translation[frame] + step[:, n + 3:]
+                    trial_r[frame] = rotation_from_vector(step[:, n : n + 3]) @ rotation[frame]
+                    trial_t[frame] = translation[frame] + step[:, n + 3 :]
                 on = np.zeros(frames, dtype=bool)
                 on[frame] = True
-                trial_misfit = self.objective.evaluate(trial_u / self.scale, trial_r, trial_t, on, jacobian=False)[0][frame]
+                trial_misfit = self.objective.evaluate(trial_u / self.scale, trial_r, trial_t, on, jacobian=False)[0][
+                    frame
+                ]
                 value = trial_misfit + self.regularisation(trial_u[frame], previous[frame], options, smooth)
                 better = np.isfinite(value) & (value <= current[frame])
                 accepted = frame[better]
                 decrease = current[accepted] - value[better]
                 moved = np.abs(trial_u[accepted] - u[accepted]).max(axis=1, initial=0.0)
-                u[accepted], rotation[accepted], translation[accepted] = trial_u[accepted], trial_r[accepted], trial_t[accepted]
-                done = (decrease <= options.tolerance * current[accepted] + options.energy_tolerance) \
-                    | (moved < options.step_tolerance)
+                u[accepted], rotation[accepted], translation[accepted] = (
+                    trial_u[accepted],
+                    trial_r[accepted],
+                    trial_t[accepted],
+                )
+                done = (decrease <= options.tolerance * current[accepted] + options.energy_tolerance) | (
+                    moved < options.step_tolerance
+                )
                 converged[accepted[done]] = True
                 active[accepted[done]] = False
                 current[accepted], misfit[accepted] = value[better], trial_misfit[better]
@@ -118,8 +133,15 @@ class HostSteps:
             stalled = todo[pending]
             converged[stalled] = True
             active[stalled] = False
-        return dict(u=u, rotation=rotation, translation=translation, misfit=misfit, converged=converged,
-                    active=active, iterations=iterations)
+        return dict(
+            u=u,
+            rotation=rotation,
+            translation=translation,
+            misfit=misfit,
+            converged=converged,
+            active=active,
+            iterations=iterations,
+        )
 
     def regularisation(self, u, previous, options, smooth):
         """``l2·|u|² + l1·Σ|u| + smooth·|u − u_prev|² + symmetry·Σ (u_l − u_r)²`` per frame, (F,)."""

@@ -13,7 +13,14 @@ import warp as wp
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
-__all__ = ["muscle_stage", "first_ring_triangles", "bulge_stage", "second_ring_triangles", "wrinkle_stage", "normal_equations"]
+__all__ = [
+    "muscle_stage",
+    "first_ring_triangles",
+    "bulge_stage",
+    "second_ring_triangles",
+    "wrinkle_stage",
+    "normal_equations",
+]
 
 
 @wp.kernel
@@ -177,7 +184,7 @@ def bulge_stage(
         m = active[slot]
         dtotal = zero
         dsum = _zero3()
-        for k in range(begin, end):
+        for _k in range(begin, end):
             j = first_slot + pair_slot[pair]
             pair += 1
             dtotal += dratio[j]
@@ -332,8 +339,14 @@ def wrinkle_stage(
 
 
 @wp.func
-def _observed(x3: wp.array(dtype=wp.vec3d), frame_first: int, point_offsets: wp.array(dtype=wp.int32),
-              point_vertex: wp.array(dtype=wp.int32), point_weight: wp.array(dtype=wp.float64), n: int):
+def _observed(
+    x3: wp.array(dtype=wp.vec3d),
+    frame_first: int,
+    point_offsets: wp.array(dtype=wp.int32),
+    point_vertex: wp.array(dtype=wp.int32),
+    point_weight: wp.array(dtype=wp.float64),
+    n: int,
+):
     """``(P x3)_n``: a target point as the weighted sum of its vertices (one vertex, or a triangle's three)."""
     p = _zero3()
     for k in range(point_offsets[n], point_offsets[n + 1]):
@@ -342,10 +355,24 @@ def _observed(x3: wp.array(dtype=wp.vec3d), frame_first: int, point_offsets: wp.
 
 
 @wp.func
-def _column(dx3: wp.array(dtype=wp.float64), basis: wp.array(dtype=wp.float64), x3: wp.array(dtype=wp.vec3d),
-            frame: int, frame_first: int, point_offsets: wp.array(dtype=wp.int32), point_vertex: wp.array(dtype=wp.int32),
-            point_weight: wp.array(dtype=wp.float64), n: int, c: int, control_count: int, muscle_count: int,
-            basis_count: int, rotation: wp.mat33d, arm: wp.vec3d, unit: wp.float64):
+def _column(
+    dx3: wp.array(dtype=wp.float64),
+    basis: wp.array(dtype=wp.float64),
+    x3: wp.array(dtype=wp.vec3d),
+    frame: int,
+    frame_first: int,
+    point_offsets: wp.array(dtype=wp.int32),
+    point_vertex: wp.array(dtype=wp.int32),
+    point_weight: wp.array(dtype=wp.float64),
+    n: int,
+    c: int,
+    control_count: int,
+    muscle_count: int,
+    basis_count: int,
+    rotation: wp.mat33d,
+    arm: wp.vec3d,
+    unit: wp.float64,
+):
     """Column ``c`` of the posed target point's Jacobian [mesh units per variable]: a control's
     ``R·(P ∂x3/∂c)``, then the rotation vector's ``−[R(x − o)]×`` and the translation's ``ℓ·I``.
 
@@ -373,7 +400,8 @@ def _column(dx3: wp.array(dtype=wp.float64), basis: wp.array(dtype=wp.float64), 
             d += point_weight[k] * wp.vec3d(
                 dx3[base] * cosine + dx3[other] * sine,
                 dx3[base + basis_count] * cosine + dx3[other + basis_count] * sine,
-                dx3[base + 2 * basis_count] * cosine + dx3[other + 2 * basis_count] * sine)
+                dx3[base + 2 * basis_count] * cosine + dx3[other + 2 * basis_count] * sine,
+            )
         return rotation * d
     zero = wp.float64(0.0)
     axis = wp.vec3d(zero, zero, zero)
@@ -436,12 +464,43 @@ def normal_equations(
     end = active_offsets[n + 1]
     for a in range(begin, end):
         ca = active[a]
-        col_a = _column(dx3, basis, x3, f, first, point_offsets, point_vertex, point_weight, n, ca, control_count, muscle_count,
-                        basis_count, r, arm, unit)
+        col_a = _column(
+            dx3,
+            basis,
+            x3,
+            f,
+            first,
+            point_offsets,
+            point_vertex,
+            point_weight,
+            n,
+            ca,
+            control_count,
+            muscle_count,
+            basis_count,
+            r,
+            arm,
+            unit,
+        )
         wp.atomic_add(gradient, f * variable_count + ca, w * wp.dot(col_a, e))
         for b in range(a, end):
             cb = active[b]
-            col_b = _column(dx3, basis, x3, f, first, point_offsets, point_vertex, point_weight, n, cb, control_count,
-                            muscle_count, basis_count, r, arm, unit)
+            col_b = _column(
+                dx3,
+                basis,
+                x3,
+                f,
+                first,
+                point_offsets,
+                point_vertex,
+                point_weight,
+                n,
+                cb,
+                control_count,
+                muscle_count,
+                basis_count,
+                r,
+                arm,
+                unit,
+            )
             wp.atomic_add(hessian, (f * variable_count + ca) * variable_count + cb, w * wp.dot(col_a, col_b))
-

@@ -14,8 +14,15 @@ __all__ = ["KernelExpression", "jaw_chain_rule_kernel", "write_model_input", "mo
 
 
 @wp.func
-def write_model_input(values: wp.array(dtype=wp.float64), scale: wp.array(dtype=wp.float64), f: int,
-                      control_count: int, muscle_count: int, basis_count: int, out: wp.array(dtype=wp.float64)):
+def write_model_input(
+    values: wp.array(dtype=wp.float64),
+    scale: wp.array(dtype=wp.float64),
+    f: int,
+    control_count: int,
+    muscle_count: int,
+    basis_count: int,
+    out: wp.array(dtype=wp.float64),
+):
     """Frame ``f``'s controls ``values/scale`` (C per frame) → the pipeline's input (B per frame).
 
     Muscles are copied; with a jaw (``B = C + 1``) the angle θ becomes ``sin θ, 1 − cos θ`` and the
@@ -39,8 +46,14 @@ def write_model_input(values: wp.array(dtype=wp.float64), scale: wp.array(dtype=
 
 
 @wp.kernel
-def model_input_kernel(controls: wp.array(dtype=wp.float64), ones: wp.array(dtype=wp.float64), control_count: int,
-                       muscle_count: int, basis_count: int, out: wp.array(dtype=wp.float64)):
+def model_input_kernel(
+    controls: wp.array(dtype=wp.float64),
+    ones: wp.array(dtype=wp.float64),
+    control_count: int,
+    muscle_count: int,
+    basis_count: int,
+    out: wp.array(dtype=wp.float64),
+):
     """Per frame: controls (F·C) → the pipeline's basis (F·B), see :func:`write_model_input`."""
     write_model_input(controls, ones, wp.tid(), control_count, muscle_count, basis_count, out)
 
@@ -152,21 +165,32 @@ class KernelExpression:
         self._profile_offsets, self._profile_wrinkle = i32(profile.indptr), i32(profile.indices)
         self._profile_value = f64(profile.data if profile.nnz else np.zeros(1))
         self._kr = f64(local.kr if len(local.kr) else np.zeros(1))
-        self._sizes = dict(n2=len(local.rest2), t1=len(local.triangles1), n1=len(local.s1_in_s2),
-                           t0=len(local.triangles0), n0=local.count)
+        self._sizes = dict(
+            n2=len(local.rest2),
+            t1=len(local.triangles1),
+            n1=len(local.s1_in_s2),
+            t0=len(local.triangles0),
+            n0=local.count,
+        )
         self._buffers: dict[int, _Buffers] = {}
         self._ones = f64(np.ones(self.control_count))
         active_basis = _active_controls(local)
         self.active_controls = {name: _basis_to_controls(csr, local) for name, csr in active_basis.items()}
         """Per element kind (``s2``, ``t1``, ``s1``, ``t0``, ``s0``): which controls can move it, sparse bool CSR."""
-        self._active = {name: (i32(csr.indptr), i32(csr.indices if csr.nnz else np.zeros(1)))
-                        for name, csr in active_basis.items()}
+        self._active = {
+            name: (i32(csr.indptr), i32(csr.indices if csr.nnz else np.zeros(1))) for name, csr in active_basis.items()
+        }
         # The rig's constant derivative data per active (element, column) slot, stored in slot order: the
         # stages stream them instead of gathering from the dense (n2·B) field (~5x the bytes, cache misses).
-        vec = lambda a: wp.array(np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 3) if len(a) else np.zeros((1, 3)),  # noqa: E731
-                                 dtype=wp.vec3d, device=d)
+        vec = lambda a: wp.array(
+            np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 3) if len(a) else np.zeros((1, 3)),  # noqa: E731
+            dtype=wp.vec3d,
+            device=d,
+        )
         moved = active_basis["s2"]
-        self._slot_field = vec(local.field2[np.repeat(np.arange(len(local.rest2)), np.diff(moved.indptr)), :, moved.indices])
+        self._slot_field = vec(
+            local.field2[np.repeat(np.arange(len(local.rest2)), np.diff(moved.indptr)), :, moved.indices]
+        )
         """``W`` per active (vertex, column) slot of ``s2``, (slots,) vec3d."""
         touched = active_basis["t1"]
         owner = np.repeat(np.arange(len(local.triangles1)), np.diff(touched.indptr))
@@ -187,8 +211,9 @@ class KernelExpression:
         found = np.minimum(np.searchsorted(slot_key, pair_key), max(len(slot_key) - 1, 0))
         hit = (slot_key[found] == pair_key) if len(slot_key) else np.zeros(len(pair_key), bool)
         pairs = np.where(hit, found, touched.nnz)
-        pair_offsets = np.concatenate([[0], np.cumsum(np.bincount(ring_vertex, weights=incident_count,
-                                                                  minlength=len(local.s1_in_s2)))]).astype(np.int64)
+        pair_offsets = np.concatenate(
+            [[0], np.cumsum(np.bincount(ring_vertex, weights=incident_count, minlength=len(local.s1_in_s2)))]
+        ).astype(np.int64)
         self._sizes["t1_slots"] = touched.nnz + 1
         self._pair_offsets, self._pair_slot = i32(pair_offsets), i32(pairs if len(pairs) else [0])
         own = local.s1_in_s2[np.repeat(np.arange(len(local.s1_in_s2)), np.diff(ring.indptr))]
@@ -210,7 +235,9 @@ class KernelExpression:
 
     def buffers(self, frames: int) -> _Buffers:
         if frames not in self._buffers:
-            self._buffers[frames] = _Buffers(frames, self._sizes, self.basis_count, self.device, outputs=self.control_count)
+            self._buffers[frames] = _Buffers(
+                frames, self._sizes, self.basis_count, self.device, outputs=self.control_count
+            )
         return self._buffers[frames]
 
     def upload(self, buffers: _Buffers, controls: np.ndarray) -> None:
@@ -225,9 +252,13 @@ class KernelExpression:
             if buffers.basis_command is None:
                 frames = len(buffers.frame_on)
                 buffers.basis_command = wp.launch(
-                    model_input_kernel, dim=frames, device=self.device, record_cmd=True,
+                    model_input_kernel,
+                    dim=frames,
+                    device=self.device,
+                    record_cmd=True,
                     inputs=[buffers.raw_controls, self._ones, self.control_count, self.muscle_count, self.basis_count],
-                    outputs=[buffers.controls])
+                    outputs=[buffers.controls],
+                )
             buffers.basis_command.launch()
 
     def launch(self, buffers: _Buffers, frames: int, jacobian: bool, *, per_control: bool = True) -> None:
@@ -250,30 +281,117 @@ class KernelExpression:
         def launch(kernel, **kwargs):
             commands.append(wp.launch(kernel, record_cmd=True, **kwargs))
 
-        launch(kernels.muscle_stage, dim=frames * s["n2"], device=d,
-                  inputs=[buffers.frame_on, self._rest, self._slot_field, buffers.controls, *self._active["s2"], m, s["n2"]], outputs=[buffers.x1])
-        launch(kernels.first_ring_triangles, dim=frames * s["t1"], device=d,
-                  inputs=[buffers.frame_on, buffers.x1, self._slot_edges, self._t1, self._t1_weight, self._t1_length, *self._active["t1"], m, s["n2"], s["t1"], jac],
-                  outputs=[buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1])
-        launch(kernels.bulge_stage, dim=frames * s["n1"], device=d,
-                  inputs=[buffers.frame_on, buffers.x1, self._slot_own, buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1,
-                          self._s1_in_s2, self._adj1_offsets, self._adj1, self._counts1, self._thickness1, *self._active["s1"],
-                          self._pair_offsets, self._pair_slot, wp.float64(STRETCH_FLOOR), m, s["n2"], s["n1"], s["t1"],
-                          s["t1_slots"], jac],
-                  outputs=[buffers.stretch, buffers.x2, buffers.dstretch, buffers.dx2])
-        launch(kernels.second_ring_triangles, dim=frames * s["t0"], device=d,
-                  inputs=[buffers.frame_on, buffers.x2, buffers.dx2, self._t0, self._t0_weight, *self._active["t0"], m, s["n1"], s["t0"], jac],
-                  outputs=[buffers.area0, buffers.darea0])
-        launch(kernels.wrinkle_stage, dim=frames * s["n0"], device=d,
-                  inputs=[buffers.frame_on, buffers.x2, buffers.stretch, buffers.dx2, buffers.dstretch, buffers.area0, buffers.darea0,
-                          self._s0_in_s1, self._adj0_offsets, self._adj0, self._profile_offsets, self._profile_wrinkle,
-                          self._profile_value, self._kr, wp.float64(REST_STRETCH_BAND), *self._active["s0"], m, s["n1"],
-                          s["n0"], s["t0"], jac],
-                  outputs=[buffers.x3, buffers.dx3_basis])
+        launch(
+            kernels.muscle_stage,
+            dim=frames * s["n2"],
+            device=d,
+            inputs=[buffers.frame_on, self._rest, self._slot_field, buffers.controls, *self._active["s2"], m, s["n2"]],
+            outputs=[buffers.x1],
+        )
+        launch(
+            kernels.first_ring_triangles,
+            dim=frames * s["t1"],
+            device=d,
+            inputs=[
+                buffers.frame_on,
+                buffers.x1,
+                self._slot_edges,
+                self._t1,
+                self._t1_weight,
+                self._t1_length,
+                *self._active["t1"],
+                m,
+                s["n2"],
+                s["t1"],
+                jac,
+            ],
+            outputs=[buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1],
+        )
+        launch(
+            kernels.bulge_stage,
+            dim=frames * s["n1"],
+            device=d,
+            inputs=[
+                buffers.frame_on,
+                buffers.x1,
+                self._slot_own,
+                buffers.area1,
+                buffers.ratio1,
+                buffers.darea1,
+                buffers.dratio1,
+                self._s1_in_s2,
+                self._adj1_offsets,
+                self._adj1,
+                self._counts1,
+                self._thickness1,
+                *self._active["s1"],
+                self._pair_offsets,
+                self._pair_slot,
+                wp.float64(STRETCH_FLOOR),
+                m,
+                s["n2"],
+                s["n1"],
+                s["t1"],
+                s["t1_slots"],
+                jac,
+            ],
+            outputs=[buffers.stretch, buffers.x2, buffers.dstretch, buffers.dx2],
+        )
+        launch(
+            kernels.second_ring_triangles,
+            dim=frames * s["t0"],
+            device=d,
+            inputs=[
+                buffers.frame_on,
+                buffers.x2,
+                buffers.dx2,
+                self._t0,
+                self._t0_weight,
+                *self._active["t0"],
+                m,
+                s["n1"],
+                s["t0"],
+                jac,
+            ],
+            outputs=[buffers.area0, buffers.darea0],
+        )
+        launch(
+            kernels.wrinkle_stage,
+            dim=frames * s["n0"],
+            device=d,
+            inputs=[
+                buffers.frame_on,
+                buffers.x2,
+                buffers.stretch,
+                buffers.dx2,
+                buffers.dstretch,
+                buffers.area0,
+                buffers.darea0,
+                self._s0_in_s1,
+                self._adj0_offsets,
+                self._adj0,
+                self._profile_offsets,
+                self._profile_wrinkle,
+                self._profile_value,
+                self._kr,
+                wp.float64(REST_STRETCH_BAND),
+                *self._active["s0"],
+                m,
+                s["n1"],
+                s["n0"],
+                s["t0"],
+                jac,
+            ],
+            outputs=[buffers.x3, buffers.dx3_basis],
+        )
         if jacobian and per_control and self.has_jaw:
-            launch(jaw_chain_rule_kernel, dim=frames * s["n0"] * 3, device=d,
-                   inputs=[buffers.dx3_basis, buffers.controls, s["n0"] * 3, self.muscle_count, m, self.control_count],
-                   outputs=[buffers.dx3])
+            launch(
+                jaw_chain_rule_kernel,
+                dim=frames * s["n0"] * 3,
+                device=d,
+                inputs=[buffers.dx3_basis, buffers.controls, s["n0"] * 3, self.muscle_count, m, self.control_count],
+                outputs=[buffers.dx3],
+            )
         return commands
 
     def evaluate(self, controls: np.ndarray, *, jacobian: bool = True, copy_jacobian: bool = True):
@@ -315,20 +433,29 @@ def _active_controls(local: LocalExpression) -> dict:
     A triangle of the first ring feels the muscles that move one of its corners; a first-ring vertex,
     those of its own motion and of its incident triangles (stretch, normal); and so on outward.
     """
+
     def spread(incidence: sp.csr_matrix, inner: sp.csr_matrix) -> sp.csr_matrix:
         return (incidence.astype(bool) @ inner).astype(bool).tocsr()
 
     moved = sp.csr_matrix(np.any(local.field2 != 0.0, axis=1))  # (n2, M)
     n2 = len(local.rest2)
-    corners1 = sp.csr_matrix((np.ones(local.triangles1.size, bool),
-                              (np.repeat(np.arange(len(local.triangles1)), 3), local.triangles1.ravel())),
-                             shape=(len(local.triangles1), n2))
+    corners1 = sp.csr_matrix(
+        (
+            np.ones(local.triangles1.size, bool),
+            (np.repeat(np.arange(len(local.triangles1)), 3), local.triangles1.ravel()),
+        ),
+        shape=(len(local.triangles1), n2),
+    )
     t1 = spread(corners1, moved)
     s1 = (spread(local.incidence1, t1) + moved[local.s1_in_s2]).astype(bool).tocsr()
     n1 = len(local.s1_in_s2)
-    corners0 = sp.csr_matrix((np.ones(local.triangles0.size, bool),
-                              (np.repeat(np.arange(len(local.triangles0)), 3), local.triangles0.ravel())),
-                             shape=(len(local.triangles0), n1))
+    corners0 = sp.csr_matrix(
+        (
+            np.ones(local.triangles0.size, bool),
+            (np.repeat(np.arange(len(local.triangles0)), 3), local.triangles0.ravel()),
+        ),
+        shape=(len(local.triangles0), n1),
+    )
     t0 = spread(corners0, s1)
     s0 = (spread(local.incidence0, t0) + s1[local.s0_in_s1]).astype(bool).tocsr()
     result = {}

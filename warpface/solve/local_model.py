@@ -30,9 +30,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._validate import MAX_COORDINATE, as_finite_array, expect_instance
-from ..rig import FaceRig
 from ..expression.tissue import skin_muscle_weights
 from ..expression.wrinkles import wrinkle_shapes
+from ..rig import FaceRig
 
 __all__ = ["RigOperators", "LocalExpression", "STRETCH_FLOOR", "REST_STRETCH_BAND", "jaw_basis", "jaw_chain_rule"]
 
@@ -111,7 +111,9 @@ class RigOperators:
             (np.ones(3 * triangle_count), (triangles.ravel(), np.repeat(np.arange(triangle_count), 3))),
             shape=(vertex_count, triangle_count),
         )
-        muscles = skin_muscle_weights(mesh, list(rig.muscles), rig.thickness, device=device)  # with sliding and bunching
+        muscles = skin_muscle_weights(
+            mesh, list(rig.muscles), rig.thickness, device=device
+        )  # with sliding and bunching
         entry_vertex = np.repeat(np.arange(vertex_count), np.diff(muscles.offsets))
         rows = (3 * entry_vertex[:, None] + np.arange(3)[None, :]).ravel()
         columns = np.repeat(muscles.muscle.astype(np.int64), 3)
@@ -125,9 +127,19 @@ class RigOperators:
         )
         kr = np.array([w.kr for w in rig.wrinkles], dtype=np.float64)
         jaw = getattr(rig, "jaw", None)
-        return cls(rest, triangles, weight, rest_length, counts, incidence, field,
-                   np.asarray(rig.thickness, dtype=np.float64), profile, kr,
-                   None if jaw is None else _jaw_fields(jaw, rest))
+        return cls(
+            rest,
+            triangles,
+            weight,
+            rest_length,
+            counts,
+            incidence,
+            field,
+            np.asarray(rig.thickness, dtype=np.float64),
+            profile,
+            kr,
+            None if jaw is None else _jaw_fields(jaw, rest),
+        )
 
 
 def _jaw_fields(jaw, rest: np.ndarray) -> sp.csr_matrix:
@@ -144,9 +156,10 @@ def _jaw_fields(jaw, rest: np.ndarray) -> sp.csr_matrix:
 
 def jaw_basis(controls: np.ndarray, muscle_count: int) -> np.ndarray:
     """Controls (F, M + 3) → pipeline basis (F, M + 4): ``θ`` becomes ``(sin θ, 1 − cos θ)``."""
-    angle = controls[:, muscle_count:muscle_count + 1]
-    return np.concatenate([controls[:, :muscle_count], np.sin(angle), 1.0 - np.cos(angle),
-                           controls[:, muscle_count + 1:]], axis=1)
+    angle = controls[:, muscle_count : muscle_count + 1]
+    return np.concatenate(
+        [controls[:, :muscle_count], np.sin(angle), 1.0 - np.cos(angle), controls[:, muscle_count + 1 :]], axis=1
+    )
 
 
 def jaw_chain_rule(derivative: np.ndarray, controls: np.ndarray, muscle_count: int) -> np.ndarray:
@@ -154,7 +167,7 @@ def jaw_chain_rule(derivative: np.ndarray, controls: np.ndarray, muscle_count: i
     angle = controls[:, muscle_count].reshape((-1,) + (1,) * (derivative.ndim - 2))
     m = muscle_count
     opening = derivative[..., m] * np.cos(angle) + derivative[..., m + 1] * np.sin(angle)
-    return np.concatenate([derivative[..., :m], opening[..., None], derivative[..., m + 2:]], axis=-1)
+    return np.concatenate([derivative[..., :m], opening[..., None], derivative[..., m + 2 :]], axis=-1)
 
 
 def _incident(incidence: sp.csr_matrix, vertices: np.ndarray) -> np.ndarray:
@@ -163,11 +176,14 @@ def _incident(incidence: sp.csr_matrix, vertices: np.ndarray) -> np.ndarray:
 
 def _cross(u, v):
     """Cross product over axis 2 of (n, F, 3[, M]) arrays (broadcasting)."""
-    return np.stack([
-        u[:, :, 1] * v[:, :, 2] - u[:, :, 2] * v[:, :, 1],
-        u[:, :, 2] * v[:, :, 0] - u[:, :, 0] * v[:, :, 2],
-        u[:, :, 0] * v[:, :, 1] - u[:, :, 1] * v[:, :, 0],
-    ], axis=2)
+    return np.stack(
+        [
+            u[:, :, 1] * v[:, :, 2] - u[:, :, 2] * v[:, :, 1],
+            u[:, :, 2] * v[:, :, 0] - u[:, :, 0] * v[:, :, 2],
+            u[:, :, 0] * v[:, :, 1] - u[:, :, 1] * v[:, :, 0],
+        ],
+        axis=2,
+    )
 
 
 def _normalize(m, dm):
@@ -294,11 +310,14 @@ class LocalExpression:
         if jacobian:
             dgrowth = np.where((r > STRETCH_FLOOR)[..., None], -dr / (clamped * clamped)[..., None], 0.0)
             dx2 = dx1[self.s1_in_s2] + h[..., None, None] * (
-                dgrowth[:, :, None, :] * normal[..., None] + growth[..., None, None] * dnormal)
+                dgrowth[:, :, None, :] * normal[..., None] + growth[..., None, None] * dnormal
+            )
 
         # Wrinkles along the normal of the bulged surface, on the target vertices.
         x3 = x2[self.s0_in_s1].copy()
-        dx3 = np.broadcast_to(dx2[self.s0_in_s1], (self.count, frames, 3, self.basis_count)).copy() if jacobian else None
+        dx3 = (
+            np.broadcast_to(dx2[self.s0_in_s1], (self.count, frames, 3, self.basis_count)).copy() if jacobian else None
+        )
         rows = self._wrinkled0
         if len(rows):
             r0 = r[self.s0_in_s1][rows]  # (n, F)

@@ -41,13 +41,18 @@ class _FrameData:
             self.target_view, self.weight_view = self.targets.numpy(), self.weights.numpy()
 
     def set_frame_inputs(self, rotation: np.ndarray, translation: np.ndarray, frame_on: np.ndarray) -> None:
-        values = (np.asarray(rotation, dtype=np.float64), np.asarray(translation, dtype=np.float64),
-                  np.asarray(frame_on, dtype=np.int32))
+        values = (
+            np.asarray(rotation, dtype=np.float64),
+            np.asarray(translation, dtype=np.float64),
+            np.asarray(frame_on, dtype=np.int32),
+        )
         if self.cpu:
             for view, value in zip(self.views, values):
                 view[...] = value
             return
-        for array, value, dtype in zip((self.rotation, self.translation, self.frame_on), values, (wp.mat33d, wp.vec3d, wp.int32)):
+        for array, value, dtype in zip(
+            (self.rotation, self.translation, self.frame_on), values, (wp.mat33d, wp.vec3d, wp.int32)
+        ):
             array.assign(wp.array(np.ascontiguousarray(value), dtype=dtype, device="cpu"))
 
 
@@ -61,7 +66,9 @@ class DeviceObjective:
         origin: the pose's rotation centre [mesh units]; unit: the face unit ℓ [mesh units].
     """
 
-    def __init__(self, model: KernelExpression, observation: Observation, *, pose: bool, origin: np.ndarray, unit: float):
+    def __init__(
+        self, model: KernelExpression, observation: Observation, *, pose: bool, origin: np.ndarray, unit: float
+    ):
         self.model = model
         self.device = model.device
         self.control_count = model.control_count
@@ -82,8 +89,9 @@ class DeviceObjective:
             point_active = sp.hstack([point_active, sp.csr_matrix(np.ones((self.point_count, 6), dtype=bool))]).tocsr()
         point_active.sort_indices()
         self._active_offsets = wp.array(point_active.indptr.astype(np.int32), dtype=wp.int32, device=d)
-        self._active = wp.array((point_active.indices if point_active.nnz else np.zeros(1)).astype(np.int32),
-                                dtype=wp.int32, device=d)
+        self._active = wp.array(
+            (point_active.indices if point_active.nnz else np.zeros(1)).astype(np.int32), dtype=wp.int32, device=d
+        )
         self._data: dict[int, _FrameData] = {}
         self._bound: _FrameData | None = None
 
@@ -91,18 +99,30 @@ class DeviceObjective:
         """Upload a chunk's targets (F, N, 3) [face units] and normalised weights (F, N) (0 = missing)."""
         frames = len(targets)
         if frames not in self._data:
-            self._data[frames] = _FrameData(frames, self.point_count, self.variable_count, self.device,
-                                            self.model.buffers(frames).frame_on)
+            self._data[frames] = _FrameData(
+                frames, self.point_count, self.variable_count, self.device, self.model.buffers(frames).frame_on
+            )
         data = self._bound = self._data[frames]
         if data.cpu:
             data.target_view[: targets.size // 3] = np.reshape(targets, (-1, 3))
             data.weight_view[: weights.size] = np.reshape(weights, -1)
             return
-        data.targets.assign(wp.array(np.ascontiguousarray(targets, dtype=np.float64).reshape(-1, 3), dtype=wp.vec3d, device="cpu"))
-        data.weights.assign(wp.array(np.ascontiguousarray(weights, dtype=np.float64).reshape(-1), dtype=wp.float64, device="cpu"))
+        data.targets.assign(
+            wp.array(np.ascontiguousarray(targets, dtype=np.float64).reshape(-1, 3), dtype=wp.vec3d, device="cpu")
+        )
+        data.weights.assign(
+            wp.array(np.ascontiguousarray(weights, dtype=np.float64).reshape(-1), dtype=wp.float64, device="cpu")
+        )
 
-    def evaluate(self, controls: np.ndarray, rotation: np.ndarray, translation: np.ndarray, frame_on: np.ndarray, *,
-                 jacobian: bool):
+    def evaluate(
+        self,
+        controls: np.ndarray,
+        rotation: np.ndarray,
+        translation: np.ndarray,
+        frame_on: np.ndarray,
+        *,
+        jacobian: bool,
+    ):
         """Misfit (F,), and with ``jacobian`` the systems ``JᵀWJ`` (F, K, K) and ``JᵀWe`` (F, K) [mesh-unit columns].
 
         Frames with ``frame_on`` False are skipped (zeros). Returns host arrays.
@@ -126,7 +146,15 @@ class DeviceObjective:
         on-device iteration (:mod:`.device_steps`) between :meth:`launch` calls."""
         data = self._bound
         buffers = self.model.buffers(data.frames)
-        return (buffers.controls, data.rotation, data.translation, data.frame_on, data.hessian, data.gradient, data.misfit)
+        return (
+            buffers.controls,
+            data.rotation,
+            data.translation,
+            data.frame_on,
+            data.hessian,
+            data.gradient,
+            data.misfit,
+        )
 
     def launch(self, *, jacobian: bool) -> None:
         """Evaluate the bound chunk at the device inputs already in place (see :meth:`inputs`); no readback.
@@ -157,10 +185,34 @@ class DeviceObjective:
             data.gradient.zero_()
         if jacobian not in data.commands:
             data.commands[jacobian] = wp.launch(
-                kernels.normal_equations, dim=frames * self.point_count, device=self.device, record_cmd=True,
-                inputs=[buffers.x3, buffers.dx3_basis, buffers.controls, self._point_offsets, self._point_vertex, self._point_weight,
-                        self._active_offsets, self._active, data.targets, data.weights, data.rotation,
-                        data.translation, data.frame_on, self.origin, wp.float64(self.unit), self.control_count,
-                        self.model.muscle_count, self.model.basis_count, self.variable_count, self.model.count, self.point_count, 1 if jacobian else 0],
-                outputs=[data.hessian, data.gradient, data.misfit])
+                kernels.normal_equations,
+                dim=frames * self.point_count,
+                device=self.device,
+                record_cmd=True,
+                inputs=[
+                    buffers.x3,
+                    buffers.dx3_basis,
+                    buffers.controls,
+                    self._point_offsets,
+                    self._point_vertex,
+                    self._point_weight,
+                    self._active_offsets,
+                    self._active,
+                    data.targets,
+                    data.weights,
+                    data.rotation,
+                    data.translation,
+                    data.frame_on,
+                    self.origin,
+                    wp.float64(self.unit),
+                    self.control_count,
+                    self.model.muscle_count,
+                    self.model.basis_count,
+                    self.variable_count,
+                    self.model.count,
+                    self.point_count,
+                    1 if jacobian else 0,
+                ],
+                outputs=[data.hessian, data.gradient, data.misfit],
+            )
         data.commands[jacobian].launch()

@@ -10,11 +10,14 @@ __all__ = ["rotation_from_vector", "rigid_alignment", "skew"]
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrices of vectors (..., 3) → (..., 3, 3): ``skew(a) @ b = a × b``."""
     zero = np.zeros(v.shape[:-1])
-    return np.stack([
-        np.stack([zero, -v[..., 2], v[..., 1]], axis=-1),
-        np.stack([v[..., 2], zero, -v[..., 0]], axis=-1),
-        np.stack([-v[..., 1], v[..., 0], zero], axis=-1),
-    ], axis=-2)
+    return np.stack(
+        [
+            np.stack([zero, -v[..., 2], v[..., 1]], axis=-1),
+            np.stack([v[..., 2], zero, -v[..., 0]], axis=-1),
+            np.stack([-v[..., 1], v[..., 0], zero], axis=-1),
+        ],
+        axis=-2,
+    )
 
 
 def rotation_from_vector(omega: np.ndarray) -> np.ndarray:

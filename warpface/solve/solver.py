@@ -33,11 +33,11 @@ from ..errors import RigError
 from ..expression.jaw import JAW_CONTROL_NAMES, JAW_RANGE
 from ..expression.muscles import SphincterMuscle
 from ..rig import FaceRig
-from .local_kernels import KernelExpression
 from .device_steps import DeviceSteps
 from .host_steps import HostSteps
-from .objective import DeviceObjective
+from .local_kernels import KernelExpression
 from .local_model import LocalExpression, RigOperators
+from .objective import DeviceObjective
 from .pose import rigid_alignment
 from .targets import frame_targets, observation, point_weights
 
@@ -60,8 +60,6 @@ benchmark's four expressions with the jaw, ``benchmarks/solve.py``): 1e-2 took 4
 value evaluations per frame, worst residual 6e-5 IOD; 1e-4 took 4.8 and 8.9 (2e-4 IOD), 1e-3 4.7 and
 8.1, 0.1 5.1 and 7.6: a Gauss–Newton step from near the solution is often cut back by the bounds (a
 muscle landing on 0), so starting a little damped wastes fewer trials."""
-
-
 
 
 @dataclass(frozen=True)
@@ -116,8 +114,12 @@ class SolveOptions:
         made = cls(**options)
         for name in ("l2", "l1", "symmetry", "smoothness", "tolerance", "step_tolerance", "energy_tolerance"):
             value = getattr(made, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
-                    or not np.isfinite(value) or value < 0:
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, float, np.floating, np.integer))
+                or not np.isfinite(value)
+                or value < 0
+            ):
                 raise ValueError(f"{name}: expected a finite number ≥ 0, got {value!r}")
         for name in ("max_iterations", "min_points", "frames_per_pass"):
             value = getattr(made, name)
@@ -255,10 +257,18 @@ class Solver:
         self.low, self.high = self._bounds()
         self._pairs = self._mirrored_pairs()
         self.origin = self.observation.apply(operators.rest).mean(axis=0)
-        self.objective = DeviceObjective(self.local, self.observation, pose=self.options.pose, origin=self.origin, unit=self.unit)
+        self.objective = DeviceObjective(
+            self.local, self.observation, pose=self.options.pose, origin=self.origin, unit=self.unit
+        )
         iteration = HostSteps if self.options.device_steps is False else DeviceSteps
-        self.steps = iteration(self.objective, scale=self.control_scale, low=self.low * self.control_scale,
-                               high=self.high * self.control_scale, pairs=self._pairs, unit=self.unit)
+        self.steps = iteration(
+            self.objective,
+            scale=self.control_scale,
+            low=self.low * self.control_scale,
+            high=self.high * self.control_scale,
+            pairs=self._pairs,
+            unit=self.unit,
+        )
         """The Levenberg–Marquardt loop: :class:`~.device_steps.DeviceSteps` (default) or the NumPy
         :class:`~.host_steps.HostSteps`."""
         self.reset()
@@ -277,8 +287,10 @@ class Solver:
 
     def _bounds(self):
         low = np.zeros(len(self.names))
-        high = np.array([SPHINCTER_MAX if isinstance(m, SphincterMuscle) else np.inf for m in self.rig.muscles]
-                        + [0.0] * (len(self.names) - self.muscle_count))
+        high = np.array(
+            [SPHINCTER_MAX if isinstance(m, SphincterMuscle) else np.inf for m in self.rig.muscles]
+            + [0.0] * (len(self.names) - self.muscle_count)
+        )
         for index, name in enumerate(JAW_CONTROL_NAMES if self.has_jaw else (), start=self.muscle_count):
             lo, hi = JAW_RANGE[name]
             unit = 1.0 if name == "jaw_open" else self.unit  # the slides' range is in face units
@@ -300,8 +312,11 @@ class Solver:
 
     def _mirrored_pairs(self) -> np.ndarray:
         index = {name: i for i, name in enumerate(self.names)}
-        pairs = [(i, index[name[:-2] + "_R"]) for i, name in enumerate(self.names)
-                 if name.endswith("_L") and name[:-2] + "_R" in index]
+        pairs = [
+            (i, index[name[:-2] + "_R"])
+            for i, name in enumerate(self.names)
+            if name.endswith("_L") and name[:-2] + "_R" in index
+        ]
         return np.array(pairs, dtype=np.int64).reshape(-1, 2)
 
     @property
@@ -323,8 +338,14 @@ class Solver:
         # First guess: the last two frames' motion continued (smooth motion starts one step closer);
         # the temporal term still pulls toward the last frame itself.
         guess = None if self._earlier is None else 2.0 * self.controls - self._earlier
-        result = self._solve_frames(targets, weight, self.controls[None], temporal=True, cold=not self._solved_once,
-                                    guess=None if guess is None else guess[None])
+        result = self._solve_frames(
+            targets,
+            weight,
+            self.controls[None],
+            temporal=True,
+            cold=not self._solved_once,
+            guess=None if guess is None else guess[None],
+        )
         controls = result["controls"][0]
         self._earlier = None if result["skipped"][0] else self.controls
         self._solved_once = self._solved_once or not result["skipped"][0]
@@ -332,11 +353,19 @@ class Solver:
         if not result["skipped"][0]:
             self.rotation, self.translation = result["rotation"][0], result["translation"][0]
             self._pose_known = self._pose_known or self.options.pose
-        return Fit(controls=dict(zip(self.names, map(float, controls))), residual=float(result["residual"][0]),
-                   converged=bool(result["converged"][0]), skipped=bool(result["skipped"][0]),
-                   valid_points=int(result["valid"][0]), iterations=int(result["iterations"][0]),
-                   rotation=self.rotation.copy(), translation=self.translation.copy(), origin=self.origin.copy(),
-                   vector=controls, model=self.model)
+        return Fit(
+            controls=dict(zip(self.names, map(float, controls))),
+            residual=float(result["residual"][0]),
+            converged=bool(result["converged"][0]),
+            skipped=bool(result["skipped"][0]),
+            valid_points=int(result["valid"][0]),
+            iterations=int(result["iterations"][0]),
+            rotation=self.rotation.copy(),
+            translation=self.translation.copy(),
+            origin=self.origin.copy(),
+            vector=controls,
+            model=self.model,
+        )
 
     def solve_sequence(self, targets, weights=None, *, progress: bool = False) -> BatchFit:
         """Solve F frames in order, each warm-started from (and smoothed toward) the one before, as
@@ -354,11 +383,23 @@ class Solver:
         fits = [self.solve(array[f], weights) for f in frames]
         names = list(self.names)
         if not fits:
-            return BatchFit(names, np.zeros((0, len(names))), *(np.zeros(0) for _ in range(4)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
-        return BatchFit(names=names, controls=np.stack([f.vector for f in fits]),
-                        residual=np.array([f.residual for f in fits]), converged=np.array([f.converged for f in fits]),
-                        skipped=np.array([f.skipped for f in fits]), iterations=np.array([f.iterations for f in fits]),
-                        rotation=np.stack([f.rotation for f in fits]), translation=np.stack([f.translation for f in fits]))
+            return BatchFit(
+                names,
+                np.zeros((0, len(names))),
+                *(np.zeros(0) for _ in range(4)),
+                np.zeros((0, 3, 3)),
+                np.zeros((0, 3)),
+            )
+        return BatchFit(
+            names=names,
+            controls=np.stack([f.vector for f in fits]),
+            residual=np.array([f.residual for f in fits]),
+            converged=np.array([f.converged for f in fits]),
+            skipped=np.array([f.skipped for f in fits]),
+            iterations=np.array([f.iterations for f in fits]),
+            rotation=np.stack([f.rotation for f in fits]),
+            translation=np.stack([f.translation for f in fits]),
+        )
 
     def solve_batch(self, targets, weights=None, *, progress: bool = False) -> BatchFit:
         """Solve F independent frames together, each started from the solver's current controls.
@@ -370,7 +411,9 @@ class Solver:
         array = frame_targets(targets, self.observation, batched=True)
         weight = self.weights if weights is None else point_weights(weights, self.observation.count)
         frames = len(array)
-        out = {key: [] for key in ("controls", "residual", "converged", "skipped", "iterations", "rotation", "translation")}
+        out = {
+            key: [] for key in ("controls", "residual", "converged", "skipped", "iterations", "rotation", "translation")
+        }
         chunk = self.options.frames_per_pass or self._default_pass()
         bar = None
         if progress:
@@ -378,9 +421,10 @@ class Solver:
 
             bar = tqdm(total=frames, desc="solve frames", unit="frame")
         for start in range(0, frames, chunk):
-            part = array[start:start + chunk]
-            result = self._solve_frames(part, weight, np.tile(self.controls, (len(part), 1)), temporal=False,
-                                        cold=not self._solved_once)
+            part = array[start : start + chunk]
+            result = self._solve_frames(
+                part, weight, np.tile(self.controls, (len(part), 1)), temporal=False, cold=not self._solved_once
+            )
             for key in out:
                 out[key].append(result[key])
             if bar is not None:
@@ -400,8 +444,16 @@ class Solver:
         return int(np.clip(_CUDA_PASS_BYTES // per_frame, 1, _CUDA_PASS_FRAMES))
 
     # ------------------------------------------------------------------ the solve
-    def _solve_frames(self, targets: np.ndarray, weight: np.ndarray, start: np.ndarray, *, temporal: bool, cold: bool,
-                      guess: np.ndarray | None = None) -> dict:
+    def _solve_frames(
+        self,
+        targets: np.ndarray,
+        weight: np.ndarray,
+        start: np.ndarray,
+        *,
+        temporal: bool,
+        cold: bool,
+        guess: np.ndarray | None = None,
+    ) -> dict:
         """Solve (F, N, 3) targets; ``start`` (F, M) is the temporal anchor and kept by skipped frames,
         ``guess`` (default ``start``) the first iterate; ``cold``: no earlier frame to start near."""
         opts = self.options
@@ -432,20 +484,38 @@ class Solver:
         damping = np.full(frames, _COLD_DAMPING if cold else _WARM_DAMPING)
         out = self.steps.run(u, rotation, translation, previous, active, damping, options=opts, smooth=smooth)
         u, rotation, translation, misfit = out["u"], out["rotation"], out["translation"], out["misfit"]
-        return self._frames_result(u, rotation, translation, misfit, out["converged"], out["active"], out["iterations"],
-                                   skipped, start, valid_count)
+        return self._frames_result(
+            u,
+            rotation,
+            translation,
+            misfit,
+            out["converged"],
+            out["active"],
+            out["iterations"],
+            skipped,
+            start,
+            valid_count,
+        )
 
-    def _frames_result(self, u, rotation, translation, misfit, converged, active, iterations, skipped, start, valid_count):
+    def _frames_result(
+        self, u, rotation, translation, misfit, converged, active, iterations, skipped, start, valid_count
+    ):
         scale = self.control_scale
         controls = u / scale
         controls[skipped] = start[skipped]
         rotation[skipped] = self.rotation
         translation[skipped] = self.translation / self.unit
         residual = np.sqrt(np.maximum(misfit, 0.0))
-        return dict(controls=controls, residual=np.where(skipped, 0.0, residual * self.unit),
-                    converged=converged & ~skipped & ~active,
-                    skipped=skipped, iterations=iterations, valid=valid_count,
-                    rotation=rotation, translation=translation * self.unit)
+        return dict(
+            controls=controls,
+            residual=np.where(skipped, 0.0, residual * self.unit),
+            converged=converged & ~skipped & ~active,
+            skipped=skipped,
+            iterations=iterations,
+            valid=valid_count,
+            rotation=rotation,
+            translation=translation * self.unit,
+        )
 
 
 def fit(rig, target, *, vertices=None, weights=None, device=None, **options) -> Fit:
@@ -467,8 +537,11 @@ def fit(rig, target, *, vertices=None, weights=None, device=None, **options) -> 
     if not isinstance(rig, FaceRig):
         raise TypeError(f"rig: expected a warpface.FaceRig, got {type(rig).__name__}")
     surface = {key: options.pop(key) for key in ("triangles", "barycentrics") if key in options}
-    key = (str(device), repr(sorted(options.items())),
-           *(None if v is None else np.asarray(v).tobytes() for v in (vertices, *surface.values())))
+    key = (
+        str(device),
+        repr(sorted(options.items())),
+        *(None if v is None else np.asarray(v).tobytes() for v in (vertices, *surface.values())),
+    )
     solvers = _SOLVERS.setdefault(rig, {})
     solver = solvers.pop(key, None)
     if solver is None:

@@ -32,9 +32,18 @@ MAX_TRIES = wp.constant(8)
 
 
 @wp.func
-def _regularisation(u: wp.array(dtype=wp.float64), base: int, previous: wp.array(dtype=wp.float64),
-                    control_count: int, l2: wp.float64, l1: wp.float64, smooth: wp.float64, symmetry: wp.float64,
-                    pairs: wp.array(dtype=wp.int32), pair_count: int):
+def _regularisation(
+    u: wp.array(dtype=wp.float64),
+    base: int,
+    previous: wp.array(dtype=wp.float64),
+    control_count: int,
+    l2: wp.float64,
+    l1: wp.float64,
+    smooth: wp.float64,
+    symmetry: wp.float64,
+    pairs: wp.array(dtype=wp.int32),
+    pair_count: int,
+):
     """``l2·|u|² + l1·Σ|u| + smooth·|u − u_prev|² + symmetry·Σ (u_l − u_r)²`` of one frame."""
     value = wp.float64(0.0)
     for m in range(control_count):
@@ -74,9 +83,16 @@ def _rotation_from_vector(omega: wp.vec3d):
 
 
 @wp.func
-def _damped_step(hessian: wp.array(dtype=wp.float64), gradient: wp.array(dtype=wp.float64),
-                 held: wp.array(dtype=wp.int32), damping: wp.float64, f: int, size: int,
-                 system: wp.array(dtype=wp.float64), step: wp.array(dtype=wp.float64)):
+def _damped_step(
+    hessian: wp.array(dtype=wp.float64),
+    gradient: wp.array(dtype=wp.float64),
+    held: wp.array(dtype=wp.int32),
+    damping: wp.float64,
+    f: int,
+    size: int,
+    system: wp.array(dtype=wp.float64),
+    step: wp.array(dtype=wp.float64),
+):
     """Solve ``(H + λ·diag(H)) s = −g`` on the free variables (held ones: ``s = 0``) into ``step``.
 
     The damped system is positive definite; a failed Cholesky pivot falls back to the diagonal step.
@@ -142,13 +158,29 @@ def _damped_step(hessian: wp.array(dtype=wp.float64), gradient: wp.array(dtype=w
 
 
 @wp.func
-def _propose(f: int, control_count: int, muscle_count: int, basis_count: int, size: int, step: wp.array(dtype=wp.float64),
-             u: wp.array(dtype=wp.float64), rotation: wp.array(dtype=wp.mat33d), translation: wp.array(dtype=wp.vec3d),
-             lower: wp.array(dtype=wp.float64), upper: wp.array(dtype=wp.float64), scale: wp.array(dtype=wp.float64),
-             trial_u: wp.array(dtype=wp.float64), trial_rotation: wp.array(dtype=wp.mat33d),
-             trial_translation: wp.array(dtype=wp.vec3d), controls_out: wp.array(dtype=wp.float64),
-             rotation_out: wp.array(dtype=wp.mat33d), translation_out: wp.array(dtype=wp.vec3d),
-             frame_on: wp.array(dtype=wp.int32), pending: wp.array(dtype=wp.int32), counter: wp.array(dtype=wp.int32)):
+def _propose(
+    f: int,
+    control_count: int,
+    muscle_count: int,
+    basis_count: int,
+    size: int,
+    step: wp.array(dtype=wp.float64),
+    u: wp.array(dtype=wp.float64),
+    rotation: wp.array(dtype=wp.mat33d),
+    translation: wp.array(dtype=wp.vec3d),
+    lower: wp.array(dtype=wp.float64),
+    upper: wp.array(dtype=wp.float64),
+    scale: wp.array(dtype=wp.float64),
+    trial_u: wp.array(dtype=wp.float64),
+    trial_rotation: wp.array(dtype=wp.mat33d),
+    trial_translation: wp.array(dtype=wp.vec3d),
+    controls_out: wp.array(dtype=wp.float64),
+    rotation_out: wp.array(dtype=wp.mat33d),
+    translation_out: wp.array(dtype=wp.vec3d),
+    frame_on: wp.array(dtype=wp.int32),
+    pending: wp.array(dtype=wp.int32),
+    counter: wp.array(dtype=wp.int32),
+):
     """The trial ``clip(u + s)`` to the iteration's bounds (and the composed pose), written as the model's next input."""
     ub = f * control_count
     vb = f * size
@@ -276,7 +308,9 @@ def begin_iteration(
         hessian[hb + right * size + right] += symmetry
         hessian[hb + left * size + right] -= symmetry
         hessian[hb + right * size + left] -= symmetry
-    value = data_misfit[f] + _regularisation(u, ub, previous, control_count, l2, l1, smooth, symmetry, pairs, pair_count)
+    value = data_misfit[f] + _regularisation(
+        u, ub, previous, control_count, l2, l1, smooth, symmetry, pairs, pair_count
+    )
     misfit[f] = data_misfit[f]
     current[f] = value
     zero = wp.float64(0.0)
@@ -325,9 +359,29 @@ def begin_iteration(
         active[f] = 0
         return
     tries[f] = 0
-    _propose(f, control_count, muscle_count, basis_count, size, step, u, rotation, translation, lower, upper, scale,
-             trial_u, trial_rotation, trial_translation, controls_out, rotation_out, translation_out, frame_on, pending,
-             counter)
+    _propose(
+        f,
+        control_count,
+        muscle_count,
+        basis_count,
+        size,
+        step,
+        u,
+        rotation,
+        translation,
+        lower,
+        upper,
+        scale,
+        trial_u,
+        trial_rotation,
+        trial_translation,
+        controls_out,
+        rotation_out,
+        translation_out,
+        frame_on,
+        pending,
+        counter,
+    )
 
 
 @wp.kernel
@@ -381,7 +435,9 @@ def judge_trial(
         return
     ub = f * control_count
     trial_misfit = data_misfit[f]
-    value = trial_misfit + _regularisation(trial_u, ub, previous, control_count, l2, l1, smooth, symmetry, pairs, pair_count)
+    value = trial_misfit + _regularisation(
+        trial_u, ub, previous, control_count, l2, l1, smooth, symmetry, pairs, pair_count
+    )
     pending[f] = 0
     frame_on[f] = 0
     if wp.isfinite(value) and value <= current[f]:
@@ -406,6 +462,26 @@ def judge_trial(
         active[f] = 0
         return
     _damped_step(hessian, gradient, held, damping[f], f, size, system, step)
-    _propose(f, control_count, muscle_count, basis_count, size, step, u, rotation, translation, lower, upper, scale,
-             trial_u, trial_rotation, trial_translation, controls_out, rotation_out, translation_out, frame_on, pending,
-             counter)
+    _propose(
+        f,
+        control_count,
+        muscle_count,
+        basis_count,
+        size,
+        step,
+        u,
+        rotation,
+        translation,
+        lower,
+        upper,
+        scale,
+        trial_u,
+        trial_rotation,
+        trial_translation,
+        controls_out,
+        rotation_out,
+        translation_out,
+        frame_on,
+        pending,
+        counter,
+    )

@@ -25,7 +25,9 @@ class Observation:
         dense: True when the target is the whole mesh, vertex by vertex.
     """
 
-    def __init__(self, vertex_count: int, rows: np.ndarray, columns: np.ndarray, values: np.ndarray, count: int, dense: bool):
+    def __init__(
+        self, vertex_count: int, rows: np.ndarray, columns: np.ndarray, values: np.ndarray, count: int, dense: bool
+    ):
         self.vertices, local = np.unique(columns, return_inverse=True)
         self.matrix = sp.csr_matrix((values, (rows, local)), shape=(count, len(self.vertices)))
         self.count = count
@@ -34,7 +36,9 @@ class Observation:
         # Vertex targets select rows (no sparse product); dense targets in vertex order are the identity.
         is_selection = np.allclose(values, 1.0) and len(rows) == count
         self._selection = local[np.argsort(rows)] if is_selection else None
-        self._identity = is_selection and len(self.vertices) == count and np.array_equal(self._selection, np.arange(count))
+        self._identity = (
+            is_selection and len(self.vertices) == count and np.array_equal(self._selection, np.arange(count))
+        )
 
     def apply(self, points: np.ndarray) -> np.ndarray:
         """Observed positions (N, 3) from the mesh's per-vertex positions (V, 3)."""
@@ -105,7 +109,9 @@ def observation(mesh, vertices=None, triangles=None, barycentrics=None) -> Obser
         if len(tri) == 0:
             raise ValueError("triangles: no target points")
         corners = mesh.triangles[tri].astype(np.int64)
-        return Observation(vertex_count, np.repeat(np.arange(len(tri)), 3), corners.ravel(), bary.ravel(), len(tri), False)
+        return Observation(
+            vertex_count, np.repeat(np.arange(len(tri)), 3), corners.ravel(), bary.ravel(), len(tri), False
+        )
     every = np.arange(vertex_count)
     return Observation(vertex_count, every, every, np.ones(vertex_count), vertex_count, True)
 
@@ -123,14 +129,17 @@ def frame_targets(target, obs: Observation, *, batched: bool) -> np.ndarray:
         if obs.dense:
             raise ValueError(
                 f"target: {array.shape[-2]} points but the rig's mesh has {obs.vertex_count} vertices "
-                "(a dense target needs the rig's topology; give vertices= for sparse points)")
+                "(a dense target needs the rig's topology; give vertices= for sparse points)"
+            )
         raise ValueError(f"target: {array.shape[-2]} points but {obs.count} target locations were given")
     if np.any(np.isinf(array)):
         raise ValueError("target: infinite coordinate (use NaN for a missing point)")
     with np.errstate(invalid="ignore"):
         far = np.abs(array) > MAX_COORDINATE
     if np.any(far):
-        raise ValueError(f"target: coordinate {array[far][0]:.6g} is outside ±{MAX_COORDINATE:g} (use NaN for a missing point)")
+        raise ValueError(
+            f"target: coordinate {array[far][0]:.6g} is outside ±{MAX_COORDINATE:g} (use NaN for a missing point)"
+        )
     return array if batched else array[None]
 
 

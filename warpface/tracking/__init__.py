@@ -41,8 +41,8 @@ from .correspondence import (
     triangulate_landmarks,
 )
 from .depth import backproject
-from .intrinsics import KINECT_V1_INTRINSICS, CameraIntrinsics
 from .detect import ArucoMarkers, Blobs, DotTracker, detect_blobs
+from .intrinsics import KINECT_V1_INTRINSICS, CameraIntrinsics
 from .landmark_names import adapter_for_face, landmark_vertices, vertex_landmark_names
 from .mediapipe import MediaPipeLandmarks, parse_landmark_list
 from .prefetch import PrefetchedSource, prefetch

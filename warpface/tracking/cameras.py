@@ -26,8 +26,8 @@ from typing import Iterator
 
 import numpy as np
 
-from .intrinsics import CameraIntrinsics
 from .frames import RGBDFrame, SourceBase
+from .intrinsics import CameraIntrinsics
 from .streams import StreamGuard
 
 __all__ = ["CameraError", "CameraUnavailable", "CameraDisconnected", "RealSenseCamera", "OrbbecCamera"]
@@ -71,8 +71,17 @@ class RealSenseCamera(SourceBase):
         CameraUnavailable: ``pyrealsense2`` missing, or no (matching) device attached.
     """
 
-    def __init__(self, *, width: int = 640, height: int = 480, fps: int = 30, serial: str | None = None,
-                 timeout_ms: int = 5000, max_frames: int | None = None, timestamp_policy: str = "drop"):
+    def __init__(
+        self,
+        *,
+        width: int = 640,
+        height: int = 480,
+        fps: int = 30,
+        serial: str | None = None,
+        timeout_ms: int = 5000,
+        max_frames: int | None = None,
+        timestamp_policy: str = "drop",
+    ):
         rs = _import_sdk("pyrealsense2", "realsense", "RealSense")
         self._rs = rs
         self.timeout_ms = int(timeout_ms)
@@ -100,8 +109,9 @@ class RealSenseCamera(SourceBase):
         self.depth_scale = float(profile.get_device().first_depth_sensor().get_depth_scale())
         """Metres per raw depth unit, from the device."""
         intr = profile.get_stream(rs.stream.color).as_video_stream_profile().get_intrinsics()
-        self.intrinsics = CameraIntrinsics(float(intr.fx), float(intr.fy), float(intr.ppx), float(intr.ppy),
-                                           int(intr.width), int(intr.height))
+        self.intrinsics = CameraIntrinsics(
+            float(intr.fx), float(intr.fy), float(intr.ppx), float(intr.ppy), int(intr.width), int(intr.height)
+        )
         self.fps = float(fps)
         self._align = rs.align(rs.stream.color)
         self.dropped_frames = 0
@@ -154,8 +164,17 @@ class OrbbecCamera(SourceBase):
         CameraUnavailable: ``pyorbbecsdk`` missing, or no device attached.
     """
 
-    def __init__(self, *, width: int = 640, height: int = 480, fps: int = 30, timeout_ms: int = 1000,
-                 max_empty_waits: int = 5, max_frames: int | None = None, timestamp_policy: str = "drop"):
+    def __init__(
+        self,
+        *,
+        width: int = 640,
+        height: int = 480,
+        fps: int = 30,
+        timeout_ms: int = 1000,
+        max_empty_waits: int = 5,
+        max_frames: int | None = None,
+        timestamp_policy: str = "drop",
+    ):
         ob = _import_sdk("pyorbbecsdk", "orbbec", "Orbbec")
         self._ob = ob
         self.timeout_ms = int(timeout_ms)
@@ -178,8 +197,9 @@ class OrbbecCamera(SourceBase):
         self._running = True
         self._align = ob.AlignFilter(align_to_stream=ob.OBStreamType.COLOR_STREAM)
         intr = self._pipeline.get_camera_param().rgb_intrinsic
-        self.intrinsics = CameraIntrinsics(float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy),
-                                           int(intr.width), int(intr.height))
+        self.intrinsics = CameraIntrinsics(
+            float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy), int(intr.width), int(intr.height)
+        )
         self.fps = float(fps) if fps else None
         self.dropped_frames = 0
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_finite_array, as_points, as_positive, as_triangles, as_count
+from .._validate import as_count, as_finite_array, as_points, as_positive, as_triangles
 from ..geometry import TriangleMeshIndex, closest_points, triangle_corners, triangle_crosses, triangle_normals
 
 __all__ = [
@@ -58,7 +58,9 @@ class FaceNormalization:
     """Height below the eye line ``h_d`` [m]."""
 
     def __post_init__(self):
-        object.__setattr__(self, "origin", as_finite_array(self.origin, "FaceNormalization.origin", shape=(3,), max_abs=1e6))
+        object.__setattr__(
+            self, "origin", as_finite_array(self.origin, "FaceNormalization.origin", shape=(3,), max_abs=1e6)
+        )
         for name in ("width", "upper", "lower"):
             object.__setattr__(self, name, as_positive(getattr(self, name), f"FaceNormalization.{name}"))
 
@@ -155,8 +157,10 @@ class Correspondence:
             raise ValueError(f"correspondence is for {count} dense vertices, not {vertex_count}")
         if triangle_count is not None and count and int(triangle.max()) >= triangle_count:
             v = int(np.argmax(triangle))
-            raise ValueError(f"correspondence.triangle: vertex {v} refers to sparse triangle {int(triangle[v])}, "
-                             f"but there are {triangle_count}")
+            raise ValueError(
+                f"correspondence.triangle: vertex {v} refers to sparse triangle {int(triangle[v])}, "
+                f"but there are {triangle_count}"
+            )
         barycentric = as_finite_array(self.barycentric, "correspondence.barycentric", shape=(count, 3), max_abs=1e6)
         distance = as_finite_array(self.distance, "correspondence.distance", shape=(count,), max_abs=1e6)
         overhang = as_finite_array(self.overhang, "correspondence.overhang", shape=(count,), max_abs=1e6)
@@ -164,8 +168,12 @@ class Correspondence:
             if count and values.min() < 0:
                 raise ValueError(f"correspondence.{name}: negative value at vertex {int(np.argmin(values))}")
         result = object.__new__(Correspondence)
-        for name, value in (("triangle", triangle.astype(np.int32)), ("barycentric", barycentric.astype(np.float32)),
-                            ("distance", distance), ("overhang", overhang)):
+        for name, value in (
+            ("triangle", triangle.astype(np.int32)),
+            ("barycentric", barycentric.astype(np.float32)),
+            ("distance", distance),
+            ("overhang", overhang),
+        ):
             object.__setattr__(result, name, np.ascontiguousarray(value))
         return result
 
@@ -178,7 +186,9 @@ def _as_index_array(value, name: str) -> np.ndarray:
         raise ValueError(f"{name}: expected a flat array of integer indices") from None
     if array.ndim != 1:
         raise ValueError(f"{name}: expected shape (N,), got {array.shape}")
-    if array.dtype == np.bool_ or not (np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)):
+    if array.dtype == np.bool_ or not (
+        np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)
+    ):
         raise ValueError(f"{name}: expected integer indices, got dtype {array.dtype}")
     if np.issubdtype(array.dtype, np.floating):
         bad = ~np.isfinite(array) | (array != np.round(array))
@@ -256,8 +266,7 @@ def triangulate_landmarks(points, *, max_edge: float | None = None) -> np.ndarra
         ValueError: fewer than 3 points, points whose (x, y) projections are collinear or
             coincide, a ``max_edge`` that is not positive, or no triangle left.
     """
-    from scipy.spatial import Delaunay
-    from scipy.spatial import QhullError
+    from scipy.spatial import Delaunay, QhullError
 
     pts = as_points(points, "points")
     if pts.shape[0] < 3:
@@ -272,8 +281,9 @@ def triangulate_landmarks(points, *, max_edge: float | None = None) -> np.ndarra
     try:
         tri = Delaunay(pts[:, :2]).simplices.astype(np.int64)
     except QhullError as exc:
-        raise ValueError(f"points: cannot triangulate the landmarks' (x, y) projections "
-                         f"({str(exc).strip().splitlines()[0]})") from None
+        raise ValueError(
+            f"points: cannot triangulate the landmarks' (x, y) projections ({str(exc).strip().splitlines()[0]})"
+        ) from None
     # Orient toward +z: counter-clockwise in (x, y).
     e1 = pts[tri[:, 1], :2] - pts[tri[:, 0], :2]
     e2 = pts[tri[:, 2], :2] - pts[tri[:, 0], :2]

@@ -16,7 +16,15 @@ import warp as wp
 from .._validate import as_count, as_device, as_finite_array, as_positive
 from .intrinsics import KINECT_V1_INTRINSICS, MAX_DEPTH, MAX_PIXELS, CameraIntrinsics
 
-__all__ = ["CameraIntrinsics", "backproject", "kth_smallest", "KINECT_V1_INTRINSICS", "MAX_PIXELS", "MAX_DEPTH", "MAX_DEPTH_WINDOW"]
+__all__ = [
+    "CameraIntrinsics",
+    "backproject",
+    "kth_smallest",
+    "KINECT_V1_INTRINSICS",
+    "MAX_PIXELS",
+    "MAX_DEPTH",
+    "MAX_DEPTH_WINDOW",
+]
 
 MAX_DEPTH_WINDOW = 101
 """Largest back-projection window [px] (the fit visits window² pixels per landmark)."""
@@ -35,12 +43,42 @@ def _normal_matrix(low: _vec10d, high: _vec5d) -> _mat66d:
     """The normal matrix Σ t³ m mᵀ of the basis m = (1, x, y, x², xy, y²) from its moments: entry
     (i, j) is the moment of the monomial m_i m_j (x^a y^b, a + b ≤ 4)."""
     return _mat66d(
-        low[0], low[1], low[2], low[3], low[4], low[5],
-        low[1], low[3], low[4], low[6], low[7], low[8],
-        low[2], low[4], low[5], low[7], low[8], low[9],
-        low[3], low[6], low[7], high[0], high[1], high[2],
-        low[4], low[7], low[8], high[1], high[2], high[3],
-        low[5], low[8], low[9], high[2], high[3], high[4],
+        low[0],
+        low[1],
+        low[2],
+        low[3],
+        low[4],
+        low[5],
+        low[1],
+        low[3],
+        low[4],
+        low[6],
+        low[7],
+        low[8],
+        low[2],
+        low[4],
+        low[5],
+        low[7],
+        low[8],
+        low[9],
+        low[3],
+        low[6],
+        low[7],
+        high[0],
+        high[1],
+        high[2],
+        low[4],
+        low[7],
+        low[8],
+        high[1],
+        high[2],
+        high[3],
+        low[5],
+        low[8],
+        low[9],
+        high[2],
+        high[3],
+        high[4],
     )
 
 
@@ -154,9 +192,17 @@ def kth_smallest(values: wp.array2d(dtype=float), row: int, n: int, k: int) -> f
 @wp.func
 def _median_residual(
     depth: wp.array2d(dtype=float),
-    r0: int, r1: int, c0: int, c1: int,
-    u: float, v: float, coef: _vec6f, scale: float,
-    signed: int, scratch: wp.array2d(dtype=float), slot: int,
+    r0: int,
+    r1: int,
+    c0: int,
+    c1: int,
+    u: float,
+    v: float,
+    coef: _vec6f,
+    scale: float,
+    signed: int,
+    scratch: wp.array2d(dtype=float),
+    slot: int,
 ) -> float:
     """Median (the ⌈n/2⌉-th smallest) of the valid pixels' residuals in rows [r0, r1) × cols
     [c0, c1): Z − model (signed) or |Z − model|; a zero model makes the signed residual the depth
@@ -200,8 +246,16 @@ _PLANES = 8
 
 @wp.func
 def _gather_window(
-    depth: wp.array2d(dtype=float), r0: int, r1: int, c0: int, c1: int, u: float, v: float, reach_px: float,
-    scratch: wp.array2d(dtype=float), base: int,
+    depth: wp.array2d(dtype=float),
+    r0: int,
+    r1: int,
+    c0: int,
+    c1: int,
+    u: float,
+    v: float,
+    reach_px: float,
+    scratch: wp.array2d(dtype=float),
+    base: int,
 ) -> int:
     """Store the window's valid pixels (depth, offsets, distance, tricube weight, inverse depth) in
     the planes of rows ``base + plane`` of ``scratch``; returns their count."""
@@ -303,7 +357,9 @@ def _backproject_kernel(
         if it > 0:
             # Re-gate on this fit's residuals: 2.5 σ̂ (σ̂ = 1.4826 MAD), never below the sensor's noise.
             for k in range(n):
-                residual = wp.abs(scratch[base + _Z, k] - _model_depth(coef, scratch[base + _DU, k], scratch[base + _DV, k], scale))
+                residual = wp.abs(
+                    scratch[base + _Z, k] - _model_depth(coef, scratch[base + _DU, k], scratch[base + _DV, k], scale)
+                )
                 scratch[base + _RESIDUAL, k] = residual
                 scratch[select, k] = residual
             mad = kth_smallest(scratch, select, n, (n + 1) // 2 - 1)
@@ -371,8 +427,14 @@ def _recorded_launch(device, count: int, window: int, settings: tuple) -> tuple:
         scratch = wp.empty((_PLANES * count, window * window), dtype=float, device=device)  # _PLANES rows per landmark
         placeholder_depth = wp.zeros((1, 1), dtype=float, device=device)
         pixel_buffer = wp.zeros(count, dtype=wp.vec2, device=device)
-        launch = wp.launch(_backproject_kernel, dim=count, inputs=[placeholder_depth, pixel_buffer, *settings, scratch],
-                           outputs=[points, inliers], device=device, record_cmd=True)
+        launch = wp.launch(
+            _backproject_kernel,
+            dim=count,
+            inputs=[placeholder_depth, pixel_buffer, *settings, scratch],
+            outputs=[points, inliers],
+            device=device,
+            record_cmd=True,
+        )
         # On the CPU the pixels are written into this buffer through a NumPy view (no array per call).
         pixel_view = pixel_buffer.numpy().reshape(count, 2) if wp.get_device(device).is_cpu else None
         cache[key] = (launch, points, inliers, pixel_view, pixel_buffer)  # (the buffer: kept alive with its view)
@@ -476,9 +538,20 @@ def backproject(
     if count == 0:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
     device = as_device(device)
-    settings = (window // 2, 1 if model == "quadric" else 0, int(min_valid), float(intrinsics.fx), float(intrinsics.fy),
-                float(intrinsics.cx), float(intrinsics.cy), float(outlier_floor), float(max_slope), float(noise_floor),
-                int(max(iterations, 1)), float(min_inlier_fraction))
+    settings = (
+        window // 2,
+        1 if model == "quadric" else 0,
+        int(min_valid),
+        float(intrinsics.fx),
+        float(intrinsics.fy),
+        float(intrinsics.cx),
+        float(intrinsics.cy),
+        float(outlier_floor),
+        float(max_slope),
+        float(noise_floor),
+        int(max(iterations, 1)),
+        float(min_inlier_fraction),
+    )
     launch, points, inliers, pixel_view, _ = _recorded_launch(device, count, window, settings)
     if device.is_cpu:
         # The caller's image, no copy; its wrapper is kept while the same buffer comes back (a live camera's

@@ -395,8 +395,14 @@ class ArucoMarkers:
         ValueError: unknown dictionary, repeated ids, or ids outside the dictionary.
     """
 
-    def __init__(self, marker_ids: Sequence[int], *, dictionary: str = "DICT_4X4_50",
-                 names: Sequence[str] | None = None, refine: bool = True):
+    def __init__(
+        self,
+        marker_ids: Sequence[int],
+        *,
+        dictionary: str = "DICT_4X4_50",
+        names: Sequence[str] | None = None,
+        refine: bool = True,
+    ):
         import cv2
 
         if isinstance(marker_ids, (str, bytes)) or not hasattr(marker_ids, "__iter__"):

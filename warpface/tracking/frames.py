@@ -44,13 +44,13 @@ class LandmarkFrame:
                 conf = np.array(self.confidence, dtype=np.float32).reshape(-1)
             timestamp = float(self.timestamp)
         except (TypeError, ValueError):
-            raise ValueError(f"frame {index}: points, confidence and timestamp must be numbers and arrays of numbers") from None
+            raise ValueError(
+                f"frame {index}: points, confidence and timestamp must be numbers and arrays of numbers"
+            ) from None
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ValueError(f"frame {index}: points must have shape (N, 3), got {pts.shape}")
         if conf.shape[0] != pts.shape[0]:
-            raise ValueError(
-                f"frame {index}: {conf.shape[0]} confidences for {pts.shape[0]} landmarks"
-            )
+            raise ValueError(f"frame {index}: {conf.shape[0]} confidences for {pts.shape[0]} landmarks")
         if not math.isfinite(timestamp):
             raise ValueError(f"frame {index}: timestamp {self.timestamp} is not finite")
         with np.errstate(invalid="ignore"):

@@ -28,6 +28,7 @@ MAX_PIXELS = 65536
 MAX_DEPTH = 1.0e4
 """Depths at or beyond this [m] are holes (no depth sensor measures them; they would overflow the fit)."""
 
+
 @dataclass(frozen=True)
 class CameraIntrinsics:
     """Pinhole intrinsics in OpenCV's pixel convention (pixel centres at integer coordinates)."""
@@ -57,7 +58,9 @@ class CameraIntrinsics:
                 raise ValueError(f"intrinsics: {name} must be a positive integer, got {value!r}")
             number = float(as_finite_array(value, f"intrinsics: {name}", shape=()))
             if number != int(number) or not 1 <= number <= MAX_PIXELS:
-                raise ValueError(f"intrinsics: {name} must be a whole number of pixels in [1, {MAX_PIXELS}], got {value!r}")
+                raise ValueError(
+                    f"intrinsics: {name} must be a whole number of pixels in [1, {MAX_PIXELS}], got {value!r}"
+                )
             object.__setattr__(self, name, int(number))
 
     @property
@@ -90,7 +93,9 @@ class CameraIntrinsics:
         p = p.reshape(-1, 3)
         behind = np.flatnonzero(p[:, 2] <= 0.0)
         if len(behind):
-            raise ValueError(f"points: point {int(behind[0])} is not in front of the camera (z = {p[behind[0], 2]:.6g} m)")
+            raise ValueError(
+                f"points: point {int(behind[0])} is not in front of the camera (z = {p[behind[0], 2]:.6g} m)"
+            )
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.stack([self.fx * p[:, 0] / p[:, 2] + self.cx, self.fy * p[:, 1] / p[:, 2] + self.cy], axis=1)
 

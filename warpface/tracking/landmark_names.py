@@ -29,7 +29,9 @@ def vertex_landmark_names(vertices) -> list[str]:
     except (TypeError, ValueError):
         raise ValueError("vertices: expected a flat array of integer vertex indices") from None
     if indices.size and (not np.issubdtype(indices.dtype, np.integer) or indices.min() < 0):
-        raise ValueError(f"vertices: expected non-negative integer vertex indices, got {indices.dtype} {indices.ravel()[:5].tolist()}")
+        raise ValueError(
+            f"vertices: expected non-negative integer vertex indices, got {indices.dtype} {indices.ravel()[:5].tolist()}"
+        )
     return [f"v{int(v):05d}" for v in indices.ravel()]
 
 
@@ -44,7 +46,9 @@ def landmark_vertices(names: Sequence[str], vertex_count: int) -> np.ndarray:
     for name in expect_iterable(names, "landmark names", item_types=str):
         match = _NAME.match(str(name))
         if match is None:
-            raise ValueError(f"landmark {name!r}: expected a dense-vertex name like 'v01234' (see vertex_landmark_names)")
+            raise ValueError(
+                f"landmark {name!r}: expected a dense-vertex name like 'v01234' (see vertex_landmark_names)"
+            )
         index = int(match.group(1))
         if index >= vertex_count:
             raise ValueError(f"landmark {name!r}: vertex {index} is outside the face ({vertex_count} vertices)")
@@ -52,11 +56,19 @@ def landmark_vertices(names: Sequence[str], vertex_count: int) -> np.ndarray:
     return np.asarray(indices, dtype=np.int64)
 
 
-def adapter_for_face(rest_points: np.ndarray, landmark_names: Sequence[str], *, camera_to_model=None,
-                     stabilize=False, device=None) -> TrackingAdapter:
+def adapter_for_face(
+    rest_points: np.ndarray, landmark_names: Sequence[str], *, camera_to_model=None, stabilize=False, device=None
+) -> TrackingAdapter:
     """A :class:`TrackingAdapter` whose sparse mesh is the face's own landmark vertices, triangulated."""
     rest_points = as_points(rest_points, "rest_points", min_count=3)
     vertices = landmark_vertices(landmark_names, len(rest_points))
     sparse = rest_points[vertices]
-    return TrackingAdapter(sparse, triangulate_landmarks(sparse), rest_points, landmark_names=list(landmark_names),
-                           camera_to_model=camera_to_model, stabilize=stabilize, device=device)
+    return TrackingAdapter(
+        sparse,
+        triangulate_landmarks(sparse),
+        rest_points,
+        landmark_names=list(landmark_names),
+        camera_to_model=camera_to_model,
+        stabilize=stabilize,
+        device=device,
+    )

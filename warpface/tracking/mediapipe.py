@@ -26,8 +26,8 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from .alignment import similarity_fit
-from .intrinsics import CameraIntrinsics
 from .frames import LandmarkFrame, SourceBase
+from .intrinsics import CameraIntrinsics
 from .streams import checked_frames
 
 __all__ = ["MediaPipeLandmarks", "parse_landmark_list", "MEDIAPIPE_VERTICAL_FOV_DEG"]
@@ -86,9 +86,15 @@ class MediaPipeLandmarks(SourceBase):
             vertex count, or no model found.
     """
 
-    def __init__(self, paths: str | Path | Sequence[str | Path], *, fps: float = 30.0,
-                 image_size: tuple[int, int] | None = None, intrinsics: CameraIntrinsics | None = None,
-                 model_path: str | Path | None = None):
+    def __init__(
+        self,
+        paths: str | Path | Sequence[str | Path],
+        *,
+        fps: float = 30.0,
+        image_size: tuple[int, int] | None = None,
+        intrinsics: CameraIntrinsics | None = None,
+        model_path: str | Path | None = None,
+    ):
         if isinstance(paths, (str, Path)) and Path(paths).is_dir():
             folder = Path(paths)
             files = sorted(p for p in folder.iterdir() if p.suffix in (".pbtxt", ".prototxt"))
@@ -110,8 +116,10 @@ class MediaPipeLandmarks(SourceBase):
                 raise ValueError(f"{path}: no such landmark file")
             lm = parse_landmark_list(path.read_text(encoding="utf-8", errors="replace"), where=str(path))
             if np.isnan(lm[:, 2]).any():
-                raise ValueError(f"{path}: landmark {int(np.flatnonzero(np.isnan(lm[:, 2]))[0])} has no z; "
-                                 "metric reconstruction needs x, y and z")
+                raise ValueError(
+                    f"{path}: landmark {int(np.flatnonzero(np.isnan(lm[:, 2]))[0])} has no z; "
+                    "metric reconstruction needs x, y and z"
+                )
             if self._normalized and lm.shape[0] != self._normalized[0].shape[0]:
                 raise ValueError(f"{path}: {lm.shape[0]} landmarks, but {files[0]} has {self._normalized[0].shape[0]}")
             self._normalized.append(lm)

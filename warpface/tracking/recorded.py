@@ -43,13 +43,17 @@ class RecordedLandmarks(SourceBase):
             with loaded as data:
                 arrays = {k: data[k] for k in data.files}
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-            raise ValueError(f"{self.path}: not a readable .npz file ({str(exc).splitlines()[0][:120] or type(exc).__name__})") from None
+            raise ValueError(
+                f"{self.path}: not a readable .npz file ({str(exc).splitlines()[0][:120] or type(exc).__name__})"
+            ) from None
         for key in ("timestamps", "points", "confidence", "names"):
             if key not in arrays:
                 raise ValueError(f"{self.path}: missing array {key!r}")
         for key, ndim in (("timestamps", 1), ("points", 3), ("confidence", 2), ("names", 1)):
             if arrays[key].ndim != ndim:
-                raise ValueError(f"{self.path}: array {key!r} must have {ndim} dimension(s), got shape {arrays[key].shape}")
+                raise ValueError(
+                    f"{self.path}: array {key!r} must have {ndim} dimension(s), got shape {arrays[key].shape}"
+                )
         for key in ("timestamps", "points", "confidence"):
             if not (np.issubdtype(arrays[key].dtype, np.floating) or np.issubdtype(arrays[key].dtype, np.integer)):
                 raise ValueError(f"{self.path}: array {key!r} must be numeric, got dtype {arrays[key].dtype}")
@@ -69,7 +73,9 @@ class RecordedLandmarks(SourceBase):
         if self.confidence.shape != self.points.shape[:2]:
             raise ValueError(f"{self.path}: confidence {self.confidence.shape} ≠ points {self.points.shape[:2]}")
         if not np.all(np.isfinite(self.timestamps)):
-            raise ValueError(f"{self.path}: timestamp of frame {int(np.argmax(~np.isfinite(self.timestamps)))} is not finite")
+            raise ValueError(
+                f"{self.path}: timestamp of frame {int(np.argmax(~np.isfinite(self.timestamps)))} is not finite"
+            )
         self.landmark_names = validate_landmark_names(arrays["names"].tolist(), self.points.shape[1], str(self.path))
         fps = arrays["fps"] if "fps" in arrays else np.float64(np.nan)
         if fps.shape != () or not (np.issubdtype(fps.dtype, np.floating) or np.issubdtype(fps.dtype, np.integer)):
@@ -84,9 +90,7 @@ class RecordedLandmarks(SourceBase):
 
     def frames(self) -> Iterator[LandmarkFrame]:
         """Frames in file order, through the timestamp policy."""
-        raw = (
-            LandmarkFrame(self.timestamps[i], self.points[i], self.confidence[i], i) for i in range(len(self))
-        )
+        raw = (LandmarkFrame(self.timestamps[i], self.points[i], self.confidence[i], i) for i in range(len(self)))
         yield from checked_frames(raw, timestamp_policy=self.timestamp_policy, where=str(self.path))
 
     @staticmethod

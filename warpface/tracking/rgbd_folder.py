@@ -11,8 +11,8 @@ import numpy as np
 
 from .._validate import as_path
 from ._io import atomic_path, write_json_atomic
-from .intrinsics import CameraIntrinsics
 from .frames import RGBDFrame, SourceBase
+from .intrinsics import CameraIntrinsics
 from .streams import StreamGuard, estimate_fps
 
 __all__ = ["RGBDFolder"]
@@ -140,8 +140,10 @@ class RGBDFolder(SourceBase):
             for frame in frames:
                 guard.accept(frame.timestamp, frame.index, frame.depth.shape, "image size")
                 if frame.depth.shape != (intrinsics.height, intrinsics.width):
-                    raise ValueError(f"{path}: frame {frame.index} is {frame.depth.shape[::-1]} px, intrinsics "
-                                     f"say {intrinsics.width}×{intrinsics.height}")
+                    raise ValueError(
+                        f"{path}: frame {frame.index} is {frame.depth.shape[::-1]} px, intrinsics "
+                        f"say {intrinsics.width}×{intrinsics.height}"
+                    )
                 if scale is None:
                     scale = frame.depth_scale
                 elif frame.depth_scale != scale:

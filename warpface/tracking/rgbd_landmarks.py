@@ -26,8 +26,9 @@ class RGBDLandmarks(SourceBase):
         device: Warp device for back-projection.
     """
 
-    def __init__(self, rgbd, detector, *, window: int = 9, min_valid: int = 12,
-                 timestamp_policy: str = "reject", device=None):
+    def __init__(
+        self, rgbd, detector, *, window: int = 9, min_valid: int = 12, timestamp_policy: str = "reject", device=None
+    ):
         self.rgbd = rgbd
         self.detector = detector
         self.landmark_names = tuple(detector.landmark_names)
@@ -42,7 +43,11 @@ class RGBDLandmarks(SourceBase):
         """Detect and back-project the landmarks of one RGB-D frame."""
         pixels, confidence = self.detector.detect(frame.color)
         points, inliers = backproject(
-            pixels, frame.depth_m, self.rgbd.intrinsics, window=self.window, min_valid=self.min_valid,
+            pixels,
+            frame.depth_m,
+            self.rgbd.intrinsics,
+            window=self.window,
+            min_valid=self.min_valid,
             device=self.device,
         )
         confidence = np.where(inliers > 0, confidence, 0.0)

@@ -21,7 +21,14 @@ import numpy as np
 from .._validate import as_count, expect_iterable
 from .frames import LandmarkFrame
 
-__all__ = ["TIMESTAMP_POLICIES", "StreamGuard", "checked_frames", "fill_missing", "estimate_fps", "validate_landmark_names"]
+__all__ = [
+    "TIMESTAMP_POLICIES",
+    "StreamGuard",
+    "checked_frames",
+    "fill_missing",
+    "estimate_fps",
+    "validate_landmark_names",
+]
 
 TIMESTAMP_POLICIES = ("reject", "drop")
 """Accepted values of ``timestamp_policy``; see the module docstring."""
@@ -63,7 +70,10 @@ class StreamGuard:
 
 
 def checked_frames(
-    frames: Iterable[LandmarkFrame], *, landmark_count: int | None = None, timestamp_policy: str = "reject",
+    frames: Iterable[LandmarkFrame],
+    *,
+    landmark_count: int | None = None,
+    timestamp_policy: str = "reject",
     where: str = "landmark stream",
 ) -> Iterator[LandmarkFrame]:
     """Pass frames through the timestamp policy and the fixed landmark count (see module docstring).
@@ -134,8 +144,9 @@ def fill_missing(
         buffer.append(frame)
         if not have.all():
             if len(buffer) > max_lookahead:
-                raise ValueError(f"landmark {int(np.flatnonzero(~have)[0])} not measured in the first "
-                                 f"{len(buffer)} frames")
+                raise ValueError(
+                    f"landmark {int(np.flatnonzero(~have)[0])} not measured in the first {len(buffer)} frames"
+                )
             continue
         if last_point is not None and np.isnan(last_point).any():
             # First release: seed every landmark with its first measurement.

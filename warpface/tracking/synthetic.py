@@ -28,10 +28,19 @@ from typing import Iterator, Sequence
 import numpy as np
 import warp as wp
 
-from .._validate import as_bounded, as_count, as_device, as_finite_array, as_points, as_positive, as_vec3, expect_instance
+from .._validate import (
+    as_bounded,
+    as_count,
+    as_device,
+    as_finite_array,
+    as_points,
+    as_positive,
+    as_vec3,
+    expect_instance,
+)
 from ..mesh import FaceMesh
-from .intrinsics import KINECT_V1_INTRINSICS, CameraIntrinsics
 from .frames import RGBDFrame, SourceBase
+from .intrinsics import KINECT_V1_INTRINSICS, CameraIntrinsics
 
 __all__ = [
     "KinectNoise",
@@ -73,7 +82,9 @@ class KinectNoise:
 
     def __post_init__(self) -> None:
         for field in ("sigma0", "sigma2", "z_ref"):
-            object.__setattr__(self, field, as_positive(getattr(self, field), f"KinectNoise: {field}", allow_zero=True, maximum=1e3))
+            object.__setattr__(
+                self, field, as_positive(getattr(self, field), f"KinectNoise: {field}", allow_zero=True, maximum=1e3)
+            )
         for field in ("baseline_focal", "disparity_step"):
             object.__setattr__(self, field, as_positive(getattr(self, field), f"KinectNoise: {field}", maximum=1e6))
         object.__setattr__(self, "dropout", as_bounded(self.dropout, "KinectNoise: dropout", 0.0, 1.0))
@@ -118,7 +129,7 @@ def procedural_face(
     r2 = (x / (0.62 * width)) ** 2 + (y / (0.62 * height)) ** 2
     z = 0.055 * (1.0 - r2)  # dome
     z += 0.022 * np.exp(-((x / 0.011) ** 2 + ((y + 0.005) / 0.03) ** 2))  # nose
-    z += 0.006 * np.exp(-((y - 0.035) / 0.012) ** 2) * np.exp(-((np.abs(x) - 0.03) / 0.025) ** 2)  # brows
+    z += 0.006 * np.exp(-(((y - 0.035) / 0.012) ** 2)) * np.exp(-(((np.abs(x) - 0.03) / 0.025) ** 2))  # brows
     points = np.stack([x, y, z], axis=-1).reshape(-1, 3)
     i, j = np.meshgrid(np.arange(resolution - 1), np.arange(resolution - 1))
     v00 = (j * resolution + i).reshape(-1)
@@ -168,10 +179,17 @@ def _occluded(
     out = wp.zeros(points.shape[0], dtype=wp.int32, device=device)
     scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
     wp.launch(
-        _occluded_kernel, dim=points.shape[0],
-        inputs=[mesh.id, pts, wp.array(normals.astype(np.float32), dtype=wp.vec3, device=device),
-                wp.vec3(*(np.asarray(eye, dtype=np.float64) - center)), 1e-4 * scale],
-        outputs=[out], device=device,
+        _occluded_kernel,
+        dim=points.shape[0],
+        inputs=[
+            mesh.id,
+            pts,
+            wp.array(normals.astype(np.float32), dtype=wp.vec3, device=device),
+            wp.vec3(*(np.asarray(eye, dtype=np.float64) - center)),
+            1e-4 * scale,
+        ],
+        outputs=[out],
+        device=device,
     )
     return out.numpy().astype(bool)
 
@@ -183,12 +201,14 @@ def default_model_to_camera(rest_points: np.ndarray, distance: float = 0.6) -> n
     distance = as_positive(distance, "distance")
     lo, hi = p.min(axis=0), p.max(axis=0)
     center = 0.5 * (lo + hi)
-    return np.array([
-        [1.0, 0.0, 0.0, -center[0]],
-        [0.0, -1.0, 0.0, center[1]],
-        [0.0, 0.0, -1.0, distance + hi[2]],
-        [0.0, 0.0, 0.0, 1.0],
-    ])
+    return np.array(
+        [
+            [1.0, 0.0, 0.0, -center[0]],
+            [0.0, -1.0, 0.0, center[1]],
+            [0.0, 0.0, -1.0, distance + hi[2]],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
 
 
 def place_fiducials(
@@ -238,9 +258,9 @@ def place_fiducials(
     if border.any():
         bpts = p[border]
         for start in range(0, p.shape[0], 2048):
-            chunk = p[start:start + 2048]
+            chunk = p[start : start + 2048]
             d = np.sqrt(((chunk[:, None, :] - bpts[None, :, :]) ** 2).sum(-1)).min(axis=1)
-            ok[start:start + 2048] &= d >= boundary_margin
+            ok[start : start + 2048] &= d >= boundary_margin
     if camera_position is not None:
         ok &= ~_occluded(p, triangles, normals, np.asarray(camera_position, dtype=np.float64), device=device)
     candidates = np.flatnonzero(ok)
@@ -533,7 +553,10 @@ class SyntheticRGBDCamera(SourceBase):
             self._topology = FaceMesh(cam, self.triangles, name="synthetic camera mesh", degenerate="ignore")
         normals = self._topology.vertex_normals(cam, device="cpu") * to_gl.astype(np.float32)
         primitive = pyrender.Primitive(
-            positions=positions, normals=normals, texcoord_0=self.texcoords, indices=self.triangles,
+            positions=positions,
+            normals=normals,
+            texcoord_0=self.texcoords,
+            indices=self.triangles,
             material=self._material,
         )
         if self._mesh_node is not None:

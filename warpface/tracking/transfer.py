@@ -32,9 +32,9 @@ from typing import Iterable, Iterator, Sequence
 import numpy as np
 import warp as wp
 
+from .._validate import as_bounded, as_device, as_finite_array, as_points, as_positive, as_triangles
 from ..geometry import smoothstep
 from .alignment import rigid_fit, similarity_fit
-from .._validate import as_bounded, as_finite_array, as_points, as_positive, as_triangles, as_device
 from .correspondence import Correspondence, FaceNormalization, compute_correspondence
 from .frames import LandmarkFrame
 from .streams import validate_landmark_names
@@ -80,8 +80,9 @@ def _transfer_kernel(
     out_points[v] = rest[v] + u
 
 
-def _transfer_coefficients(sparse_triangles: np.ndarray, correspondence: Correspondence, weights: np.ndarray,
-                           device) -> tuple[wp.array, wp.array]:
+def _transfer_coefficients(
+    sparse_triangles: np.ndarray, correspondence: Correspondence, weights: np.ndarray, device
+) -> tuple[wp.array, wp.array]:
     """Per dense vertex: its triangle's sparse vertex indices (vec3i) and ``w · barycentric`` (vec3)."""
     corners = np.ascontiguousarray(sparse_triangles[correspondence.triangle], dtype=np.int32)
     weighted = (correspondence.barycentric * weights[:, None]).astype(np.float32)
@@ -188,8 +189,13 @@ def blend_weights(
         radius = max(float(region_falloff), 1e-6)
         grid = wp.HashGrid(64, 64, 64, device=device)
         grid.build(set_points, radius)
-        wp.launch(_distance_to_set_kernel, dim=count, inputs=[grid.id, set_points, queries, radius],
-                  outputs=[distance], device=device)
+        wp.launch(
+            _distance_to_set_kernel,
+            dim=count,
+            inputs=[grid.id, set_points, queries, radius],
+            outputs=[distance],
+            device=device,
+        )
         # Region vertices are at distance 0 exactly (float rounding aside).
         host = distance.numpy()
         host[mask] = 0.0
@@ -198,8 +204,13 @@ def blend_weights(
     wp.launch(
         _blend_weights_kernel,
         dim=count,
-        inputs=[wp.array(correspondence.overhang.astype(np.float32), dtype=float, device=device), distance,
-                start, end, float(region_falloff)],
+        inputs=[
+            wp.array(correspondence.overhang.astype(np.float32), dtype=float, device=device),
+            distance,
+            start,
+            end,
+            float(region_falloff),
+        ],
         outputs=[weight],
         device=device,
     )
@@ -257,8 +268,10 @@ def transfer_displacements(
     )
     result = out_u.numpy().copy()
     if not np.all(np.isfinite(result)):
-        raise ValueError("transfer_displacements: the dense displacements overflow float32; "
-                         "sparse_displacement, weights or scale are too large")
+        raise ValueError(
+            "transfer_displacements: the dense displacements overflow float32; "
+            "sparse_displacement, weights or scale are too large"
+        )
     return result
 
 
@@ -334,18 +347,27 @@ class TrackingAdapter:
         """Dense rest points [m], shape (V, 3), model frame."""
         n = self.sparse_rest.shape[0]
         self.landmark_names: tuple[str, ...] | None = (
-            None if landmark_names is None else validate_landmark_names(landmark_names, n, "landmark_names"))
+            None if landmark_names is None else validate_landmark_names(landmark_names, n, "landmark_names")
+        )
         self.correspondence = compute_correspondence(
-            self.dense_rest, self.sparse_rest, self.sparse_triangles,
-            sparse_normalization=sparse_normalization, dense_normalization=dense_normalization, device=self.device,
+            self.dense_rest,
+            self.sparse_rest,
+            self.sparse_triangles,
+            sparse_normalization=sparse_normalization,
+            dense_normalization=dense_normalization,
+            device=self.device,
         )
         """Per dense vertex: sparse triangle, barycentric coordinates, distance, overhang."""
-        self.weights = blend_weights(self.dense_rest, self.correspondence, region=region,
-                                     region_falloff=region_falloff, cover_falloff=cover_falloff, device=self.device)
-        """Blend weight of the directly driven motion per dense vertex, shape (V,), float32."""
-        self.scale = (
-            dense_normalization.width / sparse_normalization.width if sparse_normalization is not None else 1.0
+        self.weights = blend_weights(
+            self.dense_rest,
+            self.correspondence,
+            region=region,
+            region_falloff=region_falloff,
+            cover_falloff=cover_falloff,
+            device=self.device,
         )
+        """Blend weight of the directly driven motion per dense vertex, shape (V,), float32."""
+        self.scale = dense_normalization.width / sparse_normalization.width if sparse_normalization is not None else 1.0
         """Sparse → dense displacement scale (dense face width / sparse face width)."""
         if camera_to_model is not None:
             camera_to_model = as_finite_array(camera_to_model, "camera_to_model", shape=(4, 4), max_abs=1e6)
@@ -356,12 +378,15 @@ class TrackingAdapter:
 
         count = self.dense_rest.shape[0]
         dev = self.device
-        self._corners, self._weighted_bary = _transfer_coefficients(self.sparse_triangles, self.correspondence,
-                                                                    self.weights, dev)
+        self._corners, self._weighted_bary = _transfer_coefficients(
+            self.sparse_triangles, self.correspondence, self.weights, dev
+        )
         self._weights = wp.array(self.weights, dtype=float, device=dev)
         self._rest = wp.array(self.dense_rest.astype(np.float32), dtype=wp.vec3, device=dev)
         self._sparse_disp = wp.zeros(n, dtype=wp.vec3, device=dev)
-        self._sparse_view = self._sparse_disp.numpy() if self._sparse_disp.device.is_cpu else None  # zero-copy on the CPU
+        self._sparse_view = (
+            self._sparse_disp.numpy() if self._sparse_disp.device.is_cpu else None
+        )  # zero-copy on the CPU
         self._other = wp.zeros(count, dtype=wp.vec3, device=dev)
         self.displacements = wp.zeros(count, dtype=wp.vec3, device=dev)
         """Dense displacements of the last frame [m], shape (V,), vec3, on the device."""
@@ -374,15 +399,26 @@ class TrackingAdapter:
         """Record the transfer launch, without and with ``other``: packing its ten arguments anew
         every frame costs a fifth of the kernel itself on the CPU."""
         self._recorded_scale = float(self.scale)
-        self._transfer_launches = tuple(wp.launch(
-            _transfer_kernel,
-            dim=self.dense_rest.shape[0],
-            inputs=[self._sparse_disp, self._corners, self._weighted_bary, self._weights, self._recorded_scale,
-                    self._rest, self._other, flag],
-            outputs=[self.displacements, self.points],
-            device=self.device,
-            record_cmd=True,
-        ) for flag in (0, 1))
+        self._transfer_launches = tuple(
+            wp.launch(
+                _transfer_kernel,
+                dim=self.dense_rest.shape[0],
+                inputs=[
+                    self._sparse_disp,
+                    self._corners,
+                    self._weighted_bary,
+                    self._weights,
+                    self._recorded_scale,
+                    self._rest,
+                    self._other,
+                    flag,
+                ],
+                outputs=[self.displacements, self.points],
+                device=self.device,
+                record_cmd=True,
+            )
+            for flag in (0, 1)
+        )
 
     # -- state -----------------------------------------------------------------------------------
 
@@ -417,8 +453,10 @@ class TrackingAdapter:
         n = self.sparse_rest.shape[0]
         if self.landmark_names is None:
             if len(names) != n:
-                raise ValueError(f"the source has {len(names)} landmarks but the sparse mesh has {n} vertices "
-                                 "(give landmark_names to match by name)")
+                raise ValueError(
+                    f"the source has {len(names)} landmarks but the sparse mesh has {n} vertices "
+                    "(give landmark_names to match by name)"
+                )
             self._selection = np.arange(n)
         else:
             where = {name: i for i, name in enumerate(names)}
@@ -461,8 +499,9 @@ class TrackingAdapter:
             self.bind([str(i) for i in range(frame.landmark_count)])
         expected = len(self._source_names)
         if frame.landmark_count != expected:
-            raise ValueError(f"frame {frame.index} has {frame.landmark_count} landmarks, the source was bound "
-                             f"with {expected}")
+            raise ValueError(
+                f"frame {frame.index} has {frame.landmark_count} landmarks, the source was bound with {expected}"
+            )
         pts = frame.points[self._selection]
         valid = np.all(np.isfinite(pts), axis=1) & (frame.confidence[self._selection] > self.min_confidence)
         return pts, valid
@@ -522,7 +561,9 @@ class TrackingAdapter:
         self.frames_processed += 1
         out = self.points.numpy()
         if not np.all(np.isfinite(out)):
-            raise ValueError(f"frame {frame.index}: the dense points overflow float32 (landmarks too far from the reference)")
+            raise ValueError(
+                f"frame {frame.index}: the dense points overflow float32 (landmarks too far from the reference)"
+            )
         return out.copy() if copy else out
 
     def track(
@@ -534,5 +575,5 @@ class TrackingAdapter:
         mesh). ``frames`` overrides ``source.frames()`` (e.g. a :func:`fill_missing` stream).
         """
         self.bind(source.landmark_names)
-        for frame in (source.frames() if frames is None else frames):
+        for frame in source.frames() if frames is None else frames:
             yield frame, self.track_frame(frame)

@@ -8,18 +8,27 @@ from pathlib import Path
 
 from pxr import Sdf, Usd
 
-from .._validate import as_path
 from .._files import atomic_path
+from .._validate import as_path
 
-__all__ = ["open_stage", "open_layer", "writable_path", "export_layer_atomically", "usd_error_message", "without_usd_warnings",
-           "LAYER_SUFFIXES"]
+__all__ = [
+    "open_stage",
+    "open_layer",
+    "writable_path",
+    "export_layer_atomically",
+    "usd_error_message",
+    "without_usd_warnings",
+    "LAYER_SUFFIXES",
+]
 
 LAYER_SUFFIXES = (".usda", ".usdc", ".usd")
 """File extensions warpface writes layers to."""
 
 
 _PXR_NAMESPACE = re.compile(r"pxrInternal_v[0-9_]+?__pxrReserved__::")
-_PXR_DIAGNOSTIC = re.compile(r"\s*(?:Error|Warning|Coding Error|Fatal Error) in '[^']*' at line \d+ in file [^\n]*? : '")
+_PXR_DIAGNOSTIC = re.compile(
+    r"\s*(?:Error|Warning|Coding Error|Fatal Error) in '[^']*' at line \d+ in file [^\n]*? : '"
+)
 
 
 _WRITE_FAILURES = (
@@ -125,7 +134,11 @@ def without_usd_warnings(call, dropping: tuple[str, ...] = ("Could not load subl
             os.dup2(saved, 2)
             os.close(saved)
         captured.seek(0)
-        kept = [line for line in captured.read().decode(errors="replace").splitlines() if not any(text in line for text in dropping)]
+        kept = [
+            line
+            for line in captured.read().decode(errors="replace").splitlines()
+            if not any(text in line for text in dropping)
+        ]
     if kept:
         print("\n".join(kept), file=sys.stderr)
     return result

@@ -21,8 +21,18 @@ from .jaw_io import JAW_CONTROL_ATTRIBUTES, jaw_prim
 from .rig_io import ItemPlacements, RigPrims, rig_prims, stage_meters_per_unit
 from .schema import ensure_schema
 
-__all__ = ["Animation", "write_animation", "read_animation", "frame_times", "frame_range", "as_time_codes",
-           "cover_time_range", "DEFAULT_FPS", "MAX_FRAMES", "CACHE_SUFFIX"]
+__all__ = [
+    "Animation",
+    "write_animation",
+    "read_animation",
+    "frame_times",
+    "frame_range",
+    "as_time_codes",
+    "cover_time_range",
+    "DEFAULT_FPS",
+    "MAX_FRAMES",
+    "CACHE_SUFFIX",
+]
 
 DEFAULT_FPS = 30.0
 """``timeCodesPerSecond`` / ``framesPerSecond`` given to an animated stage that has none."""
@@ -68,8 +78,9 @@ class Animation:
 # ---------------------------------------------------------------------------------------------- controls
 
 
-def _length_scales(stage: Usd.Stage, prims: RigPrims, jaw: Usd.Prim | None,
-                   meters_per_unit: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _length_scales(
+    stage: Usd.Stage, prims: RigPrims, jaw: Usd.Prim | None, meters_per_unit: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Factors turning stored control values into values in ``meters_per_unit`` units, per muscle, wrinkle and
     jaw control.
 
@@ -109,8 +120,17 @@ def as_time_codes(times, label: str = "times") -> np.ndarray:
     return times
 
 
-def write_animation(stage: Usd.Stage, times, *, contractions=None, wrinkle_depths=None, jaw=None,
-                    skin_path: str | None = None, fps: float | None = None, meters_per_unit: float = 1.0) -> None:
+def write_animation(
+    stage: Usd.Stage,
+    times,
+    *,
+    contractions=None,
+    wrinkle_depths=None,
+    jaw=None,
+    skin_path: str | None = None,
+    fps: float | None = None,
+    meters_per_unit: float = 1.0,
+) -> None:
     """Author contractions, wrinkle depths and the jaw's controls as time samples on the rig prims.
 
     Existing samples of an animated attribute between ``min(times)`` and ``max(times)`` are replaced;
@@ -152,7 +172,9 @@ def write_animation(stage: Usd.Stage, times, *, contractions=None, wrinkle_depth
             raise ValueError(f"jaw: rig {prims.skin.GetPath()} has no jaw to animate")
         names = list(JAW_CONTROL_ATTRIBUTES)
         columns, table = _control_table(jaw, names, len(times), "jaw", "jaw control")
-        series += [(jaw_controls, JAW_CONTROL_ATTRIBUTES[names[c]], table[:, k] / jaw_scale[c]) for k, c in enumerate(columns)]
+        series += [
+            (jaw_controls, JAW_CONTROL_ATTRIBUTES[names[c]], table[:, k] / jaw_scale[c]) for k, c in enumerate(columns)
+        ]
 
     layer = stage.GetEditTarget().GetLayer()
     paths = []
@@ -178,8 +200,11 @@ def cover_time_range(layer: Sdf.Layer, low: float, high: float, fps: float | Non
         layer.timeCodesPerSecond = fps
         layer.framesPerSecond = fps
     else:
-        rate = layer.timeCodesPerSecond if layer.HasTimeCodesPerSecond() else (
-            layer.framesPerSecond if layer.HasFramesPerSecond() else DEFAULT_FPS)
+        rate = (
+            layer.timeCodesPerSecond
+            if layer.HasTimeCodesPerSecond()
+            else (layer.framesPerSecond if layer.HasFramesPerSecond() else DEFAULT_FPS)
+        )
         if not layer.HasTimeCodesPerSecond():
             layer.timeCodesPerSecond = rate
         if not layer.HasFramesPerSecond():
@@ -190,16 +215,19 @@ def cover_time_range(layer: Sdf.Layer, low: float, high: float, fps: float | Non
     layer.endTimeCode = high
 
 
-def frame_range(start: float, end: float, step: float = 1.0, *, max_frames: int | None = MAX_FRAMES,
-                label: str = "time range") -> np.ndarray:
+def frame_range(
+    start: float, end: float, step: float = 1.0, *, max_frames: int | None = MAX_FRAMES, label: str = "time range"
+) -> np.ndarray:
     """Time codes ``start, start + step, …`` up to ``end`` (included), shape (F,), float64.
 
     Raises:
         ValueError: a non-finite bound or step, ``end < start``, ``step ≤ 0``, or more than
             ``max_frames`` frames (``None``: no limit) — checked before anything is allocated.
     """
-    start, end, step = (as_finite_array(value, f"{label}: {name}", shape=()).item()
-                        for value, name in ((start, "start"), (end, "end"), (step, "step")))
+    start, end, step = (
+        as_finite_array(value, f"{label}: {name}", shape=()).item()
+        for value, name in ((start, "start"), (end, "end"), (step, "step"))
+    )
     if step <= 0:
         raise ValueError(f"{label}: step must be > 0, got {step:g}")
     if end < start:
@@ -214,8 +242,10 @@ def frame_range(start: float, end: float, step: float = 1.0, *, max_frames: int 
 
 def _check_frame_count(count: int, max_frames: int | None, what: str) -> None:
     if max_frames is not None and count > max_frames:
-        raise ValueError(f"{what} has {count:.4g} frames, more than the limit of {max_frames}; "
-                         f"pass max_frames (warpface bake --max-frames) to allow it")
+        raise ValueError(
+            f"{what} has {count:.4g} frames, more than the limit of {max_frames}; "
+            f"pass max_frames (warpface bake --max-frames) to allow it"
+        )
 
 
 def frame_times(stage: Usd.Stage, skin_path: str | None = None, *, max_frames: int | None = MAX_FRAMES) -> np.ndarray:
@@ -234,19 +264,26 @@ def frame_times(stage: Usd.Stage, skin_path: str | None = None, *, max_frames: i
         if not (math.isfinite(start) and math.isfinite(end)) or end < start:
             raise RigError(f"stage {stage.GetRootLayer().identifier}: invalid time range [{start}, {end}]")
         first, last = math.ceil(start), math.floor(end)
-        _check_frame_count(max(last - first + 1, 0), max_frames,
-                           f"stage {stage.GetRootLayer().identifier}: time range [{start:g}, {end:g}]")
+        _check_frame_count(
+            max(last - first + 1, 0),
+            max_frames,
+            f"stage {stage.GetRootLayer().identifier}: time range [{start:g}, {end:g}]",
+        )
         return np.arange(first, last + 1, dtype=np.float64)
     prims = rig_prims(stage, skin_path)
     samples = set()
     jaw = jaw_prim(stage, prims.skin)
     jaw_controls = [(jaw, name) for name in JAW_CONTROL_ATTRIBUTES.values()] if jaw is not None else []
-    for prim, name in [(p, "contraction") for p in prims.muscles] + [(p, "depth") for p in prims.wrinkles] + jaw_controls:
+    for prim, name in (
+        [(p, "contraction") for p in prims.muscles] + [(p, "depth") for p in prims.wrinkles] + jaw_controls
+    ):
         samples.update(prim.GetAttribute(name).GetTimeSamples())
     return np.array(sorted(samples), dtype=np.float64)
 
 
-def read_animation(stage_or_path, times=None, *, skin_path: str | None = None, meters_per_unit: float = 1.0) -> Animation:
+def read_animation(
+    stage_or_path, times=None, *, skin_path: str | None = None, meters_per_unit: float = 1.0
+) -> Animation:
     """Sample contractions, wrinkle depths and the jaw's controls at time codes (USD value resolution: held or
     interpolated).
 
@@ -268,9 +305,18 @@ def read_animation(stage_or_path, times=None, *, skin_path: str | None = None, m
     contractions = _sample(prims.muscles, "contraction", times) * muscle_scale
     depths = _sample(prims.wrinkles, "depth", times) * wrinkle_scale
     if jaw is not None:
-        jaw = np.stack([_sample([jaw], name, times)[:, 0] for name in JAW_CONTROL_ATTRIBUTES.values()], axis=1) * jaw_scale
-    return Animation(times=times, contractions=contractions, wrinkle_depths=depths,
-                     muscle_names=prims.muscle_names, wrinkle_names=prims.wrinkle_names, jaw=jaw)
+        jaw = (
+            np.stack([_sample([jaw], name, times)[:, 0] for name in JAW_CONTROL_ATTRIBUTES.values()], axis=1)
+            * jaw_scale
+        )
+    return Animation(
+        times=times,
+        contractions=contractions,
+        wrinkle_depths=depths,
+        muscle_names=prims.muscle_names,
+        wrinkle_names=prims.wrinkle_names,
+        jaw=jaw,
+    )
 
 
 def _sample(prims, name: str, times: np.ndarray) -> np.ndarray:
@@ -287,5 +333,5 @@ def _sample(prims, name: str, times: np.ndarray) -> np.ndarray:
             if value is None or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise RigError(f"{attr.GetPath()}: bad value {value!r} at time {time}")
             table[row, column] = value
-        table[len(sampled):, column] = table[0, column] if len(sampled) else 0.0
+        table[len(sampled) :, column] = table[0, column] if len(sampled) else 0.0
     return table

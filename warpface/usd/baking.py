@@ -17,8 +17,8 @@ from __future__ import annotations
 import itertools
 import os
 from collections import deque
-from contextlib import closing
 from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import closing
 from pathlib import Path
 
 import numpy as np
@@ -74,19 +74,33 @@ def check_cache_path(stage: Usd.Stage, cache_path, skin_path) -> Path:
     for layer in stage.GetUsedLayers():
         if layer.realPath and _same_file(layer.realPath, cache_path):
             if os.path.realpath(cache_path) not in direct or not _is_points_cache(layer, skin_path):
-                raise ValueError(f"cache {cache_path}: is one of the stage's own layers (not a points cache); "
-                                 f"choose another cache file")
+                raise ValueError(
+                    f"cache {cache_path}: is one of the stage's own layers (not a points cache); "
+                    f"choose another cache file"
+                )
             return cache_path
     if cache_path.exists():
         layer = open_layer(cache_path)
         if not _is_points_cache(layer, skin_path):
-            raise ValueError(f"cache {cache_path}: exists and holds more than a points cache of {skin_path}; "
-                             f"remove it or choose another cache file")
+            raise ValueError(
+                f"cache {cache_path}: exists and holds more than a points cache of {skin_path}; "
+                f"remove it or choose another cache file"
+            )
     return cache_path
 
 
-def check_bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | None = None, model=None, device=None,
-               max_frames: int | None = MAX_FRAMES, chunk_frames: int = 64, evaluate: bool = True):
+def check_bake(
+    stage_or_path,
+    frames=None,
+    *,
+    cache_path=None,
+    skin_path: str | None = None,
+    model=None,
+    device=None,
+    max_frames: int | None = MAX_FRAMES,
+    chunk_frames: int = 64,
+    evaluate: bool = True,
+):
     """Everything :func:`bake` checks before and while it writes, without writing.
 
     With ``evaluate``, the model is evaluated (not written) at the control time samples in range,
@@ -104,9 +118,13 @@ def check_bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | 
     skin_path = prims.skin.GetPath()
     times = frame_times(stage, skin_path, max_frames=max_frames) if frames is None else as_time_codes(frames, "frames")
     if len(times) == 0:
-        raise ValueError(f"nothing to bake: stage {stage.GetRootLayer().identifier} has no time range or time samples; pass frames")
+        raise ValueError(
+            f"nothing to bake: stage {stage.GetRootLayer().identifier} has no time range or time samples; pass frames"
+        )
     if max_frames is not None and len(times) > max_frames:
-        raise ValueError(f"frames: {len(times)} frames, more than the limit of {max_frames}; pass max_frames to allow it")
+        raise ValueError(
+            f"frames: {len(times)} frames, more than the limit of {max_frames}; pass max_frames to allow it"
+        )
     if cache_path is None:
         cache_path = default_cache_path(stage)
         if cache_path is None:
@@ -120,20 +138,37 @@ def check_bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | 
     if model is None:
         from ..expression.model import ExpressionModel
 
-        model = ExpressionModel.from_rig(read_rig(stage, skin_path=str(skin_path), meters_per_unit=stage_unit), device=device)
-    elif model.mesh.vertex_count != len(prims.skin.GetAttribute(UsdGeom.Tokens.points).Get(Usd.TimeCode.Default()) or ()):
-        raise ValueError(f"bake: the model has {model.mesh.vertex_count} vertices, the skin {skin_path} a different count")
+        model = ExpressionModel.from_rig(
+            read_rig(stage, skin_path=str(skin_path), meters_per_unit=stage_unit), device=device
+        )
+    elif model.mesh.vertex_count != len(
+        prims.skin.GetAttribute(UsdGeom.Tokens.points).Get(Usd.TimeCode.Default()) or ()
+    ):
+        raise ValueError(
+            f"bake: the model has {model.mesh.vertex_count} vertices, the skin {skin_path} a different count"
+        )
     if prims.muscle_names != list(model.muscle_names) or prims.wrinkle_names != list(model.wrinkle_names):
         raise ValueError("bake: model's muscles or wrinkles differ from the stage's rig")
     if evaluate:
         sampled = _control_sample_times(prims, times)
         for start in range(0, len(sampled), chunk_frames):
-            _evaluate(stage, model, sampled[start:start + chunk_frames], skin_path, stage_unit)
+            _evaluate(stage, model, sampled[start : start + chunk_frames], skin_path, stage_unit)
     return stage, times, cache_path, model
 
 
-def bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | None = None, model=None, device=None,
-         progress: bool = True, chunk_frames: int = 64, max_frames: int | None = MAX_FRAMES, workers: int | None = None) -> Path:
+def bake(
+    stage_or_path,
+    frames=None,
+    *,
+    cache_path=None,
+    skin_path: str | None = None,
+    model=None,
+    device=None,
+    progress: bool = True,
+    chunk_frames: int = 64,
+    max_frames: int | None = MAX_FRAMES,
+    workers: int | None = None,
+) -> Path:
     """Evaluate the expression model at every time code and write the skin's points and extent as a cache.
 
     The cache layer (``.usdc``: raw float32, memory-mapped) is sublayered as the strongest sublayer of
@@ -171,8 +206,16 @@ def bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | None =
         raise ValueError(f"chunk_frames must be ≥ 1, got {chunk_frames}")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1):
         raise ValueError(f"workers must be a whole number ≥ 1, got {workers!r}")
-    stage, times, cache_path, model = check_bake(stage_or_path, frames, cache_path=cache_path, skin_path=skin_path,
-                                                 model=model, device=device, max_frames=max_frames, evaluate=False)
+    stage, times, cache_path, model = check_bake(
+        stage_or_path,
+        frames,
+        cache_path=cache_path,
+        skin_path=skin_path,
+        model=model,
+        device=device,
+        max_frames=max_frames,
+        evaluate=False,
+    )
     skin_path = rig_prims(stage, skin_path).skin.GetPath()
     stage_unit = stage_meters_per_unit(stage)
     points_path = skin_path.AppendProperty(UsdGeom.Tokens.points)
@@ -189,10 +232,12 @@ def bake(stage_or_path, frames=None, *, cache_path=None, skin_path: str | None =
                 for time in cache.ListTimeSamplesForPath(path):
                     if low <= time <= high:
                         cache.EraseTimeSample(path, time)
-        chunks = [times[start:start + chunk_frames] for start in range(0, len(times), chunk_frames)]
+        chunks = [times[start : start + chunk_frames] for start in range(0, len(times), chunk_frames)]
         workers = _evaluation_workers(model) if workers is None or not model.device.is_cpu else int(workers)
-        with closing(_evaluated_chunks(stage, model, chunks, skin_path, stage_unit, workers)) as evaluated, \
-                tqdm(total=len(times), desc="bake", unit="frame", disable=not progress, leave=False) as bar:
+        with (
+            closing(_evaluated_chunks(stage, model, chunks, skin_path, stage_unit, workers)) as evaluated,
+            tqdm(total=len(times), desc="bake", unit="frame", disable=not progress, leave=False) as bar,
+        ):
             for chunk, (positions, bounds) in zip(chunks, evaluated):
                 with Sdf.ChangeBlock():
                     for offset, time in enumerate(chunk.tolist()):
@@ -241,7 +286,9 @@ def _evaluated_chunks(stage: Usd.Stage, model, chunks: list[np.ndarray], skin_pa
                 future.cancel()
 
 
-def _submit(pool: ThreadPoolExecutor, stage: Usd.Stage, model, times: np.ndarray, skin_path, stage_unit: float) -> Future:
+def _submit(
+    pool: ThreadPoolExecutor, stage: Usd.Stage, model, times: np.ndarray, skin_path, stage_unit: float
+) -> Future:
     """The chunk's controls read now and its evaluation queued on ``pool`` (a read error waits in the future)."""
     try:
         animation = read_animation(stage, times, skin_path=str(skin_path), meters_per_unit=stage_unit)
@@ -274,8 +321,9 @@ def _evaluate_controls(model, animation, times: np.ndarray, skin_path) -> tuple[
     """
     muscles_and_jaw = animation.controls
     controls = np.ascontiguousarray(np.concatenate([muscles_and_jaw, animation.wrinkle_depths], axis=1))
-    _, first, copies = np.unique(controls.view(np.uint8).reshape(len(controls), -1), axis=0, return_index=True,
-                                 return_inverse=True)
+    _, first, copies = np.unique(
+        controls.view(np.uint8).reshape(len(controls), -1), axis=0, return_index=True, return_inverse=True
+    )
     try:
         if len(first) == len(controls):
             positions = model.evaluate_batch(muscles_and_jaw, wrinkle_depths=animation.wrinkle_depths)
@@ -285,24 +333,30 @@ def _evaluate_controls(model, animation, times: np.ndarray, skin_path) -> tuple[
     except ValueError as exc:
         for row, time in enumerate(times.tolist()):  # name the first frame the model refuses
             try:
-                model.evaluate_batch(muscles_and_jaw[row:row + 1], wrinkle_depths=animation.wrinkle_depths[row:row + 1])
+                model.evaluate_batch(
+                    muscles_and_jaw[row : row + 1], wrinkle_depths=animation.wrinkle_depths[row : row + 1]
+                )
             except ValueError as frame_error:
                 raise ValueError(f"{skin_path}: controls at time {time:g}: {frame_error}") from None
         raise ValueError(f"{skin_path}: controls at time codes {times[0]:g} … {times[-1]:g}: {exc}") from None
     bounds = _extents(positions)
     finite = np.isfinite(bounds).all(axis=(1, 2))  # min/max propagate NaN and reach ±inf
     if not finite.all():
-        raise ValueError(f"{skin_path}: the controls at time {times[int(np.argmin(finite))]:g} give non-finite skin "
-                         f"positions (a contraction or depth far outside the rig's scale); nothing was written")
+        raise ValueError(
+            f"{skin_path}: the controls at time {times[int(np.argmin(finite))]:g} give non-finite skin "
+            f"positions (a contraction or depth far outside the rig's scale); nothing was written"
+        )
     rest = np.asarray(model.mesh.points, dtype=np.float64)
     lo, hi = rest.min(axis=0), rest.max(axis=0)
     size = float(np.linalg.norm(hi - lo)) or 1.0
     reach = np.maximum(lo - bounds[:, 0], bounds[:, 1] - hi).max(axis=1)  # how far each frame leaves the rest box
     if (reach > MAX_REACH * size).any():
         frame = int(np.argmax(reach))
-        raise ValueError(f"{skin_path}: the controls at time {times[frame]:g} move the skin {reach[frame]:.3g} stage units "
-                         f"outside its rest box, more than {MAX_REACH:g}× the face's size {size:.3g} (a contraction or "
-                         f"depth far outside the rig's scale); nothing was written")
+        raise ValueError(
+            f"{skin_path}: the controls at time {times[frame]:g} move the skin {reach[frame]:.3g} stage units "
+            f"outside its rest box, more than {MAX_REACH:g}× the face's size {size:.3g} (a contraction or "
+            f"depth far outside the rig's scale); nothing was written"
+        )
     return positions, bounds
 
 
@@ -358,7 +412,10 @@ def _new_cache_layer(temporary: Path, cache_path: Path, skin_path: Sdf.Path, sta
     layer.timeCodesPerSecond = stage.GetTimeCodesPerSecond()
     layer.framesPerSecond = stage.GetFramesPerSecond()
     prim = Sdf.CreatePrimInLayer(layer, skin_path)
-    for name, type_name in ((UsdGeom.Tokens.points, Sdf.ValueTypeNames.Point3fArray), (UsdGeom.Tokens.extent, Sdf.ValueTypeNames.Float3Array)):
+    for name, type_name in (
+        (UsdGeom.Tokens.points, Sdf.ValueTypeNames.Point3fArray),
+        (UsdGeom.Tokens.extent, Sdf.ValueTypeNames.Float3Array),
+    ):
         if prim.attributes.get(name) is None:
             Sdf.AttributeSpec(prim, name, type_name)
     return layer
@@ -410,7 +467,10 @@ def _same_file(a, b) -> bool:
 
 
 def _sublayer_files(root: Sdf.Layer) -> list[str]:
-    return [entry if root.anonymous else (Sdf.ComputeAssetPathRelativeToLayer(root, entry) or entry) for entry in root.subLayerPaths]
+    return [
+        entry if root.anonymous else (Sdf.ComputeAssetPathRelativeToLayer(root, entry) or entry)
+        for entry in root.subLayerPaths
+    ]
 
 
 def _find_sublayer(root: Sdf.Layer, cache_path: Path) -> str | None:
@@ -433,10 +493,26 @@ def _attach_cache(root: Sdf.Layer, root_file: Path | None, cache_path: Path, low
             entry = entry if entry.startswith(".") else "./" + entry
         root.subLayerPaths.insert(0, entry)
         changed = True
-    old = (root.startTimeCode, root.endTimeCode, root.timeCodesPerSecond, root.framesPerSecond, root.HasStartTimeCode(),
-           root.HasEndTimeCode(), root.HasTimeCodesPerSecond(), root.HasFramesPerSecond())
+    old = (
+        root.startTimeCode,
+        root.endTimeCode,
+        root.timeCodesPerSecond,
+        root.framesPerSecond,
+        root.HasStartTimeCode(),
+        root.HasEndTimeCode(),
+        root.HasTimeCodesPerSecond(),
+        root.HasFramesPerSecond(),
+    )
     cover_time_range(root, low, high, None)
-    changed |= old != (root.startTimeCode, root.endTimeCode, root.timeCodesPerSecond, root.framesPerSecond,
-                       root.HasStartTimeCode(), root.HasEndTimeCode(), root.HasTimeCodesPerSecond(), root.HasFramesPerSecond())
+    changed |= old != (
+        root.startTimeCode,
+        root.endTimeCode,
+        root.timeCodesPerSecond,
+        root.framesPerSecond,
+        root.HasStartTimeCode(),
+        root.HasEndTimeCode(),
+        root.HasTimeCodesPerSecond(),
+        root.HasFramesPerSecond(),
+    )
     if root_file is not None and (changed or root.dirty):
         export_layer_atomically(root, root_file)

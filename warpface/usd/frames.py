@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom
@@ -68,8 +67,10 @@ class StageFrames:
         value = self.points_attribute.Get(Usd.TimeCode.Default() if time is None else Usd.TimeCode(float(time)))
         points = self.rest if value is None else np.asarray(value, dtype=np.float64)
         if points.shape != self.rest.shape:
-            raise ValueError(f"{self.points_attribute.GetPath()}: {len(points)} points at time {time}, "
-                             f"the rest shape has {len(self.rest)}")
+            raise ValueError(
+                f"{self.points_attribute.GetPath()}: {len(points)} points at time {time}, "
+                f"the rest shape has {len(self.rest)}"
+            )
         if not np.isfinite(points).all():
             raise ValueError(f"{self.points_attribute.GetPath()}: non-finite points at time {time}")
         return points
@@ -98,7 +99,9 @@ def open_frames(stage_or_path, *, max_frames: int | None = MAX_FRAMES) -> StageF
 
     rig = read_rig(stage, meters_per_unit=stage_meters_per_unit(stage))
     attribute = rig_prims(stage).skin.GetAttribute(UsdGeom.Tokens.points)
-    return StageFrames(stage, "rig", rig.mesh.triangles, rig.mesh.points, frame_times(stage, max_frames=max_frames), attribute)
+    return StageFrames(
+        stage, "rig", rig.mesh.triangles, rig.mesh.points, frame_times(stage, max_frames=max_frames), attribute
+    )
 
 
 def _capture_frames(stage: Usd.Stage, max_frames: int | None) -> StageFrames:
@@ -149,7 +152,10 @@ def capture_problems(stage: Usd.Stage, *, progress: bool = False) -> list[tuple[
     problems: list[tuple[str, str]] = []
     root = stage.GetRootLayer()
     label = root.realPath or root.identifier
-    for name, value in (("timeCodesPerSecond", stage.GetTimeCodesPerSecond()), ("framesPerSecond", stage.GetFramesPerSecond())):
+    for name, value in (
+        ("timeCodesPerSecond", stage.GetTimeCodesPerSecond()),
+        ("framesPerSecond", stage.GetFramesPerSecond()),
+    ):
         if not (math.isfinite(value) and value > 0):
             problems.append((label, f"{name} must be > 0, got {value}"))
     start, end = stage.GetStartTimeCode(), stage.GetEndTimeCode()

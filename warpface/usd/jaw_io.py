@@ -56,7 +56,9 @@ def jaw_prim(stage: Usd.Stage, skin: Usd.Prim) -> Usd.Prim | None:
     return prim if prim else None
 
 
-def read_jaw(stage: Usd.Stage, skin: Usd.Prim, placement_of: Callable, to_units: float, vertex_count: int) -> Jaw | None:
+def read_jaw(
+    stage: Usd.Stage, skin: Usd.Prim, placement_of: Callable, to_units: float, vertex_count: int
+) -> Jaw | None:
     """The jaw linked from ``skin``, in the skin's space and the caller's units, or ``None``.
 
     Args:
@@ -102,7 +104,12 @@ def read_jaw(stage: Usd.Stage, skin: Usd.Prim, placement_of: Callable, to_units:
         raise RigError(f"{prim.GetPath()}: unit conversion must be > 0, got {to_units}")
     name = prim.GetDisplayName() or prim.GetName()
     try:
-        return Jaw(pivot=place.point(values("pivot", (3,))) * to_units, axis=place.direction(values("axis", (3,))),
-                   forward=place.direction(values("forward", (3,))), weights=weights, name=name)
+        return Jaw(
+            pivot=place.point(values("pivot", (3,))) * to_units,
+            axis=place.direction(values("axis", (3,))),
+            forward=place.direction(values("forward", (3,))),
+            weights=weights,
+            name=name,
+        )
     except ValueError as exc:
         raise RigError(f"{prim.GetPath()}: {exc}") from None

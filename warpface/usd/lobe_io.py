@@ -18,8 +18,14 @@ from .prim_values import array_value
 
 __all__ = ["author_lobes", "read_lobes", "LOBE_ATTRIBUTES"]
 
-LOBE_ATTRIBUTES = ("lobes:gain", "lobes:attachment", "lobes:insertion", "lobes:zoneAngle", "lobes:falloffStart",
-                   "lobes:falloffFinish")
+LOBE_ATTRIBUTES = (
+    "lobes:gain",
+    "lobes:attachment",
+    "lobes:insertion",
+    "lobes:zoneAngle",
+    "lobes:falloffStart",
+    "lobes:falloffFinish",
+)
 _DEFAULT = Usd.TimeCode.Default()
 
 
@@ -40,7 +46,9 @@ def author_lobes(prim: Usd.Prim, lobes: tuple[MuscleLobe, ...]) -> None:
         prim.CreateAttribute(name, type_name, custom=False, variability=Sdf.VariabilityUniform).Set(value)
 
 
-def read_lobes(prim: Usd.Prim, point: Callable[[np.ndarray], np.ndarray], to_units: float, length: float) -> tuple[MuscleLobe, ...]:
+def read_lobes(
+    prim: Usd.Prim, point: Callable[[np.ndarray], np.ndarray], to_units: float, length: float
+) -> tuple[MuscleLobe, ...]:
     """The lobes of the muscle ``prim`` (empty where ``lobes:gain`` is empty or absent).
 
     Args:
@@ -64,11 +72,15 @@ def read_lobes(prim: Usd.Prim, point: Callable[[np.ndarray], np.ndarray], to_uni
         attr = prim.GetAttribute(name)
         if not attr or attr.Get(_DEFAULT) is None:
             raise RigError(f"{prim.GetPath()}.{name}: attribute is missing (the muscle has lobes)")
-    columns = [array_value(prim, name, (None, 3) if name in LOBE_ATTRIBUTES[1:3] else (None,)) for name in LOBE_ATTRIBUTES[1:]]
+    columns = [
+        array_value(prim, name, (None, 3) if name in LOBE_ATTRIBUTES[1:3] else (None,)) for name in LOBE_ATTRIBUTES[1:]
+    ]
     for name, column in zip(LOBE_ATTRIBUTES[1:], columns):
         if len(column) != count:
             raise RigError(f"{prim.GetPath()}.{name}: {len(column)} entries for {count} lobes (one entry per lobe)")
     attachments, insertions, zones, starts, finishes = columns
     attachments, insertions = point(attachments) * to_units, point(insertions) * to_units
-    return tuple(MuscleLobe(attachments[k], insertions[k], zones[k], starts[k] * length, finishes[k] * length, gains[k])
-                 for k in range(count))
+    return tuple(
+        MuscleLobe(attachments[k], insertions[k], zones[k], starts[k] * length, finishes[k] * length, gains[k])
+        for k in range(count)
+    )

@@ -38,8 +38,10 @@ _CONTROLS = "warpFace:controls"
 _WEIGHTS = "warpFace:weights"
 _OFFSET_CONTROLS = "warpFace:offsetControls"
 _OFFSETS = "warpFace:offsets"
-_DOC = ("Animation driver mapping (SPEC 6.4): controls = M * channels + offsets. Each child names a channel "
-        "and the controls it drives with their weights (stage units per unit channel).")
+_DOC = (
+    "Animation driver mapping (SPEC 6.4): controls = M * channels + offsets. Each child names a channel "
+    "and the controls it drives with their weights (stage units per unit channel)."
+)
 
 
 def drivers_scope_path(stage: Usd.Stage, skin_path: str | None = None) -> Sdf.Path:
@@ -55,7 +57,9 @@ def _checked_name(name: str) -> str:
     return name
 
 
-def write_mapping(stage: Usd.Stage, mapping: Mapping, *, name: str | None = None, skin_path: str | None = None) -> Sdf.Path:
+def write_mapping(
+    stage: Usd.Stage, mapping: Mapping, *, name: str | None = None, skin_path: str | None = None
+) -> Sdf.Path:
     """Author ``mapping`` at ``<rig root>/Drivers/<name>`` (replacing one of that name) in the edit target.
 
     Only non-zero weights are written. The stage is not saved.
@@ -77,7 +81,9 @@ def write_mapping(stage: Usd.Stage, mapping: Mapping, *, name: str | None = None
     prim.SetDocumentation(_DOC)
     if np.any(mapping.offsets != 0.0):
         keep = np.flatnonzero(mapping.offsets)
-        _set(prim, _OFFSET_CONTROLS, Sdf.ValueTypeNames.StringArray, Vt.StringArray([mapping.controls[k] for k in keep]))
+        _set(
+            prim, _OFFSET_CONTROLS, Sdf.ValueTypeNames.StringArray, Vt.StringArray([mapping.controls[k] for k in keep])
+        )
         _set(prim, _OFFSETS, Sdf.ValueTypeNames.DoubleArray, Vt.DoubleArray([float(mapping.offsets[k]) for k in keep]))
     used = set()
     for column, channel in enumerate(mapping.channels):
@@ -89,7 +95,12 @@ def write_mapping(stage: Usd.Stage, mapping: Mapping, *, name: str | None = None
         child = UsdGeom.Scope.Define(stage, path.AppendChild(identifier)).GetPrim()
         _set(child, _CHANNEL, Sdf.ValueTypeNames.String, channel)
         _set(child, _CONTROLS, Sdf.ValueTypeNames.StringArray, Vt.StringArray([mapping.controls[k] for k in rows]))
-        _set(child, _WEIGHTS, Sdf.ValueTypeNames.DoubleArray, Vt.DoubleArray([float(mapping.matrix[k, column]) for k in rows]))
+        _set(
+            child,
+            _WEIGHTS,
+            Sdf.ValueTypeNames.DoubleArray,
+            Vt.DoubleArray([float(mapping.matrix[k, column]) for k in rows]),
+        )
     return path
 
 
@@ -154,7 +165,11 @@ def _array(prim: Usd.Prim, name: str, kind) -> list:
     try:
         items = [kind(v) for v in value]
     except (TypeError, ValueError):
-        raise RigError(f"{attribute.GetPath()}: expected an array of {'strings' if kind is str else 'numbers'}") from None
+        raise RigError(
+            f"{attribute.GetPath()}: expected an array of {'strings' if kind is str else 'numbers'}"
+        ) from None
     if kind is float and not all(math.isfinite(v) for v in items):
-        raise RigError(f"{attribute.GetPath()}: entry {next(i for i, v in enumerate(items) if not math.isfinite(v))} is not a finite number")
+        raise RigError(
+            f"{attribute.GetPath()}: entry {next(i for i, v in enumerate(items) if not math.isfinite(v))} is not a finite number"
+        )
     return items

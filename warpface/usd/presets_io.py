@@ -45,8 +45,14 @@ def _scope_path(prims) -> Sdf.Path:
     return prims.skin.GetPath().GetParentPath().AppendChild(PRESETS_SCOPE)
 
 
-def write_presets(stage: Usd.Stage, presets: Mapping[str, Mapping[str, float]], *, residuals: Mapping[str, float] | None = None,
-                  skin_path: str | None = None, meters_per_unit: float = 1.0) -> list[Sdf.Path]:
+def write_presets(
+    stage: Usd.Stage,
+    presets: Mapping[str, Mapping[str, float]],
+    *,
+    residuals: Mapping[str, float] | None = None,
+    skin_path: str | None = None,
+    meters_per_unit: float = 1.0,
+) -> list[Sdf.Path]:
     """Author named presets ``{preset: {muscle: value}}`` on the rig stage (edit target; not saved).
 
     Args:
@@ -86,10 +92,14 @@ def write_presets(stage: Usd.Stage, presets: Mapping[str, Mapping[str, float]], 
         prim = UsdGeom.Scope.Define(stage, path).GetPrim()
         prim.CreateAttribute(_NAME, Sdf.ValueTypeNames.String, custom=True).Set(preset)
         prim.CreateAttribute(_MUSCLES, Sdf.ValueTypeNames.TokenArray, custom=True).Set(tokens)
-        prim.CreateAttribute(_VALUES, Sdf.ValueTypeNames.DoubleArray, custom=True).Set(Vt.DoubleArray((values / scales).tolist()))
+        prim.CreateAttribute(_VALUES, Sdf.ValueTypeNames.DoubleArray, custom=True).Set(
+            Vt.DoubleArray((values / scales).tolist())
+        )
         if residuals is not None and preset in residuals:
             to_stage = stage_meters_per_unit(stage) / meters_per_unit
-            prim.CreateAttribute(_RESIDUAL, Sdf.ValueTypeNames.Double, custom=True).Set(float(residuals[preset]) / to_stage)
+            prim.CreateAttribute(_RESIDUAL, Sdf.ValueTypeNames.Double, custom=True).Set(
+                float(residuals[preset]) / to_stage
+            )
         written.append(path)
     return written
 

@@ -33,14 +33,22 @@ from ..expression.muscles import FALLOFFS, LinearMuscle, SphincterMuscle
 from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrinkle
 from ..mesh import FaceMesh
 from ..rig import FaceRig
+from ._files import LAYER_SUFFIXES, export_layer_atomically, open_stage, writable_path
 from .jaw_io import author_jaw, read_jaw
 from .lobe_io import author_lobes, read_lobes
-from .prim_values import array_value, attribute_value, check_finite, scalar_value, token_value
-from ._files import LAYER_SUFFIXES, export_layer_atomically, open_stage, writable_path
+from .prim_values import array_value, check_finite, scalar_value, token_value
 from .schema import ensure_schema
 
-__all__ = ["write_rig", "read_rig", "rig_prims", "RigPrims", "stage_meters_per_unit", "SKIN_API", "SHAPE_VARIANT_SET",
-           "REST_VARIANT"]
+__all__ = [
+    "write_rig",
+    "read_rig",
+    "rig_prims",
+    "RigPrims",
+    "stage_meters_per_unit",
+    "SKIN_API",
+    "SHAPE_VARIANT_SET",
+    "REST_VARIANT",
+]
 
 SKIN_API = "WarpFaceSkinAPI"
 SHAPE_VARIANT_SET = "warpFaceShape"
@@ -61,8 +69,9 @@ _DEFAULT = Usd.TimeCode.Default()
 # ---------------------------------------------------------------------------------------------- writing
 
 
-def write_rig(stage_or_path, rig: FaceRig, *, root_path: str | None = None, meters_per_unit: float = 1.0,
-              fps: float = 30.0) -> Usd.Stage:
+def write_rig(
+    stage_or_path, rig: FaceRig, *, root_path: str | None = None, meters_per_unit: float = 1.0, fps: float = 30.0
+) -> Usd.Stage:
     """Author ``rig`` as warpface prims.
 
     Args:
@@ -91,7 +100,9 @@ def write_rig(stage_or_path, rig: FaceRig, *, root_path: str | None = None, mete
     else:
         target = writable_path(stage_or_path, LAYER_SUFFIXES)
         stage = Usd.Stage.CreateInMemory(f"rig{target.suffix}")
-    _author_rig(stage, rig, Sdf.Path(root_path) if root_path else Sdf.Path("/" + _identifier(rig.name)), meters_per_unit, fps)
+    _author_rig(
+        stage, rig, Sdf.Path(root_path) if root_path else Sdf.Path("/" + _identifier(rig.name)), meters_per_unit, fps
+    )
     if target is None:
         return stage
     export_layer_atomically(stage.GetRootLayer(), target)
@@ -121,7 +132,9 @@ def _author_rig(stage: Usd.Stage, rig: FaceRig, root: Sdf.Path, meters_per_unit:
     _set_name(skin_prim, rig.mesh.name)
     mesh = rig.mesh
     skin.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(mesh.triangle_count, 3, dtype=np.int32)))
-    skin.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(mesh.triangles.reshape(-1), dtype=np.int32)))
+    skin.CreateFaceVertexIndicesAttr(
+        Vt.IntArray.FromNumpy(np.ascontiguousarray(mesh.triangles.reshape(-1), dtype=np.int32))
+    )
     skin.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
     skin.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
     points = np.ascontiguousarray(mesh.points, dtype=np.float32)
@@ -133,11 +146,15 @@ def _author_rig(stage: Usd.Stage, rig: FaceRig, root: Sdf.Path, meters_per_unit:
         skin.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([points.min(axis=0), points.max(axis=0)])))
 
     skin_prim.ApplyAPI(SKIN_API)
-    thickness = UsdGeom.PrimvarsAPI(skin_prim).CreatePrimvar(_THICKNESS, Sdf.ValueTypeNames.DoubleArray, UsdGeom.Tokens.vertex)
+    thickness = UsdGeom.PrimvarsAPI(skin_prim).CreatePrimvar(
+        _THICKNESS, Sdf.ValueTypeNames.DoubleArray, UsdGeom.Tokens.vertex
+    )
     thickness.SetInterpolation(UsdGeom.Tokens.vertex)  # explicit, for readers without the plugin
     thickness.Set(Vt.DoubleArray.FromNumpy(np.ascontiguousarray(rig.thickness, dtype=np.float64)))
     if rig.landmarks is not None:
-        landmarks = skin_prim.CreateAttribute(_LANDMARKS, Sdf.ValueTypeNames.IntArray, custom=False, variability=Sdf.VariabilityUniform)
+        landmarks = skin_prim.CreateAttribute(
+            _LANDMARKS, Sdf.ValueTypeNames.IntArray, custom=False, variability=Sdf.VariabilityUniform
+        )
         landmarks.Set(Vt.IntArray.FromNumpy(np.ascontiguousarray(rig.landmarks, dtype=np.int32)))
 
     skin_path = skin_prim.GetPath()
@@ -198,7 +215,9 @@ def _author_muscle(stage, path, muscle) -> Usd.Prim:
 def _author_wrinkle(stage, path, wrinkle: Wrinkle) -> Usd.Prim:
     types = Sdf.ValueTypeNames
     prim = stage.DefinePrim(path, _WRINKLE)
-    _set(prim, "controlPoints", types.Double2Array, Vt.Vec2dArray.FromNumpy(np.ascontiguousarray(wrinkle.control_points)))
+    _set(
+        prim, "controlPoints", types.Double2Array, Vt.Vec2dArray.FromNumpy(np.ascontiguousarray(wrinkle.control_points))
+    )
     projection = wrinkle.projection
     if isinstance(projection, PlanarProjection):
         _set(prim, "projection", types.Token, "planar")
@@ -280,11 +299,17 @@ def rig_prims(stage: Usd.Stage, skin_path: str | None = None) -> RigPrims:
             hint = f" ({len(typed)} WarpFace prims found, e.g. {typed[0].GetPath()})" if typed else ""
             raise RigError(f"{_stage_label(stage)}: no Mesh with {SKIN_API} applied; not a warpface rig{hint}")
         if len(skins) > 1:
-            raise RigError(f"{_stage_label(stage)}: several skins ({', '.join(str(p.GetPath()) for p in skins)}); pass skin_path")
+            raise RigError(
+                f"{_stage_label(stage)}: several skins ({', '.join(str(p.GetPath()) for p in skins)}); pass skin_path"
+            )
         skin = skins[0]
     if not skin.IsA(UsdGeom.Mesh):
-        raise RigError(f"{skin.GetPath()}: {SKIN_API} is applied to a {skin.GetTypeName() or 'typeless prim'}; it applies only to Mesh")
-    muscles = _related(stage, skin, _MUSCLES_REL, (_LINEAR, _SPHINCTER), "WarpFaceLinearMuscle or WarpFaceSphincterMuscle")
+        raise RigError(
+            f"{skin.GetPath()}: {SKIN_API} is applied to a {skin.GetTypeName() or 'typeless prim'}; it applies only to Mesh"
+        )
+    muscles = _related(
+        stage, skin, _MUSCLES_REL, (_LINEAR, _SPHINCTER), "WarpFaceLinearMuscle or WarpFaceSphincterMuscle"
+    )
     wrinkles = _related(stage, skin, _WRINKLES_REL, (_WRINKLE,), "WarpFaceWrinkle")
     return RigPrims(skin=skin, muscles=tuple(muscles), wrinkles=tuple(wrinkles))
 
@@ -299,8 +324,11 @@ def _related(stage, skin: Usd.Prim, rel_name: str, type_names: tuple[str, ...], 
                 raise RigError(f"{skin.GetPath()}.{rel_name}: target {target} does not exist")
             prims.append(prim)
     else:  # no list on the skin: every item whose targetMesh is this skin, in stage order
-        prims = [p for p in stage.Traverse() if p.GetTypeName() in type_names
-                 and skin.GetPath() in p.GetRelationship("targetMesh").GetTargets()]
+        prims = [
+            p
+            for p in stage.Traverse()
+            if p.GetTypeName() in type_names and skin.GetPath() in p.GetRelationship("targetMesh").GetTargets()
+        ]
     for prim in prims:
         if prim.GetTypeName() not in type_names:
             raise RigError(f"{prim.GetPath()}: is a {prim.GetTypeName() or 'typeless prim'}, expected {expected}")
@@ -331,8 +359,9 @@ def stage_meters_per_unit(stage: Usd.Stage) -> float:
 # ---------------------------------------------------------------------------------------------- reading
 
 
-def read_rig(stage_or_path, *, skin_path: str | None = None, meters_per_unit: float = 1.0,
-             degenerate: str = "error") -> FaceRig:
+def read_rig(
+    stage_or_path, *, skin_path: str | None = None, meters_per_unit: float = 1.0, degenerate: str = "error"
+) -> FaceRig:
     """Read and validate a rig from a stage.
 
     Args:
@@ -365,7 +394,15 @@ def read_rig(stage_or_path, *, skin_path: str | None = None, meters_per_unit: fl
     parent = skin.GetParent()
     name = item_name(parent) if parent and not parent.IsPseudoRoot() else item_name(skin)
     try:
-        return FaceRig(mesh, muscles, wrinkles, thickness, landmarks, name, read_jaw(stage, skin, placements.of, to_units, mesh.vertex_count))
+        return FaceRig(
+            mesh,
+            muscles,
+            wrinkles,
+            thickness,
+            landmarks,
+            name,
+            read_jaw(stage, skin, placements.of, to_units, mesh.vertex_count),
+        )
     except ValueError as exc:
         raise RigError(f"{skin.GetPath()}: {exc}") from None
 
@@ -379,12 +416,16 @@ def _read_mesh(skin: Usd.Prim, to_units: float, degenerate: str) -> FaceMesh:
         face = int(np.argmin(counts))
         raise RigError(f"{skin.GetPath()}.faceVertexCounts: face {face} has {int(counts[face])} vertices (needs ≥ 3)")
     if int(counts.sum()) != len(indices):
-        raise RigError(f"{skin.GetPath()}: faceVertexCounts sum to {int(counts.sum())} but faceVertexIndices has {len(indices)} entries")
+        raise RigError(
+            f"{skin.GetPath()}: faceVertexCounts sum to {int(counts.sum())} but faceVertexIndices has {len(indices)} entries"
+        )
     triangles = _fan_triangulate(counts, indices)
     if geom.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded:
         triangles = triangles[:, [0, 2, 1]]
     try:
-        return FaceMesh(points * to_units if to_units != 1.0 else points, triangles, name=item_name(skin), degenerate=degenerate)
+        return FaceMesh(
+            points * to_units if to_units != 1.0 else points, triangles, name=item_name(skin), degenerate=degenerate
+        )
     except ValueError as exc:
         raise RigError(f"{skin.GetPath()}: {exc}") from None
 
@@ -473,9 +514,13 @@ class ItemPlacements:
         scale_squared = float(np.trace(linear @ linear.T)) / 3.0
         if not np.isfinite(matrix).all() or not np.allclose(matrix[:, 3], [0, 0, 0, 1]):
             raise RigError(f"{prim.GetPath()}: transform to the skin is not affine")
-        if scale_squared <= 0.0 or not np.allclose(linear @ linear.T, scale_squared * np.eye(3), rtol=0.0, atol=1e-9 * scale_squared):
-            raise RigError(f"{prim.GetPath()}: transform to the skin must be a rotation, translation and uniform scale "
-                           f"(no shear or non-uniform scale)")
+        if scale_squared <= 0.0 or not np.allclose(
+            linear @ linear.T, scale_squared * np.eye(3), rtol=0.0, atol=1e-9 * scale_squared
+        ):
+            raise RigError(
+                f"{prim.GetPath()}: transform to the skin must be a rotation, translation and uniform scale "
+                f"(no shear or non-uniform scale)"
+            )
         if np.linalg.det(linear) < 0.0:
             raise RigError(f"{prim.GetPath()}: transform to the skin mirrors (negative determinant)")
         return Placement(linear, matrix[3, :3].copy(), math.sqrt(scale_squared))
@@ -511,24 +556,34 @@ def _read_muscle(prim: Usd.Prim, place: Placement, to_units: float):
 
 
 def _muscle_response(prim: Usd.Prim) -> dict:  # zone form, sliding, bunching, thickening (fallbacks: SPEC §1.1)
-    return dict(falloff=token_value(prim, "falloff", FALLOFFS), **{name: scalar_value(prim, name) for name in _RESPONSE})
+    return dict(
+        falloff=token_value(prim, "falloff", FALLOFFS), **{name: scalar_value(prim, name) for name in _RESPONSE}
+    )
 
 
 def _read_wrinkle(prim: Usd.Prim, place: Placement, to_units: float) -> Wrinkle:
     length = place.scale * to_units
     control_points = array_value(prim, "controlPoints", (None, 2))
     if len(control_points) != 4:
-        raise RigError(f"{prim.GetPath()}.controlPoints: a cubic Bézier needs 4 control points, got {len(control_points)}")
+        raise RigError(
+            f"{prim.GetPath()}.controlPoints: a cubic Bézier needs 4 control points, got {len(control_points)}"
+        )
     kind = token_value(prim, "projection", ("planar", "cylindrical"))
     origin = place.point(array_value(prim, "projection:origin", (3,))) * to_units
     try:
         if kind == "planar":
-            projection = PlanarProjection(origin, place.direction(array_value(prim, "projection:uAxis", (3,))),
-                                          place.direction(array_value(prim, "projection:vAxis", (3,))))
+            projection = PlanarProjection(
+                origin,
+                place.direction(array_value(prim, "projection:uAxis", (3,))),
+                place.direction(array_value(prim, "projection:vAxis", (3,))),
+            )
         else:
-            projection = CylindricalProjection(origin, place.direction(array_value(prim, "projection:axis", (3,))),
-                                               place.direction(array_value(prim, "projection:reference", (3,))),
-                                               scalar_value(prim, "projection:radius") * length)
+            projection = CylindricalProjection(
+                origin,
+                place.direction(array_value(prim, "projection:axis", (3,))),
+                place.direction(array_value(prim, "projection:reference", (3,))),
+                scalar_value(prim, "projection:radius") * length,
+            )
         return Wrinkle(
             name=item_name(prim),
             control_points=control_points * length,

@@ -165,7 +165,10 @@ def regenerate_schema(out_dir: str | Path | None = None, *, source: str | Path |
         env = {k: v for k, v in os.environ.items() if k != _ENV_VAR}
         result = subprocess.run(
             [sys.executable, "-m", "pxr.Usd.usdGenSchema", "-q", "schema.usda", "."],
-            cwd=scratch, env=env, capture_output=True, text=True,
+            cwd=scratch,
+            env=env,
+            capture_output=True,
+            text=True,
         )
         if result.returncode != 0 or not (scratch / "generatedSchema.usda").is_file():
             raise RuntimeError(f"usdGenSchema failed ({result.returncode}):\n{result.stdout}\n{result.stderr}")
@@ -174,10 +177,12 @@ def regenerate_schema(out_dir: str | Path | None = None, *, source: str | Path |
             plug_info = plug_info.replace(placeholder, value)
         json.loads("\n".join(line for line in plug_info.splitlines() if not line.lstrip().startswith("#")))
         written = []
-        for name, text in (("generatedSchema.usda", (scratch / "generatedSchema.usda").read_text()), ("plugInfo.json", plug_info)):
+        for name, text in (
+            ("generatedSchema.usda", (scratch / "generatedSchema.usda").read_text()),
+            ("plugInfo.json", plug_info),
+        ):
             target = out_dir / name
             with atomic_path(target, target.suffix) as temporary:
                 temporary.write_text(text)
             written.append(target)
     return written
-

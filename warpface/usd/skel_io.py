@@ -36,8 +36,11 @@ def read_driver(path, *, fps: float | None = None) -> Curves:
 
 def find_skel_animations(stage: Usd.Stage) -> list[Usd.Prim]:
     """Every ``SkelAnimation`` prim on the stage that authors ``blendShapes``, in traversal order."""
-    return [prim for prim in stage.Traverse() if prim.IsA(UsdSkel.Animation)
-            and UsdSkel.Animation(prim).GetBlendShapesAttr().HasAuthoredValue()]
+    return [
+        prim
+        for prim in stage.Traverse()
+        if prim.IsA(UsdSkel.Animation) and UsdSkel.Animation(prim).GetBlendShapesAttr().HasAuthoredValue()
+    ]
 
 
 def read_skel_animation(stage_or_path, *, prim_path: str | None = None) -> Curves:
@@ -63,7 +66,9 @@ def read_skel_animation(stage_or_path, *, prim_path: str | None = None) -> Curve
         if not found:
             raise ValueError(f"{label}: no SkelAnimation with blendShapes on the stage")
         if len(found) > 1:
-            raise ValueError(f"{label}: {len(found)} SkelAnimations with blendShapes ({', '.join(str(p.GetPath()) for p in found[:4])}); choose one")
+            raise ValueError(
+                f"{label}: {len(found)} SkelAnimations with blendShapes ({', '.join(str(p.GetPath()) for p in found[:4])}); choose one"
+            )
         prim = found[0]
     animation = UsdSkel.Animation(prim)
     names = [canonical_channel(n) for n in (animation.GetBlendShapesAttr().Get() or [])]
@@ -79,7 +84,9 @@ def read_skel_animation(stage_or_path, *, prim_path: str | None = None) -> Curve
             raise ValueError(f"{label}: {weights.GetPath()} has no value" + (f" at time {code}" if samples else ""))
         array = np.asarray(value, dtype=np.float64)
         if array.shape != (len(names),):
-            raise ValueError(f"{label}: {weights.GetPath()} at time {code} has {array.size} weights for {len(names)} blendShapes")
+            raise ValueError(
+                f"{label}: {weights.GetPath()} at time {code} has {array.size} weights for {len(names)} blendShapes"
+            )
         values[row] = array
     rate = stage.GetTimeCodesPerSecond()
     if not (math.isfinite(rate) and rate > 0):
@@ -109,7 +116,9 @@ def write_skel_animation(path, curves: Curves, *, prim_path: str = "/Animation",
     codes = curves.times * rate
     with Sdf.ChangeBlock():
         for row, code in enumerate(codes.tolist()):
-            layer.SetTimeSample(attribute.GetPath(), code, Vt.FloatArray.FromNumpy(curves.values[row].astype(np.float32)))
+            layer.SetTimeSample(
+                attribute.GetPath(), code, Vt.FloatArray.FromNumpy(curves.values[row].astype(np.float32))
+            )
     layer.timeCodesPerSecond = rate
     layer.framesPerSecond = rate
     layer.startTimeCode, layer.endTimeCode = float(codes[0]), float(codes[-1])
@@ -148,12 +157,24 @@ def export_arkit_weights(stage_or_path, out_path, *, mapping: str | None = None,
     keep = [c for c, name in enumerate(table.channels) if name in set(ARKIT_CHANNELS)]
     if not keep:
         raise ValueError(f"mapping {table.name!r} has no ARKit channel to export")
-    arkit = Mapping(channels=[table.channels[c] for c in keep], controls=table.controls, matrix=table.matrix[:, keep],
-                    offsets=table.offsets, name=table.name)
-    controls = {name: animation.controls[:, k] for k, name in enumerate(animation.control_names) if name in arkit.controls}
+    arkit = Mapping(
+        channels=[table.channels[c] for c in keep],
+        controls=table.controls,
+        matrix=table.matrix[:, keep],
+        offsets=table.offsets,
+        name=table.name,
+    )
+    controls = {
+        name: animation.controls[:, k] for k, name in enumerate(animation.control_names) if name in arkit.controls
+    }
     rate = float(fps or stage.GetTimeCodesPerSecond())
-    curves = controls_to_curves(arkit, animation.times / stage.GetTimeCodesPerSecond(), controls,
-                                source=Path(stage.GetRootLayer().identifier).name, fps=rate)
+    curves = controls_to_curves(
+        arkit,
+        animation.times / stage.GetTimeCodesPerSecond(),
+        controls,
+        source=Path(stage.GetRootLayer().identifier).name,
+        fps=rate,
+    )
     if out.suffix.lower() == ".csv":
         return write_live_link(out, curves, fps=round(rate))
     return write_skel_animation(out, curves, fps=rate)

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
-from .._validate import as_finite_array, as_positive, expect_instance, expect_instance
+from .._validate import as_finite_array, as_positive, expect_instance
 from ..errors import RigError
 from ..fem.material import MATERIAL_RANGES, TissueMaterial
 from ..fem.tetmesh import TetMesh
@@ -86,13 +86,28 @@ def check_prim_path(path, name: str) -> None:
     if not isinstance(path, str):
         raise TypeError(f"{name}: expected an absolute prim path such as '/Face/Tissue', got {type(path).__name__}")
     valid = Sdf.Path.IsValidPathString(path)  # (False, reason) when invalid
-    if (not (valid[0] if isinstance(valid, tuple) else valid) or not Sdf.Path(path).IsAbsolutePath()
-            or not Sdf.Path(path).IsPrimPath() or Sdf.Path(path) == Sdf.Path.absoluteRootPath):
+    if (
+        not (valid[0] if isinstance(valid, tuple) else valid)
+        or not Sdf.Path(path).IsAbsolutePath()
+        or not Sdf.Path(path).IsPrimPath()
+        or Sdf.Path(path) == Sdf.Path.absoluteRootPath
+    ):
         raise ValueError(f"{name}: {path[:60]!r} is not an absolute prim path such as '/Face/Tissue'")
 
 
-def write_tissue(stage: Usd.Stage, path: str, points, tets, *, youngs_modulus, poisson_ratio, viscosity, density,
-                 regions: dict | None = None, skin_path: str | None = None) -> Usd.Prim:
+def write_tissue(
+    stage: Usd.Stage,
+    path: str,
+    points,
+    tets,
+    *,
+    youngs_modulus,
+    poisson_ratio,
+    viscosity,
+    density,
+    regions: dict | None = None,
+    skin_path: str | None = None,
+) -> Usd.Prim:
     """Define a ``TetMesh`` with ``WarpFaceTetMaterialAPI`` at ``path`` (authored in the edit target).
 
     Args:
@@ -133,8 +148,14 @@ def write_tissue(stage: Usd.Stage, path: str, points, tets, *, youngs_modulus, p
         primvar.Set(Vt.DoubleArray.FromNumpy(value))
     imageable = UsdGeom.Imageable(prim)
     for name, indices in tissue.regions.items():
-        UsdGeom.Subset.CreateGeomSubset(imageable, name, UsdGeom.Tokens.tetrahedron,
-                                        Vt.IntArray.FromNumpy(indices.astype(np.int32)), REGION_FAMILY, UsdGeom.Tokens.nonOverlapping)
+        UsdGeom.Subset.CreateGeomSubset(
+            imageable,
+            name,
+            UsdGeom.Tokens.tetrahedron,
+            Vt.IntArray.FromNumpy(indices.astype(np.int32)),
+            REGION_FAMILY,
+            UsdGeom.Tokens.nonOverlapping,
+        )
     if skin_path is not None:
         skin = stage.GetPrimAtPath(skin_path)
         if not skin or not skin.HasAPI(SKIN_API):
@@ -152,17 +173,28 @@ def _validated(points, tets, youngs_modulus, poisson_ratio, viscosity, density, 
         raise ValueError(f"{label}: no tetrahedra")
     bad = np.flatnonzero(np.any((tets < 0) | (tets >= len(points)), axis=1))
     if len(bad):
-        raise ValueError(f"{label}: tet {int(bad[0])} has node index out of range [0, {len(points)}): {tets[bad[0]].tolist()}")
+        raise ValueError(
+            f"{label}: tet {int(bad[0])} has node index out of range [0, {len(points)}): {tets[bad[0]].tolist()}"
+        )
     values = {}
-    for name, raw in (("youngs_modulus", youngs_modulus), ("poisson_ratio", poisson_ratio), ("viscosity", viscosity), ("density", density)):
+    for name, raw in (
+        ("youngs_modulus", youngs_modulus),
+        ("poisson_ratio", poisson_ratio),
+        ("viscosity", viscosity),
+        ("density", density),
+    ):
         value = as_finite_array(raw, f"{label}: {name}")
         if value.ndim not in (0, 1) or (value.ndim == 1 and len(value) != len(tets)):
-            raise ValueError(f"{label}: {name} must be a scalar or one value per tet ({len(tets)},), got shape {value.shape}")
+            raise ValueError(
+                f"{label}: {name} must be a scalar or one value per tet ({len(tets)},), got shape {value.shape}"
+            )
         allowed = MATERIAL_RANGES[_MATERIAL_FIELD[name]]
         wrong = allowed.outside(value)
         if len(wrong):
             where = f" at tet {int(wrong[0])}" if value.ndim else ""
-            raise ValueError(f"{label}: {name}{where} must be {allowed.describe()}, got {np.atleast_1d(value)[wrong[0]]}")
+            raise ValueError(
+                f"{label}: {name}{where} must be {allowed.describe()}, got {np.atleast_1d(value)[wrong[0]]}"
+            )
         values[name] = float(value) if value.ndim == 0 else value
     checked = {}
     for name, indices in regions.items():
@@ -172,7 +204,9 @@ def _validated(points, tets, youngs_modulus, poisson_ratio, viscosity, density, 
         indices = indices.astype(np.int64)
         outside = np.flatnonzero((indices < 0) | (indices >= len(tets)))
         if len(outside):
-            raise ValueError(f"{label}: region {name!r} tet index {int(indices[outside[0]])} out of range [0, {len(tets)})")
+            raise ValueError(
+                f"{label}: region {name!r} tet index {int(indices[outside[0]])} out of range [0, {len(tets)})"
+            )
         checked[name] = indices
     return Tissue(points=points, tets=tets.astype(np.int64), regions=checked, **values)
 
@@ -218,15 +252,19 @@ def read_tissue(stage_or_path, path: str | None = None, *, meters_per_unit: floa
         elif interpolation == UsdGeom.Tokens.uniform and len(value) == len(tets):
             values[field_name] = value
         else:
-            raise RigError(f"{label}.primvars:{primvar_name}: {interpolation!r} primvar with {len(value)} values; expected "
-                           f"'constant' with 1 or 'uniform' with one per tet ({len(tets)})")
+            raise RigError(
+                f"{label}.primvars:{primvar_name}: {interpolation!r} primvar with {len(value)} values; expected "
+                f"'constant' with 1 or 'uniform' with one per tet ({len(tets)})"
+            )
     regions = {}
     for subset in UsdGeom.Subset.GetGeomSubsets(UsdGeom.Imageable(prim), UsdGeom.Tokens.tetrahedron, REGION_FAMILY):
         indices = subset.GetIndicesAttr().Get(Usd.TimeCode.Default())
         regions[subset.GetPrim().GetName()] = np.asarray(indices if indices is not None else [], dtype=np.int64)
     to_units = stage_meters_per_unit(stage) / as_positive(meters_per_unit, "meters_per_unit")
     try:
-        return _validated(points * to_units if to_units != 1.0 else points, tets, regions=regions, label=label, **values)
+        return _validated(
+            points * to_units if to_units != 1.0 else points, tets, regions=regions, label=label, **values
+        )
     except ValueError as exc:
         raise RigError(str(exc)) from None
 
@@ -248,7 +286,9 @@ def _find_tissue(stage: Usd.Stage, path: str | None) -> Usd.Prim:
             return prim
     candidates = [p for p in stage.Traverse() if p.HasAPI(TET_MATERIAL_API)]
     if len(candidates) != 1:
-        raise RigError(f"stage {stage.GetRootLayer().identifier}: {len(candidates)} TetMesh prims with {TET_MATERIAL_API}; pass path")
+        raise RigError(
+            f"stage {stage.GetRootLayer().identifier}: {len(candidates)} TetMesh prims with {TET_MATERIAL_API}; pass path"
+        )
     return candidates[0]
 
 
@@ -280,8 +320,9 @@ def _region_indices(regions: Mapping[str, object] | None, tet_count: int) -> dic
     return out
 
 
-def write_tissue_mesh(stage, path: str, tetmesh: TetMesh, material: TissueMaterial, *, regions=None,
-                      skin_path: str | None = None):
+def write_tissue_mesh(
+    stage, path: str, tetmesh: TetMesh, material: TissueMaterial, *, regions=None, skin_path: str | None = None
+):
     """Author ``tetmesh`` with ``material`` as a ``UsdGeom.TetMesh`` at ``path``.
 
     Points are written as float32 (USD ``point3f[]``); material values as SI doubles, ``constant``
@@ -349,8 +390,9 @@ def read_tissue_mesh(stage_or_path, path: str | None = None, *, damping: str = "
     """
     tissue = read_tissue(stage_or_path, path, meters_per_unit=1.0)
     tetmesh = TetMesh(tissue.points, tissue.tets)
-    material = TissueMaterial(tissue.youngs_modulus, tissue.poisson_ratio, tissue.viscosity, tissue.density,
-                              damping=damping)
+    material = TissueMaterial(
+        tissue.youngs_modulus, tissue.poisson_ratio, tissue.viscosity, tissue.density, damping=damping
+    )
     material.per_tet(tetmesh.tet_count)
     regions = {}
     for name, indices in tissue.regions.items():

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import ctypes
 import time
-from pathlib import Path
 
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
@@ -102,8 +101,19 @@ class TrackingStageWriter:
         ValueError: bad path, shapes, fps or flush settings; non-finite data passed to :meth:`add`.
     """
 
-    def __init__(self, path, landmark_names, fps: float, *, dense_rest=None, triangles=None, chunk_frames: int = 30,
-                 flush_seconds: float = 1.0, extra_prims=None, channels=None):
+    def __init__(
+        self,
+        path,
+        landmark_names,
+        fps: float,
+        *,
+        dense_rest=None,
+        triangles=None,
+        chunk_frames: int = 30,
+        flush_seconds: float = 1.0,
+        extra_prims=None,
+        channels=None,
+    ):
         self.path = writable_path(path, (".usda", ".usdc"))
         try:
             self.fps = float(fps)
@@ -127,7 +137,12 @@ class TrackingStageWriter:
             triangles = np.asarray(triangles)
             if dense_rest.ndim != 2 or dense_rest.shape[1] != 3 or not np.all(np.isfinite(dense_rest)):
                 raise ValueError("dense_rest: expected finite points of shape (V, 3)")
-            if triangles.ndim != 2 or triangles.shape[1] != 3 or triangles.min() < 0 or triangles.max() >= len(dense_rest):
+            if (
+                triangles.ndim != 2
+                or triangles.shape[1] != 3
+                or triangles.min() < 0
+                or triangles.max() >= len(dense_rest)
+            ):
                 raise ValueError("triangles: expected (T, 3) indices into dense_rest")
             self.vertex_count = len(dense_rest)
         self._chunks: list[tuple[str, float]] = []  # (file name, first time code)
@@ -146,8 +161,15 @@ class TrackingStageWriter:
         self._static, self._root = self._author_layers(dense_rest, triangles, extra_prims)
 
     # ------------------------------------------------------------------ public
-    def add(self, timestamp: float, landmarks: np.ndarray, confidence: np.ndarray, dense_points: np.ndarray | None = None,
-            *, samples: dict | None = None) -> float:
+    def add(
+        self,
+        timestamp: float,
+        landmarks: np.ndarray,
+        confidence: np.ndarray,
+        dense_points: np.ndarray | None = None,
+        *,
+        samples: dict | None = None,
+    ) -> float:
         """Queue one frame; returns its time code. Missing landmarks (NaN rows, or beyond ±1e6 m) are
         written at their last known position with confidence 0 (USD points cannot be NaN), or at the
         origin until seen; confidences are clipped to [0, 1]. ``samples`` gives this frame's value of
@@ -162,7 +184,9 @@ class TrackingStageWriter:
             landmarks = np.asarray(landmarks, dtype=np.float64)
             confidence = np.asarray(confidence, dtype=np.float64)
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"frame at t={timestamp!r}: timestamp, landmarks and confidence must be numeric ({exc})") from None
+            raise ValueError(
+                f"frame at t={timestamp!r}: timestamp, landmarks and confidence must be numeric ({exc})"
+            ) from None
         if not np.isfinite(timestamp):
             raise ValueError(f"frame at t={timestamp}: timestamp is not finite")
         if landmarks.shape != (len(self.names), 3) or confidence.shape != (len(self.names),):
@@ -174,7 +198,9 @@ class TrackingStageWriter:
             self._held = np.zeros((len(self.names), 3))
         time_code = (float(timestamp) - self._first_timestamp) * self.fps
         if not time_code > self._last_time:
-            raise ValueError(f"frame at t={timestamp}: time must increase (time code {time_code} after {self._last_time})")
+            raise ValueError(
+                f"frame at t={timestamp}: time must increase (time code {time_code} after {self._last_time})"
+            )
         seen = np.all(np.isfinite(landmarks), axis=1)
         self._held[seen] = landmarks[seen]
         confidence = np.where(seen & np.isfinite(confidence), np.clip(confidence, 0.0, 1.0), 0.0)
@@ -188,7 +214,9 @@ class TrackingStageWriter:
                 raise ValueError(f"frame at t={timestamp}: dense points must have shape ({self.vertex_count}, 3)")
             dense_points = np.ascontiguousarray(dense_points)
             # The extent doubles as the finiteness check: a NaN or ±inf anywhere reaches a min or a max.
-            columns = np.ascontiguousarray(dense_points.T)  # min/max over contiguous rows beat a strided axis-0 reduction
+            columns = np.ascontiguousarray(
+                dense_points.T
+            )  # min/max over contiguous rows beat a strided axis-0 reduction
             bounds = np.stack([columns.min(axis=1), columns.max(axis=1)])
             if not np.all(np.isfinite(bounds)):
                 raise ValueError(f"frame at t={timestamp}: dense points are not finite; nothing written for it")
@@ -209,7 +237,10 @@ class TrackingStageWriter:
         unknown = sorted(str(p) for p in set(given) - set(self.channels))
         missing = sorted(str(p) for p in set(self.channels) - set(given))
         if unknown or missing:
-            raise ValueError(f"frame at t={timestamp}: samples " + (f"name undeclared channels {unknown}" if unknown else f"lack {missing}"))
+            raise ValueError(
+                f"frame at t={timestamp}: samples "
+                + (f"name undeclared channels {unknown}" if unknown else f"lack {missing}")
+            )
         for path, value in given.items():
             try:
                 finite = bool(np.all(np.isfinite(np.asarray(value, dtype=np.float64))))
@@ -303,7 +334,11 @@ class TrackingStageWriter:
         """Chunks of an earlier capture to this path, which the new root no longer lists, and
         temporaries of a killed one (removed once the new root is in place)."""
         listed = {name for name, _ in self._chunks}
-        for stale in [*self.folder.glob("chunk_*.usdc"), *self.folder.glob(".chunk_*.usdc.*"), *self.folder.glob(".static.usdc.*")]:
+        for stale in [
+            *self.folder.glob("chunk_*.usdc"),
+            *self.folder.glob(".chunk_*.usdc.*"),
+            *self.folder.glob(".static.usdc.*"),
+        ]:
             if stale.name not in listed:
                 stale.unlink(missing_ok=True)
 
@@ -333,13 +368,17 @@ class TrackingStageWriter:
         points.CreateWidthsAttr(Vt.FloatArray([0.004]))
         points.SetWidthsInterpolation(UsdGeom.Tokens.constant)
         primvars = UsdGeom.PrimvarsAPI(points)
-        primvars.CreatePrimvar("names", Sdf.ValueTypeNames.StringArray, UsdGeom.Tokens.constant).Set(Vt.StringArray(self.names))
+        primvars.CreatePrimvar("names", Sdf.ValueTypeNames.StringArray, UsdGeom.Tokens.constant).Set(
+            Vt.StringArray(self.names)
+        )
         primvars.CreatePrimvar("confidence", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex)
         UsdGeom.Imageable(points).CreatePurposeAttr(UsdGeom.Tokens.default_)
         if dense_rest is not None:
             mesh = UsdGeom.Mesh.Define(stage, FACE)
             mesh.CreateFaceVertexCountsAttr(Vt.IntArray([3] * len(triangles)))
-            mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(triangles, dtype=np.int32).ravel()))
+            mesh.CreateFaceVertexIndicesAttr(
+                Vt.IntArray.FromNumpy(np.ascontiguousarray(triangles, dtype=np.int32).ravel())
+            )
             mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
             mesh.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
             rest = mesh.GetPrim().CreateAttribute("warpFace:restPoints", Sdf.ValueTypeNames.Point3fArray, custom=True)
@@ -357,7 +396,15 @@ class TrackingStageWriter:
         # root is a stage-free layer: clip edits must not trigger composition (the relative clip
         # paths cannot resolve against an in-memory layer).
         root = Sdf.Layer.CreateAnonymous(".usda")
-        for key in ("metersPerUnit", "upAxis", "timeCodesPerSecond", "framesPerSecond", "startTimeCode", "endTimeCode", "defaultPrim"):
+        for key in (
+            "metersPerUnit",
+            "upAxis",
+            "timeCodesPerSecond",
+            "framesPerSecond",
+            "startTimeCode",
+            "endTimeCode",
+            "defaultPrim",
+        ):
             root.pseudoRoot.SetInfo(key, stage.GetRootLayer().pseudoRoot.GetInfo(key))
         root.subLayerPaths = [f"./{self.folder.name}/static.usdc"]
         Sdf.CreatePrimInLayer(root, ROOT).specifier = Sdf.SpecifierOver
@@ -372,12 +419,19 @@ class TrackingStageWriter:
             end = self._root.endTimeCode
             # Identity time mapping over the capture; a single pair for a one-frame capture (a
             # second pair at a later time would read back as an extra sample).
-            self._root.GetPrimAtPath(ROOT).SetInfo("clips", {"default": {
-                "assetPaths": Sdf.AssetPathArray([f"./{self.folder.name}/{name}" for name, _ in self._chunks]),
-                "primPath": str(ROOT),
-                "active": Vt.Vec2dArray([(start, float(index)) for index, (_, start) in enumerate(self._chunks)]),
-                "times": Vt.Vec2dArray([(0.0, 0.0), (end, end)] if end > 0 else [(0.0, 0.0)]),
-            }})
+            self._root.GetPrimAtPath(ROOT).SetInfo(
+                "clips",
+                {
+                    "default": {
+                        "assetPaths": Sdf.AssetPathArray([f"./{self.folder.name}/{name}" for name, _ in self._chunks]),
+                        "primPath": str(ROOT),
+                        "active": Vt.Vec2dArray(
+                            [(start, float(index)) for index, (_, start) in enumerate(self._chunks)]
+                        ),
+                        "times": Vt.Vec2dArray([(0.0, 0.0), (end, end)] if end > 0 else [(0.0, 0.0)]),
+                    }
+                },
+            )
         export_layer_atomically(self._root, self.path)
 
 

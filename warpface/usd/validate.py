@@ -11,10 +11,10 @@ from ..errors import RigError
 from ._files import open_stage, without_usd_warnings
 from .animation import read_animation
 from .baking import check_bake, existing_cache_path
+from .frames import capture_problems, is_capture
 from .rig_io import SKIN_API, read_rig, rig_prims
 from .schema import CONCRETE_SCHEMAS, ensure_schema
 from .tissue_io import TET_MATERIAL_API, read_tissue
-from .frames import capture_problems, is_capture
 
 __all__ = ["ValidationProblem", "validate_stage"]
 
@@ -35,8 +35,9 @@ class ValidationProblem:
         return f"{self.severity}: {self.path}: {self.message} [{self.source}]"
 
 
-def validate_stage(stage_or_path, *, usd_validators: bool = True, bake_checks: bool = True, device=None,
-                   progress: bool = False) -> list[ValidationProblem]:
+def validate_stage(
+    stage_or_path, *, usd_validators: bool = True, bake_checks: bool = True, device=None, progress: bool = False
+) -> list[ValidationProblem]:
     """Check a stage; an empty list means no problems.
 
     Runs every registered ``pxr.UsdValidation`` validator (errors and warnings) and warpface's own
@@ -62,8 +63,10 @@ def validate_stage(stage_or_path, *, usd_validators: bool = True, bake_checks: b
     ensure_schema()
     problems: list[ValidationProblem] = []
     if is_capture(stage):
-        problems += [ValidationProblem("error", path, message, "warpface")
-                     for path, message in capture_problems(stage, progress=progress)]
+        problems += [
+            ValidationProblem("error", path, message, "warpface")
+            for path, message in capture_problems(stage, progress=progress)
+        ]
         return problems
     if usd_validators:  # their findings are reported as problems; the same diagnostics on stderr are noise
         problems += without_usd_warnings(lambda: _usd_problems(stage), dropping=("Warning: in ",))
@@ -82,7 +85,7 @@ def _bake_problems(stage: Usd.Stage, device) -> list[ValidationProblem]:
         except (ValueError, RigError) as exc:
             message = str(exc)
             prefix = f"{skin.GetPath()}: "
-            message = message[len(prefix):] if message.startswith(prefix) else message
+            message = message[len(prefix) :] if message.startswith(prefix) else message
             if "nothing to bake" in message:
                 continue  # a rig without animation is valid; there is just nothing to bake
             problems.append(ValidationProblem("error", str(skin.GetPath()), message, "warpface (bake)"))
@@ -101,7 +104,13 @@ def _usd_problems(stage: Usd.Stage) -> list[ValidationProblem]:
         path = str(stage.GetRootLayer().identifier)
         if sites:
             site = sites[0]
-            path = str(site.GetProperty().GetPath() if site.IsProperty() else site.GetPrim().GetPath() if site.IsPrim() else path)
+            path = str(
+                site.GetProperty().GetPath()
+                if site.IsProperty()
+                else site.GetPrim().GetPath()
+                if site.IsPrim()
+                else path
+            )
         problems.append(ValidationProblem(severity, path, error.GetMessage(), error.GetIdentifier() or error.GetName()))
     return problems
 
@@ -126,7 +135,9 @@ def _rig_problems(stage: Usd.Stage) -> list[ValidationProblem]:
             error(skin.GetPath(), str(exc))
             continue
         reached.update(p.GetPath() for p in prims.muscles + prims.wrinkles)
-        controls = [p.GetAttribute("contraction") for p in prims.muscles] + [p.GetAttribute("depth") for p in prims.wrinkles]
+        controls = [p.GetAttribute("contraction") for p in prims.muscles] + [
+            p.GetAttribute("depth") for p in prims.wrinkles
+        ]
         times = sorted({t for attr in controls for t in attr.GetTimeSamples()})
         if times:
             animated = True
@@ -139,21 +150,36 @@ def _rig_problems(stage: Usd.Stage) -> list[ValidationProblem]:
             animated = True
             value = points.Get(time)
             if value is None or len(value) != rig.mesh.vertex_count:
-                error(points.GetPath(), f"time sample {time} has {0 if value is None else len(value)} points, "
-                                        f"the rest shape has {rig.mesh.vertex_count}")
+                error(
+                    points.GetPath(),
+                    f"time sample {time} has {0 if value is None else len(value)} points, "
+                    f"the rest shape has {rig.mesh.vertex_count}",
+                )
                 break
             if not np.isfinite(np.asarray(value)).all():
                 error(points.GetPath(), f"time sample {time} has non-finite points")
                 break
     if animated:
         root = stage.GetRootLayer()
-        missing = [name for name, has in (("timeCodesPerSecond", root.HasTimeCodesPerSecond()), ("framesPerSecond", root.HasFramesPerSecond()),
-                                          ("startTimeCode", root.HasStartTimeCode()), ("endTimeCode", root.HasEndTimeCode())) if not has]
+        missing = [
+            name
+            for name, has in (
+                ("timeCodesPerSecond", root.HasTimeCodesPerSecond()),
+                ("framesPerSecond", root.HasFramesPerSecond()),
+                ("startTimeCode", root.HasStartTimeCode()),
+                ("endTimeCode", root.HasEndTimeCode()),
+            )
+            if not has
+        ]
         if missing:
             error(layer_label, f"animated stage does not author {', '.join(missing)}")
     for prim in stage.Traverse():
         if prim.GetTypeName() in CONCRETE_SCHEMAS and prim.GetPath() not in reached and skins:
-            problems.append(ValidationProblem("warning", str(prim.GetPath()), "not used by any skin's muscles or wrinkles", "warpface"))
+            problems.append(
+                ValidationProblem(
+                    "warning", str(prim.GetPath()), "not used by any skin's muscles or wrinkles", "warpface"
+                )
+            )
         if prim.HasAPI(TET_MATERIAL_API):
             try:
                 read_tissue(stage, str(prim.GetPath()))
