@@ -11,10 +11,11 @@ advances a :class:`TissueState` under a :class:`TissueControl` with
 ``stepper.step(state_in, state_out, control)``; :meth:`TissueSimulation.run` is the convenience path.
 """
 
+from ..errors import ConvergenceError
 from .assembly import FORMULATIONS, SystemMatrices, assemble
 from .batch import TissueBatch
 from .embedding import Embedding, embed_points
-from .integrator import ConvergenceError, TissueSimulation
+from .integrator import TissueSimulation
 from .material import DAMPING_MODELS, MATERIAL_RANGES, TissueMaterial
 from .presets import KATO_MODELS, KATO_REGIONS, KATO_UNIFORM, kato_uniform_material
 from .primitives import box_tet_mesh, shell_tet_mesh

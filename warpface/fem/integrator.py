@@ -27,15 +27,16 @@ import numpy as np
 import warp as wp
 
 from .._validate import as_device, as_finite_array
+from ..errors import ConvergenceError
 from .assembly import FORMULATIONS, SystemMatrices, assemble
 from .material import TissueMaterial
 from .newmark import newmark_coefficients, validate_newmark
-from .solver_cg import CG_LOOPS, PRECONDITIONERS, CGSolver, ConvergenceError
+from .solver_cg import CG_LOOPS, PRECONDITIONERS, CGSolver
 from .solver_direct import DirectSolver, factorize_spd, node_dofs
 from .state import TissueControl, TissueState
 from .tetmesh import TetMesh
 
-__all__ = ["TissueSimulation", "ConvergenceError", "SOLVERS", "split_nodes"]
+__all__ = ["SOLVERS", "TissueSimulation", "split_nodes"]
 
 SOLVERS = ("auto", "direct", "cg")
 

@@ -24,6 +24,7 @@ import numpy as np
 import warp as wp
 from warp.optim.linear import FSAI
 
+from ..errors import ConvergenceError
 from .assembly import SystemMatrices, bsr_to_scipy
 from .chunks import ChunkedRun
 from .kernels_cg import SLOT_SPREAD
@@ -34,7 +35,6 @@ from .solver_cg import (
     FSAI_ROW_SIZE,
     PERSISTENT_LANES,
     PERSISTENT_ROWS,
-    ConvergenceError,
     grouped_factor_rows,
     newmark_operators,
     preconditioner_factor,

@@ -52,6 +52,7 @@ import warp as wp
 import warp.sparse as wps
 from warp.optim.linear import FSAI
 
+from ..errors import ConvergenceError
 from .assembly import SystemMatrices, bsr_to_scipy, partition_bsr
 from .chunks import ChunkedRun
 from .kernels_cg import SLOT_SPREAD, pcg_kernels
@@ -70,7 +71,7 @@ from .kernels_persistent import (
 from .newmark import NewmarkCoefficients
 from .state import TissueControl, TissueState
 
-__all__ = ["CG_LOOPS", "CGSolver", "ConvergenceError", "PRECONDITIONERS", "grouped_factor_rows", "newmark_operators"]
+__all__ = ["CG_LOOPS", "CGSolver", "PRECONDITIONERS", "grouped_factor_rows", "newmark_operators"]
 
 PRECONDITIONERS = ("fsai", "block_jacobi", "diag")
 
@@ -106,10 +107,6 @@ UNROLL = 2
 def _as_one_model(array: wp.array) -> wp.array:
     """A view of ``array`` with a leading dimension of 1: the only model of a batch."""
     return array.reshape((1, *array.shape))
-
-
-class ConvergenceError(RuntimeError):
-    """The iterative solver did not reach its tolerance within its iteration limit."""
 
 
 def preconditioner_factor(A_oo: wps.BsrMatrix, kind: str):
