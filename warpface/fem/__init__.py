@@ -5,10 +5,13 @@ Model layer: imports Warp, NumPy, SciPy and warpface's geometry layer (``warpfac
 PyVista, tqdm) are imported lazily where they are used. Tissue meshes and materials are read and
 written on USD stages by :mod:`warpface.usd.tissue_io`.
 
-Stepping follows Newton's split: the simulation's solver object (``TissueSimulation.stepper``, a
-:class:`~warpface.fem.solver_direct.DirectSolver` or :class:`~warpface.fem.solver_cg.CGSolver`)
-advances a :class:`TissueState` under a :class:`TissueControl` with
-``stepper.step(state_in, state_out, control)``; :meth:`TissueSimulation.run` is the convenience path.
+Stepping follows Newton's split: the model (a :class:`TetMesh` and its :class:`TissueMaterial`, assembled),
+a :class:`TissueState`, a :class:`TissueControl` and a solver whose ``solver.step(state_in, state_out, control,
+dt)`` advances one state to the next — :class:`~warpface.fem.solver_direct.DirectSolver`,
+:class:`~warpface.fem.solver_cg.CGSolver`, and for batched states :class:`~warpface.fem.solver_batch.BatchedCGSolver`
+or :class:`~warpface.fem.solver_direct.BatchedDirectSolver`; each has ``reset(state)``, the CG ones take a
+:class:`CGOptions`. :class:`TissueSimulation` (and :class:`TissueBatch` for B models) is the convenience wrapper:
+it owns the state, control and ``solver``, with one ``step`` and one ``run``.
 """
 
 from ..errors import ConvergenceError
@@ -17,6 +20,7 @@ from .batch import TissueBatch
 from .embedding import Embedding, embed_points
 from .integrator import TissueSimulation
 from .material import DAMPING_MODELS, MATERIAL_RANGES, TissueMaterial
+from .options import CGOptions
 from .presets import KATO_MODELS, KATO_REGIONS, KATO_UNIFORM, kato_uniform_material
 from .primitives import box_tet_mesh, shell_tet_mesh
 from .proxy import TissueProxy, tissue_proxy
@@ -26,6 +30,7 @@ from .tetmesh import TetMesh, TetQuality
 from .volume import MeshingReport, TissueMeshing, mesh_tissue, tissue_from_surface
 
 __all__ = [
+    "CGOptions",
     "ConvergenceError",
     "DAMPING_MODELS",
     "Embedding",

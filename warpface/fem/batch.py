@@ -4,8 +4,10 @@
 for parameter sweeps and model comparisons (Kato's three models, a sweep of E and η). On CUDA all
 models advance together, one kernel for every model's CG and one update per step, captured as a graph
 (:class:`~warpface.fem.solver_batch.BatchedCGSolver`);
-on the CPU each model gets its own prefactored direct solver (the ``"cg"`` solver also runs there,
-which is how its code path is tested).
+on the CPU each model gets its own prefactored direct solver
+(:class:`~warpface.fem.solver_direct.BatchedDirectSolver`; the ``"cg"`` solver also runs there, which is how its
+code path is tested). Either way the batch is a batched :class:`~warpface.fem.state.TissueState` and
+:class:`~warpface.fem.state.TissueControl` stepped by ``solver.step(state_in, state_out, control, dt)``.
 """
 
 from __future__ import annotations
@@ -15,12 +17,14 @@ from collections.abc import Sequence
 import numpy as np
 import warp as wp
 
-from .._validate import as_device
-from .assembly import FORMULATIONS, assemble
-from .integrator import DISPLACEMENT_LIMIT, TissueSimulation, split_nodes
+from .assembly import assemble
+from .integrator import DISPLACEMENT_LIMIT, check_model_options, displacement_limit, split_nodes
 from .material import TissueMaterial
-from .newmark import newmark_coefficients, validate_newmark
-from .solver_batch import BATCH_PRECONDITIONERS, BatchedCGSolver
+from .newmark import newmark_coefficients
+from .options import CGOptions
+from .solver_batch import BatchedCGSolver
+from .solver_direct import BatchedDirectSolver, DirectSolver
+from .state import ControlFeed, TissueControl, TissueState
 from .tetmesh import TetMesh
 
 __all__ = ["TissueBatch"]
@@ -36,15 +40,13 @@ class TissueBatch:
         solver: ``"auto"`` (direct on CPU, CG elsewhere), ``"direct"`` (CPU, one factorisation per
             model) or ``"cg"`` (preconditioned CG of every model in one persistent kernel on ``device``).
         device: Warp device; ``None`` uses Warp's preferred device.
-        cg_tol: CG tolerance relative to each model's predictor residual (see :class:`TissueSimulation`).
-        cg_maxiter: CG iteration limit per step.
-        cg_preconditioner: ``"fsai"`` (one FSAI factor shared by the models), ``"fsai_each"`` (its support
-            refitted to each model: fewer iterations where the models differ) or ``"block_jacobi"`` (per model).
-        chunk: Steps per ring buffer of :meth:`run` and of :meth:`step`'s host input.
-        use_graph: Capture the batched step as a graph (default: on CUDA).
+        cg: :class:`~warpface.fem.options.CGOptions` of the batched CG (tolerance relative to each model's
+            predictor residual; preconditioner ``"fsai"``, ``"fsai_each"`` or ``"block_jacobi"``, see
+            :class:`~warpface.fem.solver_batch.BatchedCGSolver`); default ``CGOptions()``.
 
     Raises:
-        ValueError, TypeError: as :class:`TissueSimulation`, or an empty / non-material ``materials``.
+        TypeError: as :class:`TissueSimulation`, or ``materials`` not a sequence of TissueMaterial.
+        ValueError: as :class:`TissueSimulation`, or an empty ``materials``.
     """
 
     def __init__(
@@ -60,90 +62,49 @@ class TissueBatch:
         formulation: str = "linear",
         solver: str = "auto",
         device=None,
-        cg_tol: float = 1.0e-5,
-        cg_maxiter: int = 500,
-        cg_preconditioner: str = "fsai",
-        chunk: int = 64,
-        use_graph: bool | None = None,
+        cg: CGOptions | None = None,
     ):
-        if not isinstance(tetmesh, TetMesh):
-            raise ValueError(f"TissueBatch needs a TetMesh, got {type(tetmesh).__name__}")
-        materials = list(materials) if isinstance(materials, Sequence) else None
+        if not isinstance(materials, Sequence) or isinstance(materials, str):
+            raise TypeError(f"materials must be a sequence of TissueMaterial, got {type(materials).__name__}")
+        materials = list(materials)
         if not materials:
-            raise ValueError("TissueBatch needs a non-empty sequence of TissueMaterial (one per model)")
-        for b, material in enumerate(materials):
-            if not isinstance(material, TissueMaterial):
-                raise ValueError(f"model {b}: expected a TissueMaterial, got {type(material).__name__}")
-            material.per_tet(tetmesh.tet_count)
-        if formulation not in FORMULATIONS:
-            raise ValueError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
-        if cg_preconditioner not in BATCH_PRECONDITIONERS:
-            raise ValueError(f"cg_preconditioner must be one of {BATCH_PRECONDITIONERS}, got {cg_preconditioner!r}")
-        if solver not in ("auto", "direct", "cg"):
-            raise ValueError(f"solver must be one of ('auto', 'direct', 'cg'), got {solver!r}")
-        for name, value, low in (("cg_tol", cg_tol, 1e-16), ("cg_maxiter", cg_maxiter, 1), ("chunk", chunk, 1)):
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-                raise TypeError(f"{name} must be a number, got {type(value).__name__}")
-            if not (np.isfinite(value) and value >= low):
-                raise ValueError(f"{name} must be >= {low:g}, got {value!r}")
-        dt, beta, gamma = validate_newmark(dt, beta, gamma)
-        try:
-            device = as_device(device)
-        except Exception:  # Warp raises RuntimeError/ValueError/TypeError for unknown devices
-            raise ValueError(f"device {device!r} is not a Warp device here") from None
-        if solver == "auto":
-            solver = "direct" if device.is_cpu else "cg"
-        if solver == "direct" and not device.is_cpu:
-            raise ValueError(f"solver='direct' runs on the CPU; got device {device}")
-        self.fixed_nodes, self.driven_nodes, self.free_nodes = split_nodes(tetmesh, fixed, driven)
-        self.tetmesh, self.materials, self.dt, self.formulation, self.solver = (
-            tetmesh,
-            materials,
-            dt,
-            formulation,
-            solver,
+            raise ValueError("materials: TissueBatch needs a non-empty sequence of TissueMaterial (one per model)")
+        dt, beta, gamma, formulation, solver, device = check_model_options(
+            tetmesh, materials, dt, beta, gamma, formulation, solver, device
         )
+        cg = CGOptions() if cg is None else cg
+        if not isinstance(cg, CGOptions):
+            raise TypeError(f"cg must be a CGOptions, got {type(cg).__name__}")
+        self.fixed_nodes, self.driven_nodes, self.free_nodes = split_nodes(tetmesh, fixed, driven)
+        self.tetmesh, self.materials, self.dt, self.formulation = tetmesh, materials, dt, formulation
         self.device = device
         self.steps_taken = 0
         """Steps since construction or the last :meth:`reset`."""
-        self.max_displacement = DISPLACEMENT_LIMIT * float(np.linalg.norm(np.ptp(tetmesh.points, axis=0)))
+        self.max_displacement = displacement_limit(tetmesh)
         """Largest accepted driven displacement [m]."""
-        self.chunk = int(chunk)
+        coefficients = newmark_coefficients(dt, beta, gamma)
         if solver == "direct":
-            self._simulations = [
-                TissueSimulation(
-                    tetmesh,
-                    m,
-                    dt,
-                    fixed=self.fixed_nodes,
-                    driven=self.driven_nodes,
-                    beta=beta,
-                    gamma=gamma,
-                    formulation=formulation,
-                    solver="direct",
-                    device="cpu",
-                )
-                for m in materials
-            ]
-            self.stepper = None
-            return
-        matrices = [assemble(tetmesh, m, formulation=formulation, device=device) for m in materials]
-        self.stepper = BatchedCGSolver(
-            matrices,
-            newmark_coefficients(dt, beta, gamma),
-            self.free_nodes,
-            self.driven_nodes,
-            tol=float(cg_tol),
-            maxiter=int(cg_maxiter),
-            chunk=self.chunk,
-            preconditioner=cg_preconditioner,
-            use_graph=device.is_cuda if use_graph is None else bool(use_graph),
-        )
-        """:class:`~warpface.fem.solver_batch.BatchedCGSolver` (``None`` for the direct solver)."""
-        pinned = device.is_cuda
-        width = max(self.driven_nodes.size, 1)
-        self._staging_in = wp.zeros((self.chunk, len(materials), width), dtype=wp.vec3d, device="cpu", pinned=pinned)
-        self._slot = 0
+            direct = []
+            for material in materials:
+                K, M, C = assemble(tetmesh, material, formulation=formulation, device="cpu").to_scipy()
+                direct.append(DirectSolver(K, M, C, coefficients, self.free_nodes, self.driven_nodes))
+            self.solver = BatchedDirectSolver(direct)
+        else:
+            matrices = [assemble(tetmesh, m, formulation=formulation, device=device) for m in materials]
+            self.solver = BatchedCGSolver(matrices, coefficients, self.free_nodes, self.driven_nodes, cg)
+        """:class:`~warpface.fem.solver_direct.BatchedDirectSolver` or
+        :class:`~warpface.fem.solver_batch.BatchedCGSolver` (``solver.step(state_in, state_out, control, dt)``)."""
+        models, device = len(materials), self.solver.device
+        self.state = TissueState(tetmesh.node_count, models=models, device=device)
+        """The batched :class:`~warpface.fem.state.TissueState` (B, N), stepped in place."""
+        self.control = TissueControl(self.driven_nodes.size, models=models, device=device)
+        """The batched :class:`~warpface.fem.state.TissueControl` (B, D) that :meth:`step` fills."""
+        self._feed = ControlFeed(self.control, cg.chunk if solver == "cg" else 1)
+
+    @property
+    def solver_kind(self) -> str:
+        """The solver family in use, ``"direct"`` or ``"cg"``."""
+        return self.solver.kind
 
     @property
     def model_count(self) -> int:
@@ -158,15 +119,13 @@ class TissueBatch:
     @property
     def d(self) -> np.ndarray:
         """Displacements [m] of every model, shape (B, N, 3), float64 (a copy)."""
-        if self.stepper is None:
-            return np.stack([sim.d for sim in self._simulations])
-        self.stepper.synchronize()
-        return self.stepper.d.numpy().astype(np.float64)
+        self.synchronize()
+        return self.state.numpy()[0]
 
     @property
     def cg_iterations(self) -> np.ndarray | None:
         """Per model ``[most, last, total]`` CG iterations since the last reset, shape (B, 3); None for direct."""
-        return None if self.stepper is None else self.stepper.iterations
+        return None if self.solver.kind == "direct" else self.solver.iterations
 
     def _driven(self, driven, steps: int | None) -> np.ndarray:
         """Driven displacements as (steps or 1, B, D, 3) float64, checked (shape, finite, size)."""
@@ -191,33 +150,26 @@ class TissueBatch:
             )
         return arr.reshape((-1, b, k, 3))
 
-    def step(self, driven_displacements=None) -> None:
-        """Advance every model one step; driven displacements [m] (D, 3) for all models or (B, D, 3) per model.
+    def step(self, driven=None) -> None:
+        """Advance every model one step.
+
+        Args:
+            driven: Driven displacements [m], (D, 3) for all models or (B, D, 3) per model (checked); or a
+                batched :class:`~warpface.fem.state.TissueControl` already on the device, used as it is.
 
         Raises:
             ValueError: wrong shape, non-finite or too large values.
             ConvergenceError: CG did not converge for a model (raised at the next synchronisation).
         """
-        driven = self._driven(driven_displacements, None)[0]
-        if self.stepper is None:
-            for sim, row in zip(self._simulations, driven):
-                sim.step(row)
+        if isinstance(driven, TissueControl):
+            control = driven
         else:
-            if driven.shape[1]:
-                self._staging_in.numpy()[self._slot, :, : driven.shape[1]] = driven
-                width = self._staging_in.shape[1] * self._staging_in.shape[2]
-                wp.copy(
-                    self.stepper.trajectory,
-                    self._staging_in,
-                    dest_offset=self._slot * width,
-                    src_offset=self._slot * width,
-                    count=width,
-                )
-            self.stepper.step()
-            self._slot = (self._slot + 1) % self.chunk
-            if self._slot == 0:
-                self.stepper.synchronize()
+            self._feed.put(self._driven(driven, None)[0])
+            control = self.control
+        self.solver.step(self.state, self.state, control)
         self.steps_taken += 1
+        if self._feed.wrapped and self.solver.kind == "cg":
+            self.solver.synchronize()
 
     def run(self, trajectory, *, nodes=None) -> np.ndarray:
         """Advance ``T`` steps; trajectory [m] (T, D, 3) shared or (T, B, D, 3) per model.
@@ -234,39 +186,36 @@ class TissueBatch:
         if record.size and (record.min() < 0 or record.max() >= self.node_count):
             raise ValueError(f"recorded node indices must be in [0, {self.node_count})")
         out = np.empty((steps, self.model_count, record.size, 3), dtype=np.float32)
-        if self.stepper is None:
+        if self.solver.kind == "direct":
+            d_view = self.state.d.numpy()  # zero-copy (CPU)
             for t in range(steps):
                 self.step(traj[t])
-                out[t] = self.d[:, record]
+                out[t] = d_view[:, record]
             return out
         start = 0
-        for block in self.stepper.run_chunks(traj):
+        for block in self.solver.run_chunks(self.state, traj):
             out[start : start + block.shape[0]] = block if nodes is None else block[:, :, record]
             start += block.shape[0]
             self.steps_taken += block.shape[0]
-            self._slot = block.shape[0] % self.chunk
+        self._feed.rewind()  # run_chunks waited for the device
         return out
 
     def reset(self) -> None:
         """Every model back to rest (zero displacement, velocity and acceleration)."""
         self.steps_taken = 0
-        if self.stepper is None:
-            for sim in self._simulations:
-                sim.reset()
-            return
-        wp.synchronize_device(self.device)
-        for array in (self.stepper.d, self.stepper.v, self.stepper.a):
+        wp.synchronize_device(self.solver.device)
+        for array in (self.state.d, self.state.v, self.state.a):
             array.zero_()
-        self.stepper.restart()
-        self._slot = 0
+        self.solver.reset(self.state)
+        self._feed.rewind()
 
     def synchronize(self) -> None:
-        """Wait for queued steps; raise ConvergenceError if a model failed."""
-        if self.stepper is not None:
-            self.stepper.synchronize()
+        """Wait for queued steps; raise :class:`~warpface.errors.ConvergenceError` if a model failed."""
+        if self.solver.kind == "cg":
+            self.solver.synchronize()
 
     def __repr__(self) -> str:
         return (
             f"TissueBatch({self.model_count} models, {self.tetmesh!r}, dt={self.dt:g} s, {self.formulation}, "
-            f"solver={self.solver})"
+            f"solver={self.solver.kind})"
         )

@@ -31,14 +31,16 @@ from ..errors import ConvergenceError
 from .assembly import FORMULATIONS, SystemMatrices, assemble
 from .material import TissueMaterial
 from .newmark import newmark_coefficients, validate_newmark
-from .solver_cg import CG_LOOPS, PRECONDITIONERS, CGSolver
+from .options import CGOptions
+from .solver_cg import CGSolver
 from .solver_direct import DirectSolver, factorize_spd, node_dofs
-from .state import TissueControl, TissueState
+from .state import ControlFeed, TissueControl, TissueState
 from .tetmesh import TetMesh
 
-__all__ = ["SOLVERS", "TissueSimulation", "split_nodes"]
+__all__ = ["SOLVERS", "TissueSimulation", "check_model_options", "displacement_limit", "split_nodes"]
 
 SOLVERS = ("auto", "direct", "cg")
+"""Solver families: ``"direct"`` (CPU factorisation), ``"cg"`` (device CG), ``"auto"`` (direct on the CPU)."""
 
 DISPLACEMENT_LIMIT = 10.0
 """Largest accepted driven (or reset) displacement, in multiples of the mesh's bounding-box diagonal.
@@ -71,19 +73,52 @@ def _node_set(name: str, nodes, node_count: int) -> np.ndarray:
     return flat.astype(np.int64)
 
 
-def _number(name: str, value, low: float, high: float, *, integer: bool = False) -> float:
-    """``value`` as a float in ``[low, high]`` (a whole number when ``integer``), else a ValueError/TypeError naming it."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a number, got {type(value).__name__}")
-    number = float(value)
-    if not (np.isfinite(number) and low <= number <= high) or (integer and number != round(number)):
-        kind = "a whole number" if integer else "a number"
-        raise ValueError(f"{name} must be {kind} in [{low:g}, {high:g}], got {value!r}")
-    return number
+def displacement_limit(tetmesh: TetMesh) -> float:
+    """Largest accepted driven or reset displacement [m] on ``tetmesh``: :data:`DISPLACEMENT_LIMIT` diagonals of
+    its bounding box."""
+    return DISPLACEMENT_LIMIT * float(np.linalg.norm(np.ptp(tetmesh.points, axis=0)))
+
+
+def check_model_options(tetmesh, materials: list, dt, beta, gamma, formulation, solver, device) -> tuple:
+    """Check what a simulation or a batch of them is built from; returns ``(dt, beta, gamma, formulation, solver,
+    device)`` with the numbers as floats, ``solver`` resolved (``"auto"``: direct on the CPU, CG elsewhere) and
+    ``device`` a Warp device.
+
+    Raises:
+        TypeError: ``tetmesh`` is not a TetMesh, a material not a TissueMaterial, a number not a number, or
+            ``formulation`` / ``solver`` not a string.
+        ValueError: a value out of range (naming it), per-tet material values of the wrong size, an unknown
+            device, or ``solver="direct"`` on a non-CPU device.
+    """
+    if not isinstance(tetmesh, TetMesh):
+        raise TypeError(f"tetmesh must be a TetMesh, got {type(tetmesh).__name__}")
+    for index, material in enumerate(materials):
+        if not isinstance(material, TissueMaterial):
+            where = "material" if len(materials) == 1 else f"materials[{index}] (model {index})"
+            raise TypeError(f"{where} must be a TissueMaterial, got {type(material).__name__}")
+        material.per_tet(tetmesh.tet_count)  # size check with a clear message
+    dt, beta, gamma = validate_newmark(dt, beta, gamma)
+    for option, value, allowed in (("formulation", formulation, FORMULATIONS), ("solver", solver, SOLVERS)):
+        if not isinstance(value, str):
+            raise TypeError(f"{option} must be a string, one of {allowed}; got {type(value).__name__}")
+        if value not in allowed:
+            raise ValueError(f"{option} must be one of {allowed}, got {value!r}")
+    try:
+        device = as_device(device)
+    except Exception:  # Warp raises RuntimeError/ValueError/TypeError for unknown devices
+        raise ValueError(
+            f"device {device!r} is not a Warp device here ({[str(d) for d in wp.get_devices()]})"
+        ) from None
+    if solver == "auto":
+        solver = "direct" if device.is_cpu else "cg"
+    if solver == "direct" and not device.is_cpu:
+        raise ValueError(f"solver='direct' runs on the CPU; got device {device}. Use solver='cg' or device='cpu'")
+    return dt, beta, gamma, formulation, solver, device
 
 
 class TissueSimulation:
-    """Viscoelastic tet FEM advanced by Newmark-β with fixed and driven nodes.
+    """Viscoelastic tet FEM advanced by Newmark-β with fixed and driven nodes: the convenience wrapper around
+    a model (mesh, material, matrices), its :attr:`state`, :attr:`control` and :attr:`solver`.
 
     Args:
         tetmesh: The tissue mesh.
@@ -97,29 +132,19 @@ class TissueSimulation:
             [0.5, 1] (:data:`~warpface.fem.newmark.BETA_RANGE`, :data:`~warpface.fem.newmark.GAMMA_RANGE`).
         formulation: ``"linear"`` or ``"anp"`` (locking-free average nodal pressure), see
             :mod:`warpface.fem.assembly`.
-        solver: ``"auto"`` (direct on CPU, CG elsewhere), ``"direct"`` or ``"cg"``.
+        solver: ``"auto"`` (direct on CPU, CG elsewhere), ``"direct"`` or ``"cg"`` (:data:`SOLVERS`).
         device: Warp device; ``None`` uses Warp's preferred device.
-        cg_tol: CG tolerance, relative to the residual of the Newmark predictor ``d + dt v + dt²/2 a``.
-            That residual is small, so the error left in the displacement is ``cg_tol`` times the
-            (tiny) correction to the predictor. CG starts from the better of the predictor and a cubic
-            extrapolation of the last four displacements, which during smooth motion is much closer
-            and saves iterations (measurements: ``benchmarks/README.md``).
-        cg_maxiter: CG iteration limit per step.
-        cg_preconditioner: ``"fsai"``, ``"block_jacobi"`` or ``"diag"``.
-        cg_dtype: ``wp.float64`` (default) or ``wp.float32`` state and solver precision. float32 gains
-            little: a float32 state is too coarse for the extrapolation, which then needs more iterations.
-        cg_chunk: Time steps per ring buffer of :meth:`run` and of :meth:`step`'s host input (the
-            host checks convergence once per ring).
-        cg_loop: ``"auto"`` (default: one persistent kernel for the CG iterations on CUDA, launched
-            kernels on the CPU), ``"persistent"`` or ``"launched"`` (:data:`~warpface.fem.solver_cg.CG_LOOPS`).
-        use_graph: Capture the CG step in a graph (default: on CUDA only).
+        cg: :class:`~warpface.fem.options.CGOptions` of the CG solver (tolerance, iteration limit,
+            preconditioner, ring size, loop, precision, graphs); default ``CGOptions()``. CG starts from the
+            better of the Newmark predictor and a cubic extrapolation of the last four displacements, which
+            during smooth motion is much closer and saves iterations.
 
     Raises:
-        TypeError: ``dt``, ``beta``, ``gamma`` or a CG setting is not a number.
-        ValueError: bad mesh/material type, ``dt``, ``beta`` or ``gamma`` out of range, node indices out
-            of range, duplicated driven nodes, a node both fixed and driven, no constrained node
-            (or a connected part of the mesh without one: its rigid motion would be singular), no
-            free node, unknown solver/formulation, or ``solver="direct"`` on a non-CPU device.
+        TypeError: ``tetmesh``, ``material`` or ``cg`` of the wrong type; ``dt``, ``beta`` or ``gamma`` not a number.
+        ValueError: ``dt``, ``beta`` or ``gamma`` out of range, node indices out of range, duplicated driven
+            nodes, a node both fixed and driven, no constrained node (or a connected part of the mesh without
+            one: its rigid motion would be singular), no free node, unknown solver/formulation, options the CG
+            solver does not implement, or ``solver="direct"`` on a non-CPU device.
     """
 
     def __init__(
@@ -135,48 +160,14 @@ class TissueSimulation:
         formulation: str = "linear",
         solver: str = "auto",
         device=None,
-        cg_tol: float = 1.0e-5,
-        cg_maxiter: int = 200,
-        cg_preconditioner: str = "fsai",
-        cg_dtype=wp.float64,
-        cg_chunk: int = 64,
-        cg_loop: str = "auto",
-        use_graph: bool | None = None,
+        cg: CGOptions | None = None,
     ):
-        if not isinstance(tetmesh, TetMesh):
-            raise ValueError(f"TissueSimulation needs a TetMesh, got {type(tetmesh).__name__}")
-        if not isinstance(material, TissueMaterial):
-            raise ValueError(f"TissueSimulation needs a TissueMaterial, got {type(material).__name__}")
-        self.dt, self.beta, self.gamma = validate_newmark(dt, beta, gamma)
-        for option, value, allowed in (
-            ("formulation", formulation, FORMULATIONS),
-            ("solver", solver, SOLVERS),
-            ("cg_preconditioner", cg_preconditioner, PRECONDITIONERS),
-            ("cg_loop", cg_loop, CG_LOOPS),
-        ):
-            if not isinstance(value, str) or value not in allowed:
-                raise ValueError(f"{option} must be one of {allowed}, got {value!r}")
-        cg_tol = _number("cg_tol", cg_tol, 1e-16, 1.0)
-        cg_maxiter = int(_number("cg_maxiter", cg_maxiter, 1, 100_000, integer=True))
-        cg_chunk = int(_number("cg_chunk", cg_chunk, 1, 100_000, integer=True))
-        if formulation not in FORMULATIONS:
-            raise ValueError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
-        if solver not in SOLVERS:
-            raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
-        if cg_preconditioner not in PRECONDITIONERS:
-            raise ValueError(f"cg_preconditioner must be one of {PRECONDITIONERS}, got {cg_preconditioner!r}")
-        material.per_tet(tetmesh.tet_count)  # size check with a clear message
-        try:
-            device = as_device(device)
-        except Exception:  # Warp raises RuntimeError/ValueError/TypeError for unknown devices
-            raise ValueError(
-                f"device {device!r} is not a Warp device here ({[str(d) for d in wp.get_devices()]})"
-            ) from None
-        if solver == "auto":
-            solver = "direct" if device.is_cpu else "cg"
-        if solver == "direct" and not device.is_cpu:
-            raise ValueError(f"solver='direct' runs on the CPU; got device {device}. Use solver='cg' or device='cpu'")
-
+        self.dt, self.beta, self.gamma, formulation, solver, device = check_model_options(
+            tetmesh, [material], dt, beta, gamma, formulation, solver, device
+        )
+        cg = CGOptions() if cg is None else cg
+        if not isinstance(cg, CGOptions):
+            raise TypeError(f"cg must be a CGOptions, got {type(cg).__name__}")
         n = tetmesh.node_count
         fixed_nodes, driven_nodes, free_nodes = split_nodes(tetmesh, fixed, driven)
 
@@ -186,8 +177,6 @@ class TissueSimulation:
         """The material."""
         self.formulation = formulation
         """Stiffness formulation, "linear" or "anp"."""
-        self.solver = solver
-        """Solver in use, "direct" or "cg"."""
         self.device = device
         """Warp device of the CG solver (the direct solver always runs on the CPU)."""
         self.fixed_nodes = fixed_nodes
@@ -202,8 +191,7 @@ class TissueSimulation:
         """Set-up wall times [s]: "assembly", "factorization" (direct) or "solver_setup" (CG)."""
         self.steps_taken = 0
         """Steps since construction or the last :meth:`reset`."""
-        extent = np.ptp(tetmesh.points, axis=0)
-        self.max_displacement = DISPLACEMENT_LIMIT * float(np.linalg.norm(extent))
+        self.max_displacement = displacement_limit(tetmesh)
         """Largest accepted driven or reset displacement [m] (:data:`DISPLACEMENT_LIMIT` mesh diagonals)."""
 
         t0 = time.perf_counter()
@@ -214,45 +202,27 @@ class TissueSimulation:
         t0 = time.perf_counter()
         if solver == "direct":
             K, M, C = self.matrices.to_scipy()
-            self.stepper = DirectSolver(K, M, C, self.coefficients, free_nodes, driven_nodes)
-            """The solver object: :class:`~warpface.fem.solver_direct.DirectSolver` or
-            :class:`~warpface.fem.solver_cg.CGSolver` (``stepper.step(state_in, state_out, control)``)."""
-            self.timings["factorization"] = self.stepper.factor_seconds
+            self.solver = DirectSolver(K, M, C, self.coefficients, free_nodes, driven_nodes)
+            """The solver: a :class:`~warpface.fem.solver_direct.DirectSolver` or
+            :class:`~warpface.fem.solver_cg.CGSolver` (``solver.step(state_in, state_out, control, dt)``)."""
+            self.timings["factorization"] = self.solver.factor_seconds
             state_dtype = wp.float64
         else:
-            self.stepper = CGSolver(
-                self.matrices,
-                self.coefficients,
-                free_nodes,
-                driven_nodes,
-                dtype=cg_dtype,
-                tol=cg_tol,
-                maxiter=cg_maxiter,
-                preconditioner=cg_preconditioner,
-                chunk=cg_chunk,
-                loop=cg_loop,
-                use_graph=device.is_cuda if use_graph is None else bool(use_graph),
-            )
-            state_dtype = cg_dtype
+            self.solver = CGSolver(self.matrices, self.coefficients, free_nodes, driven_nodes, cg)
+            state_dtype = cg.dtype
         self.timings["solver_setup"] = time.perf_counter() - t0
-        state_device = self.stepper.device
+        state_device = self.solver.device
         self.state = TissueState(n, dtype=state_dtype, device=state_device)
         """The current :class:`~warpface.fem.state.TissueState` (stepped in place by :meth:`step` and :meth:`run`)."""
         self.control = TissueControl(driven_nodes.size, dtype=state_dtype, device=state_device)
         """The :class:`~warpface.fem.state.TissueControl` that :meth:`step` fills from its argument."""
-        # step(): host input goes through a (pinned) ring of `cg_chunk` rows, so queued copies never
-        # read a row the host has already overwritten; the host waits once per ring.
-        self._ring_rows = 1 if solver == "direct" else int(cg_chunk)
-        self._staging = wp.zeros(
-            (self._ring_rows, max(driven_nodes.size, 1)),
-            dtype=self.control.driven.dtype,
-            device="cpu",
-            pinned=state_device.is_cuda,
-        )
-        self._staging_slot = 0
-        # on the CPU every launch is synchronous: step() writes the control through a zero-copy view
-        self._control_view = self.control.driven.numpy()[: driven_nodes.size] if state_device.is_cpu else None
+        self._feed = ControlFeed(self.control, 1 if solver == "direct" else cg.chunk)
         self._failed = False
+
+    @property
+    def solver_kind(self) -> str:
+        """The solver family in use, ``"direct"`` or ``"cg"``."""
+        return self.solver.kind
 
     # ------------------------------------------------------------------ state
     @property
@@ -287,14 +257,14 @@ class TissueSimulation:
     @property
     def cg_iterations(self) -> tuple[int, int] | None:
         """``(most, last)`` CG iterations per step since the last reset; None for the direct solver."""
-        return None if self.solver == "direct" else self.stepper.iterations
+        return None if self.solver.kind == "direct" else self.solver.iterations
 
     @property
     def cg_mean_iterations(self) -> float | None:
         """Mean CG iterations per step since the last reset (NaN before the first); None for the direct solver."""
-        if self.solver == "direct":
+        if self.solver.kind == "direct":
             return None
-        total = self.stepper.total_iterations
+        total = self.solver.total_iterations
         return total / self.steps_taken if self.steps_taken else float("nan")
 
     def energy(self) -> tuple[float, float]:
@@ -348,12 +318,10 @@ class TissueSimulation:
             o = node_dofs(self.free_nodes)
             force = -(K @ d.ravel() + C @ v.ravel())[o]
             a[self.free_nodes] = factorize_spd(M.tocsr()[o][:, o]).solve(force).reshape(-1, 3)
-        if self.solver == "cg":
-            wp.synchronize_device(self.stepper.device)
+        wp.synchronize_device(self.solver.device)
         self.state.assign(d, v, a)
-        if self.solver == "cg":
-            self.stepper.restart(self.state)
-        self._staging_slot = 0
+        self.solver.reset(self.state)
+        self._feed.rewind()
         self.steps_taken = 0
         self._failed = False
 
@@ -399,60 +367,37 @@ class TissueSimulation:
         if self._failed:
             raise RuntimeError("the simulation failed to converge earlier; call reset() before stepping again")
 
-    def step(self, driven_displacements=None) -> None:
+    def step(self, driven=None) -> None:
         """Advance one time step.
 
         Args:
-            driven_displacements: Displacement of every driven node at the *end* of the step [m],
-                shape (D, 3), in the order of ``driven``; may be omitted when there are none.
+            driven: Displacement of every driven node at the *end* of the step [m]: host values of shape
+                (D, 3) in the order of ``driven`` (may be omitted when there are none), checked; or a
+                :class:`~warpface.fem.state.TissueControl` of this simulation's driven nodes, dtype and device
+                already on the device (e.g. filled by a kernel), used as it is: no host transfer, no check.
 
         On CUDA this only queues work; a convergence failure is raised by the next call that
-        reads results (``d``, ``v``, ``a``, :meth:`run`) or at the latest ``cg_chunk`` steps later.
+        reads results (``d``, ``v``, ``a``, :meth:`run`, :meth:`synchronize`) or at the latest
+        ``CGOptions.chunk`` steps later.
 
         Raises:
-            ValueError: wrong shape, a non-finite value, or a displacement beyond
-                :attr:`max_displacement`.
+            ValueError: wrong shape, a non-finite value, or a displacement beyond :attr:`max_displacement`.
             ConvergenceError: CG did not converge (CG solver).
         """
         self._check_usable()
-        driven = self._check_driven(driven_displacements, None)
-        slot = self._staging_slot
-        if driven.size and self._control_view is not None:
-            self._control_view[:] = driven
-        elif driven.size:
-            self._staging.numpy()[slot, : driven.shape[0]] = driven
-            wp.copy(
-                self.control.driven,
-                self._staging,
-                src_offset=slot * self._staging.shape[1],
-                count=self.control.driven.shape[0],
-            )
+        if isinstance(driven, TissueControl):
+            control = driven
+        else:
+            self._feed.put(self._check_driven(driven, None))
+            control = self.control
         try:
-            self.stepper.step(self.state, self.state, self.control)
+            self.solver.step(self.state, self.state, control)
         except FloatingPointError:
             self._failed = True
             raise
         self.steps_taken += 1
-        self._staging_slot = (slot + 1) % self._ring_rows
-        if self.solver == "cg" and self._staging_slot == 0:
+        if self._feed.wrapped and self.solver.kind == "cg":
             self.synchronize()
-
-    def step_control(self, control: TissueControl) -> None:
-        """Advance one time step with driven displacements already on the device (no host transfer).
-
-        Args:
-            control: A :class:`~warpface.fem.state.TissueControl` of this simulation's driven nodes,
-                dtype and device (e.g. :attr:`control`, or one filled by a kernel).
-
-        On CUDA this only queues work (see :meth:`step`); the values in ``control`` are not checked.
-        """
-        self._check_usable()
-        try:
-            self.stepper.step(self.state, self.state, control)
-        except FloatingPointError:
-            self._failed = True
-            raise
-        self.steps_taken += 1
 
     def run(self, trajectory, *, nodes=None, progress: bool | None = None) -> np.ndarray:
         """Advance ``len(trajectory)`` steps and return the displacement after each.
@@ -484,19 +429,19 @@ class TissueSimulation:
         out = np.empty((steps, record.size, 3), dtype=np.float32)
         bar = _progress_bar(steps, progress)
         try:
-            if self.solver == "direct":
+            if self.solver.kind == "direct":
                 driven_view = self.control.driven.numpy()[: self.driven_nodes.size]  # zero-copy (CPU)
                 d_view = self.state.d.numpy()
                 for t in range(steps):
                     driven_view[:] = traj[t]
-                    self.stepper.step(self.state, self.state, self.control)
+                    self.solver.step(self.state, self.state, self.control)
                     out[t] = d_view if nodes is None else d_view[record]
                     self.steps_taken += 1
                     if bar is not None:
                         bar.update(1)
             else:
                 start = 0
-                for block in self.stepper.run_chunks(self.state, traj):
+                for block in self.solver.run_chunks(self.state, traj):
                     out[start : start + block.shape[0]] = block if nodes is None else block[:, record]
                     start += block.shape[0]
                     self.steps_taken += block.shape[0]
@@ -512,16 +457,16 @@ class TissueSimulation:
 
     def synchronize(self) -> None:
         """Wait for queued device steps; raise :class:`ConvergenceError` if one failed."""
-        if self.solver == "cg":
+        if self.solver.kind == "cg":
             try:
-                self.stepper.synchronize()
+                self.solver.synchronize()
             except ConvergenceError:
                 self._failed = True
                 raise
 
     def __repr__(self) -> str:
         return (
-            f"TissueSimulation({self.tetmesh!r}, dt={self.dt:g} s, {self.formulation}, solver={self.solver}, "
+            f"TissueSimulation({self.tetmesh!r}, dt={self.dt:g} s, {self.formulation}, solver={self.solver.kind}, "
             f"free={self.free_nodes.size}, fixed={self.fixed_nodes.size}, driven={self.driven_nodes.size})"
         )
 

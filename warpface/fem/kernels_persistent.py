@@ -15,8 +15,8 @@ a single model is a batch of one): each model has its own group of blocks, barri
 and convergence, so the models of one launch never wait for each other.
 
 A grid barrier is only safe when every block of the launch is resident on the GPU at once: the
-solver launches at most as many blocks as the device holds (from the kernel's register count;
-each block then walks row groups ``block, block + blocks, ...``), and a barrier that waits far
+solver launches at most as many blocks as the device holds (the driver's occupancy query,
+:func:`grid_capacity`; each block then walks row groups ``block, block + blocks, ...``), and a barrier that waits far
 longer than any step could (a block not resident) gives up and raises the ``barrier[1]`` flag
 instead of hanging; the solver reports it. On the CPU the kernel runs as a single block of one
 thread that walks every row (the barriers are then no-ops).
@@ -25,6 +25,7 @@ Row sums of the lanes of a matrix row use warp shuffles (``lanes`` divides 32), 
 block reduction in shared memory; on the CPU (one lane, one thread) both are the identity.
 """
 
+import ctypes
 import functools
 import types
 
@@ -47,6 +48,7 @@ __all__ = [
     "grid_sync",
     "grid_sync_acquire",
     "persistent_pcg_kernel",
+    "resident_blocks_per_multiprocessor",
 ]
 
 WORK_ROWS = 8
@@ -102,11 +104,8 @@ def grid_sync(barrier: wp.array(dtype=wp.int32), target: int):
 )
 def grid_sync_acquire(barrier: wp.array(dtype=wp.int32), target: int):
     """:func:`grid_sync` with a release add for the arrival and one acquire load of the counter after the poll
-    (PTX memory model, GPU scope) in place of the two full fences: the single model's barrier.
-
-    H200, 6.7k-node shell, interleaved runs (session 9): one model's ``step()`` 0.179–0.184 ms against
-    0.187–0.195 with the fences; but ten models 1.243–1.259 ms against 1.210–1.246 (and 1.268–1.271 when every
-    poll was an acquire load), so batches keep the fences."""
+    (PTX memory model, GPU scope) in place of the two full fences: the single model's barrier (faster for one
+    model, not for a batch, which keeps the fences; measurements: ``benchmarks/README.md``)."""
     ...
 
 
@@ -161,16 +160,47 @@ def block_sum64(value: wp.float64) -> wp.float64:
 
 
 def grid_capacity(kernel, block_dim: int, *, device=None) -> int:
-    """Blocks of ``block_dim`` threads of ``kernel`` that ``device`` (default: Warp's preferred device) holds
-    at once (registers and threads per multiprocessor; 1 on the CPU)."""
+    """Blocks of ``block_dim`` threads of ``kernel`` that ``device`` (default: Warp's preferred device) holds at once:
+    the CUDA driver's occupancy query (``cuOccupancyMaxActiveBlocksPerMultiprocessor``, which counts registers,
+    shared memory and the block limits) times the multiprocessors. 1 on the CPU (one block at a time, no
+    barrier to wait at); 0 when the query is not available or the kernel cannot be resident at all, which is
+    when a grid barrier would not be safe and the solvers use the launched loop instead."""
     device = wp.get_device(device)
     if not device.is_cuda:
         return 1
-    registers = wp.get_cuda_kernel_properties(kernel, device, block_dim)["register_count"]
-    warps = -(-block_dim // 32)
-    per_warp = -(-max(registers, 1) * 32 // 256) * 256  # allocated per warp in units of 256 registers
-    per_sm = min(32, 2048 // block_dim, 65536 // (warps * per_warp))
-    return max(per_sm, 0) * device.sm_count
+    return resident_blocks_per_multiprocessor(kernel, block_dim, device) * device.sm_count
+
+
+def resident_blocks_per_multiprocessor(kernel, block_dim: int, device) -> int:
+    """``cuOccupancyMaxActiveBlocksPerMultiprocessor`` of ``kernel`` compiled for ``block_dim`` threads on the CUDA
+    ``device`` (loads the kernel), or 0 when the driver or the query is not available."""
+    driver = _cuda_driver()
+    if driver is None:
+        return 0
+    try:
+        hooks = kernel.module.load(device, block_dim).get_kernel_hooks(kernel)
+        count = ctypes.c_int(0)
+        with wp.ScopedDevice(device):  # the kernel's context current for the driver call
+            result = driver.cuOccupancyMaxActiveBlocksPerMultiprocessor(
+                ctypes.byref(count),
+                ctypes.c_void_p(hooks.forward),
+                ctypes.c_int(block_dim),
+                ctypes.c_size_t(hooks.forward_smem_bytes),
+            )
+    except (AttributeError, OSError, RuntimeError, TypeError):
+        return 0
+    return max(count.value, 0) if result == 0 else 0
+
+
+@functools.lru_cache(maxsize=1)
+def _cuda_driver():
+    """The CUDA driver library (ctypes), or None where it cannot be loaded."""
+    for name in ("libcuda.so.1", "libcuda.so", "nvcuda.dll"):
+        try:
+            return ctypes.CDLL(name)
+        except OSError:
+            continue
+    return None
 
 
 @functools.lru_cache(maxsize=None)
@@ -215,9 +245,8 @@ def persistent_pcg_kernel(
     def row_total(part: vec):
         return vec(lane_sum(part[0], lanes), lane_sum(part[1], lanes), lane_sum(part[2], lanes))
 
-    # at least resident_threads (default RESIDENT_THREADS) threads per multiprocessor: caps the registers (128 a thread for 512), so that a
-    # grid of one row group per block stays resident (H200, 6.7k nodes, 16x16: 130 registers and 132 resident
-    # blocks for 247 row groups without the bound)
+    # at least resident_threads threads per multiprocessor: caps the registers (128 a thread for 512), so that a
+    # grid of one row group per block of a face-sized mesh stays resident
     @wp.kernel(
         enable_backward=False,
         module="unique",

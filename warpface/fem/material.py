@@ -83,9 +83,8 @@ def _check_range(name: str, value) -> None:
     bad = MATERIAL_RANGES[name].outside(value)
     if bad.size:
         where = "" if np.ndim(value) == 0 else f" at tet {bad[0]}"
-        raise ValueError(
-            f"TissueMaterial {name}{where} must be {MATERIAL_RANGES[name].describe()}, got {np.atleast_1d(value)[bad[0]]!r}"
-        )
+        got = np.atleast_1d(value)[bad[0]]
+        raise ValueError(f"TissueMaterial {name}{where} must be {MATERIAL_RANGES[name].describe()}, got {got!r}")
 
 
 class TissueMaterial:

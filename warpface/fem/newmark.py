@@ -19,7 +19,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["BETA_RANGE", "DT_RANGE", "GAMMA_RANGE", "NewmarkCoefficients", "newmark_coefficients", "validate_newmark"]
+__all__ = [
+    "BETA_RANGE",
+    "DT_RANGE",
+    "GAMMA_RANGE",
+    "NewmarkCoefficients",
+    "check_step_dt",
+    "step_key",
+    "newmark_coefficients",
+    "validate_newmark",
+]
 
 DT_RANGE = (1.0e-8, 10.0)
 """Accepted time steps [s]. Below 1e-8 s the mass term ``c0 M = M / (β dt²)`` swamps the stiffness
@@ -128,3 +137,25 @@ def newmark_coefficients(dt: float, beta: float = 0.25, gamma: float = 0.5) -> N
         dt=dt,
         half_dt_squared=0.5 * dt * dt,
     )
+
+
+def step_key(state_in, state_out, control) -> tuple:
+    """The array addresses of a solver step's ``(state_in, state_out, control)``, which key its cached binding;
+    TypeError unless they are a TissueState, a TissueState and a TissueControl."""
+    try:
+        return state_in.d.ptr, state_out.d.ptr, control.driven.ptr
+    except AttributeError:
+        raise TypeError(
+            "step(state_in, state_out, control): expected TissueState, TissueState, TissueControl, got "
+            f"{type(state_in).__name__}, {type(state_out).__name__}, {type(control).__name__}"
+        ) from None
+
+
+def check_step_dt(dt, coefficients: NewmarkCoefficients) -> None:
+    """Raise ValueError unless ``dt`` (a solver step's argument) is None or the time step the solver was built for:
+    its factorisation or operators hold ``dt``, so another one needs a new solver."""
+    if dt is not None and dt != coefficients.dt:
+        raise ValueError(
+            f"dt must be the solver's time step {coefficients.dt:g} s (its operators are built for it), got {dt!r}; "
+            "build a new solver for another dt"
+        )

@@ -27,10 +27,10 @@ import warp as wp
 
 from .kernels_integrator import newmark_update
 from .ldlt import BlockLDLT, UnsuitableFactor
-from .newmark import NewmarkCoefficients
+from .newmark import NewmarkCoefficients, check_step_dt, step_key
 from .state import TissueControl, TissueState
 
-__all__ = ["DirectSolver", "SuperLUFactor", "factorize_spd", "node_dofs"]
+__all__ = ["BatchedDirectSolver", "DirectSolver", "SuperLUFactor", "factorize_spd", "node_dofs"]
 
 
 def factorize_spd(matrix):
@@ -80,6 +80,8 @@ class DirectSolver:
     """
 
     device = wp.get_device("cpu")
+    kind = "direct"
+    """Solver family, as ``TissueSimulation(solver=...)`` names it."""
 
     def __init__(self, K, M, C, coefficients: NewmarkCoefficients, free_nodes: np.ndarray, driven_nodes: np.ndarray):
         self.coefficients = coefficients
@@ -144,20 +146,27 @@ class DirectSolver:
         self._history[-1] = x
         self._history_count = min(self._history_count + 1, 4)
 
-    def step(self, state_in: TissueState, state_out: TissueState, control: TissueControl) -> None:
+    def reset(self, state: TissueState) -> None:
+        """Start a new trajectory from ``state``: the next step starts from the Newmark predictor (the
+        extrapolation needs four solutions of the new trajectory first)."""
+        self._history_count = 0
+
+    def step(self, state_in: TissueState, state_out: TissueState, control: TissueControl, dt=None) -> None:
         """Advance one time step from ``state_in`` to ``state_out`` (may be the same object).
 
         Args:
             state_in, state_out: float64 states on the CPU.
             control: Driven displacements at the end of the step (float64, CPU).
+            dt: The time step [s]; None or the solver's own (checked).
 
         The first step with a new combination of state and control arrays records the update
         launch and the input views; later steps reuse them.
 
         Raises:
-            ValueError: a state or the control does not match the solver (size, type, device).
+            ValueError: a state or the control does not match the solver (size, type, device), or another dt.
             FloatingPointError: the solve produced non-finite displacements (``state_out`` untouched).
         """
+        check_step_dt(dt, self.coefficients)
         c = self.coefficients
         binding = self._binding(state_in, state_out, control)
         d, v, a = binding.d, binding.v, binding.a
@@ -178,17 +187,22 @@ class DirectSolver:
 
     def _binding(self, state_in: TissueState, state_out: TissueState, control: TissueControl) -> SimpleNamespace:
         """Zero-copy NumPy views of the inputs and the recorded update launch, cached per combination of arrays."""
-        key = (state_in.d.ptr, state_out.d.ptr, control.driven.ptr)
+        key = step_key(state_in, state_out, control)
         binding = self._bindings.get(key)
         if binding is None:
             for name, state in (("state_in", state_in), ("state_out", state_out)):
                 if (
-                    state.node_count != self.node_count
+                    not isinstance(state, TissueState)
+                    or state.d.shape != (self.node_count,)
                     or not wp.types.types_equal(state.d.dtype, wp.vec3d)
                     or not state.device.is_cpu
                 ):
                     raise ValueError(f"{name} must hold {self.node_count} nodes of float64 vec3 on the CPU")
-            if control.driven.shape[0] != max(self.driven_nodes.size, 1) or not control.driven.device.is_cpu:
+            if (
+                not isinstance(control, TissueControl)
+                or control.driven.shape != (max(self.driven_nodes.size, 1),)
+                or not control.driven.device.is_cpu
+            ):
                 raise ValueError(f"control must hold {self.driven_nodes.size} driven displacements on the CPU")
             update = wp.launch(
                 newmark_update,
@@ -217,3 +231,48 @@ class DirectSolver:
             )  # keeps the pointers valid
             self._bindings[key] = binding
         return binding
+
+
+class BatchedDirectSolver:
+    """Newmark steps of B models on the CPU, one :class:`DirectSolver` (one factorisation) per model, with the
+    step contract of the batched CG solver: batched states (B, N) and controls (B, D).
+
+    Args:
+        solvers: One :class:`DirectSolver` per model (same nodes and time step).
+    """
+
+    device = DirectSolver.device
+    kind = "direct"
+
+    def __init__(self, solvers: list[DirectSolver]):
+        self.solvers = list(solvers)
+        self.model_count = len(self.solvers)
+        self.coefficients = self.solvers[0].coefficients
+        self._views: dict = {}
+
+    def step(self, state_in: TissueState, state_out: TissueState, control: TissueControl, dt=None) -> None:
+        """Advance every model one step: :meth:`DirectSolver.step` on each model's rows (views made once per
+        combination of arrays).
+
+        Raises:
+            ValueError: the states or the control are not batched for these models, or another dt.
+            FloatingPointError: a model's solve produced non-finite displacements.
+        """
+        key = step_key(state_in, state_out, control)
+        views = self._views.get(key)
+        if views is None:
+            for name, shape in (("state_in", state_in.d.shape), ("state_out", state_out.d.shape)):
+                if len(shape) != 2 or shape[0] != self.model_count:
+                    raise ValueError(f"{name} must be a TissueState of {self.model_count} models, got shape {shape}")
+            if control.driven.ndim != 2 or control.driven.shape[0] != self.model_count:
+                raise ValueError(f"control must be a TissueControl of {self.model_count} models")
+            views = self._views[key] = [
+                (state_in.model(b), state_out.model(b), control.model(b)) for b in range(self.model_count)
+            ]
+        for solver, (model_in, model_out, model_control) in zip(self.solvers, views):
+            solver.step(model_in, model_out, model_control, dt)
+
+    def reset(self, state: TissueState) -> None:
+        """Start new trajectories (:meth:`DirectSolver.reset` of every model)."""
+        for solver in self.solvers:
+            solver.reset(state)

@@ -3,7 +3,8 @@
 Like Newton's ``State``/``Control``: a :class:`TissueState` holds the displacement, velocity and
 acceleration of every node; a :class:`TissueControl` the displacements imposed on the driven nodes
 at the end of a step. Both are Warp arrays on the solver's device, so a step
-``solver.step(state_in, state_out, control)`` reads and writes device memory only.
+``solver.step(state_in, state_out, control, dt)`` reads and writes device memory only. A batch of
+B models on one mesh (``models=B``) has the model first in every array: (B, N) and (B, D).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from .._validate import as_count, as_device
 MAX_NODES = 1 << 25
 """Largest node count of a tissue state (33.5 M; a face tissue has thousands)."""
 
-__all__ = ["TissueControl", "TissueState"]
+__all__ = ["ControlFeed", "TissueControl", "TissueState"]
 
 _VECTORS = {wp.float32: wp.vec3f, wp.float64: wp.vec3d}
 
@@ -30,40 +31,55 @@ def _vector_type(dtype):
 class TissueState:
     """Displacement ``d`` [m], velocity ``v`` [m/s] and acceleration ``a`` [m/s²] of N nodes.
 
-    Each is a Warp array of shape (N,) of ``vec3d`` (or ``vec3f`` for a float32 solver) on ``device``.
+    Each is a Warp array of shape (N,) — (B, N) for a batch — of ``vec3d`` (or ``vec3f`` for a float32
+    solver) on ``device``.
 
     Args:
         node_count: N.
+        models: B, the models of a batch (:class:`~warpface.fem.solver_batch.BatchedCGSolver`); ``None``
+            (default) for one model.
         dtype: ``wp.float64`` (default) or ``wp.float32``.
         device: Warp device; ``None`` uses Warp's preferred device.
     """
 
-    def __init__(self, node_count: int, *, dtype=wp.float64, device=None):
+    def __init__(self, node_count: int, *, models: int | None = None, dtype=wp.float64, device=None):
         vec = _vector_type(dtype)
         device = as_device(device)
-        node_count = as_count(node_count, "TissueState: node_count", maximum=MAX_NODES)
-        self.d = wp.zeros(int(node_count), dtype=vec, device=device)
-        """Displacement [m], shape (N,)."""
-        self.v = wp.zeros(int(node_count), dtype=vec, device=device)
-        """Velocity [m/s], shape (N,)."""
-        self.a = wp.zeros(int(node_count), dtype=vec, device=device)
-        """Acceleration [m/s^2], shape (N,)."""
+        shape = _shape(as_count(node_count, "TissueState: node_count", maximum=MAX_NODES), models)
+        self.d = wp.zeros(shape, dtype=vec, device=device)
+        """Displacement [m], shape (N,) or (B, N)."""
+        self.v = wp.zeros(shape, dtype=vec, device=device)
+        """Velocity [m/s], shape (N,) or (B, N)."""
+        self.a = wp.zeros(shape, dtype=vec, device=device)
+        """Acceleration [m/s^2], shape (N,) or (B, N)."""
 
     @property
     def node_count(self) -> int:
         """N."""
-        return self.d.shape[0]
+        return self.d.shape[-1]
+
+    @property
+    def model_count(self) -> int | None:
+        """B of a batched state, else None."""
+        return self.d.shape[0] if self.d.ndim == 2 else None
 
     @property
     def device(self):
         """The Warp device of the arrays."""
         return self.d.device
 
+    def model(self, index: int) -> TissueState:
+        """Model ``index`` of a batched state as a state of its own: views of its rows, no copy."""
+        view = TissueState.__new__(TissueState)
+        view.d, view.v, view.a = self.d[index], self.v[index], self.a[index]
+        return view
+
     def assign(self, d, v, a) -> None:
-        """Copy host values (each shape (N, 3)) into the state (waits for the copy on non-CPU devices)."""
+        """Copy host values (each shape (N, 3), or (B, N, 3)) into the state (waits for the copy on non-CPU
+        devices)."""
         host = np.float64 if self.d.dtype == wp.vec3d else np.float32
         for dest, src in ((self.d, d), (self.v, v), (self.a, a)):
-            dest.assign(np.ascontiguousarray(src, dtype=host).reshape(-1, 3))
+            dest.assign(np.ascontiguousarray(src, dtype=host).reshape(*dest.shape, 3))
 
     def copy_from(self, other: TissueState) -> None:
         """Device copy of another state of the same size and type (no allocation, no sync)."""
@@ -71,21 +87,76 @@ class TissueState:
             wp.copy(dest, src)
 
     def numpy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(d, v, a)`` as float64 host arrays of shape (N, 3) (copies; synchronises)."""
+        """``(d, v, a)`` as float64 host arrays of shape (N, 3) or (B, N, 3) (copies; synchronises)."""
         return tuple(x.numpy().astype(np.float64) for x in (self.d, self.v, self.a))
 
 
 class TissueControl:
-    """Displacements [m] of the D driven nodes at the end of the next step, shape (D,) of vec3.
+    """Displacements [m] of the D driven nodes at the end of the next step, shape (D,) — (B, D) for a batch — of vec3.
 
     Args:
-        driven_count: D (may be 0: then ``driven`` holds one unused entry).
+        driven_count: D (may be 0: then ``driven`` holds one unused entry per model).
+        models: B, the models of a batch; ``None`` (default) for one model.
         dtype: ``wp.float64`` (default) or ``wp.float32``.
         device: Warp device; ``None`` uses Warp's preferred device.
     """
 
-    def __init__(self, driven_count: int, *, dtype=wp.float64, device=None):
+    def __init__(self, driven_count: int, *, models: int | None = None, dtype=wp.float64, device=None):
         self.driven_count = as_count(driven_count, "TissueControl: driven_count", maximum=MAX_NODES)
         """D."""
-        self.driven = wp.zeros(max(self.driven_count, 1), dtype=_vector_type(dtype), device=as_device(device))
-        """Driven displacements [m], shape (max(D, 1),), in the solver's driven-node order."""
+        shape = _shape(max(self.driven_count, 1), models)
+        self.driven = wp.zeros(shape, dtype=_vector_type(dtype), device=as_device(device))
+        """Driven displacements [m], shape (max(D, 1),) or (B, max(D, 1)), in the solver's driven-node order."""
+
+    def model(self, index: int) -> TissueControl:
+        """Model ``index`` of a batched control as a control of its own: a view of its row, no copy."""
+        view = TissueControl.__new__(TissueControl)
+        view.driven_count, view.driven = self.driven_count, self.driven[index]
+        return view
+
+
+def _shape(count: int, models) -> tuple:
+    """``(count,)``, or ``(models, count)`` for a batch (``models`` checked)."""
+    if models is None:
+        return (count,)
+    return (as_count(models, "models", minimum=1, maximum=MAX_NODES), count)
+
+
+class ControlFeed:
+    """Host driven displacements into a :class:`TissueControl`, one step at a time, without waiting.
+
+    On the CPU every launch is synchronous: values are written through a zero-copy view of the control. On a
+    device they go through a (pinned) host ring of ``rows`` slots, each copied to the control by a queued copy,
+    so a queued copy never reads a slot the host has overwritten since; the caller waits for the device once
+    per ring (:attr:`wrapped`).
+
+    Args:
+        control: The control to fill (one model or a batch).
+        rows: Slots of the host ring (the solver's chunk on a device).
+    """
+
+    def __init__(self, control: TissueControl, rows: int):
+        self.control = control
+        driven = control.driven
+        self._count = control.driven_count
+        self._view = driven.numpy()[..., : self._count, :] if driven.device.is_cpu else None
+        self._staging = wp.zeros((rows, *driven.shape), dtype=driven.dtype, device="cpu", pinned=driven.device.is_cuda)
+        self._slot = 0
+        self.wrapped = False
+        """The last :meth:`put` used the ring's last slot: wait for the device before the next."""
+
+    def put(self, driven: np.ndarray) -> None:
+        """Queue ``driven`` [m], shape (D, 3) — (B, D, 3) for a batch — into the control (no check)."""
+        if self._count and self._view is not None:
+            self._view[:] = driven
+        elif self._count:
+            slot, width = self._slot, self.control.driven.size
+            self._staging.numpy()[slot, ..., : self._count, :] = driven
+            wp.copy(self.control.driven, self._staging, src_offset=slot * width, count=width)
+        self._slot = (self._slot + 1) % self._staging.shape[0]
+        self.wrapped = self._slot == 0
+
+    def rewind(self) -> None:
+        """Start the ring again at its first slot (after the device has been waited for)."""
+        self._slot = 0
+        self.wrapped = False
