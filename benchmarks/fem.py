@@ -17,7 +17,7 @@ Rows per mesh:
 * ``warpface cpu direct`` — :class:`warpface.fem.TissueSimulation` on the CPU (its default solver).
 * ``warpface cuda cg`` — the graph-captured CG path, when a CUDA device is present (its default loop:
   one persistent kernel for all CG iterations); ``... launched`` the same with three launched kernels
-  per iteration in a conditional graph loop (``cg_loop="launched"``). "x cupy" is the CuPy peer's time
+  per iteration in a conditional graph loop (``CGOptions(loop="launched")``). "x cupy" is the CuPy peer's time
   per step over the row's.
 * ``... anp`` — the same with the locking-free average-nodal-pressure stiffness.
 * ``cupy cg (jacobi) peer`` — the GPU peer (CUDA, when CuPy is installed): CuPy's sparse CG on the same
@@ -33,7 +33,7 @@ Rows per mesh:
 CPU rows are timed step by step, interleaved with the baseline (median per step). On CUDA,
 "ms/step run()" times :meth:`TissueSimulation.run` (displacements of every node recorded and copied
 to the host) and "ms/step step()" one ``step()`` call per frame as a live tracker would (the host
-then waits only once per ring of ``cg_chunk`` steps). "ratio" is the baseline's time per
+then waits only once per ring of ``CGOptions.chunk`` steps). "ratio" is the baseline's time per
 step over the row's run() time; "x real time" is dt over the run() time per step.
 The max difference to the baseline's displacements checks that every row computes the same motion.
 "CG iters max / mean" are the most and the mean CG iterations per step of the run() pass.
@@ -53,7 +53,9 @@ import warp as wp
 
 from warpface.fem import (
     KATO_UNIFORM,
+    CGOptions,
     TissueBatch,
+    TissueControl,
     TissueMaterial,
     TissueSimulation,
     assemble,
@@ -179,8 +181,8 @@ def cupy_step_seconds(base: SplitBaseline, trajectory: np.ndarray, tol: float) -
     """The GPU peer: CuPy's ``cupyx.scipy.sparse.linalg.cg`` (Jacobi preconditioner) on the baseline's matrices.
 
     Each step solves for the correction to the Newmark predictor ``d + dt v + dt²/2 a`` (as warpface's CG)
-    from zero with ``tol`` relative to the predictor's residual, warpface's CG criterion. Returns seconds per step, the final
-    displacement (N, 3) and the mean CG iterations per step.
+    from zero with ``tol`` relative to the predictor's residual, warpface's CG criterion. Returns seconds per step,
+    the final displacement (N, 3) and the mean CG iterations per step.
     """
     import inspect
 
@@ -244,20 +246,25 @@ def batch_step_seconds(mesh, fixed, driven, trajectory, models: int, device, pre
         driven=driven,
         solver="cg",
         device=device,
-        chunk=16,
-        cg_preconditioner=preconditioner,
+        cg=CGOptions(chunk=16, preconditioner=preconditioner),
     )
     setup = time.perf_counter() - start
     batch.run(trajectory, nodes=np.zeros(1, dtype=np.int64))
     final = batch.d[0]
     iterations = batch.cg_iterations
     batch.reset()
-    batch.run(trajectory[:16], nodes=np.zeros(1, dtype=np.int64))  # the ring now holds 16 driven rows
+    batch.run(trajectory[:16], nodes=np.zeros(1, dtype=np.int64))
+    controls = []  # the first 16 driven rows on the device, stepped in turn (a graph each, captured here)
+    for row in trajectory[:16]:
+        control = TissueControl(driven.size, models=models, device=device)
+        control.driven.assign(np.repeat(row[None], models, axis=0))
+        batch.solver.step(batch.state, batch.state, control)
+        controls.append(control)
     steps = len(trajectory)
     wp.synchronize_device(device)
     start = time.perf_counter()
-    for _ in range(steps):
-        batch.stepper.step()
+    for t in range(steps):
+        batch.solver.step(batch.state, batch.state, controls[t % 16])
     batch.synchronize()
     seconds = (time.perf_counter() - start) / steps
     slowest = int(np.argmax(iterations[:, 2]))
@@ -288,7 +295,7 @@ def bench_mesh(
         configs.append(("warpface cpu direct anp", "anp", "cpu", {}))
     if cuda_device is not None:
         configs.append(("warpface cuda cg", "linear", cuda_device, {}))
-        configs.append(("warpface cuda cg launched", "linear", cuda_device, {"cg_loop": "launched"}))
+        configs.append(("warpface cuda cg launched", "linear", cuda_device, {"cg": CGOptions(loop="launched")}))
         if with_anp:
             configs.append(("warpface cuda cg anp", "anp", cuda_device, {}))
     sims = [
@@ -301,7 +308,7 @@ def bench_mesh(
         )
         for name, formulation, device, options in configs
     ]
-    cpu_sims = [sim for _, _, sim in sims if sim.solver == "direct"]
+    cpu_sims = [sim for _, _, sim in sims if sim.solver_kind == "direct"]
     steppers = [b.step for b in bases.values()] + [sim.step for sim in cpu_sims]
     for step in steppers:
         step(trajectory[0])
@@ -328,7 +335,7 @@ def bench_mesh(
     ]
     cpu_times = iter(cpu_times[len(bases) :])
     for name, formulation, sim in sims:
-        if sim.solver == "direct":
+        if sim.solver_kind == "direct":
             per_step = step_calls = next(cpu_times)
             final, iterations, mean_iterations = sim.d, None, None
         else:
@@ -340,7 +347,7 @@ def bench_mesh(
                 path=name,
                 assembly_s=sim.timings["assembly"],
                 factor_s=sim.timings.get("factorization", sim.timings["solver_setup"]),
-                factor_nnz=getattr(sim.stepper, "factor_nnz", None),
+                factor_nnz=getattr(sim.solver, "factor_nnz", None),
                 step_ms=1e3 * per_step,
                 step_call_ms=1e3 * step_calls,
                 ratio=base_times[formulation] / per_step if formulation in base_times else base_step / per_step,

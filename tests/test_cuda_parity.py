@@ -379,7 +379,7 @@ def test_cg_step_graph_on_device_state_matches_direct(beam, direct_reference):
     the device, every step a (captured) graph launch, nothing read back until the end. CG to a 1e-12
     relative residual: the error left is far below the 1e-9 m tolerance (float32 reference rounding
     of 2 mm is 1e-10 m)."""
-    from warpface.fem import TissueControl, TissueSimulation, TissueState
+    from warpface.fem import CGOptions, TissueControl, TissueSimulation, TissueState
 
     mesh, fixed, driven = beam
     steps = len(direct_reference)
@@ -391,9 +391,7 @@ def test_cg_step_graph_on_device_state_matches_direct(beam, direct_reference):
         driven=driven,
         solver="cg",
         device=DEVICE,
-        cg_tol=1e-12,
-        cg_maxiter=400,
-        use_graph=True,
+        cg=CGOptions(tolerance=1e-12, maxiter=400, use_graph=True),
     )
     trajectory = wp.array(beam_trajectory(steps, driven.size).reshape(-1, 3), dtype=wp.vec3d, device=DEVICE)
     states = [TissueState(mesh.node_count, device=DEVICE), TissueState(mesh.node_count, device=DEVICE)]
@@ -401,15 +399,15 @@ def test_cg_step_graph_on_device_state_matches_direct(beam, direct_reference):
     record = wp.zeros(steps * mesh.node_count, dtype=wp.vec3d, device=DEVICE)
     for t in range(steps):
         wp.copy(control.driven, trajectory, src_offset=t * driven.size, count=driven.size)  # device to device
-        sim.stepper.step(states[t % 2], states[(t + 1) % 2], control)
+        sim.solver.step(states[t % 2], states[(t + 1) % 2], control)
         wp.copy(record, states[(t + 1) % 2].d, dest_offset=t * mesh.node_count, count=mesh.node_count)
-    sim.stepper.synchronize()  # raises if a step did not converge
-    assert len(sim.stepper._graphs) == 2  # one graph per (state_in, state_out) pair, none per step
+    sim.solver.synchronize()  # raises if a step did not converge
+    assert len(sim.solver._graphs) == 2  # one graph per (state_in, state_out) pair, none per step
     got = record.numpy().reshape(steps, mesh.node_count, 3)
     assert np.abs(direct_reference).max() > 1e-3
     np.testing.assert_allclose(got, direct_reference, rtol=0, atol=1e-9)
     assert np.all(got[:, fixed] == 0.0)
-    assert sim.stepper.iterations[0] >= 1
+    assert sim.solver.iterations[0] >= 1
 
     # the final state seen by torch without a copy
     try:
@@ -426,7 +424,7 @@ def test_cg_step_graph_on_device_state_matches_direct(beam, direct_reference):
 def test_cg_run_chunks_match_direct(beam, direct_reference, loop):
     """TissueSimulation.run on the device: driven inputs through the ring (several chunks), graph launches,
     the CG iterations in one persistent kernel or in launched kernels."""
-    from warpface.fem import TissueSimulation
+    from warpface.fem import CGOptions, TissueSimulation
 
     mesh, fixed, driven = beam
     sim = TissueSimulation(
@@ -437,13 +435,9 @@ def test_cg_run_chunks_match_direct(beam, direct_reference, loop):
         driven=driven,
         solver="cg",
         device=DEVICE,
-        cg_tol=1e-12,
-        cg_maxiter=400,
-        cg_chunk=5,
-        use_graph=True,
-        cg_loop=loop,
+        cg=CGOptions(tolerance=1e-12, maxiter=400, chunk=5, use_graph=True, loop=loop),
     )
-    assert sim.stepper.loop == loop
+    assert sim.solver.loop == loop
     got = sim.run(beam_trajectory(len(direct_reference), driven.size))
     np.testing.assert_allclose(got, direct_reference, rtol=0, atol=1e-9)
     assert sim.steps_taken == len(direct_reference)
@@ -454,7 +448,7 @@ def test_tissue_batch_graph_matches_per_model_direct(beam, direct_reference, pre
     """TissueBatch: three materials (the reference one first) stepped as one captured graph, each
     with its own trajectory, through run() (ring chunks) and queued step() calls; model 0 against the
     direct reference, the others against their own direct runs."""
-    from warpface.fem import TissueBatch, TissueMaterial, TissueSimulation
+    from warpface.fem import CGOptions, TissueBatch, TissueMaterial, TissueSimulation
 
     mesh, fixed, driven = beam
     steps = len(direct_reference)
@@ -469,10 +463,7 @@ def test_tissue_batch_graph_matches_per_model_direct(beam, direct_reference, pre
         driven=driven,
         solver="cg",
         device=DEVICE,
-        cg_tol=1e-12,
-        cg_maxiter=400,
-        cg_preconditioner=preconditioner,
-        chunk=5,
+        cg=CGOptions(tolerance=1e-12, maxiter=400, preconditioner=preconditioner, chunk=5),
     )
     got = batch.run(own[: steps - 4])
     for t in range(steps - 4, steps):
@@ -526,7 +517,7 @@ def test_tissue_drive_matches_cpu(skin_patch):
         TissueDrive(adapter, tetmesh, material, fps=30.0, dt=1.0 / 90.0, thickness=thickness, device=device)
         for device in (CPU, DEVICE)
     ]
-    assert drives[1].simulation.solver == ("cg" if DEVICE.is_cuda else "direct")
+    assert drives[1].simulation.solver_kind == ("cg" if DEVICE.is_cuda else "direct")
     lift = np.array([0.0, 0.0, 0.002])
     for i in range(6):
         frame = LandmarkFrame(

@@ -31,7 +31,7 @@ def test_persistent_cg_with_many_blocks_matches_direct(blocks):
     """The persistent CG kernel on a 1.8k-node shell: as many blocks as row groups (grid barriers across
     ~100 blocks on CUDA), or 7 blocks that each walk many row groups. Every step within 1e-9 m of the
     direct solver, the same iterations as the launched loop, the barrier counters cleared after each step."""
-    from warpface.fem import TissueMaterial, TissueSimulation
+    from warpface.fem import CGOptions, TissueMaterial, TissueSimulation
 
     if blocks is not None and not DEVICE.is_cuda:
         pytest.skip("blocks that wait for each other need CUDA: on the CPU the kernel runs as one block")
@@ -54,14 +54,11 @@ def test_persistent_cg_with_many_blocks_matches_direct(blocks):
             driven=driven,
             solver="cg",
             device=DEVICE,
-            cg_tol=1e-12,
-            cg_maxiter=400,
-            cg_chunk=8,
-            cg_loop=loop,
+            cg=CGOptions(tolerance=1e-12, maxiter=400, chunk=8, loop=loop),
         )
         if loop == "persistent" and blocks is not None:
-            sim.stepper._persistent_blocks = blocks  # before the first graph is captured
-        runs[loop] = (sim.run(trajectory), sim.stepper.total_iterations, sim.stepper._barrier.numpy())
+            sim.solver._persistent_blocks = blocks  # before the first graph is captured
+        runs[loop] = (sim.run(trajectory), sim.solver.total_iterations, sim.solver._barrier.numpy())
     got, iterations, barrier = runs["persistent"]
     assert np.abs(expected).max() > 1e-3
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
@@ -74,7 +71,7 @@ def test_batched_persistent_cg_matches_each_models_direct(blocks_per_model, wave
     """TissueBatch on the 1.8k-node shell: three models in one launch of the persistent kernel, each model's
     blocks meeting at its own barrier (as many as the GPU gives each, or 5 that walk many row groups, the
     models split over two launches). Each model within 1e-9 m of its own direct run, every barrier cleared."""
-    from warpface.fem import TissueBatch, TissueMaterial, TissueSimulation
+    from warpface.fem import CGOptions, TissueBatch, TissueMaterial, TissueSimulation
 
     if blocks_per_model is not None and not DEVICE.is_cuda:
         pytest.skip("blocks that wait for each other need CUDA: on the CPU a model runs as one block")
@@ -97,12 +94,10 @@ def test_batched_persistent_cg_matches_each_models_direct(blocks_per_model, wave
         driven=driven,
         solver="cg",
         device=DEVICE,
-        cg_tol=1e-12,
-        cg_maxiter=400,
-        chunk=8,
+        cg=CGOptions(tolerance=1e-12, maxiter=400, chunk=8),
     )
     if blocks_per_model is not None:  # before the first graph is captured
-        batch.stepper.blocks_per_model, batch.stepper.waves = blocks_per_model, waves
+        batch.solver.blocks_per_model, batch.solver.waves = blocks_per_model, waves
     got = batch.run(trajectory)
     for b, material in enumerate(materials):
         expected = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, solver="direct", device=CPU).run(
@@ -110,5 +105,5 @@ def test_batched_persistent_cg_matches_each_models_direct(blocks_per_model, wave
         )
         assert np.abs(expected).max() > 1e-3
         np.testing.assert_allclose(got[:, b], expected, rtol=0, atol=1e-9, err_msg=f"model {b}")
-    np.testing.assert_array_equal(batch.stepper._barrier.numpy(), 0)
+    np.testing.assert_array_equal(batch.solver._barrier.numpy(), 0)
     assert len(set(batch.cg_iterations[:, 2].tolist())) > 1  # each model stops at its own convergence

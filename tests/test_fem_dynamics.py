@@ -6,7 +6,15 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warpface.fem import ConvergenceError, TetMesh, TissueMaterial, TissueSimulation, box_tet_mesh, shell_tet_mesh
+from warpface.fem import (
+    CGOptions,
+    ConvergenceError,
+    TetMesh,
+    TissueMaterial,
+    TissueSimulation,
+    box_tet_mesh,
+    shell_tet_mesh,
+)
 
 SOFT = TissueMaterial(1e5, 0.45, 0.0, 1000.0)
 
@@ -101,12 +109,14 @@ def test_run_matches_step_and_records_selected_nodes(beam):
 @pytest.mark.parametrize(
     "options",
     [
-        dict(use_graph=False, cg_tol=1e-10, cg_maxiter=60),
-        dict(use_graph=True, cg_tol=1e-10, cg_maxiter=60, cg_preconditioner="block_jacobi", cg_chunk=4),
-        dict(use_graph=True, cg_tol=1e-5, cg_maxiter=60, cg_dtype=wp.float32, cg_chunk=3),
-        dict(use_graph=False, cg_tol=1e-10, cg_maxiter=60, cg_loop="persistent"),
-        dict(use_graph=True, cg_tol=1e-10, cg_maxiter=60, cg_preconditioner="diag", cg_chunk=4, cg_loop="persistent"),
-        dict(use_graph=True, cg_tol=1e-5, cg_maxiter=60, cg_dtype=wp.float32, cg_chunk=3, cg_loop="persistent"),
+        dict(cg=CGOptions(use_graph=False, tolerance=1e-10, maxiter=60)),
+        dict(cg=CGOptions(use_graph=True, tolerance=1e-10, maxiter=60, preconditioner="block_jacobi", chunk=4)),
+        dict(cg=CGOptions(use_graph=True, tolerance=1e-5, maxiter=60, dtype=wp.float32, chunk=3)),
+        dict(cg=CGOptions(use_graph=False, tolerance=1e-10, maxiter=60, loop="persistent")),
+        dict(
+            cg=CGOptions(use_graph=True, tolerance=1e-10, maxiter=60, preconditioner="diag", chunk=4, loop="persistent")
+        ),
+        dict(cg=CGOptions(use_graph=True, tolerance=1e-5, maxiter=60, dtype=wp.float32, chunk=3, loop="persistent")),
     ],
 )
 def test_cg_path_matches_direct_solver(beam, options):
@@ -117,13 +127,13 @@ def test_cg_path_matches_direct_solver(beam, options):
     material = TissueMaterial(1e5, 0.45, 20.0, 1000.0)
     ref = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu")
     sim = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg", **options)
-    assert sim.solver == "cg" and ref.solver == "direct"
+    assert sim.solver_kind == "cg" and ref.solver_kind == "direct"
     expected = ref.run(trajectory[:5])
     got = sim.run(trajectory[:5])
     for t in range(5, steps):  # queued single steps, through the trajectory ring
         ref.step(trajectory[t])
         sim.step(trajectory[t])
-    rtol = 1e-7 if options.get("cg_dtype", wp.float64) == wp.float64 else 1e-4
+    rtol = 1e-7 if options["cg"].dtype == wp.float64 else 1e-4
     scale = np.abs(expected).max()
     np.testing.assert_allclose(got, expected, rtol=0, atol=rtol * scale)
     np.testing.assert_allclose(sim.d, ref.d, rtol=0, atol=rtol * scale)
@@ -142,8 +152,10 @@ def test_cg_block_kernels_match_direct_solver_on_rough_motion(beam, monkeypatch)
     trajectory[[9, 17], :, 2] = 3e-3  # two jumps
     material = TissueMaterial(1e5, 0.45, 20.0, 1000.0)
     ref = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu")
-    sim = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg", cg_tol=1e-10)
-    assert sim.stepper._kernels.block_dim > 1 and sim.free_nodes.size % sim.stepper._kernels.rows != 0
+    sim = TissueSimulation(
+        mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg", cg=CGOptions(tolerance=1e-10)
+    )
+    assert sim.solver._kernels.block_dim > 1 and sim.free_nodes.size % sim.solver._kernels.rows != 0
     expected = ref.run(trajectory)
     got = sim.run(trajectory)
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-7 * np.abs(expected).max())
@@ -173,16 +185,14 @@ def test_persistent_cg_loop_matches_launched_loop_and_direct(beam, preconditione
             driven=driven,
             device="cpu",
             solver="cg",
-            cg_tol=1e-10,
-            cg_preconditioner=preconditioner,
-            cg_loop=loop,
+            cg=CGOptions(tolerance=1e-10, preconditioner=preconditioner, loop=loop),
         )
-        assert sim.stepper.loop == loop
+        assert sim.solver.loop == loop
         per_step = []
         for row in trajectory:
             sim.step(row)
             per_step.append(sim.cg_iterations[1])
-        results[loop] = (sim.d, per_step, sim.stepper._barrier.numpy())
+        results[loop] = (sim.d, per_step, sim.solver._barrier.numpy())
     (launched, launched_iterations, _), (persistent, persistent_iterations, barrier) = results.values()
     assert persistent_iterations == launched_iterations and max(persistent_iterations) > 2
     np.testing.assert_allclose(persistent, launched, rtol=0, atol=1e-12 * np.abs(launched).max())
@@ -200,14 +210,11 @@ def test_persistent_cg_loop_reports_non_convergence(beam):
         driven=driven,
         device="cpu",
         solver="cg",
-        cg_tol=1e-14,
-        cg_maxiter=2,
-        cg_preconditioner="diag",
-        cg_loop="persistent",
+        cg=CGOptions(tolerance=1e-14, maxiter=2, preconditioner="diag", loop="persistent"),
     )
     with pytest.raises(ConvergenceError, match=r"step 0 .*after 2 iterations"):
         sim.run(np.full((2, driven.size, 3), 1e-3))
-    assert sim.stepper.iterations[0] == 2
+    assert sim.solver.iterations[0] == 2
 
 
 def test_grid_capacity_is_one_block_on_the_cpu():
@@ -233,7 +240,9 @@ def test_cg_extrapolated_start_saves_iterations_not_accuracy():
     trajectory[:, :, 1] = -5e-3 * ramp[:, None]
     material = TissueMaterial(192.4e3, 0.495, 476.8, 1100.0)
     ref = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu")
-    sim = TissueSimulation(mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg", cg_tol=1e-6)
+    sim = TissueSimulation(
+        mesh, material, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg", cg=CGOptions(tolerance=1e-6)
+    )
     expected = ref.run(trajectory)
     got = sim.run(trajectory[:3])
     first = sim.cg_iterations[0]
@@ -251,7 +260,7 @@ def test_cg_extrapolated_start_saves_iterations_not_accuracy():
     d3, d2, d1, d = history
     predictor = d + 1e-3 * sim.v + 0.5e-6 * sim.a
     free = sim.free_nodes
-    guess = sim.stepper._guess.numpy()
+    guess = sim.solver._guess.numpy()
     np.testing.assert_allclose(
         guess, (4 * d - 6 * d1 + 4 * d2 - d3 - predictor)[free], rtol=0, atol=1e-9 * np.abs(d - d1).max()
     )
@@ -288,7 +297,9 @@ def test_cg_run_returns_the_state_rounded_to_float32(beam):
     """run() copies each chunk out in float32 (rounded on the device): every step's row is the float64 state of
     that step rounded to nearest, the same bits as NumPy's astype; chunks of 2 alternate the staging buffers."""
     mesh, fixed, driven = beam
-    sim = TissueSimulation(mesh, SOFT, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg", cg_chunk=2)
+    sim = TissueSimulation(
+        mesh, SOFT, 1e-3, fixed=fixed, driven=driven, device="cpu", solver="cg", cg=CGOptions(chunk=2)
+    )
     trajectory = np.linspace(0.0, 1e-3, 5)[:, None, None] * np.ones((1, driven.size, 3))
     states = []
     for row in trajectory:
@@ -310,9 +321,7 @@ def test_cg_non_convergence_raises_with_residual(beam):
         driven=driven,
         device="cpu",
         solver="cg",
-        cg_tol=1e-14,
-        cg_maxiter=1,
-        cg_preconditioner="diag",
+        cg=CGOptions(tolerance=1e-14, maxiter=1, preconditioner="diag"),
     )
     trajectory = np.full((2, driven.size, 3), 1e-3)
     with pytest.raises(ConvergenceError, match=r"step 0 .*residual [0-9.e+-]+ > tolerance"):
@@ -356,15 +365,17 @@ def test_bad_input_is_rejected(beam):
         (dict(fixed=[0.5]), "integer node indices"),
         (dict(solver="lu"), "solver must be"),
         (dict(formulation="q2"), "formulation"),
-        (dict(cg_preconditioner="ilu"), "cg_preconditioner"),
-        (dict(cg_loop="unrolled"), "cg_loop must be one of"),
+        (dict(cg=dict(preconditioner="ilu")), "preconditioner"),
+        (dict(cg=dict(loop="unrolled")), "loop must be one of"),
         (dict(fixed=np.arange(n), driven=None), "nothing to simulate"),
     ]:
         args = dict(ok, dt=1e-3) | kwargs
         dt = args.pop("dt")
         with pytest.raises(ValueError, match=message):
+            if "cg" in args:
+                args["cg"] = CGOptions(**args["cg"])
             TissueSimulation(mesh, SOFT, dt, **args)
-    with pytest.raises(ValueError, match="TetMesh"):
+    with pytest.raises(TypeError, match="TetMesh"):
         TissueSimulation("mesh", SOFT, 1e-3, **ok)
     with pytest.raises(ValueError, match="per-tet values"):
         TissueSimulation(mesh, TissueMaterial(np.full(2, 1e5), 0.3, 0.0, 1e3), 1e-3, **ok)

@@ -87,11 +87,11 @@ def test_direct_solver_matches_a_scipy_newmark_loop_within_1e_9_m(face, formulat
     trajectory = np.zeros((steps, driven.size, 3))
     trajectory[:, :, 1] = -4e-3 * s[:, None]
     sim = TissueSimulation(mesh, KATO, DT, fixed=fixed, driven=driven, formulation=formulation, device="cpu")
-    assert isinstance(sim.stepper.factor, BlockLDLT)
+    assert isinstance(sim.solver.factor, BlockLDLT)
     out = sim.run(trajectory[:60])
     for row in trajectory[60:100]:
         sim.step(row)
-    factor = sim.stepper.factor
+    factor = sim.solver.factor
     rounds = factor.rounds
     for row in trajectory[100:]:  # smooth motion: one round per step
         sim.step(row)
@@ -126,9 +126,9 @@ def test_restart_and_jumps_keep_float64_accuracy(face):
     trajectory[[11, 23], :, 2] = 2e-3
     sim = TissueSimulation(mesh, KATO, DT, fixed=fixed, driven=driven, formulation="anp", device="cpu")
     ref = TissueSimulation(mesh, KATO, DT, fixed=fixed, driven=driven, formulation="anp", device="cpu")
-    assert isinstance(sim.stepper.factor, BlockLDLT)
+    assert isinstance(sim.solver.factor, BlockLDLT)
     A, o, *_ = _system(mesh, fixed, driven, "anp")
-    ref.stepper.factor = SuperLUFactor(A[o][:, o])  # float64 throughout
+    ref.solver.factor = SuperLUFactor(A[o][:, o])  # float64 throughout
     expected = ref.run(trajectory)
     got = sim.run(trajectory)
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
@@ -151,10 +151,10 @@ def test_ill_conditioned_systems_use_the_float64_factor():
     with pytest.raises(UnsuitableFactor, match="contraction"):
         BlockLDLT(A_oo)
     sim = TissueSimulation(mesh, material, 10.0, fixed=fixed, device="cpu")
-    assert isinstance(sim.stepper.factor, SuperLUFactor)
+    assert isinstance(sim.solver.factor, SuperLUFactor)
     rhs = np.random.default_rng(2).standard_normal(A_oo.shape[0])
     expected = spla.spsolve(A_oo.tocsc(), rhs)
-    np.testing.assert_allclose(sim.stepper.solve(rhs), expected, rtol=0, atol=1e-6 * np.abs(expected).max())  # κ ~ 1e9
+    np.testing.assert_allclose(sim.solver.solve(rhs), expected, rtol=0, atol=1e-6 * np.abs(expected).max())  # κ ~ 1e9
 
 
 def test_bad_matrices_are_rejected():

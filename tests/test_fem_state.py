@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warpface.fem import TissueControl, TissueMaterial, TissueSimulation, TissueState, box_tet_mesh
+from warpface.fem import CGOptions, TissueControl, TissueMaterial, TissueSimulation, TissueState, box_tet_mesh
 from warpface.fem.newmark import newmark_coefficients
 
 MATERIAL = TissueMaterial(1e5, 0.45, 20.0, 1000.0)
@@ -28,7 +28,7 @@ def _trajectory(steps: int, driven: int) -> np.ndarray:
 @pytest.mark.parametrize("solver", ["direct", "cg"])
 def test_ping_pong_states_match_run(beam, solver):
     mesh, fixed, driven = beam
-    options = dict(fixed=fixed, driven=driven, device="cpu", solver=solver, cg_tol=1e-12)
+    options = dict(fixed=fixed, driven=driven, device="cpu", solver=solver, cg=CGOptions(tolerance=1e-12))
     reference = TissueSimulation(mesh, MATERIAL, 1e-3, **options).run(_trajectory(20, driven.size))
     sim = TissueSimulation(mesh, MATERIAL, 1e-3, **options)
     states = [TissueState(mesh.node_count, device="cpu"), TissueState(mesh.node_count, device="cpu")]
@@ -36,7 +36,7 @@ def test_ping_pong_states_match_run(beam, solver):
     for t, row in enumerate(_trajectory(20, driven.size)):
         control.driven.assign(row)
         before = states[t % 2].numpy()
-        sim.stepper.step(states[t % 2], states[(t + 1) % 2], control)
+        sim.solver.step(states[t % 2], states[(t + 1) % 2], control)
         after = states[t % 2].numpy()
         for x, y in zip(before, after):
             np.testing.assert_array_equal(x, y)  # state_in is only read
@@ -45,8 +45,8 @@ def test_ping_pong_states_match_run(beam, solver):
         np.testing.assert_array_equal(d[driven], row)
         assert np.all(d[fixed] == 0.0)
     if solver == "cg":
-        sim.stepper.synchronize()
-        assert len(sim.stepper._bindings) == 2  # two bindings (graphs on CUDA) reused, none per step
+        sim.solver.synchronize()
+        assert len(sim.solver._bindings) == 2  # two bindings (graphs on CUDA) reused, none per step
 
 
 def test_state_update_is_newmark(beam):
@@ -62,7 +62,7 @@ def test_state_update_is_newmark(beam):
     out = TissueState(mesh.node_count, device="cpu")
     control = TissueControl(driven.size, device="cpu")
     control.driven.assign(np.full((driven.size, 3), 5e-4))
-    sim.stepper.step(state, out, control)
+    sim.solver.step(state, out, control)
     d1, v1, a1 = out.numpy()
     c = newmark_coefficients(2e-3, 0.3, 0.6)
     a_expected = 1 / (0.3 * 4e-6) * (d1 - d0) - 1 / (0.3 * 2e-3) * v0 - (1 / 0.6 - 1) * a0
@@ -77,8 +77,8 @@ def test_step_rejects_mismatched_state(beam, solver):
     mesh, fixed, driven = beam
     sim = TissueSimulation(mesh, MATERIAL, 1e-3, fixed=fixed, driven=driven, device="cpu", solver=solver)
     with pytest.raises(ValueError, match="state_in must hold"):
-        sim.stepper.step(TissueState(5, device="cpu"), sim.state, sim.control)
+        sim.solver.step(TissueState(5, device="cpu"), sim.state, sim.control)
     with pytest.raises(ValueError, match="state_out must hold"):
-        sim.stepper.step(sim.state, TissueState(mesh.node_count, dtype=wp.float32, device="cpu"), sim.control)
+        sim.solver.step(sim.state, TissueState(mesh.node_count, dtype=wp.float32, device="cpu"), sim.control)
     with pytest.raises(ValueError, match="control must hold"):
-        sim.stepper.step(sim.state, sim.state, TissueControl(driven.size + 1, device="cpu"))
+        sim.solver.step(sim.state, sim.state, TissueControl(driven.size + 1, device="cpu"))

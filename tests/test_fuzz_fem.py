@@ -17,7 +17,15 @@ from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 from warpface.errors import RigError  # noqa: E402
-from warpface.fem import ConvergenceError, TetMesh, TissueMaterial, TissueSimulation, box_tet_mesh, embed_points  # noqa: E402
+from warpface.fem import (
+    CGOptions,
+    ConvergenceError,
+    TetMesh,
+    TissueMaterial,
+    TissueSimulation,
+    box_tet_mesh,
+    embed_points,
+)  # noqa: E402
 
 ACCEPTED = (ValueError, TypeError, RigError)
 FUZZ = settings(
@@ -203,7 +211,7 @@ def test_embed_points_rejects_bad_queries(queries, max_distance):
 @FUZZ
 @given(
     option=st.sampled_from(
-        ["fixed", "driven", "formulation", "solver", "cg_tol", "cg_maxiter", "cg_chunk", "cg_preconditioner", "device"]
+        ["fixed", "driven", "formulation", "solver", "tolerance", "maxiter", "chunk", "preconditioner", "device"]
     ),
     value=st.one_of(
         wild_values,
@@ -212,8 +220,12 @@ def test_embed_points_rejects_bad_queries(queries, max_distance):
     ),
 )
 def test_simulation_options_are_checked(option, value):
-    options = dict(fixed=FIXED, driven=DRIVEN, device="cpu", solver="cg") | {option: value}
+    options = dict(fixed=FIXED, driven=DRIVEN, device="cpu", solver="cg")
     try:
+        if option in ("tolerance", "maxiter", "chunk", "preconditioner"):  # the CG solver's options
+            options["cg"] = CGOptions(**{option: value})
+        else:
+            options[option] = value
         sim = TissueSimulation(MESH, SOFT, 1e-3, **options)
     except ACCEPTED as exc:
         assert _names(str(exc), option, "fixed", "driven", "node"), exc
@@ -221,7 +233,7 @@ def test_simulation_options_are_checked(option, value):
     try:
         sim.step(np.full((sim.driven_nodes.size, 3), 1e-4) if sim.driven_nodes.size else None)
         state = (sim.d, sim.v, sim.a, sim.energy())
-    except ConvergenceError as exc:  # the documented outcome of a tiny cg_maxiter or cg_tol
-        assert option in ("cg_maxiter", "cg_tol") and "did not converge" in str(exc), exc
+    except ConvergenceError as exc:  # the documented outcome of a tiny maxiter or tolerance
+        assert option in ("maxiter", "tolerance") and "did not converge" in str(exc), exc
         return
     assert _finite(*state)

@@ -182,7 +182,7 @@ class CGSolver(DeviceSolver):
         self._r_flat = work_flat[WORK_R : WORK_R + 2]
         self._q_flat, self._y_flat = work_flat[WORK_Q], work_flat[WORK_Y]
         self._history = wp.zeros((2, 1, n_free), dtype=vec, device=dev)
-        self._guess = wp.zeros((1, n_free), dtype=vec, device=dev)
+        self._guess = wp.zeros(n_free, dtype=vec, device=dev)
         self._slots = wp.zeros((1, 4, options.maxiter + 1, SLOT_SPREAD), dtype=wp.float64, device=dev)
         self._cg_iter = wp.zeros((1, 2), dtype=wp.int32, device=dev)
         self._barrier = wp.zeros((1, 3), dtype=wp.int32, device=dev)  # persistent: [arrivals, gave up, departures]
@@ -196,7 +196,8 @@ class CGSolver(DeviceSolver):
         self._ring = wp.zeros(2, dtype=wp.int32, device=dev)
         self._step_ring = wp.zeros(2, dtype=wp.int32, device=dev)  # step(): a ring of one slot, always 0
         # views made once: the launched kernels' single-model arrays, the persistent kernel's batch of one
-        self._slots_one, self._cg_iter_one, self._guess_one = self._slots[0], self._cg_iter[0], self._guess[0]
+        self._slots_one, self._cg_iter_one = self._slots[0], self._cg_iter[0]
+        self._guess_models = self._batch_view(self._guess)
         self._P_values, self._A_values = self._batch_view(P.values), self._batch_view(A_oo.values)
         self._x_models = self._work[:, WORK_X]
 
@@ -260,7 +261,7 @@ class CGSolver(DeviceSolver):
                 inputs=[
                     *(P.offsets, P.columns, self._P_values, A.offsets, A.columns, self._A_values),
                     *(self._G[0], self._G[1], self._G_values, self._GT[0], self._GT[1], self._GT_values),
-                    *(b.d_in, b.v_in, b.a_in, b.trajectory, self._guess, b.ring, self._work, self._work_flat),
+                    *(b.d_in, b.v_in, b.a_in, b.trajectory, self._guess_models, b.ring, self._work, self._work_flat),
                     *(self._slots, self._cg_iter, self._barrier, tol_sq, maxiter, self._persistent_blocks, 0),
                 ],
             )
@@ -268,7 +269,7 @@ class CGSolver(DeviceSolver):
             slots, cg_iter = self._slots_one, self._cg_iter_one
             self._launch_tiled(
                 k.residual,
-                [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, *b.state, b.driven, self._guess_one]
+                [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, *b.state, b.driven, self._guess]
                 + [b.ring, self._r, self._x, slots, cg_iter, self._condition],
             )
             self._launch_tiled(k.lower_start, [*self._G, self._r, self._r_flat, self._x, slots, self._y])
@@ -278,7 +279,7 @@ class CGSolver(DeviceSolver):
             cg_newmark_update,
             dim=(1, self.node_count),
             inputs=[
-                *(self._x_models, self._history, self._guess, self._free_index, self._driven_slot),
+                *(self._x_models, self._history, self._guess_models, self._free_index, self._driven_slot),
                 *(b.trajectory, b.ring, *self._update_constants, self._slots, self._cg_iter, tol_sq, b.chunk),
                 *(b.d_in, b.v_in, b.a_in),
             ],

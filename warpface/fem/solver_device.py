@@ -58,7 +58,10 @@ class DeviceSolver:
             or state.device != self.device
         ):
             precision = wp.types.type_repr(self._vec._wp_scalar_type_)
-            raise ValueError(f"{name} must be a TissueState of {shape} {precision} vec3 on {self.device}")
+            models = "" if self.model_count is None else f" of {self.model_count} models"
+            raise ValueError(
+                f"{name} must hold {self.node_count} nodes{models} of {precision} vec3 on {self.device} (a TissueState)"
+            )
 
     def _binding(self, state_in, state_out, trajectory, ring, record, key) -> SimpleNamespace:
         """The arrays of one step, per model first: the states, ``trajectory`` (chunk, B, D) and ``record``
@@ -97,8 +100,9 @@ class DeviceSolver:
                 or not wp.types.types_equal(driven.dtype, self._vec)
             ):
                 raise ValueError(
-                    f"control must be a TissueControl of {self.driven_nodes.size} driven displacements"
-                    f"{'' if self.model_count is None else f' for {self.model_count} models'} of this solver's vec3"
+                    f"control must hold {self.driven_nodes.size} driven displacements"
+                    f"{'' if self.model_count is None else f' for {self.model_count} models'} of this solver's vec3 "
+                    "(a TissueControl)"
                 )
             trajectory = driven.reshape((1, *driven.shape))
             record = self._batch_view(state_out.d)

@@ -111,7 +111,7 @@ class TissueDrive:
                 outputs=[self.control.driven],
                 device=target.device,
             )
-            sim.step_control(self.control)
+            sim.step(self.control)
         wp.copy(self._previous.driven, target)
         skin = self.embedding.apply(sim.state.d).numpy()  # waits for the steps
         sim.synchronize()  # raises if a CG step failed to converge
