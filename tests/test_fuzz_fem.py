@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 from warpface.errors import RigError  # noqa: E402
-from warpface.fem import (
+from warpface.fem import (  # noqa: E402
     CGOptions,
     ConvergenceError,
     TetMesh,
