@@ -49,7 +49,7 @@ import warp as wp
 from .._validate import as_device
 from ..geometry.surface_checks import as_surface, boundary_loops, check_surface, directed_edges, find_self_intersections
 from ..geometry.triangles import area_weighted_vertex_normals
-from .shell import fair_locally
+from .shell import fair_locally, thickness_per_vertex
 
 __all__ = ["TissueProxy", "default_center", "tissue_proxy"]
 
@@ -432,14 +432,7 @@ def tissue_proxy(
     """
     points, triangles = as_surface(surface)
     check_surface(points, triangles, closed=False, name="face surface")
-    h = np.asarray(thickness, dtype=np.float64)
-    if h.ndim == 0:
-        h = np.full(len(points), float(h))
-    if h.shape != (len(points),):
-        raise ValueError(f"thickness must be a scalar or one value per vertex ({len(points)},), got shape {h.shape}")
-    bad = np.flatnonzero(~(np.isfinite(h) & (h > 0.0)))
-    if bad.size:
-        raise ValueError(f"thickness at vertex {bad[0]} must be finite and > 0 [m], got {h[bad[0]]!r}")
+    h = thickness_per_vertex(thickness, points)
     if not -1.0 <= min_facing < 1.0:
         raise ValueError(f"min_facing must be in [-1, 1), got {min_facing}")
     for name, value in (("crease_gap", crease_gap), ("margin", margin)):

@@ -16,7 +16,7 @@ import numpy as np
 from ..geometry.surface_checks import as_surface, boundary_loops, check_surface, directed_edges, find_self_intersections
 from ..geometry.triangles import area_weighted_vertex_normals, triangle_corners, triangle_crosses
 
-__all__ = ["ShellSurface", "enclosed_volume", "fair_locally", "offset_shell", "shell_defects"]
+__all__ = ["ShellSurface", "enclosed_volume", "fair_locally", "offset_shell", "shell_defects", "thickness_per_vertex"]
 
 
 def _crosses(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -280,3 +280,21 @@ def _local_radius(points: np.ndarray, triangles: np.ndarray, tri: np.ndarray) ->
 
 
 # ---------------------------------------------------------------------------------------------- meshing
+
+
+def thickness_per_vertex(thickness, points: np.ndarray, *, device=None) -> np.ndarray:
+    """Tissue thickness [m] at each of ``points``: a scalar, one value per point, or a ThicknessMap (sampled);
+    ValueError unless every value is finite and > 0."""
+    if hasattr(thickness, "sample"):  # a ThicknessMap (SPEC §1.5)
+        thickness = thickness.sample(points, device=device)
+    h = np.asarray(thickness, dtype=np.float64)
+    if h.ndim == 0:
+        h = np.full(len(points), float(h))
+    if h.shape != (len(points),):
+        raise ValueError(f"thickness must be a scalar or one value per vertex ({len(points)},), got shape {h.shape}")
+    bad = np.flatnonzero(~(np.isfinite(h) & (h > 0.0)))
+    if bad.size:
+        raise ValueError(
+            f"thickness at vertex {bad[0]} must be finite and > 0 [m], got {h[bad[0]]!r} ({bad.size} such vertices)"
+        )
+    return h

@@ -34,6 +34,7 @@ NumPy run once; pytetwild and PyVista are imported lazily.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass, field
 
@@ -42,7 +43,7 @@ import numpy as np
 from ..geometry.mesh_index import closest_points
 from ..geometry.surface_checks import as_surface, boundary_loops, check_surface, find_self_intersections
 from ..geometry.triangles import triangle_areas, triangle_corners
-from .shell import ShellSurface, fair_locally, offset_shell, shell_defects
+from .shell import ShellSurface, fair_locally, offset_shell, shell_defects, thickness_per_vertex
 from .tetmesh import TetMesh, TetQuality
 from .tetwild import tetrahedralize_validated
 
@@ -204,22 +205,6 @@ def _remove_ears(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray,
     return points[used], remap[triangles]
 
 
-def _thickness_per_vertex(thickness, points: np.ndarray, device) -> np.ndarray:
-    if hasattr(thickness, "sample"):  # a ThicknessMap (SPEC §1.5)
-        thickness = thickness.sample(points, device=device)
-    h = np.asarray(thickness, dtype=np.float64)
-    if h.ndim == 0:
-        h = np.full(len(points), float(h))
-    if h.shape != (len(points),):
-        raise ValueError(f"thickness must be a scalar or one value per vertex ({len(points)},), got shape {h.shape}")
-    bad = np.flatnonzero(~(np.isfinite(h) & (h > 0.0)))
-    if bad.size:
-        raise ValueError(
-            f"thickness at vertex {bad[0]} must be finite and > 0 [m], got {h[bad[0]]!r} ({bad.size} such vertices)"
-        )
-    return h
-
-
 def mesh_tissue(
     surface,
     thickness,
@@ -290,167 +275,128 @@ def mesh_tissue(
         RuntimeError: fTetWild crashed or ran past ``timeout``.
     """
     start = time.perf_counter()
-    report_stage = _progress_reporter(progress)
-    try:
-        return _mesh_tissue(
-            surface,
-            thickness,
-            target_nodes,
-            edge_length,
-            decimate,
-            envelope,
-            optimize_passes,
-            threads,
-            max_smoothing,
-            input_intersections,
-            thin_defects,
-            fair_folds,
-            timeout,
-            report_stage,
-            device,
-            start,
-        )
-    finally:
-        report_stage.close()
-
-
-def _mesh_tissue(
-    surface,
-    thickness,
-    target_nodes,
-    edge_length,
-    decimate,
-    envelope,
-    optimize_passes,
-    threads,
-    max_smoothing,
-    input_intersections,
-    thin_defects,
-    fair_folds,
-    timeout,
-    report_stage,
-    device,
-    start,
-) -> TissueMeshing:
-    points, triangles = as_surface(surface)
-    boundary = check_surface(points, triangles, closed=False, name="face surface")
-    if len(boundary) == 0:
-        raise ValueError("face surface has no boundary loop: it is already closed, not a skin surface to thicken")
-    loop_count = len(boundary_loops(boundary))
-    h_fine = _thickness_per_vertex(thickness, points, device)
-    if input_intersections not in ("error", "ignore"):
-        raise ValueError(f"input_intersections must be 'error' or 'ignore', got {input_intersections!r}")
-    crossings, pairs = find_self_intersections(points, triangles, device=device)
-    if crossings and input_intersections == "error":
-        i, j = (int(x) for x in pairs[0])
-        raise ValueError(
-            f"face surface intersects itself: {crossings} pairs of triangles cross, first {i} and {j} near "
-            f"{np.round(points[triangles[i]].mean(axis=0), 5).tolist()} m (input_intersections='ignore' "
-            "meshes it anyway when the coarsened shell is clean)"
-        )
-
-    area = _surface_area(points, triangles)
-    if edge_length is None:
-        if target_nodes is None or int(target_nodes) < 8:
-            raise ValueError(f"target_nodes must be an integer >= 8 when edge_length is not given, got {target_nodes}")
-        edge_length = _edge_length_for(area, float(np.mean(h_fine)), int(target_nodes))
-    edge_length = float(edge_length)
-    if not (np.isfinite(edge_length) and edge_length > 0.0):
-        raise ValueError(f"edge_length must be finite and > 0 [m], got {edge_length}")
-    if not 0.0 < envelope < 0.1:
-        raise ValueError(f"envelope must be in (0, 0.1) (relative to the bounding-box diagonal), got {envelope}")
-    if int(optimize_passes) < 0:
-        raise ValueError(f"optimize_passes must be >= 0, got {optimize_passes}")
-    for option, rounds in (("thin_defects", thin_defects), ("fair_folds", fair_folds)):
-        if isinstance(rounds, bool) or not isinstance(rounds, (int, np.integer)) or rounds < 0:
-            raise ValueError(f"{option} must be an integer >= 0, got {rounds!r}")
-
-    t0 = time.perf_counter()
-    report_stage("decimate", 0.0)
-    surface_vertices = int(2.0 * area / (_SQRT3 * edge_length**2))
-    if decimate and surface_vertices < 0.8 * len(points):
-        coarse_points, coarse_triangles = _remove_ears(*_decimate(points, triangles, surface_vertices))
-        coarse_boundary = check_surface(coarse_points, coarse_triangles, closed=False, name="decimated surface")
-        coarse_loops = len(boundary_loops(coarse_boundary))
-        if coarse_loops != loop_count:
+    with contextlib.closing(_progress_reporter(progress)) as report_stage:
+        points, triangles = as_surface(surface)
+        boundary = check_surface(points, triangles, closed=False, name="face surface")
+        if len(boundary) == 0:
+            raise ValueError("face surface has no boundary loop: it is already closed, not a skin surface to thicken")
+        loop_count = len(boundary_loops(boundary))
+        h_fine = thickness_per_vertex(thickness, points, device=device)
+        if input_intersections not in ("error", "ignore"):
+            raise ValueError(f"input_intersections must be 'error' or 'ignore', got {input_intersections!r}")
+        crossings, pairs = find_self_intersections(points, triangles, device=device)
+        if crossings and input_intersections == "error":
+            i, j = (int(x) for x in pairs[0])
             raise ValueError(
-                f"decimation to {len(coarse_points)} vertices changed the surface's boundary loops from "
-                f"{loop_count} to {coarse_loops}; ask for more nodes (target_nodes / edge_length) or decimate=False"
+                f"face surface intersects itself: {crossings} pairs of triangles cross, first {i} and {j} near "
+                f"{np.round(points[triangles[i]].mean(axis=0), 5).tolist()} m (input_intersections='ignore' "
+                "meshes it anyway when the coarsened shell is clean)"
             )
-        h = (
-            _sample_at_closest_points(points, triangles, h_fine, coarse_points, device)
-            if np.ptp(h_fine) > 0.0
-            else (np.full(len(coarse_points), float(h_fine[0])))
-        )
-    else:
-        coarse_points, coarse_triangles, h = points, triangles, h_fine
-    t1 = time.perf_counter()
-    report_stage("offset shell", 0.0)
-    thinning_rounds = fairing_rounds = 0
-    while True:
-        try:
-            shell = offset_shell(coarse_points, coarse_triangles, h, max_smoothing=max_smoothing, device=device)
-            break
-        except ValueError:
-            thinning = thinning_rounds < int(thin_defects)
-            defects = (
-                shell_defects(coarse_points, coarse_triangles, h, max_smoothing=max_smoothing, device=device)
-                if (thinning or fairing_rounds < int(fair_folds))
-                else np.zeros(0, dtype=np.int64)
-            )
-            if len(defects) == 0:
-                raise
-            coarse_points, h = fair_locally(coarse_points, coarse_triangles, h, defects, move_surface=not thinning)
-            if thinning:
-                thinning_rounds += 1
-            else:
-                fairing_rounds += 1
-    t2 = time.perf_counter()
 
-    report_stage("tetrahedralize", 0.0)
-    tetmesh, tetwild_runs = tetrahedralize_validated(
-        shell,
-        on_wait=lambda seconds: report_stage("tetrahedralize", seconds),
-        edge_length_abs=edge_length,
-        epsilon=float(envelope),
-        optimize=int(optimize_passes) > 0,
-        num_opt_iter=max(int(optimize_passes), 1),
-        stop_energy=_STOP_ENERGY,
-        simplify=False,  # the shell is already at the target resolution; fTetWild's own pass is slow
-        num_threads=int(threads),
-        quiet=True,
-        timeout=timeout,
-    )
-    t3 = time.perf_counter()
-    report_stage("validate", 0.0)
-    quality = tetmesh.quality()
-    t4 = time.perf_counter()
-    report = MeshingReport(
-        input_vertices=len(points),
-        surface_vertices=len(coarse_points),
-        boundary_loops=loop_count,
-        input_intersections=int(crossings),
-        shell_triangles=len(shell.triangles),
-        smoothing_iterations=shell.smoothing_iterations,
-        thickness_range=(float(h.min()), float(h.max())),
-        edge_length=edge_length,
-        node_count=tetmesh.node_count,
-        tet_count=tetmesh.tet_count,
-        quality=quality,
-        shell_volume=shell.volume,
-        tet_volume=tetmesh.total_volume,
-        timings={
-            "decimate": t1 - t0,
-            "shell": t2 - t1,
-            "tetrahedralize": t3 - t2,
-            "validate": t4 - t3,
-            "total": t4 - start,
-        },
-        fairing_rounds=fairing_rounds,
-        thinning_rounds=thinning_rounds,
-        tetwild_runs=tetwild_runs,
-    )
-    return TissueMeshing(tetmesh=tetmesh, shell=shell, report=report)
+        area = _surface_area(points, triangles)
+        if edge_length is None:
+            if target_nodes is None or int(target_nodes) < 8:
+                raise ValueError(
+                    f"target_nodes must be an integer >= 8 when edge_length is not given, got {target_nodes}"
+                )
+            edge_length = _edge_length_for(area, float(np.mean(h_fine)), int(target_nodes))
+        edge_length = float(edge_length)
+        if not (np.isfinite(edge_length) and edge_length > 0.0):
+            raise ValueError(f"edge_length must be finite and > 0 [m], got {edge_length}")
+        if not 0.0 < envelope < 0.1:
+            raise ValueError(f"envelope must be in (0, 0.1) (relative to the bounding-box diagonal), got {envelope}")
+        if int(optimize_passes) < 0:
+            raise ValueError(f"optimize_passes must be >= 0, got {optimize_passes}")
+        for option, rounds in (("thin_defects", thin_defects), ("fair_folds", fair_folds)):
+            if isinstance(rounds, bool) or not isinstance(rounds, (int, np.integer)) or rounds < 0:
+                raise ValueError(f"{option} must be an integer >= 0, got {rounds!r}")
+
+        t0 = time.perf_counter()
+        report_stage("decimate", 0.0)
+        surface_vertices = int(2.0 * area / (_SQRT3 * edge_length**2))
+        if decimate and surface_vertices < 0.8 * len(points):
+            coarse_points, coarse_triangles = _remove_ears(*_decimate(points, triangles, surface_vertices))
+            coarse_boundary = check_surface(coarse_points, coarse_triangles, closed=False, name="decimated surface")
+            coarse_loops = len(boundary_loops(coarse_boundary))
+            if coarse_loops != loop_count:
+                raise ValueError(
+                    f"decimation to {len(coarse_points)} vertices changed the surface's boundary loops from "
+                    f"{loop_count} to {coarse_loops}; ask for more nodes (target_nodes / edge_length) or decimate=False"
+                )
+            h = (
+                _sample_at_closest_points(points, triangles, h_fine, coarse_points, device)
+                if np.ptp(h_fine) > 0.0
+                else (np.full(len(coarse_points), float(h_fine[0])))
+            )
+        else:
+            coarse_points, coarse_triangles, h = points, triangles, h_fine
+        t1 = time.perf_counter()
+        report_stage("offset shell", 0.0)
+        thinning_rounds = fairing_rounds = 0
+        while True:
+            try:
+                shell = offset_shell(coarse_points, coarse_triangles, h, max_smoothing=max_smoothing, device=device)
+                break
+            except ValueError:
+                thinning = thinning_rounds < int(thin_defects)
+                defects = (
+                    shell_defects(coarse_points, coarse_triangles, h, max_smoothing=max_smoothing, device=device)
+                    if (thinning or fairing_rounds < int(fair_folds))
+                    else np.zeros(0, dtype=np.int64)
+                )
+                if len(defects) == 0:
+                    raise
+                coarse_points, h = fair_locally(coarse_points, coarse_triangles, h, defects, move_surface=not thinning)
+                if thinning:
+                    thinning_rounds += 1
+                else:
+                    fairing_rounds += 1
+        t2 = time.perf_counter()
+
+        report_stage("tetrahedralize", 0.0)
+        tetmesh, tetwild_runs = tetrahedralize_validated(
+            shell,
+            on_wait=lambda seconds: report_stage("tetrahedralize", seconds),
+            edge_length_abs=edge_length,
+            epsilon=float(envelope),
+            optimize=int(optimize_passes) > 0,
+            num_opt_iter=max(int(optimize_passes), 1),
+            stop_energy=_STOP_ENERGY,
+            simplify=False,  # the shell is already at the target resolution; fTetWild's own pass is slow
+            num_threads=int(threads),
+            quiet=True,
+            timeout=timeout,
+        )
+        t3 = time.perf_counter()
+        report_stage("validate", 0.0)
+        quality = tetmesh.quality()
+        t4 = time.perf_counter()
+        report = MeshingReport(
+            input_vertices=len(points),
+            surface_vertices=len(coarse_points),
+            boundary_loops=loop_count,
+            input_intersections=int(crossings),
+            shell_triangles=len(shell.triangles),
+            smoothing_iterations=shell.smoothing_iterations,
+            thickness_range=(float(h.min()), float(h.max())),
+            edge_length=edge_length,
+            node_count=tetmesh.node_count,
+            tet_count=tetmesh.tet_count,
+            quality=quality,
+            shell_volume=shell.volume,
+            tet_volume=tetmesh.total_volume,
+            timings={
+                "decimate": t1 - t0,
+                "shell": t2 - t1,
+                "tetrahedralize": t3 - t2,
+                "validate": t4 - t3,
+                "total": t4 - start,
+            },
+            fairing_rounds=fairing_rounds,
+            thinning_rounds=thinning_rounds,
+            tetwild_runs=tetwild_runs,
+        )
+        return TissueMeshing(tetmesh=tetmesh, shell=shell, report=report)
 
 
 MESHING_STAGES = ("decimate", "offset shell", "tetrahedralize", "validate")
