@@ -190,13 +190,16 @@ def test_loop_choice_follows_the_occupancy_query():
         raise AssertionError("the CPU must not query occupancy")
 
     cpu, cuda = wp.get_device("cpu"), _FakeCuda()
-    assert choose_loop("auto", cpu, never) == "launched" and choose_loop("persistent", cpu, never) == "persistent"
-    assert choose_loop("auto", cuda, lambda: 2 * 132) == "persistent"
-    assert choose_loop("auto", cuda, lambda: 131) == "launched"  # not one block per multiprocessor
-    assert choose_loop("auto", cuda, lambda: 0) == "launched"  # the query failed or nothing fits
-    assert choose_loop("launched", cuda, never) == "launched"
+    assert (
+        choose_loop("auto", device=cpu, capacity=never) == "launched"
+        and choose_loop("persistent", device=cpu, capacity=never) == "persistent"
+    )
+    assert choose_loop("auto", device=cuda, capacity=lambda: 2 * 132) == "persistent"
+    assert choose_loop("auto", device=cuda, capacity=lambda: 131) == "launched"  # not one block per multiprocessor
+    assert choose_loop("auto", device=cuda, capacity=lambda: 0) == "launched"  # the query failed or nothing fits
+    assert choose_loop("launched", device=cuda, capacity=never) == "launched"
     with pytest.raises(ValueError, match="occupancy"):
-        choose_loop("persistent", cuda, lambda: 0)
+        choose_loop("persistent", device=cuda, capacity=lambda: 0)
 
 
 def test_control_feed_rings_host_rows_into_the_control():

@@ -70,7 +70,7 @@ class TissueBatch:
         if not materials:
             raise ValueError("materials: TissueBatch needs a non-empty sequence of TissueMaterial (one per model)")
         dt, beta, gamma, formulation, solver, device = check_model_options(
-            tetmesh, materials, dt, beta, gamma, formulation, solver, device
+            tetmesh, materials, dt, beta, gamma, formulation, solver, device=device
         )
         cg = CGOptions() if cg is None else cg
         if not isinstance(cg, CGOptions):

@@ -79,7 +79,7 @@ def displacement_limit(tetmesh: TetMesh) -> float:
     return DISPLACEMENT_LIMIT * float(np.linalg.norm(np.ptp(tetmesh.points, axis=0)))
 
 
-def check_model_options(tetmesh, materials: list, dt, beta, gamma, formulation, solver, device) -> tuple:
+def check_model_options(tetmesh, materials: list, dt, beta, gamma, formulation, solver, *, device) -> tuple:
     """Check what a simulation or a batch of them is built from; returns ``(dt, beta, gamma, formulation, solver,
     device)`` with the numbers as floats, ``solver`` resolved (``"auto"``: direct on the CPU, CG elsewhere) and
     ``device`` a Warp device.
@@ -163,7 +163,7 @@ class TissueSimulation:
         cg: CGOptions | None = None,
     ):
         self.dt, self.beta, self.gamma, formulation, solver, device = check_model_options(
-            tetmesh, [material], dt, beta, gamma, formulation, solver, device
+            tetmesh, [material], dt, beta, gamma, formulation, solver, device=device
         )
         cg = CGOptions() if cg is None else cg
         if not isinstance(cg, CGOptions):

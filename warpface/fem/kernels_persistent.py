@@ -168,10 +168,10 @@ def grid_capacity(kernel, block_dim: int, *, device=None) -> int:
     device = wp.get_device(device)
     if not device.is_cuda:
         return 1
-    return resident_blocks_per_multiprocessor(kernel, block_dim, device) * device.sm_count
+    return resident_blocks_per_multiprocessor(kernel, block_dim, device=device) * device.sm_count
 
 
-def resident_blocks_per_multiprocessor(kernel, block_dim: int, device) -> int:
+def resident_blocks_per_multiprocessor(kernel, block_dim: int, *, device) -> int:
     """``cuOccupancyMaxActiveBlocksPerMultiprocessor`` of ``kernel`` compiled for ``block_dim`` threads on the CUDA
     ``device`` (loads the kernel), or 0 when the driver or the query is not available."""
     driver = _cuda_driver()

@@ -76,7 +76,7 @@ class CGOptions:
         if self.use_graph is not None and not isinstance(self.use_graph, (bool, np.bool_)):
             raise TypeError(f"CGOptions.use_graph must be a bool or None, got {type(self.use_graph).__name__}")
 
-    def graph_on(self, device) -> bool:
+    def graph_on(self, *, device) -> bool:
         """Whether steps on ``device`` are captured as graphs (:attr:`use_graph`, or CUDA when it is None)."""
         return device.is_cuda if self.use_graph is None else bool(self.use_graph)
 

@@ -81,7 +81,7 @@ def _block_shape(device) -> tuple[int, int]:
     return 1, 1
 
 
-def choose_loop(requested: str, device, capacity) -> str:
+def choose_loop(requested: str, capacity, *, device) -> str:
     """The CG loop to run: ``requested`` (one of :data:`~warpface.fem.options.CG_LOOPS`) resolved on ``device``.
 
     ``capacity()`` gives the persistent kernel's co-resident blocks (:func:`grid_capacity`), asked only on CUDA:
@@ -210,7 +210,7 @@ class CGSolver(DeviceSolver):
                 capacity["blocks"] = grid_capacity(persistent.cg_step, persistent.block_dim, device=dev)
             return capacity["blocks"]
 
-        self.loop = choose_loop(options.loop, dev, blocks_resident)
+        self.loop = choose_loop(options.loop, blocks_resident, device=dev)
         """``"persistent"`` or ``"launched"``: :attr:`options`' loop resolved on the device (:func:`choose_loop`)."""
         if self.loop == "persistent":
             self._persistent = persistent

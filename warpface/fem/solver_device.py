@@ -39,7 +39,7 @@ class DeviceSolver:
     """Solver family, as ``TissueSimulation(solver=...)`` names it."""
 
     def _init_bindings(self) -> None:
-        self._use_graph = self.options.graph_on(self.device)
+        self._use_graph = self.options.graph_on(device=self.device)
         self._graphs: dict = {}
         self._bindings: dict = {}
         self._chunked = None  # run_chunks' host buffers, allocated on its first call
