@@ -38,7 +38,7 @@ step over the row's run() time; "x real time" is dt over the run() time per step
 The max difference to the baseline's displacements checks that every row computes the same motion.
 "CG iters max / mean" are the most and the mean CG iterations per step of the run() pass.
 
-    python -m benchmarks.fem [--steps 200] [--sizes 40 80] [--no-anp] [--batch 1 3 10 100] [--device cuda:0]
+    python -m benchmarks.fem [--steps 200] [--sizes 40 80] [--no-anp] [--batch 1 3 10 100] [--device cuda:0] [--quick]
 """
 
 from __future__ import annotations
@@ -282,6 +282,7 @@ def bench_mesh(
     cells: int, steps: int, with_anp: bool, cuda_device, batch_sizes=(), batch_preconditioners=("fsai",)
 ) -> list[dict]:
     mesh, fixed, driven, lower = face_problem(cells)
+    print(f"  {mesh.node_count} nodes: factorising the baselines, building the solvers", flush=True)
     material = kato_uniform_material()
     trajectory = mouth_opening(steps + 1, lower)
     label = f"{mesh.node_count} nodes"
@@ -308,6 +309,7 @@ def bench_mesh(
         )
         for name, formulation, device, options in configs
     ]
+    print(f"  timing {len(bases)} baseline and {len(sims)} warpface rows", flush=True)
     cpu_sims = [sim for _, _, sim in sims if sim.solver_kind == "direct"]
     steppers = [b.step for b in bases.values()] + [sim.step for sim in cpu_sims]
     for step in steppers:
@@ -383,6 +385,7 @@ def bench_mesh(
         single = next((row["step_ms"] for row in rows if row["path"] == "warpface cuda cg"), None)
         for preconditioner in batch_preconditioners:
             for models in batch_sizes:
+                print(f"  batch of {models} models ({preconditioner})", flush=True)
                 result = batch_step_seconds(mesh, fixed, driven, trajectory, models, cuda_device, preconditioner)
                 # the batch cannot finish a step before its slowest model: that model alone, stepped the same way
                 alone = TissueSimulation(mesh, result["slowest"], DT, fixed=fixed, driven=driven, device=cuda_device)
@@ -434,13 +437,21 @@ def main() -> None:
         help="TissueBatch preconditioners, one set of batch rows each (default fsai fsai_each)",
     )
     parser.add_argument("--device", default=None, help="CUDA device for the CG rows (default: first CUDA device)")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="smoke run: one 2.5k-node mesh, 100 steps, batches of 1 and 3 (fsai): about 5 s on the CPU",
+    )
     args = parser.parse_args()
+    if args.quick:
+        args.sizes, args.steps, args.batch, args.batch_preconditioners = [24], min(args.steps, 100), [1, 3], ["fsai"]
 
     wp.config.quiet = True
     wp.init()
     cuda = args.device or ("cuda:0" if wp.is_cuda_available() else None)
     rows = []
     for index, cells in enumerate(args.sizes):
+        print(f"shell of {cells} cells per side: {args.steps} steps per row ({'CPU and ' + cuda if cuda else 'CPU'})")
         rows.extend(
             bench_mesh(
                 cells, args.steps, not args.no_anp, cuda, args.batch if index == 0 else (), args.batch_preconditioners
