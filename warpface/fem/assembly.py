@@ -124,15 +124,14 @@ def assemble(
         :class:`SystemMatrices` with float64 3x3-block BSR matrices on ``device``.
 
     Raises:
+        TypeError: ``tetmesh``, ``material`` or ``formulation`` of the wrong type (also a ValueError).
         ValueError: unknown formulation, or material/mesh size mismatch.
     """
     expect_instance(tetmesh, TetMesh, "tetmesh")
+    expect_instance(material, TissueMaterial, "material")
+    expect_instance(formulation, str, "formulation")
     if formulation not in FORMULATIONS:
         raise ValueError(f"assemble: formulation must be one of {FORMULATIONS}, got {formulation!r}")
-    if not isinstance(tetmesh, TetMesh):
-        raise ValueError(f"assemble: expected a TetMesh, got {type(tetmesh).__name__}")
-    if not isinstance(material, TissueMaterial):
-        raise ValueError(f"assemble: expected a TissueMaterial, got {type(material).__name__}")
     device = as_device(device)
     n, m = tetmesh.node_count, tetmesh.tet_count
     fields = material.per_tet(m)

@@ -26,7 +26,7 @@ import time
 import numpy as np
 import warp as wp
 
-from .._validate import as_device, as_finite_array
+from .._validate import as_device, as_finite_array, expect_instance
 from ..errors import ConvergenceError
 from .assembly import FORMULATIONS, SystemMatrices, assemble
 from .material import TissueMaterial
@@ -86,21 +86,19 @@ def check_model_options(tetmesh, materials: list, dt, beta, gamma, formulation, 
 
     Raises:
         TypeError: ``tetmesh`` is not a TetMesh, a material not a TissueMaterial, a number not a number, or
-            ``formulation`` / ``solver`` not a string.
+            ``formulation`` / ``solver`` not a string (the first two and the last: a ValueError too).
         ValueError: a value out of range (naming it), per-tet material values of the wrong size, an unknown
             device, or ``solver="direct"`` on a non-CPU device.
     """
-    if not isinstance(tetmesh, TetMesh):
-        raise TypeError(f"tetmesh must be a TetMesh, got {type(tetmesh).__name__}")
+    expect_instance(tetmesh, TetMesh, "tetmesh")
     for index, material in enumerate(materials):
-        if not isinstance(material, TissueMaterial):
-            where = "material" if len(materials) == 1 else f"materials[{index}] (model {index})"
-            raise TypeError(f"{where} must be a TissueMaterial, got {type(material).__name__}")
+        expect_instance(
+            material, TissueMaterial, "material" if len(materials) == 1 else f"materials[{index}] (model {index})"
+        )
         material.per_tet(tetmesh.tet_count)  # size check with a clear message
     dt, beta, gamma = validate_newmark(dt, beta, gamma)
     for option, value, allowed in (("formulation", formulation, FORMULATIONS), ("solver", solver, SOLVERS)):
-        if not isinstance(value, str):
-            raise TypeError(f"{option} must be a string, one of {allowed}; got {type(value).__name__}")
+        expect_instance(value, str, option)
         if value not in allowed:
             raise ValueError(f"{option} must be one of {allowed}, got {value!r}")
     try:

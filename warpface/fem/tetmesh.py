@@ -21,6 +21,7 @@ from functools import cached_property
 import numpy as np
 
 from .._validate import MAX_COORDINATE as SHARED_MAX_COORDINATE
+from .._validate import WrongTypeError
 
 __all__ = [
     "MAX_COORDINATE",
@@ -134,7 +135,9 @@ class TetMesh:
         try:
             points = np.array(points, dtype=np.float64, copy=True)
         except (TypeError, ValueError):
-            raise ValueError("TetMesh points must be numbers of shape (N, 3)") from None
+            raise WrongTypeError(
+                f"TetMesh points must be numbers of shape (N, 3), got {type(points).__name__}"
+            ) from None
         if points.ndim != 2 or points.shape[1] != 3:
             raise ValueError(f"TetMesh points must have shape (N, 3), got {points.shape}")
         if points.shape[0] < 4:
