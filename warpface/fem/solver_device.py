@@ -50,18 +50,13 @@ class DeviceSolver:
         return array.reshape((1, *array.shape)) if self.model_count is None else array
 
     def _check_state(self, name: str, state) -> None:
+        if not isinstance(state, TissueState):
+            raise TypeError(f"{name} must be a TissueState, got {type(state).__name__}")
         shape = (self.node_count,) if self.model_count is None else (self.model_count, self.node_count)
-        if (
-            not isinstance(state, TissueState)
-            or state.d.shape != shape
-            or not wp.types.types_equal(state.d.dtype, self._vec)
-            or state.device != self.device
-        ):
+        if state.d.shape != shape or not wp.types.types_equal(state.d.dtype, self._vec) or state.device != self.device:
             precision = wp.types.type_repr(self._vec._wp_scalar_type_)
             models = "" if self.model_count is None else f" of {self.model_count} models"
-            raise ValueError(
-                f"{name} must hold {self.node_count} nodes{models} of {precision} vec3 on {self.device} (a TissueState)"
-            )
+            raise ValueError(f"{name} must hold {self.node_count} nodes{models} of {precision} vec3 on {self.device}")
 
     def _binding(self, state_in, state_out, trajectory, ring, record, key) -> SimpleNamespace:
         """The arrays of one step, per model first: the states, ``trajectory`` (chunk, B, D) and ``record``
@@ -93,16 +88,13 @@ class DeviceSolver:
         if binding is None:
             self._check_state("state_in", state_in)
             self._check_state("state_out", state_out)
-            driven = self._batch_view(control.driven) if isinstance(control, TissueControl) else None
-            if (
-                driven is None
-                or driven.shape != self._trajectory.shape[1:]
-                or not wp.types.types_equal(driven.dtype, self._vec)
-            ):
+            if not isinstance(control, TissueControl):
+                raise TypeError(f"control must be a TissueControl, got {type(control).__name__}")
+            driven = self._batch_view(control.driven)
+            if driven.shape != self._trajectory.shape[1:] or not wp.types.types_equal(driven.dtype, self._vec):
                 raise ValueError(
                     f"control must hold {self.driven_nodes.size} driven displacements"
-                    f"{'' if self.model_count is None else f' for {self.model_count} models'} of this solver's vec3 "
-                    "(a TissueControl)"
+                    f"{'' if self.model_count is None else f' for {self.model_count} models'} of this solver's vec3"
                 )
             trajectory = driven.reshape((1, *driven.shape))
             record = self._batch_view(state_out.d)
@@ -137,7 +129,8 @@ class DeviceSolver:
         and raised by :meth:`synchronize`.
 
         Raises:
-            ValueError: a state or the control does not match the solver (size, type, device), or another dt.
+            TypeError: the states are not TissueStates or the control not a TissueControl.
+            ValueError: a state or the control does not match the solver (size, precision, device), or another dt.
         """
         check_step_dt(dt, self.coefficients)
         self._launch(self._binding_for_step(state_in, state_out, control))

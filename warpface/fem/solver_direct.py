@@ -163,6 +163,7 @@ class DirectSolver:
         launch and the input views; later steps reuse them.
 
         Raises:
+            TypeError: the states are not TissueStates or the control not a TissueControl.
             ValueError: a state or the control does not match the solver (size, type, device), or another dt.
             FloatingPointError: the solve produced non-finite displacements (``state_out`` untouched).
         """
@@ -190,19 +191,21 @@ class DirectSolver:
         key = step_key(state_in, state_out, control)
         binding = self._bindings.get(key)
         if binding is None:
+            for name, value, kind in (
+                ("state_in", state_in, TissueState),
+                ("state_out", state_out, TissueState),
+                ("control", control, TissueControl),
+            ):
+                if not isinstance(value, kind):
+                    raise TypeError(f"{name} must be a {kind.__name__}, got {type(value).__name__}")
             for name, state in (("state_in", state_in), ("state_out", state_out)):
                 if (
-                    not isinstance(state, TissueState)
-                    or state.d.shape != (self.node_count,)
+                    state.d.shape != (self.node_count,)
                     or not wp.types.types_equal(state.d.dtype, wp.vec3d)
                     or not state.device.is_cpu
                 ):
                     raise ValueError(f"{name} must hold {self.node_count} nodes of float64 vec3 on the CPU")
-            if (
-                not isinstance(control, TissueControl)
-                or control.driven.shape != (max(self.driven_nodes.size, 1),)
-                or not control.driven.device.is_cpu
-            ):
+            if control.driven.shape != (max(self.driven_nodes.size, 1),) or not control.driven.device.is_cpu:
                 raise ValueError(f"control must hold {self.driven_nodes.size} driven displacements on the CPU")
             update = wp.launch(
                 newmark_update,
