@@ -5,12 +5,13 @@ from __future__ import annotations
 import os
 import stat
 import tempfile
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 
 from ._validate import as_path
 
-__all__ = ["atomic_path", "new_file_mode", "read_text"]
+__all__ = ["atomic_path", "new_file_mode", "process_umask", "read_text"]
 
 
 def new_file_mode(path: str | Path) -> int:
@@ -19,9 +20,33 @@ def new_file_mode(path: str | Path) -> int:
     try:
         return stat.S_IMODE(os.stat(path).st_mode)
     except FileNotFoundError:
-        umask = os.umask(0)
-        os.umask(umask)
-        return 0o666 & ~umask
+        return 0o666 & ~process_umask()
+
+
+_umask_lock = threading.Lock()
+_umask_cache: list[int] = []
+
+
+def process_umask() -> int:
+    """The process's umask, read without changing it.
+
+    Linux reports it in ``/proc/self/status``; elsewhere it can only be read by setting it, which races
+    with threads creating files (bakes write from worker threads), so that is done once, under a lock,
+    and the value cached.
+    """
+    try:
+        with open("/proc/self/status", encoding="ascii", errors="replace") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    with _umask_lock:
+        if not _umask_cache:
+            umask = os.umask(0o077)
+            os.umask(umask)
+            _umask_cache.append(umask)
+        return _umask_cache[0]
 
 
 @contextmanager

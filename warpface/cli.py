@@ -14,9 +14,10 @@ import importlib
 import os
 import sys
 
-from . import __version__
+from . import __version__, init_runtime
 from .commands import COMMANDS
 from .commands.common import check_device, one_line
+from .errors import CameraError
 
 __all__ = ["main", "build_parser"]
 
@@ -61,6 +62,7 @@ def main(argv=None) -> int:
     """Entry point of the ``warpface`` console script; returns the exit code."""
     args = build_parser().parse_args(argv)
     try:
+        init_runtime(quiet=True)
         args.device = check_device(args.device)
         return int(args.handler(args) or 0)
     except KeyboardInterrupt:
@@ -71,7 +73,7 @@ def main(argv=None) -> int:
     except Exception as error:  # noqa: BLE001 — the one place every error becomes one line
         if os.environ.get("WARPFACE_DEBUG"):
             raise
-        kind = "camera error" if type(error).__name__ == "CameraError" else "error"
+        kind = "camera error" if isinstance(error, CameraError) else "error"
         print(f"warpface {args.command}: {kind}: {one_line(error)}", file=sys.stderr)
         return 2
 
