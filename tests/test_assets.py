@@ -545,5 +545,5 @@ def test_kato_landmarks_live_in_landmarks_and_metrics_reexports_them():
     kato = lm.kato_landmarks(points)
     np.testing.assert_array_equal(kato["ch_L"], points[54])
     np.testing.assert_allclose(kato["glabella"], 0.5 * (points[21] + points[22]))
-    with pytest.raises(ValueError, match="kato_landmarks"):
+    with pytest.raises(TypeError, match="kato_landmarks"):
         lm.kato_landmarks({"a": 1})

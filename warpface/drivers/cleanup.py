@@ -118,9 +118,10 @@ def neutral_values(curves: Curves, neutral) -> np.ndarray:
         return curves.values[int(neutral)].copy()
     try:
         start, end = (float(t) for t in neutral)
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"neutral: expected a frame index, a (start, end) segment in seconds or {{channel: value}}, got {type(neutral).__name__}"
+    except (TypeError, ValueError) as exc:
+        raise type(exc)(
+            "neutral: expected a frame index, a (start, end) segment in seconds or {channel: value}, "
+            f"got {type(neutral).__name__}"
         ) from None
     inside = (curves.times >= start) & (curves.times <= end)
     if not inside.any():

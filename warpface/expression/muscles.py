@@ -220,7 +220,9 @@ Muscle = Union[LinearMuscle, SphincterMuscle]
 
 
 def _check_name(name, label: str) -> None:
-    if not isinstance(name, str) or not name:
+    if not isinstance(name, str):
+        raise TypeError(f"{label}: name must be a string, got {type(name).__name__}")
+    if not name:
         raise ValueError(f"{label}: name must be a non-empty string")
 
 
@@ -367,7 +369,9 @@ def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], *, device=Non
             ]
             wp.launch(_sphincter_weight_kernel, dim=vertex_count, inputs=inputs, outputs=[out], device=device)
         else:
-            raise ValueError(f"muscle {index}: expected LinearMuscle or SphincterMuscle, got {type(muscle).__name__}")
+            raise TypeError(
+                f"muscles[{index}]: expected a LinearMuscle or SphincterMuscle, got {type(muscle).__name__}"
+            )
         weight = out.numpy()
         moved = np.flatnonzero(np.any(weight != 0.0, axis=1))
         rows.append(moved)

@@ -93,9 +93,9 @@ def as_surface(surface) -> tuple[np.ndarray, np.ndarray]:
     else:
         try:
             points, triangles = surface
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"surface must be a FaceMesh or a (points, triangles) pair, got {type(surface).__name__}"
+        except (TypeError, ValueError) as exc:
+            raise type(exc)(
+                f"surface: expected a FaceMesh or a (points, triangles) pair, got {type(surface).__name__}"
             ) from None
     points = np.asarray(points, dtype=np.float64)
     triangles = np.asarray(triangles)

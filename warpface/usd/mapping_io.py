@@ -52,8 +52,10 @@ def drivers_scope_path(stage: Usd.Stage, skin_path: str | None = None) -> Sdf.Pa
 
 
 def _checked_name(name: str) -> str:
-    if not isinstance(name, str) or not name or not Tf.IsValidIdentifier(name):
-        raise ValueError(f"mapping name {name!r}: must be a valid USD identifier (letters, digits, _)")
+    if not isinstance(name, str):
+        raise TypeError(f"name: expected a mapping name (str), got {type(name).__name__}")
+    if not name or not Tf.IsValidIdentifier(name):
+        raise ValueError(f"name: mapping name {name[:60]!r} must be a valid USD identifier (letters, digits, _)")
     return name
 
 
@@ -70,9 +72,9 @@ def write_mapping(
     Raises:
         ValueError: an invalid name. RigError: the stage has no (single) rig.
     """
-    name = _checked_name(name or mapping.name)
     if not isinstance(mapping, Mapping):
-        raise ValueError(f"write_mapping: expected a Mapping, got {type(mapping).__name__}")
+        raise TypeError(f"mapping: expected a Mapping, got {type(mapping).__name__}")
+    name = _checked_name(name or mapping.name)
     path = drivers_scope_path(stage, skin_path).AppendChild(name)
     if stage.GetPrimAtPath(path):
         stage.RemovePrim(path)

@@ -78,8 +78,10 @@ def write_presets(
     scope = UsdGeom.Scope.Define(stage, _scope_path(prims)).GetPrim()
     written = []
     for preset, controls in presets.items():
-        if not isinstance(preset, str) or not preset:
-            raise ValueError(f"preset name: expected a non-empty string, got {preset!r}")
+        if not isinstance(preset, str):
+            raise TypeError(f"presets: expected preset names (str), got {type(preset).__name__}")
+        if not preset:
+            raise ValueError("presets: a preset name is empty")
         values = np.zeros(len(names))
         for muscle, value in controls.items():
             if muscle not in index:

@@ -33,7 +33,7 @@ from ..expression.muscles import FALLOFFS, LinearMuscle, SphincterMuscle
 from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrinkle
 from ..mesh import FaceMesh
 from ..rig import FaceRig
-from ._files import LAYER_SUFFIXES, export_layer_atomically, open_stage, writable_path
+from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, open_stage, writable_path
 from .jaw_io import author_jaw, read_jaw
 from .lobe_io import author_lobes, read_lobes
 from .prim_values import array_value, check_finite, scalar_value, token_value
@@ -91,7 +91,7 @@ def write_rig(
     """
     ensure_schema()
     if not isinstance(rig, FaceRig):
-        raise ValueError(f"write_rig: expected a FaceRig, got {type(rig).__name__}")
+        raise TypeError(f"rig: expected a FaceRig, got {type(rig).__name__}")
     meters_per_unit = as_positive(meters_per_unit, "meters_per_unit")
     fps = as_positive(fps, "fps")
     target = None
@@ -100,9 +100,8 @@ def write_rig(
     else:
         target = writable_path(stage_or_path, LAYER_SUFFIXES)
         stage = Usd.Stage.CreateInMemory(f"rig{target.suffix}")
-    _author_rig(
-        stage, rig, Sdf.Path(root_path) if root_path else Sdf.Path("/" + _identifier(rig.name)), meters_per_unit, fps
-    )
+    root = checked_prim_path(root_path, "root_path") if root_path is not None else Sdf.Path("/" + _identifier(rig.name))
+    _author_rig(stage, rig, root, meters_per_unit, fps)
     if target is None:
         return stage
     export_layer_atomically(stage.GetRootLayer(), target)
@@ -287,7 +286,7 @@ def rig_prims(stage: Usd.Stage, skin_path: str | None = None) -> RigPrims:
     """
     ensure_schema()
     if expect_instance(stage, Usd.Stage, "stage") and skin_path is not None:
-        skin = stage.GetPrimAtPath(skin_path)
+        skin = stage.GetPrimAtPath(checked_prim_path(skin_path, "skin_path"))
         if not skin:
             raise RigError(f"{skin_path}: no prim at this path on the stage")
         if not skin.HasAPI(SKIN_API):

@@ -14,7 +14,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdSkel, Vt
 
 from ..drivers.channels import Curves, canonical_channel
-from ._files import LAYER_SUFFIXES, export_layer_atomically, open_stage, writable_path
+from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, open_stage, writable_path
 
 __all__ = ["read_driver", "read_skel_animation", "write_skel_animation", "find_skel_animations", "export_arkit_weights"]
 
@@ -58,7 +58,7 @@ def read_skel_animation(stage_or_path, *, prim_path: str | None = None) -> Curve
     stage = open_stage(stage_or_path)
     label = Path(stage.GetRootLayer().identifier).name
     if prim_path is not None:
-        prim = stage.GetPrimAtPath(prim_path)
+        prim = stage.GetPrimAtPath(checked_prim_path(prim_path, "prim_path"))
         if not prim or not prim.IsA(UsdSkel.Animation):
             raise ValueError(f"{label}: no SkelAnimation at {prim_path}")
     else:
@@ -105,8 +105,7 @@ def write_skel_animation(path, curves: Curves, *, prim_path: str = "/Animation",
     rate = float(fps if fps is not None else (curves.fps or 60.0))
     if not (math.isfinite(rate) and rate > 0):
         raise ValueError(f"fps must be a positive number, got {rate!r}")
-    if not Sdf.Path.IsValidPathString(prim_path) or not Sdf.Path(prim_path).IsAbsolutePath():
-        raise ValueError(f"prim_path: {prim_path!r} is not an absolute prim path")
+    checked_prim_path(prim_path, "prim_path")
     stage = Usd.Stage.CreateInMemory(f"skel{target.suffix}")
     animation = UsdSkel.Animation.Define(stage, prim_path)
     stage.SetDefaultPrim(stage.GetPrimAtPath(Sdf.Path(prim_path).GetPrefixes()[0]))

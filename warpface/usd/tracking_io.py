@@ -42,6 +42,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
 from .._signals import deferred_interrupts
+from .._validate import as_count
 from ._files import export_layer_atomically, writable_path
 
 __all__ = ["TrackingStageWriter", "read_tracking", "vec3f_array"]
@@ -127,9 +128,7 @@ class TrackingStageWriter:
         self.names = [str(name) for name in landmark_names]
         if not self.names:
             raise ValueError("landmark_names: need at least one landmark")
-        if isinstance(chunk_frames, bool) or not isinstance(chunk_frames, (int, np.integer)) or chunk_frames < 1:
-            raise ValueError(f"chunk_frames must be an integer ≥ 1, got {chunk_frames!r}")
-        self.chunk_frames = int(chunk_frames)
+        self.chunk_frames = as_count(chunk_frames, "chunk_frames", minimum=1)
         self.folder = self.path.with_name(self.path.stem + "_track")
         self.vertex_count = None
         if dense_rest is not None:
