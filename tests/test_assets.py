@@ -21,11 +21,10 @@ from warpface.assets import (
     expression_contractions,
     expression_envelope,
     expression_timeline,
-    face_frame,
     rig_scale,
 )
 from warpface.assets import face as face_module
-from warpface.assets.rig import MOBILE_TISSUE_FRACTION
+from warpface.assets.rig import MOBILE_TISSUE_FRACTION, face_frame
 from warpface.data import ict_face_region, ict_landmark_indices
 from warpface.expression.wrinkles import bezier_distances, project_points
 

@@ -273,7 +273,8 @@ def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys):
 
 @pytest.mark.parametrize("suffix", [".csv", ".usda"])
 def test_animated_rig_exports_arkit_weights_that_reproduce_the_take(tmp_path, suffix):
-    from warpface.usd.skel_io import export_arkit_weights, read_driver
+    from warpface.usd import read_driver
+    from warpface.usd.skel_io import export_arkit_weights
 
     t = np.arange(45) / 30.0
     take = {

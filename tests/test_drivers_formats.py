@@ -13,18 +13,16 @@ from warpface.data import shared_data_path
 from warpface.drivers import (
     ARKIT_CHANNELS,
     Curves,
-    canonical_channel,
     detect_format,
-    read_driver,
-    read_live_link,
-    read_mediapipe_jsonl,
-    read_mediapipe_textproto,
     write_live_link,
     write_mediapipe_jsonl,
     write_mediapipe_textproto,
     write_openface,
 )
-from warpface.usd.skel_io import read_driver as usd_read_driver
+from warpface.drivers.channels import canonical_channel
+from warpface.drivers.csv_formats import read_live_link
+from warpface.drivers.mediapipe_format import read_mediapipe_jsonl, read_mediapipe_textproto
+from warpface.usd import read_driver
 from warpface.usd.skel_io import read_skel_animation, write_skel_animation
 
 
@@ -120,9 +118,7 @@ def test_usd_skel_round_trip(tmp_path, suffix):
     curves = arkit_curves(frames=25, fps=24.0)
     path = write_skel_animation(tmp_path / f"a2f{suffix}", curves)
     assert detect_format(path) == "usdskel"
-    with pytest.raises(ValueError, match="warpface.usd.read_driver"):
-        read_driver(path)  # the drivers layer does not read USD
-    back = usd_read_driver(path)
+    back = read_driver(path)
     assert back.names == list(ARKIT_CHANNELS) and back.fps == 24.0
     np.testing.assert_allclose(back.times, curves.times, atol=1e-12)
     np.testing.assert_allclose(back.values, curves.values, atol=1e-7)  # blendShapeWeights are float[]

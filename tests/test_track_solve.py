@@ -37,7 +37,8 @@ def rig():
 @pytest.fixture(scope="module")
 def vertices(rig):
     """The 60 painted dots of the synthetic capture (seen by the camera, 14 mm apart): the exact sources' landmarks."""
-    from warpface.tracking import default_model_to_camera, place_fiducials
+    from warpface.tracking import place_fiducials
+    from warpface.tracking.synthetic import default_model_to_camera
 
     rest = rig.mesh.points
     eye = np.linalg.inv(default_model_to_camera(rest))[:3, 3]

@@ -14,7 +14,8 @@ import numpy as np
 import warp as wp
 
 from ._validate import as_device, as_path, as_points, as_triangles
-from .geometry import triangle_areas, triangle_corners, triangle_crosses
+from .geometry import triangle_areas, triangle_corners
+from .geometry.triangles import triangle_crosses
 from .kernels_surface import stretch_reference_lengths, triangle_area_vectors, vertex_normals_kernel
 
 __all__ = ["FaceMesh", "VertexTriangleAdjacency", "load_obj", "DEGENERATE_AREA_RTOL", "MIN_TRIANGLE_AREA"]

@@ -126,7 +126,9 @@ def point_distances(points, reference) -> np.ndarray:
     a = as_finite_array(points, "point_distances: points", max_abs=MAX_COORDINATE)
     b = as_finite_array(reference, "point_distances: reference", max_abs=MAX_COORDINATE)
     if a.shape != b.shape or a.ndim < 2 or a.shape[-1] != 3:
-        raise ValueError(f"point_distances: need two arrays of the same shape (..., V, 3), got {a.shape} and {b.shape}")
+        raise ValueError(
+            f"point_distances: points and reference need the same shape (..., V, 3), got {a.shape} and {b.shape}"
+        )
     if not (np.isfinite(a).all() and np.isfinite(b).all()):
         raise ValueError("point_distances: positions must be finite")
     return np.linalg.norm(a - b, axis=-1)

@@ -143,7 +143,7 @@ class LinearMuscle:
     lobes: tuple[MuscleLobe, ...] = ()
 
     def __post_init__(self) -> None:
-        label = f"linear muscle {self.name!r}"
+        label = f"linear muscle {_quoted(self.name)}"
         _check_name(self.name, label)
         _check_zone(self, label)
         _check_response(self, label)
@@ -195,7 +195,7 @@ class SphincterMuscle:
     ring: float = 0.0
 
     def __post_init__(self) -> None:
-        label = f"sphincter muscle {self.name!r}"
+        label = f"sphincter muscle {_quoted(self.name)}"
         _check_name(self.name, label)
         set_ = object.__setattr__
         set_(self, "center", as_vec3(self.center, f"{label}: center"))
@@ -217,6 +217,11 @@ class SphincterMuscle:
 
 
 Muscle = Union[LinearMuscle, SphincterMuscle]
+
+
+def _quoted(name) -> str:
+    """``name`` for a one-line message: quoted when a string (cut at 60 characters), else its type."""
+    return repr(name[:60]) if isinstance(name, str) else f"(name of type {type(name).__name__})"
 
 
 def _check_name(name, label: str) -> None:

@@ -141,7 +141,7 @@ class Wrinkle:
     kr: float = 0.0
 
     def __post_init__(self) -> None:
-        label = f"wrinkle {self.name!r}"
+        label = f"wrinkle {self.name[:60]!r}" if isinstance(self.name, str) else "wrinkle"
         if not isinstance(self.name, str):
             raise TypeError(f"{label}: name must be a string, got {type(self.name).__name__}")
         if not self.name:

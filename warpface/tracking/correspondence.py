@@ -19,7 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validate import as_count, as_finite_array, as_points, as_positive, as_triangles
-from ..geometry import TriangleMeshIndex, closest_points, triangle_corners, triangle_crosses, triangle_normals
+from ..geometry import TriangleMeshIndex, closest_points, triangle_corners, triangle_normals
+from ..geometry.triangles import triangle_crosses
 
 __all__ = [
     "FaceNormalization",

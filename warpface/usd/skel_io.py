@@ -16,22 +16,7 @@ from pxr import Sdf, Usd, UsdSkel, Vt
 from ..drivers.channels import Curves, canonical_channel
 from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, open_stage, writable_path
 
-__all__ = ["read_driver", "read_skel_animation", "write_skel_animation", "find_skel_animations", "export_arkit_weights"]
-
-
-def read_driver(path, *, fps: float | None = None) -> Curves:
-    """Read a driver file in any of :data:`warpface.drivers.DRIVER_FORMATS` into :class:`Curves`: USD
-    ``SkelAnimation`` layers here, the other formats through :func:`warpface.drivers.read_driver`.
-
-    Raises:
-        ValueError: unreadable or malformed file (one line naming the file and the problem).
-    """
-    from ..drivers import detect_format
-    from ..drivers import read_driver as read_driver_file
-
-    if detect_format(path) == "usdskel":
-        return read_skel_animation(path)
-    return read_driver_file(path, fps=fps)
+__all__ = ["read_skel_animation", "write_skel_animation", "find_skel_animations", "export_arkit_weights"]
 
 
 def find_skel_animations(stage: Usd.Stage) -> list[Usd.Prim]:
