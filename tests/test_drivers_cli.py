@@ -234,7 +234,9 @@ def _bad_inputs(tmp_path):
         "nan": header + "00:00:00:01.000,52,0.1\n00:00:00:02.000,52,NaN\n",
         "duplicate timestamp": header + "00:00:00:01.000,52,0.1\n00:00:00:01.000,52,0.2\n",
         "non-monotonic": header + "00:00:00:03.000,52,0.1\n00:00:00:01.000,52,0.2\n",
-        "only unknown channels": "Timecode,BlendshapeCount,EyeLookUpLeft\n00:00:00:01.000,52,0.1\n00:00:00:02.000,52,0.1\n",
+        "only unknown channels": (
+            "Timecode,BlendshapeCount,EyeLookUpLeft\n00:00:00:01.000,52,0.1\n00:00:00:02.000,52,0.1\n"
+        ),
     }
     paths = {}
     for name, text in cases.items():

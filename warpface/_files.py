@@ -60,11 +60,8 @@ def atomic_path(path: str | Path, suffix: str = "", *, create: bool = True):
 
     With ``create=False`` the temporary path does not exist yet when the block starts (its unique name
     reserved, then released). That suits writers which replace an existing file through a temporary file
-    and a rename of their own, as OpenUSD's layer export does. On this project's ext4 disk, an export into
-    an empty reserved file (a rename over an existing file, which makes ext4 start writing the new data out
-    at once: its ``auto_da_alloc`` heuristic) took 12–15 ms for a 13 MB capture chunk, and the small root
-    layer renamed over its previous version right after it 2–7 ms; into a fresh name 9 ms and 0.4 ms. The
-    bake of ``benchmarks/usd_bake.py`` (a 36 MB cache) went from 0.212 to 0.185 s (benchmarks/README.md).
+    and a rename of their own, as OpenUSD's layer export does: renaming over an existing (reserved) file
+    makes ext4 write the new data out at once, which costs time (measured in benchmarks/README.md, Tracking).
     """
     path = as_path(path, "path")
     if path.is_dir():

@@ -148,7 +148,8 @@ class SurfaceError:
     """Vertex with the largest distance."""
 
     def __str__(self) -> str:
-        return f"mean {self.mean * 1e3:.3f} mm, rms {self.rms * 1e3:.3f} mm, max {self.max * 1e3:.3f} mm (vertex {self.argmax})"
+        mean, rms, worst = self.mean * 1e3, self.rms * 1e3, self.max * 1e3
+        return f"mean {mean:.3f} mm, rms {rms:.3f} mm, max {worst:.3f} mm (vertex {self.argmax})"
 
 
 def surface_error(points, reference, *, vertices=None) -> SurfaceError:

@@ -341,7 +341,8 @@ def run_animate(args) -> int:
         print(f"note: {note}")
     if result.unmapped_channels:
         print(
-            f"note: ignored {len(result.unmapped_channels)} channels the rig cannot drive: {', '.join(result.unmapped_channels)}"
+            f"note: ignored {len(result.unmapped_channels)} channels the rig cannot drive: "
+            f"{', '.join(result.unmapped_channels)}"
         )
     print(f"animated {result.frame_count} frames at {result.fps:g} frames/s with the {result.mapping}")
     print(f"  stage {result.stage}")

@@ -62,7 +62,8 @@ class OneEuroFilter:
                 or (value == 0 and name != "beta")
             ):
                 raise ValueError(
-                    f"1€ filter: {name} must be a {'non-negative' if name == 'beta' else 'positive'} number, got {value!r}"
+                    f"1€ filter: {name} must be a {'non-negative' if name == 'beta' else 'positive'} number, got "
+                    f"{value!r}"
                 )
 
     def __call__(self, times: np.ndarray, values: np.ndarray) -> np.ndarray:

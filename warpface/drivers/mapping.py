@@ -93,11 +93,13 @@ class Mapping:
         if len(bad):
             row, column = bad[0]
             raise ValueError(
-                f"mapping {self.name!r}: weight of channel {channels[column]!r} on control {controls[row]!r} is not finite"
+                f"mapping {self.name!r}: weight of channel {channels[column]!r} on control {controls[row]!r} is not "
+                "finite"
             )
         if not np.isfinite(offsets).all():
             raise ValueError(
-                f"mapping {self.name!r}: offset of control {controls[int(np.argmin(np.isfinite(offsets)))]!r} is not finite"
+                f"mapping {self.name!r}: offset of control {controls[int(np.argmin(np.isfinite(offsets)))]!r} is not "
+                "finite"
             )
         object.__setattr__(self, "channels", channels)
         object.__setattr__(self, "controls", controls)

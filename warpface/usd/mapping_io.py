@@ -172,6 +172,7 @@ def _array(prim: Usd.Prim, name: str, kind) -> list:
         ) from None
     if kind is float and not all(math.isfinite(v) for v in items):
         raise RigError(
-            f"{attribute.GetPath()}: entry {next(i for i, v in enumerate(items) if not math.isfinite(v))} is not a finite number"
+            f"{attribute.GetPath()}: entry {next(i for i, v in enumerate(items) if not math.isfinite(v))} is not a "
+            "finite number"
         )
     return items

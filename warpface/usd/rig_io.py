@@ -304,7 +304,8 @@ def rig_prims(stage: Usd.Stage, skin_path: str | None = None) -> RigPrims:
         skin = skins[0]
     if not skin.IsA(UsdGeom.Mesh):
         raise RigError(
-            f"{skin.GetPath()}: {SKIN_API} is applied to a {skin.GetTypeName() or 'typeless prim'}; it applies only to Mesh"
+            f"{skin.GetPath()}: {SKIN_API} is applied to a {skin.GetTypeName() or 'typeless prim'}; it applies only "
+            "to Mesh"
         )
     muscles = _related(
         stage, skin, _MUSCLES_REL, (_LINEAR, _SPHINCTER), "WarpFaceLinearMuscle or WarpFaceSphincterMuscle"
@@ -416,7 +417,8 @@ def _read_mesh(skin: Usd.Prim, to_units: float, degenerate: str) -> FaceMesh:
         raise RigError(f"{skin.GetPath()}.faceVertexCounts: face {face} has {int(counts[face])} vertices (needs ≥ 3)")
     if int(counts.sum()) != len(indices):
         raise RigError(
-            f"{skin.GetPath()}: faceVertexCounts sum to {int(counts.sum())} but faceVertexIndices has {len(indices)} entries"
+            f"{skin.GetPath()}: faceVertexCounts sum to {int(counts.sum())} but faceVertexIndices has {len(indices)} "
+            "entries"
         )
     triangles = _fan_triangulate(counts, indices)
     if geom.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded:

@@ -52,7 +52,8 @@ def read_skel_animation(stage_or_path, *, prim_path: str | None = None) -> Curve
             raise ValueError(f"{label}: no SkelAnimation with blendShapes on the stage")
         if len(found) > 1:
             raise ValueError(
-                f"{label}: {len(found)} SkelAnimations with blendShapes ({', '.join(str(p.GetPath()) for p in found[:4])}); choose one"
+                f"{label}: {len(found)} SkelAnimations with blendShapes "
+                f"({', '.join(str(p.GetPath()) for p in found[:4])}); choose one"
             )
         prim = found[0]
     animation = UsdSkel.Animation(prim)

@@ -273,7 +273,8 @@ def _find_tissue(stage: Usd.Stage, path: str | None) -> Usd.Prim:
     candidates = [p for p in stage.Traverse() if p.HasAPI(TET_MATERIAL_API)]
     if len(candidates) != 1:
         raise RigError(
-            f"stage {stage.GetRootLayer().identifier}: {len(candidates)} TetMesh prims with {TET_MATERIAL_API}; pass path"
+            f"stage {stage.GetRootLayer().identifier}: {len(candidates)} TetMesh prims with {TET_MATERIAL_API}; pass "
+            "path"
         )
     return candidates[0]
 

@@ -65,8 +65,8 @@ _DIRECT_COPY = _writes_through_buffer()
 def vec3f_array(points: np.ndarray) -> Vt.Vec3fArray:
     """A new ``Vt.Vec3fArray`` holding ``points`` (V, 3), C-contiguous float32, by one memory copy.
 
-    ``Vt.Vec3fArray.FromNumpy`` converts element by element: ≈ 0.29 ms for 37k points against
-    0.02 ms here. A freshly constructed array owns its storage alone (no copy-on-write sharing yet),
+    ``Vt.Vec3fArray.FromNumpy`` converts element by element, an order of magnitude slower for a face
+    (benchmarks/README.md, Tracking). A freshly constructed array owns its storage alone (no copy-on-write sharing yet),
     so filling it through the buffer it exports changes no other value; Vt marks that buffer
     read-only, hence the raw copy. Where a Vt build exports a copy instead (checked once at import),
     this falls back to ``FromNumpy``.
