@@ -275,7 +275,11 @@ def test_version_and_quiet_output():
     )
     assert result.returncode == 0 and result.stdout.strip() == f"warpface {warpface.__version__}"
     noise = subprocess.run(
-        [sys.executable, "-c", "import warpface, warpface.assets; warpface.assets.default_rig()"],
+        [
+            sys.executable,
+            "-c",
+            "import warpface, warpface.assets; warpface.init_runtime(); warpface.assets.default_rig()",
+        ],
         capture_output=True,
         text=True,
         timeout=300,

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validate import as_count
+
 __all__ = ["add_parser", "run_animate", "animate", "AnimateResult", "prepare_controls", "PREVIEW_MAX_FRAMES"]
 
 PREVIEW_MAX_FRAMES = 120
@@ -142,8 +144,8 @@ def animate(
     from ..usd.mapping_io import write_mapping
 
     out = _output_path(out)
-    if video and (not isinstance(video_max_frames, (int, np.integer)) or video_max_frames < 1):
-        raise ValueError(f"--video-max-frames must be a positive whole number, got {video_max_frames!r}")
+    if video:
+        as_count(video_max_frames, "--video-max-frames", minimum=1)
     clock = _StepClock()
     curves = usd.read_driver(driver)
     rig_model, rig_stage, units, stage_rate = _load_rig(rig)

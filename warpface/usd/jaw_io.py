@@ -112,5 +112,5 @@ def read_jaw(
             weights=weights,
             name=name,
         )
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:  # a value of the wrong type on the stage is a bad rig
         raise RigError(f"{prim.GetPath()}: {exc}") from None

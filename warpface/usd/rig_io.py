@@ -403,7 +403,7 @@ def read_rig(
             name,
             read_jaw(stage, skin, placements.of, to_units, mesh.vertex_count),
         )
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:  # a value of the wrong type on the stage is a bad rig
         raise RigError(f"{skin.GetPath()}: {exc}") from None
 
 
@@ -427,7 +427,7 @@ def _read_mesh(skin: Usd.Prim, to_units: float, degenerate: str) -> FaceMesh:
         return FaceMesh(
             points * to_units if to_units != 1.0 else points, triangles, name=item_name(skin), degenerate=degenerate
         )
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:  # a value of the wrong type on the stage is a bad rig
         raise RigError(f"{skin.GetPath()}: {exc}") from None
 
 
@@ -552,7 +552,7 @@ def _read_muscle(prim: Usd.Prim, place: Placement, to_units: float):
         )
     except RigError:
         raise
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:  # a value of the wrong type on the stage is a bad rig
         raise RigError(f"{prim.GetPath()}: {exc}") from None
 
 
@@ -595,5 +595,5 @@ def _read_wrinkle(prim: Usd.Prim, place: Placement, to_units: float) -> Wrinkle:
         )
     except RigError:
         raise
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:  # a value of the wrong type on the stage is a bad rig
         raise RigError(f"{prim.GetPath()}: {exc}") from None

@@ -251,7 +251,7 @@ def read_tissue(stage_or_path, path: str | None = None, *, meters_per_unit: floa
         return _validated(
             points * to_units if to_units != 1.0 else points, tets, regions=regions, label=label, **values
         )
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:  # a value of the wrong type on the stage is a bad rig
         raise RigError(str(exc)) from None
 
 
