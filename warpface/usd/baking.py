@@ -25,7 +25,7 @@ import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from .._files import atomic_path
-from .._validate import as_count
+from .._validate import as_count, expect_instance
 from ..errors import RigError
 from ._files import open_layer, open_stage, usd_error_message, writable_path
 from .animation import CACHE_SUFFIX, MAX_FRAMES, as_time_codes, cover_time_range, frame_times, read_animation
@@ -41,6 +41,7 @@ the box's diagonal: controls that far outside the rig's scale are a mistake, not
 
 def default_cache_path(stage: Usd.Stage) -> Path | None:
     """``<rig layer stem>_anim.usdc`` beside the stage's root layer; ``None`` for an in-memory root."""
+    expect_instance(stage, Usd.Stage, "stage")
     root = stage.GetRootLayer()
     if root.anonymous:
         return None
@@ -51,6 +52,7 @@ def default_cache_path(stage: Usd.Stage) -> Path | None:
 def existing_cache_path(stage: Usd.Stage, skin_path) -> Path | None:
     """The strongest sublayer of the root layer that is a points cache of ``skin_path`` (what a bake
     wrote), or ``None``."""
+    expect_instance(stage, Usd.Stage, "stage")
     root = stage.GetRootLayer()
     for resolved in _sublayer_files(root):
         layer = Sdf.Layer.Find(resolved)

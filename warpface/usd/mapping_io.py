@@ -27,6 +27,7 @@ import math
 import numpy as np
 from pxr import Sdf, Tf, Usd, UsdGeom, Vt
 
+from .._validate import expect_instance
 from ..drivers.mapping import Mapping
 from ..errors import RigError
 from .rig_io import rig_prims
@@ -46,6 +47,7 @@ _DOC = (
 
 def drivers_scope_path(stage: Usd.Stage, skin_path: str | None = None) -> Sdf.Path:
     """``<rig root>/Drivers``: the scope holding a rig's mappings (the rig root is the skin's parent)."""
+    expect_instance(stage, Usd.Stage, "stage")
     skin = rig_prims(stage, skin_path).skin
     parent = skin.GetPath().GetParentPath()
     return (parent if parent != Sdf.Path.absoluteRootPath else skin.GetPath()).AppendChild("Drivers")
@@ -72,6 +74,7 @@ def write_mapping(
     Raises:
         ValueError: an invalid name. RigError: the stage has no (single) rig.
     """
+    expect_instance(stage, Usd.Stage, "stage")
     if not isinstance(mapping, Mapping):
         raise TypeError(f"mapping: expected a Mapping, got {type(mapping).__name__}")
     name = _checked_name(name or mapping.name)
@@ -112,6 +115,7 @@ def _set(prim: Usd.Prim, name: str, type_name, value) -> None:
 
 def mapping_names(stage: Usd.Stage, skin_path: str | None = None) -> list[str]:
     """Names of the mappings stored on the rig stage (children of ``<rig root>/Drivers``)."""
+    expect_instance(stage, Usd.Stage, "stage")
     scope = stage.GetPrimAtPath(drivers_scope_path(stage, skin_path))
     return [child.GetName() for child in scope.GetChildren()] if scope else []
 
@@ -126,6 +130,7 @@ def read_mapping(stage: Usd.Stage, name: str = "default", *, skin_path: str | No
         RigError: no such mapping, arrays of different lengths, a weight that is not a finite number
             (the message names the prim and attribute).
     """
+    expect_instance(stage, Usd.Stage, "stage")
     name = _checked_name(name)
     path = drivers_scope_path(stage, skin_path).AppendChild(name)
     prim = stage.GetPrimAtPath(path)

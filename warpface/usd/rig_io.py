@@ -34,9 +34,9 @@ from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrink
 from ..mesh import FaceMesh
 from ..rig import FaceRig
 from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, open_stage, writable_path
+from ._lobe_io import author_lobes, read_lobes
+from ._prim_values import array_value, check_finite, scalar_value, token_value
 from .jaw_io import author_jaw, read_jaw
-from .lobe_io import author_lobes, read_lobes
-from .prim_values import array_value, check_finite, scalar_value, token_value
 from .schema import ensure_schema
 
 __all__ = [

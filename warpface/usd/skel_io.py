@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf, Usd, UsdSkel, Vt
 
+from .._validate import as_path, expect_instance
 from ..drivers.channels import Curves, canonical_channel
 from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, open_stage, writable_path
 
@@ -21,6 +22,7 @@ __all__ = ["read_skel_animation", "write_skel_animation", "find_skel_animations"
 
 def find_skel_animations(stage: Usd.Stage) -> list[Usd.Prim]:
     """Every ``SkelAnimation`` prim on the stage that authors ``blendShapes``, in traversal order."""
+    expect_instance(stage, Usd.Stage, "stage")
     return [
         prim
         for prim in stage.Traverse()
@@ -128,7 +130,7 @@ def export_arkit_weights(stage_or_path, out_path, *, mapping: str | None = None,
     from .rig_io import read_rig, stage_meters_per_unit
 
     stage = open_stage(stage_or_path)
-    out = Path(out_path)
+    out = as_path(out_path, "out_path")
     if out.suffix.lower() not in (".csv",) + LAYER_SUFFIXES:
         raise ValueError(f"{out}: export to .csv (Live Link Face) or .usda/.usdc (SkelAnimation)")
     units = stage_meters_per_unit(stage)
