@@ -1,6 +1,8 @@
-"""The ``warpface`` command line: ``demo``, ``bake``, ``preview``, ``validate``, ``track``.
+"""The ``warpface`` command line: one sub-command per module of :mod:`warpface.commands` (``demo``, ``bake``,
+``preview``, ``validate``, ``track``, ``animate``, ``fit``).
 
-Every sub-command has ``--help``; ``--device`` and ``--quiet`` work before or after the command. Any
+Warp is initialised quietly (:func:`warpface.init_runtime`) before a command runs. Every sub-command has
+``--help``; ``--device`` and ``--quiet`` work before or after the command. Any
 error — bad arguments, a bad or unreadable stage, a full disk, pxr's own exceptions — is one line on
 stderr and exit code 2, never a traceback (``WARPFACE_DEBUG=1`` shows the traceback instead); problems
 found by ``validate`` give exit code 1; Ctrl-C gives 130. Arguments are checked before any file or
