@@ -13,6 +13,28 @@ import sys as _sys
 import tempfile as _tempfile
 import threading as _threading
 
+from .errors import RigError
+from .expression import (
+    CylindricalProjection,
+    ExpressionModel,
+    ExpressionStages,
+    LinearMuscle,
+    MuscleLobe,
+    PlanarProjection,
+    SphincterMuscle,
+    ThicknessMap,
+    Wrinkle,
+)
+from .mesh import FaceMesh, load_obj
+from .rig import FaceRig
+from .usd.schema import register_at_import
+
+# Before anything can touch Usd.SchemaRegistry: register the codeless USD schema plugin (skipped, without
+# importing pxr, when usd-core is not installed; see warpface.usd.schema).
+register_at_import()
+del register_at_import
+
+
 _runtime_lock = _threading.Lock()
 _runtime_ready = False
 
@@ -65,28 +87,6 @@ def _init_filtering_stderr(warp) -> None:
     if kept:
         print("\n".join(kept), file=_sys.stderr)
 
-
-# First, before anything can touch Usd.SchemaRegistry: register the codeless USD schema plugin
-# (skipped when usd-core is not installed; see warpface.usd.schema).
-from .usd.schema import register_at_import
-
-register_at_import()
-del register_at_import
-
-from .errors import RigError  # noqa: E402
-from .expression import (
-    CylindricalProjection,
-    ExpressionModel,
-    ExpressionStages,
-    LinearMuscle,
-    MuscleLobe,
-    PlanarProjection,
-    SphincterMuscle,
-    ThicknessMap,
-    Wrinkle,
-)
-from .mesh import FaceMesh, load_obj
-from .rig import FaceRig
 
 __version__ = "0.1.0"
 
