@@ -246,7 +246,7 @@ def test_the_umask_is_read_without_being_set(monkeypatch):
     import os
     import sys
 
-    from warpface import _files
+    from warpface._files import new_file_mode, process_umask
 
     if not sys.platform.startswith("linux"):
         pytest.skip("/proc/self/status is Linux's")
@@ -254,7 +254,7 @@ def test_the_umask_is_read_without_being_set(monkeypatch):
     try:
         calls = []
         monkeypatch.setattr(os, "umask", lambda mask: calls.append(mask) or 0)
-        assert _files.process_umask() == 0o027 and _files.new_file_mode("/nonexistent/x") == 0o640
+        assert process_umask() == 0o027 and new_file_mode("/nonexistent/x") == 0o640
         assert calls == []
     finally:
         monkeypatch.undo()
