@@ -1,4 +1,4 @@
-"""Property-based tests across the public API (issue 9): the classes of input a fuzz run found raising
+"""Property-based tests across the public API: the classes of input a fuzz run found raising
 from inside numpy, pathlib, Warp or pxr, or returning NaN, now meet warpface's own checks.
 
 Each call returns a finite result, or raises ValueError / TypeError (RigError is a ValueError) whose

@@ -115,7 +115,8 @@ def open_stage(stage_or_path) -> Usd.Stage:
     not exist is skipped quietly, as USD does.
 
     Raises:
-        ValueError: the file or a sublayer does not exist or is not a readable USD layer.
+        TypeError: neither a stage nor a path. ValueError: the file or a sublayer does not exist or is not
+            a readable USD layer.
     """
     if isinstance(stage_or_path, Usd.Stage):
         return stage_or_path
@@ -169,7 +170,8 @@ def writable_path(path, suffixes: tuple[str, ...] = LAYER_SUFFIXES) -> Path:
     """``path`` as an absolute Path after checking it can be written, before any work is done.
 
     Raises:
-        ValueError: wrong extension, missing or unwritable folder, or the path is a folder.
+        TypeError: not a path. ValueError: wrong extension, missing or unwritable folder, or the path is a
+            folder.
     """
     if not isinstance(path, (str, os.PathLike)):
         raise TypeError(f"output path: expected a str or path, got {type(path).__name__}")

@@ -87,7 +87,7 @@ def write_rig(
         The stage (for a path, the stage opened from the written file).
 
     Raises:
-        ValueError: not a FaceRig, bad units or fps, unwritable path.
+        TypeError: ``rig`` not a FaceRig. ValueError: bad units, fps or root path, unwritable path.
     """
     ensure_schema()
     if not isinstance(rig, FaceRig):
