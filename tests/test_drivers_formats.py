@@ -304,3 +304,33 @@ def test_fuzzed_skel_stage_reads_or_says_why(tmp_path, names, samples):
         return
     assert np.isfinite(curves.values).all() and np.all(np.diff(curves.times) > 0)
     assert curves.values.shape == (len(curves.times), len(names))
+
+
+def test_read_driver_without_usd_core(tmp_path):
+    """With usd-core absent, ``import warpface`` imports no pxr, ``warpface.usd.read_driver`` reads a CSV, and a
+    USD layer is one clear ValueError."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    csv = write_live_link(tmp_path / "take.csv", arkit_curves(frames=3, fps=30.0))
+    layer = write_skel_animation(tmp_path / "take.usda", arkit_curves(frames=3, fps=30.0))
+    code = (
+        "import sys\nsys.modules['pxr'] = None  # as if usd-core were not installed\n"
+        "import warpface, warpface.usd\n"
+        f"curves = warpface.usd.read_driver({str(csv)!r})\n"
+        "try:\n"
+        f"    warpface.usd.read_driver({str(layer)!r})\n"
+        "except ValueError as error:\n"
+        "    print('ValueError', error)\n"
+        "print(curves.frame_count, len(curves.names), sys.modules['pxr'] is None)\n"
+    )
+    root = Path(__file__).resolve().parents[1]
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(root)}
+    )
+    assert result.returncode == 0, result.stderr
+    error, counts = result.stdout.strip().splitlines()
+    assert error.startswith("ValueError") and "usd-core" in error
+    assert counts == f"3 {len(ARKIT_CHANNELS)} True"
