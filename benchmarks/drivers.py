@@ -148,7 +148,8 @@ def main(argv=None) -> None:
     from warpface import usd
     from warpface.assets import default_rig
     from warpface.commands.animate import PREVIEW_MAX_FRAMES, animate, prepare_controls
-    from warpface.drivers import ARKIT_CHANNELS, Curves, mapping_for_rig, read_driver, write_live_link
+    from warpface.drivers import ARKIT_CHANNELS, Curves, mapping_for_rig, write_live_link
+    from warpface.usd import read_driver
 
     frames = int(round(args.minutes * 60 * args.fps))
     peer_frames = min(frames, int(round(args.peer_minutes * 60 * args.fps)))

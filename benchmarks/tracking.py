@@ -67,7 +67,7 @@ def dense_face() -> tuple[np.ndarray, np.ndarray, str]:
         points, triangles = load_obj(path)
         points, triangles = subdivide(points * 0.01, triangles)
         return points, triangles, "ICT face region, subdivided"
-    from warpface.tracking import procedural_face
+    from warpface.tracking.synthetic import procedural_face
 
     points, triangles = procedural_face(182)
     return points, triangles, "procedural face 182×182"
@@ -117,17 +117,10 @@ def main() -> None:
     parser.add_argument("--landmarks", type=int, default=121)
     args = parser.parse_args()
 
-    from warpface.tracking import (
-        KINECT_V1_INTRINSICS,
-        KinectNoise,
-        TrackingAdapter,
-        backproject,
-        closest_points,
-        default_model_to_camera,
-        place_fiducials,
-        triangulate_landmarks,
-    )
-    from warpface.tracking.correspondence import TriangleMeshIndex
+    from warpface.geometry import TriangleMeshIndex, closest_points
+    from warpface.tracking import KINECT_V1_INTRINSICS, KinectNoise, TrackingAdapter, backproject, place_fiducials
+    from warpface.tracking.correspondence import triangulate_landmarks
+    from warpface.tracking.synthetic import default_model_to_camera
 
     device = wp.get_device(args.device)
     wp.config.quiet = True

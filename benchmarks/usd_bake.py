@@ -137,7 +137,8 @@ def main(argv=None) -> None:
         row["x_naive"] = naive_s / row["seconds"]
 
     print(
-        f"\nUSD bake: {mesh.vertex_count:,} points × {args.frames} frames, {len(muscles)} muscles + {len(wrinkles)} wrinkles, "
+        f"\nUSD bake: {mesh.vertex_count:,} points × {args.frames} frames, {len(muscles)} muscles + {len(wrinkles)} "
+        "wrinkles, "
         f"device {device} ({device.name})"
     )
     print("baseline: naive per-frame Attribute.Set with Python lists, same run, same positions\n")

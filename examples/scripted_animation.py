@@ -79,7 +79,8 @@ def main(argv=None) -> None:
     cache = usd.bake(stage, device=args.device)
     ignored = [c for c in dict.fromkeys(mapped.unmapped_channels + no_control) if c in curves.names]
     print(
-        f"driver: {source} ({len(times)} frames at {fps:g} frames/s); no control on this rig for: {', '.join(ignored) or 'none'}"
+        f"driver: {source} ({len(times)} frames at {fps:g} frames/s); no control on this rig for: "
+        f"{', '.join(ignored) or 'none'}"
     )
     print(f"wrote {stage_path} (contractions as time samples, mapping under /Face/Drivers) and {cache} (baked points)")
 

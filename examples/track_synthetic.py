@@ -115,7 +115,8 @@ def main(argv=None) -> None:
         f"{stats.frames} frames, {len(camera.landmark_names)} dots, {100 * stats.landmarks_found:.0f}% found per frame"
     )
     print(
-        f"3-D landmark error: mean {landmark_mm.mean():.2f} mm, 95th percentile {np.percentile(landmark_mm, 95):.2f} mm, "
+        f"3-D landmark error: mean {landmark_mm.mean():.2f} mm, 95th percentile {np.percentile(landmark_mm, 95):.2f} "
+        "mm, "
         f"max {landmark_mm.max():.2f} mm"
     )
     print(

@@ -342,5 +342,38 @@ def test_step_means_the_fem_time_step():
     assert callable(ExpressionModel.evaluate) and callable(TrackingAdapter.track_frame)
 
 
+_IMPORT_PROBE = """
+import os, sys
+calls = []
+import warp
+for owner, name in ((warp, "init"), (os, "dup2"), (os, "umask")):
+    original = getattr(owner, name)
+    setattr(owner, name, lambda *a, _n=name, _o=original, **k: (calls.append(_n), _o(*a, **k))[1])
+level, quiet = warp.config.log_level, getattr(warp.config, "quiet", "unset")
+import warpface
+import warpface.assets, warpface.drivers, warpface.geometry, warpface.tracking, warpface.pipelines
+import warpface.commands, warpface.cli, warpface.metrics, warpface.usd
+assert warpface.usd.read_driver and warpface.usd.open_stage  # lazy USD modules load too
+changed = (warp.config.log_level, getattr(warp.config, "quiet", "unset")) != (level, quiet)
+print(sorted(set(calls)), changed)
+warpface.init_runtime(quiet=True)
+print("init" in calls, warp.config.log_level)
+"""
+
+
+def test_import_has_no_side_effects():
+    """``import warpface`` (and its packages) initialises no Warp runtime, changes no Warp setting, touches no
+    file descriptor and no umask; :func:`warpface.init_runtime` is the one explicit call that does."""
+    import subprocess
+    import sys
+
+    env = {**__import__("os").environ, "PYTHONPATH": str(ROOT)}
+    result = subprocess.run([sys.executable, "-c", _IMPORT_PROBE], capture_output=True, text=True, env=env)
+    assert result.returncode == 0, result.stderr
+    import_line, init_line = result.stdout.split("\n")[:2]
+    assert import_line == "[] False", import_line
+    assert init_line.startswith("True"), init_line
+
+
 if __name__ == "__main__":
     pytest.main([__file__, "-q"])

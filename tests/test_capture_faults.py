@@ -6,8 +6,8 @@ take a large share of the time and a signal often lands inside one. The source l
 hands out; the parent then reads the stage back:
 
 * SIGINT: every frame the source handed out is on the stage (nothing received is lost).
-* kill -9: the stage opens, lists every chunk file beside it but possibly the newest, and holds every frame the child had
-  seen flushed; what is missing is at most the frames queued since the last flush.
+* kill -9: the stage opens, lists every chunk file beside it but possibly the newest, and holds every frame
+  the child had seen flushed; what is missing is at most the frames queued since the last flush.
 """
 
 from __future__ import annotations

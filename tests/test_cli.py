@@ -241,6 +241,26 @@ def test_output_files_get_umask_permissions(tmp_path):
     assert stat.S_IMODE((tmp_path / "out.txt").stat().st_mode) == 0o604  # an existing file keeps its mode
 
 
+def test_the_umask_is_read_without_being_set(monkeypatch):
+    """Bakes write files from worker threads: reading the umask must not set it, even for a moment."""
+    import os
+    import sys
+
+    from warpface._files import new_file_mode, process_umask
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("/proc/self/status is Linux's")
+    old = os.umask(0o027)
+    try:
+        calls = []
+        monkeypatch.setattr(os, "umask", lambda mask: calls.append(mask) or 0)
+        assert process_umask() == 0o027 and new_file_mode("/nonexistent/x") == 0o640
+        assert calls == []
+    finally:
+        monkeypatch.undo()
+        os.umask(old)
+
+
 def test_atomic_path_without_creating_hands_out_a_fresh_name_and_cleans_up(tmp_path):
     """``create=False``: the temporary name does not exist yet, lies beside the target with its suffix, and is
     renamed onto the target on success; a failed block leaves the old target and no temporary behind."""
@@ -275,7 +295,11 @@ def test_version_and_quiet_output():
     )
     assert result.returncode == 0 and result.stdout.strip() == f"warpface {warpface.__version__}"
     noise = subprocess.run(
-        [sys.executable, "-c", "import warpface, warpface.assets; warpface.assets.default_rig()"],
+        [
+            sys.executable,
+            "-c",
+            "import warpface, warpface.assets; warpface.init_runtime(); warpface.assets.default_rig()",
+        ],
         capture_output=True,
         text=True,
         timeout=300,

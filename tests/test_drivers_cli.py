@@ -234,7 +234,9 @@ def _bad_inputs(tmp_path):
         "nan": header + "00:00:00:01.000,52,0.1\n00:00:00:02.000,52,NaN\n",
         "duplicate timestamp": header + "00:00:00:01.000,52,0.1\n00:00:00:01.000,52,0.2\n",
         "non-monotonic": header + "00:00:00:03.000,52,0.1\n00:00:00:01.000,52,0.2\n",
-        "only unknown channels": "Timecode,BlendshapeCount,EyeLookUpLeft\n00:00:00:01.000,52,0.1\n00:00:00:02.000,52,0.1\n",
+        "only unknown channels": (
+            "Timecode,BlendshapeCount,EyeLookUpLeft\n00:00:00:01.000,52,0.1\n00:00:00:02.000,52,0.1\n"
+        ),
     }
     paths = {}
     for name, text in cases.items():
@@ -273,7 +275,8 @@ def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys):
 
 @pytest.mark.parametrize("suffix", [".csv", ".usda"])
 def test_animated_rig_exports_arkit_weights_that_reproduce_the_take(tmp_path, suffix):
-    from warpface.usd.skel_io import export_arkit_weights, read_driver
+    from warpface.usd import read_driver
+    from warpface.usd.skel_io import export_arkit_weights
 
     t = np.arange(45) / 30.0
     take = {

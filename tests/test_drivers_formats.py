@@ -13,18 +13,16 @@ from warpface.data import shared_data_path
 from warpface.drivers import (
     ARKIT_CHANNELS,
     Curves,
-    canonical_channel,
     detect_format,
-    read_driver,
-    read_live_link,
-    read_mediapipe_jsonl,
-    read_mediapipe_textproto,
     write_live_link,
     write_mediapipe_jsonl,
     write_mediapipe_textproto,
     write_openface,
 )
-from warpface.usd.skel_io import read_driver as usd_read_driver
+from warpface.drivers.channels import canonical_channel
+from warpface.drivers.csv_formats import read_live_link
+from warpface.drivers.mediapipe_format import read_mediapipe_jsonl, read_mediapipe_textproto
+from warpface.usd import read_driver
 from warpface.usd.skel_io import read_skel_animation, write_skel_animation
 
 
@@ -120,9 +118,7 @@ def test_usd_skel_round_trip(tmp_path, suffix):
     curves = arkit_curves(frames=25, fps=24.0)
     path = write_skel_animation(tmp_path / f"a2f{suffix}", curves)
     assert detect_format(path) == "usdskel"
-    with pytest.raises(ValueError, match="warpface.usd.read_driver"):
-        read_driver(path)  # the drivers layer does not read USD
-    back = usd_read_driver(path)
+    back = read_driver(path)
     assert back.names == list(ARKIT_CHANNELS) and back.fps == 24.0
     np.testing.assert_allclose(back.times, curves.times, atol=1e-12)
     np.testing.assert_allclose(back.values, curves.values, atol=1e-7)  # blendShapeWeights are float[]
@@ -308,3 +304,33 @@ def test_fuzzed_skel_stage_reads_or_says_why(tmp_path, names, samples):
         return
     assert np.isfinite(curves.values).all() and np.all(np.diff(curves.times) > 0)
     assert curves.values.shape == (len(curves.times), len(names))
+
+
+def test_read_driver_without_usd_core(tmp_path):
+    """With usd-core absent, ``import warpface`` imports no pxr, ``warpface.usd.read_driver`` reads a CSV, and a
+    USD layer is one clear ValueError."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    csv = write_live_link(tmp_path / "take.csv", arkit_curves(frames=3, fps=30.0))
+    layer = write_skel_animation(tmp_path / "take.usda", arkit_curves(frames=3, fps=30.0))
+    code = (
+        "import sys\nsys.modules['pxr'] = None  # as if usd-core were not installed\n"
+        "import warpface, warpface.usd\n"
+        f"curves = warpface.usd.read_driver({str(csv)!r})\n"
+        "try:\n"
+        f"    warpface.usd.read_driver({str(layer)!r})\n"
+        "except ValueError as error:\n"
+        "    print('ValueError', error)\n"
+        "print(curves.frame_count, len(curves.names), sys.modules['pxr'] is None)\n"
+    )
+    root = Path(__file__).resolve().parents[1]
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(root)}
+    )
+    assert result.returncode == 0, result.stderr
+    error, counts = result.stdout.strip().splitlines()
+    assert error.startswith("ValueError") and "usd-core" in error
+    assert counts == f"3 {len(ARKIT_CHANNELS)} True"

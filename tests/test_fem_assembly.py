@@ -156,5 +156,5 @@ def test_assemble_rejects_bad_arguments(irregular_mesh):
         assemble(irregular_mesh, mat, formulation="quadratic", device="cpu")
     with pytest.raises(ValueError, match="per-tet values"):
         assemble(irregular_mesh, TissueMaterial(np.ones(3) * 1e5, 0.3, 1.0, 1000.0), device="cpu")
-    with pytest.raises(ValueError, match="TetMesh"):
+    with pytest.raises(TypeError, match="TetMesh"):
         assemble("mesh", mat, device="cpu")

@@ -102,7 +102,7 @@ def test_reading_inverted_tets_is_rejected():
 def test_write_checks_types_and_sizes():
     usd_io = _schema_or_skip()
     mesh = box_tet_mesh((0.02, 0.01, 0.01), (2, 1, 1))
-    with pytest.raises(ValueError, match="TetMesh"):
+    with pytest.raises(TypeError, match="TetMesh"):
         usd_io.write_tissue_mesh(stage(), "/T", mesh.points, TissueMaterial(1e5, 0.4, 1.0, 1e3))
     with pytest.raises(ValueError, match="per-tet values"):
         usd_io.write_tissue_mesh(stage(), "/T", mesh, TissueMaterial(np.ones(3) * 1e5, 0.4, 1.0, 1e3))

@@ -225,7 +225,7 @@ def test_mesh_tissue_argument_checks():
         mesh_tissue((points, triangles), 0.002, edge_length=-1.0, device="cpu")
     with pytest.raises(ValueError, match="out of range"):
         mesh_tissue((points, np.r_[triangles, [[0, 1, 99]]]), 0.002, device="cpu")
-    with pytest.raises(ValueError, match="FaceMesh or a"):
+    with pytest.raises(TypeError, match="FaceMesh or a"):
         mesh_tissue(42, 0.002, device="cpu")
     with pytest.raises(ValueError, match="input_intersections"):
         mesh_tissue((points, triangles), 0.002, input_intersections="maybe", device="cpu")

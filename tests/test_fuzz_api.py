@@ -1,4 +1,4 @@
-"""Property-based tests across the public API (issue 9): the classes of input a fuzz run found raising
+"""Property-based tests across the public API: the classes of input a fuzz run found raising
 from inside numpy, pathlib, Warp or pxr, or returning NaN, now meet warpface's own checks.
 
 Each call returns a finite result, or raises ValueError / TypeError (RigError is a ValueError) whose
@@ -148,14 +148,15 @@ paths = st.one_of(
     ),
 )
 def test_path_arguments_never_raise_os_errors(tmp_path_factory, path, which):
-    from warpface import drivers, load_obj, preview
+    from warpface import drivers, load_obj, preview, usd
+    from warpface.drivers.csv_formats import read_live_link
     from warpface.tracking import RecordedLandmarks
     from warpface.usd import open_stage
 
     curves = drivers.Curves(np.arange(3) / 30.0, ["jawOpen"], np.zeros((3, 1)), fps=30.0)
     calls = {
-        "read_driver": lambda: drivers.read_driver(path),
-        "read_live_link": lambda: drivers.read_live_link(path),
+        "read_driver": lambda: usd.read_driver(path),
+        "read_live_link": lambda: read_live_link(path),
         "detect_format": lambda: drivers.detect_format(path),
         "write_live_link": lambda: drivers.write_live_link(path, curves),
         "load_obj": lambda: load_obj(path),

@@ -24,18 +24,15 @@ from warpface.tracking import (
     RecordedLandmarks,
     TrackingAdapter,
     backproject,
-    blend_weights,
-    checked_frames,
     compute_correspondence,
-    detect_blobs,
-    fill_missing,
     landmark_vertices,
-    rigid_fit,
-    similarity_fit,
-    transfer_displacements,
-    triangulate_landmarks,
     vertex_landmark_names,
 )
+from warpface.tracking.alignment import rigid_fit, similarity_fit
+from warpface.tracking.correspondence import triangulate_landmarks
+from warpface.tracking.detect import detect_blobs
+from warpface.tracking.streams import checked_frames, fill_missing
+from warpface.tracking.transfer import blend_weights, transfer_displacements
 
 FUZZ = settings(
     max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow]
@@ -458,7 +455,7 @@ def test_the_reported_crashes_are_clear_errors(sparse_setup, tmp_path):
     with pytest.raises(ValueError, match="collinear"):
         triangulate_landmarks([[0, 0, 0], [1, 1, 1], [2, 2, 2]])
     depth = np.full((KINECT_V1_INTRINSICS.height, KINECT_V1_INTRINSICS.width), 0.6)
-    with pytest.raises(ValueError, match="window"):
+    with pytest.raises(TypeError, match="window"):
         backproject([[320.0, 240.0]], depth, KINECT_V1_INTRINSICS, window=float("nan"), device="cpu")
     np.savez(
         tmp_path / "rec.npz",
@@ -471,7 +468,7 @@ def test_the_reported_crashes_are_clear_errors(sparse_setup, tmp_path):
         RecordedLandmarks(tmp_path / "rec.npz")
     with pytest.raises(ValueError, match="width"):
         CameraIntrinsics.from_dict(KINECT_V1_INTRINSICS.to_dict() | {"width": float("inf")})
-    with pytest.raises(ValueError, match="neighbours"):
+    with pytest.raises(TypeError, match="neighbours"):
         DotTracker([[1.0, 1.0]], neighbours=float("inf"))
     with pytest.raises(ValueError, match="max_diameter"):
         DotTracker([[1.0, 1.0]], max_diameter=int(1e9))

@@ -15,9 +15,9 @@ from warpface.geometry import (
     closest_points,
     triangle_areas,
     triangle_corners,
-    triangle_crosses,
     triangle_normals,
 )
+from warpface.geometry.triangles import triangle_crosses
 
 
 @wp.kernel

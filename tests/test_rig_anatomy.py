@@ -340,7 +340,8 @@ def test_a_broken_lobe_on_the_stage_is_one_clear_error(rig, tmp_path):
 
 
 def region_centres(local_landmarks):
-    """Local (|x|, y) of the regions preset names refer to (sided ones: the subject's left side) [inter-ocular units]."""
+    """Local (|x|, y) of the regions preset names refer to (sided ones: the subject's left side)
+    [inter-ocular units]."""
     xy = local_landmarks[:, :2]
     left_eye, mouth = xy[42:48].mean(axis=0), xy[48:68].mean(axis=0)
     return {

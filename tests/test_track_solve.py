@@ -1,8 +1,9 @@
-"""Tracking drives the muscles (issue 11 item 2): landmarks → solved controls → skin → USD.
+"""Tracking drives the muscles: landmarks → solved controls → skin → USD.
 
 Closed loops on ground truth: exact landmarks of a known performance with the jaw opening (muscle and
-jaw controls recovered, the jaw's time samples on the stage's jaw prim, stage round trip), a known head motion (pose recovered), the synthetic Kinect-like camera (the solved path
-beats the geometric transfer on the surface), residual motion transferred as computed independently,
+jaw controls recovered, the jaw's time samples on the stage's jaw prim, stage round trip), a known head
+motion (pose recovered), the synthetic Kinect-like camera (the solved path beats the geometric transfer
+on the surface), residual motion transferred as computed independently,
 bad frames (skipped, flagged, previous controls kept, nothing non-finite), and Ctrl-C in
 ``warpface track --solve``.
 """
@@ -37,7 +38,8 @@ def rig():
 @pytest.fixture(scope="module")
 def vertices(rig):
     """The 60 painted dots of the synthetic capture (seen by the camera, 14 mm apart): the exact sources' landmarks."""
-    from warpface.tracking import default_model_to_camera, place_fiducials
+    from warpface.tracking import place_fiducials
+    from warpface.tracking.synthetic import default_model_to_camera
 
     rest = rig.mesh.points
     eye = np.linalg.inv(default_model_to_camera(rest))[:3, 3]

@@ -5,14 +5,11 @@ import numpy as np
 import pytest
 
 from warpface.data import ict_face_region, shared_data_path
+from warpface.geometry import closest_points
 from warpface.mesh import load_obj
-from warpface.tracking import (
-    FaceNormalization,
-    closest_points,
-    compute_correspondence,
-    procedural_face,
-    triangulate_landmarks,
-)
+from warpface.tracking import FaceNormalization, compute_correspondence
+from warpface.tracking.correspondence import triangulate_landmarks
+from warpface.tracking.synthetic import procedural_face
 
 
 def brute_force_distance(query, vertices, triangles):
@@ -130,7 +127,7 @@ def test_closest_points_bad_input():
         closest_points(np.zeros((1, 3)), v, np.array([[0, 1, 3]]), device="cpu")
     with pytest.raises(ValueError, match="shape"):
         closest_points(np.zeros((1, 2)), v, t, device="cpu")
-    with pytest.raises(ValueError, match="integer"):
+    with pytest.raises(TypeError, match="integer"):
         closest_points(np.zeros((1, 3)), v, t.astype(float), device="cpu")
     tri, bary, dist = closest_points(np.zeros((0, 3)), v, t, device="cpu")
     assert tri.shape == (0,) and bary.shape == (0, 3) and dist.shape == (0,)

@@ -4,7 +4,8 @@ import cv2
 import numpy as np
 import pytest
 
-from warpface.tracking import ArucoMarkers, DotTracker, detect_blobs
+from warpface.tracking import ArucoMarkers, DotTracker
+from warpface.tracking.detect import detect_blobs
 
 
 def paint_dots(centers, *, size=(480, 640), radius=4.0, background=(200, 150, 120), color=(20, 20, 20), gradient=True):

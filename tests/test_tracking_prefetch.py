@@ -74,11 +74,13 @@ def test_an_early_stop_closes_the_upstream_in_the_producer_thread():
     assert len(closed) == 1 and closed[0] != threading.get_ident()
 
 
-@pytest.mark.parametrize("depth", [0, -1, 1.5, True, "2"])
-def test_a_bad_depth_is_refused(depth):
-    with pytest.raises(ValueError, match="depth"):
+@pytest.mark.parametrize(
+    "depth, error", [(0, ValueError), (-1, ValueError), (1.5, TypeError), (True, TypeError), ("2", TypeError)]
+)
+def test_a_bad_depth_is_refused(depth, error):
+    with pytest.raises(error, match="depth"):
         prefetch([1, 2], depth=depth)
-    with pytest.raises(ValueError, match="depth"):
+    with pytest.raises(error, match="depth"):
         PrefetchedSource(DisappearingCamera(np.zeros((3, 3)), np.arange(3), 1), depth=depth)
 
 

@@ -21,11 +21,10 @@ from warpface.tracking import (
     RecordedLandmarks,
     RGBDFolder,
     RGBDFrame,
-    checked_frames,
-    fill_missing,
-    parse_landmark_list,
-    similarity_fit,
 )
+from warpface.tracking.alignment import similarity_fit
+from warpface.tracking.mediapipe import parse_landmark_list
+from warpface.tracking.streams import checked_frames, fill_missing
 
 
 def make_frames(count=5, n=4, seed=0):

@@ -10,20 +10,18 @@ pytest.importorskip("pyrender")
 
 from warpface.data import ict_face_region  # noqa: E402
 from warpface.mesh import load_obj  # noqa: E402
-from warpface.tracking import (  # noqa: E402
+from warpface.tracking import (
     KinectNoise,
     RGBDFolder,
     RGBDLandmarks,
     SyntheticRGBDCamera,
     TrackingAdapter,
     backproject,
-    default_model_to_camera,
-    detect_blobs,
     place_fiducials,
-    procedural_face,
-    procedural_jaw_open,
-    triangulate_landmarks,
 )
+from warpface.tracking.correspondence import triangulate_landmarks
+from warpface.tracking.detect import detect_blobs
+from warpface.tracking.synthetic import default_model_to_camera, procedural_face, procedural_jaw_open
 
 
 def face_sequence(frames: int, amount: float):

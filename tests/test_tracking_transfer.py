@@ -4,16 +4,10 @@ TrackingAdapter's frame handling (reference, stabilisation, missing landmarks, n
 import numpy as np
 import pytest
 
-from warpface.tracking import (
-    LandmarkFrame,
-    RecordedLandmarks,
-    TrackingAdapter,
-    blend_weights,
-    compute_correspondence,
-    procedural_face,
-    transfer_displacements,
-    triangulate_landmarks,
-)
+from warpface.tracking import LandmarkFrame, RecordedLandmarks, TrackingAdapter, compute_correspondence
+from warpface.tracking.correspondence import triangulate_landmarks
+from warpface.tracking.synthetic import procedural_face
+from warpface.tracking.transfer import blend_weights, transfer_displacements
 
 
 @pytest.fixture(scope="module")

@@ -120,7 +120,11 @@ muscle = stage.GetPrimAtPath("/Face/Muscles/frontalis_R")
 wrinkle = stage.GetPrimAtPath("/Face/Wrinkles/crow_L")
 thickness = UsdGeom.PrimvarsAPI(skin).GetPrimvar("warpFace:thickness")
 out = dict(
-    types=[muscle.GetTypeName(), wrinkle.GetTypeName(), stage.GetPrimAtPath("/Face/Muscles/orbicularis_oris").GetTypeName()],
+    types=[
+        muscle.GetTypeName(),
+        wrinkle.GetTypeName(),
+        stage.GetPrimAtPath("/Face/Muscles/orbicularis_oris").GetTypeName(),
+    ],
     points=[list(p) for p in UsdGeom.Mesh(skin).GetPointsAttr().Get()],
     interpolation=thickness.GetInterpolation(),
     thickness=list(thickness.Get()),
@@ -181,7 +185,8 @@ def test_unauthored_meters_per_unit_means_centimetres(small_rig):
 
 
 def test_item_transforms_are_composed_into_skin_space(small_rig):
-    """Author the items in a rotated, scaled, translated scope with inverse-transformed values: the rig reads back the same."""
+    """Author the items in a rotated, scaled, translated scope with inverse-transformed values: the rig reads
+    back the same."""
     stage = write_rig(Usd.Stage.CreateInMemory(), small_rig)
     scale, rotation, translation = 2.5, Gf.Rotation(Gf.Vec3d(1, 2, 3).GetNormalized(), 37.0), Gf.Vec3d(0.1, -0.2, 0.05)
     matrix = Gf.Matrix4d().SetScale(scale) * Gf.Matrix4d().SetRotate(rotation) * Gf.Matrix4d().SetTranslate(translation)

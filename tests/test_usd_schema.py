@@ -16,14 +16,8 @@ pxr = pytest.importorskip("pxr")
 from pxr import Sdf, Tf, Usd, UsdGeom  # noqa: E402
 
 import warpface  # noqa: E402,F401  (registers the plugin)
-from warpface.usd import (  # noqa: E402
-    API_SCHEMAS,
-    CONCRETE_SCHEMAS,
-    TYPED_SCHEMAS,
-    ensure_schema,
-    plugin_path,
-    regenerate_schema,
-)
+from warpface.usd import ensure_schema, plugin_path  # noqa: E402
+from warpface.usd.schema import API_SCHEMAS, CONCRETE_SCHEMAS, TYPED_SCHEMAS, regenerate_schema  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 SCHEMA_SOURCE = plugin_path() / "schema.usda"
@@ -158,8 +152,8 @@ def test_import_without_pxr_skips_registration_and_gives_plugin_path():
 def test_late_registration_raises_error_naming_the_environment_variable():
     code = (
         "from pxr import Usd; Usd.SchemaRegistry()\n"  # the registry is built before warpface registers
-        "import warpface.usd as wu\n"
-        "try:\n    wu.ensure_schema()\nexcept wu.SchemaRegistrationError as exc:\n    print('ERROR', exc)\n"
+        "import warpface.usd as wu\nfrom warpface.errors import SchemaRegistrationError\n"
+        "try:\n    wu.ensure_schema()\nexcept SchemaRegistrationError as exc:\n    print('ERROR', exc)\n"
     )
     result = _run(code)
     assert result.returncode == 0, result.stderr

@@ -5,12 +5,13 @@ from __future__ import annotations
 import os
 import stat
 import tempfile
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 
 from ._validate import as_path
 
-__all__ = ["atomic_path", "new_file_mode", "read_text"]
+__all__ = ["atomic_path", "new_file_mode", "process_umask", "read_text"]
 
 
 def new_file_mode(path: str | Path) -> int:
@@ -19,9 +20,33 @@ def new_file_mode(path: str | Path) -> int:
     try:
         return stat.S_IMODE(os.stat(path).st_mode)
     except FileNotFoundError:
-        umask = os.umask(0)
-        os.umask(umask)
-        return 0o666 & ~umask
+        return 0o666 & ~process_umask()
+
+
+_umask_lock = threading.Lock()
+_umask_cache: list[int] = []
+
+
+def process_umask() -> int:
+    """The process's umask, read without changing it.
+
+    Linux reports it in ``/proc/self/status``; elsewhere it can only be read by setting it, which races
+    with threads creating files (bakes write from worker threads), so that is done once, under a lock,
+    and the value cached.
+    """
+    try:
+        with open("/proc/self/status", encoding="ascii", errors="replace") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    with _umask_lock:
+        if not _umask_cache:
+            umask = os.umask(0o077)
+            os.umask(umask)
+            _umask_cache.append(umask)
+        return _umask_cache[0]
 
 
 @contextmanager
@@ -35,11 +60,8 @@ def atomic_path(path: str | Path, suffix: str = "", *, create: bool = True):
 
     With ``create=False`` the temporary path does not exist yet when the block starts (its unique name
     reserved, then released). That suits writers which replace an existing file through a temporary file
-    and a rename of their own, as OpenUSD's layer export does. On this project's ext4 disk, an export into
-    an empty reserved file (a rename over an existing file, which makes ext4 start writing the new data out
-    at once: its ``auto_da_alloc`` heuristic) took 12–15 ms for a 13 MB capture chunk, and the small root
-    layer renamed over its previous version right after it 2–7 ms; into a fresh name 9 ms and 0.4 ms. The
-    bake of ``benchmarks/usd_bake.py`` (a 36 MB cache) went from 0.212 to 0.185 s (benchmarks/README.md).
+    and a rename of their own, as OpenUSD's layer export does: renaming over an existing (reserved) file
+    makes ext4 write the new data out at once, which costs time (measured in benchmarks/README.md, Tracking).
     """
     path = as_path(path, "path")
     if path.is_dir():

@@ -1,7 +1,9 @@
 """Validation at the boundary, written once: points, triangles, per-vertex arrays, scalars, vectors.
 
-Every public constructor and call of the model layer checks its inputs with these helpers, so the
-same fault gives the same error type and a one-line message naming the item. Ranges are chosen so
+Every public constructor and call checks its inputs with these helpers, so the same fault gives the
+same error and a one-line message naming the argument: TypeError for a wrong type (a string, None, a
+dict or a non-numeric array where numbers belong; a float array where indices belong), ValueError for a
+wrong value (shape, range, non-finite numbers, a ragged nesting of sequences). Ranges are chosen so
 that nothing valid can overflow the float32 kernels (see :data:`MAX_COORDINATE`).
 """
 
@@ -32,7 +34,6 @@ __all__ = [
     "expect_instance",
     "expect_iterable",
     "shape_of",
-    "WrongTypeError",
 ]
 
 MAX_COORDINATE = 1.0e6
@@ -48,17 +49,22 @@ MAX_VERTICES = 1 << 26
 def as_finite_array(
     value, name: str, *, shape: tuple | None = None, dtype=np.float64, max_abs: float | None = None
 ) -> np.ndarray:
-    """``value`` as an array of ``dtype``; raises ValueError naming ``name`` on bad shape or non-finite values.
+    """``value`` as an array of ``dtype``, naming ``name`` in every error.
 
-    ``shape`` may contain ``None`` for a free dimension. With ``max_abs``, values of larger magnitude
-    are rejected too.
+    TypeError when ``value`` is not numbers (None, text, a dict, strings or objects inside); ValueError on
+    a ragged nesting, a bad shape or non-finite values. ``shape`` may contain ``None`` for a free
+    dimension. With ``max_abs``, values of larger magnitude are rejected too.
     """
-    if isinstance(value, (str, bytes)) or value is None:
-        raise ValueError(f"{name}: expected numbers, got {type(value).__name__}")
+    if isinstance(value, (str, bytes, dict)) or value is None:
+        raise TypeError(f"{name}: expected numbers, got {type(value).__name__}")
     try:
         array = np.asarray(value, dtype=dtype)
-    except (TypeError, ValueError, OverflowError):
-        raise ValueError(f"{name}: expected a number or a regular array of numbers, got {_kind(value)}") from None
+    except OverflowError:
+        raise ValueError(f"{name}: a number is too large for {np.dtype(dtype).name}") from None
+    except (TypeError, ValueError):
+        kind = _kind(value)
+        error = ValueError if "unequal or nested" in kind else TypeError
+        raise error(f"{name}: expected a number or a regular array of numbers, got {kind}") from None
     if shape is not None:
         if array.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, array.shape)):
             expected = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
@@ -91,8 +97,8 @@ def as_triangles(
     Index arrays must have an integer dtype; with ``integral_floats``, float arrays whose values are
     whole numbers (as some loaders produce) are accepted too.
     """
-    if isinstance(value, (str, bytes)) or value is None:
-        raise ValueError(f"{name}: expected an integer array of shape (T, 3), got {type(value).__name__}")
+    if isinstance(value, (str, bytes, dict)) or value is None:
+        raise TypeError(f"{name}: expected an integer array of shape (T, 3), got {type(value).__name__}")
     try:
         triangles = np.asarray(value)
     except (TypeError, ValueError):  # ragged nesting
@@ -104,10 +110,10 @@ def as_triangles(
     if triangles.dtype == np.bool_ or not (
         np.issubdtype(triangles.dtype, np.integer) or np.issubdtype(triangles.dtype, np.floating)
     ):
-        raise ValueError(f"{name}: expected integer vertex indices, got dtype {triangles.dtype}")
+        raise TypeError(f"{name}: expected integer vertex indices, got dtype {triangles.dtype}")
     if np.issubdtype(triangles.dtype, np.floating):
         if not integral_floats:
-            raise ValueError(f"{name}: expected integer vertex indices, got dtype {triangles.dtype}")
+            raise TypeError(f"{name}: expected integer vertex indices, got dtype {triangles.dtype}")
         if not np.all(np.isfinite(triangles)) or np.any(triangles != np.round(triangles)):
             raise ValueError(f"{name}: triangle indices must be whole numbers")
         triangles = np.clip(triangles, -1, vertex_count)  # out-of-range stays out of range, fits int64
@@ -176,7 +182,7 @@ def as_bounded(value, name: str, lower: float, upper: float) -> float:
 def as_count(value, name: str, *, minimum: int = 0, maximum: int | None = None) -> int:
     """A Python/NumPy integer (not bool) in [``minimum``, ``maximum``]."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise ValueError(f"{name}: expected an integer, got {type(value).__name__}")
+        raise TypeError(f"{name}: expected an integer, got {type(value).__name__}")
     count = int(value)
     if count < minimum or (maximum is not None and count > maximum):
         upper = "∞" if maximum is None else str(maximum)
@@ -199,7 +205,7 @@ def as_indices(value, count: int, name: str) -> np.ndarray:
         indices.dtype == np.bool_
         or not (np.issubdtype(indices.dtype, np.integer) or np.issubdtype(indices.dtype, np.floating))
     ):
-        raise ValueError(f"{name}: expected integer indices, got dtype {indices.dtype}")
+        raise TypeError(f"{name}: expected integer indices, got dtype {indices.dtype}")
     if np.issubdtype(indices.dtype, np.floating):
         if not np.all(np.isfinite(indices)) or np.any(indices != np.round(indices)):
             raise ValueError(f"{name}: indices must be whole numbers")
@@ -288,13 +294,8 @@ def expect_instance(value, types, name: str):
     TypeError naming ``name``, the expected class and what was given."""
     if not isinstance(value, types):
         expected = " or ".join(t.__name__ for t in (types if isinstance(types, tuple) else (types,)))
-        raise WrongTypeError(f"{name}: expected a {expected}, got {type(value).__name__}")
+        raise TypeError(f"{name}: expected a {expected}, got {type(value).__name__}")
     return value
-
-
-class WrongTypeError(TypeError, ValueError):
-    """An argument of the wrong type: a TypeError, and a ValueError too, so callers that catch bad input
-    as ValueError (as warpface's own checks long raised it) still do."""
 
 
 def expect_iterable(value, name: str, *, item_types=None, sized: bool = False):
@@ -309,9 +310,7 @@ def expect_iterable(value, name: str, *, item_types=None, sized: bool = False):
         or (sized and not isinstance(value, Sized))
         or (isinstance(value, np.ndarray) and value.ndim == 0)
     ):
-        raise WrongTypeError(
-            f"{name}: expected {'a list' if sized else 'an iterable'} of items, got {type(value).__name__}"
-        )
+        raise TypeError(f"{name}: expected {'a list' if sized else 'an iterable'} of items, got {type(value).__name__}")
     if item_types is None:
         return value
 

@@ -1,6 +1,8 @@
-"""The ``warpface`` command line: ``demo``, ``bake``, ``preview``, ``validate``, ``track``.
+"""The ``warpface`` command line: one sub-command per module of :mod:`warpface.commands` (``demo``, ``bake``,
+``preview``, ``validate``, ``track``, ``animate``, ``fit``).
 
-Every sub-command has ``--help``; ``--device`` and ``--quiet`` work before or after the command. Any
+Warp is initialised quietly (:func:`warpface.init_runtime`) before a command runs. Every sub-command has
+``--help``; ``--device`` and ``--quiet`` work before or after the command. Any
 error — bad arguments, a bad or unreadable stage, a full disk, pxr's own exceptions — is one line on
 stderr and exit code 2, never a traceback (``WARPFACE_DEBUG=1`` shows the traceback instead); problems
 found by ``validate`` give exit code 1; Ctrl-C gives 130. Arguments are checked before any file or
@@ -14,9 +16,10 @@ import importlib
 import os
 import sys
 
-from . import __version__
+from . import __version__, init_runtime
 from .commands import COMMANDS
 from .commands.common import check_device, one_line
+from .errors import CameraError
 
 __all__ = ["main", "build_parser"]
 
@@ -61,6 +64,7 @@ def main(argv=None) -> int:
     """Entry point of the ``warpface`` console script; returns the exit code."""
     args = build_parser().parse_args(argv)
     try:
+        init_runtime(quiet=True)
         args.device = check_device(args.device)
         return int(args.handler(args) or 0)
     except KeyboardInterrupt:
@@ -71,7 +75,7 @@ def main(argv=None) -> int:
     except Exception as error:  # noqa: BLE001 — the one place every error becomes one line
         if os.environ.get("WARPFACE_DEBUG"):
             raise
-        kind = "camera error" if type(error).__name__ == "CameraError" else "error"
+        kind = "camera error" if isinstance(error, CameraError) else "error"
         print(f"warpface {args.command}: {kind}: {one_line(error)}", file=sys.stderr)
         return 2
 

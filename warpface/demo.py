@@ -77,12 +77,13 @@ def run_demo(
     from ._validate import as_positive
     from .assets import EXPRESSIONS, default_rig
     from .expression import ExpressionModel
+    from .usd.animation import MAX_FRAMES
 
     fps, seconds = as_positive(fps, "fps"), as_positive(seconds, "seconds")
     if fps * seconds < 2:
         raise ValueError(f"fps × seconds must give at least 2 frames per expression, got {fps:g} × {seconds:g}")
-    if fps * seconds * len(EXPRESSIONS) > usd.MAX_FRAMES:
-        raise ValueError(f"fps × seconds gives more than {usd.MAX_FRAMES} frames")
+    if fps * seconds * len(EXPRESSIONS) > MAX_FRAMES:
+        raise ValueError(f"fps × seconds gives more than {MAX_FRAMES} frames")
     preview.check_offscreen_rendering()
     out = Path(out_dir)
     if out.exists() and not out.is_dir():

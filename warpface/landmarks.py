@@ -237,10 +237,15 @@ def kato_landmarks(ibug_points) -> dict[str, np.ndarray]:
     Raises:
         ValueError: wrong shape or non-finite positions.
     """
+    if isinstance(ibug_points, (str, bytes, dict)) or ibug_points is None:
+        raise TypeError(
+            f"kato_landmarks: expected iBUG positions of shape (..., 68, 3), got {type(ibug_points).__name__}"
+        )
     try:
         p = np.asarray(ibug_points, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(
+    except (TypeError, ValueError) as exc:
+        error = TypeError if isinstance(exc, TypeError) or np.asarray(ibug_points).dtype.kind in "USO" else ValueError
+        raise error(
             f"kato_landmarks: expected iBUG positions of shape (..., 68, 3), got {type(ibug_points).__name__}"
         ) from None
     if p.ndim < 2 or p.shape[-2:] != (IBUG_COUNT, 3):

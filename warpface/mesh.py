@@ -14,7 +14,8 @@ import numpy as np
 import warp as wp
 
 from ._validate import as_device, as_path, as_points, as_triangles
-from .geometry import triangle_areas, triangle_corners, triangle_crosses
+from .geometry import triangle_areas, triangle_corners
+from .geometry.triangles import triangle_crosses
 from .kernels_surface import stretch_reference_lengths, triangle_area_vectors, vertex_normals_kernel
 
 __all__ = ["FaceMesh", "VertexTriangleAdjacency", "load_obj", "DEGENERATE_AREA_RTOL", "MIN_TRIANGLE_AREA"]
@@ -74,8 +75,10 @@ class FaceMesh:
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not self.name:
-            raise ValueError(f"mesh name: expected a non-empty string, got {self.name!r}")
+        if not isinstance(self.name, str):
+            raise TypeError(f"name: expected a mesh name (str), got {type(self.name).__name__}")
+        if not self.name:
+            raise ValueError("name: expected a non-empty mesh name")
         self.points = as_points(self.points, f"{self.name}: points", min_count=1)
         triangles = as_triangles(self.triangles, len(self.points), f"{self.name}: triangles", integral_floats=True)
         repeated = np.flatnonzero(
@@ -87,7 +90,11 @@ class FaceMesh:
             t = int(repeated[0])
             raise ValueError(f"{self.name}: triangle {t} repeats a vertex: {triangles[t].tolist()}")
         self.triangles = triangles
-        if not isinstance(self.degenerate, str) or self.degenerate not in ("error", "ignore"):
+        if not isinstance(self.degenerate, str):
+            raise TypeError(
+                f"{self.name}: degenerate: expected 'error' or 'ignore', got {type(self.degenerate).__name__}"
+            )
+        if self.degenerate not in ("error", "ignore"):
             raise ValueError(f"{self.name}: degenerate policy must be 'error' or 'ignore', got {self.degenerate!r}")
         bad = np.flatnonzero(self.degenerate_triangles)
         if len(bad) and self.degenerate == "error":
@@ -252,8 +259,6 @@ def load_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     Polygons are fan-triangulated; texture/normal indices (``f 1/2/3``) and negative (relative)
     indices are handled. Returns ``(points (V, 3) float64, triangles (T, 3) int64)``.
     """
-    if not isinstance(path, (str, Path)):
-        raise ValueError(f"OBJ path: expected a str or Path, got {type(path).__name__}")
     path = as_path(path, "path")
     if not path.is_file():
         raise ValueError(f"OBJ file not found: {path}")

@@ -126,7 +126,9 @@ def point_distances(points, reference) -> np.ndarray:
     a = as_finite_array(points, "point_distances: points", max_abs=MAX_COORDINATE)
     b = as_finite_array(reference, "point_distances: reference", max_abs=MAX_COORDINATE)
     if a.shape != b.shape or a.ndim < 2 or a.shape[-1] != 3:
-        raise ValueError(f"point_distances: need two arrays of the same shape (..., V, 3), got {a.shape} and {b.shape}")
+        raise ValueError(
+            f"point_distances: points and reference need the same shape (..., V, 3), got {a.shape} and {b.shape}"
+        )
     if not (np.isfinite(a).all() and np.isfinite(b).all()):
         raise ValueError("point_distances: positions must be finite")
     return np.linalg.norm(a - b, axis=-1)
@@ -146,7 +148,8 @@ class SurfaceError:
     """Vertex with the largest distance."""
 
     def __str__(self) -> str:
-        return f"mean {self.mean * 1e3:.3f} mm, rms {self.rms * 1e3:.3f} mm, max {self.max * 1e3:.3f} mm (vertex {self.argmax})"
+        mean, rms, worst = self.mean * 1e3, self.rms * 1e3, self.max * 1e3
+        return f"mean {mean:.3f} mm, rms {rms:.3f} mm, max {worst:.3f} mm (vertex {self.argmax})"
 
 
 def surface_error(points, reference, *, vertices=None) -> SurfaceError:

@@ -16,16 +16,14 @@ import os
 import sys
 from functools import lru_cache
 
+from .errors import OffscreenUnavailable
+
 __all__ = ["OffscreenUnavailable", "choose_platform", "egl_works", "osmesa_usable", "INSTALL_HINT"]
 
 INSTALL_HINT = (
     "install the system GL libraries (Debian/Ubuntu: sudo apt install libegl1 libgl1; "
     "or libosmesa6 with pip install 'PyOpenGL>=3.1.7')"
 )
-
-
-class OffscreenUnavailable(OSError):
-    """No offscreen OpenGL back end can start on this machine; the message says what to install."""
 
 
 @lru_cache(maxsize=1)

@@ -307,7 +307,9 @@ def heat_colors(
     """Map scalar values (V,) to RGB colours (V, 3) in [0, 1] with a matplotlib colormap."""
     from matplotlib import colormaps
 
-    if not isinstance(cmap, str) or cmap not in colormaps:
+    if not isinstance(cmap, str):
+        raise TypeError(f"cmap: expected a matplotlib colormap name, got {type(cmap).__name__}")
+    if cmap not in colormaps:
         raise ValueError(f"cmap: {str(cmap)[:40]!r} is not a matplotlib colormap")
     values = as_finite_array(values, "values", shape=(None,))
     lo = float(values.min(initial=0.0)) if vmin is None else as_bounded(vmin, "vmin", -1e300, 1e300)
@@ -471,8 +473,10 @@ MIN_HEAT_MAP_HEIGHT = 120
 
 def _image_size(size) -> tuple[int, int]:
     """``(width, height)`` in pixels, each in [8, 16384]; ValueError naming ``size`` otherwise."""
-    if not isinstance(size, (list, tuple, np.ndarray)) or shape_of(size) != (2,):
-        raise ValueError(f"size: expected (width, height) in pixels, got {type(size).__name__}")
+    if not isinstance(size, (list, tuple, np.ndarray)):
+        raise TypeError(f"size: expected (width, height) in pixels, got {type(size).__name__}")
+    if shape_of(size) != (2,):
+        raise ValueError(f"size: expected (width, height) in pixels, got shape {shape_of(size)}")
     return tuple(as_count(int(n) if isinstance(n, np.integer) else n, "size", minimum=8, maximum=16384) for n in size)
 
 

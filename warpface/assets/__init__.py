@@ -9,11 +9,10 @@ landmark-anchored default rig, and the paper's four expressions as presets.
 """
 
 from .expressions import EXPRESSIONS, expression_contractions, expression_envelope, expression_timeline
-from .face import FACE_SPACING, LANDMARK_NAMES, default_face, default_landmarks
-from .frame import FaceFrame, SurfaceSampler, head_cylinder
+from .face import LANDMARK_NAMES, default_face, default_landmarks
 from .presets import ARKIT_PRESET_NAMES, PRESETS, preset_controls
-from .rig import LINEAR_MUSCLE_NAMES, SPHINCTER_MUSCLE_NAMES, WRINKLE_NAMES, default_rig, face_frame, rig_scale
-from .thickness import THICKNESS_MM, default_thickness, thickness_map
+from .rig import LINEAR_MUSCLE_NAMES, SPHINCTER_MUSCLE_NAMES, WRINKLE_NAMES, default_rig, rig_scale
+from .thickness import default_thickness
 
 __all__ = [
     "default_face",
@@ -31,12 +30,5 @@ __all__ = [
     "LINEAR_MUSCLE_NAMES",
     "SPHINCTER_MUSCLE_NAMES",
     "WRINKLE_NAMES",
-    "THICKNESS_MM",
-    "FACE_SPACING",
-    "FaceFrame",
-    "SurfaceSampler",
-    "head_cylinder",
-    "face_frame",
     "rig_scale",
-    "thickness_map",
 ]

@@ -121,44 +121,39 @@ FRONTALIS_BELLIES = {
     "outer": (0.90, 0.00, 48.0, 1.15, 1.60),
 }
 """The full rig's frontalis bellies [inter-ocular units], fitted by coordinate search to the ICT-FaceKit
-brow shapes with :func:`warpface.solve.fit` (docs/RIG.md §5). The middle belly (above the brow's
-midpoint, its fixed point 0.1 units medial) spreads the rise over the forehead's width: dense reach
-browInnerUp 33.3 → 43.0 %, browOuterUp 45.1 → 50.9 % with it and the inner belly's wider falloff (the
-inner and middle values were re-tuned with the lobes below). The falloff ends 0.4–1 lengths beyond the
-brow, so the lids follow only a little (ICT's brows rise 6–8 mm while the upper lids move 0.3–0.5 mm)."""
+brow shapes with :func:`warpface.solve.fit`. The middle belly (above the brow's midpoint, its fixed
+point 0.1 units medial) spreads the rise over the forehead's width. The falloff ends 0.4–1 lengths
+beyond the brow, so the lids follow the brows only a little. Fit and measurements: docs/RIG.md §5."""
 
 GALEA_LOBE = (0.30, 83.0, 0.90, 2.50, 0.40)
 """The frontalis' galea lobe [inter-ocular units]: (its insertion above the belly's fixed point, zone
 half-angle [deg], falloff start and finish as multiples of its length, gain). The frontalis has no bony
 origin: contracting, it draws the brow up and the scalp down toward its belly, and the forehead skin
-between bunches out. Given to the inner and middle bellies (docs/RIG.md §5): browInnerUp dense reach
-44.0 → 47.2 %, landmarks 44.4 → 47.6 % (as a separate control it reached 46 % dense and nothing from
-landmarks, which do not see the upper forehead)."""
+between bunches out. Given to the inner and middle bellies rather than made a control of its own, which
+landmarks (blind to the upper forehead) could not drive (docs/RIG.md §5)."""
 
 NASAL_LOBE = (0.10, 0.00, 36.0, 1.00, 1.30, 0.05)
 """The inner frontalis' nasal lobe [inter-ocular units]: (its insertion beside the midline and above the
 nose tip, iBUG 30; zone half-angle [deg]; falloff start and finish as multiples of its length; gain).
-The inner belly's medial fibres continue into the procerus and the nasal skin, which ICT's browInnerUp
-lifts ~0.5 mm as one piece with the brow (686 of its 2194 moved vertices): dense reach 48.1 → 50.6 %,
-landmarks 48.6 → 50.6 % (a lobe from the glabella to the nose tip lost 0.5–14 points)."""
+The inner belly's medial fibres continue into the procerus and the nasal skin, which a raised inner brow
+lifts as one piece with the brow (docs/RIG.md §5)."""
 
 CHEEK_LOBE = (0.30, 0.05, 0.15, 0.30, 0.45, 40.0, 0.80, 2.20, 1.45)
 """The lower lid's cheek lobe [inter-ocular units]: (fixed point medial of the inner canthus, and above it,
 depth; insertion lateral of and below the eye's centre; zone half-angle [deg]; falloff start and finish
 as multiples of its length; gain). The lower orbital fibres of the orbicularis oculi lift the cheek
-medially and up with the lower lid in a squint (AU6 with AU7). eyeSquint reach 35.4 → 53.3 % dense,
-30.7 → 52.5 % landmarks (with the orbital ring's centre and ring re-tuned); as a separate control it reached 38 % dense and the landmark fit, which sees
-two lower-lid points and the jaw outline, drove it to −33 %."""
+medially and up with the lower lid in a squint (AU6 with AU7); it is part of the lower lid's control because
+a landmark fit, which sees two lower-lid points, cannot drive a separate one (docs/RIG.md §5)."""
 
 ORBITAL_RING = 0.55
 """Ring of the orbital orbicularis oculi (:attr:`~warpface.SphincterMuscle.ring`): its pull fades out inside
-0.55 of its ellipse, over the lids, which the palpebral muscles move (0.65 alone took eyeSquint's dense
-reach from 28.8 to 32.4 %; 0.55 fits best with the lower lid's cheek lobe)"""
+0.55 of its ellipse, over the lids, which the palpebral muscles move (0.55 fits best with the lower lid's
+cheek lobe; docs/RIG.md §5)."""
 
 SKIN_RESPONSE_OVERRIDES: dict[str, dict] = {f"orbicularis_oculi_lower_lid_{s}": {"bunching": 0.0} for s, _ in _SIDES}
 """Muscles whose skin response differs from the rig's default (``{name: {field: value}}``). The lower lid's
-skin is 1 mm thin over the eyeball's curve: bunching lifted its margin ~1 mm out of the face beyond
-ICT's eyeSquint (dense reach 32.4 → 34.2 % without it)."""
+skin is 1 mm thin over the eyeball's curve, where bunching would lift its margin out of the face
+(docs/RIG.md §3)."""
 
 
 def _side_of(muscle: LinearMuscle) -> tuple[str, float]:

@@ -69,7 +69,8 @@ def _jaw_line(local_landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray, floa
 
 
 def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarray, scale: float):
-    """``(d_u − d_l)/(d_u + d_l + c)`` and the distance to the rim [inter-ocular units], or None without a mouth opening."""
+    """``(d_u − d_l)/(d_u + d_l + c)`` and the distance to the rim [inter-ocular units], or None without a
+    mouth opening."""
     edges = np.sort(mesh.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     unique, counts = np.unique(edges, axis=0, return_counts=True)
     open_edges = unique[counts == 1]

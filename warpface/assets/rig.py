@@ -185,8 +185,8 @@ def default_rig(
 MOBILE_TISSUE_FRACTION = 0.6
 """The full rig's ``h`` (the thickness that bulges, SPEC §1.3, and bunches, docs/RIG.md §3) as a fraction
 of :func:`~warpface.assets.default_thickness`'s soft-tissue depth: the skin and superficial fat that move
-over the deeper layers. Calibrated on the ICT-FaceKit shapes with ``benchmarks/rig_reach.py`` (docs/RIG.md
-§3): 0.5–0.7 reach best; the full depth bulged too much (browOuterUp 51 → 49 % at 1.5×, 40 % at 2.5×)."""
+over the deeper layers; the full depth bulges too much. Calibrated on the ICT-FaceKit shapes with
+``benchmarks/rig_reach.py`` (docs/RIG.md §3)."""
 
 SKIN_SLIDING = 1.0
 """Sliding of every muscle of the full rig (docs/RIG.md §2; chosen by benchmarks/rig_reach.py)."""

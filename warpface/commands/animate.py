@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validate import as_count
+
 __all__ = ["add_parser", "run_animate", "animate", "AnimateResult", "prepare_controls", "PREVIEW_MAX_FRAMES"]
 
 PREVIEW_MAX_FRAMES = 120
@@ -68,7 +70,8 @@ def _mapping(rig, rig_stage, map_spec):
     ``map_spec``: None (the rig stage's ``default`` mapping, else the default table), ``NAME`` (stored on
     the rig stage), or ``FILE.usda[:NAME]`` (stored on another rig stage; NAME defaults to ``default``).
     """
-    from ..drivers import mapping_for_rig, rig_control_names
+    from ..drivers import mapping_for_rig
+    from ..drivers.default_tables import rig_control_names
     from ..usd import open_stage
     from ..usd.mapping_io import mapping_names, read_mapping
 
@@ -139,13 +142,12 @@ def animate(
     from ..usd.animation import CACHE_SUFFIX
     from ..usd.jaw_io import JAW_CONTROL_ATTRIBUTES
     from ..usd.mapping_io import write_mapping
-    from ..usd.skel_io import read_driver
 
     out = _output_path(out)
-    if video and (not isinstance(video_max_frames, (int, np.integer)) or video_max_frames < 1):
-        raise ValueError(f"--video-max-frames must be a positive whole number, got {video_max_frames!r}")
+    if video:
+        as_count(video_max_frames, "--video-max-frames", minimum=1)
     clock = _StepClock()
-    curves = read_driver(driver)
+    curves = usd.read_driver(driver)
     rig_model, rig_stage, units, stage_rate = _load_rig(rig)
     mapping, label, orphaned = _mapping(rig_model, rig_stage, map_spec)
     clock.step("read driver and rig")
@@ -303,7 +305,7 @@ def _neutral(text: str | None):
 def _gains(items) -> dict[str, float] | None:
     if not items:
         return None
-    from ..drivers import canonical_channel
+    from ..drivers.channels import canonical_channel
 
     gains = {}
     for item in items:
@@ -341,7 +343,8 @@ def run_animate(args) -> int:
         print(f"note: {note}")
     if result.unmapped_channels:
         print(
-            f"note: ignored {len(result.unmapped_channels)} channels the rig cannot drive: {', '.join(result.unmapped_channels)}"
+            f"note: ignored {len(result.unmapped_channels)} channels the rig cannot drive: "
+            f"{', '.join(result.unmapped_channels)}"
         )
     print(f"animated {result.frame_count} frames at {result.fps:g} frames/s with the {result.mapping}")
     print(f"  stage {result.stage}")

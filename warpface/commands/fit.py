@@ -147,7 +147,8 @@ def run_fit(args) -> int:
                     f"{after[rows].mean():>10.3f} {after[rows].max():>7.3f}"
                 )
         print(
-            f"  {'all':<10} {len(before):>8} {before.mean():>11.3f} {before.max():>7.3f} {after.mean():>10.3f} {after.max():>7.3f}"
+            f"  {'all':<10} {len(before):>8} {before.mean():>11.3f} {before.max():>7.3f} {after.mean():>10.3f} "
+            f"{after.max():>7.3f}"
         )
         used = sorted(presets[name].items(), key=lambda item: -abs(item[1]))
         print("  controls: " + (", ".join(f"{k} {v:.4g}" for k, v in used) if used else "none (neutral)"))

@@ -1,4 +1,5 @@
-"""``warpface preview``: a frame of a rig stage, a capture written by ``track``, or an OBJ → PNG (or every frame → MP4)."""
+"""``warpface preview``: a frame of a rig stage, a capture written by ``track``, or an OBJ → PNG (or every
+frame → MP4)."""
 
 from __future__ import annotations
 

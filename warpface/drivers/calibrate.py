@@ -47,7 +47,9 @@ def calibrate_mapping(
     expect_instance(rig, FaceRig, "rig")
     from ..solve import fit
 
-    if not isinstance(examples, MappingABC) or len(examples) == 0:
+    if not isinstance(examples, MappingABC):
+        raise TypeError(f"examples: expected a {{channel: (V, 3) shape}} mapping, got {type(examples).__name__}")
+    if len(examples) == 0:
         raise ValueError("examples: expected a non-empty {channel: (V, 3) shape} mapping")
     channels = [canonical_channel(channel) for channel in examples]
     repeated = sorted({c for c in channels if channels.count(c) > 1})

@@ -62,7 +62,8 @@ class OneEuroFilter:
                 or (value == 0 and name != "beta")
             ):
                 raise ValueError(
-                    f"1€ filter: {name} must be a {'non-negative' if name == 'beta' else 'positive'} number, got {value!r}"
+                    f"1€ filter: {name} must be a {'non-negative' if name == 'beta' else 'positive'} number, got "
+                    f"{value!r}"
                 )
 
     def __call__(self, times: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -118,9 +119,10 @@ def neutral_values(curves: Curves, neutral) -> np.ndarray:
         return curves.values[int(neutral)].copy()
     try:
         start, end = (float(t) for t in neutral)
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"neutral: expected a frame index, a (start, end) segment in seconds or {{channel: value}}, got {type(neutral).__name__}"
+    except (TypeError, ValueError) as exc:
+        raise type(exc)(
+            "neutral: expected a frame index, a (start, end) segment in seconds or {channel: value}, "
+            f"got {type(neutral).__name__}"
         ) from None
     inside = (curves.times >= start) & (curves.times <= end)
     if not inside.any():

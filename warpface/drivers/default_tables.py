@@ -127,8 +127,10 @@ FACS_TABLE: tuple[tuple[str, str, float], ...] = tuple((au, control, w / 5.0) fo
 def default_table(kind: str = "all") -> Mapping:
     """The default table in face units: ``"arkit"``, ``"facs"`` or ``"all"`` (both; their channels differ)."""
     tables = {"arkit": ARKIT_TABLE, "facs": FACS_TABLE, "all": ARKIT_TABLE + FACS_TABLE}
-    if not isinstance(kind, str) or kind not in tables:
-        raise ValueError(f"default table {kind!r}: expected one of {', '.join(tables)}")
+    if not isinstance(kind, str):
+        raise TypeError(f"kind: expected one of {', '.join(tables)}, got {type(kind).__name__}")
+    if kind not in tables:
+        raise ValueError(f"kind: default table {kind[:40]!r}: expected one of {', '.join(tables)}")
     return Mapping.from_entries(tables[kind], name="default")
 
 

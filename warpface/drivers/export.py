@@ -9,7 +9,8 @@ metres and a dimensionless sphincter count alike) and the small ridge ``λ`` pic
 channels share a control (``mouthPucker`` and ``mouthFunnel`` both pull ``orbicularis_oris``).
 All frames are solved together by FISTA (Beck & Teboulle 2009): projected gradient steps of size
 ``1/L``, ``L`` = the largest eigenvalue of ``2(AᵀA + λI)``, with Nesterov momentum restarted when it
-points uphill (O'Donoghue & Candès 2015), until no weight moves by more than ``tolerance``. Controls the mapping does not use are ignored.
+points uphill (O'Donoghue & Candès 2015), until no weight moves by more than ``tolerance``. Controls the
+mapping does not use are ignored.
 """
 
 from __future__ import annotations

@@ -1,16 +1,17 @@
-"""Reading any driver file: the format is chosen from the extension, then confirmed from the content."""
+"""Which driver format a file holds, from its first bytes and its extension.
+
+The one reader of every format, USD ``SkelAnimation`` layers included, is :func:`warpface.usd.read_driver`
+(it sits in the USD layer, above the drivers).
+"""
 
 from __future__ import annotations
 
-from .._validate import as_path, as_positive
-from .channels import Curves
-from .csv_formats import read_live_link, read_openface
-from .mediapipe_format import read_mediapipe_jsonl, read_mediapipe_textproto
+from .._validate import as_path
 
-__all__ = ["read_driver", "detect_format", "DRIVER_FORMATS"]
+__all__ = ["detect_format", "DRIVER_FORMATS"]
 
 DRIVER_FORMATS = ("openface", "livelink", "mediapipe-textproto", "mediapipe-jsonl", "usdskel")
-"""Formats :func:`read_driver` understands."""
+"""Formats :func:`warpface.usd.read_driver` understands."""
 
 _USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 
@@ -49,31 +50,3 @@ def detect_format(path) -> str:
         f"{path}: unrecognised driver format (expected OpenFace or Live Link Face CSV, MediaPipe "
         f"blendshapes as text-proto or JSON lines, or a USD SkelAnimation)"
     )
-
-
-def read_driver(path, *, fps: float | None = None) -> Curves:
-    """Read a driver file in any of :data:`DRIVER_FORMATS` but ``usdskel`` into :class:`Curves`.
-
-    USD ``SkelAnimation`` layers are read by :func:`warpface.usd.read_driver` (every format, USD
-    included): USD I/O lives in :mod:`warpface.usd`, which sits above the drivers.
-
-    Args:
-        path: the file.
-        fps: frame rate for formats that do not store one (MediaPipe frames without timestamps;
-            Live Link Face timecodes, overriding the detected rate).
-
-    Raises:
-        ValueError: unreadable or malformed file, or a USD layer (one line naming the file and the problem).
-    """
-    if fps is not None:
-        fps = as_positive(fps, "fps", maximum=1e6)
-    kind = detect_format(path)
-    if kind == "openface":
-        return read_openface(path)
-    if kind == "livelink":
-        return read_live_link(path, fps=fps)
-    if kind == "mediapipe-jsonl":
-        return read_mediapipe_jsonl(path, fps=fps or 30.0)
-    if kind == "mediapipe-textproto":
-        return read_mediapipe_textproto(path, fps=fps or 30.0)
-    raise ValueError(f"{path}: a USD SkelAnimation layer; read it with warpface.usd.read_driver")

@@ -39,10 +39,10 @@ class MappedControls:
 
 def _entry(item, position: int) -> tuple[str, str, float]:
     """One ``(channel, control, weight)`` triple of :meth:`Mapping.from_entries`, checked."""
-    if isinstance(item, (str, bytes)) or not isinstance(item, (tuple, list)) or len(item) != 3:
-        raise ValueError(
-            f"entries[{position}]: expected a (channel, control, weight) triple, got {type(item).__name__}"
-        )
+    if isinstance(item, (str, bytes)) or not isinstance(item, (tuple, list)):
+        raise TypeError(f"entries[{position}]: expected a (channel, control, weight) triple, got {type(item).__name__}")
+    if len(item) != 3:
+        raise ValueError(f"entries[{position}]: expected a (channel, control, weight) triple, got {len(item)} items")
     channel, control, weight = item
     if not isinstance(channel, str) or not isinstance(control, str):
         raise TypeError(f"entries[{position}]: channel and control must be names (str)")
@@ -93,11 +93,13 @@ class Mapping:
         if len(bad):
             row, column = bad[0]
             raise ValueError(
-                f"mapping {self.name!r}: weight of channel {channels[column]!r} on control {controls[row]!r} is not finite"
+                f"mapping {self.name!r}: weight of channel {channels[column]!r} on control {controls[row]!r} is not "
+                "finite"
             )
         if not np.isfinite(offsets).all():
             raise ValueError(
-                f"mapping {self.name!r}: offset of control {controls[int(np.argmin(np.isfinite(offsets)))]!r} is not finite"
+                f"mapping {self.name!r}: offset of control {controls[int(np.argmin(np.isfinite(offsets)))]!r} is not "
+                "finite"
             )
         object.__setattr__(self, "channels", channels)
         object.__setattr__(self, "controls", controls)

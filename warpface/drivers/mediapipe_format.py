@@ -211,13 +211,15 @@ def write_mediapipe_textproto(path, curves: Curves) -> Path:
                 handle.write(block(0, ""))
             for frame in range(curves.frame_count if curves.frame_count > 1 or curves.times[0] != 0.0 else 0):
                 handle.write(
-                    f"classification_list {{\n  timestamp_ms: {float(curves.times[frame]) * 1000.0!r}\n{block(frame, '  ')}}}\n"
+                    "classification_list "
+                    f"{{\n  timestamp_ms: {float(curves.times[frame]) * 1000.0!r}\n{block(frame, '  ')}}}\n"
                 )
     return path
 
 
 def write_mediapipe_jsonl(path, curves: Curves) -> Path:
-    """Write one JSON object per frame: ``{"timestamp_ms": …, "blendshapes": [{"category_name", "score"}, …]}``. Atomic."""
+    """Write one JSON object per frame, ``{"timestamp_ms": …, "blendshapes": [{"category_name", "score"}, …]}``,
+    through a temporary file and a rename."""
     expect_instance(curves, Curves, "curves")
     path = as_path(path, "path")
     columns = [k for k, n in enumerate(curves.names) if n in set(ARKIT_CHANNELS)]

@@ -143,7 +143,7 @@ class LinearMuscle:
     lobes: tuple[MuscleLobe, ...] = ()
 
     def __post_init__(self) -> None:
-        label = f"linear muscle {self.name!r}"
+        label = f"linear muscle {_quoted(self.name)}"
         _check_name(self.name, label)
         _check_zone(self, label)
         _check_response(self, label)
@@ -195,7 +195,7 @@ class SphincterMuscle:
     ring: float = 0.0
 
     def __post_init__(self) -> None:
-        label = f"sphincter muscle {self.name!r}"
+        label = f"sphincter muscle {_quoted(self.name)}"
         _check_name(self.name, label)
         set_ = object.__setattr__
         set_(self, "center", as_vec3(self.center, f"{label}: center"))
@@ -219,8 +219,15 @@ class SphincterMuscle:
 Muscle = Union[LinearMuscle, SphincterMuscle]
 
 
+def _quoted(name) -> str:
+    """``name`` for a one-line message: quoted when a string (cut at 60 characters), else its type."""
+    return repr(name[:60]) if isinstance(name, str) else f"(name of type {type(name).__name__})"
+
+
 def _check_name(name, label: str) -> None:
-    if not isinstance(name, str) or not name:
+    if not isinstance(name, str):
+        raise TypeError(f"{label}: name must be a string, got {type(name).__name__}")
+    if not name:
         raise ValueError(f"{label}: name must be a non-empty string")
 
 
@@ -367,7 +374,9 @@ def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], *, device=Non
             ]
             wp.launch(_sphincter_weight_kernel, dim=vertex_count, inputs=inputs, outputs=[out], device=device)
         else:
-            raise ValueError(f"muscle {index}: expected LinearMuscle or SphincterMuscle, got {type(muscle).__name__}")
+            raise TypeError(
+                f"muscles[{index}]: expected a LinearMuscle or SphincterMuscle, got {type(muscle).__name__}"
+            )
         weight = out.numpy()
         moved = np.flatnonzero(np.any(weight != 0.0, axis=1))
         rows.append(moved)

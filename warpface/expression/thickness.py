@@ -61,8 +61,9 @@ class ThicknessMap:
                 raise ValueError(f"thickness map: {name} must be increasing, got ({lo}, {hi})")
             object.__setattr__(self, name, (float(lo), float(hi)))
         if not isinstance(self.projection, (PlanarProjection, CylindricalProjection)):
-            raise ValueError(
-                f"thickness map: projection must be PlanarProjection or CylindricalProjection, got {type(self.projection).__name__}"
+            raise TypeError(
+                "thickness map: projection must be PlanarProjection or CylindricalProjection, "
+                f"got {type(self.projection).__name__}"
             )
         for name, upper in (("black", MAX_COORDINATE), ("white", MAX_COORDINATE), ("blur_sigma", MAX_BLUR_SIGMA)):
             value = float(as_finite_array(getattr(self, name), f"thickness map: {name}", shape=()))

@@ -141,8 +141,10 @@ class Wrinkle:
     kr: float = 0.0
 
     def __post_init__(self) -> None:
-        label = f"wrinkle {self.name!r}"
-        if not isinstance(self.name, str) or not self.name:
+        label = f"wrinkle {self.name[:60]!r}" if isinstance(self.name, str) else "wrinkle"
+        if not isinstance(self.name, str):
+            raise TypeError(f"{label}: name must be a string, got {type(self.name).__name__}")
+        if not self.name:
             raise ValueError(f"{label}: name must be a non-empty string")
         object.__setattr__(
             self,
@@ -153,7 +155,10 @@ class Wrinkle:
             ),
         )
         if not isinstance(self.projection, (PlanarProjection, CylindricalProjection)):
-            raise ValueError(f"{label}: projection must be PlanarProjection or CylindricalProjection")
+            raise TypeError(
+                f"{label}: projection must be PlanarProjection or CylindricalProjection, "
+                f"got {type(self.projection).__name__}"
+            )
         object.__setattr__(self, "depth", as_bounded(self.depth, f"{label}: depth", -MAX_COORDINATE, MAX_COORDINATE))
         object.__setattr__(self, "width", as_positive(self.width, f"{label}: width (k_w)"))
         kr = float(as_finite_array(self.kr, f"{label}: kr", shape=()))
@@ -282,7 +287,7 @@ def _bezier_distance_kernel(
 def project_points(projection: Projection, points: np.ndarray, *, device=None) -> np.ndarray:
     """Project points into a projection's (u, v) plane [mesh units]: (V, 3) → (V, 2) float64."""
     if not isinstance(projection, (PlanarProjection, CylindricalProjection)):
-        raise ValueError(
+        raise TypeError(
             f"projection: expected PlanarProjection or CylindricalProjection, got {type(projection).__name__}"
         )
     device = as_device(device)
@@ -348,7 +353,7 @@ def wrinkle_shapes(rest_points: np.ndarray, wrinkles: list[Wrinkle], *, device=N
     rest_points = as_points(rest_points, "rest_points")
     for index, wrinkle in enumerate(wrinkles):
         if not isinstance(wrinkle, Wrinkle):
-            raise ValueError(f"wrinkle {index}: expected Wrinkle, got {type(wrinkle).__name__}")
+            raise TypeError(f"wrinkles[{index}]: expected a Wrinkle, got {type(wrinkle).__name__}")
     rows, columns, values = [], [], []
     for index, wrinkle in enumerate(wrinkles):
         uv = project_points(wrinkle.projection, rest_points, device=device)

@@ -27,6 +27,7 @@ import scipy.sparse.linalg as spla
 import warp as wp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
+from ..errors import UnsuitableFactor
 from .kernels_ldlt import block_residual, ldlt_refine
 
 __all__ = ["BlockLDLT", "DEFAULT_ORDERINGS", "ORDERINGS", "UnsuitableFactor", "node_ordering"]
@@ -41,10 +42,6 @@ RUN_COST = 4
 """Blocks that one run of a factor row costs in the sweeps (loop set-up), when orderings are compared."""
 
 _SUPERLU_SPD = dict(diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-
-
-class UnsuitableFactor(ValueError):
-    """The float32 block factor would not refine reliably (an ill-conditioned matrix): use a float64 factor."""
 
 
 ORDERINGS = ("mmd", "colamd", "rcm")

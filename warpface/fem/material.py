@@ -20,8 +20,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import WrongTypeError
-
 MAX_TETS = 1 << 27
 """Largest tet count a per-tet material is made for (134 M; a face tissue has tens of thousands)."""
 
@@ -69,7 +67,7 @@ def _as_field(name: str, value) -> np.ndarray | float:
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise WrongTypeError(f"TissueMaterial {name} must be a number or an array of numbers") from None
+        raise TypeError(f"TissueMaterial {name} must be a number or an array of numbers") from None
     if arr.ndim == 0:
         return float(arr)
     if arr.ndim != 1:

@@ -21,7 +21,6 @@ from functools import cached_property
 import numpy as np
 
 from .._validate import MAX_COORDINATE as SHARED_MAX_COORDINATE
-from .._validate import WrongTypeError
 
 __all__ = [
     "MAX_COORDINATE",
@@ -135,9 +134,7 @@ class TetMesh:
         try:
             points = np.array(points, dtype=np.float64, copy=True)
         except (TypeError, ValueError):
-            raise WrongTypeError(
-                f"TetMesh points must be numbers of shape (N, 3), got {type(points).__name__}"
-            ) from None
+            raise TypeError(f"TetMesh points must be numbers of shape (N, 3), got {type(points).__name__}") from None
         if points.ndim != 2 or points.shape[1] != 3:
             raise ValueError(f"TetMesh points must have shape (N, 3), got {points.shape}")
         if points.shape[0] < 4:

@@ -3,17 +3,17 @@
 * :mod:`~warpface.geometry.funcs` — ``@wp.func`` closest point on a segment and on a triangle
   (generic over float32/float64), smoothstep.
 * :mod:`~warpface.geometry.mesh_index` — :class:`TriangleMeshIndex` (BVH) and :func:`closest_points`.
-* :mod:`~warpface.geometry.triangles` — NumPy triangle cross products, areas, unit normals and
-  area-weighted vertex normals, taking optional precomputed inputs.
+* :mod:`~warpface.geometry.triangles` — NumPy triangle corners, areas, unit normals and area-weighted
+  vertex normals, taking optional precomputed inputs (the cross products they share are in that module).
+* :mod:`~warpface.geometry.surface_checks` — boundary loops and self-intersections of a closed surface.
 """
 
-from .funcs import closest_point_on_segment, closest_point_on_triangle, smoothstep, vec3_any
+from .funcs import closest_point_on_segment, closest_point_on_triangle, smoothstep
 from .mesh_index import TriangleMeshIndex, closest_points
 from .triangles import (
     area_weighted_vertex_normals,
     triangle_areas,
     triangle_corners,
-    triangle_crosses,
     triangle_normals,
 )
 
@@ -21,11 +21,9 @@ __all__ = [
     "closest_point_on_segment",
     "closest_point_on_triangle",
     "smoothstep",
-    "vec3_any",
     "TriangleMeshIndex",
     "closest_points",
     "triangle_corners",
-    "triangle_crosses",
     "triangle_areas",
     "triangle_normals",
     "area_weighted_vertex_normals",

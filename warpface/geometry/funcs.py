@@ -18,7 +18,8 @@ vec3_any = wp.types.vector(length=3, dtype=wp.Float)
 
 @wp.func
 def closest_point_on_segment(p: vec3_any, a: vec3_any, b: vec3_any):
-    """Parameter ``t`` in [0, 1] (the vectors' scalar type) of the point ``a + t (b − a)`` of segment ab closest to ``p``.
+    """Parameter ``t`` in [0, 1] (the vectors' scalar type) of the point ``a + t (b − a)`` of segment ab
+    closest to ``p``.
 
     A zero-length segment returns ``t = 0``.
     """

@@ -93,9 +93,9 @@ def as_surface(surface) -> tuple[np.ndarray, np.ndarray]:
     else:
         try:
             points, triangles = surface
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"surface must be a FaceMesh or a (points, triangles) pair, got {type(surface).__name__}"
+        except (TypeError, ValueError) as exc:
+            raise type(exc)(
+                f"surface: expected a FaceMesh or a (points, triangles) pair, got {type(surface).__name__}"
             ) from None
     points = np.asarray(points, dtype=np.float64)
     triangles = np.asarray(triangles)
@@ -112,7 +112,8 @@ def as_surface(surface) -> tuple[np.ndarray, np.ndarray]:
     out = np.flatnonzero(((triangles < 0) | (triangles >= len(points))).any(axis=1))
     if out.size:
         raise ValueError(
-            f"surface triangle {out[0]} has a vertex index out of range [0, {len(points)}): {triangles[out[0]].tolist()}"
+            f"surface triangle {out[0]} has a vertex index out of range [0, {len(points)}): "
+            f"{triangles[out[0]].tolist()}"
         )
     return points, triangles
 

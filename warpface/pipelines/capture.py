@@ -57,7 +57,8 @@ def synthetic_capture(
     """The built-in face (or ``rig``) performs ``expression``; a 640×480 Kinect-like camera at 0.6 m
     films it with painted dots (and, with ``noise``, depth noise and holes)."""
     from ..assets import default_rig, expression_timeline
-    from ..tracking import KinectNoise, RGBDLandmarks, SyntheticRGBDCamera, default_model_to_camera, place_fiducials
+    from ..tracking import KinectNoise, RGBDLandmarks, SyntheticRGBDCamera, place_fiducials
+    from ..tracking.synthetic import default_model_to_camera
 
     rig = default_rig() if rig is None else rig
     controls = expression_timeline(expression, rig, seconds=seconds, fps=fps)

@@ -47,9 +47,8 @@ class PathComparison:
 
     def table(self) -> str:
         """The comparison as aligned text."""
-        lines = [
-            f"{'path':<32}{'surface (driven)':>18}{'surface (face)':>16}{'at landmarks':>14}{'controls':>12}{'frames/s':>10}"
-        ]
+        header = ("surface (driven)", 18), ("surface (face)", 16), ("at landmarks", 14), ("controls", 12)
+        lines = [f"{'path':<32}" + "".join(f"{name:>{width}}" for name, width in header) + f"{'frames/s':>10}"]
         for p in self.paths:
             control = "-" if p.control_mm is None else f"{p.control_mm:.3f} mm"
             lines.append(

@@ -42,7 +42,8 @@ from dataclasses import dataclass
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
-from ..tracking import LandmarkFrame, adapter_for_face, landmark_vertices, similarity_fit
+from ..tracking import LandmarkFrame, adapter_for_face, landmark_vertices
+from ..tracking.alignment import similarity_fit
 from ..usd.jaw_io import JAW_CONTROL_ATTRIBUTES, jaw_prim
 
 __all__ = [

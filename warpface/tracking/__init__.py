@@ -17,8 +17,8 @@ Modules, each with one job:
 * :mod:`~warpface.tracking.detect` — ArUco markers, dot blobs, :class:`DotTracker`.
 * :mod:`~warpface.tracking.intrinsics` — :class:`CameraIntrinsics` (the pixel convention).
 * :mod:`~warpface.tracking.depth` — robust :func:`backproject`.
-* :mod:`~warpface.tracking.correspondence` — :class:`FaceNormalization`, :func:`closest_points`,
-  :func:`compute_correspondence`.
+* :mod:`~warpface.tracking.correspondence` — :class:`FaceNormalization`, :func:`compute_correspondence`
+  (closest points through :mod:`warpface.geometry`).
 * :mod:`~warpface.tracking.transfer` — :func:`blend_weights`, :class:`TrackingAdapter`.
 * :mod:`~warpface.tracking.landmark_names` — landmarks named after dense vertices,
   :func:`adapter_for_face`.
@@ -30,24 +30,15 @@ Importing this package needs only Warp and NumPy; OpenCV, pyrender and the camer
 imported when first used.
 """
 
-from .alignment import rigid_fit, similarity_fit
 from .cameras import CameraDisconnected, CameraError, CameraUnavailable, OrbbecCamera, RealSenseCamera
-from .correspondence import (
-    Correspondence,
-    FaceNormalization,
-    TriangleMeshIndex,
-    closest_points,
-    compute_correspondence,
-    triangulate_landmarks,
-)
+from .correspondence import Correspondence, FaceNormalization, compute_correspondence
 from .depth import backproject
-from .detect import ArucoMarkers, Blobs, DotTracker, detect_blobs
+from .detect import ArucoMarkers, DotTracker
 from .intrinsics import KINECT_V1_INTRINSICS, CameraIntrinsics
 from .landmark_names import adapter_for_face, landmark_vertices, vertex_landmark_names
-from .mediapipe import MediaPipeLandmarks, parse_landmark_list
+from .mediapipe import MediaPipeLandmarks
 from .prefetch import PrefetchedSource, prefetch
 from .sources import (
-    TIMESTAMP_POLICIES,
     LandmarkFrame,
     LandmarkSource,
     RecordedLandmarks,
@@ -55,18 +46,9 @@ from .sources import (
     RGBDFrame,
     RGBDLandmarks,
     RGBDSource,
-    checked_frames,
-    fill_missing,
 )
-from .synthetic import (
-    KinectNoise,
-    SyntheticRGBDCamera,
-    default_model_to_camera,
-    place_fiducials,
-    procedural_face,
-    procedural_jaw_open,
-)
-from .transfer import TrackingAdapter, blend_weights, transfer_displacements
+from .synthetic import KinectNoise, SyntheticRGBDCamera, place_fiducials
+from .transfer import TrackingAdapter
 
 __all__ = [
     # sources
@@ -74,16 +56,12 @@ __all__ = [
     "LandmarkSource",
     "RGBDFrame",
     "RGBDSource",
-    "TIMESTAMP_POLICIES",
-    "checked_frames",
-    "fill_missing",
     "prefetch",
     "PrefetchedSource",
     "RecordedLandmarks",
     "RGBDFolder",
     "RGBDLandmarks",
     "MediaPipeLandmarks",
-    "parse_landmark_list",
     "RealSenseCamera",
     "OrbbecCamera",
     "CameraError",
@@ -91,30 +69,18 @@ __all__ = [
     "CameraDisconnected",
     "SyntheticRGBDCamera",
     "KinectNoise",
-    "default_model_to_camera",
     "place_fiducials",
-    "procedural_face",
-    "procedural_jaw_open",
     # detection and depth
     "ArucoMarkers",
-    "Blobs",
     "DotTracker",
-    "detect_blobs",
     "CameraIntrinsics",
     "KINECT_V1_INTRINSICS",
     "backproject",
     # sparse → dense
     "FaceNormalization",
     "Correspondence",
-    "TriangleMeshIndex",
-    "closest_points",
     "compute_correspondence",
-    "triangulate_landmarks",
-    "blend_weights",
-    "transfer_displacements",
     "TrackingAdapter",
-    "similarity_fit",
-    "rigid_fit",
     # landmarks named after dense vertices
     "vertex_landmark_names",
     "landmark_vertices",

@@ -26,23 +26,12 @@ from typing import Iterator
 
 import numpy as np
 
+from ..errors import CameraDisconnected, CameraError, CameraUnavailable
 from .frames import RGBDFrame, SourceBase
 from .intrinsics import CameraIntrinsics
 from .streams import StreamGuard
 
 __all__ = ["CameraError", "CameraUnavailable", "CameraDisconnected", "RealSenseCamera", "OrbbecCamera"]
-
-
-class CameraError(RuntimeError):
-    """A live camera could not deliver frames."""
-
-
-class CameraUnavailable(CameraError):
-    """The camera's SDK is not installed, or no device is attached."""
-
-
-class CameraDisconnected(CameraError):
-    """The camera stopped delivering frames during a capture."""
 
 
 def _import_sdk(module: str, extra: str, what: str):

@@ -3,10 +3,9 @@
 * :class:`FaceNormalization` — Kato eq. 5.1–5.4: both models are scaled by their face width; the
   dense model's height is scaled separately above and below the eye line so that its proportions
   match the sparse model's.
-* :func:`closest_points` — for every query point, the closest point on a triangle mesh: triangle,
-  barycentric coordinates and distance. Candidates come from the BVH of a ``wp.Mesh``; the exact
-  answer from :func:`warpface.geometry.closest_point_on_triangle` (Voronoi-region classification).
-* :func:`compute_correspondence` — the per-dense-vertex correspondence used by the transfer.
+* :func:`compute_correspondence` — the per-dense-vertex correspondence used by the transfer: the
+  closest point of the sparse surface through :class:`warpface.geometry.TriangleMeshIndex` (a BVH, then
+  the exact :func:`warpface.geometry.closest_point_on_triangle`).
 
 Models are given in a *model frame*: x across the face (to the subject's left or right, either
 way), +y up, +z toward the viewer; units metres.
@@ -19,15 +18,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validate import as_count, as_finite_array, as_points, as_positive, as_triangles
-from ..geometry import TriangleMeshIndex, closest_points, triangle_corners, triangle_crosses, triangle_normals
+from ..geometry import TriangleMeshIndex, triangle_corners, triangle_normals
+from ..geometry.triangles import triangle_crosses
 
 __all__ = [
     "FaceNormalization",
     "Correspondence",
-    "closest_points",
     "compute_correspondence",
     "triangulate_landmarks",
-    "TriangleMeshIndex",
 ]
 
 

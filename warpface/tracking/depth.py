@@ -412,7 +412,7 @@ _recorded = threading.local()  # per thread: a recorded launch owns its output b
 
 def _recorded_launch(device, count: int, window: int, settings: tuple) -> tuple:
     """``(launch, points, inliers, pixel_view, pixel_buffer)``: the back-projection kernel recorded once per device,
-    landmark count and settings (packing its 17 arguments anew costs ~0.1 ms a frame on the CPU); the
+    landmark count and settings (packing its 17 arguments anew costs time every frame); the
     depth image and the pixels (parameters 0 and 1) are set per call — on the CPU the pixels through
     ``pixel_view``, a NumPy view (N, 2) of the recorded pixel buffer (None on other devices)."""
     cache = getattr(_recorded, "launches", None)

@@ -410,8 +410,10 @@ class ArucoMarkers:
         ids = [as_count(i, "marker_ids") for i in marker_ids]
         if len(set(ids)) != len(ids):
             raise ValueError(f"marker_ids: repeated id in {ids}")
-        if not isinstance(dictionary, str) or not dictionary.startswith("DICT_") or not hasattr(cv2.aruco, dictionary):
-            raise ValueError(f"dictionary: cv2.aruco has no {dictionary!r}")
+        if not isinstance(dictionary, str):
+            raise TypeError(f"dictionary: expected a cv2.aruco dictionary name, got {type(dictionary).__name__}")
+        if not dictionary.startswith("DICT_") or not hasattr(cv2.aruco, dictionary):
+            raise ValueError(f"dictionary: cv2.aruco has no {dictionary[:40]!r}")
         self.dictionary_name = dictionary
         self.dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
         size = self.dictionary.bytesList.shape[0]

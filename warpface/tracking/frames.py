@@ -178,5 +178,5 @@ class SourceBase:
 
 def _frame_index(value) -> int:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"frame index must be an integer, got {value!r}")
+        raise TypeError(f"frame index: expected an integer, got {type(value).__name__}")
     return int(value)

@@ -55,7 +55,7 @@ class CameraIntrinsics:
         for name in ("width", "height"):
             value = getattr(self, name)
             if isinstance(value, (bool, np.bool_)):
-                raise ValueError(f"intrinsics: {name} must be a positive integer, got {value!r}")
+                raise TypeError(f"intrinsics: {name} must be a positive integer, got {type(value).__name__}")
             number = float(as_finite_array(value, f"intrinsics: {name}", shape=()))
             if number != int(number) or not 1 <= number <= MAX_PIXELS:
                 raise ValueError(

@@ -30,7 +30,8 @@ def vertex_landmark_names(vertices) -> list[str]:
         raise ValueError("vertices: expected a flat array of integer vertex indices") from None
     if indices.size and (not np.issubdtype(indices.dtype, np.integer) or indices.min() < 0):
         raise ValueError(
-            f"vertices: expected non-negative integer vertex indices, got {indices.dtype} {indices.ravel()[:5].tolist()}"
+            f"vertices: expected non-negative integer vertex indices, got {indices.dtype} "
+            f"{indices.ravel()[:5].tolist()}"
         )
     return [f"v{int(v):05d}" for v in indices.ravel()]
 

@@ -38,8 +38,10 @@ class StreamGuard:
     """Applies the timestamp policy and the fixed landmark/image size to a stream of frames."""
 
     def __init__(self, policy: str, where: str):
-        if not isinstance(policy, str) or policy not in TIMESTAMP_POLICIES:
-            raise ValueError(f"timestamp_policy must be one of {TIMESTAMP_POLICIES}, got {policy!r}")
+        if not isinstance(policy, str):
+            raise TypeError(f"timestamp_policy: expected one of {TIMESTAMP_POLICIES}, got {type(policy).__name__}")
+        if policy not in TIMESTAMP_POLICIES:
+            raise ValueError(f"timestamp_policy: expected one of {TIMESTAMP_POLICIES}, got {policy[:40]!r}")
         self.policy = policy
         self.where = where
         self.last_time: float | None = None
@@ -182,7 +184,7 @@ def estimate_fps(timestamps: np.ndarray) -> float | None:
 def validate_landmark_names(names, count: int, where: str) -> tuple[str, ...]:
     """``names`` as a tuple of ``count`` unique strings; ValueError naming ``where`` otherwise."""
     if isinstance(names, (str, bytes)) or not hasattr(names, "__iter__"):
-        raise ValueError(f"{where}: expected a sequence of landmark names, got {type(names).__name__}")
+        raise TypeError(f"{where}: expected a sequence of landmark names, got {type(names).__name__}")
     names = tuple(str(n) for n in names)
     if len(names) != count:
         raise ValueError(f"{where}: {len(names)} landmark names for {count} landmarks")

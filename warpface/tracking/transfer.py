@@ -484,7 +484,7 @@ class TrackingAdapter:
                     raise ValueError(f"stabilize: unknown landmark names {unknown[:5]}")
                 items = [lookup[s] for s in items]
             if not all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in items):
-                raise ValueError("stabilize: expected True, or sparse vertex indices or names")
+                raise TypeError("stabilize: expected True, or sparse vertex indices or names")
             stable = np.asarray(items, dtype=np.int64)
             if stable.size < 3 or stable.min() < 0 or stable.max() >= n:
                 raise ValueError("stabilize: need ≥ 3 valid sparse vertex indices")

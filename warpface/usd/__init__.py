@@ -1,24 +1,16 @@
-"""USD I/O for warpface: the codeless schema plugin, rigs as prims, animation as time samples, bakes.
+"""USD I/O for warpface: the codeless schema plugin, rigs as prims, animation as time samples, bakes,
+tissue meshes, and the one reader of driver files.
 
-``plugin_path``, ``register_schema`` and ``ensure_schema`` need no ``pxr`` import to be looked up;
-everything else loads ``pxr`` (usd-core) on first access, so ``import warpface.usd`` works on
-machines without it.
+``plugin_path`` and ``ensure_schema`` need no ``pxr`` import to be looked up; everything else loads
+``pxr`` (usd-core) on first access, so ``import warpface.usd`` works on machines without it
+(``read_driver`` reads the CSV and MediaPipe formats without it too).
 """
 
 from __future__ import annotations
 
 import importlib
 
-from .schema import (
-    API_SCHEMAS,
-    CONCRETE_SCHEMAS,
-    TYPED_SCHEMAS,
-    SchemaRegistrationError,
-    ensure_schema,
-    plugin_path,
-    regenerate_schema,
-    register_schema,
-)
+from .schema import ensure_schema, plugin_path
 
 _LAZY = {
     "write_rig": "rig_io",
@@ -30,8 +22,6 @@ _LAZY = {
     "read_animation": "animation",
     "Animation": "animation",
     "frame_times": "animation",
-    "frame_range": "animation",
-    "MAX_FRAMES": "animation",
     "bake": "baking",
     "check_bake": "baking",
     "write_tissue": "tissue_io",
@@ -42,28 +32,20 @@ _LAZY = {
     "read_tissue_mesh": "tissue_io",
     "validate_stage": "validate",
     "ValidationProblem": "validate",
-    "read_driver": "skel_io",
+    "read_driver": "driver_files",
     "open_stage": "_files",
-    "usd_error_message": "_files",
-    "open_layer": "_files",
     "export_layer_atomically": "_files",
 }
 
-__all__ = [
-    "plugin_path",
-    "register_schema",
-    "ensure_schema",
-    "regenerate_schema",
-    "SchemaRegistrationError",
-    "TYPED_SCHEMAS",
-    "CONCRETE_SCHEMAS",
-    "API_SCHEMAS",
-    *_LAZY,
-]
+_FOR_COMMANDS = {"usd_error_message": "_files"}
+"""Reachable as attributes for warpface's command line (which may not import the private module), but not
+part of the public surface."""
+
+__all__ = ["plugin_path", "ensure_schema", *_LAZY]
 
 
 def __getattr__(name: str):
-    module = _LAZY.get(name)
+    module = _LAZY.get(name) or _FOR_COMMANDS.get(name)
     if module is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     value = getattr(importlib.import_module(f"{__name__}.{module}"), name)

@@ -1,4 +1,5 @@
-"""``python -m warpface.usd``: regenerate the schema plugin's generatedSchema.usda and plugInfo.json from schema.usda."""
+"""``python -m warpface.usd``: regenerate the schema plugin's generatedSchema.usda and plugInfo.json from
+schema.usda."""
 
 from .schema import regenerate_schema
 

@@ -19,6 +19,7 @@ __all__ = [
     "usd_error_message",
     "without_usd_warnings",
     "LAYER_SUFFIXES",
+    "checked_prim_path",
 ]
 
 LAYER_SUFFIXES = (".usda", ".usdc", ".usd")
@@ -55,6 +56,24 @@ def usd_error_message(error: BaseException) -> str:
         if symptom in joined:  # a failed write: pxr's follow-up messages ("crate file corrupt ...") are noise
             return meaning
     return joined
+
+
+def checked_prim_path(value, name: str) -> Sdf.Path:
+    """``value`` (a ``str`` or ``Sdf.Path``) as an absolute prim path, checked before pxr sees it (pxr raises
+    Boost.Python errors for other types and prints warnings for malformed strings).
+
+    Raises:
+        TypeError: not a string or ``Sdf.Path``. ValueError: not an absolute prim path (the root ``/``
+            included). Both name ``name``.
+    """
+    if not isinstance(value, (str, Sdf.Path)):
+        raise TypeError(f"{name}: expected an absolute prim path such as '/Face', got {type(value).__name__}")
+    text = str(value)
+    valid = Sdf.Path.IsValidPathString(text)  # (False, reason) when invalid
+    path = Sdf.Path(text) if (valid[0] if isinstance(valid, tuple) else valid) else None
+    if path is None or not path.IsAbsolutePath() or not path.IsPrimPath() or path == Sdf.Path.absoluteRootPath:
+        raise ValueError(f"{name}: {text[:60]!r} is not an absolute prim path such as '/Face'")
+    return path
 
 
 def open_layer(path, *, referenced_by: str | None = None) -> Sdf.Layer | None:
@@ -96,12 +115,15 @@ def open_stage(stage_or_path) -> Usd.Stage:
     not exist is skipped quietly, as USD does.
 
     Raises:
-        ValueError: the file or a sublayer does not exist or is not a readable USD layer.
+        TypeError: neither a stage nor a path. ValueError: the file or a sublayer does not exist or is not
+            a readable USD layer.
     """
     if isinstance(stage_or_path, Usd.Stage):
         return stage_or_path
     if not isinstance(stage_or_path, (str, os.PathLike)):
-        raise ValueError(f"expected a Usd.Stage or a path to a USD file, got {type(stage_or_path).__name__}")
+        raise TypeError(
+            f"stage_or_path: expected a Usd.Stage or a path to a USD file, got {type(stage_or_path).__name__}"
+        )
     path = as_path(stage_or_path, "path")
     if not path.is_file():
         raise ValueError(f"USD file not found: {path}")
@@ -148,10 +170,11 @@ def writable_path(path, suffixes: tuple[str, ...] = LAYER_SUFFIXES) -> Path:
     """``path`` as an absolute Path after checking it can be written, before any work is done.
 
     Raises:
-        ValueError: wrong extension, missing or unwritable folder, or the path is a folder.
+        TypeError: not a path. ValueError: wrong extension, missing or unwritable folder, or the path is a
+            folder.
     """
     if not isinstance(path, (str, os.PathLike)):
-        raise ValueError(f"output path: expected a str or path, got {type(path).__name__}")
+        raise TypeError(f"output path: expected a str or path, got {type(path).__name__}")
     path = as_path(path, "path").absolute()
     if path.suffix not in suffixes:
         raise ValueError(f"{path}: output must end in one of {', '.join(suffixes)}")

@@ -2,7 +2,8 @@
 frames they play at.
 
 Controls live on the rig prims (``contraction`` on muscles, ``depth`` on wrinkles, ``jawOpen`` [rad],
-``jawForward`` and ``jawLeft`` [lengths] on the jaw), authored in the stage's edit target. Baking them into a point cache is :mod:`warpface.usd.baking`.
+``jawForward`` and ``jawLeft`` [lengths] on the jaw), authored in the stage's edit target. Baking them
+into a point cache is :mod:`warpface.usd.baking`.
 """
 
 from __future__ import annotations

@@ -25,6 +25,7 @@ import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from .._files import atomic_path
+from .._validate import as_count, expect_instance
 from ..errors import RigError
 from ._files import open_layer, open_stage, usd_error_message, writable_path
 from .animation import CACHE_SUFFIX, MAX_FRAMES, as_time_codes, cover_time_range, frame_times, read_animation
@@ -40,6 +41,7 @@ the box's diagonal: controls that far outside the rig's scale are a mistake, not
 
 def default_cache_path(stage: Usd.Stage) -> Path | None:
     """``<rig layer stem>_anim.usdc`` beside the stage's root layer; ``None`` for an in-memory root."""
+    expect_instance(stage, Usd.Stage, "stage")
     root = stage.GetRootLayer()
     if root.anonymous:
         return None
@@ -50,6 +52,7 @@ def default_cache_path(stage: Usd.Stage) -> Path | None:
 def existing_cache_path(stage: Usd.Stage, skin_path) -> Path | None:
     """The strongest sublayer of the root layer that is a points cache of ``skin_path`` (what a bake
     wrote), or ``None``."""
+    expect_instance(stage, Usd.Stage, "stage")
     root = stage.GetRootLayer()
     for resolved in _sublayer_files(root):
         layer = Sdf.Layer.Find(resolved)
@@ -201,11 +204,9 @@ def bake(
         RigError: the rig on the stage is invalid, or the rig layer authors the skin's points
             directly (which would hide the cache).
     """
-    chunk_frames = int(chunk_frames)
-    if chunk_frames < 1:
-        raise ValueError(f"chunk_frames must be ≥ 1, got {chunk_frames}")
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1):
-        raise ValueError(f"workers must be a whole number ≥ 1, got {workers!r}")
+    chunk_frames = as_count(chunk_frames, "chunk_frames", minimum=1)
+    if workers is not None:
+        workers = as_count(workers, "workers", minimum=1)
     stage, times, cache_path, model = check_bake(
         stage_or_path,
         frames,

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom
 
+from .._validate import expect_instance
 from ..errors import RigError
 from ._files import open_layer, open_stage
 from .animation import MAX_FRAMES, frame_times
@@ -83,6 +84,7 @@ class StageFrames:
 
 def is_capture(stage: Usd.Stage) -> bool:
     """True for a stage written by ``warpface track`` (a ``/Capture/Landmarks`` points prim)."""
+    expect_instance(stage, Usd.Stage, "stage")
     return bool(stage.GetPrimAtPath(LANDMARKS)) and stage.GetPrimAtPath(LANDMARKS).IsA(UsdGeom.Points)
 
 
@@ -149,6 +151,7 @@ def capture_problems(stage: Usd.Stage, *, progress: bool = False) -> list[tuple[
     USD layer, the landmark names match the points, every frame's landmark and face points have the
     right count and are finite, the face's topology is valid.
     """
+    expect_instance(stage, Usd.Stage, "stage")
     problems: list[tuple[str, str]] = []
     root = stage.GetRootLayer()
     label = root.realPath or root.identifier

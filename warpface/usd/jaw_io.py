@@ -25,7 +25,8 @@ JAW_CONTROL_ATTRIBUTES = {"jaw_open": "jawOpen", "jaw_forward": "jawForward", "j
 
 
 def author_jaw(stage: Usd.Stage, path: Sdf.Path | None, jaw: Jaw | None, skin: Usd.Prim) -> Usd.Prim | None:
-    """Define the jaw prim at ``path`` (controls 0 at the default time) and link it from ``skin``; nothing for no jaw."""
+    """Define the jaw prim at ``path`` (controls 0 at the default time) and link it from ``skin``; nothing
+    for no jaw."""
     if jaw is None:
         return None
     types = Sdf.ValueTypeNames
@@ -111,5 +112,5 @@ def read_jaw(
             weights=weights,
             name=name,
         )
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:  # a value of the wrong type on the stage is a bad rig
         raise RigError(f"{prim.GetPath()}: {exc}") from None

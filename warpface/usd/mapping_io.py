@@ -27,6 +27,7 @@ import math
 import numpy as np
 from pxr import Sdf, Tf, Usd, UsdGeom, Vt
 
+from .._validate import expect_instance
 from ..drivers.mapping import Mapping
 from ..errors import RigError
 from .rig_io import rig_prims
@@ -46,14 +47,17 @@ _DOC = (
 
 def drivers_scope_path(stage: Usd.Stage, skin_path: str | None = None) -> Sdf.Path:
     """``<rig root>/Drivers``: the scope holding a rig's mappings (the rig root is the skin's parent)."""
+    expect_instance(stage, Usd.Stage, "stage")
     skin = rig_prims(stage, skin_path).skin
     parent = skin.GetPath().GetParentPath()
     return (parent if parent != Sdf.Path.absoluteRootPath else skin.GetPath()).AppendChild("Drivers")
 
 
 def _checked_name(name: str) -> str:
-    if not isinstance(name, str) or not name or not Tf.IsValidIdentifier(name):
-        raise ValueError(f"mapping name {name!r}: must be a valid USD identifier (letters, digits, _)")
+    if not isinstance(name, str):
+        raise TypeError(f"name: expected a mapping name (str), got {type(name).__name__}")
+    if not name or not Tf.IsValidIdentifier(name):
+        raise ValueError(f"name: mapping name {name[:60]!r} must be a valid USD identifier (letters, digits, _)")
     return name
 
 
@@ -70,9 +74,10 @@ def write_mapping(
     Raises:
         ValueError: an invalid name. RigError: the stage has no (single) rig.
     """
-    name = _checked_name(name or mapping.name)
+    expect_instance(stage, Usd.Stage, "stage")
     if not isinstance(mapping, Mapping):
-        raise ValueError(f"write_mapping: expected a Mapping, got {type(mapping).__name__}")
+        raise TypeError(f"mapping: expected a Mapping, got {type(mapping).__name__}")
+    name = _checked_name(name or mapping.name)
     path = drivers_scope_path(stage, skin_path).AppendChild(name)
     if stage.GetPrimAtPath(path):
         stage.RemovePrim(path)
@@ -110,6 +115,7 @@ def _set(prim: Usd.Prim, name: str, type_name, value) -> None:
 
 def mapping_names(stage: Usd.Stage, skin_path: str | None = None) -> list[str]:
     """Names of the mappings stored on the rig stage (children of ``<rig root>/Drivers``)."""
+    expect_instance(stage, Usd.Stage, "stage")
     scope = stage.GetPrimAtPath(drivers_scope_path(stage, skin_path))
     return [child.GetName() for child in scope.GetChildren()] if scope else []
 
@@ -124,6 +130,7 @@ def read_mapping(stage: Usd.Stage, name: str = "default", *, skin_path: str | No
         RigError: no such mapping, arrays of different lengths, a weight that is not a finite number
             (the message names the prim and attribute).
     """
+    expect_instance(stage, Usd.Stage, "stage")
     name = _checked_name(name)
     path = drivers_scope_path(stage, skin_path).AppendChild(name)
     prim = stage.GetPrimAtPath(path)
@@ -170,6 +177,7 @@ def _array(prim: Usd.Prim, name: str, kind) -> list:
         ) from None
     if kind is float and not all(math.isfinite(v) for v in items):
         raise RigError(
-            f"{attribute.GetPath()}: entry {next(i for i, v in enumerate(items) if not math.isfinite(v))} is not a finite number"
+            f"{attribute.GetPath()}: entry {next(i for i, v in enumerate(items) if not math.isfinite(v))} is not a "
+            "finite number"
         )
     return items

@@ -20,7 +20,7 @@ from typing import Mapping
 import numpy as np
 from pxr import Sdf, Tf, Usd, UsdGeom, Vt
 
-from .._validate import as_positive
+from .._validate import as_positive, expect_instance
 from .rig_io import ItemPlacements, rig_prims, stage_meters_per_unit
 from .schema import ensure_schema
 
@@ -69,6 +69,8 @@ def write_presets(
     Raises:
         ValueError: empty or non-string preset names, unknown muscles, non-finite values.
     """
+    expect_instance(stage, Usd.Stage, "stage")
+    expect_instance(presets, Mapping, "presets")
     ensure_schema()
     prims = rig_prims(stage, skin_path)
     names = prims.muscle_names
@@ -78,8 +80,10 @@ def write_presets(
     scope = UsdGeom.Scope.Define(stage, _scope_path(prims)).GetPrim()
     written = []
     for preset, controls in presets.items():
-        if not isinstance(preset, str) or not preset:
-            raise ValueError(f"preset name: expected a non-empty string, got {preset!r}")
+        if not isinstance(preset, str):
+            raise TypeError(f"presets: expected preset names (str), got {type(preset).__name__}")
+        if not preset:
+            raise ValueError("presets: a preset name is empty")
         values = np.zeros(len(names))
         for muscle, value in controls.items():
             if muscle not in index:

@@ -33,10 +33,10 @@ from ..expression.muscles import FALLOFFS, LinearMuscle, SphincterMuscle
 from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrinkle
 from ..mesh import FaceMesh
 from ..rig import FaceRig
-from ._files import LAYER_SUFFIXES, export_layer_atomically, open_stage, writable_path
+from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, open_stage, writable_path
+from ._lobe_io import author_lobes, read_lobes
+from ._prim_values import array_value, check_finite, scalar_value, token_value
 from .jaw_io import author_jaw, read_jaw
-from .lobe_io import author_lobes, read_lobes
-from .prim_values import array_value, check_finite, scalar_value, token_value
 from .schema import ensure_schema
 
 __all__ = [
@@ -87,11 +87,11 @@ def write_rig(
         The stage (for a path, the stage opened from the written file).
 
     Raises:
-        ValueError: not a FaceRig, bad units or fps, unwritable path.
+        TypeError: ``rig`` not a FaceRig. ValueError: bad units, fps or root path, unwritable path.
     """
     ensure_schema()
     if not isinstance(rig, FaceRig):
-        raise ValueError(f"write_rig: expected a FaceRig, got {type(rig).__name__}")
+        raise TypeError(f"rig: expected a FaceRig, got {type(rig).__name__}")
     meters_per_unit = as_positive(meters_per_unit, "meters_per_unit")
     fps = as_positive(fps, "fps")
     target = None
@@ -100,9 +100,8 @@ def write_rig(
     else:
         target = writable_path(stage_or_path, LAYER_SUFFIXES)
         stage = Usd.Stage.CreateInMemory(f"rig{target.suffix}")
-    _author_rig(
-        stage, rig, Sdf.Path(root_path) if root_path else Sdf.Path("/" + _identifier(rig.name)), meters_per_unit, fps
-    )
+    root = checked_prim_path(root_path, "root_path") if root_path is not None else Sdf.Path("/" + _identifier(rig.name))
+    _author_rig(stage, rig, root, meters_per_unit, fps)
     if target is None:
         return stage
     export_layer_atomically(stage.GetRootLayer(), target)
@@ -287,7 +286,7 @@ def rig_prims(stage: Usd.Stage, skin_path: str | None = None) -> RigPrims:
     """
     ensure_schema()
     if expect_instance(stage, Usd.Stage, "stage") and skin_path is not None:
-        skin = stage.GetPrimAtPath(skin_path)
+        skin = stage.GetPrimAtPath(checked_prim_path(skin_path, "skin_path"))
         if not skin:
             raise RigError(f"{skin_path}: no prim at this path on the stage")
         if not skin.HasAPI(SKIN_API):
@@ -305,7 +304,8 @@ def rig_prims(stage: Usd.Stage, skin_path: str | None = None) -> RigPrims:
         skin = skins[0]
     if not skin.IsA(UsdGeom.Mesh):
         raise RigError(
-            f"{skin.GetPath()}: {SKIN_API} is applied to a {skin.GetTypeName() or 'typeless prim'}; it applies only to Mesh"
+            f"{skin.GetPath()}: {SKIN_API} is applied to a {skin.GetTypeName() or 'typeless prim'}; it applies only "
+            "to Mesh"
         )
     muscles = _related(
         stage, skin, _MUSCLES_REL, (_LINEAR, _SPHINCTER), "WarpFaceLinearMuscle or WarpFaceSphincterMuscle"
@@ -403,7 +403,7 @@ def read_rig(
             name,
             read_jaw(stage, skin, placements.of, to_units, mesh.vertex_count),
         )
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:  # a value of the wrong type on the stage is a bad rig
         raise RigError(f"{skin.GetPath()}: {exc}") from None
 
 
@@ -417,7 +417,8 @@ def _read_mesh(skin: Usd.Prim, to_units: float, degenerate: str) -> FaceMesh:
         raise RigError(f"{skin.GetPath()}.faceVertexCounts: face {face} has {int(counts[face])} vertices (needs ≥ 3)")
     if int(counts.sum()) != len(indices):
         raise RigError(
-            f"{skin.GetPath()}: faceVertexCounts sum to {int(counts.sum())} but faceVertexIndices has {len(indices)} entries"
+            f"{skin.GetPath()}: faceVertexCounts sum to {int(counts.sum())} but faceVertexIndices has {len(indices)} "
+            "entries"
         )
     triangles = _fan_triangulate(counts, indices)
     if geom.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded:
@@ -426,7 +427,7 @@ def _read_mesh(skin: Usd.Prim, to_units: float, degenerate: str) -> FaceMesh:
         return FaceMesh(
             points * to_units if to_units != 1.0 else points, triangles, name=item_name(skin), degenerate=degenerate
         )
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:  # a value of the wrong type on the stage is a bad rig
         raise RigError(f"{skin.GetPath()}: {exc}") from None
 
 
@@ -551,7 +552,7 @@ def _read_muscle(prim: Usd.Prim, place: Placement, to_units: float):
         )
     except RigError:
         raise
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:  # a value of the wrong type on the stage is a bad rig
         raise RigError(f"{prim.GetPath()}: {exc}") from None
 
 
@@ -594,5 +595,5 @@ def _read_wrinkle(prim: Usd.Prim, place: Placement, to_units: float) -> Wrinkle:
         )
     except RigError:
         raise
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:  # a value of the wrong type on the stage is a bad rig
         raise RigError(f"{prim.GetPath()}: {exc}") from None

@@ -22,6 +22,7 @@ import warnings
 from pathlib import Path
 
 from .._files import atomic_path
+from ..errors import SchemaRegistrationError
 
 __all__ = [
     "PLUGIN_NAME",
@@ -49,10 +50,6 @@ API_SCHEMAS = ("WarpFaceSkinAPI", "WarpFaceTetMaterialAPI")
 
 _ENV_VAR = "PXR_PLUGINPATH_NAME"
 _verified = False
-
-
-class SchemaRegistrationError(RuntimeError):
-    """warpface's USD schema plugin is not (or not fully) known to OpenUSD in this process."""
 
 
 def plugin_path() -> Path:

@@ -13,29 +13,16 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf, Usd, UsdSkel, Vt
 
+from .._validate import as_path, expect_instance
 from ..drivers.channels import Curves, canonical_channel
-from ._files import LAYER_SUFFIXES, export_layer_atomically, open_stage, writable_path
+from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, open_stage, writable_path
 
-__all__ = ["read_driver", "read_skel_animation", "write_skel_animation", "find_skel_animations", "export_arkit_weights"]
-
-
-def read_driver(path, *, fps: float | None = None) -> Curves:
-    """Read a driver file in any of :data:`warpface.drivers.DRIVER_FORMATS` into :class:`Curves`: USD
-    ``SkelAnimation`` layers here, the other formats through :func:`warpface.drivers.read_driver`.
-
-    Raises:
-        ValueError: unreadable or malformed file (one line naming the file and the problem).
-    """
-    from ..drivers import detect_format
-    from ..drivers import read_driver as read_driver_file
-
-    if detect_format(path) == "usdskel":
-        return read_skel_animation(path)
-    return read_driver_file(path, fps=fps)
+__all__ = ["read_skel_animation", "write_skel_animation", "find_skel_animations", "export_arkit_weights"]
 
 
 def find_skel_animations(stage: Usd.Stage) -> list[Usd.Prim]:
     """Every ``SkelAnimation`` prim on the stage that authors ``blendShapes``, in traversal order."""
+    expect_instance(stage, Usd.Stage, "stage")
     return [
         prim
         for prim in stage.Traverse()
@@ -58,7 +45,7 @@ def read_skel_animation(stage_or_path, *, prim_path: str | None = None) -> Curve
     stage = open_stage(stage_or_path)
     label = Path(stage.GetRootLayer().identifier).name
     if prim_path is not None:
-        prim = stage.GetPrimAtPath(prim_path)
+        prim = stage.GetPrimAtPath(checked_prim_path(prim_path, "prim_path"))
         if not prim or not prim.IsA(UsdSkel.Animation):
             raise ValueError(f"{label}: no SkelAnimation at {prim_path}")
     else:
@@ -67,7 +54,8 @@ def read_skel_animation(stage_or_path, *, prim_path: str | None = None) -> Curve
             raise ValueError(f"{label}: no SkelAnimation with blendShapes on the stage")
         if len(found) > 1:
             raise ValueError(
-                f"{label}: {len(found)} SkelAnimations with blendShapes ({', '.join(str(p.GetPath()) for p in found[:4])}); choose one"
+                f"{label}: {len(found)} SkelAnimations with blendShapes "
+                f"({', '.join(str(p.GetPath()) for p in found[:4])}); choose one"
             )
         prim = found[0]
     animation = UsdSkel.Animation(prim)
@@ -105,8 +93,7 @@ def write_skel_animation(path, curves: Curves, *, prim_path: str = "/Animation",
     rate = float(fps if fps is not None else (curves.fps or 60.0))
     if not (math.isfinite(rate) and rate > 0):
         raise ValueError(f"fps must be a positive number, got {rate!r}")
-    if not Sdf.Path.IsValidPathString(prim_path) or not Sdf.Path(prim_path).IsAbsolutePath():
-        raise ValueError(f"prim_path: {prim_path!r} is not an absolute prim path")
+    checked_prim_path(prim_path, "prim_path")
     stage = Usd.Stage.CreateInMemory(f"skel{target.suffix}")
     animation = UsdSkel.Animation.Define(stage, prim_path)
     stage.SetDefaultPrim(stage.GetPrimAtPath(Sdf.Path(prim_path).GetPrefixes()[0]))
@@ -143,7 +130,7 @@ def export_arkit_weights(stage_or_path, out_path, *, mapping: str | None = None,
     from .rig_io import read_rig, stage_meters_per_unit
 
     stage = open_stage(stage_or_path)
-    out = Path(out_path)
+    out = as_path(out_path, "out_path")
     if out.suffix.lower() not in (".csv",) + LAYER_SUFFIXES:
         raise ValueError(f"{out}: export to .csv (Live Link Face) or .usda/.usdc (SkelAnimation)")
     units = stage_meters_per_unit(stage)

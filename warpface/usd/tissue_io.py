@@ -26,7 +26,7 @@ from .._validate import as_finite_array, as_positive, expect_instance
 from ..errors import RigError
 from ..fem.material import MATERIAL_RANGES, TissueMaterial
 from ..fem.tetmesh import TetMesh
-from ._files import open_stage
+from ._files import checked_prim_path, open_stage
 from .rig_io import SKIN_API, stage_meters_per_unit
 from .schema import ensure_schema
 
@@ -81,20 +81,6 @@ class Tissue:
         return TissueMaterial(self.youngs_modulus, self.poisson_ratio, self.viscosity, self.density, **kwargs)
 
 
-def check_prim_path(path, name: str) -> None:
-    """ValueError/TypeError naming ``name`` unless ``path`` is an absolute USD prim path string."""
-    if not isinstance(path, str):
-        raise TypeError(f"{name}: expected an absolute prim path such as '/Face/Tissue', got {type(path).__name__}")
-    valid = Sdf.Path.IsValidPathString(path)  # (False, reason) when invalid
-    if (
-        not (valid[0] if isinstance(valid, tuple) else valid)
-        or not Sdf.Path(path).IsAbsolutePath()
-        or not Sdf.Path(path).IsPrimPath()
-        or Sdf.Path(path) == Sdf.Path.absoluteRootPath
-    ):
-        raise ValueError(f"{name}: {path[:60]!r} is not an absolute prim path such as '/Face/Tissue'")
-
-
 def write_tissue(
     stage: Usd.Stage,
     path: str,
@@ -127,7 +113,7 @@ def write_tissue(
         ValueError: bad shapes, indices out of range, values out of range.
     """
     expect_instance(stage, Usd.Stage, "stage")
-    check_prim_path(path, "path")
+    checked_prim_path(path, "path")
     ensure_schema()
     tissue = _validated(points, tets, youngs_modulus, poisson_ratio, viscosity, density, regions or {}, path)
     mesh = UsdGeom.TetMesh.Define(stage, path)
@@ -157,7 +143,7 @@ def write_tissue(
             UsdGeom.Tokens.nonOverlapping,
         )
     if skin_path is not None:
-        skin = stage.GetPrimAtPath(skin_path)
+        skin = stage.GetPrimAtPath(checked_prim_path(skin_path, "skin_path"))
         if not skin or not skin.HasAPI(SKIN_API):
             raise ValueError(f"{skin_path}: not a skin mesh with {SKIN_API}")
         skin.CreateRelationship("warpFace:tissue", custom=False).SetTargets([prim.GetPath()])
@@ -265,13 +251,13 @@ def read_tissue(stage_or_path, path: str | None = None, *, meters_per_unit: floa
         return _validated(
             points * to_units if to_units != 1.0 else points, tets, regions=regions, label=label, **values
         )
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:  # a value of the wrong type on the stage is a bad rig
         raise RigError(str(exc)) from None
 
 
 def _find_tissue(stage: Usd.Stage, path: str | None) -> Usd.Prim:
     if path is not None:
-        prim = stage.GetPrimAtPath(path)
+        prim = stage.GetPrimAtPath(checked_prim_path(path, "path"))
         if not prim:
             raise RigError(f"{path}: no prim at this path on the stage")
         return prim
@@ -287,7 +273,8 @@ def _find_tissue(stage: Usd.Stage, path: str | None) -> Usd.Prim:
     candidates = [p for p in stage.Traverse() if p.HasAPI(TET_MATERIAL_API)]
     if len(candidates) != 1:
         raise RigError(
-            f"stage {stage.GetRootLayer().identifier}: {len(candidates)} TetMesh prims with {TET_MATERIAL_API}; pass path"
+            f"stage {stage.GetRootLayer().identifier}: {len(candidates)} TetMesh prims with {TET_MATERIAL_API}; pass "
+            "path"
         )
     return candidates[0]
 
@@ -344,11 +331,11 @@ def write_tissue_mesh(
         ValueError: material of the wrong size, bad regions, or a tet USD reports as inverted.
     """
     expect_instance(stage, Usd.Stage, "stage")
-    check_prim_path(path, "path")
+    checked_prim_path(path, "path")
     if not isinstance(tetmesh, TetMesh):
-        raise ValueError(f"write_tissue_mesh: expected a TetMesh, got {type(tetmesh).__name__}")
+        raise TypeError(f"tetmesh: expected a TetMesh, got {type(tetmesh).__name__}")
     if not isinstance(material, TissueMaterial):
-        raise ValueError(f"write_tissue_mesh: expected a TissueMaterial, got {type(material).__name__}")
+        raise TypeError(f"material: expected a TissueMaterial, got {type(material).__name__}")
     material.per_tet(tetmesh.tet_count)  # size check with a clear message
     prim = write_tissue(
         stage,

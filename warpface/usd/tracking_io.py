@@ -42,6 +42,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
 from .._signals import deferred_interrupts
+from .._validate import as_count
 from ._files import export_layer_atomically, writable_path
 
 __all__ = ["TrackingStageWriter", "read_tracking", "vec3f_array"]
@@ -64,8 +65,8 @@ _DIRECT_COPY = _writes_through_buffer()
 def vec3f_array(points: np.ndarray) -> Vt.Vec3fArray:
     """A new ``Vt.Vec3fArray`` holding ``points`` (V, 3), C-contiguous float32, by one memory copy.
 
-    ``Vt.Vec3fArray.FromNumpy`` converts element by element: ≈ 0.29 ms for 37k points against
-    0.02 ms here. A freshly constructed array owns its storage alone (no copy-on-write sharing yet),
+    ``Vt.Vec3fArray.FromNumpy`` converts element by element, an order of magnitude slower for a face
+    (benchmarks/README.md, Tracking). A freshly constructed array owns its storage alone (no copy-on-write sharing yet),
     so filling it through the buffer it exports changes no other value; Vt marks that buffer
     read-only, hence the raw copy. Where a Vt build exports a copy instead (checked once at import),
     this falls back to ``FromNumpy``.
@@ -127,9 +128,7 @@ class TrackingStageWriter:
         self.names = [str(name) for name in landmark_names]
         if not self.names:
             raise ValueError("landmark_names: need at least one landmark")
-        if isinstance(chunk_frames, bool) or not isinstance(chunk_frames, (int, np.integer)) or chunk_frames < 1:
-            raise ValueError(f"chunk_frames must be an integer ≥ 1, got {chunk_frames!r}")
-        self.chunk_frames = int(chunk_frames)
+        self.chunk_frames = as_count(chunk_frames, "chunk_frames", minimum=1)
         self.folder = self.path.with_name(self.path.stem + "_track")
         self.vertex_count = None
         if dense_rest is not None:

@@ -14,7 +14,7 @@ from pxr import Sdf, Usd, Vt
 
 from ..errors import RigError
 from ..expression.muscles import MAX_LOBES, MuscleLobe
-from .prim_values import array_value
+from ._prim_values import array_value
 
 __all__ = ["author_lobes", "read_lobes", "LOBE_ATTRIBUTES"]
 
