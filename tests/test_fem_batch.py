@@ -111,7 +111,7 @@ def test_batch_bad_input_and_non_convergence():
     soft = TissueMaterial(1e5, 0.45, 0.0, 1000.0)
     with pytest.raises(ValueError, match="non-empty"):
         TissueBatch(mesh, [], 1e-3, fixed=fixed, device="cpu")
-    with pytest.raises(ValueError, match="model 1"):
+    with pytest.raises(TypeError, match="model 1"):
         TissueBatch(mesh, [soft, "steel"], 1e-3, fixed=fixed, device="cpu")
     with pytest.raises(ValueError, match="both fixed and driven"):
         TissueBatch(mesh, [soft], 1e-3, fixed=fixed, driven=fixed, device="cpu")

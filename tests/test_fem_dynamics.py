@@ -375,7 +375,7 @@ def test_bad_input_is_rejected(beam):
             if "cg" in args:
                 args["cg"] = CGOptions(**args["cg"])
             TissueSimulation(mesh, SOFT, dt, **args)
-    with pytest.raises(ValueError, match="TetMesh"):
+    with pytest.raises(TypeError, match="TetMesh"):
         TissueSimulation("mesh", SOFT, 1e-3, **ok)
     with pytest.raises(ValueError, match="per-tet values"):
         TissueSimulation(mesh, TissueMaterial(np.full(2, 1e5), 0.3, 0.0, 1e3), 1e-3, **ok)
