@@ -214,7 +214,7 @@ def test_bake_streams_in_chunks_and_matches_whole_evaluation(demo_dir, tmp_path)
     rig = usd.read_rig(stage)
     times = usd.frame_times(stage)
     animation = usd.read_animation(stage, times)
-    expected = ExpressionModel.from_rig(rig, device="cpu").evaluate_batch(
+    expected = ExpressionModel.from_rig(rig, device="cpu").evaluate(
         animation.contractions, wrinkle_depths=animation.wrinkle_depths
     )
     points = usd.rig_prims(stage).skin.GetAttribute("points")

@@ -110,6 +110,8 @@ class ExpressionEvaluator:
         if not isinstance(progress, (bool, np.bool_)):
             raise ValueError(f"progress: expected True or False, got {type(progress).__name__}")
         rank = _rank(controls)
+        if isinstance(controls, (list, tuple)) and not controls and self.model.control_names:
+            rank = 2  # no values for a rig with controls: a batch of no frames
         depth_rank = _rank(wrinkle_depths)
         if rank is None:
             rank = depth_rank or 1
