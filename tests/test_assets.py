@@ -494,7 +494,8 @@ def test_expression_timeline_goes_neutral_to_expression_to_neutral(rig):
     np.testing.assert_allclose(
         timeline / np.maximum(middle, 1e-30)[None, :] * (middle > 0), envelope[:, None] * (middle > 0)
     )
-    frames = rig.model(device=DEVICE).evaluate(timeline[::15])
+    jaw_at_rest = np.zeros((len(timeline[::15]), len(rig.control_names) - len(rig.muscles)))
+    frames = rig.model(device=DEVICE).evaluate(np.concatenate([timeline[::15], jaw_at_rest], axis=1))
     np.testing.assert_allclose(frames[0], rig.mesh.points, atol=1e-6)
     with pytest.raises(ValueError):
         expression_timeline("smile", rig, seconds=0.0)

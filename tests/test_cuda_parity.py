@@ -19,7 +19,7 @@ zero-copy checks skip without it); nothing from usd-core, pytetwild, pyrender, h
 
 Comparisons:
 
-* **On one device, bit-exact**: the device-resident paths (``evaluate_into`` into Warp arrays and
+* **On one device, bit-exact**: the device-resident paths (``evaluate(..., out=)`` into Warp arrays and
   torch tensors, device controls, graph replay) against the NumPy path on the same device — the same
   kernels on the same inputs.
 * **Across devices, a stated tolerance**: CPU kernels are compiled by LLVM, CUDA ones by NVRTC with
