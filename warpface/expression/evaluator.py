@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
@@ -39,23 +40,21 @@ _RECORDING = threading.Lock()
 at once can crash the process. Recorded launches may then run at once."""
 
 
+@dataclass(frozen=True)
 class ExpressionStages:
     """Intermediate results of one frame (all numpy, float32), from the staged plan. Indexable: ``stages["bulge"]``."""
 
-    __slots__ = ("muscle", "stretch", "bulge", "final")
-
-    def __init__(self, muscle: np.ndarray, stretch: np.ndarray, bulge: np.ndarray, final: np.ndarray):
-        self.muscle = muscle
-        """After the jaw and muscles, x1, shape (V, 3)."""
-        self.stretch = stretch
-        """Stretch ratio r of x1 against rest, shape (V,)."""
-        self.bulge = bulge
-        """After the volume-preserving bulge, x2, shape (V, 3)."""
-        self.final = final
-        """After wrinkles, x3, shape (V, 3)."""
+    muscle: np.ndarray
+    """After the jaw and muscles, x1, shape (V, 3)."""
+    stretch: np.ndarray
+    """Stretch ratio r of x1 against rest, shape (V,)."""
+    bulge: np.ndarray
+    """After the volume-preserving bulge, x2, shape (V, 3)."""
+    final: np.ndarray
+    """After wrinkles, x3, shape (V, 3)."""
 
     def __getitem__(self, name: str) -> np.ndarray:
-        if name not in self.__slots__:
+        if name not in ("muscle", "stretch", "bulge", "final"):
             raise KeyError(name)
         return getattr(self, name)
 

@@ -55,7 +55,7 @@ def expression_tiles(frames_per_pass: int = 1, blocks_per_sm: int | None = None)
 
     A pass loads each item's rig data (vertex, muscle and wrinkle entries, local triangle, adjacency) once
     and applies it to all of its frames, accumulating per frame in registers in the same order as the
-    five-kernel sequence; the shared tiles hold one slice per frame of the pass.
+    staged plan; the shared tiles hold one slice per frame of the pass.
     """
     frames = int(frames_per_pass)
     if frames < 1:
