@@ -196,3 +196,76 @@ def test_derivatives_match_central_differences():
     np.testing.assert_allclose(scalars[:, 4], diff_s[:, 3], rtol=1e-6, atol=1e-6)  # d(growth), dr = h
     np.testing.assert_allclose(scalars[:, 9] * h, diff_s[:, 6], rtol=1e-6, atol=1e-6)  # dC/dr · dr
     np.testing.assert_allclose(scalars[:, 1], diff_s[:, 0], rtol=1e-6, atol=1e-6)  # d(S'/S)
+
+
+@wp.kernel
+def _muscle_weights(
+    points: wp.array(dtype=Any),
+    attachment: Any,
+    axis: Any,
+    zone: Any,
+    start: Any,
+    finish: Any,
+    center: Any,
+    ex: Any,
+    ey: Any,
+    semi_x: Any,
+    semi_y: Any,
+    smooth: int,
+    linear: wp.array(dtype=Any),
+    sphincter: wp.array(dtype=Any),
+):
+    i = wp.tid()
+    linear[i] = fm.linear_muscle_weight(points[i] - attachment, axis, zone, start, finish, smooth)
+    sphincter[i] = fm.sphincter_weight(points[i] - center, ex, ey, semi_x, semi_y, smooth, type(zone)(0.0))
+
+
+@pytest.mark.parametrize(
+    "scalar, vector, rtol", [(wp.float64, wp.vec3d, 1e-12), (wp.float32, wp.vec3, 2e-5)], ids=["float64", "float32"]
+)
+def test_muscle_weights_match_the_independent_reference(scalar, vector, rtol):
+    """SPEC §1.1's linear and sphincter displacements per unit K against tests/reference_expression (arccos, dense),
+    and the §6.3 smooth forms against their closed forms: zero with zero slope at the zone's edges."""
+    from reference_expression import linear_muscle, sphincter_muscle
+
+    rng = np.random.default_rng(5)
+    points = rng.uniform(-1.0, 1.0, (400, 3)) * [1.0, 1.0, 0.2]
+    v1, v2 = np.array([-0.8, 0.1, -0.1]), np.array([0.1, 0.2, 0.05])
+    axis = (v2 - v1) / np.linalg.norm(v2 - v1)
+    ex, ey = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    args = [v1, axis, np.radians(40.0), 0.4, 1.2, np.zeros(3), ex, ey, 0.7, 0.4]
+
+    def run(smooth):
+        typed = [vector(*a) if np.ndim(a) else scalar(a) for a in args]
+        linear = wp.zeros(len(points), dtype=vector, device="cpu")
+        sphincter = wp.zeros(len(points), dtype=vector, device="cpu")
+        wp.launch(
+            _muscle_weights,
+            dim=len(points),
+            inputs=[wp.array(points, dtype=vector, device="cpu"), *typed, smooth, linear, sphincter],
+            device="cpu",
+        )
+        return linear.numpy().astype(np.float64), sphincter.numpy().astype(np.float64)
+
+    linear, sphincter = run(0)
+    assert (
+        np.count_nonzero(np.linalg.norm(linear, axis=1)) > 40
+        and np.count_nonzero(np.linalg.norm(sphincter, axis=1)) > 40
+    )
+    np.testing.assert_allclose(linear, linear_muscle(points, v1, v2, 40.0, 0.4, 1.2, 1.0), rtol=rtol, atol=rtol)
+    np.testing.assert_allclose(
+        sphincter, sphincter_muscle(points, np.zeros(3), ex, ey, 0.7, 0.4, 1.0), rtol=rtol, atol=rtol
+    )
+    smooth_linear, smooth_sphincter = run(1)
+    offset = points - v1
+    distance = np.linalg.norm(offset, axis=1)
+    mu = np.arccos(np.clip(offset @ axis / distance, -1.0, 1.0))
+    inside = (distance <= 1.2) & (mu <= np.radians(40.0))
+    radial = np.where(
+        distance < 0.4, np.sin(distance / 0.4 * np.pi / 2) ** 2, np.cos((distance - 0.4) / 0.8 * np.pi / 2) ** 2
+    )
+    factor = np.where(inside, np.cos(mu / np.radians(40.0) * np.pi / 2) ** 2 * radial, 0.0)
+    np.testing.assert_allclose(smooth_linear, -(factor / distance)[:, None] * offset, rtol=rtol, atol=rtol)
+    rho2 = points[:, 0] ** 2 / 0.49 + points[:, 1] ** 2 / 0.16
+    ring = np.where(rho2 < 1.0, (1.0 - rho2) ** 2, 0.0)[:, None] * -(points[:, :1] * ex + points[:, 1:2] * ey)
+    np.testing.assert_allclose(smooth_sphincter, ring, rtol=rtol, atol=rtol)

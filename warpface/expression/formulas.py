@@ -1,4 +1,4 @@
-"""The expression model's formulas (SPEC §1, §6.2), each written once as a Warp function.
+"""The expression model's formulas (SPEC §1, §6.2, §6.3), each written once as a Warp function.
 
 Every kernel that evaluates the model calls these: the staged and tiled frame kernels in float32, the
 solver's value and Jacobian kernels in float64. The functions are Warp generics: scalars are any float
@@ -18,6 +18,12 @@ import warp as wp
 from ..geometry.funcs import vec3_any
 
 __all__ = [
+    "linear_angular_factor",
+    "linear_radial_factor",
+    "sphincter_factor",
+    "sphincter_ring_factor",
+    "linear_muscle_weight",
+    "sphincter_weight",
     "jaw_rotation",
     "jaw_slide",
     "jaw_blend",
@@ -42,6 +48,107 @@ __all__ = [
     "wrinkle_term",
     "wrinkle_point",
 ]
+
+
+# ---------------------------------------------------------------- SPEC §1.1, §6.3: Waters muscle zones
+# ``smooth = 0`` selects SPEC §1.1 exactly; ``smooth = 1`` the C¹ forms of §6.3 (docs/RIG.md §1), which reach zero
+# with zero slope at every zone edge (angle Ω, radius Rf, the attachment, the sphincter rim), so the skin shows
+# no crease where a muscle's influence ends: angular ``cos²(μ/Ω · π/2)``; radial ``sin²(D/Rs · π/2)`` below Rs,
+# ``cos²((D − Rs)/(Rf − Rs) · π/2)`` from Rs to Rf; sphincter ``(1 − ρ²)²``.
+
+
+@wp.func
+def _half_pi_times(t: wp.Float):
+    """``t · π/2`` in ``t``'s type."""
+    return t * type(t)(1.5707963267948966)
+
+
+@wp.func
+def linear_angular_factor(mu: wp.Float, zone: wp.Float, smooth: int):
+    """Angular factor at angle ``mu`` ∈ [0, zone] from the muscle axis (``zone`` = Ω) [rad]."""
+    c = wp.cos(_half_pi_times(mu / zone))
+    if smooth != 0:
+        return c * c
+    return c
+
+
+@wp.func
+def linear_radial_factor(distance: wp.Float, start: wp.Float, finish: wp.Float, smooth: int):
+    """Radial factor at ``distance`` ∈ (0, finish] from the attachment, rising to 1 at ``start`` (Rs)."""
+    if distance < start:
+        if smooth != 0:
+            s = wp.sin(_half_pi_times(distance / start))
+            return s * s
+        return wp.cos(_half_pi_times(type(distance)(1.0) - distance / start))
+    c = wp.cos(_half_pi_times((distance - start) / (finish - start)))
+    if smooth != 0:
+        return c * c
+    return c
+
+
+@wp.func
+def sphincter_factor(rho_squared: wp.Float, smooth: int):
+    """Sphincter weight at elliptic radius² ``rho_squared`` (1 at the centre, 0 on and beyond the rim)."""
+    one = type(rho_squared)(1.0)
+    if rho_squared >= one:
+        return type(rho_squared)(0.0)
+    if smooth != 0:
+        f = one - rho_squared
+        return f * f
+    return one - wp.sqrt(rho_squared)
+
+
+@wp.func
+def sphincter_ring_factor(rho_squared: wp.Float, ring: wp.Float):
+    """Ring factor of a sphincter whose inner part does not move: ``sin²(ρ/ring · π/2)`` for ``ρ < ring``, else 1."""
+    one = type(ring)(1.0)
+    if ring <= type(ring)(0.0):
+        return one
+    rho = wp.sqrt(rho_squared)
+    if rho >= ring:
+        return one
+    s = wp.sin(_half_pi_times(rho / ring))
+    return s * s
+
+
+@wp.func
+def linear_muscle_weight(
+    offset: vec3_any, axis: vec3_any, zone: wp.Float, start: wp.Float, finish: wp.Float, smooth: int
+):
+    """A linear muscle's displacement per unit K at ``offset = P − V1``: ``A·R·(V1 − P)/D``, 0 outside the zone
+    (``μ > Ω``, ``D > Rf`` or ``D = 0``). ``axis`` is the unit ``V2 − V1``."""
+    distance = wp.length(offset)
+    zero = type(distance)(0.0)
+    if distance == zero or distance > finish:
+        return type(offset)(zero, zero, zero)
+    # atan2 keeps μ accurate near 0 and π, where acos of a dot product loses digits.
+    mu = wp.atan2(wp.length(wp.cross(axis, offset)), wp.dot(axis, offset))
+    if mu > zone:
+        return type(offset)(zero, zero, zero)
+    factor = linear_angular_factor(mu, zone, smooth) * linear_radial_factor(distance, start, finish, smooth)
+    return -(factor / distance) * offset
+
+
+@wp.func
+def sphincter_weight(
+    offset: vec3_any,
+    axis_x: vec3_any,
+    axis_y: vec3_any,
+    semi_x: wp.Float,
+    semi_y: wp.Float,
+    smooth: int,
+    ring: wp.Float,
+):
+    """A sphincter's displacement per unit K at ``offset = P − C``: ``−f·(x·ex + y·ey)`` (toward the centre), with
+    ``(x, y)`` the offset in the muscle's frame and ``f`` its falloff; 0 outside the ellipse."""
+    x = wp.dot(offset, axis_x)
+    y = wp.dot(offset, axis_y)
+    rho_squared = x * x / (semi_x * semi_x) + y * y / (semi_y * semi_y)
+    falloff = sphincter_factor(rho_squared, smooth) * sphincter_ring_factor(rho_squared, ring)
+    zero = type(falloff)(0.0)
+    if falloff > zero:
+        return -falloff * (x * axis_x + y * axis_y)
+    return type(offset)(zero, zero, zero)
 
 
 # ---------------------------------------------------------------- SPEC §6.2: the jaw
