@@ -106,9 +106,8 @@ def test_expression_frames_match_cpu(face_rig, models):
     assert moved > 0.01 * face_rig.mesh.size  # real expressions, not the rest face
     tolerance = FLOAT32_FACE_TOLERANCE * face_rig.mesh.size
     np.testing.assert_allclose(got, expected, rtol=0, atol=tolerance)
-    # every stage of a single frame (the graph-replayed path on CUDA)
-    cpu_stages = cpu_model.stages(contractions[0], wrinkle_depths=depths[0])
-    dev_stages = dev_model.stages(contractions[0], wrinkle_depths=depths[0])
+    # every stage of a single frame (the staged plan's intermediates on each device)
+    cpu_stages, dev_stages = (model.stages(contractions[0], wrinkle_depths=depths[0]) for model in models)
     for name in ("muscle", "bulge", "final"):
         np.testing.assert_allclose(dev_stages[name], cpu_stages[name], rtol=0, atol=tolerance, err_msg=name)
     # r is a float32 ratio of lengths the device sums in another order: 1.1e-5 relative measured (H200).
@@ -146,11 +145,10 @@ def test_back_to_back_frames_without_sync_each_keep_their_controls(face_rig, mod
     """Queued graph replays with host controls: the pinned staging of frame f+1 must not overwrite
     frame f's controls before their copy ran. Nothing is read back until the end."""
     _, model = models
-    frames = 8
-    contractions, depths = expression_controls(face_rig, frames, seed=3)
+    contractions, depths = expression_controls(face_rig, 8, seed=3)
     expected = model.evaluate(contractions, wrinkle_depths=depths)
-    out = wp.empty((frames, face_rig.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
-    for f in range(frames):
+    out = wp.empty((8, face_rig.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
+    for f in range(8):
         model.evaluate(contractions[f], out=out[f], wrinkle_depths=depths[f])
     # Device-resident follow-up work on the results: a reduction by a kernel, no host round trip.
     moved = wp.zeros(1, dtype=wp.float32, device=DEVICE)
@@ -203,9 +201,7 @@ def test_batch_graph_replays_read_each_calls_controls(face_rig, models):
     jaw controls and a partial last chunk, queued back to back with no sync in between."""
     _, model = models
     frames, vertex_count = 5, face_rig.mesh.vertex_count
-    calls = []
-    for seed in (6, 7, 8):
-        calls.append(expression_controls(face_rig, frames, seed=seed))
+    calls = [expression_controls(face_rig, frames, seed=seed) for seed in (6, 7, 8)]
     expected = [model.evaluate(c, wrinkle_depths=d, frames_per_launch=2) for c, d in calls]
     assert np.abs(expected[0] - expected[1]).max() > 1e-3 * face_rig.mesh.size  # the calls really differ
     # the host path's pinned double-buffered read-back: chunks of 2 (three copies in flight in turn) == one chunk
@@ -218,11 +214,10 @@ def test_batch_graph_replays_read_each_calls_controls(face_rig, models):
     np.testing.assert_array_equal(outs[1].numpy(), expected[1])
     np.testing.assert_array_equal(outs[0].numpy(), expected[2])
 
-    device_c = wp.array(calls[0][0].astype(np.float32), dtype=wp.float32, device=DEVICE)
-    device_d = wp.array(calls[0][1].astype(np.float32), dtype=wp.float32, device=DEVICE)
+    device_c, device_d = (wp.array(v.astype(np.float32), dtype=wp.float32, device=DEVICE) for v in calls[0])
     for index in (0, 1, 2):  # device controls rewritten in place between replays of one graph
-        wp.copy(device_c, wp.array(calls[index][0].astype(np.float32), dtype=wp.float32, device=DEVICE))
-        wp.copy(device_d, wp.array(calls[index][1].astype(np.float32), dtype=wp.float32, device=DEVICE))
+        for target, values in zip((device_c, device_d), calls[index]):
+            wp.copy(target, wp.array(values.astype(np.float32), dtype=wp.float32, device=DEVICE))
         model.evaluate(device_c, out=outs[0], wrinkle_depths=device_d)
         np.testing.assert_array_equal(outs[0].numpy(), expected[index], err_msg=f"device controls, call {index}")
 
