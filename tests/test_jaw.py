@@ -54,6 +54,10 @@ def test_jaw_stage_matches_float64_reference(seed):
         reference_jaw(points, jaw.weights, jaw.pivot, jaw.axis, jaw.forward, controls[1:]),
         atol=1e-12,
     )
+    # Positional controls are always the full vector: the muscles alone are refused, not padded, one frame or many.
+    for muscles_only in (controls[:1], controls[None, :1]):
+        with pytest.raises(ValueError, match=r"^controls: expected .*4"):
+            model.evaluate(muscles_only)
 
 
 def test_jaw_controls_by_name_equal_the_ordered_vector_and_batch_equals_single():
