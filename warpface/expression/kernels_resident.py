@@ -21,8 +21,8 @@ from .formulas import (
     wrinkle_point,
     wrinkle_term,
 )
-from .kernels import STRETCH_FLOOR, MuscleEntry, WrinkleEntry, jaw_point, stretch_term
-from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, RingTriangle, TileInfo
+from .kernels import STRETCH_FLOOR, jaw_point, stretch_term
+from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, TiledRig
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -88,35 +88,18 @@ def _build_resident_kernel(
 
     @wp.kernel(enable_backward=False, module="unique", module_options={"optimization_level": 3}, launch_bounds=bounds)
     def expression_tiles_resident_kernel(
-        tiles: wp.array(dtype=TileInfo),
-        tile_vertices: wp.array(dtype=wp.int32),
-        tile_adjacency_offsets: wp.array(dtype=wp.int32),
-        tile_adjacency: wp.array(dtype=wp.int32),
-        tile_triangles: wp.array(dtype=RingTriangle),
-        rest: wp.array(dtype=wp.vec3),
-        jaw_weight: wp.array(dtype=wp.float32),
-        pivot: wp.vec3,
-        hinge_axis: wp.vec3,
-        forward: wp.vec3,
-        jaw_first: int,
-        muscle_offsets: wp.array(dtype=wp.int32),
-        muscle_entries: wp.array(dtype=MuscleEntry),
+        rig: TiledRig,
         controls: wp.array(dtype=wp.float32),
         control_count: int,
-        counts: wp.array(dtype=wp.float32),
-        thickness: wp.array(dtype=wp.float32),
-        wrinkle_offsets: wp.array(dtype=wp.int32),
-        wrinkle_entries: wp.array(dtype=WrinkleEntry),
         depth: wp.array(dtype=wp.float32),
         wrinkle_count: int,
-        vertex_count: int,
         frame_count: int,
         frames_per_block: int,
         final_points: wp.array(dtype=wp.vec3),
     ):
         """As :func:`expression_tiles`'s kernel (same arguments), the thread's rig data read once per block."""
         group, tile, lane = wp.tid()
-        info = tiles[tile]
+        info = rig.tiles[tile]
         vertex_start = info.vertex_start
         triangle_start = info.triangle_start
         # the thread's rig data, once per block
@@ -134,40 +117,40 @@ def _build_resident_kernel(
         ring_thickness = halo_values()
         for k in range(HR):
             s = k * B + lane
-            v = tile_vertices[vertex_start + wp.min(s, info.halo - 1)]
+            v = rig.tile_vertices[vertex_start + wp.min(s, info.halo - 1)]
             slot_vertex[k] = v
-            x_rest[k] = rest[v]
-            if jaw_first >= 0:
-                w_jaw[k] = jaw_weight[v]
-            j = muscle_offsets[v]
-            end = muscle_offsets[v + 1]
+            x_rest[k] = rig.rest[v]
+            if rig.jaw_first >= 0:
+                w_jaw[k] = rig.jaw_weight[v]
+            j = rig.muscle_offsets[v]
+            end = rig.muscle_offsets[v + 1]
             if s >= info.halo:
                 end = j
             muscle_first[k] = j
             muscle_end[k] = end
             for m in range(MS):
                 if j + m < end:
-                    pull = muscle_entries[j + m]
+                    pull = rig.muscle_entries[j + m]
                     muscle_weight[k * MS + m] = pull.weight
                     muscle_index[k * MS + m] = pull.muscle
             slot = wp.min(s, info.ring - 1)
-            u = tile_vertices[vertex_start + slot]
-            j = tile_adjacency_offsets[vertex_start + slot]
-            end = tile_adjacency_offsets[vertex_start + slot + 1]
+            u = rig.tile_vertices[vertex_start + slot]
+            j = rig.tile_adjacency_offsets[vertex_start + slot]
+            end = rig.tile_adjacency_offsets[vertex_start + slot + 1]
             ring_first[k] = j
             ring_end[k] = end
             for m in range(RS):
                 if j + m < end:
-                    ring_triangle[k * RS + m] = tile_adjacency[j + m]
-            ring_count[k] = counts[u]
-            ring_thickness[k] = thickness[u]
+                    ring_triangle[k * RS + m] = rig.tile_adjacency[j + m]
+            ring_count[k] = rig.counts[u]
+            ring_thickness[k] = rig.thickness[u]
         corner0 = triangle_ints()
         corner1 = triangle_ints()
         corner2 = triangle_ints()
         weight = triangle_values()
         rest_length = triangle_values()
         for k in range(TR):
-            entry = tile_triangles[triangle_start + wp.min(k * B + lane, info.triangles - 1)]
+            entry = rig.tile_triangles[triangle_start + wp.min(k * B + lane, info.triangles - 1)]
             corner0[k] = entry.corners[0]
             corner1[k] = entry.corners[1]
             corner2[k] = entry.corners[2]
@@ -181,16 +164,16 @@ def _build_resident_kernel(
         wrinkle_rate = wrinkle_values()  # 1 − 1/k_r of C(r) above 1, divided once per block instead of per frame
         for k in range(OR):
             s = k * B + lane
-            v = tile_vertices[vertex_start + wp.min(s, info.halo - 1)]
-            j = wrinkle_offsets[v]
-            end = wrinkle_offsets[v + 1]
+            v = rig.tile_vertices[vertex_start + wp.min(s, info.halo - 1)]
+            j = rig.wrinkle_offsets[v]
+            end = rig.wrinkle_offsets[v + 1]
             if s >= info.owned:
                 end = j
             wrinkle_first[k] = j
             wrinkle_end[k] = end
             for m in range(WS):
                 if j + m < end:
-                    wrinkle = wrinkle_entries[j + m]
+                    wrinkle = rig.wrinkle_entries[j + m]
                     wrinkle_index[k * WS + m] = wrinkle.wrinkle
                     wrinkle_shape[k * WS + m] = wrinkle.shape
                     wrinkle_kr[k * WS + m] = wrinkle.kr
@@ -211,7 +194,7 @@ def _build_resident_kernel(
                     for ff in range(F):
                         row = wp.min(f + ff, last - 1) * control_count
                         moved_points[ff] = jaw_point(
-                            x_rest[k], w_jaw[k], controls, row, jaw_first, pivot, hinge_axis, forward
+                            x_rest[k], w_jaw[k], controls, row, rig.jaw_first, rig.pivot, rig.hinge_axis, rig.forward
                         )
                     for m in range(MS):
                         if muscle_first[k] + m < muscle_end[k]:
@@ -223,7 +206,7 @@ def _build_resident_kernel(
                                 )
                     j = muscle_first[k] + MS
                     while j < muscle_end[k]:
-                        pull = muscle_entries[j]
+                        pull = rig.muscle_entries[j]
                         for ff in range(F):
                             moved_points[ff] = muscle_pull(
                                 moved_points[ff],
@@ -258,7 +241,7 @@ def _build_resident_kernel(
                                 totals[ff] += terms[ff, ring_triangle[k * RS + m]]
                     j = ring_first[k] + RS
                     while j < ring_end[k]:
-                        triangle = tile_adjacency[j]
+                        triangle = rig.tile_adjacency[j]
                         for ff in range(F):
                             totals[ff] += terms[ff, triangle]
                         j += 1
@@ -295,7 +278,7 @@ def _build_resident_kernel(
                                     normals[ff] += wp.vec3(term[0], term[1], term[2])
                         j = ring_first[k] + RS
                         while j < ring_end[k]:
-                            triangle = tile_adjacency[j]
+                            triangle = rig.tile_adjacency[j]
                             for ff in range(F):
                                 term = terms[ff, triangle]
                                 normals[ff] += wp.vec3(term[0], term[1], term[2])
@@ -312,7 +295,7 @@ def _build_resident_kernel(
                                     )
                         j = wrinkle_first[k] + WS
                         while j < wrinkle_end[k]:
-                            wrinkle = wrinkle_entries[j]
+                            wrinkle = rig.wrinkle_entries[j]
                             for ff in range(F):
                                 heights[ff] += wrinkle_term(
                                     depth[wp.min(f + ff, last - 1) * wrinkle_count + wrinkle.wrinkle],
@@ -325,7 +308,7 @@ def _build_resident_kernel(
                             x = points[ff, s]
                             if wrinkled:
                                 x = wrinkle_point(x, heights[ff], normals[ff])
-                            final_points[(f + ff) * vertex_count + slot_vertex[k]] = x
+                            final_points[(f + ff) * rig.vertex_count + slot_vertex[k]] = x
             # a barrier: pass E's reads end before the next pass's writes
             wp.tile_scatter_masked(ratio, 0, 0, 0.0, False)
             f += F

@@ -37,9 +37,9 @@ from .formulas import (
     wrinkle_point,
     wrinkle_term,
 )
-from .kernels import STRETCH_FLOOR, MuscleEntry, WrinkleEntry, jaw_point, stretch_term
+from .kernels import STRETCH_FLOOR, jaw_point, stretch_term
 from .kernels_resident import expression_tiles_resident
-from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, RingTriangle, TileInfo
+from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, TiledRig
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -76,28 +76,11 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
 
     @wp.kernel(enable_backward=False, module="unique", module_options={"optimization_level": 3}, launch_bounds=bounds)
     def expression_tiles_kernel(
-        tiles: wp.array(dtype=TileInfo),
-        tile_vertices: wp.array(dtype=wp.int32),
-        tile_adjacency_offsets: wp.array(dtype=wp.int32),
-        tile_adjacency: wp.array(dtype=wp.int32),
-        tile_triangles: wp.array(dtype=RingTriangle),
-        rest: wp.array(dtype=wp.vec3),
-        jaw_weight: wp.array(dtype=wp.float32),
-        pivot: wp.vec3,
-        hinge_axis: wp.vec3,
-        forward: wp.vec3,
-        jaw_first: int,
-        muscle_offsets: wp.array(dtype=wp.int32),
-        muscle_entries: wp.array(dtype=MuscleEntry),
+        rig: TiledRig,
         controls: wp.array(dtype=wp.float32),
         control_count: int,
-        counts: wp.array(dtype=wp.float32),
-        thickness: wp.array(dtype=wp.float32),
-        wrinkle_offsets: wp.array(dtype=wp.int32),
-        wrinkle_entries: wp.array(dtype=WrinkleEntry),
         depth: wp.array(dtype=wp.float32),
         wrinkle_count: int,
-        vertex_count: int,
         frame_count: int,
         frames_per_block: int,
         final_points: wp.array(dtype=wp.vec3),
@@ -110,7 +93,7 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
         """
         group, tile, lane = wp.tid()
         threads = wp.block_dim()
-        info = tiles[tile]
+        info = rig.tiles[tile]
         vertex_start = info.vertex_start
         triangle_start = info.triangle_start
         # x1, then x2 over the one-ring
@@ -126,21 +109,23 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                 s = k + lane
                 v = int(0)
                 if s < info.halo:
-                    v = tile_vertices[vertex_start + s]
-                x_rest = rest[v]
+                    v = rig.tile_vertices[vertex_start + s]
+                x_rest = rig.rest[v]
                 w = float(0.0)
-                if jaw_first >= 0:
-                    w = jaw_weight[v]
+                if rig.jaw_first >= 0:
+                    w = rig.jaw_weight[v]
                 moved_points = frame_points()
                 for ff in range(F):
                     row = wp.min(f + ff, last - 1) * control_count
-                    moved_points[ff] = jaw_point(x_rest, w, controls, row, jaw_first, pivot, hinge_axis, forward)
-                j = muscle_offsets[v]
-                end = muscle_offsets[v + 1]
+                    moved_points[ff] = jaw_point(
+                        x_rest, w, controls, row, rig.jaw_first, rig.pivot, rig.hinge_axis, rig.forward
+                    )
+                j = rig.muscle_offsets[v]
+                end = rig.muscle_offsets[v + 1]
                 if s >= info.halo:
                     end = j
                 while j < end:
-                    pull = muscle_entries[j]
+                    pull = rig.muscle_entries[j]
                     for ff in range(F):
                         moved_points[ff] = muscle_pull(
                             moved_points[ff],
@@ -155,7 +140,7 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
             k = int(0)
             while k < info.triangles:
                 t = k + lane
-                entry = tile_triangles[triangle_start + wp.min(t, info.triangles - 1)]
+                entry = rig.tile_triangles[triangle_start + wp.min(t, info.triangles - 1)]
                 c = entry.corners
                 for ff in range(F):
                     term = stretch_term(
@@ -168,17 +153,17 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
             while k < info.ring:
                 s = k + lane
                 slot = wp.min(s, info.ring - 1)
-                v = tile_vertices[vertex_start + slot]
+                v = rig.tile_vertices[vertex_start + slot]
                 totals = frame_terms()
-                j = tile_adjacency_offsets[vertex_start + slot]
-                end = tile_adjacency_offsets[vertex_start + slot + 1]
+                j = rig.tile_adjacency_offsets[vertex_start + slot]
+                end = rig.tile_adjacency_offsets[vertex_start + slot + 1]
                 while j < end:
-                    triangle = tile_adjacency[j]
+                    triangle = rig.tile_adjacency[j]
                     for ff in range(F):
                         totals[ff] += terms[ff, triangle]
                     j += 1
-                count = counts[v]
-                h = thickness[v]
+                count = rig.counts[v]
+                h = rig.thickness[v]
                 for ff in range(F):
                     total = totals[ff]
                     r = stretch_ratio(total[3], count)
@@ -190,7 +175,7 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
             k = int(0)
             while k < info.near:
                 t = k + lane
-                entry = tile_triangles[triangle_start + wp.min(t, info.near - 1)]
+                entry = rig.tile_triangles[triangle_start + wp.min(t, info.near - 1)]
                 c = entry.corners
                 for ff in range(F):
                     av = area_vector(points[ff, c[0]], points[ff, c[1]], points[ff, c[2]], entry.weight)
@@ -201,23 +186,23 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
             while k < info.owned:
                 s = k + lane
                 if s < info.owned:
-                    v = tile_vertices[vertex_start + s]
-                    begin = wrinkle_offsets[v]
-                    end = wrinkle_offsets[v + 1]
+                    v = rig.tile_vertices[vertex_start + s]
+                    begin = rig.wrinkle_offsets[v]
+                    end = rig.wrinkle_offsets[v + 1]
                     normals = frame_points()
                     heights = frame_values()
                     wrinkled = begin < end
                     if wrinkled:
-                        j = tile_adjacency_offsets[vertex_start + s]
-                        stop = tile_adjacency_offsets[vertex_start + s + 1]
+                        j = rig.tile_adjacency_offsets[vertex_start + s]
+                        stop = rig.tile_adjacency_offsets[vertex_start + s + 1]
                         while j < stop:
-                            triangle = tile_adjacency[j]
+                            triangle = rig.tile_adjacency[j]
                             for ff in range(F):
                                 term = terms[ff, triangle]
                                 normals[ff] += wp.vec3(term[0], term[1], term[2])
                             j += 1
                         while begin < end:
-                            wrinkle = wrinkle_entries[begin]
+                            wrinkle = rig.wrinkle_entries[begin]
                             for ff in range(F):
                                 heights[ff] += wrinkle_term(
                                     depth[wp.min(f + ff, last - 1) * wrinkle_count + wrinkle.wrinkle],
@@ -230,7 +215,7 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                             x = points[ff, s]
                             if wrinkled:
                                 x = wrinkle_point(x, heights[ff], normals[ff])
-                            final_points[(f + ff) * vertex_count + v] = x
+                            final_points[(f + ff) * rig.vertex_count + v] = x
                 k += threads
             # a barrier: pass E's reads end before the next pass's writes
             wp.tile_scatter_masked(ratio, 0, 0, 0.0, False)

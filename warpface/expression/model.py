@@ -14,7 +14,7 @@ from .evaluator import ExpressionEvaluator, ExpressionStages
 from .jaw import JAW_CONTROL_NAMES, Jaw
 from .kernels import MuscleEntry, WrinkleEntry
 from .muscles import Muscle, muscle_weights
-from .plans import PLANS
+from .plans import PLANS, tiled_rig
 from .tiling import mesh_tiles
 from .tissue import tissue_response
 from .wrinkles import Wrinkle, wrinkle_shapes
@@ -93,12 +93,13 @@ class ExpressionModel:
             raise ValueError(f"plan: expected one of {', '.join(map(repr, PLANS))} or None, got {plan!r}")
         self._mesh_buffers = mesh.device_buffers(device=self.device)
         self._upload_rig(mesh)
-        self._tiles = None
+        tiles = None
         if (plan or ("staged" if self.device.is_cpu else "tiled")) == "tiled":
             # by default, a mesh that cannot be tiled runs the staged plan
-            self._tiles = mesh_tiles(mesh, self._mesh_buffers, device=self.device, required=plan == "tiled")
-        self.plan = "staged" if self._tiles is None else "tiled"
+            tiles = mesh_tiles(mesh, self._mesh_buffers, device=self.device, required=plan == "tiled")
+        self.plan = "staged" if tiles is None else "tiled"
         """The evaluation plan: ``"staged"`` or ``"tiled"``."""
+        self._tiled_rig = None if tiles is None else tiled_rig(self, tiles)
         self.block_dim = 256 if self.device.is_cuda else 1
         """Threads per block of every launch (the tiled plan's blocks are its third launch dimension)."""
         self._evaluator = ExpressionEvaluator(self)

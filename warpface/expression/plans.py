@@ -16,8 +16,9 @@ from ..kernels_surface import triangle_area_vectors
 from .frame_buffers import FrameBuffers
 from .kernels import apply_jaw_and_muscles, apply_muscles, apply_wrinkles, stretch_and_bulge, triangle_stretch
 from .kernels_tiled import model_kernel
+from .tiling import TiledRig
 
-__all__ = ["PLANS", "TILE_FRAMES_PER_PASS", "TILE_FRAMES_PER_BLOCK", "plan_launches", "staged_launches"]
+__all__ = ["PLANS", "TILE_FRAMES_PER_PASS", "TILE_FRAMES_PER_BLOCK", "plan_launches", "staged_launches", "tiled_rig"]
 
 PLANS = ("staged", "tiled")
 """The plan names an :class:`~warpface.expression.ExpressionModel` accepts (its ``plan`` argument)."""
@@ -46,32 +47,26 @@ def _jaw_inputs(model) -> list:
     return [model._jaw_weight, wp.vec3(*jaw.pivot), wp.vec3(*jaw.axis), wp.vec3(*jaw.forward), len(model.muscles)]
 
 
+def tiled_rig(model, tiles: tuple) -> TiledRig:
+    """The :class:`~warpface.expression.tiling.TiledRig` of ``model``'s arrays and its ``tiles`` (device arrays)."""
+    rig = TiledRig()
+    (rig.tiles, rig.tile_vertices, rig.tile_adjacency_offsets, rig.tile_adjacency, rig.tile_triangles) = tiles
+    rig.rest = model._mesh_buffers.rest_points
+    rig.jaw_weight, rig.pivot, rig.hinge_axis, rig.forward, rig.jaw_first = _jaw_inputs(model)
+    rig.muscle_offsets, rig.muscle_entries = model._muscle_offsets, model._muscle_entries
+    rig.counts, rig.thickness = model._counts, model._thickness
+    rig.wrinkle_offsets, rig.wrinkle_entries = model._wrinkle_offsets, model._wrinkle_entries
+    rig.vertex_count = model.mesh.vertex_count
+    return rig
+
+
 def _tiled_launch(model, buffers, frames, controls, depths, final_points):
     """The one tiled kernel, blocks over (frame groups, tiles) of ``model.block_dim`` threads."""
     per_block = min(TILE_FRAMES_PER_BLOCK, frames)
-    tiles = model._tiles
-    kernel = model_kernel(per_block, TILE_FRAMES_PER_PASS, len(tiles[0]), device=model.device)
-    *jaw_weight_pivot_axes, jaw_first = _jaw_inputs(model)
-    inputs = [
-        *tiles,
-        model._mesh_buffers.rest_points,
-        *jaw_weight_pivot_axes,
-        jaw_first,
-        model._muscle_offsets,
-        model._muscle_entries,
-        controls,
-        buffers.muscle_width,
-        model._counts,
-        model._thickness,
-        model._wrinkle_offsets,
-        model._wrinkle_entries,
-        depths,
-        buffers.wrinkle_width,
-        model.mesh.vertex_count,
-        frames,
-        per_block,
-    ]
-    return (kernel, (-(-frames // per_block), len(tiles[0]), model.block_dim), inputs, [final_points])
+    tile_count = len(model._tiled_rig.tiles)
+    kernel = model_kernel(per_block, TILE_FRAMES_PER_PASS, tile_count, device=model.device)
+    inputs = [model._tiled_rig, controls, buffers.muscle_width, depths, buffers.wrinkle_width, frames, per_block]
+    return (kernel, (-(-frames // per_block), tile_count, model.block_dim), inputs, [final_points])
 
 
 def staged_launches(model, buffers: FrameBuffers, frames: int, controls, depths, final_points) -> list:

@@ -14,12 +14,15 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from .kernels import MuscleEntry, WrinkleEntry
+
 __all__ = [
     "TILE_OWNED",
     "TILE_VERTICES",
     "TILE_TRIANGLES",
     "RingTriangle",
     "TileInfo",
+    "TiledRig",
     "VertexTiles",
     "vertex_tiles",
     "mesh_tiles",
@@ -65,6 +68,33 @@ class TileInfo:
     triangle_start: wp.int32
     near: wp.int32
     triangles: wp.int32
+
+
+@wp.struct
+class TiledRig:
+    """Everything of the rig the tiled kernels read, in one argument: the tiles (:meth:`VertexTiles.to_device`),
+    the rest points, the jaw, the muscle and wrinkle CSRs, counted triangles and thickness per vertex."""
+
+    tiles: wp.array(dtype=TileInfo)
+    tile_vertices: wp.array(dtype=wp.int32)
+    tile_adjacency_offsets: wp.array(dtype=wp.int32)
+    tile_adjacency: wp.array(dtype=wp.int32)
+    tile_triangles: wp.array(dtype=RingTriangle)
+    rest: wp.array(dtype=wp.vec3)
+    jaw_weight: wp.array(dtype=wp.float32)
+    """Per vertex; not read when ``jaw_first`` < 0 (no jaw)."""
+    pivot: wp.vec3
+    hinge_axis: wp.vec3
+    forward: wp.vec3
+    jaw_first: wp.int32
+    """Index of the jaw's first control in a frame's control row, or -1 without a jaw."""
+    muscle_offsets: wp.array(dtype=wp.int32)
+    muscle_entries: wp.array(dtype=MuscleEntry)
+    counts: wp.array(dtype=wp.float32)
+    thickness: wp.array(dtype=wp.float32)
+    wrinkle_offsets: wp.array(dtype=wp.int32)
+    wrinkle_entries: wp.array(dtype=WrinkleEntry)
+    vertex_count: wp.int32
 
 
 _MORTON_BITS = 10
