@@ -68,3 +68,19 @@ def test_default_plan_by_device():
     rig = small_face_rig()
     assert ExpressionModel(rig.mesh, rig.muscles, device=DEVICE).plan == "staged"  # the CPU's default
     assert ExpressionModel(rig.mesh, rig.muscles, device=DEVICE, plan="tiled").plan == "tiled"
+
+
+def test_one_evaluate_takes_a_frame_or_a_batch_by_shape(model, rng):
+    """(C,) is one frame, (F, C) a batch, [] no frames; an evaluator of its own (own buffers) gives the same
+    bits; any other rank is refused naming ``controls``."""
+    contractions, depths = random_controls(model, rng, 3)
+    batch = model.evaluate(contractions, wrinkle_depths=depths)
+    assert batch.shape == (3, model.mesh.vertex_count, 3)
+    other = model.evaluator()
+    for frame in range(3):
+        single = other.evaluate(contractions[frame], wrinkle_depths=depths[frame])
+        np.testing.assert_array_equal(single, batch[frame])
+    np.testing.assert_array_equal(other.evaluate(contractions, wrinkle_depths=depths), batch)
+    assert model.evaluate([]).shape == (0, model.mesh.vertex_count, 3)
+    with pytest.raises(ValueError, match=r"^controls: .*3 axes"):
+        model.evaluate(contractions[None])
