@@ -38,6 +38,10 @@ class ExpressionModel:
         frames = model.evaluate(controls)                             # controls (F, C) → (F, V, 3)
         model.evaluate(torch_controls, out=torch_points)             # float32 (F, C) on the device; no sync
 
+    Synchronise (``wp.synchronize_device``) or share the stream before reading a device result on the host. On
+    the CPU several threads may evaluate at once (each thread has its own work buffers; Warp's CPU kernels release
+    the GIL).
+
     Controls are always the rig's full control vector (:attr:`control_names`: the muscles, then the jaw's
     :data:`~warpface.expression.JAW_CONTROL_NAMES` when there is a jaw), named or positional. Host values are
     checked (names, types, finite, within range; ``ValueError`` naming the item); device-resident values are used
