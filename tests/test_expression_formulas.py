@@ -269,3 +269,37 @@ def test_muscle_weights_match_the_independent_reference(scalar, vector, rtol):
     rho2 = points[:, 0] ** 2 / 0.49 + points[:, 1] ** 2 / 0.16
     ring = np.where(rho2 < 1.0, (1.0 - rho2) ** 2, 0.0)[:, None] * -(points[:, :1] * ex + points[:, 1:2] * ey)
     np.testing.assert_allclose(smooth_sphincter, ring, rtol=rtol, atol=rtol)
+
+
+@wp.kernel
+def _tissue(
+    w: wp.array(dtype=Any),
+    n: wp.array(dtype=Any),
+    s: wp.array(dtype=Any),
+    out: wp.array2d(dtype=Any),
+):
+    i = wp.tid()
+    out[i, 0] = fm.sliding_pull(w[i], n[i], s[i])
+    out[i, 1] = fm.thickening_pull(w[i], wp.length(w[i]), n[i], s[i])
+    out[i, 2] = fm.bunching_pull(w[i], s[i] - type(s[i])(0.5), type(s[i])(0.3), n[i])
+
+
+@pytest.mark.parametrize(
+    "scalar, vector, rtol", [(wp.float64, wp.vec3d, 1e-12), (wp.float32, wp.vec3, 2e-5)], ids=["float64", "float32"]
+)
+def test_tissue_pulls_match_numpy(scalar, vector, rtol):
+    """docs/RIG.md §2–3: sliding keeps the tangential part and removes the fraction s of the normal one (s = 1:
+    no normal part left), thickening adds τ·|w| along N, bunching c·tanh(b/c) along N."""
+    rng = np.random.default_rng(9)
+    w, n = rng.normal(size=(N, 3)), _unit(rng.normal(size=(N, 3)))
+    s = rng.uniform(0.0, 1.0, N)
+    s[0] = 1.0
+    out = wp.zeros((N, 3), dtype=vector, device="cpu")
+    arrays = [wp.array(w, dtype=vector, device="cpu"), wp.array(n, dtype=vector, device="cpu")]
+    wp.launch(_tissue, dim=N, inputs=[*arrays, wp.array(s, dtype=scalar, device="cpu"), out], device="cpu")
+    got = out.numpy().astype(np.float64)
+    normal_part = np.sum(w * n, axis=1, keepdims=True) * n
+    np.testing.assert_allclose(got[:, 0], w - s[:, None] * normal_part, rtol=rtol, atol=rtol)
+    assert abs(np.dot(got[0, 0], n[0])) < 10 * rtol  # full sliding: tangential only
+    np.testing.assert_allclose(got[:, 1], w + (s * np.linalg.norm(w, axis=1))[:, None] * n, rtol=rtol, atol=rtol)
+    np.testing.assert_allclose(got[:, 2], w + (0.3 * np.tanh((s - 0.5) / 0.3))[:, None] * n, rtol=rtol, atol=rtol)

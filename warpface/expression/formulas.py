@@ -24,6 +24,9 @@ __all__ = [
     "sphincter_ring_factor",
     "linear_muscle_weight",
     "sphincter_weight",
+    "sliding_pull",
+    "thickening_pull",
+    "bunching_pull",
     "jaw_rotation",
     "jaw_slide",
     "jaw_blend",
@@ -149,6 +152,27 @@ def sphincter_weight(
     if falloff > zero:
         return -falloff * (x * axis_x + y * axis_y)
     return type(offset)(zero, zero, zero)
+
+
+# ---------------------------------------------------------------- the skin's answer to a pull (docs/RIG.md §2–3)
+@wp.func
+def sliding_pull(weight: vec3_any, normal: vec3_any, sliding: wp.Float):
+    """``(1 − s)·w + s·(w − (w·N) N)``: the fraction ``s`` of the pull's normal part removed (the skin glides
+    on the fascia, of unit normal ``N``)."""
+    along = weight - wp.dot(weight, normal) * normal
+    return (type(sliding)(1.0) - sliding) * weight + sliding * along
+
+
+@wp.func
+def thickening_pull(weight: vec3_any, pull: wp.Float, normal: vec3_any, thickening: wp.Float):
+    """``w + τ·|w₀|·N``: a shortening belly thickens, lifting the skin in proportion to the zone's pull ``|w₀|``."""
+    return weight + (thickening * pull) * normal
+
+
+@wp.func
+def bunching_pull(weight: vec3_any, height: wp.Float, cap: wp.Float, normal: vec3_any):
+    """``w + c·tanh(b/c)·N``: the bunching height ``b = −β·h·ρ`` along ``N``, saturating smoothly at ``c``."""
+    return weight + (cap * wp.tanh(height / cap)) * normal
 
 
 # ---------------------------------------------------------------- SPEC §6.2: the jaw
