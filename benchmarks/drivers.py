@@ -157,7 +157,7 @@ def main(argv=None) -> None:
     rig = default_rig(device=device)
     mapping, _, _ = mapping_for_rig(rig)
     model = rig.model(device=device)
-    model.evaluate_batch(np.zeros((2, len(model.control_names))))  # load kernels outside the timings
+    model.evaluate(np.zeros((2, len(model.control_names))))  # load kernels outside the timings
     rows = []
 
     def row(name, wall, cpu, timed_frames=frames, scaled=1.0):

@@ -6,9 +6,9 @@ wrinkles. Both sides use the same rig-time precomputation (sparse muscle weights
 profiles); the per-frame work — muscles, stretch, normals, bulge, normals again, wrinkles — is
 timed. "warp ms" includes copying the result to host memory; on CUDA "device ms" is the graph
 replay alone, host call and synchronisation included ("event ms": GPU time between CUDA events), for
-the three-kernel frame with the 1-, 2- and 5-kernel plans beside it; every device row is set
-against a ``wp.copy`` of the same bytes timed in the same run, and the largest mesh's batch chunk is
-split by kernel (CUDA events, no graph).
+the device's default plan (tiled) with the staged plan beside it; every device row is set against a
+``wp.copy`` of the same bytes timed in the same run, and the largest mesh's batch chunk is split by
+kernel (CUDA events, no graph).
 
     python -m benchmarks.expression [--device cuda:0] [--sizes 10000 100000 1000000] [--quick]
 """
@@ -24,7 +24,7 @@ import warp as wp
 import warpface as wf
 from warpface.data import ict_face_region
 from warpface.expression import muscle_weights
-from warpface.expression.model import LAUNCH_PLANS
+from warpface.expression.plans import plan_launches
 from warpface.expression.wrinkles import wrinkle_shapes
 
 from ._timing import machine_info, print_table, time_call, write_results
@@ -237,9 +237,7 @@ def torch_rows(reference: NumpyExpression, model, contractions: np.ndarray, dept
     batch_d = one_d.expand(frames, -1).contiguous()
     with torch.inference_mode():
         got = peer.frames(batch_c[:2], batch_d[:2]).cpu().numpy()
-        expected = model.evaluate_batch(
-            batch_c[:2].cpu().numpy().astype(np.float64), wrinkle_depths=np.tile(depths, (2, 1))
-        )
+        expected = model.evaluate(batch_c[:2].cpu().numpy().astype(np.float64), wrinkle_depths=np.tile(depths, (2, 1)))
         difference = float(np.abs(got - expected).max())
         sync = torch.cuda.synchronize
         single_s = time_call(lambda: peer.frames(one_c, one_d), repeats=20 if quick else 200, sync=sync)
@@ -278,7 +276,7 @@ def same_bytes_copy_seconds(device, vec3_count: int) -> float:
 
 
 def device_batch_rows(model, contractions: np.ndarray, quick: bool, bandwidth: float | None) -> dict:
-    """``evaluate_batch_into`` a device array from device controls (one replayed graph per batch), against
+    """``evaluate(..., out=...)`` into a device array from device controls (one replayed graph per batch), against
     a ``wp.copy`` of the same bytes (rest read + result written) timed in the same run."""
     if not model.device.is_cuda:
         return {}
@@ -291,10 +289,10 @@ def device_batch_rows(model, contractions: np.ndarray, quick: bool, bandwidth: f
         np.tile(model.default_depths, (frames, 1)).astype(np.float32), dtype=wp.float32, device=model.device
     )
     out = wp.empty((frames, vertex_count), dtype=wp.vec3, device=model.device)
-    run = lambda: model.evaluate_batch_into(out, device_c, wrinkle_depths=device_d)  # noqa: E731
+    run = lambda: model.evaluate(device_c, out=out, wrinkle_depths=device_d)  # noqa: E731
     seconds = time_call(run, repeats=3 if quick else 10, warmup=2, sync=lambda: wp.synchronize_device(model.device))
     check = min(frames, 4)
-    exact = bool(np.array_equal(out[:check].numpy(), model.evaluate_batch(controls[:check])))
+    exact = bool(np.array_equal(out[:check].numpy(), model.evaluate(controls[:check])))
     rate = frames / seconds
     moved = frame_bytes(vertex_count, len(model.control_names) + len(model.wrinkle_names)) * rate
     copy_s = same_bytes_copy_seconds(model.device, frames * vertex_count)
@@ -317,15 +315,15 @@ def kernel_split_rows(model, contractions: np.ndarray) -> dict:
     if not model.device.is_cuda:
         return {}
     frames = max(1, min(64, (1 << 24) // model.mesh.vertex_count))
-    buffers = model._frame_buffers(frames)
+    buffers = model.evaluator()._frame_buffers(frames)
     buffers.upload_controls(np.tile(contractions, (frames, 1)), np.tile(model.default_depths, (frames, 1)))
-    launches = model._launch_args(buffers, frames, buffers.contraction, buffers.depth, buffers.final_points, False)
+    launches = plan_launches(model, buffers, frames, buffers.contraction, buffers.depth, buffers.final_points)
     events = [wp.Event(device=model.device, enable_timing=True) for _ in range(len(launches) + 1)]
     samples: list[list[float]] = [[] for _ in launches]
     for repeat in range(13):
         wp.record_event(events[0])
         for index, (kernel, dim, inputs, outputs) in enumerate(launches):
-            wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=model.device)
+            wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=model.device, block_dim=model.block_dim)
             wp.record_event(events[index + 1])
         wp.synchronize_device(model.device)
         if repeat >= 3:
@@ -333,7 +331,6 @@ def kernel_split_rows(model, contractions: np.ndarray) -> dict:
                 sample.append(wp.get_event_elapsed_time(events[index], events[index + 1]))
     return {
         "kernel_split_frames": frames,
-        "kernel_split_frames_per_thread": model._frames_per_thread(frames),
         "kernel_split_ms_per_frame": {
             kernel.key: float(np.median(sample)) / frames for (kernel, *_), sample in zip(launches, samples)
         },
@@ -355,35 +352,32 @@ def graph_event_ms(graph, device, repeats: int = 500, warmup: int = 20) -> float
     return float(np.median(samples))
 
 
-def single_frame_rows(
-    model, mesh, muscles, wrinkles, thickness, contractions: np.ndarray, plans: dict | None = None
-) -> dict:
-    """On CUDA: the single-frame graph of each launch plan — 1 tiled kernel, 2 fused kernels, 3 (``model``'s),
-    and the five-kernel sequence (``plans``: models already built, by plan) — timed two ways: the host's
-    replay + synchronize (wall, what a synchronous caller
-    waits) and CUDA events around the replay (GPU time); and a ``wp.copy`` of the frame's 24·V bytes."""
+def single_frame_graph(model):
+    """The CUDA graph of ``model``'s single frame (captured by its first ``evaluate`` in this thread)."""
+    model.evaluate(None)
+    return model._evaluator._frame_buffers(1).graph
+
+
+def single_frame_rows(model, contractions: np.ndarray, plans: dict) -> dict:
+    """On CUDA: the single-frame graph of each plan (``plans``: models by plan name, ``model`` among them) timed
+    two ways: the host's replay + synchronize (wall, what a synchronous caller waits) and CUDA events around the
+    replay (GPU time); and a ``wp.copy`` of the frame's 24·V bytes."""
     if not model.device.is_cuda:
         return {}
     sync = lambda: wp.synchronize_device(model.device)  # noqa: E731
     row = {}
     expected = model.evaluate(contractions)
-    for launches in LAUNCH_PLANS:
-        other = (
-            model
-            if launches == model.launches_per_frame
-            else (plans or {}).get(launches)
-            or wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device=model.device, launches=launches)
-        )
+    for plan, other in plans.items():
         same = bool(np.array_equal(other.evaluate(contractions), expected))
-        seconds = time_call(lambda: wp.capture_launch(other._single.graph), repeats=500, sync=sync)
-        row[f"device_ms_{launches}_launches"] = seconds * 1e3
-        row[f"event_ms_{launches}_launches"] = graph_event_ms(other._single.graph, model.device)
-        row[f"same_bits_{launches}_launches"] = same
-    copy_s = same_bytes_copy_seconds(model.device, mesh.vertex_count)
-    device_ms = row[f"device_ms_{model.launches_per_frame}_launches"]
+        graph = single_frame_graph(other)
+        row[f"device_ms_{plan}"] = time_call(lambda g=graph: wp.capture_launch(g), repeats=500, sync=sync) * 1e3
+        row[f"event_ms_{plan}"] = graph_event_ms(graph, model.device)
+        row[f"same_bits_{plan}"] = same
+    copy_s = same_bytes_copy_seconds(model.device, model.mesh.vertex_count)
+    device_ms = row[f"device_ms_{model.plan}"]
     row.update(
         device_ms=device_ms,
-        event_ms=row[f"event_ms_{model.launches_per_frame}_launches"],
+        event_ms=row[f"event_ms_{model.plan}"],
         copy_ms_same_bytes=copy_s * 1e3,
         device_pct_same_bytes_copy=100.0 * copy_s * 1e3 / device_ms,
     )
@@ -393,10 +387,7 @@ def single_frame_rows(
 def run_case(label: str, mesh: wf.FaceMesh, device, quick: bool, bandwidth: float | None = None) -> dict:
     muscles, wrinkles, thickness, contractions = benchmark_rig(mesh)
     started = time.perf_counter()
-    # on CUDA the three-launch plan, the peer of the tiled one (the CUDA default, timed beside it)
-    model = wf.ExpressionModel(
-        mesh, muscles, wrinkles, thickness, device=device, launches=3 if device.is_cuda else None
-    )
+    model = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device=device)  # the device's default plan
     setup = time.perf_counter() - started
     numpy_model = NumpyExpression(mesh, muscles, wrinkles, thickness, device)
     depths = model.default_depths
@@ -407,16 +398,14 @@ def run_case(label: str, mesh: wf.FaceMesh, device, quick: bool, bandwidth: floa
     numpy_s = time_call(
         lambda: numpy_model.frame(contractions, depths), repeats=repeats, warmup=1, min_seconds=0.0 if quick else 0.5
     )
-    tiled, tiled_setup = None, None
-    if model.device.is_cuda:  # the one-launch plan (vertex tiles in shared memory), batched beside the three-launch one
-        started = time.perf_counter()
-        tiled = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device=device, launches=1)
-        tiled_setup = time.perf_counter() - started
-    single = single_frame_rows(model, mesh, muscles, wrinkles, thickness, contractions, plans={1: tiled})
+    staged = None
+    if model.device.is_cuda:  # the staged plan, timed beside the default (tiled)
+        staged = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device=device, plan="staged")
+    single = single_frame_rows(model, contractions, {model.plan: model, "staged": staged})
     device_s = single["device_ms"] / 1e3 if single else None
     frames = 64 if not big else 8
     batch = np.tile(contractions, (frames, 1))
-    batch_s = time_call(lambda: model.evaluate_batch(batch), repeats=3, warmup=1) / frames
+    batch_s = time_call(lambda: model.evaluate(batch), repeats=3, warmup=1) / frames
     row = {
         "mesh": label,
         "vertices": mesh.vertex_count,
@@ -433,16 +422,13 @@ def run_case(label: str, mesh: wf.FaceMesh, device, quick: bool, bandwidth: floa
         "max_abs_diff_vs_numpy": float(check),
     }
     row.update(device_batch_rows(model, contractions, quick, bandwidth))
-    if tiled is not None:
+    if staged is not None:
         row.update(
-            {f"tiled_{key}": value for key, value in device_batch_rows(tiled, contractions, quick, bandwidth).items()}
+            {f"staged_{key}": value for key, value in device_batch_rows(staged, contractions, quick, bandwidth).items()}
         )
-        row["tiled_setup_s"] = tiled_setup
-        row["tiled_x_default_batch"] = row["tiled_device_batch_frames_per_s"] / row["device_batch_frames_per_s"]
+        row["x_staged_batch"] = row["device_batch_frames_per_s"] / row["staged_device_batch_frames_per_s"]
         check = np.tile(contractions, (4, 1)) * np.linspace(0.5, 1.0, 4)[:, None]
-        row["tiled_max_abs_diff_vs_default"] = float(
-            np.abs(tiled.evaluate_batch(check) - model.evaluate_batch(check)).max()
-        )
+        row["max_abs_diff_vs_staged"] = float(np.abs(staged.evaluate(check) - model.evaluate(check)).max())
     if big:
         row.update(kernel_split_rows(model, contractions))
     row.update(torch_rows(numpy_model, model, contractions, depths, quick))
@@ -487,14 +473,15 @@ def main(argv=None) -> None:
     )
     if device.is_cuda:
         print(
-            f"\nOn device: evaluate_batch_into a device array from device controls, one CUDA graph per batch;"
+            f"\nOn device: evaluate(..., out=) a device array from device controls, one CUDA graph per batch;"
             f"\ncopy bandwidth (wp.copy, read + write) {bandwidth / 1e9:.0f} GB/s; bytes/frame = 24·V + 4·(controls)"
             f" (rest read + result written + controls)"
         )
         print(
             "PyTorch peer: the same math in float32 on the same GPU (index_add_ scatters), synchronised per call;"
-            f"\nmatch = max |Δx| ≤ {TORCH_TOLERANCE:g} × mesh size; × torch = torch ms / warp device ms (both host wall"
-            "\ntimes, synchronised per call); event ms = the frame's graph between CUDA events (GPU time, no host call)\n"
+            f"\nmatch = max |Δx| ≤ {TORCH_TOLERANCE:g} × mesh size; × torch = torch ms / warp device ms (both host"
+            "\nwall times, synchronised per call); event ms = the frame's graph between CUDA events (GPU time, no host"
+            " call)\n"
         )
         print_table(
             rows,
@@ -514,29 +501,29 @@ def main(argv=None) -> None:
             ],
         )
         print(
-            "\nTiled plan (ExpressionModel(launches=1): one kernel, vertex tiles with a two-ring halo in shared"
-            "\nmemory; the CUDA default), batched on device as above; × 3 = tiled frames/s /"
-            "\nthree-launch frames/s (same run); max |Δ| = against the three-launch plan over 4 frames (FMA contraction)\n"
+            "\nTiled plan (the CUDA default: one kernel, vertex tiles with a two-ring halo in shared memory) against"
+            "\nthe staged plan (five kernels), batched on device as above; × staged = tiled frames/s / staged"
+            "\nframes/s (same run); max |Δ| = against the staged plan over 4 frames (FMA contraction)\n"
         )
         print_table(
             rows,
             [
                 ("mesh", "mesh", "s"),
                 ("vertices", "vertices", ",d"),
-                ("device_batch_frames_per_s", "3-launch frames/s", ",.0f"),
-                ("tiled_device_batch_frames_per_s", "tiled frames/s", ",.0f"),
-                ("tiled_x_default_batch", "× 3", ".2f"),
-                ("device_batch_pct_copy_bw", "3-launch % copy bw", ".1f"),
-                ("tiled_device_batch_pct_copy_bw", "tiled % copy bw", ".1f"),
-                ("tiled_device_batch_pct_same_bytes_copy", "tiled % copy (batch)", ".1f"),
-                ("tiled_max_abs_diff_vs_default", "max |Δ|", ".2e"),
-                ("tiled_device_batch_exact", "tiled exact", ""),
-                ("tiled_setup_s", "tiling s", ".2f"),
+                ("staged_device_batch_frames_per_s", "staged frames/s", ",.0f"),
+                ("device_batch_frames_per_s", "tiled frames/s", ",.0f"),
+                ("x_staged_batch", "× staged", ".2f"),
+                ("staged_device_batch_pct_copy_bw", "staged % copy bw", ".1f"),
+                ("device_batch_pct_copy_bw", "tiled % copy bw", ".1f"),
+                ("device_batch_pct_same_bytes_copy", "tiled % copy (batch)", ".1f"),
+                ("max_abs_diff_vs_staged", "max |Δ|", ".2e"),
+                ("device_batch_exact", "tiled exact", ""),
+                ("setup_s", "setup s", ".2f"),
             ],
         )
         print(
-            "\nSingle-frame graph per launch plan (ExpressionModel(launches=1|2|3|5); the CUDA default: 1),"
-            "\n'same' = bit-identical to plan 3; a wp.copy of the same bytes (24·V: rest read + result"
+            "\nSingle-frame graph per plan (ExpressionModel(plan=...); the CUDA default: tiled),"
+            "\n'same' = bit-identical to the default; a wp.copy of the same bytes (24·V: rest read + result"
             "\nwritten) in the same run; % = copy time / warp time; 'event' = GPU time between CUDA events\n"
         )
         print_table(
@@ -544,17 +531,11 @@ def main(argv=None) -> None:
             [
                 ("mesh", "mesh", "s"),
                 ("vertices", "vertices", ",d"),
-                ("device_ms_1_launches", "1 ms", ".4f"),
-                ("device_ms_2_launches", "2 ms", ".4f"),
-                ("device_ms_3_launches", "3 ms", ".4f"),
-                ("device_ms_5_launches", "5 ms", ".4f"),
-                ("event_ms_1_launches", "1 event", ".4f"),
-                ("event_ms_2_launches", "2 event", ".4f"),
-                ("event_ms_3_launches", "3 event", ".4f"),
-                ("event_ms_5_launches", "5 event", ".4f"),
-                ("same_bits_1_launches", "1 same", ""),
-                ("same_bits_3_launches", "3 same", ""),
-                ("same_bits_5_launches", "5 same", ""),
+                ("device_ms_tiled", "tiled ms", ".4f"),
+                ("device_ms_staged", "staged ms", ".4f"),
+                ("event_ms_tiled", "tiled event", ".4f"),
+                ("event_ms_staged", "staged event", ".4f"),
+                ("same_bits_staged", "staged same", ""),
                 ("copy_ms_same_bytes", "copy ms", ".4f"),
                 ("device_pct_same_bytes_copy", "% copy (frame)", ".0f"),
                 ("device_batch_GB_per_s", "batch GB/s", ",.0f"),

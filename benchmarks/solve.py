@@ -148,7 +148,7 @@ def speed(device, frames_batched: int, quick: bool) -> list[dict]:
     timeline = performance(rig)
     if quick:
         timeline = timeline[::4]
-    frames = model.evaluate_batch(timeline).astype(np.float64)[:, rig.landmarks]
+    frames = model.evaluate(timeline).astype(np.float64)[:, rig.landmarks]
     rows = []
 
     # Warm-started landmark solve, frame after frame (the NumPy loop first, the same frames).

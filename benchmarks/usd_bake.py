@@ -10,7 +10,7 @@ Rows (same run, same positions):
   writes in ``Sdf.ChangeBlock``, temporary file + rename) and saving the rig layer.
 * ``bake incl. model setup``: the same, building the model from the stage (rig read, muscle weights,
   wrinkle distances).
-* ``evaluate only``: the expression model's share (``evaluate_batch`` of all frames).
+* ``evaluate only``: the expression model's share (``evaluate`` of all frames).
 * ``write usda``: the same fast writing path, to a text ``.usda`` layer.
 * ``naive Attribute.Set``: the usual first attempt — per frame, a Python list of ``Gf.Vec3f`` through
   ``UsdAttribute.Set`` on a stage, then ``Save`` to ``.usdc``. The ratios are against this row.
@@ -107,13 +107,13 @@ def main(argv=None) -> None:
         write_animation(stage, times, contractions=contractions)
         stage.GetRootLayer().Save()
         model = wf.ExpressionModel.from_rig(rig, device=device)
-        model.evaluate_batch(contractions[:2])  # compile / load kernels outside the timings
+        model.evaluate(contractions[:2])  # compile / load kernels outside the timings
 
         bake_s = _best(lambda: bake(rig_path, model=model, progress=False), args.repeats)
         cache = folder / "face_anim.usdc"
         setup_s = _best(lambda: bake(rig_path, device=device, progress=False), 1)
-        positions = model.evaluate_batch(contractions, wrinkle_depths=np.tile(model.default_depths, (len(times), 1)))
-        evaluate_s = _best(lambda: model.evaluate_batch(contractions), args.repeats)
+        positions = model.evaluate(contractions, wrinkle_depths=np.tile(model.default_depths, (len(times), 1)))
+        evaluate_s = _best(lambda: model.evaluate(contractions), args.repeats)
         usda = folder / "fast.usda"
         usda_s = _best(lambda: _write_fast(positions, times, usda), 1)
         naive = folder / "naive.usdc"

@@ -66,7 +66,7 @@ def main(argv=None) -> None:
     mesh = flat_sheet()
     muscle, furrow = flat_sheet_rig()
     model = wf.ExpressionModel(mesh, [muscle], [furrow], THICKNESS, device=args.device)
-    stages = model.evaluate({"muscle": args.contraction}, stages=True)
+    stages = model.stages({"muscle": args.contraction})
     print(f"stretch ratio r: min {stages.stretch.min():.3f}, max {stages.stretch.max():.3f}")
     print(
         f"bulge height: {np.ptp(stages.bulge[:, 1]):.1f}; furrow depth below the bulge: "

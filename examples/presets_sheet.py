@@ -33,7 +33,7 @@ def contact_sheet(rig, device=None, tile=(220, 260)) -> np.ndarray:
     points = rig.mesh.points
     camera = preview.Camera.for_face(points[rig.landmarks], yaw_deg=20.0, pitch_deg=5.0)
     names = list(PRESETS)
-    frames = model.evaluate_batch([preset_controls(name, rig) for name in names])
+    frames = model.evaluate([preset_controls(name, rig) for name in names])
     colors = [
         preview.heat_colors(np.linalg.norm(frame - points, axis=1) * 1000.0, vmin=0.0, vmax=MAX_MM) for frame in frames
     ]

@@ -51,7 +51,8 @@ def main(argv=None) -> int:
     source_model = source.model(device=args.device)
     timelines = [expression_timeline(name, source, seconds=args.seconds, fps=30.0) for name in EXPRESSIONS]
     truth = np.concatenate(timelines)
-    captured = source_model.evaluate_batch(truth, progress=True)
+    truth = np.pad(truth, ((0, 0), (0, len(source.control_names) - len(source.muscles))))  # the jaw at rest
+    captured = source_model.evaluate(truth, progress=True)
     rng = np.random.default_rng(0)
     landmarks = captured[:, source.landmarks].astype(np.float64)
     landmarks += rng.normal(scale=args.noise_mm * 1e-3, size=landmarks.shape)
@@ -61,9 +62,10 @@ def main(argv=None) -> int:
     solver = Solver(source, source.landmarks, device=args.device, smoothness=1e-3, l1=1e-5)
     solved = np.stack([solver.solve(frame).vector for frame in landmarks])
     scale = rig_scale(source)
-    linear = np.array([isinstance(m, LinearMuscle) for m in source.muscles])
+    jaw_count = len(source.control_names) - len(source.muscles)
+    linear = np.array([isinstance(m, LinearMuscle) for m in source.muscles] + [False] * jaw_count)
     error = np.abs(solved - truth) / np.where(linear, scale, 1.0)
-    solved_points = source_model.evaluate_batch(solved)
+    solved_points = source_model.evaluate(solved)
     surface = np.linalg.norm(solved_points - captured, axis=2).mean(axis=1) / scale
     print(
         f"{len(truth)} frames: control error mean {error.mean():.4f}, max {error.max():.4f} "

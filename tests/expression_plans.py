@@ -1,4 +1,4 @@
-"""Shared by the launch-plan tests (test_expression_fused, test_expression_tiled): the five-kernel sequence
+"""Shared by the plan tests (test_expression_plans, test_expression_tiled): the five-kernel sequence
 of kernels.py launched directly, the models under test, random controls, and a rig with a high-valence vertex."""
 
 import numpy as np
@@ -19,7 +19,7 @@ DEVICE = "cpu"
 
 
 def five_kernel_frames(model, controls: np.ndarray, depths: np.ndarray) -> dict:
-    """The unfused sequence (muscles, triangle stretch, stretch and bulge, area vectors, wrinkles) over
+    """The staged sequence (muscles, triangle stretch, stretch and bulge, area vectors, wrinkles) over
     F frames at once, on the model's rig data; every stage as numpy, (F, V, ...)."""
     mesh, device = model._mesh_buffers, model.device
     frames, vertex_count, triangle_count = len(controls), model.mesh.vertex_count, model.mesh.triangle_count
@@ -115,7 +115,7 @@ def five_kernel_frames(model, controls: np.ndarray, depths: np.ndarray) -> dict:
     }
 
 
-def build_model(rig_name: str, launches: int):
+def build_model(rig_name: str, plan: str):
     from warpface.assets import default_rig
 
     rig = default_rig() if rig_name == "default rig" else small_face_rig()
@@ -126,7 +126,7 @@ def build_model(rig_name: str, launches: int):
         rig.thickness,
         device=DEVICE,
         jaw=getattr(rig, "jaw", None),
-        launches=launches,
+        plan=plan,
     )
 
 
@@ -145,7 +145,7 @@ def random_controls(model, rng, frames: int):
 
 
 def fan_rig():
-    """A wavy disc whose centre has 14 incident triangles (more than the ring table's slots) and two
+    """A wavy disc whose centre has 14 incident triangles (a high valence) and two
     rings around it, with two linear muscles and a wrinkle across the centre."""
     import warpface as wf
 

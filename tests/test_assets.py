@@ -186,7 +186,7 @@ def evaluate_expressions(rig):
     results = {}
     for name in EXPRESSIONS:
         # evaluate() hands back views of device buffers; copy before the next frame.
-        stages = model.evaluate(expression_contractions(name, rig), stages=True)
+        stages = model.stages(expression_contractions(name, rig))
         results[name] = {key: np.array(stages[key], copy=True) for key in ("muscle", "stretch", "bulge", "final")}
     return results
 
@@ -493,7 +493,8 @@ def test_expression_timeline_goes_neutral_to_expression_to_neutral(rig):
     np.testing.assert_allclose(
         timeline / np.maximum(middle, 1e-30)[None, :] * (middle > 0), envelope[:, None] * (middle > 0)
     )
-    frames = rig.model(device=DEVICE).evaluate_batch(timeline[::15])
+    jaw_at_rest = np.zeros((len(timeline[::15]), len(rig.control_names) - len(rig.muscles)))
+    frames = rig.model(device=DEVICE).evaluate(np.concatenate([timeline[::15], jaw_at_rest], axis=1))
     np.testing.assert_allclose(frames[0], rig.mesh.points, atol=1e-6)
     with pytest.raises(ValueError):
         expression_timeline("smile", rig, seconds=0.0)

@@ -60,7 +60,7 @@ def test_unknown_muscle_name(small_model):
     with pytest.raises(ValueError, match="expected 1 values"):
         model.evaluate([1.0, 2.0])
     with pytest.raises(ValueError, match=r"shape \(frames, 1\)"):
-        model.evaluate_batch(np.zeros((3, 2)))
+        model.evaluate(np.zeros((3, 2)))
 
 
 @pytest.mark.parametrize(

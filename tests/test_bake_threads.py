@@ -64,9 +64,9 @@ def shuffled_finish(model, monkeypatch):
         with lock:
             delay = rng.uniform(0.0, 0.03)
         time.sleep(delay)
-        return ExpressionModel.evaluate_batch(model, *args, **kwargs)
+        return ExpressionModel.evaluate(model, *args, **kwargs)
 
-    monkeypatch.setattr(model, "evaluate_batch", slow_batch)
+    monkeypatch.setattr(model, "evaluate", slow_batch)
 
 
 @pytest.mark.parametrize("workers", [1, 4])
@@ -95,9 +95,9 @@ def test_threads_report_the_first_bad_frame_in_time_order_and_write_nothing(anim
         """Chunk [6, 7, 8] (frame 7 bad) fails only after chunk [12, 13, 14] has failed."""
         if len(contractions) == 3 and contractions[1, 0] > 1e6:
             time.sleep(0.3)
-        return ExpressionModel.evaluate_batch(model, contractions, **kwargs)
+        return ExpressionModel.evaluate(model, contractions, **kwargs)
 
-    monkeypatch.setattr(model, "evaluate_batch", late_first_chunks)
+    monkeypatch.setattr(model, "evaluate", late_first_chunks)
     with pytest.raises(ValueError, match=r"^/Face/Skin: controls at time 7: "):
         bake(animated_rig, model=model, progress=False, chunk_frames=3, workers=4)
     assert animated_rig.read_bytes() == before
@@ -152,9 +152,9 @@ def test_held_controls_are_evaluated_once_and_give_the_same_points(tmp_path, mod
 
     def counting(contractions, **kwargs):
         evaluated.append(len(contractions))
-        return ExpressionModel.evaluate_batch(model, contractions, **kwargs)
+        return ExpressionModel.evaluate(model, contractions, **kwargs)
 
-    monkeypatch.setattr(model, "evaluate_batch", counting)
+    monkeypatch.setattr(model, "evaluate", counting)
     bake(path, model=model, progress=False, chunk_frames=40)
     monkeypatch.undo()
     assert evaluated == [3]  # zeros, the pull, and -0.0 (a different bit pattern, so evaluated on its own)
@@ -202,7 +202,7 @@ model = small_face_rig().model(device="cpu")
 controls = np.random.default_rng(0).uniform(0.0, 0.3, (16, len(model.control_names)))
 results = [None, None]
 def evaluate(k):
-    results[k] = model.evaluate_batch(controls)
+    results[k] = model.evaluate(controls)
 threads = [threading.Thread(target=evaluate, args=(k,)) for k in range(2)]
 [t.start() for t in threads]
 [t.join() for t in threads]

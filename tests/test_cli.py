@@ -214,8 +214,8 @@ def test_bake_streams_in_chunks_and_matches_whole_evaluation(demo_dir, tmp_path)
     rig = usd.read_rig(stage)
     times = usd.frame_times(stage)
     animation = usd.read_animation(stage, times)
-    expected = ExpressionModel.from_rig(rig, device="cpu").evaluate_batch(
-        animation.contractions, wrinkle_depths=animation.wrinkle_depths
+    expected = ExpressionModel.from_rig(rig, device="cpu").evaluate(  # muscles, then the jaw's controls
+        animation.controls, wrinkle_depths=animation.wrinkle_depths
     )
     points = usd.rig_prims(stage).skin.GetAttribute("points")
     baked = np.stack([np.asarray(points.Get(Usd.TimeCode(t))) for t in times])

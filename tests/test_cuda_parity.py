@@ -2,7 +2,7 @@
 
 The project promises that every kernel runs on the CPU in tests and on CUDA unchanged. The rest of
 the suite runs on the CPU; this module runs each device path — the expression model's graph-replayed
-``evaluate_into`` / ``evaluate_batch_into`` (a whole batch as one graph) with pinned control staging, the batched activation
+``evaluate(..., out=...)`` (a whole batch as one graph) with pinned control staging, the batched activation
 solve, depth back-projection (quickselect kernel), the graph-captured CG tissue step on
 ``TissueState``/``TissueControl``, the tracking → tissue drive and ``geometry.closest_points`` — on
 the parity device and compares it with the CPU.
@@ -19,7 +19,7 @@ zero-copy checks skip without it); nothing from usd-core, pytetwild, pyrender, h
 
 Comparisons:
 
-* **On one device, bit-exact**: the device-resident paths (``evaluate_into`` into Warp arrays and
+* **On one device, bit-exact**: the device-resident paths (``evaluate(..., out=)`` into Warp arrays and
   torch tensors, device controls, graph replay) against the NumPy path on the same device — the same
   kernels on the same inputs.
 * **Across devices, a stated tolerance**: CPU kernels are compiled by LLVM, CUDA ones by NVRTC with
@@ -100,15 +100,14 @@ def test_precomputed_fields_match(face_rig):
 def test_expression_frames_match_cpu(face_rig, models):
     cpu_model, dev_model = models
     contractions, depths = expression_controls(face_rig, 6, seed=1)
-    expected = cpu_model.evaluate_batch(contractions, wrinkle_depths=depths)
-    got = dev_model.evaluate_batch(contractions, wrinkle_depths=depths)
+    expected = cpu_model.evaluate(contractions, wrinkle_depths=depths)
+    got = dev_model.evaluate(contractions, wrinkle_depths=depths)
     moved = np.linalg.norm(expected - face_rig.mesh.points, axis=2).max()
     assert moved > 0.01 * face_rig.mesh.size  # real expressions, not the rest face
     tolerance = FLOAT32_FACE_TOLERANCE * face_rig.mesh.size
     np.testing.assert_allclose(got, expected, rtol=0, atol=tolerance)
-    # every stage of a single frame (the graph-replayed path on CUDA)
-    cpu_stages = cpu_model.evaluate(contractions[0], wrinkle_depths=depths[0], stages=True)
-    dev_stages = dev_model.evaluate(contractions[0], wrinkle_depths=depths[0], stages=True)
+    # every stage of a single frame (the staged plan's intermediates on each device)
+    cpu_stages, dev_stages = (model.stages(contractions[0], wrinkle_depths=depths[0]) for model in models)
     for name in ("muscle", "bulge", "final"):
         np.testing.assert_allclose(dev_stages[name], cpu_stages[name], rtol=0, atol=tolerance, err_msg=name)
     # r is a float32 ratio of lengths the device sums in another order: 1.1e-5 relative measured (H200).
@@ -116,29 +115,29 @@ def test_expression_frames_match_cpu(face_rig, models):
 
 
 def test_device_resident_paths_are_bit_identical_on_the_device(face_rig, models):
-    """evaluate_into / evaluate_batch_into (Warp arrays, device controls, chunked launches) write the
+    """evaluate(..., out=...) (Warp arrays, device controls, chunked launches, one frame or a batch) writes the
     same bits as the NumPy path on the same device."""
     _, model = models
     contractions, depths = expression_controls(face_rig, 5, seed=2)
     vertex_count = face_rig.mesh.vertex_count
-    expected = model.evaluate_batch(contractions, wrinkle_depths=depths)
+    expected = model.evaluate(contractions, wrinkle_depths=depths)
     single = model.evaluate(contractions[0], wrinkle_depths=depths[0])  # graph replay on CUDA
     np.testing.assert_array_equal(single, expected[0])  # graph replay == eager launches
 
     out = wp.empty(vertex_count, dtype=wp.vec3, device=DEVICE)
-    assert model.evaluate_into(out, contractions[0], wrinkle_depths=depths[0]) is out
+    assert model.evaluate(contractions[0], out=out, wrinkle_depths=depths[0]) is out
     np.testing.assert_array_equal(out.numpy(), expected[0])
     device_c = wp.array(contractions.astype(np.float32), dtype=wp.float32, device=DEVICE)
     device_d = wp.array(depths.astype(np.float32), dtype=wp.float32, device=DEVICE)
     flat = wp.empty((vertex_count, 3), dtype=wp.float32, device=DEVICE)
-    model.evaluate_into(flat, device_c[1], wrinkle_depths=device_d[1])
+    model.evaluate(device_c[1], out=flat, wrinkle_depths=device_d[1])
     np.testing.assert_array_equal(flat.numpy(), model.evaluate(contractions[1], wrinkle_depths=depths[1]))
 
     for frames_per_launch in (None, 2):
         batch = wp.empty((5, vertex_count), dtype=wp.vec3, device=DEVICE)
-        model.evaluate_batch_into(batch, device_c, wrinkle_depths=device_d, frames_per_launch=frames_per_launch)
+        model.evaluate(device_c, out=batch, wrinkle_depths=device_d, frames_per_launch=frames_per_launch)
         np.testing.assert_array_equal(batch.numpy(), expected, err_msg=f"frames_per_launch={frames_per_launch}")
-        model.evaluate_batch_into(batch, contractions, wrinkle_depths=depths, frames_per_launch=frames_per_launch)
+        model.evaluate(contractions, out=batch, wrinkle_depths=depths, frames_per_launch=frames_per_launch)
         np.testing.assert_array_equal(batch.numpy(), expected, err_msg=f"host controls, {frames_per_launch}")
 
 
@@ -146,12 +145,11 @@ def test_back_to_back_frames_without_sync_each_keep_their_controls(face_rig, mod
     """Queued graph replays with host controls: the pinned staging of frame f+1 must not overwrite
     frame f's controls before their copy ran. Nothing is read back until the end."""
     _, model = models
-    frames = 8
-    contractions, depths = expression_controls(face_rig, frames, seed=3)
-    expected = model.evaluate_batch(contractions, wrinkle_depths=depths)
-    out = wp.empty((frames, face_rig.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
-    for f in range(frames):
-        model.evaluate_into(out[f], contractions[f], wrinkle_depths=depths[f])
+    contractions, depths = expression_controls(face_rig, 8, seed=3)
+    expected = model.evaluate(contractions, wrinkle_depths=depths)
+    out = wp.empty((8, face_rig.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
+    for f in range(8):
+        model.evaluate(contractions[f], out=out[f], wrinkle_depths=depths[f])
     # Device-resident follow-up work on the results: a reduction by a kernel, no host round trip.
     moved = wp.zeros(1, dtype=wp.float32, device=DEVICE)
     rest = wp.array(face_rig.mesh.points.astype(np.float32), dtype=wp.vec3, device=DEVICE)
@@ -174,7 +172,7 @@ def test_torch_tensors_in_and_out(face_rig, models):
     torch = torch_on(DEVICE)
     torch_device = wp.device_to_torch(DEVICE)
     contractions, depths = expression_controls(face_rig, 3, seed=4)
-    expected = model.evaluate_batch(contractions, wrinkle_depths=depths)
+    expected = model.evaluate(contractions, wrinkle_depths=depths)
     vertex_count = face_rig.mesh.vertex_count
     out = torch.empty((vertex_count, 3), dtype=torch.float32, device=torch_device)
     controls = torch.tensor(contractions.astype(np.float32), device=torch_device)
@@ -184,13 +182,13 @@ def test_torch_tensors_in_and_out(face_rig, models):
     # model's docstring asks (torch's inputs ready before Warp reads them, Warp done before torch reads).
     synchronize_torch = torch.cuda.synchronize if DEVICE.is_cuda else (lambda: None)
     synchronize_torch()
-    assert model.evaluate_into(out, controls[0], wrinkle_depths=wrinkles[0]) is out
-    model.evaluate_batch_into(batch, controls, wrinkle_depths=wrinkles)
+    assert model.evaluate(controls[0], out=out, wrinkle_depths=wrinkles[0]) is out
+    model.evaluate(controls, out=batch, wrinkle_depths=wrinkles)
     wp.synchronize_device(DEVICE)
     np.testing.assert_array_equal(out.cpu().numpy(), expected[0])
     np.testing.assert_array_equal(batch.cpu().numpy(), expected)
     warp_out = wp.empty((3, vertex_count), dtype=wp.vec3, device=DEVICE)
-    model.evaluate_batch_into(warp_out, contractions, wrinkle_depths=depths)
+    model.evaluate(contractions, out=warp_out, wrinkle_depths=depths)
     wp.synchronize_device(DEVICE)
     shared = wp.to_torch(warp_out)  # a view, no copy
     assert shared.data_ptr() == warp_out.ptr
@@ -203,27 +201,24 @@ def test_batch_graph_replays_read_each_calls_controls(face_rig, models):
     jaw controls and a partial last chunk, queued back to back with no sync in between."""
     _, model = models
     frames, vertex_count = 5, face_rig.mesh.vertex_count
-    calls = []
-    for seed in (6, 7, 8):
-        calls.append(expression_controls(face_rig, frames, seed=seed))
-    expected = [model.evaluate_batch(c, wrinkle_depths=d, frames_per_launch=2) for c, d in calls]
+    calls = [expression_controls(face_rig, frames, seed=seed) for seed in (6, 7, 8)]
+    expected = [model.evaluate(c, wrinkle_depths=d, frames_per_launch=2) for c, d in calls]
     assert np.abs(expected[0] - expected[1]).max() > 1e-3 * face_rig.mesh.size  # the calls really differ
     # the host path's pinned double-buffered read-back: chunks of 2 (three copies in flight in turn) == one chunk
-    np.testing.assert_array_equal(expected[0], model.evaluate_batch(calls[0][0], wrinkle_depths=calls[0][1]))
+    np.testing.assert_array_equal(expected[0], model.evaluate(calls[0][0], wrinkle_depths=calls[0][1]))
     outs = [wp.empty((frames, vertex_count), dtype=wp.vec3, device=DEVICE) for _ in range(2)]
     for index, (controls, depths) in enumerate(calls):  # host controls: staged, same graph per output
-        model.evaluate_batch_into(outs[index % 2], controls, wrinkle_depths=depths, frames_per_launch=2)
+        model.evaluate(controls, out=outs[index % 2], wrinkle_depths=depths, frames_per_launch=2)
         if index == 1:
             np.testing.assert_array_equal(outs[0].numpy(), expected[0])
     np.testing.assert_array_equal(outs[1].numpy(), expected[1])
     np.testing.assert_array_equal(outs[0].numpy(), expected[2])
 
-    device_c = wp.array(calls[0][0].astype(np.float32), dtype=wp.float32, device=DEVICE)
-    device_d = wp.array(calls[0][1].astype(np.float32), dtype=wp.float32, device=DEVICE)
+    device_c, device_d = (wp.array(v.astype(np.float32), dtype=wp.float32, device=DEVICE) for v in calls[0])
     for index in (0, 1, 2):  # device controls rewritten in place between replays of one graph
-        wp.copy(device_c, wp.array(calls[index][0].astype(np.float32), dtype=wp.float32, device=DEVICE))
-        wp.copy(device_d, wp.array(calls[index][1].astype(np.float32), dtype=wp.float32, device=DEVICE))
-        model.evaluate_batch_into(outs[0], device_c, wrinkle_depths=device_d)
+        for target, values in zip((device_c, device_d), calls[index]):
+            wp.copy(target, wp.array(values.astype(np.float32), dtype=wp.float32, device=DEVICE))
+        model.evaluate(device_c, out=outs[0], wrinkle_depths=device_d)
         np.testing.assert_array_equal(outs[0].numpy(), expected[index], err_msg=f"device controls, call {index}")
 
 
@@ -243,7 +238,7 @@ def solve_inputs(rig, frames: int):
 
     linear = np.array([not isinstance(m, SphincterMuscle) for m in rig.muscles])
     truths[:, linear] *= scale
-    shapes = rig.model(device=CPU).evaluate_batch(truths).astype(np.float64)
+    shapes = rig.model(device=CPU).evaluate(truths).astype(np.float64)
     targets = shapes[:, vertices]
     targets[1, :20] = np.nan  # missing points
     return vertices, targets, truths

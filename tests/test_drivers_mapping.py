@@ -227,7 +227,7 @@ def one_hot_motion(rig):
             controls[:, column] = mapped.values[:, mapped.names.index(name)]
     model = rig.model(device="cpu")
     rest = model.evaluate(np.zeros(len(rig.control_names)))
-    frames = model.evaluate_batch(controls)
+    frames = model.evaluate(controls)
     return {c: (frames[k] - rest) * 1000.0 for k, c in enumerate(channels)}
 
 

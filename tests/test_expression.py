@@ -60,7 +60,7 @@ def test_every_stage_matches_float64_reference(seed):
     rng = np.random.default_rng(seed)
     mesh, muscles, wrinkles, thickness, contractions, spec_muscles, spec_wrinkles = random_rig(rng)
     model = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device="cpu")
-    got = model.evaluate(contractions, stages=True)
+    got = model.stages(contractions)
     expected = ref.evaluate(mesh.points, mesh.triangles, spec_muscles, contractions, spec_wrinkles, thickness)
     assert expected["stretch"].min() < 0.9 and expected["stretch"].max() > 1.1, (
         "the random rig should compress and stretch"
@@ -80,7 +80,7 @@ def test_batch_equals_single_frames(rng, frames_per_launch):
     model = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device="cpu")
     frames = np.outer(np.linspace(0, 1, 5), contractions)
     depths = np.outer(np.linspace(1, 2, 5), model.default_depths)
-    batch = model.evaluate_batch(frames, wrinkle_depths=depths, frames_per_launch=frames_per_launch)
+    batch = model.evaluate(frames, wrinkle_depths=depths, frames_per_launch=frames_per_launch)
     for i in range(5):
         np.testing.assert_array_equal(batch[i], model.evaluate(frames[i], wrinkle_depths=depths[i]))
 
@@ -90,7 +90,7 @@ def test_frames_per_launch_beyond_32_bit_thread_indices_is_refused(rng):
     model = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device="cpu")
     too_many = (1 << 31) // mesh.triangle_count + 1
     with pytest.raises(ValueError, match="exceeds one launch"):
-        model.evaluate_batch(contractions[None], frames_per_launch=too_many)
+        model.evaluate(contractions[None], frames_per_launch=too_many)
 
 
 @pytest.mark.parametrize("bad", [0, -1, 1.5, "2"])
@@ -98,7 +98,7 @@ def test_frames_per_launch_must_be_positive_integer(rng, bad):
     mesh, muscles, wrinkles, thickness, contractions, *_ = random_rig(rng, n=6)
     model = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device="cpu")
     with pytest.raises(ValueError if isinstance(bad, int) else TypeError, match="frames_per_launch"):
-        model.evaluate_batch(contractions[None], frames_per_launch=bad)
+        model.evaluate(contractions[None], frames_per_launch=bad)
 
 
 def test_named_contractions_equal_ordered_array(rng):
@@ -113,15 +113,15 @@ def test_zero_contraction_is_identity(rng):
     flat_wrinkles = [wf.Wrinkle(w.name, w.control_points, w.projection, w.depth, w.width, 0.0) for w in wrinkles]
     model = wf.ExpressionModel(mesh, muscles, flat_wrinkles, thickness, device="cpu")
     np.testing.assert_array_equal(model.evaluate(), mesh.points.astype(np.float32))
-    np.testing.assert_array_equal(model.evaluate_batch(np.zeros((2, len(muscles))))[1], mesh.points.astype(np.float32))
+    np.testing.assert_array_equal(model.evaluate(np.zeros((2, len(muscles))))[1], mesh.points.astype(np.float32))
 
 
 def test_results_are_not_overwritten_by_later_frames(rng):
     mesh, muscles, wrinkles, thickness, contractions, *_ = random_rig(rng, n=10)
     model = wf.ExpressionModel(mesh, muscles, wrinkles, thickness, device="cpu")
-    first, first_stages = model.evaluate(contractions), model.evaluate(contractions, stages=True)
+    first, first_stages = model.evaluate(contractions), model.stages(contractions)
     kept, kept_stretch = first.copy(), first_stages.stretch.copy()
-    model.evaluate(contractions * 2, stages=True)
+    model.stages(contractions * 2)
     np.testing.assert_array_equal(first, kept)
     np.testing.assert_array_equal(first_stages.stretch, kept_stretch)
 
@@ -222,9 +222,9 @@ def test_flat_unstretched_skin_does_not_bulge():
     points, triangles = grid_surface(10, height=0.0, seed=None)
     muscle = wf.LinearMuscle("m", [0, -2, 0], [0, 0, 0], 50, 0.5, 3.0)  # in-plane: the sheet stays flat
     model = wf.ExpressionModel(wf.FaceMesh(points, triangles), [muscle], [], 0.3, device="cpu")
-    stages = model.evaluate({"m": 0.0}, stages=True)
+    stages = model.stages({"m": 0.0})
     np.testing.assert_array_equal(stages.bulge, stages.muscle)
-    stages = model.evaluate({"m": 0.2}, stages=True)  # stretched/compressed skin bulges along ±z only
+    stages = model.stages({"m": 0.2})  # stretched/compressed skin bulges along ±z only
     moved = np.abs(stages.stretch - 1.0) > 1e-3
     assert moved.any() and np.all(np.abs(stages.bulge[:, :2] - stages.muscle[:, :2]) < 1e-6)
     assert np.all(np.sign(stages.bulge[moved, 2]) == np.sign(1.0 / stages.stretch[moved] - 1.0))
@@ -260,8 +260,8 @@ def test_projections_give_lengths_in_mesh_units(rng):
 
 def test_thickness_changes_only_the_bulge(rng):
     mesh, muscles, wrinkles, thickness, contractions, *_ = random_rig(rng, n=10)
-    thin = wf.ExpressionModel(mesh, muscles, [], 0.0, device="cpu").evaluate(contractions, stages=True)
-    thick = wf.ExpressionModel(mesh, muscles, [], thickness, device="cpu").evaluate(contractions, stages=True)
+    thin = wf.ExpressionModel(mesh, muscles, [], 0.0, device="cpu").stages(contractions)
+    thick = wf.ExpressionModel(mesh, muscles, [], thickness, device="cpu").stages(contractions)
     np.testing.assert_array_equal(thin.muscle, thick.muscle)
     np.testing.assert_array_equal(thin.bulge, thin.muscle)
     assert np.abs(thick.bulge - thick.muscle).max() > 1e-3

@@ -1,4 +1,4 @@
-"""Device-resident results: evaluate_into / evaluate_batch_into write the same bits as the NumPy path,
+"""Device-resident results: evaluate(..., out=...) writes the same bits as the NumPy path,
 into Warp arrays and (zero-copy, DLPack) foreign arrays, with host or device controls."""
 
 import numpy as np
@@ -25,10 +25,10 @@ def test_single_frame_into_warp_array_is_bit_identical(model, rng):
     contractions, depths = random_controls(model, rng, 1)
     expected = model.evaluate(contractions[0], wrinkle_depths=depths[0])
     vec = wp.empty(model.mesh.vertex_count, dtype=wp.vec3, device=DEVICE)
-    assert model.evaluate_into(vec, contractions[0], wrinkle_depths=depths[0]) is vec
+    assert model.evaluate(contractions[0], out=vec, wrinkle_depths=depths[0]) is vec
     np.testing.assert_array_equal(vec.numpy(), expected)
     flat = wp.empty((model.mesh.vertex_count, 3), dtype=wp.float32, device=DEVICE)
-    model.evaluate_into(flat, dict(zip(model.muscle_names, contractions[0])), wrinkle_depths=depths[0])
+    model.evaluate(dict(zip(model.muscle_names, contractions[0])), out=flat, wrinkle_depths=depths[0])
     np.testing.assert_array_equal(flat.numpy(), expected)
 
 
@@ -36,28 +36,28 @@ def test_device_controls_equal_host_controls(model, rng):
     contractions, depths = random_controls(model, rng, 1)
     expected = model.evaluate(contractions[0], wrinkle_depths=depths[0])
     out = wp.empty(model.mesh.vertex_count, dtype=wp.vec3, device=DEVICE)
-    model.evaluate_into(
-        out,
+    model.evaluate(
         wp.array(contractions[0].astype(np.float32), device=DEVICE),
+        out=out,
         wrinkle_depths=wp.array(depths[0].astype(np.float32), device=DEVICE),
     )
     np.testing.assert_array_equal(out.numpy(), expected)
     # device contractions with the wrinkles' own default depths
-    model.evaluate_into(out, wp.array(contractions[0].astype(np.float32), device=DEVICE))
+    model.evaluate(wp.array(contractions[0].astype(np.float32), device=DEVICE), out=out)
     np.testing.assert_array_equal(out.numpy(), model.evaluate(contractions[0]))
 
 
 @pytest.mark.parametrize("frames_per_launch", [None, 2, 5])
 def test_batch_into_is_bit_identical(model, rng, frames_per_launch):
     contractions, depths = random_controls(model, rng, 7)
-    expected = model.evaluate_batch(contractions, wrinkle_depths=depths, frames_per_launch=frames_per_launch)
+    expected = model.evaluate(contractions, wrinkle_depths=depths, frames_per_launch=frames_per_launch)
     out = wp.empty((7, model.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
-    model.evaluate_batch_into(out, contractions, wrinkle_depths=depths, frames_per_launch=frames_per_launch)
+    model.evaluate(contractions, out=out, wrinkle_depths=depths, frames_per_launch=frames_per_launch)
     np.testing.assert_array_equal(out.numpy(), expected)
     flat = wp.empty((7, model.mesh.vertex_count, 3), dtype=wp.float32, device=DEVICE)
-    model.evaluate_batch_into(
-        flat,
+    model.evaluate(
         wp.array(contractions.astype(np.float32), device=DEVICE),
+        out=flat,
         wrinkle_depths=wp.array(depths.astype(np.float32), device=DEVICE),
         frames_per_launch=frames_per_launch,
     )
@@ -83,10 +83,10 @@ def test_dlpack_output_is_written_in_place(model, rng):
         def shape(self):
             return self.array.shape
 
-    model.evaluate_batch_into(Foreign(host), contractions, wrinkle_depths=depths)
-    np.testing.assert_array_equal(host, model.evaluate_batch(contractions, wrinkle_depths=depths))
+    model.evaluate(contractions, out=Foreign(host), wrinkle_depths=depths)
+    np.testing.assert_array_equal(host, model.evaluate(contractions, wrinkle_depths=depths))
     single = np.zeros((model.mesh.vertex_count, 3), dtype=np.float32)
-    model.evaluate_into(Foreign(single), contractions[1], wrinkle_depths=depths[1])
+    model.evaluate(contractions[1], out=Foreign(single), wrinkle_depths=depths[1])
     np.testing.assert_array_equal(single, model.evaluate(contractions[1], wrinkle_depths=depths[1]))
 
 
@@ -102,15 +102,15 @@ def test_dlpack_output_is_written_in_place(model, rng):
 )
 def test_bad_outputs_are_refused(model, make, message):
     with pytest.raises(ValueError, match=message):
-        model.evaluate_into(make(model.mesh.vertex_count))
+        model.evaluate(out=make(model.mesh.vertex_count))
 
 
 def test_bad_device_controls_are_refused(model):
     out = wp.empty(model.mesh.vertex_count, dtype=wp.vec3, device=DEVICE)
-    with pytest.raises(ValueError, match="contractions.*shape"):
-        model.evaluate_into(out, wp.zeros(len(model.muscles) + 1, dtype=wp.float32, device=DEVICE))
-    with pytest.raises(ValueError, match="contractions.*dtype"):
-        model.evaluate_into(out, wp.zeros(len(model.muscles), dtype=wp.float64, device=DEVICE))
+    with pytest.raises(ValueError, match="controls.*shape"):
+        model.evaluate(wp.zeros(len(model.muscles) + 1, dtype=wp.float32, device=DEVICE), out=out)
+    with pytest.raises(ValueError, match="controls.*dtype"):
+        model.evaluate(wp.zeros(len(model.muscles), dtype=wp.float64, device=DEVICE), out=out)
 
 
 # ------------------------------------------------------------------ the benchmark's PyTorch peer
@@ -160,7 +160,7 @@ def test_benchmark_torch_peer_computes_the_model(use_torch):
     rng = np.random.default_rng(11)
     frames = contractions * rng.uniform(0.0, 2.0, (3, len(contractions)))
     depths = model.default_depths * rng.uniform(0.0, 2.0, (3, len(model.wrinkles)))
-    expected = model.evaluate_batch(frames, wrinkle_depths=depths)
+    expected = model.evaluate(frames, wrinkle_depths=depths)
     got = np.asarray(
         peer.frames(
             torch.as_tensor(frames, dtype=torch.float32, device="cpu"),
@@ -183,12 +183,12 @@ def test_benchmark_torch_peer_computes_the_model(use_torch):
 def test_batch_into_with_progress_and_partial_chunks(model, rng):
     """The chunked path writes each chunk's frames (the last one partial) straight into the output."""
     contractions, depths = random_controls(model, rng, 5)
-    expected = model.evaluate_batch(contractions, wrinkle_depths=depths)
+    expected = model.evaluate(contractions, wrinkle_depths=depths)
     for progress, frames_per_launch in ((True, None), (False, 2), (True, 3)):
         out = wp.zeros((5, model.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
-        model.evaluate_batch_into(
-            out, contractions, wrinkle_depths=depths, progress=progress, frames_per_launch=frames_per_launch
+        model.evaluate(
+            contractions, out=out, wrinkle_depths=depths, progress=progress, frames_per_launch=frames_per_launch
         )
         np.testing.assert_array_equal(out.numpy(), expected, err_msg=f"progress={progress}, {frames_per_launch}")
     with pytest.raises(ValueError, match="progress"):
-        model.evaluate_batch_into(out, contractions, progress=0)
+        model.evaluate(contractions, out=out, progress=0)

@@ -1,4 +1,4 @@
-"""The tiled one-launch plan (``launches=1``, kernels_tiled + tiling): its tiles against an independent
+"""The tiled plan (``plan="tiled"``, kernels_tiled + kernels_resident + tiling): its tiles against an independent
 per-tile set construction, and its frames against the five-kernel sequence of kernels.py bit for bit —
 blocks of one thread (the CPU's) and of many (CPU blocks, as on CUDA), several frames per block."""
 
@@ -8,14 +8,10 @@ import warp as wp
 from expression_plans import build_model, fan_rig, five_kernel_frames, random_controls
 
 from warpface import ExpressionModel
-from warpface.expression.kernels_tiled import (
-    TILE_OWNED,
-    TILE_TRIANGLES,
-    TILE_VERTICES,
-    expression_tiles,
-    expression_tiles_resident,
-)
-from warpface.expression.tiling import mesh_tiles, morton_order, vertex_tiles
+from warpface.expression.kernels_resident import expression_tiles_resident
+from warpface.expression.kernels_tiled import expression_tiles
+from warpface.expression.plans import plan_launches
+from warpface.expression.tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, mesh_tiles, morton_order, vertex_tiles
 
 DEVICE = "cpu"
 
@@ -101,11 +97,11 @@ def test_small_caps_split_tiles_until_they_fit():
 
 
 def test_a_mesh_that_cannot_be_tiled_is_an_error_only_when_the_tiled_plan_is_required():
-    """The model's default plan on CUDA tiles large meshes and falls back to three launches when a vertex cannot fit."""
+    """The model's default plan on CUDA tiles meshes and falls back to the staged plan when a vertex cannot fit."""
     mesh = fan_rig()[0]
     caps = dict(max_owned=8, max_halo=20, max_triangles=100)
     assert mesh_tiles(mesh, mesh.device_buffers(device=DEVICE), device=DEVICE, required=False, **caps) is None
-    with pytest.raises(ValueError, match="use launches=3"):
+    with pytest.raises(ValueError, match='use plan="staged"'):
         mesh_tiles(mesh, mesh.device_buffers(device=DEVICE), device=DEVICE, **caps)
     tiles = mesh_tiles(mesh, mesh.device_buffers(device=DEVICE), device=DEVICE, required=False)
     assert len(tiles) == 5 and tiles[0].shape[0] >= 1
@@ -122,15 +118,13 @@ def test_morton_order_keeps_neighbours_close():
 
 @pytest.mark.parametrize("rig_name", ["default rig", "small rig without jaw"])
 def test_tiled_frames_equal_the_five_kernel_sequence(rig_name, rng):
-    model = build_model(rig_name, 1)
+    model = build_model(rig_name, "tiled")
     contractions, depths = random_controls(model, rng, 4)
     expected = five_kernel_frames(model, contractions, depths)
-    stages = model.evaluate(contractions[0], wrinkle_depths=depths[0], stages=True)
-    for name in ("muscle", "stretch", "bulge", "final"):
-        np.testing.assert_array_equal(stages[name], expected[name][0], err_msg=name)
-    np.testing.assert_array_equal(model.evaluate_batch(contractions, wrinkle_depths=depths), expected["final"])
+    np.testing.assert_array_equal(model.evaluate(contractions[0], wrinkle_depths=depths[0]), expected["final"][0])
+    np.testing.assert_array_equal(model.evaluate(contractions, wrinkle_depths=depths), expected["final"])
     out = wp.empty((4, model.mesh.vertex_count), dtype=wp.vec3, device=DEVICE)
-    model.evaluate_batch_into(out, contractions, wrinkle_depths=depths, frames_per_launch=3)
+    model.evaluate(contractions, out=out, wrinkle_depths=depths, frames_per_launch=3)
     np.testing.assert_array_equal(out.numpy(), expected["final"])
 
 
@@ -139,13 +133,13 @@ def launch_tiled_blocks(model, rng, kernel, block_dim, frames_per_block, frames=
     CUDA) and ``frames_per_block``; returns the frames and the five-kernel sequence's."""
     contractions, depths = random_controls(model, rng, frames)
     expected = five_kernel_frames(model, contractions, depths)["final"]
-    buffers = model._frame_buffers(frames)
+    buffers = model.evaluator()._frame_buffers(frames)
     buffers.upload_controls(contractions, depths)
-    ((_, dim, inputs, outputs),) = model._launch_args(
-        buffers, frames, buffers.contraction, buffers.depth, buffers.final_points, False
+    ((_, dim, inputs, outputs),) = plan_launches(
+        model, buffers, frames, buffers.contraction, buffers.depth, buffers.final_points
     )
     inputs = list(inputs)
-    inputs[-2] = frames_per_block
+    inputs[-1] = frames_per_block
     saved = wp.config.enable_cpu_blocks
     wp.config.enable_cpu_blocks = True
     try:
@@ -178,7 +172,7 @@ def test_resident_rig_data_equals_the_five_kernel_sequence(
     """The CUDA kernel that reads each thread's rig data once per block (its fixed items in registers, rows
     cut after ``slots`` entries continuing over the CSR; slots of 0 walk every row over the CSR), over
     blocks of 64–512 threads, several frames per block and pass: the same bits as the five kernels."""
-    model = build_model(rig_name, 1)
+    model = build_model(rig_name, "tiled")
     got, expected = launch_tiled_blocks(
         model, rng, expression_tiles_resident(frames_per_pass, block_dim, slots=slots), block_dim, frames_per_block
     )
@@ -189,7 +183,7 @@ def test_resident_rig_data_equals_the_five_kernel_sequence(
 def test_blocks_of_many_threads_equal_the_five_kernel_sequence(rng, block_dim, frames_per_block, frames_per_pass):
     """The kernel's strided passes and barriers with many threads per block (as on CUDA, 256), here as
     Warp's CPU blocks, several frames per block and per pass (the last pass partial): the same bits."""
-    model = build_model("default rig", 1)
+    model = build_model("default rig", "tiled")
     got, expected = launch_tiled_blocks(model, rng, expression_tiles(frames_per_pass), block_dim, frames_per_block)
     np.testing.assert_array_equal(got, expected)
 
@@ -197,10 +191,10 @@ def test_blocks_of_many_threads_equal_the_five_kernel_sequence(rng, block_dim, f
 def test_tiled_plan_with_more_incident_triangles_than_ring_slots(rng):
     """The fan's centre (14 incident triangles): local adjacency has no fixed width, several frames per block."""
     mesh, muscles, wrinkles = fan_rig()
-    model = ExpressionModel(mesh, muscles, wrinkles, 0.004, device=DEVICE, launches=1)
+    model = ExpressionModel(mesh, muscles, wrinkles, 0.004, device=DEVICE, plan="tiled")
     contractions = rng.uniform(0.005, 0.02, (4, 2))
     depths = rng.uniform(0.5, 2.0, (4, 1)) * model.default_depths
     expected = five_kernel_frames(model, contractions, depths)["final"]
     np.testing.assert_array_equal(
-        model.evaluate_batch(contractions, wrinkle_depths=depths, frames_per_launch=4), expected
+        model.evaluate(contractions, wrinkle_depths=depths, frames_per_launch=4), expected
     )  # 4 per block

@@ -214,12 +214,19 @@ control_names = st.one_of(
     ),
 )
 def test_evaluate(model, contractions, depths):
-    points = outcome(lambda: model.evaluate(contractions, wrinkle_depths=depths), "contraction", "wrinkle depth")
+    points = outcome(
+        lambda: model.evaluate(contractions, wrinkle_depths=depths),
+        "contraction",
+        "controls",
+        "wrinkle depth",
+        "wrinkle_depths",
+    )
     if points is not None:
-        assert points.shape == (model.mesh.vertex_count, 3)
+        assert points.shape[-2:] == (model.mesh.vertex_count, 3) and points.ndim in (2, 3)  # a frame or a batch
         finite(points)
-        stages = model.evaluate(contractions, wrinkle_depths=depths, stages=True)
-        finite(stages.muscle, stages.stretch, stages.bulge, stages.final)
+        if points.ndim == 2:
+            stages = model.stages(contractions, wrinkle_depths=depths)
+            finite(stages.muscle, stages.stretch, stages.bulge, stages.final)
 
 
 @FUZZ
@@ -239,10 +246,12 @@ def test_evaluate_batch(model, frames, fill, kind, per_launch):
         "bad": "smile",
     }[kind]
     result = outcome(
-        lambda: model.evaluate_batch(values, frames_per_launch=per_launch), "contraction", "frames_per_launch"
+        lambda: model.evaluate(values, frames_per_launch=per_launch), "contraction", "controls", "frames_per_launch"
     )
     if result is not None:
-        assert result.shape == (frames, model.mesh.vertex_count, 3)
+        assert result.shape == (
+            (model.mesh.vertex_count, 3) if kind == "flat" else (frames, model.mesh.vertex_count, 3)
+        )
         finite(result)
 
 

@@ -45,7 +45,7 @@ def test_jaw_stage_matches_float64_reference(seed):
     model = wf.ExpressionModel(mesh, [muscle], thickness=0.0, device=DEVICE, jaw=jaw)
     assert model.control_names == ["m", *JAW_CONTROL_NAMES]
     controls = np.array([0.12, rng.uniform(-0.4, 0.6), rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1)])
-    stages = model.evaluate(controls, stages=True)
+    stages = model.stages(controls)
     expected = reference_jaw(points, jaw.weights, jaw.pivot, jaw.axis, jaw.forward, controls[1:])
     expected += ref.linear_muscle(points, muscle.attachment, muscle.insertion, 40.0, 0.8, 2.2, controls[0])
     np.testing.assert_allclose(stages.muscle, expected, atol=2e-6 * (1.0 + np.abs(expected).max()))
@@ -54,6 +54,10 @@ def test_jaw_stage_matches_float64_reference(seed):
         reference_jaw(points, jaw.weights, jaw.pivot, jaw.axis, jaw.forward, controls[1:]),
         atol=1e-12,
     )
+    # Positional controls are always the full vector: the muscles alone are refused, not padded, one frame or many.
+    for muscles_only in (controls[:1], controls[None, :1]):
+        with pytest.raises(ValueError, match=r"^controls: expected .*4"):
+            model.evaluate(muscles_only)
 
 
 def test_jaw_controls_by_name_equal_the_ordered_vector_and_batch_equals_single():
@@ -65,7 +69,7 @@ def test_jaw_controls_by_name_equal_the_ordered_vector_and_batch_equals_single()
     named = model.evaluate({"jaw_open": 0.3, "jaw_left": 0.05}).copy()
     np.testing.assert_array_equal(named, model.evaluate([0.3, 0.0, 0.05]))
     frames = np.array([[0.3, 0.0, 0.05], [0.0, 0.1, 0.0], [0.0, 0.0, 0.0]])
-    batch = model.evaluate_batch(frames)
+    batch = model.evaluate(frames)
     for frame, controls in zip(batch, frames):
         np.testing.assert_allclose(frame, model.evaluate(controls), atol=1e-6)
     np.testing.assert_allclose(batch[2], points, atol=1e-6)

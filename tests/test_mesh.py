@@ -65,7 +65,7 @@ def test_degenerate_triangles_can_be_ignored_without_nan():
     points = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0]]
     mesh = wf.FaceMesh(points, [[0, 1, 2], [0, 1, 3]], degenerate="ignore")
     model = wf.ExpressionModel(mesh, [wf.LinearMuscle("m", [0, -1, 0], [0, 0, 0], 60, 0.5, 3)], [], 0.2, device="cpu")
-    stages = model.evaluate({"m": 0.1}, stages=True)
+    stages = model.stages({"m": 0.1})
     assert np.all(np.isfinite(stages.final)) and np.all(np.isfinite(stages.stretch))
 
 

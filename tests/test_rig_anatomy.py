@@ -254,8 +254,8 @@ def test_sliding_removes_the_normal_pull_and_bunching_lifts_compressed_skin():
     model = wf.ExpressionModel(
         mesh, [replace(muscle, sliding=1.0, bunching=2.0, thickening=0.3)], thickness=thickness, device=DEVICE
     )
-    one = model.evaluate([0.05], stages=True).muscle - points
-    two = model.evaluate([0.10], stages=True).muscle - points
+    one = model.stages([0.05]).muscle - points
+    two = model.stages([0.10]).muscle - points
     np.testing.assert_allclose(two, 2.0 * one, atol=1e-6)
 
 
@@ -365,7 +365,7 @@ def test_presets_move_the_regions_they_name(rig, anatomy_face):
     centres = region_centres(local[rig.landmarks])
     model = rig.model(device=DEVICE)
     names = list(PRESETS)
-    frames = model.evaluate_batch([preset_controls(name, rig) for name in names])
+    frames = model.evaluate([preset_controls(name, rig) for name in names])
     for name, frame_points in zip(names, frames):
         moved = np.linalg.norm(frame_points - rig.mesh.points, axis=1) / frame.scale
         assert moved.max() > 0.02, f"{name}: visibly moves the face (> 2 % of the eye distance)"
@@ -380,7 +380,7 @@ def test_presets_move_the_regions_they_name(rig, anatomy_face):
         target = centres["corner" if sided and region == "mouth" else region]
         target = target if sided else target * [0.0, 1.0]
         if name in ("mouthLeft", "mouthRight"):  # the named corner is drawn toward its side (muscle stage)
-            pulled = model.evaluate(preset_controls(name, rig), stages=True).muscle - rig.mesh.points
+            pulled = model.stages(preset_controls(name, rig)).muscle - rig.mesh.points
             corner = rig.landmarks[54 if name == "mouthLeft" else 48]
             assert pulled[corner] @ frame.axes[0] * (1.0 if name == "mouthLeft" else -1.0) > 0.003 * frame.scale, name
             x = target[0]

@@ -117,7 +117,7 @@ def test_surface_points_closed_loop(rig, model, rng):
 
 def test_warm_start_and_temporal_sequence(rig, model):
     timeline = expression_timeline("smile", rig, seconds=0.5, fps=30.0)
-    frames = model.evaluate_batch(timeline).astype(np.float64)[:, rig.landmarks]
+    frames = model.evaluate(timeline).astype(np.float64)[:, rig.landmarks]
     solver = Solver(rig, rig.landmarks, device="cpu")
     warm = [solver.solve(frame) for frame in frames]
     cold = [Solver(rig, rig.landmarks, device="cpu").solve(frame) for frame in frames[5:8]]
@@ -139,7 +139,7 @@ def test_warm_start_and_temporal_sequence(rig, model):
 
 def test_batched_equals_per_frame(rig, model, rng):
     truths = np.stack([random_controls(rig, rng) for _ in range(5)])
-    frames = model.evaluate_batch(truths).astype(np.float64)[:, rig.landmarks]
+    frames = model.evaluate(truths).astype(np.float64)[:, rig.landmarks]
     frames[2, 3:9] = np.nan
     solver = Solver(rig, rig.landmarks, device="cpu")
     batch = solver.solve_batch(frames)

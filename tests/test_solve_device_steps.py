@@ -83,7 +83,7 @@ def test_device_steps_match_host_loop(rig, model, options):
     ]
     truths = np.stack([random_controls(rig, rng, jaw=jaw) for jaw in jaws])
     truths[4, rig.muscle_names.index("orbicularis_oris")] = 0.4
-    frames = model.evaluate_batch(truths).astype(np.float64)[:, rig.landmarks]
+    frames = model.evaluate(truths).astype(np.float64)[:, rig.landmarks]
     frames[2, 3:30] = np.nan
     frames[5] = np.nan  # skipped: keeps the start
     if options.get("pose"):
@@ -114,7 +114,7 @@ def test_device_steps_sequence_matches_host_loop(rig, model):
     """Warm-started, smoothed frame after frame: the constant-velocity guess and the temporal anchor."""
     timeline = expression_timeline("smile", rig, seconds=0.4, fps=30.0)
     opening = np.linspace(0.0, 0.3, len(timeline))[:, None] * (np.arange(3) == 0)
-    frames = model.evaluate_batch(np.concatenate([timeline, opening], axis=1)).astype(np.float64)[:, rig.landmarks]
+    frames = model.evaluate(np.concatenate([timeline, opening], axis=1)).astype(np.float64)[:, rig.landmarks]
     host = Solver(rig, rig.landmarks, device="cpu", device_steps=False, smoothness=1e-3).solve_sequence(frames)
     solver = Solver(rig, rig.landmarks, device="cpu", device_steps=True, smoothness=1e-3)
     device = solver.solve_sequence(frames)
@@ -127,7 +127,7 @@ def test_device_steps_closed_loop(rig, model):
     rng = np.random.default_rng(11)
     iod = rig_scale(rig)
     truths = np.stack([random_controls(rig, rng, count=4, high=0.15) for _ in range(4)])
-    shapes = model.evaluate_batch(truths).astype(np.float64)
+    shapes = model.evaluate(truths).astype(np.float64)
     batch = Solver(rig, device="cpu", device_steps=True).solve_batch(shapes)
     assert batch.converged.all()
     for f, shape in enumerate(shapes):
@@ -170,7 +170,7 @@ def test_device_closed_loop_with_the_jaw(rig, model):
     iod = rig_scale(rig)
     jaws = [(rng.uniform(0.05, 0.4), rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03)) for _ in range(6)]
     truths = np.stack([random_controls(rig, rng, count=3, high=0.12, jaw=jaw) for jaw in jaws])
-    shapes = model.evaluate_batch(truths).astype(np.float64)
+    shapes = model.evaluate(truths).astype(np.float64)
     solver = Solver(rig, rig.landmarks, device="cpu")
     batch = solver.solve_batch(shapes[:, rig.landmarks])
     host = Solver(rig, rig.landmarks, device="cpu", device_steps=False).solve_batch(shapes[:, rig.landmarks])

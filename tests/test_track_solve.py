@@ -54,7 +54,7 @@ class ExactSource:
 
     def __init__(self, rig, vertices, controls, poses=None, edits=None):
         self.landmark_names = vertex_landmark_names(vertices)
-        self.points = rig.model(device="cpu").evaluate_batch(controls).astype(np.float64)[:, vertices]
+        self.points = rig.model(device="cpu").evaluate(controls).astype(np.float64)[:, vertices]
         if poses is not None:
             self.points = np.stack([p @ r.T + t for p, (r, t) in zip(self.points, poses)])
         self.edits = edits or {}
@@ -98,7 +98,7 @@ def test_exact_landmarks_recover_the_controls_and_the_stage_round_trips(tmp_path
     tracker, solved, stats, stage = _capture(tmp_path, rig, ExactSource(rig, vertices, controls), smoothness=0.0)
     assert stats.frames == len(controls)
     model = rig.model(device="cpu")
-    truth = model.evaluate_batch(controls)
+    truth = model.evaluate(controls)
     scale = tracker.solver.reach  # displacement per unit contraction
     for f, frame in enumerate(solved):
         assert not frame.skipped
@@ -162,7 +162,7 @@ def test_head_motion_is_solved_as_the_pose_and_written(tmp_path, rig, vertices):
         tmp_path, rig, ExactSource(rig, vertices, controls, poses=poses), smoothness=0.0
     )
     model = rig.model(device="cpu")
-    truth = model.evaluate_batch(controls).astype(np.float64)
+    truth = model.evaluate(controls).astype(np.float64)
     back = read_solved_capture(stage)
     for f, (rotation, translation) in enumerate(poses):
         # 0.35 mm of skin per control: the full rig's 49 controls and the pose share 60 dots, and the lid and

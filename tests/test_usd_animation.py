@@ -178,7 +178,7 @@ def test_bake_writes_the_model_output_as_a_usdc_cache(rig_file, small_rig, cpu_m
     root = Sdf.Layer.OpenAsAnonymous(str(rig_file))
     assert list(root.subLayerPaths) == ["./face_anim.usdc"]
     contractions, depths = controls(FRAMES)
-    expected = cpu_model.evaluate_batch(contractions, wrinkle_depths=depths)
+    expected = cpu_model.evaluate(contractions, wrinkle_depths=depths)
     got = baked_points(rig_file, FRAMES)
     assert np.array_equal(got, expected)
     assert not np.array_equal(got[5], small_rig.mesh.points.astype(np.float32))  # it moved
@@ -206,9 +206,7 @@ def test_rebaking_a_range_replaces_only_that_range(rig_file, cpu_model):
     outside = (FRAMES < 6) | (FRAMES > 11)
     assert np.array_equal(after[outside], before[outside])
     _, original_depths = controls(FRAMES)
-    assert np.array_equal(
-        after[6:12], cpu_model.evaluate_batch(contractions[6:12], wrinkle_depths=original_depths[6:12])
-    )
+    assert np.array_equal(after[6:12], cpu_model.evaluate(contractions[6:12], wrinkle_depths=original_depths[6:12]))
     assert not np.array_equal(after[6:12], before[6:12])
     assert UsdGeom.Mesh(stage.GetPrimAtPath("/Face/Skin")).GetPointsAttr().GetTimeSamples() == FRAMES.tolist()
     assert list(Sdf.Layer.OpenAsAnonymous(str(rig_file)).subLayerPaths) == ["./face_anim.usdc"]  # not added twice
@@ -225,9 +223,9 @@ def test_interrupted_bake_leaves_previous_files_intact(rig_file, cpu_model, monk
         calls.append(1)
         if len(calls) == 2:
             raise KeyboardInterrupt  # Ctrl-C in the middle of the frames
-        return ExpressionModel.evaluate_batch(cpu_model, *args, **kwargs)
+        return ExpressionModel.evaluate(cpu_model, *args, **kwargs)
 
-    monkeypatch.setattr(cpu_model, "evaluate_batch", interrupted_batch)
+    monkeypatch.setattr(cpu_model, "evaluate", interrupted_batch)
     with pytest.raises(KeyboardInterrupt):
         bake(stage, model=cpu_model, progress=False, chunk_frames=8)
     monkeypatch.undo()

@@ -115,7 +115,8 @@ def run_demo(
     images, without_row, with_row, peaks_wrinkled = [], [], [], {}
     for name in names:
         peak = contractions[peaks[name]]
-        plain, wrinkled = smooth.evaluate(peak), model.evaluate(peak)
+        named = dict(zip(rig.muscle_names, peak.tolist()))  # by name: the jaw (``model`` only) stays at rest
+        plain, wrinkled = smooth.evaluate(named), model.evaluate(named)
         views = [("neutral", rest), (f"{name}: no wrinkles", plain), (f"{name}: with wrinkles", wrinkled)]
         images.append(out / f"{name}.png")
         preview.render_comparison(views, triangles, images[-1], **style)

@@ -135,7 +135,7 @@ def expression_timeline(
     (the paper's expressions use muscles only; append zeros for a jaw's controls to evaluate them).
 
     ``F = round(seconds · fps) + 1`` frames: frame ``f`` is at time ``f / fps``, and both the first
-    and the last frame are neutral. Feed it to :meth:`~warpface.ExpressionModel.evaluate_batch`.
+    and the last frame are neutral. Feed it to :meth:`~warpface.ExpressionModel.evaluate`.
     """
     expect_instance(rig, FaceRig, "rig")
     seconds = as_positive(seconds, "expression timeline: seconds", maximum=1e6)

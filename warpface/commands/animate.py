@@ -270,7 +270,7 @@ def _preview(path: Path, model, rig, mapped, rate: float, size, progress: bool, 
                     total=len(contractions), desc=f"video {path.name}", unit="frame", disable=not progress, leave=False
                 ) as bar:
                     for start in range(0, len(contractions), 64):
-                        frames = model.evaluate_batch(contractions[start : start + 64])
+                        frames = model.evaluate(contractions[start : start + 64])
                         for offset, points in enumerate(frames):
                             frame = int(shown[start + offset])
                             image = np.ascontiguousarray(renderer.render(points))

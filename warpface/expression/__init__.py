@@ -1,13 +1,15 @@
 """The expression model (SPEC §1): muscles, skin stretch and bulge, wrinkles, thickness."""
 
+from .evaluator import ExpressionEvaluator, ExpressionStages
 from .jaw import JAW_CONTROL_NAMES, Jaw, jaw_points
-from .model import ExpressionModel, ExpressionStages
+from .model import ExpressionModel
 from .muscles import LinearMuscle, Muscle, MuscleLobe, SphincterMuscle, muscle_weights
 from .thickness import ThicknessMap, validate_thickness
 from .wrinkles import CylindricalProjection, PlanarProjection, Projection, Wrinkle, bezier_distances, project_points
 
 __all__ = [
     "ExpressionModel",
+    "ExpressionEvaluator",
     "ExpressionStages",
     "LinearMuscle",
     "MuscleLobe",

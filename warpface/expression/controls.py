@@ -47,16 +47,14 @@ def check_rig_parts(mesh, muscles, wrinkles, thickness, *, owner: str):
     parts = []
     for kind, items, types in (("muscle", muscles, (LinearMuscle, SphincterMuscle)), ("wrinkle", wrinkles, (Wrinkle,))):
         if isinstance(items, (str, bytes, Mapping)) or not isinstance(items, (Sequence, np.ndarray, tuple, list)):
-            raise RigError(
-                f"{owner}: {kind}s must be a sequence of {' or '.join(t.__name__ for t in types)}, got {type(items).__name__}"
-            )
+            expected = " or ".join(t.__name__ for t in types)
+            raise RigError(f"{owner}: {kind}s must be a sequence of {expected}, got {type(items).__name__}")
         items = list(items)
         names = set()
         for index, item in enumerate(items):
             if not isinstance(item, types):
-                raise RigError(
-                    f"{owner}: {kind} {index} has wrong type {type(item).__name__} (expected {' or '.join(t.__name__ for t in types)})"
-                )
+                expected = " or ".join(t.__name__ for t in types)
+                raise RigError(f"{owner}: {kind} {index} has wrong type {type(item).__name__} (expected {expected})")
             if item.name in names:
                 raise RigError(f"{owner}: duplicate {kind} name {item.name!r}")
             names.add(item.name)
@@ -74,13 +72,23 @@ def contraction_limits(muscles) -> np.ndarray:
 
 
 def control_vector(
-    values, names: list[str], default: np.ndarray, limits: np.ndarray, label: str, kind: str
+    values,
+    names: list[str],
+    default: np.ndarray,
+    limits: np.ndarray,
+    label: str,
+    kind: str,
+    *,
+    argument: str | None = None,
 ) -> np.ndarray:
     """One frame's controls in rig order, shape (N,), float64.
 
     ``values``: ``None`` (``default``), a mapping ``{name: number}`` (absent names keep ``default``),
     or a sequence/array of N numbers. Names must be known strings, numbers finite and within ±``limits``.
+    Errors about one item name it (``"{label} for {kind} 'name'"``), errors about the whole value name
+    ``argument`` (default ``"{label}s"``).
     """
+    whole = argument or f"{label}s"
     vector = np.array(default, dtype=np.float64)
     if values is None:
         return vector
@@ -88,22 +96,22 @@ def control_vector(
         index = {name: i for i, name in enumerate(names)}
         for name, value in values.items():
             if not isinstance(name, str) or name not in index:
-                raise ValueError(f"{label}: unknown {kind} name {name!r} (known: {', '.join(names) or 'none'})")
+                raise ValueError(f"{whole}: unknown {kind} name {name!r} (known: {', '.join(names) or 'none'})")
             if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.ndarray)):
                 raise ValueError(f"{label} for {kind} {name!r}: expected a number, got {type(value).__name__}")
             number = float(as_finite_array(value, f"{label} for {kind} {name!r}", shape=()))
             vector[index[name]] = _within(number, limits[index[name]], f"{label} for {kind} {name!r}")
         return vector
     if isinstance(values, (str, bytes)):
-        raise ValueError(f"{label}s: expected a mapping or {len(names)} numbers, got a string")
+        raise ValueError(f"{whole}: expected a mapping or {len(names)} numbers, got a string")
     try:
         array = np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
         raise ValueError(
-            f"{label}s: expected {len(names)} numbers in {kind} order, got {type(values).__name__}"
+            f"{whole}: expected {len(names)} numbers in {kind} order, got {type(values).__name__}"
         ) from None
     if array.shape != (len(names),):
-        raise ValueError(f"{label}s: expected {len(names)} values in {kind} order, got shape {array.shape}")
+        raise ValueError(f"{whole}: expected {len(names)} values in {kind} order, got shape {array.shape}")
     inside = np.abs(array) <= limits  # False for NaN too: one test on the fast path
     if not inside.all():
         bad = int(np.flatnonzero(~inside)[0])

@@ -16,8 +16,8 @@ class FrameBuffers:
         vertex_count, triangle_count: sizes of the mesh.
         muscle_count, wrinkle_count: control widths (a zero width still gets one unused column).
         device: the model's Warp device.
-        per_triangle: allocate the per-triangle intermediates of the five-kernel sequence (the fused
-            kernels do not store them).
+        per_triangle: allocate the per-triangle intermediates of the staged plan (the tiled plan keeps
+            them in shared memory).
     """
 
     def __init__(

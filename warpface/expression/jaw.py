@@ -11,8 +11,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import warp as wp
 
 from .._validate import as_finite_array, as_points, as_vec3, expect_instance, orthogonal_unit_vector, unit_vector
+from .formulas import jaw_blend, jaw_rotation, jaw_slide
 
 __all__ = ["Jaw", "JAW_CONTROL_NAMES", "JAW_RANGE", "jaw_points"]
 
@@ -82,8 +84,23 @@ class Jaw:
             raise ValueError(f"jaw {self.name!r}: {len(self.weights)} weights for a mesh of {vertex_count} vertices")
 
 
+@wp.kernel
+def _jaw_points_kernel(
+    rest: wp.array(dtype=wp.vec3d),
+    weights: wp.array(dtype=wp.float64),
+    pivot: wp.vec3d,
+    axis: wp.vec3d,
+    forward: wp.vec3d,
+    controls: wp.vec3d,
+    out: wp.array(dtype=wp.vec3d),
+):
+    i = wp.tid()
+    rotation = jaw_rotation(controls[0], axis)
+    out[i] = jaw_blend(rest[i], weights[i], pivot, rotation, jaw_slide(controls[1], controls[2], forward, axis))
+
+
 def jaw_points(jaw: Jaw, rest_points: np.ndarray, controls) -> np.ndarray:
-    """``x_jaw`` in float64 NumPy (rig-time use and references), shape (V, 3).
+    """``x_jaw`` in float64 on the CPU (rig-time use and references), shape (V, 3): the formulas the kernels use.
 
     Args:
         jaw: the jaw.
@@ -91,12 +108,17 @@ def jaw_points(jaw: Jaw, rest_points: np.ndarray, controls) -> np.ndarray:
         controls: ``(jaw_open [rad], jaw_forward, jaw_left)`` [mesh units], shape (3,).
     """
     expect_instance(jaw, Jaw, "jaw")
-    angle, forward, left = (float(c) for c in as_finite_array(controls, "jaw controls", shape=(3,)))
-    a = jaw.axis
-    cross = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-    rotation = np.eye(3) + np.sin(angle) * cross + (1.0 - np.cos(angle)) * cross @ cross
+    values = as_finite_array(controls, "jaw controls", shape=(3,))
     rest = as_points(rest_points, "rest_points")
     if len(rest) != len(jaw.weights):
         raise ValueError(f"rest_points: {len(rest)} points but the jaw has weights for {len(jaw.weights)} vertices")
-    moved = (rest - jaw.pivot) @ rotation.T + jaw.pivot + forward * jaw.forward + left * jaw.left
-    return rest + jaw.weights[:, None] * (moved - rest)
+    if len(rest) == 0:
+        return np.zeros((0, 3))
+    out = wp.empty(len(rest), dtype=wp.vec3d, device="cpu")
+    inputs = [
+        wp.array(rest, dtype=wp.vec3d, device="cpu"),
+        wp.array(jaw.weights, dtype=wp.float64, device="cpu"),
+        *(wp.vec3d(*v) for v in (jaw.pivot, jaw.axis, jaw.forward, values)),
+    ]
+    wp.launch(_jaw_points_kernel, dim=len(rest), inputs=inputs, outputs=[out], device="cpu")
+    return out.numpy()

@@ -1,4 +1,4 @@
-"""Per-frame Warp kernels of the expression model (SPEC §1), launched over ``frames × elements``.
+"""The staged plan: the expression frame (SPEC §1) as five Warp kernels over ``frames × elements``.
 
 The sequence for one frame is::
 
@@ -11,13 +11,27 @@ The sequence for one frame is::
 Per-frame arrays are flat, frame after frame (the layout of :mod:`warpface.kernels_surface`):
 points (frames·V,), triangle values (frames·T,), contractions (frames·M,), depths (frames·W,).
 Inputs come first and outputs last in every signature; nothing allocates, so the sequence can be
-captured in a CUDA graph. CSR rows are walked with ``while`` loops: Warp's ``range()`` iterator handles
-both step signs and costs about twice as much per entry on the CPU.
+captured in a CUDA graph. Every formula comes from :mod:`~warpface.expression.formulas` (the tiled plan
+and the solver call the same functions). CSR rows are walked with ``while`` loops: Warp's ``range()``
+iterator handles both step signs and costs more per entry on the CPU.
 """
 
 import warp as wp
 
-from ..kernels_surface import frame_and_element, incident_area_sum, safe_normalize, triangle_area_vector
+from ..kernels_surface import frame_and_element, incident_area_sum
+from .formulas import (
+    area_ratio,
+    area_vector,
+    bulge_point,
+    contraction_factor,
+    jaw_blend,
+    jaw_rotation,
+    jaw_slide,
+    muscle_pull,
+    stretch_ratio,
+    wrinkle_point,
+    wrinkle_term,
+)
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -30,10 +44,10 @@ __all__ = [
     "triangle_stretch",
     "stretch_and_bulge",
     "apply_wrinkles",
-    "bulge_point",
-    "contraction_factor",
-    "jaw_blend",
+    "add_muscles",
     "jaw_motion",
+    "jaw_point",
+    "stretch_term",
     "STRETCH_FLOOR",
 ]
 
@@ -44,23 +58,34 @@ STRETCH_FLOOR = wp.constant(1.0e-4)
 @wp.func
 def jaw_motion(controls: wp.array(dtype=wp.float32), first: int, jaw_first: int, hinge_axis: wp.vec3, forward: wp.vec3):
     """The frame's jaw rotation (about ``hinge_axis`` by θ) and slide (protrusion, lateral) from its control row."""
-    rotation = wp.quat_from_axis_angle(hinge_axis, controls[first + jaw_first])
-    slide = controls[first + jaw_first + 1] * forward + controls[first + jaw_first + 2] * hinge_axis
+    rotation = jaw_rotation(controls[first + jaw_first], hinge_axis)
+    slide = jaw_slide(controls[first + jaw_first + 1], controls[first + jaw_first + 2], forward, hinge_axis)
     return rotation, slide
 
 
 @wp.func
-def jaw_blend(x: wp.vec3, w: float, pivot: wp.vec3, rotation: wp.quat, slide: wp.vec3):
-    """SPEC §6.2: ``x + w·(R(θ)(x − p) + p + t − x)``, the jaw's rigid motion of ``x`` blended by its weight."""
-    moved = wp.quat_rotate(rotation, x - pivot) + pivot + slide
-    return x + w * (moved - x)
+def jaw_point(
+    x: wp.vec3,
+    w: float,
+    controls: wp.array(dtype=wp.float32),
+    first: int,
+    jaw_first: int,
+    pivot: wp.vec3,
+    hinge_axis: wp.vec3,
+    forward: wp.vec3,
+):
+    """``x`` moved by the frame's jaw (SPEC §6.2) when the rig has one (``jaw_first`` ≥ 0) and ``w`` > 0."""
+    if jaw_first >= 0 and w > 0.0:
+        rotation, slide = jaw_motion(controls, first, jaw_first, hinge_axis, forward)
+        return jaw_blend(x, w, pivot, rotation, slide)
+    return x
 
 
 @wp.func
-def bulge_point(x1: wp.vec3, normal_sum: wp.vec3, r: float, h: float):
-    """SPEC §1.2: ``x2 = x1 + (1/r − 1)·h·N``, N the normalised sum of incident area vectors, r floored."""
-    growth = 1.0 / wp.max(r, STRETCH_FLOOR) - 1.0
-    return x1 + (growth * h) * safe_normalize(normal_sum)
+def stretch_term(p0: wp.vec3, p1: wp.vec3, p2: wp.vec3, weight: float, rest_length: float):
+    """A triangle's area vector (xyz) and area ratio S'/S (w), packed: one 16-byte read per neighbour."""
+    av = area_vector(p0, p1, p2, weight)
+    return wp.vec4(av[0], av[1], av[2], area_ratio(av, rest_length))
 
 
 @wp.struct
@@ -86,16 +111,6 @@ class WrinkleEntry:
 
 
 @wp.func
-def contraction_factor(r: float, kr: float):
-    """C(r) (SPEC eq. 5): ``(k_r − 1)·r + 1`` for r ≤ 1, ``k_r·exp((1 − 1/k_r)(r − 1))`` above, 0 there if k_r = 0."""
-    if r <= 1.0:
-        return (kr - 1.0) * r + 1.0
-    if kr <= 0.0:
-        return 0.0
-    return kr * wp.exp((1.0 - 1.0 / kr) * (r - 1.0))
-
-
-@wp.func
 def add_muscles(
     x: wp.vec3,
     controls: wp.array(dtype=wp.float32),
@@ -109,7 +124,7 @@ def add_muscles(
     end = offsets[v + 1]
     while k < end:
         entry = entries[k]
-        x += controls[first + entry.muscle] * entry.weight
+        x = muscle_pull(x, controls[first + entry.muscle], entry.weight)
         k += 1
     return x
 
@@ -154,11 +169,7 @@ def apply_jaw_and_muscles(
     i = wp.tid()
     f, v = frame_and_element(i, vertex_count)
     first = f * control_count
-    x = rest[v]
-    w = jaw_weight[v]
-    if w > 0.0:
-        rotation, slide = jaw_motion(controls, first, jaw_first, hinge_axis, forward)
-        x = jaw_blend(x, w, pivot, rotation, slide)
+    x = jaw_point(rest[v], jaw_weight[v], controls, first, jaw_first, pivot, hinge_axis, forward)
     muscle_points[i] = add_muscles(x, controls, first, offsets, entries, v)
 
 
@@ -178,8 +189,11 @@ def triangle_stretch(
     """
     i = wp.tid()
     f, t = frame_and_element(i, triangle_count)
-    av = triangle_area_vector(points, f * vertex_count, triangles[t], triangle_weight[t])
-    stretch_terms[i] = wp.vec4(av[0], av[1], av[2], wp.length(av) / rest_area_lengths[t])
+    first = f * vertex_count
+    c = triangles[t]
+    stretch_terms[i] = stretch_term(
+        points[first + c[0]], points[first + c[1]], points[first + c[2]], triangle_weight[t], rest_area_lengths[t]
+    )
 
 
 @wp.kernel
@@ -208,11 +222,11 @@ def stretch_and_bulge(
     while k < end:
         total += stretch_terms[first + adjacency_triangles[k]]
         k += 1
-    r = float(1.0)
-    if counts[v] > 0.0:
-        r = total[3] / counts[v]
+    r = stretch_ratio(total[3], counts[v])
     stretch[i] = r
-    bulge_points[i] = bulge_point(muscle_points[i], wp.vec3(total[0], total[1], total[2]), r, thickness[v])
+    bulge_points[i] = bulge_point(
+        muscle_points[i], wp.vec3(total[0], total[1], total[2]), r, thickness[v], STRETCH_FLOOR
+    )
 
 
 @wp.kernel
@@ -246,6 +260,6 @@ def apply_wrinkles(
     k = begin
     while k < end:
         entry = entries[k]
-        height += depth[first_wrinkle + entry.wrinkle] * entry.shape * contraction_factor(r, entry.kr)
+        height += wrinkle_term(depth[first_wrinkle + entry.wrinkle], entry.shape, contraction_factor(r, entry.kr))
         k += 1
-    final_points[i] = x + height * safe_normalize(normal_sum)
+    final_points[i] = wrinkle_point(x, height, normal_sum)

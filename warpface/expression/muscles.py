@@ -27,7 +27,7 @@ from .._validate import (
     unit_vector,
 )
 from ._sparse import vertex_csr
-from .falloff import linear_angular_factor, linear_radial_factor, sphincter_factor, sphincter_ring_factor
+from .formulas import linear_muscle_weight, sphincter_weight
 
 __all__ = ["LinearMuscle", "MuscleLobe", "SphincterMuscle", "Muscle", "muscle_weights", "MuscleWeights", "FALLOFFS"]
 
@@ -264,19 +264,7 @@ def _linear_muscle_weight_kernel(
     weight: wp.array(dtype=wp.vec3d),
 ):
     i = wp.tid()
-    offset = rest[i] - attachment
-    distance = wp.length(offset)
-    zero = wp.float64(0.0)
-    weight[i] = wp.vec3d(zero, zero, zero)
-    if distance == zero or distance > falloff_finish:
-        return
-    # atan2 keeps μ accurate near 0 and π, where acos of a dot product loses digits.
-    mu = wp.atan2(wp.length(wp.cross(axis, offset)), wp.dot(axis, offset))
-    if mu > zone:
-        return
-    angular = linear_angular_factor(mu, zone, smooth)
-    radial = linear_radial_factor(distance, falloff_start, falloff_finish, smooth)
-    weight[i] = -(angular * radial / distance) * offset
+    weight[i] = linear_muscle_weight(rest[i] - attachment, axis, zone, falloff_start, falloff_finish, smooth)
 
 
 @wp.kernel
@@ -292,15 +280,7 @@ def _sphincter_weight_kernel(
     weight: wp.array(dtype=wp.vec3d),
 ):
     i = wp.tid()
-    offset = rest[i] - center
-    x = wp.dot(offset, axis_x)
-    y = wp.dot(offset, axis_y)
-    rho_squared = x * x / (semi_x * semi_x) + y * y / (semi_y * semi_y)
-    falloff = sphincter_factor(rho_squared, smooth) * sphincter_ring_factor(rho_squared, ring)
-    zero = wp.float64(0.0)
-    weight[i] = wp.vec3d(zero, zero, zero)
-    if falloff > zero:
-        weight[i] = -falloff * (x * axis_x + y * axis_y)
+    weight[i] = sphincter_weight(rest[i] - center, axis_x, axis_y, semi_x, semi_y, smooth, ring)
 
 
 @wp.kernel

@@ -1,6 +1,6 @@
-"""Vertex tiles with a two-ring halo for the one-launch expression frame (:mod:`~warpface.expression.kernels_tiled`).
+"""Vertex tiles with a two-ring halo for the tiled expression plan (:mod:`~warpface.expression.kernels_tiled`).
 
-A tile is a spatially compact set of at most :data:`~warpface.expression.kernels_tiled.TILE_OWNED`
+A tile is a spatially compact set of at most :data:`TILE_OWNED`
 vertices: a run of the vertices sorted along a Morton (Z-order) curve of their rest positions. A tile
 whose two-ring or triangle count exceeds the shared tiles' capacity is halved along the curve until it
 fits. Everything is computed with whole-array NumPy operations (sorts and searches over (tile, item)
@@ -14,10 +14,88 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .kernels_fused import RingTriangle
-from .kernels_tiled import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, TileInfo
+from .kernels import MuscleEntry, WrinkleEntry
 
-__all__ = ["VertexTiles", "vertex_tiles", "mesh_tiles", "morton_order"]
+__all__ = [
+    "TILE_OWNED",
+    "TILE_VERTICES",
+    "TILE_TRIANGLES",
+    "RingTriangle",
+    "TileInfo",
+    "TiledRig",
+    "VertexTiles",
+    "vertex_tiles",
+    "mesh_tiles",
+    "morton_order",
+]
+
+TILE_OWNED = wp.constant(256)
+"""Most vertices one tile owns (evaluates and writes)."""
+TILE_VERTICES = wp.constant(512)
+"""Most vertices of a tile's two-ring halo (owned vertices included): the shared x1 and x2 tiles."""
+TILE_TRIANGLES = wp.constant(1024)
+"""Most triangles touching a tile's one-ring: the shared triangle-term tile."""
+
+
+@wp.struct
+class RingTriangle:
+    """One triangle of a tile, copied out of the mesh arrays so that one load brings it all."""
+
+    corners: wp.vec3i
+    """The triangle's corners (local vertex slots of the tile) in the mesh's order (its area vector's orientation)."""
+    weight: wp.float32
+    """1 for counted triangles, 0 for ignored (degenerate at rest) ones."""
+    rest_length: wp.float32
+    """Rest ``|(p1 − p0) × (p2 − p0)|`` (1 for ignored triangles)."""
+
+
+@wp.struct
+class TileInfo:
+    """Where one tile's local tables start and how many of each kind it has.
+
+    Local vertex slots ``[vertex_start, vertex_start + halo)`` of the tile tables hold, in order, the owned
+    vertices, the rest of their one-ring, and the rest of the two-ring; local triangles
+    ``[triangle_start, triangle_start + triangles)`` hold first the ``near`` triangles touching an owned
+    vertex, then the rest of those touching the one-ring.
+    """
+
+    vertex_start: wp.int32
+    owned: wp.int32
+    ring: wp.int32
+    """Owned vertices plus the rest of their one-ring."""
+    halo: wp.int32
+    """All local vertices (the two-ring)."""
+    triangle_start: wp.int32
+    near: wp.int32
+    triangles: wp.int32
+
+
+@wp.struct
+class TiledRig:
+    """Everything of the rig the tiled kernels read, in one argument: the tiles (:meth:`VertexTiles.to_device`),
+    the rest points, the jaw, the muscle and wrinkle CSRs, counted triangles and thickness per vertex."""
+
+    tiles: wp.array(dtype=TileInfo)
+    tile_vertices: wp.array(dtype=wp.int32)
+    tile_adjacency_offsets: wp.array(dtype=wp.int32)
+    tile_adjacency: wp.array(dtype=wp.int32)
+    tile_triangles: wp.array(dtype=RingTriangle)
+    rest: wp.array(dtype=wp.vec3)
+    jaw_weight: wp.array(dtype=wp.float32)
+    """Per vertex; not read when ``jaw_first`` < 0 (no jaw)."""
+    pivot: wp.vec3
+    hinge_axis: wp.vec3
+    forward: wp.vec3
+    jaw_first: wp.int32
+    """Index of the jaw's first control in a frame's control row, or -1 without a jaw."""
+    muscle_offsets: wp.array(dtype=wp.int32)
+    muscle_entries: wp.array(dtype=MuscleEntry)
+    counts: wp.array(dtype=wp.float32)
+    thickness: wp.array(dtype=wp.float32)
+    wrinkle_offsets: wp.array(dtype=wp.int32)
+    wrinkle_entries: wp.array(dtype=WrinkleEntry)
+    vertex_count: wp.int32
+
 
 _MORTON_BITS = 10
 """Bits per axis of the Morton code (a 1024³ lattice over the mesh's bounding box)."""
@@ -161,7 +239,7 @@ def vertex_tiles(
             vertex = int(np.flatnonzero(tile_of == over[sizes[over] == 1][0])[0])
             raise ValueError(
                 f"tiled plan: vertex {vertex}'s two-ring has more than {max_halo} vertices or its one-ring "
-                f"more than {max_triangles} triangles; use launches=3"
+                f'more than {max_triangles} triangles; use plan="staged"'
             )
         cuts = np.sort(np.r_[cuts, cuts[over] + sizes[over] // 2])
 
@@ -218,9 +296,9 @@ def vertex_tiles(
 
 
 def mesh_tiles(mesh, buffers, *, device, required: bool = True, **caps) -> tuple[wp.array, ...] | None:
-    """:func:`vertex_tiles` of a :class:`~warpface.FaceMesh` (``buffers``: its ``device_buffers``) as the kernel's device
-    arrays (:meth:`VertexTiles.to_device`); ``caps`` as there. A mesh with a vertex that cannot fit a tile raises
-    ``ValueError`` when ``required``, else gives ``None`` (the model's default plan then falls back to three launches)."""
+    """:func:`vertex_tiles` of a :class:`~warpface.FaceMesh` (``buffers``: its ``device_buffers``) as the kernel's
+    device arrays (:meth:`VertexTiles.to_device`); ``caps`` as there. A mesh with a vertex that cannot fit a tile
+    raises ``ValueError`` when ``required``, else gives ``None`` (the default plan then falls back to staged)."""
     try:
         tiles = vertex_tiles(
             mesh.points,

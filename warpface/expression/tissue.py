@@ -25,10 +25,12 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
+import warp as wp
 from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
 from ._sparse import vertex_csr
+from .formulas import bunching_pull, sliding_pull, thickening_pull
 from .muscles import Muscle, MuscleWeights
 
 __all__ = [
@@ -121,6 +123,48 @@ def stretch_rate(points: np.ndarray, triangles: np.ndarray, field: np.ndarray) -
     return result if batched else result[0]
 
 
+@wp.kernel
+def _slide_and_thicken_kernel(
+    field: wp.array(dtype=wp.vec3d),
+    normals: wp.array(dtype=wp.vec3d),
+    sliding: wp.float64,
+    thickening: wp.float64,
+    out: wp.array(dtype=wp.vec3d),
+):
+    i = wp.tid()
+    w = field[i]
+    pull = wp.length(w)
+    if sliding > wp.float64(0.0):
+        w = sliding_pull(w, normals[i], sliding)
+    if thickening > wp.float64(0.0):
+        w = thickening_pull(w, pull, normals[i], thickening)
+    out[i] = w
+
+
+@wp.kernel
+def _bunch_kernel(
+    field: wp.array(dtype=wp.vec3d),
+    height: wp.array(dtype=wp.float64),
+    cap: wp.float64,
+    normals: wp.array(dtype=wp.vec3d),
+    out: wp.array(dtype=wp.vec3d),
+):
+    i = wp.tid()
+    out[i] = bunching_pull(field[i], height[i], cap, normals[i])
+
+
+def _per_vertex(kernel, arrays: list, scalars: list, arrays_after: list = ()) -> np.ndarray:
+    """``kernel`` over the vertices, float64 on the CPU (rig time): numpy (V, 3) / (V,) inputs in signature order."""
+    wrap = {2: wp.vec3d, 1: wp.float64}
+    device = "cpu"
+    inputs = [wp.array(a, dtype=wrap[a.ndim], device=device) for a in arrays]
+    inputs += [wp.float64(s) for s in scalars]
+    inputs += [wp.array(a, dtype=wrap[a.ndim], device=device) for a in arrays_after]
+    out = wp.empty(len(arrays[0]), dtype=wp.vec3d, device=device)
+    wp.launch(kernel, dim=len(arrays[0]), inputs=inputs, outputs=[out], device=device)
+    return out.numpy()
+
+
 def tissue_response(
     points: np.ndarray,
     triangles: np.ndarray,
@@ -155,20 +199,16 @@ def tissue_response(
         mine = weights.muscle == index
         field = np.zeros((vertex_count, 3))
         field[row[mine]] = weights.weight[mine]
-        pull = np.linalg.norm(field, axis=1)
-        if muscle.sliding > 0.0:
-            # Remove the pull's normal part: the skin glides on the fascia. Carrying the full pull
+        if muscle.sliding > 0.0 or muscle.thickening > 0.0:
+            # Sliding removes the pull's normal part: the skin glides on the fascia. Carrying the full pull
             # along the surface instead folded the skin wherever the fascia turns steeply under a
             # pull (nose side, inner canthus, cheek sides; docs/RIG.md §2).
-            along = field - np.sum(field * normals, axis=1, keepdims=True) * normals
-            field = (1.0 - muscle.sliding) * field + muscle.sliding * along
-        if muscle.thickening > 0.0:
-            field += (muscle.thickening * pull)[:, None] * normals
+            field = _per_vertex(_slide_and_thicken_kernel, [field, normals], [muscle.sliding, muscle.thickening])
         if muscle.bunching > 0.0:
             height = -muscle.bunching * thickness * average(stretch_rate(points, triangles, field))
             cap = BUNCHING_CAP * float(np.linalg.norm(field, axis=1).max())
             if cap > 0.0:
-                field += (cap * np.tanh(height / cap))[:, None] * normals
+                field = _per_vertex(_bunch_kernel, [field, height], [cap], [normals])
         moved = np.flatnonzero(np.any(field != 0.0, axis=1))
         rows.append(moved)
         columns.append(np.full(len(moved), index, dtype=np.int32))

@@ -27,6 +27,7 @@ from .._validate import (
     unit_vector,
 )
 from ._sparse import vertex_csr
+from .formulas import wrinkle_profile
 
 __all__ = [
     "PlanarProjection",
@@ -333,6 +334,22 @@ def bezier_distances(uv: np.ndarray, control_points: np.ndarray, *, device=None)
     return out.numpy()
 
 
+@wp.kernel
+def _profile_kernel(distance: wp.array(dtype=wp.float64), width: wp.float64, shape: wp.array(dtype=wp.float64)):
+    i = wp.tid()
+    shape[i] = wrinkle_profile(distance[i], width)
+
+
+def _profiles(distance: np.ndarray, width: float, *, device) -> np.ndarray:
+    """:func:`~warpface.expression.formulas.wrinkle_profile` of each distance, float64."""
+    if len(distance) == 0:
+        return np.zeros(0, dtype=np.float64)
+    shape = wp.empty(len(distance), dtype=wp.float64, device=device)
+    values = wp.array(distance, dtype=wp.float64, device=device)
+    wp.launch(_profile_kernel, dim=len(distance), inputs=[values, width], outputs=[shape], device=device)
+    return shape.numpy()
+
+
 @dataclass(frozen=True)
 class WrinkleShapes:
     """Precomputed furrow profiles, vertex-major CSR.
@@ -363,8 +380,8 @@ def wrinkle_shapes(rest_points: np.ndarray, wrinkles: list[Wrinkle], *, device=N
         lo = wrinkle.control_points.min(axis=0) - reach
         hi = wrinkle.control_points.max(axis=0) + reach
         near = np.flatnonzero(np.all((uv >= lo) & (uv <= hi), axis=1))
-        scaled = bezier_distances(uv[near], wrinkle.control_points, device=device) / wrinkle.width
-        shape = (scaled - 1.0) * np.exp(-scaled)
+        distance = bezier_distances(uv[near], wrinkle.control_points, device=device)
+        shape = _profiles(distance, wrinkle.width, device=as_device(device))
         kept = np.abs(shape) >= WRINKLE_SHAPE_CUTOFF
         rows.append(near[kept])
         columns.append(np.full(int(kept.sum()), index, dtype=np.int32))

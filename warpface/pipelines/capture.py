@@ -61,8 +61,9 @@ def synthetic_capture(
     from ..tracking.synthetic import default_model_to_camera
 
     rig = default_rig() if rig is None else rig
-    controls = expression_timeline(expression, rig, seconds=seconds, fps=fps)
-    truth = rig.model(device=device).evaluate_batch(controls).astype(np.float64)
+    muscles = expression_timeline(expression, rig, seconds=seconds, fps=fps)
+    controls = np.pad(muscles, ((0, 0), (0, len(rig.control_names) - len(rig.muscles))))  # a jaw stays at rest
+    truth = rig.model(device=device).evaluate(controls).astype(np.float64)
     rest, triangles = truth[0], rig.mesh.triangles
     eye = np.linalg.inv(default_model_to_camera(rest))[:3, 3]
     fiducials = place_fiducials(rest, triangles, dots, spacing=0.014, camera_position=eye, device=device)

@@ -265,7 +265,7 @@ def _evaluated_chunks(stage: Usd.Stage, model, chunks: list[np.ndarray], skin_pa
     The controls are read here (USD, in this thread); with several ``workers`` the model runs in that
     many threads a few chunks ahead of the caller, who writes the previous chunks meanwhile (with one,
     everything runs in this thread: a GPU model is only ever used from its caller's thread). Each
-    chunk's frames are evaluated exactly as one serial ``evaluate_batch`` would (same kernels, frame by
+    chunk's frames are evaluated exactly as one serial ``evaluate`` would (same kernels, frame by
     frame), so the bits do not depend on the thread count. An error is raised when its chunk's turn
     comes, so it is the first in time order.
     """
@@ -327,14 +327,14 @@ def _evaluate_controls(model, animation, times: np.ndarray, skin_path) -> tuple[
     )
     try:
         if len(first) == len(controls):
-            positions = model.evaluate_batch(muscles_and_jaw, wrinkle_depths=animation.wrinkle_depths)
+            positions = model.evaluate(muscles_and_jaw, wrinkle_depths=animation.wrinkle_depths)
         else:
-            positions = model.evaluate_batch(muscles_and_jaw[first], wrinkle_depths=animation.wrinkle_depths[first])
+            positions = model.evaluate(muscles_and_jaw[first], wrinkle_depths=animation.wrinkle_depths[first])
             positions = positions[copies.reshape(-1)]
     except ValueError as exc:
         for row, time in enumerate(times.tolist()):  # name the first frame the model refuses
             try:
-                model.evaluate_batch(
+                model.evaluate(
                     muscles_and_jaw[row : row + 1], wrinkle_depths=animation.wrinkle_depths[row : row + 1]
                 )
             except ValueError as frame_error:
