@@ -1,9 +1,10 @@
 """Warp kernels: the expression pipeline and its forward-mode Jacobian on a target's neighbourhood (float64).
 
-The same chain rule as :mod:`.local_model`'s NumPy reference, one thread per (frame, element), with one
-derivative column per control looped inside the thread. Frames with ``frame_on`` 0 are skipped
-(their outputs keep stale values; the solver reads only the frames it evaluates). Layouts are flat, frame after frame:
-values ``(frames·n,)``, derivatives ``(frames·n·M,)`` (control fastest). A column whose muscle does not
+The chain rule of the model in :mod:`.local_model`'s docstring, one thread per (frame, element), with
+one derivative column per control looped inside the thread (driven by :class:`.local_kernels.LocalExpression`).
+Frames with ``frame_on`` 0 are skipped (their outputs keep stale values; the solver reads only the frames
+it evaluates). Layouts are flat, frame after frame: values ``(frames·n,)``, derivatives ``(frames·n·M,)``
+(control fastest). A column whose muscle does not
 reach an element is never written: the derivative buffers are zeroed once, and each element loops
 over its ``active`` controls only (a CSR fixed by the rig: which muscles reach the element's stencil),
 which is most of the work saved — each vertex feels a few of the muscles.

@@ -10,7 +10,7 @@ weights normalised to sum to 1 over the frame's valid points. Every control has 
 muscle only pulls, ``c ≥ 0``; a sphincter ``0 ≤ K ≤ 1``: at K = 1 the innermost skin reaches the
 centre), so the L1 term is the linear ``Σ u`` on the feasible set and E is smooth.
 
-Method — projected Levenberg–Marquardt with the exact Jacobian (:mod:`.local_model`): per iteration the
+Method — projected Levenberg–Marquardt with the exact Jacobian (:mod:`.local_kernels`): per iteration the
 Gauss–Newton normal equations (M×M, plus 6 with pose) are solved on the free controls (those not held at
 a bound by their gradient), the step is projected onto the box, and accepted if E decreases, otherwise
 the damping grows. Frames are independent and advance together (arrays over frames), so a batch is one
@@ -35,8 +35,8 @@ from ..expression.muscles import SphincterMuscle
 from ..rig import FaceRig
 from .device_steps import DeviceSteps
 from .host_steps import HostSteps
-from .local_kernels import KernelExpression
-from .local_model import LocalExpression, RigOperators
+from .local_kernels import LocalExpression
+from .local_model import RigOperators
 from .objective import DeviceObjective
 from .pose import rigid_alignment
 from .targets import frame_targets, observation, point_weights
@@ -249,7 +249,7 @@ class Solver:
         operators = rig_operators(rig, device)
         if not self.has_jaw:
             operators = replace(operators, jaw_field=None)
-        self.local = KernelExpression(LocalExpression(operators, self.observation.vertices), device=device)
+        self.local = LocalExpression(operators, self.observation.vertices, device=device)
         reach = operators.control_reach()
         self.unit = _face_unit(rig)
         self.reach = np.where(reach > 0.0, reach, 1.0)

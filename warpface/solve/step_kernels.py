@@ -181,7 +181,7 @@ def _propose(
     pending: wp.array(dtype=wp.int32),
     counter: wp.array(dtype=wp.int32),
 ):
-    """The trial ``clip(u + s)`` to the iteration's bounds (and the composed pose), written as the model's next input."""
+    """The trial ``clip(u + s)`` to the iteration's bounds (and the composed pose), as the model's next input."""
     ub = f * control_count
     vb = f * size
     for m in range(control_count):
