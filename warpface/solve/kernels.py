@@ -365,7 +365,7 @@ def _column(
     """
     if c < control_count:
         # Branch-free: every column is ``first·cosine + second·sine``, with (1, 0) for all but the angle
-        # (exact: ``d·1 + d·0 = d``). A branch here made the CPU build of this kernel 4× slower.
+        # (exact: ``d·1 + d·0 = d``): a branch here makes the CPU build of this kernel much slower.
         jaw = basis_count > control_count
         angle = jaw and c == muscle_count
         source = c + wp.where(jaw and c > muscle_count, 1, 0)

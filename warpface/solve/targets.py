@@ -98,7 +98,9 @@ def observation(mesh, vertices=None, triangles=None, barycentrics=None) -> Obser
         try:
             bary = np.asarray(barycentrics, dtype=np.float64)
         except (TypeError, ValueError):
-            raise ValueError("barycentrics: cannot convert to a numeric array") from None
+            raise TypeError(
+                "barycentrics: expected numbers, got values that do not convert to a numeric array"
+            ) from None
         if bary.shape != (len(tri), 3):
             raise ValueError(f"barycentrics: expected shape ({len(tri)}, 3), got {bary.shape}")
         if not np.all(np.isfinite(bary)):
@@ -121,7 +123,7 @@ def frame_targets(target, obs: Observation, *, batched: bool) -> np.ndarray:
     try:
         array = np.asarray(target, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError("target: cannot convert to a numeric array") from None
+        raise TypeError("target: expected numbers, got values that do not convert to a numeric array") from None
     expected = "(frames, N, 3)" if batched else "(N, 3)"
     if array.ndim != (3 if batched else 2) or array.shape[-1] != 3:
         raise ValueError(f"target: expected shape {expected}, got {array.shape}")
@@ -150,7 +152,7 @@ def point_weights(weights, count: int) -> np.ndarray:
     try:
         array = np.asarray(weights, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError("weights: cannot convert to a numeric array") from None
+        raise TypeError("weights: expected numbers, got values that do not convert to a numeric array") from None
     if array.ndim == 0:
         array = np.full(count, float(array))
     if array.shape != (count,):
