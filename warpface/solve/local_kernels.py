@@ -404,6 +404,20 @@ class LocalExpression:
             )
         return commands
 
+    def _checked(self, controls) -> np.ndarray:
+        """``controls`` as a contiguous float64 (F, C) array; TypeError/ValueError naming them otherwise.
+
+        The common case costs one pass (``|c| ≤ MAX_COORDINATE`` is False for NaN and ±inf as well): an
+        optimiser calls :meth:`evaluate` many times per frame.
+        """
+        if isinstance(controls, np.ndarray) and controls.dtype == np.float64 and controls.ndim == 2:
+            if controls.shape[1] == self.control_count and (
+                controls.size == 0 or np.abs(controls).max() <= MAX_COORDINATE
+            ):
+                return np.ascontiguousarray(controls)
+        checked = as_finite_array(controls, "controls", shape=(None, self.control_count), max_abs=MAX_COORDINATE)
+        return np.ascontiguousarray(checked, dtype=np.float64)
+
     def evaluate(self, controls: np.ndarray, *, jacobian: bool = True, copy_jacobian: bool = True):
         """Final positions at :attr:`vertices` for each frame, and their derivatives.
 
@@ -416,8 +430,7 @@ class LocalExpression:
         Returns:
             ``x3`` (F, n, 3) and, with ``jacobian``, ``∂x3/∂c`` (F, n, 3, C) — else ``None``.
         """
-        controls = as_finite_array(controls, "controls", shape=(None, self.control_count), max_abs=MAX_COORDINATE)
-        controls = np.ascontiguousarray(controls, dtype=np.float64)
+        controls = self._checked(controls)
         frames = controls.shape[0]
         buffers = self.buffers(frames)
         self.upload(buffers, controls)
