@@ -133,14 +133,14 @@ class DeviceSteps(Iteration):
                 judge.launch()
         m = self.control_count
         host = state.host
-        return dict(
-            u=host(s.u)[: frames * m].reshape(frames, m).copy(),
-            rotation=host(s.rotation).copy(),
-            translation=host(s.translation).copy(),
-            misfit=host(s.misfit)[:frames].copy(),
-            converged=host(s.converged)[:frames].astype(bool),
-            active=host(s.active)[:frames].astype(bool),
-            iterations=host(s.iterations)[:frames].astype(np.int64),
+        return self.result(
+            host(s.u)[: frames * m].reshape(frames, m).copy(),
+            host(s.rotation).copy(),
+            host(s.translation).copy(),
+            host(s.misfit)[:frames].copy(),
+            host(s.converged)[:frames],
+            host(s.active)[:frames],
+            host(s.iterations)[:frames].astype(np.int64),
         )
 
     def _commands(self, state: _State, frames: int, options, smooth: float):

@@ -57,6 +57,13 @@ class Iteration:
         ``∂e/∂u`` (``e`` in face units)."""
         self.column[: len(self.scale)] = 1.0 / (self.scale * self.unit)
 
+    @staticmethod
+    def result(u, rotation, translation, misfit, converged, active, iterations) -> dict:
+        """What :meth:`run` returns: host arrays by name (``converged``, ``active`` as bool)."""
+        names = ("u", "rotation", "translation", "misfit", "converged", "active", "iterations")
+        values = (u, rotation, translation, misfit, converged.astype(bool), active.astype(bool), iterations)
+        return dict(zip(names, values))
+
 
 class HostSteps(Iteration):
     """Runs the projected Levenberg–Marquardt loop of a :class:`DeviceObjective` with NumPy on the host
@@ -142,15 +149,7 @@ class HostSteps(Iteration):
             stalled = todo[pending]
             converged[stalled] = True
             active[stalled] = False
-        return dict(
-            u=u,
-            rotation=rotation,
-            translation=translation,
-            misfit=misfit,
-            converged=converged,
-            active=active,
-            iterations=iterations,
-        )
+        return self.result(u, rotation, translation, misfit, converged, active, iterations)
 
     def regularisation(self, u, previous, options, smooth):
         """``l2·|u|² + l1·Σ|u| + smooth·|u − u_prev|² + symmetry·Σ (u_l − u_r)²`` per frame, (F,)."""

@@ -23,17 +23,7 @@ from .local_kernels import write_model_input
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
-__all__ = [
-    "Layout",
-    "Terms",
-    "Scaling",
-    "DataTerm",
-    "ModelInput",
-    "Iterate",
-    "load_current",
-    "begin_iteration",
-    "judge_trial",
-]
+__all__ = ["load_current", "begin_iteration", "judge_trial"]
 
 BOUND_SLACK = wp.constant(1e-12)
 """A scaled control this close to a bound counts as at it (the host loop's margin)."""
