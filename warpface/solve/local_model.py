@@ -26,14 +26,15 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._validate import expect_instance
+from ..expression.kernels import STRETCH_FLOOR as EXPRESSION_STRETCH_FLOOR
 from ..expression.tissue import skin_muscle_weights
 from ..expression.wrinkles import wrinkle_shapes
 from ..rig import FaceRig
 
 __all__ = ["RigOperators", "Neighbourhood", "STRETCH_FLOOR", "REST_STRETCH_BAND"]
 
-STRETCH_FLOOR = 1.0e-4
-"""Lower bound on the stretch ratio before ``1/r`` (the value the bulge kernel uses)."""
+STRETCH_FLOOR = float(EXPRESSION_STRETCH_FLOOR)
+"""Lower bound on the stretch ratio before ``1/r``: the expression model's own, so both bulge alike."""
 REST_STRETCH_BAND = 1.0e-12
 """A stretch ratio within this of 1 takes the compressed side of the wrinkle factor. A ``kr = 0``
 wrinkle has a kink at ``r = 1`` (slope −1 below, 0 above), and skin the jaw moves rigidly has ``r = 1``
