@@ -161,7 +161,7 @@ class DeviceObjective:
 
         On the CPU the evaluation's launches and clears are captured once per mode into a Warp graph and
         replayed in one call (Warp's C++ loop): an evaluation is ~8 small launches, and packing each one's
-        arguments in Python cost about a quarter of a landmark frame's value evaluation.
+        arguments in Python would be a large share of a landmark frame's value evaluation.
         """
         data = self._bound
         if data.cpu:
