@@ -70,15 +70,6 @@ def _corners(points: wp.array(dtype=wp.vec3d), first: int, triangle: wp.vec3i):
     return points[first + triangle[0]], points[first + triangle[1]], points[first + triangle[2]]
 
 
-@wp.func
-def _area_sum(area: wp.array(dtype=wp.vec3d), first: int, adjacency: wp.array(dtype=wp.int32), begin: int, end: int):
-    """Sum of the area vectors of the incident triangles ``adjacency[begin:end]`` (frame at ``first``)."""
-    total = _zero3()
-    for k in range(begin, end):
-        total += area[first + adjacency[k]]
-    return total
-
-
 @wp.kernel
 def first_ring_triangles(
     frame_on: wp.array(dtype=wp.int32),
@@ -168,11 +159,12 @@ def bulge_stage(
     first = f * triangle_count
     zero = wp.float64(0.0)
     total = zero
+    normal_sum = _zero3()
     begin = adjacency_offsets[v]
     end = adjacency_offsets[v + 1]
     for k in range(begin, end):
         total += ratio[first + adjacency[k]]
-    normal_sum = _area_sum(area, first, adjacency, begin, end)
+        normal_sum += area[first + adjacency[k]]
     count = counts[v]
     r = fm.stretch_ratio(total, count)
     h = thickness[v]
@@ -305,7 +297,9 @@ def wrinkle_stage(
     first = f * triangle_count
     a_begin = adjacency_offsets[v]
     a_end = adjacency_offsets[v + 1]
-    normal_sum = _area_sum(area, first, adjacency, a_begin, a_end)
+    normal_sum = _zero3()
+    for k in range(a_begin, a_end):
+        normal_sum += area[first + adjacency[k]]
     final[i] = fm.wrinkle_point(x, height, normal_sum)
     if jacobian == 0:
         return
