@@ -98,6 +98,8 @@ def test_wrong_types_are_type_errors_naming_the_argument():
         solver.solve(RIG.mesh.points[:3], weights=["x", "y", "z"])
     from warpface.solve import LocalExpression
 
+    with pytest.raises(TypeError, match="vertices: indices must be integers, got dtype <U1"):
+        Solver(RIG, ["a", "b"], device="cpu")
     with pytest.raises(TypeError, match="operators"):
         LocalExpression("rig", [0, 1, 2], device="cpu")
 

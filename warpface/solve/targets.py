@@ -63,7 +63,7 @@ def _integer_indices(values, name: str, upper: int) -> np.ndarray:
     elif array.dtype.kind == "b":
         raise ValueError(f"{name}: expected integer indices, got a boolean array (np.flatnonzero(mask) gives indices)")
     elif array.dtype.kind not in "iu":
-        raise ValueError(f"{name}: indices must be integers, got dtype {array.dtype}")
+        raise TypeError(f"{name}: indices must be integers, got dtype {array.dtype}")
     array = array.astype(np.int64)
     bad = np.flatnonzero((array < 0) | (array >= upper))
     if len(bad):
@@ -82,6 +82,7 @@ def observation(mesh, vertices=None, triangles=None, barycentrics=None) -> Obser
 
     Raises:
         ValueError: naming the bad argument (indices out of range, wrong shapes, non-finite values).
+        TypeError: naming it when it is not numbers (or, for indices, not integers).
     """
     vertex_count = mesh.vertex_count
     if vertices is not None and (triangles is not None or barycentrics is not None):
