@@ -1,13 +1,14 @@
 """Warp kernels: the expression pipeline and its forward-mode Jacobian on a target's neighbourhood (float64).
 
 The chain rule of the model in :mod:`.local_model`'s docstring, one thread per (frame, element), with
-one derivative column per control looped inside the thread (driven by :class:`.local_kernels.LocalExpression`).
-Frames with ``frame_on`` 0 are skipped (their outputs keep stale values; the solver reads only the frames
-it evaluates). Layouts are flat, frame after frame: values ``(frames·n,)``, derivatives ``(frames·n·M,)``
-(control fastest). A column whose muscle does not
-reach an element is never written: the derivative buffers are zeroed once, and each element loops
-over its ``active`` controls only (a CSR fixed by the rig: which muscles reach the element's stencil),
-which is most of the work saved — each vertex feels a few of the muscles.
+one derivative column per basis column looped inside the thread (driven by
+:class:`.local_kernels.LocalExpression`); every value and derivative formula is a function of
+:mod:`warpface.expression.formulas`, shared with the expression model's kernels. Frames with ``frame_on``
+0 are skipped (their outputs keep stale values; the solver reads only the frames it evaluates). Layouts
+are flat, frame after frame: values ``(frames·n,)``, derivatives ``(frames·n·B,)`` (column fastest). A
+column whose muscle does not reach an element is never written: the derivative buffers are zeroed once,
+and each element loops over its ``active`` columns only (a CSR fixed by the rig: which muscles reach the
+element's stencil), which is most of the work saved — each vertex feels a few of the muscles.
 """
 
 import warp as wp
