@@ -7,13 +7,17 @@
     fitted rig.
 (b) Speed on the built-in face (default rig: its muscles and the jaw's three controls, all solved;
     the four expression animations with the jaw opening to 0.2 rad and back during each), same
-    objective for both solvers (``l2 = 1e-6``, ``l1 = 1e-6``, bounds): warpface's projected Levenberg–Marquardt with the exact
-    Jacobian against ``scipy.optimize.least_squares`` (trust-region reflective, 2-point differences
-    with a 20 µm step; its residual is evaluated by the same Warp kernels). Rows: a warm-started
+    objective for both solvers (``l2 = 1e-6``, ``l1 = 1e-6``, bounds): warpface's projected
+    Levenberg–Marquardt with the exact Jacobian against ``scipy.optimize.least_squares`` (trust-region
+    reflective, 2-point differences with a 20 µm step; its residual is evaluated by the same Warp
+    kernels). Rows: a warm-started
     landmark solve of the four expression animations (frames/s), a dense fit of one shape (seconds),
     and a batched landmark solve of many frames (frames/s) on ``--device``. The iteration runs on the
     device (``device_steps``, the default); the "NumPy loop" rows run the same solves with the
     iteration on the host (``device_steps=False``) in the same run, for the gain of keeping it there.
+
+Every phase prints a line when it starts (elapsed seconds, flushed at once). ``--quick`` runs the same
+small sizes on every device (a quarter of the animation frames, :data:`QUICK_FRAMES` batched frames).
 
     python -m benchmarks.solve [--device cuda:0] [--frames 4096] [--quick]
 """
@@ -21,6 +25,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 import numpy as np
@@ -50,6 +55,15 @@ FD_STEP = 20e-6
 """SciPy's finite-difference step [m]: well above float32 resolution of face coordinates."""
 SIGNED_SMOOTHING = 1e-6
 """δ of SciPy's smoothed ``|u|`` for signed controls [face units] (see :func:`scipy_solve`)."""
+QUICK_FRAMES = 512
+"""Batched frames of a ``--quick`` run, on any device (the full run: 512 on the CPU, 65536 on CUDA)."""
+_STARTED = time.perf_counter()
+
+
+def progress(message: str) -> None:
+    """One line on stdout with the seconds since the start, flushed at once (a long phase shows where it is)."""
+    print(f"[{time.perf_counter() - _STARTED:7.1f} s] {message}", flush=True)
+    sys.stdout.flush()
 
 
 def scipy_solve(solver: Solver, target: np.ndarray, start: np.ndarray):
@@ -93,6 +107,7 @@ def real_shapes(device, quick: bool) -> list[dict]:
     if path is None or landmarks is None:
         print("(a) ICT-FaceKit data not found in ../shared/data: real-shape rows skipped")
         return []
+    progress("(a) real shapes: rigging the ICT-FaceKit face")
     neutral = wf.FaceMesh.from_obj(path)
     mesh = wf.FaceMesh(neutral.points * CENTIMETRE, neutral.triangles, name="ict_face")
     rig = default_rig(mesh, landmarks, name="ICTFace", device=device)
@@ -103,6 +118,7 @@ def real_shapes(device, quick: bool) -> list[dict]:
         shape_path = ict_face_region(shape)
         if shape_path is None:
             continue
+        progress(f"(a) fitting {shape} (dense, then 68 landmarks)")
         target = wf.load_obj(shape_path)[0] * CENTIMETRE
         before = np.linalg.norm(target - mesh.points, axis=1)
         moved = before > MOVED
@@ -143,6 +159,7 @@ def performance(rig) -> np.ndarray:
 
 
 def speed(device, frames_batched: int, quick: bool) -> list[dict]:
+    progress(f"(b) speed: building the default rig and its target frames on {device.alias}")
     rig = default_rig(device=device)
     model = rig.model(device=device)
     timeline = performance(rig)
@@ -152,21 +169,25 @@ def speed(device, frames_batched: int, quick: bool) -> list[dict]:
     rows = []
 
     # Warm-started landmark solve, frame after frame (the NumPy loop first, the same frames).
+    progress("(b) landmarks, warm-started: building the solvers, compiling (first run on a device: slow)")
     host_loop = Solver(rig, rig.landmarks, device=device, device_steps=False, **OPTIONS)
     solver = Solver(rig, rig.landmarks, device=device, **OPTIONS)
     for frame in frames[:5]:
         solver.solve(frame)  # compile and allocate outside the timing
         host_loop.solve(frame)
     host_loop.reset()
+    progress(f"(b) landmarks, warm-started: {len(frames)} frames, NumPy loop")
     began = time.perf_counter()
     host_fits = [host_loop.solve(frame) for frame in frames]
     host_seconds = (time.perf_counter() - began) / len(frames)
     solver.reset()
+    progress(f"(b) landmarks, warm-started: {len(frames)} frames, device steps")
     began = time.perf_counter()
     fits = [solver.solve(frame) for frame in frames]
     ours = (time.perf_counter() - began) / len(frames)
     ours_error = max(f.residual for f in fits) / rig_scale(rig)
     reference = frames[: max(8, len(frames) // 8)]
+    progress(f"(b) landmarks, warm-started: SciPy on {len(reference)} frames")
     start = np.zeros(len(solver.names))
     began = time.perf_counter()
     evaluations = 0
@@ -206,6 +227,7 @@ def speed(device, frames_batched: int, quick: bool) -> list[dict]:
     )
 
     # Dense fit of one shape (the smile at full intensity), from neutral.
+    progress("(b) dense fit of one shape: warpface, then SciPy")
     peak = timeline[len(timeline) // 8 * 7]
     target = model.evaluate(peak).astype(np.float64)
     dense = Solver(rig, device=device, **OPTIONS)
@@ -237,6 +259,7 @@ def speed(device, frames_batched: int, quick: bool) -> list[dict]:
     batch = np.tile(frames, (repeats, 1, 1))[:frames_batched]
     results = {}
     for label, on_device in (("NumPy loop", False), ("device steps", True)):
+        progress(f"(b) landmarks, batched: {len(batch)} frames, {label} (a warm-up pass, then the timed one)")
         batched = Solver(rig, rig.landmarks, device=device, device_steps=on_device, **OPTIONS)
         batched.solve_batch(batch)  # compile, and allocate every pass size, outside the timing
         wp.synchronize_device(device)
@@ -270,14 +293,18 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default=None, help="Warp device (default: Warp's preferred device)")
     parser.add_argument(
-        "--frames", type=int, default=None, help="frames of the batched solve (default 512 on CPU, 65536 on CUDA)"
+        "--frames",
+        type=int,
+        default=None,
+        help=f"frames of the batched solve (default 512 on CPU, 65536 on CUDA, {QUICK_FRAMES} with --quick)",
     )
     parser.add_argument("--quick", action="store_true", help="fewer shapes and frames (smoke run)")
     parser.add_argument("--skip-shapes", action="store_true", help="skip the real-shape rows")
     args = parser.parse_args(argv)
     wp.config.quiet = True
     device = wp.get_device(args.device)
-    frames = args.frames or (65536 if device.is_cuda else 512)
+    frames = args.frames or (QUICK_FRAMES if args.quick else 65536 if device.is_cuda else 512)
+    progress(f"solve benchmark on {device.alias}{' (quick)' if args.quick else ''}, {frames} batched frames")
     shapes = [] if args.skip_shapes else real_shapes(device, args.quick)
     if shapes:
         print("(a) ICT-FaceKit shapes: error over moved vertices [mm], before → after (dense | 68 landmarks only)")
@@ -323,7 +350,7 @@ def main(argv=None) -> None:
             "speed": rows,
         },
     )
-    print(f"wrote {path}")
+    progress(f"wrote {path}")
 
 
 if __name__ == "__main__":

@@ -78,6 +78,32 @@ def test_bad_surface_points_weights_and_options():
         Solver(RIG, [0, 1, 2], bounds={name: (-1, 0)}, device="cpu")
 
 
+def test_wrong_types_are_type_errors_naming_the_argument():
+    name = RIG.muscle_names[0]
+    for options, match in (
+        ({"l2": "small"}, "l2: expected a number"),
+        ({"max_iterations": 2.5}, "max_iterations: expected an integer"),
+        ({"frames_per_pass": "all"}, "frames_per_pass: expected an integer"),
+        ({"bounds": [(name, (0, 1))]}, "bounds: expected a dict"),
+        ({"bounds": {name: None}}, f"bounds\\[{name!r}\\]: expected a pair"),
+    ):
+        with pytest.raises(TypeError, match=match):
+            Solver(RIG, [0, 1, 2], device="cpu", **options)
+    with pytest.raises(ValueError, match="max_iterations: expected a positive integer"):
+        Solver(RIG, [0, 1, 2], device="cpu", max_iterations=0)
+    solver = Solver(RIG, [0, 1, 2], device="cpu")
+    with pytest.raises(TypeError, match="target: expected numbers"):
+        solver.solve([["a", "b", "c"]] * 3)
+    with pytest.raises(TypeError, match="weights: expected numbers"):
+        solver.solve(RIG.mesh.points[:3], weights=["x", "y", "z"])
+    from warpface.solve import LocalExpression
+
+    with pytest.raises(TypeError, match="vertices: indices must be integers, got dtype <U1"):
+        Solver(RIG, ["a", "b"], device="cpu")
+    with pytest.raises(TypeError, match="operators"):
+        LocalExpression("rig", [0, 1, 2], device="cpu")
+
+
 coordinates = st.floats(min_value=-10.0, max_value=10.0) | st.just(np.nan)
 
 

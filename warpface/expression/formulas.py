@@ -36,6 +36,7 @@ __all__ = [
     "area_ratio",
     "d_area_ratio",
     "stretch_ratio",
+    "d_stretch_ratio",
     "unit_or_zero",
     "d_unit_or_zero",
     "bulge_growth",
@@ -238,6 +239,14 @@ def stretch_ratio(ratio_sum: wp.Float, count: wp.Float):
     if count > type(count)(0.0):
         return ratio_sum / count
     return type(count)(1.0)
+
+
+@wp.func
+def d_stretch_ratio(d_ratio_sum: wp.Float, count: wp.Float):
+    """Derivative of :func:`stretch_ratio` given the summed ratios' derivative; 0 for a vertex without any."""
+    if count > type(count)(0.0):
+        return d_ratio_sum / count
+    return type(count)(0.0)
 
 
 # ---------------------------------------------------------------- SPEC §1.3: the bulge

@@ -12,7 +12,8 @@
 after frame (warm-started, optionally smoothed in time) or many frames at once.
 """
 
-from .local_model import LocalExpression, RigOperators
+from .local_kernels import LocalExpression
+from .local_model import RigOperators
 from .solver import SPHINCTER_MAX, BatchFit, Fit, SolveOptions, Solver, fit
 
 __all__ = ["fit", "Fit", "BatchFit", "Solver", "SolveOptions", "SPHINCTER_MAX", "LocalExpression", "RigOperators"]

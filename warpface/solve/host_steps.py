@@ -20,7 +20,7 @@ import numpy as np
 from .objective import DeviceObjective
 from .pose import rotation_from_vector
 
-__all__ = ["HostSteps", "MAX_TRIES", "BOUND_SLACK", "orthant", "damped_update"]
+__all__ = ["Iteration", "HostSteps", "MAX_TRIES", "BOUND_SLACK", "orthant", "damped_update"]
 
 MAX_TRIES = 8
 """Rejected trials per iteration before a frame counts as stationary."""
@@ -28,8 +28,8 @@ BOUND_SLACK = 1e-12
 """A scaled control this close to a bound counts as at it."""
 
 
-class HostSteps:
-    """Runs the projected Levenberg–Marquardt loop of a :class:`DeviceObjective` with NumPy on the host.
+class Iteration:
+    """What both iterations share: the data term and the solver's constants in scaled controls.
 
     Args:
         objective: the data term (targets bound per chunk by the caller).
@@ -52,6 +52,22 @@ class HostSteps:
         self.low, self.high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         self.unit = float(unit)
+        self.column = np.full(objective.variable_count, 1.0 / self.unit)
+        """Per variable: the data term's columns are mesh units per variable, ``× column`` makes them
+        ``∂e/∂u`` (``e`` in face units)."""
+        self.column[: len(self.scale)] = 1.0 / (self.scale * self.unit)
+
+    @staticmethod
+    def result(u, rotation, translation, misfit, converged, active, iterations) -> dict:
+        """What :meth:`run` returns: host arrays by name (``converged``, ``active`` as bool)."""
+        names = ("u", "rotation", "translation", "misfit", "converged", "active", "iterations")
+        values = (u, rotation, translation, misfit, converged.astype(bool), active.astype(bool), iterations)
+        return dict(zip(names, values))
+
+
+class HostSteps(Iteration):
+    """Runs the projected Levenberg–Marquardt loop of a :class:`DeviceObjective` with NumPy on the host
+    (arguments: :class:`Iteration`)."""
 
     def run(self, u, rotation, translation, previous, active, damping, *, options, smooth: float) -> dict:
         """Iterate the bound chunk from ``u`` (F, C) scaled controls, ``rotation`` (F, 3, 3), ``translation``
@@ -133,15 +149,7 @@ class HostSteps:
             stalled = todo[pending]
             converged[stalled] = True
             active[stalled] = False
-        return dict(
-            u=u,
-            rotation=rotation,
-            translation=translation,
-            misfit=misfit,
-            converged=converged,
-            active=active,
-            iterations=iterations,
-        )
+        return self.result(u, rotation, translation, misfit, converged, active, iterations)
 
     def regularisation(self, u, previous, options, smooth):
         """``l2·|u|² + l1·Σ|u| + smooth·|u − u_prev|² + symmetry·Σ (u_l − u_r)²`` per frame, (F,)."""
@@ -158,9 +166,7 @@ class HostSteps:
         where ``on`` is False) and the data term: H (F, K, K), g (F, K), misfit (F,), K = C (+ 6 with pose)."""
         scale = self.scale
         misfit, hessian, gradient = self.objective.evaluate(u / scale, rotation, translation, on, jacobian=True)
-        # The kernel's columns are mesh units per variable: turn them into ∂e/∂u (e in face units).
-        column = np.full(hessian.shape[1], 1.0 / self.unit)
-        column[: len(scale)] = 1.0 / (scale * self.unit)
+        column = self.column
         hessian *= column[None, :, None] * column[None, None, :]
         gradient *= column[None]
         n = len(scale)

@@ -1,15 +1,19 @@
 """Warp kernels: the expression pipeline and its forward-mode Jacobian on a target's neighbourhood (float64).
 
-The same chain rule as :mod:`.local_model`'s NumPy reference, one thread per (frame, element), with one
-derivative column per control looped inside the thread. Frames with ``frame_on`` 0 are skipped
-(their outputs keep stale values; the solver reads only the frames it evaluates). Layouts are flat, frame after frame:
-values ``(frames·n,)``, derivatives ``(frames·n·M,)`` (control fastest). A column whose muscle does not
-reach an element is never written: the derivative buffers are zeroed once, and each element loops
-over its ``active`` controls only (a CSR fixed by the rig: which muscles reach the element's stencil),
-which is most of the work saved — each vertex feels a few of the muscles.
+The chain rule of the model in :mod:`.local_model`'s docstring, one thread per (frame, element), with
+one derivative column per basis column looped inside the thread (driven by
+:class:`.local_kernels.LocalExpression`); every value and derivative formula is a function of
+:mod:`warpface.expression.formulas`, shared with the expression model's kernels. Frames with ``frame_on``
+0 are skipped (their outputs keep stale values; the solver reads only the frames it evaluates). Layouts
+are flat, frame after frame: values ``(frames·n,)``, derivatives ``(frames·n·B,)`` (column fastest). A
+column whose muscle does not reach an element is never written: the derivative buffers are zeroed once,
+and each element loops over its ``active`` columns only (a CSR fixed by the rig: which muscles reach the
+element's stencil), which is most of the work saved — each vertex feels a few of the muscles.
 """
 
 import warp as wp
+
+from ..expression import formulas as fm
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
@@ -21,6 +25,13 @@ __all__ = [
     "wrinkle_stage",
     "normal_equations",
 ]
+
+
+@wp.func
+def _frame_and_element(i: int, count: int):
+    """Thread ``i`` of a frame-major launch over ``count`` elements per frame → ``(frame, element)``."""
+    f = i / count
+    return f, i - f * count
 
 
 @wp.kernel
@@ -40,20 +51,24 @@ def muscle_stage(
     ``slot_field`` is ``W`` per active slot (the order of ``active``), so a vertex's columns are contiguous.
     """
     i = wp.tid()
-    f = i / vertex_count
+    f, v = _frame_and_element(i, vertex_count)
     if frame_on[f] == 0:
         return
-    v = i - f * vertex_count
     x = rest[v]
     for slot in range(active_offsets[v], active_offsets[v + 1]):
-        m = active[slot]
-        x += controls[f * control_count + m] * slot_field[slot]
+        x = fm.muscle_pull(x, controls[f * control_count + active[slot]], slot_field[slot])
     points[i] = x
 
 
 @wp.func
 def _zero3() -> wp.vec3d:
     return wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+
+
+@wp.func
+def _corners(points: wp.array(dtype=wp.vec3d), first: int, triangle: wp.vec3i):
+    """A triangle's three corners in the frame whose points start at ``first``."""
+    return points[first + triangle[0]], points[first + triangle[1]], points[first + triangle[2]]
 
 
 @wp.kernel
@@ -82,32 +97,23 @@ def first_ring_triangles(
     bulge stage reads it for a column that does not reach the triangle).
     """
     i = wp.tid()
-    f = i / triangle_count
+    f, t = _frame_and_element(i, triangle_count)
     if frame_on[f] == 0:
         return
-    t = i - f * triangle_count
-    tri = triangles[t]
-    base = f * vertex_count
-    p0 = points[base + tri[0]]
-    e1 = points[base + tri[1]] - p0
-    e2 = points[base + tri[2]] - p0
-    a = weight[t] * wp.cross(e1, e2)
-    length = wp.length(a)
+    p0, p1, p2 = _corners(points, f * vertex_count, triangles[t])
+    w = weight[t]
+    a = fm.area_vector(p0, p1, p2, w)
     area[i] = a
-    ratio[i] = length / rest_length[t]
+    ratio[i] = fm.area_ratio(a, rest_length[t])
     if jacobian == 0:
         return
-    zero = wp.float64(0.0)
+    e1 = p1 - p0
+    e2 = p2 - p0
     for slot in range(active_offsets[t], active_offsets[t + 1]):
-        de1 = slot_edges[2 * slot]
-        de2 = slot_edges[2 * slot + 1]
         k = f * (active_offsets[triangle_count] + 1) + slot
-        da = weight[t] * (wp.cross(de1, e2) + wp.cross(e1, de2))
+        da = fm.d_area_vector(e1, e2, slot_edges[2 * slot], slot_edges[2 * slot + 1], w)
         darea[k] = da
-        dr = zero
-        if length > zero:
-            dr = wp.dot(a, da) / (length * rest_length[t])
-        dratio[k] = dr
+        dratio[k] = fm.d_area_ratio(a, da, rest_length[t])
 
 
 @wp.kernel
@@ -148,13 +154,11 @@ def bulge_stage(
     ``pair_offsets[v]`` on, the slot of each (active column, incident triangle) pair of the vertex in loop order.
     """
     i = wp.tid()
-    f = i / vertex_count
+    f, v = _frame_and_element(i, vertex_count)
     if frame_on[f] == 0:
         return
-    v = i - f * vertex_count
     first = f * triangle_count
     zero = wp.float64(0.0)
-    one = wp.float64(1.0)
     total = zero
     normal_sum = _zero3()
     begin = adjacency_offsets[v]
@@ -163,21 +167,15 @@ def bulge_stage(
         total += ratio[first + adjacency[k]]
         normal_sum += area[first + adjacency[k]]
     count = counts[v]
-    r = one
-    if count > zero:
-        r = total / count
-    clamped = wp.max(r, floor)
-    growth = one / clamped - one
-    length = wp.length(normal_sum)
-    n = _zero3()
-    if length > zero:
-        n = normal_sum / length
+    r = fm.stretch_ratio(total, count)
     h = thickness[v]
     source = f * point_count + ring_vertex[v]
     stretch[i] = r
-    bulged[i] = points[source] + (growth * h) * n
+    bulged[i] = fm.bulge_point(points[source], normal_sum, r, h, floor)
     if jacobian == 0:
         return
+    growth = fm.bulge_growth(r, floor)
+    n = fm.unit_or_zero(normal_sum)
     pair = pair_offsets[v]
     first_slot = f * triangle_slots
     for slot in range(active_offsets[v], active_offsets[v + 1]):
@@ -189,18 +187,11 @@ def bulge_stage(
             pair += 1
             dtotal += dratio[j]
             dsum += darea[j]
-        dr = zero
-        if count > zero:
-            dr = dtotal / count
-        dgrowth = zero
-        if r > floor:
-            dgrowth = -dr / (clamped * clamped)
-        dn = _zero3()
-        if length > zero:
-            dn = (dsum - n * wp.dot(n, dsum)) / length
+        dr = fm.d_stretch_ratio(dtotal, count)
+        dn = fm.d_unit_or_zero(normal_sum, dsum)
         out = i * control_count + m
         dstretch[out] = dr
-        dbulged[out] = slot_own[slot] + h * (dgrowth * n + growth * dn)
+        dbulged[out] = slot_own[slot] + h * (fm.d_bulge_growth(r, dr, floor) * n + growth * dn)
 
 
 @wp.kernel
@@ -221,24 +212,24 @@ def second_ring_triangles(
 ):
     """Area vectors of x2 (for the wrinkles' normal) and their derivatives."""
     i = wp.tid()
-    f = i / triangle_count
+    f, t = _frame_and_element(i, triangle_count)
     if frame_on[f] == 0:
         return
-    t = i - f * triangle_count
     tri = triangles[t]
     base = f * vertex_count
-    p0 = points[base + tri[0]]
-    e1 = points[base + tri[1]] - p0
-    e2 = points[base + tri[2]] - p0
-    area[i] = weight[t] * wp.cross(e1, e2)
+    p0, p1, p2 = _corners(points, base, tri)
+    w = weight[t]
+    area[i] = fm.area_vector(p0, p1, p2, w)
     if jacobian == 0:
         return
+    e1 = p1 - p0
+    e2 = p2 - p0
     for slot in range(active_offsets[t], active_offsets[t + 1]):
         m = active[slot]
         w0 = dpoints[(base + tri[0]) * control_count + m]
         de1 = dpoints[(base + tri[1]) * control_count + m] - w0
         de2 = dpoints[(base + tri[2]) * control_count + m] - w0
-        darea[i * control_count + m] = weight[t] * (wp.cross(de1, e2) + wp.cross(e1, de2))
+        darea[i * control_count + m] = fm.d_area_vector(e1, e2, de1, de2, w)
 
 
 @wp.func
@@ -281,16 +272,14 @@ def wrinkle_stage(
     ``dfinal`` is laid out (frames, vertices, 3, controls): a frame's Jacobian is one (3n, M) matrix.
     """
     i = wp.tid()
-    f = i / vertex_count
+    f, v = _frame_and_element(i, vertex_count)
     if frame_on[f] == 0:
         return
-    v = i - f * vertex_count
     source = f * ring_count + ring_vertex[v]
     x = bulged[source]
     begin = profile_offsets[v]
     end = profile_offsets[v + 1]
     zero = wp.float64(0.0)
-    one = wp.float64(1.0)
     if begin == end:
         final[i] = x
         if jacobian != 0:
@@ -299,41 +288,29 @@ def wrinkle_stage(
                 _store_column(dfinal, i, m, control_count, dbulged[source * control_count + m])
         return
     r = stretch[source]
+    knee = wp.float64(1.0) + rest_band  # within the band of rest: the compressed side (REST_STRETCH_BAND)
     height = zero
     slope = zero
     for k in range(begin, end):
-        c = kr[profile_wrinkle[k]]
-        factor = zero
-        dfactor = zero
-        if r <= one + rest_band:  # within the band of rest: the compressed side (local_model.REST_STRETCH_BAND)
-            factor = (c - one) * r + one
-            dfactor = c - one
-        elif c > zero:
-            factor = c * wp.exp((one - one / c) * (r - one))
-            dfactor = (one - one / c) * factor
-        height += profile_value[k] * factor
+        factor, dfactor = fm.contraction_factor_and_slope(r, kr[profile_wrinkle[k]], knee)
+        height += profile_value[k] * factor  # profile_value: depth · s, so each term is fm.wrinkle_term's
         slope += profile_value[k] * dfactor
     first = f * triangle_count
-    normal_sum = _zero3()
     a_begin = adjacency_offsets[v]
     a_end = adjacency_offsets[v + 1]
+    normal_sum = _zero3()
     for k in range(a_begin, a_end):
         normal_sum += area[first + adjacency[k]]
-    length = wp.length(normal_sum)
-    n = _zero3()
-    if length > zero:
-        n = normal_sum / length
-    final[i] = x + height * n
+    final[i] = fm.wrinkle_point(x, height, normal_sum)
     if jacobian == 0:
         return
+    n = fm.unit_or_zero(normal_sum)
     for slot in range(active_offsets[v], active_offsets[v + 1]):
         m = active[slot]
         dsum = _zero3()
         for k in range(a_begin, a_end):
             dsum += darea[(first + adjacency[k]) * control_count + m]
-        dn = _zero3()
-        if length > zero:
-            dn = (dsum - n * wp.dot(n, dsum)) / length
+        dn = fm.d_unit_or_zero(normal_sum, dsum)
         dheight = slope * dstretch[source * control_count + m]
         _store_column(dfinal, i, m, control_count, dbulged[source * control_count + m] + dheight * n + height * dn)
 
@@ -383,7 +360,7 @@ def _column(
     """
     if c < control_count:
         # Branch-free: every column is ``first·cosine + second·sine``, with (1, 0) for all but the angle
-        # (exact: ``d·1 + d·0 = d``). A branch here made the CPU build of this kernel 4× slower.
+        # (exact: ``d·1 + d·0 = d``): a branch here makes the CPU build of this kernel much slower.
         jaw = basis_count > control_count
         angle = jaw and c == muscle_count
         source = c + wp.where(jaw and c > muscle_count, 1, 0)
@@ -464,26 +441,8 @@ def normal_equations(
     end = active_offsets[n + 1]
     for a in range(begin, end):
         ca = active[a]
-        col_a = _column(
-            dx3,
-            basis,
-            x3,
-            f,
-            first,
-            point_offsets,
-            point_vertex,
-            point_weight,
-            n,
-            ca,
-            control_count,
-            muscle_count,
-            basis_count,
-            r,
-            arm,
-            unit,
-        )
-        wp.atomic_add(gradient, f * variable_count + ca, w * wp.dot(col_a, e))
-        for b in range(a, end):
+        col_a = _zero3()
+        for b in range(a, end):  # b = a first: that column is col_a
             cb = active[b]
             col_b = _column(
                 dx3,
@@ -503,4 +462,7 @@ def normal_equations(
                 arm,
                 unit,
             )
+            if b == a:
+                col_a = col_b
+                wp.atomic_add(gradient, f * variable_count + ca, w * wp.dot(col_a, e))
             wp.atomic_add(hessian, (f * variable_count + ca) * variable_count + cb, w * wp.dot(col_a, col_b))

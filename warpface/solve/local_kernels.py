@@ -1,4 +1,9 @@
-"""The neighbourhood evaluation of :mod:`.local_model` on a Warp device (the solver's fast path)."""
+"""``x3(c)`` and its exact Jacobian ``∂x3/∂c`` on a target's neighbourhood, by the Warp kernels of :mod:`.kernels`.
+
+The solver's one evaluation of the expression pipeline (SPEC §1, with the jaw's basis of
+:mod:`.local_model`), in float64 on any Warp device: the rig's constant data per active (element,
+column) slot is laid out once here, the five stages are recorded once per mode and replayed.
+"""
 
 from __future__ import annotations
 
@@ -6,11 +11,11 @@ import numpy as np
 import scipy.sparse as sp
 import warp as wp
 
-from .._validate import as_device
+from .._validate import MAX_COORDINATE, as_device, as_finite_array, expect_instance
 from . import kernels
-from .local_model import REST_STRETCH_BAND, STRETCH_FLOOR, LocalExpression
+from .local_model import REST_STRETCH_BAND, STRETCH_FLOOR, Neighbourhood, RigOperators
 
-__all__ = ["KernelExpression", "jaw_chain_rule_kernel", "write_model_input", "model_input_kernel"]
+__all__ = ["LocalExpression", "jaw_chain_rule_kernel", "write_model_input", "model_input_kernel"]
 
 
 @wp.func
@@ -133,17 +138,20 @@ class _Buffers:
         return self._dx3
 
 
-class KernelExpression:
-    """``x3(c)`` and ``∂x3/∂c`` at the same vertices as a :class:`LocalExpression`, by Warp kernels.
+class LocalExpression:
+    """``x3(c)`` and ``∂x3/∂c`` at a fixed set of vertices (the union of what the targets touch).
 
     Args:
-        local: the neighbourhood (index structures and rig data) to evaluate.
-        device: Warp device.
+        operators: the rig's :class:`~.local_model.RigOperators`.
+        vertices: the vertices whose final positions are needed, (n,) int.
+        device: Warp device of the evaluation (default: Warp's preferred device).
     """
 
-    def __init__(self, local: LocalExpression, *, device=None):
+    def __init__(self, operators: RigOperators, vertices, *, device=None):
+        expect_instance(operators, RigOperators, "operators")
         self.device = as_device(device)
-        self.local = local
+        self.neighbourhood = local = Neighbourhood(operators, vertices)
+        """The two rings around the vertices and the rig's data on them (host, float64)."""
         self.vertices, self.count, self.control_count = local.vertices, local.count, local.control_count
         self.basis_count, self.muscle_count, self.has_jaw = local.basis_count, local.muscle_count, local.has_jaw
         d = self.device
@@ -218,7 +226,8 @@ class KernelExpression:
         self._pair_offsets, self._pair_slot = i32(pair_offsets), i32(pairs if len(pairs) else [0])
         own = local.s1_in_s2[np.repeat(np.arange(len(local.s1_in_s2)), np.diff(ring.indptr))]
         self._slot_own = vec(local.field2[own, :, ring.indices])
-        """Per active (vertex, column) slot of ``s1``: the vertex's own ``W`` (0 for a column that moves only its ring)."""
+        """Per active (vertex, column) slot of ``s1``: the vertex's own ``W`` (0 for a column that moves only
+        its ring)."""
 
     @property
     def bytes_per_frame(self) -> int:
@@ -231,7 +240,8 @@ class KernelExpression:
 
     @property
     def reach(self) -> int:
-        return self.local.reach
+        """Vertices an evaluation touches (the two rings around the targets)."""
+        return self.neighbourhood.reach
 
     def buffers(self, frames: int) -> _Buffers:
         if frames not in self._buffers:
@@ -394,13 +404,33 @@ class KernelExpression:
             )
         return commands
 
-    def evaluate(self, controls: np.ndarray, *, jacobian: bool = True, copy_jacobian: bool = True):
-        """Same contract as :meth:`LocalExpression.evaluate`: x3 (F, n, 3) and ∂x3/∂c (F, n, 3, M) or None.
+    def _checked(self, controls) -> np.ndarray:
+        """``controls`` as a contiguous float64 (F, C) array; TypeError/ValueError naming them otherwise.
 
-        With ``copy_jacobian=False`` the CPU Jacobian is a view of the device buffer, valid until the
-        next evaluation with a Jacobian of the same frame count (the solver consumes it at once).
+        The common case costs one pass (``|c| ≤ MAX_COORDINATE`` is False for NaN and ±inf as well): an
+        optimiser calls :meth:`evaluate` many times per frame.
         """
-        controls = np.ascontiguousarray(controls, dtype=np.float64)
+        if isinstance(controls, np.ndarray) and controls.dtype == np.float64 and controls.ndim == 2:
+            if controls.shape[1] == self.control_count and (
+                controls.size == 0 or np.abs(controls).max() <= MAX_COORDINATE
+            ):
+                return np.ascontiguousarray(controls)
+        checked = as_finite_array(controls, "controls", shape=(None, self.control_count), max_abs=MAX_COORDINATE)
+        return np.ascontiguousarray(checked, dtype=np.float64)
+
+    def evaluate(self, controls: np.ndarray, *, jacobian: bool = True, copy_jacobian: bool = True):
+        """Final positions at :attr:`vertices` for each frame, and their derivatives.
+
+        Args:
+            controls: (F, C) contractions in muscle order, then the jaw's controls when there is a jaw.
+            jacobian: also return ``∂x3/∂c``.
+            copy_jacobian: False: the CPU Jacobian is a view of the device buffer, valid until the next
+                evaluation with a Jacobian of the same frame count (a caller that consumes it at once).
+
+        Returns:
+            ``x3`` (F, n, 3) and, with ``jacobian``, ``∂x3/∂c`` (F, n, 3, C) — else ``None``.
+        """
+        controls = self._checked(controls)
         frames = controls.shape[0]
         buffers = self.buffers(frames)
         self.upload(buffers, controls)
@@ -414,7 +444,7 @@ class KernelExpression:
         return x3, (jacobian.copy() if self.device.is_cpu and copy_jacobian else jacobian)
 
 
-def _basis_to_controls(active: sp.csr_matrix, local: LocalExpression) -> sp.csr_matrix:
+def _basis_to_controls(active: sp.csr_matrix, local: Neighbourhood) -> sp.csr_matrix:
     """Active basis columns → active controls (both angle columns belong to ``jaw_open``)."""
     if not local.has_jaw:
         return active
@@ -427,7 +457,7 @@ def _basis_to_controls(active: sp.csr_matrix, local: LocalExpression) -> sp.csr_
     return matrix
 
 
-def _active_controls(local: LocalExpression) -> dict:
+def _active_controls(local: Neighbourhood) -> dict:
     """Per element, the controls whose derivative can be non-zero there (CSR, sorted), fixed by the rig.
 
     A triangle of the first ring feels the muscles that move one of its corners; a first-ring vertex,

@@ -13,7 +13,7 @@ import scipy.sparse as sp
 import warp as wp
 
 from . import kernels
-from .local_kernels import KernelExpression
+from .local_kernels import LocalExpression
 from .targets import Observation
 
 __all__ = ["DeviceObjective"]
@@ -67,7 +67,7 @@ class DeviceObjective:
     """
 
     def __init__(
-        self, model: KernelExpression, observation: Observation, *, pose: bool, origin: np.ndarray, unit: float
+        self, model: LocalExpression, observation: Observation, *, pose: bool, origin: np.ndarray, unit: float
     ):
         self.model = model
         self.device = model.device
@@ -142,8 +142,8 @@ class DeviceObjective:
 
     def inputs(self):
         """The bound chunk's device inputs and outputs: ``(controls (F·M,), rotation (F,), translation (F,),
-        frame_on (F,), hessian (F·K·K,; upper triangle summed), gradient (F·K,), misfit (F,))`` — written and read by the
-        on-device iteration (:mod:`.device_steps`) between :meth:`launch` calls."""
+        frame_on (F,), hessian (F·K·K,; upper triangle summed), gradient (F·K,), misfit (F,))`` — written and
+        read by the on-device iteration (:mod:`.device_steps`) between :meth:`launch` calls."""
         data = self._bound
         buffers = self.model.buffers(data.frames)
         return (
@@ -161,7 +161,7 @@ class DeviceObjective:
 
         On the CPU the evaluation's launches and clears are captured once per mode into a Warp graph and
         replayed in one call (Warp's C++ loop): an evaluation is ~8 small launches, and packing each one's
-        arguments in Python cost about a quarter of a landmark frame's value evaluation.
+        arguments in Python would be a large share of a landmark frame's value evaluation.
         """
         data = self._bound
         if data.cpu:

@@ -10,7 +10,7 @@ weights normalised to sum to 1 over the frame's valid points. Every control has 
 muscle only pulls, ``c ≥ 0``; a sphincter ``0 ≤ K ≤ 1``: at K = 1 the innermost skin reaches the
 centre), so the L1 term is the linear ``Σ u`` on the feasible set and E is smooth.
 
-Method — projected Levenberg–Marquardt with the exact Jacobian (:mod:`.local_model`): per iteration the
+Method — projected Levenberg–Marquardt with the exact Jacobian (:mod:`.local_kernels`): per iteration the
 Gauss–Newton normal equations (M×M, plus 6 with pose) are solved on the free controls (those not held at
 a bound by their gradient), the step is projected onto the box, and accepted if E decreases, otherwise
 the damping grows. Frames are independent and advance together (arrays over frames), so a batch is one
@@ -35,8 +35,8 @@ from ..expression.muscles import SphincterMuscle
 from ..rig import FaceRig
 from .device_steps import DeviceSteps
 from .host_steps import HostSteps
-from .local_kernels import KernelExpression
-from .local_model import LocalExpression, RigOperators
+from .local_kernels import LocalExpression
+from .local_model import RigOperators
 from .objective import DeviceObjective
 from .pose import rigid_alignment
 from .targets import frame_targets, observation, point_weights
@@ -53,13 +53,9 @@ _CUDA_PASS_BYTES, _CUDA_PASS_FRAMES = 16 << 30, 16384
 """Working memory and frame count of one batched pass on CUDA (see ``frames_per_pass``)."""
 _COLD_DAMPING, _WARM_DAMPING = 1.0, 1e-2
 """Initial Levenberg–Marquardt damping (× the Hessian's diagonal) without and with a warm start. From
-neutral, 1.0 (divided by 10 per accepted step) recovered 20 of 20 random six-muscle expressions (≤ 0.3
-inter-ocular units each) on the built-in face to < 1e-5 IOD; 1e-4 … 0.3 (divided by 3) missed one (a
-mentalis at 0.2 IOD fitted at 0.38). Warm-started from the last frame (the 68 landmarks of the
-benchmark's four expressions with the jaw, ``benchmarks/solve.py``): 1e-2 took 4.5 Jacobian and 7.8
-value evaluations per frame, worst residual 6e-5 IOD; 1e-4 took 4.8 and 8.9 (2e-4 IOD), 1e-3 4.7 and
-8.1, 0.1 5.1 and 7.6: a Gauss–Newton step from near the solution is often cut back by the bounds (a
-muscle landing on 0), so starting a little damped wastes fewer trials."""
+neutral a cautious start keeps a large expression's first step out of another basin; near the solution
+a Gauss–Newton step is often cut back by the bounds, so a little damping wastes fewer trials (the
+measurements behind both values: benchmarks/README.md, "Solving controls")."""
 
 
 @dataclass(frozen=True)
@@ -80,14 +76,13 @@ class SolveOptions:
         energy_tolerance: … or lowers E by less than this: E is a mean squared distance in face units², so
             1e-10 is an RMS change of 1e-5 face units (0.6 µm on a face with a 62 mm inter-ocular distance).
         min_points: fewer valid (non-NaN, weighted) points keeps the previous controls and flags the frame.
-        frames_per_pass: frames evaluated together (bounds the working memory of a batch, ~1.7 MB per
-            frame for 68 landmarks of the default rig); default 64 on the CPU; on CUDA as many as fit in
-            16 GiB, at most 16384 (~10k frames of 68 landmarks; converged frames cost little, so a
+        frames_per_pass: frames evaluated together (bounds the working memory of a batch); default 64 on
+            the CPU; on CUDA as many as fit in 16 GiB, at most 16384 (converged frames cost little, so a
             larger pass keeps more of the GPU busy per launch).
         device_steps: run the iteration itself (damped bounded step, accept/reject, convergence) on the
-            device, one thread per frame, reading back only a counter per launch round (default; measured
-            faster on the CPU too: fewer Python operations per iteration); False: the NumPy loop. Results
-            agree to rounding either way.
+            device, one thread per frame, reading back only a counter per launch round (default: fewer
+            Python operations per iteration, on the CPU too); False: the NumPy loop. Results agree to
+            rounding either way.
     """
 
     l2: float = 1e-6
@@ -114,21 +109,22 @@ class SolveOptions:
         made = cls(**options)
         for name in ("l2", "l1", "symmetry", "smoothness", "tolerance", "step_tolerance", "energy_tolerance"):
             value = getattr(made, name)
-            if (
-                isinstance(value, bool)
-                or not isinstance(value, (int, float, np.floating, np.integer))
-                or not np.isfinite(value)
-                or value < 0
-            ):
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+                raise TypeError(f"{name}: expected a number, got {type(value).__name__}")
+            if not np.isfinite(value) or value < 0:
                 raise ValueError(f"{name}: expected a finite number ≥ 0, got {value!r}")
         for name in ("max_iterations", "min_points", "frames_per_pass"):
             value = getattr(made, name)
             if name == "frames_per_pass" and value is None:
                 continue
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                raise TypeError(f"{name}: expected an integer, got {type(value).__name__}")
+            if value < 1:
                 raise ValueError(f"{name}: expected a positive integer, got {value!r}")
         if made.device_steps is not None and not isinstance(made.device_steps, (bool, np.bool_)):
             raise TypeError(f"device_steps: expected True, False or None, got {made.device_steps!r}")
+        if made.bounds is not None and not isinstance(made.bounds, dict):
+            raise TypeError(f"bounds: expected a dict {{control name: (low, high)}}, got {type(made.bounds).__name__}")
         return replace(made, pose=bool(made.pose), jaw=bool(made.jaw))
 
 
@@ -249,7 +245,7 @@ class Solver:
         operators = rig_operators(rig, device)
         if not self.has_jaw:
             operators = replace(operators, jaw_field=None)
-        self.local = KernelExpression(LocalExpression(operators, self.observation.vertices), device=device)
+        self.local = LocalExpression(operators, self.observation.vertices, device=device)
         reach = operators.control_reach()
         self.unit = _face_unit(rig)
         self.reach = np.where(reach > 0.0, reach, 1.0)
@@ -300,8 +296,10 @@ class Solver:
                 raise ValueError(f"bounds: unknown control {name!r}")
             try:
                 lo, hi = (float(v) for v in pair)
-            except (TypeError, ValueError):
-                raise ValueError(f"bounds[{name!r}]: expected (low, high)") from None
+            except TypeError:
+                raise TypeError(f"bounds[{name!r}]: expected a pair of numbers (low, high)") from None
+            except ValueError:
+                raise ValueError(f"bounds[{name!r}]: expected a pair of numbers (low, high)") from None
             if np.isnan(lo) or np.isnan(hi) or lo > hi or lo == np.inf or hi == -np.inf:
                 raise ValueError(f"bounds[{name!r}]: expected low ≤ high, got ({lo}, {hi})")
             if lo < 0.0 and name not in JAW_CONTROL_NAMES:  # muscles only pull; the L1 term is Σ c on this set

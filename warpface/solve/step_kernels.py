@@ -31,28 +31,99 @@ MAX_TRIES = wp.constant(8)
 """Rejected trials per iteration before a frame counts as stationary."""
 
 
+@wp.struct
+class Layout:
+    """A frame's block sizes: C controls, M muscles, B basis columns of the model's input, K variables."""
+
+    control_count: int
+    muscle_count: int
+    basis_count: int
+    size: int
+
+
+@wp.struct
+class Terms:
+    """The regularisation's weights and mirrored pairs (flat ``left, right``), and the convergence tests."""
+
+    pairs: wp.array(dtype=wp.int32)
+    pair_count: int
+    l2: wp.float64
+    l1: wp.float64
+    smooth: wp.float64
+    symmetry: wp.float64
+    tolerance: wp.float64
+    step_tolerance: wp.float64
+    energy_tolerance: wp.float64
+
+
+@wp.struct
+class Scaling:
+    """The solver's constants: each variable's column scale (mesh units → ``∂e/∂u``), the box bounds of
+    the scaled controls, and the control scale (``u = c·scale``)."""
+
+    column: wp.array(dtype=wp.float64)
+    low: wp.array(dtype=wp.float64)
+    high: wp.array(dtype=wp.float64)
+    scale: wp.array(dtype=wp.float64)
+
+
+@wp.struct
+class DataTerm:
+    """The data term's output at the model's input: ``JᵀWJ`` (upper triangle summed), ``JᵀWe``, misfit."""
+
+    hessian: wp.array(dtype=wp.float64)
+    gradient: wp.array(dtype=wp.float64)
+    misfit: wp.array(dtype=wp.float64)
+
+
+@wp.struct
+class ModelInput:
+    """What the model evaluates next: its basis input per frame, the pose, and the frames to evaluate."""
+
+    controls: wp.array(dtype=wp.float64)
+    rotation: wp.array(dtype=wp.mat33d)
+    translation: wp.array(dtype=wp.vec3d)
+    frame_on: wp.array(dtype=wp.int32)
+
+
+@wp.struct
+class Iterate:
+    """Per-frame iteration state and scratch (see :class:`.device_steps.DeviceSteps`)."""
+
+    u: wp.array(dtype=wp.float64)
+    previous: wp.array(dtype=wp.float64)
+    rotation: wp.array(dtype=wp.mat33d)
+    translation: wp.array(dtype=wp.vec3d)
+    damping: wp.array(dtype=wp.float64)
+    current: wp.array(dtype=wp.float64)
+    misfit: wp.array(dtype=wp.float64)
+    active: wp.array(dtype=wp.int32)
+    converged: wp.array(dtype=wp.int32)
+    iterations: wp.array(dtype=wp.int32)
+    held: wp.array(dtype=wp.int32)
+    lower: wp.array(dtype=wp.float64)
+    upper: wp.array(dtype=wp.float64)
+    tries: wp.array(dtype=wp.int32)
+    system: wp.array(dtype=wp.float64)
+    step: wp.array(dtype=wp.float64)
+    trial_u: wp.array(dtype=wp.float64)
+    trial_rotation: wp.array(dtype=wp.mat33d)
+    trial_translation: wp.array(dtype=wp.vec3d)
+    pending: wp.array(dtype=wp.int32)
+    counter: wp.array(dtype=wp.int32)
+
+
 @wp.func
-def _regularisation(
-    u: wp.array(dtype=wp.float64),
-    base: int,
-    previous: wp.array(dtype=wp.float64),
-    control_count: int,
-    l2: wp.float64,
-    l1: wp.float64,
-    smooth: wp.float64,
-    symmetry: wp.float64,
-    pairs: wp.array(dtype=wp.int32),
-    pair_count: int,
-):
+def _regularisation(u: wp.array(dtype=wp.float64), state: Iterate, terms: Terms, base: int, control_count: int):
     """``l2·|u|² + l1·Σ|u| + smooth·|u − u_prev|² + symmetry·Σ (u_l − u_r)²`` of one frame."""
     value = wp.float64(0.0)
     for m in range(control_count):
         x = u[base + m]
-        d = x - previous[base + m]
-        value += l2 * x * x + l1 * wp.abs(x) + smooth * d * d
-    for p in range(pair_count):
-        d = u[base + pairs[2 * p]] - u[base + pairs[2 * p + 1]]
-        value += symmetry * d * d
+        d = x - state.previous[base + m]
+        value += terms.l2 * x * x + terms.l1 * wp.abs(x) + terms.smooth * d * d
+    for p in range(terms.pair_count):
+        d = u[base + terms.pairs[2 * p]] - u[base + terms.pairs[2 * p + 1]]
+        value += terms.symmetry * d * d
     return value
 
 
@@ -83,20 +154,17 @@ def _rotation_from_vector(omega: wp.vec3d):
 
 
 @wp.func
-def _damped_step(
-    hessian: wp.array(dtype=wp.float64),
-    gradient: wp.array(dtype=wp.float64),
-    held: wp.array(dtype=wp.int32),
-    damping: wp.float64,
-    f: int,
-    size: int,
-    system: wp.array(dtype=wp.float64),
-    step: wp.array(dtype=wp.float64),
-):
-    """Solve ``(H + λ·diag(H)) s = −g`` on the free variables (held ones: ``s = 0``) into ``step``.
+def _damped_step(data: DataTerm, state: Iterate, f: int, size: int):
+    """Solve ``(H + λ·diag(H)) s = −g`` on the free variables (held ones: ``s = 0``) into ``state.step``.
 
     The damped system is positive definite; a failed Cholesky pivot falls back to the diagonal step.
     """
+    hessian = data.hessian
+    gradient = data.gradient
+    held = state.held
+    system = state.system
+    step = state.step
+    damping = state.damping[f]
     hb = f * size * size
     vb = f * size
     zero = wp.float64(0.0)
@@ -158,131 +226,63 @@ def _damped_step(
 
 
 @wp.func
-def _propose(
-    f: int,
-    control_count: int,
-    muscle_count: int,
-    basis_count: int,
-    size: int,
-    step: wp.array(dtype=wp.float64),
-    u: wp.array(dtype=wp.float64),
-    rotation: wp.array(dtype=wp.mat33d),
-    translation: wp.array(dtype=wp.vec3d),
-    lower: wp.array(dtype=wp.float64),
-    upper: wp.array(dtype=wp.float64),
-    scale: wp.array(dtype=wp.float64),
-    trial_u: wp.array(dtype=wp.float64),
-    trial_rotation: wp.array(dtype=wp.mat33d),
-    trial_translation: wp.array(dtype=wp.vec3d),
-    controls_out: wp.array(dtype=wp.float64),
-    rotation_out: wp.array(dtype=wp.mat33d),
-    translation_out: wp.array(dtype=wp.vec3d),
-    frame_on: wp.array(dtype=wp.int32),
-    pending: wp.array(dtype=wp.int32),
-    counter: wp.array(dtype=wp.int32),
-):
-    """The trial ``clip(u + s)`` to the iteration's bounds (and the composed pose), written as the model's next input."""
+def _propose(f: int, layout: Layout, scaling: Scaling, state: Iterate, model: ModelInput):
+    """The trial ``clip(u + s)`` to the iteration's bounds (and the composed pose), as the model's next input."""
+    control_count = layout.control_count
     ub = f * control_count
-    vb = f * size
+    vb = f * layout.size
+    step = state.step
     for m in range(control_count):
-        trial_u[ub + m] = wp.min(wp.max(u[ub + m] + step[vb + m], lower[ub + m]), upper[ub + m])
-    write_model_input(trial_u, scale, f, control_count, muscle_count, basis_count, controls_out)
-    r = rotation[f]
-    t = translation[f]
-    if size > control_count:
-        c = control_count
-        r = _rotation_from_vector(wp.vec3d(step[vb + c], step[vb + c + 1], step[vb + c + 2])) * r
-        t = t + wp.vec3d(step[vb + c + 3], step[vb + c + 4], step[vb + c + 5])
-    trial_rotation[f] = r
-    trial_translation[f] = t
-    rotation_out[f] = r
-    translation_out[f] = t
-    frame_on[f] = 1
-    pending[f] = 1
-    wp.atomic_add(counter, 0, 1)
+        moved = state.u[ub + m] + step[vb + m]
+        state.trial_u[ub + m] = wp.min(wp.max(moved, state.lower[ub + m]), state.upper[ub + m])
+    write_model_input(
+        state.trial_u, scaling.scale, f, control_count, layout.muscle_count, layout.basis_count, model.controls
+    )
+    r = state.rotation[f]
+    t = state.translation[f]
+    if layout.size > control_count:
+        c = vb + control_count
+        r = _rotation_from_vector(wp.vec3d(step[c], step[c + 1], step[c + 2])) * r
+        t = t + wp.vec3d(step[c + 3], step[c + 4], step[c + 5])
+    state.trial_rotation[f] = r
+    state.trial_translation[f] = t
+    model.rotation[f] = r
+    model.translation[f] = t
+    model.frame_on[f] = 1
+    state.pending[f] = 1
+    wp.atomic_add(state.counter, 0, 1)
 
 
 @wp.kernel
-def load_current(
-    u: wp.array(dtype=wp.float64),
-    rotation: wp.array(dtype=wp.mat33d),
-    translation: wp.array(dtype=wp.vec3d),
-    active: wp.array(dtype=wp.int32),
-    scale: wp.array(dtype=wp.float64),
-    control_count: int,
-    muscle_count: int,
-    basis_count: int,
-    controls_out: wp.array(dtype=wp.float64),
-    rotation_out: wp.array(dtype=wp.mat33d),
-    translation_out: wp.array(dtype=wp.vec3d),
-    frame_on: wp.array(dtype=wp.int32),
-    counter: wp.array(dtype=wp.int32),
-):
+def load_current(layout: Layout, scaling: Scaling, state: Iterate, model: ModelInput):
     """The current iterate as the model's input; counts the frames still iterating."""
     f = wp.tid()
-    write_model_input(u, scale, f, control_count, muscle_count, basis_count, controls_out)
-    rotation_out[f] = rotation[f]
-    translation_out[f] = translation[f]
-    frame_on[f] = active[f]
-    if active[f] != 0:
-        wp.atomic_add(counter, 0, 1)
+    write_model_input(
+        state.u, scaling.scale, f, layout.control_count, layout.muscle_count, layout.basis_count, model.controls
+    )
+    model.rotation[f] = state.rotation[f]
+    model.translation[f] = state.translation[f]
+    model.frame_on[f] = state.active[f]
+    if state.active[f] != 0:
+        wp.atomic_add(state.counter, 0, 1)
 
 
 @wp.kernel
-def begin_iteration(
-    hessian: wp.array(dtype=wp.float64),
-    gradient: wp.array(dtype=wp.float64),
-    data_misfit: wp.array(dtype=wp.float64),
-    column: wp.array(dtype=wp.float64),
-    low: wp.array(dtype=wp.float64),
-    high: wp.array(dtype=wp.float64),
-    scale: wp.array(dtype=wp.float64),
-    previous: wp.array(dtype=wp.float64),
-    pairs: wp.array(dtype=wp.int32),
-    pair_count: int,
-    l2: wp.float64,
-    l1: wp.float64,
-    smooth: wp.float64,
-    symmetry: wp.float64,
-    tolerance: wp.float64,
-    energy_tolerance: wp.float64,
-    control_count: int,
-    muscle_count: int,
-    basis_count: int,
-    size: int,
-    u: wp.array(dtype=wp.float64),
-    rotation: wp.array(dtype=wp.mat33d),
-    translation: wp.array(dtype=wp.vec3d),
-    damping: wp.array(dtype=wp.float64),
-    current: wp.array(dtype=wp.float64),
-    misfit: wp.array(dtype=wp.float64),
-    active: wp.array(dtype=wp.int32),
-    converged: wp.array(dtype=wp.int32),
-    iterations: wp.array(dtype=wp.int32),
-    held: wp.array(dtype=wp.int32),
-    lower: wp.array(dtype=wp.float64),
-    upper: wp.array(dtype=wp.float64),
-    tries: wp.array(dtype=wp.int32),
-    system: wp.array(dtype=wp.float64),
-    step: wp.array(dtype=wp.float64),
-    trial_u: wp.array(dtype=wp.float64),
-    trial_rotation: wp.array(dtype=wp.mat33d),
-    trial_translation: wp.array(dtype=wp.vec3d),
-    controls_out: wp.array(dtype=wp.float64),
-    rotation_out: wp.array(dtype=wp.mat33d),
-    translation_out: wp.array(dtype=wp.vec3d),
-    frame_on: wp.array(dtype=wp.int32),
-    pending: wp.array(dtype=wp.int32),
-    counter: wp.array(dtype=wp.int32),
-):
+def begin_iteration(data: DataTerm, layout: Layout, scaling: Scaling, terms: Terms, state: Iterate, model: ModelInput):
     """From the data term's ``JᵀWJ``, ``JᵀWe`` [mesh-unit columns] at the current iterate: the frame's
     Gauss–Newton system of ½E in ``u``, its convergence tests, and the first damped trial."""
     f = wp.tid()
-    pending[f] = 0
-    frame_on[f] = 0
-    if active[f] == 0:
+    state.pending[f] = 0
+    model.frame_on[f] = 0
+    if state.active[f] == 0:
         return
-    iterations[f] = iterations[f] + 1
+    state.iterations[f] = state.iterations[f] + 1
+    size = layout.size
+    control_count = layout.control_count
+    hessian = data.hessian
+    gradient = data.gradient
+    column = scaling.column
+    u = state.u
     hb = f * size * size
     vb = f * size
     ub = f * control_count
@@ -296,11 +296,12 @@ def begin_iteration(
     half = wp.float64(0.5)
     for m in range(control_count):
         x = u[ub + m]
-        hessian[hb + m * size + m] += l2 + smooth
-        gradient[vb + m] += l2 * x + smooth * (x - previous[ub + m])
-    for p in range(pair_count):
-        left = pairs[2 * p]
-        right = pairs[2 * p + 1]
+        hessian[hb + m * size + m] += terms.l2 + terms.smooth
+        gradient[vb + m] += terms.l2 * x + terms.smooth * (x - state.previous[ub + m])
+    symmetry = terms.symmetry
+    for p in range(terms.pair_count):
+        left = terms.pairs[2 * p]
+        right = terms.pairs[2 * p + 1]
         d = u[ub + left] - u[ub + right]
         gradient[vb + left] += symmetry * d
         gradient[vb + right] -= symmetry * d
@@ -308,12 +309,11 @@ def begin_iteration(
         hessian[hb + right * size + right] += symmetry
         hessian[hb + left * size + right] -= symmetry
         hessian[hb + right * size + left] -= symmetry
-    value = data_misfit[f] + _regularisation(
-        u, ub, previous, control_count, l2, l1, smooth, symmetry, pairs, pair_count
-    )
-    misfit[f] = data_misfit[f]
-    current[f] = value
+    value = data.misfit[f] + _regularisation(u, state, terms, ub, control_count)
+    state.misfit[f] = data.misfit[f]
+    state.current[f] = value
     zero = wp.float64(0.0)
+    l1 = terms.l1
     largest = zero
     for a in range(size):
         h = int(0)
@@ -323,27 +323,28 @@ def begin_iteration(
             slope = _orthant_slope(x, g, l1)
             g = g + half * l1 * slope
             gradient[vb + a] = g
-            lo = low[a]
-            hi = high[a]
+            lo = scaling.low[a]
+            hi = scaling.high[a]
             if l1 > zero:
                 if slope > zero:
                     lo = wp.max(lo, zero)
                 else:
                     hi = wp.min(hi, zero)
-            lower[ub + a] = lo
-            upper[ub + a] = hi
+            state.lower[ub + a] = lo
+            state.upper[ub + a] = hi
             if (x <= lo + wp.float64(BOUND_SLACK) and g > zero) or (x >= hi - wp.float64(BOUND_SLACK) and g < zero):
                 h = 1
                 gradient[vb + a] = zero
-        held[vb + a] = h
+        state.held[vb + a] = h
         if h == 0:
             largest = wp.max(largest, wp.abs(g))
     if largest < wp.float64(1e-14):
-        converged[f] = 1
-        active[f] = 0
+        state.converged[f] = 1
+        state.active[f] = 0
         return
-    _damped_step(hessian, gradient, held, damping[f], f, size, system, step)
+    _damped_step(data, state, f, size)
     # The quadratic model's predicted decrease; negligible → converged without a trial.
+    step = state.step
     linear = zero
     curvature = zero
     for a in range(size):
@@ -354,134 +355,48 @@ def begin_iteration(
             row += hessian[hb + a * size + b] * step[vb + b]
         curvature += s * row
     predicted = -(linear + half * curvature)
-    if predicted <= tolerance * value + energy_tolerance:
-        converged[f] = 1
-        active[f] = 0
+    if predicted <= terms.tolerance * value + terms.energy_tolerance:
+        state.converged[f] = 1
+        state.active[f] = 0
         return
-    tries[f] = 0
-    _propose(
-        f,
-        control_count,
-        muscle_count,
-        basis_count,
-        size,
-        step,
-        u,
-        rotation,
-        translation,
-        lower,
-        upper,
-        scale,
-        trial_u,
-        trial_rotation,
-        trial_translation,
-        controls_out,
-        rotation_out,
-        translation_out,
-        frame_on,
-        pending,
-        counter,
-    )
+    state.tries[f] = 0
+    _propose(f, layout, scaling, state, model)
 
 
 @wp.kernel
-def judge_trial(
-    hessian: wp.array(dtype=wp.float64),
-    gradient: wp.array(dtype=wp.float64),
-    data_misfit: wp.array(dtype=wp.float64),
-    lower: wp.array(dtype=wp.float64),
-    upper: wp.array(dtype=wp.float64),
-    scale: wp.array(dtype=wp.float64),
-    previous: wp.array(dtype=wp.float64),
-    pairs: wp.array(dtype=wp.int32),
-    pair_count: int,
-    l2: wp.float64,
-    l1: wp.float64,
-    smooth: wp.float64,
-    symmetry: wp.float64,
-    tolerance: wp.float64,
-    step_tolerance: wp.float64,
-    energy_tolerance: wp.float64,
-    control_count: int,
-    muscle_count: int,
-    basis_count: int,
-    size: int,
-    u: wp.array(dtype=wp.float64),
-    rotation: wp.array(dtype=wp.mat33d),
-    translation: wp.array(dtype=wp.vec3d),
-    damping: wp.array(dtype=wp.float64),
-    current: wp.array(dtype=wp.float64),
-    misfit: wp.array(dtype=wp.float64),
-    active: wp.array(dtype=wp.int32),
-    converged: wp.array(dtype=wp.int32),
-    held: wp.array(dtype=wp.int32),
-    tries: wp.array(dtype=wp.int32),
-    system: wp.array(dtype=wp.float64),
-    step: wp.array(dtype=wp.float64),
-    trial_u: wp.array(dtype=wp.float64),
-    trial_rotation: wp.array(dtype=wp.mat33d),
-    trial_translation: wp.array(dtype=wp.vec3d),
-    controls_out: wp.array(dtype=wp.float64),
-    rotation_out: wp.array(dtype=wp.mat33d),
-    translation_out: wp.array(dtype=wp.vec3d),
-    frame_on: wp.array(dtype=wp.int32),
-    pending: wp.array(dtype=wp.int32),
-    counter: wp.array(dtype=wp.int32),
-):
+def judge_trial(data: DataTerm, layout: Layout, scaling: Scaling, terms: Terms, state: Iterate, model: ModelInput):
     """Accept a trial that does not raise E (less damping; convergence tests), else retry with 4× damping."""
     f = wp.tid()
-    if pending[f] == 0:
-        frame_on[f] = 0
+    if state.pending[f] == 0:
+        model.frame_on[f] = 0
         return
+    control_count = layout.control_count
     ub = f * control_count
-    trial_misfit = data_misfit[f]
-    value = trial_misfit + _regularisation(
-        trial_u, ub, previous, control_count, l2, l1, smooth, symmetry, pairs, pair_count
-    )
-    pending[f] = 0
-    frame_on[f] = 0
-    if wp.isfinite(value) and value <= current[f]:
-        decrease = current[f] - value
+    trial_misfit = data.misfit[f]
+    value = trial_misfit + _regularisation(state.trial_u, state, terms, ub, control_count)
+    state.pending[f] = 0
+    model.frame_on[f] = 0
+    current = state.current[f]
+    if wp.isfinite(value) and value <= current:
+        decrease = current - value
         moved = wp.float64(0.0)
         for m in range(control_count):
-            moved = wp.max(moved, wp.abs(trial_u[ub + m] - u[ub + m]))
-            u[ub + m] = trial_u[ub + m]
-        rotation[f] = trial_rotation[f]
-        translation[f] = trial_translation[f]
-        if decrease <= tolerance * current[f] + energy_tolerance or moved < step_tolerance:
-            converged[f] = 1
-            active[f] = 0
-        current[f] = value
-        misfit[f] = trial_misfit
-        damping[f] = wp.max(damping[f] / wp.float64(10.0), wp.float64(1e-9))
+            moved = wp.max(moved, wp.abs(state.trial_u[ub + m] - state.u[ub + m]))
+            state.u[ub + m] = state.trial_u[ub + m]
+        state.rotation[f] = state.trial_rotation[f]
+        state.translation[f] = state.trial_translation[f]
+        if decrease <= terms.tolerance * current + terms.energy_tolerance or moved < terms.step_tolerance:
+            state.converged[f] = 1
+            state.active[f] = 0
+        state.current[f] = value
+        state.misfit[f] = trial_misfit
+        state.damping[f] = wp.max(state.damping[f] / wp.float64(10.0), wp.float64(1e-9))
         return
-    damping[f] = damping[f] * wp.float64(4.0)
-    tries[f] = tries[f] + 1
-    if tries[f] >= MAX_TRIES:  # no decrease even with heavy damping: a (numerically) stationary point
-        converged[f] = 1
-        active[f] = 0
+    state.damping[f] = state.damping[f] * wp.float64(4.0)
+    state.tries[f] = state.tries[f] + 1
+    if state.tries[f] >= MAX_TRIES:  # no decrease even with heavy damping: a (numerically) stationary point
+        state.converged[f] = 1
+        state.active[f] = 0
         return
-    _damped_step(hessian, gradient, held, damping[f], f, size, system, step)
-    _propose(
-        f,
-        control_count,
-        muscle_count,
-        basis_count,
-        size,
-        step,
-        u,
-        rotation,
-        translation,
-        lower,
-        upper,
-        scale,
-        trial_u,
-        trial_rotation,
-        trial_translation,
-        controls_out,
-        rotation_out,
-        translation_out,
-        frame_on,
-        pending,
-        counter,
-    )
+    _damped_step(data, state, f, layout.size)
+    _propose(f, layout, scaling, state, model)

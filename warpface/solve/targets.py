@@ -63,7 +63,7 @@ def _integer_indices(values, name: str, upper: int) -> np.ndarray:
     elif array.dtype.kind == "b":
         raise ValueError(f"{name}: expected integer indices, got a boolean array (np.flatnonzero(mask) gives indices)")
     elif array.dtype.kind not in "iu":
-        raise ValueError(f"{name}: indices must be integers, got dtype {array.dtype}")
+        raise TypeError(f"{name}: indices must be integers, got dtype {array.dtype}")
     array = array.astype(np.int64)
     bad = np.flatnonzero((array < 0) | (array >= upper))
     if len(bad):
@@ -82,6 +82,7 @@ def observation(mesh, vertices=None, triangles=None, barycentrics=None) -> Obser
 
     Raises:
         ValueError: naming the bad argument (indices out of range, wrong shapes, non-finite values).
+        TypeError: naming it when it is not numbers (or, for indices, not integers).
     """
     vertex_count = mesh.vertex_count
     if vertices is not None and (triangles is not None or barycentrics is not None):
@@ -98,7 +99,9 @@ def observation(mesh, vertices=None, triangles=None, barycentrics=None) -> Obser
         try:
             bary = np.asarray(barycentrics, dtype=np.float64)
         except (TypeError, ValueError):
-            raise ValueError("barycentrics: cannot convert to a numeric array") from None
+            raise TypeError(
+                "barycentrics: expected numbers, got values that do not convert to a numeric array"
+            ) from None
         if bary.shape != (len(tri), 3):
             raise ValueError(f"barycentrics: expected shape ({len(tri)}, 3), got {bary.shape}")
         if not np.all(np.isfinite(bary)):
@@ -121,7 +124,7 @@ def frame_targets(target, obs: Observation, *, batched: bool) -> np.ndarray:
     try:
         array = np.asarray(target, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError("target: cannot convert to a numeric array") from None
+        raise TypeError("target: expected numbers, got values that do not convert to a numeric array") from None
     expected = "(frames, N, 3)" if batched else "(N, 3)"
     if array.ndim != (3 if batched else 2) or array.shape[-1] != 3:
         raise ValueError(f"target: expected shape {expected}, got {array.shape}")
@@ -150,7 +153,7 @@ def point_weights(weights, count: int) -> np.ndarray:
     try:
         array = np.asarray(weights, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError("weights: cannot convert to a numeric array") from None
+        raise TypeError("weights: expected numbers, got values that do not convert to a numeric array") from None
     if array.ndim == 0:
         array = np.full(count, float(array))
     if array.shape != (count,):
