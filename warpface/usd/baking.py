@@ -334,9 +334,7 @@ def _evaluate_controls(model, animation, times: np.ndarray, skin_path) -> tuple[
     except ValueError as exc:
         for row, time in enumerate(times.tolist()):  # name the first frame the model refuses
             try:
-                model.evaluate(
-                    muscles_and_jaw[row : row + 1], wrinkle_depths=animation.wrinkle_depths[row : row + 1]
-                )
+                model.evaluate(muscles_and_jaw[row : row + 1], wrinkle_depths=animation.wrinkle_depths[row : row + 1])
             except ValueError as frame_error:
                 raise ValueError(f"{skin_path}: controls at time {time:g}: {frame_error}") from None
         raise ValueError(f"{skin_path}: controls at time codes {times[0]:g} … {times[-1]:g}: {exc}") from None
