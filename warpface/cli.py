@@ -1,4 +1,5 @@
-"""The ``warpface`` command line: ``demo``, ``bake``, ``preview``, ``validate``, ``track``.
+"""The ``warpface`` command line: ``demo``, ``rig``, ``bake``, ``preview``, ``validate``, ``track``, ``animate``,
+``fit``.
 
 Every sub-command has ``--help``; ``--device`` and ``--quiet`` work before or after the command. Any
 error — bad arguments, a bad or unreadable stage, a full disk, pxr's own exceptions — is one line on
