@@ -16,17 +16,21 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .align import fit_similarity
-from .nonrigid import SkinTarget, fit_nonrigid
+from .align import Similarity, fit_similarity
+from .nonrigid import NonRigidFit, SkinTarget, fit_nonrigid
 from .surface import HeadSurface
 from .template import template
 from .units import infer_units, parse_axis, parse_units
 
-__all__ = ["LandmarkFit", "find_landmarks", "CONFIDENCE_DISTANCE"]
+__all__ = ["LandmarkFit", "Registration", "find_landmarks", "register", "snap_to_skin", "CONFIDENCE_DISTANCE"]
 
 CONFIDENCE_DISTANCE = 0.05
 """Distance from a carried-over landmark to its skin vertex at which confidence falls to 1/e
 [inter-ocular units, ~3 mm]."""
+MAX_RESIDUAL = 0.12
+"""A similarity fit leaving the template farther than this from the skin [inter-ocular units] finds no face."""
+MAX_ASYMMETRY = 0.08
+"""A skin whose best mirror plane leaves more than this (relative to its size) is not a face."""
 SNAP_CANDIDATES = 12
 """Nearest skin vertices considered for a landmark; the nearest one facing the template's way wins."""
 
@@ -57,8 +61,8 @@ class LandmarkFit:
     seconds: float
 
 
-def _snap(points: np.ndarray, normals: np.ndarray, skin: SkinTarget) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest skin vertex to each point among those facing the point's normal: (skin positions, distances)."""
+def snap_to_skin(points: np.ndarray, normals: np.ndarray, skin: SkinTarget) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest skin vertex to each point among those facing the point's normal: (skin indices, distances)."""
     count = min(SNAP_CANDIDATES, len(skin.points))
     distance, index = skin.tree.query(points, k=count)
     distance, index = distance.reshape(len(points), count), index.reshape(len(points), count)
@@ -66,6 +70,65 @@ def _snap(points: np.ndarray, normals: np.ndarray, skin: SkinTarget) -> tuple[np
     first = np.where(facing.any(axis=1), np.argmax(facing, axis=1), 0)
     rows = np.arange(len(points))
     return index[rows, first], distance[rows, first]
+
+
+@dataclass(frozen=True)
+class Registration:
+    """The template registered onto a head's skin: what :func:`find_landmarks` reads its landmarks from."""
+
+    surface: HeadSurface
+    similarity: Similarity
+    """Template frame → mesh coordinates."""
+    skin: SkinTarget
+    """The skin in the template's frame."""
+    deformed: NonRigidFit | None
+    """The non-rigid fit (None for the rigid baseline)."""
+    symmetry_residual: float
+
+    def landmark_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """The carried-over landmark points and normals in the template frame, (68, 3) each."""
+        model = template()
+        if self.deformed is None:
+            nearest = self.deformed_nearest(model.points)
+            return model.landmark_points, model.normals[nearest]
+        points = self.deformed.move(model.landmark_points, model.landmark_nodes)
+        return points, self.deformed.normals[self.deformed_nearest(model.points)]
+
+    @staticmethod
+    def deformed_nearest(points: np.ndarray) -> np.ndarray:
+        model = template()
+        return np.argmin(np.linalg.norm(points[None, :, :] - model.landmark_points[:, None, :], axis=2), axis=1)
+
+
+def register(points, triangles, *, up=None, front=None, nonrigid: bool = True, label: str = "mesh") -> Registration:
+    """Register the built-in face onto the skin of a head mesh (see :func:`find_landmarks` for the arguments).
+
+    Raises:
+        ValueError: no surface (empty, a point cloud), or no face-like part.
+    """
+    up_hint, front_hint = parse_axis(up, "up"), parse_axis(front, "front")
+    if up_hint is not None and front_hint is not None and abs(up_hint @ front_hint) > 0.5:
+        raise ValueError(f"up/front: {up!r} and {front!r} are not perpendicular")
+    surface = HeadSurface(points, triangles, label)
+    skin_points = surface.points[surface.skin_vertices]
+    if len(skin_points) < 100:
+        raise ValueError(
+            f"{label}: the largest connected part has only {len(skin_points)} vertices; a face needs a few thousand"
+        )
+    model = template()
+    fit, plane_residual = fit_similarity(
+        model, skin_points, surface.skin_normals, up_hint=up_hint, front_hint=front_hint
+    )
+    if fit.residual > MAX_RESIDUAL or plane_residual > MAX_ASYMMETRY:
+        raise ValueError(
+            f"{label}: no face-like part found (a face template fits its largest part only to "
+            f"{fit.residual:.2f} eye distances; mirror symmetry {plane_residual:.2f}); pass a head or face mesh, "
+            "or --up/--front if it is one"
+        )
+    local = fit.inverse(skin_points)
+    skin = SkinTarget(local, surface.skin_normals @ fit.rotation, surface.skin_boundary, cKDTree(local))
+    deformed = fit_nonrigid(model, skin) if nonrigid else None
+    return Registration(surface, fit, skin, deformed, plane_residual)
 
 
 def find_landmarks(
@@ -93,41 +156,21 @@ def find_landmarks(
         ValueError: no surface (empty, a point cloud), a size no unit explains, or no face-like part.
     """
     started = time.perf_counter()
-    up_hint, front_hint = parse_axis(up, "up"), parse_axis(front, "front")
-    if up_hint is not None and front_hint is not None and abs(up_hint @ front_hint) > 0.5:
-        raise ValueError(f"up/front: {up!r} and {front!r} are not perpendicular")
     given_unit = parse_units(units) if units is not None else None
-    surface = HeadSurface(points, triangles, label)
-    skin_points = surface.points[surface.skin_vertices]
-    if len(skin_points) < 100:
-        raise ValueError(
-            f"{label}: the largest connected part has only {len(skin_points)} vertices; a face needs a few thousand"
-        )
-    model = template()
-    fit, plane_residual = fit_similarity(
-        model, skin_points, surface.skin_normals, up_hint=up_hint, front_hint=front_hint
-    )
-    if fit.residual > 0.12 or plane_residual > 0.08:
-        raise ValueError(
-            f"{label}: no face-like part found (the template of a face fits the largest part only to "
-            f"{fit.residual:.2f} eye distances, symmetry {plane_residual:.2f}); pass a head or face mesh, "
-            "or --up/--front if it is one"
-        )
+    registration = register(points, triangles, up=up, front=front, nonrigid=nonrigid, label=label)
+    fit, skin, surface = registration.similarity, registration.skin, registration.surface
     if given_unit is None:
         unit_name, meters_per_unit = infer_units(fit.scale, label)
     else:
         unit_name, meters_per_unit = units.strip().lower(), given_unit
-    local = fit.inverse(skin_points)
-    skin = SkinTarget(local, surface.skin_normals @ fit.rotation, surface.skin_boundary, cKDTree(local))
-    if nonrigid:
-        deformed = fit_nonrigid(model, skin)
-        marks, mark_normals = deformed.points[model.landmarks], deformed.normals[model.landmarks]
+    marks, mark_normals = registration.landmark_points()
+    index, distance = snap_to_skin(marks, mark_normals, skin)
+    confidence = np.exp(-((distance / CONFIDENCE_DISTANCE) ** 2))
+    if registration.deformed is not None:
+        deformed = registration.deformed
         residual = float(np.mean(skin.tree.query(deformed.points)[0][deformed.weights > 0]))
     else:
-        marks, mark_normals = model.points[model.landmarks], model.normals[model.landmarks]
         residual = fit.residual
-    index, distance = _snap(marks, mark_normals, skin)
-    confidence = np.exp(-((distance / CONFIDENCE_DISTANCE) ** 2))
     axes = fit.rotation.T  # rows: template x, y, z in mesh coordinates
     return LandmarkFit(
         indices=surface.skin_vertices[index].astype(np.int64),

@@ -54,6 +54,12 @@ class NonRigidFit:
     points: np.ndarray
     normals: np.ndarray
     weights: np.ndarray
+    maps: np.ndarray
+    """Affine map of every node, (K, 4, 3): ``[p, 1] @ maps[k]``."""
+
+    def move(self, points: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+        """Template-frame points (N, 3), each carried by the map of its node (N,)."""
+        return np.einsum("ni,nij->nj", np.concatenate([points, np.ones((len(points), 1))], axis=1), self.maps[nodes])
 
 
 def _selection(model: Template) -> sp.csr_matrix:
@@ -95,4 +101,4 @@ def fit_nonrigid(model: Template, skin: SkinTarget, *, stiffness=STIFFNESS, roun
             maps = splu(system).solve(np.asarray(weighted.T @ foot))
             points = select @ maps
             normals = vertex_normals(points, model.triangles)
-    return NonRigidFit(points=points, normals=normals, weights=weights)
+    return NonRigidFit(points=points, normals=normals, weights=weights, maps=maps.reshape(k, 4, 3))
