@@ -47,9 +47,9 @@ class LandmarkFit:
     """The mesh's length unit (``"m"``, ``"cm"`` or ``"mm"``), inferred or given."""
     meters_per_unit: float
     up: np.ndarray
-    """The face's up direction in mesh coordinates (unit vector)."""
+    """The head's up direction in mesh coordinates (unit vector)."""
     front: np.ndarray
-    """The direction the face looks in mesh coordinates (unit vector)."""
+    """The direction the head looks in mesh coordinates (unit vector)."""
     left: np.ndarray
     """Toward the subject's left in mesh coordinates (unit vector)."""
     eye_distance: float
@@ -171,15 +171,15 @@ def find_landmarks(
         residual = float(np.mean(skin.tree.query(deformed.points)[0][deformed.weights > 0]))
     else:
         residual = fit.residual
-    axes = fit.rotation.T  # rows: template x, y, z in mesh coordinates
+    model = template()
     return LandmarkFit(
         indices=surface.skin_vertices[index].astype(np.int64),
         confidence=confidence,
         units=unit_name,
         meters_per_unit=meters_per_unit,
-        up=axes[1].copy(),
-        front=axes[2].copy(),
-        left=axes[0].copy(),
+        up=fit.rotation @ model.vertical,
+        front=fit.rotation @ model.forward,
+        left=fit.rotation @ np.array([1.0, 0.0, 0.0]),
         eye_distance=float(fit.scale),
         residual=residual,
         shells=surface.shell_count,

@@ -133,6 +133,10 @@ class Template:
     """Neighbouring node pairs (E, 2)."""
     meters_per_unit: float
     """Size of one inter-ocular unit of the built-in face [m]."""
+    vertical: np.ndarray
+    """The head's up direction (the built-in face's +y) in the template frame, which tilts with the face."""
+    forward: np.ndarray
+    """The head's looking direction (the built-in face's +z) in the template frame."""
 
 
 def _farthest_points(points: np.ndarray, seeds: np.ndarray, spacing: float) -> np.ndarray:
@@ -191,4 +195,6 @@ def template() -> Template:
         cell=cell,
         edges=edges,
         meters_per_unit=float(frame.scale),
+        vertical=frame.axes @ np.array([0.0, 1.0, 0.0]),
+        forward=frame.axes @ np.array([0.0, 0.0, 1.0]),
     )
