@@ -173,7 +173,6 @@ def run(args) -> int:
             temporary.write_bytes(picture)
     if not args.quiet:
         print(summary)
-    print(
-        f"{out}: rig {args.name!r} with {len(rig.muscles)} muscles, {len(rig.wrinkles)} wrinkles, {meters_per_unit:g} m/unit"
-    )
+    counts = f"{len(rig.muscles)} muscles, {len(rig.wrinkles)} wrinkles"
+    print(f"{out}: rig {args.name!r} with {counts}, {meters_per_unit:g} m/unit")
     return 0

@@ -7,7 +7,8 @@
 2. **Up and front.** Both lie in that plane; they are searched over 12 turns in it, for either side
    of the plane as the subject's left (24 starts). Each start puts the template's nose tip on the
    skin point farthest along that front and fits a similarity transform (scale, rotation,
-   translation) by trimmed ICP. The start whose fit leaves the smallest trimmed distance wins.
+   translation) by ICP. The six best are refined on all graph nodes; the one whose fit leaves the
+   smallest capped distance wins.
    ``up`` and ``front`` hints drop the starts that disagree with them by more than 60°.
 """
 
@@ -24,6 +25,10 @@ __all__ = ["Similarity", "symmetry_plane", "fit_similarity", "umeyama"]
 
 TURNS = 12
 """Start angles of the up/front search in the symmetry plane."""
+SCALE_STARTS = (1.0, 0.75)
+"""Start scales per orientation, as fractions of the skin's width over the template's."""
+FINALISTS = 6
+"""Best coarse starts refined on every graph node before the winner is picked."""
 HINT_COS = 0.5
 """A start is kept under an ``up``/``front`` hint when its axis is within 60° of it."""
 
@@ -177,11 +182,12 @@ def fit_similarity(
         width = float(np.quantile(across, 0.98) - np.quantile(across, 0.02))
         near_plane = np.abs(across) < 0.1 * width
         tip = skin[near_plane][np.argmax((skin[near_plane] - centre) @ front)]
-        for factor in (1.0, 0.75):
+        for factor in SCALE_STARTS:
             scale = factor * width / template_width
             start = Similarity(scale, rotation, tip - scale * rotation @ nose)
             candidates.append(_icp(nodes[coarse], node_normals[coarse], skin, skin_normals, tree, start, 20))
     if not candidates:
         raise ValueError("up/front: the hints given contradict each other (up and front must be perpendicular)")
-    best = min(candidates, key=lambda fit: fit.residual)
-    return _icp(nodes, node_normals, skin, skin_normals, tree, best, 20, (0.1, 0.05)), plane_residual
+    finalists = sorted(candidates, key=lambda fit: fit.residual)[:FINALISTS]
+    refined = [_icp(nodes, node_normals, skin, skin_normals, tree, fit, 30, (0.2, 0.05)) for fit in finalists]
+    return min(refined, key=lambda fit: fit.residual), plane_residual

@@ -113,7 +113,8 @@ def register(points, triangles, *, up=None, front=None, nonrigid: bool = True, l
     skin_points = surface.points[surface.skin_vertices]
     if len(skin_points) < 100:
         raise ValueError(
-            f"{label}: the largest connected part has only {len(skin_points)} vertices; a face needs a few thousand"
+            f"{label}: the largest connected part has only {len(skin_points)} vertices (a triangle soup? weld "
+            "its vertices); a face needs a few thousand"
         )
     model = template()
     fit, plane_residual = fit_similarity(

@@ -25,9 +25,9 @@ from .template import Template
 
 __all__ = ["SkinTarget", "NonRigidFit", "fit_nonrigid", "STIFFNESS"]
 
-STIFFNESS = (40.0, 20.0, 10.0, 5.0, 2.5, 1.2)
+STIFFNESS = (200.0, 100.0, 50.0, 20.0, 10.0, 5.0)
 """Annealed stiffness ``α`` per stage (the data term sums over all ~11k template vertices)."""
-ROUNDS = 3
+ROUNDS = 2
 """Correspondence rounds per stiffness stage."""
 GAMMA = 1.0
 """Weight of the translation column against the linear part (coordinates are ~1 in size)."""
@@ -80,8 +80,11 @@ def _smoothness(model: Template) -> sp.csr_matrix:
     return (stiff.T @ stiff).tocsc()
 
 
-def fit_nonrigid(model: Template, skin: SkinTarget, *, stiffness=STIFFNESS, rounds: int = ROUNDS) -> NonRigidFit:
-    """Deform the template onto the skin (both in the template frame, after the similarity fit)."""
+def fit_nonrigid(model: Template, skin: SkinTarget, *, stiffness=None, rounds: int | None = None) -> NonRigidFit:
+    """Deform the template onto the skin (both in the template frame, after the similarity fit);
+    ``stiffness`` is the α schedule (default :data:`STIFFNESS`)."""
+    stiffness = STIFFNESS if stiffness is None else tuple(stiffness)
+    rounds = ROUNDS if rounds is None else rounds
     select = _selection(model)
     smooth = _smoothness(model)
     k = len(model.nodes)

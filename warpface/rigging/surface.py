@@ -16,7 +16,10 @@ from scipy.sparse.csgraph import connected_components
 
 from .._validate import as_finite_array
 
-__all__ = ["HeadSurface", "polygons_to_triangles", "vertex_normals"]
+__all__ = ["HeadSurface", "polygons_to_triangles", "vertex_normals", "TWIN_AREA"]
+
+TWIN_AREA = 0.5
+"""A second shell with more than this fraction of the skin's area, away from it, is a second head."""
 
 
 def polygons_to_triangles(counts, indices) -> np.ndarray:
@@ -115,7 +118,17 @@ class HeadSurface:
 
     @cached_property
     def skin_label(self) -> int:
-        return int(np.argmax(self.shell_areas))
+        """The shell of largest area; ValueError when a second shell as large lies apart from it (two heads)."""
+        order = np.argsort(self.shell_areas)[::-1]
+        if len(order) > 1 and self.shell_areas[order[1]] > TWIN_AREA * self.shell_areas[order[0]]:
+            first, second = (self.points[self.shell_of_vertex == label] for label in order[:2])
+            diagonal = float(np.linalg.norm(np.ptp(first, axis=0)))
+            if np.linalg.norm(first.mean(axis=0) - second.mean(axis=0)) > 0.5 * diagonal:
+                raise ValueError(
+                    f"{self.label}: two head-sized parts apart from each other ({len(first)} and {len(second)} "
+                    "vertices); export one head per file"
+                )
+        return int(order[0])
 
     @cached_property
     def skin_triangles(self) -> np.ndarray:
