@@ -25,18 +25,61 @@ def face_obj(tmp_path_factory):
     return _write_obj(tmp_path_factory.mktemp("head") / "head_cm.obj", 100.0 * face.points, face.triangles)
 
 
-def test_rig_writes_a_stage_with_the_landmarks_found_and_a_picture(face_obj, tmp_path, capsys):
-    from warpface.rigging import find_landmarks
+def _quads(triangles):
+    """Consecutive triangles sharing an edge merged into quads (p, q, s, r); the others stay triangles."""
+    faces, index = [], 0
+    while index < len(triangles):
+        a = [int(v) for v in triangles[index]]
+        b = [int(v) for v in triangles[index + 1]] if index + 1 < len(triangles) else []
+        if len(set(a) & set(b)) == 2:
+            p = next(v for v in a if v not in b)
+            k = a.index(p)
+            q, r = a[(k + 1) % 3], a[(k + 2) % 3]
+            faces.append([p, q, next(v for v in b if v not in a), r])
+            index += 2
+        else:
+            faces.append(a)
+            index += 1
+    return faces
+
+
+def _write_usd_head(path, points, triangles, meters_per_unit):
+    """A Z-up USD stage with the head as one Mesh of quads and triangles."""
+    from pxr import Usd, UsdGeom, Vt
+
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, meters_per_unit)
+    mesh = UsdGeom.Mesh.Define(stage, "/Head/Geo")
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points.astype(np.float32)))
+    faces = _quads(triangles)
+    mesh.CreateFaceVertexCountsAttr([len(f) for f in faces])
+    mesh.CreateFaceVertexIndicesAttr([v for f in faces for v in f])
+    stage.GetRootLayer().Save()
+    return path, sum(len(f) == 4 for f in faces)
+
+
+def test_rig_of_a_z_up_millimetre_usd_head_keeps_its_frame_and_finds_the_landmarks(tmp_path, capsys):
+    from pxr import Usd, UsdGeom
+
+    from warpface.assets import default_landmarks, face_frame
+    from warpface.rigging.template import LANDMARK_POINTS
     from warpface.usd import read_rig
 
-    out, png = tmp_path / "out" / "rig.usda", tmp_path / "rig.png"
-    assert main(["--device", "cpu", "rig", str(face_obj), "--out", str(out), "--preview", str(png)]) == 0
-    assert "landmarks found" in capsys.readouterr().out
-    rig = read_rig(out)  # metres
     face = default_face()
-    found = find_landmarks(100.0 * face.points, face.triangles)
-    np.testing.assert_array_equal(rig.landmarks, found.indices)
-    np.testing.assert_allclose(rig.mesh.points, face.points, atol=1e-6)  # cm on disk, metres read back
+    z_up = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # y → z
+    head, quads = _write_usd_head(tmp_path / "head.usda", 1000.0 * face.points @ z_up.T, face.triangles, 0.001)
+    assert quads > 1000
+    out, png = tmp_path / "out" / "rig.usda", tmp_path / "rig.png"
+    assert main(["--device", "cpu", "rig", str(head), "--out", str(out), "--preview", str(png)]) == 0
+    assert "landmarks found" in capsys.readouterr().out
+    assert UsdGeom.GetStageUpAxis(Usd.Stage.Open(str(out))) == UsdGeom.Tokens.z
+    rig = read_rig(out)  # metres, in the head's own (Z-up) frame
+    np.testing.assert_allclose(rig.mesh.points, face.points @ z_up.T, atol=1e-6)
+    # The template registered onto itself: the landmarks land where its landmark points are, within a few mm.
+    expected = face_frame(face, default_landmarks()).to_world(LANDMARK_POINTS) @ z_up.T
+    gap_mm = 1000.0 * np.linalg.norm(rig.mesh.points[rig.landmarks] - expected, axis=1)
+    assert gap_mm.mean() < 2.0 and gap_mm.max() < 6.0
     assert len(rig.muscles) > 20 and rig.jaw is not None
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 

@@ -84,7 +84,7 @@ def _read_usd(path: Path):
     if counts is None or indices is None or len(counts) == 0:
         return points, np.zeros((0, 3), dtype=np.int64), None
     triangles = polygons_to_triangles(np.asarray(counts), np.asarray(indices))
-    authored = stage.GetRootLayer().HasInfo("metersPerUnit")
+    authored = stage.HasAuthoredMetadata("metersPerUnit")
     return points, triangles, UsdGeom.GetStageMetersPerUnit(stage) if authored else None
 
 
