@@ -4,7 +4,8 @@ Heads (from ``../shared/data``): the ICT-FaceKit face region (cm, triangles), th
 (cm, quads, 56 shells: eyes, teeth, gums, sockets) and the menpo ``james`` scan (mm, its landmarks
 reordered from menpo's grouping to iBUG). Without ``--quick``, the whole ICT head also runs turned
 (35° yaw, 15° tilt), Z-up, in metres and with shuffled vertex order, and Lee Perry-Smith (no ground
-truth: its unit, confidence and time only).
+truth: its unit, confidence and time only) and two smooth random warps of the ICT head (stand-ins for
+other identities, with the ICT ground truth carried along).
 
 Two methods in the same run: **rigid** — the similarity fit of the template alone (symmetry plane,
 orientation search, scale) with its landmarks carried over unchanged — and **non-rigid** — the same
@@ -38,6 +39,16 @@ MENPO_TO_IBUG = np.r_[0:17, 29:34, 43:48, 34:43, 17:23, 23:29, 48:68]
 """james.ljson: chin, eyes (subject's right first), brows, nose, mouth → iBUG order."""
 
 
+def smooth_warp(points: np.ndarray, seed: int) -> np.ndarray:
+    """A stand-in for another identity: the width scaled by ±6 % and 12 Gaussian bumps (σ 3 cm, ~5 mm each)."""
+    rng = np.random.default_rng(seed)
+    face = points[:9409]  # the ICT face region's vertices
+    centres = rng.uniform(face.min(axis=0), face.max(axis=0), (12, 3))
+    amplitudes = rng.normal(0.0, 0.5, (12, 3))
+    weights = np.exp(-np.sum((points[:, None, :] - centres[None]) ** 2, axis=2) / (2.0 * 3.0**2))
+    return points * [1.0 + (0.06 if seed % 2 else -0.06), 1.0, 1.0] + weights @ amplitudes
+
+
 def heads(quick: bool):
     """(name, points, triangles, ground-truth points or None, mm per unit)."""
     ict = shared_data_path("ict_facekit")
@@ -58,6 +69,9 @@ def heads(quick: bool):
                 moved[truth],
                 1000.0,
             )
+            for seed in (1, 2):
+                warped = smooth_warp(points, seed)
+                yield f"ICT head, smooth warp {seed} (cm)", warped, triangles, warped[truth], 10.0
     james = shared_data_path("menpo3d_james")
     if james is not None:
         points, triangles = load_obj(james / "james.obj")

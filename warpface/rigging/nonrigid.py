@@ -4,9 +4,11 @@ Every graph node ``k`` carries an affine map ``X_k`` (4 × 3); a template vertex
 moves to ``[v, 1] X_k``. Each round matches every template vertex to the foot of its nearest skin
 point on that point's tangent plane and minimises
 
-    Σ_i w_i ‖[v_i, 1] X_k(i) − u_i‖²  +  α Σ_(a,b) ‖G (X_a − X_b)‖²,     G = diag(1, 1, 1, γ)
+    Σ_i w_i ‖[v_i, 1] X_k(i) − u_i‖²  +  β Σ_j ‖[v_t(j), 1] X_k(t(j)) − s_j‖²  +  α Σ_(a,b) ‖G (X_a − X_b)‖²
 
-— one sparse linear system with three right-hand sides (scipy.sparse, LU). ``w_i`` drops matches that
+with ``G = diag(1, 1, 1, γ)`` and the second sum the backward matches: every skin point ``s_j`` pulls
+its nearest template vertex ``t(j)`` (so the template also spreads over what the skin has) — one sparse
+linear system with three right-hand sides (scipy.sparse, LU). ``w_i`` drops matches that
 are too far, face the other way or land on the skin's open boundary. The stiffness ``α`` is
 annealed from stiff to supple, a few rounds each. Lengths are in the template's inter-ocular units.
 """
@@ -33,6 +35,8 @@ GAMMA = 1.0
 """Weight of the translation column against the linear part (coordinates are ~1 in size)."""
 MAX_DISTANCE = (0.25, 0.08)
 """A match farther than this [inter-ocular units] is dropped: from the first stage to the last."""
+BACKWARD = 1.0
+"""Weight of the skin → template matches (each skin point pulls its nearest template vertex); 0 = off."""
 FACING = 0.5
 """A match counts only where the template's and the skin's normals are within 60°."""
 
@@ -80,6 +84,14 @@ def _smoothness(model: Template) -> sp.csr_matrix:
     return (stiff.T @ stiff).tocsc()
 
 
+def _backward(points, normals, template_boundary, skin: SkinTarget, limit: float):
+    """Skin → template matches: (template vertex of each kept skin point, that skin point)."""
+    distance, index = cKDTree(points).query(skin.points)
+    facing = np.sum(normals[index] * skin.normals, axis=1)
+    keep = (distance < limit) & (facing > FACING) & ~template_boundary[index] & ~skin.boundary
+    return index[keep], skin.points[keep]
+
+
 def fit_nonrigid(model: Template, skin: SkinTarget, *, stiffness=None, rounds: int | None = None) -> NonRigidFit:
     """Deform the template onto the skin (both in the template frame, after the similarity fit);
     ``stiffness`` is the α schedule (default :data:`STIFFNESS`)."""
@@ -100,8 +112,14 @@ def fit_nonrigid(model: Template, skin: SkinTarget, *, stiffness=None, rounds: i
             weights = ((distance < limit) & (facing > FACING) & ~skin.boundary[index]).astype(np.float64)
             foot = points - np.sum((points - skin.points[index]) * target_normals, axis=1)[:, None] * target_normals
             weighted = select.multiply(weights[:, None]).tocsr()
-            system = (alpha * smooth + (weighted.T @ select)).tocsc()
-            maps = splu(system).solve(np.asarray(weighted.T @ foot))
+            system = alpha * smooth + (weighted.T @ select)
+            right = np.asarray(weighted.T @ foot)
+            if BACKWARD > 0.0:
+                rows, targets = _backward(points, normals, model.boundary, skin, limit)
+                pulled = select[rows]
+                system = system + BACKWARD * (pulled.T @ pulled)
+                right = right + BACKWARD * np.asarray(pulled.T @ targets)
+            maps = splu(system.tocsc()).solve(right)
             points = select @ maps
             normals = vertex_normals(points, model.triangles)
     return NonRigidFit(points=points, normals=normals, weights=weights, maps=maps.reshape(k, 4, 3))
