@@ -126,6 +126,14 @@ def test_bad_surfaces_say_what_was_found():
     points, triangles = _sphere(2000)
     with pytest.raises(ValueError, match="no face-like part"):
         find_landmarks(points * 0.1, triangles)
+    two = HeadSurface(np.vstack([points, points + [5.0, 0.0, 0.0]]), np.vstack([triangles, triangles + len(points)]))
+    with pytest.raises(ValueError, match="two head-sized parts"):
+        _ = two.skin_vertices
+    eye_and_head = HeadSurface(np.vstack([points, 0.2 * points]), np.vstack([triangles, triangles + len(points)]))
+    assert eye_and_head.shell_count == 2 and eye_and_head.skin_vertices.max() < len(points)
+    soup = np.arange(3 * len(triangles)).reshape(-1, 3)
+    with pytest.raises(ValueError, match="triangle soup"):
+        find_landmarks(points[triangles].reshape(-1, 3), soup)
 
 
 def test_landmark_values_and_files(tmp_path):

@@ -111,11 +111,6 @@ def register(points, triangles, *, up=None, front=None, nonrigid: bool = True, l
         raise ValueError(f"up/front: {up!r} and {front!r} are not perpendicular")
     surface = HeadSurface(points, triangles, label)
     skin_points = surface.points[surface.skin_vertices]
-    if len(skin_points) < 100:
-        raise ValueError(
-            f"{label}: the largest connected part has only {len(skin_points)} vertices (a triangle soup? weld "
-            "its vertices); a face needs a few thousand"
-        )
     model = template()
     fit, plane_residual = fit_similarity(
         model, skin_points, surface.skin_normals, up_hint=up_hint, front_hint=front_hint

@@ -36,8 +36,8 @@ def rig_picture(rig: FaceRig, *, title: str = "", dpi: int = 110) -> bytes:
         local = local[np.random.default_rng(0).choice(len(local), MAX_DOTS, replace=False)]
     marks = frame.to_local(rig.mesh.points[rig.landmarks])
     figure = Figure(figsize=(11, 6))
-    views = (("front", 0, 1, 1.0), ("side (face looks right)", 2, 1, 1.0))
-    for column, (name, u, v, _) in enumerate(views):
+    views = (("front", 0, 1), ("side (face looks right)", 2, 1))
+    for column, (name, u, v) in enumerate(views):
         axes = figure.add_subplot(1, 2, column + 1)
         order = np.argsort(local[:, 2 if u != 2 else 0])
         axes.scatter(local[order, u], local[order, v], s=1.0, c=local[order, 2 if u != 2 else 0], cmap="Greys_r")

@@ -16,8 +16,10 @@ from scipy.sparse.csgraph import connected_components
 
 from .._validate import as_finite_array
 
-__all__ = ["HeadSurface", "polygons_to_triangles", "vertex_normals", "TWIN_AREA"]
+__all__ = ["HeadSurface", "polygons_to_triangles", "vertex_normals", "TWIN_AREA", "MIN_SKIN_VERTICES"]
 
+MIN_SKIN_VERTICES = 100
+"""Fewer vertices in the largest shell cannot hold a face."""
 TWIN_AREA = 0.5
 """A second shell with more than this fraction of the skin's area, away from it, is a second head."""
 
@@ -120,6 +122,12 @@ class HeadSurface:
     def skin_label(self) -> int:
         """The shell of largest area; ValueError when a second shell as large lies apart from it (two heads)."""
         order = np.argsort(self.shell_areas)[::-1]
+        size = int(np.count_nonzero(self.shell_of_vertex == order[0]))
+        if size < MIN_SKIN_VERTICES:
+            raise ValueError(
+                f"{self.label}: the largest connected part has only {size} vertices (a triangle soup? weld its "
+                "vertices); a face needs a few thousand"
+            )
         if len(order) > 1 and self.shell_areas[order[1]] > TWIN_AREA * self.shell_areas[order[0]]:
             first, second = (self.points[self.shell_of_vertex == label] for label in order[:2])
             diagonal = float(np.linalg.norm(np.ptp(first, axis=0)))
