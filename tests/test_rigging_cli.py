@@ -73,7 +73,10 @@ def test_rig_of_a_z_up_millimetre_usd_head_keeps_its_frame_and_finds_the_landmar
     out, png = tmp_path / "out" / "rig.usda", tmp_path / "rig.png"
     assert main(["--device", "cpu", "rig", str(head), "--out", str(out), "--preview", str(png)]) == 0
     assert "landmarks found" in capsys.readouterr().out
-    assert UsdGeom.GetStageUpAxis(Usd.Stage.Open(str(out))) == UsdGeom.Tokens.z
+    stage = Usd.Stage.Open(str(out))
+    assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z
+    confidence = stage.GetPrimAtPath("/Face/Skin").GetCustomDataByKey("warpface:landmarkConfidence")
+    assert len(confidence) == 68 and 0.5 < np.mean(confidence) <= 1.0
     rig = read_rig(out)  # metres, in the head's own (Z-up) frame
     np.testing.assert_allclose(rig.mesh.points, face.points @ z_up.T, atol=1e-6)
     # The template registered onto itself: the landmarks land where its landmark points are, within a few mm.

@@ -120,7 +120,7 @@ def run(args) -> int:
     from ..rigging import check_layout, find_landmarks, read_landmark_file, rig_picture
     from ..rigging.surface import HeadSurface, vertex_normals
     from ..rigging.units import infer_units, parse_axis, parse_units
-    from ..usd import export_layer_atomically, write_rig
+    from ..usd import export_layer_atomically, rig_prims, write_rig
 
     out = Path(args.out)
     if out.suffix not in STAGE_SUFFIXES:
@@ -159,10 +159,14 @@ def run(args) -> int:
     rig = default_rig(mesh, landmarks, name=args.name, device=args.device)
     picture = rig_picture(rig, title=f"{Path(args.head).name}: {args.name}") if preview is not None else None
 
-    from pxr import Usd, UsdGeom
+    from pxr import Usd, UsdGeom, Vt
 
     stage = Usd.Stage.CreateInMemory(f"rig{out.suffix}")
     write_rig(stage, rig, meters_per_unit=meters_per_unit)
+    skin = rig_prims(stage).skin
+    skin.SetCustomDataByKey("warpface:landmarkSource", "found" if args.landmarks is None else str(args.landmarks))
+    if args.landmarks is None:
+        skin.SetCustomDataByKey("warpface:landmarkConfidence", Vt.DoubleArray([float(c) for c in found.confidence]))
     up_axis = up if up is not None else (found.up if args.landmarks is None else None)
     if up_axis is not None and abs(up_axis[2]) > max(abs(up_axis[0]), abs(up_axis[1])):
         UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
