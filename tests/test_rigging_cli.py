@@ -96,6 +96,12 @@ def test_rig_from_a_landmark_file_and_refusals_leave_nothing_behind(face_obj, tm
     out = tmp_path / "given.usdc"
     assert main(["--quiet", "rig", str(face_obj), "--out", str(out), "--landmarks", str(marks)]) == 0
     np.testing.assert_array_equal(read_rig(out).landmarks, default_landmarks())
+    # Wound inside out: the layout check still sees the face's front, and the rig is built on outward faces.
+    face = default_face()
+    flipped = _write_obj(tmp_path / "flipped.obj", 100.0 * face.points, face.triangles[:, ::-1])
+    assert main(["--quiet", "rig", str(flipped), "--out", str(out), "--landmarks", str(marks)]) == 0
+    rig = read_rig(out)
+    assert rig.mesh.vertex_normals()[default_landmarks()[30]][2] > 0.7  # the nose tip's normal points out
     capsys.readouterr()
 
     swapped = default_landmarks()

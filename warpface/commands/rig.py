@@ -118,7 +118,7 @@ def run(args) -> int:
     from ..assets import default_rig
     from ..mesh import FaceMesh
     from ..rigging import check_layout, find_landmarks, read_landmark_file, rig_picture
-    from ..rigging.surface import HeadSurface, vertex_normals
+    from ..rigging.surface import HeadSurface
     from ..rigging.units import infer_units, parse_axis, parse_units
     from ..usd import export_layer_atomically, rig_prims, write_rig
 
@@ -137,6 +137,7 @@ def run(args) -> int:
     if args.landmarks is None:
         found = find_landmarks(points, triangles, up=up, front=front, units=units, label=label)
         landmarks, meters_per_unit, front_dir = found.indices, found.meters_per_unit, found.front
+        inside_out = found.inside_out
         low = np.flatnonzero(found.confidence < 0.2)
         summary = (
             f"{label}: landmarks found in {found.seconds:.1f} s ({found.units}, {found.shells} shell(s), "
@@ -147,14 +148,18 @@ def run(args) -> int:
     else:
         surface = HeadSurface(points, triangles, label)
         landmarks = read_landmark_file(args.landmarks, points)
-        normals = vertex_normals(surface.points, surface.skin_triangles)
+        normals = np.zeros_like(surface.points)
+        normals[surface.skin_vertices] = surface.skin_normals
         front_dir = front if front is not None else normals[landmarks].sum(axis=0)
+        inside_out = surface.inside_out
         eye_distance = float(
             np.linalg.norm(points[landmarks[36:42]].mean(axis=0) - points[landmarks[42:48]].mean(axis=0))
         )
         meters_per_unit = parse_units(units) if units else infer_units(eye_distance, label)[1]
         summary = f"{label}: {args.landmarks}: 68 landmarks read"
     check_layout(points[landmarks], front_dir, label=f"{label}: landmarks")
+    if inside_out:  # the rig puts bone attachments along −normal: wind the skin outward
+        triangles = triangles[:, [0, 2, 1]]
     mesh = FaceMesh(points, triangles, name=Path(args.head).stem or "head", degenerate="ignore")
     rig = default_rig(mesh, landmarks, name=args.name, device=args.device)
     picture = rig_picture(rig, title=f"{Path(args.head).name}: {args.name}") if preview is not None else None

@@ -58,6 +58,8 @@ class LandmarkFit:
     """Mean distance of the registered template to the skin [inter-ocular units]."""
     shells: int
     """Connected shells in the mesh (the skin and e.g. eyes, teeth)."""
+    inside_out: bool
+    """The skin's faces are wound so that their normals point into the head."""
     seconds: float
 
 
@@ -179,5 +181,6 @@ def find_landmarks(
         eye_distance=float(fit.scale),
         residual=residual,
         shells=surface.shell_count,
+        inside_out=surface.inside_out,
         seconds=time.perf_counter() - started,
     )

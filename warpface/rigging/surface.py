@@ -157,9 +157,15 @@ class HeadSurface:
         """Unit normals of :attr:`skin_vertices` (in their order), from the skin's triangles, turned outward:
         a mesh wound inside out gets its normals flipped (most of them must point away from the skin's centre)."""
         normals = vertex_normals(self.points, self.skin_triangles)[self.skin_vertices]
+        return -normals if self.inside_out else normals
+
+    @cached_property
+    def inside_out(self) -> bool:
+        """True when the skin is wound inside out: most of its normals point toward its centre."""
+        normals = vertex_normals(self.points, self.skin_triangles)[self.skin_vertices]
         points = self.points[self.skin_vertices]
         outward = np.sum((points - points.mean(axis=0)) * normals, axis=1)
-        return normals if np.count_nonzero(outward > 0) >= np.count_nonzero(outward < 0) else -normals
+        return bool(np.count_nonzero(outward > 0) < np.count_nonzero(outward < 0))
 
     @cached_property
     def skin_boundary(self) -> np.ndarray:
