@@ -58,6 +58,8 @@ def landmarks_from_values(values, points: np.ndarray, label: str = "landmarks") 
         array = np.asarray(values)
     except (TypeError, ValueError):
         raise ValueError(f"{label}: expected {IBUG_COUNT} vertex indices or {IBUG_COUNT} points") from None
+    if array.ndim == 0 or array.dtype.kind in "USO" and array.dtype != object:
+        raise TypeError(f"{label}: expected {IBUG_COUNT} vertex indices or points, got {type(values).__name__}")
     if array.dtype == object or len(array) != IBUG_COUNT:
         raise ValueError(f"{label}: expected {IBUG_COUNT} iBUG landmarks, got {len(array) if array.ndim else 0}")
     if array.ndim == 1:

@@ -69,8 +69,11 @@ class HeadSurface:
     label: str = "mesh"
 
     def __post_init__(self) -> None:
-        points = np.asarray(self.points) if not isinstance(self.points, (str, bytes)) else self.points
-        if getattr(points, "size", 1) == 0:
+        for name, value in (("points", self.points), ("triangles", self.triangles)):
+            if value is None or isinstance(value, (str, bytes)):
+                raise TypeError(f"{self.label}: {name}: expected an array, got {type(value).__name__}")
+        points = np.asarray(self.points)
+        if points.size == 0:
             raise ValueError(f"{self.label}: has no vertices; export the head mesh with its geometry")
         self.points = as_finite_array(points, f"{self.label}: points", shape=(None, 3))
         triangles = np.asarray(self.triangles)
