@@ -119,6 +119,10 @@ def test_units_from_the_eye_distance():
 
 
 def test_bad_surfaces_say_what_was_found():
+    with pytest.raises(TypeError, match="points"):
+        HeadSurface(None, [[0, 1, 2]])
+    with pytest.raises(TypeError, match="landmarks"):
+        landmarks_from_values("68 points", np.zeros((10, 3)))
     with pytest.raises(ValueError, match="no vertices"):
         HeadSurface(np.zeros((0, 3)), np.zeros((0, 3), dtype=int))
     with pytest.raises(ValueError, match="point cloud"):
