@@ -91,15 +91,9 @@ class Registration:
         """The carried-over landmark points and normals in the template frame, (68, 3) each."""
         model = template()
         if self.deformed is None:
-            nearest = self.deformed_nearest(model.points)
-            return model.landmark_points, model.normals[nearest]
+            return model.landmark_points, model.normals[model.landmark_vertices]
         points = self.deformed.move(model.landmark_points, model.landmark_nodes)
-        return points, self.deformed.normals[self.deformed_nearest(model.points)]
-
-    @staticmethod
-    def deformed_nearest(points: np.ndarray) -> np.ndarray:
-        model = template()
-        return np.argmin(np.linalg.norm(points[None, :, :] - model.landmark_points[:, None, :], axis=2), axis=1)
+        return points, self.deformed.normals[model.landmark_vertices]
 
 
 def register(points, triangles, *, up=None, front=None, nonrigid: bool = True, label: str = "mesh") -> Registration:

@@ -78,6 +78,8 @@ class Template:
     """The built-in face's 68 iBUG vertex indices."""
     landmark_points: np.ndarray
     """:data:`LANDMARK_POINTS`: the points carried over as landmarks (68, 3)."""
+    landmark_vertices: np.ndarray
+    """Template vertex nearest each landmark point (68,): its normal is the landmark's."""
     landmark_nodes: np.ndarray
     """Graph node carrying each landmark point (68,)."""
     boundary: np.ndarray
@@ -146,6 +148,7 @@ def template() -> Template:
         normals=vertex_normals(points, triangles),
         landmarks=landmarks,
         landmark_points=LANDMARK_POINTS,
+        landmark_vertices=nearest,
         landmark_nodes=cell[nearest],
         boundary=boundary,
         nodes=nodes,
