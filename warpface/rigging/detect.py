@@ -1,0 +1,180 @@
+"""68 iBUG landmarks on any head mesh: the built-in face registered onto the skin, its landmarks carried over.
+
+Pipeline (docs/RIG.md, "Automatic landmarks"): split shells and keep the skin
+(:class:`~warpface.rigging.surface.HeadSurface`); find the symmetry plane, up, front and scale with a
+similarity fit of the template (:mod:`~warpface.rigging.align`); deform the template onto the skin
+with non-rigid ICP (:mod:`~warpface.rigging.nonrigid`); give every template landmark the nearest
+skin vertex that faces the same way. The unit follows from the fitted eye distance
+(:mod:`~warpface.rigging.units`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .align import Similarity, fit_similarity
+from .nonrigid import NonRigidFit, SkinTarget, fit_nonrigid
+from .surface import HeadSurface
+from .template import template
+from .units import infer_units, parse_axis, parse_units
+
+__all__ = ["LandmarkFit", "Registration", "find_landmarks", "register", "snap_to_skin", "CONFIDENCE_DISTANCE"]
+
+CONFIDENCE_DISTANCE = 0.05
+"""Distance from a carried-over landmark to its skin vertex at which confidence falls to 1/e
+[inter-ocular units, ~3 mm]."""
+MAX_RESIDUAL = 0.12
+"""A similarity fit leaving the template farther than this from the skin [inter-ocular units] finds no face."""
+MAX_ASYMMETRY = 0.08
+"""A skin whose best mirror plane leaves more than this (relative to its size) is not a face."""
+SNAP_CANDIDATES = 12
+"""Nearest skin vertices considered for a landmark; the nearest one facing the template's way wins."""
+
+
+@dataclass(frozen=True)
+class LandmarkFit:
+    """68 landmarks found on a head mesh, and what was learnt about the mesh on the way."""
+
+    indices: np.ndarray
+    """iBUG-order vertex indices into the input's vertices, (68,) int64."""
+    confidence: np.ndarray
+    """Per landmark, 0 … 1: how closely the registered template met the skin there."""
+    units: str
+    """The mesh's length unit (``"m"``, ``"cm"`` or ``"mm"``), inferred or given."""
+    meters_per_unit: float
+    up: np.ndarray
+    """The head's up direction in mesh coordinates (unit vector)."""
+    front: np.ndarray
+    """The direction the head looks in mesh coordinates (unit vector)."""
+    left: np.ndarray
+    """Toward the subject's left in mesh coordinates (unit vector)."""
+    eye_distance: float
+    """Fitted inter-ocular distance [mesh units]."""
+    residual: float
+    """Mean distance of the registered template to the skin [inter-ocular units]."""
+    shells: int
+    """Connected shells in the mesh (the skin and e.g. eyes, teeth)."""
+    inside_out: bool
+    """The skin's faces are wound so that their normals point into the head."""
+    seconds: float
+
+
+def snap_to_skin(points: np.ndarray, normals: np.ndarray, skin: SkinTarget) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest skin vertex to each point among those facing the point's normal: (skin indices, distances)."""
+    count = min(SNAP_CANDIDATES, len(skin.points))
+    distance, index = skin.tree.query(points, k=count)
+    distance, index = distance.reshape(len(points), count), index.reshape(len(points), count)
+    facing = np.einsum("ij,ikj->ik", normals, skin.normals[index]) > 0.0
+    first = np.where(facing.any(axis=1), np.argmax(facing, axis=1), 0)
+    rows = np.arange(len(points))
+    return index[rows, first], distance[rows, first]
+
+
+@dataclass(frozen=True)
+class Registration:
+    """The template registered onto a head's skin: what :func:`find_landmarks` reads its landmarks from."""
+
+    surface: HeadSurface
+    similarity: Similarity
+    """Template frame → mesh coordinates."""
+    skin: SkinTarget
+    """The skin in the template's frame."""
+    deformed: NonRigidFit | None
+    """The non-rigid fit (None for the rigid baseline)."""
+    symmetry_residual: float
+
+    def landmark_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """The carried-over landmark points and normals in the template frame, (68, 3) each."""
+        model = template()
+        if self.deformed is None:
+            return model.landmark_points, model.normals[model.landmark_vertices]
+        points = self.deformed.move(model.landmark_points, model.landmark_nodes)
+        return points, self.deformed.normals[model.landmark_vertices]
+
+
+def register(points, triangles, *, up=None, front=None, nonrigid: bool = True, label: str = "mesh") -> Registration:
+    """Register the built-in face onto the skin of a head mesh (see :func:`find_landmarks` for the arguments).
+
+    Raises:
+        ValueError: no surface (empty, a point cloud), or no face-like part.
+    """
+    up_hint, front_hint = parse_axis(up, "up"), parse_axis(front, "front")
+    if up_hint is not None and front_hint is not None and abs(up_hint @ front_hint) > 0.5:
+        raise ValueError(f"up/front: {up!r} and {front!r} are not perpendicular")
+    surface = HeadSurface(points, triangles, label)
+    skin_points = surface.points[surface.skin_vertices]
+    model = template()
+    fit, plane_residual = fit_similarity(
+        model, skin_points, surface.skin_normals, up_hint=up_hint, front_hint=front_hint
+    )
+    if fit.residual > MAX_RESIDUAL or plane_residual > MAX_ASYMMETRY:
+        raise ValueError(
+            f"{label}: no face-like part found (a face template fits its largest part only to "
+            f"{fit.residual:.2f} eye distances; mirror symmetry {plane_residual:.2f}); pass a head or face mesh, "
+            "or --up/--front if it is one"
+        )
+    local = fit.inverse(skin_points)
+    skin = SkinTarget(local, surface.skin_normals @ fit.rotation, surface.skin_boundary, cKDTree(local))
+    deformed = fit_nonrigid(model, skin) if nonrigid else None
+    return Registration(surface, fit, skin, deformed, plane_residual)
+
+
+def find_landmarks(
+    points,
+    triangles,
+    *,
+    up=None,
+    front=None,
+    units: str | None = None,
+    nonrigid: bool = True,
+    label: str = "mesh",
+) -> LandmarkFit:
+    """Find the 68 iBUG landmarks of the face on a head mesh.
+
+    Args:
+        points: vertices (V, 3), any unit and orientation.
+        triangles: (T, 3) vertex indices (polygons fan-triangulated, see
+            :func:`~warpface.rigging.surface.polygons_to_triangles`); extra shells are allowed.
+        up, front: optional hints: ``"y"``, ``"+z"``, ``"-x"`` … or 3-vectors in mesh coordinates.
+        units: ``"m"``, ``"cm"`` or ``"mm"``; inferred from the face's size when omitted.
+        nonrigid: False stops after the similarity fit (the rigid baseline of benchmarks/rigging.py).
+        label: names the mesh in errors.
+
+    Raises:
+        ValueError: no surface (empty, a point cloud), a size no unit explains, or no face-like part.
+    """
+    started = time.perf_counter()
+    given_unit = parse_units(units) if units is not None else None
+    registration = register(points, triangles, up=up, front=front, nonrigid=nonrigid, label=label)
+    fit, skin, surface = registration.similarity, registration.skin, registration.surface
+    if given_unit is None:
+        unit_name, meters_per_unit = infer_units(fit.scale, label)
+    else:
+        unit_name, meters_per_unit = units.strip().lower(), given_unit
+    marks, mark_normals = registration.landmark_points()
+    index, distance = snap_to_skin(marks, mark_normals, skin)
+    confidence = np.exp(-((distance / CONFIDENCE_DISTANCE) ** 2))
+    if registration.deformed is not None:
+        deformed = registration.deformed
+        residual = float(np.mean(skin.tree.query(deformed.points)[0][deformed.weights > 0]))
+    else:
+        residual = fit.residual
+    model = template()
+    return LandmarkFit(
+        indices=surface.skin_vertices[index].astype(np.int64),
+        confidence=confidence,
+        units=unit_name,
+        meters_per_unit=meters_per_unit,
+        up=fit.rotation @ model.vertical,
+        front=fit.rotation @ model.forward,
+        left=fit.rotation @ np.array([1.0, 0.0, 0.0]),
+        eye_distance=float(fit.scale),
+        residual=residual,
+        shells=surface.shell_count,
+        inside_out=surface.inside_out,
+        seconds=time.perf_counter() - started,
+    )

@@ -1,0 +1,125 @@
+"""Non-rigid ICP of the template onto the skin (Amberg, Romdhani and Vetter 2007), on a deformation graph.
+
+Every graph node ``k`` carries an affine map ``X_k`` (4 × 3); a template vertex ``v`` of node ``k``
+moves to ``[v, 1] X_k``. Each round matches every template vertex to the foot of its nearest skin
+point on that point's tangent plane and minimises
+
+    Σ_i w_i ‖[v_i, 1] X_k(i) − u_i‖²  +  β Σ_j ‖[v_t(j), 1] X_k(t(j)) − s_j‖²  +  α Σ_(a,b) ‖G (X_a − X_b)‖²
+
+with ``G = diag(1, 1, 1, γ)`` and the second sum the backward matches: every skin point ``s_j`` pulls
+its nearest template vertex ``t(j)`` (so the template also spreads over what the skin has) — one sparse
+linear system with three right-hand sides (scipy.sparse, LU). ``w_i`` drops matches that
+are too far, face the other way or land on the skin's open boundary. The stiffness ``α`` is
+annealed from stiff to supple, a few rounds each. Lengths are in the template's inter-ocular units.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import splu
+from scipy.spatial import cKDTree
+
+from .surface import vertex_normals
+from .template import Template
+
+__all__ = ["SkinTarget", "NonRigidFit", "fit_nonrigid", "STIFFNESS"]
+
+STIFFNESS = (200.0, 100.0, 50.0, 20.0, 10.0, 5.0)
+"""Annealed stiffness ``α`` per stage (the data term sums over all ~11k template vertices)."""
+ROUNDS = 2
+"""Correspondence rounds per stiffness stage."""
+GAMMA = 1.0
+"""Weight of the translation column against the linear part (coordinates are ~1 in size)."""
+MAX_DISTANCE = (0.25, 0.08)
+"""A match farther than this [inter-ocular units] is dropped: from the first stage to the last."""
+BACKWARD = 1.0
+"""Weight of the skin → template matches (each skin point pulls its nearest template vertex); 0 = off."""
+FACING = 0.5
+"""A match counts only where the template's and the skin's normals are within 60°."""
+
+
+@dataclass(frozen=True)
+class SkinTarget:
+    """The skin in the template's frame: points, outward unit normals, boundary flags and a k-d tree."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    boundary: np.ndarray
+    tree: cKDTree
+
+
+@dataclass(frozen=True)
+class NonRigidFit:
+    """The deformed template: vertex positions and normals (template frame) and each vertex's match weight."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    weights: np.ndarray
+    maps: np.ndarray
+    """Affine map of every node, (K, 4, 3): ``[p, 1] @ maps[k]``."""
+
+    def move(self, points: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+        """Template-frame points (N, 3), each carried by the map of its node (N,)."""
+        return np.einsum("ni,nij->nj", np.concatenate([points, np.ones((len(points), 1))], axis=1), self.maps[nodes])
+
+
+def _selection(model: Template) -> sp.csr_matrix:
+    """D: the (V, 4K) matrix taking stacked node maps to vertex positions."""
+    v, k = len(model.points), len(model.nodes)
+    rows = np.repeat(np.arange(v), 4)
+    cols = (4 * model.cell[:, None] + np.arange(4)).ravel()
+    values = np.concatenate([model.points, np.ones((v, 1))], axis=1).ravel()
+    return sp.csr_matrix((values, (rows, cols)), shape=(v, 4 * k))
+
+
+def _smoothness(model: Template) -> sp.csr_matrix:
+    """(M ⊗ G)ᵀ(M ⊗ G) for the node graph's incidence matrix M."""
+    e, k = len(model.edges), len(model.nodes)
+    rows = np.repeat(np.arange(e), 2)
+    incidence = sp.csr_matrix((np.tile([1.0, -1.0], e), (rows, model.edges.ravel())), shape=(e, k))
+    stiff = sp.kron(incidence, sp.diags([1.0, 1.0, 1.0, GAMMA]), format="csr")
+    return (stiff.T @ stiff).tocsc()
+
+
+def _backward(points, normals, template_boundary, skin: SkinTarget, limit: float):
+    """Skin → template matches: (template vertex of each kept skin point, that skin point)."""
+    distance, index = cKDTree(points).query(skin.points)
+    facing = np.sum(normals[index] * skin.normals, axis=1)
+    keep = (distance < limit) & (facing > FACING) & ~template_boundary[index] & ~skin.boundary
+    return index[keep], skin.points[keep]
+
+
+def fit_nonrigid(model: Template, skin: SkinTarget, *, stiffness=None, rounds: int | None = None) -> NonRigidFit:
+    """Deform the template onto the skin (both in the template frame, after the similarity fit);
+    ``stiffness`` is the α schedule (default :data:`STIFFNESS`)."""
+    stiffness = STIFFNESS if stiffness is None else tuple(stiffness)
+    rounds = ROUNDS if rounds is None else rounds
+    select = _selection(model)
+    smooth = _smoothness(model)
+    k = len(model.nodes)
+    maps = np.tile(np.vstack([np.eye(3), np.zeros((1, 3))]), (k, 1))
+    points, normals = model.points, model.normals
+    weights = np.ones(len(points))
+    limits = np.geomspace(MAX_DISTANCE[0], MAX_DISTANCE[1], len(stiffness))
+    for alpha, limit in zip(stiffness, limits):
+        for _ in range(rounds):
+            distance, index = skin.tree.query(points)
+            target_normals = skin.normals[index]
+            facing = np.sum(normals * target_normals, axis=1)
+            weights = ((distance < limit) & (facing > FACING) & ~skin.boundary[index]).astype(np.float64)
+            foot = points - np.sum((points - skin.points[index]) * target_normals, axis=1)[:, None] * target_normals
+            weighted = select.multiply(weights[:, None]).tocsr()
+            system = alpha * smooth + (weighted.T @ select)
+            right = np.asarray(weighted.T @ foot)
+            if BACKWARD > 0.0:
+                rows, targets = _backward(points, normals, model.boundary, skin, limit)
+                pulled = select[rows]
+                system = system + BACKWARD * (pulled.T @ pulled)
+                right = right + BACKWARD * np.asarray(pulled.T @ targets)
+            maps = splu(system.tocsc()).solve(right)
+            points = select @ maps
+            normals = vertex_normals(points, model.triangles)
+    return NonRigidFit(points=points, normals=normals, weights=weights, maps=maps.reshape(k, 4, 3))

@@ -1,0 +1,181 @@
+"""A head mesh as found in a file, made ready for landmark detection: triangles, shells, the skin.
+
+Character heads come with extra shells (eyeballs, teeth, gums, tongue) and in quads or n-gons. The
+detector works on triangles of the *skin*: the shell with the largest surface area. Vertex indices
+stay those of the input, so whatever is found points into the user's own vertex order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from .._validate import as_finite_array
+
+__all__ = ["HeadSurface", "polygons_to_triangles", "vertex_normals", "TWIN_AREA", "MIN_SKIN_VERTICES"]
+
+MIN_SKIN_VERTICES = 100
+"""Fewer vertices in the largest shell cannot hold a face."""
+TWIN_AREA = 0.5
+"""A second shell with more than this fraction of the skin's area, away from it, is a second head."""
+
+
+def polygons_to_triangles(counts, indices) -> np.ndarray:
+    """Polygons given as per-face corner counts and flat corner indices → fan triangles (T, 3) int64."""
+    counts = np.asarray(counts, dtype=np.int64).reshape(-1)
+    indices = np.asarray(indices, dtype=np.int64).reshape(-1)
+    if len(counts) and counts.min() < 3:
+        raise ValueError(f"faces: face {int(np.argmin(counts))} has {int(counts.min())} corners (needs ≥ 3)")
+    if int(counts.sum()) != len(indices):
+        raise ValueError(f"faces: corner counts sum to {int(counts.sum())} but there are {len(indices)} corner indices")
+    per_face = counts - 2
+    face = np.repeat(np.arange(len(counts)), per_face)
+    corner = np.arange(int(per_face.sum())) - np.repeat(np.cumsum(per_face) - per_face, per_face) + 1
+    start = (np.cumsum(counts) - counts)[face]
+    return np.stack([indices[start], indices[start + corner], indices[start + corner + 1]], axis=1)
+
+
+def vertex_normals(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals (V, 3); a vertex on no triangle gets (0, 0, 0)."""
+    corners = points[triangles]
+    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normals = np.zeros_like(points)
+    for k in range(3):
+        np.add.at(normals, triangles[:, k], cross)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
+
+
+@dataclass(eq=False)
+class HeadSurface:
+    """Points and triangles of a head mesh, with its shells split and the skin picked.
+
+    Args:
+        points: vertex positions (V, 3) in the file's units.
+        triangles: (T, 3) vertex indices (fan-triangulate polygons first with :func:`polygons_to_triangles`).
+        label: names the mesh in error messages.
+
+    Raises:
+        ValueError: no vertices, no faces (a point cloud), indices out of range, non-finite points,
+            or a skin with no area.
+    """
+
+    points: np.ndarray
+    triangles: np.ndarray
+    label: str = "mesh"
+
+    def __post_init__(self) -> None:
+        for name, value in (("points", self.points), ("triangles", self.triangles)):
+            if value is None or isinstance(value, (str, bytes)):
+                raise TypeError(f"{self.label}: {name}: expected an array, got {type(value).__name__}")
+        points = np.asarray(self.points)
+        if points.size == 0:
+            raise ValueError(f"{self.label}: has no vertices; export the head mesh with its geometry")
+        self.points = as_finite_array(points, f"{self.label}: points", shape=(None, 3))
+        triangles = np.asarray(self.triangles)
+        if triangles.size == 0:
+            raise ValueError(
+                f"{self.label}: {len(self.points)} vertices but no faces (a point cloud?); "
+                "landmarks need a surface mesh: export it with its faces or mesh the scan first"
+            )
+        if triangles.ndim != 2 or triangles.shape[1] != 3 or not np.issubdtype(triangles.dtype, np.integer):
+            raise ValueError(f"{self.label}: triangles must be an integer (T, 3) array, got shape {triangles.shape}")
+        if triangles.min() < 0 or triangles.max() >= len(self.points):
+            raise ValueError(f"{self.label}: face vertex indices outside [0, {len(self.points)})")
+        keep = (
+            (triangles[:, 0] != triangles[:, 1])
+            & (triangles[:, 1] != triangles[:, 2])
+            & (triangles[:, 0] != triangles[:, 2])
+        )
+        self.triangles = triangles[keep].astype(np.int64)
+        if len(self.triangles) == 0:
+            raise ValueError(f"{self.label}: every face repeats a vertex; no surface to find a face on")
+
+    @cached_property
+    def shell_of_vertex(self) -> np.ndarray:
+        """Connected-component label of every vertex (V,); vertices on no face get their own labels."""
+        v = len(self.points)
+        t = self.triangles
+        rows = np.concatenate([t[:, 0], t[:, 1], t[:, 2]])
+        cols = np.concatenate([t[:, 1], t[:, 2], t[:, 0]])
+        graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(v, v))
+        return connected_components(graph, directed=False)[1]
+
+    @cached_property
+    def triangle_areas(self) -> np.ndarray:
+        corners = self.points[self.triangles]
+        return 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+
+    @cached_property
+    def shell_areas(self) -> np.ndarray:
+        """Surface area of every shell label (indexed by label)."""
+        labels = self.shell_of_vertex[self.triangles[:, 0]]
+        return np.bincount(labels, weights=self.triangle_areas, minlength=int(self.shell_of_vertex.max()) + 1)
+
+    @property
+    def shell_count(self) -> int:
+        """Shells that carry faces."""
+        return int(np.count_nonzero(self.shell_areas > 0))
+
+    @cached_property
+    def skin_label(self) -> int:
+        """The shell of largest area; ValueError when a second shell as large lies apart from it (two heads)."""
+        order = np.argsort(self.shell_areas)[::-1]
+        size = int(np.count_nonzero(self.shell_of_vertex == order[0]))
+        if size < MIN_SKIN_VERTICES:
+            raise ValueError(
+                f"{self.label}: the largest connected part has only {size} vertices (a triangle soup? weld its "
+                "vertices); a face needs a few thousand"
+            )
+        if len(order) > 1 and self.shell_areas[order[1]] > TWIN_AREA * self.shell_areas[order[0]]:
+            first, second = (self.points[self.shell_of_vertex == label] for label in order[:2])
+            diagonal = float(np.linalg.norm(np.ptp(first, axis=0)))
+            if np.linalg.norm(first.mean(axis=0) - second.mean(axis=0)) > 0.5 * diagonal:
+                raise ValueError(
+                    f"{self.label}: two head-sized parts apart from each other ({len(first)} and {len(second)} "
+                    "vertices); export one head per file"
+                )
+        return int(order[0])
+
+    @cached_property
+    def skin_triangles(self) -> np.ndarray:
+        """Triangles of the skin shell (T_s, 3), indices into :attr:`points`."""
+        triangles = self.triangles[self.shell_of_vertex[self.triangles[:, 0]] == self.skin_label]
+        areas = self.triangle_areas[self.shell_of_vertex[self.triangles[:, 0]] == self.skin_label]
+        if areas.sum() <= 0.0:
+            raise ValueError(f"{self.label}: the largest shell has no area; no surface to find a face on")
+        return triangles
+
+    @cached_property
+    def skin_vertices(self) -> np.ndarray:
+        """Vertex indices of the skin shell (sorted)."""
+        return np.unique(self.skin_triangles)
+
+    @cached_property
+    def skin_normals(self) -> np.ndarray:
+        """Unit normals of :attr:`skin_vertices` (in their order), from the skin's triangles, turned outward:
+        a mesh wound inside out gets its normals flipped (most of them must point away from the skin's centre)."""
+        normals = vertex_normals(self.points, self.skin_triangles)[self.skin_vertices]
+        return -normals if self.inside_out else normals
+
+    @cached_property
+    def inside_out(self) -> bool:
+        """True when the skin is wound inside out: most of its normals point toward its centre."""
+        normals = vertex_normals(self.points, self.skin_triangles)[self.skin_vertices]
+        points = self.points[self.skin_vertices]
+        outward = np.sum((points - points.mean(axis=0)) * normals, axis=1)
+        return bool(np.count_nonzero(outward > 0) < np.count_nonzero(outward < 0))
+
+    @cached_property
+    def skin_boundary(self) -> np.ndarray:
+        """Boolean per :attr:`skin_vertices`: the vertex lies on a boundary edge (an edge of one triangle)."""
+        t = self.skin_triangles
+        edges = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
+        unique, counts = np.unique(edges, axis=0, return_counts=True)
+        on_boundary = np.zeros(len(self.points), dtype=bool)
+        on_boundary[unique[counts == 1].ravel()] = True
+        return on_boundary[self.skin_vertices]
