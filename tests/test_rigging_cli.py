@@ -62,7 +62,8 @@ def _write_usd_head(path, points, triangles, meters_per_unit):
 def test_rig_of_a_z_up_millimetre_usd_head_keeps_its_frame_and_finds_the_landmarks(tmp_path, capsys):
     from pxr import Usd, UsdGeom
 
-    from warpface.assets import default_landmarks, face_frame
+    from warpface.assets import default_landmarks
+    from warpface.assets.rig import face_frame
     from warpface.rigging.template import LANDMARK_POINTS
     from warpface.usd import read_rig
 

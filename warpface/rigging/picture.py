@@ -10,7 +10,7 @@ import io
 
 import numpy as np
 
-from ..assets import face_frame
+from ..assets.rig import face_frame
 from ..expression.muscles import LinearMuscle
 from ..rig import FaceRig
 

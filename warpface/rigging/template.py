@@ -21,7 +21,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from ..assets import default_face, default_landmarks, face_frame
+from ..assets import default_face, default_landmarks
+from ..assets.rig import face_frame
 from .surface import vertex_normals
 
 __all__ = ["Template", "template", "NODE_SPACING", "LANDMARK_POINTS"]
