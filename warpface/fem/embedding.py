@@ -371,8 +371,6 @@ def embed_points(tetmesh: TetMesh, points, *, max_distance: float | None = None,
             ``max_distance`` from every tet (naming it and its position).
     """
     expect_instance(tetmesh, TetMesh, "tetmesh")
-    if not isinstance(tetmesh, TetMesh):
-        raise ValueError(f"embed_points: expected a TetMesh, got {type(tetmesh).__name__}")
     try:
         points = np.asarray(getattr(points, "points", points), dtype=np.float64)
     except (TypeError, ValueError):
@@ -392,7 +390,7 @@ def embed_points(tetmesh: TetMesh, points, *, max_distance: float | None = None,
     try:
         max_distance = float(max_distance)
     except (TypeError, ValueError):
-        raise ValueError(f"embed_points: max_distance must be a number [m], got {max_distance!r}") from None
+        raise TypeError(f"embed_points: max_distance must be a number [m], got {type(max_distance).__name__}") from None
     if not (np.isfinite(max_distance) and max_distance >= 0.0):
         raise ValueError(f"embed_points: max_distance must be finite and >= 0 [m], got {max_distance}")
 

@@ -86,7 +86,7 @@ def check_model_options(tetmesh, materials: list, dt, beta, gamma, formulation, 
 
     Raises:
         TypeError: ``tetmesh`` is not a TetMesh, a material not a TissueMaterial, a number not a number, or
-            ``formulation`` / ``solver`` not a string (the first two and the last: a ValueError too).
+            ``formulation`` / ``solver`` not a string.
         ValueError: a value out of range (naming it), per-tet material values of the wrong size, an unknown
             device, or ``solver="direct"`` on a non-CPU device.
     """
