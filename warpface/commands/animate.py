@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from .._validate import as_count
+from .common import add_command
 
 __all__ = ["add_parser", "run_animate", "animate", "AnimateResult", "prepare_controls", "PREVIEW_MAX_FRAMES"]
 
@@ -356,9 +357,11 @@ def run_animate(args) -> int:
 
 def add_parser(subparsers, common):
     """Register ``animate`` on the CLI's sub-parsers (``common``: the shared options); returns the parser."""
-    parser = subparsers.add_parser(
+    parser = add_command(
+        subparsers,
+        common,
         "animate",
-        parents=[common],
+        run_animate,
         help="driver curves (ARKit, MediaPipe, Audio2Face, OpenFace AUs) -> rig time samples, bake, video",
         description=__doc__.split("\n\n")[1] if __doc__ else None,
     )
@@ -392,5 +395,4 @@ def add_parser(subparsers, common):
         default=PREVIEW_MAX_FRAMES,
         help=f"longest preview in frames; longer takes show every k-th frame (default {PREVIEW_MAX_FRAMES})",
     )
-    parser.set_defaults(handler=run_animate)
     return parser

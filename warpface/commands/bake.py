@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .common import finite_float, positive_float, positive_int
+from .common import add_command, finite_float, positive_float, positive_int
 
 __all__ = ["add_parser", "run"]
 
@@ -10,9 +10,11 @@ __all__ = ["add_parser", "run"]
 def add_parser(subparsers, common) -> None:
     from ..usd.animation import MAX_FRAMES
 
-    bake = subparsers.add_parser(
+    bake = add_command(
+        subparsers,
+        common,
         "bake",
-        parents=[common],
+        run,
         help="evaluate a rig stage at its time codes into a .usdc points cache",
         description="Evaluate the expression model at every time code of STAGE (or --start..--end) and write the "
         "skin's points as time samples in a .usdc cache sublayered under STAGE.",
@@ -30,7 +32,6 @@ def add_parser(subparsers, common) -> None:
         default=MAX_FRAMES,
         help=f"refuse to bake more frames than this (default {MAX_FRAMES}); raise it for longer bakes",
     )
-    bake.set_defaults(handler=run)
 
 
 def run(args) -> int:

@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
-from .common import positive_float
+from .common import add_command, positive_float
 
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(subparsers, common) -> None:
-    demo = subparsers.add_parser(
+    demo = add_command(
+        subparsers,
+        common,
         "demo",
-        parents=[common],
+        run,
         help="built-in face -> four expressions -> USD stage, bake, images, video",
         description="Build the built-in face, animate thinking/puzzled/disgust/smile, write DIR/face.usda + "
         "DIR/face_anim.usdc, PNG previews with and without wrinkles, heat maps and an MP4.",
@@ -24,7 +26,6 @@ def add_parser(subparsers, common) -> None:
         help="seconds per expression, neutral -> peak -> neutral (default 2)",
     )
     demo.add_argument("--no-video", action="store_true", help="skip the MP4")
-    demo.set_defaults(handler=run)
 
 
 def run(args) -> int:

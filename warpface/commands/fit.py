@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .common import add_command
+
 __all__ = ["add_parser", "run_fit", "REGIONS", "region_labels"]
 
 REGIONS = {
@@ -26,9 +28,11 @@ REGIONS = {
 
 def add_parser(subparsers, common) -> None:
     """Register ``fit`` on the CLI's sub-parsers (``common``: the shared options)."""
-    fit = subparsers.add_parser(
+    fit = add_command(
+        subparsers,
+        common,
         "fit",
-        parents=[common],
+        run_fit,
         help="solve muscle contractions for shapes, store them as presets on the rig stage",
         description="Fit the rig of --rig to each TARGET (OBJ, or a USD stage with a mesh of the rig's topology), "
         "write the controls as named presets on the rig stage, print per-region error before/after "
@@ -56,7 +60,6 @@ def add_parser(subparsers, common) -> None:
     fit.add_argument("--symmetry", type=float, default=0.0, help="left/right symmetry weight (default 0)")
     fit.add_argument("--out", default=None, help="folder for heat maps (default: <rig>_fit next to the rig)")
     fit.add_argument("--no-images", action="store_true", help="skip the heat-map pictures")
-    fit.set_defaults(handler=run_fit)
 
 
 def region_labels(points: np.ndarray, landmarks) -> tuple[list[str], np.ndarray]:

@@ -3,15 +3,17 @@
 
 from __future__ import annotations
 
-from .common import non_negative_float, positive_float, positive_int
+from .common import add_command, non_negative_float, positive_float, positive_int
 
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(subparsers, common) -> None:
-    track = subparsers.add_parser(
+    track = add_command(
+        subparsers,
+        common,
         "track",
-        parents=[common],
+        run,
         help="landmark source -> dense face motion -> USD time samples",
         description="Track SOURCE (.npz recording, RGB-D folder, 'synthetic', 'realsense' or 'orbbec') and write "
         "landmarks and the dense face as time samples.",
@@ -54,7 +56,6 @@ def add_parser(subparsers, common) -> None:
         default=1e-3,
         help="with --solve: pull of each frame's controls toward the previous frame's (default 1e-3)",
     )
-    track.set_defaults(handler=run)
 
 
 def run(args) -> int:

@@ -19,7 +19,7 @@ import numpy as np
 import warp as wp
 
 from .._validate import as_device, expect_instance
-from ..geometry import closest_point_on_triangle
+from ..geometry.funcs import closest_point_on_triangle, padded_corner
 from .tetmesh import MAX_COORDINATE, TET_EDGE_NODES, TetMesh
 
 __all__ = ["Embedding", "embed_points"]
@@ -51,8 +51,8 @@ def _tet_setup(
     inverse[t] = wp.inverse(edges)
     lo = wp.min(wp.min(p0, p1), wp.min(p2, p3))
     hi = wp.max(wp.max(p0, p1), wp.max(p2, p3))
-    lowers[t] = wp.vec3(float(lo[0]) - pad, float(lo[1]) - pad, float(lo[2]) - pad)
-    uppers[t] = wp.vec3(float(hi[0]) + pad, float(hi[1]) + pad, float(hi[2]) + pad)
+    lowers[t] = padded_corner(lo, -pad)
+    uppers[t] = padded_corner(hi, pad)
 
 
 @wp.func
