@@ -72,13 +72,14 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
     a block has one thread, so build them with ``lanes = rows = 1`` there.
 
     Vectors are per free node, ``wp.vec3`` of ``dtype``; ``A`` and ``P`` are BSR with 3x3 blocks
-    (``offsets`` shape (F + 1,), ``columns``, ``values``). ``G`` and ``Gᵀ`` are scalar CSR
-    matrices grouped by block row: the entries of scalar rows ``3i .. 3i+2`` are ``offsets[i] ..
-    offsets[i+1]``, and ``keys[e] = 3 * column + row % 3``. No (block) row may be empty; the
-    rows of all four hold at least their diagonal.
+    (``BlockRows``: ``offsets`` shape (F + 1,), block column ``indices``, ``values``). ``G`` and ``Gᵀ`` are
+    scalar CSR matrices grouped by block row (``FactorRows``): the entries of scalar rows ``3i .. 3i+2`` are
+    ``offsets[i] .. offsets[i+1]``, and ``indices[e] = 3 * column + row % 3``. No (block) row may be empty;
+    the rows of all four hold at least their diagonal. Build the matrix arguments with
+    :func:`~warpface.fem.kernels_cg_rows.cg_matrix`.
     """
     parts = cg_row_functions(dtype, lanes)
-    vec, mat = parts.vec, parts.mat
+    vec, BlockRows, FactorRows = parts.vec, parts.BlockRows, parts.FactorRows
     fetch_a, fetch_g = parts.fetch_a, parts.fetch_g
     factor_part, direction_part, residual_part = parts.factor_part, parts.direction_part, parts.residual_part
     spread = SLOT_SPREAD
@@ -103,12 +104,8 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
 
     @wp.kernel(enable_backward=False, module="unique")
     def residual(
-        p_offsets: wp.array(dtype=wp.int32),
-        p_columns: wp.array(dtype=wp.int32),
-        p_values: wp.array(dtype=mat),
-        a_offsets: wp.array(dtype=wp.int32),
-        a_columns: wp.array(dtype=wp.int32),
-        a_values: wp.array(dtype=mat),
+        P: BlockRows,
+        A: BlockRows,
         d: wp.array(dtype=vec),
         v: wp.array(dtype=vec),
         a: wp.array(dtype=vec),
@@ -133,9 +130,7 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         block, thread = wp.tid()
         row, lane, local, i = place(block, thread, guess.shape[0])
         slot = ring[0]
-        acc, correction = residual_part(
-            i, lane, p_offsets, p_columns, p_values, a_offsets, a_columns, a_values, d, v, a, trajectory[slot], guess
-        )
+        acc, correction = residual_part(i, lane, P, A, d, v, a, trajectory[slot], guess)
         start_x = guess[i]
         predicted = row_sum(acc, local, lane)
         extrapolated = predicted - row_sum(correction, local, lane)
@@ -157,9 +152,7 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
 
     @wp.kernel(enable_backward=False, module="unique")
     def direction(
-        offsets: wp.array(dtype=wp.int32),
-        columns: wp.array(dtype=wp.int32),
-        values: wp.array(dtype=mat),
+        A: BlockRows,
         z: wp.array(dtype=vec),
         p: wp.array2d(dtype=vec),
         q: wp.array(dtype=vec),
@@ -173,7 +166,7 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         block, thread = wp.tid()
         row, lane, local, i = place(block, thread, z.shape[0])
         k = cg_iter[0]
-        start, end, cols = fetch_a(offsets, columns, i, lane)
+        start, end, cols = fetch_a(A, i, lane)
         rz = slot_total(slots, RZ, k)
         rz_old = slot_total(slots, RZ, wp.max(k - 1, 0))
         if block == 0 and thread == 0:
@@ -188,7 +181,7 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         new = k % 2
         p_old = p[1 - new]  # at k = 0 the previous step's (finite) direction, times β = 0
         pi = z[i] + beta * p_old[i]
-        qi = row_sum(direction_part(start, end, cols, lane, columns, values, z, p_old, beta), local, lane)
+        qi = row_sum(direction_part(start, end, cols, lane, A, z, p_old, beta), local, lane)
         mine = row < z.shape[0] and lane == 0
         pq = wp.float64(0.0)
         if mine:
@@ -201,9 +194,7 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
 
     @wp.kernel(enable_backward=False, module="unique")
     def lower(
-        offsets: wp.array(dtype=wp.int32),
-        keys: wp.array(dtype=wp.int32),
-        values: wp.array(dtype=dtype),
+        G: FactorRows,
         p: wp.array2d(dtype=vec),
         q: wp.array(dtype=vec),
         q_flat: wp.array(dtype=dtype),
@@ -220,7 +211,7 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         block, thread = wp.tid()
         row, lane, local, i = place(block, thread, q.shape[0])
         k = cg_iter[0]
-        start, end, found = fetch_g(offsets, keys, i, lane)
+        start, end, found = fetch_g(G, i, lane)
         rz = slot_total(slots, RZ, k)
         pq = slot_total(slots, PQ, k)
         if cg_finished(slots, k, tol_sq, maxiter):
@@ -230,7 +221,7 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         r_cur = r_flat[cur]
         x_new = x[i] + alpha * p[cur, i]
         r_new = r[cur, i] - alpha * q[i]
-        yi = row_sum(factor_part(start, end, found, lane, keys, values, r_cur, q_flat, alpha), local, lane)
+        yi = row_sum(factor_part(start, end, found, lane, G, r_cur, q_flat, alpha), local, lane)
         if row < q.shape[0] and lane == 0:
             x[i] = x_new
             r[1 - cur, i] = r_new
@@ -238,9 +229,7 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
 
     @wp.kernel(enable_backward=False, module="unique")
     def lower_start(
-        offsets: wp.array(dtype=wp.int32),
-        keys: wp.array(dtype=wp.int32),
-        values: wp.array(dtype=dtype),
+        G: FactorRows,
         r: wp.array2d(dtype=vec),
         r_flat: wp.array2d(dtype=dtype),
         x: wp.array(dtype=vec),
@@ -254,12 +243,12 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         """
         block, thread = wp.tid()
         row, lane, local, i = place(block, thread, x.shape[0])
-        start, end, found = fetch_g(offsets, keys, i, lane)
+        start, end, found = fetch_g(G, i, lane)
         use = 0
         if not (slot_total(slots, START, 1) <= slot_total(slots, START, 0)):
             use = 1
         r_use = r_flat[use]
-        yi = row_sum(factor_part(start, end, found, lane, keys, values, r_use, r_use, dtype(0.0)), local, lane)
+        yi = row_sum(factor_part(start, end, found, lane, G, r_use, r_use, dtype(0.0)), local, lane)
         if row < x.shape[0] and lane == 0:
             y[i] = yi
             if use == 1:
@@ -268,9 +257,7 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
 
     @wp.kernel(enable_backward=False, module="unique")
     def upper(
-        offsets: wp.array(dtype=wp.int32),
-        keys: wp.array(dtype=wp.int32),
-        values: wp.array(dtype=dtype),
+        GT: FactorRows,
         y_flat: wp.array(dtype=dtype),
         r: wp.array2d(dtype=vec),
         z: wp.array(dtype=vec),
@@ -286,11 +273,11 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         block, thread = wp.tid()
         row, lane, local, i = place(block, thread, z.shape[0])
         k = cg_iter[1]
-        start, end, found = fetch_g(offsets, keys, i, lane)
+        start, end, found = fetch_g(GT, i, lane)
         if cg_finished(slots, wp.max(k, 0), tol_sq, maxiter) and k >= 0:
             return
         ri = r[(k + 1) % 2, i]
-        zi = row_sum(factor_part(start, end, found, lane, keys, values, y_flat, y_flat, dtype(0.0)), local, lane)
+        zi = row_sum(factor_part(start, end, found, lane, GT, y_flat, y_flat, dtype(0.0)), local, lane)
         rz = wp.float64(0.0)
         rr = wp.float64(0.0)
         if row < z.shape[0] and lane == 0:
@@ -307,7 +294,9 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
 
     return types.SimpleNamespace(
         vec=vec,
-        mat=mat,
+        mat=parts.mat,
+        BlockRows=BlockRows,
+        FactorRows=FactorRows,
         block_dim=rows * lanes,
         rows=rows,
         residual=residual,
