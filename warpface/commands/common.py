@@ -21,10 +21,18 @@ MAX_PIXELS = 8192
 """Largest --width / --height accepted."""
 
 
-def add_command(subparsers, common, name: str, handler, *, help: str, description: str | None):
+def add_command(subparsers, common, name: str, handler, doc: str | None):
     """Register the sub-command ``name`` with the shared options ``common``, ``handler(args)`` running it;
-    returns its parser, for the command's own arguments."""
-    parser = subparsers.add_parser(name, parents=[common], help=help, description=description)
+    returns its parser, for the command's own arguments.
+
+    ``doc`` is the command module's docstring: its first paragraph after the ``warpface NAME …:`` title (less
+    the final period) is the command's one-line help, its second paragraph the description of its ``--help``.
+    """
+    help_text = description = None
+    if doc:  # None under python -OO
+        summary, description = (" ".join(part.split()) for part in doc.split("\n\n")[:2])
+        help_text = summary.split(": ", 1)[1].removesuffix(".")
+    parser = subparsers.add_parser(name, parents=[common], help=help_text, description=description)
     parser.set_defaults(handler=handler)
     return parser
 

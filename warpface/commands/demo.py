@@ -1,4 +1,8 @@
-"""``warpface demo``: the built-in face makes four expressions → stage, bake, pictures, video."""
+"""``warpface demo``: built-in face -> four expressions -> USD stage, bake, images, video.
+
+Build the built-in face, animate thinking/puzzled/disgust/smile, write DIR/face.usda + DIR/face_anim.usdc, PNG
+previews with and without wrinkles, heat maps and an MP4.
+"""
 
 from __future__ import annotations
 
@@ -8,15 +12,7 @@ __all__ = ["add_parser", "run"]
 
 
 def add_parser(subparsers, common) -> None:
-    demo = add_command(
-        subparsers,
-        common,
-        "demo",
-        run,
-        help="built-in face -> four expressions -> USD stage, bake, images, video",
-        description="Build the built-in face, animate thinking/puzzled/disgust/smile, write DIR/face.usda + "
-        "DIR/face_anim.usdc, PNG previews with and without wrinkles, heat maps and an MP4.",
-    )
+    demo = add_command(subparsers, common, "demo", run, __doc__)
     demo.add_argument("--out", default="demo", help="output folder (default: demo)")
     demo.add_argument("--fps", type=positive_float, default=30.0, help="frames per second (default 30)")
     demo.add_argument(

@@ -1,5 +1,8 @@
-"""``warpface preview``: a frame of a rig stage, a capture written by ``track``, or an OBJ → PNG (or every
-frame → MP4)."""
+"""``warpface preview``: render a stage frame (or all of them) or an OBJ to PNG/MP4.
+
+Render SOURCE — a warpface rig stage, a capture written by `warpface track`, or an OBJ — at --time to a PNG,
+or every frame to an MP4 (--video), with pyrender (offscreen).
+"""
 
 from __future__ import annotations
 
@@ -11,15 +14,7 @@ __all__ = ["add_parser", "run"]
 
 
 def add_parser(subparsers, common) -> None:
-    show = add_command(
-        subparsers,
-        common,
-        "preview",
-        run,
-        help="render a stage frame (or all of them) or an OBJ to PNG/MP4",
-        description="Render SOURCE — a warpface rig stage, a capture written by `warpface track`, or an OBJ — at "
-        "--time to a PNG, or every frame to an MP4 (--video), with pyrender (offscreen).",
-    )
+    show = add_command(subparsers, common, "preview", run, __doc__)
     show.add_argument("source", help="stage (.usda/.usdc/.usd) or mesh (.obj)")
     show.add_argument(
         "--time",

@@ -1,5 +1,10 @@
-"""``warpface track``: a landmark source → dense face motion (or, with ``--solve``, solved muscle controls)
-→ USD time samples (see warpface.pipelines.track)."""
+"""``warpface track``: landmark source -> dense face motion -> USD time samples.
+
+Track SOURCE (.npz recording, RGB-D folder, 'synthetic', 'realsense' or 'orbbec') and write landmarks and the
+dense face as time samples.
+
+The work is done by :func:`warpface.pipelines.track.run_track`.
+"""
 
 from __future__ import annotations
 
@@ -9,15 +14,7 @@ __all__ = ["add_parser", "run"]
 
 
 def add_parser(subparsers, common) -> None:
-    track = add_command(
-        subparsers,
-        common,
-        "track",
-        run,
-        help="landmark source -> dense face motion -> USD time samples",
-        description="Track SOURCE (.npz recording, RGB-D folder, 'synthetic', 'realsense' or 'orbbec') and write "
-        "landmarks and the dense face as time samples.",
-    )
+    track = add_command(subparsers, common, "track", run, __doc__)
     track.add_argument("source", help=".npz, RGB-D folder, synthetic, realsense or orbbec")
     track.add_argument(
         "--stage",
