@@ -31,31 +31,32 @@ import types
 
 import warp as wp
 
-from .kernels_cg import PQ, RR, RZ, SLOT_SPREAD, START, cg_finished, slot_total
+from .kernels_cg import (
+    PQ,
+    RR,
+    RZ,
+    SLOT_SPREAD,
+    START,
+    WORK_P,
+    WORK_Q,
+    WORK_R,
+    WORK_X,
+    WORK_Y,
+    WORK_Z,
+    cg_finished,
+    slot_total,
+)
 from .kernels_cg_rows import cg_matrix_types, cg_row_functions, model_rows
 
 __all__ = [
     "BARRIER_POLLS",
     "RESIDENT_THREADS",
-    "WORK_P",
-    "WORK_Q",
-    "WORK_R",
-    "WORK_ROWS",
-    "WORK_X",
-    "WORK_Y",
-    "WORK_Z",
     "grid_capacity",
     "grid_sync",
     "grid_sync_acquire",
     "persistent_pcg_kernel",
     "resident_blocks_per_multiprocessor",
 ]
-
-WORK_ROWS = 8
-"""Rows of a model's work array: the residual (2, alternating), the direction (2), the solution x, y = G r,
-z = Gᵀ y and q = A p, each (F,) vec3 (one array: one base address and stride live in the kernel, not nine)."""
-WORK_R, WORK_P, WORK_X, WORK_Y, WORK_Z, WORK_Q = (wp.constant(row) for row in (0, 2, 4, 5, 6, 7))
-"""First row of each work vector in the work array."""
 
 RESIDENT_THREADS = 512
 """Threads per multiprocessor the persistent kernel is compiled to fit (``__launch_bounds__``)."""
@@ -217,8 +218,8 @@ def persistent_pcg_kernel(
     ``blocks`` at most the row groups ``ceil(F / rows)``; on the CPU build it with ``lanes = rows = 1``
     and launch one block per model. Per-model arrays have the model as their first index: the state
     ``d, v, a`` (B, N), ``trajectory`` (chunk, B, D), ``guess`` (B, F), the work vectors in ``work``
-    (B, :data:`WORK_ROWS`, F) and its flat scalar view ``work_flat`` (B, WORK_ROWS, 3F), ``slots``
-    (B, 4, maxiter + 1, SLOT_SPREAD) cleared, ``cg_iter`` (B, 2) and
+    (B, :data:`~warpface.fem.kernels_cg.WORK_ROWS`, F) and its flat scalar view ``work_flat``
+    (B, WORK_ROWS, 3F), ``slots`` (B, 4, maxiter + 1, SLOT_SPREAD) cleared, ``cg_iter`` (B, 2) and
     ``barrier`` (B, 3: arrivals, gave up, departures), which must start at zero (the last block of a model
     to leave clears its arrivals and departures again). The matrices ``P``, ``A`` and the factors ``G``, ``Gᵀ`` are
     ``BatchBlockRows`` / ``BatchFactorRows`` (:func:`~warpface.fem.kernels_cg_rows.cg_matrix_types`) whose values

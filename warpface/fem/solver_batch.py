@@ -25,10 +25,10 @@ import warp as wp
 
 from .assembly import SystemMatrices, bsr_to_scipy
 from .cg_setup import grouped_factor_rows, newmark_operators, per_model_fsai, preconditioner_factor, stack_values
-from .kernels_cg import SLOT_SPREAD
+from .kernels_cg import SLOT_SPREAD, WORK_ROWS, WORK_X
 from .kernels_cg_rows import cg_matrix, cg_matrix_types
 from .kernels_integrator import cg_newmark_update
-from .kernels_persistent import WORK_ROWS, WORK_X, grid_capacity, persistent_pcg_kernel
+from .kernels_persistent import grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
 from .options import BATCH_PRECONDITIONERS, CGOptions
 from .solver_cg import PERSISTENT_LANES, PERSISTENT_ROWS

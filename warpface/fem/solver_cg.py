@@ -42,20 +42,10 @@ import warp.sparse as wps
 
 from .assembly import SystemMatrices
 from .cg_setup import grouped_factor_rows, newmark_operators, preconditioner_factor
-from .kernels_cg import SLOT_SPREAD, pcg_kernels
+from .kernels_cg import SLOT_SPREAD, WORK_ROWS, WORK_X, pcg_kernels
 from .kernels_cg_rows import cg_matrix, cg_matrix_types
 from .kernels_integrator import cg_newmark_update
-from .kernels_persistent import (
-    WORK_P,
-    WORK_Q,
-    WORK_R,
-    WORK_ROWS,
-    WORK_X,
-    WORK_Y,
-    WORK_Z,
-    grid_capacity,
-    persistent_pcg_kernel,
-)
+from .kernels_persistent import grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
 from .options import PRECONDITIONERS, CGOptions
 from .solver_device import DeviceSolver
@@ -179,11 +169,7 @@ class CGSolver(DeviceSolver):
         # (index 3 node + axis) for the scalar preconditioner factors
         self._work = wp.zeros((1, WORK_ROWS, n_free), dtype=vec, device=dev)
         self._work_flat = self._work.view(dtype).reshape((1, WORK_ROWS, 3 * n_free))
-        work, work_flat = self._work[0], self._work_flat[0]
-        self._r, self._p = work[WORK_R : WORK_R + 2], work[WORK_P : WORK_P + 2]
-        self._x, self._y, self._z, self._q = (work[row] for row in (WORK_X, WORK_Y, WORK_Z, WORK_Q))
-        self._r_flat = work_flat[WORK_R : WORK_R + 2]
-        self._q_flat, self._y_flat = work_flat[WORK_Q], work_flat[WORK_Y]
+        self._work_one, self._work_flat_one = self._work[0], self._work_flat[0]  # the launched kernels' model
         self._history = wp.zeros((2, 1, n_free), dtype=vec, device=dev)
         self._guess = wp.zeros(n_free, dtype=vec, device=dev)
         self._slots = wp.zeros((1, 4, options.maxiter + 1, SLOT_SPREAD), dtype=wp.float64, device=dev)
@@ -241,17 +227,11 @@ class CGSolver(DeviceSolver):
 
     def _cg_iterations(self) -> None:
         k, tol_sq, maxiter = self._kernels, wp.float64(self.options.tolerance**2), self.options.maxiter
-        slots, cg_iter = self._slots_one, self._cg_iter_one
+        w, w_flat, slots, cg_iter = self._work_one, self._work_flat_one, self._slots_one, self._cg_iter_one
         for _ in range(UNROLL):
-            self._launch_tiled(
-                k.direction, [self._A, self._z, self._p, self._q, slots, cg_iter, self._condition, tol_sq, maxiter]
-            )
-            self._launch_tiled(
-                k.lower,
-                [self._G, self._p, self._q, self._q_flat, self._r, self._r_flat, self._x, self._y, slots, cg_iter]
-                + [tol_sq, maxiter],
-            )
-            self._launch_tiled(k.upper, [self._GT, self._y_flat, self._r, self._z, slots, cg_iter, tol_sq, maxiter])
+            self._launch_tiled(k.direction, [self._A, w, slots, cg_iter, self._condition, tol_sq, maxiter])
+            self._launch_tiled(k.lower, [self._G, w, w_flat, slots, cg_iter, tol_sq, maxiter])
+            self._launch_tiled(k.upper, [self._GT, w, w_flat, slots, cg_iter, tol_sq, maxiter])
 
     def _launch_sequence(self, b) -> None:
         k = self._kernels
@@ -271,14 +251,13 @@ class CGSolver(DeviceSolver):
                 ],
             )
         else:
-            slots, cg_iter = self._slots_one, self._cg_iter_one
+            w, w_flat, slots, cg_iter = self._work_one, self._work_flat_one, self._slots_one, self._cg_iter_one
             self._launch_tiled(
                 k.residual,
-                [self._P, self._A, *b.state, b.driven, self._guess, b.ring, self._r, self._x, slots, cg_iter]
-                + [self._condition],
+                [self._P, self._A, *b.state, b.driven, self._guess, b.ring, w, slots, cg_iter, self._condition],
             )
-            self._launch_tiled(k.lower_start, [self._G, self._r, self._r_flat, self._x, slots, self._y])
-            self._launch_tiled(k.upper, [self._GT, self._y_flat, self._r, self._z, slots, cg_iter, tol_sq, maxiter])
+            self._launch_tiled(k.lower_start, [self._G, w, w_flat, slots])
+            self._launch_tiled(k.upper, [self._GT, w, w_flat, slots, cg_iter, tol_sq, maxiter])
             wp.capture_while(self._condition, self._cg_iterations)
         wp.launch(
             cg_newmark_update,
