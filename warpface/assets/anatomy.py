@@ -37,6 +37,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..expression.muscles import LinearMuscle, MuscleLobe, SphincterMuscle
+from ..landmarks import IBUG_MIRROR
 from .frame import FaceFrame, SurfaceSampler
 
 __all__ = [
@@ -48,35 +49,31 @@ __all__ = [
 
 _SIDES = (("L", +1.0), ("R", -1.0))
 # iBUG indices per side: brow inner end, eye inner/outer corner, eye ring, nose wing, mouth corner,
-# upper-lip border point, lower-lip border point, jaw outline at mouth level, jaw outline below the corner.
-_LANDMARKS = {
-    "L": dict(
-        brow_inner=22,
-        brow_middle=24,
-        eye_inner=42,
-        eye_outer=45,
-        eye=tuple(range(42, 48)),
-        wing=35,
-        corner=54,
-        upper=52,
-        lower=56,
-        jaw_mouth=12,
-        jaw_low=10,
-    ),
-    "R": dict(
-        brow_inner=21,
-        brow_middle=19,
-        eye_inner=39,
-        eye_outer=36,
-        eye=tuple(range(36, 42)),
-        wing=31,
-        corner=48,
-        upper=50,
-        lower=58,
-        jaw_mouth=4,
-        jaw_low=6,
-    ),
-}
+# upper-lip border point, lower-lip border point, jaw outline at mouth level, jaw outline below the corner;
+# the right side's are the left side's mirror twins.
+_LEFT_LANDMARKS = dict(
+    brow_inner=22,
+    brow_middle=24,
+    eye_inner=42,
+    eye_outer=45,
+    eye=tuple(range(42, 48)),
+    wing=35,
+    corner=54,
+    upper=52,
+    lower=56,
+    jaw_mouth=12,
+    jaw_low=10,
+)
+
+
+def _mirrored(index):
+    """The mirror twin of an iBUG index, or the sorted twins of a tuple of them."""
+    if isinstance(index, tuple):
+        return tuple(sorted(int(IBUG_MIRROR[i]) for i in index))
+    return int(IBUG_MIRROR[index])
+
+
+_LANDMARKS = {"L": _LEFT_LANDMARKS, "R": {name: _mirrored(index) for name, index in _LEFT_LANDMARKS.items()}}
 
 ANATOMY_LINEAR_MUSCLE_NAMES: tuple[str, ...] = (
     *(f"frontalis_middle_{s}" for s, _ in _SIDES),
