@@ -81,16 +81,17 @@ def model_rows(batch: typing.Any, b: int, matrix: typing.Any):
     return matrix
 
 
-def _row_fetch(index_type, unroll: int, lanes: int):
-    """``fetch(offsets, indices, i, lane)`` → ``(start, end, indices)``: the bounds of row ``i`` and the indices
-    (columns or keys) of this lane's ``unroll`` straight-line entries, clamped to the row (rows are never empty)."""
+def _row_fetch(matrix_type, index_type, unroll: int, lanes: int):
+    """``fetch(M, i, lane)`` → ``(start, end, indices)``: the bounds of row ``i`` of ``M`` (a ``matrix_type``) and
+    the indices (columns or keys) of this lane's ``unroll`` straight-line entries, clamped to the row (rows are
+    never empty)."""
 
     @wp.func
-    def fetch(offsets: wp.array(dtype=wp.int32), indices: wp.array(dtype=wp.int32), i: int, lane: int):
-        start, end = offsets[i], offsets[i + 1]
+    def fetch(M: matrix_type, i: int, lane: int):
+        start, end = M.offsets[i], M.offsets[i + 1]
         found = index_type()
         for s in range(wp.static(unroll)):
-            found[s] = indices[wp.min(start + lane + s * lanes, end - 1)]
+            found[s] = M.indices[wp.min(start + lane + s * lanes, end - 1)]
         return start, end, found
 
     return fetch
@@ -128,15 +129,8 @@ def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
         zero = dtype(0.0)
         return vec(wp.where(axis == 0, value, zero), wp.where(axis == 1, value, zero), wp.where(axis == 2, value, zero))
 
-    fetch_a_indices, fetch_g_indices = _row_fetch(index_a, unroll_a, lanes), _row_fetch(index_g, unroll_g, lanes)
-
-    @wp.func
-    def fetch_a(A: BlockRows, i: int, lane: int):
-        return fetch_a_indices(A.offsets, A.indices, i, lane)
-
-    @wp.func
-    def fetch_g(G: FactorRows, i: int, lane: int):
-        return fetch_g_indices(G.offsets, G.indices, i, lane)
+    fetch_a = _row_fetch(BlockRows, index_a, unroll_a, lanes)
+    fetch_g = _row_fetch(FactorRows, index_g, unroll_g, lanes)
 
     @wp.func
     def factor_part(
