@@ -154,7 +154,7 @@ def test_per_model_fsai_fits_each_model_on_one_support(shell):
         )
         batch.run(traj)
         totals[preconditioner] = batch.cg_iterations[:, 2]
-        lower = batch.solver._factor[0][2].numpy()
+        lower = batch.solver._factor[0].values.numpy()
         assert lower.shape[0] == (1 if preconditioner == "fsai" else len(materials))
         if preconditioner == "fsai_each":
             assert all(np.abs(lower[b] - lower[(b + 1) % len(materials)]).max() > 0 for b in range(len(materials)))

@@ -92,6 +92,8 @@ def test_far_point_is_rejected(box):
         embed_points(box, [[np.nan, 0.0, 0.0]], device="cpu")
     with pytest.raises(ValueError, match=r"shape \(V, 3\)"):
         embed_points(box, np.zeros((3, 2)), device="cpu")
+    with pytest.raises(TypeError, match="max_distance"):
+        embed_points(box, [[0.01, 0.01, 0.01]], max_distance="far", device="cpu")
 
 
 def test_apply_reproduces_linear_fields_single_and_batched(box):

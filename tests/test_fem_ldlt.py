@@ -174,6 +174,9 @@ def test_bad_matrices_are_rejected():
         BlockLDLT(nan)
     with pytest.raises(TypeError, match="BlockLDLT"):
         BlockLDLT("matrix")
-    for options in (dict(rtol=0.0), dict(rtol=float("nan")), dict(max_rounds=0), dict(max_rounds=True)):
+    for options in (dict(rtol=0.0), dict(rtol=float("nan")), dict(max_rounds=0)):
         with pytest.raises(ValueError, match="BlockLDLT"):
+            BlockLDLT(good, **options)
+    for options in (dict(max_rounds=True), dict(max_rounds=2.0), dict(rtol="1e-8")):
+        with pytest.raises(TypeError, match="BlockLDLT: (max_rounds|rtol)"):
             BlockLDLT(good, **options)

@@ -99,6 +99,8 @@ def test_material_validation():
         args = dict(E=1e5, nu=0.3, eta=1.0, rho=1000.0) | kwargs
         with pytest.raises(ValueError, match=message):
             TissueMaterial(**args)
+    with pytest.raises(TypeError, match="damping"):
+        TissueMaterial(1e5, 0.3, 1.0, 1000.0, damping=1)
 
 
 def test_material_per_tet_and_lame():

@@ -335,6 +335,8 @@ def test_built_in_face_meshes_with_default_options_and_reports_progress(tmp_path
         mesh_tissue(rig.mesh, 0.004, progress="yes", device="cpu")
     with pytest.raises(ValueError, match="thin_defects must be an integer >= 0"):
         mesh_tissue(rig.mesh, 0.004, thin_defects=-1, device="cpu")
+    with pytest.raises(TypeError, match="fair_folds must be an integer"):
+        mesh_tissue(rig.mesh, 0.004, fair_folds=2.5, device="cpu")
 
 
 def volume_stages():

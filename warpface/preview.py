@@ -270,11 +270,7 @@ def render(
     ``interior``: colour of the back side (see :class:`PreviewRenderer`)."""
     with PreviewRenderer(triangles, size=size, camera=camera, background=background, interior=interior) as renderer:
         image = renderer.render(points, colors)
-    if label:
-        image = _label(image, label)
-    if path is not None:
-        save_image(path, image)
-    return image
+    return _finish(image, label, path)
 
 
 def render_comparison(
@@ -359,11 +355,7 @@ def render_heat_map(
         interior=interior,
     )
     image = _color_bar(image, vmin * scale, vmax * scale, units, cmap)
-    if title:
-        image = _label(image, title)
-    if path is not None:
-        save_image(path, image)
-    return image
+    return _finish(image, title, path)
 
 
 def write_video(
@@ -442,6 +434,15 @@ def save_image(path: str | Path, image: np.ndarray) -> Path:
         if not cv2.imwrite(str(temporary), cv2.cvtColor(np.asarray(image, dtype=np.uint8), cv2.COLOR_RGB2BGR)):
             raise ValueError(f"cannot write image {path}")
     return path
+
+
+def _finish(image: np.ndarray, label: str | None, path) -> np.ndarray:
+    """``image`` with ``label`` written on it (when given), saved to ``path`` (when given)."""
+    if label:
+        image = _label(image, label)
+    if path is not None:
+        save_image(path, image)
+    return image
 
 
 def _label(image: np.ndarray, text: str) -> np.ndarray:

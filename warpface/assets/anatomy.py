@@ -37,6 +37,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..expression.muscles import LinearMuscle, MuscleLobe, SphincterMuscle
+from ..landmarks import IBUG_MIRROR
 from .frame import FaceFrame, SurfaceSampler
 
 __all__ = [
@@ -48,35 +49,31 @@ __all__ = [
 
 _SIDES = (("L", +1.0), ("R", -1.0))
 # iBUG indices per side: brow inner end, eye inner/outer corner, eye ring, nose wing, mouth corner,
-# upper-lip border point, lower-lip border point, jaw outline at mouth level, jaw outline below the corner.
-_LANDMARKS = {
-    "L": dict(
-        brow_inner=22,
-        brow_middle=24,
-        eye_inner=42,
-        eye_outer=45,
-        eye=tuple(range(42, 48)),
-        wing=35,
-        corner=54,
-        upper=52,
-        lower=56,
-        jaw_mouth=12,
-        jaw_low=10,
-    ),
-    "R": dict(
-        brow_inner=21,
-        brow_middle=19,
-        eye_inner=39,
-        eye_outer=36,
-        eye=tuple(range(36, 42)),
-        wing=31,
-        corner=48,
-        upper=50,
-        lower=58,
-        jaw_mouth=4,
-        jaw_low=6,
-    ),
-}
+# upper-lip border point, lower-lip border point, jaw outline at mouth level, jaw outline below the corner;
+# the right side's are the left side's mirror twins.
+_LEFT_LANDMARKS = dict(
+    brow_inner=22,
+    brow_middle=24,
+    eye_inner=42,
+    eye_outer=45,
+    eye=tuple(range(42, 48)),
+    wing=35,
+    corner=54,
+    upper=52,
+    lower=56,
+    jaw_mouth=12,
+    jaw_low=10,
+)
+
+
+def _mirrored(index):
+    """The mirror twin of an iBUG index, or the sorted twins of a tuple of them."""
+    if isinstance(index, tuple):
+        return tuple(sorted(int(IBUG_MIRROR[i]) for i in index))
+    return int(IBUG_MIRROR[index])
+
+
+_LANDMARKS = {"L": _LEFT_LANDMARKS, "R": {name: _mirrored(index) for name, index in _LEFT_LANDMARKS.items()}}
 
 ANATOMY_LINEAR_MUSCLE_NAMES: tuple[str, ...] = (
     *(f"frontalis_middle_{s}" for s, _ in _SIDES),
@@ -98,8 +95,11 @@ ANATOMY_SPHINCTER_MUSCLE_NAMES: tuple[str, ...] = ("orbicularis_oris_press",)
 """Sphincters added by the full anatomy (the orbital orbicularis oculi keeps its classic name)."""
 
 
-def _linear(name, surface: SurfaceSampler, origin_xy, depth, insertion_xy, zone_deg, start, finish) -> LinearMuscle:
-    """Bone point ``depth`` units beneath ``origin_xy`` → skin at ``insertion_xy``; radii as fractions of the length."""
+def linear_muscle(
+    name, surface: SurfaceSampler, origin_xy, depth, insertion_xy, zone_deg, start, finish
+) -> LinearMuscle:
+    """A Waters muscle from a bone point ``depth`` units beneath ``origin_xy`` to the skin at ``insertion_xy``;
+    ``start`` and ``finish`` are the fall-off radii as fractions of the muscle's length."""
     attachment = surface.below(origin_xy, depth)
     insertion = surface.point(insertion_xy)
     length = float(np.linalg.norm(insertion - attachment))
@@ -201,7 +201,7 @@ def revised_classic_muscles(
             tag, sign = _side_of(muscle)
             lower = local[_LANDMARKS[tag]["lower"], :2]
             out.append(
-                _linear(
+                linear_muscle(
                     muscle.name,
                     surface,
                     (lower[0] + 0.12 * sign, lower[1] - 0.42),
@@ -222,7 +222,7 @@ def revised_classic_muscles(
             eye = local[list(_LANDMARKS[tag]["eye"]), :2].mean(axis=0)
             peak = local[_LANDMARKS[tag]["upper"], :2]
             out.append(
-                _linear(
+                linear_muscle(
                     muscle.name,
                     surface,
                     (eye[0] - 0.02 * sign, eye[1] - 0.36),
@@ -303,7 +303,7 @@ def anatomy_muscles(
         eye = xy[list(i["eye"])].mean(axis=0)
         wing, corner, upper = xy[i["wing"]], xy[i["corner"]], xy[i["upper"]]
         jaw_mouth, jaw_low = xy[i["jaw_mouth"]], xy[i["jaw_low"]]
-        linear[f"depressor_supercilii_{tag}"] = _linear(
+        linear[f"depressor_supercilii_{tag}"] = linear_muscle(
             f"depressor_supercilii_{tag}",
             surface,
             (0.5 * (eye_inner[0] + 0.05 * s), eye_inner[1] - 0.02),
@@ -313,7 +313,7 @@ def anatomy_muscles(
             0.75,
             1.45,
         )
-        linear[f"levator_anguli_oris_{tag}"] = _linear(
+        linear[f"levator_anguli_oris_{tag}"] = linear_muscle(
             f"levator_anguli_oris_{tag}",
             surface,
             (wing[0] + 0.12 * s, wing[1] - 0.02),
@@ -323,7 +323,7 @@ def anatomy_muscles(
             0.85,
             1.45,
         )
-        linear[f"zygomaticus_minor_{tag}"] = _linear(
+        linear[f"zygomaticus_minor_{tag}"] = linear_muscle(
             f"zygomaticus_minor_{tag}",
             surface,
             (eye[0] + 0.12 * s, eye[1] - 0.42),
@@ -333,7 +333,7 @@ def anatomy_muscles(
             0.85,
             1.40,
         )
-        linear[f"buccinator_{tag}"] = _linear(
+        linear[f"buccinator_{tag}"] = linear_muscle(
             f"buccinator_{tag}",
             surface,
             (0.80 * jaw_mouth[0], corner[1] - 0.02),
@@ -343,7 +343,7 @@ def anatomy_muscles(
             0.90,
             1.45,
         )
-        linear[f"platysma_{tag}"] = _linear(
+        linear[f"platysma_{tag}"] = linear_muscle(
             f"platysma_{tag}",
             surface,
             (jaw_low[0] + 0.05 * s, jaw_low[1] - 0.35),
@@ -353,7 +353,7 @@ def anatomy_muscles(
             0.95,
             1.55,
         )
-        linear[f"nasalis_{tag}"] = _linear(
+        linear[f"nasalis_{tag}"] = linear_muscle(
             f"nasalis_{tag}",
             surface,
             (wing[0] + 0.06 * s, wing[1] + 0.02),
@@ -372,7 +372,7 @@ def anatomy_muscles(
         eye, inner = ring.mean(axis=0), xy[_LANDMARKS[tag]["eye_inner"]]
         top, bottom = ring[:, 1].max(), ring[:, 1].min()
         medial = eye[0] + 0.75 * (inner[0] - eye[0])
-        linear[f"orbicularis_oculi_upper_lid_{tag}"] = _linear(
+        linear[f"orbicularis_oculi_upper_lid_{tag}"] = linear_muscle(
             f"orbicularis_oculi_upper_lid_{tag}",
             surface,
             (medial, bottom),
@@ -382,7 +382,7 @@ def anatomy_muscles(
             0.90,
             1.70,
         )
-        lid = _linear(
+        lid = linear_muscle(
             f"orbicularis_oculi_lower_lid_{tag}",
             surface,
             (medial, top),
@@ -394,14 +394,14 @@ def anatomy_muscles(
         )
         linear[lid.name] = replace(lid, lobes=(_cheek_lobe(surface, xy[_LANDMARKS[tag]["eye_inner"]], eye, s),))
         # Levator palpebrae superioris: from the orbit's roof, deep behind the brow, into the upper lid (eyeWide).
-        linear[f"levator_palpebrae_{tag}"] = _linear(
+        linear[f"levator_palpebrae_{tag}"] = linear_muscle(
             f"levator_palpebrae_{tag}", surface, (eye[0], top + 0.30), 0.35, (eye[0], top + 0.02), 40.0, 0.90, 1.30
         )
     mouth_line = 0.5 * (xy[62, 1] + xy[66, 1])
-    linear["orbicularis_oris_roll_upper"] = _linear(
+    linear["orbicularis_oris_roll_upper"] = linear_muscle(
         "orbicularis_oris_roll_upper", surface, (0.0, mouth_line + 0.02), 0.35, (0.0, xy[51, 1]), 60.0, 0.90, 1.45
     )
-    linear["orbicularis_oris_roll_lower"] = _linear(
+    linear["orbicularis_oris_roll_lower"] = linear_muscle(
         "orbicularis_oris_roll_lower", surface, (0.0, mouth_line - 0.02), 0.35, (0.0, xy[57, 1]), 60.0, 0.90, 1.45
     )
 

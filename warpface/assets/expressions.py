@@ -81,6 +81,20 @@ EXPRESSIONS = MappingProxyType(
 sphincters dimensionless). Read-only."""
 
 
+def check_named_request(kind: str, name, table, rig, intensity) -> float:
+    """The checks of a named request (``kind``: "expression" or "preset") on ``rig``: ``rig`` a FaceRig,
+    ``name`` a key of ``table``; returns ``intensity`` as a finite float."""
+    expect_instance(rig, FaceRig, "rig")
+    if not isinstance(name, str):
+        raise TypeError(f"{kind} name: expected a str, got {type(name).__name__}")
+    if name not in table:
+        raise ValueError(f"unknown {kind} {name!r} (known: {', '.join(table)})")
+    intensity = float(as_finite_array(intensity, f"{kind} {name!r}: intensity", shape=()))
+    if not np.isfinite(intensity):
+        raise ValueError(f"{kind} {name!r}: intensity must be finite, got {intensity}")
+    return intensity
+
+
 def expression_contractions(name: str, rig: FaceRig, *, intensity: float = 1.0) -> dict[str, float]:
     """The contractions ``{muscle: K}`` of a named expression on ``rig``.
 
@@ -93,14 +107,7 @@ def expression_contractions(name: str, rig: FaceRig, *, intensity: float = 1.0) 
         ValueError: unknown expression or non-finite intensity.
         RigError: the rig lacks one of the preset's muscles, or its landmarks.
     """
-    expect_instance(rig, FaceRig, "rig")
-    if not isinstance(name, str):
-        raise TypeError(f"expression name: expected a str, got {type(name).__name__}")
-    if name not in EXPRESSIONS:
-        raise ValueError(f"unknown expression {name!r} (known: {', '.join(EXPRESSIONS)})")
-    intensity = float(as_finite_array(intensity, f"expression {name!r}: intensity", shape=()))
-    if not np.isfinite(intensity):
-        raise ValueError(f"expression {name!r}: intensity must be finite, got {intensity}")
+    intensity = check_named_request("expression", name, EXPRESSIONS, rig, intensity)
     muscles = {m.name: m for m in rig.muscles}
     missing = [muscle for muscle in EXPRESSIONS[name] if muscle not in muscles]
     if missing:

@@ -11,13 +11,10 @@ from __future__ import annotations
 
 from types import MappingProxyType
 
-import numpy as np
-
-from .._validate import as_finite_array, expect_instance
 from ..errors import RigError
 from ..expression.muscles import LinearMuscle
 from ..rig import FaceRig
-from .expressions import EXPRESSIONS
+from .expressions import EXPRESSIONS, check_named_request
 from .rig import rig_scale
 
 __all__ = ["PRESETS", "ARKIT_PRESET_NAMES", "preset_controls"]
@@ -100,14 +97,7 @@ def preset_controls(name: str, rig: FaceRig, *, intensity: float = 1.0) -> dict[
         ValueError: unknown preset or non-finite intensity.
         RigError: the rig lacks a control of the preset (e.g. a classic rig without a jaw), or landmarks.
     """
-    expect_instance(rig, FaceRig, "rig")
-    if not isinstance(name, str):
-        raise TypeError(f"preset name: expected a str, got {type(name).__name__}")
-    if name not in PRESETS:
-        raise ValueError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
-    intensity = float(as_finite_array(intensity, f"preset {name!r}: intensity", shape=()))
-    if not np.isfinite(intensity):
-        raise ValueError(f"preset {name!r}: intensity must be finite, got {intensity}")
+    intensity = check_named_request("preset", name, PRESETS, rig, intensity)
     known = set(rig.control_names)
     missing = [control for control in PRESETS[name] if control not in known]
     if missing:

@@ -32,6 +32,7 @@ from .anatomy import (
     ANATOMY_SPHINCTER_MUSCLE_NAMES,
     SKIN_RESPONSE_OVERRIDES,
     anatomy_muscles,
+    linear_muscle,
     revised_classic_muscles,
 )
 from .face import default_face, default_landmarks
@@ -205,17 +206,6 @@ def _with_skin_response(muscle):
 # Muscles. Positions are local (x, y) in inter-ocular units; depths are along −normal, same units.
 
 
-def _linear(name, surface: SurfaceSampler, origin_xy, origin_depth, insertion_xy, zone_deg, start, finish):
-    """A Waters muscle from a bone point beneath ``origin_xy`` to the skin at ``insertion_xy``.
-
-    ``start`` and ``finish`` are the fall-off radii as fractions of the muscle's length.
-    """
-    attachment = surface.below(origin_xy, origin_depth)
-    insertion = surface.point(insertion_xy)
-    length = float(np.linalg.norm(insertion - attachment))
-    return LinearMuscle(name, attachment, insertion, zone_deg, start * length, finish * length)
-
-
 def _galea_muscle(name, surface: SurfaceSampler, x: float, brow_top: float, insertion_xy) -> LinearMuscle:
     """A frontalis belly: attachment 1.9 units above the brows and 0.45 behind the upper forehead."""
     upper = surface.frame.to_local(surface.point((x, brow_top + 0.9)))
@@ -247,7 +237,7 @@ def _linear_muscles(L: np.ndarray, surface: SurfaceSampler) -> list[LinearMuscle
         )
         # Corrugator: from the medial end of the brow ridge into the skin above mid-brow; pulls the
         # brows together and down (AU4), squeezing the skin between them into vertical furrows.
-        muscles[f"corrugator_{tag}"] = _linear(
+        muscles[f"corrugator_{tag}"] = linear_muscle(
             f"corrugator_{tag}",
             surface,
             (0.03 * s, inner[1] - 0.06),
@@ -258,7 +248,7 @@ def _linear_muscles(L: np.ndarray, surface: SurfaceSampler) -> list[LinearMuscle
             1.50,
         )
         # Levator labii superioris alaeque nasi: frontal process of the maxilla → nose wing (AU9).
-        muscles[f"levator_labii_alaeque_nasi_{tag}"] = _linear(
+        muscles[f"levator_labii_alaeque_nasi_{tag}"] = linear_muscle(
             f"levator_labii_alaeque_nasi_{tag}",
             surface,
             (0.45 * eye_inner[0], eye_inner[1] + 0.05),
@@ -269,7 +259,7 @@ def _linear_muscles(L: np.ndarray, surface: SurfaceSampler) -> list[LinearMuscle
             1.40,
         )
         # Levator labii superioris: infraorbital margin → upper lip (AU10).
-        muscles[f"levator_labii_superioris_{tag}"] = _linear(
+        muscles[f"levator_labii_superioris_{tag}"] = linear_muscle(
             f"levator_labii_superioris_{tag}",
             surface,
             (eye[0] - 0.02 * s, eye[1] - 0.36),
@@ -280,7 +270,7 @@ def _linear_muscles(L: np.ndarray, surface: SurfaceSampler) -> list[LinearMuscle
             1.30,
         )
         # Zygomaticus major: zygomatic bone → mouth corner, up and back (AU12, smile).
-        muscles[f"zygomaticus_major_{tag}"] = _linear(
+        muscles[f"zygomaticus_major_{tag}"] = linear_muscle(
             f"zygomaticus_major_{tag}",
             surface,
             (eye_outer[0] + 0.40 * s, eye[1] - 0.30),
@@ -292,7 +282,7 @@ def _linear_muscles(L: np.ndarray, surface: SurfaceSampler) -> list[LinearMuscle
         )
         # Risorius: masseteric fascia → mouth corner, sideways (AU20).
         cheek_side = xy[side.jaw[3]]
-        muscles[f"risorius_{tag}"] = _linear(
+        muscles[f"risorius_{tag}"] = linear_muscle(
             f"risorius_{tag}",
             surface,
             (0.85 * cheek_side[0], corner[1] + 0.02),
@@ -304,7 +294,7 @@ def _linear_muscles(L: np.ndarray, surface: SurfaceSampler) -> list[LinearMuscle
         )
         # Depressor anguli oris: mandible below the corner → mouth corner, down (AU15).
         chin_side = xy[side.jaw[6]]
-        muscles[f"depressor_anguli_oris_{tag}"] = _linear(
+        muscles[f"depressor_anguli_oris_{tag}"] = linear_muscle(
             f"depressor_anguli_oris_{tag}",
             surface,
             (corner[0] + 0.10 * s, 0.5 * (corner[1] + chin_side[1]) - 0.10),
@@ -316,7 +306,7 @@ def _linear_muscles(L: np.ndarray, surface: SurfaceSampler) -> list[LinearMuscle
         )
         # Depressor labii inferioris: mandible → lower lip, down (AU16).
         lower = xy[side.lower_lip]
-        muscles[f"depressor_labii_inferioris_{tag}"] = _linear(
+        muscles[f"depressor_labii_inferioris_{tag}"] = linear_muscle(
             f"depressor_labii_inferioris_{tag}",
             surface,
             (lower[0] + 0.12 * s, lower[1] - 0.42),
@@ -328,9 +318,11 @@ def _linear_muscles(L: np.ndarray, surface: SurfaceSampler) -> list[LinearMuscle
         )
     # Procerus: nasal bone → skin between the brows, pulling it down (nasal-root lines).
     glabella_y = 0.5 * (xy[21, 1] + xy[22, 1]) + 0.12
-    muscles["procerus"] = _linear("procerus", surface, (0.0, xy[28, 1]), 0.10, (0.0, glabella_y), 34.0, 0.80, 1.30)
+    muscles["procerus"] = linear_muscle(
+        "procerus", surface, (0.0, xy[28, 1]), 0.10, (0.0, glabella_y), 34.0, 0.80, 1.30
+    )
     # Mentalis: incisive fossa below the lower lip → chin skin, raising it (AU17).
-    muscles["mentalis"] = _linear(
+    muscles["mentalis"] = linear_muscle(
         "mentalis", surface, (0.0, xy[57, 1] - 0.14), 0.20, (0.0, 0.55 * xy[8, 1] + 0.45 * xy[57, 1]), 50.0, 0.90, 1.60
     )
     return [muscles[name] for name in CLASSIC_LINEAR_MUSCLE_NAMES]

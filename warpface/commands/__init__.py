@@ -2,7 +2,9 @@
 
 A command module provides ``add_parser(subparsers, common)`` — it adds its sub-parser (with
 ``parents=[common]`` so the shared options work after the command too) and sets ``handler`` to its
-``run(args) -> int``. Register a new command by adding its module name to :data:`COMMANDS`.
+``run(args) -> int``; :func:`~warpface.commands.common.add_command` does both, taking the command's
+help and description from the first two paragraphs of the module's docstring. Register a new command
+by adding its module name to :data:`COMMANDS`.
 """
 
 COMMANDS = ("demo", "rig", "bake", "preview", "validate", "track", "animate", "fit")

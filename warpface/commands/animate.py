@@ -1,4 +1,5 @@
-"""``warpface animate DRIVER``: animation curves (ARKit/MediaPipe weights, Audio2Face, FACS AUs) drive a rig.
+"""``warpface animate DRIVER``: driver curves (ARKit, MediaPipe, Audio2Face, OpenFace AUs) -> rig time samples, bake,
+video.
 
 The driver file's format comes from its extension and content (:func:`warpface.usd.read_driver`).
 Its channels are cleaned (neutral, gains, clamping, optional 1€ filter), resampled to the stage's
@@ -21,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .._validate import as_count
+from .common import add_command
 
 __all__ = ["add_parser", "run_animate", "animate", "AnimateResult", "prepare_controls", "PREVIEW_MAX_FRAMES"]
 
@@ -356,12 +358,7 @@ def run_animate(args) -> int:
 
 def add_parser(subparsers, common):
     """Register ``animate`` on the CLI's sub-parsers (``common``: the shared options); returns the parser."""
-    parser = subparsers.add_parser(
-        "animate",
-        parents=[common],
-        help="driver curves (ARKit, MediaPipe, Audio2Face, OpenFace AUs) -> rig time samples, bake, video",
-        description=__doc__.split("\n\n")[1] if __doc__ else None,
-    )
+    parser = add_command(subparsers, common, "animate", run_animate, __doc__)
     parser.add_argument("driver", help="OpenFace/Live Link Face CSV, MediaPipe .pbtxt/.jsonl, or USD SkelAnimation")
     parser.add_argument("--rig", default=None, help="rig stage (default: the built-in face's rig)")
     parser.add_argument(
@@ -392,5 +389,4 @@ def add_parser(subparsers, common):
         default=PREVIEW_MAX_FRAMES,
         help=f"longest preview in frames; longer takes show every k-th frame (default {PREVIEW_MAX_FRAMES})",
     )
-    parser.set_defaults(handler=run_animate)
     return parser

@@ -1,8 +1,12 @@
-"""``warpface bake``: evaluate a rig stage's time codes into a ``.usdc`` points cache."""
+"""``warpface bake``: evaluate a rig stage at its time codes into a .usdc points cache.
+
+Evaluate the expression model at every time code of STAGE (or --start..--end) and write the skin's points as
+time samples in a .usdc cache sublayered under STAGE.
+"""
 
 from __future__ import annotations
 
-from .common import finite_float, positive_float, positive_int
+from .common import add_command, finite_float, positive_float, positive_int
 
 __all__ = ["add_parser", "run"]
 
@@ -10,13 +14,7 @@ __all__ = ["add_parser", "run"]
 def add_parser(subparsers, common) -> None:
     from ..usd.animation import MAX_FRAMES
 
-    bake = subparsers.add_parser(
-        "bake",
-        parents=[common],
-        help="evaluate a rig stage at its time codes into a .usdc points cache",
-        description="Evaluate the expression model at every time code of STAGE (or --start..--end) and write the "
-        "skin's points as time samples in a .usdc cache sublayered under STAGE.",
-    )
+    bake = add_command(subparsers, common, "bake", run, __doc__)
     bake.add_argument("stage", help="rig stage (.usda/.usdc) with contraction time samples")
     bake.add_argument(
         "--cache", default=None, help="cache file (default: <stage>_anim.usdc); not the stage or one of its layers"
@@ -30,7 +28,6 @@ def add_parser(subparsers, common) -> None:
         default=MAX_FRAMES,
         help=f"refuse to bake more frames than this (default {MAX_FRAMES}); raise it for longer bakes",
     )
-    bake.set_defaults(handler=run)
 
 
 def run(args) -> int:

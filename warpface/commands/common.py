@@ -7,6 +7,7 @@ import math
 import re
 
 __all__ = [
+    "add_command",
     "positive_float",
     "non_negative_float",
     "finite_float",
@@ -18,6 +19,22 @@ __all__ = [
 
 MAX_PIXELS = 8192
 """Largest --width / --height accepted."""
+
+
+def add_command(subparsers, common, name: str, handler, doc: str | None):
+    """Register the sub-command ``name`` with the shared options ``common``, ``handler(args)`` running it;
+    returns its parser, for the command's own arguments.
+
+    ``doc`` is the command module's docstring: its first paragraph after the ``warpface NAME …:`` title (less
+    the final period) is the command's one-line help, its second paragraph the description of its ``--help``.
+    """
+    help_text = description = None
+    if doc:  # None under python -OO
+        summary, description = (" ".join(part.split()) for part in doc.split("\n\n")[:2])
+        help_text = summary.split(": ", 1)[1].removesuffix(".")
+    parser = subparsers.add_parser(name, parents=[common], help=help_text, description=description)
+    parser.set_defaults(handler=handler)
+    return parser
 
 
 def finite_float(text: str) -> float:
@@ -47,12 +64,16 @@ def non_negative_float(text: str) -> float:
     return value
 
 
+def _whole_number(text: str, what: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number{what}: {text!r}") from None
+
+
 def pixel_count(text: str) -> int:
     """An argparse type: an image side in pixels, 16 … 8192."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number of pixels: {text!r}") from None
+    value = _whole_number(text, " of pixels")
     if not 16 <= value <= MAX_PIXELS:
         raise argparse.ArgumentTypeError(f"must be between 16 and {MAX_PIXELS} pixels, got {value}")
     return value
@@ -60,10 +81,7 @@ def pixel_count(text: str) -> int:
 
 def positive_int(text: str) -> int:
     """An argparse type: a whole number ≥ 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    value = _whole_number(text, "")
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be ≥ 1, got {value}")
     return value

@@ -1,20 +1,18 @@
-"""``warpface demo``: the built-in face makes four expressions → stage, bake, pictures, video."""
+"""``warpface demo``: built-in face -> four expressions -> USD stage, bake, images, video.
+
+Build the built-in face, animate thinking/puzzled/disgust/smile, write DIR/face.usda + DIR/face_anim.usdc, PNG
+previews with and without wrinkles, heat maps and an MP4.
+"""
 
 from __future__ import annotations
 
-from .common import positive_float
+from .common import add_command, positive_float
 
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(subparsers, common) -> None:
-    demo = subparsers.add_parser(
-        "demo",
-        parents=[common],
-        help="built-in face -> four expressions -> USD stage, bake, images, video",
-        description="Build the built-in face, animate thinking/puzzled/disgust/smile, write DIR/face.usda + "
-        "DIR/face_anim.usdc, PNG previews with and without wrinkles, heat maps and an MP4.",
-    )
+    demo = add_command(subparsers, common, "demo", run, __doc__)
     demo.add_argument("--out", default="demo", help="output folder (default: demo)")
     demo.add_argument("--fps", type=positive_float, default=30.0, help="frames per second (default 30)")
     demo.add_argument(
@@ -24,7 +22,6 @@ def add_parser(subparsers, common) -> None:
         help="seconds per expression, neutral -> peak -> neutral (default 2)",
     )
     demo.add_argument("--no-video", action="store_true", help="skip the MP4")
-    demo.set_defaults(handler=run)
 
 
 def run(args) -> int:

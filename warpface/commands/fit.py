@@ -1,4 +1,9 @@
-"""``warpface fit TARGET... --rig face.usda``: solve the rig's controls for shapes, keep them as presets.
+"""``warpface fit TARGET... --rig face.usda``: solve muscle contractions for shapes, store them as presets on the
+rig stage.
+
+Fit the rig of --rig to each TARGET (OBJ, or a USD stage with a mesh of the rig's topology), write the controls
+as named presets on the rig stage, print per-region error before/after in mm and the controls used, and render a
+heat map of the remaining error.
 
 Each target (an OBJ, or a USD stage whose mesh has the rig's vertex count) is fitted densely (or from
 the rig's landmarks only with ``--landmarks``); the controls are written as a named preset on the rig
@@ -11,6 +16,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+
+from .common import add_command
 
 __all__ = ["add_parser", "run_fit", "REGIONS", "region_labels"]
 
@@ -26,14 +33,7 @@ REGIONS = {
 
 def add_parser(subparsers, common) -> None:
     """Register ``fit`` on the CLI's sub-parsers (``common``: the shared options)."""
-    fit = subparsers.add_parser(
-        "fit",
-        parents=[common],
-        help="solve muscle contractions for shapes, store them as presets on the rig stage",
-        description="Fit the rig of --rig to each TARGET (OBJ, or a USD stage with a mesh of the rig's topology), "
-        "write the controls as named presets on the rig stage, print per-region error before/after "
-        "in mm and the controls used, and render a heat map of the remaining error.",
-    )
+    fit = add_command(subparsers, common, "fit", run_fit, __doc__)
     fit.add_argument(
         "targets", nargs="+", metavar="TARGET", help="shape(s) with the rig's topology (.obj, .usda/.usdc/.usd)"
     )
@@ -56,7 +56,6 @@ def add_parser(subparsers, common) -> None:
     fit.add_argument("--symmetry", type=float, default=0.0, help="left/right symmetry weight (default 0)")
     fit.add_argument("--out", default=None, help="folder for heat maps (default: <rig>_fit next to the rig)")
     fit.add_argument("--no-images", action="store_true", help="skip the heat-map pictures")
-    fit.set_defaults(handler=run_fit)
 
 
 def region_labels(points: np.ndarray, landmarks) -> tuple[list[str], np.ndarray]:

@@ -1,23 +1,20 @@
-"""``warpface preview``: a frame of a rig stage, a capture written by ``track``, or an OBJ → PNG (or every
-frame → MP4)."""
+"""``warpface preview``: render a stage frame (or all of them) or an OBJ to PNG/MP4.
+
+Render SOURCE — a warpface rig stage, a capture written by `warpface track`, or an OBJ — at --time to a PNG,
+or every frame to an MP4 (--video), with pyrender (offscreen).
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from .common import finite_float, pixel_count
+from .common import add_command, finite_float, pixel_count
 
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(subparsers, common) -> None:
-    show = subparsers.add_parser(
-        "preview",
-        parents=[common],
-        help="render a stage frame (or all of them) or an OBJ to PNG/MP4",
-        description="Render SOURCE — a warpface rig stage, a capture written by `warpface track`, or an OBJ — at "
-        "--time to a PNG, or every frame to an MP4 (--video), with pyrender (offscreen).",
-    )
+    show = add_command(subparsers, common, "preview", run, __doc__)
     show.add_argument("source", help="stage (.usda/.usdc/.usd) or mesh (.obj)")
     show.add_argument(
         "--time",
@@ -32,7 +29,6 @@ def add_parser(subparsers, common) -> None:
     show.add_argument("--pitch", type=finite_float, default=5.0, help="camera pitch [degrees] (default 5)")
     show.add_argument("--width", type=pixel_count, default=640, help="image width [pixels] (default 640)")
     show.add_argument("--height", type=pixel_count, default=720, help="image height [pixels] (default 720)")
-    show.set_defaults(handler=run)
 
 
 def run(args) -> int:

@@ -1,21 +1,20 @@
-"""``warpface track``: a landmark source → dense face motion (or, with ``--solve``, solved muscle controls)
-→ USD time samples (see warpface.pipelines.track)."""
+"""``warpface track``: landmark source -> dense face motion -> USD time samples.
+
+Track SOURCE (.npz recording, RGB-D folder, 'synthetic', 'realsense' or 'orbbec') and write landmarks and the
+dense face as time samples.
+
+The work is done by :func:`warpface.pipelines.track.run_track`.
+"""
 
 from __future__ import annotations
 
-from .common import non_negative_float, positive_float, positive_int
+from .common import add_command, non_negative_float, positive_float, positive_int
 
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(subparsers, common) -> None:
-    track = subparsers.add_parser(
-        "track",
-        parents=[common],
-        help="landmark source -> dense face motion -> USD time samples",
-        description="Track SOURCE (.npz recording, RGB-D folder, 'synthetic', 'realsense' or 'orbbec') and write "
-        "landmarks and the dense face as time samples.",
-    )
+    track = add_command(subparsers, common, "track", run, __doc__)
     track.add_argument("source", help=".npz, RGB-D folder, synthetic, realsense or orbbec")
     track.add_argument(
         "--stage",
@@ -54,7 +53,6 @@ def add_parser(subparsers, common) -> None:
         default=1e-3,
         help="with --solve: pull of each frame's controls toward the previous frame's (default 1e-3)",
     )
-    track.set_defaults(handler=run)
 
 
 def run(args) -> int:

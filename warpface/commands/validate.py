@@ -1,21 +1,20 @@
-"""``warpface validate``: OpenUSD's validators plus warpface's checks (everything ``bake`` would refuse)."""
+"""``warpface validate``: check a stage with UsdValidation and warpface's rig checks.
+
+Run pxr.UsdValidation and warpface's checks on STAGE (a rig stage, or a capture written by `warpface track`):
+everything bake or preview would refuse. Exit 1 on errors.
+"""
 
 from __future__ import annotations
+
+from .common import add_command
 
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(subparsers, common) -> None:
-    check = subparsers.add_parser(
-        "validate",
-        parents=[common],
-        help="check a stage with UsdValidation and warpface's rig checks",
-        description="Run pxr.UsdValidation and warpface's checks on STAGE (a rig stage, or a capture written by "
-        "`warpface track`): everything bake or preview would refuse. Exit 1 on errors.",
-    )
+    check = add_command(subparsers, common, "validate", run, __doc__)
     check.add_argument("stage", help="stage to check")
     check.add_argument("--strict", action="store_true", help="exit 1 on warnings too")
-    check.set_defaults(handler=run)
 
 
 def run(args) -> int:

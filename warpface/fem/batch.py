@@ -21,7 +21,7 @@ from .assembly import assemble
 from .integrator import DISPLACEMENT_LIMIT, check_model_options, displacement_limit, split_nodes
 from .material import TissueMaterial
 from .newmark import newmark_coefficients
-from .options import CGOptions
+from .options import CGOptions, as_cg_options
 from .solver_batch import BatchedCGSolver
 from .solver_direct import BatchedDirectSolver, DirectSolver
 from .state import ControlFeed, TissueControl, TissueState
@@ -72,9 +72,7 @@ class TissueBatch:
         dt, beta, gamma, formulation, solver, device = check_model_options(
             tetmesh, materials, dt, beta, gamma, formulation, solver, device=device
         )
-        cg = CGOptions() if cg is None else cg
-        if not isinstance(cg, CGOptions):
-            raise TypeError(f"cg must be a CGOptions, got {type(cg).__name__}")
+        cg = as_cg_options(cg)
         self.fixed_nodes, self.driven_nodes, self.free_nodes = split_nodes(tetmesh, fixed, driven)
         self.tetmesh, self.materials, self.dt, self.formulation = tetmesh, materials, dt, formulation
         self.device = device

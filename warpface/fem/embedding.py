@@ -19,7 +19,7 @@ import numpy as np
 import warp as wp
 
 from .._validate import as_device, expect_instance
-from ..geometry import closest_point_on_triangle
+from ..geometry.funcs import closest_point_on_triangle, padded_corner
 from .tetmesh import MAX_COORDINATE, TET_EDGE_NODES, TetMesh
 
 __all__ = ["Embedding", "embed_points"]
@@ -51,8 +51,8 @@ def _tet_setup(
     inverse[t] = wp.inverse(edges)
     lo = wp.min(wp.min(p0, p1), wp.min(p2, p3))
     hi = wp.max(wp.max(p0, p1), wp.max(p2, p3))
-    lowers[t] = wp.vec3(float(lo[0]) - pad, float(lo[1]) - pad, float(lo[2]) - pad)
-    uppers[t] = wp.vec3(float(hi[0]) + pad, float(hi[1]) + pad, float(hi[2]) + pad)
+    lowers[t] = padded_corner(lo, -pad)
+    uppers[t] = padded_corner(hi, pad)
 
 
 @wp.func
@@ -371,8 +371,6 @@ def embed_points(tetmesh: TetMesh, points, *, max_distance: float | None = None,
             ``max_distance`` from every tet (naming it and its position).
     """
     expect_instance(tetmesh, TetMesh, "tetmesh")
-    if not isinstance(tetmesh, TetMesh):
-        raise ValueError(f"embed_points: expected a TetMesh, got {type(tetmesh).__name__}")
     try:
         points = np.asarray(getattr(points, "points", points), dtype=np.float64)
     except (TypeError, ValueError):
@@ -392,7 +390,7 @@ def embed_points(tetmesh: TetMesh, points, *, max_distance: float | None = None,
     try:
         max_distance = float(max_distance)
     except (TypeError, ValueError):
-        raise ValueError(f"embed_points: max_distance must be a number [m], got {max_distance!r}") from None
+        raise TypeError(f"embed_points: max_distance must be a number [m], got {type(max_distance).__name__}") from None
     if not (np.isfinite(max_distance) and max_distance >= 0.0):
         raise ValueError(f"embed_points: max_distance must be finite and >= 0 [m], got {max_distance}")
 

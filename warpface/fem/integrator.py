@@ -31,7 +31,7 @@ from ..errors import ConvergenceError
 from .assembly import FORMULATIONS, SystemMatrices, assemble
 from .material import TissueMaterial
 from .newmark import newmark_coefficients, validate_newmark
-from .options import CGOptions
+from .options import CGOptions, as_cg_options
 from .solver_cg import CGSolver
 from .solver_direct import DirectSolver, factorize_spd, node_dofs
 from .state import ControlFeed, TissueControl, TissueState
@@ -86,7 +86,7 @@ def check_model_options(tetmesh, materials: list, dt, beta, gamma, formulation, 
 
     Raises:
         TypeError: ``tetmesh`` is not a TetMesh, a material not a TissueMaterial, a number not a number, or
-            ``formulation`` / ``solver`` not a string (the first two and the last: a ValueError too).
+            ``formulation`` / ``solver`` not a string.
         ValueError: a value out of range (naming it), per-tet material values of the wrong size, an unknown
             device, or ``solver="direct"`` on a non-CPU device.
     """
@@ -163,9 +163,7 @@ class TissueSimulation:
         self.dt, self.beta, self.gamma, formulation, solver, device = check_model_options(
             tetmesh, [material], dt, beta, gamma, formulation, solver, device=device
         )
-        cg = CGOptions() if cg is None else cg
-        if not isinstance(cg, CGOptions):
-            raise TypeError(f"cg must be a CGOptions, got {type(cg).__name__}")
+        cg = as_cg_options(cg)
         n = tetmesh.node_count
         fixed_nodes, driven_nodes, free_nodes = split_nodes(tetmesh, fixed, driven)
 

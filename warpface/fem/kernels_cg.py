@@ -27,7 +27,8 @@ value that other blocks of the same launch read. Each phase first checks whether
 (``r·r <= tol² |r_predictor|²``, NaN, or ``maxiter`` reached) and then does nothing; phase 1 also
 clears the ``wp.capture_while`` condition, so a captured graph loops only while needed. ``r`` and
 ``p`` are double-buffered by iteration parity because blocks read their neighbours' old values
-while writing their own new ones.
+while writing their own new ones. The vectors are the rows of one work array ``w`` (:data:`WORK_ROWS` x F,
+rows ``WORK_R`` …, the persistent kernel's layout) and its flat scalar view ``w_flat``.
 
 The kernels are built by :func:`pcg_kernels` per float type (matrices and vectors of that type;
 dot products, ``α`` and ``β`` always float64) and block shape.
@@ -40,13 +41,35 @@ import warp as wp
 
 from .kernels_cg_rows import cg_row_functions
 
-__all__ = ["PQ", "RR", "RZ", "SLOT_SPREAD", "START", "cg_finished", "pcg_kernels", "slot_total"]
+__all__ = [
+    "PQ",
+    "RR",
+    "RZ",
+    "SLOT_SPREAD",
+    "START",
+    "WORK_P",
+    "WORK_Q",
+    "WORK_R",
+    "WORK_ROWS",
+    "WORK_X",
+    "WORK_Y",
+    "WORK_Z",
+    "cg_finished",
+    "pcg_kernels",
+    "slot_total",
+]
 
 SLOT_SPREAD = wp.constant(16)
 """Partial-sum slots per dot product and iteration, chosen by ``block % SLOT_SPREAD``."""
 
 RZ, PQ, RR, START = wp.constant(0), wp.constant(1), wp.constant(2), wp.constant(3)
 """First index of ``slots``: which dot product (``START``: ``[0]`` predictor, ``[1]`` extrapolated start)."""
+
+WORK_ROWS = 8
+"""Rows of a model's work array: the residual (2, alternating), the direction (2), the solution x, y = G r,
+z = Gᵀ y and q = A p, each (F,) vec3 (one array: one base address and stride live in the kernel, not nine)."""
+WORK_R, WORK_P, WORK_X, WORK_Y, WORK_Z, WORK_Q = (wp.constant(row) for row in (0, 2, 4, 5, 6, 7))
+"""First row of each work vector in the work array."""
 
 
 @wp.func
@@ -72,13 +95,14 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
     a block has one thread, so build them with ``lanes = rows = 1`` there.
 
     Vectors are per free node, ``wp.vec3`` of ``dtype``; ``A`` and ``P`` are BSR with 3x3 blocks
-    (``offsets`` shape (F + 1,), ``columns``, ``values``). ``G`` and ``Gᵀ`` are scalar CSR
-    matrices grouped by block row: the entries of scalar rows ``3i .. 3i+2`` are ``offsets[i] ..
-    offsets[i+1]``, and ``keys[e] = 3 * column + row % 3``. No (block) row may be empty; the
-    rows of all four hold at least their diagonal.
+    (``BlockRows``: ``offsets`` shape (F + 1,), block column ``indices``, ``values``). ``G`` and ``Gᵀ`` are
+    scalar CSR matrices grouped by block row (``FactorRows``): the entries of scalar rows ``3i .. 3i+2`` are
+    ``offsets[i] .. offsets[i+1]``, and ``indices[e] = 3 * column + row % 3``. No (block) row may be empty;
+    the rows of all four hold at least their diagonal. Build the matrix arguments with
+    :func:`~warpface.fem.kernels_cg_rows.cg_matrix`.
     """
     parts = cg_row_functions(dtype, lanes)
-    vec, mat = parts.vec, parts.mat
+    vec, BlockRows, FactorRows = parts.vec, parts.BlockRows, parts.FactorRows
     fetch_a, fetch_g = parts.fetch_a, parts.fetch_g
     factor_part, direction_part, residual_part = parts.factor_part, parts.direction_part, parts.residual_part
     spread = SLOT_SPREAD
@@ -103,20 +127,15 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
 
     @wp.kernel(enable_backward=False, module="unique")
     def residual(
-        p_offsets: wp.array(dtype=wp.int32),
-        p_columns: wp.array(dtype=wp.int32),
-        p_values: wp.array(dtype=mat),
-        a_offsets: wp.array(dtype=wp.int32),
-        a_columns: wp.array(dtype=wp.int32),
-        a_values: wp.array(dtype=mat),
+        P: BlockRows,
+        A: BlockRows,
         d: wp.array(dtype=vec),
         v: wp.array(dtype=vec),
         a: wp.array(dtype=vec),
         trajectory: wp.array2d(dtype=vec),
         guess: wp.array(dtype=vec),
         ring: wp.array(dtype=wp.int32),
-        r: wp.array2d(dtype=vec),
-        x: wp.array(dtype=vec),
+        w: wp.array2d(dtype=vec),
         slots: wp.array3d(dtype=wp.float64),
         cg_iter: wp.array(dtype=wp.int32),
         condition: wp.array(dtype=wp.int32),
@@ -131,19 +150,17 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         CG counters and copies ``ring[0]`` to ``ring[1]`` for the update kernel.
         """
         block, thread = wp.tid()
-        row, lane, local, i = place(block, thread, guess.shape[0])
+        row, lane, local, i = place(block, thread, w.shape[1])
         slot = ring[0]
-        acc, correction = residual_part(
-            i, lane, p_offsets, p_columns, p_values, a_offsets, a_columns, a_values, d, v, a, trajectory[slot], guess
-        )
+        acc, correction = residual_part(i, lane, P, A, d, v, a, trajectory[slot], guess)
         start_x = guess[i]
         predicted = row_sum(acc, local, lane)
         extrapolated = predicted - row_sum(correction, local, lane)
-        mine = row < guess.shape[0] and lane == 0
+        mine = row < w.shape[1] and lane == 0
         if mine:
-            r[0, i] = extrapolated
-            r[1, i] = predicted
-            x[i] = start_x
+            w[WORK_R, i] = extrapolated
+            w[WORK_R + 1, i] = predicted
+            w[WORK_X, i] = start_x
         predicted_sq = block_sum(wp.where(mine, wp.float64(wp.dot(predicted, predicted)), wp.float64(0.0)))
         extrapolated_sq = block_sum(wp.where(mine, wp.float64(wp.dot(extrapolated, extrapolated)), wp.float64(0.0)))
         if thread == 0:
@@ -157,12 +174,8 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
 
     @wp.kernel(enable_backward=False, module="unique")
     def direction(
-        offsets: wp.array(dtype=wp.int32),
-        columns: wp.array(dtype=wp.int32),
-        values: wp.array(dtype=mat),
-        z: wp.array(dtype=vec),
-        p: wp.array2d(dtype=vec),
-        q: wp.array(dtype=vec),
+        A: BlockRows,
+        w: wp.array2d(dtype=vec),
         slots: wp.array3d(dtype=wp.float64),
         cg_iter: wp.array(dtype=wp.int32),
         condition: wp.array(dtype=wp.int32),
@@ -171,9 +184,9 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
     ):
         """Phase 1: ``p[k % 2] = z + β p[(k+1) % 2]``, ``q = A p``, slots ``PQ`` += ``p·q``."""
         block, thread = wp.tid()
-        row, lane, local, i = place(block, thread, z.shape[0])
+        row, lane, local, i = place(block, thread, w.shape[1])
         k = cg_iter[0]
-        start, end, cols = fetch_a(offsets, columns, i, lane)
+        start, end, cols = fetch_a(A, i, lane)
         rz = slot_total(slots, RZ, k)
         rz_old = slot_total(slots, RZ, wp.max(k - 1, 0))
         if block == 0 and thread == 0:
@@ -186,14 +199,15 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         if k > 0:
             beta = dtype(rz / rz_old)
         new = k % 2
-        p_old = p[1 - new]  # at k = 0 the previous step's (finite) direction, times β = 0
+        z = w[WORK_Z]
+        p_old = w[WORK_P + 1 - new]  # at k = 0 the previous step's (finite) direction, times β = 0
         pi = z[i] + beta * p_old[i]
-        qi = row_sum(direction_part(start, end, cols, lane, columns, values, z, p_old, beta), local, lane)
-        mine = row < z.shape[0] and lane == 0
+        qi = row_sum(direction_part(start, end, cols, lane, A, z, p_old, beta), local, lane)
+        mine = row < w.shape[1] and lane == 0
         pq = wp.float64(0.0)
         if mine:
-            p[new, i] = pi
-            q[i] = qi
+            w[WORK_P + new, i] = pi
+            w[WORK_Q, i] = qi
             pq = wp.float64(wp.dot(pi, qi))
         pq = block_sum(pq)
         if thread == 0:
@@ -201,16 +215,9 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
 
     @wp.kernel(enable_backward=False, module="unique")
     def lower(
-        offsets: wp.array(dtype=wp.int32),
-        keys: wp.array(dtype=wp.int32),
-        values: wp.array(dtype=dtype),
-        p: wp.array2d(dtype=vec),
-        q: wp.array(dtype=vec),
-        q_flat: wp.array(dtype=dtype),
-        r: wp.array2d(dtype=vec),
-        r_flat: wp.array2d(dtype=dtype),
-        x: wp.array(dtype=vec),
-        y: wp.array(dtype=vec),
+        G: FactorRows,
+        w: wp.array2d(dtype=vec),
+        w_flat: wp.array2d(dtype=dtype),
         slots: wp.array3d(dtype=wp.float64),
         cg_iter: wp.array(dtype=wp.int32),
         tol_sq: wp.float64,
@@ -218,34 +225,29 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
     ):
         """Phase 2: ``x += α p``, ``r[(k+1) % 2] = r[k % 2] − α q`` and ``y = G r_new``."""
         block, thread = wp.tid()
-        row, lane, local, i = place(block, thread, q.shape[0])
+        row, lane, local, i = place(block, thread, w.shape[1])
         k = cg_iter[0]
-        start, end, found = fetch_g(offsets, keys, i, lane)
+        start, end, found = fetch_g(G, i, lane)
         rz = slot_total(slots, RZ, k)
         pq = slot_total(slots, PQ, k)
         if cg_finished(slots, k, tol_sq, maxiter):
             return
         alpha = dtype(rz / pq)
         cur = k % 2
-        r_cur = r_flat[cur]
-        x_new = x[i] + alpha * p[cur, i]
-        r_new = r[cur, i] - alpha * q[i]
-        yi = row_sum(factor_part(start, end, found, lane, keys, values, r_cur, q_flat, alpha), local, lane)
-        if row < q.shape[0] and lane == 0:
-            x[i] = x_new
-            r[1 - cur, i] = r_new
-            y[i] = yi
+        x_new = w[WORK_X, i] + alpha * w[WORK_P + cur, i]
+        r_new = w[WORK_R + cur, i] - alpha * w[WORK_Q, i]
+        yi = row_sum(factor_part(start, end, found, lane, G, w_flat[WORK_R + cur], w_flat[WORK_Q], alpha), local, lane)
+        if row < w.shape[1] and lane == 0:
+            w[WORK_X, i] = x_new
+            w[WORK_R + 1 - cur, i] = r_new
+            w[WORK_Y, i] = yi
 
     @wp.kernel(enable_backward=False, module="unique")
     def lower_start(
-        offsets: wp.array(dtype=wp.int32),
-        keys: wp.array(dtype=wp.int32),
-        values: wp.array(dtype=dtype),
-        r: wp.array2d(dtype=vec),
-        r_flat: wp.array2d(dtype=dtype),
-        x: wp.array(dtype=vec),
+        G: FactorRows,
+        w: wp.array2d(dtype=vec),
+        w_flat: wp.array2d(dtype=dtype),
         slots: wp.array3d(dtype=wp.float64),
-        y: wp.array(dtype=vec),
     ):
         """Start from the better of the two points of ``residual``; ``y = G r[0]``.
 
@@ -253,27 +255,24 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         and ``x`` are reset to the predictor's (``r[1]``, zero correction).
         """
         block, thread = wp.tid()
-        row, lane, local, i = place(block, thread, x.shape[0])
-        start, end, found = fetch_g(offsets, keys, i, lane)
+        row, lane, local, i = place(block, thread, w.shape[1])
+        start, end, found = fetch_g(G, i, lane)
         use = 0
         if not (slot_total(slots, START, 1) <= slot_total(slots, START, 0)):
             use = 1
-        r_use = r_flat[use]
-        yi = row_sum(factor_part(start, end, found, lane, keys, values, r_use, r_use, dtype(0.0)), local, lane)
-        if row < x.shape[0] and lane == 0:
-            y[i] = yi
+        r_use = w_flat[WORK_R + use]
+        yi = row_sum(factor_part(start, end, found, lane, G, r_use, r_use, dtype(0.0)), local, lane)
+        if row < w.shape[1] and lane == 0:
+            w[WORK_Y, i] = yi
             if use == 1:
-                r[0, i] = r[1, i]
-                x[i] = vec()
+                w[WORK_R, i] = w[WORK_R + 1, i]
+                w[WORK_X, i] = vec()
 
     @wp.kernel(enable_backward=False, module="unique")
     def upper(
-        offsets: wp.array(dtype=wp.int32),
-        keys: wp.array(dtype=wp.int32),
-        values: wp.array(dtype=dtype),
-        y_flat: wp.array(dtype=dtype),
-        r: wp.array2d(dtype=vec),
-        z: wp.array(dtype=vec),
+        GT: FactorRows,
+        w: wp.array2d(dtype=vec),
+        w_flat: wp.array2d(dtype=dtype),
         slots: wp.array3d(dtype=wp.float64),
         cg_iter: wp.array(dtype=wp.int32),
         tol_sq: wp.float64,
@@ -284,17 +283,18 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         With ``cg_iter[1] == -1`` (set by ``residual``) it starts CG: ``z = M⁻¹ r[0]``.
         """
         block, thread = wp.tid()
-        row, lane, local, i = place(block, thread, z.shape[0])
+        row, lane, local, i = place(block, thread, w.shape[1])
         k = cg_iter[1]
-        start, end, found = fetch_g(offsets, keys, i, lane)
+        start, end, found = fetch_g(GT, i, lane)
         if cg_finished(slots, wp.max(k, 0), tol_sq, maxiter) and k >= 0:
             return
-        ri = r[(k + 1) % 2, i]
-        zi = row_sum(factor_part(start, end, found, lane, keys, values, y_flat, y_flat, dtype(0.0)), local, lane)
+        ri = w[WORK_R + (k + 1) % 2, i]
+        y_flat = w_flat[WORK_Y]
+        zi = row_sum(factor_part(start, end, found, lane, GT, y_flat, y_flat, dtype(0.0)), local, lane)
         rz = wp.float64(0.0)
         rr = wp.float64(0.0)
-        if row < z.shape[0] and lane == 0:
-            z[i] = zi
+        if row < w.shape[1] and lane == 0:
+            w[WORK_Z, i] = zi
             rz = wp.float64(wp.dot(ri, zi))
             rr = wp.float64(wp.dot(ri, ri))
         rz = block_sum(rz)
@@ -307,7 +307,9 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
 
     return types.SimpleNamespace(
         vec=vec,
-        mat=mat,
+        mat=parts.mat,
+        BlockRows=BlockRows,
+        FactorRows=FactorRows,
         block_dim=rows * lanes,
         rows=rows,
         residual=residual,

@@ -13,34 +13,85 @@ Indices that do not depend on the iteration (``fetch_a``, ``fetch_g``) are loade
 functions, so a kernel can load them ahead of a barrier or of loads that do.
 
 ``A`` and ``P`` are BSR with 3x3 blocks. ``G`` and ``Gᵀ`` are scalar CSR matrices grouped by block
-row: the entries of scalar rows ``3i .. 3i+2`` are ``offsets[i] .. offsets[i+1]`` and ``keys[e] =
+row: the entries of scalar rows ``3i .. 3i+2`` are ``offsets[i] .. offsets[i+1]`` and their keys ``indices[e] =
 3 * column + row % 3``; they read vectors through flat scalar views (``u[3 node + axis]``: one scalar
-load instead of a whole vec3).
+load instead of a whole vec3). Kernels and functions take each matrix as one argument, a ``wp.struct``
+of its three arrays (:func:`cg_matrix_types`): the same arrays, passed by value, so no extra loads.
 """
 
 import functools
 import math
 import types
+import typing
 
 import warp as wp
 
-__all__ = ["cg_row_functions"]
+__all__ = ["cg_matrix", "cg_matrix_types", "cg_row_functions", "model_rows"]
 
 # Straight-line row entries per lane: block rows of A_oo hold ~15 blocks (up to ~30), rows of P three
 # times that, a block row of an FSAI factor up to 3 x 32 scalars.
 _SPAN_A, _SPAN_P, _SPAN_G, _MAX_UNROLL = 32, 64, 96, 8
 
 
-def _row_fetch(index_type, unroll: int, lanes: int):
-    """``fetch(offsets, indices, i, lane)`` → ``(start, end, indices)``: the bounds of row ``i`` and the indices
-    (columns or keys) of this lane's ``unroll`` straight-line entries, clamped to the row (rows are never empty)."""
+def _matrix_struct(values_type):
+    # one matrix: its row offsets, the column (or key) of each entry and the entries' values
+    @wp.struct
+    class MatrixRows:
+        offsets: wp.array(dtype=wp.int32)
+        indices: wp.array(dtype=wp.int32)
+        values: values_type
+
+    return MatrixRows
+
+
+@functools.lru_cache(maxsize=None)
+def cg_matrix_types(dtype) -> types.SimpleNamespace:
+    """The ``wp.struct`` types of the CG matrices with values of ``dtype`` (module docstring), each holding
+    ``offsets`` (block rows + 1,), ``indices`` and ``values``:
+
+    - ``BlockRows``: a BSR matrix of 3x3 blocks, ``A`` or ``P`` (``indices``: the block columns);
+    - ``FactorRows``: a scalar CSR factor grouped by block row, ``G`` or ``Gᵀ`` (``indices``: the keys
+      ``3 * column + row % 3``);
+    - ``BatchBlockRows``, ``BatchFactorRows``: the same with the values of every model of a batch, shape
+      (B, nnz), or (1, nnz) when all share one.
+    """
+    mat = wp.types.matrix(shape=(3, 3), dtype=dtype)
+    return types.SimpleNamespace(
+        BlockRows=_matrix_struct(wp.array(dtype=mat)),
+        FactorRows=_matrix_struct(wp.array(dtype=dtype)),
+        BatchBlockRows=_matrix_struct(wp.array2d(dtype=mat)),
+        BatchFactorRows=_matrix_struct(wp.array2d(dtype=dtype)),
+    )
+
+
+def cg_matrix(struct_type, offsets: wp.array, indices: wp.array, values: wp.array):
+    """An instance of ``struct_type`` (one of :func:`cg_matrix_types`) holding a matrix's three arrays."""
+    matrix = struct_type()
+    matrix.offsets, matrix.indices, matrix.values = offsets, indices, values
+    return matrix
+
+
+@wp.func
+def model_rows(batch: typing.Any, b: int, matrix: typing.Any):
+    """``matrix`` (a ``BlockRows`` or ``FactorRows``) set to model ``b``'s matrix of ``batch`` (a
+    ``BatchBlockRows`` or ``BatchFactorRows``); a matrix given once (leading dimension 1) is every model's."""
+    matrix.offsets = batch.offsets
+    matrix.indices = batch.indices
+    matrix.values = batch.values[wp.min(b, batch.values.shape[0] - 1)]
+    return matrix
+
+
+def _row_fetch(matrix_type, index_type, unroll: int, lanes: int):
+    """``fetch(M, i, lane)`` → ``(start, end, indices)``: the bounds of row ``i`` of ``M`` (a ``matrix_type``) and
+    the indices (columns or keys) of this lane's ``unroll`` straight-line entries, clamped to the row (rows are
+    never empty)."""
 
     @wp.func
-    def fetch(offsets: wp.array(dtype=wp.int32), indices: wp.array(dtype=wp.int32), i: int, lane: int):
-        start, end = offsets[i], offsets[i + 1]
+    def fetch(M: matrix_type, i: int, lane: int):
+        start, end = M.offsets[i], M.offsets[i + 1]
         found = index_type()
         for s in range(wp.static(unroll)):
-            found[s] = indices[wp.min(start + lane + s * lanes, end - 1)]
+            found[s] = M.indices[wp.min(start + lane + s * lanes, end - 1)]
         return start, end, found
 
     return fetch
@@ -50,22 +101,24 @@ def _row_fetch(index_type, unroll: int, lanes: int):
 def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
     """Row functions for vectors of ``wp.vec3`` of ``dtype`` and ``lanes`` threads per row (module docstring).
 
-    Returns a namespace with ``vec``, ``mat`` and the ``wp.func`` s:
+    Returns a namespace with ``vec``, ``mat``, the matrix structs ``BlockRows`` and ``FactorRows`` of
+    :func:`cg_matrix_types` and the ``wp.func`` s:
 
-    - ``fetch_a(offsets, columns, i, lane)`` → ``(start, end, columns)`` of block row ``i`` of a BSR matrix;
-    - ``fetch_g(offsets, keys, i, lane)`` → ``(start, end, keys)`` of block row ``i`` of a grouped factor;
-    - ``residual_part(i, lane, P…, A…, d, v, a, driven, guess)`` → this lane's parts of
+    - ``fetch_a(A, i, lane)`` → ``(start, end, columns)`` of block row ``i`` of a BSR matrix;
+    - ``fetch_g(G, i, lane)`` → ``(start, end, keys)`` of block row ``i`` of a grouped factor;
+    - ``residual_part(i, lane, P, A, d, v, a, driven, guess)`` → this lane's parts of
       ``(P [d; v; a; driven])_i`` and ``(A guess)_i`` (``P``'s columns ``[0, N)`` multiply ``d``,
       ``[N, 2N)`` ``v``, ``[2N, 3N)`` ``a``, the rest ``driven``);
-    - ``direction_part(start, end, columns, lane, a_columns, values, z, p_old, beta)`` → part of
-      ``(A (z + β p_old))_i``;
-    - ``factor_part(start, end, keys, lane, g_keys, values, u, w, alpha)`` → part of ``(G (u − α w))_i``
+    - ``direction_part(start, end, columns, lane, A, z, p_old, beta)`` → part of ``(A (z + β p_old))_i``;
+    - ``factor_part(start, end, keys, lane, G, u, w, alpha)`` → part of ``(G (u − α w))_i``
       (``u``, ``w`` flat scalar views; ``G y`` is ``u = w = y``, ``α = 0``).
     """
     if lanes < 1:
         raise ValueError(f"lanes must be positive, got {lanes}")
     vec = wp.types.vector(length=3, dtype=dtype)
     mat = wp.types.matrix(shape=(3, 3), dtype=dtype)
+    matrices = cg_matrix_types(dtype)
+    BlockRows, FactorRows = matrices.BlockRows, matrices.FactorRows
     unroll_a, unroll_p, unroll_g = (min(math.ceil(span / lanes), _MAX_UNROLL) for span in (_SPAN_A, _SPAN_P, _SPAN_G))
     index_a = wp.types.vector(length=unroll_a, dtype=wp.int32)
     index_g = wp.types.vector(length=unroll_g, dtype=wp.int32)
@@ -76,7 +129,8 @@ def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
         zero = dtype(0.0)
         return vec(wp.where(axis == 0, value, zero), wp.where(axis == 1, value, zero), wp.where(axis == 2, value, zero))
 
-    fetch_a, fetch_g = _row_fetch(index_a, unroll_a, lanes), _row_fetch(index_g, unroll_g, lanes)
+    fetch_a = _row_fetch(BlockRows, index_a, unroll_a, lanes)
+    fetch_g = _row_fetch(FactorRows, index_g, unroll_g, lanes)
 
     @wp.func
     def factor_part(
@@ -84,8 +138,7 @@ def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
         end: int,
         found: index_g,
         lane: int,
-        keys: wp.array(dtype=wp.int32),
-        values: wp.array(dtype=dtype),
+        G: FactorRows,
         u: wp.array(dtype=dtype),
         w: wp.array(dtype=dtype),
         alpha: dtype,
@@ -94,12 +147,12 @@ def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
         for s in range(wp.static(unroll_g)):
             e = start + lane + s * lanes
             col = found[s] // 3
-            g = values[wp.min(e, end - 1)]
+            g = G.values[wp.min(e, end - 1)]
             acc += wp.where(e < end, unit(found[s] - 3 * col, g * (u[col] - alpha * w[col])), vec())
         for e in range(start + lane + unroll_g * lanes, end, lanes):
-            key = keys[e]
+            key = G.indices[e]
             col = key // 3
-            acc += unit(key - 3 * col, values[e] * (u[col] - alpha * w[col]))
+            acc += unit(key - 3 * col, G.values[e] * (u[col] - alpha * w[col]))
         return acc
 
     @wp.func
@@ -108,8 +161,7 @@ def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
         end: int,
         found: index_a,
         lane: int,
-        columns: wp.array(dtype=wp.int32),
-        values: wp.array(dtype=mat),
+        A: BlockRows,
         z: wp.array(dtype=vec),
         p_old: wp.array(dtype=vec),
         beta: dtype,
@@ -118,23 +170,22 @@ def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
         for s in range(wp.static(unroll_a)):
             e = start + lane + s * lanes
             j = found[s]
-            acc += wp.where(e < end, values[wp.min(e, end - 1)] * (z[j] + beta * p_old[j]), vec())
+            acc += wp.where(e < end, A.values[wp.min(e, end - 1)] * (z[j] + beta * p_old[j]), vec())
         for e in range(start + lane + unroll_a * lanes, end, lanes):
-            j = columns[e]
-            acc += values[e] * (z[j] + beta * p_old[j])
+            j = A.indices[e]
+            acc += A.values[e] * (z[j] + beta * p_old[j])
         return acc
 
     @wp.func
     def state_entry(
         e: int,
-        columns: wp.array(dtype=wp.int32),
-        values: wp.array(dtype=mat),
+        P: BlockRows,
         d: wp.array(dtype=vec),
         v: wp.array(dtype=vec),
         a: wp.array(dtype=vec),
         driven: wp.array(dtype=vec),
     ):
-        c = columns[e]
+        c = P.indices[e]
         n = d.shape[0]
         u = vec()
         if c < n:
@@ -145,43 +196,41 @@ def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
             u = a[c - 2 * n]
         else:
             u = driven[c - 3 * n]
-        return values[e] * u
+        return P.values[e] * u
 
     @wp.func
     def residual_part(
         i: int,
         lane: int,
-        p_offsets: wp.array(dtype=wp.int32),
-        p_columns: wp.array(dtype=wp.int32),
-        p_values: wp.array(dtype=mat),
-        a_offsets: wp.array(dtype=wp.int32),
-        a_columns: wp.array(dtype=wp.int32),
-        a_values: wp.array(dtype=mat),
+        P: BlockRows,
+        A: BlockRows,
         d: wp.array(dtype=vec),
         v: wp.array(dtype=vec),
         a: wp.array(dtype=vec),
         driven: wp.array(dtype=vec),
         guess: wp.array(dtype=vec),
     ):
-        p_start, p_end = p_offsets[i], p_offsets[i + 1]
-        a_start, a_end = a_offsets[i], a_offsets[i + 1]
+        p_start, p_end = P.offsets[i], P.offsets[i + 1]
+        a_start, a_end = A.offsets[i], A.offsets[i + 1]
         acc = vec()
         for s in range(wp.static(unroll_p)):
             e = p_start + lane + s * lanes
-            acc += wp.where(e < p_end, state_entry(wp.min(e, p_end - 1), p_columns, p_values, d, v, a, driven), vec())
+            acc += wp.where(e < p_end, state_entry(wp.min(e, p_end - 1), P, d, v, a, driven), vec())
         for e in range(p_start + lane + unroll_p * lanes, p_end, lanes):
-            acc += state_entry(e, p_columns, p_values, d, v, a, driven)
+            acc += state_entry(e, P, d, v, a, driven)
         correction = vec()
         for s in range(wp.static(unroll_a)):
             e = wp.min(a_start + lane + s * lanes, a_end - 1)
-            correction += wp.where(a_start + lane + s * lanes < a_end, a_values[e] * guess[a_columns[e]], vec())
+            correction += wp.where(a_start + lane + s * lanes < a_end, A.values[e] * guess[A.indices[e]], vec())
         for e in range(a_start + lane + unroll_a * lanes, a_end, lanes):
-            correction += a_values[e] * guess[a_columns[e]]
+            correction += A.values[e] * guess[A.indices[e]]
         return acc, correction
 
     return types.SimpleNamespace(
         vec=vec,
         mat=mat,
+        BlockRows=BlockRows,
+        FactorRows=FactorRows,
         fetch_a=fetch_a,
         fetch_g=fetch_g,
         factor_part=factor_part,

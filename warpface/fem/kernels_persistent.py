@@ -31,31 +31,32 @@ import types
 
 import warp as wp
 
-from .kernels_cg import PQ, RR, RZ, SLOT_SPREAD, START, cg_finished, slot_total
-from .kernels_cg_rows import cg_row_functions
+from .kernels_cg import (
+    PQ,
+    RR,
+    RZ,
+    SLOT_SPREAD,
+    START,
+    WORK_P,
+    WORK_Q,
+    WORK_R,
+    WORK_X,
+    WORK_Y,
+    WORK_Z,
+    cg_finished,
+    slot_total,
+)
+from .kernels_cg_rows import cg_matrix_types, cg_row_functions, model_rows
 
 __all__ = [
     "BARRIER_POLLS",
     "RESIDENT_THREADS",
-    "WORK_P",
-    "WORK_Q",
-    "WORK_R",
-    "WORK_ROWS",
-    "WORK_X",
-    "WORK_Y",
-    "WORK_Z",
     "grid_capacity",
     "grid_sync",
     "grid_sync_acquire",
     "persistent_pcg_kernel",
     "resident_blocks_per_multiprocessor",
 ]
-
-WORK_ROWS = 8
-"""Rows of a model's work array: the residual (2, alternating), the direction (2), the solution x, y = G r,
-z = Gᵀ y and q = A p, each (F,) vec3 (one array: one base address and stride live in the kernel, not nine)."""
-WORK_R, WORK_P, WORK_X, WORK_Y, WORK_Z, WORK_Q = (wp.constant(row) for row in (0, 2, 4, 5, 6, 7))
-"""First row of each work vector in the work array."""
 
 RESIDENT_THREADS = 512
 """Threads per multiprocessor the persistent kernel is compiled to fit (``__launch_bounds__``)."""
@@ -217,11 +218,12 @@ def persistent_pcg_kernel(
     ``blocks`` at most the row groups ``ceil(F / rows)``; on the CPU build it with ``lanes = rows = 1``
     and launch one block per model. Per-model arrays have the model as their first index: the state
     ``d, v, a`` (B, N), ``trajectory`` (chunk, B, D), ``guess`` (B, F), the work vectors in ``work``
-    (B, :data:`WORK_ROWS`, F) and its flat scalar view ``work_flat`` (B, WORK_ROWS, 3F), ``slots``
-    (B, 4, maxiter + 1, SLOT_SPREAD) cleared, ``cg_iter`` (B, 2) and
+    (B, :data:`~warpface.fem.kernels_cg.WORK_ROWS`, F) and its flat scalar view ``work_flat``
+    (B, WORK_ROWS, 3F), ``slots`` (B, 4, maxiter + 1, SLOT_SPREAD) cleared, ``cg_iter`` (B, 2) and
     ``barrier`` (B, 3: arrivals, gave up, departures), which must start at zero (the last block of a model
-    to leave clears its arrivals and departures again). Matrix and factor values are (B, nnz), or (1, nnz)
-    when one is shared by all models. A single model is a batch of one.
+    to leave clears its arrivals and departures again). The matrices ``P``, ``A`` and the factors ``G``, ``Gᵀ`` are
+    ``BatchBlockRows`` / ``BatchFactorRows`` (:func:`~warpface.fem.kernels_cg_rows.cg_matrix_types`) whose values
+    are (B, nnz), or (1, nnz) when one is shared by all models. A single model is a batch of one.
 
     Per model it does the work of ``residual``, ``lower_start``, ``upper`` and the iteration loop of
     :func:`~warpface.fem.kernels_cg.pcg_kernels` (same arithmetic, same results) and leaves
@@ -234,7 +236,9 @@ def persistent_pcg_kernel(
     if 32 % lanes:
         raise ValueError(f"lanes must divide 32, got {lanes}")
     parts = cg_row_functions(dtype, lanes)
-    vec, mat = parts.vec, parts.mat
+    vec, BlockRows, FactorRows = parts.vec, parts.BlockRows, parts.FactorRows
+    matrices = cg_matrix_types(dtype)
+    BatchBlockRows, BatchFactorRows = matrices.BatchBlockRows, matrices.BatchFactorRows
     fetch_a, fetch_g = parts.fetch_a, parts.fetch_g
     factor_part, direction_part, residual_part = parts.factor_part, parts.direction_part, parts.residual_part
     spread = SLOT_SPREAD
@@ -254,18 +258,10 @@ def persistent_pcg_kernel(
         launch_bounds=(rows * lanes, max(1, resident_threads // (rows * lanes))),
     )
     def cg_step(
-        p_offsets: wp.array(dtype=wp.int32),
-        p_columns: wp.array(dtype=wp.int32),
-        p_values_all: wp.array2d(dtype=mat),
-        a_offsets: wp.array(dtype=wp.int32),
-        a_columns: wp.array(dtype=wp.int32),
-        a_values_all: wp.array2d(dtype=mat),
-        g_offsets: wp.array(dtype=wp.int32),
-        g_keys: wp.array(dtype=wp.int32),
-        g_values_all: wp.array2d(dtype=dtype),
-        t_offsets: wp.array(dtype=wp.int32),
-        t_keys: wp.array(dtype=wp.int32),
-        t_values_all: wp.array2d(dtype=dtype),
+        P_all: BatchBlockRows,
+        A_all: BatchBlockRows,
+        G_all: BatchFactorRows,
+        GT_all: BatchFactorRows,
         d_all: wp.array2d(dtype=vec),
         v_all: wp.array2d(dtype=vec),
         a_all: wp.array2d(dtype=vec),
@@ -292,11 +288,9 @@ def persistent_pcg_kernel(
             model = launched_block // blocks
             block = launched_block - model * blocks
             b = first_model + model
-        # this model's views; a matrix or factor given once (leading dimension 1) is shared by every model
-        p_values = p_values_all[wp.min(b, p_values_all.shape[0] - 1)]
-        a_values = a_values_all[wp.min(b, a_values_all.shape[0] - 1)]
-        g_values = g_values_all[wp.min(b, g_values_all.shape[0] - 1)]
-        t_values = t_values_all[wp.min(b, t_values_all.shape[0] - 1)]
+        # this model's views
+        P, A = model_rows(P_all, b, BlockRows()), model_rows(A_all, b, BlockRows())
+        G, GT = model_rows(G_all, b, FactorRows()), model_rows(GT_all, b, FactorRows())
         d, v, a, guess = d_all[b], v_all[b], a_all[b], guess_all[b]
         w, wf = work_all[b], work_flat_all[b]  # rows WORK_R (2), WORK_P (2), WORK_X, WORK_Y, WORK_Z, WORK_Q
         slots, cg_iter, barrier = slots_all[b], cg_iter_all[b], barrier_all[b]
@@ -316,9 +310,7 @@ def persistent_pcg_kernel(
         for g in range(block, groups, blocks):
             row = g * rows + local
             i = wp.min(row, count - 1)
-            acc, correction = residual_part(
-                i, lane, p_offsets, p_columns, p_values, a_offsets, a_columns, a_values, d, v, a, driven, guess
-            )
+            acc, correction = residual_part(i, lane, P, A, d, v, a, driven, guess)
             predicted = row_total(acc)
             extrapolated = predicted - row_total(correction)
             if row < count and lane == 0:
@@ -334,7 +326,7 @@ def persistent_pcg_kernel(
             wp.atomic_add(slots, START, 1, block % spread, extrapolated_sq)
             if launched_block == 0:
                 ring[1] = slot
-        g_start, g_end, g_found = fetch_g(g_offsets, g_keys, first, lane)
+        g_start, g_end, g_found = fetch_g(G, first, lane)
         arrivals += 1
         barrier_sync(barrier, arrivals * blocks)
 
@@ -347,15 +339,15 @@ def persistent_pcg_kernel(
         while g < groups:
             row = g * rows + local
             i = wp.min(row, count - 1)
-            yi = row_total(factor_part(g_start, g_end, g_found, lane, g_keys, g_values, r_use, r_use, dtype(0.0)))
+            yi = row_total(factor_part(g_start, g_end, g_found, lane, G, r_use, r_use, dtype(0.0)))
             if row < count and lane == 0:
                 w[WORK_Y, i] = yi
                 if use == 1:
                     w[WORK_R, i] = w[WORK_R + 1, i]
                     w[WORK_X, i] = vec()
             g += blocks
-            g_start, g_end, g_found = fetch_g(g_offsets, g_keys, wp.min(g * rows + local, count - 1), lane)
-        t_start, t_end, t_found = fetch_g(t_offsets, t_keys, first, lane)
+            g_start, g_end, g_found = fetch_g(G, wp.min(g * rows + local, count - 1), lane)
+        t_start, t_end, t_found = fetch_g(GT, first, lane)
         arrivals += 1
         barrier_sync(barrier, arrivals * blocks)
 
@@ -370,20 +362,20 @@ def persistent_pcg_kernel(
             while g < groups:
                 row = g * rows + local
                 i = wp.min(row, count - 1)
-                zi = row_total(factor_part(t_start, t_end, t_found, lane, t_keys, t_values, y_flat, y_flat, dtype(0.0)))
+                zi = row_total(factor_part(t_start, t_end, t_found, lane, GT, y_flat, y_flat, dtype(0.0)))
                 if row < count and lane == 0:
                     ri = w[WORK_R + k % 2, i]
                     w[WORK_Z, i] = zi
                     rz += wp.float64(wp.dot(ri, zi))
                     rr += wp.float64(wp.dot(ri, ri))
                 g += blocks
-                t_start, t_end, t_found = fetch_g(t_offsets, t_keys, wp.min(g * rows + local, count - 1), lane)
+                t_start, t_end, t_found = fetch_g(GT, wp.min(g * rows + local, count - 1), lane)
             rz = block_sum64(rz)
             rr = block_sum64(rr)
             if thread == 0:
                 wp.atomic_add(slots, RZ, k, block % spread, rz)
                 wp.atomic_add(slots, RR, k, block % spread, rr)
-            a_start, a_end, a_found = fetch_a(a_offsets, a_columns, first, lane)
+            a_start, a_end, a_found = fetch_a(A, first, lane)
             arrivals += 1
             barrier_sync(barrier, arrivals * blocks)
             if cg_finished(slots, k, tol_sq, maxiter) or barrier[1] != 0:
@@ -401,18 +393,18 @@ def persistent_pcg_kernel(
                 while g < groups:
                     row = g * rows + local
                     i = wp.min(row, count - 1)
-                    qi = row_total(direction_part(a_start, a_end, a_found, lane, a_columns, a_values, z, p_old, beta))
+                    qi = row_total(direction_part(a_start, a_end, a_found, lane, A, z, p_old, beta))
                     if row < count and lane == 0:
                         pi = z[i] + beta * p_old[i]
                         w[WORK_P + new, i] = pi
                         w[WORK_Q, i] = qi
                         pq += wp.float64(wp.dot(pi, qi))
                     g += blocks
-                    a_start, a_end, a_found = fetch_a(a_offsets, a_columns, wp.min(g * rows + local, count - 1), lane)
+                    a_start, a_end, a_found = fetch_a(A, wp.min(g * rows + local, count - 1), lane)
                 pq = block_sum64(pq)
                 if thread == 0:
                     wp.atomic_add(slots, PQ, k, block % spread, pq)
-                g_start, g_end, g_found = fetch_g(g_offsets, g_keys, first, lane)
+                g_start, g_end, g_found = fetch_g(G, first, lane)
                 arrivals += 1
                 barrier_sync(barrier, arrivals * blocks)
 
@@ -424,14 +416,14 @@ def persistent_pcg_kernel(
                 while g < groups:
                     row = g * rows + local
                     i = wp.min(row, count - 1)
-                    yi = row_total(factor_part(g_start, g_end, g_found, lane, g_keys, g_values, r_cur, q_flat, alpha))
+                    yi = row_total(factor_part(g_start, g_end, g_found, lane, G, r_cur, q_flat, alpha))
                     if row < count and lane == 0:
                         w[WORK_X, i] = w[WORK_X, i] + alpha * w[WORK_P + new, i]
                         w[WORK_R + 1 - new, i] = w[WORK_R + new, i] - alpha * w[WORK_Q, i]
                         w[WORK_Y, i] = yi
                     g += blocks
-                    g_start, g_end, g_found = fetch_g(g_offsets, g_keys, wp.min(g * rows + local, count - 1), lane)
-                t_start, t_end, t_found = fetch_g(t_offsets, t_keys, first, lane)
+                    g_start, g_end, g_found = fetch_g(G, wp.min(g * rows + local, count - 1), lane)
+                t_start, t_end, t_found = fetch_g(GT, first, lane)
                 arrivals += 1
                 barrier_sync(barrier, arrivals * blocks)
                 k += 1

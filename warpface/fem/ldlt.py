@@ -27,6 +27,7 @@ import scipy.sparse.linalg as spla
 import warp as wp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
+from .._validate import as_count
 from ..errors import UnsuitableFactor
 from .kernels_ldlt import block_residual, ldlt_refine
 
@@ -160,7 +161,7 @@ class BlockLDLT:
         orderings: Node orderings to choose from (:func:`node_ordering`; default :data:`DEFAULT_ORDERINGS`).
 
     Raises:
-        TypeError: ``matrix`` is not a matrix.
+        TypeError: ``matrix`` is not a matrix, ``rtol`` not a number or ``max_rounds`` not an integer.
         ValueError: the matrix is empty, not square with a multiple of 3 rows, has non-finite entries or is
             not positive definite; ``rtol`` or ``max_rounds`` is out of range.
         UnsuitableFactor: the float32 factor's measured contraction is weaker than
@@ -177,10 +178,11 @@ class BlockLDLT:
             raise TypeError(f"BlockLDLT needs a sparse or dense matrix, got {type(matrix).__name__}") from None
         if matrix.shape[0] != matrix.shape[1] or matrix.shape[0] % 3 or matrix.shape[0] == 0:
             raise ValueError(f"BlockLDLT needs a square matrix of 3x3 node blocks, got shape {matrix.shape}")
-        if not (isinstance(rtol, (int, float)) and 0.0 < rtol < 1.0):
-            raise ValueError(f"BlockLDLT: rtol must be a number in (0, 1), got {rtol!r}")
-        if isinstance(max_rounds, bool) or not isinstance(max_rounds, (int, np.integer)) or max_rounds < 1:
-            raise ValueError(f"BlockLDLT: max_rounds must be a whole number >= 1, got {max_rounds!r}")
+        if isinstance(rtol, bool) or not isinstance(rtol, (int, float)):
+            raise TypeError(f"BlockLDLT: rtol must be a number, got {type(rtol).__name__}")
+        if not 0.0 < rtol < 1.0:
+            raise ValueError(f"BlockLDLT: rtol must be in (0, 1), got {rtol!r}")
+        max_rounds = as_count(max_rounds, "BlockLDLT: max_rounds", minimum=1)
         self.rtol = float(rtol)
         self.max_rounds = int(max_rounds)
         if not np.all(np.isfinite(matrix.data)):

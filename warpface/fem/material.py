@@ -100,6 +100,7 @@ class TissueMaterial:
             thesis's printed, non-isotropic matrix, for reproduction only).
 
     Raises:
+        TypeError: ``damping`` is not a string.
         ValueError: a value is out of range or not finite (naming the tet for arrays), per-tet
             arrays disagree in length, or ``damping`` is unknown.
     """
@@ -113,7 +114,11 @@ class TissueMaterial:
         """Shear viscosity [Pa s], scalar or shape (M,), float64."""
         self.rho = _as_field("rho", rho)
         """Density [kg/m^3], scalar or shape (M,), float64."""
-        if not isinstance(damping, str) or damping not in DAMPING_MODELS:
+        if not isinstance(damping, str):
+            raise TypeError(
+                f"TissueMaterial damping must be a str, one of {DAMPING_MODELS}, got {type(damping).__name__}"
+            )
+        if damping not in DAMPING_MODELS:
             raise ValueError(f"TissueMaterial damping must be one of {DAMPING_MODELS}, got {damping!r}")
         self.damping = damping
         """Viscous law: "stokes" or "thesis"."""

@@ -12,7 +12,7 @@ import dataclasses
 import numpy as np
 import warp as wp
 
-__all__ = ["BATCH_PRECONDITIONERS", "CG_LOOPS", "CGOptions", "PRECONDITIONERS"]
+__all__ = ["BATCH_PRECONDITIONERS", "CG_LOOPS", "CGOptions", "PRECONDITIONERS", "as_cg_options"]
 
 PRECONDITIONERS = ("fsai", "block_jacobi", "diag")
 """Preconditioners of the single-model solver: FSAI (factorised sparse approximate inverse), the inverse
@@ -90,6 +90,15 @@ class CGOptions:
             raise ValueError(f"CGOptions.loop of {solver} must be one of {loops}, got {self.loop!r}")
         if dtypes and self.dtype not in dtypes:
             raise ValueError(f"CGOptions.dtype of {solver} must be {' or '.join(map(str, dtypes))}, got {self.dtype}")
+
+
+def as_cg_options(cg) -> CGOptions:
+    """``cg`` itself, the defaults for ``None``; TypeError for anything but a CGOptions."""
+    if cg is None:
+        return CGOptions()
+    if not isinstance(cg, CGOptions):
+        raise TypeError(f"cg must be a CGOptions, got {type(cg).__name__}")
+    return cg
 
 
 def _number(name: str, value, low: float, high: float, *, integer: bool = False) -> float:

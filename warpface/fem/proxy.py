@@ -125,66 +125,38 @@ class _RayMesh:
 
     def __init__(self, points: np.ndarray, triangles: np.ndarray, device):
         self.device = as_device(device)
-        self.points = wp.array(np.asarray(points, dtype=np.float32), dtype=wp.vec3, device=self.device)
+        self.points = self._vectors(points)
         tris = np.ascontiguousarray(triangles, dtype=np.int32)
         self.triangles = wp.array(tris, dtype=wp.vec3i, device=self.device)
         self.mesh = wp.Mesh(points=self.points, indices=wp.array(tris.ravel(), dtype=wp.int32, device=self.device))
         self.extent = float(np.ptp(points, axis=0).max()) or 1.0
         self.eps = 1e-6 * self.extent  # ray start off the surface: above float32 round-off at this size
+        self.reach = 4.0 * self.extent  # farther than any point of the surface from any other
+
+    def _query(self, kernel, count: int, inputs: list, outputs: list) -> None:
+        """Launch ``kernel`` over ``count`` items; its inputs are the mesh, ``inputs`` and the query reach."""
+        wp.launch(kernel, dim=count, inputs=[self.mesh.id, *inputs, self.reach], outputs=outputs, device=self.device)
+
+    def _vectors(self, values: np.ndarray) -> wp.array:
+        return wp.array(np.asarray(values, dtype=np.float32), dtype=wp.vec3, device=self.device)
 
     def view_tests(self, center: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         n = self.triangles.shape[0]
         facing = wp.empty(n, dtype=float, device=self.device)
         hidden = wp.empty(n, dtype=wp.int32, device=self.device)
         clearance = wp.empty(n, dtype=float, device=self.device)
-        wp.launch(
-            _view_tests,
-            dim=n,
-            inputs=[
-                self.mesh.id,
-                self.points,
-                self.triangles,
-                wp.vec3(*np.asarray(center, dtype=np.float32)),
-                self.eps,
-                4.0 * self.extent,
-            ],
-            outputs=[facing, hidden, clearance],
-            device=self.device,
-        )
+        center = wp.vec3(*np.asarray(center, dtype=np.float32))
+        self._query(_view_tests, n, [self.points, self.triangles, center, self.eps], [facing, hidden, clearance])
         return facing.numpy().astype(np.float64), hidden.numpy().astype(bool), clearance.numpy().astype(np.float64)
 
     def inward_gap(self, normals: np.ndarray) -> np.ndarray:
-        n = self.points.shape[0]
-        gap = wp.empty(n, dtype=float, device=self.device)
-        wp.launch(
-            _inward_gap,
-            dim=n,
-            inputs=[
-                self.mesh.id,
-                self.points,
-                wp.array(np.asarray(normals, dtype=np.float32), dtype=wp.vec3, device=self.device),
-                self.eps,
-                4.0 * self.extent,
-            ],
-            outputs=[gap],
-            device=self.device,
-        )
+        gap = wp.empty(self.points.shape[0], dtype=float, device=self.device)
+        self._query(_inward_gap, self.points.shape[0], [self.points, self._vectors(normals), self.eps], [gap])
         return gap.numpy().astype(np.float64)
 
     def distance(self, queries: np.ndarray) -> np.ndarray:
-        n = len(queries)
-        distance = wp.empty(n, dtype=float, device=self.device)
-        wp.launch(
-            _distance_to_surface,
-            dim=n,
-            inputs=[
-                self.mesh.id,
-                wp.array(np.asarray(queries, dtype=np.float32), dtype=wp.vec3, device=self.device),
-                4.0 * self.extent,
-            ],
-            outputs=[distance],
-            device=self.device,
-        )
+        distance = wp.empty(len(queries), dtype=float, device=self.device)
+        self._query(_distance_to_surface, len(queries), [self._vectors(queries)], [distance])
         return distance.numpy().astype(np.float64)
 
 

@@ -25,9 +25,10 @@ import warp as wp
 
 from .assembly import SystemMatrices, bsr_to_scipy
 from .cg_setup import grouped_factor_rows, newmark_operators, per_model_fsai, preconditioner_factor, stack_values
-from .kernels_cg import SLOT_SPREAD
+from .kernels_cg import SLOT_SPREAD, WORK_ROWS, WORK_X
+from .kernels_cg_rows import cg_matrix, cg_matrix_types
 from .kernels_integrator import cg_newmark_update
-from .kernels_persistent import WORK_ROWS, WORK_X, grid_capacity, persistent_pcg_kernel
+from .kernels_persistent import grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
 from .options import BATCH_PRECONDITIONERS, CGOptions
 from .solver_cg import PERSISTENT_LANES, PERSISTENT_ROWS
@@ -97,8 +98,9 @@ class BatchedCGSolver(DeviceSolver):
         driven_slot = np.full(n, -1, dtype=np.int32)
         driven_slot[self.driven_nodes] = np.arange(n_driven, dtype=np.int32)
         operators = [newmark_operators(m, coefficients, free_index, driven_slot) for m in matrices]
-        self._A = stack_values([A for A, _ in operators], "system")
-        self._P = stack_values([P for _, P in operators], "right-hand-side")
+        structs = cg_matrix_types(wp.float64)
+        self._A = cg_matrix(structs.BatchBlockRows, *stack_values([A for A, _ in operators], "system"))
+        self._P = cg_matrix(structs.BatchBlockRows, *stack_values([P for _, P in operators], "right-hand-side"))
         block_jacobi = []
         for b, (A, _) in enumerate(operators):
             try:
@@ -123,10 +125,10 @@ class BatchedCGSolver(DeviceSolver):
             else:
                 factors = per_model_fsai([A for A, _ in operators], median)
         self._factor = (
-            grouped_factor_rows(factors, wp.float64, device=dev),
-            grouped_factor_rows([G.T for G in factors], wp.float64, device=dev),
+            cg_matrix(structs.BatchFactorRows, *grouped_factor_rows(factors, wp.float64, device=dev)),
+            cg_matrix(structs.BatchFactorRows, *grouped_factor_rows([G.T for G in factors], wp.float64, device=dev)),
         )
-        """``(G, Gᵀ)`` as ``(offsets, keys, values)``, values (1, nnz) for a shared factor or (B, nnz)."""
+        """``(G, Gᵀ)``, values (1, nnz) for a shared factor or (B, nnz)."""
         del operators, block_jacobi
 
         def vectors(*shape):
@@ -191,7 +193,6 @@ class BatchedCGSolver(DeviceSolver):
     def _launch_sequence(self, b) -> None:
         dev, kernel, tol_sq = self.device, self._kernel, wp.float64(self.options.tolerance**2)
         maxiter = self.options.maxiter
-        (g_offsets, g_keys, g_values), (t_offsets, t_keys, t_values) = self._factor
         self._slots.zero_()
         for first, models in self.waves:
             wp.launch_tiled(
@@ -200,7 +201,7 @@ class BatchedCGSolver(DeviceSolver):
                 block_dim=kernel.block_dim,
                 device=dev,
                 inputs=[
-                    *(*self._P, *self._A, g_offsets, g_keys, g_values, t_offsets, t_keys, t_values),
+                    *(self._P, self._A, *self._factor),
                     *(b.d_in, b.v_in, b.a_in, b.trajectory, self._guess, b.ring, self._work, self._work_flat),
                     *(self._slots, self._cg_iter, self._barrier, tol_sq, maxiter, self.blocks_per_model, first),
                 ],

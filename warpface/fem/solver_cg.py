@@ -42,19 +42,10 @@ import warp.sparse as wps
 
 from .assembly import SystemMatrices
 from .cg_setup import grouped_factor_rows, newmark_operators, preconditioner_factor
-from .kernels_cg import SLOT_SPREAD, pcg_kernels
+from .kernels_cg import SLOT_SPREAD, WORK_ROWS, WORK_X, pcg_kernels
+from .kernels_cg_rows import cg_matrix, cg_matrix_types
 from .kernels_integrator import cg_newmark_update
-from .kernels_persistent import (
-    WORK_P,
-    WORK_Q,
-    WORK_R,
-    WORK_ROWS,
-    WORK_X,
-    WORK_Y,
-    WORK_Z,
-    grid_capacity,
-    persistent_pcg_kernel,
-)
+from .kernels_persistent import grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
 from .options import PRECONDITIONERS, CGOptions
 from .solver_device import DeviceSolver
@@ -157,11 +148,13 @@ class CGSolver(DeviceSolver):
             P = wps.bsr_copy(P, scalar_type=dtype)
         A_oo.nnz_sync()
         P.nnz_sync()
-        self._A_oo, self._P = A_oo, P
         lower, upper = grouped_factor_rows([G], dtype, device=dev), grouped_factor_rows([G.T], dtype, device=dev)
-        self._G = (lower[0], lower[1], lower[2][0])  # the launched loop's kernels take one factor's values
-        self._GT = (upper[0], upper[1], upper[2][0])
-        self._G_values, self._GT_values = lower[2], upper[2]  # (1, nnz): the persistent kernel's batch of one
+        structs = cg_matrix_types(dtype)
+        # the launched loop's kernels take one model's matrices (the factors' values of model 0)
+        self._P = cg_matrix(structs.BlockRows, P.offsets, P.columns, P.values)
+        self._A = cg_matrix(structs.BlockRows, A_oo.offsets, A_oo.columns, A_oo.values)
+        self._G = cg_matrix(structs.FactorRows, lower[0], lower[1], lower[2][0])
+        self._GT = cg_matrix(structs.FactorRows, upper[0], upper[1], upper[2][0])
 
         # Work arrays (allocated once; captured graphs bind these pointers).
         scalar = wp.float64 if dtype == wp.float64 else wp.float32
@@ -176,11 +169,7 @@ class CGSolver(DeviceSolver):
         # (index 3 node + axis) for the scalar preconditioner factors
         self._work = wp.zeros((1, WORK_ROWS, n_free), dtype=vec, device=dev)
         self._work_flat = self._work.view(dtype).reshape((1, WORK_ROWS, 3 * n_free))
-        work, work_flat = self._work[0], self._work_flat[0]
-        self._r, self._p = work[WORK_R : WORK_R + 2], work[WORK_P : WORK_P + 2]
-        self._x, self._y, self._z, self._q = (work[row] for row in (WORK_X, WORK_Y, WORK_Z, WORK_Q))
-        self._r_flat = work_flat[WORK_R : WORK_R + 2]
-        self._q_flat, self._y_flat = work_flat[WORK_Q], work_flat[WORK_Y]
+        self._work_one, self._work_flat_one = self._work[0], self._work_flat[0]  # the launched kernels' model
         self._history = wp.zeros((2, 1, n_free), dtype=vec, device=dev)
         self._guess = wp.zeros(n_free, dtype=vec, device=dev)
         self._slots = wp.zeros((1, 4, options.maxiter + 1, SLOT_SPREAD), dtype=wp.float64, device=dev)
@@ -198,7 +187,12 @@ class CGSolver(DeviceSolver):
         # views made once: the launched kernels' single-model arrays, the persistent kernel's batch of one
         self._slots_one, self._cg_iter_one = self._slots[0], self._cg_iter[0]
         self._guess_models = self._batch_view(self._guess)
-        self._P_values, self._A_values = self._batch_view(P.values), self._batch_view(A_oo.values)
+        self._batch_matrices = (  # P, A, G, Gᵀ
+            cg_matrix(structs.BatchBlockRows, P.offsets, P.columns, self._batch_view(P.values)),
+            cg_matrix(structs.BatchBlockRows, A_oo.offsets, A_oo.columns, self._batch_view(A_oo.values)),
+            cg_matrix(structs.BatchFactorRows, *lower),
+            cg_matrix(structs.BatchFactorRows, *upper),
+        )
         self._x_models = self._work[:, WORK_X]
 
         shape = (PERSISTENT_LANES, PERSISTENT_ROWS) if dev.is_cuda else (1, 1)  # one CPU thread walks every row
@@ -232,23 +226,15 @@ class CGSolver(DeviceSolver):
         wp.launch_tiled(kernel, dim=blocks, inputs=inputs, block_dim=k.block_dim, device=self.device)
 
     def _cg_iterations(self) -> None:
-        k, A, tol_sq, maxiter = self._kernels, self._A_oo, wp.float64(self.options.tolerance**2), self.options.maxiter
-        slots, cg_iter = self._slots_one, self._cg_iter_one
+        k, tol_sq, maxiter = self._kernels, wp.float64(self.options.tolerance**2), self.options.maxiter
+        w, w_flat, slots, cg_iter = self._work_one, self._work_flat_one, self._slots_one, self._cg_iter_one
         for _ in range(UNROLL):
-            self._launch_tiled(
-                k.direction,
-                [A.offsets, A.columns, A.values, self._z, self._p, self._q, slots, cg_iter, self._condition]
-                + [tol_sq, maxiter],
-            )
-            self._launch_tiled(
-                k.lower,
-                [*self._G, self._p, self._q, self._q_flat, self._r, self._r_flat, self._x, self._y, slots, cg_iter]
-                + [tol_sq, maxiter],
-            )
-            self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, slots, cg_iter, tol_sq, maxiter])
+            self._launch_tiled(k.direction, [self._A, w, slots, cg_iter, self._condition, tol_sq, maxiter])
+            self._launch_tiled(k.lower, [self._G, w, w_flat, slots, cg_iter, tol_sq, maxiter])
+            self._launch_tiled(k.upper, [self._GT, w, w_flat, slots, cg_iter, tol_sq, maxiter])
 
     def _launch_sequence(self, b) -> None:
-        k, P, A = self._kernels, self._P, self._A_oo
+        k = self._kernels
         tol_sq, maxiter = wp.float64(self.options.tolerance**2), self.options.maxiter
         self._slots.zero_()
         if self.loop == "persistent":
@@ -259,21 +245,19 @@ class CGSolver(DeviceSolver):
                 block_dim=step.block_dim,
                 device=self.device,
                 inputs=[
-                    *(P.offsets, P.columns, self._P_values, A.offsets, A.columns, self._A_values),
-                    *(self._G[0], self._G[1], self._G_values, self._GT[0], self._GT[1], self._GT_values),
+                    *self._batch_matrices,
                     *(b.d_in, b.v_in, b.a_in, b.trajectory, self._guess_models, b.ring, self._work, self._work_flat),
                     *(self._slots, self._cg_iter, self._barrier, tol_sq, maxiter, self._persistent_blocks, 0),
                 ],
             )
         else:
-            slots, cg_iter = self._slots_one, self._cg_iter_one
+            w, w_flat, slots, cg_iter = self._work_one, self._work_flat_one, self._slots_one, self._cg_iter_one
             self._launch_tiled(
                 k.residual,
-                [P.offsets, P.columns, P.values, A.offsets, A.columns, A.values, *b.state, b.driven, self._guess]
-                + [b.ring, self._r, self._x, slots, cg_iter, self._condition],
+                [self._P, self._A, *b.state, b.driven, self._guess, b.ring, w, slots, cg_iter, self._condition],
             )
-            self._launch_tiled(k.lower_start, [*self._G, self._r, self._r_flat, self._x, slots, self._y])
-            self._launch_tiled(k.upper, [*self._GT, self._y_flat, self._r, self._z, slots, cg_iter, tol_sq, maxiter])
+            self._launch_tiled(k.lower_start, [self._G, w, w_flat, slots])
+            self._launch_tiled(k.upper, [self._GT, w, w_flat, slots, cg_iter, tol_sq, maxiter])
             wp.capture_while(self._condition, self._cg_iterations)
         wp.launch(
             cg_newmark_update,

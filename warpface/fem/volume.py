@@ -308,7 +308,9 @@ def mesh_tissue(
         if int(optimize_passes) < 0:
             raise ValueError(f"optimize_passes must be >= 0, got {optimize_passes}")
         for option, rounds in (("thin_defects", thin_defects), ("fair_folds", fair_folds)):
-            if isinstance(rounds, bool) or not isinstance(rounds, (int, np.integer)) or rounds < 0:
+            if isinstance(rounds, bool) or not isinstance(rounds, (int, np.integer)):
+                raise TypeError(f"{option} must be an integer >= 0, got {type(rounds).__name__}")
+            if rounds < 0:
                 raise ValueError(f"{option} must be an integer >= 0, got {rounds!r}")
 
         t0 = time.perf_counter()

@@ -1,4 +1,4 @@
-"""Shared ``@wp.func`` math: closest point on a segment and on a triangle, smoothstep.
+"""Shared ``@wp.func`` math: closest point on a segment and on a triangle, smoothstep, padded float32 bounds.
 
 Written once here and reused by every kernel that needs them (tracking correspondence and transfer
 weights in float32, the FEM embedding in float64). The closest-point functions are Warp generic
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import warp as wp
 
-__all__ = ["closest_point_on_segment", "closest_point_on_triangle", "smoothstep", "vec3_any"]
+__all__ = ["closest_point_on_segment", "closest_point_on_triangle", "padded_corner", "smoothstep", "vec3_any"]
 
 vec3_any = wp.types.vector(length=3, dtype=wp.Float)
 """Annotation for a 3-vector of any float type (``wp.vec3h``, ``wp.vec3``, ``wp.vec3d``)."""
@@ -119,3 +119,10 @@ def smoothstep(edge0: float, edge1: float, x: float) -> float:
     """Cubic Hermite step: 0 for ``x ≤ edge0``, 1 for ``x ≥ edge1``, C¹ in between (``edge0 < edge1``)."""
     t = wp.clamp((x - edge0) / (edge1 - edge0), 0.0, 1.0)
     return t * t * (3.0 - 2.0 * t)
+
+
+@wp.func
+def padded_corner(corner: wp.vec3d, pad: float) -> wp.vec3:
+    """A float64 bounding-box corner in float32 (a BVH's precision), moved by ``pad`` along every axis:
+    ``pad < 0`` for the lower corner, ``pad > 0`` for the upper one."""
+    return wp.vec3(float(corner[0]) + pad, float(corner[1]) + pad, float(corner[2]) + pad)

@@ -10,6 +10,7 @@ import numpy as np
 import warp as wp
 
 from .._validate import as_device
+from .funcs import padded_corner
 from .triangles import triangle_areas, triangle_corners
 
 __all__ = ["as_surface", "boundary_loops", "check_surface", "directed_edges", "find_self_intersections"]
@@ -30,8 +31,8 @@ def _triangle_bounds(
     c = points[tri[2]]
     lo = wp.min(wp.min(a, b), c)
     hi = wp.max(wp.max(a, b), c)
-    lowers[t] = wp.vec3(float(lo[0]) - pad, float(lo[1]) - pad, float(lo[2]) - pad)
-    uppers[t] = wp.vec3(float(hi[0]) + pad, float(hi[1]) + pad, float(hi[2]) + pad)
+    lowers[t] = padded_corner(lo, -pad)
+    uppers[t] = padded_corner(hi, pad)
 
 
 @wp.func

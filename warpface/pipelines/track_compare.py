@@ -8,6 +8,7 @@ excluding the camera, detection and back-projection that they share).
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 
@@ -122,7 +123,8 @@ def compare_tracking_paths(
         outputs.append(geometric.track_frame(frame))
     scores = [score("geometric transfer", outputs, time.perf_counter() - started)]
     for residual in (False, True):
-        tracker = SolvingTracker(
+        new_tracker = functools.partial(
+            SolvingTracker,
             rig,
             camera.landmark_names,
             camera_to_model=camera_to_model,
@@ -130,15 +132,8 @@ def compare_tracking_paths(
             device=device,
             **solve_options,
         )
-        tracker.track_frame(frames[0])  # compiles the kernels outside the timing; then start over
-        tracker = SolvingTracker(
-            rig,
-            camera.landmark_names,
-            camera_to_model=camera_to_model,
-            residual_transfer=residual,
-            device=device,
-            **solve_options,
-        )
+        new_tracker().track_frame(frames[0])  # compiles the kernels outside the timing; then start over
+        tracker = new_tracker()
         outputs, controls, started = [], [], time.perf_counter()
         for frame in frames:
             solved = tracker.track_frame(frame)

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_count, as_finite_array, as_points, as_positive, as_triangles
+from .._validate import as_count, as_finite_array, as_indices, as_points, as_positive, as_triangles
 from ..geometry import TriangleMeshIndex, triangle_corners, triangle_normals
 from ..geometry.triangles import triangle_crosses
 
@@ -142,10 +142,11 @@ class Correspondence:
         dense vertex count; returns a correspondence with contiguous arrays of the documented dtypes.
 
         Raises:
+            TypeError: triangle indices that are not numbers (or are booleans).
             ValueError: mismatched lengths, a triangle index that is not a whole number in
                 [0, ``triangle_count``), or non-finite or negative coordinates/distances (naming the item).
         """
-        triangle = _as_index_array(self.triangle, "correspondence.triangle")
+        triangle = as_indices(self.triangle, 2**31, "correspondence.triangle")  # int32 on the device
         count = triangle.shape[0]
         if triangle_count is not None:
             triangle_count = as_count(triangle_count, "triangle_count")
@@ -174,28 +175,6 @@ class Correspondence:
         ):
             object.__setattr__(result, name, np.ascontiguousarray(value))
         return result
-
-
-def _as_index_array(value, name: str) -> np.ndarray:
-    """Non-negative whole-number indices, shape (N,), int64 (float arrays of whole numbers accepted)."""
-    try:
-        array = np.asarray(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected a flat array of integer indices") from None
-    if array.ndim != 1:
-        raise ValueError(f"{name}: expected shape (N,), got {array.shape}")
-    if array.dtype == np.bool_ or not (
-        np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)
-    ):
-        raise ValueError(f"{name}: expected integer indices, got dtype {array.dtype}")
-    if np.issubdtype(array.dtype, np.floating):
-        bad = ~np.isfinite(array) | (array != np.round(array))
-        if bad.any():
-            raise ValueError(f"{name}: entry {int(np.argmax(bad))} is {array[np.argmax(bad)]}, not a whole number")
-    if array.size and (array.min() < 0 or array.max() > np.iinfo(np.int32).max):
-        i = int(np.argmin(array)) if array.min() < 0 else int(np.argmax(array))
-        raise ValueError(f"{name}: entry {i} is {array[i]}, outside [0, 2³¹)")
-    return array.astype(np.int64)
 
 
 def compute_correspondence(

@@ -189,13 +189,31 @@ def kth_smallest(values: wp.array2d(dtype=float), row: int, n: int, k: int) -> f
     return result
 
 
+@wp.struct
+class _Window:
+    """Pixel rows [r0, r1) × columns [c0, c1) of a depth image."""
+
+    r0: int
+    r1: int
+    c0: int
+    c1: int
+
+
+@wp.func
+def _window_around(uc: int, vc: int, half: int, depth: wp.array2d(dtype=float)) -> _Window:
+    """The (2 half + 1)² pixels centred on column ``uc``, row ``vc``, clipped to the image (maybe empty)."""
+    window = _Window()
+    window.r0 = wp.max(vc - half, 0)
+    window.r1 = wp.min(vc + half + 1, depth.shape[0])
+    window.c0 = wp.max(uc - half, 0)
+    window.c1 = wp.min(uc + half + 1, depth.shape[1])
+    return window
+
+
 @wp.func
 def _median_residual(
     depth: wp.array2d(dtype=float),
-    r0: int,
-    r1: int,
-    c0: int,
-    c1: int,
+    window: _Window,
     u: float,
     v: float,
     coef: _vec6f,
@@ -204,13 +222,13 @@ def _median_residual(
     scratch: wp.array2d(dtype=float),
     slot: int,
 ) -> float:
-    """Median (the ⌈n/2⌉-th smallest) of the valid pixels' residuals in rows [r0, r1) × cols
-    [c0, c1): Z − model (signed) or |Z − model|; a zero model makes the signed residual the depth
+    """Median (the ⌈n/2⌉-th smallest) of the valid pixels' residuals in ``window``:
+    Z − model (signed) or |Z − model|; a zero model makes the signed residual the depth
     itself. The residuals are gathered once in row ``slot`` of ``scratch`` and selected there, so
     the model is evaluated once per pixel. The window must hold at least one valid pixel."""
     n = int(0)
-    for row in range(r0, r1):
-        for col in range(c0, c1):
+    for row in range(window.r0, window.r1):
+        for col in range(window.c0, window.c1):
             z = depth[row, col]
             if _is_depth(z):
                 r = z - _model_depth(coef, float(col) - u, float(row) - v, scale)
@@ -222,13 +240,13 @@ def _median_residual(
 
 
 @wp.func
-def _valid_range(depth: wp.array2d(dtype=float), r0: int, r1: int, c0: int, c1: int) -> wp.vec3:
+def _valid_range(depth: wp.array2d(dtype=float), window: _Window) -> wp.vec3:
     """(count, min, max) of the valid depths in a window."""
     n = float(0.0)
     zmin = float(1.0e30)
     zmax = float(0.0)
-    for row in range(r0, r1):
-        for col in range(c0, c1):
+    for row in range(window.r0, window.r1):
+        for col in range(window.c0, window.c1):
             z = depth[row, col]
             if _is_depth(z):
                 n += 1.0
@@ -247,10 +265,7 @@ _PLANES = 8
 @wp.func
 def _gather_window(
     depth: wp.array2d(dtype=float),
-    r0: int,
-    r1: int,
-    c0: int,
-    c1: int,
+    window: _Window,
     u: float,
     v: float,
     reach_px: float,
@@ -260,8 +275,8 @@ def _gather_window(
     """Store the window's valid pixels (depth, offsets, distance, tricube weight, inverse depth) in
     the planes of rows ``base + plane`` of ``scratch``; returns their count."""
     n = int(0)
-    for row in range(r0, r1):
-        for col in range(c0, c1):
+    for row in range(window.r0, window.r1):
+        for col in range(window.c0, window.c1):
             z = depth[row, col]
             if _is_depth(z):
                 du = float(col) - u
@@ -308,20 +323,15 @@ def _backproject_kernel(
     out_inliers[i] = 0
     if not (wp.isfinite(u) and wp.isfinite(v)):
         return
-    height = depth.shape[0]
-    width = depth.shape[1]
     uc = int(wp.round(u))
     vc = int(wp.round(v))
-    c0 = wp.max(uc - half, 0)
-    c1 = wp.min(uc + half + 1, width)
-    r0 = wp.max(vc - half, 0)
-    r1 = wp.min(vc + half + 1, height)
-    if c0 >= c1 or r0 >= r1:
+    window = _window_around(uc, vc, half, depth)
+    if window.c0 >= window.c1 or window.r0 >= window.r1:
         return
     base = i * wp.static(_PLANES)
     select = base + wp.static(_SELECT)
     reach_px = float(half) * 1.4143 + 1.0
-    n = _gather_window(depth, r0, r1, c0, c1, u, v, reach_px, scratch, base)
+    n = _gather_window(depth, window, u, v, reach_px, scratch, base)
     if n < min_valid:
         return
     scale = 1.0 / float(half)
@@ -332,13 +342,9 @@ def _backproject_kernel(
     found = int(0)
     for ring in range(1, half + 1):
         if found == 0:
-            a0 = wp.max(uc - ring, 0)
-            a1 = wp.min(uc + ring + 1, width)
-            b0 = wp.max(vc - ring, 0)
-            b1 = wp.min(vc + ring + 1, height)
-            inner = _valid_range(depth, b0, b1, a0, a1)
-            if int(inner[0]) >= 3:
-                z_seed = _median_residual(depth, b0, b1, a0, a1, u, v, zero, scale, 1, scratch, select)
+            inner = _window_around(uc, vc, ring, depth)
+            if int(_valid_range(depth, inner)[0]) >= 3:
+                z_seed = _median_residual(depth, inner, u, v, zero, scale, 1, scratch, select)
                 found = 1
     if found == 0:
         return
