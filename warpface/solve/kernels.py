@@ -37,9 +37,9 @@ def _frame_and_element(i: int, count: int):
 @wp.kernel
 def muscle_stage(
     frame_on: wp.array(dtype=wp.int32),
+    controls: wp.array(dtype=wp.float64),
     rest: wp.array(dtype=wp.vec3d),
     slot_field: wp.array(dtype=wp.vec3d),
-    controls: wp.array(dtype=wp.float64),
     active_offsets: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
     control_count: int,
@@ -120,11 +120,11 @@ def first_ring_triangles(
 def bulge_stage(
     frame_on: wp.array(dtype=wp.int32),
     points: wp.array(dtype=wp.vec3d),
-    slot_own: wp.array(dtype=wp.vec3d),
     area: wp.array(dtype=wp.vec3d),
     ratio: wp.array(dtype=wp.float64),
     darea: wp.array(dtype=wp.vec3d),
     dratio: wp.array(dtype=wp.float64),
+    slot_own: wp.array(dtype=wp.vec3d),
     ring_vertex: wp.array(dtype=wp.int32),
     adjacency_offsets: wp.array(dtype=wp.int32),
     adjacency: wp.array(dtype=wp.int32),
