@@ -18,6 +18,8 @@ from ..expression import formulas as fm
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 __all__ = [
+    "Layout",
+    "layout_of",
     "muscle_stage",
     "first_ring_triangles",
     "bulge_stage",
@@ -25,6 +27,26 @@ __all__ = [
     "wrinkle_stage",
     "normal_equations",
 ]
+
+
+@wp.struct
+class Layout:
+    """A frame's block sizes: C controls, M muscles, B basis columns of the model's input, K variables."""
+
+    control_count: int
+    muscle_count: int
+    basis_count: int
+    size: int
+
+
+def layout_of(control_count: int, muscle_count: int, basis_count: int, size: int) -> Layout:
+    """A :class:`Layout`: ``B = C + 1`` with a jaw (``sin θ, 1 − cos θ``), ``K = C`` or ``C + 6`` with the pose."""
+    result = Layout()
+    result.control_count = control_count
+    result.muscle_count = muscle_count
+    result.basis_count = basis_count
+    result.size = size
+    return result
 
 
 @wp.func
@@ -335,7 +357,6 @@ def _observed(
 def _column(
     dx3: wp.array(dtype=wp.float64),
     basis: wp.array(dtype=wp.float64),
-    x3: wp.array(dtype=wp.vec3d),
     frame: int,
     frame_first: int,
     point_offsets: wp.array(dtype=wp.int32),
@@ -343,9 +364,7 @@ def _column(
     point_weight: wp.array(dtype=wp.float64),
     n: int,
     c: int,
-    control_count: int,
-    muscle_count: int,
-    basis_count: int,
+    layout: Layout,
     rotation: wp.mat33d,
     arm: wp.vec3d,
     unit: wp.float64,
@@ -358,6 +377,9 @@ def _column(
     ``cos θ · ∂x/∂(sin θ) + sin θ · ∂x/∂(1 − cos θ)`` (``local_model`` docstring), taken here rather than
     by a separate pass over every row, and the slides sit one basis column later.
     """
+    control_count = layout.control_count
+    muscle_count = layout.muscle_count
+    basis_count = layout.basis_count
     if c < control_count:
         # Branch-free: every column is ``first·cosine + second·sine``, with (1, 0) for all but the angle
         # (exact: ``d·1 + d·0 = d``): a branch here makes the CPU build of this kernel much slower.
@@ -406,10 +428,7 @@ def normal_equations(
     frame_on: wp.array(dtype=wp.int32),
     origin: wp.vec3d,
     unit: wp.float64,
-    control_count: int,
-    muscle_count: int,
-    basis_count: int,
-    variable_count: int,
+    layout: Layout,
     vertex_count: int,
     point_count: int,
     jacobian: int,
@@ -437,6 +456,7 @@ def normal_equations(
     wp.atomic_add(misfit, f, w * wp.dot(e, e))
     if jacobian == 0:
         return
+    variable_count = layout.size
     begin = active_offsets[n]
     end = active_offsets[n + 1]
     for a in range(begin, end):
@@ -445,22 +465,7 @@ def normal_equations(
         for b in range(a, end):  # b = a first: that column is col_a
             cb = active[b]
             col_b = _column(
-                dx3,
-                basis,
-                x3,
-                f,
-                first,
-                point_offsets,
-                point_vertex,
-                point_weight,
-                n,
-                cb,
-                control_count,
-                muscle_count,
-                basis_count,
-                r,
-                arm,
-                unit,
+                dx3, basis, f, first, point_offsets, point_vertex, point_weight, n, cb, layout, r, arm, unit
             )
             if b == a:
                 col_a = col_b

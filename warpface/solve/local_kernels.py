@@ -23,9 +23,7 @@ def write_model_input(
     values: wp.array(dtype=wp.float64),
     scale: wp.array(dtype=wp.float64),
     f: int,
-    control_count: int,
-    muscle_count: int,
-    basis_count: int,
+    layout: kernels.Layout,
     out: wp.array(dtype=wp.float64),
 ):
     """Frame ``f``'s controls ``values/scale`` (C per frame) → the pipeline's input (B per frame).
@@ -35,11 +33,13 @@ def write_model_input(
     the same bits (a muscle at rest next to a rigidly moved vertex sits on the wrinkle term's kink, where
     an ulp of ``sin θ`` picks the side of the derivative).
     """
+    control_count = layout.control_count
+    muscle_count = layout.muscle_count
     ub = f * control_count
-    ob = f * basis_count
+    ob = f * layout.basis_count
     for m in range(muscle_count):
         out[ob + m] = values[ub + m] / scale[m]
-    if basis_count > control_count:
+    if layout.basis_count > control_count:
         angle = values[ub + muscle_count] / scale[muscle_count]
         out[ob + muscle_count] = wp.sin(angle)
         out[ob + muscle_count + 1] = wp.float64(1.0) - wp.cos(angle)
@@ -54,13 +54,11 @@ def write_model_input(
 def model_input_kernel(
     controls: wp.array(dtype=wp.float64),
     ones: wp.array(dtype=wp.float64),
-    control_count: int,
-    muscle_count: int,
-    basis_count: int,
+    layout: kernels.Layout,
     out: wp.array(dtype=wp.float64),
 ):
     """Per frame: controls (F·C) → the pipeline's basis (F·B), see :func:`write_model_input`."""
-    write_model_input(controls, ones, wp.tid(), control_count, muscle_count, basis_count, out)
+    write_model_input(controls, ones, wp.tid(), layout, out)
 
 
 @wp.kernel
@@ -68,9 +66,7 @@ def jaw_chain_rule_kernel(
     dbasis: wp.array(dtype=wp.float64),
     basis: wp.array(dtype=wp.float64),
     rows_per_frame: int,
-    muscle_count: int,
-    basis_count: int,
-    control_count: int,
+    layout: kernels.Layout,
     dcontrols: wp.array(dtype=wp.float64),
 ):
     """Per (frame, vertex, axis) row: basis derivatives → control derivatives (``local_model`` docstring).
@@ -78,9 +74,11 @@ def jaw_chain_rule_kernel(
     ``∂x/∂θ = cos θ · ∂x/∂(sin θ) + sin θ · ∂x/∂(1 − cos θ)``; muscle and slide columns are copied.
     """
     row = wp.tid()
+    muscle_count = layout.muscle_count
+    basis_count = layout.basis_count
     frame = row // rows_per_frame
     source = row * basis_count
-    target = row * control_count
+    target = row * layout.control_count
     for m in range(muscle_count):
         dcontrols[target + m] = dbasis[source + m]
     sine = basis[frame * basis_count + muscle_count]
@@ -154,6 +152,8 @@ class LocalExpression:
         """The two rings around the vertices and the rig's data on them (host, float64)."""
         self.vertices, self.count, self.control_count = local.vertices, local.count, local.control_count
         self.basis_count, self.muscle_count, self.has_jaw = local.basis_count, local.muscle_count, local.has_jaw
+        self.layout = kernels.layout_of(self.control_count, self.muscle_count, self.basis_count, self.control_count)
+        """The model's block sizes (its variables: the controls)."""
         d = self.device
         f64 = lambda a: wp.array(np.ascontiguousarray(a, dtype=np.float64), dtype=wp.float64, device=d)  # noqa: E731
         i32 = lambda a: wp.array(np.ascontiguousarray(a, dtype=np.int32), dtype=wp.int32, device=d)  # noqa: E731
@@ -295,7 +295,7 @@ class LocalExpression:
                     dim=frames,
                     device=self.device,
                     record_cmd=True,
-                    inputs=[buffers.raw_controls, self._ones, self.control_count, self.muscle_count, self.basis_count],
+                    inputs=[buffers.raw_controls, self._ones, self.layout],
                     outputs=[buffers.controls],
                 )
             buffers.basis_command.launch()
@@ -356,7 +356,7 @@ class LocalExpression:
             launch(
                 jaw_chain_rule_kernel,
                 s["n0"] * 3,
-                [b.dx3_basis, b.controls, s["n0"] * 3, self.muscle_count, m, self.control_count],
+                [b.dx3_basis, b.controls, s["n0"] * 3, self.layout],
                 [b.dx3],
             )
         return commands
