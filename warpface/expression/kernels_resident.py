@@ -13,7 +13,6 @@ import warp as wp
 from .formulas import (
     area_vector,
     bulge_point,
-    contraction_factor,
     contraction_factor_from_rate,
     contraction_rate,
     muscle_pull,
@@ -21,7 +20,7 @@ from .formulas import (
     wrinkle_point,
     wrinkle_term,
 )
-from .kernels import STRETCH_FLOOR, jaw_point, stretch_term
+from .kernels import STRETCH_FLOOR, jaw_point, muscle_entry_pull, stretch_term, wrinkle_entry_height
 from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, TiledRig
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
@@ -208,11 +207,8 @@ def _build_resident_kernel(
                     while j < muscle_end[k]:
                         pull = rig.muscle_entries[j]
                         for ff in range(F):
-                            moved_points[ff] = muscle_pull(
-                                moved_points[ff],
-                                controls[wp.min(f + ff, last - 1) * control_count + pull.muscle],
-                                pull.weight,
-                            )
+                            row = wp.min(f + ff, last - 1) * control_count
+                            moved_points[ff] = muscle_entry_pull(moved_points[ff], controls, row, pull)
                         j += 1
                     for ff in range(F):
                         wp.tile_scatter_masked(points, ff, s, moved_points[ff], s < info.halo)
@@ -297,11 +293,8 @@ def _build_resident_kernel(
                         while j < wrinkle_end[k]:
                             wrinkle = rig.wrinkle_entries[j]
                             for ff in range(F):
-                                heights[ff] += wrinkle_term(
-                                    depth[wp.min(f + ff, last - 1) * wrinkle_count + wrinkle.wrinkle],
-                                    wrinkle.shape,
-                                    contraction_factor(ratio[ff, s], wrinkle.kr),
-                                )
+                                row = wp.min(f + ff, last - 1) * wrinkle_count
+                                heights[ff] += wrinkle_entry_height(depth, row, wrinkle, ratio[ff, s])
                             j += 1
                     for ff in range(F):
                         if f + ff < last:
