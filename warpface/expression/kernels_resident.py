@@ -21,7 +21,7 @@ from .formulas import (
     wrinkle_term,
 )
 from .kernels import STRETCH_FLOOR, jaw_point, muscle_entry_pull, stretch_term, wrinkle_entry_height
-from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, TiledRig
+from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, TiledRig, live_row
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -121,10 +121,7 @@ def _build_resident_kernel(
             x_rest[k] = rig.rest[v]
             if rig.jaw_first >= 0:
                 w_jaw[k] = rig.jaw_weight[v]
-            j = rig.muscle_offsets[v]
-            end = rig.muscle_offsets[v + 1]
-            if s >= info.halo:
-                end = j
+            j, end = live_row(rig.muscle_offsets, v, s < info.halo)
             muscle_first[k] = j
             muscle_end[k] = end
             for m in range(MS):
@@ -164,10 +161,7 @@ def _build_resident_kernel(
         for k in range(OR):
             s = k * B + lane
             v = rig.tile_vertices[vertex_start + wp.min(s, info.halo - 1)]
-            j = rig.wrinkle_offsets[v]
-            end = rig.wrinkle_offsets[v + 1]
-            if s >= info.owned:
-                end = j
+            j, end = live_row(rig.wrinkle_offsets, v, s < info.owned)
             wrinkle_first[k] = j
             wrinkle_end[k] = end
             for m in range(WS):

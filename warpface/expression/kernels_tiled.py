@@ -36,7 +36,7 @@ from .formulas import (
 )
 from .kernels import STRETCH_FLOOR, jaw_point, muscle_entry_pull, stretch_term, wrinkle_entry_height
 from .kernels_resident import expression_tiles_resident
-from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, TiledRig
+from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, TiledRig, live_row
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -117,10 +117,7 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                     moved_points[ff] = jaw_point(
                         x_rest, w, controls, row, rig.jaw_first, rig.pivot, rig.hinge_axis, rig.forward
                     )
-                j = rig.muscle_offsets[v]
-                end = rig.muscle_offsets[v + 1]
-                if s >= info.halo:
-                    end = j
+                j, end = live_row(rig.muscle_offsets, v, s < info.halo)
                 while j < end:
                     pull = rig.muscle_entries[j]
                     for ff in range(F):
