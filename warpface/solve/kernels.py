@@ -14,6 +14,7 @@ element's stencil), which is most of the work saved — each vertex feels a few 
 import warp as wp
 
 from ..expression import formulas as fm
+from ..kernels_surface import frame_and_element
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
@@ -49,13 +50,6 @@ def layout_of(control_count: int, muscle_count: int, basis_count: int, size: int
     return result
 
 
-@wp.func
-def _frame_and_element(i: int, count: int):
-    """Thread ``i`` of a frame-major launch over ``count`` elements per frame → ``(frame, element)``."""
-    f = i / count
-    return f, i - f * count
-
-
 @wp.kernel
 def muscle_stage(
     frame_on: wp.array(dtype=wp.int32),
@@ -73,7 +67,7 @@ def muscle_stage(
     ``slot_field`` is ``W`` per active slot (the order of ``active``), so a vertex's columns are contiguous.
     """
     i = wp.tid()
-    f, v = _frame_and_element(i, vertex_count)
+    f, v = frame_and_element(i, vertex_count)
     if frame_on[f] == 0:
         return
     x = rest[v]
@@ -119,7 +113,7 @@ def first_ring_triangles(
     bulge stage reads it for a column that does not reach the triangle).
     """
     i = wp.tid()
-    f, t = _frame_and_element(i, triangle_count)
+    f, t = frame_and_element(i, triangle_count)
     if frame_on[f] == 0:
         return
     p0, p1, p2 = _corners(points, f * vertex_count, triangles[t])
@@ -176,7 +170,7 @@ def bulge_stage(
     ``pair_offsets[v]`` on, the slot of each (active column, incident triangle) pair of the vertex in loop order.
     """
     i = wp.tid()
-    f, v = _frame_and_element(i, vertex_count)
+    f, v = frame_and_element(i, vertex_count)
     if frame_on[f] == 0:
         return
     first = f * triangle_count
@@ -234,7 +228,7 @@ def second_ring_triangles(
 ):
     """Area vectors of x2 (for the wrinkles' normal) and their derivatives."""
     i = wp.tid()
-    f, t = _frame_and_element(i, triangle_count)
+    f, t = frame_and_element(i, triangle_count)
     if frame_on[f] == 0:
         return
     tri = triangles[t]
@@ -294,7 +288,7 @@ def wrinkle_stage(
     ``dfinal`` is laid out (frames, vertices, 3, controls): a frame's Jacobian is one (3n, M) matrix.
     """
     i = wp.tid()
-    f, v = _frame_and_element(i, vertex_count)
+    f, v = frame_and_element(i, vertex_count)
     if frame_on[f] == 0:
         return
     source = f * ring_count + ring_vertex[v]
@@ -443,8 +437,7 @@ def normal_equations(
     Columns are in mesh units per variable; the caller scales them to the solver's variables.
     """
     i = wp.tid()
-    f = i / point_count
-    n = i - f * point_count
+    f, n = frame_and_element(i, point_count)
     w = weights[i]
     if w == wp.float64(0.0) or frame_on[f] == 0:
         return
