@@ -158,10 +158,8 @@ def _build_resident_kernel(
         wrinkle_shape = wrinkle_values()
         wrinkle_kr = wrinkle_values()
         wrinkle_rate = wrinkle_values()  # 1 − 1/k_r of C(r) above 1, divided once per block instead of per frame
-        for k in range(OR):
-            s = k * B + lane
-            v = rig.tile_vertices[vertex_start + wp.min(s, info.halo - 1)]
-            j, end = live_row(rig.wrinkle_offsets, v, s < info.owned)
+        for k in range(OR):  # owned slot k·B + lane is halo slot k·B + lane (OR ≤ HR)
+            j, end = live_row(rig.wrinkle_offsets, slot_vertex[k], k * B + lane < info.owned)
             wrinkle_first[k] = j
             wrinkle_end[k] = end
             for m in range(WS):
