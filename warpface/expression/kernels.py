@@ -45,6 +45,8 @@ __all__ = [
     "stretch_and_bulge",
     "apply_wrinkles",
     "add_muscles",
+    "muscle_entry_pull",
+    "wrinkle_entry_height",
     "jaw_motion",
     "jaw_point",
     "stretch_term",
@@ -111,6 +113,18 @@ class WrinkleEntry:
 
 
 @wp.func
+def muscle_entry_pull(x: wp.vec3, controls: wp.array(dtype=wp.float32), first: int, entry: MuscleEntry):
+    """``x`` moved by one muscle entry's pull, ``first`` indexing the frame's controls."""
+    return muscle_pull(x, controls[first + entry.muscle], entry.weight)
+
+
+@wp.func
+def wrinkle_entry_height(depth: wp.array(dtype=wp.float32), first: int, entry: WrinkleEntry, r: float):
+    """One wrinkle entry's height ``k_d·s·C(r)`` at stretch ``r``, ``first`` indexing the frame's depths."""
+    return wrinkle_term(depth[first + entry.wrinkle], entry.shape, contraction_factor(r, entry.kr))
+
+
+@wp.func
 def add_muscles(
     x: wp.vec3,
     controls: wp.array(dtype=wp.float32),
@@ -123,8 +137,7 @@ def add_muscles(
     k = offsets[v]
     end = offsets[v + 1]
     while k < end:
-        entry = entries[k]
-        x = muscle_pull(x, controls[first + entry.muscle], entry.weight)
+        x = muscle_entry_pull(x, controls, first, entries[k])
         k += 1
     return x
 
@@ -259,7 +272,6 @@ def apply_wrinkles(
     height = float(0.0)
     k = begin
     while k < end:
-        entry = entries[k]
-        height += wrinkle_term(depth[first_wrinkle + entry.wrinkle], entry.shape, contraction_factor(r, entry.kr))
+        height += wrinkle_entry_height(depth, first_wrinkle, entries[k], r)
         k += 1
     final_points[i] = wrinkle_point(x, height, normal_sum)

@@ -13,7 +13,6 @@ import warp as wp
 from .formulas import (
     area_vector,
     bulge_point,
-    contraction_factor,
     contraction_factor_from_rate,
     contraction_rate,
     muscle_pull,
@@ -21,8 +20,8 @@ from .formulas import (
     wrinkle_point,
     wrinkle_term,
 )
-from .kernels import STRETCH_FLOOR, jaw_point, stretch_term
-from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, TiledRig
+from .kernels import STRETCH_FLOOR, jaw_point, muscle_entry_pull, stretch_term, wrinkle_entry_height
+from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, TiledRig, live_row
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -122,10 +121,7 @@ def _build_resident_kernel(
             x_rest[k] = rig.rest[v]
             if rig.jaw_first >= 0:
                 w_jaw[k] = rig.jaw_weight[v]
-            j = rig.muscle_offsets[v]
-            end = rig.muscle_offsets[v + 1]
-            if s >= info.halo:
-                end = j
+            j, end = live_row(rig.muscle_offsets, v, s < info.halo)
             muscle_first[k] = j
             muscle_end[k] = end
             for m in range(MS):
@@ -162,13 +158,8 @@ def _build_resident_kernel(
         wrinkle_shape = wrinkle_values()
         wrinkle_kr = wrinkle_values()
         wrinkle_rate = wrinkle_values()  # 1 − 1/k_r of C(r) above 1, divided once per block instead of per frame
-        for k in range(OR):
-            s = k * B + lane
-            v = rig.tile_vertices[vertex_start + wp.min(s, info.halo - 1)]
-            j = rig.wrinkle_offsets[v]
-            end = rig.wrinkle_offsets[v + 1]
-            if s >= info.owned:
-                end = j
+        for k in range(OR):  # owned slot k·B + lane is halo slot k·B + lane (OR ≤ HR)
+            j, end = live_row(rig.wrinkle_offsets, slot_vertex[k], k * B + lane < info.owned)
             wrinkle_first[k] = j
             wrinkle_end[k] = end
             for m in range(WS):
@@ -208,11 +199,8 @@ def _build_resident_kernel(
                     while j < muscle_end[k]:
                         pull = rig.muscle_entries[j]
                         for ff in range(F):
-                            moved_points[ff] = muscle_pull(
-                                moved_points[ff],
-                                controls[wp.min(f + ff, last - 1) * control_count + pull.muscle],
-                                pull.weight,
-                            )
+                            row = wp.min(f + ff, last - 1) * control_count
+                            moved_points[ff] = muscle_entry_pull(moved_points[ff], controls, row, pull)
                         j += 1
                     for ff in range(F):
                         wp.tile_scatter_masked(points, ff, s, moved_points[ff], s < info.halo)
@@ -297,11 +285,8 @@ def _build_resident_kernel(
                         while j < wrinkle_end[k]:
                             wrinkle = rig.wrinkle_entries[j]
                             for ff in range(F):
-                                heights[ff] += wrinkle_term(
-                                    depth[wp.min(f + ff, last - 1) * wrinkle_count + wrinkle.wrinkle],
-                                    wrinkle.shape,
-                                    contraction_factor(ratio[ff, s], wrinkle.kr),
-                                )
+                                row = wp.min(f + ff, last - 1) * wrinkle_count
+                                heights[ff] += wrinkle_entry_height(depth, row, wrinkle, ratio[ff, s])
                             j += 1
                     for ff in range(F):
                         if f + ff < last:

@@ -31,15 +31,12 @@ import warp as wp
 from .formulas import (
     area_vector,
     bulge_point,
-    contraction_factor,
-    muscle_pull,
     stretch_ratio,
     wrinkle_point,
-    wrinkle_term,
 )
-from .kernels import STRETCH_FLOOR, jaw_point, stretch_term
+from .kernels import STRETCH_FLOOR, jaw_point, muscle_entry_pull, stretch_term, wrinkle_entry_height
 from .kernels_resident import expression_tiles_resident
-from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, TiledRig
+from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, TiledRig, live_row
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -120,18 +117,12 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                     moved_points[ff] = jaw_point(
                         x_rest, w, controls, row, rig.jaw_first, rig.pivot, rig.hinge_axis, rig.forward
                     )
-                j = rig.muscle_offsets[v]
-                end = rig.muscle_offsets[v + 1]
-                if s >= info.halo:
-                    end = j
+                j, end = live_row(rig.muscle_offsets, v, s < info.halo)
                 while j < end:
                     pull = rig.muscle_entries[j]
                     for ff in range(F):
-                        moved_points[ff] = muscle_pull(
-                            moved_points[ff],
-                            controls[wp.min(f + ff, last - 1) * control_count + pull.muscle],
-                            pull.weight,
-                        )
+                        row = wp.min(f + ff, last - 1) * control_count
+                        moved_points[ff] = muscle_entry_pull(moved_points[ff], controls, row, pull)
                     j += 1
                 for ff in range(F):
                     wp.tile_scatter_masked(points, ff, s, moved_points[ff], s < info.halo)
@@ -204,11 +195,8 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                         while begin < end:
                             wrinkle = rig.wrinkle_entries[begin]
                             for ff in range(F):
-                                heights[ff] += wrinkle_term(
-                                    depth[wp.min(f + ff, last - 1) * wrinkle_count + wrinkle.wrinkle],
-                                    wrinkle.shape,
-                                    contraction_factor(ratio[ff, s], wrinkle.kr),
-                                )
+                                row = wp.min(f + ff, last - 1) * wrinkle_count
+                                heights[ff] += wrinkle_entry_height(depth, row, wrinkle, ratio[ff, s])
                             begin += 1
                     for ff in range(F):
                         if f + ff < last:

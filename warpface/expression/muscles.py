@@ -63,8 +63,20 @@ def _check_zone(record, label: str) -> None:
     unit_vector(record.insertion - record.attachment, f"{label}: axis (insertion − attachment)")
 
 
+class _WatersZone:
+    """What a linear muscle and a lobe share beyond their validated zone (:func:`_check_zone`): its axis."""
+
+    __slots__ = ()
+
+    @property
+    def axis(self) -> np.ndarray:
+        """Unit vector from attachment to insertion, shape (3,)."""
+        axis = self.insertion - self.attachment
+        return axis / np.linalg.norm(axis)
+
+
 @dataclass(frozen=True, eq=False)
-class MuscleLobe:
+class MuscleLobe(_WatersZone):
     """A second Waters zone that a linear muscle's contraction drives, scaled by ``gain``.
 
     A muscle whose fibres reach two regions moves both with one contraction: the frontalis, which has
@@ -92,15 +104,9 @@ class MuscleLobe:
             raise ValueError(f"muscle lobe: gain must be in (0, {MAX_LOBE_GAIN:g}], got {gain}")
         object.__setattr__(self, "gain", gain)
 
-    @property
-    def axis(self) -> np.ndarray:
-        """Unit vector from attachment to insertion, shape (3,)."""
-        axis = self.insertion - self.attachment
-        return axis / np.linalg.norm(axis)
-
 
 @dataclass(frozen=True, eq=False)
-class LinearMuscle:
+class LinearMuscle(_WatersZone):
     """A Waters linear muscle.
 
     For a rest vertex ``P``: ``D = |P − V1|``, ``μ`` the angle at ``V1`` between ``V2 − V1`` and
@@ -152,12 +158,6 @@ class LinearMuscle:
         object.__setattr__(
             self, "lobes", tuple(expect_iterable(self.lobes, f"{label}: lobes", item_types=(MuscleLobe,)))
         )
-
-    @property
-    def axis(self) -> np.ndarray:
-        """Unit vector from attachment to insertion, shape (3,)."""
-        axis = self.insertion - self.attachment
-        return axis / np.linalg.norm(axis)
 
 
 @dataclass(frozen=True, eq=False)
@@ -317,6 +317,18 @@ class MuscleWeights:
     weight: np.ndarray
     """Displacement per unit contraction [mesh units per unit K], shape (E, 3), float64."""
 
+    @classmethod
+    def from_fields(cls, vertex_count: int, fields) -> MuscleWeights:
+        """The entries of dense per-muscle fields (an iterable of (V, 3) arrays in muscle order) that move a vertex."""
+        rows, columns, values = [], [], []
+        for index, field in enumerate(fields):
+            moved = np.flatnonzero(np.any(field != 0.0, axis=1))
+            rows.append(moved)
+            columns.append(np.full(len(moved), index, dtype=np.int32))
+            values.append(field[moved])
+        offsets, column, value = vertex_csr(vertex_count, rows, columns, values)
+        return cls(offsets=offsets, muscle=column, weight=value)
+
 
 def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], *, device=None) -> MuscleWeights:
     """Evaluate every muscle's weight field at the rest points and keep the non-zero entries.
@@ -328,39 +340,33 @@ def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], *, device=Non
     """
     device = as_device(device)
     rest_points = as_points(rest_points, "rest_points")
-    vertex_count = len(rest_points)
+    muscles = expect_iterable(muscles, "muscles", item_types=(LinearMuscle, SphincterMuscle))
     rest = wp.array(rest_points, dtype=wp.vec3d, device=device)
+    return MuscleWeights.from_fields(len(rest_points), (_weight_field(rest, muscle) for muscle in muscles))
+
+
+def _weight_field(rest: wp.array, muscle: Muscle) -> np.ndarray:
+    """One muscle's weight ``w_m`` at every rest point, shape (V, 3) float64 (lobes added by their gain)."""
+    vertex_count, device = len(rest), rest.device
     out = wp.empty(vertex_count, dtype=wp.vec3d, device=device)
-    rows, columns, values = [], [], []
-    for index, muscle in enumerate(expect_iterable(muscles, "muscles", item_types=(LinearMuscle, SphincterMuscle))):
-        if isinstance(muscle, LinearMuscle):
-            _linear_zone_weights(rest, muscle, muscle.falloff, out)
-            lobe_weights = wp.empty_like(out) if muscle.lobes else None
-            for lobe in muscle.lobes:
-                _linear_zone_weights(rest, lobe, muscle.falloff, lobe_weights)
-                wp.launch(
-                    _add_scaled_kernel, dim=vertex_count, inputs=[lobe_weights, lobe.gain], outputs=[out], device=device
-                )
-        elif isinstance(muscle, SphincterMuscle):
-            inputs = [
-                rest,
-                wp.vec3d(*muscle.center),
-                wp.vec3d(*muscle.axis_x),
-                wp.vec3d(*muscle.axis_y),
-                muscle.semi_axes[0],
-                muscle.semi_axes[1],
-                int(muscle.falloff == "smooth"),
-                muscle.ring,
-            ]
-            wp.launch(_sphincter_weight_kernel, dim=vertex_count, inputs=inputs, outputs=[out], device=device)
-        else:
-            raise TypeError(
-                f"muscles[{index}]: expected a LinearMuscle or SphincterMuscle, got {type(muscle).__name__}"
+    if isinstance(muscle, LinearMuscle):
+        _linear_zone_weights(rest, muscle, muscle.falloff, out)
+        lobe_weights = wp.empty_like(out) if muscle.lobes else None
+        for lobe in muscle.lobes:
+            _linear_zone_weights(rest, lobe, muscle.falloff, lobe_weights)
+            wp.launch(
+                _add_scaled_kernel, dim=vertex_count, inputs=[lobe_weights, lobe.gain], outputs=[out], device=device
             )
-        weight = out.numpy()
-        moved = np.flatnonzero(np.any(weight != 0.0, axis=1))
-        rows.append(moved)
-        columns.append(np.full(len(moved), index, dtype=np.int32))
-        values.append(weight[moved])
-    offsets, column, value = vertex_csr(vertex_count, rows, columns, values)
-    return MuscleWeights(offsets=offsets, muscle=column, weight=value)
+    else:
+        inputs = [
+            rest,
+            wp.vec3d(*muscle.center),
+            wp.vec3d(*muscle.axis_x),
+            wp.vec3d(*muscle.axis_y),
+            muscle.semi_axes[0],
+            muscle.semi_axes[1],
+            int(muscle.falloff == "smooth"),
+            muscle.ring,
+        ]
+        wp.launch(_sphincter_weight_kernel, dim=vertex_count, inputs=inputs, outputs=[out], device=device)
+    return out.numpy()

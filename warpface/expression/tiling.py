@@ -23,6 +23,7 @@ __all__ = [
     "RingTriangle",
     "TileInfo",
     "TiledRig",
+    "live_row",
     "VertexTiles",
     "vertex_tiles",
     "mesh_tiles",
@@ -95,6 +96,16 @@ class TiledRig:
     wrinkle_offsets: wp.array(dtype=wp.int32)
     wrinkle_entries: wp.array(dtype=WrinkleEntry)
     vertex_count: wp.int32
+
+
+@wp.func
+def live_row(offsets: wp.array(dtype=wp.int32), row: int, live: bool):
+    """Entries ``[begin, end)`` of CSR row ``row``; empty for a slot past the tile's live items (``live`` False)."""
+    begin = offsets[row]
+    end = begin
+    if live:
+        end = offsets[row + 1]
+    return begin, end
 
 
 _MORTON_BITS = 10

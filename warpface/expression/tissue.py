@@ -29,7 +29,6 @@ import warp as wp
 from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
-from ._sparse import vertex_csr
 from .formulas import bunching_pull, sliding_pull, thickening_pull
 from .muscles import Muscle, MuscleWeights
 
@@ -194,8 +193,8 @@ def tissue_response(
     normals = np.divide(normals, length, out=np.zeros_like(normals), where=length > 1e-12)
     vertex_count = len(points)
     row = np.repeat(np.arange(vertex_count), np.diff(weights.offsets))
-    rows, columns, values = [], [], []
-    for index, muscle in enumerate(muscles):
+
+    def responded(index: int, muscle: Muscle) -> np.ndarray:
         mine = weights.muscle == index
         field = np.zeros((vertex_count, 3))
         field[row[mine]] = weights.weight[mine]
@@ -209,12 +208,9 @@ def tissue_response(
             cap = BUNCHING_CAP * float(np.linalg.norm(field, axis=1).max())
             if cap > 0.0:
                 field = _per_vertex(_bunch_kernel, [field, height], [cap], [normals])
-        moved = np.flatnonzero(np.any(field != 0.0, axis=1))
-        rows.append(moved)
-        columns.append(np.full(len(moved), index, dtype=np.int32))
-        values.append(field[moved])
-    offsets, column, value = vertex_csr(vertex_count, rows, columns, values)
-    return MuscleWeights(offsets=offsets, muscle=column, weight=value)
+        return field
+
+    return MuscleWeights.from_fields(vertex_count, (responded(i, m) for i, m in enumerate(muscles)))
 
 
 def skin_muscle_weights(mesh, muscles: Sequence[Muscle], thickness: np.ndarray, *, device=None) -> MuscleWeights:

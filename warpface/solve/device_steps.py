@@ -88,9 +88,7 @@ class DeviceSteps(Iteration):
         scaling.column, scaling.scale, scaling.low, scaling.high = (
             f64(a) for a in (self.column, self.scale, self.low, self.high)
         )
-        layout = self._layout = step_kernels.Layout()
-        layout.control_count, layout.muscle_count = self.control_count, self.muscle_count
-        layout.basis_count, layout.size = self.basis_count, self.size
+        self._layout = objective.layout
         pairs = self.pairs.astype(np.int32)
         self._pairs = wp.array(pairs.reshape(-1) if len(pairs) else np.zeros(2, np.int32), dtype=wp.int32, device=d)
         self._states: dict[int, _State] = {}

@@ -14,10 +14,13 @@ element's stencil), which is most of the work saved — each vertex feels a few 
 import warp as wp
 
 from ..expression import formulas as fm
+from ..kernels_surface import frame_and_element
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 __all__ = [
+    "Layout",
+    "layout_of",
     "muscle_stage",
     "first_ring_triangles",
     "bulge_stage",
@@ -27,19 +30,32 @@ __all__ = [
 ]
 
 
-@wp.func
-def _frame_and_element(i: int, count: int):
-    """Thread ``i`` of a frame-major launch over ``count`` elements per frame → ``(frame, element)``."""
-    f = i / count
-    return f, i - f * count
+@wp.struct
+class Layout:
+    """A frame's block sizes: C controls, M muscles, B basis columns of the model's input, K variables."""
+
+    control_count: int
+    muscle_count: int
+    basis_count: int
+    size: int
+
+
+def layout_of(control_count: int, muscle_count: int, basis_count: int, size: int) -> Layout:
+    """A :class:`Layout`: ``B = C + 1`` with a jaw (``sin θ, 1 − cos θ``), ``K = C`` or ``C + 6`` with the pose."""
+    result = Layout()
+    result.control_count = control_count
+    result.muscle_count = muscle_count
+    result.basis_count = basis_count
+    result.size = size
+    return result
 
 
 @wp.kernel
 def muscle_stage(
     frame_on: wp.array(dtype=wp.int32),
+    controls: wp.array(dtype=wp.float64),
     rest: wp.array(dtype=wp.vec3d),
     slot_field: wp.array(dtype=wp.vec3d),
-    controls: wp.array(dtype=wp.float64),
     active_offsets: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
     control_count: int,
@@ -51,7 +67,7 @@ def muscle_stage(
     ``slot_field`` is ``W`` per active slot (the order of ``active``), so a vertex's columns are contiguous.
     """
     i = wp.tid()
-    f, v = _frame_and_element(i, vertex_count)
+    f, v = frame_and_element(i, vertex_count)
     if frame_on[f] == 0:
         return
     x = rest[v]
@@ -97,7 +113,7 @@ def first_ring_triangles(
     bulge stage reads it for a column that does not reach the triangle).
     """
     i = wp.tid()
-    f, t = _frame_and_element(i, triangle_count)
+    f, t = frame_and_element(i, triangle_count)
     if frame_on[f] == 0:
         return
     p0, p1, p2 = _corners(points, f * vertex_count, triangles[t])
@@ -120,11 +136,11 @@ def first_ring_triangles(
 def bulge_stage(
     frame_on: wp.array(dtype=wp.int32),
     points: wp.array(dtype=wp.vec3d),
-    slot_own: wp.array(dtype=wp.vec3d),
     area: wp.array(dtype=wp.vec3d),
     ratio: wp.array(dtype=wp.float64),
     darea: wp.array(dtype=wp.vec3d),
     dratio: wp.array(dtype=wp.float64),
+    slot_own: wp.array(dtype=wp.vec3d),
     ring_vertex: wp.array(dtype=wp.int32),
     adjacency_offsets: wp.array(dtype=wp.int32),
     adjacency: wp.array(dtype=wp.int32),
@@ -154,7 +170,7 @@ def bulge_stage(
     ``pair_offsets[v]`` on, the slot of each (active column, incident triangle) pair of the vertex in loop order.
     """
     i = wp.tid()
-    f, v = _frame_and_element(i, vertex_count)
+    f, v = frame_and_element(i, vertex_count)
     if frame_on[f] == 0:
         return
     first = f * triangle_count
@@ -212,7 +228,7 @@ def second_ring_triangles(
 ):
     """Area vectors of x2 (for the wrinkles' normal) and their derivatives."""
     i = wp.tid()
-    f, t = _frame_and_element(i, triangle_count)
+    f, t = frame_and_element(i, triangle_count)
     if frame_on[f] == 0:
         return
     tri = triangles[t]
@@ -272,7 +288,7 @@ def wrinkle_stage(
     ``dfinal`` is laid out (frames, vertices, 3, controls): a frame's Jacobian is one (3n, M) matrix.
     """
     i = wp.tid()
-    f, v = _frame_and_element(i, vertex_count)
+    f, v = frame_and_element(i, vertex_count)
     if frame_on[f] == 0:
         return
     source = f * ring_count + ring_vertex[v]
@@ -335,7 +351,6 @@ def _observed(
 def _column(
     dx3: wp.array(dtype=wp.float64),
     basis: wp.array(dtype=wp.float64),
-    x3: wp.array(dtype=wp.vec3d),
     frame: int,
     frame_first: int,
     point_offsets: wp.array(dtype=wp.int32),
@@ -343,9 +358,7 @@ def _column(
     point_weight: wp.array(dtype=wp.float64),
     n: int,
     c: int,
-    control_count: int,
-    muscle_count: int,
-    basis_count: int,
+    layout: Layout,
     rotation: wp.mat33d,
     arm: wp.vec3d,
     unit: wp.float64,
@@ -358,6 +371,9 @@ def _column(
     ``cos θ · ∂x/∂(sin θ) + sin θ · ∂x/∂(1 − cos θ)`` (``local_model`` docstring), taken here rather than
     by a separate pass over every row, and the slides sit one basis column later.
     """
+    control_count = layout.control_count
+    muscle_count = layout.muscle_count
+    basis_count = layout.basis_count
     if c < control_count:
         # Branch-free: every column is ``first·cosine + second·sine``, with (1, 0) for all but the angle
         # (exact: ``d·1 + d·0 = d``): a branch here makes the CPU build of this kernel much slower.
@@ -406,10 +422,7 @@ def normal_equations(
     frame_on: wp.array(dtype=wp.int32),
     origin: wp.vec3d,
     unit: wp.float64,
-    control_count: int,
-    muscle_count: int,
-    basis_count: int,
-    variable_count: int,
+    layout: Layout,
     vertex_count: int,
     point_count: int,
     jacobian: int,
@@ -424,8 +437,7 @@ def normal_equations(
     Columns are in mesh units per variable; the caller scales them to the solver's variables.
     """
     i = wp.tid()
-    f = i / point_count
-    n = i - f * point_count
+    f, n = frame_and_element(i, point_count)
     w = weights[i]
     if w == wp.float64(0.0) or frame_on[f] == 0:
         return
@@ -437,6 +449,7 @@ def normal_equations(
     wp.atomic_add(misfit, f, w * wp.dot(e, e))
     if jacobian == 0:
         return
+    variable_count = layout.size
     begin = active_offsets[n]
     end = active_offsets[n + 1]
     for a in range(begin, end):
@@ -445,22 +458,7 @@ def normal_equations(
         for b in range(a, end):  # b = a first: that column is col_a
             cb = active[b]
             col_b = _column(
-                dx3,
-                basis,
-                x3,
-                f,
-                first,
-                point_offsets,
-                point_vertex,
-                point_weight,
-                n,
-                cb,
-                control_count,
-                muscle_count,
-                basis_count,
-                r,
-                arm,
-                unit,
+                dx3, basis, f, first, point_offsets, point_vertex, point_weight, n, cb, layout, r, arm, unit
             )
             if b == a:
                 col_a = col_b

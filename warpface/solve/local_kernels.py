@@ -23,9 +23,7 @@ def write_model_input(
     values: wp.array(dtype=wp.float64),
     scale: wp.array(dtype=wp.float64),
     f: int,
-    control_count: int,
-    muscle_count: int,
-    basis_count: int,
+    layout: kernels.Layout,
     out: wp.array(dtype=wp.float64),
 ):
     """Frame ``f``'s controls ``values/scale`` (C per frame) → the pipeline's input (B per frame).
@@ -35,11 +33,13 @@ def write_model_input(
     the same bits (a muscle at rest next to a rigidly moved vertex sits on the wrinkle term's kink, where
     an ulp of ``sin θ`` picks the side of the derivative).
     """
+    control_count = layout.control_count
+    muscle_count = layout.muscle_count
     ub = f * control_count
-    ob = f * basis_count
+    ob = f * layout.basis_count
     for m in range(muscle_count):
         out[ob + m] = values[ub + m] / scale[m]
-    if basis_count > control_count:
+    if layout.basis_count > control_count:
         angle = values[ub + muscle_count] / scale[muscle_count]
         out[ob + muscle_count] = wp.sin(angle)
         out[ob + muscle_count + 1] = wp.float64(1.0) - wp.cos(angle)
@@ -54,13 +54,11 @@ def write_model_input(
 def model_input_kernel(
     controls: wp.array(dtype=wp.float64),
     ones: wp.array(dtype=wp.float64),
-    control_count: int,
-    muscle_count: int,
-    basis_count: int,
+    layout: kernels.Layout,
     out: wp.array(dtype=wp.float64),
 ):
     """Per frame: controls (F·C) → the pipeline's basis (F·B), see :func:`write_model_input`."""
-    write_model_input(controls, ones, wp.tid(), control_count, muscle_count, basis_count, out)
+    write_model_input(controls, ones, wp.tid(), layout, out)
 
 
 @wp.kernel
@@ -68,9 +66,7 @@ def jaw_chain_rule_kernel(
     dbasis: wp.array(dtype=wp.float64),
     basis: wp.array(dtype=wp.float64),
     rows_per_frame: int,
-    muscle_count: int,
-    basis_count: int,
-    control_count: int,
+    layout: kernels.Layout,
     dcontrols: wp.array(dtype=wp.float64),
 ):
     """Per (frame, vertex, axis) row: basis derivatives → control derivatives (``local_model`` docstring).
@@ -78,9 +74,11 @@ def jaw_chain_rule_kernel(
     ``∂x/∂θ = cos θ · ∂x/∂(sin θ) + sin θ · ∂x/∂(1 − cos θ)``; muscle and slide columns are copied.
     """
     row = wp.tid()
+    muscle_count = layout.muscle_count
+    basis_count = layout.basis_count
     frame = row // rows_per_frame
     source = row * basis_count
-    target = row * control_count
+    target = row * layout.control_count
     for m in range(muscle_count):
         dcontrols[target + m] = dbasis[source + m]
     sine = basis[frame * basis_count + muscle_count]
@@ -154,6 +152,8 @@ class LocalExpression:
         """The two rings around the vertices and the rig's data on them (host, float64)."""
         self.vertices, self.count, self.control_count = local.vertices, local.count, local.control_count
         self.basis_count, self.muscle_count, self.has_jaw = local.basis_count, local.muscle_count, local.has_jaw
+        self.layout = kernels.layout_of(self.control_count, self.muscle_count, self.basis_count, self.control_count)
+        """The model's block sizes (its variables: the controls)."""
         d = self.device
         f64 = lambda a: wp.array(np.ascontiguousarray(a, dtype=np.float64), dtype=wp.float64, device=d)  # noqa: E731
         i32 = lambda a: wp.array(np.ascontiguousarray(a, dtype=np.int32), dtype=wp.int32, device=d)  # noqa: E731
@@ -228,6 +228,35 @@ class LocalExpression:
         self._slot_own = vec(local.field2[own, :, ring.indices])
         """Per active (vertex, column) slot of ``s1``: the vertex's own ``W`` (0 for a column that moves only
         its ring)."""
+        self._rig = {
+            "muscle": (self._rest, self._slot_field, *self._active["s2"]),
+            "first_ring": (self._slot_edges, self._t1, self._t1_weight, self._t1_length, *self._active["t1"]),
+            "bulge": (
+                self._slot_own,
+                self._s1_in_s2,
+                self._adj1_offsets,
+                self._adj1,
+                self._counts1,
+                self._thickness1,
+                *self._active["s1"],
+                self._pair_offsets,
+                self._pair_slot,
+                wp.float64(STRETCH_FLOOR),
+            ),
+            "second_ring": (self._t0, self._t0_weight, *self._active["t0"]),
+            "wrinkle": (
+                self._s0_in_s1,
+                self._adj0_offsets,
+                self._adj0,
+                self._profile_offsets,
+                self._profile_wrinkle,
+                self._profile_value,
+                self._kr,
+                wp.float64(REST_STRETCH_BAND),
+                *self._active["s0"],
+            ),
+        }
+        """Each stage's constant rig arguments, in its kernel's order (between the frame's inputs and the sizes)."""
 
     @property
     def bytes_per_frame(self) -> int:
@@ -266,7 +295,7 @@ class LocalExpression:
                     dim=frames,
                     device=self.device,
                     record_cmd=True,
-                    inputs=[buffers.raw_controls, self._ones, self.control_count, self.muscle_count, self.basis_count],
+                    inputs=[buffers.raw_controls, self._ones, self.layout],
                     outputs=[buffers.controls],
                 )
             buffers.basis_command.launch()
@@ -284,123 +313,51 @@ class LocalExpression:
             command.launch()
 
     def _record(self, buffers: _Buffers, frames: int, jacobian: bool, per_control: bool) -> list:
-        s, m, d = self._sizes, self.basis_count, self.device
+        s, m, rig, b = self._sizes, self.basis_count, self._rig, buffers
         jac = 1 if jacobian else 0
         commands = []
 
-        def launch(kernel, **kwargs):
-            commands.append(wp.launch(kernel, record_cmd=True, **kwargs))
+        def launch(kernel, count: int, inputs: list, outputs: list):
+            """Record ``kernel`` over ``count`` elements per frame."""
+            commands.append(
+                wp.launch(
+                    kernel, dim=frames * count, device=self.device, inputs=inputs, outputs=outputs, record_cmd=True
+                )
+            )
 
-        launch(
-            kernels.muscle_stage,
-            dim=frames * s["n2"],
-            device=d,
-            inputs=[buffers.frame_on, self._rest, self._slot_field, buffers.controls, *self._active["s2"], m, s["n2"]],
-            outputs=[buffers.x1],
-        )
+        launch(kernels.muscle_stage, s["n2"], [b.frame_on, b.controls, *rig["muscle"], m, s["n2"]], [b.x1])
         launch(
             kernels.first_ring_triangles,
-            dim=frames * s["t1"],
-            device=d,
-            inputs=[
-                buffers.frame_on,
-                buffers.x1,
-                self._slot_edges,
-                self._t1,
-                self._t1_weight,
-                self._t1_length,
-                *self._active["t1"],
-                m,
-                s["n2"],
-                s["t1"],
-                jac,
-            ],
-            outputs=[buffers.area1, buffers.ratio1, buffers.darea1, buffers.dratio1],
+            s["t1"],
+            [b.frame_on, b.x1, *rig["first_ring"], m, s["n2"], s["t1"], jac],
+            [b.area1, b.ratio1, b.darea1, b.dratio1],
         )
         launch(
             kernels.bulge_stage,
-            dim=frames * s["n1"],
-            device=d,
-            inputs=[
-                buffers.frame_on,
-                buffers.x1,
-                self._slot_own,
-                buffers.area1,
-                buffers.ratio1,
-                buffers.darea1,
-                buffers.dratio1,
-                self._s1_in_s2,
-                self._adj1_offsets,
-                self._adj1,
-                self._counts1,
-                self._thickness1,
-                *self._active["s1"],
-                self._pair_offsets,
-                self._pair_slot,
-                wp.float64(STRETCH_FLOOR),
-                m,
-                s["n2"],
-                s["n1"],
-                s["t1"],
-                s["t1_slots"],
-                jac,
-            ],
-            outputs=[buffers.stretch, buffers.x2, buffers.dstretch, buffers.dx2],
+            s["n1"],
+            [b.frame_on, b.x1, b.area1, b.ratio1, b.darea1, b.dratio1, *rig["bulge"]]
+            + [m, s["n2"], s["n1"], s["t1"], s["t1_slots"], jac],
+            [b.stretch, b.x2, b.dstretch, b.dx2],
         )
         launch(
             kernels.second_ring_triangles,
-            dim=frames * s["t0"],
-            device=d,
-            inputs=[
-                buffers.frame_on,
-                buffers.x2,
-                buffers.dx2,
-                self._t0,
-                self._t0_weight,
-                *self._active["t0"],
-                m,
-                s["n1"],
-                s["t0"],
-                jac,
-            ],
-            outputs=[buffers.area0, buffers.darea0],
+            s["t0"],
+            [b.frame_on, b.x2, b.dx2, *rig["second_ring"], m, s["n1"], s["t0"], jac],
+            [b.area0, b.darea0],
         )
         launch(
             kernels.wrinkle_stage,
-            dim=frames * s["n0"],
-            device=d,
-            inputs=[
-                buffers.frame_on,
-                buffers.x2,
-                buffers.stretch,
-                buffers.dx2,
-                buffers.dstretch,
-                buffers.area0,
-                buffers.darea0,
-                self._s0_in_s1,
-                self._adj0_offsets,
-                self._adj0,
-                self._profile_offsets,
-                self._profile_wrinkle,
-                self._profile_value,
-                self._kr,
-                wp.float64(REST_STRETCH_BAND),
-                *self._active["s0"],
-                m,
-                s["n1"],
-                s["n0"],
-                s["t0"],
-                jac,
-            ],
-            outputs=[buffers.x3, buffers.dx3_basis],
+            s["n0"],
+            [b.frame_on, b.x2, b.stretch, b.dx2, b.dstretch, b.area0, b.darea0, *rig["wrinkle"]]
+            + [m, s["n1"], s["n0"], s["t0"], jac],
+            [b.x3, b.dx3_basis],
         )
         if jacobian and per_control and self.has_jaw:
             launch(
                 jaw_chain_rule_kernel,
-                dim=frames * s["n0"] * 3,
-                device=d,
-                inputs=[buffers.dx3_basis, buffers.controls, s["n0"] * 3, self.muscle_count, m, self.control_count],
-                outputs=[buffers.dx3],
+                s["n0"] * 3,
+                [b.dx3_basis, b.controls, s["n0"] * 3, self.layout],
+                [b.dx3],
             )
         return commands
 
@@ -467,26 +424,17 @@ def _active_controls(local: Neighbourhood) -> dict:
     def spread(incidence: sp.csr_matrix, inner: sp.csr_matrix) -> sp.csr_matrix:
         return (incidence.astype(bool) @ inner).astype(bool).tocsr()
 
+    def corners(triangles: np.ndarray, vertex_count: int) -> sp.csr_matrix:
+        """Triangle → its three corners, (T, vertex_count) bool."""
+        owner = np.repeat(np.arange(len(triangles)), 3)
+        return sp.csr_matrix(
+            (np.ones(triangles.size, bool), (owner, triangles.ravel())), shape=(len(triangles), vertex_count)
+        )
+
     moved = sp.csr_matrix(np.any(local.field2 != 0.0, axis=1))  # (n2, M)
-    n2 = len(local.rest2)
-    corners1 = sp.csr_matrix(
-        (
-            np.ones(local.triangles1.size, bool),
-            (np.repeat(np.arange(len(local.triangles1)), 3), local.triangles1.ravel()),
-        ),
-        shape=(len(local.triangles1), n2),
-    )
-    t1 = spread(corners1, moved)
+    t1 = spread(corners(local.triangles1, len(local.rest2)), moved)
     s1 = (spread(local.incidence1, t1) + moved[local.s1_in_s2]).astype(bool).tocsr()
-    n1 = len(local.s1_in_s2)
-    corners0 = sp.csr_matrix(
-        (
-            np.ones(local.triangles0.size, bool),
-            (np.repeat(np.arange(len(local.triangles0)), 3), local.triangles0.ravel()),
-        ),
-        shape=(len(local.triangles0), n1),
-    )
-    t0 = spread(corners0, s1)
+    t0 = spread(corners(local.triangles0, len(local.s1_in_s2)), s1)
     s0 = (spread(local.incidence0, t0) + s1[local.s0_in_s1]).astype(bool).tocsr()
     result = {}
     for name, matrix in (("s2", moved), ("t1", t1), ("s1", s1), ("t0", t0), ("s0", s0)):

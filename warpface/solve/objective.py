@@ -73,6 +73,8 @@ class DeviceObjective:
         self.device = model.device
         self.control_count = model.control_count
         self.variable_count = model.control_count + (6 if pose else 0)
+        self.layout = kernels.layout_of(model.control_count, model.muscle_count, model.basis_count, self.variable_count)
+        """The block sizes of the normal equations' kernel and the device iteration."""
         self.point_count = observation.count
         self.origin = wp.vec3d(*np.asarray(origin, dtype=np.float64))
         self.unit = float(unit)
@@ -205,10 +207,7 @@ class DeviceObjective:
                     data.frame_on,
                     self.origin,
                     wp.float64(self.unit),
-                    self.control_count,
-                    self.model.muscle_count,
-                    self.model.basis_count,
-                    self.variable_count,
+                    self.layout,
                     self.model.count,
                     self.point_count,
                     1 if jacobian else 0,

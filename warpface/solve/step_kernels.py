@@ -19,6 +19,7 @@ picks each control's side (the bounds of the iteration, ``lower``/``upper``), th
 
 import warp as wp
 
+from .kernels import Layout
 from .local_kernels import write_model_input
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -29,16 +30,6 @@ BOUND_SLACK = wp.constant(1e-12)
 """A scaled control this close to a bound counts as at it (the host loop's margin)."""
 MAX_TRIES = wp.constant(8)
 """Rejected trials per iteration before a frame counts as stationary."""
-
-
-@wp.struct
-class Layout:
-    """A frame's block sizes: C controls, M muscles, B basis columns of the model's input, K variables."""
-
-    control_count: int
-    muscle_count: int
-    basis_count: int
-    size: int
 
 
 @wp.struct
@@ -235,9 +226,7 @@ def _propose(f: int, layout: Layout, scaling: Scaling, state: Iterate, model: Mo
     for m in range(control_count):
         moved = state.u[ub + m] + step[vb + m]
         state.trial_u[ub + m] = wp.min(wp.max(moved, state.lower[ub + m]), state.upper[ub + m])
-    write_model_input(
-        state.trial_u, scaling.scale, f, control_count, layout.muscle_count, layout.basis_count, model.controls
-    )
+    write_model_input(state.trial_u, scaling.scale, f, layout, model.controls)
     r = state.rotation[f]
     t = state.translation[f]
     if layout.size > control_count:
@@ -257,9 +246,7 @@ def _propose(f: int, layout: Layout, scaling: Scaling, state: Iterate, model: Mo
 def load_current(layout: Layout, scaling: Scaling, state: Iterate, model: ModelInput):
     """The current iterate as the model's input; counts the frames still iterating."""
     f = wp.tid()
-    write_model_input(
-        state.u, scaling.scale, f, layout.control_count, layout.muscle_count, layout.basis_count, model.controls
-    )
+    write_model_input(state.u, scaling.scale, f, layout, model.controls)
     model.rotation[f] = state.rotation[f]
     model.translation[f] = state.translation[f]
     model.frame_on[f] = state.active[f]
