@@ -316,8 +316,9 @@ LINEAR_PULLS = {
     "orbicularis_oris_roll_upper": (0.35, 60.0, 0.90, 1.45),
     "orbicularis_oris_roll_lower": (0.35, 60.0, 0.90, 1.45),
 }
-"""How each :func:`linear_muscle` of the rigs pulls, by name; its ends (from the landmarks) are in
-:func:`anatomy_muscles` and :func:`warpface.assets.rig.default_rig`'s classic muscles."""
+"""How each table-built :func:`linear_muscle` of the rigs pulls, by name (see :func:`linear_muscles`); the ends,
+from the landmarks, are in :func:`anatomy_muscles` and in :mod:`warpface.assets.rig` for the classic muscles.
+:func:`revised_classic_muscles` sets its own."""
 
 
 def anatomy_muscles(
