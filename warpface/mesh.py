@@ -175,21 +175,19 @@ class FaceMesh:
         if positions.shape != self.points.shape:
             raise ValueError(f"{self.name}: points must have shape {self.points.shape}, got {positions.shape}")
         buffers = self.device_buffers(device=device)
-        counts = [self.vertex_count, self.triangle_count]
         x = wp.array(positions.astype(np.float32), dtype=wp.vec3, device=device)
-        area_vectors = wp.empty(self.triangle_count, dtype=wp.vec3, device=device)
+        area_vectors = _area_vectors(x, buffers.triangles, buffers.triangle_weight)
         normals = wp.empty(self.vertex_count, dtype=wp.vec3, device=device)
-        wp.launch(
-            triangle_area_vectors,
-            dim=self.triangle_count,
-            inputs=[x, buffers.triangles, buffers.triangle_weight, *counts],
-            outputs=[area_vectors],
-            device=device,
-        )
         wp.launch(
             vertex_normals_kernel,
             dim=self.vertex_count,
-            inputs=[area_vectors, buffers.adjacency_offsets, buffers.adjacency_triangles, *counts],
+            inputs=[
+                area_vectors,
+                buffers.adjacency_offsets,
+                buffers.adjacency_triangles,
+                self.vertex_count,
+                self.triangle_count,
+            ],
             outputs=[normals],
             device=device,
         )
@@ -227,14 +225,7 @@ class MeshBuffers:
         weight = wp.array((~mesh.degenerate_triangles).astype(np.float32), dtype=wp.float32, device=device)
         rest_points = wp.array(mesh.points.astype(np.float32), dtype=wp.vec3, device=device)
         triangles = wp.array(mesh.triangles.astype(np.int32), dtype=wp.vec3i, device=device)
-        area_vectors = wp.empty(mesh.triangle_count, dtype=wp.vec3, device=device)
-        wp.launch(
-            triangle_area_vectors,
-            dim=mesh.triangle_count,
-            inputs=[rest_points, triangles, weight, mesh.vertex_count, mesh.triangle_count],
-            outputs=[area_vectors],
-            device=device,
-        )
+        area_vectors = _area_vectors(rest_points, triangles, weight)
         lengths = wp.empty(mesh.triangle_count, dtype=wp.float32, device=device)
         wp.launch(
             stretch_reference_lengths,
@@ -251,6 +242,19 @@ class MeshBuffers:
             adjacency_offsets=wp.array(mesh.adjacency.offsets, dtype=wp.int32, device=device),
             adjacency_triangles=wp.array(mesh.adjacency.triangles, dtype=wp.int32, device=device),
         )
+
+
+def _area_vectors(points: wp.array, triangles: wp.array, weight: wp.array) -> wp.array:
+    """``weight · (p1 − p0) × (p2 − p0)`` per triangle of one frame of ``points`` (vec3, on their device)."""
+    area_vectors = wp.empty(triangles.shape[0], dtype=wp.vec3, device=points.device)
+    wp.launch(
+        triangle_area_vectors,
+        dim=triangles.shape[0],
+        inputs=[points, triangles, weight, points.shape[0], triangles.shape[0]],
+        outputs=[area_vectors],
+        device=points.device,
+    )
+    return area_vectors
 
 
 def load_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:

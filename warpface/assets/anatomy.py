@@ -106,6 +106,18 @@ def linear_muscle(
     return LinearMuscle(name, attachment, insertion, zone_deg, start * length, finish * length)
 
 
+def linear_muscles(surface: SurfaceSampler, ends: dict, pulls: dict, *, suffix: str = "") -> dict[str, LinearMuscle]:
+    """:func:`linear_muscle` s by name (``name + suffix``), from two tables: ``ends``, name → (origin_xy,
+    insertion_xy), and ``pulls``, name → (depth, zone_deg, start, finish)."""
+    muscles = {}
+    for name, (origin_xy, insertion_xy) in ends.items():
+        depth, zone_deg, start, finish = pulls[name]
+        muscles[name + suffix] = linear_muscle(
+            name + suffix, surface, origin_xy, depth, insertion_xy, zone_deg, start, finish
+        )
+    return muscles
+
+
 ORBITAL_SEMI_AXES = (0.95, 0.70)
 """Semi-axes (across, up) of the orbital orbicularis oculi [inter-ocular units]: its pull reaches the
 upper cheek below and lateral of the eye, where a squint (AU6) moves the skin most (docs/RIG.md §5)."""
@@ -279,6 +291,36 @@ def _frontalis_belly(
     return LinearMuscle(name, attachment, insertion, zone, start * length, finish * length, lobes=tuple(lobes))
 
 
+LINEAR_PULLS = {
+    # name: (origin depth, zone half-angle [deg], falloff start, falloff finish as fractions of the length)
+    # the classic rig's (warpface.assets.rig)
+    "corrugator": (0.06, 40.0, 0.75, 1.50),
+    "levator_labii_alaeque_nasi": (0.22, 24.0, 0.85, 1.40),
+    "levator_labii_superioris": (0.18, 20.0, 0.88, 1.30),
+    "zygomaticus_major": (0.25, 30.0, 0.90, 1.45),
+    "risorius": (0.30, 24.0, 0.90, 1.40),
+    "depressor_anguli_oris": (0.18, 24.0, 0.88, 1.35),
+    "depressor_labii_inferioris": (0.20, 22.0, 0.85, 1.30),
+    "procerus": (0.10, 34.0, 0.80, 1.30),
+    "mentalis": (0.20, 50.0, 0.90, 1.60),
+    # the full rig's added muscles
+    "depressor_supercilii": (0.10, 40.0, 0.75, 1.45),
+    "levator_anguli_oris": (0.25, 30.0, 0.85, 1.45),
+    "zygomaticus_minor": (0.22, 24.0, 0.85, 1.40),
+    "buccinator": (0.12, 34.0, 0.90, 1.45),
+    "platysma": (0.20, 38.0, 0.95, 1.55),
+    "nasalis": (0.12, 30.0, 0.80, 1.45),
+    "orbicularis_oculi_upper_lid": (0.06, 70.0, 0.90, 1.70),
+    "orbicularis_oculi_lower_lid": (0.06, 70.0, 0.90, 2.20),
+    "levator_palpebrae": (0.35, 40.0, 0.90, 1.30),
+    "orbicularis_oris_roll_upper": (0.35, 60.0, 0.90, 1.45),
+    "orbicularis_oris_roll_lower": (0.35, 60.0, 0.90, 1.45),
+}
+"""How each table-built :func:`linear_muscle` of the rigs pulls, by name (see :func:`linear_muscles`); the ends,
+from the landmarks, are in :func:`anatomy_muscles` and in :mod:`warpface.assets.rig` for the classic muscles.
+:func:`revised_classic_muscles` sets its own."""
+
+
 def anatomy_muscles(
     local: np.ndarray, surface: SurfaceSampler, frame: FaceFrame, classic_sphincters: list[SphincterMuscle]
 ) -> tuple[list[LinearMuscle], list[SphincterMuscle]]:
@@ -303,66 +345,19 @@ def anatomy_muscles(
         eye = xy[list(i["eye"])].mean(axis=0)
         wing, corner, upper = xy[i["wing"]], xy[i["corner"]], xy[i["upper"]]
         jaw_mouth, jaw_low = xy[i["jaw_mouth"]], xy[i["jaw_low"]]
-        linear[f"depressor_supercilii_{tag}"] = linear_muscle(
-            f"depressor_supercilii_{tag}",
-            surface,
-            (0.5 * (eye_inner[0] + 0.05 * s), eye_inner[1] - 0.02),
-            0.10,
-            (brow_inner[0] + 0.02 * s, brow_inner[1] + 0.04),
-            40.0,
-            0.75,
-            1.45,
-        )
-        linear[f"levator_anguli_oris_{tag}"] = linear_muscle(
-            f"levator_anguli_oris_{tag}",
-            surface,
-            (wing[0] + 0.12 * s, wing[1] - 0.02),
-            0.25,
-            (corner[0] + 0.02 * s, corner[1] + 0.02),
-            30.0,
-            0.85,
-            1.45,
-        )
-        linear[f"zygomaticus_minor_{tag}"] = linear_muscle(
-            f"zygomaticus_minor_{tag}",
-            surface,
-            (eye[0] + 0.12 * s, eye[1] - 0.42),
-            0.22,
-            (0.5 * (upper[0] + corner[0]), upper[1] + 0.03),
-            24.0,
-            0.85,
-            1.40,
-        )
-        linear[f"buccinator_{tag}"] = linear_muscle(
-            f"buccinator_{tag}",
-            surface,
-            (0.80 * jaw_mouth[0], corner[1] - 0.02),
-            0.12,
-            (corner[0] + 0.05 * s, corner[1]),
-            34.0,
-            0.90,
-            1.45,
-        )
-        linear[f"platysma_{tag}"] = linear_muscle(
-            f"platysma_{tag}",
-            surface,
-            (jaw_low[0] + 0.05 * s, jaw_low[1] - 0.35),
-            0.20,
-            (corner[0] + 0.03 * s, corner[1] - 0.06),
-            38.0,
-            0.95,
-            1.55,
-        )
-        linear[f"nasalis_{tag}"] = linear_muscle(
-            f"nasalis_{tag}",
-            surface,
-            (wing[0] + 0.06 * s, wing[1] + 0.02),
-            0.12,
-            (0.45 * wing[0], xy[29, 1]),
-            30.0,
-            0.80,
-            1.45,
-        )
+        ends = {
+            # name: (origin (x, y), insertion (x, y))
+            "depressor_supercilii": (
+                (0.5 * (eye_inner[0] + 0.05 * s), eye_inner[1] - 0.02),
+                (brow_inner[0] + 0.02 * s, brow_inner[1] + 0.04),
+            ),
+            "levator_anguli_oris": ((wing[0] + 0.12 * s, wing[1] - 0.02), (corner[0] + 0.02 * s, corner[1] + 0.02)),
+            "zygomaticus_minor": ((eye[0] + 0.12 * s, eye[1] - 0.42), (0.5 * (upper[0] + corner[0]), upper[1] + 0.03)),
+            "buccinator": ((0.80 * jaw_mouth[0], corner[1] - 0.02), (corner[0] + 0.05 * s, corner[1])),
+            "platysma": ((jaw_low[0] + 0.05 * s, jaw_low[1] - 0.35), (corner[0] + 0.03 * s, corner[1] - 0.06)),
+            "nasalis": ((wing[0] + 0.06 * s, wing[1] + 0.02), (0.45 * wing[0], xy[29, 1])),
+        }
+        linear.update(linear_muscles(surface, ends, LINEAR_PULLS, suffix=f"_{tag}"))
     for tag, s in _SIDES:
         # Palpebral part, one per lid: its fibres run round the lid between the palpebral ligaments,
         # so a contraction carries the lid (and the skin beyond it) toward the opposite lid margin
@@ -372,38 +367,21 @@ def anatomy_muscles(
         eye, inner = ring.mean(axis=0), xy[_LANDMARKS[tag]["eye_inner"]]
         top, bottom = ring[:, 1].max(), ring[:, 1].min()
         medial = eye[0] + 0.75 * (inner[0] - eye[0])
-        linear[f"orbicularis_oculi_upper_lid_{tag}"] = linear_muscle(
-            f"orbicularis_oculi_upper_lid_{tag}",
-            surface,
-            (medial, bottom),
-            0.06,
-            (eye[0], top + 0.10),
-            70.0,
-            0.90,
-            1.70,
-        )
-        lid = linear_muscle(
-            f"orbicularis_oculi_lower_lid_{tag}",
-            surface,
-            (medial, top),
-            0.06,
-            (eye[0], bottom - 0.12),
-            70.0,
-            0.90,
-            2.20,
-        )
+        ends = {
+            "orbicularis_oculi_upper_lid": ((medial, bottom), (eye[0], top + 0.10)),
+            "orbicularis_oculi_lower_lid": ((medial, top), (eye[0], bottom - 0.12)),
+            # Levator palpebrae superioris: from the orbit's roof, deep behind the brow, into the upper lid (eyeWide).
+            "levator_palpebrae": ((eye[0], top + 0.30), (eye[0], top + 0.02)),
+        }
+        linear.update(linear_muscles(surface, ends, LINEAR_PULLS, suffix=f"_{tag}"))
+        lid = linear[f"orbicularis_oculi_lower_lid_{tag}"]
         linear[lid.name] = replace(lid, lobes=(_cheek_lobe(surface, xy[_LANDMARKS[tag]["eye_inner"]], eye, s),))
-        # Levator palpebrae superioris: from the orbit's roof, deep behind the brow, into the upper lid (eyeWide).
-        linear[f"levator_palpebrae_{tag}"] = linear_muscle(
-            f"levator_palpebrae_{tag}", surface, (eye[0], top + 0.30), 0.35, (eye[0], top + 0.02), 40.0, 0.90, 1.30
-        )
     mouth_line = 0.5 * (xy[62, 1] + xy[66, 1])
-    linear["orbicularis_oris_roll_upper"] = linear_muscle(
-        "orbicularis_oris_roll_upper", surface, (0.0, mouth_line + 0.02), 0.35, (0.0, xy[51, 1]), 60.0, 0.90, 1.45
-    )
-    linear["orbicularis_oris_roll_lower"] = linear_muscle(
-        "orbicularis_oris_roll_lower", surface, (0.0, mouth_line - 0.02), 0.35, (0.0, xy[57, 1]), 60.0, 0.90, 1.45
-    )
+    ends = {
+        "orbicularis_oris_roll_upper": ((0.0, mouth_line + 0.02), (0.0, xy[51, 1])),
+        "orbicularis_oris_roll_lower": ((0.0, mouth_line - 0.02), (0.0, xy[57, 1])),
+    }
+    linear.update(linear_muscles(surface, ends, LINEAR_PULLS))
 
     world, up = frame.to_world, frame.axes[1]
     sphincters = {m.name: m for m in classic_sphincters}

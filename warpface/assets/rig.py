@@ -30,9 +30,10 @@ from ..rig import FaceRig
 from .anatomy import (
     ANATOMY_LINEAR_MUSCLE_NAMES,
     ANATOMY_SPHINCTER_MUSCLE_NAMES,
+    LINEAR_PULLS,
     SKIN_RESPONSE_OVERRIDES,
     anatomy_muscles,
-    linear_muscle,
+    linear_muscles,
     revised_classic_muscles,
 )
 from .face import default_face, default_landmarks
@@ -224,8 +225,9 @@ def _linear_muscles(L: np.ndarray, surface: SurfaceSampler) -> list[LinearMuscle
         _, second, middle, fourth, inner = (xy[i] for i in side.brow)
         eye_outer, eye_inner = xy[side.eye_outer], xy[side.eye_inner]
         eye = xy[list(side.eye)].mean(axis=0)
-        corner = xy[side.mouth_corner]
-        wing = xy[side.nose_wing]
+        corner, wing = xy[side.mouth_corner], xy[side.nose_wing]
+        upper_lip, lower = xy[side.upper_lip], xy[side.lower_lip]
+        cheek_side, chin_side = xy[side.jaw[3]], xy[side.jaw[6]]
         # Frontalis: from the galea aponeurotica over the crown down into the brow skin (AU1, AU2).
         # The attachment lies beyond the top of a typical face mesh, so the pull is nearly uniform
         # over the forehead instead of concentrated at a point on it.
@@ -235,96 +237,44 @@ def _linear_muscles(L: np.ndarray, surface: SurfaceSampler) -> list[LinearMuscle
         muscles[f"frontalis_outer_{tag}"] = _galea_muscle(
             f"frontalis_outer_{tag}", surface, second[0] - 0.05 * s, brow_top, (second[0] + 0.02 * s, second[1] + 0.05)
         )
-        # Corrugator: from the medial end of the brow ridge into the skin above mid-brow; pulls the
-        # brows together and down (AU4), squeezing the skin between them into vertical furrows.
-        muscles[f"corrugator_{tag}"] = linear_muscle(
-            f"corrugator_{tag}",
-            surface,
-            (0.03 * s, inner[1] - 0.06),
-            0.06,
-            (0.5 * (middle[0] + fourth[0]), fourth[1] + 0.07),
-            40.0,
-            0.75,
-            1.50,
-        )
-        # Levator labii superioris alaeque nasi: frontal process of the maxilla → nose wing (AU9).
-        muscles[f"levator_labii_alaeque_nasi_{tag}"] = linear_muscle(
-            f"levator_labii_alaeque_nasi_{tag}",
-            surface,
-            (0.45 * eye_inner[0], eye_inner[1] + 0.05),
-            0.22,
-            (wing[0] + 0.02 * s, wing[1] + 0.04),
-            24.0,
-            0.85,
-            1.40,
-        )
-        # Levator labii superioris: infraorbital margin → upper lip (AU10).
-        muscles[f"levator_labii_superioris_{tag}"] = linear_muscle(
-            f"levator_labii_superioris_{tag}",
-            surface,
-            (eye[0] - 0.02 * s, eye[1] - 0.36),
-            0.18,
-            (xy[side.upper_lip, 0] + 0.02 * s, xy[side.upper_lip, 1] + 0.06),
-            20.0,
-            0.88,
-            1.30,
-        )
-        # Zygomaticus major: zygomatic bone → mouth corner, up and back (AU12, smile).
-        muscles[f"zygomaticus_major_{tag}"] = linear_muscle(
-            f"zygomaticus_major_{tag}",
-            surface,
-            (eye_outer[0] + 0.40 * s, eye[1] - 0.30),
-            0.25,
-            (corner[0] + 0.07 * s, corner[1] + 0.01),
-            30.0,
-            0.90,
-            1.45,
-        )
-        # Risorius: masseteric fascia → mouth corner, sideways (AU20).
-        cheek_side = xy[side.jaw[3]]
-        muscles[f"risorius_{tag}"] = linear_muscle(
-            f"risorius_{tag}",
-            surface,
-            (0.85 * cheek_side[0], corner[1] + 0.02),
-            0.30,
-            (corner[0] + 0.07 * s, corner[1]),
-            24.0,
-            0.90,
-            1.40,
-        )
-        # Depressor anguli oris: mandible below the corner → mouth corner, down (AU15).
-        chin_side = xy[side.jaw[6]]
-        muscles[f"depressor_anguli_oris_{tag}"] = linear_muscle(
-            f"depressor_anguli_oris_{tag}",
-            surface,
-            (corner[0] + 0.10 * s, 0.5 * (corner[1] + chin_side[1]) - 0.10),
-            0.18,
-            (corner[0] + 0.02 * s, corner[1] - 0.02),
-            24.0,
-            0.88,
-            1.35,
-        )
-        # Depressor labii inferioris: mandible → lower lip, down (AU16).
-        lower = xy[side.lower_lip]
-        muscles[f"depressor_labii_inferioris_{tag}"] = linear_muscle(
-            f"depressor_labii_inferioris_{tag}",
-            surface,
-            (lower[0] + 0.12 * s, lower[1] - 0.42),
-            0.20,
-            (lower[0] + 0.03 * s, lower[1] - 0.02),
-            22.0,
-            0.85,
-            1.30,
-        )
-    # Procerus: nasal bone → skin between the brows, pulling it down (nasal-root lines).
-    glabella_y = 0.5 * (xy[21, 1] + xy[22, 1]) + 0.12
-    muscles["procerus"] = linear_muscle(
-        "procerus", surface, (0.0, xy[28, 1]), 0.10, (0.0, glabella_y), 34.0, 0.80, 1.30
-    )
-    # Mentalis: incisive fossa below the lower lip → chin skin, raising it (AU17).
-    muscles["mentalis"] = linear_muscle(
-        "mentalis", surface, (0.0, xy[57, 1] - 0.14), 0.20, (0.0, 0.55 * xy[8, 1] + 0.45 * xy[57, 1]), 50.0, 0.90, 1.60
-    )
+        ends = {
+            # name: (origin (x, y), insertion (x, y))
+            # Corrugator: from the medial end of the brow ridge into the skin above mid-brow; pulls the
+            # brows together and down (AU4), squeezing the skin between them into vertical furrows.
+            "corrugator": ((0.03 * s, inner[1] - 0.06), (0.5 * (middle[0] + fourth[0]), fourth[1] + 0.07)),
+            # Levator labii superioris alaeque nasi: frontal process of the maxilla → nose wing (AU9).
+            "levator_labii_alaeque_nasi": (
+                (0.45 * eye_inner[0], eye_inner[1] + 0.05),
+                (wing[0] + 0.02 * s, wing[1] + 0.04),
+            ),
+            # Levator labii superioris: infraorbital margin → upper lip (AU10).
+            "levator_labii_superioris": (
+                (eye[0] - 0.02 * s, eye[1] - 0.36),
+                (upper_lip[0] + 0.02 * s, upper_lip[1] + 0.06),
+            ),
+            # Zygomaticus major: zygomatic bone → mouth corner, up and back (AU12, smile).
+            "zygomaticus_major": ((eye_outer[0] + 0.40 * s, eye[1] - 0.30), (corner[0] + 0.07 * s, corner[1] + 0.01)),
+            # Risorius: masseteric fascia → mouth corner, sideways (AU20).
+            "risorius": ((0.85 * cheek_side[0], corner[1] + 0.02), (corner[0] + 0.07 * s, corner[1])),
+            # Depressor anguli oris: mandible below the corner → mouth corner, down (AU15).
+            "depressor_anguli_oris": (
+                (corner[0] + 0.10 * s, 0.5 * (corner[1] + chin_side[1]) - 0.10),
+                (corner[0] + 0.02 * s, corner[1] - 0.02),
+            ),
+            # Depressor labii inferioris: mandible → lower lip, down (AU16).
+            "depressor_labii_inferioris": (
+                (lower[0] + 0.12 * s, lower[1] - 0.42),
+                (lower[0] + 0.03 * s, lower[1] - 0.02),
+            ),
+        }
+        muscles.update(linear_muscles(surface, ends, LINEAR_PULLS, suffix=f"_{tag}"))
+    ends = {
+        # Procerus: nasal bone → skin between the brows, pulling it down (nasal-root lines).
+        "procerus": ((0.0, xy[28, 1]), (0.0, 0.5 * (xy[21, 1] + xy[22, 1]) + 0.12)),
+        # Mentalis: incisive fossa below the lower lip → chin skin, raising it (AU17).
+        "mentalis": ((0.0, xy[57, 1] - 0.14), (0.0, 0.55 * xy[8, 1] + 0.45 * xy[57, 1])),
+    }
+    muscles.update(linear_muscles(surface, ends, LINEAR_PULLS))
     return [muscles[name] for name in CLASSIC_LINEAR_MUSCLE_NAMES]
 
 

@@ -19,7 +19,8 @@ import numpy as np
 import warp as wp
 
 from .._validate import as_device, expect_instance
-from ..geometry.funcs import closest_point_on_triangle, padded_corner
+from ..geometry.bounds import padded_element_bvh
+from ..geometry.funcs import closest_point_on_triangle
 from .tetmesh import MAX_COORDINATE, TET_EDGE_NODES, TetMesh
 
 __all__ = ["Embedding", "embed_points"]
@@ -32,27 +33,12 @@ _INSIDE_TOLERANCE = 1e-10
 
 
 @wp.kernel
-def _tet_setup(
-    points: wp.array(dtype=wp.vec3d),
-    tets: wp.array(dtype=wp.vec4i),
-    pad: float,
-    inverse: wp.array(dtype=wp.mat33d),
-    lowers: wp.array(dtype=wp.vec3),
-    uppers: wp.array(dtype=wp.vec3),
-):
-    """Per tet: the inverse of its edge matrix ``[p1 - p0, p2 - p0, p3 - p0]`` and padded float32 bounds."""
+def _tet_inverse(points: wp.array(dtype=wp.vec3d), tets: wp.array(dtype=wp.vec4i), inverse: wp.array(dtype=wp.mat33d)):
+    """Per tet: the inverse of its edge matrix ``[p1 - p0, p2 - p0, p3 - p0]``."""
     t = wp.tid()
     tet = tets[t]
     p0 = points[tet[0]]
-    p1 = points[tet[1]]
-    p2 = points[tet[2]]
-    p3 = points[tet[3]]
-    edges = wp.matrix_from_cols(p1 - p0, p2 - p0, p3 - p0)
-    inverse[t] = wp.inverse(edges)
-    lo = wp.min(wp.min(p0, p1), wp.min(p2, p3))
-    hi = wp.max(wp.max(p0, p1), wp.max(p2, p3))
-    lowers[t] = padded_corner(lo, -pad)
-    uppers[t] = padded_corner(hi, pad)
+    inverse[t] = wp.inverse(wp.matrix_from_cols(points[tet[1]] - p0, points[tet[2]] - p0, points[tet[3]] - p0))
 
 
 @wp.func
@@ -400,16 +386,8 @@ def embed_points(tetmesh: TetMesh, points, *, max_distance: float | None = None,
     nodes_wp = wp.array(tetmesh.points, dtype=wp.vec3d, device=device)
     tets_wp = wp.array(tetmesh.tets, dtype=wp.vec4i, device=device)
     inverse = wp.empty(tetmesh.tet_count, dtype=wp.mat33d, device=device)
-    lowers = wp.empty(tetmesh.tet_count, dtype=wp.vec3, device=device)
-    uppers = wp.empty(tetmesh.tet_count, dtype=wp.vec3, device=device)
-    wp.launch(
-        _tet_setup,
-        dim=tetmesh.tet_count,
-        inputs=[nodes_wp, tets_wp, pad],
-        outputs=[inverse, lowers, uppers],
-        device=device,
-    )
-    bvh = wp.Bvh(lowers, uppers)
+    wp.launch(_tet_inverse, dim=tetmesh.tet_count, inputs=[nodes_wp, tets_wp], outputs=[inverse], device=device)
+    bvh, _, _ = padded_element_bvh(nodes_wp, tetmesh.tets, pad)
     n = len(points)
     found = wp.empty(n, dtype=wp.int32, device=device)
     weights = wp.empty(n, dtype=wp.vec4d, device=device)

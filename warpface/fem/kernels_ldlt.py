@@ -55,6 +55,12 @@ def block_residual(
         residual[i] = acc
 
 
+@wp.func
+def _run(run_start: wp.array(dtype=wp.int32), run_column: wp.array(dtype=wp.int32), r: int):
+    """Run ``r`` of the factor: its blocks ``[e, e_end)`` and the block column ``j`` of its first block."""
+    return run_start[r], run_start[r + 1], run_column[r]
+
+
 @wp.kernel
 def ldlt_refine(
     order: wp.array(dtype=wp.int32),
@@ -101,9 +107,7 @@ def ldlt_refine(
         r = row_runs[i]
         r_end = row_runs[i + 1]
         while r < r_end:
-            e = run_start[r]
-            e_end = run_start[r + 1]
-            j = run_column[r]
+            e, e_end, j = _run(run_start, run_column, r)
             acc1 = wp.vec3f(0.0)
             acc2 = wp.vec3f(0.0)
             acc3 = wp.vec3f(0.0)
@@ -131,9 +135,7 @@ def ldlt_refine(
         r = row_runs[i]
         r_end = row_runs[i + 1]
         while r < r_end:
-            e = run_start[r]
-            e_end = run_start[r + 1]
-            j = run_column[r]
+            e, e_end, j = _run(run_start, run_column, r)
             while e + 3 < e_end:
                 work[j] = work[j] - wp.transpose(blocks[e]) * zi
                 work[j + 1] = work[j + 1] - wp.transpose(blocks[e + 1]) * zi

@@ -6,6 +6,7 @@
 * :mod:`~warpface.geometry.triangles` — NumPy triangle corners, areas, unit normals and area-weighted
   vertex normals, taking optional precomputed inputs (the cross products they share are in that module).
 * :mod:`~warpface.geometry.surface_checks` — boundary loops and self-intersections of a closed surface.
+* :mod:`~warpface.geometry.bounds` — a BVH over padded float32 boxes of float64 triangles or tets.
 """
 
 from .funcs import closest_point_on_segment, closest_point_on_triangle, smoothstep

@@ -10,29 +10,10 @@ import numpy as np
 import warp as wp
 
 from .._validate import as_device
-from .funcs import padded_corner
+from .bounds import padded_element_bvh
 from .triangles import triangle_areas, triangle_corners
 
 __all__ = ["as_surface", "boundary_loops", "check_surface", "directed_edges", "find_self_intersections"]
-
-
-@wp.kernel
-def _triangle_bounds(
-    points: wp.array(dtype=wp.vec3d),
-    triangles: wp.array(dtype=wp.vec3i),
-    pad: float,
-    lowers: wp.array(dtype=wp.vec3),
-    uppers: wp.array(dtype=wp.vec3),
-):
-    t = wp.tid()
-    tri = triangles[t]
-    a = points[tri[0]]
-    b = points[tri[1]]
-    c = points[tri[2]]
-    lo = wp.min(wp.min(a, b), c)
-    hi = wp.max(wp.max(a, b), c)
-    lowers[t] = padded_corner(lo, -pad)
-    uppers[t] = padded_corner(hi, pad)
 
 
 @wp.func
@@ -265,17 +246,8 @@ def find_self_intersections(points, triangles, *, max_pairs: int = 64, device=No
     extent = float(np.ptp(points, axis=0).max()) or 1.0
     wp_points = wp.array(points, dtype=wp.vec3d, device=device)
     wp_tris = wp.array(triangles, dtype=wp.vec3i, device=device)
-    lowers = wp.empty(len(triangles), dtype=wp.vec3, device=device)
-    uppers = wp.empty(len(triangles), dtype=wp.vec3, device=device)
     # pad the float32 boxes so rounding never drops a touching pair from the broad phase
-    wp.launch(
-        _triangle_bounds,
-        dim=len(triangles),
-        inputs=[wp_points, wp_tris, 1e-6 * extent],
-        outputs=[lowers, uppers],
-        device=device,
-    )
-    bvh = wp.Bvh(lowers, uppers)
+    bvh, lowers, uppers = padded_element_bvh(wp_points, triangles, 1e-6 * extent)
     count = wp.zeros(1, dtype=wp.int32, device=device)
     pairs = wp.zeros(max(int(max_pairs), 1), dtype=wp.vec2i, device=device)
     wp.launch(
