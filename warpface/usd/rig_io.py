@@ -31,7 +31,7 @@ from .._validate import as_positive, expect_instance
 from ..errors import RigError
 from ..expression.muscles import FALLOFFS, LinearMuscle, SphincterMuscle
 from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrinkle
-from ..mesh import FaceMesh
+from ..mesh import FaceMesh, fan_triangles
 from ..rig import FaceRig
 from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, open_stage, writable_path
 from ._lobe_io import author_lobes, read_lobes
@@ -420,7 +420,7 @@ def _read_mesh(skin: Usd.Prim, to_units: float, degenerate: str) -> FaceMesh:
             f"{skin.GetPath()}: faceVertexCounts sum to {int(counts.sum())} but faceVertexIndices has {len(indices)} "
             "entries"
         )
-    triangles = _fan_triangulate(counts, indices)
+    triangles = fan_triangles(counts, indices)
     if geom.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded:
         triangles = triangles[:, [0, 2, 1]]
     try:
@@ -429,17 +429,6 @@ def _read_mesh(skin: Usd.Prim, to_units: float, degenerate: str) -> FaceMesh:
         )
     except (TypeError, ValueError) as exc:  # a value of the wrong type on the stage is a bad rig
         raise RigError(f"{skin.GetPath()}: {exc}") from None
-
-
-def _fan_triangulate(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """Polygons (counts, flat indices) → triangles (T, 3) by fans from each polygon's first corner."""
-    if len(counts) and np.all(counts == 3):
-        return indices.reshape(-1, 3)
-    per_face = counts - 2
-    face = np.repeat(np.arange(len(counts)), per_face)
-    corner = np.arange(int(per_face.sum())) - np.repeat(np.cumsum(per_face) - per_face, per_face) + 1
-    start = (np.cumsum(counts) - counts)[face]
-    return np.stack([indices[start], indices[start + corner], indices[start + corner + 1]], axis=1)
 
 
 def _read_thickness(skin: Usd.Prim, vertex_count: int) -> np.ndarray:
