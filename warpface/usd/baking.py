@@ -29,6 +29,7 @@ from .._validate import as_count, expect_instance
 from ..errors import RigError
 from ._files import open_layer, open_stage, usd_error_message, writable_path
 from .animation import CACHE_SUFFIX, MAX_FRAMES, as_time_codes, cover_time_range, frame_times, read_animation
+from .asset_io import shells_of
 from .rig_io import SHAPE_VARIANT_SET, read_rig, rig_prims, stage_meters_per_unit
 from .schema import ensure_schema
 
@@ -217,7 +218,8 @@ def bake(
         max_frames=max_frames,
         evaluate=False,
     )
-    skin_path = rig_prims(stage, skin_path).skin.GetPath()
+    skin = rig_prims(stage, skin_path).skin
+    skin_path, model = skin.GetPath(), shells_of(stage, skin, model)  # extra shells move only rigidly
     stage_unit = stage_meters_per_unit(stage)
     points_path = skin_path.AppendProperty(UsdGeom.Tokens.points)
     extent_path = skin_path.AppendProperty(UsdGeom.Tokens.extent)

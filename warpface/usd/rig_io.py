@@ -36,6 +36,7 @@ from ..rig import FaceRig
 from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, open_stage, writable_path
 from ._lobe_io import author_lobes, read_lobes
 from ._prim_values import array_value, check_finite, scalar_value, token_value
+from .asset_io import check_asset
 from .jaw_io import author_jaw, read_jaw
 from .schema import ensure_schema
 
@@ -302,6 +303,7 @@ def rig_prims(stage: Usd.Stage, skin_path: str | None = None) -> RigPrims:
                 f"{_stage_label(stage)}: several skins ({', '.join(str(p.GetPath()) for p in skins)}); pass skin_path"
             )
         skin = skins[0]
+    check_asset(skin)  # a missing referenced asset, before its absence reads as a missing mesh
     if not skin.IsA(UsdGeom.Mesh):
         raise RigError(
             f"{skin.GetPath()}: {SKIN_API} is applied to a {skin.GetTypeName() or 'typeless prim'}; it applies only "
