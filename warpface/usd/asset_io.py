@@ -43,6 +43,8 @@ RIGID_VERTICES = "warpFace:rigidVertices"
 """Skin attribute (uniform int[]): vertices of extra shells, which no muscle or wrinkle moves."""
 JAW_VERTICES = "warpFace:jawVertices"
 """Skin attribute (uniform int[]): the rigid vertices that move with the jaw (lower teeth, tongue)."""
+RIDING_FRACTION = 0.05
+"""A shell with this fraction of its vertices on skin vertices rides on the skin (it is not rigid)."""
 _COPIED = ("faceVertexCounts", "faceVertexIndices", "subdivisionScheme", "orientation")
 
 
@@ -124,21 +126,34 @@ def _unique(name: str, used: set) -> str:
 
 
 def rigid_shell_vertices(shell_of_vertex: np.ndarray, skin_label: int, points, landmarks) -> tuple:
-    """``(rigid, jaw)`` vertex indices: every vertex off the skin shell, and of those the shells whose
-    centre lies below the lips' contact line (iBUG 60–67) along the face's up (iBUG 8 → 27)."""
+    """``(rigid, jaw)`` vertex indices of the extra shells that move rigidly, and of those the ones with the jaw.
+
+    A shell other than the skin is rigid unless it rides on the skin: when at least ``RIDING_FRACTION`` of
+    its vertices sit on a skin vertex (within 1e-3 of the skin's size: eyelashes rooted in the lid margin,
+    a lacrimal or occlusion film), the muscles move it with the skin. A rigid shell follows the jaw when its
+    centre lies below the lips' contact line (iBUG 60–67) along the face's up (iBUG 8 → 27).
+    """
+    from scipy.spatial import cKDTree
+
     points = np.asarray(points, dtype=np.float64)
-    rigid = np.flatnonzero(shell_of_vertex != skin_label)
+    on_skin = shell_of_vertex == skin_label
+    rigid = np.flatnonzero(~on_skin)
+    if len(rigid) == 0:
+        return rigid, rigid
+    labels = np.unique(shell_of_vertex[rigid], return_inverse=True)[1].reshape(-1)
+    skin = points[on_skin]
+    touching = cKDTree(skin).query(points[rigid])[0] <= 1e-3 * np.linalg.norm(np.ptp(skin, axis=0))
+    riding = np.bincount(labels, weights=touching) >= RIDING_FRACTION * np.bincount(labels)
+    rigid, labels = rigid[~riding[labels]], np.unique(labels[~riding[labels]], return_inverse=True)[1].reshape(-1)
     if len(rigid) == 0:
         return rigid, rigid
     up = points[landmarks[27]] - points[landmarks[8]]
     up /= np.linalg.norm(up)
     lips = points[landmarks[60:68]].mean(axis=0)
-    labels = shell_of_vertex[rigid]
-    order = np.unique(labels, return_inverse=True)[1].reshape(-1)
-    centres = np.stack([np.bincount(order, weights=points[rigid, k]) for k in range(3)], axis=1)
-    centres /= np.bincount(order)[:, None]
+    centres = np.stack([np.bincount(labels, weights=points[rigid, k]) for k in range(3)], axis=1)
+    centres /= np.bincount(labels)[:, None]
     below = (centres - lips) @ up < 0.0
-    return rigid, rigid[below[order]]
+    return rigid, rigid[below[labels]]
 
 
 def attach_asset(layer: Sdf.Layer, skin_path, link: AssetLink, *, anchor: Path | None = None) -> None:
