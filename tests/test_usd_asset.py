@@ -66,7 +66,9 @@ def quad_head(tmp_path_factory):
     count = len(points)
     faces += [[v + count for v in f] for f in eye_faces] + [[v + count + 6 for v in f] for f in tooth_faces]
     points = np.concatenate([points, eye, tooth])
+    normals = np.concatenate([face.vertex_normals(), _unit(eye - eye.mean(axis=0)), _unit(tooth - tooth.mean(axis=0))])
     lines = ["mtllib head.mtl"] + [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in points]
+    lines += [f"vn {x:.6f} {y:.6f} {z:.6f}" for x, y, z in normals]
     corner = 0
     uv_lines, face_lines = [], []
     for k, f in enumerate(faces):
@@ -76,13 +78,17 @@ def quad_head(tmp_path_factory):
         for v in f:
             uv_lines.append(f"vt {(v % 97) / 97:.6f} {(corner % 89) / 89:.6f}")
             corner += 1
-            refs.append(f"{v + 1}/{corner}")
+            refs.append(f"{v + 1}/{corner}/{v + 1}")
         face_lines.append("f " + " ".join(refs))
     path = tmp_path_factory.mktemp("asset") / "head.obj"
     path.write_text("\n".join(lines + uv_lines + face_lines) + "\n")
     landmarks = path.with_name("marks.json")
     landmarks.write_text(json.dumps(marks.tolist()))
     return path, landmarks, count
+
+
+def _unit(vectors):
+    return vectors / np.linalg.norm(vectors, axis=1, keepdims=True)
 
 
 def _digest(path):
@@ -143,7 +149,11 @@ def test_the_rig_references_the_asset_and_a_bake_overrides_only_points(quad_head
     cache = Sdf.Layer.FindOrOpen(str(animated.with_name("shot_anim.usdc")))
     authored = []
     cache.Traverse(Sdf.Path.absoluteRootPath, lambda path: authored.append(path) if path.IsPropertyPath() else None)
-    assert sorted(p.name for p in authored) == ["extent", "points"]
+    assert sorted(p.name for p in authored) == ["extent", "points", "primvars:normals", "primvars:normals:indices"]
+    normals = UsdGeom.PrimvarsAPI(shot_skin).GetPrimvar("normals")
+    at_rest = np.asarray(normals.ComputeFlattened(Usd.TimeCode(0)), dtype=np.float64)
+    assert np.median(np.sum(at_rest * obj.normals[obj.normal_indices], axis=1)) > 0.95  # the asset's, same sign
+    corner_normals = np.asarray(normals.ComputeFlattened(Usd.TimeCode(frames - 1)), dtype=np.float64)
     last = np.asarray(shot_skin.GetPointsAttr().Get(Usd.TimeCode(frames - 1)), dtype=np.float64)
     rest = obj.points
     eye, tooth = slice(skin_count, skin_count + 6), slice(skin_count + 6, skin_count + 12)
@@ -154,6 +164,24 @@ def test_the_rig_references_the_asset_and_a_bake_overrides_only_points(quad_head
     gaps = np.linalg.norm(last[tooth][:, None] - last[tooth][None], axis=2)
     np.testing.assert_allclose(gaps, rest_gaps, atol=1e-4)  # ... rigidly
     assert np.abs(last[:skin_count] - rest[:skin_count]).max() > 0.1  # while the skin's muscles move it
+    starts = np.cumsum(obj.counts) - obj.counts
+    newell = np.zeros((len(obj.counts), 3))
+    for k in range(obj.counts.max()):  # each face's Newell normal on the deformed points, float64
+        has = obj.counts > k
+        here = last[obj.indices[starts[has] + k]]
+        after = last[obj.indices[starts[has] + (k + 1) % obj.counts[has]]]
+        newell[has] += np.cross(here, after)
+    rest_newell = np.zeros((len(obj.counts), 3))
+    for k in range(obj.counts.max()):
+        has = obj.counts > k
+        here = rest[obj.indices[starts[has] + k]]
+        rest_newell[has] += np.cross(here, rest[obj.indices[starts[has] + (k + 1) % obj.counts[has]]])
+    face_normal = np.repeat(_unit(newell), obj.counts, axis=0)
+    facing = np.sum(corner_normals * face_normal, axis=1)
+    assert np.mean(facing > 0.5) > 0.99  # the baked normals follow the deformed faces ...
+    turned = np.repeat(np.sum(_unit(newell) * _unit(rest_newell), axis=1) < 0.95, obj.counts)
+    assert turned.sum() > 50  # ... where they turned, better than the rest normals do
+    assert facing[turned].mean() > np.sum(at_rest * face_normal, axis=1)[turned].mean() + 0.05
     capsys.readouterr()
 
     asset.rename(asset.with_suffix(".moved"))
