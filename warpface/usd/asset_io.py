@@ -185,6 +185,10 @@ def attach_asset(layer: Sdf.Layer, skin_path, link: AssetLink, *, anchor: Path |
             spec, name, Sdf.ValueTypeNames.IntArray, Sdf.VariabilityUniform
         )
         attribute.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(values, dtype=np.int32))
+    order = spec.properties.get(UsdGeom.Tokens.xformOpOrder) or Sdf.AttributeSpec(
+        spec, UsdGeom.Tokens.xformOpOrder, Sdf.ValueTypeNames.TokenArray, Sdf.VariabilityUniform
+    )
+    order.default = Vt.TokenArray()  # the rig lives in the mesh's own space: a transform of the mesh prim is not kept
     layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, link.up_axis)
 
 
