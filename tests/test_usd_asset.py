@@ -98,6 +98,7 @@ def _digest(path):
 def test_the_rig_references_the_asset_and_a_bake_overrides_only_points(quad_head, tmp_path, capsys):
     from pxr import Sdf, Usd, UsdGeom
 
+    from warpface.errors import RigError
     from warpface.mesh import read_obj_polygons
     from warpface.usd import read_rig
 
@@ -188,6 +189,11 @@ def test_the_rig_references_the_asset_and_a_bake_overrides_only_points(quad_head
     assert main(["animate", str(driver), "--rig", str(out), "--out", str(tmp_path / "again.usda"), "--no-video"]) == 2
     error = capsys.readouterr().err.strip()
     assert "head_asset.usdc" in error and "missing" in error and "\n" not in error
+    with pytest.raises(RigError, match="head_asset.usdc .* is missing"):
+        read_rig(out)
+    assert main(["validate", str(out)]) == 1
+    report = capsys.readouterr().out.strip()
+    assert "is missing" in report and "\n" not in report
 
 
 ICT = shared_data_path("ict_facekit")
