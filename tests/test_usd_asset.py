@@ -219,3 +219,15 @@ def test_whole_ict_head_keeps_its_polygons_and_shells(tmp_path):
     rig = read_rig(out, degenerate="ignore")
     np.testing.assert_allclose(rig.mesh.points, obj.points * CM, atol=1e-6)
     assert not np.isin(rig.landmarks, rigid).any()
+    jaw = np.asarray(skin.GetPrim().GetAttribute("warpFace:jawVertices").Get())
+    corner_material = np.repeat(obj.face_materials, obj.counts)
+
+    def vertices(*names):
+        chosen = [obj.materials.index(name) for name in names]
+        return np.unique(obj.indices[np.isin(corner_material, chosen)])
+
+    eyes = vertices("M_ScleraLeft", "M_ScleraRight", "M_IrisLeft", "M_IrisRight")
+    assert np.isin(eyes, rigid).all() and not np.isin(eyes, jaw).any()  # the eyes stay with the head
+    assert not np.isin(vertices("M_EyeLashes"), rigid).any()  # lashes ride on the lids
+    teeth = vertices("M_Teeth")
+    assert np.isin(teeth, rigid).all() and 0.3 < np.isin(teeth, jaw).mean() < 0.7  # the lower ones with the jaw

@@ -110,19 +110,20 @@ def read_head(path) -> tuple:
 
 
 def _asset_link(head: Path, out: Path, points, triangles, landmarks, meters_per_unit: float, z_up: bool):
-    """``(AssetLink, OBJ polygons to copy or None)``: the USD head's largest mesh, or the OBJ's USD copy by ``out``."""
+    """``(AssetLink, OBJ polygons to copy or None, shells' vertices wholly with the head)``: the USD head's
+    largest mesh, or the OBJ's USD copy beside ``out``."""
     from ..mesh import read_obj_polygons
     from ..rigging.surface import HeadSurface
     from ..usd.asset_io import AssetLink, rigid_shell_vertices
 
     surface = HeadSurface(points, triangles)
-    rigid, jaw = rigid_shell_vertices(surface.shell_of_vertex, surface.skin_label, points, landmarks)
+    rigid, jaw, still = rigid_shell_vertices(surface.shell_of_vertex, surface.skin_label, points, landmarks)
     if head.suffix.lower() == ".obj":
         copy = out.with_name(f"{head.stem}_asset.usdc")
         if copy.resolve() == out.resolve():
             raise ValueError(f"--out {out}: is the name of the head's USD copy; choose another name")
         link = AssetLink(copy.resolve(), "", "Z" if z_up else "Y", rigid, jaw)
-        return link, read_obj_polygons(head)
+        return link, read_obj_polygons(head), still
     from pxr import UsdGeom
 
     from ..usd import open_stage
@@ -132,7 +133,7 @@ def _asset_link(head: Path, out: Path, points, triangles, landmarks, meters_per_
         (p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)),
         key=lambda p: len(UsdGeom.Mesh(p).GetPointsAttr().Get() or ()),
     )
-    return AssetLink(head.resolve(), str(mesh.GetPath()), UsdGeom.GetStageUpAxis(stage), rigid, jaw), None
+    return AssetLink(head.resolve(), str(mesh.GetPath()), UsdGeom.GetStageUpAxis(stage), rigid, jaw), None, still
 
 
 def _unit_name(meters_per_unit: float) -> str | None:
@@ -201,12 +202,12 @@ def run(args) -> int:
 
     up_axis = up if up is not None else (found.up if args.landmarks is None else None)
     z_up = up_axis is not None and abs(up_axis[2]) > max(abs(up_axis[0]), abs(up_axis[1]))
-    link, polygons = (None, None)
+    link, polygons, still = None, None, None
     if not args.embed:
-        link, polygons = _asset_link(Path(args.head), out, points, triangles, landmarks, meters_per_unit, z_up)
-    if link is not None and rig.jaw is not None:  # rigid shells: in the lower jaw fully, elsewhere not at all
+        link, polygons, still = _asset_link(Path(args.head), out, points, triangles, landmarks, meters_per_unit, z_up)
+    if link is not None and rig.jaw is not None:  # rigid shells wholly below the lips with the jaw, above without
         weights = rig.jaw.weights.copy()
-        weights[link.rigid_vertices] = 0.0
+        weights[still] = 0.0
         weights[link.jaw_vertices] = 1.0
         rig = dataclasses.replace(rig, jaw=dataclasses.replace(rig.jaw, weights=weights))
     stage = Usd.Stage.CreateInMemory(f"rig{out.suffix}")

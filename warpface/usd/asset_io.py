@@ -8,8 +8,9 @@ reference, and a bake overrides ``points``/``extent`` in its own cache layer. No
 asset file.
 
 Extra shells (eyes, teeth, tongue: connected parts other than the skin) are listed on the skin as
-``warpFace:rigidVertices``; those also in ``warpFace:jawVertices`` move rigidly with the jaw, the rest
-stay with the head. :class:`RigidShells` applies that to a model's evaluated frames.
+``warpFace:rigidVertices``: no muscle or wrinkle moves them, only the jaw with its weights (1 on the
+shells of ``warpFace:jawVertices``, 0 on those wholly above the lips). :class:`RigidShells` applies that
+to a model's evaluated frames.
 """
 
 from __future__ import annotations
@@ -44,9 +45,12 @@ __all__ = [
 RIGID_VERTICES = "warpFace:rigidVertices"
 """Skin attribute (uniform int[]): vertices of extra shells, which no muscle or wrinkle moves."""
 JAW_VERTICES = "warpFace:jawVertices"
-"""Skin attribute (uniform int[]): the rigid vertices that move with the jaw (lower teeth, tongue)."""
+"""Skin attribute (uniform int[]): the rigid vertices of shells wholly with the jaw (lower teeth); the jaw
+prim's weights, which the bake uses, are 1 there."""
 RIDING_FRACTION = 0.05
 """A shell with this fraction of its vertices on skin vertices rides on the skin (it is not rigid)."""
+SIDE_FRACTION = 0.7
+"""A rigid shell with this fraction of its vertices on one side of the lips' line moves wholly with that side."""
 _COPIED = ("faceVertexCounts", "faceVertexIndices", "subdivisionScheme", "orientation")
 
 
@@ -128,12 +132,15 @@ def _unique(name: str, used: set) -> str:
 
 
 def rigid_shell_vertices(shell_of_vertex: np.ndarray, skin_label: int, points, landmarks) -> tuple:
-    """``(rigid, jaw)`` vertex indices of the extra shells that move rigidly, and of those the ones with the jaw.
+    """``(rigid, jaw, head)`` vertex indices: the extra shells no muscle moves, those of them wholly with the
+    jaw, and those wholly with the head.
 
     A shell other than the skin is rigid unless it rides on the skin: when at least ``RIDING_FRACTION`` of
     its vertices sit on a skin vertex (within 1e-3 of the skin's size: eyelashes rooted in the lid margin,
-    a lacrimal or occlusion film), the muscles move it with the skin. A rigid shell follows the jaw when its
-    centre lies below the lips' contact line (iBUG 60–67) along the face's up (iBUG 8 → 27).
+    a lacrimal or occlusion film), the muscles move it with the skin. A rigid shell with at least
+    ``SIDE_FRACTION`` of its vertices below the lips' contact line (iBUG 60–67, along iBUG 8 → 27) goes
+    with the jaw (lower teeth), with as many above with the head (eyes, upper teeth); one across the line
+    (gums and tongue in one piece) keeps the rig's smooth jaw weights.
     """
     from scipy.spatial import cKDTree
 
@@ -141,21 +148,19 @@ def rigid_shell_vertices(shell_of_vertex: np.ndarray, skin_label: int, points, l
     on_skin = shell_of_vertex == skin_label
     rigid = np.flatnonzero(~on_skin)
     if len(rigid) == 0:
-        return rigid, rigid
+        return rigid, rigid, rigid
     labels = np.unique(shell_of_vertex[rigid], return_inverse=True)[1].reshape(-1)
     skin = points[on_skin]
     touching = cKDTree(skin).query(points[rigid])[0] <= 1e-3 * np.linalg.norm(np.ptp(skin, axis=0))
     riding = np.bincount(labels, weights=touching) >= RIDING_FRACTION * np.bincount(labels)
     rigid, labels = rigid[~riding[labels]], np.unique(labels[~riding[labels]], return_inverse=True)[1].reshape(-1)
     if len(rigid) == 0:
-        return rigid, rigid
+        return rigid, rigid, rigid
     up = points[landmarks[27]] - points[landmarks[8]]
     up /= np.linalg.norm(up)
     lips = points[landmarks[60:68]].mean(axis=0)
-    centres = np.stack([np.bincount(labels, weights=points[rigid, k]) for k in range(3)], axis=1)
-    centres /= np.bincount(labels)[:, None]
-    below = (centres - lips) @ up < 0.0
-    return rigid, rigid[below[labels]]
+    below = np.bincount(labels, weights=(points[rigid] - lips) @ up < 0.0) / np.bincount(labels)
+    return rigid, rigid[below[labels] >= SIDE_FRACTION], rigid[below[labels] <= 1.0 - SIDE_FRACTION]
 
 
 def attach_asset(layer: Sdf.Layer, skin_path, link: AssetLink, *, anchor: Path | None = None) -> None:
@@ -243,17 +248,19 @@ def asset_link(stage: Usd.Stage, skin: Usd.Prim) -> AssetLink | None:
 class RigidShells:
     """An expression model whose evaluated frames move the rigid shells only with the jaw.
 
-    Wraps ``model`` (same interface): the rows of ``rigid`` vertices are replaced by their rest
-    positions, those of ``jaw`` moved rigidly by the jaw's controls (:func:`~warpface.expression.jaw_points`).
+    Wraps ``model`` (same interface): the rows of ``rigid`` vertices are replaced by the jaw's motion of
+    their rest positions alone, with the jaw's weights (:func:`~warpface.expression.jaw_points`): no
+    muscle or wrinkle moves them.
     """
 
-    def __init__(self, model, rigid: np.ndarray, jaw_vertices: np.ndarray):
+    def __init__(self, model, rigid: np.ndarray):
         self._model = model
         self._rigid = np.asarray(rigid, dtype=np.int64)
         rest = np.asarray(model.mesh.points, dtype=np.float64)
         self._rest = rest[self._rigid]
-        follows = np.isin(self._rigid, jaw_vertices).astype(np.float64)
-        self._jaw = None if model.jaw is None else dataclasses.replace(model.jaw, weights=follows)
+        self._jaw = None
+        if model.jaw is not None:
+            self._jaw = dataclasses.replace(model.jaw, weights=np.asarray(model.jaw.weights)[self._rigid])
         self._jaw_columns = len(model.muscle_names)
 
     def __getattr__(self, name):
@@ -283,7 +290,7 @@ def shells_of(stage: Usd.Stage, skin: Usd.Prim, model):
     link = asset_link(stage, skin)
     if link is None or len(link.rigid_vertices) == 0:
         return model
-    return RigidShells(model, link.rigid_vertices, link.jaw_vertices)
+    return RigidShells(model, link.rigid_vertices)
 
 
 NORMAL_PROPERTIES = ("normals", "primvars:normals", "primvars:normals:indices")
