@@ -22,10 +22,11 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdShade, Vt
 
+from .._validate import expect_instance
 from ..errors import RigError
 from ..expression.jaw import JAW_CONTROL_NAMES, jaw_points
 from ..mesh import ObjPolygons, fan_triangles
-from ._files import export_layer_atomically
+from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, writable_path
 
 __all__ = [
     "AssetLink",
@@ -74,7 +75,9 @@ def write_obj_asset(polygons: ObjPolygons, path, *, name: str, meters_per_unit: 
     The mesh is the default prim ``/<name>``; ``usemtl`` materials become ``materialBind`` GeomSubsets
     bound to Material prims under it, ``g``/``o`` groups ``objGroup`` subsets. Returns the prim path.
     """
-    stage = Usd.Stage.CreateInMemory(f"asset{Path(path).suffix}")
+    expect_instance(polygons, ObjPolygons, "polygons")
+    path = writable_path(path, LAYER_SUFFIXES)
+    stage = Usd.Stage.CreateInMemory(f"asset{path.suffix}")
     UsdGeom.SetStageMetersPerUnit(stage, meters_per_unit)
     UsdGeom.SetStageUpAxis(stage, up_axis)
     root = Sdf.Path("/" + (Sdf.Path.IsValidIdentifier(name) and name or "Asset"))
@@ -97,7 +100,7 @@ def write_obj_asset(polygons: ObjPolygons, path, *, name: str, meters_per_unit: 
             primvar.SetIndices(Vt.IntArray.FromNumpy(table.astype(np.int32)))
     _subsets(stage, mesh, polygons.materials, polygons.face_materials, UsdShade.Tokens.materialBind, bind=True)
     _subsets(stage, mesh, polygons.groups, polygons.face_groups, "objGroup", bind=False)
-    export_layer_atomically(stage.GetRootLayer(), Path(path))
+    export_layer_atomically(stage.GetRootLayer(), path)
     return str(root)
 
 
@@ -170,7 +173,9 @@ def attach_asset(layer: Sdf.Layer, skin_path, link: AssetLink, *, anchor: Path |
     writes the absolute path (an in-memory stage). A left-handed ``orientation`` (a skin wound inside
     out) stays. Calling it again re-points the reference.
     """
-    spec = layer.GetPrimAtPath(Sdf.Path(str(skin_path)))
+    expect_instance(layer, Sdf.Layer, "layer")
+    expect_instance(link, AssetLink, "link")
+    spec = layer.GetPrimAtPath(checked_prim_path(skin_path, "skin_path"))
     if spec is None:
         raise ValueError(f"skin_path: no prim spec at {skin_path} in {layer.identifier}")
     for name in _COPIED + (UsdGeom.Tokens.points, UsdGeom.Tokens.extent):
@@ -214,7 +219,8 @@ def _references(skin: Usd.Prim) -> list[tuple[Sdf.Layer, Sdf.Reference]]:
 
 
 def check_asset(skin: Usd.Prim) -> None:
-    """RigError (one line) when the skin references an asset file that is missing or unreadable."""
+    """RigError (one line) when the skin references an asset file that is missing."""
+    expect_instance(skin, Usd.Prim, "skin")
     for layer, reference in _references(skin):
         resolved = layer.ComputeAbsolutePath(reference.assetPath)
         if not Path(resolved).is_file():
@@ -226,6 +232,8 @@ def check_asset(skin: Usd.Prim) -> None:
 
 def asset_link(stage: Usd.Stage, skin: Usd.Prim) -> AssetLink | None:
     """The asset the rig's skin references (absolute path), or ``None`` for a rig with its own skin."""
+    expect_instance(stage, Usd.Stage, "stage")
+    expect_instance(skin, Usd.Prim, "skin")
     references = _references(skin)
     if not references:
         return None
