@@ -18,8 +18,9 @@ def add_parser(subparsers, common) -> None:
         help="rig a head mesh: 68 landmarks (automatic or from a file), the default rig, a rig stage",
         description="Find the 68 iBUG landmarks of HEAD (any unit, up axis and facing; extra shells such as eyes "
         "and teeth are allowed) or read them from --landmarks, check their layout, build the default rig on "
-        "them (muscles, wrinkles, jaw, thickness) and write it as a rig stage. Errors are one line, exit 2, "
-        "and nothing is written.",
+        "them (muscles, wrinkles, jaw, thickness) and write it as a rig stage whose skin references HEAD's own mesh "
+        "(an OBJ through a USD copy beside the stage), so its faces, UVs, normals and materials are kept and never "
+        "edited. Errors are one line, exit 2, and nothing is written.",
     )
     rig.add_argument("head", help="head mesh (.obj, .usd, .usda, .usdc)")
     rig.add_argument("--out", required=True, help="rig stage to write (.usda, .usdc or .usd)")
@@ -237,5 +238,6 @@ def run(args) -> int:
     if not args.quiet:
         print(summary)
     counts = f"{len(rig.muscles)} muscles, {len(rig.wrinkles)} wrinkles"
-    print(f"{out}: rig {args.name!r} with {counts}, {meters_per_unit:g} m/unit")
+    asset = f", skin from {link.path.name}" if link is not None else ""
+    print(f"{out}: rig {args.name!r} with {counts}, {meters_per_unit:g} m/unit{asset}")
     return 0

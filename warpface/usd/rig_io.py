@@ -12,6 +12,9 @@ Variant opinions are weaker than every local opinion, so a point cache sublayere
 layer (:func:`warpface.usd.bake`) shows through, while the rest shape is what a stage without the
 cache — and ``points.Get(Usd.TimeCode.Default())`` — returns.
 
+``warpface rig`` makes the skin a reference to the user's own mesh instead (no copied geometry or
+variant; :mod:`warpface.usd.asset_io`); :func:`rig_prims` refuses such a rig whose asset is missing.
+
 Values are read in the skin mesh's local space: muscle and wrinkle prims may carry their own
 transforms (rigid motion and uniform scale), which are composed into that space. Lengths are
 converted from the stage's ``metersPerUnit`` (USD's fallback is 0.01, centimetres) to the units asked
