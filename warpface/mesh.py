@@ -18,7 +18,16 @@ from .geometry import triangle_areas, triangle_corners
 from .geometry.triangles import triangle_crosses
 from .kernels_surface import stretch_reference_lengths, triangle_area_vectors, vertex_normals_kernel
 
-__all__ = ["FaceMesh", "VertexTriangleAdjacency", "load_obj", "DEGENERATE_AREA_RTOL", "MIN_TRIANGLE_AREA"]
+__all__ = [
+    "FaceMesh",
+    "VertexTriangleAdjacency",
+    "load_obj",
+    "read_obj_polygons",
+    "ObjPolygons",
+    "fan_triangles",
+    "DEGENERATE_AREA_RTOL",
+    "MIN_TRIANGLE_AREA",
+]
 
 DEGENERATE_AREA_RTOL = 1e-12
 """A rest triangle is degenerate when its area ≤ this × (bounding-box diagonal)²."""
@@ -257,42 +266,137 @@ def _area_vectors(points: wp.array, triangles: wp.array, weight: wp.array) -> wp
     return area_vectors
 
 
-def load_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Read vertex positions and faces from a Wavefront OBJ file.
 
-    Polygons are fan-triangulated; texture/normal indices (``f 1/2/3``) and negative (relative)
-    indices are handled. Returns ``(points (V, 3) float64, triangles (T, 3) int64)``.
+@dataclass(frozen=True)
+class ObjPolygons:
+    """An OBJ mesh as written: polygons (quads and n-gons kept), UVs, normals, groups and materials.
+
+    ``counts``/``indices`` are USD's ``faceVertexCounts``/``faceVertexIndices``; ``uv_indices`` and
+    ``normal_indices`` give each face corner its ``vt``/``vn`` (``None`` when any corner lacks one).
+    ``groups``/``materials`` name the ``g`` groups and ``usemtl`` materials; ``face_groups`` and
+    ``face_materials`` give each face's index into them (-1: none).
+    """
+
+    points: np.ndarray
+    counts: np.ndarray
+    indices: np.ndarray
+    uvs: np.ndarray | None = None
+    uv_indices: np.ndarray | None = None
+    normals: np.ndarray | None = None
+    normal_indices: np.ndarray | None = None
+    groups: tuple[str, ...] = ()
+    face_groups: np.ndarray | None = None
+    materials: tuple[str, ...] = ()
+    face_materials: np.ndarray | None = None
+
+    def triangles(self) -> np.ndarray:
+        """Fan triangles (T, 3) int64 of the polygons, from each polygon's first corner."""
+        return fan_triangles(self.counts, self.indices)
+
+
+def fan_triangles(counts, indices) -> np.ndarray:
+    """Polygons as per-face corner counts and flat corner indices → fan triangles (T, 3) int64."""
+    counts = np.asarray(counts, dtype=np.int64).reshape(-1)
+    indices = np.asarray(indices, dtype=np.int64).reshape(-1)
+    if len(counts) and counts.min() < 3:
+        raise ValueError(f"faces: face {int(np.argmin(counts))} has {int(counts.min())} corners (needs ≥ 3)")
+    if int(counts.sum()) != len(indices):
+        raise ValueError(f"faces: corner counts sum to {int(counts.sum())} but there are {len(indices)} corner indices")
+    if len(counts) and np.all(counts == 3):
+        return indices.reshape(-1, 3)
+    per_face = counts - 2
+    face = np.repeat(np.arange(len(counts)), per_face)
+    corner = np.arange(int(per_face.sum())) - np.repeat(np.cumsum(per_face) - per_face, per_face) + 1
+    start = (np.cumsum(counts) - counts)[face]
+    return np.stack([indices[start], indices[start + corner], indices[start + corner + 1]], axis=1)
+
+
+def _obj_index(token: str, count: int, where: str) -> int:
+    try:
+        index = int(token)
+    except ValueError:
+        raise ValueError(f"{where}: face index {token!r} is not an integer") from None
+    if index == 0:
+        raise ValueError(f"{where}: face index 0 (OBJ indices start at 1)")
+    return index - 1 if index > 0 else count + index
+
+
+def read_obj_polygons(path: str | Path) -> ObjPolygons:
+    """Read a Wavefront OBJ file keeping its polygons, ``vt``, ``vn``, ``g`` groups and ``usemtl`` materials.
+
+    Negative (relative) indices are resolved. Raises ValueError naming the file and line of a bad record.
     """
     path = as_path(path, "path")
     if not path.is_file():
         raise ValueError(f"OBJ file not found: {path}")
-    points: list[list[float]] = []
-    triangles: list[list[int]] = []
+    records: dict[str, list] = {"v": [], "vt": [], "vn": []}
+    counts, corners, uv_corners, normal_corners = [], [], [], []
+    groups, face_groups, materials, face_materials = {}, [], {}, []
+    group, material = -1, -1
     with path.open("r", encoding="utf-8", errors="replace") as handle:
         for line_number, line in enumerate(handle, start=1):
-            if line.startswith("v "):
-                fields = line.split()
-                if len(fields) < 4:
-                    raise ValueError(f"{path}:{line_number}: vertex needs 3 coordinates")
+            fields = line.split()
+            if not fields:
+                continue
+            key, where = fields[0], f"{path}:{line_number}"
+            if key in ("v", "vt", "vn"):
+                size = 2 if key == "vt" else 3
+                if len(fields) < size + 1:
+                    raise ValueError(f"{where}: {'vertex' if key == 'v' else key} needs {size} coordinates")
                 try:
-                    points.append([float(v) for v in fields[1:4]])
+                    records[key].append([float(v) for v in fields[1 : size + 1]])
                 except ValueError:
-                    raise ValueError(
-                        f"{path}:{line_number}: vertex coordinates are not numbers: {line.strip()!r}"
-                    ) from None
-            elif line.startswith("f "):
-                corners = []
-                for token in line.split()[1:]:
-                    try:
-                        index = int(token.split("/")[0])
-                    except ValueError:
-                        raise ValueError(f"{path}:{line_number}: face index {token!r} is not an integer") from None
-                    if index == 0:
-                        raise ValueError(f"{path}:{line_number}: face index 0 (OBJ indices start at 1)")
-                    corners.append(index - 1 if index > 0 else len(points) + index)
-                if len(corners) < 3:
-                    raise ValueError(f"{path}:{line_number}: face needs at least 3 vertices")
-                triangles.extend([corners[0], corners[i], corners[i + 1]] for i in range(1, len(corners) - 1))
-    if not points or not triangles:
+                    raise ValueError(f"{where}: vertex coordinates are not numbers: {line.strip()!r}") from None
+            elif key == "f":
+                if len(fields) < 4:
+                    raise ValueError(f"{where}: face needs at least 3 vertices")
+                for token in fields[1:]:
+                    parts = token.split("/")
+                    corners.append(_obj_index(parts[0], len(records["v"]), where))
+                    has_uv, has_normal = len(parts) > 1 and parts[1], len(parts) > 2 and parts[2]
+                    uv_corners.append(_obj_index(parts[1], len(records["vt"]), where) if has_uv else -1)
+                    normal_corners.append(_obj_index(parts[2], len(records["vn"]), where) if has_normal else -1)
+                counts.append(len(fields) - 1)
+                face_groups.append(group)
+                face_materials.append(material)
+            elif key in ("g", "o") and len(fields) > 1:
+                group = groups.setdefault(" ".join(fields[1:]), len(groups))
+            elif key == "usemtl" and len(fields) > 1:
+                material = materials.setdefault(" ".join(fields[1:]), len(materials))
+    if not records["v"] or not counts:
         raise ValueError(f"{path}: no vertices or faces found")
-    return np.asarray(points, dtype=np.float64), np.asarray(triangles, dtype=np.int64)
+    points = np.asarray(records["v"], dtype=np.float64)
+    indices = np.asarray(corners, dtype=np.int64)
+    if indices.min() < 0 or indices.max() >= len(points):
+        raise ValueError(f"{path}: face vertex indices outside [1, {len(points)}]")
+
+    def corner_table(values, table):
+        table = np.asarray(table, dtype=np.int64)
+        if not values or table.min() < 0 or table.max() >= len(values):
+            return None, None  # some corner has none (or one out of range): not kept
+        return np.asarray(values, dtype=np.float64), table
+
+    uvs, uv_indices = corner_table(records["vt"], uv_corners)
+    normals, normal_indices = corner_table(records["vn"], normal_corners)
+    return ObjPolygons(
+        points,
+        np.asarray(counts, dtype=np.int64),
+        indices,
+        uvs,
+        uv_indices,
+        normals,
+        normal_indices,
+        tuple(groups),
+        np.asarray(face_groups, dtype=np.int64),
+        tuple(materials),
+        np.asarray(face_materials, dtype=np.int64),
+    )
+
+
+def load_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read vertex positions and faces from a Wavefront OBJ file (:func:`read_obj_polygons`).
+
+    Polygons are fan-triangulated. Returns ``(points (V, 3) float64, triangles (T, 3) int64)``.
+    """
+    polygons = read_obj_polygons(path)
+    return polygons.points, polygons.triangles()

@@ -142,6 +142,7 @@ def animate(
 
     from .. import usd
     from ..usd.animation import CACHE_SUFFIX
+    from ..usd.asset_io import asset_link, attach_asset
     from ..usd.jaw_io import JAW_CONTROL_ATTRIBUTES
     from ..usd.mapping_io import write_mapping
 
@@ -168,6 +169,9 @@ def animate(
 
     stage = Usd.Stage.CreateInMemory("animate" + out.suffix)
     usd.write_rig(stage, rig_model, meters_per_unit=units, fps=rate)
+    link = None if rig_stage is None else asset_link(rig_stage, usd.rig_prims(rig_stage).skin)
+    if link is not None:  # keep referencing the user's asset (absolute while in memory)
+        attach_asset(stage.GetRootLayer(), usd.rig_prims(stage).skin.GetPath(), link)
     write_mapping(stage, mapping, name=mapping.name if label != "default table" else "default")
     time_codes = np.round((mapped.times - mapped.times[0]) * rate, 6)
     muscles = set(rig_model.muscle_names)
@@ -191,6 +195,8 @@ def animate(
     saved = Sdf.Layer.CreateAnonymous(out.suffix)  # a copy: re-pathing the stage's own layer would recompose it
     saved.TransferContent(root)
     saved.subLayerPaths[0] = "./" + cache.name  # bake gave the in-memory stage an absolute path
+    if link is not None:
+        attach_asset(saved, usd.rig_prims(stage).skin.GetPath(), link, anchor=out.parent)
     usd.export_layer_atomically(saved, out)
     clock.step("save stage")
     video_path = None

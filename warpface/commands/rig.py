@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 __all__ = ["add_parser", "run", "read_head"]
@@ -17,8 +18,9 @@ def add_parser(subparsers, common) -> None:
         help="rig a head mesh: 68 landmarks (automatic or from a file), the default rig, a rig stage",
         description="Find the 68 iBUG landmarks of HEAD (any unit, up axis and facing; extra shells such as eyes "
         "and teeth are allowed) or read them from --landmarks, check their layout, build the default rig on "
-        "them (muscles, wrinkles, jaw, thickness) and write it as a rig stage. Errors are one line, exit 2, "
-        "and nothing is written.",
+        "them (muscles, wrinkles, jaw, thickness) and write it as a rig stage whose skin references HEAD's own mesh "
+        "(an OBJ through a USD copy beside the stage), so its faces, UVs, normals and materials are kept and never "
+        "edited. Errors are one line, exit 2, and nothing is written.",
     )
     rig.add_argument("head", help="head mesh (.obj, .usd, .usda, .usdc)")
     rig.add_argument("--out", required=True, help="rig stage to write (.usda, .usdc or .usd)")
@@ -33,6 +35,12 @@ def add_parser(subparsers, common) -> None:
     rig.add_argument("--units", choices=("m", "cm", "mm"), default=None, help="mesh units (default: from its size)")
     rig.add_argument("--name", default="Face", help="rig name, the root prim (default Face)")
     rig.add_argument("--preview", default=None, metavar="PNG", help="also draw landmarks and muscles into this PNG")
+    rig.add_argument(
+        "--embed",
+        action="store_true",
+        help="copy the skin as triangles into the rig stage instead of referencing the head mesh (an OBJ head is "
+        "referenced through a USD copy, <head>_asset.usdc, written beside the rig)",
+    )
     rig.set_defaults(handler=run)
 
 
@@ -102,6 +110,33 @@ def read_head(path) -> tuple:
     return _read_usd(path)
 
 
+def _asset_link(head: Path, out: Path, points, triangles, landmarks, meters_per_unit: float, z_up: bool):
+    """``(AssetLink, OBJ polygons to copy or None, shells' vertices wholly with the head)``: the USD head's
+    largest mesh, or the OBJ's USD copy beside ``out``."""
+    from ..mesh import read_obj_polygons
+    from ..rigging.surface import HeadSurface
+    from ..usd.asset_io import AssetLink, rigid_shell_vertices
+
+    surface = HeadSurface(points, triangles)
+    rigid, jaw, still = rigid_shell_vertices(surface.shell_of_vertex, surface.skin_label, points, landmarks)
+    if head.suffix.lower() == ".obj":
+        copy = out.with_name(f"{head.stem}_asset.usdc")
+        if copy.resolve() == out.resolve():
+            raise ValueError(f"--out {out}: is the name of the head's USD copy; choose another name")
+        link = AssetLink(copy.resolve(), "", "Z" if z_up else "Y", rigid, jaw)
+        return link, read_obj_polygons(head), still
+    from pxr import UsdGeom
+
+    from ..usd import open_stage
+
+    stage = open_stage(head)
+    mesh = max(
+        (p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)),
+        key=lambda p: len(UsdGeom.Mesh(p).GetPointsAttr().Get() or ()),
+    )
+    return AssetLink(head.resolve(), str(mesh.GetPath()), UsdGeom.GetStageUpAxis(stage), rigid, jaw), None, still
+
+
 def _unit_name(meters_per_unit: float) -> str | None:
     from ..rigging.units import UNITS
 
@@ -120,7 +155,7 @@ def run(args) -> int:
     from ..rigging import check_layout, find_landmarks, read_landmark_file, rig_picture
     from ..rigging.surface import HeadSurface
     from ..rigging.units import infer_units, parse_axis, parse_units
-    from ..usd import export_layer_atomically, rig_prims, write_rig
+    from ..usd import attach_asset, export_layer_atomically, rig_prims, write_obj_asset, write_rig
 
     out = Path(args.out)
     if out.suffix not in STAGE_SUFFIXES:
@@ -164,24 +199,45 @@ def run(args) -> int:
     rig = default_rig(mesh, landmarks, name=args.name, device=args.device)
     picture = rig_picture(rig, title=f"{Path(args.head).name}: {args.name}") if preview is not None else None
 
-    from pxr import Usd, UsdGeom, Vt
+    from pxr import Sdf, Usd, UsdGeom, Vt
 
+    up_axis = up if up is not None else (found.up if args.landmarks is None else None)
+    z_up = up_axis is not None and abs(up_axis[2]) > max(abs(up_axis[0]), abs(up_axis[1]))
+    link, polygons, still = None, None, None
+    if not args.embed:
+        link, polygons, still = _asset_link(Path(args.head), out, points, triangles, landmarks, meters_per_unit, z_up)
+    if link is not None and rig.jaw is not None:  # rigid shells wholly below the lips with the jaw, above without
+        weights = rig.jaw.weights.copy()
+        weights[still] = 0.0
+        weights[link.jaw_vertices] = 1.0
+        rig = dataclasses.replace(rig, jaw=dataclasses.replace(rig.jaw, weights=weights))
     stage = Usd.Stage.CreateInMemory(f"rig{out.suffix}")
     write_rig(stage, rig, meters_per_unit=meters_per_unit)
     skin = rig_prims(stage).skin
+    if link is not None and inside_out:  # the rig's triangles were turned outward; say so, not rewinding the asset
+        UsdGeom.Mesh(skin).GetOrientationAttr().Set(UsdGeom.Tokens.leftHanded)
     skin.SetCustomDataByKey("warpface:landmarkSource", "found" if args.landmarks is None else str(args.landmarks))
     if args.landmarks is None:
         skin.SetCustomDataByKey("warpface:landmarkConfidence", Vt.DoubleArray([float(c) for c in found.confidence]))
-    up_axis = up if up is not None else (found.up if args.landmarks is None else None)
-    if up_axis is not None and abs(up_axis[2]) > max(abs(up_axis[0]), abs(up_axis[1])):
+    if z_up:
         UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
     out.parent.mkdir(parents=True, exist_ok=True)
-    export_layer_atomically(stage.GetRootLayer(), out)
+    if polygons is not None:
+        write_obj_asset(
+            polygons, link.path, name=Path(args.head).stem, meters_per_unit=meters_per_unit, up_axis=link.up_axis
+        )
+    layer = stage.GetRootLayer()
+    if link is not None:  # on a copy: the in-memory stage would try to compose the relative reference
+        layer = Sdf.Layer.CreateAnonymous(out.suffix)
+        layer.TransferContent(stage.GetRootLayer())
+        attach_asset(layer, skin.GetPath(), link, anchor=out.parent)
+    export_layer_atomically(layer, out)
     if picture is not None:
         with atomic_path(preview, ".png") as temporary:
             temporary.write_bytes(picture)
     if not args.quiet:
         print(summary)
     counts = f"{len(rig.muscles)} muscles, {len(rig.wrinkles)} wrinkles"
-    print(f"{out}: rig {args.name!r} with {counts}, {meters_per_unit:g} m/unit")
+    asset = f", skin from {link.path.name}" if link is not None else ""
+    print(f"{out}: rig {args.name!r} with {counts}, {meters_per_unit:g} m/unit{asset}")
     return 0

@@ -15,6 +15,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .._validate import as_finite_array
+from ..mesh import fan_triangles
 
 __all__ = ["HeadSurface", "polygons_to_triangles", "vertex_normals", "TWIN_AREA", "MIN_SKIN_VERTICES"]
 
@@ -26,17 +27,7 @@ TWIN_AREA = 0.5
 
 def polygons_to_triangles(counts, indices) -> np.ndarray:
     """Polygons given as per-face corner counts and flat corner indices → fan triangles (T, 3) int64."""
-    counts = np.asarray(counts, dtype=np.int64).reshape(-1)
-    indices = np.asarray(indices, dtype=np.int64).reshape(-1)
-    if len(counts) and counts.min() < 3:
-        raise ValueError(f"faces: face {int(np.argmin(counts))} has {int(counts.min())} corners (needs ≥ 3)")
-    if int(counts.sum()) != len(indices):
-        raise ValueError(f"faces: corner counts sum to {int(counts.sum())} but there are {len(indices)} corner indices")
-    per_face = counts - 2
-    face = np.repeat(np.arange(len(counts)), per_face)
-    corner = np.arange(int(per_face.sum())) - np.repeat(np.cumsum(per_face) - per_face, per_face) + 1
-    start = (np.cumsum(counts) - counts)[face]
-    return np.stack([indices[start], indices[start + corner], indices[start + corner + 1]], axis=1)
+    return fan_triangles(counts, indices)
 
 
 def vertex_normals(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:

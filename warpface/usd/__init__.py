@@ -33,6 +33,11 @@ _LAZY = {
     "validate_stage": "validate",
     "ValidationProblem": "validate",
     "read_driver": "driver_files",
+    "write_obj_asset": "asset_io",
+    "attach_asset": "asset_io",
+    "asset_link": "asset_io",
+    "AssetLink": "asset_io",
+    "check_asset": "asset_io",
     "open_stage": "_files",
     "export_layer_atomically": "_files",
 }

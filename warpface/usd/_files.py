@@ -129,7 +129,10 @@ def open_stage(stage_or_path) -> Usd.Stage:
         raise ValueError(f"USD file not found: {path}")
     root = open_layer(path)
     try:
-        stage = without_usd_warnings(lambda: Usd.Stage.Open(root))
+        # a missing referenced asset is reported by warpface's own check (asset_io.check_asset), in one line
+        stage = without_usd_warnings(
+            lambda: Usd.Stage.Open(root), dropping=("Could not load sublayer", "Could not open asset")
+        )
     except Exception as exc:
         raise ValueError(f"{path}: cannot open as a USD stage ({usd_error_message(exc)})") from None
     if stage is None:

@@ -1,8 +1,9 @@
 """Point-cache bakes: the expression model evaluated at a rig stage's time codes, streamed into a ``.usdc``.
 
-:func:`bake` writes the skin's ``points`` and ``extent`` time samples into a cache layer, sublayered
-(strongest sublayer) under the rig layer. The rest shape lives in the skin's ``warpFaceShape`` variant
-(see :mod:`warpface.usd.rig_io`), which every sublayer opinion overrides.
+:func:`bake` writes the skin's ``points`` and ``extent`` time samples (and normals, when the skin's asset
+authors them; :mod:`warpface.usd.asset_io`) into a cache layer, sublayered (strongest sublayer) under the
+rig layer; a referenced asset is never edited. The rest shape lives in the skin's ``warpFaceShape``
+variant (see :mod:`warpface.usd.rig_io`) or in the referenced asset, which every sublayer opinion overrides.
 
 Frames are read, evaluated and written in chunks: the cache is a ``.usdc`` file saved after every
 chunk (crate files grow by appending), so memory stays bounded by one chunk however long the bake.
@@ -29,6 +30,7 @@ from .._validate import as_count, expect_instance
 from ..errors import RigError
 from ._files import open_layer, open_stage, usd_error_message, writable_path
 from .animation import CACHE_SUFFIX, MAX_FRAMES, as_time_codes, cover_time_range, frame_times, read_animation
+from .asset_io import NORMAL_PROPERTIES, SkinNormals, shells_of
 from .rig_io import SHAPE_VARIANT_SET, read_rig, rig_prims, stage_meters_per_unit
 from .schema import ensure_schema
 
@@ -217,7 +219,8 @@ def bake(
         max_frames=max_frames,
         evaluate=False,
     )
-    skin_path = rig_prims(stage, skin_path).skin.GetPath()
+    skin = rig_prims(stage, skin_path).skin
+    skin_path, model = skin.GetPath(), shells_of(stage, skin, model)  # extra shells move only rigidly
     stage_unit = stage_meters_per_unit(stage)
     points_path = skin_path.AppendProperty(UsdGeom.Tokens.points)
     extent_path = skin_path.AppendProperty(UsdGeom.Tokens.extent)
@@ -228,6 +231,9 @@ def bake(
 
     with atomic_path(cache_path, cache_path.suffix, create=False) as temporary:
         cache = _new_cache_layer(temporary, cache_path, skin_path, stage)
+        normals = SkinNormals.of(skin)  # the asset's normals, rewritten for each frame
+        if normals is not None:
+            normals.prepare(cache, skin_path, low, high)
         with Sdf.ChangeBlock():
             for path in (points_path, extent_path):
                 for time in cache.ListTimeSamplesForPath(path):
@@ -244,6 +250,8 @@ def bake(
                     for offset, time in enumerate(chunk.tolist()):
                         cache.SetTimeSample(points_path, time, Vt.Vec3fArray.FromNumpy(positions[offset]))
                         cache.SetTimeSample(extent_path, time, Vt.Vec3fArray.FromNumpy(bounds[offset]))
+                        if normals is not None:
+                            normals.write(cache, time, positions[offset])
                 if incremental:
                     _save(cache, cache_path)
                 bar.update(len(chunk))
@@ -421,9 +429,10 @@ def _new_cache_layer(temporary: Path, cache_path: Path, skin_path: Sdf.Path, sta
 
 
 def _is_points_cache(layer: Sdf.Layer, skin_path) -> bool:
-    """True when ``layer`` holds nothing but ``over`` prims and the skin's points/extent (what bake writes)."""
+    """True when ``layer`` holds nothing but ``over`` prims and the skin's points/extent/normals (what bake writes)."""
     skin_path = Sdf.Path(str(skin_path))
-    allowed = {skin_path.AppendProperty(UsdGeom.Tokens.points), skin_path.AppendProperty(UsdGeom.Tokens.extent)}
+    allowed = {skin_path.AppendProperty(name) for name in (UsdGeom.Tokens.points, UsdGeom.Tokens.extent)}
+    allowed |= {skin_path.AppendProperty(name) for name in NORMAL_PROPERTIES}
     ancestors = set(skin_path.GetPrefixes())
     foreign = []
 

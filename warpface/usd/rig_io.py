@@ -12,6 +12,9 @@ Variant opinions are weaker than every local opinion, so a point cache sublayere
 layer (:func:`warpface.usd.bake`) shows through, while the rest shape is what a stage without the
 cache — and ``points.Get(Usd.TimeCode.Default())`` — returns.
 
+``warpface rig`` makes the skin a reference to the user's own mesh instead (no copied geometry or
+variant; :mod:`warpface.usd.asset_io`); :func:`rig_prims` refuses such a rig whose asset is missing.
+
 Values are read in the skin mesh's local space: muscle and wrinkle prims may carry their own
 transforms (rigid motion and uniform scale), which are composed into that space. Lengths are
 converted from the stage's ``metersPerUnit`` (USD's fallback is 0.01, centimetres) to the units asked
@@ -31,11 +34,12 @@ from .._validate import as_positive, expect_instance
 from ..errors import RigError
 from ..expression.muscles import FALLOFFS, LinearMuscle, SphincterMuscle
 from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrinkle
-from ..mesh import FaceMesh
+from ..mesh import FaceMesh, fan_triangles
 from ..rig import FaceRig
 from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, open_stage, writable_path
 from ._lobe_io import author_lobes, read_lobes
 from ._prim_values import array_value, check_finite, scalar_value, token_value
+from .asset_io import check_asset
 from .jaw_io import author_jaw, read_jaw
 from .schema import ensure_schema
 
@@ -302,6 +306,7 @@ def rig_prims(stage: Usd.Stage, skin_path: str | None = None) -> RigPrims:
                 f"{_stage_label(stage)}: several skins ({', '.join(str(p.GetPath()) for p in skins)}); pass skin_path"
             )
         skin = skins[0]
+    check_asset(skin)  # a missing referenced asset, before its absence reads as a missing mesh
     if not skin.IsA(UsdGeom.Mesh):
         raise RigError(
             f"{skin.GetPath()}: {SKIN_API} is applied to a {skin.GetTypeName() or 'typeless prim'}; it applies only "
@@ -420,7 +425,7 @@ def _read_mesh(skin: Usd.Prim, to_units: float, degenerate: str) -> FaceMesh:
             f"{skin.GetPath()}: faceVertexCounts sum to {int(counts.sum())} but faceVertexIndices has {len(indices)} "
             "entries"
         )
-    triangles = _fan_triangulate(counts, indices)
+    triangles = fan_triangles(counts, indices)
     if geom.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded:
         triangles = triangles[:, [0, 2, 1]]
     try:
@@ -429,17 +434,6 @@ def _read_mesh(skin: Usd.Prim, to_units: float, degenerate: str) -> FaceMesh:
         )
     except (TypeError, ValueError) as exc:  # a value of the wrong type on the stage is a bad rig
         raise RigError(f"{skin.GetPath()}: {exc}") from None
-
-
-def _fan_triangulate(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """Polygons (counts, flat indices) → triangles (T, 3) by fans from each polygon's first corner."""
-    if len(counts) and np.all(counts == 3):
-        return indices.reshape(-1, 3)
-    per_face = counts - 2
-    face = np.repeat(np.arange(len(counts)), per_face)
-    corner = np.arange(int(per_face.sum())) - np.repeat(np.cumsum(per_face) - per_face, per_face) + 1
-    start = (np.cumsum(counts) - counts)[face]
-    return np.stack([indices[start], indices[start + corner], indices[start + corner + 1]], axis=1)
 
 
 def _read_thickness(skin: Usd.Prim, vertex_count: int) -> np.ndarray:

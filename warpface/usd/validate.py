@@ -10,6 +10,7 @@ from pxr import Usd, UsdGeom, UsdValidation
 from ..errors import RigError
 from ._files import open_stage, without_usd_warnings
 from .animation import read_animation
+from .asset_io import check_asset
 from .baking import check_bake, existing_cache_path
 from .frames import capture_problems, is_capture
 from .rig_io import SKIN_API, read_rig, rig_prims
@@ -62,6 +63,12 @@ def validate_stage(
         return [ValidationProblem("error", str(stage_or_path), str(exc), "warpface")]
     ensure_schema()
     problems: list[ValidationProblem] = []
+    for skin in [p for p in stage.Traverse() if p.HasAPI(SKIN_API)]:
+        try:
+            check_asset(skin)
+        except RigError as exc:  # nothing else reads without the asset: the one line says what to do
+            message = str(exc).removeprefix(f"{skin.GetPath()}: ")
+            return [ValidationProblem("error", str(skin.GetPath()), message, "warpface")]
     if is_capture(stage):
         problems += [
             ValidationProblem("error", path, message, "warpface")

@@ -1,0 +1,369 @@
+"""A rig stage on the user's own mesh: the skin references the asset's mesh prim instead of a copy.
+
+Layout (docs/RIG.md §10): ``/<Face>/Skin`` is a Mesh with a reference to the asset's head mesh (a USD
+file's prim, or the USD copy :func:`write_obj_asset` makes of an OBJ once, beside the rig). The rig
+layer adds only the rig's opinions (WarpFaceSkinAPI, thickness, landmarks, muscle relationships, the
+rigid shells); the asset's points, faces, UVs, normals, subsets and bindings compose through the
+reference, and a bake overrides ``points``/``extent`` in its own cache layer. Nothing here edits the
+asset file.
+
+Extra shells (eyes, teeth, tongue: connected parts other than the skin) are listed on the skin as
+``warpFace:rigidVertices``: no muscle or wrinkle moves them, only the jaw with its weights (1 on the
+shells of ``warpFace:jawVertices``, 0 on those wholly above the lips). :class:`RigidShells` applies that
+to a model's evaluated frames.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from pxr import Sdf, Usd, UsdGeom, UsdShade, Vt
+
+from .._validate import expect_instance
+from ..errors import RigError
+from ..expression.jaw import JAW_CONTROL_NAMES, jaw_points
+from ..mesh import ObjPolygons, fan_triangles
+from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, writable_path
+
+__all__ = [
+    "AssetLink",
+    "RigidShells",
+    "asset_link",
+    "attach_asset",
+    "check_asset",
+    "rigid_shell_vertices",
+    "shells_of",
+    "SkinNormals",
+    "NORMAL_PROPERTIES",
+    "write_obj_asset",
+    "RIGID_VERTICES",
+    "JAW_VERTICES",
+]
+
+RIGID_VERTICES = "warpFace:rigidVertices"
+"""Skin attribute (uniform int[]): vertices of extra shells, which no muscle or wrinkle moves."""
+JAW_VERTICES = "warpFace:jawVertices"
+"""Skin attribute (uniform int[]): the rigid vertices of shells wholly with the jaw (lower teeth); the jaw
+prim's weights, which the bake uses, are 1 there."""
+RIDING_FRACTION = 0.05
+"""A shell with this fraction of its vertices on skin vertices rides on the skin (it is not rigid)."""
+SIDE_FRACTION = 0.7
+"""A rigid shell with this fraction of its vertices on one side of the lips' line moves wholly with that side."""
+_COPIED = ("faceVertexCounts", "faceVertexIndices", "subdivisionScheme", "orientation")
+
+
+@dataclass(frozen=True)
+class AssetLink:
+    """Where a rig's skin comes from, and what of it is rigid."""
+
+    path: Path
+    """The asset file (absolute)."""
+    prim_path: str
+    """The mesh prim in it ("" for its default prim)."""
+    up_axis: str
+    """The asset's up axis token (``"Y"`` or ``"Z"``)."""
+    rigid_vertices: np.ndarray
+    jaw_vertices: np.ndarray
+
+
+def write_obj_asset(polygons: ObjPolygons, path, *, name: str, meters_per_unit: float, up_axis: str) -> str:
+    """Write an OBJ's polygons as a USD mesh file (every face, UV, normal, group and material kept).
+
+    The mesh is the default prim ``/<name>``; ``usemtl`` materials become ``materialBind`` GeomSubsets
+    bound to Material prims under it, ``g``/``o`` groups ``objGroup`` subsets. Returns the prim path.
+    """
+    expect_instance(polygons, ObjPolygons, "polygons")
+    path = writable_path(path, LAYER_SUFFIXES)
+    stage = Usd.Stage.CreateInMemory(f"asset{path.suffix}")
+    UsdGeom.SetStageMetersPerUnit(stage, meters_per_unit)
+    UsdGeom.SetStageUpAxis(stage, up_axis)
+    root = Sdf.Path("/" + (Sdf.Path.IsValidIdentifier(name) and name or "Asset"))
+    mesh = UsdGeom.Mesh.Define(stage, root)
+    stage.SetDefaultPrim(mesh.GetPrim())
+    points = np.ascontiguousarray(polygons.points, dtype=np.float32)
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points))
+    mesh.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([points.min(axis=0), points.max(axis=0)])))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(polygons.counts.astype(np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(polygons.indices.astype(np.int32)))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)  # an OBJ is a polygon mesh
+    primvars = UsdGeom.PrimvarsAPI(mesh)
+    for values, table, primvar_name, type_name in (
+        (polygons.uvs, polygons.uv_indices, "st", Sdf.ValueTypeNames.TexCoord2fArray),
+        (polygons.normals, polygons.normal_indices, "normals", Sdf.ValueTypeNames.Normal3fArray),
+    ):
+        if values is not None:
+            primvar = primvars.CreatePrimvar(primvar_name, type_name, UsdGeom.Tokens.faceVarying)
+            primvar.Set(np.ascontiguousarray(values, dtype=np.float32))
+            primvar.SetIndices(Vt.IntArray.FromNumpy(table.astype(np.int32)))
+    _subsets(stage, mesh, polygons.materials, polygons.face_materials, UsdShade.Tokens.materialBind, bind=True)
+    _subsets(stage, mesh, polygons.groups, polygons.face_groups, "objGroup", bind=False)
+    export_layer_atomically(stage.GetRootLayer(), path)
+    return str(root)
+
+
+def _subsets(stage, mesh, names, of_face, family: str, *, bind: bool) -> None:
+    if of_face is None or len(names) == 0:
+        return
+    used = set()
+    for k, name in enumerate(names):
+        faces = np.flatnonzero(of_face == k).astype(np.int32)
+        identifier = _unique(name, used)
+        subset = UsdGeom.Subset.Define(stage, mesh.GetPath().AppendChild(identifier))
+        subset.CreateElementTypeAttr(UsdGeom.Tokens.face)
+        subset.CreateFamilyNameAttr(family)
+        subset.CreateIndicesAttr(Vt.IntArray.FromNumpy(faces))
+        if name != identifier:
+            subset.GetPrim().SetDisplayName(name)
+        if bind:
+            material = UsdShade.Material.Define(stage, mesh.GetPath().AppendPath(Sdf.Path(f"Looks/{identifier}")))
+            UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(material)
+    UsdGeom.Subset.SetFamilyType(mesh, family, UsdGeom.Tokens.partition if bind else UsdGeom.Tokens.nonOverlapping)
+
+
+def _unique(name: str, used: set) -> str:
+    from pxr import Tf
+
+    identifier = base = Tf.MakeValidIdentifier(name) if name else "_"
+    suffix = 1
+    while identifier in used or identifier == "Looks":
+        identifier, suffix = f"{base}_{suffix}", suffix + 1
+    used.add(identifier)
+    return identifier
+
+
+def rigid_shell_vertices(shell_of_vertex: np.ndarray, skin_label: int, points, landmarks) -> tuple:
+    """``(rigid, jaw, head)`` vertex indices: the extra shells no muscle moves, those of them wholly with the
+    jaw, and those wholly with the head.
+
+    A shell other than the skin is rigid unless it rides on the skin: when at least ``RIDING_FRACTION`` of
+    its vertices sit on a skin vertex (within 1e-3 of the skin's size: eyelashes rooted in the lid margin,
+    a lacrimal or occlusion film), the muscles move it with the skin. A rigid shell with at least
+    ``SIDE_FRACTION`` of its vertices below the lips' contact line (iBUG 60–67, along iBUG 8 → 27) goes
+    with the jaw (lower teeth), with as many above with the head (eyes, upper teeth); one across the line
+    (gums and tongue in one piece) keeps the rig's smooth jaw weights.
+    """
+    from scipy.spatial import cKDTree
+
+    points = np.asarray(points, dtype=np.float64)
+    on_skin = shell_of_vertex == skin_label
+    rigid = np.flatnonzero(~on_skin)
+    if len(rigid) == 0:
+        return rigid, rigid, rigid
+    labels = np.unique(shell_of_vertex[rigid], return_inverse=True)[1].reshape(-1)
+    skin = points[on_skin]
+    touching = cKDTree(skin).query(points[rigid])[0] <= 1e-3 * np.linalg.norm(np.ptp(skin, axis=0))
+    riding = np.bincount(labels, weights=touching) >= RIDING_FRACTION * np.bincount(labels)
+    rigid, labels = rigid[~riding[labels]], np.unique(labels[~riding[labels]], return_inverse=True)[1].reshape(-1)
+    if len(rigid) == 0:
+        return rigid, rigid, rigid
+    up = points[landmarks[27]] - points[landmarks[8]]
+    up /= np.linalg.norm(up)
+    lips = points[landmarks[60:68]].mean(axis=0)
+    below = np.bincount(labels, weights=(points[rigid] - lips) @ up < 0.0) / np.bincount(labels)
+    return rigid, rigid[below[labels] >= SIDE_FRACTION], rigid[below[labels] <= 1.0 - SIDE_FRACTION]
+
+
+def attach_asset(layer: Sdf.Layer, skin_path, link: AssetLink, *, anchor: Path | None = None) -> None:
+    """Replace ``layer``'s copy of the skin's geometry by a reference to ``link``'s mesh (Sdf edits only).
+
+    ``anchor``: the folder ``layer`` will be saved in (the reference is written relative to it); ``None``
+    writes the absolute path (an in-memory stage). A left-handed ``orientation`` (a skin wound inside
+    out) stays. Calling it again re-points the reference.
+    """
+    expect_instance(layer, Sdf.Layer, "layer")
+    expect_instance(link, AssetLink, "link")
+    spec = layer.GetPrimAtPath(checked_prim_path(skin_path, "skin_path"))
+    if spec is None:
+        raise ValueError(f"skin_path: no prim spec at {skin_path} in {layer.identifier}")
+    for name in _COPIED + (UsdGeom.Tokens.points, UsdGeom.Tokens.extent):
+        prop = spec.properties.get(name)
+        if prop is not None and not (name == "orientation" and prop.default == UsdGeom.Tokens.leftHanded):
+            spec.RemoveProperty(prop)
+    for name in list(spec.variantSets.keys()):
+        del spec.variantSets[name]
+    spec.variantSetNameList.ClearEdits()
+    spec.variantSelections.clear()
+    asset = link.path.as_posix() if anchor is None else _relative(link.path, anchor)
+    spec.referenceList.prependedItems = [
+        Sdf.Reference(asset, Sdf.Path(link.prim_path) if link.prim_path else Sdf.Path())
+    ]
+    for name, values in ((RIGID_VERTICES, link.rigid_vertices), (JAW_VERTICES, link.jaw_vertices)):
+        attribute = spec.properties.get(name) or Sdf.AttributeSpec(
+            spec, name, Sdf.ValueTypeNames.IntArray, Sdf.VariabilityUniform
+        )
+        attribute.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(values, dtype=np.int32))
+    order = spec.properties.get(UsdGeom.Tokens.xformOpOrder) or Sdf.AttributeSpec(
+        spec, UsdGeom.Tokens.xformOpOrder, Sdf.ValueTypeNames.TokenArray, Sdf.VariabilityUniform
+    )
+    order.default = Vt.TokenArray()  # the rig lives in the mesh's own space: a transform of the mesh prim is not kept
+    layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, link.up_axis)
+
+
+def _relative(path: Path, anchor: Path) -> str:
+    import os
+
+    relative = os.path.relpath(path, Path(anchor).resolve())
+    return relative if relative.startswith("..") else "./" + relative
+
+
+def _references(skin: Usd.Prim) -> list[tuple[Sdf.Layer, Sdf.Reference]]:
+    found = []
+    for spec in skin.GetPrimStack():
+        for reference in spec.referenceList.GetAddedOrExplicitItems():
+            if reference.assetPath:
+                found.append((spec.layer, reference))
+    return found
+
+
+def check_asset(skin: Usd.Prim) -> None:
+    """RigError (one line) when the skin references an asset file that is missing."""
+    expect_instance(skin, Usd.Prim, "skin")
+    for layer, reference in _references(skin):
+        resolved = layer.ComputeAbsolutePath(reference.assetPath)
+        if not Path(resolved).is_file():
+            raise RigError(
+                f"{skin.GetPath()}: the referenced asset {reference.assetPath} ({resolved}) is missing; "
+                "put the head mesh back there or run `warpface rig` again"
+            )
+
+
+def asset_link(stage: Usd.Stage, skin: Usd.Prim) -> AssetLink | None:
+    """The asset the rig's skin references (absolute path), or ``None`` for a rig with its own skin."""
+    expect_instance(stage, Usd.Stage, "stage")
+    expect_instance(skin, Usd.Prim, "skin")
+    references = _references(skin)
+    if not references:
+        return None
+    layer, reference = references[0]
+
+    def indices(name: str) -> np.ndarray:
+        attribute = skin.GetAttribute(name)
+        value = attribute.Get() if attribute else None
+        return np.zeros(0, dtype=np.int64) if value is None else np.asarray(value, dtype=np.int64)
+
+    return AssetLink(
+        Path(layer.ComputeAbsolutePath(reference.assetPath)),
+        str(reference.primPath) if not reference.primPath.isEmpty else "",
+        UsdGeom.GetStageUpAxis(stage),
+        indices(RIGID_VERTICES),
+        indices(JAW_VERTICES),
+    )
+
+
+class RigidShells:
+    """An expression model whose evaluated frames move the rigid shells only with the jaw.
+
+    Wraps ``model`` (same interface): the rows of ``rigid`` vertices are replaced by the jaw's motion of
+    their rest positions alone, with the jaw's weights (:func:`~warpface.expression.jaw_points`): no
+    muscle or wrinkle moves them.
+    """
+
+    def __init__(self, model, rigid: np.ndarray):
+        self._model = model
+        self._rigid = np.asarray(rigid, dtype=np.int64)
+        rest = np.asarray(model.mesh.points, dtype=np.float64)
+        self._rest = rest[self._rigid]
+        self._jaw = None
+        if model.jaw is not None:
+            self._jaw = dataclasses.replace(model.jaw, weights=np.asarray(model.jaw.weights)[self._rigid])
+        self._jaw_columns = len(model.muscle_names)
+
+    def __getattr__(self, name):
+        return getattr(self._model, name)
+
+    def evaluate(self, controls=None, out=None, **kwargs):
+        positions = self._model.evaluate(controls, out, **kwargs)
+        frames = positions if positions.ndim == 3 else positions[None]
+        if controls is None:
+            values = None
+        elif isinstance(controls, np.ndarray):
+            values = np.asarray(controls, dtype=np.float64).reshape(len(frames), -1)
+        else:
+            values = np.asarray(self._model.control_vector(controls), dtype=np.float64).reshape(len(frames), -1)
+        for row in range(len(frames)):
+            moved = self._rest
+            if self._jaw is not None and values is not None:
+                jaw = values[row, self._jaw_columns : self._jaw_columns + len(JAW_CONTROL_NAMES)]
+                if np.any(jaw != 0.0):
+                    moved = jaw_points(self._jaw, self._rest, jaw)
+            frames[row, self._rigid] = moved
+        return positions
+
+
+def shells_of(stage: Usd.Stage, skin: Usd.Prim, model):
+    """``model`` wrapped in :class:`RigidShells` when the skin lists rigid vertices, else ``model``."""
+    link = asset_link(stage, skin)
+    if link is None or len(link.rigid_vertices) == 0:
+        return model
+    return RigidShells(model, link.rigid_vertices)
+
+
+NORMAL_PROPERTIES = ("normals", "primvars:normals", "primvars:normals:indices")
+"""Skin properties a bake may write besides points and extent (when the asset authors normals)."""
+
+
+class SkinNormals:
+    """Per-frame normals of a skin whose asset authors them, written with the asset's interpolation.
+
+    Normals are area-weighted vertex normals of the deformed polygons (fan triangles), turned to agree
+    with the asset's rest normals; a ``faceVarying`` primvar gets them per vertex with the faces' corner
+    indices (hard edges become smooth). ``None`` from :meth:`of` when the asset has no normals.
+    """
+
+    def __init__(self, skin: Usd.Prim, name: str, interpolation: str, indexed: bool):
+        from ..rigging.surface import vertex_normals
+
+        mesh = UsdGeom.Mesh(skin)
+        self._corners = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), dtype=np.int64)
+        self._triangles = fan_triangles(mesh.GetFaceVertexCountsAttr().Get(), self._corners)
+        self._normals = vertex_normals
+        self._name, self._interpolation, self._indexed = name, interpolation, indexed
+        rest = self._vertex_normals(np.asarray(mesh.GetPointsAttr().Get(), dtype=np.float64), 1.0)
+        authored = UsdGeom.Primvar(skin.GetAttribute(name)).ComputeFlattened() if indexed else None
+        authored = np.asarray(authored if authored is not None else skin.GetAttribute(name).Get(), dtype=np.float64)
+        expected = self._laid_out(rest)
+        self._sign = -1.0 if len(authored) == len(expected) and np.sum(authored * expected) < 0.0 else 1.0
+
+    @classmethod
+    def of(cls, skin: Usd.Prim) -> SkinNormals | None:
+        primvar = UsdGeom.PrimvarsAPI(skin).GetPrimvar("normals")
+        if primvar and primvar.HasAuthoredValue():
+            return cls(skin, "primvars:normals", primvar.GetInterpolation(), primvar.IsIndexed())
+        attribute = UsdGeom.Mesh(skin).GetNormalsAttr()
+        if attribute and attribute.HasAuthoredValue():
+            return cls(skin, "normals", UsdGeom.Mesh(skin).GetNormalsInterpolation(), False)
+        return None
+
+    def _vertex_normals(self, points: np.ndarray, sign: float) -> np.ndarray:
+        return sign * self._normals(points, self._triangles)
+
+    def _laid_out(self, vertex_normals: np.ndarray) -> np.ndarray:
+        if self._interpolation == UsdGeom.Tokens.faceVarying and not self._indexed:
+            return vertex_normals[self._corners]
+        return vertex_normals
+
+    def prepare(self, layer: Sdf.Layer, skin_path: Sdf.Path, low: float, high: float) -> None:
+        """Create the specs in the cache ``layer`` and drop its samples in ``[low, high]``."""
+        prim = layer.GetPrimAtPath(skin_path)
+        spec = prim.attributes.get(self._name) or Sdf.AttributeSpec(prim, self._name, Sdf.ValueTypeNames.Normal3fArray)
+        spec.SetInfo("interpolation", self._interpolation)
+        for time in layer.ListTimeSamplesForPath(spec.path):
+            if low <= time <= high:
+                layer.EraseTimeSample(spec.path, time)
+        if self._indexed:  # values per vertex: the corners (or vertices) index them
+            table = self._corners if self._interpolation == UsdGeom.Tokens.faceVarying else np.arange(self._count())
+            indices = prim.attributes.get(self._name + ":indices") or Sdf.AttributeSpec(
+                prim, self._name + ":indices", Sdf.ValueTypeNames.IntArray
+            )
+            indices.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(table, dtype=np.int32))
+        self._path = spec.path
+
+    def _count(self) -> int:
+        return int(self._triangles.max()) + 1 if len(self._triangles) else 0
+
+    def write(self, layer: Sdf.Layer, time: float, positions: np.ndarray) -> None:
+        values = self._laid_out(self._vertex_normals(np.asarray(positions, dtype=np.float64), self._sign))
+        layer.SetTimeSample(self._path, time, Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(values, np.float32)))
