@@ -266,7 +266,6 @@ def _area_vectors(points: wp.array, triangles: wp.array, weight: wp.array) -> wp
     return area_vectors
 
 
-
 @dataclass(frozen=True)
 class ObjPolygons:
     """An OBJ mesh as written: polygons (quads and n-gons kept), UVs, normals, groups and materials.
