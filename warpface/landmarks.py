@@ -56,6 +56,7 @@ __all__ = [
     "KATO_LANDMARKS",
     "kato_landmarks",
     "LAYOUT_GROUPS",
+    "LAYOUT_REFERENCE",
     "layout_frame",
     "check_layout",
 ]
@@ -277,7 +278,7 @@ LAYOUT_GROUPS: tuple[tuple[str, int, int], ...] = (
 """iBUG groups: (name, first index, end index)."""
 
 # fmt: off
-_LAYOUT_REFERENCE = np.array(
+LAYOUT_REFERENCE = np.array(
     (
         (0.000, -0.423, -0.601), (-0.670, 1.000, 0.101), (0.670, 1.000, 0.101), (0.000, 0.317, 0.514),
         (0.000, -0.139, 0.407), (-0.512, 0.625, -0.003), (0.512, 0.625, -0.003), (0.000, -0.544, 0.258),
@@ -331,7 +332,7 @@ def check_layout(marks, front, label: str = "landmarks") -> None:
         raise RigError(f"{label}: all landmarks are the same point")
     local = layout_frame(marks, np.asarray(front, dtype=np.float64).reshape(3))
     centroids = np.stack([local[a:b].mean(axis=0) for _, a, b in LAYOUT_GROUPS])
-    distances = np.linalg.norm(centroids[:, None, :] - _LAYOUT_REFERENCE[None, :, :], axis=2)
+    distances = np.linalg.norm(centroids[:, None, :] - LAYOUT_REFERENCE[None, :, :], axis=2)
     nearest = np.argmin(distances, axis=1)
     wrong = [g for g in range(len(LAYOUT_GROUPS)) if nearest[g] != g]
     if not wrong:
