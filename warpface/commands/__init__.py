@@ -5,7 +5,7 @@ A command module provides ``add_parser(subparsers, common)`` — it adds its sub
 ``run(args) -> int``. Register a new command by adding its module name to :data:`COMMANDS`.
 """
 
-COMMANDS = ("demo", "rig", "bake", "preview", "validate", "track", "animate", "fit")
+COMMANDS = ("demo", "rig", "bake", "preview", "validate", "track", "animate", "fit", "presets")
 """Module names under :mod:`warpface.commands`, in the order ``warpface --help`` lists them."""
 
 __all__ = ["COMMANDS"]

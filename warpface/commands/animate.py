@@ -13,7 +13,6 @@ files and renames, so an error or Ctrl-C leaves no half-written output.
 from __future__ import annotations
 
 import math
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -139,6 +138,7 @@ def animate(
     from pxr import Sdf, Usd
 
     from .. import usd
+    from .._files import create_missing_folders, remove_created_folders
     from ..usd.animation import CACHE_SUFFIX
     from ..usd.jaw_io import JAW_CONTROL_ATTRIBUTES
     from ..usd.mapping_io import write_mapping
@@ -184,7 +184,12 @@ def animate(
     cache_path = out.with_name(out.stem + CACHE_SUFFIX)
     model = rig_model.model(device=device)
     clock.step("model")
-    cache = usd.bake(stage, time_codes, cache_path=cache_path, model=model, device=device, progress=progress)
+    created = create_missing_folders(out.parent)  # as `track` does; removed again if the bake writes nothing
+    try:
+        cache = usd.bake(stage, time_codes, cache_path=cache_path, model=model, device=device, progress=progress)
+    except BaseException:
+        remove_created_folders(created)
+        raise
     clock.step("bake")
     saved = Sdf.Layer.CreateAnonymous(out.suffix)  # a copy: re-pathing the stage's own layer would recompose it
     saved.TransferContent(root)
@@ -224,13 +229,15 @@ class _StepClock:
 
 
 def _output_path(path) -> Path:
-    """The output stage path, checked before any work: a USD layer extension in an existing, writable folder."""
+    """The output stage path, checked before any work: a USD layer extension in a writable folder (or one that
+    can be made)."""
+    from .._files import check_output_folder
+
     out = Path(path).absolute()
     if out.suffix not in (".usda", ".usdc", ".usd"):
         raise ValueError(f"--out {path}: must end in .usda, .usdc or .usd")
-    if not out.parent.is_dir():
-        raise ValueError(f"--out {path}: folder {out.parent} does not exist")
-    if out.is_dir() or not os.access(out.parent, os.W_OK):
+    check_output_folder(out.parent, "--out", path)  # a missing folder is created once the inputs are good
+    if out.is_dir():
         raise ValueError(f"--out {path}: cannot write there")
     return out
 
