@@ -1,5 +1,5 @@
-"""``warpface track``: a landmark source → dense face motion (or, with ``--solve``, solved muscle controls)
-→ USD time samples (see warpface.pipelines.track)."""
+"""``warpface track``: a landmark source → dense motion of the built-in face or of ``--rig`` (or, with ``--solve``,
+solved muscle controls) → USD time samples (see warpface.pipelines.track)."""
 
 from __future__ import annotations
 
@@ -22,6 +22,12 @@ def add_parser(subparsers, common) -> None:
         required=True,
         help="output stage (.usda, folder created if missing); landmarks and dense points go to value clips "
         "in <stage>_track/, flushed every 30 frames or 1 s (a hard kill loses at most that; Ctrl-C nothing)",
+    )
+    track.add_argument(
+        "--rig",
+        default=None,
+        help="rig stage to drive, e.g. made by `warpface rig` (default: the built-in face); the synthetic camera "
+        "films it",
     )
     track.add_argument("--frames", type=positive_int, default=None, help="stop after this many frames")
     track.add_argument("--expression", default="smile", help="synthetic source: expression to perform (default smile)")

@@ -1,4 +1,9 @@
-"""``warpface track SOURCE --stage out.usda``: a landmark stream → the built-in face → USD time samples.
+"""``warpface track SOURCE --stage out.usda``: a landmark stream → a face (the built-in one, or the rig stage of
+``--rig``: a head of one's own rigged by ``warpface rig``) → USD time samples.
+
+The synthetic source films the rig's own face (:func:`warpface.pipelines.capture.synthetic_capture`); a
+recording, an RGB-D folder or a live camera's layout names its landmarks after the vertices of the face it
+was made for (``v01234``), so it drives a rig with that topology.
 
 Output: ``out.usda`` (a small root layer) and ``out_track/`` beside it (``static.usdc`` with the
 topology and rest points, ``chunk_NNNN.usdc`` value clips with the landmarks and the dense points
@@ -45,10 +50,7 @@ def run_track(args) -> int:
     created = _create_missing_folders(stage.parent)
     writer = None
     try:
-        with _setup_step("loading the built-in face", args.quiet):
-            from ..assets import default_rig
-
-            rig = default_rig()
+        rig = _load_rig(getattr(args, "rig", None), args.quiet)
         source, camera_to_model, closers = _open_source(rig, args)
         try:
             fps = getattr(source, "fps", None) or 30.0
@@ -107,6 +109,11 @@ def _check_options(args) -> None:
         raise ValueError(f"--frames must be ≥ 1, got {args.frames}")
     if Path(args.stage).suffix not in (".usda", ".usdc"):
         raise ValueError(f"--stage {args.stage}: output must end in one of .usda, .usdc")
+    rig = getattr(args, "rig", None)
+    if rig is not None and Path(rig).suffix.lower() not in (".usda", ".usdc", ".usd"):
+        raise ValueError(f"--rig {rig}: expected a rig stage (.usda, .usdc, .usd), e.g. one made by `warpface rig`")
+    if rig is not None and not Path(rig).is_file():
+        raise ValueError(f"--rig {rig}: file not found")
     if args.source in ("realsense", "orbbec"):
         if getattr(args, "layout", None) is None:
             raise ValueError(
@@ -135,6 +142,19 @@ def _check_options(args) -> None:
             raise ValueError(f"--fem-nodes must be in [100, 200000], got {args.fem_nodes}")
 
 
+def _load_rig(path, quiet: bool):
+    """The rig to drive, in metres: a rig stage (``--rig``, e.g. made by ``warpface rig``) or the built-in face."""
+    if path is None:
+        with _setup_step("loading the built-in face", quiet):
+            from ..assets import default_rig
+
+            return default_rig()
+    from ..usd import read_rig
+
+    with _setup_step(f"reading the rig {Path(path).name}", quiet):
+        return read_rig(path, meters_per_unit=1.0)
+
+
 def _open_source(rig, args):
     """The landmark source, its camera → model transform (or None) and what closes it."""
     from .capture import open_source, synthetic_capture
@@ -142,7 +162,7 @@ def _open_source(rig, args):
     if args.source == "synthetic":
         with _setup_step("preparing the synthetic camera", args.quiet):
             capture = synthetic_capture(rig, expression=args.expression, device=args.device)
-        return capture.source, np.linalg.inv(capture.camera.model_to_camera), [capture.camera.close]
+        return capture.source, capture.camera_to_rig, [capture.camera.close]
     source = open_source(args.source, layout=getattr(args, "layout", None), device=args.device)
     return source, None, [getattr(source, "close", lambda: None)]
 
