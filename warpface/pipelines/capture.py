@@ -20,6 +20,7 @@ __all__ = [
     "SyntheticCapture",
     "synthetic_capture",
     "upright_turn",
+    "TurnedAdapter",
     "open_source",
     "CaptureStats",
     "record",
@@ -124,6 +125,50 @@ def upright_turn(rig) -> np.ndarray:
     up, front = np.zeros(3), np.zeros(3)
     up[up_axis], front[front_axis] = np.sign(axes[1][up_axis]), np.sign(axes[2][front_axis])
     return np.stack([np.cross(up, front), up, front])
+
+
+class TurnedAdapter:
+    """A tracking adapter that works in a rig's upright frame (:func:`upright_turn`: its sparse mesh is
+    triangulated in the front view, which the adapter takes as its x-y plane) and hands out the dense face and
+    its camera → model transform in the rig's own frame."""
+
+    def __init__(self, rest_points, landmark_names, turn: np.ndarray, *, camera_to_rig=None, device=None):
+        from ..tracking import adapter_for_face
+
+        self.turn = np.asarray(turn, dtype=np.float64)
+        self._to_upright = np.eye(4)
+        self._to_upright[:3, :3] = self.turn
+        self.adapter = adapter_for_face(
+            np.asarray(rest_points, dtype=np.float64) @ self.turn.T,
+            landmark_names,
+            camera_to_model=None if camera_to_rig is None else self._to_upright @ camera_to_rig,
+            device=device,
+        )
+
+    @property
+    def camera_to_model(self) -> np.ndarray | None:
+        """Camera → the rig's own frame (None until the adapter has fitted it on the first frame)."""
+        upright = self.adapter.camera_to_model
+        return None if upright is None else self._to_upright.T @ upright
+
+    @property
+    def weights(self) -> np.ndarray:
+        """The adapter's per-vertex weights (frame-free)."""
+        return self.adapter.weights
+
+    @property
+    def dense_rest(self) -> np.ndarray:
+        """The dense rest points in the rig's frame."""
+        return self.adapter.dense_rest @ self.turn
+
+    def driven_vertices(self) -> np.ndarray:
+        """The vertices the landmarks drive (frame-free)."""
+        return self.adapter.driven_vertices()
+
+    def track(self, source):
+        """``(frame, dense points in the rig's frame)`` per frame of ``source``."""
+        for frame, dense in self.adapter.track(source):
+            yield frame, dense @ self.turn
 
 
 def _face_vertices(points: np.ndarray, landmarks) -> np.ndarray:

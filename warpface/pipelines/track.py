@@ -169,11 +169,17 @@ def _open_source(rig, args):
 
 def _capture(rig, source, camera_to_model, writer, fps: float, args):
     from ..tracking import adapter_for_face
-    from .capture import record
+    from .capture import TurnedAdapter, record, upright_turn
 
-    adapter = adapter_for_face(
-        rig.mesh.points, source.landmark_names, camera_to_model=camera_to_model, device=args.device
-    )
+    turn = upright_turn(rig)
+    if np.array_equal(turn, np.eye(3)):
+        adapter = adapter_for_face(
+            rig.mesh.points, source.landmark_names, camera_to_model=camera_to_model, device=args.device
+        )
+    else:  # a Z-up or sideways rig: the adapter triangulates its landmarks in the front view
+        adapter = TurnedAdapter(
+            rig.mesh.points, source.landmark_names, turn, camera_to_rig=camera_to_model, device=args.device
+        )
     drive = _tissue_drive(rig, adapter, fps, args) if args.fem else None
     stats = record(source, adapter, writer, max_frames=args.frames, progress=not args.quiet, on_frame=drive)
     return stats, drive
