@@ -261,8 +261,12 @@ def _preview(path: Path, model, rig, mapped, rate: float, size, progress: bool, 
     for column, name in enumerate(muscles):
         if name in index:
             contractions[:, column] = mapped.values[shown, index[name]]
+    from .face_view import face_view_of
+
+    view = face_view_of(rig)  # upright and frontal whatever the rig's axes (None without 68 landmarks)
     landmarks = rig.landmarks if rig.landmarks is not None else np.arange(rig.mesh.vertex_count)
-    camera = preview.Camera.for_face(rig.mesh.points[landmarks], yaw_deg=20.0, pitch_deg=5.0)
+    marks = rig.mesh.points[landmarks]
+    camera = preview.Camera.for_face(marks if view is None else view(marks), yaw_deg=20.0, pitch_deg=5.0)
     from tqdm import tqdm
 
     with atomic_path(path, path.suffix) as temporary:
@@ -280,7 +284,7 @@ def _preview(path: Path, model, rig, mapped, rate: float, size, progress: bool, 
                         frames = model.evaluate(contractions[start : start + 64])
                         for offset, points in enumerate(frames):
                             frame = int(shown[start + offset])
-                            image = np.ascontiguousarray(renderer.render(points))
+                            image = np.ascontiguousarray(renderer.render(points if view is None else view(points)))
                             text = f"{mapped.times[frame] - mapped.times[0]:6.2f} s  " + " ".join(
                                 mapped.active_channels[frame][:3]
                             )

@@ -2,7 +2,8 @@
 
 The points are turned into the face's landmark frame (x to the subject's left, y up, z out of the face)
 before rendering, so a head in any up axis and facing is drawn upright from the front, and the camera
-frames forehead to chin rather than the whole bust. Used by ``warpface preview``.
+frames forehead to chin rather than the whole bust. Used by ``warpface preview``, ``animate``'s video and
+``fit``'s heat maps.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FaceView", "rig_of_stage", "project", "draw_landmarks", "draw_muscles"]
+__all__ = ["FaceView", "face_view_of", "rig_of_stage", "project", "draw_landmarks", "draw_muscles"]
 
 LANDMARK_COLOR = (40, 90, 220)
 MUSCLE_COLOR = (215, 40, 40)
@@ -56,6 +57,15 @@ class FaceView:
         from ..preview import Camera
 
         return Camera.for_face(self(landmark_points), yaw_deg=yaw_deg, pitch_deg=pitch_deg)
+
+
+def face_view_of(rig) -> FaceView | None:
+    """The view of ``rig``'s face, or None when it has no 68 landmarks (then the mesh's own axes are used)."""
+    from ..landmarks import IBUG_COUNT
+
+    if rig.landmarks is None or len(rig.landmarks) != IBUG_COUNT:
+        return None
+    return FaceView.of(rig)
 
 
 def project(camera, size: tuple[int, int], points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
