@@ -212,3 +212,31 @@ def test_animate_creates_a_missing_output_folder_and_removes_it_on_error(tmp_pat
     blocked.write_text("x")
     assert main(["--quiet", "animate", str(take), "--out", str(blocked / "anim.usda"), "--no-video"]) == 2
     assert "is a file, not a folder" in capsys.readouterr().err
+
+
+def test_jaw_controls_in_presets_round_trip_through_a_centimetre_stage(zup_rig, tmp_path):
+    from dataclasses import replace
+
+    from pxr import Usd
+
+    from warpface.usd import read_rig, write_rig
+    from warpface.usd.presets_io import read_presets, write_presets
+
+    stage = Usd.Stage.CreateInMemory("cm.usda")
+    write_rig(stage, zup_rig, meters_per_unit=1.0)  # the rig in metres...
+    path = tmp_path / "cm.usda"
+    centimetres = Usd.Stage.CreateNew(str(path))
+    write_rig(centimetres, read_rig(stage, meters_per_unit=0.01), meters_per_unit=0.01)  # ...and in centimetres
+    preset = {"jaw_open": 0.2, "jaw_forward": 0.003, "jaw_left": -0.002, "zygomaticus_major_L": 0.004}
+    write_presets(centimetres, {"open": preset}, meters_per_unit=1.0)
+    centimetres.GetRootLayer().Save()
+    back = read_presets(path)
+    assert set(back["open"]) >= set(preset)
+    for control, value in preset.items():
+        assert abs(back["open"][control] - value) < 1e-9, control
+    in_cm = read_presets(path, meters_per_unit=0.01)["open"]
+    assert abs(in_cm["jaw_forward"] - 0.3) < 1e-9 and abs(in_cm["jaw_open"] - 0.2) < 1e-12
+    no_jaw = Usd.Stage.CreateInMemory("nojaw.usda")
+    write_rig(no_jaw, replace(zup_rig, jaw=None))
+    with pytest.raises(ValueError, match="unknown muscle 'jaw_open'"):
+        write_presets(no_jaw, {"open": {"jaw_open": 0.1}})
