@@ -42,12 +42,13 @@ def run_track(args) -> int:
 
     Returns 0, or 130 when Ctrl-C ended the capture (every frame received is on the stage).
     """
+    from .._files import create_missing_folders, remove_created_folders
     from ..usd.tracking_io import TrackingStageWriter
 
     _check_options(args)
     solve = getattr(args, "solve", False)
     stage = Path(args.stage).absolute()
-    created = _create_missing_folders(stage.parent)
+    created = create_missing_folders(stage.parent)
     writer = None
     try:
         rig = _load_rig(getattr(args, "rig", None), args.quiet)
@@ -73,7 +74,7 @@ def run_track(args) -> int:
                 close()
     finally:
         if writer is None or writer.frames_written == 0:
-            _remove_created(created)
+            remove_created_folders(created)
     if stats.interrupted:
         print(f"interrupted: kept all {stats.frames} frames received in {stage}")
     else:
@@ -250,23 +251,3 @@ def _setup_step(label: str, quiet: bool):
         done.set()
         ticker.join()
         bar.close()
-
-
-def _create_missing_folders(folder: Path) -> list[Path]:
-    """Create ``folder`` and its missing parents; returns the ones created, deepest last."""
-    missing = []
-    while not folder.exists():
-        missing.append(folder)
-        folder = folder.parent
-    for path in reversed(missing):
-        path.mkdir()
-    return list(reversed(missing))
-
-
-def _remove_created(created: list[Path]) -> None:
-    """Remove folders :func:`_create_missing_folders` made, if nothing was put in them."""
-    for path in reversed(created):
-        try:
-            path.rmdir()
-        except OSError:
-            return
