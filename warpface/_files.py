@@ -11,7 +11,15 @@ from pathlib import Path
 
 from ._validate import as_path
 
-__all__ = ["atomic_path", "new_file_mode", "process_umask", "read_text"]
+__all__ = [
+    "atomic_path",
+    "new_file_mode",
+    "process_umask",
+    "read_text",
+    "check_output_folder",
+    "create_missing_folders",
+    "remove_created_folders",
+]
 
 
 def new_file_mode(path: str | Path) -> int:
@@ -94,3 +102,37 @@ def read_text(path) -> str:
         raise ValueError(f"{path}: not a text file") from None
     except OSError as exc:
         raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
+
+
+def check_output_folder(folder, option: str, path) -> None:
+    """ValueError (naming ``option`` and ``path``) unless ``folder`` exists as a writable folder or can be
+    created: its nearest existing ancestor is a writable folder. Nothing is created here."""
+    folder = Path(folder).absolute()
+    existing = folder
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(f"{option} {path}: {existing} is a file, not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"{option} {path}: cannot write in {existing}")
+
+
+def create_missing_folders(folder) -> list[Path]:
+    """Create ``folder`` and its missing parents; returns the ones created, outermost first."""
+    folder = Path(folder).absolute()
+    missing = []
+    while not folder.exists():
+        missing.append(folder)
+        folder = folder.parent
+    for path in reversed(missing):
+        path.mkdir()
+    return list(reversed(missing))
+
+
+def remove_created_folders(created: list[Path]) -> None:
+    """Remove the folders :func:`create_missing_folders` made, innermost first, as long as they are empty."""
+    for path in reversed(created):
+        try:
+            path.rmdir()
+        except OSError:
+            return

@@ -33,6 +33,8 @@ from types import MappingProxyType
 
 import numpy as np
 
+from .errors import RigError
+
 __all__ = [
     "IBUG_COUNT",
     "IBUG_NAMES",
@@ -53,6 +55,10 @@ __all__ = [
     "RIGHT_SIDE",
     "KATO_LANDMARKS",
     "kato_landmarks",
+    "LAYOUT_GROUPS",
+    "LAYOUT_REFERENCE",
+    "layout_frame",
+    "check_layout",
 ]
 
 IBUG_COUNT = 68
@@ -254,3 +260,100 @@ def kato_landmarks(ibug_points) -> dict[str, np.ndarray]:
         bad = np.argwhere(~np.isfinite(p))[0]
         raise ValueError(f"kato_landmarks: iBUG position at index {tuple(int(i) for i in bad)} is not finite")
     return {name: sum(weight * p[..., index, :] for index, weight in terms) for name, terms in KATO_LANDMARKS.items()}
+
+
+# The layout check: are 68 points in iBUG order? It runs wherever landmarks enter a rig (the ``rig``
+# command, ``default_rig``, ``validate``), so it lives here, below every one of them.
+
+LAYOUT_GROUPS: tuple[tuple[str, int, int], ...] = (
+    ("jaw", 0, 17),
+    ("right brow", 17, 22),
+    ("left brow", 22, 27),
+    ("nose bridge", 27, 31),
+    ("nose base", 31, 36),
+    ("right eye", 36, 42),
+    ("left eye", 42, 48),
+    ("mouth", 48, 68),
+)
+"""iBUG groups: (name, first index, end index)."""
+
+# fmt: off
+LAYOUT_REFERENCE = np.array(
+    (
+        (0.000, -0.423, -0.601), (-0.670, 1.000, 0.101), (0.670, 1.000, 0.101), (0.000, 0.317, 0.514),
+        (0.000, -0.139, 0.407), (-0.512, 0.625, -0.003), (0.512, 0.625, -0.003), (0.000, -0.544, 0.258),
+    )
+)
+# fmt: on
+"""Centroids of the :data:`LAYOUT_GROUPS` of the built-in face's landmarks in the :func:`layout_frame`
+(tests/test_landmark_layout.py recomputes them from :func:`warpface.assets.default_face`)."""
+
+
+def layout_frame(marks: np.ndarray, front: np.ndarray) -> np.ndarray:
+    """The 68 points (68, 3) in a frame that does not trust their order: origin at their centroid, y up from
+    the chin (iBUG 8, the lowest jaw point in any 68-point scheme that starts with the jaw), z along ``front``
+    made orthogonal to y, x to the subject's left; RMS spread 1."""
+    centre = marks.mean(axis=0)
+    up = centre - marks[8]
+    if np.linalg.norm(up) == 0.0:
+        raise RigError("landmarks: they coincide or lie on a line; cannot tell where the face is")
+    front = front - (front @ up) / (up @ up) * up
+    if np.linalg.norm(front) == 0.0:
+        raise RigError("landmarks: they coincide or lie on a line; cannot tell where the face is")
+    up, front = up / np.linalg.norm(up), front / np.linalg.norm(front)
+    axes = np.stack([np.cross(up, front), up, front])
+    local = (marks - centre) @ axes.T
+    return local / np.sqrt(np.mean(np.sum(local**2, axis=1)))
+
+
+def _span(a: int, b: int) -> str:
+    return f"{a}–{b - 1}"
+
+
+def check_layout(marks, front, label: str = "landmarks") -> None:
+    """Raise RigError when 68 landmark points (68, 3) are not laid out in iBUG order.
+
+    Each iBUG group should sit nearest its own place on the built-in face (in :func:`layout_frame`); a
+    group nearer another group's place is reported in words a user can act on: two groups in each
+    other's place as swapped, any other misplacement as out of order (menpo's grouping, for one, lists
+    the eyes before the brows).
+
+    Args:
+        marks: landmark positions in mesh coordinates.
+        front: the direction the face looks (e.g. the mean outward skin normal at the landmarks).
+        label: names the landmarks in the message.
+    """
+    marks = np.asarray(marks, dtype=np.float64)
+    if marks.shape != (IBUG_COUNT, 3):
+        raise RigError(f"{label}: expected {IBUG_COUNT} iBUG landmarks, got shape {marks.shape}")
+    if not np.isfinite(marks).all():
+        raise RigError(f"{label}: landmark positions are not finite")
+    if np.ptp(marks, axis=0).max() == 0.0:
+        raise RigError(f"{label}: all landmarks are the same point")
+    local = layout_frame(marks, np.asarray(front, dtype=np.float64).reshape(3))
+    centroids = np.stack([local[a:b].mean(axis=0) for _, a, b in LAYOUT_GROUPS])
+    distances = np.linalg.norm(centroids[:, None, :] - LAYOUT_REFERENCE[None, :, :], axis=2)
+    nearest = np.argmin(distances, axis=1)
+    wrong = [g for g in range(len(LAYOUT_GROUPS)) if nearest[g] != g]
+    if not wrong:
+        return
+    swapped = [(g, int(nearest[g])) for g in wrong if nearest[nearest[g]] == g and g < nearest[g]]
+    if swapped and len(wrong) == 2 * len(swapped):
+        parts = []
+        for g, h in swapped:
+            (name_g, a, b), (name_h, c, d) = LAYOUT_GROUPS[g], LAYOUT_GROUPS[h]
+            side = "right of" if centroids[g][0] > centroids[h][0] else "left of"
+            parts.append(
+                f"{name_g} and {name_h} landmarks look swapped (iBUG {_span(a, b)} are {side} {_span(c, d)} "
+                "from the face's front)"
+            )
+        raise RigError(f"{label}: " + "; ".join(parts) + "; reorder them to iBUG order")
+    described = ", ".join(
+        f"iBUG {_span(LAYOUT_GROUPS[g][1], LAYOUT_GROUPS[g][2])} ({LAYOUT_GROUPS[g][0]}) lie where the "
+        f"{LAYOUT_GROUPS[int(nearest[g])][0]} is"
+        for g in wrong
+    )
+    raise RigError(
+        f"{label}: not in iBUG order: {described}; iBUG order is jaw 0–16, brows 17–26, nose 27–35, "
+        "eyes 36–47, mouth 48–67 (menpo's grouping lists the eyes before the brows: reorder it)"
+    )

@@ -24,7 +24,7 @@ from .._validate import expect_instance
 from ..errors import RigError
 from ..expression.muscles import LinearMuscle, SphincterMuscle
 from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrinkle, project_points
-from ..landmarks import LEFT_SIDE, RIGHT_SIDE
+from ..landmarks import LEFT_SIDE, RIGHT_SIDE, check_layout
 from ..mesh import FaceMesh
 from ..rig import FaceRig
 from .anatomy import (
@@ -147,7 +147,8 @@ def default_rig(
         :data:`MOBILE_TISSUE_FRACTION` in the full anatomy), and the landmarks.
 
     Raises:
-        RigError: landmarks missing, malformed, or not face-like (eyes coinciding, mouth not below).
+        RigError: landmarks missing, malformed, not face-like (eyes coinciding, mouth not below) or not in
+            iBUG order (:func:`warpface.landmarks.check_layout`), or the skin wound inward.
     """
     if mesh is None:
         mesh = default_face()
@@ -159,8 +160,10 @@ def default_rig(
     if anatomy not in ANATOMIES:
         raise RigError(f"default_rig: anatomy must be one of {', '.join(ANATOMIES)}, got {anatomy!r}")
     landmarks = check_landmarks(mesh, landmarks)
+    normals = mesh.vertex_normals(device=device)
+    _check_layout_on(mesh, landmarks, normals)
     frame = FaceFrame.from_landmarks(mesh.points[landmarks])
-    surface = SurfaceSampler(mesh, frame, mesh.vertex_normals(device=device))
+    surface = SurfaceSampler(mesh, frame, normals)
     local = frame.to_local(mesh.points[landmarks])
     linear, sphincters = _linear_muscles(local, surface), _sphincters(local, frame)
     jaw = None
@@ -182,6 +185,24 @@ def default_rig(
         name=name,
         jaw=jaw,
     )
+
+
+def _check_layout_on(mesh: FaceMesh, landmarks: np.ndarray, normals: np.ndarray) -> None:
+    """The landmarks' iBUG layout (:func:`warpface.landmarks.check_layout`), the face's front read from the
+    skin's normals under them; a layout that is right only seen from behind means inward-wound triangles."""
+    front = np.asarray(normals, dtype=np.float64)[landmarks].sum(axis=0)
+    label = f"default_rig: landmarks on mesh {mesh.name!r}"
+    try:
+        check_layout(mesh.points[landmarks], front, label=label)
+    except RigError as error:
+        try:
+            check_layout(mesh.points[landmarks], -front, label=label)
+        except RigError:
+            raise error from None
+        raise RigError(
+            f"default_rig: mesh {mesh.name!r}: its triangles are wound inward (the normals under the landmarks point "
+            "into the head); reverse the winding of every triangle"
+        ) from None
 
 
 MOBILE_TISSUE_FRACTION = 0.6

@@ -14,7 +14,6 @@ files and renames, so an error or Ctrl-C leaves no half-written output.
 from __future__ import annotations
 
 import math
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -141,6 +140,7 @@ def animate(
     from pxr import Sdf, Usd
 
     from .. import usd
+    from .._files import create_missing_folders, remove_created_folders
     from ..usd.animation import CACHE_SUFFIX
     from ..usd.asset_io import asset_link, attach_asset
     from ..usd.jaw_io import JAW_CONTROL_ATTRIBUTES
@@ -190,7 +190,12 @@ def animate(
     cache_path = out.with_name(out.stem + CACHE_SUFFIX)
     model = rig_model.model(device=device)
     clock.step("model")
-    cache = usd.bake(stage, time_codes, cache_path=cache_path, model=model, device=device, progress=progress)
+    created = create_missing_folders(out.parent)  # as `track` does; removed again if the bake writes nothing
+    try:
+        cache = usd.bake(stage, time_codes, cache_path=cache_path, model=model, device=device, progress=progress)
+    except BaseException:
+        remove_created_folders(created)
+        raise
     clock.step("bake")
     saved = Sdf.Layer.CreateAnonymous(out.suffix)  # a copy: re-pathing the stage's own layer would recompose it
     saved.TransferContent(root)
@@ -232,13 +237,15 @@ class _StepClock:
 
 
 def _output_path(path) -> Path:
-    """The output stage path, checked before any work: a USD layer extension in an existing, writable folder."""
+    """The output stage path, checked before any work: a USD layer extension in a writable folder (or one that
+    can be made)."""
+    from .._files import check_output_folder
+
     out = Path(path).absolute()
     if out.suffix not in (".usda", ".usdc", ".usd"):
         raise ValueError(f"--out {path}: must end in .usda, .usdc or .usd")
-    if not out.parent.is_dir():
-        raise ValueError(f"--out {path}: folder {out.parent} does not exist")
-    if out.is_dir() or not os.access(out.parent, os.W_OK):
+    check_output_folder(out.parent, "--out", path)  # a missing folder is created once the inputs are good
+    if out.is_dir():
         raise ValueError(f"--out {path}: cannot write there")
     return out
 
@@ -262,8 +269,12 @@ def _preview(path: Path, model, rig, mapped, rate: float, size, progress: bool, 
     for column, name in enumerate(muscles):
         if name in index:
             contractions[:, column] = mapped.values[shown, index[name]]
+    from .face_view import face_view_of
+
+    view = face_view_of(rig)  # upright and frontal whatever the rig's axes (None without 68 landmarks)
     landmarks = rig.landmarks if rig.landmarks is not None else np.arange(rig.mesh.vertex_count)
-    camera = preview.Camera.for_face(rig.mesh.points[landmarks], yaw_deg=20.0, pitch_deg=5.0)
+    marks = rig.mesh.points[landmarks]
+    camera = preview.Camera.for_face(marks if view is None else view(marks), yaw_deg=20.0, pitch_deg=5.0)
     from tqdm import tqdm
 
     with atomic_path(path, path.suffix) as temporary:
@@ -281,7 +292,7 @@ def _preview(path: Path, model, rig, mapped, rate: float, size, progress: bool, 
                         frames = model.evaluate(contractions[start : start + 64])
                         for offset, points in enumerate(frames):
                             frame = int(shown[start + offset])
-                            image = np.ascontiguousarray(renderer.render(points))
+                            image = np.ascontiguousarray(renderer.render(points if view is None else view(points)))
                             text = f"{mapped.times[frame] - mapped.times[0]:6.2f} s  " + " ".join(
                                 mapped.active_channels[frame][:3]
                             )

@@ -156,9 +156,18 @@ def run_fit(args) -> int:
 
             out.mkdir(parents=True, exist_ok=True)
             image = out / f"{name}_error.png"
-            camera = preview.Camera.framing(rig.mesh.points, yaw_deg=15.0, pitch_deg=5.0)
+            from .face_view import face_view_of
+
+            view = face_view_of(rig) or (lambda points: points)  # a rig of any axes drawn upright
+            camera = preview.Camera.framing(view(rig.mesh.points), yaw_deg=15.0, pitch_deg=5.0)
             preview.render_heat_map(
-                fit.points, rig.mesh.triangles, after, image, camera=camera, title=f"{name}: |fit - target|", units="mm"
+                view(fit.points),
+                rig.mesh.triangles,
+                after,
+                image,
+                camera=camera,
+                title=f"{name}: |fit - target|",
+                units="mm",
             )
             print(f"  heat map {image}")
     write_presets(stage, presets, residuals=residuals, meters_per_unit=units)

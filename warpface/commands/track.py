@@ -1,7 +1,7 @@
 """``warpface track``: landmark source -> dense face motion -> USD time samples.
 
 Track SOURCE (.npz recording, RGB-D folder, 'synthetic', 'realsense' or 'orbbec') and write landmarks and the
-dense face as time samples.
+dense motion of the built-in face or of --rig (or, with --solve, solved muscle controls) as time samples.
 
 The work is done by :func:`warpface.pipelines.track.run_track`.
 """
@@ -21,6 +21,12 @@ def add_parser(subparsers, common) -> None:
         required=True,
         help="output stage (.usda, folder created if missing); landmarks and dense points go to value clips "
         "in <stage>_track/, flushed every 30 frames or 1 s (a hard kill loses at most that; Ctrl-C nothing)",
+    )
+    track.add_argument(
+        "--rig",
+        default=None,
+        help="rig stage to drive, e.g. made by `warpface rig` (default: the built-in face); the synthetic camera "
+        "films it",
     )
     track.add_argument("--frames", type=positive_int, default=None, help="stop after this many frames")
     track.add_argument("--expression", default="smile", help="synthetic source: expression to perform (default smile)")

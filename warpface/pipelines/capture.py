@@ -19,6 +19,8 @@ from ..tracking.landmark_names import vertex_landmark_names
 __all__ = [
     "SyntheticCapture",
     "synthetic_capture",
+    "upright_turn",
+    "TurnedAdapter",
     "open_source",
     "CaptureStats",
     "record",
@@ -41,6 +43,14 @@ class SyntheticCapture:
     """Dense vertex under each painted dot, shape (K,)."""
     controls: np.ndarray | None = None
     """Ground-truth contractions per frame in the rig's muscle order, shape (F, M)."""
+    camera_to_rig: np.ndarray | None = None
+    """4×4 transform from the camera frame to the rig's own frame (the camera films the face turned upright:
+    the rig's axes nearest its face's up and front become +y and +z); default: the inverse of the camera's
+    ``model_to_camera``."""
+
+    def __post_init__(self) -> None:
+        if self.camera_to_rig is None:
+            self.camera_to_rig = np.linalg.inv(self.camera.model_to_camera)
 
 
 def synthetic_capture(
@@ -54,8 +64,12 @@ def synthetic_capture(
     seed: int = 0,
     device=None,
 ) -> SyntheticCapture:
-    """The built-in face (or ``rig``) performs ``expression``; a 640×480 Kinect-like camera at 0.6 m
-    films it with painted dots (and, with ``noise``, depth noise and holes)."""
+    """The built-in face (or ``rig``, e.g. a head rigged by ``warpface rig``, in metres) performs ``expression``;
+    a 640×480 Kinect-like camera films it from the front, its face centred and its nose 0.6 m away, with painted
+    dots (and, with ``noise``, depth noise and holes).
+
+    A rig whose face looks along another axis, or is Z-up, is turned by the signed axis permutation nearest its
+    landmark frame before it is filmed (:func:`upright_turn`); the capture's ``camera_to_rig`` undoes it."""
     from ..assets import default_rig, expression_timeline
     from ..tracking import KinectNoise, RGBDLandmarks, SyntheticRGBDCamera, place_fiducials
     from ..tracking.synthetic import default_model_to_camera
@@ -64,22 +78,111 @@ def synthetic_capture(
     muscles = expression_timeline(expression, rig, seconds=seconds, fps=fps)
     controls = np.pad(muscles, ((0, 0), (0, len(rig.control_names) - len(rig.muscles))))  # a jaw stays at rest
     truth = rig.model(device=device).evaluate(controls).astype(np.float64)
-    rest, triangles = truth[0], rig.mesh.triangles
-    eye = np.linalg.inv(default_model_to_camera(rest))[:3, 3]
+    turn = upright_turn(rig)
+    shown = truth @ turn.T  # the model frame the camera expects: +y up, +z toward the camera
+    rest, triangles = shown[0], rig.mesh.triangles
+    model_to_camera = default_model_to_camera(rest[_face_vertices(rest, rig.landmarks)])
+    eye = np.linalg.inv(model_to_camera)[:3, 3]
     fiducials = place_fiducials(rest, triangles, dots, spacing=0.014, camera_position=eye, device=device)
     camera = SyntheticRGBDCamera(
-        truth,
+        shown,
         triangles,
         fiducials,
         names=vertex_landmark_names(fiducials),
         fps=fps,
+        model_to_camera=model_to_camera,
         depth_noise=KinectNoise() if noise else None,
         seed=seed,
     )
     source = RGBDLandmarks(camera, camera.dot_tracker(), device=device)
+    model_to_rig = np.eye(4)
+    model_to_rig[:3, :3] = turn.T
     return SyntheticCapture(
-        camera=camera, source=source, truth=truth, triangles=triangles, fiducial_vertices=fiducials, controls=controls
+        camera=camera,
+        source=source,
+        truth=truth,
+        triangles=triangles,
+        fiducial_vertices=fiducials,
+        controls=controls,
+        camera_to_rig=model_to_rig @ np.linalg.inv(model_to_camera),
     )
+
+
+def upright_turn(rig) -> np.ndarray:
+    """The signed axis permutation (3, 3) taking ``rig``'s coordinates to an upright, frontal model frame: its
+    rows are the rig's axes nearest the face's up (→ +y) and front (→ +z), and their cross product (→ +x).
+    The identity for a rig without 68 landmarks or one already upright and frontal (the built-in face)."""
+    from ..assets.rig import face_frame
+    from ..landmarks import IBUG_COUNT
+
+    if rig.landmarks is None or len(rig.landmarks) != IBUG_COUNT:
+        return np.eye(3)
+    axes = face_frame(rig.mesh, rig.landmarks).axes
+    up_axis = int(np.argmax(np.abs(axes[1])))
+    front_scores = np.abs(axes[2]).copy()
+    front_scores[up_axis] = -1.0
+    front_axis = int(np.argmax(front_scores))
+    up, front = np.zeros(3), np.zeros(3)
+    up[up_axis], front[front_axis] = np.sign(axes[1][up_axis]), np.sign(axes[2][front_axis])
+    return np.stack([np.cross(up, front), up, front])
+
+
+class TurnedAdapter:
+    """A tracking adapter that works in a rig's upright frame (:func:`upright_turn`: its sparse mesh is
+    triangulated in the front view, which the adapter takes as its x-y plane) and hands out the dense face and
+    its camera → model transform in the rig's own frame."""
+
+    def __init__(self, rest_points, landmark_names, turn: np.ndarray, *, camera_to_rig=None, device=None):
+        from ..tracking import adapter_for_face
+
+        self.turn = np.asarray(turn, dtype=np.float64)
+        self._to_upright = np.eye(4)
+        self._to_upright[:3, :3] = self.turn
+        self.adapter = adapter_for_face(
+            np.asarray(rest_points, dtype=np.float64) @ self.turn.T,
+            landmark_names,
+            camera_to_model=None if camera_to_rig is None else self._to_upright @ camera_to_rig,
+            device=device,
+        )
+
+    @property
+    def camera_to_model(self) -> np.ndarray | None:
+        """Camera → the rig's own frame (None until the adapter has fitted it on the first frame)."""
+        upright = self.adapter.camera_to_model
+        return None if upright is None else self._to_upright.T @ upright
+
+    @property
+    def weights(self) -> np.ndarray:
+        """The adapter's per-vertex weights (frame-free)."""
+        return self.adapter.weights
+
+    @property
+    def dense_rest(self) -> np.ndarray:
+        """The dense rest points in the rig's frame."""
+        return self.adapter.dense_rest @ self.turn
+
+    def driven_vertices(self) -> np.ndarray:
+        """The vertices the landmarks drive (frame-free)."""
+        return self.adapter.driven_vertices()
+
+    def track(self, source):
+        """``(frame, dense points in the rig's frame)`` per frame of ``source``."""
+        for frame, dense in self.adapter.track(source):
+            yield frame, dense @ self.turn
+
+
+def _face_vertices(points: np.ndarray, landmarks) -> np.ndarray:
+    """Vertices the camera is aimed at: those over the landmarks' front-view box grown by half its size (forehead
+    to chin, cheek to cheek, not the neck and shoulders of a bust); all of them without 68 landmarks."""
+    from ..landmarks import IBUG_COUNT
+
+    if landmarks is None or len(landmarks) != IBUG_COUNT:
+        return np.arange(len(points))
+    marks = points[landmarks, :2]
+    low, high = marks.min(axis=0), marks.max(axis=0)
+    grow = 0.5 * (high - low)
+    inside = np.all((points[:, :2] >= low - grow) & (points[:, :2] <= high + grow), axis=1)
+    return np.flatnonzero(inside)
 
 
 def open_source(spec: str, *, layout: str | None = None, device=None):

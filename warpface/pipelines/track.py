@@ -1,4 +1,9 @@
-"""``warpface track SOURCE --stage out.usda``: a landmark stream → the built-in face → USD time samples.
+"""``warpface track SOURCE --stage out.usda``: a landmark stream → a face (the built-in one, or the rig stage of
+``--rig``: a head of one's own rigged by ``warpface rig``) → USD time samples.
+
+The synthetic source films the rig's own face (:func:`warpface.pipelines.capture.synthetic_capture`); a
+recording, an RGB-D folder or a live camera's layout names its landmarks after the vertices of the face it
+was made for (``v01234``), so it drives a rig with that topology.
 
 Output: ``out.usda`` (a small root layer) and ``out_track/`` beside it (``static.usdc`` with the
 topology and rest points, ``chunk_NNNN.usdc`` value clips with the landmarks and the dense points
@@ -37,18 +42,16 @@ def run_track(args) -> int:
 
     Returns 0, or 130 when Ctrl-C ended the capture (every frame received is on the stage).
     """
+    from .._files import create_missing_folders, remove_created_folders
     from ..usd.tracking_io import TrackingStageWriter
 
     _check_options(args)
     solve = getattr(args, "solve", False)
     stage = Path(args.stage).absolute()
-    created = _create_missing_folders(stage.parent)
+    created = create_missing_folders(stage.parent)
     writer = None
     try:
-        with _setup_step("loading the built-in face", args.quiet):
-            from ..assets import default_rig
-
-            rig = default_rig()
+        rig = _load_rig(getattr(args, "rig", None), args.quiet)
         source, camera_to_model, closers = _open_source(rig, args)
         try:
             fps = getattr(source, "fps", None) or 30.0
@@ -71,7 +74,7 @@ def run_track(args) -> int:
                 close()
     finally:
         if writer is None or writer.frames_written == 0:
-            _remove_created(created)
+            remove_created_folders(created)
     if stats.interrupted:
         print(f"interrupted: kept all {stats.frames} frames received in {stage}")
     else:
@@ -107,6 +110,11 @@ def _check_options(args) -> None:
         raise ValueError(f"--frames must be ≥ 1, got {args.frames}")
     if Path(args.stage).suffix not in (".usda", ".usdc"):
         raise ValueError(f"--stage {args.stage}: output must end in one of .usda, .usdc")
+    rig = getattr(args, "rig", None)
+    if rig is not None and Path(rig).suffix.lower() not in (".usda", ".usdc", ".usd"):
+        raise ValueError(f"--rig {rig}: expected a rig stage (.usda, .usdc, .usd), e.g. one made by `warpface rig`")
+    if rig is not None and not Path(rig).is_file():
+        raise ValueError(f"--rig {rig}: file not found")
     if args.source in ("realsense", "orbbec"):
         if getattr(args, "layout", None) is None:
             raise ValueError(
@@ -135,6 +143,19 @@ def _check_options(args) -> None:
             raise ValueError(f"--fem-nodes must be in [100, 200000], got {args.fem_nodes}")
 
 
+def _load_rig(path, quiet: bool):
+    """The rig to drive, in metres: a rig stage (``--rig``, e.g. made by ``warpface rig``) or the built-in face."""
+    if path is None:
+        with _setup_step("loading the built-in face", quiet):
+            from ..assets import default_rig
+
+            return default_rig()
+    from ..usd import read_rig
+
+    with _setup_step(f"reading the rig {Path(path).name}", quiet):
+        return read_rig(path, meters_per_unit=1.0)
+
+
 def _open_source(rig, args):
     """The landmark source, its camera → model transform (or None) and what closes it."""
     from .capture import open_source, synthetic_capture
@@ -142,18 +163,24 @@ def _open_source(rig, args):
     if args.source == "synthetic":
         with _setup_step("preparing the synthetic camera", args.quiet):
             capture = synthetic_capture(rig, expression=args.expression, device=args.device)
-        return capture.source, np.linalg.inv(capture.camera.model_to_camera), [capture.camera.close]
+        return capture.source, capture.camera_to_rig, [capture.camera.close]
     source = open_source(args.source, layout=getattr(args, "layout", None), device=args.device)
     return source, None, [getattr(source, "close", lambda: None)]
 
 
 def _capture(rig, source, camera_to_model, writer, fps: float, args):
     from ..tracking import adapter_for_face
-    from .capture import record
+    from .capture import TurnedAdapter, record, upright_turn
 
-    adapter = adapter_for_face(
-        rig.mesh.points, source.landmark_names, camera_to_model=camera_to_model, device=args.device
-    )
+    turn = upright_turn(rig)
+    if np.array_equal(turn, np.eye(3)):
+        adapter = adapter_for_face(
+            rig.mesh.points, source.landmark_names, camera_to_model=camera_to_model, device=args.device
+        )
+    else:  # a Z-up or sideways rig: the adapter triangulates its landmarks in the front view
+        adapter = TurnedAdapter(
+            rig.mesh.points, source.landmark_names, turn, camera_to_rig=camera_to_model, device=args.device
+        )
     drive = _tissue_drive(rig, adapter, fps, args) if args.fem else None
     stats = record(source, adapter, writer, max_frames=args.frames, progress=not args.quiet, on_frame=drive)
     return stats, drive
@@ -224,23 +251,3 @@ def _setup_step(label: str, quiet: bool):
         done.set()
         ticker.join()
         bar.close()
-
-
-def _create_missing_folders(folder: Path) -> list[Path]:
-    """Create ``folder`` and its missing parents; returns the ones created, deepest last."""
-    missing = []
-    while not folder.exists():
-        missing.append(folder)
-        folder = folder.parent
-    for path in reversed(missing):
-        path.mkdir()
-    return list(reversed(missing))
-
-
-def _remove_created(created: list[Path]) -> None:
-    """Remove folders :func:`_create_missing_folders` made, if nothing was put in them."""
-    for path in reversed(created):
-        try:
-            path.rmdir()
-        except OSError:
-            return

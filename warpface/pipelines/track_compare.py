@@ -79,7 +79,7 @@ def compare_tracking_paths(
 
     rig = default_rig() if rig is None else rig
     camera = capture.camera
-    camera_to_model = np.linalg.inv(camera.model_to_camera)
+    camera_to_model = capture.camera_to_rig
     if frames is None:
         frames = []
         for frame in capture.source.frames():

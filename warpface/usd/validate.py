@@ -16,6 +16,7 @@ from .frames import capture_problems, is_capture
 from .rig_io import SKIN_API, read_rig, rig_prims
 from .schema import CONCRETE_SCHEMAS, ensure_schema
 from .tissue_io import TET_MATERIAL_API, read_tissue
+from .validate_face import face_problems
 
 __all__ = ["ValidationProblem", "validate_stage"]
 
@@ -42,7 +43,8 @@ def validate_stage(
     """Check a stage; an empty list means no problems.
 
     Runs every registered ``pxr.UsdValidation`` validator (errors and warnings) and warpface's own
-    checks. A rig stage: every layer and sublayer reads, each skin reads as a valid rig, its animation
+    checks. A rig stage: every layer and sublayer reads, each skin reads as a valid rig whose landmarks are in
+    iBUG order and whose face is human-sized in the stated unit (:mod:`warpface.usd.validate_face`), its animation
     controls are finite, an animated stage authors ``timeCodesPerSecond``, ``framesPerSecond``,
     ``startTimeCode`` and ``endTimeCode``, cached skin points have the rest point count and are
     finite, warpface prims are reachable from a skin, tissue meshes read as valid materials, and
@@ -77,7 +79,7 @@ def validate_stage(
         return problems
     if usd_validators:  # their findings are reported as problems; the same diagnostics on stderr are noise
         problems += without_usd_warnings(lambda: _usd_problems(stage), dropping=("Warning: in ",))
-    problems += _rig_problems(stage)
+    problems += _rig_problems(stage, device)
     if bake_checks and not any(p.severity == "error" for p in problems):
         problems += _bake_problems(stage, device)
     return problems
@@ -122,7 +124,7 @@ def _usd_problems(stage: Usd.Stage) -> list[ValidationProblem]:
     return problems
 
 
-def _rig_problems(stage: Usd.Stage) -> list[ValidationProblem]:
+def _rig_problems(stage: Usd.Stage, device=None) -> list[ValidationProblem]:
     problems = []
 
     def error(path, message):
@@ -142,6 +144,11 @@ def _rig_problems(stage: Usd.Stage) -> list[ValidationProblem]:
             error(skin.GetPath(), str(exc))
             continue
         reached.update(p.GetPath() for p in prims.muscles + prims.wrinkles)
+        meters_per_unit = UsdGeom.GetStageMetersPerUnit(stage)
+        for severity, message in face_problems(
+            rig, meters_per_unit, stage.HasAuthoredMetadata("metersPerUnit"), device=device
+        ):
+            problems.append(ValidationProblem(severity, str(skin.GetPath()), message, "warpface"))
         controls = [p.GetAttribute("contraction") for p in prims.muscles] + [
             p.GetAttribute("depth") for p in prims.wrinkles
         ]
