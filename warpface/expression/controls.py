@@ -1,7 +1,8 @@
 """Boundary checks of the expression model: rig parts, per-frame controls, output arrays.
 
 Shared by :class:`~warpface.ExpressionModel` and :class:`~warpface.FaceRig`, so both raise the same
-error (:class:`~warpface.RigError`, a ``ValueError``) for the same fault, with a message naming the item.
+error for the same fault, with a message naming the item: a ``TypeError`` for a wrong type, a
+:class:`~warpface.RigError` (a ``ValueError``) or ``ValueError`` for a wrong value.
 """
 
 from __future__ import annotations
@@ -39,22 +40,22 @@ def check_rig_parts(mesh, muscles, wrinkles, thickness, *, owner: str):
     """Validate a rig's parts; returns ``(muscles list, wrinkles list, thickness (V,) float64)``.
 
     Raises:
-        RigError: ``mesh`` not a FaceMesh; a muscle or wrinkle of the wrong type; duplicate names;
-            a bad thickness. The message starts with ``owner`` and names the item.
+        TypeError: ``mesh`` not a FaceMesh; a muscle or wrinkle of the wrong type.
+        RigError: duplicate names; a bad thickness. The message starts with ``owner`` and names the item.
     """
     if not isinstance(mesh, FaceMesh):
-        raise RigError(f"{owner}: mesh must be a FaceMesh, got {type(mesh).__name__}")
+        raise TypeError(f"{owner}: mesh must be a FaceMesh, got {type(mesh).__name__}")
     parts = []
     for kind, items, types in (("muscle", muscles, (LinearMuscle, SphincterMuscle)), ("wrinkle", wrinkles, (Wrinkle,))):
         if isinstance(items, (str, bytes, Mapping)) or not isinstance(items, (Sequence, np.ndarray, tuple, list)):
             expected = " or ".join(t.__name__ for t in types)
-            raise RigError(f"{owner}: {kind}s must be a sequence of {expected}, got {type(items).__name__}")
+            raise TypeError(f"{owner}: {kind}s must be a sequence of {expected}, got {type(items).__name__}")
         items = list(items)
         names = set()
         for index, item in enumerate(items):
             if not isinstance(item, types):
                 expected = " or ".join(t.__name__ for t in types)
-                raise RigError(f"{owner}: {kind} {index} has wrong type {type(item).__name__} (expected {expected})")
+                raise TypeError(f"{owner}: {kind} {index} has wrong type {type(item).__name__} (expected {expected})")
             if item.name in names:
                 raise RigError(f"{owner}: duplicate {kind} name {item.name!r}")
             names.add(item.name)
@@ -98,16 +99,16 @@ def control_vector(
             if not isinstance(name, str) or name not in index:
                 raise ValueError(f"{whole}: unknown {kind} name {name!r} (known: {', '.join(names) or 'none'})")
             if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.ndarray)):
-                raise ValueError(f"{label} for {kind} {name!r}: expected a number, got {type(value).__name__}")
+                raise TypeError(f"{label} for {kind} {name!r}: expected a number, got {type(value).__name__}")
             number = float(as_finite_array(value, f"{label} for {kind} {name!r}", shape=()))
             vector[index[name]] = _within(number, limits[index[name]], f"{label} for {kind} {name!r}")
         return vector
     if isinstance(values, (str, bytes)):
-        raise ValueError(f"{whole}: expected a mapping or {len(names)} numbers, got a string")
+        raise TypeError(f"{whole}: expected a mapping or {len(names)} numbers, got a string")
     try:
         array = np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
-        raise ValueError(
+        raise TypeError(
             f"{whole}: expected {len(names)} numbers in {kind} order, got {type(values).__name__}"
         ) from None
     if array.shape != (len(names),):
@@ -170,7 +171,7 @@ def as_device_array(value, name: str, *, device, shape: tuple, dtype) -> wp.arra
         try:
             array = wp.from_dlpack(value)
         except Exception as exc:  # noqa: BLE001 - any exporter failure is a wrong argument here
-            raise ValueError(f"{name}: not a Warp array or a DLPack tensor ({exc})") from None
+            raise TypeError(f"{name}: not a Warp array or a DLPack tensor ({exc})") from None
     if array.device != device:
         raise ValueError(f"{name}: array is on {array.device}, the model on {device}")
     if not array.is_contiguous:
@@ -178,7 +179,7 @@ def as_device_array(value, name: str, *, device, shape: tuple, dtype) -> wp.arra
     if dtype == wp.vec3 and array.dtype == wp.float32 and array.ndim >= 2 and array.shape[-1] == 3:
         array = array.view(wp.vec3)
     if array.dtype != dtype:
-        raise ValueError(f"{name}: expected dtype {wp.types.type_repr(dtype)}, got {wp.types.type_repr(array.dtype)}")
+        raise TypeError(f"{name}: expected dtype {wp.types.type_repr(dtype)}, got {wp.types.type_repr(array.dtype)}")
     if tuple(array.shape) != tuple(shape):
         raise ValueError(f"{name}: expected shape {tuple(shape)}, got {tuple(array.shape)}")
     return array.flatten() if array.ndim > 1 else array

@@ -107,7 +107,7 @@ class ExpressionEvaluator:
             ``out``, or float32 NumPy positions, shape (V, 3) or (F, V, 3).
         """
         if not isinstance(progress, (bool, np.bool_)):
-            raise ValueError(f"progress: expected True or False, got {type(progress).__name__}")
+            raise TypeError(f"progress: expected True or False, got {type(progress).__name__}")
         rank = _rank(controls)
         if isinstance(controls, (list, tuple)) and not controls and self.model.control_names:
             rank = 2  # no values for a rig with controls: a batch of no frames

@@ -56,7 +56,9 @@ class Jaw:
 
     def __post_init__(self) -> None:
         label = f"jaw {self.name!r}"
-        if not isinstance(self.name, str) or not self.name:
+        if not isinstance(self.name, str):
+            raise TypeError(f"{label}: name must be a string, got {type(self.name).__name__}")
+        if not self.name:
             raise ValueError(f"{label}: name must be a non-empty string")
         set_ = object.__setattr__
         set_(self, "pivot", as_vec3(self.pivot, f"{label}: pivot"))

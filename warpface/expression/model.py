@@ -82,7 +82,7 @@ class ExpressionModel:
         self.wrinkle_names = [w.name for w in self.wrinkles]
         if jaw is not None:
             if not isinstance(jaw, Jaw):
-                raise ValueError(f"jaw: expected a Jaw, got {type(jaw).__name__}")
+                raise TypeError(f"jaw: expected a Jaw, got {type(jaw).__name__}")
             jaw.check_vertex_count(mesh.vertex_count)
             if set(JAW_CONTROL_NAMES) & set(self.muscle_names):
                 raise ValueError(f"muscle names must not repeat the jaw's controls {', '.join(JAW_CONTROL_NAMES)}")
