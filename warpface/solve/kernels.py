@@ -22,6 +22,7 @@ __all__ = [
     "Layout",
     "layout_of",
     "Rings",
+    "PointRows",
     "rings_of",
     "muscle_stage",
     "first_ring_triangles",
@@ -349,19 +350,27 @@ def wrinkle_stage(
         _store_column(dfinal, i, m, columns, dbulged[source * columns + m] + dheight * n + height * dn)
 
 
+@wp.struct
+class PointRows:
+    """The observation ``P`` as CSR rows: target point ``n`` is ``Σ weight[k]·x[vertex[k]]`` over
+    ``k`` in ``offsets[n] .. offsets[n + 1]`` (one vertex, or a triangle's three)."""
+
+    offsets: wp.array(dtype=wp.int32)
+    vertex: wp.array(dtype=wp.int32)
+    weight: wp.array(dtype=wp.float64)
+
+
 @wp.func
 def _observed(
     x3: wp.array(dtype=wp.vec3d),
     frame_first: int,
-    point_offsets: wp.array(dtype=wp.int32),
-    point_vertex: wp.array(dtype=wp.int32),
-    point_weight: wp.array(dtype=wp.float64),
+    points: PointRows,
     n: int,
 ):
     """``(P x3)_n``: a target point as the weighted sum of its vertices (one vertex, or a triangle's three)."""
     p = _zero3()
-    for k in range(point_offsets[n], point_offsets[n + 1]):
-        p += point_weight[k] * x3[frame_first + point_vertex[k]]
+    for k in range(points.offsets[n], points.offsets[n + 1]):
+        p += points.weight[k] * x3[frame_first + points.vertex[k]]
     return p
 
 
@@ -371,9 +380,7 @@ def _column(
     basis: wp.array(dtype=wp.float64),
     frame: int,
     frame_first: int,
-    point_offsets: wp.array(dtype=wp.int32),
-    point_vertex: wp.array(dtype=wp.int32),
-    point_weight: wp.array(dtype=wp.float64),
+    points: PointRows,
     n: int,
     c: int,
     layout: Layout,
@@ -404,11 +411,11 @@ def _column(
         one_minus_cos = basis[frame_basis + wp.min(muscle_count + 1, basis_count - 1)]
         cosine = wp.where(angle, wp.float64(1.0) - one_minus_cos, wp.float64(1.0))
         d = _zero3()
-        for k in range(point_offsets[n], point_offsets[n + 1]):
-            row = 3 * (frame_first + point_vertex[k]) * basis_count
+        for k in range(points.offsets[n], points.offsets[n + 1]):
+            row = 3 * (frame_first + points.vertex[k]) * basis_count
             base = row + source
             other = row + second
-            d += point_weight[k] * wp.vec3d(
+            d += points.weight[k] * wp.vec3d(
                 dx3[base] * cosine + dx3[other] * sine,
                 dx3[base + basis_count] * cosine + dx3[other + basis_count] * sine,
                 dx3[base + 2 * basis_count] * cosine + dx3[other + 2 * basis_count] * sine,
@@ -428,9 +435,7 @@ def normal_equations(
     x3: wp.array(dtype=wp.vec3d),
     dx3: wp.array(dtype=wp.float64),
     basis: wp.array(dtype=wp.float64),
-    point_offsets: wp.array(dtype=wp.int32),
-    point_vertex: wp.array(dtype=wp.int32),
-    point_weight: wp.array(dtype=wp.float64),
+    points: PointRows,
     active_offsets: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
     targets: wp.array(dtype=wp.vec3d),
@@ -460,7 +465,7 @@ def normal_equations(
     if w == wp.float64(0.0) or frame_on[f] == 0:
         return
     first = f * vertex_count
-    p = _observed(x3, first, point_offsets, point_vertex, point_weight, n)
+    p = _observed(x3, first, points, n)
     r = rotation[f]
     arm = r * (p - origin)
     e = (arm + origin) / unit + translation[f] - targets[i]
@@ -475,9 +480,7 @@ def normal_equations(
         col_a = _zero3()
         for b in range(a, end):  # b = a first: that column is col_a
             cb = active[b]
-            col_b = _column(
-                dx3, basis, f, first, point_offsets, point_vertex, point_weight, n, cb, layout, r, arm, unit
-            )
+            col_b = _column(dx3, basis, f, first, points, n, cb, layout, r, arm, unit)
             if b == a:
                 col_a = col_b
                 wp.atomic_add(gradient, f * variable_count + ca, w * wp.dot(col_a, e))
