@@ -16,6 +16,7 @@ wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 __all__ = [
     "FrameSizes",
     "frame_sizes",
+    "struct_of",
     "frame_and_element",
     "incident_area_sum",
     "triangle_area_vectors",
@@ -33,12 +34,17 @@ class FrameSizes:
     triangle_count: int
 
 
+def struct_of(kind, **fields):
+    """An instance of the Warp struct ``kind`` with ``fields`` set (Warp structs take no constructor arguments)."""
+    value = kind()
+    for name, field in fields.items():
+        setattr(value, name, field)
+    return value
+
+
 def frame_sizes(vertex_count: int, triangle_count: int) -> FrameSizes:
     """A :class:`FrameSizes` of a mesh with ``vertex_count`` vertices and ``triangle_count`` triangles."""
-    result = FrameSizes()
-    result.vertex_count = vertex_count
-    result.triangle_count = triangle_count
-    return result
+    return struct_of(FrameSizes, vertex_count=vertex_count, triangle_count=triangle_count)
 
 
 @wp.func

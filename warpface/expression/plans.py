@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..kernels_surface import frame_sizes, triangle_area_vectors
+from ..kernels_surface import frame_sizes, struct_of, triangle_area_vectors
 from .frame_buffers import FrameBuffers
 from .kernels import apply_jaw_and_muscles, apply_muscles, apply_wrinkles, stretch_and_bulge, triangle_stretch
 from .kernels_tiled import model_kernel
-from .tiling import TiledRig
+from .tiling import FrameBatch, TiledRig
 
 __all__ = ["PLANS", "TILE_FRAMES_PER_PASS", "TILE_FRAMES_PER_BLOCK", "plan_launches", "staged_launches", "tiled_rig"]
 
@@ -65,7 +65,9 @@ def _tiled_launch(model, buffers, frames, controls, depths, final_points):
     per_block = min(TILE_FRAMES_PER_BLOCK, frames)
     tile_count = len(model._tiled_rig.tiles)
     kernel = model_kernel(per_block, TILE_FRAMES_PER_PASS, tile_count, device=model.device)
-    inputs = [model._tiled_rig, controls, buffers.muscle_width, depths, buffers.wrinkle_width, frames, per_block]
+    widths = dict(control_count=buffers.muscle_width, wrinkle_count=buffers.wrinkle_width)
+    batch = struct_of(FrameBatch, **widths, frame_count=frames, frames_per_block=per_block)
+    inputs = [model._tiled_rig, controls, depths, batch]
     return (kernel, (-(-frames // per_block), tile_count, model.block_dim), inputs, [final_points])
 
 

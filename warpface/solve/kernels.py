@@ -14,7 +14,7 @@ element's stencil), which is most of the work saved — each vertex feels a few 
 import warp as wp
 
 from ..expression import formulas as fm
-from ..kernels_surface import frame_and_element
+from ..kernels_surface import frame_and_element, struct_of
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
@@ -45,12 +45,7 @@ class Layout:
 
 def layout_of(control_count: int, muscle_count: int, basis_count: int, size: int) -> Layout:
     """A :class:`Layout`: ``B = C + 1`` with a jaw (``sin θ, 1 − cos θ``), ``K = C`` or ``C + 6`` with the pose."""
-    result = Layout()
-    result.control_count = control_count
-    result.muscle_count = muscle_count
-    result.basis_count = basis_count
-    result.size = size
-    return result
+    return struct_of(Layout, control_count=control_count, muscle_count=muscle_count, basis_count=basis_count, size=size)
 
 
 @wp.struct
@@ -74,13 +69,9 @@ class Rings:
 
 def rings_of(sizes: dict, columns: int, jacobian: bool) -> Rings:
     """A :class:`Rings` from a neighbourhood's counts (keys ``n2 t1 n1 t0 n0 t1_slots``)."""
-    result = Rings()
-    result.columns = columns
-    result.points2, result.triangles1, result.points1 = sizes["n2"], sizes["t1"], sizes["n1"]
-    result.triangles0, result.points0 = sizes["t0"], sizes["n0"]
-    result.triangle_slots = sizes["t1_slots"]
-    result.jacobian = 1 if jacobian else 0
-    return result
+    points = dict(points2=sizes["n2"], points1=sizes["n1"], points0=sizes["n0"])
+    triangles = dict(triangles1=sizes["t1"], triangles0=sizes["t0"], triangle_slots=sizes["t1_slots"])
+    return struct_of(Rings, columns=columns, **points, **triangles, jacobian=1 if jacobian else 0)
 
 
 @wp.func
