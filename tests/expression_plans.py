@@ -13,7 +13,7 @@ from warpface.expression.kernels import (
     stretch_and_bulge,
     triangle_stretch,
 )
-from warpface.kernels_surface import triangle_area_vectors
+from warpface.kernels_surface import frame_sizes, triangle_area_vectors
 
 DEVICE = "cpu"
 
@@ -37,7 +37,7 @@ def five_kernel_frames(model, controls: np.ndarray, depths: np.ndarray) -> dict:
     x2 = wp.empty(vertices, dtype=wp.vec3, device=device)
     areas = wp.empty(triangles, dtype=wp.vec3, device=device)
     x3 = wp.empty(vertices, dtype=wp.vec3, device=device)
-    counts = [vertex_count, triangle_count]
+    counts = frame_sizes(vertex_count, triangle_count)
     if model.jaw is None:
         wp.launch(
             apply_muscles,
@@ -70,21 +70,21 @@ def five_kernel_frames(model, controls: np.ndarray, depths: np.ndarray) -> dict:
     wp.launch(
         triangle_stretch,
         dim=triangles,
-        inputs=[x1, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, *counts],
+        inputs=[x1, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, counts],
         outputs=[terms],
         device=device,
     )
     wp.launch(
         stretch_and_bulge,
         dim=vertices,
-        inputs=[x1, terms, model._counts, mesh.adjacency_offsets, mesh.adjacency_triangles, model._thickness, *counts],
+        inputs=[x1, terms, model._counts, mesh.adjacency_offsets, mesh.adjacency_triangles, model._thickness, counts],
         outputs=[stretch, x2],
         device=device,
     )
     wp.launch(
         triangle_area_vectors,
         dim=triangles,
-        inputs=[x2, mesh.triangles, mesh.triangle_weight, *counts],
+        inputs=[x2, mesh.triangles, mesh.triangle_weight, counts],
         outputs=[areas],
         device=device,
     )
@@ -101,7 +101,7 @@ def five_kernel_frames(model, controls: np.ndarray, depths: np.ndarray) -> dict:
             model._wrinkle_entries,
             depth_array,
             wrinkle_width,
-            *counts,
+            counts,
         ],
         outputs=[x3],
         device=device,

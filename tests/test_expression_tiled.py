@@ -11,7 +11,16 @@ from warpface import ExpressionModel
 from warpface.expression.kernels_resident import expression_tiles_resident
 from warpface.expression.kernels_tiled import expression_tiles
 from warpface.expression.plans import plan_launches
-from warpface.expression.tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, mesh_tiles, morton_order, vertex_tiles
+from warpface.expression.tiling import (
+    TILE_OWNED,
+    TILE_TRIANGLES,
+    TILE_VERTICES,
+    FrameBatch,
+    mesh_tiles,
+    morton_order,
+    vertex_tiles,
+)
+from warpface.kernels_surface import struct_of
 
 DEVICE = "cpu"
 
@@ -139,7 +148,9 @@ def launch_tiled_blocks(model, rng, kernel, block_dim, frames_per_block, frames=
         model, buffers, frames, buffers.contraction, buffers.depth, buffers.final_points
     )
     inputs = list(inputs)
-    inputs[-1] = frames_per_block
+    batch = inputs[-1]
+    widths = dict(control_count=batch.control_count, wrinkle_count=batch.wrinkle_count)
+    inputs[-1] = struct_of(FrameBatch, **widths, frame_count=batch.frame_count, frames_per_block=frames_per_block)
     saved = wp.config.enable_cpu_blocks
     wp.config.enable_cpu_blocks = True
     try:

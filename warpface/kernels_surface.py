@@ -14,6 +14,9 @@ import warp as wp
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 __all__ = [
+    "FrameSizes",
+    "frame_sizes",
+    "struct_of",
     "frame_and_element",
     "incident_area_sum",
     "triangle_area_vectors",
@@ -21,6 +24,27 @@ __all__ = [
     "vertex_normals_kernel",
     "safe_normalize",
 ]
+
+
+@wp.struct
+class FrameSizes:
+    """A frame's vertex and triangle counts: the strides of the per-frame vertex and triangle arrays."""
+
+    vertex_count: int
+    triangle_count: int
+
+
+def struct_of(kind, **fields):
+    """An instance of the Warp struct ``kind`` with ``fields`` set (Warp structs take no constructor arguments)."""
+    value = kind()
+    for name, field in fields.items():
+        setattr(value, name, field)
+    return value
+
+
+def frame_sizes(vertex_count: int, triangle_count: int) -> FrameSizes:
+    """A :class:`FrameSizes` of a mesh with ``vertex_count`` vertices and ``triangle_count`` triangles."""
+    return struct_of(FrameSizes, vertex_count=vertex_count, triangle_count=triangle_count)
 
 
 @wp.func
@@ -74,8 +98,7 @@ def triangle_area_vectors(
     points: wp.array(dtype=wp.vec3),
     triangles: wp.array(dtype=wp.vec3i),
     triangle_weight: wp.array(dtype=wp.float32),
-    vertex_count: int,
-    triangle_count: int,
+    sizes: FrameSizes,
     area_vectors: wp.array(dtype=wp.vec3),
 ):
     """``(p1 − p0) × (p2 − p0)`` per triangle and frame: twice the area times the unit normal.
@@ -84,8 +107,8 @@ def triangle_area_vectors(
     get weight 0 and so contribute nothing downstream.
     """
     i = wp.tid()
-    f, t = frame_and_element(i, triangle_count)
-    area_vectors[i] = triangle_area_vector(points, f * vertex_count, triangles[t], triangle_weight[t])
+    f, t = frame_and_element(i, sizes.triangle_count)
+    area_vectors[i] = triangle_area_vector(points, f * sizes.vertex_count, triangles[t], triangle_weight[t])
 
 
 @wp.kernel
@@ -110,13 +133,12 @@ def vertex_normals_kernel(
     area_vectors: wp.array(dtype=wp.vec3),
     adjacency_offsets: wp.array(dtype=wp.int32),
     adjacency_triangles: wp.array(dtype=wp.int32),
-    vertex_count: int,
-    triangle_count: int,
+    sizes: FrameSizes,
     normals: wp.array(dtype=wp.vec3),
 ):
     """Area-weighted unit vertex normal: normalised sum of incident triangles' area vectors, (frames·V,)."""
     i = wp.tid()
-    f, v = frame_and_element(i, vertex_count)
+    f, v = frame_and_element(i, sizes.vertex_count)
     normals[i] = safe_normalize(
-        incident_area_sum(area_vectors, f * triangle_count, adjacency_offsets, adjacency_triangles, v)
+        incident_area_sum(area_vectors, f * sizes.triangle_count, adjacency_offsets, adjacency_triangles, v)
     )

@@ -16,7 +16,7 @@ import warp as wp
 from ._validate import as_device, as_path, as_points, as_triangles
 from .geometry import triangle_areas, triangle_corners
 from .geometry.triangles import triangle_crosses
-from .kernels_surface import stretch_reference_lengths, triangle_area_vectors, vertex_normals_kernel
+from .kernels_surface import frame_sizes, stretch_reference_lengths, triangle_area_vectors, vertex_normals_kernel
 
 __all__ = [
     "FaceMesh",
@@ -194,8 +194,7 @@ class FaceMesh:
                 area_vectors,
                 buffers.adjacency_offsets,
                 buffers.adjacency_triangles,
-                self.vertex_count,
-                self.triangle_count,
+                frame_sizes(self.vertex_count, self.triangle_count),
             ],
             outputs=[normals],
             device=device,
@@ -259,7 +258,7 @@ def _area_vectors(points: wp.array, triangles: wp.array, weight: wp.array) -> wp
     wp.launch(
         triangle_area_vectors,
         dim=triangles.shape[0],
-        inputs=[points, triangles, weight, points.shape[0], triangles.shape[0]],
+        inputs=[points, triangles, weight, frame_sizes(points.shape[0], triangles.shape[0])],
         outputs=[area_vectors],
         device=points.device,
     )

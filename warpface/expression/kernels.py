@@ -18,7 +18,7 @@ iterator handles both step signs and costs more per entry on the CPU.
 
 import warp as wp
 
-from ..kernels_surface import frame_and_element, incident_area_sum
+from ..kernels_surface import FrameSizes, frame_and_element, incident_area_sum
 from .formulas import (
     area_ratio,
     area_vector,
@@ -192,8 +192,7 @@ def triangle_stretch(
     triangles: wp.array(dtype=wp.vec3i),
     triangle_weight: wp.array(dtype=wp.float32),
     rest_area_lengths: wp.array(dtype=wp.float32),
-    vertex_count: int,
-    triangle_count: int,
+    sizes: FrameSizes,
     stretch_terms: wp.array(dtype=wp.vec4),
 ):
     """Per triangle: ``(p1 − p0) × (p2 − p0)`` in xyz and the area ratio S'/S in w (0 for ignored triangles).
@@ -201,8 +200,8 @@ def triangle_stretch(
     One packed vec4 per triangle: the vertex pass that consumes it reads one 16-byte value per neighbour.
     """
     i = wp.tid()
-    f, t = frame_and_element(i, triangle_count)
-    first = f * vertex_count
+    f, t = frame_and_element(i, sizes.triangle_count)
+    first = f * sizes.vertex_count
     c = triangles[t]
     stretch_terms[i] = stretch_term(
         points[first + c[0]], points[first + c[1]], points[first + c[2]], triangle_weight[t], rest_area_lengths[t]
@@ -217,8 +216,7 @@ def stretch_and_bulge(
     adjacency_offsets: wp.array(dtype=wp.int32),
     adjacency_triangles: wp.array(dtype=wp.int32),
     thickness: wp.array(dtype=wp.float32),
-    vertex_count: int,
-    triangle_count: int,
+    sizes: FrameSizes,
     stretch: wp.array(dtype=wp.float32),
     bulge_points: wp.array(dtype=wp.vec3),
 ):
@@ -227,8 +225,8 @@ def stretch_and_bulge(
     ``counts`` is the number of counted (non-degenerate) incident triangles; a vertex with none has r = 1.
     """
     i = wp.tid()
-    f, v = frame_and_element(i, vertex_count)
-    first = f * triangle_count
+    f, v = frame_and_element(i, sizes.vertex_count)
+    first = f * sizes.triangle_count
     total = wp.vec4(0.0, 0.0, 0.0, 0.0)
     k = adjacency_offsets[v]
     end = adjacency_offsets[v + 1]
@@ -253,20 +251,19 @@ def apply_wrinkles(
     entries: wp.array(dtype=WrinkleEntry),
     depth: wp.array(dtype=wp.float32),
     wrinkle_count: int,
-    vertex_count: int,
-    triangle_count: int,
+    sizes: FrameSizes,
     final_points: wp.array(dtype=wp.vec3),
 ):
     """x3 = x2 + Σ_w k_d·s_w·C_w(r)·N(x2), with s_w = (d/k_w − 1)·exp(−d/k_w) precomputed."""
     i = wp.tid()
-    f, v = frame_and_element(i, vertex_count)
+    f, v = frame_and_element(i, sizes.vertex_count)
     x = bulge_points[i]
     begin = offsets[v]
     end = offsets[v + 1]
     if begin == end:
         final_points[i] = x
         return
-    normal_sum = incident_area_sum(area_vectors, f * triangle_count, adjacency_offsets, adjacency_triangles, v)
+    normal_sum = incident_area_sum(area_vectors, f * sizes.triangle_count, adjacency_offsets, adjacency_triangles, v)
     r = stretch[i]
     first_wrinkle = f * wrinkle_count
     height = float(0.0)

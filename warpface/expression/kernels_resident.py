@@ -21,7 +21,7 @@ from .formulas import (
     wrinkle_term,
 )
 from .kernels import STRETCH_FLOOR, jaw_point, muscle_entry_pull, stretch_term, wrinkle_entry_height
-from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, TiledRig, live_row
+from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, FrameBatch, TiledRig, block_frames, live_row
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -89,11 +89,8 @@ def _build_resident_kernel(
     def expression_tiles_resident_kernel(
         rig: TiledRig,
         controls: wp.array(dtype=wp.float32),
-        control_count: int,
         depth: wp.array(dtype=wp.float32),
-        wrinkle_count: int,
-        frame_count: int,
-        frames_per_block: int,
+        batch: FrameBatch,
         final_points: wp.array(dtype=wp.vec3),
     ):
         """As :func:`expression_tiles`'s kernel (same arguments), the thread's rig data read once per block."""
@@ -174,8 +171,7 @@ def _build_resident_kernel(
         points = wp.tile_empty(shape=(F, TILE_VERTICES), dtype=wp.vec3, storage="shared")
         terms = wp.tile_empty(shape=(F, TILE_TRIANGLES), dtype=wp.vec4, storage="shared")
         ratio = wp.tile_empty(shape=(F, TILE_OWNED), dtype=wp.float32, storage="shared")
-        f = group * frames_per_block
-        last = wp.min(f + frames_per_block, frame_count)
+        f, last = block_frames(batch, group)
         while f < last:
             # A: x1 of the two-ring (muscle entries in the CSR's order: the kept ones, then the row's rest)
             for k in range(HR):
@@ -183,7 +179,7 @@ def _build_resident_kernel(
                     s = k * B + lane
                     moved_points = frame_points()
                     for ff in range(F):
-                        row = wp.min(f + ff, last - 1) * control_count
+                        row = wp.min(f + ff, last - 1) * batch.control_count
                         moved_points[ff] = jaw_point(
                             x_rest[k], w_jaw[k], controls, row, rig.jaw_first, rig.pivot, rig.hinge_axis, rig.forward
                         )
@@ -192,14 +188,14 @@ def _build_resident_kernel(
                             for ff in range(F):
                                 moved_points[ff] = muscle_pull(
                                     moved_points[ff],
-                                    controls[wp.min(f + ff, last - 1) * control_count + muscle_index[k * MS + m]],
+                                    controls[wp.min(f + ff, last - 1) * batch.control_count + muscle_index[k * MS + m]],
                                     muscle_weight[k * MS + m],
                                 )
                     j = muscle_first[k] + MS
                     while j < muscle_end[k]:
                         pull = rig.muscle_entries[j]
                         for ff in range(F):
-                            row = wp.min(f + ff, last - 1) * control_count
+                            row = wp.min(f + ff, last - 1) * batch.control_count
                             moved_points[ff] = muscle_entry_pull(moved_points[ff], controls, row, pull)
                         j += 1
                     for ff in range(F):
@@ -275,7 +271,9 @@ def _build_resident_kernel(
                             if wrinkle_first[k] + m < wrinkle_end[k]:
                                 for ff in range(F):
                                     heights[ff] += wrinkle_term(
-                                        depth[wp.min(f + ff, last - 1) * wrinkle_count + wrinkle_index[k * WS + m]],
+                                        depth[
+                                            wp.min(f + ff, last - 1) * batch.wrinkle_count + wrinkle_index[k * WS + m]
+                                        ],
                                         wrinkle_shape[k * WS + m],
                                         contraction_factor_from_rate(
                                             ratio[ff, s], wrinkle_kr[k * WS + m], wrinkle_rate[k * WS + m]
@@ -285,7 +283,7 @@ def _build_resident_kernel(
                         while j < wrinkle_end[k]:
                             wrinkle = rig.wrinkle_entries[j]
                             for ff in range(F):
-                                row = wp.min(f + ff, last - 1) * wrinkle_count
+                                row = wp.min(f + ff, last - 1) * batch.wrinkle_count
                                 heights[ff] += wrinkle_entry_height(depth, row, wrinkle, ratio[ff, s])
                             j += 1
                     for ff in range(F):

@@ -36,7 +36,7 @@ from .formulas import (
 )
 from .kernels import STRETCH_FLOOR, jaw_point, muscle_entry_pull, stretch_term, wrinkle_entry_height
 from .kernels_resident import expression_tiles_resident
-from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, TiledRig, live_row
+from .tiling import TILE_OWNED, TILE_TRIANGLES, TILE_VERTICES, FrameBatch, TiledRig, block_frames, live_row
 
 # Per-frame hot path: no adjoints are ever taken, and -O3 measured faster than the CPU default -O2.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -75,14 +75,11 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
     def expression_tiles_kernel(
         rig: TiledRig,
         controls: wp.array(dtype=wp.float32),
-        control_count: int,
         depth: wp.array(dtype=wp.float32),
-        wrinkle_count: int,
-        frame_count: int,
-        frames_per_block: int,
+        batch: FrameBatch,
         final_points: wp.array(dtype=wp.vec3),
     ):
-        """x3 of a tile's owned vertices for ``frames_per_block`` consecutive frames (block = (frame group, tile)).
+        """x3 of a tile's owned vertices for ``batch.frames_per_block`` consecutive frames (block: frame group, tile).
 
         Local adjacency (``tile_adjacency_offsets`` per local vertex slot, entries = local triangle indices)
         lists a one-ring vertex's incident triangles in the mesh CSR's order; ``tile_triangles`` holds local
@@ -97,8 +94,7 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
         points = wp.tile_empty(shape=(F, TILE_VERTICES), dtype=wp.vec3, storage="shared")
         terms = wp.tile_empty(shape=(F, TILE_TRIANGLES), dtype=wp.vec4, storage="shared")
         ratio = wp.tile_empty(shape=(F, TILE_OWNED), dtype=wp.float32, storage="shared")
-        f = group * frames_per_block
-        last = wp.min(f + frames_per_block, frame_count)
+        f, last = block_frames(batch, group)
         while f < last:
             # A: x1 of the two-ring; a pass's frames past the last one repeat it (computed, never written)
             k = int(0)
@@ -113,7 +109,7 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                     w = rig.jaw_weight[v]
                 moved_points = frame_points()
                 for ff in range(F):
-                    row = wp.min(f + ff, last - 1) * control_count
+                    row = wp.min(f + ff, last - 1) * batch.control_count
                     moved_points[ff] = jaw_point(
                         x_rest, w, controls, row, rig.jaw_first, rig.pivot, rig.hinge_axis, rig.forward
                     )
@@ -121,7 +117,7 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                 while j < end:
                     pull = rig.muscle_entries[j]
                     for ff in range(F):
-                        row = wp.min(f + ff, last - 1) * control_count
+                        row = wp.min(f + ff, last - 1) * batch.control_count
                         moved_points[ff] = muscle_entry_pull(moved_points[ff], controls, row, pull)
                     j += 1
                 for ff in range(F):
@@ -195,7 +191,7 @@ def _build_kernel(frames_per_pass: int, blocks_per_sm: int | None):
                         while begin < end:
                             wrinkle = rig.wrinkle_entries[begin]
                             for ff in range(F):
-                                row = wp.min(f + ff, last - 1) * wrinkle_count
+                                row = wp.min(f + ff, last - 1) * batch.wrinkle_count
                                 heights[ff] += wrinkle_entry_height(depth, row, wrinkle, ratio[ff, s])
                             begin += 1
                     for ff in range(F):

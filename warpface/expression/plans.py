@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..kernels_surface import triangle_area_vectors
+from ..kernels_surface import frame_sizes, struct_of, triangle_area_vectors
 from .frame_buffers import FrameBuffers
 from .kernels import apply_jaw_and_muscles, apply_muscles, apply_wrinkles, stretch_and_bulge, triangle_stretch
 from .kernels_tiled import model_kernel
-from .tiling import TiledRig
+from .tiling import FrameBatch, TiledRig
 
 __all__ = ["PLANS", "TILE_FRAMES_PER_PASS", "TILE_FRAMES_PER_BLOCK", "plan_launches", "staged_launches", "tiled_rig"]
 
@@ -65,7 +65,9 @@ def _tiled_launch(model, buffers, frames, controls, depths, final_points):
     per_block = min(TILE_FRAMES_PER_BLOCK, frames)
     tile_count = len(model._tiled_rig.tiles)
     kernel = model_kernel(per_block, TILE_FRAMES_PER_PASS, tile_count, device=model.device)
-    inputs = [model._tiled_rig, controls, buffers.muscle_width, depths, buffers.wrinkle_width, frames, per_block]
+    widths = dict(control_count=buffers.muscle_width, wrinkle_count=buffers.wrinkle_width)
+    batch = struct_of(FrameBatch, **widths, frame_count=frames, frames_per_block=per_block)
+    inputs = [model._tiled_rig, controls, depths, batch]
     return (kernel, (-(-frames // per_block), tile_count, model.block_dim), inputs, [final_points])
 
 
@@ -75,7 +77,7 @@ def staged_launches(model, buffers: FrameBuffers, frames: int, controls, depths,
     mesh = model._mesh_buffers
     vertex_count, triangle_count = model.mesh.vertex_count, model.mesh.triangle_count
     vertices, triangles = frames * vertex_count, frames * triangle_count
-    counts = [vertex_count, triangle_count]
+    counts = frame_sizes(vertex_count, triangle_count)
     muscles = [model._muscle_offsets, model._muscle_entries, controls, buffers.muscle_width]
     if model.jaw is None:
         first = (apply_muscles, vertices, [mesh.rest_points, *muscles, vertex_count], [buffers.muscle_points])
@@ -93,19 +95,19 @@ def staged_launches(model, buffers: FrameBuffers, frames: int, controls, depths,
         (
             triangle_stretch,
             triangles,
-            [buffers.muscle_points, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, *counts],
+            [buffers.muscle_points, mesh.triangles, mesh.triangle_weight, mesh.rest_area_lengths, counts],
             [buffers.stretch_terms],
         ),
         (
             stretch_and_bulge,
             vertices,
-            [buffers.muscle_points, buffers.stretch_terms, model._counts, *adjacency, model._thickness, *counts],
+            [buffers.muscle_points, buffers.stretch_terms, model._counts, *adjacency, model._thickness, counts],
             [buffers.stretch, buffers.bulge_points],
         ),
         (
             triangle_area_vectors,
             triangles,
-            [buffers.bulge_points, mesh.triangles, mesh.triangle_weight, *counts],
+            [buffers.bulge_points, mesh.triangles, mesh.triangle_weight, counts],
             [buffers.area_vectors],
         ),
         (
@@ -120,7 +122,7 @@ def staged_launches(model, buffers: FrameBuffers, frames: int, controls, depths,
                 model._wrinkle_entries,
                 depths,
                 buffers.wrinkle_width,
-                *counts,
+                counts,
             ],
             [final_points],
         ),

@@ -24,6 +24,8 @@ __all__ = [
     "TileInfo",
     "TiledRig",
     "live_row",
+    "FrameBatch",
+    "block_frames",
     "VertexTiles",
     "vertex_tiles",
     "mesh_tiles",
@@ -106,6 +108,24 @@ def live_row(offsets: wp.array(dtype=wp.int32), row: int, live: bool):
     if live:
         end = offsets[row + 1]
     return begin, end
+
+
+@wp.struct
+class FrameBatch:
+    """A tiled launch's frames: the row widths of the controls and of the depths, the frame count, and the
+    consecutive frames each block group evaluates."""
+
+    control_count: int
+    wrinkle_count: int
+    frame_count: int
+    frames_per_block: int
+
+
+@wp.func
+def block_frames(batch: FrameBatch, group: int):
+    """Frames ``[first, last)`` of block group ``group``."""
+    first = group * batch.frames_per_block
+    return first, wp.min(first + batch.frames_per_block, batch.frame_count)
 
 
 _MORTON_BITS = 10

@@ -14,13 +14,16 @@ element's stencil), which is most of the work saved — each vertex feels a few 
 import warp as wp
 
 from ..expression import formulas as fm
-from ..kernels_surface import frame_and_element
+from ..kernels_surface import frame_and_element, struct_of
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 __all__ = [
     "Layout",
     "layout_of",
+    "Rings",
+    "PointRows",
+    "rings_of",
     "muscle_stage",
     "first_ring_triangles",
     "bulge_stage",
@@ -42,38 +45,33 @@ class Layout:
 
 def layout_of(control_count: int, muscle_count: int, basis_count: int, size: int) -> Layout:
     """A :class:`Layout`: ``B = C + 1`` with a jaw (``sin θ, 1 − cos θ``), ``K = C`` or ``C + 6`` with the pose."""
-    result = Layout()
-    result.control_count = control_count
-    result.muscle_count = muscle_count
-    result.basis_count = basis_count
-    result.size = size
-    return result
+    return struct_of(Layout, control_count=control_count, muscle_count=muscle_count, basis_count=basis_count, size=size)
 
 
-@wp.kernel
-def muscle_stage(
-    frame_on: wp.array(dtype=wp.int32),
-    controls: wp.array(dtype=wp.float64),
-    rest: wp.array(dtype=wp.vec3d),
-    slot_field: wp.array(dtype=wp.vec3d),
-    active_offsets: wp.array(dtype=wp.int32),
-    active: wp.array(dtype=wp.int32),
-    control_count: int,
-    vertex_count: int,
-    points: wp.array(dtype=wp.vec3d),
-):
-    """x1 = x_rest + W c over the neighbourhood's vertices (the muscles that reach each vertex).
+@wp.struct
+class Rings:
+    """The stages' element counts per frame, and whether they take derivatives (``jacobian`` 0 or 1).
 
-    ``slot_field`` is ``W`` per active slot (the order of ``active``), so a vertex's columns are contiguous.
+    ``columns`` basis columns; the x1 points of the second ring (``points2``), the first ring's triangles and
+    vertices (``triangles1``, ``points1``), the targets' triangles and vertices (``triangles0``, ``points0``);
+    ``triangle_slots`` the first ring's active (triangle, column) slots plus the always-zero one.
     """
-    i = wp.tid()
-    f, v = frame_and_element(i, vertex_count)
-    if frame_on[f] == 0:
-        return
-    x = rest[v]
-    for slot in range(active_offsets[v], active_offsets[v + 1]):
-        x = fm.muscle_pull(x, controls[f * control_count + active[slot]], slot_field[slot])
-    points[i] = x
+
+    columns: int
+    points2: int
+    triangles1: int
+    points1: int
+    triangles0: int
+    points0: int
+    triangle_slots: int
+    jacobian: int
+
+
+def rings_of(sizes: dict, columns: int, jacobian: bool) -> Rings:
+    """A :class:`Rings` from a neighbourhood's counts (keys ``n2 t1 n1 t0 n0 t1_slots``)."""
+    points = dict(points2=sizes["n2"], points1=sizes["n1"], points0=sizes["n0"])
+    triangles = dict(triangles1=sizes["t1"], triangles0=sizes["t0"], triangle_slots=sizes["t1_slots"])
+    return struct_of(Rings, columns=columns, **points, **triangles, jacobian=1 if jacobian else 0)
 
 
 @wp.func
@@ -88,6 +86,31 @@ def _corners(points: wp.array(dtype=wp.vec3d), first: int, triangle: wp.vec3i):
 
 
 @wp.kernel
+def muscle_stage(
+    frame_on: wp.array(dtype=wp.int32),
+    controls: wp.array(dtype=wp.float64),
+    rest: wp.array(dtype=wp.vec3d),
+    slot_field: wp.array(dtype=wp.vec3d),
+    active_offsets: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    rings: Rings,
+    points: wp.array(dtype=wp.vec3d),
+):
+    """x1 = x_rest + W c over the neighbourhood's vertices (the muscles that reach each vertex).
+
+    ``slot_field`` is ``W`` per active slot (the order of ``active``), so a vertex's columns are contiguous.
+    """
+    i = wp.tid()
+    f, v = frame_and_element(i, rings.points2)
+    if frame_on[f] == 0:
+        return
+    x = rest[v]
+    for slot in range(active_offsets[v], active_offsets[v + 1]):
+        x = fm.muscle_pull(x, controls[f * rings.columns + active[slot]], slot_field[slot])
+    points[i] = x
+
+
+@wp.kernel
 def first_ring_triangles(
     frame_on: wp.array(dtype=wp.int32),
     points: wp.array(dtype=wp.vec3d),
@@ -97,10 +120,7 @@ def first_ring_triangles(
     rest_length: wp.array(dtype=wp.float64),
     active_offsets: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
-    control_count: int,
-    vertex_count: int,
-    triangle_count: int,
-    jacobian: int,
+    rings: Rings,
     area: wp.array(dtype=wp.vec3d),
     ratio: wp.array(dtype=wp.float64),
     darea: wp.array(dtype=wp.vec3d),
@@ -113,20 +133,20 @@ def first_ring_triangles(
     bulge stage reads it for a column that does not reach the triangle).
     """
     i = wp.tid()
-    f, t = frame_and_element(i, triangle_count)
+    f, t = frame_and_element(i, rings.triangles1)
     if frame_on[f] == 0:
         return
-    p0, p1, p2 = _corners(points, f * vertex_count, triangles[t])
+    p0, p1, p2 = _corners(points, f * rings.points2, triangles[t])
     w = weight[t]
     a = fm.area_vector(p0, p1, p2, w)
     area[i] = a
     ratio[i] = fm.area_ratio(a, rest_length[t])
-    if jacobian == 0:
+    if rings.jacobian == 0:
         return
     e1 = p1 - p0
     e2 = p2 - p0
     for slot in range(active_offsets[t], active_offsets[t + 1]):
-        k = f * (active_offsets[triangle_count] + 1) + slot
+        k = f * (active_offsets[rings.triangles1] + 1) + slot
         da = fm.d_area_vector(e1, e2, slot_edges[2 * slot], slot_edges[2 * slot + 1], w)
         darea[k] = da
         dratio[k] = fm.d_area_ratio(a, da, rest_length[t])
@@ -146,17 +166,12 @@ def bulge_stage(
     adjacency: wp.array(dtype=wp.int32),
     counts: wp.array(dtype=wp.float64),
     thickness: wp.array(dtype=wp.float64),
+    floor: wp.float64,
     active_offsets: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
     pair_offsets: wp.array(dtype=wp.int32),
     pair_slot: wp.array(dtype=wp.int32),
-    floor: wp.float64,
-    control_count: int,
-    point_count: int,
-    vertex_count: int,
-    triangle_count: int,
-    triangle_slots: int,
-    jacobian: int,
+    rings: Rings,
     stretch: wp.array(dtype=wp.float64),
     bulged: wp.array(dtype=wp.vec3d),
     dstretch: wp.array(dtype=wp.float64),
@@ -164,16 +179,16 @@ def bulge_stage(
 ):
     """r (mean S'/S), N(x1), x2 = x1 + (1/max(r, floor) − 1)·h·N and ∂r/∂c, ∂x2/∂c on the first ring.
 
-    ``ring_vertex[v]`` is the vertex's index among the x1 points (``point_count`` per frame); ``slot_own`` is the
+    ``ring_vertex[v]`` is the vertex's index among the x1 points (``rings.points2`` per frame); ``slot_own`` is the
     vertex's own ``W`` per active slot (the derivative of its x1). The first ring's derivatives are per
-    slot (``triangle_slots`` per frame, see :func:`first_ring_triangles`): ``pair_slot`` lists, from
+    slot (``rings.triangle_slots`` per frame, see :func:`first_ring_triangles`): ``pair_slot`` lists, from
     ``pair_offsets[v]`` on, the slot of each (active column, incident triangle) pair of the vertex in loop order.
     """
     i = wp.tid()
-    f, v = frame_and_element(i, vertex_count)
+    f, v = frame_and_element(i, rings.points1)
     if frame_on[f] == 0:
         return
-    first = f * triangle_count
+    first = f * rings.triangles1
     zero = wp.float64(0.0)
     total = zero
     normal_sum = _zero3()
@@ -185,15 +200,15 @@ def bulge_stage(
     count = counts[v]
     r = fm.stretch_ratio(total, count)
     h = thickness[v]
-    source = f * point_count + ring_vertex[v]
+    source = f * rings.points2 + ring_vertex[v]
     stretch[i] = r
     bulged[i] = fm.bulge_point(points[source], normal_sum, r, h, floor)
-    if jacobian == 0:
+    if rings.jacobian == 0:
         return
     growth = fm.bulge_growth(r, floor)
     n = fm.unit_or_zero(normal_sum)
     pair = pair_offsets[v]
-    first_slot = f * triangle_slots
+    first_slot = f * rings.triangle_slots
     for slot in range(active_offsets[v], active_offsets[v + 1]):
         m = active[slot]
         dtotal = zero
@@ -205,7 +220,7 @@ def bulge_stage(
             dsum += darea[j]
         dr = fm.d_stretch_ratio(dtotal, count)
         dn = fm.d_unit_or_zero(normal_sum, dsum)
-        out = i * control_count + m
+        out = i * rings.columns + m
         dstretch[out] = dr
         dbulged[out] = slot_own[slot] + h * (fm.d_bulge_growth(r, dr, floor) * n + growth * dn)
 
@@ -219,33 +234,31 @@ def second_ring_triangles(
     weight: wp.array(dtype=wp.float64),
     active_offsets: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
-    control_count: int,
-    vertex_count: int,
-    triangle_count: int,
-    jacobian: int,
+    rings: Rings,
     area: wp.array(dtype=wp.vec3d),
     darea: wp.array(dtype=wp.vec3d),
 ):
     """Area vectors of x2 (for the wrinkles' normal) and their derivatives."""
     i = wp.tid()
-    f, t = frame_and_element(i, triangle_count)
+    columns = rings.columns
+    f, t = frame_and_element(i, rings.triangles0)
     if frame_on[f] == 0:
         return
     tri = triangles[t]
-    base = f * vertex_count
+    base = f * rings.points1
     p0, p1, p2 = _corners(points, base, tri)
     w = weight[t]
     area[i] = fm.area_vector(p0, p1, p2, w)
-    if jacobian == 0:
+    if rings.jacobian == 0:
         return
     e1 = p1 - p0
     e2 = p2 - p0
     for slot in range(active_offsets[t], active_offsets[t + 1]):
         m = active[slot]
-        w0 = dpoints[(base + tri[0]) * control_count + m]
-        de1 = dpoints[(base + tri[1]) * control_count + m] - w0
-        de2 = dpoints[(base + tri[2]) * control_count + m] - w0
-        darea[i * control_count + m] = fm.d_area_vector(e1, e2, de1, de2, w)
+        w0 = dpoints[(base + tri[0]) * columns + m]
+        de1 = dpoints[(base + tri[1]) * columns + m] - w0
+        de2 = dpoints[(base + tri[2]) * columns + m] - w0
+        darea[i * columns + m] = fm.d_area_vector(e1, e2, de1, de2, w)
 
 
 @wp.func
@@ -275,11 +288,7 @@ def wrinkle_stage(
     rest_band: wp.float64,
     active_offsets: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
-    control_count: int,
-    ring_count: int,
-    vertex_count: int,
-    triangle_count: int,
-    jacobian: int,
+    rings: Rings,
     final: wp.array(dtype=wp.vec3d),
     dfinal: wp.array(dtype=wp.float64),
 ):
@@ -288,20 +297,21 @@ def wrinkle_stage(
     ``dfinal`` is laid out (frames, vertices, 3, controls): a frame's Jacobian is one (3n, M) matrix.
     """
     i = wp.tid()
-    f, v = frame_and_element(i, vertex_count)
+    columns = rings.columns
+    f, v = frame_and_element(i, rings.points0)
     if frame_on[f] == 0:
         return
-    source = f * ring_count + ring_vertex[v]
+    source = f * rings.points1 + ring_vertex[v]
     x = bulged[source]
     begin = profile_offsets[v]
     end = profile_offsets[v + 1]
     zero = wp.float64(0.0)
     if begin == end:
         final[i] = x
-        if jacobian != 0:
+        if rings.jacobian != 0:
             for slot in range(active_offsets[v], active_offsets[v + 1]):
                 m = active[slot]
-                _store_column(dfinal, i, m, control_count, dbulged[source * control_count + m])
+                _store_column(dfinal, i, m, columns, dbulged[source * columns + m])
         return
     r = stretch[source]
     knee = wp.float64(1.0) + rest_band  # within the band of rest: the compressed side (REST_STRETCH_BAND)
@@ -311,39 +321,47 @@ def wrinkle_stage(
         factor, dfactor = fm.contraction_factor_and_slope(r, kr[profile_wrinkle[k]], knee)
         height += profile_value[k] * factor  # profile_value: depth · s, so each term is fm.wrinkle_term's
         slope += profile_value[k] * dfactor
-    first = f * triangle_count
+    first = f * rings.triangles0
     a_begin = adjacency_offsets[v]
     a_end = adjacency_offsets[v + 1]
     normal_sum = _zero3()
     for k in range(a_begin, a_end):
         normal_sum += area[first + adjacency[k]]
     final[i] = fm.wrinkle_point(x, height, normal_sum)
-    if jacobian == 0:
+    if rings.jacobian == 0:
         return
     n = fm.unit_or_zero(normal_sum)
     for slot in range(active_offsets[v], active_offsets[v + 1]):
         m = active[slot]
         dsum = _zero3()
         for k in range(a_begin, a_end):
-            dsum += darea[(first + adjacency[k]) * control_count + m]
+            dsum += darea[(first + adjacency[k]) * columns + m]
         dn = fm.d_unit_or_zero(normal_sum, dsum)
-        dheight = slope * dstretch[source * control_count + m]
-        _store_column(dfinal, i, m, control_count, dbulged[source * control_count + m] + dheight * n + height * dn)
+        dheight = slope * dstretch[source * columns + m]
+        _store_column(dfinal, i, m, columns, dbulged[source * columns + m] + dheight * n + height * dn)
+
+
+@wp.struct
+class PointRows:
+    """The observation ``P`` as CSR rows: target point ``n`` is ``Σ weight[k]·x[vertex[k]]`` over
+    ``k`` in ``offsets[n] .. offsets[n + 1]`` (one vertex, or a triangle's three)."""
+
+    offsets: wp.array(dtype=wp.int32)
+    vertex: wp.array(dtype=wp.int32)
+    weight: wp.array(dtype=wp.float64)
 
 
 @wp.func
 def _observed(
     x3: wp.array(dtype=wp.vec3d),
     frame_first: int,
-    point_offsets: wp.array(dtype=wp.int32),
-    point_vertex: wp.array(dtype=wp.int32),
-    point_weight: wp.array(dtype=wp.float64),
+    points: PointRows,
     n: int,
 ):
     """``(P x3)_n``: a target point as the weighted sum of its vertices (one vertex, or a triangle's three)."""
     p = _zero3()
-    for k in range(point_offsets[n], point_offsets[n + 1]):
-        p += point_weight[k] * x3[frame_first + point_vertex[k]]
+    for k in range(points.offsets[n], points.offsets[n + 1]):
+        p += points.weight[k] * x3[frame_first + points.vertex[k]]
     return p
 
 
@@ -353,9 +371,7 @@ def _column(
     basis: wp.array(dtype=wp.float64),
     frame: int,
     frame_first: int,
-    point_offsets: wp.array(dtype=wp.int32),
-    point_vertex: wp.array(dtype=wp.int32),
-    point_weight: wp.array(dtype=wp.float64),
+    points: PointRows,
     n: int,
     c: int,
     layout: Layout,
@@ -386,11 +402,11 @@ def _column(
         one_minus_cos = basis[frame_basis + wp.min(muscle_count + 1, basis_count - 1)]
         cosine = wp.where(angle, wp.float64(1.0) - one_minus_cos, wp.float64(1.0))
         d = _zero3()
-        for k in range(point_offsets[n], point_offsets[n + 1]):
-            row = 3 * (frame_first + point_vertex[k]) * basis_count
+        for k in range(points.offsets[n], points.offsets[n + 1]):
+            row = 3 * (frame_first + points.vertex[k]) * basis_count
             base = row + source
             other = row + second
-            d += point_weight[k] * wp.vec3d(
+            d += points.weight[k] * wp.vec3d(
                 dx3[base] * cosine + dx3[other] * sine,
                 dx3[base + basis_count] * cosine + dx3[other + basis_count] * sine,
                 dx3[base + 2 * basis_count] * cosine + dx3[other + 2 * basis_count] * sine,
@@ -410,9 +426,7 @@ def normal_equations(
     x3: wp.array(dtype=wp.vec3d),
     dx3: wp.array(dtype=wp.float64),
     basis: wp.array(dtype=wp.float64),
-    point_offsets: wp.array(dtype=wp.int32),
-    point_vertex: wp.array(dtype=wp.int32),
-    point_weight: wp.array(dtype=wp.float64),
+    points: PointRows,
     active_offsets: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
     targets: wp.array(dtype=wp.vec3d),
@@ -442,7 +456,7 @@ def normal_equations(
     if w == wp.float64(0.0) or frame_on[f] == 0:
         return
     first = f * vertex_count
-    p = _observed(x3, first, point_offsets, point_vertex, point_weight, n)
+    p = _observed(x3, first, points, n)
     r = rotation[f]
     arm = r * (p - origin)
     e = (arm + origin) / unit + translation[f] - targets[i]
@@ -457,9 +471,7 @@ def normal_equations(
         col_a = _zero3()
         for b in range(a, end):  # b = a first: that column is col_a
             cb = active[b]
-            col_b = _column(
-                dx3, basis, f, first, point_offsets, point_vertex, point_weight, n, cb, layout, r, arm, unit
-            )
+            col_b = _column(dx3, basis, f, first, points, n, cb, layout, r, arm, unit)
             if b == a:
                 col_a = col_b
                 wp.atomic_add(gradient, f * variable_count + ca, w * wp.dot(col_a, e))

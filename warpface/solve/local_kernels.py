@@ -238,10 +238,10 @@ class LocalExpression:
                 self._adj1,
                 self._counts1,
                 self._thickness1,
+                wp.float64(STRETCH_FLOOR),
                 *self._active["s1"],
                 self._pair_offsets,
                 self._pair_slot,
-                wp.float64(STRETCH_FLOOR),
             ),
             "second_ring": (self._t0, self._t0_weight, *self._active["t0"]),
             "wrinkle": (
@@ -256,7 +256,7 @@ class LocalExpression:
                 *self._active["s0"],
             ),
         }
-        """Each stage's constant rig arguments, in its kernel's order (between the frame's inputs and the sizes)."""
+        """Each stage's constant rig arguments, in its kernel's order (between the frame's inputs and the Rings)."""
 
     @property
     def bytes_per_frame(self) -> int:
@@ -313,8 +313,8 @@ class LocalExpression:
             command.launch()
 
     def _record(self, buffers: _Buffers, frames: int, jacobian: bool, per_control: bool) -> list:
-        s, m, rig, b = self._sizes, self.basis_count, self._rig, buffers
-        jac = 1 if jacobian else 0
+        s, rig, b = self._sizes, self._rig, buffers
+        rings = kernels.rings_of(s, self.basis_count, jacobian)
         commands = []
 
         def launch(kernel, count: int, inputs: list, outputs: list):
@@ -325,31 +325,29 @@ class LocalExpression:
                 )
             )
 
-        launch(kernels.muscle_stage, s["n2"], [b.frame_on, b.controls, *rig["muscle"], m, s["n2"]], [b.x1])
+        launch(kernels.muscle_stage, s["n2"], [b.frame_on, b.controls, *rig["muscle"], rings], [b.x1])
         launch(
             kernels.first_ring_triangles,
             s["t1"],
-            [b.frame_on, b.x1, *rig["first_ring"], m, s["n2"], s["t1"], jac],
+            [b.frame_on, b.x1, *rig["first_ring"], rings],
             [b.area1, b.ratio1, b.darea1, b.dratio1],
         )
         launch(
             kernels.bulge_stage,
             s["n1"],
-            [b.frame_on, b.x1, b.area1, b.ratio1, b.darea1, b.dratio1, *rig["bulge"]]
-            + [m, s["n2"], s["n1"], s["t1"], s["t1_slots"], jac],
+            [b.frame_on, b.x1, b.area1, b.ratio1, b.darea1, b.dratio1, *rig["bulge"], rings],
             [b.stretch, b.x2, b.dstretch, b.dx2],
         )
         launch(
             kernels.second_ring_triangles,
             s["t0"],
-            [b.frame_on, b.x2, b.dx2, *rig["second_ring"], m, s["n1"], s["t0"], jac],
+            [b.frame_on, b.x2, b.dx2, *rig["second_ring"], rings],
             [b.area0, b.darea0],
         )
         launch(
             kernels.wrinkle_stage,
             s["n0"],
-            [b.frame_on, b.x2, b.stretch, b.dx2, b.dstretch, b.area0, b.darea0, *rig["wrinkle"]]
-            + [m, s["n1"], s["n0"], s["t0"], jac],
+            [b.frame_on, b.x2, b.stretch, b.dx2, b.dstretch, b.area0, b.darea0, *rig["wrinkle"], rings],
             [b.x3, b.dx3_basis],
         )
         if jacobian and per_control and self.has_jaw:

@@ -81,9 +81,10 @@ class DeviceObjective:
         matrix = observation.matrix.tocsr()
         matrix.sort_indices()
         d = self.device
-        self._point_offsets = wp.array(matrix.indptr.astype(np.int32), dtype=wp.int32, device=d)
-        self._point_vertex = wp.array(matrix.indices.astype(np.int32), dtype=wp.int32, device=d)
-        self._point_weight = wp.array(matrix.data.astype(np.float64), dtype=wp.float64, device=d)
+        self._points = kernels.PointRows()
+        self._points.offsets = wp.array(matrix.indptr.astype(np.int32), dtype=wp.int32, device=d)
+        self._points.vertex = wp.array(matrix.indices.astype(np.int32), dtype=wp.int32, device=d)
+        self._points.weight = wp.array(matrix.data.astype(np.float64), dtype=wp.float64, device=d)
         # A point's active variables: the union of its vertices' active controls, then the pose.
         vertex_active = model.active_controls["s0"].astype(bool)
         point_active = (matrix.astype(bool) @ vertex_active).astype(bool).tocsr()
@@ -195,9 +196,7 @@ class DeviceObjective:
                     buffers.x3,
                     buffers.dx3_basis,
                     buffers.controls,
-                    self._point_offsets,
-                    self._point_vertex,
-                    self._point_weight,
+                    self._points,
                     self._active_offsets,
                     self._active,
                     data.targets,
