@@ -191,8 +191,8 @@ def test_the_rig_references_the_asset_and_a_bake_overrides_only_points(quad_head
     assert "head_asset.usdc" in error and "missing" in error and "\n" not in error
     with pytest.raises(RigError, match="head_asset.usdc .* is missing"):
         read_rig(out)
-    assert main(["validate", str(out)]) == 1
-    report = capsys.readouterr().out.strip()
+    assert main(["validate", str(out)]) == 2
+    report = capsys.readouterr().err.strip()
     assert "is missing" in report and "\n" not in report
 
 
