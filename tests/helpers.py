@@ -268,3 +268,41 @@ def parity_device():
         pytest.skip(
             f"parity device {name!r} is not available here ({exc}); set WARPFACE_PARITY_DEVICE", allow_module_level=True
         )
+
+
+def interrupted_track(tmp_path, *options: str, delay: float) -> tuple[int, int, str, object]:
+    """Run ``warpface track synthetic`` in a child process, send it Ctrl-C ``delay`` seconds after its stage
+    appears (its first flush), and return (exit code, frames it reported, its stderr, the stage path).
+
+    The frames reported are those of "kept all N" after Ctrl-C, or of "tracked N" when the capture finished
+    before the signal arrived.
+    """
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    stage = tmp_path / "out" / "capture.usda"
+    command = [sys.executable, "-m", "warpface.cli", "--device", "cpu", "--quiet", "track", "synthetic"]
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    with open(tmp_path / "err.txt", "w") as errors:
+        child = subprocess.Popen(
+            [*command, "--stage", str(stage), *options], stdout=subprocess.PIPE, stderr=errors, text=True, env=env
+        )
+    try:
+        deadline = time.monotonic() + 120
+        while not stage.exists() and child.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)  # the stage appears with the first flush
+        time.sleep(delay)
+        child.send_signal(signal.SIGINT)
+        out = child.stdout.read()
+        child.wait(timeout=60)
+    finally:
+        child.kill()
+    error = (tmp_path / "err.txt").read_text()[-2000:]
+    if child.returncode not in (0, 130):
+        return child.returncode, 0, error, stage
+    marker = "kept all " if child.returncode == 130 else "tracked "
+    return child.returncode, int(out.split(marker)[1].split()[0]), error, stage

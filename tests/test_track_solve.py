@@ -11,14 +11,13 @@ bad frames (skipped, flagged, previous controls kept, nothing non-finite), and C
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import interrupted_track
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -293,45 +292,8 @@ def test_cli_refuses_bad_combinations_before_writing(tmp_path):
 
 
 def test_ctrl_c_during_a_solved_capture_keeps_every_frame_with_its_controls(tmp_path):
-    stage = tmp_path / "out" / "capture.usda"
-    env = dict(os.environ, PYTHONPATH=str(REPO))
-    with open(tmp_path / "err.txt", "w") as errors:
-        child = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "warpface.cli",
-                "--device",
-                "cpu",
-                "--quiet",
-                "track",
-                "synthetic",
-                "--stage",
-                str(stage),
-                "--solve",
-                "--residual-transfer",
-            ],
-            stdout=subprocess.PIPE,
-            stderr=errors,
-            text=True,
-            env=env,
-        )
-    try:
-        deadline = time.monotonic() + 120
-        while not stage.exists() and child.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)  # the stage appears with the first flush
-        time.sleep(0.2)
-        child.send_signal(signal.SIGINT)
-        out = child.stdout.read()
-        child.wait(timeout=60)
-    finally:
-        child.kill()
-    assert child.returncode in (0, 130), (tmp_path / "err.txt").read_text()[-2000:]
-    kept = (
-        int(out.split("kept all ")[1].split()[0])
-        if child.returncode == 130
-        else int(out.split("tracked ")[1].split()[0])
-    )
+    returncode, kept, error, stage = interrupted_track(tmp_path, "--solve", "--residual-transfer", delay=0.2)
+    assert returncode in (0, 130), error
     back = read_solved_capture(stage)
     assert len(back["times"]) == kept > 0
     assert back["controls"].shape == (kept, len(back["control_names"])) and np.all(np.isfinite(back["controls"]))
