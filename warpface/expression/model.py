@@ -165,9 +165,9 @@ class ExpressionModel:
         """One frame's controls in :attr:`control_names` order, shape (C,), float64.
 
         ``controls``: a mapping ``{muscle or jaw control name: value}`` (absent ones are 0), the full control
-        vector (C numbers), or ``None`` (all 0). Unknown names, a wrong length, non-numbers, non-finite values
-        and values beyond ±1e6 (linear muscles and jaw, lengths and radians) or ±1e3 (sphincters) raise
-        ValueError naming the control.
+        vector (C numbers), or ``None`` (all 0). Non-numbers raise TypeError; unknown names, a wrong length,
+        non-finite values and values beyond ±1e6 (linear muscles and jaw, lengths and radians) or ±1e3
+        (sphincters) raise ValueError; both name the control.
         """
         kind = "muscle" if self.jaw is None else "control"
         zeros = np.zeros(len(self.control_names))
