@@ -1,13 +1,18 @@
-"""``warpface presets [--rig RIG]``: the named presets (ARKit shapes, the paper's expressions) and their controls.
+"""``warpface presets [--rig RIG]``: list the presets (ARKit shapes, expressions) and their controls.
 
-Without ``--rig`` the values are the relative ones of :data:`warpface.assets.PRESETS` (a linear muscle's
-contraction and the jaw's lengths in inter-ocular units, a sphincter's ``K``, ``jaw_open`` in radians).
-With ``--rig`` they are the values on that rig (lengths in mm, through
+List the named presets and the controls each sets: relative values, or with --rig the values on that rig (lengths
+in mm) and the presets stored on its stage by `warpface fit`.
+
+Without ``--rig`` the values are the relative ones of :data:`warpface.assets.PRESETS` (the ARKit shapes and the
+paper's expressions: a linear muscle's contraction and the jaw's lengths in inter-ocular units, a sphincter's
+``K``, ``jaw_open`` in radians). With ``--rig`` they are the values on that rig (lengths in mm, through
 :func:`warpface.assets.preset_controls`), a preset the rig lacks a control for is listed with what it
 misses, and the presets stored on the stage (``warpface fit``) follow.
 """
 
 from __future__ import annotations
+
+from .common import add_command
 
 __all__ = ["add_parser", "run"]
 
@@ -15,16 +20,9 @@ _LENGTH_CONTROLS = ("jaw_forward", "jaw_left")
 
 
 def add_parser(subparsers, common) -> None:
-    presets = subparsers.add_parser(
-        "presets",
-        parents=[common],
-        help="list the presets (ARKit shapes, expressions) and their controls",
-        description="List the named presets and the controls each sets: relative values, or with --rig the values "
-        "on that rig (lengths in mm) and the presets stored on its stage by `warpface fit`.",
-    )
+    presets = add_command(subparsers, common, "presets", run, __doc__)
     presets.add_argument("names", nargs="*", metavar="PRESET", help="only these presets (default: all)")
     presets.add_argument("--rig", default=None, help="rig stage (.usda/.usdc/.usd): values on this rig")
-    presets.set_defaults(handler=run)
 
 
 def _format(controls: dict[str, float], lengths: set[str], unit: str) -> str:

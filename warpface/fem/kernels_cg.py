@@ -39,7 +39,7 @@ import types
 
 import warp as wp
 
-from .kernels_cg_rows import cg_row_functions
+from .kernels_cg_rows import cg_matrix_types, cg_row_functions
 
 __all__ = [
     "PQ",
@@ -101,10 +101,9 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
     the rows of all four hold at least their diagonal. Build the matrix arguments with
     :func:`~warpface.fem.kernels_cg_rows.cg_matrix`.
     """
-    parts = cg_row_functions(dtype, lanes)
-    vec, BlockRows, FactorRows = parts.vec, parts.BlockRows, parts.FactorRows
-    fetch_a, fetch_g = parts.fetch_a, parts.fetch_g
-    factor_part, direction_part, residual_part = parts.factor_part, parts.direction_part, parts.residual_part
+    matrices = cg_matrix_types(dtype)
+    vec, BlockRows, FactorRows = matrices.vec, matrices.BlockRows, matrices.FactorRows
+    fetch_a, fetch_g, residual_part, direction_part, factor_part = cg_row_functions(dtype, lanes)
     spread = SLOT_SPREAD
 
     @wp.func
@@ -307,9 +306,6 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
 
     return types.SimpleNamespace(
         vec=vec,
-        mat=parts.mat,
-        BlockRows=BlockRows,
-        FactorRows=FactorRows,
         block_dim=rows * lanes,
         rows=rows,
         residual=residual,

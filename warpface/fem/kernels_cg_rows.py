@@ -46,8 +46,8 @@ def _matrix_struct(values_type):
 
 @functools.lru_cache(maxsize=None)
 def cg_matrix_types(dtype) -> types.SimpleNamespace:
-    """The ``wp.struct`` types of the CG matrices with values of ``dtype`` (module docstring), each holding
-    ``offsets`` (block rows + 1,), ``indices`` and ``values``:
+    """The value types of the CG for ``dtype``, ``vec`` (its ``wp.vec3``) and ``mat`` (3x3), and the ``wp.struct``
+    types of its matrices (module docstring), each holding ``offsets`` (block rows + 1,), ``indices`` and ``values``:
 
     - ``BlockRows``: a BSR matrix of 3x3 blocks, ``A`` or ``P`` (``indices``: the block columns);
     - ``FactorRows``: a scalar CSR factor grouped by block row, ``G`` or ``Gᵀ`` (``indices``: the keys
@@ -57,6 +57,8 @@ def cg_matrix_types(dtype) -> types.SimpleNamespace:
     """
     mat = wp.types.matrix(shape=(3, 3), dtype=dtype)
     return types.SimpleNamespace(
+        vec=wp.types.vector(length=3, dtype=dtype),
+        mat=mat,
         BlockRows=_matrix_struct(wp.array(dtype=mat)),
         FactorRows=_matrix_struct(wp.array(dtype=dtype)),
         BatchBlockRows=_matrix_struct(wp.array2d(dtype=mat)),
@@ -98,11 +100,10 @@ def _row_fetch(matrix_type, index_type, unroll: int, lanes: int):
 
 
 @functools.lru_cache(maxsize=None)
-def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
-    """Row functions for vectors of ``wp.vec3`` of ``dtype`` and ``lanes`` threads per row (module docstring).
-
-    Returns a namespace with ``vec``, ``mat``, the matrix structs ``BlockRows`` and ``FactorRows`` of
-    :func:`cg_matrix_types` and the ``wp.func`` s:
+def cg_row_functions(dtype, lanes: int) -> tuple:
+    """Row functions for vectors of ``wp.vec3`` of ``dtype`` and ``lanes`` threads per row (module docstring),
+    on the matrices of :func:`cg_matrix_types`. Returns the ``wp.func`` s ``(fetch_a, fetch_g, residual_part,
+    direction_part, factor_part)``:
 
     - ``fetch_a(A, i, lane)`` → ``(start, end, columns)`` of block row ``i`` of a BSR matrix;
     - ``fetch_g(G, i, lane)`` → ``(start, end, keys)`` of block row ``i`` of a grouped factor;
@@ -115,10 +116,8 @@ def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
     """
     if lanes < 1:
         raise ValueError(f"lanes must be positive, got {lanes}")
-    vec = wp.types.vector(length=3, dtype=dtype)
-    mat = wp.types.matrix(shape=(3, 3), dtype=dtype)
     matrices = cg_matrix_types(dtype)
-    BlockRows, FactorRows = matrices.BlockRows, matrices.FactorRows
+    vec, BlockRows, FactorRows = matrices.vec, matrices.BlockRows, matrices.FactorRows
     unroll_a, unroll_p, unroll_g = (min(math.ceil(span / lanes), _MAX_UNROLL) for span in (_SPAN_A, _SPAN_P, _SPAN_G))
     index_a = wp.types.vector(length=unroll_a, dtype=wp.int32)
     index_g = wp.types.vector(length=unroll_g, dtype=wp.int32)
@@ -226,14 +225,4 @@ def cg_row_functions(dtype, lanes: int) -> types.SimpleNamespace:
             correction += A.values[e] * guess[A.indices[e]]
         return acc, correction
 
-    return types.SimpleNamespace(
-        vec=vec,
-        mat=mat,
-        BlockRows=BlockRows,
-        FactorRows=FactorRows,
-        fetch_a=fetch_a,
-        fetch_g=fetch_g,
-        factor_part=factor_part,
-        direction_part=direction_part,
-        residual_part=residual_part,
-    )
+    return fetch_a, fetch_g, residual_part, direction_part, factor_part

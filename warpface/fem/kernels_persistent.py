@@ -235,12 +235,10 @@ def persistent_pcg_kernel(
     """
     if 32 % lanes:
         raise ValueError(f"lanes must divide 32, got {lanes}")
-    parts = cg_row_functions(dtype, lanes)
-    vec, BlockRows, FactorRows = parts.vec, parts.BlockRows, parts.FactorRows
     matrices = cg_matrix_types(dtype)
+    vec, BlockRows, FactorRows = matrices.vec, matrices.BlockRows, matrices.FactorRows
     BatchBlockRows, BatchFactorRows = matrices.BatchBlockRows, matrices.BatchFactorRows
-    fetch_a, fetch_g = parts.fetch_a, parts.fetch_g
-    factor_part, direction_part, residual_part = parts.factor_part, parts.direction_part, parts.residual_part
+    fetch_a, fetch_g, residual_part, direction_part, factor_part = cg_row_functions(dtype, lanes)
     spread = SLOT_SPREAD
     lane_sum = lane_sum64 if dtype == wp.float64 else lane_sum32
     barrier_sync = grid_sync_acquire if single else grid_sync
