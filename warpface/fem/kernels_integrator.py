@@ -1,40 +1,65 @@
 """The Newmark-β state update (SPEC §2), written once for both solvers, and its kernels.
 
 :func:`newmark_advance` is the update of one node's velocity and acceleration from its new
-displacement (constants by name in :class:`~warpface.fem.newmark.NewmarkCoefficients`).
+displacement (its constants one struct argument, :func:`newmark_constants`, named as in
+:class:`~warpface.fem.newmark.NewmarkCoefficients`).
 :data:`newmark_update` applies it to a whole state after a direct solve; the CG solver's fused
 end-of-step kernel (:data:`cg_newmark_update`) calls the same function. Both are generic over the
-float type (vec3f/vec3d with matching scalars), never allocate or read back to the host, and so can
+float type (vec3f/vec3d with matching scalars and constants), never allocate or read back to the host, and so can
 be captured in a graph.
 """
 
-from __future__ import annotations
-
+import functools
 from typing import Any
 
 import warp as wp
 
 from .kernels_cg import RR, START, slot_total
 
-__all__ = ["cg_newmark_update", "interpolate_control", "newmark_advance", "newmark_update"]
+__all__ = [
+    "cg_newmark_update",
+    "interpolate_control",
+    "newmark_advance",
+    "newmark_constants",
+    "newmark_constants_type",
+    "newmark_update",
+]
+
+
+@functools.lru_cache(maxsize=None)
+def newmark_constants_type(scalar_type):
+    """The ``wp.struct`` of the state update's constants in ``scalar_type`` (``wp.float32`` or ``wp.float64``),
+    fields named as in :class:`~warpface.fem.newmark.NewmarkCoefficients`."""
+
+    @wp.struct
+    class NewmarkConstants:
+        mass_displacement: scalar_type
+        mass_velocity: scalar_type
+        mass_acceleration: scalar_type
+        velocity_old_acceleration: scalar_type
+        velocity_new_acceleration: scalar_type
+        dt: scalar_type
+        half_dt_squared: scalar_type
+
+    return NewmarkConstants
+
+
+def newmark_constants(coefficients, scalar_type):
+    """The update constants of ``coefficients`` (a :class:`~warpface.fem.newmark.NewmarkCoefficients`) as an
+    instance of :func:`newmark_constants_type` (one kernel argument)."""
+    struct_type = newmark_constants_type(scalar_type)
+    constants = struct_type()
+    for name in struct_type.vars:
+        setattr(constants, name, scalar_type(getattr(coefficients, name)))
+    return constants
 
 
 @wp.func
-def newmark_advance(
-    d_new: Any,
-    d: Any,
-    v: Any,
-    a: Any,
-    mass_displacement: Any,
-    mass_velocity: Any,
-    mass_acceleration: Any,
-    velocity_old_acceleration: Any,
-    velocity_new_acceleration: Any,
-):
-    """``(a', v')`` of a node whose displacement goes from ``d`` to ``d_new`` (velocity ``v``, acceleration ``a``):
-    ``a' = c0 (d_new − d) − c1 v − c2 a`` and ``v' = v + c6 a + c7 a'``."""
-    a_new = mass_displacement * (d_new - d) - mass_velocity * v - mass_acceleration * a
-    v_new = v + velocity_old_acceleration * a + velocity_new_acceleration * a_new
+def newmark_advance(d_new: Any, d: Any, v: Any, a: Any, c: Any):
+    """``(a', v')`` of a node whose displacement goes from ``d`` to ``d_new`` (velocity ``v``, acceleration ``a``),
+    ``c`` the :func:`newmark_constants`: ``a' = c0 (d_new − d) − c1 v − c2 a`` and ``v' = v + c6 a + c7 a'``."""
+    a_new = c.mass_displacement * (d_new - d) - c.mass_velocity * v - c.mass_acceleration * a
+    v_new = v + c.velocity_old_acceleration * a + c.velocity_new_acceleration * a_new
     return a_new, v_new
 
 
@@ -47,11 +72,7 @@ def newmark_update(
     d_in: wp.array(dtype=Any),
     v_in: wp.array(dtype=Any),
     a_in: wp.array(dtype=Any),
-    mass_displacement: Any,
-    mass_velocity: Any,
-    mass_acceleration: Any,
-    velocity_old_acceleration: Any,
-    velocity_new_acceleration: Any,
+    constants: Any,
     d_out: wp.array(dtype=Any),
     v_out: wp.array(dtype=Any),
     a_out: wp.array(dtype=Any),
@@ -68,17 +89,7 @@ def newmark_update(
         dn = solution[o]
     elif s >= 0:
         dn = driven[s]
-    an, vn = newmark_advance(
-        dn,
-        di,
-        v_in[i],
-        a_in[i],
-        mass_displacement,
-        mass_velocity,
-        mass_acceleration,
-        velocity_old_acceleration,
-        velocity_new_acceleration,
-    )
+    an, vn = newmark_advance(dn, di, v_in[i], a_in[i], constants)
     d_out[i] = dn
     v_out[i] = vn
     a_out[i] = an
@@ -100,13 +111,7 @@ def cg_newmark_update(
     driven_slot: wp.array(dtype=wp.int32),
     trajectory: wp.array3d(dtype=Any),
     ring: wp.array(dtype=wp.int32),
-    mass_displacement: Any,
-    mass_velocity: Any,
-    mass_acceleration: Any,
-    velocity_old_acceleration: Any,
-    velocity_new_acceleration: Any,
-    dt: Any,
-    half_dt_squared: Any,
+    constants: Any,
     slots: wp.array4d(dtype=wp.float64),
     cg_iter: wp.array2d(dtype=wp.int32),
     tol_sq: wp.float64,
@@ -146,20 +151,10 @@ def cg_newmark_update(
     o = free_index[i]
     s = driven_slot[i]
     if o >= 0:
-        dn = di + dt * vi + half_dt_squared * ai + correction[b, o]
+        dn = di + constants.dt * vi + constants.half_dt_squared * ai + correction[b, o]
     elif s >= 0:
         dn = trajectory[slot, b, s]
-    an, vn = newmark_advance(
-        dn,
-        di,
-        vi,
-        ai,
-        mass_displacement,
-        mass_velocity,
-        mass_acceleration,
-        velocity_old_acceleration,
-        velocity_new_acceleration,
-    )
+    an, vn = newmark_advance(dn, di, vi, ai, constants)
     d_out[b, i] = dn
     a_out[b, i] = an
     v_out[b, i] = vn
@@ -167,8 +162,9 @@ def cg_newmark_update(
     if o >= 0:
         increment = dn - di
         previous = history[0, b, o]
-        three = type(dt)(3.0)
-        guess[b, o] = three * (increment - previous) + history[1, b, o] - dt * vn - half_dt_squared * an
+        three = type(constants.dt)(3.0)
+        extrapolated = three * (increment - previous) + history[1, b, o]
+        guess[b, o] = extrapolated - constants.dt * vn - constants.half_dt_squared * an
         history[1, b, o] = previous
         history[0, b, o] = increment
     if i == 0:

@@ -102,21 +102,6 @@ class NewmarkCoefficients:
     half_dt_squared: float
     """dt² / 2 [s²]."""
 
-    def update_scalars(self, scalar_type) -> list:
-        """The five constants of the state update, as Warp scalars of ``scalar_type`` (kernel arguments):
-        ``[mass_displacement, mass_velocity, mass_acceleration, velocity_old_acceleration,
-        velocity_new_acceleration]``."""
-        return [
-            scalar_type(x)
-            for x in (
-                self.mass_displacement,
-                self.mass_velocity,
-                self.mass_acceleration,
-                self.velocity_old_acceleration,
-                self.velocity_new_acceleration,
-            )
-        ]
-
 
 def newmark_coefficients(dt: float, beta: float = 0.25, gamma: float = 0.5) -> NewmarkCoefficients:
     """The :class:`NewmarkCoefficients` of time step ``dt`` [s] and parameters ``beta``, ``gamma``.

@@ -27,7 +27,7 @@ from .assembly import SystemMatrices, bsr_to_scipy
 from .cg_setup import grouped_factor_rows, newmark_operators, per_model_fsai, preconditioner_factor, stack_values
 from .kernels_cg import SLOT_SPREAD, WORK_ROWS, WORK_X
 from .kernels_cg_rows import cg_matrix, cg_matrix_types
-from .kernels_integrator import cg_newmark_update
+from .kernels_integrator import cg_newmark_update, newmark_constants
 from .kernels_persistent import grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
 from .options import BATCH_PRECONDITIONERS, CGOptions
@@ -152,11 +152,7 @@ class BatchedCGSolver(DeviceSolver):
         self._record = vectors(options.chunk, batch, n)
         self._free_index = wp.array(free_index, dtype=wp.int32, device=dev)
         self._driven_slot = wp.array(driven_slot, dtype=wp.int32, device=dev)
-        self._update_constants = [
-            *coefficients.update_scalars(wp.float64),
-            wp.float64(coefficients.dt),
-            wp.float64(coefficients.half_dt_squared),
-        ]
+        self._update_constants = newmark_constants(coefficients, wp.float64)
 
         if not dev.is_cuda:
             shape = (1, 1)  # one CPU thread walks every row of a model
@@ -211,7 +207,7 @@ class BatchedCGSolver(DeviceSolver):
             dim=(self.model_count, self.node_count),
             inputs=[
                 *(self._x, self._history, self._guess, self._free_index, self._driven_slot, b.trajectory, b.ring),
-                *(*self._update_constants, self._slots, self._cg_iter, tol_sq, b.chunk, b.d_in, b.v_in, b.a_in),
+                *(self._update_constants, self._slots, self._cg_iter, tol_sq, b.chunk, b.d_in, b.v_in, b.a_in),
             ],
             outputs=[b.d_out, b.v_out, b.a_out, b.record, self._step_count, self._status, self._failure],
             device=dev,

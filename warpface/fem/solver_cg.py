@@ -44,7 +44,7 @@ from .assembly import SystemMatrices
 from .cg_setup import grouped_factor_rows, newmark_operators, preconditioner_factor
 from .kernels_cg import SLOT_SPREAD, WORK_ROWS, WORK_X, pcg_kernels
 from .kernels_cg_rows import cg_matrix, cg_matrix_types
-from .kernels_integrator import cg_newmark_update
+from .kernels_integrator import cg_newmark_update, newmark_constants
 from .kernels_persistent import grid_capacity, persistent_pcg_kernel
 from .newmark import NewmarkCoefficients
 from .options import PRECONDITIONERS, CGOptions
@@ -157,12 +157,7 @@ class CGSolver(DeviceSolver):
         self._GT = cg_matrix(structs.FactorRows, upper[0], upper[1], upper[2][0])
 
         # Work arrays (allocated once; captured graphs bind these pointers).
-        scalar = wp.float64 if dtype == wp.float64 else wp.float32
-        self._update_constants = [
-            *coefficients.update_scalars(scalar),
-            scalar(coefficients.dt),
-            scalar(coefficients.half_dt_squared),
-        ]
+        self._update_constants = newmark_constants(coefficients, dtype)
         self._free_index = wp.array(free_index, dtype=wp.int32, device=dev)
         self._driven_slot = wp.array(driven_slot, dtype=wp.int32, device=dev)
         # the CG vectors as rows of one work array (the persistent kernel's layout) and their flat scalar views
@@ -264,7 +259,7 @@ class CGSolver(DeviceSolver):
             dim=(1, self.node_count),
             inputs=[
                 *(self._x_models, self._history, self._guess_models, self._free_index, self._driven_slot),
-                *(b.trajectory, b.ring, *self._update_constants, self._slots, self._cg_iter, tol_sq, b.chunk),
+                *(b.trajectory, b.ring, self._update_constants, self._slots, self._cg_iter, tol_sq, b.chunk),
                 *(b.d_in, b.v_in, b.a_in),
             ],
             outputs=[b.d_out, b.v_out, b.a_out, b.record, self._step_count, self._status, self._failure],

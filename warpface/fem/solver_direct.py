@@ -25,7 +25,7 @@ import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 import warp as wp
 
-from .kernels_integrator import newmark_update
+from .kernels_integrator import newmark_constants, newmark_update
 from .ldlt import BlockLDLT, UnsuitableFactor
 from .newmark import NewmarkCoefficients, check_step_dt, step_key
 from .state import TissueControl, TissueState
@@ -118,7 +118,7 @@ class DirectSolver:
         self._driven_slot = wp.array(driven_slot, dtype=wp.int32, device=cpu)
         self._solution = wp.zeros(self.free_nodes.size, dtype=wp.vec3d, device=cpu)
         self._solution_view = self._solution.numpy().reshape(-1)
-        self._update_constants = c.update_scalars(wp.float64)
+        self._update_constants = newmark_constants(c, wp.float64)
         self._bindings: dict = {}
         # the last four solutions, newest last, for the extrapolated start of the next step
         self._history = np.zeros((4, 3 * self.free_nodes.size))
@@ -218,7 +218,7 @@ class DirectSolver:
                     state_in.d,
                     state_in.v,
                     state_in.a,
-                    *self._update_constants,
+                    self._update_constants,
                 ],
                 outputs=[state_out.d, state_out.v, state_out.a],
                 device=self.device,
