@@ -90,6 +90,19 @@ def bsr_to_scipy(matrix: wps.BsrMatrix):
     return csr
 
 
+def _empty_triplets(count: int, value_type, device, value_arrays: int = 1) -> list:
+    """``[rows, cols, values, ...]``: uninitialised COO arrays of ``count`` blocks for a triplet kernel to fill, the
+    block rows and columns int32 and ``value_arrays`` arrays of ``value_type`` blocks."""
+    indices = [wp.empty(count, dtype=wp.int32, device=device) for _ in range(2)]
+    return indices + [wp.empty(count, dtype=value_type, device=device) for _ in range(value_arrays)]
+
+
+def _from_triplets(row_count: int, col_count: int, rows, cols, values) -> wps.BsrMatrix:
+    """The BSR matrix of the triplets (duplicates summed, explicit zeros kept: the sparsity pattern depends only on
+    the mesh)."""
+    return wps.bsr_from_triplets(row_count, col_count, rows, cols, values, prune_numerical_zeros=False)
+
+
 def _stiffness_coeffs(lam: np.ndarray, mu: np.ndarray, formulation: str) -> np.ndarray:
     if formulation == "linear":
         return np.stack([lam, mu, mu], axis=1)
@@ -143,22 +156,10 @@ def assemble(
     cc = wp.array(_damping_coeffs(fields["eta"], material.damping), dtype=wp.vec3d, device=device)
     rho = wp.array(fields["rho"], dtype=wp.float64, device=device)
 
-    count = 16 * m
-    rows = wp.empty(count, dtype=wp.int32, device=device)
-    cols = wp.empty(count, dtype=wp.int32, device=device)
-    k_vals = wp.empty(count, dtype=wp.mat33d, device=device)
-    m_vals = wp.empty(count, dtype=wp.mat33d, device=device)
-    c_vals = wp.empty(count, dtype=wp.mat33d, device=device)
-    wp.launch(
-        element_triplets,
-        dim=(m, 4, 4),
-        inputs=[points, tets, kc, cc, rho],
-        outputs=[rows, cols, k_vals, m_vals, c_vals],
-        device=device,
-    )
-    K = wps.bsr_from_triplets(n, n, rows, cols, k_vals, prune_numerical_zeros=False)
-    M = wps.bsr_from_triplets(n, n, rows, cols, m_vals, prune_numerical_zeros=False)
-    C = wps.bsr_from_triplets(n, n, rows, cols, c_vals, prune_numerical_zeros=False)
+    triplets = _empty_triplets(16 * m, wp.mat33d, device, value_arrays=3)
+    wp.launch(element_triplets, dim=(m, 4, 4), inputs=[points, tets, kc, cc, rho], outputs=triplets, device=device)
+    rows, cols, *values = triplets
+    K, M, C = (_from_triplets(n, n, rows, cols, blocks) for blocks in values)
 
     if formulation == "anp":
         K = wps.bsr_axpy(_nodal_volumetric_stiffness(tetmesh, lam + 2.0 * mu / 3.0, points, tets, device), K)
@@ -174,27 +175,22 @@ def _nodal_volumetric_stiffness(tetmesh: TetMesh, kappa: np.ndarray, points, tet
     # kappa_a V_a = sum over incident tets of kappa_e V_e / 4
     weight = np.bincount(tetmesh.tets.ravel(), weights=np.repeat(kappa * tetmesh.volumes / 4.0, 4), minlength=n)
 
-    count = 16 * m
-    rows = wp.empty(count, dtype=wp.int32, device=device)
-    cols = wp.empty(count, dtype=wp.int32, device=device)
-    w_vals = wp.empty(count, dtype=mat13d, device=device)
+    triplets = _empty_triplets(16 * m, mat13d, device)
     wp.launch(
         volumetric_operator_triplets,
         dim=(m, 4, 4),
         inputs=[points, tets, nodal_volumes],
-        outputs=[rows, cols, w_vals],
+        outputs=triplets,
         device=device,
     )
-    W = wps.bsr_from_triplets(n, n, rows, cols, w_vals, prune_numerical_zeros=False)
+    W = _from_triplets(n, n, *triplets)
     w_offsets = W.offsets.numpy()[: n + 1]
     lengths = np.diff(w_offsets)
     triplet_offsets = np.concatenate([[0], np.cumsum(lengths.astype(np.int64) ** 2)])
     total = int(triplet_offsets[-1])
     if total >= 2**31:
         raise ValueError("assemble: mesh too large for the average-nodal-pressure operator (int32 indices)")
-    k_rows = wp.empty(total, dtype=wp.int32, device=device)
-    k_cols = wp.empty(total, dtype=wp.int32, device=device)
-    k_vals = wp.empty(total, dtype=wp.mat33d, device=device)
+    triplets = _empty_triplets(total, wp.mat33d, device)
     wp.launch(
         nodal_volumetric_stiffness_triplets,
         dim=n,
@@ -205,10 +201,10 @@ def _nodal_volumetric_stiffness(tetmesh: TetMesh, kappa: np.ndarray, points, tet
             wp.array(weight, dtype=wp.float64, device=device),
             wp.array(triplet_offsets[:-1].astype(np.int32), dtype=wp.int32, device=device),
         ],
-        outputs=[k_rows, k_cols, k_vals],
+        outputs=triplets,
         device=device,
     )
-    return wps.bsr_from_triplets(n, n, k_rows, k_cols, k_vals, prune_numerical_zeros=False)
+    return _from_triplets(n, n, *triplets)
 
 
 def partition_bsr(
@@ -238,9 +234,7 @@ def partition_bsr(
     """
     device = as_device(device)
     total = sum(int(matrix.nnz_sync()) for matrix, *_ in parts)
-    rows = wp.empty(total, dtype=wp.int32, device=device)
-    cols = wp.empty(total, dtype=wp.int32, device=device)
-    vals = wp.empty(total, dtype=wp.mat33d, device=device)
+    triplets = _empty_triplets(total, wp.mat33d, device)
     row_map_wp = wp.array(np.asarray(row_map, dtype=np.int32), dtype=wp.int32, device=device)
     offset = 0
     for matrix, col_map, col_shift, scale in parts:
@@ -257,8 +251,8 @@ def partition_bsr(
                 float(scale),
                 offset,
             ],
-            outputs=[rows, cols, vals],
+            outputs=triplets,
             device=device,
         )
         offset += int(matrix.nnz_sync())
-    return wps.bsr_from_triplets(row_count, col_count, rows, cols, vals, prune_numerical_zeros=False)
+    return _from_triplets(row_count, col_count, *triplets)
