@@ -247,6 +247,18 @@ def persistent_pcg_kernel(
     def row_total(part: vec):
         return vec(lane_sum(part[0], lanes), lane_sum(part[1], lanes), lane_sum(part[2], lanes))
 
+    @wp.func
+    def group_row(g: int, local: int, count: int):
+        # (row, clamped row to read) of the thread's row in row group g
+        row = g * rows + local
+        return row, wp.min(row, count - 1)
+
+    @wp.func
+    def arrive(barrier: wp.array(dtype=wp.int32), arrivals: int, blocks: int):
+        # wait at the model's next barrier; returns the barriers passed
+        barrier_sync(barrier, (arrivals + 1) * blocks)
+        return arrivals + 1
+
     # at least resident_threads threads per multiprocessor: caps the registers (128 a thread for 512), so that a
     # grid of one row group per block of a face-sized mesh stays resident
     @wp.kernel(
@@ -296,8 +308,7 @@ def persistent_pcg_kernel(
         lane = thread - local * lanes
         count = w.shape[1]
         groups = (count + rows - 1) // rows
-        first_row = block * rows + local
-        first = wp.min(first_row, count - 1)
+        _, first = group_row(block, local, count)
         arrivals = int(0)
 
         # residuals of the predictor (r[1]) and of the extrapolated start (r[0]), as kernels_cg.residual
@@ -306,8 +317,7 @@ def persistent_pcg_kernel(
         predicted_sq = wp.float64(0.0)
         extrapolated_sq = wp.float64(0.0)
         for g in range(block, groups, blocks):
-            row = g * rows + local
-            i = wp.min(row, count - 1)
+            row, i = group_row(g, local, count)
             acc, correction = residual_part(i, lane, P, A, d, v, a, driven, guess)
             predicted = row_total(acc)
             extrapolated = predicted - row_total(correction)
@@ -325,8 +335,7 @@ def persistent_pcg_kernel(
             if launched_block == 0:
                 ring[1] = slot
         g_start, g_end, g_found = fetch_g(G, first, lane)
-        arrivals += 1
-        barrier_sync(barrier, arrivals * blocks)
+        arrivals = arrive(barrier, arrivals, blocks)
 
         # start from the better of the two points (as lower_start): y = G r0
         use = int(0)
@@ -335,8 +344,7 @@ def persistent_pcg_kernel(
         r_use = wf[WORK_R + use]
         g = block
         while g < groups:
-            row = g * rows + local
-            i = wp.min(row, count - 1)
+            row, i = group_row(g, local, count)
             yi = row_total(factor_part(g_start, g_end, g_found, lane, G, r_use, r_use, dtype(0.0)))
             if row < count and lane == 0:
                 w[WORK_Y, i] = yi
@@ -346,8 +354,7 @@ def persistent_pcg_kernel(
             g += blocks
             g_start, g_end, g_found = fetch_g(G, wp.min(g * rows + local, count - 1), lane)
         t_start, t_end, t_found = fetch_g(GT, first, lane)
-        arrivals += 1
-        barrier_sync(barrier, arrivals * blocks)
+        arrivals = arrive(barrier, arrivals, blocks)
 
         k = int(0)
         searching = bool(True)
@@ -358,8 +365,7 @@ def persistent_pcg_kernel(
             y_flat = wf[WORK_Y]
             g = block
             while g < groups:
-                row = g * rows + local
-                i = wp.min(row, count - 1)
+                row, i = group_row(g, local, count)
                 zi = row_total(factor_part(t_start, t_end, t_found, lane, GT, y_flat, y_flat, dtype(0.0)))
                 if row < count and lane == 0:
                     ri = w[WORK_R + k % 2, i]
@@ -374,8 +380,7 @@ def persistent_pcg_kernel(
                 wp.atomic_add(slots, RZ, k, block % spread, rz)
                 wp.atomic_add(slots, RR, k, block % spread, rr)
             a_start, a_end, a_found = fetch_a(A, first, lane)
-            arrivals += 1
-            barrier_sync(barrier, arrivals * blocks)
+            arrivals = arrive(barrier, arrivals, blocks)
             if cg_finished(slots, k, tol_sq, maxiter) or barrier[1] != 0:
                 searching = False
             else:
@@ -389,8 +394,7 @@ def persistent_pcg_kernel(
                 pq = wp.float64(0.0)
                 g = block
                 while g < groups:
-                    row = g * rows + local
-                    i = wp.min(row, count - 1)
+                    row, i = group_row(g, local, count)
                     qi = row_total(direction_part(a_start, a_end, a_found, lane, A, z, p_old, beta))
                     if row < count and lane == 0:
                         pi = z[i] + beta * p_old[i]
@@ -403,8 +407,7 @@ def persistent_pcg_kernel(
                 if thread == 0:
                     wp.atomic_add(slots, PQ, k, block % spread, pq)
                 g_start, g_end, g_found = fetch_g(G, first, lane)
-                arrivals += 1
-                barrier_sync(barrier, arrivals * blocks)
+                arrivals = arrive(barrier, arrivals, blocks)
 
                 # lower: x += α p, r[(k+1) % 2] = r[k % 2] − α q, y = G r_new
                 alpha = dtype(slot_total(slots, RZ, k) / slot_total(slots, PQ, k))
@@ -412,8 +415,7 @@ def persistent_pcg_kernel(
                 q_flat = wf[WORK_Q]
                 g = block
                 while g < groups:
-                    row = g * rows + local
-                    i = wp.min(row, count - 1)
+                    row, i = group_row(g, local, count)
                     yi = row_total(factor_part(g_start, g_end, g_found, lane, G, r_cur, q_flat, alpha))
                     if row < count and lane == 0:
                         w[WORK_X, i] = w[WORK_X, i] + alpha * w[WORK_P + new, i]
@@ -422,8 +424,7 @@ def persistent_pcg_kernel(
                     g += blocks
                     g_start, g_end, g_found = fetch_g(G, wp.min(g * rows + local, count - 1), lane)
                 t_start, t_end, t_found = fetch_g(GT, first, lane)
-                arrivals += 1
-                barrier_sync(barrier, arrivals * blocks)
+                arrivals = arrive(barrier, arrivals, blocks)
                 k += 1
         if thread == 0:
             if block == 0:
