@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
-from .._validate import as_finite_array, as_positive, expect_instance
+from .._validate import as_finite_array, as_indices, as_positive, expect_instance
 from ..errors import RigError
 from ..fem.material import MATERIAL_RANGES, TissueMaterial
 from ..fem.tetmesh import TetMesh
@@ -184,16 +184,7 @@ def _validated(points, tets, youngs_modulus, poisson_ratio, viscosity, density, 
         values[name] = float(value) if value.ndim == 0 else value
     checked = {}
     for name, indices in regions.items():
-        indices = np.asarray(indices)
-        if indices.ndim != 1 or not np.issubdtype(indices.dtype, np.integer) and len(indices):
-            raise ValueError(f"{label}: region {name!r} must be a 1-D array of tet indices")
-        indices = indices.astype(np.int64)
-        outside = np.flatnonzero((indices < 0) | (indices >= len(tets)))
-        if len(outside):
-            raise ValueError(
-                f"{label}: region {name!r} tet index {int(indices[outside[0]])} out of range [0, {len(tets)})"
-            )
-        checked[name] = indices
+        checked[name] = as_indices(indices, len(tets), f"{label}: region {name!r} tet indices")
     return Tissue(points=points, tets=tets.astype(np.int64), regions=checked, **values)
 
 
