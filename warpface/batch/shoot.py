@@ -24,7 +24,7 @@ VARIANT_SET = "take"
 def write_shoot(path: Path, entries: list[dict]) -> Path | None:
     """Write the shoot stage for the completed takes among ``entries`` (status ``done`` or ``skipped``); returns
     its path, or None when no take is complete (an older shoot stage is then removed)."""
-    from pxr import Sdf, Tf, Usd, UsdGeom
+    from pxr import Sdf, Tf
 
     from ..usd import export_layer_atomically
 
@@ -34,44 +34,39 @@ def write_shoot(path: Path, entries: list[dict]) -> Path | None:
         path.unlink(missing_ok=True)
         return None
     timing = [_timing(Path(entry["stage"])) for entry in complete]
-    rate = timing[0][0]
-    layer = Sdf.Layer.CreateAnonymous(".usda")
-    stage = Usd.Stage.Open(layer)
-    stage.SetTimeCodesPerSecond(rate)
-    stage.SetFramesPerSecond(rate)
-    stage.SetStartTimeCode(min(start * rate / own for own, start, *_ in timing))
-    stage.SetEndTimeCode(max(end * rate / own for own, _, end, *_ in timing))
-    UsdGeom.SetStageUpAxis(stage, timing[0][3])
-    UsdGeom.SetStageMetersPerUnit(stage, timing[0][4])
-    shoot = UsdGeom.Xform.Define(stage, SHOOT_PRIM).GetPrim()
-    stage.SetDefaultPrim(shoot)
-    character = UsdGeom.Xform.Define(stage, CHARACTER_PRIM).GetPrim()
-    variants = character.GetVariantSets().AddVariantSet(VARIANT_SET)
-    takes = UsdGeom.Xform.Define(stage, TAKES_PRIM)
-    takes.MakeInvisible()
+    rate, _, _, up, meters = timing[0]
+    layer = Sdf.Layer.CreateAnonymous(".usda")  # authored as specs: nothing composes before it is saved
+    layer.timeCodesPerSecond = layer.framesPerSecond = rate
+    layer.startTimeCode = min(start * rate / own for own, start, *_ in timing)
+    layer.endTimeCode = max(end * rate / own for own, _, end, *_ in timing)
+    layer.pseudoRoot.SetInfo("upAxis", up)
+    layer.pseudoRoot.SetInfo("metersPerUnit", meters)
+    shoot = Sdf.PrimSpec(layer.pseudoRoot, SHOOT_PRIM.rsplit("/", 1)[1], Sdf.SpecifierDef, "Xform")
+    layer.defaultPrim = shoot.name
+    character = Sdf.PrimSpec(shoot, CHARACTER_PRIM.rsplit("/", 1)[1], Sdf.SpecifierDef, "Xform")
+    variants = Sdf.VariantSetSpec(character, VARIANT_SET)
+    character.variantSetNameList.Prepend(VARIANT_SET)
+    character.variantSelections[VARIANT_SET] = complete[0]["id"]
+    takes = Sdf.PrimSpec(shoot, TAKES_PRIM.rsplit("/", 1)[1], Sdf.SpecifierDef, "Xform")
+    visibility = Sdf.AttributeSpec(takes, "visibility", Sdf.ValueTypeNames.Token, Sdf.VariabilityVarying)
+    visibility.default = "invisible"  # the character is what a viewer shows
     names = set()
     for entry in complete:
-        reference = "./" + Path(entry["stage"]).relative_to(path.parent).as_posix()
-        variants.AddVariant(entry["id"])
-        variants.SetVariantSelection(entry["id"])
-        with variants.GetVariantEditContext():
-            character.GetReferences().AddReference(reference)
+        reference = Sdf.Reference("./" + Path(entry["stage"]).relative_to(path.parent).as_posix())
+        Sdf.VariantSpec(variants, entry["id"]).primSpec.referenceList.Prepend(reference)
         name = Tf.MakeValidIdentifier(entry["id"])
         while name in names:
             name += "_"
         names.add(name)
-        prim = stage.DefinePrim(f"{TAKES_PRIM}/{name}")
-        prim.GetReferences().AddReference(reference)
-        prim.SetCustomData(
-            {
-                "take": entry["id"],
-                "kind": entry.get("kind", ""),
-                "input": entry.get("input", ""),
-                "frames": int(entry.get("frames") or 0),
-                "status": entry["status"],
-            }
-        )
-    variants.SetVariantSelection(complete[0]["id"])
+        prim = Sdf.PrimSpec(takes, name, Sdf.SpecifierDef)
+        prim.referenceList.Prepend(reference)
+        prim.customData = {
+            "take": entry["id"],
+            "kind": entry.get("kind", ""),
+            "input": entry.get("input", ""),
+            "frames": int(entry.get("frames") or 0),
+            "status": entry["status"],
+        }
     export_layer_atomically(layer, path)
     return path
 
