@@ -36,16 +36,8 @@ def run(args) -> int:
     """The ``batch`` command's handler: a summary line, one line per failed take; exit code 1 when one failed."""
     from .runner import run as run_batch
 
-    result = run_batch(
-        args.manifest,
-        args.out,
-        engine=args.engine,
-        address=args.address,
-        force=args.force,
-        jobs=args.jobs,
-        device=args.device,
-        progress=not args.quiet,
-    )
+    options = {name: getattr(args, name) for name in ("engine", "address", "force", "jobs", "device")}
+    result = run_batch(args.manifest, args.out, progress=not args.quiet, **options)
     for entry in result.failed:
         print(f"failed {entry['id']}: {entry['error']}")
     print(

@@ -72,11 +72,16 @@ def run(
         ValueError: a bad manifest row (named), an output folder that is a file, a bad engine or option; raised
             before any take starts.
     """
-    from .._validate import as_count, as_path
+    from .._validate import as_count, as_path, expect_instance
     from .manifest import Manifest, read_manifest
     from .report import Report
     from .take import completed_take, remove_leftovers, take_digest
 
+    expect_instance(engine, str, "engine")
+    for flag, name in ((force, "force"), (progress, "progress")):
+        expect_instance(flag, bool, name)
+    if address is not None:
+        expect_instance(address, str, "address")
     if engine not in ENGINES:
         raise ValueError(f"--engine {engine!r}: expected one of {', '.join(ENGINES)}")
     if address is not None and engine != "ray":
