@@ -63,6 +63,9 @@ def run(
         device: ``"cpu"``, ``"cuda"``/``"cuda:N"``, or None (CUDA when there is a device).
         progress: show one progress bar over the takes.
 
+    The local engine spawns its workers (a fresh Python each, never a fork): a script that calls :func:`run`
+    does so under ``if __name__ == "__main__":``, as with any :mod:`multiprocessing` pool.
+
     A take that fails (an unreadable input, channels the rig cannot use) is reported with its one-line error;
     the others go on. Ctrl-C (KeyboardInterrupt) stops the workers, keeps the finished takes, removes the
     unfinished ones and writes the report before re-raising.
