@@ -28,7 +28,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "content": ("assets", "metrics", "preview", "offscreen"),
     "solvers": ("solve", "drivers", "tracking", "rigging"),
     "io": ("usd",),
-    "apps": ("pipelines", "demo", "commands", "cli"),
+    "apps": ("pipelines", "demo", "commands", "batch", "cli"),
 }
 """Every top-level part of ``warpface`` by layer (``docs/ARCHITECTURE.md`` shows the same table)."""
 

@@ -1,5 +1,6 @@
 """The ``warpface`` command line: one sub-command per module of :mod:`warpface.commands` (``demo``, ``rig``,
-``bake``, ``preview``, ``validate``, ``track``, ``animate``, ``fit``, ``presets``).
+``bake``, ``preview``, ``validate``, ``track``, ``animate``, ``fit``, ``presets``), and ``batch``
+(:mod:`warpface.batch.command`: it runs the others, so it lives with :mod:`warpface.batch`).
 
 Warp is initialised quietly (:func:`warpface.init_runtime`) before a command runs. Every sub-command has
 ``--help``; ``--device`` and ``--quiet`` work before or after the command. Any
@@ -17,6 +18,7 @@ import os
 import sys
 
 from . import __version__, init_runtime
+from .batch import command as batch_command
 from .commands import COMMANDS
 from .commands.common import check_device, one_line
 from .errors import CameraError
@@ -57,6 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     common = _common_options(False)
     for name in COMMANDS:
         importlib.import_module(f"{__package__}.commands.{name}").add_parser(commands, common)
+    batch_command.add_parser(commands, common)
     return parser
 
 
