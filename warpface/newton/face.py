@@ -138,7 +138,9 @@ def _as_rig_and_tissue(rig_or_stage, tissue, skin_path):
         from_stage = open_stage(rig_or_stage)
         rig = read_rig(from_stage, skin_path=skin_path)
     else:
-        raise TypeError(f"add_face: rig_or_stage must be a FaceRig, a Usd.Stage or a file, got {type(rig_or_stage).__name__}")
+        raise TypeError(
+            f"add_face: rig_or_stage must be a FaceRig, a Usd.Stage or a file, got {type(rig_or_stage).__name__}"
+        )
     if tissue is None:
         if from_stage is None:
             raise ValueError(f"add_face: rig {rig.name!r} has no tissue; pass tissue=(TetMesh, TissueMaterial)")

@@ -34,7 +34,15 @@ from .asset_io import NORMAL_PROPERTIES, SkinNormals, shells_of
 from .rig_io import SHAPE_VARIANT_SET, read_rig, rig_prims, stage_meters_per_unit
 from .schema import ensure_schema
 
-__all__ = ["bake", "check_bake", "write_point_cache", "check_cache_path", "default_cache_path", "existing_cache_path", "CACHE_SUFFIX"]
+__all__ = [
+    "bake",
+    "check_bake",
+    "write_point_cache",
+    "check_cache_path",
+    "default_cache_path",
+    "existing_cache_path",
+    "CACHE_SUFFIX",
+]
 
 MAX_REACH = 10.0
 """A bake refuses a frame whose skin leaves the rest shape's bounding box by more than this many times
@@ -256,7 +264,9 @@ def write_point_cache(
     count = len(skin.GetAttribute(UsdGeom.Tokens.points).Get(Usd.TimeCode.Default()) or ())
     points = np.asarray(positions, dtype=np.float32)
     if len(times) == 0 or points.shape != (len(times), count, 3):
-        raise ValueError(f"positions must have shape ({len(times)}, {count}, 3) for {skin.GetPath()}, got {points.shape}")
+        raise ValueError(
+            f"positions must have shape ({len(times)}, {count}, 3) for {skin.GetPath()}, got {points.shape}"
+        )
     if not np.isfinite(points).all():
         raise ValueError(f"positions: frame {int(np.argmin(np.isfinite(points).all(axis=(1, 2))))} is not finite")
     if cache_path is None:
