@@ -10,27 +10,34 @@ import numpy as np
 import warp as wp
 
 from warpface.assets import default_rig
-from warpface.fem import kato_uniform_material
+from warpface.fem import TissueMaterial, kato_uniform_material
 from warpface.fem.volume import mesh_tissue
 
-MIN_THICKNESS = 0.004
-"""Thinner tissue than this [m] is meshed at this thickness (the built-in face's lids and lips are thinner)."""
+MIN_THICKNESS = {"kato": 0.004, "fat": 0.008}
+"""Thinner tissue than this [m] is meshed at this thickness (the built-in face's lids and lips are thinner); the
+soft "fat" layer is thicker, as the cheeks' fat pads are."""
+
+FAT = TissueMaterial(E=3.0e3, nu=0.45, eta=2.0, rho=1000.0)
+"""Subcutaneous fat (E of a few kPa, lightly damped): Kato's skin-like tissue (E = 192 kPa, eta = 477 Pa s) on a
+4 mm layer moves by microns under a head's accelerations; a fat layer jiggles visibly."""
 
 
-def face_stage(out: Path, nodes: int) -> tuple[Path, object]:
-    """Write the built-in face's rig with a tissue of about ``nodes`` nodes to ``out/face.usda``; returns the stage
-    path and the rig."""
+def face_stage(out: Path, nodes: int, material: str = "fat") -> tuple[Path, object]:
+    """Write the built-in face's rig with a tissue of about ``nodes`` nodes (``material`` "fat" or "kato") to
+    ``out/face.usda``; returns the stage path and the rig."""
     from warpface.usd import write_rig, write_tissue_mesh
 
     out.mkdir(parents=True, exist_ok=True)
     rig = default_rig()
     start = time.perf_counter()
-    meshing = mesh_tissue(rig.mesh, np.maximum(rig.thickness, MIN_THICKNESS), target_nodes=nodes, device="cpu")
+    thickness = np.maximum(rig.thickness, MIN_THICKNESS[material])
+    meshing = mesh_tissue(rig.mesh, thickness, target_nodes=nodes, device="cpu")
     print(f"tissue: {meshing.tetmesh} ({time.perf_counter() - start:.1f} s)")
     path = out / "face.usda"
     stage = write_rig(path, rig)
     skin = next(p for p in stage.Traverse() if p.GetTypeName() == "Mesh")
-    write_tissue_mesh(stage, "/Tissue", meshing.tetmesh, kato_uniform_material(), skin_path=str(skin.GetPath()))
+    tissue = FAT if material == "fat" else kato_uniform_material()
+    write_tissue_mesh(stage, "/Tissue", meshing.tetmesh, tissue, skin_path=str(skin.GetPath()))
     stage.GetRootLayer().Save()
     return path, rig
 

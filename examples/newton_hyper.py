@@ -29,10 +29,11 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, default=Path("out/newton_hyper"))
     parser.add_argument("--nodes", type=int, default=600, help="tissue nodes (coarse: fast on a CPU)")
+    parser.add_argument("--material", choices=("fat", "kato"), default="fat", help="soft fat or Kato's tissue")
     parser.add_argument("--g", type=float, default=3.0, help="gravity of the replay, in multiples of 1 g")
     args = parser.parse_args(argv)
     wp.config.quiet = True
-    stage_path, rig = face_stage(args.out, args.nodes)
+    stage_path, rig = face_stage(args.out, args.nodes, args.material)
     take = live_link_take(args.out / "take.csv")
     captured, _ = play_take(stage_path, rig, take, at_rest, dt=DT, fps=FPS)
     hyper, _ = play_take(stage_path, rig, take, at_rest, dt=DT, fps=FPS, gravity=args.g * EARTH)

@@ -40,9 +40,10 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, default=Path("out/newton_shake"))
     parser.add_argument("--nodes", type=int, default=600, help="tissue nodes (coarse: fast on a CPU)")
+    parser.add_argument("--material", choices=("fat", "kato"), default="fat", help="soft fat or Kato's tissue")
     args = parser.parse_args(argv)
     wp.config.quiet = True
-    stage_path, rig = face_stage(args.out, args.nodes)
+    stage_path, rig = face_stage(args.out, args.nodes, args.material)
     take = live_link_take(args.out / "take.csv")
     recorder, _ = play_take(stage_path, rig, take, head_pose, dt=DT, fps=FPS)
     riding, _ = play_take(stage_path, rig, take, head_pose, dt=DT, fps=FPS, inertia=False)  # no jiggle

@@ -184,18 +184,14 @@ class SolverFace(newton.solvers.SolverBase):
             )
             self._rest_gravity_auto = True
         motion = head_motion(self.model, state_in, state_out, face.head_body, dt)
-        d0, v0, _ = self._tissue()
-        force = None
-        if self.inertia:
-            b = body_force(motion, self.gravity, self._rest_gravity, self._rest + d0, v0)
-            if np.any(b):
-                force = (self._mass @ b.ravel())[self._free_dofs]
+        force = self._body_force(motion) if self.inertia else None
         sim.step(self._driven_displacements(control))
-        d, _, _ = self._tissue()
-        correction = np.zeros(self._free_dofs.size) if force is None else self._solve(force)
+        correction = None if force is None else self._solve(force)
         if contacts is not None:
-            correction += self._contact_correction(contacts, state_out, motion, d, correction)
-        if np.any(correction):
+            extra = self._contact_correction(contacts, state_out, motion, correction)
+            if extra is not None:
+                correction = extra if correction is None else correction + extra
+        if correction is not None and np.any(correction):
             if not np.all(np.isfinite(correction)):
                 raise FloatingPointError("SolverFace: the body or contact force gave non-finite displacements")
             self._apply(correction)
@@ -268,14 +264,27 @@ class SolverFace(newton.solvers.SolverBase):
             self._last_controls = values
         return self._driven
 
-    def _contact_correction(self, contacts, state_out, motion: HeadMotion, d, correction) -> np.ndarray:
+    def _body_force(self, motion: HeadMotion) -> np.ndarray | None:
+        """The free rows of ``f = M b`` (3F,) at the start of the step, or None when the head feels nothing (the
+        tissue's state is read only then: on a device that is a copy)."""
+        still = not (np.any(motion.angular_velocity) or np.any(motion.angular_acceleration))
+        uniform = motion.rotation.T @ (self.gravity - motion.acceleration) - self._rest_gravity
+        if still and not np.any(uniform):
+            return None
+        d, v, _ = self._tissue() if not still else (0.0, 0.0, None)
+        b = body_force(motion, self.gravity, self._rest_gravity, self._rest + d, np.broadcast_to(v, self._rest.shape))
+        return (self._mass @ b.ravel())[self._free_dofs]
+
+    def _contact_correction(self, contacts, state_out, motion: HeadMotion, correction) -> np.ndarray | None:
+        """The contact forces' displacement correction (3F,) on top of ``correction`` (or None: no contact)."""
         face = self.face
         found = gather_contacts(self.model, contacts, state_out, face.particle_start, self._contact_mask, motion)
         if not found.nodes.size:
             self.contact_report = ContactReport()
-            return np.zeros_like(correction)
-        moved = d.copy()
-        moved[self.simulation.free_nodes] += correction.reshape(-1, 3)
+            return None
+        moved = self._tissue()[0].copy()
+        if correction is not None:
+            moved[self.simulation.free_nodes] += correction.reshape(-1, 3)
         lam, extra, _ = solve_contacts(found, self._rest, moved, face.contact_radius, self._free_index, self._solve)
         full = np.zeros_like(moved)
         full[self.simulation.free_nodes] = extra.reshape(-1, 3)
