@@ -14,10 +14,12 @@ Rows:
   uniform 2 g body load (the head's extra gravity in a "hyper" replay), each stepped for the same simulated
   time with its own time step; "error" is the largest distance of a node from the static reference solution
   ``K_oo d = (M 1⊗b)_o`` (float64 SciPy solve of warpface's assembly) over the reference's largest displacement,
-  averaged over the last 10 % of the steps. Newton's tets are Neo-Hookean: at these strains (< 1e-3) the
-  linear reference is theirs too.
+  averaged over the last 10 % of the steps (a run stops at ``--max-steps``: "sim s" says how far it got).
+  Newton's tets are Neo-Hookean: at these strains (< 1e-3) the linear reference is theirs too. Newton's
+  semi-implicit solver diverges at dt = 2e-5 s on these nearly incompressible tets (nu = 0.495), so it runs at
+  5e-6 s; its particles get a 0.1 mm radius (Newton's default 0.1 m makes neighbouring nodes repel).
 
-    python -m benchmarks.newton [--cells 16] [--seconds 0.1] [--device cpu|cuda:0] [--quick]
+    python -m benchmarks.newton [--cells 16] [--seconds 0.1] [--max-steps 4000] [--device cpu|cuda:0] [--quick]
 """
 
 from __future__ import annotations
@@ -123,13 +125,17 @@ def _loaded_newton(tetmesh, material, fixed, device):
         k_mu=mu,
         k_lambda=lam,
         k_damp=fields["eta"],
+        particle_radius=1.0e-4,  # Newton's default radius (0.1 m) would make every node collide with its neighbours
     )
     for node in fixed:
         builder.particle_mass[node] = 0.0
+    builder.color()  # VBD solves per graph colour
     return builder.finalize(device=device)
 
 
-def accuracy_rows(tetmesh, material, fixed, device, seconds: float, reference: np.ndarray) -> list[dict]:
+def accuracy_rows(
+    tetmesh, material, fixed, device, seconds: float, reference: np.ndarray, max_steps: int
+) -> list[dict]:
     import newton
 
     from warpface.newton import SolverFace
@@ -141,7 +147,7 @@ def accuracy_rows(tetmesh, material, fixed, device, seconds: float, reference: n
         solver = make_solver(model)
         s0, s1, control = model.state(), model.state(), model.control()
         contacts = model.contacts() if collide else None
-        steps = max(1, int(round(seconds / dt)))
+        steps = max(1, min(int(round(seconds / dt)), max_steps))
         errors = []
         start = time.perf_counter()
         for k in range(steps):
@@ -158,6 +164,7 @@ def accuracy_rows(tetmesh, material, fixed, device, seconds: float, reference: n
                 "row": name,
                 "dt": dt,
                 "steps": steps,
+                "simulated": steps * dt,
                 "ms": 1e3 * elapsed / steps,
                 "total": elapsed,
                 "error": np.mean(errors),
@@ -173,7 +180,7 @@ def accuracy_rows(tetmesh, material, fixed, device, seconds: float, reference: n
     run(
         "SolverFace 2 g load",
         model,
-        lambda m: SolverFace(m, face, gravity=LOAD, rest_gravity=(0.0, 0.0, 0.0)),
+        lambda m: SolverFace(m, face, dt=1.0e-3, gravity=LOAD, rest_gravity=(0.0, 0.0, 0.0)),
         1.0e-3,
         face_positions,
     )
@@ -185,7 +192,7 @@ def accuracy_rows(tetmesh, material, fixed, device, seconds: float, reference: n
     for name, make, dt in (
         ("Newton SolverVBD (10 it)", lambda m: newton.solvers.SolverVBD(m, iterations=10), 1.0e-3),
         ("Newton SolverXPBD (10 it)", lambda m: newton.solvers.SolverXPBD(m, iterations=10), 1.0e-3),
-        ("Newton SolverSemiImplicit", lambda m: newton.solvers.SolverSemiImplicit(m), 2.0e-5),
+        ("Newton SolverSemiImplicit", lambda m: newton.solvers.SolverSemiImplicit(m), 5.0e-6),  # 2e-5 diverges
     ):
         try:
             run(name, newton_model, make, dt, own_positions)
@@ -202,11 +209,12 @@ def main(argv=None) -> None:
     parser.add_argument("--cells", type=int, default=16, help="shell cells per side (3 layers)")
     parser.add_argument("--seconds", type=float, default=0.1, help="simulated time of the accuracy runs [s]")
     parser.add_argument("--steps", type=int, default=200, help="timed steps of the overhead rows")
+    parser.add_argument("--max-steps", type=int, default=4000, help="cap on any accuracy run's steps")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--quick", action="store_true", help="a small shell, short runs")
     args = parser.parse_args(argv)
     if args.quick:
-        args.cells, args.seconds, args.steps = 8, 0.03, 50
+        args.cells, args.seconds, args.steps, args.max_steps = 8, 0.01, 50, 2000
     wp.config.quiet = True
     tetmesh, material, fixed = shell(args.cells)
     print(f"tissue: {tetmesh}, {fixed.size} fixed nodes, device {args.device}")
@@ -214,13 +222,14 @@ def main(argv=None) -> None:
     print_table(overhead, [("row", "row", "s"), ("ms", "ms/step", ".3f"), ("ratio", "× standalone", ".3f")])
     reference = static_reference(tetmesh, material, fixed)
     print(f"\nstatic reference: largest displacement {1e6 * np.abs(reference).max():.2f} µm under 2 g")
-    accuracy = accuracy_rows(tetmesh, material, fixed, args.device, args.seconds, reference)
+    accuracy = accuracy_rows(tetmesh, material, fixed, args.device, args.seconds, reference, args.max_steps)
     print_table(
         accuracy,
         [
             ("row", "row", "s"),
             ("dt", "dt s", ".0e"),
             ("steps", "steps", "d"),
+            ("simulated", "sim s", ".3f"),
             ("ms", "ms/step", ".3f"),
             ("total", "total s", ".2f"),
             ("ratio", "× SolverFace time", ".2f"),

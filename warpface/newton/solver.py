@@ -127,6 +127,7 @@ class SolverFace(newton.solvers.SolverBase):
         self._last_controls = None
         self._driven = np.zeros((face.driven_nodes.size, 3))
         self._skin_rest = np.asarray(face.rig.mesh.points, dtype=np.float64)
+        self._launches: dict = {}
         if dt is not None:
             self._build(dt)
 
@@ -225,6 +226,7 @@ class SolverFace(newton.solvers.SolverBase):
             self._solve = factorize_spd(A).solve
         self.simulation = sim
         self._last_controls = None
+        self._launches.clear()
         return sim
 
     def _tissue(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -302,30 +304,39 @@ class SolverFace(newton.solvers.SolverBase):
         return scale * extra
 
     def _write_particles(self, state, motion: HeadMotion) -> None:
+        """Launch :func:`_place_nodes` into ``state`` (the launch recorded once per pair of state arrays)."""
         sim, face = self.simulation, self.face
-        n = face.node_count
         device = self.model.device
         if sim is None:
-            d = v = wp.zeros(n, dtype=wp.vec3d, device=device)
+            d = v = wp.zeros(face.node_count, dtype=wp.vec3d, device=device)
         else:
             d, v = sim.state.d, sim.state.v
-            if d.dtype != wp.vec3d or d.device != device:
+            if d.dtype != wp.vec3d or d.device != device:  # a float32 CG state: a float64 copy for the kernel
                 host = sim.state.numpy()
                 d = wp.array(host[0], dtype=wp.vec3d, device=device)
                 v = wp.array(host[1], dtype=wp.vec3d, device=device)
+        key = (state.particle_q.ptr, d.ptr, v.ptr)
+        launch = self._launches.get(key)
+        if launch is None:
+            attrs = _namespace(state)
+            displacement = getattr(attrs, "displacement", None) if attrs is not None else None
+            if displacement is None:
+                displacement = wp.zeros(0, dtype=wp.vec3, device=device)
+            launch = wp.launch(
+                _place_nodes,
+                dim=face.node_count,
+                inputs=[self._rest_wp, d, v, wp.transformd(), wp.vec3d(), wp.vec3d(), face.particle_start],
+                outputs=[state.particle_q, state.particle_qd, displacement],
+                device=device,
+                record_cmd=True,
+            )
+            if sim is not None and d is sim.state.d:
+                self._launches[key] = launch
         quat = _rotation_quat(motion.rotation)
-        head = wp.transformd(wp.vec3d(*motion.position), wp.quatd(*quat))
-        attrs = _namespace(state)
-        displacement = getattr(attrs, "displacement", None) if attrs is not None else None
-        if displacement is None:
-            displacement = wp.zeros(0, dtype=wp.vec3, device=device)
-        wp.launch(
-            _place_nodes,
-            dim=n,
-            inputs=[self._rest_wp, d, v, head, wp.vec3d(*motion.velocity), wp.vec3d(*motion.angular_velocity)],
-            outputs=[face.particle_start, state.particle_q, state.particle_qd, displacement],
-            device=device,
-        )
+        launch.set_param_by_name("head", wp.transformd(wp.vec3d(*motion.position), wp.quatd(*quat)))
+        launch.set_param_by_name("origin_velocity", wp.vec3d(*motion.velocity))
+        launch.set_param_by_name("omega", wp.vec3d(*motion.angular_velocity))
+        launch.launch()
 
 
 def _rotation_quat(R: np.ndarray) -> tuple[float, float, float, float]:
