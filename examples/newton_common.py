@@ -42,6 +42,21 @@ def face_stage(out: Path, nodes: int, material: str = "fat") -> tuple[Path, obje
     return path, rig
 
 
+def arguments(argv, doc: str, name: str, extra=None):
+    """The examples' command line (``--out``, ``--nodes``, ``--material`` and ``extra(parser)``'s options), parsed;
+    also quiets Warp."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", type=Path, default=Path("out") / name)
+    parser.add_argument("--nodes", type=int, default=600, help="tissue nodes (coarse: fast on a CPU)")
+    parser.add_argument("--material", choices=("fat", "kato"), default="fat", help="soft fat or Kato's tissue")
+    if extra is not None:
+        extra(parser)
+    wp.config.quiet = True
+    return parser.parse_args(argv)
+
+
 def set_body(state, body: int, position, velocity, rotation=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0)) -> None:
     """Write a prescribed pose (quaternion x, y, z, w) and twist of ``body`` (COM at its origin) into ``state``."""
     q, qd = state.body_q.numpy(), state.body_qd.numpy()

@@ -10,12 +10,8 @@ sag by the extra 2 g. Writes ``out/newton_hyper/face.usda`` with the 3 g skin's 
 
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
-
 import numpy as np
-import warp as wp
-from newton_common import face_stage, finish, live_link_take, play_take
+from newton_common import arguments, face_stage, finish, live_link_take, play_take
 
 DT, FPS, EARTH = 2.0e-3, 30.0, np.array([0.0, -9.81, 0.0])
 
@@ -26,13 +22,9 @@ def at_rest(t: float):
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=Path("out/newton_hyper"))
-    parser.add_argument("--nodes", type=int, default=600, help="tissue nodes (coarse: fast on a CPU)")
-    parser.add_argument("--material", choices=("fat", "kato"), default="fat", help="soft fat or Kato's tissue")
-    parser.add_argument("--g", type=float, default=3.0, help="gravity of the replay, in multiples of 1 g")
-    args = parser.parse_args(argv)
-    wp.config.quiet = True
+    args = arguments(
+        argv, __doc__, "newton_hyper", lambda p: p.add_argument("--g", type=float, default=3.0, help="gravity, in g")
+    )
     stage_path, rig = face_stage(args.out, args.nodes, args.material)
     take = live_link_take(args.out / "take.csv")
     captured, _ = play_take(stage_path, rig, take, at_rest, dt=DT, fps=FPS)

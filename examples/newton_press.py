@@ -10,13 +10,10 @@ normal, presses 3 mm into the skin, holds, and leaves. Newton's CollisionPipelin
 
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
-
 import newton
 import numpy as np
 import warp as wp
-from newton_common import face_stage, finish, head_world, set_body
+from newton_common import arguments, face_stage, finish, head_world, set_body
 
 from warpface.newton import SkinRecorder, SolverFace, add_face
 
@@ -30,12 +27,7 @@ def depth_at(t: float) -> float:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=Path("out/newton_press"))
-    parser.add_argument("--nodes", type=int, default=600, help="tissue nodes (coarse: fast on a CPU)")
-    parser.add_argument("--material", choices=("fat", "kato"), default="fat", help="soft fat or Kato's tissue")
-    args = parser.parse_args(argv)
-    wp.config.quiet = True
+    args = arguments(argv, __doc__, "newton_press")
     stage_path, rig = face_stage(args.out, args.nodes, args.material)
 
     builder, head = head_world(newton.ModelBuilder)

@@ -11,12 +11,9 @@ Writes ``out/newton_shake/face.usda`` with the skin's point cache (head frame: t
 
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
-
 import numpy as np
 import warp as wp
-from newton_common import face_stage, finish, live_link_take, play_take, quat_about
+from newton_common import arguments, face_stage, finish, live_link_take, play_take, quat_about
 
 DT, FPS = 2.0e-3, 30.0
 SHAKE_HZ, YAW, NOD, BOB = 3.0, np.radians(12.0), np.radians(4.0), 0.01
@@ -37,12 +34,7 @@ def head_pose(t: float):
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=Path("out/newton_shake"))
-    parser.add_argument("--nodes", type=int, default=600, help="tissue nodes (coarse: fast on a CPU)")
-    parser.add_argument("--material", choices=("fat", "kato"), default="fat", help="soft fat or Kato's tissue")
-    args = parser.parse_args(argv)
-    wp.config.quiet = True
+    args = arguments(argv, __doc__, "newton_shake")
     stage_path, rig = face_stage(args.out, args.nodes, args.material)
     take = live_link_take(args.out / "take.csv")
     recorder, _ = play_take(stage_path, rig, take, head_pose, dt=DT, fps=FPS)

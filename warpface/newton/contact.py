@@ -21,9 +21,6 @@ from ..fem.tetmesh import tet_signed_volumes
 
 __all__ = ["MIN_VOLUME_FRACTION", "ContactReport", "ContactSet", "gather_contacts", "solve_contacts"]
 
-MIN_VOLUME_FRACTION = 0.05
-"""A contact may squash a tet to this fraction of its rest volume, no further (0 would be inversion)."""
-
 
 @dataclass(frozen=True)
 class ContactSet:
@@ -54,6 +51,10 @@ class ContactReport:
     def clamped(self) -> bool:
         """True when the contact forces were scaled back (a tet would have been squashed or inverted)."""
         return self.scale < 1.0
+
+
+MIN_VOLUME_FRACTION = 0.05
+"""A contact may squash a tet to this fraction of its rest volume, no further (0 would be inversion)."""
 
 
 def gather_contacts(model, contacts, state_out, particle_start: int, contact_mask: np.ndarray, motion) -> ContactSet:

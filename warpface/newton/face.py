@@ -117,14 +117,9 @@ class NewtonFace:
     """Particle radius of the face's nodes [m] (Newton's soft-contact distance)."""
 
     @property
-    def node_count(self) -> int:
-        """Tissue nodes N."""
-        return self.tetmesh.node_count
-
-    @property
     def particles(self) -> np.ndarray:
         """Newton particle indices of the tissue nodes, shape (N,), int64."""
-        return self.particle_start + np.arange(self.node_count, dtype=np.int64)
+        return self.particle_start + np.arange(self.tetmesh.node_count, dtype=np.int64)
 
 
 def _as_rig_and_tissue(rig_or_stage, tissue, skin_path):

@@ -24,33 +24,46 @@ from .frame import HeadMotion, body_force, head_motion
 __all__ = ["SolverFace"]
 
 
-@wp.kernel
-def _place_nodes(
-    rest: wp.array(dtype=wp.vec3d),
-    d: wp.array(dtype=wp.vec3d),
-    v: wp.array(dtype=wp.vec3d),
-    head: wp.transformd,
-    origin_velocity: wp.vec3d,
-    omega: wp.vec3d,
-    start: int,
-    particle_q: wp.array(dtype=wp.vec3),
-    particle_qd: wp.array(dtype=wp.vec3),
-    displacement: wp.array(dtype=wp.vec3),
-):
-    """World position and velocity of each tissue node: ``x = p + R (X + d)``, ``ẋ = v_O + ω × R (X + d) + R ḋ``."""
-    i = wp.tid()
-    arm = wp.transform_vector(head, rest[i] + d[i])
-    x = wp.transform_get_translation(head) + arm
-    xd = origin_velocity + wp.cross(omega, arm) + wp.transform_vector(head, v[i])
-    particle_q[start + i] = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
-    particle_qd[start + i] = wp.vec3(wp.float32(xd[0]), wp.float32(xd[1]), wp.float32(xd[2]))
-    if displacement.shape[0] > 0:
-        displacement[start + i] = wp.vec3(wp.float32(d[i][0]), wp.float32(d[i][1]), wp.float32(d[i][2]))
+@wp.struct
+class _Frame:
+    """The head frame at the end of a step: pose, origin velocity [m/s] and angular velocity [rad/s] (world)."""
+
+    head: wp.transformd
+    origin_velocity: wp.vec3d
+    omega: wp.vec3d
 
 
 def _model_gravity(model) -> np.ndarray:
     gravity = np.asarray(model.gravity.numpy(), dtype=np.float64).reshape(-1, 3)
     return gravity[0]
+
+
+@wp.struct
+class _Nodes:
+    """The tissue in the head frame (rest positions, displacement [m], velocity [m/s]) and its first particle."""
+
+    rest: wp.array(dtype=wp.vec3d)
+    d: wp.array(dtype=wp.vec3d)
+    v: wp.array(dtype=wp.vec3d)
+    start: int
+
+
+@wp.kernel
+def _place_nodes(
+    frame: _Frame, nodes: _Nodes, q: wp.array(dtype=wp.vec3), qd: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)
+):
+    """World position ``q`` and velocity ``qd`` of each tissue node: ``x = p + R (X + d)``, ``ẋ = v_O + ω × R (X + d)
+    + R ḋ``; ``out`` the ``warpface:displacement`` state attribute (empty when the state has none)."""
+    i = wp.tid()
+    arm = wp.transform_vector(frame.head, nodes.rest[i] + nodes.d[i])
+    x = wp.transform_get_translation(frame.head) + arm
+    xd = frame.origin_velocity + wp.cross(frame.omega, arm) + wp.transform_vector(frame.head, nodes.v[i])
+    j = nodes.start + i
+    q[j] = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
+    qd[j] = wp.vec3(wp.float32(xd[0]), wp.float32(xd[1]), wp.float32(xd[2]))
+    if out.shape[0] > 0:
+        d = nodes.d[i]
+        out[j] = wp.vec3(wp.float32(d[0]), wp.float32(d[1]), wp.float32(d[2]))
 
 
 def _namespace(obj):
@@ -118,7 +131,7 @@ class SolverFace(newton.solvers.SolverBase):
         """What the last step did with its contacts (:class:`~warpface.newton.contact.ContactReport`)."""
         self.clamped_steps = 0
         """Steps whose contact forces were scaled back to keep every tet upright."""
-        n = face.node_count
+        n = face.tetmesh.node_count
         self._rest = np.ascontiguousarray(face.tetmesh.points, dtype=np.float64)
         self._rest_wp = wp.array(self._rest, dtype=wp.vec3d, device=model.device)
         self._contact_mask = np.zeros(n, dtype=bool)
@@ -128,6 +141,7 @@ class SolverFace(newton.solvers.SolverBase):
         self._driven = np.zeros((face.driven_nodes.size, 3))
         self._skin_rest = np.asarray(face.rig.mesh.points, dtype=np.float64)
         self._launches: dict = {}
+        self._launch_pose: dict = {}
         if dt is not None:
             self._build(dt)
 
@@ -216,7 +230,7 @@ class SolverFace(newton.solvers.SolverBase):
         K, M, C = sim.matrices.to_scipy()
         self._mass = M.tocsr()
         self._free_dofs = node_dofs(sim.free_nodes)
-        self._free_index = np.full(face.node_count, -1, dtype=np.int64)
+        self._free_index = np.full(face.tetmesh.node_count, -1, dtype=np.int64)
         self._free_index[sim.free_nodes] = np.arange(sim.free_nodes.size)
         if sim.solver_kind == "direct":
             self._solve = sim.solver.solve
@@ -227,6 +241,7 @@ class SolverFace(newton.solvers.SolverBase):
         self.simulation = sim
         self._last_controls = None
         self._launches.clear()
+        self._launch_pose.clear()
         return sim
 
     def _tissue(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -308,7 +323,7 @@ class SolverFace(newton.solvers.SolverBase):
         sim, face = self.simulation, self.face
         device = self.model.device
         if sim is None:
-            d = v = wp.zeros(face.node_count, dtype=wp.vec3d, device=device)
+            d = v = wp.zeros(face.tetmesh.node_count, dtype=wp.vec3d, device=device)
         else:
             d, v = sim.state.d, sim.state.v
             if d.dtype != wp.vec3d or d.device != device:  # a float32 CG state: a float64 copy for the kernel
@@ -319,23 +334,28 @@ class SolverFace(newton.solvers.SolverBase):
         launch = self._launches.get(key)
         if launch is None:
             attrs = _namespace(state)
-            displacement = getattr(attrs, "displacement", None) if attrs is not None else None
-            if displacement is None:
-                displacement = wp.zeros(0, dtype=wp.vec3, device=device)
+            nodes = _Nodes()
+            nodes.rest, nodes.d, nodes.v, nodes.start = self._rest_wp, d, v, face.particle_start
+            out = getattr(attrs, "displacement", None) if attrs is not None else None
+            out = wp.zeros(0, dtype=wp.vec3, device=device) if out is None else out
             launch = wp.launch(
                 _place_nodes,
-                dim=face.node_count,
-                inputs=[self._rest_wp, d, v, wp.transformd(), wp.vec3d(), wp.vec3d(), face.particle_start],
-                outputs=[state.particle_q, state.particle_qd, displacement],
+                dim=face.tetmesh.node_count,
+                inputs=[_Frame(), nodes, state.particle_q, state.particle_qd, out],
                 device=device,
                 record_cmd=True,
             )
             if sim is not None and d is sim.state.d:
                 self._launches[key] = launch
-        quat = _rotation_quat(motion.rotation)
-        launch.set_param_by_name("head", wp.transformd(wp.vec3d(*motion.position), wp.quatd(*quat)))
-        launch.set_param_by_name("origin_velocity", wp.vec3d(*motion.velocity))
-        launch.set_param_by_name("omega", wp.vec3d(*motion.angular_velocity))
+        pose = (motion.position.tobytes(), motion.rotation.tobytes(), motion.velocity.tobytes())
+        pose += (motion.angular_velocity.tobytes(),)
+        if self._launch_pose.get(key) != pose:  # a still head (the world) keeps the recorded frame
+            frame = _Frame()
+            frame.head = wp.transformd(wp.vec3d(*motion.position), wp.quatd(*_rotation_quat(motion.rotation)))
+            frame.origin_velocity = wp.vec3d(*motion.velocity)
+            frame.omega = wp.vec3d(*motion.angular_velocity)
+            launch.set_param_by_name("frame", frame)
+            self._launch_pose[key] = pose
         launch.launch()
 
 
@@ -370,7 +390,7 @@ def _check_model(model, face: NewtonFace) -> None:
     role = getattr(attrs, "node_role", None) if attrs is not None else None
     if role is None:
         raise ValueError("SolverFace: the model was not built with warpface.newton.add_face (no warpface:node_role)")
-    n, start = face.node_count, face.particle_start
+    n, start = face.tetmesh.node_count, face.particle_start
     roles = role.numpy()
     if start + n > roles.shape[0]:
         raise ValueError(f"SolverFace: the model has {roles.shape[0]} particles, the face needs {start + n}")
