@@ -172,3 +172,32 @@ def test_a_rig_stage_with_tissue_loads_into_newton_and_records_a_point_cache(she
     moved = np.abs(recorder.frames[-1] - rig.mesh.points).max()
     assert moved > 1e-5
     assert read_rig(reopened).mesh.vertex_count == rig.mesh.vertex_count
+
+
+def test_reset_and_a_changed_material(shell):
+    """reset puts the tissue back at rest at the state's head pose; notify_model_changed(MODEL_PROPERTIES) picks
+    up the model's warpface:youngs_modulus and rebuilds the FEM with it."""
+    rig, tetmesh, fixed, _ = shell
+    builder = newton.ModelBuilder()
+    face = add_face(builder, rig, tissue=(tetmesh, MATERIAL), fixed=fixed)
+    model = builder.finalize(device="cpu")
+    solver = SolverFace(model, face, dt=1e-3)
+    state_in, state_out, control = model.state(), model.state(), model.control()
+    control.warpface.activation.assign(np.array([0.02], dtype=np.float32))
+    for _ in range(5):
+        solver.step(state_in, state_out, control, None, 1e-3)
+        state_in, state_out = state_out, state_in
+    assert np.abs(solver.simulation.d).max() > 1e-5
+    solver.reset(state_in)
+    assert np.abs(solver.simulation.d).max() == 0.0
+    assert np.allclose(state_in.particle_q.numpy()[face.particles], tetmesh.points, atol=1e-7)
+
+    before = solver.simulation
+    stiffer = model.warpface.youngs_modulus.numpy()
+    stiffer[face.tet_start : face.tet_start + tetmesh.tet_count] *= 2.0
+    model.warpface.youngs_modulus.assign(stiffer)
+    solver.notify_model_changed(newton.ModelFlags.MODEL_PROPERTIES)
+    assert solver.simulation is not before
+    assert np.allclose(solver.material.E, 2.0 * MATERIAL.E, rtol=1e-6)
+    solver.notify_model_changed(newton.ModelFlags.SHAPE_PROPERTIES)  # nothing of the face's: nothing rebuilt
+    assert solver.material.E.shape == (tetmesh.tet_count,)

@@ -116,6 +116,8 @@ class SolverFace(newton.solvers.SolverBase):
         _check_model(model, face)
         self.face = face
         """The face."""
+        self.material = face.material
+        """The tissue's material (the model's ``warpface:*`` per-tet values after :meth:`notify_model_changed`)."""
         self._options = dict(formulation=formulation, solver=solver, beta=beta, gamma=gamma, cg=cg)
         self._gravity_override = None if gravity is None else _vector(gravity, "gravity")
         self._rest_gravity = None if rest_gravity is None else _vector(rest_gravity, "rest_gravity")
@@ -161,10 +163,9 @@ class SolverFace(newton.solvers.SolverBase):
         attrs, face = _namespace(self.model), self.face
         tets = slice(face.tet_start, face.tet_start + face.tetmesh.tet_count)
         E, nu, eta = (getattr(attrs, name).numpy()[tets] for name in ("youngs_modulus", "poisson_ratio", "viscosity"))
-        old = face.material.per_tet(face.tetmesh.tet_count)
+        old = self.material.per_tet(face.tetmesh.tet_count)
         if not np.allclose([E, nu, eta], [old["E"], old["nu"], old["eta"]], rtol=1e-6):
-            material = TissueMaterial(E, nu, eta, old["rho"], damping=face.material.damping)
-            object.__setattr__(face, "material", material)
+            self.material = TissueMaterial(E, nu, eta, old["rho"], damping=self.material.damping)
             dt = None if self.simulation is None else self.simulation.dt
             self.simulation = None
             if dt is not None:
@@ -220,7 +221,7 @@ class SolverFace(newton.solvers.SolverBase):
         face = self.face
         sim = TissueSimulation(
             face.tetmesh,
-            face.material,
+            self.material,
             dt,
             fixed=face.fixed_nodes,
             driven=face.driven_nodes,
@@ -234,10 +235,18 @@ class SolverFace(newton.solvers.SolverBase):
         self._free_index[sim.free_nodes] = np.arange(sim.free_nodes.size)
         if sim.solver_kind == "direct":
             self._solve = sim.solver.solve
-        else:  # the CG solver keeps A_oo on the device: the (rare) force corrections use a host factor
+        else:  # the CG solver keeps A_oo on the device: force corrections use a host factor, made when first needed
             c = sim.coefficients
-            A = (K + c.mass_displacement * M + c.damping_displacement * C).tocsr()[self._free_dofs][:, self._free_dofs]
-            self._solve = factorize_spd(A).solve
+            dofs = self._free_dofs
+            factor = []
+
+            def solve(rhs):
+                if not factor:
+                    A = (K + c.mass_displacement * M + c.damping_displacement * C).tocsr()[dofs][:, dofs]
+                    factor.append(factorize_spd(A))
+                return factor[0].solve(rhs)
+
+            self._solve = solve
         self.simulation = sim
         self._last_controls = None
         self._launches.clear()
