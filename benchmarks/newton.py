@@ -33,7 +33,7 @@ import numpy as np
 import scipy.sparse.linalg as spla
 import warp as wp
 
-from benchmarks._timing import machine_info, print_table, time_call, write_results
+from benchmarks._timing import machine_info, print_table, write_results
 
 LOAD = np.array([0.0, -2.0 * 9.81, 0.0])
 """The body load [m/s²]: 2 g downwards (y up)."""
@@ -98,14 +98,22 @@ def overhead_rows(tetmesh, material, fixed, device, steps: int) -> list[dict]:
     start = 20.0 * static_reference(tetmesh, material, fixed)  # ~0.5 mm: a released sag, ringing down
     standalone.reset(start)
     solver.simulation.reset(start)
-    sync = wp.synchronize_device if not wp.get_device(device).is_cpu else None
+    sync = wp.synchronize_device if not wp.get_device(device).is_cpu else (lambda: None)
 
     def plug():
         solver.step(states[0], states[1], control, None, dt)
         states.reverse()
 
-    peer = time_call(standalone.step, repeats=steps, sync=sync)
-    plugged = time_call(plug, repeats=steps, sync=sync)
+    # interleaved, step by step, so that a load change on a shared machine hits both alike
+    samples = {standalone.step: [], plug: []}
+    for k in range(steps + 2):
+        for function, times in samples.items():
+            begin = time.perf_counter()
+            function()
+            sync()
+            if k >= 2:
+                times.append(time.perf_counter() - begin)
+    peer, plugged = (float(np.median(times)) for times in samples.values())
     return [
         {"row": "standalone TissueSimulation", "ms": 1e3 * peer, "ratio": 1.0},
         {"row": "SolverFace (plug)", "ms": 1e3 * plugged, "ratio": plugged / peer},
