@@ -201,3 +201,31 @@ def test_reset_and_a_changed_material(shell):
     assert np.allclose(solver.material.E, 2.0 * MATERIAL.E, rtol=1e-6)
     solver.notify_model_changed(newton.ModelFlags.SHAPE_PROPERTIES)  # nothing of the face's: nothing rebuilt
     assert solver.material.E.shape == (tetmesh.tet_count,)
+
+
+def test_add_face_arguments_fuzzed(shell):
+    """Any head body or contact radius: a face, or a TypeError/ValueError of one line naming the argument."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    rig, tetmesh, fixed, _ = shell
+    values = st.one_of(
+        st.integers(-5, 5),
+        st.floats(allow_nan=True, allow_infinity=True),
+        st.text(max_size=3),
+        st.none(),
+        st.booleans(),
+    )
+
+    @settings(max_examples=30, deadline=None, database=None)
+    @given(head_body=st.one_of(st.just(-1), values), radius=values)
+    def check(head_body, radius):
+        builder = newton.ModelBuilder()
+        builder.add_body()
+        try:
+            add_face(builder, rig, tissue=(tetmesh, MATERIAL), fixed=fixed, head_body=head_body, contact_radius=radius)
+        except (TypeError, ValueError) as exc:
+            message = str(exc)
+            assert "\n" not in message and ("head_body" in message or "contact_radius" in message), message
+
+    check()

@@ -220,6 +220,8 @@ def add_face(
     head_body = int(head_body)
     if not -1 <= head_body < builder.body_count:
         raise ValueError(f"add_face: head_body {head_body} is out of range [-1, {builder.body_count}) of the builder")
+    if isinstance(contact_radius, bool) or not isinstance(contact_radius, (int, float, np.integer, np.floating)):
+        raise TypeError(f"add_face: contact_radius must be a number [m], got {type(contact_radius).__name__}")
     radius = float(contact_radius)
     if not (np.isfinite(radius) and radius > 0.0):
         raise ValueError(f"add_face: contact_radius must be a positive length [m], got {contact_radius!r}")
