@@ -306,3 +306,31 @@ def interrupted_track(tmp_path, *options: str, delay: float) -> tuple[int, int, 
         return child.returncode, 0, error, stage
     marker = "kept all " if child.returncode == 130 else "tracked "
     return child.returncode, int(out.split(marker)[1].split()[0]), error, stage
+
+
+def shell_face(cells: int = 8, layers: int = 2, *, span_u: float = 2.4, span_v: float = 2.0, thickness: float = 0.012):
+    """A face-like tissue shell (:func:`warpface.fem.shell_tet_mesh`) with a one-muscle rig on its outer surface.
+
+    Returns ``(rig, tetmesh, fixed, outer)``: ``fixed`` the inner (skull-side) layer's nodes, ``outer`` the
+    outer layer's node indices as a (cells + 1, cells + 1) grid (row: elevation, column: azimuth); the rig's skin
+    vertices are the outer nodes in that order, its landmarks five vertices along the top row.
+    """
+    from warpface.fem import shell_tet_mesh
+
+    tetmesh = shell_tet_mesh(cells, cells, layers, thickness=thickness, span_u=span_u, span_v=span_v)
+    per = (cells + 1) ** 2
+    grid = np.arange(per).reshape(cells + 1, cells + 1)
+    a, b, c, d = grid[:-1, :-1].ravel(), grid[:-1, 1:].ravel(), grid[1:, :-1].ravel(), grid[1:, 1:].ravel()
+    mesh = FaceMesh(tetmesh.points[layers * per :], np.r_[np.c_[a, b, d], np.c_[a, d, c]], name="shell")
+    top, middle = mesh.points[grid[-1, cells // 2]], mesh.points[grid[cells // 2, cells // 2]]
+    muscle = LinearMuscle(
+        "levator",
+        attachment=top + np.array([0.0, 0.01, -0.01]),
+        insertion=middle,
+        zone_angle_deg=40.0,
+        falloff_start=0.3 * np.ptp(mesh.points[:, 1]),
+        falloff_finish=0.8 * np.ptp(mesh.points[:, 1]),
+    )
+    landmarks = grid[-1, np.linspace(1, cells - 1, 5).astype(int)]
+    rig = FaceRig(mesh, [muscle], [], thickness, landmarks=landmarks)
+    return rig, tetmesh, np.arange(per), grid + layers * per

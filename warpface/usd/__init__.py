@@ -23,6 +23,7 @@ _LAZY = {
     "Animation": "animation",
     "frame_times": "animation",
     "bake": "baking",
+    "write_point_cache": "baking",
     "check_bake": "baking",
     "write_tissue": "tissue_io",
     "read_tissue": "tissue_io",

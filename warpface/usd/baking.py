@@ -34,7 +34,15 @@ from .asset_io import NORMAL_PROPERTIES, SkinNormals, shells_of
 from .rig_io import SHAPE_VARIANT_SET, read_rig, rig_prims, stage_meters_per_unit
 from .schema import ensure_schema
 
-__all__ = ["bake", "check_bake", "check_cache_path", "default_cache_path", "existing_cache_path", "CACHE_SUFFIX"]
+__all__ = [
+    "bake",
+    "check_bake",
+    "write_point_cache",
+    "check_cache_path",
+    "default_cache_path",
+    "existing_cache_path",
+    "CACHE_SUFFIX",
+]
 
 MAX_REACH = 10.0
 """A bake refuses a frame whose skin leaves the rest shape's bounding box by more than this many times
@@ -222,6 +230,62 @@ def bake(
     skin = rig_prims(stage, skin_path).skin
     skin_path, model = skin.GetPath(), shells_of(stage, skin, model)  # extra shells move only rigidly
     stage_unit = stage_meters_per_unit(stage)
+    chunks = [times[start : start + chunk_frames] for start in range(0, len(times), chunk_frames)]
+    workers = _evaluation_workers(model) if workers is None or not model.device.is_cpu else int(workers)
+    with closing(_evaluated_chunks(stage, model, chunks, skin_path, stage_unit, workers)) as evaluated:
+        return _write_cache(stage, skin, cache_path, chunks, evaluated, progress)
+
+
+def write_point_cache(
+    stage_or_path, times, positions, *, cache_path=None, skin_path: str | None = None, progress: bool = False
+) -> Path:
+    """Write given skin positions as the time-sampled point cache :func:`bake` writes (same layer, sublayering
+    and atomic files): for skins computed elsewhere, e.g. by a simulation (``warpface.newton.SkinRecorder``).
+
+    Args:
+        stage_or_path: the rig stage or its file (as :func:`bake`).
+        times: time codes, shape (F,).
+        positions: skin points per time code in the stage's units, shape (F, V, 3).
+        cache_path: the cache file; default ``<rig layer stem>_anim.usdc`` beside the rig layer.
+        skin_path: the rig's skin mesh (default: the only one).
+        progress: show a progress bar.
+
+    Returns:
+        The cache file path.
+
+    Raises:
+        ValueError: no frames, positions of the wrong shape or not finite, unwritable or forbidden paths.
+        RigError: the rig on the stage is invalid, or the rig layer authors the skin's points directly.
+    """
+    ensure_schema()
+    stage = open_stage(stage_or_path)
+    skin = rig_prims(stage, skin_path).skin
+    times = as_time_codes(times, "times")
+    count = len(skin.GetAttribute(UsdGeom.Tokens.points).Get(Usd.TimeCode.Default()) or ())
+    points = np.asarray(positions, dtype=np.float32)
+    if len(times) == 0 or points.shape != (len(times), count, 3):
+        raise ValueError(
+            f"positions must have shape ({len(times)}, {count}, 3) for {skin.GetPath()}, got {points.shape}"
+        )
+    if not np.isfinite(points).all():
+        raise ValueError(f"positions: frame {int(np.argmin(np.isfinite(points).all(axis=(1, 2))))} is not finite")
+    if cache_path is None:
+        cache_path = default_cache_path(stage)
+        if cache_path is None:
+            raise ValueError("write_point_cache: the stage's root layer is in memory; pass cache_path")
+    cache_path = check_cache_path(stage, cache_path, skin.GetPath())
+    _check_not_masked(stage, skin.GetPath(), cache_path)
+    step = 64
+    chunks = [times[start : start + step] for start in range(0, len(times), step)]
+    frames = ((points[s : s + step], _extents(points[s : s + step])) for s in range(0, len(times), step))
+    return _write_cache(stage, skin, cache_path, chunks, frames, progress)
+
+
+def _write_cache(stage: Usd.Stage, skin: Usd.Prim, cache_path: Path, chunks: list, frames, progress: bool) -> Path:
+    """Write ``frames`` (an iterable of ``(positions (F, V, 3), extents (F, 2, 3))`` float32, one per chunk of
+    time codes) as the skin's point cache, sublayered under the root layer; returns the cache path."""
+    skin_path = skin.GetPath()
+    times = np.concatenate(chunks)
     points_path = skin_path.AppendProperty(UsdGeom.Tokens.points)
     extent_path = skin_path.AppendProperty(UsdGeom.Tokens.extent)
     low, high = float(times.min()), float(times.max())
@@ -239,13 +303,8 @@ def bake(
                 for time in cache.ListTimeSamplesForPath(path):
                     if low <= time <= high:
                         cache.EraseTimeSample(path, time)
-        chunks = [times[start : start + chunk_frames] for start in range(0, len(times), chunk_frames)]
-        workers = _evaluation_workers(model) if workers is None or not model.device.is_cpu else int(workers)
-        with (
-            closing(_evaluated_chunks(stage, model, chunks, skin_path, stage_unit, workers)) as evaluated,
-            tqdm(total=len(times), desc="bake", unit="frame", disable=not progress, leave=False) as bar,
-        ):
-            for chunk, (positions, bounds) in zip(chunks, evaluated):
+        with tqdm(total=len(times), desc="bake", unit="frame", disable=not progress, leave=False) as bar:
+            for chunk, (positions, bounds) in zip(chunks, frames):
                 with Sdf.ChangeBlock():
                     for offset, time in enumerate(chunk.tolist()):
                         cache.SetTimeSample(points_path, time, Vt.Vec3fArray.FromNumpy(positions[offset]))
