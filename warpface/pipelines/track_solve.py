@@ -184,6 +184,10 @@ class SolvingTracker:
         fit = self.solver.solve(
             targets, weights=np.where(valid, np.clip(confidence, 0.0, 1.0), 0.0) if valid.any() else None
         )
+        return self._finish(frame, fit, targets)
+
+    def _finish(self, frame: LandmarkFrame, fit, targets: np.ndarray) -> SolvedFrame:
+        """The skin, the residual motion and the counts of one solved frame (``targets``: rig frame)."""
         if not fit.skipped or self.last is None:
             self._skin = np.asarray(fit.points, dtype=np.float32)
         skin, motion = self._skin, None

@@ -14,9 +14,11 @@ from __future__ import annotations
 import numpy as np
 
 from .face_mesh_ibug import IBUG_NAMES, ibug_from_mesh
+from .frames import LandmarkFrame, RGBDFrame
+from .rgbd_landmarks import RGBDLandmarks
 from .smoothing import OneEuroFilter
 
-__all__ = ["FaceLandmarks", "detect_face_landmarks", "JAW_CONTOUR_CONFIDENCE", "MESH_NAMES"]
+__all__ = ["FaceLandmarks", "FaceRGBDLandmarks", "detect_face_landmarks", "MAX_DEPTH_JUMP", "JAW_CONTOUR_CONFIDENCE", "MESH_NAMES"]
 
 MESH_NAMES = tuple(f"mesh{i:03d}" for i in range(468))
 """Names of the 468 face-mesh points."""
@@ -124,3 +126,30 @@ def detect_face_landmarks(rgb, *, face: int = 0, mesh: bool = False, model_dir=N
         return {}
     count = len(IBUG_NAMES) + (len(MESH_NAMES) if mesh else 0)
     return {name: (float(x), float(y)) for name, (x, y) in zip(detector.landmark_names[:count], pixels[:count])}
+
+
+MAX_DEPTH_JUMP = 0.12
+"""Largest distance [m] of a lifted landmark's depth from the median of the frame's landmarks (docs/CAPTURE.md
+§2): a face is ~0.1 m deep, so a landmark farther off landed on the background or an occluder."""
+
+
+class FaceRGBDLandmarks(RGBDLandmarks):
+    """:class:`~warpface.tracking.rgbd_landmarks.RGBDLandmarks` for face-mesh landmarks, with a depth-jump gate:
+    a landmark whose depth is more than ``max_depth_jump`` [m] from the frame's median landmark depth is
+    reported missing (an outline point lifted off the background)."""
+
+    def __init__(self, rgbd, detector, *, max_depth_jump: float = MAX_DEPTH_JUMP, **options):
+        from .._validate import as_positive
+
+        super().__init__(rgbd, detector, **options)
+        self.max_depth_jump = as_positive(max_depth_jump, "max_depth_jump")
+
+    def landmarks(self, frame: RGBDFrame) -> LandmarkFrame:
+        lifted = super().landmarks(frame)
+        depth = lifted.points[:, 2]
+        found = np.isfinite(depth)
+        if not found.any():
+            return lifted
+        jump = np.abs(depth - np.median(depth[found])) > self.max_depth_jump
+        points = np.where(jump[:, None], np.nan, lifted.points)
+        return LandmarkFrame(lifted.timestamp, points, np.where(jump, 0.0, lifted.confidence), lifted.index)
