@@ -16,7 +16,8 @@ __all__ = ["add_parser", "run"]
 def add_parser(subparsers, common) -> None:
     track = add_command(subparsers, common, "track", run, __doc__)
     track.add_argument(
-        "source", help=".npz, RGB-D folder, a video file (.mp4 …: monocular, always solved), synthetic, realsense or orbbec"
+        "source",
+        help=".npz, RGB-D folder, a video file (.mp4 …: monocular, always solved), synthetic, realsense or orbbec",
     )
     track.add_argument(
         "--stage",
@@ -61,7 +62,6 @@ def add_parser(subparsers, common) -> None:
         default=1e-3,
         help="with --solve: pull of each frame's controls toward the previous frame's (default 1e-3)",
     )
-
 
     track.add_argument(
         "--markerless",

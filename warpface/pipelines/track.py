@@ -44,7 +44,6 @@ def run_track(args) -> int:
     """
     from .._files import create_missing_folders, remove_created_folders
     from ..usd.tracking_io import TrackingStageWriter
-
     from .track_mono import is_video
 
     _check_options(args)

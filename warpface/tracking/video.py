@@ -40,6 +40,11 @@ class VideoFrames(SourceBase):
     """
 
     def __init__(self, path):
+        import os
+
+        # FFmpeg's own log lines (e.g. "moov atom not found") would add a second line to the one-line error
+        # below; OpenCV reads this when its FFmpeg back end starts (a user's own setting wins).
+        os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
         import cv2
 
         self.path = Path(path)

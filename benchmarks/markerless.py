@@ -1,0 +1,118 @@
+"""Markerless capture against ground truth, in the same run as the painted-dot path, and its speed.
+
+The built-in face performs each expression with brows, lips and nostrils painted on
+(:func:`warpface.pipelines.markerless_loop.markerless_capture`); the synthetic 640×480 RGB-D camera (Kinect-like
+depth noise, 2 % holes) films it. Paths, same performance:
+
+* ``dots (RGB-D)`` — the existing path: 60 painted dots, :func:`warpface.pipelines.capture.synthetic_capture`;
+* ``markerless RGB-D`` — face mesh → the rig's 68 iBUG vertices, lifted with depth, solved;
+* ``markerless video`` — the colour frames written to an .mp4, read back, rays, point-to-ray solve
+  (docs/CAPTURE.md §3), intrinsics given.
+
+Columns: controls' error (RMS of |Δc|·reach, mm), surface error of the solved skin (mm, whole face), the
+still face's error (rest pose against the truth: what doing nothing scores), frames/s of detection alone and
+of detection + solve (detection, lifting or rays, solve and skin per frame; the rendering excluded).
+
+    python -m benchmarks.markerless [--seconds 1] [--expressions smile disgust]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from warpface.pipelines.markerless_loop import markerless_capture, solve_markerless, write_video
+
+from ._timing import machine_info, print_table, write_results
+
+
+def _dot_path(rig, expression: str, seconds: float, device):
+    from warpface.pipelines.capture import synthetic_capture
+    from warpface.pipelines.track_compare import compare_tracking_paths
+
+    capture = synthetic_capture(rig, expression=expression, seconds=seconds, device=device)
+    try:
+        result = compare_tracking_paths(capture, rig, device=device)
+    finally:
+        capture.camera.close()
+    solved = result.paths[1]
+    return solved.control_mm, solved.surface_face_mm, solved.frames_per_second
+
+
+def main() -> None:
+    from warpface.assets import default_rig
+    from warpface.solve import Solver
+
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", default=None)
+    parser.add_argument("--seconds", type=float, default=1.0)
+    parser.add_argument("--expressions", nargs="+", default=["smile", "disgust"])
+    args = parser.parse_args()
+    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_WARNING
+    device = wp.get_device(args.device)
+    rig = default_rig()
+    reach = Solver(rig, rig.landmarks, device=device).reach
+
+    rows = []
+    for expression in args.expressions:
+        capture = markerless_capture(rig, expression=expression, seconds=args.seconds, device=device)
+        still = float(np.linalg.norm(capture.truth - capture.truth[0], axis=2).mean() * 1e3)
+        control, surface, fps = _dot_path(rig, expression, args.seconds, device)
+        rows.append(
+            dict(
+                expression=expression,
+                path="dots (RGB-D)",
+                control_mm=control,
+                surface_mm=surface,
+                still_mm=still,
+                detect_fps=float("nan"),
+                fps=fps,
+                skipped=0,
+            )
+        )
+        with tempfile.TemporaryDirectory() as folder:
+            video = Path(folder) / "performance.mp4"
+            write_video(capture.camera, video)
+            for mode, name in (("rgbd", "markerless RGB-D"), ("video", "markerless video")):
+                run = solve_markerless(capture, rig, mode=mode, video=video, device=device)
+                frames = len(run.controls)
+                rows.append(
+                    dict(
+                        expression=expression,
+                        path=name,
+                        control_mm=run.control_mm(capture.controls, reach),
+                        surface_mm=run.surface_mm(capture.truth),
+                        still_mm=still,
+                        detect_fps=frames / run.detect_seconds,
+                        fps=frames / (run.detect_seconds + run.solve_seconds),
+                        skipped=int(run.skipped.sum()),
+                    )
+                )
+        capture.camera.close()
+    print_table(
+        rows,
+        [
+            ("expression", "expression", "s"),
+            ("path", "path", "s"),
+            ("control_mm", "controls mm", ".3f"),
+            ("surface_mm", "surface mm", ".3f"),
+            ("still_mm", "still face mm", ".3f"),
+            ("detect_fps", "detect frames/s", ".0f"),
+            ("fps", "detect+solve frames/s", ".0f"),
+            ("skipped", "skipped", "d"),
+        ],
+    )
+    name = "markerless" if device.is_cpu else f"markerless_{str(device).replace(':', '')}"
+    path = write_results(
+        name, {"benchmark": "markerless", "seconds": args.seconds, "machine": machine_info(device), "rows": rows}
+    )
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

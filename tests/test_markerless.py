@@ -1,0 +1,104 @@
+"""Markerless capture: the point-to-ray geometry, PnP, and ``warpface track VIDEO`` end to end and on bad input."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from warpface.solve.rays import closest_on_rays, pnp_pose, ray_distances
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_closest_ray_points_are_perpendicular_feet():
+    rng = np.random.default_rng(0)
+    origin = rng.normal(size=3)
+    directions = rng.normal(size=(20, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    points = origin + directions * rng.uniform(0.5, 2.0, (20, 1)) + rng.normal(0, 0.1, (20, 3))
+    feet = closest_on_rays(points, origin, directions)
+    # the foot lies on the ray and the offset to the point is perpendicular to it; its length is the distance
+    assert np.allclose(np.cross(feet - origin, directions), 0.0, atol=1e-12)
+    assert np.allclose(np.einsum("nd,nd->n", points - feet, directions), 0.0, atol=1e-12)
+    assert np.allclose(np.linalg.norm(points - feet, axis=1), ray_distances(points, origin, directions))
+    behind = closest_on_rays(origin - directions[:1], origin, directions[:1])
+    assert np.isnan(behind).all()
+
+
+def test_pnp_recovers_a_known_pose():
+    rng = np.random.default_rng(1)
+    model = rng.normal(0, 0.05, (30, 3))
+    angle = 0.3
+    rotation = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
+    translation = np.array([0.02, -0.01, 0.6])
+    camera = model @ rotation.T + translation
+    pose = pnp_pose(model, camera[:, :2] / camera[:, 2:3])
+    assert pose is not None
+    assert np.allclose(pose[0], rotation, atol=1e-6) and np.allclose(pose[1], translation, atol=1e-6)
+    assert pnp_pose(model[:5], camera[:5, :2] / camera[:5, 2:3]) is None
+
+
+def _cli(*args):
+    return subprocess.run(
+        [sys.executable, "-m", "warpface.cli", "--device", "cpu", "--quiet", "track", *args],
+        capture_output=True,
+        text=True,
+        env=dict(os.environ, PYTHONPATH=str(REPO)),
+        timeout=600,
+    )
+
+
+def test_unreadable_video_and_bad_options_are_one_line_and_write_nothing(tmp_path):
+    bad = tmp_path / "broken.mp4"
+    bad.write_text("not a video")
+    stage = tmp_path / "out" / "capture.usda"
+    for args, message in (
+        ([str(bad)], "cannot be read"),
+        ([str(tmp_path / "missing.mp4")], "file not found"),
+        ([str(bad), "--intrinsics", "1,2,3"], "six numbers"),
+        (["synthetic", "--markerless"], "--markerless needs images"),
+        ([str(bad), "--face", "-1"], "--face"),
+    ):
+        result = _cli(*args, "--stage", str(stage))
+        assert result.returncode == 2, result.stderr[-500:]
+        assert message in result.stderr and len(result.stderr.strip().splitlines()) == 1, result.stderr[-500:]
+        assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
+def test_video_of_a_performance_is_solved_onto_the_stage(tmp_path):
+    pytest.importorskip("pyrender")
+    try:
+        from warpface.tracking.face_models import model_path
+
+        model_path("mesh")
+        import ai_edge_litert  # noqa: F401
+    except (FileNotFoundError, ImportError) as error:
+        pytest.skip(f"face models or runtime absent: {error}")
+    from warpface.pipelines.markerless_loop import markerless_capture, write_video
+    from warpface.pipelines.track_solve import read_solved_capture
+
+    capture = markerless_capture(expression="smile", seconds=0.5, noise=False)
+    video = tmp_path / "smile.mp4"
+    frames = write_video(capture.camera, video)
+    capture.camera.close()
+    k = capture.camera.intrinsics
+    stage = tmp_path / "out" / "smile.usda"
+    result = _cli(
+        str(video), "--stage", str(stage), "--intrinsics", f"{k.fx},{k.fy},{k.cx},{k.cy},{k.width},{k.height}"
+    )
+    assert result.returncode == 0, result.stderr[-800:]
+    solved = read_solved_capture(stage)
+    assert solved["controls"].shape[0] == frames and np.all(np.isfinite(solved["controls"]))
+    assert not solved["skipped"].any()
+    assert abs(solved["fps"] - capture.camera.fps) < 1e-6
+    # the skin follows the performance: the solved mouth corners move apart during the smile like the truth's
+    from warpface.assets import default_rig
+
+    corners = default_rig().landmarks[[48, 54]]
+    true_width = np.linalg.norm(np.diff(capture.truth[:, corners], axis=1)[:, 0], axis=1)
+    solved_width = np.linalg.norm(np.diff(solved["skin"][:, corners], axis=1)[:, 0], axis=1)
+    assert (solved_width.max() - solved_width[0]) > 0.3 * (true_width.max() - true_width[0])
