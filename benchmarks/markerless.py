@@ -94,24 +94,12 @@ def main() -> None:
                     )
                 )
         capture.camera.close()
-    print_table(
-        rows,
-        [
-            ("expression", "expression", "s"),
-            ("path", "path", "s"),
-            ("control_mm", "controls mm", ".3f"),
-            ("surface_mm", "surface mm", ".3f"),
-            ("still_mm", "still face mm", ".3f"),
-            ("detect_fps", "detect frames/s", ".0f"),
-            ("fps", "detect+solve frames/s", ".0f"),
-            ("skipped", "skipped", "d"),
-        ],
-    )
-    name = "markerless" if device.is_cpu else f"markerless_{str(device).replace(':', '')}"
-    path = write_results(
-        name, {"benchmark": "markerless", "seconds": args.seconds, "machine": machine_info(device), "rows": rows}
-    )
-    print(f"wrote {path}")
+    keys = ("expression", "path", "control_mm", "surface_mm", "still_mm", "detect_fps", "fps", "skipped")
+    labels = "expression|path|controls mm|surface mm|still face mm|detect frames/s|detect+solve frames/s|skipped"
+    print_table(rows, list(zip(keys, labels.split("|"), ("s", "s", ".3f", ".3f", ".3f", ".0f", ".0f", "d"))))
+    suffix = "" if device.is_cpu else "_" + str(device).replace(":", "")
+    info = dict(benchmark="markerless", seconds=args.seconds, machine=machine_info(device), rows=rows)
+    print(f"wrote {write_results('markerless' + suffix, info)}")
 
 
 if __name__ == "__main__":

@@ -20,19 +20,11 @@ from .capture import SyntheticCapture
 __all__ = ["markerless_capture", "write_video", "solve_markerless", "MarkerlessRun"]
 
 
-def markerless_capture(
-    rig=None,
-    *,
-    expression: str = "smile",
-    seconds: float = 1.0,
-    fps: float = 30.0,
-    distance: float = 0.45,
-    noise: bool = True,
-    seed: int = 0,
-    device=None,
-) -> SyntheticCapture:
+def markerless_capture(rig=None, expression: str = "smile", *, distance=0.45, noise=True, device=None, **timeline):
     """The built-in face (or ``rig``: upright, frontal, metres, with 68 landmarks) performing ``expression``, with
-    brows, lips and nostrils painted on and no dots, filmed from the front (ground truth in the capture)."""
+    brows, lips and nostrils painted on and no dots, filmed from the front (ground truth in the capture): the nose
+    ``distance`` [m] away, Kinect-like depth noise and 2 % holes with ``noise``. ``timeline``: ``seconds``
+    (default 1) and ``fps`` (default 30) of :func:`warpface.assets.expression_timeline`."""
     from ..assets import default_rig, expression_timeline
     from ..tracking import KinectNoise, SyntheticRGBDCamera
     from ..tracking.synthetic import default_model_to_camera
@@ -41,7 +33,8 @@ def markerless_capture(
 
     rig = default_rig() if rig is None else rig
     rig_landmark_names(rig, "rig")
-    muscles = expression_timeline(expression, rig, seconds=seconds, fps=fps)
+    fps = float(timeline.pop("fps", 30.0))
+    muscles = expression_timeline(expression, rig, seconds=float(timeline.pop("seconds", 1.0)), fps=fps, **timeline)
     controls = np.pad(muscles, ((0, 0), (0, len(rig.control_names) - len(rig.muscles))))
     truth = rig.model(device=device).evaluate(controls).astype(np.float64)
     rest = truth[0]
@@ -53,7 +46,6 @@ def markerless_capture(
         fps=fps,
         model_to_camera=default_model_to_camera(rest, distance),
         depth_noise=KinectNoise(dropout=0.02) if noise else None,
-        seed=seed,
     )
     paint_face_features(camera, rest[rig.landmarks])
     return SyntheticCapture(

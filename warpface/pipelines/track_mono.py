@@ -53,8 +53,12 @@ def parse_intrinsics(text):
     except ValueError:
         values = []
     if len(values) != 6:
-        raise ValueError(f"--intrinsics: expected a .json file or six numbers fx,fy,cx,cy,width,height, got {text[:60]!r}")
-    return CameraIntrinsics.from_dict(dict(zip(("fx", "fy", "cx", "cy", "width", "height"), values)), where="--intrinsics")
+        raise ValueError(
+            f"--intrinsics: expected a .json file or six numbers fx,fy,cx,cy,width,height, got {text[:60]!r}"
+        )
+    return CameraIntrinsics.from_dict(
+        dict(zip(("fx", "fy", "cx", "cy", "width", "height"), values)), where="--intrinsics"
+    )
 
 
 def rig_landmark_names(rig, where: str = "--rig") -> dict:
@@ -123,12 +127,8 @@ class MonocularTracker(SolvingTracker):
 
     def track(self, source):
         """Yield ``(frame of lifted landmarks (camera frame), skin)`` per frame of ray frames."""
-        from .track_solve import _selection
-
-        order = _selection(source.landmark_names, self.names)
-        for frame in source.frames():
-            self.track_frame(frame, order)
-            yield self.lifted, self.last.skin
+        for _, skin in super().track(source):
+            yield self.lifted, skin
 
     def track_frame(self, frame: LandmarkFrame, order: np.ndarray | None = None) -> SolvedFrame:
         """Solve one frame of rays (points at depth 1, camera frame)."""
@@ -158,7 +158,9 @@ class MonocularTracker(SolvingTracker):
             fit, targets = self.rays.solve(origin, directions, weights)
         solved = self._finish(frame, fit, targets)
         camera = self._camera_points(targets)
-        self.lifted = LandmarkFrame(frame.timestamp, camera, np.where(np.isfinite(camera[:, 0]), weights, 0.0), frame.index)
+        self.lifted = LandmarkFrame(
+            frame.timestamp, camera, np.where(np.isfinite(camera[:, 0]), weights, 0.0), frame.index
+        )
         return solved
 
     def _camera_points(self, targets: np.ndarray) -> np.ndarray:
