@@ -18,7 +18,14 @@ from .frames import LandmarkFrame, RGBDFrame
 from .rgbd_landmarks import RGBDLandmarks
 from .smoothing import OneEuroFilter
 
-__all__ = ["FaceLandmarks", "FaceRGBDLandmarks", "detect_face_landmarks", "MAX_DEPTH_JUMP", "JAW_CONTOUR_CONFIDENCE", "MESH_NAMES"]
+__all__ = [
+    "FaceLandmarks",
+    "FaceRGBDLandmarks",
+    "detect_face_landmarks",
+    "MAX_DEPTH_JUMP",
+    "JAW_CONTOUR_CONFIDENCE",
+    "MESH_NAMES",
+]
 
 MESH_NAMES = tuple(f"mesh{i:03d}" for i in range(468))
 """Names of the 468 face-mesh points."""
