@@ -103,6 +103,20 @@ class MarkerlessRun:
         return float(np.linalg.norm(self.skins - truth[: len(self.skins)], axis=2).mean() * 1e3)
 
 
+class _RenderedFrames:
+    """The camera's RGB-D frames rendered up front (rendering is not part of a capture's cost)."""
+
+    def __init__(self, camera):
+        self.intrinsics, self.fps = camera.intrinsics, camera.fps
+        self._frames = list(camera.frames())
+
+    def frames(self):
+        return iter(self._frames)
+
+    def close(self) -> None:
+        self._frames = []
+
+
 def solve_markerless(capture: SyntheticCapture, rig=None, *, mode: str = "rgbd", video=None, device=None, **options):
     """Run one markerless path over ``capture`` and return a :class:`MarkerlessRun`.
 
@@ -124,9 +138,10 @@ def solve_markerless(capture: SyntheticCapture, rig=None, *, mode: str = "rgbd",
         from ..tracking.video import VideoLandmarks
 
         source = VideoLandmarks(video, intrinsics=capture.camera.intrinsics, names=names)
-        tracker = MonocularTracker(rig, source.landmark_names, device=device, **options)
+        tracker = MonocularTracker(rig, source.landmark_names, device=device, **{"neutral_offsets": True, **options})
     elif mode == "rgbd":
-        source = FaceRGBDLandmarks(capture.camera, FaceLandmarks(names), device=device)
+        source = FaceRGBDLandmarks(_RenderedFrames(capture.camera), FaceLandmarks(names), device=device)
+        options = {"neutral_offsets": True, **options}
         tracker = SolvingTracker(
             rig, source.landmark_names, camera_to_model=capture.camera_to_rig, device=device, **options
         )

@@ -132,7 +132,8 @@ class MonocularTracker(SolvingTracker):
 
     def track_frame(self, frame: LandmarkFrame, order: np.ndarray | None = None) -> SolvedFrame:
         """Solve one frame of rays (points at depth 1, camera frame)."""
-        from ..solve.rays import pnp_pose
+        from ..solve.rays import closest_on_rays, pnp_pose
+        from .track_solve import neutral_offsets
 
         rays = np.asarray(frame.points, dtype=np.float64)
         confidence = np.asarray(frame.confidence, dtype=np.float64)
@@ -155,7 +156,11 @@ class MonocularTracker(SolvingTracker):
             directions = rays @ turn.T
             directions /= np.linalg.norm(directions, axis=1, keepdims=True)
             directions[~valid] = np.nan
-            fit, targets = self.rays.solve(origin, directions, weights)
+            if self.neutral_offsets and self.offsets is None and valid.sum() >= 6:
+                rest = self.rest[self.vertices]
+                seen = closest_on_rays(rest, origin, directions)
+                self.offsets = neutral_offsets(rest, seen, weights, self.solver.origin)
+            fit, targets = self.rays.solve(origin, directions, weights, self.offsets)
         solved = self._finish(frame, fit, targets)
         camera = self._camera_points(targets)
         self.lifted = LandmarkFrame(

@@ -73,14 +73,17 @@ class RaySolve:
         points = np.asarray(solver.observation.apply_frames(local)[0], dtype=np.float64)
         return (points - solver.origin) @ solver.rotation.T + solver.origin + solver.translation
 
-    def solve(self, origin, directions, weights):
+    def solve(self, origin, directions, weights, offsets=None):
         """Solve one frame: rays from ``origin`` (3,) along unit ``directions`` (N, 3) (NaN rows missing),
-        ``weights`` (N,). Returns ``(fit, targets (N, 3))``: the last :class:`~warpface.solve.Fit` and the
-        closest ray points it was solved toward (rig frame)."""
+        ``weights`` (N,); ``offsets`` (N, 3), rig frame: where each detected landmark sits relative to its model
+        point (turned with the head pose), so ray ``i`` is matched by ``P_i + R·offset_i``. Returns
+        ``(fit, targets (N, 3))``: the last :class:`~warpface.solve.Fit` and the targets it was solved toward
+        (rig frame: the closest ray points, less the offsets)."""
         origin = np.asarray(origin, dtype=np.float64)
         fit, targets = None, None
         for _ in range(self.rounds):
-            targets = closest_on_rays(self.posed_landmarks(), origin, directions)
+            shift = 0.0 if offsets is None else offsets @ self.solver.rotation.T
+            targets = closest_on_rays(self.posed_landmarks() + shift, origin, directions) - shift
             fit = self.solver.solve(targets, weights)
             if fit.skipped:
                 break
