@@ -102,3 +102,35 @@ def test_video_of_a_performance_is_solved_onto_the_stage(tmp_path):
     true_width = np.linalg.norm(np.diff(capture.truth[:, corners], axis=1)[:, 0], axis=1)
     solved_width = np.linalg.norm(np.diff(solved["skin"][:, corners], axis=1)[:, 0], axis=1)
     assert (solved_width.max() - solved_width[0]) > 0.3 * (true_width.max() - true_width[0])
+
+
+@pytest.mark.slow
+def test_rgbd_folder_markerless_solve_holds_the_controls_on_a_frame_without_a_face(tmp_path):
+    pytest.importorskip("pyrender")
+    try:
+        from warpface.tracking.face_models import model_path
+
+        model_path("mesh")
+        import ai_edge_litert  # noqa: F401
+    except (FileNotFoundError, ImportError) as error:
+        pytest.skip(f"face models or runtime absent: {error}")
+    from warpface.pipelines.markerless_loop import markerless_capture
+    from warpface.pipelines.track_solve import read_solved_capture
+    from warpface.tracking import RGBDFolder, RGBDFrame
+
+    capture = markerless_capture(expression="smile", seconds=0.4)
+    frames = list(capture.camera.frames())
+    capture.camera.close()
+    blank = frames[6]  # a frame without a face: the camera looked away
+    frames[6] = RGBDFrame(blank.timestamp, np.zeros_like(blank.color), blank.depth, blank.depth_scale, blank.index)
+    folder = RGBDFolder.write(tmp_path / "take", frames, capture.camera.intrinsics, fps=capture.camera.fps)
+    stage = tmp_path / "out" / "take.usda"
+    result = _cli(str(folder), "--markerless", "--solve", "--stage", str(stage))
+    assert result.returncode == 0, result.stderr[-800:]
+    solved = read_solved_capture(stage)
+    assert len(solved["times"]) == len(frames)
+    assert solved["skipped"][6] and not solved["skipped"][[0, 5, 7]].any()
+    assert np.array_equal(solved["controls"][6], solved["controls"][5])  # held
+    assert np.all(np.isfinite(solved["skin"])) and np.all(np.isfinite(solved["controls"]))
+    # the landmarks the stage records for the faceless frame are missing, not invented
+    assert (solved["confidence"][6] == 0).all()

@@ -78,6 +78,12 @@ def add_parser(subparsers, common) -> None:
     track.add_argument(
         "--face", type=int, default=0, help="markerless: which face when there are several (0 = the largest)"
     )
+    track.add_argument(
+        "--no-neutral",
+        action="store_true",
+        help="markerless: do not take the first frame with a face as neutral (by default each landmark's offset "
+        "from the rig's own there is subtracted from later frames)",
+    )
     track.add_argument("--landmark-model", default=None, help="markerless: a face-mesh .tflite file of one's own")
     track.add_argument(
         "--ray-rounds", type=positive_int, default=3, help="video: closest-ray / solve rounds per frame (default 3)"

@@ -221,7 +221,9 @@ def _solved_capture(rig, source, camera_to_model, stage: Path, fps: float, args)
     from .track_solve import SolvingTracker, solved_stage_writer
 
     with _setup_step("preparing the solver", args.quiet):
-        options = dict(smoothness=args.smoothness, device=args.device)
+        markerless = getattr(args, "markerless", False) or hasattr(source, "video")
+        neutral = markerless and not getattr(args, "no_neutral", False)  # docs/CAPTURE.md §1
+        options = dict(smoothness=args.smoothness, neutral_offsets=neutral, device=args.device)
         if hasattr(source, "intrinsics") and hasattr(source, "video"):  # rays: the monocular solve
             from .track_mono import MonocularTracker
 

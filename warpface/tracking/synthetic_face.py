@@ -44,6 +44,7 @@ def paint_face_features(camera, ibug_points, *, brow_width: float = 0.005) -> np
         return np.stack([uv[:, 0] * size - 0.5, (1.0 - uv[:, 1]) * size - 0.5], axis=1)
 
     shift = 4  # sub-texel precision of cv2's drawing
+
     def fixed(xy):
         return np.round(xy * (1 << shift)).astype(np.int32)
 
