@@ -5,7 +5,8 @@ The built-in face performs each expression with brows, lips and nostrils painted
 depth noise, 2 % holes) films it. Paths, same performance:
 
 * ``dots (RGB-D)`` — the existing path: 60 painted dots, :func:`warpface.pipelines.capture.synthetic_capture`;
-* ``markerless RGB-D`` — face mesh → the rig's 68 iBUG vertices, lifted with depth, solved;
+* ``markerless RGB-D`` — face mesh → the rig's 68 iBUG vertices, lifted with depth, solved as 3-D points;
+* ``markerless RGB-D rays`` — the same landmarks solved as rays with a depth term (λ = 0.05, docs/CAPTURE.md §2);
 * ``markerless video`` — the colour frames written to an .mp4, read back, rays, point-to-ray solve
   (docs/CAPTURE.md §3), intrinsics given.
 
@@ -78,7 +79,12 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as folder:
             video = Path(folder) / "performance.mp4"
             write_video(capture.camera, video)
-            for mode, name in (("rgbd", "markerless RGB-D"), ("video", "markerless video")):
+            paths = (
+                ("rgbd", "markerless RGB-D"),
+                ("rgbd-rays", "markerless RGB-D rays λ=0.05"),
+                ("video", "markerless video"),
+            )
+            for mode, name in paths:
                 run = solve_markerless(capture, rig, mode=mode, video=video, device=device)
                 frames = len(run.controls)
                 rows.append(

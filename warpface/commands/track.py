@@ -86,7 +86,7 @@ def add_parser(subparsers, common) -> None:
     )
     track.add_argument("--landmark-model", default=None, help="markerless: a face-mesh .tflite file of one's own")
     track.add_argument(
-        "--ray-rounds", type=positive_int, default=3, help="video: closest-ray / solve rounds per frame (default 3)"
+        "--ray-rounds", type=positive_int, default=1, help="video: closest-ray / solve rounds per frame (default 1)"
     )
 
 

@@ -122,7 +122,9 @@ def solve_markerless(capture: SyntheticCapture, rig=None, *, mode: str = "rgbd",
 
     Args:
         capture: from :func:`markerless_capture` (filmed by ``rig``, default the built-in face).
-        mode: ``"rgbd"`` (face mesh in colour, lifted with the noisy depth, camera → rig known) or ``"video"``
+        mode: ``"rgbd"`` (face mesh in colour, lifted with the noisy depth, camera → rig known, solved as 3-D
+            points: SPEC §6.1's term), ``"rgbd-rays"`` (the same landmarks solved as rays with a depth term,
+            λ = 0.05 unless ``depth_weight`` says otherwise, docs/CAPTURE.md §2) or ``"video"``
             (the video file ``video``, written by :func:`write_video`; rays, intrinsics given, camera → rig from
             the first frame's perspective-n-point fit).
         **options: for the tracker (``smoothness``, ``rounds`` …).
@@ -139,14 +141,15 @@ def solve_markerless(capture: SyntheticCapture, rig=None, *, mode: str = "rgbd",
 
         source = VideoLandmarks(video, intrinsics=capture.camera.intrinsics, names=names)
         tracker = MonocularTracker(rig, source.landmark_names, device=device, **{"neutral_offsets": True, **options})
-    elif mode == "rgbd":
+    elif mode in ("rgbd", "rgbd-rays"):
         source = FaceRGBDLandmarks(_RenderedFrames(capture.camera), FaceLandmarks(names), device=device)
-        options = {"neutral_offsets": True, **options}
-        tracker = SolvingTracker(
-            rig, source.landmark_names, camera_to_model=capture.camera_to_rig, device=device, **options
-        )
+        options = {"neutral_offsets": True, "camera_to_model": capture.camera_to_rig, **options}
+        if mode == "rgbd-rays":
+            tracker = MonocularTracker(rig, source.landmark_names, device=device, **{"depth_weight": 0.05, **options})
+        else:
+            tracker = SolvingTracker(rig, source.landmark_names, device=device, **options)
     else:
-        raise ValueError(f"mode must be 'rgbd' or 'video', got {mode!r}")
+        raise ValueError(f"mode must be 'rgbd', 'rgbd-rays' or 'video', got {mode!r}")
     controls, skins, skipped = [], [], []
     detect = solve = 0.0
     try:

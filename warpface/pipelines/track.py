@@ -227,7 +227,7 @@ def _solved_capture(rig, source, camera_to_model, stage: Path, fps: float, args)
         if hasattr(source, "intrinsics") and hasattr(source, "video"):  # rays: the monocular solve
             from .track_mono import MonocularTracker
 
-            tracker = MonocularTracker(rig, source.landmark_names, rounds=getattr(args, "ray_rounds", 3), **options)
+            tracker = MonocularTracker(rig, source.landmark_names, rounds=getattr(args, "ray_rounds", 1), **options)
         else:
             tracker = SolvingTracker(
                 rig,

@@ -108,65 +108,97 @@ def markerless_source(spec: str, rig, *, intrinsics=None, face: int = 0, landmar
 
 
 class MonocularTracker(SolvingTracker):
-    """Ray frames (:class:`~warpface.tracking.video.VideoLandmarks`) → solved controls, head pose and skin.
+    """Landmarks as viewing rays → solved controls, head pose and skin (docs/CAPTURE.md §3).
+
+    Ray frames (:class:`~warpface.tracking.video.VideoLandmarks`: points at depth 1) are solved with the
+    point-to-ray term alone; with ``depth_weight`` λ the frames are 3-D camera-frame points (an RGB-D source) and
+    each landmark's depth along its ray is also pulled toward the measured one with weight λ (docs/CAPTURE.md
+    §2: the depth image's noise is several times its pixels', so λ < 1 trusts the pixels more).
 
     Args:
         rig, landmark_names: as :class:`SolvingTracker` (the rig in metres: its size sets the depth).
-        rounds: closest-point / solve rounds per frame (docs/CAPTURE.md §3).
-        **options: the other :class:`SolvingTracker` options (``smoothness``, ``device`` …).
+        rounds: closest-point / solve rounds per frame.
+        depth_weight: λ in [0, 1] for 3-D frames, ``None`` for ray frames.
+        camera_to_model: for 3-D frames, as :class:`SolvingTracker` (ray frames: from a PnP fit on the first frame).
+        **options: the other :class:`SolvingTracker` options (``smoothness``, ``neutral_offsets``, ``device`` …).
     """
 
-    def __init__(self, rig, landmark_names, *, rounds: int = 3, **options):
+    def __init__(self, rig, landmark_names, *, rounds: int = 1, depth_weight=None, camera_to_model=None, **options):
+        from .._validate import as_bounded
         from ..solve.rays import RaySolve
 
-        options.pop("camera_to_model", None)
         options.pop("residual_transfer", None)
-        super().__init__(rig, landmark_names, **options)
+        self.depth_weight = None if depth_weight is None else as_bounded(depth_weight, "depth_weight", 0.0, 1.0)
+        super().__init__(
+            rig, landmark_names, camera_to_model=None if depth_weight is None else camera_to_model, **options
+        )
         self.rays = RaySolve(self.solver, rounds=rounds)
         self.lifted: LandmarkFrame | None = None
 
     def track(self, source):
-        """Yield ``(frame of lifted landmarks (camera frame), skin)`` per frame of ray frames."""
+        """Yield ``(frame of lifted landmarks (camera frame), skin)`` per frame of ``source``."""
         for _, skin in super().track(source):
             yield self.lifted, skin
 
     def track_frame(self, frame: LandmarkFrame, order: np.ndarray | None = None) -> SolvedFrame:
-        """Solve one frame of rays (points at depth 1, camera frame)."""
-        from ..solve.rays import closest_on_rays, pnp_pose
+        """Solve one frame (rays at depth 1, or 3-D points with ``depth_weight``; camera frame)."""
+        from ..solve.rays import closest_on_rays
         from .track_solve import neutral_offsets
 
-        rays = np.asarray(frame.points, dtype=np.float64)
+        points = np.asarray(frame.points, dtype=np.float64)
         confidence = np.asarray(frame.confidence, dtype=np.float64)
         if order is not None:
-            rays, confidence = rays[order], confidence[order]
-        valid = np.all(np.isfinite(rays), axis=1) & (confidence > self.min_confidence)
+            points, confidence = points[order], confidence[order]
+        valid = np.all(np.isfinite(points), axis=1) & (confidence > self.min_confidence)
         weights = np.where(valid, np.clip(confidence, 0.0, 1.0), 0.0)
         if self.camera_to_model is None:
-            pose = pnp_pose(self.rest[self.vertices], rays[:, :2] / rays[:, 2:3], weights)
-            if pose is not None:  # the rig at rest under the first face frame's pose: camera → rig is its inverse
-                rotation, translation = pose
-                self.camera_to_model = np.eye(4)
-                self.camera_to_model[:3, :3] = rotation.T
-                self.camera_to_model[:3, 3] = -rotation.T @ translation
+            self.camera_to_model = self._first_camera_to_model(points, weights)
         if self.camera_to_model is None:
-            targets = np.full_like(rays, np.nan)
+            targets = np.full_like(points, np.nan)
             fit = self.solver.solve(targets, weights if valid.any() else None)
         else:
-            turn, origin = self.camera_to_model[:3, :3], self.camera_to_model[:3, 3]
-            directions = rays @ turn.T
-            directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-            directions[~valid] = np.nan
+            origin = self.camera_to_model[:3, 3]
+            along = points @ self.camera_to_model[:3, :3].T  # from the camera centre, model frame
+            depths = np.linalg.norm(along, axis=1)
+            directions = np.where(valid[:, None], along / depths[:, None], np.nan)
             if self.neutral_offsets and self.offsets is None and valid.sum() >= 6:
                 rest = self.rest[self.vertices]
-                seen = closest_on_rays(rest, origin, directions)
+                seen = closest_on_rays(rest, origin, directions) if self.depth_weight is None else origin + along
                 self.offsets = neutral_offsets(rest, seen, weights, self.solver.origin)
-            fit, targets = self.rays.solve(origin, directions, weights, self.offsets)
+            if self.depth_weight is None:
+                fit, targets = self.rays.solve(origin, directions, weights, self.offsets)
+            else:
+                fit, targets = self.rays.solve(
+                    origin, directions, weights, self.offsets, depths=depths, depth_weight=self.depth_weight
+                )
         solved = self._finish(frame, fit, targets)
         camera = self._camera_points(targets)
         self.lifted = LandmarkFrame(
             frame.timestamp, camera, np.where(np.isfinite(camera[:, 0]), weights, 0.0), frame.index
         )
         return solved
+
+    def _first_camera_to_model(self, points, weights):
+        """Camera → rig from the first usable frame: the inverse PnP pose of the rest landmarks (rays), or the
+        similarity taking the measured points onto them (3-D points); ``None`` while there are too few."""
+        from ..solve.rays import pnp_pose
+        from ..tracking.alignment import similarity_fit
+
+        rest = self.rest[self.vertices]
+        transform = np.eye(4)
+        if self.depth_weight is None:
+            pose = pnp_pose(rest, points[:, :2] / points[:, 2:3], weights)
+            if pose is None:
+                return None
+            rotation, translation = pose  # the rig at rest under the first face frame's pose
+            transform[:3, :3], transform[:3, 3] = rotation.T, -rotation.T @ translation
+            return transform
+        usable = weights > 0
+        if usable.sum() < 4:
+            return None
+        scale, rotation, translation, _ = similarity_fit(points[usable], rest[usable])
+        transform[:3, :3], transform[:3, 3] = scale * rotation, translation
+        return transform
 
     def _camera_points(self, targets: np.ndarray) -> np.ndarray:
         if self.camera_to_model is None:

@@ -60,7 +60,7 @@ class RaySolve:
         rounds: closest-point / solve rounds per frame.
     """
 
-    def __init__(self, solver, *, rounds: int = 3):
+    def __init__(self, solver, *, rounds: int = 1):
         from .._validate import as_count
 
         self.solver = solver
@@ -73,17 +73,24 @@ class RaySolve:
         points = np.asarray(solver.observation.apply_frames(local)[0], dtype=np.float64)
         return (points - solver.origin) @ solver.rotation.T + solver.origin + solver.translation
 
-    def solve(self, origin, directions, weights, offsets=None):
+    def solve(self, origin, directions, weights, offsets=None, *, depths=None, depth_weight: float = 0.0):
         """Solve one frame: rays from ``origin`` (3,) along unit ``directions`` (N, 3) (NaN rows missing),
         ``weights`` (N,); ``offsets`` (N, 3), rig frame: where each detected landmark sits relative to its model
-        point (turned with the head pose), so ray ``i`` is matched by ``P_i + R·offset_i``. Returns
-        ``(fit, targets (N, 3))``: the last :class:`~warpface.solve.Fit` and the targets it was solved toward
-        (rig frame: the closest ray points, less the offsets)."""
+        point (turned with the head pose), so ray ``i`` is matched by ``P_i + R·offset_i``; ``depths`` (N,):
+        measured distances along the rays, pulled toward with ``depth_weight`` λ ∈ [0, 1] (docs/CAPTURE.md §2).
+        Returns ``(fit, targets (N, 3))``: the last :class:`~warpface.solve.Fit` and the targets it was solved
+        toward (rig frame)."""
         origin = np.asarray(origin, dtype=np.float64)
         fit, targets = None, None
         for _ in range(self.rounds):
             shift = 0.0 if offsets is None else offsets @ self.solver.rotation.T
-            targets = closest_on_rays(self.posed_landmarks() + shift, origin, directions) - shift
+            predicted = self.posed_landmarks() + shift
+            along = np.einsum("nd,nd->n", predicted - origin, directions)
+            if depths is not None:  # the majorising step of the depth term: (1 − λ)·predicted + λ·measured
+                along = (1.0 - depth_weight) * along + depth_weight * np.asarray(depths, dtype=np.float64)
+            with np.errstate(invalid="ignore"):
+                ahead = along > 0.0
+            targets = np.where(ahead[:, None], origin + along[:, None] * directions, np.nan) - shift
             fit = self.solver.solve(targets, weights)
             if fit.skipped:
                 break

@@ -14,8 +14,10 @@ Two stages, the pre/post-processing written here from the networks' published in
    [0, 1]); the network returns 468 points (x, y in crop pixels, z relative depth in the same scale) and
    a face-presence logit. Points are taken back through the crop's similarity into image pixels.
 
-For video, :class:`FaceMeshDetector` crops the next frame around the previous frame's mesh (rotation
-from mesh points 33 → 263, the outer eye corners) and runs detection only when the face is lost.
+For video, :class:`FaceMeshDetector` runs detection only when the face is lost; otherwise it crops the next
+frame where the face was found, moved by the similarity that takes that frame's stable mesh points (eyes, nose,
+forehead) to the previous frame's: unlike a box around all points, this crop does not change with the
+expression, and the mesh (which shifts with its crop by up to ~1 px) gives the same landmarks for the same face.
 
 Pixel convention: OpenCV's (pixel centres at integer coordinates), as in :mod:`warpface.tracking.detect`.
 """
@@ -38,6 +40,8 @@ _DETECTOR_LAYOUT = {128: ((8, 2), (16, 6)), 192: ((4, 1),)}
 _MESH_SIZE = 192
 _ROI_SCALE = 1.5
 _SETTLE_PASSES, _SETTLED_PX = 6, 0.3
+_STABLE = [33, 133, 362, 263, 168, 6, 197, 195, 5, 4, 1, 10, 151, 9]
+"""Mesh points an expression hardly moves (eye corners, nose bridge and tip, mid-forehead): they carry the crop."""
 _EYE_OUTER = (33, 263)  # mesh points: the subject's right and left outer eye corners
 
 
@@ -151,6 +155,7 @@ class FaceMeshDetector:
         self._threads = threads
         self._nets: dict = {}
         self._previous: FaceMesh468 | None = None
+        self._anchor = None
         self.detections_run = 0
         """How many frames needed the face detector (the others were tracked from the previous mesh)."""
 
@@ -234,21 +239,42 @@ class FaceMeshDetector:
         angle = math.atan2(eye_l[1] - eye_r[1], eye_l[0] - eye_r[0])
         return self.mesh_in_box(rgb, box.center, _ROI_SCALE * float(max(box.size)), angle)
 
-    def _mesh_from_previous(self, rgb, previous: FaceMesh468) -> FaceMesh468:
-        xy = previous.points[:, :2]
+    @staticmethod
+    def _box_of(points: np.ndarray) -> tuple:
+        """The crop (centre (2,), side, angle) around a mesh: its box in the eye-aligned frame, × 1.5."""
+        xy = points[:, :2]
         eye_r, eye_l = xy[_EYE_OUTER[0]], xy[_EYE_OUTER[1]]
         angle = math.atan2(eye_l[1] - eye_r[1], eye_l[0] - eye_r[0])
         c, s = math.cos(-angle), math.sin(-angle)
         turned = xy @ np.array([[c, s], [-s, c]])  # into the face-aligned frame
         low, high = turned.min(axis=0), turned.max(axis=0)
         middle = 0.5 * (low + high) @ np.array([[c, -s], [s, c]])
-        return self.mesh_in_box(rgb, middle, _ROI_SCALE * float(max(high - low)), angle)
+        return middle, _ROI_SCALE * float(max(high - low)), angle
+
+    def _mesh_from_previous(self, rgb, previous: FaceMesh468) -> FaceMesh468:
+        return self.mesh_in_box(rgb, *self._box_of(previous.points))
+
+    def _mesh_from_anchor(self, rgb, previous: FaceMesh468) -> FaceMesh468:
+        """The crop of the frame where the face was found, moved by the 2-D similarity that takes that frame's
+        stable points (eyes, nose, forehead) onto the previous frame's: an expression (a smile widening the
+        face's box) does not move the crop, so the same face gives the same landmarks before and after it."""
+        reference, (centre, size, angle) = self._anchor
+        now = previous.points[_STABLE, :2]
+        ref_mean, now_mean = reference.mean(axis=0), now.mean(axis=0)
+        a, b = reference - ref_mean, now - now_mean
+        ref_c, now_c = a[:, 0] + 1j * a[:, 1], b[:, 0] + 1j * b[:, 1]
+        z = np.vdot(ref_c, now_c) / np.vdot(ref_c, ref_c).real  # now ≈ z · reference (complex similarity)
+        offset = (centre[0] - ref_mean[0]) + 1j * (centre[1] - ref_mean[1])
+        moved = z * offset
+        return self.mesh_in_box(
+            rgb, now_mean + np.array([moved.real, moved.imag]), size * abs(z), angle + float(np.angle(z))
+        )
 
     def __call__(self, rgb: np.ndarray) -> FaceMesh468 | None:
         """The face mesh of the followed face in ``rgb`` (H, W, 3) uint8 RGB, or ``None`` when there is none."""
         rgb = _checked_image(rgb)
         if self.track and self._previous is not None:
-            mesh = self._mesh_from_previous(rgb, self._previous)
+            mesh = self._mesh_from_anchor(rgb, self._previous)
             if mesh.presence >= self.min_presence:
                 self._previous = mesh
                 return mesh
@@ -272,6 +298,7 @@ class FaceMeshDetector:
             if shift < _SETTLED_PX:
                 break
         self._previous = mesh if self.track else None
+        self._anchor = (mesh.points[_STABLE, :2].copy(), self._box_of(mesh.points))
         return mesh
 
 
