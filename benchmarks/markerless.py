@@ -11,8 +11,9 @@ depth noise, 2 % holes) films it. Paths, same performance:
   (docs/CAPTURE.md §3), intrinsics given.
 
 Columns: controls' error (RMS of |Δc|·reach, mm), surface error of the solved skin (mm, whole face), the
-still face's error (rest pose against the truth: what doing nothing scores), frames/s of detection alone and
-of detection + solve (detection, lifting or rays, solve and skin per frame; the rendering excluded).
+still face's error (rest pose against the truth: what doing nothing scores), frames/s of detection alone, of
+detection + solve one after the other (detection, lifting or rays, solve and skin per frame; the rendering
+excluded) and pipelined (detection a few frames ahead on the second core, as ``warpface track`` runs it).
 
     python -m benchmarks.markerless [--seconds 1] [--expressions smile disgust]
 """
@@ -73,6 +74,7 @@ def main() -> None:
                 still_mm=still,
                 detect_fps=float("nan"),
                 fps=fps,
+                piped_fps=float("nan"),
                 skipped=0,
             )
         )
@@ -86,6 +88,7 @@ def main() -> None:
             )
             for mode, name in paths:
                 run = solve_markerless(capture, rig, mode=mode, video=video, device=device)
+                piped = solve_markerless(capture, rig, mode=mode, video=video, prefetch=4, device=device)
                 frames = len(run.controls)
                 rows.append(
                     dict(
@@ -96,13 +99,15 @@ def main() -> None:
                         still_mm=still,
                         detect_fps=frames / run.detect_seconds,
                         fps=frames / (run.detect_seconds + run.solve_seconds),
+                        piped_fps=frames / (piped.detect_seconds + piped.solve_seconds),
                         skipped=int(run.skipped.sum()),
                     )
                 )
         capture.camera.close()
-    keys = ("expression", "path", "control_mm", "surface_mm", "still_mm", "detect_fps", "fps", "skipped")
-    labels = "expression|path|controls mm|surface mm|still face mm|detect frames/s|detect+solve frames/s|skipped"
-    print_table(rows, list(zip(keys, labels.split("|"), ("s", "s", ".3f", ".3f", ".3f", ".0f", ".0f", "d"))))
+    keys = ("expression", "path", "control_mm", "surface_mm", "still_mm", "detect_fps", "fps", "piped_fps", "skipped")
+    labels = "expression|path|controls mm|surface mm|still mm|detect fps|detect+solve fps|pipelined fps|skipped"
+    formats = ("s", "s", ".3f", ".3f", ".3f", ".0f", ".0f", ".0f", "d")
+    print_table(rows, list(zip(keys, labels.split("|"), formats)))
     suffix = "" if device.is_cpu else "_" + str(device).replace(":", "")
     info = dict(benchmark="markerless", seconds=args.seconds, machine=machine_info(device), rows=rows)
     print(f"wrote {write_results('markerless' + suffix, info)}")

@@ -117,7 +117,9 @@ class _RenderedFrames:
         self._frames = []
 
 
-def solve_markerless(capture: SyntheticCapture, rig=None, *, mode: str = "rgbd", video=None, device=None, **options):
+def solve_markerless(
+    capture: SyntheticCapture, rig=None, *, mode: str = "rgbd", video=None, prefetch: int = 0, device=None, **options
+):
     """Run one markerless path over ``capture`` and return a :class:`MarkerlessRun`.
 
     Args:
@@ -127,9 +129,12 @@ def solve_markerless(capture: SyntheticCapture, rig=None, *, mode: str = "rgbd",
             λ = 0.05 unless ``depth_weight`` says otherwise, docs/CAPTURE.md §2) or ``"video"``
             (the video file ``video``, written by :func:`write_video`; rays, intrinsics given, camera → rig from
             the first frame's perspective-n-point fit).
+        prefetch: > 0: detect that many frames ahead in a background thread (the second core) while the solve runs;
+            :attr:`MarkerlessRun.detect_seconds` is then the time the solve waited for a frame.
         **options: for the tracker (``smoothness``, ``rounds`` …).
     """
     from ..assets import default_rig
+    from ..tracking import PrefetchedSource
     from ..tracking.face_landmarks import FaceLandmarks, FaceRGBDLandmarks
     from .track_mono import MonocularTracker, rig_landmark_names
     from .track_solve import SolvingTracker
@@ -153,7 +158,7 @@ def solve_markerless(capture: SyntheticCapture, rig=None, *, mode: str = "rgbd",
     controls, skins, skipped = [], [], []
     detect = solve = 0.0
     try:
-        frames = iter(source.frames())
+        frames = iter((PrefetchedSource(source, depth=prefetch) if prefetch else source).frames())
         while True:
             started = time.perf_counter()
             frame = next(frames, None)

@@ -35,6 +35,8 @@ TRACK_CHUNK_FRAMES = 30
 """Frames per flushed chunk."""
 TRACK_FLUSH_SECONDS = 1.0
 """Longest a received frame waits in memory [s]: what a hard kill can lose at most."""
+_MARKERLESS_PREFETCH = 4
+"""Frames a markerless source detects ahead in a background thread while the solve runs."""
 
 
 def run_track(args) -> int:
@@ -246,6 +248,7 @@ def _solved_capture(rig, source, camera_to_model, stage: Path, fps: float, args)
         max_frames=args.frames,
         progress=not args.quiet,
         samples=lambda frame, skin: layout.samples(tracker.last, skin),
+        prefetch=_MARKERLESS_PREFETCH if markerless else 0,  # the face mesh runs on the second core
     )
     return stats, writer, tracker
 
