@@ -219,3 +219,32 @@ def test_rays_with_a_depth_term_match_the_point_solve_on_exact_depth(performance
     assert results["λ=0.2"] < results["λ=0"], results
     with pytest.raises(ValueError, match="depth_weight"):
         MonocularTracker(rig, names, depth_weight=2.0)
+
+
+def test_video_without_a_face_and_a_bad_landmark_model(tmp_path):
+    try:
+        from warpface.tracking.face_models import model_path
+
+        model_path("mesh")
+        import ai_edge_litert  # noqa: F401
+    except (FileNotFoundError, ImportError) as error:
+        pytest.skip(f"face models or runtime absent: {error}")
+    import cv2
+
+    from warpface.pipelines.track_solve import read_solved_capture
+
+    video = tmp_path / "wall.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (160, 120))
+    for _ in range(5):
+        writer.write(np.full((120, 160, 3), 128, np.uint8))
+    writer.release()
+    stage = tmp_path / "out" / "wall.usda"
+    for model, message in ((tmp_path / "missing.tflite", "file not found"), (video, "not a TFLite model")):
+        result = _cli(str(video), "--stage", str(stage), "--landmark-model", str(model))
+        assert result.returncode == 2 and message in result.stderr, result.stderr[-500:]
+        assert len(result.stderr.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
+    result = _cli(str(video), "--stage", str(stage))
+    assert result.returncode == 0, result.stderr[-500:]
+    solved = read_solved_capture(stage)
+    assert solved["skipped"].all() and len(solved["skipped"]) == 5
+    assert np.all(solved["controls"] == 0.0) and abs(solved["fps"] - 25.0) < 1e-6

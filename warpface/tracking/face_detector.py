@@ -154,6 +154,7 @@ class FaceMeshDetector:
         }
         self._threads = threads
         self._nets: dict = {}
+        self._net("mesh")  # a bad mesh model fails here, before any frame
         self._previous: FaceMesh468 | None = None
         self._anchor = None
         self.detections_run = 0
