@@ -7,6 +7,7 @@ depth noise, 2 % holes) films it. Paths, same performance:
 * ``dots (RGB-D)`` — the existing path: 60 painted dots, :func:`warpface.pipelines.capture.synthetic_capture`;
 * ``markerless RGB-D`` — face mesh → the rig's 68 iBUG vertices, lifted with depth, solved as 3-D points;
 * ``markerless RGB-D rays`` — the same landmarks solved as rays with a depth term (λ = 0.05, docs/CAPTURE.md §2);
+* ``… + dense`` — with the face mesh's ~260 other points on the rig's skin (``--dense``);
 * ``markerless video`` — the colour frames written to an .mp4, read back, rays, point-to-ray solve
   (docs/CAPTURE.md §3), intrinsics given.
 
@@ -87,8 +88,9 @@ def main() -> None:
                 ("video", "markerless video"),
             )
             for mode, name in paths:
-                run = solve_markerless(capture, rig, mode=mode, video=video, device=device)
-                piped = solve_markerless(capture, rig, mode=mode, video=video, prefetch=4, device=device)
+                dense = name.endswith("dense")
+                run = solve_markerless(capture, rig, mode=mode, video=video, dense=dense, device=device)
+                piped = solve_markerless(capture, rig, mode=mode, video=video, dense=dense, prefetch=4, device=device)
                 frames = len(run.controls)
                 rows.append(
                     dict(

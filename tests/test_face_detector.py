@@ -88,8 +88,8 @@ def rendered_face():
     rig = default_rig()
     capture = markerless_capture(rig, seconds=0.2, noise=False)
     color, _ = capture.camera.render(0)
-    truth = capture.camera.intrinsics.project(capture.camera.camera_points(0)[rig.landmarks])
-    yield color, truth
+    projected = capture.camera.intrinsics.project(capture.camera.camera_points(0))
+    yield color, projected[rig.landmarks], projected, rig
     capture.camera.close()
 
 
@@ -97,7 +97,7 @@ def rendered_face():
 def test_rendered_face_landmarks_match_the_projected_ground_truth(rendered_face):
     from warpface.tracking import detect_face_landmarks
 
-    color, truth = rendered_face
+    color, truth, _, _ = rendered_face
     found = detect_face_landmarks(color)
     assert set(f"ibug{i:02d}" for i in range(68)) <= set(found)
     detected = np.array([found[f"ibug{i:02d}"] for i in range(68)])
@@ -115,7 +115,7 @@ def test_rendered_face_landmarks_match_the_projected_ground_truth(rendered_face)
 def test_no_face_two_faces_and_bad_images(rendered_face):
     from warpface.tracking import detect_face_landmarks
 
-    color, truth = rendered_face
+    color, truth, _, _ = rendered_face
     assert detect_face_landmarks(np.zeros((480, 640, 3), np.uint8)) == {}
     assert detect_face_landmarks(np.random.default_rng(1).integers(0, 255, (240, 320, 3), dtype=np.uint8)) == {}
     # two faces side by side, the right one 0.8 times the size: the largest by default, the other with face=1
@@ -155,3 +155,22 @@ def test_real_photograph_astronaut():
     # anatomy: eyes above the nose tip above the mouth above the chin; the subject's right eye at the left
     assert ibug[36, 0] < ibug[39, 0] < ibug[42, 0] < ibug[45, 0]
     assert ibug[[36, 45], 1].max() < ibug[30, 1] < ibug[[48, 54], 1].min() < ibug[8, 1]
+
+
+@needs_models
+def test_dense_mesh_points_land_on_the_rigs_skin_where_the_network_sees_them(rendered_face):
+    from warpface.tracking.face_detector import FaceMeshDetector
+    from warpface.tracking.face_mesh_dense import dense_mesh_vertices
+
+    color, truth, projected, rig = rendered_face
+    mesh = FaceMeshDetector(track=False)(color)
+    matched = dense_mesh_vertices(mesh.points, rig.mesh, rig.landmarks)
+    points, vertices = np.array(list(matched)), np.array(list(matched.values()))
+    assert 150 < len(matched) < 468 and len(set(vertices)) == len(vertices)
+    assert not np.isin(vertices, rig.landmarks).any() and not np.isin(vertices, rig.mesh.boundary_vertices).any()
+    # registered in 3-D from the network's own depth, the matched vertices project near the detected points
+    iod = np.linalg.norm(truth[36] - truth[45])
+    error = np.linalg.norm(projected[vertices] - mesh.points[points, :2], axis=1) / iod
+    assert np.median(error) < 0.06 and np.percentile(error, 90) < 0.15, (np.median(error), np.percentile(error, 90))
+    with pytest.raises(ValueError, match="468"):
+        dense_mesh_vertices(mesh.points[:10], rig.mesh, rig.landmarks)

@@ -84,6 +84,12 @@ def add_parser(subparsers, common) -> None:
         help="markerless: do not take the first frame with a face as neutral (by default each landmark's offset "
         "from the rig's own there is subtracted from later frames)",
     )
+    track.add_argument(
+        "--dense",
+        action="store_true",
+        help="markerless (video, RGB-D folder): also the face mesh's points the rig's skin has (~260 on the built-in "
+        "face), matched on the first frame with a face",
+    )
     track.add_argument("--landmark-model", default=None, help="markerless: a face-mesh .tflite file of one's own")
     track.add_argument(
         "--ray-rounds", type=positive_int, default=1, help="video: closest-ray / solve rounds per frame (default 1)"

@@ -103,6 +103,20 @@ class MarkerlessRun:
         return float(np.linalg.norm(self.skins - truth[: len(self.skins)], axis=2).mean() * 1e3)
 
 
+def _dense_names(capture, rig, video) -> dict:
+    """The dense landmark names of the capture's first frame (the video's, or the rendered one)."""
+    from ..tracking.face_detector import FaceMeshDetector
+    from ..tracking.face_mesh_dense import dense_mesh_vertices
+    from ..tracking.landmark_names import vertex_landmark_names
+    from .track_mono import dense_landmark_names
+
+    if video is not None:
+        return dense_landmark_names(video, rig)
+    mesh = FaceMeshDetector(track=False)(capture.camera.render(0)[0])
+    matched = dense_mesh_vertices(mesh.points, rig.mesh, rig.landmarks)
+    return dict(zip(vertex_landmark_names(list(matched.values())), (f"mesh{p:03d}" for p in matched)))
+
+
 class _RenderedFrames:
     """The camera's RGB-D frames rendered up front (rendering is not part of a capture's cost)."""
 
@@ -118,7 +132,15 @@ class _RenderedFrames:
 
 
 def solve_markerless(
-    capture: SyntheticCapture, rig=None, *, mode: str = "rgbd", video=None, prefetch: int = 0, device=None, **options
+    capture: SyntheticCapture,
+    rig=None,
+    *,
+    mode: str = "rgbd",
+    video=None,
+    prefetch: int = 0,
+    dense: bool = False,
+    device=None,
+    **options,
 ):
     """Run one markerless path over ``capture`` and return a :class:`MarkerlessRun`.
 
@@ -129,6 +151,8 @@ def solve_markerless(
             λ = 0.05 unless ``depth_weight`` says otherwise, docs/CAPTURE.md §2) or ``"video"``
             (the video file ``video``, written by :func:`write_video`; rays, intrinsics given, camera → rig from
             the first frame's perspective-n-point fit).
+        dense: also the face mesh's points the rig's skin has, matched on the first frame
+            (:func:`~warpface.pipelines.track_mono.dense_landmark_names`).
         prefetch: > 0: detect that many frames ahead in a background thread (the second core) while the solve runs;
             :attr:`MarkerlessRun.detect_seconds` is then the time the solve waited for a frame.
         **options: for the tracker (``smoothness``, ``rounds`` …).
@@ -141,6 +165,8 @@ def solve_markerless(
 
     rig = default_rig() if rig is None else rig
     names = rig_landmark_names(rig, "rig")
+    if dense:
+        names.update(_dense_names(capture, rig, video if mode == "video" else None))
     if mode == "video":
         from ..tracking.video import VideoLandmarks
 

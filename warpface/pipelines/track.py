@@ -143,6 +143,8 @@ def _check_options(args) -> None:
         )
     if markerless and (args.source == "synthetic" or Path(args.source).suffix == ".npz"):
         raise ValueError(f"--markerless needs images: an RGB-D folder, realsense, orbbec or a video, not {args.source}")
+    if getattr(args, "dense", False) and not (markerless or is_video(args.source)):
+        raise ValueError("--dense needs --markerless or a video")
     if getattr(args, "face", 0) < 0:
         raise ValueError(f"--face must be ≥ 0, got {args.face}")
     if getattr(args, "intrinsics", None) is not None and not is_video(args.source):
@@ -192,6 +194,7 @@ def _open_source(rig, args):
             intrinsics=parse_intrinsics(getattr(args, "intrinsics", None)),
             face=getattr(args, "face", 0),
             landmark_model=getattr(args, "landmark_model", None),
+            dense=getattr(args, "dense", False),
             device=args.device,
         )
     else:

@@ -19,7 +19,14 @@ import numpy as np
 from ..tracking import LandmarkFrame
 from .track_solve import SolvedFrame, SolvingTracker
 
-__all__ = ["rig_landmark_names", "markerless_source", "MonocularTracker", "is_video", "parse_intrinsics"]
+__all__ = [
+    "rig_landmark_names",
+    "dense_landmark_names",
+    "markerless_source",
+    "MonocularTracker",
+    "is_video",
+    "parse_intrinsics",
+]
 
 
 def is_video(spec: str) -> bool:
@@ -82,14 +89,21 @@ def rig_landmark_names(rig, where: str = "--rig") -> dict:
     return names
 
 
-def markerless_source(spec: str, rig, *, intrinsics=None, face: int = 0, landmark_model=None, device=None):
+def markerless_source(
+    spec: str, rig, *, intrinsics=None, face: int = 0, landmark_model=None, dense: bool = False, device=None
+):
     """The markerless landmark source of a ``track`` spec: ``realsense`` / ``orbbec`` / an RGB-D folder (3-D
-    landmarks lifted with depth) or a video file (rays); landmarks named after ``rig``'s vertices."""
+    landmarks lifted with depth) or a video file (rays); landmarks named after ``rig``'s vertices. ``dense``: also
+    the face mesh's points the rig's skin has (:func:`dense_landmark_names`; a video or an RGB-D folder)."""
     from ..tracking.face_landmarks import FaceLandmarks, FaceRGBDLandmarks
     from ..tracking.smoothing import OneEuroFilter
 
     names = rig_landmark_names(rig)
     options = dict(face=face, mesh_model=landmark_model)
+    if dense:
+        if spec in ("realsense", "orbbec"):
+            raise ValueError("--dense needs a recording (a video or an RGB-D folder), not a live camera")
+        names.update(dense_landmark_names(spec, rig, **options))
     if is_video(spec):
         from ..tracking.video import VideoLandmarks
 
@@ -105,6 +119,38 @@ def markerless_source(spec: str, rig, *, intrinsics=None, face: int = 0, landmar
     folder = RGBDFolder(spec)
     detector = FaceLandmarks(names, smoothing=OneEuroFilter(), fps=folder.fps or 30.0, **options)
     return FaceRGBDLandmarks(folder, detector, device=device)
+
+
+def dense_landmark_names(spec, rig, *, face: int = 0, mesh_model=None, max_frames: int = 150) -> dict:
+    """``{"v01234": "mesh123", …}``: the face mesh's points on ``rig``'s skin, matched on the first frame of the video
+    or RGB-D folder ``spec`` with a face (:func:`warpface.tracking.face_mesh_dense.dense_mesh_vertices`; it should
+    be neutral). ValueError when none of the first ``max_frames`` frames has a face."""
+    from ..tracking.face_detector import FaceMeshDetector
+    from ..tracking.face_mesh_dense import dense_mesh_vertices
+    from ..tracking.landmark_names import vertex_landmark_names
+
+    detector = FaceMeshDetector(face=face, mesh_model=mesh_model, track=False)
+    if is_video(spec):
+        from ..tracking.video import VideoFrames
+
+        reader = VideoFrames(spec)
+        images = (rgb for _, _, rgb in reader.frames())
+    else:
+        from ..tracking import RGBDFolder
+
+        reader = RGBDFolder(spec)
+        images = (frame.color for frame in reader.frames())
+    try:
+        for count, rgb in enumerate(images):
+            mesh = detector(rgb)
+            if mesh is not None:
+                matched = dense_mesh_vertices(mesh.points, rig.mesh, rig.landmarks)
+                return dict(zip(vertex_landmark_names(list(matched.values())), (f"mesh{p:03d}" for p in matched)))
+            if count + 1 >= max_frames:
+                break
+    finally:
+        reader.close()
+    raise ValueError(f"{spec}: no face in the first {max_frames} frames to match the face mesh onto the rig")
 
 
 class MonocularTracker(SolvingTracker):
