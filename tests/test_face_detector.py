@@ -174,3 +174,28 @@ def test_dense_mesh_points_land_on_the_rigs_skin_where_the_network_sees_them(ren
     assert np.median(error) < 0.06 and np.percentile(error, 90) < 0.15, (np.median(error), np.percentile(error, 90))
     with pytest.raises(ValueError, match="468"):
         dense_mesh_vertices(mesh.points[:10], rig.mesh, rig.landmarks)
+
+
+@needs_models
+def test_any_array_gives_landmarks_nothing_or_one_clear_error():
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+    from hypothesis.extra.numpy import arrays
+
+    from warpface.tracking import detect_face_landmarks
+
+    shapes = st.tuples(st.integers(0, 40), st.integers(0, 40)).flatmap(
+        lambda hw: st.sampled_from([hw, (*hw, 3), (*hw, 4), (*hw, 3, 1)])
+    )
+
+    @settings(max_examples=40, deadline=None)
+    @given(arrays(st.sampled_from([np.uint8, np.float32, np.int64, bool]), shapes))
+    def check(image):
+        try:
+            found = detect_face_landmarks(image)
+        except (TypeError, ValueError) as error:
+            assert "rgb" in str(error) and "\n" not in str(error)
+            return
+        assert found == {} or all(np.isfinite(v).all() for v in found.values())
+
+    check()

@@ -60,6 +60,7 @@ def test_unreadable_video_and_bad_options_are_one_line_and_write_nothing(tmp_pat
         ([str(tmp_path / "missing.mp4")], "file not found"),
         ([str(bad), "--intrinsics", "1,2,3"], "six numbers"),
         (["synthetic", "--markerless"], "--markerless needs images"),
+        (["synthetic", "--dense"], "--dense needs"),
         ([str(bad), "--face", "-1"], "--face"),
     ):
         result = _cli(*args, "--stage", str(stage))
@@ -87,9 +88,8 @@ def test_video_of_a_performance_is_solved_onto_the_stage(tmp_path):
     capture.camera.close()
     k = capture.camera.intrinsics
     stage = tmp_path / "out" / "smile.usda"
-    result = _cli(
-        str(video), "--stage", str(stage), "--intrinsics", f"{k.fx},{k.fy},{k.cx},{k.cy},{k.width},{k.height}"
-    )
+    intrinsics = f"{k.fx},{k.fy},{k.cx},{k.cy},{k.width},{k.height}"
+    result = _cli(str(video), "--stage", str(stage), "--intrinsics", intrinsics, "--dense")
     assert result.returncode == 0, result.stderr[-800:]
     solved = read_solved_capture(stage)
     assert solved["controls"].shape[0] == frames and np.all(np.isfinite(solved["controls"]))
