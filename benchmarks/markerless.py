@@ -86,6 +86,8 @@ def main() -> None:
                 ("rgbd", "markerless RGB-D"),
                 ("rgbd-rays", "markerless RGB-D rays λ=0.05"),
                 ("video", "markerless video"),
+                ("rgbd", "markerless RGB-D + dense"),
+                ("video", "markerless video + dense"),
             )
             for mode, name in paths:
                 dense = name.endswith("dense")
