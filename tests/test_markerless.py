@@ -41,6 +41,16 @@ def test_pnp_recovers_a_known_pose():
     assert pnp_pose(model[:5], camera[:5, :2] / camera[:5, 2:3]) is None
 
 
+def _need_models():
+    try:
+        from warpface.tracking.face_models import model_path
+
+        model_path("mesh")
+        import ai_edge_litert  # noqa: F401
+    except (FileNotFoundError, ImportError) as error:
+        pytest.skip(f"face models or runtime absent: {error}")
+
+
 def _cli(*args):
     return subprocess.run(
         [sys.executable, "-m", "warpface.cli", "--device", "cpu", "--quiet", "track", *args],
@@ -72,13 +82,7 @@ def test_unreadable_video_and_bad_options_are_one_line_and_write_nothing(tmp_pat
 @pytest.mark.slow
 def test_video_of_a_performance_is_solved_onto_the_stage(tmp_path):
     pytest.importorskip("pyrender")
-    try:
-        from warpface.tracking.face_models import model_path
-
-        model_path("mesh")
-        import ai_edge_litert  # noqa: F401
-    except (FileNotFoundError, ImportError) as error:
-        pytest.skip(f"face models or runtime absent: {error}")
+    _need_models()
     from warpface.pipelines.markerless_loop import markerless_capture, write_video
     from warpface.pipelines.track_solve import read_solved_capture
 
@@ -107,13 +111,7 @@ def test_video_of_a_performance_is_solved_onto_the_stage(tmp_path):
 @pytest.mark.slow
 def test_rgbd_folder_markerless_solve_holds_the_controls_on_a_frame_without_a_face(tmp_path):
     pytest.importorskip("pyrender")
-    try:
-        from warpface.tracking.face_models import model_path
-
-        model_path("mesh")
-        import ai_edge_litert  # noqa: F401
-    except (FileNotFoundError, ImportError) as error:
-        pytest.skip(f"face models or runtime absent: {error}")
+    _need_models()
     from warpface.pipelines.markerless_loop import markerless_capture
     from warpface.pipelines.track_solve import read_solved_capture
     from warpface.tracking import RGBDFolder, RGBDFrame
@@ -222,13 +220,7 @@ def test_rays_with_a_depth_term_match_the_point_solve_on_exact_depth(performance
 
 
 def test_video_without_a_face_and_a_bad_landmark_model(tmp_path):
-    try:
-        from warpface.tracking.face_models import model_path
-
-        model_path("mesh")
-        import ai_edge_litert  # noqa: F401
-    except (FileNotFoundError, ImportError) as error:
-        pytest.skip(f"face models or runtime absent: {error}")
+    _need_models()
     import cv2
 
     from warpface.pipelines.track_solve import read_solved_capture
