@@ -160,6 +160,7 @@ def solve_markerless(
     from ..assets import default_rig
     from ..tracking import PrefetchedSource
     from ..tracking.face_landmarks import FaceLandmarks, FaceRGBDLandmarks
+    from ..tracking.smoothing import OneEuroFilter
     from .track_mono import MonocularTracker, rig_landmark_names
     from .track_solve import SolvingTracker
 
@@ -173,7 +174,8 @@ def solve_markerless(
         source = VideoLandmarks(video, intrinsics=capture.camera.intrinsics, names=names)
         tracker = MonocularTracker(rig, source.landmark_names, device=device, **{"neutral_offsets": True, **options})
     elif mode in ("rgbd", "rgbd-rays"):
-        source = FaceRGBDLandmarks(_RenderedFrames(capture.camera), FaceLandmarks(names), device=device)
+        detector = FaceLandmarks(names, smoothing=OneEuroFilter(), fps=capture.camera.fps)  # as `warpface track`
+        source = FaceRGBDLandmarks(_RenderedFrames(capture.camera), detector, device=device)
         options = {"neutral_offsets": True, "camera_to_model": capture.camera_to_rig, **options}
         if mode == "rgbd-rays":
             tracker = MonocularTracker(rig, source.landmark_names, device=device, **{"depth_weight": 0.05, **options})
