@@ -39,7 +39,7 @@ from .cameras import CameraDisconnected, CameraError, CameraUnavailable, OrbbecC
 from .correspondence import Correspondence, FaceNormalization, compute_correspondence
 from .depth import backproject
 from .detect import ArucoMarkers, DotTracker
-from .face_landmarks import FaceLandmarks, detect_face_landmarks
+from .face_landmarks import FaceLandmarks, FaceRGBDLandmarks, detect_face_landmarks
 from .intrinsics import KINECT_V1_INTRINSICS, CameraIntrinsics
 from .landmark_names import adapter_for_face, landmark_vertices, vertex_landmark_names
 from .mediapipe import MediaPipeLandmarks
@@ -55,6 +55,7 @@ from .sources import (
 )
 from .synthetic import KinectNoise, SyntheticRGBDCamera, place_fiducials
 from .transfer import TrackingAdapter
+from .video import VideoLandmarks
 
 __all__ = [
     # sources
@@ -80,6 +81,8 @@ __all__ = [
     "ArucoMarkers",
     "DotTracker",
     "FaceLandmarks",
+    "FaceRGBDLandmarks",
+    "VideoLandmarks",
     "detect_face_landmarks",
     "CameraIntrinsics",
     "KINECT_V1_INTRINSICS",

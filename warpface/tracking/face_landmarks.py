@@ -11,6 +11,8 @@ reports every landmark missing (NaN, confidence 0) for that frame and counts it 
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from .face_mesh_ibug import IBUG_NAMES, ibug_from_mesh
@@ -33,6 +35,7 @@ JAW_CONTOUR_CONFIDENCE = 0.3
 """Confidence of the jaw-line points iBUG 0–16 (8, the chin, excepted): they lie on the face's outline,
 which slides over the skin as the head turns, so they pull less than points fixed on the skin."""
 _CACHE: dict = {}
+_CACHE_LOCK = threading.Lock()
 
 
 class FaceLandmarks:
@@ -125,11 +128,13 @@ def detect_face_landmarks(rgb, *, face: int = 0, mesh: bool = False, model_dir=N
         FileNotFoundError: a model file is missing; ImportError: ``ai-edge-litert`` is not installed.
     """
     key = (None if model_dir is None else str(model_dir), int(face))
-    if key not in _CACHE:
-        _CACHE[key] = FaceLandmarks(IBUG_NAMES + MESH_NAMES, model_dir=model_dir, face=face, track=False)
-    detector = _CACHE[key]
-    pixels, confidence = detector.detect(rgb)
-    if not detector.found:
+    with _CACHE_LOCK:  # one interpreter per (folder, face), shared by the threads that call this
+        if key not in _CACHE:
+            _CACHE[key] = FaceLandmarks(IBUG_NAMES + MESH_NAMES, model_dir=model_dir, face=face, track=False)
+        detector = _CACHE[key]
+        pixels, _ = detector.detect(rgb)
+        found = detector.found
+    if not found:
         return {}
     count = len(IBUG_NAMES) + (len(MESH_NAMES) if mesh else 0)
     return {name: (float(x), float(y)) for name, (x, y) in zip(detector.landmark_names[:count], pixels[:count])}
