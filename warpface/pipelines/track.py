@@ -35,6 +35,8 @@ TRACK_CHUNK_FRAMES = 30
 """Frames per flushed chunk."""
 TRACK_FLUSH_SECONDS = 1.0
 """Longest a received frame waits in memory [s]: what a hard kill can lose at most."""
+_MARKERLESS_PREFETCH = 4
+"""Frames a markerless source detects ahead in a background thread while the solve runs."""
 
 
 def run_track(args) -> int:
@@ -44,9 +46,10 @@ def run_track(args) -> int:
     """
     from .._files import create_missing_folders, remove_created_folders
     from ..usd.tracking_io import TrackingStageWriter
+    from .track_mono import is_video
 
     _check_options(args)
-    solve = getattr(args, "solve", False)
+    solve = getattr(args, "solve", False) or is_video(args.source)  # a video drives the rig through the solve
     stage = Path(args.stage).absolute()
     created = create_missing_folders(stage.parent)
     writer = None
@@ -106,6 +109,8 @@ def _check_options(args) -> None:
     """Refuse bad numeric options before anything is loaded or written."""
     import math
 
+    from .track_mono import is_video
+
     if args.frames is not None and args.frames < 1:
         raise ValueError(f"--frames must be ≥ 1, got {args.frames}")
     if Path(args.stage).suffix not in (".usda", ".usdc"):
@@ -115,10 +120,17 @@ def _check_options(args) -> None:
         raise ValueError(f"--rig {rig}: expected a rig stage (.usda, .usdc, .usd), e.g. one made by `warpface rig`")
     if rig is not None and not Path(rig).is_file():
         raise ValueError(f"--rig {rig}: file not found")
-    if args.source in ("realsense", "orbbec"):
-        if getattr(args, "layout", None) is None:
+    markerless = getattr(args, "markerless", False)
+    if is_video(args.source):
+        if not Path(args.source).is_file():
+            raise ValueError(f"video {args.source}: file not found")
+        if args.fem:
+            raise ValueError("--fem and a video do not combine (the video's skin comes from the solved muscles)")
+    elif args.source in ("realsense", "orbbec"):
+        if getattr(args, "layout", None) is None and not markerless:
             raise ValueError(
-                f"a live {args.source} capture needs --layout: a JSON file with the dots' 'names' and 'initial_pixels'"
+                f"a live {args.source} capture needs --layout (a JSON file with the dots' 'names' and "
+                "'initial_pixels') or --markerless"
             )
     elif (
         args.source != "synthetic"
@@ -126,9 +138,17 @@ def _check_options(args) -> None:
         and not Path(args.source).is_dir()
     ):
         raise ValueError(
-            f"unknown source {args.source!r}: expected an existing .npz recording or RGB-D folder, synthetic, "
-            "realsense or orbbec"
+            f"unknown source {args.source!r}: expected an existing .npz recording or RGB-D folder, a video file, "
+            "synthetic, realsense or orbbec"
         )
+    if markerless and (args.source == "synthetic" or Path(args.source).suffix == ".npz"):
+        raise ValueError(f"--markerless needs images: an RGB-D folder, realsense, orbbec or a video, not {args.source}")
+    if getattr(args, "dense", False) and not (markerless or is_video(args.source)):
+        raise ValueError("--dense needs --markerless or a video")
+    if getattr(args, "face", 0) < 0:
+        raise ValueError(f"--face must be ≥ 0, got {args.face}")
+    if getattr(args, "intrinsics", None) is not None and not is_video(args.source):
+        raise ValueError("--intrinsics is for a video (an RGB-D source brings its own)")
     if getattr(args, "solve", False):
         if args.fem:
             raise ValueError("--fem and --solve do not combine (the solved skin comes from the muscles)")
@@ -159,12 +179,26 @@ def _load_rig(path, quiet: bool):
 def _open_source(rig, args):
     """The landmark source, its camera → model transform (or None) and what closes it."""
     from .capture import open_source, synthetic_capture
+    from .track_mono import is_video
 
     if args.source == "synthetic":
         with _setup_step("preparing the synthetic camera", args.quiet):
             capture = synthetic_capture(rig, expression=args.expression, device=args.device)
         return capture.source, capture.camera_to_rig, [capture.camera.close]
-    source = open_source(args.source, layout=getattr(args, "layout", None), device=args.device)
+    if getattr(args, "markerless", False) or is_video(args.source):
+        from .track_mono import markerless_source, parse_intrinsics
+
+        source = markerless_source(
+            args.source,
+            rig,
+            intrinsics=parse_intrinsics(getattr(args, "intrinsics", None)),
+            face=getattr(args, "face", 0),
+            landmark_model=getattr(args, "landmark_model", None),
+            dense=getattr(args, "dense", False),
+            device=args.device,
+        )
+    else:
+        source = open_source(args.source, layout=getattr(args, "layout", None), device=args.device)
     return source, None, [getattr(source, "close", lambda: None)]
 
 
@@ -192,14 +226,21 @@ def _solved_capture(rig, source, camera_to_model, stage: Path, fps: float, args)
     from .track_solve import SolvingTracker, solved_stage_writer
 
     with _setup_step("preparing the solver", args.quiet):
-        tracker = SolvingTracker(
-            rig,
-            source.landmark_names,
-            camera_to_model=camera_to_model,
-            residual_transfer=args.residual_transfer,
-            smoothness=args.smoothness,
-            device=args.device,
-        )
+        markerless = getattr(args, "markerless", False) or hasattr(source, "video")
+        neutral = markerless and not getattr(args, "no_neutral", False)  # docs/CAPTURE.md §1
+        options = dict(smoothness=args.smoothness, neutral_offsets=neutral, device=args.device)
+        if hasattr(source, "intrinsics") and hasattr(source, "video"):  # rays: the monocular solve
+            from .track_mono import MonocularTracker
+
+            tracker = MonocularTracker(rig, source.landmark_names, rounds=getattr(args, "ray_rounds", 1), **options)
+        else:
+            tracker = SolvingTracker(
+                rig,
+                source.landmark_names,
+                camera_to_model=camera_to_model,
+                residual_transfer=args.residual_transfer,
+                **options,
+            )
         writer, layout = solved_stage_writer(
             stage, tracker, fps, chunk_frames=TRACK_CHUNK_FRAMES, flush_seconds=TRACK_FLUSH_SECONDS
         )
@@ -210,6 +251,7 @@ def _solved_capture(rig, source, camera_to_model, stage: Path, fps: float, args)
         max_frames=args.frames,
         progress=not args.quiet,
         samples=lambda frame, skin: layout.samples(tracker.last, skin),
+        prefetch=_MARKERLESS_PREFETCH if markerless else 0,  # the face mesh runs on the second core
     )
     return stats, writer, tracker
 

@@ -49,6 +49,7 @@ from ..usd.jaw_io import JAW_CONTROL_ATTRIBUTES, jaw_prim
 __all__ = [
     "SolvedFrame",
     "SolvingTracker",
+    "neutral_offsets",
     "SolvedStageLayout",
     "solved_stage_writer",
     "read_solved_capture",
@@ -102,6 +103,9 @@ class SolvingTracker:
         pose: solve a rigid head pose with the controls (default on for tracked data).
         smoothness: temporal weight of the solve (pull toward the previous frame's controls).
         min_confidence: landmarks at or below this confidence count as missing.
+        neutral_offsets: take the first frame with ≥ 6 landmarks as neutral and subtract, from then on, each
+            landmark's offset from its rig vertex there (rig frame, turned with the head pose): a detector whose
+            landmarks sit a little off the rig's own (markerless) then does not read that offset as an expression.
         device: Warp device.
         **options: more :class:`warpface.solve.SolveOptions` fields (``l1``, ``symmetry``, ``min_points``,
             ``jaw=False`` to keep the jaw at rest …).
@@ -117,6 +121,7 @@ class SolvingTracker:
         pose: bool = True,
         smoothness: float = 1e-3,
         min_confidence: float = 0.0,
+        neutral_offsets: bool = False,
         device=None,
         **options,
     ):
@@ -131,6 +136,9 @@ class SolvingTracker:
         self.control_names = list(self.solver.names)
         _ = self.solver.model  # built now (≈ 0.2 s), not inside the first frame
         self.min_confidence = float(min_confidence)
+        self.neutral_offsets = bool(neutral_offsets)
+        self.offsets: np.ndarray | None = None
+        """Per-landmark offsets from the neutral frame, (N, 3) rig frame, with ``neutral_offsets``."""
         self.camera_to_model = None if camera_to_model is None else np.array(camera_to_model, dtype=np.float64)
         if self.camera_to_model is not None and (
             self.camera_to_model.shape != (4, 4) or not np.all(np.isfinite(self.camera_to_model))
@@ -181,9 +189,16 @@ class SolvingTracker:
             targets = np.where(
                 valid[:, None], points @ self.camera_to_model[:3, :3].T + self.camera_to_model[:3, 3], np.nan
             )
-        fit = self.solver.solve(
-            targets, weights=np.where(valid, np.clip(confidence, 0.0, 1.0), 0.0) if valid.any() else None
-        )
+        weights = np.where(valid, np.clip(confidence, 0.0, 1.0), 0.0)
+        if self.neutral_offsets and self.offsets is None and valid.sum() >= 6:
+            self.offsets = neutral_offsets(self.rest[self.vertices], targets, weights, self.solver.origin)
+        if self.offsets is not None:
+            targets = targets - self.offsets @ self.solver.rotation.T
+        fit = self.solver.solve(targets, weights=weights if valid.any() else None)
+        return self._finish(frame, fit, targets)
+
+    def _finish(self, frame: LandmarkFrame, fit, targets: np.ndarray) -> SolvedFrame:
+        """The skin, the residual motion and the counts of one solved frame (``targets``: rig frame)."""
         if not fit.skipped or self.last is None:
             self._skin = np.asarray(fit.points, dtype=np.float32)
         skin, motion = self._skin, None
@@ -233,6 +248,19 @@ class SolvingTracker:
         )
         self.transfer.track_frame(local, copy=False)
         return self.transfer.displacements.numpy().copy()
+
+
+def neutral_offsets(rest, targets, weights, origin) -> np.ndarray:
+    """Each target's offset from its rest point under the best rigid fit (rest → targets), turned back into the
+    rest frame: (N, 3), 0 for a target without weight (NaN rows)."""
+    from ..solve.pose import rigid_alignment
+
+    usable = np.all(np.isfinite(targets), axis=1) & (weights > 0)
+    rotation, translation = rigid_alignment(
+        rest, np.where(usable[:, None], targets, 0.0), np.where(usable, weights, 0.0), origin
+    )
+    posed = (rest - origin) @ rotation.T + origin + translation
+    return np.where(usable[:, None], (np.where(usable[:, None], targets, posed) - posed) @ rotation, 0.0)
 
 
 def _selection(source_names, names) -> np.ndarray:

@@ -15,6 +15,11 @@ Modules, each with one job:
 * :mod:`~warpface.tracking.mediapipe` — :class:`MediaPipeLandmarks`.
 * :mod:`~warpface.tracking.synthetic` — :class:`SyntheticRGBDCamera` (pyrender, ground truth).
 * :mod:`~warpface.tracking.detect` — ArUco markers, dot blobs, :class:`DotTracker`.
+* :mod:`~warpface.tracking.face_landmarks` — markerless: :class:`FaceLandmarks`, :func:`detect_face_landmarks`
+  (:mod:`~warpface.tracking.face_detector` runs MediaPipe's face detection and face mesh,
+  :mod:`~warpface.tracking.face_models` finds their files, :mod:`~warpface.tracking.face_mesh_ibug` maps
+  the mesh to the 68 iBUG points, :mod:`~warpface.tracking.smoothing` smooths tracks);
+  :mod:`~warpface.tracking.video` — :class:`VideoLandmarks` (a video file's 2-D landmarks).
 * :mod:`~warpface.tracking.intrinsics` — :class:`CameraIntrinsics` (the pixel convention).
 * :mod:`~warpface.tracking.depth` — robust :func:`backproject`.
 * :mod:`~warpface.tracking.correspondence` — :class:`FaceNormalization`, :func:`compute_correspondence`
@@ -34,6 +39,7 @@ from .cameras import CameraDisconnected, CameraError, CameraUnavailable, OrbbecC
 from .correspondence import Correspondence, FaceNormalization, compute_correspondence
 from .depth import backproject
 from .detect import ArucoMarkers, DotTracker
+from .face_landmarks import FaceLandmarks, FaceRGBDLandmarks, detect_face_landmarks
 from .intrinsics import KINECT_V1_INTRINSICS, CameraIntrinsics
 from .landmark_names import adapter_for_face, landmark_vertices, vertex_landmark_names
 from .mediapipe import MediaPipeLandmarks
@@ -49,6 +55,7 @@ from .sources import (
 )
 from .synthetic import KinectNoise, SyntheticRGBDCamera, place_fiducials
 from .transfer import TrackingAdapter
+from .video import VideoLandmarks
 
 __all__ = [
     # sources
@@ -73,6 +80,10 @@ __all__ = [
     # detection and depth
     "ArucoMarkers",
     "DotTracker",
+    "FaceLandmarks",
+    "FaceRGBDLandmarks",
+    "VideoLandmarks",
+    "detect_face_landmarks",
     "CameraIntrinsics",
     "KINECT_V1_INTRINSICS",
     "backproject",
