@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from warpface import CylindricalProjection, FaceMesh, FaceRig, LinearMuscle, PlanarProjection, SphincterMuscle, Wrinkle
+from warpface.expression.lids import LidMuscle
 from warpface.tracking import LandmarkFrame, vertex_landmark_names
 
 __all__ = [
@@ -162,6 +163,8 @@ def assert_rigs_equal(a: FaceRig, b: FaceRig) -> None:
         fields = (
             ("attachment", "insertion", "zone_angle_deg", "falloff_start", "falloff_finish")
             if isinstance(m, LinearMuscle)
+            else ("centre", "axis", "vertices", "angles", "slides", "lifts")
+            if isinstance(m, LidMuscle)
             else ("center", "axis_x", "axis_y", "semi_axes")
         )
         assert m.name == n.name
@@ -190,6 +193,10 @@ def scaled_rig(rig: FaceRig, factor: float) -> FaceRig:
                     m.falloff_start * factor,
                     m.falloff_finish * factor,
                 )
+            )
+        elif isinstance(m, LidMuscle):
+            muscles.append(
+                LidMuscle(m.name, m.centre * factor, m.axis, m.vertices, m.angles, m.slides * factor, m.lifts * factor)
             )
         else:
             muscles.append(

@@ -39,6 +39,7 @@ from .anatomy import (
 from .face import default_face, default_landmarks
 from .frame import FaceFrame, SurfaceSampler, check_landmarks, head_cylinder
 from .jaw import default_jaw
+from .lids import default_lids
 from .thickness import default_thickness
 
 __all__ = [
@@ -166,19 +167,20 @@ def default_rig(
     surface = SurfaceSampler(mesh, frame, normals)
     local = frame.to_local(mesh.points[landmarks])
     linear, sphincters = _linear_muscles(local, surface), _sphincters(local, frame)
-    jaw = None
+    jaw, lids = None, []
     if anatomy == "full":
         extra_linear, sphincters = anatomy_muscles(local, surface, frame, sphincters)
         linear = [_with_skin_response(m) for m in revised_classic_muscles(local, surface, linear) + extra_linear]
         sphincters = [_with_skin_response(m) for m in sphincters]
         jaw = default_jaw(mesh, frame, landmarks)
+        lids = default_lids(mesh, frame, landmarks)
     wrinkles = _wrinkles(local, surface, frame, head_cylinder(frame, local), _typical_edge(mesh) / frame.scale, device)
     thickness = default_thickness(mesh, landmarks, device=device)
     if anatomy == "full":
         thickness = MOBILE_TISSUE_FRACTION * thickness
     return FaceRig(
         mesh=mesh,
-        muscles=linear + sphincters,
+        muscles=linear + sphincters + lids,
         wrinkles=wrinkles,
         thickness=thickness,
         landmarks=landmarks,

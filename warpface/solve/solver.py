@@ -31,6 +31,7 @@ import numpy as np
 
 from ..errors import RigError
 from ..expression.jaw import JAW_CONTROL_NAMES, JAW_RANGE
+from ..expression.lids import LidMuscle
 from ..expression.muscles import SphincterMuscle
 from ..rig import FaceRig
 from .device_steps import DeviceSteps
@@ -283,10 +284,7 @@ class Solver:
 
     def _bounds(self):
         low = np.zeros(len(self.names))
-        high = np.array(
-            [SPHINCTER_MAX if isinstance(m, SphincterMuscle) else np.inf for m in self.rig.muscles]
-            + [0.0] * (len(self.names) - self.muscle_count)
-        )
+        high = np.array([_upper_bound(m) for m in self.rig.muscles] + [0.0] * (len(self.names) - self.muscle_count))
         for index, name in enumerate(JAW_CONTROL_NAMES if self.has_jaw else (), start=self.muscle_count):
             lo, hi = JAW_RANGE[name]
             unit = 1.0 if name == "jaw_open" else self.unit  # the slides' range is in face units
@@ -549,3 +547,11 @@ def fit(rig, target, *, vertices=None, weights=None, device=None, **options) -> 
         solvers.pop(next(iter(solvers)))
     solver.reset()
     return solver.solve(target, weights=weights)
+
+
+def _upper_bound(muscle) -> float:
+    """A muscle's largest contraction in a fit: sphincters to SPHINCTER_MAX, a lid's turn to its full closure
+    (beyond it the margins would pass each other), linear muscles unbounded."""
+    if isinstance(muscle, LidMuscle):
+        return 1.0
+    return SPHINCTER_MAX if isinstance(muscle, SphincterMuscle) else np.inf
