@@ -67,10 +67,11 @@ class LidMuscle:
     falloff = "smooth"
 
     def __post_init__(self) -> None:
-        from .muscles import _check_name, _quoted  # muscles imports this module
-
-        label = f"lid muscle {_quoted(self.name)}"
-        _check_name(self.name, label)
+        if not isinstance(self.name, str):
+            raise TypeError(f"lid muscle: name must be a string, got {type(self.name).__name__}")
+        label = f"lid muscle {self.name[:60]!r}"
+        if not self.name:
+            raise ValueError(f"{label}: name must be a non-empty string")
         set_ = object.__setattr__
         set_(self, "centre", as_vec3(self.centre, f"{label}: centre"))
         set_(self, "axis", unit_vector(self.axis, f"{label}: axis"))
