@@ -107,19 +107,17 @@ class LidMuscle:
 def _lid_field_kernel(
     rest: wp.array(dtype=wp.vec3d),
     vertices: wp.array(dtype=wp.int64),
-    angles: wp.array(dtype=wp.float64),
-    slides: wp.array(dtype=wp.float64),
-    lifts: wp.array(dtype=wp.float64),
+    motion: wp.array(dtype=wp.vec3d),
     centre: wp.vec3d,
     axis: wp.vec3d,
     out: wp.array(dtype=wp.vec3d),
 ):
-    k = wp.tid()
+    k = wp.tid()  # motion[k] = (angle, slide, lift) of vertices[k]
     x = rest[vertices[k]]
-    rotation = jaw_rotation(angles[k], axis)
+    rotation = jaw_rotation(motion[k][0], axis)
     turned = wp.quat_rotate(rotation, x - centre)
     outward = unit_or_zero(turned - wp.dot(turned, axis) * axis)
-    slide = jaw_slide(lifts[k], slides[k], outward, axis)
+    slide = jaw_slide(motion[k][2], motion[k][1], outward, axis)
     out[vertices[k]] = jaw_blend(x, wp.float64(1.0), centre, rotation, slide) - x
 
 
@@ -131,9 +129,9 @@ def lid_field(rest: wp.array, muscle: LidMuscle) -> np.ndarray:
         inputs = [
             rest,
             wp.array(muscle.vertices, dtype=wp.int64, device=rest.device),
-            wp.array(muscle.angles, dtype=wp.float64, device=rest.device),
-            wp.array(muscle.slides, dtype=wp.float64, device=rest.device),
-            wp.array(muscle.lifts, dtype=wp.float64, device=rest.device),
+            wp.array(
+                np.stack([muscle.angles, muscle.slides, muscle.lifts], axis=1), dtype=wp.vec3d, device=rest.device
+            ),
             wp.vec3d(*muscle.centre),
             wp.vec3d(*muscle.axis),
         ]
