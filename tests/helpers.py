@@ -168,6 +168,7 @@ def assert_rigs_equal(a: FaceRig, b: FaceRig) -> None:
             else ("center", "axis_x", "axis_y", "semi_axes")
         )
         assert m.name == n.name
+        fields += ("pairs",) if hasattr(m, "pairs") else ()
         for field in fields:
             assert np.array_equal(getattr(m, field), getattr(n, field)), (m.name, field)
     assert len(a.wrinkles) == len(b.wrinkles)

@@ -15,6 +15,7 @@ from warpface.data import ict_face_region, ict_landmark_indices
 from warpface.drivers.default_tables import mapping_for_rig
 from warpface.expression import muscle_weights
 from warpface.expression.lids import LidMuscle
+from warpface.expression.seal import LipSeal
 from warpface.solve import fit
 
 DEVICE = "cpu"
@@ -87,7 +88,7 @@ def _check_blink(rig, mm):
 
 
 def test_a_blink_closes_the_built_in_face_s_lids(rig):
-    assert rig.muscle_names[-6:] == list(LID_CONTROL_NAMES)
+    assert rig.muscle_names[-7:-1] == list(LID_CONTROL_NAMES)
     _check_blink(rig, 1000.0)
 
 
@@ -115,8 +116,9 @@ def test_lids_round_trip_through_a_stage(rig, tmp_path):
     wf.usd.write_rig(path, rig)
     back = wf.usd.read_rig(path)
     lids = [m for m in back.muscles if isinstance(m, LidMuscle)]
-    assert [m.name for m in lids] == list(LID_CONTROL_NAMES)
-    for m, n in zip(rig.muscles[-6:], lids):
+    assert [m.name for m in lids] == [*LID_CONTROL_NAMES, "lips_part"]
+    assert isinstance(back.muscles[-1], LipSeal) and np.array_equal(back.muscles[-1].pairs, rig.muscles[-1].pairs)
+    for m, n in zip(rig.muscles[-7:-1], lids):
         assert np.array_equal(m.vertices, n.vertices)
         for field in ("centre", "axis", "angles", "slides", "lifts"):
             np.testing.assert_allclose(getattr(n, field), getattr(m, field), rtol=1e-12, atol=1e-15, err_msg=field)
@@ -127,7 +129,7 @@ def test_lids_round_trip_through_a_stage(rig, tmp_path):
     # a rig whose points are exact in float32 comes back equal in every part
     exact = wf.FaceRig(
         wf.FaceMesh(rig.mesh.points.astype(np.float32).astype(np.float64), rig.mesh.triangles, name=rig.mesh.name),
-        rig.muscles[-6:],
+        rig.muscles[-7:],
         [],
         0.0,
         name=rig.name,

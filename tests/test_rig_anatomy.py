@@ -14,6 +14,7 @@ import warpface as wf
 from warpface.assets import SPHINCTER_MUSCLE_NAMES, default_rig
 from warpface.assets.anatomy import SKIN_RESPONSE_OVERRIDES
 from warpface.assets.lids import LID_CONTROL_NAMES
+from warpface.assets.lips import LIP_SEAL_NAME
 from warpface.assets.rig import CLASSIC_LINEAR_MUSCLE_NAMES, LINEAR_MUSCLE_NAMES
 from warpface.expression import muscle_weights
 from warpface.expression.lids import LidMuscle
@@ -203,7 +204,7 @@ def test_a_lobe_adds_its_own_zone_scaled_by_its_gain(rig):
 
 
 def test_full_rig_has_every_muscle_with_c1_zones_and_a_jaw(rig):
-    assert rig.muscle_names == [*LINEAR_MUSCLE_NAMES, *SPHINCTER_MUSCLE_NAMES, *LID_CONTROL_NAMES]
+    assert rig.muscle_names == [*LINEAR_MUSCLE_NAMES, *SPHINCTER_MUSCLE_NAMES, *LID_CONTROL_NAMES, LIP_SEAL_NAME]
     assert set(CLASSIC_LINEAR_MUSCLE_NAMES) < set(rig.muscle_names)
     for name in (
         "depressor_supercilii_L",

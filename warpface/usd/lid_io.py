@@ -1,4 +1,5 @@
-"""Eyelid hinges on a USD stage: ``WarpFaceLidMuscle`` prims among the muscles (docs/RIG.md §10).
+"""Eyelid hinges and the lip seal on a USD stage: ``WarpFaceLidMuscle`` prims among the muscles (docs/RIG.md
+§10–11); a seal also carries its ``sealPairs``.
 
 The per-vertex data (vertex indices, turn angles [rad], slides and lifts [stage units], per unit K)
 are uniform arrays; the centre and axis are in the skin's local space like every muscle's.
@@ -11,6 +12,7 @@ from pxr import Sdf, Usd, Vt
 
 from ..errors import RigError
 from ..expression.lids import LidMuscle
+from ..expression.seal import LipSeal
 from ._prim_values import array_value
 
 __all__ = ["LID_TYPE", "author_lid", "read_lid"]
@@ -31,6 +33,9 @@ def author_lid(prim: Usd.Prim, lid: LidMuscle) -> None:
     for name in ("angles", "slides", "lifts"):
         values = np.ascontiguousarray(getattr(lid, name), dtype=np.float64)
         uniform(name, types.DoubleArray, Vt.DoubleArray.FromNumpy(values))
+    if isinstance(lid, LipSeal):
+        pairs = np.ascontiguousarray(lid.pairs.reshape(-1), dtype=np.int32)
+        uniform("sealPairs", types.IntArray, Vt.IntArray.FromNumpy(pairs))
 
 
 def read_lid(prim: Usd.Prim, place, to_units: float, name: str) -> LidMuscle:
@@ -40,10 +45,13 @@ def read_lid(prim: Usd.Prim, place, to_units: float, name: str) -> LidMuscle:
         RigError: missing or malformed values (the message starts with the attribute's path).
     """
     length = place.scale * to_units
-    vertices = array_value(prim, "vertices", (None,), dtype=np.float64)
-    if not np.all(vertices == np.round(vertices)):
-        raise RigError(f"{prim.GetPath()}.vertices: expected integers")
-    return LidMuscle(
+    vertices = _indices(prim, "vertices")
+    seal = prim.GetAttribute("sealPairs")
+    pairs = _indices(prim, "sealPairs") if seal and seal.HasAuthoredValue() else None
+    if pairs is not None and len(pairs) % 2:
+        raise RigError(f"{prim.GetPath()}.sealPairs: expected (upper, lower) pairs, got {len(pairs)} values")
+    kind, extra = (LidMuscle, {}) if pairs is None else (LipSeal, {"pairs": pairs.reshape(-1, 2)})
+    return kind(
         name=name,
         centre=place.point(array_value(prim, "center", (3,))) * to_units,
         axis=place.direction(array_value(prim, "axis", (3,))),
@@ -51,4 +59,12 @@ def read_lid(prim: Usd.Prim, place, to_units: float, name: str) -> LidMuscle:
         angles=array_value(prim, "angles", (None,)),
         slides=array_value(prim, "slides", (None,)) * length,
         lifts=array_value(prim, "lifts", (None,)) * length,
+        **extra,
     )
+
+
+def _indices(prim: Usd.Prim, name: str) -> np.ndarray:
+    values = array_value(prim, name, (None,), dtype=np.float64)
+    if not np.all(values == np.round(values)):
+        raise RigError(f"{prim.GetPath()}.{name}: expected integers")
+    return values.astype(np.int64)
