@@ -45,7 +45,7 @@ def sphincter_muscle(points, center, ex, ey, lx, ly, k):
 
 
 def lid_hinge(points, centre, axis, vertices, angles, slides, lifts, k):
-    """A lid hinge's displacement at contraction ``k`` (docs/RIG.md §10), by Rodrigues' formula: each listed
+    """A lid hinge's displacement at contraction ``k`` (docs/RIG.md §11), by Rodrigues' formula: each listed
     vertex turned by ``angle`` about ``axis`` through ``centre``, lifted along the turned point's unit offset
     from the axis and slid along the axis — all times ``k`` (the field is linear in k)."""
     a = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)

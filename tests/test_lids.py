@@ -1,4 +1,4 @@
-"""Eyelid hinges (docs/RIG.md §10): the field against a float64 reference, blinks that close, I/O, the solver."""
+"""Eyelid hinges (docs/RIG.md §11): the field against a float64 reference, blinks that close, I/O, the solver."""
 
 from __future__ import annotations
 

@@ -140,7 +140,7 @@ def rig():
 
 
 def _waters(rig):
-    """The rig's Waters muscles (its lid hinges, docs/RIG.md §10, are tested in test_lids.py)."""
+    """The rig's Waters muscles (its lid hinges, docs/RIG.md §11, are tested in test_lids.py)."""
     return [m for m in rig.muscles if not isinstance(m, LidMuscle)]
 
 

@@ -1,4 +1,4 @@
-"""The default rig's eyelid hinges (docs/RIG.md §10), placed from the lid landmarks.
+"""The default rig's eyelid hinges (docs/RIG.md §11), placed from the lid landmarks.
 
 Per eye, in the :class:`~warpface.assets.frame.FaceFrame` (inter-ocular units): the eyeball's centre
 ``c`` lies :data:`EYEBALL_RADIUS` behind the mean depth of the four lid midpoints, at the mean (x, y)

@@ -1,4 +1,4 @@
-"""The default rig's lip seal (docs/RIG.md §11), placed from the inner-lip landmarks.
+"""The default rig's lip seal (docs/RIG.md §12), placed from the inner-lip landmarks.
 
 In the :class:`~warpface.assets.frame.FaceFrame` (inter-ocular units): the *contact line* runs through
 the mouth corners (iBUG 60, 64) and the midpoints of the inner-lip pairs 61/67, 62/66, 63/65; ``φ`` is a
@@ -56,7 +56,7 @@ def lip_margin_taper(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) ->
     """Per vertex (V,) in [0, 1]: the share of the bulging thickness the default rig keeps near the lips' contact
     line: a C¹ smoothstep of the distance from the line's segment between the corners over :data:`MARGIN_BAND`
     (0 on it, 1 beyond). The bulge moves skin along its normal, which at the lips' free margins points at the
-    other lip: with the lips' full 3.6 mm it pushed them through each other by up to 7.7 mm (docs/RIG.md §11)."""
+    other lip: with the lips' full 3.6 mm it pushed them through each other by up to 7.7 mm (docs/RIG.md §12)."""
     local, below, middle, half_width = _contact(mesh, frame, landmarks)
     beyond = np.maximum(np.abs(local[:, 0] - middle[0]) - half_width, 0.0)
     s = np.clip(np.hypot(below, beyond) / MARGIN_BAND, 0.0, 1.0)

@@ -52,7 +52,7 @@ def _sided(stem: str, rows) -> list[tuple[str, str, float]]:
 
 
 _BLINK = (("lid_upper_close", 1.0), ("lid_lower_close", 1.0), ("orbicularis_oculi", 0.03))
-"""A blink (eyeBlink, AU43/45) per side: both lid hinges to their meeting line (docs/RIG.md §10) and a light squeeze
+"""A blink (eyeBlink, AU43/45) per side: both lid hinges to their meeting line (docs/RIG.md §11) and a light squeeze
 of the orbital ring, which is all a rig without lid hinges (the classic anatomy) has."""
 
 ARKIT_TABLE: tuple[tuple[str, str, float], ...] = tuple(

@@ -1,4 +1,4 @@
-"""Eyelids as hinges (docs/RIG.md §10): lid vertices turn about the eyeball's centre.
+"""Eyelids as hinges (docs/RIG.md §11): lid vertices turn about the eyeball's centre.
 
 A :class:`LidMuscle` is a control whose field is a rotation of each of its vertices about one axis
 through the eye's centre, by that vertex's own angle: per unit contraction ``K``

@@ -1,4 +1,4 @@
-"""Lips that never cross: a constraint on every muscle's field (docs/RIG.md §11).
+"""Lips that never cross: a constraint on every muscle's field (docs/RIG.md §12).
 
 A :class:`LipSeal` is a hinge (:class:`~warpface.expression.lids.LidMuscle`) whose field parts the lips:
 the upper lip turns up and the lower lip down about an axis behind the mouth. It also names ``pairs``

@@ -1,5 +1,5 @@
 """Eyelid hinges and the lip seal on a USD stage: ``WarpFaceLidMuscle`` prims among the muscles (docs/RIG.md
-§10–11); a seal also carries its ``sealPairs``.
+§11–12); a seal also carries its ``sealPairs``.
 
 The per-vertex data (vertex indices, turn angles [rad], slides and lifts [stage units], per unit K)
 are uniform arrays; the centre and axis are in the skin's local space like every muscle's.
