@@ -163,7 +163,7 @@ def assert_rigs_equal(a: FaceRig, b: FaceRig) -> None:
         fields = (
             ("attachment", "insertion", "zone_angle_deg", "falloff_start", "falloff_finish")
             if isinstance(m, LinearMuscle)
-            else ("centre", "axis", "vertices", "angles", "slides", "lifts")
+            else ("center", "axis", "vertices", "angles", "slides", "lifts")
             if isinstance(m, LidMuscle)
             else ("center", "axis_x", "axis_y", "semi_axes")
         )
@@ -197,7 +197,7 @@ def scaled_rig(rig: FaceRig, factor: float) -> FaceRig:
             )
         elif isinstance(m, LidMuscle):
             muscles.append(
-                LidMuscle(m.name, m.centre * factor, m.axis, m.vertices, m.angles, m.slides * factor, m.lifts * factor)
+                LidMuscle(m.name, m.center * factor, m.axis, m.vertices, m.angles, m.slides * factor, m.lifts * factor)
             )
         else:
             muscles.append(

@@ -120,7 +120,7 @@ def test_lids_round_trip_through_a_stage(rig, tmp_path):
     assert isinstance(back.muscles[-1], LipSeal) and np.array_equal(back.muscles[-1].pairs, rig.muscles[-1].pairs)
     for m, n in zip(rig.muscles[-7:-1], lids):
         assert np.array_equal(m.vertices, n.vertices)
-        for field in ("centre", "axis", "angles", "slides", "lifts"):
+        for field in ("center", "axis", "angles", "slides", "lifts"):
             np.testing.assert_allclose(getattr(n, field), getattr(m, field), rtol=1e-12, atol=1e-15, err_msg=field)
     frame = {"lid_upper_close_L": 1.0, "lid_upper_raise_R": 0.5}
     np.testing.assert_allclose(

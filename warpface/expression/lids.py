@@ -33,11 +33,11 @@ MAX_LID_ANGLE = np.pi / 2
 
 @dataclass(frozen=True, eq=False)
 class LidMuscle:
-    """A lid's hinge: its vertices turn about ``axis`` through ``centre`` by ``angles`` per unit contraction.
+    """A lid's hinge: its vertices turn about ``axis`` through ``center`` by ``angles`` per unit contraction.
 
     Args:
         name: unique control name.
-        centre: the eyeball's centre ``c`` [mesh units], shape (3,).
+        center: the eyeball's centre ``c`` [mesh units], shape (3,).
         axis: unit rotation axis ``a``, shape (3,) (right-hand rule).
         vertices: the vertices it moves, shape (n,), distinct non-negative ints.
         angles: ``θ_v`` [rad per unit K] of each of ``vertices``, shape (n,), |θ| ≤ :data:`MAX_LID_ANGLE`.
@@ -54,7 +54,7 @@ class LidMuscle:
     """
 
     name: str
-    centre: np.ndarray
+    center: np.ndarray
     axis: np.ndarray
     vertices: np.ndarray
     angles: np.ndarray
@@ -73,7 +73,7 @@ class LidMuscle:
         if not self.name:
             raise ValueError(f"{label}: name must be a non-empty string")
         set_ = object.__setattr__
-        set_(self, "centre", as_vec3(self.centre, f"{label}: centre"))
+        set_(self, "center", as_vec3(self.center, f"{label}: center"))
         set_(self, "axis", unit_vector(self.axis, f"{label}: axis"))
         vertices = np.asarray(self.vertices)
         if vertices.ndim != 1 or (vertices.size and not np.issubdtype(vertices.dtype, np.integer)):
@@ -132,7 +132,7 @@ def lid_field(rest: wp.array, muscle: LidMuscle) -> np.ndarray:
             wp.array(
                 np.stack([muscle.angles, muscle.slides, muscle.lifts], axis=1), dtype=wp.vec3d, device=rest.device
             ),
-            wp.vec3d(*muscle.centre),
+            wp.vec3d(*muscle.center),
             wp.vec3d(*muscle.axis),
         ]
         wp.launch(_lid_field_kernel, dim=len(muscle.vertices), inputs=inputs, outputs=[out], device=rest.device)

@@ -32,7 +32,7 @@ class LipSeal(LidMuscle):
     """A lip-parting hinge that also seals every other muscle's field (module docstring).
 
     Args:
-        name, centre, axis, vertices, angles, slides, lifts: as :class:`~warpface.expression.LidMuscle`;
+        name, center, axis, vertices, angles, slides, lifts: as :class:`~warpface.expression.LidMuscle`;
             ``K = 1`` parts the lips by its field.
         pairs: (upper, lower) vertex index pairs facing each other across the lips, shape (P, 2), P ≥ 1; its
             field must part each pair (``δ_i(p) > 0``).

@@ -27,7 +27,7 @@ def author_lid(prim: Usd.Prim, lid: LidMuscle) -> None:
     def uniform(name, type_name, value):
         prim.CreateAttribute(name, type_name, custom=False, variability=Sdf.VariabilityUniform).Set(value)
 
-    uniform("center", types.Double3, tuple(lid.centre))
+    uniform("center", types.Double3, tuple(lid.center))
     uniform("axis", types.Double3, tuple(lid.axis))
     uniform("vertices", types.IntArray, Vt.IntArray.FromNumpy(np.ascontiguousarray(lid.vertices, dtype=np.int32)))
     for name in ("angles", "slides", "lifts"):
@@ -53,7 +53,7 @@ def read_lid(prim: Usd.Prim, place, to_units: float, name: str) -> LidMuscle:
     kind, extra = (LidMuscle, {}) if pairs is None else (LipSeal, {"pairs": pairs.reshape(-1, 2)})
     return kind(
         name=name,
-        centre=place.point(array_value(prim, "center", (3,))) * to_units,
+        center=place.point(array_value(prim, "center", (3,))) * to_units,
         axis=place.direction(array_value(prim, "axis", (3,))),
         vertices=vertices.astype(np.int64),
         angles=array_value(prim, "angles", (None,)),
