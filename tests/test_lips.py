@@ -6,22 +6,13 @@ import numpy as np
 import pytest
 
 import warpface as wf
-from warpface.assets import ARKIT_PRESET_NAMES, default_rig, preset_controls
+from benchmarks.face_quality import preset_frames, random_combinations
+from warpface.assets import ARKIT_PRESET_NAMES, default_rig
 from warpface.assets.quality import LIP_PAIRS, face_up, pair_heights
 from warpface.data import ict_face_region, ict_landmark_indices
-from warpface.drivers.default_tables import mapping_for_rig
 from warpface.expression.seal import LipSeal, seal_fields
 
 DEVICE = "cpu"
-
-
-def _frames(rig, names):
-    index = {c: i for i, c in enumerate(rig.control_names)}
-    frames = np.zeros((len(names), len(rig.control_names)))
-    for f, name in enumerate(names):
-        for control, value in preset_controls(name, rig).items():
-            frames[f, index[control]] = value
-    return frames
 
 
 def test_seal_adds_the_least_share_that_keeps_every_pair_from_closing():
@@ -56,23 +47,10 @@ def _lips(rig, frames):
     return pair_heights(points, rig.landmarks, LIP_PAIRS, face_up(rig.mesh, rig.landmarks), 1000.0)
 
 
-def _random_arkit(rig, count, seed=0):
-    mapping, _, _ = mapping_for_rig(rig, "arkit")
-    index = {c: i for i, c in enumerate(rig.control_names)}
-    rng = np.random.default_rng(seed)
-    weights = rng.uniform(size=(count, len(mapping.channels))) * (
-        rng.uniform(size=(count, len(mapping.channels))) < 0.3
-    )
-    frames = np.zeros((count, len(rig.control_names)))
-    for row, control in enumerate(mapping.controls):
-        frames[:, index[control]] += weights @ mapping.matrix[row]
-    return frames
-
-
 def test_lips_never_cross_on_the_built_in_face():
     rig = default_rig(device=DEVICE)
-    assert _lips(rig, _frames(rig, ARKIT_PRESET_NAMES)).min() >= -0.2
-    assert _lips(rig, _random_arkit(rig, 100)).min() >= -0.2
+    assert _lips(rig, preset_frames(rig, ARKIT_PRESET_NAMES)).min() >= -0.2
+    assert _lips(rig, random_combinations(rig, 100)).min() >= -0.2
 
 
 def test_lips_never_cross_at_any_preset_on_the_ict_face():
@@ -81,4 +59,4 @@ def test_lips_never_cross_at_any_preset_on_the_ict_face():
         pytest.skip("ICT-FaceKit data not found in ../shared/data (set WARPFACE_SHARED_DATA)")
     source = wf.FaceMesh.from_obj(path)
     rig = default_rig(wf.FaceMesh(source.points * 0.01, source.triangles), landmarks, device=DEVICE)
-    assert _lips(rig, _frames(rig, ARKIT_PRESET_NAMES)).min() >= -0.2
+    assert _lips(rig, preset_frames(rig, ARKIT_PRESET_NAMES)).min() >= -0.2
