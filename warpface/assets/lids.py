@@ -93,6 +93,8 @@ class _Eye:
         self.centre = np.array([ring[:, 0].mean(), *_equidistant_centre(tops[:, 1:], bottoms[:, 1:])])
         self._upper = self._curve(local_landmarks[list(upper)])
         self._lower = self._curve(local_landmarks[list(lower)])
+        self._upper_y = self._curve(local_landmarks[list(upper)], height=True)
+        self._lower_y = self._curve(local_landmarks[list(lower)], height=True)
         corners = local_landmarks[[upper[0], upper[3]], 0]
         # the lateral slide and the lift off the axis that bring each margin midpoint onto its partner on the other lid
         offset = bottoms[:, 0] - tops[:, 0]
@@ -120,9 +122,19 @@ class _Eye:
     def radius(self, local: np.ndarray) -> np.ndarray:
         return np.hypot(local[..., 1] - self.centre[1], local[..., 2] - self.centre[2]) / EYEBALL_RADIUS
 
-    def _curve(self, points: np.ndarray) -> PchipInterpolator:
+    def _curve(self, points: np.ndarray, height: bool = False) -> PchipInterpolator:
         order = np.argsort(points[:, 0])
-        return PchipInterpolator(points[order, 0], self.angle(points[order]), extrapolate=False)
+        values = points[order, 1] if height else self.angle(points[order])
+        return PchipInterpolator(points[order, 0], values, extrapolate=False)
+
+    def in_opening(self, local: np.ndarray) -> np.ndarray:
+        """Whether each point lies between the margins seen from the front (local y between their curves)."""
+        top, bottom = self._upper_y(local[:, 0]), self._lower_y(local[:, 0])
+        return np.nan_to_num(local[:, 1] < top) & np.nan_to_num(local[:, 1] > bottom)
+
+    def heights(self, x: np.ndarray) -> np.ndarray:
+        """The upper and the lower margin's local y at each x (NaN beyond the corners), shape (2, n)."""
+        return np.stack([self._upper_y(x), self._lower_y(x)])
 
     def margins(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(α_u, α_l, Δ)`` at each x; the gap is 0 outside the corners."""
@@ -139,14 +151,20 @@ def _hinge_angles(eye: _Eye, local: np.ndarray) -> dict[str, tuple[np.ndarray, n
     alpha = eye.angle(local)
     radial = _fade(eye.radius(local), (RADIAL_BAND[0], RADIAL_BAND[1] - RADIAL_BAND[0]))
     radial = np.where(local[:, 2] > eye.centre[2], radial, 0.0) * (gap > 0.0)
-    above, below = alpha >= upper, alpha <= lower
-    inside_upper = ~above & (alpha >= meet)
-    inside_lower = ~below & (alpha < meet)
-    close_upper = np.where(above, (upper - meet) * _fade(alpha - upper, UPPER_BAND), 0.0)
+    # lid skin: beyond a margin's angle, or seen from the front above (below) the opening even where the skin's
+    # fold puts it at a smaller (larger) angle; only what lies in the opening from the front is inside
+    opening = eye.in_opening(local)
+    high = local[:, 1] >= 0.5 * (eye.heights(local[:, 0]).sum(axis=0))
+    above = (alpha >= upper) | (~opening & high)
+    below = ~above & ((alpha <= lower) | ~opening)
+    inside_upper = ~above & ~below & (alpha >= meet)
+    inside_lower = ~above & ~below & (alpha < meet)
+    over, under = np.maximum(alpha - upper, 0.0), np.maximum(lower - alpha, 0.0)
+    close_upper = np.where(above, (upper - meet) * _fade(over, UPPER_BAND), 0.0)
     close_upper = np.where(inside_upper, alpha - meet, close_upper)
-    close_lower = np.where(below, (lower - meet) * _fade(lower - alpha, LOWER_BAND), 0.0)
+    close_lower = np.where(below, (lower - meet) * _fade(under, LOWER_BAND), 0.0)
     close_lower = np.where(inside_lower, alpha - meet, close_lower)
-    raise_upper = np.where(above, -RAISE_SHARE * gap * _fade(alpha - upper, RAISE_BAND), 0.0)
+    raise_upper = np.where(above, -RAISE_SHARE * gap * _fade(over, RAISE_BAND), 0.0)
     share = np.divide(alpha - meet, upper - meet, out=np.zeros_like(alpha), where=upper - meet > 0.0)
     raise_upper = np.where(inside_upper, -RAISE_SHARE * gap * share, raise_upper)
     upper_slide, lower_slide, upper_lift, lower_lift = eye.slides(local[:, 0])
