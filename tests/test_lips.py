@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import warpface as wf
-from benchmarks.face_quality import preset_frames, random_combinations
+from benchmarks.face_quality import ROLLS, channel_frames, preset_frames, random_combinations
 from warpface.assets import ARKIT_PRESET_NAMES, default_rig
-from warpface.assets.quality import LIP_PAIRS, face_up, pair_heights
+from warpface.assets.quality import LIP_PAIRS, face_up, flipped_triangles, pair_heights
 from warpface.data import ict_face_region, ict_landmark_indices
 from warpface.expression.seal import LipSeal, seal_fields
 
@@ -60,3 +60,16 @@ def test_lips_never_cross_at_any_preset_on_the_ict_face():
     source = wf.FaceMesh.from_obj(path)
     rig = default_rig(wf.FaceMesh(source.points * 0.01, source.triangles), landmarks, device=DEVICE)
     assert _lips(rig, preset_frames(rig, ARKIT_PRESET_NAMES)).min() >= -0.2
+
+
+def test_no_triangle_turns_over_on_the_built_in_face():
+    """Issue 25's surface check: flipped triangles summed over every ARKit and FACS channel at weight 1 (the
+    lips' rolls excepted) stay within 10 (58 before the lid hinges and the jaw weights' diffusion)."""
+    rig = default_rig(device=DEVICE)
+    model = rig.model(device=DEVICE)
+    total = 0
+    for kind in ("arkit", "facs"):
+        names, frames = channel_frames(rig, kind)
+        keep = [i for i, name in enumerate(names) if name not in ROLLS]
+        total += int(flipped_triangles(rig.mesh, model.evaluate(frames[keep])).sum())
+    assert total <= 10
