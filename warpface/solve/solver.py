@@ -33,6 +33,7 @@ from ..errors import RigError
 from ..expression.jaw import JAW_CONTROL_NAMES, JAW_RANGE
 from ..expression.lids import LidMuscle
 from ..expression.muscles import SphincterMuscle
+from ..expression.seal import LipSeal
 from ..rig import FaceRig
 from .device_steps import DeviceSteps
 from .host_steps import HostSteps
@@ -551,7 +552,11 @@ def fit(rig, target, *, vertices=None, weights=None, device=None, **options) -> 
 
 def _upper_bound(muscle) -> float:
     """A muscle's largest contraction in a fit: sphincters to SPHINCTER_MAX, a lid's turn to its full closure
-    (beyond it the margins would pass each other), linear muscles unbounded."""
+    (beyond it the margins would pass each other), the lip seal's parting to 0 (it is the lips' constraint, not
+    an expression: fits that used it traded it against jaw_open; ``bounds`` can free it), linear muscles
+    unbounded."""
+    if isinstance(muscle, LipSeal):
+        return 0.0
     if isinstance(muscle, LidMuscle):
         return 1.0
     return SPHINCTER_MAX if isinstance(muscle, SphincterMuscle) else np.inf
