@@ -15,14 +15,15 @@ from ..expression.lids import LidMuscle
 from ..expression.seal import LipSeal
 from ._prim_values import array_value
 
-__all__ = ["LID_TYPE", "author_lid", "read_lid"]
+__all__ = ["LID_TYPE", "LidMuscle", "author_lid", "read_lid"]
 
 LID_TYPE = "WarpFaceLidMuscle"
 
 
-def author_lid(prim: Usd.Prim, lid: LidMuscle) -> None:
-    """Write ``lid``'s hinge onto its (already defined) prim."""
+def author_lid(stage: Usd.Stage, path: Sdf.Path, lid: LidMuscle) -> Usd.Prim:
+    """Define ``lid``'s prim at ``path`` with its hinge (the muscle's shared attributes are the caller's)."""
     types = Sdf.ValueTypeNames
+    prim = stage.DefinePrim(path, LID_TYPE)
 
     def uniform(name, type_name, value):
         prim.CreateAttribute(name, type_name, custom=False, variability=Sdf.VariabilityUniform).Set(value)
@@ -36,6 +37,7 @@ def author_lid(prim: Usd.Prim, lid: LidMuscle) -> None:
     if isinstance(lid, LipSeal):
         pairs = np.ascontiguousarray(lid.pairs.reshape(-1), dtype=np.int32)
         uniform("sealPairs", types.IntArray, Vt.IntArray.FromNumpy(pairs))
+    return prim
 
 
 def read_lid(prim: Usd.Prim, place, to_units: float, name: str) -> LidMuscle:

@@ -32,7 +32,6 @@ from pxr import Kind, Sdf, Tf, Usd, UsdGeom, UsdPhysics, Vt
 
 from .._validate import as_positive, expect_instance
 from ..errors import RigError
-from ..expression.lids import LidMuscle
 from ..expression.muscles import FALLOFFS, LinearMuscle, SphincterMuscle
 from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrinkle
 from ..mesh import FaceMesh, fan_triangles
@@ -42,7 +41,7 @@ from ._lobe_io import author_lobes, read_lobes
 from ._prim_values import array_value, check_finite, scalar_value, token_value
 from .asset_io import check_asset
 from .jaw_io import author_jaw, read_jaw
-from .lid_io import LID_TYPE, author_lid, read_lid
+from .lid_io import LID_TYPE, LidMuscle, author_lid, read_lid
 from .schema import ensure_schema
 
 __all__ = [
@@ -196,8 +195,7 @@ def _set(prim: Usd.Prim, name: str, type_name, value, uniform: bool = True) -> N
 def _author_muscle(stage, path, muscle) -> Usd.Prim:
     types = Sdf.ValueTypeNames
     if isinstance(muscle, LidMuscle):
-        prim = stage.DefinePrim(path, LID_TYPE)
-        author_lid(prim, muscle)
+        prim = author_lid(stage, path, muscle)
     elif isinstance(muscle, LinearMuscle):
         prim = stage.DefinePrim(path, _LINEAR)
         _set(prim, "attachment", types.Double3, tuple(muscle.attachment))
