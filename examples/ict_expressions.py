@@ -2,7 +2,8 @@
 
 The default rig is placed from the face's 68 iBUG landmarks (nothing in it is specific to the built-in
 face), the face is converted from centimetres to metres, and thinking, puzzled, disgust and smile are
-rendered without (top) and with (bottom) wrinkles. The rig is also written as a USD stage. The ICT
+rendered without (top) and with (bottom) wrinkles, and a blink and a smile (``blink_smile.png``). The rig
+is also written as a USD stage. The ICT
 data stays where it is; when it is absent the example says so and exits.
 
     python examples/ict_expressions.py [--out out/ict] [--device cpu]
@@ -21,6 +22,7 @@ import warpface as wf
 from warpface import preview, usd
 from warpface.assets import EXPRESSIONS, default_rig, expression_contractions
 from warpface.data import ict_face_region, ict_landmark_indices
+from warpface.demo import SIDED_PRESETS, both_sides
 
 CENTIMETRE = 0.01
 
@@ -39,7 +41,7 @@ def main(argv=None) -> int:
     mesh = wf.FaceMesh(source.points * CENTIMETRE, source.triangles, name="ict_face")
     rig = default_rig(mesh, landmarks, name="ICTFace", device=args.device)
     smooth = wf.ExpressionModel(rig.mesh, rig.muscles, [], rig.thickness, device=args.device)
-    wrinkled = rig.model(args.device)
+    wrinkled = rig.model(device=args.device)
 
     args.out.mkdir(parents=True, exist_ok=True)
     usd.write_rig(args.out / "ict_face.usda", rig)
@@ -50,8 +52,11 @@ def main(argv=None) -> int:
         views = [(f"{name}: {label}", model.evaluate(expression_contractions(name, rig))) for name in EXPRESSIONS]
         rows.append(preview.render_comparison(views, rig.mesh.triangles, **style))
     preview.save_image(args.out / "expressions.png", np.concatenate(rows, axis=0))
+    views = [("neutral", mesh.points)]
+    views += [(title, wrinkled.evaluate(both_sides(rig, name))) for title, name in SIDED_PRESETS]
+    preview.render_comparison(views, rig.mesh.triangles, args.out / "blink_smile.png", **style)
     print(f"{len(rig.muscles)} muscles and {len(rig.wrinkles)} wrinkles placed from the 68 landmarks of {path.name}")
-    print(f"wrote {args.out}/ict_face.usda and {args.out}/expressions.png")
+    print(f"wrote {args.out}/ict_face.usda, {args.out}/expressions.png and {args.out}/blink_smile.png")
     return 0
 
 

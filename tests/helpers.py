@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from warpface import CylindricalProjection, FaceMesh, FaceRig, LinearMuscle, PlanarProjection, SphincterMuscle, Wrinkle
+from warpface.expression.lids import LidMuscle
 from warpface.tracking import LandmarkFrame, vertex_landmark_names
 
 __all__ = [
@@ -162,9 +163,12 @@ def assert_rigs_equal(a: FaceRig, b: FaceRig) -> None:
         fields = (
             ("attachment", "insertion", "zone_angle_deg", "falloff_start", "falloff_finish")
             if isinstance(m, LinearMuscle)
+            else ("center", "axis", "vertices", "angles", "slides", "lifts")
+            if isinstance(m, LidMuscle)
             else ("center", "axis_x", "axis_y", "semi_axes")
         )
         assert m.name == n.name
+        fields += ("pairs",) if hasattr(m, "pairs") else ()
         for field in fields:
             assert np.array_equal(getattr(m, field), getattr(n, field)), (m.name, field)
     assert len(a.wrinkles) == len(b.wrinkles)
@@ -190,6 +194,10 @@ def scaled_rig(rig: FaceRig, factor: float) -> FaceRig:
                     m.falloff_start * factor,
                     m.falloff_finish * factor,
                 )
+            )
+        elif isinstance(m, LidMuscle):
+            muscles.append(
+                LidMuscle(m.name, m.center * factor, m.axis, m.vertices, m.angles, m.slides * factor, m.lifts * factor)
             )
         else:
             muscles.append(

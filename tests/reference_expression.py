@@ -44,6 +44,21 @@ def sphincter_muscle(points, center, ex, ey, lx, ly, k):
     return out
 
 
+def lid_hinge(points, centre, axis, vertices, angles, slides, lifts, k):
+    """A lid hinge's displacement at contraction ``k`` (docs/RIG.md §11), by Rodrigues' formula: each listed
+    vertex turned by ``angle`` about ``axis`` through ``centre``, lifted along the turned point's unit offset
+    from the axis and slid along the axis — all times ``k`` (the field is linear in k)."""
+    a = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    out = np.zeros_like(points)
+    for v, angle, slide, lift in zip(vertices, angles, slides, lifts):
+        r = points[v] - centre
+        turned = r * np.cos(angle) + np.cross(a, r) * np.sin(angle) + a * (a @ r) * (1.0 - np.cos(angle))
+        radial = turned - (turned @ a) * a
+        outward = radial / np.linalg.norm(radial) if np.linalg.norm(radial) > 0 else radial
+        out[v] = k * (turned + centre + lift * outward + slide * a - points[v])
+    return out
+
+
 def triangle_areas(points, triangles):
     p = points[triangles]
     return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)

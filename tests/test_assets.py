@@ -24,6 +24,8 @@ from warpface.assets import (
     rig_scale,
 )
 from warpface.assets import face as face_module
+from warpface.assets.lids import LID_CONTROL_NAMES
+from warpface.assets.lips import LIP_SEAL_NAME, lip_margin_taper
 from warpface.assets.rig import MOBILE_TISSUE_FRACTION, face_frame
 from warpface.data import ict_face_region, ict_landmark_indices
 from warpface.expression.wrinkles import bezier_distances, project_points
@@ -274,7 +276,9 @@ def test_landmarks_are_ibug_ordered_and_symmetric():
 
 def test_thickness_is_positive_thin_on_the_forehead_thick_on_the_cheeks_and_smooth(rig):
     thickness = default_thickness()
-    np.testing.assert_allclose(rig.thickness, MOBILE_TISSUE_FRACTION * thickness, rtol=1e-15)
+    taper = lip_margin_taper(rig.mesh, face_frame(rig.mesh, rig.landmarks), rig.landmarks)
+    np.testing.assert_allclose(rig.thickness, MOBILE_TISSUE_FRACTION * thickness * taper, rtol=1e-15)
+    assert np.mean(taper == 1.0) > 0.9
     assert thickness.shape == (default_face().vertex_count,)
     assert np.all(np.isfinite(thickness)) and thickness.min() > 0.0005 and thickness.max() < 0.012
     regions = Regions(rig)
@@ -299,7 +303,7 @@ def test_thickness_is_positive_thin_on_the_forehead_thick_on_the_cheeks_and_smoo
 def test_rig_has_the_required_muscles_and_wrinkles(rig):
     names = set(rig.muscle_names)
     assert REQUIRED_MUSCLES <= names
-    assert rig.muscle_names == [*LINEAR_MUSCLE_NAMES, *SPHINCTER_MUSCLE_NAMES]
+    assert rig.muscle_names == [*LINEAR_MUSCLE_NAMES, *SPHINCTER_MUSCLE_NAMES, *LID_CONTROL_NAMES, LIP_SEAL_NAME]
     assert sum(isinstance(m, LinearMuscle) for m in rig.muscles) >= 16
     assert {m.name for m in rig.muscles if isinstance(m, SphincterMuscle)} == set(SPHINCTER_MUSCLE_NAMES)
     assert rig.wrinkle_names == list(WRINKLE_NAMES) and len(rig.wrinkles) >= 21

@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from warpface.assets.lids import LID_CONTROL_NAMES
 from warpface.drivers import ARKIT_CHANNELS, Curves, Mapping, mapping_for_rig
 from warpface.drivers.cleanup import OneEuroFilter, calibrate_neutral, clamp_to_range, clean, resample
 from warpface.drivers.export import project_controls
@@ -116,7 +117,7 @@ def test_default_table_on_the_built_in_rig(rig):
 
     mapping, dropped, orphaned = mapping_for_rig(rig)
     assert set(mapping.controls) <= set(rig.muscle_names)
-    # the classic rig has no jaw, no middle frontalis belly and no palpebral lid muscles
+    # the classic rig has no jaw, no middle frontalis belly, no palpebral lid muscles and no lid hinges
     assert set(dropped) == {
         "jaw_open",
         "jaw_forward",
@@ -125,6 +126,7 @@ def test_default_table_on_the_built_in_rig(rig):
         "frontalis_middle_R",
         "orbicularis_oculi_lower_lid_L",
         "orbicularis_oculi_lower_lid_R",
+        *LID_CONTROL_NAMES,
     }
     assert {"jawOpen", "AU26", "AU27"} <= set(orphaned)
     smile = mapping.matrix[:, mapping.channels.index("mouthSmileLeft")]

@@ -13,8 +13,11 @@ from helpers import grid_surface
 import warpface as wf
 from warpface.assets import SPHINCTER_MUSCLE_NAMES, default_rig
 from warpface.assets.anatomy import SKIN_RESPONSE_OVERRIDES
+from warpface.assets.lids import LID_CONTROL_NAMES
+from warpface.assets.lips import LIP_SEAL_NAME
 from warpface.assets.rig import CLASSIC_LINEAR_MUSCLE_NAMES, LINEAR_MUSCLE_NAMES
 from warpface.expression import muscle_weights
+from warpface.expression.lids import LidMuscle
 from warpface.expression.tissue import neighbourhood_mean, tissue_response
 
 DEVICE = "cpu"
@@ -136,9 +139,14 @@ def rig():
     return default_rig(device=DEVICE)
 
 
+def _waters(rig):
+    """The rig's Waters muscles (its lid hinges, docs/RIG.md §11, are tested in test_lids.py)."""
+    return [m for m in rig.muscles if not isinstance(m, LidMuscle)]
+
+
 def test_waters_forms_of_the_full_rig_still_match_the_section_1_reference(rig):
     points = rig.mesh.points
-    for muscle in rig.muscles[::5]:
+    for muscle in _waters(rig)[::5]:
         # §1.1 forms: Waters zones, no sliding, bunching, lobe or ring
         extra = {"lobes": ()} if isinstance(muscle, wf.LinearMuscle) else {"ring": 0.0}
         classic = replace(muscle, falloff="waters", sliding=0.0, bunching=0.0, thickening=0.0, **extra)
@@ -196,7 +204,7 @@ def test_a_lobe_adds_its_own_zone_scaled_by_its_gain(rig):
 
 
 def test_full_rig_has_every_muscle_with_c1_zones_and_a_jaw(rig):
-    assert rig.muscle_names == [*LINEAR_MUSCLE_NAMES, *SPHINCTER_MUSCLE_NAMES]
+    assert rig.muscle_names == [*LINEAR_MUSCLE_NAMES, *SPHINCTER_MUSCLE_NAMES, *LID_CONTROL_NAMES, LIP_SEAL_NAME]
     assert set(CLASSIC_LINEAR_MUSCLE_NAMES) < set(rig.muscle_names)
     for name in (
         "depressor_supercilii_L",
@@ -211,9 +219,9 @@ def test_full_rig_has_every_muscle_with_c1_zones_and_a_jaw(rig):
         "orbicularis_oris_roll_upper",
     ):
         assert name in rig.muscle_names
-    assert all(m.falloff == "smooth" and m.sliding > 0 for m in rig.muscles)
-    assert all(m.bunching > 0 for m in rig.muscles if m.name not in SKIN_RESPONSE_OVERRIDES)
-    assert {m.name for m in rig.muscles if m.bunching == 0} == set(SKIN_RESPONSE_OVERRIDES)
+    assert all(m.falloff == "smooth" and m.sliding > 0 for m in _waters(rig))
+    assert all(m.bunching > 0 for m in _waters(rig) if m.name not in SKIN_RESPONSE_OVERRIDES)
+    assert {m.name for m in _waters(rig) if m.bunching == 0} == set(SKIN_RESPONSE_OVERRIDES)
     assert "frontalis_middle_L" in rig.muscle_names
     assert next(m for m in rig.muscles if m.name == "orbicularis_oculi_L").ring > 0
     assert rig.jaw is not None and rig.control_names[-3:] == ["jaw_open", "jaw_forward", "jaw_left"]

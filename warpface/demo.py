@@ -6,6 +6,7 @@ Writes, under ``out_dir``:
 - ``face_anim.usdc`` — the baked skin points (sublayered under ``face.usda``);
 - ``<expression>.png`` — neutral | without wrinkles | with wrinkles, for each expression;
 - ``expressions.png`` — all four, without (top) and with (bottom) wrinkles;
+- ``blink_smile.png`` — neutral | a blink | a smile (the ARKit presets on both sides at weight 1);
 - ``heatmap_<expression>.png`` — displacement magnitude [mm] at the expression's peak;
 - ``face_anim.mp4`` — the baked animation, read back from the stage.
 """
@@ -18,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["DemoResult", "run_demo", "expression_sequence"]
+__all__ = ["DemoResult", "run_demo", "expression_sequence", "both_sides", "SIDED_PRESETS"]
 
 BACKGROUND = (0.12, 0.12, 0.14)
 """Dark, so the eye and mouth openings of the open face surface read as eyes and mouth."""
@@ -142,6 +143,9 @@ def run_demo(
     top = preview.render_comparison(without_row, triangles, **style)
     bottom = preview.render_comparison(with_row, triangles, **style)
     images.append(preview.save_image(out / "expressions.png", np.concatenate([top, bottom], axis=0)))
+    views = [("neutral", rest)] + [(title, model.evaluate(both_sides(rig, name))) for title, name in SIDED_PRESETS]
+    images.append(out / "blink_smile.png")
+    preview.render_comparison(views, triangles, images[-1], **style)
     timings["previews"] = time.perf_counter() - clock
 
     result = DemoResult(stage=stage_path, cache=cache, images=images, timings=timings)
@@ -160,6 +164,17 @@ def run_demo(
         )
         timings["video"] = time.perf_counter() - clock
     return result
+
+
+SIDED_PRESETS = (("blink (eyeBlink)", "eyeBlink"), ("smile (mouthSmile)", "mouthSmile"))
+"""(title, ARKit preset stem) of the demo's extra panel: each preset on both sides at weight 1."""
+
+
+def both_sides(rig, stem: str) -> dict[str, float]:
+    """The controls of an ARKit preset's ``Left`` and ``Right`` halves together at weight 1."""
+    from .assets import preset_controls
+
+    return {**preset_controls(f"{stem}Left", rig), **preset_controls(f"{stem}Right", rig)}
 
 
 def _baked_frames(stage_path: Path):

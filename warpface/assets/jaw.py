@@ -18,7 +18,8 @@ over the cheeks. Where the mesh has a mouth opening, its rim is split at the cor
 a lower arc; with geodesic distances ``d_u``, ``d_l`` to them, ``φ`` gains
 ``ε·(d_u − d_l)/(d_u + d_l + c)`` near the mouth, so each lip follows its own side of the opening
 (the lower lip the jaw, the upper lip not) and the term fades to 0 at the corners, where both
-distances agree.
+distances agree. Last, below that line (and up to 0.10 above it) the weights diffuse over the mesh's edges
+by ~0.05 units (:data:`_DIFFUSION`), so no triangle spans a change the chin's travel would fold it over.
 """
 
 from __future__ import annotations
@@ -47,6 +48,15 @@ the lip-side term fades smoothly instead of flipping between neighbouring vertic
 _LIP_REACH = (0.25, 0.55)
 """Geodesic distance from the mouth rim over which the lip-side term fades out [inter-ocular units]."""
 
+
+_DIFFUSION = 0.05
+"""Spread of the weights' final diffusion over the mesh [inter-ocular units]: the weight must not change by
+more than the mesh can carry where the chin moves ~25 mm (a 2 mm triangle spanning 0.9 → 1 folded over in
+jawOpen: 68 of the built-in face's 70 flipped triangles of all ARKit/FACS channels, 4 after)."""
+_DIFFUSION_ABOVE = 0.10
+"""The diffusion reaches this far above the jaw line [inter-ocular units]; higher, the upper lip and cheeks keep
+their weights (diffusing everywhere lifted the upper lip's to 0.37)."""
+_MAX_DIFFUSION_STEPS = 400
 
 _PIVOT_OFFSET = (0.35, -0.65)
 """Hinge pivot relative to the ear-level jaw points (iBUG 0/16 midpoint), (up, out) [inter-ocular units]."""
@@ -132,7 +142,25 @@ def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.n
     border = np.concatenate([[border[0] - (1.0, 0.0)], border, [border[-1] + (1.0, 0.0)]])
     under = np.interp(local[:, 0], border[:, 0], border[:, 1]) - local[:, 1]
     neck = 1.0 - _smoothstep((under - _NECK_RAMP[0]) / (_NECK_RAMP[1] - _NECK_RAMP[0]))
-    return _smoothstep((below + above_ramp) / (above_ramp + below_ramp)) * neck
+    weights = _smoothstep((below + above_ramp) / (above_ramp + below_ramp)) * neck
+    return _diffused(mesh, weights, _DIFFUSION * frame.scale, free=below > -_DIFFUSION_ABOVE)
+
+
+def _diffused(mesh: FaceMesh, values: np.ndarray, length: float, free: np.ndarray) -> np.ndarray:
+    """``values`` diffused over the mesh's edges (steps of ``v ← ½v + ½·mean of the neighbours`` at the ``free``
+    vertices; the others keep their value) to a spread of about ``length`` [mesh units]: as many steps as the
+    mesh's mean edge needs, so the result does not depend on the resolution; edges follow the surface, so the
+    lips stay apart across the mouth's opening."""
+    edges = np.unique(np.sort(mesh.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    edge = float(np.linalg.norm(mesh.points[edges[:, 0]] - mesh.points[edges[:, 1]], axis=1).mean())
+    steps = min(int(np.ceil(2.0 * (length / edge) ** 2)), _MAX_DIFFUSION_STEPS) if edge > 0.0 else 0
+    count = mesh.vertex_count
+    graph = coo_matrix((np.ones(2 * len(edges)), (edges.ravel(), edges[:, ::-1].ravel())), shape=(count, count))
+    graph = graph.tocsr()
+    degree = np.maximum(np.asarray(graph.sum(axis=1)).ravel(), 1.0)
+    for _ in range(steps):
+        values = np.where(free, 0.5 * values + 0.5 * (graph @ values) / degree, values)
+    return np.clip(values, 0.0, 1.0)
 
 
 def default_jaw(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> Jaw:

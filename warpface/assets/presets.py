@@ -29,9 +29,9 @@ def _sided(template: dict[str, float], side: str) -> dict[str, float]:
 _PER_SIDE = {
     "browDown": {"corrugator_{s}": 0.07, "depressor_supercilii_{s}": 0.09, "orbicularis_oculi_{s}": 0.06},
     "browOuterUp": {"frontalis_outer_{s}": 0.14, "frontalis_middle_{s}": 0.08},
-    "eyeBlink": {"orbicularis_oculi_upper_lid_{s}": 0.11},
+    "eyeBlink": {"lid_upper_close_{s}": 1.0, "lid_lower_close_{s}": 1.0},
     "eyeSquint": {"orbicularis_oculi_lower_lid_{s}": 0.03, "orbicularis_oculi_{s}": 0.12},
-    "eyeWide": {"levator_palpebrae_{s}": 0.10},
+    "eyeWide": {"lid_upper_raise_{s}": 1.0},
     "cheekSquint": {"orbicularis_oculi_{s}": 0.20, "zygomaticus_minor_{s}": 0.02},
     "noseSneer": {"levator_labii_alaeque_nasi_{s}": 0.11, "nasalis_{s}": 0.06},
     "mouthSmile": {"zygomaticus_major_{s}": 0.14, "levator_anguli_oris_{s}": 0.04, "orbicularis_oculi_{s}": 0.08},

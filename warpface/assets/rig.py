@@ -39,6 +39,8 @@ from .anatomy import (
 from .face import default_face, default_landmarks
 from .frame import FaceFrame, SurfaceSampler, check_landmarks, head_cylinder
 from .jaw import default_jaw
+from .lids import default_lids
+from .lips import default_lip_seal, lip_margin_taper
 from .thickness import default_thickness
 
 __all__ = [
@@ -166,19 +168,21 @@ def default_rig(
     surface = SurfaceSampler(mesh, frame, normals)
     local = frame.to_local(mesh.points[landmarks])
     linear, sphincters = _linear_muscles(local, surface), _sphincters(local, frame)
-    jaw = None
+    jaw, lids = None, []
     if anatomy == "full":
         extra_linear, sphincters = anatomy_muscles(local, surface, frame, sphincters)
         linear = [_with_skin_response(m) for m in revised_classic_muscles(local, surface, linear) + extra_linear]
         sphincters = [_with_skin_response(m) for m in sphincters]
         jaw = default_jaw(mesh, frame, landmarks)
+        seal = default_lip_seal(mesh, frame, landmarks)
+        lids = default_lids(mesh, frame, landmarks) + ([] if seal is None else [seal])
     wrinkles = _wrinkles(local, surface, frame, head_cylinder(frame, local), _typical_edge(mesh) / frame.scale, device)
     thickness = default_thickness(mesh, landmarks, device=device)
     if anatomy == "full":
-        thickness = MOBILE_TISSUE_FRACTION * thickness
+        thickness = MOBILE_TISSUE_FRACTION * thickness * lip_margin_taper(mesh, frame, landmarks)
     return FaceRig(
         mesh=mesh,
-        muscles=linear + sphincters,
+        muscles=linear + sphincters + lids,
         wrinkles=wrinkles,
         thickness=thickness,
         landmarks=landmarks,
@@ -208,7 +212,8 @@ def _check_layout_on(mesh: FaceMesh, landmarks: np.ndarray, normals: np.ndarray)
 MOBILE_TISSUE_FRACTION = 0.6
 """The full rig's ``h`` (the thickness that bulges, SPEC §1.3, and bunches, docs/RIG.md §3) as a fraction
 of :func:`~warpface.assets.default_thickness`'s soft-tissue depth: the skin and superficial fat that move
-over the deeper layers; the full depth bulges too much. Calibrated on the ICT-FaceKit shapes with
+over the deeper layers; the full depth bulges too much. Near the lips' contact line it tapers to 0
+(:func:`~warpface.assets.lips.lip_margin_taper`). Calibrated on the ICT-FaceKit shapes with
 ``benchmarks/rig_reach.py`` (docs/RIG.md §3)."""
 
 SKIN_SLIDING = 1.0

@@ -105,10 +105,10 @@ def draw_landmarks(image: np.ndarray, camera, points: np.ndarray) -> np.ndarray:
 
 def draw_muscles(image: np.ndarray, camera, muscles, view: FaceView) -> np.ndarray:
     """``image`` with each linear muscle as a line from its bone attachment to its skin insertion (a dot) and each
-    sphincter as its ellipse."""
+    sphincter as its ellipse (lid hinges and the lip seal are not drawn)."""
     import cv2
 
-    from ..expression.muscles import LinearMuscle
+    from ..expression.muscles import LinearMuscle, SphincterMuscle
 
     image = np.ascontiguousarray(image).copy()
     size = (image.shape[1], image.shape[0])
@@ -119,7 +119,7 @@ def draw_muscles(image: np.ndarray, camera, muscles, view: FaceView) -> np.ndarr
             if visible.all():
                 cv2.line(image, _pixel(pixels[0]), _pixel(pixels[1]), MUSCLE_COLOR, 1, cv2.LINE_AA)
                 cv2.circle(image, _pixel(pixels[1]), 2, MUSCLE_COLOR, -1, cv2.LINE_AA)
-        else:
+        elif isinstance(muscle, SphincterMuscle):  # a lid hinge or the lip seal has no line or ring to draw
             (lx, ly), (ex, ey) = muscle.semi_axes, (np.asarray(muscle.axis_x), np.asarray(muscle.axis_y))
             ring = muscle.center + np.outer(lx * np.cos(angles), ex) + np.outer(ly * np.sin(angles), ey)
             pixels, visible = project(camera, size, view(ring))

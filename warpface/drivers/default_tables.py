@@ -51,15 +51,19 @@ def _sided(stem: str, rows) -> list[tuple[str, str, float]]:
     return out
 
 
+_BLINK = (("lid_upper_close", 1.0), ("lid_lower_close", 1.0), ("orbicularis_oculi", 0.03))
+"""A blink (eyeBlink, AU43/45) per side: both lid hinges to their meeting line (docs/RIG.md §11) and a light squeeze
+of the orbital ring, which is all a rig without lid hinges (the classic anatomy) has."""
+
 ARKIT_TABLE: tuple[tuple[str, str, float], ...] = tuple(
     _sided("browDown", [("corrugator_{s}", 0.09), ("procerus", 0.03)])
     + _both("browInnerUp", "frontalis_inner", 0.16)
     + _both("browInnerUp", "frontalis_middle", 0.06)
     + _sided("browOuterUp", [("frontalis_outer_{s}", 0.14), ("frontalis_middle_{s}", 0.08)])
     + _sided("cheekSquint", [("orbicularis_oculi_{s}", 0.16)])
-    + _sided("eyeBlink", [("orbicularis_oculi_{s}", 0.06)])
+    + _sided("eyeBlink", [(f"{control}_{{s}}", weight) for control, weight in _BLINK])
     + _sided("eyeSquint", [("orbicularis_oculi_{s}", 0.10), ("orbicularis_oculi_lower_lid_{s}", 0.025)])
-    + _sided("eyeWide", [("frontalis_outer_{s}", 0.04), ("frontalis_inner_{s}", 0.03)])
+    + _sided("eyeWide", [("lid_upper_raise_{s}", 1.0), ("frontalis_outer_{s}", 0.02), ("frontalis_inner_{s}", 0.015)])
     + [
         ("jawOpen", "jaw_open", 0.35),
         ("jawForward", "jaw_forward", 0.08),
@@ -100,8 +104,9 @@ _FACS_AT_FULL: tuple[tuple[str, str, float], ...] = tuple(
     + _both("AU02", "frontalis_middle", 0.08)
     + _both("AU04", "corrugator", 0.09)
     + [("AU04", "procerus", 0.06)]
-    + _both("AU05", "frontalis_outer", 0.04)
-    + _both("AU05", "frontalis_inner", 0.03)
+    + _both("AU05", "lid_upper_raise", 1.0)
+    + _both("AU05", "frontalis_outer", 0.02)
+    + _both("AU05", "frontalis_inner", 0.015)
     + _both("AU06", "orbicularis_oculi", 0.22)
     + _both("AU07", "orbicularis_oculi", 0.10)
     + _both("AU07", "orbicularis_oculi_lower_lid", 0.025)
@@ -116,8 +121,7 @@ _FACS_AT_FULL: tuple[tuple[str, str, float], ...] = tuple(
     + [("AU22", "orbicularis_oris", 0.30), ("AU23", "orbicularis_oris", 0.15), ("AU24", "orbicularis_oris", 0.10)]
     + _both("AU25", "depressor_labii_inferioris", 0.03)
     + [("AU26", "jaw_open", 0.25), ("AU27", "jaw_open", 0.45), ("AU28", "orbicularis_oris", 0.15)]
-    + _both("AU43", "orbicularis_oculi", 0.06)
-    + _both("AU45", "orbicularis_oculi", 0.06)
+    + [row for au in ("AU43", "AU45") for control, weight in _BLINK for row in _both(au, control, weight)]
 )
 
 FACS_TABLE: tuple[tuple[str, str, float], ...] = tuple((au, control, w / 5.0) for au, control, w in _FACS_AT_FULL)

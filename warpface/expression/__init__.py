@@ -2,8 +2,10 @@
 
 from .evaluator import ExpressionEvaluator, ExpressionStages
 from .jaw import JAW_CONTROL_NAMES, Jaw, jaw_points
+from .lids import LidMuscle
 from .model import ExpressionModel
 from .muscles import LinearMuscle, Muscle, MuscleLobe, SphincterMuscle, muscle_weights
+from .seal import LipSeal
 from .thickness import ThicknessMap, validate_thickness
 from .wrinkles import CylindricalProjection, PlanarProjection, Projection, Wrinkle, bezier_distances, project_points
 
@@ -14,6 +16,8 @@ __all__ = [
     "LinearMuscle",
     "MuscleLobe",
     "SphincterMuscle",
+    "LidMuscle",
+    "LipSeal",
     "Muscle",
     "muscle_weights",
     "Jaw",

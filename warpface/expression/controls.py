@@ -16,7 +16,8 @@ import warp as wp
 from .._validate import MAX_COORDINATE, as_finite_array
 from ..errors import RigError
 from ..mesh import FaceMesh
-from .muscles import LinearMuscle, SphincterMuscle
+from .lids import LidMuscle
+from .muscles import MUSCLE_TYPES, SphincterMuscle
 from .thickness import validate_thickness
 from .wrinkles import Wrinkle
 
@@ -46,7 +47,7 @@ def check_rig_parts(mesh, muscles, wrinkles, thickness, *, owner: str):
     if not isinstance(mesh, FaceMesh):
         raise TypeError(f"{owner}: mesh must be a FaceMesh, got {type(mesh).__name__}")
     parts = []
-    for kind, items, types in (("muscle", muscles, (LinearMuscle, SphincterMuscle)), ("wrinkle", wrinkles, (Wrinkle,))):
+    for kind, items, types in (("muscle", muscles, MUSCLE_TYPES), ("wrinkle", wrinkles, (Wrinkle,))):
         if isinstance(items, (str, bytes, Mapping)) or not isinstance(items, (Sequence, np.ndarray, tuple, list)):
             expected = " or ".join(t.__name__ for t in types)
             raise TypeError(f"{owner}: {kind}s must be a sequence of {expected}, got {type(items).__name__}")
@@ -58,6 +59,11 @@ def check_rig_parts(mesh, muscles, wrinkles, thickness, *, owner: str):
                 raise TypeError(f"{owner}: {kind} {index} has wrong type {type(item).__name__} (expected {expected})")
             if item.name in names:
                 raise RigError(f"{owner}: duplicate {kind} name {item.name!r}")
+            if isinstance(item, LidMuscle):
+                try:
+                    item.check_vertex_count(mesh.vertex_count)
+                except ValueError as exc:
+                    raise RigError(f"{owner}: {exc}") from None
             names.add(item.name)
         parts.append(items)
     try:
@@ -69,7 +75,8 @@ def check_rig_parts(mesh, muscles, wrinkles, thickness, *, owner: str):
 
 def contraction_limits(muscles) -> np.ndarray:
     """Largest accepted |K| per muscle, shape (M,): a length bound for linear muscles, dimensionless for sphincters."""
-    return np.array([MAX_SPHINCTER_CONTRACTION if isinstance(m, SphincterMuscle) else MAX_COORDINATE for m in muscles])
+    dimensionless = (SphincterMuscle, LidMuscle)
+    return np.array([MAX_SPHINCTER_CONTRACTION if isinstance(m, dimensionless) else MAX_COORDINATE for m in muscles])
 
 
 def control_vector(

@@ -13,10 +13,10 @@ from .controls import check_rig_parts, contraction_limits, control_vector, frame
 from .evaluator import ExpressionEvaluator, ExpressionStages
 from .jaw import JAW_CONTROL_NAMES, Jaw
 from .kernels import MuscleEntry, WrinkleEntry
-from .muscles import Muscle, muscle_weights
+from .muscles import Muscle
 from .plans import PLANS, tiled_rig
 from .tiling import mesh_tiles
-from .tissue import tissue_response
+from .tissue import skin_muscle_weights
 from .wrinkles import Wrinkle, wrinkle_shapes
 
 __all__ = ["ExpressionModel", "ExpressionStages"]
@@ -111,10 +111,7 @@ class ExpressionModel:
     def _upload_rig(self, mesh: FaceMesh) -> None:
         """The rig-time fields (muscle weights with the tissue's response, wrinkle profiles) as device arrays."""
         device = self.device
-        weights = muscle_weights(mesh.points, self.muscles, device=device)
-        if any(m.sliding > 0.0 or m.bunching > 0.0 or m.thickening > 0.0 for m in self.muscles):
-            normals = mesh.vertex_normals(device=device)
-            weights = tissue_response(mesh.points, mesh.triangles, normals, self.thickness, self.muscles, weights)
+        weights = skin_muscle_weights(mesh, self.muscles, self.thickness, device=device)
         shapes = wrinkle_shapes(mesh.points, self.wrinkles, device=device)
         self.muscle_entry_count = int(len(weights.muscle))
         self.wrinkle_entry_count = int(len(shapes.wrinkle))

@@ -28,8 +28,19 @@ from .._validate import (
 )
 from ._sparse import vertex_csr
 from .formulas import linear_muscle_weight, sphincter_weight
+from .lids import LidMuscle, lid_field
 
-__all__ = ["LinearMuscle", "MuscleLobe", "SphincterMuscle", "Muscle", "muscle_weights", "MuscleWeights", "FALLOFFS"]
+__all__ = [
+    "LinearMuscle",
+    "MuscleLobe",
+    "SphincterMuscle",
+    "LidMuscle",
+    "Muscle",
+    "MUSCLE_TYPES",
+    "muscle_weights",
+    "MuscleWeights",
+    "FALLOFFS",
+]
 
 FALLOFFS = ("waters", "smooth")
 """Zone shapes: ``"waters"`` is SPEC §1.1 (the default of the primitives), ``"smooth"`` the C¹ forms of
@@ -216,7 +227,9 @@ class SphincterMuscle:
         _check_response(self, label)
 
 
-Muscle = Union[LinearMuscle, SphincterMuscle]
+Muscle = Union[LinearMuscle, SphincterMuscle, LidMuscle]
+MUSCLE_TYPES = (LinearMuscle, SphincterMuscle, LidMuscle)
+"""The control kinds a rig's muscle list holds: Waters linear and sphincter muscles, and lid hinges."""
 
 
 def _quoted(name) -> str:
@@ -335,12 +348,12 @@ def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], *, device=Non
 
     Args:
         rest_points: shape (V, 3), float64.
-        muscles: linear and sphincter muscles, in contraction order.
+        muscles: linear and sphincter muscles and lid hinges, in contraction order.
         device: Warp device for the float64 kernels.
     """
     device = as_device(device)
     rest_points = as_points(rest_points, "rest_points")
-    muscles = expect_iterable(muscles, "muscles", item_types=(LinearMuscle, SphincterMuscle))
+    muscles = expect_iterable(muscles, "muscles", item_types=MUSCLE_TYPES)
     rest = wp.array(rest_points, dtype=wp.vec3d, device=device)
     return MuscleWeights.from_fields(len(rest_points), (_weight_field(rest, muscle) for muscle in muscles))
 
@@ -348,6 +361,8 @@ def muscle_weights(rest_points: np.ndarray, muscles: list[Muscle], *, device=Non
 def _weight_field(rest: wp.array, muscle: Muscle) -> np.ndarray:
     """One muscle's weight ``w_m`` at every rest point, shape (V, 3) float64 (lobes added by their gain)."""
     vertex_count, device = len(rest), rest.device
+    if isinstance(muscle, LidMuscle):
+        return lid_field(rest, muscle)
     out = wp.empty(vertex_count, dtype=wp.vec3d, device=device)
     if isinstance(muscle, LinearMuscle):
         _linear_zone_weights(rest, muscle, muscle.falloff, out)

@@ -214,13 +214,15 @@ def tissue_response(
 
 
 def skin_muscle_weights(mesh, muscles: Sequence[Muscle], thickness: np.ndarray, *, device=None) -> MuscleWeights:
-    """The weights the expression model applies: zone weights, then each muscle's sliding and bunching.
+    """The weights the expression model applies: zone weights, each muscle's sliding and bunching, then the lips'
+    seal (:mod:`~warpface.expression.seal`) when the muscles hold one.
 
     Args:
         mesh: the rest :class:`~warpface.FaceMesh`; muscles: in contraction order;
         thickness: h per vertex [mesh units], shape (V,); device: Warp device of the weight kernels.
     """
     from .muscles import muscle_weights
+    from .seal import sealed_weights
 
     weights = muscle_weights(mesh.points, list(muscles), device=device)
     if any(m.sliding > 0.0 or m.bunching > 0.0 or m.thickening > 0.0 for m in muscles):
@@ -228,4 +230,4 @@ def skin_muscle_weights(mesh, muscles: Sequence[Muscle], thickness: np.ndarray, 
         weights = tissue_response(
             mesh.points, mesh.triangles, normals, np.asarray(thickness, dtype=np.float64), muscles, weights
         )
-    return weights
+    return sealed_weights(list(muscles), weights)

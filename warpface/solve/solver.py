@@ -31,7 +31,9 @@ import numpy as np
 
 from ..errors import RigError
 from ..expression.jaw import JAW_CONTROL_NAMES, JAW_RANGE
+from ..expression.lids import LidMuscle
 from ..expression.muscles import SphincterMuscle
+from ..expression.seal import LipSeal
 from ..rig import FaceRig
 from .device_steps import DeviceSteps
 from .host_steps import HostSteps
@@ -283,10 +285,7 @@ class Solver:
 
     def _bounds(self):
         low = np.zeros(len(self.names))
-        high = np.array(
-            [SPHINCTER_MAX if isinstance(m, SphincterMuscle) else np.inf for m in self.rig.muscles]
-            + [0.0] * (len(self.names) - self.muscle_count)
-        )
+        high = np.array([_upper_bound(m) for m in self.rig.muscles] + [0.0] * (len(self.names) - self.muscle_count))
         for index, name in enumerate(JAW_CONTROL_NAMES if self.has_jaw else (), start=self.muscle_count):
             lo, hi = JAW_RANGE[name]
             unit = 1.0 if name == "jaw_open" else self.unit  # the slides' range is in face units
@@ -549,3 +548,15 @@ def fit(rig, target, *, vertices=None, weights=None, device=None, **options) -> 
         solvers.pop(next(iter(solvers)))
     solver.reset()
     return solver.solve(target, weights=weights)
+
+
+def _upper_bound(muscle) -> float:
+    """A muscle's largest contraction in a fit: sphincters to SPHINCTER_MAX, a lid's turn to its full closure
+    (beyond it the margins would pass each other), the lip seal's parting to 0 (it is the lips' constraint, not
+    an expression: fits that used it traded it against jaw_open; ``bounds`` can free it), linear muscles
+    unbounded."""
+    if isinstance(muscle, LipSeal):
+        return 0.0
+    if isinstance(muscle, LidMuscle):
+        return 1.0
+    return SPHINCTER_MAX if isinstance(muscle, SphincterMuscle) else np.inf

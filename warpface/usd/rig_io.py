@@ -41,6 +41,7 @@ from ._lobe_io import author_lobes, read_lobes
 from ._prim_values import array_value, check_finite, scalar_value, token_value
 from .asset_io import check_asset
 from .jaw_io import author_jaw, read_jaw
+from .lid_io import LID_TYPE, LidMuscle, author_lid, read_lid
 from .schema import ensure_schema
 
 __all__ = [
@@ -193,7 +194,9 @@ def _set(prim: Usd.Prim, name: str, type_name, value, uniform: bool = True) -> N
 
 def _author_muscle(stage, path, muscle) -> Usd.Prim:
     types = Sdf.ValueTypeNames
-    if isinstance(muscle, LinearMuscle):
+    if isinstance(muscle, LidMuscle):
+        prim = author_lid(stage, path, muscle)
+    elif isinstance(muscle, LinearMuscle):
         prim = stage.DefinePrim(path, _LINEAR)
         _set(prim, "attachment", types.Double3, tuple(muscle.attachment))
         _set(prim, "insertion", types.Double3, tuple(muscle.insertion))
@@ -313,7 +316,7 @@ def rig_prims(stage: Usd.Stage, skin_path: str | None = None) -> RigPrims:
             "to Mesh"
         )
     muscles = _related(
-        stage, skin, _MUSCLES_REL, (_LINEAR, _SPHINCTER), "WarpFaceLinearMuscle or WarpFaceSphincterMuscle"
+        stage, skin, _MUSCLES_REL, (_LINEAR, _SPHINCTER, LID_TYPE), "WarpFaceLinearMuscle, SphincterMuscle or LidMuscle"
     )
     wrinkles = _related(stage, skin, _WRINKLES_REL, (_WRINKLE,), "WarpFaceWrinkle")
     return RigPrims(skin=skin, muscles=tuple(muscles), wrinkles=tuple(wrinkles))
@@ -524,6 +527,8 @@ class ItemPlacements:
 def _read_muscle(prim: Usd.Prim, place: Placement, to_units: float):
     length = place.scale * to_units
     try:
+        if prim.GetTypeName() == LID_TYPE:
+            return read_lid(prim, place, to_units, item_name(prim))
         if prim.GetTypeName() == _LINEAR:
             return LinearMuscle(
                 name=item_name(prim),

@@ -39,7 +39,7 @@ __all__ = [
 PLUGIN_NAME = "warpFace"
 """Plug name of the schema plugin (``libraryName`` in schema.usda)."""
 
-CONCRETE_SCHEMAS = ("WarpFaceLinearMuscle", "WarpFaceSphincterMuscle", "WarpFaceWrinkle")
+CONCRETE_SCHEMAS = ("WarpFaceLinearMuscle", "WarpFaceSphincterMuscle", "WarpFaceLidMuscle", "WarpFaceWrinkle")
 """Prim type names that can be defined on a stage."""
 
 TYPED_SCHEMAS = ("WarpFaceMuscle",) + CONCRETE_SCHEMAS

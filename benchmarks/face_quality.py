@@ -1,0 +1,172 @@
+"""Does the default rig look right: lid gaps in a blink, lip order, folded triangles (issue 25's checks).
+
+Per face (the built-in face; the ICT-FaceKit face rigged from its 68 landmarks; a smooth warp of it
+standing in for another identity; the Lee Perry-Smith scan rigged from landmarks found by
+:func:`warpface.rigging.find_landmarks`), measured with :mod:`warpface.assets.quality`:
+
+- **blink**: ARKit ``eyeBlinkLeft/Right`` = 1 through the default Live Link/ARKit mapping (what
+  ``warpface animate`` does), and the ``eyeBlink`` presets: the largest lid-midpoint distance [mm] (rest
+  gap in brackets) and the lowest signed height of an upper midpoint above its lower one [mm];
+- **lips**: the lowest signed height of an upper inner-lip midpoint above its lower one [mm] over every
+  ARKit preset at weight 1 and over random ARKit weight combinations through the mapping;
+- **flips**: triangles whose normal turned over (rest · deformed < 0), summed over every ARKit and FACS
+  channel at weight 1 through the default mapping (a FACS intensity of 1), without
+  ``mouthRollUpper/Lower`` (those lips turn inward), with the worst channels.
+
+    python -m benchmarks.face_quality [--faces builtin ict warp lps] [--combinations 200]
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+import warpface as wf
+from warpface.assets import ARKIT_PRESET_NAMES, default_rig, preset_controls
+from warpface.assets.quality import LID_PAIRS, LIP_PAIRS, face_up, flipped_triangles, pair_distances, pair_heights
+from warpface.data import ict_face_region, ict_landmark_indices, shared_data_path
+from warpface.drivers.default_tables import mapping_for_rig
+
+from ._timing import machine_info, print_table, write_results
+
+FACES = ("builtin", "ict", "warp", "lps")
+ROLLS = ("mouthRollUpper", "mouthRollLower", "AU28")
+CENTIMETRE = 0.01
+
+
+def smooth_warp(points: np.ndarray, seed: int = 1) -> np.ndarray:
+    """Another identity: width scaled by ±6 % and 12 Gaussian bumps (σ 3 cm, ~5 mm each), ICT units (cm)."""
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(points.min(axis=0), points.max(axis=0), (12, 3))
+    amplitudes = rng.normal(0.0, 0.5, (12, 3))
+    weights = np.exp(-np.sum((points[:, None, :] - centres[None]) ** 2, axis=2) / (2.0 * 3.0**2))
+    return points * [1.0 + (0.06 if seed % 2 else -0.06), 1.0, 1.0] + weights @ amplitudes
+
+
+def face_rig(face: str):
+    """(rig, mm per mesh unit) of a named face, or None when its data is absent."""
+    if face == "builtin":
+        return default_rig(), 1000.0
+    if face in ("ict", "warp"):
+        path, landmarks = ict_face_region(), ict_landmark_indices()
+        if path is None or landmarks is None:
+            return None
+        source = wf.FaceMesh.from_obj(path)
+        points = source.points if face == "ict" else smooth_warp(source.points)
+        mesh = wf.FaceMesh(points * CENTIMETRE, source.triangles, name=f"{face}_face")
+        return default_rig(mesh, landmarks), 1000.0
+    if face == "lps":
+        path = shared_data_path("lee_perry_smith", "LeePerrySmith.obj")
+        if path is None:
+            return None
+        from warpface.rigging import find_landmarks
+
+        mesh = wf.FaceMesh.from_obj(path)
+        found = find_landmarks(mesh.points, mesh.triangles, label="Lee Perry-Smith")
+        return default_rig(mesh, found.indices), 1000.0 * found.meters_per_unit
+    raise ValueError(f"face: expected one of {', '.join(FACES)}, got {face!r}")
+
+
+def channel_frames(rig, kind: str, channels=None, weight: float | None = None) -> tuple[list[str], np.ndarray]:
+    """Each channel of the default ``kind`` table alone at full weight, as the rig's control vectors (F, C)."""
+    mapping, _, _ = mapping_for_rig(rig, kind)
+    names = [c for c in mapping.channels if channels is None or c in channels]
+    full = 1.0 if weight is None else weight
+    index = {c: i for i, c in enumerate(rig.control_names)}
+    frames = np.zeros((len(names), len(rig.control_names)))
+    for f, channel in enumerate(names):
+        column = mapping.channels.index(channel)
+        for row, control in enumerate(mapping.controls):
+            frames[f, index[control]] += full * mapping.matrix[row, column]
+    return names, frames
+
+
+def random_combinations(rig, count: int, seed: int = 0) -> np.ndarray:
+    """``count`` random ARKit weight sets (each channel on with probability 0.3, weight U(0, 1)) as controls."""
+    names, frames = channel_frames(rig, "arkit", weight=1.0)
+    rng = np.random.default_rng(seed)
+    weights = rng.uniform(0.0, 1.0, (count, len(names))) * (rng.uniform(size=(count, len(names))) < 0.3)
+    return weights @ frames
+
+
+def preset_frames(rig, names) -> np.ndarray:
+    index = {c: i for i, c in enumerate(rig.control_names)}
+    frames = np.zeros((len(names), len(rig.control_names)))
+    for f, name in enumerate(names):
+        for control, value in preset_controls(name, rig).items():
+            frames[f, index[control]] = value
+    return frames
+
+
+def measure(rig, mm: float, combinations: int = 200) -> dict:
+    """The checks of the module docstring on one rig."""
+    model = rig.model(device="cpu")
+    up = face_up(rig.mesh, rig.landmarks)
+    rest = rig.mesh.points
+    row: dict = {}
+    rest_gap = pair_distances(rest, rig.landmarks, LID_PAIRS, mm)
+    blink_channels, blink = channel_frames(rig, "arkit", ("eyeBlinkLeft", "eyeBlinkRight"))
+    blink = blink.sum(axis=0, keepdims=True)
+    presets = preset_frames(rig, ["eyeBlinkLeft", "eyeBlinkRight"]).sum(axis=0, keepdims=True)
+    for label, frames in (("blink_arkit", blink), ("blink_preset", presets)):
+        points = model.evaluate(frames)
+        row[f"{label}_gap_mm"] = float(pair_distances(points, rig.landmarks, LID_PAIRS, mm).max())
+        row[f"{label}_order_mm"] = float(pair_heights(points, rig.landmarks, LID_PAIRS, up, mm).min())
+    row["rest_lid_gap_mm"] = float(rest_gap.min())
+    lips_at = model.evaluate(preset_frames(rig, ARKIT_PRESET_NAMES))
+    heights = pair_heights(lips_at, rig.landmarks, LIP_PAIRS, up, mm).min(axis=1)
+    row["lips_preset_mm"] = float(heights.min())
+    row["lips_preset_worst"] = ARKIT_PRESET_NAMES[int(np.argmin(heights))]
+    if combinations:
+        mixed = model.evaluate(random_combinations(rig, combinations))
+        row["lips_random_mm"] = float(pair_heights(mixed, rig.landmarks, LIP_PAIRS, up, mm).min())
+    row["rest_lip_mm"] = float(pair_heights(rest, rig.landmarks, LIP_PAIRS, up, mm).min())
+    counts = {}
+    for kind in ("arkit", "facs"):
+        names, frames = channel_frames(rig, kind)
+        keep = [i for i, n in enumerate(names) if n not in ROLLS]
+        flips = flipped_triangles(rig.mesh, model.evaluate(frames[keep]))
+        counts.update({names[i]: int(n) for i, n in zip(keep, flips)})
+    row["flips"] = int(sum(counts.values()))
+    worst = sorted(counts.items(), key=lambda item: -item[1])[:5]
+    row["flips_worst"] = ", ".join(f"{n} {c}" for n, c in worst if c)
+    return row
+
+
+COLUMNS = [
+    ("face", "face", "s"),
+    ("rest_lid_gap_mm", "rest lid gap", ".2f"),
+    ("blink_arkit_gap_mm", "blink gap (ARKit)", ".2f"),
+    ("blink_arkit_order_mm", "lid order", ".2f"),
+    ("blink_preset_gap_mm", "blink gap (preset)", ".2f"),
+    ("blink_preset_order_mm", "lid order", ".2f"),
+    ("rest_lip_mm", "rest lips", ".2f"),
+    ("lips_preset_mm", "lips (presets)", ".2f"),
+    ("lips_preset_worst", "worst preset", "s"),
+    ("lips_random_mm", "lips (random)", ".2f"),
+    ("flips", "flips", "d"),
+    ("flips_worst", "worst channels", "s"),
+]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--faces", nargs="+", choices=FACES, default=list(FACES))
+    parser.add_argument("--combinations", type=int, default=200, help="random ARKit combinations per face")
+    args = parser.parse_args()
+    rows = []
+    for face in args.faces:
+        built = face_rig(face)
+        if built is None:
+            print(f"skipped {face}: its data is not in ../shared/data")
+            continue
+        row = {"face": face, **measure(*built, combinations=args.combinations)}
+        rows.append(row)
+        print(row, flush=True)
+    print_table(rows, COLUMNS)
+    write_results("face_quality", {"machine": machine_info(), "rows": rows})
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,147 @@
+"""Eyelid hinges (docs/RIG.md §11): the field against a float64 reference, blinks that close, I/O, the solver."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import reference_expression as ref
+from helpers import assert_rigs_equal
+
+import warpface as wf
+from warpface.assets import default_rig, preset_controls
+from warpface.assets.lids import LID_CONTROL_NAMES
+from warpface.assets.quality import LID_PAIRS, face_up, pair_distances, pair_heights
+from warpface.data import ict_face_region, ict_landmark_indices
+from warpface.drivers.default_tables import mapping_for_rig
+from warpface.expression import muscle_weights
+from warpface.expression.lids import LidMuscle
+from warpface.expression.seal import LipSeal
+from warpface.solve import fit
+
+DEVICE = "cpu"
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return default_rig(device=DEVICE)
+
+
+def _dense(points, muscle):
+    weights = muscle_weights(points, [muscle], device=DEVICE)
+    out = np.zeros_like(points)
+    rows = np.repeat(np.arange(len(points)), np.diff(weights.offsets))
+    out[rows] = weights.weight
+    return out
+
+
+def test_lid_field_matches_the_float64_rodrigues_reference():
+    rng = np.random.default_rng(3)
+    points = rng.normal(size=(40, 3))
+    vertices = np.array([1, 5, 7, 22, 39])
+    angles, slides, lifts = rng.uniform(-1.2, 1.2, 5), rng.normal(size=5) * 0.1, rng.normal(size=5) * 0.1
+    axis, centre = np.array([0.3, 1.0, -0.2]), np.array([0.1, -0.2, 0.4])
+    lid = LidMuscle("lid", centre, axis, vertices, angles, slides, lifts)
+    expected = ref.lid_hinge(points, centre, axis, vertices, angles, slides, lifts, 1.0)
+    np.testing.assert_allclose(_dense(points, lid), expected, atol=1e-12)
+    # a pure turn keeps each vertex's distance from the axis line and its position along it
+    turn = _dense(points, LidMuscle("turn", centre, axis, vertices, angles)) + points
+    unit = axis / np.linalg.norm(axis)
+    for p, q in ((points[vertices], turn[vertices]),):
+        along_p, along_q = (p - centre) @ unit, (q - centre) @ unit
+        np.testing.assert_allclose(along_q, along_p, atol=1e-12)
+        radial = np.linalg.norm(np.cross(p - centre, unit), axis=1)
+        np.testing.assert_allclose(np.linalg.norm(np.cross(q - centre, unit), axis=1), radial, atol=1e-12)
+
+
+def test_lid_muscle_rejects_bad_values():
+    with pytest.raises(ValueError, match="angles"):
+        LidMuscle("lid", np.zeros(3), [1, 0, 0], [0, 1], [0.1])
+    with pytest.raises(ValueError, match="angles"):
+        LidMuscle("lid", np.zeros(3), [1, 0, 0], [0], [2.0])
+    with pytest.raises(ValueError, match="distinct"):
+        LidMuscle("lid", np.zeros(3), [1, 0, 0], [0, 0], [0.1, 0.2])
+    with pytest.raises(ValueError, match="slides"):
+        LidMuscle("lid", np.zeros(3), [1, 0, 0], [0], [0.1], slides=[0.0, 1.0])
+    with pytest.raises(TypeError, match="name"):
+        LidMuscle(3, np.zeros(3), [1, 0, 0], [0], [0.1])
+    mesh = wf.FaceMesh(np.eye(3), [[0, 1, 2]])
+    with pytest.raises(wf.RigError, match="vertex 5"):
+        wf.FaceRig(mesh, [LidMuscle("lid", np.zeros(3), [1, 0, 0], [5], [0.1])], [], 0.0)
+
+
+def _blinks(rig, model):
+    mapping, _, _ = mapping_for_rig(rig, "arkit")
+    curves = wf.drivers.Curves(np.zeros(1), ["eyeBlinkLeft", "eyeBlinkRight"], np.ones((1, 2)))
+    mapped = mapping.apply(curves)
+    arkit = model.control_vector(dict(zip(mapped.names, mapped.values[0])))
+    preset = {**preset_controls("eyeBlinkLeft", rig), **preset_controls("eyeBlinkRight", rig)}
+    return model.evaluate(np.stack([arkit, model.control_vector(preset)]))
+
+
+def _check_blink(rig, mm):
+    model = rig.model(device=DEVICE)
+    up = face_up(rig.mesh, rig.landmarks)
+    assert pair_distances(rig.mesh.points, rig.landmarks, LID_PAIRS, mm).min() > 5.0  # a rest gap of several mm
+    frames = _blinks(rig, model)
+    assert pair_distances(frames, rig.landmarks, LID_PAIRS, mm).max() <= 0.5
+    assert pair_heights(frames, rig.landmarks, LID_PAIRS, up, mm).min() >= -0.2
+
+
+def test_a_blink_closes_the_built_in_face_s_lids(rig):
+    assert rig.muscle_names[-7:-1] == list(LID_CONTROL_NAMES)
+    _check_blink(rig, 1000.0)
+
+
+def test_a_blink_closes_the_ict_face_s_lids():
+    path, landmarks = ict_face_region(), ict_landmark_indices()
+    if path is None or landmarks is None:
+        pytest.skip("ICT-FaceKit data not found in ../shared/data (set WARPFACE_SHARED_DATA)")
+    source = wf.FaceMesh.from_obj(path)
+    _check_blink(default_rig(wf.FaceMesh(source.points * 0.01, source.triangles), landmarks, device=DEVICE), 1000.0)
+
+
+def test_a_wide_eye_raises_the_upper_lid_and_closing_halfway_halves_the_gap(rig):
+    model = rig.model(device=DEVICE)
+    up = face_up(rig.mesh, rig.landmarks)
+    rest = pair_heights(rig.mesh.points, rig.landmarks, LID_PAIRS, up, 1000.0)
+    wide = model.evaluate(preset_controls("eyeWideLeft", rig))
+    heights = pair_heights(wide, rig.landmarks, LID_PAIRS, up, 1000.0)
+    assert np.all(heights[2:] > rest[2:] + 1.0) and np.allclose(heights[:2], rest[:2], atol=1e-3)
+    half = model.evaluate({"lid_upper_close_R": 0.5, "lid_lower_close_R": 0.5})
+    np.testing.assert_allclose(pair_heights(half, rig.landmarks, LID_PAIRS, up, 1000.0)[:2], 0.5 * rest[:2], rtol=0.15)
+
+
+def test_lids_round_trip_through_a_stage(rig, tmp_path):
+    path = tmp_path / "rig.usda"
+    wf.usd.write_rig(path, rig)
+    back = wf.usd.read_rig(path)
+    lids = [m for m in back.muscles if isinstance(m, LidMuscle)]
+    assert [m.name for m in lids] == [*LID_CONTROL_NAMES, "lips_part"]
+    assert isinstance(back.muscles[-1], LipSeal) and np.array_equal(back.muscles[-1].pairs, rig.muscles[-1].pairs)
+    for m, n in zip(rig.muscles[-7:-1], lids):
+        assert np.array_equal(m.vertices, n.vertices)
+        for field in ("center", "axis", "angles", "slides", "lifts"):
+            np.testing.assert_allclose(getattr(n, field), getattr(m, field), rtol=1e-12, atol=1e-15, err_msg=field)
+    frame = {"lid_upper_close_L": 1.0, "lid_upper_raise_R": 0.5}
+    np.testing.assert_allclose(
+        back.model(device=DEVICE).evaluate(frame), rig.model(device=DEVICE).evaluate(frame), atol=1e-6
+    )
+    # a rig whose points are exact in float32 comes back equal in every part
+    exact = wf.FaceRig(
+        wf.FaceMesh(rig.mesh.points.astype(np.float32).astype(np.float64), rig.mesh.triangles, name=rig.mesh.name),
+        rig.muscles[-7:],
+        [],
+        0.0,
+        name=rig.name,
+    )
+    wf.usd.write_rig(path, exact)
+    assert_rigs_equal(exact, wf.usd.read_rig(path))
+
+
+def test_the_solver_fits_a_blink_with_the_lid_controls(rig):
+    model = rig.model(device=DEVICE)
+    target = model.evaluate({"lid_upper_close_L": 0.8, "lid_lower_close_L": 0.8})
+    solved = fit(rig, target, device=DEVICE)
+    values = dict(zip(model.control_names, solved.vector))
+    assert values["lid_upper_close_L"] > 0.6
+    assert np.abs(solved.points - target).max() < 0.05 * np.abs(target - rig.mesh.points).max()

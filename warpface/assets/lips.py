@@ -1,0 +1,79 @@
+"""The default rig's lip seal (docs/RIG.md §12), placed from the inner-lip landmarks.
+
+In the :class:`~warpface.assets.frame.FaceFrame` (inter-ocular units): the *contact line* runs through
+the mouth corners (iBUG 60, 64) and the midpoints of the inner-lip pairs 61/67, 62/66, 63/65; ``φ`` is a
+point's height below it. The seal's field turns the upper lip (``φ < 0``) up and the lower lip down by
+:data:`PART_ANGLE` about the frame's x axis through a pivot :data:`PIVOT_DEPTH` behind the mouth, faded
+(C¹, cos²) with ``|φ|`` over :data:`PART_BAND` and toward the corners over :data:`CORNER_BAND` (of the
+mouth's half-width), and 0 beyond :data:`REACH` from the mouth's centre. Its pairs are the inner-lip
+pairs the field parts (on a closed-mouth scan a pair may share a vertex; that pair is left out).
+:func:`lip_margin_taper` is the share of the bulging thickness the rig keeps near the contact line.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..expression.seal import LipSeal
+from ..mesh import FaceMesh
+from .frame import FaceFrame
+
+__all__ = ["default_lip_seal", "lip_margin_taper", "LIP_SEAL_NAME", "PART_ANGLE", "PIVOT_DEPTH"]
+
+LIP_SEAL_NAME = "lips_part"
+"""The seal's control: ``K = 1`` parts the lips by about :data:`PART_ANGLE` × :data:`PIVOT_DEPTH` each."""
+PART_ANGLE = 0.05
+"""Turn of each lip per unit K [rad]: ~0.03 inter-ocular units (2 mm) at the lip margin."""
+PIVOT_DEPTH = 0.6
+"""Depth of the parting axis behind the inner-lip landmarks [inter-ocular units]."""
+PART_BAND = (0.03, 0.22)
+"""``|φ|`` [inter-ocular units] over which a lip turns fully, then the height over which the turn fades."""
+CORNER_BAND = (0.5, 0.5)
+"""Distance from the mouth's centre [half-widths] turning fully, then the distance over which it fades."""
+REACH = 0.6
+"""Nothing farther than this from the mouth's centre turns [inter-ocular units] (a whole head's back)."""
+MARGIN_BAND = 0.10
+"""Distance from the lips' contact line [inter-ocular units] over which the bulging thickness returns."""
+_PAIRS = ((61, 67), (62, 66), (63, 65))
+
+
+def _fade(t: np.ndarray, band: tuple[float, float]) -> np.ndarray:
+    s = np.clip((t - band[0]) / band[1], 0.0, 1.0)
+    return np.cos(0.5 * np.pi * s) ** 2
+
+
+def _contact(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray):
+    """Local points, their height φ below the contact line, the line's mean point and the mouth's half-width."""
+    local = frame.to_local(mesh.points)
+    marks = local[landmarks]
+    contact = np.array([marks[60], *(0.5 * (marks[a] + marks[b]) for a, b in _PAIRS), marks[64]])
+    order = np.argsort(contact[:, 0])
+    below = np.interp(local[:, 0], contact[order, 0], contact[order, 1]) - local[:, 1]
+    return local, below, contact.mean(axis=0), 0.5 * abs(marks[64, 0] - marks[60, 0])
+
+
+def lip_margin_taper(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.ndarray:
+    """Per vertex (V,) in [0, 1]: the share of the bulging thickness the default rig keeps near the lips' contact
+    line: a C¹ smoothstep of the distance from the line's segment between the corners over :data:`MARGIN_BAND`
+    (0 on it, 1 beyond). The bulge moves skin along its normal, which at the lips' free margins points at the
+    other lip: with the lips' full 3.6 mm it pushed them through each other by up to 7.7 mm (docs/RIG.md §12)."""
+    local, below, middle, half_width = _contact(mesh, frame, landmarks)
+    beyond = np.maximum(np.abs(local[:, 0] - middle[0]) - half_width, 0.0)
+    s = np.clip(np.hypot(below, beyond) / MARGIN_BAND, 0.0, 1.0)
+    return s * s * (3.0 - 2.0 * s)
+
+
+def default_lip_seal(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> LipSeal | None:
+    """The default rig's :class:`~warpface.expression.LipSeal` on a face (module docstring), or None when no
+    inner-lip pair can be parted (all of them share a vertex)."""
+    local, below, middle, half_width = _contact(mesh, frame, landmarks)
+    lateral = _fade(np.abs(local[:, 0] - middle[0]) / half_width, CORNER_BAND)
+    near = np.linalg.norm(local - middle, axis=1) < REACH
+    turn = PART_ANGLE * lateral * _fade(np.abs(below), PART_BAND) * near
+    angles = np.where(below < 0.0, -turn, turn)  # a positive turn about +x moves a point in front down
+    pairs = [(landmarks[a], landmarks[b]) for a, b in _PAIRS if angles[landmarks[a]] < 0.0 < angles[landmarks[b]]]
+    if not pairs:
+        return None
+    moved = np.flatnonzero(angles != 0.0)
+    centre = frame.to_world([middle[0], middle[1], middle[2] - PIVOT_DEPTH])
+    return LipSeal(LIP_SEAL_NAME, centre, frame.axes[0], moved, angles[moved], pairs=np.array(pairs))

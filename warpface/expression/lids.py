@@ -1,0 +1,139 @@
+"""Eyelids as hinges (docs/RIG.md §11): lid vertices turn about the eyeball's centre.
+
+A :class:`LidMuscle` is a control whose field is a rotation of each of its vertices about one axis
+through the eye's centre, by that vertex's own angle: per unit contraction ``K``
+
+``w(x_v) = R(θ_v, a)(x_v − c) + c + q_v·n_v + l_v·a − x_v``
+
+(the jaw's hinge formulas, :func:`~warpface.expression.formulas.jaw_rotation`,
+:func:`~warpface.expression.formulas.jaw_slide` with a per-vertex lateral slide ``l_v`` along the axis
+and a radial lift ``q_v`` along ``n_v``, the unit normal from the axis to the turned point, as its
+protrusion, and :func:`~warpface.expression.formulas.jaw_blend` with weight 1). The field is evaluated
+once per rig like every muscle's, so the pipeline stays ``x1 = x + Σ K·w`` and the solver's Jacobian
+of this stage is the weight matrix: ``K = 1`` puts each vertex exactly on its turned position over
+the eyeball (the closed lid), ``0 < K < 1`` on the chord toward it. The angles are the rig's choice
+(:mod:`warpface.assets.lids` builds them from the lid landmarks so the margins meet at ``K = 1``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from .._validate import as_finite_array, as_vec3, unit_vector
+from .formulas import jaw_blend, jaw_rotation, jaw_slide, unit_or_zero
+
+__all__ = ["LidMuscle", "MAX_LID_ANGLE", "lid_field"]
+
+MAX_LID_ANGLE = np.pi / 2
+"""Largest |θ_v| [rad] per unit contraction: a lid turns by less than a right angle over the eyeball."""
+
+
+@dataclass(frozen=True, eq=False)
+class LidMuscle:
+    """A lid's hinge: its vertices turn about ``axis`` through ``center`` by ``angles`` per unit contraction.
+
+    Args:
+        name: unique control name.
+        center: the eyeball's centre ``c`` [mesh units], shape (3,).
+        axis: unit rotation axis ``a``, shape (3,) (right-hand rule).
+        vertices: the vertices it moves, shape (n,), distinct non-negative ints.
+        angles: ``θ_v`` [rad per unit K] of each of ``vertices``, shape (n,), |θ| ≤ :data:`MAX_LID_ANGLE`.
+        slides: ``l_v`` [mesh units per unit K] along ``axis`` of each of ``vertices``, shape (n,)
+            (default 0: a pure turn), so a margin point can meet a partner that is not straight below it.
+        lifts: ``q_v`` [mesh units per unit K] away from the axis, shape (n,) (default 0), so a margin can
+            meet a partner at another distance from the axis.
+
+    ``K`` is dimensionless (1: the full turn). The skin response of the Waters muscles does not apply:
+    ``sliding``, ``bunching`` and ``thickening`` are 0 (the lid turns over the eyeball, on its surface).
+
+    Raises:
+        TypeError: a wrong name type. ValueError: non-finite, out-of-range or mismatched values.
+    """
+
+    name: str
+    center: np.ndarray
+    axis: np.ndarray
+    vertices: np.ndarray
+    angles: np.ndarray
+    slides: np.ndarray | None = None
+    lifts: np.ndarray | None = None
+
+    sliding = 0.0
+    bunching = 0.0
+    thickening = 0.0
+    falloff = "smooth"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str):
+            raise TypeError(f"lid muscle: name must be a string, got {type(self.name).__name__}")
+        label = f"lid muscle {self.name[:60]!r}"
+        if not self.name:
+            raise ValueError(f"{label}: name must be a non-empty string")
+        set_ = object.__setattr__
+        set_(self, "center", as_vec3(self.center, f"{label}: center"))
+        set_(self, "axis", unit_vector(self.axis, f"{label}: axis"))
+        vertices = np.asarray(self.vertices)
+        if vertices.ndim != 1 or (vertices.size and not np.issubdtype(vertices.dtype, np.integer)):
+            raise ValueError(f"{label}: vertices must be a 1-D array of ints, got {vertices.dtype} {vertices.shape}")
+        vertices = vertices.astype(np.int64)
+        if vertices.size and (vertices.min() < 0 or len(np.unique(vertices)) != len(vertices)):
+            raise ValueError(f"{label}: vertices must be distinct and ≥ 0")
+        angles = as_finite_array(self.angles, f"{label}: angles")
+        if angles.shape != vertices.shape:
+            raise ValueError(f"{label}: {angles.shape} angles for {vertices.shape} vertices")
+        if angles.size and np.abs(angles).max() > MAX_LID_ANGLE:
+            raise ValueError(f"{label}: angles must be within ±{MAX_LID_ANGLE:.4f} rad, got {np.abs(angles).max()}")
+        set_(self, "vertices", vertices)
+        set_(self, "angles", angles)
+        for field in ("slides", "lifts"):
+            value = getattr(self, field)
+            value = np.zeros_like(angles) if value is None else as_finite_array(value, f"{label}: {field}")
+            if value.shape != vertices.shape:
+                raise ValueError(f"{label}: {value.shape} {field} for {vertices.shape} vertices")
+            set_(self, field, value)
+
+    def check_vertex_count(self, vertex_count: int) -> None:
+        """Raise ValueError when a vertex index is outside a mesh of ``vertex_count`` points."""
+        if self.vertices.size and self.vertices.max() >= vertex_count:
+            raise ValueError(
+                f"lid muscle {self.name!r}: vertex {int(self.vertices.max())} outside a mesh of {vertex_count} points"
+            )
+
+
+@wp.kernel
+def _lid_field_kernel(
+    rest: wp.array(dtype=wp.vec3d),
+    vertices: wp.array(dtype=wp.int64),
+    motion: wp.array(dtype=wp.vec3d),
+    centre: wp.vec3d,
+    axis: wp.vec3d,
+    out: wp.array(dtype=wp.vec3d),
+):
+    k = wp.tid()  # motion[k] = (angle, slide, lift) of vertices[k]
+    x = rest[vertices[k]]
+    rotation = jaw_rotation(motion[k][0], axis)
+    turned = wp.quat_rotate(rotation, x - centre)
+    outward = unit_or_zero(turned - wp.dot(turned, axis) * axis)
+    slide = jaw_slide(motion[k][2], motion[k][1], outward, axis)
+    out[vertices[k]] = jaw_blend(x, wp.float64(1.0), centre, rotation, slide) - x
+
+
+def lid_field(rest: wp.array, muscle: LidMuscle) -> np.ndarray:
+    """The lid's weight field ``w`` at every rest point (``rest``: (V,) vec3d), shape (V, 3) float64."""
+    out = wp.zeros(len(rest), dtype=wp.vec3d, device=rest.device)
+    muscle.check_vertex_count(len(rest))
+    if muscle.vertices.size:
+        inputs = [
+            rest,
+            wp.array(muscle.vertices, dtype=wp.int64, device=rest.device),
+            wp.array(
+                np.stack([muscle.angles, muscle.slides, muscle.lifts], axis=1), dtype=wp.vec3d, device=rest.device
+            ),
+            wp.vec3d(*muscle.center),
+            wp.vec3d(*muscle.axis),
+        ]
+        wp.launch(_lid_field_kernel, dim=len(muscle.vertices), inputs=inputs, outputs=[out], device=rest.device)
+    return out.numpy()
