@@ -86,19 +86,11 @@ class Jaw:
             raise ValueError(f"jaw {self.name!r}: {len(self.weights)} weights for a mesh of {vertex_count} vertices")
 
 
-@wp.kernel
-def _jaw_points_kernel(
-    rest: wp.array(dtype=wp.vec3d),
-    weights: wp.array(dtype=wp.float64),
-    pivot: wp.vec3d,
-    axis: wp.vec3d,
-    forward: wp.vec3d,
-    controls: wp.vec3d,
-    out: wp.array(dtype=wp.vec3d),
-):
-    i = wp.tid()
+@wp.func
+def _jaw_point(x: wp.vec3d, w: wp.float64, pivot: wp.vec3d, axis: wp.vec3d, forward: wp.vec3d, controls: wp.vec3d):
+    """``x_jaw`` of one point with weight ``w``; ``controls`` = (θ [rad], protrusion, lateral slide)."""
     rotation = jaw_rotation(controls[0], axis)
-    out[i] = jaw_blend(rest[i], weights[i], pivot, rotation, jaw_slide(controls[1], controls[2], forward, axis))
+    return jaw_blend(x, w, pivot, rotation, jaw_slide(controls[1], controls[2], forward, axis))
 
 
 def jaw_points(jaw: Jaw, rest_points: np.ndarray, controls) -> np.ndarray:
@@ -116,11 +108,7 @@ def jaw_points(jaw: Jaw, rest_points: np.ndarray, controls) -> np.ndarray:
         raise ValueError(f"rest_points: {len(rest)} points but the jaw has weights for {len(jaw.weights)} vertices")
     if len(rest) == 0:
         return np.zeros((0, 3))
-    out = wp.empty(len(rest), dtype=wp.vec3d, device="cpu")
-    inputs = [
-        wp.array(rest, dtype=wp.vec3d, device="cpu"),
-        wp.array(jaw.weights, dtype=wp.float64, device="cpu"),
-        *(wp.vec3d(*v) for v in (jaw.pivot, jaw.axis, jaw.forward, values)),
-    ]
-    wp.launch(_jaw_points_kernel, dim=len(rest), inputs=inputs, outputs=[out], device="cpu")
-    return out.numpy()
+    points = wp.array(rest, dtype=wp.vec3d, device="cpu")
+    weights = wp.array(jaw.weights, dtype=wp.float64, device="cpu")
+    pose = (wp.vec3d(*v) for v in (jaw.pivot, jaw.axis, jaw.forward, values))
+    return wp.map(_jaw_point, points, weights, *pose, device="cpu").numpy()

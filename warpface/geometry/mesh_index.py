@@ -16,21 +16,21 @@ from .funcs import closest_point_on_triangle
 __all__ = ["TriangleMeshIndex", "closest_points"]
 
 
-@wp.kernel
-def _closest_points_kernel(
-    mesh: wp.uint64,
-    vertices: wp.array(dtype=wp.vec3),
-    triangles: wp.array2d(dtype=wp.int32),
-    queries: wp.array(dtype=wp.vec3),
-    box_center: wp.vec3,
-    box_radius: float,
-    out_triangle: wp.array(dtype=wp.int32),
-    out_barycentric: wp.array(dtype=wp.vec3),
-    out_distance: wp.array(dtype=float),
-):
-    """Closest triangle per query: BVH bound → AABB candidates → exact Voronoi-region test."""
-    i = wp.tid()
-    p = queries[i]
+@wp.func
+def _candidate(points: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32), t: int, p: wp.vec3):
+    """Barycentric weights of the point of triangle ``t`` closest to ``p``, and its squared distance to ``p``."""
+    a = points[indices[3 * t]]
+    b = points[indices[3 * t + 1]]
+    c = points[indices[3 * t + 2]]
+    w = closest_point_on_triangle(p, a, b, c)
+    return w, wp.length_sq(p - (w[0] * a + w[1] * b + w[2] * c))
+
+
+@wp.func
+def _closest_point(mesh: wp.uint64, p: wp.vec3, box_center: wp.vec3, box_radius: float):
+    """Closest triangle to ``p``, the barycentric weights and the distance of its closest point to ``p``:
+    BVH bound → AABB candidates → exact Voronoi-region test."""
+    surface = wp.mesh_get(mesh)
     # Every triangle lies within this distance of p, so it bounds the answer from above.
     bound = wp.length(p - box_center) + box_radius
     hit = wp.mesh_query_point_no_sign(mesh, p, bound * 1.001 + 1.0e-6)
@@ -46,11 +46,7 @@ def _closest_points_kernel(
     query = wp.mesh_query_aabb(mesh, p - reach, p + reach)
     t = int(0)
     while wp.mesh_query_next(query, t):
-        a = vertices[triangles[t, 0]]
-        b = vertices[triangles[t, 1]]
-        c = vertices[triangles[t, 2]]
-        w = closest_point_on_triangle(p, a, b, c)
-        d = wp.length_sq(p - (w[0] * a + w[1] * b + w[2] * c))
+        w, d = _candidate(surface.points, surface.indices, t, p)
         # The first candidate is always taken: no sentinel distance can reject a far query.
         if best_t < 0 or d < best_d or (d == best_d and t < best_t):
             best_d = d
@@ -58,19 +54,13 @@ def _closest_points_kernel(
             best_w = w
     if best_t < 0:
         # Unreachable for valid input (the bound guarantees a candidate); exhaustive as a safety net.
-        for s in range(triangles.shape[0]):
-            a = vertices[triangles[s, 0]]
-            b = vertices[triangles[s, 1]]
-            c = vertices[triangles[s, 2]]
-            w = closest_point_on_triangle(p, a, b, c)
-            d = wp.length_sq(p - (w[0] * a + w[1] * b + w[2] * c))
+        for s in range(surface.indices.shape[0] // 3):
+            w, d = _candidate(surface.points, surface.indices, s, p)
             if best_t < 0 or d < best_d:
                 best_d = d
                 best_t = s
                 best_w = w
-    out_triangle[i] = best_t
-    out_barycentric[i] = best_w
-    out_distance[i] = wp.sqrt(best_d)
+    return best_t, best_w, wp.sqrt(best_d)
 
 
 class TriangleMeshIndex:
@@ -99,7 +89,6 @@ class TriangleMeshIndex:
         self.radius = float(0.5 * np.linalg.norm(hi - lo))
         """Bounding-sphere radius about :attr:`center` [m]."""
         self._vertices = wp.array((verts - self.center).astype(np.float32), dtype=wp.vec3, device=self.device)
-        self._triangles = wp.array(tri, dtype=wp.int32, device=self.device)
         self._indices = wp.array(tri.reshape(-1), dtype=wp.int32, device=self.device)
         self._mesh = wp.Mesh(points=self._vertices, indices=self._indices)
         self.triangle_count = int(tri.shape[0])
@@ -107,27 +96,12 @@ class TriangleMeshIndex:
     def query(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Closest point on the mesh for each of ``points`` (shape (Q, 3)); see :func:`closest_points`."""
         q = as_points(points, "query")
-        count = q.shape[0]
-        triangle = wp.empty(count, dtype=wp.int32, device=self.device)
-        bary = wp.empty(count, dtype=wp.vec3, device=self.device)
-        dist = wp.empty(count, dtype=float, device=self.device)
-        if count:
-            queries = wp.array((q - self.center).astype(np.float32), dtype=wp.vec3, device=self.device)
-            wp.launch(
-                _closest_points_kernel,
-                dim=count,
-                inputs=[
-                    self._mesh.id,
-                    self._vertices,
-                    self._triangles,
-                    queries,
-                    wp.vec3(0.0, 0.0, 0.0),
-                    max(self.radius, 1e-12),
-                ],
-                outputs=[triangle, bary, dist],
-                device=self.device,
-            )
-        return triangle.numpy(), bary.numpy().reshape(count, 3), dist.numpy()
+        if q.shape[0] == 0:
+            return np.zeros(0, np.int32), np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
+        queries = wp.array((q - self.center).astype(np.float32), dtype=wp.vec3, device=self.device)
+        bounds = (wp.vec3(0.0, 0.0, 0.0), max(self.radius, 1e-12))
+        triangle, bary, dist = wp.map(_closest_point, wp.uint64(self._mesh.id), queries, *bounds, device=self.device)
+        return triangle.numpy(), bary.numpy().reshape(-1, 3), dist.numpy()
 
 
 def closest_points(query, vertices, triangles, *, device=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -43,7 +43,40 @@ def _import_sdk(module: str, extra: str, what: str):
         ) from None
 
 
-class RealSenseCamera(SourceBase):
+class _LiveCamera(SourceBase):
+    """What the live cameras share: the SDK import and frame-loop options, the frame checks, stopping."""
+
+    def _open_sdk(self, name: str, module: str, extra: str, timeout_ms, max_frames, timestamp_policy):
+        """Import the SDK ``module`` (extra ``extra``) of the ``name`` cameras and keep the frame loop's options;
+        returns the module."""
+        self._name = name
+        sdk = _import_sdk(module, extra, name)
+        self.timeout_ms = int(timeout_ms)
+        self.max_frames = max_frames
+        self.timestamp_policy = timestamp_policy
+        StreamGuard(timestamp_policy, name)  # checks the policy before a device is touched
+        self.dropped_frames = 0
+        return sdk
+
+    def _wants(self, index: int) -> bool:
+        """Whether the frame loop goes on after ``index`` yielded frames."""
+        return self._running and (self.max_frames is None or index < self.max_frames)
+
+    def _accepts(self, guard: StreamGuard, timestamp: float, index: int, depth_image: np.ndarray) -> bool:
+        """The guard's verdict on a frame; a dropped frame is counted in ``dropped_frames``."""
+        if guard.accept(timestamp, index, depth_image.shape, "image size"):
+            return True
+        self.dropped_frames = guard.dropped
+        return False
+
+    def close(self) -> None:
+        """Stop the pipeline. Safe to call twice."""
+        if getattr(self, "_running", False):
+            self._running = False
+            self._pipeline.stop()
+
+
+class RealSenseCamera(_LiveCamera):
     """An Intel RealSense camera (D400 series and similar) through ``pyrealsense2``.
 
     The pipeline starts on construction (intrinsics and depth scale are known from then on) and
@@ -71,12 +104,9 @@ class RealSenseCamera(SourceBase):
         max_frames: int | None = None,
         timestamp_policy: str = "drop",
     ):
-        rs = _import_sdk("pyrealsense2", "realsense", "RealSense")
-        self._rs = rs
-        self.timeout_ms = int(timeout_ms)
-        self.max_frames = max_frames
-        self.timestamp_policy = timestamp_policy
-        StreamGuard(timestamp_policy, "RealSense")
+        rs = self._rs = self._open_sdk(
+            "RealSense", "pyrealsense2", "realsense", timeout_ms, max_frames, timestamp_policy
+        )
         devices = list(rs.context().query_devices())
         if not devices:
             raise CameraUnavailable("no RealSense device attached")
@@ -103,7 +133,6 @@ class RealSenseCamera(SourceBase):
         )
         self.fps = float(fps)
         self._align = rs.align(rs.stream.color)
-        self.dropped_frames = 0
 
     def frames(self) -> Iterator[RGBDFrame]:
         """Aligned colour + depth frames until ``max_frames`` or :meth:`close`.
@@ -111,9 +140,9 @@ class RealSenseCamera(SourceBase):
         Raises:
             CameraDisconnected: no frame within ``timeout_ms`` (device unplugged or stalled).
         """
-        guard = StreamGuard(self.timestamp_policy, "RealSense")
+        guard = StreamGuard(self.timestamp_policy, self._name)
         index = 0
-        while self._running and (self.max_frames is None or index < self.max_frames):
+        while self._wants(index):
             try:
                 frameset = self._pipeline.wait_for_frames(self.timeout_ms)
             except RuntimeError as exc:
@@ -126,20 +155,13 @@ class RealSenseCamera(SourceBase):
             timestamp = float(frameset.get_timestamp()) * 1e-3  # device clock, milliseconds
             depth_image = np.asanyarray(depth.get_data()).astype(np.uint16, copy=True)
             color_image = np.asanyarray(color.get_data()).astype(np.uint8, copy=True)
-            if not guard.accept(timestamp, index, depth_image.shape, "image size"):
-                self.dropped_frames = guard.dropped
+            if not self._accepts(guard, timestamp, index, depth_image):
                 continue
             yield RGBDFrame(timestamp, color_image, depth_image, self.depth_scale, index)
             index += 1
 
-    def close(self) -> None:
-        """Stop the pipeline. Safe to call twice."""
-        if getattr(self, "_running", False):
-            self._running = False
-            self._pipeline.stop()
 
-
-class OrbbecCamera(SourceBase):
+class OrbbecCamera(_LiveCamera):
     """An Orbbec camera (Femto, Astra, Gemini series) through ``pyorbbecsdk`` (SDK v2 wheel).
 
     Args:
@@ -164,13 +186,8 @@ class OrbbecCamera(SourceBase):
         max_frames: int | None = None,
         timestamp_policy: str = "drop",
     ):
-        ob = _import_sdk("pyorbbecsdk", "orbbec", "Orbbec")
-        self._ob = ob
-        self.timeout_ms = int(timeout_ms)
+        ob = self._ob = self._open_sdk("Orbbec", "pyorbbecsdk", "orbbec", timeout_ms, max_frames, timestamp_policy)
         self.max_empty_waits = int(max_empty_waits)
-        self.max_frames = max_frames
-        self.timestamp_policy = timestamp_policy
-        StreamGuard(timestamp_policy, "Orbbec")
         if ob.Context().query_devices().get_count() < 1:
             raise CameraUnavailable("no Orbbec device attached")
         self._pipeline = ob.Pipeline()
@@ -190,7 +207,6 @@ class OrbbecCamera(SourceBase):
             float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy), int(intr.width), int(intr.height)
         )
         self.fps = float(fps) if fps else None
-        self.dropped_frames = 0
 
     def _pick(self, profiles, width, height, fmt, fps):
         try:
@@ -209,10 +225,10 @@ class OrbbecCamera(SourceBase):
         Raises:
             CameraDisconnected: ``max_empty_waits`` consecutive waits without a frame set.
         """
-        guard = StreamGuard(self.timestamp_policy, "Orbbec")
+        guard = StreamGuard(self.timestamp_policy, self._name)
         index = 0
         empty = 0
-        while self._running and (self.max_frames is None or index < self.max_frames):
+        while self._wants(index):
             frameset = self._pipeline.wait_for_frames(self.timeout_ms)
             if frameset is None:
                 empty += 1
@@ -236,14 +252,7 @@ class OrbbecCamera(SourceBase):
             color_image = np.frombuffer(color.get_data(), dtype=np.uint8).reshape(ch, cw, 3).copy()
             depth_scale = float(depth.get_depth_scale()) * 1e-3  # SDK reports millimetres per unit
             timestamp = float(depth.get_timestamp_us()) * 1e-6  # device clock, microseconds
-            if not guard.accept(timestamp, index, depth_image.shape, "image size"):
-                self.dropped_frames = guard.dropped
+            if not self._accepts(guard, timestamp, index, depth_image):
                 continue
             yield RGBDFrame(timestamp, color_image, depth_image, depth_scale, index)
             index += 1
-
-    def close(self) -> None:
-        """Stop the pipeline. Safe to call twice."""
-        if getattr(self, "_running", False):
-            self._running = False
-            self._pipeline.stop()

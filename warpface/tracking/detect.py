@@ -36,8 +36,17 @@ MAX_DOT_DIAMETER = 1000
 """Largest accepted dot diameter [px] (it sizes the background filter of dark dots)."""
 
 
-def _checked_blob_options(color, threshold, min_area, max_area, min_axis_ratio, max_diameter) -> dict:
-    """The blob gates of :func:`detect_blobs`, checked; each bad one named in a ValueError."""
+def _checked_blob_options(
+    *,
+    color="dark",
+    threshold: float = 70.0,
+    min_area: int = 6,
+    max_area: int = 2000,
+    min_axis_ratio: float = 0.35,
+    max_diameter: int = 25,
+) -> dict:
+    """The blob gates of :func:`detect_blobs` with their defaults (the one place they are set), checked; each bad
+    one named in a ValueError (an unknown one in a TypeError)."""
     if isinstance(color, str):
         if color != "dark":
             raise ValueError(f"color must be 'dark' or an RGB triple, got {color!r}")
@@ -111,32 +120,24 @@ def _contrast_map(image: np.ndarray, color, max_diameter: int) -> np.ndarray:
     return np.where(total[..., 0] > 60.0, score, 0.0).astype(np.float32)
 
 
-def detect_blobs(
-    image: np.ndarray,
-    *,
-    color="dark",
-    threshold: float = 70.0,
-    min_area: int = 6,
-    max_area: int = 2000,
-    min_axis_ratio: float = 0.35,
-    max_diameter: int = 25,
-) -> Blobs:
+def detect_blobs(image: np.ndarray, **options) -> Blobs:
     """Find dot-like blobs.
 
     Args:
         image: RGB image, shape (H, W, 3), uint8.
-        color: ``"dark"`` for dark dots on lighter skin, or an RGB triple for coloured dots.
-        threshold: contrast (0–255) a pixel needs to belong to a dot.
-        min_area, max_area: accepted blob sizes [px].
-        min_axis_ratio: rejects elongated blobs (edges, hair, eyelids); 1 = only perfect circles.
-        max_diameter: largest dot diameter [px], 1 … :data:`MAX_DOT_DIAMETER` (sets the background
-            filter for dark dots).
+        options: the blob gates, keywords (the defaults in brackets):
+
+            * ``color`` [``"dark"``]: ``"dark"`` for dark dots on lighter skin, or an RGB triple for coloured dots;
+            * ``threshold`` [70]: contrast (0–255) a pixel needs to belong to a dot;
+            * ``min_area``, ``max_area`` [6, 2000]: accepted blob sizes [px];
+            * ``min_axis_ratio`` [0.35]: rejects elongated blobs (edges, hair, eyelids); 1 = only perfect circles;
+            * ``max_diameter`` [25]: largest dot diameter [px], 1 … :data:`MAX_DOT_DIAMETER` (sets the
+              background filter for dark dots).
 
     Returns:
         :class:`Blobs` passing the gates, in no particular order.
     """
-    options = _checked_blob_options(color, threshold, min_area, max_area, min_axis_ratio, max_diameter)
-    return _detect_blobs(image, **options)
+    return _detect_blobs(image, **_checked_blob_options(**options))
 
 
 def _detect_blobs(image, *, color, threshold, min_area, max_area, min_axis_ratio, max_diameter) -> Blobs:
@@ -209,7 +210,8 @@ class DotTracker:
         initial_pixels: where each dot is in the first frame [px], shape (N, 2) (e.g. from a
             calibration click, a stored layout, or a synthetic camera's projection).
         names: landmark names, length N; ``dot_000``… when omitted.
-        color, threshold, min_area, max_area, min_axis_ratio, max_diameter: see :func:`detect_blobs`.
+        blob_options: the blob gates (``color``, ``threshold``, ``min_area``, ``max_area``, ``min_axis_ratio``,
+            ``max_diameter``), keywords of :func:`detect_blobs`.
         gate_px: largest distance [px] between a prediction and its detection.
         outlier_px: largest disagreement [px] between a dot's motion and the median motion of its
             ``neighbours`` nearest dots before the match is rejected.
@@ -227,17 +229,12 @@ class DotTracker:
         initial_pixels,
         *,
         names: Sequence[str] | None = None,
-        color="dark",
-        threshold: float = 70.0,
-        min_area: int = 6,
-        max_area: int = 2000,
-        min_axis_ratio: float = 0.35,
-        max_diameter: int = 25,
         gate_px: float = 15.0,
         outlier_px: float = 8.0,
         neighbours: int = 4,
         velocity_damping: float = 0.5,
         area_change: float = 1.6,
+        **blob_options,
     ):
         start = as_finite_array(initial_pixels, "initial_pixels", shape=(None, 2), max_abs=MAX_TRACKING_PX)
         if start.shape[0] == 0:
@@ -245,7 +242,7 @@ class DotTracker:
         n = start.shape[0]
         default = tuple(f"dot_{i:03d}" for i in range(n))
         self.landmark_names = default if names is None else validate_landmark_names(names, n, "names")
-        self.blob_options = _checked_blob_options(color, threshold, min_area, max_area, min_axis_ratio, max_diameter)
+        self.blob_options = _checked_blob_options(**blob_options)
         self.gate_px = as_positive(gate_px, "gate_px", maximum=MAX_TRACKING_PX)
         self.outlier_px = as_positive(outlier_px, "outlier_px", maximum=MAX_TRACKING_PX)
         self.neighbours = as_count(neighbours, "neighbours", minimum=1, maximum=1000)

@@ -150,22 +150,14 @@ def procedural_jaw_open(points: np.ndarray, amount: float) -> np.ndarray:
     return p
 
 
-@wp.kernel
-def _occluded_kernel(
-    mesh: wp.uint64,
-    points: wp.array(dtype=wp.vec3),
-    normals: wp.array(dtype=wp.vec3),
-    eye: wp.vec3,
-    offset: float,
-    occluded: wp.array(dtype=wp.int32),
-):
-    """1 where the segment from a (slightly lifted) surface point to the eye hits the mesh."""
-    i = wp.tid()
-    start = points[i] + offset * normals[i]
+@wp.func
+def _blocked(mesh: wp.uint64, point: wp.vec3, normal: wp.vec3, eye: wp.vec3, offset: float):
+    """1 where the segment from the surface point (lifted by ``offset`` along its normal) to the eye hits the mesh."""
+    start = point + offset * normal
     to_eye = eye - start
     length = wp.length(to_eye)
     hit = wp.mesh_query_ray(mesh, start, to_eye / length, length)
-    occluded[i] = wp.where(hit.result, 1, 0)
+    return wp.where(hit.result, 1, 0)
 
 
 def _occluded(
@@ -176,22 +168,11 @@ def _occluded(
     device = as_device(device)
     pts = wp.array((points - center).astype(np.float32), dtype=wp.vec3, device=device)
     mesh = wp.Mesh(points=pts, indices=wp.array(np.asarray(triangles, dtype=np.int32).reshape(-1), device=device))
-    out = wp.zeros(points.shape[0], dtype=wp.int32, device=device)
-    scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
-    wp.launch(
-        _occluded_kernel,
-        dim=points.shape[0],
-        inputs=[
-            mesh.id,
-            pts,
-            wp.array(normals.astype(np.float32), dtype=wp.vec3, device=device),
-            wp.vec3(*(np.asarray(eye, dtype=np.float64) - center)),
-            1e-4 * scale,
-        ],
-        outputs=[out],
-        device=device,
-    )
-    return out.numpy().astype(bool)
+    lifted_by = 1e-4 * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    eye_point = wp.vec3(*(np.asarray(eye, dtype=np.float64) - center))
+    wp_normals = wp.array(normals.astype(np.float32), dtype=wp.vec3, device=device)
+    blocked = wp.map(_blocked, wp.uint64(mesh.id), pts, wp_normals, eye_point, lifted_by, device=device)
+    return blocked.numpy().astype(bool)
 
 
 def default_model_to_camera(rest_points: np.ndarray, distance: float = 0.6) -> np.ndarray:
