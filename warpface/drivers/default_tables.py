@@ -38,8 +38,13 @@ LENGTH_CONTROLS = frozenset({"jaw_forward", "jaw_left"})
 """Non-muscle controls whose values are lengths (scaled by the face's size like linear muscles)."""
 
 
-def _both(channel: str, muscle: str, weight: float) -> list[tuple[str, str, float]]:
-    return [(channel, f"{muscle}_L", weight), (channel, f"{muscle}_R", weight)]
+def _channel(channel: str, rows) -> list[tuple[str, str, float]]:
+    """One channel's rows; ``rows`` = [(muscle, w)], a ``muscle_{s}`` standing for its ``_L`` and ``_R`` pair."""
+    return [
+        (channel, muscle.format(s=tag), weight)
+        for muscle, weight in rows
+        for tag in (("L", "R") if "{s}" in muscle else ("",))
+    ]
 
 
 def _sided(stem: str, rows) -> list[tuple[str, str, float]]:
@@ -57,8 +62,7 @@ of the orbital ring, which is all a rig without lid hinges (the classic anatomy)
 
 ARKIT_TABLE: tuple[tuple[str, str, float], ...] = tuple(
     _sided("browDown", [("corrugator_{s}", 0.09), ("procerus", 0.03)])
-    + _both("browInnerUp", "frontalis_inner", 0.16)
-    + _both("browInnerUp", "frontalis_middle", 0.06)
+    + _channel("browInnerUp", [("frontalis_inner_{s}", 0.16), ("frontalis_middle_{s}", 0.06)])
     + _sided("browOuterUp", [("frontalis_outer_{s}", 0.14), ("frontalis_middle_{s}", 0.08)])
     + _sided("cheekSquint", [("orbicularis_oculi_{s}", 0.16)])
     + _sided("eyeBlink", [(f"{control}_{{s}}", weight) for control, weight in _BLINK])
@@ -91,37 +95,30 @@ ARKIT_TABLE: tuple[tuple[str, str, float], ...] = tuple(
     + _sided("mouthLowerDown", [("depressor_labii_inferioris_{s}", 0.06)])
     + _sided("mouthUpperUp", [("levator_labii_superioris_{s}", 0.06)])
     + [("mouthShrugLower", "mentalis", 0.05)]
-    + _both("mouthShrugUpper", "levator_labii_superioris", 0.025)
-    + [("mouthShrugUpper", "mentalis", 0.02)]
+    + _channel("mouthShrugUpper", [("levator_labii_superioris_{s}", 0.025), ("mentalis", 0.02)])
     + _sided("noseSneer", [("levator_labii_alaeque_nasi_{s}", 0.11)])
 )
 """(ARKit channel, control, weight per unit weight) rows."""
 
 _FACS_AT_FULL: tuple[tuple[str, str, float], ...] = tuple(
-    _both("AU01", "frontalis_inner", 0.16)
-    + _both("AU01", "frontalis_middle", 0.06)
-    + _both("AU02", "frontalis_outer", 0.14)
-    + _both("AU02", "frontalis_middle", 0.08)
-    + _both("AU04", "corrugator", 0.09)
-    + [("AU04", "procerus", 0.06)]
-    + _both("AU05", "lid_upper_raise", 1.0)
-    + _both("AU05", "frontalis_outer", 0.02)
-    + _both("AU05", "frontalis_inner", 0.015)
-    + _both("AU06", "orbicularis_oculi", 0.22)
-    + _both("AU07", "orbicularis_oculi", 0.10)
-    + _both("AU07", "orbicularis_oculi_lower_lid", 0.025)
-    + _both("AU09", "levator_labii_alaeque_nasi", 0.11)
-    + _both("AU10", "levator_labii_superioris", 0.06)
-    + _both("AU12", "zygomaticus_major", 0.22)
-    + _both("AU14", "risorius", 0.04)
-    + _both("AU15", "depressor_anguli_oris", 0.06)
-    + _both("AU16", "depressor_labii_inferioris", 0.06)
+    _channel("AU01", [("frontalis_inner_{s}", 0.16), ("frontalis_middle_{s}", 0.06)])
+    + _channel("AU02", [("frontalis_outer_{s}", 0.14), ("frontalis_middle_{s}", 0.08)])
+    + _channel("AU04", [("corrugator_{s}", 0.09), ("procerus", 0.06)])
+    + _channel("AU05", [("lid_upper_raise_{s}", 1.0), ("frontalis_outer_{s}", 0.02), ("frontalis_inner_{s}", 0.015)])
+    + _channel("AU06", [("orbicularis_oculi_{s}", 0.22)])
+    + _channel("AU07", [("orbicularis_oculi_{s}", 0.10), ("orbicularis_oculi_lower_lid_{s}", 0.025)])
+    + _channel("AU09", [("levator_labii_alaeque_nasi_{s}", 0.11)])
+    + _channel("AU10", [("levator_labii_superioris_{s}", 0.06)])
+    + _channel("AU12", [("zygomaticus_major_{s}", 0.22)])
+    + _channel("AU14", [("risorius_{s}", 0.04)])
+    + _channel("AU15", [("depressor_anguli_oris_{s}", 0.06)])
+    + _channel("AU16", [("depressor_labii_inferioris_{s}", 0.06)])
     + [("AU17", "mentalis", 0.05), ("AU18", "orbicularis_oris", 0.45)]
-    + _both("AU20", "risorius", 0.06)
+    + _channel("AU20", [("risorius_{s}", 0.06)])
     + [("AU22", "orbicularis_oris", 0.30), ("AU23", "orbicularis_oris", 0.15), ("AU24", "orbicularis_oris", 0.10)]
-    + _both("AU25", "depressor_labii_inferioris", 0.03)
+    + _channel("AU25", [("depressor_labii_inferioris_{s}", 0.03)])
     + [("AU26", "jaw_open", 0.25), ("AU27", "jaw_open", 0.45), ("AU28", "orbicularis_oris", 0.15)]
-    + [row for au in ("AU43", "AU45") for control, weight in _BLINK for row in _both(au, control, weight)]
+    + [row for au in ("AU43", "AU45") for row in _channel(au, [(f"{c}_{{s}}", w) for c, w in _BLINK])]
 )
 
 FACS_TABLE: tuple[tuple[str, str, float], ...] = tuple((au, control, w / 5.0) for au, control, w in _FACS_AT_FULL)
