@@ -90,7 +90,7 @@ def calibrate() -> np.ndarray:
     model = template()
     points, triangles = load_obj(shared_data_path("ict_facekit", "face_region_tri", "neutral.obj"))
     fitted = register(points, triangles)
-    truth = fitted.similarity.inverse(points[ict_landmark_indices()])
+    truth = fitted.to_local(points[ict_landmark_indices()])
     nearest = cKDTree(fitted.deformed.points).query(truth)[1]
     maps = fitted.deformed.maps[model.cell[nearest]]
     back = np.stack([np.linalg.solve(m[:3].T, t - m[3]) for m, t in zip(maps, truth)])
