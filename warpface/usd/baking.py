@@ -1,9 +1,13 @@
 """Point-cache bakes: the expression model evaluated at a rig stage's time codes, streamed into a ``.usdc``.
 
 :func:`bake` writes the skin's ``points`` and ``extent`` time samples (and normals, when the skin's asset
-authors them; :mod:`warpface.usd.asset_io`) into a cache layer, sublayered (strongest sublayer) under the
-rig layer; a referenced asset is never edited. The rest shape lives in the skin's ``warpFaceShape``
-variant (see :mod:`warpface.usd.rig_io`) or in the referenced asset, which every sublayer opinion overrides.
+authors them; :mod:`warpface.usd.asset_io`) as ``over`` opinions into a cache layer of its own. Where
+that layer goes: with ``shot``, into a small *shot stage* whose layer stack is ``[cache, stage]`` (the
+stage's own layer, the rig's, and the referenced asset stay byte for byte as they were: what ``warpface
+bake`` does); without, sublayered (strongest sublayer) under the stage's root layer, which is saved
+(what ``animate`` does with the stage it wrote itself). A referenced asset is never edited. The rest
+shape lives in the skin's ``warpFaceShape`` variant (see :mod:`warpface.usd.rig_io`) or in the
+referenced asset, which every sublayer opinion overrides.
 
 Frames are read, evaluated and written in chunks: the cache is a ``.usdc`` file saved after every
 chunk (crate files grow by appending), so memory stays bounded by one chunk however long the bake.
@@ -34,7 +38,15 @@ from .asset_io import NORMAL_PROPERTIES, SkinNormals, shells_of
 from .rig_io import SHAPE_VARIANT_SET, read_rig, rig_prims, stage_meters_per_unit
 from .schema import ensure_schema
 
-__all__ = ["bake", "check_bake", "check_cache_path", "default_cache_path", "existing_cache_path", "CACHE_SUFFIX"]
+__all__ = [
+    "bake",
+    "check_bake",
+    "check_cache_path",
+    "default_cache_path",
+    "default_shot_path",
+    "existing_cache_path",
+    "CACHE_SUFFIX",
+]
 
 MAX_REACH = 10.0
 """A bake refuses a frame whose skin leaves the rest shape's bounding box by more than this many times
@@ -173,6 +185,7 @@ def bake(
     chunk_frames: int = 64,
     max_frames: int | None = MAX_FRAMES,
     workers: int | None = None,
+    shot=None,
 ) -> Path:
     """Evaluate the expression model at every time code and write the skin's points and extent as a cache.
 
@@ -196,6 +209,9 @@ def bake(
         workers: threads evaluating chunks of frames while this one reads controls and writes (default:
             one per CPU core on the CPU, where Warp's kernels run serially and release the GIL). A GPU
             model always runs in this thread. The cache is the same bits for any count.
+        shot: a ``.usda``/``.usdc`` shot stage to write (replaced if it exists): its layer stack is the
+            cache over the stage's saved root layer, with the stage's units, up axis, default prim, rates
+            and a time range covering the cache. The stage's root layer is then not edited at all.
 
     Returns:
         The cache file path.
@@ -207,6 +223,7 @@ def bake(
             directly (which would hide the cache).
     """
     chunk_frames = as_count(chunk_frames, "chunk_frames", minimum=1)
+    shot_path = None if shot is None else writable_path(shot, (".usda", ".usdc", ".usd"))
     if workers is not None:
         workers = as_count(workers, "workers", minimum=1)
     stage, times, cache_path, model = check_bake(
@@ -219,6 +236,8 @@ def bake(
         max_frames=max_frames,
         evaluate=False,
     )
+    if shot_path is not None:
+        _check_shot_path(stage, shot_path, cache_path)
     skin = rig_prims(stage, skin_path).skin
     skin_path, model = skin.GetPath(), shells_of(stage, skin, model)  # extra shells move only rigidly
     stage_unit = stage_meters_per_unit(stage)
@@ -263,8 +282,59 @@ def bake(
     if opened is not None:
         opened.Reload(force=True)
     root = stage.GetRootLayer()
-    _attach_cache(root, None if root.anonymous else Path(root.realPath), cache_path, low, high)
+    if shot_path is not None:
+        _write_shot(root, cache_path, shot_path)
+    else:
+        _attach_cache(root, None if root.anonymous else Path(root.realPath), cache_path, low, high)
     return cache_path
+
+
+def default_shot_path(stage_path) -> Path:
+    """``<stage stem>_shot.usda`` beside the stage file: where ``warpface bake`` writes its shot stage."""
+    stage_path = Path(stage_path)
+    return stage_path.with_name(stage_path.stem + "_shot.usda")
+
+
+def _check_shot_path(stage: Usd.Stage, shot_path: Path, cache_path: Path) -> None:
+    """The shot stage must not be the cache or any layer the stage uses, and needs a stage saved to a file."""
+    root = stage.GetRootLayer()
+    if root.anonymous:
+        raise ValueError("shot: the stage's root layer is in memory; save the stage to a file first")
+    if root.dirty:
+        raise ValueError(f"shot: {root.realPath} has unsaved edits; save the stage first (the shot layers the file)")
+    if _same_file(shot_path, cache_path):
+        raise ValueError(f"shot {shot_path}: is the cache file; choose another shot file")
+    for layer in stage.GetUsedLayers():
+        if layer.realPath and _same_file(layer.realPath, shot_path):
+            raise ValueError(f"shot {shot_path}: is one of the stage's own layers; choose another shot file")
+
+
+SHOT_METADATA = ("metersPerUnit", "upAxis", "defaultPrim", "timeCodesPerSecond", "framesPerSecond")
+"""Stage metadata a shot stage copies from the stage it layers (a stage reads them off its root layer)."""
+
+
+def _write_shot(root: Sdf.Layer, cache_path: Path, shot_path: Path) -> None:
+    """Write the shot stage: sublayers ``[cache, root]`` (the cache only when the root does not already
+    sublayer it), the root's metadata and a time range covering the root's and the cache's."""
+    from ._files import export_layer_atomically
+
+    shot = Sdf.Layer.CreateAnonymous(shot_path.suffix)
+    for key in SHOT_METADATA:
+        if root.pseudoRoot.HasInfo(key):
+            shot.pseudoRoot.SetInfo(key, root.pseudoRoot.GetInfo(key))
+    cache = Sdf.Layer.FindOrOpen(str(cache_path))
+    entries = [] if _find_sublayer(root, cache_path) is not None else [_relative_entry(cache_path, shot_path)]
+    shot.subLayerPaths[:] = entries + [_relative_entry(Path(root.realPath), shot_path)]
+    low, high = cache.startTimeCode, cache.endTimeCode
+    if root.HasStartTimeCode() and root.HasEndTimeCode():
+        low, high = min(low, root.startTimeCode), max(high, root.endTimeCode)
+    cover_time_range(shot, low, high, None)
+    export_layer_atomically(shot, shot_path)
+
+
+def _relative_entry(path: Path, anchor_file: Path) -> str:
+    entry = os.path.relpath(path, anchor_file.parent)
+    return entry if entry.startswith(".") else "./" + entry
 
 
 def _evaluated_chunks(stage: Usd.Stage, model, chunks: list[np.ndarray], skin_path, stage_unit: float, workers: int):
@@ -497,8 +567,7 @@ def _attach_cache(root: Sdf.Layer, root_file: Path | None, cache_path: Path, low
     if _find_sublayer(root, cache_path) is None:
         entry = str(cache_path)
         if root_file is not None:
-            entry = os.path.relpath(cache_path, root_file.parent)
-            entry = entry if entry.startswith(".") else "./" + entry
+            entry = _relative_entry(cache_path, root_file)
         root.subLayerPaths.insert(0, entry)
         changed = True
     old = (
