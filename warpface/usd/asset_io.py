@@ -200,6 +200,32 @@ def attach_asset(layer: Sdf.Layer, skin_path, link: AssetLink, *, anchor: Path |
     )
     order.default = Vt.TokenArray()  # the rig lives in the mesh's own space: a transform of the mesh prim is not kept
     layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, link.up_axis)
+    if link.prim_path:
+        _keep_whole_asset(layer, Sdf.Path(str(skin_path)), link, asset)
+
+
+ASSET_PRIM = "Asset"
+"""Child of the rig's root prim that references the rest of a USD asset (eyes, teeth … as their own prims)."""
+
+
+def _keep_whole_asset(layer: Sdf.Layer, skin_path: Sdf.Path, link: AssetLink, asset: str) -> None:
+    """Reference every other root prim of a USD asset under ``/<Face>/Asset``, the skin's mesh deactivated there
+    (it is the rig's skin): a head whose eyes and teeth are meshes of their own keeps them. Nothing when the
+    asset has no mesh besides the skin."""
+    source = Sdf.Layer.FindOrOpen(str(link.path))
+    stage = Usd.Stage.Open(source, load=Usd.Stage.LoadAll)
+    skin_prim = Sdf.Path(link.prim_path)
+    if not any(p.IsA(UsdGeom.Mesh) and p.GetPath() != skin_prim for p in stage.Traverse()):
+        return
+    holder = Sdf.CreatePrimInLayer(layer, skin_path.GetParentPath().AppendChild(ASSET_PRIM))
+    holder.specifier, holder.typeName = Sdf.SpecifierDef, "Xform"
+    for root in stage.GetPseudoRoot().GetChildren():
+        child = Sdf.CreatePrimInLayer(layer, holder.path.AppendChild(root.GetName()))
+        child.specifier = Sdf.SpecifierDef
+        child.referenceList.prependedItems = [Sdf.Reference(asset, root.GetPath())]
+        if skin_prim.HasPrefix(root.GetPath()):
+            hidden = Sdf.CreatePrimInLayer(layer, skin_prim.ReplacePrefix(root.GetPath(), child.path))
+            hidden.active = False
 
 
 def _relative(path: Path, anchor: Path) -> str:
