@@ -292,3 +292,27 @@ def test_a_usd_head_of_several_meshes_is_rigged_on_its_face_and_kept_whole(tmp_p
     skins = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh) and p.GetName() == "Head"]
     assert [str(p.GetPath()) for p in skins] == []  # the head composes once: as the rig's skin
     assert UsdGeom.Mesh(stage.GetPrimAtPath("/Face/Skin")).GetPointsAttr().Get() is not None
+    rig_digest = _digest(out)
+
+    frames = 6
+    take = live_link_csv(tmp_path / "take.csv", {"jawOpen": np.linspace(0.0, 0.9, frames)}, frames)
+    animated = tmp_path / "anim" / "shot.usda"
+    assert main(["--quiet", "animate", str(take), "--rig", str(out), "--out", str(animated), "--no-video"]) == 0
+    assert _digest(head) == before and _digest(out) == rig_digest
+    shot = Usd.Stage.Open(str(animated))
+
+    def points(name, time):
+        mesh = UsdGeom.Mesh(shot.GetPrimAtPath(f"/Face/Asset/Character/{name}"))
+        return np.asarray(mesh.GetPointsAttr().Get(Usd.TimeCode(time)), dtype=np.float64)
+
+    eyes_rest, eyes_open = points("Eyes", 0), points("Eyes", frames - 1)
+    np.testing.assert_array_equal(eyes_open, eyes_rest)  # the eyes stay with the head
+    teeth_rest, teeth_open = points("Teeth", 0), points("Teeth", frames - 1)
+    moved = np.linalg.norm(teeth_open - teeth_rest, axis=1)
+    lower, upper = moved > 0.05, moved < 1e-6  # cm: the lower teeth follow the opened jaw, the upper ones stay
+    assert lower.sum() > 0.3 * len(moved) and upper.sum() > 0.3 * len(moved) and (lower | upper).all()
+    # rigidly: the lower teeth keep their distances (a rotation about the jaw's pivot)
+    sample = np.flatnonzero(lower)[:: max(1, lower.sum() // 200)]
+    gaps = np.linalg.norm(teeth_open[sample][:, None] - teeth_open[sample][None], axis=2)
+    rest_gaps = np.linalg.norm(teeth_rest[sample][:, None] - teeth_rest[sample][None], axis=2)
+    np.testing.assert_allclose(gaps, rest_gaps, atol=1e-3)

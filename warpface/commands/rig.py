@@ -224,6 +224,12 @@ def run(args) -> int:
         weights[still] = 0.0
         weights[link.jaw_vertices] = 1.0
         rig = dataclasses.replace(rig, jaw=dataclasses.replace(rig.jaw, weights=weights))
+        if link.prim_path:  # a USD head: its other meshes (teeth, tongue) below the lips follow the jaw
+            from ..usd import open_stage
+            from ..usd.asset_io import follower_jaw_weights
+
+            followers = follower_jaw_weights(open_stage(args.head), link.prim_path, points, landmarks, weights)
+            link = dataclasses.replace(link, followers=followers)
     stage = Usd.Stage.CreateInMemory(f"rig{out.suffix}")
     write_rig(stage, rig, meters_per_unit=meters_per_unit)
     skin = rig_prims(stage).skin

@@ -34,7 +34,7 @@ from .._validate import as_count, expect_instance
 from ..errors import RigError
 from ._files import open_layer, open_stage, usd_error_message, writable_path
 from .animation import CACHE_SUFFIX, MAX_FRAMES, as_time_codes, cover_time_range, frame_times, read_animation
-from .asset_io import NORMAL_PROPERTIES, SkinNormals, shells_of
+from .asset_io import NORMAL_PROPERTIES, SkinNormals, shells_of, write_jaw_followers
 from .rig_io import SHAPE_VARIANT_SET, read_rig, rig_prims, stage_meters_per_unit
 from .schema import ensure_schema
 
@@ -274,6 +274,8 @@ def bake(
                 if incremental:
                     _save(cache, cache_path)
                 bar.update(len(chunk))
+        animation = read_animation(stage, times, skin_path=str(skin_path), meters_per_unit=stage_unit)
+        write_jaw_followers(cache, stage, model, times, animation.controls)  # other meshes of the asset on the jaw
         samples = cache.ListTimeSamplesForPath(points_path)
         cache.startTimeCode, cache.endTimeCode = min(samples), max(samples)
         _save(cache, cache_path)
@@ -499,20 +501,20 @@ def _new_cache_layer(temporary: Path, cache_path: Path, skin_path: Sdf.Path, sta
 
 
 def _is_points_cache(layer: Sdf.Layer, skin_path) -> bool:
-    """True when ``layer`` holds nothing but ``over`` prims and the skin's points/extent/normals (what bake writes)."""
+    """True when ``layer`` holds nothing but ``over`` prims and the skin's points/extent/normals, and points/extent
+    of other meshes (the asset's meshes that follow the jaw): what bake writes."""
     skin_path = Sdf.Path(str(skin_path))
     allowed = {skin_path.AppendProperty(name) for name in (UsdGeom.Tokens.points, UsdGeom.Tokens.extent)}
     allowed |= {skin_path.AppendProperty(name) for name in NORMAL_PROPERTIES}
-    ancestors = set(skin_path.GetPrefixes())
     foreign = []
 
     def visit(path: Sdf.Path) -> None:
         if path.IsPropertyPath():
-            if path not in allowed:
+            if path not in allowed and path.name not in (UsdGeom.Tokens.points, UsdGeom.Tokens.extent):
                 foreign.append(path)
         elif path.IsPrimPath():
             spec = layer.GetPrimAtPath(path)
-            if path not in ancestors or spec is None or spec.specifier != Sdf.SpecifierOver:
+            if spec is None or spec.specifier != Sdf.SpecifierOver:
                 foreign.append(path)
 
     layer.Traverse(Sdf.Path.absoluteRootPath, visit)
