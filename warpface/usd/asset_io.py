@@ -27,6 +27,7 @@ from ..errors import RigError
 from ..expression.jaw import JAW_CONTROL_NAMES, jaw_points
 from ..mesh import ObjPolygons, fan_triangles
 from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, writable_path
+from .asset_normals import NORMAL_PROPERTIES, SkinNormals
 
 __all__ = [
     "AssetLink",
@@ -425,71 +426,3 @@ def shells_of(stage: Usd.Stage, skin: Usd.Prim, model):
     if link is None or len(link.rigid_vertices) == 0:
         return model
     return RigidShells(model, link.rigid_vertices)
-
-
-NORMAL_PROPERTIES = ("normals", "primvars:normals", "primvars:normals:indices")
-"""Skin properties a bake may write besides points and extent (when the asset authors normals)."""
-
-
-class SkinNormals:
-    """Per-frame normals of a skin whose asset authors them, written with the asset's interpolation.
-
-    Normals are area-weighted vertex normals of the deformed polygons (fan triangles), turned to agree
-    with the asset's rest normals; a ``faceVarying`` primvar gets them per vertex with the faces' corner
-    indices (hard edges become smooth). ``None`` from :meth:`of` when the asset has no normals.
-    """
-
-    def __init__(self, skin: Usd.Prim, name: str, interpolation: str, indexed: bool):
-        from ..rigging.surface import vertex_normals
-
-        mesh = UsdGeom.Mesh(skin)
-        self._corners = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), dtype=np.int64)
-        self._triangles = fan_triangles(mesh.GetFaceVertexCountsAttr().Get(), self._corners)
-        self._normals = vertex_normals
-        self._name, self._interpolation, self._indexed = name, interpolation, indexed
-        rest = self._vertex_normals(np.asarray(mesh.GetPointsAttr().Get(), dtype=np.float64), 1.0)
-        authored = UsdGeom.Primvar(skin.GetAttribute(name)).ComputeFlattened() if indexed else None
-        authored = np.asarray(authored if authored is not None else skin.GetAttribute(name).Get(), dtype=np.float64)
-        expected = self._laid_out(rest)
-        self._sign = -1.0 if len(authored) == len(expected) and np.sum(authored * expected) < 0.0 else 1.0
-
-    @classmethod
-    def of(cls, skin: Usd.Prim) -> SkinNormals | None:
-        primvar = UsdGeom.PrimvarsAPI(skin).GetPrimvar("normals")
-        if primvar and primvar.HasAuthoredValue():
-            return cls(skin, "primvars:normals", primvar.GetInterpolation(), primvar.IsIndexed())
-        attribute = UsdGeom.Mesh(skin).GetNormalsAttr()
-        if attribute and attribute.HasAuthoredValue():
-            return cls(skin, "normals", UsdGeom.Mesh(skin).GetNormalsInterpolation(), False)
-        return None
-
-    def _vertex_normals(self, points: np.ndarray, sign: float) -> np.ndarray:
-        return sign * self._normals(points, self._triangles)
-
-    def _laid_out(self, vertex_normals: np.ndarray) -> np.ndarray:
-        if self._interpolation == UsdGeom.Tokens.faceVarying and not self._indexed:
-            return vertex_normals[self._corners]
-        return vertex_normals
-
-    def prepare(self, layer: Sdf.Layer, skin_path: Sdf.Path, low: float, high: float) -> None:
-        """Create the specs in the cache ``layer`` and drop its samples in ``[low, high]``."""
-        prim = layer.GetPrimAtPath(skin_path)
-        spec = prim.attributes.get(self._name) or Sdf.AttributeSpec(prim, self._name, Sdf.ValueTypeNames.Normal3fArray)
-        spec.SetInfo("interpolation", self._interpolation)
-        for time in layer.ListTimeSamplesForPath(spec.path):
-            if low <= time <= high:
-                layer.EraseTimeSample(spec.path, time)
-        if self._indexed:  # values per vertex: the corners (or vertices) index them
-            table = self._corners if self._interpolation == UsdGeom.Tokens.faceVarying else np.arange(self._count())
-            indices = prim.attributes.get(self._name + ":indices") or Sdf.AttributeSpec(
-                prim, self._name + ":indices", Sdf.ValueTypeNames.IntArray
-            )
-            indices.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(table, dtype=np.int32))
-        self._path = spec.path
-
-    def _count(self) -> int:
-        return int(self._triangles.max()) + 1 if len(self._triangles) else 0
-
-    def write(self, layer: Sdf.Layer, time: float, positions: np.ndarray) -> None:
-        values = self._laid_out(self._vertex_normals(np.asarray(positions, dtype=np.float64), self._sign))
-        layer.SetTimeSample(self._path, time, Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(values, np.float32)))
