@@ -80,7 +80,7 @@ def _skin_mesh(stage, path: Path):
         points, counts = mesh.GetPointsAttr().Get(), mesh.GetFaceVertexCountsAttr().Get()
         indices = mesh.GetFaceVertexIndicesAttr().Get()
         if not points or not counts or not indices or sum(counts) != len(indices) or max(indices) >= len(points):
-            return -1.0 if not points else -1.0 / len(points)  # no faces: only chosen when no mesh has any
+            return -1.0  # no faces: chosen only when no mesh has any
         corners = np.asarray(points, dtype=np.float64)[polygons_to_triangles(np.asarray(counts), np.asarray(indices))]
         return float(
             np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1).sum()
