@@ -4,11 +4,12 @@ Heads (from ``../shared/data``): the ICT-FaceKit face region (cm, triangles), th
 (cm, quads, 56 shells: eyes, teeth, gums, sockets) and the menpo ``james`` scan (mm, its landmarks
 reordered from menpo's grouping to iBUG). Without ``--quick``, the whole ICT head also runs turned
 (35° yaw, 15° tilt), Z-up, in metres and with shuffled vertex order, and Lee Perry-Smith (no ground
-truth: its unit, confidence and time only) and two smooth random warps of the ICT head (stand-ins for
-other identities, with the ICT ground truth carried along).
+truth: its unit, confidence and time only), two smooth random warps of the ICT head (stand-ins for
+other identities, with the ICT ground truth carried along) and the ICT head 8 % wider and 10 % flatter
+(other proportions: what the affine stage of the registration is for).
 
-Two methods in the same run: **rigid** — the similarity fit of the template alone (symmetry plane,
-orientation search, scale) with its landmarks carried over unchanged — and **non-rigid** — the same
+Two methods in the same run: **rigid** — the similarity and affine fits of the template alone (symmetry
+plane, orientation search, scale, proportions) with its landmarks carried over unchanged — and **non-rigid** — the same
 followed by non-rigid ICP (the default, docs/RIG.md). The template's landmark points are calibrated on
 the ICT neutral (``--calibrate`` recomputes them), so the ICT rows measure the registration's
 consistency on that face; ``james`` is held out and follows menpo's annotation of the jaw and brows.
@@ -34,6 +35,15 @@ from warpface.rigging.detect import register
 from warpface.rigging.template import template
 
 from ._timing import machine_info, print_table, write_results
+
+GROUPS = {
+    "jaw": slice(0, 17),
+    "brows": slice(17, 27),
+    "nose": slice(27, 36),
+    "eyes": slice(36, 48),
+    "mouth": slice(48, 68),
+}
+"""iBUG landmark groups whose mean error is reported separately [mm]."""
 
 MENPO_TO_IBUG = np.r_[0:17, 29:34, 43:48, 34:43, 17:23, 23:29, 48:68]
 """james.ljson: chin, eyes (subject's right first), brows, nose, mouth → iBUG order."""
@@ -72,6 +82,9 @@ def heads(quick: bool):
             for seed in (1, 2):
                 warped = smooth_warp(points, seed)
                 yield f"ICT head, smooth warp {seed} (cm)", warped, triangles, warped[truth], 10.0
+            for label, factor in (("8 % wider", (1.08, 1.0, 1.0)), ("10 % flatter", (1.0, 1.0, 0.9))):
+                scaled = points * factor
+                yield f"ICT head, {label} (cm)", scaled, triangles, scaled[truth], 10.0
     james = shared_data_path("menpo3d_james")
     if james is not None:
         points, triangles = load_obj(james / "james.obj")
@@ -90,7 +103,7 @@ def calibrate() -> np.ndarray:
     model = template()
     points, triangles = load_obj(shared_data_path("ict_facekit", "face_region_tri", "neutral.obj"))
     fitted = register(points, triangles)
-    truth = fitted.similarity.inverse(points[ict_landmark_indices()])
+    truth = fitted.to_local(points[ict_landmark_indices()])
     nearest = cKDTree(fitted.deformed.points).query(truth)[1]
     maps = fitted.deformed.maps[model.cell[nearest]]
     back = np.stack([np.linalg.solve(m[:3].T, t - m[3]) for m, t in zip(maps, truth)])
@@ -128,6 +141,7 @@ def main() -> None:
                 error = np.linalg.norm(points[found.indices] - truth, axis=1) * mm
                 row.update(mean_mm=float(error.mean()), max_mm=float(error.max()), worst=int(np.argmax(error)))
                 row.update(features_mm=float(error[27:].mean()))
+                row.update({f"{group}_mm": float(error[where].mean()) for group, where in GROUPS.items()})
             rows.append(row)
     print_table(
         rows,
@@ -140,6 +154,7 @@ def main() -> None:
             ("max_mm", "max mm", ".1f"),
             ("worst", "worst iBUG", "d"),
             ("features_mm", "27-67 mm", ".2f"),
+            *((f"{group}_mm", group, ".1f") for group in GROUPS),
             ("confidence", "conf", ".2f"),
             ("seconds", "time s", ".2f"),
         ],

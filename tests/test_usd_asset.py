@@ -231,3 +231,88 @@ def test_whole_ict_head_keeps_its_polygons_and_shells(tmp_path):
     assert not np.isin(vertices("M_EyeLashes"), rigid).any()  # lashes ride on the lids
     teeth = vertices("M_Teeth")
     assert np.isin(teeth, rigid).all() and 0.3 < np.isin(teeth, jaw).mean() < 0.7  # the lower ones with the jaw
+
+
+ICT_PRIMS = {"Head": (0, 14062), "GumsTongue": (14062, 17039), "Teeth": (17039, 21451), "Eyes": (21451, 24591)}
+"""The whole ICT head's region ranges (../shared/data/README.md) as prims; the remaining vertices (lashes …) go
+to a prim "Rest"."""
+
+
+def _split_ict_usd(path):
+    """The whole ICT head as a cm, Y-up USD stage with one Mesh prim per region (polygons and order kept)."""
+    from pxr import Usd, UsdGeom, Vt
+
+    from warpface.mesh import read_obj_polygons
+
+    obj = read_obj_polygons(ICT / "original" / "generic_neutral_mesh.obj")
+    ranges = dict(ICT_PRIMS, Rest=(ICT_PRIMS["Eyes"][1], len(obj.points)))
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageMetersPerUnit(stage, CM)
+    stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, "/Character").GetPrim())
+    starts = np.cumsum(obj.counts) - obj.counts
+    first = obj.indices[starts]
+    for name, (low, high) in ranges.items():
+        faces = (first >= low) & (first < high)
+        corners = np.concatenate([obj.indices[s : s + c] for s, c in zip(starts[faces], obj.counts[faces])])
+        assert corners.min() >= low and corners.max() < high  # no face crosses regions
+        mesh = UsdGeom.Mesh.Define(stage, f"/Character/{name}")
+        mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(obj.points[low:high].astype(np.float32)))
+        mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(obj.counts[faces].astype(np.int32)))
+        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy((corners - low).astype(np.int32)))
+    stage.GetRootLayer().Save()
+    return obj, ranges
+
+
+@pytest.mark.skipif(ICT is None, reason="ICT-FaceKit not in ../shared/data (set WARPFACE_SHARED_DATA)")
+def test_a_usd_head_of_several_meshes_is_rigged_on_its_face_and_kept_whole(tmp_path):
+    from pxr import Usd, UsdGeom
+
+    from warpface.data import ict_landmark_indices
+    from warpface.usd import read_rig
+
+    head = tmp_path / "asset" / "ict.usda"
+    head.parent.mkdir()
+    obj, ranges = _split_ict_usd(head)
+    before = _digest(head)
+    out = tmp_path / "rig" / "rig.usda"
+    assert main(["--quiet", "rig", str(head), "--out", str(out)]) == 0
+    assert _digest(head) == before  # the asset is never edited
+    rig = read_rig(out, degenerate="ignore")  # the skin is the Head prim, the mesh the face was found on
+    low, high = ranges["Head"]
+    np.testing.assert_allclose(rig.mesh.points, obj.points[low:high] * CM, atol=1e-6)
+    error_mm = 1000.0 * np.linalg.norm(rig.mesh.points[rig.landmarks] - obj.points[ict_landmark_indices()] * CM, axis=1)
+    assert error_mm.mean() < 1.0 and error_mm.max() < 5.0
+    stage = Usd.Stage.Open(str(out))
+    kept = stage.GetPrimAtPath("/Face/Asset/Character")
+    assert kept.IsValid() and not stage.GetPrimAtPath("/Face/Asset/Character/Head").IsActive()
+    for name in ("Eyes", "Teeth", "GumsTongue", "Rest"):  # every other mesh of the asset composes, unchanged
+        mesh = UsdGeom.Mesh(stage.GetPrimAtPath(f"/Face/Asset/Character/{name}"))
+        low, high = ranges[name]
+        np.testing.assert_array_equal(np.asarray(mesh.GetPointsAttr().Get()), obj.points[low:high].astype(np.float32))
+    skins = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh) and p.GetName() == "Head"]
+    assert [str(p.GetPath()) for p in skins] == []  # the head composes once: as the rig's skin
+    assert UsdGeom.Mesh(stage.GetPrimAtPath("/Face/Skin")).GetPointsAttr().Get() is not None
+    rig_digest = _digest(out)
+
+    frames = 6
+    take = live_link_csv(tmp_path / "take.csv", {"jawOpen": np.linspace(0.0, 0.9, frames)}, frames)
+    animated = tmp_path / "anim" / "shot.usda"
+    assert main(["--quiet", "animate", str(take), "--rig", str(out), "--out", str(animated), "--no-video"]) == 0
+    assert _digest(head) == before and _digest(out) == rig_digest
+    shot = Usd.Stage.Open(str(animated))
+
+    def points(name, time):
+        mesh = UsdGeom.Mesh(shot.GetPrimAtPath(f"/Face/Asset/Character/{name}"))
+        return np.asarray(mesh.GetPointsAttr().Get(Usd.TimeCode(time)), dtype=np.float64)
+
+    eyes_rest, eyes_open = points("Eyes", 0), points("Eyes", frames - 1)
+    np.testing.assert_array_equal(eyes_open, eyes_rest)  # the eyes stay with the head
+    teeth_rest, teeth_open = points("Teeth", 0), points("Teeth", frames - 1)
+    moved = np.linalg.norm(teeth_open - teeth_rest, axis=1)
+    lower, upper = moved > 0.05, moved < 1e-6  # cm: the lower teeth follow the opened jaw, the upper ones stay
+    assert lower.sum() > 0.3 * len(moved) and upper.sum() > 0.3 * len(moved) and (lower | upper).all()
+    # rigidly: the lower teeth keep their distances (a rotation about the jaw's pivot)
+    sample = np.flatnonzero(lower)[:: max(1, lower.sum() // 200)]
+    gaps = np.linalg.norm(teeth_open[sample][:, None] - teeth_open[sample][None], axis=2)
+    rest_gaps = np.linalg.norm(teeth_rest[sample][:, None] - teeth_rest[sample][None], axis=2)
+    np.testing.assert_allclose(gaps, rest_gaps, atol=1e-3)

@@ -1,7 +1,8 @@
-"""``warpface bake``: evaluate a rig stage at its time codes into a .usdc points cache.
+"""``warpface bake``: evaluate a rig stage at its time codes into a .usdc points cache and a shot stage.
 
-Evaluate the expression model at every time code of STAGE (or --start..--end) and write the skin's points as
-time samples in a .usdc cache sublayered under STAGE.
+Evaluate the expression model at every time code of STAGE (or --start..--end) and write the skin's points (extent,
+and normals when the skin's asset has them) as time samples in a .usdc cache layer of their own, and a small shot
+stage (default STAGE_shot.usda) that layers the cache over STAGE. STAGE, the rig and the skin's asset are not edited.
 """
 
 from __future__ import annotations
@@ -19,6 +20,11 @@ def add_parser(subparsers, common) -> None:
     bake.add_argument(
         "--cache", default=None, help="cache file (default: <stage>_anim.usdc); not the stage or one of its layers"
     )
+    bake.add_argument(
+        "--shot",
+        default=None,
+        help="shot stage to write, the cache layered over STAGE (default: <stage>_shot.usda); open this one to play",
+    )
     bake.add_argument("--start", type=finite_float, default=None, help="first time code (default: the stage's start)")
     bake.add_argument("--end", type=finite_float, default=None, help="last time code (default: the stage's end)")
     bake.add_argument("--step", type=positive_float, default=1.0, help="time code step, > 0 (default 1)")
@@ -33,7 +39,9 @@ def add_parser(subparsers, common) -> None:
 def run(args) -> int:
     from .. import usd
     from ..usd.animation import frame_range
+    from ..usd.baking import default_shot_path
 
+    shot = args.shot if args.shot is not None else default_shot_path(args.stage)
     frames = None
     if args.start is not None or args.end is not None or args.step != 1.0:
         stage = usd.open_stage(args.stage)
@@ -47,6 +55,7 @@ def run(args) -> int:
         device=args.device,
         progress=not args.quiet,
         max_frames=args.max_frames,
+        shot=shot,
     )
-    print(f"baked {args.stage} -> {cache}")
+    print(f"baked {args.stage} -> {cache}; play {shot}")
     return 0

@@ -65,8 +65,32 @@ def _read_obj(path: Path):
     return np.zeros((vertices, 3)), np.zeros((0, 3), dtype=np.int64)
 
 
+def _skin_mesh(stage, path: Path):
+    """The Mesh prim a USD head's face is on: of several (head, eyes, teeth as prims), the one of largest area."""
+    import numpy as np
+    from pxr import UsdGeom
+
+    from ..rigging.surface import polygons_to_triangles
+
+    meshes = [UsdGeom.Mesh(prim) for prim in stage.Traverse() if prim.IsA(UsdGeom.Mesh)]
+    if not meshes:
+        raise ValueError(f"{path}: no Mesh prim on the stage; export the head as a polygon mesh")
+
+    def area(mesh) -> float:
+        points, counts = mesh.GetPointsAttr().Get(), mesh.GetFaceVertexCountsAttr().Get()
+        indices = mesh.GetFaceVertexIndicesAttr().Get()
+        if not points or not counts or not indices or sum(counts) != len(indices) or max(indices) >= len(points):
+            return -1.0  # no faces: chosen only when no mesh has any
+        corners = np.asarray(points, dtype=np.float64)[polygons_to_triangles(np.asarray(counts), np.asarray(indices))]
+        return float(
+            np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1).sum()
+        )
+
+    return max(meshes, key=area)
+
+
 def _read_usd(path: Path):
-    """Points, triangles and metres per unit of the largest mesh on a USD stage (its local space)."""
+    """Points, triangles and metres per unit of the head's skin mesh on a USD stage (its local space)."""
     import numpy as np
     from pxr import UsdGeom
 
@@ -74,15 +98,7 @@ def _read_usd(path: Path):
     from ..usd import open_stage
 
     stage = open_stage(path)
-    meshes = [UsdGeom.Mesh(prim) for prim in stage.Traverse() if prim.IsA(UsdGeom.Mesh)]
-    if not meshes:
-        raise ValueError(f"{path}: no Mesh prim on the stage; export the head as a polygon mesh")
-
-    def size(mesh):
-        points = mesh.GetPointsAttr().Get()
-        return 0 if points is None else len(points)
-
-    mesh = max(meshes, key=size)
+    mesh = _skin_mesh(stage, path)
     points = mesh.GetPointsAttr().Get()
     if points is None or len(points) == 0:
         raise ValueError(f"{path}: the mesh {mesh.GetPath()} has no points")
@@ -130,10 +146,7 @@ def _asset_link(head: Path, out: Path, points, triangles, landmarks, meters_per_
     from ..usd import open_stage
 
     stage = open_stage(head)
-    mesh = max(
-        (p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)),
-        key=lambda p: len(UsdGeom.Mesh(p).GetPointsAttr().Get() or ()),
-    )
+    mesh = _skin_mesh(stage, head).GetPrim()
     return AssetLink(head.resolve(), str(mesh.GetPath()), UsdGeom.GetStageUpAxis(stage), rigid, jaw), None, still
 
 
@@ -211,6 +224,12 @@ def run(args) -> int:
         weights[still] = 0.0
         weights[link.jaw_vertices] = 1.0
         rig = dataclasses.replace(rig, jaw=dataclasses.replace(rig.jaw, weights=weights))
+        if link.prim_path:  # a USD head: its other meshes (teeth, tongue) below the lips follow the jaw
+            from ..usd import open_stage
+            from ..usd.asset_io import follower_jaw_weights
+
+            followers = follower_jaw_weights(open_stage(args.head), link.prim_path, points, landmarks, weights)
+            link = dataclasses.replace(link, followers=followers)
     stage = Usd.Stage.CreateInMemory(f"rig{out.suffix}")
     write_rig(stage, rig, meters_per_unit=meters_per_unit)
     skin = rig_prims(stage).skin

@@ -10,6 +10,9 @@
    translation) by ICP. The three best are refined on all graph nodes; the one whose fit leaves the
    smallest capped distance wins.
    ``up`` and ``front`` hints drop the starts that disagree with them by more than 60°.
+3. **Proportions.** A global affine map of the template onto the skin, fitted after the similarity
+   (:func:`fit_affine`): a head wider, flatter or longer than the template is met by stretching the
+   template as a whole before any local deformation, so the landmarks follow the head's proportions.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from scipy.spatial import cKDTree
 
 from .template import Template
 
-__all__ = ["Similarity", "symmetry_plane", "fit_similarity", "umeyama"]
+__all__ = ["Similarity", "Affine", "symmetry_plane", "fit_similarity", "fit_affine", "umeyama"]
 
 TURNS = 12
 """Start angles of the up/front search in the symmetry plane."""
@@ -196,3 +199,58 @@ def fit_similarity(
         _icp(nodes, node_normals, skin, skin_normals, tree, fit, REFINE_ROUNDS, (0.2, 0.05)) for fit in finalists
     ]
     return min(refined, key=lambda fit: fit.residual), plane_residual
+
+
+AFFINE_ROUNDS = 30
+"""Rounds of the affine fit, σ annealed from :data:`AFFINE_SIGMA` [0] to [1]."""
+AFFINE_SIGMA = (0.15, 0.05)
+"""Gaussian match width of the affine fit [inter-ocular units], first and last round."""
+AFFINE_PRIOR = 0.01
+"""Pull of the affine fit's linear part toward the identity (the similarity), per unit of match weight: keeps the
+fit from collapsing where only part of the template finds skin (0.0001 let one warped head's fit run away)."""
+
+
+@dataclass(frozen=True)
+class Affine:
+    """``p ↦ linear @ p + shift`` in the similarity's (template) frame."""
+
+    linear: np.ndarray
+    shift: np.ndarray
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        return points @ self.linear.T + self.shift
+
+    def inverse(self, points: np.ndarray) -> np.ndarray:
+        return np.linalg.solve(self.linear, (points - self.shift).T).T
+
+    def inverse_normals(self, normals: np.ndarray) -> np.ndarray:
+        """Unit normals of a surface mapped by :meth:`inverse` (normals transform by the transpose)."""
+        mapped = normals @ self.linear
+        return mapped / np.maximum(np.linalg.norm(mapped, axis=1, keepdims=True), 1e-300)
+
+
+def fit_affine(model: Template, skin: np.ndarray, skin_normals: np.ndarray) -> Affine:
+    """The global affine map of the template's graph nodes onto the skin (both in the template frame after the
+    similarity fit): weighted least squares on the matches' tangent-plane feet, Gaussian weights of shrinking
+    width, matches only where the mapped normals agree (cos > 0.5), the linear part pulled toward the identity
+    by :data:`AFFINE_PRIOR`."""
+    tree = cKDTree(skin)
+    nodes, node_normals = model.points[model.nodes], model.normals[model.nodes]
+    rows = np.concatenate([nodes, np.ones((len(nodes), 1))], axis=1)
+    fit = Affine(np.eye(3), np.zeros(3))
+    for width in np.geomspace(AFFINE_SIGMA[0], AFFINE_SIGMA[1], AFFINE_ROUNDS):
+        moved = fit.apply(nodes)
+        distance, index = tree.query(moved)
+        normals = skin_normals[index]
+        moved_normals = np.linalg.solve(fit.linear.T, node_normals.T).T
+        moved_normals /= np.linalg.norm(moved_normals, axis=1, keepdims=True)
+        weights = np.exp(-((distance / width) ** 2)) * (np.sum(moved_normals * normals, axis=1) > 0.5)
+        if weights.sum() < 1e-3 * len(nodes):
+            break
+        foot = moved - np.sum((moved - skin[index]) * normals, axis=1)[:, None] * normals
+        root, prior = np.sqrt(weights)[:, None], np.sqrt(AFFINE_PRIOR * weights.sum())
+        system = np.concatenate([rows * root, prior * np.eye(4)[:3]])
+        target = np.concatenate([foot * root, prior * np.eye(3)])
+        solution = np.linalg.lstsq(system, target, rcond=None)[0]
+        fit = Affine(solution[:3].T, solution[3])
+    return fit

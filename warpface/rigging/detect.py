@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .align import Similarity, fit_similarity
+from .align import Affine, Similarity, fit_affine, fit_similarity
 from .nonrigid import NonRigidFit, SkinTarget, fit_nonrigid
 from .surface import HeadSurface
 from .template import template
@@ -86,6 +86,12 @@ class Registration:
     deformed: NonRigidFit | None
     """The non-rigid fit (None for the rigid baseline)."""
     symmetry_residual: float
+    affine: Affine
+    """Template frame → the similarity's frame: the head's proportions (the skin is held in its inverse)."""
+
+    def to_local(self, points: np.ndarray) -> np.ndarray:
+        """Mesh coordinates (N, 3) → the frame the skin and the deformed template are held in."""
+        return self.affine.inverse(self.similarity.inverse(points))
 
     def landmark_points(self) -> tuple[np.ndarray, np.ndarray]:
         """The carried-over landmark points and normals in the template frame, (68, 3) each."""
@@ -118,9 +124,12 @@ def register(points, triangles, *, up=None, front=None, nonrigid: bool = True, l
             "or --up/--front if it is one"
         )
     local = fit.inverse(skin_points)
-    skin = SkinTarget(local, surface.skin_normals @ fit.rotation, surface.skin_boundary, cKDTree(local))
+    local_normals = surface.skin_normals @ fit.rotation
+    affine = fit_affine(model, local, local_normals)
+    local, local_normals = affine.inverse(local), affine.inverse_normals(local_normals)
+    skin = SkinTarget(local, local_normals, surface.skin_boundary, cKDTree(local))
     deformed = fit_nonrigid(model, skin) if nonrigid else None
-    return Registration(surface, fit, skin, deformed, plane_residual)
+    return Registration(surface, fit, skin, deformed, plane_residual, affine)
 
 
 def find_landmarks(

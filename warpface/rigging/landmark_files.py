@@ -58,8 +58,11 @@ def landmarks_from_values(values, points: np.ndarray, label: str = "landmarks") 
         array = np.asarray(values)
     except (TypeError, ValueError):
         raise ValueError(f"{label}: expected {IBUG_COUNT} vertex indices or {IBUG_COUNT} points") from None
-    if array.ndim == 0 or array.dtype.kind in "USO" and array.dtype != object:
+    if array.ndim == 0:
         raise TypeError(f"{label}: expected {IBUG_COUNT} vertex indices or points, got {type(values).__name__}")
+    if array.dtype.kind in "USb":
+        kind = "true/false" if array.dtype.kind == "b" else "text"
+        raise TypeError(f"{label}: landmarks must be numbers (vertex indices or x, y, z points), got {kind}")
     if array.dtype == object or len(array) != IBUG_COUNT:
         raise ValueError(f"{label}: expected {IBUG_COUNT} iBUG landmarks, got {len(array) if array.ndim else 0}")
     if array.ndim == 1:
@@ -71,7 +74,7 @@ def landmarks_from_values(values, points: np.ndarray, label: str = "landmarks") 
             raise ValueError(
                 f"{label}: landmark {int(bad[0])} has vertex index {int(indices[bad[0]])}; the mesh has {len(points)}"
             )
-        return indices
+        return _distinct(indices, label)
     if array.ndim != 2 or array.shape[1] != 3:
         raise ValueError(f"{label}: expected {IBUG_COUNT} indices or {IBUG_COUNT} × 3 points, got shape {array.shape}")
     marks = array.astype(np.float64)
@@ -85,7 +88,24 @@ def landmarks_from_values(values, points: np.ndarray, label: str = "landmarks") 
             f"{label}: landmark {far} lies {distance[far]:.3g} units off the mesh (the mesh is {diagonal:.3g} across): "
             "points in another unit or for another mesh?"
         )
-    return index.astype(np.int64)
+    return _distinct(index.astype(np.int64), label)
+
+
+MAX_SHARING = 2
+"""Landmarks that may name one vertex (two mouth corners on a coarse mesh); more is a mistake."""
+
+
+def _distinct(indices: np.ndarray, label: str) -> np.ndarray:
+    """``indices``, after refusing a vertex named by more than :data:`MAX_SHARING` landmarks."""
+    vertices, counts = np.unique(indices, return_counts=True)
+    if counts.max() > MAX_SHARING:
+        vertex = int(vertices[np.argmax(counts)])
+        shared = np.flatnonzero(indices == vertex)
+        raise ValueError(
+            f"{label}: {len(shared)} landmarks (iBUG {', '.join(map(str, shared[:5]))}"
+            f"{', …' if len(shared) > 5 else ''}) name the same vertex {vertex}; give each landmark its own point"
+        )
+    return indices
 
 
 def read_landmark_file(path, points: np.ndarray) -> np.ndarray:

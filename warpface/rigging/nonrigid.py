@@ -84,11 +84,11 @@ def _smoothness(model: Template) -> sp.csr_matrix:
     return (stiff.T @ stiff).tocsc()
 
 
-def _backward(points, normals, template_boundary, skin: SkinTarget, limit: float):
+def _backward(points, normals, template_outline, skin: SkinTarget, limit: float):
     """Skin → template matches: (template vertex of each kept skin point, that skin point)."""
     distance, index = cKDTree(points).query(skin.points)
     facing = np.sum(normals[index] * skin.normals, axis=1)
-    keep = (distance < limit) & (facing > FACING) & ~template_boundary[index] & ~skin.boundary
+    keep = (distance < limit) & (facing > FACING) & ~template_outline[index] & ~skin.boundary
     return index[keep], skin.points[keep]
 
 
@@ -115,7 +115,7 @@ def fit_nonrigid(model: Template, skin: SkinTarget, *, stiffness=None, rounds: i
             system = alpha * smooth + (weighted.T @ select)
             right = np.asarray(weighted.T @ foot)
             if BACKWARD > 0.0:
-                rows, targets = _backward(points, normals, model.boundary, skin, limit)
+                rows, targets = _backward(points, normals, model.outline, skin, limit)
                 pulled = select[rows]
                 system = system + BACKWARD * (pulled.T @ pulled)
                 right = right + BACKWARD * np.asarray(pulled.T @ targets)

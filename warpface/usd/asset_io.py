@@ -27,6 +27,7 @@ from ..errors import RigError
 from ..expression.jaw import JAW_CONTROL_NAMES, jaw_points
 from ..mesh import ObjPolygons, fan_triangles
 from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, writable_path
+from .asset_normals import NORMAL_PROPERTIES, SkinNormals
 
 __all__ = [
     "AssetLink",
@@ -39,6 +40,9 @@ __all__ = [
     "SkinNormals",
     "NORMAL_PROPERTIES",
     "write_obj_asset",
+    "follower_jaw_weights",
+    "write_jaw_followers",
+    "JAW_WEIGHTS",
     "RIGID_VERTICES",
     "JAW_VERTICES",
 ]
@@ -67,6 +71,9 @@ class AssetLink:
     """The asset's up axis token (``"Y"`` or ``"Z"``)."""
     rigid_vertices: np.ndarray
     jaw_vertices: np.ndarray
+    followers: dict = dataclasses.field(default_factory=dict)
+    """Other meshes of a USD asset that move with the jaw: their prim path in the asset → per-vertex jaw
+    weights (see :func:`follower_jaw_weights`); written on their prims under ``/<Face>/Asset``."""
 
 
 def write_obj_asset(polygons: ObjPolygons, path, *, name: str, meters_per_unit: float, up_axis: str) -> str:
@@ -200,6 +207,113 @@ def attach_asset(layer: Sdf.Layer, skin_path, link: AssetLink, *, anchor: Path |
     )
     order.default = Vt.TokenArray()  # the rig lives in the mesh's own space: a transform of the mesh prim is not kept
     layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, link.up_axis)
+    if link.prim_path:
+        _keep_whole_asset(layer, Sdf.Path(str(skin_path)), link, asset)
+
+
+ASSET_PRIM = "Asset"
+"""Child of the rig's root prim that references the rest of a USD asset (eyes, teeth … as their own prims)."""
+
+
+def _keep_whole_asset(layer: Sdf.Layer, skin_path: Sdf.Path, link: AssetLink, asset: str) -> None:
+    """Reference every other root prim of a USD asset under ``/<Face>/Asset``, the skin's mesh deactivated there
+    (it is the rig's skin): a head whose eyes and teeth are meshes of their own keeps them. Nothing when the
+    asset has no mesh besides the skin."""
+    source = Sdf.Layer.FindOrOpen(str(link.path))
+    stage = Usd.Stage.Open(source, load=Usd.Stage.LoadAll)
+    skin_prim = Sdf.Path(link.prim_path)
+    if not any(p.IsA(UsdGeom.Mesh) and p.GetPath() != skin_prim for p in stage.Traverse()):
+        return
+    holder = Sdf.CreatePrimInLayer(layer, skin_path.GetParentPath().AppendChild(ASSET_PRIM))
+    holder.specifier, holder.typeName = Sdf.SpecifierDef, "Xform"
+    for root in stage.GetPseudoRoot().GetChildren():
+        child = Sdf.CreatePrimInLayer(layer, holder.path.AppendChild(root.GetName()))
+        child.specifier = Sdf.SpecifierDef
+        child.referenceList.prependedItems = [Sdf.Reference(asset, root.GetPath())]
+        if skin_prim.HasPrefix(root.GetPath()):
+            hidden = Sdf.CreatePrimInLayer(layer, skin_prim.ReplacePrefix(root.GetPath(), child.path))
+            hidden.active = False
+        for path, weights in link.followers.items():
+            if Sdf.Path(path).HasPrefix(root.GetPath()):
+                spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(path).ReplacePrefix(root.GetPath(), child.path))
+                attribute = spec.attributes.get(JAW_WEIGHTS) or Sdf.AttributeSpec(
+                    spec, JAW_WEIGHTS, Sdf.ValueTypeNames.FloatArray, Sdf.VariabilityUniform
+                )
+                attribute.default = Vt.FloatArray.FromNumpy(np.asarray(weights, dtype=np.float32))
+
+
+JAW_WEIGHTS = "warpFace:jawWeights"
+"""Attribute (uniform float[]) of another mesh of the asset that follows the jaw: its per-vertex jaw weights. A
+bake writes that mesh's points (and extent) moved by the jaw alone."""
+
+
+def follower_jaw_weights(asset: Usd.Stage, skin_prim: str, skin_points, landmarks, skin_weights) -> dict:
+    """Per-vertex jaw weights of every mesh of ``asset`` other than the skin that has any (lower teeth, tongue).
+
+    Each connected shell of such a mesh (its points taken in the skin's space) wholly below the lips' contact
+    line weighs 1, wholly above 0 (:func:`rigid_shell_vertices`' rule); a shell across it takes the jaw weight
+    of the nearest skin vertex. Returns ``{prim path: weights (V,) float64}``.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    skin_points = np.asarray(skin_points, dtype=np.float64)
+    nearest = cKDTree(skin_points)
+    found = {}
+    for prim in asset.Traverse():
+        if not prim.IsA(UsdGeom.Mesh) or str(prim.GetPath()) == skin_prim:
+            continue
+        mesh = UsdGeom.Mesh(prim)
+        points, counts = mesh.GetPointsAttr().Get(), mesh.GetFaceVertexCountsAttr().Get()
+        indices = mesh.GetFaceVertexIndicesAttr().Get()
+        if not points or not counts or not indices or max(indices) >= len(points):
+            continue
+        points = np.asarray(points, dtype=np.float64)
+        triangles = fan_triangles(np.asarray(counts), np.asarray(indices))
+        edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]]])
+        graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(len(points),) * 2)
+        shells = connected_components(graph, directed=False)[1] + 1  # 0 is the skin's label below
+        combined = np.concatenate([skin_points, points])
+        labels = np.concatenate([np.zeros(len(skin_points), dtype=np.int64), shells])
+        _, jaw, still = rigid_shell_vertices(labels, 0, combined, landmarks)
+        weights = np.asarray(skin_weights, dtype=np.float64)[nearest.query(points)[1]]
+        weights[jaw - len(skin_points)] = 1.0
+        weights[still - len(skin_points)] = 0.0
+        if np.any(weights > 0.0):
+            found[str(prim.GetPath())] = weights
+    return found
+
+
+def write_jaw_followers(layer: Sdf.Layer, stage: Usd.Stage, model, times: np.ndarray, controls: np.ndarray) -> None:
+    """Points and extent time samples, in ``layer``, of every mesh on ``stage`` with :data:`JAW_WEIGHTS`: its
+    rest points moved by the jaw of ``model`` (stage units) at each frame's jaw controls (columns after the
+    muscles of ``controls``, (F, C))."""
+    if model.jaw is None:
+        return
+    columns = slice(len(model.muscle_names), len(model.muscle_names) + len(JAW_CONTROL_NAMES))
+    for prim in stage.Traverse():
+        weights = prim.GetAttribute(JAW_WEIGHTS).Get() if prim.HasAttribute(JAW_WEIGHTS) else None
+        rest = UsdGeom.Mesh(prim).GetPointsAttr().Get(Usd.TimeCode.Default()) if prim.IsA(UsdGeom.Mesh) else None
+        if weights is None or rest is None or len(weights) != len(rest):
+            continue
+        jaw = dataclasses.replace(model.jaw, weights=np.asarray(weights, dtype=np.float64))
+        rest = np.asarray(rest, dtype=np.float64)
+        spec = Sdf.CreatePrimInLayer(layer, prim.GetPath())
+        for name, type_name in (
+            ("points", Sdf.ValueTypeNames.Point3fArray),
+            ("extent", Sdf.ValueTypeNames.Float3Array),
+        ):
+            if spec.attributes.get(name) is None:
+                Sdf.AttributeSpec(spec, name, type_name)
+        with Sdf.ChangeBlock():
+            for time, values in zip(times.tolist(), np.asarray(controls, dtype=np.float64)[:, columns]):
+                moved = jaw_points(jaw, rest, values) if np.any(values != 0.0) else rest
+                bounds = np.stack([moved.min(axis=0), moved.max(axis=0)]).astype(np.float32)
+                layer.SetTimeSample(
+                    spec.path.AppendProperty("points"), time, Vt.Vec3fArray.FromNumpy(moved.astype(np.float32))
+                )
+                layer.SetTimeSample(spec.path.AppendProperty("extent"), time, Vt.Vec3fArray.FromNumpy(bounds))
 
 
 def _relative(path: Path, anchor: Path) -> str:
@@ -244,12 +358,25 @@ def asset_link(stage: Usd.Stage, skin: Usd.Prim) -> AssetLink | None:
         value = attribute.Get() if attribute else None
         return np.zeros(0, dtype=np.int64) if value is None else np.asarray(value, dtype=np.int64)
 
+    holder = skin.GetPath().GetParentPath().AppendChild(ASSET_PRIM)
+    followers = (
+        {
+            str(prim.GetPath().ReplacePrefix(holder, Sdf.Path.absoluteRootPath)): np.asarray(
+                prim.GetAttribute(JAW_WEIGHTS).Get(), dtype=np.float64
+            )
+            for prim in Usd.PrimRange(stage.GetPrimAtPath(holder))
+            if prim.HasAttribute(JAW_WEIGHTS)
+        }
+        if stage.GetPrimAtPath(holder)
+        else {}
+    )
     return AssetLink(
         Path(layer.ComputeAbsolutePath(reference.assetPath)),
         str(reference.primPath) if not reference.primPath.isEmpty else "",
         UsdGeom.GetStageUpAxis(stage),
         indices(RIGID_VERTICES),
         indices(JAW_VERTICES),
+        followers,
     )
 
 
@@ -299,71 +426,3 @@ def shells_of(stage: Usd.Stage, skin: Usd.Prim, model):
     if link is None or len(link.rigid_vertices) == 0:
         return model
     return RigidShells(model, link.rigid_vertices)
-
-
-NORMAL_PROPERTIES = ("normals", "primvars:normals", "primvars:normals:indices")
-"""Skin properties a bake may write besides points and extent (when the asset authors normals)."""
-
-
-class SkinNormals:
-    """Per-frame normals of a skin whose asset authors them, written with the asset's interpolation.
-
-    Normals are area-weighted vertex normals of the deformed polygons (fan triangles), turned to agree
-    with the asset's rest normals; a ``faceVarying`` primvar gets them per vertex with the faces' corner
-    indices (hard edges become smooth). ``None`` from :meth:`of` when the asset has no normals.
-    """
-
-    def __init__(self, skin: Usd.Prim, name: str, interpolation: str, indexed: bool):
-        from ..rigging.surface import vertex_normals
-
-        mesh = UsdGeom.Mesh(skin)
-        self._corners = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), dtype=np.int64)
-        self._triangles = fan_triangles(mesh.GetFaceVertexCountsAttr().Get(), self._corners)
-        self._normals = vertex_normals
-        self._name, self._interpolation, self._indexed = name, interpolation, indexed
-        rest = self._vertex_normals(np.asarray(mesh.GetPointsAttr().Get(), dtype=np.float64), 1.0)
-        authored = UsdGeom.Primvar(skin.GetAttribute(name)).ComputeFlattened() if indexed else None
-        authored = np.asarray(authored if authored is not None else skin.GetAttribute(name).Get(), dtype=np.float64)
-        expected = self._laid_out(rest)
-        self._sign = -1.0 if len(authored) == len(expected) and np.sum(authored * expected) < 0.0 else 1.0
-
-    @classmethod
-    def of(cls, skin: Usd.Prim) -> SkinNormals | None:
-        primvar = UsdGeom.PrimvarsAPI(skin).GetPrimvar("normals")
-        if primvar and primvar.HasAuthoredValue():
-            return cls(skin, "primvars:normals", primvar.GetInterpolation(), primvar.IsIndexed())
-        attribute = UsdGeom.Mesh(skin).GetNormalsAttr()
-        if attribute and attribute.HasAuthoredValue():
-            return cls(skin, "normals", UsdGeom.Mesh(skin).GetNormalsInterpolation(), False)
-        return None
-
-    def _vertex_normals(self, points: np.ndarray, sign: float) -> np.ndarray:
-        return sign * self._normals(points, self._triangles)
-
-    def _laid_out(self, vertex_normals: np.ndarray) -> np.ndarray:
-        if self._interpolation == UsdGeom.Tokens.faceVarying and not self._indexed:
-            return vertex_normals[self._corners]
-        return vertex_normals
-
-    def prepare(self, layer: Sdf.Layer, skin_path: Sdf.Path, low: float, high: float) -> None:
-        """Create the specs in the cache ``layer`` and drop its samples in ``[low, high]``."""
-        prim = layer.GetPrimAtPath(skin_path)
-        spec = prim.attributes.get(self._name) or Sdf.AttributeSpec(prim, self._name, Sdf.ValueTypeNames.Normal3fArray)
-        spec.SetInfo("interpolation", self._interpolation)
-        for time in layer.ListTimeSamplesForPath(spec.path):
-            if low <= time <= high:
-                layer.EraseTimeSample(spec.path, time)
-        if self._indexed:  # values per vertex: the corners (or vertices) index them
-            table = self._corners if self._interpolation == UsdGeom.Tokens.faceVarying else np.arange(self._count())
-            indices = prim.attributes.get(self._name + ":indices") or Sdf.AttributeSpec(
-                prim, self._name + ":indices", Sdf.ValueTypeNames.IntArray
-            )
-            indices.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(table, dtype=np.int32))
-        self._path = spec.path
-
-    def _count(self) -> int:
-        return int(self._triangles.max()) + 1 if len(self._triangles) else 0
-
-    def write(self, layer: Sdf.Layer, time: float, positions: np.ndarray) -> None:
-        values = self._laid_out(self._vertex_normals(np.asarray(positions, dtype=np.float64), self._sign))
-        layer.SetTimeSample(self._path, time, Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(values, np.float32)))

@@ -1,9 +1,13 @@
 """Point-cache bakes: the expression model evaluated at a rig stage's time codes, streamed into a ``.usdc``.
 
 :func:`bake` writes the skin's ``points`` and ``extent`` time samples (and normals, when the skin's asset
-authors them; :mod:`warpface.usd.asset_io`) into a cache layer, sublayered (strongest sublayer) under the
-rig layer; a referenced asset is never edited. The rest shape lives in the skin's ``warpFaceShape``
-variant (see :mod:`warpface.usd.rig_io`) or in the referenced asset, which every sublayer opinion overrides.
+authors them; :mod:`warpface.usd.asset_io`) as ``over`` opinions into a cache layer of its own. Where
+that layer goes: with ``shot``, into a small *shot stage* whose layer stack is ``[cache, stage]`` (the
+stage's own layer, the rig's, and the referenced asset stay byte for byte as they were: what ``warpface
+bake`` does); without, sublayered (strongest sublayer) under the stage's root layer, which is saved
+(what ``animate`` does with the stage it wrote itself). A referenced asset is never edited. The rest
+shape lives in the skin's ``warpFaceShape`` variant (see :mod:`warpface.usd.rig_io`) or in the
+referenced asset, which every sublayer opinion overrides.
 
 Frames are read, evaluated and written in chunks: the cache is a ``.usdc`` file saved after every
 chunk (crate files grow by appending), so memory stays bounded by one chunk however long the bake.
@@ -29,8 +33,17 @@ from .._files import atomic_path
 from .._validate import as_count, expect_instance
 from ..errors import RigError
 from ._files import open_layer, open_stage, usd_error_message, writable_path
-from .animation import CACHE_SUFFIX, MAX_FRAMES, as_time_codes, cover_time_range, frame_times, read_animation
-from .asset_io import NORMAL_PROPERTIES, SkinNormals, shells_of
+from .animation import CACHE_SUFFIX, MAX_FRAMES, as_time_codes, frame_times, read_animation
+from .asset_io import NORMAL_PROPERTIES, SkinNormals, shells_of, write_jaw_followers
+from .cache_layers import (
+    attach_cache,
+    check_shot_path,
+    default_shot_path,
+    find_sublayer,
+    same_file,
+    sublayer_files,
+    write_shot,
+)
 from .rig_io import SHAPE_VARIANT_SET, read_rig, rig_prims, stage_meters_per_unit
 from .schema import ensure_schema
 
@@ -40,6 +53,7 @@ __all__ = [
     "write_point_cache",
     "check_cache_path",
     "default_cache_path",
+    "default_shot_path",
     "existing_cache_path",
     "CACHE_SUFFIX",
 ]
@@ -64,7 +78,7 @@ def existing_cache_path(stage: Usd.Stage, skin_path) -> Path | None:
     wrote), or ``None``."""
     expect_instance(stage, Usd.Stage, "stage")
     root = stage.GetRootLayer()
-    for resolved in _sublayer_files(root):
+    for resolved in sublayer_files(root):
         layer = Sdf.Layer.Find(resolved)
         if layer is not None and layer.realPath and _is_points_cache(layer, skin_path):
             return Path(layer.realPath)
@@ -81,11 +95,11 @@ def check_cache_path(stage: Usd.Stage, cache_path, skin_path) -> Path:
     """
     cache_path = writable_path(cache_path, (".usdc", ".usda"))
     root = stage.GetRootLayer()
-    if root.realPath and _same_file(root.realPath, cache_path):
+    if root.realPath and same_file(root.realPath, cache_path):
         raise ValueError(f"cache {cache_path}: is the stage itself; choose another cache file")
-    direct = {os.path.realpath(p) for p in _sublayer_files(root)}
+    direct = {os.path.realpath(p) for p in sublayer_files(root)}
     for layer in stage.GetUsedLayers():
-        if layer.realPath and _same_file(layer.realPath, cache_path):
+        if layer.realPath and same_file(layer.realPath, cache_path):
             if os.path.realpath(cache_path) not in direct or not _is_points_cache(layer, skin_path):
                 raise ValueError(
                     f"cache {cache_path}: is one of the stage's own layers (not a points cache); "
@@ -181,6 +195,7 @@ def bake(
     chunk_frames: int = 64,
     max_frames: int | None = MAX_FRAMES,
     workers: int | None = None,
+    shot=None,
 ) -> Path:
     """Evaluate the expression model at every time code and write the skin's points and extent as a cache.
 
@@ -204,6 +219,9 @@ def bake(
         workers: threads evaluating chunks of frames while this one reads controls and writes (default:
             one per CPU core on the CPU, where Warp's kernels run serially and release the GIL). A GPU
             model always runs in this thread. The cache is the same bits for any count.
+        shot: a ``.usda``/``.usdc`` shot stage to write (replaced if it exists): its layer stack is the
+            cache over the stage's saved root layer, with the stage's units, up axis, default prim, rates
+            and a time range covering the cache. The stage's root layer is then not edited at all.
 
     Returns:
         The cache file path.
@@ -215,6 +233,7 @@ def bake(
             directly (which would hide the cache).
     """
     chunk_frames = as_count(chunk_frames, "chunk_frames", minimum=1)
+    shot_path = None if shot is None else writable_path(shot, (".usda", ".usdc", ".usd"))
     if workers is not None:
         workers = as_count(workers, "workers", minimum=1)
     stage, times, cache_path, model = check_bake(
@@ -227,13 +246,15 @@ def bake(
         max_frames=max_frames,
         evaluate=False,
     )
+    if shot_path is not None:
+        check_shot_path(stage, shot_path, cache_path)
     skin = rig_prims(stage, skin_path).skin
     skin_path, model = skin.GetPath(), shells_of(stage, skin, model)  # extra shells move only rigidly
     stage_unit = stage_meters_per_unit(stage)
     chunks = [times[start : start + chunk_frames] for start in range(0, len(times), chunk_frames)]
     workers = _evaluation_workers(model) if workers is None or not model.device.is_cpu else int(workers)
     with closing(_evaluated_chunks(stage, model, chunks, skin_path, stage_unit, workers)) as evaluated:
-        return _write_cache(stage, skin, cache_path, chunks, evaluated, progress)
+        return _write_cache(stage, skin, cache_path, chunks, evaluated, progress, shot_path=shot_path, model=model)
 
 
 def write_point_cache(
@@ -281,9 +302,20 @@ def write_point_cache(
     return _write_cache(stage, skin, cache_path, chunks, frames, progress)
 
 
-def _write_cache(stage: Usd.Stage, skin: Usd.Prim, cache_path: Path, chunks: list, frames, progress: bool) -> Path:
+def _write_cache(
+    stage: Usd.Stage,
+    skin: Usd.Prim,
+    cache_path: Path,
+    chunks: list,
+    frames,
+    progress: bool,
+    *,
+    shot_path=None,
+    model=None,
+) -> Path:
     """Write ``frames`` (an iterable of ``(positions (F, V, 3), extents (F, 2, 3))`` float32, one per chunk of
-    time codes) as the skin's point cache, sublayered under the root layer; returns the cache path."""
+    time codes) as the skin's point cache, sublayered under the root layer or under the shot stage
+    ``shot_path``; with ``model``, the asset's other meshes follow its jaw. Returns the cache path."""
     skin_path = skin.GetPath()
     times = np.concatenate(chunks)
     points_path = skin_path.AppendProperty(UsdGeom.Tokens.points)
@@ -314,6 +346,10 @@ def _write_cache(stage: Usd.Stage, skin: Usd.Prim, cache_path: Path, chunks: lis
                 if incremental:
                     _save(cache, cache_path)
                 bar.update(len(chunk))
+        if model is not None:  # the asset's other meshes on the jaw
+            unit = stage_meters_per_unit(stage)
+            animation = read_animation(stage, times, skin_path=str(skin_path), meters_per_unit=unit)
+            write_jaw_followers(cache, stage, model, times, animation.controls)
         samples = cache.ListTimeSamplesForPath(points_path)
         cache.startTimeCode, cache.endTimeCode = min(samples), max(samples)
         _save(cache, cache_path)
@@ -322,7 +358,10 @@ def _write_cache(stage: Usd.Stage, skin: Usd.Prim, cache_path: Path, chunks: lis
     if opened is not None:
         opened.Reload(force=True)
     root = stage.GetRootLayer()
-    _attach_cache(root, None if root.anonymous else Path(root.realPath), cache_path, low, high)
+    if shot_path is not None:
+        write_shot(root, cache_path, shot_path)
+    else:
+        attach_cache(root, None if root.anonymous else Path(root.realPath), cache_path, low, high)
     return cache_path
 
 
@@ -488,20 +527,20 @@ def _new_cache_layer(temporary: Path, cache_path: Path, skin_path: Sdf.Path, sta
 
 
 def _is_points_cache(layer: Sdf.Layer, skin_path) -> bool:
-    """True when ``layer`` holds nothing but ``over`` prims and the skin's points/extent/normals (what bake writes)."""
+    """True when ``layer`` holds nothing but ``over`` prims and the skin's points/extent/normals, and points/extent
+    of other meshes (the asset's meshes that follow the jaw): what bake writes."""
     skin_path = Sdf.Path(str(skin_path))
     allowed = {skin_path.AppendProperty(name) for name in (UsdGeom.Tokens.points, UsdGeom.Tokens.extent)}
     allowed |= {skin_path.AppendProperty(name) for name in NORMAL_PROPERTIES}
-    ancestors = set(skin_path.GetPrefixes())
     foreign = []
 
     def visit(path: Sdf.Path) -> None:
         if path.IsPropertyPath():
-            if path not in allowed:
+            if path not in allowed and path.name not in (UsdGeom.Tokens.points, UsdGeom.Tokens.extent):
                 foreign.append(path)
         elif path.IsPrimPath():
             spec = layer.GetPrimAtPath(path)
-            if path not in ancestors or spec is None or spec.specifier != Sdf.SpecifierOver:
+            if spec is None or spec.specifier != Sdf.SpecifierOver:
                 foreign.append(path)
 
     layer.Traverse(Sdf.Path.absoluteRootPath, visit)
@@ -511,12 +550,12 @@ def _is_points_cache(layer: Sdf.Layer, skin_path) -> bool:
 def _check_not_masked(stage: Usd.Stage, skin_path: Sdf.Path, cache_path: Path) -> None:
     """Raise if a layer stronger than the cache authors the skin's points or extent (it would hide the cache)."""
     root = stage.GetRootLayer()
-    if _find_sublayer(root, cache_path) is None:
+    if find_sublayer(root, cache_path) is None:
         stronger = [root]  # the cache will become the strongest sublayer
     else:
         stronger = []
         for layer in stage.GetLayerStack(includeSessionLayers=False):
-            if layer.realPath and _same_file(layer.realPath, cache_path):
+            if layer.realPath and same_file(layer.realPath, cache_path):
                 break
             stronger.append(layer)
     for layer in stronger:
@@ -527,59 +566,3 @@ def _check_not_masked(stage: Usd.Stage, skin_path: Sdf.Path, cache_path: Path) -
                     f"{spec.path}: authored directly in layer {layer.identifier}, which is stronger than the cache and "
                     f"would hide it; author the rest shape in the skin's '{SHAPE_VARIANT_SET}' variant (write_rig does)"
                 )
-
-
-def _same_file(a, b) -> bool:
-    return os.path.realpath(a) == os.path.realpath(b)
-
-
-def _sublayer_files(root: Sdf.Layer) -> list[str]:
-    return [
-        entry if root.anonymous else (Sdf.ComputeAssetPathRelativeToLayer(root, entry) or entry)
-        for entry in root.subLayerPaths
-    ]
-
-
-def _find_sublayer(root: Sdf.Layer, cache_path: Path) -> str | None:
-    """The root layer's subLayerPaths entry naming ``cache_path``, if any."""
-    for entry, resolved in zip(root.subLayerPaths, _sublayer_files(root)):
-        if resolved and _same_file(resolved, cache_path):
-            return entry
-    return None
-
-
-def _attach_cache(root: Sdf.Layer, root_file: Path | None, cache_path: Path, low: float, high: float) -> None:
-    """Sublayer the cache under the root layer (strongest sublayer), cover the time range, save the root."""
-    from ._files import export_layer_atomically
-
-    changed = False
-    if _find_sublayer(root, cache_path) is None:
-        entry = str(cache_path)
-        if root_file is not None:
-            entry = os.path.relpath(cache_path, root_file.parent)
-            entry = entry if entry.startswith(".") else "./" + entry
-        root.subLayerPaths.insert(0, entry)
-        changed = True
-    old = (
-        root.startTimeCode,
-        root.endTimeCode,
-        root.timeCodesPerSecond,
-        root.framesPerSecond,
-        root.HasStartTimeCode(),
-        root.HasEndTimeCode(),
-        root.HasTimeCodesPerSecond(),
-        root.HasFramesPerSecond(),
-    )
-    cover_time_range(root, low, high, None)
-    changed |= old != (
-        root.startTimeCode,
-        root.endTimeCode,
-        root.timeCodesPerSecond,
-        root.framesPerSecond,
-        root.HasStartTimeCode(),
-        root.HasEndTimeCode(),
-        root.HasTimeCodesPerSecond(),
-        root.HasFramesPerSecond(),
-    )
-    if root_file is not None and (changed or root.dirty):
-        export_layer_atomically(root, root_file)
