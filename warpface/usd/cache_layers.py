@@ -96,26 +96,22 @@ def attach_cache(root: Sdf.Layer, root_file: Path | None, cache_path: Path, low:
             entry = relative_entry(cache_path, root_file)
         root.subLayerPaths.insert(0, entry)
         changed = True
-    old = (
-        root.startTimeCode,
-        root.endTimeCode,
-        root.timeCodesPerSecond,
-        root.framesPerSecond,
-        root.HasStartTimeCode(),
-        root.HasEndTimeCode(),
-        root.HasTimeCodesPerSecond(),
-        root.HasFramesPerSecond(),
-    )
+    before = _time_metadata(root)
     cover_time_range(root, low, high, None)
-    changed |= old != (
-        root.startTimeCode,
-        root.endTimeCode,
-        root.timeCodesPerSecond,
-        root.framesPerSecond,
-        root.HasStartTimeCode(),
-        root.HasEndTimeCode(),
-        root.HasTimeCodesPerSecond(),
-        root.HasFramesPerSecond(),
-    )
+    changed |= before != _time_metadata(root)
     if root_file is not None and (changed or root.dirty):
         export_layer_atomically(root, root_file)
+
+
+def _time_metadata(layer: Sdf.Layer) -> tuple:
+    """The layer's time range and rates, and whether each is authored."""
+    return (
+        layer.startTimeCode,
+        layer.endTimeCode,
+        layer.timeCodesPerSecond,
+        layer.framesPerSecond,
+        layer.HasStartTimeCode(),
+        layer.HasEndTimeCode(),
+        layer.HasTimeCodesPerSecond(),
+        layer.HasFramesPerSecond(),
+    )
