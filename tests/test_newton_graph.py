@@ -11,7 +11,7 @@ newton = pytest.importorskip("newton", reason="the newton extra is not installed
 import warp as wp  # noqa: E402
 from helpers import shell_face  # noqa: E402
 
-from warpface.fem import TissueSimulation, kato_uniform_material  # noqa: E402
+from warpface.fem import kato_uniform_material  # noqa: E402
 from warpface.newton import SolverFace, add_face  # noqa: E402
 
 MATERIAL = kato_uniform_material()
@@ -24,35 +24,6 @@ def _set_body(state, body: int, position, velocity) -> None:
     qd[body, :3], qd[body, 3:] = velocity, 0.0
     state.body_q.assign(q)
     state.body_qd.assign(qd)
-
-
-def test_host_free_step_with_a_fixed_head_matches_the_standalone_simulation():
-    """A muscle pulls the driven nodes through Newton's controls: the host-free step (CG tissue, device
-    expression) equals the standalone direct TissueSimulation to 1e-6 m."""
-    rig, tetmesh, fixed, _ = shell_face(8, 2)
-    builder = newton.ModelBuilder()
-    head = builder.add_body(xform=wp.transform((0.1, 0.2, 0.3), wp.quat_identity()))
-    face = add_face(builder, rig, tissue=(tetmesh, MATERIAL), fixed=fixed, head_body=head)
-    model = builder.finalize(device="cpu")
-    dt = 1.0e-3
-    solver = SolverFace(model, face, graph_capturable=True)
-    reference = TissueSimulation(tetmesh, MATERIAL, dt, fixed=face.fixed_nodes, driven=face.driven_nodes)
-    expression = rig.model(device="cpu")
-    state_in, state_out, control = model.state(), model.state(), model.control()
-    worst = 0.0
-    for k in range(100):
-        value = np.float32(0.02 * np.sin(2.0 * np.pi * 4.0 * k * dt))
-        control.warpface.activation.assign(np.array([value]))
-        solver.step(state_in, state_out, control, None, dt)
-        state_in, state_out = state_out, state_in
-        skin = expression.evaluate(np.array([value], dtype=np.float64))
-        reference.step(skin[face.driven_vertices] - rig.mesh.points[face.driven_vertices])
-        particles = state_in.particle_q.numpy()[face.particles].astype(np.float64)
-        worst = max(worst, float(np.abs(particles - (0.1, 0.2, 0.3) - tetmesh.points - reference.d).max()))
-    solver.synchronize()
-    assert solver.simulation.solver_kind == "cg"
-    assert np.abs(reference.d).max() > 1e-4
-    assert worst < 1e-6
 
 
 def _shaken(graph_capturable: bool, steps: int = 120):
@@ -88,56 +59,7 @@ def test_host_free_body_force_matches_the_host_solve():
     host, device = _shaken(False), _shaken(True)
     scale = np.abs(host).max()
     assert scale > 1e-5
-    assert np.abs(device - host).max() < 1e-4 * scale
-
-
-def _press(graph_capturable: bool, steps: int, dt: float, radius: float = 0.03):
-    rig, tetmesh, fixed, outer = shell_face(10, 2, span_u=0.7, span_v=0.5)
-    centre = int(outer[5, 5])
-    normal = np.array([0.0, 0.0, 1.0])
-    builder = newton.ModelBuilder()
-    sphere = builder.add_body(xform=wp.transform((0.0, 0.0, 1.0), wp.quat_identity()))
-    builder.add_shape_sphere(sphere, radius=radius)
-    face = add_face(builder, rig, tissue=(tetmesh, MATERIAL), fixed=fixed, contact_radius=1.0e-4, driven=[])
-    model = builder.finalize(device="cpu")
-    solver = SolverFace(model, face, graph_capturable=graph_capturable)
-    pipeline = newton.CollisionPipeline(model, soft_contact_gap=0.003)
-    contacts = pipeline.contacts()
-    state_in, state_out, control = model.state(), model.state(), model.control()
-
-    def depth(t):  # approach from 2 mm off, 5 mm in by 0.1 s, hold, back out by 0.3 s
-        return -0.002 + 0.007 * np.clip(t / 0.1, 0.0, 1.0) - 0.007 * np.clip((t - 0.2) / 0.1, 0.0, 1.0)
-
-    def centre_at(t):
-        return tetmesh.points[centre] + normal * (radius - depth(t))
-
-    _set_body(state_in, sphere, centre_at(0.0), (0.0, 0.0, 0.0))
-    indentation, active = [], []
-    for k in range(steps):
-        t0, t1 = k * dt, (k + 1) * dt
-        _set_body(state_out, sphere, centre_at(t1), (centre_at(t1) - centre_at(t0)) / dt)
-        pipeline.collide(state_in, contacts)
-        solver.step(state_in, state_out, control, contacts, dt)
-        state_in, state_out = state_out, state_in
-        moved = state_in.particle_q.numpy()[face.particle_start + centre].astype(np.float64)
-        indentation.append(float(-(moved - tetmesh.points[centre]) @ normal))
-        active.append(solver.contact_report.active)
-    solver.synchronize()
-    return np.array(indentation), np.array(active)
-
-
-@pytest.mark.slow
-def test_host_free_penalty_contact_indents_as_the_exact_contact():
-    """The sphere of test_newton's press: the penalty contact (κ = 100) holds 5 ± 1 mm, within 0.1 mm of the
-    exact complementarity solution, and the tissue returns to rest after release."""
-    dt, steps = 2.0e-3, 200
-    exact, _ = _press(False, steps, dt)
-    penalty, active = _press(True, steps, dt)
-    held = penalty[75:100]
-    assert np.all(np.abs(held - 0.005) < 0.001), held
-    assert np.abs(penalty[75:100] - exact[75:100]).max() < 1.0e-4
-    assert active[75:100].max() > 3
-    assert abs(penalty[-1]) < 1e-4 and active[-1] == 0
+    assert np.abs(device - host).max() < 2e-5 * scale
 
 
 def _graph_world(device: str):

@@ -17,21 +17,24 @@ from ..fem.cg_setup import grouped_factor_rows, newmark_operators, preconditione
 from ..fem.kernels_cg import RR, SLOT_SPREAD, START, WORK_P, WORK_R, WORK_ROWS, WORK_X, pcg_kernels, slot_total
 from ..fem.kernels_cg_rows import cg_matrix, cg_matrix_types
 from ..fem.solver_cg import LANES, ROWS_PER_BLOCK, UNROLL
+from .kernels import Blocks, Indices, Vectors
 
 __all__ = ["FreeSystem"]
 
 _BlockRows = cg_matrix_types(wp.float64).BlockRows
+_Work = wp.array2d(dtype=wp.vec3d)  # the CG's work vectors (WORK_ROWS, F)
+_Slots = wp.array3d(dtype=wp.float64)  # its dot-product slots
 
 
 @wp.kernel
 def _start(
     A: _BlockRows,
-    b: wp.array(dtype=wp.vec3d),
-    x: wp.array(dtype=wp.vec3d),
-    w: wp.array2d(dtype=wp.vec3d),
-    slots: wp.array3d(dtype=wp.float64),
-    cg_iter: wp.array(dtype=wp.int32),
-    condition: wp.array(dtype=wp.int32),
+    b: Vectors,
+    x: Vectors,
+    w: _Work,
+    slots: _Slots,
+    cg_iter: Indices,
+    condition: Indices,
 ):
     """The two starting points of CG: ``r[0] = b − A x`` (warm start ``x``), ``r[1] = b`` (``x = 0``); slots
     ``START`` get ``|b|²`` (the tolerance's reference) and ``|r[0]|²``; the counters start."""
@@ -54,12 +57,12 @@ def _start(
 
 @wp.kernel
 def _finish(
-    w: wp.array2d(dtype=wp.vec3d),
-    slots: wp.array3d(dtype=wp.float64),
-    cg_iter: wp.array(dtype=wp.int32),
+    w: _Work,
+    slots: _Slots,
+    cg_iter: Indices,
     tol_sq: wp.float64,
-    x: wp.array(dtype=wp.vec3d),
-    failed: wp.array(dtype=wp.int32),
+    x: Vectors,
+    failed: Indices,
 ):
     """``x`` = the solution; ``failed[0]`` counts solves that stopped above the tolerance (or at NaN)."""
     o = wp.tid()
@@ -71,12 +74,7 @@ def _finish(
 
 
 @wp.kernel
-def _penalised_diagonal(
-    base: wp.array(dtype=wp.mat33d),
-    diagonal: wp.array(dtype=wp.int32),
-    extra: wp.array(dtype=wp.mat33d),
-    values: wp.array(dtype=wp.mat33d),
-):
+def _penalised_diagonal(base: Blocks, diagonal: Indices, extra: Blocks, values: Blocks):
     """The diagonal blocks of ``A_oo + H``: ``values[diag o] = base[diag o] + extra[o]``."""
     o = wp.tid()
     e = diagonal[o]

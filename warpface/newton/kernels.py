@@ -9,7 +9,37 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..fem.kernels_cg_rows import cg_matrix_types
+
+BlockRows = cg_matrix_types(wp.float64).BlockRows
+"""A BSR matrix of 3x3 float64 blocks as one kernel argument (``offsets``, ``indices``, ``values``)."""
+
+Vectors = wp.array(dtype=wp.vec3d)
+"""Annotation: an array of float64 3-vectors."""
+Vectors32 = wp.array(dtype=wp.vec3)
+"""Annotation: an array of float32 3-vectors (Newton's particles, the expression model's points)."""
+Indices = wp.array(dtype=wp.int32)
+"""Annotation: an array of int32."""
+Scalars = wp.array(dtype=wp.float64)
+"""Annotation: an array of float64."""
+Blocks = wp.array(dtype=wp.mat33d)
+"""Annotation: an array of 3x3 float64 blocks."""
+Poses = wp.array(dtype=wp.transform)
+"""Annotation: Newton's body poses."""
+Twists = wp.array(dtype=wp.spatial_vector)
+"""Annotation: Newton's body twists (COM linear velocity, angular velocity)."""
+
 __all__ = [
+    "BlockRows",
+    "Blocks",
+    "Indices",
+    "Poses",
+    "Twists",
+    "Scalars",
+    "Vectors",
+    "Vectors32",
+    "ContactSlots",
+    "SoftContacts",
     "Frame",
     "TissueNodes",
     "apply_correction",
@@ -44,10 +74,33 @@ class Frame:
 class TissueNodes:
     """The tissue in the head frame (rest positions, displacement [m], velocity [m/s]) and its first particle."""
 
-    rest: wp.array(dtype=wp.vec3d)
-    d: wp.array(dtype=wp.vec3d)
-    v: wp.array(dtype=wp.vec3d)
+    rest: Vectors
+    d: Vectors
+    v: Vectors
     start: int
+
+
+@wp.struct
+class SoftContacts:
+    """Newton's soft-contact arrays (``newton.Contacts``): count (1,), then per record (K,) the particle, the shape,
+    the contact point in the shape's body frame [m] and the shape's outward normal."""
+
+    count: Indices
+    particle: Indices
+    shape: Indices
+    body_pos: Vectors32
+    normal: Vectors32
+
+
+@wp.struct
+class ContactSlots:
+    """The face's contacts per Newton record (K,): free node (-1: none), normal and gap ``g⁰`` [m] in the head frame,
+    penalty stiffness [N/m]."""
+
+    slot: Indices
+    normals: Vectors
+    gaps: Scalars
+    stiffness: Scalars
 
 
 @wp.func
@@ -65,9 +118,9 @@ def _place(
     frame: Frame,
     nodes: TissueNodes,
     i: int,
-    q: wp.array(dtype=wp.vec3),
-    qd: wp.array(dtype=wp.vec3),
-    out: wp.array(dtype=wp.vec3),
+    q: Vectors32,
+    qd: Vectors32,
+    out: Vectors32,
 ):
     arm = wp.transform_vector(frame.head, nodes.rest[i] + nodes.d[i])
     x = wp.transform_get_translation(frame.head) + arm
@@ -83,9 +136,9 @@ def _place(
 def place_nodes(
     frame: Frame,
     nodes: TissueNodes,
-    q: wp.array(dtype=wp.vec3),
-    qd: wp.array(dtype=wp.vec3),
-    out: wp.array(dtype=wp.vec3),
+    q: Vectors32,
+    qd: Vectors32,
+    out: Vectors32,
 ):
     """World position ``q`` and velocity ``qd`` of each tissue node: ``x = p + R (X + d)``, ``ẋ = v_O + ω × R (X + d)
     + R ḋ``; ``out`` the ``warpface:displacement`` state attribute (empty when the state has none)."""
@@ -96,9 +149,9 @@ def place_nodes(
 def place_nodes_from(
     frames: wp.array(dtype=Frame),
     nodes: TissueNodes,
-    q: wp.array(dtype=wp.vec3),
-    qd: wp.array(dtype=wp.vec3),
-    out: wp.array(dtype=wp.vec3),
+    q: Vectors32,
+    qd: Vectors32,
+    out: Vectors32,
 ):
     """:func:`place_nodes` with the frame read from the device (``frames[0]``, written by :func:`head_frame`)."""
     _place(frames[0], nodes, wp.tid(), q, qd, out)
@@ -124,19 +177,19 @@ def _origin_twist(q: wp.transform, qd: wp.spatial_vector, com: wp.vec3):
 
 @wp.kernel
 def head_frame(
-    q_in: wp.array(dtype=wp.transform),
-    qd_in: wp.array(dtype=wp.spatial_vector),
-    q_out: wp.array(dtype=wp.transform),
-    qd_out: wp.array(dtype=wp.spatial_vector),
-    body_com: wp.array(dtype=wp.vec3),
+    q_in: Poses,
+    qd_in: Twists,
+    q_out: Poses,
+    qd_out: Twists,
+    body_com: Vectors32,
     body: int,
     dt: wp.float64,
-    gravity: wp.array(dtype=wp.vec3d),
-    model_gravity: wp.array(dtype=wp.vec3),
-    rest_gravity: wp.array(dtype=wp.vec3d),
-    rest_set: wp.array(dtype=wp.int32),
+    gravity: Vectors,
+    model_gravity: Vectors32,
+    rest_gravity: Vectors,
+    rest_set: Indices,
     frames: wp.array(dtype=Frame),
-    inertia: wp.array(dtype=wp.vec3d),
+    inertia: Vectors,
 ):
     """One thread: the head body's frame at the end of the step into ``frames[0]``, and in the head frame
     ``inertia = [Rᵀ (g − a_O) − b_rest, Rᵀ ω, Rᵀ α]`` (``frame.head_motion``'s finite differences); the rest gravity
@@ -175,7 +228,7 @@ def take_controls(
     start: int,
     count: int,
     contraction: wp.array(dtype=wp.float32),
-    errors: wp.array(dtype=wp.int32),
+    errors: Indices,
 ):
     """One thread: the face's rows of Newton's ``warpface:activation`` into the expression model's input; a
     non-finite one keeps the last good controls and books its index (+1) in ``errors[ERROR_CONTROL]``."""
@@ -192,12 +245,7 @@ def take_controls(
 
 
 @wp.kernel
-def driven_from_skin(
-    skin: wp.array(dtype=wp.vec3),
-    vertices: wp.array(dtype=wp.int32),
-    skin_rest: wp.array(dtype=wp.vec3d),
-    driven: wp.array(dtype=wp.vec3d),
-):
+def driven_from_skin(skin: Vectors32, vertices: Indices, skin_rest: Vectors, driven: Vectors):
     """Per driven node: ``d = skin[vertex] − rest[vertex]`` (the expression model's output, float64)."""
     k = wp.tid()
     v = vertices[k]
@@ -206,32 +254,28 @@ def driven_from_skin(
 
 @wp.kernel
 def body_force(
-    inertia: wp.array(dtype=wp.vec3d),
-    M_offsets: wp.array(dtype=wp.int32),
-    M_columns: wp.array(dtype=wp.int32),
-    M_values: wp.array(dtype=wp.mat33d),
-    free: wp.array(dtype=wp.int32),
-    rest: wp.array(dtype=wp.vec3d),
-    d: wp.array(dtype=wp.vec3d),
-    v: wp.array(dtype=wp.vec3d),
-    f: wp.array(dtype=wp.vec3d),
+    inertia: Vectors,
+    M: BlockRows,
+    free: Indices,
+    nodes: TissueNodes,
+    f: Vectors,
 ):
     """Per free node ``o``: ``f_o = (M b)_o`` with ``b = u − α × r − ω × (ω × r) − 2 ω × ḋ``, ``r = X + d``
-    (docs/NEWTON.md §2; ``inertia = [u, ω, α]``, head frame)."""
+    (docs/NEWTON.md §2; ``inertia = [u, ω, α]``, head frame; ``M`` the consistent mass, N x N blocks)."""
     o = wp.tid()
     i = free[o]
     u, omega, alpha = inertia[0], inertia[1], inertia[2]
     acc = wp.vec3d()
-    for e in range(M_offsets[i], M_offsets[i + 1]):
-        j = M_columns[e]
-        r = rest[j] + d[j]
-        b = u - wp.cross(alpha, r) - wp.cross(omega, wp.cross(omega, r)) - wp.float64(2.0) * wp.cross(omega, v[j])
-        acc += M_values[e] * b
+    for e in range(M.offsets[i], M.offsets[i + 1]):
+        j = M.indices[e]
+        r = nodes.rest[j] + nodes.d[j]
+        b = u - wp.cross(alpha, r) - wp.cross(omega, wp.cross(omega, r))
+        acc += M.values[e] * (b - wp.float64(2.0) * wp.cross(omega, nodes.v[j]))
     f[o] = acc
 
 
 @wp.kernel
-def non_finite(x: wp.array(dtype=wp.vec3d), flag: wp.array(dtype=wp.int32)):
+def non_finite(x: Vectors, flag: Indices):
     """``flag[0] = 1`` when an entry of ``x`` is not finite."""
     o = wp.tid()
     if not (wp.isfinite(x[o][0]) and wp.isfinite(x[o][1]) and wp.isfinite(x[o][2])):
@@ -240,17 +284,17 @@ def non_finite(x: wp.array(dtype=wp.vec3d), flag: wp.array(dtype=wp.int32)):
 
 @wp.kernel
 def apply_correction(
-    x: wp.array(dtype=wp.vec3d),
-    scale: wp.array(dtype=wp.float64),
-    free: wp.array(dtype=wp.int32),
+    x: Vectors,
+    scale: Scalars,
+    free: Indices,
     c0: wp.float64,
     c7c0: wp.float64,
-    flag: wp.array(dtype=wp.int32),
+    flag: Indices,
     count_clamp: int,
-    errors: wp.array(dtype=wp.int32),
-    d: wp.array(dtype=wp.vec3d),
-    v: wp.array(dtype=wp.vec3d),
-    a: wp.array(dtype=wp.vec3d),
+    errors: Indices,
+    d: Vectors,
+    v: Vectors,
+    a: Vectors,
 ):
     """Add ``s x`` (``s = scale[0]``) to the free nodes' displacement of the step just taken, with ``δa = c0 δd``,
     ``δv = c7 c0 δd``; nothing when ``flag[0]`` says ``x`` is not finite (booked in ``errors``)."""
@@ -272,140 +316,123 @@ def apply_correction(
 
 @wp.kernel
 def find_contacts(
-    count: wp.array(dtype=wp.int32),
-    particle: wp.array(dtype=wp.int32),
-    shape: wp.array(dtype=wp.int32),
-    body_pos: wp.array(dtype=wp.vec3),
-    normal: wp.array(dtype=wp.vec3),
-    shape_body: wp.array(dtype=wp.int32),
-    body_q: wp.array(dtype=wp.transform),
+    found: SoftContacts,
+    shape_body: Indices,
+    body_q: Poses,
     frames: wp.array(dtype=Frame),
-    start: int,
-    contact_free: wp.array(dtype=wp.int32),
-    rest: wp.array(dtype=wp.vec3d),
-    d: wp.array(dtype=wp.vec3d),
+    contact_free: Indices,
+    nodes: TissueNodes,
     radius: wp.float64,
     penalty: wp.float64,
-    diagonal: wp.array(dtype=wp.mat33d),
-    slot: wp.array(dtype=wp.int32),
-    normals: wp.array(dtype=wp.vec3d),
-    gaps: wp.array(dtype=wp.float64),
-    stiffness: wp.array(dtype=wp.float64),
-    counts: wp.array(dtype=wp.int32),
+    diagonal: Blocks,
+    out: ContactSlots,
+    counts: Indices,
 ):
-    """Per contact record ``k`` (to Newton's fixed capacity; those past ``count[0]`` do nothing): a contact on one
-    of the face's contact nodes gets its free node ``slot[k]`` (else -1), the shape's normal ``n`` in the head frame,
-    its gap ``g⁰ = n·(X + d − s) − ρ`` with the current ``d`` and its penalty ``k = penalty · nᵀ A_oo[o, o] n``."""
+    """Per contact record ``k`` (to Newton's fixed capacity; those past ``found.count[0]`` do nothing): a contact
+    on one of the face's contact nodes gets its free node (else -1), the shape's normal ``n`` in the head frame, its
+    gap ``g⁰ = n·(X + d − s) − ρ`` with the current ``d`` and its penalty ``k = penalty · nᵀ A_oo[o, o] n``;
+    ``counts[0]`` counts them. ``contact_free``: free index of each contact node, -1 for the other nodes."""
     k = wp.tid()
-    slot[k] = -1
-    if k >= count[0]:
+    out.slot[k] = -1
+    if k >= found.count[0]:
         return
-    i = particle[k] - start
+    i = found.particle[k] - nodes.start
     if i < 0 or i >= contact_free.shape[0]:
         return
     o = contact_free[i]
     if o < 0:
         return
-    world = _f64(body_pos[k])
-    b = shape_body[shape[k]]
+    world = _f64(found.body_pos[k])
+    b = shape_body[found.shape[k]]
     if b >= 0:
         p, r = _pose(body_q[b])
         world = p + wp.quat_rotate(r, world)
     head = frames[0].head
     rotation = wp.transform_get_rotation(head)
     s = wp.quat_rotate_inv(rotation, world - wp.transform_get_translation(head))
-    n = wp.quat_rotate_inv(rotation, _f64(normal[k]))
-    slot[k] = o
-    normals[k] = n
-    gaps[k] = wp.dot(n, rest[i] + d[i] - s) - radius
-    stiffness[k] = penalty * wp.dot(n, diagonal[o] * n)
+    n = wp.quat_rotate_inv(rotation, _f64(found.normal[k]))
+    out.slot[k] = o
+    out.normals[k] = n
+    out.gaps[k] = wp.dot(n, nodes.rest[i] + nodes.d[i] - s) - radius
+    out.stiffness[k] = penalty * wp.dot(n, diagonal[o] * n)
     wp.atomic_add(counts, 0, 1)
 
 
+@wp.func
+def _gap(contacts: ContactSlots, k: int, x: Vectors):
+    # the gap of contact k (of free node o >= 0) after the correction x
+    return contacts.gaps[k] + wp.dot(contacts.normals[k], x[contacts.slot[k]])
+
+
 @wp.kernel
-def contact_penalty(
-    slot: wp.array(dtype=wp.int32),
-    normals: wp.array(dtype=wp.vec3d),
-    gaps: wp.array(dtype=wp.float64),
-    stiffness: wp.array(dtype=wp.float64),
-    x: wp.array(dtype=wp.vec3d),
-    H: wp.array(dtype=wp.mat33d),
-    rhs: wp.array(dtype=wp.vec3d),
-):
+def contact_penalty(contacts: ContactSlots, x: Vectors, H: Blocks, rhs: Vectors):
     """One active-set pass: a contact whose gap ``g⁰ + n·x_o`` is closed adds ``k n nᵀ`` to ``H_o`` and
     ``−k g⁰ n`` to the right-hand side (``H``, ``rhs`` zeroed before)."""
     k = wp.tid()
-    o = slot[k]
-    if o < 0:
-        return
-    n = normals[k]
-    if gaps[k] + wp.dot(n, x[o]) < wp.float64(0.0):
-        wp.atomic_add(H, o, stiffness[k] * wp.outer(n, n))
-        wp.atomic_add(rhs, o, -stiffness[k] * gaps[k] * n)
+    o = contacts.slot[k]
+    if o >= 0:
+        if _gap(contacts, k, x) < wp.float64(0.0):
+            n, stiffness = contacts.normals[k], contacts.stiffness[k]
+            wp.atomic_add(H, o, stiffness * wp.outer(n, n))
+            wp.atomic_add(rhs, o, -stiffness * contacts.gaps[k] * n)
 
 
 @wp.kernel
 def contact_report(
-    slot: wp.array(dtype=wp.int32),
-    normals: wp.array(dtype=wp.vec3d),
-    gaps: wp.array(dtype=wp.float64),
-    stiffness: wp.array(dtype=wp.float64),
-    x: wp.array(dtype=wp.vec3d),
-    counts: wp.array(dtype=wp.int32),
-    force: wp.array(dtype=wp.float64),
+    contacts: ContactSlots,
+    x: Vectors,
+    counts: Indices,
+    force: Scalars,
 ):
     """The contacts that push after the passes (``counts[1]``) and their force ``Σ λ``, ``λ = −k (g⁰ + n·x_o)``."""
     k = wp.tid()
-    o = slot[k]
-    if o < 0:
-        return
-    g = gaps[k] + wp.dot(normals[k], x[o])
-    if g < wp.float64(0.0):
-        wp.atomic_add(counts, 1, 1)
-        wp.atomic_add(force, 0, -stiffness[k] * g)
+    if contacts.slot[k] >= 0:
+        g = _gap(contacts, k, x)
+        if g < wp.float64(0.0):
+            wp.atomic_add(counts, 1, 1)
+            wp.atomic_add(force, 0, -contacts.stiffness[k] * g)
 
 
 @wp.func
-def _volume(p0: wp.vec3d, p1: wp.vec3d, p2: wp.vec3d, p3: wp.vec3d):
-    return wp.dot(wp.cross(p1 - p0, p2 - p0), p3 - p0) / wp.float64(6.0)
-
-
-@wp.func
-def _node_correction(x: wp.array(dtype=wp.vec3d), free_index: wp.array(dtype=wp.int32), node: int):
-    o = free_index[node]
-    c = wp.vec3d()
-    if o >= 0:
-        c = x[o]
-    return c
+def _volume(p: wp.mat44d):
+    # signed volume of the tet whose corners are the rows of p (the fourth column unused)
+    p0 = wp.vec3d(p[0, 0], p[0, 1], p[0, 2])
+    e1 = wp.vec3d(p[1, 0], p[1, 1], p[1, 2]) - p0
+    e2 = wp.vec3d(p[2, 0], p[2, 1], p[2, 2]) - p0
+    e3 = wp.vec3d(p[3, 0], p[3, 1], p[3, 2]) - p0
+    return wp.dot(wp.cross(e1, e2), e3) / wp.float64(6.0)
 
 
 @wp.kernel
 def upright_scale(
     tets: wp.array(dtype=wp.vec4i),
-    rest_volumes: wp.array(dtype=wp.float64),
+    rest_volumes: Scalars,
     fraction: wp.float64,
-    rest: wp.array(dtype=wp.vec3d),
-    d: wp.array(dtype=wp.vec3d),
-    x: wp.array(dtype=wp.vec3d),
-    free_index: wp.array(dtype=wp.int32),
-    scale: wp.array(dtype=wp.float64),
+    nodes: TissueNodes,
+    x: Vectors,
+    free_index: Indices,
+    scale: Scalars,
 ):
     """Per tet: the largest ``s`` in [0, 1] keeping its volume at ``X + d + s x`` above ``fraction`` of its rest
     volume (bisection to 1e-3, as ``contact.upright_scale``), folded into ``scale[0]`` by ``atomic_min``."""
-    t = wp.tid()
-    tet = tets[t]
-    p0, p1 = rest[tet[0]] + d[tet[0]], rest[tet[1]] + d[tet[1]]
-    p2, p3 = rest[tet[2]] + d[tet[2]], rest[tet[3]] + d[tet[3]]
-    c0, c1 = _node_correction(x, free_index, tet[0]), _node_correction(x, free_index, tet[1])
-    c2, c3 = _node_correction(x, free_index, tet[2]), _node_correction(x, free_index, tet[3])
-    limit = fraction * rest_volumes[t]
-    if _volume(p0 + c0, p1 + c1, p2 + c2, p3 + c3) > limit:
+    tet = tets[wp.tid()]
+    p = wp.mat44d()
+    c = wp.mat44d()
+    for corner in range(4):
+        node = tet[corner]
+        o = free_index[node]
+        for axis in range(3):
+            p[corner, axis] = nodes.rest[node][axis] + nodes.d[node][axis]
+            if o >= 0:
+                c[corner, axis] = x[o][axis]
+    limit = fraction * rest_volumes[wp.tid()]
+    if _volume(p + c) > limit:
         return
     low = wp.float64(0.0)
     high = wp.float64(1.0)
     while high - low > wp.float64(1.0e-3):
         mid = wp.float64(0.5) * (low + high)
-        if _volume(p0 + mid * c0, p1 + mid * c1, p2 + mid * c2, p3 + mid * c3) > limit:
+        if _volume(p + mid * c) > limit:
             low = mid
         else:
             high = mid

@@ -19,8 +19,8 @@ import warp as wp
 from ..fem import TissueMaterial, TissueSimulation
 from ..fem.options import as_cg_options
 from ..fem.solver_direct import factorize_spd, node_dofs
+from .capturable import CapturablePath
 from .contact import ContactReport, gather_contacts, solve_contacts, upright_scale
-from .device_step import DeviceStep
 from .face import NAMESPACE, ROLE_DRIVEN, ROLE_FIXED, ROLE_FREE, NewtonFace, register_face_attributes
 from .frame import HeadMotion, body_force, head_motion
 from .kernels import Frame, TissueNodes, place_nodes
@@ -104,7 +104,7 @@ class SolverFace(newton.solvers.SolverBase):
             contact_stiffness=_positive(contact_stiffness, "contact_stiffness"),
             contact_passes=int(_positive(contact_passes, "contact_passes", whole=True)),
         )
-        self._device_step: DeviceStep | None = None
+        self._capturable: CapturablePath | None = None
         self._options = dict(formulation=formulation, solver=solver, beta=beta, gamma=gamma, cg=cg)
         self._gravity_override = None if gravity is None else _vector(gravity, "gravity")
         self._rest_gravity = None if rest_gravity is None else _vector(rest_gravity, "rest_gravity")
@@ -145,8 +145,8 @@ class SolverFace(newton.solvers.SolverBase):
             return
         if self._gravity_override is None:
             self.gravity = _model_gravity(self.model)
-            if self._device_step is not None:
-                self._device_step.set_gravity(self.gravity)
+            if self._capturable is not None:
+                self._capturable.set_gravity(self.gravity)
         attrs, face = _namespace(self.model), self.face
         tets = slice(face.tet_start, face.tet_start + face.tetmesh.tet_count)
         E, nu, eta = (getattr(attrs, name).numpy()[tets] for name in ("youngs_modulus", "poisson_ratio", "viscosity"))
@@ -168,9 +168,9 @@ class SolverFace(newton.solvers.SolverBase):
             self._rest_gravity_auto = True
         if self.simulation is not None:
             self.simulation.reset()
-        if self._device_step is not None:
-            self._device_step.reset()
-            self._device_step.set_rest_gravity(self._rest_gravity)
+        if self._capturable is not None:
+            self._capturable.reset()
+            self._capturable.set_rest_gravity(self._rest_gravity)
         self._last_controls = None
         self.contact_report = ContactReport()
         self._write_particles(state, motion)
@@ -179,7 +179,7 @@ class SolverFace(newton.solvers.SolverBase):
     def contact_report(self) -> ContactReport:
         """What the last step did with its contacts (:class:`~warpface.newton.contact.ContactReport`; on the
         host-free path read from the device)."""
-        return self._contact_report if self._device_step is None else self._device_step.report()
+        return self._contact_report if self._capturable is None else self._capturable.report()
 
     @contact_report.setter
     def contact_report(self, report: ContactReport) -> None:
@@ -188,7 +188,7 @@ class SolverFace(newton.solvers.SolverBase):
     @property
     def clamped_steps(self) -> int:
         """Steps whose contact forces were scaled back to keep every tet upright."""
-        return self._clamped_steps + (0 if self._device_step is None else self._device_step.clamped_steps())
+        return self._clamped_steps + (0 if self._capturable is None else self._capturable.clamped_count())
 
     def synchronize(self) -> None:
         """Wait for the queued steps and raise what they booked on the device (the host-free path raises nothing
@@ -197,8 +197,8 @@ class SolverFace(newton.solvers.SolverBase):
         CG solve above its tolerance."""
         if self.simulation is not None:
             self.simulation.synchronize()
-        if self._device_step is not None:
-            self._device_step.raise_errors()
+        if self._capturable is not None:
+            self._capturable.raise_errors()
 
     def step(self, state_in, state_out, control, contacts, dt: float, *, observables=None) -> None:
         """Advance the face one time step ``dt`` [s] (module docstring).
@@ -208,8 +208,8 @@ class SolverFace(newton.solvers.SolverBase):
             FloatingPointError: the step produced non-finite displacements (the state is left as it was).
         """
         sim = self._build(dt)
-        if self._device_step is not None:
-            self._device_step.run(state_in, state_out, control, contacts)
+        if self._capturable is not None:
+            self._capturable.run(state_in, state_out, control, contacts)
             return
         face = self.face
         if self._rest_gravity is None:
@@ -267,9 +267,9 @@ class SolverFace(newton.solvers.SolverBase):
             self._solve = solve
         self.simulation = sim
         if self.graph_capturable:
-            self._device_step = DeviceStep(self, sim, **self._capturable_options)
+            self._capturable = CapturablePath(self, sim, **self._capturable_options)
             if self._rest_gravity is not None:
-                self._device_step.set_rest_gravity(self._rest_gravity)
+                self._capturable.set_rest_gravity(self._rest_gravity)
         self._last_controls = None
         self._launches.clear()
         self._launch_pose.clear()

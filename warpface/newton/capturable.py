@@ -1,6 +1,6 @@
 """``SolverFace``'s host-free step: kernel launches and device copies only, so it can be captured in a graph.
 
-:class:`DeviceStep` runs the step of docs/NEWTON.md on the device, reading nothing back: the head frame from
+:class:`CapturablePath` runs the step of docs/NEWTON.md on the device, reading nothing back: the head frame from
 Newton's ``body_q``/``body_qd`` (:func:`~warpface.newton.kernels.head_frame`), the controls from Newton's
 ``warpface:activation`` into the expression model's own kernels (its plan's launches on fixed buffers), the
 driven displacements into the tissue simulation's control, its CG step, the inertial body force solved by the
@@ -23,7 +23,10 @@ from .kernels import (
     ERROR_CLAMPED,
     ERROR_CONTROL,
     ERROR_NON_FINITE,
+    BlockRows,
+    ContactSlots,
     Frame,
+    SoftContacts,
     TissueNodes,
     apply_correction,
     body_force,
@@ -38,14 +41,14 @@ from .kernels import (
     upright_scale,
 )
 
-__all__ = ["DeviceStep"]
+__all__ = ["CapturablePath"]
 
 
 def _ints(values, device) -> wp.array:
     return wp.array(np.asarray(values, dtype=np.int32), dtype=wp.int32, device=device)
 
 
-class DeviceStep:
+class CapturablePath:
     """The capturable step of one :class:`~warpface.newton.SolverFace` and its tissue simulation (module docstring).
 
     Args:
@@ -87,6 +90,9 @@ class DeviceStep:
         self._x_body = self.system.vector()
         self._x_contact = self.system.vector()
         self._H = wp.zeros(free.size, dtype=wp.mat33d, device=device)
+        M = sim.matrices.M
+        self._mass = BlockRows()
+        self._mass.offsets, self._mass.indices, self._mass.values = M.offsets, M.columns, M.values
         self._contact_arrays: dict = {}
         self._empty_q = (
             wp.empty(0, dtype=wp.transform, device=device),
@@ -99,8 +105,6 @@ class DeviceStep:
             wp.float64(c.velocity_new_acceleration * c.mass_displacement),
         )
         self.set_gravity(solver.gravity)
-        if solver._rest_gravity is not None:
-            self.set_rest_gravity(solver._rest_gravity)
         self._expression = self._expression_launches() if face.driven_nodes.size and face.rig.control_names else None
 
     # ------------------------------------------------------------------ set-up (host, outside a step)
@@ -135,178 +139,105 @@ class DeviceStep:
         buffers.upload_controls(np.zeros((1, len(names))), expression.default_depths[None])
         wp.synchronize_device(self.device)
         plan = plan_launches(expression, buffers, 1, buffers.contraction, buffers.depth, buffers.final_points)
-        launches = [
-            wp.launch(
-                k,
-                dim=dim,
-                inputs=inputs,
-                outputs=outputs,
-                device=self.device,
-                block_dim=expression.block_dim,
-                record_cmd=True,
-            )
-            for k, dim, inputs, outputs in plan
-        ]
+        options = dict(device=self.device, block_dim=expression.block_dim, record_cmd=True)
+        launches = [wp.launch(k, dim=dim, inputs=ins, outputs=outs, **options) for k, dim, ins, outs in plan]
         skin_rest = wp.array(np.asarray(face.rig.mesh.points, dtype=np.float64), dtype=wp.vec3d, device=self.device)
         return buffers, launches, _ints(face.driven_vertices, self.device), skin_rest
 
     # ------------------------------------------------------------------ the step
+    def _launch(self, kernel, dim: int, inputs: list, outputs: list) -> None:
+        wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device)
+
+    def _nodes(self) -> TissueNodes:
+        nodes = TissueNodes()
+        state = self.simulation.state
+        nodes.rest, nodes.d, nodes.v, nodes.start = self._rest, state.d, state.v, self.face.particle_start
+        return nodes
+
     def run(self, state_in, state_out, control, contacts) -> None:
         """One step from ``state_in`` to ``state_out`` (module docstring); queues device work only."""
-        sim, face, device, system = self.simulation, self.face, self.device, self.system
+        sim, face, system = self.simulation, self.face, self.system
         model = self.solver.model
         body = face.head_body
-        q_in, qd_in = (state_in.body_q, state_in.body_qd) if body >= 0 else self._empty_q
-        q_out, qd_out = (state_out.body_q, state_out.body_qd) if body >= 0 else self._empty_q
-        com = model.body_com if body >= 0 else self._empty_vec
-        wp.launch(
-            head_frame,
-            dim=1,
-            inputs=[q_in, qd_in, q_out, qd_out, com, body, wp.float64(sim.dt), self.gravity, model.gravity],
-            outputs=[self.rest_gravity, self.rest_set, self._frames, self._inertia],
-            device=device,
-        )
+        moving = (state_in.body_q, state_in.body_qd, state_out.body_q, state_out.body_qd, model.body_com)
+        inputs = [*(moving if body >= 0 else (*self._empty_q, *self._empty_q, self._empty_vec)), body]
+        inputs += [wp.float64(sim.dt), self.gravity, model.gravity]
+        self._launch(head_frame, 1, inputs, [self.rest_gravity, self.rest_set, self._frames, self._inertia])
         if self._expression is not None:
             self._driven(control)
-        state = sim.state
+        nodes = self._nodes()
         if self.solver.inertia:  # the body force at the start of the step (r, ḋ of the start)
-            M = sim.matrices.M
-            wp.launch(
-                body_force,
-                dim=system.free_count,
-                inputs=[self._inertia, M.offsets, M.columns, M.values, self._free, self._rest, state.d, state.v],
-                outputs=[self._f],
-                device=device,
-            )
+            self._launch(body_force, system.free_count, [self._inertia, self._mass, self._free, nodes], [self._f])
         sim.step(sim.control)
         if self.solver.inertia:
             system.solve(self._f, self._x_body)
             self._correct(self._x_body, self._one, False)
         if contacts is not None:
-            self._contacts(contacts, state_out)
+            self._contacts(contacts, state_out, nodes)
         attrs = getattr(state_out, "warpface", None)
         out = getattr(attrs, "displacement", None) if attrs is not None else None
-        nodes = TissueNodes()
-        nodes.rest, nodes.d, nodes.v, nodes.start = self._rest, state.d, state.v, face.particle_start
-        wp.launch(
-            place_nodes_from,
-            dim=face.tetmesh.node_count,
-            inputs=[
-                self._frames,
-                nodes,
-                state_out.particle_q,
-                state_out.particle_qd,
-                self._empty_vec if out is None else out,
-            ],
-            device=device,
-        )
+        inputs = [self._frames, nodes, state_out.particle_q, state_out.particle_qd]
+        self._launch(place_nodes_from, face.tetmesh.node_count, [*inputs, self._empty_vec if out is None else out], [])
 
     def _driven(self, control) -> None:
         face, solver = self.face, self.solver
         buffers, launches, vertices, skin_rest = self._expression
         attrs = getattr(control, "warpface", None) or getattr(solver.model, "warpface", None)
         if attrs is not None:
-            wp.launch(
-                take_controls,
-                dim=1,
-                inputs=[attrs.activation, face.control_start, len(face.rig.control_names)],
-                outputs=[buffers.contraction, self.errors],
-                device=self.device,
-            )
+            inputs = [attrs.activation, face.control_start, len(face.rig.control_names)]
+            self._launch(take_controls, 1, inputs, [buffers.contraction, self.errors])
         for launch in launches:
             launch.launch()
-        wp.launch(
-            driven_from_skin,
-            dim=face.driven_nodes.size,
-            inputs=[buffers.final_points, vertices, skin_rest],
-            outputs=[self.simulation.control.driven],
-            device=self.device,
-        )
+        driven = self.simulation.control.driven
+        self._launch(driven_from_skin, face.driven_nodes.size, [buffers.final_points, vertices, skin_rest], [driven])
 
     def _correct(self, x, scale, clamp: bool) -> None:
-        state, device = self.simulation.state, self.device
+        state, count = self.simulation.state, self.system.free_count
         self._flag.zero_()
-        wp.launch(non_finite, dim=self.system.free_count, inputs=[x], outputs=[self._flag], device=device)
-        wp.launch(
-            apply_correction,
-            dim=self.system.free_count,
-            inputs=[x, scale, self._free, self._c0, self._c7c0, self._flag, int(clamp), self.errors],
-            outputs=[state.d, state.v, state.a],
-            device=device,
-        )
+        self._launch(non_finite, count, [x], [self._flag])
+        inputs = [x, scale, self._free, self._c0, self._c7c0, self._flag, int(clamp), self.errors]
+        self._launch(apply_correction, count, inputs, [state.d, state.v, state.a])
 
-    def _contact_buffers(self, capacity: int):
-        arrays = self._contact_arrays.get(capacity)
-        if arrays is None:
-            arrays = self._contact_arrays[capacity] = (
-                wp.full(capacity, -1, dtype=wp.int32, device=self.device),
-                wp.zeros(capacity, dtype=wp.vec3d, device=self.device),
-                wp.zeros(capacity, dtype=wp.float64, device=self.device),
-                wp.zeros(capacity, dtype=wp.float64, device=self.device),
-            )
-        return arrays
+    def _contact_slots(self, capacity: int) -> ContactSlots:
+        slots = self._contact_arrays.get(capacity)
+        if slots is None:
+            slots = self._contact_arrays[capacity] = ContactSlots()
+            slots.slot = wp.full(capacity, -1, dtype=wp.int32, device=self.device)
+            slots.normals = wp.zeros(capacity, dtype=wp.vec3d, device=self.device)
+            slots.gaps = wp.zeros(capacity, dtype=wp.float64, device=self.device)
+            slots.stiffness = wp.zeros(capacity, dtype=wp.float64, device=self.device)
+        return slots
 
-    def _contacts(self, contacts, state_out) -> None:
+    def _contacts(self, contacts, state_out, nodes: TissueNodes) -> None:
         """Find the face's contacts, solve the penalty contact in passes, clamp it to upright tets, apply it."""
-        face, device, system, state = self.face, self.device, self.system, self.simulation.state
-        model = self.solver.model
+        face, system = self.face, self.system
         capacity = contacts.soft_contact_particle.shape[0]
         self._counts.zero_()
         self._force.zero_()
         self._scale.fill_(1.0)
         if capacity == 0:
             return
-        slot, normals, gaps, stiffness = contact = self._contact_buffers(capacity)
-        body_q = state_out.body_q if state_out.body_q is not None else self._empty_q[0]
-        wp.launch(
-            find_contacts,
-            dim=capacity,
-            inputs=[
-                contacts.soft_contact_count,
-                contacts.soft_contact_particle,
-                contacts.soft_contact_shape,
-                contacts.soft_contact_body_pos,
-                contacts.soft_contact_normal,
-                model.shape_body,
-                body_q,
-                self._frames,
-                face.particle_start,
-                self._contact_free,
-                self._rest,
-                state.d,
-                wp.float64(face.contact_radius),
-                wp.float64(self.penalty),
-                system.diagonal_blocks,
-            ],
-            outputs=[*contact, self._counts],
-            device=device,
+        slots = self._contact_slots(capacity)
+        found = SoftContacts()
+        found.count, found.particle, found.shape = (
+            contacts.soft_contact_count,
+            contacts.soft_contact_particle,
+            contacts.soft_contact_shape,
         )
+        found.body_pos, found.normal = contacts.soft_contact_body_pos, contacts.soft_contact_normal
+        body_q = state_out.body_q if state_out.body_q is not None else self._empty_q[0]
+        inputs = [found, self.solver.model.shape_body, body_q, self._frames, self._contact_free, nodes]
+        inputs += [wp.float64(face.contact_radius), wp.float64(self.penalty), system.diagonal_blocks]
+        self._launch(find_contacts, capacity, inputs, [slots, self._counts])
         for _ in range(self.passes):
             self._H.zero_()
             self._f.zero_()
-            wp.launch(
-                contact_penalty,
-                dim=capacity,
-                inputs=[*contact, self._x_contact],
-                outputs=[self._H, self._f],
-                device=device,
-            )
+            self._launch(contact_penalty, capacity, [slots, self._x_contact], [self._H, self._f])
             system.penalise(self._H)
             system.solve(self._f, self._x_contact, penalised=True)
-        wp.launch(
-            contact_report,
-            dim=capacity,
-            inputs=[*contact, self._x_contact],
-            outputs=[self._counts, self._force],
-            device=device,
-        )
-        wp.launch(
-            upright_scale,
-            dim=face.tetmesh.tet_count,
-            inputs=[self._tets, self._rest_volumes, wp.float64(MIN_VOLUME_FRACTION), self._rest, state.d],
-            outputs=[self._x_contact, self._free_index, self._scale],
-            device=device,
-        )
+        self._launch(contact_report, capacity, [slots, self._x_contact], [self._counts, self._force])
+        inputs = [self._tets, self._rest_volumes, wp.float64(MIN_VOLUME_FRACTION), nodes, self._x_contact]
+        self._launch(upright_scale, face.tetmesh.tet_count, [*inputs, self._free_index], [self._scale])
         self._correct(self._x_contact, self._scale, True)
 
     # ------------------------------------------------------------------ reports (host reads, outside a step)
@@ -316,7 +247,7 @@ class DeviceStep:
         scale = float(self._scale.numpy()[0])
         return ContactReport(count=count, active=active, total_force=float(self._force.numpy()[0]) * scale, scale=scale)
 
-    def clamped_steps(self) -> int:
+    def clamped_count(self) -> int:
         """Steps whose contact correction was scaled back (reads the device)."""
         return int(self.errors.numpy()[ERROR_CLAMPED])
 
