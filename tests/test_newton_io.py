@@ -87,9 +87,10 @@ def test_nan_controls_are_refused_and_the_state_stays_finite(shell):
     assert np.isfinite(state_out.particle_q.numpy()).all()
 
 
-def test_a_contact_that_would_invert_a_tet_is_clamped_and_reported():
+@pytest.mark.parametrize("capturable", [False, True])
+def test_a_contact_that_would_invert_a_tet_is_clamped_and_reported(capturable):
     """A big sphere driven 3 cm into an 8 mm tissue: the contact forces are scaled back, every tet stays
-    upright, and the step says so."""
+    upright, and the step says so (the host path warns; the host-free path reports it on the device)."""
     from warpface.fem.tetmesh import tet_signed_volumes
 
     rig, tetmesh, fixed, outer = shell_face(8, 1, span_u=0.6, span_v=0.5, thickness=0.008)
@@ -98,14 +99,18 @@ def test_a_contact_that_would_invert_a_tet_is_clamped_and_reported():
     builder.add_shape_sphere(sphere, radius=0.05)
     face = add_face(builder, rig, tissue=(tetmesh, MATERIAL), fixed=fixed, driven=[], contact_radius=1e-4)
     model = builder.finalize(device="cpu")
-    solver = SolverFace(model, face)
+    solver = SolverFace(model, face, graph_capturable=capturable)
     pipeline = newton.CollisionPipeline(model, soft_contact_gap=0.003)
     contacts = pipeline.contacts()
     state_in, state_out, control = model.state(), model.state(), model.control()
     state_out.body_q.assign(state_in.body_q.numpy())
     pipeline.collide(state_in, contacts)
-    with pytest.warns(RuntimeWarning, match="scaled"):
+    if capturable:
         solver.step(state_in, state_out, control, contacts, 1e-3)
+        solver.synchronize()
+    else:
+        with pytest.warns(RuntimeWarning, match="scaled"):
+            solver.step(state_in, state_out, control, contacts, 1e-3)
     assert solver.contact_report.clamped and solver.clamped_steps == 1
     positions = state_out.particle_q.numpy()[face.particles].astype(np.float64)
     assert np.isfinite(positions).all()
