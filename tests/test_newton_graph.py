@@ -108,24 +108,32 @@ def test_the_host_free_step_reads_nothing_back(monkeypatch):
 
 @pytest.mark.parametrize("device", DEVICES)
 def test_a_captured_step_replays_as_eager_steps(device):
-    """wp.ScopedCapture of one step, replayed N times, gives the N eager steps' tissue and particles."""
-    steps = 6
+    """wp.ScopedCapture of two ping-pong steps (s0 -> s1 -> s0), replayed N times, gives the 2N eager steps'
+    tissue and particles."""
+    replays = 3
+
+    def two_steps(solver, args):
+        state_a, state_b, control, contacts = args
+        solver.step(state_a, state_b, control, contacts, 1.0e-3)
+        solver.step(state_b, state_a, control, contacts, 1.0e-3)
+
     eager, args = _graph_world(device)
-    for _ in range(steps):
-        eager.step(*args, 1.0e-3)
-    expected_d, expected_q = eager.simulation.d, args[1].particle_q.numpy().copy()
+    for _ in range(replays):
+        two_steps(eager, args)
+    expected_d, expected_q = eager.simulation.d, args[0].particle_q.numpy().copy()
     eager.synchronize()
 
     captured, args = _graph_world(device)
-    captured.step(*args, 1.0e-3)  # one eager step: builds the solver, loads the kernels
+    captured.step(*args, 1.0e-3)  # an eager step: builds the solver, loads the kernels; then back to the start
+    captured.reset(args[0])
     with wp.ScopedCapture(device=device) as capture:
-        captured.step(*args, 1.0e-3)
-    for _ in range(steps - 1):
+        two_steps(captured, args)
+    for _ in range(replays):
         wp.capture_launch(capture.graph)
     captured.synchronize()
     assert np.abs(expected_d).max() > 1e-5 and captured.contact_report.active > 0
     assert np.allclose(captured.simulation.d, expected_d, rtol=0.0, atol=1e-12)
-    assert np.allclose(args[1].particle_q.numpy(), expected_q, rtol=0.0, atol=1e-7)
+    assert np.allclose(args[0].particle_q.numpy(), expected_q, rtol=0.0, atol=1e-7)
 
 
 def test_a_non_finite_control_is_held_and_raised_by_synchronize():
