@@ -129,6 +129,7 @@ class FreeSystem:
         self._condition = wp.zeros(1, dtype=wp.int32, device=device)
         self.failed = wp.zeros(1, dtype=wp.int32, device=device)
         """Solves that stopped above the tolerance (device counter)."""
+        self._graphs: dict = {}
 
     def vector(self) -> wp.array:
         """A zero free-node vector, shape (F,) vec3d."""
@@ -145,7 +146,20 @@ class FreeSystem:
 
     def solve(self, b: wp.array, x: wp.array, *, penalised: bool = False) -> None:
         """``x`` <- the solution of ``A x = b`` (``A_oo``, or ``A_oo + H`` with ``penalised``), started from the
-        better of ``x`` and zero. Queues the launches; never waits."""
+        better of ``x`` and zero. Queues the launches; never waits: on CUDA outside a capture the solve is a graph
+        of its own (captured once per set of arrays), since ``wp.capture_while`` run eagerly polls its condition."""
+        if not self.device.is_cuda or self.device.is_capturing:
+            self._queue(b, x, penalised)
+            return
+        key = (b.ptr, x.ptr, penalised)
+        graph = self._graphs.get(key)
+        if graph is None:
+            with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
+                self._queue(b, x, penalised)
+            graph = self._graphs[key] = capture.graph
+        wp.capture_launch(graph)
+
+    def _queue(self, b: wp.array, x: wp.array, penalised: bool) -> None:
         A = self._A_penalised if penalised else self._A
         w, w_flat, slots, cg_iter, device = self._work, self._work_flat, self._slots, self._cg_iter, self.device
         lower, upper = self._factors
