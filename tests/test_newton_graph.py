@@ -134,8 +134,12 @@ def test_a_captured_step_replays_as_eager_steps(device):
         wp.capture_launch(capture.graph)
     captured.synchronize()
     assert np.abs(expected_d).max() > 1e-5 and captured.contact_report.active > 0
-    assert np.allclose(captured.simulation.d, expected_d, rtol=0.0, atol=1e-12)
-    assert np.allclose(args[0].particle_q.numpy(), expected_q, rtol=0.0, atol=1e-7)
+    # the CPU replays the eager arithmetic exactly; on CUDA the order of atomic sums may move a CG stop by one
+    # iteration (a 1e-5 relative tolerance)
+    exact = device == "cpu"
+    tolerance = 1e-12 if exact else 1e-5 * np.abs(expected_d).max()
+    assert np.allclose(captured.simulation.d, expected_d, rtol=0.0, atol=tolerance)
+    assert np.allclose(args[0].particle_q.numpy(), expected_q, rtol=0.0, atol=1e-7 if exact else 1e-6)
 
 
 def test_a_non_finite_control_is_held_and_raised_by_synchronize():
