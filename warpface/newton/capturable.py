@@ -117,6 +117,11 @@ class CapturablePath:
         self.rest_gravity.assign(np.asarray(rest_gravity, dtype=np.float64).reshape(1, 3))
         self.rest_set.fill_(1)
 
+    def keep_rest_gravity(self, other: CapturablePath) -> None:
+        """Take ``other``'s rest gravity (device copies: whatever its first step found)."""
+        wp.copy(self.rest_gravity, other.rest_gravity)
+        wp.copy(self.rest_set, other.rest_set)
+
     def reset(self) -> None:
         """Clear the warm starts of the correction solves."""
         self._x_body.zero_()

@@ -267,9 +267,11 @@ class SolverFace(newton.solvers.SolverBase):
             self._solve = solve
         self.simulation = sim
         if self.graph_capturable:
-            self._capturable = CapturablePath(self, sim, **self._capturable_options)
+            previous, self._capturable = self._capturable, CapturablePath(self, sim, **self._capturable_options)
             if self._rest_gravity is not None:
                 self._capturable.set_rest_gravity(self._rest_gravity)
+            elif previous is not None:  # a rebuild (another dt) keeps the rest gravity its first step took
+                self._capturable.keep_rest_gravity(previous)
         self._last_controls = None
         self._launches.clear()
         self._launch_pose.clear()
