@@ -154,7 +154,7 @@ class SolverFace(newton.solvers.SolverBase):
         if not np.allclose([E, nu, eta], [old["E"], old["nu"], old["eta"]], rtol=1e-6):
             self.material = TissueMaterial(E, nu, eta, old["rho"], damping=self.material.damping)
             dt = None if self.simulation is None else self.simulation.dt
-            self.simulation = self._capturable = None
+            self.simulation = None
             if dt is not None:
                 self._build(dt)
 
