@@ -179,14 +179,15 @@ def test_a_rig_stage_with_tissue_loads_into_newton_and_records_a_point_cache(she
     assert read_rig(reopened).mesh.vertex_count == rig.mesh.vertex_count
 
 
-def test_reset_and_a_changed_material(shell):
+@pytest.mark.parametrize("capturable", [False, True])
+def test_reset_and_a_changed_material(shell, capturable):
     """reset puts the tissue back at rest at the state's head pose; notify_model_changed(MODEL_PROPERTIES) picks
-    up the model's warpface:youngs_modulus and rebuilds the FEM with it."""
+    up the model's warpface:youngs_modulus and rebuilds the FEM with it (on either path)."""
     rig, tetmesh, fixed, _ = shell
     builder = newton.ModelBuilder()
     face = add_face(builder, rig, tissue=(tetmesh, MATERIAL), fixed=fixed)
     model = builder.finalize(device="cpu")
-    solver = SolverFace(model, face, dt=1e-3)
+    solver = SolverFace(model, face, dt=1e-3, graph_capturable=capturable)
     state_in, state_out, control = model.state(), model.state(), model.control()
     control.warpface.activation.assign(np.array([0.02], dtype=np.float32))
     for _ in range(5):
@@ -206,6 +207,9 @@ def test_reset_and_a_changed_material(shell):
     assert np.allclose(solver.material.E, 2.0 * MATERIAL.E, rtol=1e-6)
     solver.notify_model_changed(newton.ModelFlags.SHAPE_PROPERTIES)  # nothing of the face's: nothing rebuilt
     assert solver.material.E.shape == (tetmesh.tet_count,)
+    solver.step(state_in, state_out, control, None, 1e-3)  # the rebuilt solver steps on
+    solver.synchronize()
+    assert np.isfinite(state_out.particle_q.numpy()).all() and np.abs(solver.simulation.d).max() > 0.0
 
 
 def test_add_face_arguments_fuzzed(shell):
