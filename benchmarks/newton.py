@@ -11,6 +11,12 @@ Rows:
 * ``SolverFace (plug)`` — the same step as a Newton solver (``SolverFace.step`` with a fixed head, no contact:
   the standalone step plus reading the controls and the head, and writing the particles). "× standalone" is
   its time per step over the peer's: the plug's overhead (goal <= 1.10).
+* ``standalone TissueSimulation, CG`` — the peer on the CG solver (the host-free path's tissue solver; on CUDA
+  the same as the first row).
+* ``SolverFace host-free, eager`` / ``graph replay`` — the plug with ``graph_capturable=True`` (docs/NEWTON.md §5:
+  every part of the step on the device, the tissue on the CG solver, the body-force solve and its launches taken
+  even with a still head): stepped eagerly, and as one step captured with ``wp.ScopedCapture`` and replayed with
+  ``wp.capture_launch`` (a CPU graph on the CPU, a CUDA graph on CUDA).
 * ``SolverFace 2 g load`` and Newton's ``SolverVBD``, ``SolverXPBD``, ``SolverSemiImplicit`` — the same tets,
   material (Newton's tets get the material's Lamé parameters, damping and density) and fixed nodes under a
   uniform 2 g body load (the head's extra gravity in a "hyper" replay), each stepped for the same simulated
@@ -85,27 +91,44 @@ def _skin(tetmesh, fixed):
 
 
 def overhead_rows(tetmesh, material, fixed, device, steps: int) -> list[dict]:
-    """Both start from the same moving state (the tissue released from a static sag), so every step solves."""
+    """Both start from the same moving state (the tissue released from a static sag), so every step solves. The
+    host-free (graph-capturable) SolverFace runs eagerly and as one captured step replayed (a CPU graph here)."""
     from warpface.fem import TissueSimulation
     from warpface.newton import SolverFace
 
     dt = 1.0e-3
     model, face = face_world(tetmesh, material, fixed, device)
     solver = SolverFace(model, face, dt=dt)
-    states = [model.state(), model.state()]
-    control = model.control()
     standalone = TissueSimulation(tetmesh, material, dt, fixed=fixed, device=device)
     start = 20.0 * static_reference(tetmesh, material, fixed)  # ~0.5 mm: a released sag, ringing down
     standalone.reset(start)
     solver.simulation.reset(start)
+    standalone_cg = TissueSimulation(tetmesh, material, dt, fixed=fixed, device=device, solver="cg")
+    standalone_cg.reset(start)
     sync = wp.synchronize_device if not wp.get_device(device).is_cpu else (lambda: None)
 
-    def plug():
-        solver.step(states[0], states[1], control, None, dt)
-        states.reverse()
+    def stepper(face_solver):
+        states, control = [model.state(), model.state()], model.control()
+
+        def step():
+            face_solver.step(states[0], states[1], control, None, dt)
+            states.reverse()
+
+        return step
+
+    host_free, captured = (SolverFace(model, face, dt=dt, graph_capturable=True) for _ in range(2))
+    for free in (host_free, captured):
+        free.simulation.reset(start)
+    replay_states, replay_control = model.state(), model.control()
+    captured.step(replay_states, replay_states, replay_control, None, dt)  # binds the arrays, loads the kernels
+    with wp.ScopedCapture(device=device) as capture:
+        captured.step(replay_states, replay_states, replay_control, None, dt)
+
+    def replay():
+        wp.capture_launch(capture.graph)
 
     # interleaved, step by step, so that a load change on a shared machine hits both alike
-    samples = {standalone.step: [], plug: []}
+    samples = {standalone.step: [], stepper(solver): [], standalone_cg.step: [], stepper(host_free): [], replay: []}
     for k in range(steps + 2):
         for function, times in samples.items():
             begin = time.perf_counter()
@@ -113,10 +136,15 @@ def overhead_rows(tetmesh, material, fixed, device, steps: int) -> list[dict]:
             sync()
             if k >= 2:
                 times.append(time.perf_counter() - begin)
-    peer, plugged = (float(np.median(times)) for times in samples.values())
+    host_free.synchronize()
+    captured.synchronize()
+    peer, plugged, peer_cg, free, graph = (float(np.median(times)) for times in samples.values())
     return [
         {"row": "standalone TissueSimulation", "ms": 1e3 * peer, "ratio": 1.0},
         {"row": "SolverFace (plug)", "ms": 1e3 * plugged, "ratio": plugged / peer},
+        {"row": "standalone TissueSimulation, CG", "ms": 1e3 * peer_cg, "ratio": peer_cg / peer},
+        {"row": "SolverFace host-free, eager", "ms": 1e3 * free, "ratio": free / peer},
+        {"row": "SolverFace host-free, graph replay", "ms": 1e3 * graph, "ratio": graph / peer},
     ]
 
 

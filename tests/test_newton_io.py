@@ -87,9 +87,10 @@ def test_nan_controls_are_refused_and_the_state_stays_finite(shell):
     assert np.isfinite(state_out.particle_q.numpy()).all()
 
 
-def test_a_contact_that_would_invert_a_tet_is_clamped_and_reported():
+@pytest.mark.parametrize("capturable", [False, True])
+def test_a_contact_that_would_invert_a_tet_is_clamped_and_reported(capturable):
     """A big sphere driven 3 cm into an 8 mm tissue: the contact forces are scaled back, every tet stays
-    upright, and the step says so."""
+    upright, and the step says so (the host path warns; the host-free path reports it on the device)."""
     from warpface.fem.tetmesh import tet_signed_volumes
 
     rig, tetmesh, fixed, outer = shell_face(8, 1, span_u=0.6, span_v=0.5, thickness=0.008)
@@ -98,14 +99,18 @@ def test_a_contact_that_would_invert_a_tet_is_clamped_and_reported():
     builder.add_shape_sphere(sphere, radius=0.05)
     face = add_face(builder, rig, tissue=(tetmesh, MATERIAL), fixed=fixed, driven=[], contact_radius=1e-4)
     model = builder.finalize(device="cpu")
-    solver = SolverFace(model, face)
+    solver = SolverFace(model, face, graph_capturable=capturable)
     pipeline = newton.CollisionPipeline(model, soft_contact_gap=0.003)
     contacts = pipeline.contacts()
     state_in, state_out, control = model.state(), model.state(), model.control()
     state_out.body_q.assign(state_in.body_q.numpy())
     pipeline.collide(state_in, contacts)
-    with pytest.warns(RuntimeWarning, match="scaled"):
+    if capturable:
         solver.step(state_in, state_out, control, contacts, 1e-3)
+        solver.synchronize()
+    else:
+        with pytest.warns(RuntimeWarning, match="scaled"):
+            solver.step(state_in, state_out, control, contacts, 1e-3)
     assert solver.contact_report.clamped and solver.clamped_steps == 1
     positions = state_out.particle_q.numpy()[face.particles].astype(np.float64)
     assert np.isfinite(positions).all()
@@ -174,14 +179,15 @@ def test_a_rig_stage_with_tissue_loads_into_newton_and_records_a_point_cache(she
     assert read_rig(reopened).mesh.vertex_count == rig.mesh.vertex_count
 
 
-def test_reset_and_a_changed_material(shell):
+@pytest.mark.parametrize("capturable", [False, True])
+def test_reset_and_a_changed_material(shell, capturable):
     """reset puts the tissue back at rest at the state's head pose; notify_model_changed(MODEL_PROPERTIES) picks
-    up the model's warpface:youngs_modulus and rebuilds the FEM with it."""
+    up the model's warpface:youngs_modulus and rebuilds the FEM with it (on either path)."""
     rig, tetmesh, fixed, _ = shell
     builder = newton.ModelBuilder()
     face = add_face(builder, rig, tissue=(tetmesh, MATERIAL), fixed=fixed)
     model = builder.finalize(device="cpu")
-    solver = SolverFace(model, face, dt=1e-3)
+    solver = SolverFace(model, face, dt=1e-3, graph_capturable=capturable)
     state_in, state_out, control = model.state(), model.state(), model.control()
     control.warpface.activation.assign(np.array([0.02], dtype=np.float32))
     for _ in range(5):
@@ -201,6 +207,9 @@ def test_reset_and_a_changed_material(shell):
     assert np.allclose(solver.material.E, 2.0 * MATERIAL.E, rtol=1e-6)
     solver.notify_model_changed(newton.ModelFlags.SHAPE_PROPERTIES)  # nothing of the face's: nothing rebuilt
     assert solver.material.E.shape == (tetmesh.tet_count,)
+    solver.step(state_in, state_out, control, None, 1e-3)  # the rebuilt solver steps on
+    solver.synchronize()
+    assert np.isfinite(state_out.particle_q.numpy()).all() and np.abs(solver.simulation.d).max() > 0.0
 
 
 def test_add_face_arguments_fuzzed(shell):

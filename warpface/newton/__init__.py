@@ -6,8 +6,10 @@
 per-skin-vertex data), and returns a :class:`NewtonFace` handle. :class:`SolverFace` is a
 ``newton.solvers.SolverBase`` that advances the face: expression model -> driven displacements -> warpface's
 Newmark-beta tissue FEM in the moving frame of the head body, with Newton's particle-shape soft contacts as
-forces on the skin nodes. :class:`SkinRecorder` records the render skin of a run and writes it as a
-time-sampled point cache with warpface's bake writer. The loop and the moving-frame formula: ``docs/NEWTON.md``.
+forces on the skin nodes; on CUDA (or with ``graph_capturable=True``) its step is kernel launches only, so
+``wp.ScopedCapture`` can capture it (docs/NEWTON.md §5). :class:`SkinRecorder` records the render skin of a run
+and writes it as a time-sampled point cache with warpface's bake writer. The loop and the moving-frame formula:
+``docs/NEWTON.md``.
 
 This package imports ``newton`` (not ``import warpface``): without it, importing ``warpface.newton`` raises an
 ImportError that says how to install it.

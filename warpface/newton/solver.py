@@ -9,6 +9,7 @@ Newton particles in the world (``x = p + R (X + d)``).
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import newton
@@ -16,54 +17,20 @@ import numpy as np
 import warp as wp
 
 from ..fem import TissueMaterial, TissueSimulation
+from ..fem.options import as_cg_options
 from ..fem.solver_direct import factorize_spd, node_dofs
+from .capturable import CapturablePath
 from .contact import ContactReport, gather_contacts, solve_contacts, upright_scale
 from .face import NAMESPACE, ROLE_DRIVEN, ROLE_FIXED, ROLE_FREE, NewtonFace, register_face_attributes
 from .frame import HeadMotion, body_force, head_motion
+from .kernels import Frame, TissueNodes, place_nodes
 
 __all__ = ["SolverFace"]
-
-
-@wp.struct
-class _Frame:
-    """The head frame at the end of a step: pose, origin velocity [m/s] and angular velocity [rad/s] (world)."""
-
-    head: wp.transformd
-    origin_velocity: wp.vec3d
-    omega: wp.vec3d
 
 
 def _model_gravity(model) -> np.ndarray:
     gravity = np.asarray(model.gravity.numpy(), dtype=np.float64).reshape(-1, 3)
     return gravity[0]
-
-
-@wp.struct
-class _Nodes:
-    """The tissue in the head frame (rest positions, displacement [m], velocity [m/s]) and its first particle."""
-
-    rest: wp.array(dtype=wp.vec3d)
-    d: wp.array(dtype=wp.vec3d)
-    v: wp.array(dtype=wp.vec3d)
-    start: int
-
-
-@wp.kernel
-def _place_nodes(
-    frame: _Frame, nodes: _Nodes, q: wp.array(dtype=wp.vec3), qd: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)
-):
-    """World position ``q`` and velocity ``qd`` of each tissue node: ``x = p + R (X + d)``, ``ẋ = v_O + ω × R (X + d)
-    + R ḋ``; ``out`` the ``warpface:displacement`` state attribute (empty when the state has none)."""
-    i = wp.tid()
-    arm = wp.transform_vector(frame.head, nodes.rest[i] + nodes.d[i])
-    x = wp.transform_get_translation(frame.head) + arm
-    xd = frame.origin_velocity + wp.cross(frame.omega, arm) + wp.transform_vector(frame.head, nodes.v[i])
-    j = nodes.start + i
-    q[j] = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
-    qd[j] = wp.vec3(wp.float32(xd[0]), wp.float32(xd[1]), wp.float32(xd[2]))
-    if out.shape[0] > 0:
-        d = nodes.d[i]
-        out[j] = wp.vec3(wp.float32(d[0]), wp.float32(d[1]), wp.float32(d[2]))
 
 
 def _namespace(obj):
@@ -88,11 +55,19 @@ class SolverFace(newton.solvers.SolverBase):
             gravity in the head frame at :meth:`reset` (or at the first step).
         inertia: Apply the head's inertial body force (docs/NEWTON.md §2); off: the tissue only rides along.
         formulation, solver, beta, gamma, cg: As :class:`~warpface.fem.TissueSimulation`.
+        graph_capturable: Step on the host-free path (docs/NEWTON.md §5): kernel launches and device copies only,
+            so ``wp.ScopedCapture`` can capture :meth:`step`; default on CUDA devices. It steps the tissue with the
+            CG solver (``solver`` "auto" or "cg"; float64) and takes contacts as penalty forces; its errors are raised
+            by :meth:`synchronize`.
+        contact_stiffness: The host-free path's contact penalty, in multiples of the node's diagonal stiffness
+            ``nᵀ A_oo[i, i] n`` (a closed gap is left at about ``1 / (1 + contact_stiffness)`` of its depth).
+        contact_passes: The host-free path's active-set passes of the contact solve per step.
 
     Raises:
         TypeError: ``face`` is not a NewtonFace.
         ValueError: ``model`` was not built with ``add_face`` for this face (no ``warpface`` attributes, or
-            other particle roles), or the face's head body is not in the model.
+            other particle roles), the face's head body is not in the model, ``graph_capturable`` with the direct
+            solver or a float32 CG, or a contact option that is not positive.
     """
 
     def __init__(
@@ -109,6 +84,9 @@ class SolverFace(newton.solvers.SolverBase):
         beta: float = 0.25,
         gamma: float = 0.5,
         cg=None,
+        graph_capturable: bool | None = None,
+        contact_stiffness: float = 100.0,
+        contact_passes: int = 3,
     ):
         super().__init__(model)
         if not isinstance(face, NewtonFace):
@@ -118,6 +96,15 @@ class SolverFace(newton.solvers.SolverBase):
         """The face."""
         self.material = face.material
         """The tissue's material (the model's ``warpface:*`` per-tet values after :meth:`notify_model_changed`)."""
+        self.graph_capturable = _capturable(graph_capturable, solver, cg, model.device)
+        """Whether :meth:`step` is the host-free path (docs/NEWTON.md §5): kernel launches only, capturable."""
+        if self.graph_capturable:
+            solver, cg = "cg", dataclasses.replace(as_cg_options(cg), use_graph=False)
+        self._capturable_options = dict(
+            contact_stiffness=_positive(contact_stiffness, "contact_stiffness"),
+            contact_passes=int(_positive(contact_passes, "contact_passes", whole=True)),
+        )
+        self._capturable: CapturablePath | None = None
         self._options = dict(formulation=formulation, solver=solver, beta=beta, gamma=gamma, cg=cg)
         self._gravity_override = None if gravity is None else _vector(gravity, "gravity")
         self._rest_gravity = None if rest_gravity is None else _vector(rest_gravity, "rest_gravity")
@@ -130,9 +117,7 @@ class SolverFace(newton.solvers.SolverBase):
         self.simulation: TissueSimulation | None = None
         """The tissue FEM (built at the first step, or here when ``dt`` is given)."""
         self.contact_report = ContactReport()
-        """What the last step did with its contacts (:class:`~warpface.newton.contact.ContactReport`)."""
-        self.clamped_steps = 0
-        """Steps whose contact forces were scaled back to keep every tet upright."""
+        self._clamped_steps = 0
         n = face.tetmesh.node_count
         self._rest = np.ascontiguousarray(face.tetmesh.points, dtype=np.float64)
         self._rest_wp = wp.array(self._rest, dtype=wp.vec3d, device=model.device)
@@ -160,6 +145,8 @@ class SolverFace(newton.solvers.SolverBase):
             return
         if self._gravity_override is None:
             self.gravity = _model_gravity(self.model)
+            if self._capturable is not None:
+                self._capturable.set_gravity(self.gravity)
         attrs, face = _namespace(self.model), self.face
         tets = slice(face.tet_start, face.tet_start + face.tetmesh.tet_count)
         E, nu, eta = (getattr(attrs, name).numpy()[tets] for name in ("youngs_modulus", "poisson_ratio", "viscosity"))
@@ -181,9 +168,37 @@ class SolverFace(newton.solvers.SolverBase):
             self._rest_gravity_auto = True
         if self.simulation is not None:
             self.simulation.reset()
+        if self._capturable is not None:
+            self._capturable.reset()
+            self._capturable.set_rest_gravity(self._rest_gravity)
         self._last_controls = None
         self.contact_report = ContactReport()
         self._write_particles(state, motion)
+
+    @property
+    def contact_report(self) -> ContactReport:
+        """What the last step did with its contacts (:class:`~warpface.newton.contact.ContactReport`; on the
+        host-free path read from the device)."""
+        return self._contact_report if self._capturable is None else self._capturable.report()
+
+    @contact_report.setter
+    def contact_report(self, report: ContactReport) -> None:
+        self._contact_report = report
+
+    @property
+    def clamped_steps(self) -> int:
+        """Steps whose contact forces were scaled back to keep every tet upright."""
+        return self._clamped_steps + (0 if self._capturable is None else self._capturable.clamped_count())
+
+    def synchronize(self) -> None:
+        """Wait for the queued steps and raise what they booked on the device (the host-free path raises nothing
+        inside :meth:`step`): ValueError for a non-finite control (the steps held the last good ones),
+        FloatingPointError for a non-finite correction (skipped), :class:`~warpface.errors.ConvergenceError` for a
+        CG solve above its tolerance."""
+        if self.simulation is not None:
+            self.simulation.synchronize()
+        if self._capturable is not None:
+            self._capturable.raise_errors()
 
     def step(self, state_in, state_out, control, contacts, dt: float, *, observables=None) -> None:
         """Advance the face one time step ``dt`` [s] (module docstring).
@@ -193,6 +208,9 @@ class SolverFace(newton.solvers.SolverBase):
             FloatingPointError: the step produced non-finite displacements (the state is left as it was).
         """
         sim = self._build(dt)
+        if self._capturable is not None:
+            self._capturable.run(state_in, state_out, control, contacts)
+            return
         face = self.face
         if self._rest_gravity is None:
             self._rest_gravity = head_motion(self.model, state_in, state_in, face.head_body, 1.0).rotation.T @ (
@@ -248,6 +266,12 @@ class SolverFace(newton.solvers.SolverBase):
 
             self._solve = solve
         self.simulation = sim
+        if self.graph_capturable:
+            previous, self._capturable = self._capturable, CapturablePath(self, sim, **self._capturable_options)
+            if self._rest_gravity is not None:
+                self._capturable.set_rest_gravity(self._rest_gravity)
+            elif previous is not None:  # a rebuild (another dt) keeps the rest gravity its first step took
+                self._capturable.keep_rest_gravity(previous)
         self._last_controls = None
         self._launches.clear()
         self._launch_pose.clear()
@@ -319,7 +343,7 @@ class SolverFace(newton.solvers.SolverBase):
             count=int(found.nodes.size), active=int((lam > 0).sum()), total_force=float(lam.sum() * scale), scale=scale
         )
         if scale < 1.0:
-            self.clamped_steps += 1
+            self._clamped_steps += 1
             warnings.warn(
                 f"SolverFace: contact forces scaled to {scale:.3f} so that no tet is squashed below its volume limit",
                 RuntimeWarning,
@@ -328,7 +352,7 @@ class SolverFace(newton.solvers.SolverBase):
         return scale * extra
 
     def _write_particles(self, state, motion: HeadMotion) -> None:
-        """Launch :func:`_place_nodes` into ``state`` (the launch recorded once per pair of state arrays)."""
+        """Launch :func:`~warpface.newton.kernels.place_nodes` into ``state`` (recorded once per pair of arrays)."""
         sim, face = self.simulation, self.face
         device = self.model.device
         if sim is None:
@@ -343,14 +367,14 @@ class SolverFace(newton.solvers.SolverBase):
         launch = self._launches.get(key)
         if launch is None:
             attrs = _namespace(state)
-            nodes = _Nodes()
+            nodes = TissueNodes()
             nodes.rest, nodes.d, nodes.v, nodes.start = self._rest_wp, d, v, face.particle_start
             out = getattr(attrs, "displacement", None) if attrs is not None else None
             out = wp.zeros(0, dtype=wp.vec3, device=device) if out is None else out
             launch = wp.launch(
-                _place_nodes,
+                place_nodes,
                 dim=face.tetmesh.node_count,
-                inputs=[_Frame(), nodes, state.particle_q, state.particle_qd, out],
+                inputs=[Frame(), nodes, state.particle_q, state.particle_qd, out],
                 device=device,
                 record_cmd=True,
             )
@@ -359,7 +383,7 @@ class SolverFace(newton.solvers.SolverBase):
         pose = (motion.position.tobytes(), motion.rotation.tobytes(), motion.velocity.tobytes())
         pose += (motion.angular_velocity.tobytes(),)
         if self._launch_pose.get(key) != pose:  # a still head (the world) keeps the recorded frame
-            frame = _Frame()
+            frame = Frame()
             frame.head = wp.transformd(wp.vec3d(*motion.position), wp.quatd(*_rotation_quat(motion.rotation)))
             frame.origin_velocity = wp.vec3d(*motion.velocity)
             frame.omega = wp.vec3d(*motion.angular_velocity)
@@ -384,6 +408,27 @@ def _rotation_quat(R: np.ndarray) -> tuple[float, float, float, float]:
         q[k] = (R[k, i] + R[i, k]) / s
         q = tuple(q)
     return tuple(float(c) for c in q)
+
+
+def _capturable(requested, solver, cg, device) -> bool:
+    """Whether the host-free path is taken (``requested``, or a CUDA device); ValueError where it cannot be."""
+    if requested is not None and not isinstance(requested, (bool, np.bool_)):
+        raise TypeError(f"SolverFace: graph_capturable must be a bool or None, got {type(requested).__name__}")
+    on = device.is_cuda if requested is None else bool(requested)
+    if on and solver == "direct":
+        raise ValueError("SolverFace: graph_capturable steps the tissue with solver='cg', not 'direct'")
+    if on and as_cg_options(cg).dtype != wp.float64:
+        raise ValueError("SolverFace: graph_capturable needs a float64 CG state (CGOptions(dtype=wp.float64))")
+    return on
+
+
+def _positive(value, name: str, *, whole: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"SolverFace: {name} must be a number, got {type(value).__name__}")
+    number = float(value)
+    if not (np.isfinite(number) and number > 0.0) or (whole and number != round(number)):
+        raise ValueError(f"SolverFace: {name} must be a positive {'whole ' if whole else ''}number, got {value!r}")
+    return number
 
 
 def _vector(value, name: str) -> np.ndarray:
