@@ -1,0 +1,101 @@
+"""Residuals of the examples and their derivative w.r.t. the geometry parameters (docs/RIG.md §11).
+
+No kernel gives ∂x/∂θ for a muscle's ends or zone, so the Jacobian is taken by finite differences over the
+evaluator: each column rebuilds the rig with one parameter moved (:func:`~warpface.assets.calibrated.apply_parameters`)
+and evaluates every example's controls in one batch (:meth:`warpface.ExpressionModel.evaluate`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..assets.calibrated import Parameter, apply_parameters
+from ..rig import FaceRig
+
+__all__ = ["ResidualLayout", "residual_layout", "residuals", "jacobian"]
+
+DIFFERENCES = ("forward", "central")
+
+
+@dataclass(frozen=True)
+class ResidualLayout:
+    """Which vertices of which example enter the residual, and their weights.
+
+    ``rows[s]`` are the vertex indices of example ``s`` (its moved vertices, thinned to at most a given count);
+    ``weight[s] = 1 / (before_s · sqrt(|rows_s| · S))`` so that ``|r|²`` is the mean over examples of
+    ``mean |x − T|² / before²``; ``targets[s]`` the example's points at ``rows[s]``.
+    """
+
+    rows: tuple[np.ndarray, ...]
+    weight: np.ndarray
+    targets: tuple[np.ndarray, ...]
+
+
+def residual_layout(rig: FaceRig, shapes, moved, before, *, max_rows: int = 1000) -> ResidualLayout:
+    """The residual's rows: each example's moved vertices (boolean (V,) each) thinned evenly to ``max_rows``."""
+    rows, weights, targets = [], [], []
+    count = len(shapes)
+    for shape, mask, error in zip(shapes, moved, before):
+        index = np.flatnonzero(mask)
+        if len(index) > max_rows:
+            index = index[np.linspace(0, len(index) - 1, max_rows).round().astype(np.int64)]
+        rows.append(index)
+        weights.append(1.0 / (max(error, 1e-12) * np.sqrt(len(index) * count)))
+        targets.append(np.asarray(shape.points, dtype=np.float64)[index])
+    return ResidualLayout(tuple(rows), np.asarray(weights), tuple(targets))
+
+
+def residuals(rig: FaceRig, controls: np.ndarray, layout: ResidualLayout, *, device=None) -> np.ndarray:
+    """The stacked weighted residual ``w_s·(x(c_s) − T_s)`` at the layout's rows, flat (Σ 3·|rows_s|,)."""
+    frames = np.asarray(rig.model(device=device).evaluate(np.asarray(controls, dtype=np.float64)), dtype=np.float64)
+    frames = frames.reshape(len(layout.rows), -1, 3)
+    parts = [
+        (frame[rows] - target).ravel() * weight
+        for frame, rows, target, weight in zip(frames, layout.rows, layout.targets, layout.weight)
+    ]
+    return np.concatenate(parts)
+
+
+def _values(layout: list[Parameter], theta: np.ndarray) -> dict:
+    return {p.key: float(v) for p, v in zip(layout, theta)}
+
+
+def jacobian(
+    base: FaceRig,
+    parameters: list[Parameter],
+    theta: np.ndarray,
+    controls: np.ndarray,
+    layout: ResidualLayout,
+    *,
+    step: float = 0.05,
+    difference: str = "forward",
+    device=None,
+    r0: np.ndarray | None = None,
+) -> np.ndarray:
+    """``∂r/∂θ`` (rows, P) float32 at ``theta`` with the controls held: finite differences, each parameter moved
+    by ``step·σ`` (its prior's standard deviation); ``difference`` is ``"forward"`` (one rebuild per column,
+    ``r0`` reused) or ``"central"`` (two)."""
+    if difference not in DIFFERENCES:
+        raise ValueError(f"difference: expected one of {', '.join(DIFFERENCES)}, got {difference!r}")
+    theta = np.asarray(theta, dtype=np.float64)
+    if r0 is None and difference == "forward":
+        r0 = residuals(apply_parameters(base, _values(parameters, theta)), controls, layout, device=device)
+    columns = None
+    for k, parameter in enumerate(parameters):
+        h = step * parameter.sigma
+        ahead = theta.copy()
+        ahead[k] += h
+        r_plus = residuals(apply_parameters(base, _values(parameters, ahead)), controls, layout, device=device)
+        if difference == "central":
+            behind = theta.copy()
+            behind[k] -= h
+            r_minus = residuals(apply_parameters(base, _values(parameters, behind)), controls, layout, device=device)
+            column = (r_plus - r_minus) / (2.0 * h)
+        else:
+            column = (r_plus - r0) / h
+        if columns is None:
+            columns = np.empty((len(column), len(parameters)), dtype=np.float32)
+        columns[:, k] = column
+    return columns
