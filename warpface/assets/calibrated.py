@@ -35,7 +35,18 @@ __all__ = [
 ]
 
 PARAMETER_FIELDS: dict[str, tuple[str, ...]] = {
-    "linear": ("attach_x", "attach_y", "attach_z", "insert_x", "insert_y", "zone", "start", "finish", "sliding", "bunching"),
+    "linear": (
+        "attach_x",
+        "attach_y",
+        "attach_z",
+        "insert_x",
+        "insert_y",
+        "zone",
+        "start",
+        "finish",
+        "sliding",
+        "bunching",
+    ),
     "sphincter": ("centre_x", "centre_y", "semi_x", "semi_y", "ring", "sliding", "bunching"),
 }
 """The fields of each group kind (a new mechanism adds its kind, its fields and an ``_apply_*``)."""
@@ -100,11 +111,11 @@ def _kind(muscle) -> str:
     return "linear" if isinstance(muscle, LinearMuscle) else "sphincter"
 
 
-def parameter_layout(rig: FaceRig, muscles=None) -> list[Parameter]:
-    """Every parameter of the rig's muscle groups (or of those named in ``muscles``), in rig order.
-
-    Midline groups have no x offsets (they stay on the midline)."""
+def parameter_layout(rig: FaceRig, muscles=None, fields=None) -> list[Parameter]:
+    """Every parameter of the rig's muscle groups (or of those named in ``muscles``; only ``fields`` when given),
+    in rig order. Midline groups have no x offsets (they stay on the midline)."""
     wanted = None if muscles is None else set(muscles)
+    chosen = None if fields is None else set(fields)
     layout, seen = [], set()
     for muscle in rig.muscles:
         group, side = muscle_group(muscle.name)
@@ -113,18 +124,18 @@ def parameter_layout(rig: FaceRig, muscles=None) -> list[Parameter]:
         seen.add(group)
         kind = _kind(muscle)
         for field in PARAMETER_FIELDS[kind]:
-            if side == 0.0 and field.endswith("_x") and field != "semi_x":
+            if (side == 0.0 and field.endswith("_x") and field != "semi_x") or (chosen and field not in chosen):
                 continue
             layout.append(Parameter(group, kind, field))
     return layout
 
 
-def _frame_of(rig: FaceRig) -> tuple[FaceFrame, SurfaceSampler]:
+def _frame_of(rig: FaceRig, device) -> tuple[FaceFrame, SurfaceSampler]:
     if rig.landmarks is None or len(rig.landmarks) != 68:
         raise RigError(f"rig {rig.name!r}: calibration needs the 68 iBUG landmarks (the rig has none)")
     landmarks = check_landmarks(rig.mesh, rig.landmarks, label=f"rig {rig.name!r}: landmarks")
     frame = FaceFrame.from_landmarks(rig.mesh.points[landmarks])
-    return frame, SurfaceSampler(rig.mesh, frame, rig.mesh.vertex_normals())
+    return frame, SurfaceSampler(rig.mesh, frame, rig.mesh.vertex_normals(device=device))
 
 
 def _response(muscle, values: dict) -> dict:
@@ -174,8 +185,9 @@ def _apply_sphincter(muscle: SphincterMuscle, side: float, values: dict, frame: 
 _APPLY = {"linear": _apply_linear, "sphincter": _apply_sphincter}
 
 
-def apply_parameters(rig: FaceRig, values) -> FaceRig:
-    """``rig`` with its muscles changed by ``values``: ``{(group, field): value}`` (missing = 0).
+def apply_parameters(rig: FaceRig, values, *, device=None) -> FaceRig:
+    """``rig`` with its muscles changed by ``values``: ``{(group, field): value}`` (missing = 0); ``device``: Warp
+    device of the vertex normals.
 
     Raises:
         RigError: the rig has no 68 landmarks; a group no muscle of the rig has; an unknown field.
@@ -193,7 +205,7 @@ def apply_parameters(rig: FaceRig, values) -> FaceRig:
         if not np.isfinite(value):
             raise RigError(f"calibrated parameters: {group}.{field} is not finite")
         by_group.setdefault(group, {})[field] = value
-    frame, surface = _frame_of(rig)
+    frame, surface = _frame_of(rig, device)
     muscles = []
     for muscle in rig.muscles:
         group, side = muscle_group(muscle.name)
@@ -208,4 +220,6 @@ def load_calibrated_anatomy(path=CALIBRATED_ANATOMY) -> dict[tuple[str, str], fl
     if not path.is_file():
         return {}
     data = json.loads(path.read_text())
-    return {(group, field): float(v) for group, fields in data.get("parameters", {}).items() for field, v in fields.items()}
+    return {
+        (group, field): float(v) for group, fields in data.get("parameters", {}).items() for field, v in fields.items()
+    }

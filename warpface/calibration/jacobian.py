@@ -81,17 +81,23 @@ def jacobian(
         raise ValueError(f"difference: expected one of {', '.join(DIFFERENCES)}, got {difference!r}")
     theta = np.asarray(theta, dtype=np.float64)
     if r0 is None and difference == "forward":
-        r0 = residuals(apply_parameters(base, _values(parameters, theta)), controls, layout, device=device)
+        r0 = residuals(
+            apply_parameters(base, _values(parameters, theta), device=device), controls, layout, device=device
+        )
     columns = None
     for k, parameter in enumerate(parameters):
         h = step * parameter.sigma
         ahead = theta.copy()
         ahead[k] += h
-        r_plus = residuals(apply_parameters(base, _values(parameters, ahead)), controls, layout, device=device)
+        r_plus = residuals(
+            apply_parameters(base, _values(parameters, ahead), device=device), controls, layout, device=device
+        )
         if difference == "central":
             behind = theta.copy()
             behind[k] -= h
-            r_minus = residuals(apply_parameters(base, _values(parameters, behind)), controls, layout, device=device)
+            r_minus = residuals(
+                apply_parameters(base, _values(parameters, behind), device=device), controls, layout, device=device
+            )
             column = (r_plus - r_minus) / (2.0 * h)
         else:
             column = (r_plus - r0) / h

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..assets.calibrated import Parameter, apply_parameters, parameter_layout
 from ..rig import FaceRig
-from .jacobian import jacobian, residual_layout
+from .jacobian import jacobian, residual_layout, residuals
 from .reach import moved_vertices, reach
 
 __all__ = ["Trial", "Optimisation", "optimise", "active_muscles"]
@@ -73,6 +73,7 @@ def optimise(
     difference: str = "forward",
     max_rows: int = 1000,
     muscles=None,
+    fields=None,
     device=None,
     log=None,
     **options,
@@ -93,6 +94,7 @@ def optimise(
         difference: ``"forward"`` or ``"central"`` finite differences.
         max_rows: at most this many moved vertices per example in the residual.
         muscles: calibrate only these muscles (names or groups); default those the examples use.
+        fields: calibrate only these fields (:data:`~warpface.assets.calibrated.PARAMETER_FIELDS`); default all.
         device: Warp device.
         log: a callable taking one line of progress, or None.
         **options: :class:`~warpface.solve.SolveOptions` fields for the fits.
@@ -102,7 +104,7 @@ def optimise(
     rows = reach(rig, shapes, millimetre=millimetre, device=device, **options)
     if muscles is None:
         muscles = active_muscles(rig, rows)
-    parameters = parameter_layout(rig, muscles)
+    parameters = parameter_layout(rig, muscles, fields)
     sigma = np.array([p.sigma for p in parameters])
     theta = np.zeros(len(parameters))
     start = rows
@@ -114,9 +116,7 @@ def optimise(
     layout = residual_layout(rig, shapes, moved, [row["before"] for row in rows], max_rows=max_rows)
     for iteration in range(iterations):
         controls = np.array([row["controls"] for row in rows])
-        current = apply_parameters(rig, {p.key: v for p, v in zip(parameters, theta)})
-        from .jacobian import residuals
-
+        current = apply_parameters(rig, {p.key: v for p, v in zip(parameters, theta)}, device=device)
         r0 = residuals(current, controls, layout, device=device)
         J = jacobian(rig, parameters, theta, controls, layout, difference=difference, device=device, r0=r0)
         J = J.astype(np.float64)
@@ -127,7 +127,7 @@ def optimise(
         for _ in range(3):
             step = -np.linalg.solve(normal + damping * np.diag(np.diag(normal)), gradient)
             trial_theta = np.clip(theta + step, -3.0 * sigma, 3.0 * sigma)
-            trial_rig = apply_parameters(rig, {p.key: v for p, v in zip(parameters, trial_theta)})
+            trial_rig = apply_parameters(rig, {p.key: v for p, v in zip(parameters, trial_theta)}, device=device)
             trial_rows = reach(trial_rig, shapes, millimetre=millimetre, device=device, **options)
             data, prior = _terms(trial_rows, trial_theta, sigma, prior_weight)
             accepted = data + prior < best

@@ -14,8 +14,10 @@ MOVED_MM = 0.2
 
 
 def moved_vertices(rest: np.ndarray, target: np.ndarray, millimetre: float) -> np.ndarray:
-    """Boolean (V,): the vertices the target moves more than :data:`MOVED_MM` (``millimetre``: 1 mm in mesh units)."""
-    return np.linalg.norm(target - rest, axis=1) > MOVED_MM * millimetre
+    """Boolean (V,): the vertices the target moves more than :data:`MOVED_MM` (``millimetre``: 1 mm in mesh units);
+    every vertex when none moves that far."""
+    moved = np.linalg.norm(target - rest, axis=1) > MOVED_MM * millimetre
+    return moved if moved.any() else np.ones(len(rest), dtype=bool)
 
 
 def _mean_error(points, target, moved) -> float:
@@ -50,8 +52,6 @@ def reach(rig: FaceRig, shapes, *, millimetre: float = 1e-3, landmarks: bool = F
     for shape in shapes:
         target = shape.points
         moved = moved_vertices(rest, target, millimetre)
-        if not moved.any():
-            moved = np.ones(len(rest), dtype=bool)
         solved = fit(rig, target if rows is None else target[rows], vertices=rows, device=device, **options)
         points = np.asarray(solved.points, dtype=np.float64)
         before, after = _mean_error(rest, target, moved), _mean_error(points, target, moved)

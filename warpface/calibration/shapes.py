@@ -36,7 +36,9 @@ def arkit_name(stem: str) -> str | None:
             base = text[: -len(suffix)]
             sided = _ARKIT.get((base + side).lower())
             # ICT splits some of ARKit's unsided channels per side (browInnerUp_L, cheekPuff_R)
-            return sided if sided is not None else (None if base.lower() not in _ARKIT else _ARKIT[base.lower()] + suffix)
+            return (
+                sided if sided is not None else (None if base.lower() not in _ARKIT else _ARKIT[base.lower()] + suffix)
+            )
     return _ARKIT.get(text.lower())
 
 
