@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers import small_face_rig
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -23,8 +24,6 @@ from warpface.calibration import ExampleShape, calibrate, read_shapes, write_rep
 from warpface.calibration.shapes import arkit_name
 from warpface.drivers.channels import ARKIT_CHANNELS
 from warpface.errors import RigError
-
-from helpers import small_face_rig
 
 
 @pytest.fixture(scope="module")

@@ -13,6 +13,7 @@ to any face rigged from its landmarks. The zero vector leaves the rig unchanged.
 from __future__ import annotations
 
 import json
+import weakref
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -30,6 +31,7 @@ __all__ = [
     "parameter_layout",
     "apply_parameters",
     "muscle_group",
+    "EVERY_MUSCLE",
     "CALIBRATED_ANATOMY",
     "load_calibrated_anatomy",
 ]
@@ -50,6 +52,11 @@ PARAMETER_FIELDS: dict[str, tuple[str, ...]] = {
     "sphincter": ("centre_x", "centre_y", "semi_x", "semi_y", "ring", "sliding", "bunching"),
 }
 """The fields of each group kind (a new mechanism adds its kind, its fields and an ``_apply_*``)."""
+
+EVERY_MUSCLE = "all"
+"""The group whose values every muscle adds to its own (the fields of :data:`SHARED_FIELDS` it has): learnt from
+every example, it carries to the muscles no example uses."""
+SHARED_FIELDS = ("zone", "start", "finish", "sliding", "bunching", "semi_x", "semi_y")
 
 PRIOR_SIGMA: dict[str, float] = {
     "attach_x": 0.06,
@@ -117,6 +124,8 @@ def parameter_layout(rig: FaceRig, muscles=None, fields=None) -> list[Parameter]
     wanted = None if muscles is None else set(muscles)
     chosen = None if fields is None else set(fields)
     layout, seen = [], set()
+    if wanted is None or EVERY_MUSCLE in wanted:
+        layout += [Parameter(EVERY_MUSCLE, "shared", f) for f in SHARED_FIELDS if not chosen or f in chosen]
     for muscle in rig.muscles:
         group, side = muscle_group(muscle.name)
         if group in seen or (wanted is not None and muscle.name not in wanted and group not in wanted):
@@ -130,12 +139,21 @@ def parameter_layout(rig: FaceRig, muscles=None, fields=None) -> list[Parameter]
     return layout
 
 
+_SAMPLERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+"""mesh → (landmark bytes, frame, sampler): a calibration applies thousands of vectors to one rig's mesh."""
+
+
 def _frame_of(rig: FaceRig, device) -> tuple[FaceFrame, SurfaceSampler]:
     if rig.landmarks is None or len(rig.landmarks) != 68:
         raise RigError(f"rig {rig.name!r}: calibration needs the 68 iBUG landmarks (the rig has none)")
     landmarks = check_landmarks(rig.mesh, rig.landmarks, label=f"rig {rig.name!r}: landmarks")
+    cached = _SAMPLERS.get(rig.mesh)
+    if cached is not None and cached[0] == landmarks.tobytes():
+        return cached[1], cached[2]
     frame = FaceFrame.from_landmarks(rig.mesh.points[landmarks])
-    return frame, SurfaceSampler(rig.mesh, frame, rig.mesh.vertex_normals(device=device))
+    sampler = SurfaceSampler(rig.mesh, frame, rig.mesh.vertex_normals(device=device))
+    _SAMPLERS[rig.mesh] = (landmarks.tobytes(), frame, sampler)
+    return frame, sampler
 
 
 def _response(muscle, values: dict) -> dict:
@@ -196,8 +214,14 @@ def apply_parameters(rig: FaceRig, values, *, device=None) -> FaceRig:
     if not values:
         return rig
     groups = {muscle_group(m.name)[0]: _kind(m) for m in rig.muscles}
+    shared = {field: value for (group, field), value in values.items() if group == EVERY_MUSCLE}
+    unknown = [field for field in shared if field not in SHARED_FIELDS]
+    if unknown:
+        raise RigError(f"calibrated parameters: the group {EVERY_MUSCLE!r} has no field {unknown[0]!r}")
     by_group: dict[str, dict[str, float]] = {}
     for (group, field), value in values.items():
+        if group == EVERY_MUSCLE:
+            continue
         if group not in groups:
             raise RigError(f"calibrated parameters: rig {rig.name!r} has no muscle group {group!r}")
         if field not in PARAMETER_FIELDS[groups[group]]:
@@ -209,8 +233,11 @@ def apply_parameters(rig: FaceRig, values, *, device=None) -> FaceRig:
     muscles = []
     for muscle in rig.muscles:
         group, side = muscle_group(muscle.name)
-        changes = by_group.get(group)
-        muscles.append(muscle if changes is None else _APPLY[_kind(muscle)](muscle, side, changes, frame, surface))
+        kind = _kind(muscle)
+        changes = {f: v for f, v in shared.items() if f in PARAMETER_FIELDS[kind]}
+        for field, value in by_group.get(group, {}).items():
+            changes[field] = changes.get(field, 0.0) + value
+        muscles.append(_APPLY[kind](muscle, side, changes, frame, surface) if changes else muscle)
     return replace(rig, muscles=muscles)
 
 

@@ -53,7 +53,7 @@ def calibrate(
     millimetre: float = 1e-3,
     iterations: int = 4,
     prior_weight: float = 1e-3,
-    difference: str = "forward",
+    difference: str = "grouped",
     landmarks: bool = False,
     muscles=None,
     fields=None,

@@ -16,7 +16,7 @@ from ..rig import FaceRig
 
 __all__ = ["ResidualLayout", "residual_layout", "residuals", "jacobian"]
 
-DIFFERENCES = ("forward", "central")
+DIFFERENCES = ("forward", "central", "grouped")
 
 
 @dataclass(frozen=True)
@@ -80,6 +80,8 @@ def jacobian(
     if difference not in DIFFERENCES:
         raise ValueError(f"difference: expected one of {', '.join(DIFFERENCES)}, got {difference!r}")
     theta = np.asarray(theta, dtype=np.float64)
+    if difference == "grouped":
+        return _grouped_jacobian(base, parameters, theta, controls, layout, step=step, device=device, r0=r0)
     if r0 is None and difference == "forward":
         r0 = residuals(
             apply_parameters(base, _values(parameters, theta), device=device), controls, layout, device=device
@@ -105,3 +107,75 @@ def jacobian(
             columns = np.empty((len(column), len(parameters)), dtype=np.float32)
         columns[:, k] = column
     return columns
+
+
+def _stacked_frames(rig: FaceRig, controls: np.ndarray, pairs, masks, device) -> np.ndarray:
+    """Frames (len(pairs), V, 3) of ``rig`` for each (group g, example s): example s's controls with only group g's
+    muscles (and the jaw) kept."""
+    batch = np.array([controls[s] * masks[g] for g, s in pairs])
+    return np.asarray(rig.model(device=device).evaluate(batch), dtype=np.float64).reshape(len(pairs), -1, 3)
+
+
+def _grouped_jacobian(base, parameters, theta, controls, layout, *, step, device, r0) -> np.ndarray:
+    """The Jacobian with one rebuilt rig per *field*: every muscle group's parameter of that field moves at once,
+    and each group's effect is read from frames that keep only its own muscles' controls (and the jaw's).
+
+    Exact for the muscle displacements (each is linear in its own field); the coupling of one muscle's change with
+    another's pull through the nonlinear stages (stretch, bulge, wrinkles) is dropped. The parameters of the
+    shared group (:data:`~warpface.assets.calibrated.EVERY_MUSCLE`) move every muscle and get columns of their
+    own (forward differences). The optimiser accepts a step only on the refitted objective, so the approximation
+    costs at most some steps."""
+    from ..assets.calibrated import muscle_group
+
+    names = base.muscle_names
+    groups = sorted({p.group for p in parameters if p.kind != "shared"})
+    masks = {}
+    for group in groups:
+        mask = np.array([muscle_group(n)[0] == group for n in names] + [True] * (len(base.control_names) - len(names)))
+        masks[group] = mask.astype(np.float64)
+    muscle_only = {g: m * (np.arange(len(m)) < len(names)) for g, m in masks.items()}
+    pairs = [(g, s) for g in groups for s in range(len(controls)) if np.any(controls[s] * muscle_only[g])]
+    columns = np.zeros((sum(3 * len(r) for r in layout.rows), len(parameters)), dtype=np.float32)
+    offsets = np.concatenate([[0], np.cumsum([3 * len(r) for r in layout.rows])])
+    shared = [k for k, p in enumerate(parameters) if p.kind == "shared"]
+    if shared:
+        columns[:, shared] = _shared_columns(base, parameters, theta, controls, layout, shared, step, device, r0)
+    if not pairs:
+        return columns
+    current = apply_parameters(base, _values(parameters, theta), device=device)
+    rest = _stacked_frames(current, controls, pairs, masks, device)
+    for field in sorted({p.field for p in parameters if p.kind != "shared"}):
+        ks = [k for k, p in enumerate(parameters) if p.field == field and p.kind != "shared"]
+        ahead = theta.copy()
+        h = {parameters[k].group: step * parameters[k].sigma for k in ks}
+        for k in ks:
+            ahead[k] += h[parameters[k].group]
+        moved = _stacked_frames(
+            apply_parameters(base, _values(parameters, ahead), device=device), controls, pairs, masks, device
+        )
+        column_of = {parameters[k].group: k for k in ks}
+        for index, (group, s) in enumerate(pairs):
+            k = column_of.get(group)
+            if k is None:
+                continue
+            rows = layout.rows[s]
+            change = (moved[index][rows] - rest[index][rows]).ravel() * layout.weight[s] / h[group]
+            columns[offsets[s] : offsets[s + 1], k] = change
+    return columns
+
+
+def _shared_columns(base, parameters, theta, controls, layout, shared, step, device, r0) -> np.ndarray:
+    """Forward-difference columns of the shared parameters (indices ``shared``) at the full ``theta``."""
+    if r0 is None:
+        r0 = residuals(
+            apply_parameters(base, _values(parameters, theta), device=device), controls, layout, device=device
+        )
+    out = np.empty((len(r0), len(shared)), dtype=np.float32)
+    for column, k in enumerate(shared):
+        ahead = theta.copy()
+        ahead[k] += step * parameters[k].sigma
+        moved = residuals(
+            apply_parameters(base, _values(parameters, ahead), device=device), controls, layout, device=device
+        )
+        out[:, column] = (moved - r0) / (step * parameters[k].sigma)
+    return out

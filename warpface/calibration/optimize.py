@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..assets.calibrated import Parameter, apply_parameters, parameter_layout
+from ..assets.calibrated import EVERY_MUSCLE, Parameter, apply_parameters, parameter_layout
 from ..rig import FaceRig
 from .jacobian import jacobian, residual_layout, residuals
 from .reach import moved_vertices, reach
@@ -70,7 +70,7 @@ def optimise(
     iterations: int = 4,
     prior_weight: float = 1e-3,
     damping: float = 1e-2,
-    difference: str = "forward",
+    difference: str = "grouped",
     max_rows: int = 1000,
     muscles=None,
     fields=None,
@@ -93,7 +93,8 @@ def optimise(
         damping: the initial Levenberg–Marquardt λ (relative to the diagonal).
         difference: ``"forward"`` or ``"central"`` finite differences.
         max_rows: at most this many moved vertices per example in the residual.
-        muscles: calibrate only these muscles (names or groups); default those the examples use.
+        muscles: calibrate only these muscles (names or groups); default those the examples use and the
+            shared group :data:`~warpface.assets.calibrated.EVERY_MUSCLE`.
         fields: calibrate only these fields (:data:`~warpface.assets.calibrated.PARAMETER_FIELDS`); default all.
         device: Warp device.
         log: a callable taking one line of progress, or None.
@@ -103,7 +104,7 @@ def optimise(
     started = time.perf_counter()
     rows = reach(rig, shapes, millimetre=millimetre, device=device, **options)
     if muscles is None:
-        muscles = active_muscles(rig, rows)
+        muscles = [EVERY_MUSCLE, *active_muscles(rig, rows)]
     parameters = parameter_layout(rig, muscles, fields)
     sigma = np.array([p.sigma for p in parameters])
     theta = np.zeros(len(parameters))
