@@ -117,6 +117,7 @@ def test_default_rig_uses_the_calibrated_anatomy(hand_rig):
     assert data["held_out"] and not set(data["held_out"]) & set(data["trained_on"])
 
 
+@pytest.mark.slow
 def test_closed_loop_recovers_a_known_geometry(hand_rig):
     """Examples made by a rig with known parameters: calibrating the hand-made rig on them moves its parameters
     toward the truth and raises the reach."""
