@@ -16,7 +16,10 @@ calibration trained on and those it held out (``held_out`` of ``warpface/assets/
 ``--calibrate N`` recalibrates the default anatomy (N Gauss–Newton iterations) on the training shapes and
 writes ``warpface/assets/calibrated_anatomy.json``.
 
-    python -m benchmarks.rig_reach [--shapes jawOpen eyeSquint_L] [--compare] [--calibrate 4]
+``--warp`` rigs a smoothly warped ICT face (another identity) from its own landmarks and warps the shapes alike:
+the calibration, stored landmark-relative, must transfer.
+
+    python -m benchmarks.rig_reach [--shapes jawOpen eyeSquint_L] [--compare] [--calibrate 4] [--warp]
 """
 
 from __future__ import annotations
@@ -55,12 +58,38 @@ HELD_OUT = (
 """The default anatomy's held-out shapes (stand-ins for smile, cheek squint, sneer and brow down)."""
 
 
+def warp_identity(points: np.ndarray, centre: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """Another identity: a smooth warp of ICT's face (wider, shorter, the cheeks forward, the midline bent).
+    Applied to the neutral and to every expression, so the deltas are warped the same way."""
+    u = (points - centre) / half
+    x, y, z = u[:, 0], u[:, 1], u[:, 2]
+    warped = np.stack(
+        [
+            1.10 * x + 0.04 * np.sin(np.pi * y),
+            0.93 * y + 0.05 * x**2,
+            z + 0.06 * np.cos(0.5 * np.pi * x) * (1.0 - y**2),
+        ],
+        axis=1,
+    )
+    return centre + warped * half
+
+
+WARP = None
+"""(centre, half-extent) of the ICT neutral when ``--warp`` is on: every loaded face is warped by it."""
+
+
 def load_face():
+    global WARP
     neutral_path, landmarks = ict_face_region(), ict_landmark_indices()
     if neutral_path is None or landmarks is None:
         return None, None
     source = wf.FaceMesh.from_obj(neutral_path)
-    return wf.FaceMesh(source.points * CENTIMETRE, source.triangles, name="ict_face"), landmarks
+    points = source.points * CENTIMETRE
+    if WARP is True:
+        WARP = (0.5 * (points.min(axis=0) + points.max(axis=0)), 0.5 * np.ptp(points, axis=0))
+    if WARP is not None:
+        points = warp_identity(points, *WARP)
+    return wf.FaceMesh(points, source.triangles, name="ict_face"), landmarks
 
 
 def all_shapes() -> list[str]:
@@ -69,7 +98,11 @@ def all_shapes() -> list[str]:
 
 
 def load_shapes(names) -> list[ExampleShape]:
-    return [ExampleShape(n, wf.FaceMesh.from_obj(ict_face_region(n)).points * CENTIMETRE, n) for n in names]
+    shapes = []
+    for name in names:
+        points = wf.FaceMesh.from_obj(ict_face_region(name)).points * CENTIMETRE
+        shapes.append(ExampleShape(name, points if WARP is None else warp_identity(points, *WARP), name))
+    return shapes
 
 
 def measure(rig, shapes, device, dense_only: bool = False) -> list[dict]:
@@ -129,6 +162,32 @@ def _recalibrate(mesh, landmarks, names, held_out, iterations, device) -> None:
     print(f"{result.message}; wrote {CALIBRATED_ANATOMY}")
 
 
+JACOBIAN_SHAPES = ("browOuterUp_L", "mouthStretch_L", "mouthLowerDown_L", "mouthPress_L", "jawForward", "eyeWide_L")
+"""The small calibration on which the Jacobian forms are timed against each other (``--jacobians``)."""
+
+
+def compare_jacobians(mesh, landmarks, iterations: int, device) -> list[dict]:
+    """Calibrate the hand-placed rig on :data:`JACOBIAN_SHAPES` with each finite-difference form: time, reach."""
+    hand = default_rig(mesh, landmarks, name="ICTFace", device=device, calibrated=False)
+    shapes = load_shapes(JACOBIAN_SHAPES)
+    rows = []
+    for form in ("grouped", "forward", "central"):
+        started = time.perf_counter()
+        result = calibrate(hand, shapes, iterations=iterations, difference=form, device=device)
+        train = result.reach["train"]
+        rows.append(
+            {
+                "form": form,
+                "seconds": time.perf_counter() - started,
+                "before": float(np.mean([r["reduction"] for r in train["before"]])),
+                "after": float(np.mean([r["reduction"] for r in train["after"]])),
+                "trials": len(result.trials),
+            }
+        )
+        print(f"  {form}: {rows[-1]['seconds']:.0f} s, reach {rows[-1]['before']:.1%} -> {rows[-1]['after']:.1%}")
+    return rows
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--shapes", nargs="*", default=None, help="default: every ICT shape there is")
@@ -136,11 +195,25 @@ def main(argv=None) -> int:
     parser.add_argument("--compare", action="store_true", help="also fit the classic rig (§1.1 zones, no jaw)")
     parser.add_argument("--dense-only", action="store_true", help="skip the landmark fits")
     parser.add_argument("--calibrate", type=int, default=0, metavar="N", help="recalibrate the default anatomy first")
+    parser.add_argument("--warp", action="store_true", help="another identity: ICT smoothly warped (transfer check)")
+    parser.add_argument(
+        "--jacobians", type=int, default=0, metavar="N", help="only time the Jacobian forms (N iterations each)"
+    )
     args = parser.parse_args(argv)
     wp.config.quiet = True
+    global WARP
+    WARP = True if args.warp else None
+    if args.warp and args.calibrate:
+        parser.error("--warp measures the transfer of the stored calibration; calibrate without it")
     mesh, landmarks = load_face()
     if mesh is None:
         print("ICT-FaceKit data not found in ../shared/data (set WARPFACE_SHARED_DATA); nothing to measure")
+        return 0
+    if args.jacobians:
+        rows = compare_jacobians(mesh, landmarks, args.jacobians, args.device)
+        print(
+            f"wrote {write_results('rig_calibration_jacobians', {'machine': machine_info(args.device), 'rows': rows})}"
+        )
         return 0
     names = args.shapes or all_shapes()
     stored = json.loads(CALIBRATED_ANATOMY.read_text()) if CALIBRATED_ANATOMY.is_file() else {}
@@ -156,6 +229,7 @@ def main(argv=None) -> int:
         rigs["classic"] = default_rig(mesh, landmarks, name="ICTFace", device=args.device, anatomy="classic")
     shapes = load_shapes(names)
     payload = {"machine": machine_info(args.device), "moved_mm": 0.2, "held_out": sorted(held_out), "rigs": {}}
+    payload["identity"] = "ICT warped (warp_identity)" if args.warp else "ICT"
     for label, rig in rigs.items():
         rows = measure(rig, shapes, args.device, dense_only=args.dense_only)
         for row in rows:
@@ -170,7 +244,7 @@ def main(argv=None) -> int:
                 if not args.dense_only:
                     means.append(f"landmarks {np.mean([r['landmarks_reduction'] for r in chosen]):.1%}")
                 print(f"  mean reach, {split} ({len(chosen)} shapes): {', '.join(means)}")
-    path = write_results("rig_reach", payload)
+    path = write_results("rig_reach_warped" if args.warp else "rig_reach", payload)
     print(f"wrote {path}")
     return 0
 

@@ -221,3 +221,17 @@ def test_report_round_trip(tmp_path, hand_rig):
     assert json.loads((tmp_path / "r.json").read_text()) == json.loads(json.dumps(data))
     assert (tmp_path / "r.png").stat().st_size > 1000
     assert data["reach"]["train"]["before"]["shapes"][0]["name"] == "rest"
+
+
+def test_brow_lowerer_lowers_its_brow_only(hand_rig):
+    """The orbital orbicularis oculi's upper fibres (added for browDown) move every point of their brow down and
+    leave the other side alone, on both sides alike."""
+    frame = face_frame(hand_rig.mesh, hand_rig.landmarks)
+    model = hand_rig.model(device="cpu")
+    brows = {"L": list(range(22, 27)), "R": list(range(17, 22))}
+    for side, other in (("L", "R"), ("R", "L")):
+        points = np.asarray(model.evaluate({f"orbicularis_oculi_brow_{side}": 0.05 * frame.scale}), dtype=np.float64)
+        local = (points - hand_rig.mesh.points) @ frame.axes.T / frame.scale
+        down = -local[hand_rig.landmarks[brows[side]], 1]
+        assert np.all(down > 0.002) and down.max() > 0.02, down
+        assert np.abs(local[hand_rig.landmarks[brows[other]]]).max() < 1e-4  # float32 rounding only

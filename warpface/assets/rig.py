@@ -1,7 +1,7 @@
 """The default, landmark-anchored face rig: muscles, a jaw, 21 wrinkles, thickness (docs/RIG.md).
 
 ``anatomy="classic"`` is thesis table 2.1: 20 linear muscles and 3 sphincters. The full anatomy (the
-default) re-places some of them and adds the muscles of :mod:`~warpface.assets.anatomy` (42 linear,
+default) re-places some of them and adds the muscles of :mod:`~warpface.assets.anatomy` (44 linear,
 4 sphincters) and the jaw.
 
 Every muscle end and wrinkle curve is written in the :class:`~warpface.assets.frame.FaceFrame` of

@@ -52,7 +52,7 @@ def calibrate(
     holdout=(),
     millimetre: float = 1e-3,
     iterations: int = 4,
-    prior_weight: float = 1e-3,
+    prior_weight: float = 1e-2,
     difference: str = "grouped",
     landmarks: bool = False,
     muscles=None,

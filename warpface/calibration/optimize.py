@@ -68,7 +68,7 @@ def optimise(
     *,
     millimetre: float = 1e-3,
     iterations: int = 4,
-    prior_weight: float = 1e-3,
+    prior_weight: float = 1e-2,
     damping: float = 1e-2,
     difference: str = "grouped",
     max_rows: int = 1000,
