@@ -14,7 +14,9 @@ from hypothesis import strategies as st
 from warpface.assets import default_rig
 from warpface.assets.calibrated import (
     CALIBRATED_ANATOMY,
+    EVERY_MUSCLE,
     PARAMETER_FIELDS,
+    SHARED_FIELDS,
     apply_parameters,
     load_calibrated_anatomy,
     parameter_layout,
@@ -78,7 +80,9 @@ def test_scales_and_response_fields(hand_rig):
         a, b = _muscle(hand_rig, f"risorius_{side}"), _muscle(moved, f"risorius_{side}")
         assert b.zone_angle_deg == pytest.approx(a.zone_angle_deg * np.exp(-0.2))
         assert b.falloff_finish == pytest.approx(a.falloff_finish * np.exp(0.3))
-        assert b.sliding == 0.0 and b.bunching == pytest.approx(a.bunching + 0.25)
+        assert b.sliding == 0.0 and b.bunching == pytest.approx(a.bunching * np.exp(0.25))
+    lid = apply_parameters(hand_rig, {("all", "bunching"): 1.0}, device="cpu")
+    assert all(m.bunching == 0.0 for m in lid.muscles if m.name.startswith("orbicularis_oculi_lower_lid"))
 
 
 def test_layout_keeps_midline_muscles_on_the_midline(hand_rig):
@@ -86,7 +90,8 @@ def test_layout_keeps_midline_muscles_on_the_midline(hand_rig):
     keys = {p.key for p in layout}
     assert ("procerus", "attach_x") not in keys and ("procerus", "attach_y") in keys
     assert ("orbicularis_oris", "centre_x") not in keys and ("orbicularis_oris", "semi_x") in keys
-    assert all(p.field in PARAMETER_FIELDS[p.kind] for p in layout)
+    assert all(p.field in PARAMETER_FIELDS[p.kind] for p in layout if p.group != EVERY_MUSCLE)
+    assert {p.field for p in layout if p.group == EVERY_MUSCLE} == set(SHARED_FIELDS)
     assert not any(p.group.endswith(("_L", "_R")) for p in layout)
 
 

@@ -32,6 +32,7 @@ __all__ = [
     "apply_parameters",
     "muscle_group",
     "EVERY_MUSCLE",
+    "SHARED_FIELDS",
     "CALIBRATED_ANATOMY",
     "load_calibrated_anatomy",
 ]
@@ -159,7 +160,8 @@ def _frame_of(rig: FaceRig, device) -> tuple[FaceFrame, SurfaceSampler]:
 def _response(muscle, values: dict) -> dict:
     return dict(
         sliding=float(np.clip(muscle.sliding + values.get("sliding", 0.0), *_SLIDING)),
-        bunching=float(np.clip(muscle.bunching + values.get("bunching", 0.0), *_BUNCHING)),
+        # a scale, so a muscle whose skin must not bunch (bunching 0 by design) keeps 0
+        bunching=float(np.clip(muscle.bunching * np.exp(values.get("bunching", 0.0)), *_BUNCHING)),
     )
 
 
