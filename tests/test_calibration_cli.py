@@ -95,3 +95,11 @@ def test_calibrate_writes_rig_report_and_picture(stage, tmp_path, capsys):
     train = report["reach"]["train"]
     assert train["after"]["mean_reduction"] >= train["before"]["mean_reduction"] - 1e-9
     assert report["message"] in printed
+
+
+def test_help(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["calibrate", "--help"])
+    assert exit_info.value.code == 0
+    text = capsys.readouterr().out
+    assert "usage: warpface calibrate" in text and "--holdout" in text and "--names" in text

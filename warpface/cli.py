@@ -1,5 +1,5 @@
 """The ``warpface`` command line: one sub-command per module of :mod:`warpface.commands` (``demo``, ``rig``,
-``bake``, ``preview``, ``validate``, ``track``, ``animate``, ``fit``, ``presets``).
+``bake``, ``preview``, ``validate``, ``track``, ``animate``, ``fit``, ``presets``, ``calibrate``).
 
 Warp is initialised quietly (:func:`warpface.init_runtime`) before a command runs. Every sub-command has
 ``--help``; ``--device`` and ``--quiet`` work before or after the command. Any

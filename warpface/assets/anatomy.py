@@ -384,7 +384,7 @@ def anatomy_muscles(
         "orbicularis_oris_roll_lower": ((0.0, mouth_line - 0.02), (0.0, xy[57, 1])),
     }
     linear.update(linear_muscles(surface, ends, LINEAR_PULLS))
-    for tag, s in _SIDES:
+    for tag, _sign in _SIDES:
         # Orbital orbicularis oculi, upper fibres: from the orbital rim above the eye into the skin over the
         # brow's middle; they lower the brow's middle and tail (AU4 with the corrugator and depressor supercilii,
         # which lower its head), which nothing else does without lifting the cheek.
