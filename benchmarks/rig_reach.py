@@ -167,12 +167,15 @@ JACOBIAN_MUSCLES = ("all", "frontalis_outer", "frontalis_middle", "risorius", "d
 """The small calibration on which the Jacobian forms are timed against each other (``--jacobians``)."""
 
 
+FORMS = ("grouped", "grouped-central", "forward", "central")
+
+
 def compare_jacobians(mesh, landmarks, iterations: int, device) -> list[dict]:
     """Calibrate the hand-placed rig on :data:`JACOBIAN_SHAPES` with each finite-difference form: time, reach."""
     hand = default_rig(mesh, landmarks, name="ICTFace", device=device, calibrated=False)
     shapes = load_shapes(JACOBIAN_SHAPES)
     rows = []
-    for form in ("grouped", "forward", "central"):
+    for form in FORMS:
         started = time.perf_counter()
         result = calibrate(
             hand, shapes, iterations=iterations, difference=form, muscles=JACOBIAN_MUSCLES, device=device

@@ -53,7 +53,7 @@ def calibrate(
     millimetre: float = 1e-3,
     iterations: int = 4,
     prior_weight: float = 1e-2,
-    difference: str = "grouped",
+    difference: str = "grouped-central",
     landmarks: bool = False,
     muscles=None,
     fields=None,
@@ -71,7 +71,7 @@ def calibrate(
         millimetre: 1 mm in the rig's units (1e-3 for metres, 0.1 for centimetres).
         iterations: Gauss–Newton iterations.
         prior_weight: weight of the prior ``Σ(θ/σ)²`` that keeps the anatomy near the input's.
-        difference: ``"forward"`` or ``"central"`` finite differences for the Jacobian.
+        difference: the Jacobian's finite differences, one of :data:`~warpface.calibration.jacobian.DIFFERENCES`.
         landmarks: also report the reach of fits from the 68 landmarks only.
         muscles, fields: calibrate only these muscles (names or groups) and fields; default: the muscles the
             examples use, every field.

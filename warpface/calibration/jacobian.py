@@ -14,9 +14,9 @@ import numpy as np
 from ..assets.calibrated import Parameter, apply_parameters
 from ..rig import FaceRig
 
-__all__ = ["ResidualLayout", "residual_layout", "residuals", "jacobian"]
+__all__ = ["DIFFERENCES", "ResidualLayout", "residual_layout", "residuals", "jacobian"]
 
-DIFFERENCES = ("forward", "central", "grouped")
+DIFFERENCES = ("forward", "central", "grouped", "grouped-central")
 
 
 @dataclass(frozen=True)
@@ -80,8 +80,11 @@ def jacobian(
     if difference not in DIFFERENCES:
         raise ValueError(f"difference: expected one of {', '.join(DIFFERENCES)}, got {difference!r}")
     theta = np.asarray(theta, dtype=np.float64)
-    if difference == "grouped":
-        return _grouped_jacobian(base, parameters, theta, controls, layout, step=step, device=device, r0=r0)
+    if difference.startswith("grouped"):
+        central = difference == "grouped-central"
+        return _grouped_jacobian(
+            base, parameters, theta, controls, layout, step=step, device=device, r0=r0, central=central
+        )
     if r0 is None and difference == "forward":
         r0 = residuals(
             apply_parameters(base, _values(parameters, theta), device=device), controls, layout, device=device
@@ -116,7 +119,7 @@ def _stacked_frames(rig: FaceRig, controls: np.ndarray, pairs, masks, device) ->
     return np.asarray(rig.model(device=device).evaluate(batch), dtype=np.float64).reshape(len(pairs), -1, 3)
 
 
-def _grouped_jacobian(base, parameters, theta, controls, layout, *, step, device, r0) -> np.ndarray:
+def _grouped_jacobian(base, parameters, theta, controls, layout, *, step, device, r0, central=False) -> np.ndarray:
     """The Jacobian with one rebuilt rig per *field*: every muscle group's parameter of that field moves at once,
     and each group's effect is read from frames that keep only its own muscles' controls (and the jaw's).
 
@@ -124,7 +127,8 @@ def _grouped_jacobian(base, parameters, theta, controls, layout, *, step, device
     another's pull through the nonlinear stages (stretch, bulge, wrinkles) is dropped. The parameters of the
     shared group (:data:`~warpface.assets.calibrated.EVERY_MUSCLE`) move every muscle and get columns of their
     own (forward differences). The optimiser accepts a step only on the refitted objective, so the approximation
-    costs at most some steps."""
+    costs at most some steps. ``central``: each field's rig is also rebuilt with the parameters moved back, and
+    the columns are central differences."""
     from ..assets.calibrated import muscle_group
 
     names = base.muscle_names
@@ -142,24 +146,31 @@ def _grouped_jacobian(base, parameters, theta, controls, layout, *, step, device
         columns[:, shared] = _shared_columns(base, parameters, theta, controls, layout, shared, step, device, r0)
     if not pairs:
         return columns
-    current = apply_parameters(base, _values(parameters, theta), device=device)
-    rest = _stacked_frames(current, controls, pairs, masks, device)
+    if not central:
+        current = apply_parameters(base, _values(parameters, theta), device=device)
+        rest = _stacked_frames(current, controls, pairs, masks, device)
     for field in sorted({p.field for p in parameters if p.kind != "shared"}):
         ks = [k for k, p in enumerate(parameters) if p.field == field and p.kind != "shared"]
-        ahead = theta.copy()
         h = {parameters[k].group: step * parameters[k].sigma for k in ks}
+        ahead, behind = theta.copy(), theta.copy()
         for k in ks:
             ahead[k] += h[parameters[k].group]
+            behind[k] -= h[parameters[k].group]
         moved = _stacked_frames(
             apply_parameters(base, _values(parameters, ahead), device=device), controls, pairs, masks, device
         )
+        if central:
+            rest = _stacked_frames(
+                apply_parameters(base, _values(parameters, behind), device=device), controls, pairs, masks, device
+            )
         column_of = {parameters[k].group: k for k in ks}
         for index, (group, s) in enumerate(pairs):
             k = column_of.get(group)
             if k is None:
                 continue
             rows = layout.rows[s]
-            change = (moved[index][rows] - rest[index][rows]).ravel() * layout.weight[s] / h[group]
+            span = (2.0 if central else 1.0) * h[group]
+            change = (moved[index][rows] - rest[index][rows]).ravel() * layout.weight[s] / span
             columns[offsets[s] : offsets[s + 1], k] = change
     return columns
 

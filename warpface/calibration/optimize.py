@@ -70,7 +70,7 @@ def optimise(
     iterations: int = 4,
     prior_weight: float = 1e-2,
     damping: float = 1e-2,
-    difference: str = "grouped",
+    difference: str = "grouped-central",
     max_rows: int = 1000,
     muscles=None,
     fields=None,
@@ -91,7 +91,7 @@ def optimise(
         iterations: Gauss–Newton iterations (Jacobians).
         prior_weight: weight of the prior ``Σ(θ/σ)²``.
         damping: the initial Levenberg–Marquardt λ (relative to the diagonal).
-        difference: ``"forward"`` or ``"central"`` finite differences.
+        difference: the Jacobian's finite differences, one of :data:`~warpface.calibration.jacobian.DIFFERENCES`.
         max_rows: at most this many moved vertices per example in the residual.
         muscles: calibrate only these muscles (names or groups); default those the examples use and the
             shared group :data:`~warpface.assets.calibrated.EVERY_MUSCLE`.
