@@ -9,138 +9,248 @@ wrinkles; default options, muscles and the jaw's three controls). Two fits per s
 - **landmarks**: only the 68 landmark vertices are targets.
 
 Reported per shape, over the *moved* vertices (|delta| > 0.2 mm): mean and max error before (the
-neutral face) and after the fit, and the reduction of the mean. A peer column fits the same shapes
-with the §1.1 rig of the first issue (``--compare``: Waters falloffs, no sliding, bunching or jaw).
+neutral face) and after the fit, and the reduction of the mean, for the hand-placed anatomy
+(``default_rig(calibrated=False)``) and the calibrated default (docs/RIG.md §13), split into the shapes the
+calibration trained on and those it held out (``held_out`` of ``warpface/assets/calibrated_anatomy.json``).
+``--compare`` adds the §1.1 rig of the first issue (Waters falloffs, no sliding, bunching or jaw).
+``--calibrate N`` recalibrates the default anatomy (N Gauss–Newton iterations) on the training shapes and
+writes ``warpface/assets/calibrated_anatomy.json``.
 
-    python -m benchmarks.rig_reach [--shapes jawOpen eyeSquint_L] [--compare]
+``--warp`` rigs a smoothly warped ICT face (another identity) from its own landmarks and warps the shapes alike:
+the calibration, stored landmark-relative, must transfer.
+
+    python -m benchmarks.rig_reach [--shapes jawOpen eyeSquint_L] [--compare] [--calibrate 4] [--warp]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
-from dataclasses import replace
 
 import numpy as np
 import warp as wp
 
 import warpface as wf
-from warpface import FaceRig
 from warpface.assets import default_rig
+from warpface.assets.calibrated import CALIBRATED_ANATOMY
 from warpface.assets.rig import rig_scale
+from warpface.calibration import ExampleShape, calibrate, reach
+from warpface.calibration.report import parameters_data
 from warpface.data import ict_face_region, ict_landmark_indices
-from warpface.solve import fit
 
 from ._timing import machine_info, print_table, write_results
 
-SHAPES = ("browInnerUp_L", "browInnerUp_R", "browOuterUp_L", "browOuterUp_R", "eyeSquint_L", "eyeSquint_R", "jawOpen")
 CENTIMETRE = 0.01
-MOVED_MM = 0.2
+HELD_OUT = (
+    # both sides of each: regions and directions the training shapes do not show the same way
+    "browInnerUp_L",
+    "browInnerUp_R",
+    "eyeSquint_L",
+    "eyeSquint_R",
+    "mouthDimple_L",
+    "mouthDimple_R",
+    "mouthFrown_L",
+    "mouthFrown_R",
+    "mouthUpperUp_L",
+    "mouthUpperUp_R",
+)
+"""The default anatomy's held-out shapes (stand-ins for smile, cheek squint, sneer and brow down)."""
+
+
+def warp_identity(points: np.ndarray, centre: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """Another identity: a smooth warp of ICT's face (wider, shorter, the cheeks forward, the midline bent).
+    Applied to the neutral and to every expression, so the deltas are warped the same way."""
+    u = (points - centre) / half
+    x, y, z = u[:, 0], u[:, 1], u[:, 2]
+    warped = np.stack(
+        [
+            1.10 * x + 0.04 * np.sin(np.pi * y),
+            0.93 * y + 0.05 * x**2,
+            z + 0.06 * np.cos(0.5 * np.pi * x) * (1.0 - y**2),
+        ],
+        axis=1,
+    )
+    return centre + warped * half
+
+
+WARP = None
+"""(centre, half-extent) of the ICT neutral when ``--warp`` is on: every loaded face is warped by it."""
 
 
 def load_face():
+    global WARP
     neutral_path, landmarks = ict_face_region(), ict_landmark_indices()
     if neutral_path is None or landmarks is None:
         return None, None
     source = wf.FaceMesh.from_obj(neutral_path)
-    return wf.FaceMesh(source.points * CENTIMETRE, source.triangles, name="ict_face"), landmarks
+    points = source.points * CENTIMETRE
+    if WARP is True:
+        WARP = (0.5 * (points.min(axis=0) + points.max(axis=0)), 0.5 * np.ptp(points, axis=0))
+    if WARP is not None:
+        points = warp_identity(points, *WARP)
+    return wf.FaceMesh(points, source.triangles, name="ict_face"), landmarks
 
 
-def errors(points: np.ndarray, target: np.ndarray, moved: np.ndarray) -> tuple[float, float]:
-    distance = np.linalg.norm(points[moved] - target[moved], axis=1) * 1000.0
-    return float(distance.mean()), float(distance.max())
+def all_shapes() -> list[str]:
+    folder = ict_face_region().parent
+    return sorted(p.stem for p in folder.glob("*.obj") if p.stem != "neutral")
 
 
-def reach(rig, mesh, landmarks, shapes, device, dense_only: bool = False) -> list[dict]:
+def load_shapes(names) -> list[ExampleShape]:
+    shapes = []
+    for name in names:
+        points = wf.FaceMesh.from_obj(ict_face_region(name)).points * CENTIMETRE
+        shapes.append(ExampleShape(name, points if WARP is None else warp_identity(points, *WARP), name))
+    return shapes
+
+
+def measure(rig, shapes, device, dense_only: bool = False) -> list[dict]:
+    """Per-shape rows of the table: dense and landmark reach (mm)."""
     model = rig.model(device=device)
     scale = rig_scale(rig)
-    results = []
-    for shape in shapes:
-        target = wf.FaceMesh.from_obj(ict_face_region(shape)).points * CENTIMETRE
-        delta = np.linalg.norm(target - mesh.points, axis=1) * 1000.0
-        moved = delta > MOVED_MM
-        before_mean, before_max = errors(mesh.points, target, moved)
-        row = {"shape": shape, "moved": int(moved.sum()), "before_mean_mm": before_mean, "before_max_mm": before_max}
-        fits = (("dense", None),) if dense_only else (("dense", None), ("landmarks", np.asarray(landmarks)))
-        for label, rows in fits:
-            started = time.perf_counter()
-            solved = fit(rig, target if rows is None else target[rows], vertices=rows, device=device)
-            controls = solved.vector
-            after_mean, after_max = errors(solved.points.astype(np.float64), target, moved)
-            row[f"{label}_mean_mm"] = after_mean
-            row[f"{label}_max_mm"] = after_max
-            row[f"{label}_reduction"] = 1.0 - after_mean / before_mean
-            row[f"{label}_seconds"] = time.perf_counter() - started
-            row[f"{label}_converged"] = bool(solved.converged)
-            size = np.abs(controls) / np.where(
-                np.array([n.startswith("jaw_") for n in model.control_names]), 1.0, scale
+    is_jaw = np.array([n.startswith("jaw_") for n in model.control_names])
+    rows = {s.name: {"shape": s.name} for s in shapes}
+    for label, landmarks in (("dense", False),) if dense_only else (("dense", False), ("landmarks", True)):
+        started = time.perf_counter()
+        for result in reach(rig, shapes, millimetre=1e-3, landmarks=landmarks, device=device):
+            row = rows[result["name"]]
+            row.update(
+                moved=result["moved"], before_mean_mm=1e3 * result["before"], before_max_mm=1e3 * result["max_before"]
             )
-            top = np.argsort(-size)[:4]
-            row[f"{label}_top"] = {model.control_names[i]: float(size[i]) for i in top}
-        results.append(row)
-    return results
+            row[f"{label}_mean_mm"] = 1e3 * result["after"]
+            row[f"{label}_max_mm"] = 1e3 * result["max_after"]
+            row[f"{label}_reduction"] = result["reduction"]
+            row[f"{label}_converged"] = result["converged"]
+            size = np.abs(result["controls"]) / np.where(is_jaw, 1.0, scale)
+            row[f"{label}_top"] = {model.control_names[i]: float(size[i]) for i in np.argsort(-size)[:4]}
+        for row in rows.values():
+            row[f"{label}_seconds"] = (time.perf_counter() - started) / len(shapes)
+    return list(rows.values())
+
+
+COLUMNS = [
+    ("shape", "shape", "s"),
+    ("split", "split", "s"),
+    ("moved", "moved", "d"),
+    ("before_mean_mm", "mean before", ".3f"),
+    ("dense_mean_mm", "dense mean", ".3f"),
+    ("dense_max_mm", "dense max", ".2f"),
+    ("dense_reduction", "dense red.", ".1%"),
+    ("landmarks_mean_mm", "lmk mean", ".3f"),
+    ("landmarks_reduction", "lmk red.", ".1%"),
+]
+
+
+def _recalibrate(mesh, landmarks, names, held_out, iterations, device) -> None:
+    hand = default_rig(mesh, landmarks, name="ICTFace", device=device, calibrated=False)
+    shapes = load_shapes(names)
+    result = calibrate(
+        hand, shapes, holdout=[n for n in held_out if n in names], iterations=iterations, device=device, log=print
+    )
+    data = {
+        "about": "default anatomy calibrated on ICT-FaceKit shapes by benchmarks/rig_reach.py --calibrate "
+        "(docs/RIG.md §13); values in the landmark frame (inter-ocular units, log-scales, additions)",
+        "iterations": iterations,
+        "trained_on": [n for n in names if n not in held_out],
+        "held_out": [n for n in names if n in held_out],
+        "training_reach": {k: float(np.mean([r["reduction"] for r in v])) for k, v in result.reach["train"].items()},
+        "seconds": result.seconds,
+        "parameters": parameters_data(result.values),
+    }
+    CALIBRATED_ANATOMY.write_text(json.dumps(data, indent=1) + "\n")
+    print(f"{result.message}; wrote {CALIBRATED_ANATOMY}")
+
+
+JACOBIAN_SHAPES = ("browOuterUp_L", "mouthStretch_L", "mouthLowerDown_L", "eyeWide_L")
+JACOBIAN_MUSCLES = ("all", "frontalis_outer", "frontalis_middle", "risorius", "depressor_labii_inferioris", "platysma")
+"""The small calibration on which the Jacobian forms are timed against each other (``--jacobians``)."""
+
+
+FORMS = ("grouped", "grouped-central", "forward", "central")
+
+
+def compare_jacobians(mesh, landmarks, iterations: int, device) -> list[dict]:
+    """Calibrate the hand-placed rig on :data:`JACOBIAN_SHAPES` with each finite-difference form: time, reach."""
+    hand = default_rig(mesh, landmarks, name="ICTFace", device=device, calibrated=False)
+    shapes = load_shapes(JACOBIAN_SHAPES)
+    rows = []
+    for form in FORMS:
+        started = time.perf_counter()
+        result = calibrate(
+            hand, shapes, iterations=iterations, difference=form, muscles=JACOBIAN_MUSCLES, device=device
+        )
+        train = result.reach["train"]
+        rows.append(
+            {
+                "form": form,
+                "seconds": time.perf_counter() - started,
+                "before": float(np.mean([r["reduction"] for r in train["before"]])),
+                "after": float(np.mean([r["reduction"] for r in train["after"]])),
+                "trials": len(result.trials),
+            }
+        )
+        print(f"  {form}: {rows[-1]['seconds']:.0f} s, reach {rows[-1]['before']:.1%} -> {rows[-1]['after']:.1%}")
+    return rows
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--shapes", nargs="*", default=list(SHAPES))
+    parser.add_argument("--shapes", nargs="*", default=None, help="default: every ICT shape there is")
     parser.add_argument("--device", default="cpu")
-    parser.add_argument(
-        "--compare", action="store_true", help="also fit the classic rig (§1.1 zones, 23 muscles, no jaw)"
-    )
-    parser.add_argument(
-        "--response",
-        nargs="*",
-        default=[],
-        metavar="S,B",
-        help="also fit the full rig with every muscle's sliding S and bunching B replaced",
-    )
+    parser.add_argument("--compare", action="store_true", help="also fit the classic rig (§1.1 zones, no jaw)")
     parser.add_argument("--dense-only", action="store_true", help="skip the landmark fits")
+    parser.add_argument("--calibrate", type=int, default=0, metavar="N", help="recalibrate the default anatomy first")
+    parser.add_argument("--warp", action="store_true", help="another identity: ICT smoothly warped (transfer check)")
+    parser.add_argument(
+        "--jacobians", type=int, default=0, metavar="N", help="only time the Jacobian forms (N iterations each)"
+    )
     args = parser.parse_args(argv)
     wp.config.quiet = True
+    global WARP
+    WARP = True if args.warp else None
+    if args.warp and args.calibrate:
+        parser.error("--warp measures the transfer of the stored calibration; calibrate without it")
     mesh, landmarks = load_face()
     if mesh is None:
         print("ICT-FaceKit data not found in ../shared/data (set WARPFACE_SHARED_DATA); nothing to measure")
         return 0
-    rigs = {"default": default_rig(mesh, landmarks, name="ICTFace", device=args.device)}
+    if args.jacobians:
+        rows = compare_jacobians(mesh, landmarks, args.jacobians, args.device)
+        print(
+            f"wrote {write_results('rig_calibration_jacobians', {'machine': machine_info(args.device), 'rows': rows})}"
+        )
+        return 0
+    names = args.shapes or all_shapes()
+    stored = json.loads(CALIBRATED_ANATOMY.read_text()) if CALIBRATED_ANATOMY.is_file() else {}
+    held_out = set(stored.get("held_out", HELD_OUT))
+    if args.calibrate:
+        _recalibrate(mesh, landmarks, all_shapes(), HELD_OUT, args.calibrate, args.device)
+        held_out = set(HELD_OUT)
+    rigs = {
+        "hand-placed": default_rig(mesh, landmarks, name="ICTFace", device=args.device, calibrated=False),
+        "calibrated": default_rig(mesh, landmarks, name="ICTFace", device=args.device),
+    }
     if args.compare:
         rigs["classic"] = default_rig(mesh, landmarks, name="ICTFace", device=args.device, anatomy="classic")
-    for pair in args.response:
-        sliding, bunching = (float(v) for v in pair.split(","))
-        base = rigs["default"]
-        muscles = [replace(m, sliding=sliding, bunching=bunching) for m in base.muscles]
-        rigs[f"s={sliding:g},b={bunching:g}"] = FaceRig(
-            mesh=mesh,
-            muscles=muscles,
-            wrinkles=base.wrinkles,
-            thickness=base.thickness,
-            landmarks=base.landmarks,
-            name=base.name,
-            jaw=base.jaw,
-        )
-    payload = {"machine": machine_info(args.device), "moved_mm": MOVED_MM, "rigs": {}}
+    shapes = load_shapes(names)
+    payload = {"machine": machine_info(args.device), "moved_mm": 0.2, "held_out": sorted(held_out), "rigs": {}}
+    payload["identity"] = "ICT warped (warp_identity)" if args.warp else "ICT"
     for label, rig in rigs.items():
-        rows = reach(rig, mesh, landmarks, args.shapes, args.device, dense_only=args.dense_only)
-        payload["rigs"][label] = {"controls": len(rig.model(device=args.device).control_names), "rows": rows}
-        print(f"\n{label} rig ({payload['rigs'][label]['controls']} controls), error over moved vertices [mm]:")
-        print_table(
-            rows,
-            [
-                ("shape", "shape", "s"),
-                ("moved", "moved", "d"),
-                ("before_mean_mm", "mean before", ".3f"),
-                ("before_max_mm", "max before", ".2f"),
-                ("dense_mean_mm", "dense mean", ".3f"),
-                ("dense_max_mm", "dense max", ".2f"),
-                ("dense_reduction", "dense red.", ".1%"),
-                ("landmarks_mean_mm", "lmk mean", ".3f"),
-                ("landmarks_max_mm", "lmk max", ".2f"),
-                ("landmarks_reduction", "lmk red.", ".1%"),
-            ],
-        )
+        rows = measure(rig, shapes, args.device, dense_only=args.dense_only)
         for row in rows:
-            print(f"  {row['shape']}: dense top {', '.join(f'{k}={v:.3f}' for k, v in row['dense_top'].items())}")
-    path = write_results("rig_reach", payload)
+            row["split"] = "held-out" if row["shape"] in held_out else "trained"
+        payload["rigs"][label] = {"controls": len(rig.control_names), "rows": rows}
+        print(f"\n{label} rig ({len(rig.control_names)} controls), error over moved vertices [mm]:")
+        print_table(rows, [c for c in COLUMNS if args.dense_only is False or not c[0].startswith("landmarks")])
+        for split in ("trained", "held-out"):
+            chosen = [r for r in rows if r["split"] == split]
+            if chosen:
+                means = [f"dense {np.mean([r['dense_reduction'] for r in chosen]):.1%}"]
+                if not args.dense_only:
+                    means.append(f"landmarks {np.mean([r['landmarks_reduction'] for r in chosen]):.1%}")
+                print(f"  mean reach, {split} ({len(chosen)} shapes): {', '.join(means)}")
+    path = write_results("rig_reach_warped" if args.warp else "rig_reach", payload)
     print(f"wrote {path}")
     return 0
 

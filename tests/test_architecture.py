@@ -26,7 +26,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "geometry": ("geometry", "kernels_surface", "landmarks"),
     "models": ("mesh", "expression", "fem", "rig"),
     "content": ("assets", "metrics", "preview", "offscreen"),
-    "solvers": ("solve", "drivers", "tracking", "rigging"),
+    "solvers": ("solve", "drivers", "tracking", "rigging", "calibration"),
     "io": ("usd",),
     "apps": ("pipelines", "demo", "commands", "batch", "cli", "newton"),
 }

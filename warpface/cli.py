@@ -1,5 +1,5 @@
 """The ``warpface`` command line: one sub-command per module of :mod:`warpface.commands` (``demo``, ``rig``,
-``bake``, ``preview``, ``validate``, ``track``, ``animate``, ``fit``, ``presets``), and ``batch``
+``bake``, ``preview``, ``validate``, ``track``, ``animate``, ``fit``, ``presets``, ``calibrate``), and ``batch``
 (:mod:`warpface.batch.command`: it runs the others, so it lives with :mod:`warpface.batch`).
 
 Warp is initialised quietly (:func:`warpface.init_runtime`) before a command runs. Every sub-command has

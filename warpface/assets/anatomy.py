@@ -88,6 +88,7 @@ ANATOMY_LINEAR_MUSCLE_NAMES: tuple[str, ...] = (
     *(f"levator_palpebrae_{s}" for s, _ in _SIDES),
     "orbicularis_oris_roll_upper",
     "orbicularis_oris_roll_lower",
+    *(f"orbicularis_oculi_brow_{s}" for s, _ in _SIDES),
 )
 """Linear muscles added by the full anatomy, in rig order."""
 
@@ -315,6 +316,7 @@ LINEAR_PULLS = {
     "levator_palpebrae": (0.35, 40.0, 0.90, 1.30),
     "orbicularis_oris_roll_upper": (0.35, 60.0, 0.90, 1.45),
     "orbicularis_oris_roll_lower": (0.35, 60.0, 0.90, 1.45),
+    "orbicularis_oculi_brow": (0.05, 75.0, 0.90, 1.80),
 }
 """How each table-built :func:`linear_muscle` of the rigs pulls, by name (see :func:`linear_muscles`); the ends,
 from the landmarks, are in :func:`anatomy_muscles` and in :mod:`warpface.assets.rig` for the classic muscles.
@@ -382,6 +384,15 @@ def anatomy_muscles(
         "orbicularis_oris_roll_lower": ((0.0, mouth_line - 0.02), (0.0, xy[57, 1])),
     }
     linear.update(linear_muscles(surface, ends, LINEAR_PULLS))
+    for tag, _sign in _SIDES:
+        # Orbital orbicularis oculi, upper fibres: from the orbital rim above the eye into the skin over the
+        # brow's middle; they lower the brow's middle and tail (AU4 with the corrugator and depressor supercilii,
+        # which lower its head), which nothing else does without lifting the cheek.
+        eye = xy[list(_LANDMARKS[tag]["eye"])].mean(axis=0)
+        top = xy[list(_LANDMARKS[tag]["eye"]), 1].max()
+        middle = xy[_LANDMARKS[tag]["brow_middle"]]
+        ends = {"orbicularis_oculi_brow": ((eye[0], eye[1] - 0.05), (middle[0], middle[1] + 0.03))}
+        linear.update(linear_muscles(surface, ends, LINEAR_PULLS, suffix=f"_{tag}"))
 
     world, up = frame.to_world, frame.axes[1]
     sphincters = {m.name: m for m in classic_sphincters}

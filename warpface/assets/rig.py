@@ -1,7 +1,7 @@
 """The default, landmark-anchored face rig: muscles, a jaw, 21 wrinkles, thickness (docs/RIG.md).
 
 ``anatomy="classic"`` is thesis table 2.1: 20 linear muscles and 3 sphincters. The full anatomy (the
-default) re-places some of them and adds the muscles of :mod:`~warpface.assets.anatomy` (42 linear,
+default) re-places some of them and adds the muscles of :mod:`~warpface.assets.anatomy` (44 linear,
 4 sphincters) and the jaw.
 
 Every muscle end and wrinkle curve is written in the :class:`~warpface.assets.frame.FaceFrame` of
@@ -36,6 +36,7 @@ from .anatomy import (
     linear_muscles,
     revised_classic_muscles,
 )
+from .calibrated import apply_parameters, load_calibrated_anatomy
 from .face import default_face, default_landmarks
 from .frame import FaceFrame, SurfaceSampler, check_landmarks, head_cylinder
 from .jaw import default_jaw
@@ -130,7 +131,13 @@ def rig_scale(rig: FaceRig) -> float:
 
 
 def default_rig(
-    mesh: FaceMesh | None = None, landmarks=None, *, name: str = "Face", device=None, anatomy: str = "full"
+    mesh: FaceMesh | None = None,
+    landmarks=None,
+    *,
+    name: str = "Face",
+    device=None,
+    anatomy: str = "full",
+    calibrated: bool = True,
 ) -> FaceRig:
     """The default rig on a face: muscles, wrinkles and thickness placed from its 68 iBUG landmarks.
 
@@ -141,6 +148,8 @@ def default_rig(
         name: rig name.
         device: Warp device for the vertex normals.
         anatomy: one of :data:`ANATOMIES`.
+        calibrated: the full anatomy with the muscle geometry calibrated on ICT-FaceKit's shapes
+            (:data:`~warpface.assets.calibrated.CALIBRATED_ANATOMY`, docs/RIG.md §13); False: as placed by hand.
 
     Returns:
         A :class:`~warpface.FaceRig` with the muscles of :data:`LINEAR_MUSCLE_NAMES` and
@@ -180,7 +189,7 @@ def default_rig(
     thickness = default_thickness(mesh, landmarks, device=device)
     if anatomy == "full":
         thickness = MOBILE_TISSUE_FRACTION * thickness * lip_margin_taper(mesh, frame, landmarks)
-    return FaceRig(
+    rig = FaceRig(
         mesh=mesh,
         muscles=linear + sphincters + lids,
         wrinkles=wrinkles,
@@ -189,6 +198,9 @@ def default_rig(
         name=name,
         jaw=jaw,
     )
+    if anatomy == "full" and calibrated:
+        rig = apply_parameters(rig, load_calibrated_anatomy(), device=device)
+    return rig
 
 
 def _check_layout_on(mesh: FaceMesh, landmarks: np.ndarray, normals: np.ndarray) -> None:

@@ -7,7 +7,7 @@ help and description from the first two paragraphs of the module's docstring. Re
 by adding its module name to :data:`COMMANDS`.
 """
 
-COMMANDS = ("demo", "rig", "bake", "preview", "validate", "track", "animate", "fit", "presets")
+COMMANDS = ("demo", "rig", "bake", "preview", "validate", "track", "animate", "fit", "presets", "calibrate")
 """Module names under :mod:`warpface.commands`, in the order ``warpface --help`` lists them."""
 
 __all__ = ["COMMANDS"]
