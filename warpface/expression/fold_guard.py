@@ -1,0 +1,102 @@
+"""Rig-time guards against folded skin: a muscle's response, or a jaw weight, eased where it would fold a triangle.
+
+Both act on rig-time data only (per-vertex fields and weights computed once per rig), so the frame kernels
+and the solver's Jacobian are unchanged (docs/RIG.md §13):
+
+- :func:`unfolded_response`: the skin's answer to a pull (sliding, bunching, thickening: docs/RIG.md §2–3)
+  blended back toward the muscle's own zone field, per vertex, where it would turn a triangle over that
+  the zone field alone keeps: ``w' = w₀ + g·(w − w₀)``, ``g ∈ [0, 1]``.
+- :func:`unfolded_weights`: a scalar blend weight (the jaw's, SPEC §6.2) diffused over the mesh's edges
+  around the triangles a reference motion would fold.
+
+A triangle *folds* under a displacement ``d`` when its deformed area vector keeps less than
+:data:`FOLD_MARGIN` of its rest one along the rest normal: ``n₀·n(x + d) < m·|n₀|²`` (``m = 0`` is the flip).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+
+__all__ = ["FOLD_MARGIN", "FOLD_TRAVEL", "folded_triangles", "unfolded_response", "unfolded_weights"]
+
+FOLD_MARGIN = 0.1
+"""A triangle folds when its area along the rest normal falls below this fraction of the rest area."""
+FOLD_TRAVEL = 0.05
+"""The response is checked at the contraction that moves the field's farthest vertex by this fraction of the
+mesh's bounding-box diagonal (14 mm on the built-in face; a full ARKit smile moves the cheek 11–12 mm)."""
+_GUARD_ROUNDS = 30
+"""Most rounds of :func:`unfolded_response` (each eases the vertices of the triangles still folded)."""
+
+
+def _area_vectors(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    p = points[triangles]
+    return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+
+
+def folded_triangles(points: np.ndarray, triangles: np.ndarray, moved: np.ndarray, margin: float = FOLD_MARGIN):
+    """Per triangle, whether ``moved`` folds it against ``points`` (module docstring), shape (T,) bool; triangles of
+    zero rest area never fold."""
+    rest = _area_vectors(points, triangles)
+    area = np.einsum("ti,ti->t", rest, rest)
+    along = np.einsum("ti,ti->t", _area_vectors(moved, triangles), rest)
+    return (area > 0.0) & (along < margin * area)
+
+
+def _vertex_graph(triangles: np.ndarray, count: int):
+    """(adjacency CSR over the mesh's edges, degree per vertex ≥ 1)."""
+    edges = np.unique(np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    rows, columns = edges.ravel(), edges[:, ::-1].ravel()
+    graph = coo_matrix((np.ones(len(rows)), (rows, columns)), shape=(count, count)).tocsr()
+    return graph, np.maximum(np.asarray(graph.sum(axis=1)).ravel(), 1.0)
+
+
+def unfolded_response(
+    points: np.ndarray, triangles: np.ndarray, zone: np.ndarray, response: np.ndarray, travel: float
+) -> np.ndarray:
+    """``response`` (V, 3) eased toward ``zone`` (V, 3) where, at the contraction ``K = travel / max|response|``,
+    it folds a triangle that ``zone`` does not.
+
+    Each round sets the blend ``g`` to 0 on the vertices of the triangles still folded and their first ring, then
+    smooths ``g`` once over the edges (``g ← min(g, mean of the neighbours)``), so the response fades out over a
+    ring instead of stopping at one edge. Returns ``zone + g·(response − zone)``.
+    """
+    peak = float(np.linalg.norm(response, axis=1).max()) if len(response) else 0.0
+    if peak <= 0.0 or travel <= 0.0:
+        return response
+    contraction = travel / peak
+    kept = ~folded_triangles(points, triangles, points + contraction * zone)
+    graph, degree = _vertex_graph(triangles, len(points))
+    blend = np.ones(len(points))
+    field = response
+    for _ in range(_GUARD_ROUNDS):
+        folded = kept & folded_triangles(points, triangles, points + contraction * field)
+        if not folded.any():
+            break
+        eased = np.zeros(len(points), dtype=bool)
+        eased[triangles[folded].ravel()] = True
+        eased |= graph @ eased > 0
+        blend[eased] = 0.0
+        blend = np.minimum(blend, (graph @ blend) / degree + 0.5)
+        field = zone + blend[:, None] * (response - zone)
+    return field
+
+
+def unfolded_weights(
+    points: np.ndarray, triangles: np.ndarray, weights: np.ndarray, motion: np.ndarray, *, rounds: int = 400
+) -> np.ndarray:
+    """Blend weights ``w`` (V,) of a motion ``x + w·motion`` ((V, 3) at a reference amplitude) diffused where that
+    motion folds triangles: each round, the vertices of the folded triangles and their two rings take one step of
+    ``w ← ½w + ½·mean of the neighbours``, until none folds or ``rounds`` is reached. Returns values in [0, 1]."""
+    graph, degree = _vertex_graph(triangles, len(points))
+    weights = np.asarray(weights, dtype=np.float64).copy()
+    for _ in range(rounds):
+        folded = folded_triangles(points, triangles, points + weights[:, None] * motion)
+        if not folded.any():
+            break
+        region = np.zeros(len(points), dtype=bool)
+        region[triangles[folded].ravel()] = True
+        for _ring in range(2):
+            region |= graph @ region > 0
+        weights = np.where(region, 0.5 * weights + 0.5 * (graph @ weights) / degree, weights)
+    return np.clip(weights, 0.0, 1.0)
