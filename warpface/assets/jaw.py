@@ -28,6 +28,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from ..expression.fold_guard import unfolded_weights
 from ..expression.jaw import Jaw
 from ..mesh import FaceMesh
 from .frame import FaceFrame
@@ -57,6 +58,8 @@ _DIFFUSION_ABOVE = 0.10
 """The diffusion reaches this far above the jaw line [inter-ocular units]; higher, the upper lip and cheeks keep
 their weights (diffusing everywhere lifted the upper lip's to 0.37)."""
 _MAX_DIFFUSION_STEPS = 400
+_FOLD_ANGLE = 0.35
+"""The opening [rad] no triangle may fold at (the default mappings' full ``jawOpen``): docs/RIG.md §13."""
 
 _PIVOT_OFFSET = (0.35, -0.65)
 """Hinge pivot relative to the ear-level jaw points (iBUG 0/16 midpoint), (up, out) [inter-ocular units]."""
@@ -168,4 +171,15 @@ def default_jaw(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> Jaw:
     local_landmarks = frame.to_local(mesh.points[landmarks])
     ears = 0.5 * (local_landmarks[0] + local_landmarks[16])
     pivot = frame.to_world([0.0, ears[1] + _PIVOT_OFFSET[0], ears[2] + _PIVOT_OFFSET[1]])
-    return Jaw(pivot=pivot, axis=frame.axes[0], forward=frame.axes[2], weights=jaw_weights(mesh, frame, landmarks))
+    weights = jaw_weights(mesh, frame, landmarks)
+    # The weights diffuse further where the reference opening would still fold the skin (docs/RIG.md §13).
+    turn = _rotation(frame.axes[0], _FOLD_ANGLE)
+    motion = (mesh.points - pivot) @ turn.T + pivot - mesh.points
+    weights = unfolded_weights(mesh.points, mesh.triangles, weights, motion)
+    return Jaw(pivot=pivot, axis=frame.axes[0], forward=frame.axes[2], weights=weights)
+
+
+def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    """The 3 × 3 rotation by ``angle`` [rad] about the unit ``axis`` (Rodrigues)."""
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)

@@ -27,6 +27,8 @@ FOLD_TRAVEL = 0.05
 mesh's bounding-box diagonal (14 mm on the built-in face; a full ARKit smile moves the cheek 11–12 mm)."""
 _GUARD_ROUNDS = 30
 """Most rounds of :func:`unfolded_response` (each eases the vertices of the triangles still folded)."""
+_STALL_ROUNDS = 10
+""":func:`unfolded_weights` stops when this many rounds have not lowered the count of folded triangles."""
 
 
 def _area_vectors(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -83,20 +85,26 @@ def unfolded_response(
 
 
 def unfolded_weights(
-    points: np.ndarray, triangles: np.ndarray, weights: np.ndarray, motion: np.ndarray, *, rounds: int = 400
+    points: np.ndarray, triangles: np.ndarray, weights: np.ndarray, motion: np.ndarray, *, rounds: int = 100
 ) -> np.ndarray:
     """Blend weights ``w`` (V,) of a motion ``x + w·motion`` ((V, 3) at a reference amplitude) diffused where that
-    motion folds triangles: each round, the vertices of the folded triangles and their two rings take one step of
-    ``w ← ½w + ½·mean of the neighbours``, until none folds or ``rounds`` is reached. Returns values in [0, 1]."""
+    motion folds triangles: each round, the vertices of the folded triangles and their three rings take four steps of
+    ``w ← ½w + ½·mean of the neighbours``, until none folds, ``rounds`` are done, or the count of folded triangles
+    has not fallen for :data:`_STALL_ROUNDS` rounds (a fold the motion itself makes, at a mouth corner where the
+    lips' weights meet). Returns values in [0, 1]."""
     graph, degree = _vertex_graph(triangles, len(points))
     weights = np.asarray(weights, dtype=np.float64).copy()
+    best, since = len(triangles) + 1, 0
     for _ in range(rounds):
         folded = folded_triangles(points, triangles, points + weights[:, None] * motion)
-        if not folded.any():
+        count = int(folded.sum())
+        best, since = (count, 0) if count < best else (best, since + 1)
+        if count == 0 or since > _STALL_ROUNDS:
             break
         region = np.zeros(len(points), dtype=bool)
         region[triangles[folded].ravel()] = True
-        for _ring in range(2):
+        for _ring in range(3):
             region |= graph @ region > 0
-        weights = np.where(region, 0.5 * weights + 0.5 * (graph @ weights) / degree, weights)
+        for _step in range(4):
+            weights = np.where(region, 0.5 * weights + 0.5 * (graph @ weights) / degree, weights)
     return np.clip(weights, 0.0, 1.0)

@@ -17,7 +17,7 @@ from .muscles import Muscle
 from .plans import PLANS, tiled_rig
 from .tiling import mesh_tiles
 from .tissue import skin_muscle_weights
-from .wrinkles import Wrinkle, wrinkle_shapes
+from .wrinkles import Wrinkle, skin_wrinkle_shapes
 
 __all__ = ["ExpressionModel", "ExpressionStages"]
 
@@ -112,7 +112,7 @@ class ExpressionModel:
         """The rig-time fields (muscle weights with the tissue's response, wrinkle profiles) as device arrays."""
         device = self.device
         weights = skin_muscle_weights(mesh, self.muscles, self.thickness, device=device)
-        shapes = wrinkle_shapes(mesh.points, self.wrinkles, device=device)
+        shapes = skin_wrinkle_shapes(mesh.points, self.wrinkles, self.muscles, device=device)
         self.muscle_entry_count = int(len(weights.muscle))
         self.wrinkle_entry_count = int(len(shapes.wrinkle))
         self._muscle_offsets = wp.array(weights.offsets, dtype=wp.int32, device=device)

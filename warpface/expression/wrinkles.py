@@ -37,6 +37,7 @@ __all__ = [
     "project_points",
     "bezier_distances",
     "wrinkle_shapes",
+    "skin_wrinkle_shapes",
     "WrinkleShapes",
     "WRINKLE_SHAPE_CUTOFF",
 ]
@@ -388,3 +389,14 @@ def wrinkle_shapes(rest_points: np.ndarray, wrinkles: list[Wrinkle], *, device=N
         values.append(shape[kept])
     offsets, column, value = vertex_csr(len(rest_points), rows, columns, values)
     return WrinkleShapes(offsets=offsets, wrinkle=column, shape=value)
+
+
+def skin_wrinkle_shapes(rest_points: np.ndarray, wrinkles: list[Wrinkle], muscles, *, device=None) -> WrinkleShapes:
+    """The profiles the expression model and the solver apply: :func:`wrinkle_shapes` times the hinges'
+    :func:`~warpface.expression.lids.hinge_taper` (docs/RIG.md §13)."""
+    from .lids import hinge_taper
+
+    shapes = wrinkle_shapes(rest_points, wrinkles, device=device)
+    taper = hinge_taper(len(rest_points), list(muscles))
+    row = np.repeat(np.arange(len(rest_points)), np.diff(shapes.offsets))
+    return WrinkleShapes(offsets=shapes.offsets, wrinkle=shapes.wrinkle, shape=shapes.shape * taper[row])
