@@ -146,7 +146,18 @@ def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.n
     under = np.interp(local[:, 0], border[:, 0], border[:, 1]) - local[:, 1]
     neck = 1.0 - _smoothstep((under - _NECK_RAMP[0]) / (_NECK_RAMP[1] - _NECK_RAMP[0]))
     weights = _smoothstep((below + above_ramp) / (above_ramp + below_ramp)) * neck
-    return _diffused(mesh, weights, _DIFFUSION * frame.scale, free=below > -_DIFFUSION_ABOVE)
+    free = below > -_DIFFUSION_ABOVE
+    weights = _diffused(mesh, weights, _DIFFUSION * frame.scale, free=free)
+    # The weights diffuse further where the reference opening would still fold the skin (docs/RIG.md §13).
+    pivot = _pivot(frame, local_landmarks)
+    motion = (mesh.points - pivot) @ _rotation(frame.axes[0], _FOLD_ANGLE).T + pivot - mesh.points
+    return unfolded_weights(mesh.points, mesh.triangles, weights, motion, free=free)
+
+
+def _pivot(frame: FaceFrame, local_landmarks: np.ndarray) -> np.ndarray:
+    """The hinge's pivot in mesh coordinates (module docstring)."""
+    ears = 0.5 * (local_landmarks[0] + local_landmarks[16])
+    return frame.to_world([0.0, ears[1] + _PIVOT_OFFSET[0], ears[2] + _PIVOT_OFFSET[1]])
 
 
 def _diffused(mesh: FaceMesh, values: np.ndarray, length: float, free: np.ndarray) -> np.ndarray:
@@ -168,14 +179,8 @@ def _diffused(mesh: FaceMesh, values: np.ndarray, length: float, free: np.ndarra
 
 def default_jaw(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> Jaw:
     """The default rig's :class:`~warpface.expression.Jaw` on a face (module docstring)."""
-    local_landmarks = frame.to_local(mesh.points[landmarks])
-    ears = 0.5 * (local_landmarks[0] + local_landmarks[16])
-    pivot = frame.to_world([0.0, ears[1] + _PIVOT_OFFSET[0], ears[2] + _PIVOT_OFFSET[1]])
+    pivot = _pivot(frame, frame.to_local(mesh.points[landmarks]))
     weights = jaw_weights(mesh, frame, landmarks)
-    # The weights diffuse further where the reference opening would still fold the skin (docs/RIG.md §13).
-    turn = _rotation(frame.axes[0], _FOLD_ANGLE)
-    motion = (mesh.points - pivot) @ turn.T + pivot - mesh.points
-    weights = unfolded_weights(mesh.points, mesh.triangles, weights, motion)
     return Jaw(pivot=pivot, axis=frame.axes[0], forward=frame.axes[2], weights=weights)
 
 

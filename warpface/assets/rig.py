@@ -22,6 +22,7 @@ import numpy as np
 
 from .._validate import expect_instance
 from ..errors import RigError
+from ..expression.lids import hinge_taper
 from ..expression.muscles import LinearMuscle, SphincterMuscle
 from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrinkle, project_points
 from ..landmarks import LEFT_SIDE, RIGHT_SIDE, check_layout
@@ -179,7 +180,8 @@ def default_rig(
     wrinkles = _wrinkles(local, surface, frame, head_cylinder(frame, local), _typical_edge(mesh) / frame.scale, device)
     thickness = default_thickness(mesh, landmarks, device=device)
     if anatomy == "full":
-        thickness = MOBILE_TISSUE_FRACTION * thickness * lip_margin_taper(mesh, frame, landmarks)
+        taper = lip_margin_taper(mesh, frame, landmarks) * hinge_taper(mesh.vertex_count, lids)  # docs/RIG.md §13
+        thickness = MOBILE_TISSUE_FRACTION * thickness * taper
     return FaceRig(
         mesh=mesh,
         muscles=linear + sphincters + lids,

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.sparse import coo_matrix
 
-__all__ = ["FOLD_MARGIN", "FOLD_TRAVEL", "folded_triangles", "unfolded_response", "unfolded_weights"]
+__all__ = ["FOLD_MARGIN", "FOLD_TRAVEL", "fold_blend", "folded_triangles", "unfolded_response", "unfolded_weights"]
 
 FOLD_MARGIN = 0.1
 """A triangle folds when its area along the rest normal falls below this fraction of the rest area."""
@@ -57,16 +57,24 @@ def unfolded_response(
     points: np.ndarray, triangles: np.ndarray, zone: np.ndarray, response: np.ndarray, travel: float
 ) -> np.ndarray:
     """``response`` (V, 3) eased toward ``zone`` (V, 3) where, at the contraction ``K = travel / max|response|``,
-    it folds a triangle that ``zone`` does not.
-
-    Each round sets the blend ``g`` to 0 on the vertices of the triangles still folded and their first ring, then
-    smooths ``g`` once over the edges (``g ← min(g, mean of the neighbours)``), so the response fades out over a
-    ring instead of stopping at one edge. Returns ``zone + g·(response − zone)``.
-    """
+    it folds a triangle that ``zone`` does not: ``zone + g·(response − zone)`` with ``g`` from :func:`fold_blend`."""
     peak = float(np.linalg.norm(response, axis=1).max()) if len(response) else 0.0
     if peak <= 0.0 or travel <= 0.0:
         return response
-    contraction = travel / peak
+    blend = fold_blend(points, triangles, zone, response, travel / peak)
+    return zone + blend[:, None] * (response - zone)
+
+
+def fold_blend(
+    points: np.ndarray, triangles: np.ndarray, zone: np.ndarray, response: np.ndarray, contraction: float
+) -> np.ndarray:
+    """Per vertex, the blend ``g ∈ [0, 1]`` (V,) that keeps ``x + K·(zone + g·(response − zone))`` from folding the
+    triangles ``x + K·zone`` keeps, at ``K = contraction``.
+
+    Each round sets ``g`` to 0 on the vertices of the triangles still folded and their first ring, then smooths it
+    once over the edges (``g ← min(g, mean of the neighbours + ½)``), so the response fades out over a ring
+    instead of stopping at one edge; at most :data:`_GUARD_ROUNDS` rounds.
+    """
     kept = ~folded_triangles(points, triangles, points + contraction * zone)
     graph, degree = _vertex_graph(triangles, len(points))
     blend = np.ones(len(points))
@@ -81,17 +89,23 @@ def unfolded_response(
         blend[eased] = 0.0
         blend = np.minimum(blend, (graph @ blend) / degree + 0.5)
         field = zone + blend[:, None] * (response - zone)
-    return field
+    return blend
 
 
 def unfolded_weights(
-    points: np.ndarray, triangles: np.ndarray, weights: np.ndarray, motion: np.ndarray, *, rounds: int = 100
+    points: np.ndarray,
+    triangles: np.ndarray,
+    weights: np.ndarray,
+    motion: np.ndarray,
+    *,
+    free: np.ndarray | None = None,
+    rounds: int = 100,
 ) -> np.ndarray:
     """Blend weights ``w`` (V,) of a motion ``x + w·motion`` ((V, 3) at a reference amplitude) diffused where that
     motion folds triangles: each round, the vertices of the folded triangles and their three rings take four steps of
     ``w ← ½w + ½·mean of the neighbours``, until none folds, ``rounds`` are done, or the count of folded triangles
     has not fallen for :data:`_STALL_ROUNDS` rounds (a fold the motion itself makes, at a mouth corner where the
-    lips' weights meet). Returns values in [0, 1]."""
+    lips' weights meet). Only the ``free`` vertices (V,) bool (default: all) change. Returns values in [0, 1]."""
     graph, degree = _vertex_graph(triangles, len(points))
     weights = np.asarray(weights, dtype=np.float64).copy()
     best, since = len(triangles) + 1, 0
@@ -105,6 +119,8 @@ def unfolded_weights(
         region[triangles[folded].ravel()] = True
         for _ring in range(3):
             region |= graph @ region > 0
+        if free is not None:
+            region &= free
         for _step in range(4):
             weights = np.where(region, 0.5 * weights + 0.5 * (graph @ weights) / degree, weights)
     return np.clip(weights, 0.0, 1.0)

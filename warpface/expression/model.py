@@ -112,7 +112,7 @@ class ExpressionModel:
         """The rig-time fields (muscle weights with the tissue's response, wrinkle profiles) as device arrays."""
         device = self.device
         weights = skin_muscle_weights(mesh, self.muscles, self.thickness, device=device)
-        shapes = skin_wrinkle_shapes(mesh.points, self.wrinkles, self.muscles, device=device)
+        shapes = skin_wrinkle_shapes(mesh, self.wrinkles, self.muscles, device=device)
         self.muscle_entry_count = int(len(weights.muscle))
         self.wrinkle_entry_count = int(len(shapes.wrinkle))
         self._muscle_offsets = wp.array(weights.offsets, dtype=wp.int32, device=device)

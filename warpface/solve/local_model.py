@@ -115,7 +115,7 @@ class RigOperators:
         rows = (3 * entry_vertex[:, None] + np.arange(3)[None, :]).ravel()
         columns = np.repeat(muscles.muscle.astype(np.int64), 3)
         field = sp.csr_matrix((muscles.weight.ravel(), (rows, columns)), shape=(3 * vertex_count, len(rig.muscles)))
-        wrinkles = skin_wrinkle_shapes(rest, list(rig.wrinkles), rig.muscles, device=device)
+        wrinkles = skin_wrinkle_shapes(mesh, list(rig.wrinkles), rig.muscles, device=device)
         depth = np.array([w.depth for w in rig.wrinkles], dtype=np.float64)
         entry_vertex = np.repeat(np.arange(vertex_count), np.diff(wrinkles.offsets))
         profile = sp.csr_matrix(
