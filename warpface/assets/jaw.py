@@ -59,6 +59,9 @@ _DIFFUSION_ABOVE = 0.10
 their weights (diffusing everywhere lifted the upper lip's to 0.37)."""
 _MAX_DIFFUSION_STEPS = 400
 _FOLD_ANGLE = 0.35
+_GUARD_ABOVE = 0.12
+"""The fold guard may change weights up to this far above the jaw line [inter-ocular units]: the mouth corners,
+where the lips' weights meet, but not the upper lip's middle."""
 """The opening [rad] no triangle may fold at (the default mappings' full ``jawOpen``): docs/RIG.md §13."""
 
 _PIVOT_OFFSET = (0.35, -0.65)
@@ -151,7 +154,7 @@ def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.n
     # The weights diffuse further where the reference opening would still fold the skin (docs/RIG.md §13).
     pivot = _pivot(frame, local_landmarks)
     motion = (mesh.points - pivot) @ _rotation(frame.axes[0], _FOLD_ANGLE).T + pivot - mesh.points
-    return unfolded_weights(mesh.points, mesh.triangles, weights, motion, free=free)
+    return unfolded_weights(mesh.points, mesh.triangles, weights, motion, free=below > -_GUARD_ABOVE)
 
 
 def _pivot(frame: FaceFrame, local_landmarks: np.ndarray) -> np.ndarray:
