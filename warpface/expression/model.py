@@ -13,6 +13,7 @@ from .controls import check_rig_parts, contraction_limits, control_vector, frame
 from .evaluator import ExpressionEvaluator, ExpressionStages
 from .jaw import JAW_CONTROL_NAMES, Jaw
 from .kernels import MuscleEntry, WrinkleEntry
+from .lids import bulging_thickness
 from .muscles import Muscle
 from .plans import PLANS, tiled_rig
 from .tiling import mesh_tiles
@@ -126,7 +127,8 @@ class ExpressionModel:
         )
         counted = np.bincount(mesh.triangles[~mesh.degenerate_triangles].ravel(), minlength=mesh.vertex_count)
         self._counts = wp.array(counted.astype(np.float32), dtype=wp.float32, device=device)
-        self._thickness = wp.array(self.thickness.astype(np.float32), dtype=wp.float32, device=device)
+        bulging = bulging_thickness(self.thickness, self.muscles)
+        self._thickness = wp.array(bulging.astype(np.float32), dtype=wp.float32, device=device)
         self.default_depths = np.array([w.depth for w in self.wrinkles], dtype=np.float64)
         if self.jaw is not None:
             self._jaw_weight = wp.array(self.jaw.weights.astype(np.float32), dtype=wp.float32, device=device)

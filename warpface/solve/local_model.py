@@ -27,6 +27,7 @@ import scipy.sparse as sp
 
 from .._validate import expect_instance
 from ..expression.kernels import STRETCH_FLOOR as EXPRESSION_STRETCH_FLOOR
+from ..expression.lids import bulging_thickness
 from ..expression.tissue import skin_muscle_weights
 from ..expression.wrinkles import skin_wrinkle_shapes
 from ..rig import FaceRig
@@ -132,7 +133,7 @@ class RigOperators:
             counts,
             incidence,
             field,
-            np.asarray(rig.thickness, dtype=np.float64),
+            bulging_thickness(rig.thickness, rig.muscles),
             profile,
             kr,
             None if jaw is None else _jaw_fields(jaw, rest),
