@@ -391,35 +391,13 @@ def wrinkle_shapes(rest_points: np.ndarray, wrinkles: list[Wrinkle], *, device=N
     return WrinkleShapes(offsets=offsets, wrinkle=column, shape=value)
 
 
-WRINKLE_FOLD_COMPRESSION = 0.5
-"""The area ratio ``r`` at which :func:`skin_wrinkle_shapes` checks a furrow for folds (``C(r)`` there)."""
-
-
 def skin_wrinkle_shapes(mesh, wrinkles: list[Wrinkle], muscles, *, device=None) -> WrinkleShapes:
-    """The profiles the expression model and the solver apply (docs/RIG.md §13): :func:`wrinkle_shapes` times the
-    hinges' :func:`~warpface.expression.lids.hinge_taper`, each furrow then faded
-    (:func:`~warpface.expression.fold_guard.fold_blend`) where its lift ``k_d·s·C(r)`` along the rest normals at
-    ``r =`` :data:`WRINKLE_FOLD_COMPRESSION` would fold a triangle of the rest mesh (a furrow deeper than the
-    surface's curvature radius: eye and mouth corners, nose wings)."""
-    from .fold_guard import fold_blend
+    """The profiles the expression model and the solver apply (docs/RIG.md §13): :func:`wrinkle_shapes` of the
+    rest ``mesh``'s points times the hinges' :func:`~warpface.expression.lids.hinge_taper`."""
     from .lids import hinge_taper
 
     points = mesh.points
     shapes = wrinkle_shapes(points, wrinkles, device=device)
     row = np.repeat(np.arange(len(points)), np.diff(shapes.offsets))
     shape = shapes.shape * hinge_taper(len(points), list(muscles))[row]
-    normals = mesh.vertex_normals(device=device)
-    triangles = mesh.triangles
-    for index, wrinkle in enumerate(wrinkles):
-        mine = np.flatnonzero(shapes.wrinkle == index)
-        if not len(mine):
-            continue
-        touched = np.zeros(len(points), dtype=bool)
-        touched[row[mine]] = True
-        near = triangles[touched[triangles].any(axis=1)]
-        field = np.zeros((len(points), 3))
-        field[row[mine]] = (wrinkle.depth * shape[mine])[:, None] * normals[row[mine]]
-        lift = (wrinkle.kr - 1.0) * WRINKLE_FOLD_COMPRESSION + 1.0
-        blend = fold_blend(points, near, np.zeros_like(field), field, lift)
-        shape[mine] *= blend[row[mine]]
     return WrinkleShapes(offsets=shapes.offsets, wrinkle=shapes.wrinkle, shape=shape)
