@@ -11,7 +11,8 @@ from warpface.assets import default_rig
 from warpface.assets.quality import flipped_triangles
 from warpface.data import ict_face_region, ict_landmark_indices
 from warpface.expression.fold_guard import fold_blend, folded_triangles, unfolded_response, unfolded_weights
-from warpface.expression.lids import LidMuscle, hinge_taper
+from warpface.expression.lids import LidMuscle, bulging_thickness, hinge_taper
+from warpface.expression.seal import LipSeal
 
 DEVICE = "cpu"
 
@@ -86,6 +87,14 @@ def test_hinge_taper_is_zero_on_the_margin_and_one_off_the_hinges():
     other = LidMuscle("other", np.zeros(3), [1, 0, 0], [4, 5], [0.3, 0.3])
     taper = hinge_taper(7, [lid, "not a hinge", other])
     np.testing.assert_allclose(taper, [1.0, 1.0, 0.75, 0.0, 0.0, 0.0, 1.0])
+
+
+def test_the_bulge_fades_on_the_eyelids_but_not_on_the_lips():
+    lid = LidMuscle("lid", np.zeros(3), [1, 0, 0], [0, 1], [0.2, 0.1])
+    seal = LipSeal("seal", np.zeros(3), [1, 0, 0], [2, 3], [0.1, -0.1], pairs=[[2, 3]])
+    thickness = np.array([2.0, 2.0, 2.0, 2.0, 3.0])
+    np.testing.assert_allclose(bulging_thickness(thickness, [lid, seal]), [0.0, 1.0, 2.0, 2.0, 3.0])
+    np.testing.assert_array_equal(bulging_thickness(thickness, [seal]), thickness)
 
 
 def _flips(rig) -> dict[str, int]:
