@@ -28,6 +28,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from ..expression.fold_guard import unfolded_weights
 from ..expression.jaw import Jaw
 from ..mesh import FaceMesh
 from .frame import FaceFrame
@@ -57,6 +58,11 @@ _DIFFUSION_ABOVE = 0.10
 """The diffusion reaches this far above the jaw line [inter-ocular units]; higher, the upper lip and cheeks keep
 their weights (diffusing everywhere lifted the upper lip's to 0.37)."""
 _MAX_DIFFUSION_STEPS = 400
+_FOLD_ANGLE = 0.35
+_GUARD_ABOVE = 0.12
+"""The fold guard may change weights up to this far above the jaw line [inter-ocular units]: the mouth corners,
+where the lips' weights meet, but not the upper lip's middle."""
+"""The opening [rad] no triangle may fold at (the default mappings' full ``jawOpen``): docs/RIG.md §14."""
 
 _PIVOT_OFFSET = (0.35, -0.65)
 """Hinge pivot relative to the ear-level jaw points (iBUG 0/16 midpoint), (up, out) [inter-ocular units]."""
@@ -143,7 +149,18 @@ def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.n
     under = np.interp(local[:, 0], border[:, 0], border[:, 1]) - local[:, 1]
     neck = 1.0 - _smoothstep((under - _NECK_RAMP[0]) / (_NECK_RAMP[1] - _NECK_RAMP[0]))
     weights = _smoothstep((below + above_ramp) / (above_ramp + below_ramp)) * neck
-    return _diffused(mesh, weights, _DIFFUSION * frame.scale, free=below > -_DIFFUSION_ABOVE)
+    free = below > -_DIFFUSION_ABOVE
+    weights = _diffused(mesh, weights, _DIFFUSION * frame.scale, free=free)
+    # The weights diffuse further where the reference opening would still fold the skin (docs/RIG.md §14).
+    pivot = _pivot(frame, local_landmarks)
+    motion = (mesh.points - pivot) @ _rotation(frame.axes[0], _FOLD_ANGLE).T + pivot - mesh.points
+    return unfolded_weights(mesh.points, mesh.triangles, weights, motion, free=below > -_GUARD_ABOVE)
+
+
+def _pivot(frame: FaceFrame, local_landmarks: np.ndarray) -> np.ndarray:
+    """The hinge's pivot in mesh coordinates (module docstring)."""
+    ears = 0.5 * (local_landmarks[0] + local_landmarks[16])
+    return frame.to_world([0.0, ears[1] + _PIVOT_OFFSET[0], ears[2] + _PIVOT_OFFSET[1]])
 
 
 def _diffused(mesh: FaceMesh, values: np.ndarray, length: float, free: np.ndarray) -> np.ndarray:
@@ -165,7 +182,12 @@ def _diffused(mesh: FaceMesh, values: np.ndarray, length: float, free: np.ndarra
 
 def default_jaw(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> Jaw:
     """The default rig's :class:`~warpface.expression.Jaw` on a face (module docstring)."""
-    local_landmarks = frame.to_local(mesh.points[landmarks])
-    ears = 0.5 * (local_landmarks[0] + local_landmarks[16])
-    pivot = frame.to_world([0.0, ears[1] + _PIVOT_OFFSET[0], ears[2] + _PIVOT_OFFSET[1]])
-    return Jaw(pivot=pivot, axis=frame.axes[0], forward=frame.axes[2], weights=jaw_weights(mesh, frame, landmarks))
+    pivot = _pivot(frame, frame.to_local(mesh.points[landmarks]))
+    weights = jaw_weights(mesh, frame, landmarks)
+    return Jaw(pivot=pivot, axis=frame.axes[0], forward=frame.axes[2], weights=weights)
+
+
+def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    """The 3 × 3 rotation by ``angle`` [rad] about the unit ``axis`` (Rodrigues)."""
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)

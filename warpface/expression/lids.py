@@ -25,7 +25,7 @@ import warp as wp
 from .._validate import as_finite_array, as_vec3, unit_vector
 from .formulas import jaw_blend, jaw_rotation, jaw_slide, unit_or_zero
 
-__all__ = ["LidMuscle", "MAX_LID_ANGLE", "lid_field"]
+__all__ = ["LidMuscle", "MAX_LID_ANGLE", "lid_field", "hinge_taper", "bulging_thickness"]
 
 MAX_LID_ANGLE = np.pi / 2
 """Largest |θ_v| [rad] per unit contraction: a lid turns by less than a right angle over the eyeball."""
@@ -137,3 +137,29 @@ def lid_field(rest: wp.array, muscle: LidMuscle) -> np.ndarray:
         ]
         wp.launch(_lid_field_kernel, dim=len(muscle.vertices), inputs=inputs, outputs=[out], device=rest.device)
     return out.numpy()
+
+
+def hinge_taper(vertex_count: int, muscles) -> np.ndarray:
+    """Per vertex, ``1 − |θ_v| / max |θ|`` of the hinges (:class:`LidMuscle`, the lip seal too) among ``muscles``
+    that move it (the smallest where several do), 1 elsewhere, shape (V,): 0 on a lid's margin, which turns the
+    most, and on the lips' contact line. The wrinkles fade by it (docs/RIG.md §14): a furrow's lift along the
+    normal would otherwise open the lids a blink closes and push the lips through each other."""
+    taper = np.ones(vertex_count)
+    for muscle in muscles:
+        if isinstance(muscle, LidMuscle) and len(muscle.vertices):
+            turn = np.abs(muscle.angles)
+            peak = float(turn.max())
+            if peak > 0.0:
+                taper[muscle.vertices] = np.minimum(taper[muscle.vertices], 1.0 - turn / peak)
+    return taper
+
+
+def bulging_thickness(thickness: np.ndarray, muscles) -> np.ndarray:
+    """The ``h`` the bulge (SPEC §1.3) applies, shape (V,) float64: ``thickness`` times the eyelid hinges'
+    :func:`hinge_taper` (not the lip seal's: the lips have their own taper, docs/RIG.md §12–13), so the skin a
+    blink gathers on a lid does not lift its margin off the other lid's."""
+    from .seal import LipSeal
+
+    thickness = np.asarray(thickness, dtype=np.float64)
+    eyelids = [m for m in muscles if isinstance(m, LidMuscle) and not isinstance(m, LipSeal)]
+    return thickness * hinge_taper(len(thickness), eyelids) if eyelids else thickness

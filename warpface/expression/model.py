@@ -13,11 +13,12 @@ from .controls import check_rig_parts, contraction_limits, control_vector, frame
 from .evaluator import ExpressionEvaluator, ExpressionStages
 from .jaw import JAW_CONTROL_NAMES, Jaw
 from .kernels import MuscleEntry, WrinkleEntry
+from .lids import bulging_thickness
 from .muscles import Muscle
 from .plans import PLANS, tiled_rig
 from .tiling import mesh_tiles
 from .tissue import skin_muscle_weights
-from .wrinkles import Wrinkle, wrinkle_shapes
+from .wrinkles import Wrinkle, skin_wrinkle_shapes
 
 __all__ = ["ExpressionModel", "ExpressionStages"]
 
@@ -112,7 +113,7 @@ class ExpressionModel:
         """The rig-time fields (muscle weights with the tissue's response, wrinkle profiles) as device arrays."""
         device = self.device
         weights = skin_muscle_weights(mesh, self.muscles, self.thickness, device=device)
-        shapes = wrinkle_shapes(mesh.points, self.wrinkles, device=device)
+        shapes = skin_wrinkle_shapes(mesh, self.wrinkles, self.muscles, device=device)
         self.muscle_entry_count = int(len(weights.muscle))
         self.wrinkle_entry_count = int(len(shapes.wrinkle))
         self._muscle_offsets = wp.array(weights.offsets, dtype=wp.int32, device=device)
@@ -126,7 +127,8 @@ class ExpressionModel:
         )
         counted = np.bincount(mesh.triangles[~mesh.degenerate_triangles].ravel(), minlength=mesh.vertex_count)
         self._counts = wp.array(counted.astype(np.float32), dtype=wp.float32, device=device)
-        self._thickness = wp.array(self.thickness.astype(np.float32), dtype=wp.float32, device=device)
+        bulging = bulging_thickness(self.thickness, self.muscles)
+        self._thickness = wp.array(bulging.astype(np.float32), dtype=wp.float32, device=device)
         self.default_depths = np.array([w.depth for w in self.wrinkles], dtype=np.float64)
         if self.jaw is not None:
             self._jaw_weight = wp.array(self.jaw.weights.astype(np.float32), dtype=wp.float32, device=device)

@@ -18,6 +18,9 @@ stays ``d = K · w'(P)`` and the solver's Jacobian of the muscle stage is still 
   ``(1/r − 1)·h ≈ −ρ·K·h`` of the muscle belly and fat pads, which the thin-sheet bulge under-states.
 - **thickening** ``τ ≥ 0``: ``w' += τ · |w| · N``: a shortening muscle belly thickens (its volume is
   conserved), lifting the skin over it in proportion to the pull there.
+
+Where the response would fold a triangle that the zone field alone keeps, it fades back to the zone field
+(:func:`~warpface.expression.fold_guard.unfolded_response`, docs/RIG.md §14).
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ import warp as wp
 from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
+from .fold_guard import FOLD_TRAVEL, unfolded_response
 from .formulas import bunching_pull, sliding_pull, thickening_pull
 from .muscles import Muscle, MuscleWeights
 
@@ -187,6 +191,7 @@ def tissue_response(
     points = np.asarray(points, dtype=np.float64)
     extent = points.max(axis=0) - points.min(axis=0) if len(points) else np.zeros(3)
     radius = FASCIA_RADIUS * float(np.linalg.norm(extent))
+    travel = FOLD_TRAVEL * float(np.linalg.norm(extent))
     average = neighbourhood_averager(points, radius)
     normals = average(np.asarray(normals, dtype=np.float64))
     length = np.linalg.norm(normals, axis=1, keepdims=True)
@@ -198,6 +203,7 @@ def tissue_response(
         mine = weights.muscle == index
         field = np.zeros((vertex_count, 3))
         field[row[mine]] = weights.weight[mine]
+        zone = field
         if muscle.sliding > 0.0 or muscle.thickening > 0.0:
             # Sliding removes the pull's normal part: the skin glides on the fascia. Carrying the full pull
             # along the surface instead folded the skin wherever the fascia turns steeply under a
@@ -208,7 +214,7 @@ def tissue_response(
             cap = BUNCHING_CAP * float(np.linalg.norm(field, axis=1).max())
             if cap > 0.0:
                 field = _per_vertex(_bunch_kernel, [field, height], [cap], [normals])
-        return field
+        return field if field is zone else unfolded_response(points, triangles, zone, field, travel)
 
     return MuscleWeights.from_fields(vertex_count, (responded(i, m) for i, m in enumerate(muscles)))
 

@@ -37,6 +37,7 @@ __all__ = [
     "project_points",
     "bezier_distances",
     "wrinkle_shapes",
+    "skin_wrinkle_shapes",
     "WrinkleShapes",
     "WRINKLE_SHAPE_CUTOFF",
 ]
@@ -388,3 +389,15 @@ def wrinkle_shapes(rest_points: np.ndarray, wrinkles: list[Wrinkle], *, device=N
         values.append(shape[kept])
     offsets, column, value = vertex_csr(len(rest_points), rows, columns, values)
     return WrinkleShapes(offsets=offsets, wrinkle=column, shape=value)
+
+
+def skin_wrinkle_shapes(mesh, wrinkles: list[Wrinkle], muscles, *, device=None) -> WrinkleShapes:
+    """The profiles the expression model and the solver apply (docs/RIG.md §14): :func:`wrinkle_shapes` of the
+    rest ``mesh``'s points times the hinges' :func:`~warpface.expression.lids.hinge_taper`."""
+    from .lids import hinge_taper
+
+    points = mesh.points
+    shapes = wrinkle_shapes(points, wrinkles, device=device)
+    row = np.repeat(np.arange(len(points)), np.diff(shapes.offsets))
+    shape = shapes.shape * hinge_taper(len(points), list(muscles))[row]
+    return WrinkleShapes(offsets=shapes.offsets, wrinkle=shapes.wrinkle, shape=shape)

@@ -27,8 +27,9 @@ import scipy.sparse as sp
 
 from .._validate import expect_instance
 from ..expression.kernels import STRETCH_FLOOR as EXPRESSION_STRETCH_FLOOR
+from ..expression.lids import bulging_thickness
 from ..expression.tissue import skin_muscle_weights
-from ..expression.wrinkles import wrinkle_shapes
+from ..expression.wrinkles import skin_wrinkle_shapes
 from ..rig import FaceRig
 
 __all__ = ["RigOperators", "Neighbourhood", "STRETCH_FLOOR", "REST_STRETCH_BAND"]
@@ -115,7 +116,7 @@ class RigOperators:
         rows = (3 * entry_vertex[:, None] + np.arange(3)[None, :]).ravel()
         columns = np.repeat(muscles.muscle.astype(np.int64), 3)
         field = sp.csr_matrix((muscles.weight.ravel(), (rows, columns)), shape=(3 * vertex_count, len(rig.muscles)))
-        wrinkles = wrinkle_shapes(rest, list(rig.wrinkles), device=device)
+        wrinkles = skin_wrinkle_shapes(mesh, list(rig.wrinkles), rig.muscles, device=device)
         depth = np.array([w.depth for w in rig.wrinkles], dtype=np.float64)
         entry_vertex = np.repeat(np.arange(vertex_count), np.diff(wrinkles.offsets))
         profile = sp.csr_matrix(
@@ -132,7 +133,7 @@ class RigOperators:
             counts,
             incidence,
             field,
-            np.asarray(rig.thickness, dtype=np.float64),
+            bulging_thickness(rig.thickness, rig.muscles),
             profile,
             kr,
             None if jaw is None else _jaw_fields(jaw, rest),

@@ -1,0 +1,126 @@
+"""Rig-time guards against folded skin: a muscle's response, or a jaw weight, eased where it would fold a triangle.
+
+Both act on rig-time data only (per-vertex fields and weights computed once per rig), so the frame kernels
+and the solver's Jacobian are unchanged (docs/RIG.md §14):
+
+- :func:`unfolded_response`: the skin's answer to a pull (sliding, bunching, thickening: docs/RIG.md §2–3)
+  blended back toward the muscle's own zone field, per vertex, where it would turn a triangle over that
+  the zone field alone keeps: ``w' = w₀ + g·(w − w₀)``, ``g ∈ [0, 1]``.
+- :func:`unfolded_weights`: a scalar blend weight (the jaw's, SPEC §6.2) diffused over the mesh's edges
+  around the triangles a reference motion would fold.
+
+A triangle *folds* under a displacement ``d`` when its deformed area vector keeps less than
+:data:`FOLD_MARGIN` of its rest one along the rest normal: ``n₀·n(x + d) < m·|n₀|²`` (``m = 0`` is the flip).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+
+__all__ = ["FOLD_MARGIN", "FOLD_TRAVEL", "fold_blend", "folded_triangles", "unfolded_response", "unfolded_weights"]
+
+FOLD_MARGIN = 0.1
+"""A triangle folds when its area along the rest normal falls below this fraction of the rest area."""
+FOLD_TRAVEL = 0.05
+"""The response is checked at the contraction that moves the field's farthest vertex by this fraction of the
+mesh's bounding-box diagonal (14 mm on the built-in face; a full ARKit smile moves the cheek 11–12 mm)."""
+_GUARD_ROUNDS = 30
+"""Most rounds of :func:`unfolded_response` (each eases the vertices of the triangles still folded)."""
+_STALL_ROUNDS = 10
+""":func:`unfolded_weights` stops when this many rounds have not lowered the count of folded triangles."""
+
+
+def _area_vectors(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    p = points[triangles]
+    return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+
+
+def folded_triangles(points: np.ndarray, triangles: np.ndarray, moved: np.ndarray, margin: float = FOLD_MARGIN):
+    """Per triangle, whether ``moved`` folds it against ``points`` (module docstring), shape (T,) bool; triangles of
+    zero rest area never fold."""
+    rest = _area_vectors(points, triangles)
+    area = np.einsum("ti,ti->t", rest, rest)
+    along = np.einsum("ti,ti->t", _area_vectors(moved, triangles), rest)
+    return (area > 0.0) & (along < margin * area)
+
+
+def _vertex_graph(triangles: np.ndarray, count: int):
+    """(adjacency CSR over the mesh's edges, degree per vertex ≥ 1)."""
+    edges = np.unique(np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    rows, columns = edges.ravel(), edges[:, ::-1].ravel()
+    graph = coo_matrix((np.ones(len(rows)), (rows, columns)), shape=(count, count)).tocsr()
+    return graph, np.maximum(np.asarray(graph.sum(axis=1)).ravel(), 1.0)
+
+
+def unfolded_response(
+    points: np.ndarray, triangles: np.ndarray, zone: np.ndarray, response: np.ndarray, travel: float
+) -> np.ndarray:
+    """``response`` (V, 3) eased toward ``zone`` (V, 3) where, at the contraction ``K = travel / max|response|``,
+    it folds a triangle that ``zone`` does not: ``zone + g·(response − zone)`` with ``g`` from :func:`fold_blend`."""
+    peak = float(np.linalg.norm(response, axis=1).max()) if len(response) else 0.0
+    if peak <= 0.0 or travel <= 0.0:
+        return response
+    blend = fold_blend(points, triangles, zone, response, travel / peak)
+    return zone + blend[:, None] * (response - zone)
+
+
+def fold_blend(
+    points: np.ndarray, triangles: np.ndarray, zone: np.ndarray, response: np.ndarray, contraction: float
+) -> np.ndarray:
+    """Per vertex, the blend ``g ∈ [0, 1]`` (V,) that keeps ``x + K·(zone + g·(response − zone))`` from folding the
+    triangles ``x + K·zone`` keeps, at ``K = contraction``.
+
+    Each round sets ``g`` to 0 on the vertices of the triangles still folded and their first ring, then smooths it
+    once over the edges (``g ← min(g, mean of the neighbours + ½)``), so the response fades out over a ring
+    instead of stopping at one edge; at most :data:`_GUARD_ROUNDS` rounds.
+    """
+    kept = ~folded_triangles(points, triangles, points + contraction * zone)
+    graph, degree = _vertex_graph(triangles, len(points))
+    blend = np.ones(len(points))
+    field = response
+    for _ in range(_GUARD_ROUNDS):
+        folded = kept & folded_triangles(points, triangles, points + contraction * field)
+        if not folded.any():
+            break
+        eased = np.zeros(len(points), dtype=bool)
+        eased[triangles[folded].ravel()] = True
+        eased |= graph @ eased > 0
+        blend[eased] = 0.0
+        blend = np.minimum(blend, (graph @ blend) / degree + 0.5)
+        field = zone + blend[:, None] * (response - zone)
+    return blend
+
+
+def unfolded_weights(
+    points: np.ndarray,
+    triangles: np.ndarray,
+    weights: np.ndarray,
+    motion: np.ndarray,
+    *,
+    free: np.ndarray | None = None,
+    rounds: int = 100,
+) -> np.ndarray:
+    """Blend weights ``w`` (V,) of a motion ``x + w·motion`` ((V, 3) at a reference amplitude) diffused where that
+    motion folds triangles: each round, the vertices of the folded triangles and their three rings take four steps of
+    ``w ← ½w + ½·mean of the neighbours``, until none folds, ``rounds`` are done, or the count of folded triangles
+    has not fallen for :data:`_STALL_ROUNDS` rounds (a fold the motion itself makes, at a mouth corner where the
+    lips' weights meet). Only the ``free`` vertices (V,) bool (default: all) change. Returns values in [0, 1]."""
+    graph, degree = _vertex_graph(triangles, len(points))
+    weights = np.asarray(weights, dtype=np.float64).copy()
+    best, since = len(triangles) + 1, 0
+    for _ in range(rounds):
+        folded = folded_triangles(points, triangles, points + weights[:, None] * motion)
+        count = int(folded.sum())
+        best, since = (count, 0) if count < best else (best, since + 1)
+        if count == 0 or since > _STALL_ROUNDS:
+            break
+        region = np.zeros(len(points), dtype=bool)
+        region[triangles[folded].ravel()] = True
+        for _ring in range(3):
+            region |= graph @ region > 0
+        if free is not None:
+            region &= free
+        for _step in range(4):
+            weights = np.where(region, 0.5 * weights + 0.5 * (graph @ weights) / degree, weights)
+    return np.clip(weights, 0.0, 1.0)
