@@ -41,6 +41,7 @@ __all__ = [
     "NORMAL_PROPERTIES",
     "write_obj_asset",
     "follower_jaw_weights",
+    "jaw_followers",
     "write_jaw_followers",
     "JAW_WEIGHTS",
     "RIGID_VERTICES",
@@ -285,20 +286,26 @@ def follower_jaw_weights(asset: Usd.Stage, skin_prim: str, skin_points, landmark
     return found
 
 
-def write_jaw_followers(layer: Sdf.Layer, stage: Usd.Stage, model, times: np.ndarray, controls: np.ndarray) -> None:
-    """Points and extent time samples, in ``layer``, of every mesh on ``stage`` with :data:`JAW_WEIGHTS`: its
+def jaw_followers(stage: Usd.Stage) -> list[tuple[Usd.Prim, np.ndarray, np.ndarray]]:
+    """``(prim, jaw weights (N,), rest points (N, 3))`` of every mesh on ``stage`` with :data:`JAW_WEIGHTS`."""
+    found = []
+    for prim in stage.Traverse():
+        weights = prim.GetAttribute(JAW_WEIGHTS).Get() if prim.HasAttribute(JAW_WEIGHTS) else None
+        rest = UsdGeom.Mesh(prim).GetPointsAttr().Get(Usd.TimeCode.Default()) if prim.IsA(UsdGeom.Mesh) else None
+        if weights is not None and rest is not None and len(weights) == len(rest):
+            found.append((prim, np.asarray(weights, dtype=np.float64), np.asarray(rest, dtype=np.float64)))
+    return found
+
+
+def write_jaw_followers(layer: Sdf.Layer, followers, model, times: np.ndarray, controls: np.ndarray) -> None:
+    """Points and extent time samples, in ``layer``, of the meshes ``followers`` (:func:`jaw_followers`): their
     rest points moved by the jaw of ``model`` (stage units) at each frame's jaw controls (columns after the
     muscles of ``controls``, (F, C))."""
     if model.jaw is None:
         return
     columns = slice(len(model.muscle_names), len(model.muscle_names) + len(JAW_CONTROL_NAMES))
-    for prim in stage.Traverse():
-        weights = prim.GetAttribute(JAW_WEIGHTS).Get() if prim.HasAttribute(JAW_WEIGHTS) else None
-        rest = UsdGeom.Mesh(prim).GetPointsAttr().Get(Usd.TimeCode.Default()) if prim.IsA(UsdGeom.Mesh) else None
-        if weights is None or rest is None or len(weights) != len(rest):
-            continue
-        jaw = dataclasses.replace(model.jaw, weights=np.asarray(weights, dtype=np.float64))
-        rest = np.asarray(rest, dtype=np.float64)
+    for prim, weights, rest in followers:
+        jaw = dataclasses.replace(model.jaw, weights=weights)
         spec = Sdf.CreatePrimInLayer(layer, prim.GetPath())
         for name, type_name in (
             ("points", Sdf.ValueTypeNames.Point3fArray),

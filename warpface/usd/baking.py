@@ -34,7 +34,7 @@ from .._validate import as_count, expect_instance
 from ..errors import RigError
 from ._files import open_layer, open_stage, usd_error_message, writable_path
 from .animation import CACHE_SUFFIX, MAX_FRAMES, as_time_codes, frame_times, read_animation
-from .asset_io import NORMAL_PROPERTIES, SkinNormals, shells_of, write_jaw_followers
+from .asset_io import NORMAL_PROPERTIES, SkinNormals, jaw_followers, shells_of, write_jaw_followers
 from .cache_layers import (
     attach_cache,
     check_shot_path,
@@ -346,10 +346,11 @@ def _write_cache(
                 if incremental:
                     _save(cache, cache_path)
                 bar.update(len(chunk))
-        if model is not None:  # the asset's other meshes on the jaw
+        followers = jaw_followers(stage) if model is not None and model.jaw is not None else []
+        if followers:  # the asset's other meshes on the jaw: the controls are read again only for them
             unit = stage_meters_per_unit(stage)
             animation = read_animation(stage, times, skin_path=str(skin_path), meters_per_unit=unit)
-            write_jaw_followers(cache, stage, model, times, animation.controls)
+            write_jaw_followers(cache, followers, model, times, animation.controls)
         samples = cache.ListTimeSamplesForPath(points_path)
         cache.startTimeCode, cache.endTimeCode = min(samples), max(samples)
         _save(cache, cache_path)
