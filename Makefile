@@ -3,7 +3,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.warpface-installed
 
-.PHONY: demo test lint bench setup clean
+.PHONY: demo test test-slow lint bench setup clean
 
 $(STAMP): pyproject.toml scripts/setup.sh
 	VENV=$(VENV) bash scripts/setup.sh
@@ -18,10 +18,13 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 
-# Two workers, one test file each at a time (module fixtures stay in one process): the suite's end-to-end runs
-# (batch, Ray, calibration, capture) overlap on CI's two cores.
+# Two workers, one test file each at a time (module fixtures stay in one process). `make test` is the suite
+# without the end-to-end runs over 20 s (marked `slow`); `make test-slow` runs those, and CI runs both.
 test: $(STAMP) lint
-	$(PY) -m pytest -q -n 2 --dist loadfile
+	$(PY) -m pytest -q -n 2 --dist loadfile -m "not slow"
+
+test-slow: $(STAMP)
+	$(PY) -m pytest -q -n 2 --dist loadfile -m slow
 
 bench: $(STAMP)
 	$(PY) -m benchmarks.expression

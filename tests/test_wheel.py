@@ -29,6 +29,7 @@ def _pypi_reachable() -> bool:
 
 
 @pytest.mark.wheel
+@pytest.mark.slow
 @pytest.mark.skipif(not _pypi_reachable(), reason="PyPI is not reachable: cannot install the wheel's dependencies")
 def test_plain_pip_install_of_the_wheel_renders_the_demo(tmp_path):
     import cv2
