@@ -56,8 +56,8 @@ def _shaken(graph_capturable: bool, steps: int = 120, device: str = "cpu"):
 
 @pytest.mark.parametrize("device", DEVICES)
 def test_host_free_body_force_matches_the_host_solve(device):
-    """The inertial body force (3 g and a spinning head) solved by device CG equals the host factor's correction
-    (the host path on the CPU, the host-free one on each device)."""
+    """The inertial body force (3 g and a spinning head) on the tissue step's right-hand side: the host-free path's
+    device kernels give the host path's NumPy force (CPU), the same displacements on each device."""
     host, device = _shaken(False), _shaken(True, device=device)
     scale = np.abs(host).max()
     assert scale > 1e-5

@@ -3,11 +3,12 @@
 :class:`CapturablePath` runs the step of docs/NEWTON.md on the device, reading nothing back: the head frame from
 Newton's ``body_q``/``body_qd`` (:func:`~warpface.newton.kernels.head_frame`), the controls from Newton's
 ``warpface:activation`` into the expression model's own kernels (its plan's launches on fixed buffers), the
-driven displacements into the tissue simulation's control, its CG step, the inertial body force solved by the
-tissue's preconditioned CG (:class:`~warpface.newton.device_cg.FreeSystem`), the soft contacts as penalty forces
-found by a fixed number of active-set passes (docs/NEWTON.md §3), the upright clamp per tet, and the particles.
-Errors (a non-finite control, a non-finite correction, a solve above its tolerance) are booked on the device and
-raised by ``SolverFace.synchronize``.
+driven displacements into the tissue simulation's control, the inertial body force into the tissue step's
+right-hand side (``TissueSimulation.step(force=...)``), its CG step, the soft contacts as penalty forces found by a
+fixed number of active-set passes solved by the tissue's preconditioned CG
+(:class:`~warpface.newton.device_cg.FreeSystem`; docs/NEWTON.md §5), the upright clamp per tet, and the particles.
+Errors (a non-finite control, a non-finite head motion or correction, a solve above its tolerance) are booked on
+the device and raised by ``SolverFace.synchronize``.
 """
 
 from __future__ import annotations
@@ -82,12 +83,11 @@ class CapturablePath:
         self.errors = wp.zeros(3, dtype=wp.int32, device=device)
         """Device counters: first bad control + 1, skipped non-finite corrections, clamped contact steps."""
         self._flag = wp.zeros(1, dtype=wp.int32, device=device)
-        self._one = wp.ones(1, dtype=wp.float64, device=device)
         self._scale = wp.ones(1, dtype=wp.float64, device=device)
         self._counts = wp.zeros(2, dtype=wp.int32, device=device)
         self._force = wp.zeros(1, dtype=wp.float64, device=device)
+        self._body = wp.zeros(n, dtype=wp.vec3d, device=device)  # the body force (N,): free rows written, others 0
         self._f = self.system.vector()
-        self._x_body = self.system.vector()
         self._x_contact = self.system.vector()
         self._H = wp.zeros(free.size, dtype=wp.mat33d, device=device)
         M = sim.matrices.M
@@ -123,8 +123,7 @@ class CapturablePath:
         wp.copy(self.rest_set, other.rest_set)
 
     def reset(self) -> None:
-        """Clear the warm starts of the correction solves."""
-        self._x_body.zero_()
+        """Clear the warm start of the contact solves."""
         self._x_contact.zero_()
 
     def _expression_launches(self):
@@ -167,16 +166,16 @@ class CapturablePath:
         moving = (state_in.body_q, state_in.body_qd, state_out.body_q, state_out.body_qd, model.body_com)
         inputs = [*(moving if body >= 0 else (*self._empty_q, *self._empty_q, self._empty_vec)), body]
         inputs += [wp.float64(sim.dt), self.gravity, model.gravity]
-        self._launch(head_frame, 1, inputs, [self.rest_gravity, self.rest_set, self._frames, self._inertia])
+        outputs = [self.rest_gravity, self.rest_set, self._frames, self._inertia, self.errors]
+        self._launch(head_frame, 1, inputs, outputs)
         if self._expression is not None:
             self._driven(control)
         nodes = self._nodes()
-        if self.solver.inertia:  # the body force at the start of the step (r, ḋ of the start)
-            self._launch(body_force, system.free_count, [self._inertia, self._mass, self._free, nodes], [self._f])
-        sim.step(sim.control)
-        if self.solver.inertia:
-            system.solve(self._f, self._x_body)
-            self._correct(self._x_body, self._one, False)
+        force = None
+        if self.solver.inertia:  # the body force at the start of the step (r, ḋ of the start), in the step's rhs
+            self._launch(body_force, system.free_count, [self._inertia, self._mass, self._free, nodes], [self._body])
+            force = self._body
+        sim.step(sim.control, force=force)
         if contacts is not None:
             self._contacts(contacts, state_out, nodes)
         attrs = getattr(state_out, "warpface", None)
@@ -196,11 +195,12 @@ class CapturablePath:
         driven = self.simulation.control.driven
         self._launch(driven_from_skin, face.driven_nodes.size, [buffers.final_points, vertices, skin_rest], [driven])
 
-    def _correct(self, x, scale, clamp: bool) -> None:
+    def _correct(self, x, scale) -> None:
+        """Add the contact correction ``scale[0] x`` to the step (skipped, and booked, when not finite)."""
         state, count = self.simulation.state, self.system.free_count
         self._flag.zero_()
         self._launch(non_finite, count, [x], [self._flag])
-        inputs = [x, scale, self._free, self._c0, self._c7c0, self._flag, int(clamp), self.errors]
+        inputs = [x, scale, self._free, self._c0, self._c7c0, self._flag, 1, self.errors]
         self._launch(apply_correction, count, inputs, [state.d, state.v, state.a])
 
     def _contact_slots(self, capacity: int) -> ContactSlots:
@@ -243,7 +243,7 @@ class CapturablePath:
         self._launch(contact_report, capacity, [slots, self._x_contact], [self._counts, self._force])
         inputs = [self._tets, self._rest_volumes, wp.float64(MIN_VOLUME_FRACTION), nodes, self._x_contact]
         self._launch(upright_scale, face.tetmesh.tet_count, [*inputs, self._free_index], [self._scale])
-        self._correct(self._x_contact, self._scale, True)
+        self._correct(self._x_contact, self._scale)
 
     # ------------------------------------------------------------------ reports (host reads, outside a step)
     def report(self) -> ContactReport:
@@ -258,8 +258,8 @@ class CapturablePath:
 
     def raise_errors(self) -> None:
         """Raise what the steps booked since the last call (and clear it): ValueError for a non-finite control,
-        FloatingPointError for a skipped non-finite correction, ConvergenceError for a correction solve that did
-        not reach its tolerance."""
+        FloatingPointError for a skipped non-finite head motion (its body force) or contact correction,
+        ConvergenceError for a contact solve that did not reach its tolerance."""
         from ..errors import ConvergenceError
 
         errors, failed = self.errors.numpy(), int(self.system.failed.numpy()[0])
@@ -273,7 +273,7 @@ class CapturablePath:
             )
         if skipped:
             raise FloatingPointError(
-                f"SolverFace: {skipped} body or contact corrections were not finite and were skipped"
+                f"SolverFace: {skipped} head motions or contact corrections were not finite and were skipped"
             )
         if failed:
-            raise ConvergenceError(f"SolverFace: {failed} correction solves stopped above the CG tolerance")
+            raise ConvergenceError(f"SolverFace: {failed} contact solves stopped above the CG tolerance")

@@ -190,10 +190,13 @@ def head_frame(
     rest_set: Indices,
     frames: wp.array(dtype=Frame),
     inertia: Vectors,
+    errors: Indices,
 ):
     """One thread: the head body's frame at the end of the step into ``frames[0]``, and in the head frame
     ``inertia = [Rᵀ (g − a_O) − b_rest, Rᵀ ω, Rᵀ α]`` (``frame.head_motion``'s finite differences); the rest gravity
-    ``b_rest = R_inᵀ g_model`` is taken here when ``rest_set[0]`` is 0. ``body`` -1: the world, at rest."""
+    ``b_rest = R_inᵀ g_model`` is taken here when ``rest_set[0]`` is 0. ``body`` -1: the world, at rest. A
+    non-finite ``inertia`` (a head motion gone bad) is zeroed, no body force, and booked in
+    ``errors[ERROR_NON_FINITE]``."""
     p = wp.vec3d()
     r = wp.quatd(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0), wp.float64(1.0))
     r_in = r
@@ -217,9 +220,17 @@ def head_frame(
     frame.origin_velocity = v
     frame.omega = omega
     frames[0] = frame
-    inertia[0] = wp.quat_rotate_inv(r, gravity[0] - accel) - rest_gravity[0]
-    inertia[1] = wp.quat_rotate_inv(r, omega)
-    inertia[2] = wp.quat_rotate_inv(r, alpha)
+    u = wp.quat_rotate_inv(r, gravity[0] - accel) - rest_gravity[0]
+    w = wp.quat_rotate_inv(r, omega)
+    dw = wp.quat_rotate_inv(r, alpha)
+    if not (_finite(u) and _finite(w) and _finite(dw)):
+        u = wp.vec3d()
+        w = wp.vec3d()
+        dw = wp.vec3d()
+        errors[ERROR_NON_FINITE] = errors[ERROR_NON_FINITE] + 1
+    inertia[0] = u
+    inertia[1] = w
+    inertia[2] = dw
 
 
 @wp.kernel
@@ -260,8 +271,9 @@ def body_force(
     nodes: TissueNodes,
     f: Vectors,
 ):
-    """Per free node ``o``: ``f_o = (M b)_o`` with ``b = u − α × r − ω × (ω × r) − 2 ω × ḋ``, ``r = X + d``
-    (docs/NEWTON.md §2; ``inertia = [u, ω, α]``, head frame; ``M`` the consistent mass, N x N blocks)."""
+    """Per free node ``o`` (node ``i = free[o]``): ``f[i] = (M b)_i`` with ``b = u − α × r − ω × (ω × r) − 2 ω × ḋ``,
+    ``r = X + d`` (docs/NEWTON.md §2; ``inertia = [u, ω, α]``, head frame; ``M`` the consistent mass, N x N blocks);
+    ``f`` (N,) is the tissue step's external force, its other rows left as they are (zero)."""
     o = wp.tid()
     i = free[o]
     u, omega, alpha = inertia[0], inertia[1], inertia[2]
@@ -271,14 +283,18 @@ def body_force(
         r = nodes.rest[j] + nodes.d[j]
         b = u - wp.cross(alpha, r) - wp.cross(omega, wp.cross(omega, r))
         acc += M.values[e] * (b - wp.float64(2.0) * wp.cross(omega, nodes.v[j]))
-    f[o] = acc
+    f[i] = acc
+
+
+@wp.func
+def _finite(x: wp.vec3d):
+    return wp.isfinite(x[0]) and wp.isfinite(x[1]) and wp.isfinite(x[2])
 
 
 @wp.kernel
 def non_finite(x: Vectors, flag: Indices):
     """``flag[0] = 1`` when an entry of ``x`` is not finite."""
-    o = wp.tid()
-    if not (wp.isfinite(x[o][0]) and wp.isfinite(x[o][1]) and wp.isfinite(x[o][2])):
+    if not _finite(x[wp.tid()]):
         flag[0] = 1
 
 

@@ -2,9 +2,10 @@
 
 One :meth:`SolverFace.step` is: the rig's controls (``control.warpface.activation``) -> expression model ->
 displacements of the driven nodes -> one Newmark-β step of :class:`~warpface.fem.TissueSimulation` (direct or CG
-solver) in the head body's frame -> the inertial body force of the head's motion and the soft contacts, added to
-the same step by superposition (the step is linear: ``d = d_free + A_oo⁻¹ f``) -> the nodes written back as
-Newton particles in the world (``x = p + R (X + d)``).
+solver) in the head body's frame, with the inertial body force of the head's motion on its right-hand side
+(``TissueSimulation.step(force=...)``) -> the soft contacts, added to the same step by superposition (the step is
+linear: ``d = d_step + A_oo⁻¹ f_contact``) -> the nodes written back as Newton particles in the world
+(``x = p + R (X + d)``).
 """
 
 from __future__ import annotations
@@ -218,16 +219,12 @@ class SolverFace(newton.solvers.SolverBase):
             )
             self._rest_gravity_auto = True
         motion = head_motion(self.model, state_in, state_out, face.head_body, dt)
-        force = self._body_force(motion) if self.inertia else None
-        sim.step(self._driven_displacements(control))
-        correction = None if force is None else self._solve(force)
-        if contacts is not None:
-            extra = self._contact_correction(contacts, state_out, motion, correction)
-            if extra is not None:
-                correction = extra if correction is None else correction + extra
+        driven = self._driven_displacements(control)
+        sim.step(driven, force=self._body_force(motion) if self.inertia else None)
+        correction = None if contacts is None else self._contact_correction(contacts, state_out, motion)
         if correction is not None and np.any(correction):
             if not np.all(np.isfinite(correction)):
-                raise FloatingPointError("SolverFace: the body or contact force gave non-finite displacements")
+                raise FloatingPointError("SolverFace: the contact forces gave non-finite displacements")
             self._apply(correction)
         self._write_particles(state_out, motion)
 
@@ -248,12 +245,16 @@ class SolverFace(newton.solvers.SolverBase):
         )
         K, M, C = sim.matrices.to_scipy()
         self._mass = M.tocsr()
+        state = sim.state.d  # the body force's array, the tissue state's type and device (a kernel input of the step)
+        self._force = wp.zeros(face.tetmesh.node_count, dtype=state.dtype, device=state.device)
+        self._force_view = self._force.numpy() if state.device.is_cpu else None
+        self._force_host_dtype = np.float64 if state.dtype == wp.vec3d else np.float32
         self._free_dofs = node_dofs(sim.free_nodes)
         self._free_index = np.full(face.tetmesh.node_count, -1, dtype=np.int64)
         self._free_index[sim.free_nodes] = np.arange(sim.free_nodes.size)
         if sim.solver_kind == "direct":
             self._solve = sim.solver.solve
-        else:  # the CG solver keeps A_oo on the device: force corrections use a host factor, made when first needed
+        else:  # the CG solver keeps A_oo on the device: contact solves use a host factor, made when first needed
             c = sim.coefficients
             dofs = self._free_dofs
             factor = []
@@ -314,27 +315,36 @@ class SolverFace(newton.solvers.SolverBase):
             self._last_controls = values
         return self._driven
 
-    def _body_force(self, motion: HeadMotion) -> np.ndarray | None:
-        """The free rows of ``f = M b`` (3F,) at the start of the step, or None when the head feels nothing (the
-        tissue's state is read only then: on a device that is a copy)."""
+    def _body_force(self, motion: HeadMotion) -> wp.array | None:
+        """``f = M b`` (N,) at the start of the step in the tissue's force array, or None when the head feels nothing
+        (the tissue's state is read only then: on a device that is a copy).
+
+        Raises:
+            FloatingPointError: a non-finite force (the head's motion), before the step is taken.
+        """
         still = not (np.any(motion.angular_velocity) or np.any(motion.angular_acceleration))
         uniform = motion.rotation.T @ (self.gravity - motion.acceleration) - self._rest_gravity
         if still and not np.any(uniform):
             return None
         d, v, _ = self._tissue() if not still else (0.0, 0.0, None)
         b = body_force(motion, self.gravity, self._rest_gravity, self._rest + d, np.broadcast_to(v, self._rest.shape))
-        return (self._mass @ b.ravel())[self._free_dofs]
+        force = (self._mass @ b.ravel()).reshape(-1, 3)
+        if not np.all(np.isfinite(force[self.simulation.free_nodes])):
+            raise FloatingPointError("SolverFace: the head's motion gave a non-finite body force (step not taken)")
+        if self._force_view is not None:
+            self._force_view[:] = force
+        else:
+            self._force.assign(force.astype(self._force_host_dtype))
+        return self._force
 
-    def _contact_correction(self, contacts, state_out, motion: HeadMotion, correction) -> np.ndarray | None:
-        """The contact forces' displacement correction (3F,) on top of ``correction`` (or None: no contact)."""
+    def _contact_correction(self, contacts, state_out, motion: HeadMotion) -> np.ndarray | None:
+        """The contact forces' displacement correction (3F,) on top of the step (or None: no contact)."""
         face = self.face
         found = gather_contacts(self.model, contacts, state_out, face.particle_start, self._contact_mask, motion)
         if not found.nodes.size:
             self.contact_report = ContactReport()
             return None
         moved = self._tissue()[0].copy()
-        if correction is not None:
-            moved[self.simulation.free_nodes] += correction.reshape(-1, 3)
         lam, extra, _ = solve_contacts(found, self._rest, moved, face.contact_radius, self._free_index, self._solve)
         full = np.zeros_like(moved)
         full[self.simulation.free_nodes] = extra.reshape(-1, 3)
