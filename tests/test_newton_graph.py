@@ -64,7 +64,7 @@ def test_host_free_body_force_matches_the_host_solve(device):
     assert np.abs(device - host).max() < 2e-5 * scale
 
 
-def _graph_world(device: str):
+def _graph_world(device: str, **options):
     """A head body with a hyper gravity, a sphere pressed into the cheek and a muscle control: every part of the
     host-free step at work; the states and contacts are set once (replays see the same inputs)."""
     rig, tetmesh, fixed, outer = shell_face(8, 2, span_u=0.7, span_v=0.5)
@@ -74,7 +74,8 @@ def _graph_world(device: str):
     builder.add_shape_sphere(sphere, radius=0.03)
     face = add_face(builder, rig, tissue=(tetmesh, MATERIAL), fixed=fixed, head_body=head, contact_radius=1e-4)
     model = builder.finalize(device=device)
-    solver = SolverFace(model, face, dt=1.0e-3, gravity=(0.0, -3.0 * 9.81, 0.0), graph_capturable=True)
+    gravity = (0.0, -3.0 * 9.81, 0.0)
+    solver = SolverFace(model, face, dt=1.0e-3, gravity=gravity, graph_capturable=True, **options)
     pipeline = newton.CollisionPipeline(model, soft_contact_gap=0.003)
     contacts = pipeline.contacts()
     state_in, state_out, control = model.state(), model.state(), model.control()
@@ -169,3 +170,47 @@ def test_capturable_options_are_checked():
     with pytest.raises(ValueError, match="contact_passes"):
         SolverFace(model, face, graph_capturable=True, contact_passes=1.5)
     assert SolverFace(model, face).graph_capturable is False  # the CPU default: the host path
+
+
+def _counting(function, name: str, calls: dict):
+    def counted(*args, **kwargs):
+        calls[name] += 1
+        return function(*args, **kwargs)
+
+    return counted
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_a_solver_replaying_its_own_step_graphs_steps_as_eagerly(device, monkeypatch):
+    """``step_graphs``: ping-pong steps (two sets of arrays) give the eager steps' tissue, particles and contacts;
+    once both graphs exist a step is one graph launch and no kernel launch; reset drops them (an eager step again)."""
+    steps = 6
+
+    def ping_pong(solver, args, count):
+        state_a, state_b, control, contacts = args
+        for k in range(count):
+            solver.step(*((state_a, state_b) if k % 2 == 0 else (state_b, state_a)), control, contacts, 1.0e-3)
+
+    eager, eager_args = _graph_world(device, step_graphs=False)
+    graphs, args = _graph_world(device, step_graphs=True)
+    assert graphs._capturable.own_graphs and not eager._capturable.own_graphs
+    ping_pong(eager, eager_args, steps)
+    ping_pong(graphs, args, 4)  # eager, eager, captured, captured
+    calls = {"launch": 0, "capture_launch": 0}
+    for name in calls:
+        monkeypatch.setattr(wp, name, _counting(getattr(wp, name), name, calls))
+    ping_pong(graphs, args, steps - 4)
+    monkeypatch.undo()
+    assert calls == {"launch": 0, "capture_launch": steps - 4}
+    assert graphs.simulation.steps_taken == eager.simulation.steps_taken == steps
+    exact = device == "cpu"
+    scale = np.abs(eager.simulation.d).max()
+    assert scale > 1e-5 and graphs.contact_report.active > 0
+    assert graphs.contact_report == eager.contact_report or not exact
+    np.testing.assert_allclose(graphs.simulation.d, eager.simulation.d, rtol=0, atol=1e-12 if exact else 1e-5 * scale)
+    q, q_eager = args[0].particle_q.numpy(), eager_args[0].particle_q.numpy()
+    np.testing.assert_allclose(q, q_eager, rtol=0, atol=1e-7 if exact else 1e-6)
+    graphs.reset(args[0])
+    assert not graphs._capturable._graphs
+    graphs.synchronize()
+    eager.synchronize()

@@ -45,6 +45,10 @@ from .kernels import (
 __all__ = ["CapturablePath"]
 
 
+GRAPH_LIMIT = 8
+"""Sets of bound arrays whose step graphs are kept (a ping-pong of two states needs two)."""
+
+
 def _ints(values, device) -> wp.array:
     return wp.array(np.asarray(values, dtype=np.int32), dtype=wp.int32, device=device)
 
@@ -59,12 +63,14 @@ class CapturablePath:
         contact_passes: Active-set passes of the contact solve per step.
     """
 
-    def __init__(self, solver, simulation, *, contact_stiffness: float, contact_passes: int):
+    def __init__(self, solver, simulation, *, contact_stiffness: float, contact_passes: int, own_graphs: bool):
         sim, face, model = simulation, solver.face, solver.model
         device = self.device = model.device
         self.solver, self.simulation, self.face = solver, sim, face
         self.system = FreeSystem(sim)
         self.penalty, self.passes = float(contact_stiffness), int(contact_passes)
+        self.own_graphs = bool(own_graphs)
+        self._graphs: dict = {}  # per set of bound arrays: None (stepped eagerly once) or (graph, the arrays)
         n, free = face.tetmesh.node_count, sim.free_nodes
         self._free = _ints(free, device)
         free_index = np.full(n, -1, dtype=np.int32)
@@ -111,11 +117,13 @@ class CapturablePath:
     def set_gravity(self, gravity) -> None:
         """The gravity the tissue feels [m/s²] (3,)."""
         self.gravity.assign(np.asarray(gravity, dtype=np.float64).reshape(1, 3))
+        self.drop_graphs()
 
     def set_rest_gravity(self, rest_gravity) -> None:
         """The gravity the rest shape balances, head frame [m/s²] (3,)."""
         self.rest_gravity.assign(np.asarray(rest_gravity, dtype=np.float64).reshape(1, 3))
         self.rest_set.fill_(1)
+        self.drop_graphs()
 
     def keep_rest_gravity(self, other: CapturablePath) -> None:
         """Take ``other``'s rest gravity (device copies: whatever its first step found)."""
@@ -123,8 +131,9 @@ class CapturablePath:
         wp.copy(self.rest_set, other.rest_set)
 
     def reset(self) -> None:
-        """Clear the warm start of the contact solves."""
+        """Clear the warm start of the contact solves and the step's own graphs."""
         self._x_contact.zero_()
+        self.drop_graphs()
 
     def _expression_launches(self):
         """The expression model's plan on buffers of one frame, recorded; the controls' buffer and the skin."""
@@ -149,6 +158,47 @@ class CapturablePath:
         return buffers, launches, _ints(face.driven_vertices, self.device), skin_rest
 
     # ------------------------------------------------------------------ the step
+    def step(self, state_in, state_out, control, contacts) -> None:
+        """:meth:`run`; with :attr:`own_graphs`, outside a capture, as a graph of its own per set of bound arrays:
+        the first step with them runs eagerly (it loads every kernel: no module load inside the capture), the
+        second is captured and launched, the later ones are one ``wp.capture_launch``. A capture the caller has
+        open (``device.is_capturing``) gets the launches themselves."""
+        if not self.own_graphs or self.device.is_capturing:
+            self.run(state_in, state_out, control, contacts)
+            return
+        key, arrays = self._graph_key(state_in, state_out, control, contacts)
+        if key not in self._graphs:
+            if len(self._graphs) >= GRAPH_LIMIT:  # a caller allocating new states every step: keep memory bounded
+                self._graphs.clear()
+            self.run(state_in, state_out, control, contacts)
+            self._graphs[key] = None
+            return
+        entry = self._graphs[key]
+        if entry is None:
+            with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
+                self.run(state_in, state_out, control, contacts)  # counts the step (steps_taken) once
+            entry = self._graphs[key] = (capture.graph, arrays)
+        else:
+            self.simulation.steps_taken += 1  # what the tissue's own step() does on the host
+        wp.capture_launch(entry[0])
+
+    def drop_graphs(self) -> None:
+        """Forget the step's own graphs (the next steps capture them again)."""
+        self._graphs.clear()
+
+    def _graph_key(self, state_in, state_out, control, contacts) -> tuple[tuple, tuple]:
+        """The addresses of every array a step binds (and the options its launches depend on), and the arrays."""
+        model = self.solver.model
+        attrs = getattr(control, "warpface", None) or getattr(model, "warpface", None)
+        out = getattr(getattr(state_out, "warpface", None), "displacement", None)
+        arrays = (state_in.body_q, state_in.body_qd, state_out.body_q, state_out.body_qd, state_out.particle_q)
+        arrays += (state_out.particle_qd, out, getattr(attrs, "activation", None))
+        if contacts is not None:
+            arrays += (contacts.soft_contact_count, contacts.soft_contact_particle, contacts.soft_contact_shape)
+            arrays += (contacts.soft_contact_body_pos, contacts.soft_contact_normal)
+        pointers = tuple(None if a is None else (a.ptr, a.shape) for a in arrays)
+        return (bool(self.solver.inertia), contacts is not None, *pointers), arrays
+
     def _launch(self, kernel, dim: int, inputs: list, outputs: list) -> None:
         wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device)
 

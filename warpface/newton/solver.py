@@ -63,6 +63,10 @@ class SolverFace(newton.solvers.SolverBase):
         contact_stiffness: The host-free path's contact penalty, in multiples of the node's diagonal stiffness
             ``nᵀ A_oo[i, i] n`` (a closed gap is left at about ``1 / (1 + contact_stiffness)`` of its depth).
         contact_passes: The host-free path's active-set passes of the contact solve per step.
+        step_graphs: On the host-free path, replay :meth:`step` from graphs of its own when the caller is not
+            capturing (one per set of bound arrays: states, control, contacts; the first step with them runs
+            eagerly, the second is captured; :meth:`reset`, a gravity change and :meth:`notify_model_changed`
+            drop them); default on CUDA devices (Warp's CPU graphs work too).
 
     Raises:
         TypeError: ``face`` is not a NewtonFace.
@@ -88,6 +92,7 @@ class SolverFace(newton.solvers.SolverBase):
         graph_capturable: bool | None = None,
         contact_stiffness: float = 100.0,
         contact_passes: int = 3,
+        step_graphs: bool | None = None,
     ):
         super().__init__(model)
         if not isinstance(face, NewtonFace):
@@ -104,6 +109,7 @@ class SolverFace(newton.solvers.SolverBase):
         self._capturable_options = dict(
             contact_stiffness=_positive(contact_stiffness, "contact_stiffness"),
             contact_passes=int(_positive(contact_passes, "contact_passes", whole=True)),
+            own_graphs=_flag(step_graphs, "step_graphs", model.device.is_cuda),
         )
         self._capturable: CapturablePath | None = None
         self._options = dict(formulation=formulation, solver=solver, beta=beta, gamma=gamma, cg=cg)
@@ -141,7 +147,10 @@ class SolverFace(newton.solvers.SolverBase):
 
     def notify_model_changed(self, flags) -> None:
         """Re-read what the model changed: ``MODEL_PROPERTIES`` -> gravity and the face's per-tet material
-        (``warpface:youngs_modulus``, ``poisson_ratio``, ``viscosity``); a changed material rebuilds the FEM."""
+        (``warpface:youngs_modulus``, ``poisson_ratio``, ``viscosity``); a changed material rebuilds the FEM. Any
+        change drops the step's own graphs (``step_graphs``)."""
+        if self._capturable is not None:
+            self._capturable.drop_graphs()
         if not int(flags) & int(newton.ModelFlags.MODEL_PROPERTIES):
             return
         if self._gravity_override is None:
@@ -210,7 +219,7 @@ class SolverFace(newton.solvers.SolverBase):
         """
         sim = self._build(dt)
         if self._capturable is not None:
-            self._capturable.run(state_in, state_out, control, contacts)
+            self._capturable.step(state_in, state_out, control, contacts)
             return
         face = self.face
         if self._rest_gravity is None:
@@ -420,11 +429,16 @@ def _rotation_quat(R: np.ndarray) -> tuple[float, float, float, float]:
     return tuple(float(c) for c in q)
 
 
+def _flag(requested, name: str, default: bool) -> bool:
+    """``requested`` (a bool) or ``default`` (None); TypeError otherwise."""
+    if requested is not None and not isinstance(requested, (bool, np.bool_)):
+        raise TypeError(f"SolverFace: {name} must be a bool or None, got {type(requested).__name__}")
+    return default if requested is None else bool(requested)
+
+
 def _capturable(requested, solver, cg, device) -> bool:
     """Whether the host-free path is taken (``requested``, or a CUDA device); ValueError where it cannot be."""
-    if requested is not None and not isinstance(requested, (bool, np.bool_)):
-        raise TypeError(f"SolverFace: graph_capturable must be a bool or None, got {type(requested).__name__}")
-    on = device.is_cuda if requested is None else bool(requested)
+    on = _flag(requested, "graph_capturable", device.is_cuda)
     if on and solver == "direct":
         raise ValueError("SolverFace: graph_capturable steps the tissue with solver='cg', not 'direct'")
     if on and as_cg_options(cg).dtype != wp.float64:
