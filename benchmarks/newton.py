@@ -32,12 +32,15 @@ Rows:
   5e-6 s; its particles get a 0.1 mm radius (Newton's default 0.1 m makes neighbouring nodes repel).
 
     python -m benchmarks.newton [--cells 16] [--seconds 0.1] [--max-steps 4000] [--device cpu|cuda:0] [--quick]
+        [--overhead-only] [--out DIR]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
+from pathlib import Path
 
 import numpy as np
 import scipy.sparse.linalg as spla
@@ -289,6 +292,8 @@ def main(argv=None) -> None:
     parser.add_argument("--max-steps", type=int, default=4000, help="cap on any accuracy run's steps")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--quick", action="store_true", help="a small shell, short runs")
+    parser.add_argument("--overhead-only", action="store_true", help="only the plug's overhead rows")
+    parser.add_argument("--out", default=None, help="also write the JSON results into this folder")
     args = parser.parse_args(argv)
     if args.quick:
         args.cells, args.overhead_cells, args.seconds, args.steps, args.max_steps = 8, 16, 0.01, 50, 2000
@@ -300,6 +305,26 @@ def main(argv=None) -> None:
     overhead = overhead_rows(big, big_material, big_fixed, args.device, args.steps)
     columns = [("row", "row", "s"), ("ms", "ms/step", ".3f"), ("ratio", "× standalone", ".3f")]
     print_table(overhead, [*columns, ("launches", "launches", ".1f")])
+    accuracy = [] if args.overhead_only else _accuracy(tetmesh, material, fixed, args)
+    name = "newton_" + str(args.device).replace(":", "") + ("_quick" if args.quick else "")
+    name += "_overhead" if args.overhead_only else ""
+    payload = {
+        "machine": machine_info(args.device),
+        "nodes": tetmesh.node_count,
+        "tets": tetmesh.tet_count,
+        "seconds": args.seconds,
+        "overhead": overhead,
+        "accuracy": accuracy,
+    }
+    print(f"\nwrote {write_results(name, payload)}")
+    if args.out:
+        path = Path(args.out) / f"{name}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(payload, indent=2, default=float))
+        print(f"wrote {path}")
+
+
+def _accuracy(tetmesh, material, fixed, args) -> list[dict]:
     reference = static_reference(tetmesh, material, fixed)
     print(f"\nstatic reference: largest displacement {1e6 * np.abs(reference).max():.2f} µm under 2 g")
     accuracy = accuracy_rows(tetmesh, material, fixed, args.device, args.seconds, reference, args.max_steps)
@@ -316,16 +341,7 @@ def main(argv=None) -> None:
             ("error", "error / max|d|", ".2e"),
         ],
     )
-    name = "newton_" + str(args.device).replace(":", "") + ("_quick" if args.quick else "")
-    payload = {
-        "machine": machine_info(args.device),
-        "nodes": tetmesh.node_count,
-        "tets": tetmesh.tet_count,
-        "seconds": args.seconds,
-        "overhead": overhead,
-        "accuracy": accuracy,
-    }
-    print(f"\nwrote {write_results(name, payload)}")
+    return accuracy
 
 
 if __name__ == "__main__":
