@@ -92,7 +92,7 @@ class DeviceSolver:
         key = ("step", *step_key(state_in, state_out, control), forced)
         binding = self._bindings.get(key)
         if binding is None:
-            force = force_vectors(force, self.node_count, self._vec, self.device, models=self.model_count)
+            force = force_vectors(force, self.node_count, self._vec, device=self.device, models=self.model_count)
             self._check_state("state_in", state_in)
             self._check_state("state_out", state_out)
             if not isinstance(control, TissueControl):

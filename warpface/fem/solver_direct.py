@@ -200,7 +200,7 @@ class DirectSolver:
             key = (force.ptr, force.shape) if isinstance(force, wp.array) else None
             view = self._forces.get(key)
             if view is None:  # checked once per array; a zero-copy (N, 3) view that keeps the array
-                checked = force_vectors(force, self.node_count, wp.vec3d, self.device)
+                checked = force_vectors(force, self.node_count, wp.vec3d, device=self.device)
                 view = self._forces[key] = checked.numpy()
             rhs += view[self.free_nodes].ravel()
         return rhs
@@ -294,7 +294,9 @@ class BatchedDirectSolver:
                 (state_in.model(b), state_out.model(b), control.model(b)) for b in range(self.model_count)
             ]
         if force is not None:
-            force = force_vectors(force, self.solvers[0].node_count, wp.vec3d, self.device, models=self.model_count)
+            force = force_vectors(
+                force, self.solvers[0].node_count, wp.vec3d, device=self.device, models=self.model_count
+            )
         for b, (solver, (model_in, model_out, model_control)) in enumerate(zip(self.solvers, views)):
             solver.step(model_in, model_out, model_control, dt, force=None if force is None else force[b])
 

@@ -115,7 +115,7 @@ class TissueControl:
         return view
 
 
-def force_vectors(force, node_count: int, vec, device, *, models: int | None = None):
+def force_vectors(force, node_count: int, vec, *, device, models: int | None = None):
     """An external nodal force [N] of a solver step as the solver's vec3 array: ``None`` stays None; a Warp array
     of ``vec`` (N,) — (B, N) for a batch — or of its scalar (N, 3) — (B, N, 3) —, contiguous, on ``device``, is
     returned as the (B,) N vec3 view of the same memory (no copy).

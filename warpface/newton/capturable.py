@@ -158,7 +158,7 @@ class CapturablePath:
         return buffers, launches, _ints(face.driven_vertices, self.device), skin_rest
 
     # ------------------------------------------------------------------ the step
-    def step(self, state_in, state_out, control, contacts) -> None:
+    def advance(self, state_in, state_out, control, contacts) -> None:
         """:meth:`run`; with :attr:`own_graphs`, outside a capture, as a graph of its own per set of bound arrays:
         the first step with them runs eagerly (it loads every kernel: no module load inside the capture), the
         second is captured and launched, the later ones are one ``wp.capture_launch``. A capture the caller has

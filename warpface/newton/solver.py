@@ -219,7 +219,7 @@ class SolverFace(newton.solvers.SolverBase):
         """
         sim = self._build(dt)
         if self._capturable is not None:
-            self._capturable.step(state_in, state_out, control, contacts)
+            self._capturable.advance(state_in, state_out, control, contacts)
             return
         face = self.face
         if self._rest_gravity is None:
