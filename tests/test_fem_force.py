@@ -17,11 +17,8 @@ from warpface.fem.state import TissueControl
 MATERIAL = TissueMaterial(1e5, 0.45, 20.0, 1000.0)
 DT = 1.0e-3
 DEVICES = ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
-SOLVERS = [
-    ("direct", None),
-    ("cg", CGOptions(tolerance=1e-10, loop="launched")),
-    ("cg", CGOptions(tolerance=1e-10, loop="persistent")),
-]
+LOOPS = [CGOptions(tolerance=1e-10, loop="launched"), CGOptions(tolerance=1e-10, loop="persistent")]
+SOLVERS = [("direct", None, "cpu")] + [("cg", cg, device) for device in DEVICES for cg in LOOPS]
 
 
 @pytest.fixture(scope="module")
@@ -65,8 +62,8 @@ def _reference(mesh, fixed, driven, forces, trajectory) -> np.ndarray:
     return np.array(out)
 
 
-@pytest.mark.parametrize(("solver", "cg"), SOLVERS)
-def test_the_force_enters_the_step_as_an_independent_newmark_reference_has_it(beam, solver, cg):
+@pytest.mark.parametrize(("solver", "cg", "device"), SOLVERS)
+def test_the_force_enters_the_step_as_an_independent_newmark_reference_has_it(beam, solver, cg, device):
     """A turning load and moving driven nodes: the displacements of every solver equal the float64 reference's.
     The force array is written in place between steps (the step reads it where it lies)."""
     mesh, fixed, driven = beam
@@ -75,8 +72,8 @@ def test_the_force_enters_the_step_as_an_independent_newmark_reference_has_it(be
     trajectory = np.zeros((steps, driven.size, 3))
     trajectory[:, :, 2] = np.linspace(1e-5, 2e-4, steps)[:, None]
     expected = _reference(mesh, fixed, driven, forces, trajectory)
-    sim = TissueSimulation(mesh, MATERIAL, DT, fixed=fixed, driven=driven, device="cpu", solver=solver, cg=cg)
-    force = wp.zeros(mesh.node_count, dtype=wp.vec3d, device="cpu")
+    sim = TissueSimulation(mesh, MATERIAL, DT, fixed=fixed, driven=driven, device=device, solver=solver, cg=cg)
+    force = wp.zeros(mesh.node_count, dtype=wp.vec3d, device=device)
     got = []
     for f, moved in zip(forces, trajectory):
         force.assign(f)
