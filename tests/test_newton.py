@@ -170,3 +170,24 @@ def test_a_head_accelerated_at_3g_lags_as_the_static_body_force_predicts(solver)
     assert np.abs(static[skin, 0]).max() > 1e-5  # the check measures something
     assert np.allclose(lag[skin, 0], static[skin, 0], rtol=0.2, atol=0.05 * np.abs(static[skin, 0]).max())
     assert np.abs(lag[face.fixed_nodes]).max() < 1e-6  # the skull side rides along exactly
+
+
+def test_a_non_finite_head_motion_stops_the_host_step_before_it_is_taken():
+    """A head body whose velocity went NaN: FloatingPointError before the tissue steps (state and step count as they
+    were, the simulation still usable), and the next good step runs."""
+    rig, tetmesh, fixed, _ = shell_face(6, 2)
+    builder = newton.ModelBuilder()
+    head = builder.add_body(xform=wp.transform((0.0, 0.0, 0.0), wp.quat_identity()))
+    face, model = _world(builder, rig, tetmesh, fixed, head_body=head, driven=[])
+    solver = SolverFace(model, face, dt=1.0e-3)
+    state_in, state_out, control = model.state(), model.state(), model.control()
+    _set_body(state_out, head, (1e-6, 0.0, 0.0), (1e-3, 0.0, 0.0))
+    solver.step(state_in, state_out, control, None, 1.0e-3)
+    before, taken = solver.simulation.d, solver.simulation.steps_taken
+    _set_body(state_in, head, (1e-6, 0.0, 0.0), (np.nan, 0.0, 0.0))
+    with pytest.raises(FloatingPointError, match="body force"):
+        solver.step(state_in, state_out, control, None, 1.0e-3)
+    assert np.array_equal(solver.simulation.d, before) and solver.simulation.steps_taken == taken
+    _set_body(state_in, head, (1e-6, 0.0, 0.0), (1e-3, 0.0, 0.0))
+    solver.step(state_in, state_out, control, None, 1.0e-3)
+    assert np.isfinite(solver.simulation.d).all() and np.abs(solver.simulation.d).max() > 0.0

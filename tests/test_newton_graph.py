@@ -155,6 +155,18 @@ def test_a_non_finite_control_is_held_and_raised_by_synchronize():
     solver.synchronize()  # raised once
 
 
+def test_a_non_finite_head_motion_gives_no_body_force_and_is_raised_by_synchronize():
+    solver, args = _graph_world("cpu")
+    state_in, state_out, control, contacts = args
+    solver.step(*args, 1.0e-3)
+    _set_body(state_out, 0, (0.001, 0.0, 0.0), (np.nan, 0.0, 0.0))  # body 0: the head
+    solver.step(*args, 1.0e-3)
+    assert np.isfinite(solver.simulation.d).all()
+    with pytest.raises(FloatingPointError, match="head motions"):
+        solver.synchronize()
+    solver.synchronize()  # raised once
+
+
 def test_capturable_options_are_checked():
     rig, tetmesh, fixed, _ = shell_face(6, 2)
     builder = newton.ModelBuilder()

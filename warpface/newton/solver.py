@@ -215,7 +215,9 @@ class SolverFace(newton.solvers.SolverBase):
 
         Raises:
             ValueError: a non-finite control (naming it), driven displacements beyond the FEM's limit.
-            FloatingPointError: the step produced non-finite displacements (the state is left as it was).
+            FloatingPointError: a non-finite body force (the head's motion; before the step) or contact correction
+                (the state is left as the tissue step made it). The host-free path raises neither here:
+                :meth:`synchronize` does.
         """
         sim = self._build(dt)
         if self._capturable is not None:
