@@ -222,6 +222,13 @@ def test_a_solver_replaying_its_own_step_graphs_steps_as_eagerly(device, monkeyp
     np.testing.assert_allclose(graphs.simulation.d, eager.simulation.d, rtol=0, atol=1e-12 if exact else 1e-5 * scale)
     q, q_eager = args[0].particle_q.numpy(), eager_args[0].particle_q.numpy()
     np.testing.assert_allclose(q, q_eager, rtol=0, atol=1e-7 if exact else 1e-6)
+    fresh = wp.zeros_like(args[1].particle_q)  # a state's array replaced: that step is recorded again
+    args[1].particle_q = fresh
+    calls["launch"] = 0
+    monkeypatch.setattr(wp, "launch", _counting(wp.launch, "launch", calls))
+    graphs.step(args[0], args[1], args[2], args[3], 1.0e-3)
+    monkeypatch.undo()
+    assert calls["launch"] > 0 and np.abs(fresh.numpy()).max() > 0.0
     graphs.reset(args[0])
     assert not graphs._capturable._graphs
     graphs.synchronize()

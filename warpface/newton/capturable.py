@@ -46,7 +46,7 @@ __all__ = ["CapturablePath"]
 
 
 GRAPH_LIMIT = 8
-"""Sets of bound arrays whose step graphs are kept (a ping-pong of two states needs two)."""
+"""Combinations of a step's objects whose graphs are kept (a ping-pong of two states needs two)."""
 
 
 def _ints(values, device) -> wp.array:
@@ -70,7 +70,7 @@ class CapturablePath:
         self.system = FreeSystem(sim)
         self.penalty, self.passes = float(contact_stiffness), int(contact_passes)
         self.own_graphs = bool(own_graphs)
-        self._graphs: dict = {}  # per set of bound arrays: None (stepped eagerly once) or (graph, the arrays)
+        self._graphs: dict = {}  # per (ids of the step's objects, inertia): [graph or None, their arrays, objects]
         n, free = face.tetmesh.node_count, sim.free_nodes
         self._free = _ints(free, device)
         free_index = np.full(n, -1, dtype=np.int32)
@@ -159,45 +159,37 @@ class CapturablePath:
 
     # ------------------------------------------------------------------ the step
     def advance(self, state_in, state_out, control, contacts) -> None:
-        """:meth:`run`; with :attr:`own_graphs`, outside a capture, as a graph of its own per set of bound arrays:
-        the first step with them runs eagerly (it loads every kernel: no module load inside the capture), the
-        second is captured and launched, the later ones are one ``wp.capture_launch``. A capture the caller has
-        open (``device.is_capturing``) gets the launches themselves."""
+        """:meth:`run`; with :attr:`own_graphs`, outside a capture, as a graph of its own per combination of
+        ``state_in``, ``state_out``, ``control`` and ``contacts`` (the objects, held while cached, and inertia on or
+        off): the first step with them runs eagerly (it loads every kernel: no module load inside the capture), the
+        second is captured and launched, the later ones are one ``wp.capture_launch``. A state whose body or particle
+        arrays were replaced is recorded again; arrays replaced inside a control, contacts or a state's ``warpface``
+        namespace need :meth:`drop_graphs`. A capture the caller has open (``device.is_capturing``) gets the
+        launches themselves."""
         if not self.own_graphs or self.device.is_capturing:
             self.run(state_in, state_out, control, contacts)
             return
-        key, arrays = self._graph_key(state_in, state_out, control, contacts)
-        if key not in self._graphs:
-            if len(self._graphs) >= GRAPH_LIMIT:  # a caller allocating new states every step: keep memory bounded
+        key = (id(state_in), id(state_out), id(control), id(contacts), bool(self.solver.inertia))
+        arrays = (state_in.body_q, state_in.body_qd, state_out.body_q, state_out.body_qd, state_out.particle_q)
+        arrays += (state_out.particle_qd,)
+        entry = self._graphs.get(key)
+        if entry is None or entry[1] != arrays:  # tuples of arrays compare by identity
+            if entry is None and len(self._graphs) >= GRAPH_LIMIT:  # new objects every step: keep memory bounded
                 self._graphs.clear()
             self.run(state_in, state_out, control, contacts)
-            self._graphs[key] = None
+            self._graphs[key] = [None, arrays, (state_in, state_out, control, contacts)]
             return
-        entry = self._graphs[key]
-        if entry is None:
+        if entry[0] is None:
             with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
                 self.run(state_in, state_out, control, contacts)  # counts the step (steps_taken) once
-            entry = self._graphs[key] = (capture.graph, arrays)
+            entry[0] = capture.graph
         else:
             self.simulation.steps_taken += 1  # what the tissue's own step() does on the host
         wp.capture_launch(entry[0])
 
     def drop_graphs(self) -> None:
-        """Forget the step's own graphs (the next steps capture them again)."""
+        """Forget the step's own graphs (the next steps record them again)."""
         self._graphs.clear()
-
-    def _graph_key(self, state_in, state_out, control, contacts) -> tuple[tuple, tuple]:
-        """The addresses of every array a step binds (and the options its launches depend on), and the arrays."""
-        model = self.solver.model
-        attrs = getattr(control, "warpface", None) or getattr(model, "warpface", None)
-        out = getattr(getattr(state_out, "warpface", None), "displacement", None)
-        arrays = (state_in.body_q, state_in.body_qd, state_out.body_q, state_out.body_qd, state_out.particle_q)
-        arrays += (state_out.particle_qd, out, getattr(attrs, "activation", None))
-        if contacts is not None:
-            arrays += (contacts.soft_contact_count, contacts.soft_contact_particle, contacts.soft_contact_shape)
-            arrays += (contacts.soft_contact_body_pos, contacts.soft_contact_normal)
-        pointers = tuple(None if a is None else (a.ptr, a.shape) for a in arrays)
-        return (bool(self.solver.inertia), contacts is not None, *pointers), arrays
 
     def _launch(self, kernel, dim: int, inputs: list, outputs: list) -> None:
         wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device)

@@ -64,9 +64,9 @@ class SolverFace(newton.solvers.SolverBase):
             ``nᵀ A_oo[i, i] n`` (a closed gap is left at about ``1 / (1 + contact_stiffness)`` of its depth).
         contact_passes: The host-free path's active-set passes of the contact solve per step.
         step_graphs: On the host-free path, replay :meth:`step` from graphs of its own when the caller is not
-            capturing (one per set of bound arrays: states, control, contacts; the first step with them runs
-            eagerly, the second is captured; :meth:`reset`, a gravity change and :meth:`notify_model_changed`
-            drop them); default on CUDA devices (Warp's CPU graphs work too).
+            capturing (one per combination of states, control and contacts; the first step with them runs eagerly,
+            the second is captured; :meth:`reset`, a gravity change and :meth:`notify_model_changed` drop them;
+            docs/NEWTON.md §5); default on CUDA devices (Warp's CPU graphs work too).
 
     Raises:
         TypeError: ``face`` is not a NewtonFace.
