@@ -167,6 +167,33 @@ def test_a_non_finite_head_motion_gives_no_body_force_and_is_raised_by_synchroni
     solver.synchronize()  # raised once
 
 
+def test_without_inertia_the_tissue_rides_along_the_turning_head():
+    """``inertia=False`` on the host-free path (its head-frame kernel alone): no force, the tissue stays at rest in
+    the head frame, the particles are ``p + R X``."""
+    rig, tetmesh, fixed, _ = shell_face(6, 2)
+    builder = newton.ModelBuilder()
+    head = builder.add_body(xform=wp.transform((0.0, 0.0, 0.0), wp.quat_identity()))
+    face = add_face(builder, rig, tissue=(tetmesh, MATERIAL), fixed=fixed, head_body=head, driven=[])
+    model = builder.finalize(device="cpu")
+    solver = SolverFace(model, face, dt=1.0e-3, graph_capturable=True, inertia=False)
+    state_in, state_out, control = model.state(), model.state(), model.control()
+    for k in range(1, 6):
+        angle = 0.1 * k
+        q, qd = state_out.body_q.numpy(), state_out.body_qd.numpy()
+        q[head] = (0.01 * k, 0.0, 0.0, 0.0, 0.0, np.sin(angle / 2.0), np.cos(angle / 2.0))
+        qd[head] = (10.0, 0.0, 0.0, 0.0, 0.0, 100.0)
+        state_out.body_q.assign(q)
+        state_out.body_qd.assign(qd)
+        solver.step(state_in, state_out, control, None, 1.0e-3)
+        state_in, state_out = state_out, state_in
+    solver.synchronize()
+    assert np.abs(solver.simulation.d).max() < 1e-12
+    c, s = np.cos(0.5), np.sin(0.5)
+    rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    expected = np.array([0.05, 0.0, 0.0]) + tetmesh.points @ rotation.T
+    assert np.abs(state_in.particle_q.numpy()[face.particles] - expected).max() < 1e-6
+
+
 def test_capturable_options_are_checked():
     rig, tetmesh, fixed, _ = shell_face(6, 2)
     builder = newton.ModelBuilder()

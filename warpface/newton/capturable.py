@@ -1,7 +1,7 @@
 """``SolverFace``'s host-free step: kernel launches and device copies only, so it can be captured in a graph.
 
 :class:`CapturablePath` runs the step of docs/NEWTON.md on the device, reading nothing back: the head frame from
-Newton's ``body_q``/``body_qd`` (:func:`~warpface.newton.kernels.head_frame`), the controls from Newton's
+Newton's ``body_q``/``body_qd`` (:func:`~warpface.newton.kernels.head_body_force`), the controls from Newton's
 ``warpface:activation`` into the expression model's own kernels (its plan's launches on fixed buffers), the
 driven displacements into the tissue simulation's control, the inertial body force into the tissue step's
 right-hand side (``TissueSimulation.step(force=...)``), its CG step, the soft contacts as penalty forces found by a
@@ -27,14 +27,15 @@ from .kernels import (
     BlockRows,
     ContactSlots,
     Frame,
+    HeadInputs,
     SoftContacts,
     TissueNodes,
     apply_correction,
-    body_force,
     contact_penalty,
     contact_report,
     driven_from_skin,
     find_contacts,
+    head_body_force,
     head_frame,
     non_finite,
     place_nodes_from,
@@ -85,7 +86,6 @@ class CapturablePath:
         self.rest_gravity = wp.zeros(1, dtype=wp.vec3d, device=device)
         self.rest_set = wp.zeros(1, dtype=wp.int32, device=device)
         self._frames = wp.zeros(1, dtype=Frame, device=device)
-        self._inertia = wp.zeros(3, dtype=wp.vec3d, device=device)
         self.errors = wp.zeros(3, dtype=wp.int32, device=device)
         """Device counters: first bad control + 1, skipped non-finite corrections, clamped contact steps."""
         self._flag = wp.zeros(1, dtype=wp.int32, device=device)
@@ -203,27 +203,39 @@ class CapturablePath:
     def run(self, state_in, state_out, control, contacts) -> None:
         """One step from ``state_in`` to ``state_out`` (module docstring); queues device work only."""
         sim, face, system = self.simulation, self.face, self.system
-        model = self.solver.model
-        body = face.head_body
-        moving = (state_in.body_q, state_in.body_qd, state_out.body_q, state_out.body_qd, model.body_com)
-        inputs = [*(moving if body >= 0 else (*self._empty_q, *self._empty_q, self._empty_vec)), body]
-        inputs += [wp.float64(sim.dt), self.gravity, model.gravity]
-        outputs = [self.rest_gravity, self.rest_set, self._frames, self._inertia, self.errors]
-        self._launch(head_frame, 1, inputs, outputs)
+        head = self._head(state_in, state_out, sim.dt)
         if self._expression is not None:
             self._driven(control)
         nodes = self._nodes()
+        rest = [self.rest_gravity, self.rest_set]
         force = None
-        if self.solver.inertia:  # the body force at the start of the step (r, ḋ of the start), in the step's rhs
-            self._launch(body_force, system.free_count, [self._inertia, self._mass, self._free, nodes], [self._body])
+        if self.solver.inertia:  # the frame and the body force at the start of the step (r, ḋ), in the step's rhs
+            inputs = [head, *rest, self._mass, self._free, nodes]
+            self._launch(head_body_force, system.free_count, inputs, [self._frames, self.errors, self._body])
             force = self._body
+        else:
+            self._launch(head_frame, 1, [head, *rest], [self._frames])
         sim.step(sim.control, force=force)
         if contacts is not None:
             self._contacts(contacts, state_out, nodes)
         attrs = getattr(state_out, "warpface", None)
         out = getattr(attrs, "displacement", None) if attrs is not None else None
         inputs = [self._frames, nodes, state_out.particle_q, state_out.particle_qd]
-        self._launch(place_nodes_from, face.tetmesh.node_count, [*inputs, self._empty_vec if out is None else out], [])
+        inputs.append(self._empty_vec if out is None else out)
+        self._launch(place_nodes_from, face.tetmesh.node_count, inputs, [self.rest_set])
+
+    def _head(self, state_in, state_out, dt: float) -> HeadInputs:
+        """The head kernels' inputs: the head body's poses and twists at both ends of the step (empty: the world)."""
+        model, head = self.solver.model, HeadInputs()
+        if self.face.head_body >= 0:
+            head.q_in, head.qd_in, head.body_com = state_in.body_q, state_in.body_qd, model.body_com
+            head.q_out, head.qd_out = state_out.body_q, state_out.body_qd
+        else:
+            (head.q_in, head.qd_in), (head.q_out, head.qd_out) = self._empty_q, self._empty_q
+            head.body_com = self._empty_vec
+        head.body, head.dt = self.face.head_body, wp.float64(dt)
+        head.gravity, head.model_gravity = self.gravity, model.gravity
+        return head
 
     def _driven(self, control) -> None:
         face, solver = self.face, self.solver
