@@ -13,10 +13,14 @@ Rows:
   its time per step over the peer's: the plug's overhead (goal <= 1.10).
 * ``standalone TissueSimulation, CG`` — the peer on the CG solver (the host-free path's tissue solver; on CUDA
   the same as the first row).
-* ``SolverFace host-free, eager`` / ``graph replay`` — the plug with ``graph_capturable=True`` (docs/NEWTON.md §5:
-  every part of the step on the device, the tissue on the CG solver, the body-force solve and its launches taken
-  even with a still head): stepped eagerly, and as one step captured with ``wp.ScopedCapture`` and replayed with
-  ``wp.capture_launch`` (a CPU graph on the CPU, a CUDA graph on CUDA).
+* ``SolverFace host-free, eager`` / ``own graphs`` / ``graph replay`` — the plug with ``graph_capturable=True``
+  (docs/NEWTON.md §5: every part of the step on the device, the tissue on the CG solver with the head's body force
+  on its right-hand side, taken even with a still head): its launches stepped eagerly (``step_graphs=False``),
+  replayed by ``SolverFace.step`` from graphs of its own (``step_graphs=True``, the CUDA default: what the plug row
+  is on CUDA), and as one step captured by the caller with ``wp.ScopedCapture`` and replayed with
+  ``wp.capture_launch`` (a CPU graph on the CPU, a CUDA graph on CUDA). "launches" counts the host's launch calls
+  per step (kernels, tiled kernels, recorded launches, graph launches, memsets and copies; on the CPU the CG loop's
+  iterations are launches too, on CUDA its persistent kernel is one).
 * ``SolverFace 2 g load`` and Newton's ``SolverVBD``, ``SolverXPBD``, ``SolverSemiImplicit`` — the same tets,
   material (Newton's tets get the material's Lamé parameters, damping and density) and fixed nodes under a
   uniform 2 g body load (the head's extra gravity in a "hyper" replay), each stepped for the same simulated
@@ -28,12 +32,15 @@ Rows:
   5e-6 s; its particles get a 0.1 mm radius (Newton's default 0.1 m makes neighbouring nodes repel).
 
     python -m benchmarks.newton [--cells 16] [--seconds 0.1] [--max-steps 4000] [--device cpu|cuda:0] [--quick]
+        [--overhead-only] [--out DIR]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
+from pathlib import Path
 
 import numpy as np
 import scipy.sparse.linalg as spla
@@ -116,8 +123,10 @@ def overhead_rows(tetmesh, material, fixed, device, steps: int) -> list[dict]:
 
         return step
 
-    host_free, captured = (SolverFace(model, face, dt=dt, graph_capturable=True) for _ in range(2))
-    for free in (host_free, captured):
+    host_free, own, captured = (
+        SolverFace(model, face, dt=dt, graph_capturable=True, step_graphs=graphs) for graphs in (False, True, False)
+    )
+    for free in (host_free, own, captured):
         free.simulation.reset(start)
     replay_states, replay_control = model.state(), model.control()
     captured.step(replay_states, replay_states, replay_control, None, dt)  # binds the arrays, loads the kernels
@@ -128,24 +137,50 @@ def overhead_rows(tetmesh, material, fixed, device, steps: int) -> list[dict]:
         wp.capture_launch(capture.graph)
 
     # interleaved, step by step, so that a load change on a shared machine hits both alike
-    samples = {standalone.step: [], stepper(solver): [], standalone_cg.step: [], stepper(host_free): [], replay: []}
-    for k in range(steps + 2):
+    functions = [standalone.step, stepper(solver), standalone_cg.step, stepper(host_free), stepper(own), replay]
+    samples = {function: [] for function in functions}
+    for k in range(steps + 5):  # the own graphs: an eager step and a capture per state pair first
         for function, times in samples.items():
             begin = time.perf_counter()
             function()
             sync()
-            if k >= 2:
+            if k >= 5:
                 times.append(time.perf_counter() - begin)
-    host_free.synchronize()
-    captured.synchronize()
-    peer, plugged, peer_cg, free, graph = (float(np.median(times)) for times in samples.values())
+    for free in (host_free, own, captured):
+        free.synchronize()
+    names = ("standalone TissueSimulation", "SolverFace (plug)", "standalone TissueSimulation, CG")
+    names += ("SolverFace host-free, eager", "SolverFace host-free, own graphs", "SolverFace host-free, graph replay")
+    peer = float(np.median(samples[functions[0]]))
     return [
-        {"row": "standalone TissueSimulation", "ms": 1e3 * peer, "ratio": 1.0},
-        {"row": "SolverFace (plug)", "ms": 1e3 * plugged, "ratio": plugged / peer},
-        {"row": "standalone TissueSimulation, CG", "ms": 1e3 * peer_cg, "ratio": peer_cg / peer},
-        {"row": "SolverFace host-free, eager", "ms": 1e3 * free, "ratio": free / peer},
-        {"row": "SolverFace host-free, graph replay", "ms": 1e3 * graph, "ratio": graph / peer},
+        {"row": name, "ms": 1e3 * ms, "ratio": ms / peer, "launches": launches_per_step(function)}
+        for name, function, ms in zip(names, functions, (float(np.median(t)) for t in samples.values()))
     ]
+
+
+def launches_per_step(function, steps: int = 4) -> float:
+    """The host's launch calls per call of ``function`` (kernels, tiled kernels, recorded launches, graph launches,
+    memsets, copies, ``wp.capture_while``), counted by wrapping Warp's entry points over ``steps`` calls."""
+    count = [0]
+
+    def counting(real):
+        def counted(*args, **kwargs):
+            count[0] += 1
+            return real(*args, **kwargs)
+
+        return counted
+
+    entries = [(wp, name) for name in ("launch", "launch_tiled", "capture_launch", "copy", "capture_while")]
+    entries += [(wp.array, "zero_"), (wp.array, "fill_"), (wp.Launch, "launch")]
+    saved = [getattr(owner, name) for owner, name in entries]
+    for (owner, name), real in zip(entries, saved):
+        setattr(owner, name, counting(real))
+    try:
+        for _ in range(steps):
+            function()
+    finally:
+        for (owner, name), real in zip(entries, saved):
+            setattr(owner, name, real)
+    return count[0] / steps
 
 
 def _loaded_newton(tetmesh, material, fixed, device):
@@ -257,6 +292,8 @@ def main(argv=None) -> None:
     parser.add_argument("--max-steps", type=int, default=4000, help="cap on any accuracy run's steps")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--quick", action="store_true", help="a small shell, short runs")
+    parser.add_argument("--overhead-only", action="store_true", help="only the plug's overhead rows")
+    parser.add_argument("--out", default=None, help="also write the JSON results into this folder")
     args = parser.parse_args(argv)
     if args.quick:
         args.cells, args.overhead_cells, args.seconds, args.steps, args.max_steps = 8, 16, 0.01, 50, 2000
@@ -266,7 +303,28 @@ def main(argv=None) -> None:
     big, big_material, big_fixed = shell(args.overhead_cells)
     print(f"overhead rows: {big}")
     overhead = overhead_rows(big, big_material, big_fixed, args.device, args.steps)
-    print_table(overhead, [("row", "row", "s"), ("ms", "ms/step", ".3f"), ("ratio", "× standalone", ".3f")])
+    columns = [("row", "row", "s"), ("ms", "ms/step", ".3f"), ("ratio", "× standalone", ".3f")]
+    print_table(overhead, [*columns, ("launches", "launches", ".1f")])
+    accuracy = [] if args.overhead_only else _accuracy(tetmesh, material, fixed, args)
+    name = "newton_" + str(args.device).replace(":", "") + ("_quick" if args.quick else "")
+    name += "_overhead" if args.overhead_only else ""
+    payload = {
+        "machine": machine_info(args.device),
+        "nodes": tetmesh.node_count,
+        "tets": tetmesh.tet_count,
+        "seconds": args.seconds,
+        "overhead": overhead,
+        "accuracy": accuracy,
+    }
+    print(f"\nwrote {write_results(name, payload)}")
+    if args.out:
+        path = Path(args.out) / f"{name}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(payload, indent=2, default=float))
+        print(f"wrote {path}")
+
+
+def _accuracy(tetmesh, material, fixed, args) -> list[dict]:
     reference = static_reference(tetmesh, material, fixed)
     print(f"\nstatic reference: largest displacement {1e6 * np.abs(reference).max():.2f} µm under 2 g")
     accuracy = accuracy_rows(tetmesh, material, fixed, args.device, args.seconds, reference, args.max_steps)
@@ -283,16 +341,7 @@ def main(argv=None) -> None:
             ("error", "error / max|d|", ".2e"),
         ],
     )
-    name = "newton_" + str(args.device).replace(":", "") + ("_quick" if args.quick else "")
-    payload = {
-        "machine": machine_info(args.device),
-        "nodes": tetmesh.node_count,
-        "tets": tetmesh.tet_count,
-        "seconds": args.seconds,
-        "overhead": overhead,
-        "accuracy": accuracy,
-    }
-    print(f"\nwrote {write_results(name, payload)}")
+    return accuracy
 
 
 if __name__ == "__main__":

@@ -56,15 +56,15 @@ def _shaken(graph_capturable: bool, steps: int = 120, device: str = "cpu"):
 
 @pytest.mark.parametrize("device", DEVICES)
 def test_host_free_body_force_matches_the_host_solve(device):
-    """The inertial body force (3 g and a spinning head) solved by device CG equals the host factor's correction
-    (the host path on the CPU, the host-free one on each device)."""
+    """The inertial body force (3 g and a spinning head) on the tissue step's right-hand side: the host-free path's
+    device kernels give the host path's NumPy force (CPU), the same displacements on each device."""
     host, device = _shaken(False), _shaken(True, device=device)
     scale = np.abs(host).max()
     assert scale > 1e-5
     assert np.abs(device - host).max() < 2e-5 * scale
 
 
-def _graph_world(device: str):
+def _graph_world(device: str, **options):
     """A head body with a hyper gravity, a sphere pressed into the cheek and a muscle control: every part of the
     host-free step at work; the states and contacts are set once (replays see the same inputs)."""
     rig, tetmesh, fixed, outer = shell_face(8, 2, span_u=0.7, span_v=0.5)
@@ -74,7 +74,8 @@ def _graph_world(device: str):
     builder.add_shape_sphere(sphere, radius=0.03)
     face = add_face(builder, rig, tissue=(tetmesh, MATERIAL), fixed=fixed, head_body=head, contact_radius=1e-4)
     model = builder.finalize(device=device)
-    solver = SolverFace(model, face, dt=1.0e-3, gravity=(0.0, -3.0 * 9.81, 0.0), graph_capturable=True)
+    gravity = (0.0, -3.0 * 9.81, 0.0)
+    solver = SolverFace(model, face, dt=1.0e-3, gravity=gravity, graph_capturable=True, **options)
     pipeline = newton.CollisionPipeline(model, soft_contact_gap=0.003)
     contacts = pipeline.contacts()
     state_in, state_out, control = model.state(), model.state(), model.control()
@@ -154,6 +155,45 @@ def test_a_non_finite_control_is_held_and_raised_by_synchronize():
     solver.synchronize()  # raised once
 
 
+def test_a_non_finite_head_motion_gives_no_body_force_and_is_raised_by_synchronize():
+    solver, args = _graph_world("cpu")
+    state_in, state_out, control, contacts = args
+    solver.step(*args, 1.0e-3)
+    _set_body(state_out, 0, (0.001, 0.0, 0.0), (np.nan, 0.0, 0.0))  # body 0: the head
+    solver.step(*args, 1.0e-3)
+    assert np.isfinite(solver.simulation.d).all()
+    with pytest.raises(FloatingPointError, match="head motions"):
+        solver.synchronize()
+    solver.synchronize()  # raised once
+
+
+def test_without_inertia_the_tissue_rides_along_the_turning_head():
+    """``inertia=False`` on the host-free path (its head-frame kernel alone): no force, the tissue stays at rest in
+    the head frame, the particles are ``p + R X``."""
+    rig, tetmesh, fixed, _ = shell_face(6, 2)
+    builder = newton.ModelBuilder()
+    head = builder.add_body(xform=wp.transform((0.0, 0.0, 0.0), wp.quat_identity()))
+    face = add_face(builder, rig, tissue=(tetmesh, MATERIAL), fixed=fixed, head_body=head, driven=[])
+    model = builder.finalize(device="cpu")
+    solver = SolverFace(model, face, dt=1.0e-3, graph_capturable=True, inertia=False)
+    state_in, state_out, control = model.state(), model.state(), model.control()
+    for k in range(1, 6):
+        angle = 0.1 * k
+        q, qd = state_out.body_q.numpy(), state_out.body_qd.numpy()
+        q[head] = (0.01 * k, 0.0, 0.0, 0.0, 0.0, np.sin(angle / 2.0), np.cos(angle / 2.0))
+        qd[head] = (10.0, 0.0, 0.0, 0.0, 0.0, 100.0)
+        state_out.body_q.assign(q)
+        state_out.body_qd.assign(qd)
+        solver.step(state_in, state_out, control, None, 1.0e-3)
+        state_in, state_out = state_out, state_in
+    solver.synchronize()
+    assert np.abs(solver.simulation.d).max() < 1e-12
+    c, s = np.cos(0.5), np.sin(0.5)
+    rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    expected = np.array([0.05, 0.0, 0.0]) + tetmesh.points @ rotation.T
+    assert np.abs(state_in.particle_q.numpy()[face.particles] - expected).max() < 1e-6
+
+
 def test_capturable_options_are_checked():
     rig, tetmesh, fixed, _ = shell_face(6, 2)
     builder = newton.ModelBuilder()
@@ -169,3 +209,54 @@ def test_capturable_options_are_checked():
     with pytest.raises(ValueError, match="contact_passes"):
         SolverFace(model, face, graph_capturable=True, contact_passes=1.5)
     assert SolverFace(model, face).graph_capturable is False  # the CPU default: the host path
+
+
+def _counting(function, name: str, calls: dict):
+    def counted(*args, **kwargs):
+        calls[name] += 1
+        return function(*args, **kwargs)
+
+    return counted
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_a_solver_replaying_its_own_step_graphs_steps_as_eagerly(device, monkeypatch):
+    """``step_graphs``: ping-pong steps (two sets of arrays) give the eager steps' tissue, particles and contacts;
+    once both graphs exist a step is one graph launch and no kernel launch; reset drops them (an eager step again)."""
+    steps = 6
+
+    def ping_pong(solver, args, count):
+        state_a, state_b, control, contacts = args
+        for k in range(count):
+            solver.step(*((state_a, state_b) if k % 2 == 0 else (state_b, state_a)), control, contacts, 1.0e-3)
+
+    eager, eager_args = _graph_world(device, step_graphs=False)
+    graphs, args = _graph_world(device, step_graphs=True)
+    assert graphs._capturable.own_graphs and not eager._capturable.own_graphs
+    ping_pong(eager, eager_args, steps)
+    ping_pong(graphs, args, 4)  # eager, eager, captured, captured
+    calls = {"launch": 0, "capture_launch": 0}
+    for name in calls:
+        monkeypatch.setattr(wp, name, _counting(getattr(wp, name), name, calls))
+    ping_pong(graphs, args, steps - 4)
+    monkeypatch.undo()
+    assert calls == {"launch": 0, "capture_launch": steps - 4}
+    assert graphs.simulation.steps_taken == eager.simulation.steps_taken == steps
+    exact = device == "cpu"
+    scale = np.abs(eager.simulation.d).max()
+    assert scale > 1e-5 and graphs.contact_report.active > 0
+    assert graphs.contact_report == eager.contact_report or not exact
+    np.testing.assert_allclose(graphs.simulation.d, eager.simulation.d, rtol=0, atol=1e-12 if exact else 1e-5 * scale)
+    q, q_eager = args[0].particle_q.numpy(), eager_args[0].particle_q.numpy()
+    np.testing.assert_allclose(q, q_eager, rtol=0, atol=1e-7 if exact else 1e-6)
+    fresh = wp.zeros_like(args[1].particle_q)  # a state's array replaced: that step is recorded again
+    args[1].particle_q = fresh
+    calls["launch"] = 0
+    monkeypatch.setattr(wp, "launch", _counting(wp.launch, "launch", calls))
+    graphs.step(args[0], args[1], args[2], args[3], 1.0e-3)
+    monkeypatch.undo()
+    assert calls["launch"] > 0 and np.abs(fresh.numpy()).max() > 0.0
+    graphs.reset(args[0])
+    assert not graphs._capturable._graphs
+    graphs.synchronize()
+    eager.synchronize()

@@ -1,9 +1,9 @@
 """Newmark-β simulation of viscoelastic tissue driven by prescribed displacements (SPEC §2).
 
 :class:`TissueSimulation` assembles K, M, C once, splits the nodes into free (``o``), fixed
-and driven (together ``c``), and advances ``M ä + C ḋ + K d = 0`` on the free nodes with
-``A_oo d_o = q_o − A_oc d_c`` (no external force on free nodes). Fixed nodes stay at zero
-displacement; driven nodes follow the displacement given for each step.
+and driven (together ``c``), and advances ``M ä + C ḋ + K d = f`` on the free nodes with
+``A_oo d_o = q_o − A_oc d_c + f_o`` (``f``: an external nodal force given to :meth:`TissueSimulation.step`, else
+zero). Fixed nodes stay at zero displacement; driven nodes follow the displacement given for each step.
 
 Solvers (``solver=``):
 
@@ -363,7 +363,7 @@ class TissueSimulation:
         if self._failed:
             raise RuntimeError("the simulation failed to converge earlier; call reset() before stepping again")
 
-    def step(self, driven=None) -> None:
+    def step(self, driven=None, *, force=None) -> None:
         """Advance one time step.
 
         Args:
@@ -371,14 +371,23 @@ class TissueSimulation:
                 (D, 3) in the order of ``driven`` (may be omitted when there are none), checked; or a
                 :class:`~warpface.fem.state.TissueControl` of this simulation's driven nodes, dtype and device
                 already on the device (e.g. filled by a kernel), used as it is: no host transfer, no check.
+            force: External nodal force [N] at the end of the step, ``M ä + C ḋ + K d = f`` on the free nodes
+                (the rows of fixed and driven nodes are not read; SPEC-style statement: docs/NEWTON.md §2): a Warp
+                array on the solver's device (:attr:`state`'s), (N,) of the state's vec3 (``vec3d`` for float64)
+                or (N, 3) of its scalar. Its values are read by the step where they lie (a kernel may fill it;
+                no host transfer, no finiteness check: a non-finite force fails the step as a non-finite solve
+                does). None (default): no external force.
 
         On CUDA this only queues work; a convergence failure is raised by the next call that
         reads results (``d``, ``v``, ``a``, :meth:`run`, :meth:`synchronize`) or at the latest
         ``CGOptions.chunk`` steps later.
 
         Raises:
-            ValueError: wrong shape, a non-finite value, or a displacement beyond :attr:`max_displacement`.
+            TypeError: ``force`` is not a Warp array.
+            ValueError: wrong shape, a non-finite value, or a displacement beyond :attr:`max_displacement`; a force
+                of another shape, precision or device.
             ConvergenceError: CG did not converge (CG solver).
+            FloatingPointError: the direct solve gave non-finite displacements (state left as it was).
         """
         self._check_usable()
         if isinstance(driven, TissueControl):
@@ -387,7 +396,7 @@ class TissueSimulation:
             self._feed.put(self._check_driven(driven, None))
             control = self.control
         try:
-            self.solver.step(self.state, self.state, control)
+            self.solver.step(self.state, self.state, control, force=force)
         except FloatingPointError:
             self._failed = True
             raise

@@ -133,25 +133,28 @@ def pcg_kernels(dtype, lanes: int = 1, rows: int = 1) -> types.SimpleNamespace:
         a: wp.array(dtype=vec),
         trajectory: wp.array2d(dtype=vec),
         guess: wp.array(dtype=vec),
+        force: wp.array(dtype=vec),
+        free_nodes: wp.array(dtype=wp.int32),
         ring: wp.array(dtype=wp.int32),
         w: wp.array2d(dtype=vec),
         slots: wp.array3d(dtype=wp.float64),
         cg_iter: wp.array(dtype=wp.int32),
         condition: wp.array(dtype=wp.int32),
     ):
-        """Residuals of the two starting points: ``r[1] = P [d; v; a; t]``, ``r[0] = r[1] − A guess``.
+        """Residuals of the two starting points: ``r[1] = P [d; v; a; t] + f``, ``r[0] = r[1] − A guess``.
 
         ``r[1]`` is the residual of the Newmark predictor ``d + dt v + dt²/2 a`` (``P`` from the
         solver; its columns ``[0, N)`` multiply ``d``, ``[N, 2N)`` ``v``, ``[2N, 3N)`` ``a`` and
         ``[3N, 3N + D)`` the driven displacements ``trajectory[ring[0]]`` at the end of the step);
-        ``r[0]`` that of the predictor plus ``guess`` (the extrapolation of the solver). Sets
+        ``r[0]`` that of the predictor plus ``guess`` (the extrapolation of the solver); ``f`` is the external
+        nodal force ``force[free_nodes[row]]`` (N,), none when ``force`` is empty. Sets
         ``x = guess`` and slots ``START`` ``[0]``, ``[1]`` to ``|r[1]|²``, ``|r[0]|²``. Also starts the
         CG counters and copies ``ring[0]`` to ``ring[1]`` for the update kernel.
         """
         block, thread = wp.tid()
         row, lane, local, i = place(block, thread, w.shape[1])
         slot = ring[0]
-        acc, correction = residual_part(i, lane, P, A, d, v, a, trajectory[slot], guess)
+        acc, correction = residual_part(i, lane, P, A, d, v, a, trajectory[slot], guess, force, free_nodes)
         start_x = guess[i]
         predicted = row_sum(acc, local, lane)
         extrapolated = predicted - row_sum(correction, local, lane)

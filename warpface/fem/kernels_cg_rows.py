@@ -107,9 +107,10 @@ def cg_row_functions(dtype, lanes: int) -> tuple:
 
     - ``fetch_a(A, i, lane)`` → ``(start, end, columns)`` of block row ``i`` of a BSR matrix;
     - ``fetch_g(G, i, lane)`` → ``(start, end, keys)`` of block row ``i`` of a grouped factor;
-    - ``residual_part(i, lane, P, A, d, v, a, driven, guess)`` → this lane's parts of
-      ``(P [d; v; a; driven])_i`` and ``(A guess)_i`` (``P``'s columns ``[0, N)`` multiply ``d``,
-      ``[N, 2N)`` ``v``, ``[2N, 3N)`` ``a``, the rest ``driven``);
+    - ``residual_part(i, lane, P, A, d, v, a, driven, guess, force, free_nodes)`` → this lane's parts of
+      ``(P [d; v; a; driven])_i + f[free_nodes[i]]`` and ``(A guess)_i`` (``P``'s columns ``[0, N)`` multiply ``d``,
+      ``[N, 2N)`` ``v``, ``[2N, 3N)`` ``a``, the rest ``driven``; the external nodal force ``force`` (N,), added by
+      lane 0, is left out when empty);
     - ``direction_part(start, end, columns, lane, A, z, p_old, beta)`` → part of ``(A (z + β p_old))_i``;
     - ``factor_part(start, end, keys, lane, G, u, w, alpha)`` → part of ``(G (u − α w))_i``
       (``u``, ``w`` flat scalar views; ``G y`` is ``u = w = y``, ``α = 0``).
@@ -208,10 +209,14 @@ def cg_row_functions(dtype, lanes: int) -> tuple:
         a: wp.array(dtype=vec),
         driven: wp.array(dtype=vec),
         guess: wp.array(dtype=vec),
+        force: wp.array(dtype=vec),
+        free_nodes: wp.array(dtype=wp.int32),
     ):
         p_start, p_end = P.offsets[i], P.offsets[i + 1]
         a_start, a_end = A.offsets[i], A.offsets[i + 1]
         acc = vec()
+        if lane == 0 and force.shape[0] > 0:
+            acc = force[free_nodes[i]]
         for s in range(wp.static(unroll_p)):
             e = p_start + lane + s * lanes
             acc += wp.where(e < p_end, state_entry(wp.min(e, p_end - 1), P, d, v, a, driven), vec())

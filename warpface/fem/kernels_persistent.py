@@ -217,7 +217,9 @@ def persistent_pcg_kernel(
     at their own convergence. ``M * blocks`` must be at most :func:`grid_capacity` (every block resident),
     ``blocks`` at most the row groups ``ceil(F / rows)``; on the CPU build it with ``lanes = rows = 1``
     and launch one block per model. Per-model arrays have the model as their first index: the state
-    ``d, v, a`` (B, N), ``trajectory`` (chunk, B, D), ``guess`` (B, F), the work vectors in ``work``
+    ``d, v, a`` (B, N), ``trajectory`` (chunk, B, D), ``guess`` (B, F), the external nodal force ``force``
+    (B, N), or (1, N) for one shared by all, or (1, 0) for none (read at ``free_nodes`` (F,), the free rows'
+    nodes), the work vectors in ``work``
     (B, :data:`~warpface.fem.kernels_cg.WORK_ROWS`, F) and its flat scalar view ``work_flat``
     (B, WORK_ROWS, 3F), ``slots`` (B, 4, maxiter + 1, SLOT_SPREAD) cleared, ``cg_iter`` (B, 2) and
     ``barrier`` (B, 3: arrivals, gave up, departures), which must start at zero (the last block of a model
@@ -277,6 +279,8 @@ def persistent_pcg_kernel(
         a_all: wp.array2d(dtype=vec),
         trajectory: wp.array3d(dtype=vec),
         guess_all: wp.array2d(dtype=vec),
+        force_all: wp.array2d(dtype=vec),
+        free_nodes: wp.array(dtype=wp.int32),
         ring: wp.array(dtype=wp.int32),
         work_all: wp.array3d(dtype=vec),
         work_flat_all: wp.array3d(dtype=dtype),
@@ -302,6 +306,7 @@ def persistent_pcg_kernel(
         P, A = model_rows(P_all, b, BlockRows()), model_rows(A_all, b, BlockRows())
         G, GT = model_rows(G_all, b, FactorRows()), model_rows(GT_all, b, FactorRows())
         d, v, a, guess = d_all[b], v_all[b], a_all[b], guess_all[b]
+        force = force_all[wp.min(b, force_all.shape[0] - 1)]
         w, wf = work_all[b], work_flat_all[b]  # rows WORK_R (2), WORK_P (2), WORK_X, WORK_Y, WORK_Z, WORK_Q
         slots, cg_iter, barrier = slots_all[b], cg_iter_all[b], barrier_all[b]
         local = thread // lanes
@@ -318,7 +323,7 @@ def persistent_pcg_kernel(
         extrapolated_sq = wp.float64(0.0)
         for g in range(block, groups, blocks):
             row, i = group_row(g, local, count)
-            acc, correction = residual_part(i, lane, P, A, d, v, a, driven, guess)
+            acc, correction = residual_part(i, lane, P, A, d, v, a, driven, guess, force, free_nodes)
             predicted = row_total(acc)
             extrapolated = predicted - row_total(correction)
             if row < count and lane == 0:

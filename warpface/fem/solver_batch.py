@@ -198,7 +198,8 @@ class BatchedCGSolver(DeviceSolver):
                 device=dev,
                 inputs=[
                     *(self._P, self._A, *self._factor),
-                    *(b.d_in, b.v_in, b.a_in, b.trajectory, self._guess, b.ring, self._work, self._work_flat),
+                    *(b.d_in, b.v_in, b.a_in, b.trajectory, self._guess, b.force, self._free_nodes_device),
+                    *(b.ring, self._work, self._work_flat),
                     *(self._slots, self._cg_iter, self._barrier, tol_sq, maxiter, self.blocks_per_model, first),
                 ],
             )

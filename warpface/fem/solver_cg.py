@@ -241,7 +241,8 @@ class CGSolver(DeviceSolver):
                 device=self.device,
                 inputs=[
                     *self._batch_matrices,
-                    *(b.d_in, b.v_in, b.a_in, b.trajectory, self._guess_models, b.ring, self._work, self._work_flat),
+                    *(b.d_in, b.v_in, b.a_in, b.trajectory, self._guess_models, b.force, self._free_nodes_device),
+                    *(b.ring, self._work, self._work_flat),
                     *(self._slots, self._cg_iter, self._barrier, tol_sq, maxiter, self._persistent_blocks, 0),
                 ],
             )
@@ -249,7 +250,8 @@ class CGSolver(DeviceSolver):
             w, w_flat, slots, cg_iter = self._work_one, self._work_flat_one, self._slots_one, self._cg_iter_one
             self._launch_tiled(
                 k.residual,
-                [self._P, self._A, *b.state, b.driven, self._guess, b.ring, w, slots, cg_iter, self._condition],
+                [self._P, self._A, *b.state, b.driven, self._guess, b.force_one, self._free_nodes_device, b.ring]
+                + [w, slots, cg_iter, self._condition],
             )
             self._launch_tiled(k.lower_start, [self._G, w, w_flat, slots])
             self._launch_tiled(k.upper, [self._GT, w, w_flat, slots, cg_iter, tol_sq, maxiter])

@@ -19,7 +19,7 @@ import warp as wp
 from ..errors import ConvergenceError
 from .chunks import ChunkedRun
 from .newmark import check_step_dt, step_key
-from .state import TissueControl, TissueState
+from .state import TissueControl, TissueState, force_vectors
 
 __all__ = ["DeviceSolver"]
 
@@ -39,6 +39,9 @@ class DeviceSolver:
     """Solver family, as ``TissueSimulation(solver=...)`` names it."""
 
     def _init_bindings(self) -> None:
+        self._free_nodes_device = wp.array(self.free_nodes.astype(np.int32), dtype=wp.int32, device=self.device)
+        self._no_force = wp.zeros((1, 0), dtype=self._vec, device=self.device)  # kernels skip an empty force
+        self._no_force_one = wp.zeros(0, dtype=self._vec, device=self.device)
         self._use_graph = self.options.graph_on(device=self.device)
         self._graphs: dict = {}
         self._bindings: dict = {}
@@ -58,10 +61,10 @@ class DeviceSolver:
             models = "" if self.model_count is None else f" of {self.model_count} models"
             raise ValueError(f"{name} must hold {self.node_count} nodes{models} of {precision} vec3 on {self.device}")
 
-    def _binding(self, state_in, state_out, trajectory, ring, record, key) -> SimpleNamespace:
-        """The arrays of one step, per model first: the states, ``trajectory`` (chunk, B, D) and ``record``
-        (chunk, B, N); for a single model also ``state`` (d, v, a of ``state_in``) and ``driven`` (chunk, D) for the
-        launched loop's kernels."""
+    def _binding(self, state_in, state_out, trajectory, ring, record, key, force=None) -> SimpleNamespace:
+        """The arrays of one step, per model first: the states, ``trajectory`` (chunk, B, D), ``record``
+        (chunk, B, N) and ``force`` (B, N), or (1, 0) without one; for a single model also ``state`` (d, v, a of
+        ``state_in``), ``driven`` (chunk, D) and ``force_one`` (N,) or (0,) for the launched loop's kernels."""
         view = self._batch_view
         binding = SimpleNamespace(
             d_in=view(state_in.d),
@@ -74,18 +77,22 @@ class DeviceSolver:
             ring=ring,
             record=record,
             chunk=trajectory.shape[0],
+            force=self._no_force if force is None else view(force),
             key=key,
             arrays=(state_in, state_out),  # keeps the bound pointers valid
         )
         if self.model_count is None:
             binding.state = (state_in.d, state_in.v, state_in.a)
             binding.driven = trajectory.reshape((trajectory.shape[0], trajectory.shape[2]))
+            binding.force_one = self._no_force_one if force is None else force
         return binding
 
-    def _binding_for_step(self, state_in, state_out, control) -> SimpleNamespace:
-        key = ("step", *step_key(state_in, state_out, control))
+    def _binding_for_step(self, state_in, state_out, control, force=None) -> SimpleNamespace:
+        forced = None if force is None else (getattr(force, "ptr", id(force)), getattr(force, "shape", None))
+        key = ("step", *step_key(state_in, state_out, control), forced)
         binding = self._bindings.get(key)
         if binding is None:
+            force = force_vectors(force, self.node_count, self._vec, device=self.device, models=self.model_count)
             self._check_state("state_in", state_in)
             self._check_state("state_out", state_out)
             if not isinstance(control, TissueControl):
@@ -99,8 +106,8 @@ class DeviceSolver:
             trajectory = driven.reshape((1, *driven.shape))
             record = self._batch_view(state_out.d)
             record = record.reshape((1, *record.shape))
-            binding = self._binding(state_in, state_out, trajectory, self._step_ring, record, key)
-            binding.arrays += (control,)
+            binding = self._binding(state_in, state_out, trajectory, self._step_ring, record, key, force)
+            binding.arrays += (control, force)
             self._bindings[key] = binding
         return binding
 
@@ -116,24 +123,32 @@ class DeviceSolver:
         wp.capture_launch(graph)
 
     # ------------------------------------------------------------------ stepping
-    def step(self, state_in: TissueState, state_out: TissueState, control: TissueControl, dt=None) -> None:
+    def step(
+        self, state_in: TissueState, state_out: TissueState, control: TissueControl, dt=None, *, force=None
+    ) -> None:
         """Queue one time step from ``state_in`` to ``state_out`` (may be the same object); never waits.
 
         Args:
             state_in, state_out: States of this solver's size, precision and device.
             control: Driven displacements at the end of the step.
             dt: The time step [s]; None or the solver's own (checked).
+            force: External nodal force [N] at the end of the step, added to the step's right-hand side on the
+                free nodes (fixed and driven rows are not read): a Warp array of this solver's vec3 (N,) — (B, N)
+                for a batch — or of its scalar (N, 3), on its device; read by the step's kernels where it lies
+                (write it in place between steps). None: no force.
 
         The first step with a new combination of state and control arrays binds them (and on CUDA captures
         a graph); later steps with the same arrays reuse it. A convergence failure is booked on the device
         and raised by :meth:`synchronize`.
 
         Raises:
-            TypeError: the states are not TissueStates or the control not a TissueControl.
-            ValueError: a state or the control does not match the solver (size, precision, device), or another dt.
+            TypeError: the states are not TissueStates, the control not a TissueControl, or ``force`` not a Warp
+                array.
+            ValueError: a state, the control or the force does not match the solver (size, precision, device), or
+                another dt.
         """
         check_step_dt(dt, self.coefficients)
-        self._launch(self._binding_for_step(state_in, state_out, control))
+        self._launch(self._binding_for_step(state_in, state_out, control, force))
 
     def run_chunks(self, state: TissueState, driven: np.ndarray):
         """Advance ``state`` in place through driven displacements (T, [B,] D, 3) [m], ``chunk`` steps at a time;

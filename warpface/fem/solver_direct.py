@@ -28,7 +28,7 @@ import warp as wp
 from .kernels_integrator import newmark_constants, newmark_update
 from .ldlt import BlockLDLT, UnsuitableFactor
 from .newmark import NewmarkCoefficients, check_step_dt, step_key
-from .state import TissueControl, TissueState
+from .state import TissueControl, TissueState, force_vectors
 
 __all__ = ["BatchedDirectSolver", "DirectSolver", "SuperLUFactor", "factorize_spd", "node_dofs"]
 
@@ -120,6 +120,7 @@ class DirectSolver:
         self._solution_view = self._solution.numpy().reshape(-1)
         self._update_constants = newmark_constants(c, wp.float64)
         self._bindings: dict = {}
+        self._forces: dict = {}
         # the last four solutions, newest last, for the extrapolated start of the next step
         self._history = np.zeros((4, 3 * self.free_nodes.size))
         self._history_count = 0
@@ -151,33 +152,33 @@ class DirectSolver:
         extrapolation needs four solutions of the new trajectory first)."""
         self._history_count = 0
 
-    def step(self, state_in: TissueState, state_out: TissueState, control: TissueControl, dt=None) -> None:
+    def step(
+        self, state_in: TissueState, state_out: TissueState, control: TissueControl, dt=None, *, force=None
+    ) -> None:
         """Advance one time step from ``state_in`` to ``state_out`` (may be the same object).
 
         Args:
             state_in, state_out: float64 states on the CPU.
             control: Driven displacements at the end of the step (float64, CPU).
             dt: The time step [s]; None or the solver's own (checked).
+            force: External nodal force [N] at the end of the step on the free nodes: a float64 CPU Warp array
+                (N,) vec3d or (N, 3) (read through a zero-copy view; fixed and driven rows are not read), or None.
 
         The first step with a new combination of state and control arrays records the update
         launch and the input views; later steps reuse them.
 
         Raises:
-            TypeError: the states are not TissueStates or the control not a TissueControl.
-            ValueError: a state or the control does not match the solver (size, type, device), or another dt.
+            TypeError: the states are not TissueStates, the control not a TissueControl, or ``force`` not a Warp
+                array.
+            ValueError: a state, the control or the force does not match the solver (size, type, device), or
+                another dt.
             FloatingPointError: the solve produced non-finite displacements (``state_out`` untouched).
         """
         check_step_dt(dt, self.coefficients)
-        c = self.coefficients
         binding = self._binding(state_in, state_out, control)
+        rhs = self._rhs(binding, force)
         d, v, a = binding.d, binding.v, binding.a
-        u = c.mass_displacement * d + c.mass_velocity * v + c.mass_acceleration * a
-        w = c.damping_displacement * d + c.damping_velocity * v + c.damping_acceleration * a
-        rhs = (self._M_node @ u).ravel() + self._C_o @ w.ravel()
-        reference = 0.0
-        if self.driven_nodes.size:
-            rhs -= self._A_od @ binding.driven.ravel()
-            reference = float(np.abs(binding.driven).max())
+        reference = float(np.abs(binding.driven).max()) if self.driven_nodes.size else 0.0
         x = self.factor.solve(rhs, self._start(d, v, a), reference=reference)
         if not np.all(np.isfinite(x)):
             self._history_count = 0
@@ -185,6 +186,24 @@ class DirectSolver:
         self._solution_view[:] = x
         binding.update.launch()
         self._remember(x)
+
+    def _rhs(self, binding: SimpleNamespace, force) -> np.ndarray:
+        """The step's right-hand side ``q_o − A_od d_driven (+ f_o)`` of the free dofs, shape (3F,)."""
+        c = self.coefficients
+        d, v, a = binding.d, binding.v, binding.a
+        u = c.mass_displacement * d + c.mass_velocity * v + c.mass_acceleration * a
+        w = c.damping_displacement * d + c.damping_velocity * v + c.damping_acceleration * a
+        rhs = (self._M_node @ u).ravel() + self._C_o @ w.ravel()
+        if self.driven_nodes.size:
+            rhs -= self._A_od @ binding.driven.ravel()
+        if force is not None:
+            key = (force.ptr, force.shape) if isinstance(force, wp.array) else None
+            view = self._forces.get(key)
+            if view is None:  # checked once per array; a zero-copy (N, 3) view that keeps the array
+                checked = force_vectors(force, self.node_count, wp.vec3d, device=self.device)
+                view = self._forces[key] = checked.numpy()
+            rhs += view[self.free_nodes].ravel()
+        return rhs
 
     def _binding(self, state_in: TissueState, state_out: TissueState, control: TissueControl) -> SimpleNamespace:
         """Zero-copy NumPy views of the inputs and the recorded update launch, cached per combination of arrays."""
@@ -253,9 +272,11 @@ class BatchedDirectSolver:
         self.coefficients = self.solvers[0].coefficients
         self._views: dict = {}
 
-    def step(self, state_in: TissueState, state_out: TissueState, control: TissueControl, dt=None) -> None:
+    def step(
+        self, state_in: TissueState, state_out: TissueState, control: TissueControl, dt=None, *, force=None
+    ) -> None:
         """Advance every model one step: :meth:`DirectSolver.step` on each model's rows (views made once per
-        combination of arrays).
+        combination of arrays); ``force`` [N]: None or a float64 CPU Warp array (B, N) vec3d, row ``b`` model b's.
 
         Raises:
             ValueError: the states or the control are not batched for these models, or another dt.
@@ -272,8 +293,12 @@ class BatchedDirectSolver:
             views = self._views[key] = [
                 (state_in.model(b), state_out.model(b), control.model(b)) for b in range(self.model_count)
             ]
-        for solver, (model_in, model_out, model_control) in zip(self.solvers, views):
-            solver.step(model_in, model_out, model_control, dt)
+        if force is not None:
+            force = force_vectors(
+                force, self.solvers[0].node_count, wp.vec3d, device=self.device, models=self.model_count
+            )
+        for b, (solver, (model_in, model_out, model_control)) in enumerate(zip(self.solvers, views)):
+            solver.step(model_in, model_out, model_control, dt, force=None if force is None else force[b])
 
     def reset(self, state: TissueState) -> None:
         """Start new trajectories (:meth:`DirectSolver.reset` of every model)."""

@@ -17,7 +17,7 @@ from .._validate import as_count, as_device
 MAX_NODES = 1 << 25
 """Largest node count of a tissue state (33.5 M; a face tissue has thousands)."""
 
-__all__ = ["ControlFeed", "TissueControl", "TissueState"]
+__all__ = ["ControlFeed", "TissueControl", "TissueState", "force_vectors"]
 
 _VECTORS = {wp.float32: wp.vec3f, wp.float64: wp.vec3d}
 
@@ -113,6 +113,33 @@ class TissueControl:
         view = TissueControl.__new__(TissueControl)
         view.driven_count, view.driven = self.driven_count, self.driven[index]
         return view
+
+
+def force_vectors(force, node_count: int, vec, *, device, models: int | None = None):
+    """An external nodal force [N] of a solver step as the solver's vec3 array: ``None`` stays None; a Warp array
+    of ``vec`` (N,) — (B, N) for a batch — or of its scalar (N, 3) — (B, N, 3) —, contiguous, on ``device``, is
+    returned as the (B,) N vec3 view of the same memory (no copy).
+
+    Raises:
+        TypeError: ``force`` is not a Warp array.
+        ValueError: another shape, precision or device (naming what the solver needs).
+    """
+    if force is None:
+        return None
+    if not isinstance(force, wp.array):
+        raise TypeError(f"force must be a Warp array of nodal forces [N], got {type(force).__name__}")
+    shape = (node_count,) if models is None else (models, node_count)
+    scalar = vec._wp_scalar_type_
+    if force.dtype == scalar and force.shape == (*shape, 3) and force.is_contiguous:
+        force = force.view(vec)
+    if force.shape != shape or not wp.types.types_equal(force.dtype, vec) or force.device != device:
+        raise ValueError(
+            f"force must be {shape} {wp.types.type_repr(vec)} (or {(*shape, 3)} {wp.types.type_repr(scalar)}) "
+            f"on {device}, got {force.shape} {wp.types.type_repr(force.dtype)} on {force.device}"
+        )
+    if not force.is_contiguous:
+        raise ValueError("force must be a contiguous Warp array")
+    return force
 
 
 def _shape(count: int, models) -> tuple:

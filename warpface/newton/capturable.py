@@ -1,13 +1,14 @@
 """``SolverFace``'s host-free step: kernel launches and device copies only, so it can be captured in a graph.
 
 :class:`CapturablePath` runs the step of docs/NEWTON.md on the device, reading nothing back: the head frame from
-Newton's ``body_q``/``body_qd`` (:func:`~warpface.newton.kernels.head_frame`), the controls from Newton's
+Newton's ``body_q``/``body_qd`` (:func:`~warpface.newton.kernels.head_body_force`), the controls from Newton's
 ``warpface:activation`` into the expression model's own kernels (its plan's launches on fixed buffers), the
-driven displacements into the tissue simulation's control, its CG step, the inertial body force solved by the
-tissue's preconditioned CG (:class:`~warpface.newton.device_cg.FreeSystem`), the soft contacts as penalty forces
-found by a fixed number of active-set passes (docs/NEWTON.md §3), the upright clamp per tet, and the particles.
-Errors (a non-finite control, a non-finite correction, a solve above its tolerance) are booked on the device and
-raised by ``SolverFace.synchronize``.
+driven displacements into the tissue simulation's control, the inertial body force into the tissue step's
+right-hand side (``TissueSimulation.step(force=...)``), its CG step, the soft contacts as penalty forces found by a
+fixed number of active-set passes solved by the tissue's preconditioned CG
+(:class:`~warpface.newton.device_cg.FreeSystem`; docs/NEWTON.md §5), the upright clamp per tet, and the particles.
+Errors (a non-finite control, a non-finite head motion or correction, a solve above its tolerance) are booked on
+the device and raised by ``SolverFace.synchronize``.
 """
 
 from __future__ import annotations
@@ -26,14 +27,15 @@ from .kernels import (
     BlockRows,
     ContactSlots,
     Frame,
+    HeadInputs,
     SoftContacts,
     TissueNodes,
     apply_correction,
-    body_force,
     contact_penalty,
     contact_report,
     driven_from_skin,
     find_contacts,
+    head_body_force,
     head_frame,
     non_finite,
     place_nodes_from,
@@ -42,6 +44,10 @@ from .kernels import (
 )
 
 __all__ = ["CapturablePath"]
+
+
+GRAPH_LIMIT = 8
+"""Combinations of a step's objects whose graphs are kept (a ping-pong of two states needs two)."""
 
 
 def _ints(values, device) -> wp.array:
@@ -58,12 +64,14 @@ class CapturablePath:
         contact_passes: Active-set passes of the contact solve per step.
     """
 
-    def __init__(self, solver, simulation, *, contact_stiffness: float, contact_passes: int):
+    def __init__(self, solver, simulation, *, contact_stiffness: float, contact_passes: int, own_graphs: bool):
         sim, face, model = simulation, solver.face, solver.model
         device = self.device = model.device
         self.solver, self.simulation, self.face = solver, sim, face
         self.system = FreeSystem(sim)
         self.penalty, self.passes = float(contact_stiffness), int(contact_passes)
+        self.own_graphs = bool(own_graphs)
+        self._graphs: dict = {}  # per (ids of the step's objects, inertia): [graph or None, their arrays, objects]
         n, free = face.tetmesh.node_count, sim.free_nodes
         self._free = _ints(free, device)
         free_index = np.full(n, -1, dtype=np.int32)
@@ -78,16 +86,14 @@ class CapturablePath:
         self.rest_gravity = wp.zeros(1, dtype=wp.vec3d, device=device)
         self.rest_set = wp.zeros(1, dtype=wp.int32, device=device)
         self._frames = wp.zeros(1, dtype=Frame, device=device)
-        self._inertia = wp.zeros(3, dtype=wp.vec3d, device=device)
         self.errors = wp.zeros(3, dtype=wp.int32, device=device)
         """Device counters: first bad control + 1, skipped non-finite corrections, clamped contact steps."""
         self._flag = wp.zeros(1, dtype=wp.int32, device=device)
-        self._one = wp.ones(1, dtype=wp.float64, device=device)
         self._scale = wp.ones(1, dtype=wp.float64, device=device)
         self._counts = wp.zeros(2, dtype=wp.int32, device=device)
         self._force = wp.zeros(1, dtype=wp.float64, device=device)
+        self._body = wp.zeros(n, dtype=wp.vec3d, device=device)  # the body force (N,): free rows written, others 0
         self._f = self.system.vector()
-        self._x_body = self.system.vector()
         self._x_contact = self.system.vector()
         self._H = wp.zeros(free.size, dtype=wp.mat33d, device=device)
         M = sim.matrices.M
@@ -111,11 +117,13 @@ class CapturablePath:
     def set_gravity(self, gravity) -> None:
         """The gravity the tissue feels [m/s²] (3,)."""
         self.gravity.assign(np.asarray(gravity, dtype=np.float64).reshape(1, 3))
+        self.drop_graphs()
 
     def set_rest_gravity(self, rest_gravity) -> None:
         """The gravity the rest shape balances, head frame [m/s²] (3,)."""
         self.rest_gravity.assign(np.asarray(rest_gravity, dtype=np.float64).reshape(1, 3))
         self.rest_set.fill_(1)
+        self.drop_graphs()
 
     def keep_rest_gravity(self, other: CapturablePath) -> None:
         """Take ``other``'s rest gravity (device copies: whatever its first step found)."""
@@ -123,9 +131,9 @@ class CapturablePath:
         wp.copy(self.rest_set, other.rest_set)
 
     def reset(self) -> None:
-        """Clear the warm starts of the correction solves."""
-        self._x_body.zero_()
+        """Clear the warm start of the contact solves and the step's own graphs."""
         self._x_contact.zero_()
+        self.drop_graphs()
 
     def _expression_launches(self):
         """The expression model's plan on buffers of one frame, recorded; the controls' buffer and the skin."""
@@ -150,6 +158,39 @@ class CapturablePath:
         return buffers, launches, _ints(face.driven_vertices, self.device), skin_rest
 
     # ------------------------------------------------------------------ the step
+    def advance(self, state_in, state_out, control, contacts) -> None:
+        """:meth:`run`; with :attr:`own_graphs`, outside a capture, as a graph of its own per combination of
+        ``state_in``, ``state_out``, ``control`` and ``contacts`` (the objects, held while cached, and inertia on or
+        off): the first step with them runs eagerly (it loads every kernel: no module load inside the capture), the
+        second is captured and launched, the later ones are one ``wp.capture_launch``. A state whose body or particle
+        arrays were replaced is recorded again; arrays replaced inside a control, contacts or a state's ``warpface``
+        namespace need :meth:`drop_graphs`. A capture the caller has open (``device.is_capturing``) gets the
+        launches themselves."""
+        if not self.own_graphs or self.device.is_capturing:
+            self.run(state_in, state_out, control, contacts)
+            return
+        key = (id(state_in), id(state_out), id(control), id(contacts), bool(self.solver.inertia))
+        arrays = (state_in.body_q, state_in.body_qd, state_out.body_q, state_out.body_qd, state_out.particle_q)
+        arrays += (state_out.particle_qd,)
+        entry = self._graphs.get(key)
+        if entry is None or entry[1] != arrays:  # tuples of arrays compare by identity
+            if entry is None and len(self._graphs) >= GRAPH_LIMIT:  # new objects every step: keep memory bounded
+                self._graphs.clear()
+            self.run(state_in, state_out, control, contacts)
+            self._graphs[key] = [None, arrays, (state_in, state_out, control, contacts)]
+            return
+        if entry[0] is None:
+            with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
+                self.run(state_in, state_out, control, contacts)  # counts the step (steps_taken) once
+            entry[0] = capture.graph
+        else:
+            self.simulation.steps_taken += 1  # what the tissue's own step() does on the host
+        wp.capture_launch(entry[0])
+
+    def drop_graphs(self) -> None:
+        """Forget the step's own graphs (the next steps record them again)."""
+        self._graphs.clear()
+
     def _launch(self, kernel, dim: int, inputs: list, outputs: list) -> None:
         wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device)
 
@@ -162,27 +203,39 @@ class CapturablePath:
     def run(self, state_in, state_out, control, contacts) -> None:
         """One step from ``state_in`` to ``state_out`` (module docstring); queues device work only."""
         sim, face, system = self.simulation, self.face, self.system
-        model = self.solver.model
-        body = face.head_body
-        moving = (state_in.body_q, state_in.body_qd, state_out.body_q, state_out.body_qd, model.body_com)
-        inputs = [*(moving if body >= 0 else (*self._empty_q, *self._empty_q, self._empty_vec)), body]
-        inputs += [wp.float64(sim.dt), self.gravity, model.gravity]
-        self._launch(head_frame, 1, inputs, [self.rest_gravity, self.rest_set, self._frames, self._inertia])
+        head = self._head(state_in, state_out, sim.dt)
         if self._expression is not None:
             self._driven(control)
         nodes = self._nodes()
-        if self.solver.inertia:  # the body force at the start of the step (r, ḋ of the start)
-            self._launch(body_force, system.free_count, [self._inertia, self._mass, self._free, nodes], [self._f])
-        sim.step(sim.control)
-        if self.solver.inertia:
-            system.solve(self._f, self._x_body)
-            self._correct(self._x_body, self._one, False)
+        rest = [self.rest_gravity, self.rest_set]
+        force = None
+        if self.solver.inertia:  # the frame and the body force at the start of the step (r, ḋ), in the step's rhs
+            inputs = [head, *rest, self._mass, self._free, nodes]
+            self._launch(head_body_force, system.free_count, inputs, [self._frames, self.errors, self._body])
+            force = self._body
+        else:
+            self._launch(head_frame, 1, [head, *rest], [self._frames])
+        sim.step(sim.control, force=force)
         if contacts is not None:
             self._contacts(contacts, state_out, nodes)
         attrs = getattr(state_out, "warpface", None)
         out = getattr(attrs, "displacement", None) if attrs is not None else None
         inputs = [self._frames, nodes, state_out.particle_q, state_out.particle_qd]
-        self._launch(place_nodes_from, face.tetmesh.node_count, [*inputs, self._empty_vec if out is None else out], [])
+        inputs.append(self._empty_vec if out is None else out)
+        self._launch(place_nodes_from, face.tetmesh.node_count, inputs, [self.rest_set])
+
+    def _head(self, state_in, state_out, dt: float) -> HeadInputs:
+        """The head kernels' inputs: the head body's poses and twists at both ends of the step (empty: the world)."""
+        model, head = self.solver.model, HeadInputs()
+        if self.face.head_body >= 0:
+            head.q_in, head.qd_in, head.body_com = state_in.body_q, state_in.body_qd, model.body_com
+            head.q_out, head.qd_out = state_out.body_q, state_out.body_qd
+        else:
+            (head.q_in, head.qd_in), (head.q_out, head.qd_out) = self._empty_q, self._empty_q
+            head.body_com = self._empty_vec
+        head.body, head.dt = self.face.head_body, wp.float64(dt)
+        head.gravity, head.model_gravity = self.gravity, model.gravity
+        return head
 
     def _driven(self, control) -> None:
         face, solver = self.face, self.solver
@@ -196,11 +249,12 @@ class CapturablePath:
         driven = self.simulation.control.driven
         self._launch(driven_from_skin, face.driven_nodes.size, [buffers.final_points, vertices, skin_rest], [driven])
 
-    def _correct(self, x, scale, clamp: bool) -> None:
+    def _correct(self, x, scale) -> None:
+        """Add the contact correction ``scale[0] x`` to the step (skipped, and booked, when not finite)."""
         state, count = self.simulation.state, self.system.free_count
         self._flag.zero_()
         self._launch(non_finite, count, [x], [self._flag])
-        inputs = [x, scale, self._free, self._c0, self._c7c0, self._flag, int(clamp), self.errors]
+        inputs = [x, scale, self._free, self._c0, self._c7c0, self._flag, 1, self.errors]
         self._launch(apply_correction, count, inputs, [state.d, state.v, state.a])
 
     def _contact_slots(self, capacity: int) -> ContactSlots:
@@ -243,7 +297,7 @@ class CapturablePath:
         self._launch(contact_report, capacity, [slots, self._x_contact], [self._counts, self._force])
         inputs = [self._tets, self._rest_volumes, wp.float64(MIN_VOLUME_FRACTION), nodes, self._x_contact]
         self._launch(upright_scale, face.tetmesh.tet_count, [*inputs, self._free_index], [self._scale])
-        self._correct(self._x_contact, self._scale, True)
+        self._correct(self._x_contact, self._scale)
 
     # ------------------------------------------------------------------ reports (host reads, outside a step)
     def report(self) -> ContactReport:
@@ -258,8 +312,8 @@ class CapturablePath:
 
     def raise_errors(self) -> None:
         """Raise what the steps booked since the last call (and clear it): ValueError for a non-finite control,
-        FloatingPointError for a skipped non-finite correction, ConvergenceError for a correction solve that did
-        not reach its tolerance."""
+        FloatingPointError for a skipped non-finite head motion (its body force) or contact correction,
+        ConvergenceError for a contact solve that did not reach its tolerance."""
         from ..errors import ConvergenceError
 
         errors, failed = self.errors.numpy(), int(self.system.failed.numpy()[0])
@@ -273,7 +327,7 @@ class CapturablePath:
             )
         if skipped:
             raise FloatingPointError(
-                f"SolverFace: {skipped} body or contact corrections were not finite and were skipped"
+                f"SolverFace: {skipped} head motions or contact corrections were not finite and were skipped"
             )
         if failed:
-            raise ConvergenceError(f"SolverFace: {failed} correction solves stopped above the CG tolerance")
+            raise ConvergenceError(f"SolverFace: {failed} contact solves stopped above the CG tolerance")

@@ -41,13 +41,14 @@ __all__ = [
     "ContactSlots",
     "SoftContacts",
     "Frame",
+    "HeadInputs",
     "TissueNodes",
     "apply_correction",
-    "body_force",
     "contact_penalty",
     "contact_report",
     "driven_from_skin",
     "find_contacts",
+    "head_body_force",
     "head_frame",
     "non_finite",
     "place_nodes",
@@ -114,6 +115,11 @@ def _f64(x: wp.vec3):
 
 
 @wp.func
+def _finite(x: wp.vec3d):
+    return wp.isfinite(x[0]) and wp.isfinite(x[1]) and wp.isfinite(x[2])
+
+
+@wp.func
 def _place(
     frame: Frame,
     nodes: TissueNodes,
@@ -152,9 +158,13 @@ def place_nodes_from(
     q: Vectors32,
     qd: Vectors32,
     out: Vectors32,
+    rest_set: Indices,
 ):
-    """:func:`place_nodes` with the frame read from the device (``frames[0]``, written by :func:`head_frame`)."""
+    """:func:`place_nodes` with the frame read from the device (``frames[0]``, written by :func:`head_frame` or
+    :func:`head_body_force`); thread 0 marks the rest gravity as taken (``rest_set[0] = 1``)."""
     _place(frames[0], nodes, wp.tid(), q, qd, out)
+    if wp.tid() == 0:
+        rest_set[0] = 1
 
 
 @wp.func
@@ -175,25 +185,11 @@ def _origin_twist(q: wp.transform, qd: wp.spatial_vector, com: wp.vec3):
     return v, omega
 
 
-@wp.kernel
-def head_frame(
-    q_in: Poses,
-    qd_in: Twists,
-    q_out: Poses,
-    qd_out: Twists,
-    body_com: Vectors32,
-    body: int,
-    dt: wp.float64,
-    gravity: Vectors,
-    model_gravity: Vectors32,
-    rest_gravity: Vectors,
-    rest_set: Indices,
-    frames: wp.array(dtype=Frame),
-    inertia: Vectors,
+@wp.func
+def _head_motion(
+    q_in: Poses, qd_in: Twists, q_out: Poses, qd_out: Twists, body_com: Vectors32, body: int, dt: wp.float64
 ):
-    """One thread: the head body's frame at the end of the step into ``frames[0]``, and in the head frame
-    ``inertia = [Rᵀ (g − a_O) − b_rest, Rᵀ ω, Rᵀ α]`` (``frame.head_motion``'s finite differences); the rest gravity
-    ``b_rest = R_inᵀ g_model`` is taken here when ``rest_set[0]`` is 0. ``body`` -1: the world, at rest."""
+    # (p, R, R_in, v_O, ω, a_O, α) of the head body over the step (world frame); the world at rest for body -1
     p = wp.vec3d()
     r = wp.quatd(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0), wp.float64(1.0))
     r_in = r
@@ -209,17 +205,100 @@ def head_frame(
         v_in, omega_in = _origin_twist(q_in[body], qd_in[body], com)
         accel = (v - v_in) / dt
         alpha = (omega - omega_in) / dt
-    if rest_set[0] == 0:
-        rest_gravity[0] = wp.quat_rotate_inv(r_in, _f64(model_gravity[0]))
-        rest_set[0] = 1
+    return p, r, r_in, v, omega, accel, alpha
+
+
+@wp.func
+def _frame(p: wp.vec3d, r: wp.quatd, v: wp.vec3d, omega: wp.vec3d):
     frame = Frame()
     frame.head = wp.transformd(p, r)
     frame.origin_velocity = v
     frame.omega = omega
-    frames[0] = frame
-    inertia[0] = wp.quat_rotate_inv(r, gravity[0] - accel) - rest_gravity[0]
-    inertia[1] = wp.quat_rotate_inv(r, omega)
-    inertia[2] = wp.quat_rotate_inv(r, alpha)
+    return frame
+
+
+@wp.func
+def _inertia(r: wp.quatd, gravity: wp.vec3d, rest: wp.vec3d, accel: wp.vec3d, omega: wp.vec3d, alpha: wp.vec3d):
+    # [Rᵀ (g − a_O) − b_rest, Rᵀ ω, Rᵀ α] in the head frame, all zero (and False) when one is not finite
+    u = wp.quat_rotate_inv(r, gravity - accel) - rest
+    w = wp.quat_rotate_inv(r, omega)
+    dw = wp.quat_rotate_inv(r, alpha)
+    finite = _finite(u) and _finite(w) and _finite(dw)
+    if not finite:
+        u = wp.vec3d()
+        w = wp.vec3d()
+        dw = wp.vec3d()
+    return u, w, dw, finite
+
+
+@wp.struct
+class HeadInputs:
+    """What the head's motion over a step is read from: Newton's body poses and twists at both ends, the bodies' COM
+    offsets, the head body (-1: the world), dt [s], the tissue's gravity (1,) and the model's (1,) [m/s²]."""
+
+    q_in: Poses
+    qd_in: Twists
+    q_out: Poses
+    qd_out: Twists
+    body_com: Vectors32
+    body: int
+    dt: wp.float64
+    gravity: Vectors
+    model_gravity: Vectors32
+
+
+@wp.func
+def _head_motion_of(head: HeadInputs):
+    return _head_motion(head.q_in, head.qd_in, head.q_out, head.qd_out, head.body_com, head.body, head.dt)
+
+
+@wp.kernel
+def head_frame(head: HeadInputs, rest_gravity: Vectors, rest_set: Indices, frames: wp.array(dtype=Frame)):
+    """One thread: the head body's frame at the end of the step into ``frames[0]`` (``frame.head_motion``'s finite
+    differences; ``body`` -1: the world, at rest), and the rest gravity ``b_rest = R_inᵀ g_model`` when
+    ``rest_set[0]`` is 0. The step without inertia; with it, :func:`head_body_force` does this."""
+    p, r, r_in, v, omega, accel, alpha = _head_motion_of(head)
+    if rest_set[0] == 0:
+        rest_gravity[0] = wp.quat_rotate_inv(r_in, _f64(head.model_gravity[0]))
+        rest_set[0] = 1
+    frames[0] = _frame(p, r, v, omega)
+
+
+@wp.kernel
+def head_body_force(
+    head: HeadInputs,
+    rest_gravity: Vectors,
+    rest_set: Indices,
+    M: BlockRows,
+    free: Indices,
+    nodes: TissueNodes,
+    frames: wp.array(dtype=Frame),
+    errors: Indices,
+    f: Vectors,
+):
+    """The head frame and the inertial body force in one launch, per free node ``o`` (node ``i = free[o]``):
+    ``f[i] = (M b)_i`` with ``b = u − α × r − ω × (ω × r) − 2 ω × ḋ``, ``r = X + d`` (docs/NEWTON.md §2;
+    ``[u, ω, α] = [Rᵀ (g − a_O) − b_rest, Rᵀ ω, Rᵀ α]`` in the head frame, ``M`` the consistent mass, N x N blocks);
+    ``f`` (N,) is the tissue step's external force, its other rows left as they are (zero). Every thread finds the
+    head's motion itself (a few quaternion products); thread 0 writes ``frames[0]``, the rest gravity
+    ``b_rest = R_inᵀ g_model`` when ``rest_set[0]`` is 0, and books a non-finite ``[u, ω, α]`` (a head motion gone
+    bad: no body force) in ``errors[ERROR_NON_FINITE]``. ``rest_set`` is only read here, so every thread sees one
+    value: the step's last kernel (:func:`place_nodes_from`) sets it."""
+    o = wp.tid()
+    p, r, r_in, v, omega, accel, alpha = _head_motion_of(head)
+    taken = rest_set[0] != 0
+    rest = wp.quat_rotate_inv(r_in, _f64(head.model_gravity[0]))
+    if taken:
+        rest = rest_gravity[0]
+    u, w, dw, finite = _inertia(r, head.gravity[0], rest, accel, omega, alpha)
+    if o == 0:
+        frames[0] = _frame(p, r, v, omega)
+        if not taken:
+            rest_gravity[0] = rest
+        if not finite:
+            errors[ERROR_NON_FINITE] = errors[ERROR_NON_FINITE] + 1
+    i = free[o]
+    f[i] = _mass_times_body(u, w, dw, M, i, nodes)
 
 
 @wp.kernel
@@ -252,33 +331,22 @@ def driven_from_skin(skin: Vectors32, vertices: Indices, skin_rest: Vectors, dri
     driven[k] = _f64(skin[v]) - skin_rest[v]
 
 
-@wp.kernel
-def body_force(
-    inertia: Vectors,
-    M: BlockRows,
-    free: Indices,
-    nodes: TissueNodes,
-    f: Vectors,
-):
-    """Per free node ``o``: ``f_o = (M b)_o`` with ``b = u − α × r − ω × (ω × r) − 2 ω × ḋ``, ``r = X + d``
-    (docs/NEWTON.md §2; ``inertia = [u, ω, α]``, head frame; ``M`` the consistent mass, N x N blocks)."""
-    o = wp.tid()
-    i = free[o]
-    u, omega, alpha = inertia[0], inertia[1], inertia[2]
+@wp.func
+def _mass_times_body(u: wp.vec3d, omega: wp.vec3d, alpha: wp.vec3d, M: BlockRows, i: int, nodes: TissueNodes):
+    # (M b)_i, b = u − α × r − ω × (ω × r) − 2 ω × ḋ at each node j of row i, r = X + d
     acc = wp.vec3d()
     for e in range(M.offsets[i], M.offsets[i + 1]):
         j = M.indices[e]
         r = nodes.rest[j] + nodes.d[j]
         b = u - wp.cross(alpha, r) - wp.cross(omega, wp.cross(omega, r))
         acc += M.values[e] * (b - wp.float64(2.0) * wp.cross(omega, nodes.v[j]))
-    f[o] = acc
+    return acc
 
 
 @wp.kernel
 def non_finite(x: Vectors, flag: Indices):
     """``flag[0] = 1`` when an entry of ``x`` is not finite."""
-    o = wp.tid()
-    if not (wp.isfinite(x[o][0]) and wp.isfinite(x[o][1]) and wp.isfinite(x[o][2])):
+    if not _finite(x[wp.tid()]):
         flag[0] = 1
 
 

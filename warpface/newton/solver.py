@@ -2,9 +2,10 @@
 
 One :meth:`SolverFace.step` is: the rig's controls (``control.warpface.activation``) -> expression model ->
 displacements of the driven nodes -> one Newmark-β step of :class:`~warpface.fem.TissueSimulation` (direct or CG
-solver) in the head body's frame -> the inertial body force of the head's motion and the soft contacts, added to
-the same step by superposition (the step is linear: ``d = d_free + A_oo⁻¹ f``) -> the nodes written back as
-Newton particles in the world (``x = p + R (X + d)``).
+solver) in the head body's frame, with the inertial body force of the head's motion on its right-hand side
+(``TissueSimulation.step(force=...)``) -> the soft contacts, added to the same step by superposition (the step is
+linear: ``d = d_step + A_oo⁻¹ f_contact``) -> the nodes written back as Newton particles in the world
+(``x = p + R (X + d)``).
 """
 
 from __future__ import annotations
@@ -62,6 +63,10 @@ class SolverFace(newton.solvers.SolverBase):
         contact_stiffness: The host-free path's contact penalty, in multiples of the node's diagonal stiffness
             ``nᵀ A_oo[i, i] n`` (a closed gap is left at about ``1 / (1 + contact_stiffness)`` of its depth).
         contact_passes: The host-free path's active-set passes of the contact solve per step.
+        step_graphs: On the host-free path, replay :meth:`step` from graphs of its own when the caller is not
+            capturing (one per combination of states, control and contacts; the first step with them runs eagerly,
+            the second is captured; :meth:`reset`, a gravity change and :meth:`notify_model_changed` drop them;
+            docs/NEWTON.md §5); default on CUDA devices (Warp's CPU graphs work too).
 
     Raises:
         TypeError: ``face`` is not a NewtonFace.
@@ -87,6 +92,7 @@ class SolverFace(newton.solvers.SolverBase):
         graph_capturable: bool | None = None,
         contact_stiffness: float = 100.0,
         contact_passes: int = 3,
+        step_graphs: bool | None = None,
     ):
         super().__init__(model)
         if not isinstance(face, NewtonFace):
@@ -103,6 +109,7 @@ class SolverFace(newton.solvers.SolverBase):
         self._capturable_options = dict(
             contact_stiffness=_positive(contact_stiffness, "contact_stiffness"),
             contact_passes=int(_positive(contact_passes, "contact_passes", whole=True)),
+            own_graphs=_flag(step_graphs, "step_graphs", model.device.is_cuda),
         )
         self._capturable: CapturablePath | None = None
         self._options = dict(formulation=formulation, solver=solver, beta=beta, gamma=gamma, cg=cg)
@@ -140,7 +147,10 @@ class SolverFace(newton.solvers.SolverBase):
 
     def notify_model_changed(self, flags) -> None:
         """Re-read what the model changed: ``MODEL_PROPERTIES`` -> gravity and the face's per-tet material
-        (``warpface:youngs_modulus``, ``poisson_ratio``, ``viscosity``); a changed material rebuilds the FEM."""
+        (``warpface:youngs_modulus``, ``poisson_ratio``, ``viscosity``); a changed material rebuilds the FEM. Any
+        change drops the step's own graphs (``step_graphs``)."""
+        if self._capturable is not None:
+            self._capturable.drop_graphs()
         if not int(flags) & int(newton.ModelFlags.MODEL_PROPERTIES):
             return
         if self._gravity_override is None:
@@ -205,11 +215,13 @@ class SolverFace(newton.solvers.SolverBase):
 
         Raises:
             ValueError: a non-finite control (naming it), driven displacements beyond the FEM's limit.
-            FloatingPointError: the step produced non-finite displacements (the state is left as it was).
+            FloatingPointError: a non-finite body force (the head's motion; before the step) or contact correction
+                (the state is left as the tissue step made it). The host-free path raises neither here:
+                :meth:`synchronize` does.
         """
         sim = self._build(dt)
         if self._capturable is not None:
-            self._capturable.run(state_in, state_out, control, contacts)
+            self._capturable.advance(state_in, state_out, control, contacts)
             return
         face = self.face
         if self._rest_gravity is None:
@@ -218,16 +230,12 @@ class SolverFace(newton.solvers.SolverBase):
             )
             self._rest_gravity_auto = True
         motion = head_motion(self.model, state_in, state_out, face.head_body, dt)
-        force = self._body_force(motion) if self.inertia else None
-        sim.step(self._driven_displacements(control))
-        correction = None if force is None else self._solve(force)
-        if contacts is not None:
-            extra = self._contact_correction(contacts, state_out, motion, correction)
-            if extra is not None:
-                correction = extra if correction is None else correction + extra
+        driven = self._driven_displacements(control)
+        sim.step(driven, force=self._body_force(motion) if self.inertia else None)
+        correction = None if contacts is None else self._contact_correction(contacts, state_out, motion)
         if correction is not None and np.any(correction):
             if not np.all(np.isfinite(correction)):
-                raise FloatingPointError("SolverFace: the body or contact force gave non-finite displacements")
+                raise FloatingPointError("SolverFace: the contact forces gave non-finite displacements")
             self._apply(correction)
         self._write_particles(state_out, motion)
 
@@ -248,12 +256,16 @@ class SolverFace(newton.solvers.SolverBase):
         )
         K, M, C = sim.matrices.to_scipy()
         self._mass = M.tocsr()
+        state = sim.state.d  # the body force's array, the tissue state's type and device (a kernel input of the step)
+        self._force = wp.zeros(face.tetmesh.node_count, dtype=state.dtype, device=state.device)
+        self._force_view = self._force.numpy() if state.device.is_cpu else None
+        self._force_host_dtype = np.float64 if state.dtype == wp.vec3d else np.float32
         self._free_dofs = node_dofs(sim.free_nodes)
         self._free_index = np.full(face.tetmesh.node_count, -1, dtype=np.int64)
         self._free_index[sim.free_nodes] = np.arange(sim.free_nodes.size)
         if sim.solver_kind == "direct":
             self._solve = sim.solver.solve
-        else:  # the CG solver keeps A_oo on the device: force corrections use a host factor, made when first needed
+        else:  # the CG solver keeps A_oo on the device: contact solves use a host factor, made when first needed
             c = sim.coefficients
             dofs = self._free_dofs
             factor = []
@@ -314,27 +326,36 @@ class SolverFace(newton.solvers.SolverBase):
             self._last_controls = values
         return self._driven
 
-    def _body_force(self, motion: HeadMotion) -> np.ndarray | None:
-        """The free rows of ``f = M b`` (3F,) at the start of the step, or None when the head feels nothing (the
-        tissue's state is read only then: on a device that is a copy)."""
+    def _body_force(self, motion: HeadMotion) -> wp.array | None:
+        """``f = M b`` (N,) at the start of the step in the tissue's force array, or None when the head feels nothing
+        (the tissue's state is read only then: on a device that is a copy).
+
+        Raises:
+            FloatingPointError: a non-finite force (the head's motion), before the step is taken.
+        """
         still = not (np.any(motion.angular_velocity) or np.any(motion.angular_acceleration))
         uniform = motion.rotation.T @ (self.gravity - motion.acceleration) - self._rest_gravity
         if still and not np.any(uniform):
             return None
         d, v, _ = self._tissue() if not still else (0.0, 0.0, None)
         b = body_force(motion, self.gravity, self._rest_gravity, self._rest + d, np.broadcast_to(v, self._rest.shape))
-        return (self._mass @ b.ravel())[self._free_dofs]
+        force = (self._mass @ b.ravel()).reshape(-1, 3)
+        if not np.all(np.isfinite(force[self.simulation.free_nodes])):
+            raise FloatingPointError("SolverFace: the head's motion gave a non-finite body force (step not taken)")
+        if self._force_view is not None:
+            self._force_view[:] = force
+        else:
+            self._force.assign(force.astype(self._force_host_dtype))
+        return self._force
 
-    def _contact_correction(self, contacts, state_out, motion: HeadMotion, correction) -> np.ndarray | None:
-        """The contact forces' displacement correction (3F,) on top of ``correction`` (or None: no contact)."""
+    def _contact_correction(self, contacts, state_out, motion: HeadMotion) -> np.ndarray | None:
+        """The contact forces' displacement correction (3F,) on top of the step (or None: no contact)."""
         face = self.face
         found = gather_contacts(self.model, contacts, state_out, face.particle_start, self._contact_mask, motion)
         if not found.nodes.size:
             self.contact_report = ContactReport()
             return None
         moved = self._tissue()[0].copy()
-        if correction is not None:
-            moved[self.simulation.free_nodes] += correction.reshape(-1, 3)
         lam, extra, _ = solve_contacts(found, self._rest, moved, face.contact_radius, self._free_index, self._solve)
         full = np.zeros_like(moved)
         full[self.simulation.free_nodes] = extra.reshape(-1, 3)
@@ -410,11 +431,16 @@ def _rotation_quat(R: np.ndarray) -> tuple[float, float, float, float]:
     return tuple(float(c) for c in q)
 
 
+def _flag(requested, name: str, default: bool) -> bool:
+    """``requested`` (a bool) or ``default`` (None); TypeError otherwise."""
+    if requested is not None and not isinstance(requested, (bool, np.bool_)):
+        raise TypeError(f"SolverFace: {name} must be a bool or None, got {type(requested).__name__}")
+    return default if requested is None else bool(requested)
+
+
 def _capturable(requested, solver, cg, device) -> bool:
     """Whether the host-free path is taken (``requested``, or a CUDA device); ValueError where it cannot be."""
-    if requested is not None and not isinstance(requested, (bool, np.bool_)):
-        raise TypeError(f"SolverFace: graph_capturable must be a bool or None, got {type(requested).__name__}")
-    on = device.is_cuda if requested is None else bool(requested)
+    on = _flag(requested, "graph_capturable", device.is_cuda)
     if on and solver == "direct":
         raise ValueError("SolverFace: graph_capturable steps the tissue with solver='cg', not 'direct'")
     if on and as_cg_options(cg).dtype != wp.float64:
