@@ -3,7 +3,8 @@
 Pipeline (docs/RIG.md, "Automatic landmarks"): split shells and keep the skin
 (:class:`~warpface.rigging.surface.HeadSurface`); find the symmetry plane, up, front and scale with a
 similarity fit of the template (:mod:`~warpface.rigging.align`); deform the template onto the skin
-with non-rigid ICP (:mod:`~warpface.rigging.nonrigid`); give every template landmark the nearest
+with non-rigid ICP (:mod:`~warpface.rigging.nonrigid`), twice: the second time from the head's proportions
+as the first fit's feature landmarks give them (:func:`affine_from_features`); give every template landmark the nearest
 skin vertex that faces the same way. The unit follows from the fitted eye distance
 (:mod:`~warpface.rigging.units`).
 """
@@ -19,10 +20,18 @@ from scipy.spatial import cKDTree
 from .align import Affine, Similarity, fit_affine, fit_similarity
 from .nonrigid import NonRigidFit, SkinTarget, fit_nonrigid
 from .surface import HeadSurface
-from .template import template
+from .template import Template, template
 from .units import infer_units, parse_axis, parse_units
 
-__all__ = ["LandmarkFit", "Registration", "find_landmarks", "register", "snap_to_skin", "CONFIDENCE_DISTANCE"]
+__all__ = [
+    "LandmarkFit",
+    "Registration",
+    "find_landmarks",
+    "register",
+    "snap_to_skin",
+    "affine_from_features",
+    "CONFIDENCE_DISTANCE",
+]
 
 CONFIDENCE_DISTANCE = 0.05
 """Distance from a carried-over landmark to its skin vertex at which confidence falls to 1/e
@@ -102,8 +111,11 @@ class Registration:
         return points, self.deformed.normals[model.landmark_vertices]
 
 
-def register(points, triangles, *, up=None, front=None, nonrigid: bool = True, label: str = "mesh") -> Registration:
-    """Register the built-in face onto the skin of a head mesh (see :func:`find_landmarks` for the arguments).
+def register(
+    points, triangles, *, up=None, front=None, nonrigid: bool = True, label: str = "mesh", model: Template | None = None
+) -> Registration:
+    """Register the built-in face onto the skin of a head mesh (see :func:`find_landmarks` for the arguments;
+    ``model`` replaces the template, e.g. with other landmark points while they are calibrated).
 
     Raises:
         ValueError: no surface (empty, a point cloud), or no face-like part.
@@ -113,7 +125,7 @@ def register(points, triangles, *, up=None, front=None, nonrigid: bool = True, l
         raise ValueError(f"up/front: {up!r} and {front!r} are not perpendicular")
     surface = HeadSurface(points, triangles, label)
     skin_points = surface.points[surface.skin_vertices]
-    model = template()
+    model = template() if model is None else model
     fit, plane_residual = fit_similarity(
         model, skin_points, surface.skin_normals, up_hint=up_hint, front_hint=front_hint
     )
@@ -123,13 +135,47 @@ def register(points, triangles, *, up=None, front=None, nonrigid: bool = True, l
             f"{fit.residual:.2f} eye distances; mirror symmetry {plane_residual:.2f}); pass a head or face mesh, "
             "or --up/--front if it is one"
         )
-    local = fit.inverse(skin_points)
-    local_normals = surface.skin_normals @ fit.rotation
-    affine = fit_affine(model, local, local_normals)
-    local, local_normals = affine.inverse(local), affine.inverse_normals(local_normals)
-    skin = SkinTarget(local, local_normals, surface.skin_boundary, cKDTree(local))
-    deformed = fit_nonrigid(model, skin) if nonrigid else None
+    similar = fit.inverse(skin_points)
+    similar_normals = surface.skin_normals @ fit.rotation
+    affine = fit_affine(model, similar, similar_normals)
+    skin = _held(affine, similar, similar_normals, surface.skin_boundary)
+    deformed = None
+    if nonrigid:
+        deformed = fit_nonrigid(model, skin)
+        refined = affine_from_features(model, affine, deformed)
+        if refined is not None:
+            affine, skin = refined, _held(refined, similar, similar_normals, surface.skin_boundary)
+            deformed = fit_nonrigid(model, skin)
     return Registration(surface, fit, skin, deformed, plane_residual, affine)
+
+
+def _held(affine: Affine, points: np.ndarray, normals: np.ndarray, boundary: np.ndarray) -> SkinTarget:
+    """The skin (similarity frame) held in the inverse of ``affine``: the frame the non-rigid fit works in."""
+    local = affine.inverse(points)
+    return SkinTarget(local, affine.inverse_normals(normals), boundary, cKDTree(local))
+
+
+FEATURES = slice(27, 68)
+"""Nose, eyes and mouth (iBUG 27–67): the landmarks the first non-rigid fit places best (≈ 1 mm), whose
+positions give the head's proportions for the second."""
+REFIT_LIMIT = 1.25
+"""A feature-based affine map whose stretch against the first one (a singular value of their ratio) lies
+outside [1/1.25, 1.25] is not trusted: the first fit stands."""
+
+
+def affine_from_features(model, affine: Affine, deformed: NonRigidFit) -> Affine | None:
+    """The affine map (template frame → similarity frame) taking the template's feature landmark points to
+    where the non-rigid fit carried them (docs/RIG.md §9, step 5c), or None when it is implausible."""
+    carried = affine.apply(deformed.move(model.landmark_points[FEATURES], model.landmark_nodes[FEATURES]))
+    rows = np.concatenate([model.landmark_points[FEATURES], np.ones((len(carried), 1))], axis=1)
+    solution = np.linalg.lstsq(rows, carried, rcond=None)[0]
+    refined = Affine(solution[:3].T, solution[3])
+    stretch = np.linalg.svd(refined.linear @ np.linalg.inv(affine.linear), compute_uv=False)
+    if not (np.all(np.isfinite(stretch)) and stretch.min() >= 1.0 / REFIT_LIMIT and stretch.max() <= REFIT_LIMIT):
+        return None
+    if np.linalg.det(refined.linear) * np.linalg.det(affine.linear) <= 0.0:
+        return None
+    return refined
 
 
 def find_landmarks(

@@ -119,7 +119,7 @@ def fit_nonrigid(model: Template, skin: SkinTarget, *, stiffness=None, rounds: i
                 pulled = select[rows]
                 system = system + BACKWARD * (pulled.T @ pulled)
                 right = right + BACKWARD * np.asarray(pulled.T @ targets)
-            maps = splu(system.tocsc()).solve(right)
+            maps = splu(system.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True}).solve(right)
             points = select @ maps
             normals = vertex_normals(points, model.triangles)
     return NonRigidFit(points=points, normals=normals, weights=weights, maps=maps.reshape(k, 4, 3))
