@@ -99,6 +99,7 @@ class _Eye:
         # the lateral slide and the lift off the axis that bring each margin midpoint onto its partner on the other lid
         offset = bottoms[:, 0] - tops[:, 0]
         lift = EYEBALL_RADIUS * (self.radius(bottoms) - self.radius(tops))
+        self._offset = self._knots(corners, tops[:, 0], offset)
         self._upper_slide = self._knots(corners, tops[:, 0], (1.0 - LOWER_SHARE) * offset)
         self._lower_slide = self._knots(corners, bottoms[:, 0], -LOWER_SHARE * offset)
         self._upper_lift = self._knots(corners, tops[:, 0], (1.0 - LOWER_SHARE) * lift)
@@ -115,6 +116,14 @@ class _Eye:
         units]."""
         curves = (self._upper_slide, self._lower_slide, self._upper_lift, self._lower_lift)
         return tuple(np.nan_to_num(curve(x)) for curve in curves)
+
+    def partner_meeting(self, x: np.ndarray) -> np.ndarray:
+        """The meeting angle ``α_m`` where the upper margin at each x lands: at ``x + o(x)``, ``o`` the lateral offset
+        from an upper margin midpoint to its lower partner (0 at the corners), so a midpoint meets its partner
+        where the meeting line slopes along x (0 beyond the corners)."""
+        partner = x + np.nan_to_num(self._offset(x))
+        upper, lower, gap = self.margins(partner)
+        return lower + LOWER_SHARE * gap
 
     def angle(self, local: np.ndarray) -> np.ndarray:
         return np.arctan2(local[..., 1] - self.centre[1], local[..., 2] - self.centre[2])
@@ -148,6 +157,7 @@ def _hinge_angles(eye: _Eye, local: np.ndarray) -> dict[str, tuple[np.ndarray, n
     (module docstring); slide and lift follow the turn's share of the margin's."""
     upper, lower, gap = eye.margins(local[:, 0])
     meet = lower + LOWER_SHARE * gap
+    landing = eye.partner_meeting(local[:, 0])  # where the upper lid meets the lower one
     alpha = eye.angle(local)
     radial = _fade(eye.radius(local), (RADIAL_BAND[0], RADIAL_BAND[1] - RADIAL_BAND[0]))
     radial = np.where(local[:, 2] > eye.centre[2], radial, 0.0) * (gap > 0.0)
@@ -160,15 +170,15 @@ def _hinge_angles(eye: _Eye, local: np.ndarray) -> dict[str, tuple[np.ndarray, n
     inside_upper = ~above & ~below & (alpha >= meet)
     inside_lower = ~above & ~below & (alpha < meet)
     over, under = np.maximum(alpha - upper, 0.0), np.maximum(lower - alpha, 0.0)
-    close_upper = np.where(above, (upper - meet) * _fade(over, UPPER_BAND), 0.0)
-    close_upper = np.where(inside_upper, alpha - meet, close_upper)
+    close_upper = np.where(above, (upper - landing) * _fade(over, UPPER_BAND), 0.0)
+    close_upper = np.where(inside_upper, alpha - landing, close_upper)
     close_lower = np.where(below, (lower - meet) * _fade(under, LOWER_BAND), 0.0)
     close_lower = np.where(inside_lower, alpha - meet, close_lower)
     raise_upper = np.where(above, -RAISE_SHARE * gap * _fade(over, RAISE_BAND), 0.0)
     share = np.divide(alpha - meet, upper - meet, out=np.zeros_like(alpha), where=upper - meet > 0.0)
     raise_upper = np.where(inside_upper, -RAISE_SHARE * gap * share, raise_upper)
     upper_slide, lower_slide, upper_lift, lower_lift = eye.slides(local[:, 0])
-    share_upper = np.divide(close_upper, upper - meet, out=np.zeros_like(alpha), where=upper - meet > 0.0)
+    share_upper = np.divide(close_upper, upper - landing, out=np.zeros_like(alpha), where=upper - landing > 0.0)
     share_lower = np.divide(close_lower, lower - meet, out=np.zeros_like(alpha), where=meet - lower > 0.0)
     upper_share, lower_share = CLOSURE * share_upper * radial, CLOSURE * share_lower * radial
     return {
