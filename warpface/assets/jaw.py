@@ -27,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
 
 from ..expression.fold_guard import unfolded_weights
 from ..expression.jaw import Jaw
@@ -49,6 +50,13 @@ the lip-side term fades smoothly instead of flipping between neighbouring vertic
 _LIP_REACH = (0.25, 0.55)
 """Geodesic distance from the mouth rim over which the lip-side term fades out [inter-ocular units]."""
 
+
+_SLIT_BAND = 0.12
+"""A closed mouth's slit is looked for within this height of the landmarks' contact line [inter-ocular units]."""
+_SLIT_GAP = 0.04
+"""Facing lip surfaces closer than this [inter-ocular units] form the slit (2.5 mm at a 63 mm eye distance)."""
+_SLIT_FACING = 0.3
+"""A lip surface faces down (up) where its unit normal's up component is below −0.3 (above 0.3)."""
 
 _DIFFUSION = 0.05
 """Spread of the weights' final diffusion over the mesh [inter-ocular units]: the weight must not change by
@@ -84,10 +92,8 @@ def _jaw_line(local_landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray, floa
     return knots[order, 0], knots[order, 1], 0.5 * abs(L[64, 0] - L[60, 0])
 
 
-def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarray, scale: float):
-    """``(d_u − d_l)/(d_u + d_l + c)`` and the distance to the rim [inter-ocular units], or None without a
-    mouth opening."""
-    edges = np.sort(mesh.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+def _rim_arcs(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarray, edges: np.ndarray):
+    """The mouth opening's rim split at the corners into its (upper, lower) arcs of vertices, or None without one."""
     unique, counts = np.unique(edges, axis=0, return_counts=True)
     open_edges = unique[counts == 1]
     centre = local_landmarks[60:68, :2].mean(axis=0)
@@ -116,7 +122,44 @@ def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarr
         arcs.append(np.array(arc[1:-1]))
     if len(arcs) != 2 or min(len(a) for a in arcs) == 0:
         return None
-    upper, lower = sorted(arcs, key=lambda arc: -local[arc, 1].mean())
+    return tuple(sorted(arcs, key=lambda arc: -local[arc, 1].mean()))
+
+
+def _slit_faces(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarray, up: np.ndarray):
+    """A closed mouth's slit (docs/RIG.md §12): the lips' facing surfaces as (upper, lower) vertex arrays, or None.
+
+    Within :data:`_SLIT_BAND` of the landmarks' contact line and the mouth's width: skin facing down (the upper
+    lip's underside, ``n·up < −`` :data:`_SLIT_FACING`; ``up`` the face's unit up axis) with skin facing up within
+    :data:`_SLIT_GAP` and not above it, and skin facing up (the lower lip's top) with skin facing down so."""
+    knot_x, knot_y, half_width = _jaw_line(local_landmarks)
+    below = np.interp(local[:, 0], knot_x, knot_y) - local[:, 1]
+    band = (np.abs(local[:, 0] - local_landmarks[60:68, 0].mean()) < half_width) & (np.abs(below) < _SLIT_BAND)
+    facing = np.asarray(mesh.vertex_normals(), dtype=np.float64) @ np.asarray(up, dtype=np.float64)
+    faces = []
+    for sign in (-1.0, 1.0):  # the upper lip's underside faces down, the lower lip's top up
+        mine = np.flatnonzero(band & (sign * facing > _SLIT_FACING))
+        other = np.flatnonzero(band & (-sign * facing > _SLIT_FACING))
+        if len(mine) == 0 or len(other) == 0:
+            return None
+        distance, nearest = cKDTree(local[other]).query(local[mine])
+        toward = sign * (local[other[nearest], 1] - local[mine, 1])  # how far the partner lies the way mine faces
+        faces.append(mine[(distance < _SLIT_GAP) & (toward >= -0.25 * distance)])
+    if min(len(f) for f in faces) < 3:
+        return None
+    return faces[0], faces[1]
+
+
+def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarray, frame: FaceFrame):
+    """``(d_u − d_l)/(d_u + d_l + c)`` and the distance to the rim [inter-ocular units], or None without a
+    mouth opening or a closed mouth's slit."""
+    edges = np.sort(mesh.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    arcs = _rim_arcs(mesh, local, local_landmarks, edges)
+    if arcs is None:
+        arcs = _slit_faces(mesh, local, local_landmarks, frame.axes[1])
+    if arcs is None:
+        return None
+    upper, lower = arcs
+    scale = frame.scale
     lengths = np.linalg.norm(local[edges[:, 0]] - local[edges[:, 1]], axis=1) * scale
     graph = coo_matrix((lengths, (edges[:, 0], edges[:, 1])), shape=(mesh.vertex_count,) * 2).tocsr()
     d_upper = dijkstra(graph, directed=False, indices=upper, min_only=True)
@@ -129,6 +172,21 @@ def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarr
     return side, reach
 
 
+def lip_sided(
+    mesh: FaceMesh, frame: FaceFrame, local: np.ndarray, local_landmarks: np.ndarray, below: np.ndarray
+) -> np.ndarray:
+    """``below`` (V,), a height below the lips' contact line [inter-ocular units], plus the lip-side term
+    ``ε·(d_u − d_l)/(d_u + d_l + c)`` faded with the distance from the mouth's rim or slit (module docstring), so
+    each lip lies on its own side of the line; unchanged without a mouth opening or slit. ``local``: the mesh's
+    points and ``local_landmarks`` the 68 landmarks' in ``frame``."""
+    rim = _mouth_rim_side(mesh, local, local_landmarks, frame)
+    if rim is None:
+        return below
+    side, reach = rim
+    fade = 1.0 - _smoothstep((reach - _LIP_REACH[0]) / (_LIP_REACH[1] - _LIP_REACH[0]))
+    return below + _LIP_OFFSET * side * fade
+
+
 def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.ndarray:
     """Per-vertex jaw weights of the default rig, shape (V,), in [0, 1] (module docstring)."""
     local = frame.to_local(mesh.points)
@@ -139,11 +197,7 @@ def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.n
     lateral = _smoothstep((np.abs(local[:, 0] - mouth_x) - 0.55 * half_width) / (0.75 * half_width))
     above_ramp = _ABOVE_RAMP
     below_ramp = _BELOW_RAMP[0] + lateral * (_BELOW_RAMP[1] - _BELOW_RAMP[0])
-    rim = _mouth_rim_side(mesh, local, local_landmarks, frame.scale)
-    if rim is not None:
-        side, reach = rim
-        fade = 1.0 - _smoothstep((reach - _LIP_REACH[0]) / (_LIP_REACH[1] - _LIP_REACH[0]))
-        below = below + _LIP_OFFSET * side * fade
+    below = lip_sided(mesh, frame, local, local_landmarks, below)
     border = local_landmarks[4:13, :2]
     border = np.concatenate([[border[0] - (1.0, 0.0)], border, [border[-1] + (1.0, 0.0)]])
     under = np.interp(local[:, 0], border[:, 0], border[:, 1]) - local[:, 1]

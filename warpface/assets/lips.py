@@ -17,6 +17,7 @@ import numpy as np
 from ..expression.seal import LipSeal
 from ..mesh import FaceMesh
 from .frame import FaceFrame
+from .jaw import lip_sided
 
 __all__ = ["default_lip_seal", "lip_margin_taper", "LIP_SEAL_NAME", "PART_ANGLE", "PIVOT_DEPTH"]
 
@@ -70,7 +71,9 @@ def default_lip_seal(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) ->
     lateral = _fade(np.abs(local[:, 0] - middle[0]) / half_width, CORNER_BAND)
     near = np.linalg.norm(local - middle, axis=1) < REACH
     turn = PART_ANGLE * lateral * _fade(np.abs(below), PART_BAND) * near
-    angles = np.where(below < 0.0, -turn, turn)  # a positive turn about +x moves a point in front down
+    # each lip turns its own way, also where a closed mouth's slit lies off the landmarks' line (docs/RIG.md §12)
+    sided = lip_sided(mesh, frame, local, frame.to_local(mesh.points[landmarks]), below)
+    angles = np.where(sided < 0.0, -turn, turn)  # a positive turn about +x moves a point in front down
     pairs = [(landmarks[a], landmarks[b]) for a, b in _PAIRS if angles[landmarks[a]] < 0.0 < angles[landmarks[b]]]
     if not pairs:
         return None
