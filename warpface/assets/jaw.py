@@ -34,7 +34,7 @@ from ..expression.jaw import Jaw
 from ..mesh import FaceMesh
 from .frame import FaceFrame
 
-__all__ = ["default_jaw", "jaw_weights"]
+__all__ = ["default_jaw", "jaw_weights", "lip_sided", "mouth_rim_arcs", "slit_faces", "SLIT_GAP"]
 
 _ABOVE_RAMP = 0.30
 """Reach of the weight ramp above the jaw line [inter-ocular units]: upper lip and cheeks follow partly."""
@@ -53,8 +53,10 @@ _LIP_REACH = (0.25, 0.55)
 
 _SLIT_BAND = 0.12
 """A closed mouth's slit is looked for within this height of the landmarks' contact line [inter-ocular units]."""
-_SLIT_GAP = 0.04
+SLIT_GAP = 0.04
 """Facing lip surfaces closer than this [inter-ocular units] form the slit (2.5 mm at a 63 mm eye distance)."""
+_SLIT_DETOUR = 3.0
+"""Facing lip surfaces form a slit where the path over the surface is at least this many times their distance."""
 _SLIT_FACING = 0.3
 """A lip surface faces down (up) where its unit normal's up component is below −0.3 (above 0.3)."""
 
@@ -92,8 +94,10 @@ def _jaw_line(local_landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray, floa
     return knots[order, 0], knots[order, 1], 0.5 * abs(L[64, 0] - L[60, 0])
 
 
-def _rim_arcs(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarray, edges: np.ndarray):
-    """The mouth opening's rim split at the corners into its (upper, lower) arcs of vertices, or None without one."""
+def mouth_rim_arcs(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarray):
+    """The mouth opening's rim split at the corners into its (upper, lower) arcs of vertices, or None without one
+    (``local``: the mesh's points, ``local_landmarks`` the 68 landmarks', in the face frame)."""
+    edges = np.sort(mesh.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     unique, counts = np.unique(edges, axis=0, return_counts=True)
     open_edges = unique[counts == 1]
     centre = local_landmarks[60:68, :2].mean(axis=0)
@@ -125,61 +129,69 @@ def _rim_arcs(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarray, ed
     return tuple(sorted(arcs, key=lambda arc: -local[arc, 1].mean()))
 
 
-def _slit_faces(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarray, up: np.ndarray):
-    """A closed mouth's slit (docs/RIG.md §12): the lips' facing surfaces as (upper, lower) vertex arrays, or None.
+def _edge_graph(mesh: FaceMesh, local: np.ndarray):
+    """The mesh's edges as a sparse graph weighted by their length [inter-ocular units]; an edge of two triangles
+    weighs twice its length (the duplicates add up; :data:`_CORNER_SOFTENING` and :data:`_LIP_REACH` were set so)."""
+    edges = np.sort(mesh.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    lengths = np.linalg.norm(local[edges[:, 0]] - local[edges[:, 1]], axis=1)
+    return coo_matrix((lengths, (edges[:, 0], edges[:, 1])), shape=(mesh.vertex_count,) * 2).tocsr()
 
-    Within :data:`_SLIT_BAND` of the landmarks' contact line and the mouth's width: skin facing down (the upper
-    lip's underside, ``n·up < −`` :data:`_SLIT_FACING`; ``up`` the face's unit up axis) with skin facing up within
-    :data:`_SLIT_GAP` and not above it, and skin facing up (the lower lip's top) with skin facing down so."""
+
+def slit_faces(mesh: FaceMesh, local: np.ndarray, landmarks: np.ndarray, up: np.ndarray):
+    """A closed mouth's slit (docs/RIG.md §12): the lips' facing surfaces as (upper, lower) vertex arrays, or None.
+    Used where the mesh has no mouth opening (a scan whose lips touch and whose surface turns into the mouth).
+
+    Within :data:`_SLIT_BAND` of the landmarks' contact line and the mouth's width, a vertex is on its lip's side
+    when it is nearer over the surface to that lip's outer landmarks (iBUG 49–53, 55–59) than to the other's; the
+    upper lip's faces are those that face down (``n·up < −`` :data:`_SLIT_FACING`, ``up`` the face's unit up
+    axis), the lower lip's those that face up. It is a slit when at least three faces have a face of the other lip
+    within :data:`SLIT_GAP` that is at least :data:`_SLIT_DETOUR` times as far over the surface (the path runs
+    round a corner); lips whose surfaces join along the contact line have none (None)."""
+    local_landmarks = local[landmarks]
     knot_x, knot_y, half_width = _jaw_line(local_landmarks)
     below = np.interp(local[:, 0], knot_x, knot_y) - local[:, 1]
     band = (np.abs(local[:, 0] - local_landmarks[60:68, 0].mean()) < half_width) & (np.abs(below) < _SLIT_BAND)
     facing = np.asarray(mesh.vertex_normals(), dtype=np.float64) @ np.asarray(up, dtype=np.float64)
-    faces = []
-    for sign in (-1.0, 1.0):  # the upper lip's underside faces down, the lower lip's top up
-        mine = np.flatnonzero(band & (sign * facing > _SLIT_FACING))
-        other = np.flatnonzero(band & (-sign * facing > _SLIT_FACING))
-        if len(mine) == 0 or len(other) == 0:
-            return None
-        distance, nearest = cKDTree(local[other]).query(local[mine])
-        toward = sign * (local[other[nearest], 1] - local[mine, 1])  # how far the partner lies the way mine faces
-        faces.append(mine[(distance < _SLIT_GAP) & (toward >= -0.25 * distance)])
-    if min(len(f) for f in faces) < 3:
+    graph = _edge_graph(mesh, local)
+    to_upper = dijkstra(graph, directed=False, indices=landmarks[49:54], min_only=True)
+    to_lower = dijkstra(graph, directed=False, indices=landmarks[55:60], min_only=True)
+    upper = np.flatnonzero(band & (facing < -_SLIT_FACING) & (to_upper < to_lower))
+    lower = np.flatnonzero(band & (facing > _SLIT_FACING) & (to_lower < to_upper))
+    if len(upper) == 0 or len(lower) == 0:
         return None
-    return faces[0], faces[1]
+    distance, nearest = cKDTree(local[lower]).query(local[upper])
+    # the surface path between the two is at least the difference of their distances to the upper lip's landmarks
+    detour = np.abs(to_upper[lower[nearest]] - to_upper[upper])
+    if np.count_nonzero((distance < SLIT_GAP) & (detour > _SLIT_DETOUR * distance)) < 3:
+        return None
+    return upper, lower
 
 
-def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarray, frame: FaceFrame):
+def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, landmarks: np.ndarray, frame: FaceFrame):
     """``(d_u − d_l)/(d_u + d_l + c)`` and the distance to the rim [inter-ocular units], or None without a
     mouth opening or a closed mouth's slit."""
-    edges = np.sort(mesh.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    arcs = _rim_arcs(mesh, local, local_landmarks, edges)
+    arcs = mouth_rim_arcs(mesh, local, local[landmarks])
     if arcs is None:
-        arcs = _slit_faces(mesh, local, local_landmarks, frame.axes[1])
+        arcs = slit_faces(mesh, local, landmarks, frame.axes[1])
     if arcs is None:
         return None
     upper, lower = arcs
-    scale = frame.scale
-    lengths = np.linalg.norm(local[edges[:, 0]] - local[edges[:, 1]], axis=1) * scale
-    graph = coo_matrix((lengths, (edges[:, 0], edges[:, 1])), shape=(mesh.vertex_count,) * 2).tocsr()
+    graph = _edge_graph(mesh, local)
     d_upper = dijkstra(graph, directed=False, indices=upper, min_only=True)
     d_lower = dijkstra(graph, directed=False, indices=lower, min_only=True)
     finite = np.isfinite(d_upper) & np.isfinite(d_lower) & (d_upper + d_lower > 0.0)
     side = np.zeros(mesh.vertex_count)
-    softening = _CORNER_SOFTENING * scale
-    side[finite] = (d_upper[finite] - d_lower[finite]) / (d_upper[finite] + d_lower[finite] + softening)
-    reach = np.where(finite, np.minimum(d_upper, d_lower), np.inf) / scale
+    side[finite] = (d_upper[finite] - d_lower[finite]) / (d_upper[finite] + d_lower[finite] + _CORNER_SOFTENING)
+    reach = np.where(finite, np.minimum(d_upper, d_lower), np.inf)
     return side, reach
 
 
-def lip_sided(
-    mesh: FaceMesh, frame: FaceFrame, local: np.ndarray, local_landmarks: np.ndarray, below: np.ndarray
-) -> np.ndarray:
+def lip_sided(mesh: FaceMesh, frame: FaceFrame, local: np.ndarray, landmarks: np.ndarray, below: np.ndarray):
     """``below`` (V,), a height below the lips' contact line [inter-ocular units], plus the lip-side term
     ``ε·(d_u − d_l)/(d_u + d_l + c)`` faded with the distance from the mouth's rim or slit (module docstring), so
     each lip lies on its own side of the line; unchanged without a mouth opening or slit. ``local``: the mesh's
-    points and ``local_landmarks`` the 68 landmarks' in ``frame``."""
-    rim = _mouth_rim_side(mesh, local, local_landmarks, frame)
+    points in ``frame``; ``landmarks``: the 68 iBUG vertex indices."""
+    rim = _mouth_rim_side(mesh, local, landmarks, frame)
     if rim is None:
         return below
     side, reach = rim
@@ -197,7 +209,7 @@ def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.n
     lateral = _smoothstep((np.abs(local[:, 0] - mouth_x) - 0.55 * half_width) / (0.75 * half_width))
     above_ramp = _ABOVE_RAMP
     below_ramp = _BELOW_RAMP[0] + lateral * (_BELOW_RAMP[1] - _BELOW_RAMP[0])
-    below = lip_sided(mesh, frame, local, local_landmarks, below)
+    below = lip_sided(mesh, frame, local, landmarks, below)
     border = local_landmarks[4:13, :2]
     border = np.concatenate([[border[0] - (1.0, 0.0)], border, [border[-1] + (1.0, 0.0)]])
     under = np.interp(local[:, 0], border[:, 0], border[:, 1]) - local[:, 1]
