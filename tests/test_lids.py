@@ -11,7 +11,7 @@ import warpface as wf
 from warpface.assets import default_rig, preset_controls
 from warpface.assets.lids import LID_CONTROL_NAMES
 from warpface.assets.quality import LID_PAIRS, face_up, pair_distances, pair_heights
-from warpface.data import ict_face_region, ict_landmark_indices, shared_data_path
+from warpface.data import ict_face_region, ict_landmark_indices
 from warpface.drivers.default_tables import mapping_for_rig
 from warpface.expression import muscle_weights
 from warpface.expression.lids import TAPER_SHARE, LidMuscle, bulging_thickness, hinge_taper
@@ -117,18 +117,12 @@ def test_a_blink_closes_a_warped_ict_face_s_lids():
 
 
 @pytest.mark.slow
-def test_a_blink_closes_a_scan_s_lids_from_found_landmarks():
+def test_a_blink_closes_a_scan_s_lids_from_found_landmarks(lee_perry_smith):
     """The Lee Perry-Smith scan (eyes closed over by skin) rigged from landmarks found on it: its lid gap narrows
     toward the midpoints, so the wrinkles kept a quarter of their lift there (0.9 mm open) and the upper midpoint
     passed the lower (−0.44 mm) before the taper saturated and the upper lid met its partner's x."""
-    path = shared_data_path("lee_perry_smith", "LeePerrySmith.obj")
-    if path is None:
-        pytest.skip("Lee Perry-Smith scan not found in ../shared/data (set WARPFACE_SHARED_DATA)")
-    from warpface.rigging import find_landmarks
-
-    mesh = wf.FaceMesh.from_obj(path)
-    found = find_landmarks(mesh.points, mesh.triangles, label="Lee Perry-Smith")
-    _check_blink(default_rig(mesh, found.indices, device=DEVICE), 1000.0 * found.meters_per_unit)
+    mesh, landmarks, mm = lee_perry_smith
+    _check_blink(default_rig(mesh, landmarks, device=DEVICE), mm)
 
 
 def test_the_hinge_taper_saturates_on_a_lid_and_not_on_the_lip_seal():
