@@ -34,7 +34,7 @@ from ..expression.lids import LidMuscle
 from ..mesh import FaceMesh
 from .frame import FaceFrame
 
-__all__ = ["LID_CONTROL_NAMES", "default_lids", "EYEBALL_RADIUS", "LOWER_SHARE", "RAISE_SHARE"]
+__all__ = ["LID_CONTROL_NAMES", "default_lids", "EYEBALL_RADIUS", "LOWER_SHARE", "RAISE_SHARE", "TAPER_SHARE"]
 
 EYEBALL_RADIUS = 0.19
 """The eyeball's radius [inter-ocular units]: 12 mm at a 63 mm inter-ocular distance."""
@@ -45,6 +45,11 @@ RAISE_SHARE = 0.35
 CLOSURE = 0.99
 """``1 − ε``: the closing lids stop ``ε·Δ`` apart (0.1 mm on a 9 mm gap), so a surface a scan has across
 the opening keeps a sliver of area."""
+TAPER_SHARE = 0.5
+"""Each hinge's ``taper_share`` (:func:`~warpface.expression.lids.hinge_taper`): a vertex that turns by at least this
+share of the hinge's largest turn gets no wrinkle or bulge (docs/RIG.md §11, §14). A lid margin turns by a share of
+the gap at its own x, 74 % of the widest at the iBUG lid midpoints of a scan; with 1 the wrinkles kept up to a
+quarter of their lift there and opened a closed blink by 0.9 mm."""
 UPPER_BAND = (0.35, 0.55)
 """Upper lid: angle above the margin [rad] turning fully, then the angle over which the turn fades."""
 LOWER_BAND = (0.15, 0.40)
@@ -204,5 +209,7 @@ def default_lids(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> lis
             moved = np.flatnonzero(angles != 0.0)
             name = f"lid_{part}_{side}"
             slides, lifts = slides[moved] * frame.scale, lifts[moved] * frame.scale
-            hinges[name] = LidMuscle(name, centre, frame.axes[0], moved, angles[moved], slides, lifts)
+            hinges[name] = LidMuscle(
+                name, centre, frame.axes[0], moved, angles[moved], slides, lifts, taper_share=TAPER_SHARE
+            )
     return [hinges[name] for name in LID_CONTROL_NAMES]

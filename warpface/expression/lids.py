@@ -22,16 +22,10 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .._validate import as_finite_array, as_vec3, unit_vector
+from .._validate import as_bounded, as_finite_array, as_vec3, unit_vector
 from .formulas import jaw_blend, jaw_rotation, jaw_slide, unit_or_zero
 
-__all__ = ["LidMuscle", "MAX_LID_ANGLE", "TAPER_SHARE", "lid_field", "hinge_taper", "bulging_thickness"]
-
-TAPER_SHARE = 0.5
-"""``q`` of :func:`hinge_taper` for a lid: a vertex that turns by at least this share of the hinge's largest turn
-gets no wrinkle or bulge (docs/RIG.md §11, §14). A lid margin turns by a share of the gap at its own x, which
-at the iBUG lid midpoints of a scan was 74 % of the widest; with ``q = 1`` the wrinkles kept up to a quarter of
-their lift there and opened a closed blink by 0.9 mm."""
+__all__ = ["LidMuscle", "MAX_LID_ANGLE", "lid_field", "hinge_taper", "bulging_thickness"]
 
 MAX_LID_ANGLE = np.pi / 2
 """Largest |θ_v| [rad] per unit contraction: a lid turns by less than a right angle over the eyeball."""
@@ -51,6 +45,8 @@ class LidMuscle:
             (default 0: a pure turn), so a margin point can meet a partner that is not straight below it.
         lifts: ``q_v`` [mesh units per unit K] away from the axis, shape (n,) (default 0), so a margin can
             meet a partner at another distance from the axis.
+        taper_share: ``q`` in (0, 1] of :func:`hinge_taper` (default 1): a vertex that turns by at least this
+            share of the largest turn gets no wrinkle and no bulge (docs/RIG.md §11, §14).
 
     ``K`` is dimensionless (1: the full turn). The skin response of the Waters muscles does not apply:
     ``sliding``, ``bunching`` and ``thickening`` are 0 (the lid turns over the eyeball, on its surface).
@@ -66,8 +62,8 @@ class LidMuscle:
     angles: np.ndarray
     slides: np.ndarray | None = None
     lifts: np.ndarray | None = None
+    taper_share: float = 1.0
 
-    taper_share = TAPER_SHARE
     sliding = 0.0
     bunching = 0.0
     thickening = 0.0
@@ -101,6 +97,9 @@ class LidMuscle:
             if value.shape != vertices.shape:
                 raise ValueError(f"{label}: {value.shape} {field} for {vertices.shape} vertices")
             set_(self, field, value)
+        set_(self, "taper_share", as_bounded(self.taper_share, f"{label}: taper_share", 0.0, 1.0))
+        if self.taper_share == 0.0:
+            raise ValueError(f"{label}: taper_share must be > 0")
 
     def check_vertex_count(self, vertex_count: int) -> None:
         """Raise ValueError when a vertex index is outside a mesh of ``vertex_count`` points."""
@@ -149,10 +148,10 @@ def lid_field(rest: wp.array, muscle: LidMuscle) -> np.ndarray:
 def hinge_taper(vertex_count: int, muscles) -> np.ndarray:
     """Per vertex, ``1 − min(1, |θ_v| / (q · max |θ|))`` of the hinges (:class:`LidMuscle`, the lip seal too) among
     ``muscles`` that move it (the smallest where several do), 1 elsewhere, shape (V,); ``q`` is each hinge's
-    :attr:`LidMuscle.taper_share`. It is 0 on a lid's margin wherever the opening is at least ``q`` of its widest
-    (the margin turns by a share of the gap at its own x) and on the lips' contact line. The wrinkles fade by it
-    (docs/RIG.md §14): a furrow's lift along the normal would otherwise open the lids a blink closes and push the
-    lips through each other."""
+    ``taper_share``. It is 0 on a lid's margin (the default rig's lids: wherever the opening is at least ``q`` of
+    its widest, as the margin turns by a share of the gap at its own x) and on the lips' contact line. The wrinkles
+    fade by it (docs/RIG.md §14): a furrow's lift along the normal would otherwise open the lids a blink closes and
+    push the lips through each other."""
     taper = np.ones(vertex_count)
     for muscle in muscles:
         if isinstance(muscle, LidMuscle) and len(muscle.vertices):

@@ -39,7 +39,6 @@ class LipSeal(LidMuscle):
     """
 
     pairs: np.ndarray | None = None
-    taper_share = 1.0  # the wrinkles fade toward the contact line over the seal's whole turn (docs/RIG.md §12)
 
     def __post_init__(self) -> None:
         super().__post_init__()
