@@ -15,7 +15,8 @@ jawOpen reach, docs/RIG.md). With ``φ`` the
 height below that line, ``w = smoothstep((φ + a)/(a + b))`` (cubic, C¹): near the mouth ``a = b`` is
 small, so the lips part along the contact line; beside it the ramp widens (``a`` = 0.30, ``b`` = 0.30)
 over the cheeks. Where the mesh has a mouth opening, its rim is split at the corners into an upper and
-a lower arc; with geodesic distances ``d_u``, ``d_l`` to them, ``φ`` gains
+a lower arc (a closed mouth's slit, :func:`slit_faces`, gives the lips' facing surfaces instead); with geodesic
+distances ``d_u``, ``d_l`` to them, ``φ`` gains
 ``ε·(d_u − d_l)/(d_u + d_l + c)`` near the mouth, so each lip follows its own side of the opening
 (the lower lip the jaw, the upper lip not) and the term fades to 0 at the corners, where both
 distances agree. Last, below that line (and up to 0.10 above it) the weights diffuse over the mesh's edges

@@ -2,11 +2,14 @@
 
 In the :class:`~warpface.assets.frame.FaceFrame` (inter-ocular units): the *contact line* runs through
 the mouth corners (iBUG 60, 64) and the midpoints of the inner-lip pairs 61/67, 62/66, 63/65; ``φ`` is a
-point's height below it. The seal's field turns the upper lip (``φ < 0``) up and the lower lip down by
+point's height below it. The seal's field turns the upper lip up and the lower lip down by
 :data:`PART_ANGLE` about the frame's x axis through a pivot :data:`PIVOT_DEPTH` behind the mouth, faded
 (C¹, cos²) with ``|φ|`` over :data:`PART_BAND` and toward the corners over :data:`CORNER_BAND` (of the
-mouth's half-width), and 0 beyond :data:`REACH` from the mouth's centre. Its pairs are the inner-lip
-pairs the field parts (on a closed-mouth scan a pair may share a vertex; that pair is left out).
+mouth's half-width), and 0 beyond :data:`REACH` from the mouth's centre; which lip a point is on is the sign of
+``φ`` with the jaw's lip-side term (:func:`~warpface.assets.jaw.lip_sided`: the mouth's rim, or a closed mouth's
+slit, decides near the mouth). Its pairs are the inner-lip pairs the field parts (on a closed-mouth scan a pair
+may share a vertex; that pair is left out) and, on a closed mouth's slit, the facing vertices across it in the
+mouth's central half.
 :func:`lip_margin_taper` is the share of the bulging thickness the rig keeps near the contact line.
 """
 
