@@ -38,3 +38,19 @@ def cpu():
 def small_rig():
     """A fresh :func:`small_face_rig`."""
     return small_face_rig()
+
+
+@pytest.fixture(scope="session")
+def lee_perry_smith():
+    """The Lee Perry-Smith scan (closed mouth, eyes closed over by skin) and the 68 landmarks found on it:
+    ``(mesh, landmark indices, mm per mesh unit)``; skipped without ``../shared/data``."""
+    import warpface as wf
+    from warpface.data import shared_data_path
+    from warpface.rigging import find_landmarks
+
+    path = shared_data_path("lee_perry_smith", "LeePerrySmith.obj")
+    if path is None:
+        pytest.skip("Lee Perry-Smith scan not found in ../shared/data (set WARPFACE_SHARED_DATA)")
+    mesh = wf.FaceMesh.from_obj(path)
+    found = find_landmarks(mesh.points, mesh.triangles, label="Lee Perry-Smith")
+    return mesh, found.indices, 1000.0 * found.meters_per_unit

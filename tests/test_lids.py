@@ -9,12 +9,12 @@ from helpers import assert_rigs_equal
 
 import warpface as wf
 from warpface.assets import default_rig, preset_controls
-from warpface.assets.lids import LID_CONTROL_NAMES
+from warpface.assets.lids import LID_CONTROL_NAMES, TAPER_SHARE
 from warpface.assets.quality import LID_PAIRS, face_up, pair_distances, pair_heights
 from warpface.data import ict_face_region, ict_landmark_indices
 from warpface.drivers.default_tables import mapping_for_rig
 from warpface.expression import muscle_weights
-from warpface.expression.lids import LidMuscle
+from warpface.expression.lids import LidMuscle, bulging_thickness, hinge_taper
 from warpface.expression.seal import LipSeal
 from warpface.solve import fit
 
@@ -98,6 +98,71 @@ def test_a_blink_closes_the_ict_face_s_lids():
         pytest.skip("ICT-FaceKit data not found in ../shared/data (set WARPFACE_SHARED_DATA)")
     source = wf.FaceMesh.from_obj(path)
     _check_blink(default_rig(wf.FaceMesh(source.points * 0.01, source.triangles), landmarks, device=DEVICE), 1000.0)
+
+
+def _ict_mesh(warped: bool = False):
+    path, landmarks = ict_face_region(), ict_landmark_indices()
+    if path is None or landmarks is None:
+        pytest.skip("ICT-FaceKit data not found in ../shared/data (set WARPFACE_SHARED_DATA)")
+    from benchmarks.face_quality import smooth_warp
+
+    source = wf.FaceMesh.from_obj(path)
+    points = smooth_warp(source.points) if warped else source.points
+    return wf.FaceMesh(points * 0.01, source.triangles), landmarks
+
+
+def test_a_blink_closes_a_warped_ict_face_s_lids():
+    """Another identity rigged from its own landmarks: its margins meet along a meeting line that slopes."""
+    _check_blink(default_rig(*_ict_mesh(warped=True), device=DEVICE), 1000.0)
+
+
+@pytest.mark.slow
+def test_a_blink_closes_a_scan_s_lids_from_found_landmarks(lee_perry_smith):
+    """The Lee Perry-Smith scan (eyes closed over by skin) rigged from landmarks found on it: its lid gap narrows
+    toward the midpoints, so the wrinkles kept a quarter of their lift there (0.9 mm open) and the upper midpoint
+    passed the lower (−0.44 mm) before the taper saturated and the upper lid met its partner's x."""
+    mesh, landmarks, mm = lee_perry_smith
+    _check_blink(default_rig(mesh, landmarks, device=DEVICE), mm)
+
+
+def test_the_hinge_taper_saturates_on_a_lid_and_not_on_the_lip_seal():
+    angles = np.array([0.1, 0.2, 0.3, 0.4, 0.6, 0.8])
+    lid = LidMuscle("lid", np.zeros(3), [1, 0, 0], np.arange(1, 7), -angles, taper_share=TAPER_SHARE)
+    seal = LipSeal("seal", np.zeros(3), [1, 0, 0], np.arange(4, 10), angles, pairs=np.array([[4, 5]]))
+    expected_lid = np.clip(1.0 - angles / (TAPER_SHARE * 0.8), 0.0, 1.0)  # 0 from half the largest turn on
+    np.testing.assert_allclose(hinge_taper(12, [lid])[1:7], expected_lid, atol=1e-15)
+    np.testing.assert_allclose(hinge_taper(12, [seal])[4:10], 1.0 - angles / 0.8, atol=1e-15)
+    both = hinge_taper(12, [lid, seal, "not a hinge"])
+    assert both[0] == 1.0 and both[11] == 1.0
+    np.testing.assert_allclose(both[4:7], np.minimum(expected_lid[3:], 1.0 - angles[:3] / 0.8), atol=1e-15)
+    # the bulge fades by the eyelids' taper only
+    np.testing.assert_allclose(bulging_thickness(np.full(12, 2.0), [lid, seal]), 2.0 * hinge_taper(12, [lid]))
+    for bad in (0.0, 1.5, np.nan):
+        with pytest.raises(ValueError, match="taper_share"):
+            LidMuscle("lid", np.zeros(3), [1, 0, 0], [1], [0.1], taper_share=bad)
+
+
+def test_the_taper_share_round_trips_through_a_stage(tmp_path):
+    mesh = wf.FaceMesh(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]]), [[0, 1, 2], [1, 3, 2]])
+    lids = [
+        LidMuscle(name, [0, 0, -1], [1, 0, 0], [1, 2], [0.2, 0.1], taper_share=share)
+        for name, share in (("half", 0.5), ("whole", 1.0))
+    ]
+    path = tmp_path / "lids.usda"
+    wf.usd.write_rig(path, wf.FaceRig(mesh, lids, [], 0.0))
+    assert [m.taper_share for m in wf.usd.read_rig(path).muscles] == [0.5, 1.0]
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(str(path))
+    prims = [p for p in stage.Traverse() if p.GetTypeName() == "WarpFaceLidMuscle"]
+    prims[0].GetAttribute("taperShare").Clear()  # a stage written before the attribute
+    prims[1].GetAttribute("taperShare").Set(2.0)
+    stage.Save()
+    with pytest.raises(wf.RigError, match="taperShare"):
+        wf.usd.read_rig(path)
+    prims[1].GetAttribute("taperShare").Clear()
+    stage.Save()
+    assert [m.taper_share for m in wf.usd.read_rig(path).muscles] == [1.0, 1.0]
 
 
 def test_a_wide_eye_raises_the_upper_lid_and_closing_halfway_halves_the_gap(rig):

@@ -73,3 +73,50 @@ def test_no_triangle_turns_over_on_the_built_in_face():
         keep = [i for i, name in enumerate(names) if name not in ROLLS]
         total += int(flipped_triangles(rig.mesh, model.evaluate(frames[keep])).sum())
     assert total <= 10
+
+
+def _slit_pairs(mesh, landmarks, up):
+    """Pairs (upper, lower) across a closed mouth's slit, found independently of the rig: in the mouth's central
+    half, within 0.03 inter-ocular units of the landmarks' contact line, a vertex facing down and its nearest vertex
+    facing up, closer than 0.03 units in space but three times farther over the surface."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+    from scipy.spatial import cKDTree
+
+    points, marks = mesh.points, mesh.points[landmarks]
+    scale = np.linalg.norm(marks[36:42].mean(axis=0) - marks[42:48].mean(axis=0))
+    contact = 0.5 * (marks[62] + marks[66])
+    half = 0.25 * np.linalg.norm(marks[64] - marks[60])
+    near = (np.linalg.norm(points - contact, axis=1) < 0.15 * scale) & (np.abs((points - contact) @ up) < 0.06 * scale)
+    side = np.abs((points - contact) @ np.cross(up, mesh.vertex_normals()[landmarks[62]])) < half
+    facing = mesh.vertex_normals() @ up
+    upper = np.flatnonzero(near & side & (facing < -0.5))
+    lower = np.flatnonzero(near & side & (facing > 0.5))
+    distance, nearest = cKDTree(points[lower]).query(points[upper])
+    edges = np.sort(mesh.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    lengths = np.linalg.norm(points[edges[:, 0]] - points[edges[:, 1]], axis=1)
+    graph = coo_matrix((lengths, (edges[:, 0], edges[:, 1])), shape=(len(points),) * 2).tocsr()
+    close = distance < 0.03 * scale
+    surface = dijkstra(graph, directed=False, indices=upper[close])[np.arange(close.sum()), lower[nearest[close]]]
+    across = surface > 3.0 * distance[close]
+    return upper[close][across], lower[nearest[close]][across]
+
+
+@pytest.mark.slow
+def test_a_closed_mouth_scan_s_lips_part_at_the_slit_and_never_cross(lee_perry_smith):
+    """The Lee Perry-Smith scan's lips touch along a slit (no opening in the mesh; its found inner-lip landmarks lie
+    1–2 mm off it). jawOpen and mouthFunnel part the slit (before the rig found the slit, the lips moved with the jaw
+    as one sheet: jawOpen parted it by 0.7 mm, funnel by 0.03 mm); a press keeps it sealed."""
+    mesh, landmarks, mm = lee_perry_smith
+    rig = default_rig(mesh, landmarks, device=DEVICE)
+    up = face_up(rig.mesh, rig.landmarks)
+    upper, lower = _slit_pairs(rig.mesh, rig.landmarks, up)
+    assert len(upper) >= 10
+    names = ["jawOpen", "mouthFunnel", "mouthPressLeft", "mouthPressRight"]
+    points = rig.model(device=DEVICE).evaluate(preset_frames(rig, names))
+    opening = ((points[:, upper] - points[:, lower]) @ up - (rig.mesh.points[upper] - rig.mesh.points[lower]) @ up) * mm
+    assert opening[0].min() > 0.0 and np.median(opening[0]) > 3.0  # jawOpen
+    assert opening[1].min() > 0.0 and np.median(opening[1]) > 1.0  # mouthFunnel
+    assert np.abs(opening[2:]).max() < 0.5  # the presses
+    assert _lips(rig, preset_frames(rig, ARKIT_PRESET_NAMES)).min() >= -0.2
+    assert _lips(rig, random_combinations(rig, 50)).min() >= -0.2

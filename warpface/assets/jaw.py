@@ -15,7 +15,8 @@ jawOpen reach, docs/RIG.md). With ``φ`` the
 height below that line, ``w = smoothstep((φ + a)/(a + b))`` (cubic, C¹): near the mouth ``a = b`` is
 small, so the lips part along the contact line; beside it the ramp widens (``a`` = 0.30, ``b`` = 0.30)
 over the cheeks. Where the mesh has a mouth opening, its rim is split at the corners into an upper and
-a lower arc; with geodesic distances ``d_u``, ``d_l`` to them, ``φ`` gains
+a lower arc (a closed mouth's slit, :func:`slit_faces`, gives the lips' facing surfaces instead); with geodesic
+distances ``d_u``, ``d_l`` to them, ``φ`` gains
 ``ε·(d_u − d_l)/(d_u + d_l + c)`` near the mouth, so each lip follows its own side of the opening
 (the lower lip the jaw, the upper lip not) and the term fades to 0 at the corners, where both
 distances agree. Last, below that line (and up to 0.10 above it) the weights diffuse over the mesh's edges
@@ -27,13 +28,14 @@ from __future__ import annotations
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
 
 from ..expression.fold_guard import unfolded_weights
 from ..expression.jaw import Jaw
 from ..mesh import FaceMesh
 from .frame import FaceFrame
 
-__all__ = ["default_jaw", "jaw_weights"]
+__all__ = ["default_jaw", "jaw_weights", "lip_sided", "mouth_rim_arcs", "slit_faces", "SLIT_GAP"]
 
 _ABOVE_RAMP = 0.30
 """Reach of the weight ramp above the jaw line [inter-ocular units]: upper lip and cheeks follow partly."""
@@ -49,6 +51,15 @@ the lip-side term fades smoothly instead of flipping between neighbouring vertic
 _LIP_REACH = (0.25, 0.55)
 """Geodesic distance from the mouth rim over which the lip-side term fades out [inter-ocular units]."""
 
+
+_SLIT_BAND = 0.12
+"""A closed mouth's slit is looked for within this height of the landmarks' contact line [inter-ocular units]."""
+SLIT_GAP = 0.04
+"""Facing lip surfaces closer than this [inter-ocular units] form the slit (2.5 mm at a 63 mm eye distance)."""
+_SLIT_DETOUR = 3.0
+"""Facing lip surfaces form a slit where the path over the surface is at least this many times their distance."""
+_SLIT_FACING = 0.3
+"""A lip surface faces down (up) where its unit normal's up component is below −0.3 (above 0.3)."""
 
 _DIFFUSION = 0.05
 """Spread of the weights' final diffusion over the mesh [inter-ocular units]: the weight must not change by
@@ -84,9 +95,9 @@ def _jaw_line(local_landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray, floa
     return knots[order, 0], knots[order, 1], 0.5 * abs(L[64, 0] - L[60, 0])
 
 
-def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarray, scale: float):
-    """``(d_u − d_l)/(d_u + d_l + c)`` and the distance to the rim [inter-ocular units], or None without a
-    mouth opening."""
+def mouth_rim_arcs(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarray):
+    """The mouth opening's rim split at the corners into its (upper, lower) arcs of vertices, or None without one
+    (``local``: the mesh's points, ``local_landmarks`` the 68 landmarks', in the face frame)."""
     edges = np.sort(mesh.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     unique, counts = np.unique(edges, axis=0, return_counts=True)
     open_edges = unique[counts == 1]
@@ -116,17 +127,77 @@ def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarr
         arcs.append(np.array(arc[1:-1]))
     if len(arcs) != 2 or min(len(a) for a in arcs) == 0:
         return None
-    upper, lower = sorted(arcs, key=lambda arc: -local[arc, 1].mean())
-    lengths = np.linalg.norm(local[edges[:, 0]] - local[edges[:, 1]], axis=1) * scale
-    graph = coo_matrix((lengths, (edges[:, 0], edges[:, 1])), shape=(mesh.vertex_count,) * 2).tocsr()
+    return tuple(sorted(arcs, key=lambda arc: -local[arc, 1].mean()))
+
+
+def _edge_graph(mesh: FaceMesh, local: np.ndarray):
+    """The mesh's edges as a sparse graph weighted by their length [inter-ocular units]; an edge of two triangles
+    weighs twice its length (the duplicates add up; :data:`_CORNER_SOFTENING` and :data:`_LIP_REACH` were set so)."""
+    edges = np.sort(mesh.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    lengths = np.linalg.norm(local[edges[:, 0]] - local[edges[:, 1]], axis=1)
+    return coo_matrix((lengths, (edges[:, 0], edges[:, 1])), shape=(mesh.vertex_count,) * 2).tocsr()
+
+
+def slit_faces(mesh: FaceMesh, local: np.ndarray, landmarks: np.ndarray, up: np.ndarray):
+    """A closed mouth's slit (docs/RIG.md §12): the lips' facing surfaces as (upper, lower) vertex arrays, or None.
+    Used where the mesh has no mouth opening (a scan whose lips touch and whose surface turns into the mouth).
+
+    Within :data:`_SLIT_BAND` of the landmarks' contact line and the mouth's width, a vertex is on its lip's side
+    when it is nearer over the surface to that lip's outer landmarks (iBUG 49–53, 55–59) than to the other's; the
+    upper lip's faces are those that face down (``n·up < −`` :data:`_SLIT_FACING`, ``up`` the face's unit up
+    axis), the lower lip's those that face up. It is a slit when at least three faces have a face of the other lip
+    within :data:`SLIT_GAP` that is at least :data:`_SLIT_DETOUR` times as far over the surface (the path runs
+    round a corner); lips whose surfaces join along the contact line have none (None)."""
+    local_landmarks = local[landmarks]
+    knot_x, knot_y, half_width = _jaw_line(local_landmarks)
+    below = np.interp(local[:, 0], knot_x, knot_y) - local[:, 1]
+    band = (np.abs(local[:, 0] - local_landmarks[60:68, 0].mean()) < half_width) & (np.abs(below) < _SLIT_BAND)
+    facing = np.asarray(mesh.vertex_normals(), dtype=np.float64) @ np.asarray(up, dtype=np.float64)
+    graph = _edge_graph(mesh, local)
+    to_upper = dijkstra(graph, directed=False, indices=landmarks[49:54], min_only=True)
+    to_lower = dijkstra(graph, directed=False, indices=landmarks[55:60], min_only=True)
+    upper = np.flatnonzero(band & (facing < -_SLIT_FACING) & (to_upper < to_lower))
+    lower = np.flatnonzero(band & (facing > _SLIT_FACING) & (to_lower < to_upper))
+    if len(upper) == 0 or len(lower) == 0:
+        return None
+    distance, nearest = cKDTree(local[lower]).query(local[upper])
+    # the surface path between the two is at least the difference of their distances to the upper lip's landmarks
+    detour = np.abs(to_upper[lower[nearest]] - to_upper[upper])
+    if np.count_nonzero((distance < SLIT_GAP) & (detour > _SLIT_DETOUR * distance)) < 3:
+        return None
+    return upper, lower
+
+
+def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, landmarks: np.ndarray, frame: FaceFrame):
+    """``(d_u − d_l)/(d_u + d_l + c)`` and the distance to the rim [inter-ocular units], or None without a
+    mouth opening or a closed mouth's slit."""
+    arcs = mouth_rim_arcs(mesh, local, local[landmarks])
+    if arcs is None:
+        arcs = slit_faces(mesh, local, landmarks, frame.axes[1])
+    if arcs is None:
+        return None
+    upper, lower = arcs
+    graph = _edge_graph(mesh, local)
     d_upper = dijkstra(graph, directed=False, indices=upper, min_only=True)
     d_lower = dijkstra(graph, directed=False, indices=lower, min_only=True)
     finite = np.isfinite(d_upper) & np.isfinite(d_lower) & (d_upper + d_lower > 0.0)
     side = np.zeros(mesh.vertex_count)
-    softening = _CORNER_SOFTENING * scale
-    side[finite] = (d_upper[finite] - d_lower[finite]) / (d_upper[finite] + d_lower[finite] + softening)
-    reach = np.where(finite, np.minimum(d_upper, d_lower), np.inf) / scale
+    side[finite] = (d_upper[finite] - d_lower[finite]) / (d_upper[finite] + d_lower[finite] + _CORNER_SOFTENING)
+    reach = np.where(finite, np.minimum(d_upper, d_lower), np.inf)
     return side, reach
+
+
+def lip_sided(mesh: FaceMesh, frame: FaceFrame, local: np.ndarray, landmarks: np.ndarray, below: np.ndarray):
+    """``below`` (V,), a height below the lips' contact line [inter-ocular units], plus the lip-side term
+    ``ε·(d_u − d_l)/(d_u + d_l + c)`` faded with the distance from the mouth's rim or slit (module docstring), so
+    each lip lies on its own side of the line; unchanged without a mouth opening or slit. ``local``: the mesh's
+    points in ``frame``; ``landmarks``: the 68 iBUG vertex indices."""
+    rim = _mouth_rim_side(mesh, local, landmarks, frame)
+    if rim is None:
+        return below
+    side, reach = rim
+    fade = 1.0 - _smoothstep((reach - _LIP_REACH[0]) / (_LIP_REACH[1] - _LIP_REACH[0]))
+    return below + _LIP_OFFSET * side * fade
 
 
 def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.ndarray:
@@ -139,11 +210,7 @@ def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.n
     lateral = _smoothstep((np.abs(local[:, 0] - mouth_x) - 0.55 * half_width) / (0.75 * half_width))
     above_ramp = _ABOVE_RAMP
     below_ramp = _BELOW_RAMP[0] + lateral * (_BELOW_RAMP[1] - _BELOW_RAMP[0])
-    rim = _mouth_rim_side(mesh, local, local_landmarks, frame.scale)
-    if rim is not None:
-        side, reach = rim
-        fade = 1.0 - _smoothstep((reach - _LIP_REACH[0]) / (_LIP_REACH[1] - _LIP_REACH[0]))
-        below = below + _LIP_OFFSET * side * fade
+    below = lip_sided(mesh, frame, local, landmarks, below)
     border = local_landmarks[4:13, :2]
     border = np.concatenate([[border[0] - (1.0, 0.0)], border, [border[-1] + (1.0, 0.0)]])
     under = np.interp(local[:, 0], border[:, 0], border[:, 1]) - local[:, 1]

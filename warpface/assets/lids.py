@@ -34,7 +34,7 @@ from ..expression.lids import LidMuscle
 from ..mesh import FaceMesh
 from .frame import FaceFrame
 
-__all__ = ["LID_CONTROL_NAMES", "default_lids", "EYEBALL_RADIUS", "LOWER_SHARE", "RAISE_SHARE"]
+__all__ = ["LID_CONTROL_NAMES", "default_lids", "EYEBALL_RADIUS", "LOWER_SHARE", "RAISE_SHARE", "TAPER_SHARE"]
 
 EYEBALL_RADIUS = 0.19
 """The eyeball's radius [inter-ocular units]: 12 mm at a 63 mm inter-ocular distance."""
@@ -45,6 +45,11 @@ RAISE_SHARE = 0.35
 CLOSURE = 0.99
 """``1 − ε``: the closing lids stop ``ε·Δ`` apart (0.1 mm on a 9 mm gap), so a surface a scan has across
 the opening keeps a sliver of area."""
+TAPER_SHARE = 0.5
+"""Each hinge's ``taper_share`` (:func:`~warpface.expression.lids.hinge_taper`): a vertex that turns by at least this
+share of the hinge's largest turn gets no wrinkle or bulge (docs/RIG.md §11, §14). A lid margin turns by a share of
+the gap at its own x, 74 % of the widest at the iBUG lid midpoints of a scan; with 1 the wrinkles kept up to a
+quarter of their lift there and opened a closed blink by 0.9 mm."""
 UPPER_BAND = (0.35, 0.55)
 """Upper lid: angle above the margin [rad] turning fully, then the angle over which the turn fades."""
 LOWER_BAND = (0.15, 0.40)
@@ -99,6 +104,7 @@ class _Eye:
         # the lateral slide and the lift off the axis that bring each margin midpoint onto its partner on the other lid
         offset = bottoms[:, 0] - tops[:, 0]
         lift = EYEBALL_RADIUS * (self.radius(bottoms) - self.radius(tops))
+        self._offset = self._knots(corners, tops[:, 0], offset)
         self._upper_slide = self._knots(corners, tops[:, 0], (1.0 - LOWER_SHARE) * offset)
         self._lower_slide = self._knots(corners, bottoms[:, 0], -LOWER_SHARE * offset)
         self._upper_lift = self._knots(corners, tops[:, 0], (1.0 - LOWER_SHARE) * lift)
@@ -115,6 +121,14 @@ class _Eye:
         units]."""
         curves = (self._upper_slide, self._lower_slide, self._upper_lift, self._lower_lift)
         return tuple(np.nan_to_num(curve(x)) for curve in curves)
+
+    def partner_meeting(self, x: np.ndarray) -> np.ndarray:
+        """The meeting angle ``α_m`` where the upper margin at each x lands: at ``x + o(x)``, ``o`` the lateral offset
+        from an upper margin midpoint to its lower partner (0 at the corners), so a midpoint meets its partner
+        where the meeting line slopes along x (0 beyond the corners)."""
+        partner = x + np.nan_to_num(self._offset(x))
+        upper, lower, gap = self.margins(partner)
+        return lower + LOWER_SHARE * gap
 
     def angle(self, local: np.ndarray) -> np.ndarray:
         return np.arctan2(local[..., 1] - self.centre[1], local[..., 2] - self.centre[2])
@@ -148,6 +162,7 @@ def _hinge_angles(eye: _Eye, local: np.ndarray) -> dict[str, tuple[np.ndarray, n
     (module docstring); slide and lift follow the turn's share of the margin's."""
     upper, lower, gap = eye.margins(local[:, 0])
     meet = lower + LOWER_SHARE * gap
+    landing = eye.partner_meeting(local[:, 0])  # where the upper lid meets the lower one
     alpha = eye.angle(local)
     radial = _fade(eye.radius(local), (RADIAL_BAND[0], RADIAL_BAND[1] - RADIAL_BAND[0]))
     radial = np.where(local[:, 2] > eye.centre[2], radial, 0.0) * (gap > 0.0)
@@ -160,15 +175,15 @@ def _hinge_angles(eye: _Eye, local: np.ndarray) -> dict[str, tuple[np.ndarray, n
     inside_upper = ~above & ~below & (alpha >= meet)
     inside_lower = ~above & ~below & (alpha < meet)
     over, under = np.maximum(alpha - upper, 0.0), np.maximum(lower - alpha, 0.0)
-    close_upper = np.where(above, (upper - meet) * _fade(over, UPPER_BAND), 0.0)
-    close_upper = np.where(inside_upper, alpha - meet, close_upper)
+    close_upper = np.where(above, (upper - landing) * _fade(over, UPPER_BAND), 0.0)
+    close_upper = np.where(inside_upper, alpha - landing, close_upper)
     close_lower = np.where(below, (lower - meet) * _fade(under, LOWER_BAND), 0.0)
     close_lower = np.where(inside_lower, alpha - meet, close_lower)
     raise_upper = np.where(above, -RAISE_SHARE * gap * _fade(over, RAISE_BAND), 0.0)
     share = np.divide(alpha - meet, upper - meet, out=np.zeros_like(alpha), where=upper - meet > 0.0)
     raise_upper = np.where(inside_upper, -RAISE_SHARE * gap * share, raise_upper)
     upper_slide, lower_slide, upper_lift, lower_lift = eye.slides(local[:, 0])
-    share_upper = np.divide(close_upper, upper - meet, out=np.zeros_like(alpha), where=upper - meet > 0.0)
+    share_upper = np.divide(close_upper, upper - landing, out=np.zeros_like(alpha), where=upper - landing > 0.0)
     share_lower = np.divide(close_lower, lower - meet, out=np.zeros_like(alpha), where=meet - lower > 0.0)
     upper_share, lower_share = CLOSURE * share_upper * radial, CLOSURE * share_lower * radial
     return {
@@ -194,5 +209,7 @@ def default_lids(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> lis
             moved = np.flatnonzero(angles != 0.0)
             name = f"lid_{part}_{side}"
             slides, lifts = slides[moved] * frame.scale, lifts[moved] * frame.scale
-            hinges[name] = LidMuscle(name, centre, frame.axes[0], moved, angles[moved], slides, lifts)
+            hinges[name] = LidMuscle(
+                name, centre, frame.axes[0], moved, angles[moved], slides, lifts, taper_share=TAPER_SHARE
+            )
     return [hinges[name] for name in LID_CONTROL_NAMES]

@@ -2,21 +2,26 @@
 
 In the :class:`~warpface.assets.frame.FaceFrame` (inter-ocular units): the *contact line* runs through
 the mouth corners (iBUG 60, 64) and the midpoints of the inner-lip pairs 61/67, 62/66, 63/65; ``φ`` is a
-point's height below it. The seal's field turns the upper lip (``φ < 0``) up and the lower lip down by
+point's height below it. The seal's field turns the upper lip up and the lower lip down by
 :data:`PART_ANGLE` about the frame's x axis through a pivot :data:`PIVOT_DEPTH` behind the mouth, faded
 (C¹, cos²) with ``|φ|`` over :data:`PART_BAND` and toward the corners over :data:`CORNER_BAND` (of the
-mouth's half-width), and 0 beyond :data:`REACH` from the mouth's centre. Its pairs are the inner-lip
-pairs the field parts (on a closed-mouth scan a pair may share a vertex; that pair is left out).
+mouth's half-width), and 0 beyond :data:`REACH` from the mouth's centre; which lip a point is on is the sign of
+``φ`` with the jaw's lip-side term (:func:`~warpface.assets.jaw.lip_sided`: the mouth's rim, or a closed mouth's
+slit, decides near the mouth). Its pairs are the inner-lip pairs the field parts (on a closed-mouth scan a pair
+may share a vertex; that pair is left out) and, on a closed mouth's slit, the facing vertices across it in the
+mouth's central half.
 :func:`lip_margin_taper` is the share of the bulging thickness the rig keeps near the contact line.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..expression.seal import LipSeal
 from ..mesh import FaceMesh
 from .frame import FaceFrame
+from .jaw import SLIT_GAP, lip_sided, mouth_rim_arcs, slit_faces
 
 __all__ = ["default_lip_seal", "lip_margin_taper", "LIP_SEAL_NAME", "PART_ANGLE", "PIVOT_DEPTH"]
 
@@ -63,6 +68,25 @@ def lip_margin_taper(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) ->
     return s * s * (3.0 - 2.0 * s)
 
 
+def _slit_pairs(mesh: FaceMesh, frame: FaceFrame, local: np.ndarray, landmarks: np.ndarray) -> list[tuple[int, int]]:
+    """On a closed mouth's slit (:func:`~warpface.assets.jaw.slit_faces`; none where the mesh has a mouth opening):
+    each vertex of the upper lip's facing surface with the nearest vertex of the lower lip's, both ways, within
+    the slit's gap: the pairs that face each other across the contact line where the landmarks lie off it."""
+    if mouth_rim_arcs(mesh, local, local[landmarks]) is not None:
+        return []
+    faces = slit_faces(mesh, local, landmarks, frame.axes[1])
+    if faces is None:
+        return []
+    upper, lower = faces
+    pairs = set()
+    for mine, other, flip in ((upper, lower, False), (lower, upper, True)):
+        distance, nearest = cKDTree(local[other]).query(local[mine])
+        for a, b, d in zip(mine, other[nearest], distance):
+            if d < SLIT_GAP:
+                pairs.add((int(b), int(a)) if flip else (int(a), int(b)))
+    return sorted(pairs)
+
+
 def default_lip_seal(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> LipSeal | None:
     """The default rig's :class:`~warpface.expression.LipSeal` on a face (module docstring), or None when no
     inner-lip pair can be parted (all of them share a vertex)."""
@@ -70,8 +94,13 @@ def default_lip_seal(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) ->
     lateral = _fade(np.abs(local[:, 0] - middle[0]) / half_width, CORNER_BAND)
     near = np.linalg.norm(local - middle, axis=1) < REACH
     turn = PART_ANGLE * lateral * _fade(np.abs(below), PART_BAND) * near
-    angles = np.where(below < 0.0, -turn, turn)  # a positive turn about +x moves a point in front down
+    # each lip turns its own way, also where a closed mouth's slit lies off the landmarks' line (docs/RIG.md §12)
+    sided = lip_sided(mesh, frame, local, landmarks, below)
+    angles = np.where(sided < 0.0, -turn, turn)  # a positive turn about +x moves a point in front down
     pairs = [(landmarks[a], landmarks[b]) for a, b in _PAIRS if angles[landmarks[a]] < 0.0 < angles[landmarks[b]]]
+    full = lateral >= 1.0  # where the seal parts fully: a pair it hardly parts would ask for a large share of it
+    slit = _slit_pairs(mesh, frame, local, landmarks)
+    pairs += [(u, l) for u, l in slit if angles[u] < 0.0 < angles[l] and full[u] and full[l]]
     if not pairs:
         return None
     moved = np.flatnonzero(angles != 0.0)

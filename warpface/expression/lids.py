@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .._validate import as_finite_array, as_vec3, unit_vector
+from .._validate import as_bounded, as_finite_array, as_vec3, unit_vector
 from .formulas import jaw_blend, jaw_rotation, jaw_slide, unit_or_zero
 
 __all__ = ["LidMuscle", "MAX_LID_ANGLE", "lid_field", "hinge_taper", "bulging_thickness"]
@@ -45,6 +45,8 @@ class LidMuscle:
             (default 0: a pure turn), so a margin point can meet a partner that is not straight below it.
         lifts: ``q_v`` [mesh units per unit K] away from the axis, shape (n,) (default 0), so a margin can
             meet a partner at another distance from the axis.
+        taper_share: ``q`` in (0, 1] of :func:`hinge_taper` (default 1): a vertex that turns by at least this
+            share of the largest turn gets no wrinkle and no bulge (docs/RIG.md §11, §14).
 
     ``K`` is dimensionless (1: the full turn). The skin response of the Waters muscles does not apply:
     ``sliding``, ``bunching`` and ``thickening`` are 0 (the lid turns over the eyeball, on its surface).
@@ -60,6 +62,7 @@ class LidMuscle:
     angles: np.ndarray
     slides: np.ndarray | None = None
     lifts: np.ndarray | None = None
+    taper_share: float = 1.0
 
     sliding = 0.0
     bunching = 0.0
@@ -94,6 +97,9 @@ class LidMuscle:
             if value.shape != vertices.shape:
                 raise ValueError(f"{label}: {value.shape} {field} for {vertices.shape} vertices")
             set_(self, field, value)
+        set_(self, "taper_share", as_bounded(self.taper_share, f"{label}: taper_share", 0.0, 1.0))
+        if self.taper_share == 0.0:
+            raise ValueError(f"{label}: taper_share must be > 0")
 
     def check_vertex_count(self, vertex_count: int) -> None:
         """Raise ValueError when a vertex index is outside a mesh of ``vertex_count`` points."""
@@ -140,17 +146,19 @@ def lid_field(rest: wp.array, muscle: LidMuscle) -> np.ndarray:
 
 
 def hinge_taper(vertex_count: int, muscles) -> np.ndarray:
-    """Per vertex, ``1 − |θ_v| / max |θ|`` of the hinges (:class:`LidMuscle`, the lip seal too) among ``muscles``
-    that move it (the smallest where several do), 1 elsewhere, shape (V,): 0 on a lid's margin, which turns the
-    most, and on the lips' contact line. The wrinkles fade by it (docs/RIG.md §14): a furrow's lift along the
-    normal would otherwise open the lids a blink closes and push the lips through each other."""
+    """Per vertex, ``1 − min(1, |θ_v| / (q · max |θ|))`` of the hinges (:class:`LidMuscle`, the lip seal too) among
+    ``muscles`` that move it (the smallest where several do), 1 elsewhere, shape (V,); ``q`` is each hinge's
+    ``taper_share``. It is 0 on a lid's margin (the default rig's lids: wherever the opening is at least ``q`` of
+    its widest, as the margin turns by a share of the gap at its own x) and on the lips' contact line. The wrinkles
+    fade by it (docs/RIG.md §14): a furrow's lift along the normal would otherwise open the lids a blink closes and
+    push the lips through each other."""
     taper = np.ones(vertex_count)
     for muscle in muscles:
         if isinstance(muscle, LidMuscle) and len(muscle.vertices):
             turn = np.abs(muscle.angles)
-            peak = float(turn.max())
+            peak = float(turn.max()) * muscle.taper_share
             if peak > 0.0:
-                taper[muscle.vertices] = np.minimum(taper[muscle.vertices], 1.0 - turn / peak)
+                taper[muscle.vertices] = np.minimum(taper[muscle.vertices], 1.0 - np.minimum(turn / peak, 1.0))
     return taper
 
 

@@ -2,7 +2,8 @@
 §11–12); a seal also carries its ``sealPairs``.
 
 The per-vertex data (vertex indices, turn angles [rad], slides and lifts [stage units], per unit K)
-are uniform arrays; the centre and axis are in the skin's local space like every muscle's.
+are uniform arrays; the centre and axis are in the skin's local space like every muscle's; ``taperShare`` is the
+hinge's share of the wrinkle and bulge taper (a stage without it reads as 1).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from pxr import Sdf, Usd, Vt
 from ..errors import RigError
 from ..expression.lids import LidMuscle
 from ..expression.seal import LipSeal
-from ._prim_values import array_value
+from ._prim_values import array_value, scalar_value
 
 __all__ = ["LID_TYPE", "LidMuscle", "author_lid", "read_lid"]
 
@@ -34,6 +35,7 @@ def author_lid(stage: Usd.Stage, path: Sdf.Path, lid: LidMuscle) -> Usd.Prim:
     for name in ("angles", "slides", "lifts"):
         values = np.ascontiguousarray(getattr(lid, name), dtype=np.float64)
         uniform(name, types.DoubleArray, Vt.DoubleArray.FromNumpy(values))
+    uniform("taperShare", types.Double, float(lid.taper_share))
     if isinstance(lid, LipSeal):
         pairs = np.ascontiguousarray(lid.pairs.reshape(-1), dtype=np.int32)
         uniform("sealPairs", types.IntArray, Vt.IntArray.FromNumpy(pairs))
@@ -53,6 +55,11 @@ def read_lid(prim: Usd.Prim, place, to_units: float, name: str) -> LidMuscle:
     if pairs is not None and len(pairs) % 2:
         raise RigError(f"{prim.GetPath()}.sealPairs: expected (upper, lower) pairs, got {len(pairs)} values")
     kind, extra = (LidMuscle, {}) if pairs is None else (LipSeal, {"pairs": pairs.reshape(-1, 2)})
+    share = prim.GetAttribute("taperShare")
+    if share and share.HasAuthoredValue():  # a stage written before the attribute keeps the taper it had
+        extra["taper_share"] = scalar_value(prim, "taperShare")
+        if not 0.0 < extra["taper_share"] <= 1.0:
+            raise RigError(f"{prim.GetPath()}.taperShare: expected a value in (0, 1], got {extra['taper_share']}")
     return kind(
         name=name,
         center=place.point(array_value(prim, "center", (3,))) * to_units,
