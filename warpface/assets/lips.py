@@ -10,20 +10,24 @@ mouth's half-width), and 0 beyond :data:`REACH` from the mouth's centre; which l
 slit, decides near the mouth). Its pairs are the inner-lip pairs the field parts (on a closed-mouth scan a pair
 may share a vertex; that pair is left out) and, on a closed mouth's slit, the facing vertices across it in the
 mouth's central half.
-:func:`lip_margin_taper` is the share of the bulging thickness the rig keeps near the contact line.
+:func:`lip_margin_taper` is the share of the bulging thickness the rig keeps near the contact line;
+:func:`closing_share` is the seal's (negative) share that holds the lips together against an open jaw (mouthClose).
 """
 
 from __future__ import annotations
 
 import numpy as np
+import warp as wp
 from scipy.spatial import cKDTree
 
+from ..expression.jaw import jaw_points
+from ..expression.lids import lid_field
 from ..expression.seal import LipSeal
 from ..mesh import FaceMesh
 from .frame import FaceFrame
 from .jaw import SLIT_GAP, lip_sided, mouth_rim_arcs, slit_faces
 
-__all__ = ["default_lip_seal", "lip_margin_taper", "LIP_SEAL_NAME", "PART_ANGLE", "PIVOT_DEPTH"]
+__all__ = ["closing_share", "default_lip_seal", "lip_margin_taper", "LIP_SEAL_NAME", "PART_ANGLE", "PIVOT_DEPTH"]
 
 LIP_SEAL_NAME = "lips_part"
 """The seal's control: ``K = 1`` parts the lips by about :data:`PART_ANGLE` × :data:`PIVOT_DEPTH` each."""
@@ -106,3 +110,29 @@ def default_lip_seal(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) ->
     moved = np.flatnonzero(angles != 0.0)
     centre = frame.to_world([middle[0], middle[1], middle[2] - PIVOT_DEPTH])
     return LipSeal(LIP_SEAL_NAME, centre, frame.axes[0], moved, angles[moved], pairs=np.array(pairs))
+
+
+def closing_share(rig, jaw_controls) -> float:
+    """The seal's share ``a ≤ 0`` that holds the lips together against the jaw at ``jaw_controls`` (docs/RIG.md §12):
+    with ``g_i`` the height of seal pair ``i``'s upper point above its lower one at the jaw's pose and ``δ_i`` the
+    seal field's parting of the pair, both along the face's up axis, ``a = min(0, maxᵢ −g_i / δ_i)`` — the seal's
+    field run backwards by the least share that brings a pair to contact, so none passes its partner. 0 without a
+    seal or a jaw.
+
+    Args:
+        rig: a :class:`~warpface.rig.FaceRig`.
+        jaw_controls: ``(jaw_open [rad], jaw_forward, jaw_left)`` [mesh units], shape (3,).
+    """
+    seal = next((m for m in rig.muscles if isinstance(m, LipSeal)), None)
+    if seal is None or rig.jaw is None:
+        return 0.0
+    rest = rig.mesh.points
+    up = FaceFrame.from_landmarks(rest[rig.landmarks]).axes[1]
+    posed = jaw_points(rig.jaw, rest, jaw_controls) @ up
+    parting = lid_field(wp.array(rest, dtype=wp.vec3d, device="cpu"), seal) @ up
+    upper, lower = seal.pairs[:, 0], seal.pairs[:, 1]
+    apart = parting[upper] - parting[lower]
+    moved = apart > 0.0  # a slit pair the field parts mostly in depth bounds nothing here
+    if not moved.any():
+        return 0.0
+    return min(0.0, float(np.max(-(posed[upper] - posed[lower])[moved] / apart[moved])))

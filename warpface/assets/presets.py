@@ -4,7 +4,9 @@ Values are relative to the face like :data:`~warpface.assets.EXPRESSIONS`: a lin
 is its contraction in inter-ocular units, a sphincter's its dimensionless ``K``, ``jaw_open`` an angle
 in radians and ``jaw_forward`` / ``jaw_left`` lengths in inter-ocular units. ``Left``/``Right`` are the
 subject's sides (``_L``/``_R``). :func:`preset_controls` turns a preset into ``{control: value}`` for a
-rig; the paper's four expressions are included under their own names.
+rig; the paper's four expressions are included under their own names. The presets of :data:`SEALED_PRESETS`
+also get the lip seal's control at the share that holds the lips together against their jaw
+(:func:`~warpface.assets.lips.closing_share`, docs/RIG.md §12).
 """
 
 from __future__ import annotations
@@ -15,9 +17,10 @@ from ..errors import RigError
 from ..expression.muscles import LinearMuscle
 from ..rig import FaceRig
 from .expressions import EXPRESSIONS, check_named_request
+from .lips import LIP_SEAL_NAME, closing_share
 from .rig import rig_scale
 
-__all__ = ["PRESETS", "ARKIT_PRESET_NAMES", "preset_controls"]
+__all__ = ["PRESETS", "ARKIT_PRESET_NAMES", "SEALED_PRESETS", "preset_controls"]
 
 _SIDE_NAMES = (("Left", "L"), ("Right", "R"))
 
@@ -88,6 +91,8 @@ PRESETS = MappingProxyType({**{k: MappingProxyType(v) for k, v in sorted(_PRESET
 """Preset name → {control: relative value}: the ARKit shapes, then the paper's four expressions. Read-only."""
 
 _JAW_LENGTHS = ("jaw_forward", "jaw_left")
+SEALED_PRESETS = frozenset({"mouthClose"})
+"""Presets whose lips stay closed while the jaw opens (ARKit's mouthClose: the lips stretch to stay together)."""
 
 
 def preset_controls(name: str, rig: FaceRig, *, intensity: float = 1.0) -> dict[str, float]:
@@ -104,7 +109,11 @@ def preset_controls(name: str, rig: FaceRig, *, intensity: float = 1.0) -> dict[
         raise RigError(f"rig {rig.name!r}: preset {name!r} needs control(s) {', '.join(missing)}")
     scale = rig_scale(rig)
     linear = {m.name for m in rig.muscles if isinstance(m, LinearMuscle)}
-    return {
+    controls = {
         control: value * intensity * (scale if control in linear or control in _JAW_LENGTHS else 1.0)
         for control, value in PRESETS[name].items()
     }
+    if name in SEALED_PRESETS and LIP_SEAL_NAME in known:
+        jaw = [controls.get(control, 0.0) for control in ("jaw_open", *_JAW_LENGTHS)]
+        controls[LIP_SEAL_NAME] = closing_share(rig, jaw)
+    return controls
