@@ -54,11 +54,7 @@ def test_lips_never_cross_on_the_built_in_face():
 
 
 def test_lips_never_cross_at_any_preset_on_the_ict_face():
-    path, landmarks = ict_face_region(), ict_landmark_indices()
-    if path is None or landmarks is None:
-        pytest.skip("ICT-FaceKit data not found in ../shared/data (set WARPFACE_SHARED_DATA)")
-    source = wf.FaceMesh.from_obj(path)
-    rig = default_rig(wf.FaceMesh(source.points * 0.01, source.triangles), landmarks, device=DEVICE)
+    rig = _ict_rig()
     assert _lips(rig, preset_frames(rig, ARKIT_PRESET_NAMES)).min() >= -0.2
 
 
@@ -100,6 +96,31 @@ def _slit_pairs(mesh, landmarks, up):
     surface = dijkstra(graph, directed=False, indices=upper[close])[np.arange(close.sum()), lower[nearest[close]]]
     across = surface > 3.0 * distance[close]
     return upper[close][across], lower[nearest[close]][across]
+
+
+def _ict_rig():
+    path, landmarks = ict_face_region(), ict_landmark_indices()
+    if path is None or landmarks is None:
+        pytest.skip("ICT-FaceKit data not found in ../shared/data (set WARPFACE_SHARED_DATA)")
+    source = wf.FaceMesh.from_obj(path)
+    return default_rig(wf.FaceMesh(source.points * 0.01, source.triangles), landmarks, device=DEVICE)
+
+
+@pytest.mark.parametrize("face", ["builtin", "ict"])
+def test_mouth_close_holds_the_lips_together_against_the_open_jaw(face):
+    """ARKit's mouthClose: the jaw opens, the lips stay closed (docs/RIG.md §12). The preset's jaw alone parts the
+    inner-lip midpoints by several mm; with the seal's closing share they end within 1 mm of contact, uncrossed."""
+    rig = default_rig(device=DEVICE) if face == "builtin" else _ict_rig()
+    frames = preset_frames(rig, ["mouthClose"])
+    share = frames[0, rig.control_names.index("lips_part")]
+    assert share < 0.0
+    open_jaw = np.zeros_like(frames)
+    open_jaw[0, rig.control_names.index("jaw_open")] = frames[0, rig.control_names.index("jaw_open")]
+    jaw_only = frames.copy()
+    jaw_only[0, rig.control_names.index("lips_part")] = 0.0
+    assert _lips(rig, open_jaw).min() > 4.0 and _lips(rig, jaw_only).min() > 4.0
+    closed = _lips(rig, frames)
+    assert closed.min() >= -0.2 and closed.max() <= 1.0
 
 
 @pytest.mark.slow
