@@ -39,9 +39,8 @@ def import_ray():
 def _ray_take(take, digest: str, out: str, device: str, kernel_cache: str | None) -> dict:
     """The body of a Ray task: one take (see :func:`warpface.batch.take.run_take`)."""
     global _worker_rigs
-    from .take import run_take
-
     from .pool import freeze_survivors
+    from .take import run_take
 
     first = _worker_rigs is None
     if first:
