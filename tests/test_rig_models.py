@@ -1,0 +1,109 @@
+"""A worker's rigs and expression models kept between takes (``RigModels``): takes through one worker bake exactly
+what fresh ``animate`` runs bake, the model is built once per rig file and device, a changed rig file is read
+afresh."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import numpy as np
+import pytest
+
+from warpface.drivers import ARKIT_CHANNELS
+
+
+def live_link(path, frames: int, channels: dict[str, float]):
+    """A Live Link Face CSV: each named channel ramps from 0 to its peak and back."""
+    columns = [name[0].upper() + name[1:] for name in ARKIT_CHANNELS]
+    ramp = np.sin(np.linspace(0.0, np.pi, frames))
+    rows = ["Timecode,BlendshapeCount," + ",".join(columns)]
+    for frame in range(frames):
+        weights = [f"{channels.get(name, 0.0) * ramp[frame]:.5f}" for name in ARKIT_CHANNELS]
+        rows.append(f"00:00:00:{frame:02d}.000,52," + ",".join(weights))
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def classic_rig(tmp_path_factory):
+    """The built-in face's classic rig (23 muscles: its model builds in a fraction of a second) as a stage."""
+    from warpface import usd
+    from warpface.assets import default_rig
+
+    path = tmp_path_factory.mktemp("rig") / "classic.usda"
+    usd.write_rig(path, default_rig(device="cpu", anatomy="classic"))
+    return path
+
+
+def skin_frames(stage_path) -> np.ndarray:
+    """Every time sample of the skin's points, (F, V, 3)."""
+    from pxr import Usd
+
+    from warpface import usd
+
+    stage = Usd.Stage.Open(str(stage_path))
+    points = usd.rig_prims(stage).skin.GetAttribute("points")
+    return np.array([np.asarray(points.Get(t)) for t in points.GetTimeSamples()])
+
+
+def test_two_takes_through_one_worker_equal_two_fresh_animate_runs(classic_rig, tmp_path):
+    from warpface.batch.manifest import read_manifest
+    from warpface.batch.take import run_take, take_digest
+    from warpface.commands.animate import animate
+    from warpface.commands.rig_models import RigModels
+
+    live_link(tmp_path / "smile.csv", 12, {"mouthSmileLeft": 0.9, "browInnerUp": 0.6})
+    live_link(tmp_path / "frown.csv", 10, {"browDownLeft": 0.8, "mouthFrownRight": 0.7, "jawOpen": 0.5})
+    (tmp_path / "m.csv").write_text(
+        "id,input,kind,rig,options\n"
+        + "".join(f"{n},{n}.csv,animate,{classic_rig},--no-video\n" for n in ("smile", "frown"))
+    )
+    out = tmp_path / "out"
+    out.mkdir()
+    rigs = RigModels()
+    for take in read_manifest(tmp_path / "m.csv").takes:
+        entry = run_take(take, out, device="cpu", digest=take_digest(take), rigs=rigs)
+        assert entry["status"] == "done", entry["error"]
+    assert len(rigs._entries) == 1 and len(next(iter(rigs._entries.values()))["models"]) == 1
+    for name in ("smile", "frown"):
+        fresh = animate(tmp_path / f"{name}.csv", tmp_path / "fresh" / f"{name}.usda", rig=classic_rig, video=False)
+        kept = skin_frames(out / name / f"{name}.usda")
+        assert kept.shape == (fresh.frame_count, 11492, 3) and np.abs(kept - kept[0]).max() > 1e-4  # it moves
+        np.testing.assert_array_equal(kept, skin_frames(fresh.stage))
+
+
+def test_a_model_is_built_once_per_rig_file_and_device_and_afresh_when_the_file_changes(classic_rig, tmp_path):
+    from warpface import usd
+    from warpface.commands.rig_models import RigModels
+
+    rigs = RigModels(capacity=1)
+    model = rigs.model(classic_rig, device="cpu")
+    assert rigs.model(classic_rig, device="cpu") is model and rigs.load(classic_rig)[0] is rigs.load(classic_rig)[0]
+    changed = tmp_path / "changed.usda"
+    face = rigs.load(classic_rig)[0]
+    usd.write_rig(changed, face)
+    other = rigs.model(changed, device="cpu")
+    assert other is not model and rigs.model(classic_rig, device="cpu") is not model  # capacity 1: evicted
+    thicker = dataclasses.replace(face, thickness=2.0 * np.asarray(face.thickness))
+    before = os.stat(changed).st_mtime_ns
+    usd.write_rig(changed, thicker)
+    os.utime(changed, ns=(before + 10**9, before + 10**9))  # a new modification time whatever the clock's step
+    controls = np.zeros((1, len(face.control_names)))
+    controls[0, face.control_names.index("zygomaticus_major_L")] = 0.02
+    again = rigs.model(changed, device="cpu")
+    assert again is not other
+    np.testing.assert_array_equal(again.evaluate(controls), thicker.model(device="cpu").evaluate(controls))
+    assert np.abs(again.evaluate(controls) - other.evaluate(controls)).max() > 1e-6  # the thickness counts
+
+
+def test_bad_arguments(tmp_path):
+    from warpface.commands.animate import animate
+    from warpface.commands.rig_models import RigModels
+
+    with pytest.raises(ValueError, match="capacity"):
+        RigModels(capacity=0)
+    driver = live_link(tmp_path / "a.csv", 3, {"jawOpen": 0.5})
+    with pytest.raises(TypeError, match="rigs: expected a RigModels, got dict"):
+        animate(driver, tmp_path / "a.usda", rigs={}, video=False)
+    assert not (tmp_path / "a.usda").exists()
