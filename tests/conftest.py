@@ -38,3 +38,16 @@ def cpu():
 def small_rig():
     """A fresh :func:`small_face_rig`."""
     return small_face_rig()
+
+
+@pytest.fixture(scope="session")
+def classic_rig_stage(tmp_path_factory):
+    """A rig stage of the built-in face with the classic anatomy (23 muscles, no jaw): its expression model builds
+    in a fraction of a second where the full rig's takes seconds, for end-to-end runs whose point is not the
+    anatomy."""
+    from warpface import usd
+    from warpface.assets import default_rig
+
+    path = tmp_path_factory.mktemp("classic_rig") / "classic.usda"
+    usd.write_rig(path, default_rig(device="cpu", anatomy="classic"))
+    return path

@@ -25,17 +25,6 @@ def live_link(path, frames: int, channels: dict[str, float]):
     return path
 
 
-@pytest.fixture(scope="module")
-def classic_rig(tmp_path_factory):
-    """The built-in face's classic rig (23 muscles: its model builds in a fraction of a second) as a stage."""
-    from warpface import usd
-    from warpface.assets import default_rig
-
-    path = tmp_path_factory.mktemp("rig") / "classic.usda"
-    usd.write_rig(path, default_rig(device="cpu", anatomy="classic"))
-    return path
-
-
 def skin_frames(stage_path) -> np.ndarray:
     """Every time sample of the skin's points, (F, V, 3)."""
     from pxr import Usd
@@ -47,7 +36,7 @@ def skin_frames(stage_path) -> np.ndarray:
     return np.array([np.asarray(points.Get(t)) for t in points.GetTimeSamples()])
 
 
-def test_two_takes_through_one_worker_equal_two_fresh_animate_runs(classic_rig, tmp_path):
+def test_two_takes_through_one_worker_equal_two_fresh_animate_runs(classic_rig_stage, tmp_path):
     from warpface.batch.manifest import read_manifest
     from warpface.batch.take import run_take, take_digest
     from warpface.commands.animate import animate
@@ -57,7 +46,7 @@ def test_two_takes_through_one_worker_equal_two_fresh_animate_runs(classic_rig, 
     live_link(tmp_path / "frown.csv", 10, {"browDownLeft": 0.8, "mouthFrownRight": 0.7, "jawOpen": 0.5})
     (tmp_path / "m.csv").write_text(
         "id,input,kind,rig,options\n"
-        + "".join(f"{n},{n}.csv,animate,{classic_rig},--no-video\n" for n in ("smile", "frown"))
+        + "".join(f"{n},{n}.csv,animate,{classic_rig_stage},--no-video\n" for n in ("smile", "frown"))
     )
     out = tmp_path / "out"
     out.mkdir()
@@ -65,36 +54,44 @@ def test_two_takes_through_one_worker_equal_two_fresh_animate_runs(classic_rig, 
     for take in read_manifest(tmp_path / "m.csv").takes:
         entry = run_take(take, out, device="cpu", digest=take_digest(take), rigs=rigs)
         assert entry["status"] == "done", entry["error"]
-    assert len(rigs._entries) == 1 and len(next(iter(rigs._entries.values()))["models"]) == 1
+    assert rigs.builds == 1
     for name in ("smile", "frown"):
-        fresh = animate(tmp_path / f"{name}.csv", tmp_path / "fresh" / f"{name}.usda", rig=classic_rig, video=False)
+        fresh = animate(
+            tmp_path / f"{name}.csv",
+            tmp_path / "fresh" / f"{name}.usda",
+            rig=classic_rig_stage,
+            video=False,
+            device="cpu",
+        )
         kept = skin_frames(out / name / f"{name}.usda")
         assert kept.shape == (fresh.frame_count, 11492, 3) and np.abs(kept - kept[0]).max() > 1e-4  # it moves
         np.testing.assert_array_equal(kept, skin_frames(fresh.stage))
 
 
-def test_a_model_is_built_once_per_rig_file_and_device_and_afresh_when_the_file_changes(classic_rig, tmp_path):
+def test_a_model_is_built_once_per_rig_file_and_device_and_afresh_when_the_file_changes(classic_rig_stage, tmp_path):
     from warpface import usd
     from warpface.commands.rig_models import RigModels
 
-    rigs = RigModels(capacity=1)
-    model = rigs.model(classic_rig, device="cpu")
-    assert rigs.model(classic_rig, device="cpu") is model and rigs.load(classic_rig)[0] is rigs.load(classic_rig)[0]
+    rigs = RigModels(capacity=2)
+    model = rigs.model(classic_rig_stage, device="cpu")
+    face = rigs.load(classic_rig_stage)[0]
+    assert rigs.model(classic_rig_stage, device="cpu") is model and rigs.load(classic_rig_stage)[0] is face
+    assert rigs.builds == 1
     changed = tmp_path / "changed.usda"
-    face = rigs.load(classic_rig)[0]
     usd.write_rig(changed, face)
     other = rigs.model(changed, device="cpu")
-    assert other is not model and rigs.model(classic_rig, device="cpu") is not model  # capacity 1: evicted
+    assert other is not model and rigs.model(changed, device="cpu") is other and rigs.builds == 2
     thicker = dataclasses.replace(face, thickness=2.0 * np.asarray(face.thickness))
     before = os.stat(changed).st_mtime_ns
     usd.write_rig(changed, thicker)
     os.utime(changed, ns=(before + 10**9, before + 10**9))  # a new modification time whatever the clock's step
+    again = rigs.model(changed, device="cpu")
+    assert again is not other and rigs.builds == 3
     controls = np.zeros((1, len(face.control_names)))
     controls[0, face.control_names.index("zygomaticus_major_L")] = 0.02
-    again = rigs.model(changed, device="cpu")
-    assert again is not other
     np.testing.assert_array_equal(again.evaluate(controls), thicker.model(device="cpu").evaluate(controls))
     assert np.abs(again.evaluate(controls) - other.evaluate(controls)).max() > 1e-6  # the thickness counts
+    assert rigs.model(classic_rig_stage, device="cpu") is not model and rigs.builds == 4  # capacity 2: evicted
 
 
 def test_bad_arguments(tmp_path):
@@ -105,5 +102,5 @@ def test_bad_arguments(tmp_path):
         RigModels(capacity=0)
     driver = live_link(tmp_path / "a.csv", 3, {"jawOpen": 0.5})
     with pytest.raises(TypeError, match="rigs: expected a RigModels, got dict"):
-        animate(driver, tmp_path / "a.usda", rigs={}, video=False)
+        animate(driver, tmp_path / "a.usda", rigs={}, video=False, device="cpu")
     assert not (tmp_path / "a.usda").exists()

@@ -51,6 +51,8 @@ class RigModels:
 
         self.capacity = as_count(capacity, "capacity", minimum=1)
         self._entries: OrderedDict[tuple, dict] = OrderedDict()
+        self.builds = 0
+        """How many expression models were built (a model taken from the cache is not counted)."""
 
     def load(self, rig_path):
         """:func:`load_rig` of ``rig_path``, read once per rig file (until the file changes)."""
@@ -74,6 +76,7 @@ class RigModels:
         alias = as_device(device).alias
         if alias not in models:
             models[alias] = face_rig.model(device=alias)
+            self.builds += 1
         return models[alias]
 
 
