@@ -9,28 +9,16 @@ import shutil
 
 import numpy as np
 import pytest
+from helpers import live_link_csv
 
 from warpface.cli import main
 from warpface.data import shared_data_path
-from warpface.drivers import ARKIT_CHANNELS
 
 OPENFACE = shared_data_path("auplayer_openface_au", "19_3_au.txt")
 MEDIAPIPE = shared_data_path("mediapipe", "face_blendshapes_out.prototxt")
 needs_data = pytest.mark.skipif(
     OPENFACE is None or MEDIAPIPE is None, reason="../shared/data (OpenFace, MediaPipe) is not present"
 )
-
-
-def live_link_csv(path, frames: int, channels: dict[str, float]):
-    """A Live Link Face CSV written by hand: each named channel ramps from 0 to its peak and back."""
-    columns = [name[0].upper() + name[1:] for name in ARKIT_CHANNELS]
-    ramp = np.sin(np.linspace(0.0, np.pi, frames))
-    lines = ["Timecode,BlendshapeCount," + ",".join(columns)]
-    for frame in range(frames):
-        weights = [f"{channels.get(name, 0.0) * ramp[frame]:.5f}" for name in ARKIT_CHANNELS]
-        lines.append(f"01:02:03:{frame:02d}.000,52," + ",".join(weights))
-    path.write_text("\n".join(lines) + "\n")
-    return path
 
 
 def write_manifest(folder, rows, rig, name="takes.csv"):

@@ -9,20 +9,7 @@ import os
 
 import numpy as np
 import pytest
-
-from warpface.drivers import ARKIT_CHANNELS
-
-
-def live_link(path, frames: int, channels: dict[str, float]):
-    """A Live Link Face CSV: each named channel ramps from 0 to its peak and back."""
-    columns = [name[0].upper() + name[1:] for name in ARKIT_CHANNELS]
-    ramp = np.sin(np.linspace(0.0, np.pi, frames))
-    rows = ["Timecode,BlendshapeCount," + ",".join(columns)]
-    for frame in range(frames):
-        weights = [f"{channels.get(name, 0.0) * ramp[frame]:.5f}" for name in ARKIT_CHANNELS]
-        rows.append(f"00:00:00:{frame:02d}.000,52," + ",".join(weights))
-    path.write_text("\n".join(rows) + "\n")
-    return path
+from helpers import live_link_csv
 
 
 def skin_frames(stage_path) -> np.ndarray:
@@ -42,8 +29,8 @@ def test_two_takes_through_one_worker_equal_two_fresh_animate_runs(classic_rig_s
     from warpface.commands.animate import animate
     from warpface.commands.rig_models import RigModels
 
-    live_link(tmp_path / "smile.csv", 12, {"mouthSmileLeft": 0.9, "browInnerUp": 0.6})
-    live_link(tmp_path / "frown.csv", 10, {"browDownLeft": 0.8, "mouthFrownRight": 0.7, "jawOpen": 0.5})
+    live_link_csv(tmp_path / "smile.csv", 12, {"mouthSmileLeft": 0.9, "browInnerUp": 0.6})
+    live_link_csv(tmp_path / "frown.csv", 10, {"browDownLeft": 0.8, "mouthFrownRight": 0.7, "jawOpen": 0.5})
     (tmp_path / "m.csv").write_text(
         "id,input,kind,rig,options\n"
         + "".join(f"{n},{n}.csv,animate,{classic_rig_stage},--no-video\n" for n in ("smile", "frown"))
@@ -100,7 +87,7 @@ def test_bad_arguments(tmp_path):
 
     with pytest.raises(ValueError, match="capacity"):
         RigModels(capacity=0)
-    driver = live_link(tmp_path / "a.csv", 3, {"jawOpen": 0.5})
+    driver = live_link_csv(tmp_path / "a.csv", 3, {"jawOpen": 0.5})
     with pytest.raises(TypeError, match="rigs: expected a RigModels, got dict"):
         animate(driver, tmp_path / "a.usda", rigs={}, video=False, device="cpu")
     assert not (tmp_path / "a.usda").exists()
