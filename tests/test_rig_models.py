@@ -60,25 +60,30 @@ def test_a_model_is_built_once_per_rig_file_and_device_and_afresh_when_the_file_
     from warpface.commands.rig_models import RigModels
 
     rigs = RigModels(capacity=2)
-    model = rigs.model(classic_rig_stage, device="cpu")
+
+    def model_of(path):
+        return rigs.model(rigs.load(path)[0], device="cpu")
+
+    model = model_of(classic_rig_stage)
     face = rigs.load(classic_rig_stage)[0]
-    assert rigs.model(classic_rig_stage, device="cpu") is model and rigs.load(classic_rig_stage)[0] is face
+    assert model_of(classic_rig_stage) is model and rigs.load(classic_rig_stage)[0] is face
     assert rigs.builds == 1
     changed = tmp_path / "changed.usda"
     usd.write_rig(changed, face)
-    other = rigs.model(changed, device="cpu")
-    assert other is not model and rigs.model(changed, device="cpu") is other and rigs.builds == 2
+    other = model_of(changed)
+    assert other is not model and model_of(changed) is other and rigs.builds == 2
     thicker = dataclasses.replace(face, thickness=2.0 * np.asarray(face.thickness))
     before = os.stat(changed).st_mtime_ns
     usd.write_rig(changed, thicker)
     os.utime(changed, ns=(before + 10**9, before + 10**9))  # a new modification time whatever the clock's step
-    again = rigs.model(changed, device="cpu")
+    again = model_of(changed)
     assert again is not other and rigs.builds == 3
     controls = np.zeros((1, len(face.control_names)))
     controls[0, face.control_names.index("zygomaticus_major_L")] = 0.02
     np.testing.assert_array_equal(again.evaluate(controls), thicker.model(device="cpu").evaluate(controls))
     assert np.abs(again.evaluate(controls) - other.evaluate(controls)).max() > 1e-6  # the thickness counts
-    assert rigs.model(classic_rig_stage, device="cpu") is not model and rigs.builds == 4  # capacity 2: evicted
+    assert model_of(classic_rig_stage) is not model and rigs.builds == 4  # capacity 2: the oldest was dropped
+    assert rigs.model(thicker, device="cpu") is not rigs.model(thicker, device="cpu")  # not a rig of the cache
 
 
 def test_bad_arguments(tmp_path):

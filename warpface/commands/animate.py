@@ -178,7 +178,7 @@ def animate(
     clock.step("write controls")
     root = stage.GetRootLayer()
     cache_path = out.with_name(out.stem + CACHE_SUFFIX)
-    model = rigs.model(rig, device=device)
+    model = rigs.model(rig_model, device=device)
     clock.step("model")
     created = create_missing_folders(out.parent)  # as `track` does; removed again if the bake writes nothing
     try:

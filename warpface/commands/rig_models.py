@@ -66,16 +66,16 @@ class RigModels:
         self._entries.move_to_end(key)
         return entry["rig"]
 
-    def model(self, rig_path, *, device=None):
-        """The expression model of the rig at ``rig_path`` on ``device`` (default: Warp's preferred device),
-        built once per rig file and device."""
+    def model(self, rig, *, device=None):
+        """The expression model of ``rig`` (a FaceRig that :meth:`load` gave) on ``device`` (default: Warp's
+        preferred device), built once per rig and device; a rig that :meth:`load` did not give (or gave before
+        it was dropped) gets a model built for this call."""
         from .._validate import as_device
 
-        face_rig = self.load(rig_path)[0]
-        models = self._entries[_rig_key(rig_path)]["models"]
         alias = as_device(device).alias
+        models = next((e["models"] for e in self._entries.values() if e["rig"][0] is rig), {})
         if alias not in models:
-            models[alias] = face_rig.model(device=alias)
+            models[alias] = rig.model(device=alias)
             self.builds += 1
         return models[alias]
 
