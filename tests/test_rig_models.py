@@ -74,7 +74,8 @@ def test_a_model_is_built_once_per_rig_file_and_device_and_afresh_when_the_file_
     assert other is not model and model_of(changed) is other and rigs.builds == 2
     thicker = dataclasses.replace(face, thickness=2.0 * np.asarray(face.thickness))
     before = os.stat(changed).st_mtime_ns
-    usd.write_rig(changed, thicker)
+    usd.write_rig(tmp_path / "elsewhere.usda", thicker)
+    os.replace(tmp_path / "elsewhere.usda", changed)  # changed behind USD's back, as by another process
     os.utime(changed, ns=(before + 10**9, before + 10**9))  # a new modification time whatever the clock's step
     again = model_of(changed)
     assert again is not other and rigs.builds == 3
@@ -82,7 +83,10 @@ def test_a_model_is_built_once_per_rig_file_and_device_and_afresh_when_the_file_
     controls[0, face.control_names.index("zygomaticus_major_L")] = 0.02
     np.testing.assert_array_equal(again.evaluate(controls), thicker.model(device="cpu").evaluate(controls))
     assert np.abs(again.evaluate(controls) - other.evaluate(controls)).max() > 1e-6  # the thickness counts
-    assert model_of(classic_rig_stage) is not model and rigs.builds == 4  # capacity 2: the oldest was dropped
+    assert model_of(classic_rig_stage) is model and rigs.builds == 3  # the changed file's old entry went first
+    usd.write_rig(tmp_path / "third.usda", face)
+    model_of(tmp_path / "third.usda")
+    assert model_of(changed) is not again and rigs.builds == 5  # capacity 2: the least recently used went
     assert rigs.model(thicker, device="cpu") is not rigs.model(thicker, device="cpu")  # not a rig of the cache
 
 

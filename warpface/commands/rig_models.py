@@ -59,6 +59,10 @@ class RigModels:
         key = _rig_key(rig_path)
         entry = self._entries.get(key)
         if entry is None:
+            for stale in [k for k in self._entries if k[:2] == key[:2]]:  # the same file before it changed
+                del self._entries[stale]
+            if rig_path is not None:
+                _reload_if_open(rig_path)
             entry = {"rig": load_rig(rig_path), "models": {}}
             self._entries[key] = entry
             while len(self._entries) > self.capacity:
@@ -90,3 +94,13 @@ def _rig_key(rig_path) -> tuple:
     except OSError:  # let load_rig report a missing file the usual way
         return ("file", str(path.absolute()), None, None)
     return ("file", str(path.resolve()), stat.st_size, stat.st_mtime_ns)
+
+
+def _reload_if_open(rig_path) -> None:
+    """Read the rig file's root layer again if this process has it open (USD would hand back the layer it holds,
+    as it was when first read, for a file another process has changed since)."""
+    from pxr import Sdf
+
+    layer = Sdf.Layer.Find(str(rig_path))
+    if layer is not None:
+        layer.Reload(force=True)
