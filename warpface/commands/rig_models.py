@@ -61,7 +61,7 @@ class RigModels:
         if entry is None:
             for stale in [k for k in self._entries if k[:2] == key[:2]]:  # the same file before it changed
                 del self._entries[stale]
-            if rig_path is not None:
+            if rig_path is not None and Path(rig_path).suffix.lower() in RIG_SUFFIXES:
                 _reload_if_open(rig_path)
             entry = {"rig": load_rig(rig_path), "models": {}}
             self._entries[key] = entry
