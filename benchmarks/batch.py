@@ -9,7 +9,9 @@ animated and baked twice in the same run (with ``--video`` also previewed as MP4
   (one per core, or per CUDA device) paying those once each; it also renders each take's contact-sheet picture
   and writes the report and the shoot stage.
 
-The ratio is serial / batch wall time. The start-up a pool amortises is measured on its own (``python -c`` of
+The ratio is serial / batch wall time; beside it, serial / batch CPU seconds (user + system of the processes and
+of the batch's workers: the work each side does, which other jobs on a loaded machine do not inflate as they
+inflate wall time). The start-up a pool amortises is measured on its own (``python -c`` of
 warpface's imports and Warp's initialisation, best of two), with the in-process split of one take's ``animate``
 (read, model, bake, video) as a serial process runs it (its rig's model built for it) and as a batch worker runs
 it (the model kept from the worker's earlier take), so the table says where the serial loop's time goes. The
@@ -134,9 +136,18 @@ def last_frame(stage_path: Path) -> np.ndarray:
     return np.asarray(points.Get(points.GetTimeSamples()[-1]))
 
 
-def serial_loop(scratch: Path, takes: int, device: str, options: list[str]) -> tuple[float, np.ndarray]:
-    """(wall seconds of one ``warpface animate`` process per take, one after another; take00's last frame)."""
-    seconds, reference = 0.0, None
+def _children_cpu() -> float:
+    """CPU seconds (user + system) of this process's finished child processes and theirs (a batch's workers)."""
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def serial_loop(scratch: Path, takes: int, device: str, options: list[str]) -> tuple[float, float, np.ndarray]:
+    """(wall seconds of one ``warpface animate`` process per take, one after another; their CPU seconds; take00's
+    last frame)."""
+    seconds, reference, cpu = 0.0, None, _children_cpu()
     for take in range(takes):
         name = f"take{take:02d}"
         out = scratch / "serial" / name / f"{name}.usda"
@@ -144,21 +155,24 @@ def serial_loop(scratch: Path, takes: int, device: str, options: list[str]) -> t
         if reference is None:
             reference = last_frame(out)
         shutil.rmtree(out.parent)
-    return seconds, reference
+    return seconds, _children_cpu() - cpu, reference
 
 
-def batch_run(scratch: Path, manifest: Path, device: str, jobs: int | None) -> tuple[float, np.ndarray, int]:
-    """(wall seconds of one ``warpface batch`` process, take00's last frame, takes with a contact-sheet picture)."""
+def batch_run(scratch: Path, manifest: Path, device: str, jobs: int | None) -> tuple[float, float, np.ndarray, int]:
+    """(wall seconds of one ``warpface batch`` process, its CPU seconds with its workers', take00's last frame,
+    takes with a contact-sheet picture)."""
     out = scratch / "batch"
     jobs_option = ["--jobs", str(jobs)] if jobs else []
+    cpu = _children_cpu()
     seconds = _warpface("--device", device, "batch", str(manifest), "--out", str(out), *jobs_option)
+    cpu = _children_cpu() - cpu
     takes = json.loads((out / "report.json").read_text())["takes"]
     if any(entry["status"] != "done" for entry in takes):
         raise RuntimeError(f"the batch did not finish every take: {[e['error'] for e in takes if e['error']]}")
     pictures = sum(bool(entry.get("thumbnail")) for entry in takes)
     reference = last_frame(out / "take00" / "take00.usda")
     shutil.rmtree(out)
-    return seconds, reference, pictures
+    return seconds, cpu, reference, pictures
 
 
 def main(argv=None) -> int:
@@ -185,6 +199,7 @@ def main(argv=None) -> int:
     load_before = os.getloadavg()[0]
     runs = ["serial animate"] + [f"warpface batch{f' --jobs {j}' if j else ''}" for j in args.jobs]
     seconds: dict[str, list[float]] = {run: [] for run in runs}
+    cpu: dict[str, list[float]] = {run: [] for run in runs}
     pictures = {}
     with tempfile.TemporaryDirectory(prefix="warpface_batch_bench_") as scratch:
         scratch = Path(scratch)
@@ -195,16 +210,18 @@ def main(argv=None) -> int:
         )
         startup = startup_seconds()
         for _ in range(args.rounds):
-            serial, reference = serial_loop(scratch, args.takes, args.device, options)
+            serial, serial_cpu, reference = serial_loop(scratch, args.takes, args.device, options)
             seconds["serial animate"].append(serial)
+            cpu["serial animate"].append(serial_cpu)
             for run, jobs in zip(runs[1:], args.jobs):
-                batch, frame, pictures[run] = batch_run(scratch, manifest, args.device, jobs)
+                batch, batch_cpu, frame, pictures[run] = batch_run(scratch, manifest, args.device, jobs)
                 seconds[run].append(batch)
+                cpu[run].append(batch_cpu)
                 if not np.array_equal(reference, frame):
                     raise RuntimeError(f"{run}: take00 differs from animate's")
     load = (load_before, os.getloadavg()[0])
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    serial = sum(seconds["serial animate"])
+    serial, serial_cpu = sum(seconds["serial animate"]), sum(cpu["serial animate"])
     rows = [
         {
             "run": run,
@@ -212,7 +229,10 @@ def main(argv=None) -> int:
             "per_take": sum(values) / args.rounds / args.takes,
             "ratio": serial / sum(values),
             "takes_per_minute": 60 * args.takes * args.rounds / sum(values),
+            "cpu_seconds": sum(cpu[run]) / args.rounds,
+            "cpu_ratio": serial_cpu / sum(cpu[run]),
             "rounds": values,
+            "cpu_rounds": cpu[run],
         }
         for run, values in seconds.items()
     ]
@@ -231,6 +251,8 @@ def main(argv=None) -> int:
             ("per_take", "s per take", ".2f"),
             ("ratio", "× serial", ".2f"),
             ("takes_per_minute", "takes/min", ".1f"),
+            ("cpu_seconds", "CPU s", ".1f"),
+            ("cpu_ratio", "CPU × serial", ".2f"),
         ],
     )
     if args.rounds > 1:
