@@ -10,7 +10,7 @@ animated and baked twice in the same run (with ``--video`` also previewed as MP4
   and writes the report and the shoot stage.
 
 The ratio is serial / batch wall time; beside it, serial / batch CPU seconds (user + system of the processes and
-of the batch's workers: the work each side does, which other jobs on a loaded machine do not inflate as they
+of the batch's workers: the work each side does, which other jobs on a loaded machine inflate far less than they
 inflate wall time). The start-up a pool amortises is measured on its own (``python -c`` of
 warpface's imports and Warp's initialisation, best of two), with the in-process split of one take's ``animate``
 (read, model, bake, video) as a serial process runs it (its rig's model built for it) and as a batch worker runs
