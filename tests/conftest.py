@@ -54,3 +54,22 @@ def lee_perry_smith():
     mesh = wf.FaceMesh.from_obj(path)
     found = find_landmarks(mesh.points, mesh.triangles, label="Lee Perry-Smith")
     return mesh, found.indices, 1000.0 * found.meters_per_unit
+
+
+@pytest.fixture(scope="session")
+def classic_rig_stage(tmp_path_factory):
+    """A rig stage of the built-in face with the classic anatomy (23 muscles, no jaw): its expression model builds
+    in a fraction of a second where the full rig's takes seconds, for end-to-end runs whose point is not the
+    anatomy. It has no frame rate of its own, so a take keeps its driver's rate, as on the built-in rig."""
+    from pxr import Sdf
+
+    from warpface import usd
+    from warpface.assets import default_rig
+
+    path = tmp_path_factory.mktemp("classic_rig") / "classic.usda"
+    usd.write_rig(path, default_rig(device="cpu", anatomy="classic"))
+    layer = Sdf.Layer.FindOrOpen(str(path))
+    layer.ClearTimeCodesPerSecond()
+    layer.ClearFramesPerSecond()
+    layer.Save()
+    return path

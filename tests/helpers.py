@@ -20,6 +20,7 @@ __all__ = [
     "assert_rigs_equal",
     "scaled_rig",
     "DisappearingCamera",
+    "live_link_csv",
 ]
 
 
@@ -342,3 +343,17 @@ def shell_face(cells: int = 8, layers: int = 2, *, span_u: float = 2.4, span_v: 
     landmarks = grid[-1, np.linspace(1, cells - 1, 5).astype(int)]
     rig = FaceRig(mesh, [muscle], [], thickness, landmarks=landmarks)
     return rig, tetmesh, np.arange(per), grid + layers * per
+
+
+def live_link_csv(path, frames: int, channels: dict[str, float]):
+    """A Live Link Face CSV written by hand: each named channel ramps from 0 to its peak and back."""
+    from warpface.drivers import ARKIT_CHANNELS
+
+    columns = [name[0].upper() + name[1:] for name in ARKIT_CHANNELS]
+    ramp = np.sin(np.linspace(0.0, np.pi, frames))
+    lines = ["Timecode,BlendshapeCount," + ",".join(columns)]
+    for frame in range(frames):
+        weights = [f"{channels.get(name, 0.0) * ramp[frame]:.5f}" for name in ARKIT_CHANNELS]
+        lines.append(f"01:02:03:{frame:02d}.000,52," + ",".join(weights))
+    path.write_text("\n".join(lines) + "\n")
+    return path

@@ -9,10 +9,10 @@ import shutil
 
 import numpy as np
 import pytest
+from helpers import live_link_csv
 
 from warpface.cli import main
 from warpface.data import shared_data_path
-from warpface.drivers import ARKIT_CHANNELS
 
 OPENFACE = shared_data_path("auplayer_openface_au", "19_3_au.txt")
 MEDIAPIPE = shared_data_path("mediapipe", "face_blendshapes_out.prototxt")
@@ -21,28 +21,17 @@ needs_data = pytest.mark.skipif(
 )
 
 
-def live_link_csv(path, frames: int, channels: dict[str, float]):
-    """A Live Link Face CSV written by hand: each named channel ramps from 0 to its peak and back."""
-    columns = [name[0].upper() + name[1:] for name in ARKIT_CHANNELS]
-    ramp = np.sin(np.linspace(0.0, np.pi, frames))
-    lines = ["Timecode,BlendshapeCount," + ",".join(columns)]
-    for frame in range(frames):
-        weights = [f"{channels.get(name, 0.0) * ramp[frame]:.5f}" for name in ARKIT_CHANNELS]
-        lines.append(f"01:02:03:{frame:02d}.000,52," + ",".join(weights))
-    path.write_text("\n".join(lines) + "\n")
-    return path
-
-
-def write_manifest(folder, rows, name="takes.csv"):
+def write_manifest(folder, rows, rig, name="takes.csv"):
+    """A CSV manifest of ``(id, input, kind, options)`` rows, every take on the rig stage ``rig``."""
     path = folder / name
-    path.write_text("id,input,kind,options\n" + "".join(",".join(row) + "\n" for row in rows))
+    path.write_text("id,input,kind,rig,options\n" + "".join(f"{i},{f},{k},{rig},{o}\n" for i, f, k, o in rows))
     return path
 
 
 @pytest.fixture(scope="module")
-def shoot(tmp_path_factory):
+def shoot(tmp_path_factory, classic_rig_stage):
     """A manifest of a hand-written Live Link take, a real OpenFace recording, real MediaPipe scores and a corrupt
-    file, run once by ``warpface batch`` on the local engine."""
+    file on the classic rig, run once by ``warpface batch`` on the local engine."""
     if OPENFACE is None or MEDIAPIPE is None:
         pytest.skip("../shared/data (OpenFace, MediaPipe) is not present")
     folder = tmp_path_factory.mktemp("shoot")
@@ -56,10 +45,11 @@ def shoot(tmp_path_factory):
             ("mediapipe", str(MEDIAPIPE), "animate", "--no-video"),
             ("corrupt", "corrupt.csv", "animate", "--no-video"),
         ],
+        classic_rig_stage,
     )
     out = folder / "out"
     code = main(["--quiet", "--device", "cpu", "batch", str(manifest), "--out", str(out), "--jobs", "2"])
-    return {"folder": folder, "manifest": manifest, "out": out, "code": code}
+    return {"folder": folder, "manifest": manifest, "out": out, "code": code, "rig": classic_rig_stage}
 
 
 def report_of(out):
@@ -104,7 +94,8 @@ def test_good_takes_are_done_and_the_corrupt_one_fails_alone(shoot):
 def test_a_batch_take_is_baked_exactly_as_animate_bakes_it(shoot, tmp_path):
     from warpface.commands.animate import animate
 
-    animate(shoot["folder"] / "smile.csv", tmp_path / "direct.usda", video=False, device="cpu", progress=False)
+    smile = shoot["folder"] / "smile.csv"
+    animate(smile, tmp_path / "direct.usda", rig=shoot["rig"], video=False, device="cpu", progress=False)
     for time in range(9):
         np.testing.assert_array_equal(
             skin_points(shoot["out"] / "smile" / "smile.usda", time), skin_points(tmp_path / "direct.usda", time)
@@ -177,6 +168,7 @@ def test_a_second_run_skips_complete_takes_and_redoes_changed_ones(shoot, tmp_pa
             ("openface", str(OPENFACE), "animate", "--no-video"),
             ("mediapipe", str(MEDIAPIPE), "animate", "--no-video --gain browDownLeft=0.5"),
         ],
+        shoot["rig"],
         name="rerun.csv",
     )
     assert main(["--quiet", "--device", "cpu", "batch", str(manifest), "--out", str(out)]) == 0
@@ -187,7 +179,9 @@ def test_a_second_run_skips_complete_takes_and_redoes_changed_ones(shoot, tmp_pa
     assert "0 failed" in capsys.readouterr().out
     assert main(["--quiet", "--device", "cpu", "batch", str(manifest), "--out", str(out), "--jobs", "1"]) == 0
     assert {e["status"] for e in report_of(out).values()} == {"skipped"}
-    single = write_manifest(shoot["folder"], [("smile", "smile.csv", "animate", "--no-video")], name="one.csv")
+    single = write_manifest(
+        shoot["folder"], [("smile", "smile.csv", "animate", "--no-video")], shoot["rig"], name="one.csv"
+    )
     assert main(["--quiet", "--device", "cpu", "batch", str(single), "--out", str(out), "--force"]) == 0
     assert report_of(out)["smile"]["status"] == "done"
     assert (out / "smile" / "smile_anim.usdc").stat().st_mtime_ns != before["smile"]

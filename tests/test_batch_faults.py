@@ -77,11 +77,12 @@ def landed(out):
 
 
 @pytest.mark.slow
-def test_a_worker_killed_mid_take_has_its_take_retried_complete(tmp_path):
+def test_a_worker_killed_mid_take_has_its_take_retried_complete(tmp_path, classic_rig_stage):
     for name in ("a", "b", "c"):
         ramp_csv(tmp_path / f"{name}.csv", 40, "mouthSmileLeft")
     (tmp_path / "m.csv").write_text(
-        "id,input,kind,options\n" + "".join(f"{n},{n}.csv,animate,--video-max-frames 40\n" for n in ("a", "b", "c"))
+        "id,input,kind,rig,options\n"
+        + "".join(f"{n},{n}.csv,animate,{classic_rig_stage},--video-max-frames 40\n" for n in ("a", "b", "c"))
     )
     out = tmp_path / "out"
     process = start_batch(tmp_path / "m.csv", out, "--jobs", "2")
@@ -104,12 +105,13 @@ def test_a_worker_killed_mid_take_has_its_take_retried_complete(tmp_path):
 
 
 @pytest.mark.slow
-def test_ctrl_c_keeps_finished_takes_and_leaves_no_partial_one(tmp_path):
+def test_ctrl_c_keeps_finished_takes_and_leaves_no_partial_one(tmp_path, classic_rig_stage):
     names = [f"t{k}" for k in range(5)]
     for name in names:
         ramp_csv(tmp_path / f"{name}.csv", 30, "browInnerUp")
     (tmp_path / "m.csv").write_text(
-        "id,input,kind,options\n" + "".join(f"{n},{n}.csv,animate,--video-max-frames 30\n" for n in names)
+        "id,input,kind,rig,options\n"
+        + "".join(f"{n},{n}.csv,animate,{classic_rig_stage},--video-max-frames 30\n" for n in names)
     )
     out = tmp_path / "out"
     process = start_batch(tmp_path / "m.csv", out, "--jobs", "2")

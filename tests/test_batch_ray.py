@@ -47,10 +47,10 @@ def skin_frames(stage_path):
     return [np.asarray(attribute.Get(t)) for t in attribute.GetTimeSamples()]
 
 
-def test_warpface_starts_a_local_ray_and_shuts_it_down(tmp_path, capsys):
+def test_warpface_starts_a_local_ray_and_shuts_it_down(tmp_path, capsys, classic_rig_stage):
     assert not ray.is_initialized()
     brow_csv(tmp_path / "a.csv", 6)
-    (tmp_path / "m.csv").write_text("id,input,kind,options\na,a.csv,animate,--no-video\n")
+    (tmp_path / "m.csv").write_text(f"id,input,kind,rig,options\na,a.csv,animate,{classic_rig_stage},--no-video\n")
     argv = ["--quiet", "--device", "cpu", "batch", str(tmp_path / "m.csv"), "--out", str(tmp_path / "out")]
     assert main([*argv, "--engine", "ray"]) == 0
     assert not ray.is_initialized()  # what warpface started, it stopped

@@ -5,9 +5,9 @@ Each task asks for one CPU and, when the cluster has GPUs and the batch is not o
 a large rig, :data:`SMALL_RIG_GPU` of one for a rig under :data:`SMALL_RIG_VERTICES` vertices (several small takes
 share a device). A task whose worker is lost (killed, its node gone) is retried by Ray up to ``retries`` times; a
 take's own error is caught inside the task and reported, so it is never retried (``retry_exceptions`` off). Ray
-reuses its worker processes, so Warp initialises once per worker, with the driver's kernel cache folder when the
-node has it. On a cluster the output folder must be on a file system every node shares, and warpface installed on
-every node.
+reuses its worker processes, so Warp initialises (with the driver's kernel cache folder when the node has it) and
+each rig's expression model is built once per worker. On a cluster the output folder must be on a file system every
+node shares, and warpface installed on every node.
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ SMALL_RIG_VERTICES = 50_000
 SMALL_RIG_GPU = 0.25
 """The fraction of a GPU a take of a small rig asks for."""
 
-_worker_ready = False
+_worker_rigs = None
+"""This Ray worker's :class:`~warpface.commands.rig_models.RigModels` (None until its first take)."""
 
 
 def import_ray():
@@ -37,15 +38,21 @@ def import_ray():
 
 def _ray_take(take, digest: str, out: str, device: str, kernel_cache: str | None) -> dict:
     """The body of a Ray task: one take (see :func:`warpface.batch.take.run_take`)."""
-    global _worker_ready
+    global _worker_rigs
+    from .pool import freeze_survivors
     from .take import run_take
 
-    if not _worker_ready:
+    first = _worker_rigs is None
+    if first:
+        from ..commands.rig_models import RigModels
         from .pool import init_worker
 
         init_worker(kernel_cache if kernel_cache and Path(kernel_cache).is_dir() else None)
-        _worker_ready = True
-    return run_take(take, Path(out), device=device, digest=digest)
+        _worker_rigs = RigModels()
+    entry = run_take(take, Path(out), device=device, digest=digest, rigs=_worker_rigs)
+    if first:
+        freeze_survivors()  # after the worker's first take (see there)
+    return entry
 
 
 def ray_results(work, out, *, device: str | None, address: str | None, retries: int, kernel_cache: str | None):

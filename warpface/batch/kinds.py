@@ -145,9 +145,12 @@ def _rig_size(path: Path) -> int | str:
         return f"does not load ({one_line(error)})"
 
 
-def run_kind(take, folder: Path, *, device: str | None) -> Path:
+def run_kind(take, folder: Path, *, device: str | None, rigs=None) -> Path:
     """Run ``take`` (a :class:`~warpface.batch.manifest.Take`) through its command's handler, writing into
     ``folder`` (which exists); returns the take's stage, ``folder/<id>.usda``.
+
+    ``rigs``: the worker's :class:`~warpface.commands.rig_models.RigModels`, which an ``animate`` take takes its
+    rig and expression model from (built once per worker, not once per take); None: built for this take.
 
     The command prints its usual summary (the caller decides where stdout goes); any error propagates.
     """
@@ -163,7 +166,12 @@ def run_kind(take, folder: Path, *, device: str | None) -> Path:
         words = [str(take.input), "--rig", str(stage), "--out", str(folder / "fit")]
     args = _parser(take.kind).parse_args(words + list(take.options))
     args.device, args.quiet = device, True
-    code = args.handler(args)
+    if take.kind == "animate":
+        from ..commands.animate import run_animate
+
+        code = run_animate(args, rigs=rigs)
+    else:
+        code = args.handler(args)
     if code:
         raise RuntimeError(f"warpface {take.kind} ended with exit code {code}")
     return stage

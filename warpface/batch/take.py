@@ -95,8 +95,11 @@ def remove_leftovers(out: Path, take_id: str) -> None:
             shutil.rmtree(leftover, ignore_errors=True)
 
 
-def run_take(take, out: Path, *, device: str | None, digest: str) -> dict:
+def run_take(take, out: Path, *, device: str | None, digest: str, rigs=None) -> dict:
     """Run one take into ``out/<id>`` atomically; returns its report entry (``status`` ``done`` or ``failed``).
+
+    ``rigs``: the worker's :class:`~warpface.commands.rig_models.RigModels`, kept between its takes (see
+    :func:`~warpface.batch.kinds.run_kind`).
 
     The take's own errors (a corrupt input, unknown channels) are caught and reported as one line; only a lost
     worker leaves the take undone (absent), for the engine to retry.
@@ -109,7 +112,7 @@ def run_take(take, out: Path, *, device: str | None, digest: str) -> dict:
     try:
         partial.mkdir()
         with open(partial / "log.txt", "w") as log, contextlib.redirect_stdout(log):
-            stage = _run_in(take, partial, device)
+            stage = _run_in(take, partial, device, rigs)
             frames, moment = _most_active_moment(stage)
             thumb_note = _thumbnail(stage, moment, partial / "thumb.png", take.kind)
         seconds = time.perf_counter() - started
@@ -148,10 +151,10 @@ def failed_entry(take, digest: str, error: str | None) -> dict:
     }
 
 
-def _run_in(take, folder: Path, device: str | None) -> Path:
+def _run_in(take, folder: Path, device: str | None, rigs) -> Path:
     from .kinds import run_kind
 
-    return run_kind(take, folder, device=device)
+    return run_kind(take, folder, device=device, rigs=rigs)
 
 
 def _publish(partial: Path, final: Path) -> None:

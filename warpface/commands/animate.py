@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validate import as_count
+from .._validate import as_count, expect_instance
 from .common import add_command
 
 __all__ = ["add_parser", "run_animate", "animate", "AnimateResult", "prepare_controls", "PREVIEW_MAX_FRAMES"]
@@ -49,22 +49,6 @@ class AnimateResult:
     ``save stage``, ``video``."""
 
 
-def _load_rig(rig_path):
-    """(FaceRig in stage units, the rig's stage or None, meters per unit, the stage's rate or None)."""
-    from ..usd import open_stage, read_rig, stage_meters_per_unit
-
-    if rig_path is None:
-        from ..assets import default_rig
-
-        return default_rig(), None, 1.0, None
-    if Path(rig_path).suffix.lower() not in (".usda", ".usdc", ".usd", ".usdz"):
-        raise ValueError(f"--rig {rig_path}: expected a USD rig stage (.usda, .usdc, .usd)")
-    stage = open_stage(rig_path)
-    units = stage_meters_per_unit(stage)
-    rate = stage.GetTimeCodesPerSecond() if stage.GetRootLayer().HasTimeCodesPerSecond() else None
-    return read_rig(stage, meters_per_unit=units), stage, units, rate
-
-
 def _mapping(rig, rig_stage, map_spec):
     """(mapping in the rig's units, label, channels it cannot drive on this rig).
 
@@ -75,16 +59,16 @@ def _mapping(rig, rig_stage, map_spec):
     from ..drivers.default_tables import rig_control_names
     from ..usd import open_stage
     from ..usd.mapping_io import mapping_names, read_mapping
+    from .rig_models import RIG_SUFFIXES
 
     if map_spec is None and (rig_stage is None or "default" not in mapping_names(rig_stage)):
         mapping, _, orphaned = mapping_for_rig(rig)
         return mapping, "default table", orphaned
     name, source = map_spec or "default", rig_stage
     file, colon, stored_name = (map_spec or "").rpartition(":")
-    usd_suffixes = (".usda", ".usdc", ".usd", ".usdz")
-    if colon and Path(file).suffix.lower() in usd_suffixes:
+    if colon and Path(file).suffix.lower() in RIG_SUFFIXES:
         source, name = open_stage(file), stored_name or "default"
-    elif map_spec and Path(map_spec).suffix.lower() in usd_suffixes:
+    elif map_spec and Path(map_spec).suffix.lower() in RIG_SUFFIXES:
         source, name = open_stage(map_spec), "default"
     if source is None:
         raise ValueError(f"--map {map_spec}: the built-in rig has no stored mappings; pass --rig or FILE.usda[:NAME]")
@@ -118,6 +102,7 @@ def animate(
     video_max_frames: int = PREVIEW_MAX_FRAMES,
     device=None,
     progress: bool = True,
+    rigs=None,
 ) -> AnimateResult:
     """Drive a rig with a driver file and write ``out`` (the rig + control time samples), its baked cache
     ``<out stem>_anim.usdc`` and, with ``video``, ``<out stem>.mp4``.
@@ -133,6 +118,9 @@ def animate(
         neutral, gain, one_euro: clean-up (see :func:`warpface.drivers.clean`).
         video: render a preview video labelled with the active channels (at most ``video_max_frames``
             frames: a longer take is shown at every k-th frame).
+        rigs: a :class:`~warpface.commands.rig_models.RigModels` to take the rig and its expression model from
+            (and keep them in) across calls; default: read and built for this call only. The output is the same
+            bits either way.
 
     Raises:
         ValueError: bad driver, rig, mapping or output path (nothing is written then).
@@ -145,13 +133,15 @@ def animate(
     from ..usd.asset_io import asset_link, attach_asset
     from ..usd.jaw_io import JAW_CONTROL_ATTRIBUTES
     from ..usd.mapping_io import write_mapping
+    from .rig_models import RigModels
 
     out = _output_path(out)
     if video:
         as_count(video_max_frames, "--video-max-frames", minimum=1)
+    rigs = RigModels() if rigs is None else expect_instance(rigs, RigModels, "rigs")
     clock = _StepClock()
     curves = usd.read_driver(driver)
-    rig_model, rig_stage, units, stage_rate = _load_rig(rig)
+    rig_model, rig_stage, units, stage_rate = rigs.load(rig)
     mapping, label, orphaned = _mapping(rig_model, rig_stage, map_spec)
     clock.step("read driver and rig")
     rate = float(fps or stage_rate or (round(curves.fps) if curves.fps else 30.0))
@@ -188,7 +178,7 @@ def animate(
     clock.step("write controls")
     root = stage.GetRootLayer()
     cache_path = out.with_name(out.stem + CACHE_SUFFIX)
-    model = rig_model.model(device=device)
+    model = rigs.model(rig_model, device=device)
     clock.step("model")
     created = create_missing_folders(out.parent)  # as `track` does; removed again if the bake writes nothing
     try:
@@ -336,8 +326,10 @@ def _gains(items) -> dict[str, float] | None:
     return gains
 
 
-def run_animate(args) -> int:
-    """The ``animate`` command's handler: one summary line per output; notes and unmapped channels once."""
+def run_animate(args, *, rigs=None) -> int:
+    """The ``animate`` command's handler: one summary line per output; notes and unmapped channels once.
+
+    ``rigs``: see :func:`animate` (the batch's workers keep one between takes)."""
     from ..drivers.cleanup import OneEuroFilter
 
     one_euro = OneEuroFilter(min_cutoff=args.filter_min_cutoff, beta=args.filter_beta) if args.filter else None
@@ -355,6 +347,7 @@ def run_animate(args) -> int:
             device=args.device,
             video_max_frames=args.video_max_frames,
             progress=not args.quiet,
+            rigs=rigs,
         )
     except ValueError as error:  # messages relayed from pxr can span lines: the CLI prints one
         raise ValueError(" ".join(str(error).split())) from None
