@@ -7,7 +7,8 @@ and the solver's Jacobian are unchanged (docs/RIG.md §14):
   blended back toward the muscle's own zone field, per vertex, where it would turn a triangle over that
   the zone field alone keeps: ``w' = w₀ + g·(w − w₀)``, ``g ∈ [0, 1]``.
 - :func:`unfolded_weights`: a scalar blend weight (the jaw's, SPEC §6.2) diffused over the mesh's edges
-  around the triangles a reference motion would fold.
+  around the triangles a reference motion would fold, then made equal on the corners of each triangle still
+  folded (:func:`equalized_weights`).
 
 A triangle *folds* under a displacement ``d`` when its deformed area vector keeps less than
 :data:`FOLD_MARGIN` of its rest one along the rest normal: ``n₀·n(x + d) < m·|n₀|²`` (``m = 0`` is the flip).
@@ -18,7 +19,15 @@ from __future__ import annotations
 import numpy as np
 from scipy.sparse import coo_matrix
 
-__all__ = ["FOLD_MARGIN", "FOLD_TRAVEL", "fold_blend", "folded_triangles", "unfolded_response", "unfolded_weights"]
+__all__ = [
+    "FOLD_MARGIN",
+    "FOLD_TRAVEL",
+    "equalized_weights",
+    "fold_blend",
+    "folded_triangles",
+    "unfolded_response",
+    "unfolded_weights",
+]
 
 FOLD_MARGIN = 0.1
 """A triangle folds when its area along the rest normal falls below this fraction of the rest area."""
@@ -29,6 +38,8 @@ _GUARD_ROUNDS = 30
 """Most rounds of :func:`unfolded_response` (each eases the vertices of the triangles still folded)."""
 _STALL_ROUNDS = 10
 """:func:`unfolded_weights` stops when this many rounds have not lowered the count of folded triangles."""
+_EQUAL_ROUNDS = 200
+"""Most rounds of :func:`equalized_weights` (81 on the ICT face's jaw, 27 on the Lee Perry-Smith scan's)."""
 
 
 def _area_vectors(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -100,12 +111,15 @@ def unfolded_weights(
     *,
     free: np.ndarray | None = None,
     rounds: int = 100,
+    slides: np.ndarray | None = None,
 ) -> np.ndarray:
     """Blend weights ``w`` (V,) of a motion ``x + w·motion`` ((V, 3) at a reference amplitude) diffused where that
     motion folds triangles: each round, the vertices of the folded triangles and their three rings take four steps of
     ``w ← ½w + ½·mean of the neighbours``, until none folds, ``rounds`` are done, or the count of folded triangles
     has not fallen for :data:`_STALL_ROUNDS` rounds (a fold the motion itself makes, at a mouth corner where the
-    lips' weights meet). Only the ``free`` vertices (V,) bool (default: all) change. Returns values in [0, 1]."""
+    lips' weights meet); then :func:`equalized_weights` over ``motion`` and the further rigid displacements
+    ``slides`` (S, 3) (each the same at every vertex; default none). Only the ``free`` vertices (V,) bool
+    (default: all) change. Returns values in [0, 1]."""
     graph, degree = _vertex_graph(triangles, len(points))
     weights = np.asarray(weights, dtype=np.float64).copy()
     best, since = len(triangles) + 1, 0
@@ -123,4 +137,43 @@ def unfolded_weights(
             region &= free
         for _step in range(4):
             weights = np.where(region, 0.5 * weights + 0.5 * (graph @ weights) / degree, weights)
-    return np.clip(weights, 0.0, 1.0)
+    slides = np.zeros((0, 3)) if slides is None else np.asarray(slides, dtype=np.float64).reshape(-1, 3)
+    motions = np.concatenate([motion[None], np.broadcast_to(slides[:, None, :], (len(slides), *motion.shape))])
+    return equalized_weights(points, triangles, np.clip(weights, 0.0, 1.0), motions, free=free)
+
+
+def equalized_weights(
+    points: np.ndarray,
+    triangles: np.ndarray,
+    weights: np.ndarray,
+    motions: np.ndarray,
+    *,
+    free: np.ndarray | None = None,
+    rounds: int = _EQUAL_ROUNDS,
+) -> np.ndarray:
+    """Blend weights ``w`` (V,) of rigid displacements ``motions`` ((V, 3), or (M, V, 3) for several) made equal on
+    the corners of every triangle that some ``x + w·motion`` folds (margin :data:`FOLD_MARGIN`): each round, every
+    ``free`` vertex (V,) bool (default: all) of a folded triangle takes the mean, over the folded triangles it
+    belongs to, of their corners' mean weight; until none folds or ``rounds`` are done.
+
+    Why it ends the folds the diffusion leaves (docs/RIG.md §14): with one weight ``w ∈ [0, 1]`` on its corners a
+    triangle moves by the affine map ``(1 − w) I + w R`` (plus a translation) of a rigid motion ``R`` turning by
+    less than a right angle, whose cofactor keeps every normal on its side, so it cannot fold; the folds sit on
+    slivers at the mouth corners, where a weight change too small for the edge diffusion to notice spans the
+    sliver's short side. Each round only averages existing weights, so the values stay in the input's range."""
+    weights = np.asarray(weights, dtype=np.float64).copy()
+    motions = np.asarray(motions, dtype=np.float64)
+    motions = motions[None] if motions.ndim == 2 else motions
+    count = len(points)
+    for _ in range(rounds):
+        folded = np.zeros(len(triangles), dtype=bool)
+        for motion in motions:
+            folded |= folded_triangles(points, triangles, points + weights[:, None] * motion)
+        if not folded.any():
+            break
+        corners = triangles[folded]
+        total = np.bincount(corners.ravel(), np.repeat(weights[corners].mean(axis=1), 3), minlength=count)
+        hits = np.bincount(corners.ravel(), minlength=count)
+        moved = hits > 0 if free is None else (hits > 0) & free
+        weights[moved] = total[moved] / hits[moved]
+    return weights
