@@ -133,11 +133,13 @@ def unfolded_thickness(
 
 
 def wrinkle_heights(
-    points: np.ndarray, triangles: np.ndarray, moved: np.ndarray, offsets, wrinkle, shape, depth, kr
+    points: np.ndarray, triangles: np.ndarray, moved: np.ndarray, bulged: np.ndarray, offsets, wrinkle, shape, depth, kr
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(``Σ_k depth[wrinkle[k]]·shape[k]·C(r; kr[wrinkle[k]])`` per vertex (V,), ``N(moved)`` (V, 3)): the wrinkles'
-    heights (SPEC §1.4, C of eq. 5) at the stretch of ``moved`` against ``points``, profiles as vertex-major CSR."""
-    r, normal = _stretch_and_normals(points, triangles, moved)
+    """(``Σ_k depth[wrinkle[k]]·shape[k]·C(r; kr[wrinkle[k]])`` per vertex (V,), ``N(bulged)`` (V, 3)): the wrinkles'
+    heights (SPEC §1.4, C of eq. 5) at the stretch ``r`` of the muscle stage ``moved`` against ``points`` and the
+    bulge's normals, as the frame kernels take them; profiles as vertex-major CSR."""
+    r = _stretch_and_normals(points, triangles, moved)[0]
+    normal = _stretch_and_normals(points, triangles, bulged)[1]
     vertex = np.repeat(np.arange(len(points)), np.diff(np.asarray(offsets)))
     rate = np.where(kr > 0.0, 1.0 - 1.0 / np.where(kr > 0.0, kr, 1.0), 0.0)
     k, x = np.asarray(kr)[wrinkle], r[vertex]
@@ -154,9 +156,10 @@ def unfolded_profiles(
     times their :func:`wrinkle_heights` (``profiles``: its ``offsets, wrinkle, shape, depth, kr``), a
     triangle its bulge keeps."""
     points = np.asarray(points, dtype=np.float64)
-    bulged = [bulge_points(points, triangles, points + np.asarray(m, dtype=np.float64), thickness) for m in motions]
+    moved = [points + np.asarray(m, dtype=np.float64) for m in motions]
+    bulged = [bulge_points(points, triangles, x, thickness) for x in moved]
     kept = [~folded_triangles(points, triangles, x) for x in bulged]
-    lifts = [wrinkle_heights(points, triangles, x, *profiles) for x in bulged]
+    lifts = [wrinkle_heights(points, triangles, x, b, *profiles) for x, b in zip(moved, bulged)]
 
     def lifted(i: int, fade: np.ndarray) -> np.ndarray:
         height, normal = lifts[i]
