@@ -22,6 +22,7 @@ from scipy.sparse import coo_matrix
 __all__ = [
     "FOLD_MARGIN",
     "FOLD_TRAVEL",
+    "equalized_field",
     "equalized_weights",
     "fold_blend",
     "folded_triangles",
@@ -39,6 +40,9 @@ _GUARD_ROUNDS = 30
 _STALL_ROUNDS = 10
 """:func:`unfolded_weights` stops when this many rounds have not lowered the count of folded triangles."""
 _EQUAL_ROUNDS = 200
+_EQUAL_STALL_ROUNDS = 40
+""":func:`equalized_weights` stops when this many rounds have not lowered the count (an averaging round may raise it
+for a while before the next lowers it)."""
 """Most rounds of :func:`equalized_weights` (81 on the ICT face's jaw, 27 on the Lee Perry-Smith scan's)."""
 
 
@@ -154,26 +158,73 @@ def equalized_weights(
     """Blend weights ``w`` (V,) of rigid displacements ``motions`` ((V, 3), or (M, V, 3) for several) made equal on
     the corners of every triangle that some ``x + w·motion`` folds (margin :data:`FOLD_MARGIN`): each round, every
     ``free`` vertex (V,) bool (default: all) of a folded triangle takes the mean, over the folded triangles it
-    belongs to, of their corners' mean weight; until none folds or ``rounds`` are done.
+    belongs to, of their corners' mean weight; until none folds, ``rounds`` are done, or the count of folded
+    triangles has not fallen for :data:`_EQUAL_STALL_ROUNDS` rounds (a fold whose corners are not free); returns the
+    weights of the round that folded fewest.
 
     Why it ends the folds the diffusion leaves (docs/RIG.md §14): with one weight ``w ∈ [0, 1]`` on its corners a
     triangle moves by the affine map ``(1 − w) I + w R`` (plus a translation) of a rigid motion ``R`` turning by
     less than a right angle, whose cofactor keeps every normal on its side, so it cannot fold; the folds sit on
     slivers at the mouth corners, where a weight change too small for the edge diffusion to notice spans the
     sliver's short side. Each round only averages existing weights, so the values stay in the input's range."""
-    weights = np.asarray(weights, dtype=np.float64).copy()
+    weights = np.asarray(weights, dtype=np.float64)
     motions = np.asarray(motions, dtype=np.float64)
     motions = motions[None] if motions.ndim == 2 else motions
+
+    def moved(values: np.ndarray, motion: np.ndarray) -> np.ndarray:
+        return points + values[:, None] * motion
+
+    return _equalized(points, triangles, weights, motions, moved, free, rounds)
+
+
+def equalized_field(
+    points: np.ndarray, triangles: np.ndarray, field: np.ndarray, contraction: float, *, rounds: int = _EQUAL_ROUNDS
+) -> np.ndarray:
+    """A muscle's field ``w`` (V, 3) made equal on the corners of every triangle that ``x + K·w`` folds at
+    ``K = contraction`` (margin :data:`FOLD_MARGIN`), as :func:`equalized_weights` does with weights: a triangle
+    whose corners share one displacement only moves, so it cannot fold, at any ``K``. Returns (V, 3)."""
+    field = np.asarray(field, dtype=np.float64)
+
+    def moved(values: np.ndarray, scale: float) -> np.ndarray:
+        return points + scale * values
+
+    return _equalized(points, triangles, field, [float(contraction)], moved, None, rounds)
+
+
+def _equalized(points, triangles, values, motions, moved, free, rounds) -> np.ndarray:
+    """The rounds of :func:`equalized_weights` over per-vertex ``values`` (V,) or (V, 3); ``moved(values, motion)``
+    gives the moved points (V, 3) for each of ``motions``."""
+    values = values.copy()
     count = len(points)
-    for _ in range(rounds):
-        folded = np.zeros(len(triangles), dtype=bool)
+    rest = _area_vectors(points, triangles)
+    area = np.einsum("ti,ti->t", rest, rest)
+
+    def folds(subset: np.ndarray) -> np.ndarray:
+        """Whether some motion folds each triangle of ``subset`` (indices) at the current values."""
+        out = np.zeros(len(subset), dtype=bool)
         for motion in motions:
-            folded |= folded_triangles(points, triangles, points + weights[:, None] * motion)
-        if not folded.any():
+            turned = _area_vectors(moved(values, motion), triangles[subset])
+            out |= (area[subset] > 0.0) & (np.einsum("ti,ti->t", turned, rest[subset]) < FOLD_MARGIN * area[subset])
+        return out
+
+    folded = folds(np.arange(len(triangles)))
+    best, since, kept = int(folded.sum()), 0, values.copy()
+    for _ in range(rounds):
+        if not folded.any() or since > _EQUAL_STALL_ROUNDS:
             break
         corners = triangles[folded]
-        total = np.bincount(corners.ravel(), np.repeat(weights[corners].mean(axis=1), 3), minlength=count)
+        means = np.repeat(values[corners].mean(axis=1), 3, axis=0)
         hits = np.bincount(corners.ravel(), minlength=count)
-        moved = hits > 0 if free is None else (hits > 0) & free
-        weights[moved] = total[moved] / hits[moved]
-    return weights
+        changed = hits > 0 if free is None else (hits > 0) & free
+        if values.ndim == 1:
+            total = np.bincount(corners.ravel(), means, minlength=count)
+        else:
+            total = np.stack([np.bincount(corners.ravel(), means[:, k], minlength=count) for k in range(3)], axis=1)
+        values[changed] = total[changed] / hits[changed].reshape((-1,) + (1,) * (values.ndim - 1))
+        near = np.flatnonzero(changed[triangles].any(axis=1))  # only these triangles can have changed
+        folded[near] = folds(near)
+        if folded.sum() < best:
+            best, since, kept = int(folded.sum()), 0, values.copy()
+        else:
+            since += 1
+    return kept

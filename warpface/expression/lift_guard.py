@@ -83,28 +83,45 @@ def reference_motions(points: np.ndarray, fields, hinged, jaw=None) -> list[np.n
 
 def _faded(triangles: np.ndarray, count: int, motions, lifted, rounds: int) -> np.ndarray:
     """The fade ``g`` (V,) of :func:`unfolded_thickness` / :func:`unfolded_profiles`: ``lifted(i, g)`` gives the
-    triangles (T,) bool that motion ``i`` folds at fade ``g`` and its stage before the lift keeps."""
+    triangles (k, 3) that motion ``i`` folds at fade ``g`` and its stage before the lift keeps."""
     graph = _vertex_graph(triangles, count)[0]
     fade = np.ones(count)
     everything = list(range(len(motions)))
     active = everything
     for round_ in range(rounds):
-        folded = np.zeros(len(triangles), dtype=bool)
-        still = []
+        folded, still = [], []
         for i in active if round_ < rounds - 1 else everything:
             hit = lifted(i, fade)
-            if hit.any():
-                folded |= hit
+            if len(hit):
+                folded.append(hit)
                 still.append(i)
-        if not folded.any():
+        if not folded:
             if active is everything:
                 break
             active = everything  # a last check of every motion
             continue
         active = still
-        fade[np.unique(triangles[folded])] = 0.0
+        fade[np.unique(np.concatenate(folded))] = 0.0
         fade = _limited_rise(graph, fade)
     return fade
+
+
+def _supports(triangles: np.ndarray, count: int, moved) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per motion, (the triangles (C, 3) the stages need, a mask (C,) of those whose fold a lift can change).
+
+    Only vertices within two rings of a moved vertex lift differently from rest (their stretch, or a neighbour's,
+    changed); every triangle with a corner there is checked, and every triangle within three rings is needed to
+    compute their stretch and normals exactly."""
+    graph = _vertex_graph(triangles, count)[0]
+    out = []
+    for motion in moved:
+        ring = np.linalg.norm(motion, axis=1) > 0.0
+        rings = [ring]
+        for _ in range(3):
+            rings.append(rings[-1] | (graph @ rings[-1].astype(np.float64) > 0.0))
+        needed = triangles[rings[3][triangles].any(axis=1)]
+        out.append((needed, rings[2][needed].any(axis=1)))
+    return out
 
 
 def unfolded_thickness(
@@ -119,15 +136,17 @@ def unfolded_thickness(
     motions that folded nothing last round are not checked again until the last. ≤ ``rounds`` rounds."""
     points = np.asarray(points, dtype=np.float64)
     thickness = np.asarray(thickness, dtype=np.float64)
-    moved = [points + np.asarray(m, dtype=np.float64) for m in motions]
-    if not moved or not np.any(thickness > 0.0):
+    motions = [np.asarray(m, dtype=np.float64) for m in motions]
+    if not motions or not np.any(thickness > 0.0):
         return thickness
-    kept = [~folded_triangles(points, triangles, x) for x in moved]
+    supports = _supports(triangles, len(points), motions)
+    moved = [points + m for m in motions]
+    kept = [checked & ~folded_triangles(points, near, x) for (near, checked), x in zip(supports, moved)]
 
     def lifted(i: int, fade: np.ndarray) -> np.ndarray:
-        return kept[i] & folded_triangles(
-            points, triangles, bulge_points(points, triangles, moved[i], fade * thickness)
-        )
+        near = supports[i][0]
+        bulged = bulge_points(points, near, moved[i], fade * thickness)
+        return near[kept[i] & folded_triangles(points, near, bulged)]
 
     return thickness * _faded(triangles, len(points), moved, lifted, rounds)
 
@@ -157,13 +176,15 @@ def unfolded_profiles(
     triangle its bulge keeps."""
     points = np.asarray(points, dtype=np.float64)
     moved = [points + np.asarray(m, dtype=np.float64) for m in motions]
-    bulged = [bulge_points(points, triangles, x, thickness) for x in moved]
-    kept = [~folded_triangles(points, triangles, x) for x in bulged]
-    lifts = [wrinkle_heights(points, triangles, x, b, *profiles) for x, b in zip(moved, bulged)]
+    supports = _supports(triangles, len(points), [x - points for x in moved])
+    bulged = [bulge_points(points, near, x, thickness) for (near, _), x in zip(supports, moved)]
+    kept = [checked & ~folded_triangles(points, near, x) for (near, checked), x in zip(supports, bulged)]
+    lifts = [wrinkle_heights(points, near, x, b, *profiles) for (near, _), x, b in zip(supports, moved, bulged)]
 
     def lifted(i: int, fade: np.ndarray) -> np.ndarray:
+        near = supports[i][0]
         height, normal = lifts[i]
-        return kept[i] & folded_triangles(points, triangles, bulged[i] + (fade * height)[:, None] * normal)
+        return near[kept[i] & folded_triangles(points, near, bulged[i] + (fade * height)[:, None] * normal)]
 
     return _faded(triangles, len(points), bulged, lifted, rounds)
 

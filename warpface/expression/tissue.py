@@ -32,13 +32,14 @@ import warp as wp
 from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
-from .fold_guard import FOLD_TRAVEL, unfolded_response
+from .fold_guard import FOLD_TRAVEL, equalized_field, unfolded_response
 from .formulas import bunching_pull, sliding_pull, thickening_pull
 from .muscles import Muscle, MuscleWeights
 
 __all__ = [
     "tissue_response",
     "skin_muscle_weights",
+    "unfolded_fields",
     "stretch_rate",
     "neighbourhood_mean",
     "neighbourhood_averager",
@@ -236,4 +237,30 @@ def skin_muscle_weights(mesh, muscles: Sequence[Muscle], thickness: np.ndarray, 
         weights = tissue_response(
             mesh.points, mesh.triangles, normals, np.asarray(thickness, dtype=np.float64), muscles, weights
         )
-    return sealed_weights(list(muscles), weights)
+    return sealed_weights(list(muscles), unfolded_fields(mesh, list(muscles), weights))
+
+
+def unfolded_fields(mesh, muscles: Sequence[Muscle], weights: MuscleWeights) -> MuscleWeights:
+    """Each muscle's field made equal on the corners of the triangles it folds at its reference contraction
+    (:func:`~warpface.expression.fold_guard.equalized_field`; docs/RIG.md §14): ``K = 1`` for a lid hinge or the
+    lips' seal (their ``K`` ends at 1), else the ``K`` that moves the field's farthest vertex by
+    :data:`~warpface.expression.fold_guard.FOLD_TRAVEL` of the mesh's bounding-box diagonal."""
+    from .lids import LidMuscle
+
+    points = np.asarray(mesh.points, dtype=np.float64)
+    triangles = mesh.triangles[~mesh.degenerate_triangles]
+    travel = FOLD_TRAVEL * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0))) if len(points) else 0.0
+    row = np.repeat(np.arange(len(points)), np.diff(weights.offsets))
+    fields, changed = [], False
+    for index, muscle in enumerate(muscles):
+        mine = weights.muscle == index
+        field = np.zeros((len(points), 3))
+        field[row[mine]] = weights.weight[mine]
+        peak = float(np.linalg.norm(field, axis=1).max()) if len(field) else 0.0
+        if peak > 0.0:
+            contraction = 1.0 if isinstance(muscle, LidMuscle) else travel / peak
+            equal = equalized_field(points, triangles, field, contraction)
+            changed |= not np.array_equal(equal, field)
+            field = equal
+        fields.append(field)
+    return MuscleWeights.from_fields(len(points), fields) if changed else weights
