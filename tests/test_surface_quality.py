@@ -11,6 +11,7 @@ from warpface.assets import default_rig
 from warpface.assets.quality import flipped_triangles
 from warpface.data import ict_face_region, ict_landmark_indices
 from warpface.expression.fold_guard import (
+    equalized_field,
     equalized_weights,
     fold_blend,
     folded_triangles,
@@ -141,12 +142,13 @@ def _turn(points: np.ndarray, angle: float, pivot) -> np.ndarray:
 
 
 def test_equal_weights_end_the_folds_a_turn_makes_on_slivers():
-    # A grid squeezed to slivers along y (0.05 high, 1 wide) under a turn about x through a pivot 2 below:
-    # a weight falling across the slivers' short side folds them (the weights' layout at a mouth corner).
+    # A grid squeezed to slivers along y (0.05 high, 1 wide) under a turn about x through a pivot 2 behind it, which
+    # carries it ~0.7 down: a weight rising by 0.1 per sliver row (the weights' layout at a mouth corner) moves each
+    # row 0.07 further down than the one below it, past it.
     points, triangles = _grid(10)
     points[:, 1] *= 0.05
-    motion = _turn(points, 0.35, [0.0, -2.0, 0.0])
-    weights = np.clip(1.0 - 0.25 * points[:, 1] / 0.05, 0.0, 1.0)  # falls by 0.25 per sliver row
+    motion = _turn(points, 0.35, [0.0, 0.0, -2.0])
+    weights = 0.1 + 0.1 * points[:, 1] / 0.05
     assert folded_triangles(points, triangles, points + weights[:, None] * motion).any()
     out = equalized_weights(points, triangles, weights, motion)
     assert not folded_triangles(points, triangles, points + out[:, None] * motion).any()
@@ -155,7 +157,7 @@ def test_equal_weights_end_the_folds_a_turn_makes_on_slivers():
     both = equalized_weights(points, triangles, weights, slides)
     for moved in slides:
         assert not folded_triangles(points, triangles, points + both[:, None] * moved).any()
-    free = points[:, 0] < 4.5
+    free = points[:, 0] < 4.5  # the other half keeps its weights (and its folds)
     kept = equalized_weights(points, triangles, weights, motion, free=free)
     np.testing.assert_array_equal(kept[~free], weights[~free])
     # weights that fold nothing come back unchanged
@@ -219,7 +221,10 @@ def test_the_bulge_fades_where_a_squeeze_would_fold_a_curved_surface():
     guarded = unfolded_thickness(points, triangles, thickness, [motion])
     assert not folded_triangles(points, triangles, bulge_points(points, triangles, points + motion, guarded)).any()
     assert np.all((guarded >= 0.0) & (guarded <= thickness))
-    assert guarded[points[:, 1] <= 1.0].min() == 1.5  # rows the squeeze does not reach keep their thickness
+    faded_rows = np.unique(points[guarded == 0.0, 1])
+    assert faded_rows.min() >= 4.0  # the folds lie where the squeeze starts, or beyond
+    far = points[:, 1] <= faded_rows.min() - 4.0  # more than four rings away: untouched
+    assert far.any() and np.all(guarded[far] == 1.5)
     # the fade rises by at most a quarter per edge
     fade = guarded / thickness
     for a, b in triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2):
@@ -243,3 +248,19 @@ def test_built_in_and_ict_worst_channels_stay_unfolded():
     names, frames = channel_frames(rig, "arkit", worst)
     flips = flipped_triangles(rig.mesh, rig.model(device=DEVICE).evaluate(frames))
     assert flips.sum() == 0, dict(zip(names, flips))
+
+
+def test_a_field_made_equal_on_its_folds_folds_at_no_contraction():
+    points, triangles = _grid(12)
+    field = np.zeros_like(points)
+    field[:, 0] = np.where(points[:, 0] == 5.0, 1.6, 0.0)  # one column pulled past the next at K = 1
+    field[:, 1] = 0.05 * points[:, 1]
+    assert folded_triangles(points, triangles, points + field).any()
+    equal = equalized_field(points, triangles, field, 1.0)
+    for k in (0.25, 0.5, 1.0):
+        assert not folded_triangles(points, triangles, points + k * equal, 0.0).any()
+    far = np.abs(points[:, 0] - 5.5) > 3.0  # beyond the folded triangles and a few rounds of spreading
+    np.testing.assert_array_equal(equal[far], field[far])
+    lowest, highest = field.min(axis=0), field.max(axis=0)
+    assert np.all(equal >= lowest - 1e-12) and np.all(equal <= highest + 1e-12)  # means of the input only
+    np.testing.assert_array_equal(equalized_field(points, triangles, 0.1 * field, 1.0), 0.1 * field)
