@@ -28,7 +28,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from ..expression.fold_guard import unfolded_weights
+from ..expression.fold_guard import equalized_weights, unfolded_weights
 from ..expression.jaw import Jaw
 from ..mesh import FaceMesh
 from .frame import FaceFrame
@@ -158,9 +158,13 @@ def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.n
     # The weights diffuse further where the reference opening would still fold the skin (docs/RIG.md §14).
     pivot = _pivot(frame, local_landmarks)
     motion = (mesh.points - pivot) @ _rotation(frame.axes[0], _FOLD_ANGLE).T + pivot - mesh.points
+    weights = unfolded_weights(mesh.points, mesh.triangles, weights, motion, free=below > -_GUARD_ABOVE)
+    # What the diffusion leaves folded (slivers in the mouth corners) gets one weight on its corners, at the full
+    # opening and the full slides; anywhere, as the triangles it touches are tiny (docs/RIG.md §14).
     slide = _FOLD_SLIDE * frame.scale
-    slides = [slide * frame.axes[2], slide * frame.axes[0], -slide * frame.axes[0]]
-    return unfolded_weights(mesh.points, mesh.triangles, weights, motion, free=below > -_GUARD_ABOVE, slides=slides)
+    slides = [motion] + [np.broadcast_to(d, motion.shape) for d in (slide * frame.axes[2], slide * frame.axes[0])]
+    slides.append(-slides[-1])
+    return equalized_weights(mesh.points, mesh.triangles, weights, np.stack(slides))
 
 
 def _pivot(frame: FaceFrame, local_landmarks: np.ndarray) -> np.ndarray:

@@ -7,8 +7,8 @@ and the solver's Jacobian are unchanged (docs/RIG.md §14):
   blended back toward the muscle's own zone field, per vertex, where it would turn a triangle over that
   the zone field alone keeps: ``w' = w₀ + g·(w − w₀)``, ``g ∈ [0, 1]``.
 - :func:`unfolded_weights`: a scalar blend weight (the jaw's, SPEC §6.2) diffused over the mesh's edges
-  around the triangles a reference motion would fold, then made equal on the corners of each triangle still
-  folded (:func:`equalized_weights`).
+  around the triangles a reference motion would fold; :func:`equalized_weights` then makes it equal on the corners
+  of each triangle still folded, and :func:`equalized_field` does the same with a muscle's field.
 
 A triangle *folds* under a displacement ``d`` when its deformed area vector keeps less than
 :data:`FOLD_MARGIN` of its rest one along the rest normal: ``n₀·n(x + d) < m·|n₀|²`` (``m = 0`` is the flip).
@@ -115,15 +115,12 @@ def unfolded_weights(
     *,
     free: np.ndarray | None = None,
     rounds: int = 100,
-    slides: np.ndarray | None = None,
 ) -> np.ndarray:
     """Blend weights ``w`` (V,) of a motion ``x + w·motion`` ((V, 3) at a reference amplitude) diffused where that
     motion folds triangles: each round, the vertices of the folded triangles and their three rings take four steps of
     ``w ← ½w + ½·mean of the neighbours``, until none folds, ``rounds`` are done, or the count of folded triangles
     has not fallen for :data:`_STALL_ROUNDS` rounds (a fold the motion itself makes, at a mouth corner where the
-    lips' weights meet); then :func:`equalized_weights` over ``motion`` and the further rigid displacements
-    ``slides`` (S, 3) (each the same at every vertex; default none). Only the ``free`` vertices (V,) bool
-    (default: all) change. Returns values in [0, 1]."""
+    lips' weights meet). Only the ``free`` vertices (V,) bool (default: all) change. Returns values in [0, 1]."""
     graph, degree = _vertex_graph(triangles, len(points))
     weights = np.asarray(weights, dtype=np.float64).copy()
     best, since = len(triangles) + 1, 0
@@ -141,9 +138,7 @@ def unfolded_weights(
             region &= free
         for _step in range(4):
             weights = np.where(region, 0.5 * weights + 0.5 * (graph @ weights) / degree, weights)
-    slides = np.zeros((0, 3)) if slides is None else np.asarray(slides, dtype=np.float64).reshape(-1, 3)
-    motions = np.concatenate([motion[None], np.broadcast_to(slides[:, None, :], (len(slides), *motion.shape))])
-    return equalized_weights(points, triangles, np.clip(weights, 0.0, 1.0), motions, free=free)
+    return np.clip(weights, 0.0, 1.0)
 
 
 def equalized_weights(
@@ -178,20 +173,28 @@ def equalized_weights(
 
 
 def equalized_field(
-    points: np.ndarray, triangles: np.ndarray, field: np.ndarray, contraction: float, *, rounds: int = _EQUAL_ROUNDS
+    points: np.ndarray,
+    triangles: np.ndarray,
+    field: np.ndarray,
+    contraction: float,
+    *,
+    margin: float = FOLD_MARGIN,
+    free: np.ndarray | None = None,
+    rounds: int = _EQUAL_ROUNDS,
 ) -> np.ndarray:
     """A muscle's field ``w`` (V, 3) made equal on the corners of every triangle that ``x + K·w`` folds at
-    ``K = contraction`` (margin :data:`FOLD_MARGIN`), as :func:`equalized_weights` does with weights: a triangle
-    whose corners share one displacement only moves, so it cannot fold, at any ``K``. Returns (V, 3)."""
+    ``K = contraction`` (``margin``), as :func:`equalized_weights` does with weights (only the ``free`` vertices
+    (V,) bool change; default all): a triangle whose corners share one displacement only moves, so it cannot fold,
+    at any ``K``. Returns (V, 3)."""
     field = np.asarray(field, dtype=np.float64)
 
     def moved(values: np.ndarray, scale: float) -> np.ndarray:
         return points + scale * values
 
-    return _equalized(points, triangles, field, [float(contraction)], moved, None, rounds)
+    return _equalized(points, triangles, field, [float(contraction)], moved, free, rounds, margin)
 
 
-def _equalized(points, triangles, values, motions, moved, free, rounds) -> np.ndarray:
+def _equalized(points, triangles, values, motions, moved, free, rounds, margin=FOLD_MARGIN) -> np.ndarray:
     """The rounds of :func:`equalized_weights` over per-vertex ``values`` (V,) or (V, 3); ``moved(values, motion)``
     gives the moved points (V, 3) for each of ``motions``."""
     values = values.copy()
@@ -204,7 +207,7 @@ def _equalized(points, triangles, values, motions, moved, free, rounds) -> np.nd
         out = np.zeros(len(subset), dtype=bool)
         for motion in motions:
             turned = _area_vectors(moved(values, motion), triangles[subset])
-            out |= (area[subset] > 0.0) & (np.einsum("ti,ti->t", turned, rest[subset]) < FOLD_MARGIN * area[subset])
+            out |= (area[subset] > 0.0) & (np.einsum("ti,ti->t", turned, rest[subset]) < margin * area[subset])
         return out
 
     folded = folds(np.arange(len(triangles)))

@@ -54,6 +54,9 @@ than the skin's own curls (a lip rolling into the mouth, a lid margin); and the 
 sliver triangle at a mouth or eye corner must not raise a spike. Neighbourhoods are Euclidean, so
 they reach across the lips' slit and the lid opening."""
 BUNCHING_CAP = 0.5
+_HINGE_FREE = 0.5
+""":func:`unfolded_fields` changes a hinge's field only where it turns by at most half its largest angle (a taper
+``1 − |θ|/max|θ| ≥`` this): the corners of the opening, not the margins that meet."""
 """Bunching saturates smoothly (``c·tanh(b/c)``) at this fraction of the muscle's largest pull."""
 
 
@@ -243,9 +246,9 @@ def skin_muscle_weights(mesh, muscles: Sequence[Muscle], thickness: np.ndarray, 
 def unfolded_fields(mesh, muscles: Sequence[Muscle], weights: MuscleWeights) -> MuscleWeights:
     """Each muscle's field made equal on the corners of the triangles it folds at its reference contraction
     (:func:`~warpface.expression.fold_guard.equalized_field`; docs/RIG.md §14): ``K = 1`` for a lid hinge or the
-    lips' seal (their ``K`` ends at 1), else the ``K`` that moves the field's farthest vertex by
+    lips' seal (their ``K`` ends at 1; only flips count), else the ``K`` that moves the field's farthest vertex by
     :data:`~warpface.expression.fold_guard.FOLD_TRAVEL` of the mesh's bounding-box diagonal."""
-    from .lids import LidMuscle
+    from .lids import LidMuscle, hinge_taper
 
     points = np.asarray(mesh.points, dtype=np.float64)
     triangles = mesh.triangles[~mesh.degenerate_triangles]
@@ -258,8 +261,13 @@ def unfolded_fields(mesh, muscles: Sequence[Muscle], weights: MuscleWeights) -> 
         field[row[mine]] = weights.weight[mine]
         peak = float(np.linalg.norm(field, axis=1).max()) if len(field) else 0.0
         if peak > 0.0:
-            contraction = 1.0 if isinstance(muscle, LidMuscle) else travel / peak
-            equal = equalized_field(points, triangles, field, contraction)
+            if isinstance(muscle, LidMuscle):
+                # A hinge squeezes a surface across the opening (a scan's closed eye) to a sliver by design, and
+                # its margins must meet (§11): only its flips count, and the half that turns most keeps its field.
+                free = hinge_taper(len(points), [muscle]) >= _HINGE_FREE
+                equal = equalized_field(points, triangles, field, 1.0, margin=0.0, free=free)
+            else:
+                equal = equalized_field(points, triangles, field, travel / peak)
             changed |= not np.array_equal(equal, field)
             field = equal
         fields.append(field)
