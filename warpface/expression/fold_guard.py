@@ -28,6 +28,7 @@ __all__ = [
     "folded_triangles",
     "unfolded_response",
     "unfolded_weights",
+    "vertex_graph",
 ]
 
 FOLD_MARGIN = 0.1
@@ -60,7 +61,7 @@ def folded_triangles(points: np.ndarray, triangles: np.ndarray, moved: np.ndarra
     return (area > 0.0) & (along < margin * area)
 
 
-def _vertex_graph(triangles: np.ndarray, count: int):
+def vertex_graph(triangles: np.ndarray, count: int):
     """(adjacency CSR over the mesh's edges, degree per vertex ≥ 1)."""
     edges = np.unique(np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
     rows, columns = edges.ravel(), edges[:, ::-1].ravel()
@@ -91,7 +92,7 @@ def fold_blend(
     instead of stopping at one edge; at most :data:`_GUARD_ROUNDS` rounds.
     """
     kept = ~folded_triangles(points, triangles, points + contraction * zone)
-    graph, degree = _vertex_graph(triangles, len(points))
+    graph, degree = vertex_graph(triangles, len(points))
     blend = np.ones(len(points))
     field = response
     for _ in range(_GUARD_ROUNDS):
@@ -121,7 +122,7 @@ def unfolded_weights(
     ``w ← ½w + ½·mean of the neighbours``, until none folds, ``rounds`` are done, or the count of folded triangles
     has not fallen for :data:`_STALL_ROUNDS` rounds (a fold the motion itself makes, at a mouth corner where the
     lips' weights meet). Only the ``free`` vertices (V,) bool (default: all) change. Returns values in [0, 1]."""
-    graph, degree = _vertex_graph(triangles, len(points))
+    graph, degree = vertex_graph(triangles, len(points))
     weights = np.asarray(weights, dtype=np.float64).copy()
     best, since = len(triangles) + 1, 0
     for _ in range(rounds):

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .fold_guard import FOLD_TRAVEL, _vertex_graph, folded_triangles
+from .fold_guard import FOLD_TRAVEL, folded_triangles, vertex_graph
 
 __all__ = [
     "JAW_FOLD_ANGLE",
@@ -84,7 +84,7 @@ def reference_motions(points: np.ndarray, fields, hinged, jaw=None) -> list[np.n
 def _faded(triangles: np.ndarray, count: int, motions, lifted, rounds: int) -> np.ndarray:
     """The fade ``g`` (V,) of :func:`unfolded_thickness` / :func:`unfolded_profiles`: ``lifted(i, g)`` gives the
     triangles (k, 3) that motion ``i`` folds at fade ``g`` and its stage before the lift keeps."""
-    graph = _vertex_graph(triangles, count)[0]
+    graph = vertex_graph(triangles, count)[0]
     fade = np.ones(count)
     everything = list(range(len(motions)))
     active = everything
@@ -112,7 +112,7 @@ def _supports(triangles: np.ndarray, count: int, moved) -> list[tuple[np.ndarray
     Only vertices within two rings of a moved vertex lift differently from rest (their stretch, or a neighbour's,
     changed); every triangle with a corner there is checked, and every triangle within three rings is needed to
     compute their stretch and normals exactly."""
-    graph = _vertex_graph(triangles, count)[0]
+    graph = vertex_graph(triangles, count)[0]
     out = []
     for motion in moved:
         ring = np.linalg.norm(motion, axis=1) > 0.0
