@@ -186,17 +186,18 @@ def equalized_field(
     """A muscle's field ``w`` (V, 3) made equal on the corners of every triangle that ``x + K·w`` folds at
     ``K = contraction`` (``margin``), as :func:`equalized_weights` does with weights (only the ``free`` vertices
     (V,) bool change; default all): a triangle whose corners share one displacement only moves, so it cannot fold,
-    at any ``K``. Returns (V, 3)."""
+    at any ``K``. Several fields that act together, side by side as (V, 3·n), are checked by their sum and each
+    made equal on the same corners. Returns the shape of ``field``."""
     field = np.asarray(field, dtype=np.float64)
 
     def moved(values: np.ndarray, scale: float) -> np.ndarray:
-        return points + scale * values
+        return points + scale * values.reshape(len(values), -1, 3).sum(axis=1)
 
     return _equalized(points, triangles, field, [float(contraction)], moved, free, rounds, margin)
 
 
 def _equalized(points, triangles, values, motions, moved, free, rounds, margin=FOLD_MARGIN) -> np.ndarray:
-    """The rounds of :func:`equalized_weights` over per-vertex ``values`` (V,) or (V, 3); ``moved(values, motion)``
+    """The rounds of :func:`equalized_weights` over per-vertex ``values`` (V,) or (V, k); ``moved(values, motion)``
     gives the moved points (V, 3) for each of ``motions``."""
     values = values.copy()
     count = len(points)
@@ -223,7 +224,9 @@ def _equalized(points, triangles, values, motions, moved, free, rounds, margin=F
         if values.ndim == 1:
             total = np.bincount(corners.ravel(), means, minlength=count)
         else:
-            total = np.stack([np.bincount(corners.ravel(), means[:, k], minlength=count) for k in range(3)], axis=1)
+            total = np.stack(
+                [np.bincount(corners.ravel(), means[:, k], minlength=count) for k in range(values.shape[1])], axis=1
+            )
         values[changed] = total[changed] / hits[changed].reshape((-1,) + (1,) * (values.ndim - 1))
         near = np.flatnonzero(changed[triangles].any(axis=1))  # only these triangles can have changed
         folded[near] = folds(near)

@@ -247,7 +247,8 @@ def unfolded_fields(mesh, muscles: Sequence[Muscle], weights: MuscleWeights) -> 
     """Each muscle's field made equal on the corners of the triangles it folds at its reference contraction
     (:func:`~warpface.expression.fold_guard.equalized_field`; docs/RIG.md §14): ``K = 1`` for a lid hinge or the
     lips' seal (their ``K`` ends at 1; only flips count), else the ``K`` that moves the field's farthest vertex by
-    :data:`~warpface.expression.fold_guard.FOLD_TRAVEL` of the mesh's bounding-box diagonal."""
+    :data:`~warpface.expression.fold_guard.FOLD_TRAVEL` of the mesh's bounding-box diagonal; then every two
+    hinges whose fields meet on a triangle, both at ``K = 1``."""
     from .lids import LidMuscle, hinge_taper
 
     points = np.asarray(mesh.points, dtype=np.float64)
@@ -271,4 +272,15 @@ def unfolded_fields(mesh, muscles: Sequence[Muscle], weights: MuscleWeights) -> 
             changed |= not np.array_equal(equal, field)
             field = equal
         fields.append(field)
+    # Two hinges of one eye close it together (a blink): a triangle between their fields can fold under both.
+    hinges = [i for i, m in enumerate(muscles) if isinstance(m, LidMuscle)]
+    moving = {i: np.any(fields[i] != 0.0, axis=1) for i in hinges}
+    for a, b in ((a, b) for a in hinges for b in hinges if a < b):
+        if not np.any(moving[a][triangles].any(axis=1) & moving[b][triangles].any(axis=1)):
+            continue
+        free = hinge_taper(len(points), [muscles[a], muscles[b]]) >= _HINGE_FREE
+        pair = np.concatenate([fields[a], fields[b]], axis=1)
+        equal = equalized_field(points, triangles, pair, 1.0, margin=0.0, free=free)
+        if not np.array_equal(equal, pair):
+            fields[a], fields[b], changed = equal[:, :3], equal[:, 3:], True
     return MuscleWeights.from_fields(len(points), fields) if changed else weights
