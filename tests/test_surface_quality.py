@@ -277,3 +277,20 @@ def test_the_ict_face_folds_almost_nothing():
     )
     # 410 before the equal weights and fields and the lift guard (docs/RIG.md §14); 1 after (mouthPucker)
     assert sum(flips.values()) <= 10, sorted(flips.items(), key=lambda item: -item[1])[:6]
+
+
+def test_two_fields_that_fold_together_are_made_equal_together():
+    points, triangles = _grid(12)
+    one = np.zeros_like(points)
+    one[:, 0] = np.where(points[:, 0] == 5.0, 0.8, 0.0)  # alone: the next column's triangles keep a fifth of their area
+    pair = np.concatenate([one, one], axis=1)
+    assert not folded_triangles(points, triangles, points + one, 0.0).any()
+    assert folded_triangles(points, triangles, points + 2.0 * one, 0.0).any()
+    equal = equalized_field(points, triangles, pair, 1.0, margin=0.0)
+    assert equal.shape == pair.shape
+    assert not folded_triangles(points, triangles, points + equal[:, :3] + equal[:, 3:], 0.0).any()
+    for half in (equal[:, :3], equal[:, 3:]):
+        assert not folded_triangles(points, triangles, points + half, 0.0).any()
+    free = points[:, 0] != 6.0  # the column it would be pulled past keeps its (zero) field: the fold stays
+    kept = equalized_field(points, triangles, pair, 1.0, margin=0.0, free=free)
+    np.testing.assert_array_equal(kept[~free], pair[~free])
