@@ -206,9 +206,15 @@ def guarded_lifts(mesh, thickness: np.ndarray, muscles, weights, wrinkles, shape
     """(the bulge's ``h`` (V,), the wrinkle profiles ``shapes.shape`` faded) of a rig after
     :func:`unfolded_thickness` and :func:`unfolded_profiles`, from its mesh (a ``FaceMesh``), muscles, their skin
     weights (``tissue.skin_muscle_weights``: per-vertex entries ``offsets``, ``muscle``, ``weight``), wrinkles,
-    their profiles (``wrinkles.skin_wrinkle_shapes``) and optional jaw: what the model and the solver both read."""
-    from .lids import LidMuscle
+    their profiles (``wrinkles.skin_wrinkle_shapes``) and optional jaw: what the model and the solver both read.
 
+    A rig of the paper's model alone (§1.1 muscles without a skin response, no hinges, no jaw) is left as SPEC §1
+    has it: ``(thickness, shapes.shape)`` unchanged."""
+    from .lids import LidMuscle
+    from .tissue import has_tissue_model
+
+    if jaw is None and not has_tissue_model(muscles):
+        return np.asarray(thickness, dtype=np.float64), np.asarray(shapes.shape)
     points = np.asarray(mesh.points, dtype=np.float64)
     fields = np.zeros((len(muscles), len(points), 3))
     vertex = np.repeat(np.arange(len(points)), np.diff(np.asarray(weights.offsets)))

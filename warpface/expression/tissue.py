@@ -40,6 +40,7 @@ __all__ = [
     "tissue_response",
     "skin_muscle_weights",
     "unfolded_fields",
+    "has_tissue_model",
     "stretch_rate",
     "neighbourhood_mean",
     "neighbourhood_averager",
@@ -240,7 +241,18 @@ def skin_muscle_weights(mesh, muscles: Sequence[Muscle], thickness: np.ndarray, 
         weights = tissue_response(
             mesh.points, mesh.triangles, normals, np.asarray(thickness, dtype=np.float64), muscles, weights
         )
-    return sealed_weights(list(muscles), unfolded_fields(mesh, list(muscles), weights))
+    if has_tissue_model(muscles):  # a rig of the paper's §1.1 muscles alone evaluates SPEC §1 unchanged
+        weights = unfolded_fields(mesh, list(muscles), weights)
+    return sealed_weights(list(muscles), weights)
+
+
+def has_tissue_model(muscles: Sequence[Muscle]) -> bool:
+    """Whether a rig has more than the paper's model: a muscle with a skin response (§2–3 of docs/RIG.md) or a lid
+    hinge / lip seal (§11–12). Only such rigs get the fold guards that change the muscles' fields and the lifts
+    (docs/RIG.md §14); the others evaluate SPEC §1 as written."""
+    from .lids import LidMuscle
+
+    return any(m.sliding > 0.0 or m.bunching > 0.0 or m.thickening > 0.0 or isinstance(m, LidMuscle) for m in muscles)
 
 
 def unfolded_fields(mesh, muscles: Sequence[Muscle], weights: MuscleWeights) -> MuscleWeights:
