@@ -16,6 +16,8 @@ A triangle *folds* under a displacement ``d`` when its deformed area vector keep
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 from scipy.sparse import coo_matrix
 
@@ -61,12 +63,23 @@ def folded_triangles(points: np.ndarray, triangles: np.ndarray, moved: np.ndarra
     return (area > 0.0) & (along < margin * area)
 
 
+_GRAPHS: dict = {}
+"""The last mesh's :func:`vertex_graph`: a rig's guards ask for it once per muscle (the edge sort cost 0.1 s each)."""
+
+
 def vertex_graph(triangles: np.ndarray, count: int):
-    """(adjacency CSR over the mesh's edges, degree per vertex ≥ 1)."""
-    edges = np.unique(np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
-    rows, columns = edges.ravel(), edges[:, ::-1].ravel()
-    graph = coo_matrix((np.ones(len(rows)), (rows, columns)), shape=(count, count)).tocsr()
-    return graph, np.maximum(np.asarray(graph.sum(axis=1)).ravel(), 1.0)
+    """(adjacency CSR over the mesh's edges, degree per vertex ≥ 1); read-only (the last mesh's is reused)."""
+    triangles = np.ascontiguousarray(triangles)
+    key = (int(count), triangles.shape, triangles.dtype.str, hashlib.sha1(triangles.tobytes()).hexdigest())
+    cached = _GRAPHS.get(key)
+    if cached is None:  # a thread that clears the cache meanwhile costs the other one nothing but a rebuild
+        edges = np.unique(np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+        rows, columns = edges.ravel(), edges[:, ::-1].ravel()
+        graph = coo_matrix((np.ones(len(rows)), (rows, columns)), shape=(count, count)).tocsr()
+        cached = (graph, np.maximum(np.asarray(graph.sum(axis=1)).ravel(), 1.0))
+        _GRAPHS.clear()
+        _GRAPHS[key] = cached
+    return cached
 
 
 def unfolded_response(
