@@ -120,14 +120,18 @@ def test_the_built_in_face_does_not_fold():
     assert sum(flips.values()) <= 4, {n: c for n, c in flips.items() if c}  # 6 before the guards
 
 
-@pytest.mark.slow
-def test_the_ict_face_folds_a_fraction_of_what_it_did():
+def _ict_rig():
+    """The default rig on the ICT face from its 68 landmarks (metres), or a skip."""
     path, landmarks = ict_face_region(), ict_landmark_indices()
     if path is None or landmarks is None:
         pytest.skip("ICT-FaceKit data not found in ../shared/data (set WARPFACE_SHARED_DATA)")
     source = wf.FaceMesh.from_obj(path)
-    mesh = wf.FaceMesh(source.points * 0.01, source.triangles, name="ict")
-    flips = _flips(default_rig(mesh, landmarks, device=DEVICE))
+    return default_rig(wf.FaceMesh(source.points * 0.01, source.triangles, name="ict"), landmarks, device=DEVICE)
+
+
+@pytest.mark.slow
+def test_the_ict_face_folds_a_fraction_of_what_it_did():
+    flips = _flips(_ict_rig())
     # 1555 before the fold guards (jawOpen 288, mouthPucker 253, mouthFunnel 180, each smile 145); the goal is 10
     assert sum(flips.values()) <= 450, sorted(flips.items(), key=lambda item: -item[1])[:6]
     assert max(flips.values()) <= 200
@@ -240,11 +244,7 @@ def test_built_in_and_ict_worst_channels_stay_unfolded():
     rig = default_rig(device=DEVICE)
     names, frames = channel_frames(rig, "arkit", worst)
     assert flipped_triangles(rig.mesh, rig.model(device=DEVICE).evaluate(frames)).sum() == 0
-    path, landmarks = ict_face_region(), ict_landmark_indices()
-    if path is None or landmarks is None:
-        pytest.skip("ICT-FaceKit data not found in ../shared/data (set WARPFACE_SHARED_DATA)")
-    source = wf.FaceMesh.from_obj(path)
-    rig = default_rig(wf.FaceMesh(source.points * 0.01, source.triangles, name="ict"), landmarks, device=DEVICE)
+    rig = _ict_rig()
     names, frames = channel_frames(rig, "arkit", worst)
     flips = flipped_triangles(rig.mesh, rig.model(device=DEVICE).evaluate(frames))
     assert flips.sum() == 0, dict(zip(names, flips))
@@ -268,13 +268,7 @@ def test_a_field_made_equal_on_its_folds_folds_at_no_contraction():
 
 @pytest.mark.slow
 def test_the_ict_face_folds_almost_nothing():
-    path, landmarks = ict_face_region(), ict_landmark_indices()
-    if path is None or landmarks is None:
-        pytest.skip("ICT-FaceKit data not found in ../shared/data (set WARPFACE_SHARED_DATA)")
-    source = wf.FaceMesh.from_obj(path)
-    flips = _flips(
-        default_rig(wf.FaceMesh(source.points * 0.01, source.triangles, name="ict"), landmarks, device=DEVICE)
-    )
+    flips = _flips(_ict_rig())
     # 410 before the equal weights and fields and the lift guard (docs/RIG.md §14); 1 after (mouthPucker)
     assert sum(flips.values()) <= 10, sorted(flips.items(), key=lambda item: -item[1])[:6]
 
