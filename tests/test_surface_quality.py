@@ -168,10 +168,10 @@ def test_equal_weights_end_the_folds_a_turn_makes_on_slivers():
     np.testing.assert_array_equal(equalized_weights(points, triangles, np.full(100, 0.6), motion), np.full(100, 0.6))
 
 
-def _float64_bulge(points, triangles, moved, thickness):
-    """SPEC §1.2–1.3 by a loop over the vertices: mean incident area ratio, normalised sum of area vectors."""
+def _float64_bulge(points, triangles, moved, thickness, vertices):
+    """SPEC §1.2–1.3 by a loop over ``vertices``: mean incident area ratio, normalised sum of area vectors."""
     out = moved.copy()
-    for v in range(len(points)):
+    for v in vertices:
         ratios, normal = [], np.zeros(3)
         for a, b, c in triangles[(triangles == v).any(axis=1)]:
             area = np.cross(moved[b] - moved[a], moved[c] - moved[a])
@@ -200,10 +200,10 @@ def test_the_host_bulge_and_wrinkles_match_the_expression_kernels():
         np.testing.assert_allclose(bulged, stages.bulge, atol=2e-6)
         height, normal = wrinkle_heights(points, triangles, moved, stages.bulge.astype(np.float64), *profiles)
         np.testing.assert_allclose(stages.bulge + height[:, None] * normal, stages.final, atol=2e-6)
-    some = np.unique(triangles[:40])
+    some = np.argsort(-np.linalg.norm(bulged - moved, axis=1))[:40]  # the most lifted vertices
     np.testing.assert_allclose(
         bulge_points(points, triangles, moved, thickness)[some],
-        _float64_bulge(points, triangles, moved, thickness)[some],
+        _float64_bulge(points, triangles, moved, thickness, some)[some],
         rtol=1e-12,
         atol=1e-15,
     )
