@@ -30,7 +30,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from ..expression.fold_guard import unfolded_weights
+from ..expression.fold_guard import equalized_weights, unfolded_weights
 from ..expression.jaw import Jaw
 from ..mesh import FaceMesh
 from .frame import FaceFrame
@@ -70,10 +70,14 @@ _DIFFUSION_ABOVE = 0.10
 their weights (diffusing everywhere lifted the upper lip's to 0.37)."""
 _MAX_DIFFUSION_STEPS = 400
 _FOLD_ANGLE = 0.35
+"""The opening [rad] no triangle may fold at (the default mappings' full ``jawOpen``): docs/RIG.md §14."""
 _GUARD_ABOVE = 0.12
 """The fold guard may change weights up to this far above the jaw line [inter-ocular units]: the mouth corners,
 where the lips' weights meet, but not the upper lip's middle."""
-"""The opening [rad] no triangle may fold at (the default mappings' full ``jawOpen``): docs/RIG.md §14."""
+
+_FOLD_SLIDE = 0.08
+"""The protrusion and lateral slide [inter-ocular units] no triangle may fold at (the default mappings' full
+``jawForward``, ``jawLeft``, ``jawRight``): docs/RIG.md §14."""
 
 _PIVOT_OFFSET = (0.35, -0.65)
 """Hinge pivot relative to the ear-level jaw points (iBUG 0/16 midpoint), (up, out) [inter-ocular units]."""
@@ -221,7 +225,13 @@ def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.n
     # The weights diffuse further where the reference opening would still fold the skin (docs/RIG.md §14).
     pivot = _pivot(frame, local_landmarks)
     motion = (mesh.points - pivot) @ _rotation(frame.axes[0], _FOLD_ANGLE).T + pivot - mesh.points
-    return unfolded_weights(mesh.points, mesh.triangles, weights, motion, free=below > -_GUARD_ABOVE)
+    weights = unfolded_weights(mesh.points, mesh.triangles, weights, motion, free=below > -_GUARD_ABOVE)
+    # What the diffusion leaves folded (slivers in the mouth corners) gets one weight on its corners, at the full
+    # opening and the full slides; anywhere, as the triangles it touches are tiny (docs/RIG.md §14).
+    slide = _FOLD_SLIDE * frame.scale
+    slides = [motion] + [np.broadcast_to(d, motion.shape) for d in (slide * frame.axes[2], slide * frame.axes[0])]
+    slides.append(-slides[-1])
+    return equalized_weights(mesh.points, mesh.triangles, weights, np.stack(slides))
 
 
 def _pivot(frame: FaceFrame, local_landmarks: np.ndarray) -> np.ndarray:

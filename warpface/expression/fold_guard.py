@@ -7,7 +7,8 @@ and the solver's Jacobian are unchanged (docs/RIG.md §14):
   blended back toward the muscle's own zone field, per vertex, where it would turn a triangle over that
   the zone field alone keeps: ``w' = w₀ + g·(w − w₀)``, ``g ∈ [0, 1]``.
 - :func:`unfolded_weights`: a scalar blend weight (the jaw's, SPEC §6.2) diffused over the mesh's edges
-  around the triangles a reference motion would fold.
+  around the triangles a reference motion would fold; :func:`equalized_weights` then makes it equal on the corners
+  of each triangle still folded, and :func:`equalized_field` does the same with a muscle's field.
 
 A triangle *folds* under a displacement ``d`` when its deformed area vector keeps less than
 :data:`FOLD_MARGIN` of its rest one along the rest normal: ``n₀·n(x + d) < m·|n₀|²`` (``m = 0`` is the flip).
@@ -15,10 +16,22 @@ A triangle *folds* under a displacement ``d`` when its deformed area vector keep
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 from scipy.sparse import coo_matrix
 
-__all__ = ["FOLD_MARGIN", "FOLD_TRAVEL", "fold_blend", "folded_triangles", "unfolded_response", "unfolded_weights"]
+__all__ = [
+    "FOLD_MARGIN",
+    "FOLD_TRAVEL",
+    "equalized_field",
+    "equalized_weights",
+    "fold_blend",
+    "folded_triangles",
+    "unfolded_response",
+    "unfolded_weights",
+    "vertex_graph",
+]
 
 FOLD_MARGIN = 0.1
 """A triangle folds when its area along the rest normal falls below this fraction of the rest area."""
@@ -29,6 +42,11 @@ _GUARD_ROUNDS = 30
 """Most rounds of :func:`unfolded_response` (each eases the vertices of the triangles still folded)."""
 _STALL_ROUNDS = 10
 """:func:`unfolded_weights` stops when this many rounds have not lowered the count of folded triangles."""
+_EQUAL_ROUNDS = 200
+_EQUAL_STALL_ROUNDS = 40
+""":func:`equalized_weights` stops when this many rounds have not lowered the count (an averaging round may raise it
+for a while before the next lowers it)."""
+"""Most rounds of :func:`equalized_weights` (81 on the ICT face's jaw, 27 on the Lee Perry-Smith scan's)."""
 
 
 def _area_vectors(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -45,12 +63,23 @@ def folded_triangles(points: np.ndarray, triangles: np.ndarray, moved: np.ndarra
     return (area > 0.0) & (along < margin * area)
 
 
-def _vertex_graph(triangles: np.ndarray, count: int):
-    """(adjacency CSR over the mesh's edges, degree per vertex ≥ 1)."""
-    edges = np.unique(np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
-    rows, columns = edges.ravel(), edges[:, ::-1].ravel()
-    graph = coo_matrix((np.ones(len(rows)), (rows, columns)), shape=(count, count)).tocsr()
-    return graph, np.maximum(np.asarray(graph.sum(axis=1)).ravel(), 1.0)
+_GRAPHS: dict = {}
+"""The last mesh's :func:`vertex_graph`: a rig's guards ask for it once per muscle (the edge sort cost 0.1 s each)."""
+
+
+def vertex_graph(triangles: np.ndarray, count: int):
+    """(adjacency CSR over the mesh's edges, degree per vertex ≥ 1); read-only (the last mesh's is reused)."""
+    triangles = np.ascontiguousarray(triangles)
+    key = (int(count), triangles.shape, triangles.dtype.str, hashlib.sha1(triangles.tobytes()).hexdigest())
+    cached = _GRAPHS.get(key)
+    if cached is None:  # a thread that clears the cache meanwhile costs the other one nothing but a rebuild
+        edges = np.unique(np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+        rows, columns = edges.ravel(), edges[:, ::-1].ravel()
+        graph = coo_matrix((np.ones(len(rows)), (rows, columns)), shape=(count, count)).tocsr()
+        cached = (graph, np.maximum(np.asarray(graph.sum(axis=1)).ravel(), 1.0))
+        _GRAPHS.clear()
+        _GRAPHS[key] = cached
+    return cached
 
 
 def unfolded_response(
@@ -76,7 +105,7 @@ def fold_blend(
     instead of stopping at one edge; at most :data:`_GUARD_ROUNDS` rounds.
     """
     kept = ~folded_triangles(points, triangles, points + contraction * zone)
-    graph, degree = _vertex_graph(triangles, len(points))
+    graph, degree = vertex_graph(triangles, len(points))
     blend = np.ones(len(points))
     field = response
     for _ in range(_GUARD_ROUNDS):
@@ -106,7 +135,7 @@ def unfolded_weights(
     ``w ← ½w + ½·mean of the neighbours``, until none folds, ``rounds`` are done, or the count of folded triangles
     has not fallen for :data:`_STALL_ROUNDS` rounds (a fold the motion itself makes, at a mouth corner where the
     lips' weights meet). Only the ``free`` vertices (V,) bool (default: all) change. Returns values in [0, 1]."""
-    graph, degree = _vertex_graph(triangles, len(points))
+    graph, degree = vertex_graph(triangles, len(points))
     weights = np.asarray(weights, dtype=np.float64).copy()
     best, since = len(triangles) + 1, 0
     for _ in range(rounds):
@@ -124,3 +153,98 @@ def unfolded_weights(
         for _step in range(4):
             weights = np.where(region, 0.5 * weights + 0.5 * (graph @ weights) / degree, weights)
     return np.clip(weights, 0.0, 1.0)
+
+
+def equalized_weights(
+    points: np.ndarray,
+    triangles: np.ndarray,
+    weights: np.ndarray,
+    motions: np.ndarray,
+    *,
+    free: np.ndarray | None = None,
+    rounds: int = _EQUAL_ROUNDS,
+) -> np.ndarray:
+    """Blend weights ``w`` (V,) of rigid displacements ``motions`` ((V, 3), or (M, V, 3) for several) made equal on
+    the corners of every triangle that some ``x + w·motion`` folds (margin :data:`FOLD_MARGIN`): each round, every
+    ``free`` vertex (V,) bool (default: all) of a folded triangle takes the mean, over the folded triangles it
+    belongs to, of their corners' mean weight; until none folds, ``rounds`` are done, or the count of folded
+    triangles has not fallen for :data:`_EQUAL_STALL_ROUNDS` rounds (a fold whose corners are not free); returns the
+    weights of the round that folded fewest.
+
+    Why it ends the folds the diffusion leaves (docs/RIG.md §14): with one weight ``w ∈ [0, 1]`` on its corners a
+    triangle moves by the affine map ``(1 − w) I + w R`` (plus a translation) of a rigid motion ``R`` turning by
+    less than a right angle, whose cofactor keeps every normal on its side, so it cannot fold; the folds sit on
+    slivers at the mouth corners, where a weight change too small for the edge diffusion to notice spans the
+    sliver's short side. Each round only averages existing weights, so the values stay in the input's range."""
+    weights = np.asarray(weights, dtype=np.float64)
+    motions = np.asarray(motions, dtype=np.float64)
+    motions = motions[None] if motions.ndim == 2 else motions
+
+    def moved(values: np.ndarray, motion: np.ndarray) -> np.ndarray:
+        return points + values[:, None] * motion
+
+    return _equalized(points, triangles, weights, motions, moved, free, rounds)
+
+
+def equalized_field(
+    points: np.ndarray,
+    triangles: np.ndarray,
+    field: np.ndarray,
+    contraction: float,
+    *,
+    margin: float = FOLD_MARGIN,
+    free: np.ndarray | None = None,
+    rounds: int = _EQUAL_ROUNDS,
+) -> np.ndarray:
+    """A muscle's field ``w`` (V, 3) made equal on the corners of every triangle that ``x + K·w`` folds at
+    ``K = contraction`` (``margin``), as :func:`equalized_weights` does with weights (only the ``free`` vertices
+    (V,) bool change; default all): a triangle whose corners share one displacement only moves, so it cannot fold,
+    at any ``K``. Several fields that act together, side by side as (V, 3·n), are checked by their sum and each
+    made equal on the same corners. Returns the shape of ``field``."""
+    field = np.asarray(field, dtype=np.float64)
+
+    def moved(values: np.ndarray, scale: float) -> np.ndarray:
+        return points + scale * values.reshape(len(values), -1, 3).sum(axis=1)
+
+    return _equalized(points, triangles, field, [float(contraction)], moved, free, rounds, margin)
+
+
+def _equalized(points, triangles, values, motions, moved, free, rounds, margin=FOLD_MARGIN) -> np.ndarray:
+    """The rounds of :func:`equalized_weights` over per-vertex ``values`` (V,) or (V, k); ``moved(values, motion)``
+    gives the moved points (V, 3) for each of ``motions``."""
+    values = values.copy()
+    count = len(points)
+    rest = _area_vectors(points, triangles)
+    area = np.einsum("ti,ti->t", rest, rest)
+
+    def folds(subset: np.ndarray) -> np.ndarray:
+        """Whether some motion folds each triangle of ``subset`` (indices) at the current values."""
+        out = np.zeros(len(subset), dtype=bool)
+        for motion in motions:
+            turned = _area_vectors(moved(values, motion), triangles[subset])
+            out |= (area[subset] > 0.0) & (np.einsum("ti,ti->t", turned, rest[subset]) < margin * area[subset])
+        return out
+
+    folded = folds(np.arange(len(triangles)))
+    best, since, kept = int(folded.sum()), 0, values.copy()
+    for _ in range(rounds):
+        if not folded.any() or since > _EQUAL_STALL_ROUNDS:
+            break
+        corners = triangles[folded]
+        means = np.repeat(values[corners].mean(axis=1), 3, axis=0)
+        hits = np.bincount(corners.ravel(), minlength=count)
+        changed = hits > 0 if free is None else (hits > 0) & free
+        if values.ndim == 1:
+            total = np.bincount(corners.ravel(), means, minlength=count)
+        else:
+            total = np.stack(
+                [np.bincount(corners.ravel(), means[:, k], minlength=count) for k in range(values.shape[1])], axis=1
+            )
+        values[changed] = total[changed] / hits[changed].reshape((-1,) + (1,) * (values.ndim - 1))
+        near = np.flatnonzero(changed[triangles].any(axis=1))  # only these triangles can have changed
+        folded[near] = folds(near)
+        if folded.sum() < best:
+            best, since, kept = int(folded.sum()), 0, values.copy()
+        else:
+            since += 1
+    return kept

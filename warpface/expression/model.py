@@ -14,6 +14,7 @@ from .evaluator import ExpressionEvaluator, ExpressionStages
 from .jaw import JAW_CONTROL_NAMES, Jaw
 from .kernels import MuscleEntry, WrinkleEntry
 from .lids import bulging_thickness
+from .lift_guard import guarded_lifts
 from .muscles import Muscle
 from .plans import PLANS, tiled_rig
 from .tiling import mesh_tiles
@@ -114,6 +115,15 @@ class ExpressionModel:
         device = self.device
         weights = skin_muscle_weights(mesh, self.muscles, self.thickness, device=device)
         shapes = skin_wrinkle_shapes(mesh, self.wrinkles, self.muscles, device=device)
+        bulging, faded = guarded_lifts(
+            mesh,
+            bulging_thickness(self.thickness, self.muscles),
+            self.muscles,
+            weights,
+            self.wrinkles,
+            shapes,
+            self.jaw,
+        )
         self.muscle_entry_count = int(len(weights.muscle))
         self.wrinkle_entry_count = int(len(shapes.wrinkle))
         self._muscle_offsets = wp.array(weights.offsets, dtype=wp.int32, device=device)
@@ -123,11 +133,10 @@ class ExpressionModel:
         self._wrinkle_offsets = wp.array(shapes.offsets, dtype=wp.int32, device=device)
         wrinkle_kr = np.array([w.kr for w in self.wrinkles], dtype=np.float32)
         self._wrinkle_entries = _entry_array(
-            WrinkleEntry, device, wrinkle=shapes.wrinkle, shape=shapes.shape, kr=wrinkle_kr[shapes.wrinkle]
+            WrinkleEntry, device, wrinkle=shapes.wrinkle, shape=faded, kr=wrinkle_kr[shapes.wrinkle]
         )
         counted = np.bincount(mesh.triangles[~mesh.degenerate_triangles].ravel(), minlength=mesh.vertex_count)
         self._counts = wp.array(counted.astype(np.float32), dtype=wp.float32, device=device)
-        bulging = bulging_thickness(self.thickness, self.muscles)
         self._thickness = wp.array(bulging.astype(np.float32), dtype=wp.float32, device=device)
         self.default_depths = np.array([w.depth for w in self.wrinkles], dtype=np.float64)
         if self.jaw is not None:

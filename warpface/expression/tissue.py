@@ -32,13 +32,15 @@ import warp as wp
 from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
-from .fold_guard import FOLD_TRAVEL, unfolded_response
+from .fold_guard import FOLD_TRAVEL, equalized_field, unfolded_response
 from .formulas import bunching_pull, sliding_pull, thickening_pull
 from .muscles import Muscle, MuscleWeights
 
 __all__ = [
     "tissue_response",
     "skin_muscle_weights",
+    "unfolded_fields",
+    "has_tissue_model",
     "stretch_rate",
     "neighbourhood_mean",
     "neighbourhood_averager",
@@ -53,6 +55,9 @@ than the skin's own curls (a lip rolling into the mouth, a lid margin); and the 
 sliver triangle at a mouth or eye corner must not raise a spike. Neighbourhoods are Euclidean, so
 they reach across the lips' slit and the lid opening."""
 BUNCHING_CAP = 0.5
+_HINGE_FREE = 0.5
+""":func:`unfolded_fields` changes a hinge's field only where it turns by at most half its largest angle (a taper
+``1 − |θ|/max|θ| ≥`` this): the corners of the opening, not the margins that meet."""
 """Bunching saturates smoothly (``c·tanh(b/c)``) at this fraction of the muscle's largest pull."""
 
 
@@ -236,4 +241,58 @@ def skin_muscle_weights(mesh, muscles: Sequence[Muscle], thickness: np.ndarray, 
         weights = tissue_response(
             mesh.points, mesh.triangles, normals, np.asarray(thickness, dtype=np.float64), muscles, weights
         )
+    if has_tissue_model(muscles):  # a rig of the paper's §1.1 muscles alone evaluates SPEC §1 unchanged
+        weights = unfolded_fields(mesh, list(muscles), weights)
     return sealed_weights(list(muscles), weights)
+
+
+def has_tissue_model(muscles: Sequence[Muscle]) -> bool:
+    """Whether a rig has more than the paper's model: a muscle with a skin response (§2–3 of docs/RIG.md) or a lid
+    hinge / lip seal (§11–12). Only such rigs get the fold guards that change the muscles' fields and the lifts
+    (docs/RIG.md §14); the others evaluate SPEC §1 as written."""
+    from .lids import LidMuscle
+
+    return any(m.sliding > 0.0 or m.bunching > 0.0 or m.thickening > 0.0 or isinstance(m, LidMuscle) for m in muscles)
+
+
+def unfolded_fields(mesh, muscles: Sequence[Muscle], weights: MuscleWeights) -> MuscleWeights:
+    """Each muscle's field made equal on the corners of the triangles it folds at its reference contraction
+    (:func:`~warpface.expression.fold_guard.equalized_field`; docs/RIG.md §14): ``K = 1`` for a lid hinge or the
+    lips' seal (their ``K`` ends at 1; only flips count), else the ``K`` that moves the field's farthest vertex by
+    :data:`~warpface.expression.fold_guard.FOLD_TRAVEL` of the mesh's bounding-box diagonal; then every two
+    hinges whose fields meet on a triangle, both at ``K = 1``."""
+    from .lids import LidMuscle, hinge_taper
+
+    points = np.asarray(mesh.points, dtype=np.float64)
+    triangles = mesh.triangles[~mesh.degenerate_triangles]
+    travel = FOLD_TRAVEL * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0))) if len(points) else 0.0
+    row = np.repeat(np.arange(len(points)), np.diff(weights.offsets))
+    fields, changed = [], False
+    for index, muscle in enumerate(muscles):
+        mine = weights.muscle == index
+        field = np.zeros((len(points), 3))
+        field[row[mine]] = weights.weight[mine]
+        peak = float(np.linalg.norm(field, axis=1).max()) if len(field) else 0.0
+        if peak > 0.0:
+            if isinstance(muscle, LidMuscle):
+                # A hinge squeezes a surface across the opening (a scan's closed eye) to a sliver by design, and
+                # its margins must meet (§11): only its flips count, and the half that turns most keeps its field.
+                free = hinge_taper(len(points), [muscle]) >= _HINGE_FREE
+                equal = equalized_field(points, triangles, field, 1.0, margin=0.0, free=free)
+            else:
+                equal = equalized_field(points, triangles, field, travel / peak)
+            changed |= not np.array_equal(equal, field)
+            field = equal
+        fields.append(field)
+    # Two hinges of one eye close it together (a blink): a triangle between their fields can fold under both.
+    hinges = [i for i, m in enumerate(muscles) if isinstance(m, LidMuscle)]
+    moving = {i: np.any(fields[i] != 0.0, axis=1) for i in hinges}
+    for a, b in ((a, b) for a in hinges for b in hinges if a < b):
+        if not np.any(moving[a][triangles].any(axis=1) & moving[b][triangles].any(axis=1)):
+            continue
+        free = hinge_taper(len(points), [muscles[a], muscles[b]]) >= _HINGE_FREE
+        pair = np.concatenate([fields[a], fields[b]], axis=1)
+        equal = equalized_field(points, triangles, pair, 1.0, margin=0.0, free=free)
+        if not np.array_equal(equal, pair):
+            fields[a], fields[b], changed = equal[:, :3], equal[:, 3:], True
+    return MuscleWeights.from_fields(len(points), fields) if changed else weights

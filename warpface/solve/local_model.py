@@ -28,6 +28,7 @@ import scipy.sparse as sp
 from .._validate import expect_instance
 from ..expression.kernels import STRETCH_FLOOR as EXPRESSION_STRETCH_FLOOR
 from ..expression.lids import bulging_thickness
+from ..expression.lift_guard import guarded_lifts
 from ..expression.tissue import skin_muscle_weights
 from ..expression.wrinkles import skin_wrinkle_shapes
 from ..rig import FaceRig
@@ -117,14 +118,17 @@ class RigOperators:
         columns = np.repeat(muscles.muscle.astype(np.int64), 3)
         field = sp.csr_matrix((muscles.weight.ravel(), (rows, columns)), shape=(3 * vertex_count, len(rig.muscles)))
         wrinkles = skin_wrinkle_shapes(mesh, list(rig.wrinkles), rig.muscles, device=device)
+        jaw = getattr(rig, "jaw", None)
+        bulging, shape = guarded_lifts(
+            mesh, bulging_thickness(rig.thickness, rig.muscles), list(rig.muscles), muscles, rig.wrinkles, wrinkles, jaw
+        )  # the model's guarded h and profiles (docs/RIG.md §14)
         depth = np.array([w.depth for w in rig.wrinkles], dtype=np.float64)
         entry_vertex = np.repeat(np.arange(vertex_count), np.diff(wrinkles.offsets))
         profile = sp.csr_matrix(
-            (depth[wrinkles.wrinkle] * wrinkles.shape, (entry_vertex, wrinkles.wrinkle.astype(np.int64))),
+            (depth[wrinkles.wrinkle] * shape, (entry_vertex, wrinkles.wrinkle.astype(np.int64))),
             shape=(vertex_count, len(rig.wrinkles)),
         )
         kr = np.array([w.kr for w in rig.wrinkles], dtype=np.float64)
-        jaw = getattr(rig, "jaw", None)
         return cls(
             rest,
             triangles,
@@ -133,7 +137,7 @@ class RigOperators:
             counts,
             incidence,
             field,
-            bulging_thickness(rig.thickness, rig.muscles),
+            bulging,
             profile,
             kr,
             None if jaw is None else _jaw_fields(jaw, rest),
