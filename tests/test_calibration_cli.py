@@ -4,6 +4,7 @@ a report and a picture."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -26,6 +27,9 @@ def write_obj(path, points, triangles):
 @pytest.fixture(scope="module")
 def stage(tmp_path_factory):
     rig = default_rig(device="cpu", calibrated=False)
+    # the default face with the muscles the examples use and the jaw, no wrinkles: every stage of the calibration
+    # runs, on a rig that rebuilds (each muscle's fold guard) and refits in a fraction of the full rig's time
+    rig = replace(rig, muscles=[m for m in rig.muscles if m.name.startswith("zygomaticus_major")], wrinkles=[])
     path = tmp_path_factory.mktemp("rig") / "face.usda"
     usd.write_rig(path, rig)
     return rig, path
