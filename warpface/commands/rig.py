@@ -227,9 +227,13 @@ def run(args) -> int:
         if link.prim_path:  # a USD head: its other meshes (teeth, tongue) below the lips follow the jaw
             from ..usd import open_stage
             from ..usd.asset_io import follower_jaw_weights
+            from ..usd.skin_followers import skin_embeddings
 
-            followers = follower_jaw_weights(open_stage(args.head), link.prim_path, points, landmarks, weights)
-            link = dataclasses.replace(link, followers=followers)
+            asset = open_stage(args.head)
+            riding = skin_embeddings(asset, link.prim_path, points, triangles, landmarks)  # lashes ride the lids
+            followers = follower_jaw_weights(asset, link.prim_path, points, landmarks, weights)
+            followers = {path: w for path, w in followers.items() if path not in riding}
+            link = dataclasses.replace(link, followers=followers, skin_followers=riding)
     stage = Usd.Stage.CreateInMemory(f"rig{out.suffix}")
     write_rig(stage, rig, meters_per_unit=meters_per_unit)
     skin = rig_prims(stage).skin

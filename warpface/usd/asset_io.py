@@ -25,9 +25,10 @@ from pxr import Sdf, Usd, UsdGeom, UsdShade, Vt
 from .._validate import expect_instance
 from ..errors import RigError
 from ..expression.jaw import JAW_CONTROL_NAMES, jaw_points
-from ..mesh import ObjPolygons, fan_triangles
+from ..mesh import ObjPolygons
 from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, writable_path
 from .asset_normals import NORMAL_PROPERTIES, SkinNormals
+from .skin_followers import other_meshes, points_spec, read_skin_embedding, set_points, write_skin_embedding
 
 __all__ = [
     "AssetLink",
@@ -75,6 +76,9 @@ class AssetLink:
     followers: dict = dataclasses.field(default_factory=dict)
     """Other meshes of a USD asset that move with the jaw: their prim path in the asset → per-vertex jaw
     weights (see :func:`follower_jaw_weights`); written on their prims under ``/<Face>/Asset``."""
+    skin_followers: dict = dataclasses.field(default_factory=dict)
+    """Other meshes of a USD asset that ride the skin (lashes): their prim path in the asset →
+    :class:`~warpface.usd.skin_followers.SkinEmbedding`; written on their prims under ``/<Face>/Asset``."""
 
 
 def write_obj_asset(polygons: ObjPolygons, path, *, name: str, meters_per_unit: float, up_axis: str) -> str:
@@ -241,6 +245,11 @@ def _keep_whole_asset(layer: Sdf.Layer, skin_path: Sdf.Path, link: AssetLink, as
                     spec, JAW_WEIGHTS, Sdf.ValueTypeNames.FloatArray, Sdf.VariabilityUniform
                 )
                 attribute.default = Vt.FloatArray.FromNumpy(np.asarray(weights, dtype=np.float32))
+        for path, embedding in link.skin_followers.items():
+            if Sdf.Path(path).HasPrefix(root.GetPath()):
+                write_skin_embedding(
+                    Sdf.CreatePrimInLayer(layer, Sdf.Path(path).ReplacePrefix(root.GetPath(), child.path)), embedding
+                )
 
 
 JAW_WEIGHTS = "warpFace:jawWeights"
@@ -255,26 +264,13 @@ def follower_jaw_weights(asset: Usd.Stage, skin_prim: str, skin_points, landmark
     line weighs 1, wholly above 0 (:func:`rigid_shell_vertices`' rule); a shell across it takes the jaw weight
     of the nearest skin vertex. Returns ``{prim path: weights (V,) float64}``.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
     skin_points = np.asarray(skin_points, dtype=np.float64)
     nearest = cKDTree(skin_points)
     found = {}
-    for prim in asset.Traverse():
-        if not prim.IsA(UsdGeom.Mesh) or str(prim.GetPath()) == skin_prim:
-            continue
-        mesh = UsdGeom.Mesh(prim)
-        points, counts = mesh.GetPointsAttr().Get(), mesh.GetFaceVertexCountsAttr().Get()
-        indices = mesh.GetFaceVertexIndicesAttr().Get()
-        if not points or not counts or not indices or max(indices) >= len(points):
-            continue
-        points = np.asarray(points, dtype=np.float64)
-        triangles = fan_triangles(np.asarray(counts), np.asarray(indices))
-        edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]]])
-        graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(len(points),) * 2)
-        shells = connected_components(graph, directed=False)[1] + 1  # 0 is the skin's label below
+    for prim, points, _, shells in other_meshes(asset, skin_prim):
+        shells = shells + 1  # 0 is the skin's label below
         combined = np.concatenate([skin_points, points])
         labels = np.concatenate([np.zeros(len(skin_points), dtype=np.int64), shells])
         _, jaw, still = rigid_shell_vertices(labels, 0, combined, landmarks)
@@ -306,21 +302,10 @@ def write_jaw_followers(layer: Sdf.Layer, followers, model, times: np.ndarray, c
     columns = slice(len(model.muscle_names), len(model.muscle_names) + len(JAW_CONTROL_NAMES))
     for prim, weights, rest in followers:
         jaw = dataclasses.replace(model.jaw, weights=weights)
-        spec = Sdf.CreatePrimInLayer(layer, prim.GetPath())
-        for name, type_name in (
-            ("points", Sdf.ValueTypeNames.Point3fArray),
-            ("extent", Sdf.ValueTypeNames.Float3Array),
-        ):
-            if spec.attributes.get(name) is None:
-                Sdf.AttributeSpec(spec, name, type_name)
+        spec = points_spec(layer, prim.GetPath())
         with Sdf.ChangeBlock():
             for time, values in zip(times.tolist(), np.asarray(controls, dtype=np.float64)[:, columns]):
-                moved = jaw_points(jaw, rest, values) if np.any(values != 0.0) else rest
-                bounds = np.stack([moved.min(axis=0), moved.max(axis=0)]).astype(np.float32)
-                layer.SetTimeSample(
-                    spec.path.AppendProperty("points"), time, Vt.Vec3fArray.FromNumpy(moved.astype(np.float32))
-                )
-                layer.SetTimeSample(spec.path.AppendProperty("extent"), time, Vt.Vec3fArray.FromNumpy(bounds))
+                set_points(layer, spec, time, jaw_points(jaw, rest, values) if np.any(values != 0.0) else rest)
 
 
 def _relative(path: Path, anchor: Path) -> str:
@@ -377,6 +362,12 @@ def asset_link(stage: Usd.Stage, skin: Usd.Prim) -> AssetLink | None:
         if stage.GetPrimAtPath(holder)
         else {}
     )
+    riding = {}
+    if stage.GetPrimAtPath(holder):
+        for prim in Usd.PrimRange(stage.GetPrimAtPath(holder)):
+            embedding = read_skin_embedding(prim)
+            if embedding is not None:
+                riding[str(prim.GetPath().ReplacePrefix(holder, Sdf.Path.absoluteRootPath))] = embedding
     return AssetLink(
         Path(layer.ComputeAbsolutePath(reference.assetPath)),
         str(reference.primPath) if not reference.primPath.isEmpty else "",
@@ -384,6 +375,7 @@ def asset_link(stage: Usd.Stage, skin: Usd.Prim) -> AssetLink | None:
         indices(RIGID_VERTICES),
         indices(JAW_VERTICES),
         followers,
+        riding,
     )
 
 
