@@ -28,7 +28,16 @@ from ..expression.jaw import JAW_CONTROL_NAMES, jaw_points
 from ..mesh import ObjPolygons
 from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, writable_path
 from .asset_normals import NORMAL_PROPERTIES, SkinNormals
-from .skin_followers import other_meshes, points_spec, read_skin_embedding, set_points, write_skin_embedding
+from .skin_followers import (
+    RIDING_VERTICES,
+    SkinEmbedding,
+    follow_skin,
+    other_meshes,
+    points_spec,
+    read_skin_embedding,
+    set_points,
+    write_skin_embedding,
+)
 
 __all__ = [
     "AssetLink",
@@ -79,6 +88,10 @@ class AssetLink:
     skin_followers: dict = dataclasses.field(default_factory=dict)
     """Other meshes of a USD asset that ride the skin (lashes): their prim path in the asset →
     :class:`~warpface.usd.skin_followers.SkinEmbedding`; written on their prims under ``/<Face>/Asset``."""
+    riding_vertices: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """Vertices of the skin mesh's own extra shells that ride the skin (not rigid, not skin: lashes)."""
+    riding: SkinEmbedding | None = None
+    """Where :attr:`riding_vertices` sit on the skin (rows in their order)."""
 
 
 def write_obj_asset(polygons: ObjPolygons, path, *, name: str, meters_per_unit: float, up_axis: str) -> str:
@@ -207,6 +220,12 @@ def attach_asset(layer: Sdf.Layer, skin_path, link: AssetLink, *, anchor: Path |
             spec, name, Sdf.ValueTypeNames.IntArray, Sdf.VariabilityUniform
         )
         attribute.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(values, dtype=np.int32))
+    if link.riding is not None and len(link.riding_vertices):
+        riding = spec.properties.get(RIDING_VERTICES) or Sdf.AttributeSpec(
+            spec, RIDING_VERTICES, Sdf.ValueTypeNames.IntArray, Sdf.VariabilityUniform
+        )
+        riding.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(link.riding_vertices, dtype=np.int32))
+        write_skin_embedding(spec, link.riding)
     order = spec.properties.get(UsdGeom.Tokens.xformOpOrder) or Sdf.AttributeSpec(
         spec, UsdGeom.Tokens.xformOpOrder, Sdf.ValueTypeNames.TokenArray, Sdf.VariabilityUniform
     )
@@ -368,6 +387,9 @@ def asset_link(stage: Usd.Stage, skin: Usd.Prim) -> AssetLink | None:
             embedding = read_skin_embedding(prim)
             if embedding is not None:
                 riding[str(prim.GetPath().ReplacePrefix(holder, Sdf.Path.absoluteRootPath))] = embedding
+    own = read_skin_embedding(skin)
+    on_skin = indices(RIDING_VERTICES)
+    own = own if own is not None and len(own.weights) == len(on_skin) else None
     return AssetLink(
         Path(layer.ComputeAbsolutePath(reference.assetPath)),
         str(reference.primPath) if not reference.primPath.isEmpty else "",
@@ -376,6 +398,8 @@ def asset_link(stage: Usd.Stage, skin: Usd.Prim) -> AssetLink | None:
         indices(JAW_VERTICES),
         followers,
         riding,
+        on_skin if own is not None else np.zeros(0, dtype=np.int64),
+        own,
     )
 
 
@@ -384,13 +408,20 @@ class RigidShells:
 
     Wraps ``model`` (same interface): the rows of ``rigid`` vertices are replaced by the jaw's motion of
     their rest positions alone, with the jaw's weights (:func:`~warpface.expression.jaw_points`): no
-    muscle or wrinkle moves them.
+    muscle or wrinkle moves them. The rows of ``riding`` vertices (shells that sit on the skin: lashes)
+    become their rest positions plus the skin's displacement interpolated at ``on_skin`` (their
+    :class:`~warpface.usd.skin_followers.SkinEmbedding`, rows in ``riding``'s order).
     """
 
-    def __init__(self, model, rigid: np.ndarray):
+    def __init__(
+        self, model, rigid: np.ndarray, riding: np.ndarray | None = None, on_skin: SkinEmbedding | None = None
+    ):
         self._model = model
         self._rigid = np.asarray(rigid, dtype=np.int64)
         rest = np.asarray(model.mesh.points, dtype=np.float64)
+        self._skin_rest = rest
+        self._riding = np.zeros(0, dtype=np.int64) if on_skin is None else np.asarray(riding, dtype=np.int64)
+        self._on_skin = on_skin
         self._rest = rest[self._rigid]
         self._jaw = None
         if model.jaw is not None:
@@ -416,12 +447,14 @@ class RigidShells:
                 if np.any(jaw != 0.0):
                     moved = jaw_points(self._jaw, self._rest, jaw)
             frames[row, self._rigid] = moved
+        if len(self._riding):  # after the rigid shells: the riding ones sit on skin vertices only
+            frames[:, self._riding] = follow_skin(self._on_skin, self._skin_rest[self._riding], self._skin_rest, frames)
         return positions
 
 
 def shells_of(stage: Usd.Stage, skin: Usd.Prim, model):
     """``model`` wrapped in :class:`RigidShells` when the skin lists rigid vertices, else ``model``."""
     link = asset_link(stage, skin)
-    if link is None or len(link.rigid_vertices) == 0:
+    if link is None or len(link.rigid_vertices) + len(link.riding_vertices) == 0:
         return model
-    return RigidShells(model, link.rigid_vertices)
+    return RigidShells(model, link.rigid_vertices, link.riding_vertices, link.riding)

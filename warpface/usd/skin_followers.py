@@ -21,9 +21,11 @@ from ..mesh import fan_triangles
 __all__ = [
     "FOLLOWER_DISTANCE",
     "FOLLOWER_SHARE",
+    "RIDING_VERTICES",
     "SKIN_VERTICES",
     "SKIN_WEIGHTS",
     "SkinEmbedding",
+    "embed_on_skin",
     "follow_skin",
     "other_meshes",
     "points_spec",
@@ -37,6 +39,9 @@ __all__ = [
 
 SKIN_VERTICES = "warpFace:skinVertices"
 """Attribute (uniform int3[]) of a mesh that rides the skin: per vertex, the skin vertices of its skin triangle."""
+RIDING_VERTICES = "warpFace:ridingVertices"
+"""Skin attribute (uniform int[]): vertices of the skin mesh's own extra shells that ride the skin (lashes of a
+one-mesh head); its :data:`SKIN_VERTICES` and :data:`SKIN_WEIGHTS` rows are theirs, in this order."""
 SKIN_WEIGHTS = "warpFace:skinWeights"
 """Attribute (uniform float3[]): per vertex, its barycentric weights on :data:`SKIN_VERTICES` (0 0 0: it stays)."""
 FOLLOWER_DISTANCE = 1e-3
@@ -87,18 +92,25 @@ def skin_embeddings(asset: Usd.Stage, skin_prim: str, skin_points, skin_triangle
     of the eye landmarks' centres, 36–41 and 42–47).
     """
     skin_points = np.asarray(skin_points, dtype=np.float64)
-    skin_triangles = np.asarray(skin_triangles, dtype=np.int64)
     landmarks = np.asarray(landmarks, dtype=np.int64)
     eyes = np.linalg.norm(skin_points[landmarks[36:42]].mean(axis=0) - skin_points[landmarks[42:48]].mean(axis=0))
     found = {}
     for prim, points, _, shells in other_meshes(asset, skin_prim):
-        triangle, weights, distance = closest_points(points, skin_points, skin_triangles)
+        embedding, distance = embed_on_skin(points, skin_points, skin_triangles)
         touching = distance <= FOLLOWER_DISTANCE * eyes
         riding = np.bincount(shells, weights=touching) >= FOLLOWER_SHARE * np.bincount(shells)
         if np.any(riding):
-            weights = np.where(riding[shells][:, None], weights.astype(np.float64), 0.0)
-            found[str(prim.GetPath())] = SkinEmbedding(skin_triangles[triangle], weights)
+            weights = np.where(riding[shells][:, None], embedding.weights, 0.0)
+            found[str(prim.GetPath())] = SkinEmbedding(embedding.vertices, weights)
     return found
+
+
+def embed_on_skin(points, skin_points, skin_triangles) -> tuple[SkinEmbedding, np.ndarray]:
+    """``(embedding, distance (N,))``: each of ``points`` (N, 3) on its closest triangle of the skin
+    (``skin_points`` (V, 3), ``skin_triangles`` (T, 3)) and its distance to it (same units)."""
+    skin_triangles = np.asarray(skin_triangles, dtype=np.int64)
+    triangle, weights, distance = closest_points(points, skin_points, skin_triangles)
+    return SkinEmbedding(skin_triangles[triangle], weights.astype(np.float64)), distance.astype(np.float64)
 
 
 def write_skin_embedding(spec: Sdf.PrimSpec, embedding: SkinEmbedding) -> None:
