@@ -9,8 +9,9 @@ asset file.
 
 Extra shells (eyes, teeth, tongue: connected parts other than the skin) are listed on the skin as
 ``warpFace:rigidVertices``: no muscle or wrinkle moves them, only the jaw with its weights (1 on the
-shells of ``warpFace:jawVertices``, 0 on those wholly above the lips). :class:`RigidShells` applies that
-to a model's evaluated frames.
+shells of ``warpFace:jawVertices``, 0 on those wholly above the lips). Shells that sit on the skin (lashes)
+ride it instead (:mod:`~warpface.usd.skin_followers`). :class:`RigidShells` applies both to a model's
+evaluated frames.
 """
 
 from __future__ import annotations
