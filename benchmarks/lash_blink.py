@@ -31,15 +31,14 @@ def _split_usd(obj, path: Path) -> dict:
     stage = Usd.Stage.CreateNew(str(path))
     UsdGeom.SetStageMetersPerUnit(stage, 0.01)
     stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, "/Character").GetPrim())
-    starts = np.cumsum(obj.counts) - obj.counts
-    first = obj.indices[starts]
-    for name, (low, high) in ranges.items():
-        faces = (first >= low) & (first < high)
-        corners = np.concatenate([obj.indices[s : s + c] for s, c in zip(starts[faces], obj.counts[faces])])
+    face_of_corner = np.repeat(np.arange(len(obj.counts)), obj.counts)
+    for name, (low, high) in ranges.items():  # a face belongs to the region of its vertices (none crosses)
+        inside = (obj.indices >= low) & (obj.indices < high)
         mesh = UsdGeom.Mesh.Define(stage, f"/Character/{name}")
         mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(obj.points[low:high].astype(np.float32)))
-        mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(obj.counts[faces].astype(np.int32)))
-        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy((corners - low).astype(np.int32)))
+        counts = obj.counts[np.unique(face_of_corner[inside])]
+        mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(counts.astype(np.int32)))
+        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy((obj.indices[inside] - low).astype(np.int32)))
     stage.GetRootLayer().Save()
     return ranges
 

@@ -45,7 +45,7 @@ one-mesh head); its :data:`SKIN_VERTICES` and :data:`SKIN_WEIGHTS` rows are thei
 SKIN_WEIGHTS = "warpFace:skinWeights"
 """Attribute (uniform float3[]): per vertex, its barycentric weights on :data:`SKIN_VERTICES` (0 0 0: it stays)."""
 FOLLOWER_DISTANCE = 1e-3
-"""Inter-ocular distances: a vertex this close to the skin surface touches it (0.06 mm on ICT; roots of lashes
+"""Inter-ocular distances: a vertex this close to the skin surface touches it (0.065 mm on ICT; roots of lashes
 and films coincide with the lid)."""
 FOLLOWER_SHARE = 0.10
 """A shell with this share of its vertices touching the skin rides it. On ICT: lashes 17 %, lacrimal films
