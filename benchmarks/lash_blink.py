@@ -23,7 +23,7 @@ PRIMS = {"Head": (0, 14062), "GumsTongue": (14062, 17039), "Teeth": (17039, 2145
 """The ICT regions as prims (../shared/data/README.md); the vertices after them go to a prim "Rest"."""
 
 
-def _split_usd(obj, path: Path) -> dict:
+def split_ict_usd(obj, path: Path) -> dict:
     """The head as a cm USD stage with one Mesh per region (polygons and order kept); returns the ranges."""
     from pxr import Usd, UsdGeom, Vt
 
@@ -43,13 +43,14 @@ def _split_usd(obj, path: Path) -> dict:
     return ranges
 
 
-def _take(path: Path) -> Path:
+def live_link_take(path: Path, rows: dict, frames: int) -> Path:
+    """A Live Link Face CSV at 30 fps at ``path``: the ARKit channels named in ``rows`` (name → (frames,)
+    values), the others 0."""
     from warpface.drivers import ARKIT_CHANNELS
 
-    closing = {"eyeBlinkLeft", "eyeBlinkRight"}
     lines = ["Timecode,BlendshapeCount," + ",".join(n[0].upper() + n[1:] for n in ARKIT_CHANNELS)]
-    for frame in range(FRAMES):
-        values = ",".join(f"{frame / (FRAMES - 1):.6f}" if n in closing else "0" for n in ARKIT_CHANNELS)
+    for frame in range(frames):
+        values = ",".join(f"{rows[n][frame]:.6f}" if n in rows else "0" for n in ARKIT_CHANNELS)
         lines.append(f"10:20:00:{frame:02d}.000,{len(ARKIT_CHANNELS)}," + values)
     path.write_text("\n".join(lines) + "\n")
     return path
@@ -91,8 +92,9 @@ def main() -> None:
     print("| head | lashes [mm] | lid next to them [mm] | lash − lid, mean / max [mm] |\n|---|---|---|---|")
     with tempfile.TemporaryDirectory() as folder:
         work = Path(folder)
-        take = _take(work / "blink.csv")
-        ranges = _split_usd(obj, work / "ict.usda")
+        closing = np.linspace(0.0, 1.0, FRAMES)
+        take = live_link_take(work / "blink.csv", {"eyeBlinkLeft": closing, "eyeBlinkRight": closing}, FRAMES)
+        ranges = split_ict_usd(obj, work / "ict.usda")
         for label, source, lash_prim, offset in (
             ("one mesh (OBJ)", head, "/Face/Skin", 0),
             ("five meshes (USD)", work / "ict.usda", "/Face/Asset/Character/Rest", ranges["Rest"][0]),

@@ -110,8 +110,8 @@ def _lashed_face():
 @pytest.mark.parametrize("layout", ["one_mesh", "several_meshes"])
 def test_rig_then_bake_keeps_the_lashes_on_the_blinking_lid(layout, tmp_path):
     from pxr import Usd, UsdGeom
-    from test_usd_asset import live_link_csv
 
+    from benchmarks.lash_blink import live_link_take
     from warpface.cli import main
 
     points, triangles, marks, lash, lash_faces, eye, eye_faces = _lashed_face()
@@ -135,7 +135,7 @@ def test_rig_then_bake_keeps_the_lashes_on_the_blinking_lid(layout, tmp_path):
     rig = tmp_path / "rig.usda"
     assert main(["--quiet", "rig", str(head), "--out", str(rig), "--landmarks", str(marks_file), "--units", "cm"]) == 0
     frames = 5
-    take = live_link_csv(tmp_path / "take.csv", {"eyeBlinkLeft": np.linspace(0, 1, frames)}, frames)
+    take = live_link_take(tmp_path / "take.csv", {"eyeBlinkLeft": np.linspace(0, 1, frames)}, frames)
     animated = tmp_path / "shot.usda"
     assert main(["--quiet", "animate", str(take), "--rig", str(rig), "--out", str(animated), "--no-video"]) == 0
     shot = tmp_path / "again_shot.usda"
@@ -165,14 +165,14 @@ def test_rig_then_bake_keeps_the_lashes_on_the_blinking_lid(layout, tmp_path):
 
 @pytest.mark.skipif(ICT is None, reason="ICT-FaceKit not in ../shared/data (set WARPFACE_SHARED_DATA)")
 def test_on_the_ict_head_the_lashes_and_films_ride_the_skin_and_the_eyes_do_not(tmp_path):
-    from test_usd_asset import _split_ict_usd
-
+    from benchmarks.lash_blink import split_ict_usd
     from warpface.data import ict_landmark_indices
     from warpface.mesh import fan_triangles, read_obj_polygons
     from warpface.usd import open_stage
     from warpface.usd.skin_followers import skin_embeddings
 
-    obj, ranges = _split_ict_usd(tmp_path / "ict.usda")
+    obj = read_obj_polygons(ICT / "original" / "generic_neutral_mesh.obj")
+    ranges = split_ict_usd(obj, tmp_path / "ict.usda")
     low, high = ranges["Head"]
     triangles = fan_triangles(obj.counts, obj.indices)
     triangles = triangles[(triangles < high).all(axis=1)]
@@ -180,12 +180,11 @@ def test_on_the_ict_head_the_lashes_and_films_ride_the_skin_and_the_eyes_do_not(
         open_stage(tmp_path / "ict.usda"), "/Character/Head", obj.points[:high], triangles, ict_landmark_indices()
     )
     assert sorted(found) == ["/Character/Rest"]  # not the eyes, teeth, gums and tongue
-    polygons = read_obj_polygons(ICT / "original" / "generic_neutral_mesh.obj")
     material = np.full(len(obj.points), -1)
-    material[polygons.indices] = np.repeat(polygons.face_materials, polygons.counts)
+    material[obj.indices] = np.repeat(obj.face_materials, obj.counts)
     first = ranges["Rest"][0]
     riding = np.abs(found["/Character/Rest"].weights).sum(axis=1) > 0.0
-    names = {name: material[first:] == polygons.materials.index(name) for name in polygons.materials}
+    names = {name: material[first:] == obj.materials.index(name) for name in obj.materials}
     for name in ("M_EyeLashes", "M_LacrimalFluid", "M_EyeOcclusion"):
         assert riding[names[name]].all(), name
     assert not riding[names["M_EyeBlend"]].any()  # 4 % of it touches: it stays with the eyes
