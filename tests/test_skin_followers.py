@@ -56,7 +56,7 @@ def test_a_shell_touching_a_skin_sheet_bakes_as_rest_plus_the_interpolated_skin_
     _define_mesh(stage, "/Head/Skin", sheet, triangles)
     _define_mesh(stage, "/Head/Lash", np.concatenate([lash, eye]), np.concatenate([faces, faces + 6]))
     _define_mesh(stage, "/Head/Eye", eye, faces)
-    found = skin_embeddings(stage, "/Head/Skin", sheet, triangles, landmarks)
+    found = skin_embeddings(stage, "/Head/Skin", sheet, triangles, landmarks, device="cpu")
     assert sorted(found) == ["/Head/Lash"]  # the eye is no follower, and the lash mesh's eye shell stays
     for path, embedding in found.items():
         write_skin_embedding(stage.GetRootLayer().GetPrimAtPath(path), embedding)
@@ -177,7 +177,12 @@ def test_on_the_ict_head_the_lashes_and_films_ride_the_skin_and_the_eyes_do_not(
     triangles = fan_triangles(obj.counts, obj.indices)
     triangles = triangles[(triangles < high).all(axis=1)]
     found = skin_embeddings(
-        open_stage(tmp_path / "ict.usda"), "/Character/Head", obj.points[:high], triangles, ict_landmark_indices()
+        open_stage(tmp_path / "ict.usda"),
+        "/Character/Head",
+        obj.points[:high],
+        triangles,
+        ict_landmark_indices(),
+        device="cpu",
     )
     assert sorted(found) == ["/Character/Rest"]  # not the eyes, teeth, gums and tongue
     material = np.full(len(obj.points), -1)

@@ -231,16 +231,18 @@ def run(args) -> int:
         weights[still] = 0.0
         weights[link.jaw_vertices] = 1.0
         rig = dataclasses.replace(rig, jaw=dataclasses.replace(rig.jaw, weights=weights))
-        if link.prim_path:  # a USD head: its other meshes (teeth, tongue) below the lips follow the jaw
-            from ..usd import open_stage
-            from ..usd.asset_io import follower_jaw_weights
-            from ..usd.skin_followers import skin_embeddings
+    if link is not None and link.prim_path:  # a USD head: its other meshes below the lips follow the jaw ...
+        from ..usd import open_stage
+        from ..usd.asset_io import follower_jaw_weights
+        from ..usd.skin_followers import skin_embeddings
 
-            asset = open_stage(args.head)
-            riding = skin_embeddings(asset, link.prim_path, points, triangles, landmarks)  # lashes ride the lids
-            followers = follower_jaw_weights(asset, link.prim_path, points, landmarks, weights)
-            followers = {path: w for path, w in followers.items() if path not in riding}
-            link = dataclasses.replace(link, followers=followers, skin_followers=riding)
+        asset = open_stage(args.head)  # ... and those on the skin (lashes) ride it, leaving the jaw's followers
+        riding = skin_embeddings(asset, link.prim_path, points, triangles, landmarks, device=args.device)
+        followers = {}
+        if rig.jaw is not None:
+            followers = follower_jaw_weights(asset, link.prim_path, points, landmarks, rig.jaw.weights)
+        followers = {path: w for path, w in followers.items() if path not in riding}
+        link = dataclasses.replace(link, followers=followers, skin_followers=riding)
     stage = Usd.Stage.CreateInMemory(f"rig{out.suffix}")
     write_rig(stage, rig, meters_per_unit=meters_per_unit)
     skin = rig_prims(stage).skin

@@ -84,19 +84,19 @@ def other_meshes(asset: Usd.Stage, skin_prim: str):
         yield prim, points, triangles, connected_components(graph, directed=False)[1]
 
 
-def skin_embeddings(asset: Usd.Stage, skin_prim: str, skin_points, skin_triangles, landmarks) -> dict:
+def skin_embeddings(asset: Usd.Stage, skin_prim: str, skin_points, skin_triangles, landmarks, *, device=None) -> dict:
     """``{prim path: SkinEmbedding}`` of every other mesh of ``asset`` with a shell that rides the skin.
 
     ``skin_points`` (V, 3) and ``skin_triangles`` (T, 3): the skin in the asset's units (the other meshes are
     taken in its space); ``landmarks``: its 68 iBUG vertex indices (the inter-ocular distance is the distance
-    of the eye landmarks' centres, 36–41 and 42–47).
+    of the eye landmarks' centres, 36–41 and 42–47); ``device``: the Warp device of the closest-point query.
     """
     skin_points = np.asarray(skin_points, dtype=np.float64)
     landmarks = np.asarray(landmarks, dtype=np.int64)
     eyes = np.linalg.norm(skin_points[landmarks[36:42]].mean(axis=0) - skin_points[landmarks[42:48]].mean(axis=0))
     found = {}
     for prim, points, _, shells in other_meshes(asset, skin_prim):
-        embedding, distance = embed_on_skin(points, skin_points, skin_triangles)
+        embedding, distance = embed_on_skin(points, skin_points, skin_triangles, device=device)
         touching = distance <= FOLLOWER_DISTANCE * eyes
         riding = np.bincount(shells, weights=touching) >= FOLLOWER_SHARE * np.bincount(shells)
         if np.any(riding):
@@ -105,11 +105,12 @@ def skin_embeddings(asset: Usd.Stage, skin_prim: str, skin_points, skin_triangle
     return found
 
 
-def embed_on_skin(points, skin_points, skin_triangles) -> tuple[SkinEmbedding, np.ndarray]:
+def embed_on_skin(points, skin_points, skin_triangles, *, device=None) -> tuple[SkinEmbedding, np.ndarray]:
     """``(embedding, distance (N,))``: each of ``points`` (N, 3) on its closest triangle of the skin
-    (``skin_points`` (V, 3), ``skin_triangles`` (T, 3)) and its distance to it (same units)."""
+    (``skin_points`` (V, 3), ``skin_triangles`` (T, 3)) and its distance to it (same units); ``device``: the
+    Warp device of the query (Warp's preferred one when ``None``)."""
     skin_triangles = np.asarray(skin_triangles, dtype=np.int64)
-    triangle, weights, distance = closest_points(points, skin_points, skin_triangles)
+    triangle, weights, distance = closest_points(points, skin_points, skin_triangles, device=device)
     return SkinEmbedding(skin_triangles[triangle], weights.astype(np.float64)), distance.astype(np.float64)
 
 
