@@ -140,7 +140,9 @@ def skin_followers(stage: Usd.Stage, skin_count: int) -> list[tuple[Usd.Prim, Sk
     for prim in stage.Traverse():
         embedding = read_skin_embedding(prim) if prim.IsA(UsdGeom.Mesh) else None
         rest = UsdGeom.Mesh(prim).GetPointsAttr().Get(Usd.TimeCode.Default()) if embedding is not None else None
-        if rest is not None and len(rest) == len(embedding.weights) and embedding.vertices.max() < skin_count:
+        if rest is None or len(rest) == 0 or len(rest) != len(embedding.weights):
+            continue
+        if embedding.vertices.min() >= 0 and embedding.vertices.max() < skin_count:  # else another skin's
             found.append((prim, embedding, np.asarray(rest, dtype=np.float64)))
     return found
 
@@ -150,8 +152,8 @@ def follow_skin(embedding: SkinEmbedding, rest, skin_rest, skin_positions) -> np
 
     ``rest`` (N, 3): the mesh's rest points; ``skin_rest`` (V, 3) and ``skin_positions`` (F, V, 3): the skin's.
     """
-    skin_positions = np.asarray(skin_positions, dtype=np.float64)
-    moved = skin_positions[:, embedding.vertices] - np.asarray(skin_rest, dtype=np.float64)[embedding.vertices]
+    at = np.asarray(skin_positions)[:, embedding.vertices].astype(np.float64)  # (F, N, 3, 3): no copy of all V
+    moved = at - np.asarray(skin_rest, dtype=np.float64)[embedding.vertices]
     return np.asarray(rest, dtype=np.float64) + np.einsum("fnkd,nk->fnd", moved, embedding.weights)
 
 
