@@ -129,17 +129,23 @@ def read_head(path) -> tuple:
 def _asset_link(head: Path, out: Path, points, triangles, landmarks, meters_per_unit: float, z_up: bool):
     """``(AssetLink, OBJ polygons to copy or None, shells' vertices wholly with the head)``: the USD head's
     largest mesh, or the OBJ's USD copy beside ``out``."""
+    import numpy as np
+
     from ..mesh import read_obj_polygons
     from ..rigging.surface import HeadSurface
     from ..usd.asset_io import AssetLink, rigid_shell_vertices
+    from ..usd.skin_followers import embed_on_skin
 
     surface = HeadSurface(points, triangles)
     rigid, jaw, still = rigid_shell_vertices(surface.shell_of_vertex, surface.skin_label, points, landmarks)
+    riding = np.setdiff1d(np.flatnonzero(surface.shell_of_vertex != surface.skin_label), rigid)
+    on_skin = embed_on_skin(points[riding], points, surface.skin_triangles)[0] if len(riding) else None
+    extra = {"riding_vertices": riding, "riding": on_skin}  # the lashes of a one-mesh head ride its lids
     if head.suffix.lower() == ".obj":
         copy = out.with_name(f"{head.stem}_asset.usdc")
         if copy.resolve() == out.resolve():
             raise ValueError(f"--out {out}: is the name of the head's USD copy; choose another name")
-        link = AssetLink(copy.resolve(), "", "Z" if z_up else "Y", rigid, jaw)
+        link = AssetLink(copy.resolve(), "", "Z" if z_up else "Y", rigid, jaw, **extra)
         return link, read_obj_polygons(head), still
     from pxr import UsdGeom
 
@@ -147,7 +153,8 @@ def _asset_link(head: Path, out: Path, points, triangles, landmarks, meters_per_
 
     stage = open_stage(head)
     mesh = _skin_mesh(stage, head).GetPrim()
-    return AssetLink(head.resolve(), str(mesh.GetPath()), UsdGeom.GetStageUpAxis(stage), rigid, jaw), None, still
+    link = AssetLink(head.resolve(), str(mesh.GetPath()), UsdGeom.GetStageUpAxis(stage), rigid, jaw, **extra)
+    return link, None, still
 
 
 def _unit_name(meters_per_unit: float) -> str | None:
@@ -224,12 +231,18 @@ def run(args) -> int:
         weights[still] = 0.0
         weights[link.jaw_vertices] = 1.0
         rig = dataclasses.replace(rig, jaw=dataclasses.replace(rig.jaw, weights=weights))
-        if link.prim_path:  # a USD head: its other meshes (teeth, tongue) below the lips follow the jaw
-            from ..usd import open_stage
-            from ..usd.asset_io import follower_jaw_weights
+    if link is not None and link.prim_path:  # a USD head: its other meshes below the lips follow the jaw ...
+        from ..usd import open_stage
+        from ..usd.asset_io import follower_jaw_weights
+        from ..usd.skin_followers import skin_embeddings
 
-            followers = follower_jaw_weights(open_stage(args.head), link.prim_path, points, landmarks, weights)
-            link = dataclasses.replace(link, followers=followers)
+        asset = open_stage(args.head)  # ... and those on the skin (lashes) ride it, leaving the jaw's followers
+        riding = skin_embeddings(asset, link.prim_path, points, triangles, landmarks, device=args.device)
+        followers = {}
+        if rig.jaw is not None:
+            followers = follower_jaw_weights(asset, link.prim_path, points, landmarks, rig.jaw.weights)
+        followers = {path: w for path, w in followers.items() if path not in riding}
+        link = dataclasses.replace(link, followers=followers, skin_followers=riding)
     stage = Usd.Stage.CreateInMemory(f"rig{out.suffix}")
     write_rig(stage, rig, meters_per_unit=meters_per_unit)
     skin = rig_prims(stage).skin

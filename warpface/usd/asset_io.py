@@ -9,8 +9,9 @@ asset file.
 
 Extra shells (eyes, teeth, tongue: connected parts other than the skin) are listed on the skin as
 ``warpFace:rigidVertices``: no muscle or wrinkle moves them, only the jaw with its weights (1 on the
-shells of ``warpFace:jawVertices``, 0 on those wholly above the lips). :class:`RigidShells` applies that
-to a model's evaluated frames.
+shells of ``warpFace:jawVertices``, 0 on those wholly above the lips). Shells that sit on the skin (lashes)
+ride it instead (:mod:`~warpface.usd.skin_followers`). :class:`RigidShells` applies both to a model's
+evaluated frames.
 """
 
 from __future__ import annotations
@@ -25,9 +26,19 @@ from pxr import Sdf, Usd, UsdGeom, UsdShade, Vt
 from .._validate import expect_instance
 from ..errors import RigError
 from ..expression.jaw import JAW_CONTROL_NAMES, jaw_points
-from ..mesh import ObjPolygons, fan_triangles
+from ..mesh import ObjPolygons
 from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, writable_path
 from .asset_normals import NORMAL_PROPERTIES, SkinNormals
+from .skin_followers import (
+    RIDING_VERTICES,
+    SkinEmbedding,
+    follow_skin,
+    other_meshes,
+    points_spec,
+    read_skin_embedding,
+    set_points,
+    write_skin_embedding,
+)
 
 __all__ = [
     "AssetLink",
@@ -75,6 +86,13 @@ class AssetLink:
     followers: dict = dataclasses.field(default_factory=dict)
     """Other meshes of a USD asset that move with the jaw: their prim path in the asset → per-vertex jaw
     weights (see :func:`follower_jaw_weights`); written on their prims under ``/<Face>/Asset``."""
+    skin_followers: dict = dataclasses.field(default_factory=dict)
+    """Other meshes of a USD asset that ride the skin (lashes): their prim path in the asset →
+    :class:`~warpface.usd.skin_followers.SkinEmbedding`; written on their prims under ``/<Face>/Asset``."""
+    riding_vertices: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """Vertices of the skin mesh's own extra shells that ride the skin (not rigid, not skin: lashes)."""
+    riding: SkinEmbedding | None = None
+    """Where :attr:`riding_vertices` sit on the skin (rows in their order)."""
 
 
 def write_obj_asset(polygons: ObjPolygons, path, *, name: str, meters_per_unit: float, up_axis: str) -> str:
@@ -203,6 +221,12 @@ def attach_asset(layer: Sdf.Layer, skin_path, link: AssetLink, *, anchor: Path |
             spec, name, Sdf.ValueTypeNames.IntArray, Sdf.VariabilityUniform
         )
         attribute.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(values, dtype=np.int32))
+    if link.riding is not None and len(link.riding_vertices):
+        riding = spec.properties.get(RIDING_VERTICES) or Sdf.AttributeSpec(
+            spec, RIDING_VERTICES, Sdf.ValueTypeNames.IntArray, Sdf.VariabilityUniform
+        )
+        riding.default = Vt.IntArray.FromNumpy(np.ascontiguousarray(link.riding_vertices, dtype=np.int32))
+        write_skin_embedding(spec, link.riding)
     order = spec.properties.get(UsdGeom.Tokens.xformOpOrder) or Sdf.AttributeSpec(
         spec, UsdGeom.Tokens.xformOpOrder, Sdf.ValueTypeNames.TokenArray, Sdf.VariabilityUniform
     )
@@ -241,6 +265,11 @@ def _keep_whole_asset(layer: Sdf.Layer, skin_path: Sdf.Path, link: AssetLink, as
                     spec, JAW_WEIGHTS, Sdf.ValueTypeNames.FloatArray, Sdf.VariabilityUniform
                 )
                 attribute.default = Vt.FloatArray.FromNumpy(np.asarray(weights, dtype=np.float32))
+        for path, embedding in link.skin_followers.items():
+            if Sdf.Path(path).HasPrefix(root.GetPath()):
+                write_skin_embedding(
+                    Sdf.CreatePrimInLayer(layer, Sdf.Path(path).ReplacePrefix(root.GetPath(), child.path)), embedding
+                )
 
 
 JAW_WEIGHTS = "warpFace:jawWeights"
@@ -255,26 +284,13 @@ def follower_jaw_weights(asset: Usd.Stage, skin_prim: str, skin_points, landmark
     line weighs 1, wholly above 0 (:func:`rigid_shell_vertices`' rule); a shell across it takes the jaw weight
     of the nearest skin vertex. Returns ``{prim path: weights (V,) float64}``.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
     skin_points = np.asarray(skin_points, dtype=np.float64)
     nearest = cKDTree(skin_points)
     found = {}
-    for prim in asset.Traverse():
-        if not prim.IsA(UsdGeom.Mesh) or str(prim.GetPath()) == skin_prim:
-            continue
-        mesh = UsdGeom.Mesh(prim)
-        points, counts = mesh.GetPointsAttr().Get(), mesh.GetFaceVertexCountsAttr().Get()
-        indices = mesh.GetFaceVertexIndicesAttr().Get()
-        if not points or not counts or not indices or max(indices) >= len(points):
-            continue
-        points = np.asarray(points, dtype=np.float64)
-        triangles = fan_triangles(np.asarray(counts), np.asarray(indices))
-        edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]]])
-        graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(len(points),) * 2)
-        shells = connected_components(graph, directed=False)[1] + 1  # 0 is the skin's label below
+    for prim, points, _, shells in other_meshes(asset, skin_prim):
+        shells = shells + 1  # 0 is the skin's label below
         combined = np.concatenate([skin_points, points])
         labels = np.concatenate([np.zeros(len(skin_points), dtype=np.int64), shells])
         _, jaw, still = rigid_shell_vertices(labels, 0, combined, landmarks)
@@ -306,21 +322,10 @@ def write_jaw_followers(layer: Sdf.Layer, followers, model, times: np.ndarray, c
     columns = slice(len(model.muscle_names), len(model.muscle_names) + len(JAW_CONTROL_NAMES))
     for prim, weights, rest in followers:
         jaw = dataclasses.replace(model.jaw, weights=weights)
-        spec = Sdf.CreatePrimInLayer(layer, prim.GetPath())
-        for name, type_name in (
-            ("points", Sdf.ValueTypeNames.Point3fArray),
-            ("extent", Sdf.ValueTypeNames.Float3Array),
-        ):
-            if spec.attributes.get(name) is None:
-                Sdf.AttributeSpec(spec, name, type_name)
+        spec = points_spec(layer, prim.GetPath())
         with Sdf.ChangeBlock():
             for time, values in zip(times.tolist(), np.asarray(controls, dtype=np.float64)[:, columns]):
-                moved = jaw_points(jaw, rest, values) if np.any(values != 0.0) else rest
-                bounds = np.stack([moved.min(axis=0), moved.max(axis=0)]).astype(np.float32)
-                layer.SetTimeSample(
-                    spec.path.AppendProperty("points"), time, Vt.Vec3fArray.FromNumpy(moved.astype(np.float32))
-                )
-                layer.SetTimeSample(spec.path.AppendProperty("extent"), time, Vt.Vec3fArray.FromNumpy(bounds))
+                set_points(layer, spec, time, jaw_points(jaw, rest, values) if np.any(values != 0.0) else rest)
 
 
 def _relative(path: Path, anchor: Path) -> str:
@@ -377,6 +382,15 @@ def asset_link(stage: Usd.Stage, skin: Usd.Prim) -> AssetLink | None:
         if stage.GetPrimAtPath(holder)
         else {}
     )
+    riding = {}
+    if stage.GetPrimAtPath(holder):
+        for prim in Usd.PrimRange(stage.GetPrimAtPath(holder)):
+            embedding = read_skin_embedding(prim)
+            if embedding is not None:
+                riding[str(prim.GetPath().ReplacePrefix(holder, Sdf.Path.absoluteRootPath))] = embedding
+    own = read_skin_embedding(skin)
+    on_skin = indices(RIDING_VERTICES)
+    own = own if own is not None and len(own.weights) == len(on_skin) else None
     return AssetLink(
         Path(layer.ComputeAbsolutePath(reference.assetPath)),
         str(reference.primPath) if not reference.primPath.isEmpty else "",
@@ -384,6 +398,9 @@ def asset_link(stage: Usd.Stage, skin: Usd.Prim) -> AssetLink | None:
         indices(RIGID_VERTICES),
         indices(JAW_VERTICES),
         followers,
+        riding,
+        on_skin if own is not None else np.zeros(0, dtype=np.int64),
+        own,
     )
 
 
@@ -392,13 +409,20 @@ class RigidShells:
 
     Wraps ``model`` (same interface): the rows of ``rigid`` vertices are replaced by the jaw's motion of
     their rest positions alone, with the jaw's weights (:func:`~warpface.expression.jaw_points`): no
-    muscle or wrinkle moves them.
+    muscle or wrinkle moves them. The rows of ``riding`` vertices (shells that sit on the skin: lashes)
+    become their rest positions plus the skin's displacement interpolated at ``on_skin`` (their
+    :class:`~warpface.usd.skin_followers.SkinEmbedding`, rows in ``riding``'s order).
     """
 
-    def __init__(self, model, rigid: np.ndarray):
+    def __init__(
+        self, model, rigid: np.ndarray, riding: np.ndarray | None = None, on_skin: SkinEmbedding | None = None
+    ):
         self._model = model
         self._rigid = np.asarray(rigid, dtype=np.int64)
         rest = np.asarray(model.mesh.points, dtype=np.float64)
+        self._skin_rest = rest
+        self._riding = np.zeros(0, dtype=np.int64) if on_skin is None else np.asarray(riding, dtype=np.int64)
+        self._on_skin = on_skin
         self._rest = rest[self._rigid]
         self._jaw = None
         if model.jaw is not None:
@@ -424,12 +448,14 @@ class RigidShells:
                 if np.any(jaw != 0.0):
                     moved = jaw_points(self._jaw, self._rest, jaw)
             frames[row, self._rigid] = moved
+        if len(self._riding):  # after the rigid shells: the riding ones sit on skin vertices only
+            frames[:, self._riding] = follow_skin(self._on_skin, self._skin_rest[self._riding], self._skin_rest, frames)
         return positions
 
 
 def shells_of(stage: Usd.Stage, skin: Usd.Prim, model):
     """``model`` wrapped in :class:`RigidShells` when the skin lists rigid vertices, else ``model``."""
     link = asset_link(stage, skin)
-    if link is None or len(link.rigid_vertices) == 0:
+    if link is None or len(link.rigid_vertices) + len(link.riding_vertices) == 0:
         return model
-    return RigidShells(model, link.rigid_vertices)
+    return RigidShells(model, link.rigid_vertices, link.riding_vertices, link.riding)

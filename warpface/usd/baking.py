@@ -46,6 +46,7 @@ from .cache_layers import (
 )
 from .rig_io import SHAPE_VARIANT_SET, read_rig, rig_prims, stage_meters_per_unit
 from .schema import ensure_schema
+from .skin_followers import skin_followers, write_skin_followers
 
 __all__ = [
     "bake",
@@ -335,8 +336,11 @@ def _write_cache(
                 for time in cache.ListTimeSamplesForPath(path):
                     if low <= time <= high:
                         cache.EraseTimeSample(path, time)
+        skin_rest = UsdGeom.Mesh(skin).GetPointsAttr().Get(Usd.TimeCode.Default())
+        riding = skin_followers(stage, len(skin_rest)) if skin_rest is not None else []  # lashes on the lids
         with tqdm(total=len(times), desc="bake", unit="frame", disable=not progress, leave=False) as bar:
             for chunk, (positions, bounds) in zip(chunks, frames):
+                write_skin_followers(cache, riding, skin_rest, chunk, positions)
                 with Sdf.ChangeBlock():
                     for offset, time in enumerate(chunk.tolist()):
                         cache.SetTimeSample(points_path, time, Vt.Vec3fArray.FromNumpy(positions[offset]))
