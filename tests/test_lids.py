@@ -9,7 +9,7 @@ from helpers import assert_rigs_equal
 
 import warpface as wf
 from warpface.assets import default_rig, preset_controls
-from warpface.assets.lids import LID_CONTROL_NAMES, TAPER_SHARE
+from warpface.assets.lids import LID_CONTROL_NAMES
 from warpface.assets.quality import LID_PAIRS, face_up, pair_distances, pair_heights
 from warpface.data import ict_face_region, ict_landmark_indices
 from warpface.drivers.default_tables import mapping_for_rig
@@ -127,9 +127,10 @@ def test_a_blink_closes_a_scan_s_lids_from_found_landmarks(lee_perry_smith):
 
 def test_the_hinge_taper_saturates_on_a_lid_and_not_on_the_lip_seal():
     angles = np.array([0.1, 0.2, 0.3, 0.4, 0.6, 0.8])
-    lid = LidMuscle("lid", np.zeros(3), [1, 0, 0], np.arange(1, 7), -angles, taper_share=TAPER_SHARE)
+    share = 0.5
+    lid = LidMuscle("lid", np.zeros(3), [1, 0, 0], np.arange(1, 7), -angles, taper_share=share)
     seal = LipSeal("seal", np.zeros(3), [1, 0, 0], np.arange(4, 10), angles, pairs=np.array([[4, 5]]))
-    expected_lid = np.clip(1.0 - angles / (TAPER_SHARE * 0.8), 0.0, 1.0)  # 0 from half the largest turn on
+    expected_lid = np.clip(1.0 - angles / (share * 0.8), 0.0, 1.0)  # 0 from half the largest turn on
     np.testing.assert_allclose(hinge_taper(12, [lid])[1:7], expected_lid, atol=1e-15)
     np.testing.assert_allclose(hinge_taper(12, [seal])[4:10], 1.0 - angles / 0.8, atol=1e-15)
     both = hinge_taper(12, [lid, seal, "not a hinge"])

@@ -45,11 +45,11 @@ RAISE_SHARE = 0.35
 CLOSURE = 0.99
 """``1 − ε``: the closing lids stop ``ε·Δ`` apart (0.1 mm on a 9 mm gap), so a surface a scan has across
 the opening keeps a sliver of area."""
-TAPER_SHARE = 0.5
+TAPER_SHARE = 1.0
 """Each hinge's ``taper_share`` (:func:`~warpface.expression.lids.hinge_taper`): a vertex that turns by at least this
-share of the hinge's largest turn gets no wrinkle or bulge (docs/RIG.md §11, §14). A lid margin turns by a share of
-the gap at its own x, 74 % of the widest at the iBUG lid midpoints of a scan; with 1 the wrinkles kept up to a
-quarter of their lift there and opened a closed blink by 0.9 mm."""
+share of the hinge's largest turn gets no wrinkle or bulge (docs/RIG.md §11, §14). 1: the plain taper. With the fold
+guards' lift guard (§14) fading what folds and the upper lid meeting its partner's line, a scan's blink closes to
+0.13 mm with it, while 0.5 (saturating at half the widest turn) folded 11 triangles of the ICT face's blink."""
 UPPER_BAND = (0.35, 0.55)
 """Upper lid: angle above the margin [rad] turning fully, then the angle over which the turn fades."""
 LOWER_BAND = (0.15, 0.40)
