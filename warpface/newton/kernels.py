@@ -282,7 +282,8 @@ def head_body_force(
     ``f`` (N,) is the tissue step's external force, its other rows left as they are (zero). Every thread finds the
     head's motion itself (a few quaternion products); thread 0 writes ``frames[0]``, the rest gravity
     ``b_rest = R_inᵀ g_model`` when ``rest_set[0]`` is 0, and books a non-finite ``[u, ω, α]`` (a head motion gone
-    bad: no body force) in ``errors[ERROR_NON_FINITE]``. ``rest_set`` is only read here, so every thread sees one
+    bad: no body force) in ``errors[ERROR_NON_FINITE]``. With ``[u, ω, α] = 0`` (a still head in its rest gravity) ``f``
+    is 0 without reading the mass row. ``rest_set`` is only read here, so every thread sees one
     value: the step's last kernel (:func:`place_nodes_from`) sets it."""
     o = wp.tid()
     p, r, r_in, v, omega, accel, alpha = _head_motion_of(head)
@@ -298,7 +299,10 @@ def head_body_force(
         if not finite:
             errors[ERROR_NON_FINITE] = errors[ERROR_NON_FINITE] + 1
     i = free[o]
-    f[i] = _mass_times_body(u, w, dw, M, i, nodes)
+    if wp.length_sq(u) + wp.length_sq(w) + wp.length_sq(dw) == wp.float64(0.0):
+        f[i] = wp.vec3d()  # a head at rest in its rest gravity: b = 0 exactly, no pass over the mass row
+    else:
+        f[i] = _mass_times_body(u, w, dw, M, i, nodes)
 
 
 @wp.kernel
