@@ -136,7 +136,7 @@ def test_newton_add_usd_reads_the_tissue_tetmesh_warpface_writes(shell, tmp_path
     rig, tetmesh, *_ = shell
     path = tmp_path / "face.usda"
     _rig_stage(shell, path)
-    builder = newton.ModelBuilder()
+    builder = newton.ModelBuilder(up_axis="Y")  # the stage's own frame (a Z-up builder turns the points)
     builder.add_usd(str(path))
     assert builder.tet_count == tetmesh.tet_count
     assert builder.particle_count == tetmesh.node_count
