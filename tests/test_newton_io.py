@@ -141,6 +141,12 @@ def test_newton_add_usd_reads_the_tissue_tetmesh_warpface_writes(shell, tmp_path
     assert builder.tet_count == tetmesh.tet_count
     assert builder.particle_count == tetmesh.node_count
     assert np.allclose(np.array(builder.particle_q, dtype=np.float64), tetmesh.points, atol=1e-6)
+    # the uniform material's physics material: Lamé parameters per tet and the mass rho V
+    E, nu = MATERIAL.E, MATERIAL.nu
+    lame = np.array([E / (2.0 * (1.0 + nu)), E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))])
+    materials = np.array(builder.tet_materials, dtype=np.float64)[:, :2]
+    np.testing.assert_allclose(materials, np.broadcast_to(lame, materials.shape), rtol=1e-5)
+    np.testing.assert_allclose(sum(builder.particle_mass), MATERIAL.rho * tetmesh.volumes.sum(), rtol=1e-5)
 
 
 def test_a_rig_stage_with_tissue_loads_into_newton_and_records_a_point_cache(shell, tmp_path):

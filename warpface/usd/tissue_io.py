@@ -340,6 +340,8 @@ def write_tissue_mesh(
         regions=_region_indices(regions, tetmesh.tet_count),
         skin_path=skin_path,
     )
+    if material.is_uniform:
+        _bind_physics_material(stage, prim, material)
     inverted = UsdGeom.TetMesh.FindInvertedElements(UsdGeom.TetMesh(prim), Usd.TimeCode.Default())
     if len(inverted):
         raise ValueError(
@@ -347,6 +349,21 @@ def write_tissue_mesh(
             "float32 rounding of the points collapsed a sliver"
         )
     return prim
+
+
+def _bind_physics_material(stage, prim, material: TissueMaterial) -> None:
+    """A uniform ``material`` also as the deformable physics material other simulators read (Newton's ``add_usd``):
+    ``physics:youngsModulus`` [Pa], ``physics:poissonsRatio``, ``physics:density`` [kg/m³] on a
+    ``PhysicsVolumeDeformableMaterialAPI`` material beside the tet mesh (``<name>PhysicsMaterial``), bound to it for
+    the ``physics`` purpose. warpface reads its own primvars; a per-tet material has no single value to give."""
+    from pxr import UsdShade
+
+    path = prim.GetPath()
+    shade = UsdShade.Material.Define(stage, path.GetParentPath().AppendChild(f"{path.name}PhysicsMaterial"))
+    shade.GetPrim().AddAppliedSchema("PhysicsVolumeDeformableMaterialAPI")
+    for name, value in (("youngsModulus", material.E), ("poissonsRatio", material.nu), ("density", material.rho)):
+        shade.GetPrim().CreateAttribute(f"physics:{name}", Sdf.ValueTypeNames.Float).Set(float(value))
+    UsdShade.MaterialBindingAPI.Apply(prim).Bind(shade, UsdShade.Tokens.weakerThanDescendants, "physics")
 
 
 def read_tissue_mesh(stage_or_path, path: str | None = None, *, damping: str = "stokes") -> TissueMeshData:
