@@ -82,13 +82,13 @@ def _slit_pairs(mesh: FaceMesh, frame: FaceFrame, local: np.ndarray, landmarks: 
     if faces is None:
         return []
     upper, lower = faces
-    pairs = set()
+    found = []
     for mine, other, flip in ((upper, lower, False), (lower, upper, True)):
         distance, nearest = cKDTree(local[other]).query(local[mine])
-        for a, b, d in zip(mine, other[nearest], distance):
-            if d < SLIT_GAP:
-                pairs.add((int(b), int(a)) if flip else (int(a), int(b)))
-    return sorted(pairs)
+        close = distance < SLIT_GAP
+        a, b = np.asarray(mine)[close], np.asarray(other)[nearest][close]
+        found.append(np.stack([b, a] if flip else [a, b], axis=1))
+    return [(int(a), int(b)) for a, b in np.unique(np.concatenate(found), axis=0)]
 
 
 def default_lip_seal(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> LipSeal | None:
