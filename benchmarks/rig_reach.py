@@ -21,6 +21,7 @@ writes ``warpface/assets/calibrated_anatomy.json``.
 the calibration, stored landmark-relative, must transfer.
 
     python -m benchmarks.rig_reach [--shapes jawOpen eyeSquint_L] [--compare] [--calibrate 4] [--warp]
+        [--anatomy OTHER.json …] [--calibrate 3 --output CANDIDATE.json]
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ import warp as wp
 
 import warpface as wf
 from warpface.assets import default_rig
-from warpface.assets.calibrated import CALIBRATED_ANATOMY
+from warpface.assets.calibrated import CALIBRATED_ANATOMY, apply_parameters, load_calibrated_anatomy
 from warpface.assets.rig import rig_scale
 from warpface.calibration import ExampleShape, calibrate, reach
 from warpface.calibration.report import parameters_data
@@ -226,6 +227,9 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--output", type=Path, default=CALIBRATED_ANATOMY, help="where --calibrate writes (default: the asset)"
     )
+    parser.add_argument(
+        "--anatomy", nargs="*", type=Path, default=[], help="also measure these calibration files (before/after runs)"
+    )
     parser.add_argument("--warp", action="store_true", help="another identity: ICT smoothly warped (transfer check)")
     parser.add_argument(
         "--jacobians", type=int, default=0, metavar="N", help="only time the Jacobian forms (N iterations each)"
@@ -258,6 +262,9 @@ def main(argv=None) -> int:
         "hand-placed": default_rig(mesh, landmarks, name="ICTFace", device=args.device, calibrated=False),
         "calibrated": default_rig(mesh, landmarks, name="ICTFace", device=args.device),
     }
+    for path in args.anatomy:
+        values = load_calibrated_anatomy(path)
+        rigs[f"calibrated ({path.name})"] = apply_parameters(rigs["hand-placed"], values, device=args.device)
     if args.compare:
         rigs["classic"] = default_rig(mesh, landmarks, name="ICTFace", device=args.device, anatomy="classic")
     shapes = load_shapes(names)
