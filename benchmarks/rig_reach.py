@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 import time
 from pathlib import Path
 
@@ -41,6 +42,7 @@ from warpface.assets.rig import rig_scale
 from warpface.calibration import ExampleShape, calibrate, reach
 from warpface.calibration.report import parameters_data
 from warpface.data import ict_face_region, ict_landmark_indices
+from warpface.expression.lids import LidMuscle
 
 from ._timing import machine_info, print_table, write_results
 
@@ -230,6 +232,9 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--anatomy", nargs="*", type=Path, default=[], help="also measure these calibration files (before/after runs)"
     )
+    parser.add_argument(
+        "--full-turn", action="store_true", help="also the hand-placed rig with every lid hinge's fit_limit at 1"
+    )
     parser.add_argument("--warp", action="store_true", help="another identity: ICT smoothly warped (transfer check)")
     parser.add_argument(
         "--jacobians", type=int, default=0, metavar="N", help="only time the Jacobian forms (N iterations each)"
@@ -262,6 +267,10 @@ def main(argv=None) -> int:
         "hand-placed": default_rig(mesh, landmarks, name="ICTFace", device=args.device, calibrated=False),
         "calibrated": default_rig(mesh, landmarks, name="ICTFace", device=args.device),
     }
+    if args.full_turn:  # the lid hinges' range in a fit before docs/RIG.md §11 "Range in a fit"
+        hand = rigs["hand-placed"]
+        muscles = [replace(m, fit_limit=1.0) if isinstance(m, LidMuscle) else m for m in hand.muscles]
+        rigs["hand-placed, lids at the full turn"] = replace(hand, muscles=muscles)
     for path in args.anatomy:
         values = load_calibrated_anatomy(path)
         rigs[f"calibrated ({path.name})"] = apply_parameters(rigs["hand-placed"], values, device=args.device)

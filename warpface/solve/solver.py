@@ -570,12 +570,12 @@ def fit(rig, target, *, vertices=None, weights=None, device=None, **options) -> 
 
 
 def _upper_bound(muscle) -> float:
-    """A muscle's largest contraction in a fit: sphincters to SPHINCTER_MAX, a lid's turn to its full closure
-    (beyond it the margins would pass each other), the lip seal's parting to 0 (it is the lips' constraint, not
-    an expression: fits that used it traded it against jaw_open; ``bounds`` can free it), linear muscles
-    unbounded."""
+    """A muscle's largest contraction in a fit: sphincters to SPHINCTER_MAX, a lid's turn to its ``fit_limit``
+    (1, the full closure, unless the hinge allows more: docs/RIG.md §11), the lip seal's parting to 0 (it is the
+    lips' constraint, not an expression: fits that used it traded it against jaw_open; ``bounds`` can free it),
+    linear muscles unbounded."""
     if isinstance(muscle, LipSeal):
         return 0.0
     if isinstance(muscle, LidMuscle):
-        return 1.0
+        return muscle.fit_limit
     return SPHINCTER_MAX if isinstance(muscle, SphincterMuscle) else np.inf
