@@ -28,8 +28,8 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import replace
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
