@@ -211,3 +211,40 @@ def test_the_solver_fits_a_blink_with_the_lid_controls(rig):
     values = dict(zip(model.control_names, solved.vector))
     assert values["lid_upper_close_L"] > 0.6
     assert np.abs(solved.points - target).max() < 0.05 * np.abs(target - rig.mesh.points).max()
+
+
+def test_a_fit_raises_the_lower_lid_past_the_blink_up_to_its_limit(rig, tmp_path):
+    from warpface.assets.lids import LOWER_FIT_LIMIT
+
+    limits = {m.name: m.fit_limit for m in rig.muscles if isinstance(m, LidMuscle) and not isinstance(m, LipSeal)}
+    assert limits == {n: (LOWER_FIT_LIMIT if "lower_close" in n else 1.0) for n in LID_CONTROL_NAMES}
+    model = rig.model(device=DEVICE)
+    # a squint: the lower lid 1.6 times its blink turn; a fit held at the full turn would stop at 1
+    target = model.evaluate({"lid_lower_close_L": 1.6})
+    solved = fit(rig, target, device=DEVICE)
+    assert abs(solved.controls["lid_lower_close_L"] - 1.6) < 0.05, solved.controls["lid_lower_close_L"]
+    held = fit(rig, target, device=DEVICE, bounds={"lid_lower_close_L": (0.0, 1.0)})
+    assert held.controls["lid_lower_close_L"] <= 1.0 + 1e-12
+    assert np.abs(held.points - target).max() > 2.0 * np.abs(solved.points - target).max()
+    beyond = fit(rig, model.evaluate({"lid_lower_close_L": 3.0}), device=DEVICE)
+    assert beyond.controls["lid_lower_close_L"] <= LOWER_FIT_LIMIT + 1e-12
+    # the limit round-trips through a stage; one written before the attribute reads 1; a bad one is refused
+    path = tmp_path / "rig.usda"
+    wf.usd.write_rig(path, rig)
+    back = {m.name: m.fit_limit for m in wf.usd.read_rig(path).muscles if m.name in limits}
+    assert back == limits
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(str(path))
+    prims = [p for p in stage.Traverse() if p.GetTypeName() == "WarpFaceLidMuscle" and "lower_close" in p.GetName()]
+    prims[0].GetAttribute("fitLimit").Clear()
+    prims[1].GetAttribute("fitLimit").Set(-1.0)
+    stage.Save()
+    with pytest.raises(wf.RigError, match="fitLimit"):
+        wf.usd.read_rig(path)
+    prims[1].GetAttribute("fitLimit").Clear()
+    stage.Save()
+    assert {m.fit_limit for m in wf.usd.read_rig(path).muscles if isinstance(m, LidMuscle)} == {1.0}
+    for bad in (0.0, -1.0, 11.0, np.nan):
+        with pytest.raises(ValueError, match="fit_limit"):
+            LidMuscle("lid", np.zeros(3), [1, 0, 0], [1], [0.1], fit_limit=bad)

@@ -103,6 +103,31 @@ def test_landmark_closed_loop(rig, model):
     assert surface < 1e-2 * iod
 
 
+def test_sparse_targets_get_the_ridge_scaled_by_their_count(rig, model):
+    from warpface.solve import SolveOptions
+    from warpface.solve.solver import FIT_RIDGE_POINTS
+
+    rng = np.random.default_rng(11)
+    target = model.evaluate(random_controls(rig, rng)).astype(np.float64)
+    sparse = target[rig.landmarks]
+    scaled = fit(rig, sparse, vertices=rig.landmarks, device="cpu")
+    # the same fit written out by hand: a plain ridge of l2·N₀/N
+    by_hand = fit(rig, sparse, vertices=rig.landmarks, device="cpu", ridge_points=1, l2=1e-6 * FIT_RIDGE_POINTS / 68)
+    assert np.allclose(scaled.vector, by_hand.vector, rtol=0.0, atol=1e-9)
+    plain = fit(rig, sparse, vertices=rig.landmarks, device="cpu", ridge_points=1)
+    assert np.sum(scaled.vector**2) < np.sum(plain.vector**2)  # a stronger ridge holds the loose controls back
+    # a dense face (the built-in face has more than N₀ vertices) keeps l2; a Solver keeps it for any count
+    assert rig.mesh.vertex_count >= FIT_RIDGE_POINTS
+    dense = fit(rig, target, device="cpu")
+    assert np.array_equal(dense.vector, fit(rig, target, device="cpu", ridge_points=1).vector)
+    assert Solver(rig, rig.landmarks, device="cpu").ridge == SolveOptions().l2
+    assert Solver(rig, rig.landmarks, device="cpu", ridge_points=680, l2=1e-5).ridge == pytest.approx(1e-4)
+    with pytest.raises(ValueError, match="ridge_points"):
+        fit(rig, sparse, vertices=rig.landmarks, ridge_points=0)
+    with pytest.raises(TypeError, match="ridge_points"):
+        fit(rig, sparse, vertices=rig.landmarks, ridge_points=2.5)
+
+
 def test_surface_points_closed_loop(rig, model, rng):
     truth = random_controls(rig, rng)
     points = model.evaluate(truth).astype(np.float64)

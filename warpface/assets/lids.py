@@ -34,7 +34,15 @@ from ..expression.lids import LidMuscle
 from ..mesh import FaceMesh
 from .frame import FaceFrame
 
-__all__ = ["LID_CONTROL_NAMES", "default_lids", "EYEBALL_RADIUS", "LOWER_SHARE", "RAISE_SHARE", "TAPER_SHARE"]
+__all__ = [
+    "LID_CONTROL_NAMES",
+    "default_lids",
+    "EYEBALL_RADIUS",
+    "LOWER_SHARE",
+    "RAISE_SHARE",
+    "TAPER_SHARE",
+    "LOWER_FIT_LIMIT",
+]
 
 EYEBALL_RADIUS = 0.19
 """The eyeball's radius [inter-ocular units]: 12 mm at a 63 mm inter-ocular distance."""
@@ -50,6 +58,10 @@ TAPER_SHARE = 1.0
 share of the hinge's largest turn gets no wrinkle or bulge (docs/RIG.md §11, §14). 1: the plain taper. With the fold
 guards' lift guard (§14) fading what folds and the upper lid meeting its partner's line, a scan's blink closes to
 0.13 mm with it, while 0.5 (saturating at half the widest turn) folded 11 triangles of the ICT face's blink."""
+LOWER_FIT_LIMIT = 2.0
+"""``fit_limit`` of ``lid_lower_close_{s}``: a fit may raise the lower margin by twice its blink share (20 % of the
+opening), as a squint or an upward look does (ICT's eyeLookUp fits K = 1.56 when free); the other hinges stop at 1
+(docs/RIG.md §11, "Range in a fit")."""
 UPPER_BAND = (0.35, 0.55)
 """Upper lid: angle above the margin [rad] turning fully, then the angle over which the turn fades."""
 LOWER_BAND = (0.15, 0.40)
@@ -209,7 +221,16 @@ def default_lids(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> lis
             moved = np.flatnonzero(angles != 0.0)
             name = f"lid_{part}_{side}"
             slides, lifts = slides[moved] * frame.scale, lifts[moved] * frame.scale
+            limit = LOWER_FIT_LIMIT if part == "lower_close" else 1.0
             hinges[name] = LidMuscle(
-                name, centre, frame.axes[0], moved, angles[moved], slides, lifts, taper_share=TAPER_SHARE
+                name,
+                centre,
+                frame.axes[0],
+                moved,
+                angles[moved],
+                slides,
+                lifts,
+                taper_share=TAPER_SHARE,
+                fit_limit=limit,
             )
     return [hinges[name] for name in LID_CONTROL_NAMES]

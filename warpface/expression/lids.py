@@ -25,10 +25,12 @@ import warp as wp
 from .._validate import as_bounded, as_finite_array, as_vec3, unit_vector
 from .formulas import jaw_blend, jaw_rotation, jaw_slide, unit_or_zero
 
-__all__ = ["LidMuscle", "MAX_LID_ANGLE", "lid_field", "hinge_taper", "bulging_thickness"]
+__all__ = ["LidMuscle", "MAX_LID_ANGLE", "MAX_FIT_LIMIT", "lid_field", "hinge_taper", "bulging_thickness"]
 
 MAX_LID_ANGLE = np.pi / 2
 """Largest |θ_v| [rad] per unit contraction: a lid turns by less than a right angle over the eyeball."""
+MAX_FIT_LIMIT = 10.0
+"""Largest ``fit_limit``: a fit may turn a hinge at most ten times its full turn."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,6 +49,8 @@ class LidMuscle:
             meet a partner at another distance from the axis.
         taper_share: ``q`` in (0, 1] of :func:`hinge_taper` (default 1): a vertex that turns by at least this
             share of the largest turn gets no wrinkle and no bulge (docs/RIG.md §11, §14).
+        fit_limit: the largest ``K`` a fit may use (the solver's upper bound), > 0 (default 1: the full turn);
+            presets and mappings stay within [0, 1] (docs/RIG.md §11, "Range in a fit").
 
     ``K`` is dimensionless (1: the full turn). The skin response of the Waters muscles does not apply:
     ``sliding``, ``bunching`` and ``thickening`` are 0 (the lid turns over the eyeball, on its surface).
@@ -63,6 +67,7 @@ class LidMuscle:
     slides: np.ndarray | None = None
     lifts: np.ndarray | None = None
     taper_share: float = 1.0
+    fit_limit: float = 1.0
 
     sliding = 0.0
     bunching = 0.0
@@ -100,6 +105,9 @@ class LidMuscle:
         set_(self, "taper_share", as_bounded(self.taper_share, f"{label}: taper_share", 0.0, 1.0))
         if self.taper_share == 0.0:
             raise ValueError(f"{label}: taper_share must be > 0")
+        set_(self, "fit_limit", as_bounded(self.fit_limit, f"{label}: fit_limit", 0.0, MAX_FIT_LIMIT))
+        if self.fit_limit == 0.0:
+            raise ValueError(f"{label}: fit_limit must be > 0")
 
     def check_vertex_count(self, vertex_count: int) -> None:
         """Raise ValueError when a vertex index is outside a mesh of ``vertex_count`` points."""

@@ -43,7 +43,12 @@ from .objective import DeviceObjective
 from .pose import rigid_alignment
 from .targets import frame_targets, observation, point_weights
 
-__all__ = ["SolveOptions", "Fit", "BatchFit", "Solver", "fit", "SPHINCTER_MAX"]
+__all__ = ["SolveOptions", "Fit", "BatchFit", "Solver", "fit", "SPHINCTER_MAX", "FIT_RIDGE_POINTS"]
+
+FIT_RIDGE_POINTS = 10000
+"""``ridge_points`` of :func:`fit`: about a dense face's vertex count (ICT's face region 9,409, the built-in face
+11,492), so a dense fit keeps ``l2`` and a 68-landmark fit gets ``l2·147`` (docs/RIG.md §13: landmark reach on the
+trained ICT shapes 30.1 → 35.2 % hand-placed, flat from ``l2 = 10⁻⁴`` to 10⁻³)."""
 
 SPHINCTER_MAX = 1.0
 """Upper bound of a sphincter's contraction: at K = 1 the skin at the centre reaches it (f·K ≤ 1)."""
@@ -81,6 +86,13 @@ class SolveOptions:
         frames_per_pass: frames evaluated together (bounds the working memory of a batch); default 64 on
             the CPU; on CUDA as many as fit in 16 GiB, at most 16384 (converged frames cost little, so a
             larger pass keeps more of the GPU busy per launch).
+        ridge_points: the count of target points at which ``l2`` holds; a fit to ``N`` fewer points uses
+            ``l2·ridge_points/N``. The data term is a mean over the points (``ŵ`` sums to 1), so a fixed ridge would
+            weigh 68 landmarks' evidence as much as a dense face's; a Gaussian prior on the controls against
+            independent point errors keeps its weight against their *sum*, i.e. grows as 1/N against the mean.
+            Dense faces (≥ ``ridge_points`` vertices) keep ``l2``. Default 1 (off) for a :class:`Solver`, whose
+            trackers hold the controls with the previous frame and recover exact controls from exact landmarks;
+            :func:`fit` uses :data:`FIT_RIDGE_POINTS` (docs/RIG.md §13).
         device_steps: run the iteration itself (damped bounded step, accept/reject, convergence) on the
             device, one thread per frame, reading back only a counter per launch round (default: fewer
             Python operations per iteration, on the CPU too); False: the NumPy loop. Results agree to
@@ -99,6 +111,7 @@ class SolveOptions:
     step_tolerance: float = 1e-7
     energy_tolerance: float = 1e-10
     min_points: int = 3
+    ridge_points: int = 1
     frames_per_pass: int | None = None
     device_steps: bool | None = None
 
@@ -115,7 +128,7 @@ class SolveOptions:
                 raise TypeError(f"{name}: expected a number, got {type(value).__name__}")
             if not np.isfinite(value) or value < 0:
                 raise ValueError(f"{name}: expected a finite number ≥ 0, got {value!r}")
-        for name in ("max_iterations", "min_points", "frames_per_pass"):
+        for name in ("max_iterations", "min_points", "ridge_points", "frames_per_pass"):
             value = getattr(made, name)
             if name == "frames_per_pass" and value is None:
                 continue
@@ -242,6 +255,9 @@ class Solver:
         self.names = rig.control_names if self.has_jaw else rig.muscle_names
         self.observation = observation(rig.mesh, vertices, triangles, barycentrics)
         self.weights = point_weights(weights, self.observation.count)
+        self.ridge = self.options.l2 * max(1.0, self.options.ridge_points / self.observation.count)
+        """The ridge weight of these targets (``l2`` scaled by ``ridge_points``/N)."""
+        self._step_options = replace(self.options, l2=self.ridge)
         self.device = device
         self._model = None
         operators = rig_operators(rig, device)
@@ -453,7 +469,7 @@ class Solver:
     ) -> dict:
         """Solve (F, N, 3) targets; ``start`` (F, M) is the temporal anchor and kept by skipped frames,
         ``guess`` (default ``start``) the first iterate; ``cold``: no earlier frame to start near."""
-        opts = self.options
+        opts = self._step_options
         frames, count = targets.shape[:2]
         valid = np.all(np.isfinite(targets), axis=2) & (weight[None] > 0.0)
         valid_count = valid.sum(axis=1)
@@ -525,7 +541,9 @@ def fit(rig, target, *, vertices=None, weights=None, device=None, **options) -> 
         vertices: (N,) vertex indices of the target points.
         weights: per-point weights (N,), ≥ 0.
         device: Warp device of the solve's kernels and of :attr:`Fit.points`.
-        **options: :class:`SolveOptions` fields (``l2``, ``l1``, ``symmetry``, ``pose``, ``bounds``, …).
+        **options: :class:`SolveOptions` fields (``l2``, ``l1``, ``symmetry``, ``pose``, ``bounds``, …);
+            ``ridge_points`` defaults to :data:`FIT_RIDGE_POINTS` here: one shape solved from neutral has nothing
+            but the prior to hold the controls its few points leave loose.
 
     Returns:
         :class:`Fit`, solved from neutral. The solver built for these target locations is kept with the
@@ -534,6 +552,7 @@ def fit(rig, target, *, vertices=None, weights=None, device=None, **options) -> 
     if not isinstance(rig, FaceRig):
         raise TypeError(f"rig: expected a warpface.FaceRig, got {type(rig).__name__}")
     surface = {key: options.pop(key) for key in ("triangles", "barycentrics") if key in options}
+    options.setdefault("ridge_points", FIT_RIDGE_POINTS)
     key = (
         str(device),
         repr(sorted(options.items())),
@@ -551,12 +570,12 @@ def fit(rig, target, *, vertices=None, weights=None, device=None, **options) -> 
 
 
 def _upper_bound(muscle) -> float:
-    """A muscle's largest contraction in a fit: sphincters to SPHINCTER_MAX, a lid's turn to its full closure
-    (beyond it the margins would pass each other), the lip seal's parting to 0 (it is the lips' constraint, not
-    an expression: fits that used it traded it against jaw_open; ``bounds`` can free it), linear muscles
-    unbounded."""
+    """A muscle's largest contraction in a fit: sphincters to SPHINCTER_MAX, a lid's turn to its ``fit_limit``
+    (1, the full closure, unless the hinge allows more: docs/RIG.md §11), the lip seal's parting to 0 (it is the
+    lips' constraint, not an expression: fits that used it traded it against jaw_open; ``bounds`` can free it),
+    linear muscles unbounded."""
     if isinstance(muscle, LipSeal):
         return 0.0
     if isinstance(muscle, LidMuscle):
-        return 1.0
+        return muscle.fit_limit
     return SPHINCTER_MAX if isinstance(muscle, SphincterMuscle) else np.inf

@@ -3,7 +3,8 @@
 
 The per-vertex data (vertex indices, turn angles [rad], slides and lifts [stage units], per unit K)
 are uniform arrays; the centre and axis are in the skin's local space like every muscle's; ``taperShare`` is the
-hinge's share of the wrinkle and bulge taper (a stage without it reads as 1).
+hinge's share of the wrinkle and bulge taper (a stage without it reads as 1), ``fitLimit`` the largest K a fit may
+use (a stage without it reads as 1).
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import numpy as np
 from pxr import Sdf, Usd, Vt
 
 from ..errors import RigError
-from ..expression.lids import LidMuscle
+from ..expression.lids import MAX_FIT_LIMIT, LidMuscle
 from ..expression.seal import LipSeal
 from ._prim_values import array_value, scalar_value
 
@@ -36,6 +37,7 @@ def author_lid(stage: Usd.Stage, path: Sdf.Path, lid: LidMuscle) -> Usd.Prim:
         values = np.ascontiguousarray(getattr(lid, name), dtype=np.float64)
         uniform(name, types.DoubleArray, Vt.DoubleArray.FromNumpy(values))
     uniform("taperShare", types.Double, float(lid.taper_share))
+    uniform("fitLimit", types.Double, float(lid.fit_limit))
     if isinstance(lid, LipSeal):
         pairs = np.ascontiguousarray(lid.pairs.reshape(-1), dtype=np.int32)
         uniform("sealPairs", types.IntArray, Vt.IntArray.FromNumpy(pairs))
@@ -60,6 +62,13 @@ def read_lid(prim: Usd.Prim, place, to_units: float, name: str) -> LidMuscle:
         extra["taper_share"] = scalar_value(prim, "taperShare")
         if not 0.0 < extra["taper_share"] <= 1.0:
             raise RigError(f"{prim.GetPath()}.taperShare: expected a value in (0, 1], got {extra['taper_share']}")
+    limit = prim.GetAttribute("fitLimit")
+    if limit and limit.HasAuthoredValue():  # a stage written before the attribute keeps the full turn
+        extra["fit_limit"] = scalar_value(prim, "fitLimit")
+        if not 0.0 < extra["fit_limit"] <= MAX_FIT_LIMIT:
+            raise RigError(
+                f"{prim.GetPath()}.fitLimit: expected a value in (0, {MAX_FIT_LIMIT:g}], got {extra['fit_limit']}"
+            )
     return kind(
         name=name,
         center=place.point(array_value(prim, "center", (3,))) * to_units,
