@@ -15,6 +15,7 @@ from warpface.expression.fold_guard import (
     equalized_weights,
     fold_blend,
     folded_triangles,
+    ladder_equalized,
     unfolded_response,
     unfolded_weights,
 )
@@ -288,3 +289,41 @@ def test_two_fields_that_fold_together_are_made_equal_together():
     free = points[:, 0] != 6.0  # the column it would be pulled past keeps its (zero) field: the fold stays
     kept = equalized_field(points, triangles, pair, 1.0, margin=0.0, free=free)
     np.testing.assert_array_equal(kept[~free], pair[~free])
+
+
+def test_each_of_two_fields_is_made_unfolding_alone_and_only_its_free_columns_change():
+    points, triangles = _grid(12)
+    one = np.zeros_like(points)
+    one[:, 0] = np.where(points[:, 0] == 5.0, 1.6, 0.0)  # alone it pulls a column past the next one
+    pair = np.concatenate([one, -0.5 * one], axis=1)  # the sum pulls it 0.8: no flip
+    assert not folded_triangles(points, triangles, points + 0.5 * one, 0.0).any()
+    assert folded_triangles(points, triangles, points + one, 0.0).any()
+    np.testing.assert_array_equal(equalized_field(points, triangles, pair, 1.0, margin=0.0), pair)  # the sum only
+    free = np.zeros(pair.shape, dtype=bool)
+    free[:, :3] = True  # only the first field may change
+    equal = equalized_field(points, triangles, pair, 1.0, margin=0.0, free=free, each=True)
+    np.testing.assert_array_equal(equal[:, 3:], pair[:, 3:])
+    for moved in (equal[:, :3], equal[:, 3:], equal[:, :3] + equal[:, 3:]):
+        assert not folded_triangles(points, triangles, points + moved, 0.0).any()
+
+
+def test_the_ladder_clears_each_step_it_takes_and_leaves_an_unfolding_field_alone():
+    points, triangles = _grid(12)
+    field = np.zeros_like(points)
+    field[:, 0] = -2.0 * (points[:, 0] - 5.5) * np.exp(-(((points[:, 1] - 5.5) / 3.0) ** 2))  # a pinch
+    assert folded_triangles(points, triangles, points + 0.5 * field).any()
+    assert not folded_triangles(points, triangles, points + 0.25 * field).any()
+    out = ladder_equalized(points, triangles, field, 1.0)
+    for k in (0.125, 0.25, 0.5, 1.0):
+        assert not folded_triangles(points, triangles, points + k * out).any()
+    np.testing.assert_array_equal(ladder_equalized(points, triangles, 0.2 * field, 1.0), 0.2 * field)
+
+
+@pytest.mark.slow
+def test_a_whole_head_scan_folds_almost_nothing(lee_perry_smith):
+    """The Lee Perry-Smith scan (a whole head: its bounding box sets a reference pull of 34 mm, six times its full
+    pucker) and its closed eyes: 22 flips before the ladder and the pair rule of docs/RIG.md §14 (eyeBlinkLeft 10,
+    mouthPucker 9, mouthFunnel 3)."""
+    mesh, landmarks, _ = lee_perry_smith
+    flips = _flips(default_rig(mesh, landmarks, device=DEVICE))
+    assert sum(flips.values()) <= 5, sorted(flips.items(), key=lambda item: -item[1])[:6]
