@@ -163,15 +163,22 @@ def closing_shares(rig, jaw_controls) -> np.ndarray:
 
 
 def mouth_close_shares(rig, jaw_controls, mouth_close, jaw_open) -> np.ndarray:
-    """The seal's control per frame for ARKit's ``mouthClose`` over ``jawOpen`` (docs/RIG.md §12), shape (F,):
-    ``min(1, mouthClose / jawOpen) · closing_share(jaw pose)``, the channels' weights (F,) each, the jaw's controls
-    (F, 3). 0 where ``mouthClose`` is 0 (and the closing share is 0 with the jaw shut, so ``mouthClose`` alone never
-    moves the lips)."""
-    mouth_close = np.clip(np.asarray(mouth_close, dtype=np.float64), 0.0, None)
-    jaw_open = np.asarray(jaw_open, dtype=np.float64)
-    ratio = np.where(mouth_close > 0.0, np.minimum(1.0, mouth_close / np.maximum(jaw_open, 1e-12)), 0.0)
+    """The seal's control per frame for ARKit's ``mouthClose`` ``c`` over ``jawOpen`` ``j`` (channel weights (F,)
+    each; docs/RIG.md §12), shape (F,): with ``a(θ)`` the :func:`closing_share` at the frame's jaw pose ``θ`` (the
+    jaw's controls (F, 3)) and ``a₀`` at rest,
+
+    ``s = max(a(θ), min(1, c / j) · (a(θ) − a₀) + c · a₀)``,  ``c`` clipped to [0, 1] (``c / j`` = 1 where ``j`` = 0)
+
+    — the jaw's parting closed in the ratio of the channels (all of it where ``c ≥ j``: the preset's seal) and a lip
+    gap the face has at rest closed in proportion to ``c``, never beyond contact. 0 where ``c`` is 0."""
+    close = np.clip(np.asarray(mouth_close, dtype=np.float64), 0.0, 1.0)
+    opened = np.asarray(jaw_open, dtype=np.float64)
+    ratio = np.where(close > 0.0, np.minimum(1.0, close / np.maximum(opened, close)), 0.0)
     shares = np.zeros(len(ratio))
-    on = np.flatnonzero(ratio > 0.0)
+    on = np.flatnonzero(close > 0.0)
     if len(on):
-        shares[on] = ratio[on] * closing_shares(rig, np.asarray(jaw_controls, dtype=np.float64).reshape(-1, 3)[on])
+        poses = np.asarray(jaw_controls, dtype=np.float64).reshape(-1, 3)[on]
+        closing = closing_shares(rig, np.concatenate([np.zeros((1, 3)), poses]))
+        rest, posed = closing[0], closing[1:]
+        shares[on] = np.maximum(posed, ratio[on] * (posed - rest) + close[on] * rest)
     return shares
