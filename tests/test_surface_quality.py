@@ -327,3 +327,50 @@ def test_a_whole_head_scan_folds_almost_nothing(lee_perry_smith):
     mesh, landmarks, _ = lee_perry_smith
     flips = _flips(default_rig(mesh, landmarks, device=DEVICE))
     assert sum(flips.values()) <= 5, sorted(flips.items(), key=lambda item: -item[1])[:6]
+
+
+def _grid_profile(spacing: float, width: float, n: int = 24):
+    """A flat grid of ``spacing`` (a lid hinge far off makes it a rig beyond the paper's model), a straight wrinkle
+    along y at x = 10.05 spacings: (mesh, wrinkle, hinge, the model's profile Σ shape per vertex on the row y = n/2)."""
+    from warpface.expression import PlanarProjection, Wrinkle
+    from warpface.expression.wrinkles import skin_wrinkle_shapes
+
+    points, triangles = _grid(n)
+    mesh = wf.FaceMesh(points * spacing, triangles)
+    line = np.array([[10.05, 2.0], [10.05, 8.0], [10.05, 14.0], [10.05, 20.0]]) * spacing
+    wrinkle = Wrinkle("w", line, PlanarProjection(np.zeros(3), [1, 0, 0], [0, 1, 0]), depth=1.0, width=width)
+    hinge = LidMuscle("lid", [0.0, 0.0, -50.0], [1, 0, 0], [0], [0.0])
+    shapes = skin_wrinkle_shapes(mesh, [wrinkle], [hinge], device=DEVICE)
+    per_vertex = np.zeros(len(points))
+    np.add.at(per_vertex, np.repeat(np.arange(len(points)), np.diff(shapes.offsets)), shapes.shape)
+    return mesh, wrinkle, per_vertex.reshape(n, n)[n // 2]
+
+
+def _sign_runs(values: np.ndarray) -> list[int]:
+    """Lengths of the runs of one sign among the values above 1e-3 of the largest (the rest count as gaps)."""
+    signs = np.sign(np.where(np.abs(values) > 1e-3 * np.abs(values).max(), values, 0.0))
+    signs = signs[signs != 0.0]
+    return [len(run) for run in np.split(signs, np.flatnonzero(np.diff(signs)) + 1)]
+
+
+def test_a_wrinkle_narrower_than_the_mesh_is_widened_and_made_shallower_not_cut():
+    from warpface.expression.wrinkle_width import WRINKLE_EDGES, drawable_widths, vertex_edge_lengths
+    from warpface.expression.wrinkles import wrinkle_shapes
+
+    mesh, wrinkle, row = _grid_profile(spacing=1.0, width=0.15)  # the groove is 0.3 wide on edges of 1 (and √2)
+    raw = np.zeros(len(mesh.points))
+    shapes = wrinkle_shapes(mesh.points, [wrinkle], device=DEVICE)
+    np.add.at(raw, np.repeat(np.arange(len(raw)), np.diff(shapes.offsets)), shapes.shape)
+    raw = raw.reshape(24, 24)[12]
+    assert min(_sign_runs(raw)) == 1  # SPEC §1.4 as written: one vertex down between vertices up, a cut
+    assert min(_sign_runs(row)) >= 3  # groove and flanks each span several vertices
+    # the furrow's kink at its curve stays (SPEC §1.4's |d|), spread over two rows of vertices instead of one
+    assert np.abs(np.diff(row, 2)).max() / np.abs(row).max() < 1.5 < np.abs(np.diff(raw, 2)).max() / np.abs(raw).max()
+    edge = vertex_edge_lengths(mesh.points, mesh.triangles)
+    ((width, factor),) = drawable_widths(mesh.points, mesh.triangles, [wrinkle], device=DEVICE)
+    assert width == pytest.approx(WRINKLE_EDGES * edge[edge > 0].mean(), rel=0.05) and factor == wrinkle.width / width
+    assert row.min() == pytest.approx(-factor * np.exp(-0.05 / width) * (1.0 - 0.05 / width), rel=1e-9)
+    # a mesh fine enough for the furrow keeps it exactly (SPEC §1.4)
+    fine, wide, kept = _grid_profile(spacing=0.05, width=0.15)
+    ((width, factor),) = drawable_widths(fine.points, fine.triangles, [wide], device=DEVICE)
+    assert width == wide.width and factor == 1.0
