@@ -15,12 +15,20 @@ standing in for another identity; the Lee Perry-Smith scan rigged from landmarks
   channel at weight 1 through the default mapping (a FACS intensity of 1), without
   ``mouthRollUpper/Lower`` (those lips turn inward), with the worst channels.
 
-    python -m benchmarks.face_quality [--faces builtin ict warp lps] [--combinations 200]
+    python -m benchmarks.face_quality [--faces builtin ict warp lps] [--combinations 200] [--before-tree DIR]
+
+``--before-tree`` first runs an older checkout's own copy of this benchmark (its warpface, its measures) on the
+same faces and stores its rows as ``before`` next to this tree's in the results.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -130,22 +138,22 @@ def measure(rig, mm: float, combinations: int = 200) -> dict:
         row[f"{label}_gap_mm"] = float(pair_distances(points, rig.landmarks, LID_PAIRS, mm).max())
         row[f"{label}_order_mm"] = float(pair_heights(points, rig.landmarks, LID_PAIRS, up, mm).min())
     row["rest_lid_gap_mm"] = float(rest_gap.min())
+    # a pair whose two landmarks are one vertex (a closed mouth's found 62/66) reads 0 at every frame: left out
+    lips = tuple(p for p in LIP_PAIRS if rig.landmarks[p[0]] != rig.landmarks[p[1]]) or LIP_PAIRS
     lips_at = model.evaluate(preset_frames(rig, ARKIT_PRESET_NAMES))
-    heights = pair_heights(lips_at, rig.landmarks, LIP_PAIRS, up, mm).min(axis=1)
+    heights = pair_heights(lips_at, rig.landmarks, lips, up, mm).min(axis=1)
     row["lips_preset_mm"] = float(heights.min())
     row["lips_preset_worst"] = ARKIT_PRESET_NAMES[int(np.argmin(heights))]
     if combinations:
         mixed = model.evaluate(random_combinations(rig, combinations))
-        row["lips_random_mm"] = float(pair_heights(mixed, rig.landmarks, LIP_PAIRS, up, mm).min())
-    row["rest_lip_mm"] = float(pair_heights(rest, rig.landmarks, LIP_PAIRS, up, mm).min())
+        row["lips_random_mm"] = float(pair_heights(mixed, rig.landmarks, lips, up, mm).min())
+    row["rest_lip_mm"] = float(pair_heights(rest, rig.landmarks, lips, up, mm).min())
     names, frames = channel_frames(rig, "arkit")
     if "mouthClose" in names and "jawOpen" in names:  # a Live Link take's jawOpen + mouthClose, as animate maps it
         weights = np.zeros((3, len(names)))
         weights[:, names.index("jawOpen")] = 1.0
         weights[1:, names.index("mouthClose")] = (1.0, 0.5)
-        held = pair_heights(
-            model.evaluate(arkit_controls(rig, names, weights, frames)), rig.landmarks, LIP_PAIRS, up, mm
-        )
+        held = pair_heights(model.evaluate(arkit_controls(rig, names, weights, frames)), rig.landmarks, lips, up, mm)
         row["jaw_open_lips_mm"] = float(held[0].max())
         row["mouth_close_lips_mm"] = f"{held[1].min():.2f} … {held[1].max():.2f}"
         row["half_close_lips_mm"] = float(held[2].max())
@@ -180,11 +188,31 @@ COLUMNS = [
 ]
 
 
+def _before(tree: Path, faces, combinations: int) -> list[dict]:
+    """The rows of ``tree``'s own face_quality benchmark (run in a child process with that tree first on the path;
+    its results file is restored afterwards)."""
+    results = tree / "benchmarks" / "results" / "face_quality.json"
+    kept = results.read_bytes() if results.is_file() else None
+    environment = dict(os.environ, PYTHONPATH=str(tree.resolve()))
+    data = shared_data_path()
+    if data is not None:
+        environment["WARPFACE_SHARED_DATA"] = str(data)
+    command = [sys.executable, "-m", "benchmarks.face_quality", "--faces", *faces]
+    try:
+        subprocess.run([*command, "--combinations", str(combinations)], check=True, env=environment, cwd=tree)
+        return json.loads(results.read_text())["rows"]
+    finally:
+        if kept is not None:
+            results.write_bytes(kept)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--faces", nargs="+", choices=FACES, default=list(FACES))
     parser.add_argument("--combinations", type=int, default=200, help="random ARKit combinations per face")
+    parser.add_argument("--before-tree", type=Path, help="an older checkout measured first, in the same run")
     args = parser.parse_args()
+    before = _before(args.before_tree, args.faces, args.combinations) if args.before_tree else None
     rows = []
     for face in args.faces:
         built = face_rig(face)
@@ -194,8 +222,15 @@ def main() -> None:
         row = {"face": face, **measure(*built, combinations=args.combinations)}
         rows.append(row)
         print(row, flush=True)
+    if before is not None:
+        print("before:")
+        print_table(before, COLUMNS)
+        print("after:")
     print_table(rows, COLUMNS)
-    write_results("face_quality", {"machine": machine_info(), "rows": rows})
+    payload = {"machine": machine_info(), "rows": rows}
+    if before is not None:
+        payload.update(before=before, before_tree=str(args.before_tree))
+    write_results("face_quality", payload)
 
 
 if __name__ == "__main__":

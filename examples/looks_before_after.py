@@ -34,7 +34,13 @@ VIEWS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("mouthStretchLeft", ("mouthStretchLeft",)),
 )
 """(title, presets summed at weight 1) of each tile."""
-FACES = ("builtin", "ict")
+FACES = ("builtin", "ict", "lps")
+CLOSEUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("forehead", ("thinking",)),
+    ("eye", ("thinking", "disgust", "smile", "mouthSmile")),
+)
+"""(camera, titles of :data:`VIEWS`) of the wrinkle close-ups: the forehead from the front, the subject's left eye
+corner from its side (crow's feet)."""
 
 
 def _face(face: str, device):
@@ -45,6 +51,16 @@ def _face(face: str, device):
 
     if face == "builtin":
         return default_rig(device=device)
+    if face == "lps":
+        from warpface.data import shared_data_path
+        from warpface.rigging import find_landmarks
+
+        path = shared_data_path("lee_perry_smith", "LeePerrySmith.obj")
+        if path is None:
+            return None
+        mesh = wf.FaceMesh.from_obj(path)
+        found = find_landmarks(mesh.points, mesh.triangles, label="Lee Perry-Smith")
+        return default_rig(mesh, found.indices, name="LeePerrySmith", device=device)
     path, landmarks = ict_face_region(), ict_landmark_indices()
     if path is None or landmarks is None:
         return None
@@ -129,7 +145,37 @@ def main(argv=None) -> int:
             rows.append(preview.render_comparison(views, after[f"{face}_triangles"], **style))
         path = preview.save_image(args.out / f"looks_{face}.png", np.concatenate(rows, axis=0))
         print(f"wrote {path}")
+        path = preview.save_image(args.out / f"wrinkles_{face}.png", _closeups(face, before, after))
+        print(f"wrote {path}")
     return 0
+
+
+def _closeups(face: str, before: dict, after: dict) -> np.ndarray:
+    """Two rows (before, after) of :data:`CLOSEUPS`: the forehead and the left eye's outer corner up close."""
+    from warpface import preview
+    from warpface.assets.frame import FaceFrame
+
+    rest = after[face][0]
+    marks = rest[after[f"{face}_landmarks"]]
+    frame = FaceFrame.from_landmarks(marks)
+    right, up, front = frame.axes
+    size = frame.scale  # the inter-ocular distance
+    brow = marks[17:27].mean(axis=0) + 0.45 * size * up
+    corner = marks[45] + 0.15 * size * right
+    cameras = {
+        "forehead": preview.Camera(brow + 2.2 * size * front, brow, yfov_deg=30.0),
+        "eye": preview.Camera(corner + 1.1 * size * (0.8 * front + 0.6 * right), corner, yfov_deg=30.0),
+    }
+    titles = [title for title, _ in VIEWS]
+    rows = []
+    for label, points in (("before", before[face]), ("after", after[face])):
+        tiles = []
+        for camera, names in CLOSEUPS:
+            views = [(f"{label}: {name}", points[titles.index(name)]) for name in names]
+            style = dict(camera=cameras[camera], size=(300, 300), background=(0.12, 0.12, 0.14))
+            tiles.append(preview.render_comparison(views, after[f"{face}_triangles"], **style))
+        rows.append(np.concatenate(tiles, axis=1))
+    return np.concatenate(rows, axis=0)
 
 
 if __name__ == "__main__":
