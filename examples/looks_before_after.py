@@ -51,16 +51,12 @@ def _face(face: str, device):
 
     if face == "builtin":
         return default_rig(device=device)
-    if face == "lps":
-        from warpface.data import shared_data_path
-        from warpface.rigging import find_landmarks
+    if face == "lps":  # rigged from found landmarks, as benchmarks/face_quality.py does (its tree's copy)
+        sys.path.append(str(Path(__file__).resolve().parents[1]))  # after PYTHONPATH: the older tree's comes first
+        from benchmarks.face_quality import face_rig
 
-        path = shared_data_path("lee_perry_smith", "LeePerrySmith.obj")
-        if path is None:
-            return None
-        mesh = wf.FaceMesh.from_obj(path)
-        found = find_landmarks(mesh.points, mesh.triangles, label="Lee Perry-Smith")
-        return default_rig(mesh, found.indices, name="LeePerrySmith", device=device)
+        built = face_rig("lps")
+        return None if built is None else built[0]
     path, landmarks = ict_face_region(), ict_landmark_indices()
     if path is None or landmarks is None:
         return None
@@ -160,11 +156,11 @@ def _closeups(face: str, before: dict, after: dict) -> np.ndarray:
     frame = FaceFrame.from_landmarks(marks)
     right, up, front = frame.axes
     size = frame.scale  # the inter-ocular distance
-    brow = marks[17:27].mean(axis=0) + 0.45 * size * up
-    corner = marks[45] + 0.15 * size * right
+    brow = marks[17:27].mean(axis=0) + 0.55 * size * up
+    corner = marks[45] + 0.35 * size * right - 0.10 * size * up
     cameras = {
-        "forehead": preview.Camera(brow + 2.2 * size * front, brow, yfov_deg=30.0),
-        "eye": preview.Camera(corner + 1.1 * size * (0.8 * front + 0.6 * right), corner, yfov_deg=30.0),
+        "forehead": preview.Camera(brow + 3.2 * size * front, brow, yfov_deg=30.0),
+        "eye": preview.Camera(corner + 1.8 * size * (0.75 * front + 0.66 * right), corner, yfov_deg=30.0),
     }
     titles = [title for title, _ in VIEWS]
     rows = []

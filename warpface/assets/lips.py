@@ -173,7 +173,7 @@ def mouth_close_shares(rig, jaw_controls, mouth_close, jaw_open) -> np.ndarray:
     gap the face has at rest closed in proportion to ``c``, never beyond contact. 0 where ``c`` is 0."""
     close = np.clip(np.asarray(mouth_close, dtype=np.float64), 0.0, 1.0)
     opened = np.asarray(jaw_open, dtype=np.float64)
-    ratio = np.where(close > 0.0, np.minimum(1.0, close / np.maximum(opened, close)), 0.0)
+    ratio = np.divide(close, np.maximum(opened, close), out=np.zeros_like(close), where=close > 0.0)
     shares = np.zeros(len(ratio))
     on = np.flatnonzero(close > 0.0)
     if len(on):
