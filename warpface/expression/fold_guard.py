@@ -8,7 +8,8 @@ and the solver's Jacobian are unchanged (docs/RIG.md §14):
   the zone field alone keeps: ``w' = w₀ + g·(w − w₀)``, ``g ∈ [0, 1]``.
 - :func:`unfolded_weights`: a scalar blend weight (the jaw's, SPEC §6.2) diffused over the mesh's edges
   around the triangles a reference motion would fold; :func:`equalized_weights` then makes it equal on the corners
-  of each triangle still folded, and :func:`equalized_field` does the same with a muscle's field.
+  of each triangle still folded, and :func:`equalized_field` does the same with a muscle's field
+  (:func:`ladder_equalized`: on a ladder of contractions up to its reference one).
 
 A triangle *folds* under a displacement ``d`` when its deformed area vector keeps less than
 :data:`FOLD_MARGIN` of its rest one along the rest normal: ``n₀·n(x + d) < m·|n₀|²`` (``m = 0`` is the flip).

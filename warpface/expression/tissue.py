@@ -273,9 +273,10 @@ def _pair_free(count: int, a, b) -> np.ndarray:
 def unfolded_fields(mesh, muscles: Sequence[Muscle], weights: MuscleWeights) -> MuscleWeights:
     """Each muscle's field made equal on the corners of the triangles it folds at its reference contraction
     (:func:`~warpface.expression.fold_guard.equalized_field`; docs/RIG.md §14): ``K = 1`` for a lid hinge or the
-    lips' seal (their ``K`` ends at 1; only flips count), else the ``K`` that moves the field's farthest vertex by
-    :data:`~warpface.expression.fold_guard.FOLD_TRAVEL` of the mesh's bounding-box diagonal; then every two
-    hinges whose fields meet on a triangle, both at ``K = 1``."""
+    lips' seal (their ``K`` ends at 1; only flips count), else on a ladder up to the ``K`` that moves the field's
+    farthest vertex by :data:`~warpface.expression.fold_guard.FOLD_TRAVEL` of the mesh's bounding-box diagonal
+    (:func:`~warpface.expression.fold_guard.ladder_equalized`); then every two hinges whose fields meet on a
+    triangle, both at ``K = 1``, each alone and together, on the free vertices of :func:`_pair_free`."""
     from .lids import LidMuscle, hinge_taper
 
     points = np.asarray(mesh.points, dtype=np.float64)
