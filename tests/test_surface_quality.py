@@ -371,6 +371,6 @@ def test_a_wrinkle_narrower_than_the_mesh_is_widened_and_made_shallower_not_cut(
     assert width == pytest.approx(WRINKLE_EDGES * edge[edge > 0].mean(), rel=0.05) and factor == wrinkle.width / width
     assert row.min() == pytest.approx(-factor * np.exp(-0.05 / width) * (1.0 - 0.05 / width), rel=1e-9)
     # a mesh fine enough for the furrow keeps it exactly (SPEC §1.4)
-    fine, wide, kept = _grid_profile(spacing=0.05, width=0.15)
+    fine, wide, kept = _grid_profile(spacing=0.02, width=0.15)
     ((width, factor),) = drawable_widths(fine.points, fine.triangles, [wide], device=DEVICE)
     assert width == wide.width and factor == 1.0

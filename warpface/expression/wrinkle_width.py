@@ -21,8 +21,9 @@ from .wrinkles import Wrinkle, bezier_distances, project_points
 
 __all__ = ["WRINKLE_EDGES", "drawable_widths", "vertex_edge_lengths"]
 
-WRINKLE_EDGES = 2.0
-"""The narrowest furrow, ``k_w``, in local edge lengths: its groove (``d < k_w`` on either side) spans four edges."""
+WRINKLE_EDGES = 3.0
+"""The narrowest furrow, ``k_w``, in local edge lengths: its groove (``d < k_w`` on either side) spans six edges. Two
+left the built-in face's forehead furrows at "thinking" as rows of lumps (docs/images/wrinkles_builtin.png)."""
 _NEAREST = 12
 """At least this many vertices nearest a wrinkle's curve set its local edge length."""
 
