@@ -4,7 +4,9 @@ Each face gets one image of two rows, the older tree's default rig on top and th
 paper's four expressions (thinking, puzzled, disgust, smile), a blink (``eyeBlinkLeft`` + ``eyeBlinkRight``), an
 ARKit smile (``mouthSmileLeft`` + ``mouthSmileRight``) and ``mouthStretchLeft``, every preset at weight 1: the
 built-in face to ``docs/images/looks_builtin.png``, the ICT-FaceKit face from ``../shared/data`` (rigged from its
-68 landmarks) to ``docs/images/looks_ict.png``. The older tree's points are computed by running this file with
+68 landmarks) to ``docs/images/looks_ict.png``, the Lee Perry-Smith scan (rigged from found landmarks) to
+``docs/images/looks_lps.png``; and per face ``docs/images/wrinkles_<face>.png``, close-ups of the forehead and the
+left eye's outer corner (:data:`CLOSEUPS`). The older tree's points are computed by running this file with
 that tree first on ``PYTHONPATH`` (``--points-only``), using only API both trees have.
 
     git worktree add /tmp/before d73361f          # the tree before issues 23-25
