@@ -8,22 +8,33 @@ standing in for another identity; the Lee Perry-Smith scan rigged from landmarks
   ``warpface animate`` does), and the ``eyeBlink`` presets: the largest lid-midpoint distance [mm] (rest
   gap in brackets) and the lowest signed height of an upper midpoint above its lower one [mm];
 - **lips**: the lowest signed height of an upper inner-lip midpoint above its lower one [mm] over every
-  ARKit preset at weight 1 and over random ARKit weight combinations through the mapping;
+  ARKit preset at weight 1 and over random ARKit weight combinations through the mapping; and a take's
+  ``jawOpen`` = 1 alone, with ``mouthClose`` = 1 (lowest … highest midpoint height) and with ``mouthClose`` = ½
+  (highest), through the mapping and :func:`~warpface.drivers.close_mouth` as ``warpface animate`` maps them;
 - **flips**: triangles whose normal turned over (rest · deformed < 0), summed over every ARKit and FACS
   channel at weight 1 through the default mapping (a FACS intensity of 1), without
   ``mouthRollUpper/Lower`` (those lips turn inward), with the worst channels.
 
-    python -m benchmarks.face_quality [--faces builtin ict warp lps] [--combinations 200]
+    python -m benchmarks.face_quality [--faces builtin ict warp lps] [--combinations 200] [--before-tree DIR]
+
+``--before-tree`` first runs an older checkout's own copy of this benchmark (its warpface, its measures) on the
+same faces and stores its rows as ``before`` next to this tree's in the results.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 
 import warpface as wf
 from warpface.assets import ARKIT_PRESET_NAMES, default_rig, preset_controls
+from warpface.assets.lips import LIP_SEAL_NAME, mouth_close_shares
 from warpface.assets.quality import LID_PAIRS, LIP_PAIRS, face_up, flipped_triangles, pair_distances, pair_heights
 from warpface.data import ict_face_region, ict_landmark_indices, shared_data_path
 from warpface.drivers.default_tables import mapping_for_rig
@@ -82,12 +93,25 @@ def channel_frames(rig, kind: str, channels=None, weight: float | None = None) -
     return names, frames
 
 
+def arkit_controls(rig, names: list[str], weights: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """ARKit weights (F, channels ``names``) as the rig's controls the way ``warpface animate`` makes them: the
+    linear mapping (``frames``, one control vector per channel at weight 1, from :func:`channel_frames`) and the lip
+    seal's share for ``mouthClose`` over ``jawOpen`` (:func:`~warpface.drivers.close_mouth`)."""
+    controls = weights @ frames
+    if "mouthClose" in names and LIP_SEAL_NAME in rig.control_names and rig.jaw is not None:
+        jaw = controls[:, [rig.control_names.index(c) for c in ("jaw_open", "jaw_forward", "jaw_left")]]
+        opened = weights[:, names.index("jawOpen")] if "jawOpen" in names else np.zeros(len(weights))
+        shares = mouth_close_shares(rig, jaw, weights[:, names.index("mouthClose")], opened)
+        controls[:, rig.control_names.index(LIP_SEAL_NAME)] += shares
+    return controls
+
+
 def random_combinations(rig, count: int, seed: int = 0) -> np.ndarray:
     """``count`` random ARKit weight sets (each channel on with probability 0.3, weight U(0, 1)) as controls."""
     names, frames = channel_frames(rig, "arkit", weight=1.0)
     rng = np.random.default_rng(seed)
     weights = rng.uniform(0.0, 1.0, (count, len(names))) * (rng.uniform(size=(count, len(names))) < 0.3)
-    return weights @ frames
+    return arkit_controls(rig, names, weights, frames)
 
 
 def preset_frames(rig, names) -> np.ndarray:
@@ -114,14 +138,25 @@ def measure(rig, mm: float, combinations: int = 200) -> dict:
         row[f"{label}_gap_mm"] = float(pair_distances(points, rig.landmarks, LID_PAIRS, mm).max())
         row[f"{label}_order_mm"] = float(pair_heights(points, rig.landmarks, LID_PAIRS, up, mm).min())
     row["rest_lid_gap_mm"] = float(rest_gap.min())
+    # a pair whose two landmarks are one vertex (a closed mouth's found 62/66) reads 0 at every frame: left out
+    lips = tuple(p for p in LIP_PAIRS if rig.landmarks[p[0]] != rig.landmarks[p[1]]) or LIP_PAIRS
     lips_at = model.evaluate(preset_frames(rig, ARKIT_PRESET_NAMES))
-    heights = pair_heights(lips_at, rig.landmarks, LIP_PAIRS, up, mm).min(axis=1)
+    heights = pair_heights(lips_at, rig.landmarks, lips, up, mm).min(axis=1)
     row["lips_preset_mm"] = float(heights.min())
     row["lips_preset_worst"] = ARKIT_PRESET_NAMES[int(np.argmin(heights))]
     if combinations:
         mixed = model.evaluate(random_combinations(rig, combinations))
-        row["lips_random_mm"] = float(pair_heights(mixed, rig.landmarks, LIP_PAIRS, up, mm).min())
-    row["rest_lip_mm"] = float(pair_heights(rest, rig.landmarks, LIP_PAIRS, up, mm).min())
+        row["lips_random_mm"] = float(pair_heights(mixed, rig.landmarks, lips, up, mm).min())
+    row["rest_lip_mm"] = float(pair_heights(rest, rig.landmarks, lips, up, mm).min())
+    names, frames = channel_frames(rig, "arkit")
+    if "mouthClose" in names and "jawOpen" in names:  # a Live Link take's jawOpen + mouthClose, as animate maps it
+        weights = np.zeros((3, len(names)))
+        weights[:, names.index("jawOpen")] = 1.0
+        weights[1:, names.index("mouthClose")] = (1.0, 0.5)
+        held = pair_heights(model.evaluate(arkit_controls(rig, names, weights, frames)), rig.landmarks, lips, up, mm)
+        row["jaw_open_lips_mm"] = float(held[0].max())
+        row["mouth_close_lips_mm"] = f"{held[1].min():.2f} … {held[1].max():.2f}"
+        row["half_close_lips_mm"] = float(held[2].max())
     counts = {}
     for kind in ("arkit", "facs"):
         names, frames = channel_frames(rig, kind)
@@ -145,16 +180,39 @@ COLUMNS = [
     ("lips_preset_mm", "lips (presets)", ".2f"),
     ("lips_preset_worst", "worst preset", "s"),
     ("lips_random_mm", "lips (random)", ".2f"),
+    ("jaw_open_lips_mm", "jawOpen lips", ".2f"),
+    ("mouth_close_lips_mm", "+ mouthClose", "s"),
+    ("half_close_lips_mm", "+ ½ mouthClose", ".2f"),
     ("flips", "flips", "d"),
     ("flips_worst", "worst channels", "s"),
 ]
+
+
+def _before(tree: Path, faces, combinations: int) -> list[dict]:
+    """The rows of ``tree``'s own face_quality benchmark (run in a child process with that tree first on the path;
+    its results file is restored afterwards)."""
+    results = tree / "benchmarks" / "results" / "face_quality.json"
+    kept = results.read_bytes() if results.is_file() else None
+    environment = dict(os.environ, PYTHONPATH=str(tree.resolve()))
+    data = shared_data_path()
+    if data is not None:
+        environment["WARPFACE_SHARED_DATA"] = str(data)
+    command = [sys.executable, "-m", "benchmarks.face_quality", "--faces", *faces]
+    try:
+        subprocess.run([*command, "--combinations", str(combinations)], check=True, env=environment, cwd=tree)
+        return json.loads(results.read_text())["rows"]
+    finally:
+        if kept is not None:
+            results.write_bytes(kept)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--faces", nargs="+", choices=FACES, default=list(FACES))
     parser.add_argument("--combinations", type=int, default=200, help="random ARKit combinations per face")
+    parser.add_argument("--before-tree", type=Path, help="an older checkout measured first, in the same run")
     args = parser.parse_args()
+    before = _before(args.before_tree, args.faces, args.combinations) if args.before_tree else None
     rows = []
     for face in args.faces:
         built = face_rig(face)
@@ -164,8 +222,15 @@ def main() -> None:
         row = {"face": face, **measure(*built, combinations=args.combinations)}
         rows.append(row)
         print(row, flush=True)
+    if before is not None:
+        print("before:")
+        print_table(before, COLUMNS)
+        print("after:")
     print_table(rows, COLUMNS)
-    write_results("face_quality", {"machine": machine_info(), "rows": rows})
+    payload = {"machine": machine_info(), "rows": rows}
+    if before is not None:
+        payload.update(before=before, before_tree=str(args.before_tree))
+    write_results("face_quality", payload)
 
 
 if __name__ == "__main__":

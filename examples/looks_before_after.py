@@ -4,7 +4,9 @@ Each face gets one image of two rows, the older tree's default rig on top and th
 paper's four expressions (thinking, puzzled, disgust, smile), a blink (``eyeBlinkLeft`` + ``eyeBlinkRight``), an
 ARKit smile (``mouthSmileLeft`` + ``mouthSmileRight``) and ``mouthStretchLeft``, every preset at weight 1: the
 built-in face to ``docs/images/looks_builtin.png``, the ICT-FaceKit face from ``../shared/data`` (rigged from its
-68 landmarks) to ``docs/images/looks_ict.png``. The older tree's points are computed by running this file with
+68 landmarks) to ``docs/images/looks_ict.png``, the Lee Perry-Smith scan (rigged from found landmarks) to
+``docs/images/looks_lps.png``; and per face ``docs/images/wrinkles_<face>.png``, close-ups of the forehead and the
+left eye's outer corner (:data:`CLOSEUPS`). The older tree's points are computed by running this file with
 that tree first on ``PYTHONPATH`` (``--points-only``), using only API both trees have.
 
     git worktree add /tmp/before d73361f          # the tree before issues 23-25
@@ -34,7 +36,13 @@ VIEWS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("mouthStretchLeft", ("mouthStretchLeft",)),
 )
 """(title, presets summed at weight 1) of each tile."""
-FACES = ("builtin", "ict")
+FACES = ("builtin", "ict", "lps")
+CLOSEUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("forehead", ("thinking",)),
+    ("eye", ("thinking", "disgust", "smile", "mouthSmile")),
+)
+"""(camera, titles of :data:`VIEWS`) of the wrinkle close-ups: the forehead from the front, the subject's left eye
+corner from its side (crow's feet)."""
 
 
 def _face(face: str, device):
@@ -45,6 +53,12 @@ def _face(face: str, device):
 
     if face == "builtin":
         return default_rig(device=device)
+    if face == "lps":  # rigged from found landmarks, as benchmarks/face_quality.py does (its tree's copy)
+        sys.path.append(str(Path(__file__).resolve().parents[1]))  # after PYTHONPATH: the older tree's comes first
+        from benchmarks.face_quality import face_rig
+
+        built = face_rig("lps")
+        return None if built is None else built[0]
     path, landmarks = ict_face_region(), ict_landmark_indices()
     if path is None or landmarks is None:
         return None
@@ -129,7 +143,37 @@ def main(argv=None) -> int:
             rows.append(preview.render_comparison(views, after[f"{face}_triangles"], **style))
         path = preview.save_image(args.out / f"looks_{face}.png", np.concatenate(rows, axis=0))
         print(f"wrote {path}")
+        path = preview.save_image(args.out / f"wrinkles_{face}.png", _closeups(face, before, after))
+        print(f"wrote {path}")
     return 0
+
+
+def _closeups(face: str, before: dict, after: dict) -> np.ndarray:
+    """Two rows (before, after) of :data:`CLOSEUPS`: the forehead and the left eye's outer corner up close."""
+    from warpface import preview
+    from warpface.assets.frame import FaceFrame
+
+    rest = after[face][0]
+    marks = rest[after[f"{face}_landmarks"]]
+    frame = FaceFrame.from_landmarks(marks)
+    right, up, front = frame.axes
+    size = frame.scale  # the inter-ocular distance
+    brow = marks[17:27].mean(axis=0) + 0.55 * size * up
+    corner = marks[45] + 0.35 * size * right - 0.10 * size * up
+    cameras = {
+        "forehead": preview.Camera(brow + 3.2 * size * front, brow, yfov_deg=30.0),
+        "eye": preview.Camera(corner + 1.8 * size * (0.75 * front + 0.66 * right), corner, yfov_deg=30.0),
+    }
+    titles = [title for title, _ in VIEWS]
+    rows = []
+    for label, points in (("before", before[face]), ("after", after[face])):
+        tiles = []
+        for camera, names in CLOSEUPS:
+            views = [(f"{label}: {name}", points[titles.index(name)]) for name in names]
+            style = dict(camera=cameras[camera], size=(300, 300), background=(0.12, 0.12, 0.14))
+            tiles.append(preview.render_comparison(views, after[f"{face}_triangles"], **style))
+        rows.append(np.concatenate(tiles, axis=1))
+    return np.concatenate(rows, axis=0)
 
 
 if __name__ == "__main__":

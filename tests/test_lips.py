@@ -141,3 +141,57 @@ def test_a_closed_mouth_scan_s_lips_part_at_the_slit_and_never_cross(lee_perry_s
     assert np.abs(opening[2:]).max() < 0.5  # the presses
     assert _lips(rig, preset_frames(rig, ARKIT_PRESET_NAMES)).min() >= -0.2
     assert _lips(rig, random_combinations(rig, 50)).min() >= -0.2
+
+
+def test_a_live_link_take_s_mouth_close_seals_the_lips_through_animate(tmp_path):
+    """ARKit's mouthClose over jawOpen, as a user drives it (a Live Link take through ``warpface animate``): the jaw
+    opens, the lips stay together (docs/RIG.md §12), as the mouthClose preset holds them; alone, or above jawOpen,
+    mouthClose never pushes them through each other; half of it leaves about half the opening (the built-in face's
+    lips are 3 mm apart at rest: mouthClose closes that gap in proportion to its weight). Measured on the baked
+    stage."""
+    from pxr import Usd, UsdGeom
+
+    from warpface.commands.animate import animate
+    from warpface.drivers import Curves, write_live_link
+    from warpface.usd import rig_prims
+
+    poses = [(1.0, 0.0), (1.0, 1.0), (0.0, 0.6), (0.3, 1.0), (1.0, 0.5)]  # (jawOpen, mouthClose), 3 frames each
+    values = np.repeat(np.array(poses), 3, axis=0)
+    curves = Curves(times=np.arange(len(values)) / 30.0, names=["jawOpen", "mouthClose"], values=values, fps=30.0)
+    result = animate(
+        write_live_link(tmp_path / "take.csv", curves),
+        tmp_path / "face.usda",
+        video=False,
+        device=DEVICE,
+        progress=False,
+    )
+    stage = Usd.Stage.Open(str(result.stage))
+    attribute = UsdGeom.Mesh(stage.GetPrimAtPath(rig_prims(stage).skin.GetPath())).GetPointsAttr()
+    rig = default_rig(device=DEVICE)
+    points = np.array([attribute.Get(float(3 * k + 1)) for k in range(len(poses))], dtype=np.float64)
+    lips = pair_heights(points, rig.landmarks, LIP_PAIRS, face_up(rig.mesh, rig.landmarks), 1000.0)
+    opened, closed, alone, above, half = lips
+    assert opened.min() > 4.0
+    assert closed.min() >= -0.2 and closed.max() <= 1.5
+    assert alone.min() >= -0.2 and above.min() >= -0.2 and above.max() <= 1.5
+    assert 0.3 * opened.max() < half.max() < 0.7 * opened.max()
+    preset = _lips(rig, preset_frames(rig, ["mouthClose"]))
+    assert preset.min() >= -0.2 and preset.max() <= 1.5  # the preset holds them as closely
+
+
+def test_the_mouth_close_share_is_a_product_of_the_channels_and_the_jaw():
+    from warpface.assets.lips import closing_share, mouth_close_shares
+
+    rig = default_rig(device=DEVICE)
+    jaw = np.array([[0.2, 0.0, 0.0], [0.2, 0.0, 0.0], [0.2, 0.0, 0.0], [0.0, 0.0, 0.0], [0.1, 0.0, 0.0]])
+    shares = mouth_close_shares(rig, jaw, mouth_close=[0.0, 0.5, 2.0, 0.7, 0.25], jaw_open=[1.0, 1.0, 1.0, 0.0, 0.5])
+    rest, full, half_open = (closing_share(rig, jaw[k]) for k in (3, 0, 4))
+    assert full < rest < 0.0  # the built-in face's lips are 3 mm apart at rest: closing them is a share too
+    expected = [
+        0.0,
+        max(full, 0.5 * (full - rest) + 0.5 * rest),
+        full,
+        0.7 * rest,
+        max(half_open, 0.5 * (half_open - rest) + 0.25 * rest),
+    ]
+    np.testing.assert_allclose(shares, expected, rtol=1e-12)

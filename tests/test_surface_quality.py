@@ -15,6 +15,7 @@ from warpface.expression.fold_guard import (
     equalized_weights,
     fold_blend,
     folded_triangles,
+    ladder_equalized,
     unfolded_response,
     unfolded_weights,
 )
@@ -288,3 +289,88 @@ def test_two_fields_that_fold_together_are_made_equal_together():
     free = points[:, 0] != 6.0  # the column it would be pulled past keeps its (zero) field: the fold stays
     kept = equalized_field(points, triangles, pair, 1.0, margin=0.0, free=free)
     np.testing.assert_array_equal(kept[~free], pair[~free])
+
+
+def test_each_of_two_fields_is_made_unfolding_alone_and_only_its_free_columns_change():
+    points, triangles = _grid(12)
+    one = np.zeros_like(points)
+    one[:, 0] = np.where(points[:, 0] == 5.0, 1.6, 0.0)  # alone it pulls a column past the next one
+    pair = np.concatenate([one, -0.5 * one], axis=1)  # the sum pulls it 0.8: no flip
+    assert not folded_triangles(points, triangles, points + 0.5 * one, 0.0).any()
+    assert folded_triangles(points, triangles, points + one, 0.0).any()
+    np.testing.assert_array_equal(equalized_field(points, triangles, pair, 1.0, margin=0.0), pair)  # the sum only
+    free = np.zeros(pair.shape, dtype=bool)
+    free[:, :3] = True  # only the first field may change
+    equal = equalized_field(points, triangles, pair, 1.0, margin=0.0, free=free, each=True)
+    np.testing.assert_array_equal(equal[:, 3:], pair[:, 3:])
+    for moved in (equal[:, :3], equal[:, 3:], equal[:, :3] + equal[:, 3:]):
+        assert not folded_triangles(points, triangles, points + moved, 0.0).any()
+
+
+def test_the_ladder_clears_each_step_it_takes_and_leaves_an_unfolding_field_alone():
+    points, triangles = _grid(12)
+    field = np.zeros_like(points)
+    field[:, 0] = -2.0 * (points[:, 0] - 5.5) * np.exp(-(((points[:, 1] - 5.5) / 3.0) ** 2))  # a pinch
+    assert folded_triangles(points, triangles, points + 0.5 * field).any()
+    assert not folded_triangles(points, triangles, points + 0.25 * field).any()
+    out = ladder_equalized(points, triangles, field, 1.0)
+    for k in (0.125, 0.25, 0.5, 1.0):
+        assert not folded_triangles(points, triangles, points + k * out).any()
+    np.testing.assert_array_equal(ladder_equalized(points, triangles, 0.2 * field, 1.0), 0.2 * field)
+
+
+@pytest.mark.slow
+def test_a_whole_head_scan_folds_almost_nothing(lee_perry_smith):
+    """The Lee Perry-Smith scan (a whole head: its bounding box sets a reference pull of 34 mm, six times its full
+    pucker) and its closed eyes: 22 flips before the ladder and the pair rule of docs/RIG.md §14 (eyeBlinkLeft 10,
+    mouthPucker 9, mouthFunnel 3)."""
+    mesh, landmarks, _ = lee_perry_smith
+    flips = _flips(default_rig(mesh, landmarks, device=DEVICE))
+    assert sum(flips.values()) <= 5, sorted(flips.items(), key=lambda item: -item[1])[:6]
+
+
+def _grid_profile(spacing: float, width: float, n: int = 24):
+    """A flat grid of ``spacing`` (a lid hinge far off makes it a rig beyond the paper's model), a straight wrinkle
+    along y at x = 10.05 spacings: (mesh, wrinkle, hinge, the model's profile Σ shape per vertex on the row y = n/2)."""
+    from warpface.expression import PlanarProjection, Wrinkle
+    from warpface.expression.wrinkles import skin_wrinkle_shapes
+
+    points, triangles = _grid(n)
+    mesh = wf.FaceMesh(points * spacing, triangles)
+    line = np.array([[10.05, 2.0], [10.05, 8.0], [10.05, 14.0], [10.05, 20.0]]) * spacing
+    wrinkle = Wrinkle("w", line, PlanarProjection(np.zeros(3), [1, 0, 0], [0, 1, 0]), depth=1.0, width=width)
+    hinge = LidMuscle("lid", [0.0, 0.0, -50.0], [1, 0, 0], [0], [0.0])
+    shapes = skin_wrinkle_shapes(mesh, [wrinkle], [hinge], device=DEVICE)
+    per_vertex = np.zeros(len(points))
+    np.add.at(per_vertex, np.repeat(np.arange(len(points)), np.diff(shapes.offsets)), shapes.shape)
+    return mesh, wrinkle, per_vertex.reshape(n, n)[n // 2]
+
+
+def _sign_runs(values: np.ndarray) -> list[int]:
+    """Lengths of the runs of one sign among the values above 1e-3 of the largest (the rest count as gaps)."""
+    signs = np.sign(np.where(np.abs(values) > 1e-3 * np.abs(values).max(), values, 0.0))
+    signs = signs[signs != 0.0]
+    return [len(run) for run in np.split(signs, np.flatnonzero(np.diff(signs)) + 1)]
+
+
+def test_a_wrinkle_narrower_than_the_mesh_is_widened_and_made_shallower_not_cut():
+    from warpface.expression.wrinkle_width import WRINKLE_EDGES, drawable_widths, vertex_edge_lengths
+    from warpface.expression.wrinkles import wrinkle_shapes
+
+    mesh, wrinkle, row = _grid_profile(spacing=1.0, width=0.15)  # the groove is 0.3 wide on edges of 1 (and √2)
+    raw = np.zeros(len(mesh.points))
+    shapes = wrinkle_shapes(mesh.points, [wrinkle], device=DEVICE)
+    np.add.at(raw, np.repeat(np.arange(len(raw)), np.diff(shapes.offsets)), shapes.shape)
+    raw = raw.reshape(24, 24)[12]
+    assert min(_sign_runs(raw)) == 1  # SPEC §1.4 as written: one vertex down between vertices up, a cut
+    assert min(_sign_runs(row)) >= 3  # groove and flanks each span several vertices
+    # the furrow's kink at its curve stays (SPEC §1.4's |d|), spread over two rows of vertices instead of one
+    assert np.abs(np.diff(row, 2)).max() / np.abs(row).max() < 1.5 < np.abs(np.diff(raw, 2)).max() / np.abs(raw).max()
+    edge = vertex_edge_lengths(mesh.points, mesh.triangles)
+    ((width, factor),) = drawable_widths(mesh.points, mesh.triangles, [wrinkle], device=DEVICE)
+    assert width == pytest.approx(WRINKLE_EDGES * edge[edge > 0].mean(), rel=0.05) and factor == wrinkle.width / width
+    assert row.min() == pytest.approx(-factor * np.exp(-0.05 / width) * (1.0 - 0.05 / width), rel=1e-9)
+    # a mesh fine enough for the furrow keeps it exactly (SPEC §1.4)
+    fine, wide, kept = _grid_profile(spacing=0.02, width=0.15)
+    ((width, factor),) = drawable_widths(fine.points, fine.triangles, [wide], device=DEVICE)
+    assert width == wide.width and factor == 1.0

@@ -20,14 +20,23 @@ import numpy as np
 import warp as wp
 from scipy.spatial import cKDTree
 
-from ..expression.jaw import jaw_points
+from ..expression.jaw import Jaw, jaw_points
 from ..expression.lids import lid_field
 from ..expression.seal import LipSeal
 from ..mesh import FaceMesh
 from .frame import FaceFrame
 from .jaw import SLIT_GAP, lip_sided, mouth_rim_arcs, slit_faces
 
-__all__ = ["closing_share", "default_lip_seal", "lip_margin_taper", "LIP_SEAL_NAME", "PART_ANGLE", "PIVOT_DEPTH"]
+__all__ = [
+    "closing_share",
+    "closing_shares",
+    "mouth_close_shares",
+    "default_lip_seal",
+    "lip_margin_taper",
+    "LIP_SEAL_NAME",
+    "PART_ANGLE",
+    "PIVOT_DEPTH",
+]
 
 LIP_SEAL_NAME = "lips_part"
 """The seal's control: ``K = 1`` parts the lips by about :data:`PART_ANGLE` × :data:`PIVOT_DEPTH` each."""
@@ -43,6 +52,8 @@ REACH = 0.6
 """Nothing farther than this from the mouth's centre turns [inter-ocular units] (a whole head's back)."""
 MARGIN_BAND = 0.10
 """Distance from the lips' contact line [inter-ocular units] over which the bulging thickness returns."""
+SLIT_PAIR_TURN = 1.0
+"""A closed mouth's slit pairs are kept where the seal's corner fade is at least this share of its full turn."""
 _PAIRS = ((61, 67), (62, 66), (63, 65))
 
 
@@ -102,7 +113,7 @@ def default_lip_seal(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) ->
     sided = lip_sided(mesh, frame, local, landmarks, below)
     angles = np.where(sided < 0.0, -turn, turn)  # a positive turn about +x moves a point in front down
     pairs = [(landmarks[a], landmarks[b]) for a, b in _PAIRS if angles[landmarks[a]] < 0.0 < angles[landmarks[b]]]
-    full = lateral >= 1.0  # where the seal parts fully: a pair it hardly parts would ask for a large share of it
+    full = lateral >= SLIT_PAIR_TURN  # a pair the seal hardly parts would ask for a large share of it
     slit = _slit_pairs(mesh, frame, local, landmarks)
     pairs += [(u, l) for u, l in slit if angles[u] < 0.0 < angles[l] and full[u] and full[l]]
     if not pairs:
@@ -123,16 +134,51 @@ def closing_share(rig, jaw_controls) -> float:
         rig: a :class:`~warpface.rig.FaceRig`.
         jaw_controls: ``(jaw_open [rad], jaw_forward, jaw_left)`` [mesh units], shape (3,).
     """
+    return float(closing_shares(rig, np.reshape(jaw_controls, (1, 3)))[0])
+
+
+def closing_shares(rig, jaw_controls) -> np.ndarray:
+    """:func:`closing_share` of each row of ``jaw_controls`` (F, 3), shape (F,); only the seal pairs' vertices are
+    posed, so a take's every frame costs little."""
+    jaw_controls = np.asarray(jaw_controls, dtype=np.float64).reshape(-1, 3)
     seal = next((m for m in rig.muscles if isinstance(m, LipSeal)), None)
     if seal is None or rig.jaw is None:
-        return 0.0
+        return np.zeros(len(jaw_controls))
     rest = rig.mesh.points
     up = FaceFrame.from_landmarks(rest[rig.landmarks]).axes[1]
-    posed = jaw_points(rig.jaw, rest, jaw_controls) @ up
     parting = lid_field(wp.array(rest, dtype=wp.vec3d, device="cpu"), seal) @ up
     upper, lower = seal.pairs[:, 0], seal.pairs[:, 1]
     apart = parting[upper] - parting[lower]
     moved = apart > 0.0  # a slit pair the field parts mostly in depth bounds nothing here
     if not moved.any():
-        return 0.0
-    return min(0.0, float(np.max(-(posed[upper] - posed[lower])[moved] / apart[moved])))
+        return np.zeros(len(jaw_controls))
+    ends = np.concatenate([upper[moved], lower[moved]])
+    jaw = Jaw(rig.jaw.pivot, rig.jaw.axis, rig.jaw.forward, rig.jaw.weights[ends])
+    count = int(moved.sum())
+    shares = np.zeros(len(jaw_controls))
+    for f, pose in enumerate(jaw_controls):
+        posed = jaw_points(jaw, rest[ends], pose) @ up
+        shares[f] = min(0.0, float(np.max(-(posed[:count] - posed[count:]) / apart[moved])))
+    return shares
+
+
+def mouth_close_shares(rig, jaw_controls, mouth_close, jaw_open) -> np.ndarray:
+    """The seal's control per frame for ARKit's ``mouthClose`` ``c`` over ``jawOpen`` ``j`` (channel weights (F,)
+    each; docs/RIG.md §12), shape (F,): with ``a(θ)`` the :func:`closing_share` at the frame's jaw pose ``θ`` (the
+    jaw's controls (F, 3)) and ``a₀`` at rest,
+
+    ``s = max(a(θ), min(1, c / j) · (a(θ) − a₀) + c · a₀)``,  ``c`` clipped to [0, 1] (``c / j`` = 1 where ``j`` = 0)
+
+    — the jaw's parting closed in the ratio of the channels (all of it where ``c ≥ j``: the preset's seal) and a lip
+    gap the face has at rest closed in proportion to ``c``, never beyond contact. 0 where ``c`` is 0."""
+    close = np.clip(np.asarray(mouth_close, dtype=np.float64), 0.0, 1.0)
+    opened = np.asarray(jaw_open, dtype=np.float64)
+    ratio = np.divide(close, np.maximum(opened, close), out=np.zeros_like(close), where=close > 0.0)
+    shares = np.zeros(len(ratio))
+    on = np.flatnonzero(close > 0.0)
+    if len(on):
+        poses = np.asarray(jaw_controls, dtype=np.float64).reshape(-1, 3)[on]
+        closing = closing_shares(rig, np.concatenate([np.zeros((1, 3)), poses]))
+        rest, posed = closing[0], closing[1:]
+        shares[on] = np.maximum(posed, ratio[on] * (posed - rest) + close[on] * rest)
+    return shares

@@ -129,6 +129,7 @@ def animate(
 
     from .. import usd
     from .._files import create_missing_folders, remove_created_folders
+    from ..drivers.mouth_close import close_mouth
     from ..usd.animation import CACHE_SUFFIX
     from ..usd.asset_io import asset_link, attach_asset
     from ..usd.jaw_io import JAW_CONTROL_ATTRIBUTES
@@ -148,6 +149,7 @@ def animate(
     if not math.isfinite(rate) or rate <= 0:
         raise ValueError(f"--fps must be a positive number, got {rate}")
     cleaned, mapped = prepare_controls(curves, mapping, fps=rate, neutral=neutral, gain=gain, one_euro=one_euro)
+    mapped = close_mouth(rig_model, cleaned, mapped)  # mouthClose over jawOpen: docs/RIG.md §12
     unmapped = list(dict.fromkeys(mapped.unmapped_channels + [c for c in orphaned if c in curves.names]))
     if all(name in unmapped for name in curves.names):
         raise ValueError(

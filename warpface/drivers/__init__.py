@@ -22,6 +22,7 @@ from .export import controls_to_curves, project_controls
 from .io import DRIVER_FORMATS, detect_format
 from .mapping import MappedControls, Mapping
 from .mediapipe_format import write_mediapipe_jsonl, write_mediapipe_textproto
+from .mouth_close import close_mouth
 
 __all__ = [
     "ARKIT_CHANNELS",
@@ -36,6 +37,7 @@ __all__ = [
     "MappedControls",
     "default_table",
     "mapping_for_rig",
+    "close_mouth",
     "clean",
     "OneEuroFilter",
     "calibrate_neutral",

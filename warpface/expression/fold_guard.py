@@ -8,7 +8,8 @@ and the solver's Jacobian are unchanged (docs/RIG.md §14):
   the zone field alone keeps: ``w' = w₀ + g·(w − w₀)``, ``g ∈ [0, 1]``.
 - :func:`unfolded_weights`: a scalar blend weight (the jaw's, SPEC §6.2) diffused over the mesh's edges
   around the triangles a reference motion would fold; :func:`equalized_weights` then makes it equal on the corners
-  of each triangle still folded, and :func:`equalized_field` does the same with a muscle's field.
+  of each triangle still folded, and :func:`equalized_field` does the same with a muscle's field
+  (:func:`ladder_equalized`: on a ladder of contractions up to its reference one).
 
 A triangle *folds* under a displacement ``d`` when its deformed area vector keeps less than
 :data:`FOLD_MARGIN` of its rest one along the rest normal: ``n₀·n(x + d) < m·|n₀|²`` (``m = 0`` is the flip).
@@ -27,6 +28,7 @@ __all__ = [
     "equalized_field",
     "equalized_weights",
     "fold_blend",
+    "ladder_equalized",
     "folded_triangles",
     "unfolded_response",
     "unfolded_weights",
@@ -43,6 +45,8 @@ _GUARD_ROUNDS = 30
 _STALL_ROUNDS = 10
 """:func:`unfolded_weights` stops when this many rounds have not lowered the count of folded triangles."""
 _EQUAL_ROUNDS = 200
+LADDER_STEPS = 4
+""":func:`ladder_equalized` checks a field at its reference contraction times 1/8, 1/4, 1/2 and 1."""
 _EQUAL_STALL_ROUNDS = 40
 """:func:`equalized_weights` stops when this many rounds have not lowered the count (an averaging round may raise it
 for a while before the next lowers it)."""
@@ -190,23 +194,50 @@ def equalized_field(
     points: np.ndarray,
     triangles: np.ndarray,
     field: np.ndarray,
-    contraction: float,
+    contraction,
     *,
     margin: float = FOLD_MARGIN,
     free: np.ndarray | None = None,
+    each: bool = False,
     rounds: int = _EQUAL_ROUNDS,
 ) -> np.ndarray:
     """A muscle's field ``w`` (V, 3) made equal on the corners of every triangle that ``x + K·w`` folds at
-    ``K = contraction`` (``margin``), as :func:`equalized_weights` does with weights (only the ``free`` vertices
-    (V,) bool change; default all): a triangle whose corners share one displacement only moves, so it cannot fold,
-    at any ``K``. Several fields that act together, side by side as (V, 3·n), are checked by their sum and each
-    made equal on the same corners. Returns the shape of ``field``."""
+    ``K = contraction`` (a number, or a sequence of them that are all checked; ``margin``), as
+    :func:`equalized_weights` does with weights: a triangle whose corners share one displacement only moves, so it
+    cannot fold, at any ``K``. Only the ``free`` vertices change: (V,) bool, or (V, 3·n) per column of ``field``
+    (default all). Several fields that act together, side by side as (V, 3·n), are checked by their sum (and, with
+    ``each``, also each alone) and made equal on the same corners. Returns the shape of ``field``."""
     field = np.asarray(field, dtype=np.float64)
+    scales = [float(k) for k in np.atleast_1d(np.asarray(contraction, dtype=np.float64))]
+    parts = field.shape[1] // 3 if field.ndim == 2 else 1
+    groups = [slice(None)] + ([slice(3 * i, 3 * i + 3) for i in range(parts)] if each and parts > 1 else [])
+    motions = [(k, group) for k in scales for group in groups]
 
-    def moved(values: np.ndarray, scale: float) -> np.ndarray:
-        return points + scale * values.reshape(len(values), -1, 3).sum(axis=1)
+    def moved(values: np.ndarray, motion) -> np.ndarray:
+        scale, group = motion
+        return points + scale * values[:, group].reshape(len(values), -1, 3).sum(axis=1)
 
-    return _equalized(points, triangles, field, [float(contraction)], moved, free, rounds, margin)
+    return _equalized(points, triangles, field, motions, moved, free, rounds, margin)
+
+
+def ladder_equalized(points: np.ndarray, triangles: np.ndarray, field: np.ndarray, contraction: float) -> np.ndarray:
+    """:func:`equalized_field` of a muscle's field (V, 3) climbing to its reference contraction: at
+    ``K = contraction · 2⁻ʲ``, ``j`` = :data:`LADDER_STEPS` − 1 … 0, each step also checking every step below it,
+    taken while every step so far ends without a fold (the last one tried is taken when it leaves the steps below it
+    unfolded). Where the reference contraction is more than the skin can carry without folding (a whole head's
+    bounding box sets it: 34 mm on the Lee Perry-Smith scan), the field keeps the equal corners of the largest
+    contraction that could be cleared, instead of the best of a stalled search at the top (docs/RIG.md §14)."""
+    done: list[float] = []
+    for step in range(LADDER_STEPS - 1, -1, -1):
+        scales = [*done, contraction * 0.5**step]
+        trial = equalized_field(points, triangles, field, scales)
+        left = [folded_triangles(points, triangles, points + k * trial).any() for k in scales]
+        if any(left[:-1]):
+            break
+        field, done = trial, scales
+        if left[-1]:
+            break
+    return field
 
 
 def _equalized(points, triangles, values, motions, moved, free, rounds, margin=FOLD_MARGIN) -> np.ndarray:
@@ -233,15 +264,20 @@ def _equalized(points, triangles, values, motions, moved, free, rounds, margin=F
         corners = triangles[folded]
         means = np.repeat(values[corners].mean(axis=1), 3, axis=0)
         hits = np.bincount(corners.ravel(), minlength=count)
-        changed = hits > 0 if free is None else (hits > 0) & free
+        changed = hits > 0
         if values.ndim == 1:
             total = np.bincount(corners.ravel(), means, minlength=count)
         else:
             total = np.stack(
                 [np.bincount(corners.ravel(), means[:, k], minlength=count) for k in range(values.shape[1])], axis=1
             )
-        values[changed] = total[changed] / hits[changed].reshape((-1,) + (1,) * (values.ndim - 1))
-        near = np.flatnonzero(changed[triangles].any(axis=1))  # only these triangles can have changed
+        shape = (-1,) + (1,) * (values.ndim - 1)
+        update = changed.reshape(shape)
+        if free is not None:
+            update = update & (free if free.ndim == values.ndim else free.reshape(shape))
+        values = np.where(update, total / np.maximum(hits, 1).reshape(shape), values)
+        moved_any = update.reshape(count, -1).any(axis=1)
+        near = np.flatnonzero(moved_any[triangles].any(axis=1))  # only these triangles can have changed
         folded[near] = folds(near)
         if folded.sum() < best:
             best, since, kept = int(folded.sum()), 0, values.copy()

@@ -32,7 +32,7 @@ import warp as wp
 from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
-from .fold_guard import FOLD_TRAVEL, equalized_field, unfolded_response
+from .fold_guard import FOLD_TRAVEL, equalized_field, ladder_equalized, unfolded_response
 from .formulas import bunching_pull, sliding_pull, thickening_pull
 from .muscles import Muscle, MuscleWeights
 
@@ -255,12 +255,28 @@ def has_tissue_model(muscles: Sequence[Muscle]) -> bool:
     return any(m.sliding > 0.0 or m.bunching > 0.0 or m.thickening > 0.0 or isinstance(m, LidMuscle) for m in muscles)
 
 
+def _pair_free(count: int, a, b) -> np.ndarray:
+    """Where two hinges' fields may be made equal, per column of the pair (V, 6): the hinge that turns farther (an
+    upper lid) wherever its own taper is at least :data:`_HINGE_FREE`, the other only where both tapers are. So the
+    upper lid's motion may spread onto the lower margin at the corners of the eye, where the two lids' triangles meet,
+    but no margin takes the lower lid's motion (docs/RIG.md §14)."""
+    from .lids import hinge_taper
+
+    taper_a, taper_b = hinge_taper(count, [a]), hinge_taper(count, [b])
+    both = (taper_a >= _HINGE_FREE) & (taper_b >= _HINGE_FREE)
+    lead_a = np.abs(a.angles).max(initial=0.0) >= np.abs(b.angles).max(initial=0.0)
+    free_a = taper_a >= _HINGE_FREE if lead_a else both
+    free_b = both if lead_a else taper_b >= _HINGE_FREE
+    return np.repeat(np.stack([free_a, free_b], axis=1), 3, axis=1)
+
+
 def unfolded_fields(mesh, muscles: Sequence[Muscle], weights: MuscleWeights) -> MuscleWeights:
     """Each muscle's field made equal on the corners of the triangles it folds at its reference contraction
     (:func:`~warpface.expression.fold_guard.equalized_field`; docs/RIG.md §14): ``K = 1`` for a lid hinge or the
-    lips' seal (their ``K`` ends at 1; only flips count), else the ``K`` that moves the field's farthest vertex by
-    :data:`~warpface.expression.fold_guard.FOLD_TRAVEL` of the mesh's bounding-box diagonal; then every two
-    hinges whose fields meet on a triangle, both at ``K = 1``."""
+    lips' seal (their ``K`` ends at 1; only flips count), else on a ladder up to the ``K`` that moves the field's
+    farthest vertex by :data:`~warpface.expression.fold_guard.FOLD_TRAVEL` of the mesh's bounding-box diagonal
+    (:func:`~warpface.expression.fold_guard.ladder_equalized`); then every two hinges whose fields meet on a
+    triangle, both at ``K = 1``, each alone and together, on the free vertices of :func:`_pair_free`."""
     from .lids import LidMuscle, hinge_taper
 
     points = np.asarray(mesh.points, dtype=np.float64)
@@ -280,7 +296,7 @@ def unfolded_fields(mesh, muscles: Sequence[Muscle], weights: MuscleWeights) -> 
                 free = hinge_taper(len(points), [muscle]) >= _HINGE_FREE
                 equal = equalized_field(points, triangles, field, 1.0, margin=0.0, free=free)
             else:
-                equal = equalized_field(points, triangles, field, travel / peak)
+                equal = ladder_equalized(points, triangles, field, travel / peak)
             changed |= not np.array_equal(equal, field)
             field = equal
         fields.append(field)
@@ -290,9 +306,9 @@ def unfolded_fields(mesh, muscles: Sequence[Muscle], weights: MuscleWeights) -> 
     for a, b in ((a, b) for a in hinges for b in hinges if a < b):
         if not np.any(moving[a][triangles].any(axis=1) & moving[b][triangles].any(axis=1)):
             continue
-        free = hinge_taper(len(points), [muscles[a], muscles[b]]) >= _HINGE_FREE
+        free = _pair_free(len(points), muscles[a], muscles[b])
         pair = np.concatenate([fields[a], fields[b]], axis=1)
-        equal = equalized_field(points, triangles, pair, 1.0, margin=0.0, free=free)
+        equal = equalized_field(points, triangles, pair, 1.0, margin=0.0, free=free, each=True)
         if not np.array_equal(equal, pair):
             fields[a], fields[b], changed = equal[:, :3], equal[:, 3:], True
     return MuscleWeights.from_fields(len(points), fields) if changed else weights

@@ -9,7 +9,7 @@ A wrinkle is a cubic Bézier curve in the (u, v) plane of a :class:`PlanarProjec
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Union
 
 import numpy as np
@@ -393,11 +393,22 @@ def wrinkle_shapes(rest_points: np.ndarray, wrinkles: list[Wrinkle], *, device=N
 
 def skin_wrinkle_shapes(mesh, wrinkles: list[Wrinkle], muscles, *, device=None) -> WrinkleShapes:
     """The profiles the expression model and the solver apply (docs/RIG.md §14): :func:`wrinkle_shapes` of the
-    rest ``mesh``'s points times the hinges' :func:`~warpface.expression.lids.hinge_taper`."""
+    rest ``mesh``'s points times the hinges' :func:`~warpface.expression.lids.hinge_taper`; on a rig beyond the
+    paper's model (:func:`~warpface.expression.tissue.has_tissue_model`) each wrinkle no narrower than the mesh can
+    draw (:mod:`~warpface.expression.wrinkle_width`: wider by the local edge length, shallower in the same ratio)."""
     from .lids import hinge_taper
+    from .tissue import has_tissue_model
+    from .wrinkle_width import drawable_widths
 
     points = mesh.points
+    wrinkles = list(wrinkles)
+    factors = np.ones(len(wrinkles))
+    if wrinkles and has_tissue_model(list(muscles)):
+        triangles = mesh.triangles[~mesh.degenerate_triangles]
+        widths = drawable_widths(points, triangles, wrinkles, device=device)
+        wrinkles = [replace(w, width=width) for w, (width, _) in zip(wrinkles, widths)]
+        factors = np.array([factor for _, factor in widths])
     shapes = wrinkle_shapes(points, wrinkles, device=device)
     row = np.repeat(np.arange(len(points)), np.diff(shapes.offsets))
-    shape = shapes.shape * hinge_taper(len(points), list(muscles))[row]
+    shape = shapes.shape * hinge_taper(len(points), list(muscles))[row] * factors[shapes.wrinkle]
     return WrinkleShapes(offsets=shapes.offsets, wrinkle=shapes.wrinkle, shape=shape)
