@@ -2,7 +2,7 @@
 
 Every graph node ``k`` carries an affine map ``X_k`` (4 × 3); a template vertex ``v`` of node ``k``
 moves to ``[v, 1] X_k``. Each round matches every template vertex to the foot of its nearest skin
-point on that point's tangent plane and minimises
+point (nearest in position and normal together) on that point's tangent plane and minimises
 
     Σ_i w_i ‖[v_i, 1] X_k(i) − u_i‖²  +  β Σ_j ‖[v_t(j), 1] X_k(t(j)) − s_j‖²  +  α Σ_(a,b) ‖G (X_a − X_b)‖²
 
@@ -39,6 +39,10 @@ BACKWARD = 1.0
 """Weight of the skin → template matches (each skin point pulls its nearest template vertex); 0 = off."""
 FACING = 0.5
 """A match counts only where the template's and the skin's normals are within 60°."""
+NORMAL_WEIGHT = 0.1
+"""Weight of the normals in the correspondence search [inter-ocular units]: a template vertex is matched to the
+skin point nearest in ``(p, λ n)``, so where the skin bends (eye corners, nostrils, lips) it meets the point that
+faces its way rather than the nearest one across the bend (0 = plain nearest point)."""
 
 
 @dataclass(frozen=True)
@@ -92,6 +96,15 @@ def _backward(points, normals, template_outline, skin: SkinTarget, limit: float)
     return index[keep], skin.points[keep]
 
 
+def _matches(points, normals, skin: SkinTarget, oriented: cKDTree | None) -> tuple[np.ndarray, np.ndarray]:
+    """Skin point matched to every template vertex, nearest in position and normal (:data:`NORMAL_WEIGHT`):
+    (distance in space, skin index)."""
+    if oriented is None:
+        return skin.tree.query(points)
+    index = oriented.query(np.hstack([points, NORMAL_WEIGHT * normals]))[1]
+    return np.linalg.norm(points - skin.points[index], axis=1), index
+
+
 def fit_nonrigid(model: Template, skin: SkinTarget, *, stiffness=None, rounds: int | None = None) -> NonRigidFit:
     """Deform the template onto the skin (both in the template frame, after the similarity fit);
     ``stiffness`` is the α schedule (default :data:`STIFFNESS`)."""
@@ -104,9 +117,10 @@ def fit_nonrigid(model: Template, skin: SkinTarget, *, stiffness=None, rounds: i
     points, normals = model.points, model.normals
     weights = np.ones(len(points))
     limits = np.geomspace(MAX_DISTANCE[0], MAX_DISTANCE[1], len(stiffness))
+    oriented = cKDTree(np.hstack([skin.points, NORMAL_WEIGHT * skin.normals])) if NORMAL_WEIGHT > 0.0 else None
     for alpha, limit in zip(stiffness, limits):
         for _ in range(rounds):
-            distance, index = skin.tree.query(points)
+            distance, index = _matches(points, normals, skin, oriented)
             target_normals = skin.normals[index]
             facing = np.sum(normals * target_normals, axis=1)
             weights = ((distance < limit) & (facing > FACING) & ~skin.boundary[index]).astype(np.float64)
