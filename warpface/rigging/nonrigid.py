@@ -16,6 +16,7 @@ annealed from stiff to supple, a few rounds each. Lengths are in the template's 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sp
@@ -53,6 +54,19 @@ class SkinTarget:
     normals: np.ndarray
     boundary: np.ndarray
     tree: cKDTree
+
+    @cached_property
+    def oriented(self) -> cKDTree:
+        """k-d tree over the 6-vectors ``(p, λ n)`` of the skin (λ = :data:`NORMAL_WEIGHT`)."""
+        return cKDTree(np.hstack([self.points, NORMAL_WEIGHT * self.normals]))
+
+    def match(self, points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The skin point nearest each of ``points`` (N, 3) with unit ``normals`` (N, 3) in position and normal
+        together, ``‖p − s‖² + λ² ‖n − n_s‖²``: (distance in space (N,), skin index (N,))."""
+        if NORMAL_WEIGHT <= 0.0:
+            return self.tree.query(points)
+        index = self.oriented.query(np.hstack([points, NORMAL_WEIGHT * normals]))[1]
+        return np.linalg.norm(points - self.points[index], axis=1), index
 
 
 @dataclass(frozen=True)
@@ -96,15 +110,6 @@ def _backward(points, normals, template_outline, skin: SkinTarget, limit: float)
     return index[keep], skin.points[keep]
 
 
-def _matches(points, normals, skin: SkinTarget, oriented: cKDTree | None) -> tuple[np.ndarray, np.ndarray]:
-    """Skin point matched to every template vertex, nearest in position and normal (:data:`NORMAL_WEIGHT`):
-    (distance in space, skin index)."""
-    if oriented is None:
-        return skin.tree.query(points)
-    index = oriented.query(np.hstack([points, NORMAL_WEIGHT * normals]))[1]
-    return np.linalg.norm(points - skin.points[index], axis=1), index
-
-
 def fit_nonrigid(model: Template, skin: SkinTarget, *, stiffness=None, rounds: int | None = None) -> NonRigidFit:
     """Deform the template onto the skin (both in the template frame, after the similarity fit);
     ``stiffness`` is the α schedule (default :data:`STIFFNESS`)."""
@@ -117,10 +122,9 @@ def fit_nonrigid(model: Template, skin: SkinTarget, *, stiffness=None, rounds: i
     points, normals = model.points, model.normals
     weights = np.ones(len(points))
     limits = np.geomspace(MAX_DISTANCE[0], MAX_DISTANCE[1], len(stiffness))
-    oriented = cKDTree(np.hstack([skin.points, NORMAL_WEIGHT * skin.normals])) if NORMAL_WEIGHT > 0.0 else None
     for alpha, limit in zip(stiffness, limits):
         for _ in range(rounds):
-            distance, index = _matches(points, normals, skin, oriented)
+            distance, index = skin.match(points, normals)
             target_normals = skin.normals[index]
             facing = np.sum(normals * target_normals, axis=1)
             weights = ((distance < limit) & (facing > FACING) & ~skin.boundary[index]).astype(np.float64)
