@@ -7,8 +7,8 @@ point (nearest in position and normal together) on that point's tangent plane an
     Σ_i w_i ‖[v_i, 1] X_k(i) − u_i‖²  +  β Σ_j ‖[v_t(j), 1] X_k(t(j)) − s_j‖²  +  α Σ_(a,b) ‖G (X_a − X_b)‖²
 
 with ``G = diag(1, 1, 1, γ)`` and the second sum the backward matches: every skin point ``s_j`` pulls
-its nearest template vertex ``t(j)``, again in position and normal (so the template also spreads over what the
-skin has) — one sparse linear system with three right-hand sides (scipy.sparse, LU). ``w_i`` drops matches that
+its nearest template vertex ``t(j)`` (so the template also spreads over what the skin has) — one sparse
+linear system with three right-hand sides (scipy.sparse, LU). ``w_i`` drops matches that
 are too far, face the other way or land on the skin's open boundary. The stiffness ``α`` is
 annealed from stiff to supple, a few rounds each. Lengths are in the template's inter-ocular units.
 """
@@ -40,11 +40,10 @@ BACKWARD = 1.0
 """Weight of the skin → template matches (each skin point pulls its nearest template vertex); 0 = off."""
 FACING = 0.5
 """A match counts only where the template's and the skin's normals are within 60°."""
-NORMAL_WEIGHT = 0.15
-"""Weight of the normals in the correspondence search, both ways [inter-ocular units]: a template vertex is
-matched to the skin point nearest in ``(p, λ n)`` (and a skin point to such a template vertex), so where the skin
-bends (eye corners, nostrils, lips) it meets the point that faces its way rather than the nearest one across the
-bend (0 = plain nearest points)."""
+NORMAL_WEIGHT = 0.1
+"""Weight of the normals in the correspondence search [inter-ocular units]: a template vertex is matched to the
+skin point nearest in ``(p, λ n)``, so where the skin bends (eye corners, nostrils, lips) it meets the point that
+faces its way rather than the nearest one across the bend (0 = plain nearest point)."""
 
 
 @dataclass(frozen=True)
@@ -104,11 +103,8 @@ def _smoothness(model: Template) -> sp.csr_matrix:
 
 
 def _backward(points, normals, template_outline, skin: SkinTarget, limit: float):
-    """Skin → template matches, nearest in position and normal: (template vertex of each kept skin point, that
-    skin point)."""
-    oriented = cKDTree(np.hstack([points, NORMAL_WEIGHT * normals]))
-    index = oriented.query(np.hstack([skin.points, NORMAL_WEIGHT * skin.normals]))[1]
-    distance = np.linalg.norm(points[index] - skin.points, axis=1)
+    """Skin → template matches: (template vertex of each kept skin point, that skin point)."""
+    distance, index = cKDTree(points).query(skin.points)
     facing = np.sum(normals[index] * skin.normals, axis=1)
     keep = (distance < limit) & (facing > FACING) & ~template_outline[index] & ~skin.boundary
     return index[keep], skin.points[keep]
