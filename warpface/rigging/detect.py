@@ -3,10 +3,10 @@
 Pipeline (docs/RIG.md, "Automatic landmarks"): split shells and keep the skin
 (:class:`~warpface.rigging.surface.HeadSurface`); find the symmetry plane, up, front and scale with a
 similarity fit of the template (:mod:`~warpface.rigging.align`); deform the template onto the skin
-with non-rigid ICP (:mod:`~warpface.rigging.nonrigid`), twice: the second time from the head's proportions
-as the first fit's feature landmarks give them (:func:`affine_from_features`); give every template landmark the nearest
-skin vertex that faces the same way. The unit follows from the fitted eye distance
-(:mod:`~warpface.rigging.units`).
+with non-rigid ICP (:mod:`~warpface.rigging.nonrigid`), four times: each time after the first from the head's
+proportions as the previous fit's feature landmarks give them (:func:`affine_from_features`, :data:`PASSES`);
+give every template landmark the nearest skin vertex that faces the same way. The unit follows from the fitted
+eye distance (:mod:`~warpface.rigging.units`).
 """
 
 from __future__ import annotations
@@ -172,7 +172,7 @@ EARLY_ROUNDS = 1
 :data:`~warpface.rigging.nonrigid.ROUNDS`)."""
 REFIT_LIMIT = 1.25
 """A feature-based affine map whose stretch against the first one (a singular value of their ratio) lies
-outside [1/1.25, 1.25] is not trusted: the first fit stands."""
+outside [1/1.25, 1.25] is not trusted: the re-reads stop there."""
 
 
 def affine_from_features(model, affine: Affine, deformed: NonRigidFit) -> Affine | None:
