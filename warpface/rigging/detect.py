@@ -3,10 +3,10 @@
 Pipeline (docs/RIG.md, "Automatic landmarks"): split shells and keep the skin
 (:class:`~warpface.rigging.surface.HeadSurface`); find the symmetry plane, up, front and scale with a
 similarity fit of the template (:mod:`~warpface.rigging.align`); deform the template onto the skin
-with non-rigid ICP (:mod:`~warpface.rigging.nonrigid`), twice: the second time from the head's proportions
-as the first fit's feature landmarks give them (:func:`affine_from_features`); give every template landmark the nearest
-skin vertex that faces the same way. The unit follows from the fitted eye distance
-(:mod:`~warpface.rigging.units`).
+with non-rigid ICP (:mod:`~warpface.rigging.nonrigid`), four times: each time after the first from the head's
+proportions as the previous fit's feature landmarks give them (:func:`affine_from_features`, :data:`PASSES`);
+give every template landmark the nearest skin vertex that faces the same way. The unit follows from the fitted
+eye distance (:mod:`~warpface.rigging.units`).
 """
 
 from __future__ import annotations
@@ -141,10 +141,15 @@ def register(
     skin = _held(affine, similar, similar_normals, surface.skin_boundary)
     deformed = None
     if nonrigid:
-        deformed = fit_nonrigid(model, skin)
-        refined = affine_from_features(model, affine, deformed)
-        if refined is not None:
+        deformed, final = fit_nonrigid(model, skin, rounds=EARLY_ROUNDS), False
+        for read in range(PASSES):
+            refined = affine_from_features(model, affine, deformed)
+            if refined is None:
+                break
             affine, skin = refined, _held(refined, similar, similar_normals, surface.skin_boundary)
+            final = read == PASSES - 1
+            deformed = fit_nonrigid(model, skin, rounds=None if final else EARLY_ROUNDS)
+        if not final:  # a re-read was refused: the last fit is made again in full
             deformed = fit_nonrigid(model, skin)
     return Registration(surface, fit, skin, deformed, plane_residual, affine)
 
@@ -157,10 +162,17 @@ def _held(affine: Affine, points: np.ndarray, normals: np.ndarray, boundary: np.
 
 FEATURES = slice(27, 68)
 """Nose, eyes and mouth (iBUG 27–67): the landmarks the first non-rigid fit places best (≈ 1 mm), whose
-positions give the head's proportions for the second."""
+positions give the head's proportions for the next fit."""
+PASSES = 3
+"""Times the proportions are read anew from the feature landmarks, each followed by a fresh non-rigid fit: every
+re-read moves the map only part of the way toward the head's proportions (on the ICT head made 8 % wider the
+width ratio went 1.114, 1.106, 1.097 for 1.08; on one 10 % flatter the depth ratio 0.958, 0.941, 0.933 for 0.9)."""
+EARLY_ROUNDS = 1
+"""Correspondence rounds per stiffness stage of the fits whose only use is the next re-read (the last fit has
+:data:`~warpface.rigging.nonrigid.ROUNDS`)."""
 REFIT_LIMIT = 1.25
 """A feature-based affine map whose stretch against the first one (a singular value of their ratio) lies
-outside [1/1.25, 1.25] is not trusted: the first fit stands."""
+outside [1/1.25, 1.25] is not trusted: the re-reads stop there."""
 
 
 def affine_from_features(model, affine: Affine, deformed: NonRigidFit) -> Affine | None:
