@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
-from ..expression.lids import LidMuscle
+from ..expression.lids import MAX_LID_ANGLE, LidMuscle
 from ..mesh import FaceMesh
 from .frame import FaceFrame
 
@@ -219,6 +219,7 @@ def default_lids(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> lis
         centre = frame.to_world(eye.centre)
         for part, (angles, slides, lifts) in _hinge_angles(eye, local).items():
             moved = np.flatnonzero(angles != 0.0)
+            angles = np.clip(angles, -MAX_LID_ANGLE, MAX_LID_ANGLE)  # misplaced lid landmarks: docs/RIG.md §11
             name = f"lid_{part}_{side}"
             slides, lifts = slides[moved] * frame.scale, lifts[moved] * frame.scale
             limit = LOWER_FIT_LIMIT if part == "lower_close" else 1.0
