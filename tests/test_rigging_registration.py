@@ -67,3 +67,26 @@ def test_stretched_whole_head_takes_its_proportions_from_the_features(label, fac
     error_mm = 10.0 * np.linalg.norm(points[found.indices] - points[ict_landmark_indices()], axis=1)
     # one re-read of the proportions (before): 1.50 / 6.5 mm wider, 1.37 / 7.2 mm flatter (benchmarks/rigging.py)
     assert error_mm.mean() <= 1.0 and error_mm.max() <= 4.5
+
+
+def test_an_off_skin_eye_point_snaps_across_its_normal_and_a_near_one_to_the_nearest_vertex():
+    """A lid's thin margin (a row of vertices at y = 0, z = 0.05, facing front) above a cheek (y ≤ −0.035, z = 0):
+    a carried point 0.045 behind the margin is nearer the cheek's top row in space, but across its normal it is
+    the margin's vertex (docs/RIG.md §9, step 6). Within ``OFF_SKIN`` of the skin, the nearest vertex wins."""
+    from warpface.rigging.detect import OFF_SKIN, snap_to_skin
+
+    xs = np.linspace(-0.1, 0.1, 21)
+    margin = np.stack([xs, np.zeros_like(xs), np.full_like(xs, 0.05)], axis=1)
+    cheek = np.array([(x, y, 0.0) for y in (-0.035, -0.045, -0.055) for x in xs])
+    points = np.vstack([margin, cheek])
+    normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
+    skin = SkinTarget(points, normals, np.zeros(len(points), dtype=bool), cKDTree(points))
+    behind = np.array([[0.0, 0.0, 0.005]])
+    front = np.array([[0.0, 0.0, 1.0]])
+    assert np.linalg.norm(points[21 + 10] - behind[0]) < np.linalg.norm(points[10] - behind[0])  # cheek nearer
+    index, distance = snap_to_skin(behind, front, skin, across=np.array([True]))
+    assert index[0] == 10 and distance[0] == pytest.approx(0.045)
+    assert snap_to_skin(behind, front, skin)[0][0] == 21 + 10  # not an eye landmark: the nearest vertex
+    near = np.array([[0.004, -0.034, 0.0]])  # on the cheek, within OFF_SKIN of it
+    assert np.linalg.norm(points[21 + 10] - near[0]) < OFF_SKIN
+    assert snap_to_skin(near, front, skin, across=np.array([True]))[0][0] == 21 + 10

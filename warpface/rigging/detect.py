@@ -40,8 +40,12 @@ MAX_RESIDUAL = 0.12
 """A similarity fit leaving the template farther than this from the skin [inter-ocular units] finds no face."""
 MAX_ASYMMETRY = 0.08
 """A skin whose best mirror plane leaves more than this (relative to its size) is not a face."""
-SNAP_CANDIDATES = 12
-"""Nearest skin vertices considered for a landmark; the nearest one facing the template's way wins."""
+SNAP_CANDIDATES = 32
+"""Nearest skin vertices considered for a landmark (:func:`snap_to_skin`)."""
+OFF_SKIN = 0.03
+"""A carried point farther than this from every skin vertex [inter-ocular units] is off the skin."""
+SNAPPED_ACROSS = np.arange(36, 48)
+"""The eye landmarks (iBUG 36–47): snapped to the vertex nearest the line along their normal (docs/RIG.md §9)."""
 
 
 @dataclass(frozen=True)
@@ -72,13 +76,26 @@ class LandmarkFit:
     seconds: float
 
 
-def snap_to_skin(points: np.ndarray, normals: np.ndarray, skin: SkinTarget) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest skin vertex to each point among those facing the point's normal: (skin indices, distances)."""
+def snap_to_skin(
+    points: np.ndarray, normals: np.ndarray, skin: SkinTarget, across: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's skin vertex among its :data:`SNAP_CANDIDATES` nearest that face the point's normal: the nearest
+    one, or where ``across`` (N,) bool is set, the one nearest to the line through the point along its normal.
+    Returns (skin indices, distances to the points).
+
+    A carried lid point sits a few mm behind the lid's thin margin; the nearest vertex in space can then be on the
+    cheek below, while the one across from the point along its normal is the lid's (docs/RIG.md §9, step 6)."""
     count = min(SNAP_CANDIDATES, len(skin.points))
     distance, index = skin.tree.query(points, k=count)
     distance, index = distance.reshape(len(points), count), index.reshape(len(points), count)
     facing = np.einsum("ij,ikj->ik", normals, skin.normals[index]) > 0.0
-    first = np.where(facing.any(axis=1), np.argmax(facing, axis=1), 0)
+    offsets = skin.points[index] - points[:, None, :]
+    along = np.einsum("ikj,ij->ik", offsets, normals)
+    off_line = np.linalg.norm(offsets - along[..., None] * normals[:, None, :], axis=2)
+    use_line = np.zeros(len(points), bool) if across is None else np.asarray(across, bool)
+    use_line &= distance[:, 0] > OFF_SKIN
+    score = np.where(facing, np.where(use_line[:, None], off_line, distance), np.inf)
+    first = np.where(facing.any(axis=1), np.argmin(score, axis=1), 0)
     rows = np.arange(len(points))
     return index[rows, first], distance[rows, first]
 
@@ -223,7 +240,7 @@ def find_landmarks(
     else:
         unit_name, meters_per_unit = units.strip().lower(), given_unit
     marks, mark_normals = registration.landmark_points()
-    index, distance = snap_to_skin(marks, mark_normals, skin)
+    index, distance = snap_to_skin(marks, mark_normals, skin, across=np.isin(np.arange(68), SNAPPED_ACROSS))
     confidence = np.exp(-((distance / CONFIDENCE_DISTANCE) ** 2))
     if registration.deformed is not None:
         deformed = registration.deformed
