@@ -21,7 +21,7 @@ lint: $(STAMP)
 # Two workers, one test file each at a time (module fixtures stay in one process). `make test` is the suite
 # without the end-to-end runs over 20 s (marked `slow`); `make test-slow` runs those, and CI runs both.
 test: $(STAMP) lint
-	$(PY) -m pytest -q -n 2 --dist loadfile -m "not slow"
+	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15 -m "not slow"
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadfile -m slow
