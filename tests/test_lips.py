@@ -106,6 +106,7 @@ def _ict_rig():
     return default_rig(wf.FaceMesh(source.points * 0.01, source.triangles), landmarks, device=DEVICE)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("face", ["builtin", "ict"])
 def test_mouth_close_holds_the_lips_together_against_the_open_jaw(face):
     """ARKit's mouthClose: the jaw opens, the lips stay closed (docs/RIG.md §12). The preset's jaw alone parts the

@@ -172,6 +172,7 @@ def test_head_motion_is_solved_as_the_pose_and_written(tmp_path, rig, vertices):
         assert np.abs(moved[:, :3] - expected).max() < 1e-4  # 0.1 mm: the face placed where the camera saw it
 
 
+@pytest.mark.slow
 def test_synthetic_camera_solved_path_beats_the_geometric_transfer():
     """Kinect-like noise: the same frames through both paths, errors against ground truth."""
     from warpface.pipelines.capture import synthetic_capture
@@ -239,6 +240,7 @@ FUZZ = settings(
 )
 
 
+@pytest.mark.slow
 @FUZZ
 @given(data=st.data())
 def test_any_frame_gives_finite_bounded_controls_or_a_skipped_frame(rig, vertices, data):
