@@ -5,7 +5,8 @@ Pipeline (docs/RIG.md, "Automatic landmarks"): split shells and keep the skin
 similarity fit of the template (:mod:`~warpface.rigging.align`); deform the template onto the skin
 with non-rigid ICP (:mod:`~warpface.rigging.nonrigid`), four times: each time after the first from the head's
 proportions as the previous fit's feature landmarks give them (:func:`affine_from_features`, :data:`PASSES`);
-give every template landmark the nearest skin vertex that faces the same way. The unit follows from the fitted
+give every template landmark the nearest skin vertex that faces the same way (an eye landmark carried off the skin:
+the one across its normal, :func:`snap_to_skin`). The unit follows from the fitted
 eye distance (:mod:`~warpface.rigging.units`).
 """
 
@@ -92,8 +93,8 @@ def snap_to_skin(
     offsets = skin.points[index] - points[:, None, :]
     along = np.einsum("ikj,ij->ik", offsets, normals)
     off_line = np.linalg.norm(offsets - along[..., None] * normals[:, None, :], axis=2)
-    use_line = np.zeros(len(points), bool) if across is None else np.asarray(across, bool)
-    use_line &= distance[:, 0] > OFF_SKIN
+    marked = np.zeros(len(points), bool) if across is None else np.asarray(across, bool)
+    use_line = marked & (distance[:, 0] > OFF_SKIN)  # a new array: the caller's ``across`` is left as given
     score = np.where(facing, np.where(use_line[:, None], off_line, distance), np.inf)
     first = np.where(facing.any(axis=1), np.argmin(score, axis=1), 0)
     rows = np.arange(len(points))
