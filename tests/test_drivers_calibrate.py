@@ -60,6 +60,7 @@ def test_bad_examples_are_named():
         calibrate_mapping(rig, {"smile": rig.mesh.points[:10]}, device="cpu")
 
 
+@pytest.mark.slow  # fits every ICT shape, ~30 s on the 2-core CI machine
 @pytest.mark.skipif(
     ict_face_region() is None or ict_landmark_indices() is None,
     reason="ICT-FaceKit data not in ../shared/data (set WARPFACE_SHARED_DATA)",

@@ -31,6 +31,7 @@ def test_readme_snippet_runs(index, tmp_path, monkeypatch):
 OWN_HEAD = re.search(r"^## Your own head\n.*?^```bash\n(.*?)^```", README.read_text(), flags=re.S | re.M)
 
 
+@pytest.mark.slow  # rig → animate → preview end to end, ~40 s on the 2-core CI machine
 def test_own_head_commands_run_on_a_head_in_centimetres(tmp_path, monkeypatch, capsys):
     """The README's three commands for one's own head, as written (comments dropped), on the built-in face
     exported in centimetres and a 1.3 s Live Link take."""
