@@ -15,6 +15,7 @@ from warpface.assets import default_rig
 from warpface.assets.calibrated import (
     CALIBRATED_ANATOMY,
     EVERY_MUSCLE,
+    EYELIDS,
     PARAMETER_FIELDS,
     SHARED_FIELDS,
     apply_parameters,
@@ -246,3 +247,55 @@ def test_brow_lowerer_lowers_its_brow_only(hand_rig):
         down = -local[hand_rig.landmarks[brows[side]], 1]
         assert np.all(down > 0.002) and down.max() > 0.02, down
         assert np.abs(local[hand_rig.landmarks[brows[other]]]).max() < 1e-4  # float32 rounding only
+
+
+def test_eyelid_group_recovers_known_lid_shapes(hand_rig):
+    """The ``eyelids`` group (docs/RIG.md §13) rebuilds the six hinges from the landmarks: blinks made by hinges of a
+    known radial and lower-lid reach calibrate the hand-made rig's hinges back to them."""
+    truth = {(EYELIDS, "radial_reach"): 0.15, (EYELIDS, "lower_reach"): -0.3}
+    lids_only = replace(hand_rig, muscles=[m for m in hand_rig.muscles if m.name.startswith("lid_")], wrinkles=[])
+    lids_only = replace(lids_only, jaw=None)
+    model = apply_parameters(lids_only, truth, device="cpu").model(device="cpu")
+    shapes = [
+        ExampleShape(
+            f"blink_{side}_{k}",
+            np.asarray(model.evaluate({f"lid_upper_close_{side}": k, f"lid_lower_close_{side}": k})),
+        )
+        for side in ("L", "R")
+        for k in (0.5, 1.0)
+    ]
+    result = calibrate(
+        lids_only,
+        shapes,
+        holdout=["blink_R_1.0"],
+        muscles=[EYELIDS],
+        fields=["radial_reach", "lower_reach"],
+        iterations=3,
+        prior_weight=1e-6,
+        device="cpu",
+    )
+    assert result.improved, result.message
+    held = result.reach["held_out"]
+    assert held["after"][0]["after"] < 0.1 * held["before"][0]["after"]
+    for key, value in truth.items():
+        assert result.values[key] == pytest.approx(value, rel=0.1), (key, result.values)
+
+
+def test_eyelid_group_keeps_each_hinge_s_range_and_needs_the_default_hinges(hand_rig):
+    layout = parameter_layout(hand_rig, [EYELIDS])
+    assert [p.field for p in layout] == list(PARAMETER_FIELDS["lids"])
+    limited = replace(
+        hand_rig,
+        muscles=[replace(m, fit_limit=3.0) if m.name == "lid_upper_raise_L" else m for m in hand_rig.muscles],
+    )
+    moved = apply_parameters(limited, {(EYELIDS, "meet"): 0.05}, device="cpu")
+    before, after = _muscle(limited, "lid_upper_raise_L"), _muscle(moved, "lid_upper_raise_L")
+    assert after.fit_limit == 3.0 and after.taper_share == before.taper_share
+    # the meeting line rises: the upper lid turns less, the lower more
+    for name, grows in (("lid_upper_close_L", False), ("lid_lower_close_L", True)):
+        turn_before, turn_after = np.abs(_muscle(limited, name).angles).sum(), np.abs(_muscle(moved, name).angles).sum()
+        assert (turn_after > turn_before) == grows, name
+    without = replace(hand_rig, muscles=[m for m in hand_rig.muscles if not m.name.startswith("lid_")])
+    assert not [p for p in parameter_layout(without) if p.group == EYELIDS]
+    with pytest.raises(RigError, match="lid hinges"):
+        apply_parameters(without, {(EYELIDS, "meet"): 0.05}, device="cpu")

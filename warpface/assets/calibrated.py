@@ -23,6 +23,7 @@ from ..errors import RigError
 from ..expression.muscles import LinearMuscle, SphincterMuscle
 from ..rig import FaceRig
 from .frame import FaceFrame, SurfaceSampler, check_landmarks
+from .lids import LID_CONTROL_NAMES, LidShape, default_lids
 
 __all__ = [
     "PARAMETER_FIELDS",
@@ -32,6 +33,8 @@ __all__ = [
     "apply_parameters",
     "muscle_group",
     "EVERY_MUSCLE",
+    "EYELIDS",
+    "WHOLE_RIG_KINDS",
     "SHARED_FIELDS",
     "CALIBRATED_ANATOMY",
     "load_calibrated_anatomy",
@@ -51,8 +54,17 @@ PARAMETER_FIELDS: dict[str, tuple[str, ...]] = {
         "bunching",
     ),
     "sphincter": ("centre_x", "centre_y", "semi_x", "semi_y", "ring", "sliding", "bunching"),
+    "lids": ("meet", "lower_reach", "raise", "radial_reach"),
 }
 """The fields of each group kind (a new mechanism adds its kind, its fields and an ``_apply_*``)."""
+
+EYELIDS = "eyelids"
+"""The group of the default rig's six lid hinges (kind ``lids``): their shape constants, rebuilt from the landmarks
+(:class:`~warpface.assets.lids.LidShape`); both eyes share it."""
+
+WHOLE_RIG_KINDS = ("shared", "lids")
+"""Kinds whose parameters move more than one muscle group's field (the grouped Jacobians give them whole-rig
+columns)."""
 
 EVERY_MUSCLE = "all"
 """The group whose values every muscle adds to its own (the fields of :data:`SHARED_FIELDS` it has): learnt from
@@ -75,6 +87,10 @@ PRIOR_SIGMA: dict[str, float] = {
     "semi_x": 0.25,
     "semi_y": 0.25,
     "ring": 0.15,
+    "meet": 0.05,
+    "lower_reach": 0.25,
+    "raise": 0.25,
+    "radial_reach": 0.10,
 }
 """Prior standard deviation of each field (inter-ocular units, log-scale or added value): the Gaussian prior
 ``(θ/σ)²`` that keeps the anatomy near the hand-placed one."""
@@ -86,6 +102,7 @@ _ZONE_DEG = (5.0, 170.0)
 _SLIDING = (0.0, 1.0)
 _BUNCHING = (0.0, 3.0)
 _RING = (0.0, 0.9)
+_MEET = (0.0, 0.5)
 
 
 @dataclass(frozen=True)
@@ -140,7 +157,13 @@ def parameter_layout(rig: FaceRig, muscles=None, fields=None) -> list[Parameter]
             if (side == 0.0 and field.endswith("_x") and field != "semi_x") or (chosen and field not in chosen):
                 continue
             layout.append(Parameter(group, kind, field))
+    if _has_default_lids(rig) and (wanted is None or EYELIDS in wanted or wanted & set(LID_CONTROL_NAMES)):
+        layout += [Parameter(EYELIDS, "lids", f) for f in PARAMETER_FIELDS["lids"] if not chosen or f in chosen]
     return layout
+
+
+def _has_default_lids(rig: FaceRig) -> bool:
+    return set(LID_CONTROL_NAMES) <= set(rig.muscle_names)
 
 
 _SAMPLERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -219,6 +242,8 @@ def apply_parameters(rig: FaceRig, values, *, device=None) -> FaceRig:
     if not values:
         return rig
     groups = {muscle_group(m.name)[0]: _kind(m) for m in rig.muscles if _kind(m) is not None}
+    if _has_default_lids(rig):
+        groups[EYELIDS] = "lids"
     shared = {field: value for (group, field), value in values.items() if group == EVERY_MUSCLE}
     unknown = [field for field in shared if field not in SHARED_FIELDS]
     if unknown:
@@ -228,6 +253,8 @@ def apply_parameters(rig: FaceRig, values, *, device=None) -> FaceRig:
         if group == EVERY_MUSCLE:
             continue
         if group not in groups:
+            if group == EYELIDS:
+                raise RigError(f"calibrated parameters: rig {rig.name!r} has not the default rig's lid hinges")
             raise RigError(f"calibrated parameters: rig {rig.name!r} has no muscle group {group!r}")
         if field not in PARAMETER_FIELDS[groups[group]]:
             raise RigError(f"calibrated parameters: {groups[group]} muscle {group!r} has no field {field!r}")
@@ -246,7 +273,28 @@ def apply_parameters(rig: FaceRig, values, *, device=None) -> FaceRig:
         for field, value in by_group.get(group, {}).items():
             changes[field] = changes.get(field, 0.0) + value
         muscles.append(_APPLY[kind](muscle, side, changes, frame, surface) if changes else muscle)
+    if EYELIDS in by_group:
+        muscles = _rebuilt_lids(rig, muscles, by_group[EYELIDS], frame)
     return replace(rig, muscles=muscles)
+
+
+def _rebuilt_lids(rig: FaceRig, muscles: list, values: dict, frame: FaceFrame) -> list:
+    """``muscles`` with the six lid hinges rebuilt from the landmarks with the ``eyelids`` values (docs/RIG.md §13);
+    each keeps the ``fit_limit`` and ``taper_share`` of the hinge it replaces."""
+    base = LidShape()
+    lower, radial = (float(np.exp(values.get(name, 0.0))) for name in ("lower_reach", "radial_reach"))
+    shape = replace(
+        base,
+        lower_share=float(np.clip(base.lower_share + values.get("meet", 0.0), *_MEET)),
+        raise_share=float(min(base.raise_share * np.exp(values.get("raise", 0.0)), 1.0)),
+        lower_band=(base.lower_band[0] * lower, base.lower_band[1] * lower),
+        radial_band=(base.radial_band[0] * radial, base.radial_band[1] * radial),
+    )
+    rebuilt = {m.name: m for m in default_lids(rig.mesh, frame, rig.landmarks, shape)}
+    return [
+        replace(rebuilt[m.name], fit_limit=m.fit_limit, taper_share=m.taper_share) if m.name in rebuilt else m
+        for m in muscles
+    ]
 
 
 def load_calibrated_anatomy(path=CALIBRATED_ANATOMY) -> dict[tuple[str, str], float]:

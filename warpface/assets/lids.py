@@ -27,6 +27,8 @@ the midpoint pairs most nearly equidistant from both points of each pair.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
@@ -36,6 +38,7 @@ from .frame import FaceFrame
 
 __all__ = [
     "LID_CONTROL_NAMES",
+    "LidShape",
     "default_lids",
     "EYEBALL_RADIUS",
     "LOWER_SHARE",
@@ -71,6 +74,21 @@ RAISE_BAND = (0.15, 0.45)
 RADIAL_BAND = (1.35, 1.9)
 """Distance from the hinge axis [eyeball radii] turning fully, and where the turn has faded to 0."""
 
+
+@dataclass(frozen=True)
+class LidShape:
+    """The hinges' shape constants (the module's defaults; the calibration's ``eyelids`` group moves them,
+    docs/RIG.md §13): ``lower_share`` = f, ``raise_share``, the (full, fading) angle bands [rad] and the radial
+    band [eyeball radii]."""
+
+    lower_share: float = LOWER_SHARE
+    raise_share: float = RAISE_SHARE
+    upper_band: tuple[float, float] = UPPER_BAND
+    lower_band: tuple[float, float] = LOWER_BAND
+    raise_band: tuple[float, float] = RAISE_BAND
+    radial_band: tuple[float, float] = RADIAL_BAND
+
+
 _EYES = {"R": ((36, 37, 38, 39), (36, 41, 40, 39)), "L": ((42, 43, 44, 45), (42, 47, 46, 45))}
 """Side → (upper margin landmarks, lower margin landmarks), corners first and last."""
 
@@ -103,7 +121,8 @@ def _fade(t: np.ndarray, band: tuple[float, float]) -> np.ndarray:
 class _Eye:
     """One eye's hinge geometry in local coordinates (module docstring)."""
 
-    def __init__(self, local_landmarks: np.ndarray, side: str):
+    def __init__(self, local_landmarks: np.ndarray, side: str, shape: LidShape):
+        self.shape = shape
         upper, lower = _EYES[side]
         ring = local_landmarks[list(upper) + list(lower[1:3])]
         tops, bottoms = local_landmarks[list(upper[1:3])], local_landmarks[list(lower[1:3])]
@@ -117,10 +136,11 @@ class _Eye:
         offset = bottoms[:, 0] - tops[:, 0]
         lift = EYEBALL_RADIUS * (self.radius(bottoms) - self.radius(tops))
         self._offset = self._knots(corners, tops[:, 0], offset)
-        self._upper_slide = self._knots(corners, tops[:, 0], (1.0 - LOWER_SHARE) * offset)
-        self._lower_slide = self._knots(corners, bottoms[:, 0], -LOWER_SHARE * offset)
-        self._upper_lift = self._knots(corners, tops[:, 0], (1.0 - LOWER_SHARE) * lift)
-        self._lower_lift = self._knots(corners, bottoms[:, 0], -LOWER_SHARE * lift)
+        f = shape.lower_share
+        self._upper_slide = self._knots(corners, tops[:, 0], (1.0 - f) * offset)
+        self._lower_slide = self._knots(corners, bottoms[:, 0], -f * offset)
+        self._upper_lift = self._knots(corners, tops[:, 0], (1.0 - f) * lift)
+        self._lower_lift = self._knots(corners, bottoms[:, 0], -f * lift)
 
     @staticmethod
     def _knots(corners: np.ndarray, x: np.ndarray, values: np.ndarray) -> PchipInterpolator:
@@ -140,7 +160,7 @@ class _Eye:
         where the meeting line slopes along x (0 beyond the corners)."""
         partner = x + np.nan_to_num(self._offset(x))
         upper, lower, gap = self.margins(partner)
-        return lower + LOWER_SHARE * gap
+        return lower + self.shape.lower_share * gap
 
     def angle(self, local: np.ndarray) -> np.ndarray:
         return np.arctan2(local[..., 1] - self.centre[1], local[..., 2] - self.centre[2])
@@ -172,11 +192,12 @@ class _Eye:
 def _hinge_angles(eye: _Eye, local: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """(θ [rad], lateral slide, lift [inter-ocular units]) per vertex and unit K of one eye's three hinges
     (module docstring); slide and lift follow the turn's share of the margin's."""
+    shape = eye.shape
     upper, lower, gap = eye.margins(local[:, 0])
-    meet = lower + LOWER_SHARE * gap
+    meet = lower + shape.lower_share * gap
     landing = eye.partner_meeting(local[:, 0])  # where the upper lid meets the lower one
     alpha = eye.angle(local)
-    radial = _fade(eye.radius(local), (RADIAL_BAND[0], RADIAL_BAND[1] - RADIAL_BAND[0]))
+    radial = _fade(eye.radius(local), (shape.radial_band[0], shape.radial_band[1] - shape.radial_band[0]))
     radial = np.where(local[:, 2] > eye.centre[2], radial, 0.0) * (gap > 0.0)
     # lid skin: beyond a margin's angle, or seen from the front above (below) the opening even where the skin's
     # fold puts it at a smaller (larger) angle; only what lies in the opening from the front is inside
@@ -187,13 +208,13 @@ def _hinge_angles(eye: _Eye, local: np.ndarray) -> dict[str, tuple[np.ndarray, n
     inside_upper = ~above & ~below & (alpha >= meet)
     inside_lower = ~above & ~below & (alpha < meet)
     over, under = np.maximum(alpha - upper, 0.0), np.maximum(lower - alpha, 0.0)
-    close_upper = np.where(above, (upper - landing) * _fade(over, UPPER_BAND), 0.0)
+    close_upper = np.where(above, (upper - landing) * _fade(over, shape.upper_band), 0.0)
     close_upper = np.where(inside_upper, alpha - landing, close_upper)
-    close_lower = np.where(below, (lower - meet) * _fade(under, LOWER_BAND), 0.0)
+    close_lower = np.where(below, (lower - meet) * _fade(under, shape.lower_band), 0.0)
     close_lower = np.where(inside_lower, alpha - meet, close_lower)
-    raise_upper = np.where(above, -RAISE_SHARE * gap * _fade(over, RAISE_BAND), 0.0)
+    raise_upper = np.where(above, -shape.raise_share * gap * _fade(over, shape.raise_band), 0.0)
     share = np.divide(alpha - meet, upper - meet, out=np.zeros_like(alpha), where=upper - meet > 0.0)
-    raise_upper = np.where(inside_upper, -RAISE_SHARE * gap * share, raise_upper)
+    raise_upper = np.where(inside_upper, -shape.raise_share * gap * share, raise_upper)
     upper_slide, lower_slide, upper_lift, lower_lift = eye.slides(local[:, 0])
     share_upper = np.divide(close_upper, upper - landing, out=np.zeros_like(alpha), where=upper - landing > 0.0)
     share_lower = np.divide(close_lower, lower - meet, out=np.zeros_like(alpha), where=meet - lower > 0.0)
@@ -205,15 +226,17 @@ def _hinge_angles(eye: _Eye, local: np.ndarray) -> dict[str, tuple[np.ndarray, n
     }
 
 
-def _eyes(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> tuple[np.ndarray, dict[str, _Eye]]:
+def _eyes(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray, shape: LidShape):
     local_landmarks = frame.to_local(mesh.points[landmarks])
-    return frame.to_local(mesh.points), {side: _Eye(local_landmarks, side) for side in _EYES}
+    return frame.to_local(mesh.points), {side: _Eye(local_landmarks, side, shape) for side in _EYES}
 
 
-def default_lids(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> list[LidMuscle]:
+def default_lids(
+    mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray, shape: LidShape | None = None
+) -> list[LidMuscle]:
     """The six :class:`~warpface.expression.LidMuscle` hinges of the default rig, in :data:`LID_CONTROL_NAMES`
-    order (module docstring)."""
-    local, eyes = _eyes(mesh, frame, landmarks)
+    order (module docstring); ``shape``: the constants (default: the module's)."""
+    local, eyes = _eyes(mesh, frame, landmarks, shape or LidShape())
     hinges = {}
     for side, eye in eyes.items():
         centre = frame.to_world(eye.centre)

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..assets.calibrated import Parameter, apply_parameters
+from ..assets.calibrated import WHOLE_RIG_KINDS, Parameter, apply_parameters
 from ..rig import FaceRig
 
 __all__ = ["DIFFERENCES", "ResidualLayout", "residual_layout", "residuals", "jacobian"]
@@ -125,14 +125,14 @@ def _grouped_jacobian(base, parameters, theta, controls, layout, *, step, device
 
     Exact for the muscle displacements (each is linear in its own field); the coupling of one muscle's change with
     another's pull through the nonlinear stages (stretch, bulge, wrinkles) is dropped. The parameters of the
-    shared group (:data:`~warpface.assets.calibrated.EVERY_MUSCLE`) move every muscle and get columns of their
-    own (forward differences). The optimiser accepts a step only on the refitted objective, so the approximation
+    shared group (:data:`~warpface.assets.calibrated.EVERY_MUSCLE`) move every muscle, the eyelids' every lid hinge
+    (:data:`~warpface.assets.calibrated.WHOLE_RIG_KINDS`): they get columns of their own (forward differences). The optimiser accepts a step only on the refitted objective, so the approximation
     costs at most some steps. ``central``: each field's rig is also rebuilt with the parameters moved back, and
     the columns are central differences."""
     from ..assets.calibrated import muscle_group
 
     names = base.muscle_names
-    groups = sorted({p.group for p in parameters if p.kind != "shared"})
+    groups = sorted({p.group for p in parameters if p.kind not in WHOLE_RIG_KINDS})
     masks = {}
     for group in groups:
         mask = np.array([muscle_group(n)[0] == group for n in names] + [True] * (len(base.control_names) - len(names)))
@@ -141,7 +141,7 @@ def _grouped_jacobian(base, parameters, theta, controls, layout, *, step, device
     pairs = [(g, s) for g in groups for s in range(len(controls)) if np.any(controls[s] * muscle_only[g])]
     columns = np.zeros((sum(3 * len(r) for r in layout.rows), len(parameters)), dtype=np.float32)
     offsets = np.concatenate([[0], np.cumsum([3 * len(r) for r in layout.rows])])
-    shared = [k for k, p in enumerate(parameters) if p.kind == "shared"]
+    shared = [k for k, p in enumerate(parameters) if p.kind in WHOLE_RIG_KINDS]
     if shared:
         columns[:, shared] = _shared_columns(base, parameters, theta, controls, layout, shared, step, device, r0)
     if not pairs:
@@ -149,8 +149,8 @@ def _grouped_jacobian(base, parameters, theta, controls, layout, *, step, device
     if not central:
         current = apply_parameters(base, _values(parameters, theta), device=device)
         rest = _stacked_frames(current, controls, pairs, masks, device)
-    for field in sorted({p.field for p in parameters if p.kind != "shared"}):
-        ks = [k for k, p in enumerate(parameters) if p.field == field and p.kind != "shared"]
+    for field in sorted({p.field for p in parameters if p.kind not in WHOLE_RIG_KINDS}):
+        ks = [k for k, p in enumerate(parameters) if p.field == field and p.kind not in WHOLE_RIG_KINDS]
         h = {parameters[k].group: step * parameters[k].sigma for k in ks}
         ahead, behind = theta.copy(), theta.copy()
         for k in ks:
