@@ -1,0 +1,122 @@
+"""Where the automatic landmarks miss on the warped training heads, and how much of it geometry can see at all.
+
+For each warped ICT head of ``benchmarks/rigging.py``'s training set (smooth warps 1–2, 8 % wider, 10 % flatter,
+bumpy warps 101–104) the non-rigid landmarks are found as ``warpface rig`` finds them, and their error against the
+carried ground truth [mm] is split:
+
+- per iBUG group, and for the jaw line (iBUG 0–16) into its RMS components *along* the contour (the direction
+  between the neighbouring ground-truth jaw points, in the tangent plane), *across* it (in the tangent plane) and
+  along the skin's *normal*;
+- against the **floor**: the warp's own displacement at the landmarks minus the least-squares affine map of the
+  warp fitted on the feature landmarks (iBUG 27–67) or on the whole face region, in the tangent plane. A
+  registration sees the surface's shape, not where its material came from: tangential motion of a smooth region
+  beyond what the features' affine map explains is invisible to it;
+- against the mesh: the mean edge length at the ground-truth jaw vertices (a landmark snaps to a vertex, so a
+  point one vertex off costs one edge).
+
+    python -m benchmarks.rigging_diagnosis
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from warpface.data import ict_landmark_indices, shared_data_path
+from warpface.mesh import load_obj
+from warpface.rigging import find_landmarks
+from warpface.rigging.surface import vertex_normals
+
+from ._timing import machine_info, print_table, write_results
+from .rigging import GROUPS, bumpy_warp, smooth_warp
+
+FACE = 9409
+"""Vertices of the ICT face region (the first ones of the whole head)."""
+JAW = np.arange(17)
+
+
+def warped_heads(points: np.ndarray):
+    """(name, warped points) of the training set."""
+    for seed in (1, 2):
+        yield f"smooth warp {seed}", smooth_warp(points, seed)
+    yield "8 % wider", points * (1.08, 1.0, 1.0)
+    yield "10 % flatter", points * (1.0, 1.0, 0.9)
+    for seed in (101, 102, 103, 104):
+        yield f"bumpy warp {seed}", bumpy_warp(points, seed)
+
+
+def non_affine_tangential(rest: np.ndarray, warped: np.ndarray, normals: np.ndarray, fit_on: np.ndarray, at):
+    """|tangential part| of ``warped − A(rest)`` at the vertices ``at``, A the affine map fitted on ``fit_on``."""
+    rows = np.concatenate([rest[fit_on], np.ones((len(fit_on), 1))], axis=1)
+    solution = np.linalg.lstsq(rows, warped[fit_on], rcond=None)[0]
+    residual = warped[at] - np.concatenate([rest[at], np.ones((len(at), 1))], axis=1) @ solution
+    normal = normals[at]
+    return np.linalg.norm(residual - np.sum(residual * normal, axis=1)[:, None] * normal, axis=1)
+
+
+def jaw_components(found: np.ndarray, truth: np.ndarray, normals: np.ndarray) -> dict[str, float]:
+    """RMS of the jaw points' error along the contour, across it (both in the tangent plane) and along the normal."""
+    error = found[JAW] - truth[JAW]
+    normal = normals[JAW]
+    ahead, behind = truth[np.minimum(JAW + 1, 16)], truth[np.maximum(JAW - 1, 0)]
+    along = ahead - behind
+    along -= np.sum(along * normal, axis=1)[:, None] * normal
+    along /= np.linalg.norm(along, axis=1)[:, None]
+    across = np.cross(normal, along)
+    return {
+        name: float(np.sqrt(np.mean(np.sum(error * axis, axis=1) ** 2)))
+        for name, axis in (("along", along), ("across", across), ("normal", normal))
+    }
+
+
+def jaw_edge_length(points: np.ndarray, triangles: np.ndarray, vertices: np.ndarray) -> float:
+    """Mean length of the mesh edges at ``vertices``."""
+    edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    edges = np.unique(np.sort(edges, axis=1), axis=0)
+    touching = np.isin(edges, vertices).any(axis=1)
+    return float(np.linalg.norm(points[edges[touching, 0]] - points[edges[touching, 1]], axis=1).mean())
+
+
+def main() -> None:
+    ict = shared_data_path("ict_facekit", "original", "generic_neutral_mesh.obj")
+    if ict is None:
+        raise SystemExit("ICT-FaceKit not found in ../shared/data (set WARPFACE_SHARED_DATA)")
+    truth = ict_landmark_indices()
+    rest, triangles = load_obj(ict)
+    mm = 10.0  # the ICT head is in cm
+    rows = []
+    for name, warped in warped_heads(rest):
+        found = find_landmarks(warped, triangles, label=name)
+        normals = vertex_normals(warped, triangles)
+        error = np.linalg.norm(warped[found.indices] - warped[truth], axis=1) * mm
+        row = {"head": name, "mean_mm": float(error.mean()), "max_mm": float(error.max())}
+        row.update({f"{group}_mm": float(error[where].mean()) for group, where in GROUPS.items()})
+        parts = jaw_components(warped[found.indices], warped[truth], normals[truth])
+        row.update({f"jaw_{key}_mm": value * mm for key, value in parts.items()})
+        for label, fit_on in (("features", truth[27:]), ("face", np.arange(FACE))):
+            floor = non_affine_tangential(rest, warped, normals, fit_on, truth) * mm
+            row.update({f"floor_{label}_{group}_mm": float(floor[where].mean()) for group, where in GROUPS.items()})
+        row["jaw_edge_mm"] = jaw_edge_length(warped, triangles, truth[JAW]) * mm
+        rows.append(row)
+        print(f"{name}: done", flush=True)
+    print_table(
+        rows,
+        [
+            ("head", "head", "s"),
+            ("mean_mm", "mean mm", ".2f"),
+            ("max_mm", "max mm", ".1f"),
+            *((f"{group}_mm", group, ".1f") for group in GROUPS),
+            ("jaw_along_mm", "jaw along", ".1f"),
+            ("jaw_across_mm", "jaw across", ".1f"),
+            ("jaw_normal_mm", "jaw normal", ".2f"),
+            ("floor_features_jaw_mm", "floor jaw (feat.)", ".1f"),
+            ("floor_face_jaw_mm", "floor jaw (face)", ".1f"),
+            ("floor_features_mouth_mm", "floor mouth (feat.)", ".1f"),
+            ("jaw_edge_mm", "jaw edge", ".1f"),
+        ],
+    )
+    path = write_results("rigging_diagnosis", {"machine": machine_info("cpu"), "rows": rows})
+    print(f"results: {path}")
+
+
+if __name__ == "__main__":
+    main()
