@@ -158,7 +158,7 @@ as multiples of its length; gain). The lower orbital fibres of the orbicularis o
 medially and up with the lower lid in a squint (AU6 with AU7); it is part of the lower lid's control because
 a landmark fit, which sees two lower-lid points, cannot drive a separate one (docs/RIG.md §5)."""
 
-MASSETERIC_LOBE = (0.20, 0.10, 0.45, 0.04, 60.0, 1.20, 2.00, 2.00)
+MASSETERIC_LOBE = (0.20, 0.10, 0.40, 0.04, 60.0, 1.20, 2.00, 2.00)
 """The risorius' masseteric lobe [inter-ocular units]: (its fixed point lateral of the jaw outline at mouth level,
 iBUG 12/4, at that landmark's depth, and above the mouth corner; its insertion that fraction of the way from the
 corner to the jaw outline, and below it; zone half-angle [deg]; falloff start and finish as multiples of its length;
