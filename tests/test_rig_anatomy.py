@@ -15,7 +15,7 @@ from warpface.assets import SPHINCTER_MUSCLE_NAMES, default_rig
 from warpface.assets.anatomy import SKIN_RESPONSE_OVERRIDES
 from warpface.assets.lids import LID_CONTROL_NAMES
 from warpface.assets.lips import LIP_SEAL_NAME
-from warpface.assets.rig import CLASSIC_LINEAR_MUSCLE_NAMES, LINEAR_MUSCLE_NAMES
+from warpface.assets.rig import CLASSIC_LINEAR_MUSCLE_NAMES, LINEAR_MUSCLE_NAMES, face_frame
 from warpface.expression import muscle_weights
 from warpface.expression.lids import LidMuscle
 from warpface.expression.tissue import neighbourhood_mean, tissue_response
@@ -201,6 +201,31 @@ def test_a_lobe_adds_its_own_zone_scaled_by_its_gain(rig):
         wf.LinearMuscle("m", lobes=["frontalis"], **LINEAR)
     with pytest.raises(TypeError, match="lobes"):
         wf.LinearMuscle("m", lobes=5, **LINEAR)
+
+
+def test_the_risorius_draws_the_lower_cheek_toward_the_ear(rig):
+    """docs/RIG.md §5 masseteric lobe: the lower cheek between the mouth corner and the jaw outline moves with the
+    risorius, laterally; without the lobe its narrow cone moves the corner only (that skin stays put)."""
+    frame = face_frame(rig.mesh, rig.landmarks)
+    local = frame.to_local(rig.mesh.points)
+    marks = local[rig.landmarks]
+    for tag, sign, corner, jaw in (("L", 1.0, 54, 12), ("R", -1.0, 48, 4)):
+        muscle = next(m for m in rig.muscles if m.name == f"risorius_{tag}")
+        (lobe,) = muscle.lobes
+        fixed, insertion = frame.to_local(lobe.attachment), frame.to_local(lobe.insertion)
+        assert sign * fixed[0] > abs(marks[jaw, 0])  # beyond the face's side, over the masseter
+        assert abs(marks[corner, 0]) < sign * insertion[0] < abs(marks[jaw, 0])
+        # skin points half-way from the corner to the jaw outline, below the mouth line
+        way = marks[corner, :2] + 0.5 * (marks[jaw, :2] - marks[corner, :2])
+        near = np.linalg.norm(local[:, :2] - way, axis=1) < 0.1
+        near &= local[:, 2] > marks[jaw, 2]  # the face's front, not the back of the mesh
+        assert near.sum() >= 3
+        step = 1e-3 * frame.scale  # a small contraction, so the frame's scale does not enter
+        lateral = []
+        for lobes in (muscle.lobes, ()):
+            moved = rig.mesh.points[near] + step * dense(rig.mesh.points, replace(muscle, lobes=lobes))[near]
+            lateral.append(sign * (frame.to_local(moved)[:, 0] - local[near, 0]).mean() / step)
+        assert lateral[0] > 0 and lateral[0] > 2.0 * abs(lateral[1])
 
 
 def test_full_rig_has_every_muscle_with_c1_zones_and_a_jaw(rig):

@@ -158,6 +158,14 @@ as multiples of its length; gain). The lower orbital fibres of the orbicularis o
 medially and up with the lower lid in a squint (AU6 with AU7); it is part of the lower lid's control because
 a landmark fit, which sees two lower-lid points, cannot drive a separate one (docs/RIG.md §5)."""
 
+MASSETERIC_LOBE = (0.20, 0.10, 0.40, 0.04, 60.0, 1.20, 2.00, 2.00)
+"""The risorius' masseteric lobe [inter-ocular units]: (its fixed point lateral of the jaw outline at mouth level,
+iBUG 12/4, at that landmark's depth, and above the mouth corner; its insertion that fraction of the way from the
+corner to the jaw outline, and below it; zone half-angle [deg]; falloff start and finish as multiples of its length;
+gain). The risorius arises from the parotid-masseteric fascia, which glides with the skin over the masseter: a
+stretched mouth (AU20) draws the whole lower cheek and jowl toward the ear, 2-3 mm in ICT's mouthStretch, where the
+risorius' own narrow cone moves only the corner (docs/RIG.md §5)."""
+
 ORBITAL_RING = 0.55
 """Ring of the orbital orbicularis oculi (:attr:`~warpface.SphincterMuscle.ring`): its pull fades out inside
 0.55 of its ellipse, over the lids, which the palpebral muscles move (0.55 fits best with the lower lid's
@@ -205,7 +213,8 @@ def revised_classic_muscles(
                 np.sign(origin[0]) * (max(abs(origin[0]), 0.9) - 0.1),
                 surface.frame.to_local(muscle.insertion)[1] + 0.02,
             )
-            out.append(_fixed_at(muscle, surface.below(side_xy, 0.25), 24.0, 0.90, 1.40))
+            fixed = _fixed_at(muscle, surface.below(side_xy, 0.25), 24.0, 0.90, 1.40)
+            out.append(replace(fixed, lobes=(_masseteric_lobe(local, surface, *_side_of(muscle)),)))
             continue
         if muscle.name.startswith("depressor_labii_inferioris_"):
             # Depressor labii inferioris: from the mandible below the lip, 0.05 beneath the skin, into
@@ -252,6 +261,16 @@ def revised_classic_muscles(
             continue
         out.append(_frontalis_belly(muscle.name, surface, brow_top, float(local[30, 1]), muscle.insertion))
     return out
+
+
+def _masseteric_lobe(local: np.ndarray, surface: SurfaceSampler, tag: str, side: float) -> MuscleLobe:
+    """The risorius' :data:`MASSETERIC_LOBE`, from the local landmarks (68, 3): the mouth corner and the jaw
+    outline at mouth level (iBUG 54 and 12 on the left)."""
+    out, up, insertion_at, below, *shape = MASSETERIC_LOBE
+    corner, jaw = local[_LANDMARKS[tag]["corner"]], local[_LANDMARKS[tag]["jaw_mouth"]]
+    fixed = surface.frame.to_world(np.array([jaw[0] + out * side, corner[1] + up, jaw[2]]))
+    insertion = corner[:2] + insertion_at * (jaw[:2] - corner[:2]) - np.array([0.0, below])
+    return _lobe(fixed, surface.point(insertion), *shape)
 
 
 def _cheek_lobe(surface: SurfaceSampler, inner_canthus, eye, side: float) -> MuscleLobe:
