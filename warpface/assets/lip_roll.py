@@ -59,8 +59,9 @@ SPLIT_WIDTH = 0.35
 hinge to the other's."""
 REACH = 0.6
 """Nothing farther than this from the inner-lip midpoint turns [inter-ocular units]."""
-ROLL_FIT_LIMIT = 1.0
-"""``fit_limit`` of every lip hinge: a fit turns a lip at most by its full roll."""
+ROLL_FIT_LIMIT = {"in": 1.0, "out": 2.0}
+"""``fit_limit`` of the lip hinges that roll in and out: a fit turns a lip in at most by its full roll, out by
+twice its turn (ICT's mouthShrugUpper, mouthFunnel and mouthPucker met the bound 1)."""
 
 _UPPER_BORDER = (48, 49, 50, 51, 52, 53, 54)
 _LOWER_BORDER = (54, 55, 56, 57, 58, 59, 48)
@@ -121,5 +122,7 @@ def default_lip_rolls(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -
                 angles = signs[lip, way] * turn * share
                 moved = np.flatnonzero(angles != 0.0)
                 name = f"lip_{lip}_roll_{way}_{side}"
-                hinges[name] = LidMuscle(name, centre, frame.axes[0], moved, angles[moved], fit_limit=ROLL_FIT_LIMIT)
+                hinges[name] = LidMuscle(
+                    name, centre, frame.axes[0], moved, angles[moved], fit_limit=ROLL_FIT_LIMIT[way]
+                )
     return [hinges[name] for name in LIP_ROLL_NAMES]
