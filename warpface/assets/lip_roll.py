@@ -47,8 +47,10 @@ ROLL_IN = 0.6
 """A lip's turn into the mouth per unit K [rad] (ICT-FaceKit's mouthRollUpper turns the upper lip by ~0.63 rad)."""
 ROLL_OUT = 0.3
 """A lip's turn outward per unit K [rad] (ICT's mouthShrugUpper, mouthFunnel, mouthPucker: 0.1–0.26 rad)."""
-PIVOT_SHARE = 0.85
-"""The pivot's distance from the inner margin as a share of the way to the nose base (upper) or the chin (lower)."""
+PIVOT_SHARE = {"upper": 0.85, "lower": 0.5}
+"""Per lip, the pivot's distance from the inner margin as a share of the way to the nose base (upper) or the chin
+(lower). Upper: ICT-FaceKit's mouthRollUpper, one rigid turn of the upper lip's midline, turns about a point 0.86 of
+the way; lower: chosen on the training shapes (docs/RIG.md §15)."""
 SKIN_BAND = (0.2, 0.9)
 """Share of the way from a lip's outer border to the nose base (chin) over which the skin turns fully, then the
 share over which the turn fades to 0."""
@@ -100,7 +102,7 @@ def lip_roll_turns(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> d
         beyond = (local[:, 1] - outer) if lip == "upper" else (outer - local[:, 1])
         turn = _fade(np.maximum(beyond, 0.0) / span, SKIN_BAND) * corner * (on_lip & near)
         pivot = np.array([middle[0], 0.0, marks[inner, 2]])
-        pivot[1] = marks[inner, 1] + PIVOT_SHARE * (marks[far, 1] - marks[inner, 1])
+        pivot[1] = marks[inner, 1] + PIVOT_SHARE[lip] * (marks[far, 1] - marks[inner, 1])
         out[lip] = (turn, shares, pivot)
     return out
 
