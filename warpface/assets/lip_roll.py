@@ -11,7 +11,8 @@ middle inner-lip pair (iBUG 62/66):
 - a vertex of a lip (the side of :func:`~warpface.assets.jaw.lip_sided`) turns by ``Θ·g_v·c·s``: ``g_v`` is 1 on
   the red lip and the skin up to :data:`SKIN_BAND`\\ ``[0]`` of the way from the lip's outer border (iBUG 48–54
   above, 54–59 and 48 below, interpolated over x) to the nose base (chin), then falls as cos² to 0 over
-  :data:`SKIN_BAND`\\ ``[1]``; ``c`` the corner fade of ``|x − m_x| / w`` over :data:`CORNER_BAND`; ``s`` the side's
+  :data:`SKIN_BAND`\\ ``[1]``; ``c`` the corner fade of ``|x − m_x| / w`` over :data:`CORNER_BAND` (its own
+  for rolling in and out); ``s`` the side's
   share, a cos² partition of unity over ``|x − m_x| ≤`` :data:`SPLIT_WIDTH`\\ ``· w`` (left + right = 1), so each
   side rolls on its own and both together roll the whole lip;
 - ``Θ`` is :data:`ROLL_IN` (the lip curls into the mouth: the upper lip's front turns down and back, the lower's up
@@ -47,15 +48,18 @@ ROLL_IN = 0.6
 """A lip's turn into the mouth per unit K [rad] (ICT-FaceKit's mouthRollUpper turns the upper lip by ~0.63 rad)."""
 ROLL_OUT = 0.3
 """A lip's turn outward per unit K [rad] (ICT's mouthShrugUpper, mouthFunnel, mouthPucker: 0.1–0.26 rad)."""
-PIVOT_SHARE = {"upper": 0.85, "lower": 0.5}
+PIVOT_SHARE = {"upper": 1.0, "lower": 0.5}
 """Per lip, the pivot's distance from the inner margin as a share of the way to the nose base (upper) or the chin
-(lower). Upper: ICT-FaceKit's mouthRollUpper, one rigid turn of the upper lip's midline, turns about a point 0.86 of
-the way; lower: chosen on the training shapes (docs/RIG.md §15)."""
+(lower): the upper pivot at the nose base's height (ICT-FaceKit's mouthRollUpper, one rigid turn of the upper lip's
+midline, turns about a point 0.86 of the way), the lower half way; both chosen on the training shapes (docs/RIG.md
+§15)."""
 SKIN_BAND = (0.2, 0.9)
 """Share of the way from a lip's outer border to the nose base (chin) over which the skin turns fully, then the
 share over which the turn fades to 0."""
-CORNER_BAND = (0.6, 0.5)
-"""Distance from the mouth's middle [half-widths] turning fully, then the distance over which the turn fades."""
+CORNER_BAND = {"in": (0.6, 0.5), "out": (0.9, 0.5)}
+"""Rolling in and out: distance from the mouth's middle [half-widths] turning fully, then the distance over which
+the turn fades. A lip everts out to its corners and a little beyond (funnel, pucker); it rolls in less far (chosen on
+the training shapes, docs/RIG.md §15)."""
 SPLIT_WIDTH = 0.35
 """Half-width of the band across the midline [mouth half-widths] over which a lip's turn passes from one side's
 hinge to the other's."""
@@ -82,13 +86,14 @@ def _border(marks: np.ndarray, indices, x: np.ndarray) -> np.ndarray:
 
 
 def lip_roll_turns(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> dict[str, tuple]:
-    """Per lip (``"upper"``, ``"lower"``): (the turn ``g_v·c`` per vertex in [0, 1] (V,), the side shares
-    ``(s_L, s_R)`` (V,) each, the pivot in local units (3,)), as in the module docstring."""
+    """Per lip (``"upper"``, ``"lower"``): (``{"in": …, "out": …}``, the turn ``g_v·c`` per vertex in [0, 1] (V,) of
+    rolling in and out, the side shares ``(s_L, s_R)`` (V,) each, the pivot in local units (3,)), as in the module
+    docstring."""
     local, below, _, half_width = _contact(mesh, frame, landmarks)
     marks = local[landmarks]
     middle = 0.5 * (marks[62] + marks[66])
     sided = lip_sided(mesh, frame, local, landmarks, below)
-    corner = _fade(np.abs(local[:, 0] - middle[0]) / half_width, CORNER_BAND)
+    across = np.abs(local[:, 0] - middle[0]) / half_width
     near = np.linalg.norm(local - middle, axis=1) < REACH
     right = _fade((local[:, 0] - middle[0]) / (SPLIT_WIDTH * half_width), (-1.0, 2.0))
     shares = (1.0 - right, right)
@@ -100,10 +105,10 @@ def lip_roll_turns(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> d
         outer = _border(marks, border, local[:, 0])
         span = abs(marks[far, 1] - marks[border[3], 1])  # from the border's middle (iBUG 51 / 57) to the nose (chin)
         beyond = (local[:, 1] - outer) if lip == "upper" else (outer - local[:, 1])
-        turn = _fade(np.maximum(beyond, 0.0) / span, SKIN_BAND) * corner * (on_lip & near)
+        turn = _fade(np.maximum(beyond, 0.0) / span, SKIN_BAND) * (on_lip & near)
         pivot = np.array([middle[0], 0.0, marks[inner, 2]])
         pivot[1] = marks[inner, 1] + PIVOT_SHARE[lip] * (marks[far, 1] - marks[inner, 1])
-        out[lip] = (turn, shares, pivot)
+        out[lip] = ({way: turn * _fade(across, band) for way, band in CORNER_BAND.items()}, shares, pivot)
     return out
 
 
@@ -121,7 +126,7 @@ def default_lip_rolls(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -
         centre = frame.to_world(pivot)
         for way in ("in", "out"):
             for side, share in zip(("L", "R"), shares):
-                angles = signs[lip, way] * turn * share
+                angles = signs[lip, way] * turn[way] * share
                 moved = np.flatnonzero(angles != 0.0)
                 name = f"lip_{lip}_roll_{way}_{side}"
                 hinges[name] = LidMuscle(
