@@ -30,7 +30,7 @@ from ..expression.lids import LidMuscle
 from ..mesh import FaceMesh
 from .frame import FaceFrame
 from .jaw import lip_sided
-from .lips import _contact, _fade
+from .lips import band_fade, contact_line
 
 __all__ = [
     "LIP_ROLL_NAMES",
@@ -89,13 +89,13 @@ def lip_roll_turns(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> d
     """Per lip (``"upper"``, ``"lower"``): (``{"in": …, "out": …}``, the turn ``g_v·c`` per vertex in [0, 1] (V,) of
     rolling in and out, the side shares ``(s_L, s_R)`` (V,) each, the pivot in local units (3,)), as in the module
     docstring."""
-    local, below, _, half_width = _contact(mesh, frame, landmarks)
+    local, below, _, half_width = contact_line(mesh, frame, landmarks)
     marks = local[landmarks]
     middle = 0.5 * (marks[62] + marks[66])
     sided = lip_sided(mesh, frame, local, landmarks, below)
     across = np.abs(local[:, 0] - middle[0]) / half_width
     near = np.linalg.norm(local - middle, axis=1) < REACH
-    right = _fade((local[:, 0] - middle[0]) / (SPLIT_WIDTH * half_width), (-1.0, 2.0))
+    right = band_fade((local[:, 0] - middle[0]) / (SPLIT_WIDTH * half_width), (-1.0, 2.0))
     shares = (1.0 - right, right)
     out = {}
     for lip, border, inner, far, on_lip in (
@@ -105,10 +105,10 @@ def lip_roll_turns(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> d
         outer = _border(marks, border, local[:, 0])
         span = abs(marks[far, 1] - marks[border[3], 1])  # from the border's middle (iBUG 51 / 57) to the nose (chin)
         beyond = (local[:, 1] - outer) if lip == "upper" else (outer - local[:, 1])
-        turn = _fade(np.maximum(beyond, 0.0) / span, SKIN_BAND) * (on_lip & near)
+        turn = band_fade(np.maximum(beyond, 0.0) / span, SKIN_BAND) * (on_lip & near)
         pivot = np.array([middle[0], 0.0, marks[inner, 2]])
         pivot[1] = marks[inner, 1] + PIVOT_SHARE[lip] * (marks[far, 1] - marks[inner, 1])
-        out[lip] = ({way: turn * _fade(across, band) for way, band in CORNER_BAND.items()}, shares, pivot)
+        out[lip] = ({way: turn * band_fade(across, band) for way, band in CORNER_BAND.items()}, shares, pivot)
     return out
 
 
