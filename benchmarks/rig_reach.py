@@ -38,6 +38,7 @@ import warp as wp
 import warpface as wf
 from warpface.assets import default_rig
 from warpface.assets.calibrated import CALIBRATED_ANATOMY, apply_parameters, load_calibrated_anatomy
+from warpface.assets.lip_roll import LIP_ROLL_NAMES
 from warpface.assets.rig import rig_scale
 from warpface.calibration import ExampleShape, calibrate, reach
 from warpface.calibration.report import parameters_data
@@ -241,6 +242,11 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--full-turn", action="store_true", help="also the hand-placed rig with every lid hinge's fit_limit at 1"
     )
+    parser.add_argument(
+        "--without-lip-hinges",
+        action="store_true",
+        help="also the default rig without its lip hinges (docs/RIG.md §15)",
+    )
     parser.add_argument("--warp", action="store_true", help="another identity: ICT smoothly warped (transfer check)")
     parser.add_argument(
         "--jacobians", type=int, default=0, metavar="N", help="only time the Jacobian forms (N iterations each)"
@@ -277,6 +283,9 @@ def main(argv=None) -> int:
         hand = rigs["hand-placed"]
         muscles = [replace(m, fit_limit=1.0) if isinstance(m, LidMuscle) else m for m in hand.muscles]
         rigs["hand-placed, lids at the full turn"] = replace(hand, muscles=muscles)
+    if args.without_lip_hinges:  # the default before docs/RIG.md §15, measured in the same run
+        kept = [m for m in rigs["calibrated"].muscles if m.name not in LIP_ROLL_NAMES]
+        rigs["calibrated, without lip hinges"] = replace(rigs["calibrated"], muscles=kept)
     for path in args.anatomy:
         values = load_calibrated_anatomy(path)
         rigs[f"calibrated ({path.name})"] = apply_parameters(rigs["hand-placed"], values, device=args.device)

@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from warpface.assets.lids import LID_CONTROL_NAMES
+from warpface.assets.lip_roll import LIP_ROLL_NAMES
 from warpface.drivers import ARKIT_CHANNELS, Curves, Mapping, mapping_for_rig
 from warpface.drivers.cleanup import OneEuroFilter, calibrate_neutral, clamp_to_range, clean, resample
 from warpface.drivers.export import project_controls
@@ -117,7 +118,7 @@ def test_default_table_on_the_built_in_rig(rig):
 
     mapping, dropped, orphaned = mapping_for_rig(rig)
     assert set(mapping.controls) <= set(rig.muscle_names)
-    # the classic rig has no jaw, no middle frontalis belly, no palpebral lid muscles and no lid hinges
+    # the classic rig has no jaw, no middle frontalis belly, no palpebral lid muscles and no lid or lip hinges
     assert set(dropped) == {
         "jaw_open",
         "jaw_forward",
@@ -127,6 +128,7 @@ def test_default_table_on_the_built_in_rig(rig):
         "orbicularis_oculi_lower_lid_L",
         "orbicularis_oculi_lower_lid_R",
         *LID_CONTROL_NAMES,
+        *(name for name in LIP_ROLL_NAMES if "_roll_in_" in name),  # nor lip hinges (docs/RIG.md §15)
     }
     assert {"jawOpen", "AU26", "AU27"} <= set(orphaned)
     smile = mapping.matrix[:, mapping.channels.index("mouthSmileLeft")]

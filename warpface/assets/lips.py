@@ -28,6 +28,8 @@ from .frame import FaceFrame
 from .jaw import SLIT_GAP, lip_sided, mouth_rim_arcs, slit_faces
 
 __all__ = [
+    "band_fade",
+    "contact_line",
     "closing_share",
     "closing_shares",
     "mouth_close_shares",
@@ -57,13 +59,15 @@ SLIT_PAIR_TURN = 1.0
 _PAIRS = ((61, 67), (62, 66), (63, 65))
 
 
-def _fade(t: np.ndarray, band: tuple[float, float]) -> np.ndarray:
+def band_fade(t: np.ndarray, band: tuple[float, float]) -> np.ndarray:
+    """1 for ``t ≤ band[0]``, ``cos²`` down to 0 at ``band[0] + band[1]``, 0 beyond (C¹), shape of ``t``."""
     s = np.clip((t - band[0]) / band[1], 0.0, 1.0)
     return np.cos(0.5 * np.pi * s) ** 2
 
 
-def _contact(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray):
-    """Local points, their height φ below the contact line, the line's mean point and the mouth's half-width."""
+def contact_line(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray):
+    """In the face frame [inter-ocular units]: the local points (V, 3), their height φ below the lips' contact line
+    (V,), the line's mean point (3,) and the mouth's half-width."""
     local = frame.to_local(mesh.points)
     marks = local[landmarks]
     contact = np.array([marks[60], *(0.5 * (marks[a] + marks[b]) for a, b in _PAIRS), marks[64]])
@@ -77,7 +81,7 @@ def lip_margin_taper(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) ->
     line: a C¹ smoothstep of the distance from the line's segment between the corners over :data:`MARGIN_BAND`
     (0 on it, 1 beyond). The bulge moves skin along its normal, which at the lips' free margins points at the
     other lip: with the lips' full 3.6 mm it pushed them through each other by up to 7.7 mm (docs/RIG.md §12)."""
-    local, below, middle, half_width = _contact(mesh, frame, landmarks)
+    local, below, middle, half_width = contact_line(mesh, frame, landmarks)
     beyond = np.maximum(np.abs(local[:, 0] - middle[0]) - half_width, 0.0)
     s = np.clip(np.hypot(below, beyond) / MARGIN_BAND, 0.0, 1.0)
     return s * s * (3.0 - 2.0 * s)
@@ -105,10 +109,10 @@ def _slit_pairs(mesh: FaceMesh, frame: FaceFrame, local: np.ndarray, landmarks: 
 def default_lip_seal(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> LipSeal | None:
     """The default rig's :class:`~warpface.expression.LipSeal` on a face (module docstring), or None when no
     inner-lip pair can be parted (all of them share a vertex)."""
-    local, below, middle, half_width = _contact(mesh, frame, landmarks)
-    lateral = _fade(np.abs(local[:, 0] - middle[0]) / half_width, CORNER_BAND)
+    local, below, middle, half_width = contact_line(mesh, frame, landmarks)
+    lateral = band_fade(np.abs(local[:, 0] - middle[0]) / half_width, CORNER_BAND)
     near = np.linalg.norm(local - middle, axis=1) < REACH
-    turn = PART_ANGLE * lateral * _fade(np.abs(below), PART_BAND) * near
+    turn = PART_ANGLE * lateral * band_fade(np.abs(below), PART_BAND) * near
     # each lip turns its own way, also where a closed mouth's slit lies off the landmarks' line (docs/RIG.md §12)
     sided = lip_sided(mesh, frame, local, landmarks, below)
     angles = np.where(sided < 0.0, -turn, turn)  # a positive turn about +x moves a point in front down

@@ -77,8 +77,9 @@ _PRESETS.update(
         # The mouth moves toward the subject's side: that corner drawn out and back.
         "mouthLeft": {"risorius_L": 0.10, "buccinator_L": 0.04},
         "mouthRight": {"risorius_R": 0.10, "buccinator_R": 0.04},
-        "mouthRollLower": {"orbicularis_oris_roll_lower": 0.05},
-        "mouthRollUpper": {"orbicularis_oris_roll_upper": 0.05},
+        # the lip hinges roll each lip into the mouth (docs/RIG.md §15), the Waters roll presses it
+        "mouthRollLower": {"orbicularis_oris_roll_lower": 0.05, "lip_lower_roll_in_L": 1.0, "lip_lower_roll_in_R": 1.0},
+        "mouthRollUpper": {"orbicularis_oris_roll_upper": 0.05, "lip_upper_roll_in_L": 1.0, "lip_upper_roll_in_R": 1.0},
         "mouthShrugLower": {"mentalis": 0.10},
         "mouthShrugUpper": {"mentalis": 0.05, "levator_labii_superioris_L": 0.03, "levator_labii_superioris_R": 0.03},
     }

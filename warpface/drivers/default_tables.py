@@ -81,6 +81,8 @@ ARKIT_TABLE: tuple[tuple[str, str, float], ...] = tuple(
         ("mouthRollLower", "orbicularis_oris", 0.15),
         ("mouthRollUpper", "orbicularis_oris", 0.15),
     ]
+    + _channel("mouthRollLower", [("lip_lower_roll_in_{s}", 1.0)])  # the lip hinges (docs/RIG.md §15)
+    + _channel("mouthRollUpper", [("lip_upper_roll_in_{s}", 1.0)])
     + [
         ("mouthLeft", "risorius_L", 0.06),
         ("mouthLeft", "zygomaticus_major_L", 0.03),
@@ -118,6 +120,7 @@ _FACS_AT_FULL: tuple[tuple[str, str, float], ...] = tuple(
     + [("AU22", "orbicularis_oris", 0.30), ("AU23", "orbicularis_oris", 0.15), ("AU24", "orbicularis_oris", 0.10)]
     + _channel("AU25", [("depressor_labii_inferioris_{s}", 0.03)])
     + [("AU26", "jaw_open", 0.25), ("AU27", "jaw_open", 0.45), ("AU28", "orbicularis_oris", 0.15)]
+    + _channel("AU28", [("lip_upper_roll_in_{s}", 1.0), ("lip_lower_roll_in_{s}", 1.0)])
     + [row for au in ("AU43", "AU45") for row in _channel(au, [(f"{c}_{{s}}", w) for c, w in _BLINK])]
 )
 
