@@ -290,3 +290,22 @@ def test_device_normal_equations_match_numpy_reference(rig, rng, pose):
         assert misfit[f] == pytest.approx(np.sum(weights[f] * np.sum(e[f] ** 2, axis=1)), rel=1e-12)
         assert np.allclose(hessian[f], flat.T @ (w[:, None] * flat), rtol=1e-10, atol=1e-12 * np.abs(hessian[f]).max())
         assert np.allclose(gradient[f], flat.T @ (w * e[f].ravel()), rtol=1e-10, atol=1e-12 * np.abs(gradient[f]).max())
+
+
+def test_trackers_hold_the_lip_hinges_and_fit_frees_them():
+    """A :class:`Solver` (the trackers) holds the lip hinges at rest unless asked (docs/RIG.md §15); ``fit`` and
+    ``bounds`` free them: a rolled-in upper lip is reached only where they are free."""
+    from warpface.assets.lip_roll import LIP_ROLL_NAMES
+
+    rig = default_rig(device="cpu")
+    rolled = {"lip_upper_roll_in_L": 0.8, "lip_upper_roll_in_R": 0.8}
+    target = np.asarray(rig.model(device="cpu").evaluate(rolled), dtype=np.float64)
+    held = Solver(rig, device="cpu").solve(target)
+    assert all(held.controls[name] == 0.0 for name in LIP_ROLL_NAMES)
+    for solved in (
+        fit(rig, target, device="cpu"),
+        Solver(rig, device="cpu", lip_rolls=True).solve(target),
+        Solver(rig, device="cpu", bounds={name: (0.0, 1.0) for name in rolled}).solve(target),
+    ):
+        assert solved.controls["lip_upper_roll_in_L"] > 0.5
+        assert solved.residual < 0.2 * held.residual

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from warpface.assets import default_rig, expression_timeline, rig_scale
-from warpface.assets.lip_roll import LIP_ROLL_NAMES
 from warpface.expression import SphincterMuscle
 from warpface.solve import Solver, fit
 from warpface.solve.device_steps import DeviceSteps
@@ -116,12 +115,8 @@ def test_device_steps_sequence_matches_host_loop(rig, model):
     timeline = expression_timeline("smile", rig, seconds=0.4, fps=30.0)
     opening = np.linspace(0.0, 0.3, len(timeline))[:, None] * (np.arange(3) == 0)
     frames = model.evaluate(np.concatenate([timeline, opening], axis=1)).astype(np.float64)[:, rig.landmarks]
-    # the smile has no lip roll: from 68 points a lip's roll-in and roll-out together would take a share of the
-    # jaw's opening (4.2e-3 rad at the last frame with them free; docs/RIG.md §15), so they are held at rest
-    held = {name: (0.0, 0.0) for name in LIP_ROLL_NAMES if name in rig.control_names}
-    host = Solver(rig, rig.landmarks, device="cpu", device_steps=False, smoothness=1e-3, bounds=held)
-    host = host.solve_sequence(frames)
-    solver = Solver(rig, rig.landmarks, device="cpu", device_steps=True, smoothness=1e-3, bounds=held)
+    host = Solver(rig, rig.landmarks, device="cpu", device_steps=False, smoothness=1e-3).solve_sequence(frames)
+    solver = Solver(rig, rig.landmarks, device="cpu", device_steps=True, smoothness=1e-3)
     device = solver.solve_sequence(frames)
     assert_same(host, device, solver)
     # The smoothed ramp lags by a little (the calibrated rig's orbicularis oris shares the chin's motion with the

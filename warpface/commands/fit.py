@@ -122,7 +122,7 @@ def run_fit(args) -> int:
         raise ValueError(f"{rig_path}: --landmarks needs a rig with landmark indices")
     targets = [_load_target(Path(t), rig, args.target_scale, units) for t in args.targets]
     vertices = rig.landmarks if args.landmarks else None
-    solver = Solver(rig, vertices, device=args.device, symmetry=args.symmetry)
+    solver = Solver(rig, vertices, device=args.device, symmetry=args.symmetry, lip_rolls=True)  # as fit()
     region_names, region = region_labels(rig.mesh.points, rig.landmarks)
     out = Path(args.out) if args.out else rig_path.with_name(f"{rig_path.stem}_fit")
     presets, residuals = {}, {}

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
+from ..assets.lip_roll import LIP_ROLL_NAMES
 from ..errors import RigError
 from ..expression.jaw import JAW_CONTROL_NAMES, JAW_RANGE
 from ..expression.lids import LidMuscle
@@ -77,6 +78,10 @@ class SolveOptions:
         pose: also solve a rigid head pose (rotation about the observed points' centroid + translation).
         bounds: per-control ``{name: (low, high)}`` overriding the defaults (c ≥ 0, sphincters ≤ 1, jaw: JAW_RANGE).
         jaw: solve the jaw's controls too when the rig has a jaw (False: muscles only, the jaw at rest).
+        lip_rolls: solve the lip hinges (docs/RIG.md §15) too. Default False for a :class:`Solver`: the trackers see
+            at most 68 points, from which a lip's roll in and out together trade against the jaw (a monocular
+            solve's reprojection rose 0.14 → 0.30 px with them free); :func:`fit` frees them. ``bounds`` can free
+            them either way.
         max_iterations: Levenberg–Marquardt iterations per frame.
         tolerance: stop when a step lowers E (or is predicted to) by less than this fraction …
         step_tolerance: … or moves no scaled control by more than this (face units) …
@@ -106,6 +111,7 @@ class SolveOptions:
     pose: bool = False
     bounds: dict | None = None
     jaw: bool = True
+    lip_rolls: bool = False
     max_iterations: int = 50
     tolerance: float = 1e-5
     step_tolerance: float = 1e-7
@@ -140,7 +146,7 @@ class SolveOptions:
             raise TypeError(f"device_steps: expected True, False or None, got {made.device_steps!r}")
         if made.bounds is not None and not isinstance(made.bounds, dict):
             raise TypeError(f"bounds: expected a dict {{control name: (low, high)}}, got {type(made.bounds).__name__}")
-        return replace(made, pose=bool(made.pose), jaw=bool(made.jaw))
+        return replace(made, pose=bool(made.pose), jaw=bool(made.jaw), lip_rolls=bool(made.lip_rolls))
 
 
 @dataclass
@@ -306,6 +312,8 @@ class Solver:
             lo, hi = JAW_RANGE[name]
             unit = 1.0 if name == "jaw_open" else self.unit  # the slides' range is in face units
             low[index], high[index] = lo * unit, hi * unit
+        if not self.options.lip_rolls:
+            high[[i for i, name in enumerate(self.names) if name in LIP_ROLL_NAMES]] = 0.0
         for name, pair in (self.options.bounds or {}).items():
             if name not in self.names:
                 raise ValueError(f"bounds: unknown control {name!r}")
@@ -543,7 +551,7 @@ def fit(rig, target, *, vertices=None, weights=None, device=None, **options) -> 
         device: Warp device of the solve's kernels and of :attr:`Fit.points`.
         **options: :class:`SolveOptions` fields (``l2``, ``l1``, ``symmetry``, ``pose``, ``bounds``, …);
             ``ridge_points`` defaults to :data:`FIT_RIDGE_POINTS` here: one shape solved from neutral has nothing
-            but the prior to hold the controls its few points leave loose.
+            but the prior to hold the controls its few points leave loose; ``lip_rolls`` to True.
 
     Returns:
         :class:`Fit`, solved from neutral. The solver built for these target locations is kept with the
@@ -553,6 +561,7 @@ def fit(rig, target, *, vertices=None, weights=None, device=None, **options) -> 
         raise TypeError(f"rig: expected a warpface.FaceRig, got {type(rig).__name__}")
     surface = {key: options.pop(key) for key in ("triangles", "barycentrics") if key in options}
     options.setdefault("ridge_points", FIT_RIDGE_POINTS)
+    options.setdefault("lip_rolls", True)
     key = (
         str(device),
         repr(sorted(options.items())),
