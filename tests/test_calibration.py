@@ -256,24 +256,14 @@ def test_eyelid_group_recovers_known_lid_shapes(hand_rig):
     lids_only = replace(hand_rig, muscles=[m for m in hand_rig.muscles if m.name.startswith("lid_")], wrinkles=[])
     lids_only = replace(lids_only, jaw=None)
     model = apply_parameters(lids_only, truth, device="cpu").model(device="cpu")
-    shapes = [
-        ExampleShape(
-            f"blink_{side}_{k}",
-            np.asarray(model.evaluate({f"lid_upper_close_{side}": k, f"lid_lower_close_{side}": k})),
-        )
-        for side in ("L", "R")
-        for k in (0.5, 1.0)
-    ]
-    result = calibrate(
-        lids_only,
-        shapes,
-        holdout=["blink_R_1.0"],
-        muscles=[EYELIDS],
-        fields=["radial_reach", "lower_reach"],
-        iterations=3,
-        prior_weight=1e-6,
-        device="cpu",
-    )
+    blinks = {
+        f"blink_{side}_{k}": {f"lid_upper_close_{side}": k, f"lid_lower_close_{side}": k}
+        for side in "LR"
+        for k in (0.5, 1)
+    }
+    shapes = [ExampleShape(name, np.asarray(model.evaluate(controls))) for name, controls in blinks.items()]
+    options = dict(muscles=[EYELIDS], fields=["radial_reach", "lower_reach"], iterations=3, prior_weight=1e-6)
+    result = calibrate(lids_only, shapes, holdout=["blink_R_1"], device="cpu", **options)
     assert result.improved, result.message
     held = result.reach["held_out"]
     assert held["after"][0]["after"] < 0.1 * held["before"][0]["after"]
