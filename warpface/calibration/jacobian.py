@@ -125,9 +125,10 @@ def _grouped_jacobian(base, parameters, theta, controls, layout, *, step, device
 
     Exact for the muscle displacements (each is linear in its own field); the coupling of one muscle's change with
     another's pull through the nonlinear stages (stretch, bulge, wrinkles) is dropped. The parameters of the
-    shared group (:data:`~warpface.assets.calibrated.EVERY_MUSCLE`) move every muscle, the eyelids' every lid hinge
-    (:data:`~warpface.assets.calibrated.WHOLE_RIG_KINDS`): they get columns of their own (forward differences). The optimiser accepts a step only on the refitted objective, so the approximation
-    costs at most some steps. ``central``: each field's rig is also rebuilt with the parameters moved back, and
+    shared group (:data:`~warpface.assets.calibrated.EVERY_MUSCLE`) move every muscle, the eyelids' every lid
+    hinge (:data:`~warpface.assets.calibrated.WHOLE_RIG_KINDS`): they get columns of their own (forward
+    differences). The optimiser accepts a step only on the refitted objective, so the approximation costs at most
+    some steps. ``central``: each field's rig is also rebuilt with the parameters moved back, and
     the columns are central differences."""
     from ..assets.calibrated import muscle_group
 
