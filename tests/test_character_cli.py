@@ -59,6 +59,7 @@ def _residual_mm(printed: str) -> float:
     return float(re.search(r"mean landmark residual ([\d.]+) mm", printed).group(1))
 
 
+@pytest.mark.slow  # end to end, over 20 s on the 2-core CI machine
 def test_track_synthetic_solves_a_turned_rig(zup_stage, tmp_path, capsys):
     out = tmp_path / "new" / "folder" / "capture.usda"
     arguments = ["--quiet", "--device", "cpu", "track", "synthetic", "--solve", "--frames", "8", "--stage"]
@@ -170,6 +171,7 @@ def test_presets_lists_relative_values_and_values_on_a_rig(zup_stage, tmp_path, 
     assert "unknown preset 'nosuch'" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # end to end, over 20 s on the 2-core CI machine
 def test_fit_on_a_turned_rig_keeps_the_jaw_in_the_preset(zup_rig, zup_stage, tmp_path, capsys):
     import shutil
 

@@ -205,6 +205,7 @@ def test_lids_round_trip_through_a_stage(rig, tmp_path):
     assert_rigs_equal(exact, wf.usd.read_rig(path))
 
 
+@pytest.mark.slow  # end to end, over 20 s on the 2-core CI machine
 def test_the_solver_fits_a_blink_with_the_lid_controls(rig):
     model = rig.model(device=DEVICE)
     target = model.evaluate({"lid_upper_close_L": 0.8, "lid_lower_close_L": 0.8})

@@ -204,6 +204,7 @@ def test_monocular_solve_reprojects_exact_rays_and_recovers_the_head_turn(perfor
     assert not tracker.summary["skipped"]
 
 
+@pytest.mark.slow  # end to end, over 20 s on the 2-core CI machine
 def test_rays_with_a_depth_term_match_the_point_solve_on_exact_depth(performance):
     from warpface.pipelines.track_mono import MonocularTracker
     from warpface.pipelines.track_solve import SolvingTracker
@@ -229,6 +230,7 @@ def test_rays_with_a_depth_term_match_the_point_solve_on_exact_depth(performance
         MonocularTracker(rig, names, depth_weight=2.0)
 
 
+@pytest.mark.slow  # end to end, over 20 s on the 2-core CI machine
 def test_video_without_a_face_and_a_bad_landmark_model(tmp_path):
     _need_models()
     import cv2

@@ -14,6 +14,7 @@ import warpface as wf
 from warpface.assets import SPHINCTER_MUSCLE_NAMES, default_rig
 from warpface.assets.anatomy import SKIN_RESPONSE_OVERRIDES
 from warpface.assets.lids import LID_CONTROL_NAMES
+from warpface.assets.lip_roll import LIP_ROLL_NAMES
 from warpface.assets.lips import LIP_SEAL_NAME
 from warpface.assets.rig import CLASSIC_LINEAR_MUSCLE_NAMES, LINEAR_MUSCLE_NAMES, face_frame
 from warpface.expression import muscle_weights
@@ -229,7 +230,13 @@ def test_the_risorius_draws_the_lower_cheek_toward_the_ear(rig):
 
 
 def test_full_rig_has_every_muscle_with_c1_zones_and_a_jaw(rig):
-    assert rig.muscle_names == [*LINEAR_MUSCLE_NAMES, *SPHINCTER_MUSCLE_NAMES, *LID_CONTROL_NAMES, LIP_SEAL_NAME]
+    assert rig.muscle_names == [
+        *LINEAR_MUSCLE_NAMES,
+        *SPHINCTER_MUSCLE_NAMES,
+        *LIP_ROLL_NAMES,
+        *LID_CONTROL_NAMES,
+        LIP_SEAL_NAME,
+    ]
     assert set(CLASSIC_LINEAR_MUSCLE_NAMES) < set(rig.muscle_names)
     for name in (
         "depressor_supercilii_L",

@@ -92,6 +92,7 @@ def _capture(tmp_path, rig, source, **tracker_options):
     return tracker, solved, stats, tmp_path / "solved.usda"
 
 
+@pytest.mark.slow  # end to end, over 20 s on the 2-core CI machine
 def test_exact_landmarks_recover_the_controls_and_the_stage_round_trips(tmp_path, rig, vertices):
     controls = _performance(rig)
     tracker, solved, stats, stage = _capture(tmp_path, rig, ExactSource(rig, vertices, controls), smoothness=0.0)
@@ -148,6 +149,7 @@ def test_exact_landmarks_recover_the_controls_and_the_stage_round_trips(tmp_path
     np.testing.assert_array_equal(frames.triangles, rig.mesh.triangles)
 
 
+@pytest.mark.slow  # end to end, over 20 s on the 2-core CI machine
 def test_head_motion_is_solved_as_the_pose_and_written(tmp_path, rig, vertices):
     controls = _performance(rig, "disgust")
     angles = np.linspace(0.0, 0.12, len(controls))  # up to 7° about a tilted axis, and 1 cm of translation
@@ -194,6 +196,7 @@ def test_synthetic_camera_solved_path_beats_the_geometric_transfer():
     assert all(np.all(np.isfinite(p.per_frame_surface_mm)) for p in result.paths)
 
 
+@pytest.mark.slow  # end to end, over 20 s on the 2-core CI machine
 def test_residual_transfer_adds_exactly_the_residual_motion_at_the_landmarks(tmp_path, rig, vertices):
     controls = _performance(rig, seconds=0.3)
     source = ExactSource(rig, vertices, controls)
@@ -293,6 +296,7 @@ def test_cli_refuses_bad_combinations_before_writing(tmp_path):
         assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow  # end to end, over 20 s on the 2-core CI machine
 def test_ctrl_c_during_a_solved_capture_keeps_every_frame_with_its_controls(tmp_path):
     returncode, kept, error, stage = interrupted_track(tmp_path, "--solve", "--residual-transfer", delay=0.2)
     assert returncode in (0, 130), error

@@ -263,6 +263,7 @@ def _split_ict_usd(path):
     return obj, ranges
 
 
+@pytest.mark.slow  # end to end, over 20 s on the 2-core CI machine
 @pytest.mark.skipif(ICT is None, reason="ICT-FaceKit not in ../shared/data (set WARPFACE_SHARED_DATA)")
 def test_a_usd_head_of_several_meshes_is_rigged_on_its_face_and_kept_whole(tmp_path):
     from pxr import Usd, UsdGeom
