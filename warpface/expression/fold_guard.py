@@ -231,7 +231,8 @@ def ladder_equalized(points: np.ndarray, triangles: np.ndarray, field: np.ndarra
     for step in range(LADDER_STEPS - 1, -1, -1):
         scales = [*done, contraction * 0.5**step]
         trial = equalized_field(points, triangles, field, scales)
-        left = [folded_triangles(points, triangles, points + k * trial).any() for k in scales]
+        touched = triangles[np.any(trial != 0.0, axis=1)[triangles].any(axis=1)]  # no other triangle moves
+        left = [folded_triangles(points, touched, points + k * trial).any() for k in scales]
         if any(left[:-1]):
             break
         field, done = trial, scales
@@ -256,7 +257,11 @@ def _equalized(points, triangles, values, motions, moved, free, rounds, margin=F
             out |= (area[subset] > 0.0) & (np.einsum("ti,ti->t", turned, rest[subset]) < margin * area[subset])
         return out
 
-    folded = folds(np.arange(len(triangles)))
+    # a triangle whose corners no field moves stays where it is under every motion: only the others can fold
+    support = np.any(values.reshape(count, -1) != 0.0, axis=1)
+    folded = np.zeros(len(triangles), dtype=bool)
+    touched = np.flatnonzero(support[triangles].any(axis=1))
+    folded[touched] = folds(touched)
     best, since, kept = int(folded.sum()), 0, values.copy()
     for _ in range(rounds):
         if not folded.any() or since > _EQUAL_STALL_ROUNDS:
