@@ -7,7 +7,7 @@ wrinkles; default options, muscles and the jaw's three controls). Two fits per s
 
 - **dense**: every vertex is a target;
 - **landmarks**: only the 68 landmark vertices are targets (``fit``'s ridge for sparse targets, docs/RIG.md §13);
-- **landmarks, l2**: the same with the ridge a dense fit uses (``ridge_points=1``), for comparison.
+- **landmarks, l2**: the same with the plain ridge (``ridge_points=1``), for comparison.
 
 Reported per shape, over the *moved* vertices (|delta| > 0.2 mm): mean and max error before (the
 neutral face) and after the fit, and the reduction of the mean, for the hand-placed anatomy
@@ -39,6 +39,7 @@ import warpface as wf
 from warpface.assets import default_rig
 from warpface.assets.calibrated import CALIBRATED_ANATOMY, apply_parameters, load_calibrated_anatomy
 from warpface.assets.lip_roll import LIP_ROLL_NAMES
+from warpface.assets.lip_slide import LIP_SLIDE_NAMES
 from warpface.assets.rig import rig_scale
 from warpface.calibration import ExampleShape, calibrate, reach
 from warpface.calibration.report import parameters_data
@@ -118,7 +119,7 @@ def measure(rig, shapes, device, dense_only: bool = False) -> list[dict]:
     is_jaw = np.array([n.startswith("jaw_") for n in model.control_names])
     rows = {s.name: {"shape": s.name} for s in shapes}
     passes = [("dense", False, {})]
-    if not dense_only:  # the fit's own ridge for sparse targets, and the ridge a dense fit uses (docs/RIG.md §13)
+    if not dense_only:  # the fit's own ridge for sparse targets, and the plain ridge (ridge_points=1; docs/RIG.md §13)
         passes += [("landmarks", True, {}), ("landmarks_plain", True, {"ridge_points": 1})]
     for label, landmarks, options in passes:
         started = time.perf_counter()
@@ -247,6 +248,11 @@ def main(argv=None) -> int:
         action="store_true",
         help="also the default rig without its lip hinges (docs/RIG.md §15)",
     )
+    parser.add_argument(
+        "--without-lip-slides",
+        action="store_true",
+        help="also the default rig without its lip slides (docs/RIG.md §16)",
+    )
     parser.add_argument("--warp", action="store_true", help="another identity: ICT smoothly warped (transfer check)")
     parser.add_argument(
         "--jacobians", type=int, default=0, metavar="N", help="only time the Jacobian forms (N iterations each)"
@@ -286,6 +292,9 @@ def main(argv=None) -> int:
     if args.without_lip_hinges:  # the default before docs/RIG.md §15, measured in the same run
         kept = [m for m in rigs["calibrated"].muscles if m.name not in LIP_ROLL_NAMES]
         rigs["calibrated, without lip hinges"] = replace(rigs["calibrated"], muscles=kept)
+    if args.without_lip_slides:  # the default before docs/RIG.md §16
+        kept = [m for m in rigs["calibrated"].muscles if m.name not in LIP_SLIDE_NAMES]
+        rigs["calibrated, without lip slides"] = replace(rigs["calibrated"], muscles=kept)
     for path in args.anatomy:
         values = load_calibrated_anatomy(path)
         rigs[f"calibrated ({path.name})"] = apply_parameters(rigs["hand-placed"], values, device=args.device)
@@ -308,7 +317,7 @@ def main(argv=None) -> int:
                 if not args.dense_only:
                     means.append(f"landmarks {np.mean([r['landmarks_reduction'] for r in chosen]):.1%}")
                     plain = np.mean([r["landmarks_plain_reduction"] for r in chosen])
-                    means.append(f"landmarks with the dense fit's ridge {plain:.1%}")
+                    means.append(f"landmarks with the plain ridge {plain:.1%}")
                 print(f"  mean reach, {split} ({len(chosen)} shapes): {', '.join(means)}")
     path = write_results("rig_reach_warped" if args.warp else "rig_reach", payload)
     print(f"wrote {path}")

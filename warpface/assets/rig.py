@@ -42,6 +42,7 @@ from .frame import FaceFrame, SurfaceSampler, check_landmarks, head_cylinder
 from .jaw import default_jaw
 from .lids import default_lids
 from .lip_roll import default_lip_rolls
+from .lip_slide import default_lip_slides
 from .lips import default_lip_seal, lip_margin_taper
 from .thickness import default_thickness
 
@@ -185,8 +186,10 @@ def default_rig(
         sphincters = [_with_skin_response(m) for m in sphincters]
         jaw = default_jaw(mesh, frame, landmarks)
         seal = default_lip_seal(mesh, frame, landmarks)
-        # the lip hinges (docs/RIG.md §15) come before the eyelids', so the rig still ends with the lids and the seal
-        lids = default_lip_rolls(mesh, frame, landmarks) + default_lids(mesh, frame, landmarks)
+        # the lip hinges and slides (docs/RIG.md §15–16) come before the eyelids', so the rig still ends with the lids
+        # and the seal
+        lids = default_lip_rolls(mesh, frame, landmarks) + default_lip_slides(mesh, frame, landmarks)
+        lids += default_lids(mesh, frame, landmarks)
         lids += [] if seal is None else [seal]
     wrinkles = _wrinkles(local, surface, frame, head_cylinder(frame, local), _typical_edge(mesh) / frame.scale, device)
     thickness = default_thickness(mesh, landmarks, device=device)
