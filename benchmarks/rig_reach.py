@@ -40,6 +40,7 @@ from warpface.assets import default_rig
 from warpface.assets.calibrated import CALIBRATED_ANATOMY, apply_parameters, load_calibrated_anatomy
 from warpface.assets.lip_roll import LIP_ROLL_NAMES
 from warpface.assets.lip_slide import LIP_SLIDE_NAMES
+from warpface.assets.mouth_corner import MOUTH_CORNER_NAMES
 from warpface.assets.rig import rig_scale
 from warpface.calibration import ExampleShape, calibrate, reach
 from warpface.calibration.report import parameters_data
@@ -63,6 +64,9 @@ HELD_OUT = (
     "mouthUpperUp_R",
 )
 """The default anatomy's held-out shapes (stand-ins for smile, cheek squint, sneer and brow down)."""
+
+BODY_PARTS = {"lip-hinges": LIP_ROLL_NAMES, "lip-slides": LIP_SLIDE_NAMES, "mouth-corners": MOUTH_CORNER_NAMES}
+"""``--without`` choices: the controls that move a lip or a mouth corner as one body (docs/RIG.md §15–17)."""
 
 
 def warp_identity(points: np.ndarray, centre: np.ndarray, half: np.ndarray) -> np.ndarray:
@@ -244,14 +248,11 @@ def main(argv=None) -> int:
         "--full-turn", action="store_true", help="also the hand-placed rig with every lid hinge's fit_limit at 1"
     )
     parser.add_argument(
-        "--without-lip-hinges",
-        action="store_true",
-        help="also the default rig without its lip hinges (docs/RIG.md §15)",
-    )
-    parser.add_argument(
-        "--without-lip-slides",
-        action="store_true",
-        help="also the default rig without its lip slides (docs/RIG.md §16)",
+        "--without",
+        nargs="+",
+        default=[],
+        choices=sorted(BODY_PARTS),
+        help="also the default rig without these controls, one rig each (docs/RIG.md §15–17)",
     )
     parser.add_argument("--warp", action="store_true", help="another identity: ICT smoothly warped (transfer check)")
     parser.add_argument(
@@ -289,12 +290,9 @@ def main(argv=None) -> int:
         hand = rigs["hand-placed"]
         muscles = [replace(m, fit_limit=1.0) if isinstance(m, LidMuscle) else m for m in hand.muscles]
         rigs["hand-placed, lids at the full turn"] = replace(hand, muscles=muscles)
-    if args.without_lip_hinges:  # the default before docs/RIG.md §15, measured in the same run
-        kept = [m for m in rigs["calibrated"].muscles if m.name not in LIP_ROLL_NAMES]
-        rigs["calibrated, without lip hinges"] = replace(rigs["calibrated"], muscles=kept)
-    if args.without_lip_slides:  # the default before docs/RIG.md §16
-        kept = [m for m in rigs["calibrated"].muscles if m.name not in LIP_SLIDE_NAMES]
-        rigs["calibrated, without lip slides"] = replace(rigs["calibrated"], muscles=kept)
+    for part in args.without:  # the default before that part was added, measured in the same run
+        kept = [m for m in rigs["calibrated"].muscles if m.name not in BODY_PARTS[part]]
+        rigs[f"calibrated, without {part}"] = replace(rigs["calibrated"], muscles=kept)
     for path in args.anatomy:
         values = load_calibrated_anatomy(path)
         rigs[f"calibrated ({path.name})"] = apply_parameters(rigs["hand-placed"], values, device=args.device)

@@ -25,9 +25,8 @@ from warpface.assets import (
 )
 from warpface.assets import face as face_module
 from warpface.assets.lids import LID_CONTROL_NAMES
-from warpface.assets.lip_slide import LIP_HINGE_NAMES
 from warpface.assets.lips import LIP_SEAL_NAME, lip_margin_taper
-from warpface.assets.rig import MOBILE_TISSUE_FRACTION, face_frame
+from warpface.assets.rig import BODY_CONTROL_NAMES, MOBILE_TISSUE_FRACTION, face_frame
 from warpface.data import ict_face_region, ict_landmark_indices
 from warpface.expression.wrinkles import bezier_distances, project_points
 
@@ -304,7 +303,7 @@ def test_thickness_is_positive_thin_on_the_forehead_thick_on_the_cheeks_and_smoo
 def test_rig_has_the_required_muscles_and_wrinkles(rig):
     names = set(rig.muscle_names)
     assert REQUIRED_MUSCLES <= names
-    lips = [*LIP_HINGE_NAMES]  # the lip hinges and slides (docs/RIG.md §15–16)
+    lips = [*BODY_CONTROL_NAMES]  # the lip hinges and slides, the mouth corners (docs/RIG.md §15–17)
     assert rig.muscle_names == [*LINEAR_MUSCLE_NAMES, *SPHINCTER_MUSCLE_NAMES, *lips, *LID_CONTROL_NAMES, LIP_SEAL_NAME]
     assert sum(isinstance(m, LinearMuscle) for m in rig.muscles) >= 16
     assert {m.name for m in rig.muscles if isinstance(m, SphincterMuscle)} == set(SPHINCTER_MUSCLE_NAMES)

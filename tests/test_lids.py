@@ -10,8 +10,8 @@ from helpers import assert_rigs_equal
 import warpface as wf
 from warpface.assets import default_rig, preset_controls
 from warpface.assets.lids import LID_CONTROL_NAMES
-from warpface.assets.lip_slide import LIP_HINGE_NAMES
 from warpface.assets.quality import LID_PAIRS, face_up, pair_distances, pair_heights
+from warpface.assets.rig import BODY_CONTROL_NAMES
 from warpface.data import ict_face_region, ict_landmark_indices
 from warpface.drivers.default_tables import mapping_for_rig
 from warpface.expression import muscle_weights
@@ -182,7 +182,9 @@ def test_lids_round_trip_through_a_stage(rig, tmp_path):
     path = tmp_path / "rig.usda"
     wf.usd.write_rig(path, rig)
     back = wf.usd.read_rig(path)
-    lids = [m for m in back.muscles if isinstance(m, LidMuscle) and m.name not in LIP_HINGE_NAMES]  # lips: §15–16
+    lids = [
+        m for m in back.muscles if isinstance(m, LidMuscle) and m.name not in BODY_CONTROL_NAMES
+    ]  # lips, corners: §15–17
     assert [m.name for m in lids] == [*LID_CONTROL_NAMES, "lips_part"]
     assert isinstance(back.muscles[-1], LipSeal) and np.array_equal(back.muscles[-1].pairs, rig.muscles[-1].pairs)
     for m, n in zip(rig.muscles[-7:-1], lids):
@@ -218,7 +220,9 @@ def test_the_solver_fits_a_blink_with_the_lid_controls(rig):
 def test_a_fit_raises_the_lower_lid_past_the_blink_up_to_its_limit(rig, tmp_path):
     from warpface.assets.lids import LOWER_FIT_LIMIT
 
-    eyelids = [m for m in rig.muscles if isinstance(m, LidMuscle) and m.name not in LIP_HINGE_NAMES]  # lips: §15–16
+    eyelids = [
+        m for m in rig.muscles if isinstance(m, LidMuscle) and m.name not in BODY_CONTROL_NAMES
+    ]  # lips, corners: §15–17
     limits = {m.name: m.fit_limit for m in eyelids if not isinstance(m, LipSeal)}
     assert limits == {n: (LOWER_FIT_LIMIT if "lower_close" in n else 1.0) for n in LID_CONTROL_NAMES}
     model = rig.model(device=DEVICE)
@@ -248,7 +252,7 @@ def test_a_fit_raises_the_lower_lid_past_the_blink_up_to_its_limit(rig, tmp_path
     prims[1].GetAttribute("fitLimit").Clear()
     stage.Save()
     back = wf.usd.read_rig(path).muscles
-    assert {m.fit_limit for m in back if isinstance(m, LidMuscle) and m.name not in LIP_HINGE_NAMES} == {1.0}
+    assert {m.fit_limit for m in back if isinstance(m, LidMuscle) and m.name not in BODY_CONTROL_NAMES} == {1.0}
     for bad in (0.0, -1.0, 11.0, np.nan):
         with pytest.raises(ValueError, match="fit_limit"):
             LidMuscle("lid", np.zeros(3), [1, 0, 0], [1], [0.1], fit_limit=bad)

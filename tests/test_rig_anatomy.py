@@ -14,9 +14,8 @@ import warpface as wf
 from warpface.assets import SPHINCTER_MUSCLE_NAMES, default_rig
 from warpface.assets.anatomy import SKIN_RESPONSE_OVERRIDES
 from warpface.assets.lids import LID_CONTROL_NAMES
-from warpface.assets.lip_slide import LIP_HINGE_NAMES
 from warpface.assets.lips import LIP_SEAL_NAME
-from warpface.assets.rig import CLASSIC_LINEAR_MUSCLE_NAMES, LINEAR_MUSCLE_NAMES, face_frame
+from warpface.assets.rig import BODY_CONTROL_NAMES, CLASSIC_LINEAR_MUSCLE_NAMES, LINEAR_MUSCLE_NAMES, face_frame
 from warpface.expression import muscle_weights
 from warpface.expression.lids import LidMuscle
 from warpface.expression.tissue import neighbourhood_mean, tissue_response
@@ -233,7 +232,7 @@ def test_full_rig_has_every_muscle_with_c1_zones_and_a_jaw(rig):
     assert rig.muscle_names == [
         *LINEAR_MUSCLE_NAMES,
         *SPHINCTER_MUSCLE_NAMES,
-        *LIP_HINGE_NAMES,
+        *BODY_CONTROL_NAMES,
         *LID_CONTROL_NAMES,
         LIP_SEAL_NAME,
     ]

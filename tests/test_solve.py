@@ -298,17 +298,17 @@ def test_device_normal_equations_match_numpy_reference(rig, rng, pose):
         assert np.allclose(gradient[f], flat.T @ (w * e[f].ravel()), rtol=1e-10, atol=1e-12 * np.abs(gradient[f]).max())
 
 
-@pytest.mark.slow  # four solvers of the full 78-control rig, ~45 s on the 2-core CI machine
+@pytest.mark.slow  # four solvers of the full 86-control rig, ~45 s on the 2-core CI machine
 def test_trackers_hold_the_lip_hinges_and_fit_frees_them():
     """A :class:`Solver` (the trackers) holds the lip hinges at rest unless asked (docs/RIG.md §15); ``fit`` and
     ``bounds`` free them: a rolled-in upper lip's landmarks are reached only where they are free."""
-    from warpface.assets.lip_slide import LIP_HINGE_NAMES
+    from warpface.assets.rig import BODY_CONTROL_NAMES
 
     rig = default_rig(device="cpu")
     rolled = {"lip_upper_roll_in_L": 0.8, "lip_upper_roll_in_R": 0.8}
     target = np.asarray(rig.model(device="cpu").evaluate(rolled), dtype=np.float64)[rig.landmarks]
     held = Solver(rig, rig.landmarks, device="cpu").solve(target)
-    assert all(held.controls[name] == 0.0 for name in LIP_HINGE_NAMES)  # and the slides (§16)
+    assert all(held.controls[name] == 0.0 for name in BODY_CONTROL_NAMES)  # and the slides and corners (§16–17)
     for solved in (
         fit(rig, target, vertices=rig.landmarks, device="cpu"),
         Solver(rig, rig.landmarks, device="cpu", lip_rolls=True).solve(target),

@@ -7,7 +7,7 @@ import pytest
 import solve_reference as reference
 
 from warpface.assets import default_rig, rig_scale
-from warpface.assets.lip_slide import LIP_HINGE_NAMES
+from warpface.assets.rig import BODY_CONTROL_NAMES
 from warpface.expression import JAW_CONTROL_NAMES, SphincterMuscle
 from warpface.solve import LocalExpression, fit
 from warpface.solve.solver import rig_operators
@@ -31,8 +31,9 @@ def controls_with_jaw(rig, rng, count=6, jaw=(0.18, 0.02, -0.015)):
     terms have kinks at rest)."""
     scale = rig_scale(rig)
     controls = np.zeros(len(rig.control_names))
-    # a sparse draw leaves the lip hinges and slides (docs/RIG.md §15–16) at rest: the draw the tests were written with
-    drawn = [m for m, muscle in enumerate(rig.muscles) if muscle.name not in LIP_HINGE_NAMES]
+    # a sparse draw leaves the lips' and corners' body controls (docs/RIG.md §15–17) at rest: the draw the tests were
+    # written with
+    drawn = [m for m, muscle in enumerate(rig.muscles) if muscle.name not in BODY_CONTROL_NAMES]
     drawn = drawn if count <= len(drawn) else np.arange(len(rig.muscles))
     for m in rng.choice(drawn, count, replace=False):
         controls[m] = rng.uniform(0.03, 0.1) * (1.0 if isinstance(rig.muscles[m], SphincterMuscle) else scale)
@@ -126,8 +127,8 @@ def test_closed_loop_recovers_jaw_and_muscles(rig, model, rng, landmarks_only):
     target = np.asarray(model.evaluate(truth), dtype=np.float64)
     if landmarks_only:
         # from 68 points a lip's roll-in and roll-out together (their chords' radial part) and its protrusion trade
-        # against jaw_forward (docs/RIG.md §15–16): the truth moves no lip as a body, so those are held at rest here
-        held = {name: (0.0, 0.0) for name in LIP_HINGE_NAMES if name in rig.control_names}
+        # against jaw_forward (docs/RIG.md §15–17): the truth moves no lip or corner as a body, so those are held here
+        held = {name: (0.0, 0.0) for name in BODY_CONTROL_NAMES if name in rig.control_names}
         # and the plain ridge: fit's sparse-target prior trades exactness on exact data for reach (docs/RIG.md §13)
         result = fit(rig, target[rig.landmarks], vertices=rig.landmarks, device="cpu", bounds=held, ridge_points=1)
     else:

@@ -42,8 +42,9 @@ from .frame import FaceFrame, SurfaceSampler, check_landmarks, head_cylinder
 from .jaw import default_jaw
 from .lids import default_lids
 from .lip_roll import default_lip_rolls
-from .lip_slide import default_lip_slides
+from .lip_slide import LIP_HINGE_NAMES, default_lip_slides
 from .lips import default_lip_seal, lip_margin_taper
+from .mouth_corner import MOUTH_CORNER_NAMES, default_mouth_corners
 from .thickness import default_thickness
 
 __all__ = [
@@ -56,6 +57,7 @@ __all__ = [
     "LINEAR_MUSCLE_NAMES",
     "SPHINCTER_MUSCLE_NAMES",
     "WRINKLE_NAMES",
+    "BODY_CONTROL_NAMES",
 ]
 
 _SIDES = ("L", "R")
@@ -186,10 +188,10 @@ def default_rig(
         sphincters = [_with_skin_response(m) for m in sphincters]
         jaw = default_jaw(mesh, frame, landmarks)
         seal = default_lip_seal(mesh, frame, landmarks)
-        # the lip hinges and slides (docs/RIG.md §15–16) come before the eyelids', so the rig still ends with the lids
-        # and the seal
+        # the lip hinges and slides and the mouth corners (docs/RIG.md §15–17) come before the eyelids', so the rig
+        # still ends with the lids and the seal
         lids = default_lip_rolls(mesh, frame, landmarks) + default_lip_slides(mesh, frame, landmarks)
-        lids += default_lids(mesh, frame, landmarks)
+        lids += default_mouth_corners(mesh, frame, landmarks) + default_lids(mesh, frame, landmarks)
         lids += [] if seal is None else [seal]
     wrinkles = _wrinkles(local, surface, frame, head_cylinder(frame, local), _typical_edge(mesh) / frame.scale, device)
     thickness = default_thickness(mesh, landmarks, device=device)
@@ -226,6 +228,10 @@ def _check_layout_on(mesh: FaceMesh, landmarks: np.ndarray, normals: np.ndarray)
             "into the head); reverse the winding of every triangle"
         ) from None
 
+
+BODY_CONTROL_NAMES: tuple[str, ...] = LIP_HINGE_NAMES + MOUTH_CORNER_NAMES
+"""The full rig's controls that move a lip or a mouth corner as one body (docs/RIG.md §15–17): fitted, never mapped;
+a :class:`~warpface.solve.Solver` holds them unless ``SolveOptions.lip_rolls`` frees them."""
 
 MOBILE_TISSUE_FRACTION = 0.6
 """The full rig's ``h`` (the thickness that bulges, SPEC §1.3, and bunches, docs/RIG.md §3) as a fraction

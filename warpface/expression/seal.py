@@ -7,13 +7,14 @@ parting of pair ``i`` under a field ``w`` is
 
 ``δ_i(w) = (w(u_i) − w(l_i)) · n̂_i``,  ``n̂_i`` the unit of ``p(u_i) − p(l_i)``,
 
-and every other muscle's field is replaced, once per rig, by ``w' = w + a·p`` with the least ``a ≥ 0`` that
+and every other muscle's field (the Waters muscles', and those of hinges that only slide) is replaced, once per
+rig, by ``w' = w + a·p`` with the least ``a ≥ 0`` that
 makes ``δ_i(w') ≥ 0`` at every pair: ``a = max(0, max_i −δ_i(w)/δ_i(p))``. A muscle on its own then never
 brings a pair closer along its parting direction, and since the muscle stage is ``x1 = x + Σ K·w'`` with
 ``K ≥ 0``, no combination of contractions does: the lips press together and stay sealed (``δ = 0``)
 where the muscle would have pushed one through the other. The stage stays linear in the controls, so
-the solver's Jacobian is still the weight matrix. The seal's own field and the lid hinges are left as
-they are.
+the solver's Jacobian is still the weight matrix. The seal's own field and the hinges that turn (the lids, the
+lips' rolls) are left as they are: their turns are the rig's own choice (docs/RIG.md §11, §15).
 """
 
 from __future__ import annotations
@@ -78,7 +79,7 @@ def seal_fields(muscles, fields: list[np.ndarray]) -> list[np.ndarray]:
     direction = opening / parting[:, None]
     out = []
     for muscle, field in zip(muscles, fields):
-        if isinstance(muscle, LidMuscle):
+        if isinstance(muscle, LidMuscle) and (isinstance(muscle, LipSeal) or np.any(muscle.angles)):
             out.append(field)
             continue
         closing = -np.sum((field[upper] - field[lower]) * direction, axis=1) / parting

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-from ..assets.lip_slide import LIP_HINGE_NAMES
+from ..assets.rig import BODY_CONTROL_NAMES
 from ..errors import RigError
 from ..expression.jaw import JAW_CONTROL_NAMES, JAW_RANGE
 from ..expression.lids import LidMuscle
@@ -79,10 +79,10 @@ class SolveOptions:
         pose: also solve a rigid head pose (rotation about the observed points' centroid + translation).
         bounds: per-control ``{name: (low, high)}`` overriding the defaults (c ≥ 0, sphincters ≤ 1, jaw: JAW_RANGE).
         jaw: solve the jaw's controls too when the rig has a jaw (False: muscles only, the jaw at rest).
-        lip_rolls: solve the lip hinges and slides (docs/RIG.md §15–16) too. Default False for a :class:`Solver`:
-            the trackers see at most 68 points, from which a lip's roll in and out together (and its protrusion)
-            trade against the jaw (a monocular solve's reprojection rose 0.14 → 0.30 px with the hinges free);
-            :func:`fit` frees them. ``bounds`` can free them either way.
+        lip_rolls: solve the lip hinges and slides and the mouth corners (``BODY_CONTROL_NAMES``, docs/RIG.md §15–17)
+            too. Default False for a :class:`Solver`: the trackers see at most 68 points, from which a lip's roll in
+            and out together (and its protrusion) trade against the jaw (a monocular solve's reprojection rose
+            0.14 → 0.30 px with the hinges free); :func:`fit` frees them. ``bounds`` can free them either way.
         max_iterations: Levenberg–Marquardt iterations per frame.
         tolerance: stop when a step lowers E (or is predicted to) by less than this fraction …
         step_tolerance: … or moves no scaled control by more than this (face units) …
@@ -314,7 +314,7 @@ class Solver:
             unit = 1.0 if name == "jaw_open" else self.unit  # the slides' range is in face units
             low[index], high[index] = lo * unit, hi * unit
         if not self.options.lip_rolls:
-            high[[i for i, name in enumerate(self.names) if name in LIP_HINGE_NAMES]] = 0.0
+            high[[i for i, name in enumerate(self.names) if name in BODY_CONTROL_NAMES]] = 0.0
         for name, pair in (self.options.bounds or {}).items():
             if name not in self.names:
                 raise ValueError(f"bounds: unknown control {name!r}")
