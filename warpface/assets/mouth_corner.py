@@ -22,7 +22,7 @@ from ..expression.lids import LidMuscle
 from ..mesh import FaceMesh
 from .frame import FaceFrame
 
-__all__ = ["MOUTH_CORNER_NAMES", "CORNER_RADII", "CORNER_SLIDE", "default_mouth_corners"]
+__all__ = ["MOUTH_CORNER_NAMES", "CORNER_RADII", "CORNER_SLIDE", "corner_weight", "default_mouth_corners"]
 
 CORNER_SLIDE = 0.1
 """A corner's largest slide per unit K [inter-ocular units] (6 mm on ICT-FaceKit's face)."""
