@@ -66,15 +66,6 @@ def default_lip_slides(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) 
         parts = zip(("_L", "_R"), shares) if sided else (("", np.ones_like(profile)),)
         for suffix, share in parts:
             amount = SLIDE * frame.scale * profile * share
-            moved = np.flatnonzero(amount > 0.0)
-            slides.append(
-                LidMuscle(
-                    f"lip_{lip}_{way}{suffix}",
-                    frame.to_world(pivot),
-                    sign * frame.axes[axis],
-                    moved,
-                    np.zeros(len(moved)),
-                    slides=amount[moved],
-                )
-            )
+            name = f"lip_{lip}_{way}{suffix}"
+            slides.append(LidMuscle.pure_slide(name, frame.to_world(pivot), sign * frame.axes[axis], amount))
     return slides

@@ -54,16 +54,6 @@ def default_mouth_corners(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarra
     for way, (axis, left, right) in _DIRECTIONS.items():
         for side, sign in (("L", left), ("R", right)):
             amount = CORNER_SLIDE * frame.scale * weights[side]
-            moved = np.flatnonzero(amount > 0.0)
             centre = mesh.points[landmarks[_CORNERS[side]]]
-            corners.append(
-                LidMuscle(
-                    f"mouth_corner_{way}_{side}",
-                    centre,
-                    sign * frame.axes[axis],
-                    moved,
-                    np.zeros(len(moved)),
-                    slides=amount[moved],
-                )
-            )
+            corners.append(LidMuscle.pure_slide(f"mouth_corner_{way}_{side}", centre, sign * frame.axes[axis], amount))
     return corners

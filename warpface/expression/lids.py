@@ -109,6 +109,19 @@ class LidMuscle:
         if self.fit_limit == 0.0:
             raise ValueError(f"{label}: fit_limit must be > 0")
 
+    @classmethod
+    def pure_slide(cls, name: str, center, axis, amounts: np.ndarray) -> "LidMuscle":
+        """A hinge that turns nothing: each vertex with ``amounts[v] > 0`` moves by ``amounts[v]`` along ``axis`` per
+        unit ``K`` (``amounts``: (V,) [mesh units]; ``center`` plays no part in the field)."""
+        amounts = np.asarray(amounts, dtype=np.float64)
+        moved = np.flatnonzero(amounts > 0.0)
+        return cls(name, center, axis, moved, np.zeros(len(moved)), slides=amounts[moved])
+
+    @property
+    def turns(self) -> bool:
+        """Whether any vertex turns (False for :meth:`pure_slide` hinges)."""
+        return bool(np.any(self.angles))
+
     def check_vertex_count(self, vertex_count: int) -> None:
         """Raise ValueError when a vertex index is outside a mesh of ``vertex_count`` points."""
         if self.vertices.size and self.vertices.max() >= vertex_count:

@@ -79,7 +79,7 @@ def seal_fields(muscles, fields: list[np.ndarray]) -> list[np.ndarray]:
     direction = opening / parting[:, None]
     out = []
     for muscle, field in zip(muscles, fields):
-        if isinstance(muscle, LidMuscle) and (isinstance(muscle, LipSeal) or np.any(muscle.angles)):
+        if isinstance(muscle, LidMuscle) and (isinstance(muscle, LipSeal) or muscle.turns):
             out.append(field)
             continue
         closing = -np.sum((field[upper] - field[lower]) * direction, axis=1) / parting
