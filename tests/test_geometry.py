@@ -1,6 +1,7 @@
 """Shared surface math (warpface.geometry): the generic closest-point function in float32 and float64
-against an independent float64 NumPy reference, the mesh index on far and degenerate input, and the
-NumPy triangle helpers against Heron's formula and the Warp vertex-normal kernel."""
+against an independent float64 NumPy reference, the mesh index on far and degenerate input, the
+NumPy triangle helpers against Heron's formula and the Warp vertex-normal kernel, and the edge list
+against a count of every triangle's edges by hand."""
 
 import numpy as np
 import pytest
@@ -17,7 +18,7 @@ from warpface.geometry import (
     triangle_corners,
     triangle_normals,
 )
-from warpface.geometry.triangles import triangle_crosses
+from warpface.geometry.triangles import triangle_crosses, triangle_edges
 
 
 @wp.kernel
@@ -142,3 +143,28 @@ def test_triangle_helpers_match_heron_and_the_normal_kernel(rng):
     np.testing.assert_allclose(vertex, kernel, atol=2e-6)
     isolated = area_weighted_vertex_normals(np.vstack([points, [[9.0, 9.0, 9.0]]]), triangles)
     assert np.array_equal(isolated[-1], np.zeros(3))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_triangle_edges_lists_every_edge_once_with_its_triangle_count(seed):
+    rng = np.random.default_rng(seed)
+    count = int(rng.integers(3, 40))
+    triangles = np.array([rng.choice(count, 3, replace=False) for _ in range(int(rng.integers(1, 60)))])
+    tally: dict[tuple[int, int], int] = {}
+    for triangle in triangles.tolist():
+        for a, b in ((triangle[0], triangle[1]), (triangle[1], triangle[2]), (triangle[2], triangle[0])):
+            key = (min(a, b), max(a, b))
+            tally[key] = tally.get(key, 0) + 1
+    edges, counts = triangle_edges(triangles.astype(np.int32))
+    assert edges.dtype == np.int64
+    assert [tuple(edge) for edge in edges.tolist()] == sorted(tally)
+    assert counts.tolist() == [tally[key] for key in sorted(tally)]
+
+
+def test_face_mesh_open_edges_are_the_grid_s_border():
+    points, triangles = grid_surface(5)
+    mesh = FaceMesh(points, triangles)
+    border = mesh.open_edges
+    assert len(border) == 4 * (5 - 1)
+    assert len(mesh.edges) == len(border) + (len(triangles) * 3 - len(border)) // 2
+    np.testing.assert_array_equal(mesh.boundary_vertices, np.unique(border))

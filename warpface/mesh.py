@@ -15,7 +15,7 @@ import warp as wp
 
 from ._validate import as_device, as_path, as_points, as_triangles
 from .geometry import triangle_areas, triangle_corners
-from .geometry.triangles import triangle_crosses
+from .geometry.triangles import triangle_crosses, triangle_edges
 from .kernels_surface import frame_sizes, stretch_reference_lengths, triangle_area_vectors, vertex_normals_kernel
 
 __all__ = [
@@ -166,11 +166,24 @@ class FaceMesh:
         return VertexTriangleAdjacency(offsets=offsets, triangles=triangle[order])
 
     @cached_property
+    def edges(self) -> np.ndarray:
+        """The undirected edges, shape (E, 2) int64, smaller index first, sorted (:func:`triangle_edges`)."""
+        return self._edges_and_counts[0]
+
+    @cached_property
+    def open_edges(self) -> np.ndarray:
+        """The edges of one triangle (an open boundary: a mouth opening, a neck), shape (B, 2) int64, sorted."""
+        edges, counts = self._edges_and_counts
+        return edges[counts == 1]
+
+    @cached_property
+    def _edges_and_counts(self) -> tuple[np.ndarray, np.ndarray]:
+        return triangle_edges(self.triangles)
+
+    @cached_property
     def boundary_vertices(self) -> np.ndarray:
         """Indices of vertices on an open boundary (an edge used by one triangle), shape (B,), int64."""
-        edges = np.sort(self.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-        unique, counts = np.unique(edges, axis=0, return_counts=True)
-        return np.unique(unique[counts == 1])
+        return np.unique(self.open_edges)
 
     def vertex_normals(self, points: np.ndarray | None = None, *, device=None) -> np.ndarray:
         """Area-weighted unit vertex normals, shape (V, 3), float32, computed by a Warp kernel.

@@ -102,9 +102,7 @@ def _jaw_line(local_landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray, floa
 def mouth_rim_arcs(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarray):
     """The mouth opening's rim split at the corners into its (upper, lower) arcs of vertices, or None without one
     (``local``: the mesh's points, ``local_landmarks`` the 68 landmarks', in the face frame)."""
-    edges = np.sort(mesh.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    unique, counts = np.unique(edges, axis=0, return_counts=True)
-    open_edges = unique[counts == 1]
+    open_edges = mesh.open_edges
     centre = local_landmarks[60:68, :2].mean(axis=0)
     half_width = 0.5 * abs(local_landmarks[64, 0] - local_landmarks[60, 0])
     near = np.linalg.norm(local[open_edges, :2] - centre, axis=2).max(axis=1) < 1.3 * half_width
@@ -245,7 +243,7 @@ def _diffused(mesh: FaceMesh, values: np.ndarray, length: float, free: np.ndarra
     vertices; the others keep their value) to a spread of about ``length`` [mesh units]: as many steps as the
     mesh's mean edge needs, so the result does not depend on the resolution; edges follow the surface, so the
     lips stay apart across the mouth's opening."""
-    edges = np.unique(np.sort(mesh.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    edges = mesh.edges
     edge = float(np.linalg.norm(mesh.points[edges[:, 0]] - mesh.points[edges[:, 1]], axis=1).mean())
     steps = min(int(np.ceil(2.0 * (length / edge) ** 2)), _MAX_DIFFUSION_STEPS) if edge > 0.0 else 0
     count = mesh.vertex_count

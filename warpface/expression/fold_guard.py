@@ -22,6 +22,8 @@ import hashlib
 import numpy as np
 from scipy.sparse import coo_matrix
 
+from ..geometry.triangles import triangle_edges
+
 __all__ = [
     "FOLD_MARGIN",
     "FOLD_TRAVEL",
@@ -77,7 +79,7 @@ def vertex_graph(triangles: np.ndarray, count: int):
     key = (int(count), triangles.shape, triangles.dtype.str, hashlib.sha1(triangles.tobytes()).hexdigest())
     cached = _GRAPHS.get(key)
     if cached is None:  # a thread that clears the cache meanwhile costs the other one nothing but a rebuild
-        edges = np.unique(np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+        edges = triangle_edges(triangles)[0]
         rows, columns = edges.ravel(), edges[:, ::-1].ravel()
         graph = coo_matrix((np.ones(len(rows)), (rows, columns)), shape=(count, count)).tocsr()
         cached = (graph, np.maximum(np.asarray(graph.sum(axis=1)).ravel(), 1.0))
@@ -143,7 +145,10 @@ def unfolded_weights(
     weights = np.asarray(weights, dtype=np.float64).copy()
     best, since = len(triangles) + 1, 0
     for _ in range(rounds):
-        folded = folded_triangles(points, triangles, points + weights[:, None] * motion)
+        # a triangle whose corners all weigh 0 stays where it is: only the others can fold
+        moving = np.flatnonzero((weights[triangles] != 0.0).any(axis=1))
+        folded = np.zeros(len(triangles), dtype=bool)
+        folded[moving] = folded_triangles(points, triangles[moving], points + weights[:, None] * motion)
         count = int(folded.sum())
         best, since = (count, 0) if count < best else (best, since + 1)
         if count == 0 or since > _STALL_ROUNDS:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry.triangles import triangle_edges
 from .wrinkles import Wrinkle, bezier_distances, project_points
 
 __all__ = ["WRINKLE_EDGES", "drawable_widths", "vertex_edge_lengths"]
@@ -30,7 +31,7 @@ _NEAREST = 12
 
 def vertex_edge_lengths(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Mean length of the edges at each vertex (V,) [mesh units] (0 at a vertex on no triangle)."""
-    edges = np.unique(np.sort(np.asarray(triangles)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    edges = triangle_edges(triangles)[0]
     lengths = np.linalg.norm(points[edges[:, 0]] - points[edges[:, 1]], axis=1)
     total = np.bincount(edges.ravel(), np.repeat(lengths, 2), minlength=len(points))
     count = np.bincount(edges.ravel(), minlength=len(points))

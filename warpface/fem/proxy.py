@@ -48,7 +48,7 @@ import warp as wp
 
 from .._validate import as_device
 from ..geometry.surface_checks import as_surface, boundary_loops, check_surface, directed_edges, find_self_intersections
-from ..geometry.triangles import area_weighted_vertex_normals
+from ..geometry.triangles import area_weighted_vertex_normals, triangle_edges
 from .shell import fair_locally, thickness_per_vertex
 
 __all__ = ["TissueProxy", "default_center", "tissue_proxy"]
@@ -274,7 +274,7 @@ def _lipschitz(points: np.ndarray, triangles: np.ndarray, values: np.ndarray, sl
     A thickness that drops faster than the surface runs tilts the inner surface steeply over short
     triangles; limiting its slope (min-plus relaxation over the edges) keeps the inner surface
     roughly parallel to the outer."""
-    edges = np.unique(np.sort(directed_edges(triangles), axis=1), axis=0)
+    edges = triangle_edges(triangles)[0]
     bound = slope * np.linalg.norm(points[edges[:, 0]] - points[edges[:, 1]], axis=1)
     values = values.copy()
     for _ in range(len(points)):
@@ -292,7 +292,7 @@ def _relax(points: np.ndarray, triangles: np.ndarray, free: np.ndarray, iteratio
     from scipy.sparse import coo_matrix
 
     n = len(points)
-    edges = np.unique(np.sort(directed_edges(triangles), axis=1), axis=0)
+    edges = triangle_edges(triangles)[0]
     rows, cols = np.r_[edges[:, 0], edges[:, 1]], np.r_[edges[:, 1], edges[:, 0]]
     adjacency = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)).tocsr()[free]
     degree = np.asarray(adjacency.sum(axis=1))

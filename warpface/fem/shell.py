@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry.surface_checks import as_surface, boundary_loops, check_surface, directed_edges, find_self_intersections
-from ..geometry.triangles import area_weighted_vertex_normals, triangle_corners, triangle_crosses
+from ..geometry.surface_checks import as_surface, boundary_loops, check_surface, find_self_intersections
+from ..geometry.triangles import area_weighted_vertex_normals, triangle_corners, triangle_crosses, triangle_edges
 
 __all__ = ["ShellSurface", "enclosed_volume", "fair_locally", "offset_shell", "shell_defects", "thickness_per_vertex"]
 
@@ -68,7 +68,7 @@ def _offset_directions(points: np.ndarray, triangles: np.ndarray, h: np.ndarray,
 
     Starts from the vertex normals and smooths them (at most ``max_smoothing`` passes) while any
     inner triangle is flipped; ``flipped`` is all False on success."""
-    edges = np.unique(np.sort(directed_edges(triangles), axis=1), axis=0)
+    edges = triangle_edges(triangles)[0]
     outer_normals = _crosses(points, triangles)
     # float64 normals: the inward offset must reproduce the skin thickness to round-off
     directions = area_weighted_vertex_normals(points, triangles, crosses=outer_normals)
@@ -144,7 +144,7 @@ def fair_locally(
     from scipy.sparse import coo_matrix, diags
 
     n = len(points)
-    edges = np.unique(np.sort(directed_edges(triangles), axis=1), axis=0)
+    edges = triangle_edges(triangles)[0]
     boundary = np.unique(np.sort(check_surface(points, triangles, closed=False), axis=1), axis=0)
     on_boundary = np.zeros(n, dtype=np.float64)
     on_boundary[boundary.ravel()] = 1.0

@@ -15,6 +15,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .._validate import as_finite_array
+from ..geometry.triangles import triangle_edges
 from ..mesh import fan_triangles
 
 __all__ = ["HeadSurface", "polygons_to_triangles", "vertex_normals", "TWIN_AREA", "MIN_SKIN_VERTICES"]
@@ -164,9 +165,7 @@ class HeadSurface:
     @cached_property
     def skin_boundary(self) -> np.ndarray:
         """Boolean per :attr:`skin_vertices`: the vertex lies on a boundary edge (an edge of one triangle)."""
-        t = self.skin_triangles
-        edges = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
-        unique, counts = np.unique(edges, axis=0, return_counts=True)
+        unique, counts = triangle_edges(self.skin_triangles)
         on_boundary = np.zeros(len(self.points), dtype=bool)
         on_boundary[unique[counts == 1].ravel()] = True
         return on_boundary[self.skin_vertices]

@@ -24,6 +24,7 @@ from scipy.spatial import cKDTree
 
 from ..assets import default_face, default_landmarks
 from ..assets.rig import face_frame
+from ..geometry.triangles import triangle_edges
 from .surface import vertex_normals
 
 __all__ = ["Template", "template", "NODE_SPACING", "OUTLINE_BAND", "LANDMARK_POINTS"]
@@ -121,8 +122,7 @@ def _farthest_points(points: np.ndarray, seeds: np.ndarray, spacing: float) -> n
 
 def _graph(points: np.ndarray, triangles: np.ndarray, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Geodesic Voronoi cells of ``nodes`` on the mesh, and the node pairs whose cells touch."""
-    edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
-    edges = np.unique(np.sort(edges, axis=1), axis=0)
+    edges = triangle_edges(triangles)[0]
     lengths = np.linalg.norm(points[edges[:, 0]] - points[edges[:, 1]], axis=1)
     v = len(points)
     graph = coo_matrix((lengths, (edges[:, 0], edges[:, 1])), shape=(v, v)).tocsr()
