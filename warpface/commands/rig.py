@@ -45,16 +45,18 @@ def add_parser(subparsers, common) -> None:
 
 
 def _read_obj(path: Path):
+    """``(points, triangles, the OBJ's polygons)``; a file of vertices alone gives no triangles and no polygons."""
     import numpy as np
 
-    from ..mesh import load_obj
+    from ..mesh import read_obj_polygons
 
     with path.open("rb") as handle:
         head = handle.read(1 << 16)
     if not head.strip():
         raise ValueError(f"{path}: empty file; export the head mesh as OBJ or USD")
     try:
-        return load_obj(path)
+        polygons = read_obj_polygons(path)
+        return polygons.points, polygons.triangles(), polygons
     except ValueError as exc:
         if "no vertices or faces" not in str(exc):
             raise
@@ -62,7 +64,7 @@ def _read_obj(path: Path):
     vertices = sum(1 for line in text.splitlines() if line.startswith("v "))
     if vertices == 0:
         raise ValueError(f"{path}: no vertices; export the head mesh as OBJ with its geometry") from None
-    return np.zeros((vertices, 3)), np.zeros((0, 3), dtype=np.int64)
+    return np.zeros((vertices, 3)), np.zeros((0, 3), dtype=np.int64), None
 
 
 def _skin_mesh(stage, path: Path):
@@ -113,7 +115,8 @@ def _read_usd(path: Path):
 
 
 def read_head(path) -> tuple:
-    """``(points, triangles, metres per unit or None)`` of a head mesh file (OBJ or USD)."""
+    """``(points, triangles, metres per unit or None, the OBJ's polygons or None)`` of a head mesh file (OBJ or
+    USD); the polygons (:class:`~warpface.mesh.ObjPolygons`) are what an OBJ head's USD copy is written from."""
     path = Path(path)
     if path.suffix.lower() not in HEAD_SUFFIXES:
         raise ValueError(f"{path}: head meshes must be {', '.join(HEAD_SUFFIXES)}, got {path.suffix or 'none'}")
@@ -122,16 +125,16 @@ def read_head(path) -> tuple:
     if path.stat().st_size == 0:
         raise ValueError(f"{path}: empty file; export the head mesh as OBJ or USD")
     if path.suffix.lower() == ".obj":
-        return (*_read_obj(path), None)
-    return _read_usd(path)
+        points, triangles, polygons = _read_obj(path)
+        return points, triangles, None, polygons
+    return (*_read_usd(path), None)
 
 
-def _asset_link(head: Path, out: Path, points, triangles, landmarks, meters_per_unit: float, z_up: bool):
-    """``(AssetLink, OBJ polygons to copy or None, shells' vertices wholly with the head)``: the USD head's
-    largest mesh, or the OBJ's USD copy beside ``out``."""
+def _asset_link(head: Path, out: Path, points, triangles, landmarks, z_up: bool):
+    """``(AssetLink, shells' vertices wholly with the head)``: the USD head's largest mesh, or the OBJ's USD copy
+    beside ``out``."""
     import numpy as np
 
-    from ..mesh import read_obj_polygons
     from ..rigging.surface import HeadSurface
     from ..usd.asset_io import AssetLink, rigid_shell_vertices
     from ..usd.skin_followers import embed_on_skin
@@ -145,8 +148,7 @@ def _asset_link(head: Path, out: Path, points, triangles, landmarks, meters_per_
         copy = out.with_name(f"{head.stem}_asset.usdc")
         if copy.resolve() == out.resolve():
             raise ValueError(f"--out {out}: is the name of the head's USD copy; choose another name")
-        link = AssetLink(copy.resolve(), "", "Z" if z_up else "Y", rigid, jaw, **extra)
-        return link, read_obj_polygons(head), still
+        return AssetLink(copy.resolve(), "", "Z" if z_up else "Y", rigid, jaw, **extra), still
     from pxr import UsdGeom
 
     from ..usd import open_stage
@@ -154,7 +156,7 @@ def _asset_link(head: Path, out: Path, points, triangles, landmarks, meters_per_
     stage = open_stage(head)
     mesh = _skin_mesh(stage, head).GetPrim()
     link = AssetLink(head.resolve(), str(mesh.GetPath()), UsdGeom.GetStageUpAxis(stage), rigid, jaw, **extra)
-    return link, None, still
+    return link, still
 
 
 def _unit_name(meters_per_unit: float) -> str | None:
@@ -186,7 +188,7 @@ def run(args) -> int:
     if preview is not None and preview.suffix.lower() != ".png":
         raise ValueError(f"--preview {preview}: the picture must be a .png")
     up, front = parse_axis(args.up, "--up"), parse_axis(args.front, "--front")
-    points, triangles, stage_unit = read_head(args.head)
+    points, triangles, stage_unit, polygons = read_head(args.head)
     label = str(args.head)
     units = args.units or (_unit_name(stage_unit) if stage_unit else None)
     if args.landmarks is None:
@@ -223,9 +225,9 @@ def run(args) -> int:
 
     up_axis = up if up is not None else (found.up if args.landmarks is None else None)
     z_up = up_axis is not None and abs(up_axis[2]) > max(abs(up_axis[0]), abs(up_axis[1]))
-    link, polygons, still = None, None, None
+    link, still = None, None
     if not args.embed:
-        link, polygons, still = _asset_link(Path(args.head), out, points, triangles, landmarks, meters_per_unit, z_up)
+        link, still = _asset_link(Path(args.head), out, points, triangles, landmarks, z_up)
     if link is not None and rig.jaw is not None:  # rigid shells wholly below the lips with the jaw, above without
         weights = rig.jaw.weights.copy()
         weights[still] = 0.0
@@ -254,7 +256,7 @@ def run(args) -> int:
     if z_up:
         UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
     out.parent.mkdir(parents=True, exist_ok=True)
-    if polygons is not None:
+    if link is not None and polygons is not None:
         write_obj_asset(
             polygons, link.path, name=Path(args.head).stem, meters_per_unit=meters_per_unit, up_axis=link.up_axis
         )

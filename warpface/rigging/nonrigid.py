@@ -104,10 +104,13 @@ def _smoothness(model: Template) -> sp.csr_matrix:
 
 def _backward(points, normals, template_outline, skin: SkinTarget, limit: float):
     """Skin → template matches: (template vertex of each kept skin point, that skin point)."""
-    distance, index = cKDTree(points).query(skin.points)
-    facing = np.sum(normals[index] * skin.normals, axis=1)
-    keep = (distance < limit) & (facing > FACING) & ~template_outline[index] & ~skin.boundary
-    return index[keep], skin.points[keep]
+    # skin farther than the limit is dropped anyway: the search stops there (a whole head's scalp and neck)
+    distance, index = cKDTree(points).query(skin.points, distance_upper_bound=limit)
+    near = np.flatnonzero(distance < limit)
+    index = index[near]
+    facing = np.sum(normals[index] * skin.normals[near], axis=1)
+    keep = (facing > FACING) & ~template_outline[index] & ~skin.boundary[near]
+    return index[keep], skin.points[near[keep]]
 
 
 def fit_nonrigid(model: Template, skin: SkinTarget, *, stiffness=None, rounds: int | None = None) -> NonRigidFit:

@@ -112,12 +112,15 @@ def _farthest_points(points: np.ndarray, seeds: np.ndarray, spacing: float) -> n
     than ``spacing`` from the chosen ones."""
     chosen = list(np.unique(seeds))
     distance = np.min(np.linalg.norm(points[:, None, :] - points[chosen][None, :, :], axis=2), axis=1)
+    tree = cKDTree(points)
     while True:
         far = int(np.argmax(distance))
         if distance[far] <= spacing:
             return np.asarray(chosen, dtype=np.int64)
         chosen.append(far)
-        distance = np.minimum(distance, np.linalg.norm(points - points[far], axis=1))
+        # only points nearer the new sample than the farthest distance so far can come nearer to the samples
+        near = np.asarray(tree.query_ball_point(points[far], distance[far]), dtype=np.int64)
+        distance[near] = np.minimum(distance[near], np.linalg.norm(points[near] - points[far], axis=1))
 
 
 def _graph(points: np.ndarray, triangles: np.ndarray, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
