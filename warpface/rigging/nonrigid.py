@@ -65,7 +65,7 @@ class SkinTarget:
         together, ``‖p − s‖² + λ² ‖n − n_s‖²``: (distance in space (N,), skin index (N,))."""
         if NORMAL_WEIGHT <= 0.0:
             return self.tree.query(points)
-        index = self.oriented.query(np.hstack([points, NORMAL_WEIGHT * normals]))[1]
+        index = self.oriented.query(np.hstack([points, NORMAL_WEIGHT * normals]), workers=-1)[1]
         return np.linalg.norm(points - self.points[index], axis=1), index
 
 
@@ -105,7 +105,7 @@ def _smoothness(model: Template) -> sp.csr_matrix:
 def _backward(points, normals, template_outline, skin: SkinTarget, limit: float):
     """Skin → template matches: (template vertex of each kept skin point, that skin point)."""
     # skin farther than the limit is dropped anyway: the search stops there (a whole head's scalp and neck)
-    distance, index = cKDTree(points).query(skin.points, distance_upper_bound=limit)
+    distance, index = cKDTree(points).query(skin.points, distance_upper_bound=limit, workers=-1)
     near = np.flatnonzero(distance < limit)
     index = index[near]
     facing = np.sum(normals[index] * skin.normals[near], axis=1)
