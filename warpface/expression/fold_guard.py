@@ -56,8 +56,18 @@ for a while before the next lowers it)."""
 
 
 def _area_vectors(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    p = points[triangles]
-    return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    """Twice the area vectors (T, 3): ``(p₁ − p₀) × (p₂ − p₀)``, written out (the same products and differences as
+    ``np.cross``, whose axis handling costs more than the arithmetic on the guards' small triangle sets)."""
+    first, second, third = points[triangles[:, 0]], points[triangles[:, 1]], points[triangles[:, 2]]
+    u, v = second - first, third - first
+    return np.stack(
+        [
+            u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1],
+            u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2],
+            u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0],
+        ],
+        axis=1,
+    )
 
 
 def folded_triangles(points: np.ndarray, triangles: np.ndarray, moved: np.ndarray, margin: float = FOLD_MARGIN):
@@ -189,8 +199,8 @@ def equalized_weights(
     motions = np.asarray(motions, dtype=np.float64)
     motions = motions[None] if motions.ndim == 2 else motions
 
-    def moved(values: np.ndarray, motion: np.ndarray) -> np.ndarray:
-        return points + values[:, None] * motion
+    def moved(values: np.ndarray, motion: np.ndarray, at: np.ndarray) -> np.ndarray:
+        return points[at] + values[at, None] * motion[at]
 
     return _equalized(points, triangles, weights, motions, moved, free, rounds)
 
@@ -218,9 +228,9 @@ def equalized_field(
     groups = [slice(None)] + ([slice(3 * i, 3 * i + 3) for i in range(parts)] if each and parts > 1 else [])
     motions = [(k, group) for k in scales for group in groups]
 
-    def moved(values: np.ndarray, motion) -> np.ndarray:
+    def moved(values: np.ndarray, motion, at: np.ndarray) -> np.ndarray:
         scale, group = motion
-        return points + scale * values[:, group].reshape(len(values), -1, 3).sum(axis=1)
+        return points[at] + scale * values[at][:, group].reshape(len(at), -1, 3).sum(axis=1)
 
     return _equalized(points, triangles, field, motions, moved, free, rounds, margin)
 
@@ -246,26 +256,49 @@ def ladder_equalized(points: np.ndarray, triangles: np.ndarray, field: np.ndarra
     return field
 
 
+def _any_per_row(mask: np.ndarray) -> np.ndarray:
+    """``mask.any(axis=1)`` of a (N, k) bool array, column by column (NumPy's row-wise reduce is slow for small k)."""
+    rows = mask[:, 0].copy()
+    for column in range(1, mask.shape[1]):
+        rows |= mask[:, column]
+    return rows
+
+
+def _touching(vertices: np.ndarray, corners: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """Per triangle (T,) bool: some corner is set in ``vertices`` (V,) bool; ``corners``: the triangles' three
+    corner columns, each (T,) contiguous."""
+    return vertices[corners[0]] | vertices[corners[1]] | vertices[corners[2]]
+
+
 def _equalized(points, triangles, values, motions, moved, free, rounds, margin=FOLD_MARGIN) -> np.ndarray:
-    """The rounds of :func:`equalized_weights` over per-vertex ``values`` (V,) or (V, k); ``moved(values, motion)``
-    gives the moved points (V, 3) for each of ``motions``."""
+    """The rounds of :func:`equalized_weights` over per-vertex ``values`` (V,) or (V, k); ``moved(values, motion, at)``
+    gives the moved points (len(at), 3) of the vertices ``at`` for each of ``motions``."""
     values = values.copy()
     count = len(points)
-    rest = _area_vectors(points, triangles)
-    area = np.einsum("ti,ti->t", rest, rest)
+    # rest area vectors of the triangles asked about so far: a muscle's field touches a small part of a face
+    rest, known = np.zeros((len(triangles), 3)), np.zeros(len(triangles), dtype=bool)
 
     def folds(subset: np.ndarray) -> np.ndarray:
         """Whether some motion folds each triangle of ``subset`` (indices) at the current values."""
+        if len(subset) == 0:
+            return np.zeros(0, dtype=bool)
+        missing = subset[~known[subset]]
+        rest[missing], known[missing] = _area_vectors(points, triangles[missing]), True
+        before = rest[subset]
+        area = np.einsum("ti,ti->t", before, before)
+        corners, local = np.unique(triangles[subset], return_inverse=True)
+        local = local.reshape(-1, 3)
         out = np.zeros(len(subset), dtype=bool)
         for motion in motions:
-            turned = _area_vectors(moved(values, motion), triangles[subset])
-            out |= (area[subset] > 0.0) & (np.einsum("ti,ti->t", turned, rest[subset]) < margin * area[subset])
+            turned = _area_vectors(moved(values, motion, corners), local)
+            out |= (area > 0.0) & (np.einsum("ti,ti->t", turned, before) < margin * area)
         return out
 
     # a triangle whose corners no field moves stays where it is under every motion: only the others can fold
-    support = np.any(values.reshape(count, -1) != 0.0, axis=1)
+    support = _any_per_row(values.reshape(count, -1) != 0.0)
     folded = np.zeros(len(triangles), dtype=bool)
-    touched = np.flatnonzero(support[triangles].any(axis=1))
+    columns = tuple(np.ascontiguousarray(triangles[:, k]) for k in range(3))
+    touched = np.flatnonzero(_touching(support, columns))
     folded[touched] = folds(touched)
     best, since, kept = int(folded.sum()), 0, values.copy()
     for _ in range(rounds):
@@ -286,8 +319,8 @@ def _equalized(points, triangles, values, motions, moved, free, rounds, margin=F
         if free is not None:
             update = update & (free if free.ndim == values.ndim else free.reshape(shape))
         values = np.where(update, total / np.maximum(hits, 1).reshape(shape), values)
-        moved_any = update.reshape(count, -1).any(axis=1)
-        near = np.flatnonzero(moved_any[triangles].any(axis=1))  # only these triangles can have changed
+        moved_any = _any_per_row(update.reshape(count, -1))
+        near = np.flatnonzero(_touching(moved_any, columns))  # only these triangles can have changed
         folded[near] = folds(near)
         if folded.sum() < best:
             best, since, kept = int(folded.sum()), 0, values.copy()
