@@ -34,6 +34,8 @@ __all__ = [
     "folded_triangles",
     "unfolded_response",
     "unfolded_weights",
+    "corner_columns",
+    "touching_triangles",
     "vertex_graph",
 ]
 
@@ -264,10 +266,14 @@ def _any_per_row(mask: np.ndarray) -> np.ndarray:
     return rows
 
 
-def _touching(vertices: np.ndarray, corners: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
-    """Per triangle (T,) bool: some corner is set in ``vertices`` (V,) bool; ``corners``: the triangles' three
-    corner columns, each (T,) contiguous."""
-    return vertices[corners[0]] | vertices[corners[1]] | vertices[corners[2]]
+def corner_columns(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The triangles' (T, 3) three corner columns, each (T,) contiguous: what :func:`touching_triangles` reads."""
+    return tuple(np.ascontiguousarray(triangles[:, k]) for k in range(3))
+
+
+def touching_triangles(vertices: np.ndarray, columns: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """Per triangle (T,) bool: some corner is set in ``vertices`` (V,) bool; ``columns``: :func:`corner_columns`."""
+    return vertices[columns[0]] | vertices[columns[1]] | vertices[columns[2]]
 
 
 def _equalized(points, triangles, values, motions, moved, free, rounds, margin=FOLD_MARGIN) -> np.ndarray:
@@ -297,8 +303,8 @@ def _equalized(points, triangles, values, motions, moved, free, rounds, margin=F
     # a triangle whose corners no field moves stays where it is under every motion: only the others can fold
     support = _any_per_row(values.reshape(count, -1) != 0.0)
     folded = np.zeros(len(triangles), dtype=bool)
-    columns = tuple(np.ascontiguousarray(triangles[:, k]) for k in range(3))
-    touched = np.flatnonzero(_touching(support, columns))
+    columns = corner_columns(triangles)
+    touched = np.flatnonzero(touching_triangles(support, columns))
     folded[touched] = folds(touched)
     best, since, kept = int(folded.sum()), 0, values.copy()
     for _ in range(rounds):
@@ -320,7 +326,7 @@ def _equalized(points, triangles, values, motions, moved, free, rounds, margin=F
             update = update & (free if free.ndim == values.ndim else free.reshape(shape))
         values = np.where(update, total / np.maximum(hits, 1).reshape(shape), values)
         moved_any = _any_per_row(update.reshape(count, -1))
-        near = np.flatnonzero(_touching(moved_any, columns))  # only these triangles can have changed
+        near = np.flatnonzero(touching_triangles(moved_any, columns))  # only these triangles can have changed
         folded[near] = folds(near)
         if folded.sum() < best:
             best, since, kept = int(folded.sum()), 0, values.copy()

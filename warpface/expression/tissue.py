@@ -32,7 +32,14 @@ import warp as wp
 from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
-from .fold_guard import FOLD_TRAVEL, equalized_field, ladder_equalized, unfolded_response
+from .fold_guard import (
+    FOLD_TRAVEL,
+    corner_columns,
+    equalized_field,
+    ladder_equalized,
+    touching_triangles,
+    unfolded_response,
+)
 from .formulas import bunching_pull, sliding_pull, thickening_pull
 from .muscles import Muscle, MuscleWeights
 
@@ -302,9 +309,10 @@ def unfolded_fields(mesh, muscles: Sequence[Muscle], weights: MuscleWeights) -> 
         fields.append(field)
     # Two hinges of one eye close it together (a blink): a triangle between their fields can fold under both.
     hinges = [i for i, m in enumerate(muscles) if isinstance(m, LidMuscle)]
-    moving = {i: np.any(fields[i] != 0.0, axis=1) for i in hinges}
+    columns = corner_columns(triangles)
+    moving = {i: touching_triangles(np.any(fields[i] != 0.0, axis=1), columns) for i in hinges}
     for a, b in ((a, b) for a in hinges for b in hinges if a < b):
-        if not np.any(moving[a][triangles].any(axis=1) & moving[b][triangles].any(axis=1)):
+        if not np.any(moving[a] & moving[b]):
             continue
         free = _pair_free(len(points), muscles[a], muscles[b])
         pair = np.concatenate([fields[a], fields[b]], axis=1)
