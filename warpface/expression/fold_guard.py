@@ -81,23 +81,40 @@ def folded_triangles(points: np.ndarray, triangles: np.ndarray, moved: np.ndarra
     return (area > 0.0) & (along < margin * area)
 
 
-_GRAPHS: dict = {}
-"""The last mesh's :func:`vertex_graph`: a rig's guards ask for it once per muscle (the edge sort cost 0.1 s each)."""
+_TOPOLOGY: dict = {}
+"""The last mesh's :func:`_topology`: a rig's guards ask for it once per muscle (the edge sort cost 0.1 s each)."""
 
 
-def vertex_graph(triangles: np.ndarray, count: int):
-    """(adjacency CSR over the mesh's edges, degree per vertex ≥ 1); read-only (the last mesh's is reused)."""
+def _topology(triangles: np.ndarray, count: int) -> tuple:
+    """(edge adjacency CSR, degree per vertex ≥ 1, vertex → triangle offsets (V + 1,), triangle ids (3T,)) of a
+    mesh; read-only (the last mesh's is reused)."""
     triangles = np.ascontiguousarray(triangles)
     key = (int(count), triangles.shape, triangles.dtype.str, hashlib.sha1(triangles.tobytes()).hexdigest())
-    cached = _GRAPHS.get(key)
+    cached = _TOPOLOGY.get(key)
     if cached is None:  # a thread that clears the cache meanwhile costs the other one nothing but a rebuild
         edges = triangle_edges(triangles)[0]
         rows, columns = edges.ravel(), edges[:, ::-1].ravel()
         graph = coo_matrix((np.ones(len(rows)), (rows, columns)), shape=(count, count)).tocsr()
-        cached = (graph, np.maximum(np.asarray(graph.sum(axis=1)).ravel(), 1.0))
-        _GRAPHS.clear()
-        _GRAPHS[key] = cached
+        corners = triangles.ravel()
+        order = np.argsort(corners, kind="stable")
+        offsets = np.zeros(count + 1, dtype=np.int64)
+        np.cumsum(np.bincount(corners, minlength=count), out=offsets[1:])
+        cached = (graph, np.maximum(np.asarray(graph.sum(axis=1)).ravel(), 1.0), offsets, order // 3)
+        _TOPOLOGY.clear()
+        _TOPOLOGY[key] = cached
     return cached
+
+
+def vertex_graph(triangles: np.ndarray, count: int):
+    """(adjacency CSR over the mesh's edges, degree per vertex ≥ 1); read-only (the last mesh's is reused)."""
+    return _topology(triangles, count)[:2]
+
+
+def _triangles_of(vertices: np.ndarray, offsets: np.ndarray, triangle_ids: np.ndarray) -> np.ndarray:
+    """The triangles with a corner among ``vertices`` (indices), sorted and unique (:func:`_topology`'s tables)."""
+    starts, lengths = offsets[vertices], offsets[vertices + 1] - offsets[vertices]
+    within = np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    return np.unique(triangle_ids[np.repeat(starts, lengths) + within])
 
 
 def unfolded_response(
@@ -303,33 +320,35 @@ def _equalized(points, triangles, values, motions, moved, free, rounds, margin=F
     # a triangle whose corners no field moves stays where it is under every motion: only the others can fold
     support = _any_per_row(values.reshape(count, -1) != 0.0)
     folded = np.zeros(len(triangles), dtype=bool)
-    columns = corner_columns(triangles)
-    touched = np.flatnonzero(touching_triangles(support, columns))
+    touched = np.flatnonzero(touching_triangles(support, corner_columns(triangles)))
     folded[touched] = folds(touched)
-    best, since, kept = int(folded.sum()), 0, values.copy()
+    offsets, triangle_ids = _topology(triangles, count)[2:]
+    folded_count = int(folded.sum())
+    best, since, kept = folded_count, 0, values.copy()
     for _ in range(rounds):
-        if not folded.any() or since > _EQUAL_STALL_ROUNDS:
+        if folded_count == 0 or since > _EQUAL_STALL_ROUNDS:
             break
-        corners = triangles[folded]
+        corners = triangles[np.flatnonzero(folded)]
         means = np.repeat(values[corners].mean(axis=1), 3, axis=0)
-        hits = np.bincount(corners.ravel(), minlength=count)
-        changed = hits > 0
+        # per corner vertex, in the order the corners come (so the sums add up as they would over all vertices)
+        hit, slot = np.unique(corners.ravel(), return_inverse=True)
+        hits = np.bincount(slot)
         if values.ndim == 1:
-            total = np.bincount(corners.ravel(), means, minlength=count)
+            total = np.bincount(slot, means)
         else:
-            total = np.stack(
-                [np.bincount(corners.ravel(), means[:, k], minlength=count) for k in range(values.shape[1])], axis=1
-            )
+            total = np.stack([np.bincount(slot, means[:, k]) for k in range(values.shape[1])], axis=1)
         shape = (-1,) + (1,) * (values.ndim - 1)
-        update = changed.reshape(shape)
+        update = np.ones((len(hit),) + (1,) * (values.ndim - 1), dtype=bool)
         if free is not None:
-            update = update & (free if free.ndim == values.ndim else free.reshape(shape))
-        values = np.where(update, total / np.maximum(hits, 1).reshape(shape), values)
-        moved_any = _any_per_row(update.reshape(count, -1))
-        near = np.flatnonzero(touching_triangles(moved_any, columns))  # only these triangles can have changed
-        folded[near] = folds(near)
-        if folded.sum() < best:
-            best, since, kept = int(folded.sum()), 0, values.copy()
+            update = update & (free[hit] if free.ndim == values.ndim else free[hit].reshape(shape))
+        values[hit] = np.where(update, total / hits.reshape(shape), values[hit])
+        moved_vertices = hit[_any_per_row(update.reshape(len(hit), -1))]
+        near = _triangles_of(moved_vertices, offsets, triangle_ids)  # only these triangles can have changed
+        now = folds(near)
+        folded_count += int(now.sum()) - int(folded[near].sum())
+        folded[near] = now
+        if folded_count < best:
+            best, since, kept = folded_count, 0, values.copy()
         else:
             since += 1
     return kept
