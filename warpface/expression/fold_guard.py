@@ -265,7 +265,8 @@ def ladder_equalized(points: np.ndarray, triangles: np.ndarray, field: np.ndarra
     for step in range(LADDER_STEPS - 1, -1, -1):
         scales = [*done, contraction * 0.5**step]
         trial = equalized_field(points, triangles, field, scales)
-        touched = triangles[np.any(trial != 0.0, axis=1)[triangles].any(axis=1)]  # no other triangle moves
+        moving = _any_per_row(trial != 0.0)
+        touched = triangles[touching_triangles(moving, corner_columns(triangles))]  # no other triangle moves
         left = [folded_triangles(points, touched, points + k * trial).any() for k in scales]
         if any(left[:-1]):
             break
