@@ -5,7 +5,8 @@ Rows (seconds, wall, on the CPU):
 - ``warpface rig`` of the whole ICT head (26.7k vertices, quads, 56 shells) as a user types it: the command in a
   fresh process, interpreter start and imports included;
 - inside one process: :func:`~warpface.rigging.find_landmarks` on that head (the registration template built
-  beforehand), :func:`~warpface.assets.default_rig` on the built-in face, the ICT face region and the Lee
+  beforehand), :func:`~warpface.assets.default_rig` on the built-in face, the ICT face region, the whole ICT head
+  (the skin and its 55 other shells in one mesh, as ``warpface animate --rig`` builds it for that head) and the Lee
   Perry-Smith scan (its landmarks found), and ``rig.model(device="cpu")`` on each (the rig-time fields: tissue
   response, fold and lift guards, the lips' seal).
 
@@ -56,6 +57,8 @@ def measure(tree: Path) -> dict[str, float]:
     faces = [("built-in face", default_face(), default_landmarks())]
     points, triangles = load_obj(shared_data_path("ict_facekit", "face_region_tri", "neutral.obj"))
     faces.append(("ICT face", FaceMesh(points, triangles, degenerate="ignore"), ict_landmark_indices()))
+    points, triangles = load_obj(shared_data_path(*HEAD))
+    faces.append(("whole ICT head", FaceMesh(points, triangles, degenerate="ignore"), ict_landmark_indices()))
     points, triangles = load_obj(shared_data_path("lee_perry_smith", "LeePerrySmith.obj"))
     found = find_landmarks(points, triangles).indices
     faces.append(("Lee Perry-Smith", FaceMesh(points, triangles, degenerate="ignore"), found))
