@@ -172,10 +172,10 @@ def unfolded_weights(
     lips' weights meet). Only the ``free`` vertices (V,) bool (default: all) change. Returns values in [0, 1]."""
     graph, degree = vertex_graph(triangles, len(points))
     weights = np.asarray(weights, dtype=np.float64).copy()
-    best, since = len(triangles) + 1, 0
+    best, since, columns = len(triangles) + 1, 0, corner_columns(triangles)
     for _ in range(rounds):
         # a triangle whose corners all weigh 0 stays where it is: only the others can fold
-        moving = np.flatnonzero((weights[triangles] != 0.0).any(axis=1))
+        moving = np.flatnonzero(touching_triangles(weights != 0.0, columns))
         folded = np.zeros(len(triangles), dtype=bool)
         folded[moving] = folded_triangles(points, triangles[moving], points + weights[:, None] * motion)
         count = int(folded.sum())
