@@ -18,7 +18,7 @@ from warpface.geometry import (
     triangle_corners,
     triangle_normals,
 )
-from warpface.geometry.triangles import triangle_crosses, triangle_edges
+from warpface.geometry.triangles import triangle_crosses, triangle_edges, vertex_triangles
 
 
 @wp.kernel
@@ -168,3 +168,12 @@ def test_face_mesh_open_edges_are_the_grid_s_border():
     assert len(border) == 4 * (5 - 1)
     assert len(mesh.edges) == len(border) + (len(triangles) * 3 - len(border)) // 2
     np.testing.assert_array_equal(mesh.boundary_vertices, np.unique(border))
+
+
+def test_vertex_triangles_lists_each_vertex_s_triangles_in_order():
+    points, triangles = grid_surface(6)
+    offsets, ids = vertex_triangles(triangles, len(points) + 2)  # two vertices on no triangle
+    assert offsets[0] == 0 and offsets[-1] == 3 * len(triangles) and len(offsets) == len(points) + 3
+    for vertex in range(len(points) + 2):
+        expected = [t for t, triangle in enumerate(triangles.tolist()) if vertex in triangle]
+        assert ids[offsets[vertex] : offsets[vertex + 1]].tolist() == expected

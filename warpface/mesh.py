@@ -15,7 +15,7 @@ import warp as wp
 
 from ._validate import as_device, as_path, as_points, as_triangles
 from .geometry import triangle_areas, triangle_corners
-from .geometry.triangles import triangle_crosses, triangle_edges
+from .geometry.triangles import triangle_crosses, triangle_edges, vertex_triangles
 from .kernels_surface import frame_sizes, stretch_reference_lengths, triangle_area_vectors, vertex_normals_kernel
 
 __all__ = [
@@ -158,12 +158,8 @@ class FaceMesh:
     @cached_property
     def adjacency(self) -> VertexTriangleAdjacency:
         """Vertex → incident-triangle CSR adjacency."""
-        vertex = self.triangles.reshape(-1).astype(np.int64)
-        triangle = np.repeat(np.arange(self.triangle_count, dtype=np.int32), 3)
-        order = np.argsort(vertex, kind="stable")
-        offsets = np.zeros(self.vertex_count + 1, dtype=np.int32)
-        np.cumsum(np.bincount(vertex, minlength=self.vertex_count), out=offsets[1:])
-        return VertexTriangleAdjacency(offsets=offsets, triangles=triangle[order])
+        offsets, triangles = vertex_triangles(self.triangles, self.vertex_count)
+        return VertexTriangleAdjacency(offsets=offsets.astype(np.int32), triangles=triangles.astype(np.int32))
 
     @cached_property
     def edges(self) -> np.ndarray:

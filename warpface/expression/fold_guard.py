@@ -22,7 +22,7 @@ import hashlib
 import numpy as np
 from scipy.sparse import coo_matrix
 
-from ..geometry.triangles import triangle_edges
+from ..geometry.triangles import triangle_edges, vertex_triangles
 
 __all__ = [
     "FOLD_MARGIN",
@@ -95,11 +95,7 @@ def _topology(triangles: np.ndarray, count: int) -> tuple:
         edges = triangle_edges(triangles)[0]
         rows, columns = edges.ravel(), edges[:, ::-1].ravel()
         graph = coo_matrix((np.ones(len(rows)), (rows, columns)), shape=(count, count)).tocsr()
-        corners = triangles.ravel()
-        order = np.argsort(corners, kind="stable")
-        offsets = np.zeros(count + 1, dtype=np.int64)
-        np.cumsum(np.bincount(corners, minlength=count), out=offsets[1:])
-        cached = (graph, np.maximum(np.asarray(graph.sum(axis=1)).ravel(), 1.0), offsets, order // 3)
+        cached = (graph, np.maximum(np.asarray(graph.sum(axis=1)).ravel(), 1.0), *vertex_triangles(triangles, count))
         _TOPOLOGY.clear()
         _TOPOLOGY[key] = cached
     return cached

@@ -20,6 +20,7 @@ __all__ = [
     "triangle_normals",
     "area_weighted_vertex_normals",
     "triangle_edges",
+    "vertex_triangles",
 ]
 
 
@@ -100,3 +101,12 @@ def triangle_edges(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     span = int(pairs.max()) + 1 if len(pairs) else 1
     keys, counts = np.unique(pairs[:, 0] * span + pairs[:, 1], return_counts=True)
     return np.stack([keys // span, keys % span], axis=1), counts
+
+
+def vertex_triangles(triangles: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex → incident triangles as CSR: ``(offsets (count + 1,), triangle ids (3T,))``, both int64; the triangles of
+    vertex ``v`` are ``ids[offsets[v]:offsets[v + 1]]``, in increasing order."""
+    corners = np.asarray(triangles, dtype=np.int64).reshape(-1)
+    offsets = np.zeros(count + 1, dtype=np.int64)
+    np.cumsum(np.bincount(corners, minlength=count), out=offsets[1:])
+    return offsets, np.argsort(corners, kind="stable") // 3
