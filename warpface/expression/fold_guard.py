@@ -135,16 +135,19 @@ def fold_blend(
     once over the edges (``g ← min(g, mean of the neighbours + ½)``), so the response fades out over a ring
     instead of stopping at one edge; at most :data:`_GUARD_ROUNDS` rounds.
     """
-    kept = ~folded_triangles(points, triangles, points + contraction * zone)
+    # a triangle whose corners neither field moves stays where it is: only the others can fold
+    moving = _any_per_row(zone != 0.0) | _any_per_row(response != 0.0)
+    near = triangles[touching_triangles(moving, corner_columns(triangles))]
+    kept = ~folded_triangles(points, near, points + contraction * zone)
     graph, degree = vertex_graph(triangles, len(points))
     blend = np.ones(len(points))
     field = response
     for _ in range(_GUARD_ROUNDS):
-        folded = kept & folded_triangles(points, triangles, points + contraction * field)
+        folded = kept & folded_triangles(points, near, points + contraction * field)
         if not folded.any():
             break
         eased = np.zeros(len(points), dtype=bool)
-        eased[triangles[folded].ravel()] = True
+        eased[near[folded].ravel()] = True
         eased |= graph @ eased > 0
         blend[eased] = 0.0
         blend = np.minimum(blend, (graph @ blend) / degree + 0.5)
