@@ -25,6 +25,7 @@ from scipy.sparse import coo_matrix
 from ..geometry.triangles import triangle_edges, vertex_triangles
 
 __all__ = [
+    "area_vectors",
     "FOLD_MARGIN",
     "FOLD_TRAVEL",
     "equalized_field",
@@ -57,7 +58,7 @@ for a while before the next lowers it)."""
 """Most rounds of :func:`equalized_weights` (81 on the ICT face's jaw, 27 on the Lee Perry-Smith scan's)."""
 
 
-def _area_vectors(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+def area_vectors(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Twice the area vectors (T, 3): ``(p₁ − p₀) × (p₂ − p₀)``, written out (the same products and differences as
     ``np.cross``, whose axis handling costs more than the arithmetic on the guards' small triangle sets)."""
     first, second, third = points[triangles[:, 0]], points[triangles[:, 1]], points[triangles[:, 2]]
@@ -75,9 +76,9 @@ def _area_vectors(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
 def folded_triangles(points: np.ndarray, triangles: np.ndarray, moved: np.ndarray, margin: float = FOLD_MARGIN):
     """Per triangle, whether ``moved`` folds it against ``points`` (module docstring), shape (T,) bool; triangles of
     zero rest area never fold."""
-    rest = _area_vectors(points, triangles)
+    rest = area_vectors(points, triangles)
     area = np.einsum("ti,ti->t", rest, rest)
-    along = np.einsum("ti,ti->t", _area_vectors(moved, triangles), rest)
+    along = np.einsum("ti,ti->t", area_vectors(moved, triangles), rest)
     return (area > 0.0) & (along < margin * area)
 
 
@@ -306,14 +307,14 @@ def _equalized(points, triangles, values, motions, moved, free, rounds, margin=F
         if len(subset) == 0:
             return np.zeros(0, dtype=bool)
         missing = subset[~known[subset]]
-        rest[missing], known[missing] = _area_vectors(points, triangles[missing]), True
+        rest[missing], known[missing] = area_vectors(points, triangles[missing]), True
         before = rest[subset]
         area = np.einsum("ti,ti->t", before, before)
         corners, local = np.unique(triangles[subset], return_inverse=True)
         local = local.reshape(-1, 3)
         out = np.zeros(len(subset), dtype=bool)
         for motion in motions:
-            turned = _area_vectors(moved(values, motion, corners), local)
+            turned = area_vectors(moved(values, motion, corners), local)
             out |= (area > 0.0) & (np.einsum("ti,ti->t", turned, before) < margin * area)
         return out
 

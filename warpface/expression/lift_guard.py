@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .fold_guard import FOLD_TRAVEL, folded_triangles, vertex_graph
+from .fold_guard import FOLD_TRAVEL, area_vectors, folded_triangles, vertex_graph
 
 __all__ = [
     "JAW_FOLD_ANGLE",
@@ -39,10 +39,8 @@ _FADE_STEP = 0.25
 def _stretch_and_normals(points: np.ndarray, triangles: np.ndarray, moved: np.ndarray):
     """SPEC §1.2 in float64: ``r`` (V,), the mean area ratio of the incident triangles (1 without any), and
     ``N`` (V, 3), the unit sum of their area vectors (0 where it vanishes)."""
-    rest = points[triangles]
-    rest_area = np.linalg.norm(np.cross(rest[:, 1] - rest[:, 0], rest[:, 2] - rest[:, 0]), axis=1)
-    p = moved[triangles]
-    area = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    rest_area = np.linalg.norm(area_vectors(points, triangles), axis=1)
+    area = area_vectors(moved, triangles)
     ratio = np.linalg.norm(area, axis=1) / rest_area
     corners = triangles.ravel()
     count = np.bincount(corners, minlength=len(points))
