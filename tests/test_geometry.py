@@ -18,7 +18,7 @@ from warpface.geometry import (
     triangle_corners,
     triangle_normals,
 )
-from warpface.geometry.triangles import triangle_crosses, triangle_edges, vertex_triangles
+from warpface.geometry.triangles import triangle_crosses, triangle_edges, vertex_shells, vertex_triangles
 
 
 @wp.kernel
@@ -177,3 +177,24 @@ def test_vertex_triangles_lists_each_vertex_s_triangles_in_order():
     for vertex in range(len(points) + 2):
         expected = [t for t, triangle in enumerate(triangles.tolist()) if vertex in triangle]
         assert ids[offsets[vertex] : offsets[vertex + 1]].tolist() == expected
+
+
+def test_vertex_shells_join_exactly_the_vertices_a_path_of_edges_joins():
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        count = int(rng.integers(3, 40))
+        triangles = np.array([rng.choice(count, 3, replace=False) for _ in range(int(rng.integers(1, 12)))])
+        shells = vertex_shells(triangles, count + 1)  # one vertex on no triangle
+        root = list(range(count + 1))  # union-find by hand
+
+        def find(v, root=root):
+            while root[v] != v:
+                v = root[v]
+            return v
+
+        for a, b, c in triangles.tolist():
+            for u, v in ((a, b), (b, c)):
+                root[find(u)] = find(v)
+        for u in range(count + 1):
+            for v in range(count + 1):
+                assert (shells[u] == shells[v]) == (find(u) == find(v))

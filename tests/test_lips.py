@@ -196,3 +196,27 @@ def test_the_mouth_close_share_is_a_product_of_the_channels_and_the_jaw():
         max(half_open, 0.5 * (half_open - rest) + 0.25 * rest),
     ]
     np.testing.assert_allclose(shares, expected, rtol=1e-12)
+
+
+def test_a_whole_head_s_lips_part_at_their_slit_not_at_the_mouth_socket_s_rim():
+    """The whole ICT head's lips touch along a slit, and its mouth socket, gums and teeth are shells of their own
+    whose open rims lie in front of the mouth too. The jaw's lip-side term must come from the lips' own slit: when
+    it took the socket's rim, the upper lip's slit face had the lower lip's jaw weight (0.77 against 0.81), and
+    jawOpen parted the lips by 1 mm (docs/RIG.md §4)."""
+    from warpface.assets.jaw import default_jaw, mouth_rim_arcs
+    from warpface.assets.rig import face_frame
+    from warpface.data import shared_data_path
+
+    path = shared_data_path("ict_facekit", "original", "generic_neutral_mesh.obj")
+    if path is None:
+        pytest.skip("ICT-FaceKit data not found in ../shared/data (set WARPFACE_SHARED_DATA)")
+    source = wf.FaceMesh.from_obj(path, degenerate="ignore")
+    mesh, landmarks = wf.FaceMesh(source.points * 0.01, source.triangles, degenerate="ignore"), ict_landmark_indices()
+    frame = face_frame(mesh, landmarks)
+    assert len(np.unique(mesh.shells)) == 56
+    assert mouth_rim_arcs(mesh, frame.to_local(mesh.points), landmarks) is None
+    upper, lower = _slit_pairs(mesh, landmarks, face_up(mesh, landmarks))
+    assert len(upper) >= 10
+    weights = default_jaw(mesh, frame, landmarks).weights
+    assert np.median(weights[upper]) < 0.4 and np.median(weights[lower]) > 0.9
+    assert np.all(weights[lower] > weights[upper])

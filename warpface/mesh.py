@@ -15,7 +15,7 @@ import warp as wp
 
 from ._validate import as_device, as_path, as_points, as_triangles
 from .geometry import triangle_areas, triangle_corners
-from .geometry.triangles import triangle_crosses, triangle_edges, vertex_triangles
+from .geometry.triangles import triangle_crosses, triangle_edges, vertex_shells, vertex_triangles
 from .kernels_surface import frame_sizes, stretch_reference_lengths, triangle_area_vectors, vertex_normals_kernel
 
 __all__ = [
@@ -175,6 +175,13 @@ class FaceMesh:
     @cached_property
     def _edges_and_counts(self) -> tuple[np.ndarray, np.ndarray]:
         return triangle_edges(self.triangles)
+
+    @cached_property
+    def shells(self) -> np.ndarray:
+        """The shell (connected part) of every vertex, shape (V,) int32
+        (:func:`~warpface.geometry.triangles.vertex_shells`): a whole head's skin, eyes, teeth and mouth socket get
+        different labels."""
+        return vertex_shells(self.triangles, self.vertex_count)
 
     @cached_property
     def boundary_vertices(self) -> np.ndarray:

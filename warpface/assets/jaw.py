@@ -99,10 +99,16 @@ def _jaw_line(local_landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray, floa
     return knots[order, 0], knots[order, 1], 0.5 * abs(L[64, 0] - L[60, 0])
 
 
-def mouth_rim_arcs(mesh: FaceMesh, local: np.ndarray, local_landmarks: np.ndarray):
+def mouth_rim_arcs(mesh: FaceMesh, local: np.ndarray, landmarks: np.ndarray):
     """The mouth opening's rim split at the corners into its (upper, lower) arcs of vertices, or None without one
-    (``local``: the mesh's points, ``local_landmarks`` the 68 landmarks', in the face frame)."""
+    (``local``: the mesh's points in the face frame; ``landmarks``: the 68 iBUG vertex indices).
+
+    Only the lips' own shell is searched: a whole head's mouth socket, gums or teeth are other shells whose rims
+    lie in front of the mouth too (on the ICT head the socket's rim was taken for the lips', and the lips lost
+    their slit, §12)."""
+    local_landmarks = local[landmarks]
     open_edges = mesh.open_edges
+    open_edges = open_edges[mesh.shells[open_edges[:, 0]] == mesh.shells[landmarks[60]]]
     centre = local_landmarks[60:68, :2].mean(axis=0)
     half_width = 0.5 * abs(local_landmarks[64, 0] - local_landmarks[60, 0])
     near = np.linalg.norm(local[open_edges, :2] - centre, axis=2).max(axis=1) < 1.3 * half_width
@@ -173,7 +179,7 @@ def slit_faces(mesh: FaceMesh, local: np.ndarray, landmarks: np.ndarray, up: np.
 def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, landmarks: np.ndarray, frame: FaceFrame):
     """``(d_u − d_l)/(d_u + d_l + c)`` and the distance to the rim [inter-ocular units], or None without a
     mouth opening or a closed mouth's slit."""
-    arcs = mouth_rim_arcs(mesh, local, local[landmarks])
+    arcs = mouth_rim_arcs(mesh, local, landmarks)
     if arcs is None:
         arcs = slit_faces(mesh, local, landmarks, frame.axes[1])
     if arcs is None:

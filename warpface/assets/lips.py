@@ -91,7 +91,7 @@ def _slit_pairs(mesh: FaceMesh, frame: FaceFrame, local: np.ndarray, landmarks: 
     """On a closed mouth's slit (:func:`~warpface.assets.jaw.slit_faces`; none where the mesh has a mouth opening):
     each vertex of the upper lip's facing surface with the nearest vertex of the lower lip's, both ways, within
     the slit's gap: the pairs that face each other across the contact line where the landmarks lie off it."""
-    if mouth_rim_arcs(mesh, local, local[landmarks]) is not None:
+    if mouth_rim_arcs(mesh, local, landmarks) is not None:
         return []
     faces = slit_faces(mesh, local, landmarks, frame.axes[1])
     if faces is None:

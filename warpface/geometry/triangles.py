@@ -1,4 +1,4 @@
-"""NumPy triangle helpers: corners, cross products, areas, unit normals, area-weighted vertex normals, edges.
+"""NumPy triangle helpers: corners, cross products, areas, unit normals, area-weighted vertex normals, edges, shells.
 
 Small array functions in the style of trimesh's ``triangles`` module: each takes either the triangle
 corners or a quantity already computed from them (``crosses``), so a caller that needs areas and
@@ -21,6 +21,7 @@ __all__ = [
     "area_weighted_vertex_normals",
     "triangle_edges",
     "vertex_triangles",
+    "vertex_shells",
 ]
 
 
@@ -110,3 +111,15 @@ def vertex_triangles(triangles: np.ndarray, count: int) -> tuple[np.ndarray, np.
     offsets = np.zeros(count + 1, dtype=np.int64)
     np.cumsum(np.bincount(corners, minlength=count), out=offsets[1:])
     return offsets, np.argsort(corners, kind="stable") // 3
+
+
+def vertex_shells(triangles: np.ndarray, count: int) -> np.ndarray:
+    """The shell (connected part over the triangles' edges) of each of ``count`` vertices, shape (count,) int32:
+    equal labels for vertices joined by a path of edges; a vertex on no triangle is a shell of its own."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    rows, columns = triangles.ravel(), triangles[:, [1, 2, 0]].ravel()
+    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, columns)), shape=(count, count))
+    return connected_components(graph, directed=False)[1]

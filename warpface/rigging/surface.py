@@ -11,11 +11,9 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from .._validate import as_finite_array
-from ..geometry.triangles import triangle_edges
+from ..geometry.triangles import triangle_edges, vertex_shells
 from ..mesh import fan_triangles
 
 __all__ = ["HeadSurface", "polygons_to_triangles", "vertex_normals", "TWIN_AREA", "MIN_SKIN_VERTICES"]
@@ -90,12 +88,7 @@ class HeadSurface:
     @cached_property
     def shell_of_vertex(self) -> np.ndarray:
         """Connected-component label of every vertex (V,); vertices on no face get their own labels."""
-        v = len(self.points)
-        t = self.triangles
-        rows = np.concatenate([t[:, 0], t[:, 1], t[:, 2]])
-        cols = np.concatenate([t[:, 1], t[:, 2], t[:, 0]])
-        graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(v, v))
-        return connected_components(graph, directed=False)[1]
+        return vertex_shells(self.triangles, len(self.points))
 
     @cached_property
     def triangle_areas(self) -> np.ndarray:

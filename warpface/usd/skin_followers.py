@@ -16,6 +16,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
 from ..geometry import closest_points
+from ..geometry.triangles import vertex_shells
 from ..mesh import fan_triangles
 
 __all__ = [
@@ -66,9 +67,6 @@ class SkinEmbedding:
 def other_meshes(asset: Usd.Stage, skin_prim: str):
     """``(prim, points (N, 3) float64, triangles (T, 3), shell label per vertex (N,))`` of every mesh of ``asset``
     other than ``skin_prim`` with faces (fan triangles over its polygons, shells = connected parts)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     for prim in asset.Traverse():
         if not prim.IsA(UsdGeom.Mesh) or str(prim.GetPath()) == skin_prim:
             continue
@@ -79,9 +77,7 @@ def other_meshes(asset: Usd.Stage, skin_prim: str):
             continue
         points = np.asarray(points, dtype=np.float64)
         triangles = fan_triangles(np.asarray(counts), np.asarray(indices))
-        edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]]])
-        graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(len(points),) * 2)
-        yield prim, points, triangles, connected_components(graph, directed=False)[1]
+        yield prim, points, triangles, vertex_shells(triangles, len(points))
 
 
 def skin_embeddings(asset: Usd.Stage, skin_prim: str, skin_points, skin_triangles, landmarks, *, device=None) -> dict:
