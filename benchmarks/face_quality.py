@@ -2,7 +2,8 @@
 
 Per face (the built-in face; the ICT-FaceKit face rigged from its 68 landmarks; a smooth warp of it
 standing in for another identity; the Lee Perry-Smith scan rigged from landmarks found by
-:func:`warpface.rigging.find_landmarks`), measured with :mod:`warpface.assets.quality`:
+:func:`warpface.rigging.find_landmarks`; the whole ICT-FaceKit head — skin, eyes, teeth, gums and mouth socket in
+one mesh — rigged from its 68 landmarks), measured with :mod:`warpface.assets.quality`:
 
 - **blink**: ARKit ``eyeBlinkLeft/Right`` = 1 through the default Live Link/ARKit mapping (what
   ``warpface animate`` does), and the ``eyeBlink`` presets: the largest lid-midpoint distance [mm] (rest
@@ -13,9 +14,10 @@ standing in for another identity; the Lee Perry-Smith scan rigged from landmarks
   (highest), through the mapping and :func:`~warpface.drivers.close_mouth` as ``warpface animate`` maps them;
 - **flips**: triangles whose normal turned over (rest · deformed < 0), summed over every ARKit and FACS
   channel at weight 1 through the default mapping (a FACS intensity of 1), without
-  ``mouthRollUpper/Lower`` (those lips turn inward), with the worst channels.
+  ``mouthRollUpper/Lower`` (those lips turn inward), with the worst channels; on the landmarks' shell only (a whole
+  head's eyes and teeth are moved rigidly by the bake, docs/RIG.md §10).
 
-    python -m benchmarks.face_quality [--faces builtin ict warp lps] [--combinations 200] [--before-tree DIR]
+    python -m benchmarks.face_quality [--faces builtin ict warp lps head] [--combinations 200] [--before-tree DIR]
 
 ``--before-tree`` first runs an older checkout's own copy of this benchmark (its warpface, its measures) on the
 same faces and stores its rows as ``before`` next to this tree's in the results.
@@ -41,7 +43,7 @@ from warpface.drivers.default_tables import mapping_for_rig
 
 from ._timing import machine_info, print_table, write_results
 
-FACES = ("builtin", "ict", "warp", "lps")
+FACES = ("builtin", "ict", "warp", "lps", "head")
 ROLLS = ("mouthRollUpper", "mouthRollLower", "AU28")
 CENTIMETRE = 0.01
 
@@ -76,6 +78,14 @@ def face_rig(face: str):
         mesh = wf.FaceMesh.from_obj(path)
         found = find_landmarks(mesh.points, mesh.triangles, label="Lee Perry-Smith")
         return default_rig(mesh, found.indices), 1000.0 * found.meters_per_unit
+    if face == "head":
+        path = shared_data_path("ict_facekit", "original", "generic_neutral_mesh.obj")
+        landmarks = ict_landmark_indices()
+        if path is None or landmarks is None:
+            return None
+        source = wf.FaceMesh.from_obj(path, degenerate="ignore")
+        mesh = wf.FaceMesh(source.points * CENTIMETRE, source.triangles, name="ict_head", degenerate="ignore")
+        return default_rig(mesh, landmarks), 1000.0
     raise ValueError(f"face: expected one of {', '.join(FACES)}, got {face!r}")
 
 
@@ -158,10 +168,13 @@ def measure(rig, mm: float, combinations: int = 200) -> dict:
         row["mouth_close_lips_mm"] = f"{held[1].min():.2f} … {held[1].max():.2f}"
         row["half_close_lips_mm"] = float(held[2].max())
     counts = {}
+    shells = rig.mesh.shells
+    on_skin = shells[rig.mesh.triangles[:, 0]] == shells[rig.landmarks[30]]
+    skin = wf.FaceMesh(rest, rig.mesh.triangles[on_skin], degenerate="ignore")
     for kind in ("arkit", "facs"):
         names, frames = channel_frames(rig, kind)
         keep = [i for i, n in enumerate(names) if n not in ROLLS]
-        flips = flipped_triangles(rig.mesh, model.evaluate(frames[keep]))
+        flips = flipped_triangles(skin, model.evaluate(frames[keep]))
         counts.update({names[i]: int(n) for i, n in zip(keep, flips)})
     row["flips"] = int(sum(counts.values()))
     worst = sorted(counts.items(), key=lambda item: -item[1])[:5]

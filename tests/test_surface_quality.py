@@ -374,3 +374,50 @@ def test_a_wrinkle_narrower_than_the_mesh_is_widened_and_made_shallower_not_cut(
     fine, wide, kept = _grid_profile(spacing=0.02, width=0.15)
     ((width, factor),) = drawable_widths(fine.points, fine.triangles, [wide], device=DEVICE)
     assert width == wide.width and factor == 1.0
+
+
+def test_the_tissue_reach_does_not_grow_with_the_body_that_comes_with_the_face():
+    """The fascia radius and the fold guards' reference travel are fractions of the face's size, the mesh's diagonal
+    bounded by six eye distances (docs/RIG.md §14): a face-only mesh keeps its diagonal, and beyond the bound a shell
+    farther below the face (a neck, shoulders) changes no muscle field on the face."""
+    from warpface.expression.fold_guard import FACE_SPAN, face_size
+    from warpface.expression.tissue import skin_muscle_weights
+
+    rig = default_rig(device="cpu")
+    points, landmarks, count = rig.mesh.points, rig.landmarks, rig.mesh.vertex_count
+    diagonal = float(np.linalg.norm(np.ptp(points, axis=0)))
+    eyes = float(np.linalg.norm(points[landmarks[36:42]].mean(axis=0) - points[landmarks[42:48]].mean(axis=0)))
+    assert face_size(points, landmarks) == face_size(points) == diagonal < FACE_SPAN * eyes
+
+    def with_body(depth):
+        """The face and a small triangle ``depth`` eye distances below its chin."""
+        low = points[landmarks[8]] - [0.0, depth * eyes, 0.0]
+        extra = low + 0.01 * eyes * np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+        return wf.FaceMesh(np.vstack([points, extra]), np.vstack([rig.mesh.triangles, [[count, count + 1, count + 2]]]))
+
+    def fields(mesh, size):
+        thickness = np.append(rig.thickness, np.zeros(mesh.vertex_count - count))
+        weights = skin_muscle_weights(mesh, rig.muscles, thickness, device="cpu", size=size)
+        dense = np.zeros((mesh.vertex_count, len(rig.muscles), 3))
+        vertex = np.repeat(np.arange(mesh.vertex_count), np.diff(weights.offsets))
+        dense[vertex, weights.muscle] = weights.weight.reshape(-1, 3)
+        return dense[:count]
+
+    neck, shoulders = with_body(4.0), with_body(8.0)
+    for body in (neck, shoulders):
+        assert face_size(body.points) > FACE_SPAN * eyes
+        assert face_size(body.points, landmarks) == pytest.approx(FACE_SPAN * eyes)
+    bounded = [fields(body, face_size(body.points, landmarks)) for body in (neck, shoulders)]
+    assert np.array_equal(bounded[0], bounded[1])
+    unbounded = [fields(body, face_size(body.points)) for body in (neck, shoulders)]  # the reach grew with the body
+    assert np.abs(unbounded[1] - unbounded[0]).max() > 1e-3 * np.abs(unbounded[0]).max()
+    # the model and the solver's operators measure the face with the rig's landmarks
+    from warpface.solve.local_model import RigOperators
+
+    thickness = np.append(rig.thickness, np.zeros(3))
+    body_rig = wf.FaceRig(shoulders, rig.muscles, rig.wrinkles, thickness, landmarks=landmarks)
+    model = body_rig.model(device="cpu")
+    assert model.size == pytest.approx(FACE_SPAN * eyes)
+    operators = RigOperators.from_rig(body_rig, device="cpu")
+    field = operators.muscle_field.toarray().reshape(-1, 3, len(rig.muscles))[:count].transpose(0, 2, 1)
+    assert np.allclose(field, bounded[1], rtol=0.0, atol=1e-12)

@@ -28,6 +28,8 @@ __all__ = [
     "area_vectors",
     "FOLD_MARGIN",
     "FOLD_TRAVEL",
+    "FACE_SPAN",
+    "face_size",
     "equalized_field",
     "equalized_weights",
     "fold_blend",
@@ -44,7 +46,26 @@ FOLD_MARGIN = 0.1
 """A triangle folds when its area along the rest normal falls below this fraction of the rest area."""
 FOLD_TRAVEL = 0.05
 """The response is checked at the contraction that moves the field's farthest vertex by this fraction of the
-mesh's bounding-box diagonal (14 mm on the built-in face; a full ARKit smile moves the cheek 11–12 mm)."""
+face's size (:func:`face_size`; 14 mm on the built-in face; a full ARKit smile moves the cheek 11–12 mm)."""
+FACE_SPAN = 6.0
+"""The most eye-centre distances :func:`face_size` counts: a face mesh spans 4.6 (the built-in face) to 5.8 (the
+ICT face region) along its bounding box's diagonal; a whole head, a bust or shoulders more (the ICT whole head 7.3,
+the Lee Perry-Smith scan 10.4), which must not widen the tissue's reach on the same face (docs/RIG.md §14)."""
+
+
+def face_size(points: np.ndarray, landmarks=None) -> float:
+    """The length the tissue's fractions (:data:`FOLD_TRAVEL`, ``tissue.FASCIA_RADIUS``) refer to [mesh units]: the
+    bounding-box diagonal of ``points`` (V, 3), at most :data:`FACE_SPAN` eye-centre distances when ``landmarks``
+    (the 68 iBUG vertex indices) are given."""
+    points = np.asarray(points, dtype=np.float64)
+    diagonal = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0))) if len(points) else 0.0
+    if landmarks is None or len(landmarks) != 68:
+        return diagonal
+    marks = points[np.asarray(landmarks, dtype=np.int64)]
+    eyes = float(np.linalg.norm(marks[36:42].mean(axis=0) - marks[42:48].mean(axis=0)))
+    return min(diagonal, FACE_SPAN * eyes) if eyes > 0.0 else diagonal
+
+
 _GUARD_ROUNDS = 30
 """Most rounds of :func:`unfolded_response` (each eases the vertices of the triangles still folded)."""
 _STALL_ROUNDS = 10

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .fold_guard import FOLD_TRAVEL, area_vectors, folded_triangles, vertex_graph
+from .fold_guard import FOLD_TRAVEL, area_vectors, face_size, folded_triangles, vertex_graph
 
 __all__ = [
     "JAW_FOLD_ANGLE",
@@ -59,12 +59,13 @@ def bulge_points(points: np.ndarray, triangles: np.ndarray, moved: np.ndarray, t
     return moved + ((1.0 / np.maximum(r, 1.0e-4) - 1.0) * thickness)[:, None] * normal
 
 
-def reference_motions(points: np.ndarray, fields, hinged, jaw=None) -> list[np.ndarray]:
+def reference_motions(points: np.ndarray, fields, hinged, jaw=None, size: float | None = None) -> list[np.ndarray]:
     """Each control's linear-stage displacement (V, 3) at its reference amplitude: a muscle field ``fields[i]``
     (V, 3) at ``K = 1`` when ``hinged[i]`` (a lid hinge or lip seal, whose ``K`` ends at 1), else at the ``K``
-    that moves its farthest vertex by :data:`FOLD_TRAVEL` of the bounding-box diagonal (as the response guard);
+    that moves its farthest vertex by :data:`FOLD_TRAVEL` of the face's ``size`` (as the response guard; default:
+    the bounding-box diagonal);
     then the jaw (``Jaw``: pivot, axis, weights) opened by :data:`JAW_FOLD_ANGLE`."""
-    travel = FOLD_TRAVEL * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    travel = FOLD_TRAVEL * (face_size(points) if size is None else float(size))
     motions = []
     for field, hinge in zip(fields, hinged):
         peak = float(np.linalg.norm(field, axis=1).max()) if len(field) else 0.0
@@ -200,11 +201,12 @@ def _limited_rise(graph, fade: np.ndarray) -> np.ndarray:
         fade = limited
 
 
-def guarded_lifts(mesh, thickness: np.ndarray, muscles, weights, wrinkles, shapes, jaw=None):
+def guarded_lifts(mesh, thickness: np.ndarray, muscles, weights, wrinkles, shapes, jaw=None, size: float | None = None):
     """(the bulge's ``h`` (V,), the wrinkle profiles ``shapes.shape`` faded) of a rig after
     :func:`unfolded_thickness` and :func:`unfolded_profiles`, from its mesh (a ``FaceMesh``), muscles, their skin
     weights (``tissue.skin_muscle_weights``: per-vertex entries ``offsets``, ``muscle``, ``weight``), wrinkles,
-    their profiles (``wrinkles.skin_wrinkle_shapes``) and optional jaw: what the model and the solver both read.
+    their profiles (``wrinkles.skin_wrinkle_shapes``), optional jaw and the face's ``size``
+    (:func:`~warpface.expression.fold_guard.face_size`): what the model and the solver both read.
 
     A rig of the paper's model alone (§1.1 muscles without a skin response, no hinges, no jaw) is left as SPEC §1
     has it: ``(thickness, shapes.shape)`` unchanged."""
@@ -217,7 +219,7 @@ def guarded_lifts(mesh, thickness: np.ndarray, muscles, weights, wrinkles, shape
     fields = np.zeros((len(muscles), len(points), 3))
     vertex = np.repeat(np.arange(len(points)), np.diff(np.asarray(weights.offsets)))
     fields[np.asarray(weights.muscle, dtype=np.int64), vertex] = np.asarray(weights.weight, np.float64).reshape(-1, 3)
-    motions = reference_motions(points, fields, [isinstance(m, LidMuscle) for m in muscles], jaw)
+    motions = reference_motions(points, fields, [isinstance(m, LidMuscle) for m in muscles], jaw, size)
     triangles = mesh.triangles[~mesh.degenerate_triangles]
     thickness = unfolded_thickness(points, triangles, thickness, motions)
     shape = np.asarray(shapes.shape, dtype=np.float64)

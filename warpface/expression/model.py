@@ -11,6 +11,7 @@ from .._validate import MAX_COORDINATE, as_device
 from ..mesh import FaceMesh
 from .controls import check_rig_parts, contraction_limits, control_vector, frame_controls
 from .evaluator import ExpressionEvaluator, ExpressionStages
+from .fold_guard import face_size
 from .jaw import JAW_CONTROL_NAMES, Jaw
 from .kernels import MuscleEntry, WrinkleEntry
 from .lids import bulging_thickness
@@ -59,6 +60,9 @@ class ExpressionModel:
         plan: ``"staged"`` (five kernels, every intermediate stored; the CPU default) or ``"tiled"`` (one kernel
             over vertex tiles in shared memory; the CUDA default, which falls back to staged for a mesh a tile
             cannot hold). Both give the same bits on the same device (:mod:`~warpface.expression.plans`).
+        size: the face's size [mesh units], which the tissue's rig-time lengths are fractions of
+            (:func:`~warpface.expression.fold_guard.face_size`; default: the mesh's bounding-box diagonal;
+            :meth:`from_rig` measures it with the rig's landmarks).
 
     Raises:
         RigError: (a ``ValueError``) mesh not a FaceMesh, wrong item types, duplicate muscle or
@@ -75,6 +79,7 @@ class ExpressionModel:
         device=None,
         jaw: Jaw | None = None,
         plan: str | None = None,
+        size: float | None = None,
     ):
         self.muscles, self.wrinkles, self.thickness = check_rig_parts(
             mesh, muscles, wrinkles, thickness, owner="expression model"
@@ -89,6 +94,8 @@ class ExpressionModel:
             if set(JAW_CONTROL_NAMES) & set(self.muscle_names):
                 raise ValueError(f"muscle names must not repeat the jaw's controls {', '.join(JAW_CONTROL_NAMES)}")
         self.jaw = jaw
+        self.size = face_size(mesh.points) if size is None else float(size)
+        """The face's size [mesh units] the rig-time fields were built with."""
         self.control_names = self.muscle_names + (list(JAW_CONTROL_NAMES) if jaw is not None else [])
         """Muscle names, then the jaw's controls when there is a jaw: the order of a control vector."""
         jaw_limits = np.full(len(self.control_names) - len(self.muscles), MAX_COORDINATE)
@@ -113,7 +120,7 @@ class ExpressionModel:
     def _upload_rig(self, mesh: FaceMesh) -> None:
         """The rig-time fields (muscle weights with the tissue's response, wrinkle profiles) as device arrays."""
         device = self.device
-        weights = skin_muscle_weights(mesh, self.muscles, self.thickness, device=device)
+        weights = skin_muscle_weights(mesh, self.muscles, self.thickness, device=device, size=self.size)
         shapes = skin_wrinkle_shapes(mesh, self.wrinkles, self.muscles, device=device)
         bulging, faded = guarded_lifts(
             mesh,
@@ -123,6 +130,7 @@ class ExpressionModel:
             self.wrinkles,
             shapes,
             self.jaw,
+            self.size,
         )
         self.muscle_entry_count = int(len(weights.muscle))
         self.wrinkle_entry_count = int(len(shapes.wrinkle))
@@ -144,13 +152,15 @@ class ExpressionModel:
 
     @classmethod
     def from_rig(cls, rig, *, device=None, plan: str | None = None) -> "ExpressionModel":
-        """Build from a :class:`warpface.FaceRig` (mesh, muscles, wrinkles, thickness, jaw)."""
+        """Build from a :class:`warpface.FaceRig` (mesh, muscles, wrinkles, thickness, jaw; its landmarks bound the
+        face's size, :func:`~warpface.expression.fold_guard.face_size`)."""
         if not all(
             hasattr(rig, field) for field in ("mesh", "muscles", "wrinkles", "thickness")
         ):  # warpface.rig imports this module
             raise TypeError(f"rig: expected a FaceRig, got {type(rig).__name__}")
         jaw = getattr(rig, "jaw", None)
-        return cls(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=device, jaw=jaw, plan=plan)
+        size = face_size(rig.mesh.points, getattr(rig, "landmarks", None))
+        return cls(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, device=device, jaw=jaw, plan=plan, size=size)
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, controls=None, out=None, *, wrinkle_depths=None, progress: bool = False, frames_per_launch=None):

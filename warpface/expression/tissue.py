@@ -36,6 +36,7 @@ from .fold_guard import (
     FOLD_TRAVEL,
     corner_columns,
     equalized_field,
+    face_size,
     ladder_equalized,
     touching_triangles,
     unfolded_response,
@@ -56,11 +57,11 @@ __all__ = [
 ]
 
 FASCIA_RADIUS = 0.03
-"""Radius of the neighbourhood averages below, as a fraction of the mesh's size (its bounding-box
-diagonal; 6 mm on a 20 cm face). Skin slides over the fascia beneath it, whose surface is smoother
-than the skin's own curls (a lip rolling into the mouth, a lid margin); and the area change of a
-sliver triangle at a mouth or eye corner must not raise a spike. Neighbourhoods are Euclidean, so
-they reach across the lips' slit and the lid opening."""
+"""Radius of the neighbourhood averages below, as a fraction of the face's size
+(:func:`~warpface.expression.fold_guard.face_size`; 6 mm on a 20 cm face). Skin slides over the fascia beneath
+it, whose surface is smoother than the skin's own curls (a lip rolling into the mouth, a lid margin); and the
+area change of a sliver triangle at a mouth or eye corner must not raise a spike. Neighbourhoods are Euclidean,
+so they reach across the lips' slit and the lid opening."""
 BUNCHING_CAP = 0.5
 _HINGE_FREE = 0.5
 """:func:`unfolded_fields` changes a hinge's field only where it turns by at most half its largest angle (a taper
@@ -187,6 +188,8 @@ def tissue_response(
     thickness: np.ndarray,
     muscles: Sequence[Muscle],
     weights: MuscleWeights,
+    *,
+    size: float | None = None,
 ) -> MuscleWeights:
     """Muscle weights with each muscle's sliding and bunching applied (module docstring).
 
@@ -196,14 +199,15 @@ def tissue_response(
         thickness: subcutaneous thickness h [mesh units], shape (V,).
         muscles: the muscles, in the column order of ``weights``.
         weights: the §1.1/§6.3 zone weights from :func:`~warpface.expression.muscle_weights`.
+        size: the face's size [mesh units] (:func:`~warpface.expression.fold_guard.face_size`; default: the
+            bounding-box diagonal of ``points``).
 
     Returns:
         New sparse weights (bunching reaches one ring of vertices beyond a zone).
     """
     points = np.asarray(points, dtype=np.float64)
-    extent = points.max(axis=0) - points.min(axis=0) if len(points) else np.zeros(3)
-    radius = FASCIA_RADIUS * float(np.linalg.norm(extent))
-    travel = FOLD_TRAVEL * float(np.linalg.norm(extent))
+    size = face_size(points) if size is None else float(size)
+    radius, travel = FASCIA_RADIUS * size, FOLD_TRAVEL * size
     average = neighbourhood_averager(points, radius)
     normals = average(np.asarray(normals, dtype=np.float64))
     length = np.linalg.norm(normals, axis=1, keepdims=True)
@@ -231,13 +235,17 @@ def tissue_response(
     return MuscleWeights.from_fields(vertex_count, (responded(i, m) for i, m in enumerate(muscles)))
 
 
-def skin_muscle_weights(mesh, muscles: Sequence[Muscle], thickness: np.ndarray, *, device=None) -> MuscleWeights:
+def skin_muscle_weights(
+    mesh, muscles: Sequence[Muscle], thickness: np.ndarray, *, device=None, size: float | None = None
+) -> MuscleWeights:
     """The weights the expression model applies: zone weights, each muscle's sliding and bunching, then the lips'
     seal (:mod:`~warpface.expression.seal`) when the muscles hold one.
 
     Args:
         mesh: the rest :class:`~warpface.FaceMesh`; muscles: in contraction order;
-        thickness: h per vertex [mesh units], shape (V,); device: Warp device of the weight kernels.
+        thickness: h per vertex [mesh units], shape (V,); device: Warp device of the weight kernels;
+        size: the face's size [mesh units] (:func:`~warpface.expression.fold_guard.face_size`; default: the mesh's
+            bounding-box diagonal).
     """
     from .muscles import muscle_weights
     from .seal import sealed_weights
@@ -246,10 +254,10 @@ def skin_muscle_weights(mesh, muscles: Sequence[Muscle], thickness: np.ndarray, 
     if any(m.sliding > 0.0 or m.bunching > 0.0 or m.thickening > 0.0 for m in muscles):
         normals = mesh.vertex_normals(device=device)
         weights = tissue_response(
-            mesh.points, mesh.triangles, normals, np.asarray(thickness, dtype=np.float64), muscles, weights
+            mesh.points, mesh.triangles, normals, np.asarray(thickness, dtype=np.float64), muscles, weights, size=size
         )
     if has_tissue_model(muscles):  # a rig of the paper's §1.1 muscles alone evaluates SPEC §1 unchanged
-        weights = unfolded_fields(mesh, list(muscles), weights)
+        weights = unfolded_fields(mesh, list(muscles), weights, size=size)
     return sealed_weights(list(muscles), weights)
 
 
@@ -277,18 +285,21 @@ def _pair_free(count: int, a, b) -> np.ndarray:
     return np.repeat(np.stack([free_a, free_b], axis=1), 3, axis=1)
 
 
-def unfolded_fields(mesh, muscles: Sequence[Muscle], weights: MuscleWeights) -> MuscleWeights:
+def unfolded_fields(
+    mesh, muscles: Sequence[Muscle], weights: MuscleWeights, *, size: float | None = None
+) -> MuscleWeights:
     """Each muscle's field made equal on the corners of the triangles it folds at its reference contraction
     (:func:`~warpface.expression.fold_guard.equalized_field`; docs/RIG.md §14): ``K = 1`` for a lid hinge or the
     lips' seal (their ``K`` ends at 1; only flips count), else on a ladder up to the ``K`` that moves the field's
-    farthest vertex by :data:`~warpface.expression.fold_guard.FOLD_TRAVEL` of the mesh's bounding-box diagonal
+    farthest vertex by :data:`~warpface.expression.fold_guard.FOLD_TRAVEL` of the face's ``size`` (default: the mesh's
+    bounding-box diagonal)
     (:func:`~warpface.expression.fold_guard.ladder_equalized`); then every two hinges whose fields meet on a
     triangle, both at ``K = 1``, each alone and together, on the free vertices of :func:`_pair_free`."""
     from .lids import LidMuscle, hinge_taper
 
     points = np.asarray(mesh.points, dtype=np.float64)
     triangles = mesh.triangles[~mesh.degenerate_triangles]
-    travel = FOLD_TRAVEL * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0))) if len(points) else 0.0
+    travel = FOLD_TRAVEL * (face_size(points) if size is None else float(size))
     row = np.repeat(np.arange(len(points)), np.diff(weights.offsets))
     fields, changed = [], False
     for index, muscle in enumerate(muscles):

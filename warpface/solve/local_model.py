@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._validate import expect_instance
+from ..expression.fold_guard import face_size
 from ..expression.kernels import STRETCH_FLOOR as EXPRESSION_STRETCH_FLOOR
 from ..expression.lids import bulging_thickness
 from ..expression.lift_guard import guarded_lifts
@@ -110,8 +111,9 @@ class RigOperators:
             (np.ones(3 * triangle_count), (triangles.ravel(), np.repeat(np.arange(triangle_count), 3))),
             shape=(vertex_count, triangle_count),
         )
+        size = face_size(rest, getattr(rig, "landmarks", None))  # as ExpressionModel.from_rig measures it
         muscles = skin_muscle_weights(
-            mesh, list(rig.muscles), rig.thickness, device=device
+            mesh, list(rig.muscles), rig.thickness, device=device, size=size
         )  # with sliding and bunching
         entry_vertex = np.repeat(np.arange(vertex_count), np.diff(muscles.offsets))
         rows = (3 * entry_vertex[:, None] + np.arange(3)[None, :]).ravel()
@@ -120,7 +122,14 @@ class RigOperators:
         wrinkles = skin_wrinkle_shapes(mesh, list(rig.wrinkles), rig.muscles, device=device)
         jaw = getattr(rig, "jaw", None)
         bulging, shape = guarded_lifts(
-            mesh, bulging_thickness(rig.thickness, rig.muscles), list(rig.muscles), muscles, rig.wrinkles, wrinkles, jaw
+            mesh,
+            bulging_thickness(rig.thickness, rig.muscles),
+            list(rig.muscles),
+            muscles,
+            rig.wrinkles,
+            wrinkles,
+            jaw,
+            size,
         )  # the model's guarded h and profiles (docs/RIG.md §14)
         depth = np.array([w.depth for w in rig.wrinkles], dtype=np.float64)
         entry_vertex = np.repeat(np.arange(vertex_count), np.diff(wrinkles.offsets))
