@@ -71,12 +71,12 @@ _GUARD_ROUNDS = 30
 _STALL_ROUNDS = 10
 """:func:`unfolded_weights` stops when this many rounds have not lowered the count of folded triangles."""
 _EQUAL_ROUNDS = 200
+"""Most rounds of :func:`equalized_weights` (81 on the ICT face's jaw, 27 on the Lee Perry-Smith scan's)."""
 LADDER_STEPS = 4
 """:func:`ladder_equalized` checks a field at its reference contraction times 1/8, 1/4, 1/2 and 1."""
 _EQUAL_STALL_ROUNDS = 40
 """:func:`equalized_weights` stops when this many rounds have not lowered the count (an averaging round may raise it
 for a while before the next lowers it)."""
-"""Most rounds of :func:`equalized_weights` (81 on the ICT face's jaw, 27 on the Lee Perry-Smith scan's)."""
 
 
 def area_vectors(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
