@@ -17,7 +17,6 @@ import argparse
 import time
 
 import numpy as np
-from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from warpface.data import ict_landmark_indices, shared_data_path
@@ -61,9 +60,7 @@ def measure(seeds: range, net: int) -> dict:
             started = time.perf_counter()
             plane_fit = align.fit_similarity(model, skin, surface.skin_normals)[0]
             seconds += time.perf_counter() - started
-            rng = np.random.default_rng(0)
-            sample = skin[rng.choice(len(skin), 4000, replace=False)]
-            normal = align.symmetry_plane(sample, cKDTree(sample))[0]
+            normal = align.skin_symmetry_plane(skin, np.random.default_rng(0))[0]  # the plane fit_similarity used
             angles.append(float(np.degrees(np.arccos(min(1.0, abs(normal @ across))))))
             found_up, found_front = plane_fit.rotation @ model.vertical, plane_fit.rotation @ model.forward
             if found_up @ up < 0.9 or found_front @ front < 0.9:

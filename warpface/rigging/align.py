@@ -24,7 +24,7 @@ from scipy.spatial import cKDTree
 
 from .template import Template
 
-__all__ = ["Similarity", "Affine", "symmetry_plane", "fit_similarity", "fit_affine", "umeyama"]
+__all__ = ["Similarity", "Affine", "symmetry_plane", "skin_symmetry_plane", "fit_similarity", "fit_affine", "umeyama"]
 
 TURNS = 12
 """Start angles of the up/front search in the symmetry plane."""
@@ -199,6 +199,16 @@ def _starts(normal: np.ndarray, up_hint, front_hint):
     return frames
 
 
+PLANE_SAMPLE = 4000
+"""Skin points the symmetry plane is fitted on (a random subset of a larger skin)."""
+
+
+def skin_symmetry_plane(skin: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, float, float]:
+    """:func:`symmetry_plane` of the skin points (N, 3), on :data:`PLANE_SAMPLE` of them drawn with ``rng``."""
+    sample = skin if len(skin) <= PLANE_SAMPLE else skin[rng.choice(len(skin), PLANE_SAMPLE, replace=False)]
+    return symmetry_plane(sample, cKDTree(sample))
+
+
 def fit_similarity(
     model: Template,
     skin: np.ndarray,
@@ -213,8 +223,7 @@ def fit_similarity(
     """
     tree = cKDTree(skin)
     rng = np.random.default_rng(0)
-    sample = skin if len(skin) <= 4000 else skin[rng.choice(len(skin), 4000, replace=False)]
-    normal, _, plane_residual = symmetry_plane(sample, cKDTree(sample))
+    normal, _, plane_residual = skin_symmetry_plane(skin, rng)
     nodes, node_normals = model.points[model.nodes], model.normals[model.nodes]
     coarse = rng.choice(len(nodes), min(400, len(nodes)), replace=False)
     centre = skin.mean(axis=0)
