@@ -29,15 +29,24 @@ from ._timing import machine_info, print_table, write_results
 from .rigging import bumpy_warp, smooth_warp
 
 
-def posed_head(points: np.ndarray, seed: int) -> np.ndarray:
-    """The head warped by ``seed`` (odd: smooth, even: bumpy) and turned: (V, 3)."""
+def head_pose(seed: int) -> Rotation:
+    """The turn of the posed head ``seed``: any yaw, tilt ±30°, roll ±15°, then Y-up or (odd draws) Z-up."""
     rng = np.random.default_rng(seed + 9000)
-    warped = (smooth_warp if seed % 2 else bumpy_warp)(points, seed)
     up = Rotation.from_euler("x", -90.0 if rng.integers(2) else 0.0, degrees=True)
     turn = Rotation.from_euler(
         "yxz", [rng.uniform(-180, 180), rng.uniform(-30, 30), rng.uniform(-15, 15)], degrees=True
     )
-    return (up * turn).apply(warped)
+    return up * turn
+
+
+def warped_head(points: np.ndarray, seed: int) -> np.ndarray:
+    """The head warped by ``seed`` (odd: smooth, even: bumpy), unturned: (V, 3)."""
+    return (smooth_warp if seed % 2 else bumpy_warp)(points, seed)
+
+
+def posed_head(points: np.ndarray, seed: int) -> np.ndarray:
+    """The head warped by ``seed`` (odd: smooth, even: bumpy) and turned by :func:`head_pose`: (V, 3)."""
+    return head_pose(seed).apply(warped_head(points, seed))
 
 
 def measure(seeds: range, net: int) -> dict:
