@@ -59,3 +59,20 @@ def test_bad_maps(kwargs, message):
     args.update(kwargs)
     with pytest.raises(ValueError, match=message):
         wf.ThicknessMap(**args)
+
+
+def test_sampling_more_points_than_one_remap_row_holds():
+    """cv2.remap refuses maps of 32,767 or more on a side: a dense head's vertices are sampled in rows."""
+    tmap = wf.ThicknessMap(IMAGE, PLANAR, (0, 4), (0, 2), black=1.0, white=6.0)
+    uv = np.random.default_rng(3).uniform((0.5, 0.5), (3.5, 1.5), (40_000, 2))
+    column, row = uv[:, 0] - 0.5, 2.0 - uv[:, 1] - 0.5  # pixel coordinates of the bilinear lookup
+    c0, r0 = np.floor(column).astype(int), np.floor(row).astype(int)
+    fc, fr = column - c0, row - r0
+    pixel = IMAGE.astype(np.float64) / 255.0
+    expected = (
+        pixel[r0, c0] * (1 - fc) * (1 - fr)
+        + pixel[r0, c0 + 1] * fc * (1 - fr)
+        + pixel[r0 + 1, c0] * (1 - fc) * fr
+        + pixel[r0 + 1, c0 + 1] * fc * fr
+    )
+    np.testing.assert_allclose(tmap.sample(points_at(uv), device="cpu"), 1.0 + 5.0 * expected, atol=2e-3)

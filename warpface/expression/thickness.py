@@ -24,6 +24,9 @@ def validate_thickness(thickness, vertex_count: int) -> np.ndarray:
 
 
 MAX_BLUR_SIGMA = 256.0
+REMAP_WIDTH = 4096
+"""Lookups per row of the coordinate maps handed to ``cv2.remap``, whose maps must be under 32,767 on each side: a
+mesh's points are laid out as rows of this many (a single row would fail from 32,767 vertices on)."""
 """Largest accepted :attr:`ThicknessMap.blur_sigma` [pixels]: the blur's cost grows with its kernel
 width (≈ 6σ), and beyond a few hundred pixels it is a constant image in all but name."""
 
@@ -97,12 +100,20 @@ class ThicknessMap:
         row = (v1 - uv[:, 1]) / (v1 - v0) * height - 0.5
         sampled = cv2.remap(
             self.luminance(),
-            column.astype(np.float32)[None],
-            row.astype(np.float32)[None],
+            _as_block(column),
+            _as_block(row),
             interpolation=cv2.INTER_LINEAR,
             borderMode=cv2.BORDER_REPLICATE,
-        )[0]
+        ).ravel()[: len(points)]
         return self.black + (self.white - self.black) * sampled.astype(np.float64)
+
+
+def _as_block(values: np.ndarray) -> np.ndarray:
+    """(N,) → float32 (⌈N / width⌉, width) with ``width = min(N, REMAP_WIDTH)``, the tail padded with zeros."""
+    width = min(len(values), REMAP_WIDTH)
+    block = np.zeros(-(-len(values) // width) * width, dtype=np.float32)
+    block[: len(values)] = values
+    return block.reshape(-1, width)
 
 
 def _load_gray(image) -> np.ndarray:
