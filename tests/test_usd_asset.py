@@ -317,3 +317,52 @@ def test_a_usd_head_of_several_meshes_is_rigged_on_its_face_and_kept_whole(tmp_p
     gaps = np.linalg.norm(teeth_open[sample][:, None] - teeth_open[sample][None], axis=2)
     rest_gaps = np.linalg.norm(teeth_rest[sample][:, None] - teeth_rest[sample][None], axis=2)
     np.testing.assert_allclose(gaps, rest_gaps, atol=1e-3)
+
+
+@pytest.mark.slow  # end to end on the whole head, ~40 s on the 2-core CI machine
+@pytest.mark.skipif(ICT is None, reason="ICT-FaceKit not in ../shared/data (set WARPFACE_SHARED_DATA)")
+def test_a_head_split_along_a_uv_seam_is_rigged_as_one_skin_and_its_seam_stays_closed(tmp_path):
+    """A game or glTF export splits the skin's vertices along its UV seams: here the face down its middle. The
+    rig welds the copies for itself (the asset keeps them), finds the landmarks on the whole face, and a bake
+    moves every copy with its twin."""
+    from pxr import Usd, UsdGeom
+
+    from warpface.data import ict_landmark_indices
+    from warpface.mesh import read_obj_polygons
+    from warpface.usd import read_rig
+
+    obj = read_obj_polygons(ICT / "original" / "generic_neutral_mesh.obj")
+    starts = np.concatenate([[0], np.cumsum(obj.counts)[:-1]])
+    centre_x = np.add.reduceat(obj.points[obj.indices, 0], starts) / obj.counts
+    skin = ICT_PRIMS["Head"][1]
+    seam = np.flatnonzero((np.abs(obj.points[:skin, 0]) < 1e-6))
+    copy_of = np.full(len(obj.points), -1)
+    copy_of[seam] = len(obj.points) + np.arange(len(seam))
+    indices = obj.indices.copy()
+    right = np.repeat(centre_x < 0.0, obj.counts) & (copy_of[indices] >= 0)  # the right half's corners on the seam
+    indices[right] = copy_of[indices[right]]
+    points = np.vstack([obj.points, obj.points[seam]])
+    head = tmp_path / "split_head.obj"
+    lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in points]
+    lines += ["f " + " ".join(str(i + 1) for i in indices[s : s + c]) for s, c in zip(starts, obj.counts)]
+    head.write_text("\n".join(lines) + "\n")
+
+    out = tmp_path / "rig" / "rig.usda"
+    assert main(["--quiet", "rig", str(head), "--out", str(out)]) == 0
+    rig = read_rig(out, degenerate="ignore")
+    assert len(rig.mesh.points) == len(points)  # the asset's vertices, copies included
+    truth = obj.points[ict_landmark_indices()] * CM
+    error_mm = 1000.0 * np.linalg.norm(rig.mesh.points[rig.landmarks] - truth, axis=1)
+    assert error_mm.mean() < 1.0 and error_mm.max() < 5.0
+
+    frames = 4
+    take = live_link_csv(tmp_path / "take.csv", {"jawOpen": np.linspace(0.0, 0.8, frames)}, frames)
+    animated = tmp_path / "anim" / "shot.usda"
+    assert main(["--quiet", "animate", str(take), "--rig", str(out), "--out", str(animated), "--no-video"]) == 0
+    stage = Usd.Stage.Open(str(animated))
+    shot = UsdGeom.Mesh(stage.GetPrimAtPath("/Face/Skin")).GetPointsAttr()
+    opened = np.asarray(shot.Get(Usd.TimeCode(frames - 1)), dtype=np.float64)
+    rest = np.asarray(shot.Get(Usd.TimeCode(0)), dtype=np.float64)
+    np.testing.assert_array_equal(opened[copy_of[seam]], opened[seam])  # the seam stays closed
+    chin = ict_landmark_indices()[8]
+    assert np.linalg.norm(opened[chin] - rest[chin]) > 0.5  # cm: the jaw did open

@@ -173,6 +173,7 @@ def run(args) -> int:
 
     from .._files import atomic_path
     from ..assets import default_rig
+    from ..geometry.triangles import weld_seams
     from ..mesh import FaceMesh
     from ..rigging import check_layout, find_landmarks, read_landmark_file, rig_picture
     from ..rigging.surface import HeadSurface
@@ -189,6 +190,7 @@ def run(args) -> int:
         raise ValueError(f"--preview {preview}: the picture must be a .png")
     up, front = parse_axis(args.up, "--up"), parse_axis(args.front, "--front")
     points, triangles, stage_unit, polygons = read_head(args.head)
+    triangles = weld_seams(points, triangles)  # the rig sees one skin; the asset keeps its split vertices
     label = str(args.head)
     units = args.units or (_unit_name(stage_unit) if stage_unit else None)
     if args.landmarks is None:

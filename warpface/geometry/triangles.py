@@ -22,7 +22,22 @@ __all__ = [
     "triangle_edges",
     "vertex_triangles",
     "vertex_shells",
+    "weld_seams",
+    "SEAM_TOLERANCE",
+    "SEAM_NORMAL_COS",
 ]
+
+SEAM_TOLERANCE = 1e-6
+"""Vertices closer than this (relative to the mesh's bounding-box diagonal) are copies of one point."""
+SEAM_NORMAL_COS = 0.25
+"""Copies are welded only where their own faces' normals agree this well (within ~75°: a seam, even along a crease
+of the gums); lips or lids modelled touching face each other (~180°) and stay apart."""
+SEAM_MIN_SHARE = 0.1
+"""Only pieces holding at least this share of the mesh's area are welded (the parts of a split skin): lashes and
+eye films rooted at a lid (each well under 1 %), gums or a tongue stay shells of their own, which the rig moves
+whole (rigidly, with the jaw or riding the skin), as it did before."""
+SOUP_SHARE = 0.5
+"""When more than this share of the used vertices has a copy, the mesh is a triangle soup and is left as it is."""
 
 
 def triangle_corners(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -123,3 +138,55 @@ def vertex_shells(triangles: np.ndarray, count: int) -> np.ndarray:
     rows, columns = triangles.ravel(), triangles[:, [1, 2, 0]].ravel()
     graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, columns)), shape=(count, count))
     return connected_components(graph, directed=False)[1]
+
+
+def weld_seams(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """The triangles (T', 3) with the copies of a vertex split along a seam joined again; vertices are untouched.
+
+    Game and glTF exports split vertices along UV and material seams: a head comes as pieces whose borders
+    coincide, and its face is no longer one connected surface. Here copies closer than :data:`SEAM_TOLERANCE`
+    of the bounding-box diagonal, each on the open border of its own faces, of a piece with at least
+    :data:`SEAM_MIN_SHARE` of the mesh's area and with normals (from those faces) within :data:`SEAM_NORMAL_COS`,
+    are replaced by the lowest index among them. Copies whose faces turn
+    against each other stay apart: lips or lids modelled touching, whose slit must still open. A triangle that
+    joining leaves with a repeated vertex is dropped. A triangle soup (more than :data:`SOUP_SHARE` of the used
+    vertices have a copy) is returned as given, for the caller to refuse.
+
+    Args:
+        points: vertex positions (V, 3).
+        triangles: vertex indices (T, 3).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    points = np.asarray(points, dtype=np.float64)
+    triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    used = np.unique(triangles)
+    if len(used) < 2:
+        return triangles
+    diagonal = float(np.linalg.norm(np.ptp(points[used], axis=0)))
+    pairs = cKDTree(points[used]).query_pairs(SEAM_TOLERANCE * diagonal, output_type="ndarray")
+    if len(pairs) == 0 or len(np.unique(pairs)) > SOUP_SHARE * len(used):
+        return triangles
+    first, second = used[pairs[:, 0]], used[pairs[:, 1]]
+    edges, counts = triangle_edges(triangles)
+    border = np.zeros(len(points), dtype=bool)
+    border[edges[counts == 1].ravel()] = True
+    shell = vertex_shells(triangles, len(points))
+    corners = triangle_corners(points, triangles)
+    crosses = triangle_crosses(corners)
+    area = np.bincount(shell[triangles[:, 0]], weights=triangle_areas(crosses=crosses), minlength=shell.max() + 1)
+    large = area[shell] >= SEAM_MIN_SHARE * area.sum()
+    normals = area_weighted_vertex_normals(points, triangles, crosses=crosses)
+    seam = border[first] & border[second] & large[first] & large[second]
+    seam &= np.sum(normals[first] * normals[second], axis=1) > SEAM_NORMAL_COS
+    if not np.any(seam):
+        return triangles
+    graph = coo_matrix((np.ones(int(seam.sum())), (first[seam], second[seam])), shape=(len(points), len(points)))
+    label = connected_components(graph, directed=False)[1]
+    lowest = np.full(label.max() + 1, len(points), dtype=np.int64)
+    np.minimum.at(lowest, label, np.arange(len(points)))
+    joined = lowest[label][triangles]
+    distinct = (joined[:, 0] != joined[:, 1]) & (joined[:, 1] != joined[:, 2]) & (joined[:, 0] != joined[:, 2])
+    return joined[distinct]

@@ -13,7 +13,7 @@ from functools import cached_property
 import numpy as np
 
 from .._validate import as_finite_array
-from ..geometry.triangles import triangle_edges, vertex_shells
+from ..geometry.triangles import triangle_edges, vertex_shells, weld_seams
 from ..mesh import fan_triangles
 
 __all__ = ["HeadSurface", "polygons_to_triangles", "vertex_normals", "TWIN_AREA", "MIN_SKIN_VERTICES"]
@@ -46,7 +46,8 @@ class HeadSurface:
 
     Args:
         points: vertex positions (V, 3) in the file's units.
-        triangles: (T, 3) vertex indices (fan-triangulate polygons first with :func:`polygons_to_triangles`).
+        triangles: (T, 3) vertex indices (fan-triangulate polygons first with :func:`polygons_to_triangles`);
+            vertices split along seams are joined (:func:`~warpface.geometry.triangles.weld_seams`).
         label: names the mesh in error messages.
 
     Raises:
@@ -81,7 +82,7 @@ class HeadSurface:
             & (triangles[:, 1] != triangles[:, 2])
             & (triangles[:, 0] != triangles[:, 2])
         )
-        self.triangles = triangles[keep].astype(np.int64)
+        self.triangles = weld_seams(self.points, triangles[keep])  # a head split along UV seams is one surface
         if len(self.triangles) == 0:
             raise ValueError(f"{self.label}: every face repeats a vertex; no surface to find a face on")
 

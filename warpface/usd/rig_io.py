@@ -34,6 +34,7 @@ from .._validate import as_positive, expect_instance
 from ..errors import RigError
 from ..expression.muscles import FALLOFFS, LinearMuscle, SphincterMuscle
 from ..expression.wrinkles import CylindricalProjection, PlanarProjection, Wrinkle
+from ..geometry.triangles import weld_seams
 from ..mesh import FaceMesh, fan_triangles
 from ..rig import FaceRig
 from ._files import LAYER_SUFFIXES, checked_prim_path, export_layer_atomically, open_stage, writable_path
@@ -429,6 +430,8 @@ def _read_mesh(skin: Usd.Prim, to_units: float, degenerate: str) -> FaceMesh:
             "entries"
         )
     triangles = fan_triangles(counts, indices)
+    if len(triangles) and 0 <= triangles.min() and triangles.max() < len(points):  # else FaceMesh names the fault
+        triangles = weld_seams(points, triangles)  # as `warpface rig` built it: a skin split along seams is one
     if geom.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded:
         triangles = triangles[:, [0, 2, 1]]
     try:
