@@ -149,7 +149,8 @@ def weld_seams(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     :data:`SEAM_MIN_SHARE` of the mesh's area and with normals (from those faces) within :data:`SEAM_NORMAL_COS`,
     are replaced by the lowest index among them. Copies whose faces turn
     against each other stay apart: lips or lids modelled touching, whose slit must still open. A triangle that
-    joining leaves with a repeated vertex is dropped. A triangle soup (more than :data:`SOUP_SHARE` of the used
+    joining leaves with a repeated vertex is dropped. Indices out of range or non-finite points are returned as
+    given, for the caller's checks to name. A triangle soup (more than :data:`SOUP_SHARE` of the used
     vertices have a copy) is returned as given, for the caller to refuse.
 
     Args:
@@ -163,8 +164,8 @@ def weld_seams(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     points = np.asarray(points, dtype=np.float64)
     triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
     used = np.unique(triangles)
-    if len(used) < 2:
-        return triangles
+    if len(used) < 2 or used[0] < 0 or used[-1] >= len(points) or not np.isfinite(points[used]).all():
+        return triangles  # nothing to join, or a fault the caller's checks name
     diagonal = float(np.linalg.norm(np.ptp(points[used], axis=0)))
     pairs = cKDTree(points[used]).query_pairs(SEAM_TOLERANCE * diagonal, output_type="ndarray")
     if len(pairs) == 0 or len(np.unique(pairs)) > SOUP_SHARE * len(used):

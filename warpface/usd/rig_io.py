@@ -430,8 +430,7 @@ def _read_mesh(skin: Usd.Prim, to_units: float, degenerate: str) -> FaceMesh:
             "entries"
         )
     triangles = fan_triangles(counts, indices)
-    if len(triangles) and 0 <= triangles.min() and triangles.max() < len(points):  # else FaceMesh names the fault
-        triangles = weld_seams(points, triangles)  # as `warpface rig` built it: a skin split along seams is one
+    triangles = weld_seams(points, triangles)  # as `warpface rig` built it: a skin split along seams is one piece
     if geom.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded:
         triangles = triangles[:, [0, 2, 1]]
     try:
