@@ -88,6 +88,26 @@ def test_rig_of_a_z_up_millimetre_usd_head_keeps_its_frame_and_finds_the_landmar
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_a_usd_head_under_a_scaled_root_gets_the_unit_its_points_are_in(tmp_path, capsys):
+    """Points in mm under a root Xform scaled by 0.001 on a metre stage (a common export): the rig stage says
+    0.001 m per unit, as the mesh's own points are, not a 1,000× head (the reference does not bring the root)."""
+    from pxr import Gf, Usd, UsdGeom
+
+    from warpface.usd import read_rig
+
+    face = default_face()
+    head, _ = _write_usd_head(tmp_path / "head.usda", 1000.0 * face.points, face.triangles, 1.0)
+    stage = Usd.Stage.Open(str(head))
+    UsdGeom.Xform.Define(stage, "/Head").AddScaleOp().Set(Gf.Vec3f(0.001, 0.001, 0.001))
+    stage.GetRootLayer().Save()
+    out = tmp_path / "out" / "rig.usda"
+    assert main(["--device", "cpu", "rig", str(head), "--out", str(out)]) == 0
+    assert "landmarks found" in capsys.readouterr().out
+    assert UsdGeom.GetStageMetersPerUnit(Usd.Stage.Open(str(out))) == pytest.approx(0.001)
+    np.testing.assert_allclose(read_rig(out).mesh.points, face.points, atol=1e-6)  # metres
+    assert main(["validate", str(out)]) == 0
+
+
 def test_rig_from_a_landmark_file_and_refusals_leave_nothing_behind(face_obj, tmp_path, capsys):
     from warpface.assets import default_landmarks
     from warpface.usd import read_rig

@@ -92,7 +92,8 @@ def _skin_mesh(stage, path: Path):
 
 
 def _read_usd(path: Path):
-    """Points, triangles and metres per unit of the head's skin mesh on a USD stage (its local space)."""
+    """Points, triangles and metres per unit of the head's skin mesh on a USD stage (its local space: the stage's
+    ``metersPerUnit`` times its ancestors' scale, :func:`_parents_scale`; None when the stage has none)."""
     import numpy as np
     from pxr import UsdGeom
 
@@ -110,8 +111,21 @@ def _read_usd(path: Path):
     if counts is None or indices is None or len(counts) == 0:
         return points, np.zeros((0, 3), dtype=np.int64), None
     triangles = polygons_to_triangles(np.asarray(counts), np.asarray(indices))
-    authored = stage.HasAuthoredMetadata("metersPerUnit")
-    return points, triangles, UsdGeom.GetStageMetersPerUnit(stage) if authored else None
+    if not stage.HasAuthoredMetadata("metersPerUnit"):
+        return points, triangles, None
+    return points, triangles, UsdGeom.GetStageMetersPerUnit(stage) * _parents_scale(mesh)
+
+
+def _parents_scale(mesh) -> float:
+    """The uniform scale the mesh's ancestors apply to its points (|det|^⅓ of the parent-to-world matrix): a
+    head kept in cm under a root scaled by 0.01 on a metre stage has points of 0.01 m, as the rig stage says.
+    The rig's skin references the mesh prim alone, so its ancestors' transforms do not come along."""
+    import numpy as np
+    from pxr import Usd
+
+    matrix = np.array(mesh.ComputeParentToWorldTransform(Usd.TimeCode.Default()), dtype=np.float64)[:3, :3]
+    scale = abs(float(np.linalg.det(matrix))) ** (1.0 / 3.0)
+    return scale if np.isfinite(scale) and scale > 0.0 else 1.0
 
 
 def read_head(path) -> tuple:
