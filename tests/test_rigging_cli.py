@@ -108,6 +108,22 @@ def test_a_usd_head_under_a_scaled_root_gets_the_unit_its_points_are_in(tmp_path
     assert main(["validate", str(out)]) == 0
 
 
+def test_a_usd_head_with_time_sampled_points_only_is_refused_saying_so(tmp_path, capsys):
+    from pxr import Usd, UsdGeom, Vt
+
+    face = default_face()
+    head, _ = _write_usd_head(tmp_path / "head.usda", 100.0 * face.points, face.triangles, 0.01)
+    stage = Usd.Stage.Open(str(head))
+    points = UsdGeom.Mesh(stage.GetPrimAtPath("/Head/Geo")).GetPointsAttr()
+    points.Clear()
+    points.Set(Vt.Vec3fArray.FromNumpy((100.0 * face.points).astype(np.float32)), Usd.TimeCode(1))
+    stage.GetRootLayer().Save()
+    out = tmp_path / "out" / "rig.usda"
+    assert main(["rig", str(head), "--out", str(out)]) == 2
+    assert "only 1 time sample(s); export the neutral head with default points" in capsys.readouterr().err
+    assert not out.parent.exists()
+
+
 def test_rig_from_a_landmark_file_and_refusals_leave_nothing_behind(face_obj, tmp_path, capsys):
     from warpface.assets import default_landmarks
     from warpface.usd import read_rig

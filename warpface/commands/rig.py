@@ -104,7 +104,15 @@ def _read_usd(path: Path):
     mesh = _skin_mesh(stage, path)
     points = mesh.GetPointsAttr().Get()
     if points is None or len(points) == 0:
-        raise ValueError(f"{path}: the mesh {mesh.GetPath()} has no points")
+        sampled = mesh.GetPointsAttr().GetNumTimeSamples()
+        raise ValueError(
+            f"{path}: the mesh {mesh.GetPath()} has no points"
+            + (
+                f" at rest, only {sampled} time sample(s); export the neutral head with default points"
+                if sampled
+                else ""
+            )
+        )
     counts = mesh.GetFaceVertexCountsAttr().Get()
     indices = mesh.GetFaceVertexIndicesAttr().Get()
     points = np.asarray(points, dtype=np.float64)
