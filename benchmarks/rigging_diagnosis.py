@@ -27,6 +27,7 @@ development heads (looked at while the method was tuned); fits run in two worker
 from __future__ import annotations
 
 import argparse
+import functools
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
@@ -98,9 +99,15 @@ def jaw_edge_length(points: np.ndarray, triangles: np.ndarray, vertices: np.ndar
     return float(np.linalg.norm(points[edges[touching, 0]] - points[edges[touching, 1]], axis=1).mean())
 
 
+@functools.lru_cache(maxsize=1)
+def _whole_head() -> tuple[np.ndarray, np.ndarray]:
+    """The whole ICT head (points in cm, triangles), read once per worker process."""
+    return load_obj(shared_data_path("ict_facekit", "original", "generic_neutral_mesh.obj"))
+
+
 def sample_errors(seed: int) -> dict:
     """Landmark errors [mm] on the posed head ``seed``, as warped and with its visible part only."""
-    rest, triangles = load_obj(shared_data_path("ict_facekit", "original", "generic_neutral_mesh.obj"))
+    rest, triangles = _whole_head()
     truth = ict_landmark_indices()
     warped = warped_head(rest, seed)
     row = {"seed": seed}
