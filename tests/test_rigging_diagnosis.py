@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.rigging_diagnosis import jaw_components, jaw_edge_length, non_affine_tangential
+from benchmarks.rigging_diagnosis import jaw_components, jaw_edge_length, non_affine_tangential, visible_part
 
 
 def _contour():
@@ -58,3 +58,30 @@ def test_the_edge_length_at_a_vertex_of_a_unit_grid_is_one_or_the_diagonal():
     # the centre vertex 4 has 4 unit edges and 2 diagonals; a corner (0) 2 unit edges and 1 diagonal
     assert jaw_edge_length(points, triangles, np.array([4])) == pytest.approx((4.0 + 2.0 * np.sqrt(2.0)) / 6.0)
     assert jaw_edge_length(points, triangles, np.array([0])) == pytest.approx((2.0 + np.sqrt(2.0)) / 3.0)
+
+
+def test_the_visible_part_keeps_an_affine_warp_and_the_normal_motion_but_drops_the_slide():
+    """On a plane grid: an affine warp is its own visible part; a bump along the normal stays; a slide within the
+    plane beyond the affine map is dropped."""
+    x, y = np.meshgrid(np.linspace(-1.0, 1.0, 21), np.linspace(-1.0, 1.0, 21))
+    rest = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    index = np.arange(x.size).reshape(21, 21)
+    a, b, c, d = index[:-1, :-1].ravel(), index[:-1, 1:].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel()
+    triangles = np.concatenate([np.c_[a, b, d], np.c_[a, d, c]])
+    fit_on = np.arange(0, x.size, 3)
+    linear = np.array([[1.1, 0.2, 0.0], [-0.1, 0.9, 0.0], [0.0, 0.0, 1.0]])
+    affine = rest @ linear.T + [0.3, -0.2, 0.1]
+    np.testing.assert_allclose(visible_part(rest, affine, triangles, fit_on), affine, atol=1e-12)
+    bump = np.exp(-8.0 * np.sum(rest[:, :2] ** 2, axis=1))
+    lifted = rest + 0.1 * bump[:, None] * [0.0, 0.0, 1.0]
+    slid = lifted + 0.1 * bump[:, None] * [1.0, 0.0, 0.0]
+    visible = visible_part(rest, slid, triangles, fit_on)
+    rows = np.concatenate([rest, np.ones((len(rest), 1))], axis=1)
+    solution = np.linalg.lstsq(rows[fit_on], slid[fit_on], rcond=None)[0]
+    mapped = rows @ solution  # the affine map fitted on fit_on: a plane again, of normal n
+    normal = np.cross(solution[0], solution[1])
+    normal /= np.linalg.norm(normal)
+    kept = visible - mapped
+    np.testing.assert_allclose(kept - np.outer(kept @ normal, normal), 0.0, atol=1e-12)  # nothing within the plane
+    np.testing.assert_allclose((visible - slid) @ normal, 0.0, atol=1e-12)  # all of the motion along its normal
+    assert np.abs(slid - mapped)[:, 0].max() > 0.05  # while the warp itself slid the sheet
