@@ -55,13 +55,22 @@ def test_lips_modelled_touching_stay_apart():
     assert len(np.unique(vertex_shells(joined, len(laid_out))[np.unique(joined)])) == 1
 
 
-def test_small_pieces_and_soups_are_left_as_given():
+def test_a_small_piece_joins_the_skin_but_small_pieces_that_meet_only_each_other_stay_apart():
+    """A 1 % corner split off a large sheet (a lip cut off by a hard edge) is welded back; a small strip split in
+    two away from it (lashes, an eye film: each piece well under :data:`SEAM_MIN_SHARE`) is not; a soup is left."""
     points, triangles = _sheet(columns=20, rows=20)
     centroid = points[triangles].mean(axis=1)
-    corner = (centroid[:, 0] < 2.0) & (centroid[:, 1] < 2.0)  # 1 % of the sheet: a lash or a film on the skin
+    corner = (centroid[:, 0] < 2.0) & (centroid[:, 1] < 2.0)
     assert corner.mean() < SEAM_MIN_SHARE
     split_points, split, _ = _split(points, triangles, corner)
-    np.testing.assert_array_equal(weld_seams(split_points, split), split)
+    np.testing.assert_array_equal(weld_seams(split_points, split), triangles)
+    strip_points, strip = _sheet(columns=4, rows=1)
+    strip_points = strip_points * 0.5 + [0.0, 0.0, 5.0]  # away from the sheet, 0.5 % of the area in all
+    halves = strip_points[strip].mean(axis=1)[:, 0] < 1.0
+    strip_points, strip, _ = _split(strip_points, strip, halves)
+    both_points = np.vstack([points, strip_points])
+    both = np.vstack([triangles, strip + len(points)])
+    np.testing.assert_array_equal(weld_seams(both_points, both), both)
     soup_points = points[triangles].reshape(-1, 3)
     soup = np.arange(len(soup_points)).reshape(-1, 3)
     np.testing.assert_array_equal(weld_seams(soup_points, soup), soup)  # refused downstream as a soup
@@ -80,3 +89,21 @@ def test_welding_swaps_vertices_only_for_their_coincident_copies(seed):
     # every corner is the same point as before: welding only swaps a vertex for a coincident copy
     np.testing.assert_array_equal(split_points[joined], split_points[split])
     np.testing.assert_array_equal(joined, triangles)
+
+
+def test_a_copy_left_out_of_the_triangles_neither_dilutes_its_neighbours_means_nor_misses_its_own():
+    """The tissue stage's neighbourhood means (normals, stretch) count only vertices on triangles: a seam's copy,
+    unused by the welded triangles, takes its twin's mean and leaves every other vertex's mean as it was."""
+    from warpface.expression.tissue import neighbourhood_averager
+
+    rng = np.random.default_rng(4)
+    points = rng.uniform(-1.0, 1.0, (300, 3))
+    values = rng.normal(0.0, 1.0, (300, 2))
+    plain = neighbourhood_averager(points, 0.5)(values)
+    with_copies = np.vstack([points, points[:20]])
+    copied_values = np.vstack([values, np.zeros((20, 2))])  # a copy has no value of its own (no normal, no stretch)
+    counted = np.arange(320) < 300
+    means = neighbourhood_averager(with_copies, 0.5, counted)(copied_values)
+    np.testing.assert_allclose(means[:300], plain, atol=1e-12)
+    np.testing.assert_allclose(means[300:], plain[:20], atol=1e-12)
+    np.testing.assert_array_equal(neighbourhood_averager(points, 0.5, np.ones(300, bool))(values), plain)

@@ -74,17 +74,27 @@ def neighbourhood_mean(points: np.ndarray, values: np.ndarray, radius: float) ->
     return neighbourhood_averager(points, radius)(values)
 
 
-def neighbourhood_averager(points: np.ndarray, radius: float):
+def neighbourhood_averager(points: np.ndarray, radius: float, counted: np.ndarray | None = None):
     """:func:`neighbourhood_mean` over ``points`` as a function of the values alone: the neighbour search
-    and the weights are done once, for a rig's many averages (the same results, bit for bit)."""
+    and the weights are done once, for a rig's many averages (the same results, bit for bit).
+
+    ``counted`` (V,) bool: the vertices whose values enter the means (default all). A vertex on no triangle — the
+    copy of a vertex split along a seam, which the rig's welded triangles leave out — has no normal and no
+    stretch of its own: left out, it gets the mean of its neighbours (its twin's) instead of diluting theirs."""
     tree = cKDTree(points)
     pairs = tree.query_pairs(radius, output_type="ndarray")
     sigma2 = (0.5 * radius) ** 2
     weight = np.exp(-np.sum((points[pairs[:, 0]] - points[pairs[:, 1]]) ** 2, axis=1) / (2.0 * sigma2))
     count = len(points)
+    itself = np.ones(count)
+    forward, backward = weight, weight
+    if counted is not None and not np.all(counted):
+        counted = np.asarray(counted, dtype=bool)
+        forward, backward = weight * counted[pairs[:, 1]], weight * counted[pairs[:, 0]]
+        itself = counted.astype(np.float64)
     matrix = coo_matrix(
         (
-            np.concatenate([weight, weight, np.ones(count)]),
+            np.concatenate([forward, backward, itself]),
             (
                 np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(count)]),
                 np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(count)]),
@@ -92,11 +102,11 @@ def neighbourhood_averager(points: np.ndarray, radius: float):
         ),
         shape=(count, count),
     ).tocsr()
-    total = np.asarray(matrix.sum(axis=1)).ravel()
+    total = np.asarray(matrix.sum(axis=1)).ravel()[:, None]
 
     def mean(values: np.ndarray) -> np.ndarray:
-        flat = values.reshape(count, -1)
-        return (matrix @ flat / total[:, None]).reshape(values.shape)
+        summed = matrix @ values.reshape(count, -1)
+        return np.divide(summed, total, out=np.zeros_like(summed), where=total > 0.0).reshape(values.shape)
 
     return mean
 
@@ -208,7 +218,8 @@ def tissue_response(
     points = np.asarray(points, dtype=np.float64)
     size = face_size(points) if size is None else float(size)
     radius, travel = FASCIA_RADIUS * size, FOLD_TRAVEL * size
-    average = neighbourhood_averager(points, radius)
+    on_surface = np.bincount(np.asarray(triangles).ravel(), minlength=len(points)) > 0
+    average = neighbourhood_averager(points, radius, on_surface)
     normals = average(np.asarray(normals, dtype=np.float64))
     length = np.linalg.norm(normals, axis=1, keepdims=True)
     normals = np.divide(normals, length, out=np.zeros_like(normals), where=length > 1e-12)

@@ -33,9 +33,10 @@ SEAM_NORMAL_COS = 0.25
 """Copies are welded only where their own faces' normals agree this well (within ~75°: a seam, even along a crease
 of the gums); lips or lids modelled touching face each other (~180°) and stay apart."""
 SEAM_MIN_SHARE = 0.1
-"""Only pieces holding at least this share of the mesh's area are welded (the parts of a split skin): lashes and
-eye films rooted at a lid (each well under 1 %), gums or a tongue stay shells of their own, which the rig moves
-whole (rigidly, with the jaw or riding the skin), as it did before."""
+"""A seam is welded only where one of its two pieces holds at least this share of the mesh's area (a part of the
+skin): a lip or ear split off by a hard edge or a UV island joins the face, while small pieces that meet only each
+other — lashes and eye films rooted at a lid (each well under 1 %), gums and a tongue — stay shells of their own,
+which the rig moves whole (rigidly, with the jaw or riding the skin), as it did before."""
 SOUP_SHARE = 0.5
 """When more than this share of the used vertices has a copy, the mesh is a triangle soup and is left as it is."""
 
@@ -145,9 +146,9 @@ def weld_seams(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
 
     Game and glTF exports split vertices along UV and material seams: a head comes as pieces whose borders
     coincide, and its face is no longer one connected surface. Here copies closer than :data:`SEAM_TOLERANCE`
-    of the bounding-box diagonal, each on the open border of its own faces, of a piece with at least
-    :data:`SEAM_MIN_SHARE` of the mesh's area and with normals (from those faces) within :data:`SEAM_NORMAL_COS`,
-    are replaced by the lowest index among them. Copies whose faces turn
+    of the bounding-box diagonal, each on the open border of its own faces, one of them in a piece with at least
+    :data:`SEAM_MIN_SHARE` of the mesh's area, and with normals (from their own faces) within
+    :data:`SEAM_NORMAL_COS`, are replaced by the lowest index among them. Copies whose faces turn
     against each other stay apart: lips or lids modelled touching, whose slit must still open. A triangle that
     joining leaves with a repeated vertex is dropped. Indices out of range or non-finite points are returned as
     given, for the caller's checks to name. A triangle soup (more than :data:`SOUP_SHARE` of the used
@@ -180,7 +181,7 @@ def weld_seams(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     area = np.bincount(shell[triangles[:, 0]], weights=triangle_areas(crosses=crosses), minlength=shell.max() + 1)
     large = area[shell] >= SEAM_MIN_SHARE * area.sum()
     normals = area_weighted_vertex_normals(points, triangles, crosses=crosses)
-    seam = border[first] & border[second] & large[first] & large[second]
+    seam = border[first] & border[second] & (large[first] | large[second])
     seam &= np.sum(normals[first] * normals[second], axis=1) > SEAM_NORMAL_COS
     if not np.any(seam):
         return triangles
