@@ -107,3 +107,14 @@ def test_a_copy_left_out_of_the_triangles_neither_dilutes_its_neighbours_means_n
     np.testing.assert_allclose(means[:300], plain, atol=1e-12)
     np.testing.assert_allclose(means[300:], plain[:20], atol=1e-12)
     np.testing.assert_array_equal(neighbourhood_averager(points, 0.5, np.ones(300, bool))(values), plain)
+
+
+def test_a_chain_of_small_pieces_off_the_skin_joins_it_piece_by_piece():
+    points, triangles = _sheet(columns=20, rows=20)
+    centroid = points[triangles].mean(axis=1)
+    near = (centroid[:, 0] < 2.0) & (centroid[:, 1] < 4.0)  # two small islands: one on the sheet …
+    far = near & (centroid[:, 1] < 2.0)  # … and one that meets only the first
+    split_points, split, _ = _split(points, triangles, near)
+    split_points, split, _ = _split(split_points, split, far)
+    assert len(np.unique(vertex_shells(split, len(split_points))[np.unique(split)])) == 3
+    np.testing.assert_array_equal(weld_seams(split_points, split), triangles)

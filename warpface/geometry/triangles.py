@@ -191,4 +191,4 @@ def weld_seams(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     np.minimum.at(lowest, label, np.arange(len(points)))
     joined = lowest[label][triangles]
     distinct = (joined[:, 0] != joined[:, 1]) & (joined[:, 1] != joined[:, 2]) & (joined[:, 0] != joined[:, 2])
-    return joined[distinct]
+    return weld_seams(points, joined[distinct])  # a small piece that met only a now-joined one joins next
