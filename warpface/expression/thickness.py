@@ -24,11 +24,11 @@ def validate_thickness(thickness, vertex_count: int) -> np.ndarray:
 
 
 MAX_BLUR_SIGMA = 256.0
+"""Largest accepted :attr:`ThicknessMap.blur_sigma` [pixels]: the blur's cost grows with its kernel
+width (≈ 6σ), and beyond a few hundred pixels it is a constant image in all but name."""
 REMAP_WIDTH = 4096
 """Lookups per row of the coordinate maps handed to ``cv2.remap``, whose maps must be under 32,767 on each side: a
 mesh's points are laid out as rows of this many (a single row would fail from 32,767 vertices on)."""
-"""Largest accepted :attr:`ThicknessMap.blur_sigma` [pixels]: the blur's cost grows with its kernel
-width (≈ 6σ), and beyond a few hundred pixels it is a constant image in all but name."""
 
 
 @dataclass(frozen=True, eq=False)

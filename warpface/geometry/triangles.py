@@ -25,6 +25,8 @@ __all__ = [
     "weld_seams",
     "SEAM_TOLERANCE",
     "SEAM_NORMAL_COS",
+    "SEAM_MIN_SHARE",
+    "SOUP_SHARE",
 ]
 
 SEAM_TOLERANCE = 1e-6
