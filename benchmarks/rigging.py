@@ -76,6 +76,24 @@ def bumpy_warp(points: np.ndarray, seed: int) -> np.ndarray:
     return (points - centre) * (1.0 + rng.uniform(-0.08, 0.08, 3)) + centre + weights @ amplitudes
 
 
+def broad_warp(points: np.ndarray, seed: int) -> np.ndarray:
+    """A head farther from the template: per-axis scale ±10 %, six broad Gaussian bumps (σ 4 cm, ~1.4 cm each)
+    and the nose tip and the chin (iBUG 30, 8) pushed ~9 mm each way. Only to look for failures, not to tune on:
+    bumps this broad bend the neck and shift the jaw line by up to a centimetre along the face."""
+    rng = np.random.default_rng(seed)
+    face = points[:9409]
+    landmarks = points[ict_landmark_indices()]
+    centre = face.mean(axis=0)
+    warped = (points - centre) * (1.0 + rng.uniform(-0.10, 0.10, 3)) + centre
+    centres = rng.uniform(face.min(axis=0), face.max(axis=0), (6, 3))
+    weights = np.exp(-np.sum((points[:, None, :] - centres[None]) ** 2, axis=2) / (2.0 * 4.0**2))
+    warped += weights @ rng.normal(0.0, 0.8, (6, 3))
+    for landmark, sigma in ((30, 1.5), (8, 2.0)):
+        weight = np.exp(-np.sum((points - landmarks[landmark]) ** 2, axis=1) / (2.0 * sigma**2))
+        warped += weight[:, None] * rng.normal(0.0, 0.5, 3)
+    return warped
+
+
 def posed(points: np.ndarray, triangles: np.ndarray, truth: np.ndarray, seed: int, per_cm: float):
     """The head turned (any yaw, tilt ±30°, roll ±15°), Z-up for odd draws, in another unit, moved and with its
     vertices shuffled: (points, triangles, ground-truth points)."""

@@ -19,9 +19,11 @@ smooth, even bumpy; any yaw, tilt ±30°, roll ±15°, Y- or Z-up), each twice: 
 warp geometry can see — the features' affine map of the warp plus the normal component of what it leaves
 (:func:`visible_part`). The pass count (mean ≤ 3 and max ≤ 10 mm, issue 24's goal) of the second set is the
 method's own share of the misses; the difference to the first is the warps' invisible motion. Seeds 600–659 are
-development heads (looked at while the method was tuned); fits run in two worker processes.
+development heads (looked at while the method was tuned); fits run in two worker processes. ``--broad`` warps
+the sampled heads by ``benchmarks.rigging.broad_warp`` instead (faces farther from the template; to find
+failures, results in ``rigging_sample_broad.json``).
 
-    python -m benchmarks.rigging_diagnosis [--sample 600:660]
+    python -m benchmarks.rigging_diagnosis [--sample 600:660 [--broad]]
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ from warpface.rigging import find_landmarks
 from warpface.rigging.surface import vertex_normals
 
 from ._timing import machine_info, print_table, write_results
-from .rigging import GROUPS, bumpy_warp, smooth_warp
+from .rigging import GROUPS, broad_warp, bumpy_warp, smooth_warp
 from .rigging_orientation import head_pose, warped_head
 
 FACE = 9409
@@ -105,11 +107,11 @@ def _whole_head() -> tuple[np.ndarray, np.ndarray]:
     return load_obj(shared_data_path("ict_facekit", "original", "generic_neutral_mesh.obj"))
 
 
-def sample_errors(seed: int) -> dict:
+def sample_errors(seed: int, broad: bool = False) -> dict:
     """Landmark errors [mm] on the posed head ``seed``, as warped and with its visible part only."""
     rest, triangles = _whole_head()
     truth = ict_landmark_indices()
-    warped = warped_head(rest, seed)
+    warped = broad_warp(rest, seed) if broad else warped_head(rest, seed)
     row = {"seed": seed}
     for label, shape in (("warped", warped), ("visible", visible_part(rest, warped, triangles, truth[27:]))):
         posed = head_pose(seed).apply(shape)
@@ -119,11 +121,11 @@ def sample_errors(seed: int) -> dict:
     return row
 
 
-def sample(first: int, last: int) -> None:
+def sample(first: int, last: int, broad: bool = False) -> None:
     """Pass counts over the posed heads ``first … last − 1``, as warped and visible only (module docstring)."""
     with ProcessPoolExecutor(max_workers=2) as pool:
         heads = []
-        for row in pool.map(sample_errors, range(first, last)):
+        for row in pool.map(functools.partial(sample_errors, broad=broad), range(first, last)):
             heads.append(row)
             print(
                 f"seed {row['seed']}: "
@@ -146,7 +148,7 @@ def sample(first: int, last: int) -> None:
                 "max_over_10": int(np.sum(maxima > 10.0)),
             }
         )
-    print(f"posed whole ICT heads, seeds {first}–{last - 1}")
+    print(f"posed whole ICT heads, {'broad' if broad else 'smooth and bumpy'} warps, seeds {first}–{last - 1}")
     print_table(
         rows,
         [
@@ -160,7 +162,8 @@ def sample(first: int, last: int) -> None:
         ],
     )
     path = write_results(
-        "rigging_sample", {"machine": machine_info("cpu"), "seeds": [first, last], "rows": rows, "heads": heads}
+        "rigging_sample_broad" if broad else "rigging_sample",
+        {"machine": machine_info("cpu"), "seeds": [first, last], "rows": rows, "heads": heads},
     )
     print(f"results: {path}")
 
@@ -168,13 +171,14 @@ def sample(first: int, last: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sample", help="FIRST:LAST seeds of posed, warped whole heads instead of the training set")
+    parser.add_argument("--broad", action="store_true", help="with --sample: benchmarks.rigging.broad_warp heads")
     args = parser.parse_args()
     ict = shared_data_path("ict_facekit", "original", "generic_neutral_mesh.obj")
     if ict is None:
         raise SystemExit("ICT-FaceKit not found in ../shared/data (set WARPFACE_SHARED_DATA)")
     if args.sample:
         first, last = (int(part) for part in args.sample.split(":"))
-        sample(first, last)
+        sample(first, last, broad=args.broad)
         return
     truth = ict_landmark_indices()
     rest, triangles = load_obj(ict)

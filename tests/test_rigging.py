@@ -183,3 +183,15 @@ def test_james_scan_landmarks_against_its_reordered_ground_truth():
     assert found.units == "mm"
     assert error_mm[27:].mean() <= 5.0  # nose, eyes, mouth: geometric features the registration matches
     assert error_mm.mean() <= 9.0  # jaw line and brows follow ICT's annotation, not menpo's (docs/RIG.md)
+
+
+def test_profile_peaks_are_the_most_forward_points_spaced_along_up():
+    from warpface.rigging.align import TIP_STARTS, profile_peaks
+
+    heights = np.linspace(-1.0, 1.0, 401)
+    forward = np.exp(-((heights - 0.3) ** 2) / 0.005) + 1.2 * np.exp(-((heights + 0.5) ** 2) / 0.02)  # nose, chin
+    profile = np.stack([np.zeros_like(heights), heights, forward], axis=1)
+    peaks = profile_peaks(profile, np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]), spacing=0.3)
+    assert TIP_STARTS == 2 and len(peaks) == 2
+    np.testing.assert_allclose([peaks[0][1], peaks[1][1]], [-0.5, 0.3], atol=0.006)  # the chin first, then the nose
+    assert len(profile_peaks(profile, np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]), spacing=3.0)) == 1

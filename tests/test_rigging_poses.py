@@ -124,3 +124,27 @@ def test_an_uneven_whole_head_is_fitted_upright(head):
     assert found.up @ turn.apply([0.0, 1.0, 0.0]) > 0.95 and found.front @ turn.apply([0.0, 0.0, 1.0]) > 0.95
     error = _error_mm(found, moved, new_of_old[ict_landmark_indices()], "m")
     assert error.mean() <= 3.0
+
+
+def test_a_head_whose_chin_is_farther_forward_than_its_nose_is_fitted_upright(head, monkeypatch):
+    """On this broadly warped, tilted head the chin sticks out farther than the nose along the best start's front:
+    with the nose tip put only on the most forward point, the upside-down fit won (docs/RIG.md §9 step 3)."""
+    from benchmarks.rigging import broad_warp
+    from benchmarks.rigging_orientation import head_pose
+    from warpface.rigging import align
+    from warpface.rigging.surface import HeadSurface
+    from warpface.rigging.template import template
+
+    points, counts, indices = head
+    pose = head_pose(703)
+    surface = HeadSurface(pose.apply(broad_warp(points, 703)), polygons_to_triangles(counts, indices), "broad")
+    skin, model = surface.points[surface.skin_vertices], template()
+
+    def upright(fit):
+        return (fit.rotation @ model.vertical) @ pose.apply([0.0, 1.0, 0.0])
+
+    fit, _ = align.fit_similarity(model, skin, surface.skin_normals)
+    assert upright(fit) > 0.95
+    monkeypatch.setattr(align, "TIP_STARTS", 1)
+    single, _ = align.fit_similarity(model, skin, surface.skin_normals)
+    assert upright(single) < 0 and single.residual > fit.residual

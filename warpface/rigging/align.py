@@ -6,9 +6,9 @@
    plane that maps the skin onto itself best wins.
 2. **Up and front.** Both lie in that plane; they are searched over 12 turns in it, for either side
    of the plane as the subject's left (24 starts). Each start puts the template's nose tip on the
-   skin point farthest along that front and fits a similarity transform (scale, rotation,
-   translation) by ICP. The three best are refined on all graph nodes; the one whose fit leaves the
-   smallest capped distance wins.
+   skin point farthest along that front, and again on the next peak of the profile along it, and
+   fits a similarity transform (scale, rotation, translation) by ICP. The three best are refined on all
+   graph nodes; the one whose fit leaves the smallest capped distance wins.
    ``up`` and ``front`` hints drop the starts that disagree with them by more than 60°.
 3. **Proportions.** A global affine map of the template onto the skin, fitted after the similarity
    (:func:`fit_affine`): a head wider, flatter or longer than the template is met by stretching the
@@ -199,6 +199,30 @@ def _starts(normal: np.ndarray, up_hint, front_hint):
     return frames
 
 
+TIP_STARTS = 2
+"""Nose-tip guesses per start frame: the profile's most forward peaks (:func:`profile_peaks`)."""
+TIP_SPACING = 0.3
+"""Least distance between two nose-tip guesses along up, as a fraction of the skin's width."""
+
+
+def profile_peaks(profile: np.ndarray, front: np.ndarray, up: np.ndarray, spacing: float) -> list[np.ndarray]:
+    """Up to :data:`TIP_STARTS` points of the profile (the skin near the symmetry plane, (N, 3)) farthest along
+    ``front``, each at least ``spacing`` along ``up`` from those taken before it.
+
+    *Why more than one:* on a head tilted toward a start's front, or with a prominent chin, the chin (or the
+    brow) is farther forward than the nose tip; a template put there by its nose stays there (a head whose
+    chin was pulled forward 1 cm was fitted upside down, its correct start 8 cm off the nose).
+    """
+    forward, heights = profile @ front, profile @ up
+    open_ = np.ones(len(profile), dtype=bool)
+    peaks = []
+    while len(peaks) < TIP_STARTS and open_.any():
+        peak = int(np.flatnonzero(open_)[np.argmax(forward[open_])])
+        peaks.append(profile[peak])
+        open_ &= np.abs(heights - heights[peak]) >= spacing
+    return peaks
+
+
 PLANE_SAMPLE = 4000
 """Skin points the symmetry plane is fitted on (a random subset of a larger skin)."""
 
@@ -234,12 +258,12 @@ def fit_similarity(
         rotation = np.stack([x, up, front], axis=1)  # template axes → target directions
         across = (skin - centre) @ x
         width = float(np.quantile(across, 0.98) - np.quantile(across, 0.02))
-        near_plane = np.abs(across) < 0.1 * width
-        tip = skin[near_plane][np.argmax((skin[near_plane] - centre) @ front)]
-        for factor in SCALE_STARTS:
-            scale = factor * width / template_width
-            start = Similarity(scale, rotation, tip - scale * rotation @ nose)
-            candidates.append(_icp(nodes[coarse], node_normals[coarse], skin, skin_normals, tree, start, 20))
+        profile = skin[np.abs(across) < 0.1 * width]
+        for tip in profile_peaks(profile, front, up, TIP_SPACING * width):
+            for factor in SCALE_STARTS:
+                scale = factor * width / template_width
+                start = Similarity(scale, rotation, tip - scale * rotation @ nose)
+                candidates.append(_icp(nodes[coarse], node_normals[coarse], skin, skin_normals, tree, start, 20))
     if not candidates:
         raise ValueError("up/front: the hints given contradict each other (up and front must be perpendicular)")
     finalists = sorted(candidates, key=lambda fit: fit.residual)[:FINALISTS]
