@@ -76,21 +76,31 @@ def bumpy_warp(points: np.ndarray, seed: int) -> np.ndarray:
     return (points - centre) * (1.0 + rng.uniform(-0.08, 0.08, 3)) + centre + weights @ amplitudes
 
 
-def broad_warp(points: np.ndarray, seed: int) -> np.ndarray:
+def broad_warp(points: np.ndarray, seed: int, symmetric: bool = True) -> np.ndarray:
     """A head farther from the template: per-axis scale ±10 %, six broad Gaussian bumps (σ 4 cm, ~1.4 cm each)
-    and the nose tip and the chin (iBUG 30, 8) pushed ~9 mm each way. Only to look for failures, not to tune on:
-    bumps this broad bend the neck and shift the jaw line by up to a centimetre along the face."""
+    and the nose tip and the chin (iBUG 30, 8) pushed ~9 mm each way; ``symmetric`` mirrors every bump and push
+    through the ICT head's mid-plane (x = 0; faces are near mirror-symmetric, so the proportions vary but the
+    features stay level). Only to look for failures, not to tune on: bumps this broad bend the neck and, unmirrored,
+    tilt the features ~10° against the skull and shift the jaw line by up to a centimetre along the face."""
     rng = np.random.default_rng(seed)
     face = points[:9409]
     landmarks = points[ict_landmark_indices()]
     centre = face.mean(axis=0)
-    warped = (points - centre) * (1.0 + rng.uniform(-0.10, 0.10, 3)) + centre
+    scale = 1.0 + rng.uniform(-0.10, 0.10, 3)
+    warped = (points - centre) * scale + centre
     centres = rng.uniform(face.min(axis=0), face.max(axis=0), (6, 3))
+    amplitudes = rng.normal(0.0, 0.8, (6, 3))
+    pushes = [(landmarks[landmark], sigma, rng.normal(0.0, 0.5, 3)) for landmark, sigma in ((30, 1.5), (8, 2.0))]
+    mirror = np.array([-1.0, 1.0, 1.0])
+    if symmetric:
+        centres = np.vstack([centres, centres * mirror])
+        amplitudes = np.vstack([amplitudes, amplitudes * mirror]) / np.sqrt(2.0)
+        pushes = [(where * mirror, sigma, push * mirror) for where, sigma, push in pushes] + pushes
+        pushes = [(where, sigma, push / np.sqrt(2.0)) for where, sigma, push in pushes]
     weights = np.exp(-np.sum((points[:, None, :] - centres[None]) ** 2, axis=2) / (2.0 * 4.0**2))
-    warped += weights @ rng.normal(0.0, 0.8, (6, 3))
-    for landmark, sigma in ((30, 1.5), (8, 2.0)):
-        weight = np.exp(-np.sum((points - landmarks[landmark]) ** 2, axis=1) / (2.0 * sigma**2))
-        warped += weight[:, None] * rng.normal(0.0, 0.5, 3)
+    warped += weights @ amplitudes
+    for where, sigma, push in pushes:
+        warped += np.exp(-np.sum((points - where) ** 2, axis=1) / (2.0 * sigma**2))[:, None] * push
     return warped
 
 

@@ -5,6 +5,7 @@ Pipeline (docs/RIG.md, "Automatic landmarks"): split shells and keep the skin
 similarity fit of the template (:mod:`~warpface.rigging.align`); deform the template onto the skin
 with non-rigid ICP (:mod:`~warpface.rigging.nonrigid`), four times: each time after the first from the head's
 proportions as the previous fit's feature landmarks give them (:func:`affine_from_features`, :data:`PASSES`);
+move the mouth onto the ends of a closed mouth's lip contact where it has one (:mod:`~warpface.rigging.lips`);
 give every template landmark the nearest skin vertex that faces the same way (an eye landmark carried off the skin:
 the one across its normal, :func:`snap_to_skin`). The unit follows from the fitted
 eye distance (:mod:`~warpface.rigging.units`).
@@ -19,6 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .align import Affine, Similarity, fit_affine, fit_similarity
+from .lips import mouth_contact
 from .nonrigid import NonRigidFit, SkinTarget, fit_nonrigid
 from .surface import HeadSurface
 from .template import Template, template
@@ -241,7 +243,13 @@ def find_landmarks(
     else:
         unit_name, meters_per_unit = units.strip().lower(), given_unit
     marks, mark_normals = registration.landmark_points()
+    contact = mouth_contact(skin, marks)
+    taken: dict[int, int] = {}
+    if contact is not None:
+        marks, taken = contact.move(marks)
     index, distance = snap_to_skin(marks, mark_normals, skin, across=np.isin(np.arange(68), SNAPPED_ACROSS))
+    for corner, end in taken.items():
+        index[corner], distance[corner] = end, np.linalg.norm(skin.points[end] - marks[corner])
     confidence = np.exp(-((distance / CONFIDENCE_DISTANCE) ** 2))
     if registration.deformed is not None:
         deformed = registration.deformed
