@@ -11,7 +11,7 @@ from scipy.spatial import cKDTree
 from warpface.assets import default_face, default_landmarks
 from warpface.data import ict_landmark_indices, shared_data_path
 from warpface.mesh import load_obj
-from warpface.rigging.lips import CORNER_AGREEMENT, INNER_CORNERS, mouth_contact
+from warpface.rigging.lips import CORNER_AGREEMENT, INNER_CORNERS, LEVEL_TOLERANCE, mouth_contact
 from warpface.rigging.nonrigid import SkinTarget
 from warpface.rigging.surface import vertex_normals
 
@@ -72,3 +72,18 @@ def test_no_contact_or_a_contact_shorter_than_the_mouth_changes_nothing(ict):
     assert contact is not None
     moved, taken = contact.move(wide)
     assert taken == {} and np.array_equal(moved, wide)
+
+
+def test_a_mouth_narrower_or_lower_on_one_side_than_its_contact_is_moved_onto_it(ict):
+    skin, _, _, truth = ict
+    corners = truth[list(INNER_CORNERS), 0]
+    share = np.clip((truth[48:68, 0] - corners[0]) / (corners[1] - corners[0]), 0.0, 1.0)
+    narrow = truth.copy()
+    narrow[48:68, 0] -= 0.08 * share  # the subject's left side carried ~5 mm too far in
+    moved, taken = mouth_contact(skin, narrow).move(narrow)
+    assert np.abs(moved[48:68, 0] - truth[48:68, 0]).max() < 0.01 and set(taken) == set(INNER_CORNERS)
+    low = truth.copy()
+    low[48:68, 1] -= 0.12 * share  # the left side ~7 mm low, as a warp can tilt the mouth against the template
+    moved, taken = mouth_contact(skin, low).move(low)
+    assert np.abs(moved[48:68, 1] - truth[48:68, 1]).max() < LEVEL_TOLERANCE + 0.01
+    assert np.abs(moved[48:68, 1] - truth[48:68, 1]).max() < 0.5 * np.abs(low[48:68, 1] - truth[48:68, 1]).max()
