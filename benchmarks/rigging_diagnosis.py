@@ -140,13 +140,13 @@ def sample(first: int, last: int, broad: bool = False) -> None:
     for label in ("warped", "visible"):
         means = np.array([head[label]["mean_mm"] for head in heads])
         maxima = np.array([head[label]["max_mm"] for head in heads])
-        found = np.isfinite(means)
+        rigged = np.isfinite(means)
         jaw_worst = sum(0 <= head[label]["worst"] < 17 for head in heads if head[label]["max_mm"] > 10.0)
         rows.append(
             {
                 "heads": f"{label} ({len(heads)})",
-                "refused": int(np.sum(~found)),
-                "mean_of_means_mm": float(means[found].mean()),
+                "refused": int(np.sum(~rigged)),
+                "mean_of_means_mm": float(means[rigged].mean()),
                 "median_max_mm": float(np.median(maxima)),
                 "pass": int(np.sum((means <= 3.0) & (maxima <= 10.0))),
                 "mean_within": int(np.sum(means <= 3.0)),

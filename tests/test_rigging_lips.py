@@ -1,4 +1,4 @@
-"""The mouth placed by where a closed mouth's lips touch (warpface.rigging.lips, docs/RIG.md §9 step 6b): on the
+"""The mouth placed by where a closed mouth's lips touch (warpface.rigging.lip_contact, docs/RIG.md §9 step 6b): on the
 ICT face, whose lips are modelled touching, the contact's ends are the annotated inner corners; carried mouth
 landmarks slid sideways are moved back; a mouth with no contact, or one shorter than the mouth, changes nothing."""
 
@@ -11,7 +11,7 @@ from scipy.spatial import cKDTree
 from warpface.assets import default_face, default_landmarks
 from warpface.data import ict_landmark_indices, shared_data_path
 from warpface.mesh import load_obj
-from warpface.rigging.lips import CORNER_AGREEMENT, INNER_CORNERS, LEVEL_TOLERANCE, mouth_contact
+from warpface.rigging.lip_contact import CORNER_AGREEMENT, INNER_CORNERS, LEVEL_TOLERANCE, mouth_contact
 from warpface.rigging.nonrigid import SkinTarget
 from warpface.rigging.surface import vertex_normals
 

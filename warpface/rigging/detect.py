@@ -5,7 +5,7 @@ Pipeline (docs/RIG.md, "Automatic landmarks"): split shells and keep the skin
 similarity fit of the template (:mod:`~warpface.rigging.align`); deform the template onto the skin
 with non-rigid ICP (:mod:`~warpface.rigging.nonrigid`), four times: each time after the first from the head's
 proportions as the previous fit's feature landmarks give them (:func:`affine_from_features`, :data:`PASSES`);
-move the mouth onto the ends of a closed mouth's lip contact where it has one (:mod:`~warpface.rigging.lips`);
+move the mouth onto the ends of a closed mouth's lip contact where it has one (:mod:`~warpface.rigging.lip_contact`);
 give every template landmark the nearest skin vertex that faces the same way (an eye landmark carried off the skin:
 the one across its normal, :func:`snap_to_skin`). The unit follows from the fitted
 eye distance (:mod:`~warpface.rigging.units`).
@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .align import Affine, Similarity, fit_affine, fit_similarity
-from .lips import mouth_contact
+from .lip_contact import mouth_contact
 from .nonrigid import NonRigidFit, SkinTarget, fit_nonrigid
 from .surface import HeadSurface
 from .template import Template, template

@@ -12,6 +12,8 @@ A scan without a slit (one surface over the lips) has no contact, and one whose 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -41,12 +43,13 @@ INNER_CORNERS = (60, 64)
 MOUTH = slice(48, 68)
 
 
+@dataclass(frozen=True)
 class MouthContact:
-    """The lips' contact on one skin: its two ends (toward the subject's right, then left)."""
+    """The lips' contact on one skin (template frame)."""
 
-    def __init__(self, skin: SkinTarget, ends: tuple[int, int]):
-        self.skin = skin
-        self.ends = ends
+    skin: SkinTarget
+    ends: tuple[int, int]
+    """Skin indices of the contact's two ends: toward the subject's right (−x), then left."""
 
     def move(self, marks: np.ndarray) -> tuple[np.ndarray, dict[int, int]]:
         """The carried landmarks (68, 3) with the mouth (iBUG 48–67) moved across the face (template x) onto the
