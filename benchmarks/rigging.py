@@ -95,8 +95,11 @@ def broad_warp(points: np.ndarray, seed: int, symmetric: bool = True) -> np.ndar
     if symmetric:
         centres = np.vstack([centres, centres * mirror])
         amplitudes = np.vstack([amplitudes, amplitudes * mirror]) / np.sqrt(2.0)
-        pushes = [(where * mirror, sigma, push * mirror) for where, sigma, push in pushes] + pushes
-        pushes = [(where, sigma, push / np.sqrt(2.0)) for where, sigma, push in pushes]
+        pushes = [
+            (where, sigma, push / np.sqrt(2.0))
+            for original, sigma, once in pushes
+            for where, push in ((original * mirror, once * mirror), (original, once))
+        ]
     weights = np.exp(-np.sum((points[:, None, :] - centres[None]) ** 2, axis=2) / (2.0 * 4.0**2))
     warped += weights @ amplitudes
     for where, sigma, push in pushes:

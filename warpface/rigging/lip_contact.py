@@ -40,6 +40,7 @@ CORNER_AGREEMENT = 0.05
 """A corner takes the contact's end only when the moved carried corner lies this near it [inter-ocular units]:
 a scan whose lips part near the corners has a contact shorter than its mouth."""
 INNER_CORNERS = (60, 64)
+INNER_LIP = slice(60, 68)
 MOUTH = slice(48, 68)
 
 
@@ -93,7 +94,7 @@ def mouth_contact(skin: SkinTarget, marks: np.ndarray) -> MouthContact | None:
         marks: the 68 carried landmark points in that frame, (68, 3).
     """
     near = np.flatnonzero(
-        cKDTree(marks[60:68]).query(skin.points, distance_upper_bound=NEAR_INNER_LIP)[0] < NEAR_INNER_LIP
+        cKDTree(marks[INNER_LIP]).query(skin.points, distance_upper_bound=NEAR_INNER_LIP)[0] < NEAR_INNER_LIP
     )
     if len(near) < 2:
         return None
