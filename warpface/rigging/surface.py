@@ -16,12 +16,24 @@ from .._validate import as_finite_array
 from ..geometry.triangles import triangle_edges, vertex_shells, weld_seams
 from ..mesh import fan_triangles
 
-__all__ = ["HeadSurface", "polygons_to_triangles", "vertex_normals", "TWIN_AREA", "MIN_SKIN_VERTICES"]
+__all__ = [
+    "HeadSurface",
+    "midpoint_samples",
+    "polygons_to_triangles",
+    "vertex_normals",
+    "TWIN_AREA",
+    "MIN_SKIN_VERTICES",
+    "MIN_FIT_POINTS",
+]
 
 MIN_SKIN_VERTICES = 100
 """Fewer vertices in the largest shell cannot hold a face."""
 TWIN_AREA = 0.5
 """A second shell with more than this fraction of the skin's area, away from it, is a second head."""
+MIN_FIT_POINTS = 5000
+"""A skin with fewer vertices is sampled more densely for the similarity fit (:attr:`HeadSurface.skin_samples`): its
+score is the template's distance to the nearest skin point, and on a low-poly face (MediaPipe's 468-vertex canonical
+face) the nearest vertex lies up to half an edge, ~0.1 eye distances, from the surface: the face was read as none."""
 
 
 def polygons_to_triangles(counts, indices) -> np.ndarray:
@@ -38,6 +50,34 @@ def vertex_normals(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
         np.add.at(normals, triangles[:, k], cross)
     length = np.linalg.norm(normals, axis=1, keepdims=True)
     return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
+
+
+def midpoint_samples(
+    points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, minimum: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """``points`` (N, 3) with unit ``normals``, then their triangles' (local indices) edge midpoints, the triangles
+    split at them level by level until there are at least ``minimum`` points; a midpoint's normal is its edge's
+    normalised mean. Returns (points, normals)."""
+    while len(points) < minimum:
+        edges = triangle_edges(triangles)[0]  # sorted by a * span + b for any span above the largest index
+        middle = len(points) + np.arange(len(edges))
+        span = len(points)
+        pairs = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+        mid = middle[np.searchsorted(edges[:, 0] * span + edges[:, 1], pairs[:, 0] * span + pairs[:, 1])]
+        mid = mid.reshape(-1, 3)  # the midpoints of edges 01, 12, 20
+        mean = normals[edges[:, 0]] + normals[edges[:, 1]]
+        points = np.concatenate([points, 0.5 * (points[edges[:, 0]] + points[edges[:, 1]])])
+        normals = np.concatenate([normals, mean / np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)])
+        a, b, c = triangles.T
+        triangles = np.concatenate(
+            [
+                np.stack([a, mid[:, 0], mid[:, 2]], axis=1),
+                np.stack([b, mid[:, 1], mid[:, 0]], axis=1),
+                np.stack([c, mid[:, 2], mid[:, 1]], axis=1),
+                mid,
+            ]
+        )
+    return points, normals
 
 
 @dataclass(eq=False)
@@ -163,3 +203,11 @@ class HeadSurface:
         on_boundary = np.zeros(len(self.points), dtype=bool)
         on_boundary[unique[counts == 1].ravel()] = True
         return on_boundary[self.skin_vertices]
+
+    @cached_property
+    def skin_samples(self) -> tuple[np.ndarray, np.ndarray]:
+        """Points on the skin and their outward unit normals, (N, 3) each, for the similarity fit: the skin's
+        vertices (in :attr:`skin_vertices` order), then, while there are fewer than :data:`MIN_FIT_POINTS`, its
+        edges' midpoints level by level (a low-poly head; every later stage and the landmarks use the vertices)."""
+        local = np.searchsorted(self.skin_vertices, self.skin_triangles)
+        return midpoint_samples(self.points[self.skin_vertices], self.skin_normals, local, MIN_FIT_POINTS)
