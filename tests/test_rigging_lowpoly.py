@@ -1,6 +1,6 @@
 """Low-poly heads (docs/RIG.md §9, step 3, "Low-poly skins"): a skin of fewer than ``MIN_FIT_POINTS`` vertices gets
 its edges' midpoints in the similarity fit. Checked on the sampling itself against a hand-made square, and on
-MediaPipe's 468-vertex canonical face, which was refused without them."""
+MediaPipe's 468-vertex canonical face, whose similarity score they make what the same surface split finely scores."""
 
 from __future__ import annotations
 
@@ -11,7 +11,9 @@ from benchmarks.rigging_lowpoly import NAMED_ALIKE
 from warpface.data import shared_data_path
 from warpface.mesh import load_obj
 from warpface.rigging import find_landmarks, surface
+from warpface.rigging.align import fit_similarity
 from warpface.rigging.surface import HeadSurface, midpoint_samples
+from warpface.rigging.template import template
 
 MEDIAPIPE = shared_data_path("mediapipe", "canonical_face_model.obj")
 
@@ -53,7 +55,7 @@ def test_a_dense_skin_is_fitted_on_its_own_vertices():
 
 
 @pytest.mark.skipif(MEDIAPIPE is None, reason="MediaPipe's canonical face not in ../shared/data")
-def test_a_low_poly_face_is_rigged_at_the_places_mediapipe_names(monkeypatch):
+def test_a_low_poly_face_is_rigged_at_the_places_mediapipe_names():
     points, triangles = load_obj(MEDIAPIPE)
     assert len(points) < surface.MIN_FIT_POINTS
     found = find_landmarks(points, triangles, label="canonical face")
@@ -62,6 +64,30 @@ def test_a_low_poly_face_is_rigged_at_the_places_mediapipe_names(monkeypatch):
     error_mm = np.linalg.norm(points[found.indices[named]] - points[list(NAMED_ALIKE.values())], axis=1) * 10.0
     assert error_mm.mean() <= 2.0 and error_mm.max() <= 4.0, dict(zip(named, np.round(error_mm, 1)))
 
-    monkeypatch.setattr(surface, "MIN_FIT_POINTS", 0)  # its own 468 vertices only: the fit reads no face
-    with pytest.raises(ValueError, match="no face-like part"):
-        find_landmarks(points, triangles, label="canonical face")
+
+def _split(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every triangle split in four at its edge midpoints (the same surface, four times the faces)."""
+    edges = {tuple(sorted(e)) for t in triangles.tolist() for e in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0]))}
+    middle = {edge: len(points) + k for k, edge in enumerate(sorted(edges))}
+    points = np.vstack([points, [0.5 * (points[a] + points[b]) for a, b in sorted(edges)]])
+    faces = []
+    for a, b, c in triangles.tolist():
+        ab, bc, ca = (middle[tuple(sorted(e))] for e in ((a, b), (b, c), (c, a)))
+        faces += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
+    return points, np.array(faces)
+
+
+@pytest.mark.skipif(MEDIAPIPE is None, reason="MediaPipe's canonical face not in ../shared/data")
+def test_the_similarity_score_of_a_low_poly_face_does_not_depend_on_its_tessellation(monkeypatch):
+    points, triangles = load_obj(MEDIAPIPE)
+    fine = _split(*_split(points, np.asarray(triangles)))  # 7.3k vertices: fitted on its own vertices
+
+    def score(points, triangles):
+        head = HeadSurface(points, triangles)
+        return fit_similarity(template(), *head.skin_samples)[0].residual
+
+    dense = score(*fine)
+    assert len(fine[0]) >= surface.MIN_FIT_POINTS
+    assert abs(score(points, triangles) - dense) < 0.01
+    monkeypatch.setattr(surface, "MIN_FIT_POINTS", 0)  # its own 468 vertices: each up to half an edge off the surface
+    assert score(points, triangles) - dense > 0.02
