@@ -21,19 +21,22 @@ MEDIAPIPE = shared_data_path("mediapipe", "canonical_face_model.obj")
 def test_midpoint_samples_split_every_edge_once_level_by_level():
     square = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
     triangles = np.array([[0, 1, 2], [0, 2, 3]])
-    up = np.tile([0.0, 0.0, 1.0], (4, 1))
-    points, normals = midpoint_samples(square, up, triangles, minimum=5)
+    up, outline = np.tile([0.0, 0.0, 1.0], (4, 1)), np.ones(4, bool)
+    points, normals, boundary = midpoint_samples(square, up, outline, triangles, minimum=5)
     assert len(points) == 4 + 5  # four outline edges and the diagonal
     np.testing.assert_array_equal(points[:4], square)
-    assert {tuple(p[:2]) for p in points[4:]} == {(0.5, 0.0), (1.0, 0.5), (0.5, 1.0), (0.0, 0.5), (0.5, 0.5)}
+    midpoints = {(0.5, 0.0), (1.0, 0.5), (0.5, 1.0), (0.0, 0.5), (0.5, 0.5)}
+    assert {tuple(p[:2]) for p in points[4:]} == midpoints
+    assert {tuple(p[:2]) for p in points[boundary]} == {tuple(p[:2]) for p in square} | midpoints - {(0.5, 0.5)}
     np.testing.assert_allclose(normals, np.tile([0.0, 0.0, 1.0], (9, 1)))
 
-    points = midpoint_samples(square, up, triangles, minimum=10)[0]
+    points, _, boundary = midpoint_samples(square, up, outline, triangles, minimum=10)
     grid = np.round(points[:, :2] * 4).astype(int)  # split twice: every point of a 5 × 5 grid, each once
     assert len(points) == 25 and len({tuple(g) for g in grid}) == 25 and grid.min() == 0 and grid.max() == 4
+    np.testing.assert_array_equal(boundary, (grid == 0).any(axis=1) | (grid == 4).any(axis=1))
 
     tilted = np.array([[1.0, 0.0, 0.0]] * 2 + [[0.0, 0.0, 1.0]] * 2)
-    points, normals = midpoint_samples(square, tilted, triangles, minimum=5)
+    points, normals, _ = midpoint_samples(square, tilted, outline, triangles, minimum=5)
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0)
     bottom = np.flatnonzero(np.all(np.isclose(points, [0.5, 0.0, 0.0]), axis=1))[0]  # edge 0–1: both normals +x
     np.testing.assert_allclose(normals[bottom], [1.0, 0.0, 0.0])
@@ -52,6 +55,7 @@ def test_a_dense_skin_is_fitted_on_its_own_vertices():
     assert len(head.skin_vertices) >= surface.MIN_FIT_POINTS
     np.testing.assert_array_equal(head.skin_samples[0], points[head.skin_vertices])
     np.testing.assert_array_equal(head.skin_samples[1], head.skin_normals)
+    np.testing.assert_array_equal(head.skin_samples[2], head.skin_boundary)
 
 
 @pytest.mark.skipif(MEDIAPIPE is None, reason="MediaPipe's canonical face not in ../shared/data")

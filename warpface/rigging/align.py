@@ -148,6 +148,11 @@ FACING = 0.3
 """A correspondence counts only where the template's and the skin's normals are within ~73°."""
 MISS = 0.3
 """Distance charged to a template point with no plausible skin point [inter-ocular units]."""
+BEYOND = 0.1
+"""At most this is charged to a template point whose nearest skin point lies on the skin's open boundary [inter-ocular
+units]: it hangs past where the mesh ends (a face cropped at the brows or behind the cheeks), which tells little
+against the fit. Charged :data:`MISS`, a face cropped at the brows was fitted upside down: its chin and neck cover
+more of the template than its missing forehead leaves uncovered. At 0 a fit slid off the mesh (ICT face 116 mm off)."""
 
 
 def _icp(
@@ -159,9 +164,11 @@ def _icp(
     start: Similarity,
     iterations: int,
     sigma: tuple[float, float] = (0.3, 0.08),
+    boundary: np.ndarray | None = None,
 ) -> Similarity:
     """Similarity ICP with Gaussian weights whose width shrinks from ``sigma[0]`` to ``sigma[1]``; the matched
-    skin point slides to the foot of the template point on the skin's tangent plane."""
+    skin point slides to the foot of the template point on the skin's tangent plane. The residual is the mean capped
+    distance (:data:`MISS`; :data:`BEYOND` where the nearest skin point is on the skin's ``boundary``, (S,) bool)."""
     fit = start
     for width in np.geomspace(sigma[0], sigma[1], iterations):
         moved = fit.apply(template)
@@ -176,6 +183,8 @@ def _icp(
     distance, index = tree.query(fit.apply(template))
     facing = np.sum((template_normals @ fit.rotation.T) * skin_normals[index], axis=1)
     cost = np.where(facing > FACING, np.minimum(distance / fit.scale, MISS), MISS)
+    if boundary is not None:
+        cost = np.where(boundary[index], np.minimum(cost, BEYOND), cost)
     return Similarity(fit.scale, fit.rotation, fit.translation, float(cost.mean()))
 
 
@@ -237,11 +246,13 @@ def fit_similarity(
     model: Template,
     skin: np.ndarray,
     skin_normals: np.ndarray,
+    skin_boundary: np.ndarray | None = None,
     *,
     up_hint: np.ndarray | None = None,
     front_hint: np.ndarray | None = None,
 ) -> tuple[Similarity, float]:
-    """The template's similarity fit to the skin points (target units), searched from the symmetry plane.
+    """The template's similarity fit to the skin points (target units), searched from the symmetry plane;
+    ``skin_boundary`` (S,) bool flags the points on the skin's open boundary (a face-only mesh's outline).
 
     Returns the fit and the symmetry plane's residual (relative to the skin's RMS size).
     """
@@ -263,12 +274,17 @@ def fit_similarity(
             for factor in SCALE_STARTS:
                 scale = factor * width / template_width
                 start = Similarity(scale, rotation, tip - scale * rotation @ nose)
-                candidates.append(_icp(nodes[coarse], node_normals[coarse], skin, skin_normals, tree, start, 20))
+                candidates.append(
+                    _icp(
+                        nodes[coarse], node_normals[coarse], skin, skin_normals, tree, start, 20, boundary=skin_boundary
+                    )
+                )
     if not candidates:
         raise ValueError("up/front: the hints given contradict each other (up and front must be perpendicular)")
     finalists = sorted(candidates, key=lambda fit: fit.residual)[:FINALISTS]
     refined = [
-        _icp(nodes, node_normals, skin, skin_normals, tree, fit, REFINE_ROUNDS, (0.2, 0.05)) for fit in finalists
+        _icp(nodes, node_normals, skin, skin_normals, tree, fit, REFINE_ROUNDS, (0.2, 0.05), skin_boundary)
+        for fit in finalists
     ]
     return min(refined, key=lambda fit: fit.residual), plane_residual
 

@@ -146,8 +146,10 @@ def register(
     surface = HeadSurface(points, triangles, label)
     skin_points = surface.points[surface.skin_vertices]
     model = template() if model is None else model
-    samples, sample_normals = surface.skin_samples  # the skin's vertices, and edge midpoints on a low-poly skin
-    fit, plane_residual = fit_similarity(model, samples, sample_normals, up_hint=up_hint, front_hint=front_hint)
+    samples, sample_normals, on_edge = surface.skin_samples  # the skin's vertices, and midpoints on a low-poly skin
+    fit, plane_residual = fit_similarity(
+        model, samples, sample_normals, on_edge, up_hint=up_hint, front_hint=front_hint
+    )
     if fit.residual > MAX_RESIDUAL or plane_residual > MAX_ASYMMETRY:
         raise ValueError(
             f"{label}: no face-like part found (a face template fits its largest part only to "

@@ -53,13 +53,14 @@ def vertex_normals(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
 
 
 def midpoint_samples(
-    points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, minimum: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """``points`` (N, 3) with unit ``normals``, then their triangles' (local indices) edge midpoints, the triangles
-    split at them level by level until there are at least ``minimum`` points; a midpoint's normal is its edge's
-    normalised mean. Returns (points, normals)."""
+    points: np.ndarray, normals: np.ndarray, boundary: np.ndarray, triangles: np.ndarray, minimum: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``points`` (N, 3) with unit ``normals`` and ``boundary`` flags (N,), then their triangles' (local indices)
+    edge midpoints, the triangles split at them level by level until there are at least ``minimum`` points; a
+    midpoint's normal is its edge's normalised mean, and it is on the boundary when its edge is (an edge of one
+    triangle). Returns (points, normals, boundary)."""
     while len(points) < minimum:
-        edges = triangle_edges(triangles)[0]  # sorted by a * span + b for any span above the largest index
+        edges, uses = triangle_edges(triangles)  # sorted by a * span + b for any span above the largest index
         middle = len(points) + np.arange(len(edges))
         span = len(points)
         pairs = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
@@ -68,6 +69,7 @@ def midpoint_samples(
         mean = normals[edges[:, 0]] + normals[edges[:, 1]]
         points = np.concatenate([points, 0.5 * (points[edges[:, 0]] + points[edges[:, 1]])])
         normals = np.concatenate([normals, mean / np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)])
+        boundary = np.concatenate([boundary, uses == 1])
         a, b, c = triangles.T
         triangles = np.concatenate(
             [
@@ -77,7 +79,7 @@ def midpoint_samples(
                 mid,
             ]
         )
-    return points, normals
+    return points, normals, boundary
 
 
 @dataclass(eq=False)
@@ -205,9 +207,11 @@ class HeadSurface:
         return on_boundary[self.skin_vertices]
 
     @cached_property
-    def skin_samples(self) -> tuple[np.ndarray, np.ndarray]:
-        """Points on the skin and their outward unit normals, (N, 3) each, for the similarity fit: the skin's
-        vertices (in :attr:`skin_vertices` order), then, while there are fewer than :data:`MIN_FIT_POINTS`, its
-        edges' midpoints level by level (a low-poly head; every later stage and the landmarks use the vertices)."""
+    def skin_samples(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Points on the skin for the similarity fit, their outward unit normals (N, 3 each) and open-boundary flags
+        (N,): the skin's vertices (in :attr:`skin_vertices` order), then, while there are fewer than
+        :data:`MIN_FIT_POINTS`, its edges' midpoints level by level (a low-poly head; every later stage and the
+        landmarks use the vertices)."""
         local = np.searchsorted(self.skin_vertices, self.skin_triangles)
-        return midpoint_samples(self.points[self.skin_vertices], self.skin_normals, local, MIN_FIT_POINTS)
+        vertices = self.points[self.skin_vertices]
+        return midpoint_samples(vertices, self.skin_normals, self.skin_boundary, local, MIN_FIT_POINTS)
