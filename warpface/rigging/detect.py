@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..errors import RigError
+from ..landmarks import check_layout
 from .align import Affine, Similarity, fit_affine, fit_similarity
 from .lip_contact import mouth_contact
 from .nonrigid import NonRigidFit, SkinTarget, fit_nonrigid
@@ -258,13 +260,22 @@ def find_landmarks(
     else:
         residual = fit.residual
     model = template()
+    indices = surface.skin_vertices[index].astype(np.int64)
+    front = fit.rotation @ model.forward
+    try:  # a surface the template fits without being a face (a cylinder) gives landmarks out of their order
+        check_layout(surface.points[indices], front)
+    except RigError:
+        raise ValueError(
+            f"{label}: no face-like part found (the template fitted to its largest part gives landmarks that are "
+            "not laid out as a face's); pass a head or face mesh, or --up/--front if it is one"
+        ) from None
     return LandmarkFit(
-        indices=surface.skin_vertices[index].astype(np.int64),
+        indices=indices,
         confidence=confidence,
         units=unit_name,
         meters_per_unit=meters_per_unit,
         up=fit.rotation @ model.vertical,
-        front=fit.rotation @ model.forward,
+        front=front,
         left=fit.rotation @ np.array([1.0, 0.0, 0.0]),
         eye_distance=float(fit.scale),
         residual=residual,
