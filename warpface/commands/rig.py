@@ -238,7 +238,7 @@ def run(args) -> int:
         )
         meters_per_unit = parse_units(units) if units else infer_units(eye_distance, label)[1]
         summary = f"{label}: {args.landmarks}: 68 landmarks read"
-    check_layout(points[landmarks], front_dir, label=f"{label}: landmarks")
+        check_layout(points[landmarks], front_dir, label=f"{label}: landmarks")  # found ones pass it in the finder
     if inside_out:  # the rig puts bone attachments along −normal: wind the skin outward
         triangles = triangles[:, [0, 2, 1]]
     mesh = FaceMesh(points, triangles, name=Path(args.head).stem or "head", degenerate="ignore")
