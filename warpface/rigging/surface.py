@@ -32,8 +32,9 @@ TWIN_AREA = 0.5
 """A second shell with more than this fraction of the skin's area, away from it, is a second head."""
 MIN_FIT_POINTS = 5000
 """A skin with fewer vertices is sampled more densely for the similarity fit (:attr:`HeadSurface.skin_samples`): its
-score is the template's distance to the nearest skin point, and on a low-poly face (MediaPipe's 468-vertex canonical
-face) the nearest vertex lies up to half an edge, ~0.1 eye distances, from the surface: the face was read as none."""
+score is the template's distance to the nearest skin point, and on a low-poly face the nearest vertex lies up to half
+an edge off the surface (MediaPipe's 468-vertex canonical face: 0.089 eye distances on its vertices, 0.064 with the
+midpoints, as on the same surface split finely; a face is refused above 0.12)."""
 
 
 def polygons_to_triangles(counts, indices) -> np.ndarray:
