@@ -2,13 +2,15 @@
 
 Pipeline (docs/RIG.md, "Automatic landmarks"): split shells and keep the skin
 (:class:`~warpface.rigging.surface.HeadSurface`); find the symmetry plane, up, front and scale with a
-similarity fit of the template (:mod:`~warpface.rigging.align`); deform the template onto the skin
+similarity fit of the template (:mod:`~warpface.rigging.align`; on a low-poly skin with its edges' midpoints too,
+points past a face-only mesh's outline charged little); deform the template onto the skin
 with non-rigid ICP (:mod:`~warpface.rigging.nonrigid`), four times: each time after the first from the head's
 proportions as the previous fit's feature landmarks give them (:func:`affine_from_features`, :data:`PASSES`);
 move the mouth onto the ends of a closed mouth's lip contact where it has one (:mod:`~warpface.rigging.lip_contact`);
 give every template landmark the nearest skin vertex that faces the same way (an eye landmark carried off the skin:
-the one across its normal, :func:`snap_to_skin`). The unit follows from the fitted
-eye distance (:mod:`~warpface.rigging.units`).
+the one across its normal, :func:`snap_to_skin`); refuse landmarks not laid out as a face's
+(:func:`~warpface.landmarks.check_layout`). The unit follows from the fitted eye distance
+(:mod:`~warpface.rigging.units`).
 """
 
 from __future__ import annotations
