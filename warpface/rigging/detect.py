@@ -6,7 +6,8 @@ similarity fit of the template (:mod:`~warpface.rigging.align`; on a low-poly sk
 points past a face-only mesh's outline charged little); deform the template onto the skin
 with non-rigid ICP (:mod:`~warpface.rigging.nonrigid`), four times: each time after the first from the head's
 proportions as the previous fit's feature landmarks give them (:func:`affine_from_features`, :data:`PASSES`);
-move the mouth onto the ends of a closed mouth's lip contact where it has one (:mod:`~warpface.rigging.lip_contact`);
+move the mouth onto the ends of a closed mouth's lip contact where it has one (:mod:`~warpface.rigging.lip_contact`)
+and the eyes onto the outline of an open eye's socket (:mod:`~warpface.rigging.eye_opening`);
 give every template landmark the nearest skin vertex that faces the same way (an eye landmark carried off the skin:
 the one across its normal, :func:`snap_to_skin`); refuse landmarks not laid out as a face's
 (:func:`~warpface.landmarks.check_layout`). The unit follows from the fitted eye distance
@@ -24,6 +25,7 @@ from scipy.spatial import cKDTree
 from ..errors import RigError
 from ..landmarks import check_layout
 from .align import Affine, Similarity, fit_affine, fit_similarity
+from .eye_opening import eye_openings
 from .lip_contact import mouth_contact
 from .nonrigid import NonRigidFit, SkinTarget, fit_nonrigid
 from .surface import HeadSurface
@@ -252,6 +254,8 @@ def find_landmarks(
     taken: dict[int, int] = {}
     if contact is not None:
         marks, taken = contact.move(marks)
+    skin_triangles = np.searchsorted(surface.skin_vertices, surface.skin_triangles)
+    marks = eye_openings(skin, skin_triangles, marks)
     index, distance = snap_to_skin(marks, mark_normals, skin, across=np.isin(np.arange(68), SNAPPED_ACROSS))
     for corner, end in taken.items():
         index[corner], distance[corner] = end, np.linalg.norm(skin.points[end] - marks[corner])
