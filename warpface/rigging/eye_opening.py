@@ -3,10 +3,10 @@
 A head modelled with its eyes open has a skin that turns in at the lid margin and lines the socket behind the
 eyeball (or stops there, a hole). Seen from the front, the lids' surface ends at the margin and what lies behind it
 is far deeper: the margin is the outline of the *socket*, the part of the eye's surroundings whose frontmost
-front-facing skin lies more than :data:`DEPTH` behind the carried eye. The ICT annotation's eye points lie on that
-outline (within 0.3–0.8 mm on every warp of the ICT head tried), while the registration can leave a warped head's
-eye several millimetres off it (development head 618: 6.5 mm mean), because the lid surface and the socket's are
-one smooth sheet along which the template slides freely. The carried eye points are moved onto the outline
+front-facing skin lies more than :data:`DEPTH` behind the carried eye. The ICT annotation's lid points lie on that
+outline (within 0.8 mm on the ICT head and on every warp of it measured), while the registration can leave a warped
+head's eye several millimetres off it (development head 618: 6.5 mm mean), because the lid surface and the socket's
+are one smooth sheet along which the template slides freely. The carried eye points are moved onto the outline
 (:func:`eye_openings`, docs/RIG.md §9 step 6c). A scan without an opening (one surface over the eye) has no socket:
 nothing changes.
 """
