@@ -152,6 +152,8 @@ def _fit_ring(ring: np.ndarray, socket: SocketOutline, corners: tuple[int, int])
     outer, inner = corners
     targets = np.array(socket.corners())
     start, end = complex(*ring[outer]), complex(*ring[inner])
+    if abs(end - start) < 1e-9:  # a ring with its corners together has no direction to turn
+        return ring
     turn = (complex(*targets[1]) - complex(*targets[0])) / (end - start)
     moved = np.array([[w.real, w.imag] for w in ((complex(*p) - start) * turn + complex(*targets[0]) for p in ring)])
     lids = np.setdiff1d(np.arange(len(ring)), corners)
@@ -187,7 +189,7 @@ def eye_openings(skin: SkinTarget, triangles: np.ndarray, marks: np.ndarray) -> 
             continue
         corners = (ring.index(outer), ring.index(inner))
         placed = _fit_ring(marks[indices, :2], socket, corners)
-        if np.max(np.linalg.norm(placed - marks[indices, :2], axis=1)) > MAX_MOVE:
+        if not np.max(np.linalg.norm(placed - marks[indices, :2], axis=1)) <= MAX_MOVE:  # too far, or not finite
             continue
         moved[indices, :2] = placed
     return moved
