@@ -105,9 +105,8 @@ def test_the_socket_places_the_eyes_of_a_warped_ict_head_the_registration_left_o
         registration = register(points, triangles)
         surface, skin = registration.surface, registration.skin
         marks, normals = registration.landmark_points()
-        skin_triangles = np.searchsorted(surface.skin_vertices, surface.skin_triangles)
         errors = []
-        for carried in (marks, eye_openings(skin, skin_triangles, marks)):
+        for carried in (marks, eye_openings(skin, surface.skin_faces, marks)):
             index, _ = snap_to_skin(carried[eyes], normals[eyes], skin, across=np.isin(eyes, SNAPPED_ACROSS))
             found = points[surface.skin_vertices[index]]
             errors.append(np.linalg.norm(found - points[truth[eyes]], axis=1).mean() * 10.0)  # cm → mm

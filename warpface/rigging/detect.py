@@ -254,8 +254,7 @@ def find_landmarks(
     taken: dict[int, int] = {}
     if contact is not None:
         marks, taken = contact.move(marks)
-    skin_triangles = np.searchsorted(surface.skin_vertices, surface.skin_triangles)
-    marks = eye_openings(skin, skin_triangles, marks)
+    marks = eye_openings(skin, surface.skin_faces, marks)
     index, distance = snap_to_skin(marks, mark_normals, skin, across=np.isin(np.arange(68), SNAPPED_ACROSS))
     for corner, end in taken.items():
         index[corner], distance[corner] = end, np.linalg.norm(skin.points[end] - marks[corner])

@@ -185,6 +185,11 @@ class HeadSurface:
         return np.unique(self.skin_triangles)
 
     @cached_property
+    def skin_faces(self) -> np.ndarray:
+        """:attr:`skin_triangles` as indices into :attr:`skin_vertices` (T_s, 3)."""
+        return np.searchsorted(self.skin_vertices, self.skin_triangles)
+
+    @cached_property
     def skin_normals(self) -> np.ndarray:
         """Unit normals of :attr:`skin_vertices` (in their order), from the skin's triangles, turned outward:
         a mesh wound inside out gets its normals flipped (most of them must point away from the skin's centre)."""
@@ -213,6 +218,5 @@ class HeadSurface:
         (N,): the skin's vertices (in :attr:`skin_vertices` order), then, while there are fewer than
         :data:`MIN_FIT_POINTS`, its edges' midpoints level by level (a low-poly head; every later stage and the
         landmarks use the vertices)."""
-        local = np.searchsorted(self.skin_vertices, self.skin_triangles)
         vertices = self.points[self.skin_vertices]
-        return midpoint_samples(vertices, self.skin_normals, self.skin_boundary, local, MIN_FIT_POINTS)
+        return midpoint_samples(vertices, self.skin_normals, self.skin_boundary, self.skin_faces, MIN_FIT_POINTS)
