@@ -10,7 +10,7 @@ from warpface.data import ict_landmark_indices, shared_data_path
 from warpface.mesh import load_obj
 from warpface.rigging import eye_opening
 from warpface.rigging.detect import SNAPPED_ACROSS, register, snap_to_skin
-from warpface.rigging.eye_opening import CELL, CORNER_OFFSETS, _front_depth, eye_openings, socket_outline
+from warpface.rigging.eye_opening import CELL, CORNER_OFFSETS, eye_openings, front_depth, socket_outline
 from warpface.rigging.nonrigid import SkinTarget
 
 CENTRE = np.array([-0.45, 0.0])
@@ -48,7 +48,7 @@ def test_the_depth_buffer_matches_a_brute_force_reference():
     points = rng.uniform([-0.3, -0.3, -0.5], [0.3, 0.3, 0.5], (30, 3))
     triangles = rng.integers(0, 30, (25, 3))
     low, shape = np.array([-0.2, -0.15]), (40, 30)
-    depth = _front_depth(points, triangles, low, shape, -10.0)
+    depth = front_depth(points, triangles, low, shape, -10.0)
     reference = np.full(shape, -np.inf)
     for i in range(shape[0]):
         for j in range(shape[1]):

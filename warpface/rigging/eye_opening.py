@@ -19,7 +19,7 @@ from scipy import ndimage
 
 from .nonrigid import SkinTarget
 
-__all__ = ["CELL", "DEPTH", "CORNER_OFFSETS", "EYES", "SocketOutline", "socket_outline", "eye_openings"]
+__all__ = ["CELL", "DEPTH", "CORNER_OFFSETS", "EYES", "SocketOutline", "front_depth", "socket_outline", "eye_openings"]
 
 CELL = 0.01
 """Side of the front view's depth-buffer cells [inter-ocular units, ~0.6 mm]."""
@@ -76,7 +76,7 @@ class SocketOutline:
         return self.outline[np.argmin(distance, axis=1)]
 
 
-def _front_depth(
+def front_depth(
     points: np.ndarray, triangles: np.ndarray, low: np.ndarray, shape: tuple[int, int], nearest: float
 ) -> np.ndarray:
     """Depth buffer (shape) of the front-facing triangles seen along −z: each cell's frontmost z over the cell
@@ -119,7 +119,7 @@ def socket_outline(skin: SkinTarget, triangles: np.ndarray, ring: np.ndarray, ri
     centre = ring.mean(axis=0)
     low = centre[:2] - np.asarray(WINDOW)
     shape = tuple(int(n) for n in np.ceil(2.0 * np.asarray(WINDOW) / CELL))
-    depth = _front_depth(skin.points, triangles, low, shape, centre[2] - 1.0)
+    depth = front_depth(skin.points, triangles, low, shape, centre[2] - 1.0)
     labels, count = ndimage.label(depth < centre[2] - DEPTH)
     best, best_distance = 0, np.inf
     for label, found in enumerate(ndimage.find_objects(labels), start=1):
