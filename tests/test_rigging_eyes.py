@@ -17,10 +17,10 @@ CENTRE = np.array([-0.45, 0.0])
 SEMI_AXES = np.array([0.17, 0.06])
 
 
-def _sheet(hole: bool) -> tuple[SkinTarget, np.ndarray]:
-    """A flat skin at z = 0 facing +z over [−1.2, 0.3] × [−0.5, 0.5], with an elliptical opening about
-    :data:`CENTRE` when ``hole`` (template frame, inter-ocular units)."""
-    xs, ys = np.linspace(-1.2, 0.3, 151), np.linspace(-0.5, 0.5, 101)
+def _sheet(hole: bool, spacing: float = 0.01) -> tuple[SkinTarget, np.ndarray]:
+    """A flat skin at z = 0 facing +z over [−1.2, 0.3] × [−0.5, 0.5], vertices ``spacing`` apart, with an elliptical
+    opening about :data:`CENTRE` when ``hole`` (template frame, inter-ocular units)."""
+    xs, ys = np.linspace(-1.2, 0.3, round(1.5 / spacing) + 1), np.linspace(-0.5, 0.5, round(1.0 / spacing) + 1)
     x, y = np.meshgrid(xs, ys, indexing="ij")
     points = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
     index = np.arange(x.size).reshape(x.shape)
@@ -80,9 +80,14 @@ def test_a_ring_carried_off_an_opening_moves_onto_its_outline():
     np.testing.assert_array_equal(moved[:, 2], marks[:, 2])
 
 
-def test_skin_over_the_eye_or_an_eye_carried_too_far_leaves_the_ring_as_it_was(monkeypatch):
+def test_skin_over_the_eye_a_coarse_skin_or_an_eye_carried_too_far_leaves_the_ring_as_it_was(monkeypatch):
     closed, triangles = _sheet(hole=False)
     assert socket_outline(closed, triangles, _carried()[36:42], right_eye=True) is None
+    coarse, triangles = _sheet(hole=True, spacing=0.075)  # edges 0.075–0.106 d: median over MAX_EDGE
+    assert socket_outline(coarse, triangles, _carried()[36:42], right_eye=True) is None
+    monkeypatch.setattr(eye_opening, "MAX_EDGE", 0.2)
+    assert socket_outline(coarse, triangles, _carried()[36:42], right_eye=True) is not None
+    monkeypatch.undo()
     np.testing.assert_array_equal(eye_openings(closed, triangles, _carried()), _carried())
     skin, triangles = _sheet(hole=True)
     assert socket_outline(skin, triangles, _carried()[36:42], right_eye=True) is not None

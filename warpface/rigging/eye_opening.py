@@ -28,6 +28,10 @@ WINDOW = (0.4, 0.3)
 DEPTH = 0.15
 """Skin this far or farther behind the carried eye points' mean depth is the socket's [inter-ocular units, ~9 mm;
 the ICT lids lie 0.0–0.27 d deep in the template frame, their socket's lining −0.15 to −0.28 d or open]."""
+MAX_EDGE = 0.06
+"""An eye whose window's skin triangles have a median edge longer than this [inter-ocular units, ~3.8 mm] is too
+coarse to show its margin (the ICT head: 0.034 d; decimated to 6 mm cells, 0.1 d, where the step moved an eye
+point of smooth warp 1 from 11.1 to 12.1 mm)."""
 MIN_CELLS = 20
 """A socket of fewer cells (~7 mm²) is no eye opening."""
 AREA_RATIO = (0.3, 3.0)
@@ -108,7 +112,8 @@ def front_depth(
 
 
 def socket_outline(skin: SkinTarget, triangles: np.ndarray, ring: np.ndarray, right_eye: bool) -> SocketOutline | None:
-    """The socket behind one carried eye ring (6, 3), or None when the skin shows no opening there.
+    """The socket behind one carried eye ring (6, 3), or None when the skin shows no opening there (or is too
+    coarse there to show one, :data:`MAX_EDGE`).
 
     Args:
         skin: the skin in the template frame (z out of the face).
@@ -117,6 +122,12 @@ def socket_outline(skin: SkinTarget, triangles: np.ndarray, ring: np.ndarray, ri
         right_eye: the subject's right eye (iBUG 36–41).
     """
     centre = ring.mean(axis=0)
+    near = triangles[np.all(np.abs(skin.points[triangles, :2] - centre[:2]) <= WINDOW, axis=(1, 2))]
+    if len(near) == 0:
+        return None
+    edges = np.linalg.norm(skin.points[near] - skin.points[near[:, [1, 2, 0]]], axis=2)
+    if np.median(edges) > MAX_EDGE:
+        return None
     low = centre[:2] - np.asarray(WINDOW)
     shape = tuple(int(n) for n in np.ceil(2.0 * np.asarray(WINDOW) / CELL))
     depth = front_depth(skin.points, triangles, low, shape, centre[2] - 1.0)
