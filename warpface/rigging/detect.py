@@ -7,7 +7,7 @@ points past a face-only mesh's outline charged little); deform the template onto
 with non-rigid ICP (:mod:`~warpface.rigging.nonrigid`), four times: each time after the first from the head's
 proportions as the previous fit's feature landmarks give them (:func:`affine_from_features`, :data:`PASSES`);
 move the mouth onto the ends of a closed mouth's lip contact where it has one (:mod:`~warpface.rigging.lip_contact`)
-and the eyes onto the outline of an open eye's socket (:mod:`~warpface.rigging.eye_opening`);
+and the eyes onto the outline of an open eye's socket, the brows with them (:mod:`~warpface.rigging.eye_opening`);
 give every template landmark the nearest skin vertex that faces the same way (an eye landmark carried off the skin:
 the one across its normal, :func:`snap_to_skin`); refuse landmarks not laid out as a face's
 (:func:`~warpface.landmarks.check_layout`). The unit follows from the fitted eye distance

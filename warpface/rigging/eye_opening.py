@@ -6,9 +6,9 @@ is far deeper: the margin is the outline of the *socket*, the part of the eye's 
 front-facing skin lies more than :data:`DEPTH` behind the carried eye. The ICT annotation's lid points lie on that
 outline (within 0.8 mm on the ICT head and on every warp of it measured), while the registration can leave a warped
 head's eye several millimetres off it (development head 618: 6.5 mm mean), because the lid surface and the socket's
-are one smooth sheet along which the template slides freely. The carried eye points are moved onto the outline
-(:func:`eye_openings`, docs/RIG.md §9 step 6c). A scan without an opening (one surface over the eye) has no socket:
-nothing changes.
+are one smooth sheet along which the template slides freely. The carried eye points are moved onto the outline,
+and each brow by its eye's mean shift (:func:`eye_openings`, docs/RIG.md §9 step 6c). A scan without an opening (one
+surface over the eye) has no socket: nothing changes.
 """
 
 from __future__ import annotations
