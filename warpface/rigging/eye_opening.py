@@ -174,25 +174,27 @@ def _fit_ring(ring: np.ndarray, socket: SocketOutline, corners: tuple[int, int])
     socket's (weighted :data:`CORNER_WEIGHT`) and its lid points to their nearest outline points, matched anew
     :data:`ROUNDS` times from the similarity the corners alone give; then each lid point on its nearest
     outline point, each corner on its socket corner."""
-    outer, inner = corners
+    corner_rows = list(corners)
     targets = np.array(socket.corners())
-    start, end = complex(*ring[outer]), complex(*ring[inner])
+    points = ring[:, 0] + 1j * ring[:, 1]  # the plane as complex numbers: a similarity is z ↦ a z + b
+    start, end = points[corner_rows]
     if abs(end - start) < 1e-9:  # a ring with its corners together has no direction to turn
         return ring
-    turn = (complex(*targets[1]) - complex(*targets[0])) / (end - start)
-    moved = np.array([[w.real, w.imag] for w in ((complex(*p) - start) * turn + complex(*targets[0]) for p in ring)])
-    lids = np.setdiff1d(np.arange(len(ring)), corners)
-    weights = np.ones(len(ring))
-    weights[list(corners)] = CORNER_WEIGHT
-    rows = np.concatenate([ring, np.ones((len(ring), 1))], axis=1) * np.sqrt(weights)[:, None]
+    goals = targets[:, 0] + 1j * targets[:, 1]
+    placed = (points - start) * (goals[1] - goals[0]) / (end - start) + goals[0]
+    moved = np.stack([placed.real, placed.imag], axis=1)
+    lids = np.setdiff1d(np.arange(len(ring)), corner_rows)
+    root_weights = np.ones((len(ring), 1))
+    root_weights[corner_rows] = np.sqrt(CORNER_WEIGHT)
+    homogeneous = np.concatenate([ring, np.ones((len(ring), 1))], axis=1)
     for _ in range(ROUNDS):
         goal = moved.copy()
-        goal[list(corners)] = targets
+        goal[corner_rows] = targets
         goal[lids] = socket.nearest(moved[lids])
-        solution = np.linalg.lstsq(rows, goal * np.sqrt(weights)[:, None], rcond=None)[0]
-        moved = np.concatenate([ring, np.ones((len(ring), 1))], axis=1) @ solution
+        solution = np.linalg.lstsq(homogeneous * root_weights, goal * root_weights, rcond=None)[0]
+        moved = homogeneous @ solution
     moved[lids] = socket.nearest(moved[lids])
-    moved[list(corners)] = targets
+    moved[corner_rows] = targets
     return moved
 
 
