@@ -104,24 +104,27 @@ def front_depth(
     high = low + np.asarray(shape) * CELL
     facing = np.cross(b - a, c - a)[:, 2] > 0.0
     inside = np.all(upper[:, :2] >= low, axis=1) & np.all(lower[:, :2] <= high, axis=1) & (upper[:, 2] > nearest)
+    kept = facing & inside
+    first, edge_1, edge_2 = a[kept], b[kept] - a[kept], c[kept] - a[kept]
+    area = edge_1[:, 0] * edge_2[:, 1] - edge_1[:, 1] * edge_2[:, 0]
+    start = np.clip(np.floor((lower[kept, :2] - low) / CELL).astype(int), 0, shape)
+    stop = np.clip(np.ceil((upper[kept, :2] - low) / CELL).astype(int), 0, shape)
+    size = np.where((np.abs(area) >= 1e-14)[:, None], np.maximum(stop - start, 0), 0)
+    # every cell of every triangle's bounding box at once: its triangle, and its place in the box (row-major)
+    cells = size[:, 0] * size[:, 1]
+    triangle = np.repeat(np.arange(len(cells)), cells)
+    place = np.arange(len(triangle)) - np.repeat(np.cumsum(cells) - cells, cells)
+    row = start[triangle, 0] + place // size[triangle, 1]
+    column = start[triangle, 1] + place % size[triangle, 1]
+    x = low[0] + (row + 0.5) * CELL - first[triangle, 0]
+    y = low[1] + (column + 0.5) * CELL - first[triangle, 1]
+    e_1, e_2 = edge_1[triangle], edge_2[triangle]
+    u = (x * e_2[:, 1] - y * e_2[:, 0]) / area[triangle]
+    v = (e_1[:, 0] * y - e_1[:, 1] * x) / area[triangle]
+    z = first[triangle, 2] + u * e_1[:, 2] + v * e_2[:, 2]
+    covered = (u >= 0.0) & (v >= 0.0) & (u + v <= 1.0)
     depth = np.full(shape, -np.inf)
-    for first, second, third in zip(a[facing & inside], b[facing & inside], c[facing & inside]):
-        corner = np.stack([first, second, third])
-        start = np.clip(np.floor((corner[:, :2].min(axis=0) - low) / CELL).astype(int), 0, shape)
-        stop = np.clip(np.ceil((corner[:, :2].max(axis=0) - low) / CELL).astype(int), 0, shape)
-        edge_1, edge_2 = second[:2] - first[:2], third[:2] - first[:2]
-        area = edge_1[0] * edge_2[1] - edge_1[1] * edge_2[0]
-        if np.any(stop <= start) or abs(area) < 1e-14:
-            continue
-        x = low[0] + (np.arange(start[0], stop[0]) + 0.5) * CELL - first[0]
-        y = low[1] + (np.arange(start[1], stop[1]) + 0.5) * CELL - first[1]
-        x, y = np.meshgrid(x, y, indexing="ij")
-        u = (x * edge_2[1] - y * edge_2[0]) / area
-        v = (edge_1[0] * y - edge_1[1] * x) / area
-        z = first[2] + u * (second[2] - first[2]) + v * (third[2] - first[2])
-        covered = (u >= 0.0) & (v >= 0.0) & (u + v <= 1.0)
-        block = depth[start[0] : stop[0], start[1] : stop[1]]
-        np.maximum(block, np.where(covered, z, -np.inf), out=block)
+    np.maximum.at(depth, (row[covered], column[covered]), z[covered])
     return depth
 
 
