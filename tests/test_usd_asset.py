@@ -366,3 +366,46 @@ def test_a_head_split_along_a_uv_seam_is_rigged_as_one_skin_and_its_seam_stays_c
     np.testing.assert_array_equal(opened[copy_of[seam]], opened[seam])  # the seam stays closed
     chin = ict_landmark_indices()[8]
     assert np.linalg.norm(opened[chin] - rest[chin]) > 0.5  # cm: the jaw did open
+
+
+def test_rigid_shells_go_with_the_side_of_their_centroid_unless_they_reach_far_across_the_lips():
+    """Teeth overlap the lips' line (an overbite) and a warped head moves its lips against them: a lower tooth with
+    most of its length below the line but 40 % above it still goes wholly with the jaw, an upper tooth reaching below
+    stays with the head, the gums-tongue part across the line keeps smooth weights, and a lash on the skin rides it.
+    The mouth is rolled 15° against the chin-nasion line: measured along that line instead of square to the mouth's
+    corners, the lower tooth, out at the corner, would sit above the lips."""
+    from warpface.usd.asset_io import ACROSS_REACH, rigid_shell_vertices
+
+    roll = np.radians(15.0)
+    corners = np.array([np.cos(roll), -np.sin(roll), 0.0])  # 48 → 54
+    up = np.array([np.sin(roll), np.cos(roll), 0.0])  # square to the corners, in the face's plane
+    lips = np.array([0.0, -0.5, 0.0])
+    grid = np.stack(np.meshgrid(np.linspace(-1, 1, 21), np.linspace(-1.5, 1.5, 31), [0.3]), axis=-1).reshape(-1, 3)
+    marks = np.zeros((68, 3))
+    marks[8], marks[27] = (0.0, -1.2, 0.3), (0.0, 0.8, 0.3)  # chin → nasion: straight up, not square to the mouth
+    marks[36], marks[45] = (-0.5, 0.3, 0.3), (0.5, 0.3, 0.3)  # eye corners 1 apart: heights in these units
+    marks[48], marks[54] = lips - 0.4 * corners, lips + 0.4 * corners
+    marks[60:68] = lips + np.outer(np.linspace(-0.3, 0.3, 8), corners)
+    skin = np.vstack([grid, marks])
+
+    def bar(at: float, low: float, high: float, count: int = 20) -> np.ndarray:
+        """Points along ``up`` from ``low`` to ``high`` above the lips, ``at`` along the mouth's corners."""
+        return lips + at * corners + np.outer(np.linspace(low, high, count), up) - (0.0, 0.0, 0.1)
+
+    reach = ACROSS_REACH - 0.02
+    parts = {
+        "lower tooth": bar(-0.35, -0.2, reach),  # 43 % above the line, centroid below it
+        "upper tooth": bar(0.1, -reach, 0.3),
+        "gums": bar(0.0, -ACROSS_REACH - 0.05, ACROSS_REACH + 0.05, 30),
+        "eye": bar(-0.5, 0.75, 0.85),
+        "lash": np.vstack([skin[:5], skin[:5] + (0.0, 0.0, 0.05)]),  # half its points on skin vertices
+    }
+    points = np.vstack([skin, *parts.values()])
+    shell = np.concatenate([np.zeros(len(skin), int)] + [np.full(len(p), k + 1) for k, p in enumerate(parts.values())])
+    landmarks = len(grid) + np.arange(68)
+    rigid, jaw, head = rigid_shell_vertices(shell, 0, points, landmarks)
+    members = {name: np.flatnonzero(shell == k + 1) for k, name in enumerate(parts)}
+    np.testing.assert_array_equal(jaw, members["lower tooth"])
+    np.testing.assert_array_equal(np.sort(head), np.sort(np.concatenate([members["upper tooth"], members["eye"]])))
+    assert set(members["gums"]) <= set(rigid) and not set(members["gums"]) & (set(jaw) | set(head))
+    assert not set(members["lash"]) & set(rigid)

@@ -66,8 +66,10 @@ JAW_VERTICES = "warpFace:jawVertices"
 prim's weights, which the bake uses, are 1 there."""
 RIDING_FRACTION = 0.05
 """A shell with this fraction of its vertices on skin vertices rides on the skin (it is not rigid)."""
-SIDE_FRACTION = 0.7
-"""A rigid shell with this fraction of its vertices on one side of the lips' line moves wholly with that side."""
+ACROSS_REACH = 0.175
+"""A rigid shell reaching farther than this both above and below the lips' line lies across it (gums and tongue in
+one piece) [outer eye-corner distances, iBUG 36–45]. On ICT and 45 warped, posed copies of it rigged with found
+landmarks the teeth reach at most 0.11 to both sides at once, the gums-tongue part at least 0.21."""
 _COPIED = ("faceVertexCounts", "faceVertexIndices", "subdivisionScheme", "orientation")
 
 
@@ -166,10 +168,11 @@ def rigid_shell_vertices(shell_of_vertex: np.ndarray, skin_label: int, points, l
 
     A shell other than the skin is rigid unless it rides on the skin: when at least ``RIDING_FRACTION`` of
     its vertices sit on a skin vertex (within 1e-3 of the skin's size: eyelashes rooted in the lid margin,
-    a lacrimal or occlusion film), the muscles move it with the skin. A rigid shell with at least
-    ``SIDE_FRACTION`` of its vertices below the lips' contact line (iBUG 60–67, along iBUG 8 → 27) goes
-    with the jaw (lower teeth), with as many above with the head (eyes, upper teeth); one across the line
-    (gums and tongue in one piece) keeps the rig's smooth jaw weights.
+    a lacrimal or occlusion film), the muscles move it with the skin. A rigid shell reaching more than
+    :data:`ACROSS_REACH` both above and below the lips' contact line (through iBUG 60–67; up along iBUG 8 → 27,
+    square to the mouth's corners 48 → 54) lies across it (gums and tongue in one piece) and keeps the rig's
+    smooth jaw weights; any other goes with the jaw when its centroid is below the line (lower teeth), else with
+    the head (eyes, upper teeth), however far its tips overlap the other row's.
     """
     from scipy.spatial import cKDTree
 
@@ -185,11 +188,20 @@ def rigid_shell_vertices(shell_of_vertex: np.ndarray, skin_label: int, points, l
     rigid, labels = rigid[~riding[labels]], np.unique(labels[~riding[labels]], return_inverse=True)[1].reshape(-1)
     if len(rigid) == 0:
         return rigid, rigid, rigid
+    corners = points[landmarks[54]] - points[landmarks[48]]
+    corners /= np.linalg.norm(corners)
     up = points[landmarks[27]] - points[landmarks[8]]
+    up -= (up @ corners) * corners
     up /= np.linalg.norm(up)
-    lips = points[landmarks[60:68]].mean(axis=0)
-    below = np.bincount(labels, weights=(points[rigid] - lips) @ up < 0.0) / np.bincount(labels)
-    return rigid, rigid[below[labels] >= SIDE_FRACTION], rigid[below[labels] <= 1.0 - SIDE_FRACTION]
+    eye_corners = np.linalg.norm(points[landmarks[45]] - points[landmarks[36]])
+    height = (points[rigid] - points[landmarks[60:68]].mean(axis=0)) @ up / eye_corners
+    above = np.full(labels.max() + 1, -np.inf)
+    below = np.full(labels.max() + 1, -np.inf)
+    np.maximum.at(above, labels, height)
+    np.maximum.at(below, labels, -height)
+    across = np.minimum(above, below) > ACROSS_REACH
+    lower = np.bincount(labels, weights=height) < 0.0  # the centroid's height, times the count
+    return rigid, rigid[(lower & ~across)[labels]], rigid[(~lower & ~across)[labels]]
 
 
 def attach_asset(layer: Sdf.Layer, skin_path, link: AssetLink, *, anchor: Path | None = None) -> None:
@@ -280,9 +292,9 @@ bake writes that mesh's points (and extent) moved by the jaw alone."""
 def follower_jaw_weights(asset: Usd.Stage, skin_prim: str, skin_points, landmarks, skin_weights) -> dict:
     """Per-vertex jaw weights of every mesh of ``asset`` other than the skin that has any (lower teeth, tongue).
 
-    Each connected shell of such a mesh (its points taken in the skin's space) wholly below the lips' contact
-    line weighs 1, wholly above 0 (:func:`rigid_shell_vertices`' rule); a shell across it takes the jaw weight
-    of the nearest skin vertex. Returns ``{prim path: weights (V,) float64}``.
+    Each connected shell of such a mesh (its points taken in the skin's space) below the lips' contact line
+    weighs 1, above it 0 (:func:`rigid_shell_vertices`' rule); a shell across it takes the jaw weight of the
+    nearest skin vertex. Returns ``{prim path: weights (V,) float64}``.
     """
     from scipy.spatial import cKDTree
 
