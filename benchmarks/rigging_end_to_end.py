@@ -10,7 +10,8 @@ user types them:
    :func:`warpface.usd.read_rig` against the carried ground truth [mm]; the stage's skin compared with the file:
    the same polygons (counts and corners, quads kept) in the same vertex order;
 2. ``warpface animate take.csv --rig DIR/rig.usda --out DIR/anim.usda --no-video`` with a one-second Live Link take
-   rising to full ARKit weights (smile, brows, blink, jaw 0.6, funnel, puff); every baked frame's points finite;
+   rising to full ARKit weights (smile, brows, blink, jaw 0.6, funnel; and cheekPuff, which the default mapping
+   leaves out); every baked frame's points finite;
    at its last frame, the face's triangles turned over (rest · baked normal < 0, :mod:`warpface.assets.quality`;
    the ICT face region, not the mouth socket behind the lips) and how far the teeth and eyeballs are from moving
    rigidly (each part's distance from its best rigid fit [mm], worst part).
