@@ -38,7 +38,7 @@ import numpy as np
 from warpface.assets.quality import flipped_triangles
 from warpface.data import ict_landmark_indices, shared_data_path
 from warpface.drivers import Curves, write_live_link
-from warpface.mesh import ObjPolygons, read_obj_polygons
+from warpface.mesh import FaceMesh, ObjPolygons, read_obj_polygons
 from warpface.rigging.align import umeyama
 from warpface.rigging.surface import HeadSurface
 
@@ -142,8 +142,6 @@ def baked_quality(animation_path: Path, rig, face: np.ndarray, parts: list[np.nd
     rigid fit [mm]."""
     from pxr import Usd, UsdGeom
 
-    import warpface as wf
-
     stage = Usd.Stage.Open(str(animation_path))
     skin = next(UsdGeom.Mesh(prim) for prim in stage.Traverse() if prim.HasAPI("WarpFaceSkinAPI"))
     attribute = skin.GetPointsAttr()
@@ -152,7 +150,7 @@ def baked_quality(animation_path: Path, rig, face: np.ndarray, parts: list[np.nd
     last = np.asarray(attribute.Get(times[-1]), dtype=np.float64) * UsdGeom.GetStageMetersPerUnit(stage)
     rest = np.asarray(rig.mesh.points, dtype=np.float64)
     on_face = np.isin(rig.mesh.triangles, face).all(axis=1)
-    face_mesh = wf.FaceMesh(rest, rig.mesh.triangles[on_face], degenerate="ignore")
+    face_mesh = FaceMesh(rest, rig.mesh.triangles[on_face], degenerate="ignore")
     off_rigid = 0.0
     for part in parts:
         scale, rotation, translation = umeyama(rest[part], last[part], np.ones(len(part)), with_scale=False)[:3]
