@@ -13,6 +13,8 @@ from warpface.data import ict_face_region, ict_landmark_indices
 from warpface.expression.seal import LipSeal, seal_fields
 
 DEVICE = "cpu"
+ICT_FACE_VERTICES = 9409
+"""The whole ICT head's face region is its vertices 0–9408 (../shared/data/README.md)."""
 
 
 def test_seal_adds_the_least_share_that_keeps_every_pair_from_closing():
@@ -198,12 +200,10 @@ def test_the_mouth_close_share_is_a_product_of_the_channels_and_the_jaw():
     np.testing.assert_allclose(shares, expected, rtol=1e-12)
 
 
-def test_a_whole_head_s_lips_part_at_their_slit_not_at_the_mouth_socket_s_rim():
-    """The whole ICT head's lips touch along a slit, and its mouth socket, gums and teeth are shells of their own
-    whose open rims lie in front of the mouth too. The jaw's lip-side term must come from the lips' own slit: when
-    it took the socket's rim, the upper lip's slit face had the lower lip's jaw weight (0.77 against 0.81), and
-    jawOpen parted the lips by 1 mm (docs/RIG.md §4)."""
-    from warpface.assets.jaw import default_jaw, mouth_rim_arcs
+@pytest.fixture(scope="module")
+def whole_head():
+    """The whole ICT head (skin, eyes, teeth, gums, mouth socket; metres), its landmarks, face frame and jaw."""
+    from warpface.assets.jaw import default_jaw
     from warpface.assets.rig import face_frame
     from warpface.data import shared_data_path
 
@@ -213,10 +213,51 @@ def test_a_whole_head_s_lips_part_at_their_slit_not_at_the_mouth_socket_s_rim():
     source = wf.FaceMesh.from_obj(path, degenerate="ignore")
     mesh, landmarks = wf.FaceMesh(source.points * 0.01, source.triangles, degenerate="ignore"), ict_landmark_indices()
     frame = face_frame(mesh, landmarks)
+    return mesh, landmarks, frame, default_jaw(mesh, frame, landmarks)
+
+
+def test_a_whole_head_s_lips_part_at_their_slit_not_at_the_mouth_socket_s_rim(whole_head):
+    """The whole ICT head's lips touch along a slit, and its mouth socket, gums and teeth are shells of their own
+    whose open rims lie in front of the mouth too. The jaw's lip-side term must come from the lips' own slit: when
+    it took the socket's rim, the upper lip's slit face had the lower lip's jaw weight (0.77 against 0.81), and
+    jawOpen parted the lips by 1 mm (docs/RIG.md §4)."""
+    from warpface.assets.jaw import mouth_rim_arcs
+
+    mesh, landmarks, frame, jaw = whole_head
     assert len(np.unique(mesh.shells)) == 56
     assert mouth_rim_arcs(mesh, frame.to_local(mesh.points), landmarks) is None
     upper, lower = _slit_pairs(mesh, landmarks, face_up(mesh, landmarks))
     assert len(upper) >= 10
-    weights = default_jaw(mesh, frame, landmarks).weights
+    weights = jaw.weights
     assert np.median(weights[upper]) < 0.4 and np.median(weights[lower]) > 0.9
     assert np.all(weights[lower] > weights[upper])
+
+
+def test_a_whole_head_s_jaw_opens_fully_without_turning_the_face_over(whole_head):
+    """On the whole head the mouth socket joins the lips' inner corners and the neck the jaw's lower border, and the
+    weights' equalizing rounds stalled with 76 of the face's triangles turned over at the full opening, at the inner
+    mouth corners and under the jaw (docs/RIG.md §14). Longer rounds that hold the lips the seal reads clear them
+    while each lip's slit keeps one weight: the lower lip's slit pairs all stay at the jaw's full weight."""
+    from warpface.expression.jaw import jaw_points
+
+    mesh, landmarks, frame, jaw = whole_head
+    face = (mesh.triangles < ICT_FACE_VERTICES).all(axis=1)
+    rest = mesh.points
+    spacing = float(np.linalg.norm(rest[landmarks[36:42]].mean(axis=0) - rest[landmarks[42:48]].mean(axis=0)))
+    slide = 0.08 * spacing  # the default mappings' full jawForward / jawLeft / jawRight
+    for pose in ([0.35, 0.0, 0.0], [0.21, 0.0, 0.0], [0.0, slide, 0.0], [0.0, 0.0, slide], [0.0, 0.0, -slide]):
+        moved = jaw_points(jaw, rest, np.array(pose))
+        turned = _turned(rest, mesh.triangles[face], moved)
+        assert turned == 0, pose
+    upper, lower = _slit_pairs(mesh, landmarks, face_up(mesh, landmarks))
+    assert np.median(jaw.weights[lower]) > 0.99
+
+
+def _turned(rest: np.ndarray, triangles: np.ndarray, moved: np.ndarray) -> int:
+    """Triangles whose normal turned over (rest · moved < 0), counted independently of the rig's guards."""
+
+    def normals(points):
+        a, b, c = (points[triangles[:, k]] for k in range(3))
+        return np.cross(b - a, c - a)
+
+    return int(np.count_nonzero(np.einsum("ij,ij->i", normals(rest), normals(moved)) < 0.0))

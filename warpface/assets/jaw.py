@@ -30,7 +30,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from ..expression.fold_guard import equalized_weights, unfolded_weights
+from ..expression.fold_guard import equalized_weights, folded_triangles, unfolded_weights
 from ..expression.jaw import Jaw
 from ..mesh import FaceMesh
 from .frame import FaceFrame
@@ -78,6 +78,16 @@ where the lips' weights meet, but not the upper lip's middle."""
 _FOLD_SLIDE = 0.08
 """The protrusion and lateral slide [inter-ocular units] no triangle may fold at (the default mappings' full
 ``jawForward``, ``jawLeft``, ``jawRight``): docs/RIG.md §14."""
+
+_HELD_LIPS = 0.5
+"""The lips' facing vertices within this many of the mouth's half-widths from its centre keep the diffused weights
+through the longer equalizing rounds: the lip seal's pairs lie there (its full turn,
+:data:`~warpface.assets.lips.CORNER_BAND`), and the seal closes the lips against the jaw only while each lip's weight
+there is one value (docs/RIG.md §14)."""
+_LONG_ROUNDS = 1000
+_LONG_STALL = 100
+"""The longer equalizing rounds, where the first stall: most rounds, and rounds without a lower count after which
+they stop (on a whole head the count rests 40–100 rounds at a time before it falls again, docs/RIG.md §14)."""
 
 _PIVOT_OFFSET = (0.35, -0.65)
 """Hinge pivot relative to the ear-level jaw points (iBUG 0/16 midpoint), (up, out) [inter-ocular units]."""
@@ -176,12 +186,16 @@ def slit_faces(mesh: FaceMesh, local: np.ndarray, landmarks: np.ndarray, up: np.
     return upper, lower
 
 
-def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, landmarks: np.ndarray, frame: FaceFrame):
-    """``(d_u − d_l)/(d_u + d_l + c)`` and the distance to the rim [inter-ocular units], or None without a
-    mouth opening or a closed mouth's slit."""
+def _lip_arcs(mesh: FaceMesh, local: np.ndarray, landmarks: np.ndarray, frame: FaceFrame):
+    """The lips' facing vertices as (upper, lower) arrays: the mouth opening's rim arcs, or a closed mouth's slit
+    faces; None with neither."""
     arcs = mouth_rim_arcs(mesh, local, landmarks)
-    if arcs is None:
-        arcs = slit_faces(mesh, local, landmarks, frame.axes[1])
+    return arcs if arcs is not None else slit_faces(mesh, local, landmarks, frame.axes[1])
+
+
+def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, arcs):
+    """``(d_u − d_l)/(d_u + d_l + c)`` and the distance to the rim [inter-ocular units] from the lips' ``arcs``
+    (:func:`_lip_arcs`), or None without them."""
     if arcs is None:
         return None
     upper, lower = arcs
@@ -195,12 +209,15 @@ def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, landmarks: np.ndarray, fr
     return side, reach
 
 
-def lip_sided(mesh: FaceMesh, frame: FaceFrame, local: np.ndarray, landmarks: np.ndarray, below: np.ndarray):
+def lip_sided(
+    mesh: FaceMesh, frame: FaceFrame, local: np.ndarray, landmarks: np.ndarray, below: np.ndarray, arcs=False
+):
     """``below`` (V,), a height below the lips' contact line [inter-ocular units], plus the lip-side term
     ``ε·(d_u − d_l)/(d_u + d_l + c)`` faded with the distance from the mouth's rim or slit (module docstring), so
     each lip lies on its own side of the line; unchanged without a mouth opening or slit. ``local``: the mesh's
-    points in ``frame``; ``landmarks``: the 68 iBUG vertex indices."""
-    rim = _mouth_rim_side(mesh, local, landmarks, frame)
+    points in ``frame``; ``landmarks``: the 68 iBUG vertex indices; ``arcs``: the lips' facing vertices when the
+    caller has them (:func:`_lip_arcs`, which may be None), found here otherwise."""
+    rim = _mouth_rim_side(mesh, local, _lip_arcs(mesh, local, landmarks, frame) if arcs is False else arcs)
     if rim is None:
         return below
     side, reach = rim
@@ -218,7 +235,8 @@ def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.n
     lateral = _smoothstep((np.abs(local[:, 0] - mouth_x) - 0.55 * half_width) / (0.75 * half_width))
     above_ramp = _ABOVE_RAMP
     below_ramp = _BELOW_RAMP[0] + lateral * (_BELOW_RAMP[1] - _BELOW_RAMP[0])
-    below = lip_sided(mesh, frame, local, landmarks, below)
+    arcs = _lip_arcs(mesh, local, landmarks, frame)
+    below = lip_sided(mesh, frame, local, landmarks, below, arcs)
     border = local_landmarks[4:13, :2]
     border = np.concatenate([[border[0] - (1.0, 0.0)], border, [border[-1] + (1.0, 0.0)]])
     under = np.interp(local[:, 0], border[:, 0], border[:, 1]) - local[:, 1]
@@ -235,7 +253,39 @@ def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.n
     slide = _FOLD_SLIDE * frame.scale
     slides = [motion] + [np.broadcast_to(d, motion.shape) for d in (slide * frame.axes[2], slide * frame.axes[0])]
     slides.append(-slides[-1])
-    return equalized_weights(mesh.points, mesh.triangles, weights, np.stack(slides))
+    motions = np.stack(slides)
+    equal = equalized_weights(mesh.points, mesh.triangles, weights, motions)
+    folds = _fold_count(mesh, equal, motions)
+    if folds == 0:
+        return equal
+    # Stalled rounds (a whole head, where the mouth socket and the neck join the mouth's corners and the jaw's
+    # border) run on, longer, with the lips the seal reads held (docs/RIG.md §14); the fewer folds are kept.
+    free = ~_held_lips(local, local_landmarks, arcs)
+    longer = equalized_weights(
+        mesh.points, mesh.triangles, weights, motions, free=free, rounds=_LONG_ROUNDS, stall=_LONG_STALL
+    )
+    return longer if _fold_count(mesh, longer, motions) < folds else equal
+
+
+def _fold_count(mesh: FaceMesh, weights: np.ndarray, motions: np.ndarray) -> int:
+    """How many triangles some ``x + w·motion`` of ``motions`` (M, V, 3) folds (margin as the equalizing rounds)."""
+    folded = np.zeros(len(mesh.triangles), dtype=bool)
+    for motion in motions:
+        folded |= folded_triangles(mesh.points, mesh.triangles, mesh.points + weights[:, None] * motion)
+    return int(folded.sum())
+
+
+def _held_lips(local: np.ndarray, local_landmarks: np.ndarray, arcs) -> np.ndarray:
+    """(V,) bool: the lips' facing vertices (``arcs``, :func:`_lip_arcs`) within :data:`_HELD_LIPS` of the mouth's
+    centre, where the lip seal takes its pairs (docs/RIG.md §12, §14)."""
+    held = np.zeros(len(local), dtype=bool)
+    if arcs is None:
+        return held
+    facing = np.concatenate(arcs)
+    middle = local_landmarks[60:68, 0].mean()
+    half_width = 0.5 * abs(local_landmarks[64, 0] - local_landmarks[60, 0])
+    held[facing[np.abs(local[facing, 0] - middle) < _HELD_LIPS * half_width]] = True
+    return held
 
 
 def _pivot(frame: FaceFrame, local_landmarks: np.ndarray) -> np.ndarray:

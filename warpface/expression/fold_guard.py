@@ -222,13 +222,14 @@ def equalized_weights(
     *,
     free: np.ndarray | None = None,
     rounds: int = _EQUAL_ROUNDS,
+    stall: int = _EQUAL_STALL_ROUNDS,
 ) -> np.ndarray:
     """Blend weights ``w`` (V,) of rigid displacements ``motions`` ((V, 3), or (M, V, 3) for several) made equal on
     the corners of every triangle that some ``x + w·motion`` folds (margin :data:`FOLD_MARGIN`): each round, every
     ``free`` vertex (V,) bool (default: all) of a folded triangle takes the mean, over the folded triangles it
     belongs to, of their corners' mean weight; until none folds, ``rounds`` are done, or the count of folded
-    triangles has not fallen for :data:`_EQUAL_STALL_ROUNDS` rounds (a fold whose corners are not free); returns the
-    weights of the round that folded fewest.
+    triangles has not fallen for ``stall`` rounds (a fold whose corners are not free); returns the weights of the
+    round that folded fewest.
 
     Why it ends the folds the diffusion leaves (docs/RIG.md §14): with one weight ``w ∈ [0, 1]`` on its corners a
     triangle moves by the affine map ``(1 − w) I + w R`` (plus a translation) of a rigid motion ``R`` turning by
@@ -242,7 +243,7 @@ def equalized_weights(
     def moved(values: np.ndarray, motion: np.ndarray, at: np.ndarray) -> np.ndarray:
         return points[at] + values[at, None] * motion[at]
 
-    return _equalized(points, triangles, weights, motions, moved, free, rounds)
+    return _equalized(points, triangles, weights, motions, moved, free, rounds, stall=stall)
 
 
 def equalized_field(
@@ -315,7 +316,9 @@ def touching_triangles(vertices: np.ndarray, columns: tuple[np.ndarray, np.ndarr
     return vertices[columns[0]] | vertices[columns[1]] | vertices[columns[2]]
 
 
-def _equalized(points, triangles, values, motions, moved, free, rounds, margin=FOLD_MARGIN) -> np.ndarray:
+def _equalized(
+    points, triangles, values, motions, moved, free, rounds, margin=FOLD_MARGIN, stall=_EQUAL_STALL_ROUNDS
+) -> np.ndarray:
     """The rounds of :func:`equalized_weights` over per-vertex ``values`` (V,) or (V, k); ``moved(values, motion, at)``
     gives the moved points (len(at), 3) of the vertices ``at`` for each of ``motions``."""
     values = values.copy()
@@ -348,7 +351,7 @@ def _equalized(points, triangles, values, motions, moved, free, rounds, margin=F
     folded_count = int(folded.sum())
     best, since, kept = folded_count, 0, values.copy()
     for _ in range(rounds):
-        if folded_count == 0 or since > _EQUAL_STALL_ROUNDS:
+        if folded_count == 0 or since > stall:
             break
         corners = triangles[np.flatnonzero(folded)]
         means = np.repeat(values[corners].mean(axis=1), 3, axis=0)
