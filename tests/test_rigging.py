@@ -118,6 +118,71 @@ def test_symmetry_plane_of_a_mirror_symmetric_cloud_and_umeyama_recover_known_tr
     assert np.allclose(translation, 2.5 * np.array([0.3, -0.2, 0.5]))
 
 
+def test_the_batched_similarity_fits_equal_each_fit_alone_and_recover_known_transforms():
+    """umeyama_many recovers several known similarities from weighted, noisy matches in one call, and the ICP run from
+    several starts at once (a start whose matches all fall away stops) ends where each start run alone ends."""
+    from scipy.spatial import cKDTree
+
+    from warpface.rigging.align import Similarity, _icp, umeyama_many
+
+    rng = np.random.default_rng(4)
+    source = rng.normal(size=(300, 3)) * [1.0, 1.4, 0.6]
+    turns = Rotation.random(5, random_state=4).as_matrix()
+    scales, shifts = rng.uniform(0.5, 2.0, 5), rng.normal(size=(5, 3))
+    targets = scales[:, None, None] * source @ np.swapaxes(turns, 1, 2) + shifts[:, None]
+    weights = rng.uniform(0.1, 1.0, (5, 300))
+    scale, rotation, translation = umeyama_many(source, targets, weights)
+    np.testing.assert_allclose(scale, scales, rtol=1e-12)
+    np.testing.assert_allclose(rotation, turns, atol=1e-12)
+    np.testing.assert_allclose(translation, shifts, atol=1e-12)
+    one = umeyama(source, targets[2] + rng.normal(0.0, 0.05, (300, 3)), weights[2])
+    assert one[0] == pytest.approx(scales[2], rel=0.05) and np.allclose(one[1], turns[2], atol=0.05)
+
+    skin = rng.normal(size=(2000, 3)) * [1.0, 1.3, 0.5]  # an ellipsoid's shell, its normals pointing out
+    skin /= np.linalg.norm(skin / [1.0, 1.3, 0.5], axis=1, keepdims=True)
+    normals = skin / np.array([1.0, 1.3, 0.5]) ** 2
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    template, template_normals = skin[::10] * 0.9, normals[::10]
+    starts = [
+        Similarity(1.0, np.eye(3), np.zeros(3)),
+        Similarity(1.2, Rotation.from_euler("z", 20, degrees=True).as_matrix(), np.array([0.1, 0.0, 0.0])),
+        Similarity(1.0, np.eye(3), np.array([50.0, 0.0, 0.0])),  # far from the skin: its weights vanish at once
+    ]
+    tree = cKDTree(skin)
+    together = _icp(template, template_normals, skin, normals, tree, starts, 12)
+    for start, fit in zip(starts, together):
+        alone = _icp(template, template_normals, skin, normals, tree, [start], 12)[0]
+        assert fit.scale == pytest.approx(alone.scale, rel=1e-12) and fit.residual == pytest.approx(alone.residual)
+        np.testing.assert_allclose(fit.rotation, alone.rotation, atol=1e-12)
+        np.testing.assert_allclose(fit.translation, alone.translation, atol=1e-12)
+    assert together[2].scale == 1.0 and np.allclose(together[2].translation, [50.0, 0.0, 0.0])
+    assert together[0].residual < 0.05 and together[0].scale == pytest.approx(1.0 / 0.9, rel=0.05)
+
+
+def test_the_non_rigid_fit_s_solves_reuse_the_first_order_and_stay_exact():
+    """The fit's sparse solve finds its fill-reducing order on the first system and reuses it on the next, whose
+    pattern differs (blocks that come and go): both solutions match a dense float64 solve."""
+    import scipy.sparse as sp
+
+    from warpface.rigging.nonrigid import _solve
+
+    rng = np.random.default_rng(2)
+    n = 400
+    path = sp.diags([np.full(n - 1, -1.0), np.full(n, 2.0), np.full(n - 1, -1.0)], [-1, 0, 1])
+    links = sp.random(n, n, density=0.01, random_state=rng)
+    graph = path + (links @ links.T)
+    right = rng.normal(size=(n, 3))
+    first = (graph + sp.diags(rng.uniform(0.1, 1.0, n))).tocsc()
+    solution, order = _solve(first, right, None)
+    np.testing.assert_allclose(solution, np.linalg.solve(first.toarray(), right), rtol=1e-9, atol=1e-9)
+    assert sorted(order.tolist()) == list(range(n))
+    blocks = sp.random(n, n, density=0.002, random_state=rng)
+    second = (first + blocks @ blocks.T).tocsc()
+    again, kept = _solve(second, right, order)
+    assert kept is order
+    np.testing.assert_allclose(again, np.linalg.solve(second.toarray(), right), rtol=1e-9, atol=1e-9)
+
+
 def test_polygons_become_fans_over_the_original_vertices():
     counts, indices = [4, 3, 5], [0, 1, 2, 3, 3, 2, 4, 4, 2, 5, 6, 7]
     triangles = polygons_to_triangles(counts, indices)

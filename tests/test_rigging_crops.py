@@ -43,7 +43,7 @@ def test_the_similarity_score_charges_points_past_the_boundary_at_most_beyond():
     nodes = skin[chosen] + rng.normal(0.0, 1.5, (400, 3))  # cm, around the skin: some past its outline
     node_normals = normals[rng.permutation(chosen)]  # some facing away
     fit = align.Similarity(6.0, np.eye(3), np.zeros(3))  # 1 template unit = 6 cm
-    scored = align._icp(nodes / 6.0, node_normals, skin, normals, cKDTree(skin), fit, 0, boundary=boundary)
+    scored = align._icp(nodes / 6.0, node_normals, skin, normals, cKDTree(skin), [fit], 0, boundary=boundary)[0]
 
     costs, past = [], 0
     for point, normal in zip(nodes.astype(np.float64), node_normals):

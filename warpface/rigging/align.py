@@ -24,7 +24,16 @@ from scipy.spatial import cKDTree
 
 from .template import Template
 
-__all__ = ["Similarity", "Affine", "symmetry_plane", "skin_symmetry_plane", "fit_similarity", "fit_affine", "umeyama"]
+__all__ = [
+    "Similarity",
+    "Affine",
+    "symmetry_plane",
+    "skin_symmetry_plane",
+    "fit_similarity",
+    "fit_affine",
+    "umeyama",
+    "umeyama_many",
+]
 
 TURNS = 12
 """Start angles of the up/front search in the symmetry plane."""
@@ -58,18 +67,24 @@ class Similarity:
 
 def umeyama(source: np.ndarray, target: np.ndarray, weights: np.ndarray, with_scale: bool = True):
     """Weighted least-squares similarity ``target ≈ s R source + t`` (Umeyama 1991): (s, R, t)."""
-    w = weights / weights.sum()
-    mu_s, mu_t = w @ source, w @ target
-    a, b = source - mu_s, target - mu_t
-    cov = (b * w[:, None]).T @ a
+    scale, rotation, translation = umeyama_many(source, target[None], weights[None], with_scale)
+    return float(scale[0]), rotation[0], translation[0]
+
+
+def umeyama_many(source: np.ndarray, targets: np.ndarray, weights: np.ndarray, with_scale: bool = True):
+    """:func:`umeyama` of one ``source`` (N, 3) onto each of ``targets`` (B, N, 3) with ``weights`` (B, N):
+    scales (B,), rotations (B, 3, 3) and translations (B, 3)."""
+    w = weights / weights.sum(axis=1, keepdims=True)
+    mu_s, mu_t = w @ source, np.einsum("bn,bnk->bk", w, targets)
+    a, b = source[None] - mu_s[:, None], targets - mu_t[:, None]
+    cov = np.swapaxes(b * w[..., None], 1, 2) @ a
     u, sigma, vt = np.linalg.svd(cov)
-    d = np.ones(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:
-        d[2] = -1.0
-    rotation = (u * d) @ vt
-    variance = float(w @ np.sum(a * a, axis=1))
-    scale = float((sigma * d).sum() / variance) if with_scale else 1.0
-    return scale, rotation, mu_t - scale * rotation @ mu_s
+    d = np.ones((len(targets), 3))
+    d[np.linalg.det(u) * np.linalg.det(vt) < 0, 2] = -1.0
+    rotation = (u * d[:, None, :]) @ vt
+    variance = np.einsum("bn,bn->b", w, np.sum(a * a, axis=2))
+    scale = (sigma * d).sum(axis=1) / variance if with_scale else np.ones(len(targets))
+    return scale, rotation, mu_t - scale[:, None] * np.einsum("bij,bj->bi", rotation, mu_s)
 
 
 PLANE_ROUNDS = 15
@@ -161,31 +176,47 @@ def _icp(
     skin: np.ndarray,
     skin_normals: np.ndarray,
     tree: cKDTree,
-    start: Similarity,
+    starts: list[Similarity],
     iterations: int,
     sigma: tuple[float, float] = (0.3, 0.08),
     boundary: np.ndarray | None = None,
-) -> Similarity:
-    """Similarity ICP with Gaussian weights whose width shrinks from ``sigma[0]`` to ``sigma[1]``; the matched
-    skin point slides to the foot of the template point on the skin's tangent plane. The residual is the mean capped
+) -> list[Similarity]:
+    """Similarity ICP from each of ``starts``, all at once, with Gaussian weights whose width shrinks from
+    ``sigma[0]`` to ``sigma[1]``; the matched skin point slides to the foot of the template point on the skin's
+    tangent plane; a start whose weights all but vanish stops where it is. The residual of each fit is the mean capped
     distance (:data:`MISS`; :data:`BEYOND` where the nearest skin point is on the skin's ``boundary``, (S,) bool)."""
-    fit = start
+    scale = np.array([fit.scale for fit in starts], dtype=np.float64)
+    rotation = np.stack([fit.rotation for fit in starts]).astype(np.float64)
+    translation = np.stack([fit.translation for fit in starts]).astype(np.float64)
+    count = len(template)
+
+    def moved(fits: np.ndarray) -> np.ndarray:
+        return scale[fits, None, None] * (template @ np.swapaxes(rotation[fits], 1, 2)) + translation[fits, None]
+
+    def matched(fits: np.ndarray):
+        """Distance (F, N), skin index (F, N) and the facing cosine (F, N) of the fits' moved template points."""
+        distance, index = tree.query(moved(fits).reshape(-1, 3), workers=-1)
+        distance, index = distance.reshape(len(fits), count), index.reshape(len(fits), count)
+        turned = template_normals @ np.swapaxes(rotation[fits], 1, 2)
+        return distance, index, np.einsum("fnk,fnk->fn", turned, skin_normals[index])
+
+    active = np.arange(len(starts))
     for width in np.geomspace(sigma[0], sigma[1], iterations):
-        moved = fit.apply(template)
-        distance, index = tree.query(moved)
-        normals = skin_normals[index]
-        facing = np.sum((template_normals @ fit.rotation.T) * normals, axis=1)
-        weights = np.exp(-((distance / (width * fit.scale)) ** 2)) * (facing > FACING)
-        if weights.sum() < 1e-3 * len(template):
+        distance, index, facing = matched(active)
+        weights = np.exp(-((distance / (width * scale[active, None])) ** 2)) * (facing > FACING)
+        going = weights.sum(axis=1) >= 1e-3 * count
+        active, distance, index, weights = active[going], distance[going], index[going], weights[going]
+        if len(active) == 0:
             break
-        foot = moved - np.sum((moved - skin[index]) * normals, axis=1)[:, None] * normals
-        fit = Similarity(*umeyama(template, foot, weights))
-    distance, index = tree.query(fit.apply(template))
-    facing = np.sum((template_normals @ fit.rotation.T) * skin_normals[index], axis=1)
-    cost = np.where(facing > FACING, np.minimum(distance / fit.scale, MISS), MISS)
+        points, normals = moved(active), skin_normals[index]
+        foot = points - np.sum((points - skin[index]) * normals, axis=2)[..., None] * normals
+        scale[active], rotation[active], translation[active] = umeyama_many(template, foot, weights)
+    distance, index, facing = matched(np.arange(len(starts)))
+    cost = np.where(facing > FACING, np.minimum(distance / scale[:, None], MISS), MISS)
     if boundary is not None:
         cost = np.where(boundary[index], np.minimum(cost, BEYOND), cost)
-    return Similarity(fit.scale, fit.rotation, fit.translation, float(cost.mean()))
+    residual = cost.mean(axis=1)
+    return [Similarity(float(scale[i]), rotation[i], translation[i], float(residual[i])) for i in range(len(starts))]
 
 
 def _starts(normal: np.ndarray, up_hint, front_hint):
@@ -264,7 +295,7 @@ def fit_similarity(
     centre = skin.mean(axis=0)
     nose = model.points[model.landmarks[30]]
     template_width = float(np.ptp(model.points[:, 0]))
-    candidates = []
+    starts = []
     for x, up, front in _starts(normal, up_hint, front_hint):
         rotation = np.stack([x, up, front], axis=1)  # template axes → target directions
         across = (skin - centre) @ x
@@ -273,19 +304,12 @@ def fit_similarity(
         for tip in profile_peaks(profile, front, up, TIP_SPACING * width):
             for factor in SCALE_STARTS:
                 scale = factor * width / template_width
-                start = Similarity(scale, rotation, tip - scale * rotation @ nose)
-                candidates.append(
-                    _icp(
-                        nodes[coarse], node_normals[coarse], skin, skin_normals, tree, start, 20, boundary=skin_boundary
-                    )
-                )
-    if not candidates:
+                starts.append(Similarity(scale, rotation, tip - scale * rotation @ nose))
+    if not starts:
         raise ValueError("up/front: the hints given contradict each other (up and front must be perpendicular)")
+    candidates = _icp(nodes[coarse], node_normals[coarse], skin, skin_normals, tree, starts, 20, boundary=skin_boundary)
     finalists = sorted(candidates, key=lambda fit: fit.residual)[:FINALISTS]
-    refined = [
-        _icp(nodes, node_normals, skin, skin_normals, tree, fit, REFINE_ROUNDS, (0.2, 0.05), skin_boundary)
-        for fit in finalists
-    ]
+    refined = _icp(nodes, node_normals, skin, skin_normals, tree, finalists, REFINE_ROUNDS, (0.2, 0.05), skin_boundary)
     return min(refined, key=lambda fit: fit.residual), plane_residual
 
 
