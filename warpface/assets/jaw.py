@@ -84,10 +84,10 @@ _HELD_LIPS = 0.5
 through the longer equalizing rounds: the lip seal's pairs lie there (its full turn,
 :data:`~warpface.assets.lips.CORNER_BAND`), and the seal closes the lips against the jaw only while each lip's weight
 there is one value (docs/RIG.md §14)."""
-_LONG_ROUNDS = 1000
-_LONG_STALL = 100
-"""The longer equalizing rounds, where the first stall: most rounds, and rounds without a lower count after which
-they stop (on a whole head the count rests 40–100 rounds at a time before it falls again, docs/RIG.md §14)."""
+_LONG_ROUNDS = 2000
+"""Most of the longer equalizing rounds, where the first stall; they do not stop for a stall: on whole heads the
+count of folded triangles rises for hundreds of rounds while the equal weights spread, before it falls (a posed,
+warped ICT head: 506 folded after 100 rounds, 68 after 400, 18 after 1,500; docs/RIG.md §14)."""
 
 _PIVOT_OFFSET = (0.35, -0.65)
 """Hinge pivot relative to the ear-level jaw points (iBUG 0/16 midpoint), (up, out) [inter-ocular units]."""
@@ -262,7 +262,7 @@ def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.n
     # border) run on, longer, with the lips the seal reads held (docs/RIG.md §14); the fewer folds are kept.
     free = ~_held_lips(local, local_landmarks, arcs)
     longer = equalized_weights(
-        mesh.points, mesh.triangles, weights, motions, free=free, rounds=_LONG_ROUNDS, stall=_LONG_STALL
+        mesh.points, mesh.triangles, weights, motions, free=free, rounds=_LONG_ROUNDS, stall=_LONG_ROUNDS
     )
     return longer if _fold_count(mesh, longer, motions) < folds else equal
 
