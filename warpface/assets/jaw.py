@@ -209,15 +209,17 @@ def _mouth_rim_side(mesh: FaceMesh, local: np.ndarray, arcs):
     return side, reach
 
 
-def lip_sided(
-    mesh: FaceMesh, frame: FaceFrame, local: np.ndarray, landmarks: np.ndarray, below: np.ndarray, arcs=False
-):
+def lip_sided(mesh: FaceMesh, frame: FaceFrame, local: np.ndarray, landmarks: np.ndarray, below: np.ndarray):
     """``below`` (V,), a height below the lips' contact line [inter-ocular units], plus the lip-side term
     ``ε·(d_u − d_l)/(d_u + d_l + c)`` faded with the distance from the mouth's rim or slit (module docstring), so
     each lip lies on its own side of the line; unchanged without a mouth opening or slit. ``local``: the mesh's
-    points in ``frame``; ``landmarks``: the 68 iBUG vertex indices; ``arcs``: the lips' facing vertices when the
-    caller has them (:func:`_lip_arcs`, which may be None), found here otherwise."""
-    rim = _mouth_rim_side(mesh, local, _lip_arcs(mesh, local, landmarks, frame) if arcs is False else arcs)
+    points in ``frame``; ``landmarks``: the 68 iBUG vertex indices."""
+    return _sided_by(mesh, local, below, _lip_arcs(mesh, local, landmarks, frame))
+
+
+def _sided_by(mesh: FaceMesh, local: np.ndarray, below: np.ndarray, arcs) -> np.ndarray:
+    """:func:`lip_sided` from the lips' facing vertices ``arcs`` (:func:`_lip_arcs`; None: ``below`` unchanged)."""
+    rim = _mouth_rim_side(mesh, local, arcs)
     if rim is None:
         return below
     side, reach = rim
@@ -236,7 +238,7 @@ def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.n
     above_ramp = _ABOVE_RAMP
     below_ramp = _BELOW_RAMP[0] + lateral * (_BELOW_RAMP[1] - _BELOW_RAMP[0])
     arcs = _lip_arcs(mesh, local, landmarks, frame)
-    below = lip_sided(mesh, frame, local, landmarks, below, arcs)
+    below = _sided_by(mesh, local, below, arcs)
     border = local_landmarks[4:13, :2]
     border = np.concatenate([[border[0] - (1.0, 0.0)], border, [border[-1] + (1.0, 0.0)]])
     under = np.interp(local[:, 0], border[:, 0], border[:, 1]) - local[:, 1]
