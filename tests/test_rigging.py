@@ -123,7 +123,8 @@ def test_the_batched_similarity_fits_equal_each_fit_alone_and_recover_known_tran
     several starts at once (a start whose matches all fall away stops) ends where each start run alone ends."""
     from scipy.spatial import cKDTree
 
-    from warpface.rigging.align import Similarity, _icp, umeyama_many
+    from warpface.rigging import align
+    from warpface.rigging.align import Similarity, umeyama_many
 
     rng = np.random.default_rng(4)
     source = rng.normal(size=(300, 3)) * [1.0, 1.4, 0.6]
@@ -149,9 +150,9 @@ def test_the_batched_similarity_fits_equal_each_fit_alone_and_recover_known_tran
         Similarity(1.0, np.eye(3), np.array([50.0, 0.0, 0.0])),  # far from the skin: its weights vanish at once
     ]
     tree = cKDTree(skin)
-    together = _icp(template, template_normals, skin, normals, tree, starts, 12)
+    together = align._icp(template, template_normals, skin, normals, tree, starts, 12)
     for start, fit in zip(starts, together):
-        alone = _icp(template, template_normals, skin, normals, tree, [start], 12)[0]
+        alone = align._icp(template, template_normals, skin, normals, tree, [start], 12)[0]
         assert fit.scale == pytest.approx(alone.scale, rel=1e-12) and fit.residual == pytest.approx(alone.residual)
         np.testing.assert_allclose(fit.rotation, alone.rotation, atol=1e-12)
         np.testing.assert_allclose(fit.translation, alone.translation, atol=1e-12)
@@ -164,7 +165,7 @@ def test_the_non_rigid_fit_s_solves_reuse_the_first_order_and_stay_exact():
     pattern differs (blocks that come and go): both solutions match a dense float64 solve."""
     import scipy.sparse as sp
 
-    from warpface.rigging.nonrigid import _solve
+    from warpface.rigging import nonrigid
 
     rng = np.random.default_rng(2)
     n = 400
@@ -173,12 +174,12 @@ def test_the_non_rigid_fit_s_solves_reuse_the_first_order_and_stay_exact():
     graph = path + (links @ links.T)
     right = rng.normal(size=(n, 3))
     first = (graph + sp.diags(rng.uniform(0.1, 1.0, n))).tocsc()
-    solution, order = _solve(first, right, None)
+    solution, order = nonrigid._solve(first, right, None)
     np.testing.assert_allclose(solution, np.linalg.solve(first.toarray(), right), rtol=1e-9, atol=1e-9)
     assert sorted(order.tolist()) == list(range(n))
     blocks = sp.random(n, n, density=0.002, random_state=rng)
     second = (first + blocks @ blocks.T).tocsc()
-    again, kept = _solve(second, right, order)
+    again, kept = nonrigid._solve(second, right, order)
     assert kept is order
     np.testing.assert_allclose(again, np.linalg.solve(second.toarray(), right), rtol=1e-9, atol=1e-9)
 
