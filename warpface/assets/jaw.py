@@ -262,7 +262,7 @@ def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.n
         return equal
     # Stalled rounds (a whole head, where the mouth socket and the neck join the mouth's corners and the jaw's
     # border) run on, longer, with the lips the seal reads held (docs/RIG.md §14); the fewer folds are kept.
-    free = ~_held_lips(local, local_landmarks, arcs)
+    free = ~_held_lips(local, arcs, mouth_x, half_width)
     longer = equalized_weights(
         mesh.points, mesh.triangles, weights, motions, free=free, rounds=_LONG_ROUNDS, stall=_LONG_ROUNDS
     )
@@ -277,16 +277,15 @@ def _fold_count(mesh: FaceMesh, weights: np.ndarray, motions: np.ndarray) -> int
     return int(folded.sum())
 
 
-def _held_lips(local: np.ndarray, local_landmarks: np.ndarray, arcs) -> np.ndarray:
-    """(V,) bool: the lips' facing vertices (``arcs``, :func:`_lip_arcs`) within :data:`_HELD_LIPS` of the mouth's
-    centre, where the lip seal takes its pairs (docs/RIG.md §12, §14)."""
+def _held_lips(local: np.ndarray, arcs, mouth_x: float, half_width: float) -> np.ndarray:
+    """(V,) bool: the lips' facing vertices (``arcs``, :func:`_lip_arcs`) within :data:`_HELD_LIPS` half-widths
+    (``half_width``) of the mouth's centre ``mouth_x`` [inter-ocular units], where the lip seal takes its pairs
+    (docs/RIG.md §12, §14)."""
     held = np.zeros(len(local), dtype=bool)
     if arcs is None:
         return held
     facing = np.concatenate(arcs)
-    middle = local_landmarks[60:68, 0].mean()
-    half_width = 0.5 * abs(local_landmarks[64, 0] - local_landmarks[60, 0])
-    held[facing[np.abs(local[facing, 0] - middle) < _HELD_LIPS * half_width]] = True
+    held[facing[np.abs(local[facing, 0] - mouth_x) < _HELD_LIPS * half_width]] = True
     return held
 
 
