@@ -33,8 +33,15 @@ def ramp_csv(path, frames: int, channel: str):
     return path
 
 
+def _sigint_as_in_a_terminal():
+    """In the child before it runs: SIGINT at its default. A harness that starts the tests in the background (``&``,
+    ``nohup``) ignores SIGINT, every child inherits that, and the batch would rightly not stop on Ctrl-C."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def start_batch(manifest, out, *extra):
-    """``warpface batch`` as its own process (in its own session, as a terminal runs it)."""
+    """``warpface batch`` as its own process (in its own session with SIGINT at its default, as a terminal runs
+    it)."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
     command = [sys.executable, "-m", "warpface.cli", "--quiet", "--device", "cpu", "batch", str(manifest)]
     return subprocess.Popen(
@@ -44,6 +51,7 @@ def start_batch(manifest, out, *extra):
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
+        preexec_fn=_sigint_as_in_a_terminal,
     )
 
 
