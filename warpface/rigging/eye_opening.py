@@ -6,10 +6,9 @@ is far deeper: the margin is the outline of the *socket*, the part of the eye's 
 front-facing skin lies more than :data:`DEPTH` behind the carried eye. The ICT annotation's lid points lie on that
 outline (within 0.8 mm on the ICT head and on every warp of it measured), while the registration can leave a warped
 head's eye several millimetres off it (development head 618: 6.5 mm mean), because the lid surface and the socket's
-are one smooth sheet along which the template slides freely. The eye points are placed on the outline where the
-annotation puts them relative to the socket's extremes, and each brow moves by its eye's mean shift
-(:func:`eye_openings`, docs/RIG.md §9 step 6c). A scan without an opening (one surface over the eye) has no socket:
-nothing changes.
+are one smooth sheet along which the template slides freely. The carried eye points are moved onto the outline,
+and each brow by its eye's mean shift (:func:`eye_openings`, docs/RIG.md §9 step 6c). A scan without an opening (one
+surface over the eye) has no socket: nothing changes.
 """
 
 from __future__ import annotations
@@ -49,20 +48,18 @@ AREA_RATIO = (0.3, 3.0)
 """The socket's area over the carried eye ring's must lie in this range."""
 MAX_MOVE = 0.3
 """An eye point the outline would move farther than this [inter-ocular units] leaves that eye as it was."""
+CORNER_WEIGHT = 4.0
+"""Weight of the two corners against each lid point in the fit of the eye ring's affine map."""
+ROUNDS = 5
+"""Rounds of matching the lid points to their nearest outline points."""
 CORNER_OFFSETS = ((-0.039, 0.011), (1.158, -0.013))
 """Outer and inner corner in the socket's own frame: origin its outer extreme, first axis to its inner extreme
 (length 1), second axis up. Calibrated on the ICT neutral, mirror-averaged: the socket tapers before the inner
 corner (the caruncle's fold), so the annotated inner corner lies 0.16 of the eye's width beyond it."""
-LID_FRACTIONS = {"upper": (0.2185, 0.703), "lower": (0.2815, 0.788)}
-"""Where the annotated lid points lie across the socket, from its outer extreme, as fractions of its width (the
-outer point of each lid first). Calibrated on the ICT neutral, mirror-averaged (0.217 / 0.220, 0.699 / 0.707,
-0.285 / 0.278, 0.789 / 0.787 for the right / left eye)."""
 EYES = ((36, 37, 38, 39, 40, 41), (42, 43, 44, 45, 46, 47))
 """The eye rings in iBUG order: the subject's right eye (−x in the template frame), then the left."""
 CORNERS = ((36, 39), (45, 42))
 """Outer, inner corner of each eye."""
-LIDS = (((37, 38), (41, 40)), ((44, 43), (46, 47)))
-"""Each eye's upper and lower lid points, the outer one first."""
 BROWS = (np.arange(17, 22), np.arange(22, 27))
 """The brow above each eye (iBUG 17–21 over the right, 22–26 over the left): it moves with its eye ring's mean
 shift. Where the registration slid an eye it slid the brow with it: on 37 training and development heads the carried
@@ -91,15 +88,10 @@ class SocketOutline:
         """The outer and inner corners where the ICT annotation puts them (:data:`CORNER_OFFSETS`), (2,) each."""
         return tuple(self.outer + self.width * (along * self.across + up * self.up) for along, up in CORNER_OFFSETS)
 
-    def on_lid(self, fraction: float, upper: bool) -> np.ndarray:
-        """The outline point (2,) on the upper (or lower) side that lies ``fraction`` of the socket's width across it
-        from the outer extreme (:data:`LID_FRACTIONS`)."""
-        offsets = self.outline - self.outer
-        candidates = np.flatnonzero((offsets @ self.up > 0.0) == upper)
-        if len(candidates) == 0:  # an outline wholly on the line between its extremes
-            candidates = np.arange(len(self.outline))
-        along = offsets[candidates] @ self.across / self.width
-        return self.outline[candidates[np.argmin(np.abs(along - fraction))]]
+    def nearest(self, points: np.ndarray) -> np.ndarray:
+        """The outline point nearest each of ``points`` (N, 2)."""
+        distance = np.linalg.norm(points[:, None, :] - self.outline[None, :, :], axis=2)
+        return self.outline[np.argmin(distance, axis=1)]
 
 
 def front_depth(
@@ -180,16 +172,33 @@ def socket_outline(skin: SkinTarget, triangles: np.ndarray, ring: np.ndarray, ri
     return SocketOutline(outline, cells, right_eye)
 
 
-def _placed_ring(socket: SocketOutline, ring: tuple[int, ...], eye: int) -> np.ndarray:
-    """The eye ring (6, 2) in iBUG order placed on its socket: the corners where :meth:`SocketOutline.corners` puts
-    them, each lid point on the outline at its :data:`LID_FRACTIONS` across the socket."""
-    placed = np.empty((len(ring), 2))
-    (outer, inner), (upper, lower) = CORNERS[eye], LIDS[eye]
-    placed[[ring.index(outer), ring.index(inner)]] = socket.corners()
-    for points, name in ((upper, "upper"), (lower, "lower")):
-        for point, fraction in zip(points, LID_FRACTIONS[name]):
-            placed[ring.index(point)] = socket.on_lid(fraction, upper=name == "upper")
-    return placed
+def _fit_ring(ring: np.ndarray, socket: SocketOutline, corners: tuple[int, int]) -> np.ndarray:
+    """The carried ring (6, 2) moved onto the socket's outline: an affine map taking its corners to the
+    socket's (weighted :data:`CORNER_WEIGHT`) and its lid points to their nearest outline points, matched anew
+    :data:`ROUNDS` times from the similarity the corners alone give; then each lid point on its nearest
+    outline point, each corner on its socket corner."""
+    corner_rows = list(corners)
+    targets = np.array(socket.corners())
+    points = ring[:, 0] + 1j * ring[:, 1]  # the plane as complex numbers: a similarity is z ↦ a z + b
+    start, end = points[corner_rows]
+    if abs(end - start) < 1e-9:  # a ring with its corners together has no direction to turn
+        return ring
+    goals = targets[:, 0] + 1j * targets[:, 1]
+    placed = (points - start) * (goals[1] - goals[0]) / (end - start) + goals[0]
+    moved = np.stack([placed.real, placed.imag], axis=1)
+    lids = np.setdiff1d(np.arange(len(ring)), corner_rows)
+    root_weights = np.ones((len(ring), 1))
+    root_weights[corner_rows] = np.sqrt(CORNER_WEIGHT)
+    homogeneous = np.concatenate([ring, np.ones((len(ring), 1))], axis=1)
+    for _ in range(ROUNDS):
+        goal = moved.copy()
+        goal[corner_rows] = targets
+        goal[lids] = socket.nearest(moved[lids])
+        solution = np.linalg.lstsq(homogeneous * root_weights, goal * root_weights, rcond=None)[0]
+        moved = homogeneous @ solution
+    moved[lids] = socket.nearest(moved[lids])
+    moved[corner_rows] = targets
+    return moved
 
 
 def eye_openings(skin: SkinTarget, triangles: np.ndarray, marks: np.ndarray) -> np.ndarray:
@@ -203,12 +212,13 @@ def eye_openings(skin: SkinTarget, triangles: np.ndarray, marks: np.ndarray) -> 
         marks: the carried landmark points in that frame.
     """
     moved = marks.copy()
-    for eye, (ring, brow) in enumerate(zip(EYES, BROWS)):
+    for ring, (outer, inner), brow, right_eye in zip(EYES, CORNERS, BROWS, (True, False)):
         indices = np.asarray(ring)
-        socket = socket_outline(skin, triangles, marks[indices], right_eye=eye == 0)
+        socket = socket_outline(skin, triangles, marks[indices], right_eye)
         if socket is None:
             continue
-        placed = _placed_ring(socket, ring, eye)
+        corners = (ring.index(outer), ring.index(inner))
+        placed = _fit_ring(marks[indices, :2], socket, corners)
         if not np.max(np.linalg.norm(placed - marks[indices, :2], axis=1)) <= MAX_MOVE:  # too far, or not finite
             continue
         moved[indices, :2] = placed
