@@ -160,28 +160,31 @@ def test_the_batched_similarity_fits_equal_each_fit_alone_and_recover_known_tran
     assert together[0].residual < 0.05 and together[0].scale == pytest.approx(1.0 / 0.9, rel=0.05)
 
 
-def test_the_non_rigid_fit_s_solves_reuse_the_first_order_and_stay_exact():
-    """The fit's sparse solve finds its fill-reducing order on the first system and reuses it on the next, whose
-    pattern differs (blocks that come and go): both solutions match a dense float64 solve."""
+def test_the_non_rigid_fit_s_node_order_keeps_each_node_together_and_solves_exactly():
+    """The fit's fill-reducing order comes from the node graph alone: a permutation of the 4K unknowns that keeps each
+    node's four together; systems with the graph's pattern in 4 × 4 blocks (smoothness plus block-diagonal data, as
+    the fit builds them) solve in it to a dense float64 solve's answer."""
     import scipy.sparse as sp
 
     from warpface.rigging import nonrigid
 
     rng = np.random.default_rng(2)
-    n = 400
-    path = sp.diags([np.full(n - 1, -1.0), np.full(n, 2.0), np.full(n - 1, -1.0)], [-1, 0, 1])
-    links = sp.random(n, n, density=0.01, random_state=rng)
-    graph = path + (links @ links.T)
-    right = rng.normal(size=(n, 3))
-    first = (graph + sp.diags(rng.uniform(0.1, 1.0, n))).tocsc()
-    solution, order = nonrigid._solve(first, right, None)
-    np.testing.assert_allclose(solution, np.linalg.solve(first.toarray(), right), rtol=1e-9, atol=1e-9)
-    assert sorted(order.tolist()) == list(range(n))
-    blocks = sp.random(n, n, density=0.002, random_state=rng)
-    second = (first + blocks @ blocks.T).tocsc()
-    again, kept = nonrigid._solve(second, right, order)
-    assert kept is order
-    np.testing.assert_allclose(again, np.linalg.solve(second.toarray(), right), rtol=1e-9, atol=1e-9)
+    k = 120
+    path = sp.diags([np.full(k - 1, -1.0), np.full(k, 2.0), np.full(k - 1, -1.0)], [-1, 0, 1])
+    links = sp.random(k, k, density=0.02, random_state=rng)
+    laplacian = sp.csgraph.laplacian(((path != 0) + (links @ links.T != 0)).astype(float))
+    smooth = sp.kron(laplacian, sp.identity(4), format="csc")
+    order = nonrigid._node_order(smooth)
+    assert sorted(order.tolist()) == list(range(4 * k))
+    np.testing.assert_array_equal(order.reshape(k, 4) % 4, np.tile(np.arange(4), (k, 1)))
+    np.testing.assert_array_equal(order.reshape(k, 4) // 4, np.repeat(order[::4] // 4, 4).reshape(k, 4))
+    for alpha in (50.0, 0.5):
+        data = [rng.normal(size=(6, 4)) for _ in range(k)]
+        blocks = sp.block_diag([d.T @ d + 1e-3 * np.eye(4) for d in data])
+        system = (alpha * smooth + blocks).tocsr()
+        right = rng.normal(size=(4 * k, 3))
+        solution = nonrigid._solve(system, right, order)
+        np.testing.assert_allclose(solution, np.linalg.solve(system.toarray(), right), rtol=1e-9, atol=1e-9)
 
 
 def test_polygons_become_fans_over_the_original_vertices():

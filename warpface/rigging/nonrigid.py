@@ -113,19 +113,27 @@ def _backward(points, normals, template_outline, skin: SkinTarget, limit: float)
     return index[keep], skin.points[near[keep]]
 
 
-def _solve(system: sp.csc_matrix, right: np.ndarray, order: np.ndarray | None):
-    """The symmetric positive definite ``system`` solved for ``right`` by sparse LU: (solution, order). The
-    fill-reducing order (minimum degree on ``A + Aᵀ``) is found on the first system of a fit and reused after: the
-    node graph fixes the pattern, up to the blocks of nodes whose matches come and go, and finding it once instead of
-    for each of the fit's systems saved a sixth of the factorizations' time (the solutions agree to 1e-13)."""
-    options = {"SymmetricMode": True}
-    if order is None:
-        factors = splu(system, permc_spec="MMD_AT_PLUS_A", options=options)
-        return factors.solve(right), np.argsort(factors.perm_c)
-    factors = splu(system[order][:, order].tocsc(), permc_spec="NATURAL", options=options)
+def _node_order(smooth: sp.csc_matrix) -> np.ndarray:
+    """A fill-reducing order of the fit's unknowns: minimum degree (SuperLU's, on ``A + Aᵀ``) of the node graph, each
+    node's four unknowns kept together. Every system of a fit has the node graph's pattern in 4 × 4 blocks (the data
+    and backward terms are block diagonal: a vertex moves with one node), so the order is found once on the graph
+    (K × K, 5 ms on the template's 2,722 nodes) and serves each factorization; against minimum degree on the 4K × 4K
+    system itself its factors have ~13 % fewer entries and take ~20 % less time (the solutions agree to 1e-13)."""
+    count = smooth.shape[0] // 4
+    blocks = smooth.tocoo()
+    graph = sp.csc_matrix((np.ones(blocks.nnz), (blocks.row // 4, blocks.col // 4)), shape=(count, count))
+    graph = graph + sp.identity(count, format="csc")  # a node with no edge keeps a pivot
+    nodes = np.argsort(splu(graph, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True}).perm_c)
+    return (4 * nodes[:, None] + np.arange(4)).ravel()
+
+
+def _solve(system: sp.csr_matrix, right: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """The symmetric positive definite ``system`` solved for ``right`` by sparse LU in the fill-reducing ``order``
+    (:func:`_node_order`)."""
+    factors = splu(system[order][:, order].tocsc(), permc_spec="NATURAL", options={"SymmetricMode": True})
     solution = np.empty_like(right)
     solution[order] = factors.solve(right[order])
-    return solution, order
+    return solution
 
 
 def fit_nonrigid(model: Template, skin: SkinTarget, *, stiffness=None, rounds: int | None = None) -> NonRigidFit:
@@ -139,7 +147,7 @@ def fit_nonrigid(model: Template, skin: SkinTarget, *, stiffness=None, rounds: i
     maps = np.tile(np.vstack([np.eye(3), np.zeros((1, 3))]), (k, 1))
     points, normals = model.points, model.normals
     weights = np.ones(len(points))
-    order = None
+    order = _node_order(smooth)
     limits = np.geomspace(MAX_DISTANCE[0], MAX_DISTANCE[1], len(stiffness))
     for alpha, limit in zip(stiffness, limits):
         for _ in range(rounds):
@@ -156,7 +164,7 @@ def fit_nonrigid(model: Template, skin: SkinTarget, *, stiffness=None, rounds: i
                 pulled = select[rows]
                 system = system + BACKWARD * (pulled.T @ pulled)
                 right = right + BACKWARD * np.asarray(pulled.T @ targets)
-            maps, order = _solve(system.tocsc(), right, order)
+            maps = _solve(system.tocsr(), right, order)
             points = select @ maps
             normals = vertex_normals(points, model.triangles)
     return NonRigidFit(points=points, normals=normals, weights=weights, maps=maps.reshape(k, 4, 3))
