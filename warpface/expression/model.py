@@ -14,13 +14,11 @@ from .evaluator import ExpressionEvaluator, ExpressionStages
 from .fold_guard import face_size
 from .jaw import JAW_CONTROL_NAMES, Jaw
 from .kernels import MuscleEntry, WrinkleEntry
-from .lids import bulging_thickness
-from .lift_guard import guarded_lifts
 from .muscles import Muscle
 from .plans import PLANS, tiled_rig
+from .rig_fields import rig_fields
 from .tiling import mesh_tiles
-from .tissue import skin_muscle_weights
-from .wrinkles import Wrinkle, skin_wrinkle_shapes
+from .wrinkles import Wrinkle
 
 __all__ = ["ExpressionModel", "ExpressionStages"]
 
@@ -120,18 +118,8 @@ class ExpressionModel:
     def _upload_rig(self, mesh: FaceMesh) -> None:
         """The rig-time fields (muscle weights with the tissue's response, wrinkle profiles) as device arrays."""
         device = self.device
-        weights = skin_muscle_weights(mesh, self.muscles, self.thickness, device=device, size=self.size)
-        shapes = skin_wrinkle_shapes(mesh, self.wrinkles, self.muscles, device=device)
-        bulging, faded = guarded_lifts(
-            mesh,
-            bulging_thickness(self.thickness, self.muscles),
-            self.muscles,
-            weights,
-            self.wrinkles,
-            shapes,
-            self.jaw,
-            self.size,
-        )
+        fields = rig_fields(mesh, self.muscles, self.wrinkles, self.thickness, self.jaw, self.size, device=device)
+        weights, shapes, bulging, faded = fields.weights, fields.shapes, fields.bulging, fields.faded
         self.muscle_entry_count = int(len(weights.muscle))
         self.wrinkle_entry_count = int(len(shapes.wrinkle))
         self._muscle_offsets = wp.array(weights.offsets, dtype=wp.int32, device=device)

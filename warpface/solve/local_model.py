@@ -28,10 +28,7 @@ import scipy.sparse as sp
 from .._validate import expect_instance
 from ..expression.fold_guard import face_size
 from ..expression.kernels import STRETCH_FLOOR as EXPRESSION_STRETCH_FLOOR
-from ..expression.lids import bulging_thickness
-from ..expression.lift_guard import guarded_lifts
-from ..expression.tissue import skin_muscle_weights
-from ..expression.wrinkles import skin_wrinkle_shapes
+from ..expression.rig_fields import rig_fields
 from ..rig import FaceRig
 
 __all__ = ["RigOperators", "Neighbourhood", "STRETCH_FLOOR", "REST_STRETCH_BAND"]
@@ -112,25 +109,14 @@ class RigOperators:
             shape=(vertex_count, triangle_count),
         )
         size = face_size(rest, getattr(rig, "landmarks", None))  # as ExpressionModel.from_rig measures it
-        muscles = skin_muscle_weights(
-            mesh, list(rig.muscles), rig.thickness, device=device, size=size
-        )  # with sliding and bunching
+        jaw = getattr(rig, "jaw", None)
+        fields = rig_fields(mesh, rig.muscles, rig.wrinkles, rig.thickness, jaw, size, device=device)  # the model's
+        muscles, wrinkles = fields.weights, fields.shapes
+        bulging, shape = fields.bulging, fields.faded  # the guarded h and profiles (docs/RIG.md §14)
         entry_vertex = np.repeat(np.arange(vertex_count), np.diff(muscles.offsets))
         rows = (3 * entry_vertex[:, None] + np.arange(3)[None, :]).ravel()
         columns = np.repeat(muscles.muscle.astype(np.int64), 3)
         field = sp.csr_matrix((muscles.weight.ravel(), (rows, columns)), shape=(3 * vertex_count, len(rig.muscles)))
-        wrinkles = skin_wrinkle_shapes(mesh, list(rig.wrinkles), rig.muscles, device=device)
-        jaw = getattr(rig, "jaw", None)
-        bulging, shape = guarded_lifts(
-            mesh,
-            bulging_thickness(rig.thickness, rig.muscles),
-            list(rig.muscles),
-            muscles,
-            rig.wrinkles,
-            wrinkles,
-            jaw,
-            size,
-        )  # the model's guarded h and profiles (docs/RIG.md §14)
         depth = np.array([w.depth for w in rig.wrinkles], dtype=np.float64)
         entry_vertex = np.repeat(np.arange(vertex_count), np.diff(wrinkles.offsets))
         profile = sp.csr_matrix(
