@@ -7,8 +7,9 @@ Rows (seconds, wall, on the CPU):
 - inside one process: :func:`~warpface.rigging.find_landmarks` on that head (the registration template built
   beforehand), :func:`~warpface.assets.default_rig` on the built-in face, the ICT face region, the whole ICT head
   (the skin and its 55 other shells in one mesh, as ``warpface animate --rig`` builds it for that head) and the Lee
-  Perry-Smith scan (its landmarks found), and ``rig.model(device="cpu")`` on each (the rig-time fields: tissue
-  response, fold and lift guards, the lips' seal).
+  Perry-Smith scan (its landmarks found), ``rig.model(device="cpu")`` on each (the rig-time fields: tissue
+  response, fold and lift guards, the lips' seal), and then the solver's operators of the same rig, which ``fit`` and
+  ``track --solve`` build beside the model (they read the same rig-time fields).
 
 The peer is the same measurement of ``--before TREE`` (a checkout of an earlier commit, e.g. ``git worktree add
 /tmp/before <commit>``), run in alternation with this tree, ``--rounds`` times each, medians reported with the
@@ -47,6 +48,14 @@ def measure(tree: Path) -> dict[str, float]:
     from warpface.mesh import FaceMesh, load_obj
     from warpface.rigging import find_landmarks
     from warpface.rigging.template import template
+    from warpface.solve.local_model import RigOperators
+
+    try:
+        from warpface.expression.rig_fields import forget_rig_fields
+    except ImportError:  # a tree from before the fields were shared: nothing kept
+
+        def forget_rig_fields():
+            return None
 
     template()
     rows: dict[str, float] = {}
@@ -67,16 +76,22 @@ def measure(tree: Path) -> dict[str, float]:
         started = time.perf_counter()
         rig = default_rig(mesh, landmarks, device="cpu")
         rows[f"default_rig, {name}"] = time.perf_counter() - started
+        forget_rig_fields()  # the warm-up's built-in rig computed afresh too
         started = time.perf_counter()
         rig.model(device="cpu")
         rows[f"model build, {name}"] = time.perf_counter() - started
+        started = time.perf_counter()
+        RigOperators.from_rig(rig, device="cpu")  # what `fit` and `track --solve` build beside the model
+        rows[f"solver operators after the model, {name}"] = time.perf_counter() - started
     return rows
 
 
 def _environment(tree: Path) -> dict[str, str]:
     from warpface.data import shared_data_path
 
-    return {**os.environ, "PYTHONPATH": str(tree), "WARPFACE_SHARED_DATA": str(shared_data_path())}
+    environment = {**os.environ, "PYTHONPATH": str(tree), "WARPFACE_SHARED_DATA": str(shared_data_path())}
+    environment["WARPFACE_CACHE"] = "off"  # the rig-time fields computed each round, not read from the last one's
+    return environment
 
 
 def _round(tree: Path, scratch: Path) -> dict[str, float]:

@@ -5,6 +5,9 @@ from __future__ import annotations
 import os
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+# Every test computes its rigs' fields (and never reads or fills the user's cache folder); the cache's own tests
+# point it at a temporary folder.
+os.environ["WARPFACE_CACHE"] = "off"
 
 import numpy as np
 import pytest

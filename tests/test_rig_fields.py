@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from helpers import small_face_rig
 
+from warpface.expression import fields_cache
 from warpface.expression import rig_fields as fields_module
 from warpface.expression.fold_guard import face_size
 from warpface.expression.lids import bulging_thickness
@@ -120,3 +121,99 @@ def test_the_process_keeps_the_last_fields_only(computed):
     assert len(computed) == 3
     _fields(rigs[0])  # the oldest was let go
     assert len(computed) == 4
+
+
+# ---------------------------------------------------------------------------------------------- on disk
+
+
+@pytest.fixture
+def folder(tmp_path, monkeypatch, computed):
+    """The cache pointed at a temporary folder: its ``rig_fields`` subfolder."""
+    monkeypatch.setenv("WARPFACE_CACHE", str(tmp_path))
+    return tmp_path / "rig_fields"
+
+
+def _forget(monkeypatch):
+    """Empty the process's kept fields, as a new process starts."""
+    monkeypatch.setattr(fields_module, "_KEPT", type(fields_module._KEPT)())
+
+
+def test_a_later_process_reads_the_fields_from_disk_bit_for_bit(folder, computed, monkeypatch):
+    rig = _tissue_rig()
+    first = rig.model(device="cpu")
+    assert len(computed) == 1 and len(list(folder.glob("*.npz"))) == 1
+    _forget(monkeypatch)
+    again = rig.model(device="cpu")
+    assert len(computed) == 1  # read, not computed
+    controls = np.random.default_rng(1).uniform(0.0, 0.2, size=(3, len(first.control_names)))
+    np.testing.assert_array_equal(again.evaluate(controls), first.evaluate(controls))
+    cached, fresh = _fields(rig), fields_module._computed(*computed[0])
+    np.testing.assert_array_equal(cached.weights.weight, fresh.weights.weight)
+    np.testing.assert_array_equal(cached.faded, fresh.faded)
+    assert not cached.weights.weight.flags.writeable
+
+
+@pytest.mark.parametrize("damage", ["truncated", "other shapes", "not a zip"])
+def test_a_damaged_file_is_computed_again_and_replaced(folder, computed, monkeypatch, damage):
+    rig = _tissue_rig()
+    fields = _fields(rig)
+    (path,) = folder.glob("*.npz")
+    if damage == "truncated":
+        path.write_bytes(path.read_bytes()[:200])
+    elif damage == "other shapes":  # a whole file whose arrays do not fit this rig
+        arrays = fields_module._arrays(fields)
+        np.savez(path, **{**arrays, "offsets": arrays["offsets"][:-1]})
+    else:
+        path.write_text("not numpy")
+    _forget(monkeypatch)
+    again = _fields(rig)
+    assert len(computed) == 2
+    np.testing.assert_array_equal(again.weights.weight, fields.weights.weight)
+    _forget(monkeypatch)
+    _fields(rig)
+    assert len(computed) == 2  # the replaced file reads
+
+
+def test_other_code_never_reads_the_fields(folder, computed, monkeypatch):
+    rig = _tissue_rig()
+    _fields(rig)
+    _forget(monkeypatch)
+    monkeypatch.setattr(fields_cache, "code_digest", lambda: "another version of warpface")
+    _fields(rig)
+    assert len(computed) == 2 and len(list(folder.glob("*.npz"))) == 2
+
+
+def test_off_or_an_unwritable_folder_only_costs_the_time(tmp_path, computed, monkeypatch):
+    rig = _tissue_rig()
+    monkeypatch.setenv("WARPFACE_CACHE", "off")
+    assert fields_cache.cache_folder() is None
+    _fields(rig)
+    blocked = tmp_path / "blocked"
+    blocked.write_text("a file where the cache folder would be")
+    monkeypatch.setenv("WARPFACE_CACHE", str(blocked))
+    _forget(monkeypatch)
+    fields = _fields(rig)
+    assert len(computed) == 2 and np.any(fields.weights.weight != 0.0)
+    assert not any(tmp_path.rglob("*.npz"))
+
+
+def test_the_folder_keeps_the_newest_files(folder, computed, monkeypatch):
+    monkeypatch.setattr(fields_cache, "KEPT_FILES", 2)
+    rigs = [replace(_tissue_rig(), thickness=_tissue_rig().thickness * (1.0 + 0.01 * i)) for i in range(3)]
+    for rig in rigs:
+        _fields(rig)
+    assert len(list(folder.glob("*.npz"))) == 2
+    _forget(monkeypatch)
+    _fields(rigs[2])
+    assert len(computed) == 3  # the newest was kept
+    _fields(rigs[0])
+    assert len(computed) == 4  # the oldest was removed
+
+
+def test_the_default_folder_follows_xdg(monkeypatch, tmp_path):
+    monkeypatch.delenv("WARPFACE_CACHE", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert fields_cache.cache_folder() == tmp_path / "warpface" / "rig_fields"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    monkeypatch.setenv("HOME", str(tmp_path))
+    assert fields_cache.cache_folder() == tmp_path / ".cache" / "warpface" / "rig_fields"

@@ -10,7 +10,8 @@ head paid it twice).
 They are known by a digest of everything they are computed from — the rest mesh's points, triangles and degenerate
 triangles, the muscles, wrinkles, thickness and jaw, the face's size and the device's kind — so two rigs that hold the
 same data share them, and a rig changed in any number is computed afresh. The last :data:`KEPT` are kept in the
-process; their arrays are read-only, as both readers only copy them.
+process, and every rig's on disk (:mod:`~warpface.expression.fields_cache`: a later process reads them instead of
+computing them again); their arrays are read-only, as both readers only copy them.
 """
 
 from __future__ import annotations
@@ -24,13 +25,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validate import as_device
+from .fields_cache import read_fields, write_fields
 from .lids import bulging_thickness
 from .lift_guard import guarded_lifts
 from .muscles import MuscleWeights
 from .tissue import skin_muscle_weights
 from .wrinkles import WrinkleShapes, skin_wrinkle_shapes
 
-__all__ = ["RigFields", "rig_fields", "KEPT"]
+__all__ = ["RigFields", "rig_fields", "forget_rig_fields", "KEPT"]
 
 KEPT = 2
 """How many rigs' fields the process keeps (a whole head's are ~20 MB)."""
@@ -67,13 +69,25 @@ def rig_fields(mesh, muscles, wrinkles, thickness: np.ndarray, jaw, size: float,
         if fields is not None:
             _KEPT.move_to_end(key)
             return fields
-    fields = _computed(mesh, muscles, wrinkles, thickness, jaw, float(size), device)
+    counts = (mesh.vertex_count, len(muscles), len(wrinkles))
+    stored = read_fields(key, counts)
+    if stored is not None:
+        fields = _from_arrays(stored)
+    else:
+        fields = _computed(mesh, muscles, wrinkles, thickness, jaw, float(size), device)
+        write_fields(key, _arrays(fields))
     with _LOCK:  # two threads computing the same rig at once both get correct fields; the later one is kept
         _KEPT[key] = fields
         _KEPT.move_to_end(key)
         while len(_KEPT) > KEPT:
             _KEPT.popitem(last=False)
     return fields
+
+
+def forget_rig_fields() -> None:
+    """Let go of the fields the process keeps (the next :func:`rig_fields` of any rig reads or computes them)."""
+    with _LOCK:
+        _KEPT.clear()
 
 
 def _computed(mesh, muscles, wrinkles, thickness, jaw, size, device) -> RigFields:
@@ -88,6 +102,33 @@ def _computed(mesh, muscles, wrinkles, thickness, jaw, size, device) -> RigField
     bulging, faded = np.array(bulging), np.array(faded)
     bulging.flags.writeable = faded.flags.writeable = False
     return RigFields(weights, shapes, bulging, faded)
+
+
+def _arrays(fields: RigFields) -> dict[str, np.ndarray]:
+    """The fields as the named arrays of a cache file (:data:`~warpface.expression.fields_cache.ARRAY_NAMES`)."""
+    weights, shapes = fields.weights, fields.shapes
+    return {
+        "offsets": weights.offsets,
+        "muscle": weights.muscle,
+        "weight": weights.weight,
+        "shape_offsets": shapes.offsets,
+        "wrinkle": shapes.wrinkle,
+        "shape": shapes.shape,
+        "bulging": fields.bulging,
+        "faded": fields.faded,
+    }
+
+
+def _from_arrays(arrays: dict[str, np.ndarray]) -> RigFields:
+    """:func:`_arrays` undone, each array read-only."""
+    for array in arrays.values():
+        array.flags.writeable = False
+    return RigFields(
+        MuscleWeights(arrays["offsets"], arrays["muscle"], arrays["weight"]),
+        WrinkleShapes(arrays["shape_offsets"], arrays["wrinkle"], arrays["shape"]),
+        arrays["bulging"],
+        arrays["faded"],
+    )
 
 
 def _digest(mesh, muscles, wrinkles, thickness, jaw, size, device) -> str:
