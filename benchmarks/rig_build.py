@@ -9,7 +9,9 @@ Rows (seconds, wall, on the CPU):
   (the skin and its 55 other shells in one mesh, as ``warpface animate --rig`` builds it for that head) and the Lee
   Perry-Smith scan (its landmarks found), ``rig.model(device="cpu")`` on each (the rig-time fields: tissue
   response, fold and lift guards, the lips' seal), and then the solver's operators of the same rig, which ``fit`` and
-  ``track --solve`` build beside the model (they read the same rig-time fields).
+  ``track --solve`` build beside the model (they read the same rig-time fields); on a tree with the fields' cache, the
+  whole head's model once more in a fresh process's place, its fields read from a cache folder (the peer has no such
+  row).
 
 The peer is the same measurement of ``--before TREE`` (a checkout of an earlier commit, e.g. ``git worktree add
 /tmp/before <commit>``), run in alternation with this tree, ``--rounds`` times each, medians reported with the
@@ -35,6 +37,8 @@ from ._timing import machine_info, print_table, write_results
 
 ROOT = Path(__file__).resolve().parent.parent
 HEAD = ("ict_facekit", "original", "generic_neutral_mesh.obj")
+PEERS = {"model build, whole ICT head, fields from the cache": "model build, whole ICT head"}
+"""Rows the tree before has no form of, each measured against another row of this tree in the same run."""
 
 
 def measure(tree: Path) -> dict[str, float]:
@@ -51,8 +55,10 @@ def measure(tree: Path) -> dict[str, float]:
     from warpface.solve.local_model import RigOperators
 
     try:
+        from warpface.expression import fields_cache as fields_cached
         from warpface.expression.rig_fields import forget_rig_fields
-    except ImportError:  # a tree from before the fields were shared: nothing kept
+    except ImportError:  # a tree from before the fields were shared: nothing kept, no cache
+        fields_cached = None
 
         def forget_rig_fields():
             return None
@@ -83,6 +89,17 @@ def measure(tree: Path) -> dict[str, float]:
         started = time.perf_counter()
         RigOperators.from_rig(rig, device="cpu")  # what `fit` and `track --solve` build beside the model
         rows[f"solver operators after the model, {name}"] = time.perf_counter() - started
+    if fields_cached is not None:  # a later command on the whole head: its fields read from the cache folder
+        with tempfile.TemporaryDirectory() as folder:
+            os.environ["WARPFACE_CACHE"] = folder
+            rig = default_rig(faces[2][1], faces[2][2], device="cpu")
+            forget_rig_fields()
+            rig.model(device="cpu")  # computed and written
+            forget_rig_fields()
+            started = time.perf_counter()
+            rig.model(device="cpu")
+            rows["model build, whole ICT head, fields from the cache"] = time.perf_counter() - started
+            os.environ["WARPFACE_CACHE"] = "off"
     return rows
 
 
@@ -142,8 +159,8 @@ def main() -> None:
                     samples[side].setdefault(row, []).append(seconds)
     rows = [
         {
-            "row": row,
-            "before": statistics.median(samples["before"][row]),
+            "row": row if row in samples["before"] else f"{row} (peer: {PEERS[row]}, this tree)",
+            "before": statistics.median(samples["before"].get(row) or samples["after"][PEERS[row]]),
             "after": statistics.median(samples["after"][row]),
         }
         for row in samples["after"]
