@@ -29,8 +29,9 @@ __all__ = ["CACHE_ENV", "KEPT_FILES", "ARRAY_NAMES", "cache_folder", "read_field
 
 CACHE_ENV = "WARPFACE_CACHE"
 """The environment variable naming the cache folder (``off``: no cache)."""
-KEPT_FILES = 16
-"""How many rigs' fields the folder keeps (a whole head's are ~10–20 MB): the oldest others are removed."""
+KEPT_FILES = 8
+"""How many rigs' fields the folder keeps (a whole head's are ~25 MB, the built-in face's ~5 MB): the oldest others are
+removed."""
 _OFF = ("off", "0", "no", "false", "none")
 ARRAY_NAMES = ("offsets", "muscle", "weight", "shape_offsets", "wrinkle", "shape", "bulging", "faded")
 """The arrays of one rig's fields in a file: the muscle weights' CSR (``offsets``, ``muscle``, ``weight``), the wrinkle
