@@ -35,7 +35,7 @@ from .wrinkles import WrinkleShapes, skin_wrinkle_shapes
 __all__ = ["RigFields", "rig_fields", "forget_rig_fields", "KEPT"]
 
 KEPT = 2
-"""How many rigs' fields the process keeps (a whole head's are ~20 MB)."""
+"""How many rigs' fields the process keeps (a whole head's are ~25 MB)."""
 
 
 @dataclass(frozen=True)
