@@ -210,10 +210,17 @@ def test_the_folder_keeps_the_newest_files(folder, computed, monkeypatch):
     assert len(computed) == 4  # the oldest was removed
 
 
-def test_the_default_folder_follows_xdg(monkeypatch, tmp_path):
+def test_the_default_folder_follows_xdg_then_home_and_without_a_home_there_is_none(monkeypatch, tmp_path):
     monkeypatch.delenv("WARPFACE_CACHE", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     assert fields_cache.cache_folder() == tmp_path / "warpface" / "rig_fields"
     monkeypatch.delenv("XDG_CACHE_HOME")
     monkeypatch.setenv("HOME", str(tmp_path))
     assert fields_cache.cache_folder() == tmp_path / ".cache" / "warpface" / "rig_fields"
+    monkeypatch.delenv("HOME")
+
+    def homeless():
+        raise RuntimeError("Could not determine home directory.")
+
+    monkeypatch.setattr(fields_cache.Path, "home", staticmethod(homeless))
+    assert fields_cache.cache_folder() is None

@@ -44,7 +44,10 @@ def cache_folder() -> Path | None:
     if value is not None:
         return None if value.strip().lower() in _OFF or not value.strip() else Path(value).expanduser() / "rig_fields"
     base = os.environ.get("XDG_CACHE_HOME", "").strip()
-    return (Path(base) if base else Path.home() / ".cache") / "warpface" / "rig_fields"
+    try:
+        return (Path(base) if base else Path.home() / ".cache") / "warpface" / "rig_fields"
+    except (RuntimeError, KeyError):  # no home folder to be found (a bare container's user): no cache
+        return None
 
 
 @functools.cache
