@@ -1,14 +1,14 @@
 """Rig-time fields kept on disk between processes, as Warp keeps its compiled kernels.
 
 A rig's rig-time fields (:mod:`~warpface.expression.rig_fields`) take ~20 s on a whole head and ~4 s on the built-in
-face, and every command that drives a rig (``animate``, ``fit``, ``track``, ``preview``) computes them. A process
-that finds the fields of the same data, computed by the same code, in the cache folder reads them instead.
+face, and every command that evaluates a rig (``animate``, ``bake``, ``track``, ``fit``, ``batch``) computes them. A
+process that finds the fields of the same data, computed by the same code, in the cache folder reads them instead.
 
 * **Where:** the folder ``$WARPFACE_CACHE`` (``off`` turns the cache off), else ``$XDG_CACHE_HOME/warpface``, else
   ``~/.cache/warpface``; the fields go to its ``rig_fields/`` as one ``.npz`` per rig, the newest :data:`KEPT_FILES`
   kept.
 * **Key:** the fields' own digest (the rig's data and the device's kind) together with a digest of warpface's source
-  files and the NumPy and Warp versions: fields computed by other code are never read.
+  files and the warpface, NumPy and Warp versions: fields computed by other code are never read.
 * **Failures cost nothing but the time:** a folder that cannot be written, a full disk or a file that cannot be read
   back whole (another process killed while writing one only leaves a temporary file, which is not read) and the
   fields are computed as without a cache. A file is written under a temporary name and renamed when complete.
