@@ -19,11 +19,12 @@ from __future__ import annotations
 import functools
 import hashlib
 import os
-import tempfile
 import zipfile
 from pathlib import Path
 
 import numpy as np
+
+from .._files import atomic_path
 
 __all__ = ["CACHE_ENV", "KEPT_FILES", "ARRAY_NAMES", "cache_folder", "read_fields", "write_fields", "code_digest"]
 
@@ -116,24 +117,17 @@ def write_fields(key: str, arrays: dict[str, np.ndarray]) -> None:
     folder = cache_folder()
     if folder is None:
         return
-    temporary = None
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=folder, prefix=".writing-", suffix=".npz", delete=False) as handle:
-            temporary = Path(handle.name)
-            np.savez(handle, **{name: arrays[name] for name in ARRAY_NAMES})
-        os.replace(temporary, _path(folder, key))
-        temporary = None
+        with atomic_path(_path(folder, key), ".npz") as temporary:
+            np.savez(temporary, **{name: arrays[name] for name in ARRAY_NAMES})
         _prune(folder)
-    except OSError:
+    except (OSError, ValueError):  # ValueError: atomic_path's word for a folder it cannot write in
         pass
-    finally:
-        if temporary is not None:
-            temporary.unlink(missing_ok=True)
 
 
 def _prune(folder: Path) -> None:
-    """Remove all but the :data:`KEPT_FILES` newest kept files (another process may remove one first)."""
+    """Remove all but the :data:`KEPT_FILES` newest kept files (another process may remove one first; the hidden
+    temporary files of writes under way are not counted)."""
     kept = []
     for path in folder.glob("*.npz"):
         if not path.name.startswith("."):
