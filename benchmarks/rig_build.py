@@ -55,10 +55,11 @@ def measure(tree: Path) -> dict[str, float]:
     from warpface.solve.local_model import RigOperators
 
     try:
-        from warpface.expression import fields_cache as fields_cached
         from warpface.expression.rig_fields import forget_rig_fields
+
+        has_cache = True
     except ImportError:  # a tree from before the fields were shared: nothing kept, no cache
-        fields_cached = None
+        has_cache = False
 
         def forget_rig_fields():
             return None
@@ -89,7 +90,7 @@ def measure(tree: Path) -> dict[str, float]:
         started = time.perf_counter()
         RigOperators.from_rig(rig, device="cpu")  # what `fit` and `track --solve` build beside the model
         rows[f"solver operators after the model, {name}"] = time.perf_counter() - started
-    if fields_cached is not None:  # a later command on the whole head: its fields read from the cache folder
+    if has_cache:  # a later command on the whole head: its fields read from the cache folder
         with tempfile.TemporaryDirectory() as folder:
             os.environ["WARPFACE_CACHE"] = folder
             rig = default_rig(faces[2][1], faces[2][2], device="cpu")
