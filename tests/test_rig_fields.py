@@ -26,6 +26,12 @@ def _tissue_rig():
     return replace(rig, muscles=muscles)
 
 
+def _thicker_rigs(count: int) -> list:
+    """``count`` tissue rigs whose thickness differs by 1 % from one to the next (so each has fields of its own)."""
+    rig = _tissue_rig()
+    return [replace(rig, thickness=rig.thickness * (1.0 + 0.01 * i)) for i in range(count)]
+
+
 def _fields(rig):
     return rig_fields(rig.mesh, rig.muscles, rig.wrinkles, rig.thickness, rig.jaw, _size(rig), device="cpu")
 
@@ -113,7 +119,7 @@ def test_the_fields_are_read_only_and_leave_the_rig_s_own_arrays_writable(comput
 
 
 def test_the_process_keeps_the_last_fields_only(computed):
-    rigs = [replace(_tissue_rig(), thickness=_tissue_rig().thickness * (1.0 + 0.01 * i)) for i in range(3)]
+    rigs = _thicker_rigs(3)
     for rig in rigs:
         _fields(rig)
     assert len(computed) == 3 == fields_module.KEPT + 1
@@ -199,7 +205,7 @@ def test_off_or_an_unwritable_folder_only_costs_the_time(tmp_path, computed, mon
 
 def test_the_folder_keeps_the_newest_files(folder, computed, monkeypatch):
     monkeypatch.setattr(fields_cache, "KEPT_FILES", 2)
-    rigs = [replace(_tissue_rig(), thickness=_tissue_rig().thickness * (1.0 + 0.01 * i)) for i in range(3)]
+    rigs = _thicker_rigs(3)
     for rig in rigs:
         _fields(rig)
     assert len(list(folder.glob("*.npz"))) == 2
