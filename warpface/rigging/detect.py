@@ -28,6 +28,7 @@ from .align import Affine, Similarity, fit_affine, fit_similarity
 from .eye_opening import eye_openings
 from .lip_contact import mouth_contact
 from .nonrigid import NonRigidFit, SkinTarget, fit_nonrigid
+from .profile import profiled
 from .surface import HeadSurface
 from .template import Template, template
 from .units import infer_units, parse_axis, parse_units
@@ -123,6 +124,9 @@ class Registration:
     symmetry_residual: float
     affine: Affine
     """Template frame → the similarity's frame: the head's proportions (the skin is held in its inverse)."""
+    shaped: Template | None = None
+    """The template the non-rigid fit deformed: the built-in one with its nose and mouth moved to the heights the
+    skin's profile gives (:func:`~warpface.rigging.profile.profiled`); None for the rigid baseline."""
 
     def to_local(self, points: np.ndarray) -> np.ndarray:
         """Mesh coordinates (N, 3) → the frame the skin and the deformed template are held in."""
@@ -130,7 +134,7 @@ class Registration:
 
     def landmark_points(self) -> tuple[np.ndarray, np.ndarray]:
         """The carried-over landmark points and normals in the template frame, (68, 3) each."""
-        model = template()
+        model = template() if self.shaped is None else self.shaped
         if self.deformed is None:
             return model.landmark_points, model.normals[model.landmark_vertices]
         points = self.deformed.move(model.landmark_points, model.landmark_nodes)
@@ -138,10 +142,19 @@ class Registration:
 
 
 def register(
-    points, triangles, *, up=None, front=None, nonrigid: bool = True, label: str = "mesh", model: Template | None = None
+    points,
+    triangles,
+    *,
+    up=None,
+    front=None,
+    nonrigid: bool = True,
+    label: str = "mesh",
+    model: Template | None = None,
+    profile_match: bool = True,
 ) -> Registration:
     """Register the built-in face onto the skin of a head mesh (see :func:`find_landmarks` for the arguments;
-    ``model`` replaces the template, e.g. with other landmark points while they are calibrated).
+    ``model`` replaces the template, e.g. with other landmark points while they are calibrated; ``profile_match``
+    False starts the non-rigid fit from the template as it is, not moved to the skin's profile).
 
     Raises:
         ValueError: no surface (empty, a point cloud), or no face-like part.
@@ -166,19 +179,20 @@ def register(
     similar_normals = surface.skin_normals @ fit.rotation
     affine = fit_affine(model, similar, similar_normals)
     skin = _held(affine, similar, similar_normals, surface.skin_boundary)
-    deformed = None
+    deformed, shaped = None, None
     if nonrigid:
-        deformed, final = fit_nonrigid(model, skin, rounds=EARLY_ROUNDS), False
+        shaped = profiled(model, skin.points, surface.skin_faces) if profile_match else model
+        deformed, final = fit_nonrigid(shaped, skin, rounds=EARLY_ROUNDS), False
         for read in range(PASSES):
-            refined = affine_from_features(model, affine, deformed)
+            refined = affine_from_features(shaped, affine, deformed)
             if refined is None:
                 break
             affine, skin = refined, _held(refined, similar, similar_normals, surface.skin_boundary)
             final = read == PASSES - 1
-            deformed = fit_nonrigid(model, skin, rounds=None if final else EARLY_ROUNDS)
+            deformed = fit_nonrigid(shaped, skin, rounds=None if final else EARLY_ROUNDS)
         if not final:  # a re-read was refused: the last fit is made again in full
-            deformed = fit_nonrigid(model, skin)
-    return Registration(surface, fit, skin, deformed, plane_residual, affine)
+            deformed = fit_nonrigid(shaped, skin)
+    return Registration(surface, fit, skin, deformed, plane_residual, affine, shaped)
 
 
 def _held(affine: Affine, points: np.ndarray, normals: np.ndarray, boundary: np.ndarray) -> SkinTarget:
@@ -244,11 +258,42 @@ def find_landmarks(
     started = time.perf_counter()
     given_unit = parse_units(units) if units is not None else None
     registration = register(points, triangles, up=up, front=front, nonrigid=nonrigid, label=label)
-    fit, skin, surface = registration.similarity, registration.skin, registration.surface
+    fit, surface, model = registration.similarity, registration.surface, template()
     if given_unit is None:
         unit_name, meters_per_unit = infer_units(fit.scale, label)
     else:
         unit_name, meters_per_unit = units.strip().lower(), given_unit
+    indices, confidence, residual = _snapped(registration)
+    facing = fit.rotation @ model.forward
+    if not _laid_out(surface.points[indices], facing) and registration.shaped not in (None, model):
+        # the profile's heights misled the fit (docs/RIG.md §9, step 5a): the template as it is, as before
+        registration = register(points, triangles, up=up, front=front, label=label, profile_match=False)
+        indices, confidence, residual = _snapped(registration)
+    if not _laid_out(surface.points[indices], facing):  # a surface the template fits without being a face (a tube)
+        raise ValueError(
+            f"{label}: no face-like part found (the template fitted to its largest part gives landmarks that are "
+            "not laid out as a face's); pass a head or face mesh, or --up/--front if it is one"
+        )
+    return LandmarkFit(
+        indices=indices,
+        confidence=confidence,
+        units=unit_name,
+        meters_per_unit=meters_per_unit,
+        up=fit.rotation @ model.vertical,
+        front=facing,
+        left=fit.rotation @ np.array([1.0, 0.0, 0.0]),
+        eye_distance=float(fit.scale),
+        residual=residual,
+        shells=surface.shell_count,
+        inside_out=surface.inside_out,
+        seconds=time.perf_counter() - started,
+    )
+
+
+def _snapped(registration: Registration) -> tuple[np.ndarray, np.ndarray, float]:
+    """The registration's landmarks as skin vertices: (mesh vertex indices (68,), confidence (68,), the fit's mean
+    match distance [inter-ocular units])."""
+    skin, surface = registration.skin, registration.surface
     marks, mark_normals = registration.landmark_points()
     contact = mouth_contact(skin, marks)
     taken: dict[int, int] = {}
@@ -263,28 +308,14 @@ def find_landmarks(
         deformed = registration.deformed
         residual = float(np.mean(skin.tree.query(deformed.points)[0][deformed.weights > 0]))
     else:
-        residual = fit.residual
-    model = template()
-    indices = surface.skin_vertices[index].astype(np.int64)
-    front = fit.rotation @ model.forward
-    try:  # a surface the template fits without being a face (a cylinder) gives landmarks out of their order
-        check_layout(surface.points[indices], front)
+        residual = registration.similarity.residual
+    return surface.skin_vertices[index].astype(np.int64), confidence, residual
+
+
+def _laid_out(points: np.ndarray, front: np.ndarray) -> bool:
+    """Whether landmark points (68, 3) pass :func:`~warpface.landmarks.check_layout`."""
+    try:
+        check_layout(points, front)
     except RigError:
-        raise ValueError(
-            f"{label}: no face-like part found (the template fitted to its largest part gives landmarks that are "
-            "not laid out as a face's); pass a head or face mesh, or --up/--front if it is one"
-        ) from None
-    return LandmarkFit(
-        indices=indices,
-        confidence=confidence,
-        units=unit_name,
-        meters_per_unit=meters_per_unit,
-        up=fit.rotation @ model.vertical,
-        front=front,
-        left=fit.rotation @ np.array([1.0, 0.0, 0.0]),
-        eye_distance=float(fit.scale),
-        residual=residual,
-        shells=surface.shell_count,
-        inside_out=surface.inside_out,
-        seconds=time.perf_counter() - started,
-    )
+        return False
+    return True
