@@ -186,6 +186,9 @@ def calibrate(rounds: int = 3) -> np.ndarray:
         nearest = cKDTree(fitted.deformed.points).query(truth)[1]
         maps = fitted.deformed.maps[model.cell[nearest]]
         back = np.stack([np.linalg.solve(m[:3].T, t - m[3]) for m, t in zip(maps, truth)])
+        # the fit started from the template moved to the head's profile (docs/RIG.md §9, step 5a): undo that move
+        nearest_shaped = cKDTree(fitted.shaped.points).query(back)[1]
+        back -= fitted.shaped.points[nearest_shaped] - model.points[nearest_shaped]
         back = 0.5 * (back + back[np.asarray(IBUG_MIRROR)] * [-1.0, 1.0, 1.0])
         print(f"calibration round: points moved {np.abs(back - model.landmark_points).max():.4f} d at most")
         vertices = np.argmin(np.linalg.norm(model.points[None] - back[:, None], axis=2), axis=1)

@@ -99,3 +99,27 @@ def test_a_head_whose_nose_and_mouth_sit_lower_is_found_where_they_are(ict_head)
     found = find_landmarks(warped, triangles, label="broad warp 728")
     error = np.linalg.norm(warped[found.indices] - warped[truth], axis=1) * 10.0
     assert error[27:36].mean() < 3.0 and error[48:].mean() < 3.0, (error[27:36].mean(), error[48:].mean())
+
+
+@pytest.mark.slow
+def test_a_shifted_start_that_leaves_no_face_s_layout_is_found_again_from_the_template_as_it_is(ict_head, monkeypatch):
+    """Broad warp 731: the profile moves the mouth 1.1 cm down and the fit from there puts the nose base where a
+    mouth would be (no face's layout, step 7); the landmarks are found again without the shift, as before it."""
+    from benchmarks.rigging import broad_warp
+    from warpface.rigging import detect
+
+    calls = []
+    register = detect.register
+
+    def spied(*args, **kwargs):
+        calls.append(kwargs.get("profile_match", True))
+        return register(*args, **kwargs)
+
+    monkeypatch.setattr(detect, "register", spied)
+    points, triangles = ict_head
+    truth = ict_landmark_indices()
+    warped = broad_warp(points, 731)
+    found = find_landmarks(warped, triangles, label="broad warp 731")
+    error = np.linalg.norm(warped[found.indices] - warped[truth], axis=1) * 10.0
+    assert calls == [True, False]
+    assert error.mean() < 3.0 and error.max() < 10.0, (error.mean(), error.max())

@@ -3,14 +3,16 @@
 Pipeline (docs/RIG.md, "Automatic landmarks"): split shells and keep the skin
 (:class:`~warpface.rigging.surface.HeadSurface`); find the symmetry plane, up, front and scale with a
 similarity fit of the template (:mod:`~warpface.rigging.align`; on a low-poly skin with its edges' midpoints too,
-points past a face-only mesh's outline charged little); deform the template onto the skin
+points past a face-only mesh's outline charged little); move the template's nose and mouth to the heights the
+skin's mid-line profile gives (:mod:`~warpface.rigging.profile`); deform the template onto the skin
 with non-rigid ICP (:mod:`~warpface.rigging.nonrigid`), four times: each time after the first from the head's
 proportions as the previous fit's feature landmarks give them (:func:`affine_from_features`, :data:`PASSES`);
 move the mouth onto the ends of a closed mouth's lip contact where it has one (:mod:`~warpface.rigging.lip_contact`)
 and the eyes onto the outline of an open eye's socket, the brows with them (:mod:`~warpface.rigging.eye_opening`);
 give every template landmark the nearest skin vertex that faces the same way (an eye landmark carried off the skin:
 the one across its normal, :func:`snap_to_skin`); refuse landmarks not laid out as a face's
-(:func:`~warpface.landmarks.check_layout`). The unit follows from the fitted eye distance
+(:func:`~warpface.landmarks.check_layout`; after a start moved to the profile, once the template as it is has
+given none either). The unit follows from the fitted eye distance
 (:mod:`~warpface.rigging.units`).
 """
 
@@ -265,7 +267,11 @@ def find_landmarks(
         unit_name, meters_per_unit = units.strip().lower(), given_unit
     indices, confidence, residual = _snapped(registration)
     facing = fit.rotation @ model.forward
-    if not _laid_out(surface.points[indices], facing) and registration.shaped not in (None, model):
+    if (
+        not _laid_out(surface.points[indices], facing)
+        and registration.shaped is not None
+        and registration.shaped is not model
+    ):
         # the profile's heights misled the fit (docs/RIG.md §9, step 5a): the template as it is, as before
         registration = register(points, triangles, up=up, front=front, label=label, profile_match=False)
         indices, confidence, residual = _snapped(registration)
