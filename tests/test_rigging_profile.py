@@ -123,3 +123,10 @@ def test_a_shifted_start_that_leaves_no_face_s_layout_is_found_again_from_the_te
     error = np.linalg.norm(warped[found.indices] - warped[truth], axis=1) * 10.0
     assert calls == [True, False]
     assert error.mean() < 3.0 and error.max() < 10.0, (error.mean(), error.max())
+
+
+def test_a_profile_out_of_reach_gives_no_match():
+    """A skin profile shorter than the template's and offset past the reach: no path, an infinite cost, NaN heights."""
+    template_depth = np.linspace(0.0, 1.0, 50)
+    matched, cost = profile.profile_heights(template_depth, np.zeros(5), offset=10_000)
+    assert np.isinf(cost) and np.isnan(matched).all()

@@ -1,10 +1,10 @@
-"""The face's mid-line profile: where along the head's height the template's nose, mouth and chin lie on the skin.
+"""The face's mid-line profile: at which heights the head's nose and mouth lie, against the template's.
 
 Both surfaces are in the template's frame (x across, y up, z front, inter-ocular units) after the similarity and
 affine fits, so their mirror planes are x = 0. Each is cut by that plane; the frontmost depth at every height is the
 profile, ``z(y)``. The template's profile is matched to the skin's by dynamic time warping on the profile's slope angle
-and depth: a monotone map from the template's heights to the skin's, which the non-rigid fit then starts from
-(docs/RIG.md §9, step 5a).
+and depth: a monotone map from the template's heights to the skin's. The template's nose and mouth are moved to the
+heights it gives them, and the non-rigid fit starts from there (docs/RIG.md §9, step 5a).
 """
 
 from __future__ import annotations
@@ -73,11 +73,12 @@ def _slope_angles(depth: np.ndarray) -> np.ndarray:
     return np.arctan(np.gradient(smooth, STEP))
 
 
-def profile_heights(template_depth: np.ndarray, skin_depth: np.ndarray, offset: int) -> np.ndarray:
+def profile_heights(template_depth: np.ndarray, skin_depth: np.ndarray, offset: int) -> tuple[np.ndarray, float]:
     """For each template height (index ``i`` of ``template_depth``, (N,)), the skin height index it matches in
     ``skin_depth`` (M,), where skin index ``i + offset`` is the same height: a monotone dynamic-time-warping path of
     steps (1, 1), (1, 2) and (2, 1), within :data:`REACH`, free to start and end anywhere in it. Both profiles are
-    complete (no NaN). Returns (N,) fractional skin indices and the path's mean cost per template height."""
+    complete (no NaN). Returns (N,) fractional skin indices and the path's mean cost per template height (NaN
+    indices and an infinite cost when no path stays within reach)."""
     n, m = len(template_depth), len(skin_depth)
     cost = (_slope_angles(template_depth)[:, None] - _slope_angles(skin_depth)[None]) ** 2
     cost += DEPTH_WEIGHT * (template_depth[:, None] - skin_depth[None]) ** 2
@@ -97,6 +98,8 @@ def profile_heights(template_depth: np.ndarray, skin_depth: np.ndarray, offset: 
         total[i] = cost[i] + options[move[i], np.arange(m)]
     matched = np.empty(n)
     j = int(np.argmin(total[-1]))
+    if not np.isfinite(total[-1, j]):
+        return np.full(n, np.nan), np.inf
     cost = float(total[-1, j] / n)
     i = n - 1
     while i > 0:
