@@ -267,15 +267,13 @@ def find_landmarks(
         unit_name, meters_per_unit = units.strip().lower(), given_unit
     indices, confidence, residual = _snapped(registration)
     facing = fit.rotation @ model.forward
-    if (
-        not _laid_out(surface.points[indices], facing)
-        and registration.shaped is not None
-        and registration.shaped is not model
-    ):
+    laid_out = _laid_out(surface.points[indices], facing)
+    if not laid_out and registration.shaped is not None and registration.shaped is not model:
         # the profile's heights misled the fit (docs/RIG.md §9, step 5a): the template as it is, as before
         registration = register(points, triangles, up=up, front=front, label=label, profile_match=False)
         indices, confidence, residual = _snapped(registration)
-    if not _laid_out(surface.points[indices], facing):  # a surface the template fits without being a face (a tube)
+        laid_out = _laid_out(surface.points[indices], facing)
+    if not laid_out:  # a surface the template fits without being a face (a tube) gives landmarks out of their order
         raise ValueError(
             f"{label}: no face-like part found (the template fitted to its largest part gives landmarks that are "
             "not laid out as a face's); pass a head or face mesh, or --up/--front if it is one"
