@@ -14,6 +14,8 @@ from warpface.geometry import (
     area_weighted_vertex_normals,
     closest_point_on_triangle,
     closest_points,
+    smooth_ramp,
+    smoothstep,
     triangle_areas,
     triangle_corners,
     triangle_normals,
@@ -198,3 +200,30 @@ def test_vertex_shells_join_exactly_the_vertices_a_path_of_edges_joins():
         for u in range(count + 1):
             for v in range(count + 1):
                 assert (shells[u] == shells[v]) == (find(u) == find(v))
+
+
+@wp.kernel
+def _smoothstep_f32(e0: float, e1: float, x: wp.array(dtype=float), out: wp.array(dtype=float)):
+    i = wp.tid()
+    out[i] = smoothstep(e0, e1, x[i])
+
+
+@pytest.mark.parametrize("edges", [(-0.3, 0.7), (0.5, -0.25)])
+def test_the_array_ramp_is_the_warp_smoothstep(edges):
+    """``smooth_ramp`` over a NumPy array matches the ``@wp.func`` smoothstep (float32) and is 0 / 1 at and past its
+    edges, monotone between (rising or falling with the edges' order)."""
+    x = np.linspace(-1.0, 1.0, 401)
+    out = wp.zeros(len(x), dtype=float, device="cpu")
+    wp.launch(
+        _smoothstep_f32,
+        dim=len(x),
+        inputs=[edges[0], edges[1], wp.array(x, dtype=float, device="cpu"), out],
+        device="cpu",
+    )
+    ramp = smooth_ramp(edges[0], edges[1], x)
+    np.testing.assert_allclose(ramp, out.numpy(), atol=1e-6)
+    low, high = min(edges), max(edges)
+    assert np.all(ramp[x <= low] == (0.0 if edges[0] < edges[1] else 1.0))
+    assert np.all(ramp[x >= high] == (1.0 if edges[0] < edges[1] else 0.0))
+    steps = np.diff(ramp) * np.sign(edges[1] - edges[0])
+    assert np.all(steps >= 0.0)

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry.ramps import smooth_ramp
 from ..landmarks import IBUG_NAMES, INNER_LIPS, LEFT_EYE, RIGHT_EYE
 from ..mesh import FaceMesh
 
@@ -282,11 +283,6 @@ def _gauss(X, y, cx, cy, sx, sy):
     return np.exp(-0.5 * (((X - cx) / sx) ** 2 + ((y - cy) / sy) ** 2))
 
 
-def _smoothstep(edge0, edge1, v):
-    t = np.clip((v - edge0) / (edge1 - edge0), 0.0, 1.0)
-    return t * t * (3.0 - 2.0 * t)
-
-
 def _skewed_bump(v, peak, below, above):
     """A smooth bump of height 1 at ``peak`` with Gaussian widths ``below`` and ``above`` on each side."""
     width = np.where(v < peak, below, above)
@@ -329,10 +325,10 @@ def _heights(x: np.ndarray, y: np.ndarray, theta: np.ndarray) -> np.ndarray:
     eye_distance = np.where(_inside_eye(x, y), 0.0, _curve_distance(eye_curve, X, y))
     h -= 0.0032 * np.exp(-((eye_distance / 0.0026) ** 2))
     h += 0.0010 * np.exp(-(((eye_distance - 0.0035) / 0.0022) ** 2))
-    lid_span = _smoothstep(_EYE.inner[0] - 0.008, _EYE.inner[0], X) * _smoothstep(
+    lid_span = smooth_ramp(_EYE.inner[0] - 0.008, _EYE.inner[0], X) * smooth_ramp(
         _EYE.outer[0] + 0.010, _EYE.outer[0] + 0.002, X
     )
-    above = _smoothstep(cy - 0.002, cy + 0.003, y)
+    above = smooth_ramp(cy - 0.002, cy + 0.003, y)
     h -= 0.0012 * lid_span * above * np.exp(-(((eye_distance - 0.0075) / 0.0018) ** 2))  # upper-lid crease
     h -= 0.0007 * lid_span * (1.0 - above) * np.exp(-(((eye_distance - 0.0085) / 0.0025) ** 2))  # lower-lid edge
 
@@ -354,7 +350,7 @@ def _heights(x: np.ndarray, y: np.ndarray, theta: np.ndarray) -> np.ndarray:
     alar_ring = np.hypot((X - 0.0135) / 1.05, y + 0.0395)
     # Features narrower than ~1.2 lattice spacings (2 mm) alias into lumps: widths stay above that,
     # and no feature is cut off by a step.
-    h -= 0.0014 * np.exp(-(((alar_ring - 0.0068) / 0.0024) ** 2)) * _smoothstep(-0.049, -0.043, y)
+    h -= 0.0014 * np.exp(-(((alar_ring - 0.0068) / 0.0024) ** 2)) * smooth_ramp(-0.049, -0.043, y)
     h -= 0.0026 * _gauss(X, y, 0.0058, -0.0432, 0.0032, 0.0024)
 
     # Upper lip: maxillary protrusion, philtrum, vermilion.
@@ -363,7 +359,7 @@ def _heights(x: np.ndarray, y: np.ndarray, theta: np.ndarray) -> np.ndarray:
     h -= 0.0004 * _gauss(X, y, 0.0, -0.052, 0.0030, 0.006)
     line = _MOUTH.line(x)
     upper_border, lower_border = _MOUTH.vermilion(x)
-    corner_fade = _smoothstep(_MOUTH.corner[0] * 1.05, _MOUTH.corner[0] * 0.55, X)
+    corner_fade = smooth_ramp(_MOUTH.corner[0] * 1.05, _MOUTH.corner[0] * 0.55, X)
     v = (y - line) / np.maximum(upper_border - line, 0.002)  # 0 at the lip line, 1 at the upper border
     h += 0.0038 * corner_fade * _skewed_bump(v, 0.70, 0.45, 0.95) * (v > 0.0)
     v = (line - y) / np.maximum(line - lower_border, 0.002)  # 0 at the lip line, 1 at the lower border
@@ -379,7 +375,7 @@ def _heights(x: np.ndarray, y: np.ndarray, theta: np.ndarray) -> np.ndarray:
     along = rel_x * direction[0] + rel_y * direction[1]
     across = rel_x * direction[1] - rel_y * direction[0]
     span = np.exp(-(((along - 0.018) / 0.022) ** 4))
-    h += 0.0035 * span * _smoothstep(-0.002, 0.008, across) * np.exp(-np.maximum(across - 0.008, 0.0) / 0.02)
+    h += 0.0035 * span * smooth_ramp(-0.002, 0.008, across) * np.exp(-np.maximum(across - 0.008, 0.0) / 0.02)
 
     # Chin: mentolabial sulcus, then the chin boss.
     h -= 0.0036 * _gauss(X, y, 0.0, -0.0845, 0.018, 0.0045)
@@ -388,8 +384,8 @@ def _heights(x: np.ndarray, y: np.ndarray, theta: np.ndarray) -> np.ndarray:
     # Jaw line: roll the surface under along the lower outline so it ends in a rounded edge.
     _, bottom = _outline_tables()
     above_bottom = y - bottom(np.abs(theta))
-    under = _smoothstep(np.radians(75.0), np.radians(55.0), np.abs(theta))
-    h -= 0.010 * under * (1.0 - _smoothstep(0.0, 0.016, above_bottom)) ** 2
+    under = smooth_ramp(np.radians(75.0), np.radians(55.0), np.abs(theta))
+    h -= 0.010 * under * (1.0 - smooth_ramp(0.0, 0.016, above_bottom)) ** 2
     return h
 
 

@@ -32,6 +32,7 @@ from scipy.spatial import cKDTree
 
 from ..expression.fold_guard import equalized_weights, folded_triangles, unfolded_weights
 from ..expression.jaw import Jaw
+from ..geometry.ramps import smooth_ramp
 from ..mesh import FaceMesh
 from .frame import FaceFrame
 
@@ -91,11 +92,6 @@ warped ICT head: 506 folded after 100 rounds, 68 after 400, 18 after 1,500; docs
 
 _PIVOT_OFFSET = (0.35, -0.65)
 """Hinge pivot relative to the ear-level jaw points (iBUG 0/16 midpoint), (up, out) [inter-ocular units]."""
-
-
-def _smoothstep(t: np.ndarray) -> np.ndarray:
-    t = np.clip(t, 0.0, 1.0)
-    return t * t * (3.0 - 2.0 * t)
 
 
 def _jaw_line(local_landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -223,7 +219,7 @@ def _sided_by(mesh: FaceMesh, local: np.ndarray, below: np.ndarray, arcs) -> np.
     if rim is None:
         return below
     side, reach = rim
-    fade = 1.0 - _smoothstep((reach - _LIP_REACH[0]) / (_LIP_REACH[1] - _LIP_REACH[0]))
+    fade = 1.0 - smooth_ramp(_LIP_REACH[0], _LIP_REACH[1], reach)
     return below + _LIP_OFFSET * side * fade
 
 
@@ -234,7 +230,7 @@ def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.n
     knot_x, knot_y, half_width = _jaw_line(local_landmarks)
     below = np.interp(local[:, 0], knot_x, knot_y) - local[:, 1]
     mouth_x = local_landmarks[60:68, 0].mean()
-    lateral = _smoothstep((np.abs(local[:, 0] - mouth_x) - 0.55 * half_width) / (0.75 * half_width))
+    lateral = smooth_ramp(0.0, 1.0, (np.abs(local[:, 0] - mouth_x) - 0.55 * half_width) / (0.75 * half_width))
     above_ramp = _ABOVE_RAMP
     below_ramp = _BELOW_RAMP[0] + lateral * (_BELOW_RAMP[1] - _BELOW_RAMP[0])
     arcs = _lip_arcs(mesh, local, landmarks, frame)
@@ -242,8 +238,8 @@ def jaw_weights(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) -> np.n
     border = local_landmarks[4:13, :2]
     border = np.concatenate([[border[0] - (1.0, 0.0)], border, [border[-1] + (1.0, 0.0)]])
     under = np.interp(local[:, 0], border[:, 0], border[:, 1]) - local[:, 1]
-    neck = 1.0 - _smoothstep((under - _NECK_RAMP[0]) / (_NECK_RAMP[1] - _NECK_RAMP[0]))
-    weights = _smoothstep((below + above_ramp) / (above_ramp + below_ramp)) * neck
+    neck = 1.0 - smooth_ramp(_NECK_RAMP[0], _NECK_RAMP[1], under)
+    weights = smooth_ramp(-above_ramp, below_ramp, below) * neck
     free = below > -_DIFFUSION_ABOVE
     weights = _diffused(mesh, weights, _DIFFUSION * frame.scale, free=free)
     # The weights diffuse further where the reference opening would still fold the skin (docs/RIG.md §14).

@@ -23,6 +23,7 @@ from scipy.spatial import cKDTree
 from ..expression.jaw import Jaw, jaw_points
 from ..expression.lids import lid_field
 from ..expression.seal import LipSeal
+from ..geometry.ramps import smooth_ramp
 from ..mesh import FaceMesh
 from .frame import FaceFrame
 from .jaw import SLIT_GAP, lip_sided, mouth_rim_arcs, slit_faces
@@ -83,8 +84,7 @@ def lip_margin_taper(mesh: FaceMesh, frame: FaceFrame, landmarks: np.ndarray) ->
     other lip: with the lips' full 3.6 mm it pushed them through each other by up to 7.7 mm (docs/RIG.md §12)."""
     local, below, middle, half_width = contact_line(mesh, frame, landmarks)
     beyond = np.maximum(np.abs(local[:, 0] - middle[0]) - half_width, 0.0)
-    s = np.clip(np.hypot(below, beyond) / MARGIN_BAND, 0.0, 1.0)
-    return s * s * (3.0 - 2.0 * s)
+    return smooth_ramp(0.0, MARGIN_BAND, np.hypot(below, beyond))
 
 
 def _slit_pairs(mesh: FaceMesh, frame: FaceFrame, local: np.ndarray, landmarks: np.ndarray) -> list[tuple[int, int]]:

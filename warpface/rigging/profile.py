@@ -13,6 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..geometry.ramps import smooth_ramp
 from .surface import vertex_normals
 from .template import Template
 
@@ -179,8 +180,7 @@ def profiled(model: Template, skin_points: np.ndarray, skin_faces: np.ndarray) -
 
     def moved(points):
         out = points.copy()
-        side = np.clip((np.abs(points[:, 0]) - LATERAL[0]) / (LATERAL[1] - LATERAL[0]), 0.0, 1.0)
-        whole = 1.0 - side * side * (3.0 - 2.0 * side)
+        whole = 1.0 - smooth_ramp(LATERAL[0], LATERAL[1], np.abs(points[:, 0]))
         out[:, 1] += whole * np.interp(points[:, 1], heights, shifts, left=0.0, right=0.0)
         return out
 
