@@ -21,6 +21,7 @@ from warpface.rigging import (
     read_landmark_file,
 )
 from warpface.rigging.align import symmetry_plane, umeyama
+from warpface.rigging.detect import PASSES
 from warpface.rigging.units import parse_axis
 
 MENPO_TO_IBUG = np.r_[0:17, 29:34, 43:48, 34:43, 17:23, 23:29, 48:68]
@@ -91,8 +92,11 @@ def test_turned_z_up_millimetre_shuffled_head_with_an_extra_shell_gives_the_same
 
 def test_hints_pick_the_orientation_and_contradictions_are_refused(face_fit):
     face, found = face_fit
-    hinted = find_landmarks(face.points * 100.0, face.triangles, up="y", front="+z", units="cm")
+    stages = []
+    hinted = find_landmarks(face.points * 100.0, face.triangles, up="y", front="+z", units="cm", progress=stages.append)
     assert hinted.units == "cm" and hinted.up @ [0, 1, 0] > 0.99
+    fits = [f"non-rigid fit {k} of {PASSES + 1}" for k in range(1, PASSES + 2)]
+    assert stages == ["orientation", "proportions", *fits, "landmarks"]
     np.testing.assert_array_equal(hinted.indices, found.indices)
     with pytest.raises(ValueError, match="not perpendicular"):
         find_landmarks(face.points, face.triangles, up="y", front="-y")

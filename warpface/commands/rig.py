@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from pathlib import Path
 
@@ -190,6 +191,29 @@ def _unit_name(meters_per_unit: float) -> str | None:
     return None
 
 
+@contextlib.contextmanager
+def _stages(quiet: bool):
+    """A progress bar over :func:`~warpface.rigging.find_landmarks`'s stages: yields its ``progress`` callback."""
+    from tqdm import tqdm
+
+    from ..rigging.detect import REGISTRATION_STEPS
+
+    with tqdm(total=REGISTRATION_STEPS + 1, desc="landmarks", unit="stage", leave=False, disable=quiet) as bar:
+        started = []
+
+        def progress(stage: str) -> None:
+            if started:  # a stage starts when the one before it ends
+                bar.total = max(bar.total, bar.n + 2)  # a registration made again adds stages
+                bar.set_postfix_str(stage, refresh=False)
+                bar.update()
+            else:
+                bar.set_postfix_str(stage)
+            started.append(stage)
+
+        yield progress
+        bar.update(bar.total - bar.n)
+
+
 def run(args) -> int:
     import numpy as np
 
@@ -216,7 +240,8 @@ def run(args) -> int:
     label = str(args.head)
     units = args.units or (_unit_name(stage_unit) if stage_unit else None)
     if args.landmarks is None:
-        found = find_landmarks(points, triangles, up=up, front=front, units=units, label=label)
+        with _stages(quiet=args.quiet) as progress:
+            found = find_landmarks(points, triangles, up=up, front=front, units=units, label=label, progress=progress)
         landmarks, meters_per_unit, front_dir = found.indices, found.meters_per_unit, found.front
         inside_out = found.inside_out
         low = np.flatnonzero(found.confidence < 0.2)

@@ -19,6 +19,7 @@ given none either). The unit follows from the fitted eye distance
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -153,6 +154,7 @@ def register(
     label: str = "mesh",
     model: Template | None = None,
     profile_match: bool = True,
+    progress: Callable[[str], None] | None = None,
 ) -> Registration:
     """Register the built-in face onto the skin of a head mesh (see :func:`find_landmarks` for the arguments;
     ``model`` replaces the template, e.g. with other landmark points while they are calibrated; ``profile_match``
@@ -164,6 +166,8 @@ def register(
     up_hint, front_hint = parse_axis(up, "up"), parse_axis(front, "front")
     if up_hint is not None and front_hint is not None and abs(up_hint @ front_hint) > 0.5:
         raise ValueError(f"up/front: {up!r} and {front!r} are not perpendicular")
+    step = progress if progress is not None else _silent
+    step("orientation")
     surface = HeadSurface(points, triangles, label)
     skin_points = surface.points[surface.skin_vertices]
     model = template() if model is None else model
@@ -177,6 +181,7 @@ def register(
             f"{fit.residual:.2f} eye distances; mirror symmetry {plane_residual:.2f}); pass a head or face mesh, "
             "or --up/--front if it is one"
         )
+    step("proportions")
     similar = fit.inverse(skin_points)
     similar_normals = surface.skin_normals @ fit.rotation
     affine = fit_affine(model, similar, similar_normals)
@@ -184,6 +189,7 @@ def register(
     deformed, shaped = None, None
     if nonrigid:
         shaped = profiled(model, skin.points, surface.skin_faces) if profile_match else model
+        step(f"non-rigid fit 1 of {PASSES + 1}")
         deformed, final = fit_nonrigid(shaped, skin, rounds=EARLY_ROUNDS), False
         for read in range(PASSES):
             refined = affine_from_features(shaped, affine, deformed)
@@ -191,8 +197,10 @@ def register(
                 break
             affine, skin = refined, _held(refined, similar, similar_normals, surface.skin_boundary)
             final = read == PASSES - 1
+            step(f"non-rigid fit {read + 2} of {PASSES + 1}")
             deformed = fit_nonrigid(shaped, skin, rounds=None if final else EARLY_ROUNDS)
         if not final:  # a re-read was refused: the last fit is made again in full
+            step(f"non-rigid fit {PASSES + 1} of {PASSES + 1}")
             deformed = fit_nonrigid(shaped, skin)
     return Registration(surface, fit, skin, deformed, plane_residual, affine, shaped)
 
@@ -216,6 +224,12 @@ EARLY_ROUNDS = 1
 REFIT_LIMIT = 1.25
 """A feature-based affine map whose stretch against the first one (a singular value of their ratio) lies
 outside [1/1.25, 1.25] is not trusted: the re-reads stop there."""
+REGISTRATION_STEPS = 2 + PASSES + 1
+"""Stages :func:`register` reports to its ``progress`` callback: orientation, proportions and each non-rigid fit."""
+
+
+def _silent(_stage: str) -> None:
+    """No progress reported."""
 
 
 def affine_from_features(model, affine: Affine, deformed: NonRigidFit) -> Affine | None:
@@ -242,6 +256,7 @@ def find_landmarks(
     units: str | None = None,
     nonrigid: bool = True,
     label: str = "mesh",
+    progress: Callable[[str], None] | None = None,
 ) -> LandmarkFit:
     """Find the 68 iBUG landmarks of the face on a head mesh.
 
@@ -253,24 +268,31 @@ def find_landmarks(
         units: ``"m"``, ``"cm"`` or ``"mm"``; inferred from the face's size when omitted.
         nonrigid: False stops after the similarity fit (the rigid baseline of benchmarks/rigging.py).
         label: names the mesh in errors.
+        progress: called with the name of each stage as it starts (:data:`REGISTRATION_STEPS` of the registration,
+            then ``"landmarks"``; more when the registration is made again), e.g. to drive a progress bar.
 
     Raises:
         ValueError: no surface (empty, a point cloud), a size no unit explains, or no face-like part.
     """
     started = time.perf_counter()
     given_unit = parse_units(units) if units is not None else None
-    registration = register(points, triangles, up=up, front=front, nonrigid=nonrigid, label=label)
+    step = progress if progress is not None else _silent
+    registration = register(points, triangles, up=up, front=front, nonrigid=nonrigid, label=label, progress=progress)
     fit, surface, model = registration.similarity, registration.surface, template()
     if given_unit is None:
         unit_name, meters_per_unit = infer_units(fit.scale, label)
     else:
         unit_name, meters_per_unit = units.strip().lower(), given_unit
+    step("landmarks")
     indices, confidence, residual = _snapped(registration)
     facing = fit.rotation @ model.forward
     laid_out = _laid_out(surface.points[indices], facing)
     if not laid_out and registration.shaped is not None and registration.shaped is not model:
         # the profile's heights misled the fit (docs/RIG.md §9, step 5a): the template as it is, as before
-        registration = register(points, triangles, up=up, front=front, label=label, profile_match=False)
+        registration = register(
+            points, triangles, up=up, front=front, label=label, profile_match=False, progress=progress
+        )
+        step("landmarks")
         indices, confidence, residual = _snapped(registration)
         laid_out = _laid_out(surface.points[indices], facing)
     if not laid_out:  # a surface the template fits without being a face (a tube) gives landmarks out of their order
