@@ -155,10 +155,13 @@ def register(
     model: Template | None = None,
     profile_match: bool = True,
     progress: Callable[[str], None] | None = None,
+    oriented: Registration | None = None,
 ) -> Registration:
     """Register the built-in face onto the skin of a head mesh (see :func:`find_landmarks` for the arguments;
     ``model`` replaces the template, e.g. with other landmark points while they are calibrated; ``profile_match``
-    False starts the non-rigid fit from the template as it is, not moved to the skin's profile).
+    False starts the non-rigid fit from the template as it is, not moved to the skin's profile; ``oriented``, an
+    earlier registration of the same mesh and template, lends its skin surface and similarity fit, which nothing
+    after them changes).
 
     Raises:
         ValueError: no surface (empty, a point cloud), or no face-like part.
@@ -167,20 +170,13 @@ def register(
     if up_hint is not None and front_hint is not None and abs(up_hint @ front_hint) > 0.5:
         raise ValueError(f"up/front: {up!r} and {front!r} are not perpendicular")
     step = progress if progress is not None else _silent
-    step("orientation")
-    surface = HeadSurface(points, triangles, label)
-    skin_points = surface.points[surface.skin_vertices]
     model = template() if model is None else model
-    samples, sample_normals, on_edge = surface.skin_samples  # the skin's vertices, and midpoints on a low-poly skin
-    fit, plane_residual = fit_similarity(
-        model, samples, sample_normals, on_edge, up_hint=up_hint, front_hint=front_hint
-    )
-    if fit.residual > MAX_RESIDUAL or plane_residual > MAX_ASYMMETRY:
-        raise ValueError(
-            f"{label}: no face-like part found (a face template fits its largest part only to "
-            f"{fit.residual:.2f} eye distances; mirror symmetry {plane_residual:.2f}); pass a head or face mesh, "
-            "or --up/--front if it is one"
-        )
+    if oriented is not None:
+        surface, fit, plane_residual = oriented.surface, oriented.similarity, oriented.symmetry_residual
+    else:
+        step("orientation")
+        surface, fit, plane_residual = _oriented(points, triangles, model, up_hint, front_hint, label)
+    skin_points = surface.points[surface.skin_vertices]
     step("proportions")
     similar = fit.inverse(skin_points)
     similar_normals = surface.skin_normals @ fit.rotation
@@ -203,6 +199,26 @@ def register(
             step(f"non-rigid fit {PASSES + 1} of {PASSES + 1}")
             deformed = fit_nonrigid(shaped, skin)
     return Registration(surface, fit, skin, deformed, plane_residual, affine, shaped)
+
+
+def _oriented(points, triangles, model: Template, up_hint, front_hint, label: str):
+    """The head's skin surface, the template's similarity fit to it and the skin's mirror residual (steps 1–3).
+
+    Raises:
+        ValueError: no surface (empty, a point cloud), or no face-like part.
+    """
+    surface = HeadSurface(points, triangles, label)
+    samples, sample_normals, on_edge = surface.skin_samples  # the skin's vertices, and midpoints on a low-poly skin
+    fit, plane_residual = fit_similarity(
+        model, samples, sample_normals, on_edge, up_hint=up_hint, front_hint=front_hint
+    )
+    if fit.residual > MAX_RESIDUAL or plane_residual > MAX_ASYMMETRY:
+        raise ValueError(
+            f"{label}: no face-like part found (a face template fits its largest part only to "
+            f"{fit.residual:.2f} eye distances; mirror symmetry {plane_residual:.2f}); pass a head or face mesh, "
+            "or --up/--front if it is one"
+        )
+    return surface, fit, plane_residual
 
 
 def _held(affine: Affine, points: np.ndarray, normals: np.ndarray, boundary: np.ndarray) -> SkinTarget:
@@ -269,7 +285,8 @@ def find_landmarks(
         nonrigid: False stops after the similarity fit (the rigid baseline of benchmarks/rigging.py).
         label: names the mesh in errors.
         progress: called with the name of each stage as it starts (:data:`REGISTRATION_STEPS` of the registration,
-            then ``"landmarks"``; more when the registration is made again), e.g. to drive a progress bar.
+            then ``"landmarks"``; a second registration from the unmoved template (step 5a's fallback) reports
+            its stages from ``"proportions"`` on), e.g. to drive a progress bar.
 
     Raises:
         ValueError: no surface (empty, a point cloud), a size no unit explains, or no face-like part.
@@ -290,7 +307,14 @@ def find_landmarks(
     if not laid_out and registration.shaped is not None and registration.shaped is not model:
         # the profile's heights misled the fit (docs/RIG.md §9, step 5a): the template as it is, as before
         registration = register(
-            points, triangles, up=up, front=front, label=label, profile_match=False, progress=progress
+            points,
+            triangles,
+            up=up,
+            front=front,
+            label=label,
+            profile_match=False,
+            progress=progress,
+            oriented=registration,
         )
         step("landmarks")
         indices, confidence, residual = _snapped(registration)
